@@ -1,0 +1,3 @@
+//! The `terrain` command line.
+
+fn main() {}

@@ -1,0 +1,318 @@
+//! The heightmap: a georeferenced grid of f32 heights with a void mask.
+//!
+//! Grid convention (an architecture invariant, see ARCHITECTURE.md): sample `(i, j)` is column
+//! `i` (eastwards) and row `j` (northwards); row 0 is the *southern* edge. Readers flip north-up
+//! files while reading, so that index -> world is a pure affine map with positive spacing:
+//! `world = origin + (i * dx, j * dy)`. World frame: right-handed, x east, y north, z up, metres.
+
+use glam::DVec2;
+
+use crate::georef::Georef;
+
+/// A bitset over the grid marking void (no-data) samples.
+#[derive(Clone, PartialEq, Eq)]
+pub struct VoidMask {
+    width: usize,
+    height: usize,
+    bits: Vec<u64>,
+    count: usize,
+}
+
+impl std::fmt::Debug for VoidMask {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("VoidMask")
+            .field("width", &self.width)
+            .field("height", &self.height)
+            .field("count", &self.count)
+            .finish()
+    }
+}
+
+impl VoidMask {
+    /// A mask with no voids.
+    pub fn new(width: usize, height: usize) -> Self {
+        let n = width * height;
+        Self { width, height, bits: vec![0; n.div_ceil(64)], count: 0 }
+    }
+
+    /// Whether sample `(i, j)` is void. Out-of-range samples are not void.
+    #[inline]
+    pub fn get(&self, i: usize, j: usize) -> bool {
+        if i >= self.width || j >= self.height {
+            return false;
+        }
+        let k = j * self.width + i;
+        self.bits[k / 64] >> (k % 64) & 1 == 1
+    }
+
+    /// Marks or clears sample `(i, j)`.
+    #[inline]
+    pub fn set(&mut self, i: usize, j: usize, void: bool) {
+        assert!(i < self.width && j < self.height, "void mask index out of range");
+        let k = j * self.width + i;
+        let (w, b) = (k / 64, 1u64 << (k % 64));
+        let was = self.bits[w] & b != 0;
+        if void && !was {
+            self.bits[w] |= b;
+            self.count += 1;
+        } else if !void && was {
+            self.bits[w] &= !b;
+            self.count -= 1;
+        }
+    }
+
+    /// Number of void samples.
+    pub fn count(&self) -> usize {
+        self.count
+    }
+
+    /// Whether any sample is void.
+    pub fn any(&self) -> bool {
+        self.count > 0
+    }
+
+    /// Grid width in samples.
+    pub fn width(&self) -> usize {
+        self.width
+    }
+
+    /// Grid height in samples.
+    pub fn height(&self) -> usize {
+        self.height
+    }
+}
+
+/// A georeferenced grid of heights in metres.
+///
+/// Heights of void samples hold a *filled* value (see [`crate::dem::voids`]) so geometry is
+/// always finite; the [`VoidMask`] says which samples were void in the source so analysis
+/// and error measurement can exclude them.
+#[derive(Clone)]
+pub struct Heightmap {
+    width: usize,
+    height: usize,
+    data: Vec<f32>,
+    voids: VoidMask,
+    georef: Georef,
+    min: f32,
+    max: f32,
+}
+
+impl std::fmt::Debug for Heightmap {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Heightmap")
+            .field("width", &self.width)
+            .field("height", &self.height)
+            .field("min", &self.min)
+            .field("max", &self.max)
+            .field("voids", &self.voids.count())
+            .field("georef", &self.georef)
+            .finish()
+    }
+}
+
+/// Why a heightmap could not be built from its parts.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[non_exhaustive]
+pub enum HeightmapError {
+    /// Width or height is zero.
+    #[error("the grid is empty ({width} x {height} samples)")]
+    Empty {
+        /// Columns.
+        width: usize,
+        /// Rows.
+        height: usize,
+    },
+    /// `data.len()` or the mask's size does not match `width * height`.
+    #[error("{what} has {got} samples, expected {width} x {height}")]
+    SizeMismatch {
+        /// Which buffer is wrong.
+        what: &'static str,
+        /// Columns.
+        width: usize,
+        /// Rows.
+        height: usize,
+        /// What it had.
+        got: usize,
+    },
+    /// A non-void sample is NaN or infinite.
+    #[error("sample ({i}, {j}) is not finite and not marked void")]
+    NonFinite {
+        /// Column.
+        i: usize,
+        /// Row.
+        j: usize,
+    },
+    /// Every sample is void: nothing to fill from.
+    #[error("every sample is void")]
+    AllVoid,
+}
+
+impl Heightmap {
+    /// Builds a heightmap from row-major samples (row 0 = south) and a void mask.
+    ///
+    /// Void samples may hold anything (NaN included): callers fill them first with
+    /// [`crate::dem::voids::fill_voids`] or use [`Heightmap::from_samples`], which does.
+    /// Non-void samples must be finite.
+    pub fn new(
+        width: usize,
+        height: usize,
+        data: Vec<f32>,
+        voids: VoidMask,
+        georef: Georef,
+    ) -> Result<Self, HeightmapError> {
+        if width == 0 || height == 0 {
+            return Err(HeightmapError::Empty { width, height });
+        }
+        if data.len() != width * height {
+            return Err(HeightmapError::SizeMismatch { what: "data", width, height, got: data.len() });
+        }
+        if voids.width != width || voids.height != height {
+            return Err(HeightmapError::SizeMismatch {
+                what: "void mask",
+                width,
+                height,
+                got: voids.width * voids.height,
+            });
+        }
+        if voids.count() == width * height {
+            return Err(HeightmapError::AllVoid);
+        }
+        let mut min = f32::INFINITY;
+        let mut max = f32::NEG_INFINITY;
+        for (k, &z) in data.iter().enumerate() {
+            let (i, j) = (k % width, k / width);
+            if voids.get(i, j) {
+                continue;
+            }
+            if !z.is_finite() {
+                return Err(HeightmapError::NonFinite { i, j });
+            }
+            min = min.min(z);
+            max = max.max(z);
+        }
+        Ok(Self { width, height, data, voids, georef, min, max })
+    }
+
+    /// Builds a heightmap with no voids.
+    pub fn from_fn(
+        width: usize,
+        height: usize,
+        georef: Georef,
+        mut f: impl FnMut(usize, usize) -> f32,
+    ) -> Result<Self, HeightmapError> {
+        let mut data = Vec::with_capacity(width * height);
+        for j in 0..height {
+            for i in 0..width {
+                data.push(f(i, j));
+            }
+        }
+        Self::new(width, height, data, VoidMask::new(width, height), georef)
+    }
+
+    /// Columns (west to east).
+    #[inline]
+    pub fn width(&self) -> usize {
+        self.width
+    }
+
+    /// Rows (south to north).
+    #[inline]
+    pub fn height(&self) -> usize {
+        self.height
+    }
+
+    /// Row-major samples, row 0 = south.
+    #[inline]
+    pub fn data(&self) -> &[f32] {
+        &self.data
+    }
+
+    /// The void mask (samples that were no-data in the source).
+    #[inline]
+    pub fn voids(&self) -> &VoidMask {
+        &self.voids
+    }
+
+    /// Georeference and CRS.
+    #[inline]
+    pub fn georef(&self) -> &Georef {
+        &self.georef
+    }
+
+    /// Smallest height over the non-void samples.
+    #[inline]
+    pub fn min(&self) -> f32 {
+        self.min
+    }
+
+    /// Largest height over the non-void samples.
+    #[inline]
+    pub fn max(&self) -> f32 {
+        self.max
+    }
+
+    /// Sample `(i, j)`; panics out of range (use [`Heightmap::get_clamped`] at borders).
+    #[inline]
+    pub fn get(&self, i: usize, j: usize) -> f32 {
+        self.data[j * self.width + i]
+    }
+
+    /// Sample with indices clamped into the grid (edge extension).
+    #[inline]
+    pub fn get_clamped(&self, i: i64, j: i64) -> f32 {
+        let i = i.clamp(0, self.width as i64 - 1) as usize;
+        let j = j.clamp(0, self.height as i64 - 1) as usize;
+        self.get(i, j)
+    }
+
+    /// Bilinear height at fractional grid coordinates `(u, v)` (in samples), clamped to the grid.
+    pub fn sample_grid(&self, u: f64, v: f64) -> f32 {
+        let u = u.clamp(0.0, (self.width - 1) as f64);
+        let v = v.clamp(0.0, (self.height - 1) as f64);
+        let i0 = (u.floor() as usize).min(self.width.saturating_sub(2));
+        let j0 = (v.floor() as usize).min(self.height.saturating_sub(2));
+        let i1 = (i0 + 1).min(self.width - 1);
+        let j1 = (j0 + 1).min(self.height - 1);
+        let fu = (u - i0 as f64) as f32;
+        let fv = (v - j0 as f64) as f32;
+        let a = self.get(i0, j0) + (self.get(i1, j0) - self.get(i0, j0)) * fu;
+        let b = self.get(i0, j1) + (self.get(i1, j1) - self.get(i0, j1)) * fu;
+        a + (b - a) * fv
+    }
+
+    /// Bilinear height at a world position (metres, world frame), clamped to the grid.
+    pub fn sample_world(&self, p: DVec2) -> f32 {
+        let g = self.georef.world_to_grid(p);
+        self.sample_grid(g.x, g.y)
+    }
+
+    /// World position (metres, x east, y north) of sample `(i, j)`.
+    #[inline]
+    pub fn grid_to_world(&self, i: f64, j: f64) -> DVec2 {
+        self.georef.grid_to_world(glam::dvec2(i, j))
+    }
+
+    /// Grid coordinates (fractional samples) of a world position.
+    #[inline]
+    pub fn world_to_grid(&self, p: DVec2) -> DVec2 {
+        self.georef.world_to_grid(p)
+    }
+
+    /// World-space extent in metres: `(width - 1) * dx` by `(height - 1) * dy`.
+    pub fn extent_m(&self) -> DVec2 {
+        let s = self.georef.spacing_m;
+        glam::dvec2((self.width - 1) as f64 * s.x, (self.height - 1) as f64 * s.y)
+    }
+
+    /// Replaces the georeference (used when the user supplies spacing for an image DEM).
+    pub fn with_georef(mut self, georef: Georef) -> Self {
+        self.georef = georef;
+        self
+    }
+
+    /// Takes the parts apart: `(width, height, data, voids, georef)`.
+    pub fn into_parts(self) -> (usize, usize, Vec<f32>, VoidMask, Georef) {
+        (self.width, self.height, self.data, self.voids, self.georef)
+    }
+}
