@@ -1,3 +1,35 @@
-//! The `terrain` command line.
+//! The `terrain` command line: composes the engine's crates into user-facing commands.
 
-fn main() {}
+mod info;
+mod source;
+
+use clap::{Parser, Subcommand};
+
+/// Large-scale terrain: real DEMs in, measured level of detail out.
+#[derive(Debug, Parser)]
+#[command(name = "terrain", version, about)]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Debug, Subcommand)]
+enum Command {
+    /// Describe a DEM (or the embedded synthetic terrain when no file is given): size, sample
+    /// type, georeference, spacing in metres, height range and voids.
+    Info(info::InfoArgs),
+}
+
+fn main() -> std::process::ExitCode {
+    let cli = Cli::parse();
+    let result = match cli.command {
+        Command::Info(args) => info::run(&args),
+    };
+    match result {
+        Ok(()) => std::process::ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("error: {e:#}");
+            std::process::ExitCode::FAILURE
+        }
+    }
+}

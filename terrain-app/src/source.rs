@@ -1,0 +1,129 @@
+//! Where a command's terrain comes from: DEM files (one, or several tiles as a mosaic) with
+//! the reading options users need for files that lack metadata, or the embedded synthetic terrain.
+
+use std::path::PathBuf;
+
+use anyhow::{Context, bail};
+use clap::{Args, ValueEnum};
+use terrain_core::dem::{self, Dem, Format, LoadOptions, RawSampleType, RawSpec};
+
+/// Options shared by every command that reads terrain.
+#[derive(Debug, Args)]
+pub struct SourceArgs {
+    /// DEM file(s); several adjacent tiles are joined into one mosaic. None: the embedded
+    /// synthetic terrain.
+    pub dem: Vec<PathBuf>,
+    /// Format, when it cannot be detected from the file (terrain-rgb, terrarium, raw).
+    #[arg(long, value_enum)]
+    pub format: Option<FormatArg>,
+    /// No-data value, for files without a no-data tag (or to override it).
+    #[arg(long, allow_hyphen_values = true)]
+    pub nodata: Option<f64>,
+    /// Grey images and raw files: metres per raw unit.
+    #[arg(long, default_value_t = 1.0)]
+    pub vertical_scale: f64,
+    /// Grey images and raw files: metres added after scaling.
+    #[arg(long, default_value_t = 0.0, allow_hyphen_values = true)]
+    pub vertical_offset: f64,
+    /// Horizontal spacing in metres, for files without georeference (images, raw).
+    #[arg(long, default_value_t = 1.0)]
+    pub spacing: f64,
+    /// Raw files: WIDTHxHEIGHT:TYPE with TYPE one of i16, u16, f32 (little-endian, north row first).
+    #[arg(long)]
+    pub raw: Option<String>,
+}
+
+/// `--format` values.
+#[derive(Debug, Clone, Copy, ValueEnum)]
+pub enum FormatArg {
+    /// GeoTIFF.
+    Geotiff,
+    /// SRTM .hgt.
+    Hgt,
+    /// 8/16-bit grey PNG or JPEG.
+    Grey,
+    /// Mapbox Terrain-RGB PNG.
+    TerrainRgb,
+    /// Terrarium PNG.
+    Terrarium,
+    /// Headerless raw samples (needs --raw).
+    Raw,
+}
+
+impl SourceArgs {
+    /// The reading options these arguments describe.
+    pub fn load_options(&self) -> anyhow::Result<LoadOptions> {
+        let raw = self.raw.as_deref().map(parse_raw).transpose()?;
+        let format = match self.format {
+            None if raw.is_some() => Some(Format::Raw),
+            None => None,
+            Some(FormatArg::Geotiff) => Some(Format::GeoTiff),
+            Some(FormatArg::Hgt) => Some(Format::Hgt),
+            Some(FormatArg::Grey) => Some(Format::GreyImage),
+            Some(FormatArg::TerrainRgb) => Some(Format::TerrainRgb),
+            Some(FormatArg::Terrarium) => Some(Format::Terrarium),
+            Some(FormatArg::Raw) => Some(Format::Raw),
+        };
+        if matches!(format, Some(Format::Raw)) && raw.is_none() {
+            bail!("--format raw needs --raw WIDTHxHEIGHT:TYPE");
+        }
+        if !(self.spacing.is_finite() && self.spacing > 0.0) {
+            bail!("--spacing must be a positive number of metres, got {}", self.spacing);
+        }
+        if !self.vertical_scale.is_finite() || self.vertical_scale == 0.0 {
+            bail!("--vertical-scale must be finite and non-zero, got {}", self.vertical_scale);
+        }
+        Ok(LoadOptions {
+            format,
+            nodata: self.nodata,
+            vertical_scale: self.vertical_scale,
+            vertical_offset: self.vertical_offset,
+            spacing_m: self.spacing,
+            raw,
+            ..LoadOptions::default()
+        })
+    }
+
+    /// Reads the DEM(s); `None` when no file was given (the caller uses the embedded terrain).
+    pub fn load(&self) -> anyhow::Result<Option<Dem>> {
+        let options = self.load_options()?;
+        match self.dem.as_slice() {
+            [] => Ok(None),
+            [one] => Ok(Some(dem::load(one, &options)?)),
+            many => Ok(Some(
+                dem::load_mosaic(many, &options).context("could not build the mosaic")?,
+            )),
+        }
+    }
+}
+
+fn parse_raw(s: &str) -> anyhow::Result<RawSpec> {
+    let bad = || format!("--raw expects WIDTHxHEIGHT:TYPE (e.g. 1024x768:f32), got `{s}`");
+    let (dims, ty) = s.split_once(':').with_context(bad)?;
+    let (w, h) = dims.split_once(['x', 'X']).with_context(bad)?;
+    let width: u64 = w.trim().parse().with_context(bad)?;
+    let height: u64 = h.trim().parse().with_context(bad)?;
+    let sample = match ty.trim().to_ascii_lowercase().as_str() {
+        "i16" | "int16" => RawSampleType::I16,
+        "u16" | "uint16" => RawSampleType::U16,
+        "f32" | "float32" => RawSampleType::F32,
+        _ => bail!("{}; TYPE must be i16, u16 or f32", bad()),
+    };
+    Ok(RawSpec { width, height, sample })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn raw_spec_parses_and_rejects() {
+        let r = parse_raw("1024x768:f32").unwrap();
+        assert_eq!((r.width, r.height, r.sample), (1024, 768, RawSampleType::F32));
+        assert_eq!(parse_raw("3X2:i16").unwrap().sample, RawSampleType::I16);
+        for bad in ["1024x768", "axb:f32", "10x10:f64", "10:f32"] {
+            let e = parse_raw(bad).unwrap_err().to_string();
+            assert!(e.contains(bad), "{e}");
+        }
+    }
+}

@@ -1,0 +1,103 @@
+//! End-to-end tests of the `terrain` binary: `terrain info` on every real DEM in
+//! ../shared/data and on the embedded default, and clear errors on bad input.
+
+use std::path::PathBuf;
+use std::process::{Command, Output};
+
+fn data(rel: &str) -> PathBuf {
+    let root = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("..");
+    let dir = std::env::var_os("TERRAIN_DATA").map(PathBuf::from).unwrap_or(root.join("../shared/data"));
+    let p = dir.join(rel);
+    assert!(p.exists(), "test data {} is missing (set TERRAIN_DATA)", p.display());
+    p
+}
+
+fn terrain(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_terrain")).args(args).output().expect("the terrain binary runs")
+}
+
+fn info_json(args: &[&str]) -> serde_json::Value {
+    let mut all = vec!["info", "--json"];
+    all.extend_from_slice(args);
+    let out = terrain(&all);
+    assert!(out.status.success(), "terrain {all:?} failed: {}", String::from_utf8_lossy(&out.stderr));
+    serde_json::from_slice(&out.stdout).expect("info --json prints JSON")
+}
+
+#[test]
+fn info_on_the_embedded_default() {
+    let out = terrain(&["info"]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let text = String::from_utf8(out.stdout).unwrap();
+    for field in ["size", "crs", "spacing (m)", "heights", "voids", "embedded synthetic"] {
+        assert!(text.contains(field), "missing `{field}` in:\n{text}");
+    }
+    let j = info_json(&[]);
+    assert!(j["width"].as_u64().unwrap() >= 513);
+    assert_eq!(j["voids"], 0);
+    assert!(j["max_m"].as_f64().unwrap() > j["min_m"].as_f64().unwrap());
+}
+
+#[test]
+fn info_on_every_shared_dem() {
+    let cases: &[(&str, &[&str], u64, u64, Option<u64>, u64)] = &[
+        // file, extra args, width, height, epsg, voids
+        ("srtm/mt_rainier_90m.tif", &[], 1201, 1201, Some(4326), 9_033),
+        ("srtm/mt_everest_90m.tif", &[], 1201, 1201, Some(4326), 130_953),
+        ("srtm/N52E008.hgt", &[], 1201, 1201, Some(4326), 0),
+        ("lidar_prairie/dem.tif", &[], 400, 400, Some(26915), 0),
+        ("crater_lake/craterlake-elev-16bit-30m.tif", &["--nodata", "-32767"], 429, 279, Some(4326), 39_489),
+        ("big_tujunga/bigtujunga.tif", &[], 1197, 643, Some(32611), u64::MAX),
+        ("puget_sound/ps_height_1k.png", &["--vertical-scale", "0.1", "--spacing", "160"], 1025, 1025, None, 0),
+        ("puget_sound/ps_height_4k.jpg", &["--vertical-scale", "25.6", "--spacing", "40"], 4096, 4096, None, 0),
+    ];
+    for (file, extra, w, h, epsg, voids) in cases {
+        let path = data(file);
+        let mut args = vec![path.to_str().unwrap()];
+        args.extend_from_slice(extra);
+        let j = info_json(&args);
+        assert_eq!(j["width"].as_u64(), Some(*w), "{file}");
+        assert_eq!(j["height"].as_u64(), Some(*h), "{file}");
+        assert_eq!(j["epsg"].as_u64(), *epsg, "{file}");
+        if *voids != u64::MAX {
+            assert_eq!(j["voids"].as_u64(), Some(*voids), "{file}");
+        }
+        let (lo, hi) = (j["min_m"].as_f64().unwrap(), j["max_m"].as_f64().unwrap());
+        assert!(lo.is_finite() && hi.is_finite() && hi > lo, "{file}: {lo}..{hi}");
+    }
+    let ps = info_json(&[data("puget_sound/ps_height_1k.png").to_str().unwrap(), "--vertical-scale", "0.1"]);
+    assert!((ps["max_m"].as_f64().unwrap() - 4379.8).abs() < 0.05, "{}", ps["max_m"]);
+}
+
+#[test]
+fn info_on_a_mosaic_of_two_hgt_tiles() {
+    let a = data("srtm/N41E001.hgt");
+    let b = data("srtm/N42E001.hgt");
+    let j = info_json(&[a.to_str().unwrap(), b.to_str().unwrap()]);
+    assert_eq!((j["width"].as_u64(), j["height"].as_u64()), (Some(1201), Some(2401)));
+    assert!((j["min_m"].as_f64().unwrap() - -20.0).abs() < 1.0);
+    assert!((j["max_m"].as_f64().unwrap() - 3100.0).abs() < 1.0);
+}
+
+#[test]
+fn bad_input_names_the_file_and_the_problem() {
+    let dir = std::env::temp_dir().join(format!("terrain-cli-bad-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let empty = dir.join("empty.tif");
+    std::fs::write(&empty, b"").unwrap();
+    let text = dir.join("notes.txt");
+    std::fs::write(&text, b"this is not a DEM\n").unwrap();
+    let missing = dir.join("missing.hgt");
+    for (path, problem) in [(&empty, "empty"), (&text, "format"), (&missing, "No such file")] {
+        let out = terrain(&["info", path.to_str().unwrap()]);
+        assert!(!out.status.success(), "{} should fail", path.display());
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(err.contains(path.file_name().unwrap().to_str().unwrap()), "error does not name the file: {err}");
+        assert!(err.contains(problem), "error does not say `{problem}`: {err}");
+        assert!(!err.contains("panicked"), "{err}");
+    }
+    let out = terrain(&["info", "--raw", "10x10:f64", text.to_str().unwrap()]);
+    assert!(!out.status.success());
+    assert!(String::from_utf8_lossy(&out.stderr).contains("i16, u16 or f32"));
+    std::fs::remove_dir_all(&dir).ok();
+}
