@@ -43,7 +43,13 @@ pub struct InfoReport {
 
 impl InfoReport {
     /// Builds the report for a heightmap and a description of its source.
-    pub fn new(hm: &Heightmap, source: String, format: String, sample_type: String, nodata: Option<f64>) -> Self {
+    pub fn new(
+        hm: &Heightmap,
+        source: String,
+        format: String,
+        sample_type: String,
+        nodata: Option<f64>,
+    ) -> Self {
         let g: &Georef = hm.georef();
         let ne = g.grid_to_native(glam::dvec2((hm.width() - 1) as f64, (hm.height() - 1) as f64));
         let extent = hm.extent_m();
@@ -89,7 +95,10 @@ impl InfoReport {
             self.origin[0], self.origin[1]
         );
         s += &format!("corner (NE)  {:.9}, {:.9}{unit}\n", self.corner_ne[0], self.corner_ne[1]);
-        s += &format!("spacing      {:.9} x {:.9}{unit}\n", self.spacing_native[0], self.spacing_native[1]);
+        s += &format!(
+            "spacing      {:.9} x {:.9}{unit}\n",
+            self.spacing_native[0], self.spacing_native[1]
+        );
         s += &format!("spacing (m)  {:.3} x {:.3} m\n", self.spacing_m[0], self.spacing_m[1]);
         s += &format!("extent (m)   {:.1} x {:.1} m\n", self.extent_m[0], self.extent_m[1]);
         s += &format!(
@@ -113,7 +122,13 @@ pub fn run(args: &InfoArgs) -> anyhow::Result<()> {
             if args.source.dem.len() > 1 {
                 name = format!("mosaic of {} tiles starting at {name}", args.source.dem.len());
             }
-            InfoReport::new(&dem.heightmap, name, format!("{:?}", src.format), src.sample_type.clone(), src.nodata)
+            InfoReport::new(
+                &dem.heightmap,
+                name,
+                format!("{:?}", src.format),
+                src.sample_type.clone(),
+                src.nodata,
+            )
         }
         None => {
             let hm = terrain_core::synth::default_terrain();

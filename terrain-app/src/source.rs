@@ -90,9 +90,9 @@ impl SourceArgs {
         match self.dem.as_slice() {
             [] => Ok(None),
             [one] => Ok(Some(dem::load(one, &options)?)),
-            many => Ok(Some(
-                dem::load_mosaic(many, &options).context("could not build the mosaic")?,
-            )),
+            many => {
+                Ok(Some(dem::load_mosaic(many, &options).context("could not build the mosaic")?))
+            }
         }
     }
 }

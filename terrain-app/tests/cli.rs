@@ -6,21 +6,29 @@ use std::process::{Command, Output};
 
 fn data(rel: &str) -> PathBuf {
     let root = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("..");
-    let dir = std::env::var_os("TERRAIN_DATA").map(PathBuf::from).unwrap_or(root.join("../shared/data"));
+    let dir =
+        std::env::var_os("TERRAIN_DATA").map(PathBuf::from).unwrap_or(root.join("../shared/data"));
     let p = dir.join(rel);
     assert!(p.exists(), "test data {} is missing (set TERRAIN_DATA)", p.display());
     p
 }
 
 fn terrain(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_terrain")).args(args).output().expect("the terrain binary runs")
+    Command::new(env!("CARGO_BIN_EXE_terrain"))
+        .args(args)
+        .output()
+        .expect("the terrain binary runs")
 }
 
 fn info_json(args: &[&str]) -> serde_json::Value {
     let mut all = vec!["info", "--json"];
     all.extend_from_slice(args);
     let out = terrain(&all);
-    assert!(out.status.success(), "terrain {all:?} failed: {}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        out.status.success(),
+        "terrain {all:?} failed: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     serde_json::from_slice(&out.stdout).expect("info --json prints JSON")
 }
 
@@ -46,10 +54,31 @@ fn info_on_every_shared_dem() {
         ("srtm/mt_everest_90m.tif", &[], 1201, 1201, Some(4326), 130_953),
         ("srtm/N52E008.hgt", &[], 1201, 1201, Some(4326), 0),
         ("lidar_prairie/dem.tif", &[], 400, 400, Some(26915), 0),
-        ("crater_lake/craterlake-elev-16bit-30m.tif", &["--nodata", "-32767"], 429, 279, Some(4326), 39_489),
+        (
+            "crater_lake/craterlake-elev-16bit-30m.tif",
+            &["--nodata", "-32767"],
+            429,
+            279,
+            Some(4326),
+            39_489,
+        ),
         ("big_tujunga/bigtujunga.tif", &[], 1197, 643, Some(32611), u64::MAX),
-        ("puget_sound/ps_height_1k.png", &["--vertical-scale", "0.1", "--spacing", "160"], 1025, 1025, None, 0),
-        ("puget_sound/ps_height_4k.jpg", &["--vertical-scale", "25.6", "--spacing", "40"], 4096, 4096, None, 0),
+        (
+            "puget_sound/ps_height_1k.png",
+            &["--vertical-scale", "0.1", "--spacing", "160"],
+            1025,
+            1025,
+            None,
+            0,
+        ),
+        (
+            "puget_sound/ps_height_4k.jpg",
+            &["--vertical-scale", "25.6", "--spacing", "40"],
+            4096,
+            4096,
+            None,
+            0,
+        ),
     ];
     for (file, extra, w, h, epsg, voids) in cases {
         let path = data(file);
@@ -65,7 +94,11 @@ fn info_on_every_shared_dem() {
         let (lo, hi) = (j["min_m"].as_f64().unwrap(), j["max_m"].as_f64().unwrap());
         assert!(lo.is_finite() && hi.is_finite() && hi > lo, "{file}: {lo}..{hi}");
     }
-    let ps = info_json(&[data("puget_sound/ps_height_1k.png").to_str().unwrap(), "--vertical-scale", "0.1"]);
+    let ps = info_json(&[
+        data("puget_sound/ps_height_1k.png").to_str().unwrap(),
+        "--vertical-scale",
+        "0.1",
+    ]);
     assert!((ps["max_m"].as_f64().unwrap() - 4379.8).abs() < 0.05, "{}", ps["max_m"]);
 }
 
@@ -92,7 +125,10 @@ fn bad_input_names_the_file_and_the_problem() {
         let out = terrain(&["info", path.to_str().unwrap()]);
         assert!(!out.status.success(), "{} should fail", path.display());
         let err = String::from_utf8_lossy(&out.stderr);
-        assert!(err.contains(path.file_name().unwrap().to_str().unwrap()), "error does not name the file: {err}");
+        assert!(
+            err.contains(path.file_name().unwrap().to_str().unwrap()),
+            "error does not name the file: {err}"
+        );
         assert!(err.contains(problem), "error does not say `{problem}`: {err}");
         assert!(!err.contains("panicked"), "{err}");
     }

@@ -11,3 +11,5 @@
 //! and the terrain-features issue (curvature entropy); it holds no code before them.
 
 #![deny(missing_docs)]
+
+pub mod roughness;

@@ -9,8 +9,15 @@ use std::process::Command;
 use serde_json::Value;
 use terrain_tests::workspace_root;
 
-const OURS: [&str; 7] =
-    ["terrain-core", "terrain-visibility", "terrain-stream", "terrain-gpu", "terrain-app", "xtask", "terrain-tests"];
+const OURS: [&str; 7] = [
+    "terrain-core",
+    "terrain-visibility",
+    "terrain-stream",
+    "terrain-gpu",
+    "terrain-app",
+    "xtask",
+    "terrain-tests",
+];
 
 /// Normal (non-dev, non-build) dependency graph of the resolved workspace: package name -> names.
 fn dependency_graph() -> BTreeMap<String, BTreeSet<String>> {
@@ -20,7 +27,11 @@ fn dependency_graph() -> BTreeMap<String, BTreeSet<String>> {
         .current_dir(workspace_root())
         .output()
         .expect("cargo metadata runs");
-    assert!(out.status.success(), "cargo metadata failed: {}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        out.status.success(),
+        "cargo metadata failed: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     let meta: Value = serde_json::from_slice(&out.stdout).expect("cargo metadata prints JSON");
     let names: BTreeMap<&str, &str> = meta["packages"]
         .as_array()
@@ -64,9 +75,17 @@ fn ours_in(deps: &BTreeSet<String>) -> BTreeSet<&'static str> {
 fn dependencies_flow_one_way() {
     let g = dependency_graph();
     let direct = |c: &str| ours_in(&g[c]);
-    assert_eq!(direct("terrain-core"), BTreeSet::new(), "terrain-core must depend on no crate of ours");
+    assert_eq!(
+        direct("terrain-core"),
+        BTreeSet::new(),
+        "terrain-core must depend on no crate of ours"
+    );
     for mid in ["terrain-visibility", "terrain-stream", "terrain-gpu"] {
-        assert_eq!(direct(mid), BTreeSet::from(["terrain-core"]), "{mid} must depend on terrain-core only");
+        assert_eq!(
+            direct(mid),
+            BTreeSet::from(["terrain-core"]),
+            "{mid} must depend on terrain-core only"
+        );
     }
     assert_eq!(
         direct("terrain-app"),
@@ -87,7 +106,10 @@ fn only_gpu_and_app_reach_wgpu() {
     for c in ["terrain-core", "terrain-visibility", "terrain-stream"] {
         let all = closure(&g, c);
         let gpu: Vec<_> = all.iter().filter(|d| d.starts_with("wgpu") || *d == "naga").collect();
-        assert!(gpu.is_empty(), "{c} must not depend on wgpu, even transitively; it reaches {gpu:?}");
+        assert!(
+            gpu.is_empty(),
+            "{c} must not depend on wgpu, even transitively; it reaches {gpu:?}"
+        );
     }
     assert!(closure(&g, "terrain-gpu").contains("wgpu"), "terrain-gpu is the wgpu renderer");
 }
@@ -110,7 +132,11 @@ fn rust_and_wgsl_files(dir: &Path, out: &mut Vec<PathBuf>) {
 fn every_source_file_opens_with_a_doc_line() {
     let mut files = Vec::new();
     rust_and_wgsl_files(&workspace_root(), &mut files);
-    assert!(files.len() > 10, "found only {} source files: is the workspace root right?", files.len());
+    assert!(
+        files.len() > 10,
+        "found only {} source files: is the workspace root right?",
+        files.len()
+    );
     let missing: Vec<_> = files
         .iter()
         .filter(|p| {
@@ -137,5 +163,8 @@ fn no_ignored_or_should_panic_tests() {
             banned.iter().any(|b| text.contains(b))
         })
         .collect();
-    assert!(offenders.is_empty(), "ignored or should_panic tests (assert today's behaviour instead): {offenders:#?}");
+    assert!(
+        offenders.is_empty(),
+        "ignored or should_panic tests (assert today's behaviour instead): {offenders:#?}"
+    );
 }

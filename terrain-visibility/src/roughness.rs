@@ -1,0 +1,401 @@
+//! Slope and roughness: the PVPS paper's (Zhang 2021) roughness map (section 2.2.3, Eq. 5) and
+//! the roughness measures of its two comparison methods, as per-node pyramids over the quadtree.
+//!
+//! * Slope is the Horn (1981) 3x3 method, which is what ArcGIS's Slope tool computes (the paper
+//!   used ArcGIS 10.3). At the grid's border and next to voids, a missing neighbour takes the
+//!   centre sample's value, as the ArcGIS tool does.
+//! * Roughness (Eq. 5) is `1 / cos(slope)`, the ratio of surface area to projected area. It is
+//!   infinite at a vertical cliff; we clamp the slope to [`RoughnessConfig::max_slope_deg`]
+//!   (default 89°, roughness ≤ 57.3) so cliffs stay finite and still rank as the roughest.
+//! * The paper normalises roughness to 0-255 and stores it as a grey image; we normalise the
+//!   same way but keep it as `f32`, and write 8-bit PNGs only for export.
+//!
+//! Pyramids are indexed like the engine's quadtree: the root covers `root_cells`, the next
+//! power of two of cells at or above the grid's larger side, and node `(level, i, j)` covers
+//! `root_cells / 2^level` cells starting at `(i, j)` times that. A node's value is the exact
+//! mean (or min / max) over the samples it covers; for a full power-of-two grid this is the
+//! paper's "arithmetic mean of four neighbourhood pixels of the level above".
+
+use terrain_core::Heightmap;
+
+/// Settings of the roughness computation.
+#[derive(Debug, Clone, PartialEq)]
+pub struct RoughnessConfig {
+    /// Slopes are clamped to this many degrees before Eq. 5, so a vertical cliff gives a
+    /// finite roughness (1 / cos 89° ≈ 57.3). Default 89.
+    pub max_slope_deg: f64,
+}
+
+impl Default for RoughnessConfig {
+    fn default() -> Self {
+        Self { max_slope_deg: 89.0 }
+    }
+}
+
+/// Slope in degrees at every sample, by Horn's 3x3 method (row-major, row 0 = south).
+pub fn slope_degrees(hm: &Heightmap) -> Vec<f32> {
+    let (w, h) = (hm.width(), hm.height());
+    let s = hm.georef().spacing_m;
+    let voids = hm.voids();
+    let mut out = Vec::with_capacity(w * h);
+    for j in 0..h {
+        for i in 0..w {
+            let c = hm.get(i, j) as f64;
+            // z(di, dj): a neighbour's height, or the centre's when outside the grid or void.
+            let z = |di: i64, dj: i64| -> f64 {
+                let (x, y) = (i as i64 + di, j as i64 + dj);
+                if x < 0
+                    || y < 0
+                    || x >= w as i64
+                    || y >= h as i64
+                    || voids.get(x as usize, y as usize)
+                {
+                    c
+                } else {
+                    hm.get(x as usize, y as usize) as f64
+                }
+            };
+            // Horn 1981: weighted central differences, x east, y north.
+            let dzdx = ((z(1, 1) + 2.0 * z(1, 0) + z(1, -1))
+                - (z(-1, 1) + 2.0 * z(-1, 0) + z(-1, -1)))
+                / (8.0 * s.x);
+            let dzdy = ((z(-1, 1) + 2.0 * z(0, 1) + z(1, 1))
+                - (z(-1, -1) + 2.0 * z(0, -1) + z(1, -1)))
+                / (8.0 * s.y);
+            out.push(dzdx.hypot(dzdy).atan().to_degrees() as f32);
+        }
+    }
+    out
+}
+
+/// Roughness per sample, PVPS paper Eq. 5: `1 / cos(slope)`, slope clamped (see the module doc).
+pub fn roughness(hm: &Heightmap, config: &RoughnessConfig) -> Vec<f32> {
+    let max = config.max_slope_deg.clamp(0.0, 89.999);
+    slope_degrees(hm)
+        .into_iter()
+        .map(|deg| (1.0 / (deg as f64).min(max).to_radians().cos()) as f32)
+        .collect()
+}
+
+/// Normalises values to 0-255 (kept as float), as the paper does before storing its roughness
+/// image. A constant field (a plane) maps to 0 everywhere.
+pub fn normalize_255(values: &[f32]) -> Vec<f32> {
+    let (lo, hi) =
+        values.iter().fold((f32::INFINITY, f32::NEG_INFINITY), |(a, b), &v| (a.min(v), b.max(v)));
+    if !(hi > lo) {
+        return vec![0.0; values.len()];
+    }
+    let k = 255.0 / (hi - lo) as f64;
+    values.iter().map(|&v| ((v - lo) as f64 * k) as f32).collect()
+}
+
+/// How the quadtree's root covers a grid: the next power of two of cells.
+pub fn root_cells(width: usize, height: usize) -> usize {
+    (width.max(height).saturating_sub(1)).max(1).next_power_of_two()
+}
+
+/// One value per quadtree node, level 0 (the root, 1x1) to `levels - 1` (`2^(levels-1)` square).
+#[derive(Debug, Clone, PartialEq)]
+pub struct NodePyramid {
+    levels: Vec<Vec<f32>>,
+    root_cells: usize,
+}
+
+impl NodePyramid {
+    /// Number of levels (the paper: 7 for a 64x64 patch grid).
+    pub fn levels(&self) -> usize {
+        self.levels.len()
+    }
+
+    /// Nodes per side at `level`.
+    pub fn side(&self, level: usize) -> usize {
+        1 << level
+    }
+
+    /// Cells covered by the root.
+    pub fn root_cells(&self) -> usize {
+        self.root_cells
+    }
+
+    /// The value of node `(level, i, j)` (i east, j north). Nodes wholly outside the grid hold 0.
+    pub fn get(&self, level: usize, i: usize, j: usize) -> f32 {
+        self.levels[level][j * self.side(level) + i]
+    }
+
+    /// All values of one level, row-major, row 0 = south.
+    pub fn level(&self, level: usize) -> &[f32] {
+        &self.levels[level]
+    }
+}
+
+/// How a node's value is reduced from the samples it covers.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Reduce {
+    Mean,
+    Range,
+}
+
+fn build_pyramid(hm: &Heightmap, values: &[f32], levels: usize, reduce: Reduce) -> NodePyramid {
+    assert!(levels >= 1, "a pyramid has at least the root level");
+    let (w, h) = (hm.width(), hm.height());
+    let root = root_cells(w, h);
+    let finest = levels - 1;
+    let n = 1usize << finest;
+    // Per finest node: sum and count (mean) or min and max (range), over the samples
+    // [x0, x0 + c) x [y0, y0 + c) where c = root / n; the last sample row/column of the grid
+    // falls in the node that starts at or before it.
+    let c = (root / n).max(1);
+    let mut sum = vec![0.0f64; n * n];
+    let mut cnt = vec![0u64; n * n];
+    let mut lo = vec![f32::INFINITY; n * n];
+    let mut hi = vec![f32::NEG_INFINITY; n * n];
+    for j in 0..h {
+        let nj = (j / c).min(n - 1);
+        for i in 0..w {
+            if hm.voids().get(i, j) {
+                continue;
+            }
+            let k = nj * n + (i / c).min(n - 1);
+            let v = values[j * w + i];
+            sum[k] += v as f64;
+            cnt[k] += 1;
+            lo[k] = lo[k].min(v);
+            hi[k] = hi[k].max(v);
+        }
+    }
+    let mut out = vec![Vec::new(); levels];
+    let mut side = n;
+    loop {
+        let level = side.trailing_zeros() as usize;
+        out[level] = (0..side * side)
+            .map(|k| match reduce {
+                Reduce::Mean if cnt[k] > 0 => (sum[k] / cnt[k] as f64) as f32,
+                Reduce::Range if cnt[k] > 0 => hi[k] - lo[k],
+                _ => 0.0,
+            })
+            .collect();
+        if side == 1 {
+            break;
+        }
+        // Parents from their four children: sums and counts add, mins and maxes combine.
+        let half = side / 2;
+        let mut s2 = vec![0.0f64; half * half];
+        let mut c2 = vec![0u64; half * half];
+        let mut lo2 = vec![f32::INFINITY; half * half];
+        let mut hi2 = vec![f32::NEG_INFINITY; half * half];
+        for j in 0..side {
+            for i in 0..side {
+                let (k, p) = (j * side + i, (j / 2) * half + i / 2);
+                s2[p] += sum[k];
+                c2[p] += cnt[k];
+                lo2[p] = lo2[p].min(lo[k]);
+                hi2[p] = hi2[p].max(hi[k]);
+            }
+        }
+        (sum, cnt, lo, hi, side) = (s2, c2, lo2, hi2, half);
+    }
+    NodePyramid { levels: out, root_cells: root }
+}
+
+/// The PVPS paper's roughness image pyramid (method C): Eq. 5 roughness, normalised to 0-255,
+/// averaged per node. `levels` = 7 gives the paper's 64x64 patch grid at the finest level.
+pub fn roughness_pyramid(hm: &Heightmap, levels: usize, config: &RoughnessConfig) -> NodePyramid {
+    let r = normalize_255(&roughness(hm, config));
+    build_pyramid(hm, &r, levels, Reduce::Mean)
+}
+
+/// Method B's roughness (Dong et al. 2017, the PVPS paper's ref. 21): the difference between the
+/// maximum and minimum elevation inside the node, in metres. Voids are excluded.
+pub fn range_pyramid(hm: &Heightmap, levels: usize) -> NodePyramid {
+    build_pyramid(hm, hm.data(), levels, Reduce::Range)
+}
+
+/// Method A's roughness. Zhai et al. 2016 (the PVPS paper's ref. 18) is described there only as
+/// "based on quadtrees, taking terrain roughness into consideration"; its text is not part of
+/// our spec. We implement the roughness that the quadtree-tessellation literature it builds on
+/// uses, Röttger et al. 1998's `d2`: the largest vertical distance between the true heights at
+/// the node's four edge midpoints and centre and the bilinear interpolation of its four corners,
+/// divided by the node's edge length in metres (dimensionless, like a slope). Computed per node
+/// of every level; nodes wholly outside the grid hold 0.
+pub fn d2_pyramid(hm: &Heightmap, levels: usize) -> NodePyramid {
+    let root = root_cells(hm.width(), hm.height());
+    let spacing = hm.georef().spacing_m.x.min(hm.georef().spacing_m.y);
+    let z = |i: usize, j: usize| hm.get_clamped(i as i64, j as i64) as f64;
+    let mut out = Vec::with_capacity(levels);
+    for level in 0..levels {
+        let side = 1usize << level;
+        let c = (root / side).max(1);
+        let mut v = vec![0.0f32; side * side];
+        for nj in 0..side {
+            for ni in 0..side {
+                let (x0, y0) = (ni * c, nj * c);
+                if x0 >= hm.width() || y0 >= hm.height() {
+                    continue;
+                }
+                let (x1, y1) = (x0 + c, y0 + c);
+                let (xm, ym) = (x0 + c / 2, y0 + c / 2);
+                let (a, b, cc, d) = (z(x0, y0), z(x1, y0), z(x0, y1), z(x1, y1));
+                let errs = [
+                    z(xm, y0) - (a + b) / 2.0,
+                    z(xm, y1) - (cc + d) / 2.0,
+                    z(x0, ym) - (a + cc) / 2.0,
+                    z(x1, ym) - (b + d) / 2.0,
+                    z(xm, ym) - (a + b + cc + d) / 4.0,
+                ];
+                let e = errs.iter().fold(0.0f64, |m, e| m.max(e.abs()));
+                v[nj * side + ni] = (e / (c as f64 * spacing)) as f32;
+            }
+        }
+        out.push(v);
+    }
+    NodePyramid { levels: out, root_cells: root }
+}
+
+/// An 8-bit grey image of one pyramid level (values clamped to 0-255 after `scale`), north up,
+/// as the paper's Figure 8 / 10 images. Returns (side, pixels row-major north row first).
+pub fn level_to_grey(p: &NodePyramid, level: usize, scale: f32) -> (usize, Vec<u8>) {
+    let side = p.side(level);
+    let mut px = Vec::with_capacity(side * side);
+    for j in (0..side).rev() {
+        for i in 0..side {
+            px.push((p.get(level, i, j) * scale).round().clamp(0.0, 255.0) as u8);
+        }
+    }
+    (side, px)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use terrain_core::Georef;
+
+    fn grid(n: usize, spacing: f64, f: impl Fn(f64, f64) -> f64) -> Heightmap {
+        Heightmap::from_fn(n, n, Georef::local(spacing), |i, j| {
+            f(i as f64 * spacing, j as f64 * spacing) as f32
+        })
+        .unwrap()
+    }
+
+    #[test]
+    fn plane_slope_is_exact_and_roughness_is_its_secant() {
+        // z = 0.5 x + 0.25 y: slope = atan(|grad|) everywhere inside; edges too (centre fill
+        // keeps the one-sided difference at half weight, so check interior only).
+        let hm = grid(9, 10.0, |x, y| 0.5 * x + 0.25 * y);
+        let s = slope_degrees(&hm);
+        let expect = (0.5f64.hypot(0.25)).atan().to_degrees();
+        for j in 1..8 {
+            for i in 1..8 {
+                assert!(
+                    (s[j * 9 + i] as f64 - expect).abs() < 1e-4,
+                    "{} vs {expect}",
+                    s[j * 9 + i]
+                );
+            }
+        }
+        let r = roughness(&hm, &RoughnessConfig::default());
+        assert!((r[40] as f64 - 1.0 / expect.to_radians().cos()).abs() < 1e-4);
+    }
+
+    #[test]
+    fn flat_is_zero_and_cliff_is_finite() {
+        let flat = grid(17, 1.0, |_, _| 100.0);
+        assert!(slope_degrees(&flat).iter().all(|&s| s == 0.0));
+        assert!(
+            normalize_255(&roughness(&flat, &RoughnessConfig::default())).iter().all(|&r| r == 0.0)
+        );
+        let cliff = grid(17, 1.0, |x, _| if x < 8.0 { 0.0 } else { 1.0e6 });
+        let r = roughness(&cliff, &RoughnessConfig::default());
+        assert!(r.iter().all(|v| v.is_finite()));
+        let max = r.iter().cloned().fold(0.0, f32::max);
+        assert!((max as f64 - 1.0 / 89f64.to_radians().cos()).abs() < 1e-3, "{max}");
+    }
+
+    #[test]
+    fn pyramid_levels_are_means_of_their_children() {
+        // 64 x 64 samples: the root covers 64 cells and every finest node holds one sample, so
+        // each parent is exactly the paper's mean of four children.
+        let hm = grid(64, 1.0, |x, y| (x * 0.3).sin() * 5.0 + (y * 0.2).cos() * 3.0);
+        let p = roughness_pyramid(&hm, 7, &RoughnessConfig::default());
+        assert_eq!(p.levels(), 7);
+        assert_eq!(p.level(6).len(), 64 * 64);
+        for level in 0..6 {
+            for j in 0..p.side(level) {
+                for i in 0..p.side(level) {
+                    let kids = [(0, 0), (1, 0), (0, 1), (1, 1)]
+                        .map(|(a, b)| p.get(level + 1, 2 * i + a, 2 * j + b));
+                    let mean = kids.iter().sum::<f32>() / 4.0;
+                    assert!((p.get(level, i, j) - mean).abs() <= 1e-3, "level {level} ({i},{j})");
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn pyramid_nodes_are_exact_sample_means_on_odd_grids() {
+        let hm =
+            Heightmap::from_fn(100, 77, Georef::local(1.0), |i, j| ((i * 7 + j * 13) % 29) as f32)
+                .unwrap();
+        let v: Vec<f32> = hm.data().to_vec();
+        let p = build_pyramid(&hm, &v, 4, Reduce::Mean);
+        let root = root_cells(100, 77);
+        assert_eq!(root, 128);
+        for level in 0..4 {
+            let c = root >> level;
+            for nj in 0..p.side(level) {
+                for ni in 0..p.side(level) {
+                    let (mut s, mut n) = (0.0f64, 0);
+                    for j in nj * c..((nj + 1) * c).min(77) {
+                        for i in ni * c..((ni + 1) * c).min(100) {
+                            s += v[j * 100 + i] as f64;
+                            n += 1;
+                        }
+                    }
+                    let want = if n == 0 { 0.0 } else { (s / n as f64) as f32 };
+                    assert!(
+                        (p.get(level, ni, nj) - want).abs() < 1e-4,
+                        "level {level} ({ni},{nj})"
+                    );
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn method_b_is_the_height_range() {
+        let hm = grid(17, 1.0, |x, y| x + 2.0 * y);
+        let p = range_pyramid(&hm, 3);
+        assert_eq!(p.get(0, 0, 0), 16.0 + 32.0);
+        // Finest level: 4x4 nodes of 4 cells; node (0,0) covers samples 0..4 in each axis.
+        assert_eq!(p.get(2, 0, 0), 3.0 + 6.0);
+    }
+
+    #[test]
+    fn method_a_is_zero_on_planes_and_sees_a_bump() {
+        let plane = grid(17, 2.0, |x, y| 3.0 * x - y);
+        let p = d2_pyramid(&plane, 4);
+        assert!(p.level(3).iter().all(|&v| v.abs() < 1e-6));
+        let bump = Heightmap::from_fn(17, 17, Georef::local(2.0), |i, j| {
+            if (i, j) == (8, 8) { 32.0 } else { 0.0 }
+        })
+        .unwrap();
+        let p = d2_pyramid(&bump, 2);
+        // Root: centre error 32 m over a 16-cell, 32 m node.
+        assert!((p.get(0, 0, 0) - 1.0).abs() < 1e-6);
+    }
+
+    #[test]
+    fn odd_and_tiny_grids_do_not_panic() {
+        for (w, h) in [(2, 2), (3, 3), (1000, 777), (5, 40)] {
+            let hm =
+                Heightmap::from_fn(w, h, Georef::local(1.0), |i, j| (i * 3 + j) as f32).unwrap();
+            for p in [
+                roughness_pyramid(&hm, 4, &RoughnessConfig::default()),
+                range_pyramid(&hm, 4),
+                d2_pyramid(&hm, 4),
+            ] {
+                assert_eq!(p.levels(), 4);
+                assert!(p.level(3).iter().all(|v| v.is_finite()));
+            }
+        }
+    }
+}
