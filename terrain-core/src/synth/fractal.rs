@@ -369,7 +369,7 @@ struct Generator {
     valley_salt: [u64; VALLEY_OCTAVES],
 }
 
-/// Normalised amplitudes `[1, r, r², ...] / sum` (2-octave helper for the fixed small fields).
+/// Normalised amplitudes `[1, 1/2, 1/4, ...] / sum` of the fixed small fields (warp, valleys).
 const fn small_amps<const N: usize>() -> [f64; N] {
     // Persistence 1/2: 1, 1/2, 1/4, ... divided by (2 - 2^(1-N)).
     let mut a = [0.0; N];
