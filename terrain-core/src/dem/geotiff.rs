@@ -147,6 +147,32 @@ fn check_chunks(path: &Path, dec: &mut Decoder<BufReader<File>>, len: u64) -> Re
             ));
         }
     }
+    // The decoder allocates the whole image before reading chunks, so refuse files whose data
+    // cannot possibly hold the declared grid: uncompressed data must be at least w x h x bytes;
+    // compressed data cannot expand more than 4096:1 (LZW's 12-bit codes emit at most 4096
+    // bytes each; Deflate's limit is about 1032:1).
+    let (w, h) = dec.dimensions().map_err(|e| map_tiff_error(path, len, e))?;
+    let bits: u64 = dec
+        .find_tag_unsigned_vec::<u64>(Tag::BitsPerSample)
+        .ok()
+        .flatten()
+        .and_then(|v| v.first().copied())
+        .unwrap_or(1);
+    let compression: u64 = dec.find_tag_unsigned(Tag::Compression).ok().flatten().unwrap_or(1);
+    let needed = (w as u64).saturating_mul(h as u64).saturating_mul(bits) / 8;
+    let total: u64 = counts.iter().fold(0u64, |a, &c| a.saturating_add(c));
+    let capacity = if compression == 1 { total } else { total.saturating_mul(4096) };
+    if needed > capacity {
+        return Err(DemError::new(
+            path,
+            DemErrorKind::Truncated {
+                what: "TIFF image data (all strips/tiles)",
+                offset: offsets.first().copied().unwrap_or(0),
+                expected: needed,
+                got: total,
+            },
+        ));
+    }
     Ok(())
 }
 
@@ -334,12 +360,8 @@ pub(crate) fn read(path: &Path, len: u64, options: &LoadOptions) -> Result<RawGr
     let georef = match affine {
         None => Georef::local(options.spacing_m),
         Some((corner, spacing)) => {
-            if !(spacing.x.is_finite()
-                && spacing.y.is_finite()
-                && spacing.x > 0.0
-                && spacing.y > 0.0)
-                || !(corner.x.is_finite() && corner.y.is_finite())
-            {
+            let finite = spacing.is_finite() && corner.is_finite();
+            if !(finite && spacing.x > 0.0 && spacing.y > 0.0) {
                 return Err(malformed(
                     path,
                     format!(

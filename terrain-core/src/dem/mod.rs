@@ -226,7 +226,7 @@ pub(crate) fn check_size(
     if width == 0 || height == 0 {
         return Err(DemError::new(path, DemErrorKind::ZeroSize { width, height }));
     }
-    let samples = width.checked_mul(height).unwrap_or(u64::MAX);
+    let samples = width.saturating_mul(height);
     let limit = options.max_samples;
     // The grid also has to be addressable in memory as f32 on this platform.
     if samples > limit || usize::try_from(samples).map_or(true, |s| s > isize::MAX as usize / 8) {
