@@ -445,42 +445,124 @@ fn wrong_magic_and_unsupported_formats() {
     assert!(matches!(assert_err(&missing, &LoadOptions::default(), "I/O"), DemErrorKind::Io(_)));
 }
 
-/// A little-endian classic TIFF: 1 strip of int16 declaring `w x h`, with `data` bytes of strip.
-fn tiny_tiff(w: u32, h: u32, strip: &[u8]) -> Vec<u8> {
-    // (tag, type, count, value); type 3 SHORT, 4 LONG.
-    let entries: [(u16, u16, u32, u32); 9] = [
-        (256, 4, 1, w),
-        (257, 4, 1, h),
-        (258, 3, 1, 16),
-        (259, 3, 1, 1),
-        (262, 3, 1, 1),
-        (273, 4, 1, 0), // patched below: strip offset
-        (278, 4, 1, h),
-        (279, 4, 1, strip.len() as u32),
-        (339, 3, 1, 2), // SampleFormat: signed int
+/// A TIFF field for [`build_tiff`]: tag, field type (2 ASCII, 3 SHORT, 4 LONG, 12 DOUBLE),
+/// count, and the value bytes (little-endian).
+type Field = (u16, u16, u32, Vec<u8>);
+
+fn shorts(v: &[u16]) -> Vec<u8> {
+    v.iter().flat_map(|x| x.to_le_bytes()).collect()
+}
+fn doubles(v: &[f64]) -> Vec<u8> {
+    v.iter().flat_map(|x| x.to_le_bytes()).collect()
+}
+
+/// A little-endian classic TIFF with one uncompressed int16 strip declaring `w x h`, plus
+/// `extra` fields (e.g. GeoTIFF tags). Values over 4 bytes go after the IFD.
+fn build_tiff(w: u32, h: u32, strip: &[u8], extra: Vec<Field>) -> Vec<u8> {
+    let mut fields: Vec<Field> = vec![
+        (256, 4, 1, w.to_le_bytes().to_vec()),
+        (257, 4, 1, h.to_le_bytes().to_vec()),
+        (258, 3, 1, shorts(&[16])),
+        (259, 3, 1, shorts(&[1])),
+        (262, 3, 1, shorts(&[1])),
+        (273, 4, 1, vec![]), // StripOffsets: filled in below
+        (278, 4, 1, h.to_le_bytes().to_vec()),
+        (279, 4, 1, (strip.len() as u32).to_le_bytes().to_vec()),
+        (339, 3, 1, shorts(&[2])), // SampleFormat: signed integer
     ];
-    let ifd_len = 2 + entries.len() * 12 + 4;
-    let strip_off = 8 + ifd_len as u32;
-    let mut b = b"II*\0".to_vec();
-    b.extend(8u32.to_le_bytes());
-    b.extend((entries.len() as u16).to_le_bytes());
-    for (tag, ty, count, mut value) in entries {
+    fields.extend(extra);
+    fields.sort_by_key(|f| f.0);
+    let ifd_len = 2 + fields.len() * 12 + 4;
+    let mut blob_off = 8 + ifd_len;
+    let mut blobs = Vec::new();
+    let mut ifd = (fields.len() as u16).to_le_bytes().to_vec();
+    let strip_off_pos = {
+        let big: usize = fields.iter().filter(|f| f.3.len() > 4).map(|f| f.3.len()).sum();
+        (8 + ifd_len + big) as u32
+    };
+    for (tag, ty, count, mut val) in fields {
         if tag == 273 {
-            value = strip_off;
+            val = strip_off_pos.to_le_bytes().to_vec();
         }
-        b.extend(tag.to_le_bytes());
-        b.extend(ty.to_le_bytes());
-        b.extend(count.to_le_bytes());
-        if ty == 3 {
-            b.extend((value as u16).to_le_bytes());
-            b.extend([0, 0]);
+        ifd.extend(tag.to_le_bytes());
+        ifd.extend(ty.to_le_bytes());
+        ifd.extend(count.to_le_bytes());
+        if val.len() <= 4 {
+            val.resize(4, 0);
+            ifd.extend(val);
         } else {
-            b.extend(value.to_le_bytes());
+            ifd.extend((blob_off as u32).to_le_bytes());
+            blob_off += val.len();
+            blobs.extend(val);
         }
     }
-    b.extend(0u32.to_le_bytes());
+    ifd.extend(0u32.to_le_bytes());
+    let mut b = b"II*\0".to_vec();
+    b.extend(8u32.to_le_bytes());
+    b.extend(ifd);
+    b.extend(blobs);
     b.extend(strip);
     b
+}
+
+fn tiny_tiff(w: u32, h: u32, strip: &[u8]) -> Vec<u8> {
+    build_tiff(w, h, strip, vec![])
+}
+
+/// GeoTIFF georeference: PixelIsArea shifts the tiepoint by half a pixel, PixelIsPoint not;
+/// geographic vs projected from the GeoKeys; GDAL_NODATA parsed from ASCII.
+#[test]
+fn geotiff_georeference_keys() {
+    let strip: Vec<u8> = [1i16, 2, 3, 4, 5, 6].iter().flat_map(|v| v.to_le_bytes()).collect();
+    let geo = |model: u16, raster: u16, key: u16, code: u16| -> Vec<Field> {
+        vec![
+            (33550, 12, 3, doubles(&[0.5, 0.25, 0.0])),
+            (33922, 12, 6, doubles(&[0.0, 0.0, 0.0, 10.0, 50.0, 0.0])),
+            (
+                34735,
+                3,
+                16,
+                shorts(&[1, 1, 0, 3, 1024, 0, 1, model, 1025, 0, 1, raster, key, 0, 1, code]),
+            ),
+            (42113, 2, 3, b"5\0\0".to_vec()),
+        ]
+    };
+    // PixelIsPoint, geographic: the tiepoint is the centre of the NW sample.
+    let p = write_temp("point.tif", &build_tiff(3, 2, &strip, geo(2, 2, 2048, 4326)));
+    let dem = load(&p, &LoadOptions::default()).unwrap();
+    let g = dem.heightmap.georef();
+    assert_eq!(g.crs, Crs::Epsg(4326));
+    assert_eq!(g.units, AngularOrLinear::Degrees);
+    assert_eq!(g.native_origin, glam::dvec2(10.0, 49.75));
+    assert_eq!(g.native_spacing, glam::dvec2(0.5, 0.25));
+    assert_eq!(dem.source.nodata, Some(5.0));
+    // file row 1 = [4 5 6] is our row 0; the 5 is void.
+    assert!(dem.heightmap.voids().get(1, 0) && dem.heightmap.voids().count() == 1);
+    // PixelIsArea, projected: the tiepoint is the NW corner; centres are half a pixel in.
+    let p = write_temp("area.tif", &build_tiff(3, 2, &strip, geo(1, 1, 3072, 32611)));
+    let dem = load(&p, &LoadOptions::default()).unwrap();
+    let g = dem.heightmap.georef();
+    assert_eq!(g.crs, Crs::Epsg(32611));
+    assert_eq!(g.units, AngularOrLinear::Metres);
+    assert_eq!(g.native_origin, glam::dvec2(10.25, 49.625));
+    // A GeoKeyDirectory that declares more keys than it holds is malformed, naming the tag.
+    let mut bad = geo(2, 1, 2048, 4326);
+    bad[2] = (34735, 3, 8, shorts(&[1, 1, 0, 3, 1024, 0, 1, 2]));
+    let p = write_temp("badkeys.tif", &build_tiff(3, 2, &strip, bad));
+    assert_err(&p, &LoadOptions::default(), "GeoKeyDirectoryTag (34735)");
+    // A zero pixel scale is malformed.
+    let mut bad = geo(2, 1, 2048, 4326);
+    bad[0] = (33550, 12, 3, doubles(&[0.0, 0.25, 0.0]));
+    let p = write_temp("badscale.tif", &build_tiff(3, 2, &strip, bad));
+    assert_err(&p, &LoadOptions::default(), "pixel scale");
+}
+
+#[test]
+fn hgt_southern_western_name() {
+    let bytes = std::fs::read(data("srtm/N52E008.hgt")).unwrap();
+    let p = write_temp("S01W002.hgt", &bytes);
+    let dem = load(&p, &LoadOptions::default()).unwrap();
+    assert_eq!(dem.heightmap.georef().native_origin, glam::dvec2(-2.0, -1.0));
 }
 
 #[test]

@@ -124,3 +124,18 @@ pub(crate) fn read(path: &Path, len: u64, options: &LoadOptions) -> Result<RawGr
         sample_type: "int16".to_string(),
     })
 }
+
+#[cfg(test)]
+mod tests {
+    use super::parse_tile_name;
+
+    #[test]
+    fn tile_names() {
+        assert_eq!(parse_tile_name("N41E001.hgt"), Some((41, 1)));
+        assert_eq!(parse_tile_name("s09w078.SRTMGL1.hgt"), Some((-9, -78)));
+        assert_eq!(parse_tile_name("N41E01.hgt"), None);
+        assert_eq!(parse_tile_name("X41E001.hgt"), None);
+        assert_eq!(parse_tile_name("N91E001.hgt"), None);
+        assert_eq!(parse_tile_name(""), None);
+    }
+}

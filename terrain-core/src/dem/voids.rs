@@ -181,3 +181,71 @@ pub(crate) fn heightmap_error(path: &Path, e: HeightmapError) -> DemError {
     };
     DemError::new(path, kind)
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn mask_where(w: usize, h: usize, f: impl Fn(usize, usize) -> bool) -> VoidMask {
+        let mut m = VoidMask::new(w, h);
+        for j in 0..h {
+            for i in 0..w {
+                if f(i, j) {
+                    m.set(i, j, true);
+                }
+            }
+        }
+        m
+    }
+
+    #[test]
+    fn constant_field_fills_exactly_even_for_large_regions() {
+        // A 60 x 60 hole (rim of 244 + border) and a region touching the grid edge.
+        let (w, h) = (100, 80);
+        let mask = mask_where(w, h, |i, j| (20..80).contains(&i) && (10..70).contains(&j) || i < 3);
+        let mut data: Vec<f32> =
+            (0..w * h).map(|k| if mask.get(k % w, k / w) { f32::NAN } else { 7.5 }).collect();
+        fill_voids(w, h, &mut data, &mask).unwrap();
+        assert!(data.iter().all(|&z| (z - 7.5).abs() < 1e-5));
+    }
+
+    #[test]
+    fn fill_is_bounded_by_the_rim_and_meets_it() {
+        // A ramp z = i with a big hole: the fill stays within the rim's range and next to the
+        // rim it is close to the neighbouring samples (no step at the border).
+        let (w, h) = (200, 200);
+        let mask = mask_where(w, h, |i, j| (50..150).contains(&i) && (50..150).contains(&j));
+        let mut data: Vec<f32> = (0..w * h)
+            .map(|k| if mask.get(k % w, k / w) { f32::NAN } else { (k % w) as f32 })
+            .collect();
+        fill_voids(w, h, &mut data, &mask).unwrap();
+        for j in 50..150 {
+            for i in 50..150 {
+                let z = data[j * w + i];
+                assert!((49.0..=150.0).contains(&z), "({i}, {j}) = {z}");
+            }
+            // West edge of the hole: neighbours are 49; the fill next to them is close.
+            assert!((data[j * w + 50] - 49.0).abs() < 15.0, "row {j}: {}", data[j * w + 50]);
+        }
+    }
+
+    #[test]
+    fn all_void_and_size_errors() {
+        let mask = mask_where(2, 2, |_, _| true);
+        let mut d = vec![0.0; 4];
+        assert_eq!(fill_voids(2, 2, &mut d, &mask), Err(HeightmapError::AllVoid));
+        let mut short = vec![0.0; 3];
+        assert!(matches!(
+            fill_voids(2, 2, &mut short, &mask),
+            Err(HeightmapError::SizeMismatch { .. })
+        ));
+    }
+
+    #[test]
+    fn mask_marks_nodata_and_nan() {
+        let d = [1.0, -32768.0, f32::NAN, f32::INFINITY, 3.0, 4.0];
+        let m = void_mask(3, 2, &d, Some(-32768.0));
+        assert_eq!(m.count(), 3);
+        assert!(m.get(1, 0) && m.get(2, 0) && m.get(0, 1) && !m.get(1, 1));
+    }
+}
