@@ -374,6 +374,17 @@ fn raw_grid() {
     let e = load(&p, &LoadOptions { raw: Some(spec), ..Default::default() }).unwrap_err();
     let s = e.to_string();
     assert!(s.contains("grid.raw") && s.contains("16 bytes") && s.contains("12 bytes"), "{s}");
+    // Nonsense options are refused, naming the option.
+    let opts = LoadOptions {
+        raw: Some(RawSpec { width: 3, height: 2, sample: RawSampleType::I16 }),
+        spacing_m: 0.0,
+        ..Default::default()
+    };
+    let e = load(&p, &opts).unwrap_err();
+    assert!(
+        matches!(e.kind, DemErrorKind::InvalidOptions(_)) && e.to_string().contains("spacing_m"),
+        "{e}"
+    );
     // Forced raw without dimensions.
     let e = load(&p, &LoadOptions { format: Some(Format::Raw), ..Default::default() }).unwrap_err();
     assert!(matches!(e.kind, DemErrorKind::InvalidOptions(_)), "{e}");
@@ -557,6 +568,72 @@ fn geotiff_georeference_keys() {
     assert_err(&p, &LoadOptions::default(), "pixel scale");
 }
 
+/// Writes a 5 x 4 GeoTIFF of colour type `C` with `compression`, in strips of 2 rows, with
+/// geographic georeference tags and GDAL_NODATA 7, and checks every sample reads back flipped.
+fn roundtrip<C>(compression: tiff::encoder::Compression, name: &str, want_type: &str)
+where
+    C: tiff::encoder::colortype::ColorType,
+    C::Inner: Copy + Into<f64> + TryFrom<u8>,
+    <C::Inner as TryFrom<u8>>::Error: std::fmt::Debug,
+    [C::Inner]: tiff::encoder::TiffValue,
+{
+    use tiff::tags::Tag;
+    let (w, h) = (5u32, 4u32);
+    let vals: Vec<C::Inner> =
+        (0..w * h).map(|k| C::Inner::try_from((k * 3 + 1) as u8).unwrap()).collect();
+    let mut buf = std::io::Cursor::new(Vec::new());
+    {
+        let mut enc =
+            tiff::encoder::TiffEncoder::new(&mut buf).unwrap().with_compression(compression);
+        let mut img = enc.new_image::<C>(w, h).unwrap();
+        img.rows_per_strip(2).unwrap();
+        let e = img.encoder();
+        e.write_tag(Tag::ModelPixelScaleTag, &[0.5f64, 0.5, 0.0][..]).unwrap();
+        e.write_tag(Tag::ModelTiepointTag, &[0.0f64, 0.0, 0.0, 100.0, 60.0, 0.0][..]).unwrap();
+        e.write_tag(Tag::GeoKeyDirectoryTag, &[1u16, 1, 0, 2, 1024, 0, 1, 2, 2048, 0, 1, 4326][..])
+            .unwrap();
+        e.write_tag(Tag::GdalNodata, "7").unwrap();
+        img.write_data(&vals).unwrap();
+    }
+    let p = write_temp(name, buf.get_ref());
+    let dem = load(&p, &LoadOptions::default()).unwrap_or_else(|e| panic!("{name}: {e}"));
+    let hm = &dem.heightmap;
+    assert_eq!(dem.source.sample_type, want_type, "{name}");
+    assert_eq!(dem.source.nodata, Some(7.0));
+    assert_eq!(hm.georef().crs, Crs::Epsg(4326));
+    assert_eq!(hm.georef().native_origin, glam::dvec2(100.25, 58.25), "{name}");
+    let (w, h) = (w as usize, h as usize);
+    for r in 0..h {
+        for i in 0..w {
+            let v: f64 = vals[r * w + i].into();
+            let j = h - 1 - r;
+            if v == 7.0 {
+                assert!(hm.voids().get(i, j), "{name}");
+            } else {
+                assert_eq!(hm.get(i, j) as f64, v, "{name} ({i}, {j})");
+            }
+        }
+    }
+    assert_eq!(hm.voids().count(), 1, "{name}");
+}
+
+/// Every sample type the brief lists, uncompressed, LZW and Deflate, multi-strip.
+#[test]
+fn geotiff_sample_types_and_compressions() {
+    use tiff::encoder::{Compression, colortype::*, compression::DeflateLevel};
+    for (c, cn) in [
+        (Compression::Uncompressed, "none"),
+        (Compression::Lzw, "lzw"),
+        (Compression::Deflate(DeflateLevel::default()), "deflate"),
+    ] {
+        roundtrip::<GrayI16>(c, &format!("i16_{cn}.tif"), "int16");
+        roundtrip::<Gray16>(c, &format!("u16_{cn}.tif"), "uint16");
+        roundtrip::<GrayI32>(c, &format!("i32_{cn}.tif"), "int32");
+        roundtrip::<Gray32Float>(c, &format!("f32_{cn}.tif"), "float32");
+        roundtrip::<Gray64Float>(c, &format!("f64_{cn}.tif"), "float64");
+    }
+}
+
 #[test]
 fn hgt_southern_western_name() {
     let bytes = std::fs::read(data("srtm/N52E008.hgt")).unwrap();
@@ -625,10 +702,16 @@ fn mutated_files_never_panic() {
         let mut b = src.clone();
         match case % 3 {
             0 => b.truncate(rng.below(b.len())),
-            // Header and IFD: where structure lives (the tiff IFD of this file is near the start).
+            // Structure: the header, and the last 3 KB (crater_lake's IFD and GeoTIFF tag
+            // values sit at the end of the file; PNG's IEND too).
             1 => {
                 for _ in 0..1 + rng.below(4) {
-                    let k = rng.below(b.len().min(512));
+                    let n = b.len();
+                    let k = if rng.below(4) == 0 {
+                        rng.below(16)
+                    } else {
+                        n - 1 - rng.below(3000.min(n))
+                    };
                     b[k] = rng.next() as u8;
                 }
             }

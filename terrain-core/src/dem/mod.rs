@@ -243,6 +243,16 @@ pub(crate) fn check_size(
 pub fn load(path: impl AsRef<Path>, options: &LoadOptions) -> Result<Dem, DemError> {
     let path = path.as_ref();
     let err = |kind| DemError::new(path, kind);
+    let sane = options.spacing_m.is_finite()
+        && options.spacing_m > 0.0
+        && options.vertical_scale.is_finite()
+        && options.vertical_offset.is_finite();
+    if !sane {
+        return Err(err(DemErrorKind::InvalidOptions(format!(
+            "spacing_m ({}) must be finite and positive, vertical_scale ({}) and vertical_offset ({}) finite",
+            options.spacing_m, options.vertical_scale, options.vertical_offset
+        ))));
+    }
     let mut file = std::fs::File::open(path).map_err(|e| err(DemErrorKind::Io(e)))?;
     let len = file.metadata().map_err(|e| err(DemErrorKind::Io(e)))?.len();
     if len == 0 {
