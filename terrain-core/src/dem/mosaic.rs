@@ -64,6 +64,15 @@ pub fn load_mosaic(paths: &[impl AsRef<Path>], options: &LoadOptions) -> Result<
                 off.x, off.y
             )));
         }
+        // Offsets beyond +-2^40 samples cannot fit any allowed grid; refusing them here keeps
+        // the index arithmetic below far from overflow.
+        const FAR: f64 = (1u64 << 40) as f64;
+        if r.x.abs() > FAR || r.y.abs() > FAR {
+            return Err(merr(format!(
+                "{name} is {} x {} samples away from the first tile",
+                r.x, r.y
+            )));
+        }
         placed.push((r.x as i64, r.y as i64, t));
     }
     let i0 = placed.iter().map(|p| p.0).min().unwrap_or(0);
