@@ -4,10 +4,21 @@
 //! [`Heightmap`] (south row first, heights in metres), marks no-data samples in the void mask
 //! and fills them for geometry ([`voids`]). Every failure is a [`DemError`] naming the file.
 
+use std::io::Read;
 use std::path::{Path, PathBuf};
 
-use crate::error::DemError;
+use crate::error::{DemError, DemErrorKind};
+use crate::georef::Georef;
 use crate::heightmap::Heightmap;
+
+pub mod geotiff;
+pub mod hgt;
+pub mod image;
+pub mod mosaic;
+pub mod raw;
+pub mod voids;
+
+pub use mosaic::load_mosaic;
 
 /// A file format we read.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
@@ -25,6 +36,20 @@ pub enum Format {
     Terrarium,
     /// Headerless little-endian samples with explicit dimensions ([`RawSpec`]).
     Raw,
+}
+
+impl Format {
+    /// A short human-readable name, used in error messages.
+    pub fn name(self) -> &'static str {
+        match self {
+            Format::GeoTiff => "GeoTIFF",
+            Format::Hgt => "SRTM .hgt",
+            Format::GreyImage => "grey image",
+            Format::TerrainRgb => "Terrain-RGB PNG",
+            Format::Terrarium => "Terrarium PNG",
+            Format::Raw => "raw grid",
+        }
+    }
 }
 
 /// Sample type of a raw file.
@@ -105,8 +130,175 @@ pub struct Dem {
     pub source: SourceInfo,
 }
 
+/// Magic bytes of the formats we detect (and of a few we recognise only to name them).
+const TIFF_LE: &[u8] = b"II*\0";
+const TIFF_BE: &[u8] = b"MM\0*";
+const BIGTIFF_LE: &[u8] = b"II+\0";
+const BIGTIFF_BE: &[u8] = b"MM\0+";
+const PNG_MAGIC: &[u8] = b"\x89PNG\r\n\x1a\n";
+const JPEG_MAGIC: &[u8] = b"\xFF\xD8\xFF";
+
+/// Which container the first bytes belong to.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) enum Magic {
+    Tiff,
+    Png,
+    Jpeg,
+    Other,
+}
+
+pub(crate) fn sniff(head: &[u8]) -> Magic {
+    if [TIFF_LE, TIFF_BE, BIGTIFF_LE, BIGTIFF_BE].iter().any(|m| head.starts_with(m)) {
+        Magic::Tiff
+    } else if head.starts_with(PNG_MAGIC) {
+        Magic::Png
+    } else if head.starts_with(JPEG_MAGIC) {
+        Magic::Jpeg
+    } else {
+        Magic::Other
+    }
+}
+
+/// Names what the first bytes look like, for the "not a recognised format" message.
+fn describe_unknown(head: &[u8]) -> String {
+    let hex: Vec<String> = head.iter().take(8).map(|b| format!("{b:02x}")).collect();
+    let what = if head.starts_with(b"GIF87a") || head.starts_with(b"GIF89a") {
+        "a GIF image, which carries no elevation: convert it to GeoTIFF or a grey PNG"
+    } else if head.starts_with(b"BM") {
+        "a BMP image: convert it to GeoTIFF or a grey PNG"
+    } else if head.starts_with(b"RIFF") {
+        "a RIFF (WebP?) file: not read"
+    } else if !head.is_empty()
+        && head.iter().all(|&b| b == b'\t' || b == b'\n' || b == b'\r' || (0x20..0x7f).contains(&b))
+    {
+        "text, not a DEM (ASCII grids such as .asc are not read)"
+    } else {
+        "unknown magic bytes"
+    };
+    format!(
+        "{what}; first bytes {}; expected TIFF (II*\\0 / MM\\0*), PNG, JPEG, a .hgt name, \
+         or LoadOptions::format = Raw with a RawSpec",
+        hex.join(" ")
+    )
+}
+
+/// Whether `path` has the `.hgt` extension (any case).
+fn has_hgt_extension(path: &Path) -> bool {
+    path.extension().and_then(|e| e.to_str()).is_some_and(|e| e.eq_ignore_ascii_case("hgt"))
+}
+
+/// Detects the format of a file from its first bytes and its name.
+///
+/// TIFF (classic or BigTIFF) -> [`Format::GeoTiff`]; PNG and JPEG -> [`Format::GreyImage`]
+/// (Terrain-RGB and Terrarium look like any RGB PNG, so they must be forced); a `.hgt`
+/// extension -> [`Format::Hgt`] (that format has no magic). `None` if nothing matches.
+pub fn detect_format(path: &Path, head: &[u8]) -> Option<Format> {
+    match sniff(head) {
+        Magic::Tiff => Some(Format::GeoTiff),
+        Magic::Png | Magic::Jpeg => Some(Format::GreyImage),
+        Magic::Other if has_hgt_extension(path) => Some(Format::Hgt),
+        Magic::Other => None,
+    }
+}
+
+/// A grid as decoded by a reader, before voids are marked and filled.
+///
+/// `data` is row-major with row 0 = south (readers flip north-first files); heights in metres.
+/// Void samples hold the no-data value (or NaN).
+#[derive(Debug)]
+pub(crate) struct RawGrid {
+    pub width: usize,
+    pub height: usize,
+    pub data: Vec<f32>,
+    pub georef: Georef,
+    pub nodata: Option<f64>,
+    pub sample_type: String,
+}
+
+/// Refuses empty grids and grids over `LoadOptions::max_samples`, before anything of that size
+/// is allocated.
+pub(crate) fn check_size(
+    path: &Path,
+    width: u64,
+    height: u64,
+    options: &LoadOptions,
+) -> Result<(), DemError> {
+    if width == 0 || height == 0 {
+        return Err(DemError::new(path, DemErrorKind::ZeroSize { width, height }));
+    }
+    let samples = width.saturating_mul(height);
+    let limit = options.max_samples;
+    // The grid also has to be addressable in memory as f32 on this platform.
+    if samples > limit || usize::try_from(samples).map_or(true, |s| s > isize::MAX as usize / 8) {
+        return Err(DemError::new(path, DemErrorKind::TooLarge { width, height, limit }));
+    }
+    Ok(())
+}
+
 /// Reads the DEM at `path`.
+///
+/// The format is `options.format` if given; otherwise it is detected from the magic bytes
+/// (TIFF, PNG, JPEG) and the `.hgt` extension; a file with no magic is read as raw when
+/// `options.raw` is given. The heights are in metres, row 0 south, voids marked and filled.
 pub fn load(path: impl AsRef<Path>, options: &LoadOptions) -> Result<Dem, DemError> {
-    let _ = (path, options);
-    unimplemented!("filled by the DEM-reader work")
+    let path = path.as_ref();
+    let err = |kind| DemError::new(path, kind);
+    let sane = options.spacing_m.is_finite()
+        && options.spacing_m > 0.0
+        && options.vertical_scale.is_finite()
+        && options.vertical_offset.is_finite();
+    if !sane {
+        return Err(err(DemErrorKind::InvalidOptions(format!(
+            "spacing_m ({}) must be finite and positive, vertical_scale ({}) and vertical_offset ({}) finite",
+            options.spacing_m, options.vertical_scale, options.vertical_offset
+        ))));
+    }
+    let mut file = std::fs::File::open(path).map_err(|e| err(DemErrorKind::Io(e)))?;
+    let len = file.metadata().map_err(|e| err(DemErrorKind::Io(e)))?.len();
+    if len == 0 {
+        return Err(err(DemErrorKind::Empty));
+    }
+    let mut head = Vec::with_capacity(16);
+    (&mut file).take(16).read_to_end(&mut head).map_err(|e| err(DemErrorKind::Io(e)))?;
+    drop(file);
+
+    let format = match options.format {
+        Some(f) => f,
+        None => match detect_format(path, &head) {
+            Some(f) => f,
+            None if options.raw.is_some() => Format::Raw,
+            None => return Err(err(DemErrorKind::UnknownFormat(describe_unknown(&head)))),
+        },
+    };
+    // A forced format must still match the container's magic where the format has one.
+    let magic = sniff(&head);
+    let magic_ok = match format {
+        Format::GeoTiff => magic == Magic::Tiff,
+        Format::GreyImage => matches!(magic, Magic::Png | Magic::Jpeg),
+        Format::TerrainRgb | Format::Terrarium => magic == Magic::Png,
+        Format::Hgt | Format::Raw => true,
+    };
+    if !magic_ok {
+        return Err(err(DemErrorKind::UnknownFormat(format!(
+            "{} was asked for, but the file does not start with its magic bytes; {}",
+            format.name(),
+            describe_unknown(&head)
+        ))));
+    }
+
+    let grid = match format {
+        Format::GeoTiff => geotiff::read(path, len, options)?,
+        Format::Hgt => hgt::read(path, len, options)?,
+        Format::GreyImage | Format::TerrainRgb | Format::Terrarium => {
+            image::read(path, format, magic, options)?
+        }
+        Format::Raw => raw::read(path, len, options)?,
+    };
+    let nodata = grid.nodata;
+    let sample_type = grid.sample_type.clone();
+    let heightmap = voids::build_heightmap(path, grid)?;
+    Ok(Dem {
+        heightmap,
+        source: SourceInfo { path: path.to_path_buf(), format, sample_type, nodata },
+    })
 }

@@ -1,0 +1,456 @@
+//! GeoTIFF: single-band int8/uint8/int16/uint16/int32/uint32/float32/float64 grids, in strips
+//! or tiles, uncompressed, Deflate or LZW (decoded by the `tiff` crate), with their
+//! georeference.
+//!
+//! Georeference tags (GeoTIFF 1.0 spec, OGC 19-008r4):
+//! * `ModelPixelScaleTag` (33550): `(ScaleX, ScaleY, ScaleZ)`; y spacing is positive and rows
+//!   go *down* (south) in the file.
+//! * `ModelTiepointTag` (33922): `(I, J, K, X, Y, Z)`: raster point `(I, J)` is model `(X, Y)`.
+//! * `ModelTransformationTag` (34264): a 4x4 affine; read when it has no rotation/shear.
+//! * `GeoKeyDirectoryTag` (34735): keys `GTModelTypeGeoKey` (1024: 1 projected, 2 geographic),
+//!   `GTRasterTypeGeoKey` (1025: 1 PixelIsArea, 2 PixelIsPoint), `GTCitationGeoKey` (1026),
+//!   `GeographicTypeGeoKey` (2048), `ProjectedCSTypeGeoKey` (3072), `PCSCitationGeoKey` (3073).
+//!   ASCII key values live in `GeoAsciiParamsTag` (34737).
+//! * `GDAL_NODATA` (42113): ASCII no-data value.
+//!
+//! With PixelIsArea (the default), raster point `(0, 0)` is the *corner* of the first pixel, so
+//! sample centres are at `+0.5` pixel; with PixelIsPoint it is the centre. `native_origin` is
+//! the centre of the south-west sample (the last file row, first column).
+
+use std::fs::File;
+use std::io::{BufReader, Read, Seek, SeekFrom};
+use std::path::Path;
+
+use glam::{DVec2, dvec2};
+use tiff::decoder::{ChunkType, Decoder, DecodingResult, Limits};
+use tiff::tags::Tag;
+use tiff::{ColorType, TiffError};
+
+use crate::dem::{LoadOptions, RawGrid, check_size};
+use crate::error::{DemError, DemErrorKind};
+use crate::georef::{Crs, Georef};
+
+const FORMAT: &str = "GeoTIFF";
+
+/// GeoTIFF tag numbers not named by the `tiff` crate.
+const MODEL_TRANSFORMATION_TAG: u16 = 34264;
+const GEO_ASCII_PARAMS_TAG: u16 = 34737;
+
+/// GeoKey IDs (GeoTIFF spec section 6.2).
+const GT_MODEL_TYPE: u16 = 1024;
+const GT_RASTER_TYPE: u16 = 1025;
+const GT_CITATION: u16 = 1026;
+const GEOGRAPHIC_TYPE: u16 = 2048;
+const PROJECTED_CS_TYPE: u16 = 3072;
+const PCS_CITATION: u16 = 3073;
+/// "User-defined" key value: the CRS is described by other keys, not an EPSG code.
+const USER_DEFINED: u16 = 32767;
+
+fn malformed(path: &Path, message: impl Into<String>) -> DemError {
+    DemError::new(path, DemErrorKind::Malformed { format: FORMAT, message: message.into() })
+}
+
+/// Maps a `tiff` crate error (its messages name the tag where it knows it).
+fn map_tiff_error(path: &Path, file_len: u64, e: TiffError) -> DemError {
+    let kind = match e {
+        TiffError::FormatError(f) => {
+            DemErrorKind::Malformed { format: FORMAT, message: f.to_string() }
+        }
+        TiffError::UnsupportedError(u) => {
+            DemErrorKind::Unsupported { format: FORMAT, message: u.to_string() }
+        }
+        TiffError::IoError(io) if io.kind() == std::io::ErrorKind::UnexpectedEof => {
+            DemErrorKind::Malformed {
+                format: FORMAT,
+                message: format!(
+                    "unexpected end of file ({file_len} bytes): the file is truncated or an offset is wrong"
+                ),
+            }
+        }
+        TiffError::IoError(io) => DemErrorKind::Io(io),
+        TiffError::LimitsExceeded => DemErrorKind::Unsupported {
+            format: FORMAT,
+            message: "a tag value or a decoding buffer exceeds the decoder's limits".to_string(),
+        },
+        other => DemErrorKind::Malformed { format: FORMAT, message: other.to_string() },
+    };
+    DemError::new(path, kind)
+}
+
+/// Checks the TIFF header and the first IFD lie inside the file, so a truncated file gets a
+/// precise [`DemErrorKind::Truncated`] rather than a generic end-of-file error.
+fn precheck_header(path: &Path, file: &mut File, len: u64) -> Result<(), DemError> {
+    let trunc = |what, offset: u64, expected: u64| {
+        DemError::new(
+            path,
+            DemErrorKind::Truncated { what, offset, expected, got: len.saturating_sub(offset) },
+        )
+    };
+    let mut head = [0u8; 16];
+    let n = file.read(&mut head).map_err(|e| DemError::new(path, DemErrorKind::Io(e)))?;
+    let le = head[0] == b'I';
+    let u16_at = |b: &[u8]| {
+        if le { u16::from_le_bytes([b[0], b[1]]) } else { u16::from_be_bytes([b[0], b[1]]) }
+    };
+    let big = n >= 4 && u16_at(&head[2..4]) == 43;
+    let header_len = if big { 16 } else { 8 };
+    if (n as u64) < header_len {
+        return Err(trunc("TIFF header", 0, header_len));
+    }
+    let ifd = if big {
+        let b: [u8; 8] = head[8..16].try_into().unwrap_or([0; 8]);
+        if le { u64::from_le_bytes(b) } else { u64::from_be_bytes(b) }
+    } else {
+        let b: [u8; 4] = head[4..8].try_into().unwrap_or([0; 4]);
+        (if le { u32::from_le_bytes(b) } else { u32::from_be_bytes(b) }) as u64
+    };
+    let count_len = if big { 8 } else { 2 };
+    if ifd.saturating_add(count_len) > len {
+        return Err(trunc("TIFF first IFD (entry count)", ifd, count_len));
+    }
+    file.seek(SeekFrom::Start(ifd)).map_err(|e| DemError::new(path, DemErrorKind::Io(e)))?;
+    let mut c = [0u8; 8];
+    file.read_exact(&mut c[..count_len as usize])
+        .map_err(|e| DemError::new(path, DemErrorKind::Io(e)))?;
+    let entries = if big {
+        if le { u64::from_le_bytes(c) } else { u64::from_be_bytes(c) }
+    } else {
+        u16_at(&c[..2]) as u64
+    };
+    let entry_len = if big { 20 } else { 12 };
+    let ifd_len = count_len + entries.saturating_mul(entry_len);
+    if ifd.saturating_add(ifd_len) > len {
+        return Err(trunc("TIFF first IFD (entries)", ifd, ifd_len));
+    }
+    file.seek(SeekFrom::Start(0)).map_err(|e| DemError::new(path, DemErrorKind::Io(e)))?;
+    Ok(())
+}
+
+/// Checks every strip/tile lies inside the file (a truncated file fails here, precisely).
+fn check_chunks(path: &Path, dec: &mut Decoder<BufReader<File>>, len: u64) -> Result<(), DemError> {
+    let (off_tag, cnt_tag, what) = match dec.get_chunk_type() {
+        ChunkType::Strip => (Tag::StripOffsets, Tag::StripByteCounts, "TIFF strip"),
+        ChunkType::Tile => (Tag::TileOffsets, Tag::TileByteCounts, "TIFF tile"),
+    };
+    let offsets = dec.get_tag_u64_vec(off_tag).map_err(|e| map_tiff_error(path, len, e))?;
+    let counts = dec.get_tag_u64_vec(cnt_tag).map_err(|e| map_tiff_error(path, len, e))?;
+    for (&o, &c) in offsets.iter().zip(&counts) {
+        if o.saturating_add(c) > len {
+            return Err(DemError::new(
+                path,
+                DemErrorKind::Truncated {
+                    what,
+                    offset: o,
+                    expected: c,
+                    got: len.saturating_sub(o),
+                },
+            ));
+        }
+    }
+    // The decoder allocates the whole image before reading chunks, so refuse files whose data
+    // cannot possibly hold the declared grid: uncompressed data must be at least w x h x bytes;
+    // compressed data cannot expand more than 4096:1 (LZW's 12-bit codes emit at most 4096
+    // bytes each; Deflate's limit is about 1032:1).
+    let (w, h) = dec.dimensions().map_err(|e| map_tiff_error(path, len, e))?;
+    let bits: u64 = dec
+        .find_tag_unsigned_vec::<u64>(Tag::BitsPerSample)
+        .ok()
+        .flatten()
+        .and_then(|v| v.first().copied())
+        .unwrap_or(1);
+    let compression: u64 = dec.find_tag_unsigned(Tag::Compression).ok().flatten().unwrap_or(1);
+    let needed = (w as u64).saturating_mul(h as u64).saturating_mul(bits) / 8;
+    let total: u64 = counts.iter().fold(0u64, |a, &c| a.saturating_add(c));
+    let capacity = if compression == 1 { total } else { total.saturating_mul(4096) };
+    if needed > capacity {
+        return Err(DemError::new(
+            path,
+            DemErrorKind::Truncated {
+                what: "TIFF image data (all strips/tiles)",
+                offset: offsets.first().copied().unwrap_or(0),
+                expected: needed,
+                got: total,
+            },
+        ));
+    }
+    Ok(())
+}
+
+/// Reads an optional tag as f64s, naming the tag on failure.
+fn tag_f64s(
+    path: &Path,
+    dec: &mut Decoder<BufReader<File>>,
+    tag: Tag,
+    name: &str,
+) -> Result<Option<Vec<f64>>, DemError> {
+    match dec.find_tag(tag) {
+        Ok(None) => Ok(None),
+        Ok(Some(v)) => {
+            v.into_f64_vec().map(Some).map_err(|e| malformed(path, format!("{name}: {e}")))
+        }
+        Err(e) => Err(malformed(path, format!("{name}: {e}"))),
+    }
+}
+
+/// The parsed GeoKeyDirectory (only the keys we use).
+#[derive(Debug, Default)]
+struct GeoKeys {
+    model_type: Option<u16>,
+    raster_type: Option<u16>,
+    geographic: Option<u16>,
+    projected: Option<u16>,
+    citation: Option<String>,
+}
+
+fn parse_geokeys(path: &Path, dir: &[u16], ascii: Option<&str>) -> Result<GeoKeys, DemError> {
+    if dir.len() < 4 {
+        return Err(malformed(
+            path,
+            format!("GeoKeyDirectoryTag (34735) has {} values, at least 4 needed", dir.len()),
+        ));
+    }
+    let n = dir[3] as usize;
+    let mut keys = GeoKeys::default();
+    for k in 0..n {
+        let Some(e) = dir.get(4 + 4 * k..8 + 4 * k) else {
+            return Err(malformed(
+                path,
+                format!(
+                    "GeoKeyDirectoryTag (34735) declares {n} keys but holds {} values",
+                    dir.len()
+                ),
+            ));
+        };
+        let (id, loc, count, value) = (e[0], e[1], e[2] as usize, e[3] as usize);
+        // Location 0: the value is inline. GeoAsciiParamsTag: a '|'-terminated substring.
+        let short = (loc == 0).then_some(e[3]);
+        let text = || {
+            (loc == GEO_ASCII_PARAMS_TAG)
+                .then(|| ascii.and_then(|a| a.get(value..value + count)))
+                .flatten()
+                .map(|s| s.trim_end_matches(['|', '\0']).trim().to_string())
+        };
+        match id {
+            GT_MODEL_TYPE => keys.model_type = short,
+            GT_RASTER_TYPE => keys.raster_type = short,
+            GEOGRAPHIC_TYPE => keys.geographic = short,
+            PROJECTED_CS_TYPE => keys.projected = short,
+            PCS_CITATION => keys.citation = text().or(keys.citation.take()),
+            GT_CITATION if keys.citation.is_none() => keys.citation = text(),
+            _ => {}
+        }
+    }
+    Ok(keys)
+}
+
+/// Whether an EPSG code is a geographic 2D CRS (EPSG's 4001..4999 range: 4326 WGS 84, 4269 NAD83...).
+fn is_geographic_code(code: u16) -> bool {
+    (4001..=4999).contains(&code)
+}
+
+/// Reads a GeoTIFF of `len` bytes.
+pub(crate) fn read(path: &Path, len: u64, options: &LoadOptions) -> Result<RawGrid, DemError> {
+    let err = |kind| DemError::new(path, kind);
+    let mut file = File::open(path).map_err(|e| err(DemErrorKind::Io(e)))?;
+    precheck_header(path, &mut file, len)?;
+
+    // Decoding buffer: the whole image as f64 at most; checked against max_samples below before
+    // any decode happens, so this limit is a second line of defence.
+    let max_bytes = options.max_samples.saturating_mul(8).min(usize::MAX as u64) as usize;
+    let limits = {
+        let mut l = Limits::default();
+        l.decoding_buffer_size = max_bytes;
+        l.intermediate_buffer_size = max_bytes.min(1 << 30);
+        l.ifd_value_size = 64 << 20;
+        l
+    };
+    let mut dec = Decoder::new(BufReader::new(file))
+        .map_err(|e| map_tiff_error(path, len, e))?
+        .with_limits(limits);
+
+    let (w, h) = dec.dimensions().map_err(|e| map_tiff_error(path, len, e))?;
+    check_size(path, w as u64, h as u64, options)?;
+    match dec.colortype().map_err(|e| map_tiff_error(path, len, e))? {
+        ColorType::Gray(_) => {}
+        other => {
+            return Err(err(DemErrorKind::Unsupported {
+                format: FORMAT,
+                message: format!(
+                    "only single-band elevation rasters are read, this one is {other:?}"
+                ),
+            }));
+        }
+    }
+    check_chunks(path, &mut dec, len)?;
+
+    // --- Georeference ---
+    let scale = tag_f64s(path, &mut dec, Tag::ModelPixelScaleTag, "ModelPixelScaleTag (33550)")?;
+    let tie = tag_f64s(path, &mut dec, Tag::ModelTiepointTag, "ModelTiepointTag (33922)")?;
+    let transform = tag_f64s(
+        path,
+        &mut dec,
+        Tag::Unknown(MODEL_TRANSFORMATION_TAG),
+        "ModelTransformationTag (34264)",
+    )?;
+    let geo_dir = match dec.find_tag(Tag::GeoKeyDirectoryTag) {
+        Ok(None) => None,
+        Ok(Some(v)) => Some(
+            v.into_u16_vec()
+                .map_err(|e| malformed(path, format!("GeoKeyDirectoryTag (34735): {e}")))?,
+        ),
+        Err(e) => return Err(malformed(path, format!("GeoKeyDirectoryTag (34735): {e}"))),
+    };
+    let ascii = match dec.find_tag(Tag::Unknown(GEO_ASCII_PARAMS_TAG)) {
+        Ok(Some(v)) => v.into_string().ok(),
+        _ => None,
+    };
+    let keys = match &geo_dir {
+        Some(d) => parse_geokeys(path, d, ascii.as_deref())?,
+        None => GeoKeys::default(),
+    };
+    let file_nodata = match dec.find_tag(Tag::GdalNodata) {
+        Ok(None) => None,
+        Ok(Some(v)) => {
+            let s = v
+                .into_string()
+                .map_err(|e| malformed(path, format!("GDAL_NODATA (42113): {e}")))?;
+            let t = s.trim_matches(|c: char| c == '\0' || c.is_whitespace());
+            let parsed =
+                if t.eq_ignore_ascii_case("nan") { Some(f64::NAN) } else { t.parse::<f64>().ok() };
+            Some(parsed.ok_or_else(|| {
+                malformed(path, format!("GDAL_NODATA (42113) {t:?} is not a number"))
+            })?)
+        }
+        Err(e) => return Err(malformed(path, format!("GDAL_NODATA (42113): {e}"))),
+    };
+
+    // Raster -> model: x = x0 + col * sx, y = y0 - row * sy, with (col, row) raster coordinates
+    // (corner convention, PixelIsArea). None if the file carries no georeference.
+    let affine: Option<(DVec2, DVec2)> = if let (Some(s), Some(t)) = (&scale, &tie) {
+        if s.len() < 2 || t.len() < 6 {
+            return Err(malformed(
+                path,
+                format!(
+                    "ModelPixelScaleTag (33550) has {} values and ModelTiepointTag (33922) {}; need 3 and 6",
+                    s.len(),
+                    t.len()
+                ),
+            ));
+        }
+        let (sx, sy) = (s[0], s[1]);
+        Some((dvec2(t[3] - t[0] * sx, t[4] + t[1] * sy), dvec2(sx, sy)))
+    } else if let Some(m) = &transform {
+        if m.len() < 16 {
+            return Err(malformed(
+                path,
+                format!("ModelTransformationTag (34264) has {} values, need 16", m.len()),
+            ));
+        }
+        if m[1] != 0.0 || m[4] != 0.0 {
+            return Err(err(DemErrorKind::Unsupported {
+                format: FORMAT,
+                message: "ModelTransformationTag (34264) with rotation or shear".to_string(),
+            }));
+        }
+        Some((dvec2(m[3], m[7]), dvec2(m[0], -m[5])))
+    } else {
+        None
+    };
+
+    let georef = match affine {
+        None => Georef::local(options.spacing_m),
+        Some((corner, spacing)) => {
+            let finite = spacing.is_finite() && corner.is_finite();
+            if !(finite && spacing.x > 0.0 && spacing.y > 0.0) {
+                return Err(malformed(
+                    path,
+                    format!(
+                        "pixel scale ({}, {}) must be finite and positive (north-up rasters only), origin ({}, {}) finite",
+                        spacing.x, spacing.y, corner.x, corner.y
+                    ),
+                ));
+            }
+            // GTRasterTypeGeoKey (1025): 1 = PixelIsArea (default), 2 = PixelIsPoint.
+            let half = if keys.raster_type == Some(2) { 0.0 } else { 0.5 };
+            let sw =
+                dvec2(corner.x + half * spacing.x, corner.y - (h as f64 - 1.0 + half) * spacing.y);
+            let projected = keys.projected.filter(|&c| c != 0 && c != USER_DEFINED);
+            let geographic_code = keys.geographic.filter(|&c| c != 0 && c != USER_DEFINED);
+            let geographic = projected.is_none()
+                && (keys.model_type == Some(2) || geographic_code.is_some_and(is_geographic_code));
+            let crs = if let Some(p) = projected {
+                Crs::Epsg(p as u32)
+            } else if geographic {
+                geographic_code.map_or_else(
+                    || {
+                        Crs::Text(
+                            keys.citation
+                                .clone()
+                                .unwrap_or_else(|| "user-defined geographic".into()),
+                        )
+                    },
+                    |c| Crs::Epsg(c as u32),
+                )
+            } else if let Some(c) = &keys.citation {
+                Crs::Text(c.clone())
+            } else {
+                Crs::Unknown
+            };
+            if geographic {
+                let centre_lat = sw.y + 0.5 * (h as f64 - 1.0) * spacing.y;
+                if !(-90.0..=90.0).contains(&centre_lat) {
+                    return Err(malformed(
+                        path,
+                        format!("geographic grid centred at latitude {centre_lat}"),
+                    ));
+                }
+                Georef::geographic(crs, sw, spacing, centre_lat)
+            } else {
+                Georef::projected(crs, sw, spacing)
+            }
+        }
+    };
+
+    // --- Samples ---
+    let result = dec.read_image().map_err(|e| map_tiff_error(path, len, e))?;
+    let (w, h) = (w as usize, h as usize);
+    let n = w * h;
+    let (sample_type, values): (&str, Vec<f32>) = match result {
+        DecodingResult::I16(v) => ("int16", v.into_iter().map(f32::from).collect()),
+        DecodingResult::U16(v) => ("uint16", v.into_iter().map(f32::from).collect()),
+        DecodingResult::I32(v) => ("int32", v.into_iter().map(|x| x as f32).collect()),
+        DecodingResult::U32(v) => ("uint32", v.into_iter().map(|x| x as f32).collect()),
+        DecodingResult::F32(v) => ("float32", v),
+        DecodingResult::F64(v) => ("float64", v.into_iter().map(|x| x as f32).collect()),
+        DecodingResult::I8(v) => ("int8", v.into_iter().map(f32::from).collect()),
+        DecodingResult::U8(v) => ("uint8", v.into_iter().map(f32::from).collect()),
+        DecodingResult::F16(_) | DecodingResult::I64(_) | DecodingResult::U64(_) => {
+            return Err(err(DemErrorKind::Unsupported {
+                format: FORMAT,
+                message:
+                    "sample type float16/int64/uint64 (read: int8/16/32, uint8/16/32, float32/64)"
+                        .to_string(),
+            }));
+        }
+    };
+    if values.len() < n {
+        return Err(malformed(
+            path,
+            format!("decoded {} samples, the header declares {w} x {h}", values.len()),
+        ));
+    }
+    // File rows are north first; ours are south first.
+    let mut data = vec![0f32; n];
+    for (r, row) in values.chunks_exact(w).take(h).enumerate() {
+        let j = h - 1 - r;
+        data[j * w..(j + 1) * w].copy_from_slice(row);
+    }
+    Ok(RawGrid {
+        width: w,
+        height: h,
+        data,
+        georef,
+        nodata: options.nodata.or(file_nodata),
+        sample_type: sample_type.to_string(),
+    })
+}

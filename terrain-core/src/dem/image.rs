@@ -1,0 +1,177 @@
+//! Image DEMs: grey PNG/JPEG heightmaps and the Terrain-RGB / Terrarium PNG encodings.
+//!
+//! * Grey (8- or 16-bit; PNG keeps all 16 bits): `metres = raw x vertical_scale + vertical_offset`.
+//!   A colour JPEG is converted to luma (JPEG heightmaps are often saved as YCbCr with equal
+//!   channels); a colour PNG is refused unless Terrain-RGB or Terrarium is asked for, because
+//!   reading an arbitrary RGB picture as heights is almost always a mistake.
+//! * Mapbox Terrain-RGB: `metres = -10000 + (R x 65536 + G x 256 + B) x 0.1`.
+//! * Mapzen Terrarium: `metres = R x 256 + G + B / 256 - 32768`.
+//!
+//! For the RGB encodings, a pixel with alpha 0 is void. Images carry no georeference: the grid
+//! is placed in a local metric frame with `LoadOptions::spacing_m`. Rows are top (north) first
+//! in the image and flipped to south first here.
+
+use std::io::BufReader;
+use std::path::Path;
+
+use image::{DynamicImage, ImageError, ImageFormat, ImageReader};
+
+use crate::dem::{Format, LoadOptions, Magic, RawGrid, check_size};
+use crate::error::{DemError, DemErrorKind};
+use crate::georef::Georef;
+
+fn format_name(magic: Magic) -> &'static str {
+    match magic {
+        Magic::Jpeg => "JPEG",
+        _ => "PNG",
+    }
+}
+
+fn map_image_error(path: &Path, magic: Magic, e: ImageError) -> DemError {
+    let format = format_name(magic);
+    let kind = match e {
+        ImageError::IoError(io) if io.kind() == std::io::ErrorKind::UnexpectedEof => {
+            DemErrorKind::Malformed {
+                format,
+                message: format!("unexpected end of file (truncated?): {io}"),
+            }
+        }
+        ImageError::IoError(io) => DemErrorKind::Io(io),
+        ImageError::Unsupported(u) => DemErrorKind::Unsupported { format, message: u.to_string() },
+        ImageError::Limits(l) => DemErrorKind::Unsupported {
+            format,
+            message: format!("decoder memory limit exceeded: {l}"),
+        },
+        other => DemErrorKind::Malformed { format, message: other.to_string() },
+    };
+    DemError::new(path, kind)
+}
+
+fn open(path: &Path, magic: Magic) -> Result<ImageReader<BufReader<std::fs::File>>, DemError> {
+    let file = std::fs::File::open(path).map_err(|e| DemError::new(path, DemErrorKind::Io(e)))?;
+    let fmt = if magic == Magic::Jpeg { ImageFormat::Jpeg } else { ImageFormat::Png };
+    Ok(ImageReader::with_format(BufReader::new(file), fmt))
+}
+
+/// Reads an image DEM as `format` (grey, Terrain-RGB or Terrarium).
+pub(crate) fn read(
+    path: &Path,
+    format: Format,
+    magic: Magic,
+    options: &LoadOptions,
+) -> Result<RawGrid, DemError> {
+    let err = |kind| DemError::new(path, kind);
+    // Read the header first and refuse oversized images before the decoder allocates.
+    let (w, h) =
+        open(path, magic)?.into_dimensions().map_err(|e| map_image_error(path, magic, e))?;
+    check_size(path, w as u64, h as u64, options)?;
+    let mut reader = open(path, magic)?;
+    let mut limits = image::Limits::default();
+    // Decoded image: up to 8 bytes per pixel (RGBA16), plus decoder slack.
+    limits.max_alloc = Some((w as u64 * h as u64).saturating_mul(16).max(64 << 20));
+    reader.limits(limits);
+    let img = reader.decode().map_err(|e| map_image_error(path, magic, e))?;
+    let (w, h) = (w as usize, h as usize);
+    if img.width() as usize != w || img.height() as usize != h {
+        return Err(err(DemErrorKind::Malformed {
+            format: format_name(magic),
+            message: "decoded size differs from the header's".to_string(),
+        }));
+    }
+
+    let mut data = vec![0f32; w * h];
+    // Writes value `v` of image pixel (x, y) (y = 0 at the top) into the south-first grid.
+    let mut put = |x: usize, y: usize, v: f32| data[(h - 1 - y) * w + x] = v;
+    let (scale, offset) = (options.vertical_scale, options.vertical_offset);
+    let nodata = options.nodata;
+    // No-data applies to the raw value; voids become NaN so the void mask finds them.
+    let grey = |raw: f64| -> f32 {
+        if nodata.is_some_and(|nd| raw == nd) { f32::NAN } else { (raw * scale + offset) as f32 }
+    };
+
+    let sample_type = match format {
+        Format::GreyImage => match img {
+            DynamicImage::ImageLuma16(g) => {
+                for (x, y, p) in g.enumerate_pixels() {
+                    put(x as usize, y as usize, grey(p.0[0] as f64));
+                }
+                "uint16 (grey PNG)".to_string()
+            }
+            DynamicImage::ImageLumaA16(g) => {
+                for (x, y, p) in g.enumerate_pixels() {
+                    put(x as usize, y as usize, grey(p.0[0] as f64));
+                }
+                "uint16 (grey+alpha PNG)".to_string()
+            }
+            DynamicImage::ImageLuma8(g) => {
+                for (x, y, p) in g.enumerate_pixels() {
+                    put(x as usize, y as usize, grey(p.0[0] as f64));
+                }
+                format!("uint8 (grey {})", format_name(magic))
+            }
+            DynamicImage::ImageLumaA8(g) => {
+                for (x, y, p) in g.enumerate_pixels() {
+                    put(x as usize, y as usize, grey(p.0[0] as f64));
+                }
+                format!("uint8 (grey+alpha {})", format_name(magic))
+            }
+            other if magic == Magic::Jpeg => {
+                let g = other.to_luma8();
+                for (x, y, p) in g.enumerate_pixels() {
+                    put(x as usize, y as usize, grey(p.0[0] as f64));
+                }
+                "uint8 (colour JPEG read as luma)".to_string()
+            }
+            other => {
+                return Err(err(DemErrorKind::Unsupported {
+                    format: "PNG",
+                    message: format!(
+                        "a colour PNG ({:?}) is not a grey heightmap; set LoadOptions::format to \
+                         TerrainRgb or Terrarium if it encodes heights in RGB",
+                        other.color()
+                    ),
+                }));
+            }
+        },
+        Format::TerrainRgb | Format::Terrarium => {
+            let bits8 = matches!(img, DynamicImage::ImageRgb8(_) | DynamicImage::ImageRgba8(_));
+            if !bits8 {
+                return Err(err(DemErrorKind::Unsupported {
+                    format: "PNG",
+                    message: format!(
+                        "{} needs an 8-bit RGB or RGBA PNG, this one is {:?}",
+                        format.name(),
+                        img.color()
+                    ),
+                }));
+            }
+            let rgba = img.to_rgba8();
+            for (x, y, p) in rgba.enumerate_pixels() {
+                let [r, g, b, a] = p.0;
+                let (r, g, b) = (r as f64, g as f64, b as f64);
+                let z = if format == Format::TerrainRgb {
+                    -10000.0 + (r * 65536.0 + g * 256.0 + b) * 0.1
+                } else {
+                    r * 256.0 + g + b / 256.0 - 32768.0
+                };
+                put(x as usize, y as usize, if a == 0 { f32::NAN } else { z as f32 });
+            }
+            format!("uint8 RGB ({})", format.name())
+        }
+        _ => {
+            return Err(err(DemErrorKind::InvalidOptions(format!(
+                "{} is not an image format",
+                format.name()
+            ))));
+        }
+    };
+
+    Ok(RawGrid {
+        width: w,
+        height: h,
+        data,
+        georef: Georef::local(options.spacing_m),
+        nodata,
+        sample_type,
+    })
+}

@@ -1,0 +1,157 @@
+//! Mosaics: adjacent tiles on one grid (same CRS, same spacing, aligned origins) read as one
+//! heightmap.
+//!
+//! Tiles are placed by their native (CRS) origins, in samples of the common spacing. Samples
+//! that several tiles cover (SRTM tiles share their edge rows and columns) are merged: where
+//! both are non-void they must agree within [`SEAM_TOLERANCE_M`], where one is void the other is
+//! taken. Every sample of the union's bounding rectangle must be covered by some tile: gaps,
+//! misaligned origins, different spacings or CRSs are [`DemErrorKind::Mosaic`] errors. Voids
+//! are filled again over the whole mosaic, so fills are continuous across seams.
+
+use std::path::Path;
+
+use glam::dvec2;
+
+use crate::dem::{Dem, LoadOptions, RawGrid, SourceInfo, check_size, load, voids};
+use crate::error::{DemError, DemErrorKind};
+use crate::georef::{AngularOrLinear, Crs, Georef};
+
+/// Largest difference (metres) allowed between two tiles' non-void values of a shared sample.
+pub const SEAM_TOLERANCE_M: f32 = 1.0;
+
+/// Largest misalignment of a tile origin, in samples, still treated as on-grid.
+const ALIGN_TOLERANCE: f64 = 1e-3;
+
+/// Reads the tiles at `paths` and joins them into one DEM (see the module docs).
+///
+/// Errors name the first tile's path (and the offending tile in the message).
+pub fn load_mosaic(paths: &[impl AsRef<Path>], options: &LoadOptions) -> Result<Dem, DemError> {
+    let Some(first) = paths.first() else {
+        return Err(DemError::new("", DemErrorKind::Mosaic("no tiles given".to_string())));
+    };
+    let first = first.as_ref();
+    let merr = |msg: String| DemError::new(first, DemErrorKind::Mosaic(msg));
+    let tiles = paths.iter().map(|p| load(p, options)).collect::<Result<Vec<Dem>, DemError>>()?;
+    let g0 = tiles[0].heightmap.georef().clone();
+    if g0.crs == Crs::Unknown {
+        return Err(merr("the tiles carry no georeference, so they cannot be placed".to_string()));
+    }
+    let sp = g0.native_spacing;
+
+    // Place each tile: offset of its sample (0, 0) from tile 0's, in samples.
+    let mut placed = Vec::with_capacity(tiles.len());
+    for (t, p) in tiles.iter().zip(paths) {
+        let g = t.heightmap.georef();
+        let name = p.as_ref().display();
+        if g.crs != g0.crs || g.units != g0.units {
+            return Err(merr(format!(
+                "{name} is in {} but the first tile is in {}",
+                g.crs, g0.crs
+            )));
+        }
+        let rel = ((g.native_spacing - sp) / sp).abs();
+        if rel.x > 1e-9 || rel.y > 1e-9 {
+            return Err(merr(format!(
+                "{name} has spacing ({}, {}) but the first tile has ({}, {})",
+                g.native_spacing.x, g.native_spacing.y, sp.x, sp.y
+            )));
+        }
+        let off = (g.native_origin - g0.native_origin) / sp;
+        let r = off.round();
+        if (off - r).abs().max_element() > ALIGN_TOLERANCE || !r.is_finite() {
+            return Err(merr(format!(
+                "{name} is not on the first tile's grid (offset ({:.4}, {:.4}) samples)",
+                off.x, off.y
+            )));
+        }
+        // Offsets beyond +-2^40 samples cannot fit any allowed grid; refusing them here keeps
+        // the index arithmetic below far from overflow.
+        const FAR: f64 = (1u64 << 40) as f64;
+        if r.x.abs() > FAR || r.y.abs() > FAR {
+            return Err(merr(format!(
+                "{name} is {} x {} samples away from the first tile",
+                r.x, r.y
+            )));
+        }
+        placed.push((r.x as i64, r.y as i64, t));
+    }
+    let i0 = placed.iter().map(|p| p.0).min().unwrap_or(0);
+    let j0 = placed.iter().map(|p| p.1).min().unwrap_or(0);
+    let i1 = placed.iter().map(|p| p.0 + p.2.heightmap.width() as i64).max().unwrap_or(0);
+    let j1 = placed.iter().map(|p| p.1 + p.2.heightmap.height() as i64).max().unwrap_or(0);
+    let (w, h) = ((i1 - i0) as u64, (j1 - j0) as u64);
+    check_size(first, w, h, options)?;
+    let (w, h) = (w as usize, h as usize);
+
+    let mut data = vec![f32::NAN; w * h];
+    let mut covered = vec![false; w * h];
+    for ((pi, pj, t), p) in placed.iter().zip(paths) {
+        let hm = &t.heightmap;
+        let (di, dj) = ((pi - i0) as usize, (pj - j0) as usize);
+        for j in 0..hm.height() {
+            for i in 0..hm.width() {
+                let k = (j + dj) * w + i + di;
+                covered[k] = true;
+                if hm.voids().get(i, j) {
+                    continue;
+                }
+                let z = hm.get(i, j);
+                let old = data[k];
+                if old.is_nan() {
+                    data[k] = z;
+                } else if (old - z).abs() > SEAM_TOLERANCE_M {
+                    let at = g0.grid_to_native(dvec2(
+                        (i + di) as f64 + i0 as f64,
+                        (j + dj) as f64 + j0 as f64,
+                    ));
+                    return Err(merr(format!(
+                        "{} disagrees with an earlier tile at the shared sample ({:.6}, {:.6}): {z} vs {old} \
+                         (tolerance {SEAM_TOLERANCE_M} m)",
+                        p.as_ref().display(),
+                        at.x,
+                        at.y
+                    )));
+                }
+            }
+        }
+    }
+    if let Some(k) = covered.iter().position(|c| !c) {
+        return Err(merr(format!(
+            "gap: sample ({}, {}) of the {w} x {h} mosaic is covered by no tile",
+            k % w,
+            k / w
+        )));
+    }
+
+    let origin = g0.native_origin + dvec2(i0 as f64, j0 as f64) * sp;
+    let georef = match g0.units {
+        AngularOrLinear::Degrees => {
+            Georef::geographic(g0.crs.clone(), origin, sp, origin.y + 0.5 * (h as f64 - 1.0) * sp.y)
+        }
+        AngularOrLinear::Metres => Georef::projected(g0.crs.clone(), origin, sp),
+    };
+    let s0 = &tiles[0].source;
+    let sample_type = if tiles.iter().all(|t| t.source.sample_type == s0.sample_type) {
+        s0.sample_type.clone()
+    } else {
+        tiles.iter().map(|t| t.source.sample_type.as_str()).collect::<Vec<_>>().join(" + ")
+    };
+    let grid = RawGrid {
+        width: w,
+        height: h,
+        data,
+        georef,
+        nodata: None,
+        sample_type: sample_type.clone(),
+    };
+    let heightmap = voids::build_heightmap(first, grid)?;
+    Ok(Dem {
+        heightmap,
+        source: SourceInfo {
+            path: first.to_path_buf(),
+            format: s0.format,
+            sample_type,
+            nodata: s0.nodata,
+        },
+    })
+}
