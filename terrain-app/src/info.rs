@@ -107,7 +107,12 @@ impl InfoReport {
             self.max_m,
             self.max_m - self.min_m
         );
-        let nodata = self.nodata.map(|v| format!(", nodata = {v}")).unwrap_or_default();
+        let nodata = self
+            .nodata
+            .map(|v| {
+                if v.abs() >= 1e7 { format!(", nodata = {v:e}") } else { format!(", nodata = {v}") }
+            })
+            .unwrap_or_default();
         s += &format!("voids        {} ({pct:.2}%{nodata}), filled for geometry\n", self.voids);
         s
     }

@@ -152,7 +152,7 @@ impl Heightmap {
     /// Builds a heightmap from row-major samples (row 0 = south) and a void mask.
     ///
     /// Void samples may hold anything (NaN included): callers fill them first with
-    /// [`crate::dem::voids::fill_voids`] or use [`Heightmap::from_samples`], which does.
+    /// [`crate::dem::voids::fill_voids`] or use [`Heightmap::from_fn`] for grids without voids.
     /// Non-void samples must be finite.
     pub fn new(
         width: usize,
