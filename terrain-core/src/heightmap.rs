@@ -165,7 +165,12 @@ impl Heightmap {
             return Err(HeightmapError::Empty { width, height });
         }
         if data.len() != width * height {
-            return Err(HeightmapError::SizeMismatch { what: "data", width, height, got: data.len() });
+            return Err(HeightmapError::SizeMismatch {
+                what: "data",
+                width,
+                height,
+                got: data.len(),
+            });
         }
         if voids.width != width || voids.height != height {
             return Err(HeightmapError::SizeMismatch {

@@ -14,6 +14,7 @@ pub mod dem;
 pub mod error;
 pub mod georef;
 pub mod heightmap;
+pub mod metrics;
 
 pub use error::{DemError, DemErrorKind};
 pub use georef::{Crs, Georef};

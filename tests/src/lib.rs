@@ -19,6 +19,10 @@ pub fn data_dir() -> PathBuf {
 /// because the tests are defined over these files.
 pub fn data_file(rel: &str) -> PathBuf {
     let p = data_dir().join(rel);
-    assert!(p.exists(), "test data {} is missing (set TERRAIN_DATA to the shared data folder)", p.display());
+    assert!(
+        p.exists(),
+        "test data {} is missing (set TERRAIN_DATA to the shared data folder)",
+        p.display()
+    );
     p
 }

@@ -13,7 +13,9 @@ fn main() -> anyhow::Result<()> {
         Some("lint") => lint(),
         Some(other) => bail!("unknown task `{other}`; tasks: lint"),
         None => {
-            println!("cargo xtask <task>\n\ntasks:\n  lint   cargo fmt --check and clippy with warnings denied");
+            println!(
+                "cargo xtask <task>\n\ntasks:\n  lint   cargo fmt --check and clippy with warnings denied"
+            );
             Ok(())
         }
     }
