@@ -15,8 +15,8 @@
 //! split a cell (hardware-defined), so the bilinear surface is our interpretation; it is exact
 //! on planes and at vertices, like any triangulation. The error compares every non-void DEM
 //! sample inside the (clipped) block with that surface: the paper's `delta` is the **average**
-//! vertical error (section 3.3.1); we also keep the max. Vertices of a block clipped at the
-//! east/north border take edge-extended heights; only samples on the grid are measured.
+//! vertical error (section 3.3.1); we also keep the max. A block clipped at the east/north
+//! border is tessellated over its clipped extent (`f` segments per side of that rectangle).
 //! Heights are the vertical axis (our z, the paper's OpenGL y); nothing else enters.
 //!
 //! **Monotonicity.** The paper says `delta_i` decreases as the factor grows. It is true for
@@ -60,32 +60,34 @@ pub fn object_error(hm: &Heightmap, region: Region, f: usize) -> ObjectError {
     let Some(clip) = region.clip(hm) else {
         return ObjectError { avg: 0.0, max: 0.0, coverage: Coverage::Empty };
     };
-    let (c, f) = (region.cells, f.max(1));
-    let (x0, y0) = (region.x0, region.y0);
-    // Vertex heights: bilinear DEM at (x0 + c a / f, y0 + c b / f).
+    let f = f.max(1);
+    let (x0, y0) = (clip.x0, clip.y0);
+    // The tessellated block: the region, or its clipped extent at the east/north border.
+    let (cx, cy) = (clip.x1 - x0, clip.y1 - y0);
+    // Vertex heights: bilinear DEM at (x0 + cx a / f, y0 + cy b / f).
     let n = f + 1;
     let mut vz = Vec::with_capacity(n * n);
     for b in 0..=f {
         for a in 0..=f {
-            let u = x0 as f64 + (c * a) as f64 / f as f64;
-            let v = y0 as f64 + (c * b) as f64 / f as f64;
+            let u = x0 as f64 + (cx * a) as f64 / f as f64;
+            let v = y0 as f64 + (cy * b) as f64 / f as f64;
             vz.push(dem_bilinear(hm, u, v));
         }
     }
     // Local sample index -> (tessellated cell, fraction), in exact integer arithmetic.
-    let locate = |k: usize| -> (usize, f64) {
+    let locate = |k: usize, c: usize| -> (usize, f64) {
         let num = k * f;
         let cell = (num / c).min(f - 1);
         (cell, (num - cell * c) as f64 / c as f64)
     };
     let (mut sum, mut max, mut count) = (0.0f64, 0.0f64, 0usize);
     for j in clip.y0..=clip.y1 {
-        let (b, t) = locate(j - y0);
+        let (b, t) = locate(j - y0, cy);
         for i in clip.x0..=clip.x1 {
             if hm.voids().get(i, j) {
                 continue;
             }
-            let (a, s) = locate(i - x0);
+            let (a, s) = locate(i - x0, cx);
             let z = |aa: usize, bb: usize| vz[bb * n + aa];
             let surf = bilerp(z(a, b), z(a + 1, b), z(a, b + 1), z(a + 1, b + 1), s, t);
             let e = (f64::from(hm.get(i, j)) - surf).abs();

@@ -28,7 +28,7 @@
 use glam::DVec3;
 
 use crate::heightmap::Heightmap;
-use crate::metrics::{Coverage, Diagonal, Region, height_clamped, tri_interp};
+use crate::metrics::{Coverage, Diagonal, Region, tri_interp};
 
 /// Cells per patch side in the article (17 x 17 heights).
 pub const PATCH_CELLS: usize = 16;
@@ -80,8 +80,8 @@ pub struct LevelError {
 /// Levels: `trailing_zeros(cells) + 1` (5 for the article's 16 cells): level `L` needs a
 /// vertex step `2^L` that divides `cells`. Zero-area patch: a single level 0 with
 /// [`Coverage::Empty`]. Void vertices are never measured (their filled heights still shape the
-/// coarse mesh); a level with no measured vertex has error 0 and [`Coverage::VoidOnly`]. Coarse
-/// corners off the grid (a patch clipped at the east/north border) are edge-extended.
+/// coarse mesh); a level with no measured vertex has error 0 and [`Coverage::VoidOnly`]. A patch
+/// clipped at the east/north border keeps its lattice; its last coarse quads shrink to the grid.
 pub fn max_error_vertices(hm: &Heightmap, patch: Region, reference: Reference) -> Vec<LevelError> {
     let Some(clip) = patch.clip(hm) else {
         return vec![LevelError { level: 0, error: 0.0, vertex: None, coverage: Coverage::Empty }];
@@ -119,17 +119,23 @@ pub fn max_error_vertices(hm: &Heightmap, patch: Region, reference: Reference) -
                 if !candidate || hm.voids().get(i, j) {
                     continue;
                 }
-                // The level-L quad holding (i, j), split NW-SE (article case B).
+                // The level-L quad holding (i, j), split NW-SE (article case B); at the
+                // east/north border, clipped to the grid.
                 let a = (di / s).min(c / s - 1);
                 let b = (dj / s).min(c / s - 1);
                 let (ci, cj) = (x0 + a * s, y0 + b * s);
+                let (ci1, cj1) = ((ci + s).min(clip.x1), (cj + s).min(clip.y1));
+                let frac = |k: usize, k0: usize, k1: usize| {
+                    if k1 > k0 { (k - k0) as f64 / (k1 - k0) as f64 } else { 0.0 }
+                };
+                let zc = |ii: usize, jj: usize| f64::from(hm.get(ii, jj));
                 let coarse = tri_interp(
-                    height_clamped(hm, ci, cj),
-                    height_clamped(hm, ci + s, cj),
-                    height_clamped(hm, ci, cj + s),
-                    height_clamped(hm, ci + s, cj + s),
-                    (di - a * s) as f64 / s as f64,
-                    (dj - b * s) as f64 / s as f64,
+                    zc(ci, cj),
+                    zc(ci1, cj),
+                    zc(ci, cj1),
+                    zc(ci1, cj1),
+                    frac(i, ci, ci1),
+                    frac(j, cj, cj1),
                     Diagonal::SeNw,
                 );
                 let z = f64::from(hm.get(i, j));

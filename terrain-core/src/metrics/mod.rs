@@ -124,7 +124,7 @@ impl Region {
 pub enum Coverage {
     /// `samples` non-void samples were measured (the error is their max or mean).
     Measured {
-        /// How many samples the metric compared.
+        /// How many samples the metric compared (for `H`, points: the centre counts twice).
         samples: usize,
     },
     /// Every sample the metric would measure is void (or off the grid): the error is 0 by
@@ -197,8 +197,7 @@ pub(crate) fn bilerp(z00: f64, z10: f64, z01: f64, z11: f64, u: f64, v: f64) -> 
     a + (b - a) * v
 }
 
-/// Bilinear DEM height at fractional grid coordinates, in f64 (edge-extended outside the
-/// grid). [`Heightmap::sample_grid`] interpolates in f32; metrics compare errors down to
+/// Bilinear DEM height at fractional grid coordinates, in f64 (clamped to the grid). [`Heightmap::sample_grid`] interpolates in f32; metrics compare errors down to
 /// zero, so they interpolate in f64 to keep planes exact.
 pub(crate) fn dem_bilinear(hm: &Heightmap, u: f64, v: f64) -> f64 {
     let u = u.clamp(0.0, (hm.width() - 1) as f64);
@@ -209,10 +208,4 @@ pub(crate) fn dem_bilinear(hm: &Heightmap, u: f64, v: f64) -> f64 {
     let j1 = (j0 + 1).min(hm.height() - 1);
     let z = |i: usize, j: usize| f64::from(hm.get(i, j));
     bilerp(z(i0, j0), z(i1, j0), z(i0, j1), z(i1, j1), u - i0 as f64, v - j0 as f64)
-}
-
-/// Sample height as f64, edge-extended outside the grid (coarse-mesh corners of clipped nodes).
-#[inline]
-pub(crate) fn height_clamped(hm: &Heightmap, i: usize, j: usize) -> f64 {
-    f64::from(hm.get_clamped(i.min(i64::MAX as usize) as i64, j.min(i64::MAX as usize) as i64))
 }

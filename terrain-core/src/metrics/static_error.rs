@@ -15,7 +15,7 @@
 //! OpenGL y), so no frame conversion enters the errors.
 
 use crate::heightmap::Heightmap;
-use crate::metrics::{Coverage, Diagonal, Region, height_clamped, tri_interp};
+use crate::metrics::{Coverage, Diagonal, Region, tri_interp};
 
 /// `H` of one node (Eq. 4) and what it measured.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -32,14 +32,15 @@ pub struct NodeError {
 /// midpoints (`f'` = mean of the edge's two corners) and the centre twice (`f'` = mean of the
 /// SW-NE diagonal's corners, and of the SE-NW diagonal's).
 ///
-/// - Corners off the grid (a node clipped at the east/north border) take edge-extended heights,
-///   as the clipped mesh would; midpoints off the grid are not measured.
+/// - A node clipped at the east/north border is drawn as its clipped extent: `f'` is linear
+///   over the quad of the clipped corners (so planes stay exact); midpoints off the grid are
+///   not measured.
 /// - Void midpoints are not measured; if none is measured the result is 0 with
 ///   [`Coverage::VoidOnly`].
 /// - `cells < 2` (no vertex to add) or a region off the grid: 0 with [`Coverage::Empty`].
 /// - Odd `cells` (not a quadtree node of a `2^k + 1` block) use `m = cells / 2` as the
-///   midpoint; `f'` is then the linear interpolation along the edge, and the triangulations
-///   along each diagonal at the centre, which reduce to the means above for even `cells`.
+///   midpoint; `f'` is then the linear interpolation along the edge, and the two diagonal
+///   triangulations at the centre, which reduce to the means above for even `cells`.
 pub fn node_error(hm: &Heightmap, region: Region) -> NodeError {
     let Some(clip) = region.clip(hm) else {
         return NodeError { error: 0.0, coverage: Coverage::Empty };
@@ -49,29 +50,34 @@ pub fn node_error(hm: &Heightmap, region: Region) -> NodeError {
         return NodeError { error: 0.0, coverage: Coverage::Empty };
     }
     let (x0, y0, m) = (region.x0, region.y0, c / 2);
-    let z00 = height_clamped(hm, x0, y0);
-    let z10 = height_clamped(hm, x0 + c, y0);
-    let z01 = height_clamped(hm, x0, y0 + c);
-    let z11 = height_clamped(hm, x0 + c, y0 + c);
-    let t = m as f64 / c as f64;
-    let lerp = |a: f64, b: f64| a + (b - a) * t;
-    // The six points of Eq. 4: (i, j, f'(v_n)).
+    // The coarse quad: the node's corners, or its clipped extent's at the east/north border.
+    let (x1, y1) = (clip.x1, clip.y1);
+    let (w, ht) = ((x1 - x0) as f64, (y1 - y0) as f64);
+    let z = |i: usize, j: usize| f64::from(hm.get(i, j));
+    let (z00, z10, z01, z11) = (z(x0, y0), z(x1, y0), z(x0, y1), z(x1, y1));
+    // f'(v_n): linear on the coarse quad's edges (the mean of the two corners at an edge
+    // midpoint), and on each of its two triangulations at the centre (the mean of the
+    // diagonal's two corners).
+    let coarse = |i: usize, j: usize, diag: Diagonal| {
+        tri_interp(z00, z10, z01, z11, (i - x0) as f64 / w, (j - y0) as f64 / ht, diag)
+    };
+    // The six points of Eq. 4, with the diagonal their f' is interpolated along.
     let points = [
-        (x0 + m, y0, lerp(z00, z10)),     // south edge
-        (x0 + m, y0 + c, lerp(z01, z11)), // north edge
-        (x0, y0 + m, lerp(z00, z01)),     // west edge
-        (x0 + c, y0 + m, lerp(z10, z11)), // east edge
-        (x0 + m, y0 + m, tri_interp(z00, z10, z01, z11, t, t, Diagonal::SwNe)),
-        (x0 + m, y0 + m, tri_interp(z00, z10, z01, z11, t, t, Diagonal::SeNw)),
+        (x0 + m, y0, Diagonal::SwNe),     // south edge
+        (x0 + m, y0 + c, Diagonal::SwNe), // north edge
+        (x0, y0 + m, Diagonal::SwNe),     // west edge
+        (x0 + c, y0 + m, Diagonal::SwNe), // east edge
+        (x0 + m, y0 + m, Diagonal::SwNe), // centre, SW-NE diagonal
+        (x0 + m, y0 + m, Diagonal::SeNw), // centre, SE-NW diagonal
     ];
     let mut h = 0.0f64;
     let mut n = 0;
-    for (i, j, coarse) in points {
+    for (i, j, diag) in points {
         if !clip.contains(i, j) || hm.voids().get(i, j) {
             continue;
         }
         // Eq. 5: delta_n = |f(v_n) - f'(v_n)|.
-        h = h.max((f64::from(hm.get(i, j)) - coarse).abs());
+        h = h.max((z(i, j) - coarse(i, j, diag)).abs());
         n += 1;
     }
     NodeError { error: h, coverage: Coverage::from_count(n) }
