@@ -15,6 +15,7 @@ pub mod error;
 pub mod georef;
 pub mod heightmap;
 pub mod synth;
+pub mod metrics;
 
 pub use error::{DemError, DemErrorKind};
 pub use georef::{Crs, Georef};

@@ -1,0 +1,221 @@
+//! The DSS paper's (Zhang 2019, section 3.3.1) block errors: object-space error per
+//! tessellation factor, the view-angle screen error (Eq. 3) and the continuous tessellation
+//! factor `F_thr` (Eq. 4).
+//!
+//! **Which factors.** The paper stores 32 errors per M-block, `delta_i` for
+//! `F_tessellation = 2i`, `i = 1..=32` (2, 4, ..., 64), and Eq. 4 interpolates between
+//! neighbouring even factors. [`object_errors`] computes exactly those 32 (index `k` is
+//! `F = 2(k + 1)`); [`object_error`] measures any single factor `f >= 1` for callers that need
+//! odd ones.
+//!
+//! **What is measured.** The block is tessellated uniformly with `f` segments per side (the
+//! GPU's equal-spacing quad tessellation); each tessellated vertex takes the DEM's bilinear
+//! height at its position (the displacement-map lookup); the surface between vertices is
+//! bilinear over each tessellated cell. The paper does not say how the tessellator's triangles
+//! split a cell (hardware-defined), so the bilinear surface is our interpretation; it is exact
+//! on planes and at vertices, like any triangulation. The error compares every non-void DEM
+//! sample inside the (clipped) block with that surface: the paper's `delta` is the **average**
+//! vertical error (section 3.3.1); we also keep the max. A block clipped at the east/north
+//! border is tessellated over its clipped extent (`f` segments per side of that rectangle).
+//! Heights are the vertical axis (our z, the paper's OpenGL y); nothing else enters.
+//!
+//! **Monotonicity.** The paper says `delta_i` decreases as the factor grows. It is true for
+//! nested factors on convex (or concave) separable terrain, and always `delta = 0` once the
+//! factor is a multiple of the block's cells (every sample is a vertex), but it is *not* true
+//! in general, not even for factors dividing the block: a single pit that becomes a vertex at
+//! the finer factor spreads a tent of error over its neighbours (average up), and an
+//! alternating bump (+1, -1) raises the max. The tests pin both counterexamples.
+//! [`tessellation_factor`] scans as the paper does and stays well defined either way;
+//! [`DssErrors::monotone_envelope`] gives the non-increasing upper envelope for callers who
+//! need the paper's assumption.
+
+use glam::DVec3;
+
+use crate::heightmap::Heightmap;
+use crate::metrics::{Coverage, Region, bilerp, dem_bilinear, screen};
+
+/// Number of object-space errors per block (DSS paper: 32).
+pub const FACTORS: usize = 32;
+
+/// The tessellation factor of index `k` in the 32 errors: `2 (k + 1)` (paper: `l_i = 2i`).
+pub const fn factor(k: usize) -> usize {
+    2 * (k + 1)
+}
+
+/// Object-space error of a block at one tessellation factor.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ObjectError {
+    /// Mean vertical error over the measured samples (the paper's `delta`), metres.
+    pub avg: f64,
+    /// Largest vertical error over the measured samples, metres.
+    pub max: f64,
+    /// What was measured.
+    pub coverage: Coverage,
+}
+
+/// Object-space error of `region` tessellated with `f` segments per side (`f = 0` counts as 1).
+///
+/// Zero-area region: 0 with [`Coverage::Empty`]; void-only: 0 with [`Coverage::VoidOnly`].
+pub fn object_error(hm: &Heightmap, region: Region, f: usize) -> ObjectError {
+    let Some(clip) = region.clip(hm) else {
+        return ObjectError { avg: 0.0, max: 0.0, coverage: Coverage::Empty };
+    };
+    let f = f.max(1);
+    let (x0, y0) = (clip.x0, clip.y0);
+    // The tessellated block: the region, or its clipped extent at the east/north border.
+    let (cx, cy) = (clip.x1 - x0, clip.y1 - y0);
+    // Vertex heights: bilinear DEM at (x0 + cx a / f, y0 + cy b / f).
+    let n = f + 1;
+    let mut vz = Vec::with_capacity(n * n);
+    for b in 0..=f {
+        for a in 0..=f {
+            let u = x0 as f64 + (cx * a) as f64 / f as f64;
+            let v = y0 as f64 + (cy * b) as f64 / f as f64;
+            vz.push(dem_bilinear(hm, u, v));
+        }
+    }
+    // Local sample index -> (tessellated cell, fraction), in exact integer arithmetic.
+    let locate = |k: usize, c: usize| -> (usize, f64) {
+        let num = k * f;
+        let cell = (num / c).min(f - 1);
+        (cell, (num - cell * c) as f64 / c as f64)
+    };
+    let (mut sum, mut max, mut count) = (0.0f64, 0.0f64, 0usize);
+    for j in clip.y0..=clip.y1 {
+        let (b, t) = locate(j - y0, cy);
+        for i in clip.x0..=clip.x1 {
+            if hm.voids().get(i, j) {
+                continue;
+            }
+            let (a, s) = locate(i - x0, cx);
+            let z = |aa: usize, bb: usize| vz[bb * n + aa];
+            let surf = bilerp(z(a, b), z(a + 1, b), z(a, b + 1), z(a + 1, b + 1), s, t);
+            let e = (f64::from(hm.get(i, j)) - surf).abs();
+            sum += e;
+            max = max.max(e);
+            count += 1;
+        }
+    }
+    let avg = if count == 0 { 0.0 } else { sum / count as f64 };
+    ObjectError { avg, max, coverage: Coverage::from_count(count) }
+}
+
+/// The 32 object-space errors of a block, index `k` for factor [`factor`]`(k) = 2 (k + 1)`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct DssErrors {
+    /// Mean vertical errors (the paper's `delta_i`, `i = k + 1`).
+    pub avg: [f64; FACTORS],
+    /// Max vertical errors.
+    pub max: [f64; FACTORS],
+    /// What was measured (the same for every factor).
+    pub coverage: Coverage,
+}
+
+impl DssErrors {
+    /// The non-increasing upper envelope: each error replaced by the max over itself and every
+    /// finer factor, so `delta` never grows with the factor (the paper's stated assumption).
+    pub fn monotone_envelope(&self) -> Self {
+        let mut out = *self;
+        for k in (0..FACTORS - 1).rev() {
+            out.avg[k] = out.avg[k].max(out.avg[k + 1]);
+            out.max[k] = out.max[k].max(out.max[k + 1]);
+        }
+        out
+    }
+}
+
+/// The paper's 32 object-space errors of `region` (section 3.3.1), computed in preprocessing.
+pub fn object_errors(hm: &Heightmap, region: Region) -> DssErrors {
+    let mut out = DssErrors { avg: [0.0; FACTORS], max: [0.0; FACTORS], coverage: Coverage::Empty };
+    for k in 0..FACTORS {
+        let e = object_error(hm, region, factor(k));
+        out.avg[k] = e.avg;
+        out.max[k] = e.max;
+        out.coverage = e.coverage;
+    }
+    out
+}
+
+/// Eq. 3 for every factor: `rho_i = lambda * delta_i / d * sin(theta)` (see
+/// [`screen::dss`] for the clamps and the must-split case).
+pub fn screen_errors(
+    delta: &[f64; FACTORS],
+    lambda: f64,
+    d: f64,
+    view_dir: DVec3,
+) -> [f64; FACTORS] {
+    delta.map(|e| screen::dss(lambda, e, d, view_dir))
+}
+
+/// The tessellation decision of Eq. 4.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Tessellation {
+    /// `rho_32 > rho_thr`: even the finest factor 64 is too coarse; the node splits (a leaf
+    /// that cannot split renders at 64).
+    MustSplit,
+    /// The continuous factor `F_thr`, in `[2, 64]`.
+    Factor(f64),
+}
+
+/// Eq. 4: `F_thr = (rho_i - rho_thr) / (rho_i - rho_{i+1}) * 2 + l_i`, `l_i = 2i`.
+///
+/// As the paper: if `rho_32 > rho_thr` the node must split; otherwise scan `i` from 31 down to
+/// 1 for the first `rho_i > rho_thr` (so `rho_{i+1} <= rho_thr < rho_i` and the denominator is
+/// positive) and interpolate into `(2i, 2i + 2]`; if none exceeds the threshold, the coarsest
+/// factor 2. `rho` index `k` is the paper's `i = k + 1`. A negative or NaN threshold counts as
+/// 0; an infinite `rho_i` (camera inside the box) gives `2i + 2`.
+pub fn tessellation_factor(rho: &[f64; FACTORS], rho_thr: f64) -> Tessellation {
+    let thr = if rho_thr.is_nan() { 0.0 } else { rho_thr.max(0.0) };
+    if rho[FACTORS - 1] > thr {
+        return Tessellation::MustSplit;
+    }
+    for k in (0..FACTORS - 1).rev() {
+        let (ri, rn) = (rho[k], rho[k + 1]);
+        if ri > thr {
+            let li = factor(k) as f64;
+            let frac = if ri.is_infinite() { 1.0 } else { (ri - thr) / (ri - rn) };
+            return Tessellation::Factor(frac * 2.0 + li);
+        }
+    }
+    Tessellation::Factor(2.0)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn ramp(k: usize) -> f64 {
+        // rho_i = 64 - 2i: rho_1 = 62, ..., rho_32 = 0.
+        64.0 - factor(k) as f64
+    }
+
+    #[test]
+    fn eq4_interpolates_between_even_factors() {
+        let rho: [f64; FACTORS] = std::array::from_fn(ramp);
+        // rho_thr = 33: rho_15 = 34 > 33 >= rho_16 = 32 -> F = (34 - 33) / 2 * 2 + 30 = 31.
+        assert_eq!(tessellation_factor(&rho, 33.0), Tessellation::Factor(31.0));
+        // Exactly on rho_16 = 32: first rho_i > 32 is i = 15 -> F = 2/2*2 + 30 = 32.
+        assert_eq!(tessellation_factor(&rho, 32.0), Tessellation::Factor(32.0));
+        assert_eq!(tessellation_factor(&rho, 100.0), Tessellation::Factor(2.0));
+        assert_eq!(tessellation_factor(&rho, -5.0), Tessellation::Factor(64.0));
+        let mut split = rho;
+        split[31] = 1.0;
+        assert_eq!(tessellation_factor(&split, 0.5), Tessellation::MustSplit);
+        assert_eq!(tessellation_factor(&[f64::INFINITY; FACTORS], 1.0), Tessellation::MustSplit);
+        let mut inf = [0.0; FACTORS];
+        inf[4] = f64::INFINITY;
+        assert_eq!(tessellation_factor(&inf, 1.0), Tessellation::Factor(12.0));
+    }
+
+    #[test]
+    fn envelope_is_non_increasing() {
+        let e = DssErrors {
+            avg: std::array::from_fn(|k| if k % 2 == 0 { 1.0 } else { 2.0 }),
+            max: [0.0; FACTORS],
+            coverage: Coverage::Measured { samples: 1 },
+        };
+        let m = e.monotone_envelope();
+        assert!(m.avg.windows(2).all(|w| w[0] >= w[1]));
+        assert_eq!(m.avg[0], 2.0);
+    }
+}
