@@ -12,8 +12,10 @@
 
 pub mod dem;
 pub mod error;
+pub mod geometry;
 pub mod georef;
 pub mod heightmap;
+pub mod quadtree;
 
 pub use error::{DemError, DemErrorKind};
 pub use georef::{Crs, Georef};
