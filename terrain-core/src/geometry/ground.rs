@@ -32,8 +32,8 @@ use super::{camera::Camera, frustum::Classification};
 /// counter-clockwise order.
 #[derive(Debug, Clone, PartialEq)]
 pub enum GroundRegion {
-    /// The paper's projected view triangle: `[apex (eye), far-left, far-right]` rearranged
-    /// counter-clockwise: `[apex, far-right, far-left]`.
+    /// The paper's projected view triangle, counter-clockwise: `[apex (the eye's plan
+    /// position), far-right corner, far-left corner]`.
     Triangle([DVec2; 3]),
     /// The fallback for (near-)vertical views: the convex hull of the projected frustum.
     Polygon(Vec<DVec2>),

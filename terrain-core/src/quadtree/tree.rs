@@ -353,11 +353,13 @@ mod tests {
                     let r = info.rect;
                     let (mut lo, mut hi, mut dlo, mut dhi) =
                         (f32::MAX, f32::MIN, f32::MAX, f32::MIN);
+                    let mut any_void = false;
                     for y in r.y0..=r.y1 {
                         for x in r.x0..=r.x1 {
                             let z = data[y as usize * w + x as usize];
                             lo = lo.min(z);
                             hi = hi.max(z);
+                            any_void |= voids.get(x as usize, y as usize);
                             if !voids.get(x as usize, y as usize) {
                                 dlo = dlo.min(z);
                                 dhi = dhi.max(z);
@@ -370,6 +372,7 @@ mod tests {
                         "{id:?}"
                     );
                     assert_eq!(info.data_range, (dlo <= dhi).then_some((dlo, dhi)), "{id:?}");
+                    assert_eq!(info.has_voids, any_void, "{id:?}");
                 }
             }
         }
