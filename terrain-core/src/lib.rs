@@ -12,10 +12,12 @@
 
 pub mod dem;
 pub mod error;
+pub mod geometry;
 pub mod georef;
 pub mod heightmap;
-pub mod synth;
 pub mod metrics;
+pub mod quadtree;
+pub mod synth;
 
 pub use error::{DemError, DemErrorKind};
 pub use georef::{Crs, Georef};

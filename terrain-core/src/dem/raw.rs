@@ -1,6 +1,6 @@
 //! Headerless raw grids: little-endian int16, uint16 or float32 samples, rows north first.
 //!
-//! There is no header, so the dimensions and sample type come from [`RawSpec`]; the file length
+//! There is no header, so the dimensions and sample type come from [`RawSpec`](super::RawSpec); the file length
 //! must be exactly `width x height x bytes per sample`. Heights are
 //! `raw x vertical_scale + vertical_offset`; there is no georeference, so the grid is placed in
 //! a local metric frame with `LoadOptions::spacing_m`.

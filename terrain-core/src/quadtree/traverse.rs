@@ -1,0 +1,346 @@
+//! The one quadtree traversal every LOD method uses, its split and cull policies, the
+//! restricted (balanced) post-pass, and neighbour lookup in a selected leaf set.
+//!
+//! A method plugs in a [`SplitPolicy`] (its error metric: PVPS Eq. 8, the out-of-core
+//! paper's Eq. 7, the DSS paper's Eq. 3, ...) and a [`CullPolicy`] ([`FrustumCull`],
+//! [`BoundingCircleCull`], a PVS lookup, or several combined with a tuple `(a, b)`), and
+//! [`traverse`] does the rest.
+
+use std::collections::HashSet;
+
+use super::node::{Direction, NodeId, Quadrant};
+use super::tree::{NodeInfo, Quadtree};
+use crate::geometry::{Classification, Frustum, GroundRegion, circle_vs_region};
+
+/// What a cull policy says about a node.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum Cull {
+    /// Invisible: drop the node and its subtree.
+    Reject,
+    /// Possibly visible: keep it, and ask again for its children.
+    Accept,
+    /// Entirely visible: keep it and its whole subtree without asking again.
+    AcceptAll,
+}
+
+impl From<Classification> for Cull {
+    fn from(c: Classification) -> Self {
+        match c {
+            Classification::Outside => Cull::Reject,
+            Classification::Intersecting => Cull::Accept,
+            Classification::Inside => Cull::AcceptAll,
+        }
+    }
+}
+
+/// What happened to a node during [`traverse`] (reported to the visitor in traversal order).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum Visit {
+    /// Rejected by the cull policy; its subtree is not visited.
+    Culled,
+    /// Split; its children follow.
+    Split,
+    /// Selected as a leaf (drawn).
+    Leaf,
+}
+
+/// Decides whether a node is refined. Only asked for nodes that can split (not at the
+/// finest level) and that the cull policy kept.
+pub trait SplitPolicy {
+    /// Whether `node` should be replaced by its children.
+    fn should_split(&mut self, node: NodeId, info: &NodeInfo) -> bool;
+}
+
+impl<F: FnMut(NodeId, &NodeInfo) -> bool> SplitPolicy for F {
+    fn should_split(&mut self, node: NodeId, info: &NodeInfo) -> bool {
+        self(node, info)
+    }
+}
+
+/// Decides whether a node is visible. Not asked below a node that returned
+/// [`Cull::AcceptAll`].
+pub trait CullPolicy {
+    /// Classifies `node`.
+    fn classify(&mut self, node: NodeId, info: &NodeInfo) -> Cull;
+}
+
+impl<F: FnMut(NodeId, &NodeInfo) -> Cull> CullPolicy for F {
+    fn classify(&mut self, node: NodeId, info: &NodeInfo) -> Cull {
+        self(node, info)
+    }
+}
+
+/// Both policies must keep a node: `Reject` if either rejects, `AcceptAll` only if both do.
+impl<A: CullPolicy, B: CullPolicy> CullPolicy for (A, B) {
+    fn classify(&mut self, node: NodeId, info: &NodeInfo) -> Cull {
+        match self.0.classify(node, info) {
+            Cull::Reject => Cull::Reject,
+            a => match (a, self.1.classify(node, info)) {
+                (_, Cull::Reject) => Cull::Reject,
+                (Cull::AcceptAll, Cull::AcceptAll) => Cull::AcceptAll,
+                _ => Cull::Accept,
+            },
+        }
+    }
+}
+
+/// Splits every node down to the finest level.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct AlwaysSplit;
+
+impl SplitPolicy for AlwaysSplit {
+    fn should_split(&mut self, _: NodeId, _: &NodeInfo) -> bool {
+        true
+    }
+}
+
+/// Splits every node above the given level (a uniform grid of nodes).
+#[derive(Debug, Clone, Copy)]
+pub struct SplitToLevel(pub u8);
+
+impl SplitPolicy for SplitToLevel {
+    fn should_split(&mut self, node: NodeId, _: &NodeInfo) -> bool {
+        node.level < self.0
+    }
+}
+
+/// Keeps everything.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct NoCull;
+
+impl CullPolicy for NoCull {
+    fn classify(&mut self, _: NodeId, _: &NodeInfo) -> Cull {
+        Cull::AcceptAll
+    }
+}
+
+/// Six-plane view-frustum culling of the node's world box ([`NodeInfo::aabb`], from the
+/// min/max pyramid): the PVPS paper's section 2.3.2 and the DSS paper's hierarchical
+/// frustum culling.
+#[derive(Debug, Clone, Copy)]
+pub struct FrustumCull {
+    /// The frustum, world frame.
+    pub frustum: Frustum,
+}
+
+impl FrustumCull {
+    /// Culls against `frustum`.
+    pub fn new(frustum: Frustum) -> Self {
+        Self { frustum }
+    }
+}
+
+impl CullPolicy for FrustumCull {
+    fn classify(&mut self, _: NodeId, info: &NodeInfo) -> Cull {
+        self.frustum.classify(&info.aabb).into()
+    }
+}
+
+/// The out-of-core paper's culling (its sections 3.1 and 3.3): the node's bounding circle
+/// (its plan diagonal as diameter) against the view region projected on the ground (see
+/// [`crate::geometry::project_view_to_ground`]). Heights play no part.
+#[derive(Debug, Clone)]
+pub struct BoundingCircleCull {
+    /// The projected view region.
+    pub region: GroundRegion,
+}
+
+impl BoundingCircleCull {
+    /// Culls against `region`.
+    pub fn new(region: GroundRegion) -> Self {
+        Self { region }
+    }
+}
+
+impl CullPolicy for BoundingCircleCull {
+    fn classify(&mut self, _: NodeId, info: &NodeInfo) -> Cull {
+        let (lo, hi) = (info.aabb.min.truncate(), info.aabb.max.truncate());
+        let radius = (hi - lo).length() * 0.5;
+        circle_vs_region(&self.region, (lo + hi) * 0.5, radius).into()
+    }
+}
+
+/// The traversal shared by every LOD method: top-down from the root, depth-first in child
+/// order (SW, SE, NE, NW). For each node that holds grid cells: the cull policy classifies
+/// it (unless an ancestor was [`Cull::AcceptAll`]); a rejected node is reported as
+/// [`Visit::Culled`] and dropped; otherwise, if it is above the finest level and the split
+/// policy says so, it is reported as [`Visit::Split`] and its children follow; else it is
+/// reported as [`Visit::Leaf`] and selected. Nodes entirely outside the grid (past its
+/// east or north edge) are skipped silently.
+///
+/// Returns the selected leaves in traversal order (deterministic; sorted by
+/// [`NodeId::dfs_key`]).
+pub fn traverse<S, C, V>(qt: &Quadtree, split: &mut S, cull: &mut C, visit: &mut V) -> Vec<NodeId>
+where
+    S: SplitPolicy + ?Sized,
+    C: CullPolicy + ?Sized,
+    V: FnMut(NodeId, Visit) + ?Sized,
+{
+    let mut out = Vec::new();
+    // Explicit stack, children pushed in reverse so they pop in order.
+    let mut stack = vec![(NodeId::ROOT, false)];
+    while let Some((node, inside)) = stack.pop() {
+        let Some(info) = qt.node_info(node) else { continue };
+        let mut all = inside;
+        if !all {
+            match cull.classify(node, &info) {
+                Cull::Reject => {
+                    visit(node, Visit::Culled);
+                    continue;
+                }
+                Cull::Accept => {}
+                Cull::AcceptAll => all = true,
+            }
+        }
+        if !info.is_finest && split.should_split(node, &info) {
+            visit(node, Visit::Split);
+            for c in node.children().into_iter().rev() {
+                stack.push((c, all));
+            }
+        } else {
+            visit(node, Visit::Leaf);
+            out.push(node);
+        }
+    }
+    out
+}
+
+/// [`traverse`] without a visitor.
+pub fn select<S, C>(qt: &Quadtree, split: &mut S, cull: &mut C) -> Vec<NodeId>
+where
+    S: SplitPolicy + ?Sized,
+    C: CullPolicy + ?Sized,
+{
+    traverse(qt, split, cull, &mut |_, _| {})
+}
+
+/// A set of selected leaves with neighbour lookup across level boundaries.
+#[derive(Debug, Clone, Default)]
+pub struct LeafSet {
+    set: HashSet<NodeId>,
+    max_level: u8,
+}
+
+impl LeafSet {
+    /// The set of `leaves` (assumed disjoint: no leaf is an ancestor of another).
+    pub fn new(leaves: impl IntoIterator<Item = NodeId>) -> Self {
+        let set: HashSet<NodeId> = leaves.into_iter().collect();
+        let max_level = set.iter().map(|n| n.level).max().unwrap_or(0);
+        Self { set, max_level }
+    }
+
+    /// Whether `n` is a selected leaf.
+    pub fn contains(&self, n: NodeId) -> bool {
+        self.set.contains(&n)
+    }
+
+    /// Number of leaves.
+    pub fn len(&self) -> usize {
+        self.set.len()
+    }
+
+    /// Whether there are no leaves.
+    pub fn is_empty(&self) -> bool {
+        self.set.is_empty()
+    }
+
+    /// The leaves in traversal order.
+    pub fn sorted(&self) -> Vec<NodeId> {
+        let mut v: Vec<NodeId> = self.set.iter().copied().collect();
+        v.sort_by_key(|n| n.dfs_key());
+        v
+    }
+
+    /// The selected leaf that contains `n` (is `n` or an ancestor of it), if any.
+    pub fn leaf_covering(&self, n: NodeId) -> Option<NodeId> {
+        (0..=n.level).rev().map(|l| n.ancestor(l)).find(|a| self.set.contains(a))
+    }
+
+    /// The selected leaves across edge `d` of `node`: a single leaf at the same or a
+    /// coarser level, or the finer leaves along that edge (ordered west to east or south
+    /// to north); empty at the root's border or where the neighbour region holds no leaf
+    /// (culled).
+    pub fn neighbours(&self, node: NodeId, d: Direction) -> Vec<NodeId> {
+        let Some(g) = node.neighbour(d) else { return Vec::new() };
+        if let Some(l) = self.leaf_covering(g) {
+            return vec![l];
+        }
+        let mut out = Vec::new();
+        self.collect_facing(g, d.opposite(), &mut out);
+        out
+    }
+
+    /// The coarsest level among [`LeafSet::neighbours`] and the finest, or `None`.
+    pub fn neighbour_levels(&self, node: NodeId, d: Direction) -> Option<(u8, u8)> {
+        let v = self.neighbours(node, d);
+        let lo = v.iter().map(|n| n.level).min()?;
+        Some((lo, v.iter().map(|n| n.level).max()?))
+    }
+
+    /// Leaves inside `n` touching its side `side`, in west->east / south->north order.
+    fn collect_facing(&self, n: NodeId, side: Direction, out: &mut Vec<NodeId>) {
+        if self.set.contains(&n) {
+            out.push(n);
+            return;
+        }
+        if n.level >= self.max_level {
+            return;
+        }
+        let qs = match side {
+            Direction::North => [Quadrant::NorthWest, Quadrant::NorthEast],
+            Direction::South => [Quadrant::SouthWest, Quadrant::SouthEast],
+            Direction::East => [Quadrant::SouthEast, Quadrant::NorthEast],
+            Direction::West => [Quadrant::SouthWest, Quadrant::NorthWest],
+        };
+        for q in qs {
+            self.collect_facing(n.child(q), side, out);
+        }
+    }
+}
+
+/// The restricted-quadtree post-pass: splits selected leaves until every two leaves that
+/// share an edge differ by at most one level (what the crack-free methods need: PVPS Alg. 1,
+/// DSS strips, geomorphing neighbour factors). Leaves are only ever split (detail is
+/// added, never removed); children of a split leaf that hold no grid cell are dropped; the
+/// new children are *not* re-culled (conservative: the parent was visible). Returns the
+/// leaves in traversal order.
+pub fn balance(qt: &Quadtree, leaves: &[NodeId]) -> Vec<NodeId> {
+    let mut set: HashSet<NodeId> = leaves.iter().copied().collect();
+    let mut work: Vec<NodeId> = leaves.to_vec();
+    // Popped deepest first: fewer repeated splits.
+    work.sort_by_key(|n| n.level);
+    while let Some(f) = work.pop() {
+        if !set.contains(&f) || f.level < 2 {
+            continue;
+        }
+        for d in Direction::ALL {
+            let Some(g) = f.neighbour(d) else { continue };
+            // Split the leaf covering g while it is two or more levels coarser than f.
+            loop {
+                let coarse =
+                    (0..f.level - 1).rev().map(|l| g.ancestor(l)).find(|a| set.contains(a));
+                let Some(a) = coarse else { break };
+                set.remove(&a);
+                for c in a.children() {
+                    if qt.contains_node(c) {
+                        set.insert(c);
+                        work.push(c);
+                    }
+                }
+            }
+        }
+    }
+    let mut v: Vec<NodeId> = set.into_iter().collect();
+    v.sort_by_key(|n| n.dfs_key());
+    v
+}
+
+/// Whether every two leaves that share an edge differ by at most one level.
+pub fn is_balanced(leaves: &[NodeId]) -> bool {
+    let set = LeafSet::new(leaves.iter().copied());
+    leaves.iter().all(|&n| {
+        Direction::ALL
+            .iter()
+            .all(|&d| set.neighbours(n, d).iter().all(|m| m.level.abs_diff(n.level) <= 1))
+    })
+}
