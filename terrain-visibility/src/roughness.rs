@@ -82,7 +82,7 @@ pub fn roughness(hm: &Heightmap, config: &RoughnessConfig) -> Vec<f32> {
 pub fn normalize_255(values: &[f32]) -> Vec<f32> {
     let (lo, hi) =
         values.iter().fold((f32::INFINITY, f32::NEG_INFINITY), |(a, b), &v| (a.min(v), b.max(v)));
-    if !(hi > lo) {
+    if hi <= lo {
         return vec![0.0; values.len()];
     }
     let k = 255.0 / (hi - lo) as f64;
