@@ -17,5 +17,7 @@
 //! let mesh = tessellate(&PatchFactors { inner: [4.0, 4.0], outer: [4.0, 2.0, 4.0, 3.5] });
 //! assert!(mesh.points.iter().all(|p| (0.0..=1.0).contains(&p[0]) && (0.0..=1.0).contains(&p[1])));
 //! ```
-
+pub mod device;
 pub mod tess;
+
+pub use device::{BackendChoice, DeviceConfig, GpuContext, GpuError, GpuFeatures};

@@ -34,8 +34,13 @@
 //! depend only on that edge's factor (bit for bit), so two patches that share an edge and
 //! agree on its factor emit the same edge vertices.
 
+pub mod gpu;
 pub mod reference;
 
+pub use gpu::{
+    DrawIndexedArgs, GpuDomainPoint, GpuPatchFactors, GpuTessOutput, GpuTessellator, PatchRange,
+    TessReadBack,
+};
 pub use reference::{EdgeSpacing, QuadLayout};
 
 /// The tessellation factors of one quad patch, as a hull shader would output them.
@@ -97,5 +102,7 @@ pub fn tessellate(factors: &PatchFactors) -> TessMesh {
     mesh
 }
 
+#[cfg(test)]
+mod gpu_tests;
 #[cfg(test)]
 mod tests;

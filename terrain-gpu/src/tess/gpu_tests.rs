@@ -1,0 +1,138 @@
+//! GPU tessellation against the CPU reference, on Vulkan (lavapipe here) and GL (llvmpipe),
+//! plus the `TERRAIN_GPU_BACKEND` override. Where no adapter exists the tests print why and
+//! pass, unless `TERRAIN_REQUIRE_GPU` is set (CI sets it): then they fail.
+
+use super::tests::factor_corpus;
+use super::{GpuTessellator, PatchFactors, tessellate};
+use crate::device::{BACKEND_ENV, BackendChoice, GpuContext, GpuError, REQUIRE_ENV};
+
+fn required() -> bool {
+    std::env::var_os(REQUIRE_ENV).is_some()
+}
+
+/// A context on `backend`, or `None` (with the reason printed) where none exists and none is required.
+fn context(backend: BackendChoice) -> Option<GpuContext> {
+    match GpuContext::on_backend(backend) {
+        Ok(ctx) => {
+            println!("adapter: {}", ctx.describe());
+            Some(ctx)
+        }
+        Err(e @ GpuError::NoAdapter { .. }) if !required() => {
+            println!("SKIPPED: {e}; set {REQUIRE_ENV}=1 to make this a failure");
+            None
+        }
+        Err(e) => panic!("{backend:?}: {e}"),
+    }
+}
+
+fn gpu_matches_reference(backend: BackendChoice, expected: wgpu::Backend) {
+    let Some(ctx) = context(backend) else { return };
+    assert_eq!(ctx.adapter_info().backend, expected, "{}", ctx.describe());
+    let mut factors = factor_corpus(80);
+    // A culled patch in the middle of the batch: it must take no room.
+    factors.insert(5, PatchFactors { inner: [4.0, 4.0], outer: [4.0, 0.0, 4.0, 4.0] });
+    let tess = GpuTessellator::new(&ctx.device);
+    let out = tess.tessellate(&ctx, &factors).unwrap();
+    let back = out.read_back(&ctx).unwrap();
+
+    let mut total_indices = 0;
+    let mut worst = 0.0f32;
+    for (p, f) in factors.iter().enumerate() {
+        let cpu = tessellate(f);
+        let r = back.ranges[p];
+        assert_eq!(r.point_count as usize, cpu.points.len(), "patch {p} {f:?}");
+        assert_eq!(r.index_count as usize, cpu.indices.len(), "patch {p} {f:?}");
+        for (k, want) in cpu.points.iter().enumerate() {
+            let got = back.points[r.point_offset as usize + k];
+            assert_eq!(got.patch_index, p as u32);
+            for c in 0..2 {
+                let d = (got.uv[c] - want[c]).abs();
+                worst = worst.max(d);
+                assert!(d <= 1e-6, "patch {p} {f:?} point {k}: gpu {:?} cpu {want:?}", got.uv);
+            }
+        }
+        let gpu_indices = &back.indices[r.index_offset as usize..][..cpu.indices.len()];
+        for (k, (&g, &c)) in gpu_indices.iter().zip(&cpu.indices).enumerate() {
+            assert_eq!(g, r.point_offset + c, "patch {p} {f:?} index {k}");
+        }
+        total_indices += r.index_count;
+    }
+    assert_eq!(back.draw_args.index_count, total_indices);
+    assert_eq!(back.draw_args.instance_count, 1);
+    println!(
+        "{} patches, {} points, {} triangles: identical topology, max |gpu - cpu| = {worst:e}",
+        factors.len(),
+        out.point_capacity,
+        total_indices / 3
+    );
+}
+
+#[test]
+fn gpu_tessellation_matches_reference_on_vulkan() {
+    gpu_matches_reference(BackendChoice::Vulkan, wgpu::Backend::Vulkan);
+}
+
+#[test]
+fn gpu_tessellation_matches_reference_on_gl() {
+    gpu_matches_reference(BackendChoice::Gl, wgpu::Backend::Gl);
+}
+
+/// Set by the parent test in the child process it starts.
+const CHILD_ENV: &str = "TERRAIN_GPU_TEST_CHILD";
+
+/// In a child process with `TERRAIN_GPU_BACKEND=vulkan`, asks for GL in the config: the
+/// variable must win, and the adapter must really be Vulkan (no silent fallback to GL).
+#[test]
+fn backend_env_override_child() {
+    let config = crate::DeviceConfig { backend: BackendChoice::Gl, require: false };
+    let wanted = config.effective_backend().unwrap();
+    match std::env::var(BACKEND_ENV) {
+        Ok(v) => assert_eq!(Some(wanted), BackendChoice::parse(&v)),
+        Err(_) => assert_eq!(wanted, BackendChoice::Gl),
+    }
+    if std::env::var_os(CHILD_ENV).is_none() {
+        return;
+    }
+    match GpuContext::new(&config) {
+        Ok(ctx) => {
+            println!("CHILD-BACKEND={:?} ADAPTER={}", ctx.adapter_info().backend, ctx.describe())
+        }
+        Err(GpuError::NoAdapter { tried }) => println!("CHILD-NO-ADAPTER tried={tried:?}"),
+        Err(e) => panic!("{e}"),
+    }
+}
+
+#[test]
+fn backend_env_vulkan_gives_a_vulkan_adapter() {
+    let exe = std::env::current_exe().unwrap();
+    let output = std::process::Command::new(exe)
+        .args(["--exact", "tess::gpu_tests::backend_env_override_child", "--nocapture"])
+        .env(BACKEND_ENV, "vulkan")
+        .env(CHILD_ENV, "1")
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&output.stdout);
+    assert!(
+        output.status.success(),
+        "child failed:\n{stdout}\n{}",
+        String::from_utf8_lossy(&output.stderr)
+    );
+    if let Some(line) = stdout.lines().find(|l| l.starts_with("CHILD-BACKEND=")) {
+        println!("{line}");
+        assert!(line.starts_with("CHILD-BACKEND=Vulkan "), "{line}");
+    } else {
+        let line = stdout.lines().find(|l| l.starts_with("CHILD-NO-ADAPTER"));
+        let line = line.unwrap_or_else(|| panic!("child printed no result:\n{stdout}"));
+        // No Vulkan adapter: it must say it tried Vulkan only, not fall back to GL.
+        assert_eq!(line, "CHILD-NO-ADAPTER tried=[Vulkan]");
+        assert!(!required(), "{REQUIRE_ENV} is set but there is no Vulkan adapter");
+        println!("SKIPPED: no Vulkan adapter, and none was required");
+    }
+}
+
+#[test]
+fn bad_backend_names_are_rejected() {
+    assert_eq!(BackendChoice::parse("Vulkan"), Some(BackendChoice::Vulkan));
+    assert_eq!(BackendChoice::parse(" gl "), Some(BackendChoice::Gl));
+    assert_eq!(BackendChoice::parse("metal"), None);
+}
