@@ -28,6 +28,7 @@ fn context(backend: BackendChoice) -> Option<GpuContext> {
 fn gpu_matches_reference(backend: BackendChoice, expected: wgpu::Backend) {
     let Some(ctx) = context(backend) else { return };
     assert_eq!(ctx.adapter_info().backend, expected, "{}", ctx.describe());
+    check_known_software_features(&ctx);
     let mut factors = factor_corpus(80);
     // A culled patch in the middle of the batch: it must take no room.
     factors.insert(5, PatchFactors { inner: [4.0, 4.0], outer: [4.0, 0.0, 4.0, 4.0] });
@@ -65,6 +66,23 @@ fn gpu_matches_reference(backend: BackendChoice, expected: wgpu::Backend) {
         out.point_capacity,
         total_indices / 3
     );
+}
+
+/// The feature flags on Mesa's software drivers are known (shared/notes): check them there.
+fn check_known_software_features(ctx: &GpuContext) {
+    let info = ctx.adapter_info();
+    let f = ctx.features;
+    println!("features: {f:?}");
+    if !info.name.contains("llvmpipe") {
+        return;
+    }
+    if info.backend == wgpu::Backend::Vulkan {
+        assert!(f.timestamp_query && !f.compute_timestamps_trustworthy, "lavapipe: {f:?}");
+        assert!(f.float32_filterable && f.multi_draw_indirect_count, "lavapipe: {f:?}");
+    } else {
+        assert!(f.compute_timestamps_trustworthy == f.timestamp_query, "llvmpipe GL: {f:?}");
+        assert!(!f.float32_filterable && !f.multi_draw_indirect_count, "llvmpipe GL: {f:?}");
+    }
 }
 
 #[test]
