@@ -18,6 +18,8 @@
 //! assert!(mesh.points.iter().all(|p| (0.0..=1.0).contains(&p[0]) && (0.0..=1.0).contains(&p[1])));
 //! ```
 pub mod device;
+pub mod target;
 pub mod tess;
 
 pub use device::{BackendChoice, DeviceConfig, GpuContext, GpuError, GpuFeatures};
+pub use target::{OffscreenTarget, RgbaImage};

@@ -154,3 +154,84 @@ fn bad_backend_names_are_rejected() {
     assert_eq!(BackendChoice::parse(" gl "), Some(BackendChoice::Gl));
     assert_eq!(BackendChoice::parse("metal"), None);
 }
+
+/// Tessellates a 2 x 2 grid of patches whose shared edges agree on their factors (inner
+/// factors all different), draws it with the indirect arguments into an offscreen target and
+/// checks that every pixel is covered: the draw arguments, indices and points are usable as
+/// they are, and the shared edges leave no gap at any pixel centre.
+fn patch_grid_covers_the_viewport(backend: BackendChoice) {
+    let Some(ctx) = context(backend) else { return };
+    // Edge factors: [u = 0, v = 0, u = 1, v = 1]; cells (0,0), (1,0), (0,1), (1,1).
+    // Shared edges at x = 1/2: a (bottom row), b (top row); at y = 1/2: c (left), d (right).
+    let (a, b, c, d) = (3.7, 17.25, 63.9, 1.0);
+    let factors = [
+        PatchFactors { inner: [5.5, 2.0], outer: [9.0, 6.3, a, c] },
+        PatchFactors { inner: [64.0, 3.1], outer: [a, 2.0, 40.0, d] },
+        PatchFactors { inner: [12.7, 30.2], outer: [4.4, c, b, 7.0] },
+        PatchFactors { inner: [2.0, 2.0], outer: [b, d, 11.0, 64.0] },
+    ];
+    let tess = GpuTessellator::new(&ctx.device);
+    let out = tess.tessellate(&ctx, &factors).unwrap();
+    let target = crate::OffscreenTarget::new(&ctx.device, 203, 157);
+    let module = ctx.device.create_shader_module(wgpu::ShaderModuleDescriptor {
+        label: Some("draw_test.wgsl"),
+        source: wgpu::ShaderSource::Wgsl(include_str!("draw_test.wgsl").into()),
+    });
+    let attributes = wgpu::vertex_attr_array![0 => Float32x2, 1 => Uint32];
+    let pipeline = ctx.device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
+        label: Some("draw_test"),
+        layout: None,
+        vertex: wgpu::VertexState {
+            module: &module,
+            entry_point: Some("vs"),
+            compilation_options: Default::default(),
+            buffers: &[Some(wgpu::VertexBufferLayout {
+                array_stride: std::mem::size_of::<super::GpuDomainPoint>() as u64,
+                step_mode: wgpu::VertexStepMode::Vertex,
+                attributes: &attributes,
+            })],
+        },
+        primitive: wgpu::PrimitiveState::default(),
+        depth_stencil: Some(crate::OffscreenTarget::depth_state()),
+        multisample: Default::default(),
+        fragment: Some(wgpu::FragmentState {
+            module: &module,
+            entry_point: Some("fs"),
+            compilation_options: Default::default(),
+            targets: &[Some(crate::target::COLOR_FORMAT.into())],
+        }),
+        multiview_mask: None,
+        cache: None,
+    });
+    let mut encoder = ctx.device.create_command_encoder(&Default::default());
+    {
+        let mut pass = target.begin_pass(&mut encoder, wgpu::Color::BLACK);
+        pass.set_pipeline(&pipeline);
+        pass.set_vertex_buffer(0, out.points.slice(..));
+        pass.set_index_buffer(out.indices.slice(..), wgpu::IndexFormat::Uint32);
+        pass.draw_indexed_indirect(&out.draw_args, 0);
+    }
+    ctx.queue.submit([encoder.finish()]);
+    let image = target.read_color(&ctx).unwrap();
+    let holes: Vec<_> = (0..image.height)
+        .flat_map(|y| (0..image.width).map(move |x| (x, y)))
+        .filter(|&(x, y)| image.get(x, y) != [255, 0, 0, 255])
+        .collect();
+    assert!(
+        holes.is_empty(),
+        "{} uncovered pixels, first {:?}",
+        holes.len(),
+        &holes[..holes.len().min(10)]
+    );
+    println!("{} x {} pixels, all covered", image.width, image.height);
+}
+
+#[test]
+fn patch_grid_covers_the_viewport_on_vulkan() {
+    patch_grid_covers_the_viewport(BackendChoice::Vulkan);
+}
+
+#[test]
+fn patch_grid_covers_the_viewport_on_gl() {
+    patch_grid_covers_the_viewport(BackendChoice::Gl);
+}
