@@ -7,4 +7,19 @@
 //! depend on wgpu. Every GPU computation has one CPU reference here, and tests compare the
 //! GPU's read-back output with it. Shaders are `.wgsl` files beside the module that drives them.
 //!
-//! This crate is filled by the renderer issue; it holds no code before it.
+//! The principal types are [`GpuContext`] (an adapter, device and queue, with the feature
+//! flags the renderer branches on) and, in [`tess`], the CPU reference tessellator
+//! [`tess::tessellate`] and its compute-shader twin [`tess::GpuTessellator`].
+//!
+//! ```
+//! use terrain_gpu::tess::{PatchFactors, tessellate};
+//!
+//! let mesh = tessellate(&PatchFactors { inner: [4.0, 4.0], outer: [4.0, 2.0, 4.0, 3.5] });
+//! assert!(mesh.points.iter().all(|p| (0.0..=1.0).contains(&p[0]) && (0.0..=1.0).contains(&p[1])));
+//! ```
+pub mod device;
+pub mod target;
+pub mod tess;
+
+pub use device::{BackendChoice, DeviceConfig, GpuContext, GpuError, GpuFeatures};
+pub use target::{OffscreenTarget, RgbaImage};

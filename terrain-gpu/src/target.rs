@@ -1,0 +1,151 @@
+//! Offscreen render target (RGBA8 colour + 32-bit float depth) with read-back to the host:
+//! what tests and headless runs render into, as no window exists there.
+
+use crate::device::{GpuContext, GpuError};
+
+/// Colour format of [`OffscreenTarget`].
+pub const COLOR_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba8Unorm;
+/// Depth format of [`OffscreenTarget`].
+pub const DEPTH_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Depth32Float;
+
+/// An RGBA8 image read back from the device, rows top to bottom, no padding.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct RgbaImage {
+    /// Width in pixels.
+    pub width: u32,
+    /// Height in pixels.
+    pub height: u32,
+    /// `width * height` pixels, row-major, first row at the top.
+    pub pixels: Vec<[u8; 4]>,
+}
+
+impl RgbaImage {
+    /// Pixel `(x, y)`, `y = 0` at the top.
+    pub fn get(&self, x: u32, y: u32) -> [u8; 4] {
+        self.pixels[(y * self.width + x) as usize]
+    }
+}
+
+/// A colour and a depth texture of the same size, both renderable and the colour copyable.
+#[derive(Debug)]
+pub struct OffscreenTarget {
+    /// The colour texture ([`COLOR_FORMAT`]).
+    pub color: wgpu::Texture,
+    /// The depth texture ([`DEPTH_FORMAT`]).
+    pub depth: wgpu::Texture,
+    color_view: wgpu::TextureView,
+    depth_view: wgpu::TextureView,
+}
+
+impl OffscreenTarget {
+    /// Creates a `width` x `height` target.
+    pub fn new(device: &wgpu::Device, width: u32, height: u32) -> Self {
+        let texture = |label, format, usage| {
+            device.create_texture(&wgpu::TextureDescriptor {
+                label: Some(label),
+                size: wgpu::Extent3d { width, height, depth_or_array_layers: 1 },
+                mip_level_count: 1,
+                sample_count: 1,
+                dimension: wgpu::TextureDimension::D2,
+                format,
+                usage,
+                view_formats: &[],
+            })
+        };
+        use wgpu::TextureUsages as U;
+        let color = texture("offscreen colour", COLOR_FORMAT, U::RENDER_ATTACHMENT | U::COPY_SRC);
+        let depth = texture("offscreen depth", DEPTH_FORMAT, U::RENDER_ATTACHMENT);
+        let color_view = color.create_view(&Default::default());
+        let depth_view = depth.create_view(&Default::default());
+        Self { color, depth, color_view, depth_view }
+    }
+
+    /// Width in pixels.
+    pub fn width(&self) -> u32 {
+        self.color.width()
+    }
+
+    /// Height in pixels.
+    pub fn height(&self) -> u32 {
+        self.color.height()
+    }
+
+    /// Begins a render pass that clears colour to `clear` and depth to 1 (far, with
+    /// `CompareFunction::Less`).
+    pub fn begin_pass<'e>(
+        &self,
+        encoder: &'e mut wgpu::CommandEncoder,
+        clear: wgpu::Color,
+    ) -> wgpu::RenderPass<'e> {
+        encoder.begin_render_pass(&wgpu::RenderPassDescriptor {
+            label: Some("offscreen"),
+            color_attachments: &[Some(wgpu::RenderPassColorAttachment {
+                view: &self.color_view,
+                depth_slice: None,
+                resolve_target: None,
+                ops: wgpu::Operations {
+                    load: wgpu::LoadOp::Clear(clear),
+                    store: wgpu::StoreOp::Store,
+                },
+            })],
+            depth_stencil_attachment: Some(wgpu::RenderPassDepthStencilAttachment {
+                view: &self.depth_view,
+                depth_ops: Some(wgpu::Operations {
+                    load: wgpu::LoadOp::Clear(1.0),
+                    store: wgpu::StoreOp::Store,
+                }),
+                stencil_ops: None,
+            }),
+            timestamp_writes: None,
+            occlusion_query_set: None,
+            multiview_mask: None,
+        })
+    }
+
+    /// The depth-stencil state matching this target, for pipelines drawing into it.
+    pub fn depth_state() -> wgpu::DepthStencilState {
+        wgpu::DepthStencilState {
+            format: DEPTH_FORMAT,
+            depth_write_enabled: Some(true),
+            depth_compare: Some(wgpu::CompareFunction::Less),
+            stencil: Default::default(),
+            bias: Default::default(),
+        }
+    }
+
+    /// Copies the colour texture to the host (waits for all submitted work).
+    pub fn read_color(&self, ctx: &GpuContext) -> Result<RgbaImage, GpuError> {
+        let (width, height) = (self.width(), self.height());
+        // Rows of a texture-to-buffer copy are padded to 256 bytes.
+        let row = width * 4;
+        let padded_row = row.next_multiple_of(wgpu::COPY_BYTES_PER_ROW_ALIGNMENT);
+        let size = u64::from(padded_row) * u64::from(height);
+        let buffer = ctx.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("offscreen read-back"),
+            size,
+            usage: wgpu::BufferUsages::COPY_SRC | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        let mut encoder = ctx.device.create_command_encoder(&Default::default());
+        encoder.copy_texture_to_buffer(
+            self.color.as_image_copy(),
+            wgpu::TexelCopyBufferInfo {
+                buffer: &buffer,
+                layout: wgpu::TexelCopyBufferLayout {
+                    offset: 0,
+                    bytes_per_row: Some(padded_row),
+                    rows_per_image: Some(height),
+                },
+            },
+            self.color.size(),
+        );
+        ctx.queue.submit([encoder.finish()]);
+        let bytes = ctx.read_buffer(&buffer, size)?;
+        let mut pixels = Vec::with_capacity((width * height) as usize);
+        for y in 0..height as usize {
+            let line = &bytes[y * padded_row as usize..][..row as usize];
+            pixels.extend(line.chunks_exact(4).map(|p| [p[0], p[1], p[2], p[3]]));
+        }
+        Ok(RgbaImage { width, height, pixels })
+    }
+}
