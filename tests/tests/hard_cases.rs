@@ -37,7 +37,12 @@ fn through_raw_file(case: HardCase, hm: &Heightmap) -> Heightmap {
     std::fs::remove_file(&path).ok();
     let back = loaded.heightmap;
     assert_eq!((back.width(), back.height()), (w, h), "{}", case.name());
-    assert_eq!(back.voids().count(), hm.voids().count(), "{}: void count survives the file", case.name());
+    assert_eq!(
+        back.voids().count(),
+        hm.voids().count(),
+        "{}: void count survives the file",
+        case.name()
+    );
     for j in 0..h {
         for i in 0..w {
             if !hm.voids().get(i, j) {
@@ -59,13 +64,17 @@ fn every_metric(name: &str, hm: &Heightmap) -> f64 {
     for level in 0..pyramid.levels() {
         for j in 0..pyramid.nodes_per_side(level) {
             for i in 0..pyramid.nodes_per_side(level) {
-                assert_finite(&format!("{name}: StaticE({level},{i},{j})"), pyramid.get(level, i, j));
+                assert_finite(
+                    &format!("{name}: StaticE({level},{i},{j})"),
+                    pyramid.get(level, i, j),
+                );
                 let region = pyramid.region(level, i, j);
                 if level <= 2 {
                     assert_finite(name, static_error::node_error(hm, region).error);
                     let r = pvps::region_roughness(hm, region).0;
                     assert_finite(&format!("{name}: roughness"), r);
-                    let ratio = pvps::split_ratio(100.0, pvps::span(1000.0, level as u32), r, 1.0, 1.0);
+                    let ratio =
+                        pvps::split_ratio(100.0, pvps::span(1000.0, level as u32), r, 1.0, 1.0);
                     assert!(!ratio.is_nan(), "{name}: PVPS ratio");
                 }
             }
@@ -82,10 +91,13 @@ fn every_metric(name: &str, hm: &Heightmap) -> f64 {
         let rho = dss::screen_errors(&d.max, lambda, 500.0, view);
         assert!(rho.iter().all(|r| !r.is_nan()), "{name}: DSS screen error");
         let _ = dss::tessellation_factor(&rho, 1.0);
-        assert!(!screen::sight_line_eq7(lambda, d.max[0], 500.0, view, dvec3(0.0, 1.0, -0.1)).is_nan());
+        assert!(
+            !screen::sight_line_eq7(lambda, d.max[0], 500.0, view, dvec3(0.0, 1.0, -0.1)).is_nan()
+        );
         assert!(!screen::plain(lambda, d.max[0], 0.0).is_nan(), "{name}: d = 0");
     }
-    let patch = Region::new(0, 0, geomorph::PATCH_CELLS.min(hm.width().min(hm.height()) - 1).max(1));
+    let patch =
+        Region::new(0, 0, geomorph::PATCH_CELLS.min(hm.width().min(hm.height()) - 1).max(1));
     for l in geomorph::max_error_vertices(hm, patch, geomorph::Reference::FullResolution) {
         assert_finite(&format!("{name}: geomorph level {}", l.level), l.error);
     }
@@ -100,7 +112,11 @@ fn quadtree_selections(name: &str, hm: &Heightmap) {
         .map(|n| qt.clipped_rect(*n).unwrap())
         .map(|r| (r.x1 - r.x0) as u64 * (r.y1 - r.y0) as u64)
         .sum();
-    assert_eq!(cells, ((hm.width() - 1) * (hm.height() - 1)) as u64, "{name}: leaves tile the grid");
+    assert_eq!(
+        cells,
+        ((hm.width() - 1) * (hm.height() - 1)) as u64,
+        "{name}: leaves tile the grid"
+    );
     // A camera above the middle of the terrain, looking north and down, in world coordinates.
     let mid = hm.grid_to_world((hm.width() - 1) as f64 / 2.0, (hm.height() - 1) as f64 / 2.0);
     let eye = DVec3::new(mid.x, mid.y - hm.extent_m().y, hm.max() as f64 + 1000.0);
