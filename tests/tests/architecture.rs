@@ -19,11 +19,27 @@ const OURS: [&str; 7] = [
     "terrain-tests",
 ];
 
+fn host_triple(cargo: &str) -> String {
+    // `cargo` lives beside `rustc`; fall back to the one on PATH.
+    let rustc = std::path::Path::new(cargo).with_file_name("rustc");
+    let rustc = if rustc.exists() { rustc.into_os_string() } else { "rustc".into() };
+    let out = Command::new(rustc).arg("-vV").output().expect("rustc -vV runs");
+    let text = String::from_utf8(out.stdout).expect("rustc prints UTF-8");
+    text.lines()
+        .find_map(|l| l.strip_prefix("host: "))
+        .expect("rustc -vV names the host")
+        .trim()
+        .to_string()
+}
+
 /// Normal (non-dev, non-build) dependency graph of the resolved workspace: package name -> names.
 fn dependency_graph() -> BTreeMap<String, BTreeSet<String>> {
     let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
-    let out = Command::new(cargo)
-        .args(["metadata", "--format-version", "1", "--offline"])
+    // Resolve for the host only: other platforms' crates (android, windows) need not be on disk,
+    // and the invariant is about our crates' edges, which are the same on every platform.
+    let host = host_triple(&cargo);
+    let out = Command::new(&cargo)
+        .args(["metadata", "--format-version", "1", "--offline", "--filter-platform", &host])
         .current_dir(workspace_root())
         .output()
         .expect("cargo metadata runs");
