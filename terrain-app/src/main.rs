@@ -1,6 +1,7 @@
 //! The `terrain` command line: composes the engine's crates into user-facing commands.
 
 mod info;
+mod roughness;
 mod source;
 
 use clap::{Parser, Subcommand};
@@ -18,12 +19,15 @@ enum Command {
     /// Describe a DEM (or the embedded synthetic terrain when no file is given): size, sample
     /// type, georeference, spacing in metres, height range and voids.
     Info(info::InfoArgs),
+    /// Export the roughness pyramids of the PVPS paper's methods A, B and C as PNG images.
+    Roughness(roughness::RoughnessArgs),
 }
 
 fn main() -> std::process::ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Info(args) => info::run(&args),
+        Command::Roughness(args) => roughness::run(&args),
     };
     match result {
         Ok(()) => std::process::ExitCode::SUCCESS,

@@ -138,3 +138,34 @@ fn bad_input_names_the_file_and_the_problem() {
     assert!(String::from_utf8_lossy(&out.stderr).contains("i16, u16 or f32"));
     std::fs::remove_dir_all(&dir).ok();
 }
+
+#[test]
+fn roughness_pyramids_export_one_png_per_level() {
+    let dir = std::env::temp_dir().join(format!("terrain-cli-rough-{}", std::process::id()));
+    let ps = data("puget_sound/ps_height_1k.png");
+    for method in ["a", "b", "c"] {
+        let out = terrain(&[
+            "roughness",
+            ps.to_str().unwrap(),
+            "--vertical-scale",
+            "0.1",
+            "--spacing",
+            "160",
+            "--method",
+            method,
+            "-o",
+            dir.to_str().unwrap(),
+        ]);
+        assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+        for level in 0..7u32 {
+            let img =
+                image::open(dir.join(format!("{method}_level{level}.png"))).unwrap().to_luma8();
+            assert_eq!(img.dimensions(), (1 << level, 1 << level));
+        }
+        // Puget Sound has flat water and rough mountains: the finest level is not uniform.
+        let fine = image::open(dir.join(format!("{method}_level6.png"))).unwrap().to_luma8();
+        let (lo, hi) = fine.pixels().fold((255u8, 0u8), |(a, b), p| (a.min(p[0]), b.max(p[0])));
+        assert!(hi > lo + 50, "method {method}: {lo}..{hi}");
+    }
+    std::fs::remove_dir_all(&dir).ok();
+}
