@@ -15,13 +15,13 @@
 //! 4. Inner factors by Eq. 12: `InnerLevel_k = C3 x ScreenSpaceLength_k x (RoughnessValue + C4)`.
 //!
 //! **Reading Algorithm 1.** The prose says "when the value of Y-axis coordinates of Vertex_i
-//! equals 0, gl_TessLevelOuter[i] is set as the ratio of the current edge length to the minimum
+//! equals 0, `gl_TessLevelOuter[i]` is set as the ratio of the current edge length to the minimum
 //! edge length", Algorithm 1 says the opposite (Y = 0, i.e. a same-level neighbour, gets the
 //! screen-space length). We follow Algorithm 1: it is the only reading that is crack-free (a
 //! same-level edge is the same segment on both sides, so both compute the same screen length;
 //! a level change gets view-independent powers of two that nest). Eq. 11 also pairs Vertex1 with
-//! `level_top` and Vertex3 with `level_bottom` while Algorithm 1 pairs outer[1] with the bottom
-//! and outer[3] with the top edge; with explicit edges ([`Edge`]) there is nothing to pair.
+//! `level_top` and Vertex3 with `level_bottom` while Algorithm 1 pairs `outer[1]` with the bottom
+//! and `outer[3]` with the top edge; with explicit edges ([`Edge`]) there is nothing to pair.
 //!
 //! **Deviations, all documented in [`PvpsConfig`].**
 //! - The level-change factor is `EdgeLength / MinEdgeLength` times
