@@ -15,6 +15,7 @@ pub mod error;
 pub mod geometry;
 pub mod georef;
 pub mod heightmap;
+pub mod lod;
 pub mod metrics;
 pub mod quadtree;
 pub mod synth;

@@ -17,6 +17,8 @@
 //! paper's "arithmetic mean of four neighbourhood pixels of the level above".
 
 use terrain_core::Heightmap;
+use terrain_core::lod::NodeField;
+use terrain_core::quadtree::NodeId;
 
 /// Settings of the roughness computation.
 #[derive(Debug, Clone, PartialEq)]
@@ -125,6 +127,34 @@ impl NodePyramid {
     /// All values of one level, row-major, row 0 = south.
     pub fn level(&self, level: usize) -> &[f32] {
         &self.levels[level]
+    }
+
+    /// The pyramid scaled so its largest value is 255 (a pyramid without a positive value
+    /// becomes all 0): puts methods A and B of the PVPS paper on the 0-255 scale of its own
+    /// roughness image, so one `C1`, `C2` (Eq. 8) serves all three methods.
+    pub fn normalized_255(&self) -> NodePyramid {
+        let max = self.levels.iter().flatten().fold(0.0f32, |m, &v| m.max(v));
+        let k = if max > 0.0 && max.is_finite() { 255.0 / max } else { 0.0 };
+        NodePyramid {
+            levels: self.levels.iter().map(|l| l.iter().map(|&v| v * k).collect()).collect(),
+            root_cells: self.root_cells,
+        }
+    }
+}
+
+/// The LOD methods read a pyramid through terrain-core's [`NodeField`]: node `(level, i, j)` is
+/// pixel `(i, j)` of level `level` (both count i east and j north over the same
+/// [`root_cells`]). A node deeper than the pyramid reads its ancestor at the finest level; a
+/// node outside the pyramid reads 0.
+impl NodeField for NodePyramid {
+    fn value(&self, node: NodeId) -> f32 {
+        let l = (node.level as usize).min(self.levels() - 1);
+        let n = node.ancestor(l as u8);
+        let side = self.side(l);
+        if n.i as usize >= side || n.j as usize >= side {
+            return 0.0;
+        }
+        self.get(l, n.i as usize, n.j as usize)
     }
 }
 
@@ -381,6 +411,56 @@ mod tests {
         let p = d2_pyramid(&bump, 2);
         // Root: centre error 32 m over a 16-cell, 32 m node.
         assert!((p.get(0, 0, 0) - 1.0).abs() < 1e-6);
+    }
+
+    #[test]
+    fn pyramids_index_like_the_quadtree() {
+        use terrain_core::quadtree::Quadtree;
+        for (w, h) in [(2, 2), (3, 3), (65, 65), (100, 77), (1000, 777), (5, 40), (1025, 513)] {
+            let hm =
+                Heightmap::from_fn(w, h, Georef::local(1.0), |i, j| (i * 3 + j) as f32).unwrap();
+            for leaf in [1, 4, 16] {
+                let qt = Quadtree::new(&hm, leaf);
+                if leaf as usize <= root_cells(w, h) {
+                    assert_eq!(qt.root_cells() as usize, root_cells(w, h), "{w}x{h} leaf {leaf}");
+                } else {
+                    // The quadtree's root grows to one leaf; it is then its only node.
+                    assert_eq!(qt.max_level(), 0);
+                }
+            }
+            // A node's value is the pixel at its level and position; deeper nodes read their
+            // finest ancestor.
+            let p = range_pyramid(&hm, 3);
+            let qt = Quadtree::new(&hm, 1);
+            for level in 0..3u8 {
+                for j in 0..(1u32 << level) {
+                    for i in 0..(1u32 << level) {
+                        let n = NodeId::new(level, i, j);
+                        assert_eq!(p.value(n), p.get(level as usize, i as usize, j as usize));
+                        // Same samples: the range over the quadtree's clipped rectangle
+                        // (half-open in the pyramid, so compare on nodes the grid covers).
+                        if let Some(info) = qt.node_info(n).filter(|_| level == 0) {
+                            let (lo, hi) = info.data_range.unwrap();
+                            assert_eq!(p.value(n), hi - lo);
+                        }
+                    }
+                }
+            }
+            if qt.max_level() >= 4 {
+                let deep = NodeId::new(4, 3, 1);
+                assert_eq!(p.value(deep), p.get(2, 0, 0));
+            }
+        }
+    }
+
+    #[test]
+    fn normalized_pyramid_tops_at_255() {
+        let hm = grid(17, 1.0, |x, y| x + 2.0 * y);
+        let p = range_pyramid(&hm, 3).normalized_255();
+        assert_eq!(p.get(0, 0, 0), 255.0);
+        assert!((p.get(2, 0, 0) - 255.0 * 9.0 / 48.0).abs() < 1e-4);
+        let flat = range_pyramid(&grid(9, 1.0, |_, _| 3.0), 2).normalized_255();
+        assert!(flat.level(1).iter().all(|&v| v == 0.0));
     }
 
     #[test]

@@ -1,0 +1,309 @@
+//! The DSS paper's (Zhang 2019, section 4) two comparison paths, with the paper's error metric
+//! ("we used the same error control metric for the three methods"): per-node object-space
+//! errors for the 32 even factors, the view-angle screen error (Eq. 3) and the continuous
+//! factor `F_thr` (Eq. 4), from [`crate::metrics::dss`].
+//!
+//! - **Method I** ([`select_dss_power_of_two`], "a quadtree based algorithm using power of two
+//!   as tessellation levels", after its ref. 9): the quadtree splits a node while even the
+//!   finest factor misses the threshold (`rho_32 > rho_thr`, section 3.3.1); the leaves are
+//!   balanced; each leaf's `F_thr` is rounded *up* to a power of two (2, 4, ..., 64), so the
+//!   rounding never raises the error above the threshold.
+//! - **Method II** ([`select_dss_uniform`], "a continuous LOD algorithm dividing the terrain
+//!   with uniform patterns", after its ref. 60): every block at one level
+//!   ([`DssConfig::uniform_block_cells`]), each with its continuous `F_thr` (64 when even 64
+//!   misses the threshold: a uniform block cannot split).
+//!
+//! **Shared edges** (see [`super::edges`]). A same-level edge takes the **max** of the two
+//! blocks' factors: each block's factor is the smallest that meets the threshold for that
+//! block, so the max meets it on both sides, whereas the min would leave the finer block's
+//! border coarser than its own error bound allows; the max of two continuous factors is still
+//! continuous (no popping from the edge rule). Method I's factors are powers of two, so the max
+//! is one too. Where levels differ (Method I only), the coarse edge takes the max of its own
+//! factor and each finer neighbour's factor scaled to the coarse edge (`2^d F`), rounded up to a
+//! power of two and at least `2^(d + 1)`, and the finer patches take it divided by `2^d`.
+//! Edges with no neighbour keep the block's own factor. Inner factors are the block's own.
+//!
+//! `D` in Eq. 3 is the distance from the eye to the node's box (0 inside: must split), and the
+//! view direction whose angle with the block normal (+z) Eq. 3's `sin(theta)` measures is the
+//! direction from the eye to the box centre (the block as seen; the paper's Fig. 13 measures
+//! `d` and `theta` per block). Straight-down views are floored by
+//! [`crate::metrics::screen::MIN_VIEW_SIN`].
+
+use std::collections::HashMap;
+use std::time::Instant;
+
+use super::edges::EdgeRule;
+use super::patch::{Edge, MAX_FACTOR, Selection};
+use super::run;
+use crate::geometry::Camera;
+use crate::heightmap::Heightmap;
+use crate::metrics::Region;
+use crate::metrics::dss::{FACTORS, Tessellation, object_errors, tessellation_factor};
+use crate::metrics::screen;
+use crate::quadtree::{NodeId, NodeInfo, Quadtree, SplitToLevel};
+
+/// Settings of the DSS comparison methods.
+#[derive(Debug, Clone, PartialEq)]
+pub struct DssConfig {
+    /// Screen-space error threshold `rho_thr` in pixels. Default 1 (the paper's experiments).
+    pub rho_thr: f64,
+    /// Cells per side of a finest node, for [`DssConfig::quadtree`]. Default 16.
+    pub leaf_cells: u32,
+    /// Method II's block side in cells (a power of two; its level is
+    /// `log2(root_cells / uniform_block_cells)`, capped at the quadtree's finest). Default 64.
+    pub uniform_block_cells: u32,
+    /// Whether to cull node boxes against the view frustum (the paper's hierarchical culling,
+    /// section 3.3.2, first step). Default true.
+    pub frustum_cull: bool,
+}
+
+impl Default for DssConfig {
+    fn default() -> Self {
+        Self { rho_thr: 1.0, leaf_cells: 16, uniform_block_cells: 64, frustum_cull: true }
+    }
+}
+
+impl DssConfig {
+    /// The quadtree the selections run on: `Quadtree::new(hm, leaf_cells)`.
+    pub fn quadtree(&self, hm: &Heightmap) -> Quadtree {
+        Quadtree::new(hm, self.leaf_cells)
+    }
+}
+
+/// The paper's preprocessing: the 32 mean object-space errors (`delta_i`, factors 2..=64) of
+/// every node of a quadtree (section 3.3.1), from [`object_errors`] over the node's clipped
+/// samples.
+#[derive(Debug, Clone, PartialEq)]
+pub struct DssErrorTable {
+    root_cells: u32,
+    /// Per level: nodes per row, and the errors row-major (row 0 south).
+    levels: Vec<(u32, Vec<[f64; FACTORS]>)>,
+}
+
+impl DssErrorTable {
+    /// Computes every node's errors. Cost: about `32 x samples x levels` plus the tessellated
+    /// vertices; seconds for a 1025 x 1025 grid.
+    pub fn new(hm: &Heightmap, qt: &Quadtree) -> Self {
+        assert_eq!((hm.width() as u32, hm.height() as u32), (qt.width(), qt.height()));
+        let mut levels = Vec::new();
+        for level in 0..=qt.max_level() {
+            let c = qt.root_cells() >> level;
+            let nx = (qt.width() - 1).max(1).div_ceil(c);
+            let ny = (qt.height() - 1).max(1).div_ceil(c);
+            let mut v = Vec::with_capacity((nx * ny) as usize);
+            for j in 0..ny {
+                for i in 0..nx {
+                    let r = Region::new((i * c) as usize, (j * c) as usize, c as usize);
+                    v.push(object_errors(hm, r).avg);
+                }
+            }
+            levels.push((nx, v));
+        }
+        Self { root_cells: qt.root_cells(), levels }
+    }
+
+    /// The errors of `node` (`delta_i` at index `i - 1`), or `None` outside the table.
+    pub fn get(&self, node: NodeId) -> Option<&[f64; FACTORS]> {
+        let (nx, v) = self.levels.get(node.level as usize)?;
+        if node.i >= *nx {
+            return None;
+        }
+        v.get((node.j * nx + node.i) as usize)
+    }
+
+    /// Cells per side of the root it was built for.
+    pub fn root_cells(&self) -> u32 {
+        self.root_cells
+    }
+}
+
+/// The per-node screen errors of Eq. 3 for a camera.
+struct Metric<'a> {
+    table: &'a DssErrorTable,
+    lambda: f64,
+    eye: glam::DVec3,
+    thr: f64,
+}
+
+impl Metric<'_> {
+    fn delta(&self, node: NodeId) -> [f64; FACTORS] {
+        self.table.get(node).copied().unwrap_or([0.0; FACTORS])
+    }
+
+    /// Eq. 3 for the finest factor: split when `rho_32 > rho_thr`.
+    fn must_split(&self, node: NodeId, info: &NodeInfo) -> bool {
+        let rho = screen::dss(
+            self.lambda,
+            self.delta(node)[FACTORS - 1],
+            info.aabb.distance(self.eye),
+            info.aabb.center() - self.eye,
+        );
+        rho > self.thr
+    }
+
+    /// Eq. 3 and 4: the continuous factor `F_thr` (64 where even 64 misses the threshold).
+    fn factor(&self, node: NodeId, info: &NodeInfo) -> f32 {
+        let rho = crate::metrics::dss::screen_errors(
+            &self.delta(node),
+            self.lambda,
+            info.aabb.distance(self.eye),
+            info.aabb.center() - self.eye,
+        );
+        match tessellation_factor(&rho, self.thr) {
+            Tessellation::MustSplit => MAX_FACTOR,
+            Tessellation::Factor(f) => f.clamp(2.0, f64::from(MAX_FACTOR)) as f32,
+        }
+    }
+}
+
+/// The smallest power of two `>= f`, within `[2, 64]`.
+fn pow2_up(f: f32) -> f32 {
+    let f = f.clamp(2.0, MAX_FACTOR);
+    (f.ceil() as u32).next_power_of_two() as f32
+}
+
+/// The DSS methods' edge rule: max across same-level edges, nested powers of two across
+/// levels (see the module docs).
+struct DssEdges {
+    want: HashMap<NodeId, f32>,
+}
+
+impl DssEdges {
+    fn want(&self, n: NodeId) -> f32 {
+        self.want.get(&n).copied().unwrap_or(2.0)
+    }
+}
+
+impl EdgeRule for DssEdges {
+    fn same_level(&self, a: NodeId, _: Edge, b: NodeId) -> f32 {
+        self.want(a).max(self.want(b))
+    }
+
+    fn coarse_edge(&self, coarse: NodeId, _: Edge, finer: &[NodeId]) -> f32 {
+        let mut f = self.want(coarse);
+        let mut dmax = 0u8;
+        for &m in finer {
+            let d = m.level.saturating_sub(coarse.level).min(5);
+            dmax = dmax.max(d);
+            f = f.max(self.want(m) * (1u32 << d) as f32);
+        }
+        pow2_up(f).max((2u32 << dmax) as f32).min(MAX_FACTOR)
+    }
+
+    fn unshared(&self, node: NodeId, _: Edge) -> f32 {
+        self.want(node)
+    }
+}
+
+fn select_dss(
+    qt: &Quadtree,
+    camera: &Camera,
+    table: &DssErrorTable,
+    cfg: &DssConfig,
+    uniform: Option<u8>,
+) -> Selection {
+    let start = Instant::now();
+    assert_eq!(table.root_cells(), qt.root_cells(), "error table of another quadtree");
+    let metric = Metric {
+        table,
+        lambda: screen::lambda(camera.viewport_px.y, camera.fov_y),
+        eye: camera.position,
+        thr: cfg.rho_thr,
+    };
+    let (leaves, stats) = match uniform {
+        Some(level) => run::leaves(qt, camera, &mut SplitToLevel(level), cfg.frustum_cull, false),
+        None => {
+            let mut split = |n: NodeId, info: &NodeInfo| metric.must_split(n, info);
+            run::leaves(qt, camera, &mut split, cfg.frustum_cull, true)
+        }
+    };
+    let want = leaves
+        .iter()
+        .map(|&n| {
+            let info = qt.node_info(n).expect("selected nodes exist");
+            let f = metric.factor(n, &info);
+            (n, if uniform.is_some() { f } else { pow2_up(f) })
+        })
+        .collect();
+    let rule = DssEdges { want };
+    let inner = |n: NodeId, _: &[f32; 4]| [rule.want(n); 2];
+    run::assemble(leaves, stats, &rule, inner, start)
+}
+
+/// The DSS paper's Method I: quadtree split by Eq. 3 on `delta_32`, balanced, factors from
+/// Eq. 4 rounded up to powers of two, shared edges matched (see the module docs).
+pub fn select_dss_power_of_two(
+    qt: &Quadtree,
+    camera: &Camera,
+    table: &DssErrorTable,
+    cfg: &DssConfig,
+) -> Selection {
+    select_dss(qt, camera, table, cfg, None)
+}
+
+/// The DSS paper's Method II: uniform blocks of [`DssConfig::uniform_block_cells`], each with
+/// its continuous `F_thr` (Eq. 4), shared edges at the max of both sides.
+pub fn select_dss_uniform(
+    qt: &Quadtree,
+    camera: &Camera,
+    table: &DssErrorTable,
+    cfg: &DssConfig,
+) -> Selection {
+    let block = cfg.uniform_block_cells.max(1);
+    let level = (qt.root_cells() / block.min(qt.root_cells())).max(1).ilog2() as u8;
+    select_dss(qt, camera, table, cfg, Some(level.min(qt.max_level())))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::georef::Georef;
+    use crate::lod::check_shared_edges;
+    use glam::dvec3;
+
+    fn bumpy(n: usize) -> Heightmap {
+        Heightmap::from_fn(n, n, Georef::local(10.0), |i, j| {
+            ((i as f32 * 0.37).sin() * 25.0 + (j as f32 * 0.23).cos() * 20.0) + 100.0
+        })
+        .unwrap()
+    }
+
+    #[test]
+    fn pow2_rounds_up() {
+        assert_eq!(
+            [1.0, 2.0, 2.1, 4.0, 5.0, 33.0, 64.0, 90.0].map(pow2_up),
+            [2.0, 2.0, 4.0, 4.0, 8.0, 64.0, 64.0, 64.0]
+        );
+    }
+
+    #[test]
+    fn method_one_is_powers_of_two_and_method_two_is_uniform() {
+        let hm = bumpy(129);
+        let cfg = DssConfig { leaf_cells: 8, uniform_block_cells: 32, ..Default::default() };
+        let qt = cfg.quadtree(&hm);
+        let table = DssErrorTable::new(&hm, &qt);
+        let cam = Camera::from_yaw_pitch(dvec3(50.0, 50.0, 300.0), 30.0, -25.0);
+        let one = select_dss_power_of_two(&qt, &cam, &table, &cfg);
+        assert!(one.stats.patches > 1);
+        assert!(one.factors_in_range());
+        assert!(one.patches.iter().all(|p| {
+            p.outer
+                .iter()
+                .chain(&p.inner)
+                .all(|f| (*f as u32).is_power_of_two() && f.fract() == 0.0)
+        }));
+        assert_eq!(check_shared_edges(&one), []);
+        let two = select_dss_uniform(&qt, &cam, &table, &cfg);
+        assert!(two.patches.iter().all(|p| p.node.level == 2));
+        assert_eq!(check_shared_edges(&two), []);
+        assert!(two.factors_in_range());
+        // Continuous: some factor is not an integer.
+        assert!(two.patches.iter().any(|p| p.inner[0].fract() != 0.0));
+        // A stricter threshold never lowers a factor (Method II, same blocks).
+        let strict = select_dss_uniform(&qt, &cam, &table, &DssConfig { rho_thr: 0.25, ..cfg });
+        for (a, b) in two.patches.iter().zip(&strict.patches) {
+            assert_eq!(a.node, b.node);
+            assert!(b.inner[0] >= a.inner[0]);
+        }
+    }
+}

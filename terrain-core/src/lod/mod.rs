@@ -1,0 +1,165 @@
+//! CPU side of the LOD methods: which quadtree patches to draw and with which tessellation
+//! factors, so the GPU only tessellates and draws.
+//!
+//! Every method runs the one quadtree traversal ([`crate::quadtree::traverse`]) with its own
+//! [`SplitPolicy`](crate::quadtree::SplitPolicy) and a [`FrustumCull`](crate::quadtree::FrustumCull),
+//! balances the leaves ([`crate::quadtree::balance`]) where it mixes levels, then assigns each
+//! leaf a [`Patch`] with four outer and two inner factors:
+//!
+//! - [`pvps`]: the PVPS paper's (Zhang 2021, section 2.3-2.4) method C (roughness-weighted split,
+//!   Eq. 8-9; crack-free edge classification, Eq. 11 and Algorithm 1; inner levels, Eq. 12) and
+//!   its comparison methods A and B, which only swap the roughness field ([`Method`]).
+//! - [`dss_methods`]: the DSS paper's (Zhang 2019, section 4) comparison paths: Method I
+//!   (quadtree, power-of-two factors) and Method II (uniform blocks, continuous factors).
+//! - [`edges`]: the one place outer factors are resolved across shared edges, and the checker
+//!   of the crack-freedom invariant.
+//! - [`surface`]: rebuilds the drawn surface on the CPU from a selection and a tessellator.
+//!
+//! # The crack-freedom invariant
+//! For every edge shared by two selected leaves, both patches assign that edge the same
+//! factor; where a coarse patch's edge meets finer patches, each finer patch's factor is the
+//! coarse factor divided by `2^(level difference)`, and those factors are powers of two
+//! `>= 2`, so under fractional-even (or integer) spacing the finer patches' edge vertices are
+//! exactly the coarse edge's. Domain points map onto the node's *unclipped* square and are
+//! clamped to the grid afterwards ([`surface::patch_grid_point`]), so vertices that coincide
+//! in the full quadtree still coincide at the east and north borders of grids that are not
+//! `2^L + 1` samples. See [`edges`] for the proof sketch and [`edges::check_shared_edges`] for
+//! the test.
+//!
+//! # Frames
+//! The papers are OpenGL y-up; here x is east, y north, z up. A patch's domain is `(u, v)`
+//! with `u` east and `v` north.
+
+pub mod dss_methods;
+pub mod edges;
+pub mod patch;
+pub mod pvps;
+pub mod surface;
+
+pub use dss_methods::{DssConfig, DssErrorTable, select_dss_power_of_two, select_dss_uniform};
+pub use edges::{EdgeMismatch, EdgeRule, check_shared_edges, outer_factors};
+pub use patch::{Edge, MAX_FACTOR, MIN_FACTOR, Patch, Selection, SelectionStats, clamp_factor};
+pub use pvps::{Method, NodeDistance, PvpsConfig, select_pvps};
+pub use surface::{SurfaceMesh, build_surface, edge_segment, patch_grid_point};
+
+use crate::quadtree::NodeId;
+
+/// A scalar per quadtree node, e.g. a roughness pyramid. terrain-core cannot depend on
+/// terrain-visibility, so the LOD methods read roughness through this trait (terrain-visibility
+/// implements it for its `NodePyramid`).
+///
+/// Nodes are addressed like [`NodeId`]: level 0 is the root, `i` east, `j` north, over the
+/// quadtree's `root_cells`.
+pub trait NodeField {
+    /// The value of `node`.
+    fn value(&self, node: NodeId) -> f32;
+}
+
+impl<F: Fn(NodeId) -> f32> NodeField for F {
+    fn value(&self, node: NodeId) -> f32 {
+        self(node)
+    }
+}
+
+/// The same value for every node (e.g. a flat terrain's roughness, or to disable roughness).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ConstantField(pub f32);
+
+impl NodeField for ConstantField {
+    fn value(&self, _: NodeId) -> f32 {
+        self.0
+    }
+}
+
+/// Shared plumbing of the methods: the traversal with stats, balancing, and patch assembly.
+pub(crate) mod run {
+    use std::time::Instant;
+
+    use glam::DVec3;
+
+    use super::edges::{EdgeRule, outer_factors};
+    use super::patch::{Patch, Selection, SelectionStats};
+    use crate::geometry::Camera;
+    use crate::metrics::screen::{MAX_FOV_Y, MIN_DISTANCE_M, MIN_FOV_Y};
+    use crate::quadtree::{
+        CullPolicy, FrustumCull, LeafSet, NoCull, NodeId, Quadtree, SplitPolicy, Visit, balance,
+        traverse,
+    };
+
+    /// Runs the one traversal with `split` and (optionally) frustum culling, then balances
+    /// when `balanced`. Returns the leaves in traversal order and the counts so far.
+    pub(crate) fn leaves(
+        qt: &Quadtree,
+        camera: &Camera,
+        split: &mut dyn SplitPolicy,
+        frustum_cull: bool,
+        balanced: bool,
+    ) -> (Vec<NodeId>, SelectionStats) {
+        let mut stats = SelectionStats::default();
+        let mut visit = |_: NodeId, v: Visit| {
+            stats.visited += 1;
+            match v {
+                Visit::Culled => stats.culled += 1,
+                Visit::Split => stats.split += 1,
+                Visit::Leaf => stats.traversal_leaves += 1,
+            }
+        };
+        let mut cull: Box<dyn CullPolicy> = if frustum_cull {
+            Box::new(FrustumCull::new(camera.frustum()))
+        } else {
+            Box::new(NoCull)
+        };
+        let mut out = traverse(qt, split, cull.as_mut(), &mut visit);
+        if balanced {
+            out = balance(qt, &out);
+        }
+        stats.balance_added = out.len().saturating_sub(stats.traversal_leaves);
+        (out, stats)
+    }
+
+    /// Builds the selection: outer factors from `rule`, inner factors from `inner`.
+    pub(crate) fn assemble(
+        leaves: Vec<NodeId>,
+        mut stats: SelectionStats,
+        rule: &dyn EdgeRule,
+        inner: impl Fn(NodeId, &[f32; 4]) -> [f32; 2],
+        start: Instant,
+    ) -> Selection {
+        let set = LeafSet::new(leaves.iter().copied());
+        let patches: Vec<Patch> = leaves
+            .iter()
+            .map(|&node| {
+                let outer = outer_factors(&set, node, rule);
+                Patch { node, outer, inner: inner(node, &outer) }
+            })
+            .collect();
+        stats.patches = patches.len();
+        stats.max_level = patches.iter().map(|p| p.node.level).max().unwrap_or(0);
+        stats.cpu_time = start.elapsed();
+        Selection { patches, stats }
+    }
+
+    /// Screen-space length of the segment `a`-`b` in NDC units of the viewport's height (2 =
+    /// the full height): the segment's bounding sphere (diameter `|b - a|`, centred at the
+    /// midpoint) projected at its distance, `|b - a| / (max(d, near) tan(fov_y / 2))`.
+    ///
+    /// Why the sphere and not the projected endpoints: it is defined for segments behind the
+    /// eye or crossing the eye plane (projection is not), it does not collapse for segments
+    /// seen end-on at grazing angles, and it depends only on the segment and the eye, so both
+    /// patches sharing an edge compute the same value. It equals the projected length for a
+    /// segment square to the view at the screen centre.
+    pub(crate) fn screen_length(camera: &Camera, a: DVec3, b: DVec3) -> f64 {
+        let len = (b - a).length();
+        let mid = (a + b) * 0.5;
+        let near =
+            if camera.near.is_finite() && camera.near > 0.0 { camera.near } else { MIN_DISTANCE_M };
+        let d = (mid - camera.position).length().max(near);
+        let fov = if camera.fov_y.is_nan() {
+            MAX_FOV_Y
+        } else {
+            camera.fov_y.clamp(MIN_FOV_Y, MAX_FOV_Y)
+        };
+        let s = len / (d * (fov * 0.5).tan());
+        if s.is_finite() { s } else { 0.0 }
+    }
+}

@@ -1,0 +1,299 @@
+//! The PVPS paper's (Zhang 2021, sections 2.3-2.4) LOD: method C, and the paper's comparison
+//! methods A and B, which differ from C only in the roughness the split test reads.
+//!
+//! Pipeline (occlusion culling, section 2.3.3, is another issue):
+//! 1. The one quadtree traversal from the root, culling node boxes against the view frustum
+//!    (section 2.3.2) and splitting while Eq. 8 gives `ratio < 1`:
+//!    `ratio = C1 D / (Span (R + C2))`, `Span = Length / 2^l` (Eq. 9), down to
+//!    [`PvpsConfig::max_level`] (the paper's level 6, 64 x 64 patches).
+//! 2. [`crate::quadtree::balance`]: neighbours differ by at most one level.
+//! 3. Outer factors by the paper's edge classification (Eq. 11, Algorithm 1): an edge shared
+//!    with a patch of the same level gets `Constant x ScreenSpaceEdgeLength`; any other edge
+//!    (a neighbour of another level, or none: "edges adjacent to no patches are seen as edges
+//!    adjacent to different-sized patches") gets `EdgeLength / MinEdgeLength`, the ratio of the
+//!    patch's edge to a finest-level patch's edge, `2^(L - l)`.
+//! 4. Inner factors by Eq. 12: `InnerLevel_k = C3 x ScreenSpaceLength_k x (RoughnessValue + C4)`.
+//!
+//! **Reading Algorithm 1.** The prose says "when the value of Y-axis coordinates of Vertex_i
+//! equals 0, `gl_TessLevelOuter[i]` is set as the ratio of the current edge length to the minimum
+//! edge length", Algorithm 1 says the opposite (Y = 0, i.e. a same-level neighbour, gets the
+//! screen-space length). We follow Algorithm 1: it is the only reading that is crack-free (a
+//! same-level edge is the same segment on both sides, so both compute the same screen length;
+//! a level change gets view-independent powers of two that nest). Eq. 11 also pairs Vertex1 with
+//! `level_top` and Vertex3 with `level_bottom` while Algorithm 1 pairs `outer[1]` with the bottom
+//! and `outer[3]` with the top edge; with explicit edges ([`Edge`]) there is nothing to pair.
+//!
+//! **Deviations, all documented in [`PvpsConfig`].**
+//! - The level-change factor is `EdgeLength / MinEdgeLength` times
+//!   [`PvpsConfig::finest_transition_factor`] (default 2; the paper is 1). A finest-level patch
+//!   next to a coarser one gets the paper's factor 1 and the coarser one 2; fractional-even
+//!   spacing treats 1 as 2, so the fine side would have twice the coarse side's vertices: a
+//!   crack. Doubling keeps every level-change factor a power of two `>= 2`.
+//! - The coarse side's factor is clamped to 64, and the finer side uses half the *coarse*
+//!   side's (clamped) factor, which equals its own `EdgeLength / MinEdgeLength` unless the
+//!   clamp bit.
+//! - Screen-space lengths are the edge's bounding sphere projected (see `screen_length` in the
+//!   module `run`), in NDC units of the viewport height (2 = full height): the paper's GLSL
+//!   works in normalised coordinates, and with pixels its `C3 = 10` would pin every factor at
+//!   64. Heights are the heightmap's at the edge's endpoints.
+//! - `RoughnessValue` in Eq. 12 is `R / 255`: the paper samples its 8-bit roughness image
+//!   in the shader, which returns 0..1.
+//!
+//! **Methods A and B** run this same pipeline with another [`NodeField`] as `R`: method A
+//! (Zhai 2016, our documented stand-in: Röttger's d2, terrain-visibility's `d2_pyramid`) and
+//! method B (Dong 2017: max - min elevation, `range_pyramid`). The paper normalises its
+//! roughness image to 0..255 and gives no scale for A and B; put them on the same 0..255 scale
+//! (terrain-visibility's `NodePyramid::normalized_255`) so one `C1`, `C2` serves all three.
+
+use std::time::Instant;
+
+use super::NodeField;
+use super::edges::EdgeRule;
+use super::patch::{Edge, MAX_FACTOR, Selection, clamp_factor};
+use super::run;
+use super::surface::edge_segment;
+use crate::geometry::Camera;
+use crate::heightmap::Heightmap;
+use crate::metrics::pvps::{span, split_ratio};
+use crate::quadtree::{NodeId, NodeInfo, Quadtree};
+
+/// Which of the PVPS paper's three methods a selection runs (section 3). They share the
+/// pipeline; the method names the roughness field passed in, and is kept for reports.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum Method {
+    /// Zhai 2016 (ref. 18): quadtree with a roughness; ours is Röttger's d2 (terrain-visibility's
+    /// `d2_pyramid`), the documented stand-in.
+    A,
+    /// Dong 2017 (ref. 21): roughness = max - min elevation of the node (`range_pyramid`).
+    B,
+    /// The PVPS paper's own: Eq. 5 roughness, normalised 0..255, mean per node
+    /// (`roughness_pyramid`).
+    C,
+}
+
+impl Method {
+    /// A short name for reports.
+    pub fn name(self) -> &'static str {
+        match self {
+            Method::A => "pvps-a",
+            Method::B => "pvps-b",
+            Method::C => "pvps-c",
+        }
+    }
+}
+
+/// What Eq. 8's `D`, "the node's distance to camera", measures.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default)]
+pub enum NodeDistance {
+    /// To the node's world box ([`NodeInfo::aabb`], heights included); 0 when the camera is
+    /// inside it, so the node splits. Conservative: never farther than any point of the node.
+    #[default]
+    Aabb,
+    /// To the box's centre (the paper's node position, Eq. 6-7, lifted to mid-height).
+    Centre,
+}
+
+/// Settings of the PVPS methods. The paper gives `C3 = 10`, `C4 = 1` (section 3) and no
+/// values for `C1`, `C2` or Algorithm 1's `Constant`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct PvpsConfig {
+    /// Eq. 8's `C1`, the degree of subdivision (in the numerator: a larger `C1` splits less).
+    /// Default 50: with `C2 = 100` a flat node (`R = 0`) splits within `2 Span` of the camera
+    /// and the roughest (`R = 255`) within `7.1 Span`.
+    pub c1: f64,
+    /// Eq. 8's `C2`, how little roughness matters. Default 100 (see `c1`).
+    pub c2: f64,
+    /// Eq. 12's `C3`. Default 10 (the paper's experiments).
+    pub c3: f64,
+    /// Eq. 12's `C4`. Default 1 (the paper's experiments).
+    pub c4: f64,
+    /// Algorithm 1's `Constant` for same-level edges. Default 10: equal to `C3 C4`, so a flat
+    /// patch (`R = 0`) among same-level neighbours has equal inner and outer factors.
+    pub outer_constant: f64,
+    /// Full scale of the roughness field; Eq. 12 reads `RoughnessValue = R / roughness_max`.
+    /// Default 255 (the paper's grey image).
+    pub roughness_max: f64,
+    /// Level-change factor of a finest-level patch's edge (Algorithm 1's
+    /// `EdgeLength / MinEdgeLength` is multiplied by it). A power of two `>= 2` (other values
+    /// are rounded up to one). Default 2; the paper's is 1 (see the module docs).
+    pub finest_transition_factor: u32,
+    /// Cells per side of a finest patch, for [`PvpsConfig::quadtree`]. Default 16: the default
+    /// 1025 x 1025 terrain then has the paper's 64 x 64 patches at level 6.
+    pub leaf_cells: u32,
+    /// Deepest level the split test may reach (the paper: 6); the quadtree's finest level caps
+    /// it too. `MinEdgeLength` is the edge at this level. Default 6.
+    pub max_level: u8,
+    /// What `D` measures. Default [`NodeDistance::Aabb`].
+    pub distance: NodeDistance,
+    /// Whether to cull node boxes against the view frustum (section 2.3.2). Default true.
+    pub frustum_cull: bool,
+}
+
+impl Default for PvpsConfig {
+    fn default() -> Self {
+        Self {
+            c1: 50.0,
+            c2: 100.0,
+            c3: 10.0,
+            c4: 1.0,
+            outer_constant: 10.0,
+            roughness_max: 255.0,
+            finest_transition_factor: 2,
+            leaf_cells: 16,
+            max_level: 6,
+            distance: NodeDistance::Aabb,
+            frustum_cull: true,
+        }
+    }
+}
+
+impl PvpsConfig {
+    /// The quadtree the selection runs on: `Quadtree::new(hm, leaf_cells)`.
+    pub fn quadtree(&self, hm: &Heightmap) -> Quadtree {
+        Quadtree::new(hm, self.leaf_cells)
+    }
+}
+
+/// Algorithm 1's edge classification as an [`EdgeRule`].
+struct PvpsEdges<'a> {
+    hm: &'a Heightmap,
+    qt: &'a Quadtree,
+    camera: &'a Camera,
+    constant: f64,
+    /// Deepest level (`MinEdgeLength`'s).
+    finest: u8,
+    /// `finest_transition_factor` as a power of two.
+    scale: u32,
+}
+
+impl PvpsEdges<'_> {
+    /// `scale x EdgeLength / MinEdgeLength = scale x 2^(finest - level)`, clamped to 64.
+    fn transition(&self, level: u8) -> f32 {
+        let shift = self.finest.saturating_sub(level).min(12) as u32;
+        (f64::from(self.scale) * f64::from(1u32 << shift)).min(f64::from(MAX_FACTOR)) as f32
+    }
+
+    fn screen(&self, node: NodeId, edge: Edge) -> f64 {
+        let (a, b) = edge_segment(self.hm, self.qt, node, edge);
+        run::screen_length(self.camera, a, b)
+    }
+}
+
+impl EdgeRule for PvpsEdges<'_> {
+    /// Algorithm 1, Y = 0: `Constant x ScreenSpaceEdgeLength` of the shared segment.
+    fn same_level(&self, a: NodeId, edge: Edge, _: NodeId) -> f32 {
+        clamp_factor(self.constant * self.screen(a, edge))
+    }
+
+    /// Algorithm 1, Y != 0: `EdgeLength / MinEdgeLength` (scaled) of the coarse patch.
+    fn coarse_edge(&self, coarse: NodeId, _: Edge, _: &[NodeId]) -> f32 {
+        self.transition(coarse.level)
+    }
+
+    /// "Edges adjacent to no patches are seen as edges adjacent to different-sized patches."
+    fn unshared(&self, node: NodeId, _: Edge) -> f32 {
+        self.transition(node.level)
+    }
+}
+
+/// Selects the patches of PVPS method `method` (A, B or C) with roughness `field` (0..255, see
+/// the module docs) for `camera` over `qt`, the quadtree of `hm`.
+pub fn select_pvps(
+    qt: &Quadtree,
+    hm: &Heightmap,
+    camera: &Camera,
+    field: &dyn NodeField,
+    method: Method,
+    cfg: &PvpsConfig,
+) -> Selection {
+    let _ = method; // the method is the choice of `field`; see `Method`
+    let start = Instant::now();
+    let finest = cfg.max_level.min(qt.max_level());
+    let root = qt.root_length_m();
+    let length = root.x.max(root.y);
+    let eye = camera.position;
+    let mut split = |node: NodeId, info: &NodeInfo| -> bool {
+        if node.level >= finest {
+            return false;
+        }
+        let d = match cfg.distance {
+            NodeDistance::Aabb => info.aabb.distance(eye),
+            NodeDistance::Centre => (info.aabb.center() - eye).length(),
+        };
+        // Eq. 8 and 9.
+        let r = f64::from(field.value(node)).max(0.0);
+        split_ratio(d, span(length, node.level as u32), r, cfg.c1, cfg.c2) < 1.0
+    };
+    let (leaves, stats) = run::leaves(qt, camera, &mut split, cfg.frustum_cull, true);
+    let rule = PvpsEdges {
+        hm,
+        qt,
+        camera,
+        constant: cfg.outer_constant,
+        finest,
+        scale: cfg.finest_transition_factor.clamp(2, 64).next_power_of_two(),
+    };
+    let inner = |node: NodeId, _: &[f32; 4]| -> [f32; 2] {
+        // Eq. 12: ScreenSpaceLength_1 runs along u (the south and north edges), _2 along v.
+        let r = f64::from(field.value(node)).max(0.0);
+        let rv = if cfg.roughness_max > 0.0 { r / cfg.roughness_max } else { 0.0 };
+        let k = cfg.c3 * (rv + cfg.c4);
+        let u = 0.5 * (rule.screen(node, Edge::South) + rule.screen(node, Edge::North));
+        let v = 0.5 * (rule.screen(node, Edge::West) + rule.screen(node, Edge::East));
+        [clamp_factor(k * u), clamp_factor(k * v)]
+    };
+    run::assemble(leaves, stats, &rule, inner, start)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::georef::Georef;
+    use crate::lod::{ConstantField, check_shared_edges};
+    use glam::dvec3;
+
+    fn bumpy(n: usize) -> Heightmap {
+        Heightmap::from_fn(n, n, Georef::local(10.0), |i, j| {
+            ((i as f32 * 0.3).sin() * 40.0 + (j as f32 * 0.21).cos() * 30.0) + 100.0
+        })
+        .unwrap()
+    }
+
+    #[test]
+    fn near_patches_are_finer_and_factors_match() {
+        let hm = bumpy(257);
+        let cfg = PvpsConfig { leaf_cells: 8, ..Default::default() };
+        let qt = cfg.quadtree(&hm);
+        assert_eq!(qt.max_level(), 5);
+        let cam = Camera::from_yaw_pitch(dvec3(100.0, 100.0, 400.0), 45.0, -20.0);
+        let sel = select_pvps(&qt, &hm, &cam, &ConstantField(100.0), Method::C, &cfg);
+        assert!(sel.stats.patches > 4 && sel.stats.patches == sel.patches.len());
+        assert!(sel.factors_in_range());
+        assert_eq!(check_shared_edges(&sel), []);
+        assert!(crate::quadtree::is_balanced(
+            &sel.patches.iter().map(|p| p.node).collect::<Vec<_>>()
+        ));
+        // Near the camera at the finest level, far away coarser.
+        assert!(sel.patches.iter().any(|p| p.node.level == 5));
+        assert!(sel.patches.iter().any(|p| p.node.level <= 3));
+        // Sorted in traversal order.
+        assert!(sel.patches.windows(2).all(|w| w[0].node.dfs_key() < w[1].node.dfs_key()));
+    }
+
+    #[test]
+    fn transition_factors_are_the_papers_ratio_doubled() {
+        let hm = bumpy(65);
+        let qt = Quadtree::new(&hm, 4);
+        let cam = Camera::from_yaw_pitch(dvec3(0.0, 0.0, 100.0), 0.0, -30.0);
+        let rule =
+            PvpsEdges { hm: &hm, qt: &qt, camera: &cam, constant: 10.0, finest: 4, scale: 2 };
+        assert_eq!(rule.transition(4), 2.0);
+        assert_eq!(rule.transition(3), 4.0);
+        assert_eq!(rule.transition(0), 32.0);
+        let rule = PvpsEdges { finest: 9, ..rule };
+        assert_eq!(rule.transition(0), 64.0);
+        assert_eq!(rule.transition(3), 64.0);
+        assert_eq!(rule.transition(4), 64.0);
+        assert_eq!(rule.transition(5), 32.0);
+    }
+}
