@@ -284,23 +284,21 @@ impl Streamer {
             if b.levels.count() > 0 || b.requested_to.is_some() || b.retry_at_frame > self.frame {
                 continue;
             }
-            let add = BlockEntry::resident_bytes(s.needed);
-            if resident + pending + add > budget {
-                continue;
+            // Over budget, at least the coarse levels a synchronous load would fetch: they are
+            // small, and they are what spares the frame thread a disk read later.
+            let mut last = s.needed;
+            if resident + pending + BlockEntry::resident_bytes(last) > budget {
+                last = last.min(self.config.sync_max_level);
             }
-            b.requested_to = Some(s.needed);
+            let add = BlockEntry::resident_bytes(last);
+            b.requested_to = Some(last);
             pending += add;
-            self.pool.submit(LoadRequest {
-                block: s.block,
-                first: 0,
-                last: s.needed,
-                coarser: Vec::new(),
-            });
+            self.pool.submit(LoadRequest { block: s.block, first: 0, last, coarser: Vec::new() });
             stats.requests += 1;
         }
 
         // Eviction: blocks outside N first (farthest first), then levels beyond what N needs,
-        // then what N - M needs; never what M needs.
+        // then what N - M needs above its coarse levels, then those; never what M needs.
         let needed: std::collections::BTreeMap<BlockId, (u8, bool, f64)> =
             scheduled.iter().map(|s| (s.block, (s.needed, s.visible, s.distance_m))).collect();
         let mut outside: Vec<(BlockId, f64)> = self
@@ -322,6 +320,8 @@ impl Streamer {
         by_distance
             .sort_by(|a, b| b.distance_m.total_cmp(&a.distance_m).then(a.block.cmp(&b.block)));
         order.extend(by_distance.iter().map(|s| (s.block, s.needed as usize + 1)));
+        let coarse = |s: &ScheduledBlock| s.needed.min(self.config.sync_max_level) as usize + 1;
+        order.extend(by_distance.iter().filter(|s| !s.visible).map(|s| (s.block, coarse(s))));
         order.extend(by_distance.iter().filter(|s| !s.visible).map(|s| (s.block, 0)));
         stats.evictions = self.cache.evict(&order);
         self.cache.prune();
