@@ -1,5 +1,6 @@
 //! The `terrain` command line: composes the engine's crates into user-facing commands.
 
+mod bake;
 mod info;
 mod source;
 
@@ -18,12 +19,15 @@ enum Command {
     /// Describe a DEM (or the embedded synthetic terrain when no file is given): size, sample
     /// type, georeference, spacing in metres, height range and voids.
     Info(info::InfoArgs),
+    /// Bake a DEM (or `--synthetic SIZE`) into an out-of-core block store.
+    Bake(bake::BakeArgs),
 }
 
 fn main() -> std::process::ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Info(args) => info::run(&args),
+        Command::Bake(args) => bake::run(&args),
     };
     match result {
         Ok(()) => std::process::ExitCode::SUCCESS,
