@@ -94,7 +94,9 @@ fn storage() {
             // Plain payloads hold i16 where values fit, so their width is the pyramid's.
             let w = store.blocks_bytes() as f64
                 / (store.header().block_count() as f64 * (offset_end(8) + 1) as f64);
-            pyr = pyramid_bytes(&store, w.round().max(1.0) as u64);
+            if codec == Codec::Plain {
+                pyr = pyramid_bytes(&store, w.round().max(1.0) as u64);
+            }
             sizes.push(r.store_bytes);
             lossless = r.lossless;
         }

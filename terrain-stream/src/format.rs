@@ -482,9 +482,9 @@ fn read_georef(r: &mut Reader<'_>) -> Result<Georef, String> {
         world_origin: r.dvec2()?,
     };
     let ok = |v: DVec2| v.is_finite();
-    if !(ok(g.native_origin) && ok(g.world_origin) && ok(g.native_spacing))
-        || !(g.spacing_m.x > 0.0 && g.spacing_m.y > 0.0 && g.spacing_m.is_finite())
-    {
+    let fine = ok(g.native_origin) && ok(g.world_origin) && ok(g.native_spacing);
+    let positive = g.spacing_m.x > 0.0 && g.spacing_m.y > 0.0 && g.spacing_m.is_finite();
+    if !(fine && positive) {
         return Err("georeference is not finite or has non-positive spacing".into());
     }
     Ok(g)
@@ -657,7 +657,12 @@ pub(crate) fn read_index(bytes: &[u8]) -> Result<(Header, Vec<BlockEntry>), Inde
         let min = r.f32()?;
         let max = r.f32()?;
         let side = header.block_side();
-        if valid_w == 0 || valid_h == 0 || valid_w > side || valid_h > side || !(min <= max) {
+        if valid_w == 0
+            || valid_h == 0
+            || valid_w > side
+            || valid_h > side
+            || min.partial_cmp(&max).is_none_or(|o| o.is_gt())
+        {
             return Err(IndexError::Corrupt(format!("block {id}: bad extent or height range")));
         }
         let mut levels = Vec::with_capacity(k as usize + 1);

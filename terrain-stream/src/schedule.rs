@@ -38,7 +38,12 @@ impl Default for ScheduleConfig {
 pub fn eq8_s(velocity: DVec2, view_dir: DVec2, frame_rate_hz: f64) -> f64 {
     let v = velocity.length();
     let d = view_dir.length();
-    if !(v.is_finite() && d.is_finite()) || v == 0.0 || d == 0.0 || !(frame_rate_hz > 0.0) {
+    if !(v.is_finite() && d.is_finite())
+        || v == 0.0
+        || d == 0.0
+        || frame_rate_hz.is_nan()
+        || frame_rate_hz <= 0.0
+    {
         return 0.0;
     }
     let cos_a = velocity.dot(view_dir) / (v * d);
