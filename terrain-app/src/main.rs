@@ -1,5 +1,6 @@
 //! The `terrain` command line: composes the engine's crates into user-facing commands.
 
+mod bake;
 mod info;
 mod roughness;
 mod source;
@@ -21,6 +22,8 @@ enum Command {
     Info(info::InfoArgs),
     /// Export the roughness pyramids of the PVPS paper's methods A, B and C as PNG images.
     Roughness(roughness::RoughnessArgs),
+    /// Bake a DEM (or `--synthetic SIZE`) into an out-of-core block store.
+    Bake(bake::BakeArgs),
 }
 
 fn main() -> std::process::ExitCode {
@@ -28,6 +31,7 @@ fn main() -> std::process::ExitCode {
     let result = match cli.command {
         Command::Info(args) => info::run(&args),
         Command::Roughness(args) => roughness::run(&args),
+        Command::Bake(args) => bake::run(&args),
     };
     match result {
         Ok(()) => std::process::ExitCode::SUCCESS,

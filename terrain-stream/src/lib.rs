@@ -5,6 +5,72 @@
 //! per-level storage (Eq. 1-2), a byte-budgeted cache, the frustum-extension preloading
 //! scheduler (Eq. 8) and a worker pool behind request/result channels.
 //!
-//! This crate is filled by the terrain-stream issue; it holds no code before it.
+//! The principal types are [`Store`] (an opened store: header, grid index, positioned reads
+//! of one block level at a time), [`Streamer`] (the runtime: per frame it computes the
+//! visual region M and the scheduling region N, loads what M lacks, prefetches N - M on
+//! worker threads, and evicts to a byte budget) and [`bake`] (a [`HeightSource`] into a
+//! store). [`format`] documents the bytes on disk; [`lod`] is the CPU side of the paper's
+//! rendering method (bounding-circle culling, Eq. 7 dynamic LOD) per block.
+//!
+//! # Example
+//!
+//! Bake, open, drive the scheduler from a camera path, read a block's heights at a level
+//! (the same as `examples/embed.rs`):
+//!
+//! ```
+//! use std::ops::ControlFlow;
+//! use std::sync::Arc;
+//!
+//! use glam::dvec3;
+//! use terrain_core::geometry::Camera;
+//! use terrain_core::synth::FractalConfig;
+//! use terrain_stream::{BakeConfig, BakeProgress, Store, StreamConfig, Streamer, bake};
+//!
+//! # fn main() -> Result<(), Box<dyn std::error::Error>> {
+//! let dir = std::env::temp_dir().join(format!("terrain-stream-doc-{}", std::process::id()));
+//! // 129 x 129 samples at 10 m, streamed by rows into blocks of 33 x 33 vertices.
+//! let source = FractalConfig::with_size(129, 129, 10.0);
+//! let config = BakeConfig { k: 5, overwrite: true, ..Default::default() };
+//! bake(&source, &dir, &config, &mut |_: &BakeProgress| ControlFlow::Continue(()))?;
+//!
+//! let store = Arc::new(Store::open(&dir)?);
+//! let mut streamer = Streamer::new(store, StreamConfig { threads: 1, ..Default::default() });
+//! for frame in 0..10 {
+//!     let eye = dvec3(640.0, 50.0 * frame as f64, 900.0);
+//!     let camera = Camera::from_yaw_pitch(eye, 0.0, -30.0).with_clip(1.0, 2000.0);
+//!     let stats = streamer.update(&camera);
+//!     assert!(stats.faults.is_empty());
+//! }
+//! streamer.finish_loads();
+//! let nearest = streamer.scheduled()[0].block;
+//! let grid = streamer.block(nearest).unwrap().grid(1).unwrap(); // 3 x 3 heights at level 1
+//! assert_eq!(grid.len(), 9);
+//! # drop(streamer);
+//! # std::fs::remove_dir_all(&dir)?;
+//! # Ok(())
+//! # }
+//! ```
 
 #![deny(missing_docs)]
+
+pub mod bake;
+pub mod cache;
+mod codec;
+pub mod error;
+pub mod format;
+pub mod lod;
+pub mod schedule;
+pub mod source;
+pub mod stats;
+pub mod store;
+pub mod streamer;
+pub mod workers;
+
+pub use bake::{BakeConfig, BakeProgress, BakeReport, HeightEncoding, bake};
+pub use error::{BakeError, StoreError};
+pub use format::{BlockId, Codec, Header};
+pub use source::HeightSource;
+pub use stats::{FrameStats, StatsSummary};
+pub use store::{BlockLevels, LoadedLevel, Store};
+pub use streamer::{ScheduledBlock, StreamConfig, Streamer};
+pub use workers::{LoadRequest, LoadResult, WorkerPool};

@@ -1,0 +1,266 @@
+//! The terrain-stream benchmark: storage (raw, full pyramid, non-redundant, compressed) on the
+//! real DEMs and a big synthetic, bake throughput, and long flights (Table-3 rows per speed).
+//!
+//! `cargo run --release -p terrain-stream --example stream_bench -- [all|storage|flight|bake SIZE K]`
+//! (peak RSS: prefix with `/usr/bin/time -v`). Data from `../shared/data`.
+
+use std::ops::ControlFlow;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::time::Instant;
+
+use glam::dvec3;
+use terrain_core::dem::{LoadOptions, load};
+use terrain_core::geometry::Camera;
+use terrain_core::heightmap::Heightmap;
+use terrain_core::synth::FractalConfig;
+use terrain_stream::format::offset_end;
+use terrain_stream::schedule::ScheduleConfig;
+use terrain_stream::{
+    BakeConfig, BakeProgress, Codec, HeightEncoding, HeightSource, StatsSummary, Store,
+    StreamConfig, Streamer, bake,
+};
+
+fn data() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/data")
+}
+
+fn scratch() -> PathBuf {
+    let d = std::env::temp_dir().join("terrain-stream-bench");
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+fn go(_: &BakeProgress) -> ControlFlow<()> {
+    ControlFlow::Continue(())
+}
+
+fn datasets() -> Vec<(&'static str, Heightmap, HeightEncoding, u64)> {
+    let mut v = Vec::new();
+    let grey = LoadOptions { vertical_scale: 0.1, spacing_m: 160.0, ..Default::default() };
+    for (name, file, opts) in [
+        ("puget 1k", "puget_sound/ps_height_1k.png", grey.clone()),
+        (
+            "puget 4k",
+            "puget_sound/ps_height_4k.jpg",
+            LoadOptions { vertical_scale: 25.6, spacing_m: 40.0, ..Default::default() },
+        ),
+        ("mt_rainier srtm", "srtm/mt_rainier_90m.tif", LoadOptions::default()),
+        ("N42E001 hgt", "srtm/N42E001.hgt", LoadOptions::default()),
+        ("everest srtm", "srtm/mt_everest_90m.tif", LoadOptions::default()),
+        ("lidar f32", "lidar_prairie/dem.tif", LoadOptions::default()),
+    ] {
+        let dem = load(data().join(file), &opts).unwrap();
+        let enc = HeightEncoding::for_source(&dem.source, &opts);
+        let bytes = if dem.source.sample_type.contains("float") {
+            4
+        } else if dem.source.sample_type.contains("8") {
+            1
+        } else {
+            2
+        };
+        v.push((name, dem.heightmap, enc, bytes));
+    }
+    v
+}
+
+/// Bytes of the traditional pyramid (every level's full grid, same sample width as plain).
+fn pyramid_bytes(store: &Store, sample_bytes: u64) -> u64 {
+    let h = store.header();
+    let per_block: u64 = (0..=h.k).map(|l| ((1u64 << l) + 1).pow(2)).sum();
+    per_block * h.block_count() as u64 * sample_bytes
+}
+
+fn storage() {
+    println!("\n## Storage (k = 8 unless said; sizes in MB)\n");
+    println!(
+        "| dataset | samples | raw | full pyramid | non-redundant plain | predictive | vs raw | vs pyramid | lossless | bake MB/s |"
+    );
+    println!("|---|---|---|---|---|---|---|---|---|---|");
+    let dir = scratch();
+    for (name, hm, enc, sb) in datasets() {
+        let n = (hm.width() * hm.height()) as u64;
+        let mut sizes = Vec::new();
+        let mut lossless = false;
+        let mut mbs = 0.0;
+        let mut pyr = 0;
+        for codec in [Codec::Plain, Codec::Predictive] {
+            let cfg =
+                BakeConfig { k: 8, encoding: enc, codec, overwrite: true, ..Default::default() };
+            let t = Instant::now();
+            let r = bake(&hm, &dir.join("s"), &cfg, &mut go).unwrap();
+            mbs = n as f64 * 4.0 / 1e6 / t.elapsed().as_secs_f64();
+            let store = Store::open(dir.join("s")).unwrap();
+            // Plain payloads hold i16 where values fit, so their width is the pyramid's.
+            let w = store.blocks_bytes() as f64
+                / (store.header().block_count() as f64 * (offset_end(8) + 1) as f64);
+            if codec == Codec::Plain {
+                pyr = pyramid_bytes(&store, w.round().max(1.0) as u64);
+            }
+            sizes.push(r.store_bytes);
+            lossless = r.lossless;
+        }
+        let mb = |b: u64| b as f64 / 1e6;
+        println!(
+            "| {name} | {}x{} | {:.2} | {:.2} | {:.2} | {:.2} | {:.2} | {:.2} | {} | {:.0} |",
+            hm.width(),
+            hm.height(),
+            mb(n * sb),
+            mb(pyr),
+            mb(sizes[0]),
+            mb(sizes[1]),
+            sizes[1] as f64 / (n * sb) as f64,
+            sizes[1] as f64 / pyr as f64,
+            lossless,
+            mbs
+        );
+    }
+    println!("\n### Block size on puget 4k\n");
+    println!("| k | block | store MB | index KB | bake s |");
+    println!("|---|---|---|---|---|");
+    let ds = datasets();
+    let (_, hm, enc, _) = &ds[1];
+    for k in [6u8, 7, 8, 9, 10] {
+        let cfg = BakeConfig { k, encoding: *enc, overwrite: true, ..Default::default() };
+        let t = Instant::now();
+        let r = bake(hm, &dir.join(format!("k{k}")), &cfg, &mut go).unwrap();
+        println!(
+            "| {k} | {0}^2 | {1:.2} | {2:.0} | {3:.2} |",
+            (1 << k) + 1,
+            r.store_bytes as f64 / 1e6,
+            r.index_bytes as f64 / 1e3,
+            t.elapsed().as_secs_f64()
+        );
+    }
+}
+
+/// A circular flight of `frames` frames at `speed` m/s, 60 frames/s, over a store.
+fn flight(
+    store: &Arc<Store>,
+    speed: f64,
+    frames: usize,
+    budget: u64,
+    lookahead: f64,
+    alt: f64,
+) -> StatsSummary {
+    let h = store.header();
+    let ext = h.georef.spacing_m * glam::dvec2((h.width - 1) as f64, (h.height - 1) as f64);
+    let centre = h.georef.world_origin + ext * 0.5;
+    let radius = ext.min_element() * 0.35;
+    let schedule = ScheduleConfig { lookahead_frames: lookahead, ..Default::default() };
+    let config = StreamConfig { budget_bytes: budget, threads: 0, schedule, ..Default::default() };
+    let mut s = Streamer::new(store.clone(), config);
+    let mut sum = StatsSummary::default();
+    let omega = speed / radius / 60.0; // radians per frame
+    let next = Instant::now();
+    for f in 0..frames {
+        let a = f as f64 * omega;
+        let p = centre + glam::dvec2(a.cos(), a.sin()) * radius;
+        // Heading along the tangent (counter-clockwise): compass yaw from north.
+        let (tx, ty) = (-a.sin(), a.cos());
+        let yaw = tx.atan2(ty).to_degrees();
+        let cam = Camera::from_yaw_pitch(dvec3(p.x, p.y, alt), yaw, -15.0).with_clip(1.0, 20_000.0);
+        let st = s.update(&cam);
+        sum.add(&st);
+        // Pace the frames at 60 Hz so the workers get real time between them.
+        let due = next + std::time::Duration::from_secs_f64((f + 1) as f64 / 60.0);
+        if let Some(w) = due.checked_duration_since(Instant::now()) {
+            std::thread::sleep(w);
+        }
+    }
+    sum
+}
+
+fn print_flight(name: &str, speed: f64, lookahead: f64, budget: u64, s: &StatsSummary) {
+    let f = s.frames as f64;
+    println!(
+        "| {name} | {speed} | {lookahead} | {:.2} | {:.3} | {:.3} | {} | {} | {:.1} / {:.0} | {:.3} | {:.2} | {:.2} | {} | {} |",
+        s.needed_bytes as f64 / f / 1e6,
+        s.sync_bytes as f64 / f / 1e6,
+        s.prefetched_bytes as f64 / f / 1e6,
+        s.sync_loads,
+        s.sync_loads_after_first,
+        s.peak_resident_bytes as f64 / 1048576.0,
+        budget as f64 / 1048576.0,
+        s.io_time.as_secs_f64() * 1e3 / f,
+        s.max_io_time.as_secs_f64() * 1e3,
+        s.frame_time.as_secs_f64() * 1e3 / f,
+        s.evictions,
+        s.frames_incomplete
+    );
+}
+
+fn flights(frames: usize) {
+    println!(
+        "\n## Flights ({frames} frames at 60 Hz, circular path, 15 deg down; per-frame means, MB of decoded samples)\n"
+    );
+    println!(
+        "| terrain | speed m/s | look-ahead frames | needed MB | sync MB | prefetched MB | sync loads | after frame 1 | peak resident / budget MiB | I/O ms/frame | max I/O ms | frame ms | evictions | frames short |"
+    );
+    println!("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|");
+    let dir = scratch();
+    let ds = datasets();
+    let (_, hm, enc, _) = &ds[1];
+    let cfg = BakeConfig { k: 8, encoding: *enc, overwrite: true, ..Default::default() };
+    bake(hm, &dir.join("p4k"), &cfg, &mut go).unwrap();
+    let store = Arc::new(Store::open(dir.join("p4k")).unwrap());
+    let budget = 64 << 20;
+    for (speed, la) in [(100.0, 1.0), (300.0, 1.0), (1000.0, 1.0), (1000.0, 30.0), (3000.0, 30.0)] {
+        let s = flight(&store, speed, frames, budget, la, 3000.0);
+        print_flight("puget 4k", speed, la, budget, &s);
+    }
+    let big = dir.join("big");
+    if big.join("index.tsi").exists() {
+        let store = Arc::new(Store::open(&big).unwrap());
+        for (speed, la) in [(300.0, 1.0), (1000.0, 30.0), (3000.0, 30.0)] {
+            let s = flight(&store, speed, frames, budget, la, 2500.0);
+            print_flight(&format!("synthetic {}", store.header().width), speed, la, budget, &s);
+        }
+    }
+}
+
+fn bake_big(size: u64, k: u8) {
+    let src = FractalConfig::with_size(size, size, 10.0);
+    let cfg = BakeConfig { k, overwrite: true, ..Default::default() };
+    let t = Instant::now();
+    let mut last = Instant::now();
+    let r = bake(&src, &scratch().join("big"), &cfg, &mut |p: &BakeProgress| {
+        if last.elapsed().as_secs_f64() > 10.0 {
+            eprintln!(
+                "{}/{} blocks, {:.0} s",
+                p.blocks_done,
+                p.blocks_total,
+                t.elapsed().as_secs_f64()
+            );
+            last = Instant::now();
+        }
+        ControlFlow::Continue(())
+    })
+    .unwrap();
+    let s = t.elapsed().as_secs_f64();
+    let n = src.width() * src.height();
+    println!(
+        "synthetic {size}^2 k={k}: {:.1} MB store ({:.3} of f32 raw), {:.1} s, {:.1} MB/s of f32 input, max error {:.4} m",
+        r.store_bytes as f64 / 1e6,
+        r.store_bytes as f64 / (n * 4) as f64,
+        s,
+        n as f64 * 4.0 / 1e6 / s,
+        r.header.max_error_m
+    );
+}
+
+fn main() {
+    let args: Vec<String> = std::env::args().skip(1).collect();
+    match args.first().map(String::as_str) {
+        Some("storage") => storage(),
+        Some("flight") => flights(args.get(1).and_then(|s| s.parse().ok()).unwrap_or(10_000)),
+        Some("bake") => bake_big(
+            args.get(1).and_then(|s| s.parse().ok()).unwrap_or(16385),
+            args.get(2).and_then(|s| s.parse().ok()).unwrap_or(8),
+        ),
+        _ => {
+            storage();
+            flights(10_000);
+        }
+    }
+}

@@ -1,0 +1,514 @@
+//! The bake: a [`HeightSource`] streamed by bands of block rows into a store folder, blocks
+//! encoded in parallel (rayon), written under a temporary name and renamed when complete.
+//!
+//! Memory: one band of `2^k + 1` source rows (f32 and a void flag per sample) plus, per
+//! worker thread, one block's samples, its static-error pyramid and its payloads. Nothing of
+//! the whole grid is allocated, so a 32769^2 float grid (4 GiB) bakes in a few hundred MiB.
+
+use std::fs;
+use std::io::{Seek, SeekFrom, Write};
+use std::ops::ControlFlow;
+use std::path::{Path, PathBuf};
+use std::time::{Duration, Instant};
+
+use rayon::prelude::*;
+use terrain_core::dem::{Format, LoadOptions, RawSampleType, SourceInfo};
+use terrain_core::georef::Georef;
+use terrain_core::heightmap::{Heightmap, VoidMask};
+use terrain_core::metrics::static_error::StaticErrorPyramid;
+
+use crate::codec::encode_level;
+use crate::error::BakeError;
+use crate::format::{
+    BLOCK_HEADER_LEN, BlockEntry, BlockId, Codec, Header, INDEX_FILE, K_RANGE, LevelEntry,
+    NodeValues, SampleEncoding, block_file_name, block_header, crc32, node_count, write_index,
+};
+use crate::source::HeightSource;
+
+/// How heights are stored.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum HeightEncoding {
+    /// Integer steps: `height = offset_m + q * step_m`. Lossless for sources whose heights lie
+    /// on that lattice (integer DEMs, scaled grey images); the bake measures and records the
+    /// largest difference, so a store says whether it is lossless.
+    Quantized {
+        /// Metres per step.
+        step_m: f64,
+        /// Height of step 0.
+        offset_m: f64,
+    },
+    /// Float sources: quantized with a step of `1.8 * max_error_m`, and the bake verifies that
+    /// no non-void sample moves by more than `max_error_m` (it fails otherwise).
+    Bounded {
+        /// The vertical error bound, metres.
+        max_error_m: f64,
+    },
+    /// Raw IEEE f32 bits, 4 bytes a sample (no compression).
+    F32,
+}
+
+impl Default for HeightEncoding {
+    /// `Bounded { max_error_m: 0.01 }`: 1 cm.
+    fn default() -> Self {
+        HeightEncoding::Bounded { max_error_m: 0.01 }
+    }
+}
+
+impl HeightEncoding {
+    /// The lossless encoding for a DEM's source precision: integer samples (GeoTIFF and .hgt
+    /// int16/int32/uint16, raw i16/u16) and 8/16-bit images map to their integer lattice; float
+    /// sources get the default bound.
+    pub fn for_source(info: &SourceInfo, options: &LoadOptions) -> Self {
+        let integer = info.sample_type.starts_with("int") || info.sample_type.starts_with("uint");
+        let scaled = || HeightEncoding::Quantized {
+            step_m: options.vertical_scale,
+            offset_m: options.vertical_offset,
+        };
+        match info.format {
+            Format::GreyImage => scaled(),
+            Format::TerrainRgb => HeightEncoding::Quantized { step_m: 0.1, offset_m: -10000.0 },
+            Format::Terrarium => {
+                HeightEncoding::Quantized { step_m: 1.0 / 256.0, offset_m: -32768.0 }
+            }
+            Format::Raw => match options.raw.map(|r| r.sample) {
+                Some(RawSampleType::I16 | RawSampleType::U16) => scaled(),
+                _ => HeightEncoding::default(),
+            },
+            _ if integer => HeightEncoding::Quantized { step_m: 1.0, offset_m: 0.0 },
+            _ => HeightEncoding::default(),
+        }
+    }
+}
+
+/// Parameters of a bake.
+#[derive(Debug, Clone, PartialEq)]
+pub struct BakeConfig {
+    /// Blocks are `(2^k + 1)^2` vertices, `k` in 2..=12. Default 8 (257^2, chosen by the
+    /// stream bench; the paper used k = 10, 1025^2).
+    pub k: u8,
+    /// How heights are stored. Default: 1 cm bound.
+    pub encoding: HeightEncoding,
+    /// Payload codec. Default [`Codec::Predictive`] (lossless; chosen by measurement).
+    pub codec: Codec,
+    /// Quadtree levels of per-node min/max/static error stored per block (clamped to `k`).
+    /// Default 5 (1365 nodes, 16 KiB a block); deeper nodes use the per-level bounds.
+    pub node_levels: u8,
+    /// Worker threads; 0 = rayon's global pool (one per core). Default 0.
+    pub threads: usize,
+    /// Replace an existing output folder. Default false.
+    pub overwrite: bool,
+}
+
+impl Default for BakeConfig {
+    fn default() -> Self {
+        Self {
+            k: 8,
+            encoding: HeightEncoding::default(),
+            codec: Codec::Predictive,
+            node_levels: 5,
+            threads: 0,
+            overwrite: false,
+        }
+    }
+}
+
+/// Where a bake is, for progress bars.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct BakeProgress {
+    /// Blocks written.
+    pub blocks_done: usize,
+    /// Blocks in the store.
+    pub blocks_total: usize,
+    /// Source rows read so far (shared border rows count twice).
+    pub rows_read: u64,
+    /// Bytes written so far.
+    pub bytes_written: u64,
+}
+
+/// What a finished bake did.
+#[derive(Debug, Clone)]
+pub struct BakeReport {
+    /// The store's header.
+    pub header: Header,
+    /// Total bytes of the store (index and block files).
+    pub store_bytes: u64,
+    /// Bytes of the index file.
+    pub index_bytes: u64,
+    /// Source samples (`width * height`).
+    pub source_samples: u64,
+    /// Wall time.
+    pub elapsed: Duration,
+    /// Whether every non-void sample is stored bit-exactly.
+    pub lossless: bool,
+}
+
+fn io_err(path: &Path) -> impl FnOnce(std::io::Error) -> BakeError + '_ {
+    move |source| BakeError::Io { path: path.to_path_buf(), source }
+}
+
+/// Bakes `source` into the store folder `out`.
+///
+/// Writes to `.<name>.part` beside `out` and renames it to `out` only when the index (written
+/// last) is complete, so an interrupted or failed bake never leaves a store that reads as
+/// valid. `progress` is called after each row of blocks; returning `ControlFlow::Break(())`
+/// cancels ([`BakeError::Cancelled`]). The output is deterministic: the same input and config
+/// give the same bytes.
+pub fn bake(
+    source: &dyn HeightSource,
+    out: &Path,
+    config: &BakeConfig,
+    progress: &mut (dyn FnMut(&BakeProgress) -> ControlFlow<()> + Send),
+) -> Result<BakeReport, BakeError> {
+    if !K_RANGE.contains(&config.k) {
+        return Err(BakeError::InvalidConfig(format!("k = {} is outside {K_RANGE:?}", config.k)));
+    }
+    match config.encoding {
+        HeightEncoding::Quantized { step_m, offset_m }
+            if !(step_m.is_finite() && step_m > 0.0 && offset_m.is_finite()) =>
+        {
+            return Err(BakeError::InvalidConfig(format!(
+                "quantization step {step_m} / offset {offset_m}"
+            )));
+        }
+        HeightEncoding::Bounded { max_error_m }
+            if !(max_error_m.is_finite() && max_error_m > 0.0) =>
+        {
+            return Err(BakeError::InvalidConfig(format!("error bound {max_error_m} m")));
+        }
+        _ => {}
+    }
+    let (w, h) = (source.width(), source.height());
+    if w == 0 || h == 0 {
+        return Err(BakeError::InvalidConfig(format!("empty source ({w} x {h})")));
+    }
+    if out.exists() && !config.overwrite {
+        return Err(BakeError::Exists { path: out.to_path_buf() });
+    }
+    let name = out
+        .file_name()
+        .ok_or_else(|| BakeError::InvalidConfig(format!("{} has no file name", out.display())))?;
+    let tmp = out.with_file_name(format!(".{}.part", name.to_string_lossy()));
+    if tmp.exists() {
+        fs::remove_dir_all(&tmp).map_err(io_err(&tmp))?;
+    }
+    fs::create_dir_all(tmp.join("blocks")).map_err(io_err(&tmp))?;
+    let mut run = || bake_into(source, &tmp, config, progress);
+    let result = if config.threads > 0 {
+        match rayon::ThreadPoolBuilder::new().num_threads(config.threads).build() {
+            Ok(pool) => pool.install(run),
+            Err(e) => Err(BakeError::InvalidConfig(format!("thread pool: {e}"))),
+        }
+    } else {
+        run()
+    };
+    let report = match result {
+        Ok(r) => r,
+        Err(e) => {
+            let _ = fs::remove_dir_all(&tmp);
+            return Err(e);
+        }
+    };
+    if out.exists() {
+        fs::remove_dir_all(out).map_err(io_err(out))?;
+    }
+    fs::rename(&tmp, out).map_err(io_err(out))?;
+    Ok(report)
+}
+
+/// Quantization parameters in force.
+#[derive(Debug, Clone, Copy)]
+struct Quant {
+    encoding: SampleEncoding,
+    bound: Option<f64>,
+}
+
+/// What encoding one block produced.
+struct BakedBlock {
+    entry: BlockEntry,
+    max_err: f64,
+    max_void_err: f64,
+    lossless: bool,
+}
+
+fn bake_into(
+    source: &dyn HeightSource,
+    dir: &Path,
+    config: &BakeConfig,
+    progress: &mut (dyn FnMut(&BakeProgress) -> ControlFlow<()> + Send),
+) -> Result<BakeReport, BakeError> {
+    let start = Instant::now();
+    let (w, h) = (source.width(), source.height());
+    let k = config.k;
+    let cells = 1u64 << k;
+    let side = cells as usize + 1;
+    let blocks_x = (w - 1).div_ceil(cells).max(1);
+    let blocks_y = (h - 1).div_ceil(cells).max(1);
+    if blocks_x > u32::MAX as u64 || blocks_y > u32::MAX as u64 {
+        return Err(BakeError::InvalidConfig("too many blocks".into()));
+    }
+    let width =
+        usize::try_from(w).map_err(|_| BakeError::InvalidConfig("width too large".into()))?;
+    let node_levels = config.node_levels.min(k);
+    let quant = match config.encoding {
+        HeightEncoding::Quantized { step_m, offset_m } => {
+            Quant { encoding: SampleEncoding::Quantized { step_m, offset_m }, bound: None }
+        }
+        HeightEncoding::Bounded { max_error_m } => Quant {
+            encoding: SampleEncoding::Quantized { step_m: 1.8 * max_error_m, offset_m: 0.0 },
+            bound: Some(max_error_m),
+        },
+        HeightEncoding::F32 => Quant { encoding: SampleEncoding::F32, bound: None },
+    };
+    let total = (blocks_x * blocks_y) as usize;
+    let mut band = vec![0f32; width * side];
+    let mut voids = vec![false; width * side];
+    let mut entries: Vec<BlockEntry> = Vec::with_capacity(total);
+    let (mut max_err, mut max_void_err, mut lossless) = (0f64, 0f64, true);
+    let mut prog =
+        BakeProgress { blocks_done: 0, blocks_total: total, rows_read: 0, bytes_written: 0 };
+    for by in 0..blocks_y {
+        let j0 = by * cells;
+        let rows = (h - j0).min(side as u64) as usize;
+        let band = &mut band[..width * rows];
+        let voids = &mut voids[..width * rows];
+        // Read the band in parallel chunks of rows.
+        let chunk = rows.div_ceil(rayon::current_num_threads() * 2).max(1);
+        band.par_chunks_mut(width * chunk).enumerate().try_for_each(|(c, out)| {
+            let r0 = j0 + (c * chunk) as u64;
+            let n = out.len() / width;
+            source.read_rows(r0, n, out).map_err(|e| BakeError::Source {
+                j0: r0,
+                rows: n,
+                source: e,
+            })
+        })?;
+        source.read_void_rows(j0, rows, voids).map_err(|e| BakeError::Source {
+            j0,
+            rows,
+            source: e,
+        })?;
+        if let Some(p) = band.iter().position(|z| !z.is_finite()) {
+            return Err(BakeError::Encoding(format!(
+                "sample ({}, {}) is not finite",
+                p % width,
+                j0 + (p / width) as u64
+            )));
+        }
+        prog.rows_read += rows as u64;
+        let band: &[f32] = band;
+        let voids: &[bool] = voids;
+        let baked: Vec<BakedBlock> = (0..blocks_x as u32)
+            .into_par_iter()
+            .map(|bx| {
+                let id = BlockId::new(by as u32, bx);
+                bake_block(dir, id, k, band, voids, width, rows, quant, config.codec, node_levels)
+            })
+            .collect::<Result<_, _>>()?;
+        for b in baked {
+            max_err = max_err.max(b.max_err);
+            max_void_err = max_void_err.max(b.max_void_err);
+            lossless &= b.lossless;
+            prog.bytes_written += b.entry.file_len;
+            entries.push(b.entry);
+        }
+        if let Some(bound) = quant.bound
+            && max_err > bound
+        {
+            return Err(BakeError::Encoding(format!(
+                "measured error {max_err} m exceeds the bound {bound} m"
+            )));
+        }
+        prog.blocks_done = entries.len();
+        if progress(&prog).is_break() {
+            return Err(BakeError::Cancelled);
+        }
+    }
+    // The bake id ties block files to this index: FNV-1a over every level's checksum.
+    let mut id = 0xcbf2_9ce4_8422_2325u64;
+    for e in &entries {
+        for l in &e.levels {
+            for b in l.crc32.to_le_bytes() {
+                id = (id ^ b as u64).wrapping_mul(0x0100_0000_01b3);
+            }
+        }
+    }
+    for pos in 0..entries.len() {
+        let bid = BlockId::new((pos as u64 / blocks_x) as u32, (pos as u64 % blocks_x) as u32);
+        let path = dir.join(block_file_name(bid));
+        let mut f = fs::OpenOptions::new().write(true).open(&path).map_err(io_err(&path))?;
+        f.seek(SeekFrom::Start(12)).map_err(io_err(&path))?;
+        f.write_all(&id.to_le_bytes()).map_err(io_err(&path))?;
+    }
+    let header = Header {
+        width: w,
+        height: h,
+        k,
+        blocks_x: blocks_x as u32,
+        blocks_y: blocks_y as u32,
+        encoding: quant.encoding,
+        codec: config.codec,
+        max_error_m: max_err,
+        max_void_error_m: max_void_err,
+        error_bound_m: quant.bound.unwrap_or(if lossless { 0.0 } else { max_err }),
+        node_levels,
+        georef: source.georef(),
+        bake_id: id,
+    };
+    let index = write_index(&header, &entries);
+    let path = dir.join(INDEX_FILE);
+    fs::write(&path, &index).map_err(io_err(&path))?;
+    let store_bytes = prog.bytes_written + index.len() as u64;
+    Ok(BakeReport {
+        header,
+        store_bytes,
+        index_bytes: index.len() as u64,
+        source_samples: w * h,
+        elapsed: start.elapsed(),
+        lossless,
+    })
+}
+
+#[allow(clippy::too_many_arguments)]
+fn bake_block(
+    dir: &Path,
+    id: BlockId,
+    k: u8,
+    band: &[f32],
+    voids: &[bool],
+    width: usize,
+    rows: usize,
+    quant: Quant,
+    codec: Codec,
+    node_levels: u8,
+) -> Result<BakedBlock, BakeError> {
+    let cells = 1usize << k;
+    let side = cells + 1;
+    let x0 = id.col as usize * cells;
+    let valid_w = (width - x0).min(side);
+    let valid_h = rows.min(side);
+    // Samples, padding repeating the last valid column / row.
+    let mut q = vec![0i32; side * side];
+    let mut z = vec![0f32; side * side];
+    let mut mask = VoidMask::new(side, side);
+    let (mut max_err, mut max_void_err, mut lossless) = (0f64, 0f64, true);
+    for j in 0..side {
+        let sj = j.min(valid_h - 1);
+        for i in 0..side {
+            let si = x0 + i.min(valid_w - 1);
+            let src = band[sj * width + si];
+            let void = voids[sj * width + si];
+            let padding = i >= valid_w || j >= valid_h;
+            let v = match quant.encoding {
+                SampleEncoding::Quantized { step_m, offset_m } => {
+                    let t = ((src as f64 - offset_m) / step_m).round();
+                    if !(i32::MIN as f64..=i32::MAX as f64).contains(&t) {
+                        return Err(BakeError::Encoding(format!(
+                            "height {src} m at ({si}, {}) does not fit 32-bit steps of {step_m} m",
+                            id.row as usize * cells + sj
+                        )));
+                    }
+                    t as i32
+                }
+                SampleEncoding::F32 => src.to_bits() as i32,
+            };
+            let back = quant.encoding.height(v);
+            if !padding {
+                let err = (back as f64 - src as f64).abs();
+                if void {
+                    max_void_err = max_void_err.max(err);
+                } else {
+                    max_err = max_err.max(err);
+                    lossless &= back.to_bits() == src.to_bits();
+                }
+            }
+            if padding || void {
+                mask.set(i, j, true);
+            }
+            q[j * side + i] = v;
+            z[j * side + i] = back;
+        }
+    }
+    // Node values from the stored heights (what the runtime draws).
+    let all_void = mask.count() == side * side;
+    let hm = Heightmap::new(
+        side,
+        side,
+        z,
+        if all_void { VoidMask::new(side, side) } else { mask },
+        Georef::local(1.0),
+    )
+    .map_err(|e| BakeError::Encoding(format!("block {id}: {e}")))?;
+    let pyr = StaticErrorPyramid::build(&hm, k as usize);
+    let level_errors: Vec<f32> = (0..k as usize)
+        .map(|l| {
+            let n = pyr.nodes_per_side(l.min(pyr.levels() - 1));
+            let mut m = 0f64;
+            if l < pyr.levels() {
+                for j in 0..n {
+                    for i in 0..n {
+                        m = m.max(pyr.get(l, i, j));
+                    }
+                }
+            }
+            m as f32
+        })
+        .collect();
+    let valid_range = |x0: usize, y0: usize, c: usize| {
+        let (x1, y1) = ((x0 + c).min(valid_w - 1), (y0 + c).min(valid_h - 1));
+        let (mut lo, mut hi) = (f32::INFINITY, f32::NEG_INFINITY);
+        if x0 < valid_w && y0 < valid_h {
+            for j in y0..=y1 {
+                for zz in &hm.data()[j * side + x0..=j * side + x1] {
+                    lo = lo.min(*zz);
+                    hi = hi.max(*zz);
+                }
+            }
+        }
+        (lo, hi)
+    };
+    let (bmin, bmax) = valid_range(0, 0, cells);
+    let mut nodes = Vec::with_capacity(node_count(node_levels));
+    for l in 0..node_levels as usize {
+        let n = 1usize << l;
+        let c = cells >> l;
+        for j in 0..n {
+            for i in 0..n {
+                let (lo, hi) = valid_range(i * c, j * c, c);
+                let (lo, hi) = if lo <= hi { (lo, hi) } else { (bmin, bmax) };
+                let e = if l < pyr.levels() { pyr.get(l, i, j) } else { 0.0 };
+                nodes.push(NodeValues { min: lo, max: hi, static_error: e as f32 });
+            }
+        }
+    }
+    // Payloads, written after a header whose bake id is patched in at the end of the bake.
+    let predictive_ok = !matches!(quant.encoding, SampleEncoding::F32);
+    let mut file = block_header(0, id);
+    let mut levels = Vec::with_capacity(k as usize + 1);
+    for n in 0..=k {
+        let payload = encode_level(k, n, &q, codec, predictive_ok);
+        levels.push(LevelEntry {
+            offset: file.len() as u64,
+            len: payload.len() as u32,
+            crc32: crc32(&payload),
+        });
+        file.extend_from_slice(&payload);
+    }
+    debug_assert_eq!(levels[0].offset, BLOCK_HEADER_LEN);
+    let path: PathBuf = dir.join(block_file_name(id));
+    fs::write(&path, &file).map_err(io_err(&path))?;
+    Ok(BakedBlock {
+        entry: BlockEntry {
+            valid_w: valid_w as u32,
+            valid_h: valid_h as u32,
+            file_len: file.len() as u64,
+            min: bmin,
+            max: bmax,
+            levels,
+            nodes,
+            level_errors,
+        },
+        max_err,
+        max_void_err,
+        lossless,
+    })
+}

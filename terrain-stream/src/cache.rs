@@ -1,0 +1,112 @@
+//! The block cache: resident levels per block under a byte budget, unloaded level by level
+//! (finest first) in the priority order the scheduler gives, never below what it protects.
+
+use std::collections::BTreeMap;
+use std::sync::Arc;
+
+use crate::format::{BlockId, Header};
+use crate::store::BlockLevels;
+
+/// One block's resident levels and loading state.
+#[derive(Debug, Clone)]
+pub struct CachedBlock {
+    /// The resident levels.
+    pub levels: BlockLevels,
+    /// The last level of the request in flight for this block, if any.
+    pub requested_to: Option<u8>,
+    /// After a fault, the frame from which loading may be tried again.
+    pub retry_at_frame: u64,
+}
+
+/// Resident block levels with a byte budget (decoded bytes, 4 per sample).
+#[derive(Debug)]
+pub struct Cache {
+    budget: u64,
+    resident: u64,
+    blocks: BTreeMap<BlockId, CachedBlock>,
+}
+
+impl Cache {
+    /// An empty cache with a budget in bytes.
+    pub fn new(budget: u64) -> Self {
+        Self { budget, resident: 0, blocks: BTreeMap::new() }
+    }
+
+    /// The budget in bytes.
+    pub fn budget(&self) -> u64 {
+        self.budget
+    }
+
+    /// Bytes resident.
+    pub fn resident_bytes(&self) -> u64 {
+        self.resident
+    }
+
+    /// A block's state, if the cache knows it.
+    pub fn get(&self, id: BlockId) -> Option<&CachedBlock> {
+        self.blocks.get(&id)
+    }
+
+    /// Number of resident levels of a block.
+    pub fn resident_levels(&self, id: BlockId) -> usize {
+        self.blocks.get(&id).map_or(0, |b| b.levels.count())
+    }
+
+    /// A block's state, created empty if needed.
+    pub fn entry(&mut self, id: BlockId, header: &Header) -> &mut CachedBlock {
+        self.blocks.entry(id).or_insert_with(|| CachedBlock {
+            levels: BlockLevels::new(header),
+            requested_to: None,
+            retry_at_frame: 0,
+        })
+    }
+
+    /// Appends `level` to a block if it is the next one; returns the bytes added.
+    pub fn push_level(
+        &mut self,
+        id: BlockId,
+        header: &Header,
+        level: u8,
+        samples: Arc<[i32]>,
+    ) -> Option<u64> {
+        let b = self.entry(id, header);
+        if b.levels.count() != level as usize {
+            return None;
+        }
+        let bytes = samples.len() as u64 * Header::SAMPLE_BYTES;
+        b.levels.push(samples).then(|| {
+            self.resident += bytes;
+            bytes
+        })
+    }
+
+    /// Unloads finest levels while over budget, visiting `order` (lowest priority first) and
+    /// keeping at least `keep` levels of each listed block. Returns the levels unloaded.
+    pub fn evict(&mut self, order: &[(BlockId, usize)]) -> usize {
+        let mut evicted = 0;
+        for &(id, keep) in order {
+            if self.resident <= self.budget {
+                break;
+            }
+            if let Some(b) = self.blocks.get_mut(&id) {
+                while self.resident > self.budget && b.levels.count() > keep {
+                    self.resident -= b.levels.pop();
+                    evicted += 1;
+                }
+            }
+        }
+        evicted
+    }
+
+    /// Blocks known to the cache, in block order.
+    pub fn blocks(&self) -> impl Iterator<Item = (&BlockId, &CachedBlock)> {
+        self.blocks.iter()
+    }
+
+    /// Forgets blocks with no resident level and nothing in flight.
+    pub fn prune(&mut self) {
+        self.blocks.retain(|_, b| {
+            b.levels.count() > 0 || b.requested_to.is_some() || b.retry_at_frame > 0
+        });
+    }
+}

@@ -1,0 +1,220 @@
+//! Level payloads: fixed-width samples, or the lossless predictive codec (each new vertex
+//! predicted from the coarser level it refines, residuals as zig-zag LEB128 varints).
+//!
+//! Why this codec: the non-redundant levels of Qiu 2013 (Eq. 1-2) make every new vertex of
+//! level `n` an edge midpoint or a cell centre of level `n - 1`, whose ends are already
+//! resident when level `n` loads (levels load coarse to fine). The mean of those ends is a good
+//! predictor on terrain, so residuals are small and most take one byte; the codec is
+//! integer-only, hence lossless and deterministic, and needs no dependency. The bench measures
+//! it against the fixed-width payloads (see the crate docs for the figures).
+
+use crate::format::{Codec, for_each_level_vertex, level_len, vertex_index};
+
+/// Payload tag: little-endian i16 samples.
+const TAG_I16: u8 = 0;
+/// Payload tag: little-endian i32 samples (or f32 bits).
+const TAG_I32: u8 = 1;
+/// Payload tag: predictive zig-zag varints.
+const TAG_PREDICTIVE: u8 = 2;
+
+/// The prediction of vertex `(i, j)` of level `n` from coarser vertices given by `at(i, j)`.
+#[inline]
+fn predict(k: u8, n: u8, i: u32, j: u32, at: impl Fn(u32, u32) -> i64) -> i64 {
+    let d = 1u32 << (k - n);
+    let (a_odd, b_odd) = ((i / d) % 2 == 1, (j / d) % 2 == 1);
+    match (a_odd, b_odd) {
+        (true, false) => (at(i - d, j) + at(i + d, j)).div_euclid(2),
+        (false, true) => (at(i, j - d) + at(i, j + d)).div_euclid(2),
+        _ => (at(i - d, j - d) + at(i + d, j - d) + at(i - d, j + d) + at(i + d, j + d))
+            .div_euclid(4),
+    }
+}
+
+fn put_varint(out: &mut Vec<u8>, mut v: u64) {
+    while v >= 0x80 {
+        out.push((v as u8) | 0x80);
+        v >>= 7;
+    }
+    out.push(v as u8);
+}
+
+fn zigzag(v: i64) -> u64 {
+    ((v << 1) ^ (v >> 63)) as u64
+}
+
+fn unzigzag(v: u64) -> i64 {
+    (v >> 1) as i64 ^ -((v & 1) as i64)
+}
+
+/// Encodes level `n` of a block whose samples `grid` are row-major `(2^k + 1)^2`.
+/// `allow_predictive` is false for raw f32 bits (prediction would not be meaningful).
+pub(crate) fn encode_level(
+    k: u8,
+    n: u8,
+    grid: &[i32],
+    codec: Codec,
+    allow_predictive: bool,
+) -> Vec<u8> {
+    let side = (1usize << k) + 1;
+    let at = |i: u32, j: u32| grid[j as usize * side + i as usize];
+    let mut values = Vec::with_capacity(level_len(n));
+    for_each_level_vertex(k, n, |i, j| values.push(at(i, j)));
+    if codec == Codec::Predictive && allow_predictive {
+        let mut out = Vec::with_capacity(values.len() + 1);
+        out.push(TAG_PREDICTIVE);
+        let mut prev = 0i64;
+        let mut idx = 0usize;
+        for_each_level_vertex(k, n, |i, j| {
+            let v = values[idx] as i64;
+            idx += 1;
+            let p = if n == 0 { prev } else { predict(k, n, i, j, |x, y| at(x, y) as i64) };
+            prev = v;
+            put_varint(&mut out, zigzag(v - p));
+        });
+        return out;
+    }
+    let fits16 = allow_predictive && values.iter().all(|&v| i16::try_from(v).is_ok());
+    let mut out = Vec::with_capacity(1 + values.len() * if fits16 { 2 } else { 4 });
+    if fits16 {
+        out.push(TAG_I16);
+        for v in values {
+            out.extend_from_slice(&(v as i16).to_le_bytes());
+        }
+    } else {
+        out.push(TAG_I32);
+        for v in values {
+            out.extend_from_slice(&v.to_le_bytes());
+        }
+    }
+    out
+}
+
+/// Decodes level `n` given the decoded coarser levels `coarser[0..n]`. Errors describe what is
+/// wrong; nothing panics on bad bytes.
+pub(crate) fn decode_level<L: AsRef<[i32]>>(
+    k: u8,
+    n: u8,
+    payload: &[u8],
+    coarser: &[L],
+) -> Result<Vec<i32>, String> {
+    let count = level_len(n);
+    let Some((&tag, body)) = payload.split_first() else {
+        return Err("empty payload".into());
+    };
+    match tag {
+        TAG_I16 | TAG_I32 => {
+            let w = if tag == TAG_I16 { 2 } else { 4 };
+            if body.len() != count * w {
+                return Err(format!("{} bytes for {count} samples of {w} bytes", body.len()));
+            }
+            Ok(if w == 2 {
+                body.chunks_exact(2).map(|c| i16::from_le_bytes([c[0], c[1]]) as i32).collect()
+            } else {
+                body.chunks_exact(4).map(|c| i32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect()
+            })
+        }
+        TAG_PREDICTIVE => {
+            if coarser.len() < n as usize {
+                return Err(format!(
+                    "level {n} needs the {n} coarser levels, {} given",
+                    coarser.len()
+                ));
+            }
+            let at = |i: u32, j: u32| -> i64 {
+                // Neighbours of a level-n vertex are always on coarser levels.
+                let v = vertex_index(k, i, j).expect("neighbour inside the block");
+                coarser[v.level as usize].as_ref()[v.order as usize] as i64
+            };
+            for (l, c) in coarser.iter().take(n as usize).enumerate() {
+                if c.as_ref().len() != level_len(l as u8) {
+                    return Err(format!("coarser level {l} has {} samples", c.as_ref().len()));
+                }
+            }
+            let mut out = Vec::with_capacity(count);
+            let mut pos = 0usize;
+            let mut prev = 0i64;
+            let mut err = None;
+            for_each_level_vertex(k, n, |i, j| {
+                if err.is_some() {
+                    return;
+                }
+                let mut v = 0u64;
+                let mut shift = 0u32;
+                loop {
+                    let Some(&b) = body.get(pos) else {
+                        err = Some(format!("varints end after {} of {count} samples", out.len()));
+                        return;
+                    };
+                    pos += 1;
+                    if shift > 63 {
+                        err = Some("varint too long".to_string());
+                        return;
+                    }
+                    v |= ((b & 0x7F) as u64) << shift;
+                    shift += 7;
+                    if b & 0x80 == 0 {
+                        break;
+                    }
+                }
+                let p = if n == 0 { prev } else { predict(k, n, i, j, at) };
+                let x = p.wrapping_add(unzigzag(v));
+                let Ok(x) = i32::try_from(x) else {
+                    err = Some(format!("sample {x} out of range"));
+                    return;
+                };
+                prev = x as i64;
+                out.push(x);
+            });
+            if let Some(e) = err {
+                return Err(e);
+            }
+            if pos != body.len() {
+                return Err(format!("{} bytes left after {count} samples", body.len() - pos));
+            }
+            Ok(out)
+        }
+        t => Err(format!("unknown payload tag {t}")),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn both_codecs_round_trip_and_reject_garbage() {
+        let k = 4u8;
+        let side = 17usize;
+        let grid: Vec<i32> =
+            (0..side * side).map(|p| ((p * 7919) % 4001) as i32 - 2000 + (p as i32) * 3).collect();
+        for codec in [Codec::Plain, Codec::Predictive] {
+            let mut levels: Vec<Vec<i32>> = Vec::new();
+            for n in 0..=k {
+                let bytes = encode_level(k, n, &grid, codec, true);
+                let dec = decode_level(k, n, &bytes, &levels).unwrap();
+                let mut expect = Vec::new();
+                for_each_level_vertex(k, n, |i, j| {
+                    expect.push(grid[j as usize * side + i as usize])
+                });
+                assert_eq!(dec, expect, "{codec:?} level {n}");
+                // Truncated or extended payloads are errors.
+                assert!(decode_level(k, n, &bytes[..bytes.len() - 1], &levels).is_err());
+                let mut longer = bytes.clone();
+                longer.push(0);
+                assert!(decode_level(k, n, &longer, &levels).is_err());
+                levels.push(dec);
+            }
+        }
+        assert!(decode_level::<Vec<i32>>(k, 0, &[], &[]).is_err());
+        assert!(decode_level::<Vec<i32>>(k, 0, &[9, 1, 2], &[]).is_err());
+        assert!(
+            decode_level::<Vec<i32>>(
+                k,
+                0,
+                &[TAG_PREDICTIVE, 0xFF, 0xFF, 0xFF, 0xFF, 0xFF, 0xFF, 0xFF, 0xFF, 0xFF, 0xFF, 0xFF],
+                &[]
+            )
+            .is_err()
+        );
+    }
+}

@@ -1,0 +1,202 @@
+//! Typed errors of the store: baking ([`BakeError`]) and reading ([`StoreError`]); every
+//! error about stored data names the file, and the block and level where it applies.
+
+use std::path::PathBuf;
+
+use crate::format::BlockId;
+
+/// Why a store (or one block level of it) could not be read.
+///
+/// Grouped as bad input (bad magic, corrupt or truncated data, checksum mismatch), unsupported
+/// (another version), I/O (a missing block file, the OS refusing) and a file changed since the
+/// store was opened.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum StoreError {
+    /// The operating system refused.
+    #[error("{}: I/O error: {source}", path.display())]
+    Io {
+        /// The file.
+        path: PathBuf,
+        /// The cause.
+        source: std::io::Error,
+    },
+    /// The file does not start with the store's magic bytes.
+    #[error("{}: not a terrain store ({what} has the wrong magic bytes)", path.display())]
+    BadMagic {
+        /// The file.
+        path: PathBuf,
+        /// "index" or "block file".
+        what: &'static str,
+    },
+    /// A store of another format version.
+    #[error("{}: store format version {found}, this reader reads version {expected}", path.display())]
+    Version {
+        /// The file.
+        path: PathBuf,
+        /// Version in the file.
+        found: u32,
+        /// Version this crate reads and writes.
+        expected: u32,
+    },
+    /// The index is inconsistent or its checksum fails.
+    #[error("{}: corrupt index: {message}", path.display())]
+    CorruptIndex {
+        /// The index file.
+        path: PathBuf,
+        /// What is wrong.
+        message: String,
+    },
+    /// A file is shorter than the index says.
+    #[error("{}: block {block} level {level}: truncated, needs {expected} bytes, the file has {got}", path.display())]
+    Truncated {
+        /// The block file.
+        path: PathBuf,
+        /// The block.
+        block: BlockId,
+        /// The level being read.
+        level: u8,
+        /// Bytes needed (end offset).
+        expected: u64,
+        /// File length.
+        got: u64,
+    },
+    /// A block level's bytes do not match their stored checksum.
+    #[error(
+        "{}: block {block} level {level}: checksum mismatch (index says {stored:08x}, data has {computed:08x})",
+        path.display()
+    )]
+    Checksum {
+        /// The block file.
+        path: PathBuf,
+        /// The block.
+        block: BlockId,
+        /// The level.
+        level: u8,
+        /// CRC-32 in the index.
+        stored: u32,
+        /// CRC-32 of the bytes read.
+        computed: u32,
+    },
+    /// A block's file is missing.
+    #[error("{}: block {block} level {level}: the block file is missing", path.display())]
+    MissingBlock {
+        /// The expected path.
+        path: PathBuf,
+        /// The block.
+        block: BlockId,
+        /// The level being read.
+        level: u8,
+    },
+    /// A block file belongs to another bake, or changed length, since the store was opened.
+    #[error("{}: block {block} level {level}: the file changed since the store was opened ({message})", path.display())]
+    Changed {
+        /// The block file.
+        path: PathBuf,
+        /// The block.
+        block: BlockId,
+        /// The level being read.
+        level: u8,
+        /// What differs.
+        message: String,
+    },
+    /// A level's bytes pass their checksum but do not decode (a writer bug or a forged CRC).
+    #[error("block {block} level {level}: corrupt level data: {message}")]
+    CorruptLevel {
+        /// The block.
+        block: BlockId,
+        /// The level.
+        level: u8,
+        /// What is wrong.
+        message: String,
+    },
+    /// Caller misuse: a block outside the grid, a level past the finest, or levels out of order.
+    #[error("block {block} level {level}: {message}")]
+    BadRequest {
+        /// The block.
+        block: BlockId,
+        /// The level.
+        level: u8,
+        /// What is wrong.
+        message: String,
+    },
+    /// A worker thread panicked while loading (reported, the pool keeps running).
+    #[error("block {block} level {level}: the loading worker panicked: {message}")]
+    WorkerPanicked {
+        /// The block.
+        block: BlockId,
+        /// The level.
+        level: u8,
+        /// The panic message.
+        message: String,
+    },
+}
+
+impl StoreError {
+    /// The block this error is about, if any.
+    pub fn block(&self) -> Option<BlockId> {
+        match self {
+            StoreError::Truncated { block, .. }
+            | StoreError::Checksum { block, .. }
+            | StoreError::MissingBlock { block, .. }
+            | StoreError::Changed { block, .. }
+            | StoreError::CorruptLevel { block, .. }
+            | StoreError::BadRequest { block, .. }
+            | StoreError::WorkerPanicked { block, .. } => Some(*block),
+            _ => None,
+        }
+    }
+
+    /// The level this error is about, if any.
+    pub fn level(&self) -> Option<u8> {
+        match self {
+            StoreError::Truncated { level, .. }
+            | StoreError::Checksum { level, .. }
+            | StoreError::MissingBlock { level, .. }
+            | StoreError::Changed { level, .. }
+            | StoreError::CorruptLevel { level, .. }
+            | StoreError::BadRequest { level, .. }
+            | StoreError::WorkerPanicked { level, .. } => Some(*level),
+            _ => None,
+        }
+    }
+}
+
+/// Why a bake failed. A failed or cancelled bake leaves no store that reads as valid.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum BakeError {
+    /// The operating system refused.
+    #[error("{}: I/O error: {source}", path.display())]
+    Io {
+        /// The file or folder.
+        path: PathBuf,
+        /// The cause.
+        source: std::io::Error,
+    },
+    /// The output exists and `BakeConfig::overwrite` is off.
+    #[error("{}: already exists (set overwrite to replace it)", path.display())]
+    Exists {
+        /// The output folder.
+        path: PathBuf,
+    },
+    /// Caller misuse: a config value out of range.
+    #[error("invalid bake config: {0}")]
+    InvalidConfig(String),
+    /// The source could not deliver rows.
+    #[error("reading source rows {j0}..{}: {source}", j0 + *rows as u64)]
+    Source {
+        /// First row.
+        j0: u64,
+        /// Rows asked for.
+        rows: usize,
+        /// The cause.
+        source: std::io::Error,
+    },
+    /// A height does not fit the chosen quantization, or the error bound was not met.
+    #[error("height encoding: {0}")]
+    Encoding(String),
+    /// The progress callback asked to stop.
+    #[error("the bake was cancelled")]
+    Cancelled,
+}

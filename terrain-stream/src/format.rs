@@ -1,0 +1,768 @@
+//! The store format: the non-redundant vertex order of a block (Qiu 2013, section 2.2,
+//! Eq. 1-2), the grid index file (header, georeference, per-block entries with per-level
+//! offsets and CRC-32s, per-node min/max and static error), and the block file header.
+//!
+//! # Layout on disk (all integers and floats little-endian)
+//!
+//! A store is a folder:
+//! - `index.tsi`, the paper's *grid index file*: [`MAGIC`], [`VERSION`], the [`Header`]
+//!   (source size, block exponent `k`, grid of blocks, height encoding, georeference and CRS),
+//!   then one [`BlockEntry`] per block, row-major from the south-west block, then the CRC-32 of
+//!   everything before it.
+//! - `blocks/r{row}_c{col}.tsb`, one file per block: [`BLOCK_MAGIC`], [`VERSION`], the bake id
+//!   (which ties the file to its index), row and column, then the levels' payloads in level
+//!   order (level 0 first), each located by the index's `(offset, length, crc32)`.
+//!
+//! # Vertex order in a block (Eq. 1-2)
+//!
+//! A block has `(2^k + 1)^2` vertices. Level 0 holds the four corners; level `n >= 1` holds
+//! only the vertices the `(2^n + 1)^2` grid adds to the `(2^(n-1) + 1)^2` grid of level
+//! `n - 1`. Within a level vertices are in row-major order (rows south to north, columns west
+//! to east) over that level's grid, skipping the coarser ones: the paper's order index. The
+//! concatenation of levels `0..=n` is a linear sequence whose level `n` starts at
+//! `Offset(n)_start` (Eq. 1) and ends at `Offset(n)_end` (Eq. 2). The level and order of a
+//! vertex are computed ([`vertex_index`]) instead of being stored as the paper's level and
+//! order index files: the computation is a few bit operations.
+
+use std::fmt;
+
+use glam::DVec2;
+use terrain_core::georef::{AngularOrLinear, Crs, Georef};
+
+/// Magic bytes of the index file.
+pub const MAGIC: [u8; 8] = *b"TSTRIDX\0";
+/// Magic bytes of a block file.
+pub const BLOCK_MAGIC: [u8; 8] = *b"TSTRBLK\0";
+/// The format version this crate writes and reads.
+pub const VERSION: u32 = 1;
+/// Name of the grid index file inside a store folder.
+pub const INDEX_FILE: &str = "index.tsi";
+/// Bytes of a block file's header: magic, version, bake id, row, column.
+pub const BLOCK_HEADER_LEN: u64 = 8 + 4 + 8 + 4 + 4;
+/// Smallest and largest block exponent `k` (blocks of `(2^k + 1)^2` vertices).
+pub const K_RANGE: std::ops::RangeInclusive<u8> = 2..=12;
+
+/// A block of the grid: `col` counts east, `row` north, from the south-west block.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub struct BlockId {
+    /// Row (north), 0 = southernmost.
+    pub row: u32,
+    /// Column (east), 0 = westernmost.
+    pub col: u32,
+}
+
+impl BlockId {
+    /// The block at `row`, `col`.
+    pub fn new(row: u32, col: u32) -> Self {
+        Self { row, col }
+    }
+}
+
+impl fmt::Display for BlockId {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "(row {}, col {})", self.row, self.col)
+    }
+}
+
+/// The path of a block's file relative to the store folder.
+pub fn block_file_name(id: BlockId) -> String {
+    format!("blocks/r{:05}_c{:05}.tsb", id.row, id.col)
+}
+
+/// Eq. 1: first position of level `n` in a block's linear sequence.
+pub fn offset_start(n: u8) -> usize {
+    if n == 0 { 0 } else { ((1usize << (n - 1)) + 1).pow(2) }
+}
+
+/// Eq. 2: last position of level `n` in a block's linear sequence.
+pub fn offset_end(n: u8) -> usize {
+    ((1usize << n) + 1).pow(2) - 1
+}
+
+/// Number of vertices stored at level `n`: `Offset(n)_end - Offset(n)_start + 1`.
+pub fn level_len(n: u8) -> usize {
+    offset_end(n) + 1 - offset_start(n)
+}
+
+/// Where a vertex lives: its level, its order within the level, and its offset in the linear
+/// sequence (`offset_start(level) + order`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct VertexIndex {
+    /// The coarsest level holding the vertex.
+    pub level: u8,
+    /// Position within that level (the paper's order index).
+    pub order: u32,
+    /// Position in the block's linear sequence.
+    pub offset: u32,
+}
+
+/// The level, order and offset of block vertex `(i, j)` (column east, row north) in a block
+/// of `(2^k + 1)^2` vertices. `None` outside the block.
+pub fn vertex_index(k: u8, i: u32, j: u32) -> Option<VertexIndex> {
+    let side = 1u32 << k;
+    if i > side || j > side {
+        return None;
+    }
+    // The vertex first appears at the level whose stride is the largest power of two
+    // dividing both coordinates.
+    let s = (i | j | side).trailing_zeros().min(k as u32);
+    let level = (k as u32 - s) as u8;
+    let d = 1u32 << s;
+    let (a, b) = (i >> s, j >> s);
+    let order = if level == 0 {
+        (b * 2 + a) as usize
+    } else {
+        let n = (1usize << level) + 1;
+        let half = 1usize << (level - 1);
+        let (a, b) = (a as usize, b as usize);
+        // Rows before b: even rows hold the 2^(l-1) odd columns, odd rows hold all n.
+        let before = b.div_ceil(2) * half + (b / 2) * n;
+        before + if b % 2 == 1 { a } else { a / 2 }
+    } as u32;
+    debug_assert!(level == 0 || d < side);
+    Some(VertexIndex { level, order, offset: offset_start(level) as u32 + order })
+}
+
+/// Calls `f(i, j)` for every vertex of level `n` of a `2^k` block, in the stored order.
+pub fn for_each_level_vertex(k: u8, n: u8, mut f: impl FnMut(u32, u32)) {
+    let d = 1u32 << (k - n);
+    let cnt = (1u32 << n) + 1;
+    if n == 0 {
+        for b in 0..2 {
+            for a in 0..2 {
+                f(a * d, b * d);
+            }
+        }
+        return;
+    }
+    for b in 0..cnt {
+        if b % 2 == 1 {
+            for a in 0..cnt {
+                f(a * d, b * d);
+            }
+        } else {
+            for a in (1..cnt).step_by(2) {
+                f(a * d, b * d);
+            }
+        }
+    }
+}
+
+/// CRC-32 (IEEE 802.3, reflected, polynomial 0xEDB88320), as zlib and PNG compute it.
+pub fn crc32(bytes: &[u8]) -> u32 {
+    const TABLE: [u32; 256] = {
+        let mut t = [0u32; 256];
+        let mut n = 0;
+        while n < 256 {
+            let mut c = n as u32;
+            let mut k = 0;
+            while k < 8 {
+                c = if c & 1 != 0 { 0xEDB8_8320 ^ (c >> 1) } else { c >> 1 };
+                k += 1;
+            }
+            t[n] = c;
+            n += 1;
+        }
+        t
+    };
+    let mut c = !0u32;
+    for &b in bytes {
+        c = TABLE[((c ^ b as u32) & 0xFF) as usize] ^ (c >> 8);
+    }
+    !c
+}
+
+/// How heights are stored.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum SampleEncoding {
+    /// Integers `q` with `height = (offset_m + q * step_m) as f32`, computed in f64.
+    Quantized {
+        /// Metres per step.
+        step_m: f64,
+        /// Height of `q = 0`.
+        offset_m: f64,
+    },
+    /// IEEE f32 bits as they came.
+    F32,
+}
+
+impl SampleEncoding {
+    /// The height of a stored sample (an integer step, or f32 bits in an `i32`).
+    #[inline]
+    pub fn height(&self, q: i32) -> f32 {
+        match *self {
+            SampleEncoding::Quantized { step_m, offset_m } => (offset_m + q as f64 * step_m) as f32,
+            SampleEncoding::F32 => f32::from_bits(q as u32),
+        }
+    }
+}
+
+/// Payload codec of a level (the first byte of every payload says which was used).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Codec {
+    /// Fixed width: i16 when the level's values fit, else i32 (f32 bits for raw floats).
+    Plain,
+    /// Lossless: every new vertex predicted from the coarser level (mean of the two edge
+    /// ends, or of the four cell corners), residual zig-zag LEB128 varints. Quantized only.
+    Predictive,
+}
+
+/// The store's header: what the index says about the whole store.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Header {
+    /// Columns of the source grid (samples).
+    pub width: u64,
+    /// Rows of the source grid (samples).
+    pub height: u64,
+    /// Blocks are `(2^k + 1)^2` vertices.
+    pub k: u8,
+    /// Blocks per row (east).
+    pub blocks_x: u32,
+    /// Blocks per column (north).
+    pub blocks_y: u32,
+    /// How heights are stored.
+    pub encoding: SampleEncoding,
+    /// Codec the bake asked for (payloads may fall back to [`Codec::Plain`]).
+    pub codec: Codec,
+    /// Largest |stored - source| over non-void samples, metres (0 = lossless).
+    pub max_error_m: f64,
+    /// Largest |stored - source| over void (filled) samples, metres.
+    pub max_void_error_m: f64,
+    /// The vertical error bound the bake promised (and verified), metres; 0 = lossless promised.
+    pub error_bound_m: f64,
+    /// Quadtree levels with per-node values in each [`BlockEntry`] (`4^l` nodes at level `l`).
+    pub node_levels: u8,
+    /// Georeference and CRS of the source grid (sample (0, 0) is block (0, 0)'s south-west vertex).
+    pub georef: Georef,
+    /// Ties block files to this index: a hash of every level's checksum.
+    pub bake_id: u64,
+}
+
+impl Header {
+    /// Cells per block side, `2^k`.
+    pub fn block_cells(&self) -> u32 {
+        1 << self.k
+    }
+
+    /// Vertices per block side, `2^k + 1`.
+    pub fn block_side(&self) -> u32 {
+        (1 << self.k) + 1
+    }
+
+    /// Number of blocks.
+    pub fn block_count(&self) -> usize {
+        self.blocks_x as usize * self.blocks_y as usize
+    }
+
+    /// Number of levels per block, `k + 1`.
+    pub fn levels(&self) -> u8 {
+        self.k + 1
+    }
+
+    /// Row-major position of a block in the index, or `None` outside the grid.
+    pub fn block_position(&self, id: BlockId) -> Option<usize> {
+        (id.col < self.blocks_x && id.row < self.blocks_y)
+            .then(|| id.row as usize * self.blocks_x as usize + id.col as usize)
+    }
+
+    /// The block at a row-major position.
+    pub fn block_at(&self, pos: usize) -> BlockId {
+        BlockId::new((pos / self.blocks_x as usize) as u32, (pos % self.blocks_x as usize) as u32)
+    }
+
+    /// World plan position (metres) of block vertex `(i, j)` of block `id`.
+    pub fn vertex_world(&self, id: BlockId, i: f64, j: f64) -> DVec2 {
+        let c = self.block_cells() as f64;
+        self.georef.grid_to_world(DVec2::new(id.col as f64 * c + i, id.row as f64 * c + j))
+    }
+
+    /// Bytes of one decoded sample in memory.
+    pub const SAMPLE_BYTES: u64 = 4;
+}
+
+/// Min/max height and monotone static error (Qiu 2013 Eq. 3) of one quadtree node of a block.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct NodeValues {
+    /// Lowest stored height in the node's valid samples (metres).
+    pub min: f32,
+    /// Highest stored height (metres).
+    pub max: f32,
+    /// `StaticE` of the node, metres.
+    pub static_error: f32,
+}
+
+/// Where a level's payload lies in its block file.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct LevelEntry {
+    /// Byte offset in the block file.
+    pub offset: u64,
+    /// Payload bytes.
+    pub len: u32,
+    /// CRC-32 of the payload.
+    pub crc32: u32,
+}
+
+/// Everything the index holds about one block: the one place precomputed per-block values live.
+#[derive(Debug, Clone, PartialEq)]
+pub struct BlockEntry {
+    /// Valid (non-padding) vertices along x: the rest of the block is padding, which repeats
+    /// the source's last column.
+    pub valid_w: u32,
+    /// Valid vertices along y (padding repeats the last row).
+    pub valid_h: u32,
+    /// Length of the block file in bytes.
+    pub file_len: u64,
+    /// Lowest and highest valid height.
+    pub min: f32,
+    /// See `min`.
+    pub max: f32,
+    /// One entry per level, 0..=k.
+    pub levels: Vec<LevelEntry>,
+    /// Per node, level-major (`4^l` nodes at level `l`, row-major `j * 2^l + i`), levels
+    /// `0..node_levels`.
+    pub nodes: Vec<NodeValues>,
+    /// Per quadtree level `l` in `0..k`: the largest `StaticE` of any node at that level
+    /// (bounds every node below the stored node levels).
+    pub level_errors: Vec<f32>,
+}
+
+impl BlockEntry {
+    /// The values of node `(i, j)` at node level `l`, if stored.
+    pub fn node(&self, l: u8, i: u32, j: u32) -> Option<&NodeValues> {
+        let n = 1usize << l;
+        if i as usize >= n || j as usize >= n {
+            return None;
+        }
+        let base = ((1usize << (2 * l as usize)) - 1) / 3;
+        self.nodes.get(base + j as usize * n + i as usize)
+    }
+
+    /// Decoded bytes of levels `0..=level` in memory.
+    pub fn resident_bytes(level: u8) -> u64 {
+        (offset_end(level) as u64 + 1) * Header::SAMPLE_BYTES
+    }
+
+    /// Stored bytes of levels `0..=level` on disk.
+    pub fn disk_bytes(&self, level: u8) -> u64 {
+        self.levels.iter().take(level as usize + 1).map(|l| l.len as u64).sum()
+    }
+}
+
+/// Number of node entries for `levels` node levels: `(4^levels - 1) / 3`.
+pub fn node_count(levels: u8) -> usize {
+    ((1usize << (2 * levels as usize)) - 1) / 3
+}
+
+// ---------------------------------------------------------------------------------------------
+// Little-endian writer and bounds-checked reader.
+
+/// Appends little-endian values.
+#[derive(Debug, Default)]
+pub(crate) struct Writer {
+    pub buf: Vec<u8>,
+}
+
+impl Writer {
+    pub fn u8(&mut self, v: u8) {
+        self.buf.push(v);
+    }
+    pub fn u32(&mut self, v: u32) {
+        self.buf.extend_from_slice(&v.to_le_bytes());
+    }
+    pub fn u64(&mut self, v: u64) {
+        self.buf.extend_from_slice(&v.to_le_bytes());
+    }
+    pub fn f32(&mut self, v: f32) {
+        self.buf.extend_from_slice(&v.to_le_bytes());
+    }
+    pub fn f64(&mut self, v: f64) {
+        self.buf.extend_from_slice(&v.to_le_bytes());
+    }
+    pub fn dvec2(&mut self, v: DVec2) {
+        self.f64(v.x);
+        self.f64(v.y);
+    }
+    pub fn bytes(&mut self, b: &[u8]) {
+        self.buf.extend_from_slice(b);
+    }
+}
+
+/// Reads little-endian values; running past the end is an error message, never a panic.
+#[derive(Debug)]
+pub(crate) struct Reader<'a> {
+    buf: &'a [u8],
+    pos: usize,
+}
+
+impl<'a> Reader<'a> {
+    pub fn new(buf: &'a [u8]) -> Self {
+        Self { buf, pos: 0 }
+    }
+    pub fn take(&mut self, n: usize) -> Result<&'a [u8], String> {
+        let end = self.pos.checked_add(n).filter(|&e| e <= self.buf.len()).ok_or_else(|| {
+            format!("needs {n} bytes at offset {}, {} left", self.pos, self.buf.len() - self.pos)
+        })?;
+        let s = &self.buf[self.pos..end];
+        self.pos = end;
+        Ok(s)
+    }
+    fn arr<const N: usize>(&mut self) -> Result<[u8; N], String> {
+        let mut a = [0u8; N];
+        a.copy_from_slice(self.take(N)?);
+        Ok(a)
+    }
+    pub fn u8(&mut self) -> Result<u8, String> {
+        Ok(self.take(1)?[0])
+    }
+    pub fn u32(&mut self) -> Result<u32, String> {
+        Ok(u32::from_le_bytes(self.arr()?))
+    }
+    pub fn u64(&mut self) -> Result<u64, String> {
+        Ok(u64::from_le_bytes(self.arr()?))
+    }
+    pub fn f32(&mut self) -> Result<f32, String> {
+        Ok(f32::from_le_bytes(self.arr()?))
+    }
+    pub fn f64(&mut self) -> Result<f64, String> {
+        Ok(f64::from_le_bytes(self.arr()?))
+    }
+    pub fn dvec2(&mut self) -> Result<DVec2, String> {
+        Ok(DVec2::new(self.f64()?, self.f64()?))
+    }
+    pub fn remaining(&self) -> usize {
+        self.buf.len() - self.pos
+    }
+}
+
+fn write_georef(w: &mut Writer, g: &Georef) {
+    match &g.crs {
+        Crs::Epsg(c) => {
+            w.u8(1);
+            w.u32(*c);
+        }
+        Crs::Text(t) => {
+            w.u8(2);
+            w.u32(t.len() as u32);
+            w.bytes(t.as_bytes());
+        }
+        _ => w.u8(0),
+    }
+    w.u8(match g.units {
+        AngularOrLinear::Metres => 0,
+        AngularOrLinear::Degrees => 1,
+    });
+    w.dvec2(g.native_origin);
+    w.dvec2(g.native_spacing);
+    w.dvec2(g.spacing_m);
+    w.dvec2(g.world_origin);
+}
+
+fn read_georef(r: &mut Reader<'_>) -> Result<Georef, String> {
+    let crs = match r.u8()? {
+        0 => Crs::Unknown,
+        1 => Crs::Epsg(r.u32()?),
+        2 => {
+            let n = r.u32()? as usize;
+            let b = r.take(n)?;
+            Crs::Text(String::from_utf8(b.to_vec()).map_err(|_| "CRS text is not UTF-8")?)
+        }
+        t => return Err(format!("unknown CRS tag {t}")),
+    };
+    let units = match r.u8()? {
+        0 => AngularOrLinear::Metres,
+        1 => AngularOrLinear::Degrees,
+        t => return Err(format!("unknown units tag {t}")),
+    };
+    let g = Georef {
+        crs,
+        units,
+        native_origin: r.dvec2()?,
+        native_spacing: r.dvec2()?,
+        spacing_m: r.dvec2()?,
+        world_origin: r.dvec2()?,
+    };
+    let ok = |v: DVec2| v.is_finite();
+    let fine = ok(g.native_origin) && ok(g.world_origin) && ok(g.native_spacing);
+    let positive = g.spacing_m.x > 0.0 && g.spacing_m.y > 0.0 && g.spacing_m.is_finite();
+    if !(fine && positive) {
+        return Err("georeference is not finite or has non-positive spacing".into());
+    }
+    Ok(g)
+}
+
+/// Serialises the index: magic, version, header, block entries, trailing CRC-32.
+pub(crate) fn write_index(header: &Header, blocks: &[BlockEntry]) -> Vec<u8> {
+    let mut w = Writer::default();
+    w.bytes(&MAGIC);
+    w.u32(VERSION);
+    w.u64(header.width);
+    w.u64(header.height);
+    w.u8(header.k);
+    w.u32(header.blocks_x);
+    w.u32(header.blocks_y);
+    match header.encoding {
+        SampleEncoding::Quantized { step_m, offset_m } => {
+            w.u8(0);
+            w.f64(step_m);
+            w.f64(offset_m);
+        }
+        SampleEncoding::F32 => w.u8(1),
+    }
+    w.u8(match header.codec {
+        Codec::Plain => 0,
+        Codec::Predictive => 1,
+    });
+    w.f64(header.max_error_m);
+    w.f64(header.max_void_error_m);
+    w.f64(header.error_bound_m);
+    w.u8(header.node_levels);
+    write_georef(&mut w, &header.georef);
+    w.u64(header.bake_id);
+    for b in blocks {
+        w.u32(b.valid_w);
+        w.u32(b.valid_h);
+        w.u64(b.file_len);
+        w.f32(b.min);
+        w.f32(b.max);
+        for l in &b.levels {
+            w.u64(l.offset);
+            w.u32(l.len);
+            w.u32(l.crc32);
+        }
+        for e in &b.level_errors {
+            w.f32(*e);
+        }
+        for n in &b.nodes {
+            w.f32(n.min);
+            w.f32(n.max);
+            w.f32(n.static_error);
+        }
+    }
+    let crc = crc32(&w.buf);
+    w.u32(crc);
+    w.buf
+}
+
+/// Why [`read_index`] failed (mapped to [`crate::StoreError`] by the caller, which knows the path).
+#[derive(Debug)]
+pub(crate) enum IndexError {
+    BadMagic,
+    Version(u32),
+    Corrupt(String),
+}
+
+impl From<String> for IndexError {
+    fn from(s: String) -> Self {
+        IndexError::Corrupt(s)
+    }
+}
+
+/// Parses and checks an index.
+pub(crate) fn read_index(bytes: &[u8]) -> Result<(Header, Vec<BlockEntry>), IndexError> {
+    if bytes.len() < 12 || bytes[..8] != MAGIC {
+        return Err(IndexError::BadMagic);
+    }
+    let version = u32::from_le_bytes([bytes[8], bytes[9], bytes[10], bytes[11]]);
+    if version != VERSION {
+        return Err(IndexError::Version(version));
+    }
+    if bytes.len() < 16 {
+        return Err(IndexError::Corrupt("shorter than its checksum".into()));
+    }
+    let (body, tail) = bytes.split_at(bytes.len() - 4);
+    let stored = u32::from_le_bytes([tail[0], tail[1], tail[2], tail[3]]);
+    let computed = crc32(body);
+    if stored != computed {
+        return Err(IndexError::Corrupt(format!(
+            "checksum mismatch (stored {stored:08x}, computed {computed:08x})"
+        )));
+    }
+    let mut r = Reader::new(&body[12..]);
+    let width = r.u64()?;
+    let height = r.u64()?;
+    let k = r.u8()?;
+    let blocks_x = r.u32()?;
+    let blocks_y = r.u32()?;
+    if !K_RANGE.contains(&k) {
+        return Err(IndexError::Corrupt(format!("block exponent k = {k} out of range")));
+    }
+    let cells = 1u64 << k;
+    let expect = |n: u64| (n.saturating_sub(1)).div_ceil(cells).max(1);
+    if width == 0
+        || height == 0
+        || expect(width) != blocks_x as u64
+        || expect(height) != blocks_y as u64
+    {
+        return Err(IndexError::Corrupt(format!(
+            "{blocks_x} x {blocks_y} blocks do not cover {width} x {height} samples with k = {k}"
+        )));
+    }
+    let encoding = match r.u8()? {
+        0 => {
+            let step_m = r.f64()?;
+            let offset_m = r.f64()?;
+            if !(step_m.is_finite() && step_m > 0.0 && offset_m.is_finite()) {
+                return Err(IndexError::Corrupt("bad quantization step or offset".into()));
+            }
+            SampleEncoding::Quantized { step_m, offset_m }
+        }
+        1 => SampleEncoding::F32,
+        t => return Err(IndexError::Corrupt(format!("unknown encoding tag {t}"))),
+    };
+    let codec = match r.u8()? {
+        0 => Codec::Plain,
+        1 => Codec::Predictive,
+        t => return Err(IndexError::Corrupt(format!("unknown codec tag {t}"))),
+    };
+    let max_error_m = r.f64()?;
+    let max_void_error_m = r.f64()?;
+    let error_bound_m = r.f64()?;
+    let node_levels = r.u8()?;
+    if node_levels > k {
+        return Err(IndexError::Corrupt(format!("{node_levels} node levels for k = {k}")));
+    }
+    let georef = read_georef(&mut r)?;
+    let bake_id = r.u64()?;
+    let header = Header {
+        width,
+        height,
+        k,
+        blocks_x,
+        blocks_y,
+        encoding,
+        codec,
+        max_error_m,
+        max_void_error_m,
+        error_bound_m,
+        node_levels,
+        georef,
+        bake_id,
+    };
+    let n_blocks = header.block_count();
+    let per_block =
+        4 + 4 + 8 + 8 + (k as usize + 1) * 16 + k as usize * 4 + node_count(node_levels) * 12;
+    if r.remaining() != n_blocks * per_block {
+        return Err(IndexError::Corrupt(format!(
+            "{} bytes of block entries, expected {} for {n_blocks} blocks",
+            r.remaining(),
+            n_blocks * per_block
+        )));
+    }
+    let mut blocks = Vec::with_capacity(n_blocks);
+    for pos in 0..n_blocks {
+        let id = header.block_at(pos);
+        let valid_w = r.u32()?;
+        let valid_h = r.u32()?;
+        let file_len = r.u64()?;
+        let min = r.f32()?;
+        let max = r.f32()?;
+        let side = header.block_side();
+        if valid_w == 0
+            || valid_h == 0
+            || valid_w > side
+            || valid_h > side
+            || min.partial_cmp(&max).is_none_or(|o| o.is_gt())
+        {
+            return Err(IndexError::Corrupt(format!("block {id}: bad extent or height range")));
+        }
+        let mut levels = Vec::with_capacity(k as usize + 1);
+        let mut end = BLOCK_HEADER_LEN;
+        for l in 0..=k {
+            let e = LevelEntry { offset: r.u64()?, len: r.u32()?, crc32: r.u32()? };
+            if e.offset != end {
+                return Err(IndexError::Corrupt(format!(
+                    "block {id} level {l}: offset {} != {end}",
+                    e.offset
+                )));
+            }
+            end += e.len as u64;
+            levels.push(e);
+        }
+        if end != file_len {
+            return Err(IndexError::Corrupt(format!(
+                "block {id}: levels end at {end}, file length {file_len}"
+            )));
+        }
+        let level_errors = (0..k).map(|_| r.f32()).collect::<Result<Vec<_>, _>>()?;
+        let mut nodes = Vec::with_capacity(node_count(node_levels));
+        for _ in 0..node_count(node_levels) {
+            nodes.push(NodeValues { min: r.f32()?, max: r.f32()?, static_error: r.f32()? });
+        }
+        blocks.push(BlockEntry {
+            valid_w,
+            valid_h,
+            file_len,
+            min,
+            max,
+            levels,
+            nodes,
+            level_errors,
+        });
+    }
+    Ok((header, blocks))
+}
+
+/// The header of a block file.
+pub(crate) fn block_header(bake_id: u64, id: BlockId) -> Vec<u8> {
+    let mut w = Writer::default();
+    w.bytes(&BLOCK_MAGIC);
+    w.u32(VERSION);
+    w.u64(bake_id);
+    w.u32(id.row);
+    w.u32(id.col);
+    w.buf
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_papers_5x5_example() {
+        // Qiu 2013 Fig. 4: vertex 21 at (3, 3) is level 2, order 12, offset 9 + 12 = 21.
+        let v = vertex_index(2, 3, 3).unwrap();
+        assert_eq!(v, VertexIndex { level: 2, order: 12, offset: 21 });
+        assert_eq!(offset_start(2), 9);
+        assert_eq!((offset_start(0), offset_end(0)), (0, 3));
+        assert_eq!((offset_start(1), offset_end(1)), (4, 8));
+        assert_eq!((offset_start(2), offset_end(2)), (9, 24));
+        // Fig. 3: level 0 is the four corners (0..3), level 1 the five vertices 4..8.
+        let corners: Vec<u32> = [(0, 0), (4, 0), (0, 4), (4, 4)]
+            .iter()
+            .map(|&(i, j)| vertex_index(2, i, j).unwrap().offset)
+            .collect();
+        assert_eq!(corners, [0, 1, 2, 3]);
+        let l1: Vec<u32> = [(2, 0), (0, 2), (2, 2), (4, 2), (2, 4)]
+            .iter()
+            .map(|&(i, j)| vertex_index(2, i, j).unwrap().offset)
+            .collect();
+        assert_eq!(l1, [4, 5, 6, 7, 8]);
+        assert_eq!(vertex_index(2, 5, 0), None);
+    }
+
+    #[test]
+    fn offsets_enumerate_every_vertex_once() {
+        for k in 1..=6u8 {
+            let side = (1usize << k) + 1;
+            let mut seen = vec![false; side * side];
+            for n in 0..=k {
+                let mut order = 0u32;
+                for_each_level_vertex(k, n, |i, j| {
+                    let v = vertex_index(k, i, j).unwrap();
+                    assert_eq!((v.level, v.order), (n, order), "k {k} ({i}, {j})");
+                    assert!(!seen[v.offset as usize]);
+                    seen[v.offset as usize] = true;
+                    order += 1;
+                });
+                assert_eq!(order as usize, level_len(n));
+            }
+            assert!(seen.iter().all(|&s| s));
+        }
+    }
+
+    #[test]
+    fn crc32_matches_the_standard_check_value() {
+        assert_eq!(crc32(b"123456789"), 0xCBF4_3926);
+        assert_eq!(crc32(b""), 0);
+    }
+}

@@ -1,0 +1,91 @@
+//! What a bake reads: [`HeightSource`], a grid delivered by rows, so that grids larger than
+//! memory (the 32769^2 synthetic terrain) stream through the bake in bounded memory.
+
+use terrain_core::georef::Georef;
+use terrain_core::heightmap::Heightmap;
+use terrain_core::synth::FractalConfig;
+
+/// A grid of heights in metres delivered by rows (row 0 = south, as in
+/// [`terrain_core::heightmap`]). `Sync`: the bake reads bands of rows in parallel.
+pub trait HeightSource: Sync {
+    /// Columns.
+    fn width(&self) -> u64;
+    /// Rows.
+    fn height(&self) -> u64;
+    /// Georeference and CRS of sample (0, 0).
+    fn georef(&self) -> Georef;
+    /// Writes rows `j0 .. j0 + rows` (row-major, all columns) into `out`
+    /// (`width * rows` samples, finite).
+    fn read_rows(&self, j0: u64, rows: usize, out: &mut [f32]) -> std::io::Result<()>;
+    /// Marks the void (no-data, filled) samples of the same rows; the default has none.
+    fn read_void_rows(&self, j0: u64, rows: usize, out: &mut [bool]) -> std::io::Result<()> {
+        let _ = (j0, rows);
+        out.fill(false);
+        Ok(())
+    }
+}
+
+fn check(w: u64, h: u64, j0: u64, rows: usize, len: usize) -> std::io::Result<()> {
+    let ok = j0.checked_add(rows as u64).is_some_and(|e| e <= h) && len as u64 == w * rows as u64;
+    if ok {
+        Ok(())
+    } else {
+        Err(std::io::Error::new(
+            std::io::ErrorKind::InvalidInput,
+            format!("rows {j0}..+{rows} with a buffer of {len} do not fit a {w} x {h} grid"),
+        ))
+    }
+}
+
+impl HeightSource for Heightmap {
+    fn width(&self) -> u64 {
+        Heightmap::width(self) as u64
+    }
+    fn height(&self) -> u64 {
+        Heightmap::height(self) as u64
+    }
+    fn georef(&self) -> Georef {
+        Heightmap::georef(self).clone()
+    }
+    fn read_rows(&self, j0: u64, rows: usize, out: &mut [f32]) -> std::io::Result<()> {
+        check(HeightSource::width(self), HeightSource::height(self), j0, rows, out.len())?;
+        let w = Heightmap::width(self);
+        let start = j0 as usize * w;
+        out.copy_from_slice(&self.data()[start..start + rows * w]);
+        Ok(())
+    }
+    fn read_void_rows(&self, j0: u64, rows: usize, out: &mut [bool]) -> std::io::Result<()> {
+        check(HeightSource::width(self), HeightSource::height(self), j0, rows, out.len())?;
+        let w = Heightmap::width(self);
+        let v = self.voids();
+        if !v.any() {
+            out.fill(false);
+            return Ok(());
+        }
+        for (r, row) in out.chunks_exact_mut(w).enumerate() {
+            for (i, o) in row.iter_mut().enumerate() {
+                *o = v.get(i, j0 as usize + r);
+            }
+        }
+        Ok(())
+    }
+}
+
+/// The synthetic fractal streams by rows: nothing of the whole grid is ever allocated.
+impl HeightSource for FractalConfig {
+    fn width(&self) -> u64 {
+        self.width
+    }
+    fn height(&self) -> u64 {
+        self.height
+    }
+    fn georef(&self) -> Georef {
+        Georef::local(self.spacing_m)
+    }
+    fn read_rows(&self, j0: u64, rows: usize, out: &mut [f32]) -> std::io::Result<()> {
+        check(self.width, self.height, j0, rows, out.len())?;
+        self.validate().map_err(|e| std::io::Error::new(std::io::ErrorKind::InvalidInput, e))?;
+        self.generate_rows(j0, rows, out);
+        Ok(())
+    }
+}

@@ -1,0 +1,275 @@
+//! The reader: opens a store's grid index and reads one block level at a time by positioned
+//! reads, checking the block header (bake id, position), the file length and the level's
+//! CRC-32, then decoding it on top of the coarser levels ([`BlockLevels`]).
+
+use std::fs::File;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use crate::codec::decode_level;
+use crate::error::StoreError;
+use crate::format::{
+    BLOCK_HEADER_LEN, BLOCK_MAGIC, BlockEntry, BlockId, Header, INDEX_FILE, IndexError,
+    SampleEncoding, VERSION, block_file_name, crc32, level_len, read_index, vertex_index,
+};
+
+/// An open store: the header and every block's index entry in memory, block files on disk.
+/// `Sync`: worker threads share it behind an `Arc`.
+#[derive(Debug)]
+pub struct Store {
+    dir: PathBuf,
+    header: Header,
+    blocks: Vec<BlockEntry>,
+}
+
+/// One level read and decoded, with what it cost.
+#[derive(Debug, Clone)]
+pub struct LoadedLevel {
+    /// The level's samples in stored order (decode with [`SampleEncoding::height`]).
+    pub samples: Arc<[i32]>,
+    /// Bytes read from disk.
+    pub disk_bytes: u64,
+    /// Time spent reading and checking (not decoding).
+    pub io_time: Duration,
+}
+
+impl Store {
+    /// Opens the store in folder `dir`, reading and checking its index.
+    pub fn open(dir: impl AsRef<Path>) -> Result<Self, StoreError> {
+        let dir = dir.as_ref().to_path_buf();
+        let path = dir.join(INDEX_FILE);
+        let bytes =
+            std::fs::read(&path).map_err(|source| StoreError::Io { path: path.clone(), source })?;
+        let (header, blocks) = read_index(&bytes).map_err(|e| match e {
+            IndexError::BadMagic => StoreError::BadMagic { path: path.clone(), what: "index" },
+            IndexError::Version(found) => {
+                StoreError::Version { path: path.clone(), found, expected: VERSION }
+            }
+            IndexError::Corrupt(message) => {
+                StoreError::CorruptIndex { path: path.clone(), message }
+            }
+        })?;
+        Ok(Self { dir, header, blocks })
+    }
+
+    /// The store folder.
+    pub fn dir(&self) -> &Path {
+        &self.dir
+    }
+
+    /// The header.
+    pub fn header(&self) -> &Header {
+        &self.header
+    }
+
+    /// A block's index entry, or `None` outside the grid.
+    pub fn entry(&self, id: BlockId) -> Option<&BlockEntry> {
+        self.header.block_position(id).map(|p| &self.blocks[p])
+    }
+
+    /// Every block, row-major from the south-west.
+    pub fn block_ids(&self) -> impl Iterator<Item = BlockId> + '_ {
+        (0..self.header.block_count()).map(|p| self.header.block_at(p))
+    }
+
+    /// Total bytes of the block files.
+    pub fn blocks_bytes(&self) -> u64 {
+        self.blocks.iter().map(|b| b.file_len).sum()
+    }
+
+    /// Reads and checks the payload of `level` of block `id` (positioned read, CRC-32 verified).
+    pub fn read_level_bytes(&self, id: BlockId, level: u8) -> Result<Vec<u8>, StoreError> {
+        let bad = |message: String| StoreError::BadRequest { block: id, level, message };
+        let entry = self.entry(id).ok_or_else(|| bad("block outside the store's grid".into()))?;
+        let le = *entry
+            .levels
+            .get(level as usize)
+            .ok_or_else(|| bad(format!("the finest level is {}", self.header.k)))?;
+        let path = self.dir.join(block_file_name(id));
+        let mut file = File::open(&path).map_err(|source| {
+            if source.kind() == std::io::ErrorKind::NotFound {
+                StoreError::MissingBlock { path: path.clone(), block: id, level }
+            } else {
+                StoreError::Io { path: path.clone(), source }
+            }
+        })?;
+        let io = |source| StoreError::Io { path: path.clone(), source };
+        let len = file.metadata().map_err(io)?.len();
+        let end = le.offset + le.len as u64;
+        if len < end {
+            return Err(StoreError::Truncated { path, block: id, level, expected: end, got: len });
+        }
+        if len != entry.file_len {
+            return Err(StoreError::Changed {
+                path,
+                block: id,
+                level,
+                message: format!("length {len}, the index says {}", entry.file_len),
+            });
+        }
+        let mut head = [0u8; BLOCK_HEADER_LEN as usize];
+        read_at(&mut file, 0, &mut head).map_err(io)?;
+        if head[..8] != BLOCK_MAGIC {
+            return Err(StoreError::BadMagic { path, what: "block file" });
+        }
+        let u32_at =
+            |o: usize| u32::from_le_bytes([head[o], head[o + 1], head[o + 2], head[o + 3]]);
+        let version = u32_at(8);
+        if version != VERSION {
+            return Err(StoreError::Version { path, found: version, expected: VERSION });
+        }
+        let mut idb = [0u8; 8];
+        idb.copy_from_slice(&head[12..20]);
+        let bake_id = u64::from_le_bytes(idb);
+        if bake_id != self.header.bake_id || u32_at(20) != id.row || u32_at(24) != id.col {
+            return Err(StoreError::Changed {
+                path,
+                block: id,
+                level,
+                message: format!(
+                    "header says bake {bake_id:016x} block (row {}, col {}), the index bake {:016x}",
+                    u32_at(20),
+                    u32_at(24),
+                    self.header.bake_id
+                ),
+            });
+        }
+        let mut payload = vec![0u8; le.len as usize];
+        read_at(&mut file, le.offset, &mut payload).map_err(io)?;
+        let computed = crc32(&payload);
+        if computed != le.crc32 {
+            return Err(StoreError::Checksum {
+                path,
+                block: id,
+                level,
+                stored: le.crc32,
+                computed,
+            });
+        }
+        Ok(payload)
+    }
+
+    /// Reads, checks and decodes `level` of block `id` on top of its decoded coarser levels
+    /// (`coarser.len()` must equal `level`).
+    pub fn load_level<L: AsRef<[i32]>>(
+        &self,
+        id: BlockId,
+        level: u8,
+        coarser: &[L],
+    ) -> Result<LoadedLevel, StoreError> {
+        if coarser.len() != level as usize {
+            return Err(StoreError::BadRequest {
+                block: id,
+                level,
+                message: format!(
+                    "levels load coarse to fine: {} coarser levels given",
+                    coarser.len()
+                ),
+            });
+        }
+        let t = Instant::now();
+        let payload = self.read_level_bytes(id, level)?;
+        let io_time = t.elapsed();
+        let samples = decode_level(self.header.k, level, &payload, coarser)
+            .map_err(|message| StoreError::CorruptLevel { block: id, level, message })?;
+        Ok(LoadedLevel { samples: samples.into(), disk_bytes: payload.len() as u64, io_time })
+    }
+
+    /// Reads levels `0..=level` of block `id` (a convenience for tools and tests).
+    pub fn read_block(&self, id: BlockId, level: u8) -> Result<BlockLevels, StoreError> {
+        let mut b = BlockLevels::new(&self.header);
+        for l in 0..=level {
+            let loaded = self.load_level(id, l, b.levels())?;
+            b.push(loaded.samples);
+        }
+        Ok(b)
+    }
+}
+
+/// Positioned read (`pread` where the platform has it).
+fn read_at(file: &mut File, offset: u64, buf: &mut [u8]) -> std::io::Result<()> {
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::FileExt;
+        file.read_exact_at(buf, offset)
+    }
+    #[cfg(not(unix))]
+    {
+        use std::io::{Read, Seek, SeekFrom};
+        file.seek(SeekFrom::Start(offset))?;
+        file.read_exact(buf)
+    }
+}
+
+/// The resident levels `0..n` of one block, each level's samples in stored order: the
+/// paper's linear sequence, cut at level boundaries so a level loads or unloads alone.
+#[derive(Debug, Clone)]
+pub struct BlockLevels {
+    k: u8,
+    encoding: SampleEncoding,
+    levels: Vec<Arc<[i32]>>,
+}
+
+impl BlockLevels {
+    /// No level resident.
+    pub fn new(header: &Header) -> Self {
+        Self { k: header.k, encoding: header.encoding, levels: Vec::new() }
+    }
+
+    /// Number of resident levels (`0` = none; levels `0..count` are resident).
+    pub fn count(&self) -> usize {
+        self.levels.len()
+    }
+
+    /// The resident levels' samples.
+    pub fn levels(&self) -> &[Arc<[i32]>] {
+        &self.levels
+    }
+
+    /// Appends the next finer level. Returns false (and keeps nothing) if its length is not
+    /// that level's.
+    pub fn push(&mut self, samples: Arc<[i32]>) -> bool {
+        if self.levels.len() > self.k as usize
+            || samples.len() != level_len(self.levels.len() as u8)
+        {
+            return false;
+        }
+        self.levels.push(samples);
+        true
+    }
+
+    /// Drops the finest resident level; returns its bytes in memory.
+    pub fn pop(&mut self) -> u64 {
+        self.levels.pop().map_or(0, |l| l.len() as u64 * Header::SAMPLE_BYTES)
+    }
+
+    /// Bytes in memory.
+    pub fn bytes(&self) -> u64 {
+        self.levels.iter().map(|l| l.len() as u64).sum::<u64>() * Header::SAMPLE_BYTES
+    }
+
+    /// Height of block vertex `(i, j)`, if its level is resident.
+    pub fn height(&self, i: u32, j: u32) -> Option<f32> {
+        let v = vertex_index(self.k, i, j)?;
+        let q = *self.levels.get(v.level as usize)?.get(v.order as usize)?;
+        Some(self.encoding.height(q))
+    }
+
+    /// The `(2^level + 1)^2` grid of heights at `level` (row-major, south row first), if
+    /// levels `0..=level` are resident.
+    pub fn grid(&self, level: u8) -> Option<Vec<f32>> {
+        if level as usize >= self.levels.len() {
+            return None;
+        }
+        let n = (1u32 << level) + 1;
+        let d = 1u32 << (self.k - level);
+        let mut out = Vec::with_capacity((n * n) as usize);
+        for b in 0..n {
+            for a in 0..n {
+                out.push(self.height(a * d, b * d)?);
+            }
+        }
+        Some(out)
+    }
+}

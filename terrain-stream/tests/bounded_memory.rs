@@ -1,0 +1,89 @@
+//! The bake streams its source: a synthetic grid delivered by rows is baked with a peak heap
+//! far below the size of the whole grid (a counting global allocator measures it), and no
+//! read asks for more than one band of block rows.
+#![allow(unsafe_code)] // The counting allocator below is the only unsafe code, and test-only.
+
+use std::alloc::{GlobalAlloc, Layout, System};
+use std::ops::ControlFlow;
+use std::sync::Mutex;
+use std::sync::atomic::{AtomicUsize, Ordering};
+
+use terrain_core::Georef;
+use terrain_stream::{BakeConfig, HeightSource, Store, bake};
+
+struct Counting;
+static CURRENT: AtomicUsize = AtomicUsize::new(0);
+static PEAK: AtomicUsize = AtomicUsize::new(0);
+
+// SAFETY: forwards to the system allocator and only counts bytes.
+unsafe impl GlobalAlloc for Counting {
+    unsafe fn alloc(&self, l: Layout) -> *mut u8 {
+        let p = unsafe { System.alloc(l) };
+        if !p.is_null() {
+            let now = CURRENT.fetch_add(l.size(), Ordering::Relaxed) + l.size();
+            PEAK.fetch_max(now, Ordering::Relaxed);
+        }
+        p
+    }
+    unsafe fn dealloc(&self, p: *mut u8, l: Layout) {
+        unsafe { System.dealloc(p, l) };
+        CURRENT.fetch_sub(l.size(), Ordering::Relaxed);
+    }
+}
+
+#[global_allocator]
+static GLOBAL: Counting = Counting;
+
+/// A cheap analytic grid that records the largest read.
+struct Rows {
+    n: u64,
+    largest: Mutex<usize>,
+}
+
+impl HeightSource for Rows {
+    fn width(&self) -> u64 {
+        self.n
+    }
+    fn height(&self) -> u64 {
+        self.n
+    }
+    fn georef(&self) -> Georef {
+        Georef::local(5.0)
+    }
+    fn read_rows(&self, j0: u64, rows: usize, out: &mut [f32]) -> std::io::Result<()> {
+        let mut l = self.largest.lock().unwrap();
+        *l = (*l).max(rows);
+        for (r, row) in out.chunks_exact_mut(self.n as usize).enumerate() {
+            let j = (j0 + r as u64) as f32;
+            for (i, z) in row.iter_mut().enumerate() {
+                *z = 100.0 + (i as f32 * 0.013).sin() * 50.0 + (j * 0.021).cos() * 40.0;
+            }
+        }
+        Ok(())
+    }
+}
+
+#[test]
+fn a_grid_bakes_in_a_fraction_of_its_size() {
+    let n = 2049u64;
+    let grid_bytes = (n * n * 4) as usize; // 16.8 MB of f32
+    let src = Rows { n, largest: Mutex::new(0) };
+    let dir = std::env::temp_dir().join(format!("terrain-stream-mem-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    let base = CURRENT.load(Ordering::Relaxed);
+    PEAK.store(base, Ordering::Relaxed);
+    // Few node levels: the index (held until it is written) stays small beside the grid.
+    let cfg = BakeConfig { k: 6, threads: 2, node_levels: 3, ..Default::default() };
+    let r = bake(&src, &dir.join("s"), &cfg, &mut |_: &terrain_stream::BakeProgress| {
+        ControlFlow::Continue(())
+    })
+    .unwrap();
+    let peak = PEAK.load(Ordering::Relaxed) - base;
+    assert_eq!(r.source_samples, n * n);
+    // One band is 65 rows: 65 * 2049 * 5 bytes = 0.67 MB; the index ~0.2 MB.
+    assert!(peak < grid_bytes / 8, "peak heap {peak} bytes for a {grid_bytes}-byte grid");
+    assert!(*src.largest.lock().unwrap() <= 65);
+    assert_eq!(Store::open(dir.join("s")).unwrap().header().blocks_x, 32);
+    std::fs::remove_dir_all(&dir).unwrap();
+}

@@ -1,0 +1,263 @@
+//! Bake and read back real and synthetic stores: lossless and bounded encodings, determinism,
+//! atomic output, typed errors for corrupt, truncated, changed and missing files.
+
+use std::ops::ControlFlow;
+use std::path::{Path, PathBuf};
+
+use terrain_core::Georef;
+use terrain_core::heightmap::Heightmap;
+use terrain_stream::format::{block_file_name, vertex_index};
+use terrain_stream::{
+    BakeConfig, BakeError, BlockId, Codec, HeightEncoding, Store, StoreError, bake,
+};
+
+fn scratch(name: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("terrain-stream-test-{}-{name}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&d);
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+fn go(_: &terrain_stream::BakeProgress) -> ControlFlow<()> {
+    ControlFlow::Continue(())
+}
+
+/// A 200 x 150 float grid (not a multiple of blocks: padding on two sides).
+fn float_grid() -> Heightmap {
+    Heightmap::from_fn(200, 150, Georef::local(30.0), |i, j| {
+        let (x, y) = (i as f32 * 0.07, j as f32 * 0.05);
+        400.0 + 120.0 * x.sin() * y.cos() + 3.3 * (i as f32 * 1.7).sin() + j as f32 * 0.731
+    })
+    .unwrap()
+}
+
+fn check_heights(store: &Store, hm: &Heightmap, tol: f32) {
+    let h = store.header();
+    let cells = h.block_cells() as usize;
+    for id in store.block_ids() {
+        let b = store.read_block(id, h.k).unwrap();
+        let e = store.entry(id).unwrap();
+        for j in 0..e.valid_h {
+            for i in 0..e.valid_w {
+                let z = b.height(i, j).unwrap();
+                let src = hm.get(
+                    id.col as usize * cells + i as usize,
+                    id.row as usize * cells + j as usize,
+                );
+                assert!((z - src).abs() <= tol, "{id} ({i}, {j}): {z} vs {src}");
+                if tol == 0.0 {
+                    assert_eq!(z.to_bits(), src.to_bits());
+                }
+            }
+        }
+        // Coarser grids are the finest grid's subsamples.
+        let g2 = b.grid(2).unwrap();
+        let d = 1u32 << (h.k - 2);
+        assert_eq!(g2[5 + 1], b.height(d, d).unwrap()); // row 1, column 1 of the 5 x 5 grid
+    }
+}
+
+#[test]
+fn puget_sound_1k_is_lossless_and_deterministic() {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../../shared/data/puget_sound/ps_height_1k.png");
+    let opts = terrain_core::dem::LoadOptions {
+        vertical_scale: 0.1,
+        spacing_m: 160.0,
+        ..Default::default()
+    };
+    let dem = terrain_core::dem::load(&path, &opts).unwrap();
+    let enc = HeightEncoding::for_source(&dem.source, &opts);
+    assert_eq!(enc, HeightEncoding::Quantized { step_m: 0.1, offset_m: 0.0 });
+    let dir = scratch("puget");
+    let cfg = BakeConfig { k: 7, encoding: enc, ..Default::default() };
+    let a = bake(&dem.heightmap, &dir.join("a"), &cfg, &mut go).unwrap();
+    assert!(a.lossless);
+    assert_eq!(a.header.max_error_m, 0.0);
+    assert_eq!((a.header.blocks_x, a.header.blocks_y), (8, 8));
+    let b = bake(&dem.heightmap, &dir.join("b"), &cfg, &mut go).unwrap();
+    assert_eq!(a.store_bytes, b.store_bytes);
+    // Same input, same bytes.
+    let ids: Vec<BlockId> = Store::open(dir.join("a")).unwrap().block_ids().collect();
+    for f in ["index.tsi".to_string()].into_iter().chain(ids.iter().map(|&id| block_file_name(id)))
+    {
+        assert_eq!(
+            std::fs::read(dir.join("a").join(&f)).unwrap(),
+            std::fs::read(dir.join("b").join(&f)).unwrap(),
+            "{f}"
+        );
+    }
+    let store = Store::open(dir.join("a")).unwrap();
+    check_heights(&store, &dem.heightmap, 0.0);
+    // The georeference travels with the store.
+    assert_eq!(store.header().georef, *dem.heightmap.georef());
+    // Non-redundant levels: the store is smaller than the 16-bit raw grid (predictive codec).
+    assert!(a.store_bytes < 1025 * 1025 * 2, "{} bytes", a.store_bytes);
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn float_sources_meet_the_stated_bound_and_padding_is_marked() {
+    let hm = float_grid();
+    let dir = scratch("float");
+    for (name, enc, codec, tol) in [
+        ("cm", HeightEncoding::default(), Codec::Predictive, 0.01),
+        ("cm-plain", HeightEncoding::default(), Codec::Plain, 0.01),
+        ("raw", HeightEncoding::F32, Codec::Predictive, 0.0),
+    ] {
+        let cfg = BakeConfig { k: 5, encoding: enc, codec, node_levels: 3, ..Default::default() };
+        let r = bake(&hm, &dir.join(name), &cfg, &mut go).unwrap();
+        assert!(r.header.max_error_m <= tol, "{name}: {}", r.header.max_error_m);
+        if name == "cm" {
+            assert!(r.header.max_error_m > 0.0 && !r.lossless);
+            assert_eq!(r.header.error_bound_m, 0.01);
+        }
+        let store = Store::open(dir.join(name)).unwrap();
+        let h = store.header();
+        assert_eq!((h.blocks_x, h.blocks_y), (7, 5));
+        // The east column of blocks holds 200 - 6 * 32 = 8 valid columns (padding marked).
+        let e = store.entry(BlockId::new(4, 6)).unwrap();
+        assert_eq!((e.valid_w, e.valid_h), (8, 150 - 4 * 32));
+        // Per-node values: the root's range is the block's and StaticE is monotone (Eq. 3).
+        let e = store.entry(BlockId::new(1, 1)).unwrap();
+        let root = e.node(0, 0, 0).unwrap();
+        assert_eq!((root.min, root.max), (e.min, e.max));
+        for l in 1..h.node_levels {
+            for j in 0..1u32 << l {
+                for i in 0..1u32 << l {
+                    let n = e.node(l, i, j).unwrap();
+                    let p = e.node(l - 1, i / 2, j / 2).unwrap();
+                    assert!(n.static_error <= p.static_error && n.min >= p.min && n.max <= p.max);
+                }
+            }
+        }
+        check_heights(&store, &hm, tol as f32);
+    }
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn an_interrupted_bake_leaves_no_valid_store() {
+    let hm = float_grid();
+    let dir = scratch("cancel");
+    let out = dir.join("scene");
+    let cfg = BakeConfig { k: 5, ..Default::default() };
+    let mut calls = 0;
+    let err = bake(&hm, &out, &cfg, &mut |_p: &terrain_stream::BakeProgress| {
+        calls += 1;
+        if calls == 2 { ControlFlow::Break(()) } else { ControlFlow::Continue(()) }
+    })
+    .unwrap_err();
+    assert!(matches!(err, BakeError::Cancelled), "{err}");
+    assert!(!out.exists());
+    assert!(matches!(Store::open(&out), Err(StoreError::Io { .. })));
+    assert_eq!(std::fs::read_dir(&dir).unwrap().count(), 0, "the temporary folder is removed");
+    // An existing output is refused unless overwrite is set.
+    bake(&hm, &out, &cfg, &mut go).unwrap();
+    assert!(matches!(bake(&hm, &out, &cfg, &mut go), Err(BakeError::Exists { .. })));
+    bake(&hm, &out, &BakeConfig { overwrite: true, ..cfg }, &mut go).unwrap();
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn corrupt_truncated_changed_and_missing_files_are_typed_errors() {
+    let hm = float_grid();
+    let dir = scratch("faults");
+    let out = dir.join("scene");
+    bake(&hm, &out, &BakeConfig { k: 5, ..Default::default() }, &mut go).unwrap();
+    let store = Store::open(&out).unwrap();
+    let id = BlockId::new(2, 3);
+    let path = out.join(block_file_name(id));
+    let e = store.entry(id).unwrap().clone();
+    let original = std::fs::read(&path).unwrap();
+
+    // A flipped byte inside level 4: that level fails its checksum, coarser ones still read.
+    let mut bytes = original.clone();
+    bytes[e.levels[4].offset as usize + 3] ^= 0x40;
+    std::fs::write(&path, &bytes).unwrap();
+    match store.read_level_bytes(id, 4) {
+        Err(StoreError::Checksum { block, level, .. }) => assert_eq!((block, level), (id, 4)),
+        other => panic!("expected a checksum error, got {other:?}"),
+    }
+    let msg = store.read_block(id, 5).unwrap_err().to_string();
+    assert!(msg.contains("row 2, col 3") && msg.contains("level 4"), "{msg}");
+    assert_eq!(store.read_block(id, 3).unwrap().count(), 4);
+
+    // Truncated.
+    std::fs::write(&path, &original[..original.len() - 10]).unwrap();
+    assert!(matches!(store.read_level_bytes(id, 5), Err(StoreError::Truncated { level: 5, .. })));
+    assert!(matches!(store.read_level_bytes(id, 0), Err(StoreError::Changed { level: 0, .. })));
+
+    // Replaced by another block's file (changed during reading).
+    std::fs::copy(out.join(block_file_name(BlockId::new(0, 0))), &path).unwrap();
+    let r = store.read_level_bytes(id, 0);
+    assert!(matches!(r, Err(StoreError::Changed { .. } | StoreError::Truncated { .. })), "{r:?}");
+
+    // Missing.
+    std::fs::remove_file(&path).unwrap();
+    assert!(
+        matches!(store.read_level_bytes(id, 0), Err(StoreError::MissingBlock { block, level: 0, .. }) if block == id)
+    );
+    std::fs::write(&path, &original).unwrap();
+    assert!(store.read_block(id, 5).is_ok());
+
+    // Bad requests.
+    assert!(matches!(
+        store.read_level_bytes(BlockId::new(99, 0), 0),
+        Err(StoreError::BadRequest { .. })
+    ));
+    assert!(matches!(store.read_level_bytes(id, 9), Err(StoreError::BadRequest { .. })));
+
+    // The index: bad magic, other version, corrupt byte, truncated.
+    let ip = out.join("index.tsi");
+    let index = std::fs::read(&ip).unwrap();
+    let mut b = index.clone();
+    b[0] = b'X';
+    std::fs::write(&ip, &b).unwrap();
+    assert!(matches!(Store::open(&out), Err(StoreError::BadMagic { .. })));
+    let mut b = index.clone();
+    b[8] = 9;
+    std::fs::write(&ip, &b).unwrap();
+    assert!(matches!(Store::open(&out), Err(StoreError::Version { found: 9, expected: 1, .. })));
+    let mut b = index.clone();
+    let mid = b.len() / 2;
+    b[mid] ^= 1;
+    std::fs::write(&ip, &b).unwrap();
+    assert!(matches!(Store::open(&out), Err(StoreError::CorruptIndex { .. })));
+    std::fs::write(&ip, &index[..index.len() / 3]).unwrap();
+    assert!(matches!(Store::open(&out), Err(StoreError::CorruptIndex { .. })));
+    // Every truncation and every single-byte corruption of the index is refused, never a panic.
+    for cut in (0..index.len()).step_by(97) {
+        std::fs::write(&ip, &index[..cut]).unwrap();
+        assert!(Store::open(&out).is_err());
+    }
+    std::fs::write(&ip, &index).unwrap();
+    assert!(Store::open(&out).is_ok());
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn the_papers_vertex_order_holds_in_a_store() {
+    // Vertex (3, 3) of a 5 x 5 block (k = 2) is level 2, order 12, offset 21 (Qiu 2013 Fig. 4),
+    // and a store with k = 2 returns the source height there from level 2's 13th sample.
+    let v = vertex_index(2, 3, 3).unwrap();
+    assert_eq!((v.level, v.order, v.offset), (2, 12, 21));
+    let hm = Heightmap::from_fn(5, 5, Georef::local(1.0), |i, j| (j * 5 + i) as f32).unwrap();
+    let dir = scratch("five");
+    let cfg = BakeConfig {
+        k: 2,
+        encoding: HeightEncoding::Quantized { step_m: 1.0, offset_m: 0.0 },
+        ..Default::default()
+    };
+    bake(&hm, &dir.join("s"), &cfg, &mut go).unwrap();
+    let store = Store::open(dir.join("s")).unwrap();
+    let b = store.read_block(BlockId::new(0, 0), 2).unwrap();
+    assert_eq!(b.levels()[2][12], 18); // q = height = 3 * 5 + 3
+    assert_eq!(b.height(3, 3), Some(18.0));
+    // The linear sequence: levels 0..=2 concatenated, 25 samples.
+    let seq: Vec<i32> = b.levels().iter().flat_map(|l| l.iter().copied()).collect();
+    assert_eq!(seq.len(), 25);
+    assert_eq!(seq[21], 18);
+    assert_eq!(&seq[..4], &[0, 4, 20, 24]);
+    std::fs::remove_dir_all(&dir).unwrap();
+}
