@@ -206,7 +206,10 @@ fn surface_matches_reference_on_gl() {
 /// `margin_cells` of their position, pitches from straight down to grazing, all yaws.
 fn crack_cameras(hm: &Heightmap, margin_cells: usize) -> Vec<Camera> {
     let pitches = [-90.0, -65.0, -40.0, -20.0, -8.0, -3.0, -1.5];
-    let relief = f64::from(hm.max() - hm.min()).max(50.0);
+    // Small grids with high relief (the hard cases) would be out of view from high up.
+    let extent = hm.extent_m();
+    let relief = f64::from(hm.max() - hm.min()).min(0.25 * extent.x.min(extent.y)).max(50.0);
+    let centre = hm.grid_to_world((hm.width() - 1) as f64 / 2.0, (hm.height() - 1) as f64 / 2.0);
     let (w, h) = (hm.width(), hm.height());
     (0..21)
         .map(|k| {
@@ -220,13 +223,17 @@ fn crack_cameras(hm: &Heightmap, margin_cells: usize) -> Vec<Camera> {
                     ground = ground.max(hm.get(ii, jj));
                 }
             }
-            let above = [0.02, 0.1, 0.35, 1.2][k % 4] * relief + 5.0;
+            let pitch = pitches[k % pitches.len()];
+            // Grazing views stay low, or they see nothing but sky.
+            let scale: f64 = [0.02, 0.1, 0.35, 1.2][k % 4];
+            let above = if pitch > -10.0 { scale.min(0.1) } else { scale } * relief + 5.0;
             let xy = hm.grid_to_world(i as f64, j as f64);
             let eye = xy.extend(f64::from(ground) + above);
             let (near, far) = clip_range(hm, eye);
-            Camera::from_yaw_pitch(eye, (kf * 47.0) % 360.0, pitches[k % pitches.len()])
-                .with_fov_y_deg(60.0)
-                .with_clip(near, far)
+            // Roughly towards the centre (compass heading), give or take 60 degrees.
+            let to_centre = centre - xy;
+            let yaw = to_centre.x.atan2(to_centre.y).to_degrees() + (kf * 47.0) % 120.0 - 60.0;
+            Camera::from_yaw_pitch(eye, yaw, pitch).with_fov_y_deg(60.0).with_clip(near, far)
         })
         .collect()
 }
@@ -248,6 +255,14 @@ fn crack_pixels(
             let plain = renderer.read_image().unwrap();
             renderer.render(camera, patches, &skirt).unwrap();
             let reference = renderer.read_image().unwrap();
+            if let Some(dir) = std::env::var_os("TERRAIN_TEST_DUMP") {
+                for (tag, im) in [("plain", &plain), ("skirts", &reference)] {
+                    let path = PathBuf::from(&dir).join(format!("{}_{tag}.png", camera.position));
+                    let raw: Vec<u8> = im.pixels.iter().flatten().copied().collect();
+                    image::save_buffer(path, &raw, im.width, im.height, image::ColorType::Rgba8)
+                        .unwrap();
+                }
+            }
             let terrain = plain.pixels.iter().filter(|&&p| p != BACKGROUND).count();
             assert!(terrain > 0, "camera {camera:?} sees no terrain");
             plain
