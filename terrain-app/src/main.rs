@@ -1,6 +1,7 @@
 //! The `terrain` command line: composes the engine's crates into user-facing commands.
 
 mod info;
+mod render;
 mod source;
 
 use clap::{Parser, Subcommand};
@@ -18,12 +19,15 @@ enum Command {
     /// Describe a DEM (or the embedded synthetic terrain when no file is given): size, sample
     /// type, georeference, spacing in metres, height range and voids.
     Info(info::InfoArgs),
+    /// Draw a DEM (or the embedded synthetic terrain) with the GPU tessellator into a PNG.
+    Render(render::RenderArgs),
 }
 
 fn main() -> std::process::ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Info(args) => info::run(&args),
+        Command::Render(args) => render::run(&args),
     };
     match result {
         Ok(()) => std::process::ExitCode::SUCCESS,
