@@ -9,7 +9,9 @@
 //!
 //! The principal types are [`GpuContext`] (an adapter, device and queue, with the feature
 //! flags the renderer branches on) and, in [`tess`], the CPU reference tessellator
-//! [`tess::tessellate`] and its compute-shader twin [`tess::GpuTessellator`].
+//! [`tess::tessellate`] and its compute-shader twin [`tess::GpuTessellator`], and
+//! [`TerrainRenderer`], which draws a heightmap from a list of [`DrawPatch`]es (the surface it
+//! draws has its CPU reference in [`surface`]).
 //!
 //! ```
 //! use terrain_gpu::tess::{PatchFactors, tessellate};

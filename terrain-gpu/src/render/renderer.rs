@@ -60,7 +60,9 @@ pub struct FrameStats {
     /// Whether this frame ran the tessellator (false: the patch list was unchanged and its
     /// tessellation was reused).
     pub tessellated: bool,
-    /// CPU time to prepare, encode and submit the frame, milliseconds.
+    /// CPU time to prepare, encode and submit the frame, milliseconds. On GL this includes
+    /// most of the driver's work: wgpu's GL backend replays the commands at submission, and
+    /// llvmpipe executes them there.
     pub cpu_ms: f64,
     /// GPU time of every pass of the frame, milliseconds: `None` without timestamp queries or
     /// when a pass's timestamps cannot be trusted (see [`FrameStats::gpu_note`]).
