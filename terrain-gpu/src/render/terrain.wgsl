@@ -195,8 +195,11 @@ fn fs(in: VsOut) -> @location(0) vec4<f32> {
     let lambert = max(dot(n, frame.sun.xyz), 0.0);
     var c = albedo * (0.3 + 0.7 * lambert);
     if (frame.flags & FLAG_WIREFRAME) != 0u {
-        let d = in.bary / max(fwidth(in.bary), vec3<f32>(1e-6));
-        let edge = 1.0 - clamp(min(d.x, min(d.y, d.z)) - 0.5, 0.0, 1.0);
+        let fw = fwidth(in.bary);
+        let d = in.bary / max(fw, vec3<f32>(1e-6));
+        var edge = 1.0 - clamp(min(d.x, min(d.y, d.z)) - 0.5, 0.0, 1.0);
+        // Fade the lines out where triangles are a few pixels across, or they hide the shading.
+        edge *= 1.0 - smoothstep(0.15, 0.4, max(fw.x, max(fw.y, fw.z)));
         c = mix(c, vec3<f32>(0.05, 0.05, 0.08), edge * 0.85);
     }
     // Never the background colour (pure magenta): green is kept above zero, so the crack

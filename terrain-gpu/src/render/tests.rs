@@ -200,7 +200,8 @@ fn surface_matches_reference_on_gl() {
 // first, so skirts are hidden everywhere except through cracks: a pixel that is background in
 // the plain render but terrain in the skirted one is a crack, and the comparison is exact
 // (both renders rasterise the identical surface triangles; no erosion). The negative control
-// below checks that mismatched edge factors do show up this way.
+// below checks that mismatched edge factors do show up this way. Set TERRAIN_TEST_DUMP to a
+// folder to get both images of every camera as PNGs.
 
 /// At least 20 cameras over `hm`: inside the footprint, above every sample within
 /// `margin_cells` of their position, pitches from straight down to grazing, all yaws.
