@@ -421,7 +421,7 @@ fn wireframe_covers_the_same_pixels(backend: BackendChoice) {
     let hm = HardCase::Cliff.build();
     let mut renderer = TerrainRenderer::new(&ctx, &hm, &config(200, 120)).unwrap();
     let camera = default_camera(&hm, 200, 120, 60.0);
-    let patches = uniform_patches(&hm, 16, 6.0);
+    let patches = uniform_patches(&hm, 16, 2.0);
     renderer.render(&camera, &patches, &RenderOptions::default()).unwrap();
     let plain = renderer.read_image().unwrap();
     renderer
