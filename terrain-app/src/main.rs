@@ -2,6 +2,7 @@
 
 mod bake;
 mod info;
+mod render;
 mod roughness;
 mod source;
 
@@ -24,6 +25,8 @@ enum Command {
     Roughness(roughness::RoughnessArgs),
     /// Bake a DEM (or `--synthetic SIZE`) into an out-of-core block store.
     Bake(bake::BakeArgs),
+    /// Draw a DEM (or the embedded synthetic terrain) with the GPU tessellator into a PNG.
+    Render(render::RenderArgs),
 }
 
 fn main() -> std::process::ExitCode {
@@ -32,6 +35,7 @@ fn main() -> std::process::ExitCode {
         Command::Info(args) => info::run(&args),
         Command::Roughness(args) => roughness::run(&args),
         Command::Bake(args) => bake::run(&args),
+        Command::Render(args) => render::run(&args),
     };
     match result {
         Ok(()) => std::process::ExitCode::SUCCESS,

@@ -239,30 +239,40 @@ impl GpuContext {
     /// Copies `size` bytes from the start of `buffer` (which needs `COPY_SRC`) to the host,
     /// waiting for all submitted work.
     pub fn read_buffer(&self, buffer: &wgpu::Buffer, size: u64) -> Result<Vec<u8>, GpuError> {
-        if size == 0 {
-            return Ok(Vec::new());
-        }
-        let padded = size.next_multiple_of(wgpu::COPY_BUFFER_ALIGNMENT);
-        let staging = self.device.create_buffer(&wgpu::BufferDescriptor {
-            label: Some("read-back staging"),
-            size: padded,
-            usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
-            mapped_at_creation: false,
-        });
-        let mut encoder = self.device.create_command_encoder(&Default::default());
-        encoder.copy_buffer_to_buffer(buffer, 0, &staging, 0, padded);
-        self.queue.submit([encoder.finish()]);
-        let (tx, rx) = std::sync::mpsc::channel();
-        staging.map_async(wgpu::MapMode::Read, .., move |r| {
-            // The receiver waits below; a send error means it is gone, nothing to do.
-            let _ = tx.send(r);
-        });
-        self.device.poll(wgpu::PollType::wait_indefinitely())?;
-        rx.recv().unwrap_or(Err(wgpu::BufferAsyncError))?;
-        let bytes = staging.get_mapped_range(..).map(|v| v[..size as usize].to_vec());
-        staging.unmap();
-        bytes.map_err(|_| GpuError::Map(wgpu::BufferAsyncError))
+        read_buffer(&self.device, &self.queue, buffer, size)
     }
+}
+
+/// [`GpuContext::read_buffer`] for holders of a device and queue (wgpu's are cheap clones).
+pub fn read_buffer(
+    device: &wgpu::Device,
+    queue: &wgpu::Queue,
+    buffer: &wgpu::Buffer,
+    size: u64,
+) -> Result<Vec<u8>, GpuError> {
+    if size == 0 {
+        return Ok(Vec::new());
+    }
+    let padded = size.next_multiple_of(wgpu::COPY_BUFFER_ALIGNMENT);
+    let staging = device.create_buffer(&wgpu::BufferDescriptor {
+        label: Some("read-back staging"),
+        size: padded,
+        usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+        mapped_at_creation: false,
+    });
+    let mut encoder = device.create_command_encoder(&Default::default());
+    encoder.copy_buffer_to_buffer(buffer, 0, &staging, 0, padded);
+    queue.submit([encoder.finish()]);
+    let (tx, rx) = std::sync::mpsc::channel();
+    staging.map_async(wgpu::MapMode::Read, .., move |r| {
+        // The receiver waits below; a send error means it is gone, nothing to do.
+        let _ = tx.send(r);
+    });
+    device.poll(wgpu::PollType::wait_indefinitely())?;
+    rx.recv().unwrap_or(Err(wgpu::BufferAsyncError))?;
+    let bytes = staging.get_mapped_range(..).map(|v| v[..size as usize].to_vec());
+    staging.unmap();
+    bytes.map_err(|_| GpuError::Map(wgpu::BufferAsyncError))
 }
 
 fn desc_backends(b: wgpu::Backend) -> wgpu::Backends {

@@ -9,7 +9,9 @@
 //!
 //! The principal types are [`GpuContext`] (an adapter, device and queue, with the feature
 //! flags the renderer branches on) and, in [`tess`], the CPU reference tessellator
-//! [`tess::tessellate`] and its compute-shader twin [`tess::GpuTessellator`].
+//! [`tess::tessellate`] and its compute-shader twin [`tess::GpuTessellator`], and
+//! [`TerrainRenderer`], which draws a heightmap from a list of [`DrawPatch`]es (the surface it
+//! draws has its CPU reference in [`surface`]).
 //!
 //! ```
 //! use terrain_gpu::tess::{PatchFactors, tessellate};
@@ -18,8 +20,14 @@
 //! assert!(mesh.points.iter().all(|p| (0.0..=1.0).contains(&p[0]) && (0.0..=1.0).contains(&p[1])));
 //! ```
 pub mod device;
+pub mod render;
+pub mod surface;
 pub mod target;
 pub mod tess;
 
 pub use device::{BackendChoice, DeviceConfig, GpuContext, GpuError, GpuFeatures};
+pub use render::{
+    BACKGROUND, DrawPatch, FrameStats, RenderConfig, RenderError, RenderOptions, TerrainRenderer,
+    uniform_patches,
+};
 pub use target::{OffscreenTarget, RgbaImage};

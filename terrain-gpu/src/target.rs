@@ -77,6 +77,16 @@ impl OffscreenTarget {
         encoder: &'e mut wgpu::CommandEncoder,
         clear: wgpu::Color,
     ) -> wgpu::RenderPass<'e> {
+        self.begin_timed_pass(encoder, clear, None)
+    }
+
+    /// Like [`OffscreenTarget::begin_pass`], writing timestamps at the pass's start and end.
+    pub fn begin_timed_pass<'e>(
+        &self,
+        encoder: &'e mut wgpu::CommandEncoder,
+        clear: wgpu::Color,
+        timestamp_writes: Option<wgpu::RenderPassTimestampWrites<'_>>,
+    ) -> wgpu::RenderPass<'e> {
         encoder.begin_render_pass(&wgpu::RenderPassDescriptor {
             label: Some("offscreen"),
             color_attachments: &[Some(wgpu::RenderPassColorAttachment {
@@ -96,7 +106,7 @@ impl OffscreenTarget {
                 }),
                 stencil_ops: None,
             }),
-            timestamp_writes: None,
+            timestamp_writes,
             occlusion_query_set: None,
             multiview_mask: None,
         })
@@ -115,18 +125,27 @@ impl OffscreenTarget {
 
     /// Copies the colour texture to the host (waits for all submitted work).
     pub fn read_color(&self, ctx: &GpuContext) -> Result<RgbaImage, GpuError> {
+        self.read_color_with(&ctx.device, &ctx.queue)
+    }
+
+    /// [`OffscreenTarget::read_color`] for holders of a device and queue.
+    pub fn read_color_with(
+        &self,
+        device: &wgpu::Device,
+        queue: &wgpu::Queue,
+    ) -> Result<RgbaImage, GpuError> {
         let (width, height) = (self.width(), self.height());
         // Rows of a texture-to-buffer copy are padded to 256 bytes.
         let row = width * 4;
         let padded_row = row.next_multiple_of(wgpu::COPY_BYTES_PER_ROW_ALIGNMENT);
         let size = u64::from(padded_row) * u64::from(height);
-        let buffer = ctx.device.create_buffer(&wgpu::BufferDescriptor {
+        let buffer = device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("offscreen read-back"),
             size,
             usage: wgpu::BufferUsages::COPY_SRC | wgpu::BufferUsages::COPY_DST,
             mapped_at_creation: false,
         });
-        let mut encoder = ctx.device.create_command_encoder(&Default::default());
+        let mut encoder = device.create_command_encoder(&Default::default());
         encoder.copy_texture_to_buffer(
             self.color.as_image_copy(),
             wgpu::TexelCopyBufferInfo {
@@ -139,8 +158,8 @@ impl OffscreenTarget {
             },
             self.color.size(),
         );
-        ctx.queue.submit([encoder.finish()]);
-        let bytes = ctx.read_buffer(&buffer, size)?;
+        queue.submit([encoder.finish()]);
+        let bytes = crate::device::read_buffer(device, queue, &buffer, size)?;
         let mut pixels = Vec::with_capacity((width * height) as usize);
         for y in 0..height as usize {
             let line = &bytes[y * padded_row as usize..][..row as usize];

@@ -200,13 +200,23 @@ impl GpuTessellator {
         ctx: &GpuContext,
         factors: &[PatchFactors],
     ) -> Result<GpuTessOutput, GpuError> {
+        self.prepare_on(&ctx.device, &ctx.queue, factors)
+    }
+
+    /// [`GpuTessellator::prepare`] for holders of a device and queue.
+    pub fn prepare_on(
+        &self,
+        device: &wgpu::Device,
+        queue: &wgpu::Queue,
+        factors: &[PatchFactors],
+    ) -> Result<GpuTessOutput, GpuError> {
         let (mut points, mut indices) = (0u64, 0u64);
         for f in factors {
             let l = QuadLayout::new(f);
             points += u64::from(l.point_count());
             indices += 3 * u64::from(l.triangle_count());
         }
-        let limit = ctx.device.limits().max_storage_buffer_binding_size;
+        let limit = device.limits().max_storage_buffer_binding_size;
         let check = |what, count: u64, stride: usize| {
             let requested = count.max(1) * stride as u64;
             if requested > limit {
@@ -221,7 +231,6 @@ impl GpuTessellator {
         let factors_size = check("patch factors", n, size_of::<GpuPatchFactors>())?;
         let ranges_size = check("patch ranges", n, size_of::<PatchRange>())?;
 
-        let device = &ctx.device;
         let buffer = |label, size, usage| {
             device.create_buffer(&wgpu::BufferDescriptor {
                 label: Some(label),
@@ -241,7 +250,7 @@ impl GpuTessellator {
         );
         let factors_buf = buffer("tess factors", factors_size, U::STORAGE | U::COPY_DST);
         let gpu_factors: Vec<GpuPatchFactors> = factors.iter().map(Into::into).collect();
-        ctx.queue.write_buffer(&factors_buf, 0, bytemuck::cast_slice(&gpu_factors));
+        queue.write_buffer(&factors_buf, 0, bytemuck::cast_slice(&gpu_factors));
         let params = Params {
             patch_count: factors.len() as u32,
             point_capacity: points as u32,
@@ -250,7 +259,7 @@ impl GpuTessellator {
         };
         let params_buf =
             buffer("tess params", size_of::<Params>() as u64, U::UNIFORM | U::COPY_DST);
-        ctx.queue.write_buffer(&params_buf, 0, bytemuck::bytes_of(&params));
+        queue.write_buffer(&params_buf, 0, bytemuck::bytes_of(&params));
         let bind_group = device.create_bind_group(&wgpu::BindGroupDescriptor {
             label: Some("tessellate"),
             layout: &self.layout,
@@ -277,10 +286,20 @@ impl GpuTessellator {
 
     /// Records the three passes into `encoder`.
     pub fn encode(&self, encoder: &mut wgpu::CommandEncoder, out: &GpuTessOutput) {
+        self.encode_timed(encoder, out, None);
+    }
+
+    /// Like [`GpuTessellator::encode`], writing timestamps at the pass's start and end.
+    pub fn encode_timed(
+        &self,
+        encoder: &mut wgpu::CommandEncoder,
+        out: &GpuTessOutput,
+        timestamp_writes: Option<wgpu::ComputePassTimestampWrites<'_>>,
+    ) {
         let groups = out.patch_count.div_ceil(WORKGROUP);
         let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
             label: Some("tessellate"),
-            timestamp_writes: None,
+            timestamp_writes,
         });
         pass.set_bind_group(0, &out.bind_group, &[]);
         if groups > 0 {

@@ -1,0 +1,105 @@
+//! End-to-end tests of `terrain render`: the embedded default terrain (Vulkan or whatever
+//! `TERRAIN_GPU_BACKEND` picks, and GL explicitly) and the lidar prairie GeoTIFF at UTM
+//! coordinates with the default camera. Where no adapter exists the tests print why and pass,
+//! unless `TERRAIN_REQUIRE_GPU` is set: then they fail.
+
+use std::path::PathBuf;
+use std::process::Command;
+
+/// The background colour of `terrain_gpu::BACKGROUND`.
+const BACKGROUND: [u8; 4] = [255, 0, 255, 255];
+
+fn data(rel: &str) -> PathBuf {
+    let root = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("..");
+    let dir =
+        std::env::var_os("TERRAIN_DATA").map(PathBuf::from).unwrap_or(root.join("../shared/data"));
+    let p = dir.join(rel);
+    assert!(p.exists(), "test data {} is missing (set TERRAIN_DATA)", p.display());
+    p
+}
+
+/// Runs `terrain render ARGS -o <tmp>/NAME.png` (with `TERRAIN_GPU_BACKEND=backend` when
+/// given) and returns the image and stdout, or `None` when no adapter exists and none is required.
+fn render(name: &str, backend: Option<&str>, args: &[&str]) -> Option<(image::RgbaImage, String)> {
+    let dir = std::env::temp_dir().join(format!("terrain-render-cli-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let out = dir.join(format!("{name}.png"));
+    let _ = std::fs::remove_file(&out);
+    let mut cmd = Command::new(env!("CARGO_BIN_EXE_terrain"));
+    cmd.arg("render").args(args).arg("-o").arg(&out);
+    if let Some(b) = backend {
+        cmd.env("TERRAIN_GPU_BACKEND", b);
+    }
+    let output = cmd.output().expect("the terrain binary runs");
+    let stdout = String::from_utf8_lossy(&output.stdout).into_owned();
+    let stderr = String::from_utf8_lossy(&output.stderr);
+    if !output.status.success()
+        && stderr.contains("no GPU adapter")
+        && std::env::var_os("TERRAIN_REQUIRE_GPU").is_none()
+    {
+        println!("SKIPPED: {stderr}; set TERRAIN_REQUIRE_GPU=1 to make this a failure");
+        return None;
+    }
+    assert!(output.status.success(), "terrain render {args:?} failed:\n{stdout}\n{stderr}");
+    println!("{stdout}");
+    for field in ["adapter:", "patches", "triangles", "vertices", "CPU", "GPU", "wrote"] {
+        assert!(stdout.contains(field), "missing `{field}` in:\n{stdout}");
+    }
+    let image = image::open(&out).unwrap_or_else(|e| panic!("{}: {e}", out.display())).to_rgba8();
+    let _ = std::fs::remove_file(&out);
+    Some((image, stdout))
+}
+
+fn assert_terrain_drawn(image: &image::RgbaImage, size: (u32, u32)) {
+    assert_eq!(image.dimensions(), size);
+    let terrain = image.pixels().filter(|p| p.0 != BACKGROUND).count();
+    let total = (size.0 * size.1) as usize;
+    println!("{terrain} of {total} pixels show terrain");
+    assert!(terrain * 10 > total, "the terrain covers only {terrain} of {total} pixels");
+    assert!(terrain < total, "no background at all: the default camera does not frame the terrain");
+}
+
+#[test]
+fn render_the_default_terrain() {
+    let args = ["--size", "96x54", "--patch-cells", "64", "--factor", "8"];
+    let Some((image, _)) = render("default", None, &args) else { return };
+    assert_terrain_drawn(&image, (96, 54));
+}
+
+#[test]
+fn render_the_default_terrain_on_gl_with_wireframe() {
+    let args = ["--size", "80x60", "--patch-cells", "64", "--factor", "6", "--wireframe"];
+    let Some((image, stdout)) = render("default_gl", Some("gl"), &args) else { return };
+    assert!(stdout.contains("adapter:") && stdout.contains("Gl"), "not on GL:\n{stdout}");
+    assert_terrain_drawn(&image, (80, 60));
+}
+
+#[test]
+fn render_the_lidar_prairie_at_utm_coordinates() {
+    let dem = data("lidar_prairie/dem.tif");
+    let args = [dem.to_str().unwrap(), "--size", "120x80", "--patch-cells", "16", "--factor", "8"];
+    let Some((image, stdout)) = render("lidar", None, &args) else { return };
+    // The default camera stands south-west of the tile, at UTM 15N coordinates.
+    let camera = stdout.lines().find(|l| l.starts_with("camera:")).expect("a camera line");
+    let easting: f64 = camera["camera:".len()..].trim().split(',').next().unwrap().parse().unwrap();
+    assert!((420_000.0..440_000.0).contains(&easting), "{camera}");
+    assert_terrain_drawn(&image, (120, 80));
+}
+
+#[test]
+fn bad_arguments_are_reported() {
+    for (args, needle) in [
+        (&["--size", "10"][..], "--size"),
+        (&["--camera", "1,2,3"][..], "--camera"),
+        (&["--factor", "0"][..], "--factor"),
+    ] {
+        let output = Command::new(env!("CARGO_BIN_EXE_terrain"))
+            .arg("render")
+            .args(args)
+            .args(["-o", "/nonexistent/never-written.png"])
+            .output()
+            .unwrap();
+        let stderr = String::from_utf8_lossy(&output.stderr);
+        assert!(!output.status.success() && stderr.contains(needle), "{args:?}: {stderr}");
+    }
+}

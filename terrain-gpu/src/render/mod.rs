@@ -1,0 +1,123 @@
+//! Drawing a heightmap: [`TerrainRenderer`] tessellates a list of [`DrawPatch`]es with the
+//! compute tessellator ([`crate::tess::GpuTessellator`]) and draws them with one indexed
+//! indirect draw; the vertex stage (`terrain.wgsl`) maps each domain point into its patch's
+//! rect of the heightmap ([`crate::surface`] is the CPU reference) and the fragment stage
+//! shades it.
+//!
+//! **Boundary:** the renderer draws whatever patches it is given; choosing them (level of
+//! detail) is the LOD methods' job. Until those land, [`uniform_patches`] covers the grid with
+//! equal patches at one factor.
+//!
+//! Conventions: a patch's rect is `[x0, y0, x1, y1]` in grid samples, inclusive, row 0 south.
+//! Its domain `u` runs east (`x0` to `x1`), `v` north (`y0` to `y1`), and its factors follow
+//! [`PatchFactors`]: `outer = [west (u = 0), south (v = 0), east (u = 1), north (v = 1)]`.
+//! Two patches that share an edge and agree on its factor draw it without cracks.
+//!
+//! Normals: central differences of the heightmap, computed per fragment from the height
+//! texture and interpolated between samples ([`crate::surface::normal_at`]), so shading does
+//! not depend on the tessellation and no second texture is needed.
+
+mod framing;
+mod renderer;
+
+#[cfg(test)]
+mod tests;
+
+pub use framing::{clip_range, default_camera};
+pub use renderer::{FrameStats, RenderError, SurfaceReadBack, TerrainRenderer};
+
+use terrain_core::Heightmap;
+
+use crate::target::RgbaImage;
+use crate::tess::PatchFactors;
+
+/// The background colour (cleared to where no terrain is drawn): pure magenta, which the
+/// terrain shader never outputs (it keeps green above zero), so a pixel of this colour is a
+/// pixel no triangle covered.
+pub const BACKGROUND: [u8; 4] = [255, 0, 255, 255];
+
+/// One patch to draw: a rect of grid samples and its tessellation factors.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct DrawPatch {
+    /// `[x0, y0, x1, y1]`: grid samples, inclusive, row 0 = south; `x0 < x1`, `y0 < y1`.
+    pub rect: [u32; 4],
+    /// Tessellation factors (Vulkan's edge order: west, south, east, north).
+    pub factors: PatchFactors,
+}
+
+/// Covers the heightmap with patches of `patch_cells` x `patch_cells` cells (the last row and
+/// column of patches are narrower where the grid does not divide evenly), every factor equal
+/// to `factor`. Patches are ordered south to north, then west to east within a row.
+///
+/// A heightmap of one row or one column has no cell: the result is empty.
+pub fn uniform_patches(hm: &Heightmap, patch_cells: u32, factor: f32) -> Vec<DrawPatch> {
+    patches_with(hm, patch_cells, |_, _| PatchFactors::uniform(factor))
+}
+
+/// Like [`uniform_patches`], with every factor equal to the patch's number of cells along its
+/// axis: one vertex per DEM sample wherever the patch's cell counts are even (fractional-even
+/// spacing puts odd factors between samples), which holds when `patch_cells` is even and
+/// divides both `width - 1` and `height - 1`. Factors are clamped to 64 by the tessellator,
+/// so `patch_cells` above 64 is coarser than the DEM.
+pub fn full_resolution_patches(hm: &Heightmap, patch_cells: u32) -> Vec<DrawPatch> {
+    patches_with(hm, patch_cells, |w, h| {
+        let (w, h) = (w as f32, h as f32);
+        PatchFactors { inner: [w, h], outer: [h, w, h, w] }
+    })
+}
+
+/// The patch rects of [`uniform_patches`], with factors from `factors(cells_x, cells_y)`.
+pub fn patches_with(
+    hm: &Heightmap,
+    patch_cells: u32,
+    mut factors: impl FnMut(u32, u32) -> PatchFactors,
+) -> Vec<DrawPatch> {
+    let cells = patch_cells.max(1);
+    let (wmax, hmax) = (hm.width() as u32 - 1, hm.height() as u32 - 1);
+    let mut out = Vec::new();
+    let mut y0 = 0;
+    while y0 < hmax {
+        let y1 = (y0 + cells).min(hmax);
+        let mut x0 = 0;
+        while x0 < wmax {
+            let x1 = (x0 + cells).min(wmax);
+            out.push(DrawPatch { rect: [x0, y0, x1, y1], factors: factors(x1 - x0, y1 - y0) });
+            x0 = x1;
+        }
+        y0 = y1;
+    }
+    out
+}
+
+/// How the renderer is set up: target size, colours, sun.
+#[derive(Clone, Debug, PartialEq)]
+pub struct RenderConfig {
+    /// Target width in pixels. Default 1280.
+    pub width: u32,
+    /// Target height in pixels. Default 720.
+    pub height: u32,
+    /// A colour texture mapped over the whole DEM (its first row at the north edge), instead
+    /// of the height/slope ramp. Default none.
+    pub texture: Option<RgbaImage>,
+    /// Direction towards the sun in the world frame (x east, y north, z up); normalised by
+    /// the renderer. Default: from the north-west, 45 degrees up (the cartographers' light).
+    pub sun_direction: [f64; 3],
+}
+
+impl Default for RenderConfig {
+    fn default() -> Self {
+        Self { width: 1280, height: 720, texture: None, sun_direction: [-1.0, 1.0, 2f64.sqrt()] }
+    }
+}
+
+/// Per-frame drawing options.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct RenderOptions {
+    /// Darken triangle edges (barycentric edges in the fragment stage: no extra pass, no
+    /// depth fighting, no optional feature). Default off.
+    pub wireframe: bool,
+    /// When positive, hang a vertical skirt of this depth (metres) below every patch edge
+    /// that another patch shares (not below the grid's border). Skirts hide cracks; the crack
+    /// test uses them to build a reference image that has none. Default 0 (no skirts).
+    pub skirt_depth_m: f32,
+}

@@ -1,0 +1,868 @@
+//! [`TerrainRenderer`]: the heightmap on the device, the pipelines of `terrain.wgsl`, the
+//! tessellation of the last patch list (reused while the list is unchanged), timestamps, and
+//! the read-back hooks the tests compare with the CPU reference.
+
+use std::collections::HashMap;
+use std::fmt;
+use std::mem::size_of;
+use std::time::Instant;
+
+use bytemuck::{Pod, Zeroable};
+use glam::{DVec2, DVec3, Vec3};
+use terrain_core::Heightmap;
+use terrain_core::geometry::Camera;
+
+use super::{BACKGROUND, DrawPatch, RenderConfig, RenderOptions};
+use crate::device::{GpuContext, GpuError, GpuFeatures, read_buffer};
+use crate::target::{COLOR_FORMAT, OffscreenTarget, RgbaImage};
+use crate::tess::{
+    EdgeSpacing, GpuDomainPoint, GpuTessOutput, GpuTessellator, PatchFactors, QuadLayout,
+    tessellate,
+};
+
+/// The shader source.
+pub const SHADER: &str = include_str!("terrain.wgsl");
+
+/// `Frame` in `terrain.wgsl`.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
+struct GpuFrame {
+    view_proj: [[f32; 4]; 4],
+    sun: [f32; 4],
+    spacing: [f32; 2],
+    grid_max: [u32; 2],
+    height_offset: f32,
+    skirt_depth: f32,
+    height_min: f32,
+    height_range: f32,
+    flags: u32,
+    pad: [u32; 3],
+}
+
+const FLAG_WIREFRAME: u32 = 1;
+const FLAG_TEXTURE: u32 = 2;
+
+const _: () = {
+    assert!(size_of::<GpuFrame>() == 128);
+    assert!(size_of::<GpuDomainPoint>() == 16);
+};
+
+/// What one call of [`TerrainRenderer::render`] drew and what it cost.
+#[derive(Clone, Debug, PartialEq)]
+pub struct FrameStats {
+    /// Patches drawn (culled ones included).
+    pub patches: usize,
+    /// Non-degenerate triangles (fractional-even layouts contain degenerate ones; those are
+    /// drawn but not counted).
+    pub triangles: u64,
+    /// Vertices the tessellator generated (one per domain point).
+    pub vertices: u64,
+    /// Whether this frame ran the tessellator (false: the patch list was unchanged and its
+    /// tessellation was reused).
+    pub tessellated: bool,
+    /// CPU time to prepare, encode and submit the frame, milliseconds. On GL this includes
+    /// most of the driver's work: wgpu's GL backend replays the commands at submission, and
+    /// llvmpipe executes them there.
+    pub cpu_ms: f64,
+    /// GPU time of every pass of the frame, milliseconds: `None` without timestamp queries or
+    /// when a pass's timestamps cannot be trusted (see [`FrameStats::gpu_note`]).
+    pub gpu_ms: Option<f64>,
+    /// GPU time of the tessellation (compute) pass, when it ran and its timestamps are trustworthy.
+    pub gpu_tess_ms: Option<f64>,
+    /// GPU time of the render pass, where timestamp queries exist.
+    pub gpu_draw_ms: Option<f64>,
+    /// Why a GPU time is missing, if one is.
+    pub gpu_note: Option<&'static str>,
+    /// The adapter ([`GpuContext::describe`]).
+    pub adapter: String,
+}
+
+impl FrameStats {
+    /// The GPU time as a user reads it: `"12.3 ms (tessellation 2.0 + draw 10.3)"`, or
+    /// `"n/a (untrustworthy on lavapipe); draw pass 10.3 ms"`.
+    pub fn gpu_text(&self) -> String {
+        let f = |x: f64| format!("{x:.2}");
+        match (self.gpu_ms, self.gpu_tess_ms, self.gpu_draw_ms) {
+            (Some(t), Some(a), Some(b)) => {
+                format!("{} ms (tessellation {} + draw {})", f(t), f(a), f(b))
+            }
+            (Some(t), None, _) => format!("{} ms (draw only; tessellation reused)", f(t)),
+            (None, _, Some(b)) => {
+                format!("n/a ({}); draw pass {} ms", self.gpu_note.unwrap_or("unknown"), f(b))
+            }
+            _ => format!("n/a ({})", self.gpu_note.unwrap_or("unknown")),
+        }
+    }
+}
+
+impl fmt::Display for FrameStats {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(
+            f,
+            "patches {}, triangles {}, vertices {}, CPU {:.2} ms, GPU {}, adapter {}",
+            self.patches,
+            self.triangles,
+            self.vertices,
+            self.cpu_ms,
+            self.gpu_text(),
+            self.adapter
+        )
+    }
+}
+
+/// Why the renderer could not be built or could not draw.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum RenderError {
+    /// A device error (limits, read-back).
+    #[error(transparent)]
+    Gpu(#[from] GpuError),
+    /// A texture exceeds the device's 2D texture limit.
+    #[error("{what} is {width} x {height} samples; the device allows {maximum} x {maximum}")]
+    TextureTooLarge {
+        /// Which texture.
+        what: &'static str,
+        /// Its width.
+        width: u32,
+        /// Its height.
+        height: u32,
+        /// The device's limit per side.
+        maximum: u32,
+    },
+    /// A patch's rect is empty or leaves the grid.
+    #[error("patch {index} has rect {rect:?}: empty or outside the {width} x {height} grid")]
+    BadPatch {
+        /// Position in the list.
+        index: usize,
+        /// The rect.
+        rect: [u32; 4],
+        /// Grid width in samples.
+        width: u32,
+        /// Grid height in samples.
+        height: u32,
+    },
+    /// The caller's configuration is unusable.
+    #[error("invalid render configuration: {0}")]
+    InvalidConfig(String),
+}
+
+/// The tessellation of one patch list, with what draws it.
+#[derive(Debug)]
+struct Tessellation {
+    patches: Vec<DrawPatch>,
+    out: GpuTessOutput,
+    bind_group: wgpu::BindGroup,
+    triangles: u64,
+    vertices: u64,
+    skirts: Option<Skirts>,
+}
+
+#[derive(Debug)]
+struct Skirts {
+    vertices: wgpu::Buffer,
+    indices: wgpu::Buffer,
+    index_count: u32,
+}
+
+#[derive(Debug)]
+struct Timer {
+    tess: wgpu::QuerySet,
+    draw: wgpu::QuerySet,
+    tess_resolve: wgpu::Buffer,
+    draw_resolve: wgpu::Buffer,
+    period_ns: f64,
+}
+
+/// The surface of every tessellated point, computed on the device by the shader's own
+/// functions ([`TerrainRenderer::surface_read_back`]).
+#[derive(Clone, Debug, PartialEq)]
+pub struct SurfaceReadBack {
+    /// The tessellator's points.
+    pub points: Vec<GpuDomainPoint>,
+    /// Per point: position relative to the anchor (xyz) and absolute height (w).
+    pub positions: Vec<[f32; 4]>,
+    /// Per point: unit normal (xyz).
+    pub normals: Vec<[f32; 4]>,
+}
+
+/// Draws a heightmap from a list of patches into an offscreen RGBA8 target.
+#[derive(Debug)]
+pub struct TerrainRenderer {
+    device: wgpu::Device,
+    queue: wgpu::Queue,
+    features: GpuFeatures,
+    adapter: String,
+    target: OffscreenTarget,
+    tessellator: GpuTessellator,
+    layout: wgpu::BindGroupLayout,
+    debug_layout: wgpu::BindGroupLayout,
+    indexed: wgpu::RenderPipeline,
+    pulled: wgpu::RenderPipeline,
+    debug: wgpu::ComputePipeline,
+    frame: wgpu::Buffer,
+    col_x: wgpu::Buffer,
+    row_y: wgpu::Buffer,
+    heights: wgpu::TextureView,
+    color: wgpu::TextureView,
+    sampler: wgpu::Sampler,
+    has_texture: bool,
+    grid: [u32; 2],
+    origin: DVec2,
+    spacing: DVec2,
+    height_min: f32,
+    height_max: f32,
+    sun: Vec3,
+    anchor: Option<DVec3>,
+    tess: Option<Tessellation>,
+    counts: HashMap<[u32; 6], (u64, u64)>,
+    timer: Option<Timer>,
+}
+
+fn entry(binding: u32, ty: wgpu::BindingType) -> wgpu::BindGroupLayoutEntry {
+    wgpu::BindGroupLayoutEntry {
+        binding,
+        visibility: wgpu::ShaderStages::VERTEX_FRAGMENT | wgpu::ShaderStages::COMPUTE,
+        ty,
+        count: None,
+    }
+}
+
+fn storage(read_only: bool) -> wgpu::BindingType {
+    wgpu::BindingType::Buffer {
+        ty: wgpu::BufferBindingType::Storage { read_only },
+        has_dynamic_offset: false,
+        min_binding_size: None,
+    }
+}
+
+fn texture(filterable: bool) -> wgpu::BindingType {
+    wgpu::BindingType::Texture {
+        sample_type: wgpu::TextureSampleType::Float { filterable },
+        view_dimension: wgpu::TextureViewDimension::D2,
+        multisampled: false,
+    }
+}
+
+/// Factor bits: the cache key of a patch's counts.
+fn factor_key(f: &PatchFactors) -> [u32; 6] {
+    let [a, b, c, d] = f.outer.map(f32::to_bits);
+    let [e, g] = f.inner.map(f32::to_bits);
+    [a, b, c, d, e, g]
+}
+
+impl TerrainRenderer {
+    /// Uploads `hm` (as an R32Float texture; it must fit the device's 2D texture limit) and the
+    /// colour texture, if any, and builds the pipelines and a `config.width` x `config.height`
+    /// target.
+    pub fn new(
+        ctx: &GpuContext,
+        hm: &Heightmap,
+        config: &RenderConfig,
+    ) -> Result<Self, RenderError> {
+        let device = &ctx.device;
+        let maximum = device.limits().max_texture_dimension_2d;
+        let (width, height) = (hm.width() as u32, hm.height() as u32);
+        if width > maximum || height > maximum {
+            return Err(RenderError::TextureTooLarge {
+                what: "the heightmap",
+                width,
+                height,
+                maximum,
+            });
+        }
+        if config.width == 0
+            || config.height == 0
+            || config.width > maximum
+            || config.height > maximum
+        {
+            return Err(RenderError::InvalidConfig(format!(
+                "target size {} x {} (allowed 1 to {maximum} per side)",
+                config.width, config.height
+            )));
+        }
+        let sun = glam::DVec3::from(config.sun_direction);
+        if !(sun.length() > 0.0 && sun.is_finite()) {
+            return Err(RenderError::InvalidConfig(format!("sun direction {sun}")));
+        }
+
+        let size = |w, h| wgpu::Extent3d { width: w, height: h, depth_or_array_layers: 1 };
+        let upload =
+            |label, format: wgpu::TextureFormat, w: u32, h: u32, bytes: &[u8], texel: u32| {
+                let tex = device.create_texture(&wgpu::TextureDescriptor {
+                    label: Some(label),
+                    size: size(w, h),
+                    mip_level_count: 1,
+                    sample_count: 1,
+                    dimension: wgpu::TextureDimension::D2,
+                    format,
+                    usage: wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_DST,
+                    view_formats: &[],
+                });
+                ctx.queue.write_texture(
+                    tex.as_image_copy(),
+                    bytes,
+                    wgpu::TexelCopyBufferLayout {
+                        offset: 0,
+                        bytes_per_row: Some(w * texel),
+                        rows_per_image: Some(h),
+                    },
+                    size(w, h),
+                );
+                tex.create_view(&Default::default())
+            };
+        let heights = upload(
+            "heightmap",
+            wgpu::TextureFormat::R32Float,
+            width,
+            height,
+            bytemuck::cast_slice(hm.data()),
+            4,
+        );
+        let white = RgbaImage { width: 1, height: 1, pixels: vec![[255; 4]] };
+        let image = config.texture.as_ref().unwrap_or(&white);
+        if image.width > maximum || image.height > maximum {
+            return Err(RenderError::TextureTooLarge {
+                what: "the colour texture",
+                width: image.width,
+                height: image.height,
+                maximum,
+            });
+        }
+        if image.pixels.len() != (image.width * image.height) as usize || image.pixels.is_empty() {
+            return Err(RenderError::InvalidConfig(format!(
+                "colour texture of {} x {} has {} pixels",
+                image.width,
+                image.height,
+                image.pixels.len()
+            )));
+        }
+        let color = upload(
+            "colour texture",
+            wgpu::TextureFormat::Rgba8Unorm,
+            image.width,
+            image.height,
+            bytemuck::cast_slice(&image.pixels),
+            4,
+        );
+        let sampler = device.create_sampler(&wgpu::SamplerDescriptor {
+            label: Some("colour texture"),
+            mag_filter: wgpu::FilterMode::Linear,
+            min_filter: wgpu::FilterMode::Linear,
+            ..Default::default()
+        });
+
+        let layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+            label: Some("terrain"),
+            entries: &[
+                entry(
+                    0,
+                    wgpu::BindingType::Buffer {
+                        ty: wgpu::BufferBindingType::Uniform,
+                        has_dynamic_offset: false,
+                        min_binding_size: None,
+                    },
+                ),
+                entry(1, texture(false)),
+                entry(2, storage(true)),
+                entry(3, storage(true)),
+                entry(4, storage(true)),
+                entry(5, texture(true)),
+                entry(6, wgpu::BindingType::Sampler(wgpu::SamplerBindingType::Filtering)),
+                entry(7, storage(true)),
+                entry(8, storage(true)),
+            ],
+        });
+        let debug_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+            label: Some("terrain debug"),
+            entries: &[wgpu::BindGroupLayoutEntry {
+                binding: 0,
+                visibility: wgpu::ShaderStages::COMPUTE,
+                ty: storage(false),
+                count: None,
+            }],
+        });
+        let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
+            label: Some("terrain.wgsl"),
+            source: wgpu::ShaderSource::Wgsl(SHADER.into()),
+        });
+        let render_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+            label: Some("terrain"),
+            bind_group_layouts: &[Some(&layout)],
+            immediate_size: 0,
+        });
+        let attributes = wgpu::vertex_attr_array![0 => Float32x2, 1 => Uint32, 2 => Uint32];
+        let vertex_buffers = [Some(wgpu::VertexBufferLayout {
+            array_stride: size_of::<GpuDomainPoint>() as u64,
+            step_mode: wgpu::VertexStepMode::Vertex,
+            attributes: &attributes,
+        })];
+        let pipeline = |entry_point: &str, buffers: &[Option<wgpu::VertexBufferLayout<'_>>]| {
+            device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
+                label: Some(entry_point),
+                layout: Some(&render_layout),
+                vertex: wgpu::VertexState {
+                    module: &module,
+                    entry_point: Some(entry_point),
+                    compilation_options: Default::default(),
+                    buffers,
+                },
+                // No culling: skirts are seen from both sides, and a view from below is legal.
+                primitive: wgpu::PrimitiveState::default(),
+                depth_stencil: Some(OffscreenTarget::depth_state()),
+                multisample: Default::default(),
+                fragment: Some(wgpu::FragmentState {
+                    module: &module,
+                    entry_point: Some("fs"),
+                    compilation_options: Default::default(),
+                    targets: &[Some(COLOR_FORMAT.into())],
+                }),
+                multiview_mask: None,
+                cache: None,
+            })
+        };
+        let indexed = pipeline("vs_indexed", &vertex_buffers);
+        let pulled = pipeline("vs_pulled", &[]);
+        let debug_pipeline_layout =
+            device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+                label: Some("terrain debug"),
+                bind_group_layouts: &[Some(&layout), Some(&debug_layout)],
+                immediate_size: 0,
+            });
+        let debug = device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+            label: Some("debug_surface"),
+            layout: Some(&debug_pipeline_layout),
+            module: &module,
+            entry_point: Some("debug_surface"),
+            compilation_options: Default::default(),
+            cache: None,
+        });
+
+        let buffer = |label, size: u64, usage| {
+            device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some(label),
+                size,
+                usage,
+                mapped_at_creation: false,
+            })
+        };
+        use wgpu::BufferUsages as U;
+        let frame = buffer("terrain frame", size_of::<GpuFrame>() as u64, U::UNIFORM | U::COPY_DST);
+        let col_x = buffer("terrain columns", 4 * u64::from(width), U::STORAGE | U::COPY_DST);
+        let row_y = buffer("terrain rows", 4 * u64::from(height), U::STORAGE | U::COPY_DST);
+
+        let timer = ctx.features.timestamp_query.then(|| {
+            let set = |label| {
+                device.create_query_set(&wgpu::QuerySetDescriptor {
+                    label: Some(label),
+                    ty: wgpu::QueryType::Timestamp,
+                    count: 2,
+                })
+            };
+            let resolve = |label| buffer(label, 16, U::QUERY_RESOLVE | U::COPY_SRC);
+            Timer {
+                tess: set("tessellation timestamps"),
+                draw: set("draw timestamps"),
+                tess_resolve: resolve("tessellation timestamps"),
+                draw_resolve: resolve("draw timestamps"),
+                period_ns: f64::from(ctx.queue.get_timestamp_period()),
+            }
+        });
+
+        let geo = hm.georef();
+        Ok(Self {
+            device: ctx.device.clone(),
+            queue: ctx.queue.clone(),
+            features: ctx.features,
+            adapter: ctx.describe(),
+            target: OffscreenTarget::new(device, config.width, config.height),
+            tessellator: GpuTessellator::new(device),
+            layout,
+            debug_layout,
+            indexed,
+            pulled,
+            debug,
+            frame,
+            col_x,
+            row_y,
+            heights,
+            color,
+            sampler,
+            has_texture: config.texture.is_some(),
+            grid: [width, height],
+            origin: geo.world_origin,
+            spacing: geo.spacing_m,
+            height_min: hm.min(),
+            height_max: hm.max(),
+            sun: sun.normalize().as_vec3(),
+            anchor: None,
+            tess: None,
+            counts: HashMap::new(),
+            timer,
+        })
+    }
+
+    /// The target's width and height in pixels.
+    pub fn size(&self) -> (u32, u32) {
+        (self.target.width(), self.target.height())
+    }
+
+    /// The adapter, as [`GpuContext::describe`] says.
+    pub fn adapter(&self) -> &str {
+        &self.adapter
+    }
+
+    /// Where camera-relative positions are measured from for a camera at `position`: the
+    /// position rounded to whole metres (so the anchor's own f32 part is exact).
+    pub fn anchor_for(position: DVec3) -> DVec3 {
+        position.round()
+    }
+
+    fn check_patches(&self, patches: &[DrawPatch]) -> Result<(), RenderError> {
+        let [w, h] = self.grid;
+        for (index, p) in patches.iter().enumerate() {
+            let [x0, y0, x1, y1] = p.rect;
+            if !(x0 < x1 && y0 < y1 && x1 < w && y1 < h) {
+                return Err(RenderError::BadPatch { index, rect: p.rect, width: w, height: h });
+            }
+        }
+        Ok(())
+    }
+
+    /// Counts (non-degenerate triangles, points) of the patch list, cached per factor set.
+    fn count(&mut self, patches: &[DrawPatch]) -> (u64, u64) {
+        let (mut triangles, mut points) = (0, 0);
+        for p in patches {
+            let (t, v) = *self.counts.entry(factor_key(&p.factors)).or_insert_with(|| {
+                let mesh = tessellate(&p.factors);
+                (mesh.non_degenerate_triangle_count() as u64, mesh.points.len() as u64)
+            });
+            triangles += t;
+            points += v;
+        }
+        (triangles, points)
+    }
+
+    /// Makes `patches` the current tessellation (allocating its buffers) unless it already
+    /// is; returns whether the tessellator must run.
+    fn prepare(&mut self, patches: &[DrawPatch]) -> Result<bool, RenderError> {
+        if self.tess.as_ref().is_some_and(|t| t.patches == patches) {
+            return Ok(false);
+        }
+        self.check_patches(patches)?;
+        let factors: Vec<PatchFactors> = patches.iter().map(|p| p.factors).collect();
+        let ctx_out = {
+            // GpuTessellator::prepare needs a GpuContext only for its device and queue.
+            self.prepare_output(&factors)?
+        };
+        let mut rects: Vec<[u32; 4]> = patches.iter().map(|p| p.rect).collect();
+        if rects.is_empty() {
+            rects.push([0; 4]);
+        }
+        let rects_buf = self.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("patch rects"),
+            size: (rects.len() * 16) as u64,
+            usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        self.queue.write_buffer(&rects_buf, 0, bytemuck::cast_slice(&rects));
+        let bind = |binding, resource| wgpu::BindGroupEntry { binding, resource };
+        let bind_group = self.device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some("terrain"),
+            layout: &self.layout,
+            entries: &[
+                bind(0, self.frame.as_entire_binding()),
+                bind(1, wgpu::BindingResource::TextureView(&self.heights)),
+                bind(2, rects_buf.as_entire_binding()),
+                bind(3, self.col_x.as_entire_binding()),
+                bind(4, self.row_y.as_entire_binding()),
+                bind(5, wgpu::BindingResource::TextureView(&self.color)),
+                bind(6, wgpu::BindingResource::Sampler(&self.sampler)),
+                bind(7, ctx_out.points.as_entire_binding()),
+                bind(8, ctx_out.indices.as_entire_binding()),
+            ],
+        });
+        let (triangles, vertices) = self.count(patches);
+        self.tess = Some(Tessellation {
+            patches: patches.to_vec(),
+            out: ctx_out,
+            bind_group,
+            triangles,
+            vertices,
+            skirts: None,
+        });
+        Ok(true)
+    }
+
+    fn prepare_output(&self, factors: &[PatchFactors]) -> Result<GpuTessOutput, GpuError> {
+        self.tessellator.prepare_on(&self.device, &self.queue, factors)
+    }
+
+    /// Writes the per-frame uniform and, when the anchor moved, the column and row offsets.
+    fn write_frame(&mut self, camera: &Camera, options: &RenderOptions) {
+        let anchor = Self::anchor_for(camera.position);
+        if self.anchor != Some(anchor) {
+            let offsets = |n: u32, origin: f64, step: f64, at: f64| -> Vec<f32> {
+                (0..n).map(|k| (origin + f64::from(k) * step - at) as f32).collect()
+            };
+            let cols = offsets(self.grid[0], self.origin.x, self.spacing.x, anchor.x);
+            let rows = offsets(self.grid[1], self.origin.y, self.spacing.y, anchor.y);
+            self.queue.write_buffer(&self.col_x, 0, bytemuck::cast_slice(&cols));
+            self.queue.write_buffer(&self.row_y, 0, bytemuck::cast_slice(&rows));
+            self.anchor = Some(anchor);
+        }
+        let mut flags = 0;
+        if options.wireframe {
+            flags |= FLAG_WIREFRAME;
+        }
+        if self.has_texture {
+            flags |= FLAG_TEXTURE;
+        }
+        let frame = GpuFrame {
+            view_proj: camera.view_proj_for_anchor(anchor).to_cols_array_2d(),
+            sun: self.sun.extend(0.0).to_array(),
+            spacing: self.spacing.as_vec2().to_array(),
+            grid_max: [self.grid[0] - 1, self.grid[1] - 1],
+            height_offset: (-anchor.z) as f32,
+            skirt_depth: options.skirt_depth_m.max(0.0),
+            height_min: self.height_min,
+            height_range: self.height_max - self.height_min,
+            flags,
+            pad: [0; 3],
+        };
+        self.queue.write_buffer(&self.frame, 0, bytemuck::bytes_of(&frame));
+    }
+
+    /// Draws `patches` as seen by `camera` (its viewport is replaced by the target's size) and
+    /// waits for the device, so the returned GPU times are final. The tessellation is reused
+    /// while `patches` is unchanged from the previous call.
+    pub fn render(
+        &mut self,
+        camera: &Camera,
+        patches: &[DrawPatch],
+        options: &RenderOptions,
+    ) -> Result<FrameStats, RenderError> {
+        let start = Instant::now();
+        let (w, h) = self.size();
+        let camera = camera.with_viewport(f64::from(w), f64::from(h));
+        let tessellate_now = self.prepare(patches)?;
+        if options.skirt_depth_m > 0.0 {
+            self.build_skirts();
+        }
+        self.write_frame(&camera, options);
+        let tess = self.tess.as_ref().expect("prepared above");
+        let mut encoder = self.device.create_command_encoder(&Default::default());
+        let timer = self.timer.as_ref();
+        if tessellate_now {
+            let writes = timer.map(|t| wgpu::ComputePassTimestampWrites {
+                query_set: &t.tess,
+                beginning_of_pass_write_index: Some(0),
+                end_of_pass_write_index: Some(1),
+            });
+            self.tessellator.encode_timed(&mut encoder, &tess.out, writes);
+        }
+        {
+            let [r, g, b, a] = BACKGROUND.map(|c| f64::from(c) / 255.0);
+            let writes = timer.map(|t| wgpu::RenderPassTimestampWrites {
+                query_set: &t.draw,
+                beginning_of_pass_write_index: Some(0),
+                end_of_pass_write_index: Some(1),
+            });
+            let mut pass =
+                self.target.begin_timed_pass(&mut encoder, wgpu::Color { r, g, b, a }, writes);
+            pass.set_bind_group(0, &tess.bind_group, &[]);
+            if options.wireframe {
+                // The non-indexed draw reads the indexed arguments: their first four words
+                // (index count, 1, 0, 0) are (vertex count, instances, first vertex, first
+                // instance).
+                pass.set_pipeline(&self.pulled);
+                pass.draw_indirect(&tess.out.draw_args, 0);
+            } else {
+                pass.set_pipeline(&self.indexed);
+                pass.set_vertex_buffer(0, tess.out.points.slice(..));
+                pass.set_index_buffer(tess.out.indices.slice(..), wgpu::IndexFormat::Uint32);
+                pass.draw_indexed_indirect(&tess.out.draw_args, 0);
+            }
+            if let Some(s) =
+                tess.skirts.as_ref().filter(|s| options.skirt_depth_m > 0.0 && s.index_count > 0)
+            {
+                pass.set_pipeline(&self.indexed);
+                pass.set_vertex_buffer(0, s.vertices.slice(..));
+                pass.set_index_buffer(s.indices.slice(..), wgpu::IndexFormat::Uint32);
+                pass.draw_indexed(0..s.index_count, 0, 0..1);
+            }
+        }
+        if let Some(t) = timer {
+            if tessellate_now {
+                encoder.resolve_query_set(&t.tess, 0..2, &t.tess_resolve, 0);
+            }
+            encoder.resolve_query_set(&t.draw, 0..2, &t.draw_resolve, 0);
+        }
+        self.queue.submit([encoder.finish()]);
+        let cpu_ms = start.elapsed().as_secs_f64() * 1e3;
+
+        let mut stats = FrameStats {
+            patches: patches.len(),
+            triangles: tess.triangles,
+            vertices: tess.vertices,
+            tessellated: tessellate_now,
+            cpu_ms,
+            gpu_ms: None,
+            gpu_tess_ms: None,
+            gpu_draw_ms: None,
+            gpu_note: Some("no timestamp queries on this adapter"),
+            adapter: self.adapter.clone(),
+        };
+        if let Some(t) = timer {
+            let read = |buf: &wgpu::Buffer| -> Result<f64, GpuError> {
+                let bytes = read_buffer(&self.device, &self.queue, buf, 16)?;
+                let [begin, end]: [u64; 2] = bytemuck::pod_read_unaligned(&bytes);
+                Ok(end.saturating_sub(begin) as f64 * t.period_ns * 1e-6)
+            };
+            let draw = read(&t.draw_resolve)?;
+            stats.gpu_draw_ms = Some(draw);
+            stats.gpu_note = None;
+            if !tessellate_now {
+                stats.gpu_ms = Some(draw);
+            } else if self.features.compute_timestamps_trustworthy {
+                let tess_ms = read(&t.tess_resolve)?;
+                stats.gpu_tess_ms = Some(tess_ms);
+                stats.gpu_ms = Some(tess_ms + draw);
+            } else {
+                stats.gpu_note = Some("untrustworthy on lavapipe");
+            }
+        }
+        Ok(stats)
+    }
+
+    /// Builds the skirts of the current tessellation (once): below every patch edge that is
+    /// not on the grid's border, a strip from the edge's points (top) to the same points
+    /// dropped by the frame's skirt depth (bottom; the vertex stage does the dropping).
+    fn build_skirts(&mut self) {
+        let [w, h] = self.grid;
+        let Some(tess) = self.tess.as_mut() else { return };
+        if tess.skirts.is_some() {
+            return;
+        }
+        let mut vertices: Vec<GpuDomainPoint> = Vec::new();
+        let mut indices: Vec<u32> = Vec::new();
+        for (k, p) in tess.patches.iter().enumerate() {
+            if QuadLayout::new(&p.factors).culled {
+                continue;
+            }
+            let [x0, y0, x1, y1] = p.rect;
+            let interior = [x0 > 0, y0 > 0, x1 < w - 1, y1 < h - 1];
+            for (edge, _) in interior.iter().enumerate().filter(|&(_, &inside)| inside) {
+                let spacing = EdgeSpacing::new(p.factors.outer[edge]);
+                let base = vertices.len() as u32;
+                for q in 0..spacing.point_count() {
+                    let t = spacing.place(q);
+                    let uv = match edge {
+                        0 => [0.0, t],
+                        1 => [t, 0.0],
+                        2 => [1.0, t],
+                        _ => [t, 1.0],
+                    };
+                    for skirt in [0, 1] {
+                        vertices.push(GpuDomainPoint { uv, patch_index: k as u32, pad: skirt });
+                    }
+                }
+                for q in 0..spacing.point_count() - 1 {
+                    let (a, b) = (base + 2 * q, base + 2 * q + 2);
+                    indices.extend_from_slice(&[a, b, a + 1, b, b + 1, a + 1]);
+                }
+            }
+        }
+        let buffer = |label, bytes: &[u8], usage| {
+            let buf = self.device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some(label),
+                size: (bytes.len() as u64).max(16),
+                usage: usage | wgpu::BufferUsages::COPY_DST,
+                mapped_at_creation: false,
+            });
+            self.queue.write_buffer(&buf, 0, bytes);
+            buf
+        };
+        tess.skirts = Some(Skirts {
+            vertices: buffer(
+                "skirt points",
+                bytemuck::cast_slice(&vertices),
+                wgpu::BufferUsages::VERTEX,
+            ),
+            indices: buffer(
+                "skirt indices",
+                bytemuck::cast_slice(&indices),
+                wgpu::BufferUsages::INDEX,
+            ),
+            index_count: indices.len() as u32,
+        });
+    }
+
+    /// The last frame's colour image (waits for the device).
+    pub fn read_image(&self) -> Result<RgbaImage, GpuError> {
+        self.target.read_color_with(&self.device, &self.queue)
+    }
+
+    /// Test hook: tessellates `patches` and evaluates, on the device, the shader's own surface
+    /// functions (those the vertex and fragment stages call) at every tessellated point, for
+    /// the anchor a camera at `camera_position` would use ([`TerrainRenderer::anchor_for`]).
+    /// Compare with [`crate::surface::vertex_position`] and [`crate::surface::normal_at`].
+    pub fn surface_read_back(
+        &mut self,
+        camera_position: DVec3,
+        patches: &[DrawPatch],
+    ) -> Result<SurfaceReadBack, RenderError> {
+        let tessellate_now = self.prepare(patches)?;
+        let camera = Camera::from_yaw_pitch(camera_position, 0.0, 0.0);
+        self.write_frame(&camera, &RenderOptions::default());
+        let tess = self.tess.as_ref().expect("prepared above");
+        let n = tess.out.point_capacity;
+        let groups = n.div_ceil(64);
+        let limit = self.device.limits().max_compute_workgroups_per_dimension;
+        if groups > limit {
+            return Err(GpuError::LimitExceeded {
+                what: "surface read-back workgroups",
+                requested: u64::from(groups),
+                maximum: u64::from(limit),
+            }
+            .into());
+        }
+        let out_size = (u64::from(n) * 32).max(32);
+        let out = self.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("surface read-back"),
+            size: out_size,
+            usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC,
+            mapped_at_creation: false,
+        });
+        let debug_group = self.device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some("terrain debug"),
+            layout: &self.debug_layout,
+            entries: &[wgpu::BindGroupEntry { binding: 0, resource: out.as_entire_binding() }],
+        });
+        let mut encoder = self.device.create_command_encoder(&Default::default());
+        if tessellate_now {
+            self.tessellator.encode(&mut encoder, &tess.out);
+        }
+        {
+            let mut pass = encoder.begin_compute_pass(&Default::default());
+            pass.set_pipeline(&self.debug);
+            pass.set_bind_group(0, &tess.bind_group, &[]);
+            pass.set_bind_group(1, &debug_group, &[]);
+            if groups > 0 {
+                pass.dispatch_workgroups(groups, 1, 1);
+            }
+        }
+        self.queue.submit([encoder.finish()]);
+        let points = read_buffer(&self.device, &self.queue, &tess.out.points, u64::from(n) * 16)?;
+        let values: Vec<[f32; 4]> = bytemuck::pod_collect_to_vec(&read_buffer(
+            &self.device,
+            &self.queue,
+            &out,
+            u64::from(n) * 32,
+        )?);
+        Ok(SurfaceReadBack {
+            points: bytemuck::pod_collect_to_vec(&points),
+            positions: values.iter().step_by(2).copied().collect(),
+            normals: values.iter().skip(1).step_by(2).copied().collect(),
+        })
+    }
+}

@@ -1,0 +1,546 @@
+//! GPU tests of the terrain renderer, on Vulkan (lavapipe here) and GL (llvmpipe): the
+//! shader's surface against the CPU reference, crack-freedom, a golden image, wireframe,
+//! colour texture orientation and frame statistics. Where no adapter exists the tests print
+//! why and pass, unless `TERRAIN_REQUIRE_GPU` is set: then they fail.
+
+use std::path::PathBuf;
+
+use glam::{DVec3, dvec3};
+use terrain_core::Heightmap;
+use terrain_core::geometry::Camera;
+use terrain_core::synth::{HardCase, default_terrain};
+
+use super::*;
+use crate::device::{BackendChoice, GpuContext, GpuError, REQUIRE_ENV};
+use crate::surface;
+use crate::tess::{PatchFactors, tessellate};
+
+/// A context on `backend`, or `None` (with the reason printed) where none exists and none is required.
+fn context(backend: BackendChoice) -> Option<GpuContext> {
+    match GpuContext::on_backend(backend) {
+        Ok(ctx) => {
+            println!("adapter: {}", ctx.describe());
+            let want = if backend == BackendChoice::Gl {
+                wgpu::Backend::Gl
+            } else {
+                wgpu::Backend::Vulkan
+            };
+            assert_eq!(ctx.adapter_info().backend, want, "{}", ctx.describe());
+            Some(ctx)
+        }
+        Err(e @ GpuError::NoAdapter { .. }) if std::env::var_os(REQUIRE_ENV).is_none() => {
+            println!("SKIPPED: {e}; set {REQUIRE_ENV}=1 to make this a failure");
+            None
+        }
+        Err(e) => panic!("{backend:?}: {e}"),
+    }
+}
+
+/// Deterministic generator (SplitMix64).
+struct Rng(u64);
+
+impl Rng {
+    fn next(&mut self) -> u64 {
+        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
+        let mut z = self.0;
+        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+        z ^ (z >> 31)
+    }
+
+    /// Uniform in `[lo, hi)`.
+    fn range(&mut self, lo: f32, hi: f32) -> f32 {
+        lo + (hi - lo) * ((self.next() >> 40) as f32 / (1u64 << 24) as f32)
+    }
+}
+
+/// Patches of `patch_cells` with random factors in `[lo, hi)`: every patch's inner factors
+/// are its own, and every edge factor is drawn once per edge and used by both patches that
+/// share it, so neighbours agree on shared edges. With `agree == false` each patch draws its
+/// own edge factors (the negative control: cracks expected).
+fn random_patches(
+    hm: &Heightmap,
+    patch_cells: u32,
+    lo: f32,
+    hi: f32,
+    seed: u64,
+    agree: bool,
+) -> Vec<DrawPatch> {
+    let mut rng = Rng(seed);
+    let mut patches = uniform_patches(hm, patch_cells, 1.0);
+    let xs: Vec<u32> = {
+        let mut v: Vec<u32> = patches.iter().map(|p| p.rect[0]).collect();
+        v.sort_unstable();
+        v.dedup();
+        v
+    };
+    let ys: Vec<u32> = {
+        let mut v: Vec<u32> = patches.iter().map(|p| p.rect[1]).collect();
+        v.sort_unstable();
+        v.dedup();
+        v
+    };
+    let (nx, ny) = (xs.len(), ys.len());
+    // Vertical edges: (nx + 1) per patch row; horizontal edges: nx per patch-row boundary.
+    let vertical: Vec<f32> = (0..(nx + 1) * ny).map(|_| rng.range(lo, hi)).collect();
+    let horizontal: Vec<f32> = (0..nx * (ny + 1)).map(|_| rng.range(lo, hi)).collect();
+    for (k, p) in patches.iter_mut().enumerate() {
+        let (c, r) = (k % nx, k / nx);
+        let outer = if agree {
+            [
+                vertical[r * (nx + 1) + c],
+                horizontal[r * nx + c],
+                vertical[r * (nx + 1) + c + 1],
+                horizontal[(r + 1) * nx + c],
+            ]
+        } else {
+            [rng.range(lo, hi), rng.range(lo, hi), rng.range(lo, hi), rng.range(lo, hi)]
+        };
+        p.factors = PatchFactors { inner: [rng.range(lo, hi), rng.range(lo, hi)], outer };
+    }
+    patches
+}
+
+fn data_dir() -> PathBuf {
+    std::env::var_os("TERRAIN_DATA")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../shared/data"))
+}
+
+fn puget_sound() -> Heightmap {
+    let path = data_dir().join("puget_sound/ps_height_1k.png");
+    let options = terrain_core::dem::LoadOptions {
+        vertical_scale: 0.1,
+        spacing_m: 160.0,
+        ..Default::default()
+    };
+    terrain_core::dem::load(&path, &options)
+        .unwrap_or_else(|e| panic!("{e} (set TERRAIN_DATA to the shared data folder)"))
+        .heightmap
+}
+
+fn config(width: u32, height: u32) -> RenderConfig {
+    RenderConfig { width, height, ..Default::default() }
+}
+
+// ---------------------------------------------------------------------------------------
+// The vertex stage's surface against the CPU reference.
+
+fn surface_matches_reference(backend: BackendChoice) {
+    let Some(ctx) = context(backend) else { return };
+    // The default fractal (local metres) and the same fractal at UTM 11N coordinates
+    // (easting 500 000 m, northing 4 000 000 m), where absolute f32 would lose metres.
+    let cases: [(&str, Heightmap); 2] =
+        [("default", default_terrain()), ("huge_origin", HardCase::HugeOrigin.build())];
+    for (name, hm) in &cases {
+        let mut renderer = TerrainRenderer::new(&ctx, hm, &config(64, 64)).unwrap();
+        let mut patches = random_patches(hm, 16, 1.0, 17.0, 7, true);
+        patches.extend(uniform_patches(hm, 32, 6.5));
+        let origin = hm.georef().world_origin;
+        // A camera 300 m above a point a third of the way in, not on a whole metre.
+        let g = glam::dvec2(hm.width() as f64 / 3.0, hm.height() as f64 / 2.7);
+        let eye = (origin + g * hm.georef().spacing_m).extend(f64::from(hm.max()) + 300.0)
+            + dvec3(0.37, 0.61, 0.25);
+        let anchor = TerrainRenderer::anchor_for(eye);
+        let back = renderer.surface_read_back(eye, &patches).unwrap();
+        assert!(!back.points.is_empty());
+        let (mut worst, mut worst_near, mut worst_normal) = (0.0f64, 0.0f64, 0.0f32);
+        for (k, p) in back.points.iter().enumerate() {
+            let patch = &patches[p.patch_index as usize];
+            let want = surface::vertex_position(hm, patch, p.uv) - anchor;
+            let got = back.positions[k];
+            let got_v = DVec3::new(got[0].into(), got[1].into(), got[2].into());
+            let err = (got_v - want).length();
+            // f32 holds the offset from the anchor: allow 1 mm plus two f32 ulps at its distance.
+            let tolerance = 1e-3 + 2.5e-7 * want.length();
+            assert!(
+                err <= tolerance,
+                "{name}: point {k} {p:?}: gpu {got_v} cpu {want}, |d| = {err}"
+            );
+            worst = worst.max(err);
+            if want.length() < 2000.0 {
+                worst_near = worst_near.max(err);
+            }
+            let g = surface::grid_coords(patch, p.uv);
+            let n = surface::normal_at(hm, g);
+            let dn = (glam::Vec3::new(back.normals[k][0], back.normals[k][1], back.normals[k][2])
+                - n)
+                .length();
+            assert!(dn <= 1e-4, "{name}: point {k} normal gpu {:?} cpu {n}", back.normals[k]);
+            worst_normal = worst_normal.max(dn);
+        }
+        println!(
+            "{name}: {} points; max |gpu - cpu| = {worst:.2e} m ({worst_near:.2e} m within 2 km of the camera); normals {worst_normal:.1e}",
+            back.points.len()
+        );
+        assert!(worst_near <= 1e-3, "{name}: {worst_near} m within 2 km");
+    }
+}
+
+#[test]
+fn surface_matches_reference_on_vulkan() {
+    surface_matches_reference(BackendChoice::Vulkan);
+}
+
+#[test]
+fn surface_matches_reference_on_gl() {
+    surface_matches_reference(BackendChoice::Gl);
+}
+
+// ---------------------------------------------------------------------------------------
+// Cracks.
+//
+// Why the reference is not a full-resolution render: a coarse tessellation has a different
+// silhouette from the full-resolution surface (a ridge drawn with fewer vertices is lower),
+// so background legitimately appears above coarse ridges where the full-resolution reference
+// shows terrain; no erosion by a fixed number of pixels separates that from a crack. The
+// reference is instead the *same* tessellation plus skirts hanging below every shared patch
+// edge (`RenderOptions::skirt_depth_m`). With every camera above the surface and inside the
+// grid's footprint, a ray reaching a point below the surface crosses the (crack-free) surface
+// first, so skirts are hidden everywhere except through cracks: a pixel that is background in
+// the plain render but terrain in the skirted one is a crack, and the comparison is exact
+// (both renders rasterise the identical surface triangles; no erosion). The negative control
+// below checks that mismatched edge factors do show up this way. Set TERRAIN_TEST_DUMP to a
+// folder to get both images of every camera as PNGs.
+
+/// At least 20 cameras over `hm`: inside the footprint, above every sample within
+/// `margin_cells` of their position, pitches from straight down to grazing, all yaws.
+fn crack_cameras(hm: &Heightmap, margin_cells: usize) -> Vec<Camera> {
+    let pitches = [-90.0, -65.0, -40.0, -20.0, -8.0, -3.0, -1.5];
+    // Small grids with high relief (the hard cases) would be out of view from high up.
+    let extent = hm.extent_m();
+    let relief = f64::from(hm.max() - hm.min()).min(0.25 * extent.x.min(extent.y)).max(50.0);
+    let centre = hm.grid_to_world((hm.width() - 1) as f64 / 2.0, (hm.height() - 1) as f64 / 2.0);
+    let (w, h) = (hm.width(), hm.height());
+    (0..21)
+        .map(|k| {
+            let kf = k as f64;
+            let fx = 0.1 + 0.8 * (kf * 0.618_034).fract();
+            let fy = 0.1 + 0.8 * (kf * 0.381_966 + 0.3).fract();
+            let (i, j) = ((fx * (w - 1) as f64) as usize, (fy * (h - 1) as f64) as usize);
+            let mut ground = f32::MIN;
+            for jj in j.saturating_sub(margin_cells)..=(j + margin_cells).min(h - 1) {
+                for ii in i.saturating_sub(margin_cells)..=(i + margin_cells).min(w - 1) {
+                    ground = ground.max(hm.get(ii, jj));
+                }
+            }
+            let pitch = pitches[k % pitches.len()];
+            // Grazing views stay low, or they see nothing but sky.
+            let scale: f64 = [0.02, 0.1, 0.35, 1.2][k % 4];
+            let above = if pitch > -10.0 { scale.min(0.1) } else { scale } * relief + 5.0;
+            let xy = hm.grid_to_world(i as f64, j as f64);
+            let eye = xy.extend(f64::from(ground) + above);
+            let (near, far) = clip_range(hm, eye);
+            // Roughly towards the centre (compass heading), give or take 60 degrees.
+            let to_centre = centre - xy;
+            let yaw = to_centre.x.atan2(to_centre.y).to_degrees() + (kf * 47.0) % 120.0 - 60.0;
+            Camera::from_yaw_pitch(eye, yaw, pitch).with_fov_y_deg(60.0).with_clip(near, far)
+        })
+        .collect()
+}
+
+/// Renders `patches` from every camera with and without skirts; returns the number of crack
+/// pixels (background without skirts, terrain with them) per camera.
+fn crack_pixels(
+    ctx: &GpuContext,
+    hm: &Heightmap,
+    patches: &[DrawPatch],
+    cameras: &[Camera],
+) -> Vec<usize> {
+    let mut renderer = TerrainRenderer::new(ctx, hm, &config(256, 144)).unwrap();
+    let skirt = RenderOptions { skirt_depth_m: hm.max() - hm.min() + 10.0, ..Default::default() };
+    cameras
+        .iter()
+        .map(|camera| {
+            renderer.render(camera, patches, &RenderOptions::default()).unwrap();
+            let plain = renderer.read_image().unwrap();
+            renderer.render(camera, patches, &skirt).unwrap();
+            let reference = renderer.read_image().unwrap();
+            if let Some(dir) = std::env::var_os("TERRAIN_TEST_DUMP") {
+                for (tag, im) in [("plain", &plain), ("skirts", &reference)] {
+                    let path = PathBuf::from(&dir).join(format!("{}_{tag}.png", camera.position));
+                    let raw: Vec<u8> = im.pixels.iter().flatten().copied().collect();
+                    image::save_buffer(path, &raw, im.width, im.height, image::ColorType::Rgba8)
+                        .unwrap();
+                }
+            }
+            let terrain = plain.pixels.iter().filter(|&&p| p != BACKGROUND).count();
+            assert!(terrain > 0, "camera {camera:?} sees no terrain");
+            plain
+                .pixels
+                .iter()
+                .zip(&reference.pixels)
+                .filter(|&(&a, &b)| a == BACKGROUND && b != BACKGROUND)
+                .count()
+        })
+        .collect()
+}
+
+fn no_cracks(
+    backend: BackendChoice,
+    name: &str,
+    hm: &Heightmap,
+    patch_cells: u32,
+    uniform_factor: f32,
+) {
+    let Some(ctx) = context(backend) else { return };
+    let cameras = crack_cameras(hm, patch_cells as usize + 1);
+    let sets = [
+        ("uniform", uniform_patches(hm, patch_cells, uniform_factor)),
+        ("random", random_patches(hm, patch_cells, 1.0, patch_cells as f32 + 1.0, 11, true)),
+    ];
+    for (kind, patches) in &sets {
+        let cracks = crack_pixels(&ctx, hm, patches, &cameras);
+        println!(
+            "{name} {kind}: {} patches, {} cameras, crack pixels {cracks:?}",
+            patches.len(),
+            cameras.len()
+        );
+        assert!(cracks.iter().all(|&c| c == 0), "{name} {kind}: cracks {cracks:?}");
+    }
+}
+
+#[test]
+fn no_cracks_default_fractal_vulkan() {
+    no_cracks(BackendChoice::Vulkan, "default", &default_terrain(), 32, 9.5);
+}
+
+#[test]
+fn no_cracks_default_fractal_gl() {
+    no_cracks(BackendChoice::Gl, "default", &default_terrain(), 32, 9.5);
+}
+
+#[test]
+fn no_cracks_hard_cases_vulkan() {
+    no_cracks(BackendChoice::Vulkan, "cliff", &HardCase::Cliff.build(), 8, 3.3);
+    no_cracks(BackendChoice::Vulkan, "spike", &HardCase::Spike.build(), 8, 5.0);
+}
+
+#[test]
+fn no_cracks_hard_cases_gl() {
+    no_cracks(BackendChoice::Gl, "cliff", &HardCase::Cliff.build(), 8, 3.3);
+    no_cracks(BackendChoice::Gl, "spike", &HardCase::Spike.build(), 8, 5.0);
+}
+
+#[test]
+fn no_cracks_puget_sound_vulkan() {
+    no_cracks(BackendChoice::Vulkan, "puget_sound", &puget_sound(), 32, 12.0);
+}
+
+#[test]
+fn no_cracks_puget_sound_gl() {
+    no_cracks(BackendChoice::Gl, "puget_sound", &puget_sound(), 32, 12.0);
+}
+
+/// The negative control: neighbours that disagree on shared edge factors crack, and the
+/// comparison above sees it.
+#[test]
+fn mismatched_edges_are_detected_as_cracks() {
+    let Some(ctx) = context(BackendChoice::Vulkan) else { return };
+    let hm = default_terrain();
+    let patches = random_patches(&hm, 32, 1.0, 33.0, 5, false);
+    let cameras = crack_cameras(&hm, 33);
+    let cracks = crack_pixels(&ctx, &hm, &patches, &cameras[..7]);
+    println!("mismatched edges: crack pixels {cracks:?}");
+    assert!(cracks.iter().sum::<usize>() > 0, "no crack found: the crack test cannot see cracks");
+}
+
+// ---------------------------------------------------------------------------------------
+// Golden image.
+
+/// Regenerate with `TERRAIN_UPDATE_GOLDEN=1 cargo test -p terrain-gpu golden` (writes the
+/// PNG from the Vulkan path; the GL test only compares).
+const UPDATE_GOLDEN_ENV: &str = "TERRAIN_UPDATE_GOLDEN";
+
+fn golden_path() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tests/golden/default_160x90.png")
+}
+
+fn golden_render(ctx: &GpuContext) -> RgbaImage {
+    let hm = default_terrain();
+    let camera = default_camera(&hm, 160, 90, 50.0);
+    let mut renderer = TerrainRenderer::new(ctx, &hm, &config(160, 90)).unwrap();
+    renderer.render(&camera, &uniform_patches(&hm, 32, 16.0), &RenderOptions::default()).unwrap();
+    renderer.read_image().unwrap()
+}
+
+fn golden(backend: BackendChoice) {
+    let Some(ctx) = context(backend) else { return };
+    let image = golden_render(&ctx);
+    let path = golden_path();
+    let update = std::env::var_os(UPDATE_GOLDEN_ENV).is_some();
+    if update && backend == BackendChoice::Vulkan {
+        std::fs::create_dir_all(path.parent().unwrap()).unwrap();
+        let raw: Vec<u8> = image.pixels.iter().flatten().copied().collect();
+        image::save_buffer(&path, &raw, image.width, image.height, image::ColorType::Rgba8)
+            .unwrap();
+        println!("wrote {}", path.display());
+    }
+    let want = image::open(&path)
+        .unwrap_or_else(|e| {
+            panic!("{}: {e}; regenerate with {UPDATE_GOLDEN_ENV}=1", path.display())
+        })
+        .to_rgba8();
+    assert_eq!((want.width(), want.height()), (image.width, image.height));
+    let (mut sum, mut far_off) = ([0u64; 3], 0usize);
+    for (got, want) in image.pixels.iter().zip(want.pixels()) {
+        let mut off = false;
+        for c in 0..3 {
+            let d = got[c].abs_diff(want.0[c]);
+            sum[c] += u64::from(d);
+            off |= d > 16;
+        }
+        far_off += usize::from(off);
+    }
+    let n = image.pixels.len() as f64;
+    let mean = sum.map(|s| s as f64 / n);
+    let far_fraction = far_off as f64 / n;
+    println!(
+        "golden: mean |diff| per channel {mean:.3?}, {:.3} % of pixels off by > 16",
+        far_fraction * 100.0
+    );
+    assert!(mean.iter().all(|&m| m < 2.0), "mean abs diff {mean:?}");
+    assert!(far_fraction < 0.01, "{far_off} pixels off by more than 16 levels");
+}
+
+#[test]
+fn golden_image_on_vulkan() {
+    golden(BackendChoice::Vulkan);
+}
+
+#[test]
+fn golden_image_on_gl() {
+    golden(BackendChoice::Gl);
+}
+
+// ---------------------------------------------------------------------------------------
+// Wireframe, texture, statistics.
+
+fn wireframe_covers_the_same_pixels(backend: BackendChoice) {
+    let Some(ctx) = context(backend) else { return };
+    let hm = HardCase::Cliff.build();
+    let mut renderer = TerrainRenderer::new(&ctx, &hm, &config(200, 120)).unwrap();
+    let camera = default_camera(&hm, 200, 120, 60.0);
+    let patches = uniform_patches(&hm, 16, 2.0);
+    renderer.render(&camera, &patches, &RenderOptions::default()).unwrap();
+    let plain = renderer.read_image().unwrap();
+    renderer
+        .render(&camera, &patches, &RenderOptions { wireframe: true, ..Default::default() })
+        .unwrap();
+    let wire = renderer.read_image().unwrap();
+    let mask = |i: &RgbaImage| i.pixels.iter().map(|&p| p == BACKGROUND).collect::<Vec<_>>();
+    let differ = mask(&plain).iter().zip(&mask(&wire)).filter(|(a, b)| a != b).count();
+    let dark = wire.pixels.iter().filter(|p| p != &&BACKGROUND && p[0] < 40 && p[1] < 40).count();
+    println!("wireframe: {differ} pixels change coverage, {dark} dark edge pixels");
+    assert_eq!(differ, 0, "the pulled (wireframe) draw covers other pixels than the indexed one");
+    assert!(dark > 100, "no wireframe edges drawn");
+}
+
+#[test]
+fn wireframe_covers_the_same_pixels_on_vulkan() {
+    wireframe_covers_the_same_pixels(BackendChoice::Vulkan);
+}
+
+#[test]
+fn wireframe_covers_the_same_pixels_on_gl() {
+    wireframe_covers_the_same_pixels(BackendChoice::Gl);
+}
+
+/// A texture with a red north-west quadrant (its first rows are north) seen straight down
+/// with north up: the top-left of the image is red, the bottom-right is not.
+fn texture_is_north_up(backend: BackendChoice) {
+    let Some(ctx) = context(backend) else { return };
+    let hm = HardCase::Flat.build();
+    let (tw, th) = (8, 8);
+    let pixels = (0..th)
+        .flat_map(|y| {
+            (0..tw).map(
+                move |x| if x < tw / 2 && y < th / 2 { [255, 0, 0, 255] } else { [0, 0, 255, 255] },
+            )
+        })
+        .collect();
+    let texture = RgbaImage { width: tw, height: th, pixels };
+    let config = RenderConfig {
+        width: 64,
+        height: 64,
+        texture: Some(texture),
+        sun_direction: [0.0, 0.0, 1.0],
+    };
+    let mut renderer = TerrainRenderer::new(&ctx, &hm, &config).unwrap();
+    let centre = hm.grid_to_world(32.0, 32.0).extend(f64::from(hm.max()) + 900.0);
+    let camera = Camera::from_yaw_pitch(centre, 0.0, -90.0).with_clip(10.0, 2000.0);
+    renderer.render(&camera, &uniform_patches(&hm, 16, 4.0), &RenderOptions::default()).unwrap();
+    let image = renderer.read_image().unwrap();
+    let (nw, se) = (image.get(24, 24), image.get(40, 40));
+    println!("north-west {nw:?}, south-east {se:?}");
+    assert!(nw[0] > 200 && nw[2] < 50, "north-west should be red: {nw:?}");
+    assert!(se[2] > 200 && se[0] < 50, "south-east should be blue: {se:?}");
+}
+
+#[test]
+fn texture_is_north_up_on_vulkan() {
+    texture_is_north_up(BackendChoice::Vulkan);
+}
+
+#[test]
+fn texture_is_north_up_on_gl() {
+    texture_is_north_up(BackendChoice::Gl);
+}
+
+fn frame_stats(backend: BackendChoice) {
+    let Some(ctx) = context(backend) else { return };
+    let hm = default_terrain();
+    let mut renderer = TerrainRenderer::new(&ctx, &hm, &config(128, 72)).unwrap();
+    let patches = random_patches(&hm, 64, 1.0, 20.0, 3, true);
+    let camera = default_camera(&hm, 128, 72, 60.0);
+    let first = renderer.render(&camera, &patches, &RenderOptions::default()).unwrap();
+    let second = renderer.render(&camera, &patches, &RenderOptions::default()).unwrap();
+    println!("first:  {first}\nsecond: {second}");
+    let (mut triangles, mut vertices) = (0, 0);
+    for p in &patches {
+        let mesh = tessellate(&p.factors);
+        triangles += mesh.non_degenerate_triangle_count() as u64;
+        vertices += mesh.points.len() as u64;
+    }
+    assert_eq!(
+        (first.patches, first.triangles, first.vertices),
+        (patches.len(), triangles, vertices)
+    );
+    assert!(first.tessellated && !second.tessellated);
+    assert_eq!(first.adapter, ctx.describe());
+    if ctx.features.timestamp_query {
+        assert!(first.gpu_draw_ms.is_some() && second.gpu_ms.is_some());
+        assert_eq!(first.gpu_ms.is_some(), ctx.features.compute_timestamps_trustworthy);
+    } else {
+        assert!(first.gpu_ms.is_none() && first.gpu_note.is_some());
+    }
+}
+
+#[test]
+fn frame_stats_on_vulkan() {
+    frame_stats(BackendChoice::Vulkan);
+}
+
+#[test]
+fn frame_stats_on_gl() {
+    frame_stats(BackendChoice::Gl);
+}
+
+#[test]
+fn uniform_patches_tile_the_grid() {
+    let hm = HardCase::OddSize.build();
+    let patches = uniform_patches(&hm, 64, 8.0);
+    let cells: u64 =
+        patches.iter().map(|p| u64::from((p.rect[2] - p.rect[0]) * (p.rect[3] - p.rect[1]))).sum();
+    assert_eq!(cells, (hm.width() as u64 - 1) * (hm.height() as u64 - 1));
+    assert_eq!(patches[0].rect, [0, 0, 64, 64]);
+    assert_eq!(patches.last().unwrap().rect[2..], [hm.width() as u32 - 1, hm.height() as u32 - 1]);
+    let full = full_resolution_patches(&default_terrain(), 32);
+    assert_eq!(full[0].factors, PatchFactors::uniform(32.0));
+    // The vertices of a full-resolution patch are exactly the samples.
+    let mesh = tessellate(&full[0].factors);
+    for p in &mesh.points {
+        let g = surface::grid_coords(&full[0], *p);
+        assert_eq!(g, g.round(), "{g}");
+    }
+}

@@ -1,0 +1,149 @@
+//! The CPU reference of the surface the renderer draws: where a tessellated domain point of a
+//! [`DrawPatch`] lands in the world, and the shading normal there. `render/terrain.wgsl`
+//! repeats these functions operation for operation in f32 (`grid_of`, `surface_at`,
+//! `normal_at`); change both together.
+//!
+//! The surface is the bilinear interpolation of the heightmap's samples (the same formula as
+//! [`Heightmap::sample_grid`]). A domain point `(u, v)` of a patch with rect `[x0, y0, x1, y1]`
+//! sits at grid coordinates `(x0 + u (x1 - x0), y0 + v (y1 - y0))`, computed in f32 so the
+//! GPU's arithmetic is reproduced: two patches sharing an edge compute bit-identical grid
+//! coordinates there, because the edge's coordinate is an integer (`u = 1` on one side,
+//! `u = 0` on the other) and the coordinate along the edge comes from the same `v`.
+//!
+//! Normals come from central differences of the samples (one-sided at the grid's border),
+//! interpolated bilinearly between the four samples around the point: the shading is that of
+//! the full-resolution DEM whatever the tessellation, so level of detail changes geometry but
+//! not lighting.
+
+use glam::{DVec3, Vec2, Vec3};
+use terrain_core::Heightmap;
+
+use crate::render::DrawPatch;
+
+/// Grid coordinates (fractional samples, f32 as on the GPU) of domain point `uv` of `patch`.
+pub fn grid_coords(patch: &DrawPatch, uv: [f32; 2]) -> Vec2 {
+    let [x0, y0, x1, y1] = patch.rect;
+    let lo = Vec2::new(x0 as f32, y0 as f32);
+    let size = Vec2::new((x1 - x0) as f32, (y1 - y0) as f32);
+    lo + Vec2::from(uv) * size
+}
+
+/// The cell and the fractions inside it of grid coordinates `g`, clamped to the grid: the
+/// first step of every lookup, shared by positions and normals.
+fn cell_of(hm: &Heightmap, g: Vec2) -> ([usize; 2], [usize; 2], Vec2) {
+    let gmax = Vec2::new((hm.width() - 1) as f32, (hm.height() - 1) as f32);
+    let g = g.clamp(Vec2::ZERO, gmax);
+    let cell = g.floor();
+    let f = g - cell;
+    let i0 = [cell.x as usize, cell.y as usize];
+    let i1 = [(i0[0] + 1).min(hm.width() - 1), (i0[1] + 1).min(hm.height() - 1)];
+    (i0, i1, f)
+}
+
+/// Bilinear height at grid coordinates `g` (clamped to the grid), in f32 as on the GPU.
+pub fn height_at(hm: &Heightmap, g: Vec2) -> f32 {
+    let (i0, i1, f) = cell_of(hm, g);
+    let h00 = hm.get(i0[0], i0[1]);
+    let h10 = hm.get(i1[0], i0[1]);
+    let h01 = hm.get(i0[0], i1[1]);
+    let h11 = hm.get(i1[0], i1[1]);
+    let a = h00 + (h10 - h00) * f.x;
+    let b = h01 + (h11 - h01) * f.x;
+    a + (b - a) * f.y
+}
+
+/// World position (metres, f64) of domain point `uv` of `patch`: what the vertex stage
+/// computes, relative to its anchor.
+pub fn vertex_position(hm: &Heightmap, patch: &DrawPatch, uv: [f32; 2]) -> DVec3 {
+    let g = grid_coords(patch, uv);
+    surface_position(hm, g)
+}
+
+/// World position (metres, f64) of the surface at grid coordinates `g` (clamped to the grid).
+pub fn surface_position(hm: &Heightmap, g: Vec2) -> DVec3 {
+    let (i0, _, f) = cell_of(hm, g);
+    let geo = hm.georef();
+    let x = geo.world_origin.x + (i0[0] as f64 + f64::from(f.x)) * geo.spacing_m.x;
+    let y = geo.world_origin.y + (i0[1] as f64 + f64::from(f.y)) * geo.spacing_m.y;
+    DVec3::new(x, y, f64::from(height_at(hm, g)))
+}
+
+/// Height gradient `(dz/dx, dz/dy)` at sample `(i, j)` by central differences (one-sided at
+/// the border), f32 as on the GPU.
+fn gradient_at_sample(hm: &Heightmap, i: usize, j: usize) -> Vec2 {
+    let (w, h) = (hm.width() - 1, hm.height() - 1);
+    let s = hm.georef().spacing_m.as_vec2();
+    let (il, ir) = (i.saturating_sub(1), (i + 1).min(w));
+    let (jd, ju) = (j.saturating_sub(1), (j + 1).min(h));
+    let dx = (hm.get(ir, j) - hm.get(il, j)) / ((ir - il).max(1) as f32 * s.x);
+    let dy = (hm.get(i, ju) - hm.get(i, jd)) / ((ju - jd).max(1) as f32 * s.y);
+    Vec2::new(dx, dy)
+}
+
+/// Unit normal (world frame, z up) at grid coordinates `g`: the bilinear blend of the
+/// central-difference gradients at the four samples around `g`.
+pub fn normal_at(hm: &Heightmap, g: Vec2) -> Vec3 {
+    let (i0, i1, f) = cell_of(hm, g);
+    let g00 = gradient_at_sample(hm, i0[0], i0[1]);
+    let g10 = gradient_at_sample(hm, i1[0], i0[1]);
+    let g01 = gradient_at_sample(hm, i0[0], i1[1]);
+    let g11 = gradient_at_sample(hm, i1[0], i1[1]);
+    let a = g00 + (g10 - g00) * f.x;
+    let b = g01 + (g11 - g01) * f.x;
+    let grad = a + (b - a) * f.y;
+    Vec3::new(-grad.x, -grad.y, 1.0).normalize()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::tess::PatchFactors;
+    use terrain_core::synth::{HardCase, default_terrain};
+
+    #[test]
+    fn positions_follow_the_grid_convention_and_sample_grid() {
+        let hm = HardCase::HugeOrigin.build();
+        let patch = DrawPatch { rect: [32, 64, 48, 80], factors: PatchFactors::uniform(16.0) };
+        let origin = hm.georef().world_origin;
+        // Corner (0, 0) is sample (32, 64): east of the origin by 32 dx, north by 64 dy.
+        let p = vertex_position(&hm, &patch, [0.0, 0.0]);
+        assert_eq!(p.x, origin.x + 320.0);
+        assert_eq!(p.y, origin.y + 640.0);
+        assert_eq!(p.z, f64::from(hm.get(32, 64)));
+        let p = vertex_position(&hm, &patch, [1.0, 1.0]);
+        assert_eq!(p.z, f64::from(hm.get(48, 80)));
+        for uv in [[0.25, 0.5], [0.3, 0.9], [0.77, 0.01]] {
+            let g = grid_coords(&patch, uv);
+            let p = vertex_position(&hm, &patch, uv);
+            let want = hm.sample_grid(f64::from(g.x), f64::from(g.y));
+            assert!((p.z - f64::from(want)).abs() < 1e-3, "{uv:?}: {} vs {want}", p.z);
+        }
+    }
+
+    #[test]
+    fn shared_edges_are_bit_identical() {
+        let hm = default_terrain();
+        let a = DrawPatch { rect: [0, 0, 16, 16], factors: PatchFactors::uniform(5.0) };
+        let b = DrawPatch { rect: [16, 0, 32, 16], factors: PatchFactors::uniform(5.0) };
+        for t in [0.0, 0.1, 0.37, 0.5, 0.999] {
+            assert_eq!(vertex_position(&hm, &a, [1.0, t]), vertex_position(&hm, &b, [0.0, t]));
+        }
+    }
+
+    #[test]
+    fn normals_of_a_plane_and_a_cliff() {
+        let flat = HardCase::Flat.build();
+        assert_eq!(normal_at(&flat, Vec2::new(10.3, 20.7)), Vec3::Z);
+        // A ramp rising 2 m per 10 m eastwards: normal (-0.2, 0, 1) normalised, borders included.
+        let ramp =
+            Heightmap::from_fn(9, 9, terrain_core::Georef::local(10.0), |i, _| 2.0 * i as f32)
+                .unwrap();
+        let want = Vec3::new(-0.2, 0.0, 1.0).normalize();
+        for g in [Vec2::new(0.0, 0.0), Vec2::new(3.5, 4.25), Vec2::new(8.0, 8.0)] {
+            assert!((normal_at(&ramp, g) - want).length() < 1e-6, "{g}");
+        }
+        let cliff = HardCase::Cliff.build();
+        let n = normal_at(&cliff, Vec2::new(HardCase::CLIFF_COLUMN as f32 - 0.5, 10.0));
+        assert!(n.x < -0.5, "the cliff rises eastwards: {n}");
+    }
+}
