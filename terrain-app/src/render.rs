@@ -6,12 +6,13 @@ use std::path::PathBuf;
 use anyhow::{Context, bail};
 use clap::Args;
 use glam::DVec3;
+use terrain_app::methods::{LodMethod, MethodConfig, MethodScene};
 use terrain_core::geometry::Camera;
 use terrain_core::{Heightmap, synth};
 use terrain_gpu::render::{clip_range, default_camera};
 use terrain_gpu::{
     BackendChoice, DeviceConfig, GpuContext, RenderConfig, RenderOptions, RgbaImage,
-    TerrainRenderer, uniform_patches,
+    TerrainRenderer,
 };
 
 use crate::source::SourceArgs;
@@ -33,12 +34,21 @@ pub struct RenderArgs {
     /// Image size, WIDTHxHEIGHT.
     #[arg(long, default_value = "1280x720")]
     pub size: String,
-    /// Cells per side of the (uniform) patches.
-    #[arg(long, default_value_t = 32)]
-    pub patch_cells: u32,
-    /// Tessellation factor of every patch edge and axis (fractional-even: 2 to 64).
+    /// LOD method: which patches to draw with which tessellation factors.
+    #[arg(long, value_enum, default_value_t = LodMethod::PvpsC)]
+    pub method: LodMethod,
+    /// Cells per side of the finest patch (the PVPS paper: a 64 x 64 patch grid).
+    #[arg(long, default_value_t = 16)]
+    pub leaf_cells: u32,
+    /// `--method uniform`: tessellation factor of every patch (fractional-even: 2 to 64).
     #[arg(long, default_value_t = 16.0)]
     pub factor: f32,
+    /// Background colour R,G,B (0-255).
+    #[arg(long, default_value = "150,185,225")]
+    pub background: String,
+    /// Also write the per-frame statistics as JSON to this file.
+    #[arg(long)]
+    pub stats_json: Option<PathBuf>,
     /// Darken triangle edges.
     #[arg(long)]
     pub wireframe: bool,
@@ -80,6 +90,17 @@ fn parse_camera(s: &str) -> anyhow::Result<(DVec3, f64, f64)> {
     }
 }
 
+/// `r,g,b` -> an opaque colour.
+fn parse_rgb(s: &str) -> anyhow::Result<[u8; 4]> {
+    let bad = || format!("--background expects R,G,B with each 0-255, got `{s}`");
+    let v: Vec<u8> =
+        s.split(',').map(|p| p.trim().parse::<u8>()).collect::<Result<_, _>>().with_context(bad)?;
+    match v[..] {
+        [r, g, b] => Ok([r, g, b, 255]),
+        _ => bail!("{}", bad()),
+    }
+}
+
 fn load_texture(path: &PathBuf) -> anyhow::Result<RgbaImage> {
     let image = image::open(path)
         .with_context(|| format!("could not read the texture {}", path.display()))?
@@ -111,11 +132,27 @@ fn camera_for(
     })
 }
 
+/// One frame's statistics, as `--stats-json` writes them.
+#[derive(Debug, serde::Serialize)]
+struct FrameRecord {
+    frame: u32,
+    method: &'static str,
+    patches: usize,
+    triangles: u64,
+    vertices: u64,
+    selection_ms: f64,
+    encode_ms: f64,
+    gpu_ms: Option<f64>,
+    draw_pass_ms: Option<f64>,
+    wall_ms: f64,
+}
+
 /// Runs `terrain render`.
 pub fn run(args: &RenderArgs) -> anyhow::Result<()> {
     let (width, height) = parse_size(&args.size)?;
-    if args.patch_cells == 0 {
-        bail!("--patch-cells must be at least 1");
+    let background = parse_rgb(&args.background)?;
+    if args.leaf_cells == 0 {
+        bail!("--leaf-cells must be at least 1");
     }
     if !(args.factor.is_finite() && args.factor > 0.0) {
         bail!("--factor must be a positive number, got {}", args.factor);
@@ -130,9 +167,15 @@ pub fn run(args: &RenderArgs) -> anyhow::Result<()> {
     let ctx = GpuContext::new(&DeviceConfig::from_env(BackendChoice::Auto))
         .context("no GPU adapter (Vulkan or GL) is available")?;
     println!("adapter: {}", ctx.describe());
-    let config = RenderConfig { width, height, texture, ..Default::default() };
+    let config = RenderConfig { width, height, texture, background, ..Default::default() };
     let mut renderer = TerrainRenderer::new(&ctx, &hm, &config)?;
-    let patches = uniform_patches(&hm, args.patch_cells, args.factor);
+    let method_config = MethodConfig {
+        leaf_cells: args.leaf_cells,
+        uniform_factor: args.factor,
+        ..MethodConfig::default()
+    };
+    let scene = MethodScene::new(hm, method_config);
+    scene.prepare(&[args.method]);
     let options = RenderOptions { wireframe: args.wireframe, ..Default::default() };
     let p = camera.position;
     println!(
@@ -144,17 +187,45 @@ pub fn run(args: &RenderArgs) -> anyhow::Result<()> {
         camera.near,
         camera.far
     );
+    let mut records = Vec::new();
     for frame in 1..=args.frames.max(1) {
+        let selection = scene.select(args.method, &camera);
+        let patches = scene.draw_patches(&selection);
+        let start = std::time::Instant::now();
         let s = renderer.render(&camera, &patches, &options)?;
+        // The renderer waits for the GPU before returning, so this is the frame's whole cost
+        // after selection: encode, tessellate (when the patches changed), draw.
+        let wall_ms = start.elapsed().as_secs_f64() * 1e3;
+        let selection_ms = selection.stats.cpu_time.as_secs_f64() * 1e3;
         println!(
-            "frame {frame}: patches {}, triangles {}, vertices {}, CPU {:.2} ms, GPU {}, adapter {}",
+            "frame {frame}: method {}, patches {}, triangles {}, vertices {}, selection {:.2} ms, \
+             CPU {:.2} ms, GPU {}, adapter {}",
+            args.method.name(),
             s.patches,
             s.triangles,
             s.vertices,
+            selection_ms,
             s.cpu_ms,
             s.gpu_text(),
             s.adapter
         );
+        records.push(FrameRecord {
+            frame,
+            method: args.method.name(),
+            patches: s.patches,
+            triangles: s.triangles,
+            vertices: s.vertices,
+            selection_ms,
+            encode_ms: s.cpu_ms,
+            gpu_ms: s.gpu_ms,
+            draw_pass_ms: s.gpu_draw_ms,
+            wall_ms,
+        });
+    }
+    if let Some(path) = &args.stats_json {
+        let json = serde_json::json!({ "adapter": ctx.describe(), "frames": records });
+        std::fs::write(path, serde_json::to_string_pretty(&json)?)
+            .with_context(|| format!("could not write {}", path.display()))?;
     }
     let image = renderer.read_image()?;
     let raw: Vec<u8> = image.pixels.iter().flatten().copied().collect();

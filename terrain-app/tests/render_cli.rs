@@ -6,7 +6,8 @@
 use std::path::PathBuf;
 use std::process::Command;
 
-/// The background colour of `terrain_gpu::BACKGROUND`.
+/// The background colour the tests ask for (`--background`): `terrain_gpu::BACKGROUND`, which
+/// the shader never produces.
 const BACKGROUND: [u8; 4] = [255, 0, 255, 255];
 
 fn data(rel: &str) -> PathBuf {
@@ -26,7 +27,7 @@ fn render(name: &str, backend: Option<&str>, args: &[&str]) -> Option<(image::Rg
     let out = dir.join(format!("{name}.png"));
     let _ = std::fs::remove_file(&out);
     let mut cmd = Command::new(env!("CARGO_BIN_EXE_terrain"));
-    cmd.arg("render").args(args).arg("-o").arg(&out);
+    cmd.arg("render").args(args).args(["--background", "255,0,255"]).arg("-o").arg(&out);
     if let Some(b) = backend {
         cmd.env("TERRAIN_GPU_BACKEND", b);
     }
@@ -61,14 +62,24 @@ fn assert_terrain_drawn(image: &image::RgbaImage, size: (u32, u32)) {
 
 #[test]
 fn render_the_default_terrain() {
-    let args = ["--size", "96x54", "--patch-cells", "64", "--factor", "8"];
+    let args = ["--size", "96x54", "--method", "uniform", "--leaf-cells", "64", "--factor", "8"];
     let Some((image, _)) = render("default", None, &args) else { return };
     assert_terrain_drawn(&image, (96, 54));
 }
 
 #[test]
 fn render_the_default_terrain_on_gl_with_wireframe() {
-    let args = ["--size", "80x60", "--patch-cells", "64", "--factor", "6", "--wireframe"];
+    let args = [
+        "--size",
+        "80x60",
+        "--method",
+        "uniform",
+        "--leaf-cells",
+        "64",
+        "--factor",
+        "6",
+        "--wireframe",
+    ];
     let Some((image, stdout)) = render("default_gl", Some("gl"), &args) else { return };
     assert!(stdout.contains("adapter:") && stdout.contains("Gl"), "not on GL:\n{stdout}");
     assert_terrain_drawn(&image, (80, 60));
@@ -77,7 +88,7 @@ fn render_the_default_terrain_on_gl_with_wireframe() {
 #[test]
 fn render_the_lidar_prairie_at_utm_coordinates() {
     let dem = data("lidar_prairie/dem.tif");
-    let args = [dem.to_str().unwrap(), "--size", "120x80", "--patch-cells", "16", "--factor", "8"];
+    let args = [dem.to_str().unwrap(), "--size", "120x80", "--leaf-cells", "16"];
     let Some((image, stdout)) = render("lidar", None, &args) else { return };
     // The default camera stands south-west of the tile, at UTM 15N coordinates.
     let camera = stdout.lines().find(|l| l.starts_with("camera:")).expect("a camera line");
@@ -92,6 +103,8 @@ fn bad_arguments_are_reported() {
         (&["--size", "10"][..], "--size"),
         (&["--camera", "1,2,3"][..], "--camera"),
         (&["--factor", "0"][..], "--factor"),
+        (&["--method", "nope"][..], "--method"),
+        (&["--background", "1,2"][..], "--background"),
     ] {
         let output = Command::new(env!("CARGO_BIN_EXE_terrain"))
             .arg("render")
@@ -102,4 +115,46 @@ fn bad_arguments_are_reported() {
         let stderr = String::from_utf8_lossy(&output.stderr);
         assert!(!output.status.success() && stderr.contains(needle), "{args:?}: {stderr}");
     }
+}
+
+#[test]
+fn every_lod_method_renders_and_reports_json_stats() {
+    let dir = std::env::temp_dir().join(format!("terrain-render-methods-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let mut triangles = Vec::new();
+    for method in ["uniform", "pvps-a", "pvps-b", "pvps-c", "dss-1", "dss-2"] {
+        let json = dir.join(format!("{method}.json"));
+        let args = [
+            "--size",
+            "96x54",
+            "--method",
+            method,
+            "--frames",
+            "2",
+            "--stats-json",
+            json.to_str().unwrap(),
+        ];
+        let Some((image, stdout)) = render(method, None, &args) else { return };
+        assert!(stdout.contains(&format!("method {method}")), "{stdout}");
+        assert_terrain_drawn(&image, (96, 54));
+        let stats: serde_json::Value =
+            serde_json::from_slice(&std::fs::read(&json).unwrap()).unwrap();
+        let frames = stats["frames"].as_array().unwrap();
+        assert_eq!(frames.len(), 2);
+        for f in frames {
+            assert_eq!(f["method"], method);
+            assert!(f["patches"].as_u64().unwrap() > 0 && f["triangles"].as_u64().unwrap() > 0);
+            assert!(
+                f["selection_ms"].as_f64().unwrap() >= 0.0 && f["wall_ms"].as_f64().unwrap() > 0.0
+            );
+        }
+        assert!(
+            stats["adapter"].as_str().unwrap().contains("llvmpipe") || !stats["adapter"].is_null()
+        );
+        triangles.push((method, frames[0]["triangles"].as_u64().unwrap()));
+    }
+    // The view-dependent methods do not all draw what the fixed-factor baseline draws.
+    let uniform = triangles[0].1;
+    assert!(triangles[1..].iter().any(|&(_, t)| t != uniform), "{triangles:?}");
+    std::fs::remove_dir_all(&dir).ok();
 }

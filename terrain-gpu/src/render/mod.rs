@@ -102,11 +102,20 @@ pub struct RenderConfig {
     /// Direction towards the sun in the world frame (x east, y north, z up); normalised by
     /// the renderer. Default: from the north-west, 45 degrees up (the cartographers' light).
     pub sun_direction: [f64; 3],
+    /// Clear colour where no terrain is drawn. Default [`BACKGROUND`] (magenta, which the shader
+    /// never produces, so tests can tell terrain from background); the CLI uses a sky colour.
+    pub background: [u8; 4],
 }
 
 impl Default for RenderConfig {
     fn default() -> Self {
-        Self { width: 1280, height: 720, texture: None, sun_direction: [-1.0, 1.0, 2f64.sqrt()] }
+        Self {
+            width: 1280,
+            height: 720,
+            texture: None,
+            sun_direction: [-1.0, 1.0, 2f64.sqrt()],
+            background: BACKGROUND,
+        }
     }
 }
 

@@ -12,7 +12,7 @@ use glam::{DVec2, DVec3, Vec3};
 use terrain_core::Heightmap;
 use terrain_core::geometry::Camera;
 
-use super::{BACKGROUND, DrawPatch, RenderConfig, RenderOptions};
+use super::{DrawPatch, RenderConfig, RenderOptions};
 use crate::device::{GpuContext, GpuError, GpuFeatures, read_buffer};
 use crate::target::{COLOR_FORMAT, OffscreenTarget, RgbaImage};
 use crate::tess::{
@@ -129,8 +129,10 @@ pub enum RenderError {
         /// The device's limit per side.
         maximum: u32,
     },
-    /// A patch's rect is empty or leaves the grid.
-    #[error("patch {index} has rect {rect:?}: empty or outside the {width} x {height} grid")]
+    /// A patch's rect is empty or starts outside the grid.
+    #[error(
+        "patch {index} has rect {rect:?}: empty or starting outside the {width} x {height} grid"
+    )]
     BadPatch {
         /// Position in the list.
         index: usize,
@@ -212,6 +214,7 @@ pub struct TerrainRenderer {
     height_min: f32,
     height_max: f32,
     sun: Vec3,
+    background: [u8; 4],
     anchor: Option<DVec3>,
     tess: Option<Tessellation>,
     counts: HashMap<[u32; 6], (u64, u64)>,
@@ -475,6 +478,7 @@ impl TerrainRenderer {
             features: ctx.features,
             adapter: ctx.describe(),
             target: OffscreenTarget::new(device, config.width, config.height),
+            background: config.background,
             tessellator: GpuTessellator::new(device),
             layout,
             debug_layout,
@@ -521,7 +525,10 @@ impl TerrainRenderer {
         let [w, h] = self.grid;
         for (index, p) in patches.iter().enumerate() {
             let [x0, y0, x1, y1] = p.rect;
-            if !(x0 < x1 && y0 < y1 && x1 < w && y1 < h) {
+            // A rect may reach past the east and north border (quadtree nodes of a grid that is
+            // not 2^k + 1 samples wide): domain points are clamped to the grid, as in
+            // `terrain_core::lod::surface::patch_grid_point`. It must start inside the grid.
+            if !(x0 < x1 && y0 < y1 && x0 + 1 < w && y0 + 1 < h) {
                 return Err(RenderError::BadPatch { index, rect: p.rect, width: w, height: h });
             }
         }
@@ -661,7 +668,7 @@ impl TerrainRenderer {
             self.tessellator.encode_timed(&mut encoder, &tess.out, writes);
         }
         {
-            let [r, g, b, a] = BACKGROUND.map(|c| f64::from(c) / 255.0);
+            let [r, g, b, a] = self.background.map(|c| f64::from(c) / 255.0);
             let writes = timer.map(|t| wgpu::RenderPassTimestampWrites {
                 query_set: &t.draw,
                 beginning_of_pass_write_index: Some(0),

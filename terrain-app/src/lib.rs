@@ -1,0 +1,5 @@
+//! The composition layer of the terrain engine, shared by the `terrain` binary, `cargo xtask`
+//! and the integration tests: LOD methods assembled from terrain-core (quadtree, metrics,
+//! selection), terrain-visibility (roughness) and handed to terrain-gpu as draw patches.
+
+pub mod methods;
