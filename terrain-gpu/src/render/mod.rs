@@ -17,6 +17,7 @@
 //! texture and interpolated between samples ([`crate::surface::normal_at`]), so shading does
 //! not depend on the tessellation and no second texture is needed.
 
+pub mod crack;
 mod framing;
 mod renderer;
 

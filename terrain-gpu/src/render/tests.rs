@@ -10,6 +10,8 @@ use terrain_core::Heightmap;
 use terrain_core::geometry::Camera;
 use terrain_core::synth::{HardCase, default_terrain};
 
+use super::crack::{crack_cameras, crack_pixels};
+
 use super::*;
 use crate::device::{BackendChoice, GpuContext, GpuError, REQUIRE_ENV};
 use crate::surface;
@@ -203,79 +205,6 @@ fn surface_matches_reference_on_gl() {
 // below checks that mismatched edge factors do show up this way. Set TERRAIN_TEST_DUMP to a
 // folder to get both images of every camera as PNGs.
 
-/// At least 20 cameras over `hm`: inside the footprint, above every sample within
-/// `margin_cells` of their position, pitches from straight down to grazing, all yaws.
-fn crack_cameras(hm: &Heightmap, margin_cells: usize) -> Vec<Camera> {
-    let pitches = [-90.0, -65.0, -40.0, -20.0, -8.0, -3.0, -1.5];
-    // Small grids with high relief (the hard cases) would be out of view from high up.
-    let extent = hm.extent_m();
-    let relief = f64::from(hm.max() - hm.min()).min(0.25 * extent.x.min(extent.y)).max(50.0);
-    let centre = hm.grid_to_world((hm.width() - 1) as f64 / 2.0, (hm.height() - 1) as f64 / 2.0);
-    let (w, h) = (hm.width(), hm.height());
-    (0..21)
-        .map(|k| {
-            let kf = k as f64;
-            let fx = 0.1 + 0.8 * (kf * 0.618_034).fract();
-            let fy = 0.1 + 0.8 * (kf * 0.381_966 + 0.3).fract();
-            let (i, j) = ((fx * (w - 1) as f64) as usize, (fy * (h - 1) as f64) as usize);
-            let mut ground = f32::MIN;
-            for jj in j.saturating_sub(margin_cells)..=(j + margin_cells).min(h - 1) {
-                for ii in i.saturating_sub(margin_cells)..=(i + margin_cells).min(w - 1) {
-                    ground = ground.max(hm.get(ii, jj));
-                }
-            }
-            let pitch = pitches[k % pitches.len()];
-            // Grazing views stay low, or they see nothing but sky.
-            let scale: f64 = [0.02, 0.1, 0.35, 1.2][k % 4];
-            let above = if pitch > -10.0 { scale.min(0.1) } else { scale } * relief + 5.0;
-            let xy = hm.grid_to_world(i as f64, j as f64);
-            let eye = xy.extend(f64::from(ground) + above);
-            let (near, far) = clip_range(hm, eye);
-            // Roughly towards the centre (compass heading), give or take 60 degrees.
-            let to_centre = centre - xy;
-            let yaw = to_centre.x.atan2(to_centre.y).to_degrees() + (kf * 47.0) % 120.0 - 60.0;
-            Camera::from_yaw_pitch(eye, yaw, pitch).with_fov_y_deg(60.0).with_clip(near, far)
-        })
-        .collect()
-}
-
-/// Renders `patches` from every camera with and without skirts; returns the number of crack
-/// pixels (background without skirts, terrain with them) per camera.
-fn crack_pixels(
-    ctx: &GpuContext,
-    hm: &Heightmap,
-    patches: &[DrawPatch],
-    cameras: &[Camera],
-) -> Vec<usize> {
-    let mut renderer = TerrainRenderer::new(ctx, hm, &config(256, 144)).unwrap();
-    let skirt = RenderOptions { skirt_depth_m: hm.max() - hm.min() + 10.0, ..Default::default() };
-    cameras
-        .iter()
-        .map(|camera| {
-            renderer.render(camera, patches, &RenderOptions::default()).unwrap();
-            let plain = renderer.read_image().unwrap();
-            renderer.render(camera, patches, &skirt).unwrap();
-            let reference = renderer.read_image().unwrap();
-            if let Some(dir) = std::env::var_os("TERRAIN_TEST_DUMP") {
-                for (tag, im) in [("plain", &plain), ("skirts", &reference)] {
-                    let path = PathBuf::from(&dir).join(format!("{}_{tag}.png", camera.position));
-                    let raw: Vec<u8> = im.pixels.iter().flatten().copied().collect();
-                    image::save_buffer(path, &raw, im.width, im.height, image::ColorType::Rgba8)
-                        .unwrap();
-                }
-            }
-            let terrain = plain.pixels.iter().filter(|&&p| p != BACKGROUND).count();
-            assert!(terrain > 0, "camera {camera:?} sees no terrain");
-            plain
-                .pixels
-                .iter()
-                .zip(&reference.pixels)
-                .filter(|&(&a, &b)| a == BACKGROUND && b != BACKGROUND)
-                .count()
-        })
-        .collect()
-}
-
 fn no_cracks(
     backend: BackendChoice,
     name: &str,
@@ -290,7 +219,7 @@ fn no_cracks(
         ("random", random_patches(hm, patch_cells, 1.0, patch_cells as f32 + 1.0, 11, true)),
     ];
     for (kind, patches) in &sets {
-        let cracks = crack_pixels(&ctx, hm, patches, &cameras);
+        let cracks = crack_pixels(&ctx, hm, patches, &cameras, (256, 144));
         println!(
             "{name} {kind}: {} patches, {} cameras, crack pixels {cracks:?}",
             patches.len(),
@@ -340,7 +269,7 @@ fn mismatched_edges_are_detected_as_cracks() {
     let hm = default_terrain();
     let patches = random_patches(&hm, 32, 1.0, 33.0, 5, false);
     let cameras = crack_cameras(&hm, 33);
-    let cracks = crack_pixels(&ctx, &hm, &patches, &cameras[..7]);
+    let cracks = crack_pixels(&ctx, &hm, &patches, &cameras[..7], (256, 144));
     println!("mismatched edges: crack pixels {cracks:?}");
     assert!(cracks.iter().sum::<usize>() > 0, "no crack found: the crack test cannot see cracks");
 }
@@ -465,6 +394,7 @@ fn texture_is_north_up(backend: BackendChoice) {
         height: 64,
         texture: Some(texture),
         sun_direction: [0.0, 0.0, 1.0],
+        ..RenderConfig::default()
     };
     let mut renderer = TerrainRenderer::new(&ctx, &hm, &config).unwrap();
     let centre = hm.grid_to_world(32.0, 32.0).extend(f64::from(hm.max()) + 900.0);
