@@ -12,6 +12,7 @@
 
 pub mod dem;
 pub mod error;
+pub mod flight;
 pub mod geometry;
 pub mod georef;
 pub mod heightmap;
