@@ -17,6 +17,7 @@ pub mod geometry;
 pub mod georef;
 pub mod heightmap;
 pub mod lod;
+pub mod measure;
 pub mod metrics;
 pub mod quadtree;
 pub mod synth;
