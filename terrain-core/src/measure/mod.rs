@@ -365,8 +365,8 @@ impl LeafGrid {
     /// Whether sample `(x, y)` lies in a covered leaf's (inclusive) rectangle.
     fn sample_covered(&self, cov: &[bool], x: usize, y: usize) -> bool {
         let c = self.cells;
-        let cols = [Some(x / c), (x % c == 0 && x > 0).then(|| x / c - 1)];
-        let rows = [Some(y / c), (y % c == 0 && y > 0).then(|| y / c - 1)];
+        let cols = [Some(x / c), (x.is_multiple_of(c) && x > 0).then(|| x / c - 1)];
+        let rows = [Some(y / c), (y.is_multiple_of(c) && y > 0).then(|| y / c - 1)];
         rows.iter().flatten().filter(|&&j| j < self.ny).any(|&j| {
             cols.iter().flatten().filter(|&&i| i < self.nx).any(|&i| cov[j * self.nx + i])
         })
