@@ -297,3 +297,28 @@ fn accelerated_line_of_sight_equals_brute_force_on_rough_terrain() {
         }
     }
 }
+
+#[test]
+fn a_shipped_flight_on_the_default_terrain_measures_deterministically() {
+    use terrain_core::flight::{FlightConfig, FlightSpec};
+    let hm = terrain_core::synth::default_terrain();
+    let qt = Quadtree::new(&hm, 32);
+    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../flights/pvps_884.json");
+    let (flight, _) = FlightSpec::load(path).unwrap().resolve(&hm, &FlightConfig::default());
+    let sel = uniform(&qt, 4, 8.0);
+    let mesh = build_surface(&hm, &qt, &sel, fan_tessellation);
+    let run = || {
+        let mut m = Measurer::new(&hm, &qt, MeasureConfig::default());
+        let t = std::time::Instant::now();
+        let v: Vec<_> = flight.frames()[..3].iter().map(|c| m.measure(c, &sel, &mesh)).collect();
+        eprintln!("3 frames in {:?}: {:?}", t.elapsed(), v[1]);
+        v
+    };
+    let (a, b) = (run(), run());
+    assert_eq!(a, b);
+    for e in &a {
+        assert!(e.samples > 10_000 && e.unlocated == 0 && e.culled_samples == 0, "{e:?}");
+        assert!(e.rmse_m > 0.0 && e.max_px >= e.p99_px && e.p99_px > 0.0, "{e:?}");
+    }
+    assert!(a[1].popping_samples > 0 && a[1].rmse_change_m.is_some());
+}
