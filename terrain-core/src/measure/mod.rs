@@ -22,7 +22,7 @@
 //! - `rmse_m = sqrt(mean(delta^2))`: DSS Tables 2-3 ("RMSE values of coarse models",
 //!   computed from the height-difference maps of Figure 17). The paper's maps cover the whole
 //!   1024-sample model; ours cover the samples inside the frustum, since what is outside is
-//!   not drawn by any method (see the report of the measurement issue).
+//!   not drawn by any method and a method's culling is scored separately (false culls).
 //! - popping (DSS section 5: "the popping artefacts can be reflected by the height difference
 //!   change between coarse models"): over the samples measured in this frame *and* the
 //!   previous one, the change `delta_k - delta_{k-1}`, as RMS and maximum of its magnitude.
