@@ -12,10 +12,12 @@
 
 pub mod dem;
 pub mod error;
+pub mod flight;
 pub mod geometry;
 pub mod georef;
 pub mod heightmap;
 pub mod lod;
+pub mod measure;
 pub mod metrics;
 pub mod quadtree;
 pub mod synth;

@@ -1,0 +1,99 @@
+//! Every shipped flight in `flights/` loads on the default terrain and on a real DEM, with the
+//! right frame count, finite cameras above the terrain and inside the DEM.
+
+use std::path::{Path, PathBuf};
+
+use terrain_core::Heightmap;
+use terrain_core::dem::{LoadOptions, load};
+use terrain_core::flight::{FlightConfig, FlightSpec, frame_count};
+use terrain_core::synth::default_terrain;
+
+fn workspace() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).parent().expect("workspace root").to_owned()
+}
+
+fn data_dir() -> PathBuf {
+    if let Some(d) = std::env::var_os("TERRAIN_DATA") {
+        return PathBuf::from(d);
+    }
+    workspace().join("../shared/data")
+}
+
+const SHIPPED: [(&str, f64); 8] = [
+    ("pvps_884", 60.0),
+    ("pvps_1012", 60.0),
+    ("pvps_1140", 60.0),
+    ("pvps_1268", 60.0),
+    ("dss_approach", 30.0),
+    ("valley_low", 30.0),
+    ("overview_high", 40.0),
+    ("fast_pass", 10.0),
+];
+
+fn check_all(hm: &Heightmap, what: &str) {
+    let cfg = FlightConfig::default();
+    let lo = hm.grid_to_world(0.0, 0.0);
+    let hi = lo + hm.extent_m();
+    for (name, duration) in SHIPPED {
+        let spec = FlightSpec::load(workspace().join("flights").join(format!("{name}.json")))
+            .unwrap_or_else(|e| panic!("{name}: {e}"));
+        assert_eq!(spec.name, name);
+        let (flight, _warnings) = spec.resolve(hm, &cfg);
+        assert_eq!(flight.duration(), duration, "{name}");
+        assert_eq!(flight.frames().len(), frame_count(duration, 30.0), "{name} on {what}");
+        assert_eq!(flight.frames().len(), (duration * 30.0) as usize, "{name} on {what}");
+        for (k, c) in flight.frames().iter().enumerate() {
+            assert!(c.position.is_finite() && c.orientation.is_finite(), "{name} frame {k}");
+            let p = c.position.truncate();
+            assert!(p.cmpge(lo).all() && p.cmple(hi).all(), "{name} frame {k} outside: {p}");
+            let ground = f64::from(hm.sample_world(p));
+            assert!(c.position.z >= ground + cfg.clearance_m - 1e-6, "{name} frame {k} low");
+        }
+    }
+    // The PVPS flights rise with the paper's heights.
+    let mean_z = |name: &str| {
+        let spec = FlightSpec::load(workspace().join(format!("flights/{name}.json"))).unwrap();
+        let (f, _) = spec.resolve(hm, &cfg);
+        f.keyframes.iter().map(|k| k.position.z).sum::<f64>()
+    };
+    assert!(mean_z("pvps_884") < mean_z("pvps_1012"));
+    assert!(mean_z("pvps_1140") < mean_z("pvps_1268"));
+}
+
+#[test]
+fn shipped_flights_on_the_default_terrain() {
+    check_all(&default_terrain(), "default terrain");
+}
+
+#[test]
+fn shipped_flights_on_a_real_dem() {
+    // Non-square, projected, with voids.
+    let dem = load(data_dir().join("big_tujunga/bigtujunga.tif"), &LoadOptions::default())
+        .expect("big_tujunga loads (set TERRAIN_DATA)");
+    check_all(&dem.heightmap, "big_tujunga");
+}
+
+#[test]
+fn dss_approach_looks_at_the_peak_and_closes_in() {
+    let hm = default_terrain();
+    let spec = FlightSpec::load(workspace().join("flights/dss_approach.json")).unwrap();
+    let (f, _) = spec.resolve(&hm, &FlightConfig::default());
+    let (mut best, mut peak) = (f32::MIN, (0, 0));
+    for j in 0..hm.height() {
+        for i in 0..hm.width() {
+            if hm.get(i, j) > best {
+                best = hm.get(i, j);
+                peak = (i, j);
+            }
+        }
+    }
+    let peak = hm.grid_to_world(peak.0 as f64, peak.1 as f64).extend(f64::from(best));
+    let frames = f.frames();
+    let d0 = (frames[0].position - peak).length();
+    let d1 = (frames[frames.len() - 1].position - peak).length();
+    assert!(d1 < d0 * 0.6, "{d0} -> {d1}");
+    for k in [0, 300, 600] {
+        let c = &frames[k];
+        assert!((c.forward() - (peak - c.position).normalize()).length() < 1e-9, "frame {k}");
+    }
+}
