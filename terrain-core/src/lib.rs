@@ -1,9 +1,11 @@
 //! The bottom layer of the terrain engine: heightmaps and their georeference, DEM readers,
 //! synthetic terrain, geometry (boxes, cameras, frusta), the quadtree shared by every LOD
-//! method, and the error metrics of the five papers.
+//! method, the error metrics of the five papers, the LOD methods' patch selection, flights,
+//! and the exact measurement of a drawn surface's error.
 //!
 //! **Architecture invariant:** this crate depends on no crate of ours and knows nothing about
-//! wgpu, threads or files on disk other than the DEM readers in [`dem`].
+//! wgpu or threads; it reads files only in the DEM readers ([`dem`]) and the flight loader
+//! ([`flight`]).
 //!
 //! World frame: right-handed, x east, y north, z up, metres, f64 positions. Grids are stored
 //! south row first, so grid -> world is `origin + (i * dx, j * dy)` (see [`heightmap`]).
