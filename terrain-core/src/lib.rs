@@ -16,6 +16,7 @@ pub mod geometry;
 pub mod georef;
 pub mod heightmap;
 pub mod lod;
+pub mod mesh;
 pub mod metrics;
 pub mod quadtree;
 pub mod synth;
