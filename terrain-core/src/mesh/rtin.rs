@@ -113,9 +113,10 @@ impl RtinErrors {
         // id n are 2n and 2n + 1. Level l has 2^(l+1) triangles; the finest stored level is
         // the tile^2 triangles whose hypotenuse midpoint is a sample (their children, with
         // legs of one cell, hold only their three vertices and never split).
+        // (A 2 x 2 grid has tile = 1: two triangles with one-cell legs, nothing stored.)
         let num_smallest = tile * tile;
         let num_triangles = num_smallest * 2 - 2;
-        let last_level = num_triangles - num_smallest;
+        let last_level = num_triangles.saturating_sub(num_smallest);
         let at = |x: usize, y: usize| y * size + x;
         // Largest first index to smallest: every child is processed before its parent.
         for idx in (0..num_triangles).rev() {
