@@ -2,6 +2,7 @@
 
 mod bake;
 mod info;
+mod mesh;
 mod roughness;
 mod source;
 
@@ -24,6 +25,9 @@ enum Command {
     Roughness(roughness::RoughnessArgs),
     /// Bake a DEM (or `--synthetic SIZE`) into an out-of-core block store.
     Bake(bake::BakeArgs),
+    /// A triangle mesh within --max-error metres of every sample (RTIN or greedy Delaunay),
+    /// verified, then written as .glb, .gltf or .obj.
+    Mesh(mesh::MeshArgs),
 }
 
 fn main() -> std::process::ExitCode {
@@ -32,6 +36,7 @@ fn main() -> std::process::ExitCode {
         Command::Info(args) => info::run(&args),
         Command::Roughness(args) => roughness::run(&args),
         Command::Bake(args) => bake::run(&args),
+        Command::Mesh(args) => mesh::run(&args),
     };
     match result {
         Ok(()) => std::process::ExitCode::SUCCESS,
