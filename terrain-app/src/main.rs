@@ -2,6 +2,7 @@
 
 mod bake;
 mod info;
+mod mesh;
 mod render;
 mod roughness;
 mod source;
@@ -27,6 +28,9 @@ enum Command {
     Bake(bake::BakeArgs),
     /// Draw a DEM (or the embedded synthetic terrain) with the GPU tessellator into a PNG.
     Render(render::RenderArgs),
+    /// A triangle mesh within --max-error metres of every sample (RTIN or greedy Delaunay),
+    /// verified, then written as .glb, .gltf or .obj.
+    Mesh(mesh::MeshArgs),
 }
 
 fn main() -> std::process::ExitCode {
@@ -36,6 +40,7 @@ fn main() -> std::process::ExitCode {
         Command::Roughness(args) => roughness::run(&args),
         Command::Bake(args) => bake::run(&args),
         Command::Render(args) => render::run(&args),
+        Command::Mesh(args) => mesh::run(&args),
     };
     match result {
         Ok(()) => std::process::ExitCode::SUCCESS,

@@ -20,6 +20,7 @@ pub mod georef;
 pub mod heightmap;
 pub mod lod;
 pub mod measure;
+pub mod mesh;
 pub mod metrics;
 pub mod quadtree;
 pub mod synth;
