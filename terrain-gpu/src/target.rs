@@ -1,5 +1,7 @@
 //! Offscreen render target (RGBA8 colour + 32-bit float depth) with read-back to the host:
-//! what tests and headless runs render into, as no window exists there.
+//! what tests and headless runs render into, as no window exists there. Its depth texture also
+//! serves passes into a colour view the caller owns ([`OffscreenTarget::begin_pass_into`]: a
+//! window surface's texture), and [`read_texture_8bit4`] reads back any 8-bit RGBA/BGRA texture.
 
 use crate::device::{GpuContext, GpuError};
 
@@ -87,10 +89,23 @@ impl OffscreenTarget {
         clear: wgpu::Color,
         timestamp_writes: Option<wgpu::RenderPassTimestampWrites<'_>>,
     ) -> wgpu::RenderPass<'e> {
+        self.begin_pass_into(encoder, &self.color_view, clear, timestamp_writes)
+    }
+
+    /// Like [`OffscreenTarget::begin_timed_pass`], drawing into `color` (a view of a texture of
+    /// this target's size that the caller owns, such as a window surface's texture) instead of
+    /// this target's colour texture; the depth texture is this target's.
+    pub fn begin_pass_into<'e>(
+        &self,
+        encoder: &'e mut wgpu::CommandEncoder,
+        color: &wgpu::TextureView,
+        clear: wgpu::Color,
+        timestamp_writes: Option<wgpu::RenderPassTimestampWrites<'_>>,
+    ) -> wgpu::RenderPass<'e> {
         encoder.begin_render_pass(&wgpu::RenderPassDescriptor {
-            label: Some("offscreen"),
+            label: Some("terrain"),
             color_attachments: &[Some(wgpu::RenderPassColorAttachment {
-                view: &self.color_view,
+                view: color,
                 depth_slice: None,
                 resolve_target: None,
                 ops: wgpu::Operations {
@@ -134,37 +149,55 @@ impl OffscreenTarget {
         device: &wgpu::Device,
         queue: &wgpu::Queue,
     ) -> Result<RgbaImage, GpuError> {
-        let (width, height) = (self.width(), self.height());
-        // Rows of a texture-to-buffer copy are padded to 256 bytes.
-        let row = width * 4;
-        let padded_row = row.next_multiple_of(wgpu::COPY_BYTES_PER_ROW_ALIGNMENT);
-        let size = u64::from(padded_row) * u64::from(height);
-        let buffer = device.create_buffer(&wgpu::BufferDescriptor {
-            label: Some("offscreen read-back"),
-            size,
-            usage: wgpu::BufferUsages::COPY_SRC | wgpu::BufferUsages::COPY_DST,
-            mapped_at_creation: false,
-        });
-        let mut encoder = device.create_command_encoder(&Default::default());
-        encoder.copy_texture_to_buffer(
-            self.color.as_image_copy(),
-            wgpu::TexelCopyBufferInfo {
-                buffer: &buffer,
-                layout: wgpu::TexelCopyBufferLayout {
-                    offset: 0,
-                    bytes_per_row: Some(padded_row),
-                    rows_per_image: Some(height),
-                },
-            },
-            self.color.size(),
-        );
-        queue.submit([encoder.finish()]);
-        let bytes = crate::device::read_buffer(device, queue, &buffer, size)?;
-        let mut pixels = Vec::with_capacity((width * height) as usize);
-        for y in 0..height as usize {
-            let line = &bytes[y * padded_row as usize..][..row as usize];
-            pixels.extend(line.chunks_exact(4).map(|p| [p[0], p[1], p[2], p[3]]));
-        }
-        Ok(RgbaImage { width, height, pixels })
+        read_texture_8bit4(device, queue, &self.color)
     }
+}
+
+/// Copies mip level 0 of a 2D texture of four 8-bit channels (`Rgba8Unorm`, `Bgra8Unorm` and
+/// their sRGB twins; it needs `COPY_SRC`) to the host, waiting for all submitted work. The
+/// bytes of each texel are returned in the texture's own order: `[b, g, r, a]` for the BGRA
+/// formats, whatever [`RgbaImage`]'s name says.
+pub fn read_texture_8bit4(
+    device: &wgpu::Device,
+    queue: &wgpu::Queue,
+    texture: &wgpu::Texture,
+) -> Result<RgbaImage, GpuError> {
+    assert_eq!(
+        texture.format().block_copy_size(None),
+        Some(4),
+        "read_texture_8bit4 reads four bytes per texel, not {:?}",
+        texture.format()
+    );
+    let (width, height) = (texture.width(), texture.height());
+    // Rows of a texture-to-buffer copy are padded to 256 bytes.
+    let row = width * 4;
+    let padded_row = row.next_multiple_of(wgpu::COPY_BYTES_PER_ROW_ALIGNMENT);
+    let size = u64::from(padded_row) * u64::from(height);
+    let buffer = device.create_buffer(&wgpu::BufferDescriptor {
+        label: Some("colour read-back"),
+        size,
+        usage: wgpu::BufferUsages::COPY_SRC | wgpu::BufferUsages::COPY_DST,
+        mapped_at_creation: false,
+    });
+    let mut encoder = device.create_command_encoder(&Default::default());
+    encoder.copy_texture_to_buffer(
+        texture.as_image_copy(),
+        wgpu::TexelCopyBufferInfo {
+            buffer: &buffer,
+            layout: wgpu::TexelCopyBufferLayout {
+                offset: 0,
+                bytes_per_row: Some(padded_row),
+                rows_per_image: Some(height),
+            },
+        },
+        wgpu::Extent3d { width, height, depth_or_array_layers: 1 },
+    );
+    queue.submit([encoder.finish()]);
+    let bytes = crate::device::read_buffer(device, queue, &buffer, size)?;
+    let mut pixels = Vec::with_capacity((width * height) as usize);
+    for y in 0..height as usize {
+        let line = &bytes[y * padded_row as usize..][..row as usize];
+        pixels.extend(line.chunks_exact(4).map(|p| [p[0], p[1], p[2], p[3]]));
+    }
+    Ok(RgbaImage { width, height, pixels })
 }

@@ -16,6 +16,34 @@
 //! Normals: central differences of the heightmap, computed per fragment from the height
 //! texture and interpolated between samples ([`crate::surface::normal_at`]), so shading does
 //! not depend on the tessellation and no second texture is needed.
+//!
+//! # Targets: offscreen, or a window's surface
+//!
+//! [`TerrainRenderer::render`] draws into the renderer's own RGBA8 + depth target, which
+//! [`TerrainRenderer::read_image`] reads back (tests, PNGs, benchmarks).
+//! [`TerrainRenderer::render_to_view`] runs the same frame (same passes, same encoding) into a
+//! colour view the caller owns, with the renderer's depth buffer; this crate adds no window
+//! crate, and a windowed viewer uses it like this:
+//!
+//! 1. Create the `wgpu::Surface` from the window with the [`GpuContext`](crate::GpuContext)'s
+//!    `instance`, check `ctx.adapter.is_surface_supported(&surface)`, and build the renderer
+//!    with [`RenderConfig::width`] and [`RenderConfig::height`] equal to the window's size.
+//!    (`GpuContext` creates its instance without a display handle, which is enough for
+//!    Vulkan; presenting through GL/EGL needs an instance given the window's display.)
+//! 2. Configure the surface at the renderer's size ([`TerrainRenderer::size`]), with a format
+//!    from `surface.get_capabilities(&adapter).formats` (usually `Bgra8UnormSrgb` or
+//!    `Bgra8Unorm`) and `usage: RENDER_ATTACHMENT`.
+//! 3. Per frame: `let frame = surface.get_current_texture()?`, then
+//!    `let view = frame.texture.create_view(&Default::default())`, then
+//!    `renderer.render_to_view(&camera, &patches, &options, &view, config.format)?`, then
+//!    `frame.present()`.
+//!
+//! The pipelines of the surface's format are built on the first frame and kept. The image is
+//! the same as the offscreen one: for an sRGB format the fragment stage decodes its (already
+//! sRGB-encoded) colours and the clear colour is decoded likewise, so the store's encoding
+//! gives back the offscreen bytes to within one level. A renderer has one size: after a window
+//! resize, build a renderer of the new size (or keep drawing at the old size into a surface
+//! configured at it).
 
 pub mod crack;
 mod framing;

@@ -47,7 +47,8 @@ const _: () = {
     assert!(size_of::<GpuDomainPoint>() == 16);
 };
 
-/// What one call of [`TerrainRenderer::render`] drew and what it cost.
+/// What one call of [`TerrainRenderer::render`] or [`TerrainRenderer::render_to_view`] drew
+/// and what it cost.
 #[derive(Clone, Debug, PartialEq)]
 pub struct FrameStats {
     /// Patches drawn (culled ones included).
@@ -187,19 +188,92 @@ pub struct SurfaceReadBack {
     pub normals: Vec<[f32; 4]>,
 }
 
-/// Draws a heightmap from a list of patches into an offscreen RGBA8 target.
+/// The two render pipelines of one colour format.
+#[derive(Debug)]
+struct Pipelines {
+    /// Vertices from the tessellator's point buffer, indexed.
+    indexed: wgpu::RenderPipeline,
+    /// Vertices pulled from the index buffer by the vertex stage (wireframe's barycentrics).
+    pulled: wgpu::RenderPipeline,
+}
+
+impl Pipelines {
+    /// Builds both pipelines for colour targets of `format`; sRGB formats get the shader's
+    /// `SRGB_TARGET` (decode before the store re-encodes).
+    fn new(
+        device: &wgpu::Device,
+        module: &wgpu::ShaderModule,
+        layout: &wgpu::PipelineLayout,
+        format: wgpu::TextureFormat,
+    ) -> Self {
+        let srgb = [("SRGB_TARGET", 1.0)];
+        let fragment_options = wgpu::PipelineCompilationOptions {
+            constants: if format.is_srgb() { &srgb } else { &[] },
+            ..Default::default()
+        };
+        let attributes = wgpu::vertex_attr_array![0 => Float32x2, 1 => Uint32, 2 => Uint32];
+        let vertex_buffers = [Some(wgpu::VertexBufferLayout {
+            array_stride: size_of::<GpuDomainPoint>() as u64,
+            step_mode: wgpu::VertexStepMode::Vertex,
+            attributes: &attributes,
+        })];
+        let pipeline = |entry_point: &str, buffers: &[Option<wgpu::VertexBufferLayout<'_>>]| {
+            device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
+                label: Some(entry_point),
+                layout: Some(layout),
+                vertex: wgpu::VertexState {
+                    module,
+                    entry_point: Some(entry_point),
+                    compilation_options: Default::default(),
+                    buffers,
+                },
+                // No culling: skirts are seen from both sides, and a view from below is legal.
+                primitive: wgpu::PrimitiveState::default(),
+                depth_stencil: Some(OffscreenTarget::depth_state()),
+                multisample: Default::default(),
+                fragment: Some(wgpu::FragmentState {
+                    module,
+                    entry_point: Some("fs"),
+                    compilation_options: fragment_options.clone(),
+                    targets: &[Some(format.into())],
+                }),
+                multiview_mask: None,
+                cache: None,
+            })
+        };
+        Self {
+            indexed: pipeline("vs_indexed", &vertex_buffers),
+            pulled: pipeline("vs_pulled", &[]),
+        }
+    }
+}
+
+/// Where a frame's colour goes: the renderer's own RGBA8 texture, or a caller's view.
+#[derive(Clone, Copy, Debug)]
+enum ColorTarget<'a> {
+    Offscreen,
+    View(&'a wgpu::TextureView, wgpu::TextureFormat),
+}
+
+/// Draws a heightmap from a list of patches into an offscreen RGBA8 target
+/// ([`TerrainRenderer::render`]) or into a colour view the caller owns, such as a window
+/// surface's texture ([`TerrainRenderer::render_to_view`]).
 #[derive(Debug)]
 pub struct TerrainRenderer {
     device: wgpu::Device,
     queue: wgpu::Queue,
+    /// For the format capabilities of [`TerrainRenderer::render_to_view`]'s targets.
+    gpu_adapter: wgpu::Adapter,
     features: GpuFeatures,
     adapter: String,
     target: OffscreenTarget,
     tessellator: GpuTessellator,
     layout: wgpu::BindGroupLayout,
     debug_layout: wgpu::BindGroupLayout,
-    indexed: wgpu::RenderPipeline,
-    pulled: wgpu::RenderPipeline,
+    module: wgpu::ShaderModule,
+    render_layout: wgpu::PipelineLayout,
+    /// Per colour format; [`COLOR_FORMAT`]'s built with the renderer, others on first use.
+    pipelines: HashMap<wgpu::TextureFormat, Pipelines>,
     debug: wgpu::ComputePipeline,
     frame: wgpu::Buffer,
     col_x: wgpu::Buffer,
@@ -244,6 +318,22 @@ fn texture(filterable: bool) -> wgpu::BindingType {
         view_dimension: wgpu::TextureViewDimension::D2,
         multisampled: false,
     }
+}
+
+/// The clear colour of `background` (sRGB-encoded bytes, as the shader's colours are): as it is
+/// for a unorm target, decoded to linear for an sRGB target (which encodes it again).
+fn clear_color(background: [u8; 4], srgb: bool) -> wgpu::Color {
+    let [r, g, b, a] = background.map(|c| f64::from(c) / 255.0);
+    let decode = |c: f64| {
+        if !srgb {
+            c
+        } else if c <= 0.04045 {
+            c / 12.92
+        } else {
+            ((c + 0.055) / 1.055).powf(2.4)
+        }
+    };
+    wgpu::Color { r: decode(r), g: decode(g), b: decode(b), a }
 }
 
 /// Factor bits: the cache key of a patch's counts.
@@ -393,38 +483,10 @@ impl TerrainRenderer {
             bind_group_layouts: &[Some(&layout)],
             immediate_size: 0,
         });
-        let attributes = wgpu::vertex_attr_array![0 => Float32x2, 1 => Uint32, 2 => Uint32];
-        let vertex_buffers = [Some(wgpu::VertexBufferLayout {
-            array_stride: size_of::<GpuDomainPoint>() as u64,
-            step_mode: wgpu::VertexStepMode::Vertex,
-            attributes: &attributes,
-        })];
-        let pipeline = |entry_point: &str, buffers: &[Option<wgpu::VertexBufferLayout<'_>>]| {
-            device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
-                label: Some(entry_point),
-                layout: Some(&render_layout),
-                vertex: wgpu::VertexState {
-                    module: &module,
-                    entry_point: Some(entry_point),
-                    compilation_options: Default::default(),
-                    buffers,
-                },
-                // No culling: skirts are seen from both sides, and a view from below is legal.
-                primitive: wgpu::PrimitiveState::default(),
-                depth_stencil: Some(OffscreenTarget::depth_state()),
-                multisample: Default::default(),
-                fragment: Some(wgpu::FragmentState {
-                    module: &module,
-                    entry_point: Some("fs"),
-                    compilation_options: Default::default(),
-                    targets: &[Some(COLOR_FORMAT.into())],
-                }),
-                multiview_mask: None,
-                cache: None,
-            })
-        };
-        let indexed = pipeline("vs_indexed", &vertex_buffers);
-        let pulled = pipeline("vs_pulled", &[]);
+        let pipelines = HashMap::from([(
+            COLOR_FORMAT,
+            Pipelines::new(device, &module, &render_layout, COLOR_FORMAT),
+        )]);
         let debug_pipeline_layout =
             device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
                 label: Some("terrain debug"),
@@ -475,6 +537,7 @@ impl TerrainRenderer {
         Ok(Self {
             device: ctx.device.clone(),
             queue: ctx.queue.clone(),
+            gpu_adapter: ctx.adapter.clone(),
             features: ctx.features,
             adapter: ctx.describe(),
             target: OffscreenTarget::new(device, config.width, config.height),
@@ -482,8 +545,9 @@ impl TerrainRenderer {
             tessellator: GpuTessellator::new(device),
             layout,
             debug_layout,
-            indexed,
-            pulled,
+            module,
+            render_layout,
+            pipelines,
             debug,
             frame,
             col_x,
@@ -639,16 +703,106 @@ impl TerrainRenderer {
         self.queue.write_buffer(&self.frame, 0, bytemuck::bytes_of(&frame));
     }
 
-    /// Draws `patches` as seen by `camera` (its viewport is replaced by the target's size) and
-    /// waits for the device, so the returned GPU times are final. The tessellation is reused
-    /// while `patches` is unchanged from the previous call.
+    /// Draws `patches` as seen by `camera` (its viewport is replaced by the target's size) into
+    /// the offscreen RGBA8 target ([`TerrainRenderer::read_image`] reads it back) and, where
+    /// timestamp queries exist, waits for the device, so the returned GPU times are final. The
+    /// tessellation is reused while `patches` is unchanged from the previous call.
     pub fn render(
         &mut self,
         camera: &Camera,
         patches: &[DrawPatch],
         options: &RenderOptions,
     ) -> Result<FrameStats, RenderError> {
+        self.draw(camera, patches, options, ColorTarget::Offscreen)
+    }
+
+    /// Like [`TerrainRenderer::render`], drawing into `target`, a colour view the caller owns
+    /// whose texture is [`TerrainRenderer::size`] large, has `RENDER_ATTACHMENT` usage and is
+    /// viewed as `format` (a window surface's texture: see [the module docs](super)). Depth is
+    /// the renderer's own. The pipelines of a format other than RGBA8 are built on its first
+    /// use and kept; for an sRGB format the shader decodes its colours so that the stored
+    /// bytes match [`TerrainRenderer::render`]'s (to within a rounding step), background
+    /// included. [`TerrainRenderer::read_image`] does not see these frames. Fails with
+    /// [`RenderError::InvalidConfig`] when the view's texture has another size, is not
+    /// renderable, or `format` is not a float colour format the adapter can render to.
+    pub fn render_to_view(
+        &mut self,
+        camera: &Camera,
+        patches: &[DrawPatch],
+        options: &RenderOptions,
+        target: &wgpu::TextureView,
+        format: wgpu::TextureFormat,
+    ) -> Result<FrameStats, RenderError> {
+        let texture = target.texture();
+        let (w, h) = self.size();
+        if (texture.width(), texture.height()) != (w, h) {
+            return Err(RenderError::InvalidConfig(format!(
+                "the target view's texture is {} x {}, the renderer draws {w} x {h}",
+                texture.width(),
+                texture.height()
+            )));
+        }
+        if !texture.usage().contains(wgpu::TextureUsages::RENDER_ATTACHMENT) {
+            return Err(RenderError::InvalidConfig(
+                "the target view's texture lacks RENDER_ATTACHMENT usage".into(),
+            ));
+        }
+        if texture.format().remove_srgb_suffix() != format.remove_srgb_suffix() {
+            return Err(RenderError::InvalidConfig(format!(
+                "the target view's texture is {:?}, not viewable as {format:?}",
+                texture.format()
+            )));
+        }
+        self.draw(camera, patches, options, ColorTarget::View(target, format))
+    }
+
+    /// Test hook: the colour formats whose pipelines exist, sorted by name.
+    #[cfg(test)]
+    pub(super) fn pipeline_formats(&self) -> Vec<wgpu::TextureFormat> {
+        let mut formats: Vec<_> = self.pipelines.keys().copied().collect();
+        formats.sort_by_key(|f| format!("{f:?}"));
+        formats
+    }
+
+    /// Builds the pipelines of `format` unless they exist.
+    fn ensure_pipelines(&mut self, format: wgpu::TextureFormat) -> Result<(), RenderError> {
+        if self.pipelines.contains_key(&format) {
+            return Ok(());
+        }
+        let float = matches!(
+            format.sample_type(None, Some(self.device.features())),
+            Some(wgpu::TextureSampleType::Float { .. })
+        );
+        let renderable = self
+            .gpu_adapter
+            .get_texture_format_features(format)
+            .allowed_usages
+            .contains(wgpu::TextureUsages::RENDER_ATTACHMENT);
+        if !(float && renderable && !format.is_depth_stencil_format()) {
+            return Err(RenderError::InvalidConfig(format!(
+                "{format:?} is not a float colour format this adapter renders to"
+            )));
+        }
+        let pipelines = Pipelines::new(&self.device, &self.module, &self.render_layout, format);
+        self.pipelines.insert(format, pipelines);
+        Ok(())
+    }
+
+    /// The one frame path of [`TerrainRenderer::render`] and
+    /// [`TerrainRenderer::render_to_view`].
+    fn draw(
+        &mut self,
+        camera: &Camera,
+        patches: &[DrawPatch],
+        options: &RenderOptions,
+        color: ColorTarget<'_>,
+    ) -> Result<FrameStats, RenderError> {
         let start = Instant::now();
+        let format = match color {
+            ColorTarget::Offscreen => COLOR_FORMAT,
+            ColorTarget::View(_, format) => format,
+        };
+        self.ensure_pipelines(format)?;
         let (w, h) = self.size();
         let camera = camera.with_viewport(f64::from(w), f64::from(h));
         let tessellate_now = self.prepare(patches)?;
@@ -668,23 +822,28 @@ impl TerrainRenderer {
             self.tessellator.encode_timed(&mut encoder, &tess.out, writes);
         }
         {
-            let [r, g, b, a] = self.background.map(|c| f64::from(c) / 255.0);
+            let pipelines = &self.pipelines[&format];
+            let clear = clear_color(self.background, format.is_srgb());
             let writes = timer.map(|t| wgpu::RenderPassTimestampWrites {
                 query_set: &t.draw,
                 beginning_of_pass_write_index: Some(0),
                 end_of_pass_write_index: Some(1),
             });
-            let mut pass =
-                self.target.begin_timed_pass(&mut encoder, wgpu::Color { r, g, b, a }, writes);
+            let mut pass = match color {
+                ColorTarget::Offscreen => self.target.begin_timed_pass(&mut encoder, clear, writes),
+                ColorTarget::View(view, _) => {
+                    self.target.begin_pass_into(&mut encoder, view, clear, writes)
+                }
+            };
             pass.set_bind_group(0, &tess.bind_group, &[]);
             if options.wireframe {
                 // The non-indexed draw reads the indexed arguments: their first four words
                 // (index count, 1, 0, 0) are (vertex count, instances, first vertex, first
                 // instance).
-                pass.set_pipeline(&self.pulled);
+                pass.set_pipeline(&pipelines.pulled);
                 pass.draw_indirect(&tess.out.draw_args, 0);
             } else {
-                pass.set_pipeline(&self.indexed);
+                pass.set_pipeline(&pipelines.indexed);
                 pass.set_vertex_buffer(0, tess.out.points.slice(..));
                 pass.set_index_buffer(tess.out.indices.slice(..), wgpu::IndexFormat::Uint32);
                 pass.draw_indexed_indirect(&tess.out.draw_args, 0);
@@ -692,7 +851,7 @@ impl TerrainRenderer {
             if let Some(s) =
                 tess.skirts.as_ref().filter(|s| options.skirt_depth_m > 0.0 && s.index_count > 0)
             {
-                pass.set_pipeline(&self.indexed);
+                pass.set_pipeline(&pipelines.indexed);
                 pass.set_vertex_buffer(0, s.vertices.slice(..));
                 pass.set_index_buffer(s.indices.slice(..), wgpu::IndexFormat::Uint32);
                 pass.draw_indexed(0..s.index_count, 0, 0..1);
@@ -804,7 +963,7 @@ impl TerrainRenderer {
         });
     }
 
-    /// The last frame's colour image (waits for the device).
+    /// The colour image of the last [`TerrainRenderer::render`] (waits for the device).
     pub fn read_image(&self) -> Result<RgbaImage, GpuError> {
         self.target.read_color_with(&self.device, &self.queue)
     }

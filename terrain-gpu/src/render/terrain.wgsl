@@ -39,6 +39,18 @@ struct DomainPoint {
 const FLAG_WIREFRAME: u32 = 1u;
 const FLAG_TEXTURE: u32 = 2u;
 
+// Set by the pipelines of sRGB targets (render/renderer.rs): the colours below are already
+// sRGB-encoded (an Rgba8Unorm target stores them as they are, and PNGs are sRGB), so for a
+// target that encodes on store the fragment stage decodes them first; both targets then hold
+// the same bytes (to within a rounding step).
+override SRGB_TARGET: bool = false;
+
+fn srgb_to_linear(c: vec3<f32>) -> vec3<f32> {
+    let low = c / 12.92;
+    let high = pow((c + 0.055) / 1.055, vec3<f32>(2.4));
+    return select(high, low, c <= vec3<f32>(0.04045));
+}
+
 @group(0) @binding(0) var<uniform> frame: Frame;
 @group(0) @binding(1) var heights: texture_2d<f32>;
 @group(0) @binding(2) var<storage, read> rects: array<vec4<u32>>;
@@ -206,6 +218,9 @@ fn fs(in: VsOut) -> @location(0) vec4<f32> {
     // test can tell terrain from background by colour alone.
     c = clamp(c, vec3<f32>(0.0), vec3<f32>(1.0));
     c.g = max(c.g, 0.03);
+    if SRGB_TARGET {
+        c = srgb_to_linear(c);
+    }
     return vec4<f32>(c, 1.0);
 }
 

@@ -1,6 +1,6 @@
 //! GPU tests of the terrain renderer, on Vulkan (lavapipe here) and GL (llvmpipe): the
 //! shader's surface against the CPU reference, crack-freedom, a golden image, wireframe,
-//! colour texture orientation and frame statistics. Where no adapter exists the tests print
+//! colour texture orientation, frame statistics and drawing into a caller's (surface) view. Where no adapter exists the tests print
 //! why and pass, unless `TERRAIN_REQUIRE_GPU` is set: then they fail.
 
 use std::path::PathBuf;
@@ -15,6 +15,7 @@ use super::crack::{crack_cameras, crack_pixels};
 use super::*;
 use crate::device::{BackendChoice, GpuContext, GpuError, REQUIRE_ENV};
 use crate::surface;
+use crate::target::read_texture_8bit4;
 use crate::tess::{PatchFactors, tessellate};
 
 /// A context on `backend`, or `None` (with the reason printed) where none exists and none is required.
@@ -454,6 +455,115 @@ fn frame_stats_on_vulkan() {
 #[test]
 fn frame_stats_on_gl() {
     frame_stats(BackendChoice::Gl);
+}
+
+// ---------------------------------------------------------------------------------------
+// The surface path: `render_to_view` into a caller's texture.
+
+/// A `format` texture that can be drawn into and copied from: what a windowed viewer's
+/// `surface.get_current_texture()` gives, plus the `COPY_SRC` the read-back needs.
+fn surface_stand_in(
+    ctx: &GpuContext,
+    format: wgpu::TextureFormat,
+    w: u32,
+    h: u32,
+) -> wgpu::Texture {
+    ctx.device.create_texture(&wgpu::TextureDescriptor {
+        label: Some("surface stand-in"),
+        size: wgpu::Extent3d { width: w, height: h, depth_or_array_layers: 1 },
+        mip_level_count: 1,
+        sample_count: 1,
+        dimension: wgpu::TextureDimension::D2,
+        format,
+        usage: wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::COPY_SRC,
+        view_formats: &[],
+    })
+}
+
+/// The default terrain drawn by `render_to_view` into BGRA textures, read back and swizzled
+/// to RGBA, equals the offscreen `render` + `read_image` of the same camera and patches:
+/// exactly for `Bgra8Unorm` (both targets quantise the same fragment colours the same way),
+/// within one level per channel for `Bgra8UnormSrgb` (the shader decodes, the store encodes
+/// again: the round trip can land on the neighbouring level). The sRGB case runs where the
+/// adapter can render to that format, and says so where it cannot.
+fn render_to_view_matches_offscreen(backend: BackendChoice) {
+    let Some(ctx) = context(backend) else { return };
+    let hm = default_terrain();
+    let (w, h) = (96, 54);
+    let camera = default_camera(&hm, w, h, 50.0);
+    let patches = uniform_patches(&hm, 32, 16.0);
+    let options = RenderOptions::default();
+    let mut renderer = TerrainRenderer::new(&ctx, &hm, &config(w, h)).unwrap();
+    renderer.render(&camera, &patches, &options).unwrap();
+    let offscreen = renderer.read_image().unwrap();
+    let terrain = offscreen.pixels.iter().filter(|&&p| p != BACKGROUND).count();
+    println!("offscreen: {terrain} of {} pixels are terrain", offscreen.pixels.len());
+    assert!(terrain > offscreen.pixels.len() / 10, "too little terrain in view to compare");
+
+    let mut formats = vec![wgpu::TextureFormat::Rgba8Unorm];
+    for (format, tolerance) in
+        [(wgpu::TextureFormat::Bgra8Unorm, 0u8), (wgpu::TextureFormat::Bgra8UnormSrgb, 1)]
+    {
+        let usages = ctx.adapter.get_texture_format_features(format).allowed_usages;
+        if !usages.contains(wgpu::TextureUsages::RENDER_ATTACHMENT) {
+            assert!(format.is_srgb(), "{format:?} must be renderable: {usages:?}");
+            println!("{format:?}: not renderable on this adapter; not compared");
+            continue;
+        }
+        let texture = surface_stand_in(&ctx, format, w, h);
+        let view = texture.create_view(&Default::default());
+        // Twice: the second frame reuses the format's pipelines (and the tessellation).
+        for _ in 0..2 {
+            let stats =
+                renderer.render_to_view(&camera, &patches, &options, &view, format).unwrap();
+            assert_eq!(stats.patches, patches.len());
+        }
+        formats.push(format);
+        let bgra = read_texture_8bit4(&ctx.device, &ctx.queue, &texture).unwrap();
+        assert_eq!((bgra.width, bgra.height), (w, h));
+        let (mut differing, mut worst) = (0usize, 0u8);
+        for (got, want) in bgra.pixels.iter().zip(&offscreen.pixels) {
+            let [b, g, r, a] = *got;
+            let d = [r, g, b, a].iter().zip(want).map(|(x, y)| x.abs_diff(*y)).max().unwrap();
+            differing += usize::from(d > 0);
+            worst = worst.max(d);
+        }
+        println!(
+            "{format:?} via render_to_view: {differing} of {} pixels differ from the offscreen \
+             render, by at most {worst} levels (allowed {tolerance})",
+            bgra.pixels.len()
+        );
+        assert!(worst <= tolerance, "{format:?}: {differing} pixels differ, up to {worst} levels");
+    }
+    formats.sort_by_key(|f| format!("{f:?}"));
+    assert_eq!(renderer.pipeline_formats(), formats, "one pipeline set per format, kept");
+
+    // The offscreen target is untouched by frames drawn elsewhere.
+    assert_eq!(renderer.read_image().unwrap(), offscreen);
+
+    // A view of another size, or a format the view's texture cannot have, is an error.
+    let small = surface_stand_in(&ctx, wgpu::TextureFormat::Bgra8Unorm, w - 1, h);
+    let view = small.create_view(&Default::default());
+    let err = renderer
+        .render_to_view(&camera, &patches, &options, &view, wgpu::TextureFormat::Bgra8Unorm)
+        .unwrap_err();
+    assert!(matches!(err, RenderError::InvalidConfig(_)), "{err}");
+    let texture = surface_stand_in(&ctx, wgpu::TextureFormat::Bgra8Unorm, w, h);
+    let view = texture.create_view(&Default::default());
+    let err = renderer
+        .render_to_view(&camera, &patches, &options, &view, wgpu::TextureFormat::Rgba8Unorm)
+        .unwrap_err();
+    assert!(matches!(err, RenderError::InvalidConfig(_)), "{err}");
+}
+
+#[test]
+fn render_to_view_matches_offscreen_on_vulkan() {
+    render_to_view_matches_offscreen(BackendChoice::Vulkan);
+}
+
+#[test]
+fn render_to_view_matches_offscreen_on_gl() {
+    render_to_view_matches_offscreen(BackendChoice::Gl);
 }
 
 #[test]
