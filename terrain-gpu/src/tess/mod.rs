@@ -1,5 +1,5 @@
 //! Emulated quad-domain tessellation with fractional-even spacing: a CPU reference
-//! ([`reference`]) and a compute-shader twin ([`gpu`], `tessellate.wgsl`) that must agree.
+//! ([`reference`](mod@reference)) and a compute-shader twin ([`gpu`], `tessellate.wgsl`) that must agree.
 //!
 //! # Why a compute pass, and how it is laid out
 //!
@@ -12,7 +12,7 @@
 //!   for every vertex; emitting once and drawing many times (shadow passes, several views) is
 //!   cheaper.
 //! - The output is exactly the reference's points and indices, so a read-back compares with
-//!   [`reference::tessellate`] point by point and index by index.
+//!   [`tessellate`] point by point and index by index.
 //! - Three passes, all deterministic (no atomics): `count` (one invocation per patch, closed
 //!   form), `scan` (one workgroup: exclusive prefix sums give every patch its point and index
 //!   ranges, and the total goes into the indirect draw arguments), `emit` (one invocation per
