@@ -1,6 +1,9 @@
 //! The `terrain` command line: composes the engine's crates into user-facing commands.
 
 mod bake;
+mod bench_cli;
+mod demo;
+mod fly;
 mod info;
 mod render;
 mod roughness;
@@ -27,6 +30,12 @@ enum Command {
     Bake(bake::BakeArgs),
     /// Draw a DEM (or the embedded synthetic terrain) with the GPU tessellator into a PNG.
     Render(render::RenderArgs),
+    /// Fly a camera flight: numbered PNG frames plus per-frame stats as CSV and JSON.
+    Fly(fly::FlyArgs),
+    /// Benchmark every LOD method over flights: JSON, Markdown and SVG speed-against-error.
+    Bench(bench_cli::BenchArgs),
+    /// The embedded terrain end to end: a flight, its frames, a benchmark report and plot.
+    Demo(demo::DemoArgs),
 }
 
 fn main() -> std::process::ExitCode {
@@ -36,6 +45,9 @@ fn main() -> std::process::ExitCode {
         Command::Roughness(args) => roughness::run(&args),
         Command::Bake(args) => bake::run(&args),
         Command::Render(args) => render::run(&args),
+        Command::Fly(args) => fly::run(&args),
+        Command::Bench(args) => bench_cli::run(&args),
+        Command::Demo(args) => demo::run(&args),
     };
     match result {
         Ok(()) => std::process::ExitCode::SUCCESS,
