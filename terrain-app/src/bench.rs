@@ -782,7 +782,7 @@ impl BenchReport {
         for (row, f) in self.flights.iter().enumerate() {
             let runs: Vec<&RunRecord> = self.runs.iter().filter(|r| r.flight == f.name).collect();
             let y0 = legend_h + row as f64 * ph;
-            let panels: [(&str, fn(&RunSummary) -> f64); 2] =
+            let panels: [(&str, Axis); 2] =
                 [("triangles", |m| m.median_triangles), ("CPU ms per frame", |m| m.median_cpu_ms)];
             for (col, (ylabel, yof)) in panels.into_iter().enumerate() {
                 let title = format!("{}: {ylabel} vs p99 px ({})", f.name, self.terrain);
@@ -797,6 +797,9 @@ impl BenchReport {
         s
     }
 }
+
+/// A plot's y value of a run.
+type Axis = fn(&RunSummary) -> f64;
 
 /// Power-of-ten range covering the positive values of `v`.
 fn log_range(v: impl Iterator<Item = f64>) -> (f64, f64) {
