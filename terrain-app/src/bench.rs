@@ -241,7 +241,6 @@ pub struct FrameRunner<'a> {
     renderer: Option<&'a mut TerrainRenderer>,
     options: RenderOptions,
     last_anchor: Option<glam::DVec3>,
-    last_patches: usize,
     first: bool,
 }
 
@@ -260,7 +259,6 @@ impl<'a> FrameRunner<'a> {
             renderer,
             options: RenderOptions::default(),
             last_anchor: None,
-            last_patches: usize::MAX,
             first: true,
         }
     }
@@ -320,7 +318,6 @@ impl<'a> FrameRunner<'a> {
                 bytes += 4 * (scene.hm.width() + scene.hm.height()) as u64;
             }
             self.last_anchor = Some(anchor);
-            self.last_patches = patches.len();
             self.first = false;
             record.encode_ms = Some(s.cpu_ms);
             record.render_ms = Some(render_ms);
