@@ -2,4 +2,5 @@
 //! and the integration tests: LOD methods assembled from terrain-core (quadtree, metrics,
 //! selection), terrain-visibility (roughness) and handed to terrain-gpu as draw patches.
 
+pub mod bench;
 pub mod methods;

@@ -1,6 +1,9 @@
 //! The `terrain` command line: composes the engine's crates into user-facing commands.
 
 mod bake;
+mod bench_cli;
+mod demo;
+mod fly;
 mod info;
 mod mesh;
 mod render;
@@ -31,6 +34,12 @@ enum Command {
     /// A triangle mesh within --max-error metres of every sample (RTIN or greedy Delaunay),
     /// verified, then written as .glb, .gltf or .obj.
     Mesh(mesh::MeshArgs),
+    /// Fly a camera flight: numbered PNG frames plus per-frame stats as CSV and JSON.
+    Fly(fly::FlyArgs),
+    /// Benchmark every LOD method over flights: JSON, Markdown and SVG speed-against-error.
+    Bench(bench_cli::BenchArgs),
+    /// The embedded terrain end to end: a flight, its frames, a benchmark report and plot.
+    Demo(demo::DemoArgs),
 }
 
 fn main() -> std::process::ExitCode {
@@ -41,6 +50,9 @@ fn main() -> std::process::ExitCode {
         Command::Bake(args) => bake::run(&args),
         Command::Render(args) => render::run(&args),
         Command::Mesh(args) => mesh::run(&args),
+        Command::Fly(args) => fly::run(&args),
+        Command::Bench(args) => bench_cli::run(&args),
+        Command::Demo(args) => demo::run(&args),
     };
     match result {
         Ok(()) => std::process::ExitCode::SUCCESS,

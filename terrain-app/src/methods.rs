@@ -224,11 +224,14 @@ pub fn draw_patches(qt: &Quadtree, selection: &Selection) -> Vec<DrawPatch> {
         .iter()
         .map(|p| {
             let (x0, y0, c) = p.node.grid_rect(qt.root_cells());
-            let [s, e, n, w] = p.outer;
-            DrawPatch {
-                rect: [x0, y0, x0 + c, y0 + c],
-                factors: PatchFactors { inner: p.inner, outer: [w, s, e, n] },
-            }
+            DrawPatch { rect: [x0, y0, x0 + c, y0 + c], factors: patch_factors(p) }
         })
         .collect()
+}
+
+/// The tessellator's factors of a selected patch: outer factors move from the selection's
+/// [south, east, north, west] to Vulkan's [west, south, east, north].
+pub fn patch_factors(p: &Patch) -> PatchFactors {
+    let [s, e, n, w] = p.outer;
+    PatchFactors { inner: p.inner, outer: [w, s, e, n] }
 }

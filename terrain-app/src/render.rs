@@ -63,7 +63,7 @@ pub struct RenderArgs {
     pub output: PathBuf,
 }
 
-fn parse_size(s: &str) -> anyhow::Result<(u32, u32)> {
+pub(crate) fn parse_size(s: &str) -> anyhow::Result<(u32, u32)> {
     let bad = || format!("--size expects WIDTHxHEIGHT (e.g. 1280x720), got `{s}`");
     let (w, h) = s.split_once(['x', 'X']).with_context(bad)?;
     let (w, h): (u32, u32) =

@@ -1,21 +1,35 @@
 //! `cargo xtask`: developer workflows that are code rather than shell (matklad's cargo-xtask).
 //!
-//! Tasks: `lint` (the formatting and clippy gates of `.ci/run`). `bench` arrives with the
-//! measurement issue.
+//! Tasks: `lint` (the formatting and clippy gates of `.ci/run`) and `bench` (every LOD method
+//! over the shipped flights, through `terrain bench` built in release; results in
+//! `bench/results/`).
 
+use std::path::{Path, PathBuf};
 use std::process::Command;
+use std::time::Instant;
 
 use anyhow::{Context, bail};
+
+const USAGE: &str = "cargo xtask <task>
+
+tasks:
+  lint    cargo fmt --check and clippy with warnings denied
+  bench   [--quick] [--dem default|puget1k|PATH]... [--methods a,b,..] [--flight FILE]...
+          [--frames N] [--out DIR]
+          every method over every flight, each threshold swept; writes
+          DIR/<dem>-<backend>.{json,md,svg} (DIR default bench/results).
+          --quick: the default backend only, 20 frames per flight, 3 sweep points, 320x180,
+          the embedded terrain and Puget Sound 1k, flights pvps_884 and dss_approach.
+          Full: Vulkan then GL, 60 frames per flight, 5 sweep points, 640x360, every flight.";
 
 fn main() -> anyhow::Result<()> {
     let args: Vec<String> = std::env::args().skip(1).collect();
     match args.first().map(String::as_str) {
         Some("lint") => lint(),
-        Some(other) => bail!("unknown task `{other}`; tasks: lint"),
+        Some("bench") => bench(&args[1..]),
+        Some(other) => bail!("unknown task `{other}`; tasks: lint, bench"),
         None => {
-            println!(
-                "cargo xtask <task>\n\ntasks:\n  lint   cargo fmt --check and clippy with warnings denied"
-            );
+            println!("{USAGE}");
             Ok(())
         }
     }
@@ -33,6 +47,111 @@ fn run(program: &str, args: &[&str]) -> anyhow::Result<()> {
         .with_context(|| format!("could not start {program}"))?;
     if !status.success() {
         bail!("{program} {} failed with {status}", args.join(" "));
+    }
+    Ok(())
+}
+
+/// The workspace root: xtask's manifest folder's parent.
+fn root() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).parent().expect("xtask has a parent").to_path_buf()
+}
+
+/// A DEM of the benchmark: a report name and the `terrain bench` arguments that load it.
+fn dem_args(spec: &str) -> anyhow::Result<(String, Vec<String>)> {
+    let data = std::env::var_os("TERRAIN_DATA")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| root().join("../shared/data"));
+    Ok(match spec {
+        "default" => ("default".to_string(), vec![]),
+        "puget1k" => {
+            let p = data.join("puget_sound/ps_height_1k.png");
+            if !p.exists() {
+                bail!("{} is missing (set TERRAIN_DATA)", p.display());
+            }
+            let args = ["--vertical-scale", "0.1", "--spacing", "160"];
+            (
+                "puget1k".to_string(),
+                std::iter::once(p.display().to_string())
+                    .chain(args.iter().map(|s| s.to_string()))
+                    .collect(),
+            )
+        }
+        path => {
+            let p = Path::new(path);
+            let name = p.file_stem().map(|s| s.to_string_lossy().into_owned());
+            (name.unwrap_or_else(|| "dem".to_string()), vec![path.to_string()])
+        }
+    })
+}
+
+fn bench(args: &[String]) -> anyhow::Result<()> {
+    let (mut quick, mut dems, mut flights, mut extra) = (false, vec![], vec![], vec![]);
+    let mut out = root().join("bench/results");
+    let mut it = args.iter();
+    while let Some(a) = it.next() {
+        let mut value = || it.next().with_context(|| format!("{a} needs a value"));
+        match a.as_str() {
+            "--quick" => quick = true,
+            "--dem" => dems.push(value()?.clone()),
+            "--flight" => flights.push(PathBuf::from(value()?)),
+            "--methods" | "--frames" | "--sweep" | "--size" => {
+                extra.extend([a.clone(), value()?.clone()]);
+            }
+            "--out" => out = PathBuf::from(value()?),
+            other => bail!("unknown bench option `{other}`\n\n{USAGE}"),
+        }
+    }
+    if dems.is_empty() {
+        dems = vec!["default".to_string(), "puget1k".to_string()];
+    }
+    if flights.is_empty() {
+        let dir = root().join("flights");
+        flights = if quick {
+            ["pvps_884.json", "dss_approach.json"].map(|f| dir.join(f)).to_vec()
+        } else {
+            let mut v: Vec<PathBuf> = std::fs::read_dir(&dir)
+                .with_context(|| format!("could not list {}", dir.display()))?
+                .filter_map(|e| e.ok().map(|e| e.path()))
+                .filter(|p| p.extension().is_some_and(|e| e == "json"))
+                .collect();
+            v.sort();
+            v
+        };
+    }
+    // Quick: whichever backend `terrain` picks (Vulkan first); full: each backend in turn.
+    let backends: &[Option<&str>] = if quick { &[None] } else { &[Some("vulkan"), Some("gl")] };
+    let start = Instant::now();
+    run("cargo", &["build", "--release", "-q", "-p", "terrain-app"])?;
+    let terrain = root().join("target/release/terrain");
+    let mut written = Vec::new();
+    for dem in &dems {
+        let (name, load) = dem_args(dem)?;
+        for backend in backends {
+            let report = format!("{name}-{}", backend.unwrap_or("quick"));
+            let mut cmd = Command::new(&terrain);
+            cmd.arg("bench").args(&load).arg("--name").arg(&report).arg("--out").arg(&out);
+            for f in &flights {
+                cmd.arg("--flight").arg(f);
+            }
+            if quick {
+                cmd.arg("--quick");
+            }
+            cmd.args(&extra);
+            if let Some(b) = backend {
+                cmd.env("TERRAIN_GPU_BACKEND", b);
+            }
+            println!("== {report}: {cmd:?}");
+            let status =
+                cmd.status().with_context(|| format!("could not start {}", terrain.display()))?;
+            if !status.success() {
+                bail!("terrain bench for {report} failed with {status}");
+            }
+            written.push(out.join(format!("{report}.md")));
+        }
+    }
+    println!("\nbench done in {:.1} s; reports:", start.elapsed().as_secs_f64());
+    for w in &written {
+        println!("  {}", w.display());
     }
     Ok(())
 }

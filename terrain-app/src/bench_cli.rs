@@ -1,0 +1,126 @@
+//! `terrain bench`: every LOD method over the given flights on one DEM, each method's threshold
+//! swept; writes `<out>/<name>.json`, `.md` and `.svg` (see `terrain_app::bench`).
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{Context, bail};
+use clap::Args;
+use terrain_app::bench::{BenchConfig, BenchReport, print_progress, run_bench};
+use terrain_app::methods::{LodMethod, MethodConfig};
+use terrain_core::flight::FlightSpec;
+use terrain_core::synth;
+use terrain_gpu::{BackendChoice, DeviceConfig, GpuContext};
+
+use crate::render::parse_size;
+use crate::source::SourceArgs;
+
+/// Arguments of `terrain bench`.
+#[derive(Debug, Args)]
+pub struct BenchArgs {
+    #[command(flatten)]
+    pub source: SourceArgs,
+    /// Flight files (JSON), flown in this order.
+    #[arg(long = "flight", required = true, num_args = 1..)]
+    pub flights: Vec<PathBuf>,
+    /// Methods, comma-separated (default: all).
+    #[arg(long, value_enum, value_delimiter = ',')]
+    pub methods: Vec<LodMethod>,
+    /// The CI settings: 20 frames per flight, 3 sweep points, 320x180 images.
+    #[arg(long)]
+    pub quick: bool,
+    /// At most this many frames per flight, evenly spaced (0 = all). Default 60 (quick: 20).
+    #[arg(long)]
+    pub frames: Option<usize>,
+    /// Sweep points per method. Default 5 (quick: 3).
+    #[arg(long)]
+    pub sweep: Option<usize>,
+    /// Rendered image size, WIDTHxHEIGHT. Default 640x360 (quick: 320x180).
+    #[arg(long)]
+    pub size: Option<String>,
+    /// Measure only: do not render (no GPU times).
+    #[arg(long)]
+    pub no_render: bool,
+    /// Cells per side of the finest patch.
+    #[arg(long, default_value_t = 16)]
+    pub leaf_cells: u32,
+    /// Report name: the files are `<out>/<name>.{json,md,svg}`. Default: the DEM's file stem
+    /// (`default` for the embedded terrain).
+    #[arg(long)]
+    pub name: Option<String>,
+    /// Output folder (created).
+    #[arg(short, long, default_value = "bench/results")]
+    pub out: PathBuf,
+}
+
+/// Writes `<dir>/<name>.json`, `.md` and `.svg`; returns the three paths.
+pub fn write_report(report: &BenchReport, dir: &Path, name: &str) -> anyhow::Result<[PathBuf; 3]> {
+    std::fs::create_dir_all(dir).with_context(|| format!("could not create {}", dir.display()))?;
+    let paths = ["json", "md", "svg"].map(|e| dir.join(format!("{name}.{e}")));
+    let contents = [serde_json::to_string_pretty(report)?, report.to_markdown(), report.to_svg()];
+    for (p, c) in paths.iter().zip(contents) {
+        std::fs::write(p, c).with_context(|| format!("could not write {}", p.display()))?;
+    }
+    Ok(paths)
+}
+
+/// Runs `terrain bench`.
+pub fn run(args: &BenchArgs) -> anyhow::Result<()> {
+    let mut cfg = if args.quick { BenchConfig::quick() } else { BenchConfig::default() };
+    if !args.methods.is_empty() {
+        cfg.methods = args.methods.clone();
+    }
+    if let Some(f) = args.frames {
+        cfg.max_frames = f;
+    }
+    if let Some(s) = args.sweep {
+        if s == 0 {
+            bail!("--sweep must be at least 1");
+        }
+        cfg.sweep_points = s;
+    }
+    if let Some(s) = &args.size {
+        cfg.render_size = Some(parse_size(s)?);
+    }
+    if args.no_render {
+        cfg.render_size = None;
+    }
+    if args.leaf_cells == 0 {
+        bail!("--leaf-cells must be at least 1");
+    }
+    cfg.method = MethodConfig { leaf_cells: args.leaf_cells, ..MethodConfig::default() };
+    let flights = args
+        .flights
+        .iter()
+        .map(|p| {
+            FlightSpec::load(p)
+                .with_context(|| format!("could not load the flight {}", p.display()))
+        })
+        .collect::<anyhow::Result<Vec<_>>>()?;
+    let (hm, default_name) = match args.source.load()? {
+        Some(dem) => {
+            let stem = args.source.dem[0].file_stem().map(|s| s.to_string_lossy().into_owned());
+            (dem.heightmap, stem.unwrap_or_else(|| "dem".to_string()))
+        }
+        None => (synth::default_terrain(), "default".to_string()),
+    };
+    let name = args.name.clone().unwrap_or(default_name);
+    let ctx = if cfg.render_size.is_some() {
+        let ctx = GpuContext::try_new(&DeviceConfig::from_env(BackendChoice::Auto))?;
+        match &ctx {
+            Some(c) => println!("adapter: {}", c.describe()),
+            None => eprintln!("no GPU adapter: measuring without rendering (no GPU times)"),
+        }
+        ctx
+    } else {
+        None
+    };
+    let start = std::time::Instant::now();
+    let report = run_bench(&name, hm, &flights, &cfg, ctx.as_ref(), &mut print_progress)?;
+    let paths = write_report(&report, &args.out, &name)?;
+    println!("{}", report.to_markdown());
+    for p in &paths {
+        println!("wrote {}", p.display());
+    }
+    println!("bench took {:.1} s", start.elapsed().as_secs_f64());
+    Ok(())
+}
