@@ -54,8 +54,8 @@ pub use los::LineOfSight;
 /// How a frame is measured.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct MeasureConfig {
-    /// Measure every `stride`-th sample along each axis (samples with `i % s == 0` and
-    /// `j % s == 0`); `0` chooses automatically: 1 while the samples in quadtree leaves
+    /// Measure one sample per `stride` x `stride` block, at an offset hashed from the block
+    /// (stratified, not an aligned lattice, which would sit on tessellation vertices); `0` chooses automatically: 1 while the samples in quadtree leaves
     /// touching the frustum are fewer than `max_samples`, otherwise the smallest stride that
     /// brings them under it. Default 0. The stride used is reported in
     /// [`FrameErrors::stride`].
@@ -183,12 +183,18 @@ impl<'a> Measurer<'a> {
             let end = k + touched[k..].iter().take_while(|l| l.j == row_leaf).count();
             let (y0, y1) = leaves.owned_range(row_leaf, h, leaves.ny);
             for y in y0..=y1 {
-                if y % stride != 0 {
-                    continue;
-                }
+                let (by, row_in_block) = (y / stride, y % stride);
                 for leaf in &touched[k..end] {
                     let (x0, x1) = leaves.owned_range(leaf.i, w, leaves.nx);
-                    for x in (x0.next_multiple_of(stride)..=x1).step_by(stride) {
+                    // Stratified sampling: one sample per stride x stride block, at an offset
+                    // hashed from the block (see `block_offset`), visited on its own row.
+                    let blocks = (x0 / stride)..=(x1 / stride);
+                    let xs = blocks.filter_map(|bx| {
+                        let (ox, oy) = block_offset(bx, by, stride);
+                        let x = bx * stride + ox;
+                        (oy == row_in_block && (x0..=x1).contains(&x)).then_some(x)
+                    });
+                    for x in xs {
                         if voids.any() && voids.get(x, y) {
                             continue;
                         }
@@ -267,6 +273,24 @@ pub fn measure_frame(
     cfg: &MeasureConfig,
 ) -> FrameErrors {
     Measurer::new(hm, qt, *cfg).measure(camera, sel, mesh)
+}
+
+/// The sample measured in stride block `(bx, by)`: an offset in `[0, stride)^2` hashed from the
+/// block (SplitMix64), the same in every frame so popping compares the same samples. An aligned
+/// lattice (`i % stride == 0`) would be biased: its samples coincide with the vertices of
+/// power-of-two tessellations, where the drawn surface is exact, and report errors that are
+/// too low. One hashed sample per block is stratified sampling: unbiased, deterministic.
+fn block_offset(bx: usize, by: usize, stride: usize) -> (usize, usize) {
+    if stride <= 1 {
+        return (0, 0);
+    }
+    let mut z = (bx as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ (by as u64).rotate_left(32);
+    z = z.wrapping_add(0x9E37_79B9_7F4A_7C15);
+    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+    z ^= z >> 31;
+    let s = stride as u64;
+    ((z % s) as usize, ((z >> 32) % s) as usize)
 }
 
 /// The smallest stride `s` with `ceil(candidates / s^2) <= budget` (1 when it fits).
