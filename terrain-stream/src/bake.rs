@@ -91,7 +91,7 @@ pub struct BakeConfig {
     pub k: u8,
     /// How heights are stored. Default: 1 cm bound.
     pub encoding: HeightEncoding,
-    /// Payload codec. Default [`Codec::Predictive`] (lossless; chosen by measurement).
+    /// Payload codec. Default [`Codec::PredictiveDeflate`] (lossless; chosen by measurement).
     pub codec: Codec,
     /// Quadtree levels of per-node min/max/static error stored per block (clamped to `k`).
     /// Default 5 (1365 nodes, 16 KiB a block); deeper nodes use the per-level bounds.
@@ -107,7 +107,7 @@ impl Default for BakeConfig {
         Self {
             k: 8,
             encoding: HeightEncoding::default(),
-            codec: Codec::Predictive,
+            codec: Codec::PredictiveDeflate,
             node_levels: 5,
             threads: 0,
             overwrite: false,
