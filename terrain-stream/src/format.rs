@@ -211,7 +211,7 @@ pub enum Codec {
     Predictive,
     /// [`Codec::Predictive`]'s varints compressed with Deflate (each level alone, kept only
     /// where smaller). Quantized only. The default: 14-85% smaller than `Predictive` on the
-    /// shared DEMs for about 15% slower decoding (see `examples/stream_bench.rs codec`).
+    /// shared DEMs for 15-30% slower decoding (see `examples/stream_bench.rs codec`).
     PredictiveDeflate,
 }
 
