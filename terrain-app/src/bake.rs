@@ -33,7 +33,7 @@ pub struct BakeArgs {
     /// Store float heights as raw f32 instead.
     #[arg(long)]
     pub raw_f32: bool,
-    /// Store levels uncompressed (fixed width) instead of the predictive codec.
+    /// Store levels uncompressed (fixed width) instead of the predictive codec with Deflate.
     #[arg(long)]
     pub no_compression: bool,
     /// Replace an existing store.

@@ -1,8 +1,9 @@
 //! The terrain-stream benchmark: storage (raw, full pyramid, non-redundant, compressed) on the
 //! real DEMs and a big synthetic, bake throughput, and long flights (Table-3 rows per speed).
 //!
-//! `cargo run --release -p terrain-stream --example stream_bench -- [all|storage|flight|bake SIZE K]`
-//! (peak RSS: prefix with `/usr/bin/time -v`). Data from `../shared/data`.
+//! `cargo run --release -p terrain-stream --example stream_bench -- [all|storage|codec|flight
+//! FRAMES [puget|big]|bake SIZE K]` (peak RSS: prefix with `/usr/bin/time -v`). Data from
+//! `../shared/data`.
 
 use std::ops::ControlFlow;
 use std::path::{Path, PathBuf};
@@ -74,9 +75,9 @@ fn pyramid_bytes(store: &Store, sample_bytes: u64) -> u64 {
 fn storage() {
     println!("\n## Storage (k = 8 unless said; sizes in MB)\n");
     println!(
-        "| dataset | samples | raw | full pyramid | non-redundant plain | predictive | vs raw | vs pyramid | lossless | bake MB/s |"
+        "| dataset | samples | raw | full pyramid | non-redundant plain | predictive | predictive + deflate | vs raw | vs pyramid | lossless | bake MB/s |"
     );
-    println!("|---|---|---|---|---|---|---|---|---|---|");
+    println!("|---|---|---|---|---|---|---|---|---|---|---|");
     let dir = scratch();
     for (name, hm, enc, sb) in datasets() {
         let n = (hm.width() * hm.height()) as u64;
@@ -84,7 +85,7 @@ fn storage() {
         let mut lossless = false;
         let mut mbs = 0.0;
         let mut pyr = 0;
-        for codec in [Codec::Plain, Codec::Predictive] {
+        for codec in [Codec::Plain, Codec::Predictive, Codec::PredictiveDeflate] {
             let cfg =
                 BakeConfig { k: 8, encoding: enc, codec, overwrite: true, ..Default::default() };
             let t = Instant::now();
@@ -102,15 +103,16 @@ fn storage() {
         }
         let mb = |b: u64| b as f64 / 1e6;
         println!(
-            "| {name} | {}x{} | {:.2} | {:.2} | {:.2} | {:.2} | {:.2} | {:.2} | {} | {:.0} |",
+            "| {name} | {}x{} | {:.2} | {:.2} | {:.2} | {:.2} | {:.2} | {:.2} | {:.2} | {} | {:.0} |",
             hm.width(),
             hm.height(),
             mb(n * sb),
             mb(pyr),
             mb(sizes[0]),
             mb(sizes[1]),
-            sizes[1] as f64 / (n * sb) as f64,
-            sizes[1] as f64 / pyr as f64,
+            mb(sizes[2]),
+            sizes[2] as f64 / (n * sb) as f64,
+            sizes[2] as f64 / pyr as f64,
             lossless,
             mbs
         );
@@ -130,6 +132,74 @@ fn storage() {
             r.store_bytes as f64 / 1e6,
             r.index_bytes as f64 / 1e3,
             t.elapsed().as_secs_f64()
+        );
+    }
+}
+
+/// The payload codecs on real stores (k = 8): sizes of every level payload, and decode speed
+/// in MB/s of decoded samples (best of 3; payloads in the page cache, so the time of reading
+/// and checking them, measured alone, is subtracted). Deflate over the plain i16 payloads is
+/// the off-the-shelf alternative (inflate, then the fixed-width decode).
+fn codecs() {
+    println!("\n## Codecs (k = 8, every level payload; MB, decode MB/s of decoded samples)\n");
+    println!(
+        "| dataset | plain | predictive | deflate(plain) | predictive + deflate | predictive MB/s | deflate(plain) MB/s | predictive + deflate MB/s |"
+    );
+    println!("|---|---|---|---|---|---|---|---|");
+    let dir = scratch();
+    for (name, hm, enc, _) in
+        datasets().into_iter().filter(|d| ["puget 1k", "puget 4k", "N42E001 hgt"].contains(&d.0))
+    {
+        let mut runs = Vec::new();
+        for codec in [Codec::Plain, Codec::Predictive, Codec::PredictiveDeflate] {
+            let out = dir.join(format!("codec-{codec:?}"));
+            let cfg =
+                BakeConfig { k: 8, encoding: enc, codec, overwrite: true, ..Default::default() };
+            bake(&hm, &out, &cfg, &mut go).unwrap();
+            let store = Store::open(&out).unwrap();
+            let k = store.header().k;
+            let ids: Vec<_> = store.block_ids().collect();
+            let (mut payloads, mut read, mut load) = (Vec::new(), f64::MAX, f64::MAX);
+            for _ in 0..3 {
+                payloads.clear();
+                let t = Instant::now();
+                for &id in &ids {
+                    for l in 0..=k {
+                        payloads.push(store.read_level_bytes(id, l).unwrap());
+                    }
+                }
+                read = read.min(t.elapsed().as_secs_f64());
+                let t = Instant::now();
+                for &id in &ids {
+                    std::hint::black_box(store.read_block(id, k).unwrap());
+                }
+                load = load.min(t.elapsed().as_secs_f64());
+            }
+            let decoded = ids.len() as f64 * ((1u64 << k) + 1).pow(2) as f64 * 4.0;
+            runs.push((payloads, (load - read).max(1e-9), decoded));
+        }
+        let mb = |p: &[Vec<u8>]| p.iter().map(Vec::len).sum::<usize>() as f64 / 1e6;
+        // Deflate over the plain payloads, level by level.
+        let deflated: Vec<Vec<u8>> =
+            runs[0].0.iter().map(|p| miniz_oxide::deflate::compress_to_vec(p, 6)).collect();
+        let mut inflate = f64::MAX;
+        for _ in 0..3 {
+            let t = Instant::now();
+            for d in &deflated {
+                std::hint::black_box(miniz_oxide::inflate::decompress_to_vec(d).unwrap());
+            }
+            inflate = inflate.min(t.elapsed().as_secs_f64());
+        }
+        let speed = |secs: f64| runs[0].2 / 1e6 / secs;
+        println!(
+            "| {name} | {:.2} | {:.2} | {:.2} | {:.2} | {:.0} | {:.0} | {:.0} |",
+            mb(&runs[0].0),
+            mb(&runs[1].0),
+            mb(&deflated),
+            mb(&runs[2].0),
+            speed(runs[1].1),
+            speed(inflate + runs[0].1),
+            speed(runs[2].1),
         );
     }
 }
@@ -190,7 +260,7 @@ fn print_flight(name: &str, speed: f64, lookahead: f64, budget: u64, s: &StatsSu
     );
 }
 
-fn flights(frames: usize) {
+fn flights(frames: usize, which: &str) {
     println!(
         "\n## Flights ({frames} frames at 60 Hz, circular path, 15 deg down; per-frame means, MB of decoded samples)\n"
     );
@@ -199,18 +269,22 @@ fn flights(frames: usize) {
     );
     println!("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|");
     let dir = scratch();
-    let ds = datasets();
-    let (_, hm, enc, _) = &ds[1];
-    let cfg = BakeConfig { k: 8, encoding: *enc, overwrite: true, ..Default::default() };
-    bake(hm, &dir.join("p4k"), &cfg, &mut go).unwrap();
-    let store = Arc::new(Store::open(dir.join("p4k")).unwrap());
     let budget = 64 << 20;
-    for (speed, la) in [(100.0, 1.0), (300.0, 1.0), (1000.0, 1.0), (1000.0, 30.0), (3000.0, 30.0)] {
-        let s = flight(&store, speed, frames, budget, la, 3000.0);
-        print_flight("puget 4k", speed, la, budget, &s);
+    if which != "big" {
+        let ds = datasets();
+        let (_, hm, enc, _) = &ds[1];
+        let cfg = BakeConfig { k: 8, encoding: *enc, overwrite: true, ..Default::default() };
+        bake(hm, &dir.join("p4k"), &cfg, &mut go).unwrap();
+        let store = Arc::new(Store::open(dir.join("p4k")).unwrap());
+        for (speed, la) in
+            [(100.0, 1.0), (300.0, 1.0), (1000.0, 1.0), (1000.0, 30.0), (3000.0, 30.0)]
+        {
+            let s = flight(&store, speed, frames, budget, la, 3000.0);
+            print_flight("puget 4k", speed, la, budget, &s);
+        }
     }
     let big = dir.join("big");
-    if big.join("index.tsi").exists() {
+    if which != "puget" && big.join("index.tsi").exists() {
         let store = Arc::new(Store::open(&big).unwrap());
         for (speed, la) in [(300.0, 1.0), (1000.0, 30.0), (3000.0, 30.0)] {
             let s = flight(&store, speed, frames, budget, la, 2500.0);
@@ -253,14 +327,19 @@ fn main() {
     let args: Vec<String> = std::env::args().skip(1).collect();
     match args.first().map(String::as_str) {
         Some("storage") => storage(),
-        Some("flight") => flights(args.get(1).and_then(|s| s.parse().ok()).unwrap_or(10_000)),
+        Some("codec") => codecs(),
+        Some("flight") => flights(
+            args.get(1).and_then(|s| s.parse().ok()).unwrap_or(10_000),
+            args.get(2).map_or("all", String::as_str),
+        ),
         Some("bake") => bake_big(
             args.get(1).and_then(|s| s.parse().ok()).unwrap_or(16385),
             args.get(2).and_then(|s| s.parse().ok()).unwrap_or(8),
         ),
         _ => {
             storage();
-            flights(10_000);
+            codecs();
+            flights(10_000, "all");
         }
     }
 }

@@ -15,13 +15,16 @@ use rayon::prelude::*;
 use terrain_core::dem::{Format, LoadOptions, RawSampleType, SourceInfo};
 use terrain_core::georef::Georef;
 use terrain_core::heightmap::{Heightmap, VoidMask};
+use terrain_core::metrics::Region;
+use terrain_core::metrics::dss::object_errors;
 use terrain_core::metrics::static_error::StaticErrorPyramid;
 
 use crate::codec::encode_level;
 use crate::error::BakeError;
 use crate::format::{
-    BLOCK_HEADER_LEN, BlockEntry, BlockId, Codec, Header, INDEX_FILE, K_RANGE, LevelEntry,
-    NodeValues, SampleEncoding, block_file_name, block_header, crc32, node_count, write_index,
+    BLOCK_HEADER_LEN, BlockEntry, BlockId, Codec, DSS_FACTORS, DssBlockErrors, Header, INDEX_FILE,
+    K_RANGE, LevelEntry, NodeValues, SampleEncoding, block_file_name, block_header, crc32,
+    node_count, write_index,
 };
 use crate::source::HeightSource;
 
@@ -88,7 +91,7 @@ pub struct BakeConfig {
     pub k: u8,
     /// How heights are stored. Default: 1 cm bound.
     pub encoding: HeightEncoding,
-    /// Payload codec. Default [`Codec::Predictive`] (lossless; chosen by measurement).
+    /// Payload codec. Default [`Codec::PredictiveDeflate`] (lossless; chosen by measurement).
     pub codec: Codec,
     /// Quadtree levels of per-node min/max/static error stored per block (clamped to `k`).
     /// Default 5 (1365 nodes, 16 KiB a block); deeper nodes use the per-level bounds.
@@ -104,7 +107,7 @@ impl Default for BakeConfig {
         Self {
             k: 8,
             encoding: HeightEncoding::default(),
-            codec: Codec::Predictive,
+            codec: Codec::PredictiveDeflate,
             node_levels: 5,
             threads: 0,
             overwrite: false,
@@ -428,6 +431,7 @@ fn bake_block(
             z[j * side + i] = back;
         }
     }
+    let dss = dss_errors(&z, &mask, side, valid_w, valid_h);
     // Node values from the stored heights (what the runtime draws).
     let all_void = mask.count() == side * side;
     let hm = Heightmap::new(
@@ -506,9 +510,44 @@ fn bake_block(
             levels,
             nodes,
             level_errors,
+            dss,
         },
         max_err,
         max_void_err,
         lossless,
     })
+}
+
+/// The DSS paper's 32 object-space errors of a block's valid extent (padding excluded, source
+/// voids not measured), from the stored heights `z` (row-major `side x side`).
+fn dss_errors(
+    z: &[f32],
+    mask: &VoidMask,
+    side: usize,
+    valid_w: usize,
+    valid_h: usize,
+) -> DssBlockErrors {
+    let mut out = DssBlockErrors { avg: [0.0; DSS_FACTORS], max: [0.0; DSS_FACTORS] };
+    let mut voids = VoidMask::new(valid_w, valid_h);
+    for j in 0..valid_h {
+        for i in 0..valid_w {
+            if mask.get(i, j) {
+                voids.set(i, j, true);
+            }
+        }
+    }
+    if valid_w < 2 || valid_h < 2 || voids.count() == valid_w * valid_h {
+        return out;
+    }
+    let crop: Vec<f32> =
+        (0..valid_h).flat_map(|j| z[j * side..j * side + valid_w].iter().copied()).collect();
+    let Ok(hm) = Heightmap::new(valid_w, valid_h, crop, voids, Georef::local(1.0)) else {
+        return out;
+    };
+    let e = object_errors(&hm, Region::new(0, 0, side - 1));
+    for f in 0..DSS_FACTORS {
+        out.avg[f] = e.avg[f] as f32;
+        out.max[f] = e.max[f] as f32;
+    }
+    out
 }

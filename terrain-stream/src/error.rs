@@ -30,7 +30,10 @@ pub enum StoreError {
         what: &'static str,
     },
     /// A store of another format version.
-    #[error("{}: store format version {found}, this reader reads version {expected}", path.display())]
+    #[error(
+        "{}: store format version {found}, this reader reads version {expected} only; bake the store again (`terrain bake`)",
+        path.display()
+    )]
     Version {
         /// The file.
         path: PathBuf,

@@ -68,7 +68,7 @@ pub mod workers;
 
 pub use bake::{BakeConfig, BakeProgress, BakeReport, HeightEncoding, bake};
 pub use error::{BakeError, StoreError};
-pub use format::{BlockId, Codec, Header};
+pub use format::{BlockId, Codec, DssBlockErrors, Header};
 pub use source::HeightSource;
 pub use stats::{FrameStats, StatsSummary};
 pub use store::{BlockLevels, LoadedLevel, Store};

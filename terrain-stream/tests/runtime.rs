@@ -1,5 +1,6 @@
 //! The runtime over a real store: a camera flight loads blocks ahead of need, stays within its
-//! budget, and survives a block file deleted mid-flight without panicking or losing workers.
+//! budget, and survives a block file deleted and a level corrupted mid-flight: typed faults
+//! naming block and level, coarser levels still served, no panic, no worker lost.
 
 use std::ops::ControlFlow;
 use std::sync::Arc;
@@ -10,7 +11,9 @@ use terrain_core::geometry::Camera;
 use terrain_core::heightmap::Heightmap;
 use terrain_stream::format::block_file_name;
 use terrain_stream::schedule::ScheduleConfig;
-use terrain_stream::{BakeConfig, Store, StoreError, StreamConfig, Streamer, bake};
+use terrain_stream::{
+    BakeConfig, BlockId, ScheduledBlock, Store, StoreError, StreamConfig, Streamer, bake,
+};
 
 fn store(name: &str) -> (std::path::PathBuf, Arc<Store>) {
     let dir = std::env::temp_dir().join(format!("terrain-stream-rt-{}-{name}", std::process::id()));
@@ -78,58 +81,131 @@ fn a_flight_prefetches_and_stays_in_budget() {
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
+/// The blocks of M and the level each needs for a camera sequence (a planning run: the
+/// schedule depends on the cameras only, never on what is resident).
+fn plan(store: &Arc<Store>, config: StreamConfig, cameras: &[Camera]) -> Vec<Vec<(BlockId, u8)>> {
+    let mut s = Streamer::new(store.clone(), config);
+    cameras
+        .iter()
+        .map(|c| {
+            s.update(c);
+            s.scheduled().iter().filter(|b| b.visible).map(|b| (b.block, b.needed)).collect()
+        })
+        .collect()
+}
+
 #[test]
 fn a_block_deleted_mid_flight_is_a_fault_not_a_panic() {
     let (dir, store) = store("deleted");
+    // Levels above 0 come only from the workers; every request of a frame is submitted at
+    // once (no in-flight cap) and the budget never evicts, so what is resident after
+    // `finish_loads` is exactly what the frames needed.
     let config = StreamConfig {
         threads: 2,
-        tau: 1.0,
-        sync_max_level: 1,
+        tau: 3.0,
+        sync_max_level: 0,
+        max_in_flight: 10_000,
         retry_after_frames: 1000,
         ..Default::default()
     };
+    // Frame A sees the south blocks from afar (coarse levels); frame B flies up to them (finer
+    // levels); frame C turns to the north half of the map, which neither A nor B touched.
+    let far = camera(-2000.0);
+    let near = camera(-300.0);
+    let north =
+        Camera::from_yaw_pitch(dvec3(2560.0, 2600.0, 900.0), 0.0, -20.0).with_clip(1.0, 2500.0);
+    let planned = plan(&store, config, &[far, near]);
+    // Victims: blocks visible in both frames whose needed level rises from A to B.
+    let rising: Vec<(BlockId, u8, u8)> = planned[0]
+        .iter()
+        .filter_map(|&(b, la)| {
+            let lb = planned[1].iter().find(|p| p.0 == b)?.1;
+            (lb > la).then_some((b, la, lb))
+        })
+        .collect();
+    assert!(rising.len() >= 2, "the flight must refine two blocks: {planned:?}");
+    let (missing, missing_have, _) = rising[0];
+    let (corrupt, corrupt_have, _) = rising[1];
+
     let mut s = Streamer::new(store.clone(), config);
-    s.update(&camera(-500.0));
-    // Delete the nearest visible block's file while its finer levels are in flight or pending.
-    let victim = s.scheduled()[0].block;
-    let before = s.block(victim).map_or(0, |b| b.count());
-    assert!(before >= 1);
-    std::fs::remove_file(dir.join("s").join(block_file_name(victim))).unwrap();
-    let mut faults: Vec<StoreError> = Vec::new();
-    for _ in 0..5 {
-        faults.extend(s.update(&camera(-500.0)).faults);
-        faults.extend(s.finish_loads().faults);
+    let st = s.update(&far);
+    assert!(st.faults.is_empty(), "{:?}", st.faults);
+    assert!(s.finish_loads().faults.is_empty());
+    for (b, have) in [(missing, missing_have), (corrupt, corrupt_have)] {
+        assert_eq!(s.block(b).map(|l| l.count()), Some(have as usize + 1), "{b}");
     }
-    // Either the workers were still to read it (a MissingBlock fault naming it) or they had
-    // finished; in both cases the coarser levels stay served.
-    let after = s.block(victim).map_or(0, |b| b.count());
-    assert!(after >= before, "levels were lost: {before} -> {after}");
-    let needed = s.scheduled().iter().find(|b| b.block == victim).unwrap().needed as usize;
-    if after <= needed {
-        assert!(
-            faults
-                .iter()
-                .any(|e| matches!(e, StoreError::MissingBlock { block, .. } if *block == victim)),
-            "{faults:?}"
-        );
+    let grid_before = |s: &Streamer, b: BlockId, l: u8| s.block(b).unwrap().grid(l).unwrap();
+    let missing_grid = grid_before(&s, missing, missing_have);
+    let corrupt_grid = grid_before(&s, corrupt, corrupt_have);
+
+    // Nothing is in flight: delete one block's file and corrupt the next level of another.
+    std::fs::remove_file(dir.join("s").join(block_file_name(missing))).unwrap();
+    let bad_level = corrupt_have + 1;
+    let p = dir.join("s").join(block_file_name(corrupt));
+    let mut bytes = std::fs::read(&p).unwrap();
+    let le = store.entry(corrupt).unwrap().levels[bad_level as usize];
+    bytes[(le.offset + le.len as u64 / 2) as usize] ^= 0x5A;
+    std::fs::write(&p, &bytes).unwrap();
+
+    let st = s.update(&near);
+    let mut faults = st.faults;
+    faults.extend(s.finish_loads().faults);
+    // Exactly the two faults, typed, each naming its block and the first level it lacks.
+    assert_eq!(faults.len(), 2, "{faults:?}");
+    let missing_fault = faults
+        .iter()
+        .find(|e| matches!(e, StoreError::MissingBlock { .. }))
+        .unwrap_or_else(|| panic!("no MissingBlock fault in {faults:?}"));
+    assert_eq!(missing_fault.block(), Some(missing));
+    assert_eq!(missing_fault.level(), Some(missing_have + 1));
+    let msg = missing_fault.to_string();
+    let names = |msg: &str, b: BlockId, l: u8| {
+        msg.contains(&format!("row {}, col {}", b.row, b.col))
+            && msg.contains(&format!("level {l}"))
+    };
+    assert!(names(&msg, missing, missing_have + 1), "{msg}");
+    match faults.iter().find(|e| matches!(e, StoreError::Checksum { .. })) {
+        Some(StoreError::Checksum { block, level, stored, computed, .. }) => {
+            assert_eq!((*block, *level), (corrupt, bad_level));
+            assert_eq!(*stored, le.crc32);
+            assert_ne!(stored, computed);
+        }
+        _ => panic!("no checksum fault in {faults:?}"),
     }
-    // The pool still works: other blocks load after the fault.
-    let st = s.update(&camera(200.0));
-    s.finish_loads();
-    assert!(st.blocks_visible > 0);
-    let loaded =
-        s.scheduled().iter().filter(|b| b.block != victim && s.block(b.block).is_some()).count();
-    assert!(loaded > 0);
-    // A corrupt level of another block: reported with its block and level, coarser served.
-    let other =
-        s.scheduled().iter().map(|b| b.block).find(|&b| b != victim && s.block(b).is_none());
-    if let Some(o) = other {
-        let p = dir.join("s").join(block_file_name(o));
-        let mut bytes = std::fs::read(&p).unwrap();
-        let e = store.entry(o).unwrap();
-        let at = e.levels[2].offset as usize;
-        bytes[at + 1] ^= 0xFF;
-        std::fs::write(&p, &bytes).unwrap();
+    let msg = faults.iter().find(|e| e.block() == Some(corrupt)).unwrap().to_string();
+    assert!(names(&msg, corrupt, bad_level) && msg.contains("checksum"), "{msg}");
+    // The coarser resident levels still serve, unchanged, and nothing finer appeared.
+    for (b, have, grid) in
+        [(missing, missing_have, &missing_grid), (corrupt, corrupt_have, &corrupt_grid)]
+    {
+        let levels = s.block(b).unwrap();
+        assert_eq!(levels.count(), have as usize + 1, "{b}");
+        assert_eq!(levels.grid(have).as_ref(), Some(grid), "{b}");
+        assert!(s.scheduled().iter().any(|x| x.block == b && x.visible && x.needed > have));
+    }
+    // Faulted blocks are not retried every frame (retry_after_frames): the fault is reported once.
+    let st = s.update(&near);
+    assert!(st.faults.is_empty(), "{:?}", st.faults);
+    assert!(s.finish_loads().faults.is_empty());
+
+    // The pool still serves later requests: both workers alive, the north blocks load to
+    // levels only the workers load (sync_max_level is 0).
+    assert_eq!(s.threads(), 2);
+    let st = s.update(&north);
+    assert!(st.faults.is_empty(), "{:?}", st.faults);
+    assert!(st.requests > 0);
+    let done = s.finish_loads();
+    assert!(done.faults.is_empty(), "{:?}", done.faults);
+    assert!(st.prefetched_bytes + done.prefetched_bytes > 0, "the workers delivered nothing");
+    let fresh: Vec<&ScheduledBlock> = s
+        .scheduled()
+        .iter()
+        .filter(|b| b.visible && !planned.iter().flatten().any(|p| p.0 == b.block))
+        .collect();
+    assert!(fresh.iter().any(|b| b.needed >= 1), "no worker-loaded level in {fresh:?}");
+    for b in &fresh {
+        let levels = s.block(b.block).unwrap();
+        assert!(levels.count() > b.needed as usize, "{}", b.block);
     }
     drop(s);
     std::fs::remove_dir_all(&dir).unwrap();

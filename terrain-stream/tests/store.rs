@@ -6,7 +6,7 @@ use std::path::{Path, PathBuf};
 
 use terrain_core::Georef;
 use terrain_core::heightmap::Heightmap;
-use terrain_stream::format::{block_file_name, vertex_index};
+use terrain_stream::format::{VERSION, block_file_name, vertex_index};
 use terrain_stream::{
     BakeConfig, BakeError, BlockId, Codec, HeightEncoding, Store, StoreError, bake,
 };
@@ -218,7 +218,21 @@ fn corrupt_truncated_changed_and_missing_files_are_typed_errors() {
     let mut b = index.clone();
     b[8] = 9;
     std::fs::write(&ip, &b).unwrap();
-    assert!(matches!(Store::open(&out), Err(StoreError::Version { found: 9, expected: 1, .. })));
+    assert!(matches!(
+        Store::open(&out),
+        Err(StoreError::Version { found: 9, expected: VERSION, .. })
+    ));
+    // A store of the previous format (version 1, before the DSS errors): a clear error.
+    let mut b = index.clone();
+    b[8..12].copy_from_slice(&1u32.to_le_bytes());
+    std::fs::write(&ip, &b).unwrap();
+    let err = Store::open(&out).unwrap_err();
+    assert!(matches!(err, StoreError::Version { found: 1, expected: 2, .. }), "{err:?}");
+    let msg = err.to_string();
+    assert!(
+        msg.contains("index.tsi") && msg.contains("version 1") && msg.contains("bake"),
+        "{msg}"
+    );
     let mut b = index.clone();
     let mid = b.len() / 2;
     b[mid] ^= 1;
@@ -259,5 +273,49 @@ fn the_papers_vertex_order_holds_in_a_store() {
     assert_eq!(seq.len(), 25);
     assert_eq!(seq[21], 18);
     assert_eq!(&seq[..4], &[0, 4, 20, 24]);
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn the_index_holds_the_dss_object_errors_of_every_block() {
+    use terrain_core::metrics::Region;
+    use terrain_core::metrics::dss::{FACTORS, object_errors};
+    // Integer heights (lossless), 200 x 150: padded east and north blocks are measured over
+    // their valid extent only.
+    let hm = Heightmap::from_fn(200, 150, Georef::local(30.0), |i, j| {
+        (400.0
+            + 120.0 * (i as f32 * 0.07).sin() * (j as f32 * 0.05).cos()
+            + ((i * 5 + j * 3) % 7) as f32)
+            .round()
+    })
+    .unwrap();
+    let dir = scratch("dss");
+    let cfg = BakeConfig {
+        k: 5,
+        encoding: HeightEncoding::Quantized { step_m: 1.0, offset_m: 0.0 },
+        ..Default::default()
+    };
+    assert!(bake(&hm, &dir.join("s"), &cfg, &mut go).unwrap().lossless);
+    let store = Store::open(dir.join("s")).unwrap();
+    let cells = store.header().block_cells() as usize;
+    let mut nonzero = 0;
+    for id in store.block_ids() {
+        let e = store.entry(id).unwrap();
+        let (x0, y0) = (id.col as usize * cells, id.row as usize * cells);
+        let (w, h) = (e.valid_w as usize, e.valid_h as usize);
+        let block =
+            Heightmap::from_fn(w, h, Georef::local(1.0), |i, j| hm.get(x0 + i, y0 + j)).unwrap();
+        let exact = object_errors(&block, Region::new(0, 0, cells));
+        for f in 0..FACTORS {
+            assert_eq!(e.dss.avg[f], exact.avg[f] as f32, "{id} factor {f}");
+            assert_eq!(e.dss.max[f], exact.max[f] as f32, "{id} factor {f}");
+        }
+        // Factor 32 = the block's cells: every sample of a full block is a vertex, no error.
+        if (w, h) == (cells + 1, cells + 1) {
+            assert_eq!(e.dss.max[15], 0.0, "{id}");
+        }
+        nonzero += (e.dss.avg[0] > 0.0) as usize;
+    }
+    assert_eq!(nonzero, store.header().block_count());
     std::fs::remove_dir_all(&dir).unwrap();
 }

@@ -1,0 +1,137 @@
+//! End-to-end tests of `terrain bake`: an SRTM .hgt baked losslessly and read back with
+//! `terrain_stream::Store` bit-exactly, `--synthetic`, refusal of an existing output, and a
+//! bad input file named in the error with no store left behind.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+use terrain_core::dem::{LoadOptions, load};
+use terrain_stream::{BlockId, Store};
+
+fn data(rel: &str) -> PathBuf {
+    let root = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("..");
+    let dir =
+        std::env::var_os("TERRAIN_DATA").map(PathBuf::from).unwrap_or(root.join("../shared/data"));
+    let p = dir.join(rel);
+    assert!(p.exists(), "test data {} is missing (set TERRAIN_DATA)", p.display());
+    p
+}
+
+fn scratch(name: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("terrain-bake-cli-{}-{name}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&d);
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+fn terrain(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_terrain"))
+        .args(args)
+        .output()
+        .expect("the terrain binary runs")
+}
+
+fn ok(out: &Output) -> String {
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "terrain bake failed: {err}");
+    assert!(!err.contains("panicked"), "{err}");
+    String::from_utf8_lossy(&out.stdout).into_owned()
+}
+
+fn s(p: &Path) -> &str {
+    p.to_str().unwrap()
+}
+
+#[test]
+fn an_hgt_bakes_losslessly_and_reads_back_bit_exact() {
+    let hgt = data("srtm/N42E001.hgt");
+    let dir = scratch("hgt");
+    let out = dir.join("n42");
+    let stdout =
+        ok(&terrain(&["bake", s(&hgt), "-o", s(&out), "--block-k", "8", "--threads", "2"]));
+    assert!(stdout.contains("lossless") && stdout.contains("1201 x 1201"), "{stdout}");
+
+    let dem = load(&hgt, &LoadOptions::default()).unwrap();
+    let hm = &dem.heightmap;
+    let store = Store::open(&out).unwrap();
+    let h = store.header().clone();
+    assert_eq!((h.width, h.height, h.k), (1201, 1201, 8));
+    assert_eq!((h.max_error_m, h.error_bound_m), (0.0, 0.0), "integer heights are lossless");
+    assert_eq!(h.georef, *hm.georef());
+    // 1200 cells in blocks of 256: 5 x 5 blocks, the east column and north row partly padding.
+    assert_eq!((h.blocks_x, h.blocks_y), (5, 5));
+    let cells = h.block_cells() as usize;
+    let mut compared = 0usize;
+    for id in store.block_ids() {
+        let e = store.entry(id).unwrap();
+        let edge = |n: u32| if n == 4 { 1201 - 4 * 256 } else { 257 };
+        assert_eq!((e.valid_w, e.valid_h), (edge(id.col), edge(id.row)), "{id}: padding");
+        let b = store.read_block(id, h.k).unwrap();
+        for j in 0..h.block_side() {
+            for i in 0..h.block_side() {
+                let z = b.height(i, j).unwrap();
+                // Padding repeats the last valid column and row.
+                let si = id.col as usize * cells + (i.min(e.valid_w - 1)) as usize;
+                let sj = id.row as usize * cells + (j.min(e.valid_h - 1)) as usize;
+                let src = hm.get(si, sj);
+                if hm.voids().get(si, sj) {
+                    assert!((z - src).abs() as f64 <= h.max_void_error_m + 1e-6, "{id}");
+                } else {
+                    assert_eq!(z.to_bits(), src.to_bits(), "{id} ({i}, {j}): {z} vs {src}");
+                }
+                compared += 1;
+            }
+        }
+    }
+    assert_eq!(compared, 25 * 257 * 257);
+    // A block's coarse level is the finest grid subsampled.
+    let b = store.read_block(BlockId::new(2, 3), 2).unwrap();
+    assert_eq!(b.grid(2).unwrap()[6], hm.get(3 * 256 + 64, 2 * 256 + 64));
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn synthetic_bakes_and_an_existing_output_is_refused() {
+    let dir = scratch("synth");
+    let out = dir.join("synth");
+    let args = ["bake", "--synthetic", "257", "-o", s(&out), "--block-k", "6", "--threads", "2"];
+    let stdout = ok(&terrain(&args));
+    assert!(stdout.contains("257 x 257") && stdout.contains("4 x 4 blocks"), "{stdout}");
+    let store = Store::open(&out).unwrap();
+    assert_eq!((store.header().width, store.header().blocks_x), (257, 4));
+    // The float fractal is stored within the default 1 cm bound.
+    assert!(store.header().max_error_m <= 0.01 && store.header().max_error_m > 0.0);
+    assert_eq!(store.read_block(BlockId::new(3, 3), 6).unwrap().count(), 7);
+    let index = std::fs::read(out.join("index.tsi")).unwrap();
+
+    // Again without --overwrite: refused, the error names the output, the store is untouched.
+    let again = terrain(&args);
+    assert!(!again.status.success());
+    let err = String::from_utf8_lossy(&again.stderr);
+    assert!(err.contains(s(&out)) && err.contains("already exists"), "{err}");
+    assert!(!err.contains("panicked"), "{err}");
+    assert_eq!(std::fs::read(out.join("index.tsi")).unwrap(), index);
+    // With --overwrite: replaced (the same bytes: the bake is deterministic).
+    let mut over = args.to_vec();
+    over.push("--overwrite");
+    ok(&terrain(&over));
+    assert_eq!(std::fs::read(out.join("index.tsi")).unwrap(), index);
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn a_bad_input_is_named_and_leaves_no_store() {
+    let dir = scratch("bad");
+    let text = dir.join("notes.txt");
+    std::fs::write(&text, b"this is not a DEM\n").unwrap();
+    let out = dir.join("store");
+    let r = terrain(&["bake", s(&text), "-o", s(&out)]);
+    assert!(!r.status.success());
+    let err = String::from_utf8_lossy(&r.stderr);
+    assert!(err.contains("notes.txt"), "the error does not name the input: {err}");
+    assert!(!err.contains("panicked"), "{err}");
+    assert!(!out.exists(), "a store was left behind");
+    let left: Vec<_> = std::fs::read_dir(&dir).unwrap().map(|e| e.unwrap().file_name()).collect();
+    assert_eq!(left, vec![std::ffi::OsString::from("notes.txt")], "debris: {left:?}");
+    std::fs::remove_dir_all(&dir).unwrap();
+}
