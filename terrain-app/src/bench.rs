@@ -14,7 +14,6 @@
 //! runs compare. Everything but the timings is deterministic: fixed flights, fixed sweep values,
 //! frames and runs in a fixed order.
 
-use std::cell::Cell;
 use std::fmt::Write as _;
 use std::time::Instant;
 
@@ -23,12 +22,11 @@ use serde::Serialize;
 use terrain_core::Heightmap;
 use terrain_core::flight::{FlightConfig, FlightSpec, FlightWarning};
 use terrain_core::geometry::Camera;
-use terrain_core::lod::{Patch, build_surface};
 use terrain_core::measure::{FrameErrors, MeasureConfig, Measurer};
-use terrain_gpu::tess::{GpuPatchFactors, PatchRange, tessellate};
+use terrain_gpu::tess::{GpuPatchFactors, PatchRange};
 use terrain_gpu::{GpuContext, RenderConfig, RenderOptions, TerrainRenderer};
 
-use crate::methods::{LodMethod, MethodConfig, MethodScene, patch_factors};
+use crate::methods::{LodMethod, MethodConfig, MethodScene};
 
 /// How a benchmark runs.
 #[derive(Debug, Clone, PartialEq)]
@@ -272,14 +270,8 @@ impl<'a> FrameRunner<'a> {
         let selection = scene.select(self.method, camera);
         let selection_ms = ms(t);
 
-        let triangles = Cell::new(0u64);
         let t = Instant::now();
-        let mesh = build_surface(&scene.hm, &scene.qt, &selection, |p: &Patch| {
-            let m = tessellate(&patch_factors(p));
-            triangles.set(triangles.get() + m.non_degenerate_triangle_count() as u64);
-            let tris = m.indices.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect();
-            (m.points, tris)
-        });
+        let (mesh, triangle_count) = scene.drawn_surface(&selection);
         let cpu_tess_ms = ms(t);
 
         let t = Instant::now();
@@ -290,7 +282,7 @@ impl<'a> FrameRunner<'a> {
         let mut record = FrameRecord {
             frame,
             patches: selection.patches.len(),
-            triangles: triangles.get(),
+            triangles: triangle_count,
             selection_ms,
             cpu_tess_ms,
             measure_ms,

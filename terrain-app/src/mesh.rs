@@ -20,8 +20,12 @@ use gltf::json;
 use json::validation::Checked::Valid;
 use json::validation::USize64;
 use serde::Serialize;
+use terrain_core::geometry::Camera;
+use terrain_core::measure::{MeasureConfig, measure_frame};
 use terrain_core::mesh::{self, Algorithm, MeshConfig, TriMesh, verify};
 use terrain_core::{Crs, Heightmap};
+
+use terrain_app::methods::{LodMethod, MethodConfig, MethodScene};
 
 use crate::source::SourceArgs;
 
@@ -30,9 +34,20 @@ use crate::source::SourceArgs;
 pub struct MeshArgs {
     #[command(flatten)]
     pub source: SourceArgs,
-    /// Largest vertical error allowed at any sample, metres (>= 0).
+    /// Largest vertical error allowed at any sample, metres (>= 0). Required unless --camera.
+    #[arg(long, allow_hyphen_values = true, required_unless_present = "camera")]
+    pub max_error: Option<f64>,
+    /// Export the LOD surface a method draws from this view instead (x,y,z,yaw,pitch as in
+    /// `terrain render`): exactly the drawn triangles, rebuilt with the tessellator's CPU
+    /// reference; its error is measured and reported, not bounded.
     #[arg(long, allow_hyphen_values = true)]
-    pub max_error: f64,
+    pub camera: Option<String>,
+    /// With --camera: the LOD method whose surface is exported.
+    #[arg(long, value_enum, default_value_t = LodMethod::PvpsC)]
+    pub method: LodMethod,
+    /// With --camera: the view's size in pixels, WIDTHxHEIGHT (screen-space errors depend on it).
+    #[arg(long, default_value = "1280x720")]
+    pub size: String,
     /// Output file: .glb, .gltf (with a .bin beside it) or .obj. Optional with --stats.
     #[arg(short, long)]
     pub output: Option<PathBuf>,
@@ -78,7 +93,8 @@ struct Stats {
     algorithm: &'static str,
     width: usize,
     height: usize,
-    max_error_bound_m: f64,
+    /// The bound asked for; `None` for a view's LOD surface (`--camera`), which has none.
+    max_error_bound_m: Option<f64>,
     measured_max_error_m: f64,
     rms_error_m: f64,
     vertices: usize,
@@ -89,10 +105,6 @@ struct Stats {
 
 /// Runs `terrain mesh`.
 pub fn run(args: &MeshArgs) -> anyhow::Result<()> {
-    let bound = args.max_error;
-    if bound.is_nan() || bound < 0.0 {
-        bail!("--max-error must be a non-negative number of metres, got {bound}");
-    }
     let format = match &args.output {
         Some(p) => Some(format_of(p)?),
         None if args.stats => None,
@@ -102,6 +114,13 @@ pub fn run(args: &MeshArgs) -> anyhow::Result<()> {
         Some(dem) => dem.heightmap,
         None => terrain_core::synth::default_terrain(),
     };
+    if let Some(camera) = &args.camera {
+        return view_mesh(args, camera, hm, format);
+    }
+    let bound = args.max_error.expect("clap requires --max-error without --camera");
+    if bound.is_nan() || bound < 0.0 {
+        bail!("--max-error must be a non-negative number of metres, got {bound}");
+    }
     let (algorithm, name) = match args.algorithm {
         AlgorithmArg::Rtin => (Algorithm::Rtin, "rtin"),
         AlgorithmArg::Delaunay => (Algorithm::Delaunay, "delaunay"),
@@ -117,7 +136,7 @@ pub fn run(args: &MeshArgs) -> anyhow::Result<()> {
         algorithm: name,
         width: hm.width(),
         height: hm.height(),
-        max_error_bound_m: bound,
+        max_error_bound_m: Some(bound),
         measured_max_error_m: measured.max_error,
         rms_error_m: measured.rms_error,
         vertices: mesh.positions.len(),
@@ -143,6 +162,95 @@ pub fn run(args: &MeshArgs) -> anyhow::Result<()> {
             stats.measured_max_error_m,
             stats.rms_error_m,
             measured.samples,
+            args.output
+                .as_ref()
+                .map(|p| format!(", written to {}", p.display()))
+                .unwrap_or_default()
+        );
+    }
+    Ok(())
+}
+
+/// `terrain mesh --camera`: the LOD surface `args.method` draws from that view, rebuilt with the
+/// tessellator's CPU reference (the triangles the GPU draws; zero-area ones dropped), its error
+/// against the DEM measured over the view (`terrain_core::measure`) and reported.
+fn view_mesh(
+    args: &MeshArgs,
+    camera: &str,
+    hm: Heightmap,
+    format: Option<Format>,
+) -> anyhow::Result<()> {
+    let (width, height) = crate::render::parse_size(&args.size)?;
+    let (position, yaw, pitch) = crate::render::parse_camera(camera)?;
+    let (near, far) = terrain_gpu::render::clip_range(&hm, position);
+    let camera = Camera::from_yaw_pitch(position, yaw, pitch)
+        .with_viewport(f64::from(width), f64::from(height))
+        .with_clip(near, far);
+    let t0 = Instant::now();
+    let scene = MethodScene::new(hm, MethodConfig::default());
+    let selection = scene.select(args.method, &camera);
+    let (surface, _) = scene.drawn_surface(&selection);
+    let build_ms = t0.elapsed().as_secs_f64() * 1e3;
+    let t1 = Instant::now();
+    let errors = measure_frame(
+        &scene.hm,
+        &scene.qt,
+        &camera,
+        &selection,
+        &surface,
+        &MeasureConfig::default(),
+    );
+    let verify_ms = t1.elapsed().as_secs_f64() * 1e3;
+    // Border patches reach past the grid and collapse there: keep triangles with plan area.
+    let triangles: Vec<[u32; 3]> = surface
+        .triangles
+        .iter()
+        .copied()
+        .filter(|t| {
+            let [a, b, c] = t.map(|k| surface.grid[k as usize]);
+            (b - a).perp_dot(c - a).abs() > 1e-12
+        })
+        .collect();
+    anyhow::ensure!(
+        !triangles.is_empty(),
+        "the view at {camera} sees no terrain: nothing to export",
+        camera = position
+    );
+    let normals = mesh::vertex_normals(&surface.positions, &triangles);
+    let tri_mesh = TriMesh { positions: surface.positions, normals, triangles };
+    let stats = Stats {
+        algorithm: args.method.name(),
+        width: scene.hm.width(),
+        height: scene.hm.height(),
+        max_error_bound_m: None,
+        measured_max_error_m: errors.max_abs_m,
+        rms_error_m: errors.rmse_m,
+        vertices: tri_mesh.positions.len(),
+        triangles: tri_mesh.triangles.len(),
+        build_ms,
+        verify_ms,
+    };
+    let meta = Metadata::new(&scene.hm, &tri_mesh, &stats);
+    if let (Some(path), Some(format)) = (&args.output, format) {
+        match format {
+            Format::Glb | Format::Gltf => write_gltf(path, format, &tri_mesh, &meta)?,
+            Format::Obj => write_obj(path, &tri_mesh, &meta)?,
+        }
+    }
+    if args.stats {
+        println!("{}", serde_json::to_string(&stats)?);
+    } else {
+        println!(
+            "{} view surface: {} patches, {} triangles, {} vertices; over the {} samples in view: \
+             max error {:.3} m, RMS {:.3} m, p99 {:.2} px{}",
+            args.method.name(),
+            selection.patches.len(),
+            stats.triangles,
+            stats.vertices,
+            errors.samples,
+            errors.max_abs_m,
+            errors.rmse_m,
+            errors.p99_px,
             args.output
                 .as_ref()
                 .map(|p| format!(", written to {}", p.display()))
@@ -378,10 +486,12 @@ fn write_obj(path: &Path, mesh: &TriMesh, meta: &Metadata<'_>) -> anyhow::Result
         "# terrain mesh ({}): {} triangles, {} vertices",
         s.algorithm, s.triangles, s.vertices
     )?;
+    let bound =
+        s.max_error_bound_m.map_or("none (a view's LOD surface)".into(), |b| format!("{b} m"));
     writeln!(
         w,
-        "# max error bound {} m; measured max {} m, RMS {} m",
-        s.max_error_bound_m, s.measured_max_error_m, s.rms_error_m
+        "# max error bound {bound}; measured max {} m, RMS {} m",
+        s.measured_max_error_m, s.rms_error_m
     )?;
     writeln!(w, "# crs {} ({})", meta.crs, meta.world_frame)?;
     writeln!(w, "# axes: x east, y north, z up, metres; positions are relative to the origin")?;

@@ -17,11 +17,12 @@ use terrain_core::Heightmap;
 use terrain_core::geometry::Camera;
 use terrain_core::lod::{
     DssConfig, DssErrorTable, MAX_FACTOR, MIN_FACTOR, Method, Patch, PvpsConfig, Selection,
-    SelectionStats, select_dss_power_of_two, select_dss_uniform, select_pvps,
+    SelectionStats, SurfaceMesh, build_surface, select_dss_power_of_two, select_dss_uniform,
+    select_pvps,
 };
 use terrain_core::quadtree::{FrustumCull, Quadtree, SplitToLevel, select};
 use terrain_gpu::render::DrawPatch;
-use terrain_gpu::tess::PatchFactors;
+use terrain_gpu::tess::{PatchFactors, tessellate};
 use terrain_visibility::roughness::{
     NodePyramid, RoughnessConfig, d2_pyramid, range_pyramid, roughness_pyramid,
 };
@@ -203,6 +204,20 @@ impl MethodScene {
             ..SelectionStats::default()
         };
         Selection { patches, stats }
+    }
+
+    /// The surface a selection draws, rebuilt on the CPU with the tessellator's CPU reference
+    /// (bit-identical to the GPU's): what the benchmark measures and `terrain mesh --camera`
+    /// exports. Also returns the non-degenerate triangle count, as the renderer counts them.
+    pub fn drawn_surface(&self, selection: &Selection) -> (SurfaceMesh, u64) {
+        let triangles = std::cell::Cell::new(0u64);
+        let mesh = build_surface(&self.hm, &self.qt, selection, |p: &Patch| {
+            let m = tessellate(&patch_factors(p));
+            triangles.set(triangles.get() + m.non_degenerate_triangle_count() as u64);
+            let tris = m.indices.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect();
+            (m.points, tris)
+        });
+        (mesh, triangles.get())
     }
 
     /// The renderer's patches for a selection (see [`draw_patches`]).

@@ -75,7 +75,7 @@ pub(crate) fn parse_size(s: &str) -> anyhow::Result<(u32, u32)> {
 }
 
 /// `x,y,z,yaw,pitch` -> position, yaw, pitch.
-fn parse_camera(s: &str) -> anyhow::Result<(DVec3, f64, f64)> {
+pub(crate) fn parse_camera(s: &str) -> anyhow::Result<(DVec3, f64, f64)> {
     let bad = || format!("--camera expects x,y,z,yaw,pitch (metres, degrees), got `{s}`");
     let v: Vec<f64> = s
         .split(',')

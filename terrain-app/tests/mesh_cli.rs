@@ -108,3 +108,40 @@ fn bad_max_errors_and_outputs_are_clear_errors() {
     assert!(!std::path::Path::new(glb).exists(), "nothing written on error");
     std::fs::remove_dir_all(&dir).ok();
 }
+
+#[test]
+fn a_views_lod_surface_exports_with_its_measured_error() {
+    let dem = data("lidar_prairie/dem.tif");
+    let dir = out_dir("view");
+    let obj = dir.join("view.obj");
+    let camera = "429300,5150500,450,45,-30";
+    let out = terrain(&[
+        "mesh",
+        dem.to_str().unwrap(),
+        "--camera",
+        camera,
+        "--method",
+        "dss-1",
+        "-o",
+        obj.to_str().unwrap(),
+        "--stats",
+    ]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let stats: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(stats["algorithm"], "dss-1");
+    assert!(stats["max_error_bound_m"].is_null(), "a view's surface has no bound: {stats}");
+    let max = stats["measured_max_error_m"].as_f64().unwrap();
+    assert!(max.is_finite() && max > 0.0, "the LOD surface is not the full DEM: {max}");
+    let text = std::fs::read_to_string(&obj).unwrap();
+    let v = text.lines().filter(|l| l.starts_with("v ")).count();
+    let f = text.lines().filter(|l| l.starts_with("f ")).count();
+    assert_eq!(
+        (v as u64, f as u64),
+        (stats["vertices"].as_u64().unwrap(), stats["triangles"].as_u64().unwrap())
+    );
+    assert!(text.contains("bound none"));
+    // Without --camera the bound is required.
+    let out = terrain(&["mesh", dem.to_str().unwrap(), "-o", obj.to_str().unwrap()]);
+    assert!(!out.status.success());
+    assert!(String::from_utf8_lossy(&out.stderr).contains("--max-error"));
+}
