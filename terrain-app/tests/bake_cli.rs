@@ -2,33 +2,18 @@
 //! `terrain_stream::Store` bit-exactly, `--synthetic`, refusal of an existing output, and a
 //! bad input file named in the error with no store left behind.
 
+mod common;
+
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
+use std::process::Output;
 
 use terrain_core::dem::{LoadOptions, load};
 use terrain_stream::{BlockId, Store};
 
-fn data(rel: &str) -> PathBuf {
-    let root = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("..");
-    let dir =
-        std::env::var_os("TERRAIN_DATA").map(PathBuf::from).unwrap_or(root.join("../shared/data"));
-    let p = dir.join(rel);
-    assert!(p.exists(), "test data {} is missing (set TERRAIN_DATA)", p.display());
-    p
-}
+use common::{data, terrain};
 
 fn scratch(name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("terrain-bake-cli-{}-{name}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(&d).unwrap();
-    d
-}
-
-fn terrain(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_terrain"))
-        .args(args)
-        .output()
-        .expect("the terrain binary runs")
+    common::scratch("bake-cli", name)
 }
 
 fn ok(out: &Output) -> String {

@@ -1,24 +1,9 @@
 //! End-to-end tests of the `terrain` binary: `terrain info` on every real DEM in
 //! ../shared/data and on the embedded default, and clear errors on bad input.
 
-use std::path::PathBuf;
-use std::process::{Command, Output};
+mod common;
 
-fn data(rel: &str) -> PathBuf {
-    let root = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("..");
-    let dir =
-        std::env::var_os("TERRAIN_DATA").map(PathBuf::from).unwrap_or(root.join("../shared/data"));
-    let p = dir.join(rel);
-    assert!(p.exists(), "test data {} is missing (set TERRAIN_DATA)", p.display());
-    p
-}
-
-fn terrain(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_terrain"))
-        .args(args)
-        .output()
-        .expect("the terrain binary runs")
-}
+use common::{data, terrain};
 
 fn info_json(args: &[&str]) -> serde_json::Value {
     let mut all = vec!["info", "--json"];

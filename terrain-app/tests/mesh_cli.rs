@@ -1,29 +1,14 @@
 //! End-to-end tests of `terrain mesh`: .glb and .obj of the lidar prairie (UTM 15N) at 0.5 m,
 //! read back with the gltf crate, and clear errors for bad bounds.
 
+mod common;
+
 use std::path::PathBuf;
-use std::process::{Command, Output};
 
-fn data(rel: &str) -> PathBuf {
-    let root = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("..");
-    let dir =
-        std::env::var_os("TERRAIN_DATA").map(PathBuf::from).unwrap_or(root.join("../shared/data"));
-    let p = dir.join(rel);
-    assert!(p.exists(), "test data {} is missing (set TERRAIN_DATA)", p.display());
-    p
-}
-
-fn terrain(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_terrain"))
-        .args(args)
-        .output()
-        .expect("the terrain binary runs")
-}
+use common::{data, terrain};
 
 fn out_dir(name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("terrain-mesh-cli-{}-{name}", std::process::id()));
-    std::fs::create_dir_all(&d).unwrap();
-    d
+    common::scratch("mesh-cli", name)
 }
 
 #[test]

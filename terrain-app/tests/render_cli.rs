@@ -3,21 +3,15 @@
 //! coordinates with the default camera. Where no adapter exists the tests print why and pass,
 //! unless `TERRAIN_REQUIRE_GPU` is set: then they fail.
 
-use std::path::PathBuf;
+mod common;
+
 use std::process::Command;
+
+use common::data;
 
 /// The background colour the tests ask for (`--background`): `terrain_gpu::BACKGROUND`, which
 /// the shader never produces.
 const BACKGROUND: [u8; 4] = [255, 0, 255, 255];
-
-fn data(rel: &str) -> PathBuf {
-    let root = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("..");
-    let dir =
-        std::env::var_os("TERRAIN_DATA").map(PathBuf::from).unwrap_or(root.join("../shared/data"));
-    let p = dir.join(rel);
-    assert!(p.exists(), "test data {} is missing (set TERRAIN_DATA)", p.display());
-    p
-}
 
 /// Runs `terrain render ARGS -o <tmp>/NAME.png` (with `TERRAIN_GPU_BACKEND=backend` when
 /// given) and returns the image and stdout, or `None` when no adapter exists and none is required.

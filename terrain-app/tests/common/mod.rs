@@ -1,0 +1,34 @@
+//! Helpers shared by the `terrain` binary's end-to-end tests: where the real DEMs are, running
+//! the binary, and scratch folders. Each test file uses a subset, hence `dead_code` allowed.
+
+#![allow(dead_code)]
+
+use std::path::PathBuf;
+use std::process::{Command, Output};
+
+/// A file of `../shared/data` (or `$TERRAIN_DATA`); panics with a clear message if missing,
+/// because the tests are defined over these files.
+pub fn data(rel: &str) -> PathBuf {
+    let root = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("..");
+    let dir =
+        std::env::var_os("TERRAIN_DATA").map(PathBuf::from).unwrap_or(root.join("../shared/data"));
+    let p = dir.join(rel);
+    assert!(p.exists(), "test data {} is missing (set TERRAIN_DATA)", p.display());
+    p
+}
+
+/// Runs `terrain ARGS` and returns its output.
+pub fn terrain(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_terrain"))
+        .args(args)
+        .output()
+        .expect("the terrain binary runs")
+}
+
+/// An empty scratch folder unique to this test process, `test` and `name`.
+pub fn scratch(test: &str, name: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("terrain-{test}-{}-{name}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&d);
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
