@@ -16,9 +16,8 @@ use std::sync::OnceLock;
 use terrain_core::Heightmap;
 use terrain_core::geometry::Camera;
 use terrain_core::lod::{
-    DssConfig, DssErrorTable, MAX_FACTOR, MIN_FACTOR, Method, Patch, PvpsConfig, Selection,
-    SelectionStats, SurfaceMesh, build_surface, select_dss_power_of_two, select_dss_uniform,
-    select_pvps,
+    DssConfig, DssErrorTable, MAX_FACTOR, MIN_FACTOR, Patch, PvpsConfig, Selection, SelectionStats,
+    SurfaceMesh, build_surface, select_dss_power_of_two, select_dss_uniform, select_pvps,
 };
 use terrain_core::quadtree::{FrustumCull, Quadtree, SplitToLevel, select};
 use terrain_gpu::render::DrawPatch;
@@ -171,14 +170,13 @@ impl MethodScene {
 
     /// The patches `method` draws from `camera`, with their tessellation factors.
     pub fn select(&self, method: LodMethod, camera: &Camera) -> Selection {
-        let pvps = |m: Method, field: &NodePyramid| {
-            select_pvps(&self.qt, &self.hm, camera, field, m, &self.config.pvps)
-        };
+        let pvps =
+            |field: &NodePyramid| select_pvps(&self.qt, &self.hm, camera, field, &self.config.pvps);
         match method {
             LodMethod::Uniform => self.select_uniform(camera),
-            LodMethod::PvpsA => pvps(Method::A, self.roughness(0)),
-            LodMethod::PvpsB => pvps(Method::B, self.roughness(1)),
-            LodMethod::PvpsC => pvps(Method::C, self.roughness(2)),
+            LodMethod::PvpsA => pvps(self.roughness(0)),
+            LodMethod::PvpsB => pvps(self.roughness(1)),
+            LodMethod::PvpsC => pvps(self.roughness(2)),
             LodMethod::Dss1 => {
                 select_dss_power_of_two(&self.qt, camera, self.dss_errors(), &self.config.dss)
             }

@@ -196,17 +196,16 @@ impl EdgeRule for PvpsEdges<'_> {
     }
 }
 
-/// Selects the patches of PVPS method `method` (A, B or C) with roughness `field` (0..255, see
-/// the module docs) for `camera` over `qt`, the quadtree of `hm`.
+/// Selects the patches of a PVPS method for `camera` over `qt`, the quadtree of `hm`: the
+/// method (A, B or C, see [`Method`]) is the choice of the roughness `field` (0..255, see the
+/// module docs); everything else is shared.
 pub fn select_pvps(
     qt: &Quadtree,
     hm: &Heightmap,
     camera: &Camera,
     field: &dyn NodeField,
-    method: Method,
     cfg: &PvpsConfig,
 ) -> Selection {
-    let _ = method; // the method is the choice of `field`; see `Method`
     let start = Instant::now();
     let finest = cfg.max_level.min(qt.max_level());
     let root = qt.root_length_m();
@@ -266,7 +265,7 @@ mod tests {
         let qt = cfg.quadtree(&hm);
         assert_eq!(qt.max_level(), 5);
         let cam = Camera::from_yaw_pitch(dvec3(100.0, 100.0, 400.0), 45.0, -20.0);
-        let sel = select_pvps(&qt, &hm, &cam, &ConstantField(100.0), Method::C, &cfg);
+        let sel = select_pvps(&qt, &hm, &cam, &ConstantField(100.0), &cfg);
         assert!(sel.stats.patches > 4 && sel.stats.patches == sel.patches.len());
         assert!(sel.factors_in_range());
         assert_eq!(check_shared_edges(&sel), []);
