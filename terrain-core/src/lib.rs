@@ -17,6 +17,7 @@ pub mod error;
 pub mod flight;
 pub mod geometry;
 pub mod georef;
+mod hash;
 pub mod heightmap;
 pub mod lod;
 pub mod measure;

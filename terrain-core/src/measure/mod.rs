@@ -284,11 +284,8 @@ fn block_offset(bx: usize, by: usize, stride: usize) -> (usize, usize) {
     if stride <= 1 {
         return (0, 0);
     }
-    let mut z = (bx as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ (by as u64).rotate_left(32);
-    z = z.wrapping_add(0x9E37_79B9_7F4A_7C15);
-    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-    z ^= z >> 31;
+    let key = (bx as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ (by as u64).rotate_left(32);
+    let z = crate::hash::mix64(key.wrapping_add(0x9E37_79B9_7F4A_7C15));
     let s = stride as u64;
     ((z % s) as usize, ((z >> 32) % s) as usize)
 }

@@ -35,6 +35,7 @@
 //! the same terrain can be placed at any origin (see `HardCase::HugeOrigin`).
 
 use crate::georef::Georef;
+use crate::hash::mix64;
 use crate::heightmap::{Heightmap, HeightmapError};
 
 /// The most octaves a [`FractalConfig`] may ask for.
@@ -238,14 +239,6 @@ impl FractalConfig {
 
 // ---------------------------------------------------------------------------------------------
 // Hashing and noise.
-
-/// The SplitMix64 / MurmurHash3 `fmix64`-style finaliser (Stafford's "Mix13" constants).
-#[inline(always)]
-fn mix64(mut z: u64) -> u64 {
-    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-    z ^ (z >> 31)
-}
 
 /// Salt of one noise layer/octave: a pure function of the seed.
 fn salt(seed: u64, layer: u64, octave: u64) -> u64 {
