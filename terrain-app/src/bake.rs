@@ -7,6 +7,7 @@ use std::path::PathBuf;
 
 use anyhow::Context;
 use clap::Args;
+use terrain_core::dem::RowReader;
 use terrain_core::synth::FractalConfig;
 use terrain_stream::{BakeConfig, BakeProgress, HeightEncoding, HeightSource, bake};
 
@@ -42,6 +43,34 @@ pub struct BakeArgs {
     /// Worker threads (0 = one per core).
     #[arg(long, default_value_t = 0)]
     pub threads: usize,
+    /// Read the DEM by bands of rows instead of whole (GeoTIFF and raw only): bounded memory
+    /// for DEMs larger than memory. Automatic above --stream-above samples. Voids are then
+    /// filled from the nearest valid samples along their row and column (see
+    /// `terrain_core::dem::rows`), not from the whole void's rim.
+    #[arg(long)]
+    pub stream: bool,
+    /// Stream GeoTIFF and raw DEMs with more samples than this (default 2^28: 1 GiB of f32).
+    #[arg(long, default_value_t = 1 << 28)]
+    pub stream_above: u64,
+}
+
+/// The DEM opened for reading by rows, when `--stream` asks for it or the grid is larger
+/// than `--stream-above` samples (GeoTIFF and raw files, one file; others are read whole).
+fn streamed(args: &BakeArgs) -> anyhow::Result<Option<RowReader>> {
+    let [path] = args.source.dem.as_slice() else {
+        if args.stream && args.source.dem.len() > 1 {
+            anyhow::bail!("--stream reads one DEM file, not a mosaic");
+        }
+        return Ok(None);
+    };
+    let options = args.source.load_options()?;
+    match RowReader::open(path, &options) {
+        Ok(r) if args.stream || r.width() * r.height() > args.stream_above => Ok(Some(r)),
+        Ok(_) => Ok(None),
+        Err(e) if args.stream => Err(e.into()),
+        // Not a streamable format (PNG, .hgt...) or unreadable: the whole-file reader says why.
+        Err(_) => Ok(None),
+    }
 }
 
 /// Runs `terrain bake`.
@@ -59,10 +88,25 @@ pub fn run(args: &BakeArgs) -> anyhow::Result<()> {
     }
     let synthetic;
     let dem;
+    let mut rows: Option<RowReader> = None;
     let source: &dyn HeightSource = if let Some(n) = args.synthetic {
         synthetic = FractalConfig::with_size(n, n, 10.0);
         synthetic.validate().map_err(anyhow::Error::msg)?;
         &synthetic
+    } else if let Some(reader) = streamed(args)? {
+        let options = args.source.load_options()?;
+        eprintln!(
+            "{}: {} x {} samples, read by bands of rows",
+            reader.source().path.display(),
+            reader.width(),
+            reader.height()
+        );
+        config.encoding = HeightEncoding::for_source(reader.source(), &options);
+        if matches!(config.encoding, HeightEncoding::Bounded { .. }) {
+            config.encoding = bounded;
+        }
+        rows = Some(reader);
+        rows.as_ref().expect("just set")
     } else {
         let options = args.source.load_options()?;
         dem = args.source.load()?.context("give a DEM file or --synthetic SIZE")?;
@@ -97,6 +141,12 @@ pub fn run(args: &BakeArgs) -> anyhow::Result<()> {
     let report = bake(source, &args.output, &config, &mut bar)
         .with_context(|| format!("baking {}", args.output.display()))?;
     eprintln!();
+    if let Some(zero) = rows.as_ref().map(RowReader::zero_filled).filter(|&z| z > 0) {
+        eprintln!(
+            "warning: {zero} void samples had no valid sample in their row or within {} rows of their column: set to 0 m",
+            terrain_core::dem::rows::FILL_REACH_ROWS
+        );
+    }
     let h = &report.header;
     let secs = report.elapsed.as_secs_f64();
     println!(

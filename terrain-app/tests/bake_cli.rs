@@ -120,3 +120,63 @@ fn a_bad_input_is_named_and_leaves_no_store() {
     assert_eq!(left, vec![std::ffi::OsString::from("notes.txt")], "debris: {left:?}");
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+/// `--stream` reads a real GeoTIFF (tiled, with voids) by bands of rows: the store holds the
+/// file's samples bit-exactly wherever they are valid, the same as the whole-file bake, and
+/// the void flags agree; a PNG cannot be streamed and says so.
+#[test]
+fn a_streamed_bake_equals_the_whole_file_bake_at_valid_samples() {
+    let tif = data("srtm/mt_rainier_90m.tif");
+    let dir = scratch("stream");
+    let (whole, rows) = (dir.join("whole"), dir.join("rows"));
+    ok(&terrain(&["bake", s(&tif), "-o", s(&whole), "--threads", "2"]));
+    let stderr = {
+        let out = terrain(&["bake", s(&tif), "-o", s(&rows), "--threads", "2", "--stream"]);
+        ok(&out);
+        String::from_utf8_lossy(&out.stderr).into_owned()
+    };
+    assert!(stderr.contains("read by bands of rows"), "{stderr}");
+    let dem = load(&tif, &LoadOptions::default()).unwrap();
+    let hm = &dem.heightmap;
+    assert!(hm.voids().count() > 0);
+    let (a, b) = (Store::open(&whole).unwrap(), Store::open(&rows).unwrap());
+    let h = a.header().clone();
+    let same = terrain_stream::format::Header { bake_id: h.bake_id, ..b.header().clone() };
+    assert_eq!(h, same, "same header but for the bake id");
+    let cells = h.block_cells() as usize;
+    let (mut valid, mut void) = (0usize, 0usize);
+    for id in a.block_ids() {
+        let e = a.entry(id).unwrap();
+        let (ba, bb) = (a.read_block(id, h.k).unwrap(), b.read_block(id, h.k).unwrap());
+        for j in 0..e.valid_h {
+            for i in 0..e.valid_w {
+                let (si, sj) =
+                    (id.col as usize * cells + i as usize, id.row as usize * cells + j as usize);
+                let (za, zb) = (ba.height(i, j).unwrap(), bb.height(i, j).unwrap());
+                if hm.voids().get(si, sj) {
+                    assert!(zb.is_finite());
+                    void += 1;
+                } else {
+                    assert_eq!(za.to_bits(), zb.to_bits(), "{id} ({i}, {j})");
+                    assert_eq!(zb, hm.get(si, sj));
+                    valid += 1;
+                }
+            }
+        }
+    }
+    assert!(valid > 1_000_000 && void > 0, "{valid} valid, {void} void samples compared");
+    let out = terrain(&[
+        "bake",
+        s(&data("puget_sound/ps_height_1k.png")),
+        "-o",
+        s(&dir.join("png")),
+        "--stream",
+    ]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        !out.status.success() && err.contains("ps_height_1k.png") && err.contains("streamed"),
+        "{err}"
+    );
+    assert!(!dir.join("png").exists());
+    std::fs::remove_dir_all(&dir).unwrap();
+}

@@ -1,6 +1,7 @@
 //! What a bake reads: [`HeightSource`], a grid delivered by rows, so that grids larger than
 //! memory (the 32769^2 synthetic terrain) stream through the bake in bounded memory.
 
+use terrain_core::dem::RowReader;
 use terrain_core::georef::Georef;
 use terrain_core::heightmap::Heightmap;
 use terrain_core::synth::FractalConfig;
@@ -87,5 +88,26 @@ impl HeightSource for FractalConfig {
         self.validate().map_err(|e| std::io::Error::new(std::io::ErrorKind::InvalidInput, e))?;
         self.generate_rows(j0, rows, out);
         Ok(())
+    }
+}
+
+/// A GeoTIFF or raw file read by bands of rows: DEMs larger than memory bake in bounded
+/// memory (voids filled as [`RowReader`] documents).
+impl HeightSource for RowReader {
+    fn width(&self) -> u64 {
+        RowReader::width(self)
+    }
+    fn height(&self) -> u64 {
+        RowReader::height(self)
+    }
+    fn georef(&self) -> Georef {
+        RowReader::georef(self).clone()
+    }
+    fn read_rows(&self, j0: u64, rows: usize, out: &mut [f32]) -> std::io::Result<()> {
+        let mut voids = vec![false; out.len()];
+        RowReader::read_rows(self, j0, rows, out, &mut voids).map_err(std::io::Error::other)
+    }
+    fn read_void_rows(&self, j0: u64, rows: usize, out: &mut [bool]) -> std::io::Result<()> {
+        RowReader::read_void_rows(self, j0, rows, out).map_err(std::io::Error::other)
     }
 }

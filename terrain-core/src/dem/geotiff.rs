@@ -248,15 +248,23 @@ fn is_geographic_code(code: u16) -> bool {
     (4001..=4999).contains(&code)
 }
 
-/// Reads a GeoTIFF of `len` bytes.
-pub(crate) fn read(path: &Path, len: u64, options: &LoadOptions) -> Result<RawGrid, DemError> {
-    let err = |kind| DemError::new(path, kind);
-    let mut file = File::open(path).map_err(|e| err(DemErrorKind::Io(e)))?;
-    precheck_header(path, &mut file, len)?;
+/// A GeoTIFF whose header and georeference have been read, samples not yet decoded.
+pub(crate) struct Opened {
+    pub dec: Decoder<BufReader<File>>,
+    pub width: u32,
+    pub height: u32,
+    pub georef: Georef,
+    pub file_nodata: Option<f64>,
+}
 
-    // Decoding buffer: the whole image as f64 at most; checked against max_samples below before
-    // any decode happens, so this limit is a second line of defence.
-    let max_bytes = options.max_samples.saturating_mul(8).min(usize::MAX as u64) as usize;
+/// Opens a decoder on `path` with the decoding limits of `options` (a buffer of at most
+/// `max_bytes`), without reading anything but the header.
+pub(crate) fn decoder(
+    path: &Path,
+    len: u64,
+    max_bytes: usize,
+) -> Result<Decoder<BufReader<File>>, DemError> {
+    let file = File::open(path).map_err(|e| DemError::new(path, DemErrorKind::Io(e)))?;
     let limits = {
         let mut l = Limits::default();
         l.decoding_buffer_size = max_bytes;
@@ -264,9 +272,89 @@ pub(crate) fn read(path: &Path, len: u64, options: &LoadOptions) -> Result<RawGr
         l.ifd_value_size = 64 << 20;
         l
     };
-    let mut dec = Decoder::new(BufReader::new(file))
+    Ok(Decoder::new(BufReader::new(file))
         .map_err(|e| map_tiff_error(path, len, e))?
-        .with_limits(limits);
+        .with_limits(limits))
+}
+
+/// Maps a `tiff` error while decoding samples (for [`super::rows`]).
+pub(crate) fn decode_error(path: &Path, len: u64, e: TiffError) -> DemError {
+    map_tiff_error(path, len, e)
+}
+
+/// Reads a GeoTIFF of `len` bytes.
+pub(crate) fn read(path: &Path, len: u64, options: &LoadOptions) -> Result<RawGrid, DemError> {
+    // Decoding buffer: the whole image as f64 at most; checked against max_samples before any
+    // decode happens, so this limit is a second line of defence.
+    let max_bytes = options.max_samples.saturating_mul(8).min(usize::MAX as u64) as usize;
+    let Opened { mut dec, width: w, height: h, georef, file_nodata, .. } =
+        open(path, len, options, max_bytes)?;
+    let result = dec.read_image().map_err(|e| map_tiff_error(path, len, e))?;
+    let (sample_type, values) = samples_to_f32(path, result)?;
+    let (w, h) = (w as usize, h as usize);
+    let n = w * h;
+    if values.len() < n {
+        return Err(malformed(
+            path,
+            format!("decoded {} samples, the header declares {w} x {h}", values.len()),
+        ));
+    }
+    // File rows are north first; ours are south first.
+    let mut data = vec![0f32; n];
+    for (r, row) in values.chunks_exact(w).take(h).enumerate() {
+        let j = h - 1 - r;
+        data[j * w..(j + 1) * w].copy_from_slice(row);
+    }
+    Ok(RawGrid {
+        width: w,
+        height: h,
+        data,
+        georef,
+        nodata: options.nodata.or(file_nodata),
+        sample_type: sample_type.to_string(),
+    })
+}
+
+/// Decoded samples as f32, with the file's sample type name.
+pub(crate) fn samples_to_f32(
+    path: &Path,
+    result: DecodingResult,
+) -> Result<(&'static str, Vec<f32>), DemError> {
+    Ok(match result {
+        DecodingResult::I16(v) => ("int16", v.into_iter().map(f32::from).collect()),
+        DecodingResult::U16(v) => ("uint16", v.into_iter().map(f32::from).collect()),
+        DecodingResult::I32(v) => ("int32", v.into_iter().map(|x| x as f32).collect()),
+        DecodingResult::U32(v) => ("uint32", v.into_iter().map(|x| x as f32).collect()),
+        DecodingResult::F32(v) => ("float32", v),
+        DecodingResult::F64(v) => ("float64", v.into_iter().map(|x| x as f32).collect()),
+        DecodingResult::I8(v) => ("int8", v.into_iter().map(f32::from).collect()),
+        DecodingResult::U8(v) => ("uint8", v.into_iter().map(f32::from).collect()),
+        DecodingResult::F16(_) | DecodingResult::I64(_) | DecodingResult::U64(_) => {
+            return Err(DemError::new(
+                path,
+                DemErrorKind::Unsupported {
+                    format: FORMAT,
+                    message:
+                        "sample type float16/int64/uint64 (read: int8/16/32, uint8/16/32, float32/64)"
+                            .to_string(),
+                },
+            ));
+        }
+    })
+}
+
+/// Opens a GeoTIFF of `len` bytes and reads its header and georeference (no samples).
+pub(crate) fn open(
+    path: &Path,
+    len: u64,
+    options: &LoadOptions,
+    max_bytes: usize,
+) -> Result<Opened, DemError> {
+    let err = |kind| DemError::new(path, kind);
+    let mut file = File::open(path).map_err(|e| err(DemErrorKind::Io(e)))?;
+    precheck_header(path, &mut file, len)?;
+    drop(file);
+    let mut dec = decoder(path, len, max_bytes)?;
 
     let (w, h) = dec.dimensions().map_err(|e| map_tiff_error(path, len, e))?;
     check_size(path, w as u64, h as u64, options)?;
@@ -411,46 +499,5 @@ pub(crate) fn read(path: &Path, len: u64, options: &LoadOptions) -> Result<RawGr
         }
     };
 
-    // --- Samples ---
-    let result = dec.read_image().map_err(|e| map_tiff_error(path, len, e))?;
-    let (w, h) = (w as usize, h as usize);
-    let n = w * h;
-    let (sample_type, values): (&str, Vec<f32>) = match result {
-        DecodingResult::I16(v) => ("int16", v.into_iter().map(f32::from).collect()),
-        DecodingResult::U16(v) => ("uint16", v.into_iter().map(f32::from).collect()),
-        DecodingResult::I32(v) => ("int32", v.into_iter().map(|x| x as f32).collect()),
-        DecodingResult::U32(v) => ("uint32", v.into_iter().map(|x| x as f32).collect()),
-        DecodingResult::F32(v) => ("float32", v),
-        DecodingResult::F64(v) => ("float64", v.into_iter().map(|x| x as f32).collect()),
-        DecodingResult::I8(v) => ("int8", v.into_iter().map(f32::from).collect()),
-        DecodingResult::U8(v) => ("uint8", v.into_iter().map(f32::from).collect()),
-        DecodingResult::F16(_) | DecodingResult::I64(_) | DecodingResult::U64(_) => {
-            return Err(err(DemErrorKind::Unsupported {
-                format: FORMAT,
-                message:
-                    "sample type float16/int64/uint64 (read: int8/16/32, uint8/16/32, float32/64)"
-                        .to_string(),
-            }));
-        }
-    };
-    if values.len() < n {
-        return Err(malformed(
-            path,
-            format!("decoded {} samples, the header declares {w} x {h}", values.len()),
-        ));
-    }
-    // File rows are north first; ours are south first.
-    let mut data = vec![0f32; n];
-    for (r, row) in values.chunks_exact(w).take(h).enumerate() {
-        let j = h - 1 - r;
-        data[j * w..(j + 1) * w].copy_from_slice(row);
-    }
-    Ok(RawGrid {
-        width: w,
-        height: h,
-        data,
-        georef,
-        nodata: options.nodata.or(file_nodata),
-        sample_type: sample_type.to_string(),
-    })
+    Ok(Opened { dec, width: w, height: h, georef, file_nodata })
 }

@@ -16,9 +16,11 @@ pub mod hgt;
 pub mod image;
 pub mod mosaic;
 pub mod raw;
+pub mod rows;
 pub mod voids;
 
 pub use mosaic::load_mosaic;
+pub use rows::RowReader;
 
 /// A file format we read.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]

@@ -1,0 +1,496 @@
+//! DEMs read by bands of rows, never whole: [`RowReader`] streams GeoTIFF (strips or tiles,
+//! any compression the `tiff` crate decodes) and raw files of any size in bounded memory, for
+//! bakes of grids larger than memory (terrain-stream's `HeightSource`).
+//!
+//! Rows are delivered south first, like [`Heightmap`](crate::heightmap::Heightmap). Voids
+//! (no-data, NaN) are marked and filled, but not as [`load`](super::load) fills them (IDW from
+//! each void region's whole rim needs the whole grid): here a void sample takes the
+//! inverse-distance-squared mean (distances in metres) of the nearest valid sample in each of
+//! the four axis directions: along its row (the whole row) and along its column within
+//! [`FILL_REACH_ROWS`] rows. That value is a pure function of the sample's row and the rows
+//! within reach, so two bands that both read a row (blocks share their border rows) fill it
+//! identically, whatever the band boundaries. A void with no valid sample in its row nor within
+//! reach in its column (a row of open sea) is set to 0 m, and counted.
+
+use std::collections::VecDeque;
+use std::fs::File;
+use std::io::{BufReader, Read, Seek, SeekFrom};
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::{Arc, Mutex};
+
+use tiff::decoder::{ChunkType, Decoder};
+
+use super::{Format, LoadOptions, RawSampleType, SourceInfo, detect_format, geotiff};
+use crate::error::{DemError, DemErrorKind};
+use crate::georef::Georef;
+
+/// How far (in rows) a void sample looks up and down its column for a valid sample.
+pub const FILL_REACH_ROWS: usize = 64;
+
+/// Decoders kept for reuse between band reads (one per concurrent reader at most).
+const DECODER_POOL: usize = 8;
+
+enum Inner {
+    Raw {
+        sample: RawSampleType,
+        scale: f64,
+        offset: f64,
+    },
+    Tiff {
+        decoders: Mutex<Vec<Decoder<BufReader<File>>>>,
+        /// Recently decoded chunks: a band's rows are read in several pieces (and once more
+        /// for the void mask), and each piece would otherwise decode the same strips or tiles.
+        recent: Mutex<VecDeque<(u32, Arc<Vec<f32>>)>>,
+        recent_cap: usize,
+        chunk: ChunkType,
+        chunk_w: u32,
+        chunk_h: u32,
+        max_bytes: usize,
+    },
+}
+
+/// A GeoTIFF or raw DEM opened for reading by bands of rows (see the module docs).
+///
+/// `Sync`: bands may be read from several threads at once (each read opens its own file handle
+/// or takes a pooled decoder).
+pub struct RowReader {
+    path: PathBuf,
+    len: u64,
+    width: u64,
+    height: u64,
+    georef: Georef,
+    source: SourceInfo,
+    inner: Inner,
+    zero_filled: AtomicU64,
+}
+
+impl std::fmt::Debug for RowReader {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("RowReader")
+            .field("path", &self.path)
+            .field("width", &self.width)
+            .field("height", &self.height)
+            .field("source", &self.source)
+            .finish_non_exhaustive()
+    }
+}
+
+/// Whether `format` can be read by rows (the others are read whole by [`load`](super::load)).
+pub fn streams(format: Format) -> bool {
+    matches!(format, Format::GeoTiff | Format::Raw)
+}
+
+impl RowReader {
+    /// Opens `path` (format detected as [`load`](super::load) does, or `options.format`),
+    /// reading only its header. `options.max_samples` does not apply: nothing of the grid's
+    /// size is ever allocated. Formats other than GeoTIFF and raw are refused with
+    /// [`DemErrorKind::Unsupported`] (their readers decode the whole file; use `load`).
+    pub fn open(path: impl AsRef<Path>, options: &LoadOptions) -> Result<Self, DemError> {
+        let path = path.as_ref();
+        let err = |kind| DemError::new(path, kind);
+        let mut file = File::open(path).map_err(|e| err(DemErrorKind::Io(e)))?;
+        let len = file.metadata().map_err(|e| err(DemErrorKind::Io(e)))?.len();
+        if len == 0 {
+            return Err(err(DemErrorKind::Empty));
+        }
+        let mut head = Vec::with_capacity(16);
+        (&mut file).take(16).read_to_end(&mut head).map_err(|e| err(DemErrorKind::Io(e)))?;
+        drop(file);
+        let format = options
+            .format
+            .or_else(|| detect_format(path, &head))
+            .or(options.raw.map(|_| Format::Raw))
+            .ok_or_else(|| {
+                err(DemErrorKind::UnknownFormat(
+                    "rows can be streamed from GeoTIFF and raw files only".to_string(),
+                ))
+            })?;
+        let unbounded = LoadOptions { max_samples: u64::MAX, ..options.clone() };
+        match format {
+            Format::GeoTiff => {
+                // One chunk (strip or tile) at a time, as f64 at most.
+                let opened = geotiff::open(path, len, &unbounded, 1 << 30)?;
+                let geotiff::Opened { dec, width, height, georef, file_nodata } = opened;
+                let (chunk_w, chunk_h) = dec.chunk_dimensions();
+                let chunk = dec.get_chunk_type();
+                if chunk_w == 0 || chunk_h == 0 {
+                    return Err(err(DemErrorKind::Malformed {
+                        format: "GeoTIFF",
+                        message: format!("chunk size {chunk_w} x {chunk_h}"),
+                    }));
+                }
+                let mut reader = Self {
+                    path: path.to_path_buf(),
+                    len,
+                    width: width as u64,
+                    height: height as u64,
+                    georef,
+                    source: SourceInfo {
+                        path: path.to_path_buf(),
+                        format,
+                        sample_type: String::new(),
+                        nodata: options.nodata.or(file_nodata),
+                    },
+                    inner: Inner::Tiff {
+                        decoders: Mutex::new(vec![dec]),
+                        recent: Mutex::new(VecDeque::new()),
+                        // Two rows of chunks (a band can straddle a chunk row) plus slack.
+                        recent_cap: match chunk {
+                            ChunkType::Strip => 4,
+                            ChunkType::Tile => 2 * (width as usize).div_ceil(chunk_w as usize) + 4,
+                        },
+                        chunk,
+                        chunk_w,
+                        chunk_h,
+                        max_bytes: 1 << 30,
+                    },
+                    zero_filled: AtomicU64::new(0),
+                };
+                // The sample type: decode the first chunk once (small).
+                let (name, _) = reader.decode_chunk(0)?;
+                reader.source.sample_type = name.to_string();
+                Ok(reader)
+            }
+            Format::Raw => {
+                let Some(spec) = options.raw else {
+                    return Err(err(DemErrorKind::InvalidOptions(
+                        "a raw file needs LoadOptions::raw (width, height, sample type)".into(),
+                    )));
+                };
+                super::check_size(path, spec.width, spec.height, &unbounded)?;
+                let (bytes, name) = raw_sample(spec.sample);
+                let expected = spec.width * spec.height * bytes;
+                if len != expected {
+                    return Err(err(DemErrorKind::InvalidOptions(format!(
+                        "raw {} x {} {name} needs exactly {expected} bytes, the file has {len} bytes",
+                        spec.width, spec.height
+                    ))));
+                }
+                Ok(Self {
+                    path: path.to_path_buf(),
+                    len,
+                    width: spec.width,
+                    height: spec.height,
+                    georef: Georef::local(options.spacing_m),
+                    source: SourceInfo {
+                        path: path.to_path_buf(),
+                        format,
+                        sample_type: name.to_string(),
+                        nodata: options.nodata,
+                    },
+                    inner: Inner::Raw {
+                        sample: spec.sample,
+                        scale: options.vertical_scale,
+                        offset: options.vertical_offset,
+                    },
+                    zero_filled: AtomicU64::new(0),
+                })
+            }
+            other => Err(err(DemErrorKind::Unsupported {
+                format: other.name(),
+                message: "rows can be streamed from GeoTIFF and raw files only; this format is read whole".to_string(),
+            })),
+        }
+    }
+
+    /// Columns.
+    pub fn width(&self) -> u64 {
+        self.width
+    }
+
+    /// Rows.
+    pub fn height(&self) -> u64 {
+        self.height
+    }
+
+    /// Georeference of sample (0, 0) (the south-west one).
+    pub fn georef(&self) -> &Georef {
+        &self.georef
+    }
+
+    /// Where the samples come from.
+    pub fn source(&self) -> &SourceInfo {
+        &self.source
+    }
+
+    /// Void samples set to 0 m so far, for want of any valid sample within reach.
+    pub fn zero_filled(&self) -> u64 {
+        self.zero_filled.load(Ordering::Relaxed)
+    }
+
+    fn error(&self, kind: DemErrorKind) -> DemError {
+        DemError::new(&self.path, kind)
+    }
+
+    /// Decodes chunk `index` (strip or tile) as f32, with the sample type's name.
+    fn decode_chunk(&self, index: u32) -> Result<(&'static str, Arc<Vec<f32>>), DemError> {
+        let Inner::Tiff { decoders, recent, recent_cap, max_bytes, .. } = &self.inner else {
+            unreachable!("decode_chunk on a raw reader")
+        };
+        if let Some(hit) = recent
+            .lock()
+            .ok()
+            .and_then(|r| r.iter().find(|(i, _)| *i == index).map(|(_, v)| Arc::clone(v)))
+        {
+            return Ok((self.sample_name(), hit));
+        }
+        let pooled = decoders.lock().map(|mut d| d.pop()).unwrap_or(None);
+        let mut dec = match pooled {
+            Some(d) => d,
+            None => geotiff::decoder(&self.path, self.len, *max_bytes)?,
+        };
+        let result =
+            dec.read_chunk(index).map_err(|e| geotiff::decode_error(&self.path, self.len, e))?;
+        if let Ok(mut pool) = decoders.lock()
+            && pool.len() < DECODER_POOL
+        {
+            pool.push(dec);
+        }
+        let (name, values) = geotiff::samples_to_f32(&self.path, result)?;
+        let values = Arc::new(values);
+        if let Ok(mut r) = recent.lock() {
+            if r.len() >= *recent_cap {
+                r.pop_front();
+            }
+            r.push_back((index, Arc::clone(&values)));
+        }
+        Ok((name, values))
+    }
+
+    fn sample_name(&self) -> &'static str {
+        match self.source.sample_type.as_str() {
+            "int8" => "int8",
+            "uint8" => "uint8",
+            "int16" => "int16",
+            "uint16" => "uint16",
+            "int32" => "int32",
+            "uint32" => "uint32",
+            "float64" => "float64",
+            _ => "float32",
+        }
+    }
+
+    /// File rows `r0 .. r0 + n` (north first, as stored), row-major, no-data as NaN.
+    fn read_file_rows(&self, r0: u64, n: usize, out: &mut [f32]) -> Result<(), DemError> {
+        let w = self.width as usize;
+        debug_assert_eq!(out.len(), w * n);
+        match &self.inner {
+            Inner::Raw { sample, scale, offset } => {
+                let (bytes, _) = raw_sample(*sample);
+                let mut buf = vec![0u8; w * n * bytes as usize];
+                let mut file =
+                    File::open(&self.path).map_err(|e| self.error(DemErrorKind::Io(e)))?;
+                file.seek(SeekFrom::Start(r0 * self.width * bytes))
+                    .and_then(|_| file.read_exact(&mut buf))
+                    .map_err(|e| self.error(DemErrorKind::Io(e)))?;
+                for (o, s) in out.iter_mut().zip(buf.chunks_exact(bytes as usize)) {
+                    let v = match sample {
+                        RawSampleType::I16 => i16::from_le_bytes([s[0], s[1]]) as f64,
+                        RawSampleType::U16 => u16::from_le_bytes([s[0], s[1]]) as f64,
+                        RawSampleType::F32 => f32::from_le_bytes([s[0], s[1], s[2], s[3]]) as f64,
+                    };
+                    *o = self.value(v, *scale, *offset);
+                }
+            }
+            Inner::Tiff { chunk, chunk_w, chunk_h, .. } => {
+                let (cw, ch) = (*chunk_w as u64, *chunk_h as u64);
+                let across = match chunk {
+                    ChunkType::Strip => 1,
+                    ChunkType::Tile => self.width.div_ceil(cw),
+                };
+                let first = r0 / ch;
+                let last = (r0 + n as u64 - 1) / ch;
+                for band in first..=last {
+                    for t in 0..across {
+                        let index = u32::try_from(band * across + t).map_err(|_| {
+                            self.error(DemErrorKind::Malformed {
+                                format: "GeoTIFF",
+                                message: format!("chunk index {} out of range", band * across + t),
+                            })
+                        })?;
+                        let (_, values) = self.decode_chunk(index)?;
+                        // Strips span the whole width; tiles `cw` columns. The decoder
+                        // returns a chunk's data without the padding of east and south edge
+                        // tiles, so a row of the result is `min(cw, w - x0)` samples.
+                        let x0 = match chunk {
+                            ChunkType::Strip => 0,
+                            ChunkType::Tile => (t * cw) as usize,
+                        };
+                        let stride = match chunk {
+                            ChunkType::Strip => w,
+                            ChunkType::Tile => (cw as usize).min(w - x0),
+                        };
+                        let cols = stride;
+                        let rows_in = values.len() / stride.max(1);
+                        for k in 0..rows_in {
+                            let r = band * ch + k as u64;
+                            if r < r0 || r >= r0 + n as u64 {
+                                continue;
+                            }
+                            let dst = (r - r0) as usize * w + x0;
+                            for c in 0..cols {
+                                out[dst + c] = self.value(values[k * stride + c] as f64, 1.0, 0.0);
+                            }
+                        }
+                    }
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// A file value in metres, NaN for no-data.
+    fn value(&self, v: f64, scale: f64, offset: f64) -> f32 {
+        if self.source.nodata.is_some_and(|nd| v == nd || (nd.is_nan() && v.is_nan()))
+            || !v.is_finite()
+        {
+            f32::NAN
+        } else {
+            (v * scale + offset) as f32
+        }
+    }
+
+    /// The void mask of rows `j0 .. j0 + rows` (south first), row-major (`width * rows`).
+    pub fn read_void_rows(&self, j0: u64, rows: usize, voids: &mut [bool]) -> Result<(), DemError> {
+        let (w, h) = (self.width, self.height);
+        if !(j0.checked_add(rows as u64).is_some_and(|e| e <= h)
+            && voids.len() as u64 == w * rows as u64)
+        {
+            return Err(self.error(DemErrorKind::InvalidOptions(format!(
+                "rows {j0}..+{rows} with a buffer of {} samples do not fit a {w} x {h} grid",
+                voids.len()
+            ))));
+        }
+        if rows == 0 {
+            return Ok(());
+        }
+        let wu = w as usize;
+        let mut file_band = vec![0f32; wu * rows];
+        self.read_file_rows(h - j0 - rows as u64, rows, &mut file_band)?;
+        for (k, row) in file_band.chunks_exact(wu).enumerate() {
+            let j = rows - 1 - k;
+            for (v, x) in voids[j * wu..(j + 1) * wu].iter_mut().zip(row) {
+                *v = x.is_nan();
+            }
+        }
+        Ok(())
+    }
+
+    /// Rows `j0 .. j0 + rows` (south first), row-major: heights in metres with voids filled
+    /// (see the module docs) into `heights`, the void mask into `voids`. Both buffers hold
+    /// `width * rows` samples.
+    pub fn read_rows(
+        &self,
+        j0: u64,
+        rows: usize,
+        heights: &mut [f32],
+        voids: &mut [bool],
+    ) -> Result<(), DemError> {
+        let (w, h) = (self.width, self.height);
+        let fits = j0.checked_add(rows as u64).is_some_and(|e| e <= h)
+            && heights.len() as u64 == w * rows as u64
+            && voids.len() == heights.len();
+        if !fits {
+            return Err(self.error(DemErrorKind::InvalidOptions(format!(
+                "rows {j0}..+{rows} with buffers of {} and {} samples do not fit a {w} x {h} grid",
+                heights.len(),
+                voids.len()
+            ))));
+        }
+        if rows == 0 {
+            return Ok(());
+        }
+        let wu = w as usize;
+        // South row j is file row h - 1 - j: the band is file rows [h - j0 - rows, h - j0).
+        let mut file_band = vec![0f32; wu * rows];
+        self.read_file_rows(h - j0 - rows as u64, rows, &mut file_band)?;
+        for (k, row) in file_band.chunks_exact(wu).enumerate() {
+            let j = rows - 1 - k;
+            heights[j * wu..(j + 1) * wu].copy_from_slice(row);
+        }
+        for (v, x) in voids.iter_mut().zip(heights.iter()) {
+            *v = x.is_nan();
+        }
+        if !voids.iter().any(|&v| v) {
+            return Ok(());
+        }
+        // Rows within reach below and above the band (south-first indices lo .. hi).
+        let lo = j0.saturating_sub(FILL_REACH_ROWS as u64);
+        let hi = (j0 + rows as u64 + FILL_REACH_ROWS as u64).min(h);
+        let n = (hi - lo) as usize;
+        let mut ext = vec![0f32; wu * n];
+        let mut file_ext = vec![0f32; wu * n];
+        self.read_file_rows(h - hi, n, &mut file_ext)?;
+        for (k, row) in file_ext.chunks_exact(wu).enumerate() {
+            let j = n - 1 - k;
+            ext[j * wu..(j + 1) * wu].copy_from_slice(row);
+        }
+        let (dx, dy) = (self.georef.spacing_m.x, self.georef.spacing_m.y);
+        let off = (j0 - lo) as usize;
+        let mut zero = 0u64;
+        let mut left = vec![usize::MAX; wu];
+        let mut right = vec![usize::MAX; wu];
+        for r in 0..rows {
+            let row = &ext[(off + r) * wu..(off + r + 1) * wu];
+            let mut last = usize::MAX;
+            for i in 0..wu {
+                if !row[i].is_nan() {
+                    last = i;
+                }
+                left[i] = last;
+            }
+            last = usize::MAX;
+            for i in (0..wu).rev() {
+                if !row[i].is_nan() {
+                    last = i;
+                }
+                right[i] = last;
+            }
+            for i in 0..wu {
+                if !row[i].is_nan() {
+                    continue;
+                }
+                let (mut sum, mut wsum) = (0f64, 0f64);
+                let mut add = |v: f32, d: f64| {
+                    let wt = 1.0 / (d * d);
+                    sum += wt * v as f64;
+                    wsum += wt;
+                };
+                if left[i] != usize::MAX {
+                    add(row[left[i]], (i - left[i]) as f64 * dx);
+                }
+                if right[i] != usize::MAX {
+                    add(row[right[i]], (right[i] - i) as f64 * dx);
+                }
+                let jr = off + r;
+                if let Some(d) =
+                    (1..=jr.min(FILL_REACH_ROWS)).find(|&d| !ext[(jr - d) * wu + i].is_nan())
+                {
+                    add(ext[(jr - d) * wu + i], d as f64 * dy);
+                }
+                if let Some(d) = (1..=(n - 1 - jr).min(FILL_REACH_ROWS))
+                    .find(|&d| !ext[(jr + d) * wu + i].is_nan())
+                {
+                    add(ext[(jr + d) * wu + i], d as f64 * dy);
+                }
+                heights[r * wu + i] = if wsum > 0.0 {
+                    (sum / wsum) as f32
+                } else {
+                    zero += 1;
+                    0.0
+                };
+            }
+        }
+        self.zero_filled.fetch_add(zero, Ordering::Relaxed);
+        Ok(())
+    }
+}
+
+fn raw_sample(sample: RawSampleType) -> (u64, &'static str) {
+    match sample {
+        RawSampleType::I16 => (2, "int16"),
+        RawSampleType::U16 => (2, "uint16"),
+        RawSampleType::F32 => (4, "float32"),
+    }
+}
