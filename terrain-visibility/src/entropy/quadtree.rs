@@ -335,19 +335,25 @@ impl EntropyQuadtree {
     /// Merges the points of `src` lying within `[lo, hi]` along edge `e` into `dst` (sorted,
     /// without repeats: two points at the same coordinate of one edge line are one point).
     fn merge(&self, e: usize, dst: &mut Vec<u32>, src: &[u32], lo: u32, hi: u32) {
-        let extra: Vec<u32> = src
-            .iter()
-            .copied()
-            .filter(|&p| (lo..=hi).contains(&self.along(e, p)))
-            .filter(|&p| {
-                dst.binary_search_by_key(&self.along(e, p), |&q| self.along(e, q)).is_err()
-            })
-            .collect();
-        if extra.is_empty() {
+        for &p in src {
+            let c = self.along(e, p);
+            if c < lo || c > hi {
+                continue;
+            }
+            if let Err(at) = dst.binary_search_by_key(&c, |&q| self.along(e, q)) {
+                dst.insert(at, p);
+            }
+        }
+    }
+
+    /// Merges edge `src_edge` of node `src` into edge `e` of node `dst` (within `[lo, hi]`).
+    fn merge_nodes(&mut self, dst: usize, e: usize, src: usize, src_edge: usize, lo: u32, hi: u32) {
+        if dst == src {
             return;
         }
-        dst.extend(extra);
-        dst.sort_by_key(|&p| self.along(e, p));
+        let mut edge = std::mem::take(&mut self.nodes[dst].edges[e]);
+        self.merge(e, &mut edge, &self.nodes[src].edges[src_edge], lo, hi);
+        self.nodes[dst].edges[e] = edge;
     }
 
     /// The paper's three-pass Quadtree update (section 3.3, Fig. 6), which removes cracks by
@@ -363,7 +369,11 @@ impl EntropyQuadtree {
     pub fn eliminate_cracks(&mut self) -> f64 {
         let t0 = Instant::now();
         for n in &mut self.nodes {
-            n.edges = initial_edges(n.corners);
+            let [sw, se, ne, nw] = n.corners;
+            for (edge, ends) in n.edges.iter_mut().zip([[sw, nw], [sw, se], [se, ne], [nw, ne]]) {
+                edge.clear();
+                edge.extend_from_slice(&ends);
+            }
         }
         let by_key: HashMap<u64, u32> = self
             .nodes
@@ -379,12 +389,9 @@ impl EntropyQuadtree {
         for &k in order.iter().rev() {
             let Some(first) = self.nodes[k as usize].children else { continue };
             for (e, on_edge) in ON_EDGE.iter().enumerate() {
-                let mut edge = std::mem::take(&mut self.nodes[k as usize].edges[e]);
                 for &c in on_edge {
-                    let src = self.nodes[(first as usize) + c].edges[e].clone();
-                    self.merge(e, &mut edge, &src, 0, u32::MAX);
+                    self.merge_nodes(k as usize, e, first as usize + c, e, 0, u32::MAX);
                 }
-                self.nodes[k as usize].edges[e] = edge;
             }
         }
         // Pass 2: top-down, same-level neighbours.
@@ -400,25 +407,19 @@ impl EntropyQuadtree {
             for (e, other, oe) in across {
                 let Some((x, y)) = other else { continue };
                 let Some(&m) = by_key.get(&node_key(level, x, y)) else { continue };
-                let src = self.nodes[m as usize].edges[oe].clone();
-                let mut edge = std::mem::take(&mut self.nodes[k as usize].edges[e]);
-                self.merge(e, &mut edge, &src, 0, u32::MAX);
-                self.nodes[k as usize].edges[e] = edge;
+                self.merge_nodes(k as usize, e, m as usize, oe, 0, u32::MAX);
             }
         }
         // Pass 3: top-down, parent edges into children.
         for &k in &order {
             let Some(first) = self.nodes[k as usize].children else { continue };
             for (e, on_edge) in ON_EDGE.iter().enumerate() {
-                let src = self.nodes[k as usize].edges[e].clone();
                 for &c in on_edge {
                     let child = first as usize + c;
                     let r = self.rect(&self.nodes[child]);
                     let (lo, hi) =
                         if e == LEFT || e == RIGHT { (r[2], r[3]) } else { (r[0], r[1]) };
-                    let mut edge = std::mem::take(&mut self.nodes[child].edges[e]);
-                    self.merge(e, &mut edge, &src, lo, hi);
-                    self.nodes[child].edges[e] = edge;
+                    self.merge_nodes(child, e, k as usize, e, lo, hi);
                 }
             }
         }
