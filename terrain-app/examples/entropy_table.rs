@@ -72,16 +72,19 @@ fn table(name: &str, hm: &Heightmap, depth: u32) -> anyhow::Result<()> {
         pct(0.9)
     );
     println!(
-        "| E0 | tiles | triangles | construction (s) | crack elimination (ms) | triangulation (ms) | simplification (%) | max error (m) | RMS error (m) |"
+        "| E0 | tiles | triangles | construction (s) | construction CPU (s) | crack elimination (ms) | crack elimination CPU (ms) | triangulation (ms) | simplification (%) | max error (m) | RMS error (m) |"
     );
-    println!("|---|---|---|---|---|---|---|---|---|");
+    println!("|---|---|---|---|---|---|---|---|---|---|---|");
     let mut full_triangles = None;
     for e0 in [0.0, 10.0, 12.0, 14.0, 16.0, 18.0, 30.0, 50.0, 70.0, 80.0, 90.0] {
         let cfg = TreeConfig { e0, ..base.clone() };
-        let t = Instant::now();
+        let (t, c) = (Instant::now(), process_cpu_s());
         let mut tree = build_from_grid_with_map(hm, &emap, &cfg);
         let build_s = t.elapsed().as_secs_f64();
+        let build_cpu = process_cpu_s() - c;
+        let c = thread_cpu_s();
         let crack_s = tree.eliminate_cracks();
+        let crack_cpu = thread_cpu_s() - c;
         let t = Instant::now();
         let mesh = tree.mesh();
         let tri_s = t.elapsed().as_secs_f64();
@@ -90,11 +93,13 @@ fn table(name: &str, hm: &Heightmap, depth: u32) -> anyhow::Result<()> {
         let full = *full_triangles.get_or_insert(mesh.triangles.len());
         let simpl = 100.0 * (1.0 - mesh.triangles.len() as f64 / full as f64);
         println!(
-            "| {e0} | {} | {} | {:.3} | {:.2} | {:.1} | {:.2} | {:.1} | {:.2} |",
+            "| {e0} | {} | {} | {:.3} | {:.2} | {:.2} | {:.2} | {:.1} | {:.2} | {:.1} | {:.2} |",
             tree.tiles(),
             mesh.triangles.len(),
             build_s,
+            build_cpu,
             crack_s * 1e3,
+            crack_cpu * 1e3,
             tri_s * 1e3,
             simpl,
             stats.max_error,
@@ -118,4 +123,28 @@ fn table(name: &str, hm: &Heightmap, depth: u32) -> anyhow::Result<()> {
         );
     }
     Ok(())
+}
+
+/// CPU seconds of this thread (`/proc/thread-self/schedstat`, ns), for timings on a shared
+/// machine where wall time includes waiting for a core; `NaN` where unavailable.
+fn thread_cpu_s() -> f64 {
+    std::fs::read_to_string("/proc/thread-self/schedstat")
+        .ok()
+        .and_then(|s| s.split_whitespace().next()?.parse::<f64>().ok())
+        .map_or(f64::NAN, |ns| ns * 1e-9)
+}
+
+/// CPU seconds of the whole process, all threads (`/proc/self/stat` utime + stime, 10 ms
+/// ticks); `NaN` where unavailable.
+fn process_cpu_s() -> f64 {
+    let Ok(s) = std::fs::read_to_string("/proc/self/stat") else { return f64::NAN };
+    let after = s.rsplit_once(')').map_or("", |x| x.1);
+    let f: Vec<&str> = after.split_whitespace().collect();
+    match (
+        f.get(11).and_then(|v| v.parse::<f64>().ok()),
+        f.get(12).and_then(|v| v.parse::<f64>().ok()),
+    ) {
+        (Some(u), Some(k)) => (u + k) / 100.0,
+        _ => f64::NAN,
+    }
 }

@@ -463,6 +463,18 @@ pub fn build_from_points(
         origin: g.world_origin,
         spacing: g.spacing_m,
     };
-    let tree = EntropyQuadtree::build(lattice, &grid, config.e0, |p| points.height(p));
+    // Lattice vertices that are raster samples (all of them when D <= 10) take the raster's
+    // height, interpolated once already (to f32, millimetres at terrain heights).
+    let (origin, spacing) = (g.world_origin, g.spacing_m);
+    let height = |p: DVec2| {
+        let q = (p - origin) / spacing;
+        let r = q.round();
+        if (q - r).abs().max_element() < 1e-6 {
+            f64::from(raster.get(r.x as usize, r.y as usize))
+        } else {
+            points.height(p)
+        }
+    };
+    let tree = EntropyQuadtree::build(lattice, &grid, config.e0, height);
     Ok(ScatteredTree { tree, raster, entropy_s })
 }
