@@ -271,6 +271,11 @@ fn view_mesh(
     hm: Heightmap,
     format: Option<Format>,
 ) -> anyhow::Result<()> {
+    anyhow::ensure!(
+        args.method != LodMethod::Entropy,
+        "--camera exports patch-based LOD surfaces; the entropy method's mesh is exported \
+         with `terrain mesh --entropy E0`"
+    );
     let (width, height) = crate::render::parse_size(&args.size)?;
     let (position, yaw, pitch) = crate::render::parse_camera(camera)?;
     let (near, far) = terrain_gpu::render::clip_range(&hm, position);
