@@ -454,9 +454,9 @@ impl EntropyQuadtree {
     /// [`Self::mesh`] eliminates the cracks of the result again.
     pub fn schedule(&self, view: &ViewThreshold) -> EntropyQuadtree {
         let mut nodes: Vec<QuadNode> = Vec::with_capacity(self.nodes.len());
-        let mut root = self.nodes[0].clone();
-        root.children = None;
-        nodes.push(root);
+        // Edges are rebuilt by the crack elimination: copy nodes without them (no allocation).
+        let bare = |n: &QuadNode| QuadNode { children: None, edges: Default::default(), ..*n };
+        nodes.push(bare(&self.nodes[0]));
         // (old index, new index)
         let mut stack = vec![(0u32, 0u32)];
         while let Some((old, new)) = stack.pop() {
@@ -470,9 +470,7 @@ impl EntropyQuadtree {
             }
             let nf = nodes.len() as u32;
             for c in 0..4 {
-                let mut child = self.nodes[first as usize + c].clone();
-                child.children = None;
-                nodes.push(child);
+                nodes.push(bare(&self.nodes[first as usize + c]));
                 stack.push((first + c as u32, nf + c as u32));
             }
             nodes[new as usize].children = Some(nf);
