@@ -40,7 +40,7 @@ pub struct MeshArgs {
     /// The entropy paper's quadtree mesh instead (Chen 2018): split tiles while their largest
     /// local curvature entropy exceeds this threshold E0 (percent of log2(min(M, N))), cracks
     /// removed by the three-pass update, tiles triangulated by constrained Delaunay.
-    #[arg(long, conflicts_with_all = ["max_error", "camera"])]
+    #[arg(long, allow_hyphen_values = true, conflicts_with_all = ["max_error", "camera"])]
     pub entropy: Option<f64>,
     /// With --entropy: the maximum depth D of the quadtree (capped at the grid's depth).
     #[arg(long, default_value_t = 8, requires = "entropy")]
