@@ -493,3 +493,26 @@ fn scalar_map_reports_none_for_nan() {
     assert_eq!(m.get(1, 0), None);
     assert_eq!(m.range(), Some((1.0, 1.0)));
 }
+
+/// Every node's `maxE` is the largest entropy over the samples of its closed tile (brute
+/// force), on a grid whose size is not `2^k + 1` (snapped lattice lines).
+#[test]
+fn node_max_entropy_equals_brute_force_over_the_tile() {
+    let hm = crop(&puget_crop(257), 0, 0, 150);
+    let cfg = TreeConfig { e0: 0.0, max_depth: 7, ..TreeConfig::default() };
+    let emap = entropy_map(&hm, &cfg);
+    let tree = build_from_grid_with_map(&hm, &emap, &cfg);
+    assert_eq!(tree.lattice.depth, 7);
+    for n in &tree.nodes {
+        let s = 1u32 << (tree.lattice.depth - n.level);
+        let lo = tree.lattice.plan(n.i * s, n.j * s);
+        let hi = tree.lattice.plan(n.i * s + s, n.j * s + s);
+        let mut m = 0.0f32;
+        for j in lo.y as usize..=hi.y as usize {
+            for i in lo.x as usize..=hi.x as usize {
+                m = m.max(emap.get(i, j).unwrap_or(0.0));
+            }
+        }
+        assert_eq!(n.max_e, m, "node {:?}", (n.level, n.i, n.j));
+    }
+}
