@@ -3,4 +3,5 @@
 //! selection), terrain-visibility (roughness) and handed to terrain-gpu as draw patches.
 
 pub mod bench;
+pub mod entropy_method;
 pub mod methods;

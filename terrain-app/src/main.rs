@@ -3,6 +3,7 @@
 mod bake;
 mod bench_cli;
 mod demo;
+mod entropy;
 mod fly;
 mod info;
 mod mesh;
@@ -25,6 +26,9 @@ enum Command {
     /// Describe a DEM (or the embedded synthetic terrain when no file is given): size, sample
     /// type, georeference, spacing in metres, height range and voids.
     Info(info::InfoArgs),
+    /// Export the local curvature entropy map (entropy paper, Eq. 1-3) and the profile
+    /// curvature map as PNG images; `--compare` prints curvature against entropy (Fig. 3).
+    Entropy(entropy::EntropyArgs),
     /// Export the roughness pyramids of the PVPS paper's methods A, B and C as PNG images.
     Roughness(roughness::RoughnessArgs),
     /// Bake a DEM (or `--synthetic SIZE`) into an out-of-core block store.
@@ -46,6 +50,7 @@ fn main() -> std::process::ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Info(args) => info::run(&args),
+        Command::Entropy(args) => entropy::run(&args),
         Command::Roughness(args) => roughness::run(&args),
         Command::Bake(args) => bake::run(&args),
         Command::Render(args) => render::run(&args),

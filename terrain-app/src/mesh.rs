@@ -35,8 +35,25 @@ pub struct MeshArgs {
     #[command(flatten)]
     pub source: SourceArgs,
     /// Largest vertical error allowed at any sample, metres (>= 0). Required unless --camera.
-    #[arg(long, allow_hyphen_values = true, required_unless_present = "camera")]
+    #[arg(long, allow_hyphen_values = true, required_unless_present_any = ["camera", "entropy"])]
     pub max_error: Option<f64>,
+    /// The entropy paper's quadtree mesh instead (Chen 2018): split tiles while their largest
+    /// local curvature entropy exceeds this threshold E0 (percent of log2(min(M, N))), cracks
+    /// removed by the three-pass update, tiles triangulated by constrained Delaunay.
+    #[arg(long, allow_hyphen_values = true, conflicts_with_all = ["max_error", "camera"])]
+    pub entropy: Option<f64>,
+    /// With --entropy: the maximum depth D of the quadtree (capped at the grid's depth).
+    #[arg(long, default_value_t = 8, requires = "entropy")]
+    pub depth: u32,
+    /// With --entropy: build from scattered `x y z` points (text or CSV) instead of the DEM.
+    #[arg(long, requires = "entropy")]
+    pub points: Option<PathBuf>,
+    /// With --entropy --points: the height interpolation at new vertices.
+    #[arg(long, value_enum, default_value_t = crate::entropy::InterpolationArg::Natural)]
+    pub interpolation: crate::entropy::InterpolationArg,
+    /// With --entropy: entropy window and classes.
+    #[command(flatten)]
+    pub window: crate::entropy::WindowArgs,
     /// Export the LOD surface a method draws from this view instead (x,y,z,yaw,pitch as in
     /// `terrain render`): exactly the drawn triangles, rebuilt with the tessellator's CPU
     /// reference; its error is measured and reported, not bounded.
@@ -110,6 +127,9 @@ pub fn run(args: &MeshArgs) -> anyhow::Result<()> {
         None if args.stats => None,
         None => bail!("give an output file with -o (.glb, .gltf or .obj), or --stats"),
     };
+    if let Some(e0) = args.entropy {
+        return entropy_mesh(args, e0, format);
+    }
     let hm = match args.source.load()? {
         Some(dem) => dem.heightmap,
         None => terrain_core::synth::default_terrain(),
@@ -171,6 +191,77 @@ pub fn run(args: &MeshArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
+/// `terrain mesh --entropy E0`: the entropy quadtree's watertight mesh, measured against every
+/// non-void sample of the DEM (or of the scattered points' raster).
+fn entropy_mesh(args: &MeshArgs, e0: f64, format: Option<Format>) -> anyhow::Result<()> {
+    let r = crate::entropy::build_mesh(
+        &args.source,
+        args.points.as_deref(),
+        &args.window,
+        e0,
+        args.depth,
+        args.interpolation,
+    )?;
+    let t1 = Instant::now();
+    // Scattered points deeper than the raster (D > 10) put vertices between raster samples:
+    // such a mesh is not measured against the raster (reported as 0 samples).
+    let measured = match verify::measure(&r.hm, &r.mesh) {
+        Ok(m) => m,
+        Err(verify::VerifyError::VertexOffGrid { .. }) if args.points.is_some() => {
+            verify::ErrorStats { max_error: f64::NAN, rms_error: f64::NAN, samples: 0, worst: None }
+        }
+        Err(e) => return Err(e).context("measuring the entropy mesh"),
+    };
+    let verify_ms = t1.elapsed().as_secs_f64() * 1e3;
+    let stats = Stats {
+        algorithm: "entropy",
+        width: r.hm.width(),
+        height: r.hm.height(),
+        max_error_bound_m: None,
+        measured_max_error_m: measured.max_error,
+        rms_error_m: measured.rms_error,
+        vertices: r.mesh.positions.len(),
+        triangles: r.mesh.triangles.len(),
+        build_ms: r.build_ms,
+        verify_ms,
+    };
+    let meta = Metadata::new(&r.hm, &r.mesh, &stats);
+    if let (Some(path), Some(format)) = (&args.output, format) {
+        match format {
+            Format::Glb | Format::Gltf => write_gltf(path, format, &r.mesh, &meta)?,
+            Format::Obj => write_obj(path, &r.mesh, &meta)?,
+        }
+    }
+    if args.stats {
+        let mut v = serde_json::to_value(&stats)?;
+        v["tiles"] = r.tiles.into();
+        v["crack_elimination_ms"] = r.crack_ms.into();
+        v["simplification_percent"] =
+            (100.0 * (1.0 - r.mesh.triangles.len() as f64 / r.full_triangles as f64)).into();
+        println!("{v}");
+    } else {
+        println!(
+            "entropy E0 = {e0}: {} tiles, {} triangles ({:.2} % fewer than the full depth), {} \
+             vertices; max error {:.3} m, RMS {:.3} m over {} samples; built in {:.1} ms, cracks \
+             removed in {:.2} ms{}",
+            r.tiles,
+            stats.triangles,
+            100.0 * (1.0 - r.mesh.triangles.len() as f64 / r.full_triangles as f64),
+            stats.vertices,
+            measured.max_error,
+            measured.rms_error,
+            measured.samples,
+            r.build_ms,
+            r.crack_ms,
+            args.output
+                .as_ref()
+                .map(|p| format!(", written to {}", p.display()))
+                .unwrap_or_default()
+        );
+    }
+    Ok(())
+}
+
 /// `terrain mesh --camera`: the LOD surface `args.method` draws from that view, rebuilt with the
 /// tessellator's CPU reference (the triangles the GPU draws; zero-area ones dropped), its error
 /// against the DEM measured over the view (`terrain_core::measure`) and reported.
@@ -180,6 +271,11 @@ fn view_mesh(
     hm: Heightmap,
     format: Option<Format>,
 ) -> anyhow::Result<()> {
+    anyhow::ensure!(
+        args.method != LodMethod::Entropy,
+        "--camera exports patch-based LOD surfaces; the entropy method's mesh is exported \
+         with `terrain mesh --entropy E0`"
+    );
     let (width, height) = crate::render::parse_size(&args.size)?;
     let (position, yaw, pitch) = crate::render::parse_camera(camera)?;
     let (near, far) = terrain_gpu::render::clip_range(&hm, position);

@@ -10,9 +10,13 @@
 //!   occlusion issue's).
 //! - `dss-1`, `dss-2`: the DSS paper's (Zhang 2019) comparison Methods I (power-of-two factors)
 //!   and II (uniform blocks with continuous factors).
+//! - `entropy`: the entropy paper's (Chen 2018) view-dependent quadtree cut (Eq. 4-5), a
+//!   triangle mesh rather than patches ([`crate::entropy_method`]): its `select` is a
+//!   whole-terrain placeholder; the benchmark measures its mesh on the CPU.
 
 use std::sync::OnceLock;
 
+use crate::entropy_method::{EntropyMethodConfig, EntropyScene, whole_terrain_selection};
 use terrain_core::Heightmap;
 use terrain_core::geometry::Camera;
 use terrain_core::lod::{
@@ -46,17 +50,20 @@ pub enum LodMethod {
     #[value(name = "dss-2")]
     #[serde(rename = "dss-2")]
     Dss2,
+    /// Entropy paper (Chen 2018): the local-curvature-entropy quadtree cut by Eq. 5.
+    Entropy,
 }
 
 impl LodMethod {
     /// Every method, in a fixed order (the benchmark's).
-    pub const ALL: [LodMethod; 6] = [
+    pub const ALL: [LodMethod; 7] = [
         LodMethod::Uniform,
         LodMethod::PvpsA,
         LodMethod::PvpsB,
         LodMethod::PvpsC,
         LodMethod::Dss1,
         LodMethod::Dss2,
+        LodMethod::Entropy,
     ];
 
     /// The CLI and report name.
@@ -68,6 +75,7 @@ impl LodMethod {
             LodMethod::PvpsC => "pvps-c",
             LodMethod::Dss1 => "dss-1",
             LodMethod::Dss2 => "dss-2",
+            LodMethod::Entropy => "entropy",
         }
     }
 }
@@ -83,6 +91,8 @@ pub struct MethodConfig {
     pub dss: DssConfig,
     /// The `uniform` method's factor. Default 16.
     pub uniform_factor: f32,
+    /// The `entropy` method's threshold, depth and Eq. 5 constants.
+    pub entropy: EntropyMethodConfig,
 }
 
 impl Default for MethodConfig {
@@ -97,6 +107,7 @@ impl Default for MethodConfig {
                 ..DssConfig::default()
             },
             uniform_factor: 16.0,
+            entropy: EntropyMethodConfig::default(),
         }
     }
 }
@@ -114,6 +125,8 @@ pub struct MethodScene {
     roughness: [OnceLock<NodePyramid>; 3],
     /// The DSS paper's object-space errors per node.
     dss: OnceLock<DssErrorTable>,
+    /// The entropy paper's full quadtree.
+    entropy: OnceLock<EntropyScene>,
     /// The settings.
     pub config: MethodConfig,
 }
@@ -127,7 +140,14 @@ impl MethodScene {
             dss: DssConfig { leaf_cells: qt.leaf_cells(), ..config.dss },
             ..config
         };
-        Self { hm, qt, roughness: Default::default(), dss: OnceLock::new(), config }
+        Self {
+            hm,
+            qt,
+            roughness: Default::default(),
+            dss: OnceLock::new(),
+            entropy: OnceLock::new(),
+            config,
+        }
     }
 
     /// Roughness of PVPS method A (0), B (1) or C (2), computed on first use.
@@ -147,6 +167,11 @@ impl MethodScene {
         self.dss.get_or_init(|| DssErrorTable::new(&self.hm, &self.qt))
     }
 
+    /// The entropy paper's full quadtree, built on first use.
+    pub fn entropy_scene(&self) -> &EntropyScene {
+        self.entropy.get_or_init(|| EntropyScene::new(&self.hm, &self.config.entropy))
+    }
+
     /// Computes now what `methods` will need, so the first frame's timing is the selection's only.
     pub fn prepare(&self, methods: &[LodMethod]) {
         for m in methods {
@@ -162,6 +187,9 @@ impl MethodScene {
                 }
                 LodMethod::Dss1 | LodMethod::Dss2 => {
                     self.dss_errors();
+                }
+                LodMethod::Entropy => {
+                    self.entropy_scene();
                 }
                 LodMethod::Uniform => {}
             }
@@ -183,6 +211,8 @@ impl MethodScene {
             LodMethod::Dss2 => {
                 select_dss_uniform(&self.qt, camera, self.dss_errors(), &self.config.dss)
             }
+            // A mesh, not patches: see `EntropyScene::frame`; the root stands for "everything".
+            LodMethod::Entropy => whole_terrain_selection(1, 0.0),
         }
     }
 

@@ -149,6 +149,11 @@ struct FrameRecord {
 
 /// Runs `terrain render`.
 pub fn run(args: &RenderArgs) -> anyhow::Result<()> {
+    anyhow::ensure!(
+        args.method != LodMethod::Entropy,
+        "the entropy method makes a triangle mesh the renderer cannot draw yet: use \
+         `terrain mesh --entropy` or `terrain bench --no-render`"
+    );
     let (width, height) = parse_size(&args.size)?;
     let background = parse_rgb(&args.background)?;
     if args.leaf_cells == 0 {

@@ -4,8 +4,8 @@
 //! and the exact measurement of a drawn surface's error.
 //!
 //! **Architecture invariant:** this crate depends on no crate of ours and knows nothing about
-//! wgpu or threads; it reads files only in the DEM readers ([`dem`]) and the flight loader
-//! ([`flight`]).
+//! wgpu or threads; it reads files only in the DEM readers ([`dem`]), the scattered-points
+//! reader ([`points`]) and the flight loader ([`flight`]).
 //!
 //! World frame: right-handed, x east, y north, z up, metres, f64 positions. Grids are stored
 //! south row first, so grid -> world is `origin + (i * dx, j * dy)` (see [`heightmap`]).
@@ -23,6 +23,7 @@ pub mod lod;
 pub mod measure;
 pub mod mesh;
 pub mod metrics;
+pub mod points;
 pub mod quadtree;
 pub mod synth;
 

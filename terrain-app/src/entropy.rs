@@ -1,0 +1,223 @@
+//! `terrain entropy`: the entropy paper's (Chen 2018) local curvature entropy map (Eq. 1-3) as
+//! a PNG, optionally the profile curvature map beside it, and the curvature-against-entropy
+//! comparison of its Fig. 3 and 18 (`--compare`). Also the entropy mesh behind
+//! `terrain mesh --entropy` (Algorithm 1, crack elimination, per-tile Delaunay).
+
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use anyhow::Context;
+use clap::{Args, ValueEnum};
+use terrain_core::Heightmap;
+use terrain_core::mesh::TriMesh;
+use terrain_core::points::read_points;
+use terrain_visibility::entropy::compare::compare_curvature_entropy;
+use terrain_visibility::entropy::export::to_grey8;
+use terrain_visibility::entropy::local::{class_range, local_entropy_with_range};
+use terrain_visibility::entropy::source::build_from_grid_with_map;
+use terrain_visibility::entropy::source::entropy_map;
+use terrain_visibility::entropy::{
+    EntropyConfig, EntropyScale, Interpolation, ScatteredPoints, TreeConfig, build_from_points,
+    profile_curvature,
+};
+
+use crate::source::SourceArgs;
+
+/// Arguments of `terrain entropy`.
+#[derive(Debug, Args)]
+pub struct EntropyArgs {
+    #[command(flatten)]
+    pub source: SourceArgs,
+    /// Output PNG of the local entropy (8-bit grey, north up, 0 .. log2(min(M, N)) bits
+    /// mapped to 1..255; voids black).
+    #[arg(short, long)]
+    pub output: PathBuf,
+    /// Also write the profile curvature map (8-bit grey, the class range [-c, c] mapped to
+    /// 1..255, clipped; voids black).
+    #[arg(long)]
+    pub curvature: Option<PathBuf>,
+    #[command(flatten)]
+    pub window: WindowArgs,
+    /// Print the curvature-against-entropy comparison (histograms, smoothness, sensitivity to
+    /// 0.5 m of height noise) as JSON.
+    #[arg(long)]
+    pub compare: bool,
+}
+
+/// Window and binning of the local entropy (shared with `terrain mesh --entropy`).
+#[derive(Debug, Args, Clone)]
+pub struct WindowArgs {
+    /// Window radius r: the window is (2r+1)² samples (N of Eq. 2).
+    #[arg(long, default_value_t = EntropyConfig::default().radius)]
+    pub radius: usize,
+    /// Curvature classes M (Eq. 3).
+    #[arg(long, default_value_t = EntropyConfig::default().classes)]
+    pub classes: usize,
+    /// Percentile of |curvature| that bounds the classes (0..1).
+    #[arg(long, default_value_t = EntropyConfig::default().clip_percentile)]
+    pub clip_percentile: f64,
+}
+
+impl WindowArgs {
+    /// The entropy configuration, validated.
+    pub fn config(&self) -> anyhow::Result<EntropyConfig> {
+        anyhow::ensure!(
+            (1..=64).contains(&self.radius),
+            "--radius must be 1..=64, got {}",
+            self.radius
+        );
+        anyhow::ensure!(
+            (2..=4096).contains(&self.classes),
+            "--classes must be 2..=4096, got {}",
+            self.classes
+        );
+        anyhow::ensure!(
+            (0.0..=1.0).contains(&self.clip_percentile),
+            "--clip-percentile must be within 0..=1, got {}",
+            self.clip_percentile
+        );
+        Ok(EntropyConfig {
+            radius: self.radius,
+            classes: self.classes,
+            clip_percentile: self.clip_percentile,
+        })
+    }
+}
+
+fn write_png(path: &Path, w: usize, h: usize, grey: Vec<u8>) -> anyhow::Result<()> {
+    let img = image::GrayImage::from_raw(w as u32, h as u32, grey).context("image size")?;
+    img.save(path).with_context(|| format!("could not write {}", path.display()))
+}
+
+/// Runs `terrain entropy`.
+pub fn run(args: &EntropyArgs) -> anyhow::Result<()> {
+    let cfg = args.window.config()?;
+    let hm = match args.source.load()? {
+        Some(dem) => dem.heightmap,
+        None => terrain_core::synth::default_terrain(),
+    };
+    let t = Instant::now();
+    let curv = profile_curvature(&hm);
+    let c = class_range(&curv, &cfg);
+    let ent = local_entropy_with_range(&curv, &cfg, c);
+    let ms = t.elapsed().as_secs_f64() * 1e3;
+    let (w, h) = (hm.width(), hm.height());
+    write_png(&args.output, w, h, to_grey8(&ent, 0.0, cfg.max_entropy_bits() as f32))?;
+    if let Some(p) = &args.curvature {
+        write_png(p, w, h, to_grey8(&curv, -c, c))?;
+    }
+    let (lo, hi) = ent.range().unwrap_or((0.0, 0.0));
+    eprintln!(
+        "entropy of profile curvature (Zevenbergen-Thorne), {w} x {h}, window {0}x{0}, {1} classes \
+         over ±{c:.4}: {lo:.3}..{hi:.3} bits (max possible {2:.3}) in {ms:.0} ms; wrote {3}",
+        2 * cfg.radius + 1,
+        cfg.classes,
+        cfg.max_entropy_bits(),
+        args.output.display()
+    );
+    if args.compare {
+        let r = compare_curvature_entropy(&hm, &cfg, 20, 0.5);
+        let json = |s: &terrain_visibility::entropy::compare::MapStats| {
+            serde_json::json!({
+                "histogram_0_100": s.histogram,
+                "fullest_bin_share": s.peak_share,
+                "std_dev": s.std_dev,
+                "mean_neighbour_diff": s.mean_neighbour_diff,
+                "neighbour_diff_over_std": s.relative_neighbour_diff(),
+                "noise_change": s.sensitivity,
+                "noise_change_over_std": s.relative_sensitivity(),
+            })
+        };
+        let out = serde_json::json!({
+            "scale": "both maps min-max scaled to [0, 100] (the paper's Fig. 3), noise ±0.5 m",
+            "curvature": json(&r.curvature),
+            "entropy": json(&r.entropy),
+        });
+        println!("{}", serde_json::to_string_pretty(&out)?);
+    }
+    Ok(())
+}
+
+/// `--interpolation` values.
+#[derive(Debug, Clone, Copy, ValueEnum)]
+pub enum InterpolationArg {
+    /// Natural-neighbour (Sibson) over the Delaunay triangulation of the points.
+    Natural,
+    /// Inverse distance weighting, 12 nearest, power 2 (the paper's).
+    Idw,
+}
+
+/// What `terrain mesh --entropy` built.
+pub struct EntropyMeshResult {
+    /// The grid the mesh is measured against (the DEM, or the scattered points' raster).
+    pub hm: Heightmap,
+    /// The mesh.
+    pub mesh: TriMesh,
+    /// Tiles (leaves).
+    pub tiles: usize,
+    /// Algorithm 1 and heights, ms.
+    pub build_ms: f64,
+    /// The three-pass update, ms.
+    pub crack_ms: f64,
+    /// Triangles of the full tree at this depth (2 per finest tile), for the simplification.
+    pub full_triangles: usize,
+}
+
+/// Builds the entropy mesh of `terrain mesh --entropy E0`: from the DEM, or from `points`.
+pub fn build_mesh(
+    source: &SourceArgs,
+    points: Option<&Path>,
+    window: &WindowArgs,
+    e0: f64,
+    depth: u32,
+    interpolation: InterpolationArg,
+) -> anyhow::Result<EntropyMeshResult> {
+    let cfg = TreeConfig {
+        e0,
+        max_depth: depth,
+        entropy: window.config()?,
+        scale: EntropyScale::Percent,
+        interpolation: match interpolation {
+            InterpolationArg::Natural => Interpolation::NaturalNeighbour,
+            InterpolationArg::Idw => Interpolation::IDW,
+        },
+    };
+    let t = Instant::now();
+    let (hm, mut tree) = match points {
+        Some(path) => {
+            let pts = read_points(path)?;
+            let src = ScatteredPoints::new(pts, cfg.interpolation)
+                .with_context(|| format!("{}", path.display()))?;
+            let built = build_from_points(&src, &cfg)?;
+            (built.raster, built.tree)
+        }
+        None => {
+            let hm = match source.load()? {
+                Some(dem) => dem.heightmap,
+                None => terrain_core::synth::default_terrain(),
+            };
+            anyhow::ensure!(
+                depth <= terrain_visibility::entropy::MAX_DEPTH,
+                "--depth must be 0..=16"
+            );
+            anyhow::ensure!(!e0.is_nan(), "--entropy must be a number");
+            let emap = entropy_map(&hm, &cfg);
+            let tree = build_from_grid_with_map(&hm, &emap, &cfg);
+            (hm, tree)
+        }
+    };
+    let build_ms = t.elapsed().as_secs_f64() * 1e3;
+    let crack_ms = tree.eliminate_cracks() * 1e3;
+    let mesh = tree.mesh();
+    mesh.check_watertight(tree.lattice.depth)
+        .map_err(|e| anyhow::anyhow!("internal error, the entropy mesh is not watertight: {e}"))?;
+    let full_triangles = 2usize << (2 * tree.lattice.depth);
+    Ok(EntropyMeshResult {
+        hm,
+        mesh: mesh.to_trimesh(),
+        tiles: tree.tiles(),
+        build_ms,
+        crack_ms,
+        full_triangles,
+    })
+}

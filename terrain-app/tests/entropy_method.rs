@@ -1,0 +1,81 @@
+//! The `entropy` benchmark method: each frame's Eq. 5 cut of the full tree is crack-free
+//! (open edges only on the terrain's border), refines near the view and coarsens with E0, and
+//! runs through the benchmark's `FrameRunner` with a measured (CPU) error.
+
+mod common;
+
+use glam::dvec3;
+use terrain_app::bench::FrameRunner;
+use terrain_app::entropy_method::{EntropyMethodConfig, EntropyScene};
+use terrain_app::methods::{LodMethod, MethodConfig, MethodScene};
+use terrain_core::dem::{LoadOptions, load};
+use terrain_core::geometry::Camera;
+use terrain_core::measure::MeasureConfig;
+
+fn puget() -> terrain_core::Heightmap {
+    let opts = LoadOptions { vertical_scale: 0.1, spacing_m: 160.0, ..LoadOptions::default() };
+    load(common::data("puget_sound/ps_height_1k.png"), &opts).unwrap().heightmap
+}
+
+#[test]
+fn cuts_are_crack_free_refine_near_the_view_and_coarsen_with_e0() {
+    let hm = puget();
+    let cfg = EntropyMethodConfig { max_depth: 7, ..EntropyMethodConfig::default() };
+    let scene = EntropyScene::new(&hm, &cfg);
+    let o = hm.grid_to_world(0.0, 0.0);
+    let eye = dvec3(o.x + 20_000.0, o.y + 20_000.0, 6000.0);
+    let camera = Camera::look_at(eye, dvec3(o.x + 60_000.0, o.y + 60_000.0, 0.0))
+        .with_viewport(640.0, 360.0)
+        .with_clip(10.0, 400_000.0);
+    let mut last = usize::MAX;
+    for e0 in [0.0, 50.0, 80.0, 95.0] {
+        let f = scene.frame(&camera, &EntropyMethodConfig { e0, ..cfg.clone() });
+        let s = &f.surface;
+        let (w, h) = ((hm.width() - 1) as f64, (hm.height() - 1) as f64);
+        for e in s.open_edges() {
+            let [a, b] = e.map(|k| s.grid[k as usize]);
+            let border = (a.x == b.x && (a.x == 0.0 || a.x == w))
+                || (a.y == b.y && (a.y == 0.0 || a.y == h));
+            assert!(border, "E0 = {e0}: open edge {a} - {b} inside the terrain (a crack)");
+        }
+        assert!(s.triangles.len() <= last, "E0 = {e0}: more triangles than a lower E0");
+        last = s.triangles.len();
+    }
+    // The tiles near the eye are finer than those in the far corner: more triangles there.
+    let f = scene.frame(&camera, &EntropyMethodConfig { e0: 30.0, ..cfg.clone() });
+    let count_near = |x: f64, y: f64| {
+        f.surface
+            .triangles
+            .iter()
+            .filter(|t| {
+                let [a, b, c] = t.map(|k| f.surface.grid[k as usize]);
+                let g = (a + b + c) / 3.0;
+                (g.x - x).abs() < 100.0 && (g.y - y).abs() < 100.0
+            })
+            .count()
+    };
+    let (near, far) = (count_near(150.0, 150.0), count_near(950.0, 950.0));
+    assert!(near > 2 * far, "triangles near the eye {near}, far {far}");
+}
+
+#[test]
+fn the_benchmark_runner_measures_the_entropy_mesh() {
+    let mut config = MethodConfig::default();
+    config.entropy.max_depth = 7;
+    config.entropy.e0 = 70.0;
+    let scene = MethodScene::new(puget(), config);
+    scene.prepare(&[LodMethod::Entropy]);
+    let o = scene.hm.grid_to_world(512.0, 100.0);
+    let camera = Camera::look_at(dvec3(o.x, o.y, 5000.0), dvec3(o.x, o.y + 50_000.0, 1000.0))
+        .with_viewport(640.0, 360.0)
+        .with_clip(10.0, 400_000.0);
+    let mut runner = FrameRunner::new(&scene, LodMethod::Entropy, MeasureConfig::default(), None);
+    let r = runner.frame(0, &camera).unwrap();
+    assert!(r.triangles > 0 && r.patches > 0);
+    assert!(r.errors.samples > 0, "{r:?}");
+    assert_eq!(r.errors.unlocated, 0, "every sample in view lies on the mesh");
+    assert!(r.errors.rmse_m > 0.0 && r.errors.rmse_m <= r.errors.max_abs_m);
+    assert!(r.render_ms.is_none(), "not drawn on the GPU");
+    assert_eq!(LodMethod::ALL.last(), Some(&LodMethod::Entropy));
+    assert_eq!(LodMethod::Entropy.name(), "entropy");
+}
