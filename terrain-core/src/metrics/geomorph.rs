@@ -148,7 +148,7 @@ pub fn max_error_vertices_with(
                 let a = (di / s).min(c / s - 1);
                 let b = (dj / s).min(c / s - 1);
                 let diagonal = match tri {
-                    Triangulation::UnionJack if (a + b) % 2 == 0 => Diagonal::SwNe,
+                    Triangulation::UnionJack if (a + b).is_multiple_of(2) => Diagonal::SwNe,
                     _ => Diagonal::SeNw,
                 };
                 let (ci, cj) = (x0 + a * s, y0 + b * s);
