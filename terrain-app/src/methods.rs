@@ -10,8 +10,20 @@
 //!   occlusion issue's).
 //! - `dss-1`, `dss-2`: the DSS paper's (Zhang 2019) comparison Methods I (power-of-two factors)
 //!   and II (uniform blocks with continuous factors).
+//! - `geomorph`: the geomorphing article's (Wagner 2003) geo-mipmapped patches of
+//!   `leaf_cells` cells with continuous tween factors, drawn by terrain-gpu's
+//!   `GeomorphRenderer` (its own pipeline: [`MethodScene::geomorph_frame`] and the benchmark's
+//!   branch). Through [`MethodScene::select`] (the tessellation renderer's path: `render`, `fly`,
+//!   `mesh`) it gives each patch its level's factor `leaf_cells / 2^level` per edge (the shared
+//!   edge at the coarser side's level): the un-morphed geo-mipmap, crack-free.
 
 use std::sync::OnceLock;
+
+use terrain_core::lod::{GeomipConfig, GeomipScene, GeomipSelection};
+use terrain_core::quadtree::NodeId;
+use terrain_gpu::geomorph::{
+    GpuMorphPatch, MeshLibrary, MorphGrid, build_surface as morph_surface,
+};
 
 use terrain_core::Heightmap;
 use terrain_core::geometry::Camera;
@@ -46,17 +58,20 @@ pub enum LodMethod {
     #[value(name = "dss-2")]
     #[serde(rename = "dss-2")]
     Dss2,
+    /// Geomorphing article (Wagner 2003): geo-mipmapped patches morphed in the vertex shader.
+    Geomorph,
 }
 
 impl LodMethod {
     /// Every method, in a fixed order (the benchmark's).
-    pub const ALL: [LodMethod; 6] = [
+    pub const ALL: [LodMethod; 7] = [
         LodMethod::Uniform,
         LodMethod::PvpsA,
         LodMethod::PvpsB,
         LodMethod::PvpsC,
         LodMethod::Dss1,
         LodMethod::Dss2,
+        LodMethod::Geomorph,
     ];
 
     /// The CLI and report name.
@@ -68,6 +83,7 @@ impl LodMethod {
             LodMethod::PvpsC => "pvps-c",
             LodMethod::Dss1 => "dss-1",
             LodMethod::Dss2 => "dss-2",
+            LodMethod::Geomorph => "geomorph",
         }
     }
 }
@@ -83,6 +99,9 @@ pub struct MethodConfig {
     pub dss: DssConfig,
     /// The `uniform` method's factor. Default 16.
     pub uniform_factor: f32,
+    /// The `geomorph` method's settings (its `patch_cells` is `leaf_cells`). Default
+    /// [`GeomipConfig::default`]: a 1 pixel threshold, morphing on.
+    pub geomip: GeomipConfig,
 }
 
 impl Default for MethodConfig {
@@ -97,6 +116,7 @@ impl Default for MethodConfig {
                 ..DssConfig::default()
             },
             uniform_factor: 16.0,
+            geomip: GeomipConfig { patch_cells: leaf_cells, ..GeomipConfig::default() },
         }
     }
 }
@@ -114,6 +134,10 @@ pub struct MethodScene {
     roughness: [OnceLock<NodePyramid>; 3],
     /// The DSS paper's object-space errors per node.
     dss: OnceLock<DssErrorTable>,
+    /// The geomorph method's max-error vertices per patch and level.
+    geomip: OnceLock<GeomipScene>,
+    /// The geomorph method's triangle lists.
+    geomorph_lib: OnceLock<MeshLibrary>,
     /// The settings.
     pub config: MethodConfig,
 }
@@ -127,7 +151,15 @@ impl MethodScene {
             dss: DssConfig { leaf_cells: qt.leaf_cells(), ..config.dss },
             ..config
         };
-        Self { hm, qt, roughness: Default::default(), dss: OnceLock::new(), config }
+        Self {
+            hm,
+            qt,
+            roughness: Default::default(),
+            dss: OnceLock::new(),
+            geomip: OnceLock::new(),
+            geomorph_lib: OnceLock::new(),
+            config,
+        }
     }
 
     /// Roughness of PVPS method A (0), B (1) or C (2), computed on first use.
@@ -163,6 +195,9 @@ impl MethodScene {
                 LodMethod::Dss1 | LodMethod::Dss2 => {
                     self.dss_errors();
                 }
+                LodMethod::Geomorph => {
+                    self.geomip_scene();
+                }
                 LodMethod::Uniform => {}
             }
         }
@@ -183,7 +218,75 @@ impl MethodScene {
             LodMethod::Dss2 => {
                 select_dss_uniform(&self.qt, camera, self.dss_errors(), &self.config.dss)
             }
+            LodMethod::Geomorph => {
+                let frame = self.select_geomorph(camera);
+                self.geomorph_selection(&frame)
+            }
         }
+    }
+
+    /// Patch cells of the geomorph method: the quadtree's leaf size, so its patches are the
+    /// quadtree's leaves (the measurement's coverage).
+    /// (The geomorph renderer supports 2 to 64 cells; other leaf sizes are clamped, and then
+    /// the measurement's coverage no longer matches the patches.)
+    pub fn geomorph_patch_cells(&self) -> u32 {
+        self.qt.leaf_cells().clamp(2, 64)
+    }
+
+    /// The geomorph method's per-patch precomputation, on first use.
+    pub fn geomip_scene(&self) -> &GeomipScene {
+        self.geomip.get_or_init(|| GeomipScene::new(&self.hm, self.geomorph_patch_cells()))
+    }
+
+    /// The geomorph method's levels, tween factors and border rules for `camera`.
+    pub fn select_geomorph(&self, camera: &Camera) -> GeomipSelection {
+        let cfg = GeomipConfig { patch_cells: self.geomorph_patch_cells(), ..self.config.geomip };
+        self.geomip_scene().select(camera, &cfg)
+    }
+
+    /// The geomorph patches as a quadtree [`Selection`] of leaves, each edge's factor
+    /// `leaf_cells / 2^(edge level)` and the inner factors `leaf_cells / 2^level`: what the
+    /// measurement's coverage and the tessellation renderer read.
+    pub fn geomorph_selection(&self, frame: &GeomipSelection) -> Selection {
+        let n = self.geomorph_patch_cells() as f32;
+        let leaf = self.qt.max_level();
+        let mut patches: Vec<Patch> = frame
+            .patches
+            .iter()
+            .map(|p| {
+                let f = |l: u8| (n / f32::from(1u8 << l)).clamp(MIN_FACTOR, MAX_FACTOR);
+                Patch {
+                    node: NodeId::new(leaf, p.i, p.j),
+                    outer: p.edge_level.map(f),
+                    inner: [f(p.level); 2],
+                }
+            })
+            .collect();
+        patches.sort_by_key(|p| p.node.dfs_key());
+        let stats = SelectionStats {
+            traversal_leaves: patches.len(),
+            patches: patches.len(),
+            culled: frame.culled,
+            max_level: leaf,
+            cpu_time: std::time::Duration::from_secs_f64(frame.cpu_ms / 1e3),
+            ..SelectionStats::default()
+        };
+        Selection { patches, stats }
+    }
+
+    /// The surface the geomorph renderer draws for `frame` (the morph's CPU reference, the
+    /// same numbers as the vertex stage) and its non-degenerate triangles.
+    pub fn geomorph_surface(&self, frame: &GeomipSelection) -> (SurfaceMesh, u64) {
+        let n = self.geomorph_patch_cells();
+        let grid = MorphGrid::new(&self.hm, n);
+        let lib = self.geomorph_library();
+        let patches: Vec<GpuMorphPatch> =
+            frame.patches.iter().map(|p| GpuMorphPatch::from_lod(p, n)).collect();
+        morph_surface(&grid, lib, &patches)
+    }
+
+    fn geomorph_library(&self) -> &MeshLibrary {
+        self.geomorph_lib.get_or_init(|| MeshLibrary::new(self.geomorph_patch_cells()))
     }
 
     /// Every finest-level patch inside the frustum, every factor `uniform_factor`.

@@ -270,3 +270,93 @@ fn puget_sound_watertight_crack_free_and_skips_materials() {
     assert!(stats.passes_skipped > sel.patches.len(), "snow and more skipped: {stats:?}");
     let _ = clip_range;
 }
+
+/// The negative control: a finer patch that ignores its coarser neighbour (draws its odd
+/// border vertices at their own heights, no adapting triangles) cracks, and the comparison
+/// above sees it.
+#[test]
+fn ignored_coarser_neighbours_are_detected_as_cracks() {
+    let Some(ctx) = context(BackendChoice::Vulkan) else { return };
+    let hm = fractal();
+    let config = GeomorphConfig { width: 256, height: 144, ..Default::default() };
+    let mut renderer = GeomorphRenderer::new(&ctx, &hm, &config).unwrap();
+    let scene = GeomipScene::new(&hm, 16);
+    let skirt = GeomorphOptions { skirt_depth_m: hm.max() - hm.min() + 10.0 };
+    let mut total = 0;
+    for camera in crack_cameras(&hm, 17).iter().take(7) {
+        let sel = scene.select(
+            &camera.with_viewport(1280.0, 720.0),
+            &GeomipConfig { pixel_threshold: 2.0, ..Default::default() },
+        );
+        let broken: Vec<PatchLod> = sel
+            .patches
+            .iter()
+            .map(|p| PatchLod { edge_level: [p.level; 4], edge_tween: [0.0; 4], ..*p })
+            .collect();
+        renderer.render(camera, &broken, &GeomorphOptions::default()).unwrap();
+        let plain = renderer.read_image().unwrap();
+        renderer.render(camera, &broken, &skirt).unwrap();
+        let reference = renderer.read_image().unwrap();
+        total += plain
+            .pixels
+            .iter()
+            .zip(&reference.pixels)
+            .filter(|&(&a, &b)| a == BACKGROUND && b != BACKGROUND)
+            .count();
+    }
+    println!("ignored neighbours: {total} crack pixels");
+    assert!(total > 0, "the crack test cannot see cracks");
+}
+
+/// At full resolution (every patch at level 0) with the same sun and no shadows, the
+/// geomorph renderer's lightmap and material passes give the tessellation renderer's image:
+/// its ramp and lambert per fragment, ours per sample and filtered, so they differ a little.
+#[test]
+fn looks_like_the_tessellation_renderer() {
+    let Some(ctx) = context(BackendChoice::Vulkan) else { return };
+    let hm = fractal();
+    let (w, h) = (240, 135);
+    let camera = crate::render::default_camera(&hm, w, h, 60.0);
+    let lightmap = terrain_core::lightmap::LightmapConfig { shadows: false, ..Default::default() };
+    let config = GeomorphConfig { width: w, height: h, lightmap, ..Default::default() };
+    let mut ours = GeomorphRenderer::new(&ctx, &hm, &config).unwrap();
+    let sel = GeomipScene::new(&hm, 16)
+        .select(&camera, &GeomipConfig { pixel_threshold: 1e-9, ..Default::default() });
+    assert!(sel.patches.iter().all(|p| p.level == 0));
+    ours.render(&camera, &sel.patches, &GeomorphOptions::default()).unwrap();
+    let a = ours.read_image().unwrap();
+    let rc = crate::render::RenderConfig { width: w, height: h, ..Default::default() };
+    let mut theirs = crate::render::TerrainRenderer::new(&ctx, &hm, &rc).unwrap();
+    let patches = crate::render::full_resolution_patches(&hm, 16);
+    theirs.render(&camera, &patches, &crate::render::RenderOptions::default()).unwrap();
+    let b = theirs.read_image().unwrap();
+    let (mut sum, mut n) = (0.0, 0usize);
+    for (p, q) in a.pixels.iter().zip(&b.pixels) {
+        if *p != BACKGROUND && *q != BACKGROUND {
+            sum += (0..3).map(|c| f64::from(p[c].abs_diff(q[c]))).sum::<f64>() / 3.0;
+            n += 1;
+        }
+    }
+    let both = a
+        .pixels
+        .iter()
+        .zip(&b.pixels)
+        .filter(|(p, q)| (**p == BACKGROUND) == (**q == BACKGROUND))
+        .count();
+    let mean = sum / n.max(1) as f64;
+    println!(
+        "{}: mean |difference| {mean:.2} levels over {n} pixels; coverage agrees on {both} of {}",
+        ours.adapter(),
+        a.pixels.len()
+    );
+    if let Some(dir) = std::env::var_os("TERRAIN_TEST_DUMP") {
+        for (tag, im) in [("geomorph", &a), ("tess", &b)] {
+            let mut ppm = format!("P6\n{} {}\n255\n", im.width, im.height).into_bytes();
+            ppm.extend(im.pixels.iter().flat_map(|p| [p[0], p[1], p[2]]));
+            std::fs::write(PathBuf::from(&dir).join(format!("{tag}.ppm")), ppm).unwrap();
+        }
+    }
+    assert!(n > 1000, "{n} terrain pixels");
+    assert!(both as f64 > 0.99 * a.pixels.len() as f64);
+    assert!(mean < 6.0, "mean difference {mean} levels");
+}
