@@ -1,5 +1,5 @@
 // Geomorphing in the vertex shader (Wagner 2003; geomorph/mod.rs): geo-mipmapped patches
-// drawn from a library of triangle lists (one per level and set of adapting borders), each
+// drawn by indexed draws from a library of triangle lists (one per level and set of adapting borders), each
 // vertex morphed between its true height and the coarser level by the patch's tween factor and
 // the four edges' factors; a precomputed lightmap and alpha-blended material passes.
 //
@@ -43,7 +43,6 @@ const SKIRT_BIT: u32 = 65536u;
 @group(0) @binding(2) var<storage, read> patches: array<GmPatch>;
 @group(0) @binding(3) var<storage, read> col_x: array<f32>;
 @group(0) @binding(4) var<storage, read> row_y: array<f32>;
-@group(0) @binding(5) var<storage, read> mesh_ids: array<u32>;
 @group(0) @binding(6) var light_tex: texture_2d<f32>;
 @group(0) @binding(7) var alpha_tex: texture_2d<f32>;
 @group(0) @binding(8) var maps_sampler: sampler;
@@ -165,7 +164,9 @@ struct VsOut {
 fn vs(@builtin(vertex_index) vi: u32, @builtin(instance_index) ii: u32) -> VsOut {
     let count = max(frame.patch_count, 1u);
     let p = patches[ii % count];
-    let id = mesh_ids[vi];
+    // Indexed draw of the library's id lists (geomorph/morph.rs MeshLibrary): the index is the
+    // local lattice id, with SKIRT_BIT on a skirt's lower vertex.
+    let id = vi;
     let v = morphed_vertex(p, id & (SKIRT_BIT - 1u));
     var pos = v.pos;
     if (id & SKIRT_BIT) != 0u {

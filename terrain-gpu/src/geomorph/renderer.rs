@@ -245,7 +245,6 @@ impl GeomorphRenderer {
                 entry(2, storage(true)),
                 entry(3, storage(true)),
                 entry(4, storage(true)),
-                entry(5, storage(true)),
                 entry(6, texture(true)),
                 entry(7, texture(true)),
                 entry(8, wgpu::BindingType::Sampler(wgpu::SamplerBindingType::Filtering)),
@@ -345,7 +344,7 @@ impl GeomorphRenderer {
         let col_x = buffer("geomorph columns", 4 * u64::from(width), U::STORAGE | U::COPY_DST);
         let row_y = buffer("geomorph rows", 4 * u64::from(height), U::STORAGE | U::COPY_DST);
         let lib = MeshLibrary::new(p);
-        let mesh = buffer("geomorph mesh ids", 4 * lib.ids.len() as u64, U::STORAGE | U::COPY_DST);
+        let mesh = buffer("geomorph mesh ids", 4 * lib.ids.len() as u64, U::INDEX | U::COPY_DST);
         ctx.queue.write_buffer(&mesh, 0, bytemuck::cast_slice(&lib.ids));
         let geo = hm.georef();
         Ok(Self {
@@ -442,7 +441,6 @@ impl GeomorphRenderer {
                     bind(2, buf.as_entire_binding()),
                     bind(3, self.col_x.as_entire_binding()),
                     bind(4, self.row_y.as_entire_binding()),
-                    bind(5, self.mesh.as_entire_binding()),
                     bind(6, wgpu::BindingResource::TextureView(&self.light)),
                     bind(7, wgpu::BindingResource::TextureView(&self.alpha)),
                     bind(8, wgpu::BindingResource::Sampler(&self.sampler)),
@@ -511,6 +509,9 @@ impl GeomorphRenderer {
             let [r, g, b, a] = self.background.map(|c| f64::from(c) / 255.0);
             let mut pass = self.target.begin_pass(&mut encoder, wgpu::Color { r, g, b, a });
             pass.set_bind_group(0, group, &[]);
+            // Indexed draws of the library's id lists: the vertex stage's vertex_index *is*
+            // the local id, and shared vertices are shaded once per draw.
+            pass.set_index_buffer(self.mesh.slice(..), wgpu::IndexFormat::Uint32);
             for material in 0..MATERIALS {
                 pass.set_pipeline(if material == 0 { &self.base } else { &self.overlay });
                 for (k, (p, lod)) in gpu.iter().zip(lods).enumerate() {
@@ -521,7 +522,7 @@ impl GeomorphRenderer {
                     stats.passes_drawn += 1;
                     let (first, ids) = self.lib.ranges[MeshLibrary::config(p)];
                     let instance = material as u32 * count + k as u32;
-                    pass.draw(first..first + ids, instance..instance + 1);
+                    pass.draw_indexed(first..first + ids, 0, instance..instance + 1);
                     if material == 0 {
                         stats.triangles += u64::from(ids / 3);
                     }
@@ -534,7 +535,7 @@ impl GeomorphRenderer {
                         let interior = [p.origin[1] > 0, x1 < w - 1, y1 < h - 1, p.origin[0] > 0];
                         for (edge, _) in interior.iter().enumerate().filter(|e| *e.1) {
                             let (first, ids) = self.lib.skirts[MeshLibrary::config(p)][edge];
-                            pass.draw(first..first + ids, k as u32..k as u32 + 1);
+                            pass.draw_indexed(first..first + ids, 0, k as u32..k as u32 + 1);
                         }
                     }
                 }
