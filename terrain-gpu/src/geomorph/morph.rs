@@ -185,7 +185,7 @@ impl<'a> MorphGrid<'a> {
             ((x - s, y), (x + s, y)) // case A
         } else if !xo && yo {
             ((x, y - s), (x, y + s)) // case C
-        } else if (((x - s) / (2 * s)) + ((y - s) / (2 * s))) % 2 == 0 {
+        } else if ((x - s) / (2 * s) + (y - s) / (2 * s)).is_multiple_of(2) {
             ((x - s, y - s), (x + s, y + s)) // case B, coarse quad split SW-NE
         } else {
             ((x + s, y - s), (x - s, y + s)) // case B, coarse quad split SE-NW
