@@ -23,9 +23,7 @@ use terrain_core::Heightmap;
 use terrain_core::flight::{FlightConfig, FlightSpec, FlightWarning};
 use terrain_core::geometry::Camera;
 use terrain_core::measure::{FrameErrors, MeasureConfig, Measurer};
-use terrain_gpu::geomorph::{
-    GeomorphConfig, GeomorphOptions, GeomorphRenderer, GpuMorphPatch, max_vertex_jump,
-};
+use terrain_gpu::geomorph::{GeomorphConfig, GeomorphOptions, GeomorphRenderer, max_vertex_jump};
 use terrain_gpu::tess::{GpuPatchFactors, PatchRange};
 use terrain_gpu::{GpuContext, RenderConfig, RenderOptions, TerrainRenderer};
 
@@ -364,7 +362,7 @@ impl<'a> FrameRunner<'a> {
             let s = renderer.render(camera, &lods.patches, &GeomorphOptions::default())?;
             let render_ms = ms(t);
             let anchor = TerrainRenderer::anchor_for(camera.position);
-            let mut bytes = 112 + (lods.patches.len() * size_of::<GpuMorphPatch>()) as u64;
+            let mut bytes = s.upload_bytes;
             if self.last_anchor != Some(anchor) {
                 bytes += 4 * (scene.hm.width() + scene.hm.height()) as u64;
             }

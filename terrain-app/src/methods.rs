@@ -351,3 +351,30 @@ pub fn patch_factors(p: &Patch) -> PatchFactors {
     let [s, e, n, w] = p.outer;
     PatchFactors { inner: p.inner, outer: [w, s, e, n] }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use terrain_core::lod::check_shared_edges;
+    use terrain_core::synth::FractalConfig;
+    use terrain_gpu::render::crack::crack_cameras;
+
+    /// The geomorph method through the common path: its leaves agree on every shared edge's
+    /// factor (so `render`/`fly` draw it without cracks), cover what its own surface covers,
+    /// and that surface is watertight.
+    #[test]
+    fn geomorph_selection_agrees_on_shared_edges() {
+        let hm = FractalConfig::with_size(257, 257, 10.0).to_heightmap().unwrap();
+        let scene = MethodScene::new(hm, MethodConfig::default());
+        for camera in crack_cameras(&scene.hm, 17).iter().step_by(4) {
+            let camera = camera.with_viewport(1280.0, 720.0);
+            let frame = scene.select_geomorph(&camera);
+            let selection = scene.geomorph_selection(&frame);
+            assert_eq!(selection.patches.len(), frame.patches.len());
+            assert!(check_shared_edges(&selection).is_empty());
+            let (mesh, triangles) = scene.geomorph_surface(&frame);
+            assert!(triangles > 0);
+            assert!(mesh.positions.iter().all(|p| p.z.is_finite()));
+        }
+    }
+}

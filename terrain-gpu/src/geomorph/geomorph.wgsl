@@ -1,5 +1,5 @@
 // Geomorphing in the vertex shader (Wagner 2003; geomorph/mod.rs): geo-mipmapped patches
-// drawn by indexed draws from a library of triangle lists (one per level and set of adapting borders), each
+// drawn by one indexed draw per material pass from a library of triangle lists (one per level and set of adapting borders), each
 // vertex morphed between its true height and the coarser level by the patch's tween factor and
 // the four edges' factors; a precomputed lightmap and alpha-blended material passes.
 //
@@ -16,7 +16,7 @@ struct Frame {
     skirt_depth: f32,
     patch_cells: u32,
     max_level: u32,
-    // Instance k * patch_count + p draws patch p with material k.
+    // Patches this frame.
     patch_count: u32,
     pad0: u32,
     pad1: u32,
@@ -36,7 +36,9 @@ const SOUTH: u32 = 0u;
 const EAST: u32 = 1u;
 const NORTH: u32 = 2u;
 const WEST: u32 = 3u;
-const SKIRT_BIT: u32 = 65536u;
+// morph.rs SKIRT_BIT and PATCH_SHIFT: a drawn index is patch << 14 | skirt << 13 | local id.
+const SKIRT_BIT: u32 = 8192u;
+const PATCH_SHIFT: u32 = 14u;
 
 @group(0) @binding(0) var<uniform> frame: Frame;
 @group(0) @binding(1) var heights: texture_2d<f32>;
@@ -162,11 +164,10 @@ struct VsOut {
 
 @vertex
 fn vs(@builtin(vertex_index) vi: u32, @builtin(instance_index) ii: u32) -> VsOut {
-    let count = max(frame.patch_count, 1u);
-    let p = patches[ii % count];
-    // Indexed draw of the library's id lists (geomorph/morph.rs MeshLibrary): the index is the
-    // local lattice id, with SKIRT_BIT on a skirt's lower vertex.
-    let id = vi;
+    // One indexed draw per material pass (the instance index is the material); the index
+    // holds the patch and the local lattice id (geomorph/renderer.rs).
+    let p = patches[vi >> PATCH_SHIFT];
+    let id = vi & ((1u << PATCH_SHIFT) - 1u);
     let v = morphed_vertex(p, id & (SKIRT_BIT - 1u));
     var pos = v.pos;
     if (id & SKIRT_BIT) != 0u {
@@ -175,7 +176,7 @@ fn vs(@builtin(vertex_index) vi: u32, @builtin(instance_index) ii: u32) -> VsOut
     var out: VsOut;
     out.clip = frame.view_proj * vec4<f32>(pos, 1.0);
     out.grid = v.grid;
-    out.material = ii / count;
+    out.material = ii;
     return out;
 }
 

@@ -56,8 +56,11 @@ const EAST: usize = 1;
 const NORTH: usize = 2;
 const WEST: usize = 3;
 
-/// Set on a mesh id for the lower vertex of a skirt.
-pub const SKIRT_BIT: u32 = 1 << 16;
+/// Set on a mesh id for the lower vertex of a skirt (local ids are below `65^2 < 2^13`).
+pub const SKIRT_BIT: u32 = 1 << 13;
+
+/// A drawn index is `patch << PATCH_SHIFT | id` (up to `2^18` patches per frame).
+pub const PATCH_SHIFT: u32 = 14;
 
 /// `GmPatch` in `geomorph.wgsl`: one drawn patch.
 #[repr(C)]

@@ -13,7 +13,7 @@ use terrain_core::lightmap::{LightmapConfig, lightmap};
 use terrain_core::lod::PatchLod;
 
 use super::materials::{MATERIALS, MaterialMaps};
-use super::morph::{GpuMorphPatch, MeshLibrary};
+use super::morph::{GpuMorphPatch, MeshLibrary, PATCH_SHIFT};
 use crate::device::{GpuContext, GpuError, read_buffer};
 use crate::render::{BACKGROUND, RenderError, TerrainRenderer};
 use crate::target::{COLOR_FORMAT, OffscreenTarget, RgbaImage};
@@ -85,6 +85,9 @@ pub struct GeomorphFrameStats {
     pub passes_drawn: usize,
     /// Material passes skipped because the material's alpha is zero over the patch.
     pub passes_skipped: usize,
+    /// Bytes uploaded this frame: the frame uniform, the patches and the passes' index lists
+    /// (not the column/row offsets written when the anchor moves).
+    pub upload_bytes: u64,
     /// CPU time to upload, encode and submit, milliseconds.
     pub cpu_ms: f64,
     /// The adapter.
@@ -107,12 +110,12 @@ pub struct GeomorphRenderer {
     frame: wgpu::Buffer,
     col_x: wgpu::Buffer,
     row_y: wgpu::Buffer,
-    mesh: wgpu::Buffer,
     heights: wgpu::TextureView,
     light: wgpu::TextureView,
     alpha: wgpu::TextureView,
     sampler: wgpu::Sampler,
     patches: Option<(wgpu::Buffer, u64, wgpu::BindGroup)>,
+    indices: Option<wgpu::Buffer>,
     lib: MeshLibrary,
     materials: MaterialMaps,
     grid: [u32; 2],
@@ -344,8 +347,6 @@ impl GeomorphRenderer {
         let col_x = buffer("geomorph columns", 4 * u64::from(width), U::STORAGE | U::COPY_DST);
         let row_y = buffer("geomorph rows", 4 * u64::from(height), U::STORAGE | U::COPY_DST);
         let lib = MeshLibrary::new(p);
-        let mesh = buffer("geomorph mesh ids", 4 * lib.ids.len() as u64, U::INDEX | U::COPY_DST);
-        ctx.queue.write_buffer(&mesh, 0, bytemuck::cast_slice(&lib.ids));
         let geo = hm.georef();
         Ok(Self {
             device: ctx.device.clone(),
@@ -360,12 +361,12 @@ impl GeomorphRenderer {
             frame,
             col_x,
             row_y,
-            mesh,
             heights,
             light,
             alpha,
             sampler,
             patches: None,
+            indices: None,
             lib,
             materials,
             grid: [width, height],
@@ -421,6 +422,13 @@ impl GeomorphRenderer {
                     height: h,
                 });
             }
+        }
+        if lods.len() > 1 << (32 - PATCH_SHIFT) {
+            return Err(RenderError::InvalidConfig(format!(
+                "{} patches; the geomorph renderer draws at most {}",
+                lods.len(),
+                1u64 << (32 - PATCH_SHIFT)
+            )));
         }
         let bytes = (lods.len().max(1) * size_of::<GpuMorphPatch>()) as u64;
         if self.patches.as_ref().is_none_or(|(_, cap, _)| *cap < bytes) {
@@ -493,52 +501,75 @@ impl GeomorphRenderer {
         let n = self.lib.patch_cells;
         let gpu: Vec<GpuMorphPatch> = lods.iter().map(|p| GpuMorphPatch::from_lod(p, n)).collect();
         self.upload(&camera, &gpu, options)?;
-        let (_, _, group) = self.patches.as_ref().expect("uploaded");
         let [w, h] = self.grid;
-        let count = gpu.len() as u32;
         let mut stats = GeomorphFrameStats {
             patches: lods.len(),
             triangles: 0,
             passes_drawn: 0,
             passes_skipped: 0,
+            upload_bytes: 0,
             cpu_ms: 0.0,
             adapter: self.adapter.clone(),
         };
+        // One index list per pass: every drawn patch's configuration (and, in the base pass,
+        // its skirts) with the patch's index in the high bits, so a pass is one indexed draw
+        // (software rasterisers pay per draw) and vertex_index carries patch and local id.
+        let mut indices: Vec<u32> = Vec::new();
+        let mut passes: Vec<(usize, u32, u32)> = Vec::new();
+        for material in 0..MATERIALS {
+            let first = indices.len() as u32;
+            for (k, (p, lod)) in gpu.iter().zip(lods).enumerate() {
+                if !self.materials.draws(lod.i, lod.j, material) {
+                    stats.passes_skipped += 1;
+                    continue;
+                }
+                stats.passes_drawn += 1;
+                let tag = (k as u32) << PATCH_SHIFT;
+                let tris = self.lib.triangles(p);
+                indices.extend(tris.iter().map(|&id| id | tag));
+                if material == 0 {
+                    stats.triangles += (tris.len() / 3) as u64;
+                    if options.skirt_depth_m > 0.0 {
+                        let (x1, y1) = (p.origin[0] + n, p.origin[1] + n);
+                        // South, east, north, west: skirts only below shared edges.
+                        let interior = [p.origin[1] > 0, x1 < w - 1, y1 < h - 1, p.origin[0] > 0];
+                        for (edge, _) in interior.iter().enumerate().filter(|e| *e.1) {
+                            let (s0, c) = self.lib.skirts[MeshLibrary::config(p)][edge];
+                            let ids = &self.lib.ids[s0 as usize..(s0 + c) as usize];
+                            indices.extend(ids.iter().map(|&id| id | tag));
+                        }
+                    }
+                }
+            }
+            passes.push((material, first, indices.len() as u32 - first));
+        }
+        stats.upload_bytes = (size_of::<GpuFrame>()
+            + gpu.len() * size_of::<GpuMorphPatch>()
+            + indices.len() * 4) as u64;
+        let bytes = (indices.len().max(4) * 4) as u64;
+        if self.indices.as_ref().is_none_or(|b| b.size() < bytes) {
+            self.indices = Some(self.device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some("geomorph frame indices"),
+                size: bytes.next_power_of_two(),
+                usage: wgpu::BufferUsages::INDEX | wgpu::BufferUsages::COPY_DST,
+                mapped_at_creation: false,
+            }));
+        }
+        let index_buffer = self.indices.as_ref().expect("allocated above");
+        if !indices.is_empty() {
+            self.queue.write_buffer(index_buffer, 0, bytemuck::cast_slice(&indices));
+        }
+        let (_, _, group) = self.patches.as_ref().expect("uploaded");
         let mut encoder = self.device.create_command_encoder(&Default::default());
         {
             let [r, g, b, a] = self.background.map(|c| f64::from(c) / 255.0);
             let mut pass = self.target.begin_pass(&mut encoder, wgpu::Color { r, g, b, a });
             pass.set_bind_group(0, group, &[]);
-            // Indexed draws of the library's id lists: the vertex stage's vertex_index *is*
-            // the local id, and shared vertices are shaded once per draw.
-            pass.set_index_buffer(self.mesh.slice(..), wgpu::IndexFormat::Uint32);
-            for material in 0..MATERIALS {
+            pass.set_index_buffer(index_buffer.slice(..), wgpu::IndexFormat::Uint32);
+            for &(material, first, count) in passes.iter().filter(|p| p.2 > 0) {
                 pass.set_pipeline(if material == 0 { &self.base } else { &self.overlay });
-                for (k, (p, lod)) in gpu.iter().zip(lods).enumerate() {
-                    if !self.materials.draws(lod.i, lod.j, material) {
-                        stats.passes_skipped += 1;
-                        continue;
-                    }
-                    stats.passes_drawn += 1;
-                    let (first, ids) = self.lib.ranges[MeshLibrary::config(p)];
-                    let instance = material as u32 * count + k as u32;
-                    pass.draw_indexed(first..first + ids, 0, instance..instance + 1);
-                    if material == 0 {
-                        stats.triangles += u64::from(ids / 3);
-                    }
-                }
-                if material == 0 && options.skirt_depth_m > 0.0 {
-                    for (k, p) in gpu.iter().enumerate() {
-                        let x1 = p.origin[0] + n;
-                        let y1 = p.origin[1] + n;
-                        // South, east, north, west: skirts only below shared edges.
-                        let interior = [p.origin[1] > 0, x1 < w - 1, y1 < h - 1, p.origin[0] > 0];
-                        for (edge, _) in interior.iter().enumerate().filter(|e| *e.1) {
-                            let (first, ids) = self.lib.skirts[MeshLibrary::config(p)][edge];
-                            pass.draw_indexed(first..first + ids, 0, k as u32..k as u32 + 1);
-                        }
-                    }
-                }
+                // The instance index is the material.
+                pass.draw_indexed(first..first + count, 0, material as u32..material as u32 + 1);
             }
         }
         self.queue.submit([encoder.finish()]);
