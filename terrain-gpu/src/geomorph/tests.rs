@@ -316,8 +316,17 @@ fn ignored_coarser_neighbours_are_detected_as_cracks() {
 /// geomorph renderer's lightmap and material passes give the tessellation renderer's image:
 /// its ramp and lambert per fragment, ours per sample and filtered, so they differ a little.
 #[test]
-fn looks_like_the_tessellation_renderer() {
-    let Some(ctx) = context(BackendChoice::Vulkan) else { return };
+fn looks_like_the_tessellation_renderer_vulkan() {
+    looks_like_the_tessellation_renderer(BackendChoice::Vulkan);
+}
+
+#[test]
+fn looks_like_the_tessellation_renderer_gl() {
+    looks_like_the_tessellation_renderer(BackendChoice::Gl);
+}
+
+fn looks_like_the_tessellation_renderer(backend: BackendChoice) {
+    let Some(ctx) = context(backend) else { return };
     let hm = fractal();
     let (w, h) = (240, 135);
     let camera = crate::render::default_camera(&hm, w, h, 60.0);
@@ -363,4 +372,20 @@ fn looks_like_the_tessellation_renderer() {
     assert!(n > 1000, "{n} terrain pixels");
     assert!(both as f64 > 0.99 * a.pixels.len() as f64);
     assert!(mean < 6.0, "mean difference {mean} levels");
+}
+
+#[test]
+fn gpu_morph_matches_the_cpu_reference_gl() {
+    gpu_morph_matches_cpu(BackendChoice::Gl, &fractal());
+}
+
+#[test]
+fn no_cracks_fractal_gl() {
+    let Some(ctx) = context(BackendChoice::Gl) else { return };
+    let hm = fractal();
+    let config = GeomorphConfig { width: 256, height: 144, ..Default::default() };
+    let mut renderer = GeomorphRenderer::new(&ctx, &hm, &config).unwrap();
+    let cracks = geomorph_cracks(&mut renderer, &hm, 2.0, &crack_cameras(&hm, 17)[..7]);
+    println!("{}: crack pixels {cracks:?}", ctx.describe());
+    assert!(cracks.iter().all(|&c| c == 0), "cracks {cracks:?}");
 }
