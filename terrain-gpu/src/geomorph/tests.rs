@@ -364,9 +364,9 @@ fn looks_like_the_tessellation_renderer(backend: BackendChoice) {
     );
     if let Some(dir) = std::env::var_os("TERRAIN_TEST_DUMP") {
         for (tag, im) in [("geomorph", &a), ("tess", &b)] {
-            let mut ppm = format!("P6\n{} {}\n255\n", im.width, im.height).into_bytes();
-            ppm.extend(im.pixels.iter().flat_map(|p| [p[0], p[1], p[2]]));
-            std::fs::write(PathBuf::from(&dir).join(format!("{tag}.ppm")), ppm).unwrap();
+            let bytes: Vec<u8> = im.pixels.iter().flatten().copied().collect();
+            let png = image::RgbaImage::from_raw(im.width, im.height, bytes).unwrap();
+            png.save(PathBuf::from(&dir).join(format!("{tag}.png"))).unwrap();
         }
     }
     assert!(n > 1000, "{n} terrain pixels");
