@@ -12,7 +12,7 @@
 //!   and II (uniform blocks with continuous factors).
 //! - `geomorph`: the geomorphing article's (Wagner 2003) geo-mipmapped patches of
 //!   `leaf_cells` cells with continuous tween factors, drawn by terrain-gpu's
-//!   `GeomorphRenderer` (its own pipeline: [`MethodScene::geomorph_frame`] and the benchmark's
+//!   `GeomorphRenderer` (its own pipeline: [`MethodScene::select_geomorph`] and the benchmark's
 //!   branch). Through [`MethodScene::select`] (the tessellation renderer's path: `render`, `fly`,
 //!   `mesh`) it gives each patch its level's factor `leaf_cells / 2^level` per edge (the shared
 //!   edge at the coarser side's level): the un-morphed geo-mipmap, crack-free.
