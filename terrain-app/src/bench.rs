@@ -23,6 +23,7 @@ use terrain_core::Heightmap;
 use terrain_core::flight::{FlightConfig, FlightSpec, FlightWarning};
 use terrain_core::geometry::Camera;
 use terrain_core::measure::{FrameErrors, MeasureConfig, Measurer};
+use terrain_gpu::geomorph::{GeomorphConfig, GeomorphOptions, GeomorphRenderer, max_vertex_jump};
 use terrain_gpu::tess::{GpuPatchFactors, PatchRange};
 use terrain_gpu::{GpuContext, RenderConfig, RenderOptions, TerrainRenderer};
 
@@ -103,6 +104,7 @@ pub fn sweep_values(method: LodMethod, leaf_cells: u32) -> (&'static str, Vec<f6
         // E0 in percent of the largest entropy (the paper's 10..18 barely simplify at our
         // entropy scale; see `terrain_visibility::entropy::source::EntropyScale`).
         LodMethod::Entropy => ("E0", vec![0.0, 18.0, 50.0, 70.0, 85.0, 95.0]),
+        LodMethod::Geomorph => ("tau_px", vec![0.5, 1.0, 2.0, 4.0, 8.0]),
     }
 }
 
@@ -144,6 +146,7 @@ pub fn apply_parameter(config: &mut MethodConfig, method: LodMethod, value: f64)
         LodMethod::PvpsA | LodMethod::PvpsB | LodMethod::PvpsC => config.pvps.c1 = value,
         LodMethod::Dss1 | LodMethod::Dss2 => config.dss.rho_thr = value,
         LodMethod::Entropy => config.entropy.e0 = value,
+        LodMethod::Geomorph => config.geomip.pixel_threshold = value,
     }
 }
 
@@ -186,6 +189,19 @@ pub struct FrameRecord {
     /// The measured errors.
     #[serde(flatten)]
     pub errors: FrameErrors,
+    /// Geomorph only: the largest per-vertex height jump of the drawn surface from the
+    /// flight's previous frame (consecutive flight frames, whatever the sampling), metres
+    /// (`terrain_gpu::geomorph::max_vertex_jump`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub vertex_jump_m: Option<f64>,
+    /// Geomorph only: the same with tweening off (integer levels): the popping geomorphing
+    /// removes.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub vertex_jump_no_morph_m: Option<f64>,
+    /// Geomorph only (rendered frames): material passes skipped because the material's alpha
+    /// is zero over the patch.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub material_passes_skipped: Option<usize>,
 }
 
 impl FrameRecord {
@@ -244,6 +260,7 @@ pub struct FrameRunner<'a> {
     method: LodMethod,
     measurer: Measurer<'a>,
     renderer: Option<&'a mut TerrainRenderer>,
+    geomorph: Option<&'a mut GeomorphRenderer>,
     options: RenderOptions,
     last_anchor: Option<glam::DVec3>,
     first: bool,
@@ -262,10 +279,109 @@ impl<'a> FrameRunner<'a> {
             method,
             measurer: Measurer::new(&scene.hm, &scene.qt, measure),
             renderer,
+            geomorph: None,
             options: RenderOptions::default(),
             last_anchor: None,
             first: true,
         }
+    }
+
+    /// Renders the `geomorph` method with `renderer` (its own pipeline) when given.
+    pub fn with_geomorph_renderer(mut self, renderer: Option<&'a mut GeomorphRenderer>) -> Self {
+        self.geomorph = renderer;
+        self
+    }
+
+    /// Like [`FrameRunner::frame`]; `previous` is the flight's previous camera, for the
+    /// geomorph method's per-vertex jump (with and without tweening).
+    pub fn frame_after(
+        &mut self,
+        frame: usize,
+        camera: &Camera,
+        previous: Option<&Camera>,
+    ) -> anyhow::Result<FrameRecord> {
+        if self.method == LodMethod::Geomorph {
+            return self.geomorph_frame(frame, camera, previous);
+        }
+        self.frame(frame, camera)
+    }
+
+    /// The geomorph branch: its own selection, CPU morph reference and renderer.
+    fn geomorph_frame(
+        &mut self,
+        frame: usize,
+        camera: &Camera,
+        previous: Option<&Camera>,
+    ) -> anyhow::Result<FrameRecord> {
+        let scene = self.scene;
+        let t = Instant::now();
+        let lods = scene.select_geomorph(camera);
+        let selection_ms = ms(t);
+
+        let t = Instant::now();
+        let (mesh, triangle_count) = scene.geomorph_surface(&lods);
+        let cpu_tess_ms = ms(t);
+
+        let t = Instant::now();
+        let selection = scene.geomorph_selection(&lods);
+        let errors = self.measurer.measure(camera, &selection, &mesh);
+        let measure_ms = ms(t);
+
+        // Popping: the jump from the flight's previous frame, morphing and not (untimed).
+        let (mut vertex_jump_m, mut vertex_jump_no_morph_m) = (None, None);
+        if let Some(prev) = previous {
+            let (before, _) = scene.geomorph_surface(&scene.select_geomorph(prev));
+            vertex_jump_m = Some(max_vertex_jump(&before, &mesh));
+            let mut off = scene.config.geomip;
+            off.morph = false;
+            off.patch_cells = scene.geomorph_patch_cells();
+            let still =
+                |c: &Camera| scene.geomorph_surface(&scene.geomip_scene().select(c, &off)).0;
+            vertex_jump_no_morph_m = Some(max_vertex_jump(&still(prev), &still(camera)));
+        }
+        drop(mesh);
+
+        let mut record = FrameRecord {
+            frame,
+            patches: lods.patches.len(),
+            triangles: triangle_count,
+            selection_ms,
+            cpu_tess_ms,
+            measure_ms,
+            encode_ms: None,
+            render_ms: None,
+            gpu_ms: None,
+            gpu_draw_ms: None,
+            gpu_tessellated: None,
+            upload_bytes: None,
+            cpu_ms: selection_ms + cpu_tess_ms,
+            frame_ms: selection_ms + cpu_tess_ms,
+            rss_bytes: None,
+            errors,
+            vertex_jump_m,
+            vertex_jump_no_morph_m,
+            material_passes_skipped: None,
+        };
+        if let Some(renderer) = self.geomorph.as_deref_mut() {
+            let t = Instant::now();
+            let s = renderer.render(camera, &lods.patches, &GeomorphOptions::default())?;
+            let render_ms = ms(t);
+            let anchor = TerrainRenderer::anchor_for(camera.position);
+            let mut bytes = s.upload_bytes;
+            if self.last_anchor != Some(anchor) {
+                bytes += 4 * (scene.hm.width() + scene.hm.height()) as u64;
+            }
+            self.last_anchor = Some(anchor);
+            record.encode_ms = Some(s.cpu_ms);
+            record.render_ms = Some(render_ms);
+            record.upload_bytes = Some(bytes);
+            record.material_passes_skipped = Some(s.passes_skipped);
+            // The geomorph renderer has no compute pass: its CPU cost is selection + encode.
+            record.cpu_ms = selection_ms + s.cpu_ms;
+            record.frame_ms = selection_ms + render_ms;
+        }
+        record.rss_bytes = rss_bytes();
+        Ok(record)
     }
 
     /// Selects, tessellates (CPU reference), measures and (optionally) renders frame `frame`.
@@ -304,6 +420,9 @@ impl<'a> FrameRunner<'a> {
             frame_ms: selection_ms + cpu_tess_ms,
             rss_bytes: None,
             errors,
+            vertex_jump_m: None,
+            vertex_jump_no_morph_m: None,
+            material_passes_skipped: None,
         };
         if let Some(renderer) = self.renderer.as_deref_mut() {
             let patches = scene.draw_patches(&selection);
@@ -364,6 +483,9 @@ impl<'a> FrameRunner<'a> {
             frame_ms: selection_ms + cpu_tess_ms,
             rss_bytes: rss_bytes(),
             errors,
+            vertex_jump_m: None,
+            vertex_jump_no_morph_m: None,
+            material_passes_skipped: None,
         }
     }
 
@@ -418,6 +540,12 @@ pub struct RunSummary {
     pub max_rss_bytes: Option<u64>,
     /// Mean bytes uploaded per rendered frame.
     pub mean_upload_bytes: Option<f64>,
+    /// Geomorph only: the largest per-vertex jump between consecutive flight frames, metres.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub max_vertex_jump_m: Option<f64>,
+    /// Geomorph only: the same with tweening off.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub max_vertex_jump_no_morph_m: Option<f64>,
 }
 
 /// The median of `v` (0 for none).
@@ -463,6 +591,11 @@ impl RunSummary {
             max_rss_bytes: frames.iter().filter_map(|r| r.rss_bytes).max(),
             mean_upload_bytes: (!uploads.is_empty())
                 .then(|| uploads.iter().sum::<u64>() as f64 / uploads.len() as f64),
+            max_vertex_jump_m: frames.iter().filter_map(|r| r.vertex_jump_m).reduce(f64::max),
+            max_vertex_jump_no_morph_m: frames
+                .iter()
+                .filter_map(|r| r.vertex_jump_no_morph_m)
+                .reduce(f64::max),
         }
     }
 }
@@ -582,6 +715,22 @@ pub fn run_bench(
         )?),
         _ => None,
     };
+    let mut geomorph_renderer = match (gpu, render_size) {
+        (Some(ctx), Some((width, height))) if cfg.methods.contains(&LodMethod::Geomorph) => {
+            Some(GeomorphRenderer::new(
+                ctx,
+                &hm,
+                &GeomorphConfig {
+                    width,
+                    height,
+                    patch_cells: cfg.method.leaf_cells.clamp(2, 64),
+                    background: [150, 185, 225, 255],
+                    ..Default::default()
+                },
+            )?)
+        }
+        _ => None,
+    };
     let mut notes = timing_notes(gpu, renderer.is_some());
     notes.push(format!(
         "Pixel errors and DSS's rho_thr refer to a {}x{} view; frames per flight: {}.",
@@ -623,10 +772,16 @@ pub fn run_bench(
                 apply_parameter(&mut config, *method, value);
                 scene.config = config;
                 let label = format!("{} {} {parameter}={value}", info.name, method.name());
-                let mut runner = FrameRunner::new(&scene, *method, cfg.measure, renderer.as_mut());
+                let mut runner = FrameRunner::new(&scene, *method, cfg.measure, renderer.as_mut())
+                    .with_geomorph_renderer(geomorph_renderer.as_mut());
                 let mut frames = Vec::with_capacity(info.frames.len());
                 for &k in &info.frames {
-                    frames.push(runner.frame(k, &flight.frames()[k])?);
+                    let cams = flight.frames();
+                    frames.push(runner.frame_after(
+                        k,
+                        &cams[k],
+                        k.checked_sub(1).map(|p| &cams[p]),
+                    )?);
                     done += 1;
                     progress(&BenchProgress { done, total, label: label.clone() });
                 }
@@ -709,7 +864,12 @@ fn colour(m: LodMethod) -> &'static str {
         LodMethod::Dss1 => "#9467bd",
         LodMethod::Dss2 => "#ff7f0e",
         LodMethod::Entropy => "#8c564b",
+        LodMethod::Geomorph => "#e377c2",
     }
+}
+
+fn opt4(x: Option<f64>) -> String {
+    x.map(|x| format!("{x:.4}")).unwrap_or_else(|| "n/a".to_string())
 }
 
 fn opt(x: Option<f64>) -> String {
@@ -784,6 +944,24 @@ impl BenchReport {
                     m.median_rmse_m,
                     m.median_popping_rms_m,
                     m.false_culls
+                );
+            }
+        }
+        let jumps: Vec<&RunRecord> =
+            self.runs.iter().filter(|r| r.summary.max_vertex_jump_m.is_some()).collect();
+        if !jumps.is_empty() {
+            s.push_str(
+                "\n## Geomorph: largest per-vertex height jump between consecutive flight frames\n\n\
+                 | flight | tau px | with tweening m | tweening off m |\n|---|---:|---:|---:|\n",
+            );
+            for r in jumps {
+                let _ = writeln!(
+                    s,
+                    "| {} | {} | {} | {} |",
+                    r.flight,
+                    r.value,
+                    opt4(r.summary.max_vertex_jump_m),
+                    opt4(r.summary.max_vertex_jump_no_morph_m)
                 );
             }
         }

@@ -13,10 +13,22 @@
 //! - `entropy`: the entropy paper's (Chen 2018) view-dependent quadtree cut (Eq. 4-5), a
 //!   triangle mesh rather than patches ([`crate::entropy_method`]): its `select` is a
 //!   whole-terrain placeholder; the benchmark measures its mesh on the CPU.
+//! - `geomorph`: the geomorphing article's (Wagner 2003) geo-mipmapped patches of
+//!   `leaf_cells` cells with continuous tween factors, drawn by terrain-gpu's
+//!   `GeomorphRenderer` (its own pipeline: [`MethodScene::select_geomorph`] and the benchmark's
+//!   branch). Through [`MethodScene::select`] (the tessellation renderer's path: `render`, `fly`,
+//!   `mesh`) it gives each patch its level's factor `leaf_cells / 2^level` per edge (the shared
+//!   edge at the coarser side's level): the un-morphed geo-mipmap, crack-free.
 
 use std::sync::OnceLock;
 
 use crate::entropy_method::{EntropyMethodConfig, EntropyScene, whole_terrain_selection};
+use terrain_core::lod::{GeomipConfig, GeomipScene, GeomipSelection};
+use terrain_core::quadtree::NodeId;
+use terrain_gpu::geomorph::{
+    GpuMorphPatch, MeshLibrary, MorphGrid, build_surface as morph_surface,
+};
+
 use terrain_core::Heightmap;
 use terrain_core::geometry::Camera;
 use terrain_core::lod::{
@@ -52,11 +64,13 @@ pub enum LodMethod {
     Dss2,
     /// Entropy paper (Chen 2018): the local-curvature-entropy quadtree cut by Eq. 5.
     Entropy,
+    /// Geomorphing article (Wagner 2003): geo-mipmapped patches morphed in the vertex shader.
+    Geomorph,
 }
 
 impl LodMethod {
     /// Every method, in a fixed order (the benchmark's).
-    pub const ALL: [LodMethod; 7] = [
+    pub const ALL: [LodMethod; 8] = [
         LodMethod::Uniform,
         LodMethod::PvpsA,
         LodMethod::PvpsB,
@@ -64,6 +78,7 @@ impl LodMethod {
         LodMethod::Dss1,
         LodMethod::Dss2,
         LodMethod::Entropy,
+        LodMethod::Geomorph,
     ];
 
     /// The CLI and report name.
@@ -76,6 +91,7 @@ impl LodMethod {
             LodMethod::Dss1 => "dss-1",
             LodMethod::Dss2 => "dss-2",
             LodMethod::Entropy => "entropy",
+            LodMethod::Geomorph => "geomorph",
         }
     }
 }
@@ -93,6 +109,9 @@ pub struct MethodConfig {
     pub uniform_factor: f32,
     /// The `entropy` method's threshold, depth and Eq. 5 constants.
     pub entropy: EntropyMethodConfig,
+    /// The `geomorph` method's settings (its `patch_cells` is `leaf_cells`). Default
+    /// [`GeomipConfig::default`]: a 1 pixel threshold, morphing on.
+    pub geomip: GeomipConfig,
 }
 
 impl Default for MethodConfig {
@@ -108,6 +127,7 @@ impl Default for MethodConfig {
             },
             uniform_factor: 16.0,
             entropy: EntropyMethodConfig::default(),
+            geomip: GeomipConfig { patch_cells: leaf_cells, ..GeomipConfig::default() },
         }
     }
 }
@@ -127,6 +147,10 @@ pub struct MethodScene {
     dss: OnceLock<DssErrorTable>,
     /// The entropy paper's full quadtree.
     entropy: OnceLock<EntropyScene>,
+    /// The geomorph method's max-error vertices per patch and level.
+    geomip: OnceLock<GeomipScene>,
+    /// The geomorph method's triangle lists.
+    geomorph_lib: OnceLock<MeshLibrary>,
     /// The settings.
     pub config: MethodConfig,
 }
@@ -146,6 +170,8 @@ impl MethodScene {
             roughness: Default::default(),
             dss: OnceLock::new(),
             entropy: OnceLock::new(),
+            geomip: OnceLock::new(),
+            geomorph_lib: OnceLock::new(),
             config,
         }
     }
@@ -191,6 +217,9 @@ impl MethodScene {
                 LodMethod::Entropy => {
                     self.entropy_scene();
                 }
+                LodMethod::Geomorph => {
+                    self.geomip_scene();
+                }
                 LodMethod::Uniform => {}
             }
         }
@@ -213,7 +242,75 @@ impl MethodScene {
             }
             // A mesh, not patches: see `EntropyScene::frame`; the root stands for "everything".
             LodMethod::Entropy => whole_terrain_selection(1, 0.0),
+            LodMethod::Geomorph => {
+                let frame = self.select_geomorph(camera);
+                self.geomorph_selection(&frame)
+            }
         }
+    }
+
+    /// Patch cells of the geomorph method: the quadtree's leaf size, so its patches are the
+    /// quadtree's leaves (the measurement's coverage).
+    /// (The geomorph renderer supports 2 to 64 cells; other leaf sizes are clamped, and then
+    /// the measurement's coverage no longer matches the patches.)
+    pub fn geomorph_patch_cells(&self) -> u32 {
+        self.qt.leaf_cells().clamp(2, 64)
+    }
+
+    /// The geomorph method's per-patch precomputation, on first use.
+    pub fn geomip_scene(&self) -> &GeomipScene {
+        self.geomip.get_or_init(|| GeomipScene::new(&self.hm, self.geomorph_patch_cells()))
+    }
+
+    /// The geomorph method's levels, tween factors and border rules for `camera`.
+    pub fn select_geomorph(&self, camera: &Camera) -> GeomipSelection {
+        let cfg = GeomipConfig { patch_cells: self.geomorph_patch_cells(), ..self.config.geomip };
+        self.geomip_scene().select(camera, &cfg)
+    }
+
+    /// The geomorph patches as a quadtree [`Selection`] of leaves, each edge's factor
+    /// `leaf_cells / 2^(edge level)` and the inner factors `leaf_cells / 2^level`: what the
+    /// measurement's coverage and the tessellation renderer read.
+    pub fn geomorph_selection(&self, frame: &GeomipSelection) -> Selection {
+        let n = self.geomorph_patch_cells() as f32;
+        let leaf = self.qt.max_level();
+        let mut patches: Vec<Patch> = frame
+            .patches
+            .iter()
+            .map(|p| {
+                let f = |l: u8| (n / f32::from(1u8 << l)).clamp(MIN_FACTOR, MAX_FACTOR);
+                Patch {
+                    node: NodeId::new(leaf, p.i, p.j),
+                    outer: p.edge_level.map(f),
+                    inner: [f(p.level); 2],
+                }
+            })
+            .collect();
+        patches.sort_by_key(|p| p.node.dfs_key());
+        let stats = SelectionStats {
+            traversal_leaves: patches.len(),
+            patches: patches.len(),
+            culled: frame.culled,
+            max_level: leaf,
+            cpu_time: std::time::Duration::from_secs_f64(frame.cpu_ms / 1e3),
+            ..SelectionStats::default()
+        };
+        Selection { patches, stats }
+    }
+
+    /// The surface the geomorph renderer draws for `frame` (the morph's CPU reference, the
+    /// same numbers as the vertex stage) and its non-degenerate triangles.
+    pub fn geomorph_surface(&self, frame: &GeomipSelection) -> (SurfaceMesh, u64) {
+        let n = self.geomorph_patch_cells();
+        let grid = MorphGrid::new(&self.hm, n);
+        let lib = self.geomorph_library();
+        let patches: Vec<GpuMorphPatch> =
+            frame.patches.iter().map(|p| GpuMorphPatch::from_lod(p, n)).collect();
+        morph_surface(&grid, lib, &patches)
+    }
+
+    fn geomorph_library(&self) -> &MeshLibrary {
+        self.geomorph_lib.get_or_init(|| MeshLibrary::new(self.geomorph_patch_cells()))
     }
 
     /// Every finest-level patch inside the frustum, every factor `uniform_factor`.
@@ -277,4 +374,31 @@ pub fn draw_patches(qt: &Quadtree, selection: &Selection) -> Vec<DrawPatch> {
 pub fn patch_factors(p: &Patch) -> PatchFactors {
     let [s, e, n, w] = p.outer;
     PatchFactors { inner: p.inner, outer: [w, s, e, n] }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use terrain_core::lod::check_shared_edges;
+    use terrain_core::synth::FractalConfig;
+    use terrain_gpu::render::crack::crack_cameras;
+
+    /// The geomorph method through the common path: its leaves agree on every shared edge's
+    /// factor (so `render`/`fly` draw it without cracks), cover what its own surface covers,
+    /// and that surface is watertight.
+    #[test]
+    fn geomorph_selection_agrees_on_shared_edges() {
+        let hm = FractalConfig::with_size(257, 257, 10.0).to_heightmap().unwrap();
+        let scene = MethodScene::new(hm, MethodConfig::default());
+        for camera in crack_cameras(&scene.hm, 17).iter().step_by(4) {
+            let camera = camera.with_viewport(1280.0, 720.0);
+            let frame = scene.select_geomorph(&camera);
+            let selection = scene.geomorph_selection(&frame);
+            assert_eq!(selection.patches.len(), frame.patches.len());
+            assert!(check_shared_edges(&selection).is_empty());
+            let (mesh, triangles) = scene.geomorph_surface(&frame);
+            assert!(triangles > 0);
+            assert!(mesh.positions.iter().all(|p| p.z.is_finite()));
+        }
+    }
 }

@@ -19,6 +19,7 @@ pub mod geometry;
 pub mod georef;
 mod hash;
 pub mod heightmap;
+pub mod lightmap;
 pub mod lod;
 pub mod measure;
 pub mod mesh;

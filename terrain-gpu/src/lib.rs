@@ -20,6 +20,7 @@
 //! assert!(mesh.points.iter().all(|p| (0.0..=1.0).contains(&p[0]) && (0.0..=1.0).contains(&p[1])));
 //! ```
 pub mod device;
+pub mod geomorph;
 pub mod render;
 pub mod surface;
 pub mod target;

@@ -13,6 +13,8 @@
 //!   (quadtree, power-of-two factors) and Method II (uniform blocks, continuous factors).
 //! - [`edges`]: the one place outer factors are resolved across shared edges, and the checker
 //!   of the crack-freedom invariant.
+//! - [`geomipmap`]: the geomorphing article's (Wagner 2003) geo-mipmapped patches: a level and
+//!   a continuous tween factor per patch, neighbours within one level, border rules.
 //! - [`surface`]: rebuilds the drawn surface on the CPU from a selection and a tessellator.
 //!
 //! # The crack-freedom invariant
@@ -32,12 +34,14 @@
 
 pub mod dss_methods;
 pub mod edges;
+pub mod geomipmap;
 pub mod patch;
 pub mod pvps;
 pub mod surface;
 
 pub use dss_methods::{DssConfig, DssErrorTable, select_dss_power_of_two, select_dss_uniform};
 pub use edges::{EdgeMismatch, EdgeRule, check_shared_edges, outer_factors};
+pub use geomipmap::{GeomipConfig, GeomipScene, GeomipSelection, PatchLod};
 pub use patch::{Edge, MAX_FACTOR, MIN_FACTOR, Patch, Selection, SelectionStats, clamp_factor};
 pub use pvps::{Method, NodeDistance, PvpsConfig, select_pvps};
 pub use surface::{SurfaceMesh, build_surface, edge_segment, patch_grid_point};

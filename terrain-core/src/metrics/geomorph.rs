@@ -75,14 +75,38 @@ pub struct LevelError {
     pub coverage: Coverage,
 }
 
-/// The max-error vertex of every level of `patch`.
+/// How each coarse quad of a level is split into two triangles.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Triangulation {
+    /// Every quad along its north-west to south-east diagonal (the article's case B).
+    NwSe,
+    /// The union-jack (4-8) pattern: quad `(a, b)` of a level (in quads of that level, from
+    /// the patch's south-west corner) is split south-west to north-east when `a + b` is even,
+    /// north-west to south-east when odd. Levels nest whatever the diagonals, and a border
+    /// column's pair of quads is the fan the article's adapting triangles need
+    /// (`terrain_core::lod::geomipmap` explains why the renderer uses it).
+    UnionJack,
+}
+
+/// The max-error vertex of every level of `patch`, each level triangulated NW-SE (the
+/// article's case B); see [`max_error_vertices_with`].
+pub fn max_error_vertices(hm: &Heightmap, patch: Region, reference: Reference) -> Vec<LevelError> {
+    max_error_vertices_with(hm, patch, reference, Triangulation::NwSe)
+}
+
+/// The max-error vertex of every level of `patch`, levels triangulated as `tri` says.
 ///
 /// Levels: `trailing_zeros(cells) + 1` (5 for the article's 16 cells): level `L` needs a
 /// vertex step `2^L` that divides `cells`. Zero-area patch: a single level 0 with
 /// [`Coverage::Empty`]. Void vertices are never measured (their filled heights still shape the
 /// coarse mesh); a level with no measured vertex has error 0 and [`Coverage::VoidOnly`]. A patch
 /// clipped at the east/north border keeps its lattice; its last coarse quads shrink to the grid.
-pub fn max_error_vertices(hm: &Heightmap, patch: Region, reference: Reference) -> Vec<LevelError> {
+pub fn max_error_vertices_with(
+    hm: &Heightmap,
+    patch: Region,
+    reference: Reference,
+    tri: Triangulation,
+) -> Vec<LevelError> {
     let Some(clip) = patch.clip(hm) else {
         return vec![LevelError { level: 0, error: 0.0, vertex: None, coverage: Coverage::Empty }];
     };
@@ -119,10 +143,14 @@ pub fn max_error_vertices(hm: &Heightmap, patch: Region, reference: Reference) -
                 if !candidate || hm.voids().get(i, j) {
                     continue;
                 }
-                // The level-L quad holding (i, j), split NW-SE (article case B); at the
-                // east/north border, clipped to the grid.
+                // The level-L quad holding (i, j), split NW-SE (article case B) or by the
+                // union-jack parity; at the east/north border, clipped to the grid.
                 let a = (di / s).min(c / s - 1);
                 let b = (dj / s).min(c / s - 1);
+                let diagonal = match tri {
+                    Triangulation::UnionJack if (a + b).is_multiple_of(2) => Diagonal::SwNe,
+                    _ => Diagonal::SeNw,
+                };
                 let (ci, cj) = (x0 + a * s, y0 + b * s);
                 let (ci1, cj1) = ((ci + s).min(clip.x1), (cj + s).min(clip.y1));
                 let frac = |k: usize, k0: usize, k1: usize| {
@@ -136,7 +164,7 @@ pub fn max_error_vertices(hm: &Heightmap, patch: Region, reference: Reference) -
                     zc(ci1, cj1),
                     frac(i, ci, ci1),
                     frac(j, cj, cj1),
-                    Diagonal::SeNw,
+                    diagonal,
                 );
                 let z = f64::from(hm.get(i, j));
                 let error = (z - coarse).abs();
@@ -180,5 +208,14 @@ mod tests {
         let l = max_error_vertices(&hm, Region::new(0, 0, 2), Reference::FullResolution);
         assert_eq!(l.len(), 2);
         assert_eq!(l[1].error, 0.0);
+        // Union jack: quad (0, 0) is split SW-NE, so the centre interpolates to (0 + 0) / 2.
+        let u = max_error_vertices_with(
+            &hm,
+            Region::new(0, 0, 2),
+            Reference::FullResolution,
+            Triangulation::UnionJack,
+        );
+        assert_eq!(u[1].error, 1.0);
+        assert_eq!((u[1].vertex.unwrap().i, u[1].vertex.unwrap().j), (1, 1));
     }
 }

@@ -1,0 +1,221 @@
+// Geomorphing in the vertex shader (Wagner 2003; geomorph/mod.rs): geo-mipmapped patches
+// drawn by one indexed draw per material pass from a library of triangle lists (one per level and set of adapting borders), each
+// vertex morphed between its true height and the coarser level by the patch's tween factor and
+// the four edges' factors; a precomputed lightmap and alpha-blended material passes.
+//
+// `true_h`, `edge_h`, `point_h` and `morph_h` are the twins of geomorph/morph.rs (the CPU
+// reference), operation for operation in f32; change both. Positions are camera-relative as in
+// render/terrain.wgsl: `col_x[i]` and `row_y[j]` are `world - anchor` rounded once to f32.
+
+struct Frame {
+    view_proj: mat4x4<f32>,
+    spacing: vec2<f32>,
+    grid_max: vec2<u32>,
+    // -anchor.z: heights plus this are camera-relative.
+    height_offset: f32,
+    skirt_depth: f32,
+    patch_cells: u32,
+    max_level: u32,
+    // Patches this frame.
+    patch_count: u32,
+    pad0: u32,
+    pad1: u32,
+    pad2: u32,
+}
+
+struct GmPatch {
+    origin: vec2<u32>,
+    level: u32,
+    tween: f32,
+    // South, east, north, west.
+    edge_level: vec4<u32>,
+    edge_tween: vec4<f32>,
+}
+
+const SOUTH: u32 = 0u;
+const EAST: u32 = 1u;
+const NORTH: u32 = 2u;
+const WEST: u32 = 3u;
+// morph.rs SKIRT_BIT and PATCH_SHIFT: a drawn index is patch << 14 | skirt << 13 | local id.
+const SKIRT_BIT: u32 = 8192u;
+const PATCH_SHIFT: u32 = 14u;
+
+@group(0) @binding(0) var<uniform> frame: Frame;
+@group(0) @binding(1) var heights: texture_2d<f32>;
+@group(0) @binding(2) var<storage, read> patches: array<GmPatch>;
+@group(0) @binding(3) var<storage, read> col_x: array<f32>;
+@group(0) @binding(4) var<storage, read> row_y: array<f32>;
+@group(0) @binding(6) var light_tex: texture_2d<f32>;
+@group(0) @binding(7) var alpha_tex: texture_2d<f32>;
+@group(0) @binding(8) var maps_sampler: sampler;
+
+fn sample_of(p: GmPatch, x: u32, y: u32) -> vec2<u32> {
+    return min(p.origin + vec2<u32>(x, y), frame.grid_max);
+}
+
+fn true_h(p: GmPatch, x: u32, y: u32) -> f32 {
+    return textureLoad(heights, vec2<i32>(sample_of(p, x, y)), 0).r;
+}
+
+// morph.rs MorphGrid::edge_h.
+fn edge_h(p: GmPatch, edge: u32, x: u32, y: u32) -> f32 {
+    let n = frame.patch_cells;
+    let along_x = edge == SOUTH || edge == NORTH;
+    let t = select(y, x, along_x);
+    let s = 1u << p.edge_level[edge];
+    let a = true_h(p, x, y);
+    if t == 0u || t == n || t % (2u * s) == 0u || t % s != 0u {
+        return a;
+    }
+    var b: f32;
+    var c: f32;
+    if along_x {
+        b = true_h(p, x - s, y);
+        c = true_h(p, x + s, y);
+    } else {
+        b = true_h(p, x, y - s);
+        c = true_h(p, x, y + s);
+    }
+    let m = 0.5 * (b + c);
+    return a + p.edge_tween[edge] * (m - a);
+}
+
+// morph.rs MorphGrid::point_h.
+fn point_h(p: GmPatch, x: u32, y: u32) -> f32 {
+    let n = frame.patch_cells;
+    if (x == 0u || x == n) && (y == 0u || y == n) {
+        return true_h(p, x, y);
+    }
+    if y == 0u {
+        return edge_h(p, SOUTH, x, y);
+    }
+    if x == n {
+        return edge_h(p, EAST, x, y);
+    }
+    if y == n {
+        return edge_h(p, NORTH, x, y);
+    }
+    if x == 0u {
+        return edge_h(p, WEST, x, y);
+    }
+    return true_h(p, x, y);
+}
+
+// morph.rs MorphGrid::height: the drawn height of local lattice point (x, y). The nested form
+// of the article's PosFinal = PosBase + tweeningI dI + ... with tweeningA = (1 - tweeningL)
+// tweeningI for the inner neighbours of border vertices (see morph.rs for the expansion).
+fn morph_h(p: GmPatch, x: u32, y: u32) -> f32 {
+    let n = frame.patch_cells;
+    if x == 0u || x == n || y == 0u || y == n || p.level >= frame.max_level {
+        return point_h(p, x, y);
+    }
+    let s = 1u << p.level;
+    let xo = (x / s) % 2u == 1u;
+    let yo = (y / s) % 2u == 1u;
+    if !xo && !yo {
+        return true_h(p, x, y);
+    }
+    var e1: vec2<u32>;
+    var e2: vec2<u32>;
+    if xo && !yo {
+        // Case A.
+        e1 = vec2<u32>(x - s, y);
+        e2 = vec2<u32>(x + s, y);
+    } else if !xo && yo {
+        // Case C.
+        e1 = vec2<u32>(x, y - s);
+        e2 = vec2<u32>(x, y + s);
+    } else if ((x - s) / (2u * s) + (y - s) / (2u * s)) % 2u == 0u {
+        // Case B, coarse quad split south-west to north-east.
+        e1 = vec2<u32>(x - s, y - s);
+        e2 = vec2<u32>(x + s, y + s);
+    } else {
+        // Case B, coarse quad split south-east to north-west.
+        e1 = vec2<u32>(x + s, y - s);
+        e2 = vec2<u32>(x - s, y + s);
+    }
+    let a = true_h(p, x, y);
+    let m = 0.5 * (point_h(p, e1.x, e1.y) + point_h(p, e2.x, e2.y));
+    return a + p.tween * (m - a);
+}
+
+struct Morphed {
+    // Camera-relative position.
+    pos: vec3<f32>,
+    // Absolute morphed height.
+    height: f32,
+    grid: vec2<f32>,
+}
+
+fn morphed_vertex(p: GmPatch, local: u32) -> Morphed {
+    let n1 = frame.patch_cells + 1u;
+    let x = local % n1;
+    let y = local / n1;
+    let g = sample_of(p, x, y);
+    let h = morph_h(p, x, y);
+    return Morphed(vec3<f32>(col_x[g.x], row_y[g.y], h + frame.height_offset), h, vec2<f32>(g));
+}
+
+struct VsOut {
+    @builtin(position) @invariant clip: vec4<f32>,
+    @location(0) grid: vec2<f32>,
+    @location(1) @interpolate(flat) material: u32,
+}
+
+@vertex
+fn vs(@builtin(vertex_index) vi: u32, @builtin(instance_index) ii: u32) -> VsOut {
+    // One indexed draw per material pass (the instance index is the material); the index
+    // holds the patch and the local lattice id (geomorph/renderer.rs).
+    let p = patches[vi >> PATCH_SHIFT];
+    let id = vi & ((1u << PATCH_SHIFT) - 1u);
+    let v = morphed_vertex(p, id & (SKIRT_BIT - 1u));
+    var pos = v.pos;
+    if (id & SKIRT_BIT) != 0u {
+        pos.z -= frame.skirt_depth;
+    }
+    var out: VsOut;
+    out.clip = frame.view_proj * vec4<f32>(pos, 1.0);
+    out.grid = v.grid;
+    out.material = ii;
+    return out;
+}
+
+// The tessellation renderer's ramp colours (render/terrain.wgsl), one per pass.
+fn material_colour(k: u32) -> vec3<f32> {
+    switch k {
+        case 1u: { return vec3<f32>(0.22, 0.38, 0.18); }
+        case 2u, 4u: { return vec3<f32>(0.50, 0.45, 0.40); }
+        case 3u: { return vec3<f32>(0.93, 0.94, 0.96); }
+        default: { return vec3<f32>(0.36, 0.52, 0.24); }
+    }
+}
+
+@fragment
+fn fs(in: VsOut) -> @location(0) vec4<f32> {
+    // Texel (i, j) holds sample (i, j) (south row first): its centre is at (g + 0.5) / size.
+    let st = (in.grid + 0.5) / vec2<f32>(frame.grid_max + vec2<u32>(1u));
+    let light = textureSampleLevel(light_tex, maps_sampler, st, 0.0).r;
+    var alpha = 1.0;
+    if in.material > 0u {
+        alpha = textureSampleLevel(alpha_tex, maps_sampler, st, 0.0)[in.material - 1u];
+    }
+    // Every material has green above zero and light is at least the ambient 0.3, so the
+    // magenta background never comes out of this shader.
+    return vec4<f32>(material_colour(in.material) * light, alpha);
+}
+
+// Test hook: the morphed position of (patch, local id) pairs, through the vertex stage's own
+// functions; out[k] = (x, y, z) relative to the anchor and the absolute height.
+@group(1) @binding(0) var<storage, read> items: array<vec2<u32>>;
+@group(1) @binding(1) var<storage, read_write> morph_out: array<vec4<f32>>;
+
+@compute @workgroup_size(64)
+fn debug_morph(@builtin(global_invocation_id) gid: vec3<u32>) {
+    let k = gid.x;
+    if k >= arrayLength(&items) || k >= arrayLength(&morph_out) {
+        return;
+    }
+    let item = items[k];
+    let v = morphed_vertex(patches[item.x], item.y);
+    morph_out[k] = vec4<f32>(v.pos, v.height);
+}

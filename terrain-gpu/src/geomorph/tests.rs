@@ -1,0 +1,391 @@
+//! Tests of the geomorph: continuity under small camera steps (and its failure without
+//! morphing), crack-freedom on the CPU (`open_edges`) and on the GPU (magenta background
+//! against a skirted reference, naming the adapter), the GPU's morph against the CPU reference,
+//! the material passes, and Puget Sound 1k. GPU tests print why and pass where no adapter
+//! exists, unless `TERRAIN_REQUIRE_GPU` is set.
+
+use std::path::PathBuf;
+
+use glam::DVec3;
+use terrain_core::Heightmap;
+use terrain_core::geometry::Camera;
+use terrain_core::lod::{GeomipConfig, GeomipScene, PatchLod};
+use terrain_core::synth::FractalConfig;
+
+use super::*;
+use crate::device::{BackendChoice, GpuContext, GpuError, REQUIRE_ENV};
+use crate::render::BACKGROUND;
+use crate::render::crack::crack_cameras;
+
+fn fractal() -> Heightmap {
+    FractalConfig::with_size(257, 257, 10.0).to_heightmap().unwrap()
+}
+
+fn data_dir() -> PathBuf {
+    std::env::var_os("TERRAIN_DATA")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../shared/data"))
+}
+
+fn puget_sound() -> Heightmap {
+    let path = data_dir().join("puget_sound/ps_height_1k.png");
+    let options = terrain_core::dem::LoadOptions {
+        vertical_scale: 0.1,
+        spacing_m: 160.0,
+        ..Default::default()
+    };
+    terrain_core::dem::load(&path, &options)
+        .unwrap_or_else(|e| panic!("{e} (set TERRAIN_DATA to the shared data folder)"))
+        .heightmap
+}
+
+fn context(backend: BackendChoice) -> Option<GpuContext> {
+    match GpuContext::on_backend(backend) {
+        Ok(ctx) => {
+            println!("adapter: {}", ctx.describe());
+            Some(ctx)
+        }
+        Err(e @ GpuError::NoAdapter { .. }) if std::env::var_os(REQUIRE_ENV).is_none() => {
+            println!("SKIPPED: {e}; set {REQUIRE_ENV}=1 to make this a failure");
+            None
+        }
+        Err(e) => panic!("{backend:?}: {e}"),
+    }
+}
+
+fn gpu_patches(lods: &[PatchLod], n: u32) -> Vec<GpuMorphPatch> {
+    lods.iter().map(|p| GpuMorphPatch::from_lod(p, n)).collect()
+}
+
+/// A camera flying over `hm` north-east at `height` above the start, `step` metres a frame.
+fn flight(hm: &Heightmap, frames: usize, step: f64, height: f64) -> Vec<Camera> {
+    let start = hm.grid_to_world(10.0, 10.0);
+    let z0 = f64::from(hm.max()) + height;
+    (0..frames)
+        .map(|k| {
+            let d = step * k as f64 / 2f64.sqrt();
+            let eye = DVec3::new(start.x + d, start.y + d, z0 - 0.3 * step * k as f64);
+            Camera::from_yaw_pitch(eye, 45.0, -25.0)
+                .with_fov_y_deg(60.0)
+                .with_viewport(1280.0, 720.0)
+        })
+        .collect()
+}
+
+/// The largest per-vertex jump between consecutive frames of `cameras`.
+fn jumps(hm: &Heightmap, cameras: &[Camera], cfg: &GeomipConfig) -> Vec<f64> {
+    let scene = GeomipScene::new(hm, cfg.patch_cells);
+    let grid = MorphGrid::new(hm, cfg.patch_cells);
+    let lib = MeshLibrary::new(cfg.patch_cells);
+    let mut prev = None;
+    let mut out = Vec::new();
+    for c in cameras {
+        let sel = scene.select(c, cfg);
+        let (mesh, _) = build_surface(&grid, &lib, &gpu_patches(&sel.patches, cfg.patch_cells));
+        if let Some(p) = &prev {
+            out.push(max_vertex_jump(p, &mesh));
+        }
+        prev = Some(mesh);
+    }
+    out
+}
+
+/// With geomorphing the tween factors are Lipschitz in the eye position: a level's weight
+/// changes by at most `2 |step| / d` per frame while its projected error is between `tau / 2`
+/// and `tau` (module docs of `terrain_core::lod::geomipmap`), and the vertices it moves are at
+/// most its error `delta < tau d / lambda` away, so a vertex moves at most `2 tau |step| /
+/// lambda` per frame. The neighbour envelope (a patch pulled finer by a nearer neighbour) and
+/// border vertices following a neighbour's factor loosen this by the ratio of neighbouring
+/// patches' distances; we allow a factor 4. Without morphing, a level switch moves vertices by
+/// the level's whole error: metres.
+#[test]
+fn small_camera_steps_move_no_vertex_far_and_without_morphing_they_pop() {
+    let hm = fractal();
+    let step = 10.0;
+    let cameras = flight(&hm, 50, step, 400.0);
+    let on = GeomipConfig { frustum_cull: false, ..Default::default() };
+    let off = GeomipConfig { morph: false, ..on };
+    let bound = 4.0 * 2.0 * on.pixel_threshold * step / cameras[0].lambda();
+    let max = |v: Vec<f64>| v.into_iter().fold(0.0, f64::max);
+    let morph = max(jumps(&hm, &cameras, &on));
+    let popping = max(jumps(&hm, &cameras, &off));
+    println!(
+        "largest per-vertex jump per frame: morph {morph:.4} m, no morph {popping:.4} m, bound {bound:.4} m"
+    );
+    assert!(morph > 0.0, "the flight should change tween factors");
+    assert!(morph <= bound, "morphing moved a vertex {morph} m in one frame (bound {bound})");
+    assert!(popping > 10.0 * bound, "without morphing levels should pop: {popping} m");
+}
+
+/// Every patch drawn (no culling): the surface's open edges all lie on the grid's border, for
+/// views that mix levels (adapting borders) and tween factors.
+fn assert_watertight(hm: &Heightmap, cameras: &[Camera], tau: f64) {
+    let cfg = GeomipConfig { frustum_cull: false, pixel_threshold: tau, ..Default::default() };
+    let scene = GeomipScene::new(hm, 16);
+    let grid = MorphGrid::new(hm, 16);
+    let lib = MeshLibrary::new(16);
+    let (wm, hmx) = ((hm.width() - 1) as f64, (hm.height() - 1) as f64);
+    let mut adapting = 0;
+    for c in cameras {
+        let sel = scene.select(c, &cfg);
+        let patches = gpu_patches(&sel.patches, 16);
+        adapting += patches.iter().filter(|p| p.adapt_mask() != 0).count();
+        let (mesh, _) = build_surface(&grid, &lib, &patches);
+        for [a, b] in mesh.open_edges() {
+            let (a, b) = (mesh.grid[a as usize], mesh.grid[b as usize]);
+            let on_border = (a.x == b.x && (a.x == 0.0 || a.x == wm))
+                || (a.y == b.y && (a.y == 0.0 || a.y == hmx));
+            assert!(on_border, "open edge {a} - {b} inside the grid");
+        }
+    }
+    assert!(adapting > 0, "no adapting border was exercised");
+}
+
+#[test]
+fn the_drawn_surface_is_watertight() {
+    let hm = fractal();
+    let cameras: Vec<Camera> =
+        crack_cameras(&hm, 17).into_iter().map(|c| c.with_viewport(1280.0, 720.0)).collect();
+    assert_watertight(&hm, &cameras[..8], 2.0);
+}
+
+/// The GPU's morph (the compute entry point calling the vertex stage's functions) against the
+/// CPU reference, for every drawn vertex of views with mixed levels, tween factors and
+/// adapting borders. Plan positions come from the same f32 column/row offsets: bit-identical.
+/// Heights: the morph is at most two nested `a + t (m - a)` with `m` a half sum, about eight
+/// f32 roundings of values below `2 max |h|`; a GPU may fuse a multiply-add (one rounding
+/// fewer), so the two may differ by a few ulps: we allow 16 ulps of `max |h| + |anchor z|`.
+fn gpu_morph_matches_cpu(backend: BackendChoice, hm: &Heightmap) {
+    let Some(ctx) = context(backend) else { return };
+    let config = GeomorphConfig { width: 64, height: 64, ..Default::default() };
+    let mut renderer = GeomorphRenderer::new(&ctx, hm, &config).unwrap();
+    let scene = GeomipScene::new(hm, 16);
+    let grid = MorphGrid::new(hm, 16);
+    let cfg = GeomipConfig { frustum_cull: false, pixel_threshold: 2.0, ..Default::default() };
+    let mut worst: f32 = 0.0;
+    for c in crack_cameras(hm, 17).into_iter().step_by(5) {
+        let c = c.with_viewport(1280.0, 720.0);
+        let sel = scene.select(&c, &cfg);
+        let patches = gpu_patches(&sel.patches, 16);
+        assert!(
+            patches.iter().any(|p| p.tween > 0.0) && patches.iter().any(|p| p.adapt_mask() != 0)
+        );
+        let mut items = Vec::new();
+        for (k, p) in patches.iter().enumerate() {
+            let mut ids: Vec<u32> = renderer.library().triangles(p).to_vec();
+            ids.sort_unstable();
+            ids.dedup();
+            items.extend(ids.into_iter().map(|id| [k as u32, id]));
+        }
+        let gpu = renderer.morph_read_back(c.position, &patches, &items).unwrap();
+        let anchor = crate::render::TerrainRenderer::anchor_for(c.position);
+        let tol = 16.0
+            * f32::EPSILON
+            * (hm.max().abs().max(hm.min().abs()) + anchor.z.abs() as f32 + 1.0);
+        for (&[k, id], g) in items.iter().zip(&gpu) {
+            let (x, y) = (id % 17, id / 17);
+            let cpu = grid.relative_position(&patches[k as usize], x, y, anchor);
+            assert_eq!((g[0], g[1]), (cpu[0], cpu[1]), "plan position of {k}/{id}");
+            for c in [2, 3] {
+                let d = (g[c] - cpu[c]).abs();
+                worst = worst.max(d);
+                assert!(d <= tol, "patch {k} vertex ({x}, {y}): GPU {g:?} CPU {cpu:?}");
+            }
+        }
+    }
+    println!("{} largest height difference GPU - CPU: {worst} m", renderer.adapter());
+}
+
+#[test]
+fn gpu_morph_matches_the_cpu_reference_vulkan() {
+    gpu_morph_matches_cpu(BackendChoice::Vulkan, &fractal());
+}
+
+/// Renders the selection of every crack camera with and without skirts; returns the crack
+/// pixels per camera (background without skirts, terrain with them: see `render::crack`).
+fn geomorph_cracks(
+    renderer: &mut GeomorphRenderer,
+    hm: &Heightmap,
+    tau: f64,
+    cameras: &[Camera],
+) -> Vec<usize> {
+    let scene = GeomipScene::new(hm, 16);
+    let cfg = GeomipConfig { pixel_threshold: tau, ..Default::default() };
+    let skirt = GeomorphOptions { skirt_depth_m: hm.max() - hm.min() + 10.0 };
+    cameras
+        .iter()
+        .map(|camera| {
+            let sel = scene.select(&camera.with_viewport(1280.0, 720.0), &cfg);
+            renderer.render(camera, &sel.patches, &GeomorphOptions::default()).unwrap();
+            let plain = renderer.read_image().unwrap();
+            renderer.render(camera, &sel.patches, &skirt).unwrap();
+            let reference = renderer.read_image().unwrap();
+            let terrain = plain.pixels.iter().filter(|&&p| p != BACKGROUND).count();
+            assert!(terrain > 0, "camera {camera:?} sees no terrain");
+            plain
+                .pixels
+                .iter()
+                .zip(&reference.pixels)
+                .filter(|&(&a, &b)| a == BACKGROUND && b != BACKGROUND)
+                .count()
+        })
+        .collect()
+}
+
+#[test]
+fn no_cracks_fractal_vulkan() {
+    let Some(ctx) = context(BackendChoice::Vulkan) else { return };
+    let hm = fractal();
+    let config = GeomorphConfig { width: 256, height: 144, ..Default::default() };
+    let mut renderer = GeomorphRenderer::new(&ctx, &hm, &config).unwrap();
+    let cracks = geomorph_cracks(&mut renderer, &hm, 2.0, &crack_cameras(&hm, 17));
+    println!("{}: crack pixels {cracks:?}", ctx.describe());
+    assert!(cracks.iter().all(|&c| c == 0), "cracks {cracks:?}");
+}
+
+/// Puget Sound 1k (real DEM, 4096 patches): watertight on the CPU for views mixing levels,
+/// crack-free on the GPU, and the snow pass is skipped over the lowlands.
+#[test]
+fn puget_sound_watertight_crack_free_and_skips_materials() {
+    let hm = puget_sound();
+    let cameras: Vec<Camera> = crack_cameras(&hm, 17);
+    let wide: Vec<Camera> = cameras.iter().map(|c| c.with_viewport(1280.0, 720.0)).collect();
+    assert_watertight(&hm, &wide[1..2], 4.0);
+    let Some(ctx) = context(BackendChoice::Vulkan) else { return };
+    let config = GeomorphConfig { width: 256, height: 144, ..Default::default() };
+    let mut renderer = GeomorphRenderer::new(&ctx, &hm, &config).unwrap();
+    let maps = renderer.materials();
+    let (nx, ny) = maps.patches;
+    let no_snow = (0..ny)
+        .flat_map(|j| (0..nx).map(move |i| (i, j)))
+        .filter(|&(i, j)| !maps.draws(i, j, materials::SNOW))
+        .count();
+    println!("patches without snow: {no_snow} of {}", nx * ny);
+    assert!(no_snow > (nx * ny / 2) as usize, "most of Puget Sound is below the snow line");
+    let cracks = geomorph_cracks(&mut renderer, &hm, 2.0, &cameras[..4]);
+    println!("{}: crack pixels {cracks:?}", ctx.describe());
+    assert!(cracks.iter().all(|&c| c == 0), "cracks {cracks:?}");
+    // The frame statistics count the skipped passes.
+    let scene = GeomipScene::new(&hm, 16);
+    let camera = crate::render::default_camera(&hm, 256, 144, 60.0);
+    let sel = scene.select(&camera.with_viewport(1280.0, 720.0), &GeomipConfig::default());
+    let stats = renderer.render(&camera, &sel.patches, &GeomorphOptions::default()).unwrap();
+    println!("{stats:?}");
+    assert_eq!(stats.passes_drawn + stats.passes_skipped, sel.patches.len() * materials::MATERIALS);
+    assert!(stats.passes_skipped > sel.patches.len(), "snow and more skipped: {stats:?}");
+}
+
+/// The negative control: a finer patch that ignores its coarser neighbour (draws its odd
+/// border vertices at their own heights, no adapting triangles) cracks, and the comparison
+/// above sees it.
+#[test]
+fn ignored_coarser_neighbours_are_detected_as_cracks() {
+    let Some(ctx) = context(BackendChoice::Vulkan) else { return };
+    let hm = fractal();
+    let config = GeomorphConfig { width: 256, height: 144, ..Default::default() };
+    let mut renderer = GeomorphRenderer::new(&ctx, &hm, &config).unwrap();
+    let scene = GeomipScene::new(&hm, 16);
+    let skirt = GeomorphOptions { skirt_depth_m: hm.max() - hm.min() + 10.0 };
+    let mut total = 0;
+    for camera in crack_cameras(&hm, 17).iter().take(7) {
+        let sel = scene.select(
+            &camera.with_viewport(1280.0, 720.0),
+            &GeomipConfig { pixel_threshold: 2.0, ..Default::default() },
+        );
+        let broken: Vec<PatchLod> = sel
+            .patches
+            .iter()
+            .map(|p| PatchLod { edge_level: [p.level; 4], edge_tween: [0.0; 4], ..*p })
+            .collect();
+        renderer.render(camera, &broken, &GeomorphOptions::default()).unwrap();
+        let plain = renderer.read_image().unwrap();
+        renderer.render(camera, &broken, &skirt).unwrap();
+        let reference = renderer.read_image().unwrap();
+        total += plain
+            .pixels
+            .iter()
+            .zip(&reference.pixels)
+            .filter(|&(&a, &b)| a == BACKGROUND && b != BACKGROUND)
+            .count();
+    }
+    println!("ignored neighbours: {total} crack pixels");
+    assert!(total > 0, "the crack test cannot see cracks");
+}
+
+/// At full resolution (every patch at level 0) with the same sun and no shadows, the
+/// geomorph renderer's lightmap and material passes give the tessellation renderer's image:
+/// its ramp and lambert per fragment, ours per sample and filtered, so they differ a little.
+#[test]
+fn looks_like_the_tessellation_renderer_vulkan() {
+    looks_like_the_tessellation_renderer(BackendChoice::Vulkan);
+}
+
+#[test]
+fn looks_like_the_tessellation_renderer_gl() {
+    looks_like_the_tessellation_renderer(BackendChoice::Gl);
+}
+
+fn looks_like_the_tessellation_renderer(backend: BackendChoice) {
+    let Some(ctx) = context(backend) else { return };
+    let hm = fractal();
+    let (w, h) = (240, 135);
+    let camera = crate::render::default_camera(&hm, w, h, 60.0);
+    let lightmap = terrain_core::lightmap::LightmapConfig { shadows: false, ..Default::default() };
+    let config = GeomorphConfig { width: w, height: h, lightmap, ..Default::default() };
+    let mut ours = GeomorphRenderer::new(&ctx, &hm, &config).unwrap();
+    let sel = GeomipScene::new(&hm, 16)
+        .select(&camera, &GeomipConfig { pixel_threshold: 1e-9, ..Default::default() });
+    assert!(sel.patches.iter().all(|p| p.level == 0));
+    ours.render(&camera, &sel.patches, &GeomorphOptions::default()).unwrap();
+    let a = ours.read_image().unwrap();
+    let rc = crate::render::RenderConfig { width: w, height: h, ..Default::default() };
+    let mut theirs = crate::render::TerrainRenderer::new(&ctx, &hm, &rc).unwrap();
+    let patches = crate::render::full_resolution_patches(&hm, 16);
+    theirs.render(&camera, &patches, &crate::render::RenderOptions::default()).unwrap();
+    let b = theirs.read_image().unwrap();
+    let (mut sum, mut n) = (0.0, 0usize);
+    for (p, q) in a.pixels.iter().zip(&b.pixels) {
+        if *p != BACKGROUND && *q != BACKGROUND {
+            sum += (0..3).map(|c| f64::from(p[c].abs_diff(q[c]))).sum::<f64>() / 3.0;
+            n += 1;
+        }
+    }
+    let both = a
+        .pixels
+        .iter()
+        .zip(&b.pixels)
+        .filter(|(p, q)| (**p == BACKGROUND) == (**q == BACKGROUND))
+        .count();
+    let mean = sum / n.max(1) as f64;
+    println!(
+        "{}: mean |difference| {mean:.2} levels over {n} pixels; coverage agrees on {both} of {}",
+        ours.adapter(),
+        a.pixels.len()
+    );
+    if let Some(dir) = std::env::var_os("TERRAIN_TEST_DUMP") {
+        for (tag, im) in [("geomorph", &a), ("tess", &b)] {
+            let bytes: Vec<u8> = im.pixels.iter().flatten().copied().collect();
+            let png = image::RgbaImage::from_raw(im.width, im.height, bytes).unwrap();
+            png.save(PathBuf::from(&dir).join(format!("{tag}.png"))).unwrap();
+        }
+    }
+    assert!(n > 1000, "{n} terrain pixels");
+    assert!(both as f64 > 0.99 * a.pixels.len() as f64);
+    assert!(mean < 6.0, "mean difference {mean} levels");
+}
+
+#[test]
+fn gpu_morph_matches_the_cpu_reference_gl() {
+    gpu_morph_matches_cpu(BackendChoice::Gl, &fractal());
+}
+
+#[test]
+fn no_cracks_fractal_gl() {
+    let Some(ctx) = context(BackendChoice::Gl) else { return };
+    let hm = fractal();
+    let config = GeomorphConfig { width: 256, height: 144, ..Default::default() };
+    let mut renderer = GeomorphRenderer::new(&ctx, &hm, &config).unwrap();
+    let cracks = geomorph_cracks(&mut renderer, &hm, 2.0, &crack_cameras(&hm, 17)[..7]);
+    println!("{}: crack pixels {cracks:?}", ctx.describe());
+    assert!(cracks.iter().all(|&c| c == 0), "cracks {cracks:?}");
+}
