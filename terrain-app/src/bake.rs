@@ -1,5 +1,6 @@
 //! `terrain bake`: a DEM (or a synthetic terrain streamed by rows) into an out-of-core block
-//! store, with a plain-text progress bar on stderr.
+//! store, with a plain-text progress bar on stderr, then the PVS files of the scene
+//! (`pvs.bin`, `pvs_conservative.bin`, see `terrain pvs`) unless `--no-pvs`.
 
 use std::io::Write;
 use std::ops::ControlFlow;
@@ -11,6 +12,9 @@ use terrain_core::synth::FractalConfig;
 use terrain_stream::{BakeConfig, BakeProgress, HeightEncoding, HeightSource, bake};
 
 use crate::source::SourceArgs;
+
+/// Largest synthetic side whose PVS `terrain bake` computes (the grid is held in memory).
+const MAX_PVS_SYNTHETIC: u64 = 8193;
 
 /// Arguments of `terrain bake`.
 #[derive(Debug, Args)]
@@ -42,6 +46,12 @@ pub struct BakeArgs {
     /// Worker threads (0 = one per core).
     #[arg(long, default_value_t = 0)]
     pub threads: usize,
+    /// Skip the PVS bake (by default both PVS files, sampled and conservative, are written
+    /// into the store folder after the blocks; see `terrain pvs`).
+    #[arg(long)]
+    pub no_pvs: bool,
+    #[command(flatten)]
+    pub pvs: crate::pvs::PvsArgs,
 }
 
 /// Runs `terrain bake`.
@@ -59,6 +69,7 @@ pub fn run(args: &BakeArgs) -> anyhow::Result<()> {
     }
     let synthetic;
     let dem;
+    let mut source_hm: Option<&terrain_core::Heightmap> = None;
     let source: &dyn HeightSource = if let Some(n) = args.synthetic {
         synthetic = FractalConfig::with_size(n, n, 10.0);
         synthetic.validate().map_err(anyhow::Error::msg)?;
@@ -70,6 +81,7 @@ pub fn run(args: &BakeArgs) -> anyhow::Result<()> {
         if matches!(config.encoding, HeightEncoding::Bounded { .. }) {
             config.encoding = bounded;
         }
+        source_hm = Some(&dem.heightmap);
         &dem.heightmap
     };
     if args.raw_f32 {
@@ -117,5 +129,25 @@ pub fn run(args: &BakeArgs) -> anyhow::Result<()> {
         secs,
         report.source_samples as f64 * 4.0 / 1e6 / secs.max(1e-9)
     );
-    Ok(())
+    if args.no_pvs {
+        return Ok(());
+    }
+    let synthetic_hm;
+    let hm = match (source_hm, args.synthetic) {
+        (Some(hm), _) => hm,
+        (None, Some(n)) if n <= MAX_PVS_SYNTHETIC => {
+            // A streamed synthetic terrain: the PVS needs the whole grid in memory.
+            synthetic_hm =
+                FractalConfig::with_size(n, n, 10.0).to_heightmap().map_err(anyhow::Error::msg)?;
+            &synthetic_hm
+        }
+        (None, _) => {
+            eprintln!(
+                "warning: no PVS for a synthetic terrain above {MAX_PVS_SYNTHETIC}^2 samples \
+                 (it would not fit in memory); the scene draws without occlusion culling"
+            );
+            return Ok(());
+        }
+    };
+    crate::pvs::bake_into_scene(hm, &args.pvs.config()?, &args.output)
 }

@@ -6,10 +6,14 @@
 //! - `uniform`: every leaf-sized patch at one factor (a baseline, no LOD).
 //! - `pvps-a`, `pvps-b`, `pvps-c`: the PVPS paper's (Zhang 2021) methods A (Zhai; our documented
 //!   stand-in, Röttger's d2), B (Dong: height range) and C (Eq. 5 roughness), all through the
-//!   Eq. 8 split, Algorithm 1 outer levels and Eq. 12 inner levels (occlusion culling is the
-//!   occlusion issue's).
+//!   Eq. 8 split, Algorithm 1 outer levels and Eq. 12 inner levels, without occlusion culling.
 //! - `dss-1`, `dss-2`: the DSS paper's (Zhang 2019) comparison Methods I (power-of-two factors)
 //!   and II (uniform blocks with continuous factors).
+//! - `pvps-c-pvs`, `pvps-c-cons`: method C complete, with the PVS occlusion culling of section
+//!   2.3.3 (terrain-visibility's `pvs`): the paper's sampled PVS, or the conservative one.
+//!   Quadtree node `(l, i, j)` reads pyramid level `min(l, L)` (a node below the patch level
+//!   reads its ancestor): both index the same root square, so the mapping is exact whatever the
+//!   quadtree's leaf size. A camera outside every cell (`Cell_other`) culls nothing.
 
 use std::sync::OnceLock;
 
@@ -18,10 +22,12 @@ use terrain_core::geometry::Camera;
 use terrain_core::lod::{
     DssConfig, DssErrorTable, MAX_FACTOR, MIN_FACTOR, Patch, PvpsConfig, Selection, SelectionStats,
     SurfaceMesh, build_surface, select_dss_power_of_two, select_dss_uniform, select_pvps,
+    select_pvps_with_cull,
 };
 use terrain_core::quadtree::{FrustumCull, Quadtree, SplitToLevel, select};
 use terrain_gpu::render::DrawPatch;
 use terrain_gpu::tess::{PatchFactors, tessellate};
+use terrain_visibility::pvs::{Pvs, PvsConfig, PvsMode, bake_both};
 use terrain_visibility::roughness::{
     NodePyramid, RoughnessConfig, d2_pyramid, range_pyramid, roughness_pyramid,
 };
@@ -46,17 +52,27 @@ pub enum LodMethod {
     #[value(name = "dss-2")]
     #[serde(rename = "dss-2")]
     Dss2,
+    /// PVPS paper method C complete: with occlusion culling by the paper's sampled PVS.
+    #[value(name = "pvps-c-pvs")]
+    #[serde(rename = "pvps-c-pvs")]
+    PvpsCPvs,
+    /// Method C with occlusion culling by the conservative PVS (never culls a visible patch).
+    #[value(name = "pvps-c-cons")]
+    #[serde(rename = "pvps-c-cons")]
+    PvpsCConservative,
 }
 
 impl LodMethod {
     /// Every method, in a fixed order (the benchmark's).
-    pub const ALL: [LodMethod; 6] = [
+    pub const ALL: [LodMethod; 8] = [
         LodMethod::Uniform,
         LodMethod::PvpsA,
         LodMethod::PvpsB,
         LodMethod::PvpsC,
         LodMethod::Dss1,
         LodMethod::Dss2,
+        LodMethod::PvpsCPvs,
+        LodMethod::PvpsCConservative,
     ];
 
     /// The CLI and report name.
@@ -68,6 +84,8 @@ impl LodMethod {
             LodMethod::PvpsC => "pvps-c",
             LodMethod::Dss1 => "dss-1",
             LodMethod::Dss2 => "dss-2",
+            LodMethod::PvpsCPvs => "pvps-c-pvs",
+            LodMethod::PvpsCConservative => "pvps-c-cons",
         }
     }
 }
@@ -83,6 +101,9 @@ pub struct MethodConfig {
     pub dss: DssConfig,
     /// The `uniform` method's factor. Default 16.
     pub uniform_factor: f32,
+    /// The PVS bake of `pvps-c-pvs` and `pvps-c-cons` when no baked PVS is given
+    /// ([`MethodScene::set_pvs`]). Default: the paper's configuration.
+    pub pvs: PvsConfig,
 }
 
 impl Default for MethodConfig {
@@ -97,6 +118,7 @@ impl Default for MethodConfig {
                 ..DssConfig::default()
             },
             uniform_factor: 16.0,
+            pvs: PvsConfig::default(),
         }
     }
 }
@@ -114,6 +136,8 @@ pub struct MethodScene {
     roughness: [OnceLock<NodePyramid>; 3],
     /// The DSS paper's object-space errors per node.
     dss: OnceLock<DssErrorTable>,
+    /// The sampled (0) and conservative (1) PVS; `None` inside: no occlusion culling.
+    pvs: [OnceLock<Option<Pvs>>; 2],
     /// The settings.
     pub config: MethodConfig,
 }
@@ -127,7 +151,14 @@ impl MethodScene {
             dss: DssConfig { leaf_cells: qt.leaf_cells(), ..config.dss },
             ..config
         };
-        Self { hm, qt, roughness: Default::default(), dss: OnceLock::new(), config }
+        Self {
+            hm,
+            qt,
+            roughness: Default::default(),
+            dss: OnceLock::new(),
+            pvs: Default::default(),
+            config,
+        }
     }
 
     /// Roughness of PVPS method A (0), B (1) or C (2), computed on first use.
@@ -147,6 +178,40 @@ impl MethodScene {
         self.dss.get_or_init(|| DssErrorTable::new(&self.hm, &self.qt))
     }
 
+    /// The PVS of mode `k` (0 sampled, 1 conservative): the one given to
+    /// [`MethodScene::set_pvs`], or baked with `config.pvs` on first use (both modes at once).
+    pub fn pvs(&self, k: usize) -> Option<&Pvs> {
+        if self.pvs[k].get().is_none() {
+            let (s, c, _) = bake_both(&self.hm, &self.config.pvs);
+            let _ = self.pvs[0].set(Some(s));
+            let _ = self.pvs[1].set(Some(c));
+        }
+        self.pvs[k].get().and_then(Option::as_ref)
+    }
+
+    /// Uses `pvs` (read from a scene) for `mode` instead of baking; `None` turns occlusion
+    /// culling off for that mode. A PVS baked for another grid is refused with a message and
+    /// nothing is set (the caller warns; the method then runs without occlusion culling).
+    /// Only effective before the PVS was first used.
+    pub fn set_pvs(&self, mode: PvsMode, pvs: Option<Pvs>) -> Result<(), String> {
+        let k = usize::from(mode == PvsMode::Conservative);
+        if let Some(p) = &pvs
+            && !p.matches(&self.qt)
+        {
+            let l = &p.layout;
+            let _ = self.pvs[k].set(None);
+            return Err(format!(
+                "the PVS was baked for a {} x {} grid, this terrain is {} x {}",
+                l.width,
+                l.height,
+                self.qt.width(),
+                self.qt.height()
+            ));
+        }
+        let _ = self.pvs[k].set(pvs);
+        Ok(())
+    }
+
     /// Computes now what `methods` will need, so the first frame's timing is the selection's only.
     pub fn prepare(&self, methods: &[LodMethod]) {
         for m in methods {
@@ -162,6 +227,10 @@ impl MethodScene {
                 }
                 LodMethod::Dss1 | LodMethod::Dss2 => {
                     self.dss_errors();
+                }
+                LodMethod::PvpsCPvs | LodMethod::PvpsCConservative => {
+                    self.roughness(2);
+                    self.pvs(usize::from(*m == LodMethod::PvpsCConservative));
                 }
                 LodMethod::Uniform => {}
             }
@@ -182,6 +251,22 @@ impl MethodScene {
             }
             LodMethod::Dss2 => {
                 select_dss_uniform(&self.qt, camera, self.dss_errors(), &self.config.dss)
+            }
+            LodMethod::PvpsCPvs | LodMethod::PvpsCConservative => {
+                let field = self.roughness(2);
+                let k = usize::from(method == LodMethod::PvpsCConservative);
+                match self.pvs(k) {
+                    // Section 2.3.3: camera -> cell (or Cell_other) -> O(1) per node.
+                    Some(pvs) => select_pvps_with_cull(
+                        &self.qt,
+                        &self.hm,
+                        camera,
+                        field,
+                        &self.config.pvps,
+                        &mut pvs.cull_for(camera.position),
+                    ),
+                    None => pvps(field),
+                }
             }
         }
     }

@@ -12,4 +12,5 @@
 
 #![deny(missing_docs)]
 
+pub mod pvs;
 pub mod roughness;
