@@ -32,8 +32,17 @@ fn an_hgt_bakes_losslessly_and_reads_back_bit_exact() {
     let hgt = data("srtm/N42E001.hgt");
     let dir = scratch("hgt");
     let out = dir.join("n42");
-    let stdout =
-        ok(&terrain(&["bake", s(&hgt), "-o", s(&out), "--block-k", "8", "--threads", "2"]));
+    let stdout = ok(&terrain(&[
+        "bake",
+        s(&hgt),
+        "-o",
+        s(&out),
+        "--block-k",
+        "8",
+        "--threads",
+        "2",
+        "--no-pvs",
+    ]));
     assert!(stdout.contains("lossless") && stdout.contains("1201 x 1201"), "{stdout}");
 
     let dem = load(&hgt, &LoadOptions::default()).unwrap();
@@ -79,7 +88,18 @@ fn an_hgt_bakes_losslessly_and_reads_back_bit_exact() {
 fn synthetic_bakes_and_an_existing_output_is_refused() {
     let dir = scratch("synth");
     let out = dir.join("synth");
-    let args = ["bake", "--synthetic", "257", "-o", s(&out), "--block-k", "6", "--threads", "2"];
+    let args = [
+        "bake",
+        "--synthetic",
+        "257",
+        "-o",
+        s(&out),
+        "--block-k",
+        "6",
+        "--threads",
+        "2",
+        "--no-pvs",
+    ];
     let stdout = ok(&terrain(&args));
     assert!(stdout.contains("257 x 257") && stdout.contains("4 x 4 blocks"), "{stdout}");
     let store = Store::open(&out).unwrap();

@@ -72,6 +72,19 @@ fn main() {
         );
         return;
     }
+    if args.iter().any(|a| a == "--conservative-only") {
+        let cfg = PvsConfig { mode: terrain_visibility::pvs::PvsMode::Conservative, ..cfg };
+        let t = Instant::now();
+        let pvs = terrain_visibility::pvs::bake(&hm, &cfg);
+        println!(
+            "conservative bake: {} cells in {:.1} s, file {} bytes, culled {:.4}",
+            pvs.layout.cell_count(),
+            t.elapsed().as_secs_f64(),
+            encode(&pvs).len(),
+            pvs.culled_fraction()
+        );
+        return;
+    }
     let t = Instant::now();
     let (sampled, cons, stats) = bake_both(&hm, &cfg);
     println!(

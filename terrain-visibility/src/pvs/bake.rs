@@ -46,7 +46,7 @@ use rayon::prelude::*;
 use terrain_core::Heightmap;
 
 use super::los;
-use super::mip::HeightMip;
+use super::mip::{HeightMip, LineMins};
 use super::{CellId, Pvs, PvsConfig, PvsLayout, PvsMode};
 
 /// What a bake did.
@@ -83,7 +83,9 @@ pub fn bake_sampled_without_proofs(hm: &Heightmap, cfg: &PvsConfig) -> Pvs {
 pub fn bake_cells(hm: &Heightmap, cfg: &PvsConfig, cells: &[usize]) -> Vec<(Vec<u8>, Vec<u8>)> {
     let layout = PvsLayout::new(hm, cfg);
     let mip = HeightMip::new(hm);
-    let ctx = Ctx { hm, mip: &mip, layout: &layout, cfg, proofs: true, sampled: true };
+    let lines = LineMins::new(hm);
+    let ctx =
+        Ctx { hm, mip: &mip, lines: &lines, layout: &layout, cfg, proofs: true, sampled: true };
     cells.par_iter().map(|&n| ctx.cell(n)).collect()
 }
 
@@ -96,7 +98,8 @@ fn bake_impl(
     let start = Instant::now();
     let layout = PvsLayout::new(hm, cfg);
     let mip = HeightMip::new(hm);
-    let ctx = Ctx { hm, mip: &mip, layout: &layout, cfg, proofs, sampled };
+    let lines = LineMins::new(hm);
+    let ctx = Ctx { hm, mip: &mip, lines: &lines, layout: &layout, cfg, proofs, sampled };
     let run = || -> Vec<(Vec<u8>, Vec<u8>)> {
         (0..layout.cell_count()).into_par_iter().map(|n| ctx.cell(n)).collect()
     };
@@ -126,6 +129,7 @@ fn bake_impl(
 struct Ctx<'a> {
     hm: &'a Heightmap,
     mip: &'a HeightMip<'a>,
+    lines: &'a LineMins,
     layout: &'a PvsLayout,
     cfg: &'a PvsConfig,
     proofs: bool,
@@ -212,15 +216,25 @@ impl Ctx<'_> {
 
     fn proven(&self, top: &Top, q: (u32, u32, u32, u32), budget: u32) -> bool {
         let mut budget = budget;
-        prove(self.mip, top.lo, top.hi, top.z, q, self.cfg.epsilon_m, &mut budget)
+        let occ = Occluders { mip: self.mip, lines: self.lines };
+        prove(&occ, top.lo, top.hi, top.z, q, self.cfg.epsilon_m, &mut budget)
     }
+}
+
+/// The lower bounds of the terrain a proof reads.
+#[derive(Debug, Clone, Copy)]
+pub struct Occluders<'a> {
+    /// 2D min/max blocks.
+    pub mip: &'a HeightMip<'a>,
+    /// Per grid line mins.
+    pub lines: &'a LineMins,
 }
 
 /// Whether every sight line from `R x {z}` (`r_lo..r_hi`, grid coordinates) to the samples of
 /// `q` (inclusive integer rectangle) is blocked (see the module docs). `budget` bounds the
 /// number of (R, Q) parts tried.
 pub fn prove(
-    mip: &HeightMip<'_>,
+    occ: &Occluders<'_>,
     r_lo: DVec2,
     r_hi: DVec2,
     z: f64,
@@ -234,8 +248,11 @@ pub fn prove(
     *budget -= 1;
     let (q_lo, q_hi) =
         (DVec2::new(f64::from(q.0), f64::from(q.1)), DVec2::new(f64::from(q.2), f64::from(q.3)));
-    let hp = f64::from(mip.range(i64::from(q.0), i64::from(q.1), i64::from(q.2), i64::from(q.3)).1);
-    if intervals_prove(mip, r_lo, r_hi, z, q_lo, q_hi, hp, eps) {
+    let hp =
+        f64::from(occ.mip.range(i64::from(q.0), i64::from(q.1), i64::from(q.2), i64::from(q.3)).1);
+    if intervals_prove(occ.mip, r_lo, r_hi, z, q_lo, q_hi, hp, eps)
+        || lines_prove(occ.lines, r_lo, r_hi, z, q_lo, q_hi, hp, eps)
+    {
         return true;
     }
     let (rs, qs) = ((r_hi - r_lo).max_element(), (q_hi - q_lo).max_element());
@@ -243,7 +260,7 @@ pub fn prove(
         let (mx, my) = ((q.0 + q.2) / 2, (q.1 + q.3) / 2);
         [(q.0, q.1, mx, my), (mx, q.1, q.2, my), (q.0, my, mx, q.3), (mx, my, q.2, q.3)]
             .into_iter()
-            .all(|p| prove(mip, r_lo, r_hi, z, p, eps, budget))
+            .all(|p| prove(occ, r_lo, r_hi, z, p, eps, budget))
     } else if rs >= 2.0 {
         let m = (r_lo + r_hi) * 0.5;
         [
@@ -253,11 +270,76 @@ pub fn prove(
             (m, r_hi),
         ]
         .into_iter()
-        .all(|(lo, hi)| prove(mip, lo, hi, z, q, eps, budget))
+        .all(|(lo, hi)| prove(occ, lo, hi, z, q, eps, budget))
     } else {
         false
     }
 }
+
+/// The grid-line proof: when `R` and `Q` are apart along an axis, every sight line crosses each
+/// grid line `x = i` between them exactly once, within a band of fractions `s` and a stretch
+/// of the line bounded from the rectangles; if the terrain's min along that stretch is above
+/// the sight lines' highest point over the band, every line is blocked there. Thin walls, which
+/// 2D blocks average away with their low neighbours, are caught this way. The band is
+/// `i +- 0.5` so the nearest-sample Bresenham traversal, which may step past `x = i`, still
+/// samples column `i` inside it.
+#[allow(clippy::too_many_arguments)]
+fn lines_prove(
+    lines: &LineMins,
+    r_lo: DVec2,
+    r_hi: DVec2,
+    z: f64,
+    q_lo: DVec2,
+    q_hi: DVec2,
+    hp: f64,
+    eps: f64,
+) -> bool {
+    for axis in 0..2 {
+        let (q0, q1, r0, r1) = (q_lo[axis], q_hi[axis], r_lo[axis], r_hi[axis]);
+        let (first, last) = if q1 + 1.5 <= r0 - 1.5 {
+            ((q1 + 1.5).ceil(), (r0 - 1.5).floor())
+        } else if r1 + 1.5 <= q0 - 1.5 {
+            ((r1 + 1.5).ceil(), (q0 - 1.5).floor())
+        } else {
+            continue;
+        };
+        let o = 1 - axis;
+        // At most `MAX_LINES` lines per axis, evenly spaced (a bound on the cost; any line
+        // that proves it is a valid proof).
+        let step = ((last - first + 1.0) / MAX_LINES).ceil().max(1.0);
+        let mut i = first;
+        while i <= last {
+            let (mut s0, mut s1) = (f64::INFINITY, f64::NEG_INFINITY);
+            for x in [i - 0.5, i + 0.5] {
+                for qa in [q0, q1] {
+                    for va in [r0, r1] {
+                        let s = (x - qa) / (va - qa);
+                        s0 = s0.min(s);
+                        s1 = s1.max(s);
+                    }
+                }
+            }
+            let (s0, s1) = (s0.clamp(0.0, 1.0), s1.clamp(0.0, 1.0));
+            let ray_max = (hp * (1.0 - s0) + z * s0).max(hp * (1.0 - s1) + z * s1);
+            let lo = (q_lo[o] * (1.0 - s0) + r_lo[o] * s0).min(q_lo[o] * (1.0 - s1) + r_lo[o] * s1);
+            let hi = (q_hi[o] * (1.0 - s0) + r_hi[o] * s0).max(q_hi[o] * (1.0 - s1) + r_hi[o] * s1);
+            let (a, b) = (lo.floor() as i64, hi.ceil() as i64);
+            let ground = if axis == 0 {
+                lines.column_min(i as usize, a, b)
+            } else {
+                lines.row_min(i as usize, a, b)
+            };
+            if f64::from(ground) > ray_max + eps {
+                return true;
+            }
+            i += step;
+        }
+    }
+    false
+}
+
+/// Grid lines tried per axis by one grid-line proof.
+const MAX_LINES: f64 = 16.0;
 
 /// Plan distance between two rectangles.
 fn rect_distance(a_lo: DVec2, a_hi: DVec2, b_lo: DVec2, b_hi: DVec2) -> f64 {

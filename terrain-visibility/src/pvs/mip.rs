@@ -82,6 +82,58 @@ impl<'a> HeightMip<'a> {
     }
 }
 
+/// Per grid line (every column `x = i`, every row `y = j`), a 1D min pyramid along it: lower
+/// bounds of the terrain on a stretch of one grid line, without the neighbouring lines that a
+/// 2D block would mix in (a one-sample-thin wall keeps its height).
+#[derive(Debug, Clone)]
+pub struct LineMins {
+    /// Per column, the levels of mins along y (`cols[i][k][m]`: rows `m 2^k .. (m + 1) 2^k - 1`).
+    cols: Vec<Vec<Vec<f32>>>,
+    /// Per row, the levels of mins along x.
+    rows: Vec<Vec<Vec<f32>>>,
+}
+
+fn line_pyramid(values: Vec<f32>) -> Vec<Vec<f32>> {
+    let mut levels = vec![values];
+    while levels.last().is_some_and(|l| l.len() > 1) {
+        let prev = levels.last().expect("a level");
+        let next: Vec<f32> =
+            prev.chunks(2).map(|c| c.iter().copied().fold(f32::INFINITY, f32::min)).collect();
+        levels.push(next);
+    }
+    levels
+}
+
+fn line_min(levels: &[Vec<f32>], a: usize, b: usize) -> f32 {
+    let mut k = 0;
+    while k + 1 < levels.len() && (b >> k) - (a >> k) + 1 > 4 {
+        k += 1;
+    }
+    ((a >> k)..=(b >> k)).map(|m| levels[k][m]).fold(f32::INFINITY, f32::min)
+}
+
+impl LineMins {
+    /// Builds the pyramids of every column and row of `hm` (twice the grid's size in all).
+    pub fn new(hm: &Heightmap) -> Self {
+        let (w, h) = (hm.width(), hm.height());
+        let cols = (0..w).map(|i| line_pyramid((0..h).map(|j| hm.get(i, j)).collect())).collect();
+        let rows = (0..h).map(|j| line_pyramid(hm.data()[j * w..(j + 1) * w].to_vec())).collect();
+        Self { cols, rows }
+    }
+
+    /// A lower bound of the samples of column `i`, rows `y0..=y1` (clamped to the grid).
+    pub fn column_min(&self, i: usize, y0: i64, y1: i64) -> f32 {
+        let n = self.cols[i][0].len() as i64;
+        line_min(&self.cols[i], y0.clamp(0, n - 1) as usize, y1.clamp(0, n - 1) as usize)
+    }
+
+    /// A lower bound of the samples of row `j`, columns `x0..=x1` (clamped to the grid).
+    pub fn row_min(&self, j: usize, x0: i64, x1: i64) -> f32 {
+        let n = self.rows[j][0].len() as i64;
+        line_min(&self.rows[j], x0.clamp(0, n - 1) as usize, x1.clamp(0, n - 1) as usize)
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
