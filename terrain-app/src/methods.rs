@@ -102,7 +102,10 @@ pub struct MethodConfig {
     /// The `uniform` method's factor. Default 16.
     pub uniform_factor: f32,
     /// The PVS bake of `pvps-c-pvs` and `pvps-c-cons` when no baked PVS is given
-    /// ([`MethodScene::set_pvs`]). Default: the paper's configuration.
+    /// ([`MethodScene::set_pvs`]). Default: 16 x 16 cells x 3 floors and 32 x 32 patches, a
+    /// quarter of the paper's cells and patches per side, so that the in-memory bake of a
+    /// benchmark run stays around a minute on a 1k DEM; `terrain bake` writes the paper's
+    /// configuration into a scene (`terrain bench --pvs-scene`).
     pub pvs: PvsConfig,
 }
 
@@ -118,7 +121,7 @@ impl Default for MethodConfig {
                 ..DssConfig::default()
             },
             uniform_factor: 16.0,
-            pvs: PvsConfig::default(),
+            pvs: PvsConfig { cells: (16, 16), patch_level: 5, ..PvsConfig::default() },
         }
     }
 }
