@@ -29,7 +29,7 @@ fn main() {
         let path = PathBuf::from(args.first().expect("a DEM path"));
         let opts = LoadOptions {
             vertical_scale: num("--scale", 1.0),
-            spacing_m: num("--spacing", 0.0),
+            spacing_m: num("--spacing", LoadOptions::default().spacing_m),
             ..Default::default()
         };
         load(&path, &opts).unwrap_or_else(|e| panic!("{e}")).heightmap
