@@ -19,7 +19,7 @@ use terrain_visibility::pvs::file::{decode, encode};
 use terrain_visibility::pvs::mip::HeightMip;
 use terrain_visibility::pvs::truth::{TruthConfig, check, sample_cells};
 use terrain_visibility::pvs::{
-    CellId, FloorRule, Pvs, PvsConfig, PvsFileError, bake_both, los, read_pvs, write_pvs,
+    CellId, FloorRule, Pvs, PvsConfig, PvsFileError, PvsLayout, bake_both, los, read_pvs, write_pvs,
 };
 
 fn grid(n: usize, f: impl Fn(usize, usize) -> f32) -> Heightmap {
@@ -279,4 +279,35 @@ fn the_cull_policy_drops_hidden_nodes_and_cell_other_drops_nothing() {
     let a = select_pvps_with_cull(&qt, &hm, &high, &field, &pcfg, &mut other);
     let b = select_pvps(&qt, &hm, &high, &field, &pcfg);
     assert_eq!(a.patches, b.patches);
+}
+
+#[test]
+fn cells_floors_and_the_articles_layers() {
+    // 129 x 129 samples of 10 m: the root square is 128 cells; a ramp from 0 to 128 m.
+    let hm = grid(129, |i, _| i as f32);
+    let lay = PvsLayout::new(&hm, &small_cfg(4, 3, 50.0, 4));
+    assert_eq!((lay.root_cells, lay.cells_x, lay.floors), (128, 4, 3));
+    // Cell column 1 spans x = 32..64 samples: heights 32..64 under it.
+    let c = CellId { a: 1, b: 2, k: 0 };
+    assert_eq!(lay.floor_bounds(c), Some((32.0, 114.0)));
+    assert_eq!(lay.floor_bounds(CellId { k: 2, ..c }), Some((164.0, 214.0)));
+    let at = |x: f64, z: f64| lay.locate(dvec3(x * 10.0, 700.0, z));
+    assert_eq!(at(40.0, 60.0), Some(c));
+    // Below the floor's bottom still reads floor 0 (visibility only shrinks downwards).
+    assert_eq!(at(40.0, 10.0), Some(c));
+    assert_eq!(at(40.0, 150.0), Some(CellId { k: 1, ..c }));
+    assert_eq!(at(40.0, 300.0), None, "above the top floor: Cell_other");
+    assert_eq!(at(-1.0, 60.0), None, "outside the grid: Cell_other");
+    assert_eq!(at(129.0, 60.0), None);
+
+    // The geomorphing article: cells on the 16 x 16 patch grid, 32 layers up to 3 reliefs.
+    let art = PvsLayout::new(&hm, &PvsConfig::article(4));
+    assert_eq!((art.cells_x, art.cells_y, art.floors, art.patches_per_side()), (16, 16, 32, 16));
+    assert_eq!(art.cell_rect(3, 5), (glam::dvec2(24.0, 40.0), glam::dvec2(32.0, 48.0)));
+    let top = art.floor_bounds(CellId { a: 3, b: 5, k: 31 }).unwrap().1;
+    assert!((top - 3.0 * 128.0).abs() < 1e-9, "{top}");
+    // One bit per patch and level: 341 bits, 43 bytes per cell (the article's 256 KB for the
+    // finest level alone, 16 x 16 x 32 cells of 256 bits).
+    assert_eq!((art.bits_per_cell(), art.bytes_per_cell()), (341, 43));
+    assert_eq!(art.cell_count() * 256 / 8, 262_144);
 }
