@@ -51,6 +51,10 @@ pub struct BenchConfig {
     /// The methods' settings (leaf cells, defaults of the parameters not swept). Default
     /// [`MethodConfig::default`].
     pub method: MethodConfig,
+    /// A scene folder (`terrain bake`'s output) whose PVS files `pvps-c-pvs` and `pvps-c-cons`
+    /// use; an unreadable or mismatched file is a warning and that method runs without
+    /// occlusion culling. `None`: the PVS is baked in memory with `method.pvs`. Default `None`.
+    pub pvs_scene: Option<std::path::PathBuf>,
     /// How frames are measured. Default [`MeasureConfig::default`] (2,000,000 samples: stride 1
     /// up to about 1400 x 1400). A stride above 1 can land every measured sample on tessellation
     /// vertices (stride 2 and a uniform factor of half the leaf cells measure zero error), so
@@ -67,6 +71,7 @@ impl Default for BenchConfig {
             render_size: Some((640, 360)),
             measure_viewport: (1280, 720),
             method: MethodConfig::default(),
+            pvs_scene: None,
             measure: MeasureConfig::default(),
         }
     }
@@ -105,6 +110,9 @@ pub fn sweep_values(method: LodMethod, leaf_cells: u32) -> (&'static str, Vec<f6
         // entropy scale; see `terrain_visibility::entropy::source::EntropyScale`).
         LodMethod::Entropy => ("E0", vec![0.0, 18.0, 50.0, 70.0, 85.0, 95.0]),
         LodMethod::Geomorph => ("tau_px", vec![0.5, 1.0, 2.0, 4.0, 8.0]),
+        LodMethod::PvpsCPvs | LodMethod::PvpsCConservative => {
+            ("C1", vec![12.5, 25.0, 50.0, 100.0, 200.0])
+        }
     }
 }
 
@@ -147,6 +155,7 @@ pub fn apply_parameter(config: &mut MethodConfig, method: LodMethod, value: f64)
         LodMethod::Dss1 | LodMethod::Dss2 => config.dss.rho_thr = value,
         LodMethod::Entropy => config.entropy.e0 = value,
         LodMethod::Geomorph => config.geomip.pixel_threshold = value,
+        LodMethod::PvpsCPvs | LodMethod::PvpsCConservative => config.pvps.c1 = value,
     }
 }
 
@@ -748,6 +757,12 @@ pub fn run_bench(
         );
     }
     let mut scene = MethodScene::new(hm, cfg.method.clone());
+    if let Some(dir) = &cfg.pvs_scene {
+        for warning in crate::pvs_scene::load_into(&scene, dir) {
+            eprintln!("warning: {warning}");
+            notes.push(warning);
+        }
+    }
     scene.prepare(&cfg.methods);
     let leaf_cells = scene.config.leaf_cells;
     let sweeps: Vec<(LodMethod, &'static str, Vec<f64>)> = cfg
@@ -865,6 +880,8 @@ fn colour(m: LodMethod) -> &'static str {
         LodMethod::Dss2 => "#ff7f0e",
         LodMethod::Entropy => "#8c564b",
         LodMethod::Geomorph => "#e377c2",
+        LodMethod::PvpsCPvs => "#bcbd22",
+        LodMethod::PvpsCConservative => "#17becf",
     }
 }
 

@@ -50,6 +50,10 @@ pub struct BenchArgs {
     /// Output folder (created).
     #[arg(short, long, default_value = "bench/results")]
     pub out: PathBuf,
+    /// A scene folder from `terrain bake` whose PVS files `pvps-c-pvs` and `pvps-c-cons` use
+    /// (default: bake the PVS in memory). A bad file is a warning: no occlusion culling.
+    #[arg(long)]
+    pub pvs_scene: Option<PathBuf>,
 }
 
 /// Writes `<dir>/<name>.json`, `.md` and `.svg`; returns the three paths.
@@ -88,6 +92,7 @@ pub fn run(args: &BenchArgs) -> anyhow::Result<()> {
         bail!("--leaf-cells must be at least 1");
     }
     cfg.method = MethodConfig { leaf_cells: args.leaf_cells, ..MethodConfig::default() };
+    cfg.pvs_scene = args.pvs_scene.clone();
     let flights = args
         .flights
         .iter()

@@ -5,3 +5,4 @@
 pub mod bench;
 pub mod entropy_method;
 pub mod methods;
+pub mod pvs_scene;

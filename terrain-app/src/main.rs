@@ -7,6 +7,7 @@ mod entropy;
 mod fly;
 mod info;
 mod mesh;
+mod pvs;
 mod render;
 mod roughness;
 mod source;
@@ -40,6 +41,9 @@ enum Command {
     Mesh(mesh::MeshArgs),
     /// Fly a camera flight: numbered PNG frames plus per-frame stats as CSV and JSON.
     Fly(fly::FlyArgs),
+    /// Export a view cell's potential visible patch set (PVPS paper) as a PNG, from a scene's
+    /// PVS file or baked from a DEM.
+    Pvs(pvs::PvsCmdArgs),
     /// Benchmark every LOD method over flights: JSON, Markdown and SVG speed-against-error.
     Bench(bench_cli::BenchArgs),
     /// The embedded terrain end to end: a flight, its frames, a benchmark report and plot.
@@ -57,6 +61,7 @@ fn main() -> std::process::ExitCode {
         Command::Mesh(args) => mesh::run(&args),
         Command::Fly(args) => fly::run(&args),
         Command::Bench(args) => bench_cli::run(&args),
+        Command::Pvs(args) => pvs::run(&args),
         Command::Demo(args) => demo::run(&args),
     };
     match result {

@@ -6,8 +6,7 @@
 //! - `uniform`: every leaf-sized patch at one factor (a baseline, no LOD).
 //! - `pvps-a`, `pvps-b`, `pvps-c`: the PVPS paper's (Zhang 2021) methods A (Zhai; our documented
 //!   stand-in, Röttger's d2), B (Dong: height range) and C (Eq. 5 roughness), all through the
-//!   Eq. 8 split, Algorithm 1 outer levels and Eq. 12 inner levels (occlusion culling is the
-//!   occlusion issue's).
+//!   Eq. 8 split, Algorithm 1 outer levels and Eq. 12 inner levels, without occlusion culling.
 //! - `dss-1`, `dss-2`: the DSS paper's (Zhang 2019) comparison Methods I (power-of-two factors)
 //!   and II (uniform blocks with continuous factors).
 //! - `entropy`: the entropy paper's (Chen 2018) view-dependent quadtree cut (Eq. 4-5), a
@@ -19,6 +18,11 @@
 //!   branch). Through [`MethodScene::select`] (the tessellation renderer's path: `render`, `fly`,
 //!   `mesh`) it gives each patch its level's factor `leaf_cells / 2^level` per edge (the shared
 //!   edge at the coarser side's level): the un-morphed geo-mipmap, crack-free.
+//! - `pvps-c-pvs`, `pvps-c-cons`: method C complete, with the PVS occlusion culling of section
+//!   2.3.3 (terrain-visibility's `pvs`): the paper's sampled PVS, or the conservative one.
+//!   Quadtree node `(l, i, j)` reads pyramid level `min(l, L)` (a node below the patch level
+//!   reads its ancestor): both index the same root square, so the mapping is exact whatever the
+//!   quadtree's leaf size. A camera outside every cell (`Cell_other`) culls nothing.
 
 use std::sync::OnceLock;
 
@@ -34,10 +38,12 @@ use terrain_core::geometry::Camera;
 use terrain_core::lod::{
     DssConfig, DssErrorTable, MAX_FACTOR, MIN_FACTOR, Patch, PvpsConfig, Selection, SelectionStats,
     SurfaceMesh, build_surface, select_dss_power_of_two, select_dss_uniform, select_pvps,
+    select_pvps_with_cull,
 };
 use terrain_core::quadtree::{FrustumCull, Quadtree, SplitToLevel, select};
 use terrain_gpu::render::DrawPatch;
 use terrain_gpu::tess::{PatchFactors, tessellate};
+use terrain_visibility::pvs::{Pvs, PvsConfig, PvsMode, bake_both};
 use terrain_visibility::roughness::{
     NodePyramid, RoughnessConfig, d2_pyramid, range_pyramid, roughness_pyramid,
 };
@@ -66,11 +72,19 @@ pub enum LodMethod {
     Entropy,
     /// Geomorphing article (Wagner 2003): geo-mipmapped patches morphed in the vertex shader.
     Geomorph,
+    /// PVPS paper method C complete: with occlusion culling by the paper's sampled PVS.
+    #[value(name = "pvps-c-pvs")]
+    #[serde(rename = "pvps-c-pvs")]
+    PvpsCPvs,
+    /// Method C with occlusion culling by the conservative PVS (never culls a visible patch).
+    #[value(name = "pvps-c-cons")]
+    #[serde(rename = "pvps-c-cons")]
+    PvpsCConservative,
 }
 
 impl LodMethod {
     /// Every method, in a fixed order (the benchmark's).
-    pub const ALL: [LodMethod; 8] = [
+    pub const ALL: [LodMethod; 10] = [
         LodMethod::Uniform,
         LodMethod::PvpsA,
         LodMethod::PvpsB,
@@ -79,6 +93,8 @@ impl LodMethod {
         LodMethod::Dss2,
         LodMethod::Entropy,
         LodMethod::Geomorph,
+        LodMethod::PvpsCPvs,
+        LodMethod::PvpsCConservative,
     ];
 
     /// The CLI and report name.
@@ -92,6 +108,8 @@ impl LodMethod {
             LodMethod::Dss2 => "dss-2",
             LodMethod::Entropy => "entropy",
             LodMethod::Geomorph => "geomorph",
+            LodMethod::PvpsCPvs => "pvps-c-pvs",
+            LodMethod::PvpsCConservative => "pvps-c-cons",
         }
     }
 }
@@ -112,6 +130,12 @@ pub struct MethodConfig {
     /// The `geomorph` method's settings (its `patch_cells` is `leaf_cells`). Default
     /// [`GeomipConfig::default`]: a 1 pixel threshold, morphing on.
     pub geomip: GeomipConfig,
+    /// The PVS bake of `pvps-c-pvs` and `pvps-c-cons` when no baked PVS is given
+    /// ([`MethodScene::set_pvs`]). Default: 16 x 16 cells x 3 floors and 32 x 32 patches, a
+    /// quarter of the paper's cells and patches per side, so that the in-memory bake of a
+    /// benchmark run stays around a minute on a 1k DEM; `terrain bake` writes the paper's
+    /// configuration into a scene (`terrain bench --pvs-scene`).
+    pub pvs: PvsConfig,
 }
 
 impl Default for MethodConfig {
@@ -128,6 +152,7 @@ impl Default for MethodConfig {
             uniform_factor: 16.0,
             entropy: EntropyMethodConfig::default(),
             geomip: GeomipConfig { patch_cells: leaf_cells, ..GeomipConfig::default() },
+            pvs: PvsConfig { cells: (16, 16), patch_level: 5, ..PvsConfig::default() },
         }
     }
 }
@@ -151,6 +176,8 @@ pub struct MethodScene {
     geomip: OnceLock<GeomipScene>,
     /// The geomorph method's triangle lists.
     geomorph_lib: OnceLock<MeshLibrary>,
+    /// The sampled (0) and conservative (1) PVS; `None` inside: no occlusion culling.
+    pvs: [OnceLock<Option<Pvs>>; 2],
     /// The settings.
     pub config: MethodConfig,
 }
@@ -172,6 +199,7 @@ impl MethodScene {
             entropy: OnceLock::new(),
             geomip: OnceLock::new(),
             geomorph_lib: OnceLock::new(),
+            pvs: Default::default(),
             config,
         }
     }
@@ -198,6 +226,40 @@ impl MethodScene {
         self.entropy.get_or_init(|| EntropyScene::new(&self.hm, &self.config.entropy))
     }
 
+    /// The PVS of mode `k` (0 sampled, 1 conservative): the one given to
+    /// [`MethodScene::set_pvs`], or baked with `config.pvs` on first use (both modes at once).
+    pub fn pvs(&self, k: usize) -> Option<&Pvs> {
+        if self.pvs[k].get().is_none() {
+            let (s, c, _) = bake_both(&self.hm, &self.config.pvs);
+            let _ = self.pvs[0].set(Some(s));
+            let _ = self.pvs[1].set(Some(c));
+        }
+        self.pvs[k].get().and_then(Option::as_ref)
+    }
+
+    /// Uses `pvs` (read from a scene) for `mode` instead of baking; `None` turns occlusion
+    /// culling off for that mode. A PVS baked for another grid is refused with a message and
+    /// nothing is set (the caller warns; the method then runs without occlusion culling).
+    /// Only effective before the PVS was first used.
+    pub fn set_pvs(&self, mode: PvsMode, pvs: Option<Pvs>) -> Result<(), String> {
+        let k = usize::from(mode == PvsMode::Conservative);
+        if let Some(p) = &pvs
+            && !p.matches(&self.qt)
+        {
+            let l = &p.layout;
+            let _ = self.pvs[k].set(None);
+            return Err(format!(
+                "the PVS was baked for a {} x {} grid, this terrain is {} x {}",
+                l.width,
+                l.height,
+                self.qt.width(),
+                self.qt.height()
+            ));
+        }
+        let _ = self.pvs[k].set(pvs);
+        Ok(())
+    }
+
     /// Computes now what `methods` will need, so the first frame's timing is the selection's only.
     pub fn prepare(&self, methods: &[LodMethod]) {
         for m in methods {
@@ -219,6 +281,10 @@ impl MethodScene {
                 }
                 LodMethod::Geomorph => {
                     self.geomip_scene();
+                }
+                LodMethod::PvpsCPvs | LodMethod::PvpsCConservative => {
+                    self.roughness(2);
+                    self.pvs(usize::from(*m == LodMethod::PvpsCConservative));
                 }
                 LodMethod::Uniform => {}
             }
@@ -245,6 +311,22 @@ impl MethodScene {
             LodMethod::Geomorph => {
                 let frame = self.select_geomorph(camera);
                 self.geomorph_selection(&frame)
+            }
+            LodMethod::PvpsCPvs | LodMethod::PvpsCConservative => {
+                let field = self.roughness(2);
+                let k = usize::from(method == LodMethod::PvpsCConservative);
+                match self.pvs(k) {
+                    // Section 2.3.3: camera -> cell (or Cell_other) -> O(1) per node.
+                    Some(pvs) => select_pvps_with_cull(
+                        &self.qt,
+                        &self.hm,
+                        camera,
+                        field,
+                        &self.config.pvps,
+                        &mut pvs.cull_for(camera.position),
+                    ),
+                    None => pvps(field),
+                }
             }
         }
     }

@@ -13,4 +13,5 @@
 #![deny(missing_docs)]
 
 pub mod entropy;
+pub mod pvs;
 pub mod roughness;

@@ -43,7 +43,7 @@ pub use dss_methods::{DssConfig, DssErrorTable, select_dss_power_of_two, select_
 pub use edges::{EdgeMismatch, EdgeRule, check_shared_edges, outer_factors};
 pub use geomipmap::{GeomipConfig, GeomipScene, GeomipSelection, PatchLod};
 pub use patch::{Edge, MAX_FACTOR, MIN_FACTOR, Patch, Selection, SelectionStats, clamp_factor};
-pub use pvps::{Method, NodeDistance, PvpsConfig, select_pvps};
+pub use pvps::{Method, NodeDistance, PvpsConfig, select_pvps, select_pvps_with_cull};
 pub use surface::{SurfaceMesh, build_surface, edge_segment, patch_grid_point};
 
 use crate::quadtree::NodeId;
@@ -86,8 +86,8 @@ pub(crate) mod run {
     use crate::geometry::Camera;
     use crate::metrics::screen::{MAX_FOV_Y, MIN_DISTANCE_M, MIN_FOV_Y};
     use crate::quadtree::{
-        CullPolicy, FrustumCull, LeafSet, NoCull, NodeId, Quadtree, SplitPolicy, Visit, balance,
-        traverse,
+        CullPolicy, FrustumCull, LeafSet, NoCull, NodeId, NodeInfo, Quadtree, SplitPolicy, Visit,
+        balance, traverse,
     };
 
     /// Runs the one traversal with `split` and (optionally) frustum culling, then balances
@@ -97,6 +97,18 @@ pub(crate) mod run {
         camera: &Camera,
         split: &mut dyn SplitPolicy,
         frustum_cull: bool,
+        balanced: bool,
+    ) -> (Vec<NodeId>, SelectionStats) {
+        leaves_with_cull(qt, camera, split, frustum_cull, &mut NoCull, balanced)
+    }
+
+    /// [`leaves`] with a second cull policy (an occlusion lookup) after the frustum's.
+    pub(crate) fn leaves_with_cull(
+        qt: &Quadtree,
+        camera: &Camera,
+        split: &mut dyn SplitPolicy,
+        frustum_cull: bool,
+        extra: &mut dyn CullPolicy,
         balanced: bool,
     ) -> (Vec<NodeId>, SelectionStats) {
         let mut stats = SelectionStats::default();
@@ -113,7 +125,10 @@ pub(crate) mod run {
         } else {
             Box::new(NoCull)
         };
-        let mut out = traverse(qt, split, cull.as_mut(), &mut visit);
+        let first = |n: NodeId, i: &NodeInfo| cull.classify(n, i);
+        let second = |n: NodeId, i: &NodeInfo| extra.classify(n, i);
+        let mut both = (first, second);
+        let mut out = traverse(qt, split, &mut both, &mut visit);
         if balanced {
             out = balance(qt, &out);
         }

@@ -1,7 +1,7 @@
 //! The PVPS paper's (Zhang 2021, sections 2.3-2.4) LOD: method C, and the paper's comparison
 //! methods A and B, which differ from C only in the roughness the split test reads.
 //!
-//! Pipeline (occlusion culling, section 2.3.3, is another issue):
+//! Pipeline (occlusion culling, section 2.3.3: [`select_pvps_with_cull`] with a PVS lookup):
 //! 1. The one quadtree traversal from the root, culling node boxes against the view frustum
 //!    (section 2.3.2) and splitting while Eq. 8 gives `ratio < 1`:
 //!    `ratio = C1 D / (Span (R + C2))`, `Span = Length / 2^l` (Eq. 9), down to
@@ -55,7 +55,7 @@ use super::surface::edge_segment;
 use crate::geometry::Camera;
 use crate::heightmap::Heightmap;
 use crate::metrics::pvps::{span, split_ratio};
-use crate::quadtree::{NodeId, NodeInfo, Quadtree};
+use crate::quadtree::{CullPolicy, NoCull, NodeId, NodeInfo, Quadtree};
 
 /// Which of the PVPS paper's three methods a selection runs (section 3). They share the
 /// pipeline; the method names the roughness field passed in, and is kept for reports.
@@ -206,6 +206,22 @@ pub fn select_pvps(
     field: &dyn NodeField,
     cfg: &PvpsConfig,
 ) -> Selection {
+    select_pvps_with_cull(qt, hm, camera, field, cfg, &mut NoCull)
+}
+
+/// [`select_pvps`] with occlusion culling (section 2.3.3): `occlusion` is asked after the
+/// frustum test for every node the traversal reaches (terrain-visibility's PVS lookup,
+/// `PvsCull`); a rejected node and its subtree are not drawn. Balancing afterwards only splits
+/// selected leaves, so it never brings back a culled area. With [`NoCull`] this is
+/// [`select_pvps`].
+pub fn select_pvps_with_cull(
+    qt: &Quadtree,
+    hm: &Heightmap,
+    camera: &Camera,
+    field: &dyn NodeField,
+    cfg: &PvpsConfig,
+    occlusion: &mut dyn CullPolicy,
+) -> Selection {
     let start = Instant::now();
     let finest = cfg.max_level.min(qt.max_level());
     let root = qt.root_length_m();
@@ -223,7 +239,8 @@ pub fn select_pvps(
         let r = f64::from(field.value(node)).max(0.0);
         split_ratio(d, span(length, node.level as u32), r, cfg.c1, cfg.c2) < 1.0
     };
-    let (leaves, stats) = run::leaves(qt, camera, &mut split, cfg.frustum_cull, true);
+    let (leaves, stats) =
+        run::leaves_with_cull(qt, camera, &mut split, cfg.frustum_cull, occlusion, true);
     let rule = PvpsEdges {
         hm,
         qt,

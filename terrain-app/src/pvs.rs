@@ -1,0 +1,178 @@
+//! `terrain pvs`: a view cell's potential visible patch set as a PNG (1 = visible = white),
+//! from a scene folder's PVS file or baked from a DEM on the fly; and the PVS part of
+//! `terrain bake` (its flags and writing the files into the scene).
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{Context, bail};
+use clap::Args;
+use terrain_app::pvs_scene::pvs_path;
+use terrain_core::Heightmap;
+use terrain_visibility::pvs::{
+    CellId, FloorRule, Pvs, PvsConfig, PvsMode, bake, bake_both, read_pvs, write_pvs,
+};
+
+use crate::source::SourceArgs;
+
+/// The PVS bake's settings (shared by `terrain bake` and `terrain pvs`).
+#[derive(Debug, Args)]
+pub struct PvsArgs {
+    /// View cells per side (the paper: 32).
+    #[arg(long, default_value_t = 32)]
+    pub pvs_cells: u32,
+    /// Floors of view cells (the paper: 3).
+    #[arg(long, default_value_t = 3)]
+    pub pvs_floors: u32,
+    /// Floor height in metres (default: the DEM's relief / floors).
+    #[arg(long)]
+    pub pvs_floor_height: Option<f64>,
+    /// Patch grid level: 2^L x 2^L patches (the paper: 6, 64 x 64).
+    #[arg(long, default_value_t = 6)]
+    pub pvs_patch_level: u8,
+    /// Test points per patch side (the paper: 7).
+    #[arg(long, default_value_t = 7)]
+    pub pvs_test_points: u32,
+    /// The geomorphing article's variant: cells on the patch grid, 32 layers up to three
+    /// reliefs (overrides the cell and floor flags).
+    #[arg(long)]
+    pub pvs_article: bool,
+    /// PVS bake threads (0 = one per core).
+    #[arg(long, default_value_t = 0)]
+    pub pvs_threads: usize,
+}
+
+impl PvsArgs {
+    /// The bake configuration.
+    pub fn config(&self) -> anyhow::Result<PvsConfig> {
+        if self.pvs_patch_level > 10 {
+            bail!("--pvs-patch-level must be at most 10");
+        }
+        let mut cfg = if self.pvs_article {
+            PvsConfig::article(self.pvs_patch_level)
+        } else {
+            if self.pvs_cells == 0 || self.pvs_floors == 0 {
+                bail!("--pvs-cells and --pvs-floors must be at least 1");
+            }
+            PvsConfig {
+                cells: (self.pvs_cells, self.pvs_cells),
+                floors: self.pvs_floors,
+                floor_rule: FloorRule::AboveTerrain { height_m: self.pvs_floor_height },
+                patch_level: self.pvs_patch_level,
+                ..PvsConfig::default()
+            }
+        };
+        cfg.test_points = self.pvs_test_points.max(1);
+        cfg.threads = self.pvs_threads;
+        Ok(cfg)
+    }
+}
+
+/// Bakes both PVS modes of `hm` and writes them into scene folder `dir`.
+pub fn bake_into_scene(hm: &Heightmap, cfg: &PvsConfig, dir: &Path) -> anyhow::Result<()> {
+    let (sampled, conservative, stats) = bake_both(hm, cfg);
+    for pvs in [&sampled, &conservative] {
+        let path = pvs_path(dir, pvs.mode);
+        let bytes = write_pvs(pvs, &path).with_context(|| format!("writing {}", path.display()))?;
+        println!(
+            "{}: {} PVS of {} cells x {}^2 patches, {:.1} KB, culled {:.1} % of (cell, patch) pairs",
+            path.display(),
+            pvs.mode.name(),
+            stats.cells,
+            pvs.layout.patches_per_side(),
+            bytes as f64 / 1e3,
+            100.0 * pvs.culled_fraction()
+        );
+    }
+    println!("PVS bake: {:.1} s", stats.elapsed.as_secs_f64());
+    Ok(())
+}
+
+/// Arguments of `terrain pvs`.
+#[derive(Debug, Args)]
+pub struct PvsCmdArgs {
+    /// The positional argument is a scene folder from `terrain bake` (its PVS file is read)
+    /// or a DEM file (the PVS is baked in memory with the `--pvs-*` settings).
+    #[command(flatten)]
+    pub source: SourceArgs,
+    /// The view cell: column, row, floor (e.g. `12,7,0`).
+    #[arg(long)]
+    pub cell: String,
+    /// Output PNG (north up; white = visible).
+    #[arg(short, long)]
+    pub output: PathBuf,
+    /// Use the conservative PVS instead of the paper's sampled one.
+    #[arg(long)]
+    pub conservative: bool,
+    /// Pyramid level to export (default: the patch level, the finest).
+    #[arg(long)]
+    pub level: Option<u8>,
+    /// Pixels per patch in the PNG.
+    #[arg(long, default_value_t = 4)]
+    pub scale: u32,
+    #[command(flatten)]
+    pub pvs: PvsArgs,
+}
+
+/// Parses `i,j,k`.
+fn parse_cell(s: &str) -> anyhow::Result<CellId> {
+    let v: Vec<u32> = s
+        .split(',')
+        .map(|p| p.trim().parse::<u32>())
+        .collect::<Result<_, _>>()
+        .with_context(|| format!("--cell {s}: expected three integers i,j,k"))?;
+    match v[..] {
+        [a, b, k] => Ok(CellId { a, b, k }),
+        _ => bail!("--cell {s}: expected three integers i,j,k"),
+    }
+}
+
+/// Runs `terrain pvs`.
+pub fn run(args: &PvsCmdArgs) -> anyhow::Result<()> {
+    let cell = parse_cell(&args.cell)?;
+    let mode = if args.conservative { PvsMode::Conservative } else { PvsMode::Sampled };
+    let Some(scene) = args.source.dem.first() else {
+        bail!("give a scene folder (from terrain bake) or a DEM file");
+    };
+    let pvs: Pvs = if scene.is_dir() {
+        let path = pvs_path(scene, mode);
+        read_pvs(&path).with_context(|| format!("reading the PVS of scene {}", scene.display()))?
+    } else {
+        let dem = args.source.load()?.context("give a scene folder or a DEM file")?;
+        let cfg = PvsConfig { mode, ..args.pvs.config()? };
+        bake(&dem.heightmap, &cfg)
+    };
+    let lay = &pvs.layout;
+    if cell.a >= lay.cells_x || cell.b >= lay.cells_y || cell.k >= lay.floors {
+        bail!(
+            "--cell {}: out of range, the PVS has {} x {} cells x {} floors",
+            args.cell,
+            lay.cells_x,
+            lay.cells_y,
+            lay.floors
+        );
+    }
+    let level = args.level.unwrap_or(lay.patch_level);
+    if level > lay.patch_level {
+        bail!("--level {level}: the PVS pyramid has levels 0..={}", lay.patch_level);
+    }
+    let side = 1u32 << level;
+    let bits = pvs.level_image(cell, level);
+    let s = args.scale.clamp(1, 64);
+    let img = image::GrayImage::from_fn(side * s, side * s, |x, y| {
+        // Rows of the image run north to south; the bits are south row first.
+        let (i, j) = (x / s, side - 1 - y / s);
+        image::Luma([if bits[(j * side + i) as usize] == 1 { 255 } else { 0 }])
+    });
+    img.save(&args.output).with_context(|| format!("writing {}", args.output.display()))?;
+    let visible = bits.iter().filter(|&&b| b == 1).count();
+    println!(
+        "{}: cell {},{},{} ({}), level {level}: {visible} of {} patches visible",
+        args.output.display(),
+        cell.a,
+        cell.b,
+        cell.k,
+        pvs.mode.name(),
+        bits.len()
+    );
+    Ok(())
+}

@@ -1,0 +1,99 @@
+//! End-to-end tests of the PVS in the CLI: `terrain bake` writes both PVS files into the scene,
+//! `terrain pvs` exports a cell's image from a scene or straight from a DEM, a corrupt PVS file
+//! is an error naming it for `terrain pvs` and a warning for `terrain bench` (which then runs
+//! without occlusion culling).
+
+mod common;
+
+use std::path::Path;
+use std::process::Output;
+
+use common::{data, terrain};
+
+fn s(p: &Path) -> &str {
+    p.to_str().unwrap()
+}
+
+fn ok(out: &Output) -> String {
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "terrain failed: {err}");
+    assert!(!err.contains("panicked"), "{err}");
+    String::from_utf8_lossy(&out.stdout).into_owned()
+}
+
+const SMALL: [&str; 6] = ["--pvs-cells", "4", "--pvs-floors", "2", "--pvs-patch-level", "3"];
+
+#[test]
+fn bake_writes_the_pvs_and_pvs_exports_a_cell() {
+    let dir = common::scratch("pvs-cli", "scene");
+    let scene = dir.join("fractal");
+    let mut args =
+        vec!["bake", "--synthetic", "257", "-o", s(&scene), "--block-k", "6", "--pvs-bake"];
+    args.extend(SMALL);
+    let out = ok(&terrain(&args));
+    assert!(out.contains("pvs.bin") && out.contains("pvs_conservative.bin"), "{out}");
+    assert!(scene.join("pvs.bin").is_file() && scene.join("pvs_conservative.bin").is_file());
+
+    let png = dir.join("cell.png");
+    let out = ok(&terrain(&["pvs", s(&scene), "--cell", "1,2,0", "-o", s(&png)]));
+    assert!(out.contains("of 64 patches visible"), "{out}");
+    let img = image::open(&png).unwrap().to_luma8();
+    assert_eq!(img.dimensions(), (32, 32));
+    assert!(img.pixels().all(|p| p.0[0] == 0 || p.0[0] == 255));
+    assert!(img.pixels().any(|p| p.0[0] == 255), "nothing visible from the cell");
+
+    // A cell outside the PVS.
+    let r = terrain(&["pvs", s(&scene), "--cell", "9,0,0", "-o", s(&png)]);
+    assert!(!r.status.success());
+    assert!(String::from_utf8_lossy(&r.stderr).contains("out of range"));
+
+    // Corrupt the file: a clear error naming it.
+    let file = scene.join("pvs.bin");
+    let mut bytes = std::fs::read(&file).unwrap();
+    let n = bytes.len();
+    bytes.truncate(n - 10);
+    std::fs::write(&file, &bytes).unwrap();
+    let r = terrain(&["pvs", s(&scene), "--cell", "1,2,0", "-o", s(&png)]);
+    assert!(!r.status.success());
+    let err = String::from_utf8_lossy(&r.stderr);
+    assert!(err.contains("pvs.bin") && err.contains("truncated"), "{err}");
+    assert!(!err.contains("panicked"), "{err}");
+
+    // The benchmark warns and runs pvps-c-pvs without occlusion culling.
+    let hgt = data("srtm/N42E001.hgt");
+    let out = terrain(&[
+        "bench",
+        s(&hgt),
+        "--flight",
+        s(&Path::new(env!("CARGO_MANIFEST_DIR")).join("../flights/pvps_884.json")),
+        "--methods",
+        "pvps-c-pvs",
+        "--frames",
+        "1",
+        "--sweep",
+        "1",
+        "--no-render",
+        "--pvs-scene",
+        s(&scene),
+        "-o",
+        s(&dir.join("bench")),
+    ]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{err}");
+    assert!(err.contains("warning") && err.contains("pvs.bin"), "{err}");
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn pvs_bakes_a_dem_on_the_fly() {
+    let dir = common::scratch("pvs-cli", "dem");
+    let hgt = data("srtm/N42E001.hgt");
+    let png = dir.join("c.png");
+    let mut args = vec!["pvs", s(&hgt), "--cell", "2,1,0", "--conservative", "-o", s(&png)];
+    args.extend(SMALL);
+    args.extend(["--scale", "1"]);
+    let out = ok(&terrain(&args));
+    assert!(out.contains("conservative") && out.contains("of 64 patches visible"), "{out}");
+    assert_eq!(image::open(&png).unwrap().to_luma8().dimensions(), (8, 8));
+    std::fs::remove_dir_all(&dir).unwrap();
+}

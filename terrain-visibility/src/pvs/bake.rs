@@ -1,0 +1,507 @@
+//! The PVS bake: both modes in one pass over every view cell (rayon over cells), top-down
+//! over the patch pyramid.
+//!
+//! # Per cell
+//! Only the cell's *top plane* (height `Z`, its plan rectangle `R`) is tested: a point visible
+//! from some viewpoint is visible from every viewpoint above it (the PVPS paper's Fig. 5, first
+//! property; for a straight sight line to a fixed target, raising the eye raises every interior
+//! point of the line), so the top plane sees all that the cell's volume sees.
+//!
+//! Patches are visited top-down from pyramid level 0. At each node `Q`:
+//! 1. **Proof of occlusion** (both modes): if the node is proven hidden (below), its whole
+//!    subtree is 0 in both modes.
+//! 2. Otherwise, above level `L`, recurse into the four children; the node's bit is the OR of
+//!    theirs (section 2.3.1).
+//! 3. At level `L`: the sampled mode runs the paper's test ([`sampled_patch_visible`]); the
+//!    conservative mode marks the patch visible (nothing proved it hidden). At level `L` the
+//!    sampled test runs *first* and the proof only when it finds nothing, since a visible patch
+//!    can never be proven hidden.
+//!
+//! # The proof (conservative mode)
+//! Claim: every sight line from a point `v` of `R x {Z}` to a point of `Q` at a height at most
+//! `Hp` (the max of `Q`'s samples, from the [`HeightMip`]) is blocked. Raising the target to
+//! `Hp` raises the line (as raising the eye does), so it suffices for targets at `Hp`. A line
+//! from `q in Q` at `Hp` to `v in R` at `Z`, at the fraction `s` from the target, is at height
+//! `(1 - s) Hp + s Z`, *the same for every such pair*, and its plan point lies in the rectangle
+//! `(1 - s) Q + s R`. Take an interval `[sa, sb]` of `s` whose plan length is at least 2.5
+//! samples for every pair (`(sb - sa) dmin`, `dmin` the plan distance between `R` and `Q`):
+//! every such line crosses a grid line (and passes an integer major coordinate, where the
+//! Bresenham traversal samples) inside the interval, where the terrain is at least the min of
+//! the samples around the swept rectangle. If that min exceeds the line's highest height over
+//! the interval plus `epsilon_m`, every line is blocked: by exact line of sight
+//! (terrain-core's `LineOfSight`, interpolation along grid lines, any tolerance up to
+//! `epsilon_m`) and by Eq. 4 over the Bresenham section line alike. When no interval proves it,
+//! the larger of `R` and `Q` is split in four and every part must be proven (a bounded number
+//! of parts). The proof never culls a visible patch; what it cannot prove stays visible.
+//!
+//! Because a proven-hidden patch is hidden for the paper's test too, proving first does not
+//! change the sampled mode's result: it equals the paper's test on every patch (tested against
+//! a bake without proofs in `tests/pvs.rs`), and the sampled set is always a subset of the
+//! conservative one.
+
+use std::time::{Duration, Instant};
+
+use glam::{DVec2, DVec3};
+use rayon::prelude::*;
+use terrain_core::Heightmap;
+
+use super::los;
+use super::mip::{HeightMip, LineMins};
+use super::{CellId, Pvs, PvsConfig, PvsLayout, PvsMode};
+
+/// What a bake did.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct BakeStats {
+    /// Cells baked.
+    pub cells: usize,
+    /// Wall time.
+    pub elapsed: Duration,
+}
+
+/// Bakes the PVS of `cfg.mode` for `hm`.
+pub fn bake(hm: &Heightmap, cfg: &PvsConfig) -> Pvs {
+    match cfg.mode {
+        PvsMode::Sampled => bake_impl(hm, cfg, true, true).0,
+        // Without the paper's test: one witness sight line and the proofs per node.
+        PvsMode::Conservative => bake_impl(hm, cfg, true, false).1,
+    }
+}
+
+/// Bakes both modes at once (they share the proofs): `(sampled, conservative, stats)`.
+pub fn bake_both(hm: &Heightmap, cfg: &PvsConfig) -> (Pvs, Pvs, BakeStats) {
+    bake_impl(hm, cfg, true, true)
+}
+
+/// The paper's sampled test alone, without occlusion proofs (slow; for checking that the
+/// proofs do not change the sampled mode's result).
+pub fn bake_sampled_without_proofs(hm: &Heightmap, cfg: &PvsConfig) -> Pvs {
+    bake_impl(hm, cfg, false, true).0
+}
+
+/// The bits of some cells only (by [`PvsLayout::cell_index`]): `(sampled, conservative)` per
+/// cell, as [`bake_both`] computes them. For timing a sample of cells and for tests.
+pub fn bake_cells(hm: &Heightmap, cfg: &PvsConfig, cells: &[usize]) -> Vec<(Vec<u8>, Vec<u8>)> {
+    let layout = PvsLayout::new(hm, cfg);
+    let mip = HeightMip::new(hm);
+    let lines = LineMins::new(hm);
+    let ctx =
+        Ctx { hm, mip: &mip, lines: &lines, layout: &layout, cfg, proofs: true, sampled: true };
+    cells.par_iter().map(|&n| ctx.cell(n)).collect()
+}
+
+fn bake_impl(
+    hm: &Heightmap,
+    cfg: &PvsConfig,
+    proofs: bool,
+    sampled: bool,
+) -> (Pvs, Pvs, BakeStats) {
+    let start = Instant::now();
+    let layout = PvsLayout::new(hm, cfg);
+    let mip = HeightMip::new(hm);
+    let lines = LineMins::new(hm);
+    let ctx = Ctx { hm, mip: &mip, lines: &lines, layout: &layout, cfg, proofs, sampled };
+    let run = || -> Vec<(Vec<u8>, Vec<u8>)> {
+        (0..layout.cell_count()).into_par_iter().map(|n| ctx.cell(n)).collect()
+    };
+    let cells = if cfg.threads > 0 {
+        match rayon::ThreadPoolBuilder::new().num_threads(cfg.threads).build() {
+            Ok(pool) => pool.install(run),
+            Err(_) => run(),
+        }
+    } else {
+        run()
+    };
+    let per = layout.bytes_per_cell();
+    let (mut s, mut c) = (Vec::with_capacity(per * cells.len()), Vec::new());
+    c.reserve(per * cells.len());
+    for (a, b) in cells {
+        s.extend_from_slice(&a);
+        c.extend_from_slice(&b);
+    }
+    let stats = BakeStats { cells: layout.cell_count(), elapsed: start.elapsed() };
+    (
+        Pvs { layout: layout.clone(), mode: PvsMode::Sampled, bits: s },
+        Pvs { layout, mode: PvsMode::Conservative, bits: c },
+        stats,
+    )
+}
+
+struct Ctx<'a> {
+    hm: &'a Heightmap,
+    mip: &'a HeightMip<'a>,
+    lines: &'a LineMins,
+    layout: &'a PvsLayout,
+    cfg: &'a PvsConfig,
+    proofs: bool,
+    /// Whether to run the paper's test (the sampled mode's bits stay 0 otherwise).
+    sampled: bool,
+}
+
+/// A cell's top plane.
+#[derive(Debug, Clone, Copy)]
+struct Top {
+    lo: DVec2,
+    hi: DVec2,
+    z: f64,
+}
+
+fn set(bits: &mut [u8], l: u8, i: u32, j: u32) {
+    let n = PvsLayout::level_offset(l) + (j * (1 << l) + i) as usize;
+    bits[n / 8] |= 1 << (n % 8);
+}
+
+impl Ctx<'_> {
+    fn cell(&self, n: usize) -> (Vec<u8>, Vec<u8>) {
+        let lay = self.layout;
+        let per = lay.bytes_per_cell();
+        let c: CellId = lay.cell_at_index(n);
+        let (Some((_, z)), Some((lo, hi))) = (lay.floor_bounds(c), lay.cell_rect_clipped(c.a, c.b))
+        else {
+            // Outside the grid: never looked up; all visible.
+            return (vec![0xFF; per], vec![0xFF; per]);
+        };
+        let top = Top { lo, hi, z };
+        let (mut s, mut k) = (vec![0u8; per], vec![0u8; per]);
+        self.visit(&top, 0, 0, 0, &mut s, &mut k);
+        (s, k)
+    }
+
+    /// Fills the bits of node `(l, i, j)`'s subtree; returns (sampled, conservative) visibility.
+    fn visit(&self, top: &Top, l: u8, i: u32, j: u32, s: &mut [u8], k: &mut [u8]) -> (bool, bool) {
+        let Some(q) = self.layout.patch_samples(l, i, j) else { return (false, false) };
+        let finest = l == self.layout.patch_level;
+        let (vs, vk) = if finest {
+            // A quick witness of visibility first, then the proof (cheap), and only then the
+            // paper's test (up to test points x viewpoints sight lines when nothing is seen).
+            // The witness is not one of the paper's sight lines: the sampled mode still runs
+            // its own test (which usually stops at its first pair for a visible patch).
+            if !self.quick_visible(top, q) && self.proofs && self.proven(top, q, 64) {
+                (false, false)
+            } else {
+                (self.sampled && sampled_patch_visible(self.mip, top, q, self.cfg), true)
+            }
+        } else if self.proofs && !self.quick_visible(top, q) && self.proven(top, q, 16) {
+            (false, false)
+        } else {
+            let mut acc = (false, false);
+            for (ci, cj) in
+                [(2 * i, 2 * j), (2 * i + 1, 2 * j), (2 * i, 2 * j + 1), (2 * i + 1, 2 * j + 1)]
+            {
+                let (a, b) = self.visit(top, l + 1, ci, cj, s, k);
+                acc = (acc.0 | a, acc.1 | b);
+            }
+            acc
+        };
+        if vs {
+            set(s, l, i, j);
+        }
+        if vk {
+            set(k, l, i, j);
+        }
+        (vs, vk)
+    }
+
+    /// A cheap witness that a node holds something visible (its centre sample seen from the
+    /// top plane's centre): then no proof can succeed and none is tried.
+    fn quick_visible(&self, top: &Top, q: (u32, u32, u32, u32)) -> bool {
+        let (cx, cy) = ((q.0 + q.2) / 2, (q.1 + q.3) / 2);
+        let t = DVec3::new(
+            f64::from(cx),
+            f64::from(cy),
+            f64::from(self.hm.get(cx as usize, cy as usize)),
+        );
+        let c = (top.lo + top.hi) * 0.5;
+        los::visible(self.mip, c.extend(top.z), t, self.cfg.epsilon_m)
+    }
+
+    fn proven(&self, top: &Top, q: (u32, u32, u32, u32), budget: u32) -> bool {
+        let mut budget = budget;
+        let occ = Occluders { mip: self.mip, lines: self.lines };
+        prove(&occ, top.lo, top.hi, top.z, q, self.cfg.epsilon_m, &mut budget)
+    }
+}
+
+/// The lower bounds of the terrain a proof reads.
+#[derive(Debug, Clone, Copy)]
+pub struct Occluders<'a> {
+    /// 2D min/max blocks.
+    pub mip: &'a HeightMip<'a>,
+    /// Per grid line mins.
+    pub lines: &'a LineMins,
+}
+
+/// Whether every sight line from `R x {z}` (`r_lo..r_hi`, grid coordinates) to the samples of
+/// `q` (inclusive integer rectangle) is blocked (see the module docs). `budget` bounds the
+/// number of (R, Q) parts tried.
+pub fn prove(
+    occ: &Occluders<'_>,
+    r_lo: DVec2,
+    r_hi: DVec2,
+    z: f64,
+    q: (u32, u32, u32, u32),
+    eps: f64,
+    budget: &mut u32,
+) -> bool {
+    if *budget == 0 {
+        return false;
+    }
+    *budget -= 1;
+    let (q_lo, q_hi) =
+        (DVec2::new(f64::from(q.0), f64::from(q.1)), DVec2::new(f64::from(q.2), f64::from(q.3)));
+    let hp =
+        f64::from(occ.mip.range(i64::from(q.0), i64::from(q.1), i64::from(q.2), i64::from(q.3)).1);
+    if intervals_prove(occ.mip, r_lo, r_hi, z, q_lo, q_hi, hp, eps)
+        || lines_prove(occ.lines, r_lo, r_hi, z, q_lo, q_hi, hp, eps)
+    {
+        return true;
+    }
+    let (rs, qs) = ((r_hi - r_lo).max_element(), (q_hi - q_lo).max_element());
+    if qs >= rs && q.2 - q.0 >= 2 && q.3 - q.1 >= 2 {
+        let (mx, my) = ((q.0 + q.2) / 2, (q.1 + q.3) / 2);
+        [(q.0, q.1, mx, my), (mx, q.1, q.2, my), (q.0, my, mx, q.3), (mx, my, q.2, q.3)]
+            .into_iter()
+            .all(|p| prove(occ, r_lo, r_hi, z, p, eps, budget))
+    } else if rs >= 2.0 {
+        let m = (r_lo + r_hi) * 0.5;
+        [
+            (r_lo, m),
+            (DVec2::new(m.x, r_lo.y), DVec2::new(r_hi.x, m.y)),
+            (DVec2::new(r_lo.x, m.y), DVec2::new(m.x, r_hi.y)),
+            (m, r_hi),
+        ]
+        .into_iter()
+        .all(|(lo, hi)| prove(occ, lo, hi, z, q, eps, budget))
+    } else {
+        false
+    }
+}
+
+/// The grid-line proof: when `R` and `Q` are apart along an axis, every sight line crosses each
+/// grid line `x = i` between them exactly once, within a band of fractions `s` and a stretch
+/// of the line bounded from the rectangles; if the terrain's min along that stretch is above
+/// the sight lines' highest point over the band, every line is blocked there. Thin walls, which
+/// 2D blocks average away with their low neighbours, are caught this way. The band is
+/// `i +- 0.5` so the nearest-sample Bresenham traversal, which may step past `x = i`, still
+/// samples column `i` inside it.
+#[allow(clippy::too_many_arguments)]
+fn lines_prove(
+    lines: &LineMins,
+    r_lo: DVec2,
+    r_hi: DVec2,
+    z: f64,
+    q_lo: DVec2,
+    q_hi: DVec2,
+    hp: f64,
+    eps: f64,
+) -> bool {
+    for axis in 0..2 {
+        let (q0, q1, r0, r1) = (q_lo[axis], q_hi[axis], r_lo[axis], r_hi[axis]);
+        let (first, last) = if q1 + 1.5 <= r0 - 1.5 {
+            ((q1 + 1.5).ceil(), (r0 - 1.5).floor())
+        } else if r1 + 1.5 <= q0 - 1.5 {
+            ((r1 + 1.5).ceil(), (q0 - 1.5).floor())
+        } else {
+            continue;
+        };
+        let o = 1 - axis;
+        // At most `MAX_LINES` lines per axis, evenly spaced (a bound on the cost; any line
+        // that proves it is a valid proof).
+        let step = ((last - first + 1.0) / MAX_LINES).ceil().max(1.0);
+        let mut i = first;
+        while i <= last {
+            let (mut s0, mut s1) = (f64::INFINITY, f64::NEG_INFINITY);
+            for x in [i - 0.5, i + 0.5] {
+                for qa in [q0, q1] {
+                    for va in [r0, r1] {
+                        let s = (x - qa) / (va - qa);
+                        s0 = s0.min(s);
+                        s1 = s1.max(s);
+                    }
+                }
+            }
+            let (s0, s1) = (s0.clamp(0.0, 1.0), s1.clamp(0.0, 1.0));
+            let ray_max = (hp * (1.0 - s0) + z * s0).max(hp * (1.0 - s1) + z * s1);
+            let lo = (q_lo[o] * (1.0 - s0) + r_lo[o] * s0).min(q_lo[o] * (1.0 - s1) + r_lo[o] * s1);
+            let hi = (q_hi[o] * (1.0 - s0) + r_hi[o] * s0).max(q_hi[o] * (1.0 - s1) + r_hi[o] * s1);
+            let (a, b) = (lo.floor() as i64, hi.ceil() as i64);
+            let ground = if axis == 0 {
+                lines.column_min(i as usize, a, b)
+            } else {
+                lines.row_min(i as usize, a, b)
+            };
+            if f64::from(ground) > ray_max + eps {
+                return true;
+            }
+            i += step;
+        }
+    }
+    false
+}
+
+/// Grid lines tried per axis by one grid-line proof.
+const MAX_LINES: f64 = 16.0;
+
+/// Plan distance between two rectangles.
+fn rect_distance(a_lo: DVec2, a_hi: DVec2, b_lo: DVec2, b_hi: DVec2) -> f64 {
+    let dx = (b_lo.x - a_hi.x).max(a_lo.x - b_hi.x).max(0.0);
+    let dy = (b_lo.y - a_hi.y).max(a_lo.y - b_hi.y).max(0.0);
+    dx.hypot(dy)
+}
+
+/// Minimum plan length of the sight lines within one proof interval, samples.
+const MIN_INTERVAL_SAMPLES: f64 = 2.5;
+
+#[allow(clippy::too_many_arguments)]
+fn intervals_prove(
+    mip: &HeightMip<'_>,
+    r_lo: DVec2,
+    r_hi: DVec2,
+    z: f64,
+    q_lo: DVec2,
+    q_hi: DVec2,
+    hp: f64,
+    eps: f64,
+) -> bool {
+    let dmin = rect_distance(r_lo, r_hi, q_lo, q_hi);
+    let n = (dmin / MIN_INTERVAL_SAMPLES).floor().min(48.0) as usize;
+    if n == 0 {
+        return false;
+    }
+    let at = |s: f64| (q_lo * (1.0 - s) + r_lo * s, q_hi * (1.0 - s) + r_hi * s);
+    (0..n).any(|m| {
+        let (sa, sb) = (m as f64 / n as f64, (m + 1) as f64 / n as f64);
+        let (alo, ahi) = at(sa);
+        let (blo, bhi) = at(sb);
+        let (lo, hi) = (alo.min(blo), ahi.max(bhi));
+        let ray_max = (hp * (1.0 - sa) + z * sa).max(hp * (1.0 - sb) + z * sb);
+        let (ground_min, _) = mip.range(
+            lo.x.floor() as i64,
+            lo.y.floor() as i64,
+            hi.x.ceil() as i64,
+            hi.y.ceil() as i64,
+        );
+        f64::from(ground_min) > ray_max + eps
+    })
+}
+
+/// The PVPS paper's per-patch test (section 2.2.2): `n x n` test points evenly over the
+/// patch (at DEM samples), key viewpoints on the top plane's edges chosen by Fig. 6, midpoint
+/// refinement up to `max_viewpoints`, Eq. 4 line of sight; stops at the first visible pair.
+fn sampled_patch_visible(
+    mip: &HeightMip<'_>,
+    top: &Top,
+    q: (u32, u32, u32, u32),
+    cfg: &PvsConfig,
+) -> bool {
+    let hm = mip.heightmap();
+    let n = cfg.test_points.max(1);
+    let coord = |a: u32, b: u32, k: u32| -> u32 {
+        if n == 1 {
+            (a + b) / 2
+        } else {
+            (f64::from(a) + f64::from(b - a) * f64::from(k) / f64::from(n - 1)).round() as u32
+        }
+    };
+    let mut points: Vec<DVec3> = Vec::with_capacity((n * n) as usize);
+    for ty in 0..n {
+        for tx in 0..n {
+            let (x, y) = (coord(q.0, q.2, tx), coord(q.1, q.3, ty));
+            let t =
+                DVec3::new(f64::from(x), f64::from(y), f64::from(hm.get(x as usize, y as usize)));
+            if (top.lo.x..=top.hi.x).contains(&t.x) && (top.lo.y..=top.hi.y).contains(&t.y) {
+                // Under the cell: seen straight down from the top plane (Z >= the cell's max).
+                return true;
+            }
+            points.push(t);
+        }
+    }
+    // The result is the OR over every (test point, key viewpoint) pair, so the order is free:
+    // the highest test points first, as they are the likeliest to be seen (a speed choice).
+    points.sort_by(|a, b| b.z.total_cmp(&a.z));
+    let mut views: Vec<DVec3> = Vec::with_capacity(cfg.max_viewpoints as usize);
+    points.iter().any(|&t| {
+        key_viewpoints(top, t, cfg.max_viewpoints.max(1) as usize, &mut views);
+        views.iter().any(|&v| los::visible(mip, v, t, cfg.epsilon_m))
+    })
+}
+
+/// The key viewpoints of Fig. 6 for test point `t`: the top plane's edges facing `t` when
+/// the plane is above it (`Z_top - Z_t > 0`), the far edges otherwise; first the edges' ends,
+/// then midpoints of adjacent viewpoints, round by round, up to `max` in all.
+///
+/// Fig. 6 names edges 0-3 (top, left, bottom, right of its top view) and regions 0-7 around
+/// the cell; a corner region takes the two edges meeting at the corner, a side region the one
+/// edge on its side, exactly as the table lists them.
+fn key_viewpoints(top: &Top, t: DVec3, max: usize, out: &mut Vec<DVec3>) {
+    out.clear();
+    let above = top.z - t.z > 0.0;
+    let (lo, hi) = (top.lo, top.hi);
+    let west = t.x < lo.x;
+    let east = t.x > hi.x;
+    let south = t.y < lo.y;
+    let north = t.y > hi.y;
+    // Edges as (start, end) on the top plane.
+    let w_edge = (DVec2::new(lo.x, lo.y), DVec2::new(lo.x, hi.y));
+    let e_edge = (DVec2::new(hi.x, lo.y), DVec2::new(hi.x, hi.y));
+    let s_edge = (DVec2::new(lo.x, lo.y), DVec2::new(hi.x, lo.y));
+    let n_edge = (DVec2::new(lo.x, hi.y), DVec2::new(hi.x, hi.y));
+    let mut edges: Vec<(DVec2, DVec2)> = Vec::with_capacity(2);
+    let pick = |facing: bool, near: (DVec2, DVec2), far: (DVec2, DVec2)| {
+        facing.then_some(if above { near } else { far })
+    };
+    edges.extend(pick(west, w_edge, e_edge));
+    edges.extend(pick(east, e_edge, w_edge));
+    edges.extend(pick(south, s_edge, n_edge));
+    edges.extend(pick(north, n_edge, s_edge));
+    let push = |out: &mut Vec<DVec3>, p: DVec2| {
+        let v = p.extend(top.z);
+        if out.len() < max && !out.iter().any(|o| (*o - v).length_squared() < 1e-18) {
+            out.push(v);
+        }
+    };
+    for &(a, b) in &edges {
+        push(out, a);
+        push(out, b);
+    }
+    let mut round = 1u32;
+    while out.len() < max && round < 12 {
+        let parts = 1u32 << round;
+        for &(a, b) in &edges {
+            for m in (1..parts).step_by(2) {
+                push(out, a.lerp(b, f64::from(m) / f64::from(parts)));
+            }
+        }
+        round += 1;
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn key_viewpoints_follow_fig6() {
+        let top = Top { lo: DVec2::new(10.0, 10.0), hi: DVec2::new(20.0, 20.0), z: 100.0 };
+        let mut v = Vec::new();
+        // Region north-west, plane above the test point: the north and west edges.
+        key_viewpoints(&top, DVec3::new(0.0, 30.0, 0.0), 16, &mut v);
+        assert_eq!(v.len(), 16);
+        assert!(v.iter().all(|p| p.x == 10.0 || p.y == 20.0));
+        assert!(v.iter().all(|p| p.z == 100.0));
+        // The same region, plane below the test point: the south and east edges.
+        key_viewpoints(&top, DVec3::new(0.0, 30.0, 500.0), 16, &mut v);
+        assert!(v.iter().all(|p| p.x == 20.0 || p.y == 10.0));
+        // Region east, above: the east edge only; ends first, then the midpoint.
+        key_viewpoints(&top, DVec3::new(30.0, 15.0, 0.0), 16, &mut v);
+        assert!(v.iter().all(|p| p.x == 20.0));
+        assert_eq!(
+            &v[..3],
+            &[
+                DVec3::new(20.0, 10.0, 100.0),
+                DVec3::new(20.0, 20.0, 100.0),
+                DVec3::new(20.0, 15.0, 100.0)
+            ]
+        );
+        assert_eq!(v.len(), 16);
+    }
+}

@@ -1,0 +1,164 @@
+//! Min/max height mip over a heightmap's samples: conservative rectangle queries for the PVS
+//! bake's early exits (max heights: can anything block this stretch of a sight line?) and for
+//! the conservative mode's occluder proofs (min heights: is the terrain surely above it?).
+
+use terrain_core::Heightmap;
+
+/// Per level `k >= 1`, the min and max of the samples `[i 2^k, (i + 1) 2^k - 1]` in x and y
+/// (clipped to the grid); level 0 is the heightmap itself.
+#[derive(Debug, Clone)]
+pub struct HeightMip<'a> {
+    hm: &'a Heightmap,
+    /// `levels[k - 1]`: (nx, ny, min, max).
+    levels: Vec<(usize, usize, Vec<f32>, Vec<f32>)>,
+}
+
+impl<'a> HeightMip<'a> {
+    /// Builds the mip of `hm` (about a third of the grid's size in each of min and max).
+    pub fn new(hm: &'a Heightmap) -> Self {
+        let (w, h) = (hm.width(), hm.height());
+        let mut levels: Vec<(usize, usize, Vec<f32>, Vec<f32>)> = Vec::new();
+        let (mut pw, mut ph) = (w, h);
+        while pw > 1 || ph > 1 {
+            let (nx, ny) = (pw.div_ceil(2), ph.div_ceil(2));
+            let mut mn = vec![f32::INFINITY; nx * ny];
+            let mut mx = vec![f32::NEG_INFINITY; nx * ny];
+            for y in 0..ph {
+                for x in 0..pw {
+                    let (a, b) = match levels.last() {
+                        None => {
+                            let z = hm.get(x, y);
+                            (z, z)
+                        }
+                        Some((fx, _, fmn, fmx)) => (fmn[y * fx + x], fmx[y * fx + x]),
+                    };
+                    let k = (y / 2) * nx + x / 2;
+                    mn[k] = mn[k].min(a);
+                    mx[k] = mx[k].max(b);
+                }
+            }
+            levels.push((nx, ny, mn, mx));
+            pw = nx;
+            ph = ny;
+        }
+        Self { hm, levels }
+    }
+
+    /// The heightmap.
+    pub fn heightmap(&self) -> &'a Heightmap {
+        self.hm
+    }
+
+    /// `(min, max)` bounds of the samples in the inclusive rectangle `x0..=x1`, `y0..=y1`
+    /// (clamped to the grid): the min is a lower bound and the max an upper bound (exact on
+    /// level 0, otherwise over the covering blocks, which may reach a little outside).
+    pub fn range(&self, x0: i64, y0: i64, x1: i64, y1: i64) -> (f32, f32) {
+        let (w, h) = (self.hm.width() as i64, self.hm.height() as i64);
+        let (x0, x1) = (x0.clamp(0, w - 1) as usize, x1.clamp(0, w - 1) as usize);
+        let (y0, y1) = (y0.clamp(0, h - 1) as usize, y1.clamp(0, h - 1) as usize);
+        let (x0, x1) = (x0.min(x1), x0.max(x1));
+        let (y0, y1) = (y0.min(y1), y0.max(y1));
+        // The finest level at which the rectangle touches at most 3 x 3 blocks.
+        let mut k = 0usize;
+        while k < self.levels.len() && ((x1 >> k) - (x0 >> k) + 1) * ((y1 >> k) - (y0 >> k) + 1) > 9
+        {
+            k += 1;
+        }
+        let (mut mn, mut mx) = (f32::INFINITY, f32::NEG_INFINITY);
+        for by in (y0 >> k)..=(y1 >> k) {
+            for bx in (x0 >> k)..=(x1 >> k) {
+                let (a, b) = if k == 0 {
+                    let z = self.hm.get(bx, by);
+                    (z, z)
+                } else {
+                    let (nx, _, lmn, lmx) = &self.levels[k - 1];
+                    (lmn[by * nx + bx], lmx[by * nx + bx])
+                };
+                mn = mn.min(a);
+                mx = mx.max(b);
+            }
+        }
+        (mn, mx)
+    }
+}
+
+/// Per grid line (every column `x = i`, every row `y = j`), a 1D min pyramid along it: lower
+/// bounds of the terrain on a stretch of one grid line, without the neighbouring lines that a
+/// 2D block would mix in (a one-sample-thin wall keeps its height).
+#[derive(Debug, Clone)]
+pub struct LineMins {
+    /// Per column, the levels of mins along y (`cols[i][k][m]`: rows `m 2^k .. (m + 1) 2^k - 1`).
+    cols: Vec<Vec<Vec<f32>>>,
+    /// Per row, the levels of mins along x.
+    rows: Vec<Vec<Vec<f32>>>,
+}
+
+fn line_pyramid(values: Vec<f32>) -> Vec<Vec<f32>> {
+    let mut levels = vec![values];
+    while levels.last().is_some_and(|l| l.len() > 1) {
+        let prev = levels.last().expect("a level");
+        let next: Vec<f32> =
+            prev.chunks(2).map(|c| c.iter().copied().fold(f32::INFINITY, f32::min)).collect();
+        levels.push(next);
+    }
+    levels
+}
+
+fn line_min(levels: &[Vec<f32>], a: usize, b: usize) -> f32 {
+    let mut k = 0;
+    while k + 1 < levels.len() && (b >> k) - (a >> k) + 1 > 4 {
+        k += 1;
+    }
+    ((a >> k)..=(b >> k)).map(|m| levels[k][m]).fold(f32::INFINITY, f32::min)
+}
+
+impl LineMins {
+    /// Builds the pyramids of every column and row of `hm` (twice the grid's size in all).
+    pub fn new(hm: &Heightmap) -> Self {
+        let (w, h) = (hm.width(), hm.height());
+        let cols = (0..w).map(|i| line_pyramid((0..h).map(|j| hm.get(i, j)).collect())).collect();
+        let rows = (0..h).map(|j| line_pyramid(hm.data()[j * w..(j + 1) * w].to_vec())).collect();
+        Self { cols, rows }
+    }
+
+    /// A lower bound of the samples of column `i`, rows `y0..=y1` (clamped to the grid).
+    pub fn column_min(&self, i: usize, y0: i64, y1: i64) -> f32 {
+        let n = self.cols[i][0].len() as i64;
+        line_min(&self.cols[i], y0.clamp(0, n - 1) as usize, y1.clamp(0, n - 1) as usize)
+    }
+
+    /// A lower bound of the samples of row `j`, columns `x0..=x1` (clamped to the grid).
+    pub fn row_min(&self, j: usize, x0: i64, x1: i64) -> f32 {
+        let n = self.rows[j][0].len() as i64;
+        line_min(&self.rows[j], x0.clamp(0, n - 1) as usize, x1.clamp(0, n - 1) as usize)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use terrain_core::georef::Georef;
+
+    #[test]
+    fn ranges_bound_the_samples() {
+        let hm = Heightmap::from_fn(37, 29, Georef::local(1.0), |i, j| {
+            ((i * 7 + j * 13) % 17) as f32 + (i as f32 * 0.3).sin()
+        })
+        .unwrap();
+        let mip = HeightMip::new(&hm);
+        for (x0, y0, x1, y1) in [(0, 0, 36, 28), (3, 4, 9, 20), (10, 10, 10, 10), (30, 1, 36, 2)] {
+            let (mn, mx) = mip.range(x0, y0, x1, y1);
+            let mut emn = f32::INFINITY;
+            let mut emx = f32::NEG_INFINITY;
+            for y in y0..=y1 {
+                for x in x0..=x1 {
+                    emn = emn.min(hm.get(x as usize, y as usize));
+                    emx = emx.max(hm.get(x as usize, y as usize));
+                }
+            }
+            assert!(mn <= emn && mx >= emx, "{mn} {emn} {mx} {emx}");
+        }
+        assert_eq!(mip.range(0, 0, 36, 28), (hm.min(), hm.max()));
+        assert_eq!(mip.range(5, 6, 5, 6), (hm.get(5, 6), hm.get(5, 6)));
+    }
+}
