@@ -54,7 +54,7 @@ use glam::{DVec2, DVec3};
 
 use super::dss_methods::{DssConfig, DssErrorTable, Metric};
 use super::patch::{Edge, Patch, Selection, SelectionStats};
-use crate::geometry::{Aabb, Camera, Classification};
+use crate::geometry::{Aabb, Camera, Classification, Frustum};
 use crate::quadtree::{
     FrustumCull, NoCull, NodeId, NodeInfo, Quadrant, Quadtree, Visit, dss_block_id, dss_neighbours,
     traverse,
@@ -222,6 +222,27 @@ pub fn select_dss_strips(
     };
     let mut nodes: Vec<(NodeId, bool)> = leaves.iter().map(|&n| (n, true)).collect();
     nodes.extend(hidden.iter().map(|&n| (n, false)));
+    let frustum = cfg.dss.frustum_cull.then(|| camera.frustum());
+    let factor = |n: NodeId, info: &NodeInfo| metric.factor(n, info);
+    let (blocks, pblocks, strips, culled_strips) =
+        assemble(qt, nodes, &splits, factor, s, frustum.as_ref());
+    stats.patches = blocks.iter().filter(|b| b.visible).count();
+    stats.max_level = blocks.iter().filter(|b| b.visible).map(|b| b.node.level).max().unwrap_or(0);
+    stats.cpu_time = start.elapsed();
+    DssStripFrame { blocks, pblocks, strips, stats, culled_strips }
+}
+
+/// Blocks, P-blocks and strips of a set of leaves (`(node, visible)`, covering the grid) and
+/// the nodes split to reach them; edges are culled against `frustum` when given. Returns the
+/// strips discarded by edge culling too.
+fn assemble(
+    qt: &Quadtree,
+    mut nodes: Vec<(NodeId, bool)>,
+    splits: &[NodeId],
+    factor: impl Fn(NodeId, &NodeInfo) -> f32,
+    s: u32,
+    frustum: Option<&Frustum>,
+) -> (Vec<MBlock>, Vec<PBlock>, Vec<Strip>, usize) {
     nodes.sort_unstable_by_key(|(n, _)| n.dfs_key());
     let (w1, h1) = (qt.width() - 1, qt.height() - 1);
     let blocks: Vec<MBlock> = nodes
@@ -238,7 +259,7 @@ pub fn select_dss_strips(
             ];
             let inset = |k: usize| if border[k] { 0 } else { s };
             let rect = [x0 + inset(3), y0 + inset(0), x0 + c - inset(1), y0 + c - inset(2)];
-            let factor = if visible { metric.factor(node, &info) } else { 2.0 };
+            let factor = if visible { factor(node, &info) } else { 2.0 };
             MBlock { id: dss_block_id(node), node, rect, factor, visible, neighbours, border }
         })
         .collect();
@@ -247,7 +268,7 @@ pub fn select_dss_strips(
 
     // P-blocks: at the centre of every split with four children in the grid.
     let mut pblocks = Vec::new();
-    for &n in &splits {
+    for &n in splits {
         let children = n.children();
         if !children.iter().all(|&c| qt.contains_node(c)) {
             continue;
@@ -288,15 +309,12 @@ pub fn select_dss_strips(
         }
     }
     sides.sort_unstable();
-    let frustum = camera.frustum();
     let edge_visible = |k: usize, e: Edge| -> bool {
         let b = &blocks[k];
         if !b.visible {
             return false;
         }
-        if !cfg.dss.frustum_cull {
-            return true;
-        }
+        let Some(frustum) = frustum else { return true };
         let info = qt.node_info(b.node).expect("blocks exist");
         let [x0, y0, x1, y1] = b.rect.map(f64::from);
         let sf = f64::from(s);
@@ -342,9 +360,39 @@ pub fn select_dss_strips(
         }
     }
 
-    stats.patches = blocks.iter().filter(|b| b.visible).count();
-    stats.max_level = blocks.iter().filter(|b| b.visible).map(|b| b.node.level).max().unwrap_or(0);
-    stats.cpu_time = start.elapsed();
+    (blocks, pblocks, strips, culled_strips)
+}
+
+/// The structure of a given partition into leaves, every block visible with its given factor
+/// (`factors[k]` for `leaves[k]`, used as is: 1 tessellates like 2), no culling: for tests and
+/// tools that choose blocks themselves. The leaves must tile the grid (every node that holds
+/// cells is covered by exactly one leaf); each must keep at least two cells inside its strips.
+pub fn frame_from_leaves(
+    qt: &Quadtree,
+    leaves: &[NodeId],
+    factors: &[f32],
+    half_width_cells: u32,
+) -> DssStripFrame {
+    assert_eq!(leaves.len(), factors.len());
+    let start = Instant::now();
+    let by_node: HashMap<NodeId, f32> =
+        leaves.iter().copied().zip(factors.iter().copied()).collect();
+    let mut splits: Vec<NodeId> =
+        leaves.iter().flat_map(|n| (0..n.level).map(move |l| n.ancestor(l))).collect();
+    splits.sort_unstable_by_key(|n| n.dfs_key());
+    splits.dedup();
+    let nodes = leaves.iter().map(|&n| (n, true)).collect();
+    let (blocks, pblocks, strips, culled_strips) =
+        assemble(qt, nodes, &splits, |n, _| by_node[&n], half_width_cells.max(1), None);
+    let visible = blocks.len();
+    let stats = SelectionStats {
+        traversal_leaves: visible,
+        patches: visible,
+        split: splits.len(),
+        max_level: blocks.iter().map(|b| b.node.level).max().unwrap_or(0),
+        cpu_time: start.elapsed(),
+        ..SelectionStats::default()
+    };
     DssStripFrame { blocks, pblocks, strips, stats, culled_strips }
 }
 

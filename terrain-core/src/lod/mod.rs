@@ -41,7 +41,9 @@ pub mod pvps;
 pub mod surface;
 
 pub use dss_methods::{DssConfig, DssErrorTable, select_dss_power_of_two, select_dss_uniform};
-pub use dss_strips::{DssStripFrame, DssStripsConfig, MBlock, PBlock, Strip, select_dss_strips};
+pub use dss_strips::{
+    DssStripFrame, DssStripsConfig, MBlock, PBlock, Strip, frame_from_leaves, select_dss_strips,
+};
 pub use edges::{EdgeMismatch, EdgeRule, check_shared_edges, outer_factors};
 pub use patch::{Edge, MAX_FACTOR, MIN_FACTOR, Patch, Selection, SelectionStats, clamp_factor};
 pub use pvps::{Method, NodeDistance, PvpsConfig, select_pvps};

@@ -12,7 +12,7 @@ use glam::{DVec2, DVec3, Vec3};
 use terrain_core::Heightmap;
 use terrain_core::geometry::Camera;
 
-use super::{DrawPatch, RenderConfig, RenderOptions};
+use super::{DrawPatch, ExtraTriangles, RenderConfig, RenderOptions};
 use crate::device::{GpuContext, GpuError, GpuFeatures, read_buffer};
 use crate::target::{COLOR_FORMAT, OffscreenTarget, RgbaImage};
 use crate::tess::{
@@ -144,6 +144,9 @@ pub enum RenderError {
         /// Grid height in samples.
         height: u32,
     },
+    /// Extra triangles name a patch or a vertex that does not exist.
+    #[error("extra triangles: {0}")]
+    BadExtra(String),
     /// The caller's configuration is unusable.
     #[error("invalid render configuration: {0}")]
     InvalidConfig(String),
@@ -713,7 +716,36 @@ impl TerrainRenderer {
         patches: &[DrawPatch],
         options: &RenderOptions,
     ) -> Result<FrameStats, RenderError> {
-        self.draw(camera, patches, options, ColorTarget::Offscreen)
+        self.draw(camera, patches, None, options, ColorTarget::Offscreen)
+    }
+
+    /// Like [`TerrainRenderer::render`], then draws `extra` (uploaded in this call) in the
+    /// same pass: see [`ExtraTriangles`]. Fails with [`RenderError::BadExtra`] when a vertex
+    /// names a patch past `patches` or an index a vertex past `extra.points`.
+    pub fn render_with_extra(
+        &mut self,
+        camera: &Camera,
+        patches: &[DrawPatch],
+        extra: &ExtraTriangles,
+        options: &RenderOptions,
+    ) -> Result<FrameStats, RenderError> {
+        if let Some(p) = extra.points.iter().find(|p| p.patch_index as usize >= patches.len()) {
+            return Err(RenderError::BadExtra(format!(
+                "a vertex names patch {} of {}",
+                p.patch_index,
+                patches.len()
+            )));
+        }
+        if !extra.indices.len().is_multiple_of(3)
+            || extra.indices.iter().any(|&k| k as usize >= extra.points.len())
+        {
+            return Err(RenderError::BadExtra(format!(
+                "{} indices (a multiple of 3 below {} expected)",
+                extra.indices.len(),
+                extra.points.len()
+            )));
+        }
+        self.draw(camera, patches, Some(extra), options, ColorTarget::Offscreen)
     }
 
     /// Like [`TerrainRenderer::render`], drawing into `target`, a colour view the caller owns
@@ -753,7 +785,7 @@ impl TerrainRenderer {
                 texture.format()
             )));
         }
-        self.draw(camera, patches, options, ColorTarget::View(target, format))
+        self.draw(camera, patches, None, options, ColorTarget::View(target, format))
     }
 
     /// Test hook: the colour formats whose pipelines exist, sorted by name.
@@ -794,6 +826,7 @@ impl TerrainRenderer {
         &mut self,
         camera: &Camera,
         patches: &[DrawPatch],
+        extra: Option<&ExtraTriangles>,
         options: &RenderOptions,
         color: ColorTarget<'_>,
     ) -> Result<FrameStats, RenderError> {
@@ -810,6 +843,27 @@ impl TerrainRenderer {
             self.build_skirts();
         }
         self.write_frame(&camera, options);
+        // Uploaded once per frame: the strips change every frame.
+        let extra_buffers = extra.filter(|e| !e.indices.is_empty()).map(|e| {
+            let buffer = |label, bytes: &[u8], usage| {
+                let buf = self.device.create_buffer(&wgpu::BufferDescriptor {
+                    label: Some(label),
+                    size: (bytes.len() as u64).max(16),
+                    usage: usage | wgpu::BufferUsages::COPY_DST,
+                    mapped_at_creation: false,
+                });
+                self.queue.write_buffer(&buf, 0, bytes);
+                buf
+            };
+            let v =
+                buffer("extra points", bytemuck::cast_slice(&e.points), wgpu::BufferUsages::VERTEX);
+            let i = buffer(
+                "extra indices",
+                bytemuck::cast_slice(&e.indices),
+                wgpu::BufferUsages::INDEX,
+            );
+            (v, i, e.indices.len() as u32)
+        });
         let tess = self.tess.as_ref().expect("prepared above");
         let mut encoder = self.device.create_command_encoder(&Default::default());
         let timer = self.timer.as_ref();
@@ -856,6 +910,12 @@ impl TerrainRenderer {
                 pass.set_index_buffer(s.indices.slice(..), wgpu::IndexFormat::Uint32);
                 pass.draw_indexed(0..s.index_count, 0, 0..1);
             }
+            if let Some((v, i, n)) = &extra_buffers {
+                pass.set_pipeline(&pipelines.indexed);
+                pass.set_vertex_buffer(0, v.slice(..));
+                pass.set_index_buffer(i.slice(..), wgpu::IndexFormat::Uint32);
+                pass.draw_indexed(0..*n, 0, 0..1);
+            }
         }
         if let Some(t) = timer {
             if tessellate_now {
@@ -868,8 +928,8 @@ impl TerrainRenderer {
 
         let mut stats = FrameStats {
             patches: patches.len(),
-            triangles: tess.triangles,
-            vertices: tess.vertices,
+            triangles: tess.triangles + extra.map_or(0, |e| (e.indices.len() / 3) as u64),
+            vertices: tess.vertices + extra.map_or(0, |e| e.points.len() as u64),
             tessellated: tessellate_now,
             cpu_ms,
             gpu_ms: None,
