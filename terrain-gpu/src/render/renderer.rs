@@ -161,6 +161,8 @@ struct Tessellation {
     triangles: u64,
     vertices: u64,
     skirts: Option<Skirts>,
+    /// The patch rects (binding 2), for bind groups over other point buffers.
+    rects: wgpu::Buffer,
 }
 
 #[derive(Debug)]
@@ -663,6 +665,7 @@ impl TerrainRenderer {
             triangles,
             vertices,
             skirts: None,
+            rects: rects_buf,
         });
         Ok(true)
     }
@@ -1090,5 +1093,72 @@ impl TerrainRenderer {
             positions: values.iter().step_by(2).copied().collect(),
             normals: values.iter().skip(1).step_by(2).copied().collect(),
         })
+    }
+
+    /// Test hook: evaluates, on the device, the shader's surface position (relative to the
+    /// anchor of a camera at `camera_position`; w = absolute height) at arbitrary domain
+    /// points of `patches`, as the vertex stage does for [`ExtraTriangles`]' vertices.
+    pub fn points_read_back(
+        &mut self,
+        camera_position: DVec3,
+        patches: &[DrawPatch],
+        points: &[GpuDomainPoint],
+    ) -> Result<Vec<[f32; 4]>, RenderError> {
+        self.prepare(patches)?;
+        let camera = Camera::from_yaw_pitch(camera_position, 0.0, 0.0);
+        self.write_frame(&camera, &RenderOptions::default());
+        let tess = self.tess.as_ref().expect("prepared above");
+        let n = points.len() as u32;
+        let storage = |label, size: u64, usage| {
+            self.device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some(label),
+                size: size.max(32),
+                usage,
+                mapped_at_creation: false,
+            })
+        };
+        use wgpu::BufferUsages as U;
+        let input = storage("read-back points", u64::from(n) * 16, U::STORAGE | U::COPY_DST);
+        self.queue.write_buffer(&input, 0, bytemuck::cast_slice(points));
+        let out = storage("read-back surface", u64::from(n) * 32, U::STORAGE | U::COPY_SRC);
+        let bind = |binding, resource| wgpu::BindGroupEntry { binding, resource };
+        let group = self.device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some("read-back points"),
+            layout: &self.layout,
+            entries: &[
+                bind(0, self.frame.as_entire_binding()),
+                bind(1, wgpu::BindingResource::TextureView(&self.heights)),
+                bind(2, tess.rects.as_entire_binding()),
+                bind(3, self.col_x.as_entire_binding()),
+                bind(4, self.row_y.as_entire_binding()),
+                bind(5, wgpu::BindingResource::TextureView(&self.color)),
+                bind(6, wgpu::BindingResource::Sampler(&self.sampler)),
+                bind(7, input.as_entire_binding()),
+                bind(8, tess.out.indices.as_entire_binding()),
+            ],
+        });
+        let debug_group = self.device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some("terrain debug"),
+            layout: &self.debug_layout,
+            entries: &[wgpu::BindGroupEntry { binding: 0, resource: out.as_entire_binding() }],
+        });
+        let mut encoder = self.device.create_command_encoder(&Default::default());
+        {
+            let mut pass = encoder.begin_compute_pass(&Default::default());
+            pass.set_pipeline(&self.debug);
+            pass.set_bind_group(0, &group, &[]);
+            pass.set_bind_group(1, &debug_group, &[]);
+            if n > 0 {
+                pass.dispatch_workgroups(n.div_ceil(64), 1, 1);
+            }
+        }
+        self.queue.submit([encoder.finish()]);
+        let values: Vec<[f32; 4]> = bytemuck::pod_collect_to_vec(&read_buffer(
+            &self.device,
+            &self.queue,
+            &out,
+            u64::from(n) * 32,
+        )?);
+        Ok(values.iter().step_by(2).copied().collect())
     }
 }

@@ -26,6 +26,8 @@
 pub mod triangulate;
 
 #[cfg(test)]
+mod gpu_tests;
+#[cfg(test)]
 mod tests;
 
 use std::collections::HashMap;
