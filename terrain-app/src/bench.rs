@@ -98,7 +98,9 @@ pub fn sweep_values(method: LodMethod, leaf_cells: u32) -> (&'static str, Vec<f6
         LodMethod::PvpsA | LodMethod::PvpsB | LodMethod::PvpsC => {
             ("C1", vec![12.5, 25.0, 50.0, 100.0, 200.0])
         }
-        LodMethod::Dss1 | LodMethod::Dss2 => ("rho_thr", vec![0.25, 0.5, 1.0, 2.0, 4.0, 8.0]),
+        LodMethod::Dss1 | LodMethod::Dss2 | LodMethod::DssStrips => {
+            ("rho_thr", vec![0.25, 0.5, 1.0, 2.0, 4.0, 8.0])
+        }
     }
 }
 
@@ -138,7 +140,7 @@ pub fn apply_parameter(config: &mut MethodConfig, method: LodMethod, value: f64)
     match method {
         LodMethod::Uniform => config.uniform_factor = value as f32,
         LodMethod::PvpsA | LodMethod::PvpsB | LodMethod::PvpsC => config.pvps.c1 = value,
-        LodMethod::Dss1 | LodMethod::Dss2 => config.dss.rho_thr = value,
+        LodMethod::Dss1 | LodMethod::Dss2 | LodMethod::DssStrips => config.dss.rho_thr = value,
     }
 }
 
@@ -267,15 +269,16 @@ impl<'a> FrameRunner<'a> {
     pub fn frame(&mut self, frame: usize, camera: &Camera) -> anyhow::Result<FrameRecord> {
         let scene = self.scene;
         let t = Instant::now();
-        let selection = scene.select(self.method, camera);
+        let drawn = scene.frame(self.method, camera);
+        let selection = &drawn.selection;
         let selection_ms = ms(t);
 
         let t = Instant::now();
-        let (mesh, triangle_count) = scene.drawn_surface(&selection);
+        let (mesh, triangle_count) = scene.frame_surface(&drawn);
         let cpu_tess_ms = ms(t);
 
         let t = Instant::now();
-        let errors = self.measurer.measure(camera, &selection, &mesh);
+        let errors = self.measurer.measure(camera, selection, &mesh);
         let measure_ms = ms(t);
         drop(mesh);
 
@@ -298,9 +301,9 @@ impl<'a> FrameRunner<'a> {
             errors,
         };
         if let Some(renderer) = self.renderer.as_deref_mut() {
-            let patches = scene.draw_patches(&selection);
+            let (patches, extra) = scene.frame_draw(&drawn);
             let t = Instant::now();
-            let s = renderer.render(camera, &patches, &self.options)?;
+            let s = renderer.render_with_extra(camera, &patches, &extra, &self.options)?;
             let render_ms = ms(t);
             let anchor = TerrainRenderer::anchor_for(camera.position);
             let mut bytes = 128u64;
@@ -308,6 +311,8 @@ impl<'a> FrameRunner<'a> {
                 let per_patch = size_of::<GpuPatchFactors>() + size_of::<PatchRange>() + 16;
                 bytes += (patches.len() * per_patch) as u64;
             }
+            // Strips are uploaded every frame.
+            bytes += (extra.points.len() * 16 + extra.indices.len() * 4) as u64;
             if self.last_anchor != Some(anchor) {
                 bytes += 4 * (scene.hm.width() + scene.hm.height()) as u64;
             }
@@ -659,6 +664,7 @@ fn colour(m: LodMethod) -> &'static str {
         LodMethod::PvpsC => "#d62728",
         LodMethod::Dss1 => "#9467bd",
         LodMethod::Dss2 => "#ff7f0e",
+        LodMethod::DssStrips => "#8c564b",
     }
 }
 

@@ -10,17 +10,21 @@
 //!   occlusion issue's).
 //! - `dss-1`, `dss-2`: the DSS paper's (Zhang 2019) comparison Methods I (power-of-two factors)
 //!   and II (uniform blocks with continuous factors).
+//! - `dss-strips`: the DSS paper's own method: M-blocks with their own continuous factors,
+//!   P-blocks and dynamic stitching strips (drawn as extra triangles; see [`MethodFrame`]).
 
 use std::sync::OnceLock;
 
 use terrain_core::Heightmap;
 use terrain_core::geometry::Camera;
 use terrain_core::lod::{
-    DssConfig, DssErrorTable, MAX_FACTOR, MIN_FACTOR, Patch, PvpsConfig, Selection, SelectionStats,
-    SurfaceMesh, build_surface, select_dss_power_of_two, select_dss_uniform, select_pvps,
+    DssConfig, DssErrorTable, DssStripsConfig, MAX_FACTOR, MIN_FACTOR, Patch, PvpsConfig,
+    Selection, SelectionStats, SurfaceMesh, build_surface, select_dss_power_of_two,
+    select_dss_strips, select_dss_uniform, select_pvps,
 };
 use terrain_core::quadtree::{FrustumCull, Quadtree, SplitToLevel, select};
-use terrain_gpu::render::DrawPatch;
+use terrain_gpu::render::{DrawPatch, ExtraTriangles};
+use terrain_gpu::strips::{self, StripMesh};
 use terrain_gpu::tess::{PatchFactors, tessellate};
 use terrain_visibility::roughness::{
     NodePyramid, RoughnessConfig, d2_pyramid, range_pyramid, roughness_pyramid,
@@ -46,17 +50,22 @@ pub enum LodMethod {
     #[value(name = "dss-2")]
     #[serde(rename = "dss-2")]
     Dss2,
+    /// DSS paper's own method: continuous factors per M-block, stitching strips and P-blocks.
+    #[value(name = "dss-strips")]
+    #[serde(rename = "dss-strips")]
+    DssStrips,
 }
 
 impl LodMethod {
     /// Every method, in a fixed order (the benchmark's).
-    pub const ALL: [LodMethod; 6] = [
+    pub const ALL: [LodMethod; 7] = [
         LodMethod::Uniform,
         LodMethod::PvpsA,
         LodMethod::PvpsB,
         LodMethod::PvpsC,
         LodMethod::Dss1,
         LodMethod::Dss2,
+        LodMethod::DssStrips,
     ];
 
     /// The CLI and report name.
@@ -68,7 +77,14 @@ impl LodMethod {
             LodMethod::PvpsC => "pvps-c",
             LodMethod::Dss1 => "dss-1",
             LodMethod::Dss2 => "dss-2",
+            LodMethod::DssStrips => "dss-strips",
         }
+    }
+
+    /// Whether the method draws extra triangles besides its patches (its selection's patches
+    /// share no edges, so `lod::check_shared_edges` does not apply to it).
+    pub fn has_strips(self) -> bool {
+        self == LodMethod::DssStrips
     }
 }
 
@@ -83,6 +99,9 @@ pub struct MethodConfig {
     pub dss: DssConfig,
     /// The `uniform` method's factor. Default 16.
     pub uniform_factor: f32,
+    /// `dss-strips`: half the strip width in cells (`DssStripsConfig::half_width_cells`).
+    /// Default 1.
+    pub strip_half_width_cells: u32,
 }
 
 impl Default for MethodConfig {
@@ -97,6 +116,7 @@ impl Default for MethodConfig {
                 ..DssConfig::default()
             },
             uniform_factor: 16.0,
+            strip_half_width_cells: 1,
         }
     }
 }
@@ -160,7 +180,7 @@ impl MethodScene {
                 LodMethod::PvpsC => {
                     self.roughness(2);
                 }
-                LodMethod::Dss1 | LodMethod::Dss2 => {
+                LodMethod::Dss1 | LodMethod::Dss2 | LodMethod::DssStrips => {
                     self.dss_errors();
                 }
                 LodMethod::Uniform => {}
@@ -183,6 +203,44 @@ impl MethodScene {
             LodMethod::Dss2 => {
                 select_dss_uniform(&self.qt, camera, self.dss_errors(), &self.config.dss)
             }
+            LodMethod::DssStrips => self.frame(method, camera).selection,
+        }
+    }
+
+    /// What `method` draws from `camera`: its selection and, for `dss-strips`, the blocks
+    /// and the strips built this frame. The selection's `cpu_time` covers all of it (for
+    /// `dss-strips`: the multilevel update plus the strip construction).
+    pub fn frame(&self, method: LodMethod, camera: &Camera) -> MethodFrame {
+        if method != LodMethod::DssStrips {
+            return MethodFrame { selection: self.select(method, camera), strips: None };
+        }
+        let cfg = DssStripsConfig {
+            dss: self.config.dss.clone(),
+            half_width_cells: self.config.strip_half_width_cells,
+        };
+        let frame = select_dss_strips(&self.qt, camera, self.dss_errors(), &cfg);
+        let update = frame.stats.cpu_time;
+        let mesh = strips::build_strips(&frame);
+        let mut selection = frame.selection();
+        selection.stats.cpu_time = update + mesh.cpu_time;
+        let patches = strips::draw_patches(&frame);
+        MethodFrame { selection, strips: Some(StripFrame { patches, mesh, update }) }
+    }
+
+    /// The surface a frame draws, rebuilt on the CPU (see [`MethodScene::drawn_surface`]),
+    /// strips included; and the drawn triangle count.
+    pub fn frame_surface(&self, frame: &MethodFrame) -> (SurfaceMesh, u64) {
+        match &frame.strips {
+            None => self.drawn_surface(&frame.selection),
+            Some(s) => strips::build_strip_surface(&self.hm, &s.patches, &s.mesh.triangles),
+        }
+    }
+
+    /// The renderer's patches and extra triangles of a frame.
+    pub fn frame_draw(&self, frame: &MethodFrame) -> (Vec<DrawPatch>, ExtraTriangles) {
+        match &frame.strips {
+            None => (self.draw_patches(&frame.selection), ExtraTriangles::default()),
+            Some(s) => (s.patches.clone(), s.mesh.triangles.clone()),
         }
     }
 
@@ -222,6 +280,26 @@ impl MethodScene {
     pub fn draw_patches(&self, selection: &Selection) -> Vec<DrawPatch> {
         draw_patches(&self.qt, selection)
     }
+}
+
+/// What a method draws in one frame ([`MethodScene::frame`]).
+#[derive(Debug, Clone)]
+pub struct MethodFrame {
+    /// The selection: drawn patches (for `dss-strips`, its visible M-blocks).
+    pub selection: Selection,
+    /// `dss-strips` only: the blocks as draw patches and the strips.
+    pub strips: Option<StripFrame>,
+}
+
+/// The `dss-strips` part of a [`MethodFrame`].
+#[derive(Debug, Clone)]
+pub struct StripFrame {
+    /// Every M-block (hidden ones with outer factors 0), the strips' patch indices.
+    pub patches: Vec<DrawPatch>,
+    /// Strips and P-blocks, with their construction time.
+    pub mesh: StripMesh,
+    /// The multilevel update's time (section 3.3.1).
+    pub update: std::time::Duration,
 }
 
 /// Converts a selection into the renderer's patches.

@@ -56,7 +56,8 @@ fn no_method_draws_a_crack(name: &str, hm: Heightmap) {
         let scene = MethodScene::new(hm, MethodConfig { leaf_cells, ..MethodConfig::default() });
         let cameras = crack_cameras(&scene.hm, leaf_cells as usize + 1);
         assert!(cameras.len() >= 20);
-        for method in LodMethod::ALL {
+        // dss-strips draws extra triangles and shares no patch edges: tests/tests/dss_strips.rs.
+        for method in LodMethod::ALL.into_iter().filter(|m| !m.has_strips()) {
             let mut levels = std::collections::BTreeSet::new();
             let mut patches_per_camera = Vec::new();
             let mut cracks = Vec::new();
