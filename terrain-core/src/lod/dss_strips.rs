@@ -258,7 +258,16 @@ fn assemble(
                 neighbours[3].is_none() || x0 == 0,
             ];
             let inset = |k: usize| if border[k] { 0 } else { s };
-            let rect = [x0 + inset(3), y0 + inset(0), x0 + c - inset(1), y0 + c - inset(2)];
+            // A node holding `s` cells or fewer of the grid (its square mostly past the east or
+            // north edge) would start past the grid's last cell once shrunk: start it at that
+            // cell instead (a narrower strip on its west or south side; positions past the
+            // grid are clamped for every patch anyway).
+            let rect = [
+                (x0 + inset(3)).min(w1.saturating_sub(1).max(x0)),
+                (y0 + inset(0)).min(h1.saturating_sub(1).max(y0)),
+                x0 + c - inset(1),
+                y0 + c - inset(2),
+            ];
             let factor = if visible { factor(node, &info) } else { 2.0 };
             MBlock { id: dss_block_id(node), node, rect, factor, visible, neighbours, border }
         })
