@@ -6,7 +6,7 @@
 //!
 //! ```sh
 //! cargo run --release -p terrain-app --example dss_strips_bench -- \
-//!     [DEM [vertical_scale spacing_m]] [--flight flights/dss_approach.json] [--rho 1] [--frames 60]
+//!     [DEM [vertical_scale spacing_m]] [--flight flights/dss_approach.json] [--rho 0.25,1,4] [--frames 60]
 //! ```
 //! Default DEM: `../shared/data/puget_sound/ps_height_4k.jpg` (4096 x 4096, scale 25.6,
 //! spacing 40 m, as terrain-stream's `stream_bench`). Threads: rayon's default (`RAYON_NUM_THREADS`).
@@ -37,7 +37,10 @@ fn main() -> anyhow::Result<()> {
         }
     };
     let flight = take("--flight", "flights/dss_approach.json");
-    let rho: f64 = take("--rho", "1").parse().context("--rho")?;
+    let rhos: Vec<f64> = take("--rho", "0.25,1,4")
+        .split(',')
+        .map(|r| r.parse().context("--rho: comma-separated numbers"))
+        .collect::<anyhow::Result<_>>()?;
     let frames: usize = take("--frames", "60").parse().context("--frames")?;
     let (path, opts) = match args.as_slice() {
         [] => (
@@ -68,9 +71,7 @@ fn main() -> anyhow::Result<()> {
     let all = resolved.frames();
     let picks = terrain_app::bench::frame_indices(all.len(), frames);
 
-    let mut config = MethodConfig::default();
-    config.dss.rho_thr = rho;
-    let scene = MethodScene::new(hm, config);
+    let mut scene = MethodScene::new(hm, MethodConfig::default());
     let t = Instant::now();
     scene.prepare(&[LodMethod::DssStrips]);
     println!(
@@ -84,43 +85,48 @@ fn main() -> anyhow::Result<()> {
         std::env::var("RAYON_NUM_THREADS").unwrap_or_else(|_| "unset".into())
     );
 
-    let (mut update, mut strips, mut blocks, mut nstrips, mut pblocks, mut tris) =
-        (vec![], vec![], vec![], vec![], vec![], vec![]);
-    for &k in &picks {
-        let frame = scene.frame(LodMethod::DssStrips, &all[k]);
-        let s = frame.strips.as_ref().expect("dss-strips has strips");
-        update.push(s.update.as_secs_f64() * 1e3);
-        strips.push(s.mesh.cpu_time.as_secs_f64() * 1e3);
-        blocks.push(frame.selection.patches.len() as f64);
-        nstrips.push(s.mesh.strips as f64);
-        pblocks.push(s.mesh.pblocks as f64);
-        let block_tris: usize = s
-            .patches
-            .iter()
-            .map(|p| terrain_gpu::tess::tessellate(&p.factors).non_degenerate_triangle_count())
-            .sum();
-        tris.push((block_tris + s.mesh.triangles.indices.len() / 3) as f64);
-    }
-    println!(
-        "dss-strips, rho_thr {rho}, {} frames of {}: median update {:.3} ms (max {:.3}), strip \
-         construction {:.3} ms (max {:.3}); blocks {:.0}, strips {:.0}, P-blocks {:.0}, triangles {:.0}",
-        picks.len(),
-        spec.name,
-        median(update.clone()),
-        update.iter().copied().fold(0.0, f64::max),
-        median(strips.clone()),
-        strips.iter().copied().fold(0.0, f64::max),
-        median(blocks),
-        median(nstrips),
-        median(pblocks),
-        median(tris)
-    );
-    for method in [LodMethod::Dss1, LodMethod::Dss2] {
-        let ms: Vec<f64> = picks
-            .iter()
-            .map(|&k| scene.select(method, &all[k]).stats.cpu_time.as_secs_f64() * 1e3)
-            .collect();
-        println!("{}: median selection {:.3} ms", method.name(), median(ms));
+    for &rho in &rhos {
+        scene.config.dss.rho_thr = rho;
+        // One frame first, not counted: rayon's pool starts on first use.
+        let _ = scene.frame(LodMethod::DssStrips, &all[picks[0]]);
+        let (mut update, mut strips, mut blocks, mut nstrips, mut pblocks, mut tris) =
+            (vec![], vec![], vec![], vec![], vec![], vec![]);
+        for &k in &picks {
+            let frame = scene.frame(LodMethod::DssStrips, &all[k]);
+            let s = frame.strips.as_ref().expect("dss-strips has strips");
+            update.push(s.update.as_secs_f64() * 1e3);
+            strips.push(s.mesh.cpu_time.as_secs_f64() * 1e3);
+            blocks.push(frame.selection.patches.len() as f64);
+            nstrips.push(s.mesh.strips as f64);
+            pblocks.push(s.mesh.pblocks as f64);
+            let block_tris: usize = s
+                .patches
+                .iter()
+                .map(|p| terrain_gpu::tess::tessellate(&p.factors).non_degenerate_triangle_count())
+                .sum();
+            tris.push((block_tris + s.mesh.triangles.indices.len() / 3) as f64);
+        }
+        println!(
+            "dss-strips, rho_thr {rho}, {} frames of {}: median update {:.3} ms (max {:.3}), strip \
+             construction {:.3} ms (max {:.3}); blocks {:.0}, strips {:.0}, P-blocks {:.0}, triangles {:.0}",
+            picks.len(),
+            spec.name,
+            median(update.clone()),
+            update.iter().copied().fold(0.0, f64::max),
+            median(strips.clone()),
+            strips.iter().copied().fold(0.0, f64::max),
+            median(blocks),
+            median(nstrips),
+            median(pblocks),
+            median(tris)
+        );
+        for method in [LodMethod::Dss1, LodMethod::Dss2] {
+            let ms: Vec<f64> = picks
+                .iter()
+                .map(|&k| scene.select(method, &all[k]).stats.cpu_time.as_secs_f64() * 1e3)
+                .collect();
+            println!("{}: median selection {:.3} ms", method.name(), median(ms));
+        }
     }
     Ok(())
 }

@@ -940,4 +940,39 @@ mod tests {
         assert_eq!(median(vec![]), 0.0);
         assert_eq!(log_range([0.5, 20.0].into_iter()), (-1.0, 2.0));
     }
+
+    #[test]
+    fn summary_reports_rmse_change_and_height_jumps() {
+        let frame = |rmse: f64, change: Option<f64>, jump: f64| FrameRecord {
+            frame: 0,
+            patches: 1,
+            triangles: 2,
+            selection_ms: 0.0,
+            cpu_tess_ms: 0.0,
+            measure_ms: 0.0,
+            encode_ms: None,
+            render_ms: None,
+            gpu_ms: None,
+            gpu_draw_ms: None,
+            gpu_tessellated: None,
+            upload_bytes: None,
+            cpu_ms: 0.0,
+            frame_ms: 0.0,
+            rss_bytes: None,
+            errors: FrameErrors {
+                rmse_m: rmse,
+                rmse_change_m: change,
+                popping_max_m: jump,
+                ..FrameErrors::default()
+            },
+        };
+        // The first frame has no previous one: no change, no jump.
+        let frames =
+            [frame(5.0, None, 0.0), frame(7.0, Some(2.0), 3.0), frame(6.0, Some(1.0), 9.0)];
+        let s = RunSummary::new(&frames);
+        assert_eq!(s.median_rmse_change_m, 1.5);
+        assert_eq!(s.median_max_jump_m, 6.0);
+        assert_eq!(s.max_popping_m, 9.0);
+        assert_eq!(s.median_rmse_m, 6.0);
+    }
 }
