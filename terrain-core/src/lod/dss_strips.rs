@@ -48,7 +48,7 @@
 //! or not at all: dropping single edges would open it).
 
 use std::collections::HashMap;
-use std::time::{Duration, Instant};
+use std::time::Instant;
 
 use glam::{DVec2, DVec3};
 
@@ -210,6 +210,8 @@ pub fn select_dss_strips(
                 Visit::Leaf => stats.traversal_leaves += 1,
             }
         };
+        // Zhang 2019 (DSS), section 3.3.1: split while rho_32 > rho_thr (Eq. 3 on delta_32),
+        // as long as the children keep two cells inside their strips.
         let mut split = |n: NodeId, info: &NodeInfo| {
             (info.cells / 2) >= 2 * s + 2 && metric.must_split(n, info)
         };
@@ -223,6 +225,7 @@ pub fn select_dss_strips(
     let mut nodes: Vec<(NodeId, bool)> = leaves.iter().map(|&n| (n, true)).collect();
     nodes.extend(hidden.iter().map(|&n| (n, false)));
     let frustum = cfg.dss.frustum_cull.then(|| camera.frustum());
+    // Zhang 2019 (DSS), Eq. 4: the continuous factor F_thr from the 32 screen errors (Eq. 3).
     let factor = |n: NodeId, info: &NodeInfo| metric.factor(n, info);
     let (blocks, pblocks, strips, culled_strips) =
         assemble(qt, nodes, &splits, factor, s, frustum.as_ref());
@@ -403,11 +406,6 @@ pub fn frame_from_leaves(
         ..SelectionStats::default()
     };
     DssStripFrame { blocks, pblocks, strips, stats, culled_strips }
-}
-
-/// The multilevel update's cost of a frame (traversal, factors, structure).
-pub fn update_time(frame: &DssStripFrame) -> Duration {
-    frame.stats.cpu_time
 }
 
 #[cfg(test)]

@@ -120,11 +120,24 @@ pub fn build_strip(frame: &DssStripFrame, strip: &Strip) -> (Vec<GpuDomainPoint>
     (points, indices)
 }
 
-/// Builds every strip (in parallel) and P-block of `frame`: section 3.2, once per frame.
+/// Frames with fewer strips are built on the calling thread: a strip costs about a
+/// microsecond, less than waking rayon's workers (milliseconds on a loaded machine).
+pub const PARALLEL_MIN_STRIPS: usize = 512;
+
+/// Builds every strip and P-block of `frame` (section 3.2, once per frame), in parallel with
+/// rayon from [`PARALLEL_MIN_STRIPS`] strips on ("several worker threads", section 3.2.3).
 pub fn build_strips(frame: &DssStripFrame) -> StripMesh {
+    build_strips_with(frame, frame.strips.len() >= PARALLEL_MIN_STRIPS)
+}
+
+/// [`build_strips`], in parallel or not: the same output either way.
+pub fn build_strips_with(frame: &DssStripFrame, parallel: bool) -> StripMesh {
     let start = Instant::now();
-    let parts: Vec<(Vec<GpuDomainPoint>, Vec<u32>)> =
-        frame.strips.par_iter().with_min_len(8).map(|s| build_strip(frame, s)).collect();
+    let parts: Vec<(Vec<GpuDomainPoint>, Vec<u32>)> = if parallel {
+        frame.strips.par_iter().with_min_len(32).map(|s| build_strip(frame, s)).collect()
+    } else {
+        frame.strips.iter().map(|s| build_strip(frame, s)).collect()
+    };
     let (np, ni) = parts.iter().fold((0, 0), |(p, i), (a, b)| (p + a.len(), i + b.len()));
     let mut out = ExtraTriangles {
         points: Vec::with_capacity(np + 4 * frame.pblocks.len()),

@@ -116,6 +116,10 @@ fn random_quadtrees_are_watertight_and_strips_share_the_blocks_edge_vertices() {
                 assert!(x0 < x1 && y0 < y1 && x0 + 1 < w as u32 && y0 + 1 < h as u32, "{p:?}");
             }
             let strips = build_strips(&frame);
+            let serial = build_strips_with(&frame, false);
+            let parallel = build_strips_with(&frame, true);
+            assert_eq!(serial.triangles, parallel.triangles);
+            assert_eq!(serial.triangles, strips.triangles);
             let (mesh, count) = build_strip_surface(&hm, &patches, &strips.triangles);
             assert!(count > 0);
             factors_seen.extend(frame.blocks.iter().map(|b| b.factor.to_bits()));
