@@ -18,6 +18,8 @@ use glam::dvec2;
 use terrain_app::methods::{LodMethod, MethodConfig, MethodScene};
 use terrain_core::dem::{LoadOptions, load};
 use terrain_core::flight::{FlightConfig, FlightSpec};
+use terrain_core::lod::{DssStripsConfig, select_dss_strips};
+use terrain_gpu::strips::build_strips_with;
 
 fn median(mut v: Vec<f64>) -> f64 {
     v.sort_by(f64::total_cmp);
@@ -89,6 +91,7 @@ fn main() -> anyhow::Result<()> {
         scene.config.dss.rho_thr = rho;
         // One frame first, not counted: rayon's pool starts on first use.
         let _ = scene.frame(LodMethod::DssStrips, &all[picks[0]]);
+        let (mut serial, mut parallel) = (vec![], vec![]);
         let (mut update, mut strips, mut blocks, mut nstrips, mut pblocks, mut tris) =
             (vec![], vec![], vec![], vec![], vec![], vec![]);
         for &k in &picks {
@@ -105,6 +108,14 @@ fn main() -> anyhow::Result<()> {
                 .map(|p| terrain_gpu::tess::tessellate(&p.factors).non_degenerate_triangle_count())
                 .sum();
             tris.push((block_tris + s.mesh.triangles.indices.len() / 3) as f64);
+            // The same frame's strips on the calling thread and on rayon's pool.
+            let cfg = DssStripsConfig {
+                dss: scene.config.dss.clone(),
+                half_width_cells: scene.config.strip_half_width_cells,
+            };
+            let f = select_dss_strips(&scene.qt, &all[k], scene.dss_errors(), &cfg);
+            serial.push(build_strips_with(&f, false).cpu_time.as_secs_f64() * 1e3);
+            parallel.push(build_strips_with(&f, true).cpu_time.as_secs_f64() * 1e3);
         }
         println!(
             "dss-strips, rho_thr {rho}, {} frames of {}: median update {:.3} ms (max {:.3}), strip \
@@ -119,6 +130,11 @@ fn main() -> anyhow::Result<()> {
             median(nstrips),
             median(pblocks),
             median(tris)
+        );
+        println!(
+            "  strip construction, serial {:.3} ms, rayon {:.3} ms (medians)",
+            median(serial),
+            median(parallel)
         );
         for method in [LodMethod::Dss1, LodMethod::Dss2] {
             let ms: Vec<f64> = picks
