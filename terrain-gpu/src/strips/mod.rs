@@ -1,7 +1,8 @@
 //! The DSS paper's dynamic stitching strips (Zhang 2019, section 3.2) on the CPU: their
 //! vertices from the tessellator's CPU reference, their triangulation (Algorithm 1,
-//! [`triangulate`]), built every frame in parallel (rayon) and drawn by the renderer as extra
-//! triangles ([`crate::render::ExtraTriangles`]) after the M-blocks' tessellation.
+//! [`triangulate`]), built every frame (in parallel with rayon from [`PARALLEL_MIN_STRIPS`]
+//! strips on) and drawn by the renderer as extra triangles ([`crate::render::ExtraTriangles`])
+//! after the M-blocks' tessellation.
 //!
 //! The structure (M-blocks, P-blocks, which blocks line which strip) comes from
 //! `terrain_core::lod::dss_strips`; see its docs for the geometry (blocks shrunk by `s` cells,
