@@ -84,9 +84,20 @@ fn edge_uv(e: Edge, t: f32) -> [f32; 2] {
 
 /// One side of a strip: its vertices and their positions along it (grid samples).
 fn side(frame: &DssStripFrame, blocks: &[usize], e: Edge) -> (Vec<GpuDomainPoint>, Vec<f64>) {
+    let (mut points, mut along) = (Vec::new(), Vec::new());
+    push_side(frame, blocks, e, &mut points, &mut along);
+    (points, along)
+}
+
+/// Appends one side's vertices to `points` and their positions along the strip to `along`.
+fn push_side(
+    frame: &DssStripFrame,
+    blocks: &[usize],
+    e: Edge,
+    points: &mut Vec<GpuDomainPoint>,
+    along: &mut Vec<f64>,
+) {
     let vertical = matches!(e, Edge::East | Edge::West);
-    let mut points = Vec::new();
-    let mut along = Vec::new();
     for &k in blocks {
         let b = &frame.blocks[k];
         let spacing = EdgeSpacing::new(b.factor);
@@ -98,7 +109,31 @@ fn side(frame: &DssStripFrame, blocks: &[usize], e: Edge) -> (Vec<GpuDomainPoint
             along.push(lo + f64::from(t) * len);
         }
     }
-    (points, along)
+}
+
+/// Appends strip `strip` to `out` (vertices, then triangles indexing them), with `low` and
+/// `high` as scratch space: [`build_strip`] without allocating.
+fn append_strip(
+    frame: &DssStripFrame,
+    strip: &Strip,
+    out: &mut ExtraTriangles,
+    (low, high): (&mut Vec<f64>, &mut Vec<f64>),
+) {
+    let base = out.points.len() as u32;
+    low.clear();
+    high.clear();
+    push_side(frame, &strip.low, strip.facing_edge(false), &mut out.points, low);
+    push_side(frame, &strip.high, strip.facing_edge(true), &mut out.points, high);
+    let na = base + low.len() as u32;
+    for tri in triangulate::bisector_triangles(low, high) {
+        let [a, b, c] = tri.map(|(hi, k)| if hi { na + k } else { base + k });
+        // See `build_strip` for the orientation.
+        if strip.vertical != tri[0].0 {
+            out.indices.extend([a, c, b]);
+        } else {
+            out.indices.extend([a, b, c]);
+        }
+    }
 }
 
 /// The vertices and triangles (local indices) of one strip.
@@ -134,20 +169,23 @@ pub fn build_strips(frame: &DssStripFrame) -> StripMesh {
 /// [`build_strips`], in parallel or not: the same output either way.
 pub fn build_strips_with(frame: &DssStripFrame, parallel: bool) -> StripMesh {
     let start = Instant::now();
-    let parts: Vec<(Vec<GpuDomainPoint>, Vec<u32>)> = if parallel {
-        frame.strips.par_iter().with_min_len(32).map(|s| build_strip(frame, s)).collect()
+    let mut out = ExtraTriangles::default();
+    if parallel {
+        let parts: Vec<(Vec<GpuDomainPoint>, Vec<u32>)> =
+            frame.strips.par_iter().with_min_len(32).map(|s| build_strip(frame, s)).collect();
+        let (np, ni) = parts.iter().fold((0, 0), |(p, i), (a, b)| (p + a.len(), i + b.len()));
+        out.points.reserve(np + 4 * frame.pblocks.len());
+        out.indices.reserve(ni + 6 * frame.pblocks.len());
+        for (points, indices) in parts {
+            let base = out.points.len() as u32;
+            out.points.extend(points);
+            out.indices.extend(indices.into_iter().map(|k| k + base));
+        }
     } else {
-        frame.strips.iter().map(|s| build_strip(frame, s)).collect()
-    };
-    let (np, ni) = parts.iter().fold((0, 0), |(p, i), (a, b)| (p + a.len(), i + b.len()));
-    let mut out = ExtraTriangles {
-        points: Vec::with_capacity(np + 4 * frame.pblocks.len()),
-        indices: Vec::with_capacity(ni + 6 * frame.pblocks.len()),
-    };
-    for (points, indices) in parts {
-        let base = out.points.len() as u32;
-        out.points.extend(points);
-        out.indices.extend(indices.into_iter().map(|k| k + base));
+        let (mut low, mut high) = (Vec::new(), Vec::new());
+        for s in &frame.strips {
+            append_strip(frame, s, &mut out, (&mut low, &mut high));
+        }
     }
     for p in &frame.pblocks {
         let base = out.points.len() as u32;
