@@ -105,7 +105,9 @@ pub fn sweep_values(method: LodMethod, leaf_cells: u32) -> (&'static str, Vec<f6
         LodMethod::PvpsA | LodMethod::PvpsB | LodMethod::PvpsC => {
             ("C1", vec![12.5, 25.0, 50.0, 100.0, 200.0])
         }
-        LodMethod::Dss1 | LodMethod::Dss2 => ("rho_thr", vec![0.25, 0.5, 1.0, 2.0, 4.0, 8.0]),
+        LodMethod::Dss1 | LodMethod::Dss2 | LodMethod::DssStrips => {
+            ("rho_thr", vec![0.25, 0.5, 1.0, 2.0, 4.0, 8.0])
+        }
         // E0 in percent of the largest entropy (the paper's 10..18 barely simplify at our
         // entropy scale; see `terrain_visibility::entropy::source::EntropyScale`).
         LodMethod::Entropy => ("E0", vec![0.0, 18.0, 50.0, 70.0, 85.0, 95.0]),
@@ -152,7 +154,7 @@ pub fn apply_parameter(config: &mut MethodConfig, method: LodMethod, value: f64)
     match method {
         LodMethod::Uniform => config.uniform_factor = value as f32,
         LodMethod::PvpsA | LodMethod::PvpsB | LodMethod::PvpsC => config.pvps.c1 = value,
-        LodMethod::Dss1 | LodMethod::Dss2 => config.dss.rho_thr = value,
+        LodMethod::Dss1 | LodMethod::Dss2 | LodMethod::DssStrips => config.dss.rho_thr = value,
         LodMethod::Entropy => config.entropy.e0 = value,
         LodMethod::Geomorph => config.geomip.pixel_threshold = value,
         LodMethod::PvpsCPvs | LodMethod::PvpsCConservative => config.pvps.c1 = value,
@@ -160,7 +162,7 @@ pub fn apply_parameter(config: &mut MethodConfig, method: LodMethod, value: f64)
 }
 
 /// One frame: what was drawn, what it cost by stage, and how wrong it was.
-#[derive(Debug, Clone, PartialEq, Serialize)]
+#[derive(Debug, Clone, Default, PartialEq, Serialize)]
 pub struct FrameRecord {
     /// Frame index in the flight (frame `k` at `t = k / fps`).
     pub frame: usize,
@@ -400,15 +402,16 @@ impl<'a> FrameRunner<'a> {
         }
         let scene = self.scene;
         let t = Instant::now();
-        let selection = scene.select(self.method, camera);
+        let drawn = scene.frame(self.method, camera);
+        let selection = &drawn.selection;
         let selection_ms = ms(t);
 
         let t = Instant::now();
-        let (mesh, triangle_count) = scene.drawn_surface(&selection);
+        let (mesh, triangle_count) = scene.frame_surface(&drawn);
         let cpu_tess_ms = ms(t);
 
         let t = Instant::now();
-        let errors = self.measurer.measure(camera, &selection, &mesh);
+        let errors = self.measurer.measure(camera, selection, &mesh);
         let measure_ms = ms(t);
         drop(mesh);
 
@@ -434,9 +437,9 @@ impl<'a> FrameRunner<'a> {
             material_passes_skipped: None,
         };
         if let Some(renderer) = self.renderer.as_deref_mut() {
-            let patches = scene.draw_patches(&selection);
+            let (patches, extra) = scene.frame_draw(&drawn);
             let t = Instant::now();
-            let s = renderer.render(camera, &patches, &self.options)?;
+            let s = renderer.render_with_extra(camera, &patches, &extra, &self.options)?;
             let render_ms = ms(t);
             let anchor = TerrainRenderer::anchor_for(camera.position);
             let mut bytes = 128u64;
@@ -444,6 +447,8 @@ impl<'a> FrameRunner<'a> {
                 let per_patch = size_of::<GpuPatchFactors>() + size_of::<PatchRange>() + 16;
                 bytes += (patches.len() * per_patch) as u64;
             }
+            // Strips are uploaded every frame.
+            bytes += (extra.points.len() * 16 + extra.indices.len() * 4) as u64;
             if self.last_anchor != Some(anchor) {
                 bytes += 4 * (scene.hm.width() + scene.hm.height()) as u64;
             }
@@ -492,9 +497,7 @@ impl<'a> FrameRunner<'a> {
             frame_ms: selection_ms + cpu_tess_ms,
             rss_bytes: rss_bytes(),
             errors,
-            vertex_jump_m: None,
-            vertex_jump_no_morph_m: None,
-            material_passes_skipped: None,
+            ..FrameRecord::default()
         }
     }
 
@@ -541,8 +544,16 @@ pub struct RunSummary {
     pub max_abs_m: f64,
     /// Median popping RMS (frames after the first), metres.
     pub median_popping_rms_m: f64,
-    /// Largest popping of any frame, metres.
+    /// Largest popping of any frame, metres: the largest per-vertex height jump, i.e. the
+    /// largest `|drawn_k - drawn_(k-1)|` at a measured DEM sample seen in both frames (the
+    /// sample's DEM height is the same in both, so the change of `delta` is the change of the
+    /// drawn surface there: what the eye sees as a pop).
     pub max_popping_m: f64,
+    /// Median over frames after the first of the frame's largest height jump, metres.
+    pub median_max_jump_m: f64,
+    /// Median over frames after the first of `|RMSE_k - RMSE_(k-1)|` (the DSS paper's
+    /// "change of RMSE", section 5), metres.
+    pub median_rmse_change_m: f64,
     /// False culls summed over the frames.
     pub false_culls: usize,
     /// Largest resident memory seen, bytes.
@@ -596,6 +607,12 @@ impl RunSummary {
                 frames.iter().skip(1).map(|r| r.errors.popping_rms_m).collect(),
             ),
             max_popping_m: max(&|r| r.errors.popping_max_m),
+            median_max_jump_m: median(
+                frames.iter().skip(1).map(|r| r.errors.popping_max_m).collect(),
+            ),
+            median_rmse_change_m: median(
+                frames.iter().filter_map(|r| r.errors.rmse_change_m).collect(),
+            ),
             false_culls: frames.iter().map(|r| r.errors.false_culls).sum(),
             max_rss_bytes: frames.iter().filter_map(|r| r.rss_bytes).max(),
             mean_upload_bytes: (!uploads.is_empty())
@@ -882,6 +899,7 @@ fn colour(m: LodMethod) -> &'static str {
         LodMethod::Geomorph => "#e377c2",
         LodMethod::PvpsCPvs => "#bcbd22",
         LodMethod::PvpsCConservative => "#17becf",
+        LodMethod::DssStrips => "#7f7f7f",
     }
 }
 
@@ -938,14 +956,15 @@ impl BenchReport {
             }
             s.push_str(
                 "| method | parameter | triangles | patches | selection ms | CPU ms | frame ms | GPU ms | \
-                 p99 px (median / max) | max px | RMSE m | popping RMS m | false culls |\n\
-                 |---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n",
+                 p99 px (median / max) | max px | RMSE m | popping RMS m | RMSE change m | \
+                 height jump m (median / max) | false culls |\n\
+                 |---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n",
             );
             for r in self.runs.iter().filter(|r| r.flight == f.name) {
                 let m = &r.summary;
                 let _ = writeln!(
                     s,
-                    "| {} | {} = {} | {:.0} | {:.0} | {:.3} | {:.2} | {:.2} | {} | {:.3} / {:.3} | {:.3} | {:.3} | {:.4} | {} |",
+                    "| {} | {} = {} | {:.0} | {:.0} | {:.3} | {:.2} | {:.2} | {} | {:.3} / {:.3} | {:.3} | {:.3} | {:.4} | {:.4} | {:.3} / {:.3} | {} |",
                     r.method.name(),
                     r.parameter,
                     r.value,
@@ -960,6 +979,9 @@ impl BenchReport {
                     m.max_px,
                     m.median_rmse_m,
                     m.median_popping_rms_m,
+                    m.median_rmse_change_m,
+                    m.median_max_jump_m,
+                    m.max_popping_m,
                     m.false_culls
                 );
             }
@@ -985,7 +1007,8 @@ impl BenchReport {
         s.push_str(
             "\nMedians over the frames. Triangles are non-degenerate ones; CPU ms and frame ms as \
              in the notes above; popping is the RMS change of the height error between \
-             consecutive measured frames.\n",
+             consecutive measured frames, RMSE change the change of the RMSE (the DSS paper's \
+             measure), height jump the largest change of the drawn height at one DEM sample.\n",
         );
         s
     }
@@ -1159,5 +1182,41 @@ mod tests {
         assert_eq!(median(vec![4.0, 1.0, 2.0, 3.0]), 2.5);
         assert_eq!(median(vec![]), 0.0);
         assert_eq!(log_range([0.5, 20.0].into_iter()), (-1.0, 2.0));
+    }
+
+    #[test]
+    fn summary_reports_rmse_change_and_height_jumps() {
+        let frame = |rmse: f64, change: Option<f64>, jump: f64| FrameRecord {
+            frame: 0,
+            patches: 1,
+            triangles: 2,
+            selection_ms: 0.0,
+            cpu_tess_ms: 0.0,
+            measure_ms: 0.0,
+            encode_ms: None,
+            render_ms: None,
+            gpu_ms: None,
+            gpu_draw_ms: None,
+            gpu_tessellated: None,
+            upload_bytes: None,
+            cpu_ms: 0.0,
+            frame_ms: 0.0,
+            rss_bytes: None,
+            errors: FrameErrors {
+                rmse_m: rmse,
+                rmse_change_m: change,
+                popping_max_m: jump,
+                ..FrameErrors::default()
+            },
+            ..FrameRecord::default()
+        };
+        // The first frame has no previous one: no change, no jump.
+        let frames =
+            [frame(5.0, None, 0.0), frame(7.0, Some(2.0), 3.0), frame(6.0, Some(1.0), 9.0)];
+        let s = RunSummary::new(&frames);
+        assert_eq!(s.median_rmse_change_m, 1.5);
+        assert_eq!(s.median_max_jump_m, 6.0);
+        assert_eq!(s.max_popping_m, 9.0);
+        assert_eq!(s.median_rmse_m, 6.0);
     }
 }

@@ -284,15 +284,16 @@ fn view_mesh(
         .with_clip(near, far);
     let t0 = Instant::now();
     let scene = MethodScene::new(hm, MethodConfig::default());
-    let selection = scene.select(args.method, &camera);
-    let (surface, _) = scene.drawn_surface(&selection);
+    let drawn = scene.frame(args.method, &camera);
+    let selection = &drawn.selection;
+    let (surface, _) = scene.frame_surface(&drawn);
     let build_ms = t0.elapsed().as_secs_f64() * 1e3;
     let t1 = Instant::now();
     let errors = measure_frame(
         &scene.hm,
         &scene.qt,
         &camera,
-        &selection,
+        selection,
         &surface,
         &MeasureConfig::default(),
     );

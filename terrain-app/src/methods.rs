@@ -23,6 +23,8 @@
 //!   Quadtree node `(l, i, j)` reads pyramid level `min(l, L)` (a node below the patch level
 //!   reads its ancestor): both index the same root square, so the mapping is exact whatever the
 //!   quadtree's leaf size. A camera outside every cell (`Cell_other`) culls nothing.
+//! - `dss-strips`: the DSS paper's own method: M-blocks with their own continuous factors,
+//!   P-blocks and dynamic stitching strips (drawn as extra triangles; see [`MethodFrame`]).
 
 use std::sync::OnceLock;
 
@@ -36,12 +38,13 @@ use terrain_gpu::geomorph::{
 use terrain_core::Heightmap;
 use terrain_core::geometry::Camera;
 use terrain_core::lod::{
-    DssConfig, DssErrorTable, MAX_FACTOR, MIN_FACTOR, Patch, PvpsConfig, Selection, SelectionStats,
-    SurfaceMesh, build_surface, select_dss_power_of_two, select_dss_uniform, select_pvps,
-    select_pvps_with_cull,
+    DssConfig, DssErrorTable, DssStripsConfig, MAX_FACTOR, MIN_FACTOR, Patch, PvpsConfig,
+    Selection, SelectionStats, SurfaceMesh, build_surface, select_dss_power_of_two,
+    select_dss_strips, select_dss_uniform, select_pvps, select_pvps_with_cull,
 };
 use terrain_core::quadtree::{FrustumCull, Quadtree, SplitToLevel, select};
-use terrain_gpu::render::DrawPatch;
+use terrain_gpu::render::{DrawPatch, ExtraTriangles};
+use terrain_gpu::strips::{self, StripMesh};
 use terrain_gpu::tess::{PatchFactors, tessellate};
 use terrain_visibility::pvs::{Pvs, PvsConfig, PvsMode, bake_both};
 use terrain_visibility::roughness::{
@@ -80,11 +83,15 @@ pub enum LodMethod {
     #[value(name = "pvps-c-cons")]
     #[serde(rename = "pvps-c-cons")]
     PvpsCConservative,
+    /// DSS paper's own method: continuous factors per M-block, stitching strips and P-blocks.
+    #[value(name = "dss-strips")]
+    #[serde(rename = "dss-strips")]
+    DssStrips,
 }
 
 impl LodMethod {
     /// Every method, in a fixed order (the benchmark's).
-    pub const ALL: [LodMethod; 10] = [
+    pub const ALL: [LodMethod; 11] = [
         LodMethod::Uniform,
         LodMethod::PvpsA,
         LodMethod::PvpsB,
@@ -95,6 +102,7 @@ impl LodMethod {
         LodMethod::Geomorph,
         LodMethod::PvpsCPvs,
         LodMethod::PvpsCConservative,
+        LodMethod::DssStrips,
     ];
 
     /// The CLI and report name.
@@ -110,7 +118,14 @@ impl LodMethod {
             LodMethod::Geomorph => "geomorph",
             LodMethod::PvpsCPvs => "pvps-c-pvs",
             LodMethod::PvpsCConservative => "pvps-c-cons",
+            LodMethod::DssStrips => "dss-strips",
         }
+    }
+
+    /// Whether the method draws extra triangles besides its patches (its selection's patches
+    /// share no edges, so `lod::check_shared_edges` does not apply to it).
+    pub fn has_strips(self) -> bool {
+        self == LodMethod::DssStrips
     }
 }
 
@@ -136,6 +151,9 @@ pub struct MethodConfig {
     /// benchmark run stays around a minute on a 1k DEM; `terrain bake` writes the paper's
     /// configuration into a scene (`terrain bench --pvs-scene`).
     pub pvs: PvsConfig,
+    /// `dss-strips`: half the strip width in cells (`DssStripsConfig::half_width_cells`).
+    /// Default 1.
+    pub strip_half_width_cells: u32,
 }
 
 impl Default for MethodConfig {
@@ -153,6 +171,7 @@ impl Default for MethodConfig {
             entropy: EntropyMethodConfig::default(),
             geomip: GeomipConfig { patch_cells: leaf_cells, ..GeomipConfig::default() },
             pvs: PvsConfig { cells: (16, 16), patch_level: 5, ..PvsConfig::default() },
+            strip_half_width_cells: 1,
         }
     }
 }
@@ -273,7 +292,7 @@ impl MethodScene {
                 LodMethod::PvpsC => {
                     self.roughness(2);
                 }
-                LodMethod::Dss1 | LodMethod::Dss2 => {
+                LodMethod::Dss1 | LodMethod::Dss2 | LodMethod::DssStrips => {
                     self.dss_errors();
                 }
                 LodMethod::Entropy => {
@@ -328,6 +347,44 @@ impl MethodScene {
                     None => pvps(field),
                 }
             }
+            LodMethod::DssStrips => self.frame(method, camera).selection,
+        }
+    }
+
+    /// What `method` draws from `camera`: its selection and, for `dss-strips`, the blocks
+    /// and the strips built this frame. The selection's `cpu_time` covers all of it (for
+    /// `dss-strips`: the multilevel update plus the strip construction).
+    pub fn frame(&self, method: LodMethod, camera: &Camera) -> MethodFrame {
+        if method != LodMethod::DssStrips {
+            return MethodFrame { selection: self.select(method, camera), strips: None };
+        }
+        let cfg = DssStripsConfig {
+            dss: self.config.dss.clone(),
+            half_width_cells: self.config.strip_half_width_cells,
+        };
+        let frame = select_dss_strips(&self.qt, camera, self.dss_errors(), &cfg);
+        let update = frame.stats.cpu_time;
+        let mesh = strips::build_strips(&frame);
+        let mut selection = frame.selection();
+        selection.stats.cpu_time = update + mesh.cpu_time;
+        let patches = strips::draw_patches(&frame);
+        MethodFrame { selection, strips: Some(StripFrame { patches, mesh, update }) }
+    }
+
+    /// The surface a frame draws, rebuilt on the CPU (see [`MethodScene::drawn_surface`]),
+    /// strips included; and the drawn triangle count.
+    pub fn frame_surface(&self, frame: &MethodFrame) -> (SurfaceMesh, u64) {
+        match &frame.strips {
+            None => self.drawn_surface(&frame.selection),
+            Some(s) => strips::build_strip_surface(&self.hm, &s.patches, &s.mesh.triangles),
+        }
+    }
+
+    /// The renderer's patches and extra triangles of a frame.
+    pub fn frame_draw(&self, frame: &MethodFrame) -> (Vec<DrawPatch>, ExtraTriangles) {
+        match &frame.strips {
+            None => (self.draw_patches(&frame.selection), ExtraTriangles::default()),
+            Some(s) => (s.patches.clone(), s.mesh.triangles.clone()),
         }
     }
 
@@ -431,6 +488,26 @@ impl MethodScene {
     pub fn draw_patches(&self, selection: &Selection) -> Vec<DrawPatch> {
         draw_patches(&self.qt, selection)
     }
+}
+
+/// What a method draws in one frame ([`MethodScene::frame`]).
+#[derive(Debug, Clone)]
+pub struct MethodFrame {
+    /// The selection: drawn patches (for `dss-strips`, its visible M-blocks).
+    pub selection: Selection,
+    /// `dss-strips` only: the blocks as draw patches and the strips.
+    pub strips: Option<StripFrame>,
+}
+
+/// The `dss-strips` part of a [`MethodFrame`].
+#[derive(Debug, Clone)]
+pub struct StripFrame {
+    /// Every M-block (hidden ones with outer factors 0), the strips' patch indices.
+    pub patches: Vec<DrawPatch>,
+    /// Strips and P-blocks, with their construction time.
+    pub mesh: StripMesh,
+    /// The multilevel update's time (section 3.3.1).
+    pub update: std::time::Duration,
 }
 
 /// Converts a selection into the renderer's patches.

@@ -194,10 +194,11 @@ pub fn run(args: &RenderArgs) -> anyhow::Result<()> {
     );
     let mut records = Vec::new();
     for frame in 1..=args.frames.max(1) {
-        let selection = scene.select(args.method, &camera);
-        let patches = scene.draw_patches(&selection);
+        let drawn = scene.frame(args.method, &camera);
+        let selection = &drawn.selection;
+        let (patches, extra) = scene.frame_draw(&drawn);
         let start = std::time::Instant::now();
-        let s = renderer.render(&camera, &patches, &options)?;
+        let s = renderer.render_with_extra(&camera, &patches, &extra, &options)?;
         // The renderer waits for the GPU before returning, so this is the frame's whole cost
         // after selection: encode, tessellate (when the patches changed), draw.
         let wall_ms = start.elapsed().as_secs_f64() * 1e3;

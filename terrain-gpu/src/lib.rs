@@ -22,13 +22,14 @@
 pub mod device;
 pub mod geomorph;
 pub mod render;
+pub mod strips;
 pub mod surface;
 pub mod target;
 pub mod tess;
 
 pub use device::{BackendChoice, DeviceConfig, GpuContext, GpuError, GpuFeatures};
 pub use render::{
-    BACKGROUND, DrawPatch, FrameStats, RenderConfig, RenderError, RenderOptions, TerrainRenderer,
-    uniform_patches,
+    BACKGROUND, DrawPatch, ExtraTriangles, FrameStats, RenderConfig, RenderError, RenderOptions,
+    TerrainRenderer, uniform_patches,
 };
 pub use target::{OffscreenTarget, RgbaImage};

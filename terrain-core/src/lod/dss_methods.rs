@@ -117,21 +117,31 @@ impl DssErrorTable {
     }
 }
 
-/// The per-node screen errors of Eq. 3 for a camera.
-struct Metric<'a> {
-    table: &'a DssErrorTable,
-    lambda: f64,
-    eye: glam::DVec3,
-    thr: f64,
+/// The per-node screen errors of Eq. 3 for a camera (shared with [`super::dss_strips`]).
+pub(super) struct Metric<'a> {
+    pub(super) table: &'a DssErrorTable,
+    pub(super) lambda: f64,
+    pub(super) eye: glam::DVec3,
+    pub(super) thr: f64,
 }
 
-impl Metric<'_> {
+impl<'a> Metric<'a> {
+    /// The metric of `camera` with threshold `rho_thr` pixels.
+    pub(super) fn new(table: &'a DssErrorTable, camera: &Camera, rho_thr: f64) -> Self {
+        Self {
+            table,
+            lambda: screen::lambda(camera.viewport_px.y, camera.fov_y),
+            eye: camera.position,
+            thr: rho_thr,
+        }
+    }
+
     fn delta(&self, node: NodeId) -> [f64; FACTORS] {
         self.table.get(node).copied().unwrap_or([0.0; FACTORS])
     }
 
     /// Eq. 3 for the finest factor: split when `rho_32 > rho_thr`.
-    fn must_split(&self, node: NodeId, info: &NodeInfo) -> bool {
+    pub(super) fn must_split(&self, node: NodeId, info: &NodeInfo) -> bool {
         let rho = screen::dss(
             self.lambda,
             self.delta(node)[FACTORS - 1],
@@ -142,7 +152,7 @@ impl Metric<'_> {
     }
 
     /// Eq. 3 and 4: the continuous factor `F_thr` (64 where even 64 misses the threshold).
-    fn factor(&self, node: NodeId, info: &NodeInfo) -> f32 {
+    pub(super) fn factor(&self, node: NodeId, info: &NodeInfo) -> f32 {
         let rho = crate::metrics::dss::screen_errors(
             &self.delta(node),
             self.lambda,

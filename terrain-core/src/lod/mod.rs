@@ -11,6 +11,9 @@
 //!   its comparison methods A and B, which only swap the roughness field ([`Method`]).
 //! - [`dss_methods`]: the DSS paper's (Zhang 2019, section 4) comparison paths: Method I
 //!   (quadtree, power-of-two factors) and Method II (uniform blocks, continuous factors).
+//! - [`dss_strips`]: the DSS paper's own method (section 3): M-blocks with their own
+//!   continuous factors, P-blocks and stitching strips instead of matched edge factors (the
+//!   crack-freedom invariant below does not apply to it: its blocks share no edge).
 //! - [`edges`]: the one place outer factors are resolved across shared edges, and the checker
 //!   of the crack-freedom invariant.
 //! - [`geomipmap`]: the geomorphing article's (Wagner 2003) geo-mipmapped patches: a level and
@@ -33,6 +36,7 @@
 //! with `u` east and `v` north.
 
 pub mod dss_methods;
+pub mod dss_strips;
 pub mod edges;
 pub mod geomipmap;
 pub mod patch;
@@ -40,6 +44,9 @@ pub mod pvps;
 pub mod surface;
 
 pub use dss_methods::{DssConfig, DssErrorTable, select_dss_power_of_two, select_dss_uniform};
+pub use dss_strips::{
+    DssStripFrame, DssStripsConfig, MBlock, PBlock, Strip, frame_from_leaves, select_dss_strips,
+};
 pub use edges::{EdgeMismatch, EdgeRule, check_shared_edges, outer_factors};
 pub use geomipmap::{GeomipConfig, GeomipScene, GeomipSelection, PatchLod};
 pub use patch::{Edge, MAX_FACTOR, MIN_FACTOR, Patch, Selection, SelectionStats, clamp_factor};

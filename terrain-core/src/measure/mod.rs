@@ -99,7 +99,9 @@ pub struct FrameErrors {
     pub popping_samples: usize,
     /// RMS of the change of `delta` since the previous frame, metres.
     pub popping_rms_m: f64,
-    /// Largest change of `delta` since the previous frame, metres.
+    /// Largest change of `delta` since the previous frame, metres. The DEM sample is the same
+    /// in both frames, so this is the largest jump of the *drawn* height at one sample,
+    /// `max |drawn_k - drawn_(k-1)|`: what the eye sees as a pop.
     pub popping_max_m: f64,
     /// Samples inside the frustum not covered by any selected patch.
     pub culled_samples: usize,

@@ -20,7 +20,9 @@ use std::path::PathBuf;
 use terrain_core::Heightmap;
 use terrain_core::geometry::Camera;
 
-use super::{BACKGROUND, DrawPatch, RenderConfig, RenderOptions, TerrainRenderer, clip_range};
+use super::{
+    BACKGROUND, DrawPatch, ExtraTriangles, RenderConfig, RenderOptions, TerrainRenderer, clip_range,
+};
 use crate::device::GpuContext;
 
 /// At least 20 cameras over `hm`: inside the footprint, above every sample within
@@ -66,18 +68,32 @@ pub fn crack_pixels(
     hm: &Heightmap,
     patches: &[DrawPatch],
     cameras: &[Camera],
+    size: (u32, u32),
+) -> Vec<usize> {
+    let empty = ExtraTriangles::default();
+    let frames: Vec<_> = cameras.iter().map(|c| (*c, patches, &empty)).collect();
+    crack_pixels_with_extra(ctx, hm, &frames, size)
+}
+
+/// Like [`crack_pixels`], one frame per camera with its own patches and extra triangles
+/// (the DSS paper's stitching strips): skirts hang below the patches' edges only, so a gap
+/// between a patch and the extra triangles shows as a crack.
+pub fn crack_pixels_with_extra(
+    ctx: &GpuContext,
+    hm: &Heightmap,
+    frames: &[(Camera, &[DrawPatch], &ExtraTriangles)],
     (width, height): (u32, u32),
 ) -> Vec<usize> {
     let config = RenderConfig { width, height, ..RenderConfig::default() };
     let mut renderer =
         TerrainRenderer::new(ctx, hm, &config).expect("a renderer for the crack test");
     let skirt = RenderOptions { skirt_depth_m: hm.max() - hm.min() + 10.0, ..Default::default() };
-    cameras
+    frames
         .iter()
-        .map(|camera| {
-            renderer.render(camera, patches, &RenderOptions::default()).unwrap();
+        .map(|(camera, patches, extra)| {
+            renderer.render_with_extra(camera, patches, extra, &RenderOptions::default()).unwrap();
             let plain = renderer.read_image().unwrap();
-            renderer.render(camera, patches, &skirt).unwrap();
+            renderer.render_with_extra(camera, patches, extra, &skirt).unwrap();
             let reference = renderer.read_image().unwrap();
             if let Some(dir) = std::env::var_os("TERRAIN_TEST_DUMP") {
                 for (tag, im) in [("plain", &plain), ("skirts", &reference)] {

@@ -65,6 +65,20 @@ use crate::tess::PatchFactors;
 /// pixel no triangle covered.
 pub const BACKGROUND: [u8; 4] = [255, 0, 255, 255];
 
+/// Triangles drawn after the patches' tessellation, in the same pass and pipeline (one extra
+/// indexed draw): each vertex is a domain point of one of the frame's patches (`patch_index`
+/// into the patch list, `pad` 0), mapped and displaced by the vertex stage exactly like the
+/// tessellator's points, so an extra vertex on a patch's edge coincides bit for bit with the
+/// tessellated vertex there. The DSS paper's stitching strips use it (`crate::strips`).
+/// Drawn without the barycentric wireframe.
+#[derive(Clone, Debug, PartialEq, Default)]
+pub struct ExtraTriangles {
+    /// Vertices.
+    pub points: Vec<crate::tess::GpuDomainPoint>,
+    /// Triangle list into `points`.
+    pub indices: Vec<u32>,
+}
+
 /// One patch to draw: a rect of grid samples and its tessellation factors.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct DrawPatch {

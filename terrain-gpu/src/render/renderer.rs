@@ -12,7 +12,7 @@ use glam::{DVec2, DVec3, Vec3};
 use terrain_core::Heightmap;
 use terrain_core::geometry::Camera;
 
-use super::{DrawPatch, RenderConfig, RenderOptions};
+use super::{DrawPatch, ExtraTriangles, RenderConfig, RenderOptions};
 use crate::device::{GpuContext, GpuError, GpuFeatures, read_buffer};
 use crate::target::{COLOR_FORMAT, OffscreenTarget, RgbaImage};
 use crate::tess::{
@@ -144,6 +144,9 @@ pub enum RenderError {
         /// Grid height in samples.
         height: u32,
     },
+    /// Extra triangles name a patch or a vertex that does not exist.
+    #[error("extra triangles: {0}")]
+    BadExtra(String),
     /// The caller's configuration is unusable.
     #[error("invalid render configuration: {0}")]
     InvalidConfig(String),
@@ -158,6 +161,8 @@ struct Tessellation {
     triangles: u64,
     vertices: u64,
     skirts: Option<Skirts>,
+    /// The patch rects (binding 2), for bind groups over other point buffers.
+    rects: wgpu::Buffer,
 }
 
 #[derive(Debug)]
@@ -660,6 +665,7 @@ impl TerrainRenderer {
             triangles,
             vertices,
             skirts: None,
+            rects: rects_buf,
         });
         Ok(true)
     }
@@ -713,7 +719,36 @@ impl TerrainRenderer {
         patches: &[DrawPatch],
         options: &RenderOptions,
     ) -> Result<FrameStats, RenderError> {
-        self.draw(camera, patches, options, ColorTarget::Offscreen)
+        self.draw(camera, patches, None, options, ColorTarget::Offscreen)
+    }
+
+    /// Like [`TerrainRenderer::render`], then draws `extra` (uploaded in this call) in the
+    /// same pass: see [`ExtraTriangles`]. Fails with [`RenderError::BadExtra`] when a vertex
+    /// names a patch past `patches` or an index a vertex past `extra.points`.
+    pub fn render_with_extra(
+        &mut self,
+        camera: &Camera,
+        patches: &[DrawPatch],
+        extra: &ExtraTriangles,
+        options: &RenderOptions,
+    ) -> Result<FrameStats, RenderError> {
+        if let Some(p) = extra.points.iter().find(|p| p.patch_index as usize >= patches.len()) {
+            return Err(RenderError::BadExtra(format!(
+                "a vertex names patch {} of {}",
+                p.patch_index,
+                patches.len()
+            )));
+        }
+        if !extra.indices.len().is_multiple_of(3)
+            || extra.indices.iter().any(|&k| k as usize >= extra.points.len())
+        {
+            return Err(RenderError::BadExtra(format!(
+                "{} indices (a multiple of 3 below {} expected)",
+                extra.indices.len(),
+                extra.points.len()
+            )));
+        }
+        self.draw(camera, patches, Some(extra), options, ColorTarget::Offscreen)
     }
 
     /// Like [`TerrainRenderer::render`], drawing into `target`, a colour view the caller owns
@@ -753,7 +788,7 @@ impl TerrainRenderer {
                 texture.format()
             )));
         }
-        self.draw(camera, patches, options, ColorTarget::View(target, format))
+        self.draw(camera, patches, None, options, ColorTarget::View(target, format))
     }
 
     /// Test hook: the colour formats whose pipelines exist, sorted by name.
@@ -794,6 +829,7 @@ impl TerrainRenderer {
         &mut self,
         camera: &Camera,
         patches: &[DrawPatch],
+        extra: Option<&ExtraTriangles>,
         options: &RenderOptions,
         color: ColorTarget<'_>,
     ) -> Result<FrameStats, RenderError> {
@@ -810,6 +846,27 @@ impl TerrainRenderer {
             self.build_skirts();
         }
         self.write_frame(&camera, options);
+        // Uploaded once per frame: the strips change every frame.
+        let extra_buffers = extra.filter(|e| !e.indices.is_empty()).map(|e| {
+            let buffer = |label, bytes: &[u8], usage| {
+                let buf = self.device.create_buffer(&wgpu::BufferDescriptor {
+                    label: Some(label),
+                    size: (bytes.len() as u64).max(16),
+                    usage: usage | wgpu::BufferUsages::COPY_DST,
+                    mapped_at_creation: false,
+                });
+                self.queue.write_buffer(&buf, 0, bytes);
+                buf
+            };
+            let v =
+                buffer("extra points", bytemuck::cast_slice(&e.points), wgpu::BufferUsages::VERTEX);
+            let i = buffer(
+                "extra indices",
+                bytemuck::cast_slice(&e.indices),
+                wgpu::BufferUsages::INDEX,
+            );
+            (v, i, e.indices.len() as u32)
+        });
         let tess = self.tess.as_ref().expect("prepared above");
         let mut encoder = self.device.create_command_encoder(&Default::default());
         let timer = self.timer.as_ref();
@@ -856,6 +913,12 @@ impl TerrainRenderer {
                 pass.set_index_buffer(s.indices.slice(..), wgpu::IndexFormat::Uint32);
                 pass.draw_indexed(0..s.index_count, 0, 0..1);
             }
+            if let Some((v, i, n)) = &extra_buffers {
+                pass.set_pipeline(&pipelines.indexed);
+                pass.set_vertex_buffer(0, v.slice(..));
+                pass.set_index_buffer(i.slice(..), wgpu::IndexFormat::Uint32);
+                pass.draw_indexed(0..*n, 0, 0..1);
+            }
         }
         if let Some(t) = timer {
             if tessellate_now {
@@ -868,8 +931,8 @@ impl TerrainRenderer {
 
         let mut stats = FrameStats {
             patches: patches.len(),
-            triangles: tess.triangles,
-            vertices: tess.vertices,
+            triangles: tess.triangles + extra.map_or(0, |e| (e.indices.len() / 3) as u64),
+            vertices: tess.vertices + extra.map_or(0, |e| e.points.len() as u64),
             tessellated: tessellate_now,
             cpu_ms,
             gpu_ms: None,
@@ -1030,5 +1093,72 @@ impl TerrainRenderer {
             positions: values.iter().step_by(2).copied().collect(),
             normals: values.iter().skip(1).step_by(2).copied().collect(),
         })
+    }
+
+    /// Test hook: evaluates, on the device, the shader's surface position (relative to the
+    /// anchor of a camera at `camera_position`; w = absolute height) at arbitrary domain
+    /// points of `patches`, as the vertex stage does for [`ExtraTriangles`]' vertices.
+    pub fn points_read_back(
+        &mut self,
+        camera_position: DVec3,
+        patches: &[DrawPatch],
+        points: &[GpuDomainPoint],
+    ) -> Result<Vec<[f32; 4]>, RenderError> {
+        self.prepare(patches)?;
+        let camera = Camera::from_yaw_pitch(camera_position, 0.0, 0.0);
+        self.write_frame(&camera, &RenderOptions::default());
+        let tess = self.tess.as_ref().expect("prepared above");
+        let n = points.len() as u32;
+        let storage = |label, size: u64, usage| {
+            self.device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some(label),
+                size: size.max(32),
+                usage,
+                mapped_at_creation: false,
+            })
+        };
+        use wgpu::BufferUsages as U;
+        let input = storage("read-back points", u64::from(n) * 16, U::STORAGE | U::COPY_DST);
+        self.queue.write_buffer(&input, 0, bytemuck::cast_slice(points));
+        let out = storage("read-back surface", u64::from(n) * 32, U::STORAGE | U::COPY_SRC);
+        let bind = |binding, resource| wgpu::BindGroupEntry { binding, resource };
+        let group = self.device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some("read-back points"),
+            layout: &self.layout,
+            entries: &[
+                bind(0, self.frame.as_entire_binding()),
+                bind(1, wgpu::BindingResource::TextureView(&self.heights)),
+                bind(2, tess.rects.as_entire_binding()),
+                bind(3, self.col_x.as_entire_binding()),
+                bind(4, self.row_y.as_entire_binding()),
+                bind(5, wgpu::BindingResource::TextureView(&self.color)),
+                bind(6, wgpu::BindingResource::Sampler(&self.sampler)),
+                bind(7, input.as_entire_binding()),
+                bind(8, tess.out.indices.as_entire_binding()),
+            ],
+        });
+        let debug_group = self.device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some("terrain debug"),
+            layout: &self.debug_layout,
+            entries: &[wgpu::BindGroupEntry { binding: 0, resource: out.as_entire_binding() }],
+        });
+        let mut encoder = self.device.create_command_encoder(&Default::default());
+        {
+            let mut pass = encoder.begin_compute_pass(&Default::default());
+            pass.set_pipeline(&self.debug);
+            pass.set_bind_group(0, &group, &[]);
+            pass.set_bind_group(1, &debug_group, &[]);
+            if n > 0 {
+                pass.dispatch_workgroups(n.div_ceil(64), 1, 1);
+            }
+        }
+        self.queue.submit([encoder.finish()]);
+        let values: Vec<[f32; 4]> = bytemuck::pod_collect_to_vec(&read_buffer(
+            &self.device,
+            &self.queue,
+            &out,
+            u64::from(n) * 32,
+        )?);
+        Ok(values.iter().step_by(2).copied().collect())
     }
 }

@@ -1,0 +1,247 @@
+//! The DSS paper's dynamic stitching strips (Zhang 2019, section 3.2) on the CPU: their
+//! vertices from the tessellator's CPU reference, their triangulation (Algorithm 1,
+//! [`triangulate`]), built every frame (in parallel with rayon from [`PARALLEL_MIN_STRIPS`]
+//! strips on) and drawn by the renderer as extra triangles ([`crate::render::ExtraTriangles`])
+//! after the M-blocks' tessellation.
+//!
+//! The structure (M-blocks, P-blocks, which blocks line which strip) comes from
+//! `terrain_core::lod::dss_strips`; see its docs for the geometry (blocks shrunk by `s` cells,
+//! strips `2 s` wide). Here:
+//!
+//! - **Blocks** are draw patches in the frame's block order ([`draw_patches`]): rect = the
+//!   block's shrunk domain, every factor its `F_thr`; hidden (frustum-culled) blocks are kept
+//!   in the list with outer factors 0, which the tessellator culls, so that strips can still
+//!   name them.
+//! - **Strip vertices** are [`GpuDomainPoint`]s: the block's patch index and the domain point
+//!   `(u, v)` on its edge, `t = EdgeSpacing::new(F).place(k)` of [`crate::tess::reference`]
+//!   (section 3.2.2: "we use the same tessellation manner as the fractional even spacing
+//!   scheme"). These are the very values the tessellator emits for that edge (its points on an
+//!   outer edge depend only on the edge's factor), and the vertex stage maps them with the
+//!   block's rect like any tessellated point, so strip and block vertices coincide bit for bit
+//!   on the GPU, and in the CPU reference ([`build_strip_surface`]), with no tolerance.
+//! - **P-blocks**: two triangles between the four blocks' inner corners.
+//!
+//! Triangles are anti-clockwise seen from above (the renderer culls none; the CPU surface keeps
+//! the convention of `terrain_core::lod::SurfaceMesh`).
+
+pub mod triangulate;
+
+#[cfg(test)]
+mod gpu_tests;
+#[cfg(test)]
+mod tests;
+
+use std::collections::HashMap;
+use std::time::{Duration, Instant};
+
+use glam::Vec2;
+use rayon::prelude::*;
+use terrain_core::Heightmap;
+use terrain_core::lod::dss_strips::corner_uv;
+use terrain_core::lod::{DssStripFrame, Edge, MBlock, Strip, SurfaceMesh};
+
+use crate::render::{DrawPatch, ExtraTriangles};
+use crate::surface::grid_coords;
+use crate::tess::{EdgeSpacing, GpuDomainPoint, PatchFactors, tessellate};
+
+/// The strips and P-blocks of one frame, ready to upload.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct StripMesh {
+    /// Vertices (patch index into [`draw_patches`]' list and domain point).
+    pub triangles: ExtraTriangles,
+    /// Strips built.
+    pub strips: usize,
+    /// P-blocks built.
+    pub pblocks: usize,
+    /// CPU time of the construction (vertices, triangulation, concatenation).
+    pub cpu_time: Duration,
+}
+
+/// The tessellation factors of a block: its `F_thr` everywhere, or culled (outer factors 0)
+/// when hidden.
+pub fn block_factors(b: &MBlock) -> PatchFactors {
+    if b.visible {
+        PatchFactors::uniform(b.factor)
+    } else {
+        PatchFactors { inner: [0.0; 2], outer: [0.0; 4] }
+    }
+}
+
+/// The renderer's patches of a frame: block `k` is patch `k`.
+pub fn draw_patches(frame: &DssStripFrame) -> Vec<DrawPatch> {
+    frame.blocks.iter().map(|b| DrawPatch { rect: b.rect, factors: block_factors(b) }).collect()
+}
+
+/// The domain point at parameter `t` along edge `e` (from its south or west end).
+fn edge_uv(e: Edge, t: f32) -> [f32; 2] {
+    match e {
+        Edge::South => [t, 0.0],
+        Edge::East => [1.0, t],
+        Edge::North => [t, 1.0],
+        Edge::West => [0.0, t],
+    }
+}
+
+/// One side of a strip: its vertices and their positions along it (grid samples).
+fn side(frame: &DssStripFrame, blocks: &[usize], e: Edge) -> (Vec<GpuDomainPoint>, Vec<f64>) {
+    let (mut points, mut along) = (Vec::new(), Vec::new());
+    push_side(frame, blocks, e, &mut points, &mut along);
+    (points, along)
+}
+
+/// Appends one side's vertices to `points` and their positions along the strip to `along`.
+fn push_side(
+    frame: &DssStripFrame,
+    blocks: &[usize],
+    e: Edge,
+    points: &mut Vec<GpuDomainPoint>,
+    along: &mut Vec<f64>,
+) {
+    let vertical = matches!(e, Edge::East | Edge::West);
+    for &k in blocks {
+        let b = &frame.blocks[k];
+        let spacing = EdgeSpacing::new(b.factor);
+        let [x0, y0, x1, y1] = b.rect.map(f64::from);
+        let (lo, len) = if vertical { (y0, y1 - y0) } else { (x0, x1 - x0) };
+        for q in 0..spacing.point_count() {
+            let t = spacing.place(q);
+            points.push(GpuDomainPoint { uv: edge_uv(e, t), patch_index: k as u32, pad: 0 });
+            along.push(lo + f64::from(t) * len);
+        }
+    }
+}
+
+/// Appends strip `strip` to `out` (vertices, then triangles indexing them), with `low` and
+/// `high` as scratch space: [`build_strip`] without allocating.
+fn append_strip(
+    frame: &DssStripFrame,
+    strip: &Strip,
+    out: &mut ExtraTriangles,
+    (low, high): (&mut Vec<f64>, &mut Vec<f64>),
+) {
+    let base = out.points.len() as u32;
+    low.clear();
+    high.clear();
+    push_side(frame, &strip.low, strip.facing_edge(false), &mut out.points, low);
+    push_side(frame, &strip.high, strip.facing_edge(true), &mut out.points, high);
+    let na = base + low.len() as u32;
+    for tri in triangulate::bisector_triangles(low, high) {
+        let [a, b, c] = tri.map(|(hi, k)| if hi { na + k } else { base + k });
+        // See `build_strip` for the orientation.
+        if strip.vertical != tri[0].0 {
+            out.indices.extend([a, c, b]);
+        } else {
+            out.indices.extend([a, b, c]);
+        }
+    }
+}
+
+/// The vertices and triangles (local indices) of one strip.
+pub fn build_strip(frame: &DssStripFrame, strip: &Strip) -> (Vec<GpuDomainPoint>, Vec<u32>) {
+    let (mut points, low) = side(frame, &strip.low, strip.facing_edge(false));
+    let (high_points, high) = side(frame, &strip.high, strip.facing_edge(true));
+    let na = points.len() as u32;
+    points.extend(high_points);
+    let mut indices = Vec::with_capacity(3 * (low.len() + high.len()));
+    for tri in triangulate::bisector_triangles(&low, &high) {
+        let [a, b, c] = tri.map(|(hi, k)| if hi { na + k } else { k });
+        // A base on the low side of a vertical strip (or the high side of a horizontal one)
+        // runs clockwise with its apex: swap to keep every triangle anti-clockwise.
+        if strip.vertical != tri[0].0 {
+            indices.extend([a, c, b]);
+        } else {
+            indices.extend([a, b, c]);
+        }
+    }
+    (points, indices)
+}
+
+/// Frames with fewer strips are built on the calling thread: a strip costs about a
+/// microsecond, less than waking rayon's workers (milliseconds on a loaded machine).
+pub const PARALLEL_MIN_STRIPS: usize = 512;
+
+/// Builds every strip and P-block of `frame` (section 3.2, once per frame), in parallel with
+/// rayon from [`PARALLEL_MIN_STRIPS`] strips on ("several worker threads", section 3.2.3).
+pub fn build_strips(frame: &DssStripFrame) -> StripMesh {
+    build_strips_with(frame, frame.strips.len() >= PARALLEL_MIN_STRIPS)
+}
+
+/// [`build_strips`], in parallel or not: the same output either way.
+pub fn build_strips_with(frame: &DssStripFrame, parallel: bool) -> StripMesh {
+    let start = Instant::now();
+    let mut out = ExtraTriangles::default();
+    if parallel {
+        let parts: Vec<(Vec<GpuDomainPoint>, Vec<u32>)> =
+            frame.strips.par_iter().with_min_len(32).map(|s| build_strip(frame, s)).collect();
+        let (np, ni) = parts.iter().fold((0, 0), |(p, i), (a, b)| (p + a.len(), i + b.len()));
+        out.points.reserve(np + 4 * frame.pblocks.len());
+        out.indices.reserve(ni + 6 * frame.pblocks.len());
+        for (points, indices) in parts {
+            let base = out.points.len() as u32;
+            out.points.extend(points);
+            out.indices.extend(indices.into_iter().map(|k| k + base));
+        }
+    } else {
+        let (mut low, mut high) = (Vec::new(), Vec::new());
+        for s in &frame.strips {
+            append_strip(frame, s, &mut out, (&mut low, &mut high));
+        }
+    }
+    for p in &frame.pblocks {
+        let base = out.points.len() as u32;
+        out.points.extend(p.corners.iter().map(|&(k, q)| GpuDomainPoint {
+            uv: corner_uv(q),
+            patch_index: k as u32,
+            pad: 0,
+        }));
+        out.indices.extend([0, 1, 2, 0, 2, 3].map(|k| base + k));
+    }
+    StripMesh {
+        triangles: out,
+        strips: frame.strips.len(),
+        pblocks: frame.pblocks.len(),
+        cpu_time: start.elapsed(),
+    }
+}
+
+/// The CPU reference of what the renderer draws for `patches` plus `extra`: every patch
+/// tessellated by [`tessellate`] (the GPU's reference), every point mapped by
+/// [`grid_coords`] in f32 as the vertex stage does and clamped to the grid, the extra
+/// triangles' points likewise through their patch; vertices welded by exact grid position;
+/// heights bilinear ([`Heightmap::sample_grid`]). Also returns the drawn triangle count
+/// (non-degenerate tessellated triangles plus every extra triangle), as the renderer counts.
+pub fn build_strip_surface(
+    hm: &Heightmap,
+    patches: &[DrawPatch],
+    extra: &ExtraTriangles,
+) -> (SurfaceMesh, u64) {
+    let gmax = Vec2::new((hm.width() - 1) as f32, (hm.height() - 1) as f32);
+    let mut mesh = SurfaceMesh::default();
+    let mut weld: HashMap<(u32, u32), u32> = HashMap::new();
+    let mut add = |g: Vec2, mesh: &mut SurfaceMesh| -> u32 {
+        let g = g.clamp(Vec2::ZERO, gmax);
+        *weld.entry((g.x.to_bits(), g.y.to_bits())).or_insert_with(|| {
+            let (x, y) = (f64::from(g.x), f64::from(g.y));
+            mesh.positions.push(hm.grid_to_world(x, y).extend(f64::from(hm.sample_grid(x, y))));
+            mesh.grid.push(glam::DVec2::new(x, y));
+            (mesh.positions.len() - 1) as u32
+        })
+    };
+    let mut count = 0u64;
+    for p in patches {
+        let m = tessellate(&p.factors);
+        count += m.non_degenerate_triangle_count() as u64;
+        let ids: Vec<u32> = m.points.iter().map(|&uv| add(grid_coords(p, uv), &mut mesh)).collect();
+        mesh.triangles
+            .extend(m.indices.chunks_exact(3).map(|c| [c[0], c[1], c[2]].map(|k| ids[k as usize])));
+    }
+    let ids: Vec<u32> = extra
+        .points
+        .iter()
+        .map(|pt| add(grid_coords(&patches[pt.patch_index as usize], pt.uv), &mut mesh))
+        .collect();
+    mesh.triangles
+        .extend(extra.indices.chunks_exact(3).map(|c| [c[0], c[1], c[2]].map(|k| ids[k as usize])));
+    count += (extra.indices.len() / 3) as u64;
+    (mesh, count)
+}
