@@ -22,9 +22,11 @@ use serde::Serialize;
 use terrain_core::Heightmap;
 use terrain_core::flight::{FlightConfig, FlightSpec, FlightWarning};
 use terrain_core::geometry::Camera;
+use terrain_core::lod::SurfaceMesh;
 use terrain_core::measure::{FrameErrors, MeasureConfig, Measurer};
 use terrain_gpu::geomorph::{GeomorphConfig, GeomorphOptions, GeomorphRenderer, max_vertex_jump};
-use terrain_gpu::tess::{GpuPatchFactors, PatchRange};
+use terrain_gpu::render::{DrawPatch, ExtraTriangles};
+use terrain_gpu::tess::{GpuDomainPoint, GpuPatchFactors, PatchRange};
 use terrain_gpu::{GpuContext, RenderConfig, RenderOptions, TerrainRenderer};
 
 use crate::entropy_method::whole_terrain_selection;
@@ -398,7 +400,7 @@ impl<'a> FrameRunner<'a> {
     /// Selects, tessellates (CPU reference), measures and (optionally) renders frame `frame`.
     pub fn frame(&mut self, frame: usize, camera: &Camera) -> anyhow::Result<FrameRecord> {
         if self.method == LodMethod::Entropy {
-            return Ok(self.entropy_frame(frame, camera));
+            return self.entropy_frame(frame, camera);
         }
         let scene = self.scene;
         let t = Instant::now();
@@ -469,9 +471,8 @@ impl<'a> FrameRunner<'a> {
 
     /// A frame of the `entropy` method: the cut (Eq. 4-5) is the selection time; crack
     /// elimination and tile triangulation are the tessellation time; the mesh is measured on
-    /// the CPU. Not drawn: the renderer draws patches, and this method makes a triangle mesh
-    /// (the GPU path for extra triangles comes with the renderer's next change).
-    fn entropy_frame(&mut self, frame: usize, camera: &Camera) -> FrameRecord {
+    /// the CPU and drawn as the renderer's extra triangles ([`entropy_extra`]).
+    fn entropy_frame(&mut self, frame: usize, camera: &Camera) -> anyhow::Result<FrameRecord> {
         let scene = self.scene;
         let f = scene.entropy_scene().frame(camera, &scene.config.entropy);
         let selection_ms = f.cut_ms;
@@ -480,31 +481,68 @@ impl<'a> FrameRunner<'a> {
         let t = Instant::now();
         let errors = self.measurer.measure(camera, &selection, &f.surface);
         let measure_ms = ms(t);
-        FrameRecord {
+        let mut record = FrameRecord {
             frame,
             patches: f.tiles,
             triangles: f.surface.triangles.len() as u64,
             selection_ms,
             cpu_tess_ms,
             measure_ms,
-            encode_ms: None,
-            render_ms: None,
-            gpu_ms: None,
-            gpu_draw_ms: None,
-            gpu_tessellated: None,
-            upload_bytes: None,
             cpu_ms: selection_ms + cpu_tess_ms,
             frame_ms: selection_ms + cpu_tess_ms,
             rss_bytes: rss_bytes(),
             errors,
             ..FrameRecord::default()
+        };
+        if let Some(renderer) = self.renderer.as_deref_mut() {
+            let t = Instant::now();
+            let (carrier, extra) = entropy_extra(&scene.hm, &f.surface);
+            let convert_ms = ms(t);
+            let t = Instant::now();
+            let s = renderer.render_with_extra(camera, &[carrier], &extra, &self.options)?;
+            let render_ms = ms(t);
+            record.encode_ms = Some(s.cpu_ms);
+            record.render_ms = Some(render_ms);
+            record.gpu_ms = s.gpu_ms;
+            record.gpu_draw_ms = s.gpu_draw_ms;
+            record.gpu_tessellated = Some(s.tessellated);
+            // The whole mesh is uploaded every frame (16-byte points, 4-byte indices).
+            record.upload_bytes =
+                Some(128 + (extra.points.len() * 16 + extra.indices.len() * 4) as u64);
+            record.cpu_ms = selection_ms + cpu_tess_ms + convert_ms + s.cpu_ms;
+            record.frame_ms = selection_ms + cpu_tess_ms + convert_ms + render_ms;
         }
+        Ok(record)
     }
 
     /// The renderer, for reading the last frame back.
     pub fn renderer(&mut self) -> Option<&mut TerrainRenderer> {
         self.renderer.as_deref_mut()
     }
+}
+
+/// A triangle mesh in grid coordinates (the entropy method's) as the renderer's extra
+/// triangles: every vertex is a domain point of one carrier patch spanning the whole grid,
+/// whose factors are 0 so that the tessellator emits nothing for it (a patch with an outer
+/// factor `<= 0` is culled). The vertex stage maps `(u, v)` to `x0 + u (x1 - x0)`, so a vertex
+/// at grid sample `i` lands within an f32 rounding of it, and samples the same heightmap.
+pub fn entropy_extra(hm: &Heightmap, mesh: &SurfaceMesh) -> (DrawPatch, ExtraTriangles) {
+    let (w, h) = ((hm.width() - 1).max(1) as f64, (hm.height() - 1).max(1) as f64);
+    let carrier = DrawPatch {
+        rect: [0, 0, w as u32, h as u32],
+        factors: terrain_gpu::tess::PatchFactors::uniform(0.0),
+    };
+    let points = mesh
+        .grid
+        .iter()
+        .map(|g| GpuDomainPoint {
+            uv: [(g.x / w) as f32, (g.y / h) as f32],
+            patch_index: 0,
+            pad: 0,
+        })
+        .collect();
+    let indices = mesh.triangles.iter().flatten().copied().collect();
+    (carrier, ExtraTriangles { points, indices })
 }
 
 fn ms(t: Instant) -> f64 {
@@ -767,9 +805,9 @@ pub fn run_bench(
 
     if cfg.methods.contains(&LodMethod::Entropy) {
         notes.push(
-            "entropy: a triangle mesh measured on the CPU and not drawn (the renderer draws \
-             patches); its selection time is the Eq. 5 cut, its tessellation time the crack \
-             elimination and tile triangulation."
+            "entropy: a triangle mesh, measured on the CPU and drawn as the renderer's extra \
+             triangles (uploaded every frame); its selection time is the Eq. 5 cut, its \
+             tessellation time the crack elimination and tile triangulation."
                 .to_string(),
         );
     }

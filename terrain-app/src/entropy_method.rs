@@ -5,7 +5,8 @@
 //!
 //! The result is a triangle mesh, not tessellated patches: it is measured on the CPU (its
 //! [`SurfaceMesh`] through `terrain_core::measure`, with a root-node selection so every sample
-//! counts as covered) and not drawn by the benchmark's GPU path yet.
+//! counts as covered) and drawn by the benchmark as the renderer's extra triangles
+//! (`bench::entropy_extra`).
 
 use std::time::Instant;
 

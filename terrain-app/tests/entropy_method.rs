@@ -79,3 +79,57 @@ fn the_benchmark_runner_measures_the_entropy_mesh() {
     assert!(LodMethod::ALL.contains(&LodMethod::Entropy));
     assert_eq!(LodMethod::Entropy.name(), "entropy");
 }
+
+/// The entropy mesh drawn on the GPU as extra triangles (`bench::entropy_extra`): seen from
+/// above, the terrain fills the view with no background pixel (no hole, no crack), and the
+/// same mesh with a block of triangles removed shows background there (the test can fail).
+#[test]
+fn the_entropy_mesh_draws_without_holes_on_the_gpu() {
+    use terrain_app::bench::entropy_extra;
+    use terrain_gpu::render::BACKGROUND;
+    use terrain_gpu::{BackendChoice, DeviceConfig, GpuContext, RenderConfig, RenderOptions};
+    use terrain_gpu::{TerrainRenderer, render::ExtraTriangles};
+
+    let Some(ctx) =
+        GpuContext::try_new(&DeviceConfig::from_env(BackendChoice::Auto)).expect("GPU set-up")
+    else {
+        println!("SKIPPED: no GPU adapter; set TERRAIN_REQUIRE_GPU=1 to make this a failure");
+        return;
+    };
+    println!("adapter: {}", ctx.describe());
+    let hm = puget();
+    let cfg = EntropyMethodConfig { max_depth: 7, e0: 70.0, ..EntropyMethodConfig::default() };
+    let scene = EntropyScene::new(&hm, &cfg);
+    // Straight down over the centre, the view well inside the terrain.
+    let c = hm.grid_to_world(512.0, 512.0);
+    let top = hm.data().iter().fold(f32::MIN, |a, &b| a.max(b)) as f64;
+    let camera = Camera::look_at(dvec3(c.x, c.y - 1.0, top + 40_000.0), dvec3(c.x, c.y, 0.0))
+        .with_viewport(160.0, 90.0)
+        .with_clip(100.0, 400_000.0);
+    let f = scene.frame(&camera, &cfg);
+    let (carrier, extra) = entropy_extra(&hm, &f.surface);
+    assert_eq!(extra.indices.len(), 3 * f.surface.triangles.len());
+    let config = RenderConfig { width: 160, height: 90, ..RenderConfig::default() };
+    let mut r = TerrainRenderer::new(&ctx, &hm, &config).unwrap();
+    let background = |r: &mut TerrainRenderer, extra: &ExtraTriangles| {
+        r.render_with_extra(&camera, &[carrier], extra, &RenderOptions::default()).unwrap();
+        r.read_image().unwrap().pixels.iter().filter(|p| **p == BACKGROUND).count()
+    };
+    assert_eq!(background(&mut r, &extra), 0, "holes in the drawn entropy mesh");
+    // Negative control: drop every triangle with a vertex near the centre.
+    let mut holed = extra.clone();
+    holed.indices = extra
+        .indices
+        .chunks_exact(3)
+        .filter(|t| {
+            !t.iter().any(|&k| {
+                let uv = extra.points[k as usize].uv;
+                (uv[0] - 0.5).abs() < 0.05 && (uv[1] - 0.5).abs() < 0.05
+            })
+        })
+        .flatten()
+        .copied()
+        .collect();
+    assert!(holed.indices.len() < extra.indices.len());
+    assert!(background(&mut r, &holed) > 0, "a hole must show the background");
+}
