@@ -20,12 +20,14 @@
 //! assert!(mesh.points.iter().all(|p| (0.0..=1.0).contains(&p[0]) && (0.0..=1.0).contains(&p[1])));
 //! ```
 pub mod device;
+pub mod paged;
 pub mod render;
 pub mod surface;
 pub mod target;
 pub mod tess;
 
 pub use device::{BackendChoice, DeviceConfig, GpuContext, GpuError, GpuFeatures};
+pub use paged::{HeightGrid, Page, PageError, PageLayout, PagedHeights};
 pub use render::{
     BACKGROUND, DrawPatch, FrameStats, RenderConfig, RenderError, RenderOptions, TerrainRenderer,
     uniform_patches,

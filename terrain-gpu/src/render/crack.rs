@@ -71,7 +71,18 @@ pub fn crack_pixels(
     let config = RenderConfig { width, height, ..RenderConfig::default() };
     let mut renderer =
         TerrainRenderer::new(ctx, hm, &config).expect("a renderer for the crack test");
-    let skirt = RenderOptions { skirt_depth_m: hm.max() - hm.min() + 10.0, ..Default::default() };
+    crack_pixels_on(&mut renderer, patches, cameras, hm.max() - hm.min() + 10.0)
+}
+
+/// [`crack_pixels`] with a renderer the caller built (a paged one, say) and a skirt depth
+/// (metres) larger than the relief it draws.
+pub fn crack_pixels_on(
+    renderer: &mut TerrainRenderer,
+    patches: &[DrawPatch],
+    cameras: &[Camera],
+    skirt_depth_m: f32,
+) -> Vec<usize> {
+    let skirt = RenderOptions { skirt_depth_m, ..Default::default() };
     cameras
         .iter()
         .map(|camera| {
