@@ -370,9 +370,9 @@ fn run_store(
             s.adapter
         );
         println!(
-            "  stream: needed {:.2} MB ({:.2} resident), synchronous {:.2} MB ({} loads), \
-             prefetched {:.2} MB, I/O {:.2} ms, cache hits {} misses {}, evictions {}, \
-             resident {:.2} / {:.0} MB, queue {}, warm-up rounds {}, faults {}",
+            "  stream: needed {:.3} MB ({:.3} resident), synchronous {:.3} MB ({} loads), \
+             prefetched {:.3} MB, I/O {:.2} ms, cache hits {} misses {}, evictions {}, \
+             resident {:.3} / {:.0} MB, queue {}, warm-up rounds {}, faults {}",
             st.needed_mb,
             st.needed_resident_mb,
             st.sync_mb,
