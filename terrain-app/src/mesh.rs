@@ -180,6 +180,11 @@ fn view_mesh(
     hm: Heightmap,
     format: Option<Format>,
 ) -> anyhow::Result<()> {
+    if args.method == LodMethod::OutOfCore {
+        anyhow::bail!(
+            "--method ooc draws a baked store: bake the DEM with `terrain bake <dem> -o <store>`, then `terrain render <store>` (or `terrain bench`, which bakes one)"
+        );
+    }
     let (width, height) = crate::render::parse_size(&args.size)?;
     let (position, yaw, pitch) = crate::render::parse_camera(camera)?;
     let (near, far) = terrain_gpu::render::clip_range(&hm, position);

@@ -10,6 +10,10 @@
 //!   occlusion issue's).
 //! - `dss-1`, `dss-2`: the DSS paper's (Zhang 2019) comparison Methods I (power-of-two factors)
 //!   and II (uniform blocks with continuous factors).
+//! - `ooc`: the out-of-core paper's (Qiu 2013) method over a baked store. It is stateful (a
+//!   streaming runtime and pages), so it lives in [`crate::ooc::OocScene`], not here:
+//!   [`MethodScene::select`] returns an empty selection for it, and the benchmark and
+//!   `terrain render <store>` drive it.
 
 use std::sync::OnceLock;
 
@@ -46,17 +50,23 @@ pub enum LodMethod {
     #[value(name = "dss-2")]
     #[serde(rename = "dss-2")]
     Dss2,
+    /// The out-of-core paper's method (Qiu 2013): blocks from a store through the streamer,
+    /// Eq. 7 screen error with threshold tau ([`crate::ooc`]).
+    #[value(name = "ooc")]
+    #[serde(rename = "ooc")]
+    OutOfCore,
 }
 
 impl LodMethod {
     /// Every method, in a fixed order (the benchmark's).
-    pub const ALL: [LodMethod; 6] = [
+    pub const ALL: [LodMethod; 7] = [
         LodMethod::Uniform,
         LodMethod::PvpsA,
         LodMethod::PvpsB,
         LodMethod::PvpsC,
         LodMethod::Dss1,
         LodMethod::Dss2,
+        LodMethod::OutOfCore,
     ];
 
     /// The CLI and report name.
@@ -68,6 +78,7 @@ impl LodMethod {
             LodMethod::PvpsC => "pvps-c",
             LodMethod::Dss1 => "dss-1",
             LodMethod::Dss2 => "dss-2",
+            LodMethod::OutOfCore => "ooc",
         }
     }
 }
@@ -163,7 +174,7 @@ impl MethodScene {
                 LodMethod::Dss1 | LodMethod::Dss2 => {
                     self.dss_errors();
                 }
-                LodMethod::Uniform => {}
+                LodMethod::Uniform | LodMethod::OutOfCore => {}
             }
         }
     }
@@ -183,6 +194,8 @@ impl MethodScene {
             LodMethod::Dss2 => {
                 select_dss_uniform(&self.qt, camera, self.dss_errors(), &self.config.dss)
             }
+            // Stateful: crate::ooc::OocScene draws it (see the module docs).
+            LodMethod::OutOfCore => Selection::default(),
         }
     }
 
@@ -208,20 +221,30 @@ impl MethodScene {
     /// (bit-identical to the GPU's): what the benchmark measures and `terrain mesh --camera`
     /// exports. Also returns the non-degenerate triangle count, as the renderer counts them.
     pub fn drawn_surface(&self, selection: &Selection) -> (SurfaceMesh, u64) {
-        let triangles = std::cell::Cell::new(0u64);
-        let mesh = build_surface(&self.hm, &self.qt, selection, |p: &Patch| {
-            let m = tessellate(&patch_factors(p));
-            triangles.set(triangles.get() + m.non_degenerate_triangle_count() as u64);
-            let tris = m.indices.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect();
-            (m.points, tris)
-        });
-        (mesh, triangles.get())
+        drawn_surface_of(&self.hm, &self.qt, selection)
     }
 
     /// The renderer's patches for a selection (see [`draw_patches`]).
     pub fn draw_patches(&self, selection: &Selection) -> Vec<DrawPatch> {
         draw_patches(&self.qt, selection)
     }
+}
+
+/// [`MethodScene::drawn_surface`] over any heights `hm` of `qt`'s grid (the out-of-core method
+/// draws its pages' heights, not the full DEM's).
+pub fn drawn_surface_of(
+    hm: &Heightmap,
+    qt: &Quadtree,
+    selection: &Selection,
+) -> (SurfaceMesh, u64) {
+    let triangles = std::cell::Cell::new(0u64);
+    let mesh = build_surface(hm, qt, selection, |p: &Patch| {
+        let m = tessellate(&patch_factors(p));
+        triangles.set(triangles.get() + m.non_degenerate_triangle_count() as u64);
+        let tris = m.indices.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect();
+        (m.points, tris)
+    });
+    (mesh, triangles.get())
 }
 
 /// Converts a selection into the renderer's patches.

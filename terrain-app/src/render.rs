@@ -170,10 +170,15 @@ pub fn run(args: &RenderArgs) -> anyhow::Result<()> {
     if !(args.factor.is_finite() && args.factor > 0.0) {
         bail!("--factor must be a positive number, got {}", args.factor);
     }
-    if let [one] = args.source.dem.as_slice() {
-        if ooc::is_store(one) {
-            return run_store(args, one, (width, height), background);
-        }
+    if let [one] = args.source.dem.as_slice()
+        && ooc::is_store(one)
+    {
+        return run_store(args, one, (width, height), background);
+    }
+    if args.method == LodMethod::OutOfCore {
+        bail!(
+            "--method ooc draws a baked store: bake the DEM with `terrain bake <dem> -o <store>`, then `terrain render <store>` (or `terrain bench`, which bakes one)"
+        );
     }
     let hm = match args.source.load()? {
         Some(dem) => dem.heightmap,

@@ -28,7 +28,7 @@ use common::{data, scratch, terrain};
 /// A 65 x 65 crop of Puget Sound 1k (grey PNG, 0.1 m steps, 160 m spacing): real relief.
 fn puget_crop() -> Heightmap {
     let options = LoadOptions { vertical_scale: 0.1, spacing_m: 160.0, ..Default::default() };
-    let ps = load(&data("puget_sound/ps_height_1k.png"), &options).unwrap().heightmap;
+    let ps = load(data("puget_sound/ps_height_1k.png"), &options).unwrap().heightmap;
     Heightmap::from_fn(65, 65, Georef::local(160.0), |i, j| ps.get(i + 400, j + 500)).unwrap()
 }
 

@@ -262,11 +262,24 @@ impl PagedHeights {
     pub fn to_heightmap(&self, fallback: &Heightmap) -> Heightmap {
         let (w, h) = (fallback.width(), fallback.height());
         let mut data = fallback.data().to_vec();
-        for j in 0..h {
-            for i in 0..w {
-                if let Some(v) = self.sample(i as u32, j as u32) {
-                    data[j * w + i] = v;
+        // Pages written south to north, west to east: where pages share a sample, the one
+        // written last is the one `locate` tries first among the resident ones (east before
+        // west, north before south), so every sample gets the lookup's value.
+        let mut order: Vec<&[u32; 2]> = self.pages.keys().collect();
+        order.sort_by_key(|p| (p[1], p[0]));
+        let c = self.layout.cells();
+        let [pw, ph] = self.layout.page_samples();
+        for p in order {
+            let samples = &self.pages[p].samples;
+            for b in 0..ph as usize {
+                let j = (p[1] * c[1]) as usize + b;
+                if j >= h {
+                    break;
                 }
+                let i0 = (p[0] * c[0]) as usize;
+                let n = (pw as usize).min(w.saturating_sub(i0));
+                let row = &samples[b * pw as usize..b * pw as usize + n];
+                data[j * w + i0..j * w + i0 + n].copy_from_slice(row);
             }
         }
         Heightmap::new(w, h, data, fallback.voids().clone(), fallback.georef().clone())
@@ -315,7 +328,7 @@ pub fn page_from_grid(
 /// in each coarse cell (see the module docs), in f32. `None` when the sizes do not fit.
 pub fn fill_from_level(level: &[f32], cells: u32) -> Option<Vec<f32>> {
     let side = (level.len() as f64).sqrt() as u32;
-    if side < 2 || side * side != level.len() as u32 || cells % (side - 1) != 0 {
+    if side < 2 || side * side != level.len() as u32 || !cells.is_multiple_of(side - 1) {
         return None;
     }
     let n = side - 1;
@@ -362,6 +375,18 @@ mod tests {
         assert_eq!(paged.locate(40, 32), Some(([1, 0], [8, 32])));
         assert_eq!(paged.locate(40, 40), None);
         assert_eq!(paged.sample(32, 32), hm.sample(32, 32));
+        // The whole-grid copy agrees with the lookup everywhere a page is resident.
+        let mut mixed = paged.clone();
+        let mut p = mixed.get([1, 0]).unwrap().clone();
+        p.samples.iter_mut().for_each(|h| *h += 1000.0);
+        mixed.insert([1, 0], p).unwrap();
+        let copy = mixed.to_heightmap(&hm);
+        for j in 0..hm.height() as u32 {
+            for i in 0..hm.width() as u32 {
+                let want = mixed.sample(i, j).unwrap_or(hm.get(i as usize, j as usize));
+                assert_eq!(copy.get(i as usize, j as usize), want, "({i}, {j})");
+            }
+        }
     }
 
     #[test]

@@ -683,20 +683,13 @@ fn paged_coarse_levels_match_the_reference_and_draw_no_cracks() {
     assert!(changed > hm.width() * hm.height() / 4, "{changed} samples changed");
     // Crack-free: patches that agree on shared edges, over pages of five different levels.
     let mut renderer = paged_renderer(&ctx, &paged, (256, 144));
-    let cameras = crack_cameras(&drawn, 33);
-    for (kind, patches) in [
-        ("uniform", uniform_patches(&hm, 32, 9.5)),
-        ("random", random_patches(&hm, 16, 1.0, 17.0, 13, true)),
-    ] {
-        let cracks = crack::crack_pixels_on(
-            &mut renderer,
-            &patches,
-            &cameras,
-            drawn.max() - drawn.min() + 10.0,
-        );
-        println!("paged mixed levels {kind}: crack pixels {cracks:?} on {}", ctx.describe());
-        assert!(cracks.iter().all(|&c| c == 0), "{kind}: {cracks:?}");
-    }
+    // Every other camera of the crack set: from straight down to grazing, all yaws.
+    let cameras: Vec<_> = crack_cameras(&drawn, 33).into_iter().step_by(2).collect();
+    let patches = random_patches(&hm, 16, 1.0, 17.0, 13, true);
+    let relief = drawn.max() - drawn.min() + 10.0;
+    let cracks = crack::crack_pixels_on(&mut renderer, &patches, &cameras, relief);
+    println!("paged mixed levels: crack pixels {cracks:?} on {}", ctx.describe());
+    assert!(cracks.iter().all(|&c| c == 0), "{cracks:?}");
     // One page gone: the shader's surface and normals still follow the CPU reference (border
     // samples from the neighbours, one-sided differences next to the hole).
     let hole = [2u32, 3u32];
