@@ -493,6 +493,39 @@ impl OocScene {
         Ok(())
     }
 
+    /// An overview heightmap of the whole store from every block's levels `0..=level` (every
+    /// `2^(k - level)`-th sample, the grid's extent rounded down to that step): what a flight is
+    /// placed on (relief, clearance) without reading the full grid. Reads each block's coarse
+    /// levels once.
+    pub fn overview(&self, level: u8) -> Result<Heightmap, StoreError> {
+        let h = self.store.header();
+        let level = level.min(h.k);
+        let d = 1u64 << (h.k - level);
+        let per_block = 1usize << level;
+        let (w, hh) = (((h.width - 1) / d + 1) as usize, ((h.height - 1) / d + 1) as usize);
+        let mut data = vec![0f32; w * hh];
+        for id in self.store.block_ids() {
+            let b = self.store.read_block(id, level)?;
+            let grid = b.grid(level).expect("levels read");
+            let side = per_block + 1;
+            for bj in 0..side {
+                let j = id.row as usize * per_block + bj;
+                if j >= hh {
+                    break;
+                }
+                for bi in 0..side {
+                    let i = id.col as usize * per_block + bi;
+                    if i < w {
+                        data[j * w + i] = grid[bj * side + bi];
+                    }
+                }
+            }
+        }
+        let g =
+            Georef::projected(Crs::Unknown, h.georef.world_origin, h.georef.spacing_m * d as f64);
+        Ok(Heightmap::from_fn(w, hh, g, |i, j| data[j * w + i]).expect("finite store heights"))
+    }
+
     /// A heightmap of 2 x 2 samples with the store's extent and height range: enough for the
     /// renderer's framing ([`terrain_gpu::render::default_camera`]).
     pub fn bounds_heightmap(&self) -> Heightmap {

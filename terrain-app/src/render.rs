@@ -71,6 +71,14 @@ pub struct RenderArgs {
     /// A store: blocks the renderer holds at most (page slots of (2^k + 1)^2 f32 each).
     #[arg(long, default_value_t = 1024)]
     pub page_capacity: u32,
+    /// A store: fly this camera flight (JSON, see `flights/`) instead of one camera, placed on
+    /// an overview of the store's level-4 vertices; frames after the first do not wait for
+    /// the workers. The PNG is the last frame.
+    #[arg(long)]
+    pub flight: Option<PathBuf>,
+    /// With --flight: frames drawn at most, evenly spaced (0 = every frame).
+    #[arg(long, default_value_t = 0)]
+    pub max_frames: usize,
     /// Output PNG.
     #[arg(short, long)]
     pub output: PathBuf,
@@ -333,6 +341,38 @@ fn run_store(
                 .with_clip(near, far)
         }
     };
+    let cameras: Vec<Camera> = match &args.flight {
+        None => vec![camera; args.frames.max(1) as usize],
+        Some(path) => {
+            let spec = terrain_core::flight::FlightSpec::load(path)?;
+            let overview = scene
+                .overview(4)
+                .with_context(|| format!("could not read the store {}", dir.display()))?;
+            let cfg = terrain_core::flight::FlightConfig {
+                viewport_px: glam::dvec2(f64::from(width), f64::from(height)),
+                ..Default::default()
+            };
+            let (flight, warnings) = spec.resolve(&overview, &cfg);
+            for w in &warnings {
+                eprintln!("warning: flight {}: {w}", flight.name);
+            }
+            let indices = terrain_app::bench::frame_indices(flight.frames().len(), args.max_frames);
+            println!(
+                "flight {}: {} of {} frames",
+                flight.name,
+                indices.len(),
+                flight.frames().len()
+            );
+            indices
+                .iter()
+                .map(|&k| {
+                    let c = flight.frames()[k];
+                    let (near, far) = scene.clip_range(c.position);
+                    c.with_clip(near, far)
+                })
+                .collect()
+        }
+    };
     let texture = args.texture.as_ref().map(load_texture).transpose()?;
     let ctx = GpuContext::new(&DeviceConfig::from_env(BackendChoice::Auto))
         .context("no GPU adapter (Vulkan or GL) is available")?;
@@ -346,8 +386,16 @@ fn run_store(
     );
     let options = RenderOptions { wireframe: args.wireframe, ..Default::default() };
     let mut records = Vec::new();
-    for frame in 1..=args.frames.max(1) {
+    let mut summary = terrain_stream::StatsSummary::default();
+    let mut peak_resident_mb: f64 = 0.0;
+    for (frame, camera) in (1u32..).zip(&cameras) {
+        let camera = *camera;
         let f = scene.frame(&camera, frame == 1);
+        peak_resident_mb = peak_resident_mb.max(f.stream.resident_mb);
+        summary.frames += 1;
+        if frame > 1 {
+            summary.sync_loads_after_first += f.stream.sync_loads;
+        }
         if f.stream.faults > 0 {
             eprintln!(
                 "warning: {} store fault(s) this frame; coarser levels are drawn",
@@ -360,39 +408,42 @@ fn run_store(
         let wall_ms = start.elapsed().as_secs_f64() * 1e3;
         let selection_ms = f.selection.stats.cpu_time.as_secs_f64() * 1e3;
         let st = &f.stream;
-        println!(
-            "frame {frame}: method ooc (tau {}), patches {}, triangles {}, vertices {}, blocks drawn {} \
-             (dropped {}), selection {:.2} ms, CPU {:.2} ms, GPU {}, adapter {}",
-            args.tau,
-            s.patches,
-            s.triangles,
-            s.vertices,
-            f.blocks_drawn,
-            f.blocks_dropped,
-            selection_ms,
-            s.cpu_ms,
-            s.gpu_text(),
-            s.adapter
-        );
-        println!(
-            "  stream: needed {:.3} MB ({:.3} resident), synchronous {:.3} MB ({} loads), \
-             prefetched {:.3} MB, I/O {:.2} ms, cache hits {} misses {}, evictions {}, \
-             resident {:.3} / {:.0} MB, queue {}, warm-up rounds {}, faults {}",
-            st.needed_mb,
-            st.needed_resident_mb,
-            st.sync_mb,
-            st.sync_loads,
-            st.prefetched_mb,
-            st.io_ms,
-            st.cache_hits,
-            st.cache_misses,
-            st.evictions,
-            st.resident_mb,
-            st.budget_mb,
-            st.queue_depth,
-            f.warmup_rounds,
-            st.faults
-        );
+        let verbose = cameras.len() <= 20 || frame % 50 == 1 || frame as usize == cameras.len();
+        if verbose {
+            println!(
+                "frame {frame}: method ooc (tau {}), patches {}, triangles {}, vertices {}, blocks drawn {} \
+                 (dropped {}), selection {:.2} ms, CPU {:.2} ms, GPU {}, adapter {}",
+                args.tau,
+                s.patches,
+                s.triangles,
+                s.vertices,
+                f.blocks_drawn,
+                f.blocks_dropped,
+                selection_ms,
+                s.cpu_ms,
+                s.gpu_text(),
+                s.adapter
+            );
+            println!(
+                "  stream: needed {:.3} MB ({:.3} resident), synchronous {:.3} MB ({} loads), \
+                 prefetched {:.3} MB, I/O {:.2} ms, cache hits {} misses {}, evictions {}, \
+                 resident {:.3} / {:.0} MB, queue {}, warm-up rounds {}, faults {}",
+                st.needed_mb,
+                st.needed_resident_mb,
+                st.sync_mb,
+                st.sync_loads,
+                st.prefetched_mb,
+                st.io_ms,
+                st.cache_hits,
+                st.cache_misses,
+                st.evictions,
+                st.resident_mb,
+                st.budget_mb,
+                st.queue_depth,
+                f.warmup_rounds,
+                st.faults
+            );
+        }
         records.push(StoreFrameRecord {
             frame,
             method: "ooc",
@@ -412,6 +463,19 @@ fn run_store(
             stream: f.stream.clone(),
         });
     }
+    let total = |g: &dyn Fn(&StoreFrameRecord) -> f64| records.iter().map(g).sum::<f64>();
+    println!(
+        "summary: {} frames, synchronous loads after frame 1: {}, synchronous {:.2} MB, \
+         prefetched {:.2} MB, I/O {:.1} ms, peak resident {:.1} MB (budget {} MiB), max triangles {}",
+        summary.frames,
+        summary.sync_loads_after_first,
+        total(&|r| r.stream.sync_mb),
+        total(&|r| r.stream.prefetched_mb),
+        total(&|r| r.stream.io_ms),
+        peak_resident_mb,
+        args.cache_mb,
+        records.iter().map(|r| r.triangles).max().unwrap_or(0)
+    );
     if let Some(path) = &args.stats_json {
         let json = serde_json::json!({
             "adapter": ctx.describe(),

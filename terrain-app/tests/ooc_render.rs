@@ -322,3 +322,46 @@ fn a_bad_store_is_an_error_naming_the_file() {
     assert!(stderr.contains(s(&index)), "the error names the index file: {stderr}");
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+#[test]
+fn the_benchmark_runs_the_out_of_core_method_with_stream_statistics() {
+    use terrain_app::bench::{BenchConfig, run_bench};
+    use terrain_app::methods::{LodMethod, MethodConfig};
+    use terrain_core::flight::FlightSpec;
+    let flight = FlightSpec::parse(
+        r#"{"name": "pass", "fps": 10, "height_above": "ground",
+            "keyframes": [{"t": 0, "relative": [0.1, 0.1, 0.3], "yaw": 45, "pitch": -30},
+                          {"t": 1, "relative": [0.5, 0.5, 0.3], "yaw": 45, "pitch": -30}]}"#,
+    )
+    .unwrap();
+    let cfg = BenchConfig {
+        methods: vec![LodMethod::OutOfCore],
+        max_frames: 4,
+        sweep_points: 2,
+        render_size: None,
+        method: MethodConfig { leaf_cells: 4, ..MethodConfig::default() },
+        ooc_k: 4,
+        ..BenchConfig::default()
+    };
+    let report = run_bench("puget crop", puget_crop(), &[flight], &cfg, None, &mut |_| {}).unwrap();
+    let values: Vec<f64> = report.runs.iter().map(|r| r.value).collect();
+    assert_eq!(values, [0.5, 8.0], "tau swept");
+    for r in &report.runs {
+        assert_eq!(r.method, LodMethod::OutOfCore);
+        assert_eq!(r.frames.len(), 4);
+        for f in &r.frames {
+            let st = f.stream.as_ref().expect("stream statistics per frame");
+            assert!(st.needed_mb > 0.0 && st.needed_resident_mb == st.needed_mb, "{st:?}");
+            assert!(f.triangles > 0 && f.errors.samples > 0);
+        }
+        assert!(r.frames[0].stream.as_ref().unwrap().sync_loads > 0);
+    }
+    // A smaller tau draws more triangles and errs less.
+    let (fine, coarse) = (&report.runs[0].summary, &report.runs[1].summary);
+    assert!(fine.median_triangles > coarse.median_triangles, "{fine:?} {coarse:?}");
+    assert!(fine.median_p99_px <= coarse.median_p99_px, "{fine:?} {coarse:?}");
+    let md = report.to_markdown();
+    assert!(md.contains("Table 3") && md.contains("| ooc |"), "{md}");
+    let json = serde_json::to_string(&report).unwrap();
+    assert!(json.contains("\"prefetched_mb\"") && json.contains("\"method\":\"ooc\""));
+}

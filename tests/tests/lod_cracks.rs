@@ -56,7 +56,9 @@ fn no_method_draws_a_crack(name: &str, hm: Heightmap) {
         let scene = MethodScene::new(hm, MethodConfig { leaf_cells, ..MethodConfig::default() });
         let cameras = crack_cameras(&scene.hm, leaf_cells as usize + 1);
         assert!(cameras.len() >= 20);
-        for method in LodMethod::ALL {
+        // `ooc` draws from a store through its own runtime (terrain_app::ooc); its cracks are
+        // tested in terrain-app/tests/ooc_render.rs.
+        for method in LodMethod::ALL.into_iter().filter(|&m| m != LodMethod::OutOfCore) {
             let mut levels = std::collections::BTreeSet::new();
             let mut patches_per_camera = Vec::new();
             let mut cracks = Vec::new();
