@@ -50,6 +50,16 @@ pub struct BenchArgs {
     /// Output folder (created).
     #[arg(short, long, default_value = "bench/results")]
     pub out: PathBuf,
+    /// The `ooc` method: a store baked from the same DEM (default: bake one to a temporary
+    /// folder with blocks of 2^ooc-k + 1 vertices).
+    #[arg(long)]
+    pub ooc_store: Option<PathBuf>,
+    /// The `ooc` method: k of the temporary store.
+    #[arg(long, default_value_t = 8)]
+    pub ooc_k: u8,
+    /// The `ooc` method: the stream cache's budget, MiB.
+    #[arg(long, default_value_t = 256)]
+    pub ooc_cache_mb: u64,
 }
 
 /// Writes `<dir>/<name>.json`, `.md` and `.svg`; returns the three paths.
@@ -88,6 +98,9 @@ pub fn run(args: &BenchArgs) -> anyhow::Result<()> {
         bail!("--leaf-cells must be at least 1");
     }
     cfg.method = MethodConfig { leaf_cells: args.leaf_cells, ..MethodConfig::default() };
+    cfg.ooc_store = args.ooc_store.clone();
+    cfg.ooc_k = args.ooc_k;
+    cfg.ooc.budget_bytes = args.ooc_cache_mb << 20;
     let flights = args
         .flights
         .iter()
