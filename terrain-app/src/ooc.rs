@@ -57,6 +57,9 @@ pub struct OocConfig {
     /// device); the farthest blocks of M beyond it are not drawn (counted as dropped).
     /// Default 1024.
     pub page_capacity: u32,
+    /// Load requests in flight at most: the workers keep loading while the frame thread draws
+    /// (a software renderer's frame takes long). Default 32.
+    pub max_in_flight: usize,
     /// Warm-up: at most this many rounds of "update, wait for the workers" per warm frame,
     /// until the frame's needed levels are resident. Default 16.
     pub warmup_rounds: u32,
@@ -69,6 +72,7 @@ impl Default for OocConfig {
             budget_bytes: 256 << 20,
             threads: 0,
             page_capacity: 1024,
+            max_in_flight: 32,
             warmup_rounds: 16,
         }
     }
@@ -250,6 +254,7 @@ impl OocScene {
             budget_bytes: config.budget_bytes,
             threads: config.threads,
             tau: config.tau,
+            max_in_flight: config.max_in_flight,
             schedule: ScheduleConfig::default(),
             ..StreamConfig::default()
         };
