@@ -30,7 +30,8 @@ use terrain_gpu::tess::{GpuDomainPoint, GpuPatchFactors, PatchRange};
 use terrain_gpu::{GpuContext, RenderConfig, RenderOptions, TerrainRenderer};
 
 use crate::entropy_method::whole_terrain_selection;
-use crate::methods::{LodMethod, MethodConfig, MethodScene};
+use crate::methods::{LodMethod, MethodConfig, MethodScene, drawn_surface_of};
+use crate::ooc::{OocConfig, OocScene, StreamRecord};
 
 /// How a benchmark runs.
 #[derive(Debug, Clone, PartialEq)]
@@ -62,6 +63,14 @@ pub struct BenchConfig {
     /// vertices (stride 2 and a uniform factor of half the leaf cells measure zero error), so
     /// strided figures are biased low; the stride used is in every frame's record.
     pub measure: MeasureConfig,
+    /// The out-of-core method (`ooc`): a store baked from the same DEM; `None` (the default)
+    /// bakes one into a temporary folder (blocks of `2^ooc_k + 1` vertices, lossless for
+    /// integer and scaled-grey sources, else 1 cm) and removes it afterwards.
+    pub ooc_store: Option<std::path::PathBuf>,
+    /// `k` of the temporary store. Default 8 (the store's default, 257^2 blocks).
+    pub ooc_k: u8,
+    /// The out-of-core runtime's settings (tau is swept; budget, threads, page capacity).
+    pub ooc: OocConfig,
 }
 
 impl Default for BenchConfig {
@@ -75,6 +84,9 @@ impl Default for BenchConfig {
             method: MethodConfig::default(),
             pvs_scene: None,
             measure: MeasureConfig::default(),
+            ooc_store: None,
+            ooc_k: 8,
+            ooc: OocConfig::default(),
         }
     }
 }
@@ -117,6 +129,8 @@ pub fn sweep_values(method: LodMethod, leaf_cells: u32) -> (&'static str, Vec<f6
         LodMethod::PvpsCPvs | LodMethod::PvpsCConservative => {
             ("C1", vec![12.5, 25.0, 50.0, 100.0, 200.0])
         }
+        // Qiu 2013 Eq. 7 threshold, pixels (the paper's figures use 2).
+        LodMethod::OutOfCore => ("tau", vec![0.5, 1.0, 2.0, 4.0, 8.0]),
     }
 }
 
@@ -160,6 +174,8 @@ pub fn apply_parameter(config: &mut MethodConfig, method: LodMethod, value: f64)
         LodMethod::Entropy => config.entropy.e0 = value,
         LodMethod::Geomorph => config.geomip.pixel_threshold = value,
         LodMethod::PvpsCPvs | LodMethod::PvpsCConservative => config.pvps.c1 = value,
+        // tau belongs to the out-of-core runtime (OocConfig), set by run_bench.
+        LodMethod::OutOfCore => {}
     }
 }
 
@@ -215,6 +231,10 @@ pub struct FrameRecord {
     /// is zero over the patch.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub material_passes_skipped: Option<usize>,
+    /// The out-of-core method's streaming statistics (the paper's Table 3 columns and the
+    /// cache's); `None` for the other methods.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub stream: Option<StreamRecord>,
 }
 
 impl FrameRecord {
@@ -374,6 +394,7 @@ impl<'a> FrameRunner<'a> {
             vertex_jump_m,
             vertex_jump_no_morph_m,
             material_passes_skipped: None,
+            stream: None,
         };
         if let Some(renderer) = self.geomorph.as_deref_mut() {
             let t = Instant::now();
@@ -437,6 +458,7 @@ impl<'a> FrameRunner<'a> {
             vertex_jump_m: None,
             vertex_jump_no_morph_m: None,
             material_passes_skipped: None,
+            stream: None,
         };
         if let Some(renderer) = self.renderer.as_deref_mut() {
             let (patches, extra) = scene.frame_draw(&drawn);
@@ -832,8 +854,43 @@ pub fn run_bench(
     let total: usize = infos.iter().map(|i| i.frames.len() * per_flight).sum();
     let mut done = 0;
     let mut runs = Vec::new();
+    let mut ooc_store: Option<Result<std::sync::Arc<terrain_stream::Store>, String>> = None;
     for ((flight, _), info) in resolved.iter().zip(&infos) {
         for (method, parameter, values) in &sweeps {
+            if *method == LodMethod::OutOfCore {
+                let store = ooc_store.get_or_insert_with(|| prepare_store(&scene.hm, cfg));
+                let store = match store {
+                    Ok(s) => s.clone(),
+                    Err(e) => anyhow::bail!("the out-of-core method's store: {e}"),
+                };
+                for &value in values {
+                    let label = format!("{} ooc tau={value}", info.name);
+                    let config = OocConfig { tau: value, ..cfg.ooc };
+                    let frames = run_ooc(
+                        &scene,
+                        &store,
+                        config,
+                        cfg,
+                        gpu,
+                        render_size,
+                        flight,
+                        &info.frames,
+                        &mut |_| {
+                            done += 1;
+                            progress(&BenchProgress { done, total, label: label.clone() });
+                        },
+                    )?;
+                    runs.push(RunRecord {
+                        flight: info.name.clone(),
+                        method: *method,
+                        parameter,
+                        value,
+                        summary: RunSummary::new(&frames),
+                        frames,
+                    });
+                }
+                continue;
+            }
             for &value in values {
                 let mut config = cfg.method.clone();
                 config.leaf_cells = leaf_cells;
@@ -866,6 +923,18 @@ pub fn run_bench(
             }
         }
     }
+    if let (Some(Ok(store)), None) = (&ooc_store, &cfg.ooc_store) {
+        let _ = std::fs::remove_dir_all(store.dir());
+    }
+    if ooc_store.is_some() {
+        notes.push(
+            "ooc: blocks come from a store through the streamer; every frame waits for the levels \
+             it needs (warm), so its error is the selection's and the stream columns show what \
+             was loaded on the frame thread and what the workers prefetched. Sampled frames are \
+             further apart than the flight's frame rate, so Eq. 8's speed is overestimated."
+                .to_string(),
+        );
+    }
     Ok(BenchReport {
         terrain: terrain.to_string(),
         grid,
@@ -877,6 +946,138 @@ pub fn run_bench(
         flights: infos,
         runs,
     })
+}
+
+/// The store of the out-of-core method: the configured one, or `hm` baked into a temporary
+/// folder (see [`BenchConfig::ooc_store`]).
+fn prepare_store(
+    hm: &Heightmap,
+    cfg: &BenchConfig,
+) -> Result<std::sync::Arc<terrain_stream::Store>, String> {
+    use terrain_stream::{BakeConfig, BakeProgress, HeightEncoding, Store, bake};
+    let dir = match &cfg.ooc_store {
+        Some(d) => d.clone(),
+        None => {
+            let dir = std::env::temp_dir().join(format!(
+                "terrain-bench-ooc-{}-{}",
+                std::process::id(),
+                hm.width()
+            ));
+            // Lossless where the heights lie on a 0.1 m lattice (scaled grey images, integer
+            // DEMs), else the store's default 1 cm bound.
+            let lattice = hm.data().iter().all(|&h| ((h * 10.0).round() - h * 10.0).abs() < 1e-3);
+            let encoding = if lattice {
+                HeightEncoding::Quantized { step_m: 0.1, offset_m: 0.0 }
+            } else {
+                HeightEncoding::default()
+            };
+            let config =
+                BakeConfig { k: cfg.ooc_k, encoding, overwrite: true, ..Default::default() };
+            bake(hm, &dir, &config, &mut |_: &BakeProgress| std::ops::ControlFlow::Continue(()))
+                .map_err(|e| e.to_string())?;
+            dir
+        }
+    };
+    let store = Store::open(&dir).map_err(|e| e.to_string())?;
+    let h = store.header();
+    if (h.width, h.height) != (hm.width() as u64, hm.height() as u64) {
+        return Err(format!(
+            "{} is {} x {} samples, the DEM {} x {}",
+            dir.display(),
+            h.width,
+            h.height,
+            hm.width(),
+            hm.height()
+        ));
+    }
+    Ok(std::sync::Arc::new(store))
+}
+
+/// One out-of-core run (one tau) over one flight's sampled frames: a fresh runtime, warm
+/// frames, the drawn surface rebuilt from the pages' heights (the CPU reference of the paged
+/// renderer) and measured against the full DEM, the paged render when a GPU is given.
+#[allow(clippy::too_many_arguments)]
+fn run_ooc(
+    scene: &MethodScene,
+    store: &std::sync::Arc<terrain_stream::Store>,
+    config: OocConfig,
+    cfg: &BenchConfig,
+    gpu: Option<&GpuContext>,
+    render_size: Option<(u32, u32)>,
+    flight: &terrain_core::flight::Flight,
+    indices: &[usize],
+    tick: &mut dyn FnMut(usize),
+) -> anyhow::Result<Vec<FrameRecord>> {
+    let mut ooc = OocScene::new(store.clone(), config).with_mirror();
+    if ooc.root_cells() != scene.qt.root_cells() {
+        anyhow::bail!(
+            "the store's blocks ({} cells) do not tile the DEM's quadtree (root {} cells): bake with a smaller k",
+            store.header().block_cells(),
+            scene.qt.root_cells()
+        );
+    }
+    let mut renderer = match (gpu, render_size) {
+        (Some(ctx), Some((width, height))) => Some(ooc.renderer(
+            ctx,
+            &RenderConfig { width, height, background: [150, 185, 225, 255], ..Default::default() },
+        )?),
+        _ => None,
+    };
+    let mut measurer = Measurer::new(&scene.hm, &scene.qt, cfg.measure);
+    let mut frames = Vec::with_capacity(indices.len());
+    for &k in indices {
+        let camera = &flight.frames()[k];
+        let f = ooc.frame(camera, true);
+        let selection_ms = f.selection.stats.cpu_time.as_secs_f64() * 1e3;
+        let t = Instant::now();
+        let drawn = ooc.mirror().expect("mirrored").to_heightmap(&scene.hm);
+        let (mesh, triangles) = drawn_surface_of(&drawn, &scene.qt, &f.selection);
+        let cpu_tess_ms = ms(t);
+        drop(drawn);
+        let t = Instant::now();
+        let errors = measurer.measure(camera, &f.selection, &mesh);
+        let measure_ms = ms(t);
+        drop(mesh);
+        let mut record = FrameRecord {
+            frame: k,
+            patches: f.selection.patches.len(),
+            triangles,
+            selection_ms,
+            cpu_tess_ms,
+            measure_ms,
+            encode_ms: None,
+            render_ms: None,
+            gpu_ms: None,
+            gpu_draw_ms: None,
+            gpu_tessellated: None,
+            upload_bytes: None,
+            cpu_ms: selection_ms + cpu_tess_ms,
+            frame_ms: selection_ms + cpu_tess_ms,
+            rss_bytes: None,
+            errors,
+            stream: Some(f.stream.clone()),
+            ..FrameRecord::default()
+        };
+        if let Some(r) = renderer.as_mut() {
+            OocScene::apply(r, &f)?;
+            let t = Instant::now();
+            let s = r.render(camera, &f.patches, &RenderOptions::default())?;
+            let render_ms = ms(t);
+            let pages: u64 = f.updates.iter().filter(|u| u.fill.is_some()).count() as u64;
+            record.encode_ms = Some(s.cpu_ms);
+            record.render_ms = Some(render_ms);
+            record.gpu_ms = s.gpu_ms;
+            record.gpu_draw_ms = s.gpu_draw_ms;
+            record.gpu_tessellated = Some(s.tessellated);
+            record.upload_bytes = Some(128 + pages * ooc.layout().page_len() as u64 * 4);
+            record.cpu_ms = selection_ms + s.cpu_ms;
+            record.frame_ms = selection_ms + render_ms;
+        }
+        record.rss_bytes = rss_bytes();
+        frames.push(record);
+        tick(k);
+    }
+    Ok(frames)
 }
 
 /// What the timings of a run on `gpu` mean, and which are trustworthy.
@@ -938,6 +1139,7 @@ fn colour(m: LodMethod) -> &'static str {
         LodMethod::PvpsCPvs => "#bcbd22",
         LodMethod::PvpsCConservative => "#17becf",
         LodMethod::DssStrips => "#7f7f7f",
+        LodMethod::OutOfCore => "#aec7e8",
     }
 }
 
@@ -1039,6 +1241,41 @@ impl BenchReport {
                     r.value,
                     opt4(r.summary.max_vertex_jump_m),
                     opt4(r.summary.max_vertex_jump_no_morph_m)
+                );
+            }
+        }
+        let ooc: Vec<&RunRecord> =
+            self.runs.iter().filter(|r| r.method == LodMethod::OutOfCore).collect();
+        if !ooc.is_empty() {
+            s.push_str(
+                "\n## Out-of-core streaming (the paper's Table 3 columns)\n\n\
+                 | flight | tau | needed MB (median) | synchronous MB (sum) | sync loads after frame 1 | \
+                 prefetched MB (sum) | I/O ms (median / max) | cache hits | evictions | \
+                 peak resident MB | budget MB | max queue |\n\
+                 |---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n",
+            );
+            for r in ooc {
+                let st: Vec<&StreamRecord> =
+                    r.frames.iter().filter_map(|f| f.stream.as_ref()).collect();
+                let sum = |f: &dyn Fn(&StreamRecord) -> f64| st.iter().map(|x| f(x)).sum::<f64>();
+                let max =
+                    |f: &dyn Fn(&StreamRecord) -> f64| st.iter().map(|x| f(x)).fold(0.0, f64::max);
+                let _ = writeln!(
+                    s,
+                    "| {} | {} | {:.3} | {:.3} | {} | {:.3} | {:.2} / {:.2} | {} | {} | {:.2} | {:.0} | {} |",
+                    r.flight,
+                    r.value,
+                    median(st.iter().map(|x| x.needed_mb).collect()),
+                    sum(&|x| x.sync_mb),
+                    st.iter().skip(1).map(|x| x.sync_loads).sum::<usize>(),
+                    sum(&|x| x.prefetched_mb),
+                    median(st.iter().map(|x| x.io_ms).collect()),
+                    max(&|x| x.io_ms),
+                    st.iter().map(|x| x.cache_hits).sum::<usize>(),
+                    st.iter().map(|x| x.evictions).sum::<usize>(),
+                    max(&|x| x.resident_mb),
+                    max(&|x| x.budget_mb),
+                    st.iter().map(|x| x.queue_depth).max().unwrap_or(0),
                 );
             }
         }

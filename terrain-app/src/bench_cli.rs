@@ -54,6 +54,16 @@ pub struct BenchArgs {
     /// (default: bake the PVS in memory). A bad file is a warning: no occlusion culling.
     #[arg(long)]
     pub pvs_scene: Option<PathBuf>,
+    /// The `ooc` method: a store baked from the same DEM (default: bake one to a temporary
+    /// folder with blocks of 2^ooc-k + 1 vertices).
+    #[arg(long)]
+    pub ooc_store: Option<PathBuf>,
+    /// The `ooc` method: k of the temporary store.
+    #[arg(long, default_value_t = 8)]
+    pub ooc_k: u8,
+    /// The `ooc` method: the stream cache's budget, MiB.
+    #[arg(long, default_value_t = 256)]
+    pub ooc_cache_mb: u64,
 }
 
 /// Writes `<dir>/<name>.json`, `.md` and `.svg`; returns the three paths.
@@ -93,6 +103,9 @@ pub fn run(args: &BenchArgs) -> anyhow::Result<()> {
     }
     cfg.method = MethodConfig { leaf_cells: args.leaf_cells, ..MethodConfig::default() };
     cfg.pvs_scene = args.pvs_scene.clone();
+    cfg.ooc_store = args.ooc_store.clone();
+    cfg.ooc_k = args.ooc_k;
+    cfg.ooc.budget_bytes = args.ooc_cache_mb << 20;
     let flights = args
         .flights
         .iter()

@@ -65,6 +65,11 @@ pub fn fly(
     ctx: &GpuContext,
     out: &Path,
 ) -> anyhow::Result<Vec<FrameRecord>> {
+    if options.method == LodMethod::OutOfCore {
+        anyhow::bail!(
+            "--method ooc draws a baked store: bake the DEM with `terrain bake <dem> -o <store>`, then `terrain render <store>` (or `terrain bench`, which bakes one)"
+        );
+    }
     let (width, height) = options.size;
     let flight_cfg = FlightConfig {
         viewport_px: dvec2(f64::from(width), f64::from(height)),

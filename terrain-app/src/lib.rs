@@ -5,4 +5,5 @@
 pub mod bench;
 pub mod entropy_method;
 pub mod methods;
+pub mod ooc;
 pub mod pvs_scene;

@@ -276,6 +276,11 @@ fn view_mesh(
         "--camera exports patch-based LOD surfaces; the entropy method's mesh is exported \
          with `terrain mesh --entropy E0`"
     );
+    if args.method == LodMethod::OutOfCore {
+        anyhow::bail!(
+            "--method ooc draws a baked store: bake the DEM with `terrain bake <dem> -o <store>`, then `terrain render <store>` (or `terrain bench`, which bakes one)"
+        );
+    }
     let (width, height) = crate::render::parse_size(&args.size)?;
     let (position, yaw, pitch) = crate::render::parse_camera(camera)?;
     let (near, far) = terrain_gpu::render::clip_range(&hm, position);

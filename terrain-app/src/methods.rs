@@ -25,6 +25,10 @@
 //!   quadtree's leaf size. A camera outside every cell (`Cell_other`) culls nothing.
 //! - `dss-strips`: the DSS paper's own method: M-blocks with their own continuous factors,
 //!   P-blocks and dynamic stitching strips (drawn as extra triangles; see [`MethodFrame`]).
+//! - `ooc`: the out-of-core paper's (Qiu 2013) method over a baked store. It is stateful (a
+//!   streaming runtime and pages), so it lives in [`crate::ooc::OocScene`], not here:
+//!   [`MethodScene::select`] returns an empty selection for it, and the benchmark and
+//!   `terrain render <store>` drive it.
 
 use std::sync::OnceLock;
 
@@ -87,11 +91,16 @@ pub enum LodMethod {
     #[value(name = "dss-strips")]
     #[serde(rename = "dss-strips")]
     DssStrips,
+    /// The out-of-core paper's method (Qiu 2013): blocks from a store through the streamer,
+    /// Eq. 7 screen error with threshold tau ([`crate::ooc`]).
+    #[value(name = "ooc")]
+    #[serde(rename = "ooc")]
+    OutOfCore,
 }
 
 impl LodMethod {
     /// Every method, in a fixed order (the benchmark's).
-    pub const ALL: [LodMethod; 11] = [
+    pub const ALL: [LodMethod; 12] = [
         LodMethod::Uniform,
         LodMethod::PvpsA,
         LodMethod::PvpsB,
@@ -103,6 +112,7 @@ impl LodMethod {
         LodMethod::PvpsCPvs,
         LodMethod::PvpsCConservative,
         LodMethod::DssStrips,
+        LodMethod::OutOfCore,
     ];
 
     /// The CLI and report name.
@@ -119,6 +129,7 @@ impl LodMethod {
             LodMethod::PvpsCPvs => "pvps-c-pvs",
             LodMethod::PvpsCConservative => "pvps-c-cons",
             LodMethod::DssStrips => "dss-strips",
+            LodMethod::OutOfCore => "ooc",
         }
     }
 
@@ -305,7 +316,7 @@ impl MethodScene {
                     self.roughness(2);
                     self.pvs(usize::from(*m == LodMethod::PvpsCConservative));
                 }
-                LodMethod::Uniform => {}
+                LodMethod::Uniform | LodMethod::OutOfCore => {}
             }
         }
     }
@@ -348,6 +359,8 @@ impl MethodScene {
                 }
             }
             LodMethod::DssStrips => self.frame(method, camera).selection,
+            // Stateful: crate::ooc::OocScene draws it (see the module docs).
+            LodMethod::OutOfCore => Selection::default(),
         }
     }
 
@@ -474,14 +487,7 @@ impl MethodScene {
     /// (bit-identical to the GPU's): what the benchmark measures and `terrain mesh --camera`
     /// exports. Also returns the non-degenerate triangle count, as the renderer counts them.
     pub fn drawn_surface(&self, selection: &Selection) -> (SurfaceMesh, u64) {
-        let triangles = std::cell::Cell::new(0u64);
-        let mesh = build_surface(&self.hm, &self.qt, selection, |p: &Patch| {
-            let m = tessellate(&patch_factors(p));
-            triangles.set(triangles.get() + m.non_degenerate_triangle_count() as u64);
-            let tris = m.indices.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect();
-            (m.points, tris)
-        });
-        (mesh, triangles.get())
+        drawn_surface_of(&self.hm, &self.qt, selection)
     }
 
     /// The renderer's patches for a selection (see [`draw_patches`]).
@@ -508,6 +514,23 @@ pub struct StripFrame {
     pub mesh: StripMesh,
     /// The multilevel update's time (section 3.3.1).
     pub update: std::time::Duration,
+}
+
+/// [`MethodScene::drawn_surface`] over any heights `hm` of `qt`'s grid (the out-of-core method
+/// draws its pages' heights, not the full DEM's).
+pub fn drawn_surface_of(
+    hm: &Heightmap,
+    qt: &Quadtree,
+    selection: &Selection,
+) -> (SurfaceMesh, u64) {
+    let triangles = std::cell::Cell::new(0u64);
+    let mesh = build_surface(hm, qt, selection, |p: &Patch| {
+        let m = tessellate(&patch_factors(p));
+        triangles.set(triangles.get() + m.non_degenerate_triangle_count() as u64);
+        let tris = m.indices.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect();
+        (m.points, tris)
+    });
+    (mesh, triangles.get())
 }
 
 /// Converts a selection into the renderer's patches.

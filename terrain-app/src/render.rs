@@ -1,5 +1,8 @@
 //! `terrain render`: draws a DEM (or the embedded synthetic terrain) with the GPU tessellator
-//! into a PNG, and prints what each frame drew and cost.
+//! into a PNG, and prints what each frame drew and cost. A baked store (a folder whose index
+//! starts with the store's magic) is drawn out of core: the out-of-core paper's method
+//! ([`terrain_app::ooc`]) streams its blocks into a paged renderer, so a DEM larger than
+//! memory renders; the stream statistics (the paper's Table 3) join the frame statistics.
 
 use std::path::PathBuf;
 
@@ -7,6 +10,7 @@ use anyhow::{Context, bail};
 use clap::Args;
 use glam::DVec3;
 use terrain_app::methods::{LodMethod, MethodConfig, MethodScene};
+use terrain_app::ooc;
 use terrain_core::geometry::Camera;
 use terrain_core::{Heightmap, synth};
 use terrain_gpu::render::{clip_range, default_camera};
@@ -58,6 +62,23 @@ pub struct RenderArgs {
     /// Frames to draw (the tessellation is reused after the first): for timing.
     #[arg(long, default_value_t = 1)]
     pub frames: u32,
+    /// A store: the screen-error threshold tau of Eq. 7 (out-of-core paper), pixels.
+    #[arg(long, default_value_t = 2.0)]
+    pub tau: f64,
+    /// A store: the stream cache's budget, MiB.
+    #[arg(long, default_value_t = 256)]
+    pub cache_mb: u64,
+    /// A store: blocks the renderer holds at most (page slots of (2^k + 1)^2 f32 each).
+    #[arg(long, default_value_t = 1024)]
+    pub page_capacity: u32,
+    /// A store: fly this camera flight (JSON, see `flights/`) instead of one camera, placed on
+    /// an overview of the store's level-4 vertices; frames after the first do not wait for
+    /// the workers. The PNG is the last frame.
+    #[arg(long)]
+    pub flight: Option<PathBuf>,
+    /// With --flight: frames drawn at most, evenly spaced (0 = every frame).
+    #[arg(long, default_value_t = 0)]
+    pub max_frames: usize,
     /// Output PNG.
     #[arg(short, long)]
     pub output: PathBuf,
@@ -162,6 +183,16 @@ pub fn run(args: &RenderArgs) -> anyhow::Result<()> {
     if !(args.factor.is_finite() && args.factor > 0.0) {
         bail!("--factor must be a positive number, got {}", args.factor);
     }
+    if let [one] = args.source.dem.as_slice()
+        && ooc::is_store(one)
+    {
+        return run_store(args, one, (width, height), background);
+    }
+    if args.method == LodMethod::OutOfCore {
+        bail!(
+            "--method ooc draws a baked store: bake the DEM with `terrain bake <dem> -o <store>`, then `terrain render <store>` (or `terrain bench`, which bakes one)"
+        );
+    }
     let hm = match args.source.load()? {
         Some(dem) => dem.heightmap,
         None => synth::default_terrain(),
@@ -233,12 +264,234 @@ pub fn run(args: &RenderArgs) -> anyhow::Result<()> {
         std::fs::write(path, serde_json::to_string_pretty(&json)?)
             .with_context(|| format!("could not write {}", path.display()))?;
     }
+    save_image(&renderer, &args.output)
+}
+
+fn save_image(renderer: &TerrainRenderer, output: &std::path::Path) -> anyhow::Result<()> {
     let image = renderer.read_image()?;
     let raw: Vec<u8> = image.pixels.iter().flatten().copied().collect();
-    image::save_buffer(&args.output, &raw, image.width, image.height, image::ColorType::Rgba8)
-        .with_context(|| format!("could not write {}", args.output.display()))?;
-    println!("wrote {} ({} x {})", args.output.display(), image.width, image.height);
+    image::save_buffer(output, &raw, image.width, image.height, image::ColorType::Rgba8)
+        .with_context(|| format!("could not write {}", output.display()))?;
+    println!("wrote {} ({} x {})", output.display(), image.width, image.height);
     Ok(())
+}
+
+/// One frame of a store's render, as `--stats-json` writes it.
+#[derive(Debug, serde::Serialize)]
+struct StoreFrameRecord {
+    frame: u32,
+    method: &'static str,
+    tau: f64,
+    patches: usize,
+    triangles: u64,
+    vertices: u64,
+    blocks_drawn: usize,
+    blocks_dropped: usize,
+    pages_uploaded: usize,
+    warmup_rounds: u32,
+    selection_ms: f64,
+    encode_ms: f64,
+    gpu_ms: Option<f64>,
+    draw_pass_ms: Option<f64>,
+    wall_ms: f64,
+    stream: ooc::StreamRecord,
+}
+
+/// `terrain render <store>`: the out-of-core method over a baked store.
+fn run_store(
+    args: &RenderArgs,
+    dir: &std::path::Path,
+    (width, height): (u32, u32),
+    background: [u8; 4],
+) -> anyhow::Result<()> {
+    if !(args.tau.is_finite() && args.tau > 0.0) {
+        bail!("--tau must be a positive number of pixels, got {}", args.tau);
+    }
+    if args.page_capacity == 0 {
+        bail!("--page-capacity must be at least 1");
+    }
+    let config = ooc::OocConfig {
+        tau: args.tau,
+        budget_bytes: args.cache_mb << 20,
+        page_capacity: args.page_capacity,
+        ..ooc::OocConfig::default()
+    };
+    let mut scene = ooc::OocScene::open(dir, config)
+        .with_context(|| format!("could not open the store {}", dir.display()))?;
+    let h = scene.store().header().clone();
+    println!(
+        "store: {} ({} x {} samples, blocks of {} x {} vertices, {} x {} blocks)",
+        dir.display(),
+        h.width,
+        h.height,
+        h.block_side(),
+        h.block_side(),
+        h.blocks_x,
+        h.blocks_y
+    );
+    if !(args.fov.is_finite() && args.fov > 0.0 && args.fov < 180.0) {
+        bail!("--fov must be between 0 and 180 degrees, got {}", args.fov);
+    }
+    let camera = match &args.camera {
+        None => {
+            let c = default_camera(&scene.bounds_heightmap(), width, height, args.fov);
+            let (near, far) = scene.clip_range(c.position);
+            c.with_clip(near, far)
+        }
+        Some(s) => {
+            let (position, yaw, pitch) = parse_camera(s)?;
+            let (near, far) = scene.clip_range(position);
+            Camera::from_yaw_pitch(position, yaw, pitch)
+                .with_fov_y_deg(args.fov)
+                .with_viewport(f64::from(width), f64::from(height))
+                .with_clip(near, far)
+        }
+    };
+    let cameras: Vec<Camera> = match &args.flight {
+        None => vec![camera; args.frames.max(1) as usize],
+        Some(path) => {
+            let spec = terrain_core::flight::FlightSpec::load(path)?;
+            let overview = scene
+                .overview(4)
+                .with_context(|| format!("could not read the store {}", dir.display()))?;
+            let cfg = terrain_core::flight::FlightConfig {
+                viewport_px: glam::dvec2(f64::from(width), f64::from(height)),
+                ..Default::default()
+            };
+            let (flight, warnings) = spec.resolve(&overview, &cfg);
+            for w in &warnings {
+                eprintln!("warning: flight {}: {w}", flight.name);
+            }
+            let indices = terrain_app::bench::frame_indices(flight.frames().len(), args.max_frames);
+            println!(
+                "flight {}: {} of {} frames",
+                flight.name,
+                indices.len(),
+                flight.frames().len()
+            );
+            indices
+                .iter()
+                .map(|&k| {
+                    let c = flight.frames()[k];
+                    let (near, far) = scene.clip_range(c.position);
+                    c.with_clip(near, far)
+                })
+                .collect()
+        }
+    };
+    let texture = args.texture.as_ref().map(load_texture).transpose()?;
+    let ctx = GpuContext::new(&DeviceConfig::from_env(BackendChoice::Auto))
+        .context("no GPU adapter (Vulkan or GL) is available")?;
+    println!("adapter: {}", ctx.describe());
+    let render_config = RenderConfig { width, height, texture, background, ..Default::default() };
+    let mut renderer = scene.renderer(&ctx, &render_config)?;
+    println!(
+        "pages: {} slots, {:.1} MB of page atlas on the device",
+        renderer.page_capacity(),
+        renderer.page_atlas_bytes() as f64 / 1e6
+    );
+    let options = RenderOptions { wireframe: args.wireframe, ..Default::default() };
+    let mut records = Vec::new();
+    let mut summary = terrain_stream::StatsSummary::default();
+    let mut peak_resident_mb: f64 = 0.0;
+    for (frame, camera) in (1u32..).zip(&cameras) {
+        let camera = *camera;
+        let f = scene.frame(&camera, frame == 1);
+        peak_resident_mb = peak_resident_mb.max(f.stream.resident_mb);
+        summary.frames += 1;
+        if frame > 1 {
+            summary.sync_loads_after_first += f.stream.sync_loads;
+        }
+        if f.stream.faults > 0 {
+            eprintln!(
+                "warning: {} store fault(s) this frame; coarser levels are drawn",
+                f.stream.faults
+            );
+        }
+        ooc::OocScene::apply(&mut renderer, &f)?;
+        let start = std::time::Instant::now();
+        let s = renderer.render(&camera, &f.patches, &options)?;
+        let wall_ms = start.elapsed().as_secs_f64() * 1e3;
+        let selection_ms = f.selection.stats.cpu_time.as_secs_f64() * 1e3;
+        let st = &f.stream;
+        let verbose = cameras.len() <= 20 || frame % 50 == 1 || frame as usize == cameras.len();
+        if verbose {
+            println!(
+                "frame {frame}: method ooc (tau {}), patches {}, triangles {}, vertices {}, blocks drawn {} \
+                 (dropped {}), selection {:.2} ms, CPU {:.2} ms, GPU {}, adapter {}",
+                args.tau,
+                s.patches,
+                s.triangles,
+                s.vertices,
+                f.blocks_drawn,
+                f.blocks_dropped,
+                selection_ms,
+                s.cpu_ms,
+                s.gpu_text(),
+                s.adapter
+            );
+            println!(
+                "  stream: needed {:.3} MB ({:.3} resident), synchronous {:.3} MB ({} loads), \
+                 prefetched {:.3} MB, I/O {:.2} ms, cache hits {} misses {}, evictions {}, \
+                 resident {:.3} / {:.0} MB, queue {}, warm-up rounds {}, faults {}",
+                st.needed_mb,
+                st.needed_resident_mb,
+                st.sync_mb,
+                st.sync_loads,
+                st.prefetched_mb,
+                st.io_ms,
+                st.cache_hits,
+                st.cache_misses,
+                st.evictions,
+                st.resident_mb,
+                st.budget_mb,
+                st.queue_depth,
+                f.warmup_rounds,
+                st.faults
+            );
+        }
+        records.push(StoreFrameRecord {
+            frame,
+            method: "ooc",
+            tau: args.tau,
+            patches: s.patches,
+            triangles: s.triangles,
+            vertices: s.vertices,
+            blocks_drawn: f.blocks_drawn,
+            blocks_dropped: f.blocks_dropped,
+            pages_uploaded: f.updates.iter().filter(|u| u.fill.is_some()).count(),
+            warmup_rounds: f.warmup_rounds,
+            selection_ms,
+            encode_ms: s.cpu_ms,
+            gpu_ms: s.gpu_ms,
+            draw_pass_ms: s.gpu_draw_ms,
+            wall_ms,
+            stream: f.stream.clone(),
+        });
+    }
+    let total = |g: &dyn Fn(&StoreFrameRecord) -> f64| records.iter().map(g).sum::<f64>();
+    println!(
+        "summary: {} frames, synchronous loads after frame 1: {}, synchronous {:.2} MB, \
+         prefetched {:.2} MB, I/O {:.1} ms, peak resident {:.1} MB (budget {} MiB), max triangles {}",
+        summary.frames,
+        summary.sync_loads_after_first,
+        total(&|r| r.stream.sync_mb),
+        total(&|r| r.stream.prefetched_mb),
+        total(&|r| r.stream.io_ms),
+        peak_resident_mb,
+        args.cache_mb,
+        records.iter().map(|r| r.triangles).max().unwrap_or(0)
+    );
+    if let Some(path) = &args.stats_json {
+        let json = serde_json::json!({
+            "adapter": ctx.describe(),
+            "store": dir.display().to_string(),
+            "frames": records,
+        });
+        std::fs::write(path, serde_json::to_string_pretty(&json)?)
+            .with_context(|| format!("could not write {}", path.display()))?;
+    }
+    save_image(&renderer, &args.output)
 }
 
 #[cfg(test)]

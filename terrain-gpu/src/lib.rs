@@ -21,6 +21,7 @@
 //! ```
 pub mod device;
 pub mod geomorph;
+pub mod paged;
 pub mod render;
 pub mod strips;
 pub mod surface;
@@ -28,6 +29,7 @@ pub mod target;
 pub mod tess;
 
 pub use device::{BackendChoice, DeviceConfig, GpuContext, GpuError, GpuFeatures};
+pub use paged::{HeightGrid, Page, PageError, PageLayout, PagedHeights};
 pub use render::{
     BACKGROUND, DrawPatch, ExtraTriangles, FrameStats, RenderConfig, RenderError, RenderOptions,
     TerrainRenderer, uniform_patches,

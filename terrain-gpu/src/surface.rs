@@ -4,7 +4,7 @@
 //! `normal_at`); change both together.
 //!
 //! The surface is the bilinear interpolation of the heightmap's samples (the same formula as
-//! [`Heightmap::sample_grid`]). A domain point `(u, v)` of a patch with rect `[x0, y0, x1, y1]`
+//! [`terrain_core::Heightmap::sample_grid`]). A domain point `(u, v)` of a patch with rect `[x0, y0, x1, y1]`
 //! sits at grid coordinates `(x0 + u (x1 - x0), y0 + v (y1 - y0))`, computed in f32 so the
 //! GPU's arithmetic is reproduced: two patches sharing an edge compute bit-identical grid
 //! coordinates there, because the edge's coordinate is an integer (`u = 1` on one side,
@@ -14,10 +14,14 @@
 //! interpolated bilinearly between the four samples around the point: the shading is that of
 //! the full-resolution DEM whatever the tessellation, so level of detail changes geometry but
 //! not lighting.
+//!
+//! Every function reads a [`HeightGrid`]: a whole [`terrain_core::Heightmap`], or the resident
+//! pages of [`crate::paged::PagedHeights`] (a sample on no resident page reads as 0, and
+//! central differences turn one-sided next to it; see [`crate::paged`]).
 
 use glam::{DVec3, Vec2, Vec3};
-use terrain_core::Heightmap;
 
+pub use crate::paged::HeightGrid;
 use crate::render::DrawPatch;
 
 /// Grid coordinates (fractional samples, f32 as on the GPU) of domain point `uv` of `patch`.
@@ -28,25 +32,31 @@ pub fn grid_coords(patch: &DrawPatch, uv: [f32; 2]) -> Vec2 {
     lo + Vec2::from(uv) * size
 }
 
+/// The height of sample `(i, j)` as the shader reads it: 0 where it is on no resident page.
+fn height_sample<G: HeightGrid + ?Sized>(hm: &G, i: u32, j: u32) -> f32 {
+    hm.sample(i, j).unwrap_or(0.0)
+}
+
 /// The cell and the fractions inside it of grid coordinates `g`, clamped to the grid: the
 /// first step of every lookup, shared by positions and normals.
-fn cell_of(hm: &Heightmap, g: Vec2) -> ([usize; 2], [usize; 2], Vec2) {
-    let gmax = Vec2::new((hm.width() - 1) as f32, (hm.height() - 1) as f32);
+fn cell_of<G: HeightGrid + ?Sized>(hm: &G, g: Vec2) -> ([u32; 2], [u32; 2], Vec2) {
+    let [w, h] = hm.size();
+    let gmax = Vec2::new((w - 1) as f32, (h - 1) as f32);
     let g = g.clamp(Vec2::ZERO, gmax);
     let cell = g.floor();
     let f = g - cell;
-    let i0 = [cell.x as usize, cell.y as usize];
-    let i1 = [(i0[0] + 1).min(hm.width() - 1), (i0[1] + 1).min(hm.height() - 1)];
+    let i0 = [cell.x as u32, cell.y as u32];
+    let i1 = [(i0[0] + 1).min(w - 1), (i0[1] + 1).min(h - 1)];
     (i0, i1, f)
 }
 
 /// Bilinear height at grid coordinates `g` (clamped to the grid), in f32 as on the GPU.
-pub fn height_at(hm: &Heightmap, g: Vec2) -> f32 {
+pub fn height_at<G: HeightGrid + ?Sized>(hm: &G, g: Vec2) -> f32 {
     let (i0, i1, f) = cell_of(hm, g);
-    let h00 = hm.get(i0[0], i0[1]);
-    let h10 = hm.get(i1[0], i0[1]);
-    let h01 = hm.get(i0[0], i1[1]);
-    let h11 = hm.get(i1[0], i1[1]);
+    let h00 = height_sample(hm, i0[0], i0[1]);
+    let h10 = height_sample(hm, i1[0], i0[1]);
+    let h01 = height_sample(hm, i0[0], i1[1]);
+    let h11 = height_sample(hm, i1[0], i1[1]);
     let a = h00 + (h10 - h00) * f.x;
     let b = h01 + (h11 - h01) * f.x;
     a + (b - a) * f.y
@@ -54,35 +64,40 @@ pub fn height_at(hm: &Heightmap, g: Vec2) -> f32 {
 
 /// World position (metres, f64) of domain point `uv` of `patch`: what the vertex stage
 /// computes, relative to its anchor.
-pub fn vertex_position(hm: &Heightmap, patch: &DrawPatch, uv: [f32; 2]) -> DVec3 {
+pub fn vertex_position<G: HeightGrid + ?Sized>(hm: &G, patch: &DrawPatch, uv: [f32; 2]) -> DVec3 {
     let g = grid_coords(patch, uv);
     surface_position(hm, g)
 }
 
 /// World position (metres, f64) of the surface at grid coordinates `g` (clamped to the grid).
-pub fn surface_position(hm: &Heightmap, g: Vec2) -> DVec3 {
+pub fn surface_position<G: HeightGrid + ?Sized>(hm: &G, g: Vec2) -> DVec3 {
     let (i0, _, f) = cell_of(hm, g);
-    let geo = hm.georef();
-    let x = geo.world_origin.x + (i0[0] as f64 + f64::from(f.x)) * geo.spacing_m.x;
-    let y = geo.world_origin.y + (i0[1] as f64 + f64::from(f.y)) * geo.spacing_m.y;
+    let (origin, spacing) = hm.frame();
+    let x = origin.x + (f64::from(i0[0]) + f64::from(f.x)) * spacing.x;
+    let y = origin.y + (f64::from(i0[1]) + f64::from(f.y)) * spacing.y;
     DVec3::new(x, y, f64::from(height_at(hm, g)))
 }
 
-/// Height gradient `(dz/dx, dz/dy)` at sample `(i, j)` by central differences (one-sided at
-/// the border), f32 as on the GPU.
-fn gradient_at_sample(hm: &Heightmap, i: usize, j: usize) -> Vec2 {
-    let (w, h) = (hm.width() - 1, hm.height() - 1);
-    let s = hm.georef().spacing_m.as_vec2();
-    let (il, ir) = (i.saturating_sub(1), (i + 1).min(w));
-    let (jd, ju) = (j.saturating_sub(1), (j + 1).min(h));
-    let dx = (hm.get(ir, j) - hm.get(il, j)) / ((ir - il).max(1) as f32 * s.x);
-    let dy = (hm.get(i, ju) - hm.get(i, jd)) / ((ju - jd).max(1) as f32 * s.y);
+/// Height gradient `(dz/dx, dz/dy)` at sample `(i, j)` by central differences, one-sided at
+/// the border and where a neighbouring sample is on no resident page, f32 as on the GPU.
+fn gradient_at_sample<G: HeightGrid + ?Sized>(hm: &G, i: u32, j: u32) -> Vec2 {
+    let [w, h] = hm.size();
+    let s = hm.frame().1.as_vec2();
+    let resident = |a: u32, b: u32| hm.sample(a, b).is_some();
+    let il = if i > 0 && resident(i - 1, j) { i - 1 } else { i };
+    let ir = if i + 1 < w && resident(i + 1, j) { i + 1 } else { i };
+    let jd = if j > 0 && resident(i, j - 1) { j - 1 } else { j };
+    let ju = if j + 1 < h && resident(i, j + 1) { j + 1 } else { j };
+    let dx =
+        (height_sample(hm, ir, j) - height_sample(hm, il, j)) / ((ir - il).max(1) as f32 * s.x);
+    let dy =
+        (height_sample(hm, i, ju) - height_sample(hm, i, jd)) / ((ju - jd).max(1) as f32 * s.y);
     Vec2::new(dx, dy)
 }
 
 /// Unit normal (world frame, z up) at grid coordinates `g`: the bilinear blend of the
 /// central-difference gradients at the four samples around `g`.
-pub fn normal_at(hm: &Heightmap, g: Vec2) -> Vec3 {
+pub fn normal_at<G: HeightGrid + ?Sized>(hm: &G, g: Vec2) -> Vec3 {
     let (i0, i1, f) = cell_of(hm, g);
     let g00 = gradient_at_sample(hm, i0[0], i0[1]);
     let g10 = gradient_at_sample(hm, i1[0], i0[1]);
@@ -98,6 +113,7 @@ pub fn normal_at(hm: &Heightmap, g: Vec2) -> Vec3 {
 mod tests {
     use super::*;
     use crate::tess::PatchFactors;
+    use terrain_core::Heightmap;
     use terrain_core::synth::{HardCase, default_terrain};
 
     #[test]

@@ -369,8 +369,11 @@ impl LeafGrid {
     fn coverage(&self, qt: &Quadtree, sel: &Selection) -> Vec<bool> {
         let mut cov = vec![false; self.nx * self.ny];
         for p in &sel.patches {
-            let n = p.node;
-            if n.level > self.level || !qt.contains_node(n) {
+            // A patch finer than the quadtree's leaves (the out-of-core method's block nodes
+            // go down to single cells) covers its ancestor leaf; samples of that leaf no patch
+            // covers are then counted as unlocated instead of culled.
+            let n = p.node.ancestor(p.node.level.min(self.level));
+            if !qt.contains_node(n) {
                 continue;
             }
             let shift = self.level - n.level;

@@ -305,6 +305,12 @@ impl LeafSet {
 /// new children are *not* re-culled (conservative: the parent was visible). Returns the
 /// leaves in traversal order.
 pub fn balance(qt: &Quadtree, leaves: &[NodeId]) -> Vec<NodeId> {
+    balance_with(leaves, |n| qt.contains_node(n))
+}
+
+/// [`balance`] without a [`Quadtree`]: `contains(node)` says whether a child holds a grid cell
+/// (an out-of-core store's node space, whose heights are not in memory).
+pub fn balance_with(leaves: &[NodeId], contains: impl Fn(NodeId) -> bool) -> Vec<NodeId> {
     let mut set: HashSet<NodeId> = leaves.iter().copied().collect();
     let mut work: Vec<NodeId> = leaves.to_vec();
     // Popped deepest first: fewer repeated splits.
@@ -322,7 +328,7 @@ pub fn balance(qt: &Quadtree, leaves: &[NodeId]) -> Vec<NodeId> {
                 let Some(a) = coarse else { break };
                 set.remove(&a);
                 for c in a.children() {
-                    if qt.contains_node(c) {
+                    if contains(c) {
                         set.insert(c);
                         work.push(c);
                     }

@@ -87,7 +87,29 @@ pub fn crack_pixels_with_extra(
     let config = RenderConfig { width, height, ..RenderConfig::default() };
     let mut renderer =
         TerrainRenderer::new(ctx, hm, &config).expect("a renderer for the crack test");
-    let skirt = RenderOptions { skirt_depth_m: hm.max() - hm.min() + 10.0, ..Default::default() };
+    crack_frames_on(&mut renderer, frames, hm.max() - hm.min() + 10.0)
+}
+
+/// [`crack_pixels`] with a renderer the caller built (a paged one, say) and a skirt depth
+/// (metres) larger than the relief it draws.
+pub fn crack_pixels_on(
+    renderer: &mut TerrainRenderer,
+    patches: &[DrawPatch],
+    cameras: &[Camera],
+    skirt_depth_m: f32,
+) -> Vec<usize> {
+    let empty = ExtraTriangles::default();
+    let frames: Vec<_> = cameras.iter().map(|c| (*c, patches, &empty)).collect();
+    crack_frames_on(renderer, &frames, skirt_depth_m)
+}
+
+/// The crack count of every frame on `renderer`, with skirts of `skirt_depth_m` metres.
+fn crack_frames_on(
+    renderer: &mut TerrainRenderer,
+    frames: &[(Camera, &[DrawPatch], &ExtraTriangles)],
+    skirt_depth_m: f32,
+) -> Vec<usize> {
+    let skirt = RenderOptions { skirt_depth_m, ..Default::default() };
     frames
         .iter()
         .map(|(camera, patches, extra)| {

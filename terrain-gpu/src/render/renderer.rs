@@ -14,6 +14,7 @@ use terrain_core::geometry::Camera;
 
 use super::{DrawPatch, ExtraTriangles, RenderConfig, RenderOptions};
 use crate::device::{GpuContext, GpuError, GpuFeatures, read_buffer};
+use crate::paged::{PageError, PageLayout, check_page};
 use crate::target::{COLOR_FORMAT, OffscreenTarget, RgbaImage};
 use crate::tess::{
     EdgeSpacing, GpuDomainPoint, GpuTessOutput, GpuTessellator, PatchFactors, QuadLayout,
@@ -150,6 +151,9 @@ pub enum RenderError {
     /// The caller's configuration is unusable.
     #[error("invalid render configuration: {0}")]
     InvalidConfig(String),
+    /// A page of heights was refused.
+    #[error(transparent)]
+    Page(#[from] PageError),
 }
 
 /// The tessellation of one patch list, with what draws it.
@@ -284,6 +288,16 @@ pub struct TerrainRenderer {
     col_x: wgpu::Buffer,
     row_y: wgpu::Buffer,
     heights: wgpu::TextureView,
+    /// The page atlas (`heights` views it).
+    atlas: wgpu::Texture,
+    page_table: wgpu::Buffer,
+    /// The page table as uploaded (header, then slot + 1 per page, 0 = not resident).
+    table: Vec<u32>,
+    table_dirty: bool,
+    page_layout: PageLayout,
+    slot_of: HashMap<[u32; 2], u32>,
+    free_slots: Vec<u32>,
+    capacity: u32,
     color: wgpu::TextureView,
     sampler: wgpu::Sampler,
     has_texture: bool,
@@ -351,23 +365,63 @@ fn factor_key(f: &PatchFactors) -> [u32; 6] {
 impl TerrainRenderer {
     /// Uploads `hm` (as an R32Float texture; it must fit the device's 2D texture limit) and the
     /// colour texture, if any, and builds the pipelines and a `config.width` x `config.height`
-    /// target.
+    /// target. This is the paged renderer with one page covering the grid
+    /// ([`PageLayout::whole`]), resident.
     pub fn new(
         ctx: &GpuContext,
         hm: &Heightmap,
         config: &RenderConfig,
     ) -> Result<Self, RenderError> {
+        let mut r = Self::build(ctx, PageLayout::whole(hm), 1, [hm.min(), hm.max()], config)?;
+        r.set_page([0, 0], hm.data())?;
+        Ok(r)
+    }
+
+    /// A renderer of a paged grid (see [`crate::paged`]): an atlas of `capacity` page slots
+    /// (it must fit the device's 2D texture limit) and a page table, no page resident. Pages
+    /// come and go with [`TerrainRenderer::set_page`] and [`TerrainRenderer::remove_page`];
+    /// `height_range` (lowest, highest) scales the colour ramp. Never allocates the grid: the
+    /// device holds the resident pages and one `f32` per column and per row.
+    pub fn new_paged(
+        ctx: &GpuContext,
+        layout: PageLayout,
+        capacity: u32,
+        height_range: [f32; 2],
+        config: &RenderConfig,
+    ) -> Result<Self, RenderError> {
+        Self::build(ctx, layout, capacity, height_range, config)
+    }
+
+    fn build(
+        ctx: &GpuContext,
+        pages: PageLayout,
+        capacity: u32,
+        height_range: [f32; 2],
+        config: &RenderConfig,
+    ) -> Result<Self, RenderError> {
         let device = &ctx.device;
         let maximum = device.limits().max_texture_dimension_2d;
-        let (width, height) = (hm.width() as u32, hm.height() as u32);
-        if width > maximum || height > maximum {
+        let [width, height] = pages.grid;
+        if width == 0 || height == 0 || !(pages.spacing.x > 0.0 && pages.spacing.y > 0.0) {
+            return Err(RenderError::InvalidConfig(format!(
+                "a grid of {width} x {height} samples with spacing {}",
+                pages.spacing
+            )));
+        }
+        let capacity = capacity.max(1);
+        let slot = pages.page_samples();
+        let slots_x = (maximum / slot[0].max(1)).max(1).min(capacity);
+        let slots_y = capacity.div_ceil(slots_x);
+        let (atlas_w, atlas_h) = (slots_x * slot[0], u64::from(slots_y) * u64::from(slot[1]));
+        if slot[0] > maximum || atlas_h > u64::from(maximum) {
             return Err(RenderError::TextureTooLarge {
-                what: "the heightmap",
-                width,
-                height,
+                what: if capacity == 1 { "the heightmap" } else { "the page atlas" },
+                width: atlas_w,
+                height: atlas_h.min(u64::from(u32::MAX)) as u32,
                 maximum,
             });
         }
+        let atlas_h = atlas_h as u32;
         if config.width == 0
             || config.height == 0
             || config.width > maximum
@@ -408,14 +462,22 @@ impl TerrainRenderer {
                 );
                 tex.create_view(&Default::default())
             };
-        let heights = upload(
-            "heightmap",
-            wgpu::TextureFormat::R32Float,
-            width,
-            height,
-            bytemuck::cast_slice(hm.data()),
-            4,
-        );
+        let atlas = device.create_texture(&wgpu::TextureDescriptor {
+            label: Some("height pages"),
+            size: size(atlas_w, atlas_h),
+            mip_level_count: 1,
+            sample_count: 1,
+            dimension: wgpu::TextureDimension::D2,
+            format: wgpu::TextureFormat::R32Float,
+            usage: wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_DST,
+            view_formats: &[],
+        });
+        let heights = atlas.create_view(&Default::default());
+        let [pages_x, pages_y] = pages.pages();
+        let cells = pages.cells();
+        let mut table = vec![0u32; 8 + pages_x as usize * pages_y as usize];
+        table[..7]
+            .copy_from_slice(&[cells[0], cells[1], pages_x, pages_y, slots_x, slot[0], slot[1]]);
         let white = RgbaImage { width: 1, height: 1, pixels: vec![[255; 4]] };
         let image = config.texture.as_ref().unwrap_or(&white);
         if image.width > maximum || image.height > maximum {
@@ -468,6 +530,7 @@ impl TerrainRenderer {
                 entry(6, wgpu::BindingType::Sampler(wgpu::SamplerBindingType::Filtering)),
                 entry(7, storage(true)),
                 entry(8, storage(true)),
+                entry(9, storage(true)),
             ],
         });
         let debug_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
@@ -519,6 +582,7 @@ impl TerrainRenderer {
         let frame = buffer("terrain frame", size_of::<GpuFrame>() as u64, U::UNIFORM | U::COPY_DST);
         let col_x = buffer("terrain columns", 4 * u64::from(width), U::STORAGE | U::COPY_DST);
         let row_y = buffer("terrain rows", 4 * u64::from(height), U::STORAGE | U::COPY_DST);
+        let page_table = buffer("page table", 4 * table.len() as u64, U::STORAGE | U::COPY_DST);
 
         let timer = ctx.features.timestamp_query.then(|| {
             let set = |label| {
@@ -538,7 +602,6 @@ impl TerrainRenderer {
             }
         });
 
-        let geo = hm.georef();
         Ok(Self {
             device: ctx.device.clone(),
             queue: ctx.queue.clone(),
@@ -558,20 +621,102 @@ impl TerrainRenderer {
             col_x,
             row_y,
             heights,
+            atlas,
+            page_table,
+            table,
+            table_dirty: true,
+            page_layout: pages,
+            slot_of: HashMap::new(),
+            free_slots: (0..capacity).rev().collect(),
+            capacity,
             color,
             sampler,
             has_texture: config.texture.is_some(),
             grid: [width, height],
-            origin: geo.world_origin,
-            spacing: geo.spacing_m,
-            height_min: hm.min(),
-            height_max: hm.max(),
+            origin: pages.origin,
+            spacing: pages.spacing,
+            height_min: height_range[0],
+            height_max: height_range[1].max(height_range[0]),
             sun: sun.normalize().as_vec3(),
             anchor: None,
             tess: None,
             counts: HashMap::new(),
             timer,
         })
+    }
+
+    /// Makes `page` resident with `samples` ([`PageLayout::page_samples`] wide and high,
+    /// row-major, south row first; see [`crate::paged`] for filling one from a coarse level),
+    /// replacing what it held. The page table reaches the device with the next frame.
+    pub fn set_page(&mut self, page: [u32; 2], samples: &[f32]) -> Result<(), PageError> {
+        check_page(&self.page_layout, page, samples)?;
+        let slot = match self.slot_of.get(&page) {
+            Some(&s) => s,
+            None => {
+                let s = self
+                    .free_slots
+                    .pop()
+                    .ok_or(PageError::Full { page, capacity: self.capacity })?;
+                self.slot_of.insert(page, s);
+                s
+            }
+        };
+        let [w, h] = self.page_layout.page_samples();
+        let slots_x = self.table[4];
+        let origin = wgpu::Origin3d { x: slot % slots_x * w, y: slot / slots_x * h, z: 0 };
+        self.queue.write_texture(
+            wgpu::TexelCopyTextureInfo {
+                texture: &self.atlas,
+                mip_level: 0,
+                origin,
+                aspect: wgpu::TextureAspect::All,
+            },
+            bytemuck::cast_slice(samples),
+            wgpu::TexelCopyBufferLayout {
+                offset: 0,
+                bytes_per_row: Some(4 * w),
+                rows_per_image: Some(h),
+            },
+            wgpu::Extent3d { width: w, height: h, depth_or_array_layers: 1 },
+        );
+        let index = 8 + (page[1] * self.table[2] + page[0]) as usize;
+        if self.table[index] != slot + 1 {
+            self.table[index] = slot + 1;
+            self.table_dirty = true;
+        }
+        Ok(())
+    }
+
+    /// Drops `page` (its slot becomes free); returns whether it was resident.
+    pub fn remove_page(&mut self, page: [u32; 2]) -> bool {
+        let Some(slot) = self.slot_of.remove(&page) else { return false };
+        self.free_slots.push(slot);
+        let index = 8 + (page[1] * self.table[2] + page[0]) as usize;
+        self.table[index] = 0;
+        self.table_dirty = true;
+        true
+    }
+
+    /// The pages resident on the device, sorted.
+    pub fn resident_pages(&self) -> Vec<[u32; 2]> {
+        let mut v: Vec<[u32; 2]> = self.slot_of.keys().copied().collect();
+        v.sort_unstable_by_key(|p| (p[1], p[0]));
+        v
+    }
+
+    /// The page layout.
+    pub fn page_layout(&self) -> &PageLayout {
+        &self.page_layout
+    }
+
+    /// Page slots in the atlas.
+    pub fn page_capacity(&self) -> u32 {
+        self.capacity
+    }
+
+    /// Bytes of the page atlas on the device.
+    pub fn page_atlas_bytes(&self) -> u64 {
+        u64::from(self.atlas.width()) * u64::from(self.atlas.height()) * 4
     }
 
     /// The target's width and height in pixels.
@@ -655,6 +800,7 @@ impl TerrainRenderer {
                 bind(6, wgpu::BindingResource::Sampler(&self.sampler)),
                 bind(7, ctx_out.points.as_entire_binding()),
                 bind(8, ctx_out.indices.as_entire_binding()),
+                bind(9, self.page_table.as_entire_binding()),
             ],
         });
         let (triangles, vertices) = self.count(patches);
@@ -676,6 +822,10 @@ impl TerrainRenderer {
 
     /// Writes the per-frame uniform and, when the anchor moved, the column and row offsets.
     fn write_frame(&mut self, camera: &Camera, options: &RenderOptions) {
+        if self.table_dirty {
+            self.queue.write_buffer(&self.page_table, 0, bytemuck::cast_slice(&self.table));
+            self.table_dirty = false;
+        }
         let anchor = Self::anchor_for(camera.position);
         if self.anchor != Some(anchor) {
             let offsets = |n: u32, origin: f64, step: f64, at: f64| -> Vec<f32> {

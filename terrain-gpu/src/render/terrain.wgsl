@@ -6,6 +6,13 @@
 // operation for operation in f32; change both. Heights are an R32Float texture read with
 // textureLoad and filtered by hand (GL has no FLOAT32_FILTERABLE), one path for all backends.
 //
+// Paged heights (paged.rs is the CPU reference of `lookup`): the texture is an atlas of page
+// slots and `page_table` maps each page of the grid to its slot (0: not resident, else slot
+// + 1), after an 8-word header. A sample on a page border is looked up in the page it falls
+// in first, then in the west/south neighbours that share it. A sample on no resident page
+// reads 0 and is left out of the normals' central differences. The whole-heightmap renderer
+// is one page, resident.
+//
 // Camera-relative positions: `col_x[i]` and `row_y[j]` hold `world(i, j) - anchor` for every
 // column and row, computed in f64 on the CPU and rounded once to f32, so a vertex's position
 // is exact to f32 precision *relative to the camera* even at UTM coordinates, and two patches
@@ -60,10 +67,51 @@ fn srgb_to_linear(c: vec3<f32>) -> vec3<f32> {
 @group(0) @binding(6) var color_sampler: sampler;
 @group(0) @binding(7) var<storage, read> points: array<DomainPoint>;
 @group(0) @binding(8) var<storage, read> indices: array<u32>;
+// Header: cells per page x, y; pages x, y; atlas slots per row; slot width, height; unused.
+@group(0) @binding(9) var<storage, read> page_table: array<u32>;
+
+struct Lookup {
+    h: f32,
+    found: bool,
+}
+
+fn page_entry(px: u32, py: u32) -> u32 {
+    return page_table[8u + py * page_table[2] + px];
+}
+
+// paged::PagedHeights::locate and HeightGrid::sample: the first resident page of the four
+// candidates, straight-line code (no loop).
+fn lookup(i: i32, j: i32) -> Lookup {
+    let g = vec2<u32>(clamp(vec2<i32>(i, j), vec2<i32>(0), vec2<i32>(frame.grid_max)));
+    let c = vec2<u32>(page_table[0], page_table[1]);
+    let n = vec2<u32>(page_table[2], page_table[3]);
+    let p0 = min(g / c, n - vec2<u32>(1u));
+    let back = (g == p0 * c) & (p0 > vec2<u32>(0u));
+    let p1 = select(p0, p0 - vec2<u32>(1u), back);
+    var p = p0;
+    var s = page_entry(p0.x, p0.y);
+    if s == 0u && back.x {
+        p = vec2<u32>(p1.x, p0.y);
+        s = page_entry(p.x, p.y);
+    }
+    if s == 0u && back.y {
+        p = vec2<u32>(p0.x, p1.y);
+        s = page_entry(p.x, p.y);
+    }
+    if s == 0u && back.x && back.y {
+        p = p1;
+        s = page_entry(p.x, p.y);
+    }
+    if s == 0u {
+        return Lookup(0.0, false);
+    }
+    let slot = s - 1u;
+    let base = vec2<u32>(slot % page_table[4] * page_table[5], slot / page_table[4] * page_table[6]);
+    return Lookup(textureLoad(heights, vec2<i32>(base + g - p * c), 0).r, true);
+}
 
 fn height_sample(i: i32, j: i32) -> f32 {
-    let c = clamp(vec2<i32>(i, j), vec2<i32>(0), vec2<i32>(frame.grid_max));
-    return textureLoad(heights, c, 0).r;
+    return lookup(i, j).h;
 }
 
 // surface::grid_coords.
@@ -110,14 +158,36 @@ fn surface_at(g: vec2<f32>) -> Surface {
     return Surface(vec3<f32>(x, y, h + frame.height_offset), h);
 }
 
+// One-sided at the border and next to a sample on no resident page (surface.rs).
 fn gradient_at_sample(i: i32, j: i32) -> vec2<f32> {
     let gm = vec2<i32>(frame.grid_max);
-    let il = max(i - 1, 0);
-    let ir = min(i + 1, gm.x);
-    let jd = max(j - 1, 0);
-    let ju = min(j + 1, gm.y);
-    let dx = (height_sample(ir, j) - height_sample(il, j)) / (f32(max(ir - il, 1)) * frame.spacing.x);
-    let dy = (height_sample(i, ju) - height_sample(i, jd)) / (f32(max(ju - jd, 1)) * frame.spacing.y);
+    let c = height_sample(i, j);
+    var l = Lookup(c, false);
+    var r = Lookup(c, false);
+    var d = Lookup(c, false);
+    var u = Lookup(c, false);
+    if i > 0 {
+        l = lookup(i - 1, j);
+    }
+    if i < gm.x {
+        r = lookup(i + 1, j);
+    }
+    if j > 0 {
+        d = lookup(i, j - 1);
+    }
+    if j < gm.y {
+        u = lookup(i, j + 1);
+    }
+    let il = select(i, i - 1, l.found);
+    let ir = select(i, i + 1, r.found);
+    let jd = select(j, j - 1, d.found);
+    let ju = select(j, j + 1, u.found);
+    let hl = select(c, l.h, l.found);
+    let hr = select(c, r.h, r.found);
+    let hd = select(c, d.h, d.found);
+    let hu = select(c, u.h, u.found);
+    let dx = (hr - hl) / (f32(max(ir - il, 1)) * frame.spacing.x);
+    let dy = (hu - hd) / (f32(max(ju - jd, 1)) * frame.spacing.y);
     return vec2<f32>(dx, dy);
 }
 

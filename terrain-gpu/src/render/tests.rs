@@ -14,6 +14,7 @@ use super::crack::{crack_cameras, crack_pixels};
 
 use super::*;
 use crate::device::{BackendChoice, GpuContext, GpuError, REQUIRE_ENV};
+use crate::paged::PagedHeights;
 use crate::surface;
 use crate::target::read_texture_8bit4;
 use crate::tess::{PatchFactors, tessellate};
@@ -583,4 +584,182 @@ fn uniform_patches_tile_the_grid() {
         let g = surface::grid_coords(&full[0], *p);
         assert_eq!(g, g.round(), "{g}");
     }
+}
+
+// ---------------------------------------------------------------------------------------
+// Paged heights (crate::paged): all pages resident is the whole heightmap; pages filled
+// from coarse levels match the CPU reference and draw no cracks.
+
+/// A paged renderer holding every page of `paged`.
+fn paged_renderer(ctx: &GpuContext, paged: &PagedHeights, size: (u32, u32)) -> TerrainRenderer {
+    let n = paged.pages().count() as u32;
+    let (mut lo, mut hi) = (f32::MAX, f32::MIN);
+    for (_, p) in paged.pages() {
+        for &h in &p.samples {
+            lo = lo.min(h);
+            hi = hi.max(h);
+        }
+    }
+    let mut r =
+        TerrainRenderer::new_paged(ctx, *paged.layout(), n, [lo, hi], &config(size.0, size.1))
+            .unwrap();
+    for (&page, p) in paged.pages() {
+        r.set_page(page, &p.samples).unwrap();
+    }
+    r
+}
+
+/// `hm`'s pages of 32 cells, each filled from a coarse level of its own (levels 1 to 5 of a
+/// 32-cell page, 5 being every sample) by `paged::fill_from_level`.
+fn mixed_level_pages(hm: &Heightmap) -> PagedHeights {
+    let full = PagedHeights::from_heightmap(hm, 32);
+    let layout = *full.layout();
+    let mut out = PagedHeights::new(layout);
+    let w = layout.page_samples()[0] as usize;
+    for (&page, p) in full.pages() {
+        let level = 1 + (page[0] + 2 * page[1]) % 5;
+        let n = 1usize << level;
+        let d = 32 / n;
+        let mut grid = Vec::new();
+        for b in 0..=n {
+            for a in 0..=n {
+                grid.push(p.samples[b * d * w + a * d]);
+            }
+        }
+        let samples = crate::paged::fill_from_level(&grid, 32).unwrap();
+        out.insert(page, crate::paged::Page { samples, stride: d as u32 }).unwrap();
+    }
+    out
+}
+
+#[test]
+fn paged_all_resident_matches_the_whole_heightmap() {
+    let Some(ctx) = context(BackendChoice::Vulkan) else { return };
+    let hm = default_terrain();
+    let paged = PagedHeights::from_heightmap(&hm, 32);
+    assert!(paged.pages().count() >= 16, "several pages");
+    let mut whole = TerrainRenderer::new(&ctx, &hm, &config(160, 90)).unwrap();
+    let mut pages = paged_renderer(&ctx, &paged, (160, 90));
+    assert_eq!(pages.resident_pages().len(), paged.pages().count());
+    // The golden view: byte-identical images.
+    let camera = default_camera(&hm, 160, 90, 50.0);
+    let patches = uniform_patches(&hm, 32, 16.0);
+    whole.render(&camera, &patches, &RenderOptions::default()).unwrap();
+    pages.render(&camera, &patches, &RenderOptions::default()).unwrap();
+    let (a, b) = (whole.read_image().unwrap(), pages.read_image().unwrap());
+    let differ = a.pixels.iter().zip(&b.pixels).filter(|(x, y)| x != y).count();
+    println!("adapter {}: paged vs whole image, {differ} pixels differ", ctx.describe());
+    assert!(a.pixels.iter().any(|&p| p != BACKGROUND));
+    assert_eq!(differ, 0);
+    // The shader's surface: bit-identical read-backs, equal to the CPU reference of the pages.
+    let patches = random_patches(&hm, 16, 1.0, 17.0, 5, true);
+    let eye = dvec3(900.0, 700.0, f64::from(hm.max()) + 250.0);
+    let ra = whole.surface_read_back(eye, &patches).unwrap();
+    let rb = pages.surface_read_back(eye, &patches).unwrap();
+    assert_eq!(ra, rb);
+    let anchor = TerrainRenderer::anchor_for(eye);
+    for (k, p) in rb.points.iter().enumerate() {
+        let patch = &patches[p.patch_index as usize];
+        let want = surface::vertex_position(&paged, patch, p.uv);
+        assert_eq!(want, surface::vertex_position(&hm, patch, p.uv));
+        let got = rb.positions[k];
+        let err =
+            (DVec3::new(got[0].into(), got[1].into(), got[2].into()) - (want - anchor)).length();
+        assert!(err <= 1e-3, "point {k}: {err} m");
+    }
+}
+
+#[test]
+fn paged_coarse_levels_match_the_reference_and_draw_no_cracks() {
+    let Some(ctx) = context(BackendChoice::Vulkan) else { return };
+    let hm = default_terrain();
+    let mut paged = mixed_level_pages(&hm);
+    let drawn = paged.to_heightmap(&hm);
+    // Coarse levels change the surface (the test is not vacuous).
+    let changed = (0..hm.height())
+        .flat_map(|j| (0..hm.width()).map(move |i| (i, j)))
+        .filter(|&(i, j)| drawn.get(i, j) != hm.get(i, j))
+        .count();
+    assert!(changed > hm.width() * hm.height() / 4, "{changed} samples changed");
+    // Crack-free: patches that agree on shared edges, over pages of five different levels.
+    let mut renderer = paged_renderer(&ctx, &paged, (256, 144));
+    // Every other camera of the crack set: from straight down to grazing, all yaws.
+    let cameras: Vec<_> = crack_cameras(&drawn, 33).into_iter().step_by(2).collect();
+    let patches = random_patches(&hm, 16, 1.0, 17.0, 13, true);
+    let relief = drawn.max() - drawn.min() + 10.0;
+    let cracks = crack::crack_pixels_on(&mut renderer, &patches, &cameras, relief);
+    println!("paged mixed levels: crack pixels {cracks:?} on {}", ctx.describe());
+    assert!(cracks.iter().all(|&c| c == 0), "{cracks:?}");
+    // One page gone: the shader's surface and normals still follow the CPU reference (border
+    // samples from the neighbours, one-sided differences next to the hole).
+    let hole = [2u32, 3u32];
+    assert!(paged.remove(hole));
+    assert!(renderer.remove_page(hole));
+    let c = paged.layout().cells();
+    let inside_hole = |p: &DrawPatch| {
+        let [x0, y0, x1, y1] = p.rect;
+        x1 > hole[0] * c[0]
+            && x0 < (hole[0] + 1) * c[0]
+            && y1 > hole[1] * c[1]
+            && y0 < (hole[1] + 1) * c[1]
+    };
+    let patches: Vec<DrawPatch> = random_patches(&hm, 16, 1.0, 17.0, 21, true)
+        .into_iter()
+        .filter(|p| !inside_hole(p))
+        .collect();
+    let eye = dvec3(1100.0, 1300.0, f64::from(hm.max()) + 300.0);
+    let anchor = TerrainRenderer::anchor_for(eye);
+    let back = renderer.surface_read_back(eye, &patches).unwrap();
+    let mut next_to_hole = 0;
+    for (k, p) in back.points.iter().enumerate() {
+        let patch = &patches[p.patch_index as usize];
+        let want = surface::vertex_position(&paged, patch, p.uv) - anchor;
+        let got = back.positions[k];
+        let err = (DVec3::new(got[0].into(), got[1].into(), got[2].into()) - want).length();
+        assert!(err <= 1e-3, "point {k} {p:?}: gpu {got:?} cpu {want}");
+        let g = surface::grid_coords(patch, p.uv);
+        let n = surface::normal_at(&paged, g);
+        let dn = (glam::Vec3::new(back.normals[k][0], back.normals[k][1], back.normals[k][2]) - n)
+            .length();
+        assert!(dn <= 1e-4, "point {k} normal gpu {:?} cpu {n}", back.normals[k]);
+        let (gi, gj) = (g.x.round() as u32, g.y.round() as u32);
+        if paged.locate(gi.saturating_sub(1), gj).is_none()
+            || paged.locate(gi + 1, gj).is_none()
+            || paged.locate(gi, gj + 1).is_none()
+            || paged.locate(gi, gj.saturating_sub(1)).is_none()
+        {
+            next_to_hole += 1;
+        }
+    }
+    assert!(next_to_hole > 0, "some points lie next to the missing page");
+}
+
+#[test]
+fn pages_are_checked() {
+    let Some(ctx) = context(BackendChoice::Vulkan) else { return };
+    let hm = default_terrain();
+    let paged = PagedHeights::from_heightmap(&hm, 64);
+    let layout = *paged.layout();
+    let mut r = TerrainRenderer::new_paged(&ctx, layout, 2, [0.0, 1.0], &config(32, 32)).unwrap();
+    let page = paged.get([0, 0]).unwrap().samples.clone();
+    r.set_page([0, 0], &page).unwrap();
+    r.set_page([1, 0], &page).unwrap();
+    // Replacing a resident page takes no new slot; a third page does not fit.
+    r.set_page([0, 0], &page).unwrap();
+    let e = r.set_page([0, 1], &page).unwrap_err();
+    assert!(matches!(e, crate::paged::PageError::Full { capacity: 2, .. }), "{e}");
+    let e = r.set_page([99, 0], &page).unwrap_err();
+    assert!(e.to_string().contains("outside"), "{e}");
+    let e = r.set_page([0, 1], &page[1..]).unwrap_err();
+    assert!(e.to_string().contains("samples"), "{e}");
+    let mut bad = page.clone();
+    bad[7] = f32::NAN;
+    assert!(matches!(
+        r.set_page([0, 0], &bad),
+        Err(crate::paged::PageError::NotFinite { index: 7, .. })
+    ));
+    assert!(r.remove_page([1, 0]));
+    assert!(!r.remove_page([1, 0]));
+    r.set_page([0, 1], &page).unwrap();
+    assert_eq!(r.resident_pages(), vec![[0, 0], [0, 1]]);
 }

@@ -1,0 +1,578 @@
+//! The out-of-core paper's method (Qiu 2013) end to end over a baked store: per frame the
+//! [`Streamer`] (regions M and N, Eq. 8 preloading, synchronous loads only for needed blocks
+//! with nothing resident), the projected-frustum block culling of 3.1 (the blocks of M), the
+//! bounding-circle node test and the dynamic LOD construction of 3.3 with the sight-line
+//! screen error of Eq. 7 and threshold `tau` ([`terrain_stream::lod::select_nodes`]), then
+//! patches with tessellation factors and the pages of heights the renderer needs.
+//!
+//! **From nodes to crack-free patches.** A block's selected nodes are clamped to its resident
+//! levels (a node below the finest resident level is replaced by its ancestor at that level:
+//! the runtime serves coarser levels while finer ones load), placed in the quadtree of the
+//! whole grid (a block is a node of level `log2(root / block cells)`), balanced across blocks
+//! (`terrain_core::quadtree::balance_with`: neighbours within one level) and given factors by
+//! terrain-core's one [`EdgeRule`] resolver: factor 2 everywhere, 4 on a coarse edge that meets
+//! two finer patches, which then take 4 / 2 = 2 each, so both sides of every shared edge have
+//! the same vertices ([`check_shared_edges`] holds). A node is drawn with factor 2: its corners
+//! and its edge and centre midpoints. The paper draws a node as a fan of its corners and edge
+//! midpoints; the midpoints are the next level's vertices, read from the block's page.
+//!
+//! **Pages.** Each drawn block is one page of the renderer ([`terrain_gpu::paged`]), filled
+//! from its finest resident level by bilinear interpolation
+//! ([`terrain_gpu::paged::fill_from_level`]) and refilled when a finer level arrives; pages of
+//! blocks no longer drawn are dropped. Heights never exist for the whole grid: the device (and
+//! the optional CPU mirror the benchmark measures) holds the drawn blocks only.
+
+use std::collections::{BTreeMap, BTreeSet};
+use std::path::Path;
+use std::sync::Arc;
+use std::time::Instant;
+
+use glam::{DVec2, DVec3, dvec3};
+use terrain_core::geometry::Camera;
+use terrain_core::lod::{
+    Edge, EdgeRule, Patch, Selection, SelectionStats, check_shared_edges, outer_factors,
+};
+use terrain_core::quadtree::{LeafSet, NodeId, balance_with};
+use terrain_core::{Crs, Georef, Heightmap};
+use terrain_gpu::paged::{Page, PageLayout, PagedHeights, fill_from_level};
+use terrain_gpu::render::DrawPatch;
+use terrain_gpu::{RenderError, TerrainRenderer};
+use terrain_stream::format::{INDEX_FILE, MAGIC};
+use terrain_stream::lod::{View, select_nodes};
+use terrain_stream::schedule::ScheduleConfig;
+use terrain_stream::{BlockId, Store, StoreError, StreamConfig, Streamer};
+
+use crate::methods::patch_factors;
+
+/// Settings of the out-of-core method.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct OocConfig {
+    /// Screen-error threshold `tau` of Eq. 7, pixels. Default 2 (the paper's figures).
+    pub tau: f64,
+    /// The stream cache's budget, decoded bytes. Default 256 MiB.
+    pub budget_bytes: u64,
+    /// Worker threads; 0 (the default) = one per core.
+    pub threads: usize,
+    /// Blocks the renderer holds at most (page slots; each is `(2^k + 1)^2` f32 on the
+    /// device); the farthest blocks of M beyond it are not drawn (counted as dropped).
+    /// Default 1024.
+    pub page_capacity: u32,
+    /// Load requests in flight at most: the workers keep loading while the frame thread draws
+    /// (a software renderer's frame takes long). Default 32.
+    pub max_in_flight: usize,
+    /// Warm-up: at most this many rounds of "update, wait for the workers" per warm frame,
+    /// until the frame's needed levels are resident. Default 16.
+    pub warmup_rounds: u32,
+}
+
+impl Default for OocConfig {
+    fn default() -> Self {
+        Self {
+            tau: 2.0,
+            budget_bytes: 256 << 20,
+            threads: 0,
+            page_capacity: 1024,
+            max_in_flight: 32,
+            warmup_rounds: 16,
+        }
+    }
+}
+
+/// Whether `path` is a baked store: a folder whose index file starts with the store's magic.
+pub fn is_store(path: &Path) -> bool {
+    use std::io::Read;
+    let mut magic = [0u8; 8];
+    path.is_dir()
+        && std::fs::File::open(path.join(INDEX_FILE))
+            .and_then(|mut f| f.read_exact(&mut magic))
+            .is_ok()
+        && magic == MAGIC
+}
+
+/// The streaming columns of one frame (the paper's Table 3 plus the cache's own), summed over
+/// the warm-up rounds where there were several.
+#[derive(Debug, Clone, Default, PartialEq, serde::Serialize)]
+pub struct StreamRecord {
+    /// Bytes of the levels the blocks of M need (MB, 10^6 bytes, decoded).
+    pub needed_mb: f64,
+    /// Of those, resident at the end of the frame (MB).
+    pub needed_resident_mb: f64,
+    /// Loaded on the frame thread (the paper's real-time loaded data), MB.
+    pub sync_mb: f64,
+    /// Arrived from the workers (prefetched data), MB.
+    pub prefetched_mb: f64,
+    /// Read from disk, MB.
+    pub disk_mb: f64,
+    /// I/O time (synchronous reads plus the workers' reads that arrived), ms.
+    pub io_ms: f64,
+    /// Blocks of M loaded synchronously.
+    pub sync_loads: usize,
+    /// Blocks of M with every needed level resident before the frame's loads.
+    pub cache_hits: usize,
+    /// Blocks of M lacking a needed level.
+    pub cache_misses: usize,
+    /// Levels unloaded to stay within the budget.
+    pub evictions: usize,
+    /// Resident bytes after the frame (MB) and the budget (MB).
+    pub resident_mb: f64,
+    /// The budget, MB.
+    pub budget_mb: f64,
+    /// Requests queued or loading.
+    pub queue_depth: usize,
+    /// Blocks in M and in N.
+    pub blocks_visible: usize,
+    /// Blocks in the scheduling region N (M included).
+    pub blocks_scheduled: usize,
+    /// Faults (the runtime served coarser levels).
+    pub faults: usize,
+    /// Time the streamer took on the frame thread (warm-up waits included), ms.
+    pub stream_ms: f64,
+}
+
+const MB: f64 = 1e6;
+
+impl StreamRecord {
+    fn add(&mut self, s: &terrain_stream::FrameStats) {
+        self.needed_mb = s.needed_bytes as f64 / MB;
+        self.needed_resident_mb = s.needed_resident_bytes as f64 / MB;
+        self.sync_mb += s.sync_bytes as f64 / MB;
+        self.prefetched_mb += s.prefetched_bytes as f64 / MB;
+        self.disk_mb += s.disk_bytes as f64 / MB;
+        self.io_ms += s.io_time.as_secs_f64() * 1e3;
+        self.sync_loads += s.sync_loads;
+        self.cache_hits = s.cache_hits;
+        self.cache_misses = s.cache_misses;
+        self.evictions += s.evictions;
+        self.resident_mb = s.resident_bytes as f64 / MB;
+        self.budget_mb = s.budget_bytes as f64 / MB;
+        self.queue_depth = s.queue_depth;
+        self.blocks_visible = s.blocks_visible;
+        self.blocks_scheduled = s.blocks_scheduled;
+        self.faults += s.faults.len();
+    }
+
+    /// Adds what [`Streamer::finish_loads`] applied (arrivals between warm-up rounds).
+    fn add_arrivals(&mut self, s: &terrain_stream::FrameStats) {
+        self.prefetched_mb += s.prefetched_bytes as f64 / MB;
+        self.disk_mb += s.disk_bytes as f64 / MB;
+        self.io_ms += s.io_time.as_secs_f64() * 1e3;
+        self.faults += s.faults.len();
+        self.resident_mb = s.resident_bytes as f64 / MB;
+    }
+}
+
+/// A page to set (`Some`) or drop (`None`).
+#[derive(Debug, Clone, PartialEq)]
+pub struct PageUpdate {
+    /// The page: `[column, row]` of its block.
+    pub page: [u32; 2],
+    /// Its new content.
+    pub fill: Option<Page>,
+}
+
+/// One frame of the method.
+#[derive(Debug, Clone)]
+pub struct OocFrame {
+    /// The patches (global quadtree nodes) with their factors.
+    pub selection: Selection,
+    /// The same, as the renderer draws them.
+    pub patches: Vec<DrawPatch>,
+    /// Page changes to apply before drawing.
+    pub updates: Vec<PageUpdate>,
+    /// Streaming statistics.
+    pub stream: StreamRecord,
+    /// Blocks drawn.
+    pub blocks_drawn: usize,
+    /// Blocks of M not drawn: nothing resident (a fault), or beyond the page capacity.
+    pub blocks_dropped: usize,
+    /// Warm-up rounds run (0 for a frame that does not wait).
+    pub warmup_rounds: u32,
+}
+
+/// Factor 2 everywhere, 4 on a coarse edge facing finer patches (balanced: one level finer).
+struct OocEdges;
+
+impl EdgeRule for OocEdges {
+    fn same_level(&self, _: NodeId, _: Edge, _: NodeId) -> f32 {
+        2.0
+    }
+
+    fn coarse_edge(&self, coarse: NodeId, _: Edge, finer: &[NodeId]) -> f32 {
+        // A power of two >= 2^(d + 1) (terrain-core's EdgeRule contract); d = 1 after balancing.
+        let d = finer.iter().map(|n| n.level - coarse.level).max().unwrap_or(1).min(5);
+        (2u32 << d) as f32
+    }
+
+    fn unshared(&self, _: NodeId, _: Edge) -> f32 {
+        2.0
+    }
+}
+
+/// The out-of-core method over one store.
+#[derive(Debug)]
+pub struct OocScene {
+    store: Arc<Store>,
+    streamer: Streamer,
+    config: OocConfig,
+    layout: PageLayout,
+    /// Global quadtree level of a whole block.
+    block_level: u8,
+    root_cells: u32,
+    height_range: [f32; 2],
+    /// Level each page currently holds.
+    pages: BTreeMap<[u32; 2], u8>,
+    mirror: Option<PagedHeights>,
+}
+
+impl OocScene {
+    /// Opens the store in `dir` and starts its runtime.
+    pub fn open(dir: &Path, config: OocConfig) -> Result<Self, StoreError> {
+        let store = Arc::new(Store::open(dir)?);
+        Ok(Self::new(store, config))
+    }
+
+    /// The method over an opened store.
+    pub fn new(store: Arc<Store>, config: OocConfig) -> Self {
+        let h = store.header().clone();
+        let cells = h.block_cells();
+        let blocks = h.blocks_x.max(h.blocks_y).next_power_of_two();
+        let block_level = blocks.trailing_zeros() as u8;
+        let (mut lo, mut hi) = (f32::INFINITY, f32::NEG_INFINITY);
+        for id in store.block_ids() {
+            if let Some(e) = store.entry(id) {
+                lo = lo.min(e.min);
+                hi = hi.max(e.max);
+            }
+        }
+        let layout = PageLayout {
+            grid: [h.width as u32, h.height as u32],
+            page_cells: [cells; 2],
+            origin: h.georef.world_origin,
+            spacing: h.georef.spacing_m,
+        };
+        let stream = StreamConfig {
+            budget_bytes: config.budget_bytes,
+            threads: config.threads,
+            tau: config.tau,
+            max_in_flight: config.max_in_flight,
+            schedule: ScheduleConfig::default(),
+            ..StreamConfig::default()
+        };
+        let streamer = Streamer::new(store.clone(), stream);
+        Self {
+            store,
+            streamer,
+            config,
+            layout,
+            block_level,
+            root_cells: blocks * cells,
+            height_range: [lo, hi],
+            pages: BTreeMap::new(),
+            mirror: None,
+        }
+    }
+
+    /// Keeps a CPU copy of the pages ([`OocScene::mirror`]): the CPU reference of what the
+    /// renderer draws (tests, the benchmark's error measurement).
+    pub fn with_mirror(mut self) -> Self {
+        self.mirror = Some(PagedHeights::new(self.layout));
+        self
+    }
+
+    /// The CPU copy of the pages, if kept.
+    pub fn mirror(&self) -> Option<&PagedHeights> {
+        self.mirror.as_ref()
+    }
+
+    /// The store.
+    pub fn store(&self) -> &Arc<Store> {
+        &self.store
+    }
+
+    /// The runtime.
+    pub fn streamer(&self) -> &Streamer {
+        &self.streamer
+    }
+
+    /// The page layout (one page per block).
+    pub fn layout(&self) -> PageLayout {
+        self.layout
+    }
+
+    /// Lowest and highest height of the store.
+    pub fn height_range(&self) -> [f32; 2] {
+        self.height_range
+    }
+
+    /// Cells per side of the root of the whole grid's quadtree the patches live in.
+    pub fn root_cells(&self) -> u32 {
+        self.root_cells
+    }
+
+    /// The settings.
+    pub fn config(&self) -> &OocConfig {
+        &self.config
+    }
+
+    /// A paged renderer for this store (page capacity from the settings).
+    pub fn renderer(
+        &self,
+        ctx: &terrain_gpu::GpuContext,
+        config: &terrain_gpu::RenderConfig,
+    ) -> Result<TerrainRenderer, RenderError> {
+        TerrainRenderer::new_paged(
+            ctx,
+            self.layout,
+            self.config.page_capacity,
+            self.height_range,
+            config,
+        )
+    }
+
+    /// Whether global node `n` holds a grid cell (and is no finer than a block's finest level).
+    fn contains(&self, n: NodeId) -> bool {
+        let k = self.store.header().k;
+        if n.level > self.block_level + k {
+            return false;
+        }
+        let (x0, y0, _) = n.grid_rect(self.root_cells);
+        x0 + 1 < self.layout.grid[0] && y0 + 1 < self.layout.grid[1]
+    }
+
+    /// One frame for `camera`. With `warm`, waits for the workers (up to the configured
+    /// rounds) until the levels the frame needs are resident: a first frame, or a still image.
+    pub fn frame(&mut self, camera: &Camera, warm: bool) -> OocFrame {
+        let t0 = Instant::now();
+        let mut stream = StreamRecord::default();
+        let s = self.streamer.update(camera);
+        stream.add(&s);
+        let mut rounds = 0;
+        let mut short = s.needed_bytes.saturating_sub(s.needed_resident_bytes);
+        while warm && short > 0 && rounds < self.config.warmup_rounds {
+            rounds += 1;
+            let arrived = self.streamer.finish_loads();
+            stream.add_arrivals(&arrived);
+            let s = self.streamer.update(camera);
+            stream.add(&s);
+            let now = s.needed_bytes.saturating_sub(s.needed_resident_bytes);
+            if now >= short && s.requests == 0 {
+                break; // no progress possible (budget or faults)
+            }
+            short = now;
+        }
+        stream.stream_ms = t0.elapsed().as_secs_f64() * 1e3;
+
+        let select_start = Instant::now();
+        let header = self.store.header().clone();
+        let view = View::new(camera, self.config.tau);
+        let region = self.streamer.regions().map(|r| r.view.clone());
+        let mut drawn: Vec<(BlockId, u8)> = Vec::new();
+        let mut dropped = 0;
+        for s in self.streamer.scheduled().iter().filter(|s| s.visible) {
+            let levels = self.streamer.block(s.block).map_or(0, |b| b.count());
+            if levels == 0 || drawn.len() >= self.config.page_capacity as usize {
+                dropped += 1;
+                continue;
+            }
+            drawn.push((s.block, (levels - 1) as u8));
+        }
+        let mut leaves = Vec::new();
+        let mut visited = 0;
+        if let Some(region) = &region {
+            for &(id, resident) in &drawn {
+                let Some(e) = self.store.entry(id) else { continue };
+                let nodes = select_nodes(&header, e, id, &view, region);
+                visited += nodes.len();
+                let clamped: BTreeSet<NodeId> =
+                    nodes.iter().map(|n| n.ancestor(n.level.min(resident))).collect();
+                for n in clamped {
+                    leaves.push(NodeId::new(
+                        self.block_level + n.level,
+                        (id.col << n.level) + n.i,
+                        (id.row << n.level) + n.j,
+                    ));
+                }
+            }
+        }
+        let traversal_leaves = leaves.len();
+        let leaves = balance_with(&leaves, |n| self.contains(n));
+        let set = LeafSet::new(leaves.iter().copied());
+        let patches: Vec<Patch> = leaves
+            .iter()
+            .map(|&node| Patch {
+                node,
+                outer: outer_factors(&set, node, &OocEdges),
+                inner: [2.0; 2],
+            })
+            .collect();
+        let max_level = patches.iter().map(|p| p.node.level).max().unwrap_or(0);
+        let selection = Selection {
+            stats: SelectionStats {
+                visited,
+                traversal_leaves,
+                balance_added: patches.len().saturating_sub(traversal_leaves),
+                patches: patches.len(),
+                max_level,
+                cpu_time: select_start.elapsed(),
+                ..SelectionStats::default()
+            },
+            patches,
+        };
+        debug_assert!(check_shared_edges(&selection).is_empty());
+        let draw = selection
+            .patches
+            .iter()
+            .map(|p| {
+                let (x0, y0, c) = p.node.grid_rect(self.root_cells);
+                DrawPatch { rect: [x0, y0, x0 + c, y0 + c], factors: patch_factors(p) }
+            })
+            .collect();
+
+        // Pages: refill where the resident level changed, drop blocks no longer drawn.
+        let mut updates = Vec::new();
+        let want: BTreeMap<[u32; 2], (BlockId, u8)> =
+            drawn.iter().map(|&(id, l)| ([id.col, id.row], (id, l))).collect();
+        let gone: Vec<[u32; 2]> =
+            self.pages.keys().filter(|p| !want.contains_key(*p)).copied().collect();
+        for page in gone {
+            self.pages.remove(&page);
+            updates.push(PageUpdate { page, fill: None });
+        }
+        for (&page, &(id, level)) in &want {
+            if self.pages.get(&page) == Some(&level) {
+                continue;
+            }
+            let Some(fill) = self.page_fill(id, level) else { continue };
+            self.pages.insert(page, level);
+            updates.push(PageUpdate { page, fill: Some(fill) });
+        }
+        if let Some(m) = self.mirror.as_mut() {
+            for u in &updates {
+                match &u.fill {
+                    Some(p) => m.insert(u.page, p.clone()).expect("a page of the layout"),
+                    None => {
+                        m.remove(u.page);
+                    }
+                }
+            }
+        }
+        OocFrame {
+            selection,
+            patches: draw,
+            updates,
+            stream,
+            blocks_drawn: drawn.len(),
+            blocks_dropped: dropped,
+            warmup_rounds: rounds,
+        }
+    }
+
+    /// Block `id`'s page filled from its resident `level` (bilinear; see the module docs).
+    fn page_fill(&self, id: BlockId, level: u8) -> Option<Page> {
+        let header = self.store.header();
+        let grid = self.streamer.block(id)?.grid(level)?;
+        let cells = header.block_cells();
+        let full = fill_from_level(&grid, cells)?;
+        let [w, h] = self.layout.page_samples();
+        let side = (cells + 1) as usize;
+        let samples = if w as usize == side && h as usize == side {
+            full
+        } else {
+            (0..h as usize)
+                .flat_map(|b| full[b * side..b * side + w as usize].iter().copied())
+                .collect()
+        };
+        Some(Page { samples, stride: 1 << (header.k - level) })
+    }
+
+    /// Applies a frame's page changes to a renderer built by [`OocScene::renderer`].
+    pub fn apply(renderer: &mut TerrainRenderer, frame: &OocFrame) -> Result<(), RenderError> {
+        for u in &frame.updates {
+            match &u.fill {
+                Some(p) => renderer.set_page(u.page, &p.samples)?,
+                None => {
+                    renderer.remove_page(u.page);
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// An overview heightmap of the whole store from every block's levels `0..=level` (every
+    /// `2^(k - level)`-th sample, the grid's extent rounded down to that step): what a flight is
+    /// placed on (relief, clearance) without reading the full grid. Reads each block's coarse
+    /// levels once.
+    pub fn overview(&self, level: u8) -> Result<Heightmap, StoreError> {
+        let h = self.store.header();
+        let level = level.min(h.k);
+        let d = 1u64 << (h.k - level);
+        let per_block = 1usize << level;
+        let (w, hh) = (((h.width - 1) / d + 1) as usize, ((h.height - 1) / d + 1) as usize);
+        let mut data = vec![0f32; w * hh];
+        for id in self.store.block_ids() {
+            let b = self.store.read_block(id, level)?;
+            let grid = b.grid(level).expect("levels read");
+            let side = per_block + 1;
+            for bj in 0..side {
+                let j = id.row as usize * per_block + bj;
+                if j >= hh {
+                    break;
+                }
+                for bi in 0..side {
+                    let i = id.col as usize * per_block + bi;
+                    if i < w {
+                        data[j * w + i] = grid[bj * side + bi];
+                    }
+                }
+            }
+        }
+        let g =
+            Georef::projected(Crs::Unknown, h.georef.world_origin, h.georef.spacing_m * d as f64);
+        Ok(Heightmap::from_fn(w, hh, g, |i, j| data[j * w + i]).expect("finite store heights"))
+    }
+
+    /// A heightmap of 2 x 2 samples with the store's extent and height range: enough for the
+    /// renderer's framing ([`terrain_gpu::render::default_camera`]).
+    pub fn bounds_heightmap(&self) -> Heightmap {
+        let h = self.store.header();
+        let [w, hh] = self.layout.grid;
+        let extent = DVec2::new(
+            f64::from(w.max(2) - 1) * h.georef.spacing_m.x,
+            f64::from(hh.max(2) - 1) * h.georef.spacing_m.y,
+        );
+        let g = Georef::projected(Crs::Unknown, h.georef.world_origin, extent);
+        let [lo, hi] = self.height_range;
+        Heightmap::from_fn(2, 2, g, |i, j| if (i + j) % 2 == 0 { lo } else { hi })
+            .expect("a 2 x 2 grid")
+    }
+
+    /// Near and far distances for a camera at `position`: far reaches the farthest corner of
+    /// the store's box, near is half the distance to the nearest block's box (at least
+    /// `far / 1e6` and 0.05 m).
+    pub fn clip_range(&self, position: DVec3) -> (f64, f64) {
+        let h = self.store.header();
+        let mut far: f64 = 0.0;
+        let mut nearest = f64::INFINITY;
+        let mut lo = DVec3::splat(f64::INFINITY);
+        let mut hi = DVec3::splat(f64::NEG_INFINITY);
+        for id in self.store.block_ids() {
+            let Some(e) = self.store.entry(id) else { continue };
+            let (a, b) = terrain_stream::schedule::block_rect(h, e, id);
+            let a = dvec3(a.x, a.y, f64::from(e.min));
+            let b = dvec3(b.x, b.y, f64::from(e.max));
+            lo = lo.min(a);
+            hi = hi.max(b);
+            nearest = nearest.min((position.clamp(a, b) - position).length());
+        }
+        for k in 0..8 {
+            let c = dvec3(
+                if k & 1 == 0 { lo.x } else { hi.x },
+                if k & 2 == 0 { lo.y } else { hi.y },
+                if k & 4 == 0 { lo.z } else { hi.z },
+            );
+            far = far.max((c - position).length());
+        }
+        far = far * 1.05 + 1.0;
+        ((0.5 * nearest).max(far * 1e-6).max(0.05), far)
+    }
+}

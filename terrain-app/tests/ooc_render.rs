@@ -1,0 +1,367 @@
+//! Rendering from an out-of-core store (`terrain_app::ooc` into terrain-gpu's paged renderer):
+//! with every block at its finest level it draws exactly what the whole heightmap draws (CPU
+//! reference, GPU surface read-back and image); with a tiny cache (coarse levels, paging) it is
+//! crack-free and stays under its budget; `terrain render <store>` on a store baked from Puget
+//! Sound; a bad store's error names the file. Where no GPU adapter exists the GPU parts print
+//! why and pass, unless `TERRAIN_REQUIRE_GPU` is set.
+
+mod common;
+
+use std::ops::ControlFlow;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+use glam::DVec3;
+use terrain_app::ooc::{OocConfig, OocScene};
+use terrain_core::dem::{LoadOptions, load};
+use terrain_core::geometry::Camera;
+use terrain_core::lod::check_shared_edges;
+use terrain_core::{Georef, Heightmap};
+use terrain_gpu::paged::HeightGrid;
+use terrain_gpu::render::crack::{crack_cameras, crack_pixels_on};
+use terrain_gpu::render::{BACKGROUND, RenderConfig, RenderOptions, clip_range};
+use terrain_gpu::{BackendChoice, DeviceConfig, GpuContext, TerrainRenderer, surface};
+use terrain_stream::{BakeConfig, BakeProgress, HeightEncoding, Store, bake};
+
+use common::{data, scratch, terrain};
+
+/// A 65 x 65 crop of Puget Sound 1k (grey PNG, 0.1 m steps, 160 m spacing): real relief.
+fn puget_crop() -> Heightmap {
+    let options = LoadOptions { vertical_scale: 0.1, spacing_m: 160.0, ..Default::default() };
+    let ps = load(data("puget_sound/ps_height_1k.png"), &options).unwrap().heightmap;
+    Heightmap::from_fn(65, 65, Georef::local(160.0), |i, j| ps.get(i + 400, j + 500)).unwrap()
+}
+
+/// `hm` baked with raw f32 heights into blocks of 17 x 17 (k = 4): 4 x 4 blocks.
+fn bake_f32(hm: &Heightmap, dir: &Path) -> Arc<Store> {
+    let config = BakeConfig {
+        k: 4,
+        encoding: HeightEncoding::F32,
+        overwrite: true,
+        threads: 1,
+        ..Default::default()
+    };
+    bake(hm, dir, &config, &mut |_: &BakeProgress| ControlFlow::Continue(())).unwrap();
+    Arc::new(Store::open(dir).unwrap())
+}
+
+fn context() -> Option<GpuContext> {
+    match GpuContext::new(&DeviceConfig::from_env(BackendChoice::Auto)) {
+        Ok(ctx) => {
+            println!("adapter: {}", ctx.describe());
+            Some(ctx)
+        }
+        Err(e) if std::env::var_os("TERRAIN_REQUIRE_GPU").is_none() => {
+            println!("SKIPPED: {e}; set TERRAIN_REQUIRE_GPU=1 to make this a failure");
+            None
+        }
+        Err(e) => panic!("{e}"),
+    }
+}
+
+fn camera_over(hm: &Heightmap, at: [f64; 2], above: f64, yaw: f64, pitch: f64) -> Camera {
+    let xy = hm.grid_to_world(at[0], at[1]);
+    let eye = xy.extend(f64::from(hm.max()) + above);
+    let (near, far) = clip_range(hm, eye);
+    Camera::from_yaw_pitch(eye, yaw, pitch)
+        .with_fov_y_deg(60.0)
+        .with_viewport(256.0, 144.0)
+        .with_clip(near, far)
+}
+
+#[test]
+fn finest_levels_draw_exactly_the_heightmap() {
+    let hm = puget_crop();
+    let dir = scratch("ooc", "finest");
+    let store = bake_f32(&hm, &dir.join("store"));
+    // tau far below a pixel: every visible block needs its finest level.
+    let config = OocConfig { tau: 1e-3, threads: 1, ..OocConfig::default() };
+    let mut scene = OocScene::new(store, config).with_mirror();
+    let camera = camera_over(&hm, [10.0, 5.0], 3000.0, 30.0, -35.0);
+    let frame = scene.frame(&camera, true);
+    println!(
+        "{} patches, {} blocks, stream {:?}",
+        frame.patches.len(),
+        frame.blocks_drawn,
+        frame.stream
+    );
+    assert!(frame.blocks_drawn >= 4, "{} blocks drawn", frame.blocks_drawn);
+    assert!(check_shared_edges(&frame.selection).is_empty());
+    let mirror = scene.mirror().unwrap();
+    // Every drawn page holds its block's finest level, sample for sample the heightmap's.
+    let mut compared = 0;
+    for (page, p) in mirror.pages() {
+        assert_eq!(p.stride, 1, "page {page:?} at a coarse level");
+        let c = scene.layout().cells();
+        for b in 0..=c[1] {
+            for a in 0..=c[0] {
+                let (i, j) = (page[0] * c[0] + a, page[1] * c[1] + b);
+                if i < 65 && j < 65 {
+                    assert_eq!(mirror.sample(i, j), Some(hm.get(i as usize, j as usize)));
+                    compared += 1;
+                }
+            }
+        }
+    }
+    assert!(compared > 1000, "{compared} samples compared");
+    // The CPU reference surfaces agree at every tessellated point of the drawn patches.
+    for p in &frame.patches {
+        for uv in [[0.0, 0.0], [0.5, 0.5], [1.0, 0.25], [0.3, 1.0]] {
+            let g = surface::grid_coords(p, uv);
+            let (gi, gj) = (g.x.floor() as u32, g.y.floor() as u32);
+            let on_drawn = |i: u32, j: u32| mirror.sample(i.min(64), j.min(64)).is_some();
+            if on_drawn(gi, gj)
+                && on_drawn(gi + 1, gj)
+                && on_drawn(gi, gj + 1)
+                && on_drawn(gi + 1, gj + 1)
+            {
+                assert_eq!(
+                    surface::vertex_position(mirror, p, uv),
+                    surface::vertex_position(&hm, p, uv)
+                );
+            }
+        }
+    }
+
+    let Some(ctx) = context() else { return };
+    let rc = RenderConfig { width: 256, height: 144, ..Default::default() };
+    let mut paged = scene.renderer(&ctx, &rc).unwrap();
+    OocScene::apply(&mut paged, &frame).unwrap();
+    let mut whole = TerrainRenderer::new(&ctx, &hm, &rc).unwrap();
+    // GPU read-back of the paged renderer's surface against the whole-heightmap renderer's and
+    // the CPU reference of the pages.
+    let eye = camera.position;
+    let a = paged.surface_read_back(eye, &frame.patches).unwrap();
+    let b = whole.surface_read_back(eye, &frame.patches).unwrap();
+    assert_eq!(a.points, b.points);
+    let anchor = TerrainRenderer::anchor_for(eye);
+    let mut same = 0;
+    for (k, pt) in a.points.iter().enumerate() {
+        let patch = &frame.patches[pt.patch_index as usize];
+        let want = surface::vertex_position(mirror, patch, pt.uv) - anchor;
+        let got = a.positions[k];
+        let err = (DVec3::new(got[0].into(), got[1].into(), got[2].into()) - want).length();
+        assert!(err <= 1e-3 + 2.5e-7 * want.length(), "point {k}: {err} m");
+        same += usize::from(a.positions[k] == b.positions[k]);
+    }
+    // Positions read only the drawn blocks' samples: bit-identical.
+    println!("{same} of {} points bit-identical to the whole heightmap's", a.points.len());
+    assert_eq!(same, a.points.len());
+    paged.render(&camera, &frame.patches, &RenderOptions::default()).unwrap();
+    whole.render(&camera, &frame.patches, &RenderOptions::default()).unwrap();
+    let (ia, ib) = (paged.read_image().unwrap(), whole.read_image().unwrap());
+    let terrain = ia.pixels.iter().filter(|&&p| p != BACKGROUND).count();
+    let differ = ia.pixels.iter().zip(&ib.pixels).filter(|(x, y)| x != y).count();
+    println!(
+        "{}: store vs heightmap image, {differ} of {terrain} terrain pixels differ",
+        ctx.describe()
+    );
+    assert!(terrain > 1000);
+    // Shading near the drawn region's border differs (one-sided differences there).
+    assert!(differ * 50 <= terrain, "{differ} of {terrain} pixels differ");
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+fn a_tiny_cache_pages_coarse_levels_without_cracks() {
+    let hm = puget_crop();
+    let dir = scratch("ooc", "tiny");
+    let store = bake_f32(&hm, &dir.join("store"));
+    // 4 KB: a few blocks' levels (level 4, the finest, is 289 samples, 1156 bytes; level 3 is
+    // 81 samples). Frames after the first do not wait: blocks arrive at level 3 on the frame
+    // thread and are drawn coarse while the workers load level 4 (paging).
+    let budget = 4000;
+    let config = OocConfig { tau: 1.0, threads: 1, budget_bytes: budget, ..OocConfig::default() };
+    let mut scene = OocScene::new(store, config).with_mirror();
+    let ctx = context();
+    let mut renderer = ctx.as_ref().map(|ctx| {
+        scene
+            .renderer(ctx, &RenderConfig { width: 256, height: 144, ..Default::default() })
+            .unwrap()
+    });
+    let mut coarse_pages = 0;
+    let mut over_budget = 0;
+    let mut strides = std::collections::BTreeSet::new();
+    let cameras = crack_cameras(&hm, 17);
+    for (n, camera) in cameras.iter().enumerate() {
+        let frame = scene.frame(camera, n == 0);
+        let st = &frame.stream;
+        // The runtime never evicts what the frame needs: resident bytes stay under the budget
+        // or, when the visible blocks alone need more, under what they need.
+        let cap = (budget as f64).max(st.needed_mb * 1e6) + 0.5;
+        assert!(st.resident_mb * 1e6 <= cap, "frame {n}: resident {} MB, {st:?}", st.resident_mb);
+        over_budget += usize::from(st.resident_mb * 1e6 > budget as f64);
+        assert!(check_shared_edges(&frame.selection).is_empty(), "frame {n}");
+        for (_, p) in scene.mirror().unwrap().pages() {
+            strides.insert(p.stride);
+            coarse_pages += usize::from(p.stride > 1);
+        }
+        if let Some(r) = renderer.as_mut() {
+            OocScene::apply(r, &frame).unwrap();
+            if frame.patches.is_empty() {
+                continue;
+            }
+            let cracks = crack_pixels_on(
+                r,
+                &frame.patches,
+                std::slice::from_ref(camera),
+                hm.max() - hm.min() + 100.0,
+            );
+            assert_eq!(cracks, vec![0], "frame {n}: crack pixels");
+            assert_eq!(r.resident_pages().len(), scene.mirror().unwrap().pages().count());
+        }
+    }
+    println!(
+        "strides seen {strides:?}, {coarse_pages} coarse page-frames, {over_budget} frames over \
+         the budget (needed more) over {} cameras",
+        cameras.len()
+    );
+    assert!(coarse_pages > 0 && strides.len() >= 2, "the budget forced coarse levels: {strides:?}");
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+fn s(p: &Path) -> &str {
+    p.to_str().unwrap()
+}
+
+#[test]
+fn terrain_render_draws_a_store_baked_from_puget_sound() {
+    let dir = scratch("ooc", "cli");
+    let store = dir.join("ps1k");
+    let png = data("puget_sound/ps_height_1k.png");
+    let out = terrain(&[
+        "bake",
+        s(&png),
+        "--vertical-scale",
+        "0.1",
+        "--spacing",
+        "160",
+        "-o",
+        s(&store),
+        "--block-k",
+        "7",
+        "--threads",
+        "2",
+    ]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let image = dir.join("ps1k.png");
+    let json = dir.join("ps1k.json");
+    let out = terrain(&[
+        "render",
+        s(&store),
+        "--size",
+        "128x72",
+        "--camera",
+        "80000,20000,9000,10,-30",
+        "--tau",
+        "4",
+        "--frames",
+        "2",
+        "--background",
+        "255,0,255",
+        "--stats-json",
+        s(&json),
+        "-o",
+        s(&image),
+    ]);
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    if !out.status.success()
+        && stderr.contains("no GPU adapter")
+        && std::env::var_os("TERRAIN_REQUIRE_GPU").is_none()
+    {
+        println!("SKIPPED: {stderr}");
+        return;
+    }
+    assert!(out.status.success(), "{stdout}\n{stderr}");
+    println!("{stdout}");
+    for field in [
+        "adapter:",
+        "method ooc",
+        "triangles",
+        "stream: needed",
+        "synchronous",
+        "prefetched",
+        "I/O",
+        "resident",
+    ] {
+        assert!(stdout.contains(field), "missing `{field}`");
+    }
+    let v: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    let frames = v["frames"].as_array().unwrap();
+    assert_eq!(frames.len(), 2);
+    let first = &frames[0]["stream"];
+    assert!(first["needed_mb"].as_f64().unwrap() > 0.0, "{first}");
+    assert!(first["sync_loads"].as_u64().unwrap() > 0, "the first frame loads synchronously");
+    assert_eq!(
+        frames[1]["stream"]["sync_loads"].as_u64(),
+        Some(0),
+        "nothing synchronous after warm-up"
+    );
+    assert!(frames[0]["triangles"].as_u64().unwrap() > 0);
+    let img = image::open(&image).unwrap().to_rgba8();
+    let terrain_px = img.pixels().filter(|p| p.0 != BACKGROUND).count();
+    assert!(terrain_px * 4 > (128 * 72), "{terrain_px} terrain pixels");
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+fn a_bad_store_is_an_error_naming_the_file() {
+    let dir = scratch("ooc", "bad");
+    let store = dir.join("broken");
+    std::fs::create_dir_all(&store).unwrap();
+    let index: PathBuf = store.join(terrain_stream::format::INDEX_FILE);
+    let mut bytes = terrain_stream::format::MAGIC.to_vec();
+    bytes.extend_from_slice(&[7u8; 40]);
+    std::fs::write(&index, bytes).unwrap();
+    let out = terrain(&["render", s(&store), "--size", "32x18", "-o", s(&dir.join("x.png"))]);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success());
+    assert!(!stderr.contains("panicked"), "{stderr}");
+    assert!(stderr.contains(s(&index)), "the error names the index file: {stderr}");
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+fn the_benchmark_runs_the_out_of_core_method_with_stream_statistics() {
+    use terrain_app::bench::{BenchConfig, run_bench};
+    use terrain_app::methods::{LodMethod, MethodConfig};
+    use terrain_core::flight::FlightSpec;
+    let flight = FlightSpec::parse(
+        r#"{"name": "pass", "fps": 10, "height_above": "ground",
+            "keyframes": [{"t": 0, "relative": [0.1, 0.1, 0.3], "yaw": 45, "pitch": -30},
+                          {"t": 1, "relative": [0.5, 0.5, 0.3], "yaw": 45, "pitch": -30}]}"#,
+    )
+    .unwrap();
+    let cfg = BenchConfig {
+        methods: vec![LodMethod::OutOfCore],
+        max_frames: 4,
+        sweep_points: 2,
+        render_size: None,
+        method: MethodConfig { leaf_cells: 4, ..MethodConfig::default() },
+        ooc_k: 4,
+        ..BenchConfig::default()
+    };
+    let report = run_bench("puget crop", puget_crop(), &[flight], &cfg, None, &mut |_| {}).unwrap();
+    let values: Vec<f64> = report.runs.iter().map(|r| r.value).collect();
+    assert_eq!(values, [0.5, 8.0], "tau swept");
+    for r in &report.runs {
+        assert_eq!(r.method, LodMethod::OutOfCore);
+        assert_eq!(r.frames.len(), 4);
+        for f in &r.frames {
+            let st = f.stream.as_ref().expect("stream statistics per frame");
+            assert!(st.needed_mb > 0.0 && st.needed_resident_mb == st.needed_mb, "{st:?}");
+            assert!(f.triangles > 0 && f.errors.samples > 0);
+        }
+        assert!(r.frames[0].stream.as_ref().unwrap().sync_loads > 0);
+    }
+    // A smaller tau draws more triangles and errs less.
+    let (fine, coarse) = (&report.runs[0].summary, &report.runs[1].summary);
+    assert!(fine.median_triangles > coarse.median_triangles, "{fine:?} {coarse:?}");
+    assert!(fine.median_p99_px <= coarse.median_p99_px, "{fine:?} {coarse:?}");
+    let md = report.to_markdown();
+    assert!(md.contains("Table 3") && md.contains("| ooc |"), "{md}");
+    let json = serde_json::to_string(&report).unwrap();
+    assert!(json.contains("\"prefetched_mb\"") && json.contains("\"method\":\"ooc\""));
+}
