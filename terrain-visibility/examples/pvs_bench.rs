@@ -64,8 +64,16 @@ fn main() {
         let total = lay.cell_count();
         let cells: Vec<usize> = (0..n).map(|k| (k * total / n + total / (2 * n)) % total).collect();
         let t = Instant::now();
-        let _ = terrain_visibility::pvs::bake::bake_cells(&hm, &cfg, &cells);
+        let bits = terrain_visibility::pvs::bake::bake_cells(&hm, &cfg, &cells);
         let s = t.elapsed().as_secs_f64();
+        // FNV-1a of the sample's bits: a bake change shows as a different hash.
+        let fnv = |h: u64, b: &u8| (h ^ u64::from(*b)).wrapping_mul(0x0100_0000_01b3);
+        let (hs, hk) = bits
+            .iter()
+            .fold((0xcbf2_9ce4_8422_2325u64, 0xcbf2_9ce4_8422_2325u64), |(a, c), (bs, bk)| {
+                (bs.iter().fold(a, fnv), bk.iter().fold(c, fnv))
+            });
+        println!("bits hash: sampled {hs:016x}, conservative {hk:016x}");
         println!(
             "{n} of {total} cells in {s:.2} s: {:.1} s estimated for all",
             s * total as f64 / n as f64

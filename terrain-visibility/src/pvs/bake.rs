@@ -17,6 +17,14 @@
 //!    sampled test runs *first* and the proof only when it finds nothing, since a visible patch
 //!    can never be proven hidden.
 //!
+//! # Speed (results unchanged)
+//! Proofs are the costly part, so they are skipped whenever a *witness* shows them hopeless:
+//! any unblocked Eq. 4 sight line from the top plane to a sample of the node (the paper's own
+//! test at level `L`; a few centre and quadrant-centre samples from the plane's centre and
+//! corners above it). Sight lines try *occluder hints* first ([`los::Hints`]: the samples
+//! that blocked recent lines of the same cell; passing one that blocks is an exact early
+//! exit). The bits equal the unaccelerated bake's (pinned in `tests/pvs_pinned.rs`).
+//!
 //! # The proof (conservative mode)
 //! Claim: every sight line from a point `v` of `R x {Z}` to a point of `Q` at a height at most
 //! `Hp` (the max of `Q`'s samples, from the [`HeightMip`]) is blocked. Raising the target to
@@ -162,32 +170,41 @@ impl Ctx<'_> {
         };
         let top = Top { lo, hi, z };
         let (mut s, mut k) = (vec![0u8; per], vec![0u8; per]);
-        self.visit(&top, 0, 0, 0, &mut s, &mut k);
+        let mut hints = los::Hints::new();
+        self.visit(&top, 0, 0, 0, &mut s, &mut k, &mut hints);
         (s, k)
     }
 
     /// Fills the bits of node `(l, i, j)`'s subtree; returns (sampled, conservative) visibility.
-    fn visit(&self, top: &Top, l: u8, i: u32, j: u32, s: &mut [u8], k: &mut [u8]) -> (bool, bool) {
+    #[allow(clippy::too_many_arguments)]
+    fn visit(
+        &self,
+        top: &Top,
+        l: u8,
+        i: u32,
+        j: u32,
+        s: &mut [u8],
+        k: &mut [u8],
+        hints: &mut los::Hints,
+    ) -> (bool, bool) {
         let Some(q) = self.layout.patch_samples(l, i, j) else { return (false, false) };
         let finest = l == self.layout.patch_level;
         let (vs, vk) = if finest {
-            // A quick witness of visibility first, then the proof (cheap), and only then the
-            // paper's test (up to test points x viewpoints sight lines when nothing is seen).
-            // The witness is not one of the paper's sight lines: the sampled mode still runs
-            // its own test (which usually stops at its first pair for a visible patch).
-            if !self.quick_visible(top, q) && self.proofs && self.proven(top, q, 64) {
-                (false, false)
-            } else {
-                (self.sampled && sampled_patch_visible(self.mip, top, q, self.cfg), true)
-            }
-        } else if self.proofs && !self.quick_visible(top, q) && self.proven(top, q, 16) {
+            // Both modes from the paper's test first: a patch it finds visible can never be
+            // proven hidden (the proof covers its sight lines), so the costly proof runs only
+            // on patches it finds hidden (or on every unwitnessed patch without it).
+            let seen = self.sampled && sampled_patch_visible(self.mip, top, q, self.cfg, hints);
+            let proven =
+                !seen && self.proofs && !self.quick_visible(top, q) && self.proven(top, q, 64);
+            (seen, !proven)
+        } else if self.proofs && !self.witnessed(top, q, hints) && self.proven(top, q, 16) {
             (false, false)
         } else {
             let mut acc = (false, false);
             for (ci, cj) in
                 [(2 * i, 2 * j), (2 * i + 1, 2 * j), (2 * i, 2 * j + 1), (2 * i + 1, 2 * j + 1)]
             {
-                let (a, b) = self.visit(top, l + 1, ci, cj, s, k);
+                let (a, b) = self.visit(top, l + 1, ci, cj, s, k, hints);
                 acc = (acc.0 | a, acc.1 | b);
             }
             acc
@@ -212,6 +229,41 @@ impl Ctx<'_> {
         );
         let c = (top.lo + top.hi) * 0.5;
         los::visible(self.mip, c.extend(top.z), t, self.cfg.epsilon_m)
+    }
+
+    /// More witnesses than [`Self::quick_visible`] before a coarse node's proof (which fails
+    /// whenever any sight line from the top plane to one of the node's samples is unblocked,
+    /// so a witness skips it without changing any result): the node's centre sample and its
+    /// quadrants' centres, from the top plane's centre and corners.
+    fn witnessed(&self, top: &Top, q: (u32, u32, u32, u32), hints: &mut los::Hints) -> bool {
+        if self.quick_visible(top, q) {
+            return true;
+        }
+        let (mx, my) = ((q.0 + q.2) / 2, (q.1 + q.3) / 2);
+        let targets = [
+            (mx, my),
+            ((q.0 + mx) / 2, (q.1 + my) / 2),
+            ((mx + q.2) / 2, (q.1 + my) / 2),
+            ((q.0 + mx) / 2, (my + q.3) / 2),
+            ((mx + q.2) / 2, (my + q.3) / 2),
+        ];
+        let views = [
+            DVec2::new(top.lo.x, top.lo.y),
+            DVec2::new(top.hi.x, top.lo.y),
+            DVec2::new(top.lo.x, top.hi.y),
+            DVec2::new(top.hi.x, top.hi.y),
+            (top.lo + top.hi) * 0.5,
+        ];
+        targets.iter().any(|&(x, y)| {
+            let t = DVec3::new(
+                f64::from(x),
+                f64::from(y),
+                f64::from(self.hm.get(x as usize, y as usize)),
+            );
+            views
+                .iter()
+                .any(|v| los::visible_with(self.mip, v.extend(top.z), t, self.cfg.epsilon_m, hints))
+        })
     }
 
     fn proven(&self, top: &Top, q: (u32, u32, u32, u32), budget: u32) -> bool {
@@ -392,6 +444,7 @@ fn sampled_patch_visible(
     top: &Top,
     q: (u32, u32, u32, u32),
     cfg: &PvsConfig,
+    hints: &mut los::Hints,
 ) -> bool {
     let hm = mip.heightmap();
     let n = cfg.test_points.max(1);
@@ -421,7 +474,7 @@ fn sampled_patch_visible(
     let mut views: Vec<DVec3> = Vec::with_capacity(cfg.max_viewpoints as usize);
     points.iter().any(|&t| {
         key_viewpoints(top, t, cfg.max_viewpoints.max(1) as usize, &mut views);
-        views.iter().any(|&v| los::visible(mip, v, t, cfg.epsilon_m))
+        views.iter().any(|&v| los::visible_with(mip, v, t, cfg.epsilon_m, hints))
     })
 }
 

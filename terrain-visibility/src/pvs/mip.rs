@@ -59,7 +59,10 @@ impl<'a> HeightMip<'a> {
         let (x0, x1) = (x0.min(x1), x0.max(x1));
         let (y0, y1) = (y0.min(y1), y0.max(y1));
         // The finest level at which the rectangle touches at most 3 x 3 blocks.
-        let mut k = 0usize;
+        // Below `bits(span) - 4` a block row or column alone holds more than 9 blocks.
+        let span = (x1 - x0).max(y1 - y0);
+        let mut k = ((usize::BITS - span.leading_zeros()).saturating_sub(4) as usize)
+            .min(self.levels.len());
         while k < self.levels.len() && ((x1 >> k) - (x0 >> k) + 1) * ((y1 >> k) - (y0 >> k) + 1) > 9
         {
             k += 1;
