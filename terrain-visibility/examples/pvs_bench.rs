@@ -74,6 +74,14 @@ fn main() {
                 (bs.iter().fold(a, fnv), bk.iter().fold(c, fnv))
             });
         println!("bits hash: sampled {hs:016x}, conservative {hk:016x}");
+        let ones = |f: fn(&(Vec<u8>, Vec<u8>)) -> &Vec<u8>| -> u32 {
+            bits.iter().map(|c| f(c).iter().map(|b| b.count_ones()).sum::<u32>()).sum()
+        };
+        println!(
+            "visible bits (all levels): sampled {}, conservative {}",
+            ones(|c| &c.0),
+            ones(|c| &c.1)
+        );
         println!(
             "{n} of {total} cells in {s:.2} s: {:.1} s estimated for all",
             s * total as f64 / n as f64

@@ -20,8 +20,8 @@
 //! # Speed (results unchanged)
 //! Proofs are the costly part, so they are skipped whenever a *witness* shows them hopeless:
 //! any unblocked Eq. 4 sight line from the top plane to a sample of the node (the paper's own
-//! test at level `L`; a few centre and quadrant-centre samples from the plane's centre and
-//! corners above it). Sight lines try *occluder hints* first ([`los::Hints`]: the samples
+//! test at level `L`; then, at every level, a 3 x 3 grid of the node's samples raised as high
+//! as every part of the proof still covers, seen from the plane's centre and corners). Sight lines try *occluder hints* first ([`los::Hints`]: the samples
 //! that blocked recent lines of the same cell; passing one that blocks is an exact early
 //! exit). The bits equal the unaccelerated bake's (pinned in `tests/pvs_pinned.rs`).
 //!
@@ -194,10 +194,17 @@ impl Ctx<'_> {
             // proven hidden (the proof covers its sight lines), so the costly proof runs only
             // on patches it finds hidden (or on every unwitnessed patch without it).
             let seen = self.sampled && sampled_patch_visible(self.mip, top, q, self.cfg, hints);
-            let proven =
-                !seen && self.proofs && !self.quick_visible(top, q) && self.proven(top, q, 64);
+            let proven = !seen
+                && self.proofs
+                && !self.quick_visible(top, q)
+                && !self.witnessed(top, q, hints)
+                && self.proven(top, q, 64);
             (seen, !proven)
-        } else if self.proofs && !self.witnessed(top, q, hints) && self.proven(top, q, 16) {
+        } else if self.proofs
+            && !self.quick_visible(top, q)
+            && !self.witnessed(top, q, hints)
+            && self.proven(top, q, 16)
+        {
             (false, false)
         } else {
             let mut acc = (false, false);
@@ -231,38 +238,31 @@ impl Ctx<'_> {
         los::visible(self.mip, c.extend(top.z), t, self.cfg.epsilon_m)
     }
 
-    /// More witnesses than [`Self::quick_visible`] before a coarse node's proof (which fails
-    /// whenever any sight line from the top plane to one of the node's samples is unblocked,
-    /// so a witness skips it without changing any result): the node's centre sample and its
-    /// quadrants' centres, from the top plane's centre and corners.
+    /// A witness that a node's proof must fail, tried before it (so skipping the proof
+    /// changes no result). Each part `(R', Q')` of a proof shows every sight line from `R'`
+    /// at the top plane to every point of `Q'`'s plan rectangle at `Q'`'s max height blocked
+    /// (see the module docs); so an Eq. 4 sight line from the top plane to a sample `t` of the
+    /// node, raised to a height no higher than the max of *every* part that can hold `t`, that
+    /// is unblocked refutes the proof. Parts are sub-rectangles at least one sample wide on
+    /// each axis ([`prove`] splits only rectangles two or more wide), so each holds one of the
+    /// four 2 x 2 sample blocks at `t` ([`witness_height`]). Targets: a 3 x 3 grid of the
+    /// node's samples; eyes: the top plane's centre and corners.
     fn witnessed(&self, top: &Top, q: (u32, u32, u32, u32), hints: &mut los::Hints) -> bool {
-        if self.quick_visible(top, q) {
-            return true;
-        }
         let (mx, my) = ((q.0 + q.2) / 2, (q.1 + q.3) / 2);
-        let targets = [
-            (mx, my),
-            ((q.0 + mx) / 2, (q.1 + my) / 2),
-            ((mx + q.2) / 2, (q.1 + my) / 2),
-            ((q.0 + mx) / 2, (my + q.3) / 2),
-            ((mx + q.2) / 2, (my + q.3) / 2),
-        ];
         let views = [
+            (top.lo + top.hi) * 0.5,
             DVec2::new(top.lo.x, top.lo.y),
             DVec2::new(top.hi.x, top.lo.y),
             DVec2::new(top.lo.x, top.hi.y),
             DVec2::new(top.hi.x, top.hi.y),
-            (top.lo + top.hi) * 0.5,
         ];
-        targets.iter().any(|&(x, y)| {
-            let t = DVec3::new(
-                f64::from(x),
-                f64::from(y),
-                f64::from(self.hm.get(x as usize, y as usize)),
-            );
-            views
-                .iter()
-                .any(|v| los::visible_with(self.mip, v.extend(top.z), t, self.cfg.epsilon_m, hints))
+        [my, q.1, q.3].iter().any(|&y| {
+            [mx, q.0, q.2].iter().any(|&x| {
+                let t = DVec3::new(f64::from(x), f64::from(y), witness_height(self.hm, q, x, y));
+                views.iter().any(|v| {
+                    los::visible_with(self.mip, v.extend(top.z), t, self.cfg.epsilon_m, hints)
+                })
+            })
         })
     }
 
@@ -271,6 +271,21 @@ impl Ctx<'_> {
         let occ = Occluders { mip: self.mip, lines: self.lines };
         prove(&occ, top.lo, top.hi, top.z, q, self.cfg.epsilon_m, &mut budget)
     }
+}
+
+/// The height to which a witness target at sample `(x, y)` of node `q` may be raised (see
+/// `Ctx::witnessed`): the least, over the four 2 x 2 blocks of samples at `(x, y)` (clipped
+/// to `q`), of the block's max.
+fn witness_height(hm: &Heightmap, q: (u32, u32, u32, u32), x: u32, y: u32) -> f64 {
+    let get = |x: u32, y: u32| hm.get(x as usize, y as usize);
+    let mut best = f32::INFINITY;
+    for nx in [x.saturating_sub(1).max(q.0), (x + 1).min(q.2)] {
+        for ny in [y.saturating_sub(1).max(q.1), (y + 1).min(q.3)] {
+            let m = get(x, y).max(get(nx, y)).max(get(x, ny)).max(get(nx, ny));
+            best = best.min(m);
+        }
+    }
+    f64::from(best)
 }
 
 /// The lower bounds of the terrain a proof reads.
