@@ -21,6 +21,7 @@ fn main() {
     let get = |name: &str| args.iter().position(|a| a == name).map(|k| args[k + 1].clone());
     let num =
         |name: &str, d: f64| get(name).map(|v| v.parse::<f64>().expect("a number")).unwrap_or(d);
+    let loading = Instant::now();
     let hm = if let Some(n) = get("--synthetic") {
         let n: usize = n.parse().expect("a size");
         let cfg = FractalConfig::with_size(n as u64, n as u64, 10.0);
@@ -34,6 +35,7 @@ fn main() {
         };
         load(&path, &opts).unwrap_or_else(|e| panic!("{e}")).heightmap
     };
+    println!("loaded in {:.2} s", loading.elapsed().as_secs_f64());
     let mut cfg = if args.iter().any(|a| a == "--article") {
         PvsConfig::article(num("--patch-level", 4.0) as u8)
     } else {
@@ -74,13 +76,11 @@ fn main() {
                 (bs.iter().fold(a, fnv), bk.iter().fold(c, fnv))
             });
         println!("bits hash: sampled {hs:016x}, conservative {hk:016x}");
-        let ones = |f: fn(&(Vec<u8>, Vec<u8>)) -> &Vec<u8>| -> u32 {
-            bits.iter().map(|c| f(c).iter().map(|b| b.count_ones()).sum::<u32>()).sum()
-        };
+        let ones = |v: &Vec<u8>| v.iter().map(|b| b.count_ones()).sum::<u32>();
         println!(
             "visible bits (all levels): sampled {}, conservative {}",
-            ones(|c| &c.0),
-            ones(|c| &c.1)
+            bits.iter().map(|c| ones(&c.0)).sum::<u32>(),
+            bits.iter().map(|c| ones(&c.1)).sum::<u32>()
         );
         println!(
             "{n} of {total} cells in {s:.2} s: {:.1} s estimated for all",
