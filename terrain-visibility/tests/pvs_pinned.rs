@@ -11,6 +11,7 @@ use terrain_core::Heightmap;
 use terrain_core::dem::{LoadOptions, load};
 use terrain_core::georef::Georef;
 use terrain_core::synth::FractalConfig;
+use terrain_visibility::pvs::bake::bake_cells;
 use terrain_visibility::pvs::mip::HeightMip;
 use terrain_visibility::pvs::{FloorRule, PvsConfig, bake_both, los};
 
@@ -94,4 +95,25 @@ fn the_accelerated_line_of_sight_equals_the_plain_walk() {
         if want { seen += 1 } else { hidden += 1 }
     }
     assert!(seen > 300 && hidden > 300, "seen {seen}, hidden {hidden}: not a mixed test");
+}
+
+#[test]
+fn chaining_the_floors_changes_no_bit() {
+    // `bake_both` bakes each plan cell's floors lowest first and skips the proofs a lower
+    // floor showed hopeless; `bake_cells` bakes every cell alone.
+    let hm = puget_crop();
+    let cfg = cfg(4, 3, 10.0, 5);
+    let (s, k, _) = bake_both(&hm, &cfg);
+    let n = s.layout.cell_count();
+    let alone = bake_cells(&hm, &cfg, &(0..n).collect::<Vec<_>>());
+    let per = s.layout.bytes_per_cell();
+    for (c, (bs, bk)) in alone.iter().enumerate() {
+        assert_eq!(&s.bits[c * per..(c + 1) * per], bs.as_slice(), "sampled, cell {c}");
+        assert_eq!(&k.bits[c * per..(c + 1) * per], bk.as_slice(), "conservative, cell {c}");
+    }
+    assert!(
+        k.culled_fraction() > 0.02,
+        "too little is hidden to test anything: {}",
+        k.culled_fraction()
+    );
 }

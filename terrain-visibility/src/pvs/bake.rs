@@ -97,6 +97,21 @@ pub fn bake_cells(hm: &Heightmap, cfg: &PvsConfig, cells: &[usize]) -> Vec<(Vec<
     cells.par_iter().map(|&n| ctx.cell(n)).collect()
 }
 
+/// The bits of every floor of some plan cells `(a, b)`, lowest floor first, as [`bake_both`]
+/// computes them (floors chained as in the full bake). For timing a sample of cells.
+pub fn bake_columns(
+    hm: &Heightmap,
+    cfg: &PvsConfig,
+    plan: &[(u32, u32)],
+) -> Vec<Vec<(Vec<u8>, Vec<u8>)>> {
+    let layout = PvsLayout::new(hm, cfg);
+    let mip = HeightMip::new(hm);
+    let lines = LineMins::new(hm);
+    let ctx =
+        Ctx { hm, mip: &mip, lines: &lines, layout: &layout, cfg, proofs: true, sampled: true };
+    plan.par_iter().map(|&(a, b)| ctx.column(a, b)).collect()
+}
+
 fn bake_impl(
     hm: &Heightmap,
     cfg: &PvsConfig,
@@ -108,8 +123,21 @@ fn bake_impl(
     let mip = HeightMip::new(hm);
     let lines = LineMins::new(hm);
     let ctx = Ctx { hm, mip: &mip, lines: &lines, layout: &layout, cfg, proofs, sampled };
+    // Rayon over plan cells; each bakes its floors lowest first (see [`Below`]).
     let run = || -> Vec<(Vec<u8>, Vec<u8>)> {
-        (0..layout.cell_count()).into_par_iter().map(|n| ctx.cell(n)).collect()
+        let columns: Vec<Vec<(Vec<u8>, Vec<u8>)>> = (0..layout.cells_x * layout.cells_y)
+            .into_par_iter()
+            .map(|n| ctx.column(n % layout.cells_x, n / layout.cells_x))
+            .collect();
+        // Back to the bake's cell order (floor, then row, then column).
+        let mut cells = vec![(Vec::new(), Vec::new()); layout.cell_count()];
+        for (n, floors) in columns.into_iter().enumerate() {
+            let (a, b) = (n as u32 % layout.cells_x, n as u32 / layout.cells_x);
+            for (k, bits) in floors.into_iter().enumerate() {
+                cells[layout.cell_index(CellId { a, b, k: k as u32 })] = bits;
+            }
+        }
+        cells
     };
     let cells = if cfg.threads > 0 {
         match rayon::ThreadPoolBuilder::new().num_threads(cfg.threads).build() {
@@ -147,10 +175,31 @@ struct Ctx<'a> {
 
 /// A cell's top plane.
 #[derive(Debug, Clone, Copy)]
-struct Top {
+struct Top<'a> {
     lo: DVec2,
     hi: DVec2,
     z: f64,
+    /// The conservative bits of the same plan cell's top plane at a height at most `z`.
+    below: Option<Below<'a>>,
+}
+
+/// A lower top plane's conservative bits (same plan rectangle). A proof that fails from a
+/// plane fails from every plane above it: raising `z` raises every sight line's height over
+/// each interval and grid line, so each test of [`prove`] only gets harder, and the parts it
+/// splits into do not depend on `z` (so the budget suffices no sooner). A node visible in the
+/// lower plane's conservative bits had its proof fail, or skipped as refuted by a witness, so
+/// from this plane its proof is skipped: the bits are those of running it.
+#[derive(Debug, Clone, Copy)]
+struct Below<'a> {
+    bits: &'a [u8],
+    z: f64,
+}
+
+impl Below<'_> {
+    fn visible(&self, l: u8, i: u32, j: u32) -> bool {
+        let n = PvsLayout::level_offset(l) + (j * (1 << l) + i) as usize;
+        self.bits[n / 8] & (1 << (n % 8)) != 0
+    }
 }
 
 fn set(bits: &mut [u8], l: u8, i: u32, j: u32) {
@@ -159,7 +208,30 @@ fn set(bits: &mut [u8], l: u8, i: u32, j: u32) {
 }
 
 impl Ctx<'_> {
+    /// The bits of every floor of plan cell `(a, b)`, lowest first, each floor's
+    /// conservative bits telling the next which proofs are hopeless (see [`Below`]).
+    fn column(&self, a: u32, b: u32) -> Vec<(Vec<u8>, Vec<u8>)> {
+        let lay = self.layout;
+        let mut out: Vec<(Vec<u8>, Vec<u8>)> = Vec::with_capacity(lay.floors as usize);
+        let mut below_z = None;
+        for k in 0..lay.floors {
+            let n = lay.cell_index(CellId { a, b, k });
+            let below = match (below_z, out.last()) {
+                (Some(z), Some((_, bits))) => Some(Below { bits: bits.as_slice(), z }),
+                _ => None,
+            };
+            let (s, c) = self.cell_below(n, below);
+            below_z = lay.floor_bounds(CellId { a, b, k }).map(|(_, z)| z);
+            out.push((s, c));
+        }
+        out
+    }
+
     fn cell(&self, n: usize) -> (Vec<u8>, Vec<u8>) {
+        self.cell_below(n, None)
+    }
+
+    fn cell_below(&self, n: usize, below: Option<Below<'_>>) -> (Vec<u8>, Vec<u8>) {
         let lay = self.layout;
         let per = lay.bytes_per_cell();
         let c: CellId = lay.cell_at_index(n);
@@ -168,7 +240,7 @@ impl Ctx<'_> {
             // Outside the grid: never looked up; all visible.
             return (vec![0xFF; per], vec![0xFF; per]);
         };
-        let top = Top { lo, hi, z };
+        let top = Top { lo, hi, z, below: below.filter(|b| b.z <= z) };
         let (mut s, mut k) = (vec![0u8; per], vec![0u8; per]);
         let mut hints = los::Hints::new();
         self.visit(&top, 0, 0, 0, &mut s, &mut k, &mut hints);
@@ -179,7 +251,7 @@ impl Ctx<'_> {
     #[allow(clippy::too_many_arguments)]
     fn visit(
         &self,
-        top: &Top,
+        top: &Top<'_>,
         l: u8,
         i: u32,
         j: u32,
@@ -196,11 +268,13 @@ impl Ctx<'_> {
             let seen = self.sampled && sampled_patch_visible(self.mip, top, q, self.cfg, hints);
             let proven = !seen
                 && self.proofs
+                && !top.below.is_some_and(|b| b.visible(l, i, j))
                 && !self.quick_visible(top, q)
                 && !self.witnessed(top, q, hints)
                 && self.proven(top, q, 64);
             (seen, !proven)
         } else if self.proofs
+            && !top.below.is_some_and(|b| b.visible(l, i, j))
             && !self.quick_visible(top, q)
             && !self.witnessed(top, q, hints)
             && self.proven(top, q, 16)
@@ -227,7 +301,7 @@ impl Ctx<'_> {
 
     /// A cheap witness that a node holds something visible (its centre sample seen from the
     /// top plane's centre): then no proof can succeed and none is tried.
-    fn quick_visible(&self, top: &Top, q: (u32, u32, u32, u32)) -> bool {
+    fn quick_visible(&self, top: &Top<'_>, q: (u32, u32, u32, u32)) -> bool {
         let (cx, cy) = ((q.0 + q.2) / 2, (q.1 + q.3) / 2);
         let t = DVec3::new(
             f64::from(cx),
@@ -247,7 +321,7 @@ impl Ctx<'_> {
     /// each axis ([`prove`] splits only rectangles two or more wide), so each holds one of the
     /// four 2 x 2 sample blocks at `t` ([`witness_height`]). Targets: a 3 x 3 grid of the
     /// node's samples; eyes: the top plane's centre and corners.
-    fn witnessed(&self, top: &Top, q: (u32, u32, u32, u32), hints: &mut los::Hints) -> bool {
+    fn witnessed(&self, top: &Top<'_>, q: (u32, u32, u32, u32), hints: &mut los::Hints) -> bool {
         let (mx, my) = ((q.0 + q.2) / 2, (q.1 + q.3) / 2);
         let views = [
             (top.lo + top.hi) * 0.5,
@@ -266,7 +340,7 @@ impl Ctx<'_> {
         })
     }
 
-    fn proven(&self, top: &Top, q: (u32, u32, u32, u32), budget: u32) -> bool {
+    fn proven(&self, top: &Top<'_>, q: (u32, u32, u32, u32), budget: u32) -> bool {
         let mut budget = budget;
         let occ = Occluders { mip: self.mip, lines: self.lines };
         prove(&occ, top.lo, top.hi, top.z, q, self.cfg.epsilon_m, &mut budget)
@@ -391,6 +465,16 @@ fn lines_prove(
             let lo = (q_lo[o] * (1.0 - s0) + r_lo[o] * s0).min(q_lo[o] * (1.0 - s1) + r_lo[o] * s1);
             let hi = (q_hi[o] * (1.0 - s0) + r_hi[o] * s0).max(q_hi[o] * (1.0 - s1) + r_hi[o] * s1);
             let (a, b) = (lo.floor() as i64, hi.ceil() as i64);
+            // As in `intervals_prove`: a block inside the stretch bounds its min from above.
+            let one = if axis == 0 {
+                lines.column_inner_min(i as usize, a, b)
+            } else {
+                lines.row_inner_min(i as usize, a, b)
+            };
+            if f64::from(one) <= ray_max + eps {
+                i += step;
+                continue;
+            }
             let ground = if axis == 0 {
                 lines.column_min(i as usize, a, b)
             } else {
@@ -441,12 +525,14 @@ fn intervals_prove(
         let (blo, bhi) = at(sb);
         let (lo, hi) = (alo.min(blo), ahi.max(bhi));
         let ray_max = (hp * (1.0 - sa) + z * sa).max(hp * (1.0 - sb) + z * sb);
-        let (ground_min, _) = mip.range(
-            lo.x.floor() as i64,
-            lo.y.floor() as i64,
-            hi.x.ceil() as i64,
-            hi.y.ceil() as i64,
-        );
+        let (x0, y0, x1, y1) =
+            (lo.x.floor() as i64, lo.y.floor() as i64, hi.x.ceil() as i64, hi.y.ceil() as i64);
+        // A block wholly inside the rectangle bounds its min from above: a cheap exact reject
+        // (the usual case) before the block query.
+        if f64::from(mip.inner_min(x0, y0, x1, y1)) <= ray_max + eps {
+            return false;
+        }
+        let (ground_min, _) = mip.range(x0, y0, x1, y1);
         f64::from(ground_min) > ray_max + eps
     })
 }
@@ -456,7 +542,7 @@ fn intervals_prove(
 /// refinement up to `max_viewpoints`, Eq. 4 line of sight; stops at the first visible pair.
 fn sampled_patch_visible(
     mip: &HeightMip<'_>,
-    top: &Top,
+    top: &Top<'_>,
     q: (u32, u32, u32, u32),
     cfg: &PvsConfig,
     hints: &mut los::Hints,
@@ -500,7 +586,7 @@ fn sampled_patch_visible(
 /// Fig. 6 names edges 0-3 (top, left, bottom, right of its top view) and regions 0-7 around
 /// the cell; a corner region takes the two edges meeting at the corner, a side region the one
 /// edge on its side, exactly as the table lists them.
-fn key_viewpoints(top: &Top, t: DVec3, max: usize, out: &mut Vec<DVec3>) {
+fn key_viewpoints(top: &Top<'_>, t: DVec3, max: usize, out: &mut Vec<DVec3>) {
     out.clear();
     let above = top.z - t.z > 0.0;
     let (lo, hi) = (top.lo, top.hi);
@@ -549,7 +635,8 @@ mod tests {
 
     #[test]
     fn key_viewpoints_follow_fig6() {
-        let top = Top { lo: DVec2::new(10.0, 10.0), hi: DVec2::new(20.0, 20.0), z: 100.0 };
+        let top =
+            Top { lo: DVec2::new(10.0, 10.0), hi: DVec2::new(20.0, 20.0), z: 100.0, below: None };
         let mut v = Vec::new();
         // Region north-west, plane above the test point: the north and west edges.
         key_viewpoints(&top, DVec3::new(0.0, 30.0, 0.0), 16, &mut v);
