@@ -1,5 +1,5 @@
-//! The PVS bake: both modes in one pass over every view cell (rayon over cells), top-down
-//! over the patch pyramid.
+//! The PVS bake: both modes in one pass over every view cell (rayon over plan cells, each
+//! plan cell's floors lowest first), top-down over the patch pyramid.
 //!
 //! # Per cell
 //! Only the cell's *top plane* (height `Z`, its plan rectangle `R`) is tested: a point visible
@@ -23,7 +23,11 @@
 //! test at level `L`; then, at every level, a 3 x 3 grid of the node's samples raised as high
 //! as every part of the proof still covers, seen from the plane's centre and corners). Sight lines try *occluder hints* first ([`los::Hints`]: the samples
 //! that blocked recent lines of the same cell; passing one that blocks is an exact early
-//! exit). The bits equal the unaccelerated bake's (pinned in `tests/pvs_pinned.rs`).
+//! exit). The floors of a plan cell are baked lowest first, and a node visible in a lower
+//! floor's conservative bits skips its proof (a proof that fails from a plane fails from every
+//! plane above it, see `Below`). Rejects inside the proofs test one sample first (an upper
+//! bound of a min) before the block query. The bits equal the unaccelerated bake's (pinned in
+//! `tests/pvs_pinned.rs`).
 //!
 //! # The proof (conservative mode)
 //! Claim: every sight line from a point `v` of `R x {Z}` to a point of `Q` at a height at most

@@ -87,9 +87,8 @@ impl<'a> HeightMip<'a> {
 
 impl HeightMip<'_> {
     /// An *upper* bound of the min of the samples in the inclusive rectangle (clamped to the
-    /// grid as [`Self::range`]): the min of one mip block lying wholly inside it (the largest
-    /// such block holding the rectangle's centre, down to the centre sample). A cheap exact
-    /// reject for min queries: `range`'s min is at most this.
+    /// grid as [`Self::range`]): its centre sample. A cheap exact reject for min queries:
+    /// `range`'s min is at most this.
     pub fn inner_min(&self, x0: i64, y0: i64, x1: i64, y1: i64) -> f32 {
         let (w, h) = (self.hm.width() as i64, self.hm.height() as i64);
         let (x0, x1) = (x0.clamp(0, w - 1), x1.clamp(0, w - 1));
@@ -131,7 +130,7 @@ fn line_min(levels: &[Vec<f32>], a: usize, b: usize) -> f32 {
     ((a >> k)..=(b >> k)).map(|m| levels[k][m]).fold(f32::INFINITY, f32::min)
 }
 
-/// An upper bound of the min of `a..=b` (clamped): the min of one pyramid block wholly inside.
+/// An upper bound of the min of `a..=b` (clamped): its middle sample.
 fn line_inner_min(levels: &[Vec<f32>], a: i64, b: i64) -> f32 {
     let n = levels[0].len() as i64;
     let (a, b) = (a.clamp(0, n - 1), b.clamp(0, n - 1));
