@@ -387,7 +387,25 @@ pub fn prove(
     eps: f64,
     budget: &mut u32,
 ) -> bool {
-    if *budget == 0 {
+    prove_part(occ, r_lo, r_hi, z, q, eps, budget, 0)
+}
+
+/// [`prove`] for one part, with `reserve` parts still to prove after it (the untried siblings
+/// of it and of its ancestors, each needing at least one unit of budget). When the budget
+/// cannot cover this part and the reserve, the whole proof fails whatever this part does
+/// (every part must succeed), so it stops at once: the same result as running on, sooner.
+#[allow(clippy::too_many_arguments)]
+fn prove_part(
+    occ: &Occluders<'_>,
+    r_lo: DVec2,
+    r_hi: DVec2,
+    z: f64,
+    q: (u32, u32, u32, u32),
+    eps: f64,
+    budget: &mut u32,
+    reserve: u32,
+) -> bool {
+    if *budget <= reserve {
         return false;
     }
     *budget -= 1;
@@ -400,12 +418,17 @@ pub fn prove(
     {
         return true;
     }
+    // Four parts follow, each needing at least one unit.
+    if *budget < 4 + reserve {
+        return false;
+    }
     let (rs, qs) = ((r_hi - r_lo).max_element(), (q_hi - q_lo).max_element());
     if qs >= rs && q.2 - q.0 >= 2 && q.3 - q.1 >= 2 {
         let (mx, my) = ((q.0 + q.2) / 2, (q.1 + q.3) / 2);
         [(q.0, q.1, mx, my), (mx, q.1, q.2, my), (q.0, my, mx, q.3), (mx, my, q.2, q.3)]
             .into_iter()
-            .all(|p| prove(occ, r_lo, r_hi, z, p, eps, budget))
+            .zip([3, 2, 1, 0])
+            .all(|(p, after)| prove_part(occ, r_lo, r_hi, z, p, eps, budget, reserve + after))
     } else if rs >= 2.0 {
         let m = (r_lo + r_hi) * 0.5;
         [
@@ -415,7 +438,8 @@ pub fn prove(
             (m, r_hi),
         ]
         .into_iter()
-        .all(|(lo, hi)| prove(occ, lo, hi, z, q, eps, budget))
+        .zip([3, 2, 1, 0])
+        .all(|((lo, hi), after)| prove_part(occ, lo, hi, z, q, eps, budget, reserve + after))
     } else {
         false
     }
