@@ -377,7 +377,13 @@ pub struct Occluders<'a> {
 
 /// Whether every sight line from `R x {z}` (`r_lo..r_hi`, grid coordinates) to the samples of
 /// `q` (inclusive integer rectangle) is blocked (see the module docs). `budget` bounds the
-/// number of (R, Q) parts tried.
+/// number of (R, Q) parts tried; on return it holds what is left (0 when it ran out).
+///
+/// A part is proven directly or split in four (the larger of `R` and `Q`), and every part must
+/// be proven. Which parts arise does not depend on the order they are tried in, so the proof
+/// succeeds exactly when that whole tree of parts has every leaf proven and at most `budget`
+/// parts: it is built level by level here, and fails as soon as the parts known to be needed
+/// exceed the budget (the same result as a depth-first search, usually much sooner).
 pub fn prove(
     occ: &Occluders<'_>,
     r_lo: DVec2,
@@ -387,61 +393,82 @@ pub fn prove(
     eps: f64,
     budget: &mut u32,
 ) -> bool {
-    prove_part(occ, r_lo, r_hi, z, q, eps, budget, 0)
+    if *budget == 0 {
+        return false;
+    }
+    let mut needed = 1u32;
+    let mut level = vec![(r_lo, r_hi, q)];
+    let mut next = Vec::new();
+    while !level.is_empty() {
+        for &(r_lo, r_hi, q) in &level {
+            if part_proven(occ, r_lo, r_hi, z, q, eps) {
+                continue;
+            }
+            let Some(parts) = split(r_lo, r_hi, q) else {
+                *budget = 0;
+                return false;
+            };
+            needed += 4;
+            if needed > *budget {
+                *budget = 0;
+                return false;
+            }
+            next.extend(parts);
+        }
+        std::mem::swap(&mut level, &mut next);
+        next.clear();
+    }
+    *budget -= needed;
+    true
 }
 
-/// [`prove`] for one part, with `reserve` parts still to prove after it (the untried siblings
-/// of it and of its ancestors, each needing at least one unit of budget). When the budget
-/// cannot cover this part and the reserve, the whole proof fails whatever this part does
-/// (every part must succeed), so it stops at once: the same result as running on, sooner.
-#[allow(clippy::too_many_arguments)]
-fn prove_part(
+/// Whether one part `(R, Q)` is proven directly (by an interval or a grid line).
+fn part_proven(
     occ: &Occluders<'_>,
     r_lo: DVec2,
     r_hi: DVec2,
     z: f64,
     q: (u32, u32, u32, u32),
     eps: f64,
-    budget: &mut u32,
-    reserve: u32,
 ) -> bool {
-    if *budget <= reserve {
-        return false;
-    }
-    *budget -= 1;
     let (q_lo, q_hi) =
         (DVec2::new(f64::from(q.0), f64::from(q.1)), DVec2::new(f64::from(q.2), f64::from(q.3)));
     let hp =
         f64::from(occ.mip.range(i64::from(q.0), i64::from(q.1), i64::from(q.2), i64::from(q.3)).1);
-    if intervals_prove(occ.mip, r_lo, r_hi, z, q_lo, q_hi, hp, eps)
+    intervals_prove(occ.mip, r_lo, r_hi, z, q_lo, q_hi, hp, eps)
         || lines_prove(occ.lines, r_lo, r_hi, z, q_lo, q_hi, hp, eps)
-    {
-        return true;
-    }
-    // Four parts follow, each needing at least one unit.
-    if *budget < 4 + reserve {
-        return false;
-    }
+}
+
+/// A part's four sub-parts: the larger of `R` and `Q` split in four; `None` when neither can
+/// be split.
+#[allow(clippy::type_complexity)]
+fn split(
+    r_lo: DVec2,
+    r_hi: DVec2,
+    q: (u32, u32, u32, u32),
+) -> Option<[(DVec2, DVec2, (u32, u32, u32, u32)); 4]> {
+    let (q_lo, q_hi) =
+        (DVec2::new(f64::from(q.0), f64::from(q.1)), DVec2::new(f64::from(q.2), f64::from(q.3)));
     let (rs, qs) = ((r_hi - r_lo).max_element(), (q_hi - q_lo).max_element());
     if qs >= rs && q.2 - q.0 >= 2 && q.3 - q.1 >= 2 {
         let (mx, my) = ((q.0 + q.2) / 2, (q.1 + q.3) / 2);
-        [(q.0, q.1, mx, my), (mx, q.1, q.2, my), (q.0, my, mx, q.3), (mx, my, q.2, q.3)]
-            .into_iter()
-            .zip([3, 2, 1, 0])
-            .all(|(p, after)| prove_part(occ, r_lo, r_hi, z, p, eps, budget, reserve + after))
+        Some(
+            [(q.0, q.1, mx, my), (mx, q.1, q.2, my), (q.0, my, mx, q.3), (mx, my, q.2, q.3)]
+                .map(|p| (r_lo, r_hi, p)),
+        )
     } else if rs >= 2.0 {
         let m = (r_lo + r_hi) * 0.5;
-        [
-            (r_lo, m),
-            (DVec2::new(m.x, r_lo.y), DVec2::new(r_hi.x, m.y)),
-            (DVec2::new(r_lo.x, m.y), DVec2::new(m.x, r_hi.y)),
-            (m, r_hi),
-        ]
-        .into_iter()
-        .zip([3, 2, 1, 0])
-        .all(|((lo, hi), after)| prove_part(occ, lo, hi, z, q, eps, budget, reserve + after))
+        Some(
+            [
+                (r_lo, m),
+                (DVec2::new(m.x, r_lo.y), DVec2::new(r_hi.x, m.y)),
+                (DVec2::new(r_lo.x, m.y), DVec2::new(m.x, r_hi.y)),
+                (m, r_hi),
+            ]
+            .map(|(lo, hi)| (lo, hi, q)),
+        )
     } else {
-        false
+        None
     }
 }
 
