@@ -1,11 +1,14 @@
 //! PVS bake time, size and accuracy on a DEM (the occlusion-culling issue's figures):
 //! `cargo run --release -p terrain-visibility --example pvs_bench -- <dem> [--scale S]
 //! [--spacing M] [--cells N] [--patch-level L] [--floors F] [--article] [--truth CELLS]
-//! [--threads T] [--synthetic SIZE]`.
+//! [--threads T] [--synthetic SIZE] [--time-cells N] [--conservative-only]`.
 //!
 //! Prints the bake time, the file size, the culled fraction of both modes over all cells, and,
 //! with `--truth`, the false-cull rate and culled fraction of both modes against the dense
-//! ground truth on that many sampled cells.
+//! ground truth on that many sampled cells. With `--time-cells N` it bakes only a spread
+//! sample of about `N` cells (whole plan cells, all floors, as the full bake chains them) and
+//! prints their wall and CPU time, the full bake's estimate, and a hash of their bits (baked
+//! again cell by cell, which must give the same bits).
 
 use std::path::PathBuf;
 use std::time::Instant;
