@@ -1,11 +1,14 @@
 //! PVS bake time, size and accuracy on a DEM (the occlusion-culling issue's figures):
 //! `cargo run --release -p terrain-visibility --example pvs_bench -- <dem> [--scale S]
 //! [--spacing M] [--cells N] [--patch-level L] [--floors F] [--article] [--truth CELLS]
-//! [--threads T] [--synthetic SIZE]`.
+//! [--threads T] [--synthetic SIZE] [--time-cells N] [--conservative-only]`.
 //!
 //! Prints the bake time, the file size, the culled fraction of both modes over all cells, and,
 //! with `--truth`, the false-cull rate and culled fraction of both modes against the dense
-//! ground truth on that many sampled cells.
+//! ground truth on that many sampled cells. With `--time-cells N` it bakes only a spread
+//! sample of about `N` cells (whole plan cells, all floors, as the full bake chains them) and
+//! prints their wall and CPU time, the full bake's estimate, and a hash of their bits (baked
+//! again cell by cell, which must give the same bits).
 
 use std::path::PathBuf;
 use std::time::Instant;
@@ -21,6 +24,7 @@ fn main() {
     let get = |name: &str| args.iter().position(|a| a == name).map(|k| args[k + 1].clone());
     let num =
         |name: &str, d: f64| get(name).map(|v| v.parse::<f64>().expect("a number")).unwrap_or(d);
+    let loading = Instant::now();
     let hm = if let Some(n) = get("--synthetic") {
         let n: usize = n.parse().expect("a size");
         let cfg = FractalConfig::with_size(n as u64, n as u64, 10.0);
@@ -34,6 +38,7 @@ fn main() {
         };
         load(&path, &opts).unwrap_or_else(|e| panic!("{e}")).heightmap
     };
+    println!("loaded in {:.2} s", loading.elapsed().as_secs_f64());
     let mut cfg = if args.iter().any(|a| a == "--article") {
         PvsConfig::article(num("--patch-level", 4.0) as u8)
     } else {
@@ -58,17 +63,74 @@ fn main() {
         1u32 << cfg.patch_level
     );
     if let Some(n) = get("--time-cells") {
-        // Time a spread sample of cells only (an estimate of the full bake).
+        // Time a spread sample of plan cells, all floors of each (an estimate of the full
+        // bake), then the same cells one by one (no floor chaining): the bits must agree.
         let n: usize = n.parse().expect("cells");
         let lay = terrain_visibility::pvs::PvsLayout::new(&hm, &cfg);
         let total = lay.cell_count();
-        let cells: Vec<usize> = (0..n).map(|k| (k * total / n + total / (2 * n)) % total).collect();
-        let t = Instant::now();
-        let _ = terrain_visibility::pvs::bake::bake_cells(&hm, &cfg, &cells);
-        let s = t.elapsed().as_secs_f64();
+        let plan_total = (lay.cells_x * lay.cells_y) as usize;
+        let m = n.div_ceil(lay.floors as usize).max(1);
+        let plan: Vec<(u32, u32)> = (0..m)
+            .map(|k| {
+                let p = ((k * plan_total / m + plan_total / (2 * m)) % plan_total) as u32;
+                (p % lay.cells_x, p / lay.cells_x)
+            })
+            .collect();
+        let cells: Vec<usize> = plan
+            .iter()
+            .flat_map(|&(a, b)| {
+                let lay = &lay;
+                (0..lay.floors)
+                    .map(move |k| lay.cell_index(terrain_visibility::pvs::CellId { a, b, k }))
+            })
+            .collect();
+        let cpu = || {
+            let s = std::fs::read_to_string("/proc/self/stat").unwrap_or_default();
+            let f: Vec<&str> = s.rsplit(')').next().unwrap_or("").split_whitespace().collect();
+            let tick = |i: usize| f.get(i).and_then(|v| v.parse::<f64>().ok()).unwrap_or(0.0);
+            (tick(11) + tick(12)) / 100.0
+        };
+        let (t, c0) = (Instant::now(), cpu());
+        let _ = terrain_visibility::pvs::mip::HeightMip::new(&hm);
+        let _ = terrain_visibility::pvs::mip::LineMins::new(&hm);
+        let (setup, setup_cpu) = (t.elapsed().as_secs_f64(), cpu() - c0);
         println!(
-            "{n} of {total} cells in {s:.2} s: {:.1} s estimated for all",
-            s * total as f64 / n as f64
+            "setup (height mip and line mins, once per bake): {setup:.2} s wall, {setup_cpu:.2} s CPU"
+        );
+        let (t, c0) = (Instant::now(), cpu());
+        let columns = terrain_visibility::pvs::bake::bake_columns(&hm, &cfg, &plan);
+        // Per cell, without the setup that a full bake does once.
+        let (s, c) = (t.elapsed().as_secs_f64() - setup, cpu() - c0 - setup_cpu);
+        let done = cells.len();
+        println!(
+            "{done} of {total} cells ({m} plan cells x {} floors) in {s:.2} s wall, {c:.2} s CPU: \
+             {:.0} s wall, {:.0} CPU-s estimated for all (plus setup)",
+            lay.floors,
+            s * total as f64 / done as f64,
+            c * total as f64 / done as f64
+        );
+        let chained: Vec<(Vec<u8>, Vec<u8>)> = columns.into_iter().flatten().collect();
+        let (t, c0) = (Instant::now(), cpu());
+        let bits = terrain_visibility::pvs::bake::bake_cells(&hm, &cfg, &cells);
+        println!(
+            "unchained: {:.2} s wall, {:.2} s CPU; bits equal: {}",
+            t.elapsed().as_secs_f64(),
+            cpu() - c0,
+            bits == chained
+        );
+        // FNV-1a of the sample's bits: a bake change shows as a different hash.
+        let fnv = |h: u64, b: &u8| (h ^ u64::from(*b)).wrapping_mul(0x0100_0000_01b3);
+        let (hs, hk) = bits
+            .iter()
+            .fold((0xcbf2_9ce4_8422_2325u64, 0xcbf2_9ce4_8422_2325u64), |(a, c), (bs, bk)| {
+                (bs.iter().fold(a, fnv), bk.iter().fold(c, fnv))
+            });
+        println!("bits hash: sampled {hs:016x}, conservative {hk:016x}");
+        let ones = |v: &Vec<u8>| v.iter().map(|b| b.count_ones()).sum::<u32>();
+        println!(
+            "visible bits (all levels): sampled {}, conservative {}",
+            bits.iter().map(|c| ones(&c.0)).sum::<u32>(),
+            bits.iter().map(|c| ones(&c.1)).sum::<u32>()
         );
         return;
     }

@@ -1,5 +1,5 @@
-//! The PVS bake: both modes in one pass over every view cell (rayon over cells), top-down
-//! over the patch pyramid.
+//! The PVS bake: both modes in one pass over every view cell (rayon over plan cells, each
+//! plan cell's floors lowest first), top-down over the patch pyramid.
 //!
 //! # Per cell
 //! Only the cell's *top plane* (height `Z`, its plan rectangle `R`) is tested: a point visible
@@ -16,6 +16,18 @@
 //!    conservative mode marks the patch visible (nothing proved it hidden). At level `L` the
 //!    sampled test runs *first* and the proof only when it finds nothing, since a visible patch
 //!    can never be proven hidden.
+//!
+//! # Speed (results unchanged)
+//! Proofs are the costly part, so they are skipped whenever a *witness* shows them hopeless:
+//! any unblocked Eq. 4 sight line from the top plane to a sample of the node (the paper's own
+//! test at level `L`; then, at every level, a 3 x 3 grid of the node's samples raised as high
+//! as every part of the proof still covers, seen from the plane's centre and corners). Sight lines try *occluder hints* first ([`los::Hints`]: the samples
+//! that blocked recent lines of the same cell; passing one that blocks is an exact early
+//! exit). The floors of a plan cell are baked lowest first, and a node visible in a lower
+//! floor's conservative bits skips its proof (a proof that fails from a plane fails from every
+//! plane above it, see `Below`). Rejects inside the proofs test one sample first (an upper
+//! bound of a min) before the block query. The bits equal the unaccelerated bake's (pinned in
+//! `tests/pvs_pinned.rs`).
 //!
 //! # The proof (conservative mode)
 //! Claim: every sight line from a point `v` of `R x {Z}` to a point of `Q` at a height at most
@@ -89,6 +101,21 @@ pub fn bake_cells(hm: &Heightmap, cfg: &PvsConfig, cells: &[usize]) -> Vec<(Vec<
     cells.par_iter().map(|&n| ctx.cell(n)).collect()
 }
 
+/// The bits of every floor of some plan cells `(a, b)`, lowest floor first, as [`bake_both`]
+/// computes them (floors chained as in the full bake). For timing a sample of cells.
+pub fn bake_columns(
+    hm: &Heightmap,
+    cfg: &PvsConfig,
+    plan: &[(u32, u32)],
+) -> Vec<Vec<(Vec<u8>, Vec<u8>)>> {
+    let layout = PvsLayout::new(hm, cfg);
+    let mip = HeightMip::new(hm);
+    let lines = LineMins::new(hm);
+    let ctx =
+        Ctx { hm, mip: &mip, lines: &lines, layout: &layout, cfg, proofs: true, sampled: true };
+    plan.par_iter().map(|&(a, b)| ctx.column(a, b)).collect()
+}
+
 fn bake_impl(
     hm: &Heightmap,
     cfg: &PvsConfig,
@@ -100,8 +127,21 @@ fn bake_impl(
     let mip = HeightMip::new(hm);
     let lines = LineMins::new(hm);
     let ctx = Ctx { hm, mip: &mip, lines: &lines, layout: &layout, cfg, proofs, sampled };
+    // Rayon over plan cells; each bakes its floors lowest first (see [`Below`]).
     let run = || -> Vec<(Vec<u8>, Vec<u8>)> {
-        (0..layout.cell_count()).into_par_iter().map(|n| ctx.cell(n)).collect()
+        let columns: Vec<Vec<(Vec<u8>, Vec<u8>)>> = (0..layout.cells_x * layout.cells_y)
+            .into_par_iter()
+            .map(|n| ctx.column(n % layout.cells_x, n / layout.cells_x))
+            .collect();
+        // Back to the bake's cell order (floor, then row, then column).
+        let mut cells = vec![(Vec::new(), Vec::new()); layout.cell_count()];
+        for (n, floors) in columns.into_iter().enumerate() {
+            let (a, b) = (n as u32 % layout.cells_x, n as u32 / layout.cells_x);
+            for (k, bits) in floors.into_iter().enumerate() {
+                cells[layout.cell_index(CellId { a, b, k: k as u32 })] = bits;
+            }
+        }
+        cells
     };
     let cells = if cfg.threads > 0 {
         match rayon::ThreadPoolBuilder::new().num_threads(cfg.threads).build() {
@@ -139,10 +179,31 @@ struct Ctx<'a> {
 
 /// A cell's top plane.
 #[derive(Debug, Clone, Copy)]
-struct Top {
+struct Top<'a> {
     lo: DVec2,
     hi: DVec2,
     z: f64,
+    /// The conservative bits of the same plan cell's top plane at a height at most `z`.
+    below: Option<Below<'a>>,
+}
+
+/// A lower top plane's conservative bits (same plan rectangle). A proof that fails from a
+/// plane fails from every plane above it: raising `z` raises every sight line's height over
+/// each interval and grid line, so each test of [`prove`] only gets harder, and the parts it
+/// splits into do not depend on `z` (so the budget suffices no sooner). A node visible in the
+/// lower plane's conservative bits had its proof fail, or skipped as refuted by a witness, so
+/// from this plane its proof is skipped: the bits are those of running it.
+#[derive(Debug, Clone, Copy)]
+struct Below<'a> {
+    bits: &'a [u8],
+    z: f64,
+}
+
+impl Below<'_> {
+    fn visible(&self, l: u8, i: u32, j: u32) -> bool {
+        let n = PvsLayout::level_offset(l) + (j * (1 << l) + i) as usize;
+        self.bits[n / 8] & (1 << (n % 8)) != 0
+    }
 }
 
 fn set(bits: &mut [u8], l: u8, i: u32, j: u32) {
@@ -151,7 +212,30 @@ fn set(bits: &mut [u8], l: u8, i: u32, j: u32) {
 }
 
 impl Ctx<'_> {
+    /// The bits of every floor of plan cell `(a, b)`, lowest first, each floor's
+    /// conservative bits telling the next which proofs are hopeless (see [`Below`]).
+    fn column(&self, a: u32, b: u32) -> Vec<(Vec<u8>, Vec<u8>)> {
+        let lay = self.layout;
+        let mut out: Vec<(Vec<u8>, Vec<u8>)> = Vec::with_capacity(lay.floors as usize);
+        let mut below_z = None;
+        for k in 0..lay.floors {
+            let n = lay.cell_index(CellId { a, b, k });
+            let below = match (below_z, out.last()) {
+                (Some(z), Some((_, bits))) => Some(Below { bits: bits.as_slice(), z }),
+                _ => None,
+            };
+            let (s, c) = self.cell_below(n, below);
+            below_z = lay.floor_bounds(CellId { a, b, k }).map(|(_, z)| z);
+            out.push((s, c));
+        }
+        out
+    }
+
     fn cell(&self, n: usize) -> (Vec<u8>, Vec<u8>) {
+        self.cell_below(n, None)
+    }
+
+    fn cell_below(&self, n: usize, below: Option<Below<'_>>) -> (Vec<u8>, Vec<u8>) {
         let lay = self.layout;
         let per = lay.bytes_per_cell();
         let c: CellId = lay.cell_at_index(n);
@@ -160,34 +244,52 @@ impl Ctx<'_> {
             // Outside the grid: never looked up; all visible.
             return (vec![0xFF; per], vec![0xFF; per]);
         };
-        let top = Top { lo, hi, z };
+        let top = Top { lo, hi, z, below: below.filter(|b| b.z <= z) };
         let (mut s, mut k) = (vec![0u8; per], vec![0u8; per]);
-        self.visit(&top, 0, 0, 0, &mut s, &mut k);
+        let mut hints = los::Hints::new();
+        self.visit(&top, 0, 0, 0, &mut s, &mut k, &mut hints);
         (s, k)
     }
 
     /// Fills the bits of node `(l, i, j)`'s subtree; returns (sampled, conservative) visibility.
-    fn visit(&self, top: &Top, l: u8, i: u32, j: u32, s: &mut [u8], k: &mut [u8]) -> (bool, bool) {
+    #[allow(clippy::too_many_arguments)]
+    fn visit(
+        &self,
+        top: &Top<'_>,
+        l: u8,
+        i: u32,
+        j: u32,
+        s: &mut [u8],
+        k: &mut [u8],
+        hints: &mut los::Hints,
+    ) -> (bool, bool) {
         let Some(q) = self.layout.patch_samples(l, i, j) else { return (false, false) };
         let finest = l == self.layout.patch_level;
         let (vs, vk) = if finest {
-            // A quick witness of visibility first, then the proof (cheap), and only then the
-            // paper's test (up to test points x viewpoints sight lines when nothing is seen).
-            // The witness is not one of the paper's sight lines: the sampled mode still runs
-            // its own test (which usually stops at its first pair for a visible patch).
-            if !self.quick_visible(top, q) && self.proofs && self.proven(top, q, 64) {
-                (false, false)
-            } else {
-                (self.sampled && sampled_patch_visible(self.mip, top, q, self.cfg), true)
-            }
-        } else if self.proofs && !self.quick_visible(top, q) && self.proven(top, q, 16) {
+            // Both modes from the paper's test first: a patch it finds visible can never be
+            // proven hidden (the proof covers its sight lines), so the costly proof runs only
+            // on patches it finds hidden (or on every unwitnessed patch without it).
+            let seen = self.sampled && sampled_patch_visible(self.mip, top, q, self.cfg, hints);
+            let proven = !seen
+                && self.proofs
+                && !top.below.is_some_and(|b| b.visible(l, i, j))
+                && !self.quick_visible(top, q)
+                && !self.witnessed(top, q, hints)
+                && self.proven(top, q, 64);
+            (seen, !proven)
+        } else if self.proofs
+            && !top.below.is_some_and(|b| b.visible(l, i, j))
+            && !self.quick_visible(top, q)
+            && !self.witnessed(top, q, hints)
+            && self.proven(top, q, 16)
+        {
             (false, false)
         } else {
             let mut acc = (false, false);
             for (ci, cj) in
                 [(2 * i, 2 * j), (2 * i + 1, 2 * j), (2 * i, 2 * j + 1), (2 * i + 1, 2 * j + 1)]
             {
-                let (a, b) = self.visit(top, l + 1, ci, cj, s, k);
+                let (a, b) = self.visit(top, l + 1, ci, cj, s, k, hints);
                 acc = (acc.0 | a, acc.1 | b);
             }
             acc
@@ -203,7 +305,7 @@ impl Ctx<'_> {
 
     /// A cheap witness that a node holds something visible (its centre sample seen from the
     /// top plane's centre): then no proof can succeed and none is tried.
-    fn quick_visible(&self, top: &Top, q: (u32, u32, u32, u32)) -> bool {
+    fn quick_visible(&self, top: &Top<'_>, q: (u32, u32, u32, u32)) -> bool {
         let (cx, cy) = ((q.0 + q.2) / 2, (q.1 + q.3) / 2);
         let t = DVec3::new(
             f64::from(cx),
@@ -214,11 +316,54 @@ impl Ctx<'_> {
         los::visible(self.mip, c.extend(top.z), t, self.cfg.epsilon_m)
     }
 
-    fn proven(&self, top: &Top, q: (u32, u32, u32, u32), budget: u32) -> bool {
+    /// A witness that a node's proof must fail, tried before it (so skipping the proof
+    /// changes no result). Each part `(R', Q')` of a proof shows every sight line from `R'`
+    /// at the top plane to every point of `Q'`'s plan rectangle at `Q'`'s max height blocked
+    /// (see the module docs); so an Eq. 4 sight line from the top plane to a sample `t` of the
+    /// node, raised to a height no higher than the max of *every* part that can hold `t`, that
+    /// is unblocked refutes the proof. Parts are sub-rectangles at least one sample wide on
+    /// each axis ([`prove`] splits only rectangles two or more wide), so each holds one of the
+    /// four 2 x 2 sample blocks at `t` ([`witness_height`]). Targets: a 3 x 3 grid of the
+    /// node's samples; eyes: the top plane's centre and corners.
+    fn witnessed(&self, top: &Top<'_>, q: (u32, u32, u32, u32), hints: &mut los::Hints) -> bool {
+        let (mx, my) = ((q.0 + q.2) / 2, (q.1 + q.3) / 2);
+        let views = [
+            (top.lo + top.hi) * 0.5,
+            DVec2::new(top.lo.x, top.lo.y),
+            DVec2::new(top.hi.x, top.lo.y),
+            DVec2::new(top.lo.x, top.hi.y),
+            DVec2::new(top.hi.x, top.hi.y),
+        ];
+        [my, q.1, q.3].iter().any(|&y| {
+            [mx, q.0, q.2].iter().any(|&x| {
+                let t = DVec3::new(f64::from(x), f64::from(y), witness_height(self.hm, q, x, y));
+                views.iter().any(|v| {
+                    los::visible_with(self.mip, v.extend(top.z), t, self.cfg.epsilon_m, hints)
+                })
+            })
+        })
+    }
+
+    fn proven(&self, top: &Top<'_>, q: (u32, u32, u32, u32), budget: u32) -> bool {
         let mut budget = budget;
         let occ = Occluders { mip: self.mip, lines: self.lines };
         prove(&occ, top.lo, top.hi, top.z, q, self.cfg.epsilon_m, &mut budget)
     }
+}
+
+/// The height to which a witness target at sample `(x, y)` of node `q` may be raised (see
+/// `Ctx::witnessed`): the least, over the four 2 x 2 blocks of samples at `(x, y)` (clipped
+/// to `q`), of the block's max.
+fn witness_height(hm: &Heightmap, q: (u32, u32, u32, u32), x: u32, y: u32) -> f64 {
+    let get = |x: u32, y: u32| hm.get(x as usize, y as usize);
+    let mut best = f32::INFINITY;
+    for nx in [x.saturating_sub(1).max(q.0), (x + 1).min(q.2)] {
+        for ny in [y.saturating_sub(1).max(q.1), (y + 1).min(q.3)] {
+            let m = get(x, y).max(get(nx, y)).max(get(x, ny)).max(get(nx, ny));
+            best = best.min(m);
+        }
+    }
+    f64::from(best)
 }
 
 /// The lower bounds of the terrain a proof reads.
@@ -232,7 +377,13 @@ pub struct Occluders<'a> {
 
 /// Whether every sight line from `R x {z}` (`r_lo..r_hi`, grid coordinates) to the samples of
 /// `q` (inclusive integer rectangle) is blocked (see the module docs). `budget` bounds the
-/// number of (R, Q) parts tried.
+/// number of (R, Q) parts tried; on return it holds what is left (0 when it ran out).
+///
+/// A part is proven directly or split in four (the larger of `R` and `Q`), and every part must
+/// be proven. Which parts arise does not depend on the order they are tried in, so the proof
+/// succeeds exactly when that whole tree of parts has every leaf proven and at most `budget`
+/// parts: it is built level by level here, and fails as soon as the parts known to be needed
+/// exceed the budget (the same result as a depth-first search, usually much sooner).
 pub fn prove(
     occ: &Occluders<'_>,
     r_lo: DVec2,
@@ -245,34 +396,79 @@ pub fn prove(
     if *budget == 0 {
         return false;
     }
-    *budget -= 1;
+    let mut needed = 1u32;
+    let mut level = vec![(r_lo, r_hi, q)];
+    let mut next = Vec::new();
+    while !level.is_empty() {
+        for &(r_lo, r_hi, q) in &level {
+            if part_proven(occ, r_lo, r_hi, z, q, eps) {
+                continue;
+            }
+            let Some(parts) = split(r_lo, r_hi, q) else {
+                *budget = 0;
+                return false;
+            };
+            needed += 4;
+            if needed > *budget {
+                *budget = 0;
+                return false;
+            }
+            next.extend(parts);
+        }
+        std::mem::swap(&mut level, &mut next);
+        next.clear();
+    }
+    *budget -= needed;
+    true
+}
+
+/// Whether one part `(R, Q)` is proven directly (by an interval or a grid line).
+fn part_proven(
+    occ: &Occluders<'_>,
+    r_lo: DVec2,
+    r_hi: DVec2,
+    z: f64,
+    q: (u32, u32, u32, u32),
+    eps: f64,
+) -> bool {
     let (q_lo, q_hi) =
         (DVec2::new(f64::from(q.0), f64::from(q.1)), DVec2::new(f64::from(q.2), f64::from(q.3)));
     let hp =
         f64::from(occ.mip.range(i64::from(q.0), i64::from(q.1), i64::from(q.2), i64::from(q.3)).1);
-    if intervals_prove(occ.mip, r_lo, r_hi, z, q_lo, q_hi, hp, eps)
+    intervals_prove(occ.mip, r_lo, r_hi, z, q_lo, q_hi, hp, eps)
         || lines_prove(occ.lines, r_lo, r_hi, z, q_lo, q_hi, hp, eps)
-    {
-        return true;
-    }
+}
+
+/// A part's four sub-parts: the larger of `R` and `Q` split in four; `None` when neither can
+/// be split.
+#[allow(clippy::type_complexity)]
+fn split(
+    r_lo: DVec2,
+    r_hi: DVec2,
+    q: (u32, u32, u32, u32),
+) -> Option<[(DVec2, DVec2, (u32, u32, u32, u32)); 4]> {
+    let (q_lo, q_hi) =
+        (DVec2::new(f64::from(q.0), f64::from(q.1)), DVec2::new(f64::from(q.2), f64::from(q.3)));
     let (rs, qs) = ((r_hi - r_lo).max_element(), (q_hi - q_lo).max_element());
     if qs >= rs && q.2 - q.0 >= 2 && q.3 - q.1 >= 2 {
         let (mx, my) = ((q.0 + q.2) / 2, (q.1 + q.3) / 2);
-        [(q.0, q.1, mx, my), (mx, q.1, q.2, my), (q.0, my, mx, q.3), (mx, my, q.2, q.3)]
-            .into_iter()
-            .all(|p| prove(occ, r_lo, r_hi, z, p, eps, budget))
+        Some(
+            [(q.0, q.1, mx, my), (mx, q.1, q.2, my), (q.0, my, mx, q.3), (mx, my, q.2, q.3)]
+                .map(|p| (r_lo, r_hi, p)),
+        )
     } else if rs >= 2.0 {
         let m = (r_lo + r_hi) * 0.5;
-        [
-            (r_lo, m),
-            (DVec2::new(m.x, r_lo.y), DVec2::new(r_hi.x, m.y)),
-            (DVec2::new(r_lo.x, m.y), DVec2::new(m.x, r_hi.y)),
-            (m, r_hi),
-        ]
-        .into_iter()
-        .all(|(lo, hi)| prove(occ, lo, hi, z, q, eps, budget))
+        Some(
+            [
+                (r_lo, m),
+                (DVec2::new(m.x, r_lo.y), DVec2::new(r_hi.x, m.y)),
+                (DVec2::new(r_lo.x, m.y), DVec2::new(m.x, r_hi.y)),
+                (m, r_hi),
+            ]
+            .map(|(lo, hi)| (lo, hi, q)),
+        )
     } else {
-        false
+        None
     }
 }
 
@@ -324,6 +520,16 @@ fn lines_prove(
             let lo = (q_lo[o] * (1.0 - s0) + r_lo[o] * s0).min(q_lo[o] * (1.0 - s1) + r_lo[o] * s1);
             let hi = (q_hi[o] * (1.0 - s0) + r_hi[o] * s0).max(q_hi[o] * (1.0 - s1) + r_hi[o] * s1);
             let (a, b) = (lo.floor() as i64, hi.ceil() as i64);
+            // As in `intervals_prove`: a block inside the stretch bounds its min from above.
+            let one = if axis == 0 {
+                lines.column_inner_min(i as usize, a, b)
+            } else {
+                lines.row_inner_min(i as usize, a, b)
+            };
+            if f64::from(one) <= ray_max + eps {
+                i += step;
+                continue;
+            }
             let ground = if axis == 0 {
                 lines.column_min(i as usize, a, b)
             } else {
@@ -374,12 +580,14 @@ fn intervals_prove(
         let (blo, bhi) = at(sb);
         let (lo, hi) = (alo.min(blo), ahi.max(bhi));
         let ray_max = (hp * (1.0 - sa) + z * sa).max(hp * (1.0 - sb) + z * sb);
-        let (ground_min, _) = mip.range(
-            lo.x.floor() as i64,
-            lo.y.floor() as i64,
-            hi.x.ceil() as i64,
-            hi.y.ceil() as i64,
-        );
+        let (x0, y0, x1, y1) =
+            (lo.x.floor() as i64, lo.y.floor() as i64, hi.x.ceil() as i64, hi.y.ceil() as i64);
+        // A block wholly inside the rectangle bounds its min from above: a cheap exact reject
+        // (the usual case) before the block query.
+        if f64::from(mip.inner_min(x0, y0, x1, y1)) <= ray_max + eps {
+            return false;
+        }
+        let (ground_min, _) = mip.range(x0, y0, x1, y1);
         f64::from(ground_min) > ray_max + eps
     })
 }
@@ -389,9 +597,10 @@ fn intervals_prove(
 /// refinement up to `max_viewpoints`, Eq. 4 line of sight; stops at the first visible pair.
 fn sampled_patch_visible(
     mip: &HeightMip<'_>,
-    top: &Top,
+    top: &Top<'_>,
     q: (u32, u32, u32, u32),
     cfg: &PvsConfig,
+    hints: &mut los::Hints,
 ) -> bool {
     let hm = mip.heightmap();
     let n = cfg.test_points.max(1);
@@ -421,7 +630,7 @@ fn sampled_patch_visible(
     let mut views: Vec<DVec3> = Vec::with_capacity(cfg.max_viewpoints as usize);
     points.iter().any(|&t| {
         key_viewpoints(top, t, cfg.max_viewpoints.max(1) as usize, &mut views);
-        views.iter().any(|&v| los::visible(mip, v, t, cfg.epsilon_m))
+        views.iter().any(|&v| los::visible_with(mip, v, t, cfg.epsilon_m, hints))
     })
 }
 
@@ -432,7 +641,7 @@ fn sampled_patch_visible(
 /// Fig. 6 names edges 0-3 (top, left, bottom, right of its top view) and regions 0-7 around
 /// the cell; a corner region takes the two edges meeting at the corner, a side region the one
 /// edge on its side, exactly as the table lists them.
-fn key_viewpoints(top: &Top, t: DVec3, max: usize, out: &mut Vec<DVec3>) {
+fn key_viewpoints(top: &Top<'_>, t: DVec3, max: usize, out: &mut Vec<DVec3>) {
     out.clear();
     let above = top.z - t.z > 0.0;
     let (lo, hi) = (top.lo, top.hi);
@@ -481,7 +690,8 @@ mod tests {
 
     #[test]
     fn key_viewpoints_follow_fig6() {
-        let top = Top { lo: DVec2::new(10.0, 10.0), hi: DVec2::new(20.0, 20.0), z: 100.0 };
+        let top =
+            Top { lo: DVec2::new(10.0, 10.0), hi: DVec2::new(20.0, 20.0), z: 100.0, below: None };
         let mut v = Vec::new();
         // Region north-west, plane above the test point: the north and west edges.
         key_viewpoints(&top, DVec3::new(0.0, 30.0, 0.0), 16, &mut v);

@@ -22,56 +22,147 @@
 //! skipped whole, so a sight line high above the terrain costs a few lookups.
 
 use glam::DVec3;
+use terrain_core::Heightmap;
 
 use super::mip::HeightMip;
 
 /// Step ranges at most this long are walked sample by sample.
 const LEAF_STEPS: i64 = 16;
 
+/// Occluder hints: DEM samples that blocked recent sight lines. A sight line that passes a
+/// sample which blocks it is hidden whatever the rest of the line does, so checking the
+/// sample the traversal visits in a hint's column (or row) first is an exact early exit:
+/// sight lines from one cell to one patch are usually blocked by the same ridge.
+#[derive(Debug, Clone, Default)]
+pub struct Hints {
+    /// Most recently useful first.
+    samples: [Option<(i64, i64)>; HINTS],
+}
+
+/// Occluder hints kept per [`Hints`].
+const HINTS: usize = 4;
+
+impl Hints {
+    /// No hints.
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    /// Moves hint `k` to the front, or inserts `p` at the front.
+    fn promote(&mut self, k: Option<usize>, p: (i64, i64)) {
+        let k = k.unwrap_or(HINTS - 1);
+        self.samples.copy_within(0..k, 1);
+        self.samples[0] = Some(p);
+    }
+}
+
+/// One sight line's Bresenham section line: its steps are the integer major coordinates
+/// strictly between the ends (see the module docs).
+struct Section {
+    eye: DVec3,
+    d: DVec3,
+    major_x: bool,
+    a: f64,
+    len: f64,
+    dir: i64,
+    first: i64,
+    steps: i64,
+}
+
+impl Section {
+    /// `None` when the line has no interior step (nothing can block it).
+    fn new(eye: DVec3, target: DVec3) -> Option<Self> {
+        let d = target - eye;
+        let (major_x, len) = if d.x.abs() >= d.y.abs() { (true, d.x) } else { (false, d.y) };
+        if len.abs() < 1e-12 {
+            return None;
+        }
+        let (a, b) = if major_x { (eye.x, target.x) } else { (eye.y, target.y) };
+        let dir: i64 = if b > a { 1 } else { -1 };
+        let first = if dir > 0 { a.floor() as i64 + 1 } else { a.ceil() as i64 - 1 };
+        let last = if dir > 0 { b.ceil() as i64 - 1 } else { b.floor() as i64 + 1 };
+        if (last - first) * dir < 0 {
+            return None;
+        }
+        let steps = (last - first) * dir + 1;
+        Some(Self { eye, d, major_x, a, len, dir, first, steps })
+    }
+
+    /// Step `k`'s sample and the sight line's height there.
+    #[inline]
+    fn point(&self, k: i64) -> (i64, i64, f64) {
+        let m = self.first + k * self.dir;
+        let t = (m as f64 - self.a) / self.len;
+        let p = self.eye + self.d * t;
+        let (x, y) = if self.major_x { (m, p.y.round() as i64) } else { (p.x.round() as i64, m) };
+        (x, y, p.z)
+    }
+
+    /// The step at major coordinate `m`, if inside.
+    fn step_at(&self, m: i64) -> Option<i64> {
+        let k = (m - self.first) * self.dir;
+        (0..self.steps).contains(&k).then_some(k)
+    }
+
+    /// Eq. 4 at step `k`: whether the section point lies above the sight line (`f > 0`).
+    #[inline]
+    fn blocks(&self, hm: &Heightmap, k: i64, eps: f64) -> Option<(i64, i64)> {
+        let (x, y, z) = self.point(k);
+        let (w, h) = (hm.width() as i64, hm.height() as i64);
+        if x < 0 || y < 0 || x >= w || y >= h {
+            return None;
+        }
+        (f64::from(hm.get(x as usize, y as usize)) > z + eps).then_some((x, y))
+    }
+}
+
 /// Whether `target` is visible from `eye` (grid coordinates, z in metres) by Eq. 4 over the
 /// 3D Bresenham section line; terrain must exceed the sight line by more than `eps` to block.
 pub fn visible(mip: &HeightMip<'_>, eye: DVec3, target: DVec3, eps: f64) -> bool {
+    visible_with(mip, eye, target, eps, &mut Hints::new())
+}
+
+/// [`visible`], trying the occluder `hints` first and recording the blocking sample in them.
+/// The result does not depend on the hints.
+pub fn visible_with(
+    mip: &HeightMip<'_>,
+    eye: DVec3,
+    target: DVec3,
+    eps: f64,
+    hints: &mut Hints,
+) -> bool {
     let hm = mip.heightmap();
-    let d = target - eye;
-    let (major_x, len) = if d.x.abs() >= d.y.abs() { (true, d.x) } else { (false, d.y) };
-    if len.abs() < 1e-12 {
-        return true;
+    let Some(line) = Section::new(eye, target) else { return true };
+    for n in 0..HINTS {
+        let Some((hx, hy)) = hints.samples[n] else { break };
+        let m = if line.major_x { hx } else { hy };
+        if let Some(k) = line.step_at(m)
+            && let Some(p) = line.blocks(hm, k, eps)
+        {
+            hints.promote(Some(n), p);
+            return false;
+        }
     }
-    let (a, b) = if major_x { (eye.x, target.x) } else { (eye.y, target.y) };
-    // Integer major coordinates strictly between the ends, in walking order.
-    let dir: i64 = if b > a { 1 } else { -1 };
-    let first = if dir > 0 { a.floor() as i64 + 1 } else { a.ceil() as i64 - 1 };
-    let last = if dir > 0 { b.ceil() as i64 - 1 } else { b.floor() as i64 + 1 };
-    if (last - first) * dir < 0 {
-        return true;
-    }
-    let steps = (last - first) * dir + 1;
-    let (w, h) = (hm.width() as i64, hm.height() as i64);
-    let point = |k: i64| -> (i64, i64, f64) {
-        let m = first + k * dir;
-        let t = (m as f64 - a) / len;
-        let p = eye + d * t;
-        let (x, y) = if major_x { (m, p.y.round() as i64) } else { (p.x.round() as i64, m) };
-        (x, y, p.z)
-    };
     // Steps `k0..=k1`; the section line is monotone in x and y, so its samples lie in the
-    // box of the two ends' samples, and the sight line's lowest point is at an end.
-    let mut stack = vec![(0i64, steps - 1)];
-    while let Some((k0, k1)) = stack.pop() {
-        let (x0, y0, z0) = point(k0);
-        let (x1, y1, z1) = point(k1);
-        let (_, top) = mip.range(x0.min(x1), y0.min(y1), x0.max(x1), y0.max(y1));
-        if f64::from(top) <= z0.min(z1) + eps {
+    // box of the two ends' samples, and the sight line's lowest point is at an end. A depth
+    // first halving holds at most two ranges per level (64 covers 2^32 steps).
+    let mut stack = [(0i64, 0i64); 64];
+    stack[0] = (0, line.steps - 1);
+    let mut top = 1usize;
+    while top > 0 {
+        top -= 1;
+        let (k0, k1) = stack[top];
+        let (x0, y0, z0) = line.point(k0);
+        let (x1, y1, z1) = line.point(k1);
+        let (_, high) = mip.range(x0.min(x1), y0.min(y1), x0.max(x1), y0.max(y1));
+        if f64::from(high) <= z0.min(z1) + eps {
             continue;
         }
         if k1 - k0 < LEAF_STEPS {
-            for k in k0..=k1 {
-                let (x, y, z) = point(k);
-                if x < 0 || y < 0 || x >= w || y >= h {
-                    continue;
-                }
-                // Eq. 4: f > 0, the section point lies above the sight line.
-                if f64::from(hm.get(x as usize, y as usize)) > z + eps {
+            // Nearest the test point first, as the halving below.
+            for k in (k0..=k1).rev() {
+                if let Some(p) = line.blocks(hm, k, eps) {
+                    hints.promote(None, p);
                     return false;
                 }
             }
@@ -79,18 +170,25 @@ pub fn visible(mip: &HeightMip<'_>, eye: DVec3, target: DVec3, eps: f64) -> bool
             let mid = (k0 + k1) / 2;
             // The half nearer the test point last pushed, so first popped: hidden targets are
             // usually hidden by the terrain just in front of them.
-            stack.push((k0, mid));
-            stack.push((mid + 1, k1));
+            stack[top] = (k0, mid);
+            stack[top + 1] = (mid + 1, k1);
+            top += 2;
         }
     }
     true
+}
+
+/// Eq. 4 over every step of the section line, without early exits or hints: the reference
+/// that [`visible`] must equal (for tests).
+pub fn visible_reference(hm: &Heightmap, eye: DVec3, target: DVec3, eps: f64) -> bool {
+    let Some(line) = Section::new(eye, target) else { return true };
+    (0..line.steps).all(|k| line.blocks(hm, k, eps).is_none())
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
     use glam::dvec3;
-    use terrain_core::Heightmap;
     use terrain_core::georef::Georef;
 
     #[test]

@@ -59,7 +59,10 @@ impl<'a> HeightMip<'a> {
         let (x0, x1) = (x0.min(x1), x0.max(x1));
         let (y0, y1) = (y0.min(y1), y0.max(y1));
         // The finest level at which the rectangle touches at most 3 x 3 blocks.
-        let mut k = 0usize;
+        // Below `bits(span) - 4` a block row or column alone holds more than 9 blocks.
+        let span = (x1 - x0).max(y1 - y0);
+        let mut k = ((usize::BITS - span.leading_zeros()).saturating_sub(4) as usize)
+            .min(self.levels.len());
         while k < self.levels.len() && ((x1 >> k) - (x0 >> k) + 1) * ((y1 >> k) - (y0 >> k) + 1) > 9
         {
             k += 1;
@@ -79,6 +82,21 @@ impl<'a> HeightMip<'a> {
             }
         }
         (mn, mx)
+    }
+}
+
+impl HeightMip<'_> {
+    /// An *upper* bound of the min of the samples in the inclusive rectangle (clamped to the
+    /// grid as [`Self::range`]): its centre sample. A cheap exact reject for min queries:
+    /// `range`'s min is at most this.
+    pub fn inner_min(&self, x0: i64, y0: i64, x1: i64, y1: i64) -> f32 {
+        let (w, h) = (self.hm.width() as i64, self.hm.height() as i64);
+        let (x0, x1) = (x0.clamp(0, w - 1), x1.clamp(0, w - 1));
+        let (y0, y1) = (y0.clamp(0, h - 1), y1.clamp(0, h - 1));
+        let (x0, x1) = (x0.min(x1), x0.max(x1));
+        let (y0, y1) = (y0.min(y1), y0.max(y1));
+        let (cx, cy) = ((x0 + x1) / 2, (y0 + y1) / 2);
+        self.hm.get(cx as usize, cy as usize)
     }
 }
 
@@ -112,7 +130,26 @@ fn line_min(levels: &[Vec<f32>], a: usize, b: usize) -> f32 {
     ((a >> k)..=(b >> k)).map(|m| levels[k][m]).fold(f32::INFINITY, f32::min)
 }
 
+/// An upper bound of the min of `a..=b` (clamped): its middle sample.
+fn line_inner_min(levels: &[Vec<f32>], a: i64, b: i64) -> f32 {
+    let n = levels[0].len() as i64;
+    let (a, b) = (a.clamp(0, n - 1), b.clamp(0, n - 1));
+    let (a, b) = (a.min(b), a.max(b));
+    let c = (a + b) / 2;
+    levels[0][c as usize]
+}
+
 impl LineMins {
+    /// An upper bound of [`Self::column_min`]'s true min (see [`HeightMip::inner_min`]).
+    pub fn column_inner_min(&self, i: usize, y0: i64, y1: i64) -> f32 {
+        line_inner_min(&self.cols[i], y0, y1)
+    }
+
+    /// An upper bound of [`Self::row_min`]'s true min (see [`HeightMip::inner_min`]).
+    pub fn row_inner_min(&self, j: usize, x0: i64, x1: i64) -> f32 {
+        line_inner_min(&self.rows[j], x0, x1)
+    }
+
     /// Builds the pyramids of every column and row of `hm` (twice the grid's size in all).
     pub fn new(hm: &Heightmap) -> Self {
         let (w, h) = (hm.width(), hm.height());
@@ -157,6 +194,32 @@ mod tests {
                 }
             }
             assert!(mn <= emn && mx >= emx, "{mn} {emn} {mx} {emx}");
+        }
+        for (x0, y0, x1, y1) in [(0, 0, 36, 28), (3, 4, 9, 20), (10, 10, 10, 10), (30, 1, 40, 2)] {
+            let mut emn = f32::INFINITY;
+            for y in y0..=y1.min(28) {
+                for x in x0..=x1.min(36) {
+                    emn = emn.min(hm.get(x as usize, y as usize));
+                }
+            }
+            let inner = mip.inner_min(x0, y0, x1, y1);
+            assert!(inner >= emn && inner >= mip.range(x0, y0, x1, y1).0, "{inner} {emn}");
+            // The bound is some sample's height inside the rectangle.
+            assert!(
+                (y0..=y1.min(28))
+                    .any(|y| (x0..=x1.min(36)).any(|x| hm.get(x as usize, y as usize) == inner))
+            );
+        }
+        let lines = LineMins::new(&hm);
+        for (i, a, b) in [(0usize, 0i64, 28i64), (5, 3, 17), (36, 9, 9), (12, -4, 40)] {
+            let exact =
+                (a.max(0)..=b.min(28)).map(|y| hm.get(i, y as usize)).fold(f32::INFINITY, f32::min);
+            let inner = lines.column_inner_min(i, a, b);
+            assert!(inner >= exact && inner >= lines.column_min(i, a, b), "{inner} {exact}");
+            let exact = (a.max(0)..=b.min(36))
+                .map(|x| hm.get(x as usize, i.min(28)))
+                .fold(f32::INFINITY, f32::min);
+            assert!(lines.row_inner_min(i.min(28), a, b) >= exact);
         }
         assert_eq!(mip.range(0, 0, 36, 28), (hm.min(), hm.max()));
         assert_eq!(mip.range(5, 6, 5, 6), (hm.get(5, 6), hm.get(5, 6)));
