@@ -121,7 +121,7 @@ impl PageLayout {
     /// The strides a page may be stored at: 1, 2, 4, ... while they divide both cell counts.
     pub fn strides(&self) -> Vec<u32> {
         let mut out = vec![1];
-        while let Some(_) = self.lattice(out[out.len() - 1] * 2) {
+        while self.lattice(out[out.len() - 1] * 2).is_some() {
             out.push(out[out.len() - 1] * 2);
         }
         out

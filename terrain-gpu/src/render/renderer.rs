@@ -1390,6 +1390,7 @@ impl TerrainRenderer {
                 bind(6, wgpu::BindingResource::Sampler(&self.sampler)),
                 bind(7, input.as_entire_binding()),
                 bind(8, tess.out.indices.as_entire_binding()),
+                bind(9, self.page_table.as_entire_binding()),
             ],
         });
         let debug_group = self.device.create_bind_group(&wgpu::BindGroupDescriptor {

@@ -827,7 +827,7 @@ fn pages_are_checked() {
     r.set_page_lattice([1, 1], &lattice, 16).unwrap();
     let e = r.set_page_lattice([0, 1], &lattice, 16).unwrap_err();
     assert!(matches!(e, PageError::Full { capacity: 1, stride: 16, .. }), "{e}");
-    let e = r.set_page_lattice([0, 1], &vec![1.0f32; 9], 32).unwrap_err();
+    let e = r.set_page_lattice([0, 1], &[1.0f32; 9], 32).unwrap_err();
     assert!(matches!(e, PageError::BadStride { stride: 32, .. }), "{e}");
     let e = r.set_page_lattice([0, 1], &lattice[1..], 16).unwrap_err();
     assert!(e.to_string().contains("samples"), "{e}");
