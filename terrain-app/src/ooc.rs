@@ -16,11 +16,18 @@
 //! and its edge and centre midpoints. The paper draws a node as a fan of its corners and edge
 //! midpoints; the midpoints are the next level's vertices, read from the block's page.
 //!
-//! **Pages.** Each drawn block is one page of the renderer ([`terrain_gpu::paged`]), filled
-//! from its finest resident level by bilinear interpolation
-//! ([`terrain_gpu::paged::fill_from_level`]) and refilled when a finer level arrives; pages of
-//! blocks no longer drawn are dropped. Heights never exist for the whole grid: the device (and
-//! the optional CPU mirror the benchmark measures) holds the drawn blocks only.
+//! **Pages.** Each drawn block is one page of the renderer ([`terrain_gpu::paged`]) stored at
+//! the resolution it is drawn at: its level-`L` lattice, `(2^L + 1)^2` samples at stride
+//! `2^(k - L)`, in a slot of that stride's class (the renderer reads the samples between
+//! lattice samples by bilinear interpolation, as [`terrain_gpu::paged::fill_from_level`]
+//! would fill them), and moved to a finer class when a finer level arrives; pages of blocks no
+//! longer drawn are dropped. The classes' slot counts come from a byte budget
+//! ([`OocConfig::page_budget_bytes`], [`terrain_gpu::paged::classes_for_budget`]): blocks, in
+//! the runtime's priority order (nearest first), take the finest resident level whose class
+//! has a slot left, so a far block drawn at level 2 costs a 5 x 5 slot; a block with no slot
+//! at any of its resident levels is not drawn (counted in [`OocFrame::blocks_dropped`]).
+//! Heights never exist for the whole grid: the device (and the optional CPU mirror the
+//! benchmark measures) holds the drawn blocks only.
 
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::Path;
@@ -34,7 +41,7 @@ use terrain_core::lod::{
 };
 use terrain_core::quadtree::{LeafSet, NodeId, balance_with};
 use terrain_core::{Crs, Georef, Heightmap};
-use terrain_gpu::paged::{Page, PageLayout, PagedHeights, fill_from_level};
+use terrain_gpu::paged::{Page, PageClass, PageLayout, PagedHeights, classes_for_budget};
 use terrain_gpu::render::DrawPatch;
 use terrain_gpu::{RenderError, TerrainRenderer};
 use terrain_stream::format::{INDEX_FILE, MAGIC};
@@ -53,9 +60,11 @@ pub struct OocConfig {
     pub budget_bytes: u64,
     /// Worker threads; 0 (the default) = one per core.
     pub threads: usize,
-    /// Blocks the renderer holds at most (page slots; each is `(2^k + 1)^2` f32 on the
-    /// device); the farthest blocks of M beyond it are not drawn (counted as dropped).
-    /// Default 1024.
+    /// Bytes of page atlas on the device, shared by the slot classes of every stride
+    /// ([`terrain_gpu::paged::classes_for_budget`]). Default 256 MiB.
+    pub page_budget_bytes: u64,
+    /// Full-resolution page slots (`(2^k + 1)^2` f32 each) at most, within the budget; blocks
+    /// beyond them are drawn from coarser classes. Default 1024.
     pub page_capacity: u32,
     /// Load requests in flight at most: the workers keep loading while the frame thread draws
     /// (a software renderer's frame takes long). Default 32.
@@ -71,6 +80,7 @@ impl Default for OocConfig {
             tau: 2.0,
             budget_bytes: 256 << 20,
             threads: 0,
+            page_budget_bytes: 256 << 20,
             page_capacity: 1024,
             max_in_flight: 32,
             warmup_rounds: 16,
@@ -183,7 +193,8 @@ pub struct OocFrame {
     pub stream: StreamRecord,
     /// Blocks drawn.
     pub blocks_drawn: usize,
-    /// Blocks of M not drawn: nothing resident (a fault), or beyond the page capacity.
+    /// Blocks of M not drawn: nothing resident (a fault), or no slot left in the class of any
+    /// of its resident levels.
     pub blocks_dropped: usize,
     /// Warm-up rounds run (0 for a frame that does not wait).
     pub warmup_rounds: u32,
@@ -221,6 +232,8 @@ pub struct OocScene {
     height_range: [f32; 2],
     /// Level each page currently holds.
     pages: BTreeMap<[u32; 2], u8>,
+    /// The renderer's slot classes, finest (stride 1) first: class `c` holds level `k - c`.
+    classes: Vec<PageClass>,
     mirror: Option<PagedHeights>,
 }
 
@@ -259,6 +272,8 @@ impl OocScene {
             ..StreamConfig::default()
         };
         let streamer = Streamer::new(store.clone(), stream);
+        let mut classes = classes_for_budget(&layout, config.page_budget_bytes);
+        classes[0].capacity = classes[0].capacity.min(config.page_capacity.max(1));
         Self {
             store,
             streamer,
@@ -268,6 +283,7 @@ impl OocScene {
             root_cells: blocks * cells,
             height_range: [lo, hi],
             pages: BTreeMap::new(),
+            classes,
             mirror: None,
         }
     }
@@ -314,16 +330,21 @@ impl OocScene {
         &self.config
     }
 
-    /// A paged renderer for this store (page capacity from the settings).
+    /// The page slot classes the renderer holds (finest first), from the settings.
+    pub fn page_classes(&self) -> &[PageClass] {
+        &self.classes
+    }
+
+    /// A paged renderer for this store (slot classes from the settings).
     pub fn renderer(
         &self,
         ctx: &terrain_gpu::GpuContext,
         config: &terrain_gpu::RenderConfig,
     ) -> Result<TerrainRenderer, RenderError> {
-        TerrainRenderer::new_paged(
+        TerrainRenderer::new_paged_classes(
             ctx,
             self.layout,
-            self.config.page_capacity,
+            &self.classes,
             self.height_range,
             config,
         )
@@ -368,13 +389,21 @@ impl OocScene {
         let region = self.streamer.regions().map(|r| r.view.clone());
         let mut drawn: Vec<(BlockId, u8)> = Vec::new();
         let mut dropped = 0;
+        // Slots taken per class this frame: each block, nearest first, takes the finest of its
+        // resident levels whose class has a slot left.
+        let mut used = vec![0u32; self.classes.len()];
         for s in self.streamer.scheduled().iter().filter(|s| s.visible) {
             let levels = self.streamer.block(s.block).map_or(0, |b| b.count());
-            if levels == 0 || drawn.len() >= self.config.page_capacity as usize {
+            let fits = (0..levels).rev().find(|&l| {
+                let c = (header.k as usize).checked_sub(l);
+                c.is_some_and(|c| c < used.len() && used[c] < self.classes[c].capacity)
+            });
+            let Some(level) = fits else {
                 dropped += 1;
                 continue;
-            }
-            drawn.push((s.block, (levels - 1) as u8));
+            };
+            used[header.k as usize - level] += 1;
+            drawn.push((s.block, level as u8));
         }
         let mut leaves = Vec::new();
         let mut visited = 0;
@@ -467,12 +496,16 @@ impl OocScene {
         }
     }
 
-    /// Block `id`'s page filled from its resident `level` (bilinear; see the module docs).
+    /// Block `id`'s page at its resident `level`: the level's lattice (see the module docs).
     fn page_fill(&self, id: BlockId, level: u8) -> Option<Page> {
         let header = self.store.header();
         let grid = self.streamer.block(id)?.grid(level)?;
+        let stride = 1u32 << (header.k - level);
+        if stride > 1 {
+            return Some(Page { samples: grid.to_vec(), stride });
+        }
         let cells = header.block_cells();
-        let full = fill_from_level(&grid, cells)?;
+        let full = grid.to_vec();
         let [w, h] = self.layout.page_samples();
         let side = (cells + 1) as usize;
         let samples = if w as usize == side && h as usize == side {
@@ -482,17 +515,19 @@ impl OocScene {
                 .flat_map(|b| full[b * side..b * side + w as usize].iter().copied())
                 .collect()
         };
-        Some(Page { samples, stride: 1 << (header.k - level) })
+        Some(Page { samples, stride })
     }
 
     /// Applies a frame's page changes to a renderer built by [`OocScene::renderer`].
+    /// Every changed page leaves its slot first, so pages trading classes within the frame
+    /// always find one (the frame took no more slots of a class than it has).
     pub fn apply(renderer: &mut TerrainRenderer, frame: &OocFrame) -> Result<(), RenderError> {
         for u in &frame.updates {
-            match &u.fill {
-                Some(p) => renderer.set_page(u.page, &p.samples)?,
-                None => {
-                    renderer.remove_page(u.page);
-                }
+            renderer.remove_page(u.page);
+        }
+        for u in &frame.updates {
+            if let Some(p) = &u.fill {
+                renderer.set_page_lattice(u.page, &p.samples, p.stride)?;
             }
         }
         Ok(())

@@ -68,9 +68,14 @@ pub struct RenderArgs {
     /// A store: the stream cache's budget, MiB.
     #[arg(long, default_value_t = 256)]
     pub cache_mb: u64,
-    /// A store: blocks the renderer holds at most (page slots of (2^k + 1)^2 f32 each).
+    /// A store: full-resolution pages the renderer holds at most (slots of (2^k + 1)^2 f32
+    /// each); blocks beyond them are drawn from coarser slot classes.
     #[arg(long, default_value_t = 1024)]
     pub page_capacity: u32,
+    /// A store: MiB of page atlas on the device, shared by the slot classes of every level
+    /// (a block drawn at level L takes a (2^L + 1)^2 slot).
+    #[arg(long, default_value_t = 256)]
+    pub page_mb: u64,
     /// A store: fly this camera flight (JSON, see `flights/`) instead of one camera, placed on
     /// an overview of the store's level-4 vertices; frames after the first do not wait for
     /// the workers. The PNG is the last frame.
@@ -314,6 +319,7 @@ fn run_store(
         tau: args.tau,
         budget_bytes: args.cache_mb << 20,
         page_capacity: args.page_capacity,
+        page_budget_bytes: args.page_mb << 20,
         ..ooc::OocConfig::default()
     };
     let mut scene = ooc::OocScene::open(dir, config)
@@ -386,8 +392,9 @@ fn run_store(
     let render_config = RenderConfig { width, height, texture, background, ..Default::default() };
     let mut renderer = scene.renderer(&ctx, &render_config)?;
     println!(
-        "pages: {} slots, {:.1} MB of page atlas on the device",
+        "pages: {} slots ({} full resolution), {:.1} MB of page atlas on the device",
         renderer.page_capacity(),
+        renderer.page_classes().first().map_or(0, |c| c.capacity),
         renderer.page_atlas_bytes() as f64 / 1e6
     );
     let options = RenderOptions { wireframe: args.wireframe, ..Default::default() };

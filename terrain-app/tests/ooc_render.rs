@@ -220,6 +220,74 @@ fn a_tiny_cache_pages_coarse_levels_without_cracks() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
+#[test]
+fn a_tiny_page_budget_draws_every_block_from_coarse_slots() {
+    let hm = puget_crop();
+    let dir = scratch("ooc", "slots");
+    let store = bake_f32(&hm, &dir.join("store"));
+    // One full-resolution slot (17 x 17 f32) and a budget of about 2.5 of them: the other
+    // visible blocks must take the coarse classes (9 x 9, 5 x 5, 3 x 3, 2 x 2 slots).
+    let config = OocConfig {
+        tau: 1e-3,
+        threads: 1,
+        page_capacity: 1,
+        page_budget_bytes: 3000,
+        ..OocConfig::default()
+    };
+    let mut scene = OocScene::new(store, config).with_mirror();
+    let classes = scene.page_classes().to_vec();
+    assert_eq!(classes.iter().map(|c| c.stride).collect::<Vec<_>>(), vec![1, 2, 4, 8, 16]);
+    assert_eq!(classes[0].capacity, 1);
+    let ctx = context();
+    let mut renderer = ctx.as_ref().map(|ctx| {
+        scene
+            .renderer(ctx, &RenderConfig { width: 256, height: 144, ..Default::default() })
+            .unwrap()
+    });
+    let cameras = crack_cameras(&hm, 9);
+    let mut coarse = 0;
+    for (n, camera) in cameras.iter().enumerate() {
+        let frame = scene.frame(camera, true);
+        assert_eq!(frame.blocks_dropped, 0, "frame {n}: every visible block is drawn");
+        assert!(check_shared_edges(&frame.selection).is_empty(), "frame {n}");
+        let mirror = scene.mirror().unwrap();
+        for (k, class) in classes.iter().enumerate() {
+            let held = mirror.pages().filter(|(_, p)| p.stride == class.stride).count();
+            assert!(held <= class.capacity as usize, "frame {n}: class {k} holds {held}");
+        }
+        assert!(mirror.pages().count() == frame.blocks_drawn, "frame {n}");
+        coarse += mirror.pages().filter(|(_, p)| p.stride > 1).count();
+        if let Some(r) = renderer.as_mut() {
+            OocScene::apply(r, &frame).unwrap();
+            assert_eq!(r.resident_pages().len(), mirror.pages().count());
+            if frame.patches.is_empty() {
+                continue;
+            }
+            // Pages of different classes side by side: no cracks, and the GPU surface is the
+            // CPU reference's (the mirror of coarse-lattice pages).
+            let cracks = crack_pixels_on(
+                r,
+                &frame.patches,
+                std::slice::from_ref(camera),
+                hm.max() - hm.min() + 100.0,
+            );
+            assert_eq!(cracks, vec![0], "frame {n}: crack pixels");
+            let eye = camera.position;
+            let back = r.surface_read_back(eye, &frame.patches).unwrap();
+            let anchor = TerrainRenderer::anchor_for(eye);
+            for (q, p) in back.points.iter().enumerate() {
+                let patch = &frame.patches[p.patch_index as usize];
+                let want = surface::vertex_position(mirror, patch, p.uv) - anchor;
+                let got = back.positions[q];
+                let err = (DVec3::new(got[0].into(), got[1].into(), got[2].into()) - want).length();
+                assert!(err <= 1e-3, "frame {n} point {q}: gpu {got:?} cpu {want}");
+            }
+        }
+    }
+    assert!(coarse > 0, "coarse slots were used");
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
 fn s(p: &Path) -> &str {
     p.to_str().unwrap()
 }

@@ -106,6 +106,27 @@ impl PageLayout {
         w as usize * h as usize
     }
 
+    /// The lattice a page of `stride` stores, samples per side: [`PageLayout::page_samples`]
+    /// for stride 1, else `cells / stride + 1` (whole, even past the grid's border). `None`
+    /// when `stride` is not 1 or a power of two dividing both cell counts.
+    pub fn lattice(&self, stride: u32) -> Option<[u32; 2]> {
+        if stride == 1 {
+            return Some(self.page_samples());
+        }
+        let c = self.cells();
+        (stride.is_power_of_two() && c.iter().all(|&n| n.is_multiple_of(stride)))
+            .then(|| c.map(|n| n / stride + 1))
+    }
+
+    /// The strides a page may be stored at: 1, 2, 4, ... while they divide both cell counts.
+    pub fn strides(&self) -> Vec<u32> {
+        let mut out = vec![1];
+        while self.lattice(out[out.len() - 1] * 2).is_some() {
+            out.push(out[out.len() - 1] * 2);
+        }
+        out
+    }
+
     /// The pages that may hold sample `(i, j)`, in lookup order (see the module docs).
     pub fn candidates(&self, i: u32, j: u32) -> [[u32; 2]; 4] {
         let c = self.cells();
@@ -117,13 +138,16 @@ impl PageLayout {
     }
 }
 
-/// One resident page: its samples, row-major, south row first, and the level it came from.
+/// One resident page: the lattice of samples it stores, row-major, south row first, and the
+/// lattice's stride.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Page {
-    /// [`PageLayout::page_samples`] wide and high, row-major, south row first.
+    /// [`PageLayout::lattice`]`(stride)` wide and high, row-major, south row first: with
+    /// `stride` 1 every sample of the page ([`PageLayout::page_samples`]), else every
+    /// `stride`-th sample (a store block's level `L` with `stride = 2^(k - L)`), the others
+    /// read by bilinear interpolation in the lattice cell around them ([`lattice_bilinear`]).
     pub samples: Vec<f32>,
-    /// The distance in samples between the source vertices it was filled from (1: every
-    /// sample is a source sample; `2^(k - L)` for a store block's level `L`).
+    /// Grid samples between lattice samples: 1, or a power of two dividing the page's cells.
     pub stride: u32,
 }
 
@@ -157,32 +181,45 @@ pub enum PageError {
         /// The sample's index.
         index: usize,
     },
-    /// Every page slot of the renderer's atlas is taken.
-    #[error("no free page slot for page {page:?}: all {capacity} are resident")]
+    /// Every page slot of the renderer's atlas for the page's stride is taken.
+    #[error("no free page slot of stride {stride} for page {page:?}: all {capacity} are resident")]
     Full {
         /// The page.
         page: [u32; 2],
-        /// Slots in the atlas.
+        /// Slots of that stride in the atlas.
         capacity: u32,
+        /// The page's stride.
+        stride: u32,
+    },
+    /// The stride is not one the layout's pages (or the renderer's slot classes) allow.
+    #[error("page {page:?} has stride {stride}; allowed: {allowed:?}")]
+    BadStride {
+        /// The page.
+        page: [u32; 2],
+        /// The stride given.
+        stride: u32,
+        /// The strides allowed.
+        allowed: Vec<u32>,
     },
 }
 
-/// Checks a page for `layout`.
+/// Checks a page of `stride` for `layout`.
 pub(crate) fn check_page(
     layout: &PageLayout,
     page: [u32; 2],
     samples: &[f32],
+    stride: u32,
 ) -> Result<(), PageError> {
     let pages = layout.pages();
     if page[0] >= pages[0] || page[1] >= pages[1] {
         return Err(PageError::OutOfRange { page, pages });
     }
-    if samples.len() != layout.page_len() {
-        return Err(PageError::WrongLength {
-            page,
-            got: samples.len(),
-            expected: layout.page_len(),
-        });
+    let Some([w, h]) = layout.lattice(stride) else {
+        return Err(PageError::BadStride { page, stride, allowed: layout.strides() });
+    };
+    let expected = w as usize * h as usize;
+    if samples.len() != expected {
+        return Err(PageError::WrongLength { page, got: samples.len(), expected });
     }
     if let Some(index) = samples.iter().position(|h| !h.is_finite()) {
         return Err(PageError::NotFinite { page, index });
@@ -227,7 +264,7 @@ impl PagedHeights {
 
     /// Makes `page` resident (replacing what it held).
     pub fn insert(&mut self, page: [u32; 2], value: Page) -> Result<(), PageError> {
-        check_page(&self.layout, page, &value.samples)?;
+        check_page(&self.layout, page, &value.samples, value.stride)?;
         self.pages.insert(page, value);
         Ok(())
     }
@@ -270,7 +307,8 @@ impl PagedHeights {
         let c = self.layout.cells();
         let [pw, ph] = self.layout.page_samples();
         for p in order {
-            let samples = &self.pages[p].samples;
+            let expanded = self.pages[p].expanded(&self.layout);
+            let samples = &expanded;
             for b in 0..ph as usize {
                 let j = (p[1] * c[1]) as usize + b;
                 if j >= h {
@@ -298,10 +336,98 @@ impl HeightGrid for PagedHeights {
 
     fn sample(&self, i: u32, j: u32) -> Option<f32> {
         let (p, [a, b]) = self.locate(i, j)?;
-        let w = self.layout.page_samples()[0];
-        Some(self.pages[&p].samples[(b * w + a) as usize])
+        Some(self.pages[&p].height(&self.layout, a, b))
     }
 }
+
+impl Page {
+    /// The height of the page's sample `(a, b)` (page-local): the stored sample at stride 1,
+    /// else the bilinear interpolation in its lattice cell ([`lattice_bilinear`]).
+    pub fn height(&self, layout: &PageLayout, a: u32, b: u32) -> f32 {
+        let w = layout.lattice(self.stride).map_or(1, |l| l[0]);
+        if self.stride == 1 {
+            return self.samples[(b * w + a) as usize];
+        }
+        let n = layout.cells().map(|c| c / self.stride);
+        lattice_bilinear(|x, y| self.samples[(y * w + x) as usize], n, self.stride, a, b)
+    }
+
+    /// Every sample of the page ([`PageLayout::page_samples`] wide and high), as
+    /// [`Page::height`] reads them.
+    pub fn expanded(&self, layout: &PageLayout) -> Vec<f32> {
+        if self.stride == 1 {
+            return self.samples.clone();
+        }
+        let [w, h] = layout.page_samples();
+        (0..h).flat_map(|b| (0..w).map(move |a| self.height(layout, a, b))).collect()
+    }
+}
+
+/// Sample `(x, y)` of a page read from its lattice of `n` cells per side at `stride`
+/// (`at(a, b)` the lattice sample): bilinear in the lattice cell around it, the cell index
+/// clamped to `n - 1` so the page's east and north border samples are in its last cell. The
+/// same operations in f32 as `lattice_height` in `terrain.wgsl` and [`fill_from_level`].
+pub fn lattice_bilinear(
+    at: impl Fn(u32, u32) -> f32,
+    n: [u32; 2],
+    stride: u32,
+    x: u32,
+    y: u32,
+) -> f32 {
+    let d = stride;
+    let a = (x / d).min(n[0] - 1);
+    let b = (y / d).min(n[1] - 1);
+    let fx = (x - a * d) as f32 / d as f32;
+    let fy = (y - b * d) as f32 / d as f32;
+    let (h00, h10, h01, h11) = (at(a, b), at(a + 1, b), at(a, b + 1), at(a + 1, b + 1));
+    let lo = h00 + (h10 - h00) * fx;
+    let hi = h01 + (h11 - h01) * fx;
+    lo + (hi - lo) * fy
+}
+
+/// One class of page slots of a paged renderer: pages stored at `stride`, `capacity` of
+/// them.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct PageClass {
+    /// The stride of the pages the class holds ([`PageLayout::lattice`]).
+    pub stride: u32,
+    /// Slots.
+    pub capacity: u32,
+}
+
+impl PageClass {
+    /// Bytes of one slot of this class for `layout` (f32 samples).
+    pub fn slot_bytes(&self, layout: &PageLayout) -> u64 {
+        let [w, h] = layout.lattice(self.stride).unwrap_or([1, 1]);
+        4 * u64::from(w) * u64::from(h)
+    }
+}
+
+/// Slot classes for every stride of `layout` within `budget_bytes` of atlas: the budget is
+/// shared equally between the classes, smallest slots first, no class holding more slots than
+/// the layout has pages (what it leaves goes to the larger classes). A coarse class of
+/// stride `s` thus holds about `s^2` times the pages of the finest class for the same bytes.
+/// Every class gets at least one slot.
+pub fn classes_for_budget(layout: &PageLayout, budget_bytes: u64) -> Vec<PageClass> {
+    let pages = layout.pages();
+    let all = u64::from(pages[0]) * u64::from(pages[1]);
+    let mut strides = layout.strides();
+    strides.reverse(); // smallest slots first
+    let mut left = budget_bytes;
+    let mut out = Vec::new();
+    for (k, &stride) in strides.iter().enumerate() {
+        let class = PageClass { stride, capacity: 0 };
+        let share = left / (strides.len() - k) as u64;
+        let n = (share / class.slot_bytes(layout)).clamp(1, all.min(MAX_CLASS_SLOTS));
+        left = left.saturating_sub(n * class.slot_bytes(layout));
+        out.push(PageClass { stride, capacity: n as u32 });
+    }
+    out.reverse();
+    out
+}
+
+/// The most slots one class may have (the page table packs a slot in 24 bits).
+pub const MAX_CLASS_SLOTS: u64 = (1 << 24) - 2;
 
 /// The samples of `page` read from a whole grid by `get(i, j)` (clamped to the grid: samples
 /// past the east or north border repeat the last column or row, as store padding does).
@@ -336,13 +462,8 @@ pub fn fill_from_level(level: &[f32], cells: u32) -> Option<Vec<f32>> {
     let at = |a: u32, b: u32| level[(b * side + a) as usize];
     let mut out = Vec::with_capacity(((cells + 1) * (cells + 1)) as usize);
     for y in 0..=cells {
-        let (b, fy) = ((y / d).min(n - 1), (y - (y / d).min(n - 1) * d) as f32 / d as f32);
         for x in 0..=cells {
-            let (a, fx) = ((x / d).min(n - 1), (x - (x / d).min(n - 1) * d) as f32 / d as f32);
-            let (h00, h10, h01, h11) = (at(a, b), at(a + 1, b), at(a, b + 1), at(a + 1, b + 1));
-            let lo = h00 + (h10 - h00) * fx;
-            let hi = h01 + (h11 - h01) * fx;
-            out.push(lo + (hi - lo) * fy);
+            out.push(lattice_bilinear(at, [n, n], d, x, y));
         }
     }
     Some(out)
@@ -403,5 +524,68 @@ mod tests {
         assert_eq!(page[3 * 5 + 3], 5.5);
         assert!(fill_from_level(&level, 3).is_none());
         assert!(fill_from_level(&level[..8], 4).is_none());
+    }
+
+    #[test]
+    fn a_coarse_page_reads_like_its_filled_page() {
+        let hm = default_terrain();
+        let full = PagedHeights::from_heightmap(&hm, 32);
+        let layout = *full.layout();
+        assert_eq!(layout.strides(), vec![1, 2, 4, 8, 16, 32]);
+        assert_eq!(layout.lattice(8), Some([5, 5]));
+        assert_eq!(layout.lattice(3), None);
+        let mut coarse = PagedHeights::new(layout);
+        let mut filled = PagedHeights::new(layout);
+        for (k, (&page, p)) in full.pages().enumerate() {
+            let d = 1u32 << (k % 6);
+            let n = 32 / d;
+            let w = layout.page_samples()[0];
+            let lattice: Vec<f32> = (0..=n)
+                .flat_map(|b| (0..=n).map(move |a| (a, b)))
+                .map(|(a, b)| p.samples[(b * d * w + a * d) as usize])
+                .collect();
+            let f = fill_from_level(&lattice, 32).unwrap();
+            coarse.insert(page, Page { samples: lattice, stride: d }).unwrap();
+            filled.insert(page, Page { samples: f, stride: 1 }).unwrap();
+        }
+        let mut differs = 0;
+        for j in 0..hm.height() as u32 {
+            for i in 0..hm.width() as u32 {
+                assert_eq!(coarse.sample(i, j), filled.sample(i, j), "({i}, {j})");
+                differs += usize::from(coarse.sample(i, j) != hm.sample(i, j));
+            }
+        }
+        assert!(differs > 1000, "coarse pages change the surface: {differs}");
+        assert_eq!(coarse.to_heightmap(&hm).data(), filled.to_heightmap(&hm).data());
+        let bad = Page { samples: vec![0.0; 9], stride: 32 };
+        assert!(matches!(coarse.insert([0, 0], bad), Err(PageError::WrongLength { .. })));
+        let bad = Page { samples: vec![0.0; 9], stride: 64 };
+        assert!(matches!(coarse.insert([0, 0], bad), Err(PageError::BadStride { .. })));
+    }
+
+    #[test]
+    fn classes_share_the_budget_and_coarse_ones_hold_more_pages() {
+        let layout = PageLayout {
+            grid: [32769, 32769],
+            page_cells: [256, 256],
+            origin: DVec2::ZERO,
+            spacing: DVec2::ONE,
+        };
+        let budget = 256u64 << 20;
+        let classes = classes_for_budget(&layout, budget);
+        assert_eq!(classes.len(), 9);
+        assert_eq!(classes[0].stride, 1);
+        let bytes: u64 =
+            classes.iter().map(|c| c.slot_bytes(&layout) * u64::from(c.capacity)).sum();
+        assert!(bytes <= budget, "{bytes}");
+        assert!(bytes > budget / 10 * 9, "{bytes}");
+        // The coarsest classes hold every page; finer classes hold fewer, the finest fewest.
+        assert_eq!(classes[8].capacity, 128 * 128);
+        for w in classes.windows(2) {
+            assert!(w[0].capacity <= w[1].capacity, "{classes:?}");
+        }
+        assert!(classes[0].capacity >= 100, "{classes:?}");
+        // A budget smaller than one slot per class still gives one slot each.
+        assert!(classes_for_budget(&layout, 0).iter().all(|c| c.capacity == 1));
     }
 }

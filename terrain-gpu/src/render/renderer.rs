@@ -14,7 +14,7 @@ use terrain_core::geometry::Camera;
 
 use super::{DrawPatch, ExtraTriangles, RenderConfig, RenderOptions};
 use crate::device::{GpuContext, GpuError, GpuFeatures, read_buffer};
-use crate::paged::{PageError, PageLayout, check_page};
+use crate::paged::{PageClass, PageError, PageLayout, check_page};
 use crate::target::{COLOR_FORMAT, OffscreenTarget, RgbaImage};
 use crate::tess::{
     EdgeSpacing, GpuDomainPoint, GpuTessOutput, GpuTessellator, PatchFactors, QuadLayout,
@@ -38,6 +38,24 @@ struct GpuFrame {
     height_range: f32,
     flags: u32,
     pad: [u32; 3],
+}
+
+/// Words of the page table before its entries: 8 of layout, then 8 per slot class (first
+/// row in the atlas, slots per row, slot width, slot height, stride, 3 unused).
+const TABLE_HEADER: usize = 8 + 8 * MAX_CLASSES;
+/// Slot classes a paged renderer may have.
+const MAX_CLASSES: usize = 16;
+
+/// One class of slots of the page atlas, a band of rows of it.
+#[derive(Debug)]
+struct SlotClass {
+    stride: u32,
+    lattice: [u32; 2],
+    /// First atlas row of the band.
+    y0: u32,
+    per_row: u32,
+    capacity: u32,
+    free: Vec<u32>,
 }
 
 const FLAG_WIREFRAME: u32 = 1;
@@ -295,9 +313,9 @@ pub struct TerrainRenderer {
     table: Vec<u32>,
     table_dirty: bool,
     page_layout: PageLayout,
-    slot_of: HashMap<[u32; 2], u32>,
-    free_slots: Vec<u32>,
-    capacity: u32,
+    /// Resident page to (class, slot).
+    slot_of: HashMap<[u32; 2], (usize, u32)>,
+    classes: Vec<SlotClass>,
     color: wgpu::TextureView,
     sampler: wgpu::Sampler,
     has_texture: bool,
@@ -372,7 +390,8 @@ impl TerrainRenderer {
         hm: &Heightmap,
         config: &RenderConfig,
     ) -> Result<Self, RenderError> {
-        let mut r = Self::build(ctx, PageLayout::whole(hm), 1, [hm.min(), hm.max()], config)?;
+        let whole = [PageClass { stride: 1, capacity: 1 }];
+        let mut r = Self::build(ctx, PageLayout::whole(hm), &whole, [hm.min(), hm.max()], config)?;
         r.set_page([0, 0], hm.data())?;
         Ok(r)
     }
@@ -389,13 +408,26 @@ impl TerrainRenderer {
         height_range: [f32; 2],
         config: &RenderConfig,
     ) -> Result<Self, RenderError> {
-        Self::build(ctx, layout, capacity, height_range, config)
+        Self::build(ctx, layout, &[PageClass { stride: 1, capacity }], height_range, config)
+    }
+
+    /// A paged renderer whose atlas holds slots of several classes ([`PageClass`]: pages
+    /// stored at a stride, see [`crate::paged::classes_for_budget`]), one region of the atlas
+    /// per class; at most 16 classes, strides the layout allows, each at most once.
+    pub fn new_paged_classes(
+        ctx: &GpuContext,
+        layout: PageLayout,
+        classes: &[PageClass],
+        height_range: [f32; 2],
+        config: &RenderConfig,
+    ) -> Result<Self, RenderError> {
+        Self::build(ctx, layout, classes, height_range, config)
     }
 
     fn build(
         ctx: &GpuContext,
         pages: PageLayout,
-        capacity: u32,
+        classes: &[PageClass],
         height_range: [f32; 2],
         config: &RenderConfig,
     ) -> Result<Self, RenderError> {
@@ -408,14 +440,52 @@ impl TerrainRenderer {
                 pages.spacing
             )));
         }
-        let capacity = capacity.max(1);
-        let slot = pages.page_samples();
-        let slots_x = (maximum / slot[0].max(1)).max(1).min(capacity);
-        let slots_y = capacity.div_ceil(slots_x);
-        let (atlas_w, atlas_h) = (slots_x * slot[0], u64::from(slots_y) * u64::from(slot[1]));
-        if slot[0] > maximum || atlas_h > u64::from(maximum) {
+        let single = classes.len() == 1 && classes[0].capacity <= 1;
+        if classes.is_empty() || classes.len() > MAX_CLASSES {
+            return Err(RenderError::InvalidConfig(format!(
+                "{} page slot classes (allowed 1 to {MAX_CLASSES})",
+                classes.len()
+            )));
+        }
+        let mut slot_classes: Vec<SlotClass> = Vec::new();
+        for c in classes {
+            let lattice = pages.lattice(c.stride).filter(|_| {
+                !slot_classes.iter().any(|s| s.stride == c.stride)
+                    && u64::from(c.capacity) <= crate::paged::MAX_CLASS_SLOTS
+            });
+            let Some(lattice) = lattice else {
+                return Err(RenderError::InvalidConfig(format!(
+                    "page slot class of stride {} and {} slots (strides allowed: {:?}, each once)",
+                    c.stride,
+                    c.capacity,
+                    pages.strides()
+                )));
+            };
+            slot_classes.push(SlotClass {
+                stride: c.stride,
+                lattice,
+                y0: 0,
+                per_row: 1,
+                capacity: c.capacity.max(1),
+                free: Vec::new(),
+            });
+        }
+        // One atlas: each class a band of rows of slots, as wide as the widest class needs.
+        let atlas_w = slot_classes
+            .iter()
+            .map(|c| (maximum / c.lattice[0].max(1)).max(1).min(c.capacity) * c.lattice[0])
+            .max()
+            .unwrap_or(1);
+        let mut atlas_h = 0u64;
+        for c in &mut slot_classes {
+            c.per_row = (atlas_w / c.lattice[0]).max(1).min(c.capacity);
+            c.y0 = atlas_h.min(u64::from(u32::MAX)) as u32;
+            atlas_h += u64::from(c.capacity.div_ceil(c.per_row)) * u64::from(c.lattice[1]);
+            c.free = (0..c.capacity).rev().collect();
+        }
+        if slot_classes.iter().any(|c| c.lattice[0] > maximum) || atlas_h > u64::from(maximum) {
             return Err(RenderError::TextureTooLarge {
-                what: if capacity == 1 { "the heightmap" } else { "the page atlas" },
+                what: if single { "the heightmap" } else { "the page atlas" },
                 width: atlas_w,
                 height: atlas_h.min(u64::from(u32::MAX)) as u32,
                 maximum,
@@ -475,9 +545,17 @@ impl TerrainRenderer {
         let heights = atlas.create_view(&Default::default());
         let [pages_x, pages_y] = pages.pages();
         let cells = pages.cells();
-        let mut table = vec![0u32; 8 + pages_x as usize * pages_y as usize];
-        table[..7]
-            .copy_from_slice(&[cells[0], cells[1], pages_x, pages_y, slots_x, slot[0], slot[1]]);
+        let mut table = vec![0u32; TABLE_HEADER + pages_x as usize * pages_y as usize];
+        table[..4].copy_from_slice(&[cells[0], cells[1], pages_x, pages_y]);
+        for (k, c) in slot_classes.iter().enumerate() {
+            table[8 + 8 * k..8 + 8 * k + 5].copy_from_slice(&[
+                c.y0,
+                c.per_row,
+                c.lattice[0],
+                c.lattice[1],
+                c.stride,
+            ]);
+        }
         let white = RgbaImage { width: 1, height: 1, pixels: vec![[255; 4]] };
         let image = config.texture.as_ref().unwrap_or(&white);
         if image.width > maximum || image.height > maximum {
@@ -627,8 +705,7 @@ impl TerrainRenderer {
             table_dirty: true,
             page_layout: pages,
             slot_of: HashMap::new(),
-            free_slots: (0..capacity).rev().collect(),
-            capacity,
+            classes: slot_classes,
             color,
             sampler,
             has_texture: config.texture.is_some(),
@@ -647,23 +724,45 @@ impl TerrainRenderer {
 
     /// Makes `page` resident with `samples` ([`PageLayout::page_samples`] wide and high,
     /// row-major, south row first; see [`crate::paged`] for filling one from a coarse level),
-    /// replacing what it held. The page table reaches the device with the next frame.
+    /// replacing what it held: [`TerrainRenderer::set_page_lattice`] with stride 1.
     pub fn set_page(&mut self, page: [u32; 2], samples: &[f32]) -> Result<(), PageError> {
-        check_page(&self.page_layout, page, samples)?;
+        self.set_page_lattice(page, samples, 1)
+    }
+
+    /// Makes `page` resident with its lattice at `stride` ([`crate::paged::Page`]), in a slot
+    /// of the class of that stride (a page changing stride moves class), replacing what it
+    /// held. The page table reaches the device with the next frame.
+    pub fn set_page_lattice(
+        &mut self,
+        page: [u32; 2],
+        samples: &[f32],
+        stride: u32,
+    ) -> Result<(), PageError> {
+        check_page(&self.page_layout, page, samples, stride)?;
+        let Some(class) = self.classes.iter().position(|c| c.stride == stride) else {
+            return Err(PageError::BadStride {
+                page,
+                stride,
+                allowed: self.classes.iter().map(|c| c.stride).collect(),
+            });
+        };
         let slot = match self.slot_of.get(&page) {
-            Some(&s) => s,
-            None => {
-                let s = self
-                    .free_slots
-                    .pop()
-                    .ok_or(PageError::Full { page, capacity: self.capacity })?;
-                self.slot_of.insert(page, s);
+            Some(&(c, s)) if c == class => s,
+            held => {
+                let c = &mut self.classes[class];
+                let s =
+                    c.free.pop().ok_or(PageError::Full { page, capacity: c.capacity, stride })?;
+                if let Some(&(old, old_slot)) = held {
+                    self.classes[old].free.push(old_slot);
+                }
+                self.slot_of.insert(page, (class, s));
                 s
             }
         };
-        let [w, h] = self.page_layout.page_samples();
-        let slots_x = self.table[4];
-        let origin = wgpu::Origin3d { x: slot % slots_x * w, y: slot / slots_x * h, z: 0 };
+        let c = &self.classes[class];
+        let [w, h] = c.lattice;
+        let origin =
+            wgpu::Origin3d { x: slot % c.per_row * w, y: c.y0 + slot / c.per_row * h, z: 0 };
         self.queue.write_texture(
             wgpu::TexelCopyTextureInfo {
                 texture: &self.atlas,
@@ -679,9 +778,10 @@ impl TerrainRenderer {
             },
             wgpu::Extent3d { width: w, height: h, depth_or_array_layers: 1 },
         );
-        let index = 8 + (page[1] * self.table[2] + page[0]) as usize;
-        if self.table[index] != slot + 1 {
-            self.table[index] = slot + 1;
+        let index = TABLE_HEADER + (page[1] * self.table[2] + page[0]) as usize;
+        let entry = ((class as u32) << 24) | (slot + 1);
+        if self.table[index] != entry {
+            self.table[index] = entry;
             self.table_dirty = true;
         }
         Ok(())
@@ -689,9 +789,9 @@ impl TerrainRenderer {
 
     /// Drops `page` (its slot becomes free); returns whether it was resident.
     pub fn remove_page(&mut self, page: [u32; 2]) -> bool {
-        let Some(slot) = self.slot_of.remove(&page) else { return false };
-        self.free_slots.push(slot);
-        let index = 8 + (page[1] * self.table[2] + page[0]) as usize;
+        let Some((class, slot)) = self.slot_of.remove(&page) else { return false };
+        self.classes[class].free.push(slot);
+        let index = TABLE_HEADER + (page[1] * self.table[2] + page[0]) as usize;
         self.table[index] = 0;
         self.table_dirty = true;
         true
@@ -709,9 +809,14 @@ impl TerrainRenderer {
         &self.page_layout
     }
 
-    /// Page slots in the atlas.
+    /// Page slots in the atlas, all classes.
     pub fn page_capacity(&self) -> u32 {
-        self.capacity
+        self.classes.iter().map(|c| c.capacity).sum()
+    }
+
+    /// The atlas's slot classes (stride and slots each).
+    pub fn page_classes(&self) -> Vec<PageClass> {
+        self.classes.iter().map(|c| PageClass { stride: c.stride, capacity: c.capacity }).collect()
     }
 
     /// Bytes of the page atlas on the device.

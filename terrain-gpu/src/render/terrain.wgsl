@@ -7,11 +7,14 @@
 // textureLoad and filtered by hand (GL has no FLOAT32_FILTERABLE), one path for all backends.
 //
 // Paged heights (paged.rs is the CPU reference of `lookup`): the texture is an atlas of page
-// slots and `page_table` maps each page of the grid to its slot (0: not resident, else slot
-// + 1), after an 8-word header. A sample on a page border is looked up in the page it falls
-// in first, then in the west/south neighbours that share it. A sample on no resident page
+// slots in classes (one band of rows per class, each class's pages stored as their lattice
+// at a stride) and `page_table` maps each page of the grid to its class and slot (0: not
+// resident, else class << 24 | slot + 1), after a header (8 words of layout, 8 per class).
+// A sample on a page border is looked up in the page it falls in first, then in the
+// west/south neighbours that share it; in a page of stride d > 1 it is the bilinear
+// interpolation in its lattice cell (paged::lattice_bilinear). A sample on no resident page
 // reads 0 and is left out of the normals' central differences. The whole-heightmap renderer
-// is one page, resident.
+// is one page of stride 1, resident.
 //
 // Camera-relative positions: `col_x[i]` and `row_y[j]` hold `world(i, j) - anchor` for every
 // column and row, computed in f64 on the CPU and rounded once to f32, so a vertex's position
@@ -67,7 +70,8 @@ fn srgb_to_linear(c: vec3<f32>) -> vec3<f32> {
 @group(0) @binding(6) var color_sampler: sampler;
 @group(0) @binding(7) var<storage, read> points: array<DomainPoint>;
 @group(0) @binding(8) var<storage, read> indices: array<u32>;
-// Header: cells per page x, y; pages x, y; atlas slots per row; slot width, height; unused.
+// Header: cells per page x, y; pages x, y; 4 unused; then per class (16): first atlas row,
+// slots per row, slot width, slot height, stride, 3 unused. Entries from word 136.
 @group(0) @binding(9) var<storage, read> page_table: array<u32>;
 
 struct Lookup {
@@ -76,7 +80,7 @@ struct Lookup {
 }
 
 fn page_entry(px: u32, py: u32) -> u32 {
-    return page_table[8u + py * page_table[2] + px];
+    return page_table[136u + py * page_table[2] + px];
 }
 
 // paged::PagedHeights::locate and HeightGrid::sample: the first resident page of the four
@@ -105,9 +109,28 @@ fn lookup(i: i32, j: i32) -> Lookup {
     if s == 0u {
         return Lookup(0.0, false);
     }
-    let slot = s - 1u;
-    let base = vec2<u32>(slot % page_table[4] * page_table[5], slot / page_table[4] * page_table[6]);
-    return Lookup(textureLoad(heights, vec2<i32>(base + g - p * c), 0).r, true);
+    let cls = 8u + 8u * (s >> 24u);
+    let slot = (s & 0xffffffu) - 1u;
+    let per_row = page_table[cls + 1u];
+    let size = vec2<u32>(page_table[cls + 2u], page_table[cls + 3u]);
+    let base = vec2<u32>(slot % per_row, page_table[cls] + slot / per_row * size.y);
+    let corner = vec2<u32>(base.x * size.x, base.y);
+    let q = g - p * c;
+    let d = page_table[cls + 4u];
+    if d == 1u {
+        return Lookup(textureLoad(heights, vec2<i32>(corner + q), 0).r, true);
+    }
+    // paged::lattice_bilinear, operation for operation.
+    let a = min(q / d, c / d - vec2<u32>(1u));
+    let f = vec2<f32>(q - a * d) / f32(d);
+    let t = vec2<i32>(corner + a);
+    let h00 = textureLoad(heights, t, 0).r;
+    let h10 = textureLoad(heights, t + vec2<i32>(1, 0), 0).r;
+    let h01 = textureLoad(heights, t + vec2<i32>(0, 1), 0).r;
+    let h11 = textureLoad(heights, t + vec2<i32>(1, 1), 0).r;
+    let lo = h00 + (h10 - h00) * f.x;
+    let hi = h01 + (h11 - h01) * f.x;
+    return Lookup(lo + (hi - lo) * f.y, true);
 }
 
 fn height_sample(i: i32, j: i32) -> f32 {

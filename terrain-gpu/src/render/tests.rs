@@ -590,27 +590,48 @@ fn uniform_patches_tile_the_grid() {
 // Paged heights (crate::paged): all pages resident is the whole heightmap; pages filled
 // from coarse levels match the CPU reference and draw no cracks.
 
-/// A paged renderer holding every page of `paged`.
+/// A paged renderer holding every page of `paged`: one slot class per stride used (a single
+/// class of stride 1 when all pages are full resolution, as before classes existed).
 fn paged_renderer(ctx: &GpuContext, paged: &PagedHeights, size: (u32, u32)) -> TerrainRenderer {
-    let n = paged.pages().count() as u32;
+    let mut classes: Vec<crate::paged::PageClass> = Vec::new();
     let (mut lo, mut hi) = (f32::MAX, f32::MIN);
     for (_, p) in paged.pages() {
         for &h in &p.samples {
             lo = lo.min(h);
             hi = hi.max(h);
         }
+        match classes.iter_mut().find(|c| c.stride == p.stride) {
+            Some(c) => c.capacity += 1,
+            None => classes.push(crate::paged::PageClass { stride: p.stride, capacity: 1 }),
+        }
     }
-    let mut r =
-        TerrainRenderer::new_paged(ctx, *paged.layout(), n, [lo, hi], &config(size.0, size.1))
-            .unwrap();
+    let mut r = TerrainRenderer::new_paged_classes(
+        ctx,
+        *paged.layout(),
+        &classes,
+        [lo, hi],
+        &config(size.0, size.1),
+    )
+    .unwrap();
     for (&page, p) in paged.pages() {
-        r.set_page(page, &p.samples).unwrap();
+        r.set_page_lattice(page, &p.samples, p.stride).unwrap();
     }
     r
 }
 
-/// `hm`'s pages of 32 cells, each filled from a coarse level of its own (levels 1 to 5 of a
-/// 32-cell page, 5 being every sample) by `paged::fill_from_level`.
+/// `paged` with every page expanded to full resolution (stride 1).
+fn expanded_pages(paged: &PagedHeights) -> PagedHeights {
+    let mut out = PagedHeights::new(*paged.layout());
+    for (&page, p) in paged.pages() {
+        let samples = p.expanded(paged.layout());
+        out.insert(page, crate::paged::Page { samples, stride: 1 }).unwrap();
+    }
+    out
+}
+
+/// `hm`'s pages of 32 cells, each stored as a coarse level of its own (levels 1 to 5 of a
+/// 32-cell page, 5 being every sample): coarse-slot pages, the lattice at stride `32 / 2^L`
+/// (checked against `paged::fill_from_level`).
 fn mixed_level_pages(hm: &Heightmap) -> PagedHeights {
     let full = PagedHeights::from_heightmap(hm, 32);
     let layout = *full.layout();
@@ -626,10 +647,41 @@ fn mixed_level_pages(hm: &Heightmap) -> PagedHeights {
                 grid.push(p.samples[b * d * w + a * d]);
             }
         }
-        let samples = crate::paged::fill_from_level(&grid, 32).unwrap();
-        out.insert(page, crate::paged::Page { samples, stride: d as u32 }).unwrap();
+        let filled = crate::paged::fill_from_level(&grid, 32).unwrap();
+        let coarse = crate::paged::Page { samples: grid, stride: d as u32 };
+        assert_eq!(coarse.expanded(&layout), filled);
+        out.insert(page, coarse).unwrap();
     }
     out
+}
+
+#[test]
+fn paged_coarse_slots_draw_like_pages_filled_at_full_resolution() {
+    let Some(ctx) = context(BackendChoice::Vulkan) else { return };
+    let hm = default_terrain();
+    let coarse = mixed_level_pages(&hm);
+    assert!(coarse.pages().any(|(_, p)| p.stride > 1), "coarse slots are used");
+    let filled = expanded_pages(&coarse);
+    let mut a = paged_renderer(&ctx, &coarse, (64, 64));
+    let mut b = paged_renderer(&ctx, &filled, (64, 64));
+    assert!(a.page_classes().len() > 1);
+    assert!(a.page_atlas_bytes() < b.page_atlas_bytes() / 2, "coarse slots are smaller");
+    let patches = random_patches(&hm, 16, 1.0, 17.0, 9, true);
+    let eye = dvec3(800.0, 600.0, f64::from(hm.max()) + 250.0);
+    let ra = a.surface_read_back(eye, &patches).unwrap();
+    let rb = b.surface_read_back(eye, &patches).unwrap();
+    // The shader's lattice interpolation is fill_from_level's, operation for operation.
+    assert_eq!(ra.positions, rb.positions);
+    assert_eq!(ra.normals, rb.normals);
+    let anchor = TerrainRenderer::anchor_for(eye);
+    for (k, p) in ra.points.iter().enumerate() {
+        let patch = &patches[p.patch_index as usize];
+        let want = surface::vertex_position(&coarse, patch, p.uv) - anchor;
+        assert_eq!(want, surface::vertex_position(&filled, patch, p.uv) - anchor);
+        let got = ra.positions[k];
+        let err = (DVec3::new(got[0].into(), got[1].into(), got[2].into()) - want).length();
+        assert!(err <= 1e-3, "point {k}: gpu {got:?} cpu {want}");
+    }
 }
 
 #[test]
@@ -762,4 +814,28 @@ fn pages_are_checked() {
     assert!(!r.remove_page([1, 0]));
     r.set_page([0, 1], &page).unwrap();
     assert_eq!(r.resident_pages(), vec![[0, 0], [0, 1]]);
+
+    // Slot classes: a page at stride 16 (a 5 x 5 lattice of a 64-cell page) takes a coarse
+    // slot; moving it to full resolution frees that slot.
+    use crate::paged::{PageClass, PageError};
+    let classes = [PageClass { stride: 1, capacity: 1 }, PageClass { stride: 16, capacity: 1 }];
+    let mut r =
+        TerrainRenderer::new_paged_classes(&ctx, layout, &classes, [0.0, 1.0], &config(32, 32))
+            .unwrap();
+    assert_eq!(r.page_capacity(), 2);
+    let lattice = vec![1.0f32; 25];
+    r.set_page_lattice([1, 1], &lattice, 16).unwrap();
+    let e = r.set_page_lattice([0, 1], &lattice, 16).unwrap_err();
+    assert!(matches!(e, PageError::Full { capacity: 1, stride: 16, .. }), "{e}");
+    let e = r.set_page_lattice([0, 1], &[1.0f32; 9], 32).unwrap_err();
+    assert!(matches!(e, PageError::BadStride { stride: 32, .. }), "{e}");
+    let e = r.set_page_lattice([0, 1], &lattice[1..], 16).unwrap_err();
+    assert!(e.to_string().contains("samples"), "{e}");
+    r.set_page([1, 1], &page).unwrap();
+    r.set_page_lattice([0, 1], &lattice, 16).unwrap();
+    assert_eq!(r.resident_pages(), vec![[0, 1], [1, 1]]);
+    let bad = [PageClass { stride: 3, capacity: 1 }];
+    assert!(
+        TerrainRenderer::new_paged_classes(&ctx, layout, &bad, [0.0, 1.0], &config(8, 8)).is_err()
+    );
 }
