@@ -365,14 +365,24 @@ impl RowReader {
         if rows == 0 {
             return Ok(());
         }
-        let wu = w as usize;
-        let mut file_band = vec![0f32; wu * rows];
-        self.read_file_rows(h - j0 - rows as u64, rows, &mut file_band)?;
+        let mut band = vec![0f32; voids.len()];
+        self.read_south_rows(j0, rows, &mut band)?;
+        for (v, x) in voids.iter_mut().zip(&band) {
+            *v = x.is_nan();
+        }
+        Ok(())
+    }
+
+    /// Rows `j0 .. j0 + rows` (south first), row-major, no-data as NaN: the file's rows
+    /// (north first) flipped. South row `j` is file row `h - 1 - j`, so the band is file rows
+    /// `[h - j0 - rows, h - j0)`.
+    fn read_south_rows(&self, j0: u64, rows: usize, out: &mut [f32]) -> Result<(), DemError> {
+        let wu = self.width as usize;
+        let mut file_band = vec![0f32; out.len()];
+        self.read_file_rows(self.height - j0 - rows as u64, rows, &mut file_band)?;
         for (k, row) in file_band.chunks_exact(wu).enumerate() {
             let j = rows - 1 - k;
-            for (v, x) in voids[j * wu..(j + 1) * wu].iter_mut().zip(row) {
-                *v = x.is_nan();
-            }
+            out[j * wu..(j + 1) * wu].copy_from_slice(row);
         }
         Ok(())
     }
@@ -402,13 +412,7 @@ impl RowReader {
             return Ok(());
         }
         let wu = w as usize;
-        // South row j is file row h - 1 - j: the band is file rows [h - j0 - rows, h - j0).
-        let mut file_band = vec![0f32; wu * rows];
-        self.read_file_rows(h - j0 - rows as u64, rows, &mut file_band)?;
-        for (k, row) in file_band.chunks_exact(wu).enumerate() {
-            let j = rows - 1 - k;
-            heights[j * wu..(j + 1) * wu].copy_from_slice(row);
-        }
+        self.read_south_rows(j0, rows, heights)?;
         for (v, x) in voids.iter_mut().zip(heights.iter()) {
             *v = x.is_nan();
         }
@@ -420,12 +424,7 @@ impl RowReader {
         let hi = (j0 + rows as u64 + FILL_REACH_ROWS as u64).min(h);
         let n = (hi - lo) as usize;
         let mut ext = vec![0f32; wu * n];
-        let mut file_ext = vec![0f32; wu * n];
-        self.read_file_rows(h - hi, n, &mut file_ext)?;
-        for (k, row) in file_ext.chunks_exact(wu).enumerate() {
-            let j = n - 1 - k;
-            ext[j * wu..(j + 1) * wu].copy_from_slice(row);
-        }
+        self.read_south_rows(lo, n, &mut ext)?;
         let (dx, dy) = (self.georef.spacing_m.x, self.georef.spacing_m.y);
         let off = (j0 - lo) as usize;
         let mut zero = 0u64;
