@@ -891,23 +891,8 @@ impl TerrainRenderer {
             mapped_at_creation: false,
         });
         self.queue.write_buffer(&rects_buf, 0, bytemuck::cast_slice(&rects));
-        let bind = |binding, resource| wgpu::BindGroupEntry { binding, resource };
-        let bind_group = self.device.create_bind_group(&wgpu::BindGroupDescriptor {
-            label: Some("terrain"),
-            layout: &self.layout,
-            entries: &[
-                bind(0, self.frame.as_entire_binding()),
-                bind(1, wgpu::BindingResource::TextureView(&self.heights)),
-                bind(2, rects_buf.as_entire_binding()),
-                bind(3, self.col_x.as_entire_binding()),
-                bind(4, self.row_y.as_entire_binding()),
-                bind(5, wgpu::BindingResource::TextureView(&self.color)),
-                bind(6, wgpu::BindingResource::Sampler(&self.sampler)),
-                bind(7, ctx_out.points.as_entire_binding()),
-                bind(8, ctx_out.indices.as_entire_binding()),
-                bind(9, self.page_table.as_entire_binding()),
-            ],
-        });
+        let bind_group =
+            self.terrain_bind_group("terrain", &rects_buf, &ctx_out.points, &ctx_out.indices);
         let (triangles, vertices) = self.count(patches);
         self.tess = Some(Tessellation {
             patches: patches.to_vec(),
@@ -1350,6 +1335,35 @@ impl TerrainRenderer {
         })
     }
 
+    /// The bind group of `terrain.wgsl`'s group 0 (one place, so every pass that uses the
+    /// layout binds the same resources): the frame, heights, page table, columns and rows,
+    /// colour texture and sampler of this renderer, with `rects`, `points` and `indices`.
+    fn terrain_bind_group(
+        &self,
+        label: &str,
+        rects: &wgpu::Buffer,
+        points: &wgpu::Buffer,
+        indices: &wgpu::Buffer,
+    ) -> wgpu::BindGroup {
+        let bind = |binding, resource| wgpu::BindGroupEntry { binding, resource };
+        self.device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some(label),
+            layout: &self.layout,
+            entries: &[
+                bind(0, self.frame.as_entire_binding()),
+                bind(1, wgpu::BindingResource::TextureView(&self.heights)),
+                bind(2, rects.as_entire_binding()),
+                bind(3, self.col_x.as_entire_binding()),
+                bind(4, self.row_y.as_entire_binding()),
+                bind(5, wgpu::BindingResource::TextureView(&self.color)),
+                bind(6, wgpu::BindingResource::Sampler(&self.sampler)),
+                bind(7, points.as_entire_binding()),
+                bind(8, indices.as_entire_binding()),
+                bind(9, self.page_table.as_entire_binding()),
+            ],
+        })
+    }
+
     /// Test hook: evaluates, on the device, the shader's surface position (relative to the
     /// anchor of a camera at `camera_position`; w = absolute height) at arbitrary domain
     /// points of `patches`, as the vertex stage does for [`ExtraTriangles`]' vertices.
@@ -1376,23 +1390,8 @@ impl TerrainRenderer {
         let input = storage("read-back points", u64::from(n) * 16, U::STORAGE | U::COPY_DST);
         self.queue.write_buffer(&input, 0, bytemuck::cast_slice(points));
         let out = storage("read-back surface", u64::from(n) * 32, U::STORAGE | U::COPY_SRC);
-        let bind = |binding, resource| wgpu::BindGroupEntry { binding, resource };
-        let group = self.device.create_bind_group(&wgpu::BindGroupDescriptor {
-            label: Some("read-back points"),
-            layout: &self.layout,
-            entries: &[
-                bind(0, self.frame.as_entire_binding()),
-                bind(1, wgpu::BindingResource::TextureView(&self.heights)),
-                bind(2, tess.rects.as_entire_binding()),
-                bind(3, self.col_x.as_entire_binding()),
-                bind(4, self.row_y.as_entire_binding()),
-                bind(5, wgpu::BindingResource::TextureView(&self.color)),
-                bind(6, wgpu::BindingResource::Sampler(&self.sampler)),
-                bind(7, input.as_entire_binding()),
-                bind(8, tess.out.indices.as_entire_binding()),
-                bind(9, self.page_table.as_entire_binding()),
-            ],
-        });
+        let group =
+            self.terrain_bind_group("read-back points", &tess.rects, &input, &tess.out.indices);
         let debug_group = self.device.create_bind_group(&wgpu::BindGroupDescriptor {
             label: Some("terrain debug"),
             layout: &self.debug_layout,
