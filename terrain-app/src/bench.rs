@@ -382,20 +382,12 @@ impl<'a> FrameRunner<'a> {
             selection_ms,
             cpu_tess_ms,
             measure_ms,
-            encode_ms: None,
-            render_ms: None,
-            gpu_ms: None,
-            gpu_draw_ms: None,
-            gpu_tessellated: None,
-            upload_bytes: None,
             cpu_ms: selection_ms + cpu_tess_ms,
             frame_ms: selection_ms + cpu_tess_ms,
-            rss_bytes: None,
             errors,
             vertex_jump_m,
             vertex_jump_no_morph_m,
-            material_passes_skipped: None,
-            stream: None,
+            ..FrameRecord::default()
         };
         if let Some(renderer) = self.geomorph.as_deref_mut() {
             let t = Instant::now();
@@ -446,20 +438,10 @@ impl<'a> FrameRunner<'a> {
             selection_ms,
             cpu_tess_ms,
             measure_ms,
-            encode_ms: None,
-            render_ms: None,
-            gpu_ms: None,
-            gpu_draw_ms: None,
-            gpu_tessellated: None,
-            upload_bytes: None,
             cpu_ms: selection_ms + cpu_tess_ms,
             frame_ms: selection_ms + cpu_tess_ms,
-            rss_bytes: None,
             errors,
-            vertex_jump_m: None,
-            vertex_jump_no_morph_m: None,
-            material_passes_skipped: None,
-            stream: None,
+            ..FrameRecord::default()
         };
         if let Some(renderer) = self.renderer.as_deref_mut() {
             let (patches, extra) = scene.frame_draw(&drawn);
@@ -1046,15 +1028,8 @@ fn run_ooc(
             selection_ms,
             cpu_tess_ms,
             measure_ms,
-            encode_ms: None,
-            render_ms: None,
-            gpu_ms: None,
-            gpu_draw_ms: None,
-            gpu_tessellated: None,
-            upload_bytes: None,
             cpu_ms: selection_ms + cpu_tess_ms,
             frame_ms: selection_ms + cpu_tess_ms,
-            rss_bytes: None,
             errors,
             stream: Some(f.stream.clone()),
             ..FrameRecord::default()
