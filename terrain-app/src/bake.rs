@@ -1,6 +1,7 @@
 //! `terrain bake`: a DEM (or a synthetic terrain streamed by rows) into an out-of-core block
-//! store, with a plain-text progress bar on stderr, then the PVS files of the scene
-//! (`pvs.bin`, `pvs_conservative.bin`, see `terrain pvs`) with `--pvs`.
+//! store, with a plain-text progress bar on stderr, then the DSS paper's object-space errors
+//! (`dss_errors.bin`, unless `--no-dss`) and, with `--pvs-bake`, the PVS files of the scene
+//! (`pvs.bin`, `pvs_conservative.bin`, see `terrain pvs`).
 
 use std::io::Write;
 use std::ops::ControlFlow;
@@ -9,13 +10,16 @@ use std::path::PathBuf;
 use anyhow::Context;
 use clap::Args;
 use terrain_core::dem::RowReader;
+use terrain_core::quadtree::Quadtree;
 use terrain_core::synth::FractalConfig;
 use terrain_stream::{BakeConfig, BakeProgress, HeightEncoding, HeightSource, bake};
 
 use crate::source::SourceArgs;
+use terrain_app::methods::MethodConfig;
 
-/// Largest synthetic side whose PVS `terrain bake` computes (the grid is held in memory).
-const MAX_PVS_SYNTHETIC: u64 = 8193;
+/// Largest synthetic side whose PVS and DSS errors `terrain bake` computes (the grid is held
+/// in memory).
+const MAX_IN_MEMORY_SYNTHETIC: u64 = 8193;
 
 /// Arguments of `terrain bake`.
 #[derive(Debug, Args)]
@@ -52,6 +56,11 @@ pub struct BakeArgs {
     /// PVS bake takes minutes per million samples on two cores (the blocks take seconds).
     #[arg(long)]
     pub pvs_bake: bool,
+    /// Do not compute the DSS paper's 32 object-space errors per quadtree node
+    /// (`dss_errors.bin`, read by `terrain bench --scene` for `dss-1`, `dss-2`,
+    /// `dss-strips`; seconds per million samples on two cores).
+    #[arg(long)]
+    pub no_dss: bool,
     #[command(flatten)]
     pub pvs: crate::pvs::PvsArgs,
     /// Read the DEM by bands of rows instead of whole (GeoTIFF and raw only): bounded memory
@@ -180,26 +189,35 @@ pub fn run(args: &BakeArgs) -> anyhow::Result<()> {
         secs,
         report.source_samples as f64 * 4.0 / 1e6 / secs.max(1e-9)
     );
-    if !args.pvs_bake {
+    if !args.pvs_bake && args.no_dss {
         return Ok(());
     }
     let synthetic_hm;
     let hm = match (source_hm, args.synthetic) {
         (Some(hm), _) => hm,
-        (None, Some(n)) if n <= MAX_PVS_SYNTHETIC => {
-            // A streamed synthetic terrain: the PVS needs the whole grid in memory.
+        (None, Some(n)) if n <= MAX_IN_MEMORY_SYNTHETIC => {
+            // A streamed synthetic terrain: the PVS and the DSS errors need the whole grid.
             synthetic_hm =
                 FractalConfig::with_size(n, n, 10.0).to_heightmap().map_err(anyhow::Error::msg)?;
             &synthetic_hm
         }
         (None, _) => {
             eprintln!(
-                "warning: no PVS for a grid read by rows or a synthetic terrain above \
-                 {MAX_PVS_SYNTHETIC}^2 samples (the PVS bake needs the whole grid in memory); \
-                 the scene draws without occlusion culling"
+                "warning: no PVS and no DSS errors for a grid read by rows or a synthetic \
+                 terrain above {MAX_IN_MEMORY_SYNTHETIC}^2 samples (both need the whole grid in \
+                 memory); the scene draws without occlusion culling and the DSS methods compute \
+                 their errors when they run"
             );
             return Ok(());
         }
     };
-    crate::pvs::bake_into_scene(hm, &args.pvs.config()?, &args.output)
+    if !args.no_dss {
+        // The benchmark's default leaf size; a table serves any coarser leaf size too.
+        let qt = Quadtree::new(hm, MethodConfig::default().leaf_cells);
+        terrain_app::dss_scene::bake_into_scene(hm, &qt, &args.output)?;
+    }
+    if args.pvs_bake {
+        crate::pvs::bake_into_scene(hm, &args.pvs.config()?, &args.output)?;
+    }
+    Ok(())
 }

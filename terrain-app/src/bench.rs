@@ -57,7 +57,7 @@ pub struct BenchConfig {
     /// A scene folder (`terrain bake`'s output) whose PVS files `pvps-c-pvs` and `pvps-c-cons`
     /// use; an unreadable or mismatched file is a warning and that method runs without
     /// occlusion culling. `None`: the PVS is baked in memory with `method.pvs`. Default `None`.
-    pub pvs_scene: Option<std::path::PathBuf>,
+    pub scene: Option<std::path::PathBuf>,
     /// How frames are measured. Default [`MeasureConfig::default`] (2,000,000 samples: stride 1
     /// up to about 1400 x 1400). A stride above 1 can land every measured sample on tessellation
     /// vertices (stride 2 and a uniform factor of half the leaf cells measure zero error), so
@@ -82,7 +82,7 @@ impl Default for BenchConfig {
             render_size: Some((640, 360)),
             measure_viewport: (1280, 720),
             method: MethodConfig::default(),
-            pvs_scene: None,
+            scene: None,
             measure: MeasureConfig::default(),
             ooc_store: None,
             ooc_k: 8,
@@ -817,8 +817,26 @@ pub fn run_bench(
         );
     }
     let mut scene = MethodScene::new(hm, cfg.method.clone());
-    if let Some(dir) = &cfg.pvs_scene {
-        for warning in crate::pvs_scene::load_into(&scene, dir) {
+    if let Some(dir) = &cfg.scene {
+        let pvs_used = cfg
+            .methods
+            .iter()
+            .any(|m| matches!(m, LodMethod::PvpsCPvs | LodMethod::PvpsCConservative));
+        let dss_used = cfg
+            .methods
+            .iter()
+            .any(|m| matches!(m, LodMethod::Dss1 | LodMethod::Dss2 | LodMethod::DssStrips));
+        let mut warnings = Vec::new();
+        if pvs_used {
+            warnings.extend(crate::pvs_scene::load_into(&scene, dir));
+        }
+        if dss_used {
+            match crate::dss_scene::load_into(&scene, dir) {
+                Ok(path) => eprintln!("DSS errors read from {}", path.display()),
+                Err(warning) => warnings.push(warning),
+            }
+        }
+        for warning in warnings {
             eprintln!("warning: {warning}");
             notes.push(warning);
         }

@@ -50,10 +50,12 @@ pub struct BenchArgs {
     /// Output folder (created).
     #[arg(short, long, default_value = "bench/results")]
     pub out: PathBuf,
-    /// A scene folder from `terrain bake` whose PVS files `pvps-c-pvs` and `pvps-c-cons` use
-    /// (default: bake the PVS in memory). A bad file is a warning: no occlusion culling.
-    #[arg(long)]
-    pub pvs_scene: Option<PathBuf>,
+    /// A scene folder from `terrain bake` of the same DEM: its PVS files (for `pvps-c-pvs` and
+    /// `pvps-c-cons`) and its DSS errors (for `dss-1`, `dss-2`, `dss-strips`) are read instead
+    /// of computed. A bad PVS file is a warning (no occlusion culling); a bad DSS file is a
+    /// warning (the errors are computed in memory).
+    #[arg(long, alias = "pvs-scene")]
+    pub scene: Option<PathBuf>,
     /// The `ooc` method: a store baked from the same DEM (default: bake one to a temporary
     /// folder with blocks of 2^ooc-k + 1 vertices).
     #[arg(long)]
@@ -102,7 +104,7 @@ pub fn run(args: &BenchArgs) -> anyhow::Result<()> {
         bail!("--leaf-cells must be at least 1");
     }
     cfg.method = MethodConfig { leaf_cells: args.leaf_cells, ..MethodConfig::default() };
-    cfg.pvs_scene = args.pvs_scene.clone();
+    cfg.scene = args.scene.clone();
     cfg.ooc_store = args.ooc_store.clone();
     cfg.ooc_k = args.ooc_k;
     cfg.ooc.budget_bytes = args.ooc_cache_mb << 20;

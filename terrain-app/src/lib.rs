@@ -3,6 +3,7 @@
 //! selection), terrain-visibility (roughness) and handed to terrain-gpu as draw patches.
 
 pub mod bench;
+pub mod dss_scene;
 pub mod entropy_method;
 pub mod methods;
 pub mod ooc;

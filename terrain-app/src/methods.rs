@@ -160,7 +160,7 @@ pub struct MethodConfig {
     /// ([`MethodScene::set_pvs`]). Default: 16 x 16 cells x 3 floors and 32 x 32 patches, a
     /// quarter of the paper's cells and patches per side, so that the in-memory bake of a
     /// benchmark run stays around a minute on a 1k DEM; `terrain bake` writes the paper's
-    /// configuration into a scene (`terrain bench --pvs-scene`).
+    /// configuration into a scene (`terrain bench --scene`).
     pub pvs: PvsConfig,
     /// `dss-strips`: half the strip width in cells (`DssStripsConfig::half_width_cells`).
     /// Default 1.
@@ -246,9 +246,16 @@ impl MethodScene {
         })
     }
 
-    /// The DSS paper's object-space errors, computed on first use.
+    /// The DSS paper's object-space errors: the table given to [`MethodScene::set_dss_errors`]
+    /// (read from a scene), or computed on every core on first use.
     pub fn dss_errors(&self) -> &DssErrorTable {
-        self.dss.get_or_init(|| DssErrorTable::new(&self.hm, &self.qt))
+        self.dss.get_or_init(|| crate::dss_scene::compute(&self.hm, &self.qt, false))
+    }
+
+    /// Uses `table` (read from a scene, see [`crate::dss_scene`]) instead of computing the DSS
+    /// errors. Returns false (and keeps the first) if a table was already set or computed.
+    pub fn set_dss_errors(&self, table: DssErrorTable) -> bool {
+        self.dss.set(table).is_ok()
     }
 
     /// The entropy paper's full quadtree, built on first use.

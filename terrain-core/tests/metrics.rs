@@ -590,3 +590,58 @@ fn angles_at_their_limits_are_finite() {
         }
     }
 }
+
+// ---------------------------------------------------------------------------------------------
+// The fast 32-factor DSS errors equal the single-factor reference bit for bit.
+
+fn assert_dss_fast_equals_reference(hm: &Heightmap, region: Region) {
+    let fast = dss::object_errors(hm, region);
+    for k in 0..dss::FACTORS {
+        let one = dss::object_error(hm, region, dss::factor(k));
+        assert_eq!(
+            (fast.avg[k].to_bits(), fast.max[k].to_bits()),
+            (one.avg.to_bits(), one.max.to_bits()),
+            "{region:?} factor {}: fast {} / {}, reference {} / {}",
+            dss::factor(k),
+            fast.avg[k],
+            fast.max[k],
+            one.avg,
+            one.max
+        );
+        assert_eq!(fast.coverage, one.coverage, "{region:?} factor {}", dss::factor(k));
+    }
+}
+
+#[test]
+fn dss_object_errors_equal_object_error_per_factor_bit_for_bit() {
+    // An odd-sized rough grid with scattered voids and a void-only corner.
+    let (w, h) = (83, 71);
+    let mut voids = VoidMask::new(w, h);
+    let mut r = Rng(7);
+    for _ in 0..300 {
+        voids.set((r.unit() * w as f64) as usize, (r.unit() * h as f64) as usize, true);
+    }
+    for j in 0..5 {
+        for i in 0..5 {
+            voids.set(i, j, true);
+        }
+    }
+    let hm =
+        Heightmap::new(w, h, random_heights(w, h, 11, 900.0), voids, Georef::local(1.0)).unwrap();
+    for region in [
+        Region::new(0, 0, 64),
+        Region::new(16, 16, 16),
+        Region::new(64, 64, 64), // clipped at both borders
+        Region::new(80, 0, 4),   // clipped to a thin strip
+        Region::new(0, 0, 4),    // void only
+        Region::new(40, 8, 1),
+        Region::new(90, 90, 8), // outside
+    ] {
+        assert_dss_fast_equals_reference(&hm, region);
+    }
+    // Without voids (the fast path skips the mask).
+    let plain = hm_from(w, h, random_heights(w, h, 12, 50.0), Georef::local(1.0));
+    for region in [Region::new(0, 0, 128), Region::new(32, 32, 32), Region::new(7, 3, 13)] {
+        assert_dss_fast_equals_reference(&plain, region);
+    }
+}

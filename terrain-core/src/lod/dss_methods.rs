@@ -75,31 +75,70 @@ impl DssConfig {
 /// samples.
 #[derive(Debug, Clone, PartialEq)]
 pub struct DssErrorTable {
-    root_cells: u32,
+    pub(super) root_cells: u32,
     /// Per level: nodes per row, and the errors row-major (row 0 south).
-    levels: Vec<(u32, Vec<[f64; FACTORS]>)>,
+    pub(super) levels: Vec<(u32, Vec<[f64; FACTORS]>)>,
 }
 
 impl DssErrorTable {
-    /// Computes every node's errors. Cost: about `32 x samples x levels` plus the tessellated
-    /// vertices; seconds for a 1025 x 1025 grid.
+    /// Computes every node's errors. Cost: about `32 x samples x levels` sample updates
+    /// (seconds for a 4097 x 4097 grid; see [`DssErrorTable::new_with`] to spread it over
+    /// threads).
     pub fn new(hm: &Heightmap, qt: &Quadtree) -> Self {
+        Self::new_with(hm, qt, |rows, f| rows.iter().map(f).collect())
+    }
+
+    /// As [`DssErrorTable::new`], with the caller's `map` over the rows of nodes: `map(rows,
+    /// f)` must return `rows.iter().map(f).collect()`, in order, however it spreads the calls
+    /// (terrain-core knows nothing of threads; the app passes a rayon `par_iter` and counts
+    /// progress in `f`'s wrapper). A row is `(level, j)`: the nodes `(level, 0..nx, j)`.
+    pub fn new_with<M>(hm: &Heightmap, qt: &Quadtree, map: M) -> Self
+    where
+        M: FnOnce(
+            &[(u8, u32)],
+            &(dyn Fn(&(u8, u32)) -> Vec<[f64; FACTORS]> + Sync),
+        ) -> Vec<Vec<[f64; FACTORS]>>,
+    {
         assert_eq!((hm.width() as u32, hm.height() as u32), (qt.width(), qt.height()));
-        let mut levels = Vec::new();
-        for level in 0..=qt.max_level() {
-            let c = qt.root_cells() >> level;
-            let nx = (qt.width() - 1).max(1).div_ceil(c);
-            let ny = (qt.height() - 1).max(1).div_ceil(c);
-            let mut v = Vec::with_capacity((nx * ny) as usize);
-            for j in 0..ny {
-                for i in 0..nx {
+        let dims = |level: u8| Self::level_dims(qt, level);
+        let rows: Vec<(u8, u32)> = (0..=qt.max_level())
+            .flat_map(|level| (0..dims(level).2).map(move |j| (level, j)))
+            .collect();
+        let row = |&(level, j): &(u8, u32)| -> Vec<[f64; FACTORS]> {
+            let (c, nx, _) = dims(level);
+            (0..nx)
+                .map(|i| {
                     let r = Region::new((i * c) as usize, (j * c) as usize, c as usize);
-                    v.push(object_errors(hm, r).avg);
-                }
-            }
-            levels.push((nx, v));
+                    object_errors(hm, r).avg
+                })
+                .collect()
+        };
+        let computed = map(&rows, &row);
+        assert_eq!(computed.len(), rows.len(), "DssErrorTable::new_with: map dropped rows");
+        let mut levels: Vec<(u32, Vec<[f64; FACTORS]>)> =
+            Self::shape(qt).into_iter().map(|(nx, n)| (nx, Vec::with_capacity(n))).collect();
+        for (&(level, _), v) in rows.iter().zip(computed) {
+            levels[level as usize].1.extend(v);
         }
         Self { root_cells: qt.root_cells(), levels }
+    }
+
+    /// Cells per node side, nodes per row and rows of nodes at `level` of `qt`.
+    fn level_dims(qt: &Quadtree, level: u8) -> (u32, u32, u32) {
+        let c = qt.root_cells() >> level;
+        let nx = (qt.width() - 1).max(1).div_ceil(c);
+        let ny = (qt.height() - 1).max(1).div_ceil(c);
+        (c, nx, ny)
+    }
+
+    /// Per level of `qt`: nodes per row and nodes (what a table for `qt` holds).
+    pub(super) fn shape(qt: &Quadtree) -> Vec<(u32, usize)> {
+        (0..=qt.max_level())
+            .map(|l| {
+                let (_, nx, ny) = Self::level_dims(qt, l);
+                (nx, (nx * ny) as usize)
+            })
+            .collect()
     }
 
     /// The errors of `node` (`delta_i` at index `i - 1`), or `None` outside the table.

@@ -11,6 +11,7 @@
 //!   its comparison methods A and B, which only swap the roughness field ([`Method`]).
 //! - [`dss_methods`]: the DSS paper's (Zhang 2019, section 4) comparison paths: Method I
 //!   (quadtree, power-of-two factors) and Method II (uniform blocks, continuous factors).
+//! - [`dss_file`]: the DSS errors' file (precomputed by `terrain bake`, stored with the scene).
 //! - [`dss_strips`]: the DSS paper's own method (section 3): M-blocks with their own
 //!   continuous factors, P-blocks and stitching strips instead of matched edge factors (the
 //!   crack-freedom invariant below does not apply to it: its blocks share no edge).
@@ -35,6 +36,7 @@
 //! The papers are OpenGL y-up; here x is east, y north, z up. A patch's domain is `(u, v)`
 //! with `u` east and `v` north.
 
+pub mod dss_file;
 pub mod dss_methods;
 pub mod dss_strips;
 pub mod edges;
@@ -43,6 +45,7 @@ pub mod patch;
 pub mod pvps;
 pub mod surface;
 
+pub use dss_file::DssFileError;
 pub use dss_methods::{DssConfig, DssErrorTable, select_dss_power_of_two, select_dss_uniform};
 pub use dss_strips::{
     DssStripFrame, DssStripsConfig, MBlock, PBlock, Strip, frame_from_leaves, select_dss_strips,

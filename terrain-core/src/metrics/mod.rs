@@ -200,12 +200,18 @@ pub(crate) fn bilerp(z00: f64, z10: f64, z01: f64, z11: f64, u: f64, v: f64) -> 
 /// Bilinear DEM height at fractional grid coordinates, in f64 (clamped to the grid). [`Heightmap::sample_grid`] interpolates in f32; metrics compare errors down to
 /// zero, so they interpolate in f64 to keep planes exact.
 pub(crate) fn dem_bilinear(hm: &Heightmap, u: f64, v: f64) -> f64 {
-    let u = u.clamp(0.0, (hm.width() - 1) as f64);
-    let v = v.clamp(0.0, (hm.height() - 1) as f64);
-    let i0 = (u.floor() as usize).min(hm.width().saturating_sub(2));
-    let j0 = (v.floor() as usize).min(hm.height().saturating_sub(2));
-    let i1 = (i0 + 1).min(hm.width() - 1);
-    let j1 = (j0 + 1).min(hm.height() - 1);
+    let (i0, i1, fu) = bilinear_axis(u, hm.width());
+    let (j0, j1, fv) = bilinear_axis(v, hm.height());
     let z = |i: usize, j: usize| f64::from(hm.get(i, j));
-    bilerp(z(i0, j0), z(i1, j0), z(i0, j1), z(i1, j1), u - i0 as f64, v - j0 as f64)
+    bilerp(z(i0, j0), z(i1, j0), z(i0, j1), z(i1, j1), fu, fv)
+}
+
+/// One axis of [`dem_bilinear`]: the two samples around coordinate `u` (clamped to a grid of
+/// `n` samples) and the fraction between them. Callers that interpolate many points on shared
+/// rows or columns compute it once per row or column and get the same bits.
+#[inline]
+pub(crate) fn bilinear_axis(u: f64, n: usize) -> (usize, usize, f64) {
+    let u = u.clamp(0.0, (n - 1) as f64);
+    let i0 = (u.floor() as usize).min(n.saturating_sub(2));
+    (i0, (i0 + 1).min(n - 1), u - i0 as f64)
 }

@@ -1,0 +1,99 @@
+//! The DSS paper's precomputed object-space errors (section 3.3.1: 32 per M-block, factors
+//! 2..64) in a scene folder: `terrain bake` computes them on every core and writes
+//! `dss_errors.bin`; the benchmark reads them instead of computing them. A missing or bad file
+//! is a warning, and the errors are computed in memory (the selections are the same either way:
+//! the file holds the computed values bit for bit).
+
+use std::io::Write;
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::time::Instant;
+
+use anyhow::Context;
+use rayon::prelude::*;
+use terrain_core::Heightmap;
+use terrain_core::lod::DssErrorTable;
+use terrain_core::quadtree::Quadtree;
+
+use crate::methods::MethodScene;
+
+/// The DSS error table in a scene folder.
+pub const DSS_FILE: &str = "dss_errors.bin";
+
+/// The DSS error table's path in scene folder `dir`.
+pub fn dss_path(dir: &Path) -> PathBuf {
+    dir.join(DSS_FILE)
+}
+
+/// Computes the table on rayon's threads, with a progress line on stderr when `progress`
+/// (the cost is the same per level: every level covers every sample 32 times).
+pub fn compute(hm: &Heightmap, qt: &Quadtree, progress: bool) -> DssErrorTable {
+    let start = Instant::now();
+    let done = AtomicU64::new(0);
+    let last_print = AtomicU64::new(0);
+    let levels = u64::from(qt.max_level()) + 1;
+    let table = DssErrorTable::new_with(hm, qt, |rows, f| {
+        // Work per row: its samples, so each level weighs the same.
+        let rows_at = |level: u8| rows.iter().filter(|r| r.0 == level).count().max(1) as u64;
+        let per_level: Vec<u64> = (0..=qt.max_level()).map(rows_at).collect();
+        let total = 1_000_000 * levels;
+        rows.par_iter()
+            .map(|row| {
+                let out = f(row);
+                let now = done.fetch_add(1_000_000 / per_level[row.0 as usize], Ordering::Relaxed);
+                let tenth = now * 10 / total;
+                if progress && last_print.fetch_max(tenth + 1, Ordering::Relaxed) < tenth + 1 {
+                    let mut err = std::io::stderr();
+                    let _ = write!(
+                        err,
+                        "\rDSS errors: {:3.0} %, {:.0} s",
+                        100.0 * now as f64 / total as f64,
+                        start.elapsed().as_secs_f64()
+                    );
+                    let _ = err.flush();
+                }
+                out
+            })
+            .collect()
+    });
+    if progress {
+        eprintln!("\rDSS errors: 100 %, {:.1} s", start.elapsed().as_secs_f64());
+    }
+    table
+}
+
+/// Computes the table of `hm` for quadtree `qt` and writes it into scene folder `dir` (through
+/// a temporary file renamed into place, so an interrupted write never leaves a damaged table).
+pub fn bake_into_scene(hm: &Heightmap, qt: &Quadtree, dir: &Path) -> anyhow::Result<()> {
+    let start = Instant::now();
+    let table = compute(hm, qt, true);
+    let bytes = table.encode(hm);
+    let path = dss_path(dir);
+    let tmp = dir.join(format!("{DSS_FILE}.tmp"));
+    std::fs::write(&tmp, &bytes).with_context(|| format!("writing {}", tmp.display()))?;
+    std::fs::rename(&tmp, &path)
+        .with_context(|| format!("renaming {} to {}", tmp.display(), path.display()))?;
+    println!(
+        "{}: the DSS paper's 32 object-space errors of {} quadtree levels, {:.1} MB, {:.1} s",
+        path.display(),
+        qt.max_level() + 1,
+        bytes.len() as f64 / 1e6,
+        start.elapsed().as_secs_f64()
+    );
+    Ok(())
+}
+
+/// Reads scene folder `dir`'s table into `scene`: `Ok(path)` when used, or `Err(warning)` when
+/// it cannot be used (missing, damaged, another terrain); the errors are then computed on
+/// first use.
+pub fn load_into(scene: &MethodScene, dir: &Path) -> Result<PathBuf, String> {
+    let path = dss_path(dir);
+    std::fs::read(&path)
+        .map_err(|e| e.to_string())
+        .and_then(|b| DssErrorTable::decode(&b, &scene.hm, &scene.qt).map_err(|e| e.to_string()))
+        .map(|table| {
+            scene.set_dss_errors(table);
+            path.clone()
+        })
+        .map_err(|e| format!("{}: {e}; computing the DSS errors in memory instead", path.display()))
+}

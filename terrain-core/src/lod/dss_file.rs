@@ -1,0 +1,293 @@
+//! The DSS paper's precomputed object-space errors as bytes (`dss_errors.bin` in a scene that
+//! `terrain bake` writes): section 3.3.1 computes the 32 errors per M-block in preprocessing,
+//! so the runtime reads them instead of computing them.
+//!
+//! Layout (little-endian):
+//!
+//! ```text
+//! magic "TDSS" | version u32 = 1 | width u32 | height u32 | root_cells u32 | levels u32 |
+//! heights u32 (CRC-32 of the heightmap's samples and void mask) |
+//! per level: nodes_x u32, nodes u32 | per node, level by level, row-major from the south:
+//! 32 x f64 (delta_1 .. delta_32) | crc32 u32 (of every byte before it)
+//! ```
+//!
+//! Errors are stored as f64, so a table read back equals the one computed bit for bit (the
+//! selections that use it do not change). A table is tied to its terrain: decoding checks the
+//! grid size, the quadtree's root, and the heights' checksum, so a file baked from another DEM,
+//! another crop or another vertical scale is refused instead of misread. A table with more
+//! levels than the quadtree (a finer `leaf_cells` at bake time) serves it: node `(l, i, j)`
+//! covers the same samples whatever the leaf size; its finer levels are dropped on reading.
+//! terrain-core does no file I/O here; the app reads and writes the bytes and names the file.
+
+use super::dss_methods::DssErrorTable;
+use crate::checksum::{crc32, crc32_update};
+use crate::heightmap::Heightmap;
+use crate::metrics::dss::FACTORS;
+use crate::quadtree::Quadtree;
+
+/// The magic bytes.
+pub const MAGIC: [u8; 4] = *b"TDSS";
+/// The format version this build reads and writes.
+pub const VERSION: u32 = 1;
+/// The length of the fixed header before the per-level counts.
+const HEADER_LEN: usize = 4 + 4 * 6;
+
+/// Why a DSS error table's bytes cannot be used.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum DssFileError {
+    /// Not a DSS table.
+    #[error("not a DSS error table (no TDSS magic)")]
+    Magic,
+    /// Another format version.
+    #[error(
+        "DSS error table format version {found}, this build reads version {VERSION}: bake it again"
+    )]
+    Version {
+        /// The version found.
+        found: u32,
+    },
+    /// Shorter than its header says.
+    #[error("truncated: {len} bytes, the header needs {needed}")]
+    Truncated {
+        /// Bytes present.
+        len: usize,
+        /// Bytes the header implies.
+        needed: usize,
+    },
+    /// The checksum does not match (a damaged file).
+    #[error(
+        "checksum mismatch (stored {stored:#010x}, computed {computed:#010x}): the file is damaged"
+    )]
+    Checksum {
+        /// Stored CRC-32.
+        stored: u32,
+        /// Computed CRC-32.
+        computed: u32,
+    },
+    /// Inconsistent counts inside the file.
+    #[error("inconsistent table: {0}")]
+    Layout(String),
+    /// Made for another terrain or quadtree.
+    #[error("made for another terrain: {0}")]
+    Mismatch(String),
+}
+
+/// CRC-32 of a heightmap's sample bits (row by row) and void flags: the terrain a table belongs
+/// to.
+pub fn heights_checksum(hm: &Heightmap) -> u32 {
+    let mut crc = 0;
+    let mut buf = Vec::with_capacity(hm.width() * 4);
+    for row in hm.data().chunks(hm.width().max(1)) {
+        buf.clear();
+        buf.extend(row.iter().flat_map(|z| z.to_bits().to_le_bytes()));
+        crc = crc32_update(crc, &buf);
+    }
+    if hm.voids().any() {
+        for j in 0..hm.height() {
+            buf.clear();
+            buf.extend((0..hm.width()).map(|i| u8::from(hm.voids().get(i, j))));
+            crc = crc32_update(crc, &buf);
+        }
+    }
+    crc
+}
+
+impl DssErrorTable {
+    /// The table as bytes, tied to `hm` (the terrain it was computed from).
+    pub fn encode(&self, hm: &Heightmap) -> Vec<u8> {
+        let nodes: usize = self.levels.iter().map(|(_, v)| v.len()).sum();
+        let mut out =
+            Vec::with_capacity(HEADER_LEN + 8 * self.levels.len() + nodes * FACTORS * 8 + 4);
+        out.extend_from_slice(&MAGIC);
+        for v in [
+            VERSION,
+            hm.width() as u32,
+            hm.height() as u32,
+            self.root_cells,
+            self.levels.len() as u32,
+            heights_checksum(hm),
+        ] {
+            out.extend_from_slice(&v.to_le_bytes());
+        }
+        for (nx, v) in &self.levels {
+            out.extend_from_slice(&nx.to_le_bytes());
+            out.extend_from_slice(&(v.len() as u32).to_le_bytes());
+        }
+        for (_, v) in &self.levels {
+            for e in v.iter().flatten() {
+                out.extend_from_slice(&e.to_le_bytes());
+            }
+        }
+        let crc = crc32(&out);
+        out.extend_from_slice(&crc.to_le_bytes());
+        out
+    }
+
+    /// Reads a table from `bytes` for the terrain `hm` and its quadtree `qt`: refused unless
+    /// the file is whole (checksum), of this version, and made for this grid, root and heights
+    /// with at least the quadtree's levels.
+    pub fn decode(bytes: &[u8], hm: &Heightmap, qt: &Quadtree) -> Result<Self, DssFileError> {
+        if bytes.len() < 4 || bytes[..4] != MAGIC {
+            return Err(DssFileError::Magic);
+        }
+        if bytes.len() < HEADER_LEN {
+            return Err(DssFileError::Truncated { len: bytes.len(), needed: HEADER_LEN });
+        }
+        let u32_at = |o: usize| -> Result<u32, DssFileError> {
+            bytes
+                .get(o..o + 4)
+                .map(|b| u32::from_le_bytes(b.try_into().expect("4 bytes")))
+                .ok_or(DssFileError::Truncated { len: bytes.len(), needed: o + 4 })
+        };
+        let version = u32_at(4)?;
+        if version != VERSION {
+            return Err(DssFileError::Version { found: version });
+        }
+        let (width, height, root_cells) = (u32_at(8)?, u32_at(12)?, u32_at(16)?);
+        let (levels, heights) = (u32_at(20)?, u32_at(24)?);
+        if levels == 0 || levels > 32 {
+            return Err(DssFileError::Layout(format!("{levels} levels")));
+        }
+        let mut counts = Vec::with_capacity(levels as usize);
+        let mut needed = HEADER_LEN + 8 * levels as usize;
+        for l in 0..levels as usize {
+            let (nx, n) = (u32_at(HEADER_LEN + 8 * l)?, u32_at(HEADER_LEN + 8 * l + 4)?);
+            if nx == 0 || n % nx != 0 {
+                return Err(DssFileError::Layout(format!("level {l}: {n} nodes in rows of {nx}")));
+            }
+            needed = needed.saturating_add((n as usize).saturating_mul(FACTORS * 8));
+            counts.push((nx, n as usize));
+        }
+        needed = needed.saturating_add(4);
+        if bytes.len() != needed {
+            return Err(DssFileError::Truncated { len: bytes.len(), needed });
+        }
+        let stored = u32_at(needed - 4)?;
+        let computed = crc32(&bytes[..needed - 4]);
+        if stored != computed {
+            return Err(DssFileError::Checksum { stored, computed });
+        }
+        let expect = |what: &str, file: u32, here: u32| -> Result<(), DssFileError> {
+            if file == here {
+                Ok(())
+            } else {
+                Err(DssFileError::Mismatch(format!("{what} {file} in the file, {here} here")))
+            }
+        };
+        expect("width", width, hm.width() as u32)?;
+        expect("height", height, hm.height() as u32)?;
+        expect("quadtree root cells", root_cells, qt.root_cells())?;
+        let used = qt.max_level() as usize + 1;
+        if (levels as usize) < used {
+            return Err(DssFileError::Mismatch(format!(
+                "{levels} quadtree levels in the file, {used} needed (bake with a smaller leaf size)"
+            )));
+        }
+        if heights != heights_checksum(hm) {
+            return Err(DssFileError::Mismatch(
+                "the heights differ (another DEM, crop, void filling or vertical scale)".into(),
+            ));
+        }
+        let reference = DssErrorTable::shape(qt);
+        let mut at = HEADER_LEN + 8 * levels as usize;
+        let mut out = Vec::with_capacity(used);
+        for (l, &(nx, n)) in counts.iter().enumerate().take(used) {
+            if (nx, n) != reference[l] {
+                return Err(DssFileError::Layout(format!(
+                    "level {l}: {n} nodes in rows of {nx}, the quadtree has {} in rows of {}",
+                    reference[l].1, reference[l].0
+                )));
+            }
+            let mut v = Vec::with_capacity(n);
+            for _ in 0..n {
+                let mut e = [0.0f64; FACTORS];
+                for x in &mut e {
+                    *x = f64::from_le_bytes(bytes[at..at + 8].try_into().expect("8 bytes"));
+                    at += 8;
+                }
+                v.push(e);
+            }
+            out.push((nx, v));
+        }
+        Ok(DssErrorTable { root_cells, levels: out })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::quadtree::NodeId;
+    use crate::synth::FractalConfig;
+
+    fn terrain(w: u64, h: u64) -> Heightmap {
+        FractalConfig::with_size(w, h, 10.0).to_heightmap().unwrap()
+    }
+
+    fn all_nodes(t: &DssErrorTable, qt: &Quadtree) -> Vec<u64> {
+        let mut v = Vec::new();
+        for (l, (nx, n)) in DssErrorTable::shape(qt).into_iter().enumerate() {
+            for k in 0..n as u32 {
+                let e = t.get(NodeId { level: l as u8, i: k % nx, j: k / nx }).unwrap();
+                v.extend(e.iter().map(|x| x.to_bits()));
+            }
+        }
+        v
+    }
+
+    #[test]
+    fn a_table_read_back_equals_the_computed_one_bit_for_bit() {
+        let hm = terrain(97, 70);
+        let qt = Quadtree::new(&hm, 8);
+        let table = DssErrorTable::new(&hm, &qt);
+        assert!(all_nodes(&table, &qt).iter().any(|&b| f64::from_bits(b) > 0.0));
+        let back = DssErrorTable::decode(&table.encode(&hm), &hm, &qt).unwrap();
+        assert_eq!(back, table);
+        // A caller's map that computes the rows in reverse and puts them back in order.
+        let rev = DssErrorTable::new_with(&hm, &qt, |rows, f| {
+            let mut out: Vec<_> = rows.iter().rev().map(f).collect();
+            out.reverse();
+            out
+        });
+        assert_eq!(rev, table);
+    }
+
+    #[test]
+    fn a_finer_table_serves_a_coarser_quadtree() {
+        let hm = terrain(65, 65);
+        let (fine, coarse) = (Quadtree::new(&hm, 4), Quadtree::new(&hm, 16));
+        assert!(fine.max_level() > coarse.max_level());
+        let bytes = DssErrorTable::new(&hm, &fine).encode(&hm);
+        let read = DssErrorTable::decode(&bytes, &hm, &coarse).unwrap();
+        assert_eq!(read, DssErrorTable::new(&hm, &coarse));
+        // Not the other way round.
+        let bytes = DssErrorTable::new(&hm, &coarse).encode(&hm);
+        let e = DssErrorTable::decode(&bytes, &hm, &fine).unwrap_err();
+        assert!(matches!(e, DssFileError::Mismatch(_)), "{e}");
+    }
+
+    #[test]
+    fn damaged_or_foreign_tables_are_refused() {
+        let hm = terrain(33, 33);
+        let qt = Quadtree::new(&hm, 8);
+        let bytes = DssErrorTable::new(&hm, &qt).encode(&hm);
+        let dec = |b: &[u8]| DssErrorTable::decode(b, &hm, &qt).unwrap_err();
+        assert_eq!(dec(b"PNG\x0d"), DssFileError::Magic);
+        assert!(matches!(dec(&bytes[..10]), DssFileError::Truncated { .. }));
+        assert!(matches!(dec(&bytes[..bytes.len() - 9]), DssFileError::Truncated { .. }));
+        let mut flipped = bytes.clone();
+        flipped[HEADER_LEN + 40] ^= 1;
+        assert!(matches!(dec(&flipped), DssFileError::Checksum { .. }));
+        let mut v2 = bytes.clone();
+        v2[4] = 2;
+        assert_eq!(dec(&v2), DssFileError::Version { found: 2 });
+        // Same size, other heights (a vertical scale): refused by the heights' checksum.
+        let scaled =
+            Heightmap::from_fn(33, 33, hm.georef().clone(), |i, j| hm.get(i, j) * 2.0).unwrap();
+        let e = DssErrorTable::decode(&bytes, &scaled, &qt).unwrap_err();
+        assert!(e.to_string().contains("heights differ"), "{e}");
+        // Another grid size.
+        let other = terrain(40, 33);
+        let e = DssErrorTable::decode(&bytes, &other, &Quadtree::new(&other, 8)).unwrap_err();
+        assert!(e.to_string().contains("width 33 in the file, 40 here"), "{e}");
+    }
+}
