@@ -53,11 +53,12 @@ pub struct BenchArgs {
     /// A scene folder from `terrain bake` of the same DEM: its PVS files (for `pvps-c-pvs` and
     /// `pvps-c-cons`) and its DSS errors (for `dss-1`, `dss-2`, `dss-strips`) are read instead
     /// of computed. A bad PVS file is a warning (no occlusion culling); a bad DSS file is a
-    /// warning (the errors are computed in memory).
+    /// warning (the errors are computed in memory). It is also the `ooc` method's store unless
+    /// `--ooc-store` names another.
     #[arg(long, alias = "pvs-scene")]
     pub scene: Option<PathBuf>,
-    /// The `ooc` method: a store baked from the same DEM (default: bake one to a temporary
-    /// folder with blocks of 2^ooc-k + 1 vertices).
+    /// The `ooc` method: a store baked from the same DEM (default: the `--scene` folder, else
+    /// one baked to a temporary folder with blocks of 2^ooc-k + 1 vertices).
     #[arg(long)]
     pub ooc_store: Option<PathBuf>,
     /// The `ooc` method: k of the temporary store.
@@ -105,7 +106,7 @@ pub fn run(args: &BenchArgs) -> anyhow::Result<()> {
     }
     cfg.method = MethodConfig { leaf_cells: args.leaf_cells, ..MethodConfig::default() };
     cfg.scene = args.scene.clone();
-    cfg.ooc_store = args.ooc_store.clone();
+    cfg.ooc_store = args.ooc_store.clone().or_else(|| args.scene.clone());
     cfg.ooc_k = args.ooc_k;
     cfg.ooc.budget_bytes = args.ooc_cache_mb << 20;
     let flights = args

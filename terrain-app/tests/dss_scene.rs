@@ -99,6 +99,27 @@ fn bake_stores_the_dss_errors_and_bench_reads_them() {
     assert!(err.contains("dss_errors.bin") && err.contains("heights differ"), "{err}");
     assert_eq!(foreign, computed);
 
+    // The scene is also the `ooc` method's store: one of another terrain is refused by name.
+    let synthetic = dir.join("synthetic.scene");
+    ok(&terrain(&[
+        "bake",
+        "--synthetic",
+        "257",
+        "-o",
+        s(&synthetic),
+        "--block-k",
+        "6",
+        "--no-dss",
+    ]));
+    let flight = Path::new(env!("CARGO_MANIFEST_DIR")).join("../flights/pvps_884.json");
+    let mut args = vec!["bench", s(&dem)];
+    args.extend(PUGET);
+    args.extend(["--flight", s(&flight), "--methods", "ooc", "--frames", "1", "--sweep", "1"]);
+    args.extend(["--no-render", "-o", s(&dir), "--scene", s(&synthetic)]);
+    let r = terrain(&args);
+    let err = String::from_utf8_lossy(&r.stderr);
+    assert!(!r.status.success() && err.contains("synthetic.scene is 257 x 257"), "{err}");
+
     // --no-dss writes no table.
     let none = dir.join("none.scene");
     let mut args = vec!["bake", s(&dem)];
