@@ -818,25 +818,7 @@ pub fn run_bench(
     }
     let mut scene = MethodScene::new(hm, cfg.method.clone());
     if let Some(dir) = &cfg.scene {
-        let pvs_used = cfg
-            .methods
-            .iter()
-            .any(|m| matches!(m, LodMethod::PvpsCPvs | LodMethod::PvpsCConservative));
-        let dss_used = cfg
-            .methods
-            .iter()
-            .any(|m| matches!(m, LodMethod::Dss1 | LodMethod::Dss2 | LodMethod::DssStrips));
-        let mut warnings = Vec::new();
-        if pvs_used {
-            warnings.extend(crate::pvs_scene::load_into(&scene, dir));
-        }
-        if dss_used {
-            match crate::dss_scene::load_into(&scene, dir) {
-                Ok(path) => eprintln!("DSS errors read from {}", path.display()),
-                Err(warning) => warnings.push(warning),
-            }
-        }
-        for warning in warnings {
+        for warning in crate::scene_files::load(&scene, dir, &cfg.methods) {
             eprintln!("warning: {warning}");
             notes.push(warning);
         }

@@ -49,6 +49,7 @@ pub fn run(args: &DemoArgs) -> anyhow::Result<()> {
                 leaf_cells: 16,
                 size: (640, 360),
                 max_frames: 48,
+                scene: None,
             };
             fly(synth::default_terrain(), &flights[0], options, ctx, &out.join("frames"))?;
         }

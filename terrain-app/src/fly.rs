@@ -32,6 +32,10 @@ pub struct FlyArgs {
     /// Cells per side of the finest patch.
     #[arg(long, default_value_t = 16)]
     pub leaf_cells: u32,
+    /// A scene folder from `terrain bake` of the same DEM: its PVS files and DSS errors are
+    /// read instead of computed (a bad file is a warning; see `terrain bench --scene`).
+    #[arg(long)]
+    pub scene: Option<PathBuf>,
     /// Image size, WIDTHxHEIGHT (also the viewport of the pixel errors).
     #[arg(long, default_value = "640x360")]
     pub size: String,
@@ -44,7 +48,7 @@ pub struct FlyArgs {
 }
 
 /// What a fly writes, besides the folder.
-#[derive(Debug, Clone, Copy)]
+#[derive(Debug, Clone)]
 pub struct FlyOptions {
     /// The method.
     pub method: LodMethod,
@@ -54,6 +58,8 @@ pub struct FlyOptions {
     pub size: (u32, u32),
     /// At most this many frames (0 = all).
     pub max_frames: usize,
+    /// A scene folder whose precomputed files the method reads ([`terrain_app::scene_files`]).
+    pub scene: Option<PathBuf>,
 }
 
 /// Flies `spec` over `hm` into `out` with the GPU `ctx`: PNG frames, stats.csv, stats.json.
@@ -89,6 +95,11 @@ pub fn fly(
         hm,
         MethodConfig { leaf_cells: options.leaf_cells, ..MethodConfig::default() },
     );
+    if let Some(dir) = &options.scene {
+        for warning in terrain_app::scene_files::load(&scene, dir, &[options.method]) {
+            eprintln!("warning: {warning}");
+        }
+    }
     scene.prepare(&[options.method]);
     let measure = MeasureConfig { max_samples: 200_000, ..MeasureConfig::default() };
     let mut runner = FrameRunner::new(&scene, options.method, measure, Some(&mut renderer));
@@ -156,6 +167,7 @@ pub fn run(args: &FlyArgs) -> anyhow::Result<()> {
         leaf_cells: args.leaf_cells,
         size,
         max_frames: args.frames,
+        scene: args.scene.clone(),
     };
     let records = fly(hm, &spec, options, &ctx, &args.output)?;
     let median = |f: fn(&FrameRecord) -> f64| {

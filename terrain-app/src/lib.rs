@@ -8,3 +8,4 @@ pub mod entropy_method;
 pub mod methods;
 pub mod ooc;
 pub mod pvs_scene;
+pub mod scene_files;

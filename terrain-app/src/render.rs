@@ -44,6 +44,10 @@ pub struct RenderArgs {
     /// Cells per side of the finest patch (the PVPS paper: a 64 x 64 patch grid).
     #[arg(long, default_value_t = 16)]
     pub leaf_cells: u32,
+    /// A scene folder from `terrain bake` of the same DEM: its PVS files and DSS errors are
+    /// read instead of computed (a bad file is a warning; see `terrain bench --scene`).
+    #[arg(long)]
+    pub scene: Option<PathBuf>,
     /// `--method uniform`: tessellation factor of every patch (fractional-even: 2 to 64).
     #[arg(long, default_value_t = 16.0)]
     pub factor: f32,
@@ -216,6 +220,11 @@ pub fn run(args: &RenderArgs) -> anyhow::Result<()> {
         ..MethodConfig::default()
     };
     let scene = MethodScene::new(hm, method_config);
+    if let Some(dir) = &args.scene {
+        for warning in terrain_app::scene_files::load(&scene, dir, &[args.method]) {
+            eprintln!("warning: {warning}");
+        }
+    }
     scene.prepare(&[args.method]);
     let options = RenderOptions { wireframe: args.wireframe, ..Default::default() };
     let p = camera.position;

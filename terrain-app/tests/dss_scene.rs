@@ -1,7 +1,8 @@
 //! End-to-end tests of the DSS errors stored with the scene: `terrain bake` writes
 //! `dss_errors.bin`, `terrain bench --scene` reads it and selects exactly what it selects when
 //! it computes the errors itself, and a damaged or foreign table is a warning naming the file
-//! (the errors are then computed in memory, with the same results).
+//! (the errors are then computed in memory, with the same results). `terrain fly --scene` reads
+//! the table too, and a scene is also the `ooc` method's store.
 
 mod common;
 
@@ -68,6 +69,7 @@ fn bake_stores_the_dss_errors_and_bench_reads_them() {
     assert!(out.contains("dss_errors.bin") && out.contains("7 quadtree levels"), "{out}");
     assert!(err.contains("DSS errors: 100 %"), "no progress shown: {err}");
     let file = scene.join("dss_errors.bin");
+    let flight = Path::new(env!("CARGO_MANIFEST_DIR")).join("../flights/pvps_884.json");
     // 1 + 4 + ... + 4^6 nodes of 32 f64, a 28-byte header, 8 bytes per level and the CRC.
     let nodes: u64 = (0..7).map(|l| 4u64.pow(l)).sum();
     assert_eq!(std::fs::metadata(&file).unwrap().len(), 28 + 7 * 8 + nodes * 256 + 4);
@@ -79,6 +81,24 @@ fn bake_stores_the_dss_errors_and_bench_reads_them() {
     assert!(!err.contains("warning"), "{err}");
     assert!(err.contains("DSS errors read from") && err.contains("dss_errors.bin"), "{err}");
     assert_eq!(read, computed, "the stored errors select differently");
+
+    // `terrain fly --scene` reads it too (where a GPU adapter exists or one is required).
+    let mut args = vec!["fly", s(&dem)];
+    args.extend(PUGET);
+    args.extend(["--method", "dss-strips", "--scene", s(&scene), "--flight", s(&flight)]);
+    let fly_out = dir.join("fly");
+    args.extend(["--frames", "2", "--size", "64x36", "-o", s(&fly_out)]);
+    let out = terrain(&args);
+    let err = String::from_utf8_lossy(&out.stderr);
+    if !out.status.success()
+        && err.contains("no GPU adapter")
+        && std::env::var_os("TERRAIN_REQUIRE_GPU").is_none()
+    {
+        println!("SKIPPED terrain fly: {err}; set TERRAIN_REQUIRE_GPU=1 to make this a failure");
+    } else {
+        let (_, err) = ok(&out);
+        assert!(err.contains("DSS errors read from") && !err.contains("warning"), "{err}");
+    }
 
     // A damaged table: a warning naming the file, and the same selections from computed errors.
     let mut bytes = std::fs::read(&file).unwrap();
