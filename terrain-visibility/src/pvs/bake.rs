@@ -185,6 +185,8 @@ struct Top<'a> {
     z: f64,
     /// The conservative bits of the same plan cell's top plane at a height at most `z`.
     below: Option<Below<'a>>,
+    /// The key viewpoints of every Fig. 6 case ([`fig6_case`]) from this plane.
+    views: &'a [Vec<DVec3>],
 }
 
 /// A lower top plane's conservative bits (same plan rectangle). A proof that fails from a
@@ -244,7 +246,9 @@ impl Ctx<'_> {
             // Outside the grid: never looked up; all visible.
             return (vec![0xFF; per], vec![0xFF; per]);
         };
-        let top = Top { lo, hi, z, below: below.filter(|b| b.z <= z) };
+        let mut top = Top { lo, hi, z, below: below.filter(|b| b.z <= z), views: &[] };
+        let views = view_table(&top, self.cfg.max_viewpoints.max(1) as usize);
+        top.views = &views;
         let (mut s, mut k) = (vec![0u8; per], vec![0u8; per]);
         let mut hints = los::Hints::new();
         self.visit(&top, 0, 0, 0, &mut s, &mut k, &mut hints);
@@ -626,12 +630,33 @@ fn sampled_patch_visible(
     }
     // The result is the OR over every (test point, key viewpoint) pair, so the order is free:
     // the highest test points first, as they are the likeliest to be seen (a speed choice).
-    points.sort_by(|a, b| b.z.total_cmp(&a.z));
-    let mut views: Vec<DVec3> = Vec::with_capacity(cfg.max_viewpoints as usize);
+    points.sort_unstable_by(|a, b| b.z.total_cmp(&a.z));
     points.iter().any(|&t| {
-        key_viewpoints(top, t, cfg.max_viewpoints.max(1) as usize, &mut views);
+        let views = &top.views[fig6_case(top, t)];
         views.iter().any(|&v| los::visible_with(mip, v, t, cfg.epsilon_m, hints))
     })
+}
+
+/// Which case of Fig. 6's table test point `t` falls in: its region around the plane (west,
+/// east, south, north flags) and whether the plane is above it; [`key_viewpoints`] depends on
+/// `t` through these alone.
+fn fig6_case(top: &Top<'_>, t: DVec3) -> usize {
+    usize::from(t.x < top.lo.x)
+        | usize::from(t.x > top.hi.x) << 1
+        | usize::from(t.y < top.lo.y) << 2
+        | usize::from(t.y > top.hi.y) << 3
+        | usize::from(top.z - t.z > 0.0) << 4
+}
+
+/// The key viewpoints of every case of [`fig6_case`] (computed once per plane).
+fn view_table(top: &Top<'_>, max: usize) -> Vec<Vec<DVec3>> {
+    (0..32)
+        .map(|c| {
+            let mut out = Vec::with_capacity(max);
+            key_viewpoints_case(top, c, max, &mut out);
+            out
+        })
+        .collect()
 }
 
 /// The key viewpoints of Fig. 6 for test point `t`: the top plane's edges facing `t` when
@@ -641,14 +666,17 @@ fn sampled_patch_visible(
 /// Fig. 6 names edges 0-3 (top, left, bottom, right of its top view) and regions 0-7 around
 /// the cell; a corner region takes the two edges meeting at the corner, a side region the one
 /// edge on its side, exactly as the table lists them.
+#[cfg(test)]
 fn key_viewpoints(top: &Top<'_>, t: DVec3, max: usize, out: &mut Vec<DVec3>) {
+    key_viewpoints_case(top, fig6_case(top, t), max, out);
+}
+
+/// [`key_viewpoints`] for the test points of one [`fig6_case`].
+fn key_viewpoints_case(top: &Top<'_>, case: usize, max: usize, out: &mut Vec<DVec3>) {
     out.clear();
-    let above = top.z - t.z > 0.0;
     let (lo, hi) = (top.lo, top.hi);
-    let west = t.x < lo.x;
-    let east = t.x > hi.x;
-    let south = t.y < lo.y;
-    let north = t.y > hi.y;
+    let (west, east) = (case & 1 != 0, case & 2 != 0);
+    let (south, north, above) = (case & 4 != 0, case & 8 != 0, case & 16 != 0);
     // Edges as (start, end) on the top plane.
     let w_edge = (DVec2::new(lo.x, lo.y), DVec2::new(lo.x, hi.y));
     let e_edge = (DVec2::new(hi.x, lo.y), DVec2::new(hi.x, hi.y));
@@ -690,8 +718,13 @@ mod tests {
 
     #[test]
     fn key_viewpoints_follow_fig6() {
-        let top =
-            Top { lo: DVec2::new(10.0, 10.0), hi: DVec2::new(20.0, 20.0), z: 100.0, below: None };
+        let top = Top {
+            lo: DVec2::new(10.0, 10.0),
+            hi: DVec2::new(20.0, 20.0),
+            z: 100.0,
+            below: None,
+            views: &[],
+        };
         let mut v = Vec::new();
         // Region north-west, plane above the test point: the north and west edges.
         key_viewpoints(&top, DVec3::new(0.0, 30.0, 0.0), 16, &mut v);

@@ -56,11 +56,48 @@ impl Hints {
     }
 }
 
+/// `x.floor() as i64` without a libm call (the build targets CPUs without a rounding
+/// instruction, where `f64::floor` is a function call): equal for every `f64`, saturating
+/// and NaN to 0 alike (tested against the standard library).
+#[inline]
+pub fn floor_i64(x: f64) -> i64 {
+    let t = x as i64;
+    if (t as f64) > x { t.saturating_sub(1) } else { t }
+}
+
+/// `x.ceil() as i64` without a libm call (see [`floor_i64`]).
+#[inline]
+pub fn ceil_i64(x: f64) -> i64 {
+    let t = x as i64;
+    if (t as f64) < x { t.saturating_add(1) } else { t }
+}
+
+/// `x.round() as i64` (halves away from zero) without a libm call (see [`floor_i64`]). `x -
+/// trunc(x)` is exact (Sterbenz's lemma for `|x| >= 1`, `x` itself below), so comparing it
+/// with one half rounds exactly as `f64::round`.
+#[inline]
+pub fn round_i64(x: f64) -> i64 {
+    let t = x as i64;
+    let f = x - t as f64;
+    if f >= 0.5 {
+        t.saturating_add(1)
+    } else if f <= -0.5 {
+        t.saturating_sub(1)
+    } else {
+        t
+    }
+}
+
 /// One sight line's Bresenham section line: its steps are the integer major coordinates
-/// strictly between the ends (see the module docs).
+/// strictly between the ends (see the module docs). Only the minor plan coordinate and the
+/// height of the line are kept, each computed exactly as `eye + (target - eye) t` would.
 struct Section {
-    eye: DVec3,
-    d: DVec3,
+    /// The eye's minor coordinate and the line's extent along it.
+    e_minor: f64,
+    d_minor: f64,
+    /// The eye's height and the line's rise.
+    e_z: f64,
+    d_z: f64,
     major_x: bool,
     a: f64,
     len: f64,
@@ -71,6 +108,7 @@ struct Section {
 
 impl Section {
     /// `None` when the line has no interior step (nothing can block it).
+    #[inline]
     fn new(eye: DVec3, target: DVec3) -> Option<Self> {
         let d = target - eye;
         let (major_x, len) = if d.x.abs() >= d.y.abs() { (true, d.x) } else { (false, d.y) };
@@ -79,13 +117,14 @@ impl Section {
         }
         let (a, b) = if major_x { (eye.x, target.x) } else { (eye.y, target.y) };
         let dir: i64 = if b > a { 1 } else { -1 };
-        let first = if dir > 0 { a.floor() as i64 + 1 } else { a.ceil() as i64 - 1 };
-        let last = if dir > 0 { b.ceil() as i64 - 1 } else { b.floor() as i64 + 1 };
+        let first = if dir > 0 { floor_i64(a) + 1 } else { ceil_i64(a) - 1 };
+        let last = if dir > 0 { ceil_i64(b) - 1 } else { floor_i64(b) + 1 };
         if (last - first) * dir < 0 {
             return None;
         }
         let steps = (last - first) * dir + 1;
-        Some(Self { eye, d, major_x, a, len, dir, first, steps })
+        let (e_minor, d_minor) = if major_x { (eye.y, d.y) } else { (eye.x, d.x) };
+        Some(Self { e_minor, d_minor, e_z: eye.z, d_z: d.z, major_x, a, len, dir, first, steps })
     }
 
     /// Step `k`'s sample and the sight line's height there.
@@ -93,12 +132,14 @@ impl Section {
     fn point(&self, k: i64) -> (i64, i64, f64) {
         let m = self.first + k * self.dir;
         let t = (m as f64 - self.a) / self.len;
-        let p = self.eye + self.d * t;
-        let (x, y) = if self.major_x { (m, p.y.round() as i64) } else { (p.x.round() as i64, m) };
-        (x, y, p.z)
+        let minor = round_i64(self.e_minor + self.d_minor * t);
+        let z = self.e_z + self.d_z * t;
+        let (x, y) = if self.major_x { (m, minor) } else { (minor, m) };
+        (x, y, z)
     }
 
     /// The step at major coordinate `m`, if inside.
+    #[inline]
     fn step_at(&self, m: i64) -> Option<i64> {
         let k = (m - self.first) * self.dir;
         (0..self.steps).contains(&k).then_some(k)
@@ -112,7 +153,7 @@ impl Section {
         if x < 0 || y < 0 || x >= w || y >= h {
             return None;
         }
-        (f64::from(hm.get(x as usize, y as usize)) > z + eps).then_some((x, y))
+        (f64::from(hm.data()[y as usize * w as usize + x as usize]) > z + eps).then_some((x, y))
     }
 }
 
@@ -124,6 +165,7 @@ pub fn visible(mip: &HeightMip<'_>, eye: DVec3, target: DVec3, eps: f64) -> bool
 
 /// [`visible`], trying the occluder `hints` first and recording the blocking sample in them.
 /// The result does not depend on the hints.
+#[inline]
 pub fn visible_with(
     mip: &HeightMip<'_>,
     eye: DVec3,
@@ -133,16 +175,28 @@ pub fn visible_with(
 ) -> bool {
     let hm = mip.heightmap();
     let Some(line) = Section::new(eye, target) else { return true };
+    // The usual case (a hint blocks) inlined into the caller's loop; the walk is not.
     for n in 0..HINTS {
         let Some((hx, hy)) = hints.samples[n] else { break };
         let m = if line.major_x { hx } else { hy };
         if let Some(k) = line.step_at(m)
             && let Some(p) = line.blocks(hm, k, eps)
         {
-            hints.promote(Some(n), p);
+            if n > 0 {
+                hints.promote(Some(n), p);
+            } else {
+                hints.samples[0] = Some(p);
+            }
             return false;
         }
     }
+    walk(mip, &line, eps, hints)
+}
+
+/// The section line's steps with max-height early exits (see the module docs).
+#[inline(never)]
+fn walk(mip: &HeightMip<'_>, line: &Section, eps: f64, hints: &mut Hints) -> bool {
+    let hm = mip.heightmap();
     // Steps `k0..=k1`; the section line is monotone in x and y, so its samples lie in the
     // box of the two ends' samples, and the sight line's lowest point is at an end. A depth
     // first halving holds at most two ranges per level (64 covers 2^32 steps).
@@ -154,7 +208,7 @@ pub fn visible_with(
         let (k0, k1) = stack[top];
         let (x0, y0, z0) = line.point(k0);
         let (x1, y1, z1) = line.point(k1);
-        let (_, high) = mip.range(x0.min(x1), y0.min(y1), x0.max(x1), y0.max(y1));
+        let high = mip.range_max(x0.min(x1), y0.min(y1), x0.max(x1), y0.max(y1));
         if f64::from(high) <= z0.min(z1) + eps {
             continue;
         }
@@ -190,6 +244,49 @@ mod tests {
     use super::*;
     use glam::dvec3;
     use terrain_core::georef::Georef;
+
+    #[test]
+    fn fast_rounding_equals_the_standard_library() {
+        let mut v = vec![
+            0.0,
+            -0.0,
+            0.5,
+            -0.5,
+            1.5,
+            -1.5,
+            2.5,
+            -2.5,
+            0.49999999999999994,
+            -0.49999999999999994,
+            4503599627370495.5,
+            -4503599627370495.5,
+            4503599627370497.0,
+            9.3e18,
+            -9.3e18,
+            f64::MAX,
+            f64::MIN,
+            f64::INFINITY,
+            f64::NEG_INFINITY,
+            f64::NAN,
+            f64::MIN_POSITIVE,
+            1e-300,
+        ];
+        let mut state = 7u64;
+        for _ in 0..20_000 {
+            state = state
+                .wrapping_mul(6_364_136_223_846_793_005)
+                .wrapping_add(1_442_695_040_888_963_407);
+            let u = (state >> 11) as f64 / (1u64 << 53) as f64;
+            v.push((u - 0.5) * 10_000.0);
+            v.push(((u - 0.5) * 10_000.0).round() + 0.5);
+            v.push(f64::from_bits(state));
+        }
+        for x in v {
+            assert_eq!(floor_i64(x), x.floor() as i64, "floor {x}");
+            assert_eq!(ceil_i64(x), x.ceil() as i64, "ceil {x}");
+            assert_eq!(round_i64(x), x.round() as i64, "round {x}");
+        }
+    }
 
     #[test]
     fn a_wall_blocks_and_a_plain_does_not() {

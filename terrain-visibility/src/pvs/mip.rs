@@ -86,6 +86,39 @@ impl<'a> HeightMip<'a> {
 }
 
 impl HeightMip<'_> {
+    /// [`Self::range`]'s max alone (the same blocks; reads only the max levels).
+    pub fn range_max(&self, x0: i64, y0: i64, x1: i64, y1: i64) -> f32 {
+        let (w, h) = (self.hm.width() as i64, self.hm.height() as i64);
+        let (x0, x1) = (x0.clamp(0, w - 1) as usize, x1.clamp(0, w - 1) as usize);
+        let (y0, y1) = (y0.clamp(0, h - 1) as usize, y1.clamp(0, h - 1) as usize);
+        let (x0, x1) = (x0.min(x1), x0.max(x1));
+        let (y0, y1) = (y0.min(y1), y0.max(y1));
+        let span = (x1 - x0).max(y1 - y0);
+        let mut k = ((usize::BITS - span.leading_zeros()).saturating_sub(4) as usize)
+            .min(self.levels.len());
+        while k < self.levels.len() && ((x1 >> k) - (x0 >> k) + 1) * ((y1 >> k) - (y0 >> k) + 1) > 9
+        {
+            k += 1;
+        }
+        let mut mx = f32::NEG_INFINITY;
+        if k == 0 {
+            let data = self.hm.data();
+            for y in y0..=y1 {
+                for &v in &data[y * w as usize + x0..=y * w as usize + x1] {
+                    mx = mx.max(v);
+                }
+            }
+        } else {
+            let (nx, _, _, lmx) = &self.levels[k - 1];
+            for by in (y0 >> k)..=(y1 >> k) {
+                for &v in &lmx[by * nx + (x0 >> k)..=by * nx + (x1 >> k)] {
+                    mx = mx.max(v);
+                }
+            }
+        }
+        mx
+    }
+
     /// An *upper* bound of the min of the samples in the inclusive rectangle (clamped to the
     /// grid as [`Self::range`]): the min of the largest aligned mip block wholly inside it (a
     /// subset's min is at least the whole's). A cheap exact reject for min queries: `range`'s
@@ -263,6 +296,9 @@ mod tests {
                 .map(|x| hm.get(x as usize, i.min(28)))
                 .fold(f32::INFINITY, f32::min);
             assert!(lines.row_inner_min(i.min(28), a, b) >= exact);
+        }
+        for (x0, y0, x1, y1) in [(0, 0, 36, 28), (3, 4, 9, 20), (10, 10, 10, 10), (30, 1, 40, -2)] {
+            assert_eq!(mip.range_max(x0, y0, x1, y1), mip.range(x0, y0, x1, y1).1);
         }
         assert_eq!(mip.range(0, 0, 36, 28), (hm.min(), hm.max()));
         assert_eq!(mip.range(5, 6, 5, 6), (hm.get(5, 6), hm.get(5, 6)));
