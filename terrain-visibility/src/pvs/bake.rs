@@ -187,6 +187,10 @@ struct Top<'a> {
     below: Option<Below<'a>>,
     /// The key viewpoints of every Fig. 6 case ([`fig6_case`]) from this plane.
     views: &'a [Vec<DVec3>],
+    /// The patches (bit `j 2^L + i`) that the paper's test found visible from the same plan
+    /// cell's top plane at a lower height through a pair whose plane was above the test point
+    /// (see [`Ctx::column`]): visible from this plane too.
+    seen_below: Option<&'a [u8]>,
 }
 
 /// A lower top plane's conservative bits (same plan rectangle). A proof that fails from a
@@ -215,44 +219,77 @@ fn set(bits: &mut [u8], l: u8, i: u32, j: u32) {
 
 impl Ctx<'_> {
     /// The bits of every floor of plan cell `(a, b)`, lowest first, each floor's
-    /// conservative bits telling the next which proofs are hopeless (see [`Below`]).
+    /// conservative bits telling the next which proofs are hopeless (see [`Below`]), and its
+    /// sampled witnesses which patches the paper's test sees (below).
+    ///
+    /// **Sampled witnesses.** A patch seen from the plane at `z` through a pair `(v, t)` whose
+    /// Fig. 6 case has the plane above `t` is seen from the plane at `z' > z` through
+    /// `(v', t)`, `v'` being `v` raised to `z'`: the case is the same (still above `t`, same
+    /// region), so `v'` is a key viewpoint there (the same plan points); the Bresenham steps
+    /// and samples depend on plan coordinates alone; and at every step the sight line's
+    /// height `e + (T - e) t_k` rises with the eye height `e` by `(z' - z)(1 - t_k) >= (z' -
+    /// z) / N` (`t` at an integer sample, so `1 - t_k >= 1 / |len|`, `N` the grid's width
+    /// plus height), which [`chain_margin`] checks is far above the rounding of the two
+    /// evaluations. So no step that passed Eq. 4 at `z` blocks at `z'` and the test's result
+    /// is known without running it: the bits are those of running it.
     fn column(&self, a: u32, b: u32) -> Vec<(Vec<u8>, Vec<u8>)> {
         let lay = self.layout;
         let mut out: Vec<(Vec<u8>, Vec<u8>)> = Vec::with_capacity(lay.floors as usize);
         let mut below_z = None;
+        let mut seen: Option<Vec<u8>> = None;
         for k in 0..lay.floors {
             let n = lay.cell_index(CellId { a, b, k });
+            let z = lay.floor_bounds(CellId { a, b, k }).map(|(_, z)| z);
             let below = match (below_z, out.last()) {
                 (Some(z), Some((_, bits))) => Some(Below { bits: bits.as_slice(), z }),
                 _ => None,
             };
-            let (s, c) = self.cell_below(n, below);
-            below_z = lay.floor_bounds(CellId { a, b, k }).map(|(_, z)| z);
+            let seen_below = match (below_z, z, &seen) {
+                (Some(z0), Some(z1), Some(w)) if chain_margin(self.hm, z0, z1) => {
+                    Some(w.as_slice())
+                }
+                _ => None,
+            };
+            let (s, c, w) = self.cell_below(n, below, seen_below);
+            below_z = z;
+            seen = Some(w);
             out.push((s, c));
         }
         out
     }
 
     fn cell(&self, n: usize) -> (Vec<u8>, Vec<u8>) {
-        self.cell_below(n, None)
+        let (s, c, _) = self.cell_below(n, None, None);
+        (s, c)
     }
 
-    fn cell_below(&self, n: usize, below: Option<Below<'_>>) -> (Vec<u8>, Vec<u8>) {
+    /// The cell's (sampled, conservative) bits and its sampled witnesses (see
+    /// [`Self::column`]).
+    fn cell_below(
+        &self,
+        n: usize,
+        below: Option<Below<'_>>,
+        seen_below: Option<&[u8]>,
+    ) -> (Vec<u8>, Vec<u8>, Vec<u8>) {
         let lay = self.layout;
         let per = lay.bytes_per_cell();
         let c: CellId = lay.cell_at_index(n);
         let (Some((_, z)), Some((lo, hi))) = (lay.floor_bounds(c), lay.cell_rect_clipped(c.a, c.b))
         else {
             // Outside the grid: never looked up; all visible.
-            return (vec![0xFF; per], vec![0xFF; per]);
+            return (vec![0xFF; per], vec![0xFF; per], Vec::new());
         };
-        let mut top = Top { lo, hi, z, below: below.filter(|b| b.z <= z), views: &[] };
+        let mut top =
+            Top { lo, hi, z, below: below.filter(|b| b.z <= z), views: &[], seen_below: None };
         let views = view_table(&top, self.cfg.max_viewpoints.max(1) as usize);
         top.views = &views;
+        let patches = 1usize << (2 * lay.patch_level);
+        top.seen_below = seen_below.filter(|w| w.len() * 8 >= patches);
         let (mut s, mut k) = (vec![0u8; per], vec![0u8; per]);
+        let mut w = vec![0u8; patches.div_ceil(8)];
         let mut hints = los::Hints::new();
-        self.visit(&top, 0, 0, 0, &mut s, &mut k, &mut hints);
-        (s, k)
+        self.visit(&top, 0, 0, 0, &mut s, &mut k, &mut w, &mut hints);
+        (s, k, w)
     }
 
     /// Fills the bits of node `(l, i, j)`'s subtree; returns (sampled, conservative) visibility.
@@ -265,6 +302,7 @@ impl Ctx<'_> {
         j: u32,
         s: &mut [u8],
         k: &mut [u8],
+        w: &mut [u8],
         hints: &mut los::Hints,
     ) -> (bool, bool) {
         let Some(q) = self.layout.patch_samples(l, i, j) else { return (false, false) };
@@ -273,7 +311,18 @@ impl Ctx<'_> {
             // Both modes from the paper's test first: a patch it finds visible can never be
             // proven hidden (the proof covers its sight lines), so the costly proof runs only
             // on patches it finds hidden (or on every unwitnessed patch without it).
-            let seen = self.sampled && sampled_patch_visible(self.mip, top, q, self.cfg, hints);
+            let p = (j * (1 << l) + i) as usize;
+            let seen = self.sampled
+                && if top.seen_below.is_some_and(|b| b[p / 8] & (1 << (p % 8)) != 0) {
+                    w[p / 8] |= 1 << (p % 8);
+                    true
+                } else {
+                    let (seen, chain) = sampled_patch_visible(self.mip, top, q, self.cfg, hints);
+                    if chain {
+                        w[p / 8] |= 1 << (p % 8);
+                    }
+                    seen
+                };
             let proven = !seen
                 && self.proofs
                 && !top.below.is_some_and(|b| b.visible(l, i, j))
@@ -293,7 +342,7 @@ impl Ctx<'_> {
             for (ci, cj) in
                 [(2 * i, 2 * j), (2 * i + 1, 2 * j), (2 * i, 2 * j + 1), (2 * i + 1, 2 * j + 1)]
             {
-                let (a, b) = self.visit(top, l + 1, ci, cj, s, k, hints);
+                let (a, b) = self.visit(top, l + 1, ci, cj, s, k, w, hints);
                 acc = (acc.0 | a, acc.1 | b);
             }
             acc
@@ -596,16 +645,28 @@ fn intervals_prove(
     })
 }
 
+/// Whether raising the eye from `z0` to `z1` provably raises every Bresenham step's sight
+/// line height on `hm` despite rounding (see `Ctx::column`): the least rise, `(z1 - z0) / N`,
+/// must exceed a generous bound (`32 ε` of the largest magnitude involved) on the rounding
+/// of the two evaluations of `e + (T - e) t`.
+fn chain_margin(hm: &Heightmap, z0: f64, z1: f64) -> bool {
+    let n = (hm.width() + hm.height()) as f64;
+    let big = z0.abs().max(z1.abs()).max(f64::from(hm.min()).abs()).max(f64::from(hm.max()).abs());
+    (z1 - z0) / n > 32.0 * f64::EPSILON * (big + 1.0)
+}
+
 /// The PVPS paper's per-patch test (section 2.2.2): `n x n` test points evenly over the
 /// patch (at DEM samples), key viewpoints on the top plane's edges chosen by Fig. 6, midpoint
 /// refinement up to `max_viewpoints`, Eq. 4 line of sight; stops at the first visible pair.
+/// Returns (visible, visible through a pair whose plane is above its test point or with a
+/// test point under the plane: one that any higher plane also sees, see `Ctx::column`).
 fn sampled_patch_visible(
     mip: &HeightMip<'_>,
     top: &Top<'_>,
     q: (u32, u32, u32, u32),
     cfg: &PvsConfig,
     hints: &mut los::Hints,
-) -> bool {
+) -> (bool, bool) {
     let hm = mip.heightmap();
     let n = cfg.test_points.max(1);
     let coord = |a: u32, b: u32, k: u32| -> u32 {
@@ -623,19 +684,27 @@ fn sampled_patch_visible(
                 DVec3::new(f64::from(x), f64::from(y), f64::from(hm.get(x as usize, y as usize)));
             if (top.lo.x..=top.hi.x).contains(&t.x) && (top.lo.y..=top.hi.y).contains(&t.y) {
                 // Under the cell: seen straight down from the top plane (Z >= the cell's max).
-                return true;
+                return (true, true);
             }
             points.push(t);
         }
     }
-    // The result is the OR over every (test point, key viewpoint) pair, so the order is free:
-    // the highest test points first, as they are the likeliest to be seen (a speed choice).
-    points.sort_unstable_by(|a, b| b.z.total_cmp(&a.z));
-    points.iter().any(|&t| {
-        let views = &top.views[fig6_case(top, t)];
-        views.iter().any(|&v| los::visible_with(mip, v, t, cfg.epsilon_m, hints))
-    })
+    // The result is the OR over every (test point, key viewpoint) pair, so the order is free.
+    // The highest test point first, as it is the likeliest to be seen (a speed choice).
+    if let Some(k) = (0..points.len()).max_by(|&a, &b| points[a].z.total_cmp(&points[b].z)) {
+        points.swap(0, k);
+    }
+    for &t in &points {
+        let case = fig6_case(top, t);
+        if top.views[case].iter().any(|&v| los::visible_with(mip, v, t, cfg.epsilon_m, hints)) {
+            return (true, case & ABOVE != 0);
+        }
+    }
+    (false, false)
 }
+
+/// [`fig6_case`]'s bit for a plane above the test point.
+const ABOVE: usize = 16;
 
 /// Which case of Fig. 6's table test point `t` falls in: its region around the plane (west,
 /// east, south, north flags) and whether the plane is above it; [`key_viewpoints`] depends on
@@ -645,7 +714,7 @@ fn fig6_case(top: &Top<'_>, t: DVec3) -> usize {
         | usize::from(t.x > top.hi.x) << 1
         | usize::from(t.y < top.lo.y) << 2
         | usize::from(t.y > top.hi.y) << 3
-        | usize::from(top.z - t.z > 0.0) << 4
+        | if top.z - t.z > 0.0 { ABOVE } else { 0 }
 }
 
 /// The key viewpoints of every case of [`fig6_case`] (computed once per plane).
@@ -676,7 +745,7 @@ fn key_viewpoints_case(top: &Top<'_>, case: usize, max: usize, out: &mut Vec<DVe
     out.clear();
     let (lo, hi) = (top.lo, top.hi);
     let (west, east) = (case & 1 != 0, case & 2 != 0);
-    let (south, north, above) = (case & 4 != 0, case & 8 != 0, case & 16 != 0);
+    let (south, north, above) = (case & 4 != 0, case & 8 != 0, case & ABOVE != 0);
     // Edges as (start, end) on the top plane.
     let w_edge = (DVec2::new(lo.x, lo.y), DVec2::new(lo.x, hi.y));
     let e_edge = (DVec2::new(hi.x, lo.y), DVec2::new(hi.x, hi.y));
@@ -724,6 +793,7 @@ mod tests {
             z: 100.0,
             below: None,
             views: &[],
+            seen_below: None,
         };
         let mut v = Vec::new();
         // Region north-west, plane above the test point: the north and west edges.
