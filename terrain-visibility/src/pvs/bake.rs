@@ -58,6 +58,7 @@ use rayon::prelude::*;
 use terrain_core::Heightmap;
 
 use super::los;
+use super::los::{ceil_i64, floor_i64};
 use super::mip::{HeightMip, LineMins};
 use super::{CellId, Pvs, PvsConfig, PvsLayout, PvsMode};
 
@@ -191,6 +192,31 @@ struct Top<'a> {
     /// cell's top plane at a lower height through a pair whose plane was above the test point
     /// (see [`Ctx::column`]): visible from this plane too.
     seen_below: Option<&'a [u8]>,
+    /// The bits of the same plan cell's top plane at a greater height (see [`Above`]).
+    above: Option<Above<'a>>,
+}
+
+/// A higher top plane's bits (same plan rectangle), for a lower plane:
+/// - a node hidden in its *conservative* bits had every patch under it proven hidden (its own
+///   proof or those of nodes under it), and a proof that holds from a plane holds from every
+///   plane below it (see [`Below`]), so the same proofs hold here: the node's subtree is 0 in
+///   both modes (a proven patch is hidden for the paper's test too), as running it gives;
+/// - a patch hidden in its *sampled* bits had every (test point, key viewpoint) pair hidden
+///   there, and lowering the eye lowers every Bresenham step's sight line (the converse of
+///   `Ctx::column`'s argument, the same margin): a test point whose Fig. 6 case is the same
+///   from both planes (the plane above it in both or in neither) has the same viewpoints in
+///   plan and all of them hidden here too; only the test points between the two heights are
+///   tested.
+#[derive(Debug, Clone, Copy)]
+struct Above<'a> {
+    sampled: &'a [u8],
+    conservative: &'a [u8],
+    z: f64,
+}
+
+fn bit(bits: &[u8], l: u8, i: u32, j: u32) -> bool {
+    let n = PvsLayout::level_offset(l) + (j * (1 << l) + i) as usize;
+    bits[n / 8] & (1 << (n % 8)) != 0
 }
 
 /// A lower top plane's conservative bits (same plan rectangle). A proof that fails from a
@@ -207,8 +233,7 @@ struct Below<'a> {
 
 impl Below<'_> {
     fn visible(&self, l: u8, i: u32, j: u32) -> bool {
-        let n = PvsLayout::level_offset(l) + (j * (1 << l) + i) as usize;
-        self.bits[n / 8] & (1 << (n % 8)) != 0
+        bit(self.bits, l, i, j)
     }
 }
 
@@ -232,44 +257,61 @@ impl Ctx<'_> {
     /// plus height), which [`chain_margin`] checks is far above the rounding of the two
     /// evaluations. So no step that passed Eq. 4 at `z` blocks at `z'` and the test's result
     /// is known without running it: the bits are those of running it.
+    ///
+    /// **Order.** The lowest floor first, then the highest (chained to the lowest), then the
+    /// others upwards, each chained to the nearest baked floor below it and to the highest
+    /// (see [`Above`]): with the paper's 3 floors the middle one is bounded on both sides.
     fn column(&self, a: u32, b: u32) -> Vec<(Vec<u8>, Vec<u8>)> {
         let lay = self.layout;
-        let mut out: Vec<(Vec<u8>, Vec<u8>)> = Vec::with_capacity(lay.floors as usize);
-        let mut below_z = None;
-        let mut seen: Option<Vec<u8>> = None;
-        for k in 0..lay.floors {
+        let f = lay.floors;
+        let order: Vec<u32> = if f <= 2 {
+            (0..f).collect()
+        } else {
+            std::iter::once(0).chain(std::iter::once(f - 1)).chain(1..f - 1).collect()
+        };
+        // Per floor: (sampled, conservative, sampled witnesses, top height).
+        type Baked = (Vec<u8>, Vec<u8>, Vec<u8>, Option<f64>);
+        let mut done: Vec<Option<Baked>> = vec![None; f as usize];
+        for k in order {
             let n = lay.cell_index(CellId { a, b, k });
             let z = lay.floor_bounds(CellId { a, b, k }).map(|(_, z)| z);
-            let below = match (below_z, out.last()) {
-                (Some(z), Some((_, bits))) => Some(Below { bits: bits.as_slice(), z }),
+            let lower = (0..k).rev().find_map(|j| done[j as usize].as_ref());
+            let upper = (k + 1..f).find_map(|j| done[j as usize].as_ref());
+            let below = match lower {
+                Some((_, c, _, Some(z0))) => Some(Below { bits: c.as_slice(), z: *z0 }),
                 _ => None,
             };
-            let seen_below = match (below_z, z, &seen) {
-                (Some(z0), Some(z1), Some(w)) if chain_margin(self.hm, z0, z1) => {
+            let seen_below = match (lower, z) {
+                (Some((_, _, w, Some(z0))), Some(z1)) if chain_margin(self.hm, *z0, z1) => {
                     Some(w.as_slice())
                 }
                 _ => None,
             };
-            let (s, c, w) = self.cell_below(n, below, seen_below);
-            below_z = z;
-            seen = Some(w);
-            out.push((s, c));
+            let above = match (upper, z) {
+                (Some((s, c, _, Some(z1))), Some(z0)) if chain_margin(self.hm, z0, *z1) => {
+                    Some(Above { sampled: s.as_slice(), conservative: c.as_slice(), z: *z1 })
+                }
+                _ => None,
+            };
+            let (s, c, w) = self.cell_chained(n, below, seen_below, above);
+            done[k as usize] = Some((s, c, w, z));
         }
-        out
+        done.into_iter().map(|d| d.map(|(s, c, _, _)| (s, c)).unwrap_or_default()).collect()
     }
 
     fn cell(&self, n: usize) -> (Vec<u8>, Vec<u8>) {
-        let (s, c, _) = self.cell_below(n, None, None);
+        let (s, c, _) = self.cell_chained(n, None, None, None);
         (s, c)
     }
 
     /// The cell's (sampled, conservative) bits and its sampled witnesses (see
     /// [`Self::column`]).
-    fn cell_below(
+    fn cell_chained(
         &self,
         n: usize,
         below: Option<Below<'_>>,
         seen_below: Option<&[u8]>,
+        above: Option<Above<'_>>,
     ) -> (Vec<u8>, Vec<u8>, Vec<u8>) {
         let lay = self.layout;
         let per = lay.bytes_per_cell();
@@ -279,8 +321,15 @@ impl Ctx<'_> {
             // Outside the grid: never looked up; all visible.
             return (vec![0xFF; per], vec![0xFF; per], Vec::new());
         };
-        let mut top =
-            Top { lo, hi, z, below: below.filter(|b| b.z <= z), views: &[], seen_below: None };
+        let mut top = Top {
+            lo,
+            hi,
+            z,
+            below: below.filter(|b| b.z <= z),
+            views: &[],
+            seen_below: None,
+            above: above.filter(|u| u.z > z),
+        };
         let views = view_table(&top, self.cfg.max_viewpoints.max(1) as usize);
         top.views = &views;
         let patches = 1usize << (2 * lay.patch_level);
@@ -306,6 +355,10 @@ impl Ctx<'_> {
         hints: &mut los::Hints,
     ) -> (bool, bool) {
         let Some(q) = self.layout.patch_samples(l, i, j) else { return (false, false) };
+        if top.above.is_some_and(|u| !bit(u.conservative, l, i, j)) {
+            // Proven hidden from a higher plane, so from this one (see [`Above`]).
+            return (false, false);
+        }
         let finest = l == self.layout.patch_level;
         let (vs, vk) = if finest {
             // Both modes from the paper's test first: a patch it finds visible can never be
@@ -317,7 +370,10 @@ impl Ctx<'_> {
                     w[p / 8] |= 1 << (p % 8);
                     true
                 } else {
-                    let (seen, chain) = sampled_patch_visible(self.mip, top, q, self.cfg, hints);
+                    // Hidden from a higher plane: only the test points between the planes.
+                    let between = top.above.filter(|u| !bit(u.sampled, l, i, j)).map(|u| u.z);
+                    let (seen, chain) =
+                        sampled_patch_visible(self.mip, top, q, self.cfg, between, hints);
                     if chain {
                         w[p / 8] |= 1 << (p % 8);
                     }
@@ -546,16 +602,16 @@ fn lines_prove(
     for axis in 0..2 {
         let (q0, q1, r0, r1) = (q_lo[axis], q_hi[axis], r_lo[axis], r_hi[axis]);
         let (first, last) = if q1 + 1.5 <= r0 - 1.5 {
-            ((q1 + 1.5).ceil(), (r0 - 1.5).floor())
+            (ceil_i64(q1 + 1.5) as f64, floor_i64(r0 - 1.5) as f64)
         } else if r1 + 1.5 <= q0 - 1.5 {
-            ((r1 + 1.5).ceil(), (q0 - 1.5).floor())
+            (ceil_i64(r1 + 1.5) as f64, floor_i64(q0 - 1.5) as f64)
         } else {
             continue;
         };
         let o = 1 - axis;
         // At most `MAX_LINES` lines per axis, evenly spaced (a bound on the cost; any line
         // that proves it is a valid proof).
-        let step = ((last - first + 1.0) / MAX_LINES).ceil().max(1.0);
+        let step = (ceil_i64((last - first + 1.0) / MAX_LINES) as f64).max(1.0);
         let mut i = first;
         while i <= last {
             let (mut s0, mut s1) = (f64::INFINITY, f64::NEG_INFINITY);
@@ -572,7 +628,7 @@ fn lines_prove(
             let ray_max = (hp * (1.0 - s0) + z * s0).max(hp * (1.0 - s1) + z * s1);
             let lo = (q_lo[o] * (1.0 - s0) + r_lo[o] * s0).min(q_lo[o] * (1.0 - s1) + r_lo[o] * s1);
             let hi = (q_hi[o] * (1.0 - s0) + r_hi[o] * s0).max(q_hi[o] * (1.0 - s1) + r_hi[o] * s1);
-            let (a, b) = (lo.floor() as i64, hi.ceil() as i64);
+            let (a, b) = (floor_i64(lo), ceil_i64(hi));
             // As in `intervals_prove`: a block inside the stretch bounds its min from above.
             let one = if axis == 0 {
                 lines.column_inner_min(i as usize, a, b)
@@ -622,7 +678,7 @@ fn intervals_prove(
     eps: f64,
 ) -> bool {
     let dmin = rect_distance(r_lo, r_hi, q_lo, q_hi);
-    let n = (dmin / MIN_INTERVAL_SAMPLES).floor().min(48.0) as usize;
+    let n = floor_i64(dmin / MIN_INTERVAL_SAMPLES).clamp(0, 48) as usize;
     if n == 0 {
         return false;
     }
@@ -633,8 +689,7 @@ fn intervals_prove(
         let (blo, bhi) = at(sb);
         let (lo, hi) = (alo.min(blo), ahi.max(bhi));
         let ray_max = (hp * (1.0 - sa) + z * sa).max(hp * (1.0 - sb) + z * sb);
-        let (x0, y0, x1, y1) =
-            (lo.x.floor() as i64, lo.y.floor() as i64, hi.x.ceil() as i64, hi.y.ceil() as i64);
+        let (x0, y0, x1, y1) = (floor_i64(lo.x), floor_i64(lo.y), ceil_i64(hi.x), ceil_i64(hi.y));
         // A block wholly inside the rectangle bounds its min from above: a cheap exact reject
         // (the usual case) before the block query.
         if f64::from(mip.inner_min(x0, y0, x1, y1)) <= ray_max + eps {
@@ -660,11 +715,15 @@ fn chain_margin(hm: &Heightmap, z0: f64, z1: f64) -> bool {
 /// refinement up to `max_viewpoints`, Eq. 4 line of sight; stops at the first visible pair.
 /// Returns (visible, visible through a pair whose plane is above its test point or with a
 /// test point under the plane: one that any higher plane also sees, see `Ctx::column`).
+/// With `between: Some(z_u)` (the patch is hidden from the plane at `z_u` above, see
+/// [`Above`]), the test points whose Fig. 6 case is the same at `z_u` are known hidden and
+/// skipped.
 fn sampled_patch_visible(
     mip: &HeightMip<'_>,
     top: &Top<'_>,
     q: (u32, u32, u32, u32),
     cfg: &PvsConfig,
+    between: Option<f64>,
     hints: &mut los::Hints,
 ) -> (bool, bool) {
     let hm = mip.heightmap();
@@ -696,6 +755,9 @@ fn sampled_patch_visible(
     }
     for &t in &points {
         let case = fig6_case(top, t);
+        if between.is_some_and(|zu| (zu - t.z > 0.0) == (case & ABOVE != 0)) {
+            continue;
+        }
         if top.views[case].iter().any(|&v| los::visible_with(mip, v, t, cfg.epsilon_m, hints)) {
             return (true, case & ABOVE != 0);
         }
@@ -794,6 +856,7 @@ mod tests {
             below: None,
             views: &[],
             seen_below: None,
+            above: None,
         };
         let mut v = Vec::new();
         // Region north-west, plane above the test point: the north and west edges.

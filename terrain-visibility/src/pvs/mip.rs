@@ -124,6 +124,7 @@ impl HeightMip<'_> {
     /// subset's min is at least the whole's). A cheap exact reject for min queries: `range`'s
     /// min is at most this. The block's level has at most a quarter of the rectangle's samples
     /// per entry, so large rectangles read small, cache-resident levels.
+    #[inline]
     pub fn inner_min(&self, x0: i64, y0: i64, x1: i64, y1: i64) -> f32 {
         let (w, h) = (self.hm.width() as i64, self.hm.height() as i64);
         let (x0, x1) = (x0.clamp(0, w - 1), x1.clamp(0, w - 1));
@@ -143,6 +144,7 @@ impl HeightMip<'_> {
 
 /// The largest `k` such that every run of `n >= 1` consecutive samples holds an aligned block
 /// of `2^k` (true when `2^(k + 1) - 1 <= n`): `floor(log2(n + 1)) - 1`.
+#[inline]
 fn inner_level(n: usize) -> usize {
     (usize::BITS - 1 - (n + 1).leading_zeros()) as usize - 1
 }
@@ -199,6 +201,7 @@ fn line_min(levels: &[Vec<f32>], lines: usize, i: usize, a: usize, b: usize) -> 
 
 /// An upper bound of the min of samples `a..=b` (clamped to `0..len`) of line `i`: the min of
 /// the largest aligned level entry wholly inside them (see [`HeightMip::inner_min`]).
+#[inline]
 fn line_inner_min(levels: &[Vec<f32>], lines: usize, len: usize, i: usize, a: i64, b: i64) -> f32 {
     let n = len as i64;
     let (a, b) = (a.clamp(0, n - 1), b.clamp(0, n - 1));
@@ -209,11 +212,13 @@ fn line_inner_min(levels: &[Vec<f32>], lines: usize, len: usize, i: usize, a: i6
 
 impl LineMins {
     /// An upper bound of [`Self::column_min`]'s true min (see [`HeightMip::inner_min`]).
+    #[inline]
     pub fn column_inner_min(&self, i: usize, y0: i64, y1: i64) -> f32 {
         line_inner_min(&self.cols, self.w, self.h, i, y0, y1)
     }
 
     /// An upper bound of [`Self::row_min`]'s true min (see [`HeightMip::inner_min`]).
+    #[inline]
     pub fn row_inner_min(&self, j: usize, x0: i64, x1: i64) -> f32 {
         line_inner_min(&self.rows, self.h, self.w, j, x0, x1)
     }
