@@ -29,6 +29,9 @@ use super::mip::HeightMip;
 /// Step ranges at most this long are walked sample by sample.
 const LEAF_STEPS: i64 = 16;
 
+/// Steps nearest the test point checked one by one before the halving (see `walk`).
+const PROBE_STEPS: i64 = 16;
+
 /// Occluder hints: DEM samples that blocked recent sight lines. A sight line that passes a
 /// sample which blocks it is hidden whatever the rest of the line does, so checking the
 /// sample the traversal visits in a hint's column (or row) first is an exact early exit:
@@ -200,8 +203,22 @@ fn walk(mip: &HeightMip<'_>, line: &Section, eps: f64, hints: &mut Hints) -> boo
     // Steps `k0..=k1`; the section line is monotone in x and y, so its samples lie in the
     // box of the two ends' samples, and the sight line's lowest point is at an end. A depth
     // first halving holds at most two ranges per level (64 covers 2^32 steps).
+    //
+    // First the `PROBE_STEPS` steps nearest the test point, one by one: a sight line that the
+    // hints missed is usually blocked just in front of its target (the next test point of a
+    // patch), and this finds it without descending the halving to it.
+    let probe = line.steps.min(PROBE_STEPS);
+    for k in (line.steps - probe..line.steps).rev() {
+        if let Some(p) = line.blocks(hm, k, eps) {
+            hints.promote(None, p);
+            return false;
+        }
+    }
+    if probe == line.steps {
+        return true;
+    }
     let mut stack = [(0i64, 0i64); 64];
-    stack[0] = (0, line.steps - 1);
+    stack[0] = (0, line.steps - 1 - probe);
     let mut top = 1usize;
     while top > 0 {
         top -= 1;
