@@ -732,8 +732,7 @@ fn sampled_patch_visible(
         if n == 1 {
             (a + b) / 2
         } else {
-            los::round_i64(f64::from(a) + f64::from(b - a) * f64::from(k) / f64::from(n - 1))
-                as u32
+            los::round_i64(f64::from(a) + f64::from(b - a) * f64::from(k) / f64::from(n - 1)) as u32
         }
     };
     let mut points: Vec<DVec3> = Vec::with_capacity((n * n) as usize);

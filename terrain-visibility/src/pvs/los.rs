@@ -150,13 +150,40 @@ impl Section {
 
     /// Eq. 4 at step `k`: whether the section point lies above the sight line (`f > 0`).
     #[inline]
-    fn blocks(&self, hm: &Heightmap, k: i64, eps: f64) -> Option<(i64, i64)> {
+    fn blocks(&self, g: &Grid<'_>, k: i64, eps: f64) -> Option<(i64, i64)> {
         let (x, y, z) = self.point(k);
-        let (w, h) = (hm.width() as i64, hm.height() as i64);
-        if x < 0 || y < 0 || x >= w || y >= h {
+        if x < 0 || y < 0 || x >= g.w || y >= g.h {
             return None;
         }
-        (f64::from(hm.data()[y as usize * w as usize + x as usize]) > z + eps).then_some((x, y))
+        // Consecutive steps are neighbours in memory: along a row, or along a column in the
+        // column-major copy (the same samples).
+        let v = if self.major_x {
+            g.rows[(y * g.w + x) as usize]
+        } else {
+            g.columns[(x * g.h + y) as usize]
+        };
+        (f64::from(v) > z + eps).then_some((x, y))
+    }
+}
+
+/// The heightmap's samples, row by row and column by column.
+struct Grid<'a> {
+    rows: &'a [f32],
+    columns: &'a [f32],
+    w: i64,
+    h: i64,
+}
+
+impl<'a> Grid<'a> {
+    #[inline]
+    fn new(mip: &'a HeightMip<'_>) -> Self {
+        let hm = mip.heightmap();
+        Self {
+            rows: hm.data(),
+            columns: mip.columns(),
+            w: hm.width() as i64,
+            h: hm.height() as i64,
+        }
     }
 }
 
@@ -176,14 +203,14 @@ pub fn visible_with(
     eps: f64,
     hints: &mut Hints,
 ) -> bool {
-    let hm = mip.heightmap();
+    let g = Grid::new(mip);
     let Some(line) = Section::new(eye, target) else { return true };
     // The usual case (a hint blocks) inlined into the caller's loop; the walk is not.
     for n in 0..HINTS {
         let Some((hx, hy)) = hints.samples[n] else { break };
         let m = if line.major_x { hx } else { hy };
         if let Some(k) = line.step_at(m)
-            && let Some(p) = line.blocks(hm, k, eps)
+            && let Some(p) = line.blocks(&g, k, eps)
         {
             if n > 0 {
                 hints.promote(Some(n), p);
@@ -199,7 +226,7 @@ pub fn visible_with(
 /// The section line's steps with max-height early exits (see the module docs).
 #[inline(never)]
 fn walk(mip: &HeightMip<'_>, line: &Section, eps: f64, hints: &mut Hints) -> bool {
-    let hm = mip.heightmap();
+    let g = Grid::new(mip);
     // Steps `k0..=k1`; the section line is monotone in x and y, so its samples lie in the
     // box of the two ends' samples, and the sight line's lowest point is at an end. A depth
     // first halving holds at most two ranges per level (64 covers 2^32 steps).
@@ -209,7 +236,7 @@ fn walk(mip: &HeightMip<'_>, line: &Section, eps: f64, hints: &mut Hints) -> boo
     // patch), and this finds it without descending the halving to it.
     let probe = line.steps.min(PROBE_STEPS);
     for k in (line.steps - probe..line.steps).rev() {
-        if let Some(p) = line.blocks(hm, k, eps) {
+        if let Some(p) = line.blocks(&g, k, eps) {
             hints.promote(None, p);
             return false;
         }
@@ -232,7 +259,7 @@ fn walk(mip: &HeightMip<'_>, line: &Section, eps: f64, hints: &mut Hints) -> boo
         if k1 - k0 < LEAF_STEPS {
             // Nearest the test point first, as the halving below.
             for k in (k0..=k1).rev() {
-                if let Some(p) = line.blocks(hm, k, eps) {
+                if let Some(p) = line.blocks(&g, k, eps) {
                     hints.promote(None, p);
                     return false;
                 }
@@ -253,7 +280,11 @@ fn walk(mip: &HeightMip<'_>, line: &Section, eps: f64, hints: &mut Hints) -> boo
 /// that [`visible`] must equal (for tests).
 pub fn visible_reference(hm: &Heightmap, eye: DVec3, target: DVec3, eps: f64) -> bool {
     let Some(line) = Section::new(eye, target) else { return true };
-    (0..line.steps).all(|k| line.blocks(hm, k, eps).is_none())
+    (0..line.steps).all(|k| {
+        let (x, y, z) = line.point(k);
+        let inside = x >= 0 && y >= 0 && (x as usize) < hm.width() && (y as usize) < hm.height();
+        !(inside && f64::from(hm.get(x as usize, y as usize)) > z + eps)
+    })
 }
 
 #[cfg(test)]

@@ -11,6 +11,9 @@ pub struct HeightMip<'a> {
     hm: &'a Heightmap,
     /// `levels[k - 1]`: (nx, ny, min, max).
     levels: Vec<(usize, usize, Vec<f32>, Vec<f32>)>,
+    /// The heightmap column by column (`columns[x * h + y]`): a sight line stepping along y
+    /// reads neighbouring memory (see [`Self::columns`]).
+    columns: Vec<f32>,
 }
 
 impl<'a> HeightMip<'a> {
@@ -41,7 +44,19 @@ impl<'a> HeightMip<'a> {
             pw = nx;
             ph = ny;
         }
-        Self { hm, levels }
+        let mut columns = vec![0.0f32; w * h];
+        for (y, row) in hm.data().chunks_exact(w).enumerate() {
+            for (x, &v) in row.iter().enumerate() {
+                columns[x * h + y] = v;
+            }
+        }
+        Self { hm, levels, columns }
+    }
+
+    /// The heightmap's samples column by column: sample `(x, y)` at `x * height + y` (the
+    /// heightmap's own `data()` is row by row).
+    pub fn columns(&self) -> &[f32] {
+        &self.columns
     }
 
     /// The heightmap.
@@ -306,6 +321,9 @@ mod tests {
             assert_eq!(mip.range_max(x0, y0, x1, y1), mip.range(x0, y0, x1, y1).1);
         }
         assert_eq!(mip.range(0, 0, 36, 28), (hm.min(), hm.max()));
+        for (x, y) in [(0, 0), (36, 0), (0, 28), (17, 11)] {
+            assert_eq!(mip.columns()[x * 29 + y], hm.get(x, y));
+        }
         assert_eq!(mip.range(5, 6, 5, 6), (hm.get(5, 6), hm.get(5, 6)));
     }
 }
