@@ -1,5 +1,5 @@
 //! The PVS bake: both modes in one pass over every view cell (rayon over plan cells, each
-//! plan cell's floors lowest first), top-down over the patch pyramid.
+//! plan cell's floors in the order of `Ctx::column`), top-down over the patch pyramid.
 //!
 //! # Per cell
 //! Only the cell's *top plane* (height `Z`, its plan rectangle `R`) is tested: a point visible
@@ -21,13 +21,29 @@
 //! Proofs are the costly part, so they are skipped whenever a *witness* shows them hopeless:
 //! any unblocked Eq. 4 sight line from the top plane to a sample of the node (the paper's own
 //! test at level `L`; then, at every level, a 3 x 3 grid of the node's samples raised as high
-//! as every part of the proof still covers, seen from the plane's centre and corners). Sight lines try *occluder hints* first ([`los::Hints`]: the samples
-//! that blocked recent lines of the same cell; passing one that blocks is an exact early
-//! exit). The floors of a plan cell are baked lowest first, and a node visible in a lower
-//! floor's conservative bits skips its proof (a proof that fails from a plane fails from every
-//! plane above it, see `Below`). Rejects inside the proofs test one sample first (an upper
-//! bound of a min) before the block query. The bits equal the unaccelerated bake's (pinned in
-//! `tests/pvs_pinned.rs`).
+//! as every part of the proof still covers, seen from the plane's centre and corners). Sight
+//! lines try *occluder hints* first ([`los::Hints`]: the samples that blocked recent lines of
+//! the same cell; passing one that blocks is an exact early exit), then the steps nearest the
+//! test point, then max-height halving (see [`los`]).
+//!
+//! **Floors share work** (`Ctx::column`): the lowest floor is baked first, then the highest,
+//! then the others upwards, each chained to the nearest baked floor below and the highest
+//! above, all by the monotonicity of Fig. 5 over the same plan rectangle:
+//! - from below (`Below`): a node visible in a lower floor's conservative bits skips its proof
+//!   (a proof that fails from a plane fails from every plane above it); a patch the paper's test
+//!   saw through a pair whose plane was above its test point is seen again without a test;
+//! - from above (`Above`): a node hidden in a higher floor's conservative bits is hidden
+//!   (its proofs hold from every lower plane); a patch the paper's test found hidden there only
+//!   tests the test points whose Fig. 6 case differs between the two planes.
+//!
+//! The eye-height arguments are exact in floating point: a guard (`chain_margin`) checks that
+//! the floors are far enough apart for the rise of every Bresenham step's sight line to exceed
+//! its rounding. Rejects inside the proofs read the min of the largest mip block (or line
+//! pyramid entry) inside the queried rectangle, an upper bound of its min from a small,
+//! cache-resident level, before the block query. Rounding uses exact integer forms of
+//! `floor`/`ceil`/`round` (the build's baseline CPU has no rounding instruction). The bits equal
+//! the unaccelerated bake's (pinned in `tests/pvs_pinned.rs`; chained floors equal cells baked
+//! alone in `chaining_the_floors_changes_no_bit`).
 //!
 //! # The proof (conservative mode)
 //! Claim: every sight line from a point `v` of `R x {Z}` to a point of `Q` at a height at most

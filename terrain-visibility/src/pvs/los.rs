@@ -17,9 +17,15 @@
 //! rounds the minor coordinate to the nearest sample and interpolates z: one point per column
 //! crossed, as Bresenham's algorithm visits them.
 //!
-//! **Early exits.** The steps are halved recursively; a range whose samples' max height (from
-//! [`HeightMip`]) is not above the sight line's lowest point over it cannot block and is
-//! skipped whole, so a sight line high above the terrain costs a few lookups.
+//! **Early exits** (none changes a result; `tests/pvs_pinned.rs` compares with a plain walk).
+//! [`Hints`] first (samples that blocked recent lines); then the `PROBE_STEPS` steps nearest
+//! the test point one by one (where a hidden target is usually blocked); then the remaining
+//! steps are halved recursively: a range whose samples' max height (from [`HeightMip`]) is not
+//! above the sight line's lowest point over it cannot block and is skipped whole, so a sight
+//! line high above the terrain costs a few lookups. Steps read the heightmap row by row for
+//! lines along x and a column-major copy ([`HeightMip::columns`]) for lines along y, so
+//! consecutive steps touch neighbouring memory. Each step's sample and height are computed
+//! exactly as `eye + (target - eye) t`, with exact integer rounding ([`round_i64`]).
 
 use glam::DVec3;
 use terrain_core::Heightmap;
