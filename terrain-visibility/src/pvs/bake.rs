@@ -864,6 +864,66 @@ mod tests {
     use super::*;
 
     #[test]
+    fn chained_floors_have_shortcuts_to_take_and_equal_cells_baked_alone() {
+        use terrain_core::georef::Georef;
+        // Ridges across a plain: much is hidden from low floors, less from high ones.
+        let hm = Heightmap::from_fn(129, 129, Georef::local(30.0), |i, j| {
+            let r = ((i as f32 * 0.21).sin() * (j as f32 * 0.17).cos()).abs();
+            if (i / 16) % 3 == 1 { 60.0 * r + 40.0 } else { 5.0 * r }
+        })
+        .unwrap();
+        let cfg = PvsConfig {
+            cells: (4, 4),
+            floors: 3,
+            floor_rule: crate::pvs::FloorRule::AboveTerrain { height_m: Some(15.0) },
+            patch_level: 4,
+            ..PvsConfig::default()
+        };
+        let layout = PvsLayout::new(&hm, &cfg);
+        let mip = HeightMip::new(&hm);
+        let lines = LineMins::new(&hm);
+        let ctx = Ctx {
+            hm: &hm,
+            mip: &mip,
+            lines: &lines,
+            layout: &layout,
+            cfg: &cfg,
+            proofs: true,
+            sampled: true,
+        };
+        let (mut witnesses, mut proven_above, mut hidden_above) = (0u32, 0u32, 0u32);
+        for n in 0..16u32 {
+            let (a, b) = (n % 4, n / 4);
+            let id = |k| layout.cell_index(CellId { a, b, k });
+            let chained = ctx.column(a, b);
+            for k in 0..3u32 {
+                assert_eq!(chained[k as usize], ctx.cell(id(k)), "cell ({a}, {b}, {k})");
+            }
+            // What the middle floor is chained to: floor 0's sampled witnesses, floor 2's bits.
+            let (_, _, w) = ctx.cell_chained(id(0), None, None, None);
+            witnesses += w.iter().map(|x| x.count_ones()).sum::<u32>();
+            let (s2, c2) = &chained[2];
+            let l = layout.patch_level;
+            for j in 0..1u32 << l {
+                for i in 0..1u32 << l {
+                    proven_above += u32::from(!bit(c2, l, i, j));
+                    hidden_above += u32::from(!bit(s2, l, i, j));
+                }
+            }
+            let (z0, z1) = (
+                layout.floor_bounds(CellId { a, b, k: 0 }),
+                layout.floor_bounds(CellId { a, b, k: 2 }),
+            );
+            assert!(chain_margin(&hm, z0.unwrap().1, z1.unwrap().1));
+        }
+        assert!(witnesses > 100, "no sampled witnesses to chain: {witnesses}");
+        assert!(proven_above > 10, "nothing proven from the top floor: {proven_above}");
+        assert!(hidden_above > proven_above, "{hidden_above} {proven_above}");
+        // The guard refuses floors too close for the rounding.
+        assert!(!chain_margin(&hm, 100.0, 100.0 + 1e-12));
+    }
+
+    #[test]
     fn key_viewpoints_follow_fig6() {
         let top = Top {
             lo: DVec2::new(10.0, 10.0),
