@@ -924,6 +924,62 @@ mod tests {
     }
 
     #[test]
+    fn hidden_from_above_skips_only_test_points_of_the_same_case() {
+        // `sampled_patch_visible` with `between` (the patch hidden from a higher plane) must
+        // equal the full test, over many planes and patches of a rough terrain, many of them
+        // with test points between the planes (tested) beside others (skipped).
+        let hm =
+            terrain_core::synth::FractalConfig::with_size(129, 129, 30.0).to_heightmap().unwrap();
+        let mip = HeightMip::new(&hm);
+        let cfg = PvsConfig::default();
+        let (lo_h, hi_h) = (f64::from(hm.min()), f64::from(hm.max()));
+        let (mut checked, mut mixed) = (0, 0);
+        for (n, &(x0, y0)) in
+            [(8.0, 8.0), (60.0, 20.0), (100.0, 96.0), (30.0, 90.0)].iter().enumerate()
+        {
+            let (lo, hi) = (DVec2::new(x0, y0), DVec2::new(x0 + 16.0, y0 + 16.0));
+            for m in 0..6 {
+                let zk = lo_h + (hi_h - lo_h) * (0.3 + 0.15 * f64::from(m));
+                for zu in [zk + 0.1 * (hi_h - lo_h), zk + 0.4 * (hi_h - lo_h)] {
+                    let plane = |z: f64, views: &'static [Vec<DVec3>]| Top {
+                        lo,
+                        hi,
+                        z,
+                        below: None,
+                        views,
+                        seen_below: None,
+                        above: None,
+                    };
+                    let vk: &'static [Vec<DVec3>] = Vec::leak(view_table(&plane(zk, &[]), 16));
+                    let vu: &'static [Vec<DVec3>] = Vec::leak(view_table(&plane(zu, &[]), 16));
+                    let (tk, tu) = (plane(zk, vk), plane(zu, vu));
+                    for j in 0..8u32 {
+                        for i in 0..8u32 {
+                            let q = (i * 16, j * 16, i * 16 + 16, j * 16 + 16);
+                            let mut hints = los::Hints::new();
+                            if sampled_patch_visible(&mip, &tu, q, &cfg, None, &mut hints).0 {
+                                continue;
+                            }
+                            let full = sampled_patch_visible(&mip, &tk, q, &cfg, None, &mut hints);
+                            let skip =
+                                sampled_patch_visible(&mip, &tk, q, &cfg, Some(zu), &mut hints);
+                            assert_eq!(full.0, skip.0, "plane {n}, z {zk} / {zu}, patch {i} {j}");
+                            checked += 1;
+                            let z = |x: u32, y: u32| f64::from(hm.get(x as usize, y as usize));
+                            let between = (q.1..=q.3.min(128))
+                                .flat_map(|y| (q.0..=q.2.min(128)).map(move |x| (x, y)))
+                                .filter(|&(x, y)| (zk..zu).contains(&z(x, y)))
+                                .count();
+                            mixed += usize::from(between > 0 && between < 200);
+                        }
+                    }
+                }
+            }
+        }
+        assert!(checked > 200 && mixed > 50, "{checked} {mixed}");
+    }
+
+    #[test]
     fn key_viewpoints_follow_fig6() {
         let top = Top {
             lo: DVec2::new(10.0, 10.0),
