@@ -698,22 +698,28 @@ fn intervals_prove(
     if n == 0 {
         return false;
     }
-    let at = |s: f64| (q_lo * (1.0 - s) + r_lo * s, q_hi * (1.0 - s) + r_hi * s);
-    (0..n).any(|m| {
-        let (sa, sb) = (m as f64 / n as f64, (m + 1) as f64 / n as f64);
-        let (alo, ahi) = at(sa);
-        let (blo, bhi) = at(sb);
+    // Per fraction `s`: the swept rectangle's corners and the sight lines' height there. Each
+    // interval's end is the next one's start: computed once and carried (the same values).
+    let at =
+        |s: f64| (q_lo * (1.0 - s) + r_lo * s, q_hi * (1.0 - s) + r_hi * s, hp * (1.0 - s) + z * s);
+    let (mut alo, mut ahi, mut ha) = at(0.0 / n as f64);
+    for m in 0..n {
+        let (blo, bhi, hb) = at((m + 1) as f64 / n as f64);
         let (lo, hi) = (alo.min(blo), ahi.max(bhi));
-        let ray_max = (hp * (1.0 - sa) + z * sa).max(hp * (1.0 - sb) + z * sb);
+        let ray_max = ha.max(hb);
+        (alo, ahi, ha) = (blo, bhi, hb);
         let (x0, y0, x1, y1) = (floor_i64(lo.x), floor_i64(lo.y), ceil_i64(hi.x), ceil_i64(hi.y));
         // A block wholly inside the rectangle bounds its min from above: a cheap exact reject
         // (the usual case) before the block query.
         if f64::from(mip.inner_min(x0, y0, x1, y1)) <= ray_max + eps {
-            return false;
+            continue;
         }
         let (ground_min, _) = mip.range(x0, y0, x1, y1);
-        f64::from(ground_min) > ray_max + eps
-    })
+        if f64::from(ground_min) > ray_max + eps {
+            return true;
+        }
+    }
+    false
 }
 
 /// Whether raising the eye from `z0` to `z1` provably raises every Bresenham step's sight
