@@ -155,15 +155,17 @@ impl Section {
     }
 
     /// Eq. 4 at step `k`: whether the section point lies above the sight line (`f > 0`).
+    /// `along`: read the copy of the heightmap in which consecutive steps of this line are
+    /// neighbours in memory (a walk); otherwise the one in which the samples of one step of
+    /// neighbouring lines are (a hint's column or row, crossed by the lines of a cell). Both
+    /// hold the same samples.
     #[inline]
-    fn blocks(&self, g: &Grid<'_>, k: i64, eps: f64) -> Option<(i64, i64)> {
+    fn blocks(&self, g: &Grid<'_>, k: i64, eps: f64, along: bool) -> Option<(i64, i64)> {
         let (x, y, z) = self.point(k);
         if x < 0 || y < 0 || x >= g.w || y >= g.h {
             return None;
         }
-        // Consecutive steps are neighbours in memory: along a row, or along a column in the
-        // column-major copy (the same samples).
-        let v = if self.major_x {
+        let v = if self.major_x == along {
             g.rows[(y * g.w + x) as usize]
         } else {
             g.columns[(x * g.h + y) as usize]
@@ -216,7 +218,7 @@ pub fn visible_with(
         let Some((hx, hy)) = hints.samples[n] else { break };
         let m = if line.major_x { hx } else { hy };
         if let Some(k) = line.step_at(m)
-            && let Some(p) = line.blocks(&g, k, eps)
+            && let Some(p) = line.blocks(&g, k, eps, false)
         {
             if n > 0 {
                 hints.promote(Some(n), p);
@@ -242,7 +244,7 @@ fn walk(mip: &HeightMip<'_>, line: &Section, eps: f64, hints: &mut Hints) -> boo
     // patch), and this finds it without descending the halving to it.
     let probe = line.steps.min(PROBE_STEPS);
     for k in (line.steps - probe..line.steps).rev() {
-        if let Some(p) = line.blocks(&g, k, eps) {
+        if let Some(p) = line.blocks(&g, k, eps, true) {
             hints.promote(None, p);
             return false;
         }
@@ -265,7 +267,7 @@ fn walk(mip: &HeightMip<'_>, line: &Section, eps: f64, hints: &mut Hints) -> boo
         if k1 - k0 < LEAF_STEPS {
             // Nearest the test point first, as the halving below.
             for k in (k0..=k1).rev() {
-                if let Some(p) = line.blocks(&g, k, eps) {
+                if let Some(p) = line.blocks(&g, k, eps, true) {
                     hints.promote(None, p);
                     return false;
                 }
