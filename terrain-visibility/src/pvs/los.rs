@@ -49,7 +49,7 @@ pub struct Hints {
 }
 
 /// Occluder hints kept per [`Hints`].
-const HINTS: usize = 4;
+const HINTS: usize = 8;
 
 impl Hints {
     /// No hints.
