@@ -117,3 +117,20 @@ fn chaining_the_floors_changes_no_bit() {
         k.culled_fraction()
     );
 }
+
+#[test]
+fn chaining_four_floors_on_the_fractal_changes_no_bit() {
+    // Four floors are baked in the order 0, 3, 1, 2: floors 1 and 2 are chained both to a
+    // floor below and to one above; every bit must equal the cell baked alone.
+    let hm = FractalConfig::with_size(129, 129, 30.0).to_heightmap().unwrap();
+    let cfg = cfg(4, 4, 8.0, 4);
+    let (s, k, _) = bake_both(&hm, &cfg);
+    let n = s.layout.cell_count();
+    let alone = bake_cells(&hm, &cfg, &(0..n).collect::<Vec<_>>());
+    let per = s.layout.bytes_per_cell();
+    for (c, (bs, bk)) in alone.iter().enumerate() {
+        assert_eq!(&s.bits[c * per..(c + 1) * per], bs.as_slice(), "sampled, cell {c}");
+        assert_eq!(&k.bits[c * per..(c + 1) * per], bk.as_slice(), "conservative, cell {c}");
+    }
+    assert!(s.culled_fraction() > 0.05, "too little is hidden to test anything");
+}

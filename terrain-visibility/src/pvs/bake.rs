@@ -1,5 +1,5 @@
 //! The PVS bake: both modes in one pass over every view cell (rayon over plan cells, each
-//! plan cell's floors lowest first), top-down over the patch pyramid.
+//! plan cell's floors in the order of `Ctx::column`), top-down over the patch pyramid.
 //!
 //! # Per cell
 //! Only the cell's *top plane* (height `Z`, its plan rectangle `R`) is tested: a point visible
@@ -21,13 +21,29 @@
 //! Proofs are the costly part, so they are skipped whenever a *witness* shows them hopeless:
 //! any unblocked Eq. 4 sight line from the top plane to a sample of the node (the paper's own
 //! test at level `L`; then, at every level, a 3 x 3 grid of the node's samples raised as high
-//! as every part of the proof still covers, seen from the plane's centre and corners). Sight lines try *occluder hints* first ([`los::Hints`]: the samples
-//! that blocked recent lines of the same cell; passing one that blocks is an exact early
-//! exit). The floors of a plan cell are baked lowest first, and a node visible in a lower
-//! floor's conservative bits skips its proof (a proof that fails from a plane fails from every
-//! plane above it, see `Below`). Rejects inside the proofs test one sample first (an upper
-//! bound of a min) before the block query. The bits equal the unaccelerated bake's (pinned in
-//! `tests/pvs_pinned.rs`).
+//! as every part of the proof still covers, seen from the plane's centre and corners). Sight
+//! lines try *occluder hints* first ([`los::Hints`]: the samples that blocked recent lines of
+//! the same cell; passing one that blocks is an exact early exit), then the steps nearest the
+//! test point, then max-height halving (see [`los`]).
+//!
+//! **Floors share work** (`Ctx::column`): the lowest floor is baked first, then the highest,
+//! then the others upwards, each chained to the nearest baked floor below and the highest
+//! above, all by the monotonicity of Fig. 5 over the same plan rectangle:
+//! - from below (`Below`): a node visible in a lower floor's conservative bits skips its proof
+//!   (a proof that fails from a plane fails from every plane above it); a patch the paper's test
+//!   saw through a pair whose plane was above its test point is seen again without a test;
+//! - from above (`Above`): a node hidden in a higher floor's conservative bits is hidden
+//!   (its proofs hold from every lower plane); a patch the paper's test found hidden there only
+//!   tests the test points whose Fig. 6 case differs between the two planes.
+//!
+//! The eye-height arguments are exact in floating point: a guard (`chain_margin`) checks that
+//! the floors are far enough apart for the rise of every Bresenham step's sight line to exceed
+//! its rounding. Rejects inside the proofs read the min of the largest mip block (or line
+//! pyramid entry) inside the queried rectangle, an upper bound of its min from a small,
+//! cache-resident level, before the block query. Rounding uses exact integer forms of
+//! `floor`/`ceil`/`round` (the build's baseline CPU has no rounding instruction). The bits equal
+//! the unaccelerated bake's (pinned in `tests/pvs_pinned.rs`; chained floors equal cells baked
+//! alone in `chaining_the_floors_changes_no_bit`).
 //!
 //! # The proof (conservative mode)
 //! Claim: every sight line from a point `v` of `R x {Z}` to a point of `Q` at a height at most
@@ -58,6 +74,7 @@ use rayon::prelude::*;
 use terrain_core::Heightmap;
 
 use super::los;
+use super::los::{ceil_i64, floor_i64};
 use super::mip::{HeightMip, LineMins};
 use super::{CellId, Pvs, PvsConfig, PvsLayout, PvsMode};
 
@@ -185,6 +202,37 @@ struct Top<'a> {
     z: f64,
     /// The conservative bits of the same plan cell's top plane at a height at most `z`.
     below: Option<Below<'a>>,
+    /// The key viewpoints of every Fig. 6 case ([`fig6_case`]) from this plane.
+    views: &'a [Vec<DVec3>],
+    /// The patches (bit `j 2^L + i`) that the paper's test found visible from the same plan
+    /// cell's top plane at a lower height through a pair whose plane was above the test point
+    /// (see [`Ctx::column`]): visible from this plane too.
+    seen_below: Option<&'a [u8]>,
+    /// The bits of the same plan cell's top plane at a greater height (see [`Above`]).
+    above: Option<Above<'a>>,
+}
+
+/// A higher top plane's bits (same plan rectangle), for a lower plane:
+/// - a node hidden in its *conservative* bits had every patch under it proven hidden (its own
+///   proof or those of nodes under it), and a proof that holds from a plane holds from every
+///   plane below it (see [`Below`]), so the same proofs hold here: the node's subtree is 0 in
+///   both modes (a proven patch is hidden for the paper's test too), as running it gives;
+/// - a patch hidden in its *sampled* bits had every (test point, key viewpoint) pair hidden
+///   there, and lowering the eye lowers every Bresenham step's sight line (the converse of
+///   `Ctx::column`'s argument, the same margin): a test point whose Fig. 6 case is the same
+///   from both planes (the plane above it in both or in neither) has the same viewpoints in
+///   plan and all of them hidden here too; only the test points between the two heights are
+///   tested.
+#[derive(Debug, Clone, Copy)]
+struct Above<'a> {
+    sampled: &'a [u8],
+    conservative: &'a [u8],
+    z: f64,
+}
+
+fn bit(bits: &[u8], l: u8, i: u32, j: u32) -> bool {
+    let n = PvsLayout::level_offset(l) + (j * (1 << l) + i) as usize;
+    bits[n / 8] & (1 << (n % 8)) != 0
 }
 
 /// A lower top plane's conservative bits (same plan rectangle). A proof that fails from a
@@ -201,8 +249,7 @@ struct Below<'a> {
 
 impl Below<'_> {
     fn visible(&self, l: u8, i: u32, j: u32) -> bool {
-        let n = PvsLayout::level_offset(l) + (j * (1 << l) + i) as usize;
-        self.bits[n / 8] & (1 << (n % 8)) != 0
+        bit(self.bits, l, i, j)
     }
 }
 
@@ -213,42 +260,101 @@ fn set(bits: &mut [u8], l: u8, i: u32, j: u32) {
 
 impl Ctx<'_> {
     /// The bits of every floor of plan cell `(a, b)`, lowest first, each floor's
-    /// conservative bits telling the next which proofs are hopeless (see [`Below`]).
+    /// conservative bits telling the next which proofs are hopeless (see [`Below`]), and its
+    /// sampled witnesses which patches the paper's test sees (below).
+    ///
+    /// **Sampled witnesses.** A patch seen from the plane at `z` through a pair `(v, t)` whose
+    /// Fig. 6 case has the plane above `t` is seen from the plane at `z' > z` through
+    /// `(v', t)`, `v'` being `v` raised to `z'`: the case is the same (still above `t`, same
+    /// region), so `v'` is a key viewpoint there (the same plan points); the Bresenham steps
+    /// and samples depend on plan coordinates alone; and at every step the sight line's
+    /// height `e + (T - e) t_k` rises with the eye height `e` by `(z' - z)(1 - t_k) >= (z' -
+    /// z) / N` (`t` at an integer sample, so `1 - t_k >= 1 / |len|`, `N` the grid's width
+    /// plus height), which [`chain_margin`] checks is far above the rounding of the two
+    /// evaluations. So no step that passed Eq. 4 at `z` blocks at `z'` and the test's result
+    /// is known without running it: the bits are those of running it.
+    ///
+    /// **Order.** The lowest floor first, then the highest (chained to the lowest), then the
+    /// others upwards, each chained to the nearest baked floor below it and to the highest
+    /// (see [`Above`]): with the paper's 3 floors the middle one is bounded on both sides.
     fn column(&self, a: u32, b: u32) -> Vec<(Vec<u8>, Vec<u8>)> {
         let lay = self.layout;
-        let mut out: Vec<(Vec<u8>, Vec<u8>)> = Vec::with_capacity(lay.floors as usize);
-        let mut below_z = None;
-        for k in 0..lay.floors {
+        let f = lay.floors;
+        let order: Vec<u32> = if f <= 2 {
+            (0..f).collect()
+        } else {
+            std::iter::once(0).chain(std::iter::once(f - 1)).chain(1..f - 1).collect()
+        };
+        // Per floor: (sampled, conservative, sampled witnesses, top height).
+        type Baked = (Vec<u8>, Vec<u8>, Vec<u8>, Option<f64>);
+        let mut done: Vec<Option<Baked>> = vec![None; f as usize];
+        for k in order {
             let n = lay.cell_index(CellId { a, b, k });
-            let below = match (below_z, out.last()) {
-                (Some(z), Some((_, bits))) => Some(Below { bits: bits.as_slice(), z }),
+            let z = lay.floor_bounds(CellId { a, b, k }).map(|(_, z)| z);
+            let lower = (0..k).rev().find_map(|j| done[j as usize].as_ref());
+            let upper = (k + 1..f).find_map(|j| done[j as usize].as_ref());
+            let below = match lower {
+                Some((_, c, _, Some(z0))) => Some(Below { bits: c.as_slice(), z: *z0 }),
                 _ => None,
             };
-            let (s, c) = self.cell_below(n, below);
-            below_z = lay.floor_bounds(CellId { a, b, k }).map(|(_, z)| z);
-            out.push((s, c));
+            let seen_below = match (lower, z) {
+                (Some((_, _, w, Some(z0))), Some(z1)) if chain_margin(self.hm, *z0, z1) => {
+                    Some(w.as_slice())
+                }
+                _ => None,
+            };
+            let above = match (upper, z) {
+                (Some((s, c, _, Some(z1))), Some(z0)) if chain_margin(self.hm, z0, *z1) => {
+                    Some(Above { sampled: s.as_slice(), conservative: c.as_slice(), z: *z1 })
+                }
+                _ => None,
+            };
+            let (s, c, w) = self.cell_chained(n, below, seen_below, above);
+            done[k as usize] = Some((s, c, w, z));
         }
-        out
+        done.into_iter().map(|d| d.map(|(s, c, _, _)| (s, c)).unwrap_or_default()).collect()
     }
 
     fn cell(&self, n: usize) -> (Vec<u8>, Vec<u8>) {
-        self.cell_below(n, None)
+        let (s, c, _) = self.cell_chained(n, None, None, None);
+        (s, c)
     }
 
-    fn cell_below(&self, n: usize, below: Option<Below<'_>>) -> (Vec<u8>, Vec<u8>) {
+    /// The cell's (sampled, conservative) bits and its sampled witnesses (see
+    /// [`Self::column`]).
+    fn cell_chained(
+        &self,
+        n: usize,
+        below: Option<Below<'_>>,
+        seen_below: Option<&[u8]>,
+        above: Option<Above<'_>>,
+    ) -> (Vec<u8>, Vec<u8>, Vec<u8>) {
         let lay = self.layout;
         let per = lay.bytes_per_cell();
         let c: CellId = lay.cell_at_index(n);
         let (Some((_, z)), Some((lo, hi))) = (lay.floor_bounds(c), lay.cell_rect_clipped(c.a, c.b))
         else {
             // Outside the grid: never looked up; all visible.
-            return (vec![0xFF; per], vec![0xFF; per]);
+            return (vec![0xFF; per], vec![0xFF; per], Vec::new());
         };
-        let top = Top { lo, hi, z, below: below.filter(|b| b.z <= z) };
+        let mut top = Top {
+            lo,
+            hi,
+            z,
+            below: below.filter(|b| b.z <= z),
+            views: &[],
+            seen_below: None,
+            above: above.filter(|u| u.z > z),
+        };
+        let views = view_table(&top, self.cfg.max_viewpoints.max(1) as usize);
+        top.views = &views;
+        let patches = 1usize << (2 * lay.patch_level);
+        top.seen_below = seen_below.filter(|w| w.len() * 8 >= patches);
         let (mut s, mut k) = (vec![0u8; per], vec![0u8; per]);
+        let mut w = vec![0u8; patches.div_ceil(8)];
         let mut hints = los::Hints::new();
-        self.visit(&top, 0, 0, 0, &mut s, &mut k, &mut hints);
-        (s, k)
+        self.visit(&top, 0, 0, 0, &mut s, &mut k, &mut w, &mut hints);
+        (s, k, w)
     }
 
     /// Fills the bits of node `(l, i, j)`'s subtree; returns (sampled, conservative) visibility.
@@ -261,15 +367,34 @@ impl Ctx<'_> {
         j: u32,
         s: &mut [u8],
         k: &mut [u8],
+        w: &mut [u8],
         hints: &mut los::Hints,
     ) -> (bool, bool) {
         let Some(q) = self.layout.patch_samples(l, i, j) else { return (false, false) };
+        if top.above.is_some_and(|u| !bit(u.conservative, l, i, j)) {
+            // Proven hidden from a higher plane, so from this one (see [`Above`]).
+            return (false, false);
+        }
         let finest = l == self.layout.patch_level;
         let (vs, vk) = if finest {
             // Both modes from the paper's test first: a patch it finds visible can never be
             // proven hidden (the proof covers its sight lines), so the costly proof runs only
             // on patches it finds hidden (or on every unwitnessed patch without it).
-            let seen = self.sampled && sampled_patch_visible(self.mip, top, q, self.cfg, hints);
+            let p = (j * (1 << l) + i) as usize;
+            let seen = self.sampled
+                && if top.seen_below.is_some_and(|b| b[p / 8] & (1 << (p % 8)) != 0) {
+                    w[p / 8] |= 1 << (p % 8);
+                    true
+                } else {
+                    // Hidden from a higher plane: only the test points between the planes.
+                    let between = top.above.filter(|u| !bit(u.sampled, l, i, j)).map(|u| u.z);
+                    let (seen, chain) =
+                        sampled_patch_visible(self.mip, top, q, self.cfg, between, hints);
+                    if chain {
+                        w[p / 8] |= 1 << (p % 8);
+                    }
+                    seen
+                };
             let proven = !seen
                 && self.proofs
                 && !top.below.is_some_and(|b| b.visible(l, i, j))
@@ -289,7 +414,7 @@ impl Ctx<'_> {
             for (ci, cj) in
                 [(2 * i, 2 * j), (2 * i + 1, 2 * j), (2 * i, 2 * j + 1), (2 * i + 1, 2 * j + 1)]
             {
-                let (a, b) = self.visit(top, l + 1, ci, cj, s, k, hints);
+                let (a, b) = self.visit(top, l + 1, ci, cj, s, k, w, hints);
                 acc = (acc.0 | a, acc.1 | b);
             }
             acc
@@ -493,16 +618,16 @@ fn lines_prove(
     for axis in 0..2 {
         let (q0, q1, r0, r1) = (q_lo[axis], q_hi[axis], r_lo[axis], r_hi[axis]);
         let (first, last) = if q1 + 1.5 <= r0 - 1.5 {
-            ((q1 + 1.5).ceil(), (r0 - 1.5).floor())
+            (ceil_i64(q1 + 1.5) as f64, floor_i64(r0 - 1.5) as f64)
         } else if r1 + 1.5 <= q0 - 1.5 {
-            ((r1 + 1.5).ceil(), (q0 - 1.5).floor())
+            (ceil_i64(r1 + 1.5) as f64, floor_i64(q0 - 1.5) as f64)
         } else {
             continue;
         };
         let o = 1 - axis;
         // At most `MAX_LINES` lines per axis, evenly spaced (a bound on the cost; any line
         // that proves it is a valid proof).
-        let step = ((last - first + 1.0) / MAX_LINES).ceil().max(1.0);
+        let step = (ceil_i64((last - first + 1.0) / MAX_LINES) as f64).max(1.0);
         let mut i = first;
         while i <= last {
             let (mut s0, mut s1) = (f64::INFINITY, f64::NEG_INFINITY);
@@ -519,7 +644,7 @@ fn lines_prove(
             let ray_max = (hp * (1.0 - s0) + z * s0).max(hp * (1.0 - s1) + z * s1);
             let lo = (q_lo[o] * (1.0 - s0) + r_lo[o] * s0).min(q_lo[o] * (1.0 - s1) + r_lo[o] * s1);
             let hi = (q_hi[o] * (1.0 - s0) + r_hi[o] * s0).max(q_hi[o] * (1.0 - s1) + r_hi[o] * s1);
-            let (a, b) = (lo.floor() as i64, hi.ceil() as i64);
+            let (a, b) = (floor_i64(lo), ceil_i64(hi));
             // As in `intervals_prove`: a block inside the stretch bounds its min from above.
             let one = if axis == 0 {
                 lines.column_inner_min(i as usize, a, b)
@@ -569,46 +694,67 @@ fn intervals_prove(
     eps: f64,
 ) -> bool {
     let dmin = rect_distance(r_lo, r_hi, q_lo, q_hi);
-    let n = (dmin / MIN_INTERVAL_SAMPLES).floor().min(48.0) as usize;
+    let n = floor_i64(dmin / MIN_INTERVAL_SAMPLES).clamp(0, 48) as usize;
     if n == 0 {
         return false;
     }
-    let at = |s: f64| (q_lo * (1.0 - s) + r_lo * s, q_hi * (1.0 - s) + r_hi * s);
-    (0..n).any(|m| {
-        let (sa, sb) = (m as f64 / n as f64, (m + 1) as f64 / n as f64);
-        let (alo, ahi) = at(sa);
-        let (blo, bhi) = at(sb);
+    // Per fraction `s`: the swept rectangle's corners and the sight lines' height there. Each
+    // interval's end is the next one's start: computed once and carried (the same values).
+    let at =
+        |s: f64| (q_lo * (1.0 - s) + r_lo * s, q_hi * (1.0 - s) + r_hi * s, hp * (1.0 - s) + z * s);
+    let (mut alo, mut ahi, mut ha) = at(0.0 / n as f64);
+    for m in 0..n {
+        let (blo, bhi, hb) = at((m + 1) as f64 / n as f64);
         let (lo, hi) = (alo.min(blo), ahi.max(bhi));
-        let ray_max = (hp * (1.0 - sa) + z * sa).max(hp * (1.0 - sb) + z * sb);
-        let (x0, y0, x1, y1) =
-            (lo.x.floor() as i64, lo.y.floor() as i64, hi.x.ceil() as i64, hi.y.ceil() as i64);
+        let ray_max = ha.max(hb);
+        (alo, ahi, ha) = (blo, bhi, hb);
+        let (x0, y0, x1, y1) = (floor_i64(lo.x), floor_i64(lo.y), ceil_i64(hi.x), ceil_i64(hi.y));
         // A block wholly inside the rectangle bounds its min from above: a cheap exact reject
         // (the usual case) before the block query.
         if f64::from(mip.inner_min(x0, y0, x1, y1)) <= ray_max + eps {
-            return false;
+            continue;
         }
         let (ground_min, _) = mip.range(x0, y0, x1, y1);
-        f64::from(ground_min) > ray_max + eps
-    })
+        if f64::from(ground_min) > ray_max + eps {
+            return true;
+        }
+    }
+    false
+}
+
+/// Whether raising the eye from `z0` to `z1` provably raises every Bresenham step's sight
+/// line height on `hm` despite rounding (see `Ctx::column`): the least rise, `(z1 - z0) / N`,
+/// must exceed a generous bound (`32 ε` of the largest magnitude involved) on the rounding
+/// of the two evaluations of `e + (T - e) t`.
+fn chain_margin(hm: &Heightmap, z0: f64, z1: f64) -> bool {
+    let n = (hm.width() + hm.height()) as f64;
+    let big = z0.abs().max(z1.abs()).max(f64::from(hm.min()).abs()).max(f64::from(hm.max()).abs());
+    (z1 - z0) / n > 32.0 * f64::EPSILON * (big + 1.0)
 }
 
 /// The PVPS paper's per-patch test (section 2.2.2): `n x n` test points evenly over the
 /// patch (at DEM samples), key viewpoints on the top plane's edges chosen by Fig. 6, midpoint
 /// refinement up to `max_viewpoints`, Eq. 4 line of sight; stops at the first visible pair.
+/// Returns (visible, visible through a pair whose plane is above its test point or with a
+/// test point under the plane: one that any higher plane also sees, see `Ctx::column`).
+/// With `between: Some(z_u)` (the patch is hidden from the plane at `z_u` above, see
+/// [`Above`]), the test points whose Fig. 6 case is the same at `z_u` are known hidden and
+/// skipped.
 fn sampled_patch_visible(
     mip: &HeightMip<'_>,
     top: &Top<'_>,
     q: (u32, u32, u32, u32),
     cfg: &PvsConfig,
+    between: Option<f64>,
     hints: &mut los::Hints,
-) -> bool {
+) -> (bool, bool) {
     let hm = mip.heightmap();
     let n = cfg.test_points.max(1);
     let coord = |a: u32, b: u32, k: u32| -> u32 {
         if n == 1 {
             (a + b) / 2
         } else {
-            (f64::from(a) + f64::from(b - a) * f64::from(k) / f64::from(n - 1)).round() as u32
+            los::round_i64(f64::from(a) + f64::from(b - a) * f64::from(k) / f64::from(n - 1)) as u32
         }
     };
     let mut points: Vec<DVec3> = Vec::with_capacity((n * n) as usize);
@@ -619,19 +765,51 @@ fn sampled_patch_visible(
                 DVec3::new(f64::from(x), f64::from(y), f64::from(hm.get(x as usize, y as usize)));
             if (top.lo.x..=top.hi.x).contains(&t.x) && (top.lo.y..=top.hi.y).contains(&t.y) {
                 // Under the cell: seen straight down from the top plane (Z >= the cell's max).
-                return true;
+                return (true, true);
             }
             points.push(t);
         }
     }
-    // The result is the OR over every (test point, key viewpoint) pair, so the order is free:
-    // the highest test points first, as they are the likeliest to be seen (a speed choice).
-    points.sort_by(|a, b| b.z.total_cmp(&a.z));
-    let mut views: Vec<DVec3> = Vec::with_capacity(cfg.max_viewpoints as usize);
-    points.iter().any(|&t| {
-        key_viewpoints(top, t, cfg.max_viewpoints.max(1) as usize, &mut views);
-        views.iter().any(|&v| los::visible_with(mip, v, t, cfg.epsilon_m, hints))
-    })
+    // The result is the OR over every (test point, key viewpoint) pair, so the order is free.
+    // The highest test point first, as it is the likeliest to be seen (a speed choice).
+    if let Some(k) = (0..points.len()).max_by(|&a, &b| points[a].z.total_cmp(&points[b].z)) {
+        points.swap(0, k);
+    }
+    for &t in &points {
+        let case = fig6_case(top, t);
+        if between.is_some_and(|zu| (zu - t.z > 0.0) == (case & ABOVE != 0)) {
+            continue;
+        }
+        if top.views[case].iter().any(|&v| los::visible_with(mip, v, t, cfg.epsilon_m, hints)) {
+            return (true, case & ABOVE != 0);
+        }
+    }
+    (false, false)
+}
+
+/// [`fig6_case`]'s bit for a plane above the test point.
+const ABOVE: usize = 16;
+
+/// Which case of Fig. 6's table test point `t` falls in: its region around the plane (west,
+/// east, south, north flags) and whether the plane is above it; [`key_viewpoints`] depends on
+/// `t` through these alone.
+fn fig6_case(top: &Top<'_>, t: DVec3) -> usize {
+    usize::from(t.x < top.lo.x)
+        | usize::from(t.x > top.hi.x) << 1
+        | usize::from(t.y < top.lo.y) << 2
+        | usize::from(t.y > top.hi.y) << 3
+        | if top.z - t.z > 0.0 { ABOVE } else { 0 }
+}
+
+/// The key viewpoints of every case of [`fig6_case`] (computed once per plane).
+fn view_table(top: &Top<'_>, max: usize) -> Vec<Vec<DVec3>> {
+    (0..32)
+        .map(|c| {
+            let mut out = Vec::with_capacity(max);
+            key_viewpoints_case(top, c, max, &mut out);
+            out
+        })
+        .collect()
 }
 
 /// The key viewpoints of Fig. 6 for test point `t`: the top plane's edges facing `t` when
@@ -641,14 +819,17 @@ fn sampled_patch_visible(
 /// Fig. 6 names edges 0-3 (top, left, bottom, right of its top view) and regions 0-7 around
 /// the cell; a corner region takes the two edges meeting at the corner, a side region the one
 /// edge on its side, exactly as the table lists them.
+#[cfg(test)]
 fn key_viewpoints(top: &Top<'_>, t: DVec3, max: usize, out: &mut Vec<DVec3>) {
+    key_viewpoints_case(top, fig6_case(top, t), max, out);
+}
+
+/// [`key_viewpoints`] for the test points of one [`fig6_case`].
+fn key_viewpoints_case(top: &Top<'_>, case: usize, max: usize, out: &mut Vec<DVec3>) {
     out.clear();
-    let above = top.z - t.z > 0.0;
     let (lo, hi) = (top.lo, top.hi);
-    let west = t.x < lo.x;
-    let east = t.x > hi.x;
-    let south = t.y < lo.y;
-    let north = t.y > hi.y;
+    let (west, east) = (case & 1 != 0, case & 2 != 0);
+    let (south, north, above) = (case & 4 != 0, case & 8 != 0, case & ABOVE != 0);
     // Edges as (start, end) on the top plane.
     let w_edge = (DVec2::new(lo.x, lo.y), DVec2::new(lo.x, hi.y));
     let e_edge = (DVec2::new(hi.x, lo.y), DVec2::new(hi.x, hi.y));
@@ -689,9 +870,132 @@ mod tests {
     use super::*;
 
     #[test]
+    fn chained_floors_have_shortcuts_to_take_and_equal_cells_baked_alone() {
+        use terrain_core::georef::Georef;
+        // Ridges across a plain: much is hidden from low floors, less from high ones.
+        let hm = Heightmap::from_fn(129, 129, Georef::local(30.0), |i, j| {
+            let r = ((i as f32 * 0.21).sin() * (j as f32 * 0.17).cos()).abs();
+            if (i / 16) % 3 == 1 { 60.0 * r + 40.0 } else { 5.0 * r }
+        })
+        .unwrap();
+        let cfg = PvsConfig {
+            cells: (4, 4),
+            floors: 3,
+            floor_rule: crate::pvs::FloorRule::AboveTerrain { height_m: Some(15.0) },
+            patch_level: 4,
+            ..PvsConfig::default()
+        };
+        let layout = PvsLayout::new(&hm, &cfg);
+        let mip = HeightMip::new(&hm);
+        let lines = LineMins::new(&hm);
+        let ctx = Ctx {
+            hm: &hm,
+            mip: &mip,
+            lines: &lines,
+            layout: &layout,
+            cfg: &cfg,
+            proofs: true,
+            sampled: true,
+        };
+        let (mut witnesses, mut proven_above, mut hidden_above) = (0u32, 0u32, 0u32);
+        for n in 0..16u32 {
+            let (a, b) = (n % 4, n / 4);
+            let id = |k| layout.cell_index(CellId { a, b, k });
+            let chained = ctx.column(a, b);
+            for k in 0..3u32 {
+                assert_eq!(chained[k as usize], ctx.cell(id(k)), "cell ({a}, {b}, {k})");
+            }
+            // What the middle floor is chained to: floor 0's sampled witnesses, floor 2's bits.
+            let (_, _, w) = ctx.cell_chained(id(0), None, None, None);
+            witnesses += w.iter().map(|x| x.count_ones()).sum::<u32>();
+            let (s2, c2) = &chained[2];
+            let l = layout.patch_level;
+            for j in 0..1u32 << l {
+                for i in 0..1u32 << l {
+                    proven_above += u32::from(!bit(c2, l, i, j));
+                    hidden_above += u32::from(!bit(s2, l, i, j));
+                }
+            }
+            let (z0, z1) = (
+                layout.floor_bounds(CellId { a, b, k: 0 }),
+                layout.floor_bounds(CellId { a, b, k: 2 }),
+            );
+            assert!(chain_margin(&hm, z0.unwrap().1, z1.unwrap().1));
+        }
+        assert!(witnesses > 100, "no sampled witnesses to chain: {witnesses}");
+        assert!(proven_above > 10, "nothing proven from the top floor: {proven_above}");
+        assert!(hidden_above > proven_above, "{hidden_above} {proven_above}");
+        // The guard refuses floors too close for the rounding.
+        assert!(!chain_margin(&hm, 100.0, 100.0 + 1e-12));
+    }
+
+    #[test]
+    fn hidden_from_above_skips_only_test_points_of_the_same_case() {
+        // `sampled_patch_visible` with `between` (the patch hidden from a higher plane) must
+        // equal the full test, over many planes and patches of a rough terrain, many of them
+        // with test points between the planes (tested) beside others (skipped).
+        let hm =
+            terrain_core::synth::FractalConfig::with_size(129, 129, 30.0).to_heightmap().unwrap();
+        let mip = HeightMip::new(&hm);
+        let cfg = PvsConfig::default();
+        let (lo_h, hi_h) = (f64::from(hm.min()), f64::from(hm.max()));
+        let (mut checked, mut mixed) = (0, 0);
+        for (n, &(x0, y0)) in
+            [(8.0, 8.0), (60.0, 20.0), (100.0, 96.0), (30.0, 90.0)].iter().enumerate()
+        {
+            let (lo, hi) = (DVec2::new(x0, y0), DVec2::new(x0 + 16.0, y0 + 16.0));
+            for m in 0..6 {
+                let zk = lo_h + (hi_h - lo_h) * (0.3 + 0.15 * f64::from(m));
+                for zu in [zk + 0.1 * (hi_h - lo_h), zk + 0.4 * (hi_h - lo_h)] {
+                    let plane = |z: f64, views: &'static [Vec<DVec3>]| Top {
+                        lo,
+                        hi,
+                        z,
+                        below: None,
+                        views,
+                        seen_below: None,
+                        above: None,
+                    };
+                    let vk: &'static [Vec<DVec3>] = Vec::leak(view_table(&plane(zk, &[]), 16));
+                    let vu: &'static [Vec<DVec3>] = Vec::leak(view_table(&plane(zu, &[]), 16));
+                    let (tk, tu) = (plane(zk, vk), plane(zu, vu));
+                    for j in 0..8u32 {
+                        for i in 0..8u32 {
+                            let q = (i * 16, j * 16, i * 16 + 16, j * 16 + 16);
+                            let mut hints = los::Hints::new();
+                            if sampled_patch_visible(&mip, &tu, q, &cfg, None, &mut hints).0 {
+                                continue;
+                            }
+                            let full = sampled_patch_visible(&mip, &tk, q, &cfg, None, &mut hints);
+                            let skip =
+                                sampled_patch_visible(&mip, &tk, q, &cfg, Some(zu), &mut hints);
+                            assert_eq!(full.0, skip.0, "plane {n}, z {zk} / {zu}, patch {i} {j}");
+                            checked += 1;
+                            let z = |x: u32, y: u32| f64::from(hm.get(x as usize, y as usize));
+                            let between = (q.1..=q.3.min(128))
+                                .flat_map(|y| (q.0..=q.2.min(128)).map(move |x| (x, y)))
+                                .filter(|&(x, y)| (zk..zu).contains(&z(x, y)))
+                                .count();
+                            mixed += usize::from(between > 0 && between < 200);
+                        }
+                    }
+                }
+            }
+        }
+        assert!(checked > 200 && mixed > 50, "{checked} {mixed}");
+    }
+
+    #[test]
     fn key_viewpoints_follow_fig6() {
-        let top =
-            Top { lo: DVec2::new(10.0, 10.0), hi: DVec2::new(20.0, 20.0), z: 100.0, below: None };
+        let top = Top {
+            lo: DVec2::new(10.0, 10.0),
+            hi: DVec2::new(20.0, 20.0),
+            z: 100.0,
+            below: None,
+            views: &[],
+            seen_below: None,
+            above: None,
+        };
         let mut v = Vec::new();
         // Region north-west, plane above the test point: the north and west edges.
         key_viewpoints(&top, DVec3::new(0.0, 30.0, 0.0), 16, &mut v);
