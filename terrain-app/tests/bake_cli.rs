@@ -32,8 +32,18 @@ fn an_hgt_bakes_losslessly_and_reads_back_bit_exact() {
     let hgt = data("srtm/N42E001.hgt");
     let dir = scratch("hgt");
     let out = dir.join("n42");
-    let stdout =
-        ok(&terrain(&["bake", s(&hgt), "-o", s(&out), "--block-k", "8", "--threads", "2"]));
+    let stdout = ok(&terrain(&[
+        "bake",
+        s(&hgt),
+        "-o",
+        s(&out),
+        "--block-k",
+        "8",
+        "--threads",
+        "2",
+        "--no-dss",
+        "--no-pvs",
+    ]));
     assert!(stdout.contains("lossless") && stdout.contains("1201 x 1201"), "{stdout}");
 
     let dem = load(&hgt, &LoadOptions::default()).unwrap();
@@ -79,7 +89,18 @@ fn an_hgt_bakes_losslessly_and_reads_back_bit_exact() {
 fn synthetic_bakes_and_an_existing_output_is_refused() {
     let dir = scratch("synth");
     let out = dir.join("synth");
-    let args = ["bake", "--synthetic", "257", "-o", s(&out), "--block-k", "6", "--threads", "2"];
+    let args = [
+        "bake",
+        "--synthetic",
+        "257",
+        "-o",
+        s(&out),
+        "--block-k",
+        "6",
+        "--threads",
+        "2",
+        "--no-pvs",
+    ];
     let stdout = ok(&terrain(&args));
     assert!(stdout.contains("257 x 257") && stdout.contains("4 x 4 blocks"), "{stdout}");
     let store = Store::open(&out).unwrap();
@@ -129,7 +150,7 @@ fn a_streamed_bake_equals_the_whole_file_bake_at_valid_samples() {
     let tif = data("srtm/mt_rainier_90m.tif");
     let dir = scratch("stream");
     let (whole, rows) = (dir.join("whole"), dir.join("rows"));
-    ok(&terrain(&["bake", s(&tif), "-o", s(&whole), "--threads", "2"]));
+    ok(&terrain(&["bake", s(&tif), "-o", s(&whole), "--threads", "2", "--no-dss", "--no-pvs"]));
     let stderr = {
         let out = terrain(&["bake", s(&tif), "-o", s(&rows), "--threads", "2", "--stream"]);
         ok(&out);

@@ -64,7 +64,7 @@ fn bake_stores_the_dss_errors_and_bench_reads_them() {
     let dem = data("puget_sound/ps_height_1k.png");
     let mut args = vec!["bake", s(&dem)];
     args.extend(PUGET);
-    args.extend(["-o", s(&scene), "--block-k", "8", "--threads", "2"]);
+    args.extend(["-o", s(&scene), "--block-k", "8", "--threads", "2", "--no-pvs"]);
     let (out, err) = ok(&terrain(&args));
     assert!(out.contains("dss_errors.bin") && out.contains("7 quadtree levels"), "{out}");
     assert!(err.contains("DSS errors: 100 %"), "no progress shown: {err}");
@@ -113,7 +113,7 @@ fn bake_stores_the_dss_errors_and_bench_reads_them() {
     // A table of another terrain (the same DEM at another vertical scale): refused.
     let other = dir.join("scaled.scene");
     let mut args = vec!["bake", s(&dem), "--vertical-scale", "0.2", "--spacing", "160"];
-    args.extend(["-o", s(&other), "--block-k", "8", "--threads", "2"]);
+    args.extend(["-o", s(&other), "--block-k", "8", "--threads", "2", "--no-pvs"]);
     ok(&terrain(&args));
     let (foreign, err) = bench(&dir, "foreign", Some(&other));
     assert!(err.contains("dss_errors.bin") && err.contains("heights differ"), "{err}");
@@ -130,6 +130,7 @@ fn bake_stores_the_dss_errors_and_bench_reads_them() {
         "--block-k",
         "6",
         "--no-dss",
+        "--no-pvs",
     ]));
     let flight = Path::new(env!("CARGO_MANIFEST_DIR")).join("../flights/pvps_884.json");
     let mut args = vec!["bench", s(&dem)];
@@ -144,7 +145,7 @@ fn bake_stores_the_dss_errors_and_bench_reads_them() {
     let none = dir.join("none.scene");
     let mut args = vec!["bake", s(&dem)];
     args.extend(PUGET);
-    args.extend(["-o", s(&none), "--block-k", "8", "--no-dss"]);
+    args.extend(["-o", s(&none), "--block-k", "8", "--no-dss", "--no-pvs"]);
     ok(&terrain(&args));
     assert!(!none.join("dss_errors.bin").exists());
     std::fs::remove_dir_all(&dir).unwrap();

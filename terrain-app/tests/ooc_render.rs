@@ -310,6 +310,8 @@ fn terrain_render_draws_a_store_baked_from_puget_sound() {
         "7",
         "--threads",
         "2",
+        "--no-dss",
+        "--no-pvs",
     ]);
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     let image = dir.join("ps1k.png");

@@ -28,7 +28,7 @@ fn bake_writes_the_pvs_and_pvs_exports_a_cell() {
     let dir = common::scratch("pvs-cli", "scene");
     let scene = dir.join("fractal");
     let mut args =
-        vec!["bake", "--synthetic", "257", "-o", s(&scene), "--block-k", "6", "--pvs-bake"];
+        vec!["bake", "--synthetic", "257", "-o", s(&scene), "--block-k", "6", "--no-dss"];
     args.extend(SMALL);
     let out = ok(&terrain(&args));
     assert!(out.contains("pvs.bin") && out.contains("pvs_conservative.bin"), "{out}");
