@@ -1,5 +1,5 @@
 //! PVS bake time, size and accuracy on a DEM (the occlusion-culling issue's figures):
-//! `cargo run --release -p terrain-visibility --example pvs_bench -- <dem> [--scale S]
+//! `cargo run --release -p terrain-visibility --example pvs_bench -- <dem> [--scale S | --vertical-scale S]
 //! [--spacing M] [--cells N] [--patch-level L] [--floors F] [--article] [--truth CELLS]
 //! [--threads T] [--synthetic SIZE] [--time-cells N] [--conservative-only]`.
 //!
@@ -20,7 +20,30 @@ use terrain_visibility::pvs::truth::{TruthConfig, check, sample_cells};
 use terrain_visibility::pvs::{PvsConfig, bake_both};
 
 fn main() {
-    let args: Vec<String> = std::env::args().skip(1).collect();
+    let mut args: Vec<String> = std::env::args().skip(1).collect();
+    // `--vertical-scale` as the CLI spells it; an unknown flag is an error, not ignored.
+    for a in &mut args {
+        if a == "--vertical-scale" {
+            *a = "--scale".into();
+        }
+    }
+    const FLAGS: [&str; 11] = [
+        "--article",
+        "--cells",
+        "--conservative-only",
+        "--floors",
+        "--patch-level",
+        "--scale",
+        "--spacing",
+        "--synthetic",
+        "--threads",
+        "--time-cells",
+        "--truth",
+    ];
+    if let Some(bad) = args.iter().find(|a| a.starts_with("--") && !FLAGS.contains(&a.as_str())) {
+        eprintln!("pvs_bench: unknown flag {bad} (known: {})", FLAGS.join(" "));
+        std::process::exit(2);
+    }
     let get = |name: &str| args.iter().position(|a| a == name).map(|k| args[k + 1].clone());
     let num =
         |name: &str, d: f64| get(name).map(|v| v.parse::<f64>().expect("a number")).unwrap_or(d);
@@ -62,6 +85,21 @@ fn main() {
         cfg.floors,
         1u32 << cfg.patch_level
     );
+    // Sizes without baking: this configuration and the geomorphing article's variant (view
+    // cells on the patch grid, 32 layers) at the same patch level, bit fields of every
+    // pyramid level.
+    for (name, c) in [
+        ("this configuration", cfg.clone()),
+        ("article variant", PvsConfig::article(cfg.patch_level)),
+    ] {
+        let lay = terrain_visibility::pvs::PvsLayout::new(&hm, &c);
+        println!(
+            "size, {name}: {} cells x {} bytes = {:.1} MB",
+            lay.cell_count(),
+            lay.bytes_per_cell(),
+            (lay.cell_count() * lay.bytes_per_cell()) as f64 / 1e6
+        );
+    }
     if let Some(n) = get("--time-cells") {
         // Time a spread sample of plan cells, all floors of each (an estimate of the full
         // bake), then the same cells one by one (no floor chaining): the bits must agree.
