@@ -144,11 +144,6 @@ pub fn fly(
 
 /// Runs `terrain fly`.
 pub fn run(args: &FlyArgs) -> anyhow::Result<()> {
-    anyhow::ensure!(
-        args.method != LodMethod::Entropy,
-        "the entropy method makes a triangle mesh the renderer cannot draw yet: use \
-         `terrain mesh --entropy` or `terrain bench --no-render`"
-    );
     let size = parse_size(&args.size)?;
     if args.leaf_cells == 0 {
         bail!("--leaf-cells must be at least 1");

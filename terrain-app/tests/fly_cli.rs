@@ -116,3 +116,31 @@ fn a_keyframe_under_the_terrain_is_clamped_with_a_warning() {
     assert!(out.join("frame_00000.png").exists());
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+#[test]
+fn fly_draws_the_entropy_mesh() {
+    let dir = temp_dir("entropy");
+    let flight = dir.join("tiny.json");
+    std::fs::write(&flight, TINY).unwrap();
+    let out = dir.join("out");
+    let output = Command::new(env!("CARGO_BIN_EXE_terrain"))
+        .args(["fly", "--size", "64x36", "--method", "entropy", "--flight"])
+        .arg(&flight)
+        .arg("-o")
+        .arg(&out)
+        .output()
+        .expect("the terrain binary runs");
+    let Some(_) = succeeded(&output) else { return };
+    let json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("stats.json")).unwrap()).unwrap();
+    assert_eq!(json["method"], "entropy");
+    for f in json["frames"].as_array().unwrap() {
+        assert!(f["triangles"].as_u64().unwrap() > 0, "{f}");
+        // Drawn: the renderer's times are there (a measured-only frame has none).
+        assert!(f["render_ms"].as_f64().is_some_and(|ms| ms > 0.0), "{f}");
+    }
+    let image = image::open(out.join("frame_00002.png")).unwrap().to_rgba8();
+    let first = image.get_pixel(0, 0).0;
+    assert!(image.pixels().any(|p| p.0 != first), "a uniform image: nothing drawn");
+    let _ = std::fs::remove_dir_all(&dir);
+}

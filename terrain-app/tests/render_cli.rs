@@ -116,7 +116,9 @@ fn every_lod_method_renders_and_reports_json_stats() {
     let dir = std::env::temp_dir().join(format!("terrain-render-methods-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     let mut triangles = Vec::new();
-    for method in ["uniform", "pvps-a", "pvps-b", "pvps-c", "dss-1", "dss-2", "dss-strips"] {
+    for method in
+        ["uniform", "pvps-a", "pvps-b", "pvps-c", "dss-1", "dss-2", "dss-strips", "entropy"]
+    {
         let json = dir.join(format!("{method}.json"));
         let args = [
             "--size",
