@@ -97,20 +97,28 @@ fn the_accelerated_line_of_sight_equals_the_plain_walk() {
     assert!(seen > 300 && hidden > 300, "seen {seen}, hidden {hidden}: not a mixed test");
 }
 
-#[test]
-fn chaining_the_floors_changes_no_bit() {
-    // `bake_both` bakes each plan cell's floors lowest first and skips the proofs a lower
-    // floor showed hopeless; `bake_cells` bakes every cell alone.
-    let hm = puget_crop();
-    let cfg = cfg(4, 3, 10.0, 5);
-    let (s, k, _) = bake_both(&hm, &cfg);
+/// Bakes `cfg` with chained floors (`bake_both`) and every cell alone (`bake_cells`), asserts
+/// that every bit agrees, and returns the chained bake's (sampled, conservative) PVS.
+fn assert_chained_equals_alone(
+    hm: &Heightmap,
+    cfg: &PvsConfig,
+) -> (terrain_visibility::pvs::Pvs, terrain_visibility::pvs::Pvs) {
+    let (s, k, _) = bake_both(hm, cfg);
     let n = s.layout.cell_count();
-    let alone = bake_cells(&hm, &cfg, &(0..n).collect::<Vec<_>>());
+    let alone = bake_cells(hm, cfg, &(0..n).collect::<Vec<_>>());
     let per = s.layout.bytes_per_cell();
     for (c, (bs, bk)) in alone.iter().enumerate() {
         assert_eq!(&s.bits[c * per..(c + 1) * per], bs.as_slice(), "sampled, cell {c}");
         assert_eq!(&k.bits[c * per..(c + 1) * per], bk.as_slice(), "conservative, cell {c}");
     }
+    (s, k)
+}
+
+#[test]
+fn chaining_the_floors_changes_no_bit() {
+    // `bake_both` bakes each plan cell's floors lowest first and skips the proofs a lower
+    // floor showed hopeless; `bake_cells` bakes every cell alone.
+    let (_, k) = assert_chained_equals_alone(&puget_crop(), &cfg(4, 3, 10.0, 5));
     assert!(
         k.culled_fraction() > 0.02,
         "too little is hidden to test anything: {}",
@@ -123,14 +131,6 @@ fn chaining_four_floors_on_the_fractal_changes_no_bit() {
     // Four floors are baked in the order 0, 3, 1, 2: floors 1 and 2 are chained both to a
     // floor below and to one above; every bit must equal the cell baked alone.
     let hm = FractalConfig::with_size(129, 129, 30.0).to_heightmap().unwrap();
-    let cfg = cfg(4, 4, 8.0, 4);
-    let (s, k, _) = bake_both(&hm, &cfg);
-    let n = s.layout.cell_count();
-    let alone = bake_cells(&hm, &cfg, &(0..n).collect::<Vec<_>>());
-    let per = s.layout.bytes_per_cell();
-    for (c, (bs, bk)) in alone.iter().enumerate() {
-        assert_eq!(&s.bits[c * per..(c + 1) * per], bs.as_slice(), "sampled, cell {c}");
-        assert_eq!(&k.bits[c * per..(c + 1) * per], bk.as_slice(), "conservative, cell {c}");
-    }
+    let (s, _) = assert_chained_equals_alone(&hm, &cfg(4, 4, 8.0, 4));
     assert!(s.culled_fraction() > 0.05, "too little is hidden to test anything");
 }

@@ -68,20 +68,7 @@ impl<'a> HeightMip<'a> {
     /// (clamped to the grid): the min is a lower bound and the max an upper bound (exact on
     /// level 0, otherwise over the covering blocks, which may reach a little outside).
     pub fn range(&self, x0: i64, y0: i64, x1: i64, y1: i64) -> (f32, f32) {
-        let (w, h) = (self.hm.width() as i64, self.hm.height() as i64);
-        let (x0, x1) = (x0.clamp(0, w - 1) as usize, x1.clamp(0, w - 1) as usize);
-        let (y0, y1) = (y0.clamp(0, h - 1) as usize, y1.clamp(0, h - 1) as usize);
-        let (x0, x1) = (x0.min(x1), x0.max(x1));
-        let (y0, y1) = (y0.min(y1), y0.max(y1));
-        // The finest level at which the rectangle touches at most 3 x 3 blocks.
-        // Below `bits(span) - 4` a block row or column alone holds more than 9 blocks.
-        let span = (x1 - x0).max(y1 - y0);
-        let mut k = ((usize::BITS - span.leading_zeros()).saturating_sub(4) as usize)
-            .min(self.levels.len());
-        while k < self.levels.len() && ((x1 >> k) - (x0 >> k) + 1) * ((y1 >> k) - (y0 >> k) + 1) > 9
-        {
-            k += 1;
-        }
+        let (x0, y0, x1, y1, k) = self.covering(x0, y0, x1, y1);
         let (mut mn, mut mx) = (f32::INFINITY, f32::NEG_INFINITY);
         for by in (y0 >> k)..=(y1 >> k) {
             for bx in (x0 >> k)..=(x1 >> k) {
@@ -101,13 +88,17 @@ impl<'a> HeightMip<'a> {
 }
 
 impl HeightMip<'_> {
-    /// [`Self::range`]'s max alone (the same blocks; reads only the max levels).
-    pub fn range_max(&self, x0: i64, y0: i64, x1: i64, y1: i64) -> f32 {
+    /// The inclusive rectangle clamped to the grid and ordered, and the finest level `k` at
+    /// which it touches at most 3 x 3 blocks (the blocks [`Self::range`] and
+    /// [`Self::range_max`] read).
+    #[inline]
+    fn covering(&self, x0: i64, y0: i64, x1: i64, y1: i64) -> (usize, usize, usize, usize, usize) {
         let (w, h) = (self.hm.width() as i64, self.hm.height() as i64);
         let (x0, x1) = (x0.clamp(0, w - 1) as usize, x1.clamp(0, w - 1) as usize);
         let (y0, y1) = (y0.clamp(0, h - 1) as usize, y1.clamp(0, h - 1) as usize);
         let (x0, x1) = (x0.min(x1), x0.max(x1));
         let (y0, y1) = (y0.min(y1), y0.max(y1));
+        // Below `bits(span) - 4` a block row or column alone holds more than 9 blocks.
         let span = (x1 - x0).max(y1 - y0);
         let mut k = ((usize::BITS - span.leading_zeros()).saturating_sub(4) as usize)
             .min(self.levels.len());
@@ -115,11 +106,18 @@ impl HeightMip<'_> {
         {
             k += 1;
         }
+        (x0, y0, x1, y1, k)
+    }
+
+    /// [`Self::range`]'s max alone (the same blocks; reads only the max levels).
+    pub fn range_max(&self, x0: i64, y0: i64, x1: i64, y1: i64) -> f32 {
+        let w = self.hm.width();
+        let (x0, y0, x1, y1, k) = self.covering(x0, y0, x1, y1);
         let mut mx = f32::NEG_INFINITY;
         if k == 0 {
             let data = self.hm.data();
             for y in y0..=y1 {
-                for &v in &data[y * w as usize + x0..=y * w as usize + x1] {
+                for &v in &data[y * w + x0..=y * w + x1] {
                     mx = mx.max(v);
                 }
             }
