@@ -4,7 +4,6 @@
 //! is a warning, and the errors are computed in memory (the selections are the same either way:
 //! the file holds the computed values bit for bit).
 
-use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::Instant;
@@ -16,6 +15,7 @@ use terrain_core::lod::DssErrorTable;
 use terrain_core::quadtree::Quadtree;
 
 use crate::methods::MethodScene;
+use crate::progress::Progress;
 
 /// The DSS error table in a scene folder.
 pub const DSS_FILE: &str = "dss_errors.bin";
@@ -28,37 +28,25 @@ pub fn dss_path(dir: &Path) -> PathBuf {
 /// Computes the table on rayon's threads, with a progress line on stderr when `progress`
 /// (the cost is the same per level: every level covers every sample 32 times).
 pub fn compute(hm: &Heightmap, qt: &Quadtree, progress: bool) -> DssErrorTable {
-    let start = Instant::now();
+    let bar = Progress::new("DSS errors", progress);
     let done = AtomicU64::new(0);
-    let last_print = AtomicU64::new(0);
     let levels = u64::from(qt.max_level()) + 1;
     let table = DssErrorTable::new_with(hm, qt, |rows, f| {
         // Work per row: its samples, so each level weighs the same.
-        let rows_at = |level: u8| rows.iter().filter(|r| r.0 == level).count().max(1) as u64;
-        let per_level: Vec<u64> = (0..=qt.max_level()).map(rows_at).collect();
-        let total = 1_000_000 * levels;
+        let per_level: Vec<u64> = (0..=qt.max_level())
+            .map(|level| rows.iter().filter(|r| r.0 == level).count().max(1) as u64)
+            .collect();
         rows.par_iter()
             .map(|row| {
                 let out = f(row);
-                let now = done.fetch_add(1_000_000 / per_level[row.0 as usize], Ordering::Relaxed);
-                let tenth = now * 10 / total;
-                if progress && last_print.fetch_max(tenth + 1, Ordering::Relaxed) < tenth + 1 {
-                    let mut err = std::io::stderr();
-                    let _ = write!(
-                        err,
-                        "\rDSS errors: {:3.0} %, {:.0} s",
-                        100.0 * now as f64 / total as f64,
-                        start.elapsed().as_secs_f64()
-                    );
-                    let _ = err.flush();
-                }
+                let step = 1_000_000 / per_level[row.0 as usize];
+                let now = done.fetch_add(step, Ordering::Relaxed) + step;
+                bar.update(now as f64, (1_000_000 * levels) as f64);
                 out
             })
             .collect()
     });
-    if progress {
-        eprintln!("\rDSS errors: 100 %, {:.1} s", start.elapsed().as_secs_f64());
-    }
+    bar.finish();
     table
 }
 

@@ -7,5 +7,6 @@ pub mod dss_scene;
 pub mod entropy_method;
 pub mod methods;
 pub mod ooc;
+pub mod progress;
 pub mod pvs_scene;
 pub mod scene_files;

@@ -6,10 +6,11 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{Context, bail};
 use clap::Args;
+use terrain_app::progress::Progress;
 use terrain_app::pvs_scene::pvs_path;
 use terrain_core::Heightmap;
 use terrain_visibility::pvs::{
-    CellId, FloorRule, Pvs, PvsConfig, PvsMode, bake, bake_both, read_pvs, write_pvs,
+    CellId, FloorRule, Pvs, PvsConfig, PvsMode, bake, bake_both_with_progress, read_pvs, write_pvs,
 };
 
 use crate::source::SourceArgs;
@@ -69,7 +70,10 @@ impl PvsArgs {
 
 /// Bakes both PVS modes of `hm` and writes them into scene folder `dir`.
 pub fn bake_into_scene(hm: &Heightmap, cfg: &PvsConfig, dir: &Path) -> anyhow::Result<()> {
-    let (sampled, conservative, stats) = bake_both(hm, cfg);
+    let bar = Progress::new("PVS", true);
+    let (sampled, conservative, stats) =
+        bake_both_with_progress(hm, cfg, &|done, total| bar.update(done as f64, total as f64));
+    bar.finish();
     for pvs in [&sampled, &conservative] {
         let path = pvs_path(dir, pvs.mode);
         let bytes = write_pvs(pvs, &path).with_context(|| format!("writing {}", path.display()))?;

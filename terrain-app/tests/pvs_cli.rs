@@ -30,8 +30,11 @@ fn bake_writes_the_pvs_and_pvs_exports_a_cell() {
     let mut args =
         vec!["bake", "--synthetic", "257", "-o", s(&scene), "--block-k", "6", "--no-dss"];
     args.extend(SMALL);
-    let out = ok(&terrain(&args));
+    let output = terrain(&args);
+    let out = ok(&output);
     assert!(out.contains("pvs.bin") && out.contains("pvs_conservative.bin"), "{out}");
+    let err = String::from_utf8_lossy(&output.stderr);
+    assert!(err.contains("PVS: 100 %"), "no progress shown: {err}");
     assert!(scene.join("pvs.bin").is_file() && scene.join("pvs_conservative.bin").is_file());
 
     let png = dir.join("cell.png");

@@ -90,21 +90,31 @@ pub struct BakeStats {
 /// Bakes the PVS of `cfg.mode` for `hm`.
 pub fn bake(hm: &Heightmap, cfg: &PvsConfig) -> Pvs {
     match cfg.mode {
-        PvsMode::Sampled => bake_impl(hm, cfg, true, true).0,
+        PvsMode::Sampled => bake_impl(hm, cfg, true, true, &|_, _| ()).0,
         // Without the paper's test: one witness sight line and the proofs per node.
-        PvsMode::Conservative => bake_impl(hm, cfg, true, false).1,
+        PvsMode::Conservative => bake_impl(hm, cfg, true, false, &|_, _| ()).1,
     }
 }
 
 /// Bakes both modes at once (they share the proofs): `(sampled, conservative, stats)`.
 pub fn bake_both(hm: &Heightmap, cfg: &PvsConfig) -> (Pvs, Pvs, BakeStats) {
-    bake_impl(hm, cfg, true, true)
+    bake_impl(hm, cfg, true, true, &|_, _| ())
+}
+
+/// [`bake_both`], calling `progress(done, total)` (in plan cells, each with all its floors)
+/// from the bake's threads as plan cells finish, for a progress display.
+pub fn bake_both_with_progress(
+    hm: &Heightmap,
+    cfg: &PvsConfig,
+    progress: &(dyn Fn(usize, usize) + Sync),
+) -> (Pvs, Pvs, BakeStats) {
+    bake_impl(hm, cfg, true, true, progress)
 }
 
 /// The paper's sampled test alone, without occlusion proofs (slow; for checking that the
 /// proofs do not change the sampled mode's result).
 pub fn bake_sampled_without_proofs(hm: &Heightmap, cfg: &PvsConfig) -> Pvs {
-    bake_impl(hm, cfg, false, true).0
+    bake_impl(hm, cfg, false, true, &|_, _| ()).0
 }
 
 /// The bits of some cells only (by [`PvsLayout::cell_index`]): `(sampled, conservative)` per
@@ -138,6 +148,7 @@ fn bake_impl(
     cfg: &PvsConfig,
     proofs: bool,
     sampled: bool,
+    progress: &(dyn Fn(usize, usize) + Sync),
 ) -> (Pvs, Pvs, BakeStats) {
     let start = Instant::now();
     let layout = PvsLayout::new(hm, cfg);
@@ -146,9 +157,15 @@ fn bake_impl(
     let ctx = Ctx { hm, mip: &mip, lines: &lines, layout: &layout, cfg, proofs, sampled };
     // Rayon over plan cells; each bakes its floors lowest first (see [`Below`]).
     let run = || -> Vec<(Vec<u8>, Vec<u8>)> {
+        let total = (layout.cells_x * layout.cells_y) as usize;
+        let done = std::sync::atomic::AtomicUsize::new(0);
         let columns: Vec<Vec<(Vec<u8>, Vec<u8>)>> = (0..layout.cells_x * layout.cells_y)
             .into_par_iter()
-            .map(|n| ctx.column(n % layout.cells_x, n / layout.cells_x))
+            .map(|n| {
+                let bits = ctx.column(n % layout.cells_x, n / layout.cells_x);
+                progress(done.fetch_add(1, std::sync::atomic::Ordering::Relaxed) + 1, total);
+                bits
+            })
             .collect();
         // Back to the bake's cell order (floor, then row, then column).
         let mut cells = vec![(Vec::new(), Vec::new()); layout.cell_count()];

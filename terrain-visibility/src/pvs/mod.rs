@@ -48,7 +48,7 @@ use glam::{DVec2, DVec3};
 use terrain_core::Heightmap;
 use terrain_core::quadtree::{Cull, CullPolicy, NodeId, NodeInfo, Quadtree};
 
-pub use bake::{BakeStats, bake, bake_both};
+pub use bake::{BakeStats, bake, bake_both, bake_both_with_progress};
 pub use file::{PvsFileError, read_pvs, write_pvs};
 
 /// How the floors of view cells are placed (see the module docs).
