@@ -237,6 +237,20 @@ pub(crate) fn check_size(
     Ok(())
 }
 
+/// The length of the file at `path` and its first 16 bytes (for format detection); an
+/// empty file is [`DemErrorKind::Empty`]. Shared by [`load`] and [`rows::RowReader::open`].
+pub(crate) fn read_head(path: &Path) -> Result<(u64, Vec<u8>), DemError> {
+    let err = |kind| DemError::new(path, kind);
+    let file = std::fs::File::open(path).map_err(|e| err(DemErrorKind::Io(e)))?;
+    let len = file.metadata().map_err(|e| err(DemErrorKind::Io(e)))?.len();
+    if len == 0 {
+        return Err(err(DemErrorKind::Empty));
+    }
+    let mut head = Vec::with_capacity(16);
+    file.take(16).read_to_end(&mut head).map_err(|e| err(DemErrorKind::Io(e)))?;
+    Ok((len, head))
+}
+
 /// Reads the DEM at `path`.
 ///
 /// The format is `options.format` if given; otherwise it is detected from the magic bytes
@@ -255,14 +269,7 @@ pub fn load(path: impl AsRef<Path>, options: &LoadOptions) -> Result<Dem, DemErr
             options.spacing_m, options.vertical_scale, options.vertical_offset
         ))));
     }
-    let mut file = std::fs::File::open(path).map_err(|e| err(DemErrorKind::Io(e)))?;
-    let len = file.metadata().map_err(|e| err(DemErrorKind::Io(e)))?.len();
-    if len == 0 {
-        return Err(err(DemErrorKind::Empty));
-    }
-    let mut head = Vec::with_capacity(16);
-    (&mut file).take(16).read_to_end(&mut head).map_err(|e| err(DemErrorKind::Io(e)))?;
-    drop(file);
+    let (len, head) = read_head(path)?;
 
     let format = match options.format {
         Some(f) => f,

@@ -89,14 +89,7 @@ impl RowReader {
     pub fn open(path: impl AsRef<Path>, options: &LoadOptions) -> Result<Self, DemError> {
         let path = path.as_ref();
         let err = |kind| DemError::new(path, kind);
-        let mut file = File::open(path).map_err(|e| err(DemErrorKind::Io(e)))?;
-        let len = file.metadata().map_err(|e| err(DemErrorKind::Io(e)))?.len();
-        if len == 0 {
-            return Err(err(DemErrorKind::Empty));
-        }
-        let mut head = Vec::with_capacity(16);
-        (&mut file).take(16).read_to_end(&mut head).map_err(|e| err(DemErrorKind::Io(e)))?;
-        drop(file);
+        let (len, head) = super::read_head(path)?;
         let format = options
             .format
             .or_else(|| detect_format(path, &head))
