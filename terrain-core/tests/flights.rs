@@ -1,23 +1,14 @@
 //! Every shipped flight in `flights/` loads on the default terrain and on a real DEM, with the
 //! right frame count, finite cameras above the terrain and inside the DEM.
 
-use std::path::{Path, PathBuf};
+mod common;
+
+use common::{data_dir, workspace};
 
 use terrain_core::Heightmap;
 use terrain_core::dem::{LoadOptions, load};
 use terrain_core::flight::{FlightConfig, FlightSpec, frame_count};
 use terrain_core::synth::default_terrain;
-
-fn workspace() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).parent().expect("workspace root").to_owned()
-}
-
-fn data_dir() -> PathBuf {
-    if let Some(d) = std::env::var_os("TERRAIN_DATA") {
-        return PathBuf::from(d);
-    }
-    workspace().join("../shared/data")
-}
 
 const SHIPPED: [(&str, f64); 8] = [
     ("pvps_884", 60.0),

@@ -3,8 +3,11 @@
 //! error bound checked by an independent brute-force search that shares no code with the
 //! builders or `mesh::verify`.
 
+mod common;
+
+use common::data;
+
 use std::collections::{HashMap, HashSet};
-use std::path::{Path, PathBuf};
 
 use terrain_core::Heightmap;
 use terrain_core::dem::{LoadOptions, load};
@@ -12,18 +15,6 @@ use terrain_core::mesh::{Algorithm, MeshConfig, TriMesh, build, verify};
 use terrain_core::synth::{FractalConfig, HardCase};
 
 const ALGORITHMS: [Algorithm; 2] = [Algorithm::Rtin, Algorithm::Delaunay];
-
-fn data(rel: &str) -> PathBuf {
-    let dir = std::env::var_os("TERRAIN_DATA").map(PathBuf::from).unwrap_or_else(|| {
-        Path::new(env!("CARGO_MANIFEST_DIR"))
-            .parent()
-            .expect("workspace root")
-            .join("../shared/data")
-    });
-    let p = dir.join(rel);
-    assert!(p.is_file(), "test data missing: {} (set TERRAIN_DATA)", p.display());
-    p
-}
 
 fn cross(o: [i64; 2], a: [i64; 2], b: [i64; 2]) -> i64 {
     (a[0] - o[0]) * (b[1] - o[1]) - (a[1] - o[1]) * (b[0] - o[0])

@@ -2,26 +2,16 @@
 //!
 //! The data directory is `$TERRAIN_DATA`, or `../shared/data` relative to the workspace root.
 
+mod common;
+
+use common::data;
+
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicUsize, Ordering};
 
 use terrain_core::dem::{Format, LoadOptions, RawSampleType, RawSpec, load, load_mosaic};
 use terrain_core::georef::AngularOrLinear;
 use terrain_core::{Crs, DemErrorKind, Heightmap};
-
-fn data_dir() -> PathBuf {
-    if let Some(d) = std::env::var_os("TERRAIN_DATA") {
-        return PathBuf::from(d);
-    }
-    let ws = Path::new(env!("CARGO_MANIFEST_DIR")).parent().expect("workspace root");
-    ws.join("../shared/data")
-}
-
-fn data(rel: &str) -> PathBuf {
-    let p = data_dir().join(rel);
-    assert!(p.is_file(), "test data missing: {} (set TERRAIN_DATA)", p.display());
-    p
-}
 
 /// A unique temporary directory for this test process and call.
 fn temp_dir() -> PathBuf {

@@ -1,18 +1,13 @@
 //! `dem::RowReader` against `dem::load` on the real GeoTIFFs: the same samples, the same voids,
 //! band by band; void filling that does not depend on the band boundaries; raw files; errors.
 
-use std::path::{Path, PathBuf};
+mod common;
+
+use common::data;
+
+use std::path::PathBuf;
 
 use terrain_core::dem::{LoadOptions, RawSampleType, RawSpec, RowReader, load};
-
-fn data(rel: &str) -> PathBuf {
-    let ws = Path::new(env!("CARGO_MANIFEST_DIR")).parent().expect("workspace root");
-    let d =
-        std::env::var_os("TERRAIN_DATA").map_or_else(|| ws.join("../shared/data"), PathBuf::from);
-    let p = d.join(rel);
-    assert!(p.is_file(), "test data missing: {}", p.display());
-    p
-}
 
 fn temp(name: &str) -> PathBuf {
     let d = std::env::temp_dir().join(format!("terrain-rows-{}", std::process::id()));

@@ -3,7 +3,9 @@
 //! meshes (no crack, no T-junction) on synthetic and real DEMs and on scattered points, and the
 //! view-dependent cut (Eq. 4-5).
 
-use std::path::{Path, PathBuf};
+mod common;
+
+use common::data;
 
 use glam::{DVec2, DVec3, dvec3};
 use terrain_core::dem::{LoadOptions, load};
@@ -20,18 +22,6 @@ use terrain_visibility::entropy::{
     ScatteredPoints, TreeConfig, ViewThreshold, build_from_grid, build_from_points, local_entropy,
     profile_curvature,
 };
-
-fn data(rel: &str) -> PathBuf {
-    let dir = std::env::var_os("TERRAIN_DATA").map(PathBuf::from).unwrap_or_else(|| {
-        Path::new(env!("CARGO_MANIFEST_DIR"))
-            .parent()
-            .expect("workspace root")
-            .join("../shared/data")
-    });
-    let p = dir.join(rel);
-    assert!(p.is_file(), "test data missing: {} (set TERRAIN_DATA)", p.display());
-    p
-}
 
 /// A `size x size` crop of a heightmap starting at `(i0, j0)`, voids kept.
 fn crop(hm: &Heightmap, i0: usize, j0: usize, size: usize) -> Heightmap {

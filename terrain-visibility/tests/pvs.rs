@@ -3,7 +3,9 @@
 //! conservative mode's zero false culls against dense ground truth on a real DEM crop and on
 //! the synthetic fractal.
 
-use std::path::PathBuf;
+mod common;
+
+use common::data;
 
 use glam::dvec3;
 use terrain_core::Heightmap;
@@ -116,14 +118,6 @@ fn a_bowl_is_seen_whole_from_inside() {
             assert!(p.level_image(c, 3).iter().all(|&v| v == 1), "{:?} {c:?}", p.mode);
         }
     }
-}
-
-fn data(rel: &str) -> PathBuf {
-    let root = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../shared/data");
-    let dir = std::env::var_os("TERRAIN_DATA").map(PathBuf::from).unwrap_or(root);
-    let p = dir.join(rel);
-    assert!(p.exists(), "test data {} is missing (set TERRAIN_DATA)", p.display());
-    p
 }
 
 /// A 129 x 129 crop of the Puget Sound 1k DEM (the Olympic mountains' east flank).

@@ -4,7 +4,9 @@
 //! Eq. 4 line of sight must agree with a plain sample-by-sample walk of the same Bresenham
 //! section line on many sight lines.
 
-use std::path::PathBuf;
+mod common;
+
+use common::data;
 
 use glam::DVec3;
 use terrain_core::Heightmap;
@@ -18,14 +20,6 @@ use terrain_visibility::pvs::{FloorRule, PvsConfig, bake_both, los};
 fn fnv(bits: &[u8]) -> u64 {
     bits.iter()
         .fold(0xcbf2_9ce4_8422_2325u64, |h, &b| (h ^ u64::from(b)).wrapping_mul(0x0100_0000_01b3))
-}
-
-fn data(rel: &str) -> PathBuf {
-    let root = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../shared/data");
-    let dir = std::env::var_os("TERRAIN_DATA").map(PathBuf::from).unwrap_or(root);
-    let p = dir.join(rel);
-    assert!(p.exists(), "test data {} is missing (set TERRAIN_DATA)", p.display());
-    p
 }
 
 /// A 257 x 257 crop of the Puget Sound 1k DEM (mountains and valleys).
