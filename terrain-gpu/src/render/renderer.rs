@@ -332,6 +332,25 @@ pub struct TerrainRenderer {
     timer: Option<Timer>,
 }
 
+/// A buffer of `usage` (plus `COPY_DST`) holding `bytes`, at least 16 bytes long (wgpu refuses
+/// empty bindings), written through the queue.
+fn upload(
+    device: &wgpu::Device,
+    queue: &wgpu::Queue,
+    label: &str,
+    bytes: &[u8],
+    usage: wgpu::BufferUsages,
+) -> wgpu::Buffer {
+    let buf = device.create_buffer(&wgpu::BufferDescriptor {
+        label: Some(label),
+        size: (bytes.len() as u64).max(16),
+        usage: usage | wgpu::BufferUsages::COPY_DST,
+        mapped_at_creation: false,
+    });
+    queue.write_buffer(&buf, 0, bytes);
+    buf
+}
+
 fn entry(binding: u32, ty: wgpu::BindingType) -> wgpu::BindGroupLayoutEntry {
     wgpu::BindGroupLayoutEntry {
         binding,
@@ -1088,16 +1107,8 @@ impl TerrainRenderer {
         self.write_frame(&camera, options);
         // Uploaded once per frame: the strips change every frame.
         let extra_buffers = extra.filter(|e| !e.indices.is_empty()).map(|e| {
-            let buffer = |label, bytes: &[u8], usage| {
-                let buf = self.device.create_buffer(&wgpu::BufferDescriptor {
-                    label: Some(label),
-                    size: (bytes.len() as u64).max(16),
-                    usage: usage | wgpu::BufferUsages::COPY_DST,
-                    mapped_at_creation: false,
-                });
-                self.queue.write_buffer(&buf, 0, bytes);
-                buf
-            };
+            let buffer =
+                |label, bytes: &[u8], usage| upload(&self.device, &self.queue, label, bytes, usage);
             let v =
                 buffer("extra points", bytemuck::cast_slice(&e.points), wgpu::BufferUsages::VERTEX);
             let i = buffer(
@@ -1241,16 +1252,8 @@ impl TerrainRenderer {
                 }
             }
         }
-        let buffer = |label, bytes: &[u8], usage| {
-            let buf = self.device.create_buffer(&wgpu::BufferDescriptor {
-                label: Some(label),
-                size: (bytes.len() as u64).max(16),
-                usage: usage | wgpu::BufferUsages::COPY_DST,
-                mapped_at_creation: false,
-            });
-            self.queue.write_buffer(&buf, 0, bytes);
-            buf
-        };
+        let buffer =
+            |label, bytes: &[u8], usage| upload(&self.device, &self.queue, label, bytes, usage);
         tess.skirts = Some(Skirts {
             vertices: buffer(
                 "skirt points",
