@@ -239,6 +239,30 @@ pub struct FrameRecord {
 }
 
 impl FrameRecord {
+    /// A frame measured on the CPU and not (yet) rendered: the stage times, the drawn size and
+    /// the errors; CPU and frame ms are selection plus CPU tessellation until a render
+    /// replaces them. The rest stays at its default.
+    pub fn measured(
+        frame: usize,
+        patches: usize,
+        triangles: u64,
+        [selection_ms, cpu_tess_ms, measure_ms]: [f64; 3],
+        errors: FrameErrors,
+    ) -> Self {
+        Self {
+            frame,
+            patches,
+            triangles,
+            selection_ms,
+            cpu_tess_ms,
+            measure_ms,
+            cpu_ms: selection_ms + cpu_tess_ms,
+            frame_ms: selection_ms + cpu_tess_ms,
+            errors,
+            ..Self::default()
+        }
+    }
+
     /// The CSV header matching [`FrameRecord::csv_row`].
     pub const CSV_HEADER: &'static str = "frame,patches,triangles,selection_ms,cpu_tess_ms,\
 measure_ms,encode_ms,render_ms,gpu_ms,gpu_draw_ms,upload_bytes,cpu_ms,frame_ms,rss_bytes,\
@@ -376,18 +400,15 @@ impl<'a> FrameRunner<'a> {
         drop(mesh);
 
         let mut record = FrameRecord {
-            frame,
-            patches: lods.patches.len(),
-            triangles: triangle_count,
-            selection_ms,
-            cpu_tess_ms,
-            measure_ms,
-            cpu_ms: selection_ms + cpu_tess_ms,
-            frame_ms: selection_ms + cpu_tess_ms,
-            errors,
             vertex_jump_m,
             vertex_jump_no_morph_m,
-            ..FrameRecord::default()
+            ..FrameRecord::measured(
+                frame,
+                lods.patches.len(),
+                triangle_count,
+                [selection_ms, cpu_tess_ms, measure_ms],
+                errors,
+            )
         };
         if let Some(renderer) = self.geomorph.as_deref_mut() {
             let t = Instant::now();
@@ -431,18 +452,13 @@ impl<'a> FrameRunner<'a> {
         let measure_ms = ms(t);
         drop(mesh);
 
-        let mut record = FrameRecord {
+        let mut record = FrameRecord::measured(
             frame,
-            patches: selection.patches.len(),
-            triangles: triangle_count,
-            selection_ms,
-            cpu_tess_ms,
-            measure_ms,
-            cpu_ms: selection_ms + cpu_tess_ms,
-            frame_ms: selection_ms + cpu_tess_ms,
+            selection.patches.len(),
+            triangle_count,
+            [selection_ms, cpu_tess_ms, measure_ms],
             errors,
-            ..FrameRecord::default()
-        };
+        );
         if let Some(renderer) = self.renderer.as_deref_mut() {
             let (patches, extra) = scene.frame_draw(&drawn);
             let t = Instant::now();
@@ -487,17 +503,14 @@ impl<'a> FrameRunner<'a> {
         let errors = self.measurer.measure(camera, &selection, &f.surface);
         let measure_ms = ms(t);
         let mut record = FrameRecord {
-            frame,
-            patches: f.tiles,
-            triangles: f.surface.triangles.len() as u64,
-            selection_ms,
-            cpu_tess_ms,
-            measure_ms,
-            cpu_ms: selection_ms + cpu_tess_ms,
-            frame_ms: selection_ms + cpu_tess_ms,
             rss_bytes: rss_bytes(),
-            errors,
-            ..FrameRecord::default()
+            ..FrameRecord::measured(
+                frame,
+                f.tiles,
+                f.surface.triangles.len() as u64,
+                [selection_ms, cpu_tess_ms, measure_ms],
+                errors,
+            )
         };
         if let Some(renderer) = self.renderer.as_deref_mut() {
             let t = Instant::now();
@@ -1022,17 +1035,14 @@ fn run_ooc(
         let measure_ms = ms(t);
         drop(mesh);
         let mut record = FrameRecord {
-            frame: k,
-            patches: f.selection.patches.len(),
-            triangles,
-            selection_ms,
-            cpu_tess_ms,
-            measure_ms,
-            cpu_ms: selection_ms + cpu_tess_ms,
-            frame_ms: selection_ms + cpu_tess_ms,
-            errors,
             stream: Some(f.stream.clone()),
-            ..FrameRecord::default()
+            ..FrameRecord::measured(
+                k,
+                f.selection.patches.len(),
+                triangles,
+                [selection_ms, cpu_tess_ms, measure_ms],
+                errors,
+            )
         };
         if let Some(r) = renderer.as_mut() {
             OocScene::apply(r, &f)?;
