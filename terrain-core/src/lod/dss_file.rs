@@ -180,7 +180,7 @@ impl DssErrorTable {
         let used = qt.max_level() as usize + 1;
         if (levels as usize) < used {
             return Err(DssFileError::Mismatch(format!(
-                "{levels} quadtree levels in the file, {used} needed (bake with a smaller leaf size)"
+                "{levels} quadtree levels in the file, {used} needed (it was computed for larger leaves than this quadtree's)"
             )));
         }
         if heights != heights_checksum(hm) {
