@@ -27,6 +27,8 @@ pub mod strips;
 pub mod surface;
 pub mod target;
 pub mod tess;
+#[cfg(test)]
+mod test_support;
 
 pub use device::{BackendChoice, DeviceConfig, GpuContext, GpuError, GpuFeatures};
 pub use paged::{HeightGrid, Page, PageError, PageLayout, PagedHeights};

@@ -13,44 +13,13 @@ use terrain_core::lod::{GeomipConfig, GeomipScene, PatchLod};
 use terrain_core::synth::FractalConfig;
 
 use super::*;
-use crate::device::{BackendChoice, GpuContext, GpuError, REQUIRE_ENV};
+use crate::device::BackendChoice;
 use crate::render::BACKGROUND;
 use crate::render::crack::crack_cameras;
+use crate::test_support::{context, puget_sound};
 
 fn fractal() -> Heightmap {
     FractalConfig::with_size(257, 257, 10.0).to_heightmap().unwrap()
-}
-
-fn data_dir() -> PathBuf {
-    std::env::var_os("TERRAIN_DATA")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../shared/data"))
-}
-
-fn puget_sound() -> Heightmap {
-    let path = data_dir().join("puget_sound/ps_height_1k.png");
-    let options = terrain_core::dem::LoadOptions {
-        vertical_scale: 0.1,
-        spacing_m: 160.0,
-        ..Default::default()
-    };
-    terrain_core::dem::load(&path, &options)
-        .unwrap_or_else(|e| panic!("{e} (set TERRAIN_DATA to the shared data folder)"))
-        .heightmap
-}
-
-fn context(backend: BackendChoice) -> Option<GpuContext> {
-    match GpuContext::on_backend(backend) {
-        Ok(ctx) => {
-            println!("adapter: {}", ctx.describe());
-            Some(ctx)
-        }
-        Err(e @ GpuError::NoAdapter { .. }) if std::env::var_os(REQUIRE_ENV).is_none() => {
-            println!("SKIPPED: {e}; set {REQUIRE_ENV}=1 to make this a failure");
-            None
-        }
-        Err(e) => panic!("{backend:?}: {e}"),
-    }
 }
 
 fn gpu_patches(lods: &[PatchLod], n: u32) -> Vec<GpuMorphPatch> {

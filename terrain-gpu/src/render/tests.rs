@@ -13,31 +13,19 @@ use terrain_core::synth::{HardCase, default_terrain};
 use super::crack::{crack_cameras, crack_pixels};
 
 use super::*;
-use crate::device::{BackendChoice, GpuContext, GpuError, REQUIRE_ENV};
+use crate::device::{BackendChoice, GpuContext};
 use crate::paged::PagedHeights;
 use crate::surface;
 use crate::target::read_texture_8bit4;
 use crate::tess::{PatchFactors, tessellate};
+use crate::test_support::{self, puget_sound};
 
 /// A context on `backend`, or `None` (with the reason printed) where none exists and none is required.
 fn context(backend: BackendChoice) -> Option<GpuContext> {
-    match GpuContext::on_backend(backend) {
-        Ok(ctx) => {
-            println!("adapter: {}", ctx.describe());
-            let want = if backend == BackendChoice::Gl {
-                wgpu::Backend::Gl
-            } else {
-                wgpu::Backend::Vulkan
-            };
-            assert_eq!(ctx.adapter_info().backend, want, "{}", ctx.describe());
-            Some(ctx)
-        }
-        Err(e @ GpuError::NoAdapter { .. }) if std::env::var_os(REQUIRE_ENV).is_none() => {
-            println!("SKIPPED: {e}; set {REQUIRE_ENV}=1 to make this a failure");
-            None
-        }
-        Err(e) => panic!("{backend:?}: {e}"),
-    }
+    let ctx = test_support::context(backend)?;
+    let want = if backend == BackendChoice::Gl { wgpu::Backend::Gl } else { wgpu::Backend::Vulkan };
+    assert_eq!(ctx.adapter_info().backend, want, "{}", ctx.describe());
+    Some(ctx)
 }
 
 /// Deterministic generator (SplitMix64).
@@ -103,24 +91,6 @@ fn random_patches(
         p.factors = PatchFactors { inner: [rng.range(lo, hi), rng.range(lo, hi)], outer };
     }
     patches
-}
-
-fn data_dir() -> PathBuf {
-    std::env::var_os("TERRAIN_DATA")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../shared/data"))
-}
-
-fn puget_sound() -> Heightmap {
-    let path = data_dir().join("puget_sound/ps_height_1k.png");
-    let options = terrain_core::dem::LoadOptions {
-        vertical_scale: 0.1,
-        spacing_m: 160.0,
-        ..Default::default()
-    };
-    terrain_core::dem::load(&path, &options)
-        .unwrap_or_else(|e| panic!("{e} (set TERRAIN_DATA to the shared data folder)"))
-        .heightmap
 }
 
 fn config(width: u32, height: u32) -> RenderConfig {

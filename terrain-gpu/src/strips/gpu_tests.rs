@@ -12,24 +12,11 @@ use terrain_core::quadtree::Quadtree;
 use terrain_core::synth::FractalConfig;
 
 use super::*;
-use crate::device::{BackendChoice, GpuContext, GpuError, REQUIRE_ENV};
+use crate::device::BackendChoice;
 use crate::render::crack::{crack_cameras, crack_pixels_with_extra};
 use crate::render::{RenderConfig, TerrainRenderer};
 use crate::surface;
-
-fn context() -> Option<GpuContext> {
-    match GpuContext::on_backend(BackendChoice::Vulkan) {
-        Ok(ctx) => {
-            println!("adapter: {}", ctx.describe());
-            Some(ctx)
-        }
-        Err(e @ GpuError::NoAdapter { .. }) if std::env::var_os(REQUIRE_ENV).is_none() => {
-            println!("SKIPPED: {e}; set {REQUIRE_ENV}=1 to make this a failure");
-            None
-        }
-        Err(e) => panic!("{e}"),
-    }
-}
+use crate::test_support::context;
 
 fn scene() -> (terrain_core::Heightmap, Quadtree, DssErrorTable) {
     let hm = FractalConfig::with_size(129, 129, 10.0).to_heightmap().unwrap();
@@ -47,7 +34,7 @@ fn config(rho_thr: f64) -> DssStripsConfig {
 
 #[test]
 fn strip_vertices_land_on_the_block_vertices_on_the_gpu() {
-    let Some(ctx) = context() else { return };
+    let Some(ctx) = context(BackendChoice::Vulkan) else { return };
     let (hm, qt, table) = scene();
     let eye = hm.grid_to_world(20.3, 30.7).extend(f64::from(hm.max()) + 40.0);
     let camera = Camera::from_yaw_pitch(eye, 40.0, -30.0).with_viewport(1280.0, 720.0);
@@ -83,7 +70,7 @@ fn strip_vertices_land_on_the_block_vertices_on_the_gpu() {
 
 #[test]
 fn blocks_and_strips_draw_no_crack_and_blocks_alone_do() {
-    let Some(ctx) = context() else { return };
+    let Some(ctx) = context(BackendChoice::Vulkan) else { return };
     let (hm, qt, table) = scene();
     let cameras: Vec<Camera> = crack_cameras(&hm, 5)
         .into_iter()

@@ -5,24 +5,10 @@
 use super::tests::factor_corpus;
 use super::{GpuTessellator, PatchFactors, tessellate};
 use crate::device::{BACKEND_ENV, BackendChoice, GpuContext, GpuError, REQUIRE_ENV};
+use crate::test_support::context;
 
 fn required() -> bool {
     std::env::var_os(REQUIRE_ENV).is_some()
-}
-
-/// A context on `backend`, or `None` (with the reason printed) where none exists and none is required.
-fn context(backend: BackendChoice) -> Option<GpuContext> {
-    match GpuContext::on_backend(backend) {
-        Ok(ctx) => {
-            println!("adapter: {}", ctx.describe());
-            Some(ctx)
-        }
-        Err(e @ GpuError::NoAdapter { .. }) if !required() => {
-            println!("SKIPPED: {e}; set {REQUIRE_ENV}=1 to make this a failure");
-            None
-        }
-        Err(e) => panic!("{backend:?}: {e}"),
-    }
 }
 
 fn gpu_matches_reference(backend: BackendChoice, expected: wgpu::Backend) {
