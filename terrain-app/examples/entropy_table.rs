@@ -11,6 +11,7 @@
 use std::path::PathBuf;
 use std::time::Instant;
 
+use terrain_app::bench::{process_cpu_s, thread_cpu_s};
 use terrain_core::Heightmap;
 use terrain_core::dem::{LoadOptions, load};
 use terrain_core::mesh::verify;
@@ -123,28 +124,4 @@ fn table(name: &str, hm: &Heightmap, depth: u32) -> anyhow::Result<()> {
         );
     }
     Ok(())
-}
-
-/// CPU seconds of this thread (`/proc/thread-self/schedstat`, ns), for timings on a shared
-/// machine where wall time includes waiting for a core; `NaN` where unavailable.
-fn thread_cpu_s() -> f64 {
-    std::fs::read_to_string("/proc/thread-self/schedstat")
-        .ok()
-        .and_then(|s| s.split_whitespace().next()?.parse::<f64>().ok())
-        .map_or(f64::NAN, |ns| ns * 1e-9)
-}
-
-/// CPU seconds of the whole process, all threads (`/proc/self/stat` utime + stime, 10 ms
-/// ticks); `NaN` where unavailable.
-fn process_cpu_s() -> f64 {
-    let Ok(s) = std::fs::read_to_string("/proc/self/stat") else { return f64::NAN };
-    let after = s.rsplit_once(')').map_or("", |x| x.1);
-    let f: Vec<&str> = after.split_whitespace().collect();
-    match (
-        f.get(11).and_then(|v| v.parse::<f64>().ok()),
-        f.get(12).and_then(|v| v.parse::<f64>().ok()),
-    ) {
-        (Some(u), Some(k)) => (u + k) / 100.0,
-        _ => f64::NAN,
-    }
 }

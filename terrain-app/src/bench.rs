@@ -310,6 +310,30 @@ pub fn rss_bytes() -> Option<u64> {
     Some(pages * 4096)
 }
 
+/// CPU seconds of this thread (`/proc/thread-self/schedstat`, ns), for timings on a shared
+/// machine where wall time includes waiting for a core; `NaN` where unavailable.
+pub fn thread_cpu_s() -> f64 {
+    std::fs::read_to_string("/proc/thread-self/schedstat")
+        .ok()
+        .and_then(|s| s.split_whitespace().next()?.parse::<f64>().ok())
+        .map_or(f64::NAN, |ns| ns * 1e-9)
+}
+
+/// CPU seconds of the whole process, all threads (`/proc/self/stat` utime + stime, 10 ms
+/// ticks); `NaN` where unavailable.
+pub fn process_cpu_s() -> f64 {
+    let Ok(s) = std::fs::read_to_string("/proc/self/stat") else { return f64::NAN };
+    let after = s.rsplit_once(')').map_or("", |x| x.1);
+    let f: Vec<&str> = after.split_whitespace().collect();
+    match (
+        f.get(11).and_then(|v| v.parse::<f64>().ok()),
+        f.get(12).and_then(|v| v.parse::<f64>().ok()),
+    ) {
+        (Some(u), Some(k)) => (u + k) / 100.0,
+        _ => f64::NAN,
+    }
+}
+
 /// Runs frames of one method at one setting: selection, CPU surface, measurement, and the
 /// optional render. Borrows the scene, so the caller changes the setting between runners.
 #[derive(Debug)]
