@@ -1,6 +1,6 @@
 //! The out-of-core paper's method (Qiu 2013) end to end over a baked store: per frame the
-//! [`Streamer`] (regions M and N, Eq. 8 preloading, synchronous loads only for needed blocks
-//! with nothing resident), the projected-frustum block culling of 3.1 (the blocks of M), the
+//! [`Streamer`] (regions M and N, Eq. 8 preloading one frame ahead on the workers, real time:
+//! no frame waits for I/O after the first, late data counted; `warm` frames wait on purpose), the projected-frustum block culling of 3.1 (the blocks of M), the
 //! bounding-circle node test and the dynamic LOD construction of 3.3 with the sight-line
 //! screen error of Eq. 7 and threshold `tau` ([`terrain_stream::lod::select_nodes`]), then
 //! patches with tessellation factors and the pages of heights the renderer needs.
@@ -32,7 +32,7 @@
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::Path;
 use std::sync::Arc;
-use std::time::Instant;
+use std::time::{Duration, Instant};
 
 use glam::{DVec2, DVec3, dvec3};
 use terrain_core::geometry::Camera;
@@ -69,9 +69,9 @@ pub struct OocConfig {
     /// Load requests in flight at most: the workers keep loading while the frame thread draws
     /// (a software renderer's frame takes long). Default 32.
     pub max_in_flight: usize,
-    /// Warm-up: at most this many rounds of "update, wait for the workers" per warm frame,
-    /// until the frame's needed levels are resident. Default 16.
-    pub warmup_rounds: u32,
+    /// A warm frame ([`OocScene::frame`] with `warm`) waits at most this long for its needed
+    /// levels ([`Streamer::wait_until_resident`]). Default 60 s.
+    pub warm_timeout: Duration,
 }
 
 impl Default for OocConfig {
@@ -83,7 +83,7 @@ impl Default for OocConfig {
             page_budget_bytes: 256 << 20,
             page_capacity: 1024,
             max_in_flight: 32,
-            warmup_rounds: 16,
+            warm_timeout: Duration::from_secs(60),
         }
     }
 }
@@ -99,15 +99,27 @@ pub fn is_store(path: &Path) -> bool {
         && magic == MAGIC
 }
 
-/// The streaming columns of one frame (the paper's Table 3 plus the cache's own), summed over
-/// the warm-up rounds where there were several.
+/// The streaming columns of one frame: the paper's Table 3 (needed, real-time loaded and
+/// prefetched data, I/O time), the cache's own, and the real-time runtime's: late data
+/// (needed, not resident when the frame was drawn) and whether the frame was drawn at its
+/// needed level.
 #[derive(Debug, Clone, Default, PartialEq, serde::Serialize)]
 pub struct StreamRecord {
     /// Bytes of the levels the blocks of M need (MB, 10^6 bytes, decoded).
     pub needed_mb: f64,
-    /// Of those, resident at the end of the frame (MB).
+    /// Of those, resident when the frame was drawn (MB).
     pub needed_resident_mb: f64,
-    /// Loaded on the frame thread (the paper's real-time loaded data), MB.
+    /// Late data: needed, not resident when the frame was drawn (MB); the blocks were drawn
+    /// at their finest resident level instead.
+    pub late_mb: f64,
+    /// Blocks of M lacking some needed level when the frame was drawn.
+    pub late_blocks: usize,
+    /// Levels short, summed over the blocks of M.
+    pub late_levels: usize,
+    /// Whether every block of M had its needed levels resident (drawn at its needed level).
+    pub at_needed_level: bool,
+    /// Loaded on the frame thread (the paper's real-time loaded data; only the first frame of
+    /// a real-time session), MB.
     pub sync_mb: f64,
     /// Arrived from the workers (prefetched data), MB.
     pub prefetched_mb: f64,
@@ -115,59 +127,67 @@ pub struct StreamRecord {
     pub disk_mb: f64,
     /// I/O time (synchronous reads plus the workers' reads that arrived), ms.
     pub io_ms: f64,
-    /// Blocks of M loaded synchronously.
+    /// Blocks loaded synchronously.
     pub sync_loads: usize,
+    /// Whether the frame thread read from disk or waited for the workers.
+    pub waited_for_io: bool,
+    /// Time the frame thread waited for the workers (warm frames only), ms.
+    pub wait_ms: f64,
     /// Blocks of M with every needed level resident before the frame's loads.
     pub cache_hits: usize,
     /// Blocks of M lacking a needed level.
     pub cache_misses: usize,
     /// Levels unloaded to stay within the budget.
     pub evictions: usize,
-    /// Resident bytes after the frame (MB) and the budget (MB).
+    /// Stale requests cancelled (their blocks left the scheduling region).
+    pub cancelled: usize,
+    /// Resident bytes after the frame (MB).
     pub resident_mb: f64,
     /// The budget, MB.
     pub budget_mb: f64,
     /// Requests queued or loading.
     pub queue_depth: usize,
-    /// Blocks in M and in N.
+    /// Blocks in M.
     pub blocks_visible: usize,
     /// Blocks in the scheduling region N (M included).
     pub blocks_scheduled: usize,
     /// Faults (the runtime served coarser levels).
     pub faults: usize,
-    /// Time the streamer took on the frame thread (warm-up waits included), ms.
+    /// Time the streamer took on the frame thread (the wait of a warm frame included), ms.
     pub stream_ms: f64,
 }
 
 const MB: f64 = 1e6;
 
 impl StreamRecord {
-    fn add(&mut self, s: &terrain_stream::FrameStats) {
-        self.needed_mb = s.needed_bytes as f64 / MB;
-        self.needed_resident_mb = s.needed_resident_bytes as f64 / MB;
-        self.sync_mb += s.sync_bytes as f64 / MB;
-        self.prefetched_mb += s.prefetched_bytes as f64 / MB;
-        self.disk_mb += s.disk_bytes as f64 / MB;
-        self.io_ms += s.io_time.as_secs_f64() * 1e3;
-        self.sync_loads += s.sync_loads;
-        self.cache_hits = s.cache_hits;
-        self.cache_misses = s.cache_misses;
-        self.evictions += s.evictions;
-        self.resident_mb = s.resident_bytes as f64 / MB;
-        self.budget_mb = s.budget_bytes as f64 / MB;
-        self.queue_depth = s.queue_depth;
-        self.blocks_visible = s.blocks_visible;
-        self.blocks_scheduled = s.blocks_scheduled;
-        self.faults += s.faults.len();
-    }
-
-    /// Adds what [`Streamer::finish_loads`] applied (arrivals between warm-up rounds).
-    fn add_arrivals(&mut self, s: &terrain_stream::FrameStats) {
-        self.prefetched_mb += s.prefetched_bytes as f64 / MB;
-        self.disk_mb += s.disk_bytes as f64 / MB;
-        self.io_ms += s.io_time.as_secs_f64() * 1e3;
-        self.faults += s.faults.len();
-        self.resident_mb = s.resident_bytes as f64 / MB;
+    fn new(s: &terrain_stream::FrameStats) -> Self {
+        let ms = |d: std::time::Duration| d.as_secs_f64() * 1e3;
+        Self {
+            needed_mb: s.needed_bytes as f64 / MB,
+            needed_resident_mb: s.needed_resident_bytes as f64 / MB,
+            late_mb: s.late_bytes as f64 / MB,
+            late_blocks: s.late_blocks,
+            late_levels: s.late_levels,
+            at_needed_level: s.at_needed_level(),
+            sync_mb: s.sync_bytes as f64 / MB,
+            prefetched_mb: s.prefetched_bytes as f64 / MB,
+            disk_mb: s.disk_bytes as f64 / MB,
+            io_ms: ms(s.io_time),
+            sync_loads: s.sync_loads,
+            waited_for_io: s.waited_for_io(),
+            wait_ms: ms(s.wait_time),
+            cache_hits: s.cache_hits,
+            cache_misses: s.cache_misses,
+            evictions: s.evictions,
+            cancelled: s.cancelled,
+            resident_mb: s.resident_bytes as f64 / MB,
+            budget_mb: s.budget_bytes as f64 / MB,
+            queue_depth: s.queue_depth,
+            blocks_visible: s.blocks_visible,
+            blocks_scheduled: s.blocks_scheduled,
+            faults: s.faults.len(),
+            stream_ms: 0.0,
+        }
     }
 }
 
@@ -196,8 +216,6 @@ pub struct OocFrame {
     /// Blocks of M not drawn: nothing resident (a fault), or no slot left in the class of any
     /// of its resident levels.
     pub blocks_dropped: usize,
-    /// Warm-up rounds run (0 for a frame that does not wait).
-    pub warmup_rounds: u32,
 }
 
 /// Factor 2 everywhere, 4 on a coarse edge facing finer patches (balanced: one level finer).
@@ -360,27 +378,20 @@ impl OocScene {
         x0 + 1 < self.layout.grid[0] && y0 + 1 < self.layout.grid[1]
     }
 
-    /// One frame for `camera`. With `warm`, waits for the workers (up to the configured
-    /// rounds) until the levels the frame needs are resident: a first frame, or a still image.
+    /// One frame for `camera`, real time by default: the streamer never waits for I/O after
+    /// the session's first frame (which loads the visible blocks' coarse levels), each block is
+    /// drawn at its finest resident level, and what arrived late is counted in the
+    /// [`StreamRecord`]. With `warm`, waits (up to [`OocConfig::warm_timeout`]) until every
+    /// level the frame needs is resident ([`Streamer::wait_until_resident`]): still images,
+    /// and measurements of the selection's own error (`--wait`).
     pub fn frame(&mut self, camera: &Camera, warm: bool) -> OocFrame {
         let t0 = Instant::now();
-        let mut stream = StreamRecord::default();
-        let s = self.streamer.update(camera);
-        stream.add(&s);
-        let mut rounds = 0;
-        let mut short = s.needed_bytes.saturating_sub(s.needed_resident_bytes);
-        while warm && short > 0 && rounds < self.config.warmup_rounds {
-            rounds += 1;
-            let arrived = self.streamer.finish_loads();
-            stream.add_arrivals(&arrived);
-            let s = self.streamer.update(camera);
-            stream.add(&s);
-            let now = s.needed_bytes.saturating_sub(s.needed_resident_bytes);
-            if now >= short && s.requests == 0 {
-                break; // no progress possible (budget or faults)
-            }
-            short = now;
-        }
+        let s = if warm {
+            self.streamer.wait_until_resident(camera, self.config.warm_timeout).stats
+        } else {
+            self.streamer.update(camera)
+        };
+        let mut stream = StreamRecord::new(&s);
         stream.stream_ms = t0.elapsed().as_secs_f64() * 1e3;
 
         let select_start = Instant::now();
@@ -492,7 +503,6 @@ impl OocScene {
             stream,
             blocks_drawn: drawn.len(),
             blocks_dropped: dropped,
-            warmup_rounds: rounds,
         }
     }
 

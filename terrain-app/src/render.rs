@@ -82,9 +82,14 @@ pub struct RenderArgs {
     pub page_mb: u64,
     /// A store: fly this camera flight (JSON, see `flights/`) instead of one camera, placed on
     /// an overview of the store's level-4 vertices; frames after the first do not wait for
-    /// the workers. The PNG is the last frame.
+    /// I/O (real time: blocks drawn at their finest resident level, late data counted) unless
+    /// --wait. The PNG is the last frame.
     #[arg(long)]
     pub flight: Option<PathBuf>,
+    /// A store: every frame waits until the levels it needs are resident (warm: for
+    /// measurements and still images); by default only the first frame does.
+    #[arg(long)]
+    pub wait: bool,
     /// With --flight: frames drawn at most, evenly spaced (0 = every frame).
     #[arg(long, default_value_t = 0)]
     pub max_frames: usize,
@@ -304,7 +309,6 @@ struct StoreFrameRecord {
     blocks_drawn: usize,
     blocks_dropped: usize,
     pages_uploaded: usize,
-    warmup_rounds: u32,
     selection_ms: f64,
     encode_ms: f64,
     gpu_ms: Option<f64>,
@@ -414,12 +418,14 @@ fn run_store(
     let mut peak_resident_mb: f64 = 0.0;
     for (frame, camera) in (1u32..).zip(&cameras) {
         let camera = *camera;
-        let f = scene.frame(&camera, frame == 1);
+        let f = scene.frame(&camera, args.wait || frame == 1);
         peak_resident_mb = peak_resident_mb.max(f.stream.resident_mb);
         summary.frames += 1;
         if frame > 1 {
             summary.sync_loads_after_first += f.stream.sync_loads;
+            summary.frames_waited_after_first += u64::from(f.stream.waited_for_io);
         }
+        summary.frames_at_needed_level += u64::from(f.stream.at_needed_level);
         if f.stream.faults > 0 {
             eprintln!(
                 "warning: {} store fault(s) this frame; coarser levels are drawn",
@@ -449,11 +455,14 @@ fn run_store(
                 s.adapter
             );
             println!(
-                "  stream: needed {:.3} MB ({:.3} resident), synchronous {:.3} MB ({} loads), \
+                "  stream: needed {:.3} MB ({:.3} resident, late {:.3} MB in {} blocks), \
+                 synchronous {:.3} MB ({} loads), \
                  prefetched {:.3} MB, I/O {:.2} ms, cache hits {} misses {}, evictions {}, \
-                 resident {:.3} / {:.0} MB, queue {}, warm-up rounds {}, faults {}",
+                 resident {:.3} / {:.0} MB, queue {}, waited {:.1} ms, faults {}",
                 st.needed_mb,
                 st.needed_resident_mb,
+                st.late_mb,
+                st.late_blocks,
                 st.sync_mb,
                 st.sync_loads,
                 st.prefetched_mb,
@@ -464,7 +473,7 @@ fn run_store(
                 st.resident_mb,
                 st.budget_mb,
                 st.queue_depth,
-                f.warmup_rounds,
+                st.wait_ms,
                 st.faults
             );
         }
@@ -478,7 +487,6 @@ fn run_store(
             blocks_drawn: f.blocks_drawn,
             blocks_dropped: f.blocks_dropped,
             pages_uploaded: f.updates.iter().filter(|u| u.fill.is_some()).count(),
-            warmup_rounds: f.warmup_rounds,
             selection_ms,
             encode_ms: s.cpu_ms,
             gpu_ms: s.gpu_ms,
@@ -488,10 +496,19 @@ fn run_store(
         });
     }
     let total = |g: &dyn Fn(&StoreFrameRecord) -> f64| records.iter().map(g).sum::<f64>();
+    let mut late: Vec<f64> = records.iter().map(|r| r.stream.late_mb).collect();
+    late.sort_by(f64::total_cmp);
+    let median_late_mb = late.get(late.len() / 2).copied().unwrap_or(0.0);
     println!(
-        "summary: {} frames, synchronous loads after frame 1: {}, synchronous {:.2} MB, \
+        "summary: {} frames ({}), frames that waited for I/O after frame 1: {}, \
+         drawn at their needed level: {:.1} %, late {:.3} MB per frame (median), \
+         synchronous loads after frame 1: {}, synchronous {:.2} MB, \
          prefetched {:.2} MB, I/O {:.1} ms, peak resident {:.1} MB (budget {} MiB), max triangles {}",
         summary.frames,
+        if args.wait { "warm: every frame waits" } else { "real time" },
+        summary.frames_waited_after_first,
+        100.0 * summary.frames_at_needed_level as f64 / summary.frames.max(1) as f64,
+        median_late_mb,
         summary.sync_loads_after_first,
         total(&|r| r.stream.sync_mb),
         total(&|r| r.stream.prefetched_mb),

@@ -1,9 +1,11 @@
 //! Embedding terrain-stream: bake a small synthetic store, open it, drive the scheduler along
-//! a camera path, and read a block's heights at a level. Run with
+//! a camera path in real time (no frame waits for I/O after the first), wait until the last
+//! frame's needed levels are resident, and read a block's heights at a level. Run with
 //! `cargo run -p terrain-stream --example embed`.
 
 use std::ops::ControlFlow;
 use std::sync::Arc;
+use std::time::Duration;
 
 use glam::dvec3;
 use terrain_core::geometry::Camera;
@@ -20,21 +22,39 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let store = Arc::new(Store::open(&dir)?);
     let mut streamer =
         Streamer::new(store.clone(), StreamConfig { threads: 1, ..Default::default() });
+    let mut camera = Camera::from_yaw_pitch(dvec3(1280.0, 0.0, 1800.0), 0.0, -30.0);
     for frame in 0..20 {
         let eye = dvec3(1280.0, 100.0 * frame as f64, 1800.0);
-        let camera = Camera::from_yaw_pitch(eye, 0.0, -30.0).with_clip(1.0, 3000.0);
+        camera = Camera::from_yaw_pitch(eye, 0.0, -30.0).with_clip(1.0, 3000.0);
         let stats = streamer.update(&camera);
         println!(
-            "frame {frame}: {} visible blocks, {} synchronous loads, {} bytes resident",
-            stats.blocks_visible, stats.sync_loads, stats.resident_bytes
+            "frame {frame}: {} visible blocks, {} synchronous loads, late {} bytes ({} blocks), \
+             {} bytes resident",
+            stats.blocks_visible,
+            stats.sync_loads,
+            stats.late_bytes,
+            stats.late_blocks,
+            stats.resident_bytes
         );
     }
-    streamer.finish_loads();
-    // The nearest visible block's heights at level 2: a 5 x 5 grid, south row first.
-    let nearest = streamer.scheduled()[0].block;
-    let levels = streamer.block(nearest).expect("a visible block is resident");
-    let grid = levels.grid(2).expect("levels 0..=2 are resident");
-    println!("block {nearest}, level 2: {grid:?}");
+    // Warm on purpose: every level the last frame's visible blocks need becomes resident.
+    let warm = streamer.wait_until_resident(&camera, Duration::from_secs(60));
+    println!(
+        "waited {:.1} ms: every needed level resident: {}",
+        warm.stats.wait_time.as_secs_f64() * 1e3,
+        warm.resident
+    );
+    // The nearest visible block's heights at its needed level, south row first.
+    let nearest = streamer.scheduled()[0];
+    let levels = streamer.block(nearest.block).expect("a visible block is resident");
+    println!(
+        "block {}: needs levels 0..={}, {} resident",
+        nearest.block,
+        nearest.needed,
+        levels.count()
+    );
+    let grid = levels.grid(nearest.needed).expect("the needed levels are resident");
+    println!("block {}, level {}: {} heights", nearest.block, nearest.needed, grid.len());
     drop(streamer);
     std::fs::remove_dir_all(&dir)?;
     Ok(())

@@ -2,8 +2,14 @@
 //! real DEMs and a big synthetic, bake throughput, and long flights (Table-3 rows per speed).
 //!
 //! `cargo run --release -p terrain-stream --example stream_bench -- [all|storage|codec|flight
-//! FRAMES [puget|big]|bake SIZE K]` (peak RSS: prefix with `/usr/bin/time -v`). Data from
-//! `../shared/data`.
+//! FRAMES [puget|big]|bake SIZE K [NAME]|realtime STORE FLIGHT [CACHE_MIB]]` (peak RSS: prefix
+//! with `/usr/bin/time -v`). Data from `../shared/data`.
+//!
+//! `realtime` plays a flight (e.g. `flights/fast_pass.json`) over a store at the flight's own
+//! frame rate, paced in real wall time, every frame through the real-time `Streamer::update`
+//! (no rendering: the streamer alone), and reports the frames that waited for I/O after the
+//! first, the share of frames drawn at their needed level, late MB per frame, and peak RSS
+//! against the cache budget.
 
 use std::ops::ControlFlow;
 use std::path::{Path, PathBuf};
@@ -293,12 +299,126 @@ fn flights(frames: usize, which: &str) {
     }
 }
 
-fn bake_big(size: u64, k: u8) {
+/// Peak resident set of this process (Linux `VmHWM`), bytes.
+fn peak_rss() -> Option<u64> {
+    let s = std::fs::read_to_string("/proc/self/status").ok()?;
+    let line = s.lines().find(|l| l.starts_with("VmHWM:"))?;
+    line.split_whitespace().nth(1)?.parse::<u64>().ok().map(|kb| kb * 1024)
+}
+
+/// An overview heightmap of the store at `level` (every block's level-`level` lattice).
+fn overview(store: &Store, level: u8) -> Heightmap {
+    let h = store.header();
+    let level = level.min(h.k);
+    let d = 1u64 << (h.k - level);
+    let per_block = 1usize << level;
+    let (w, hh) = (((h.width - 1) / d + 1) as usize, ((h.height - 1) / d + 1) as usize);
+    let mut data = vec![0f32; w * hh];
+    for id in store.block_ids() {
+        let grid = store.read_block(id, level).unwrap().grid(level).unwrap();
+        for bj in 0..=per_block {
+            let j = id.row as usize * per_block + bj;
+            for bi in 0..=per_block {
+                let i = id.col as usize * per_block + bi;
+                if i < w && j < hh {
+                    data[j * w + i] = grid[bj * (per_block + 1) + bi];
+                }
+            }
+        }
+    }
+    let g = terrain_core::Georef::projected(
+        terrain_core::Crs::Unknown,
+        h.georef.world_origin,
+        h.georef.spacing_m * d as f64,
+    );
+    Heightmap::from_fn(w, hh, g, |i, j| data[j * w + i]).unwrap()
+}
+
+/// Plays `flight` over the store at its frame rate in real time (see the module docs).
+fn realtime(dir: &Path, flight: &Path, cache_mib: u64) {
+    use terrain_core::flight::{FlightConfig, FlightSpec};
+    let store = Arc::new(Store::open(dir).unwrap());
+    let h = store.header().clone();
+    let spec = FlightSpec::load(flight).unwrap();
+    let cfg = FlightConfig { viewport_px: glam::dvec2(1280.0, 720.0), ..Default::default() };
+    let (flight, _) = spec.resolve(&overview(&store, 4), &cfg);
+    let ext = h.georef.spacing_m * glam::dvec2((h.width - 1) as f64, (h.height - 1) as f64);
+    let budget = cache_mib << 20;
+    let config = StreamConfig { budget_bytes: budget, max_in_flight: 32, ..Default::default() };
+    let mut s = Streamer::new(store.clone(), config);
+    let mut sum = StatsSummary::default();
+    let (mut late, mut needed, mut update_ms) = (Vec::new(), Vec::new(), Vec::new());
+    let fps = flight.fps;
+    let start = Instant::now();
+    let mut behind = 0;
+    for (k, cam) in flight.frames().iter().enumerate() {
+        // The far plane reaches the far corner of the store (as `terrain render` sets it).
+        let far = (cam.position.truncate() - h.georef.world_origin)
+            .abs()
+            .max((h.georef.world_origin + ext - cam.position.truncate()).abs());
+        let cam = cam.with_clip(1.0, far.length() * 1.05 + 1.0);
+        let due = start + std::time::Duration::from_secs_f64(k as f64 / fps);
+        match due.checked_duration_since(Instant::now()) {
+            Some(w) => std::thread::sleep(w),
+            None => behind += 1,
+        }
+        let st = s.update(&cam);
+        update_ms.push(st.frame_time.as_secs_f64() * 1e3);
+        late.push(st.late_bytes as f64 / 1e6);
+        needed.push(st.needed_bytes as f64 / 1e6);
+        sum.add(&st);
+    }
+    let wall = start.elapsed().as_secs_f64();
+    let med = |mut v: Vec<f64>| {
+        v.sort_by(f64::total_cmp);
+        (v[v.len() / 2], v[(v.len() * 95 / 100).min(v.len() - 1)], v[v.len() - 1])
+    };
+    let (l50, l95, lmax) = med(late);
+    let (n50, _, _) = med(needed);
+    let (u50, u95, umax) = med(update_ms);
+    let f = sum.frames as f64;
+    println!(
+        "\n## Real-time flight `{}` over {} ({} x {} samples, k = {}): {} frames at {} fps, paced\n",
+        flight.name,
+        dir.display(),
+        h.width,
+        h.height,
+        h.k,
+        sum.frames,
+        fps
+    );
+    println!(
+        "| frames | waited for I/O after frame 1 | at needed level | late MB/frame median / p95 / max | needed MB median | prefetched MB/frame | sync MB (frame 1) | update ms median / p95 / max | frames behind schedule | peak resident MiB / budget | peak RSS MiB | wall s |"
+    );
+    println!("|---:|---:|---:|---|---:|---:|---:|---|---:|---|---:|---:|");
+    println!(
+        "| {} | {} | {:.1} % | {:.3} / {:.3} / {:.3} | {:.3} | {:.3} | {:.3} | {:.2} / {:.2} / {:.2} | {} | {:.1} / {} | {:.0} | {:.1} |",
+        sum.frames,
+        sum.frames_waited_after_first,
+        100.0 * sum.frames_at_needed_level as f64 / f,
+        l50,
+        l95,
+        lmax,
+        n50,
+        sum.prefetched_bytes as f64 / f / 1e6,
+        sum.sync_bytes as f64 / 1e6,
+        u50,
+        u95,
+        umax,
+        behind,
+        sum.peak_resident_bytes as f64 / 1048576.0,
+        cache_mib,
+        peak_rss().map_or(f64::NAN, |b| b as f64 / 1048576.0),
+        wall
+    );
+}
+
+fn bake_big(size: u64, k: u8, name: &str) {
     let src = FractalConfig::with_size(size, size, 10.0);
     let cfg = BakeConfig { k, overwrite: true, ..Default::default() };
     let t = Instant::now();
     let mut last = Instant::now();
-    let r = bake(&src, &scratch().join("big"), &cfg, &mut |p: &BakeProgress| {
+    let r = bake(&src, &scratch().join(name), &cfg, &mut |p: &BakeProgress| {
         if last.elapsed().as_secs_f64() > 10.0 {
             eprintln!(
                 "{}/{} blocks, {:.0} s",
@@ -335,6 +455,12 @@ fn main() {
         Some("bake") => bake_big(
             args.get(1).and_then(|s| s.parse().ok()).unwrap_or(16385),
             args.get(2).and_then(|s| s.parse().ok()).unwrap_or(8),
+            args.get(3).map_or("big", String::as_str),
+        ),
+        Some("realtime") => realtime(
+            Path::new(args.get(1).expect("realtime STORE FLIGHT [CACHE_MIB]")),
+            Path::new(args.get(2).expect("realtime STORE FLIGHT [CACHE_MIB]")),
+            args.get(3).and_then(|s| s.parse().ok()).unwrap_or(256),
         ),
         _ => {
             storage();

@@ -3,24 +3,27 @@
 
 use std::collections::BTreeMap;
 use std::sync::Arc;
+use std::sync::atomic::AtomicBool;
 
 use crate::format::{BlockId, Header};
 use crate::store::BlockLevels;
 
 /// One block's resident levels and loading state.
 #[derive(Debug, Clone)]
-pub struct CachedBlock {
+pub(crate) struct CachedBlock {
     /// The resident levels.
-    pub levels: BlockLevels,
+    pub(crate) levels: BlockLevels,
     /// The last level of the request in flight for this block, if any.
-    pub requested_to: Option<u8>,
+    pub(crate) requested_to: Option<u8>,
+    /// The cancel flag of that request (set when the block leaves the scheduling region).
+    pub(crate) cancel: Option<Arc<AtomicBool>>,
     /// After a fault, the frame from which loading may be tried again.
-    pub retry_at_frame: u64,
+    pub(crate) retry_at_frame: u64,
 }
 
 /// Resident block levels with a byte budget (decoded bytes, 4 per sample).
 #[derive(Debug)]
-pub struct Cache {
+pub(crate) struct Cache {
     budget: u64,
     resident: u64,
     blocks: BTreeMap<BlockId, CachedBlock>,
@@ -28,41 +31,42 @@ pub struct Cache {
 
 impl Cache {
     /// An empty cache with a budget in bytes.
-    pub fn new(budget: u64) -> Self {
+    pub(crate) fn new(budget: u64) -> Self {
         Self { budget, resident: 0, blocks: BTreeMap::new() }
     }
 
     /// The budget in bytes.
-    pub fn budget(&self) -> u64 {
+    pub(crate) fn budget(&self) -> u64 {
         self.budget
     }
 
     /// Bytes resident.
-    pub fn resident_bytes(&self) -> u64 {
+    pub(crate) fn resident_bytes(&self) -> u64 {
         self.resident
     }
 
     /// A block's state, if the cache knows it.
-    pub fn get(&self, id: BlockId) -> Option<&CachedBlock> {
+    pub(crate) fn get(&self, id: BlockId) -> Option<&CachedBlock> {
         self.blocks.get(&id)
     }
 
     /// Number of resident levels of a block.
-    pub fn resident_levels(&self, id: BlockId) -> usize {
+    pub(crate) fn resident_levels(&self, id: BlockId) -> usize {
         self.blocks.get(&id).map_or(0, |b| b.levels.count())
     }
 
     /// A block's state, created empty if needed.
-    pub fn entry(&mut self, id: BlockId, header: &Header) -> &mut CachedBlock {
+    pub(crate) fn entry(&mut self, id: BlockId, header: &Header) -> &mut CachedBlock {
         self.blocks.entry(id).or_insert_with(|| CachedBlock {
             levels: BlockLevels::new(header),
             requested_to: None,
+            cancel: None,
             retry_at_frame: 0,
         })
     }
 
     /// Appends `level` to a block if it is the next one; returns the bytes added.
-    pub fn push_level(
+    pub(crate) fn push_level(
         &mut self,
         id: BlockId,
         header: &Header,
@@ -82,7 +86,7 @@ impl Cache {
 
     /// Unloads finest levels while over budget, visiting `order` (lowest priority first) and
     /// keeping at least `keep` levels of each listed block. Returns the levels unloaded.
-    pub fn evict(&mut self, order: &[(BlockId, usize)]) -> usize {
+    pub(crate) fn evict(&mut self, order: &[(BlockId, usize)]) -> usize {
         let mut evicted = 0;
         for &(id, keep) in order {
             if self.resident <= self.budget {
@@ -99,12 +103,12 @@ impl Cache {
     }
 
     /// Blocks known to the cache, in block order.
-    pub fn blocks(&self) -> impl Iterator<Item = (&BlockId, &CachedBlock)> {
+    pub(crate) fn blocks(&self) -> impl Iterator<Item = (&BlockId, &CachedBlock)> {
         self.blocks.iter()
     }
 
     /// Forgets blocks with no resident level and nothing in flight.
-    pub fn prune(&mut self) {
+    pub(crate) fn prune(&mut self) {
         self.blocks.retain(|_, b| {
             b.levels.count() > 0 || b.requested_to.is_some() || b.retry_at_frame > 0
         });

@@ -7,19 +7,22 @@
 //!
 //! The principal types are [`Store`] (an opened store: header, grid index, positioned reads
 //! of one block level at a time), [`Streamer`] (the runtime: per frame it computes the
-//! visual region M and the scheduling region N, loads what M lacks, prefetches N - M on
-//! worker threads, and evicts to a byte budget) and [`bake`] (a [`HeightSource`] into a
+//! visual region M and the scheduling region N, queues what M lacks and what N - M will need
+//! on worker threads, never waits for I/O after the first frame, and evicts to a byte budget;
+//! [`Streamer::wait_until_resident`] waits until warm on purpose) and [`bake`] (a [`HeightSource`] into a
 //! store). [`format`] documents the bytes on disk; [`lod`] is the CPU side of the paper's
 //! rendering method (bounding-circle culling, Eq. 7 dynamic LOD) per block.
 //!
 //! # Example
 //!
-//! Bake, open, drive the scheduler from a camera path, read a block's heights at a level
-//! (the same as `examples/embed.rs`):
+//! Bake, open, drive the scheduler from a camera path in real time, wait until the last
+//! frame's needed levels are resident, read a block's heights at a level (the same as
+//! `examples/embed.rs`):
 //!
 //! ```
 //! use std::ops::ControlFlow;
 //! use std::sync::Arc;
+//! use std::time::Duration;
 //!
 //! use glam::dvec3;
 //! use terrain_core::geometry::Camera;
@@ -35,15 +38,20 @@
 //!
 //! let store = Arc::new(Store::open(&dir)?);
 //! let mut streamer = Streamer::new(store, StreamConfig { threads: 1, ..Default::default() });
+//! let mut camera = Camera::from_yaw_pitch(dvec3(640.0, 0.0, 900.0), 0.0, -30.0);
 //! for frame in 0..10 {
 //!     let eye = dvec3(640.0, 50.0 * frame as f64, 900.0);
-//!     let camera = Camera::from_yaw_pitch(eye, 0.0, -30.0).with_clip(1.0, 2000.0);
+//!     camera = Camera::from_yaw_pitch(eye, 0.0, -30.0).with_clip(1.0, 2000.0);
+//!     // Real time: never waits after the first frame; late data is counted.
 //!     let stats = streamer.update(&camera);
 //!     assert!(stats.faults.is_empty());
 //! }
-//! streamer.finish_loads();
-//! let nearest = streamer.scheduled()[0].block;
-//! let grid = streamer.block(nearest).unwrap().grid(1).unwrap(); // 3 x 3 heights at level 1
+//! let warm = streamer.wait_until_resident(&camera, Duration::from_secs(30));
+//! assert!(warm.resident);
+//! let nearest = streamer.scheduled()[0];
+//! let levels = streamer.block(nearest.block).unwrap();
+//! assert!(levels.count() > nearest.needed as usize);
+//! let grid = levels.grid(1).unwrap(); // 3 x 3 heights at level 1
 //! assert_eq!(grid.len(), 9);
 //! # drop(streamer);
 //! # std::fs::remove_dir_all(&dir)?;
@@ -54,7 +62,7 @@
 #![deny(missing_docs)]
 
 pub mod bake;
-pub mod cache;
+mod cache;
 mod codec;
 pub mod error;
 pub mod format;
@@ -64,7 +72,7 @@ pub mod source;
 pub mod stats;
 pub mod store;
 pub mod streamer;
-pub mod workers;
+mod workers;
 
 pub use bake::{BakeConfig, BakeProgress, BakeReport, HeightEncoding, bake};
 pub use error::{BakeError, StoreError};
@@ -72,5 +80,5 @@ pub use format::{BlockId, Codec, DssBlockErrors, Header};
 pub use source::HeightSource;
 pub use stats::{FrameStats, StatsSummary};
 pub use store::{BlockLevels, LoadedLevel, Store};
-pub use streamer::{ScheduledBlock, StreamConfig, Streamer};
-pub use workers::{LoadRequest, LoadResult, WorkerPool};
+pub use streamer::{ScheduledBlock, StreamConfig, Streamer, WaitReport};
+pub use workers::LevelReader;

@@ -21,9 +21,14 @@ use crate::format::{BlockEntry, BlockId, Header};
 pub struct ScheduleConfig {
     /// `L` in metres; `None` (the default) = one block's side.
     pub extension_l_m: Option<f64>,
-    /// The frame rate `f` of Eq. 8, frames per second. Default 60.
+    /// The frame rate `f` of Eq. 8, frames per second. Default 60. The runtime measures the
+    /// eye's speed as its displacement per frame times `f`, so `S = V cos(alpha) / f` is the
+    /// displacement of one frame along the sight line whatever `f` is; `f` matters only to
+    /// callers of [`eq8_s`] and [`regions`] with a velocity of their own.
     pub frame_rate_hz: f64,
-    /// `S` is multiplied by this (1 = the paper's Eq. 8, a one-frame look-ahead). Default 1.
+    /// How many frames ahead the runtime preloads: `S` of Eq. 8 and the eye used for the
+    /// levels prefetched one frame ahead are multiplied by this. Default 1: the paper's
+    /// one-frame Eq. 8 ("the predicted data of next frame").
     pub lookahead_frames: f64,
 }
 

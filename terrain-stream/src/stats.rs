@@ -1,6 +1,7 @@
 //! Per-frame statistics, the columns of the paper's Table 3 (needed data, data loaded in real
 //! time, prefetched data, I/O time) plus the cache's own: hits, evictions, resident bytes,
-//! queue depth, faults.
+//! queue depth, faults, and what the real-time runtime adds: late data (needed by the frame,
+//! not resident when it was drawn) and whether the frame was drawn at its needed level.
 
 use std::time::Duration;
 
@@ -20,7 +21,16 @@ pub struct FrameStats {
     pub needed_bytes: u64,
     /// Of those, bytes resident when the frame ended.
     pub needed_resident_bytes: u64,
-    /// Blocks of M that had no level at all and were loaded on the frame thread (synchronous).
+    /// Late data: bytes of needed levels not resident when the frame ended (the frame is
+    /// drawn from coarser resident levels instead): `needed_bytes - needed_resident_bytes`.
+    pub late_bytes: u64,
+    /// Blocks of M lacking some needed level when the frame ended.
+    pub late_blocks: usize,
+    /// Levels short, summed over the blocks of M (a block with nothing resident counts all
+    /// its needed levels).
+    pub late_levels: usize,
+    /// Blocks loaded on the frame thread (synchronous): only on a session's first frame in
+    /// real-time use (see [`crate::Streamer::update`]).
     pub sync_loads: usize,
     /// Bytes loaded synchronously (the paper's "real-time loaded data").
     pub sync_bytes: u64,
@@ -46,10 +56,51 @@ pub struct FrameStats {
     pub queue_depth: usize,
     /// Requests submitted this frame.
     pub requests: usize,
+    /// Stale requests cancelled this frame (their blocks left the scheduling region).
+    pub cancelled: usize,
+    /// Time the frame thread waited for the workers ([`crate::Streamer::wait_until_resident`];
+    /// zero for a real-time frame).
+    pub wait_time: Duration,
     /// Faults reported this frame (the runtime keeps serving coarser levels).
     pub faults: Vec<StoreError>,
     /// Time `update` took on the frame thread.
     pub frame_time: Duration,
+}
+
+impl FrameStats {
+    /// Whether the frame thread read from disk (synchronous loads) or waited for the workers.
+    pub fn waited_for_io(&self) -> bool {
+        self.sync_loads > 0 || !self.wait_time.is_zero()
+    }
+
+    /// Whether every block of M had its needed levels resident when the frame ended.
+    pub fn at_needed_level(&self) -> bool {
+        self.late_blocks == 0
+    }
+
+    /// Folds in what a later call of the same frame did (arrivals, waits, loads): sums for
+    /// the flows, the later value for the states.
+    pub fn merge(&mut self, later: FrameStats) {
+        self.sync_loads += later.sync_loads;
+        self.sync_bytes += later.sync_bytes;
+        self.prefetched_bytes += later.prefetched_bytes;
+        self.disk_bytes += later.disk_bytes;
+        self.io_time += later.io_time;
+        self.sync_io_time += later.sync_io_time;
+        self.evictions += later.evictions;
+        self.requests += later.requests;
+        self.cancelled += later.cancelled;
+        self.wait_time += later.wait_time;
+        self.frame_time += later.frame_time;
+        self.faults.extend(later.faults);
+        self.needed_bytes = later.needed_bytes;
+        self.needed_resident_bytes = later.needed_resident_bytes;
+        self.late_bytes = later.late_bytes;
+        self.late_blocks = later.late_blocks;
+        self.late_levels = later.late_levels;
+        self.resident_bytes = later.resident_bytes;
+        self.queue_depth = later.queue_depth;
+    }
 }
 
 /// Sums and maxima over many frames, for reports.
@@ -63,6 +114,13 @@ pub struct StatsSummary {
     pub sync_bytes: u64,
     /// Synchronous loads after the first frame.
     pub sync_loads_after_first: usize,
+    /// Frames after the first that waited for I/O (synchronous loads or a wait for the
+    /// workers): 0 in real-time use.
+    pub frames_waited_after_first: u64,
+    /// Frames with every needed level resident when drawn.
+    pub frames_at_needed_level: u64,
+    /// Sum of late bytes.
+    pub late_bytes: u64,
     /// All synchronous loads.
     pub sync_loads: usize,
     /// Sum of prefetched bytes.
@@ -102,7 +160,10 @@ impl StatsSummary {
         self.sync_loads += s.sync_loads;
         if s.frame > 0 {
             self.sync_loads_after_first += s.sync_loads;
+            self.frames_waited_after_first += u64::from(s.waited_for_io());
         }
+        self.frames_at_needed_level += u64::from(s.at_needed_level());
+        self.late_bytes += s.late_bytes;
         self.prefetched_bytes += s.prefetched_bytes;
         self.disk_bytes += s.disk_bytes;
         self.io_time += s.io_time;

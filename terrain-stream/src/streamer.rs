@@ -1,9 +1,40 @@
-//! The runtime (Qiu 2013, section 4): per frame, the scheduler's regions M and N, the level
-//! each block needs (dynamic LOD, Eq. 7), synchronous loads only for needed blocks with no
-//! level at all, prefetch requests to the workers in priority order, and eviction to the
-//! budget that never touches what the frame needs.
+//! The runtime (Qiu 2013, section 4), real time by default: per frame, the scheduler's
+//! regions M and N, the level each block needs (dynamic LOD, Eq. 7), load requests to the
+//! workers in priority order, stale requests cancelled, and eviction to the budget that never
+//! touches what the frame needs.
+//!
+//! **Real time.** After a session's first frame, [`Streamer::update`] never reads a block on
+//! the frame thread and never waits for a worker: it applies what has arrived, queues what is
+//! missing and returns. The caller draws each block at its finest resident level
+//! ([`Streamer::block`]); what the frame needed but did not have is counted as late data
+//! ([`FrameStats::late_bytes`], `late_blocks`, `late_levels`). The **first frame** of a
+//! session waits while the workers load the coarse levels (`0..=min(needed, coarse_level)`) of
+//! every visible block and, with [`StreamConfig::pin_level_zero`], level 0 of every block of the
+//! store (kept resident from then on, so no block is ever a hole), so the first image is not
+//! empty (the paper's Table 3: "all the needed data are loaded from external memory" in frame
+//! 1). These count as the frame's synchronous (real-time loaded) data.
+//!
+//! **Priorities.** Requests go to the workers in this order, at most `max_in_flight` at a
+//! time: (0) the coarse levels of visible blocks with nothing resident, nearest first (every
+//! visible block soon has something to draw); (1) the missing levels of visible blocks, nearest
+//! first; (2) the pre-loading region N - M, nearest first, within the budget. A request whose
+//! block has left N is cancelled (the worker drops it before its next level).
+//!
+//! **Eq. 8 preloading, one frame ahead.** N comes from the view frustum extension (Eq. 8's `S`
+//! times [`ScheduleConfig::lookahead_frames`], default 1: the paper's one frame). Besides the
+//! blocks of N - M, the level a block of N will need one frame ahead is prefetched: the
+//! block's `target` level is the finer of what it needs now and what it needs from the eye
+//! moved on by the last frame's motion times the look-ahead (the same extrapolation Eq. 8
+//! makes), so a block the camera approaches is refined before it is late.
+//!
+//! **Waiting on purpose.** [`Streamer::wait_until_resident`] is the documented way to wait
+//! until warm (still images, measurements that want the selection's own error): it requests
+//! every missing needed level of the frame's blocks and waits until all are resident, a fault
+//! makes that impossible, or a timeout.
 
+use std::collections::{BTreeMap, BTreeSet};
 use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
 use glam::{DVec2, DVec3};
@@ -17,23 +48,33 @@ use crate::schedule::{
 };
 use crate::stats::FrameStats;
 use crate::store::{BlockLevels, Store};
-use crate::workers::{LoadRequest, LoadResult, WorkerPool};
+use crate::workers::{LevelReader, LoadRequest, LoadResult, Outcome, WorkerPool};
 
 /// Parameters of the runtime.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct StreamConfig {
-    /// Cache budget in decoded bytes. Default 256 MiB.
+    /// Cache budget in decoded bytes. Default 256 MiB. What the visible blocks need (and a
+    /// pinned level 0, [`StreamConfig::pin_level_zero`]) is kept even above it.
     pub budget_bytes: u64,
     /// Worker threads; 0 (the default) = one per available core.
     pub threads: usize,
-    /// The scheduler's `L`, frame rate and look-ahead.
+    /// The scheduler's `L`, frame rate and look-ahead (Eq. 8).
     pub schedule: ScheduleConfig,
     /// Screen-error threshold `tau` of Eq. 7, pixels. Default 2 (the paper's figures).
     pub tau: f64,
-    /// A needed block with no level resident is loaded on the frame thread up to this level
-    /// (or its needed level if coarser); the workers load the rest. Default 3 (81 samples).
-    pub sync_max_level: u8,
-    /// Requests in flight at most; 0 (the default) = two per worker thread.
+    /// A block with nothing resident is first requested up to this level (or its needed level
+    /// if coarser), before any block is refined; the first frame waits for these levels of
+    /// the visible blocks. Default 3 (81 samples).
+    pub coarse_level: u8,
+    /// Keep level 0 (the block's 4 corner samples, 16 bytes) of every block of the store
+    /// resident from the first frame on, so no block is ever a hole while its finer levels
+    /// load, when all of them take at most 1/8 of the budget (a 32769^2 store with k = 8:
+    /// 256 KiB). Default true. Pinned levels are never evicted: resident bytes stay within
+    /// `max(budget, needed + 16 bytes per block)`. The standard "coarsest level always resident" of out-of-core
+    /// terrain (e.g. geometry clipmaps' coarsest level, Losasso & Hoppe 2004).
+    pub pin_level_zero: bool,
+    /// Requests in flight at most; 0 (the default) = two per worker thread. Small values keep
+    /// the queue short, so the priorities of the current frame decide what loads next.
     pub max_in_flight: usize,
     /// Frames before a block whose load failed is tried again. Default 120.
     pub retry_after_frames: u64,
@@ -46,7 +87,8 @@ impl Default for StreamConfig {
             threads: 0,
             schedule: ScheduleConfig::default(),
             tau: 2.0,
-            sync_max_level: 3,
+            coarse_level: 3,
+            pin_level_zero: true,
             max_in_flight: 0,
             retry_after_frames: 120,
         }
@@ -58,12 +100,24 @@ impl Default for StreamConfig {
 pub struct ScheduledBlock {
     /// The block.
     pub block: BlockId,
-    /// The finest level it needs (levels `0..=needed` resident).
+    /// The finest level it needs now (levels `0..=needed` resident).
     pub needed: u8,
+    /// The finest level prefetched for it: `needed`, or finer when the eye one frame ahead
+    /// (Eq. 8's extrapolation) needs more.
+    pub target: u8,
     /// Whether it is in the visual region M (else only in the pre-loading region N - M).
     pub visible: bool,
     /// Plan distance from the eye to the block, metres.
     pub distance_m: f64,
+}
+
+/// What [`Streamer::wait_until_resident`] found.
+#[derive(Debug)]
+pub struct WaitReport {
+    /// Whether every needed level of the frame's visible blocks is resident.
+    pub resident: bool,
+    /// The frame's statistics, the wait included (`wait_time`, arrivals).
+    pub stats: FrameStats,
 }
 
 /// The streaming runtime over one store: cache, scheduler and worker pool.
@@ -71,25 +125,44 @@ pub struct ScheduledBlock {
 pub struct Streamer {
     store: Arc<Store>,
     config: StreamConfig,
+    /// Levels kept resident for every block (1 with level 0 pinned, else 0).
+    pinned: usize,
     cache: Cache,
     pool: WorkerPool,
     frame: u64,
     last_eye: Option<DVec3>,
+    last_camera: Option<Camera>,
     scheduled: Vec<ScheduledBlock>,
     regions: Option<Regions>,
 }
 
 impl Streamer {
-    /// Starts the runtime (spawns the workers).
+    /// Starts the runtime (spawns the workers), reading blocks from the store.
     pub fn new(store: Arc<Store>, config: StreamConfig) -> Self {
-        let pool = WorkerPool::spawn(store.clone(), config.threads);
+        let reader: Arc<dyn LevelReader> = store.clone();
+        Self::with_reader(store, config, reader)
+    }
+
+    /// Starts the runtime with every block read going through `reader` (a wrapper of the
+    /// store: latency injected in tests, throttling, counting). `store` gives the header and
+    /// the index.
+    pub fn with_reader(
+        store: Arc<Store>,
+        config: StreamConfig,
+        reader: Arc<dyn LevelReader>,
+    ) -> Self {
+        let pool = WorkerPool::spawn(reader, config.threads);
+        let base = store.header().block_count() as u64 * BlockEntry::resident_bytes(0);
+        let pinned = usize::from(config.pin_level_zero && base <= config.budget_bytes / 8);
         Self {
             cache: Cache::new(config.budget_bytes),
             store,
+            pinned,
             config,
             pool,
             frame: 0,
             last_eye: None,
+            last_camera: None,
             scheduled: Vec::new(),
             regions: None,
         }
@@ -100,9 +173,19 @@ impl Streamer {
         &self.store
     }
 
-    /// The cache.
-    pub fn cache(&self) -> &Cache {
-        &self.cache
+    /// The settings.
+    pub fn config(&self) -> &StreamConfig {
+        &self.config
+    }
+
+    /// Bytes resident in the cache.
+    pub fn resident_bytes(&self) -> u64 {
+        self.cache.resident_bytes()
+    }
+
+    /// The cache's budget, bytes.
+    pub fn budget_bytes(&self) -> u64 {
+        self.cache.budget()
     }
 
     /// The resident levels of a block, if any.
@@ -125,41 +208,66 @@ impl Streamer {
         self.pool.threads()
     }
 
+    /// Requests queued or being loaded.
+    pub fn in_flight(&self) -> usize {
+        self.pool.in_flight()
+    }
+
+    fn max_in_flight(&self) -> usize {
+        if self.config.max_in_flight == 0 {
+            2 * self.pool.threads()
+        } else {
+            self.config.max_in_flight
+        }
+    }
+
     fn apply(&mut self, r: LoadResult, stats: &mut FrameStats) {
         let header = self.store.header().clone();
-        let frame = self.frame;
-        let retry = self.config.retry_after_frames;
-        match r.result {
-            Ok(l) => {
+        match r.outcome {
+            Outcome::Loaded(l) => {
                 stats.disk_bytes += l.disk_bytes;
                 stats.io_time += l.io_time;
                 if let Some(b) = self.cache.push_level(r.block, &header, r.level, l.samples) {
                     stats.prefetched_bytes += b;
                 }
             }
-            Err(e) => {
-                self.cache.entry(r.block, &header).retry_at_frame = frame + retry;
+            Outcome::Failed(e) => {
+                self.cache.entry(r.block, &header).retry_at_frame =
+                    self.frame + self.config.retry_after_frames;
                 stats.faults.push(e);
             }
+            Outcome::Cancelled => {}
         }
         if r.done {
-            self.cache.entry(r.block, &header).requested_to = None;
+            let b = self.cache.entry(r.block, &header);
+            b.requested_to = None;
+            b.cancel = None;
         }
     }
 
-    /// Waits until every request in flight has arrived and applies them (tools and tests; a
-    /// frame loop never calls this).
+    /// Applies every result that has arrived (never blocks).
+    fn drain(&mut self, stats: &mut FrameStats) {
+        while let Some(r) = self.pool.try_recv() {
+            self.apply(r, stats);
+        }
+    }
+
+    /// Waits until every request already in flight has arrived and applies them. Requests
+    /// not yet submitted (the in-flight cap, the budget) are not made: this is not "warm";
+    /// use [`Streamer::wait_until_resident`] for that. A frame loop never calls this.
     pub fn finish_loads(&mut self) -> FrameStats {
         let mut stats = FrameStats::default();
-        while let Some(r) = self.pool.recv() {
+        while let Some(r) = self.pool.recv_until(None) {
             self.apply(r, &mut stats);
         }
         stats.resident_bytes = self.cache.resident_bytes();
         stats
     }
 
-    /// One frame for `camera`: see the module docs. The eye's velocity for Eq. 8 is the
-    /// change of position since the last frame times the configured frame rate.
+    /// One real-time frame for `camera` (see the module docs): never reads a block on the
+    /// frame thread after the session's first frame, never waits for a worker. The eye's
+    /// velocity for Eq. 8 is the change of position since the last frame times the
+    /// configured frame rate.
     pub fn update(&mut self, camera: &Camera) -> FrameStats {
         let t0 = Instant::now();
         let mut stats = FrameStats {
@@ -167,21 +275,99 @@ impl Streamer {
             budget_bytes: self.cache.budget(),
             ..Default::default()
         };
-        while let Some(r) = self.pool.try_recv() {
-            self.apply(r, &mut stats);
-        }
-        let store = self.store.clone();
-        let header = store.header();
-        let f = self.config.schedule.frame_rate_hz;
-        let velocity = self.last_eye.map_or(DVec2::ZERO, |p| (camera.position - p).truncate() * f);
+        self.drain(&mut stats);
+        let step = self.last_eye.map_or(DVec3::ZERO, |p| camera.position - p);
+        let velocity = step.truncate() * self.config.schedule.frame_rate_hz;
         self.last_eye = Some(camera.position);
-        let reg = regions(header, &self.config.schedule, camera, velocity);
-        let view = View::new(camera, self.config.tau);
-        let eye = camera.position.truncate();
+        self.last_camera = Some(*camera);
+        let reg = regions(self.store.header(), &self.config.schedule, camera, velocity);
+        let ahead = step * self.config.schedule.lookahead_frames.max(0.0);
+        let scheduled = self.schedule(camera, &reg, ahead);
+        stats.blocks_visible = scheduled.iter().filter(|s| s.visible).count();
+        stats.blocks_scheduled = scheduled.len();
+        for s in scheduled.iter().filter(|s| s.visible) {
+            if self.cache.resident_levels(s.block) > s.needed as usize {
+                stats.cache_hits += 1;
+            } else {
+                stats.cache_misses += 1;
+            }
+        }
 
-        // M and N with the level each block needs.
+        if self.frame == 0 {
+            self.first_frame(&scheduled, &mut stats);
+        }
+
+        self.cancel_stale(&scheduled, &mut stats);
+        self.submit(&scheduled, false, &mut stats);
+        stats.evictions = self.evict(&scheduled, camera.position.truncate());
+        self.cache.prune();
+        self.scheduled = scheduled;
+        self.regions = Some(reg);
+        self.measure_late(&mut stats);
+        self.frame += 1;
+        stats.frame_time = t0.elapsed();
+        stats
+    }
+
+    /// Waits (at most `timeout`) until every level the visible blocks of `camera`'s frame
+    /// need is resident: runs [`Streamer::update`] for `camera` unless it was the last
+    /// frame's camera, then requests every missing needed level (nearest first, within the
+    /// in-flight cap) and applies arrivals until none is missing, nothing more can arrive (a
+    /// fault: the block is retried after `retry_after_frames` frames), or the timeout. The
+    /// result says which; its statistics are the frame's, the wait included. Deterministic in
+    /// what ends resident when it returns `resident: true`.
+    pub fn wait_until_resident(&mut self, camera: &Camera, timeout: Duration) -> WaitReport {
+        let start = Instant::now();
+        let deadline = start + timeout;
+        let mut stats = if self.last_camera.as_ref() == Some(camera) {
+            let mut s = FrameStats {
+                frame: self.frame.saturating_sub(1),
+                budget_bytes: self.cache.budget(),
+                ..Default::default()
+            };
+            self.measure_late(&mut s);
+            s
+        } else {
+            self.update(camera)
+        };
+        let scheduled = self.scheduled.clone();
+        loop {
+            let mut round = FrameStats::default();
+            self.drain(&mut round);
+            self.submit(&scheduled, true, &mut round);
+            self.measure_late(&mut round);
+            let done = round.late_blocks == 0;
+            stats.merge(round);
+            if done {
+                break;
+            }
+            let mut round = FrameStats::default();
+            match self.pool.recv_until(Some(deadline)) {
+                Some(r) => self.apply(r, &mut round),
+                None => break,
+            }
+            self.measure_late(&mut round);
+            stats.merge(round);
+        }
+        stats.wait_time += start.elapsed();
+        WaitReport { resident: stats.late_blocks == 0, stats }
+    }
+
+    /// The blocks of M and N - M for `camera`, sorted (M first, each by distance, then id),
+    /// with the level each needs now and one frame ahead (`ahead`: the eye's motion).
+    fn schedule(&self, camera: &Camera, reg: &Regions, ahead: DVec3) -> Vec<ScheduledBlock> {
+        let store = &self.store;
+        let header = store.header();
+        let view = View::new(camera, self.config.tau);
+        let next = (ahead != DVec3::ZERO).then(|| View { eye: view.eye + ahead, ..view });
+        let eye = camera.position.truncate();
+        let predicted = |id: BlockId, e: &BlockEntry, now: u8| {
+            next.as_ref()
+                .and_then(|v| needed_level(header, e, id, v, &reg.extension))
+                .map_or(now, |l| l.max(now))
+        };
         let mut scheduled = Vec::new();
-        let mut in_m = std::collections::BTreeSet::new();
+        let mut in_m = BTreeSet::new();
         for id in blocks_under_bbox(header, &reg.view) {
             let Some(e) = store.entry(id) else { continue };
             let (lo, hi) = block_rect(header, e, id);
@@ -193,6 +379,7 @@ impl Streamer {
                 scheduled.push(ScheduledBlock {
                     block: id,
                     needed,
+                    target: predicted(id, e, needed),
                     visible: true,
                     distance_m: rect_distance(eye, lo, hi),
                 });
@@ -211,6 +398,7 @@ impl Streamer {
             scheduled.push(ScheduledBlock {
                 block: id,
                 needed,
+                target: predicted(id, e, needed),
                 visible: false,
                 distance_m: rect_distance(eye, lo, hi),
             });
@@ -221,93 +409,111 @@ impl Streamer {
                 .then(a.distance_m.total_cmp(&b.distance_m))
                 .then(a.block.cmp(&b.block))
         });
-        stats.blocks_visible = in_m.len();
-        stats.blocks_scheduled = scheduled.len();
+        scheduled
+    }
 
-        // Hits, then synchronous loads for needed blocks with nothing resident.
-        for s in scheduled.iter().filter(|s| s.visible) {
-            let have = self.cache.resident_levels(s.block);
-            if have > s.needed as usize {
-                stats.cache_hits += 1;
-            } else {
-                stats.cache_misses += 1;
-            }
-            let retry_at = self.cache.get(s.block).map_or(0, |b| b.retry_at_frame);
-            if have == 0 && retry_at <= self.frame {
-                self.load_sync(s.block, s.needed.min(self.config.sync_max_level), &mut stats);
+    /// Cancels the requests of blocks no longer in N (each counted once).
+    fn cancel_stale(&mut self, scheduled: &[ScheduledBlock], stats: &mut FrameStats) {
+        let wanted: BTreeSet<BlockId> = scheduled.iter().map(|s| s.block).collect();
+        let stale: Vec<BlockId> = self
+            .cache
+            .blocks()
+            .filter(|(id, b)| b.cancel.is_some() && !wanted.contains(id))
+            .map(|(id, _)| *id)
+            .collect();
+        let header = self.store.header().clone();
+        for id in stale {
+            if let Some(c) = self.cache.entry(id, &header).cancel.take() {
+                c.store(true, Ordering::Relaxed);
+                stats.cancelled += 1;
             }
         }
+    }
 
-        // Prefetch requests in priority order (M by distance, then N - M by distance).
-        let max_in_flight = if self.config.max_in_flight == 0 {
-            2 * self.pool.threads()
-        } else {
-            self.config.max_in_flight
-        };
+    /// Submits requests in priority order (see the module docs) until the in-flight cap.
+    /// `visible_only`: only the needed levels of M (waiting until warm).
+    fn submit(&mut self, scheduled: &[ScheduledBlock], visible_only: bool, stats: &mut FrameStats) {
+        let cap = self.max_in_flight();
+        let store = self.store.clone();
+        let header = store.header();
+        let coarse = self.config.coarse_level;
         let mut pending: u64 = 0;
-        for s in &scheduled {
-            if self.pool.in_flight() >= max_in_flight {
-                break;
+        for tier in 0..3 {
+            for s in scheduled {
+                if self.pool.in_flight() >= cap {
+                    return;
+                }
+                let (resident, budget) = (self.cache.resident_bytes(), self.cache.budget());
+                let frame = self.frame;
+                let b = self.cache.entry(s.block, header);
+                if b.requested_to.is_some() || b.retry_at_frame > frame {
+                    continue;
+                }
+                let have = b.levels.count();
+                let over = |last: u8| {
+                    let add = BlockEntry::resident_bytes(last).saturating_sub(b.levels.bytes());
+                    resident + pending + add > budget
+                };
+                let last = match tier {
+                    // Coarse levels of visible blocks with nothing resident.
+                    0 if s.visible && have == 0 => s.needed.min(coarse),
+                    // Missing levels of visible blocks: needed now, and one frame ahead
+                    // within the budget.
+                    1 if s.visible && have > 0 => {
+                        let want = if visible_only || over(s.target) { s.needed } else { s.target };
+                        if have > want as usize {
+                            continue;
+                        }
+                        want
+                    }
+                    // The pre-loading region N - M, within the budget (blocks with nothing
+                    // resident get their coarse levels even over it: they are small, and they
+                    // are what the block is first drawn from when it enters M).
+                    2 if !s.visible && !visible_only => {
+                        if have > s.target as usize {
+                            continue;
+                        }
+                        if !over(s.target) {
+                            s.target
+                        } else if have == 0 {
+                            s.target.min(coarse)
+                        } else {
+                            continue;
+                        }
+                    }
+                    _ => continue,
+                };
+                let add = BlockEntry::resident_bytes(last).saturating_sub(b.levels.bytes());
+                let cancel = Arc::new(AtomicBool::new(false));
+                b.requested_to = Some(last);
+                b.cancel = Some(cancel.clone());
+                let req = LoadRequest {
+                    block: s.block,
+                    first: have as u8,
+                    last,
+                    coarser: b.levels.levels().to_vec(),
+                    cancel,
+                };
+                pending += add;
+                self.pool.submit(req);
+                stats.requests += 1;
             }
-            let b = self.cache.entry(s.block, header);
-            let have = b.levels.count();
-            if have > s.needed as usize
-                || b.requested_to.is_some()
-                || b.retry_at_frame > self.frame
-                || have == 0
-            {
-                continue;
-            }
-            let add = BlockEntry::resident_bytes(s.needed) - b.levels.bytes();
-            if !s.visible && self.cache.resident_bytes() + pending + add > self.cache.budget() {
-                continue;
-            }
-            let b = self.cache.entry(s.block, header);
-            b.requested_to = Some(s.needed);
-            let req = LoadRequest {
-                block: s.block,
-                first: have as u8,
-                last: s.needed,
-                coarser: b.levels.levels().to_vec(),
-            };
-            pending += add;
-            self.pool.submit(req);
-            stats.requests += 1;
         }
-        // Blocks of N - M with nothing resident get their first request too (level 0 upward).
-        for s in scheduled.iter().filter(|s| !s.visible) {
-            if self.pool.in_flight() >= max_in_flight {
-                break;
-            }
-            let (resident, budget) = (self.cache.resident_bytes(), self.cache.budget());
-            let b = self.cache.entry(s.block, header);
-            if b.levels.count() > 0 || b.requested_to.is_some() || b.retry_at_frame > self.frame {
-                continue;
-            }
-            // Over budget, at least the coarse levels a synchronous load would fetch: they are
-            // small, and they are what spares the frame thread a disk read later.
-            let mut last = s.needed;
-            if resident + pending + BlockEntry::resident_bytes(last) > budget {
-                last = last.min(self.config.sync_max_level);
-            }
-            let add = BlockEntry::resident_bytes(last);
-            b.requested_to = Some(last);
-            pending += add;
-            self.pool.submit(LoadRequest { block: s.block, first: 0, last, coarser: Vec::new() });
-            stats.requests += 1;
-        }
+    }
 
-        // Eviction: blocks outside N first (farthest first), then levels beyond what N needs,
-        // then what N - M needs above its coarse levels, then those; never what M needs.
-        let needed: std::collections::BTreeMap<BlockId, (u8, bool, f64)> =
-            scheduled.iter().map(|s| (s.block, (s.needed, s.visible, s.distance_m))).collect();
+    /// Eviction: blocks outside N first (farthest first), then levels beyond each block's
+    /// target, then what N - M holds above its coarse levels, then those, then M's levels
+    /// beyond what it needs now; never what M needs, nor a pinned level 0.
+    fn evict(&mut self, scheduled: &[ScheduledBlock], eye: DVec2) -> usize {
+        let store = &self.store;
+        let header = store.header();
+        let wanted: BTreeMap<BlockId, ()> = scheduled.iter().map(|s| (s.block, ())).collect();
         let mut outside: Vec<(BlockId, f64)> = self
             .cache
             .blocks()
-            .filter(|(id, _)| !needed.contains_key(id))
+            .filter(|(id, b)| !wanted.contains_key(id) && b.levels.count() > self.pinned)
             .map(|(id, _)| {
-                let e = store.entry(*id);
-                let d = e.map_or(f64::MAX, |e| {
+                let d = store.entry(*id).map_or(f64::MAX, |e| {
                     let (lo, hi) = block_rect(header, e, *id);
                     rect_distance(eye, lo, hi)
                 });
@@ -315,61 +521,84 @@ impl Streamer {
             })
             .collect();
         outside.sort_by(|a, b| b.1.total_cmp(&a.1).then(a.0.cmp(&b.0)));
-        let mut order: Vec<(BlockId, usize)> = outside.iter().map(|&(id, _)| (id, 0)).collect();
+        let pinned = self.pinned;
+        let mut order: Vec<(BlockId, usize)> =
+            outside.iter().map(|&(id, _)| (id, pinned)).collect();
         let mut by_distance: Vec<&ScheduledBlock> = scheduled.iter().collect();
         by_distance
             .sort_by(|a, b| b.distance_m.total_cmp(&a.distance_m).then(a.block.cmp(&b.block)));
-        order.extend(by_distance.iter().map(|s| (s.block, s.needed as usize + 1)));
-        let coarse = |s: &ScheduledBlock| s.needed.min(self.config.sync_max_level) as usize + 1;
+        order.extend(by_distance.iter().map(|s| (s.block, s.target as usize + 1)));
+        let coarse = |s: &ScheduledBlock| s.needed.min(self.config.coarse_level) as usize + 1;
         order.extend(by_distance.iter().filter(|s| !s.visible).map(|s| (s.block, coarse(s))));
-        order.extend(by_distance.iter().filter(|s| !s.visible).map(|s| (s.block, 0)));
-        stats.evictions = self.cache.evict(&order);
-        self.cache.prune();
-
-        for s in scheduled.iter().filter(|s| s.visible) {
-            stats.needed_bytes += BlockEntry::resident_bytes(s.needed);
-            let have = self.cache.resident_levels(s.block);
-            if have > 0 {
-                stats.needed_resident_bytes +=
-                    BlockEntry::resident_bytes((have - 1).min(s.needed as usize) as u8);
-            }
-        }
-        stats.resident_bytes = self.cache.resident_bytes();
-        stats.queue_depth = self.pool.in_flight();
-        self.scheduled = scheduled;
-        self.regions = Some(reg);
-        self.frame += 1;
-        stats.frame_time = t0.elapsed();
-        stats
+        order.extend(by_distance.iter().filter(|s| !s.visible).map(|s| (s.block, pinned)));
+        order.extend(
+            by_distance.iter().filter(|s| s.visible).map(|s| (s.block, s.needed as usize + 1)),
+        );
+        self.cache.evict(&order)
     }
 
-    /// Loads levels `0..=last` of a block on the frame thread (a synchronous load).
-    fn load_sync(&mut self, id: BlockId, last: u8, stats: &mut FrameStats) {
-        let header = self.store.header().clone();
-        stats.sync_loads += 1;
-        let t = Instant::now();
-        let mut io = Duration::ZERO;
-        for level in 0..=last {
-            let coarser = self.cache.entry(id, &header).levels.levels().to_vec();
-            match self.store.load_level(id, level, &coarser) {
-                Ok(l) => {
-                    io += l.io_time;
-                    stats.disk_bytes += l.disk_bytes;
-                    if let Some(b) = self.cache.push_level(id, &header, level, l.samples) {
-                        stats.sync_bytes += b;
-                    }
-                }
-                Err(e) => {
-                    self.cache.entry(id, &header).retry_at_frame =
-                        self.frame + self.config.retry_after_frames;
-                    stats.faults.push(e);
-                    break;
-                }
+    /// Needed, resident and late bytes of the last schedule's visible blocks, resident bytes
+    /// and queue depth, into `stats`.
+    fn measure_late(&self, stats: &mut FrameStats) {
+        let (mut needed, mut have_bytes, mut blocks, mut levels) = (0, 0, 0, 0);
+        for s in self.scheduled.iter().filter(|s| s.visible) {
+            needed += BlockEntry::resident_bytes(s.needed);
+            let have = self.cache.resident_levels(s.block);
+            if have > 0 {
+                have_bytes += BlockEntry::resident_bytes((have - 1).min(s.needed as usize) as u8);
+            }
+            if have <= s.needed as usize {
+                blocks += 1;
+                levels += s.needed as usize + 1 - have;
             }
         }
-        let _ = t;
-        stats.sync_io_time += io;
-        stats.io_time += io;
+        stats.needed_bytes = needed;
+        stats.needed_resident_bytes = have_bytes;
+        stats.late_bytes = needed - have_bytes;
+        stats.late_blocks = blocks;
+        stats.late_levels = levels;
+        stats.resident_bytes = self.cache.resident_bytes();
+        stats.queue_depth = self.pool.in_flight();
+    }
+
+    /// The session's first frame waits for the workers to load the coarse levels of the
+    /// visible blocks and the pinned level 0 of every other block (see the module docs).
+    fn first_frame(&mut self, scheduled: &[ScheduledBlock], stats: &mut FrameStats) {
+        let t = Instant::now();
+        let store = self.store.clone();
+        let header = store.header();
+        let visible = scheduled.iter().filter(|s| s.visible);
+        let mut wanted: Vec<(BlockId, u8)> =
+            visible.map(|s| (s.block, s.needed.min(self.config.coarse_level))).collect();
+        if self.pinned > 0 {
+            wanted.extend(store.block_ids().map(|id| (id, 0)));
+        }
+        for (id, last) in wanted {
+            let b = self.cache.entry(id, header);
+            if b.levels.count() > 0 || b.requested_to.is_some() || b.retry_at_frame > self.frame {
+                continue;
+            }
+            let cancel = Arc::new(AtomicBool::new(false));
+            b.requested_to = Some(last);
+            b.cancel = Some(cancel.clone());
+            self.pool.submit(LoadRequest {
+                block: id,
+                first: 0,
+                last,
+                coarser: Vec::new(),
+                cancel,
+            });
+            stats.sync_loads += 1;
+        }
+        let mut arrived = FrameStats::default();
+        while let Some(r) = self.pool.recv_until(None) {
+            self.apply(r, &mut arrived);
+        }
+        stats.sync_bytes += arrived.prefetched_bytes;
+        stats.disk_bytes += arrived.disk_bytes;
+        stats.io_time += arrived.io_time;
+        stats.faults.extend(arrived.faults);
+        stats.sync_io_time += t.elapsed();
     }
 }
 

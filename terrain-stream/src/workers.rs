@@ -1,6 +1,7 @@
 //! The worker pool behind an explicit endpoint (terra's `TileStreamerEndpoint` style): a
 //! request channel and a result channel (crossbeam), an in-flight count, and a documented
-//! shutdown. Threads are spawned here and nowhere else.
+//! shutdown. Threads are spawned here and nowhere else; the frame thread never reads a block
+//! after the first frame (the real-time contract of [`crate::Streamer`]).
 //!
 //! A request asks for levels `first..=last` of one block; the worker loads them one by one
 //! (the paper's sub-thread, "loading ... data level-by-level") and sends each level as soon as
@@ -8,49 +9,94 @@
 //! failed level ends the request with an error result; a panic inside a load is caught and
 //! reported as [`StoreError::WorkerPanicked`], so the pool never loses a thread.
 //!
-//! **Shutdown:** dropping the [`WorkerPool`] (or calling [`WorkerPool::shutdown`]) closes the
-//! request channel; each worker finishes the request it is on (results are dropped if nobody
-//! receives them) and exits; the pool joins every thread before returning.
+//! **Stale requests.** Every request carries a cancel flag. The frame thread sets it when the
+//! block leaves the scheduling region; a worker checks it before each level and ends the
+//! request with [`Outcome::Cancelled`] (levels already sent stay valid), so a queue filled for
+//! an earlier view does not delay the blocks the current view needs.
+//!
+//! **Shutdown:** dropping the [`WorkerPool`] closes the request channel; each worker finishes
+//! the level it is on (results are dropped if nobody receives them) and exits; the pool joins
+//! every thread before returning.
 
 use std::panic::{AssertUnwindSafe, catch_unwind};
 use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::thread::JoinHandle;
+use std::time::Instant;
 
-use crossbeam::channel::{Receiver, Sender, TryRecvError, unbounded};
+use crossbeam::channel::{Receiver, RecvTimeoutError, Sender, TryRecvError, unbounded};
 
 use crate::error::StoreError;
 use crate::format::BlockId;
 use crate::store::{LoadedLevel, Store};
 
+/// Reads one level of one block on top of its coarser levels: the [`Store`] itself, or a
+/// wrapper (a test double that injects latency, a reader that counts or throttles).
+/// [`crate::Streamer::with_reader`] takes one; every read of the runtime goes through it.
+pub trait LevelReader: Send + Sync + std::fmt::Debug {
+    /// Reads, checks and decodes `level` of block `id` (`coarser.len()` must equal `level`),
+    /// as [`Store::load_level`] does.
+    fn load_level(
+        &self,
+        id: BlockId,
+        level: u8,
+        coarser: &[Arc<[i32]>],
+    ) -> Result<LoadedLevel, StoreError>;
+}
+
+impl LevelReader for Store {
+    fn load_level(
+        &self,
+        id: BlockId,
+        level: u8,
+        coarser: &[Arc<[i32]>],
+    ) -> Result<LoadedLevel, StoreError> {
+        Store::load_level(self, id, level, coarser)
+    }
+}
+
 /// Load levels `first..=last` of `block`, on top of `coarser` (its levels `0..first`).
 #[derive(Debug, Clone)]
-pub struct LoadRequest {
+pub(crate) struct LoadRequest {
     /// The block.
-    pub block: BlockId,
+    pub(crate) block: BlockId,
     /// The first level to load; `coarser.len()` must equal it.
-    pub first: u8,
+    pub(crate) first: u8,
     /// The last level to load.
-    pub last: u8,
+    pub(crate) last: u8,
     /// The block's resident levels `0..first` (shared, not copied).
-    pub coarser: Vec<Arc<[i32]>>,
+    pub(crate) coarser: Vec<Arc<[i32]>>,
+    /// Set by the frame thread when the request became stale.
+    pub(crate) cancel: Arc<AtomicBool>,
 }
 
-/// One level loaded (or the error that ended a request).
+/// What a worker did with one level of a request.
 #[derive(Debug)]
-pub struct LoadResult {
+pub(crate) enum Outcome {
+    /// The level, read and decoded.
+    Loaded(LoadedLevel),
+    /// Why it could not be loaded (ends the request).
+    Failed(StoreError),
+    /// The request was cancelled before this level (ends the request; nothing was read).
+    Cancelled,
+}
+
+/// One level loaded (or what ended a request).
+#[derive(Debug)]
+pub(crate) struct LoadResult {
     /// The block.
-    pub block: BlockId,
+    pub(crate) block: BlockId,
     /// The level.
-    pub level: u8,
-    /// Whether this is the request's last result (its last level, or an error).
-    pub done: bool,
-    /// The level, or why it could not be loaded.
-    pub result: Result<LoadedLevel, StoreError>,
+    pub(crate) level: u8,
+    /// Whether this is the request's last result (its last level, an error, a cancel).
+    pub(crate) done: bool,
+    /// What happened.
+    pub(crate) outcome: Outcome,
 }
 
-/// Worker threads loading block levels from a [`Store`].
+/// Worker threads loading block levels through a [`LevelReader`].
 #[derive(Debug)]
-pub struct WorkerPool {
+pub(crate) struct WorkerPool {
     requests: Option<Sender<LoadRequest>>,
     results: Receiver<LoadResult>,
     in_flight: usize,
@@ -59,7 +105,7 @@ pub struct WorkerPool {
 
 impl WorkerPool {
     /// Spawns `threads` workers (0 = one per available core, at least 1).
-    pub fn spawn(store: Arc<Store>, threads: usize) -> Self {
+    pub(crate) fn spawn(reader: Arc<dyn LevelReader>, threads: usize) -> Self {
         let n = if threads == 0 {
             std::thread::available_parallelism().map_or(1, |n| n.get())
         } else {
@@ -69,10 +115,10 @@ impl WorkerPool {
         let (res_tx, res_rx) = unbounded::<LoadResult>();
         let threads = (0..n)
             .map(|t| {
-                let (rx, tx, store) = (req_rx.clone(), res_tx.clone(), store.clone());
+                let (rx, tx, reader) = (req_rx.clone(), res_tx.clone(), reader.clone());
                 std::thread::Builder::new()
                     .name(format!("terrain-stream-{t}"))
-                    .spawn(move || worker(&store, &rx, &tx))
+                    .spawn(move || worker(&*reader, &rx, &tx))
                     .expect("the OS can spawn a worker thread")
             })
             .collect();
@@ -80,17 +126,17 @@ impl WorkerPool {
     }
 
     /// Number of worker threads.
-    pub fn threads(&self) -> usize {
+    pub(crate) fn threads(&self) -> usize {
         self.threads.len()
     }
 
     /// Requests submitted whose last result has not been received yet.
-    pub fn in_flight(&self) -> usize {
+    pub(crate) fn in_flight(&self) -> usize {
         self.in_flight
     }
 
     /// Queues a request.
-    pub fn submit(&mut self, request: LoadRequest) {
+    pub(crate) fn submit(&mut self, request: LoadRequest) {
         if let Some(tx) = &self.requests
             && tx.send(request).is_ok()
         {
@@ -98,34 +144,35 @@ impl WorkerPool {
         }
     }
 
+    fn received(&mut self, r: LoadResult) -> LoadResult {
+        if r.done {
+            self.in_flight -= 1;
+        }
+        r
+    }
+
     /// A result, if one is ready (never blocks).
-    pub fn try_recv(&mut self) -> Option<LoadResult> {
+    pub(crate) fn try_recv(&mut self) -> Option<LoadResult> {
         match self.results.try_recv() {
-            Ok(r) => {
-                if r.done {
-                    self.in_flight -= 1;
-                }
-                Some(r)
-            }
+            Ok(r) => Some(self.received(r)),
             Err(TryRecvError::Empty | TryRecvError::Disconnected) => None,
         }
     }
 
-    /// Waits for the next result (for tools and tests; the frame loop uses [`Self::try_recv`]).
-    pub fn recv(&mut self) -> Option<LoadResult> {
+    /// Waits for the next result until `deadline` (`None`: without limit); `None` when
+    /// nothing is in flight or the deadline passed. Never called by a real-time frame.
+    pub(crate) fn recv_until(&mut self, deadline: Option<Instant>) -> Option<LoadResult> {
         if self.in_flight == 0 {
             return None;
         }
-        let r = self.results.recv().ok()?;
-        if r.done {
-            self.in_flight -= 1;
-        }
-        Some(r)
-    }
-
-    /// Closes the request channel and joins every worker (see the module docs).
-    pub fn shutdown(mut self) {
-        self.stop();
+        let r = match deadline {
+            None => self.results.recv().ok()?,
+            Some(d) => match self.results.recv_deadline(d) {
+                Ok(r) => r,
+                Err(RecvTimeoutError::Timeout | RecvTimeoutError::Disconnected) => return None,
+            },
+        };
+        Some(self.received(r))
     }
 
     fn stop(&mut self) {
@@ -142,28 +189,43 @@ impl Drop for WorkerPool {
     }
 }
 
-fn worker(store: &Store, requests: &Receiver<LoadRequest>, results: &Sender<LoadResult>) {
+fn worker(
+    reader: &dyn LevelReader,
+    requests: &Receiver<LoadRequest>,
+    results: &Sender<LoadResult>,
+) {
     while let Ok(req) = requests.recv() {
         let mut coarser = req.coarser;
         let mut level = req.first;
         loop {
-            let outcome =
-                catch_unwind(AssertUnwindSafe(|| store.load_level(req.block, level, &coarser)))
-                    .unwrap_or_else(|p| {
+            let outcome = if req.cancel.load(Ordering::Relaxed) {
+                Outcome::Cancelled
+            } else {
+                match catch_unwind(AssertUnwindSafe(|| {
+                    reader.load_level(req.block, level, &coarser)
+                })) {
+                    Ok(Ok(l)) => Outcome::Loaded(l),
+                    Ok(Err(e)) => Outcome::Failed(e),
+                    Err(p) => {
                         let message = p
                             .downcast_ref::<&str>()
                             .map(|s| s.to_string())
                             .or_else(|| p.downcast_ref::<String>().cloned())
                             .unwrap_or_default();
-                        Err(StoreError::WorkerPanicked { block: req.block, level, message })
-                    });
-            let failed = outcome.is_err();
-            let done = failed || level >= req.last;
-            if let Ok(l) = &outcome {
+                        Outcome::Failed(StoreError::WorkerPanicked {
+                            block: req.block,
+                            level,
+                            message,
+                        })
+                    }
+                }
+            };
+            let done = !matches!(outcome, Outcome::Loaded(_)) || level >= req.last;
+            if let Outcome::Loaded(l) = &outcome {
                 coarser.push(l.samples.clone());
             }
-            if results.send(LoadResult { block: req.block, level, done, result: outcome }).is_err()
-            {
+            let r = LoadResult { block: req.block, level, done, outcome };
+            if results.send(r).is_err() {
                 return;
             }
             if done {
