@@ -1,0 +1,154 @@
+//! The benchmark's set-up: [`BenchConfig`], each method's swept parameter and its values, and
+//! which flight frames are measured.
+
+use terrain_core::measure::MeasureConfig;
+
+use crate::methods::{LodMethod, MethodConfig};
+use crate::ooc::OocConfig;
+
+/// How a benchmark runs.
+#[derive(Debug, Clone, PartialEq)]
+pub struct BenchConfig {
+    /// Methods, in report order. Default [`LodMethod::ALL`].
+    pub methods: Vec<LodMethod>,
+    /// Frames per flight: at most this many, evenly spaced over the flight (first and last
+    /// included); 0 = every frame. Popping is then measured between consecutive *sampled*
+    /// frames. Default 60.
+    pub max_frames: usize,
+    /// Sweep points per method, taken evenly from [`sweep_values`]' full list (which has 4-6).
+    /// Default 5.
+    pub sweep_points: usize,
+    /// Rendered image size when a GPU is given; `None` measures without rendering. Default
+    /// `Some((640, 360))`.
+    pub render_size: Option<(u32, u32)>,
+    /// The viewport of the flights' cameras, for selection (DSS's pixel threshold) and pixel
+    /// errors. Default 1280 x 720.
+    pub measure_viewport: (u32, u32),
+    /// The methods' settings (leaf cells, defaults of the parameters not swept). Default
+    /// [`MethodConfig::default`].
+    pub method: MethodConfig,
+    /// A scene folder (`terrain bake`'s output) whose PVS files `pvps-c-pvs` and `pvps-c-cons`
+    /// use; an unreadable or mismatched file is a warning and that method runs without
+    /// occlusion culling. `None`: the PVS is baked in memory with `method.pvs`. Default `None`.
+    pub scene: Option<std::path::PathBuf>,
+    /// How frames are measured. Default [`MeasureConfig::default`] (2,000,000 samples: stride 1
+    /// up to about 1400 x 1400). A stride above 1 can land every measured sample on tessellation
+    /// vertices (stride 2 and a uniform factor of half the leaf cells measure zero error), so
+    /// strided figures are biased low; the stride used is in every frame's record.
+    pub measure: MeasureConfig,
+    /// The out-of-core method (`ooc`): a store baked from the same DEM; `None` (the default)
+    /// bakes one into a temporary folder (blocks of `2^ooc_k + 1` vertices, lossless for
+    /// integer and scaled-grey sources, else 1 cm) and removes it afterwards.
+    pub ooc_store: Option<std::path::PathBuf>,
+    /// `k` of the temporary store. Default 8 (the store's default, 257^2 blocks).
+    pub ooc_k: u8,
+    /// The out-of-core runtime's settings (tau is swept; budget, threads, page capacity).
+    pub ooc: OocConfig,
+}
+
+impl Default for BenchConfig {
+    fn default() -> Self {
+        Self {
+            methods: LodMethod::ALL.to_vec(),
+            max_frames: 60,
+            sweep_points: 5,
+            render_size: Some((640, 360)),
+            measure_viewport: (1280, 720),
+            method: MethodConfig::default(),
+            scene: None,
+            measure: MeasureConfig::default(),
+            ooc_store: None,
+            ooc_k: 8,
+            ooc: OocConfig::default(),
+        }
+    }
+}
+
+impl BenchConfig {
+    /// The `--quick` settings: 20 frames per flight, 3 sweep points, 320 x 180 images and a
+    /// 200,000-sample budget per frame (strided on large grids: errors biased low, see `measure`).
+    pub fn quick() -> Self {
+        Self {
+            max_frames: 20,
+            sweep_points: 3,
+            render_size: Some((320, 180)),
+            measure: MeasureConfig { max_samples: 200_000, ..MeasureConfig::default() },
+            ..Self::default()
+        }
+    }
+}
+
+/// The swept parameter of `method`: its name and its full list of values, most detailed
+/// first. `uniform`: the factor, `leaf_cells / 8 .. leaf_cells` (factor `leaf_cells` is full
+/// resolution); PVPS: Eq. 8's `C1` (larger splits less); DSS: `rho_thr` in pixels.
+pub fn sweep_values(method: LodMethod, leaf_cells: u32) -> (&'static str, Vec<f64>) {
+    match method {
+        LodMethod::Uniform => {
+            let l = f64::from(leaf_cells.max(2));
+            let mut v: Vec<f64> = [l, l / 2.0, l / 4.0, l / 8.0].map(|f| f.max(2.0)).to_vec();
+            v.dedup();
+            ("factor", v)
+        }
+        LodMethod::PvpsA | LodMethod::PvpsB | LodMethod::PvpsC => {
+            ("C1", vec![12.5, 25.0, 50.0, 100.0, 200.0])
+        }
+        LodMethod::Dss1 | LodMethod::Dss2 | LodMethod::DssStrips => {
+            ("rho_thr", vec![0.25, 0.5, 1.0, 2.0, 4.0, 8.0])
+        }
+        // E0 in percent of the largest entropy (the paper's 10..18 barely simplify at our
+        // entropy scale; see `terrain_visibility::entropy::source::EntropyScale`). E0 = 0 is
+        // the full-depth mesh, the uniform method's job, and seconds per frame: not swept.
+        LodMethod::Entropy => ("E0", vec![18.0, 50.0, 70.0, 85.0, 95.0]),
+        LodMethod::Geomorph => ("tau_px", vec![0.5, 1.0, 2.0, 4.0, 8.0]),
+        LodMethod::PvpsCPvs | LodMethod::PvpsCConservative => {
+            ("C1", vec![12.5, 25.0, 50.0, 100.0, 200.0])
+        }
+        // Qiu 2013 Eq. 7 threshold, pixels (the paper's figures use 2).
+        LodMethod::OutOfCore => ("tau", vec![0.5, 1.0, 2.0, 4.0, 8.0]),
+    }
+}
+
+/// `points` values taken evenly from `all` (both ends included); all of them when `points`
+/// is at least their number.
+pub fn pick_evenly(all: &[f64], points: usize) -> Vec<f64> {
+    let n = all.len();
+    if points >= n || n == 0 {
+        return all.to_vec();
+    }
+    if points <= 1 {
+        return vec![all[n / 2]];
+    }
+    let mut v: Vec<f64> = (0..points)
+        .map(|k| all[((k * (n - 1)) as f64 / (points - 1) as f64).round() as usize])
+        .collect();
+    v.dedup();
+    v
+}
+
+/// The frame indices of a flight of `n` frames: at most `max` evenly spaced (0 = all).
+pub fn frame_indices(n: usize, max: usize) -> Vec<usize> {
+    if max == 0 || max >= n {
+        return (0..n).collect();
+    }
+    if max == 1 {
+        return vec![0];
+    }
+    let mut v: Vec<usize> =
+        (0..max).map(|k| ((k * (n - 1)) as f64 / (max - 1) as f64).round() as usize).collect();
+    v.dedup();
+    v
+}
+
+/// Sets `method`'s swept parameter in `config`.
+pub fn apply_parameter(config: &mut MethodConfig, method: LodMethod, value: f64) {
+    match method {
+        LodMethod::Uniform => config.uniform_factor = value as f32,
+        LodMethod::PvpsA | LodMethod::PvpsB | LodMethod::PvpsC => config.pvps.c1 = value,
+        LodMethod::Dss1 | LodMethod::Dss2 | LodMethod::DssStrips => config.dss.rho_thr = value,
+        LodMethod::Entropy => config.entropy.e0 = value,
+        LodMethod::Geomorph => config.geomip.pixel_threshold = value,
+        LodMethod::PvpsCPvs | LodMethod::PvpsCConservative => config.pvps.c1 = value,
+        // tau belongs to the out-of-core runtime (OocConfig), set by run_bench.
+        LodMethod::OutOfCore => {}
+    }
+}

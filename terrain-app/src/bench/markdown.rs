@@ -1,0 +1,140 @@
+//! The benchmark report as Markdown ([`BenchReport::to_markdown`]): the set-up, the timing
+//! notes, a table per flight, geomorph's vertex jumps and the out-of-core streaming columns.
+
+use std::fmt::Write as _;
+
+use super::record::{BenchReport, RunRecord, median};
+use crate::methods::LodMethod;
+use crate::ooc::StreamRecord;
+
+fn opt4(x: Option<f64>) -> String {
+    x.map(|x| format!("{x:.4}")).unwrap_or_else(|| "n/a".to_string())
+}
+
+fn opt(x: Option<f64>) -> String {
+    x.map(|x| format!("{x:.2}")).unwrap_or_else(|| "n/a".to_string())
+}
+
+impl BenchReport {
+    /// A Markdown report: the set-up, the timing notes, a table per flight.
+    pub fn to_markdown(&self) -> String {
+        let mut s = String::new();
+        let _ = writeln!(s, "# Benchmark: {}\n", self.terrain);
+        let _ = writeln!(
+            s,
+            "- grid {} x {}, leaf patches of {} cells",
+            self.grid[0], self.grid[1], self.leaf_cells
+        );
+        let _ =
+            writeln!(s, "- adapter: {}", self.adapter.as_deref().unwrap_or("none (no rendering)"));
+        if let Some([w, h]) = self.render_size {
+            let _ = writeln!(s, "- rendered at {w} x {h}");
+        }
+        for n in &self.timing_notes {
+            let _ = writeln!(s, "- {n}");
+        }
+        for f in &self.flights {
+            let _ = writeln!(
+                s,
+                "\n## Flight `{}` ({} of {} frames)\n",
+                f.name,
+                f.frames.len(),
+                f.total_frames
+            );
+            for w in &f.warnings {
+                let _ = writeln!(s, "> warning: {w}\n");
+            }
+            s.push_str(
+                "| method | parameter | triangles | patches | selection ms | CPU ms | frame ms | GPU ms | \
+                 p99 px (median / max) | max px | RMSE m | popping RMS m | RMSE change m | \
+                 height jump m (median / max) | false culls |\n\
+                 |---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n",
+            );
+            for r in self.runs.iter().filter(|r| r.flight == f.name) {
+                let m = &r.summary;
+                let _ = writeln!(
+                    s,
+                    "| {} | {} = {} | {:.0} | {:.0} | {:.3} | {:.2} | {:.2} | {} | {:.3} / {:.3} | {:.3} | {:.3} | {:.4} | {:.4} | {:.3} / {:.3} | {} |",
+                    r.method.name(),
+                    r.parameter,
+                    r.value,
+                    m.median_triangles,
+                    m.median_patches,
+                    m.median_selection_ms,
+                    m.median_cpu_ms,
+                    m.median_frame_ms,
+                    opt(m.median_gpu_ms),
+                    m.median_p99_px,
+                    m.max_p99_px,
+                    m.max_px,
+                    m.median_rmse_m,
+                    m.median_popping_rms_m,
+                    m.median_rmse_change_m,
+                    m.median_max_jump_m,
+                    m.max_popping_m,
+                    m.false_culls
+                );
+            }
+        }
+        let jumps: Vec<&RunRecord> =
+            self.runs.iter().filter(|r| r.summary.max_vertex_jump_m.is_some()).collect();
+        if !jumps.is_empty() {
+            s.push_str(
+                "\n## Geomorph: largest per-vertex height jump between consecutive flight frames\n\n\
+                 | flight | tau px | with tweening m | tweening off m |\n|---|---:|---:|---:|\n",
+            );
+            for r in jumps {
+                let _ = writeln!(
+                    s,
+                    "| {} | {} | {} | {} |",
+                    r.flight,
+                    r.value,
+                    opt4(r.summary.max_vertex_jump_m),
+                    opt4(r.summary.max_vertex_jump_no_morph_m)
+                );
+            }
+        }
+        let ooc: Vec<&RunRecord> =
+            self.runs.iter().filter(|r| r.method == LodMethod::OutOfCore).collect();
+        if !ooc.is_empty() {
+            s.push_str(
+                "\n## Out-of-core streaming (the paper's Table 3 columns)\n\n\
+                 | flight | tau | needed MB (median) | synchronous MB (sum) | sync loads after frame 1 | \
+                 prefetched MB (sum) | I/O ms (median / max) | cache hits | evictions | \
+                 peak resident MB | budget MB | max queue |\n\
+                 |---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n",
+            );
+            for r in ooc {
+                let st: Vec<&StreamRecord> =
+                    r.frames.iter().filter_map(|f| f.stream.as_ref()).collect();
+                let sum = |f: &dyn Fn(&StreamRecord) -> f64| st.iter().map(|x| f(x)).sum::<f64>();
+                let max =
+                    |f: &dyn Fn(&StreamRecord) -> f64| st.iter().map(|x| f(x)).fold(0.0, f64::max);
+                let _ = writeln!(
+                    s,
+                    "| {} | {} | {:.3} | {:.3} | {} | {:.3} | {:.2} / {:.2} | {} | {} | {:.2} | {:.0} | {} |",
+                    r.flight,
+                    r.value,
+                    median(st.iter().map(|x| x.needed_mb).collect()),
+                    sum(&|x| x.sync_mb),
+                    st.iter().skip(1).map(|x| x.sync_loads).sum::<usize>(),
+                    sum(&|x| x.prefetched_mb),
+                    median(st.iter().map(|x| x.io_ms).collect()),
+                    max(&|x| x.io_ms),
+                    st.iter().map(|x| x.cache_hits).sum::<usize>(),
+                    st.iter().map(|x| x.evictions).sum::<usize>(),
+                    max(&|x| x.resident_mb),
+                    max(&|x| x.budget_mb),
+                    st.iter().map(|x| x.queue_depth).max().unwrap_or(0),
+                );
+            }
+        }
+        s.push_str(
+            "\nMedians over the frames. Triangles are non-degenerate ones; CPU ms and frame ms as \
+             in the notes above; popping is the RMS change of the height error between \
+             consecutive measured frames, RMSE change the change of the RMSE (the DSS paper's \
+             measure), height jump the largest change of the drawn height at one DEM sample.\n",
+        );
+        s
+    }
+}

@@ -1,0 +1,90 @@
+//! The benchmark: every LOD method over every flight with identical cameras, each method's
+//! threshold swept, every frame timed by stage and measured exactly against the full DEM.
+//!
+//! Per frame ([`FrameRecord`]): the selection (timed), the drawn surface rebuilt on the CPU with
+//! terrain-gpu's tessellator reference ([`terrain_gpu::tess::tessellate`], so the measurement
+//! sees exactly what the GPU draws; timed), the errors ([`Measurer`]), and, when a GPU exists,
+//! the frame drawn by [`TerrainRenderer`] (CPU encode/upload, wall and GPU times where the
+//! adapter's timestamps are trustworthy). [`BenchReport`] serialises to JSON and renders
+//! Markdown ([`BenchReport::to_markdown`]) and a hand-written SVG ([`BenchReport::to_svg`]):
+//! triangles and CPU milliseconds against the 99th-percentile pixel error, one curve per method.
+//!
+//! Pixel errors (and the DSS methods' pixel threshold) are those of a
+//! [`BenchConfig::measure_viewport`] view whatever the rendered image size, so quick and full
+//! runs compare. Everything but the timings is deterministic: fixed flights, fixed sweep values,
+//! frames and runs in a fixed order.
+
+mod config;
+mod frame;
+mod markdown;
+mod record;
+mod run;
+mod svg;
+
+pub use config::{BenchConfig, apply_parameter, frame_indices, pick_evenly, sweep_values};
+pub use frame::{FrameRunner, entropy_extra};
+pub use record::{
+    BenchReport, FlightInfo, FrameRecord, RunRecord, RunSummary, process_cpu_s, rss_bytes,
+    thread_cpu_s,
+};
+pub use run::{BenchProgress, print_progress, run_bench};
+
+#[cfg(test)]
+mod tests {
+    use terrain_core::measure::FrameErrors;
+
+    use super::record::median;
+    use super::svg::log_range;
+    use super::*;
+    use crate::methods::LodMethod;
+
+    #[test]
+    fn sweeps_frames_and_medians() {
+        assert_eq!(pick_evenly(&[1.0, 2.0, 3.0, 4.0, 5.0], 3), vec![1.0, 3.0, 5.0]);
+        assert_eq!(pick_evenly(&[1.0, 2.0], 5), vec![1.0, 2.0]);
+        assert_eq!(frame_indices(10, 0), (0..10).collect::<Vec<_>>());
+        assert_eq!(frame_indices(101, 3), vec![0, 50, 100]);
+        assert_eq!(sweep_values(LodMethod::Uniform, 16).1, vec![16.0, 8.0, 4.0, 2.0]);
+        assert_eq!(sweep_values(LodMethod::Uniform, 4).1, vec![4.0, 2.0]);
+        assert_eq!(median(vec![3.0, 1.0, 2.0]), 2.0);
+        assert_eq!(median(vec![4.0, 1.0, 2.0, 3.0]), 2.5);
+        assert_eq!(median(vec![]), 0.0);
+        assert_eq!(log_range([0.5, 20.0].into_iter()), (-1.0, 2.0));
+    }
+
+    #[test]
+    fn summary_reports_rmse_change_and_height_jumps() {
+        let frame = |rmse: f64, change: Option<f64>, jump: f64| FrameRecord {
+            frame: 0,
+            patches: 1,
+            triangles: 2,
+            selection_ms: 0.0,
+            cpu_tess_ms: 0.0,
+            measure_ms: 0.0,
+            encode_ms: None,
+            render_ms: None,
+            gpu_ms: None,
+            gpu_draw_ms: None,
+            gpu_tessellated: None,
+            upload_bytes: None,
+            cpu_ms: 0.0,
+            frame_ms: 0.0,
+            rss_bytes: None,
+            errors: FrameErrors {
+                rmse_m: rmse,
+                rmse_change_m: change,
+                popping_max_m: jump,
+                ..FrameErrors::default()
+            },
+            ..FrameRecord::default()
+        };
+        // The first frame has no previous one: no change, no jump.
+        let frames =
+            [frame(5.0, None, 0.0), frame(7.0, Some(2.0), 3.0), frame(6.0, Some(1.0), 9.0)];
+        let s = RunSummary::new(&frames);
+        assert_eq!(s.median_rmse_change_m, 1.5);
+        assert_eq!(s.median_max_jump_m, 6.0);
+        assert_eq!(s.max_popping_m, 9.0);
+        assert_eq!(s.median_rmse_m, 6.0);
+    }
+}
