@@ -67,6 +67,11 @@ pub struct BenchArgs {
     /// The `ooc` method: the stream cache's budget, MiB.
     #[arg(long, default_value_t = 256)]
     pub ooc_cache_mb: u64,
+    /// The `ooc` method: every sampled frame waits until the levels it needs are resident
+    /// (warm: the error is the selection's own). By default the flight is played in real
+    /// time at its own frame rate, every frame, and late data is counted.
+    #[arg(long)]
+    pub wait: bool,
 }
 
 /// Writes `<dir>/<name>.json`, `.md` and `.svg`; returns the three paths.
@@ -109,6 +114,7 @@ pub fn run(args: &BenchArgs) -> anyhow::Result<()> {
     cfg.ooc_store = args.ooc_store.clone().or_else(|| args.scene.clone());
     cfg.ooc_k = args.ooc_k;
     cfg.ooc.budget_bytes = args.ooc_cache_mb << 20;
+    cfg.ooc_wait = args.wait;
     let flights = args
         .flights
         .iter()

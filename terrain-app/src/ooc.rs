@@ -191,6 +191,60 @@ impl StreamRecord {
     }
 }
 
+/// The streaming figures of a whole played flight (every frame, not only the measured ones).
+#[derive(Debug, Clone, Default, PartialEq, serde::Serialize)]
+pub struct StreamSummary {
+    /// Whether the frames ran in real time (else every frame waited until warm).
+    pub real_time: bool,
+    /// Frames played.
+    pub frames: usize,
+    /// Frames after the first that waited for I/O (0 in real time).
+    pub waited_after_first: usize,
+    /// Frames drawn with every needed level resident.
+    pub at_needed_level: usize,
+    /// Share of frames drawn at their needed level, 0..1.
+    pub at_needed_level_share: f64,
+    /// Late MB per frame: median and maximum.
+    pub late_mb_median: f64,
+    /// Late MB per frame, maximum.
+    pub late_mb_max: f64,
+    /// Needed MB per frame, median.
+    pub needed_mb_median: f64,
+    /// Prefetched MB per frame, mean.
+    pub prefetched_mb_mean: f64,
+    /// Frames whose start was already past their due time (the frame loop fell behind the
+    /// flight's frame rate).
+    pub behind_schedule: usize,
+    /// Largest resident MB.
+    pub peak_resident_mb: f64,
+}
+
+impl StreamSummary {
+    /// The summary of `frames` (in order), `behind` of which started late.
+    pub fn new(frames: &[StreamRecord], real_time: bool, behind: usize) -> Self {
+        let n = frames.len();
+        let median = |mut v: Vec<f64>| {
+            v.sort_by(f64::total_cmp);
+            v.get(v.len() / 2).copied().unwrap_or(0.0)
+        };
+        let at = frames.iter().filter(|f| f.at_needed_level).count();
+        Self {
+            real_time,
+            frames: n,
+            waited_after_first: frames.iter().skip(1).filter(|f| f.waited_for_io).count(),
+            at_needed_level: at,
+            at_needed_level_share: if n == 0 { 0.0 } else { at as f64 / n as f64 },
+            late_mb_median: median(frames.iter().map(|f| f.late_mb).collect()),
+            late_mb_max: frames.iter().map(|f| f.late_mb).fold(0.0, f64::max),
+            needed_mb_median: median(frames.iter().map(|f| f.needed_mb).collect()),
+            prefetched_mb_mean: frames.iter().map(|f| f.prefetched_mb).sum::<f64>()
+                / n.max(1) as f64,
+            behind_schedule: behind,
+            peak_resident_mb: frames.iter().map(|f| f.resident_mb).fold(0.0, f64::max),
+        }
+    }
+}
+
 /// A page to set (`Some`) or drop (`None`).
 #[derive(Debug, Clone, PartialEq)]
 pub struct PageUpdate {

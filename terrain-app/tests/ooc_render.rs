@@ -414,9 +414,18 @@ fn the_benchmark_runs_the_out_of_core_method_with_stream_statistics() {
         render_size: None,
         method: MethodConfig { leaf_cells: 4, ..MethodConfig::default() },
         ooc_k: 4,
+        ooc_wait: true,
         ..BenchConfig::default()
     };
-    let report = run_bench("puget crop", puget_crop(), &[flight], &cfg, None, &mut |_| {}).unwrap();
+    let report = run_bench(
+        "puget crop",
+        puget_crop(),
+        std::slice::from_ref(&flight),
+        &cfg,
+        None,
+        &mut |_| {},
+    )
+    .unwrap();
     let values: Vec<f64> = report.runs.iter().map(|r| r.value).collect();
     assert_eq!(values, [0.5, 8.0], "tau swept");
     for r in &report.runs {
@@ -437,4 +446,25 @@ fn the_benchmark_runs_the_out_of_core_method_with_stream_statistics() {
     assert!(md.contains("Table 3") && md.contains("| ooc |"), "{md}");
     let json = serde_json::to_string(&report).unwrap();
     assert!(json.contains("\"prefetched_mb\"") && json.contains("\"method\":\"ooc\""));
+    for r in &report.runs {
+        let st = r.stream.as_ref().expect("a streaming summary");
+        assert!(!st.real_time && st.frames == 4 && st.at_needed_level == 4, "{st:?}");
+    }
+
+    // Real time (the default): every frame of the flight is played (10 fps, 11 frames), the
+    // sampled ones measured; none after the first waits for I/O, late data is counted.
+    let cfg = BenchConfig { ooc_wait: false, sweep_points: 1, ..cfg };
+    let report = run_bench("puget crop", puget_crop(), &[flight], &cfg, None, &mut |_| {}).unwrap();
+    let r = &report.runs[0];
+    assert_eq!(r.frames.len(), 4);
+    let st = r.stream.as_ref().expect("a streaming summary");
+    assert!(st.real_time && st.frames == report.flights[0].total_frames, "{st:?}");
+    assert_eq!(st.waited_after_first, 0, "{st:?}");
+    assert!(st.at_needed_level <= st.frames);
+    for f in &r.frames[1..] {
+        let x = f.stream.as_ref().unwrap();
+        assert!(!x.waited_for_io && x.sync_loads == 0 && x.wait_ms == 0.0, "{x:?}");
+        assert!((x.late_mb - (x.needed_mb - x.needed_resident_mb)).abs() < 1e-9, "{x:?}");
+    }
+    assert!(report.to_markdown().contains("Out-of-core real time"));
 }

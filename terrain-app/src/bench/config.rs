@@ -44,6 +44,11 @@ pub struct BenchConfig {
     pub ooc_k: u8,
     /// The out-of-core runtime's settings (tau is swept; budget, threads, page capacity).
     pub ooc: OocConfig,
+    /// The out-of-core method: `true` = every sampled frame waits until its needed levels are
+    /// resident (warm: the error is the selection's own; `--wait`); `false` (the default) =
+    /// real time: the flight is played at its own frame rate, every frame, paced in wall
+    /// time, and the sampled frames are measured (the flight's clock stops while one is).
+    pub ooc_wait: bool,
 }
 
 impl Default for BenchConfig {
@@ -60,6 +65,7 @@ impl Default for BenchConfig {
             ooc_store: None,
             ooc_k: 8,
             ooc: OocConfig::default(),
+            ooc_wait: false,
         }
     }
 }

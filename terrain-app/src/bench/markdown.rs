@@ -104,7 +104,7 @@ impl BenchReport {
                  peak resident MB | budget MB | max queue |\n\
                  |---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n",
             );
-            for r in ooc {
+            for r in &ooc {
                 let st: Vec<&StreamRecord> =
                     r.frames.iter().filter_map(|f| f.stream.as_ref()).collect();
                 let sum = |f: &dyn Fn(&StreamRecord) -> f64| st.iter().map(|x| f(x)).sum::<f64>();
@@ -126,6 +126,32 @@ impl BenchReport {
                     max(&|x| x.resident_mb),
                     max(&|x| x.budget_mb),
                     st.iter().map(|x| x.queue_depth).max().unwrap_or(0),
+                );
+            }
+            s.push_str(
+                "\n### Out-of-core real time (every played frame)\n\n\
+                 | flight | tau | mode | frames played | waited for I/O after frame 1 | \
+                 drawn at needed level | late MB median / max | needed MB median | \
+                 prefetched MB/frame | behind schedule | peak resident MB |\n\
+                 |---|---:|---|---:|---:|---:|---|---:|---:|---:|---:|\n",
+            );
+            for r in ooc.iter().filter_map(|r| r.stream.as_ref().map(|x| (r, x))) {
+                let (r, x) = r;
+                let _ = writeln!(
+                    s,
+                    "| {} | {} | {} | {} | {} | {:.1} % | {:.3} / {:.3} | {:.3} | {:.3} | {} | {:.2} |",
+                    r.flight,
+                    r.value,
+                    if x.real_time { "real time" } else { "warm (--wait)" },
+                    x.frames,
+                    x.waited_after_first,
+                    100.0 * x.at_needed_level_share,
+                    x.late_mb_median,
+                    x.late_mb_max,
+                    x.needed_mb_median,
+                    x.prefetched_mb_mean,
+                    x.behind_schedule,
+                    x.peak_resident_mb,
                 );
             }
         }

@@ -290,6 +290,9 @@ pub struct RunRecord {
     pub summary: RunSummary,
     /// Every frame.
     pub frames: Vec<FrameRecord>,
+    /// The out-of-core method: streaming over every played frame of the flight.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub stream: Option<crate::ooc::StreamSummary>,
 }
 
 /// A flight as the benchmark flew it.

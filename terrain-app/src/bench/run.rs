@@ -143,7 +143,7 @@ pub fn run_bench(
                 for &value in values {
                     let label = format!("{} ooc tau={value}", info.name);
                     let config = OocConfig { tau: value, ..cfg.ooc };
-                    let frames = run_ooc(
+                    let (frames, stream) = run_ooc(
                         &scene,
                         &store,
                         config,
@@ -164,6 +164,7 @@ pub fn run_bench(
                         value,
                         summary: RunSummary::new(&frames),
                         frames,
+                        stream: Some(stream),
                     });
                 }
                 continue;
@@ -196,6 +197,7 @@ pub fn run_bench(
                     value,
                     summary: RunSummary::new(&frames),
                     frames,
+                    stream: None,
                 });
             }
         }
@@ -205,11 +207,21 @@ pub fn run_bench(
     }
     if ooc_store.is_some() {
         notes.push(
-            "ooc: blocks come from a store through the streamer; every frame waits for the levels \
-             it needs (warm), so its error is the selection's and the stream columns show what \
-             was loaded on the frame thread and what the workers prefetched. Sampled frames are \
-             further apart than the flight's frame rate, so Eq. 8's speed is overestimated."
-                .to_string(),
+            if cfg.ooc_wait {
+                "ooc (--wait): blocks come from a store through the streamer; every sampled frame \
+                 waits for the levels it needs (warm), so its error is the selection's and the \
+                 stream columns show what was loaded on the frame thread and what the workers \
+                 prefetched. Sampled frames are further apart than the flight's frame rate, so \
+                 Eq. 8's speed is overestimated."
+            } else {
+                "ooc (real time): the flight is played at its own frame rate, every frame, paced in \
+                 wall time (no rendering between measured frames); no frame after the first waits \
+                 for I/O, blocks are drawn at their finest resident level, and late data (needed, \
+                 not resident when drawn) is counted. The sampled frames are measured and \
+                 rendered while the flight's clock stops, which gives the workers extra time \
+                 before the next frames; the streaming summary covers every played frame."
+            }
+            .to_string(),
         );
     }
     Ok(BenchReport {
@@ -270,8 +282,9 @@ fn prepare_store(
     Ok(std::sync::Arc::new(store))
 }
 
-/// One out-of-core run (one tau) over one flight's sampled frames: a fresh runtime, warm
-/// frames, the drawn surface rebuilt from the pages' heights (the CPU reference of the paged
+/// One out-of-core run (one tau) over one flight: a fresh runtime, real time (every frame
+/// played at the flight's rate, see [`BenchConfig::ooc_wait`]) or warm sampled frames, the
+/// drawn surface rebuilt from the pages' heights (the CPU reference of the paged
 /// renderer) and measured against the full DEM, the paged render when a GPU is given.
 #[allow(clippy::too_many_arguments)]
 fn run_ooc(
@@ -284,7 +297,7 @@ fn run_ooc(
     flight: &terrain_core::flight::Flight,
     indices: &[usize],
     tick: &mut dyn FnMut(usize),
-) -> anyhow::Result<Vec<FrameRecord>> {
+) -> anyhow::Result<(Vec<FrameRecord>, crate::ooc::StreamSummary)> {
     let mut ooc = OocScene::new(store.clone(), config).with_mirror();
     if ooc.root_cells() != scene.qt.root_cells() {
         anyhow::bail!(
@@ -302,9 +315,31 @@ fn run_ooc(
     };
     let mut measurer = Measurer::new(&scene.hm, &scene.qt, cfg.measure);
     let mut frames = Vec::with_capacity(indices.len());
-    for &k in indices {
+    // Warm: the sampled frames only, each waiting. Real time: every frame at the flight's
+    // rate; the clock restarts after each measured frame.
+    let played: Vec<usize> =
+        if cfg.ooc_wait { indices.to_vec() } else { (0..flight.frames().len()).collect() };
+    let measured: std::collections::BTreeSet<usize> = indices.iter().copied().collect();
+    let period = std::time::Duration::from_secs_f64(1.0 / flight.fps.max(1e-3));
+    let (mut clock, mut since) = (Instant::now(), 0u32);
+    let (mut streamed, mut behind) = (Vec::with_capacity(played.len()), 0);
+    for k in played {
         let camera = &flight.frames()[k];
-        let f = ooc.frame(camera, true);
+        if !cfg.ooc_wait {
+            match (clock + period * since).checked_duration_since(Instant::now()) {
+                Some(w) => std::thread::sleep(w),
+                None => behind += usize::from(since > 0),
+            }
+            since += 1;
+        }
+        let f = ooc.frame(camera, cfg.ooc_wait);
+        streamed.push(f.stream.clone());
+        if !measured.contains(&k) {
+            if let Some(r) = renderer.as_mut() {
+                OocScene::apply(r, &f)?;
+            }
+            continue;
+        }
         let selection_ms = f.selection.stats.cpu_time.as_secs_f64() * 1e3;
         let t = Instant::now();
         let drawn = ooc.mirror().expect("mirrored").to_heightmap(&scene.hm);
@@ -343,8 +378,10 @@ fn run_ooc(
         record.rss_bytes = rss_bytes();
         frames.push(record);
         tick(k);
+        (clock, since) = (Instant::now(), 0);
     }
-    Ok(frames)
+    let summary = crate::ooc::StreamSummary::new(&streamed, !cfg.ooc_wait, behind);
+    Ok((frames, summary))
 }
 
 /// What the timings of a run on `gpu` mean, and which are trustworthy.
