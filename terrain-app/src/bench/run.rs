@@ -332,7 +332,8 @@ fn run_ooc(
             }
             since += 1;
         }
-        let f = ooc.frame(camera, cfg.ooc_wait);
+        // The first frame waits until warm (a session's first image), as `terrain render`'s.
+        let f = ooc.frame(camera, cfg.ooc_wait || streamed.is_empty());
         streamed.push(f.stream.clone());
         if !measured.contains(&k) {
             if let Some(r) = renderer.as_mut() {
