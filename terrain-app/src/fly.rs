@@ -8,12 +8,13 @@ use std::path::{Path, PathBuf};
 use anyhow::{Context, bail};
 use clap::Args;
 use glam::dvec2;
-use terrain_app::bench::{BenchProgress, FrameRecord, FrameRunner, frame_indices, print_progress};
+use terrain_app::bench::{BenchProgress, FrameRecord, frame_indices, print_progress};
+use terrain_app::method::{self, FrameLoop, MethodOptions};
 use terrain_app::methods::{LodMethod, MethodConfig, MethodScene};
 use terrain_core::flight::{FlightConfig, FlightSpec};
 use terrain_core::measure::MeasureConfig;
 use terrain_core::{Heightmap, synth};
-use terrain_gpu::{BackendChoice, DeviceConfig, GpuContext, RenderConfig, TerrainRenderer};
+use terrain_gpu::{BackendChoice, DeviceConfig, GpuContext, RenderConfig};
 
 use crate::render::parse_size;
 use crate::source::SourceArgs;
@@ -71,11 +72,6 @@ pub fn fly(
     ctx: &GpuContext,
     out: &Path,
 ) -> anyhow::Result<Vec<FrameRecord>> {
-    if options.method == LodMethod::OutOfCore {
-        anyhow::bail!(
-            "--method ooc draws a baked store: bake the DEM with `terrain bake <dem> -o <store>`, then `terrain render <store>` (or `terrain bench`, which bakes one)"
-        );
-    }
     let (width, height) = options.size;
     let flight_cfg = FlightConfig {
         viewport_px: dvec2(f64::from(width), f64::from(height)),
@@ -85,12 +81,6 @@ pub fn fly(
     for w in &warnings {
         eprintln!("warning: flight {}: {w}", flight.name);
     }
-    std::fs::create_dir_all(out).with_context(|| format!("could not create {}", out.display()))?;
-    let mut renderer = TerrainRenderer::new(
-        ctx,
-        &hm,
-        &RenderConfig { width, height, background: [150, 185, 225, 255], ..Default::default() },
-    )?;
     let scene = MethodScene::new(
         hm,
         MethodConfig { leaf_cells: options.leaf_cells, ..MethodConfig::default() },
@@ -100,14 +90,22 @@ pub fn fly(
             eprintln!("warning: {warning}");
         }
     }
+    let method = method::build(options.method, &scene, &MethodOptions::default())?;
+    std::fs::create_dir_all(out).with_context(|| format!("could not create {}", out.display()))?;
+    let mut renderer = method.renderer(
+        ctx,
+        &RenderConfig { width, height, background: [150, 185, 225, 255], ..Default::default() },
+    )?;
     scene.prepare(&[options.method]);
     let measure = MeasureConfig { max_samples: 200_000, ..MeasureConfig::default() };
-    let mut runner = FrameRunner::new(&scene, options.method, measure, Some(&mut renderer));
+    let mut runner = FrameLoop::new(method)
+        .measured(&scene.hm, &scene.qt, measure)
+        .rendered(Some(&mut renderer));
     let indices = frame_indices(flight.frames().len(), options.max_frames);
     let mut records = Vec::with_capacity(indices.len());
     let label = format!("{} {}", flight.name, options.method.name());
     for (n, &k) in indices.iter().enumerate() {
-        let record = runner.frame(k, &flight.frames()[k])?;
+        let record = runner.frame(k, &flight.frames()[k], None)?.record;
         let image = runner.renderer().expect("rendering").read_image()?;
         let raw: Vec<u8> = image.pixels.iter().flatten().copied().collect();
         let path = out.join(format!("frame_{k:05}.png"));

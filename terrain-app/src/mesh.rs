@@ -25,6 +25,7 @@ use terrain_core::measure::{MeasureConfig, measure_frame};
 use terrain_core::mesh::{self, Algorithm, MeshConfig, TriMesh, verify};
 use terrain_core::{Crs, Heightmap};
 
+use terrain_app::method::MethodOptions;
 use terrain_app::methods::{LodMethod, MethodConfig, MethodScene};
 
 use crate::source::SourceArgs;
@@ -262,8 +263,9 @@ fn entropy_mesh(args: &MeshArgs, e0: f64, format: Option<Format>) -> anyhow::Res
     Ok(())
 }
 
-/// `terrain mesh --camera`: the LOD surface `args.method` draws from that view, rebuilt with the
-/// tessellator's CPU reference (the triangles the GPU draws; zero-area ones dropped), its error
+/// `terrain mesh --camera`: the LOD surface `args.method` draws from that view, rebuilt with its
+/// renderer's CPU reference (`Method::surface`: the triangles the GPU draws, the entropy
+/// method's mesh as built; zero-area ones dropped), its error
 /// against the DEM measured over the view (`terrain_core::measure`) and reported.
 fn view_mesh(
     args: &MeshArgs,
@@ -271,16 +273,6 @@ fn view_mesh(
     hm: Heightmap,
     format: Option<Format>,
 ) -> anyhow::Result<()> {
-    anyhow::ensure!(
-        args.method != LodMethod::Entropy,
-        "--camera exports patch-based LOD surfaces; the entropy method's mesh is exported \
-         with `terrain mesh --entropy E0`"
-    );
-    if args.method == LodMethod::OutOfCore {
-        anyhow::bail!(
-            "--method ooc draws a baked store: bake the DEM with `terrain bake <dem> -o <store>`, then `terrain render <store>` (or `terrain bench`, which bakes one)"
-        );
-    }
     let (width, height) = crate::render::parse_size(&args.size)?;
     let (position, yaw, pitch) = crate::render::parse_camera(camera)?;
     let (near, far) = terrain_gpu::render::clip_range(&hm, position);
@@ -289,9 +281,11 @@ fn view_mesh(
         .with_clip(near, far);
     let t0 = Instant::now();
     let scene = MethodScene::new(hm, MethodConfig::default());
-    let drawn = scene.frame(args.method, &camera);
-    let selection = &drawn.selection;
-    let (surface, _) = scene.frame_surface(&drawn);
+    // The method's frame and its drawn surface, through the one method interface.
+    let mut method = terrain_app::method::build(args.method, &scene, &MethodOptions::default())?;
+    let mut frame = method.frame(&camera);
+    let surface = method.surface(&mut frame)?.mesh;
+    let selection = &frame.selection;
     let build_ms = t0.elapsed().as_secs_f64() * 1e3;
     let t1 = Instant::now();
     let errors = measure_frame(

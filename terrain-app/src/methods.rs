@@ -14,8 +14,8 @@
 //!   whole-terrain placeholder; the benchmark measures its mesh on the CPU.
 //! - `geomorph`: the geomorphing article's (Wagner 2003) geo-mipmapped patches of
 //!   `leaf_cells` cells with continuous tween factors, drawn by terrain-gpu's
-//!   `GeomorphRenderer` (its own pipeline: [`MethodScene::select_geomorph`] and the benchmark's
-//!   branch). Through [`MethodScene::select`] (the tessellation renderer's path: `render`, `fly`,
+//!   `GeomorphRenderer` (its own pipeline: [`MethodScene::select_geomorph`] and
+//!   [`crate::method::GeomorphMethod`]). Through [`MethodScene::select`] (the tessellation renderer's path: `render`, `fly`,
 //!   `mesh`) it gives each patch its level's factor `leaf_cells / 2^level` per edge (the shared
 //!   edge at the coarser side's level): the un-morphed geo-mipmap, crack-free.
 //! - `pvps-c-pvs`, `pvps-c-cons`: method C complete, with the PVS occlusion culling of section
@@ -27,8 +27,11 @@
 //!   P-blocks and dynamic stitching strips (drawn as extra triangles; see [`MethodFrame`]).
 //! - `ooc`: the out-of-core paper's (Qiu 2013) method over a baked store. It is stateful (a
 //!   streaming runtime and pages), so it lives in [`crate::ooc::OocScene`], not here:
-//!   [`MethodScene::select`] returns an empty selection for it, and the benchmark and
-//!   `terrain render <store>` drive it.
+//!   [`MethodScene::select`] returns an empty selection for it; [`crate::method::OocMethod`]
+//!   drives it.
+//!
+//! Every method behind one per-frame interface (what `render`, `fly` and `bench` call) is
+//! [`crate::method::Method`]; this module is what the in-memory methods precompute and select.
 
 use std::sync::OnceLock;
 
@@ -165,6 +168,9 @@ pub struct MethodConfig {
     /// `dss-strips`: half the strip width in cells (`DssStripsConfig::half_width_cells`).
     /// Default 1.
     pub strip_half_width_cells: u32,
+    /// `ooc`: the out-of-core runtime's settings (Eq. 7's tau, cache and page budgets), read
+    /// when the method is built over a store ([`crate::method::registry::build`]).
+    pub ooc: crate::ooc::OocConfig,
 }
 
 impl Default for MethodConfig {
@@ -183,6 +189,7 @@ impl Default for MethodConfig {
             geomip: GeomipConfig { patch_cells: leaf_cells, ..GeomipConfig::default() },
             pvs: PvsConfig { cells: (16, 16), patch_level: 5, ..PvsConfig::default() },
             strip_half_width_cells: 1,
+            ooc: crate::ooc::OocConfig::default(),
         }
     }
 }

@@ -9,6 +9,9 @@ use std::path::PathBuf;
 use anyhow::{Context, bail};
 use clap::Args;
 use glam::DVec3;
+use terrain_app::method::{
+    self, FrameLoop, FrameRenderer, Method as _, MethodOptions, OocMethod, OocWait,
+};
 use terrain_app::methods::{LodMethod, MethodConfig, MethodScene};
 use terrain_app::ooc;
 use terrain_core::geometry::Camera;
@@ -16,7 +19,6 @@ use terrain_core::{Heightmap, synth};
 use terrain_gpu::render::{clip_range, default_camera};
 use terrain_gpu::{
     BackendChoice, DeviceConfig, GpuContext, RenderConfig, RenderOptions, RgbaImage,
-    TerrainRenderer,
 };
 
 use crate::source::SourceArgs;
@@ -167,19 +169,113 @@ fn camera_for(
     })
 }
 
-/// One frame's statistics, as `--stats-json` writes them.
+/// One frame's statistics, as `--stats-json` writes them (a store's frames add the threshold,
+/// the block figures and the stream's).
 #[derive(Debug, serde::Serialize)]
 struct FrameRecord {
     frame: u32,
     method: &'static str,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    tau: Option<f64>,
     patches: usize,
     triangles: u64,
     vertices: u64,
+    #[serde(flatten, skip_serializing_if = "Option::is_none")]
+    blocks: Option<method::BlockStats>,
     selection_ms: f64,
     encode_ms: f64,
     gpu_ms: Option<f64>,
     draw_pass_ms: Option<f64>,
     wall_ms: f64,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    stream: Option<ooc::StreamRecord>,
+}
+
+/// The one frame loop of `render`: every camera through `frames` (the method's frame, drawn),
+/// a line per frame (every 50th of long flights) and the records. `parameter` names the
+/// method's threshold in the lines and records (a store's tau).
+fn draw_frames(
+    frames: &mut FrameLoop<'_>,
+    cameras: &[Camera],
+    parameter: Option<f64>,
+) -> anyhow::Result<Vec<FrameRecord>> {
+    let name = frames.method().kind().name();
+    let mut records = Vec::with_capacity(cameras.len());
+    for (frame, camera) in (1u32..).zip(cameras) {
+        let f = frames.frame(frame as usize - 1, camera, None)?;
+        let s = f.drawn.as_ref().expect("render draws every frame");
+        let r = &f.record;
+        // What the frame computed before drawing: the selection (and the entropy mesh's build).
+        let selection_ms = r.selection_ms + r.cpu_tess_ms;
+        if let Some(st) = &r.stream
+            && st.faults > 0
+        {
+            eprintln!("warning: {} store fault(s) this frame; coarser levels are drawn", st.faults);
+        }
+        let verbose = cameras.len() <= 20 || frame % 50 == 1 || frame as usize == cameras.len();
+        if verbose {
+            let blocks = f
+                .blocks
+                .map(|b| {
+                    format!(", blocks drawn {} (dropped {})", b.blocks_drawn, b.blocks_dropped)
+                })
+                .unwrap_or_default();
+            println!(
+                "frame {frame}: method {name}{}, patches {}, triangles {}, vertices {}{blocks}, \
+                 selection {:.2} ms, CPU {:.2} ms, GPU {}, adapter {}",
+                parameter.map(|t| format!(" (tau {t})")).unwrap_or_default(),
+                s.patches,
+                s.triangles,
+                s.vertices.unwrap_or(0),
+                selection_ms,
+                s.cpu_ms,
+                s.gpu_text,
+                s.adapter
+            );
+            if let Some(st) = &r.stream {
+                println!(
+                    "  stream: needed {:.3} MB ({:.3} resident, late {:.3} MB in {} blocks), \
+                     synchronous {:.3} MB ({} loads), \
+                     prefetched {:.3} MB, I/O {:.2} ms, cache hits {} misses {}, evictions {}, \
+                     resident {:.3} / {:.0} MB, queue {}, waited {:.1} ms, faults {}",
+                    st.needed_mb,
+                    st.needed_resident_mb,
+                    st.late_mb,
+                    st.late_blocks,
+                    st.sync_mb,
+                    st.sync_loads,
+                    st.prefetched_mb,
+                    st.io_ms,
+                    st.cache_hits,
+                    st.cache_misses,
+                    st.evictions,
+                    st.resident_mb,
+                    st.budget_mb,
+                    st.queue_depth,
+                    st.wait_ms,
+                    st.faults
+                );
+            }
+        }
+        records.push(FrameRecord {
+            frame,
+            method: name,
+            tau: parameter,
+            patches: s.patches,
+            triangles: s.triangles,
+            vertices: s.vertices.unwrap_or(0),
+            blocks: f.blocks,
+            selection_ms,
+            encode_ms: s.cpu_ms,
+            gpu_ms: s.gpu_ms,
+            draw_pass_ms: s.gpu_draw_ms,
+            // The renderer waits for the GPU before returning, so this is the frame's whole
+            // cost after selection: encode, tessellate (when the patches changed), draw.
+            wall_ms: s.wall_ms,
+            stream: r.stream.clone(),
+        });
+    }
+    Ok(records)
 }
 
 /// Runs `terrain render`.
@@ -197,11 +293,6 @@ pub fn run(args: &RenderArgs) -> anyhow::Result<()> {
     {
         return run_store(args, one, (width, height), background);
     }
-    if args.method == LodMethod::OutOfCore {
-        bail!(
-            "--method ooc draws a baked store: bake the DEM with `terrain bake <dem> -o <store>`, then `terrain render <store>` (or `terrain bench`, which bakes one)"
-        );
-    }
     let hm = match args.source.load()? {
         Some(dem) => dem.heightmap,
         None => synth::default_terrain(),
@@ -209,11 +300,6 @@ pub fn run(args: &RenderArgs) -> anyhow::Result<()> {
     let texture = args.texture.as_ref().map(load_texture).transpose()?;
     let camera = camera_for(args, &hm, width, height)?;
 
-    let ctx = GpuContext::new(&DeviceConfig::from_env(BackendChoice::Auto))
-        .context("no GPU adapter (Vulkan or GL) is available")?;
-    println!("adapter: {}", ctx.describe());
-    let config = RenderConfig { width, height, texture, background, ..Default::default() };
-    let mut renderer = TerrainRenderer::new(&ctx, &hm, &config)?;
     let method_config = MethodConfig {
         leaf_cells: args.leaf_cells,
         uniform_factor: args.factor,
@@ -225,7 +311,13 @@ pub fn run(args: &RenderArgs) -> anyhow::Result<()> {
             eprintln!("warning: {warning}");
         }
     }
+    let method = method::build(args.method, &scene, &MethodOptions::default())?;
     scene.prepare(&[args.method]);
+    let ctx = GpuContext::new(&DeviceConfig::from_env(BackendChoice::Auto))
+        .context("no GPU adapter (Vulkan or GL) is available")?;
+    println!("adapter: {}", ctx.describe());
+    let config = RenderConfig { width, height, texture, background, ..Default::default() };
+    let mut renderer = method.renderer(&ctx, &config)?;
     let options = RenderOptions { wireframe: args.wireframe, ..Default::default() };
     let p = camera.position;
     println!(
@@ -237,49 +329,10 @@ pub fn run(args: &RenderArgs) -> anyhow::Result<()> {
         camera.near,
         camera.far
     );
-    let mut records = Vec::new();
-    for frame in 1..=args.frames.max(1) {
-        let (patches, extra, selection_ms) = if args.method == LodMethod::Entropy {
-            // The entropy paper's mesh (Eq. 5 cut, crack elimination, tiles), drawn as the
-            // renderer's extra triangles as the benchmark draws it.
-            let f = scene.entropy_scene().frame(&camera, &scene.config.entropy);
-            let (carrier, extra) = terrain_app::bench::entropy_extra(&scene.hm, &f.surface);
-            (vec![carrier], extra, f.cut_ms + f.crack_ms + f.triangulate_ms)
-        } else {
-            let drawn = scene.frame(args.method, &camera);
-            let (patches, extra) = scene.frame_draw(&drawn);
-            (patches, extra, drawn.selection.stats.cpu_time.as_secs_f64() * 1e3)
-        };
-        let start = std::time::Instant::now();
-        let s = renderer.render_with_extra(&camera, &patches, &extra, &options)?;
-        // The renderer waits for the GPU before returning, so this is the frame's whole cost
-        // after selection: encode, tessellate (when the patches changed), draw.
-        let wall_ms = start.elapsed().as_secs_f64() * 1e3;
-        println!(
-            "frame {frame}: method {}, patches {}, triangles {}, vertices {}, selection {:.2} ms, \
-             CPU {:.2} ms, GPU {}, adapter {}",
-            args.method.name(),
-            s.patches,
-            s.triangles,
-            s.vertices,
-            selection_ms,
-            s.cpu_ms,
-            s.gpu_text(),
-            s.adapter
-        );
-        records.push(FrameRecord {
-            frame,
-            method: args.method.name(),
-            patches: s.patches,
-            triangles: s.triangles,
-            vertices: s.vertices,
-            selection_ms,
-            encode_ms: s.cpu_ms,
-            gpu_ms: s.gpu_ms,
-            draw_pass_ms: s.gpu_draw_ms,
-            wall_ms,
-        });
-    }
+    let cameras = vec![camera; args.frames.max(1) as usize];
+    let mut frames = FrameLoop::new(method).rendered(Some(&mut renderer)).with_options(options);
+    let records = draw_frames(&mut frames, &cameras, None)?;
+    drop(frames);
     if let Some(path) = &args.stats_json {
         let json = serde_json::json!({ "adapter": ctx.describe(), "frames": records });
         std::fs::write(path, serde_json::to_string_pretty(&json)?)
@@ -288,33 +341,13 @@ pub fn run(args: &RenderArgs) -> anyhow::Result<()> {
     save_image(&renderer, &args.output)
 }
 
-fn save_image(renderer: &TerrainRenderer, output: &std::path::Path) -> anyhow::Result<()> {
+fn save_image(renderer: &FrameRenderer, output: &std::path::Path) -> anyhow::Result<()> {
     let image = renderer.read_image()?;
     let raw: Vec<u8> = image.pixels.iter().flatten().copied().collect();
     image::save_buffer(output, &raw, image.width, image.height, image::ColorType::Rgba8)
         .with_context(|| format!("could not write {}", output.display()))?;
     println!("wrote {} ({} x {})", output.display(), image.width, image.height);
     Ok(())
-}
-
-/// One frame of a store's render, as `--stats-json` writes it.
-#[derive(Debug, serde::Serialize)]
-struct StoreFrameRecord {
-    frame: u32,
-    method: &'static str,
-    tau: f64,
-    patches: usize,
-    triangles: u64,
-    vertices: u64,
-    blocks_drawn: usize,
-    blocks_dropped: usize,
-    pages_uploaded: usize,
-    selection_ms: f64,
-    encode_ms: f64,
-    gpu_ms: Option<f64>,
-    draw_pass_ms: Option<f64>,
-    wall_ms: f64,
-    stream: ooc::StreamRecord,
 }
 
 /// `terrain render <store>`: the out-of-core method over a baked store.
@@ -337,7 +370,7 @@ fn run_store(
         page_budget_bytes: args.page_mb << 20,
         ..ooc::OocConfig::default()
     };
-    let mut scene = ooc::OocScene::open(dir, config)
+    let scene = ooc::OocScene::open(dir, config)
         .with_context(|| format!("could not open the store {}", dir.display()))?;
     let h = scene.store().header().clone();
     println!(
@@ -405,115 +438,42 @@ fn run_store(
         .context("no GPU adapter (Vulkan or GL) is available")?;
     println!("adapter: {}", ctx.describe());
     let render_config = RenderConfig { width, height, texture, background, ..Default::default() };
-    let mut renderer = scene.renderer(&ctx, &render_config)?;
-    println!(
-        "pages: {} slots ({} full resolution), {:.1} MB of page atlas on the device",
-        renderer.page_capacity(),
-        renderer.page_classes().first().map_or(0, |c| c.capacity),
-        renderer.page_atlas_bytes() as f64 / 1e6
-    );
-    let options = RenderOptions { wireframe: args.wireframe, ..Default::default() };
-    let mut records = Vec::new();
-    let mut summary = terrain_stream::StatsSummary::default();
-    let mut peak_resident_mb: f64 = 0.0;
-    for (frame, camera) in (1u32..).zip(&cameras) {
-        let camera = *camera;
-        let f = scene.frame(&camera, args.wait || frame == 1);
-        peak_resident_mb = peak_resident_mb.max(f.stream.resident_mb);
-        summary.frames += 1;
-        if frame > 1 {
-            summary.sync_loads_after_first += f.stream.sync_loads;
-            summary.frames_waited_after_first += u64::from(f.stream.waited_for_io);
-        }
-        summary.frames_at_needed_level += u64::from(f.stream.at_needed_level);
-        if f.stream.faults > 0 {
-            eprintln!(
-                "warning: {} store fault(s) this frame; coarser levels are drawn",
-                f.stream.faults
-            );
-        }
-        ooc::OocScene::apply(&mut renderer, &f)?;
-        let start = std::time::Instant::now();
-        let s = renderer.render(&camera, &f.patches, &options)?;
-        let wall_ms = start.elapsed().as_secs_f64() * 1e3;
-        let selection_ms = f.selection.stats.cpu_time.as_secs_f64() * 1e3;
-        let st = &f.stream;
-        let verbose = cameras.len() <= 20 || frame % 50 == 1 || frame as usize == cameras.len();
-        if verbose {
-            println!(
-                "frame {frame}: method ooc (tau {}), patches {}, triangles {}, vertices {}, blocks drawn {} \
-                 (dropped {}), selection {:.2} ms, CPU {:.2} ms, GPU {}, adapter {}",
-                args.tau,
-                s.patches,
-                s.triangles,
-                s.vertices,
-                f.blocks_drawn,
-                f.blocks_dropped,
-                selection_ms,
-                s.cpu_ms,
-                s.gpu_text(),
-                s.adapter
-            );
-            println!(
-                "  stream: needed {:.3} MB ({:.3} resident, late {:.3} MB in {} blocks), \
-                 synchronous {:.3} MB ({} loads), \
-                 prefetched {:.3} MB, I/O {:.2} ms, cache hits {} misses {}, evictions {}, \
-                 resident {:.3} / {:.0} MB, queue {}, waited {:.1} ms, faults {}",
-                st.needed_mb,
-                st.needed_resident_mb,
-                st.late_mb,
-                st.late_blocks,
-                st.sync_mb,
-                st.sync_loads,
-                st.prefetched_mb,
-                st.io_ms,
-                st.cache_hits,
-                st.cache_misses,
-                st.evictions,
-                st.resident_mb,
-                st.budget_mb,
-                st.queue_depth,
-                st.wait_ms,
-                st.faults
-            );
-        }
-        records.push(StoreFrameRecord {
-            frame,
-            method: "ooc",
-            tau: args.tau,
-            patches: s.patches,
-            triangles: s.triangles,
-            vertices: s.vertices,
-            blocks_drawn: f.blocks_drawn,
-            blocks_dropped: f.blocks_dropped,
-            pages_uploaded: f.updates.iter().filter(|u| u.fill.is_some()).count(),
-            selection_ms,
-            encode_ms: s.cpu_ms,
-            gpu_ms: s.gpu_ms,
-            draw_pass_ms: s.gpu_draw_ms,
-            wall_ms,
-            stream: f.stream.clone(),
-        });
+    let wait = if args.wait { OocWait::EveryFrame } else { OocWait::FirstFrame };
+    let method = OocMethod::new(scene, wait);
+    let mut renderer = method.renderer(&ctx, &render_config)?;
+    if let Some(r) = renderer.terrain_renderer() {
+        println!(
+            "pages: {} slots ({} full resolution), {:.1} MB of page atlas on the device",
+            r.page_capacity(),
+            r.page_classes().first().map_or(0, |c| c.capacity),
+            r.page_atlas_bytes() as f64 / 1e6
+        );
     }
-    let total = |g: &dyn Fn(&StoreFrameRecord) -> f64| records.iter().map(g).sum::<f64>();
-    let mut late: Vec<f64> = records.iter().map(|r| r.stream.late_mb).collect();
-    late.sort_by(f64::total_cmp);
-    let median_late_mb = late.get(late.len() / 2).copied().unwrap_or(0.0);
+    let options = RenderOptions { wireframe: args.wireframe, ..Default::default() };
+    let mut frames =
+        FrameLoop::new(Box::new(method)).rendered(Some(&mut renderer)).with_options(options);
+    let records = draw_frames(&mut frames, &cameras, Some(args.tau))?;
+    drop(frames);
+    let stream = |r: &FrameRecord| r.stream.clone().unwrap_or_default();
+    let total =
+        |g: &dyn Fn(&ooc::StreamRecord) -> f64| records.iter().map(|r| g(&stream(r))).sum::<f64>();
+    let streams: Vec<ooc::StreamRecord> = records.iter().map(stream).collect();
+    let summary = ooc::StreamSummary::new(&streams, !args.wait, 0);
     println!(
         "summary: {} frames ({}), frames that waited for I/O after frame 1: {}, \
          drawn at their needed level: {:.1} %, late {:.3} MB per frame (median), \
          synchronous loads after frame 1: {}, synchronous {:.2} MB, \
          prefetched {:.2} MB, I/O {:.1} ms, peak resident {:.1} MB (budget {} MiB), max triangles {}",
-        summary.frames,
+        records.len(),
         if args.wait { "warm: every frame waits" } else { "real time" },
-        summary.frames_waited_after_first,
-        100.0 * summary.frames_at_needed_level as f64 / summary.frames.max(1) as f64,
-        median_late_mb,
-        summary.sync_loads_after_first,
-        total(&|r| r.stream.sync_mb),
-        total(&|r| r.stream.prefetched_mb),
-        total(&|r| r.stream.io_ms),
-        peak_resident_mb,
+        summary.waited_after_first,
+        100.0 * summary.at_needed_level_share,
+        summary.late_mb_median,
+        records.iter().skip(1).map(|r| stream(r).sync_loads).sum::<usize>(),
+        total(&|s| s.sync_mb),
+        total(&|s| s.prefetched_mb),
+        total(&|s| s.io_ms),
+        records.iter().map(|r| stream(r).resident_mb).fold(0.0, f64::max),
         args.cache_mb,
         records.iter().map(|r| r.triangles).max().unwrap_or(0)
     );

@@ -1,12 +1,12 @@
 //! The `entropy` benchmark method: each frame's Eq. 5 cut of the full tree is crack-free
 //! (open edges only on the terrain's border), refines near the view and coarsens with E0, and
-//! runs through the benchmark's `FrameRunner` with a measured (CPU) error.
+//! runs through the one frame loop (`method::FrameLoop`) with a measured (CPU) error.
 
 mod common;
 
 use glam::dvec3;
-use terrain_app::bench::FrameRunner;
 use terrain_app::entropy_method::{EntropyMethodConfig, EntropyScene};
+use terrain_app::method::{FrameLoop, MethodOptions, build};
 use terrain_app::methods::{LodMethod, MethodConfig, MethodScene};
 use terrain_core::dem::{LoadOptions, load};
 use terrain_core::geometry::Camera;
@@ -69,8 +69,10 @@ fn the_benchmark_runner_measures_the_entropy_mesh() {
     let camera = Camera::look_at(dvec3(o.x, o.y, 5000.0), dvec3(o.x, o.y + 50_000.0, 1000.0))
         .with_viewport(640.0, 360.0)
         .with_clip(10.0, 400_000.0);
-    let mut runner = FrameRunner::new(&scene, LodMethod::Entropy, MeasureConfig::default(), None);
-    let r = runner.frame(0, &camera).unwrap();
+    let method = build(LodMethod::Entropy, &scene, &MethodOptions::default()).unwrap();
+    let mut runner =
+        FrameLoop::new(method).measured(&scene.hm, &scene.qt, MeasureConfig::default());
+    let r = runner.frame(0, &camera, None).unwrap().record;
     assert!(r.triangles > 0 && r.patches > 0);
     assert!(r.errors.samples > 0, "{r:?}");
     assert_eq!(r.errors.unlocated, 0, "every sample in view lies on the mesh");

@@ -1,5 +1,5 @@
-//! The benchmark's set-up: [`BenchConfig`], each method's swept parameter and its values, and
-//! which flight frames are measured.
+//! The benchmark's set-up: [`BenchConfig`], which sweep values and which flight frames are
+//! measured (each method's swept parameter is in [`crate::method::registry`]).
 
 use terrain_core::measure::MeasureConfig;
 
@@ -15,7 +15,7 @@ pub struct BenchConfig {
     /// included); 0 = every frame. Popping is then measured between consecutive *sampled*
     /// frames. Default 60.
     pub max_frames: usize,
-    /// Sweep points per method, taken evenly from [`sweep_values`]' full list (which has 4-6).
+    /// Sweep points per method, taken evenly from [`crate::method::registry::sweep_values`]' full list (which has 4-6).
     /// Default 5.
     pub sweep_points: usize,
     /// Rendered image size when a GPU is given; `None` measures without rendering. Default
@@ -84,36 +84,6 @@ impl BenchConfig {
     }
 }
 
-/// The swept parameter of `method`: its name and its full list of values, most detailed
-/// first. `uniform`: the factor, `leaf_cells / 8 .. leaf_cells` (factor `leaf_cells` is full
-/// resolution); PVPS: Eq. 8's `C1` (larger splits less); DSS: `rho_thr` in pixels.
-pub fn sweep_values(method: LodMethod, leaf_cells: u32) -> (&'static str, Vec<f64>) {
-    match method {
-        LodMethod::Uniform => {
-            let l = f64::from(leaf_cells.max(2));
-            let mut v: Vec<f64> = [l, l / 2.0, l / 4.0, l / 8.0].map(|f| f.max(2.0)).to_vec();
-            v.dedup();
-            ("factor", v)
-        }
-        LodMethod::PvpsA | LodMethod::PvpsB | LodMethod::PvpsC => {
-            ("C1", vec![12.5, 25.0, 50.0, 100.0, 200.0])
-        }
-        LodMethod::Dss1 | LodMethod::Dss2 | LodMethod::DssStrips => {
-            ("rho_thr", vec![0.25, 0.5, 1.0, 2.0, 4.0, 8.0])
-        }
-        // E0 in percent of the largest entropy (the paper's 10..18 barely simplify at our
-        // entropy scale; see `terrain_visibility::entropy::source::EntropyScale`). E0 = 0 is
-        // the full-depth mesh, the uniform method's job, and seconds per frame: not swept.
-        LodMethod::Entropy => ("E0", vec![18.0, 50.0, 70.0, 85.0, 95.0]),
-        LodMethod::Geomorph => ("tau_px", vec![0.5, 1.0, 2.0, 4.0, 8.0]),
-        LodMethod::PvpsCPvs | LodMethod::PvpsCConservative => {
-            ("C1", vec![12.5, 25.0, 50.0, 100.0, 200.0])
-        }
-        // Qiu 2013 Eq. 7 threshold, pixels (the paper's figures use 2).
-        LodMethod::OutOfCore => ("tau", vec![0.5, 1.0, 2.0, 4.0, 8.0]),
-    }
-}
-
 /// `points` values taken evenly from `all` (both ends included); all of them when `points`
 /// is at least their number.
 pub fn pick_evenly(all: &[f64], points: usize) -> Vec<f64> {
@@ -143,18 +113,4 @@ pub fn frame_indices(n: usize, max: usize) -> Vec<usize> {
         (0..max).map(|k| ((k * (n - 1)) as f64 / (max - 1) as f64).round() as usize).collect();
     v.dedup();
     v
-}
-
-/// Sets `method`'s swept parameter in `config`.
-pub fn apply_parameter(config: &mut MethodConfig, method: LodMethod, value: f64) {
-    match method {
-        LodMethod::Uniform => config.uniform_factor = value as f32,
-        LodMethod::PvpsA | LodMethod::PvpsB | LodMethod::PvpsC => config.pvps.c1 = value,
-        LodMethod::Dss1 | LodMethod::Dss2 | LodMethod::DssStrips => config.dss.rho_thr = value,
-        LodMethod::Entropy => config.entropy.e0 = value,
-        LodMethod::Geomorph => config.geomip.pixel_threshold = value,
-        LodMethod::PvpsCPvs | LodMethod::PvpsCConservative => config.pvps.c1 = value,
-        // tau belongs to the out-of-core runtime (OocConfig), set by run_bench.
-        LodMethod::OutOfCore => {}
-    }
 }

@@ -4,7 +4,6 @@
 use std::fmt::Write as _;
 
 use super::record::{BenchReport, RunRecord, median};
-use crate::methods::LodMethod;
 use crate::ooc::StreamRecord;
 
 fn opt4(x: Option<f64>) -> String {
@@ -95,7 +94,7 @@ impl BenchReport {
             }
         }
         let ooc: Vec<&RunRecord> =
-            self.runs.iter().filter(|r| r.method == LodMethod::OutOfCore).collect();
+            self.runs.iter().filter(|r| r.frames.iter().any(|f| f.stream.is_some())).collect();
         if !ooc.is_empty() {
             s.push_str(
                 "\n## Out-of-core streaming (the paper's Table 3 columns)\n\n\

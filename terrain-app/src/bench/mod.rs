@@ -1,10 +1,11 @@
 //! The benchmark: every LOD method over every flight with identical cameras, each method's
 //! threshold swept, every frame timed by stage and measured exactly against the full DEM.
 //!
-//! Per frame ([`FrameRecord`]): the selection (timed), the drawn surface rebuilt on the CPU with
-//! terrain-gpu's tessellator reference ([`terrain_gpu::tess::tessellate`], so the measurement
-//! sees exactly what the GPU draws; timed), the errors ([`Measurer`]), and, when a GPU exists,
-//! the frame drawn by [`TerrainRenderer`] (CPU encode/upload, wall and GPU times where the
+//! Per frame ([`FrameRecord`], through the one frame loop [`crate::method::FrameLoop`]): the
+//! selection (timed), the drawn surface rebuilt on the CPU with the renderer's reference
+//! (terrain-gpu's tessellator, morph or paged lookup, so the measurement sees exactly what the
+//! GPU draws; timed), the errors ([`terrain_core::measure::Measurer`]), and, when a GPU exists,
+//! the frame drawn by the method's renderer (CPU encode/upload, wall and GPU times where the
 //! adapter's timestamps are trustworthy). [`BenchReport`] serialises to JSON and renders
 //! Markdown ([`BenchReport::to_markdown`]) and a hand-written SVG ([`BenchReport::to_svg`]):
 //! triangles and CPU milliseconds against the 99th-percentile pixel error, one curve per method.
@@ -15,14 +16,14 @@
 //! frames and runs in a fixed order.
 
 mod config;
-mod frame;
 mod markdown;
 mod record;
 mod run;
 mod svg;
 
-pub use config::{BenchConfig, apply_parameter, frame_indices, pick_evenly, sweep_values};
-pub use frame::{FrameRunner, entropy_extra};
+pub use crate::method::entropy_extra;
+pub use crate::method::registry::{apply_parameter, sweep_values};
+pub use config::{BenchConfig, frame_indices, pick_evenly};
 pub use record::{
     BenchReport, FlightInfo, FrameRecord, RunRecord, RunSummary, process_cpu_s, rss_bytes,
     thread_cpu_s,

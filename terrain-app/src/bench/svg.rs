@@ -4,25 +4,8 @@
 use std::fmt::Write as _;
 
 use super::record::{BenchReport, RunRecord, RunSummary};
+use crate::method::registry::colour;
 use crate::methods::LodMethod;
-
-/// A method's colour in the plots.
-fn colour(m: LodMethod) -> &'static str {
-    match m {
-        LodMethod::Uniform => "#555555",
-        LodMethod::PvpsA => "#1f77b4",
-        LodMethod::PvpsB => "#2ca02c",
-        LodMethod::PvpsC => "#d62728",
-        LodMethod::Dss1 => "#9467bd",
-        LodMethod::Dss2 => "#ff7f0e",
-        LodMethod::Entropy => "#8c564b",
-        LodMethod::Geomorph => "#e377c2",
-        LodMethod::PvpsCPvs => "#bcbd22",
-        LodMethod::PvpsCConservative => "#17becf",
-        LodMethod::DssStrips => "#7f7f7f",
-        LodMethod::OutOfCore => "#aec7e8",
-    }
-}
 
 /// Smallest pixel error the log axis shows; smaller ones (full resolution: 0) sit on it.
 const PX_FLOOR: f64 = 1e-3;

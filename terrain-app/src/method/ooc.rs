@@ -1,0 +1,110 @@
+//! The out-of-core paper's (Qiu 2013) method over a baked store, as a [`Method`]: its state
+//! (the streaming runtime and the pages, [`OocScene`], used through its public methods) lives
+//! here; each frame hands the paged renderer the runtime's patches and page changes, and the
+//! surface is rebuilt from the pages' heights (the CPU mirror of the paged renderer).
+
+use terrain_core::geometry::Camera;
+
+use super::{
+    BlockStats, Draw, DrawnSurface, Frame, FrameRenderer, Method, MethodStats, RendererKind,
+};
+use crate::methods::{LodMethod, MethodScene, drawn_surface_of};
+use crate::ooc::OocScene;
+
+/// When an out-of-core frame waits for the workers until the levels it needs are resident.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum OocWait {
+    /// The first frame only (an image is not empty); later frames draw what is resident.
+    FirstFrame,
+    /// Every frame (measurements: the error is the selection's, not the stream's).
+    EveryFrame,
+}
+
+/// `ooc` over one store's runtime.
+#[derive(Debug)]
+pub struct OocMethod<'a> {
+    scene: OocScene,
+    /// The in-memory DEM the drawn surface is measured against (the benchmark's).
+    reference: Option<&'a MethodScene>,
+    wait: OocWait,
+    frames: usize,
+}
+
+impl<'a> OocMethod<'a> {
+    /// The method over `scene`, not measured.
+    pub fn new(scene: OocScene, wait: OocWait) -> Self {
+        Self { scene, reference: None, wait, frames: 0 }
+    }
+
+    /// The method over `scene` with its drawn surface measurable against `reference` (the same
+    /// DEM in memory): keeps a CPU mirror of the pages. Fails when the store's blocks do not
+    /// tile the reference's quadtree.
+    pub fn measured(
+        scene: OocScene,
+        reference: &'a MethodScene,
+        wait: OocWait,
+    ) -> anyhow::Result<Self> {
+        let scene = scene.with_mirror();
+        if scene.root_cells() != reference.qt.root_cells() {
+            anyhow::bail!(
+                "the store's blocks ({} cells) do not tile the DEM's quadtree (root {} cells): bake with a smaller k",
+                scene.store().header().block_cells(),
+                reference.qt.root_cells()
+            );
+        }
+        Ok(Self { scene, reference: Some(reference), wait, frames: 0 })
+    }
+
+    /// The runtime.
+    pub fn scene(&self) -> &OocScene {
+        &self.scene
+    }
+}
+
+impl Method for OocMethod<'_> {
+    fn kind(&self) -> LodMethod {
+        LodMethod::OutOfCore
+    }
+
+    fn frame(&mut self, camera: &Camera) -> Frame {
+        let warm = self.wait == OocWait::EveryFrame || self.frames == 0;
+        self.frames += 1;
+        let mut f = self.scene.frame(camera, warm);
+        let selection = std::mem::take(&mut f.selection);
+        let stats = MethodStats {
+            selection_ms: selection.stats.cpu_time.as_secs_f64() * 1e3,
+            patches: selection.patches.len(),
+            stream: Some(f.stream.clone()),
+            blocks: Some(BlockStats {
+                blocks_drawn: f.blocks_drawn,
+                blocks_dropped: f.blocks_dropped,
+                pages_uploaded: f.updates.iter().filter(|u| u.fill.is_some()).count(),
+            }),
+            ..MethodStats::default()
+        };
+        Frame { selection, draw: Draw::Paged(Box::new(f)), stats, built: None }
+    }
+
+    /// The surface drawn from the pages' heights (the paged renderer's CPU reference).
+    fn surface(&self, frame: &mut Frame) -> anyhow::Result<DrawnSurface> {
+        let Some(reference) = self.reference else {
+            anyhow::bail!("the out-of-core method is measured only against a DEM in memory");
+        };
+        let mirror = self.scene.mirror().expect("a measured runtime keeps its mirror");
+        let drawn = mirror.to_heightmap(&reference.hm);
+        let (mesh, triangles) = drawn_surface_of(&drawn, &reference.qt, &frame.selection);
+        Ok(DrawnSurface { mesh, triangles })
+    }
+
+    fn renderer_kind(&self) -> RendererKind {
+        RendererKind::Paged
+    }
+
+    fn renderer(
+        &self,
+        ctx: &terrain_gpu::GpuContext,
+        config: &terrain_gpu::RenderConfig,
+    ) -> anyhow::Result<FrameRenderer> {
+        FrameRenderer::paged(&self.scene, ctx, config)
+    }
+}

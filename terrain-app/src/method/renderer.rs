@@ -1,0 +1,270 @@
+//! The renderer-facing half of the frame loop: [`FrameRenderer`] draws a method's [`Frame`]
+//! with the renderer its [`Draw`] needs: terrain-gpu's tessellation renderer (patches and extra
+//! triangles), its geomorph renderer (vertex-shader morph), or the paged renderer of a store
+//! (page changes applied first). It also counts the bytes a frame uploads.
+
+use std::time::Instant;
+
+use glam::DVec3;
+use terrain_core::Heightmap;
+use terrain_core::geometry::Camera;
+use terrain_gpu::geomorph::{GeomorphConfig, GeomorphOptions, GeomorphRenderer};
+use terrain_gpu::tess::{GpuPatchFactors, PatchRange};
+use terrain_gpu::{GpuContext, RenderConfig, RenderOptions, RgbaImage, TerrainRenderer};
+
+use super::{Draw, Frame};
+use crate::ooc::OocScene;
+
+/// Which renderer a method's frames need.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum RendererKind {
+    /// The tessellation renderer over the whole heightmap (shareable between methods).
+    Tessellation,
+    /// The geomorph renderer over the whole heightmap (shareable between methods).
+    Geomorph,
+    /// A paged renderer tied to one store's runtime (one per method instance).
+    Paged,
+}
+
+impl RendererKind {
+    /// Whether one renderer of this kind can draw the frames of several method instances in
+    /// turn (it holds only the terrain); a paged renderer holds one runtime's pages.
+    pub fn shareable(self) -> bool {
+        self != RendererKind::Paged
+    }
+}
+
+#[derive(Debug)]
+enum Inner {
+    Tessellation(TerrainRenderer),
+    Geomorph(GeomorphRenderer),
+    Paged(TerrainRenderer),
+}
+
+/// A renderer that draws [`Frame`]s.
+#[derive(Debug)]
+pub struct FrameRenderer {
+    inner: Inner,
+    /// Bytes of the per-column and per-row anchor offsets, uploaded when the anchor moves
+    /// (whole-heightmap renderers).
+    anchor_bytes: u64,
+    /// Bytes of one page (paged renderer).
+    page_bytes: u64,
+}
+
+/// What drawing one frame cost and drew.
+#[derive(Debug, Clone, PartialEq)]
+pub struct DrawStats {
+    /// Patches drawn.
+    pub patches: usize,
+    /// Non-degenerate triangles drawn.
+    pub triangles: u64,
+    /// Vertices the tessellator generated (tessellation renderers).
+    pub vertices: Option<u64>,
+    /// Renderer CPU time to upload, encode and submit, ms.
+    pub cpu_ms: f64,
+    /// Wall time of the renderer's call, including the wait for the GPU, ms.
+    pub wall_ms: f64,
+    /// GPU time where trustworthy, ms.
+    pub gpu_ms: Option<f64>,
+    /// GPU time of the draw pass, ms.
+    pub gpu_draw_ms: Option<f64>,
+    /// Whether the GPU tessellation pass ran (tessellation renderers).
+    pub tessellated: Option<bool>,
+    /// Bytes uploaded this frame.
+    pub upload_bytes: u64,
+    /// Material passes skipped (geomorph renderer).
+    pub passes_skipped: Option<usize>,
+    /// The GPU time as a user reads it.
+    pub gpu_text: String,
+    /// The adapter.
+    pub adapter: String,
+}
+
+/// Upload bookkeeping of one run of frames (the frame loop's).
+#[derive(Debug, Clone, Copy, Default)]
+pub(crate) struct Uploads {
+    last_anchor: Option<DVec3>,
+    drawn: bool,
+}
+
+impl FrameRenderer {
+    /// The tessellation renderer over `hm`.
+    pub fn tessellation(
+        ctx: &GpuContext,
+        hm: &Heightmap,
+        config: &RenderConfig,
+    ) -> anyhow::Result<Self> {
+        Ok(Self {
+            inner: Inner::Tessellation(TerrainRenderer::new(ctx, hm, config)?),
+            anchor_bytes: 4 * (hm.width() + hm.height()) as u64,
+            page_bytes: 0,
+        })
+    }
+
+    /// The geomorph renderer over `hm` with patches of `patch_cells` cells.
+    pub fn geomorph(
+        ctx: &GpuContext,
+        hm: &Heightmap,
+        patch_cells: u32,
+        config: &RenderConfig,
+    ) -> anyhow::Result<Self> {
+        let config = GeomorphConfig {
+            width: config.width,
+            height: config.height,
+            patch_cells,
+            background: config.background,
+            ..Default::default()
+        };
+        Ok(Self {
+            inner: Inner::Geomorph(GeomorphRenderer::new(ctx, hm, &config)?),
+            anchor_bytes: 4 * (hm.width() + hm.height()) as u64,
+            page_bytes: 0,
+        })
+    }
+
+    /// The paged renderer of a store's runtime (see [`OocScene::renderer`]).
+    pub fn paged(
+        scene: &OocScene,
+        ctx: &GpuContext,
+        config: &RenderConfig,
+    ) -> anyhow::Result<Self> {
+        Ok(Self {
+            inner: Inner::Paged(scene.renderer(ctx, config)?),
+            anchor_bytes: 0,
+            page_bytes: scene.layout().page_len() as u64 * 4,
+        })
+    }
+
+    /// Its kind.
+    pub fn kind(&self) -> RendererKind {
+        match self.inner {
+            Inner::Tessellation(_) => RendererKind::Tessellation,
+            Inner::Geomorph(_) => RendererKind::Geomorph,
+            Inner::Paged(_) => RendererKind::Paged,
+        }
+    }
+
+    /// The tessellation (or paged) renderer inside, for its figures (page classes, capacity).
+    pub fn terrain_renderer(&self) -> Option<&TerrainRenderer> {
+        match &self.inner {
+            Inner::Tessellation(r) | Inner::Paged(r) => Some(r),
+            Inner::Geomorph(_) => None,
+        }
+    }
+
+    /// The last frame's image.
+    pub fn read_image(&self) -> anyhow::Result<RgbaImage> {
+        Ok(match &self.inner {
+            Inner::Tessellation(r) | Inner::Paged(r) => r.read_image()?,
+            Inner::Geomorph(r) => r.read_image()?,
+        })
+    }
+
+    /// Applies what `frame` changes in the renderer's state without drawing (a store's page
+    /// changes); nothing for the other renderers, which hold no per-frame state.
+    pub(crate) fn apply(&mut self, frame: &Frame) -> anyhow::Result<()> {
+        if let (Inner::Paged(r), Draw::Paged(f)) = (&mut self.inner, &frame.draw) {
+            OocScene::apply(r, f)?;
+        }
+        Ok(())
+    }
+
+    /// Draws `frame` from `camera`.
+    pub(crate) fn draw(
+        &mut self,
+        camera: &Camera,
+        frame: &Frame,
+        options: &RenderOptions,
+        uploads: &mut Uploads,
+    ) -> anyhow::Result<DrawStats> {
+        let anchor = TerrainRenderer::anchor_for(camera.position);
+        let moved = uploads.last_anchor != Some(anchor);
+        let first = !uploads.drawn;
+        let anchor_bytes = if moved { self.anchor_bytes } else { 0 };
+        let stats = match (&mut self.inner, &frame.draw) {
+            (Inner::Tessellation(r), Draw::Tessellated { patches, extra }) => {
+                let t = Instant::now();
+                let s = r.render_with_extra(camera, patches, extra, options)?;
+                let wall_ms = ms(t);
+                let mut bytes = 128u64;
+                if s.tessellated || first {
+                    let per_patch = size_of::<GpuPatchFactors>() + size_of::<PatchRange>() + 16;
+                    bytes += (patches.len() * per_patch) as u64;
+                }
+                // Extra triangles (strips, the entropy mesh) are uploaded every frame.
+                bytes += (extra.points.len() * 16 + extra.indices.len() * 4) as u64;
+                DrawStats {
+                    patches: s.patches,
+                    triangles: s.triangles,
+                    vertices: Some(s.vertices),
+                    cpu_ms: s.cpu_ms,
+                    wall_ms,
+                    gpu_ms: s.gpu_ms,
+                    gpu_draw_ms: s.gpu_draw_ms,
+                    tessellated: Some(s.tessellated),
+                    upload_bytes: bytes + anchor_bytes,
+                    passes_skipped: None,
+                    gpu_text: s.gpu_text(),
+                    adapter: s.adapter,
+                }
+            }
+            (Inner::Geomorph(r), Draw::Morph(lods)) => {
+                let t = Instant::now();
+                let s = r.render(camera, &lods.patches, &GeomorphOptions::default())?;
+                let wall_ms = ms(t);
+                DrawStats {
+                    patches: s.patches,
+                    triangles: s.triangles,
+                    vertices: None,
+                    cpu_ms: s.cpu_ms,
+                    wall_ms,
+                    gpu_ms: None,
+                    gpu_draw_ms: None,
+                    tessellated: None,
+                    upload_bytes: s.upload_bytes + anchor_bytes,
+                    passes_skipped: Some(s.passes_skipped),
+                    gpu_text: "n/a (the geomorph renderer has no timestamps)".to_string(),
+                    adapter: s.adapter,
+                }
+            }
+            (Inner::Paged(r), Draw::Paged(f)) => {
+                OocScene::apply(r, f)?;
+                let t = Instant::now();
+                let s = r.render(camera, &f.patches, options)?;
+                let wall_ms = ms(t);
+                let pages = f.updates.iter().filter(|u| u.fill.is_some()).count() as u64;
+                DrawStats {
+                    patches: s.patches,
+                    triangles: s.triangles,
+                    vertices: Some(s.vertices),
+                    cpu_ms: s.cpu_ms,
+                    wall_ms,
+                    gpu_ms: s.gpu_ms,
+                    gpu_draw_ms: s.gpu_draw_ms,
+                    tessellated: Some(s.tessellated),
+                    upload_bytes: 128 + pages * self.page_bytes,
+                    passes_skipped: None,
+                    gpu_text: s.gpu_text(),
+                    adapter: s.adapter,
+                }
+            }
+            (_, draw) => anyhow::bail!(
+                "the {:?} renderer cannot draw a {} frame",
+                self.kind(),
+                match draw {
+                    Draw::Tessellated { .. } => "tessellated",
+                    Draw::Morph(_) => "geomorph",
+                    Draw::Paged(_) => "paged",
+                }
+            ),
+        };
+        uploads.last_anchor = Some(anchor);
+        uploads.drawn = true;
+        Ok(stats)
+    }
+}
+
+fn ms(t: Instant) -> f64 {
+    t.elapsed().as_secs_f64() * 1e3
+}
