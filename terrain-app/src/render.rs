@@ -247,6 +247,7 @@ pub fn run(args: &RenderArgs) -> anyhow::Result<()> {
         };
         let start = std::time::Instant::now();
         let s = renderer.render_with_extra(&camera, &patches, &extra, &options)?;
+        say_batches(&renderer, &s);
         // The renderer waits for the GPU before returning, so this is the frame's whole cost
         // after selection: encode, tessellate (when the patches changed), draw.
         let wall_ms = start.elapsed().as_secs_f64() * 1e3;
@@ -429,6 +430,7 @@ fn run_store(
         ooc::OocScene::apply(&mut renderer, &f)?;
         let start = std::time::Instant::now();
         let s = renderer.render(&camera, &f.patches, &options)?;
+        say_batches(&renderer, &s);
         let wall_ms = start.elapsed().as_secs_f64() * 1e3;
         let selection_ms = f.selection.stats.cpu_time.as_secs_f64() * 1e3;
         let st = &f.stream;
@@ -510,6 +512,19 @@ fn run_store(
             .with_context(|| format!("could not write {}", path.display()))?;
     }
     save_image(&renderer, &args.output)
+}
+
+/// Says when a frame's tessellation did not fit the device's largest storage binding and was
+/// drawn in several compute + draw batches.
+fn say_batches(renderer: &TerrainRenderer, s: &terrain_gpu::render::FrameStats) {
+    if s.batches > 1 {
+        println!(
+            "  the frame's tessellated points or indices exceed the device's {} byte binding \
+             limit: drawn in {} compute + draw batches",
+            renderer.batch_limit_bytes(),
+            s.batches
+        );
+    }
 }
 
 #[cfg(test)]
