@@ -1,20 +1,13 @@
 //! The out-of-core paper's method (Qiu 2013) end to end over a baked store: per frame the
 //! [`Streamer`] (regions M and N, Eq. 8 preloading one frame ahead on the workers, real time:
-//! no frame waits for I/O after the first, late data counted; `warm` frames wait on purpose), the projected-frustum block culling of 3.1 (the blocks of M), the
-//! bounding-circle node test and the dynamic LOD construction of 3.3 with the sight-line
-//! screen error of Eq. 7 and threshold `tau` ([`terrain_stream::lod::select_nodes`]), then
-//! patches with tessellation factors and the pages of heights the renderer needs.
-//!
-//! **From nodes to crack-free patches.** A block's selected nodes are clamped to its resident
-//! levels (a node below the finest resident level is replaced by its ancestor at that level:
-//! the runtime serves coarser levels while finer ones load), placed in the quadtree of the
-//! whole grid (a block is a node of level `log2(root / block cells)`), balanced across blocks
-//! (`terrain_core::quadtree::balance_with`: neighbours within one level) and given factors by
-//! terrain-core's one [`EdgeRule`] resolver: factor 2 everywhere, 4 on a coarse edge that meets
-//! two finer patches, which then take 4 / 2 = 2 each, so both sides of every shared edge have
-//! the same vertices ([`check_shared_edges`] holds). A node is drawn with factor 2: its corners
-//! and its edge and centre midpoints. The paper draws a node as a fan of its corners and edge
-//! midpoints; the midpoints are the next level's vertices, read from the block's page.
+//! no frame waits for I/O after the first, late data counted; `warm` frames wait on purpose),
+//! the projected-frustum block culling of 3.1 (the blocks of M), then
+//! terrain-stream's crack-free patch selection ([`terrain_stream::lod::select_patches`]:
+//! terrain-core's one traversal over the store's index with the Eq. 7 split and the
+//! bounding-circle cull, patches of at least [`OocConfig::patch_cells`] cells clamped to each
+//! block's page level, balanced, tessellation factors from Eq. 7 and terrain-core's one
+//! `EdgeRule` resolver), and the pages of heights the renderer needs. This module is only the
+//! glue between the streamer, the selection and the renderer's pages.
 //!
 //! **Pages.** Each drawn block is one page of the renderer ([`terrain_gpu::paged`]) stored at
 //! the resolution it is drawn at: its level-`L` lattice, `(2^L + 1)^2` samples at stride
@@ -29,23 +22,20 @@
 //! Heights never exist for the whole grid: the device (and the optional CPU mirror the
 //! benchmark measures) holds the drawn blocks only.
 
-use std::collections::{BTreeMap, BTreeSet};
+use std::collections::{BTreeMap, HashMap};
 use std::path::Path;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use glam::{DVec2, DVec3, dvec3};
 use terrain_core::geometry::Camera;
-use terrain_core::lod::{
-    Edge, EdgeRule, Patch, Selection, SelectionStats, check_shared_edges, outer_factors,
-};
-use terrain_core::quadtree::{LeafSet, NodeId, balance_with};
+use terrain_core::lod::{Selection, check_shared_edges};
 use terrain_core::{Crs, Georef, Heightmap};
 use terrain_gpu::paged::{Page, PageClass, PageLayout, PagedHeights, classes_for_budget};
 use terrain_gpu::render::DrawPatch;
 use terrain_gpu::{RenderError, TerrainRenderer};
 use terrain_stream::format::{INDEX_FILE, MAGIC};
-use terrain_stream::lod::{View, select_nodes};
+use terrain_stream::lod::{DEFAULT_PATCH_CELLS, StoreTree, select_patches};
 use terrain_stream::schedule::ScheduleConfig;
 use terrain_stream::{BlockId, Store, StoreError, StreamConfig, Streamer};
 
@@ -72,6 +62,10 @@ pub struct OocConfig {
     /// A warm frame ([`OocScene::frame`] with `warm`) waits at most this long for its needed
     /// levels ([`Streamer::wait_until_resident`]). Default 60 s.
     pub warm_timeout: Duration,
+    /// Smallest patch, cells per side (a power of two, at most a block); patches are drawn by
+    /// the tessellator with factors up to their cells. Default
+    /// [`terrain_stream::lod::DEFAULT_PATCH_CELLS`].
+    pub patch_cells: u32,
 }
 
 impl Default for OocConfig {
@@ -84,6 +78,7 @@ impl Default for OocConfig {
             page_capacity: 1024,
             max_in_flight: 32,
             warm_timeout: Duration::from_secs(60),
+            patch_cells: DEFAULT_PATCH_CELLS,
         }
     }
 }
@@ -272,25 +267,6 @@ pub struct OocFrame {
     pub blocks_dropped: usize,
 }
 
-/// Factor 2 everywhere, 4 on a coarse edge facing finer patches (balanced: one level finer).
-struct OocEdges;
-
-impl EdgeRule for OocEdges {
-    fn same_level(&self, _: NodeId, _: Edge, _: NodeId) -> f32 {
-        2.0
-    }
-
-    fn coarse_edge(&self, coarse: NodeId, _: Edge, finer: &[NodeId]) -> f32 {
-        // A power of two >= 2^(d + 1) (terrain-core's EdgeRule contract); d = 1 after balancing.
-        let d = finer.iter().map(|n| n.level - coarse.level).max().unwrap_or(1).min(5);
-        (2u32 << d) as f32
-    }
-
-    fn unshared(&self, _: NodeId, _: Edge) -> f32 {
-        2.0
-    }
-}
-
 /// The out-of-core method over one store.
 #[derive(Debug)]
 pub struct OocScene {
@@ -298,9 +274,8 @@ pub struct OocScene {
     streamer: Streamer,
     config: OocConfig,
     layout: PageLayout,
-    /// Global quadtree level of a whole block.
-    block_level: u8,
-    root_cells: u32,
+    /// The store's quadtree (the selection's node source).
+    tree: StoreTree,
     height_range: [f32; 2],
     /// Level each page currently holds.
     pages: BTreeMap<[u32; 2], u8>,
@@ -320,8 +295,6 @@ impl OocScene {
     pub fn new(store: Arc<Store>, config: OocConfig) -> Self {
         let h = store.header().clone();
         let cells = h.block_cells();
-        let blocks = h.blocks_x.max(h.blocks_y).next_power_of_two();
-        let block_level = blocks.trailing_zeros() as u8;
         let (mut lo, mut hi) = (f32::INFINITY, f32::NEG_INFINITY);
         for id in store.block_ids() {
             if let Some(e) = store.entry(id) {
@@ -347,12 +320,11 @@ impl OocScene {
         let mut classes = classes_for_budget(&layout, config.page_budget_bytes);
         classes[0].capacity = classes[0].capacity.min(config.page_capacity.max(1));
         Self {
+            tree: StoreTree::new(store.clone(), config.patch_cells),
             store,
             streamer,
             config,
             layout,
-            block_level,
-            root_cells: blocks * cells,
             height_range: [lo, hi],
             pages: BTreeMap::new(),
             classes,
@@ -394,7 +366,7 @@ impl OocScene {
 
     /// Cells per side of the root of the whole grid's quadtree the patches live in.
     pub fn root_cells(&self) -> u32 {
-        self.root_cells
+        self.tree.root_cells()
     }
 
     /// The settings.
@@ -422,16 +394,6 @@ impl OocScene {
         )
     }
 
-    /// Whether global node `n` holds a grid cell (and is no finer than a block's finest level).
-    fn contains(&self, n: NodeId) -> bool {
-        let k = self.store.header().k;
-        if n.level > self.block_level + k {
-            return false;
-        }
-        let (x0, y0, _) = n.grid_rect(self.root_cells);
-        x0 + 1 < self.layout.grid[0] && y0 + 1 < self.layout.grid[1]
-    }
-
     /// One frame for `camera`, real time by default: the streamer never waits for I/O after
     /// the session's first frame (which loads the visible blocks' coarse levels), each block is
     /// drawn at its finest resident level, and what arrived late is counted in the
@@ -448,10 +410,7 @@ impl OocScene {
         let mut stream = StreamRecord::new(&s);
         stream.stream_ms = t0.elapsed().as_secs_f64() * 1e3;
 
-        let select_start = Instant::now();
         let header = self.store.header().clone();
-        let view = View::new(camera, self.config.tau);
-        let region = self.streamer.regions().map(|r| r.view.clone());
         let mut drawn: Vec<(BlockId, u8)> = Vec::new();
         let mut dropped = 0;
         // Slots taken per class this frame: each block, nearest first, takes the finest of its
@@ -470,54 +429,16 @@ impl OocScene {
             used[header.k as usize - level] += 1;
             drawn.push((s.block, level as u8));
         }
-        let mut leaves = Vec::new();
-        let mut visited = 0;
-        if let Some(region) = &region {
-            for &(id, resident) in &drawn {
-                let Some(e) = self.store.entry(id) else { continue };
-                let nodes = select_nodes(&header, e, id, &view, region);
-                visited += nodes.len();
-                let clamped: BTreeSet<NodeId> =
-                    nodes.iter().map(|n| n.ancestor(n.level.min(resident))).collect();
-                for n in clamped {
-                    leaves.push(NodeId::new(
-                        self.block_level + n.level,
-                        (id.col << n.level) + n.i,
-                        (id.row << n.level) + n.j,
-                    ));
-                }
-            }
-        }
-        let traversal_leaves = leaves.len();
-        let leaves = balance_with(&leaves, |n| self.contains(n));
-        let set = LeafSet::new(leaves.iter().copied());
-        let patches: Vec<Patch> = leaves
-            .iter()
-            .map(|&node| Patch {
-                node,
-                outer: outer_factors(&set, node, &OocEdges),
-                inner: [2.0; 2],
-            })
-            .collect();
-        let max_level = patches.iter().map(|p| p.node.level).max().unwrap_or(0);
-        let selection = Selection {
-            stats: SelectionStats {
-                visited,
-                traversal_leaves,
-                balance_added: patches.len().saturating_sub(traversal_leaves),
-                patches: patches.len(),
-                max_level,
-                cpu_time: select_start.elapsed(),
-                ..SelectionStats::default()
-            },
-            patches,
-        };
+        // The crack-free patches over the drawn blocks, each at most at its page's level.
+        let page_level: HashMap<BlockId, u8> = drawn.iter().copied().collect();
+        let selection =
+            select_patches(&self.tree, camera, self.config.tau, |b| page_level.get(&b).copied());
         debug_assert!(check_shared_edges(&selection).is_empty());
         let draw = selection
             .patches
             .iter()
             .map(|p| {
-                let (x0, y0, c) = p.node.grid_rect(self.root_cells);
+                let (x0, y0, c) = p.node.grid_rect(self.tree.root_cells());
                 DrawPatch { rect: [x0, y0, x0 + c, y0 + c], factors: patch_factors(p) }
             })
             .collect();

@@ -204,6 +204,7 @@ fn draw_frames(
     for (frame, camera) in (1u32..).zip(cameras) {
         let f = frames.frame(frame as usize - 1, camera, None)?;
         let s = f.drawn.as_ref().expect("render draws every frame");
+        say_batches(frames, s.batches);
         let r = &f.record;
         // What the frame computed before drawing: the selection (and the entropy mesh's build).
         let selection_ms = r.selection_ms + r.cpu_tess_ms;
@@ -487,6 +488,21 @@ fn run_store(
             .with_context(|| format!("could not write {}", path.display()))?;
     }
     save_image(&renderer, &args.output)
+}
+
+/// Says when a frame was drawn in several batches (its tessellated points or indices exceed
+/// the device's largest storage binding; the renderer splits the frame rather than refusing it).
+fn say_batches(frames: &mut FrameLoop<'_>, batches: usize) {
+    if batches > 1 {
+        let limit = frames
+            .renderer()
+            .and_then(|r| r.terrain_renderer().map(|t| t.batch_limit_bytes()))
+            .unwrap_or(0);
+        println!(
+            "  the frame's tessellated points or indices exceed the device's {limit} byte binding \
+             limit: drawn in {batches} compute + draw batches"
+        );
+    }
 }
 
 #[cfg(test)]

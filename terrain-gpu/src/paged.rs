@@ -14,10 +14,15 @@
 //!
 //! # The lookup (one rule on the CPU and the GPU)
 //! Sample `(i, j)` (already clamped to the grid) belongs to page
-//! `(min(i / cx, pages_x - 1), min(j / cy, pages_y - 1))`; when that page is not resident and
-//! the sample lies on the page's west (south) border, the page to the west (south), which
-//! holds the same sample, is tried, then the diagonal one ([`PagedHeights::locate`]). Every
-//! sample thus has one value for a given set of resident pages, so the drawn surface (the
+//! `(min(i / cx, pages_x - 1), min(j / cy, pages_y - 1))`; when the sample lies on the page's
+//! west (south) border, the page to the west (south) and the diagonal one hold it too. Of the
+//! resident pages holding it, the one of the **finest** lattice (smallest stride) gives its
+//! value, the first of them in that order where several are equally fine
+//! ([`PagedHeights::locate`]). A border sample is thus exact whenever either side holds it at
+//! full resolution: a coarse neighbour's interpolated value never replaces a finer page's own
+//! border (that step between a page's last sample and a coarse neighbour's border showed as a
+//! dark seam along block borders in the shading). Every sample has one value for a given set
+//! of resident pages, so the drawn surface (the
 //! bilinear interpolation of the samples, [`crate::surface`]) is one continuous function of
 //! the grid position: patches that agree on their shared edges' tessellation meet without
 //! cracks whatever level each page was filled from. A sample on no resident page reads as 0
@@ -284,14 +289,20 @@ impl PagedHeights {
         self.pages.iter()
     }
 
-    /// The resident page holding sample `(i, j)` and the sample's position in it.
+    /// The resident page holding sample `(i, j)` and the sample's position in it: of the
+    /// candidates ([`PageLayout::candidates`]) resident, the one of the smallest stride, the
+    /// first in candidate order among equals (see the module docs).
     pub fn locate(&self, i: u32, j: u32) -> Option<([u32; 2], [u32; 2])> {
         let c = self.layout.cells();
-        self.layout
-            .candidates(i, j)
-            .into_iter()
-            .find(|p| self.pages.contains_key(p))
-            .map(|p| (p, [i - p[0] * c[0], j - p[1] * c[1]]))
+        let mut best: Option<([u32; 2], u32)> = None;
+        for p in self.layout.candidates(i, j) {
+            if let Some(page) = self.pages.get(&p)
+                && best.is_none_or(|(_, s)| page.stride < s)
+            {
+                best = Some((p, page.stride));
+            }
+        }
+        best.map(|(p, _)| (p, [i - p[0] * c[0], j - p[1] * c[1]]))
     }
 
     /// Samples of pages resident: a full-size heightmap of the drawn heights, the rest from
@@ -299,11 +310,12 @@ impl PagedHeights {
     pub fn to_heightmap(&self, fallback: &Heightmap) -> Heightmap {
         let (w, h) = (fallback.width(), fallback.height());
         let mut data = fallback.data().to_vec();
-        // Pages written south to north, west to east: where pages share a sample, the one
-        // written last is the one `locate` tries first among the resident ones (east before
-        // west, north before south), so every sample gets the lookup's value.
+        // Pages written coarse to fine, and among equal strides south to north, west to east:
+        // where pages share a sample, the one written last is the one `locate` picks (the
+        // finest; among equals the first it tries: east before west, north before south), so
+        // every sample gets the lookup's value.
         let mut order: Vec<&[u32; 2]> = self.pages.keys().collect();
-        order.sort_by_key(|p| (p[1], p[0]));
+        order.sort_by_key(|p| (std::cmp::Reverse(self.pages[*p].stride), p[1], p[0]));
         let c = self.layout.cells();
         let [pw, ph] = self.layout.page_samples();
         for p in order {
@@ -511,6 +523,39 @@ mod tests {
     }
 
     #[test]
+    fn shared_samples_come_from_the_finest_page() {
+        let hm = default_terrain();
+        let full = PagedHeights::from_heightmap(&hm, 32);
+        let layout = *full.layout();
+        // Page (0, 0) at full resolution, page (1, 0) east of it at stride 8.
+        let mut mixed = PagedHeights::new(layout);
+        mixed.insert([0, 0], full.get([0, 0]).unwrap().clone()).unwrap();
+        let w = layout.page_samples()[0];
+        let east = &full.get([1, 0]).unwrap().samples;
+        let lattice: Vec<f32> = (0..=4)
+            .flat_map(|b| (0..=4).map(move |a| east[(b * 8 * w + a * 8) as usize]))
+            .collect();
+        mixed.insert([1, 0], Page { samples: lattice, stride: 8 }).unwrap();
+        // The shared column x = 32: exact from the fine page, though the coarse page comes
+        // first in candidate order and would interpolate between its lattice rows.
+        let mut interpolated = 0;
+        for j in 0..=32 {
+            assert_eq!(mixed.locate(32, j).unwrap().0, [0, 0], "row {j}");
+            assert_eq!(mixed.sample(32, j), hm.sample(32, j), "row {j}");
+            let l = &mixed.get([1, 0]).unwrap().samples;
+            let coarse = lattice_bilinear(|a, b| l[(b * 5 + a) as usize], [4, 4], 8, 0, j);
+            interpolated += usize::from(coarse != hm.get(32, j as usize));
+        }
+        assert!(interpolated > 0, "the coarse page's border differs (the control)");
+        // Equal strides: east (the page it falls in) first.
+        assert_eq!(full.locate(32, 5).unwrap().0, [1, 0]);
+        let copy = mixed.to_heightmap(&hm);
+        for j in 0..=32u32 {
+            assert_eq!(Some(copy.get(32, j as usize)), mixed.sample(32, j));
+        }
+    }
+
+    #[test]
     fn a_level_fills_its_page_bilinearly() {
         // A 3 x 3 level (n = 2) into 4 cells: every other sample is a level vertex.
         let level = [0.0, 2.0, 4.0, 1.0, 3.0, 5.0, 2.0, 4.0, 10.0];
@@ -549,14 +594,19 @@ mod tests {
             filled.insert(page, Page { samples: f, stride: 1 }).unwrap();
         }
         let mut differs = 0;
+        let copy = coarse.to_heightmap(&hm);
         for j in 0..hm.height() as u32 {
             for i in 0..hm.width() as u32 {
-                assert_eq!(coarse.sample(i, j), filled.sample(i, j), "({i}, {j})");
+                // Inside a page, the lattice reads like its filled page; a shared border sample
+                // comes from the finest page holding it (the filled pages all claim stride 1).
+                if i % 32 != 0 && j % 32 != 0 {
+                    assert_eq!(coarse.sample(i, j), filled.sample(i, j), "({i}, {j})");
+                }
                 differs += usize::from(coarse.sample(i, j) != hm.sample(i, j));
+                assert_eq!(Some(copy.get(i as usize, j as usize)), coarse.sample(i, j));
             }
         }
         assert!(differs > 1000, "coarse pages change the surface: {differs}");
-        assert_eq!(coarse.to_heightmap(&hm).data(), filled.to_heightmap(&hm).data());
         let bad = Page { samples: vec![0.0; 9], stride: 32 };
         assert!(matches!(coarse.insert([0, 0], bad), Err(PageError::WrongLength { .. })));
         let bad = Page { samples: vec![0.0; 9], stride: 64 };

@@ -1,16 +1,22 @@
 //! Embedding terrain-stream: bake a small synthetic store, open it, drive the scheduler along
-//! a camera path in real time (no frame waits for I/O after the first), wait until the last
-//! frame's needed levels are resident, and read a block's heights at a level. Run with
+//! a camera path in real time (no frame waits for I/O after the first), select the crack-free
+//! patches to draw each frame (quadtree nodes with tessellation factors that agree on every
+//! shared edge), wait until the last frame's needed levels are resident, and read a block's
+//! heights at a level. Run with
 //! `cargo run -p terrain-stream --example embed`.
 
 use std::ops::ControlFlow;
 use std::sync::Arc;
 use std::time::Duration;
 
-use glam::dvec3;
-use terrain_core::geometry::Camera;
+use terrain_core::lod::check_shared_edges;
 use terrain_core::synth::FractalConfig;
-use terrain_stream::{BakeConfig, BakeProgress, Store, StreamConfig, Streamer, bake};
+use terrain_stream::glam::dvec3;
+use terrain_stream::lod::DEFAULT_PATCH_CELLS;
+use terrain_stream::{
+    BakeConfig, BakeProgress, Camera, Store, StoreTree, StreamConfig, Streamer, bake,
+    select_streamed,
+};
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     let dir = std::env::temp_dir().join(format!("terrain-stream-embed-{}", std::process::id()));
@@ -20,6 +26,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     bake(&source, &dir, &config, &mut |_: &BakeProgress| ControlFlow::Continue(()))?;
 
     let store = Arc::new(Store::open(&dir)?);
+    let tree = StoreTree::new(store.clone(), DEFAULT_PATCH_CELLS);
     let mut streamer =
         Streamer::new(store.clone(), StreamConfig { threads: 1, ..Default::default() });
     let mut camera = Camera::from_yaw_pitch(dvec3(1280.0, 0.0, 1800.0), 0.0, -30.0);
@@ -27,14 +34,21 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         let eye = dvec3(1280.0, 100.0 * frame as f64, 1800.0);
         camera = Camera::from_yaw_pitch(eye, 0.0, -30.0).with_clip(1.0, 3000.0);
         let stats = streamer.update(&camera);
+        // What to draw: global quadtree nodes (`node.grid_rect(tree.root_cells())` is a
+        // patch's square of grid samples) with outer and inner tessellation factors.
+        let sel = select_streamed(&tree, &camera, 2.0, &streamer);
+        let mismatches = check_shared_edges(&sel);
+        assert!(mismatches.is_empty(), "shared edges disagree: {mismatches:?}");
+        let triangles: f32 = sel.patches.iter().map(|p| 2.0 * p.inner[0] * p.inner[1]).sum();
         println!(
             "frame {frame}: {} visible blocks, {} synchronous loads, late {} bytes ({} blocks), \
-             {} bytes resident",
+             {} bytes resident, {} patches (about {triangles} triangles), crack-free",
             stats.blocks_visible,
             stats.sync_loads,
             stats.late_bytes,
             stats.late_blocks,
-            stats.resident_bytes
+            stats.resident_bytes,
+            sel.patches.len()
         );
     }
     // Warm on purpose: every level the last frame's visible blocks need becomes resident.

@@ -11,12 +11,17 @@
 //! on worker threads, never waits for I/O after the first frame, and evicts to a byte budget;
 //! [`Streamer::wait_until_resident`] waits until warm on purpose) and [`bake`] (a [`HeightSource`] into a
 //! store). [`format`] documents the bytes on disk; [`lod`] is the CPU side of the paper's
-//! rendering method (bounding-circle culling, Eq. 7 dynamic LOD) per block.
+//! rendering method: [`StoreTree`] (the store's index as terrain-core's `NodeSource`) and
+//! [`select_patches`], the crack-free patch selection an embedder draws (terrain-core's one
+//! traversal with the Eq. 7 split and the bounding-circle cull, clamped to each block's
+//! resident level, balanced, tessellation factors agreeing on every shared edge).
+//! [`glam`] and the [`Camera`] are re-exported, so an embedder needs no other crate of ours.
 //!
 //! # Example
 //!
-//! Bake, open, drive the scheduler from a camera path in real time, wait until the last
-//! frame's needed levels are resident, read a block's heights at a level (the same as
+//! Bake, open, drive the scheduler from a camera path in real time, select the crack-free
+//! patches to draw from the resident levels, wait until the last frame's needed levels are
+//! resident, read a block's heights at a level (the same as
 //! `examples/embed.rs`):
 //!
 //! ```
@@ -24,10 +29,14 @@
 //! use std::sync::Arc;
 //! use std::time::Duration;
 //!
-//! use glam::dvec3;
-//! use terrain_core::geometry::Camera;
+//! use terrain_core::lod::check_shared_edges;
 //! use terrain_core::synth::FractalConfig;
-//! use terrain_stream::{BakeConfig, BakeProgress, Store, StreamConfig, Streamer, bake};
+//! use terrain_stream::glam::dvec3;
+//! use terrain_stream::lod::DEFAULT_PATCH_CELLS;
+//! use terrain_stream::{
+//!     BakeConfig, BakeProgress, Camera, Store, StoreTree, StreamConfig, Streamer, bake,
+//!     select_streamed,
+//! };
 //!
 //! # fn main() -> Result<(), Box<dyn std::error::Error>> {
 //! let dir = std::env::temp_dir().join(format!("terrain-stream-doc-{}", std::process::id()));
@@ -37,6 +46,7 @@
 //! bake(&source, &dir, &config, &mut |_: &BakeProgress| ControlFlow::Continue(()))?;
 //!
 //! let store = Arc::new(Store::open(&dir)?);
+//! let tree = StoreTree::new(store.clone(), DEFAULT_PATCH_CELLS);
 //! let mut streamer = Streamer::new(store, StreamConfig { threads: 1, ..Default::default() });
 //! let mut camera = Camera::from_yaw_pitch(dvec3(640.0, 0.0, 900.0), 0.0, -30.0);
 //! for frame in 0..10 {
@@ -45,6 +55,10 @@
 //!     // Real time: never waits after the first frame; late data is counted.
 //!     let stats = streamer.update(&camera);
 //!     assert!(stats.faults.is_empty());
+//!     // Patches (quadtree nodes of the whole grid) with tessellation factors, crack-free.
+//!     let patches = select_streamed(&tree, &camera, 2.0, &streamer);
+//!     assert!(!patches.patches.is_empty());
+//!     assert!(check_shared_edges(&patches).is_empty());
 //! }
 //! let warm = streamer.wait_until_resident(&camera, Duration::from_secs(30));
 //! assert!(warm.resident);
@@ -77,8 +91,11 @@ mod workers;
 pub use bake::{BakeConfig, BakeProgress, BakeReport, HeightEncoding, bake};
 pub use error::{BakeError, StoreError};
 pub use format::{BlockId, Codec, DssBlockErrors, Header};
+pub use glam;
+pub use lod::{StoreTree, select_patches, select_streamed};
 pub use source::HeightSource;
 pub use stats::{FrameStats, StatsSummary};
 pub use store::{BlockLevels, LoadedLevel, Store};
 pub use streamer::{ScheduledBlock, StreamConfig, Streamer, WaitReport};
+pub use terrain_core::geometry::Camera;
 pub use workers::LevelReader;

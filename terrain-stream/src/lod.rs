@@ -1,21 +1,57 @@
-//! The CPU side of the paper's rendering method (Qiu 2013, sections 3.1-3.3) on one block,
-//! from the index alone: bounding-circle culling of quadtree nodes against the projected
-//! view region, and dynamic LOD construction with the sight-line screen error (Eq. 7) and
-//! threshold `tau` (split while `rho > tau`, the paper's algorithm step 4).
+//! The out-of-core paper's rendering method (Qiu 2013, sections 3.1-3.3) over a store's index,
+//! through terrain-core's one [`traverse`]: the store is a [`NodeSource`] ([`StoreTree`]: the
+//! quadtree of the whole grid, per-node values from the index, no heights in memory), the
+//! paper's dynamic LOD construction is an Eq. 7 [`SplitPolicy`] ([`Eq7Split`]) and its
+//! bounding-circle test is terrain-core's [`BoundingCircleCull`].
 //!
-//! Node `(l, i, j)` of a block covers `2^(k-l)` cells and is drawn with its corners, which
-//! are level-`l` vertices, so a block whose deepest selected node is at level `l` needs its
-//! levels `0..=l` resident. Node errors and heights come from the index ([`BlockEntry`]):
-//! stored per node down to `node_levels`; below, the error is the smaller of the deepest
-//! stored ancestor's `StaticE` and the block's per-level maximum (both bound it, Eq. 3), and
-//! the height range is the ancestor's.
+//! # Patches, not per-vertex nodes
+//! The paper splits nodes down to single cells and draws each node as a fan of its corners
+//! and edge midpoints. Here, as in the in-memory methods, the drawn unit is a *patch*: a
+//! quadtree node of at least [`StoreTree::patch_cells`] cells inside one block (the nodes with
+//! stored per-node values, so the split test reads the index only), drawn by the renderer's
+//! tessellator with a power-of-two factor. The traversal splits while Eq. 7 says the node's
+//! `StaticE` is too large on screen (`rho > tau`, the paper's step 4); a leaf patch then takes
+//! as its factor the resolution the same recursion would reach inside it
+//! ([`needed_vertex_level`]: the paper's split continued below the patch, every sub-node
+//! evaluated at the patch's own distance and `beta`, which only overestimates), at most the
+//! block's resident level and never finer than the data (a patch of `c` cells has a factor of
+//! at most `c`), so no frame draws more triangles than the full-resolution grid in view.
+//!
+//! # Crack-free selection ([`select_patches`])
+//! Leaves are clamped to each block's resident level (the split stops there: the runtime
+//! serves coarser levels while finer ones load), balanced across blocks (terrain-core's
+//! `balance_with`: neighbours within one level) and given outer factors by terrain-core's one
+//! [`EdgeRule`] resolver ([`StoreEdges`]: a shared edge takes the larger of the two sides'
+//! wishes, a coarse edge facing finer patches a power of two that nests with all of them), so
+//! `terrain_core::lod::check_shared_edges` holds and the tessellated surface is watertight
+//! over pages of any level (the renderer's page lookup gives every shared sample one value).
+//!
+//! # Node values below the stored node levels
+//! Blocks store per-node min/max and `StaticE` down to [`Header::node_levels`]; below, the
+//! error is the smaller of the deepest stored ancestor's `StaticE` and the block's per-level
+//! maximum (both bound it, Eq. 3) and the height range is the ancestor's.
+
+use std::collections::HashMap;
+use std::sync::Arc;
+use std::time::Instant;
 
 use glam::{DVec2, DVec3};
-use terrain_core::geometry::{Camera, Classification, GroundRegion, circle_vs_region};
-use terrain_core::metrics::screen::{sight_line_eq6, sight_line_eq7};
-use terrain_core::quadtree::NodeId;
+use terrain_core::geometry::{Aabb, Camera, GroundRegion, project_view_to_ground};
+use terrain_core::lod::{
+    Edge, EdgeRule, MAX_FACTOR, Patch, Selection, SelectionStats, outer_factors,
+};
+use terrain_core::metrics::screen::sight_line_eq7;
+use terrain_core::quadtree::{
+    BoundingCircleCull, Cull, CullPolicy, GridRect, LeafSet, NodeId, NodeInfo, NodeSource,
+    SplitPolicy, Visit, balance_with, traverse,
+};
 
 use crate::format::{BlockEntry, BlockId, Header};
+use crate::store::Store;
+use crate::streamer::Streamer;
+
+/// Default smallest patch, cells per side (clamped to a block's cells).
+pub const DEFAULT_PATCH_CELLS: u32 = 32;
 
 /// The view quantities of the screen error.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -35,138 +71,204 @@ impl View {
     pub fn new(camera: &Camera, tau: f64) -> Self {
         Self { eye: camera.position, dir: camera.forward(), lambda: camera.lambda(), tau }
     }
-}
 
-struct Node {
-    level: u8,
-    i: u32,
-    j: u32,
-    err: f64,
-    zmin: f64,
-    zmax: f64,
-}
-
-/// Plan rectangle of a node clipped to the block's valid vertices; `None` if it holds none.
-fn node_rect(
-    h: &Header,
-    e: &BlockEntry,
-    b: BlockId,
-    level: u8,
-    i: u32,
-    j: u32,
-) -> Option<(DVec2, DVec2)> {
-    let c = h.block_cells() >> level;
-    let (x0, y0) = (i * c, j * c);
-    let (vw, vh) = (e.valid_w - 1, e.valid_h - 1);
-    if (x0 > 0 && x0 >= vw) || (y0 > 0 && y0 >= vh) {
-        return None;
+    /// Eq. 7's `rho` per metre of error for a node with world box `aabb` (distance from the eye
+    /// to the box, `beta` towards its centre): `rho(delta) = delta * per_metre` (Eq. 7 is linear
+    /// in `delta`). Infinite when the eye is inside or on the box (`MUST_SPLIT`).
+    fn rho_per_metre(&self, aabb: &Aabb) -> f64 {
+        let (lo, hi) = (aabb.min, aabb.max);
+        let d = (lo - self.eye).max(self.eye - hi).max(DVec3::ZERO).length();
+        let to_centre = (lo - self.eye) + (hi - lo) * 0.5;
+        sight_line_eq7(self.lambda, 1.0, d, self.dir, to_centre)
     }
-    let lo = h.vertex_world(b, x0 as f64, y0 as f64);
-    let hi = h.vertex_world(b, (x0 + c).min(vw) as f64, (y0 + c).min(vh) as f64);
-    Some((lo, hi))
-}
 
-fn node_values(
-    e: &BlockEntry,
-    h: &Header,
-    level: u8,
-    i: u32,
-    j: u32,
-    parent: &Node,
-) -> (f64, f64, f64) {
-    if let Some(v) = e.node(level, i, j).filter(|_| level < h.node_levels) {
-        return (v.static_error as f64, v.min as f64, v.max as f64);
+    /// Whether a node with error `err` (metres) and box `aabb` splits: Eq. 7 `rho > tau`.
+    fn splits(&self, err: f32, aabb: &Aabb) -> bool {
+        err > 0.0 && self.rho_per_metre(aabb) * f64::from(err) > self.tau
     }
-    let bound = e.level_errors.get(level as usize).map_or(0.0, |&x| x as f64);
-    (bound.min(parent.err), parent.zmin, parent.zmax)
 }
 
-/// Distance from `eye` to a box and the vector from `eye` to its centre.
-fn box_distance(eye: DVec3, lo: DVec3, hi: DVec3) -> (f64, DVec3) {
-    let d = (lo - eye).max(eye - hi).max(DVec3::ZERO);
-    (d.length(), (lo - eye) + (hi - lo) * 0.5)
+/// Min, max and `StaticE` of block-local node `n` (level 0 = the whole block).
+fn local_values(h: &Header, e: &BlockEntry, n: NodeId) -> (f32, f32, f32) {
+    if n.level < h.node_levels
+        && let Some(v) = e.node(n.level, n.i, n.j)
+    {
+        return (v.min, v.max, v.static_error);
+    }
+    let bound = if n.level >= h.k {
+        0.0
+    } else {
+        e.level_errors.get(n.level as usize).copied().unwrap_or(0.0)
+    };
+    // The deepest stored ancestor (none when the store keeps no node values).
+    let stored = (h.node_levels > 0).then(|| n.ancestor(n.level.min(h.node_levels - 1)));
+    match stored.and_then(|a| e.node(a.level, a.i, a.j)) {
+        Some(v) => (v.min, v.max, bound.min(v.static_error)),
+        None => (e.min, e.max, bound),
+    }
 }
 
-/// Walks the block's quadtree (the paper's section 3.3): nodes whose bounding circle misses
-/// `region` are dropped, the others split while Eq. 7 gives `rho > tau`. `leaf` gets every
-/// selected node. With `fast`, a node below the stored node levels is not expanded: the
-/// deepest level its descendants could need is bounded instead (Eq. 6, without the `beta`
-/// relief, at the node's own distance, both of which can only overestimate), and reported as
-/// one leaf at that level.
-fn walk(
+/// The nodes of one block, block-local ids (level 0 = the block), rectangles in the whole
+/// grid's samples.
+#[derive(Debug, Clone, Copy)]
+struct BlockNodes<'a> {
+    header: &'a Header,
+    entry: &'a BlockEntry,
+    id: BlockId,
+    /// Local level of the smallest patch (`is_finest`).
+    patch_level: u8,
+}
+
+impl BlockNodes<'_> {
+    fn rect(&self, n: NodeId) -> Option<GridRect> {
+        let h = self.header;
+        if n.level > h.k {
+            return None;
+        }
+        let c = h.block_cells() >> n.level;
+        let (x0, y0) = (n.i * c, n.j * c);
+        let (vw, vh) = (self.entry.valid_w.max(2) - 1, self.entry.valid_h.max(2) - 1);
+        if x0 >= vw || y0 >= vh {
+            return None;
+        }
+        let (bx, by) = (self.id.col * h.block_cells(), self.id.row * h.block_cells());
+        Some(GridRect {
+            x0: bx + x0,
+            y0: by + y0,
+            x1: bx + (x0 + c).min(vw),
+            y1: by + (y0 + c).min(vh),
+        })
+    }
+
+    fn info(&self, n: NodeId) -> Option<(NodeInfo, f32)> {
+        let rect = self.rect(n)?;
+        let (min, max, err) = local_values(self.header, self.entry, n);
+        let g = &self.header.georef;
+        let lo = g.grid_to_world(DVec2::new(rect.x0 as f64, rect.y0 as f64));
+        let hi = g.grid_to_world(DVec2::new(rect.x1 as f64, rect.y1 as f64));
+        let info = NodeInfo {
+            rect,
+            cells: self.header.block_cells() >> n.level,
+            aabb: Aabb { min: lo.min(hi).extend(min.into()), max: lo.max(hi).extend(max.into()) },
+            data_range: Some((min, max)),
+            has_voids: false,
+            is_finest: n.level >= self.patch_level.min(self.header.k),
+        };
+        Some((info, err))
+    }
+}
+
+impl NodeSource for BlockNodes<'_> {
+    fn node_info(&self, node: NodeId) -> Option<NodeInfo> {
+        self.info(node).map(|(i, _)| i)
+    }
+}
+
+/// The finest vertex level block-local node `n` (box `aabb`) needs, at most `max_level`: the
+/// paper's Eq. 7 split (section 3.3, step 4) continued below `n`, every sub-node evaluated at
+/// `n`'s distance and `beta` (closer than any sub-node, so the level is never too coarse).
+/// A node drawn with its level-`l` corners has error `StaticE`; its sub-nodes whose `StaticE`
+/// is still above the threshold need the next level's vertices. `StaticE` is monotone, so a
+/// sub-node under the threshold has no descendant above it: only the over-threshold ones are
+/// followed (the cost follows the detail drawn).
+pub fn needed_vertex_level(
     h: &Header,
     e: &BlockEntry,
-    b: BlockId,
+    n: NodeId,
+    aabb: &Aabb,
     view: &View,
-    region: &GroundRegion,
-    fast: bool,
-    leaf: &mut dyn FnMut(NodeId),
-) {
-    let root =
-        Node { level: 0, i: 0, j: 0, err: f64::INFINITY, zmin: e.min as f64, zmax: e.max as f64 };
-    let mut stack = vec![root];
-    while let Some(parent_like) = stack.pop() {
-        let Node { level, i, j, .. } = parent_like;
-        let Some((lo, hi)) = node_rect(h, e, b, level, i, j) else { continue };
-        let centre = (lo + hi) * 0.5;
-        let radius = (hi - lo).length() * 0.5;
-        if circle_vs_region(region, centre, radius) == Classification::Outside {
-            continue;
+    max_level: u8,
+) -> u8 {
+    let max_level = max_level.min(h.k);
+    if n.level >= max_level {
+        return n.level.min(max_level);
+    }
+    let per_metre = view.rho_per_metre(aabb);
+    if !per_metre.is_finite() {
+        return max_level;
+    }
+    let limit = (view.tau / per_metre) as f32;
+    let over = |m: NodeId| local_values(h, e, m).2 > limit;
+    let mut frontier: Vec<NodeId> = if over(n) { vec![n] } else { Vec::new() };
+    let mut level = n.level;
+    // Stored levels: follow the over-threshold nodes.
+    while !frontier.is_empty() && level < max_level && level + 1 < h.node_levels {
+        level += 1;
+        frontier = frontier.iter().flat_map(|m| m.children()).filter(|&m| over(m)).collect();
+    }
+    if frontier.is_empty() || level >= max_level {
+        return level;
+    }
+    // Below the stored levels every descendant has the same bound per level: the smaller of
+    // its stored ancestor's StaticE and the block's per-level maximum.
+    let worst = frontier.iter().map(|&m| local_values(h, e, m).2).fold(0f32, f32::max);
+    while level < max_level {
+        let bound = e.level_errors.get(level as usize).copied().unwrap_or(0.0).min(worst);
+        if bound <= limit {
+            break;
         }
-        let (err, zmin, zmax) = node_values(e, h, level, i, j, &parent_like);
-        let (d, to_centre) = box_distance(view.eye, lo.extend(zmin), hi.extend(zmax));
-        if level >= h.k || err <= 0.0 {
-            leaf(NodeId { level, i, j });
-            continue;
+        level += 1;
+    }
+    level
+}
+
+/// Eq. 7 as terrain-core's [`SplitPolicy`] (the paper's step 4: split while `rho > tau`), over
+/// a node space whose errors `error(node)` gives, stopping at `stop(node)` (a block's
+/// resident level).
+pub struct Eq7Split<E, S> {
+    /// The view and `tau`.
+    pub view: View,
+    /// `StaticE` of a node (metres); `None` splits unconditionally (nodes above the blocks).
+    pub error: E,
+    /// Whether a node may not split (it is at its block's finest resident level).
+    pub stop: S,
+}
+
+impl<E, S> std::fmt::Debug for Eq7Split<E, S> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Eq7Split").field("view", &self.view).finish_non_exhaustive()
+    }
+}
+
+impl<E: FnMut(NodeId) -> Option<f32>, S: FnMut(NodeId) -> bool> SplitPolicy for Eq7Split<E, S> {
+    fn should_split(&mut self, node: NodeId, info: &NodeInfo) -> bool {
+        if (self.stop)(node) {
+            return false;
         }
-        if fast && level >= h.node_levels {
-            // Deepest level any descendant could need.
-            let mut l = level;
-            while l < h.k {
-                let bound = e.level_errors.get(l as usize).map_or(0.0, |&x| x as f64).min(err);
-                if bound <= 0.0 || sight_line_eq6(view.lambda, bound, d, view.dir) <= view.tau {
-                    break;
-                }
-                l += 1;
-            }
-            let s = l - level;
-            leaf(NodeId { level: l, i: i << s, j: j << s });
-            continue;
-        }
-        let rho = sight_line_eq7(view.lambda, err, d, view.dir, to_centre);
-        if rho > view.tau {
-            for (di, dj) in [(0, 1), (1, 1), (1, 0), (0, 0)] {
-                stack.push(Node {
-                    level: level + 1,
-                    i: 2 * i + di,
-                    j: 2 * j + dj,
-                    err,
-                    zmin,
-                    zmax,
-                });
-            }
-        } else {
-            leaf(NodeId { level, i, j });
+        match (self.error)(node) {
+            None => true,
+            Some(err) => self.view.splits(err, &info.aabb),
         }
     }
 }
 
-/// The nodes of block `b` the paper's dynamic LOD construction selects (block-local
-/// [`NodeId`]s: level 0 is the whole block), in depth-first order (SW, SE, NE, NW).
-pub fn select_nodes(
-    h: &Header,
-    e: &BlockEntry,
-    b: BlockId,
-    view: &View,
-    region: &GroundRegion,
-) -> Vec<NodeId> {
-    let mut out = Vec::new();
-    walk(h, e, b, view, region, false, &mut |n| out.push(n));
-    out
+/// Largest size on screen (pixels) of a lattice cell of the level a block's page holds: the
+/// renderer shades every fragment with central-difference normals of the page's samples, so a
+/// page coarser than this draws visibly flat shading beside finer pages.
+pub const SHADING_CELL_PX: f64 = 1.0;
+
+/// The coarsest level of block `e` (of `b`) whose lattice cells are at most
+/// [`SHADING_CELL_PX`] on screen at the block's nearest point: what the fragment stage's
+/// normals need from the block's page, whatever its geometry needs (the criterion of texture
+/// mip-level selection, applied to the height samples the normals are computed from).
+pub fn shading_level(h: &Header, e: &BlockEntry, b: BlockId, view: &View) -> u8 {
+    let lo = h.vertex_world(b, 0.0, 0.0);
+    let hi = h.vertex_world(b, (e.valid_w.max(1) - 1) as f64, (e.valid_h.max(1) - 1) as f64);
+    let (lo, hi) = (lo.min(hi).extend(e.min.into()), lo.max(hi).extend(e.max.into()));
+    let d = (lo - view.eye).max(view.eye - hi).max(DVec3::ZERO).length();
+    let spacing = h.georef.spacing_m.abs().max_element();
+    // A level-L cell is 2^(k - L) samples: 2^(k - L) spacing lambda / d <= px.
+    let room = d * SHADING_CELL_PX / (spacing * view.lambda);
+    if !(room.is_finite() && room >= 1.0) {
+        return h.k;
+    }
+    let coarser = (room.log2().floor() as i64).clamp(0, i64::from(h.k)) as u8;
+    h.k - coarser
 }
 
-/// The finest level block `b` needs for `view` (the deepest selected node's level, bounded
-/// from above below the stored node levels), or `None` when no node of it meets `region`.
+/// The finest level block `b` needs for `view`, or `None` when no node of it meets `region`:
+/// its [`needed_geometry_level`], and at least its [`shading_level`]. What the streamer loads
+/// for a block of the visual region M.
 pub fn needed_level(
     h: &Header,
     e: &BlockEntry,
@@ -174,9 +276,336 @@ pub fn needed_level(
     view: &View,
     region: &GroundRegion,
 ) -> Option<u8> {
-    let mut deepest: Option<u8> = None;
-    walk(h, e, b, view, region, true, &mut |n| {
-        deepest = Some(deepest.map_or(n.level, |d| d.max(n.level)))
+    Some(needed_geometry_level(h, e, b, view, region)?.max(shading_level(h, e, b, view)))
+}
+
+/// The deepest vertex level the patches of block `b` need for `view` ([`needed_vertex_level`]
+/// of the patches terrain-core's [`traverse`] selects in the block with the Eq. 7 split and
+/// [`BoundingCircleCull`], patches of [`DEFAULT_PATCH_CELLS`]), or `None` when no node of it
+/// meets `region`.
+pub fn needed_geometry_level(
+    h: &Header,
+    e: &BlockEntry,
+    b: BlockId,
+    view: &View,
+    region: &GroundRegion,
+) -> Option<u8> {
+    let patch_level = patch_level(h, DEFAULT_PATCH_CELLS);
+    let nodes = BlockNodes { header: h, entry: e, id: b, patch_level };
+    let mut split = Eq7Split {
+        view: *view,
+        error: |n: NodeId| Some(local_values(h, e, n).2),
+        stop: |_: NodeId| false,
+    };
+    let mut cull = BoundingCircleCull::new(region.clone());
+    let leaves = traverse(&nodes, &mut split, &mut cull, &mut |_, _| {});
+    leaves
+        .into_iter()
+        .filter_map(|n| {
+            let info = nodes.node_info(n)?;
+            Some(needed_vertex_level(h, e, n, &info.aabb, view, h.k))
+        })
+        .max()
+}
+
+/// Local level of a patch of `cells` cells (clamped to a power of two within the block).
+fn patch_level(h: &Header, cells: u32) -> u8 {
+    let cells = cells.clamp(1, h.block_cells()).next_power_of_two().min(h.block_cells());
+    h.k - cells.trailing_zeros() as u8
+}
+
+/// The quadtree of a whole store's grid as a [`NodeSource`]: the root covers the blocks
+/// rounded up to a power of two per side (block `(row, col)` is node `(block_level, col,
+/// row)`), nodes inside a block read the block's index entry, nodes above the blocks a min/max
+/// pyramid over the blocks built once. No heights in memory.
+#[derive(Debug, Clone)]
+pub struct StoreTree {
+    store: Arc<Store>,
+    block_level: u8,
+    root_cells: u32,
+    patch_level: u8,
+    /// Per level above the blocks: min/max per node, row-major `2^l` per side.
+    upper: Vec<Vec<[f32; 2]>>,
+}
+
+impl StoreTree {
+    /// The tree of `store` with patches of at least `patch_cells` cells (a power of two, at
+    /// most a block; e.g. [`DEFAULT_PATCH_CELLS`]).
+    pub fn new(store: Arc<Store>, patch_cells: u32) -> Self {
+        let h = store.header();
+        let blocks = h.blocks_x.max(h.blocks_y).next_power_of_two();
+        let block_level = blocks.trailing_zeros() as u8;
+        let root_cells = blocks * h.block_cells();
+        let patch_level = patch_level(h, patch_cells);
+        let mut upper: Vec<Vec<[f32; 2]>> = Vec::with_capacity(block_level as usize);
+        // The block level itself, then coarser ones by merging.
+        let mut level = vec![[f32::INFINITY, f32::NEG_INFINITY]; (blocks * blocks) as usize];
+        for id in store.block_ids() {
+            if let Some(e) = store.entry(id) {
+                level[(id.row * blocks + id.col) as usize] = [e.min, e.max];
+            }
+        }
+        let mut n = blocks;
+        while n > 1 {
+            let m = n / 2;
+            let mut next = vec![[f32::INFINITY, f32::NEG_INFINITY]; (m * m) as usize];
+            for j in 0..m {
+                for i in 0..m {
+                    let acc = &mut next[(j * m + i) as usize];
+                    for (ci, cj) in [
+                        (2 * i, 2 * j),
+                        (2 * i + 1, 2 * j),
+                        (2 * i, 2 * j + 1),
+                        (2 * i + 1, 2 * j + 1),
+                    ] {
+                        let c = level[(cj * n + ci) as usize];
+                        acc[0] = acc[0].min(c[0]);
+                        acc[1] = acc[1].max(c[1]);
+                    }
+                }
+            }
+            upper.push(next.clone());
+            level = next;
+            n = m;
+        }
+        upper.reverse();
+        Self { store, block_level, root_cells, patch_level, upper }
+    }
+
+    /// The store.
+    pub fn store(&self) -> &Arc<Store> {
+        &self.store
+    }
+
+    /// Cells per side of the root (the whole grid rounded up to a power of two of blocks).
+    pub fn root_cells(&self) -> u32 {
+        self.root_cells
+    }
+
+    /// Global level of a whole block.
+    pub fn block_level(&self) -> u8 {
+        self.block_level
+    }
+
+    /// Cells per side of the smallest patch.
+    pub fn patch_cells(&self) -> u32 {
+        self.store.header().block_cells() >> self.patch_level
+    }
+
+    /// The block holding global node `n` and `n`'s id local to it (level 0 = the block), or
+    /// `None` above the block level.
+    pub fn block_of(&self, n: NodeId) -> Option<(BlockId, NodeId)> {
+        let s = n.level.checked_sub(self.block_level)?;
+        let mask = (1u32 << s) - 1;
+        Some((BlockId::new(n.j >> s, n.i >> s), NodeId { level: s, i: n.i & mask, j: n.j & mask }))
+    }
+
+    /// The global id of block-local node `local` of block `b`.
+    pub fn global(&self, b: BlockId, local: NodeId) -> NodeId {
+        NodeId {
+            level: self.block_level + local.level,
+            i: (b.col << local.level) + local.i,
+            j: (b.row << local.level) + local.j,
+        }
+    }
+
+    /// Whether global node `n` holds a grid cell and is no finer than a block's finest level.
+    pub fn contains(&self, n: NodeId) -> bool {
+        let h = self.store.header();
+        if n.level > self.block_level + h.k {
+            return false;
+        }
+        let (x0, y0, _) = n.grid_rect(self.root_cells);
+        x0 < (h.width as u32).max(2) - 1 && y0 < (h.height as u32).max(2) - 1
+    }
+
+    fn block_nodes(&self, b: BlockId) -> Option<BlockNodes<'_>> {
+        let header = self.store.header();
+        let entry = self.store.entry(b)?;
+        Some(BlockNodes { header, entry, id: b, patch_level: self.patch_level })
+    }
+
+    /// `StaticE` of global node `n` (metres), or `None` above the blocks or outside the grid.
+    pub fn static_error(&self, n: NodeId) -> Option<f32> {
+        let (b, local) = self.block_of(n)?;
+        let e = self.store.entry(b)?;
+        Some(local_values(self.store.header(), e, local).2)
+    }
+
+    /// [`needed_vertex_level`] of global node `n` with box `aabb` (at most `max_level`, a
+    /// block-local level), as a global level; `None` above the blocks.
+    pub fn needed_vertex_level(
+        &self,
+        n: NodeId,
+        aabb: &Aabb,
+        view: &View,
+        max_level: u8,
+    ) -> Option<u8> {
+        let (b, local) = self.block_of(n)?;
+        let e = self.store.entry(b)?;
+        Some(
+            self.block_level
+                + needed_vertex_level(self.store.header(), e, local, aabb, view, max_level),
+        )
+    }
+}
+
+impl NodeSource for StoreTree {
+    fn node_info(&self, n: NodeId) -> Option<NodeInfo> {
+        if !self.contains(n) {
+            return None;
+        }
+        if let Some((b, local)) = self.block_of(n) {
+            return self.block_nodes(b)?.node_info(local);
+        }
+        let h = self.store.header();
+        let (x0, y0, c) = n.grid_rect(self.root_cells);
+        let (w, hh) = ((h.width as u32).max(2) - 1, (h.height as u32).max(2) - 1);
+        let rect = GridRect { x0, y0, x1: (x0 + c).min(w), y1: (y0 + c).min(hh) };
+        let [min, max] = self.upper[n.level as usize][(n.j * (1 << n.level) + n.i) as usize];
+        let (min, max) = if min <= max { (min, max) } else { (0.0, 0.0) };
+        let g = &h.georef;
+        let lo = g.grid_to_world(DVec2::new(rect.x0 as f64, rect.y0 as f64));
+        let hi = g.grid_to_world(DVec2::new(rect.x1 as f64, rect.y1 as f64));
+        Some(NodeInfo {
+            rect,
+            cells: c,
+            aabb: Aabb { min: lo.min(hi).extend(min.into()), max: lo.max(hi).extend(max.into()) },
+            data_range: Some((min, max)),
+            has_voids: false,
+            is_finest: false,
+        })
+    }
+}
+
+/// terrain-core's one [`EdgeRule`] for store patches: each patch wishes for its own factor
+/// (`want`); a shared edge at one level takes the larger wish, a coarse edge facing finer
+/// patches the smallest power of two that is at least its own wish, every finer patch's wish
+/// times `2^d` and `2^(d + 1)` (so each finer side gets a power of two of at least 2).
+#[derive(Debug, Clone, Default)]
+pub struct StoreEdges {
+    /// Each patch's factor (a power of two, at least 2).
+    pub want: HashMap<NodeId, f32>,
+}
+
+impl StoreEdges {
+    fn want(&self, n: NodeId) -> f32 {
+        self.want.get(&n).copied().unwrap_or(2.0)
+    }
+}
+
+impl EdgeRule for StoreEdges {
+    fn same_level(&self, a: NodeId, _: Edge, b: NodeId) -> f32 {
+        self.want(a).max(self.want(b))
+    }
+
+    fn coarse_edge(&self, coarse: NodeId, _: Edge, finer: &[NodeId]) -> f32 {
+        let mut f = self.want(coarse);
+        let mut dmax = 0u8;
+        for &m in finer {
+            let d = m.level.saturating_sub(coarse.level).min(5);
+            dmax = dmax.max(d);
+            f = f.max(self.want(m) * (1u32 << d) as f32);
+        }
+        f.max((2u32 << dmax) as f32).min(MAX_FACTOR)
+    }
+
+    fn unshared(&self, node: NodeId, _: Edge) -> f32 {
+        self.want(node)
+    }
+}
+
+/// The crack-free patches of a store for `camera`: terrain-core's [`traverse`] over the
+/// [`StoreTree`] with the Eq. 7 split and the paper's [`BoundingCircleCull`] against the view
+/// projected on the ground, only over blocks with a level resident (`resident(block)`: the
+/// finest level that may be drawn, `None` = not drawn), the split stopped at that level;
+/// then balanced, factors from [`needed_vertex_level`] (clamped to the resident level, at
+/// least 2) and outer factors from [`StoreEdges`]. Patches are global nodes of the tree
+/// (`NodeId::grid_rect(tree.root_cells())` is their square of grid samples), in traversal
+/// order; `terrain_core::lod::check_shared_edges` holds.
+pub fn select_patches(
+    tree: &StoreTree,
+    camera: &Camera,
+    tau: f64,
+    resident: impl Fn(BlockId) -> Option<u8>,
+) -> Selection {
+    let start = Instant::now();
+    let view = View::new(camera, tau);
+    let bl = tree.block_level;
+    let mut circle = BoundingCircleCull::new(project_view_to_ground(camera));
+    let mut cull = |n: NodeId, info: &NodeInfo| match tree.block_of(n) {
+        // Above the blocks: never "all inside", so every block is asked whether it is drawn.
+        None => match circle.classify(n, info) {
+            Cull::AcceptAll => Cull::Accept,
+            c => c,
+        },
+        Some((b, local)) if local.level == 0 && resident(b).is_none() => Cull::Reject,
+        Some(_) => circle.classify(n, info),
+    };
+    let mut split = Eq7Split {
+        view,
+        error: |n: NodeId| tree.static_error(n),
+        stop: |n: NodeId| {
+            tree.block_of(n).is_some_and(|(b, local)| local.level >= resident(b).unwrap_or(0))
+        },
+    };
+    let mut stats = SelectionStats::default();
+    let leaves = traverse(tree, &mut split, &mut cull, &mut |_, v| {
+        stats.visited += 1;
+        match v {
+            Visit::Culled => stats.culled += 1,
+            Visit::Split => stats.split += 1,
+            Visit::Leaf => {}
+        }
     });
-    deepest
+    // Nodes above the block level never end as leaves unless the block is not resident:
+    // keep block nodes only.
+    let leaves: Vec<NodeId> = leaves.into_iter().filter(|n| n.level >= bl).collect();
+    stats.traversal_leaves = leaves.len();
+    let leaves = balance_with(&leaves, |n| tree.contains(n));
+    let mut rule = StoreEdges::default();
+    for &n in &leaves {
+        let (b, local) = tree.block_of(n).expect("block nodes");
+        let max = resident(b).unwrap_or(0);
+        let level = match tree.node_info(n) {
+            Some(info) => tree.needed_vertex_level(n, &info.aabb, &view, max).unwrap_or(n.level),
+            None => n.level,
+        };
+        let m = level.saturating_sub(bl + local.level).min(6);
+        rule.want.insert(n, ((1u32 << m) as f32).clamp(2.0, MAX_FACTOR));
+    }
+    let set = LeafSet::new(leaves.iter().copied());
+    let patches: Vec<Patch> = leaves
+        .iter()
+        .map(|&node| {
+            let w = rule.want(node);
+            Patch { node, outer: outer_factors(&set, node, &rule), inner: [w, w] }
+        })
+        .collect();
+    stats.patches = patches.len();
+    stats.balance_added = patches.len().saturating_sub(stats.traversal_leaves);
+    stats.max_level = patches.iter().map(|p| p.node.level).max().unwrap_or(0);
+    stats.cpu_time = start.elapsed();
+    Selection { patches, stats }
+}
+
+/// [`select_patches`] over what `streamer` holds: the blocks of its last frame's visual region
+/// M, each drawn at most at its finest resident level (blocks with nothing resident are not
+/// drawn). Call after [`Streamer::update`] for the same camera.
+pub fn select_streamed(
+    tree: &StoreTree,
+    camera: &Camera,
+    tau: f64,
+    streamer: &Streamer,
+) -> Selection {
+    let levels: HashMap<BlockId, u8> = streamer
+        .scheduled()
+        .iter()
+        .filter(|s| s.visible)
+        .filter_map(|s| {
+            let count = streamer.block(s.block)?.count();
+            Some((s.block, count.checked_sub(1)? as u8))
+        })
+        .collect();
+    select_patches(tree, camera, tau, |b| levels.get(&b).copied())
 }

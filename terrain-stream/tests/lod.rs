@@ -1,23 +1,26 @@
-//! `lod::select_nodes` (Qiu 2013, sections 3.1-3.3) against a brute force over every node of a
-//! block: the exact selection set, Eq. 7 met by every selected node (with the node's exact
-//! `StaticE` recomputed from the heights), bounding-circle culling, and a cover of the visible
-//! part of the block without overlap; `needed_level` bounds the selection from above.
+//! `lod::select_patches` (Qiu 2013, sections 3.1-3.3, through terrain-core's traversal) against
+//! a brute force over the index: every patch's drawn resolution meets Eq. 7 with the index's
+//! `StaticE` and is the coarsest that does, patches cover the visible part of the grid without
+//! overlap, shared edges agree (`check_shared_edges`), no patch is drawn finer than its data
+//! or its block's resident level, and the streamer's `needed_level` is the deepest level the
+//! selection draws in a block.
 
-use std::collections::BTreeSet;
+use std::collections::HashMap;
 use std::ops::ControlFlow;
 use std::path::PathBuf;
+use std::sync::Arc;
 
 use glam::{DVec3, dvec3};
 use terrain_core::Georef;
-use terrain_core::geometry::project_view_to_ground;
-use terrain_core::geometry::{Camera, Classification, GroundRegion, circle_vs_region};
+use terrain_core::geometry::{Camera, project_view_to_ground};
 use terrain_core::heightmap::Heightmap;
+use terrain_core::lod::{Selection, check_shared_edges};
 use terrain_core::metrics::screen::sight_line_eq7;
-use terrain_core::metrics::static_error::StaticErrorPyramid;
-use terrain_core::quadtree::NodeId;
-use terrain_stream::format::BlockEntry;
-use terrain_stream::lod::{View, needed_level, select_nodes};
-use terrain_stream::{BakeConfig, BlockId, Header, HeightEncoding, Store, bake};
+use terrain_core::quadtree::{NodeId, NodeSource};
+use terrain_stream::lod::{
+    StoreTree, View, needed_geometry_level, needed_level, select_patches, shading_level,
+};
+use terrain_stream::{BakeConfig, BlockId, HeightEncoding, Store, bake};
 
 fn scratch(name: &str) -> PathBuf {
     let d = std::env::temp_dir().join(format!("terrain-stream-lod-{}-{name}", std::process::id()));
@@ -35,7 +38,7 @@ fn terrain(w: usize, h: usize) -> Heightmap {
     .unwrap()
 }
 
-fn bake_store(hm: &Heightmap, name: &str, k: u8, node_levels: u8) -> (PathBuf, Store) {
+fn bake_store(hm: &Heightmap, name: &str, k: u8, node_levels: u8) -> (PathBuf, Arc<Store>) {
     let dir = scratch(name);
     let cfg = BakeConfig {
         k,
@@ -46,162 +49,7 @@ fn bake_store(hm: &Heightmap, name: &str, k: u8, node_levels: u8) -> (PathBuf, S
     let r = bake(hm, &dir, &cfg, &mut |_: &terrain_stream::BakeProgress| ControlFlow::Continue(()))
         .unwrap();
     assert!(r.lossless);
-    let store = Store::open(&dir).unwrap();
-    (dir, store)
-}
-
-/// The brute force's view of one node: everything computed directly from the index.
-struct Brute {
-    outside: bool,
-    err: f64,
-    rho: f64,
-}
-
-/// Node `(l, i, j)` of block `b`, or `None` when it covers no valid vertex.
-fn brute(
-    h: &Header,
-    e: &BlockEntry,
-    b: BlockId,
-    view: &View,
-    region: &GroundRegion,
-    n: NodeId,
-) -> Option<Brute> {
-    let c = h.block_cells() >> n.level;
-    let (x0, y0) = (n.i * c, n.j * c);
-    let (vw, vh) = (e.valid_w - 1, e.valid_h - 1);
-    if (x0 > 0 && x0 >= vw) || (y0 > 0 && y0 >= vh) {
-        return None;
-    }
-    let lo = h.vertex_world(b, x0 as f64, y0 as f64);
-    let hi = h.vertex_world(b, (x0 + c).min(vw) as f64, (y0 + c).min(vh) as f64);
-    let outside = circle_vs_region(region, (lo + hi) * 0.5, (hi - lo).length() * 0.5)
-        == Classification::Outside;
-    // Error bound and height range: stored per node down to node_levels; below, the chain of
-    // per-level maxima under the deepest stored ancestor.
-    let stored = n.level.min(h.node_levels.saturating_sub(1));
-    let s = n.level - stored;
-    let anc = e.node(stored, n.i >> s, n.j >> s).unwrap();
-    let mut err = anc.static_error as f64;
-    for l in h.node_levels.max(1)..=n.level {
-        err = err.min(e.level_errors.get(l as usize).map_or(0.0, |&x| x as f64));
-    }
-    let (blo, bhi) = (lo.extend(anc.min as f64), hi.extend(anc.max as f64));
-    let d = (blo - view.eye).max(view.eye - bhi).max(DVec3::ZERO).length();
-    let to_centre = (blo + bhi) * 0.5 - view.eye;
-    let rho = sight_line_eq7(view.lambda, err, d, view.dir, to_centre);
-    Some(Brute { outside, err, rho })
-}
-
-fn splits(h: &Header, b: &Brute, level: u8, tau: f64) -> bool {
-    !b.outside && level < h.k && b.err > 0.0 && b.rho > tau
-}
-
-fn ancestors(n: NodeId) -> impl Iterator<Item = NodeId> {
-    (0..n.level).map(move |l| {
-        let s = n.level - l;
-        NodeId { level: l, i: n.i >> s, j: n.j >> s }
-    })
-}
-
-fn all_nodes(k: u8) -> impl Iterator<Item = NodeId> {
-    (0..=k).flat_map(|level| {
-        let n = 1u32 << level;
-        (0..n * n).map(move |p| NodeId { level, i: p % n, j: p / n })
-    })
-}
-
-/// Checks one block for one view; returns the number of selected nodes.
-fn check(
-    store: &Store,
-    b: BlockId,
-    camera: &Camera,
-    tau: f64,
-    exact: Option<&[Vec<f64>]>,
-) -> usize {
-    let h = store.header();
-    let e = store.entry(b).unwrap();
-    let view = View::new(camera, tau);
-    let region = project_view_to_ground(camera);
-    let selected = select_nodes(h, e, b, &view, &region);
-    let set: BTreeSet<(u8, u32, u32)> = selected.iter().map(|n| (n.level, n.i, n.j)).collect();
-    assert_eq!(set.len(), selected.len(), "{b}: a node selected twice");
-
-    // 1. The exact set: not culled, every ancestor splits, the node itself does not.
-    let mut expected = BTreeSet::new();
-    for n in all_nodes(h.k) {
-        let Some(me) = brute(h, e, b, &view, &region, n) else { continue };
-        if me.outside {
-            assert!(!set.contains(&(n.level, n.i, n.j)), "{b} {n:?}: culled node selected");
-            continue;
-        }
-        let parents_split = ancestors(n).all(|a| {
-            brute(h, e, b, &view, &region, a).is_some_and(|p| splits(h, &p, a.level, tau))
-        });
-        if parents_split && !splits(h, &me, n.level, tau) {
-            expected.insert((n.level, n.i, n.j));
-        }
-    }
-    assert_eq!(set, expected, "{b}: selection differs from the brute force");
-
-    // 2. Eq. 7: every selected node meets the threshold or is at the finest level; with the
-    // exact StaticE (recomputed from the heights) it does too, as the bound is never below it.
-    for n in &selected {
-        let me = brute(h, e, b, &view, &region, *n).unwrap();
-        assert!(!me.outside);
-        assert!(n.level == h.k || me.err <= 0.0 || me.rho <= tau, "{b} {n:?}: rho {}", me.rho);
-        if let Some(x) = exact {
-            let side = 1usize << n.level;
-            let ex = x.get(n.level as usize).map_or(0.0, |l| l[n.j as usize * side + n.i as usize]);
-            assert!(ex <= me.err + 1e-4, "{b} {n:?}: exact StaticE {ex} > bound {}", me.err);
-        }
-    }
-
-    // 3. Cover without overlap: each finest cell of the block lies in at most one selected
-    // node, and in exactly one when its centre is inside the view region.
-    let (vw, vh) = (e.valid_w - 1, e.valid_h - 1);
-    for cj in 0..vh.max(1) {
-        for ci in 0..vw.max(1) {
-            let inside = |n: &&NodeId| {
-                let c = h.block_cells() >> n.level;
-                (n.i * c..(n.i + 1) * c).contains(&ci) && (n.j * c..(n.j + 1) * c).contains(&cj)
-            };
-            let covering = selected.iter().filter(inside).count();
-            let centre = h.vertex_world(b, ci as f64 + 0.5, cj as f64 + 0.5);
-            if region.contains(centre) {
-                assert_eq!(covering, 1, "{b} cell ({ci}, {cj}) in view");
-            } else {
-                assert!(covering <= 1, "{b} cell ({ci}, {cj}) covered {covering} times");
-            }
-        }
-    }
-
-    // 4. The runtime's needed level bounds the selection (exact when every level is stored).
-    let needed = needed_level(h, e, b, &view, &region);
-    let deepest = selected.iter().map(|n| n.level).max();
-    assert_eq!(needed.is_some(), deepest.is_some(), "{b}");
-    if let (Some(nl), Some(d)) = (needed, deepest) {
-        assert!(nl >= d, "{b}: needed {nl} < deepest selected {d}");
-        if h.node_levels >= h.k {
-            assert_eq!(nl, d, "{b}");
-        }
-    }
-    selected.len()
-}
-
-/// The exact monotone StaticE of every node of a block (levels `0..k`), from the source heights.
-fn exact_static_e(hm: &Heightmap, h: &Header, b: BlockId) -> Vec<Vec<f64>> {
-    let c = h.block_cells() as usize;
-    let side = c + 1;
-    let (x0, y0) = (b.col as usize * c, b.row as usize * c);
-    let block =
-        Heightmap::from_fn(side, side, Georef::local(1.0), |i, j| hm.get(x0 + i, y0 + j)).unwrap();
-    let pyr = StaticErrorPyramid::build(&block, h.k as usize);
-    (0..pyr.levels())
-        .map(|l| {
-            let n = 1usize << l;
-            (0..n * n).map(|p| pyr.get(l, p % n, p / n)).collect()
-        })
-        .collect()
+    (dir.clone(), Arc::new(Store::open(&dir).unwrap()))
 }
 
 fn cameras() -> Vec<Camera> {
@@ -220,77 +68,201 @@ fn cameras() -> Vec<Camera> {
     ]
 }
 
-#[test]
-fn selection_equals_the_brute_force_with_exact_static_error() {
-    // 129 x 129 at 10 m, blocks of 33^2: 4 x 4 blocks, no padding; node values stored down to
-    // level 3 of 5, so levels 3..5 use the per-level bounds.
-    let hm = terrain(129, 129);
-    for node_levels in [3u8, 5] {
-        let (dir, store) = bake_store(&hm, &format!("exact{node_levels}"), 5, node_levels);
-        let h = store.header().clone();
-        let exact: Vec<(BlockId, Vec<Vec<f64>>)> =
-            store.block_ids().map(|b| (b, exact_static_e(&hm, &h, b))).collect();
-        // The index holds exactly the recomputed StaticE at the stored levels, and per-level
-        // maxima that bound every node of that level.
-        for (b, x) in &exact {
-            let e = store.entry(*b).unwrap();
-            for l in 0..h.k {
-                let n = 1u32 << l;
-                let level_max = x[l as usize].iter().copied().fold(0.0, f64::max);
-                assert!((e.level_errors[l as usize] as f64 - level_max).abs() < 1e-3, "{b} {l}");
-                if l < h.node_levels {
-                    for p in 0..n * n {
-                        let v = e.node(l, p % n, p / n).unwrap().static_error as f64;
-                        assert!((v - x[l as usize][p as usize]).abs() < 1e-3, "{b} ({l}, {p})");
-                    }
-                }
-            }
-        }
-        let mut total = 0;
-        let mut deepest_seen = 0;
-        for (ci, cam) in cameras().iter().enumerate() {
-            for tau in [1.0, 4.0] {
-                for (b, x) in &exact {
-                    let n = check(&store, *b, cam, tau, Some(x));
-                    if ci == 3 {
-                        assert_eq!(n, 0, "{b}: a block behind the camera is selected");
-                    }
-                    total += n;
-                    let e = store.entry(*b).unwrap();
-                    let view = View::new(cam, tau);
-                    let region = project_view_to_ground(cam);
-                    deepest_seen = deepest_seen.max(
-                        select_nodes(&h, e, *b, &view, &region)
-                            .iter()
-                            .map(|n| n.level)
-                            .max()
-                            .unwrap_or(0),
-                    );
-                }
-            }
-        }
-        // The views exercise the whole range: many nodes, down to the finest level.
-        assert!(total > 100, "{total} nodes selected");
-        assert_eq!(deepest_seen, h.k);
-        std::fs::remove_dir_all(&dir).unwrap();
+/// The brute force's error bound of block-local node `n`: stored per node down to
+/// `node_levels`; below, the per-level maximum capped by the deepest stored ancestor's.
+fn bound(store: &Store, b: BlockId, n: NodeId) -> f64 {
+    let h = store.header();
+    let e = store.entry(b).unwrap();
+    if n.level >= h.k {
+        return 0.0;
     }
+    let stored = n.level.min(h.node_levels - 1);
+    let s = n.level - stored;
+    let anc = e.node(stored, n.i >> s, n.j >> s).unwrap().static_error as f64;
+    if n.level < h.node_levels { anc } else { anc.min(e.level_errors[n.level as usize] as f64) }
+}
+
+/// Eq. 7 per metre of error at the box of global node `n` (computed here from the tree's
+/// node values, independently of the selection's code path).
+fn rho_per_metre(tree: &StoreTree, view: &View, n: NodeId) -> f64 {
+    let info = tree.node_info(n).unwrap();
+    let (lo, hi) = (info.aabb.min, info.aabb.max);
+    let d = (lo - view.eye).max(view.eye - hi).max(DVec3::ZERO).length();
+    sight_line_eq7(view.lambda, 1.0, d, view.dir, (lo + hi) * 0.5 - view.eye)
+}
+
+/// Max bound over block-local level `level` inside block-local node `n`.
+fn level_max(store: &Store, b: BlockId, n: NodeId, level: u8) -> f64 {
+    let s = level - n.level;
+    let mut m = 0f64;
+    for dj in 0..1u32 << s {
+        for di in 0..1u32 << s {
+            let c = NodeId { level, i: (n.i << s) + di, j: (n.j << s) + dj };
+            m = m.max(bound(store, b, c));
+        }
+    }
+    m
+}
+
+/// Checks one selection; returns its patch count.
+fn check(
+    tree: &StoreTree,
+    camera: &Camera,
+    tau: f64,
+    resident: &HashMap<BlockId, u8>,
+    sel: &Selection,
+) -> usize {
+    let store = tree.store();
+    let h = store.header();
+    let view = View::new(camera, tau);
+    assert!(check_shared_edges(sel).is_empty(), "shared edges disagree");
+    assert!(sel.factors_in_range());
+    for p in &sel.patches {
+        let (b, local) = tree.block_of(p.node).expect("patches lie in blocks");
+        let res = *resident.get(&b).expect("only resident blocks are drawn");
+        let cells = h.block_cells() >> local.level;
+        let f = p.inner[0];
+        assert_eq!(p.inner[1], f);
+        assert!(f.log2().fract() == 0.0 && f >= 2.0, "{:?}: factor {f}", p.node);
+        // Never finer than the data: at most one triangle pair per cell (factor 2 is the
+        // tessellator's least, so a patch of 1 or 2 cells may take it).
+        assert!(f as u32 <= cells.max(2), "{:?}: factor {f} > {cells} cells", p.node);
+        // The drawn vertex level, and Eq. 7 at the patch's box: every sub-node at that level
+        // is within tau (or the level is the block's resident one), and one level coarser
+        // would not have been (minimality), unless the factor is the least one.
+        let drawn = local.level + f.log2() as u8;
+        let per_metre = rho_per_metre(tree, &view, p.node);
+        if local.level <= res {
+            assert!(
+                drawn <= res.max(local.level + 1),
+                "{:?}: drawn {drawn} > resident {res}",
+                p.node
+            );
+        }
+        if drawn < res.min(h.k) && drawn >= local.level {
+            assert!(
+                per_metre * level_max(store, b, local, drawn) <= tau * (1.0 + 1e-6),
+                "{:?}: level {drawn} does not meet tau",
+                p.node
+            );
+        }
+        if f > 2.0 {
+            assert!(
+                per_metre * level_max(store, b, local, drawn - 1) > tau * (1.0 - 1e-6),
+                "{:?}: level {} would meet tau",
+                p.node,
+                drawn - 1
+            );
+        }
+    }
+    // Cover without overlap: each grid cell in a resident block lies in at most one patch,
+    // and in exactly one when its centre is inside the view region.
+    let region = project_view_to_ground(camera);
+    let root = tree.root_cells();
+    let mut owner = vec![0u8; (h.width * h.height) as usize];
+    for p in &sel.patches {
+        let (x0, y0, c) = p.node.grid_rect(root);
+        for y in y0..(y0 + c).min(h.height as u32 - 1) {
+            for x in x0..(x0 + c).min(h.width as u32 - 1) {
+                owner[(y as u64 * h.width + x as u64) as usize] += 1;
+            }
+        }
+    }
+    for y in 0..h.height as u32 - 1 {
+        for x in 0..h.width as u32 - 1 {
+            let n = owner[(y as u64 * h.width + x as u64) as usize];
+            assert!(n <= 1, "cell ({x}, {y}) drawn {n} times");
+            let b = BlockId::new(y / h.block_cells(), x / h.block_cells());
+            let centre = h.georef.grid_to_world(glam::dvec2(x as f64 + 0.5, y as f64 + 0.5));
+            if region.contains(centre) && resident.contains_key(&b) {
+                assert_eq!(n, 1, "cell ({x}, {y}) in view not drawn");
+            }
+        }
+    }
+    sel.patches.len()
 }
 
 #[test]
-fn padded_blocks_are_covered_without_overlap() {
-    // 150 x 120 samples: the east and north blocks are partly padding (clipped node rects).
-    let hm = terrain(150, 120);
-    let (dir, store) = bake_store(&hm, "padded", 5, 2);
-    assert_eq!((store.header().blocks_x, store.header().blocks_y), (5, 4));
-    let ids: Vec<BlockId> = store.block_ids().collect();
+fn patches_meet_eq7_minimally_and_cover_the_view() {
+    // 257 x 257 at 10 m in blocks of 65^2 (4 x 4), node values down to level 3 of 6, so the
+    // finest levels use the per-level bounds; patches of 4 cells (deep inside the blocks) and
+    // of the default size.
+    let hm = terrain(257, 257);
+    let (dir, store) = bake_store(&hm, "eq7", 6, 4);
+    let all: HashMap<BlockId, u8> = store.block_ids().map(|b| (b, 6)).collect();
     let mut total = 0;
-    for cam in cameras() {
-        for tau in [0.5, 2.0, 8.0] {
-            for &b in &ids {
-                total += check(&store, b, &cam, tau, None);
+    let mut factors = std::collections::BTreeSet::new();
+    for patch_cells in [4, 32] {
+        let tree = StoreTree::new(store.clone(), patch_cells);
+        for (ci, cam) in cameras().iter().enumerate() {
+            for tau in [0.5, 2.0, 8.0] {
+                let sel = select_patches(&tree, cam, tau, |b| all.get(&b).copied());
+                let n = check(&tree, cam, tau, &all, &sel);
+                if ci == 3 {
+                    assert_eq!(n, 0, "patches behind the camera");
+                }
+                total += n;
+                factors.extend(sel.patches.iter().map(|p| p.inner[0] as u32));
+                // The streamer's needed level is the deepest level drawn in each block (the
+                // same traversal; exact for the default patch size).
+                if patch_cells == 32 {
+                    let view = View::new(cam, tau);
+                    let region = project_view_to_ground(cam);
+                    for b in store.block_ids() {
+                        let drawn = sel
+                            .patches
+                            .iter()
+                            .filter_map(|p| {
+                                let (pb, local) = tree.block_of(p.node)?;
+                                (pb == b).then(|| local.level + p.inner[0].log2() as u8)
+                            })
+                            .max();
+                        let (h, e) = (store.header(), store.entry(b).unwrap());
+                        let need = needed_geometry_level(h, e, b, &view, &region);
+                        // What the streamer loads: that, and at least the shading level.
+                        assert_eq!(
+                            needed_level(h, e, b, &view, &region),
+                            need.map(|n| n.max(shading_level(h, e, b, &view)))
+                        );
+                        // Factor 2 is the least: a patch needing only its corners draws its
+                        // next level's vertices by interpolation. (Balancing across blocks
+                        // can split a block's leaves further; then only presence agrees.)
+                        assert_eq!(need.is_some(), drawn.is_some(), "{b}");
+                        if let (Some(n), Some(d)) = (need, drawn)
+                            && sel.stats.balance_added == 0
+                        {
+                            assert!(d == n || d == n + 1, "{b}: needed {n}, drawn {d}");
+                        }
+                    }
+                }
             }
         }
     }
-    assert!(total > 100, "{total} nodes selected");
+    assert!(total > 100, "{total} patches");
+    assert!(factors.len() >= 3, "factors used: {factors:?}");
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn clamped_and_missing_blocks_stay_crack_free() {
+    // 150 x 120 samples: the east and north blocks are partly padding (clipped node rects).
+    let hm = terrain(150, 120);
+    let (dir, store) = bake_store(&hm, "clamped", 5, 3);
+    assert_eq!((store.header().blocks_x, store.header().blocks_y), (5, 4));
+    let tree = StoreTree::new(store.clone(), 4);
+    // Resident levels vary per block; one block has nothing resident (not drawn).
+    let resident: HashMap<BlockId, u8> = store
+        .block_ids()
+        .filter(|b| *b != BlockId::new(1, 1))
+        .map(|b| (b, ((b.row * 3 + b.col) % 6) as u8))
+        .collect();
+    let mut total = 0;
+    for cam in cameras() {
+        for tau in [0.5, 2.0, 8.0] {
+            let sel = select_patches(&tree, &cam, tau, |b| resident.get(&b).copied());
+            total += check(&tree, &cam, tau, &resident, &sel);
+        }
+    }
+    assert!(total > 50, "{total} patches");
     std::fs::remove_dir_all(&dir).unwrap();
 }

@@ -40,8 +40,12 @@ fn store(name: &str) -> (std::path::PathBuf, Arc<Store>) {
     (dir, s)
 }
 
+/// A small viewport (128 x 72): blocks a few km away need coarse levels for their shading
+/// (`lod::shading_level`), so levels rise as the camera approaches.
 fn camera(y: f64) -> Camera {
-    Camera::from_yaw_pitch(dvec3(2560.0, y, 900.0), 0.0, -20.0).with_clip(1.0, 2500.0)
+    Camera::from_yaw_pitch(dvec3(2560.0, y, 900.0), 0.0, -20.0)
+        .with_viewport(128.0, 72.0)
+        .with_clip(1.0, 2500.0)
 }
 
 #[test]
@@ -283,8 +287,9 @@ fn a_block_deleted_mid_flight_is_a_fault_not_a_panic() {
     // levels); frame C turns to the north half of the map, which neither A nor B touched.
     let far = camera(-2000.0);
     let near = camera(-300.0);
-    let north =
-        Camera::from_yaw_pitch(dvec3(2560.0, 2600.0, 900.0), 0.0, -20.0).with_clip(1.0, 2500.0);
+    let north = Camera::from_yaw_pitch(dvec3(2560.0, 2600.0, 900.0), 0.0, -20.0)
+        .with_viewport(128.0, 72.0)
+        .with_clip(1.0, 2500.0);
     let planned = plan(&store, config, &[far, near]);
     // Victims: blocks visible in both frames whose needed level rises from A to B.
     let rising: Vec<(BlockId, u8, u8)> = planned[0]

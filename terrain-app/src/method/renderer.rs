@@ -72,6 +72,9 @@ pub struct DrawStats {
     /// Whether the GPU tessellation pass ran (tessellation renderers).
     pub tessellated: Option<bool>,
     /// Bytes uploaded this frame.
+    /// Compute + draw batches the frame was split into (1 unless its tessellated points or
+    /// indices exceed the device's largest storage binding).
+    pub batches: usize,
     pub upload_bytes: u64,
     /// Material passes skipped (geomorph renderer).
     pub passes_skipped: Option<usize>,
@@ -205,6 +208,7 @@ impl FrameRenderer {
                     tessellated: Some(s.tessellated),
                     upload_bytes: bytes + anchor_bytes,
                     passes_skipped: None,
+                    batches: s.batches,
                     gpu_text: s.gpu_text(),
                     adapter: s.adapter,
                 }
@@ -224,6 +228,7 @@ impl FrameRenderer {
                     tessellated: None,
                     upload_bytes: s.upload_bytes + anchor_bytes,
                     passes_skipped: Some(s.passes_skipped),
+                    batches: 1,
                     gpu_text: "n/a (the geomorph renderer has no timestamps)".to_string(),
                     adapter: s.adapter,
                 }
@@ -245,6 +250,7 @@ impl FrameRenderer {
                     tessellated: Some(s.tessellated),
                     upload_bytes: 128 + pages * self.page_bytes,
                     passes_skipped: None,
+                    batches: s.batches,
                     gpu_text: s.gpu_text(),
                     adapter: s.adapter,
                 }

@@ -17,7 +17,7 @@ pub use dss::{DSS_ROOT_ID, dss_block_id, dss_child_neighbours, dss_neighbours, d
 pub use node::{Direction, NodeId, Quadrant};
 pub use pvps::{pvps_node_center, pvps_node_center_as_printed, pvps_patch_corners, pvps_span};
 pub use traverse::{
-    AlwaysSplit, BoundingCircleCull, Cull, CullPolicy, FrustumCull, LeafSet, NoCull, SplitPolicy,
-    SplitToLevel, Visit, balance, balance_with, is_balanced, select, traverse,
+    AlwaysSplit, BoundingCircleCull, Cull, CullPolicy, FrustumCull, LeafSet, NoCull, NodeSource,
+    SplitPolicy, SplitToLevel, Visit, balance, balance_with, is_balanced, select, traverse,
 };
 pub use tree::{GridRect, NodeInfo, Quadtree};

@@ -12,6 +12,31 @@ use super::node::{Direction, NodeId, Quadrant};
 use super::tree::{NodeInfo, Quadtree};
 use crate::geometry::{Classification, Frustum, GroundRegion, circle_vs_region};
 
+/// What [`traverse`] needs from a node space: the per-node values the policies read. The
+/// quadtree's root is [`NodeId::ROOT`] (the whole grid rounded up to a power of two of
+/// cells, see the crate's node addressing); a source answers for any node.
+///
+/// Implemented by the in-memory [`Quadtree`] (min/max pyramid over a heightmap) and by an
+/// out-of-core store's index (terrain-stream: per-block node values, no heights in memory),
+/// so every LOD method walks terrain through the same traversal whatever holds it.
+pub trait NodeSource {
+    /// Everything the policies need about `node`, or `None` when it holds no grid cell (the
+    /// traversal skips it silently). [`NodeInfo::is_finest`] stops the descent.
+    fn node_info(&self, node: NodeId) -> Option<NodeInfo>;
+}
+
+impl NodeSource for Quadtree {
+    fn node_info(&self, node: NodeId) -> Option<NodeInfo> {
+        Quadtree::node_info(self, node)
+    }
+}
+
+impl<T: NodeSource + ?Sized> NodeSource for &T {
+    fn node_info(&self, node: NodeId) -> Option<NodeInfo> {
+        (**self).node_info(node)
+    }
+}
+
 /// What a cull policy says about a node.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 pub enum Cull {
@@ -160,7 +185,7 @@ impl CullPolicy for BoundingCircleCull {
     }
 }
 
-/// The traversal shared by every LOD method: top-down from the root, depth-first in child
+/// The traversal shared by every LOD method, over any [`NodeSource`]: top-down from the root, depth-first in child
 /// order (SW, SE, NE, NW). For each node that holds grid cells: the cull policy classifies
 /// it (unless an ancestor was [`Cull::AcceptAll`]); a rejected node is reported as
 /// [`Visit::Culled`] and dropped; otherwise, if it is above the finest level and the split
@@ -170,8 +195,9 @@ impl CullPolicy for BoundingCircleCull {
 ///
 /// Returns the selected leaves in traversal order (deterministic; sorted by
 /// [`NodeId::dfs_key`]).
-pub fn traverse<S, C, V>(qt: &Quadtree, split: &mut S, cull: &mut C, visit: &mut V) -> Vec<NodeId>
+pub fn traverse<Q, S, C, V>(qt: &Q, split: &mut S, cull: &mut C, visit: &mut V) -> Vec<NodeId>
 where
+    Q: NodeSource + ?Sized,
     S: SplitPolicy + ?Sized,
     C: CullPolicy + ?Sized,
     V: FnMut(NodeId, Visit) + ?Sized,
@@ -206,8 +232,9 @@ where
 }
 
 /// [`traverse`] without a visitor.
-pub fn select<S, C>(qt: &Quadtree, split: &mut S, cull: &mut C) -> Vec<NodeId>
+pub fn select<Q, S, C>(qt: &Q, split: &mut S, cull: &mut C) -> Vec<NodeId>
 where
+    Q: NodeSource + ?Sized,
     S: SplitPolicy + ?Sized,
     C: CullPolicy + ?Sized,
 {

@@ -80,6 +80,10 @@ pub struct FrameStats {
     /// Whether this frame ran the tessellator (false: the patch list was unchanged and its
     /// tessellation was reused).
     pub tessellated: bool,
+    /// Compute + draw batches the frame was split into (1 unless its tessellated points or
+    /// indices exceed the device's largest storage binding, see
+    /// [`TerrainRenderer::batch_limit_bytes`]).
+    pub batches: usize,
     /// CPU time to prepare, encode and submit the frame, milliseconds. On GL this includes
     /// most of the driver's work: wgpu's GL backend replays the commands at submission, and
     /// llvmpipe executes them there.
@@ -174,17 +178,30 @@ pub enum RenderError {
     Page(#[from] PageError),
 }
 
-/// The tessellation of one patch list, with what draws it.
+/// The tessellation of one patch list, with what draws it: one or more batches (consecutive
+/// runs of patches whose points and indices each fit the device's largest storage binding).
 #[derive(Debug)]
 struct Tessellation {
     patches: Vec<DrawPatch>,
-    out: GpuTessOutput,
-    bind_group: wgpu::BindGroup,
+    batches: Vec<Batch>,
     triangles: u64,
     vertices: u64,
     skirts: Option<Skirts>,
-    /// The patch rects (binding 2), for bind groups over other point buffers.
+    /// Every patch's rect (binding 2; extra triangles and skirts name patches by their
+    /// position in the whole list).
     rects: wgpu::Buffer,
+    /// Binds `rects` with the first batch's points and indices: for extra triangles, skirts
+    /// and read-backs of arbitrary points.
+    whole_group: wgpu::BindGroup,
+}
+
+/// One compute + draw batch of a [`Tessellation`].
+#[derive(Debug)]
+struct Batch {
+    /// Position of the batch's first patch in the whole list.
+    first: usize,
+    out: GpuTessOutput,
+    bind_group: wgpu::BindGroup,
 }
 
 #[derive(Debug)]
@@ -330,6 +347,8 @@ pub struct TerrainRenderer {
     tess: Option<Tessellation>,
     counts: HashMap<[u32; 6], (u64, u64)>,
     timer: Option<Timer>,
+    /// A smaller batch limit than the device's (tests).
+    forced_batch_limit: Option<u64>,
 }
 
 /// A buffer of `usage` (plus `COPY_DST`) holding `bytes`, at least 16 bytes long (wgpu refuses
@@ -738,6 +757,7 @@ impl TerrainRenderer {
             tess: None,
             counts: HashMap::new(),
             timer,
+            forced_batch_limit: None,
         })
     }
 
@@ -887,40 +907,88 @@ impl TerrainRenderer {
         (triangles, points)
     }
 
-    /// Makes `patches` the current tessellation (allocating its buffers) unless it already
-    /// is; returns whether the tessellator must run.
+    /// Bytes one batch's tessellated points or indices may take: the device's largest storage
+    /// binding and buffer (or a smaller limit set by [`TerrainRenderer::force_batch_limit`]).
+    /// A frame whose points or indices need more is drawn in several compute + draw batches
+    /// ([`FrameStats::batches`]), never refused.
+    pub fn batch_limit_bytes(&self) -> u64 {
+        let l = self.device.limits();
+        let device = l.max_storage_buffer_binding_size.min(l.max_buffer_size);
+        self.forced_batch_limit.map_or(device, |f| f.min(device))
+    }
+
+    /// Test hook: splits frames into batches of at most `bytes` of points or indices (`None`:
+    /// the device's limit). The next frame tessellates again.
+    pub fn force_batch_limit(&mut self, bytes: Option<u64>) {
+        self.forced_batch_limit = bytes;
+        self.tess = None;
+    }
+
+    /// Consecutive runs of `patches` whose points (16 bytes each) and indices (4 bytes each)
+    /// fit [`TerrainRenderer::batch_limit_bytes`]; `[start, end)` ranges, at least one.
+    fn batch_ranges(&self, patches: &[DrawPatch]) -> Vec<(usize, usize)> {
+        let limit = self.batch_limit_bytes();
+        let mut out = Vec::new();
+        let (mut start, mut points, mut indices) = (0, 0u64, 0u64);
+        for (k, p) in patches.iter().enumerate() {
+            let l = QuadLayout::new(&p.factors);
+            let (pp, ii) = (16 * u64::from(l.point_count()), 12 * u64::from(l.triangle_count()));
+            if k > start && (points + pp > limit || indices + ii > limit) {
+                out.push((start, k));
+                (start, points, indices) = (k, 0, 0);
+            }
+            points += pp;
+            indices += ii;
+        }
+        out.push((start, patches.len()));
+        out
+    }
+
+    fn rects_buffer(&self, label: &str, patches: &[DrawPatch]) -> wgpu::Buffer {
+        let mut rects: Vec<[u32; 4]> = patches.iter().map(|p| p.rect).collect();
+        if rects.is_empty() {
+            rects.push([0; 4]);
+        }
+        let buf = self.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some(label),
+            size: (rects.len() * 16) as u64,
+            usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        self.queue.write_buffer(&buf, 0, bytemuck::cast_slice(&rects));
+        buf
+    }
+
+    /// Makes `patches` the current tessellation (allocating its buffers, split into batches
+    /// where the device's binding limit requires) unless it already is; returns whether the
+    /// tessellator must run.
     fn prepare(&mut self, patches: &[DrawPatch]) -> Result<bool, RenderError> {
         if self.tess.as_ref().is_some_and(|t| t.patches == patches) {
             return Ok(false);
         }
         self.check_patches(patches)?;
-        let factors: Vec<PatchFactors> = patches.iter().map(|p| p.factors).collect();
-        let ctx_out = {
-            // GpuTessellator::prepare needs a GpuContext only for its device and queue.
-            self.prepare_output(&factors)?
-        };
-        let mut rects: Vec<[u32; 4]> = patches.iter().map(|p| p.rect).collect();
-        if rects.is_empty() {
-            rects.push([0; 4]);
+        let mut batches = Vec::new();
+        for (a, b) in self.batch_ranges(patches) {
+            let part = &patches[a..b];
+            let factors: Vec<PatchFactors> = part.iter().map(|p| p.factors).collect();
+            let out = self.prepare_output(&factors)?;
+            let rects = self.rects_buffer("patch rects", part);
+            let bind_group = self.terrain_bind_group("terrain", &rects, &out.points, &out.indices);
+            batches.push(Batch { first: a, out, bind_group });
         }
-        let rects_buf = self.device.create_buffer(&wgpu::BufferDescriptor {
-            label: Some("patch rects"),
-            size: (rects.len() * 16) as u64,
-            usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
-            mapped_at_creation: false,
-        });
-        self.queue.write_buffer(&rects_buf, 0, bytemuck::cast_slice(&rects));
-        let bind_group =
-            self.terrain_bind_group("terrain", &rects_buf, &ctx_out.points, &ctx_out.indices);
+        let rects = self.rects_buffer("all patch rects", patches);
+        let first = &batches[0].out;
+        let whole_group =
+            self.terrain_bind_group("terrain, all patches", &rects, &first.points, &first.indices);
         let (triangles, vertices) = self.count(patches);
         self.tess = Some(Tessellation {
             patches: patches.to_vec(),
-            out: ctx_out,
-            bind_group,
+            batches,
             triangles,
             vertices,
             skirts: None,
-            rects: rects_buf,
+            rects,
+            whole_group,
         });
         Ok(true)
     }
@@ -1122,12 +1190,18 @@ impl TerrainRenderer {
         let mut encoder = self.device.create_command_encoder(&Default::default());
         let timer = self.timer.as_ref();
         if tessellate_now {
-            let writes = timer.map(|t| wgpu::ComputePassTimestampWrites {
-                query_set: &t.tess,
-                beginning_of_pass_write_index: Some(0),
-                end_of_pass_write_index: Some(1),
-            });
-            self.tessellator.encode_timed(&mut encoder, &tess.out, writes);
+            let last = tess.batches.len() - 1;
+            for (k, batch) in tess.batches.iter().enumerate() {
+                // One timestamp at the first batch's start, one at the last one's end.
+                let writes = timer.filter(|_| k == 0 || k == last).map(|t| {
+                    wgpu::ComputePassTimestampWrites {
+                        query_set: &t.tess,
+                        beginning_of_pass_write_index: (k == 0).then_some(0),
+                        end_of_pass_write_index: (k == last).then_some(1),
+                    }
+                });
+                self.tessellator.encode_timed(&mut encoder, &batch.out, writes);
+            }
         }
         {
             let pipelines = &self.pipelines[&format];
@@ -1143,19 +1217,23 @@ impl TerrainRenderer {
                     self.target.begin_pass_into(&mut encoder, view, clear, writes)
                 }
             };
-            pass.set_bind_group(0, &tess.bind_group, &[]);
-            if options.wireframe {
-                // The non-indexed draw reads the indexed arguments: their first four words
-                // (index count, 1, 0, 0) are (vertex count, instances, first vertex, first
-                // instance).
-                pass.set_pipeline(&pipelines.pulled);
-                pass.draw_indirect(&tess.out.draw_args, 0);
-            } else {
-                pass.set_pipeline(&pipelines.indexed);
-                pass.set_vertex_buffer(0, tess.out.points.slice(..));
-                pass.set_index_buffer(tess.out.indices.slice(..), wgpu::IndexFormat::Uint32);
-                pass.draw_indexed_indirect(&tess.out.draw_args, 0);
+            for batch in &tess.batches {
+                pass.set_bind_group(0, &batch.bind_group, &[]);
+                if options.wireframe {
+                    // The non-indexed draw reads the indexed arguments: their first four words
+                    // (index count, 1, 0, 0) are (vertex count, instances, first vertex, first
+                    // instance).
+                    pass.set_pipeline(&pipelines.pulled);
+                    pass.draw_indirect(&batch.out.draw_args, 0);
+                } else {
+                    pass.set_pipeline(&pipelines.indexed);
+                    pass.set_vertex_buffer(0, batch.out.points.slice(..));
+                    pass.set_index_buffer(batch.out.indices.slice(..), wgpu::IndexFormat::Uint32);
+                    pass.draw_indexed_indirect(&batch.out.draw_args, 0);
+                }
             }
+            // Skirts and extra triangles name patches in the whole list.
+            pass.set_bind_group(0, &tess.whole_group, &[]);
             if let Some(s) =
                 tess.skirts.as_ref().filter(|s| options.skirt_depth_m > 0.0 && s.index_count > 0)
             {
@@ -1185,6 +1263,7 @@ impl TerrainRenderer {
             triangles: tess.triangles + extra.map_or(0, |e| (e.indices.len() / 3) as u64),
             vertices: tess.vertices + extra.map_or(0, |e| e.points.len() as u64),
             tessellated: tessellate_now,
+            batches: tess.batches.len(),
             cpu_ms,
             gpu_ms: None,
             gpu_tess_ms: None,
@@ -1287,55 +1366,64 @@ impl TerrainRenderer {
         let camera = Camera::from_yaw_pitch(camera_position, 0.0, 0.0);
         self.write_frame(&camera, &RenderOptions::default());
         let tess = self.tess.as_ref().expect("prepared above");
-        let n = tess.out.point_capacity;
-        let groups = n.div_ceil(64);
-        let limit = self.device.limits().max_compute_workgroups_per_dimension;
-        if groups > limit {
-            return Err(GpuError::LimitExceeded {
-                what: "surface read-back workgroups",
-                requested: u64::from(groups),
-                maximum: u64::from(limit),
+        let mut all =
+            SurfaceReadBack { points: Vec::new(), positions: Vec::new(), normals: Vec::new() };
+        // Batch by batch; points name their patch in the whole list.
+        for batch in &tess.batches {
+            let n = batch.out.point_capacity;
+            let groups = n.div_ceil(64);
+            let limit = self.device.limits().max_compute_workgroups_per_dimension;
+            if groups > limit {
+                return Err(GpuError::LimitExceeded {
+                    what: "surface read-back workgroups",
+                    requested: u64::from(groups),
+                    maximum: u64::from(limit),
+                }
+                .into());
             }
-            .into());
-        }
-        let out_size = (u64::from(n) * 32).max(32);
-        let out = self.device.create_buffer(&wgpu::BufferDescriptor {
-            label: Some("surface read-back"),
-            size: out_size,
-            usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC,
-            mapped_at_creation: false,
-        });
-        let debug_group = self.device.create_bind_group(&wgpu::BindGroupDescriptor {
-            label: Some("terrain debug"),
-            layout: &self.debug_layout,
-            entries: &[wgpu::BindGroupEntry { binding: 0, resource: out.as_entire_binding() }],
-        });
-        let mut encoder = self.device.create_command_encoder(&Default::default());
-        if tessellate_now {
-            self.tessellator.encode(&mut encoder, &tess.out);
-        }
-        {
-            let mut pass = encoder.begin_compute_pass(&Default::default());
-            pass.set_pipeline(&self.debug);
-            pass.set_bind_group(0, &tess.bind_group, &[]);
-            pass.set_bind_group(1, &debug_group, &[]);
-            if groups > 0 {
-                pass.dispatch_workgroups(groups, 1, 1);
+            let out_size = (u64::from(n) * 32).max(32);
+            let out = self.device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some("surface read-back"),
+                size: out_size,
+                usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC,
+                mapped_at_creation: false,
+            });
+            let debug_group = self.device.create_bind_group(&wgpu::BindGroupDescriptor {
+                label: Some("terrain debug"),
+                layout: &self.debug_layout,
+                entries: &[wgpu::BindGroupEntry { binding: 0, resource: out.as_entire_binding() }],
+            });
+            let mut encoder = self.device.create_command_encoder(&Default::default());
+            if tessellate_now {
+                self.tessellator.encode(&mut encoder, &batch.out);
             }
+            {
+                let mut pass = encoder.begin_compute_pass(&Default::default());
+                pass.set_pipeline(&self.debug);
+                pass.set_bind_group(0, &batch.bind_group, &[]);
+                pass.set_bind_group(1, &debug_group, &[]);
+                if groups > 0 {
+                    pass.dispatch_workgroups(groups, 1, 1);
+                }
+            }
+            self.queue.submit([encoder.finish()]);
+            let points =
+                read_buffer(&self.device, &self.queue, &batch.out.points, u64::from(n) * 16)?;
+            let values: Vec<[f32; 4]> = bytemuck::pod_collect_to_vec(&read_buffer(
+                &self.device,
+                &self.queue,
+                &out,
+                u64::from(n) * 32,
+            )?);
+            let mut points: Vec<GpuDomainPoint> = bytemuck::pod_collect_to_vec(&points);
+            for p in &mut points {
+                p.patch_index += batch.first as u32;
+            }
+            all.points.extend(points);
+            all.positions.extend(values.iter().step_by(2).copied());
+            all.normals.extend(values.iter().skip(1).step_by(2).copied());
         }
-        self.queue.submit([encoder.finish()]);
-        let points = read_buffer(&self.device, &self.queue, &tess.out.points, u64::from(n) * 16)?;
-        let values: Vec<[f32; 4]> = bytemuck::pod_collect_to_vec(&read_buffer(
-            &self.device,
-            &self.queue,
-            &out,
-            u64::from(n) * 32,
-        )?);
-        Ok(SurfaceReadBack {
-            points: bytemuck::pod_collect_to_vec(&points),
-            positions: values.iter().step_by(2).copied().collect(),
-            normals: values.iter().skip(1).step_by(2).copied().collect(),
-        })
+        Ok(all)
     }
 
     /// The bind group of `terrain.wgsl`'s group 0 (one place, so every pass that uses the
@@ -1393,8 +1481,12 @@ impl TerrainRenderer {
         let input = storage("read-back points", u64::from(n) * 16, U::STORAGE | U::COPY_DST);
         self.queue.write_buffer(&input, 0, bytemuck::cast_slice(points));
         let out = storage("read-back surface", u64::from(n) * 32, U::STORAGE | U::COPY_SRC);
-        let group =
-            self.terrain_bind_group("read-back points", &tess.rects, &input, &tess.out.indices);
+        let group = self.terrain_bind_group(
+            "read-back points",
+            &tess.rects,
+            &input,
+            &tess.batches[0].out.indices,
+        );
         let debug_group = self.device.create_bind_group(&wgpu::BindGroupDescriptor {
             label: Some("terrain debug"),
             layout: &self.debug_layout,

@@ -10,8 +10,8 @@
 // slots in classes (one band of rows per class, each class's pages stored as their lattice
 // at a stride) and `page_table` maps each page of the grid to its class and slot (0: not
 // resident, else class << 24 | slot + 1), after a header (8 words of layout, 8 per class).
-// A sample on a page border is looked up in the page it falls in first, then in the
-// west/south neighbours that share it; in a page of stride d > 1 it is the bilinear
+// A sample on a page border is read from the finest resident page among the page it falls in
+// and the west/south neighbours that share it (the first of them among equals); in a page of stride d > 1 it is the bilinear
 // interpolation in its lattice cell (paged::lattice_bilinear). A sample on no resident page
 // reads 0 and is left out of the normals' central differences. The whole-heightmap renderer
 // is one page of stride 1, resident.
@@ -83,8 +83,19 @@ fn page_entry(px: u32, py: u32) -> u32 {
     return page_table[136u + py * page_table[2] + px];
 }
 
-// paged::PagedHeights::locate and HeightGrid::sample: the first resident page of the four
-// candidates, straight-line code (no loop).
+// Stride of the class of page-table entry `s` (non-zero).
+fn entry_stride(s: u32) -> u32 {
+    return page_table[8u + 8u * (s >> 24u) + 4u];
+}
+
+// Whether entry `t` is resident and finer than the best so far (`s`, 0 = none).
+fn finer(t: u32, s: u32) -> bool {
+    return t != 0u && (s == 0u || entry_stride(t) < entry_stride(s));
+}
+
+// paged::PagedHeights::locate and HeightGrid::sample: of the resident pages among the four
+// candidates, the one of the smallest stride (the first in order among equals), straight-line
+// code (no loop).
 fn lookup(i: i32, j: i32) -> Lookup {
     let g = vec2<u32>(clamp(vec2<i32>(i, j), vec2<i32>(0), vec2<i32>(frame.grid_max)));
     let c = vec2<u32>(page_table[0], page_table[1]);
@@ -94,17 +105,28 @@ fn lookup(i: i32, j: i32) -> Lookup {
     let p1 = select(p0, p0 - vec2<u32>(1u), back);
     var p = p0;
     var s = page_entry(p0.x, p0.y);
-    if s == 0u && back.x {
-        p = vec2<u32>(p1.x, p0.y);
-        s = page_entry(p.x, p.y);
+    if back.x {
+        let q = vec2<u32>(p1.x, p0.y);
+        let t = page_entry(q.x, q.y);
+        if finer(t, s) {
+            p = q;
+            s = t;
+        }
     }
-    if s == 0u && back.y {
-        p = vec2<u32>(p0.x, p1.y);
-        s = page_entry(p.x, p.y);
+    if back.y {
+        let q = vec2<u32>(p0.x, p1.y);
+        let t = page_entry(q.x, q.y);
+        if finer(t, s) {
+            p = q;
+            s = t;
+        }
     }
-    if s == 0u && back.x && back.y {
-        p = p1;
-        s = page_entry(p.x, p.y);
+    if back.x && back.y {
+        let t = page_entry(p1.x, p1.y);
+        if finer(t, s) {
+            p = p1;
+            s = t;
+        }
     }
     if s == 0u {
         return Lookup(0.0, false);

@@ -418,6 +418,51 @@ fn frame_stats(backend: BackendChoice) {
     }
 }
 
+/// A frame whose points exceed the batch limit is drawn in several compute + draw batches,
+/// pixel for pixel as one batch draws it (plain, wireframe and with skirts), and the surface
+/// read-back names the same patches.
+fn batches_draw_like_one(backend: BackendChoice) {
+    let Some(ctx) = context(backend) else { return };
+    let hm = default_terrain();
+    let mut renderer = TerrainRenderer::new(&ctx, &hm, &config(160, 90)).unwrap();
+    let patches = random_patches(&hm, 32, 2.0, 24.0, 11, true);
+    let camera = default_camera(&hm, 160, 90, 60.0);
+    let mut images = Vec::new();
+    let mut read_backs = Vec::new();
+    for limit in [None, Some(16 * 1024)] {
+        renderer.force_batch_limit(limit);
+        let mut frame_images = Vec::new();
+        for options in [
+            RenderOptions::default(),
+            RenderOptions { wireframe: true, ..Default::default() },
+            RenderOptions { skirt_depth_m: 50.0, ..Default::default() },
+        ] {
+            let stats = renderer.render(&camera, &patches, &options).unwrap();
+            println!("limit {limit:?}: {stats}, {} batches", stats.batches);
+            assert_eq!(stats.batches > 1, limit.is_some(), "{limit:?}: {} batches", stats.batches);
+            frame_images.push(renderer.read_image().unwrap());
+        }
+        images.push(frame_images);
+        read_backs.push(renderer.surface_read_back(camera.position, &patches).unwrap());
+    }
+    for (a, b) in images[0].iter().zip(&images[1]) {
+        let differ = a.pixels.iter().zip(&b.pixels).filter(|(x, y)| x != y).count();
+        assert_eq!(differ, 0, "batched frame differs in {differ} pixels");
+        assert!(a.pixels.iter().filter(|&&p| p != BACKGROUND).count() > 1000);
+    }
+    assert_eq!(read_backs[0], read_backs[1]);
+}
+
+#[test]
+fn batches_draw_like_one_on_vulkan() {
+    batches_draw_like_one(BackendChoice::Vulkan);
+}
+
+#[test]
+fn batches_draw_like_one_on_gl() {
+    batches_draw_like_one(BackendChoice::Gl);
+}
+
 #[test]
 fn frame_stats_on_vulkan() {
     frame_stats(BackendChoice::Vulkan);
@@ -640,18 +685,27 @@ fn paged_coarse_slots_draw_like_pages_filled_at_full_resolution() {
     let eye = dvec3(800.0, 600.0, f64::from(hm.max()) + 250.0);
     let ra = a.surface_read_back(eye, &patches).unwrap();
     let rb = b.surface_read_back(eye, &patches).unwrap();
-    // The shader's lattice interpolation is fill_from_level's, operation for operation.
-    assert_eq!(ra.positions, rb.positions);
-    assert_eq!(ra.normals, rb.normals);
     let anchor = TerrainRenderer::anchor_for(eye);
+    let mut inside = 0;
     for (k, p) in ra.points.iter().enumerate() {
         let patch = &patches[p.patch_index as usize];
         let want = surface::vertex_position(&coarse, patch, p.uv) - anchor;
-        assert_eq!(want, surface::vertex_position(&filled, patch, p.uv) - anchor);
+        // The shader's lattice interpolation is fill_from_level's, operation for operation,
+        // away from page borders (a shared border sample comes from the finest page holding
+        // it; the filled pages all claim stride 1).
+        let g = surface::grid_coords(patch, p.uv);
+        let off_border = |x: f32| (2.0..30.0).contains(&x.rem_euclid(32.0));
+        if off_border(g.x) && off_border(g.y) {
+            assert_eq!(ra.positions[k], rb.positions[k], "point {k}");
+            assert_eq!(ra.normals[k], rb.normals[k], "point {k}");
+            assert_eq!(want, surface::vertex_position(&filled, patch, p.uv) - anchor);
+            inside += 1;
+        }
         let got = ra.positions[k];
         let err = (DVec3::new(got[0].into(), got[1].into(), got[2].into()) - want).length();
         assert!(err <= 1e-3, "point {k}: gpu {got:?} cpu {want}");
     }
+    assert!(inside * 2 > ra.points.len(), "{inside} of {} points compared", ra.points.len());
 }
 
 #[test]
