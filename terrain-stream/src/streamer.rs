@@ -38,11 +38,12 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
 use glam::{DVec2, DVec3};
-use terrain_core::geometry::Camera;
+use terrain_core::geometry::{Camera, GroundRegion};
+use terrain_core::metrics::screen::{MIN_DISTANCE_M, view_sin};
 
 use crate::cache::Cache;
-use crate::format::{BlockEntry, BlockId};
-use crate::lod::{View, needed_level};
+use crate::format::{BlockEntry, BlockId, Header};
+use crate::lod::{View, needed_level, shading_level};
 use crate::schedule::{
     Regions, ScheduleConfig, block_rect, blocks_under_bbox, polygon_meets_rect, regions,
 };
@@ -362,9 +363,10 @@ impl Streamer {
         let next = (ahead != DVec3::ZERO).then(|| View { eye: view.eye + ahead, ..view });
         let eye = camera.position.truncate();
         let predicted = |id: BlockId, e: &BlockEntry, now: u8| {
-            next.as_ref()
-                .and_then(|v| needed_level(header, e, id, v, &reg.extension))
-                .map_or(now, |l| l.max(now))
+            next.as_ref().map_or(now, |v| level_ahead(header, e, id, v, &reg.extension, now))
+        };
+        let needed = |id: BlockId, e: &BlockEntry, region: &GroundRegion| {
+            needed_level_fast(header, e, id, &view, region)
         };
         let mut scheduled = Vec::new();
         let mut in_m = BTreeSet::new();
@@ -374,7 +376,7 @@ impl Streamer {
             if !polygon_meets_rect(reg.view.vertices(), lo, hi) {
                 continue;
             }
-            if let Some(needed) = needed_level(header, e, id, &view, &reg.view) {
+            if let Some(needed) = needed(id, e, &reg.view) {
                 in_m.insert(id);
                 scheduled.push(ScheduledBlock {
                     block: id,
@@ -394,7 +396,7 @@ impl Streamer {
             if !polygon_meets_rect(reg.extension.vertices(), lo, hi) {
                 continue;
             }
-            let needed = needed_level(header, e, id, &view, &reg.extension).unwrap_or(0);
+            let needed = needed(id, e, &reg.extension).unwrap_or(0);
             scheduled.push(ScheduledBlock {
                 block: id,
                 needed,
@@ -602,7 +604,192 @@ impl Streamer {
     }
 }
 
+/// [`needed_level`] without its Eq. 7 walk where the walk cannot change the answer: the walk's
+/// level is at most [`geometry_level_bound`], so when that is at most the [`shading_level`]
+/// the answer is the shading level (for a block whose rectangle meets `region`, which always
+/// has a leaf: the bounding circles of its nodes contain their rectangles). The same answer
+/// as [`needed_level`] for such blocks (`needed_level_fast_is_needed_level`).
+fn needed_level_fast(
+    h: &Header,
+    e: &BlockEntry,
+    b: BlockId,
+    view: &View,
+    region: &GroundRegion,
+) -> Option<u8> {
+    let shade = shading_level(h, e, b, view);
+    if geometry_level_bound(h, e, b, view) <= shade {
+        Some(shade)
+    } else {
+        needed_level(h, e, b, view, region)
+    }
+}
+
+/// The finer of `now` and what block `b` needs for `view` (the eye one frame ahead):
+/// `max(now, needed_level)` (`now` when that is `None`), without the walk where the bound
+/// decides it.
+fn level_ahead(
+    h: &Header,
+    e: &BlockEntry,
+    b: BlockId,
+    view: &View,
+    region: &GroundRegion,
+    now: u8,
+) -> u8 {
+    let (shade, bound) = (shading_level(h, e, b, view), geometry_level_bound(h, e, b, view));
+    if shade.max(bound) <= now {
+        now
+    } else if bound <= shade {
+        shade.max(now)
+    } else {
+        needed_level(h, e, b, view, region).map_or(now, |l| l.max(now))
+    }
+}
+
+/// An upper bound of the level [`crate::lod::needed_geometry_level`] gives block `e` (of `b`)
+/// for `view`, from the block's box and its per-level maxima of `StaticE` alone (no walk).
+/// Every node of the block lies in the block's box, so its Eq. 7 `rho` per metre of error is
+/// at most `lambda sin(theta) / d` with `d` the eye's distance to the block's box (Eq. 7
+/// divides Eq. 6 by `1 + sin(beta) >= 1`); a node of level `l` has `StaticE` at most
+/// `level_errors[l]`, so no node of a level whose maximum is within the threshold splits,
+/// and no leaf asks for vertices below it. A relative margin of 1e-9 covers rounding.
+fn geometry_level_bound(h: &Header, e: &BlockEntry, b: BlockId, view: &View) -> u8 {
+    let (mut zmin, mut zmax) = (e.min, e.max);
+    if let Some(root) = e.node(0, 0, 0) {
+        zmin = zmin.min(root.min);
+        zmax = zmax.max(root.max);
+    }
+    let (lo, hi) = block_rect(h, e, b);
+    let (lo, hi) = (lo.extend(zmin.into()), hi.extend(zmax.into()));
+    let d = (lo - view.eye).max(view.eye - hi).max(DVec3::ZERO).length();
+    if !(d.is_finite() && d > 2.0 * MIN_DISTANCE_M) {
+        return h.k;
+    }
+    let per_metre = view.lambda * view_sin(view.dir) / d * (1.0 + 1e-9);
+    let limit = view.tau / per_metre;
+    if !limit.is_finite() {
+        return h.k;
+    }
+    (0..h.k)
+        .find(|&l| {
+            f64::from(e.level_errors.get(l as usize).copied().unwrap_or(0.0))
+                <= limit * (1.0 - 1e-9)
+        })
+        .unwrap_or(h.k)
+}
+
 /// Plan distance from `p` to the rectangle `[lo, hi]` (0 inside).
 fn rect_distance(p: DVec2, lo: DVec2, hi: DVec2) -> f64 {
     (lo - p).max(p - hi).max(DVec2::ZERO).length()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::bake::{BakeConfig, bake};
+    use crate::schedule::{ScheduleConfig, regions};
+    use glam::{dvec2, dvec3};
+    use std::ops::ControlFlow;
+    use terrain_core::Georef;
+    use terrain_core::heightmap::Heightmap;
+
+    /// A rough store (a ridge and a hash) where the geometry decides some blocks' levels.
+    fn store(name: &str, spacing: f64) -> Store {
+        let dir = std::env::temp_dir()
+            .join(format!("terrain-stream-streamer-{}-{name}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        let hm = Heightmap::from_fn(257, 193, Georef::local(spacing), |i, j| {
+            let (x, y) = (i as f32, j as f32);
+            200.0 * (x * 0.03).sin() * (y * 0.02).cos()
+                + ((i * 31 + j * 17) % 23) as f32 * if i > 128 { 40.0 } else { 0.1 }
+        })
+        .unwrap();
+        let cfg = BakeConfig { k: 5, node_levels: 3, ..Default::default() };
+        bake(&hm, &dir, &cfg, &mut |_: &crate::bake::BakeProgress| ControlFlow::Continue(()))
+            .unwrap();
+        Store::open(&dir).unwrap()
+    }
+
+    #[test]
+    fn needed_level_fast_is_needed_level() {
+        let (mut fast, mut walked) = (0usize, 0usize);
+        for (name, spacing) in [("fine", 2.0), ("coarse", 30.0)] {
+            let store = store(name, spacing);
+            let h = store.header().clone();
+            let ext = h.georef.spacing_m * dvec2(256.0, 192.0);
+            for k in 0..60 {
+                let t = k as f64 / 60.0;
+                let p = h.georef.world_origin + ext * dvec2(t, (t * 7.0).fract());
+                let z = 250.0 + 2000.0 * ((k * 13) % 7) as f64 / 7.0 * spacing / 10.0;
+                let cam = Camera::from_yaw_pitch(
+                    p.extend(z),
+                    (k * 47 % 360) as f64,
+                    -5.0 - (k * 11 % 80) as f64,
+                )
+                .with_viewport(
+                    if k % 2 == 0 { 1280.0 } else { 96.0 },
+                    if k % 2 == 0 { 720.0 } else { 54.0 },
+                )
+                .with_clip(1.0, ext.length() * 2.0);
+                let reg = regions(&h, &ScheduleConfig::default(), &cam, dvec2(0.0, 300.0));
+                for tau in [0.5, 2.0, 8.0] {
+                    let view = View::new(&cam, tau);
+                    for region in [&reg.view, &reg.extension] {
+                        for id in blocks_under_bbox(&h, region) {
+                            let Some(e) = store.entry(id) else { continue };
+                            let (lo, hi) = block_rect(&h, e, id);
+                            if !polygon_meets_rect(region.vertices(), lo, hi) {
+                                continue;
+                            }
+                            let slow = needed_level(&h, e, id, &view, region);
+                            assert!(slow.is_some(), "{id} meets the region but has no leaf");
+                            let shade = shading_level(&h, e, id, &view);
+                            if geometry_level_bound(&h, e, id, &view) <= shade {
+                                fast += 1;
+                            } else {
+                                walked += 1;
+                            }
+                            assert_eq!(needed_level_fast(&h, e, id, &view, region), slow, "{id}");
+                            for now in 0..=h.k {
+                                assert_eq!(
+                                    level_ahead(&h, e, id, &view, region, now),
+                                    slow.map_or(now, |l| l.max(now)),
+                                    "{id} now {now}"
+                                );
+                            }
+                        }
+                    }
+                }
+            }
+        }
+        // Both branches are exercised.
+        assert!(fast > 100 && walked > 100, "fast {fast}, walked {walked}");
+    }
+
+    #[test]
+    fn the_bound_is_never_below_the_walk() {
+        let store = store("bound", 5.0);
+        let h = store.header().clone();
+        let mut tight = 0;
+        for k in 0..40 {
+            let eye = dvec3(30.0 * k as f64, 20.0 * k as f64, 150.0 + 10.0 * k as f64);
+            let cam =
+                Camera::from_yaw_pitch(eye, (k * 37) as f64, -30.0).with_viewport(640.0, 360.0);
+            let view = View::new(&cam, 1.0);
+            for id in store.block_ids() {
+                let e = store.entry(id).unwrap();
+                let (lo, hi) = block_rect(&h, e, id);
+                let all = GroundRegion::Polygon(vec![
+                    lo - 1.0,
+                    dvec2(hi.x + 1.0, lo.y - 1.0),
+                    hi + 1.0,
+                    dvec2(lo.x - 1.0, hi.y + 1.0),
+                ]);
+                let walk = crate::lod::needed_geometry_level(&h, e, id, &view, &all).unwrap();
+                let bound = geometry_level_bound(&h, e, id, &view);
+                assert!(bound >= walk, "{id}: bound {bound} < walk {walk}");
+                tight += usize::from(bound == walk);
+            }
+        }
+        assert!(tight > 0);
+    }
 }
