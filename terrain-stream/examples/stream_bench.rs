@@ -2,7 +2,8 @@
 //! real DEMs and a big synthetic, bake throughput, and long flights (Table-3 rows per speed).
 //!
 //! `cargo run --release -p terrain-stream --example stream_bench -- [all|storage|codec|flight
-//! FRAMES [puget|big]|bake SIZE K [NAME]|realtime STORE FLIGHT [CACHE_MIB]]` (peak RSS: prefix
+//! FRAMES [puget|big]|bake SIZE K [NAME]|realtime STORE FLIGHT [CACHE_MIB [in_flight=N]
+//! [threads=N] [lookahead=F]]]` (peak RSS: prefix
 //! with `/usr/bin/time -v`). Data from `../shared/data`.
 //!
 //! `realtime` plays a flight (e.g. `flights/fast_pass.json`) over a store at the flight's own
@@ -335,7 +336,26 @@ fn overview(store: &Store, level: u8) -> Heightmap {
 }
 
 /// Plays `flight` over the store at its frame rate in real time (see the module docs).
-fn realtime(dir: &Path, flight: &Path, cache_mib: u64) {
+/// `realtime`'s optional `key=value` settings: `in_flight=N` (default 32), `threads=N`
+/// (default 0: one per core), `lookahead=F` frames (default 1: the paper's Eq. 8), `trace=1`
+/// (one line per late frame on stderr).
+fn realtime_config(budget: u64, opts: &[String]) -> (StreamConfig, bool) {
+    let mut trace = false;
+    let mut config = StreamConfig { budget_bytes: budget, max_in_flight: 32, ..Default::default() };
+    for o in opts {
+        let (k, v) = o.split_once('=').expect("key=value");
+        match k {
+            "in_flight" => config.max_in_flight = v.parse().expect("in_flight=N"),
+            "threads" => config.threads = v.parse().expect("threads=N"),
+            "lookahead" => config.schedule.lookahead_frames = v.parse().expect("lookahead=F"),
+            "trace" => trace = v == "1",
+            _ => panic!("unknown setting {k} (in_flight, threads, lookahead, trace)"),
+        }
+    }
+    (config, trace)
+}
+
+fn realtime(dir: &Path, flight: &Path, cache_mib: u64, opts: &[String]) {
     use terrain_core::flight::{FlightConfig, FlightSpec};
     let store = Arc::new(Store::open(dir).unwrap());
     let h = store.header().clone();
@@ -344,7 +364,7 @@ fn realtime(dir: &Path, flight: &Path, cache_mib: u64) {
     let (flight, _) = spec.resolve(&overview(&store, 4), &cfg);
     let ext = h.georef.spacing_m * glam::dvec2((h.width - 1) as f64, (h.height - 1) as f64);
     let budget = cache_mib << 20;
-    let config = StreamConfig { budget_bytes: budget, max_in_flight: 32, ..Default::default() };
+    let (config, trace) = realtime_config(budget, opts);
     let mut s = Streamer::new(store.clone(), config);
     let mut sum = StatsSummary::default();
     let (mut late, mut needed, mut update_ms) = (Vec::new(), Vec::new(), Vec::new());
@@ -368,6 +388,19 @@ fn realtime(dir: &Path, flight: &Path, cache_mib: u64) {
         } else {
             s.update(&cam)
         };
+        if trace && st.late_blocks > 0 {
+            eprintln!(
+                "frame {k}: late {} blocks / {} levels / {:.3} MB of {:.3} MB needed, queue {}, requests {}, arrived {:.3} MB, update {:.2} ms",
+                st.late_blocks,
+                st.late_levels,
+                st.late_bytes as f64 / 1e6,
+                st.needed_bytes as f64 / 1e6,
+                st.queue_depth,
+                st.requests,
+                st.prefetched_bytes as f64 / 1e6,
+                st.frame_time.as_secs_f64() * 1e3
+            );
+        }
         update_ms.push(st.frame_time.as_secs_f64() * 1e3);
         late.push(st.late_bytes as f64 / 1e6);
         needed.push(st.needed_bytes as f64 / 1e6);
@@ -466,6 +499,7 @@ fn main() {
             Path::new(args.get(1).expect("realtime STORE FLIGHT [CACHE_MIB]")),
             Path::new(args.get(2).expect("realtime STORE FLIGHT [CACHE_MIB]")),
             args.get(3).and_then(|s| s.parse().ok()).unwrap_or(256),
+            args.get(4..).unwrap_or(&[]),
         ),
         _ => {
             storage();
