@@ -27,6 +27,11 @@
 //! moved on by the last frame's motion times the look-ahead (the same extrapolation Eq. 8
 //! makes), so a block the camera approaches is refined before it is late.
 //!
+//! **Cost.** Both levels of a block come from [`needed_level`]'s Eq. 7 walk only where the walk
+//! can decide them: a bound from the block's box and its per-level `StaticE` maxima (no walk)
+//! says when the walk cannot ask for more than the shading level (or the level needed now),
+//! which then is the answer, the same one the walk gives.
+//!
 //! **Waiting on purpose.** [`Streamer::wait_until_resident`] is the documented way to wait
 //! until warm (still images, measurements that want the selection's own error): it requests
 //! every missing needed level of the frame's blocks and waits until all are resident, a fault
