@@ -518,7 +518,8 @@ impl Streamer {
         let mut outside: Vec<(BlockId, f64)> = self
             .cache
             .blocks()
-            .filter(|(id, b)| !wanted.contains_key(id) && b.levels.count() > self.pinned)
+            // The cheap test first: with level 0 pinned, most cached blocks hold only it.
+            .filter(|(id, b)| b.levels.count() > self.pinned && !wanted.contains_key(id))
             .map(|(id, _)| {
                 let d = store.entry(*id).map_or(f64::MAX, |e| {
                     let (lo, hi) = block_rect(header, e, *id);
