@@ -336,12 +336,15 @@ fn overview(store: &Store, level: u8) -> Heightmap {
 }
 
 /// Plays `flight` over the store at its frame rate in real time (see the module docs).
-/// `realtime`'s optional `key=value` settings: `in_flight=N` (default 32), `threads=N`
+/// `realtime`'s optional `key=value` settings: `in_flight=N` (default 128: on a
+/// 16385^2 store far blocks need many small levels at once, and 32 in flight left 55-62 % of
+/// frames short of their needed level against 33-35 % with 128; bench/ooc/README.md), `threads=N`
 /// (default 0: one per core), `lookahead=F` frames (default 1: the paper's Eq. 8), `trace=1`
 /// (one line per late frame on stderr).
 fn realtime_config(budget: u64, opts: &[String]) -> (StreamConfig, bool) {
     let mut trace = false;
-    let mut config = StreamConfig { budget_bytes: budget, max_in_flight: 32, ..Default::default() };
+    let mut config =
+        StreamConfig { budget_bytes: budget, max_in_flight: 128, ..Default::default() };
     for o in opts {
         let (k, v) = o.split_once('=').expect("key=value");
         match k {
