@@ -94,9 +94,9 @@ pub struct GeomipScene {
     levels: usize,
     nx: u32,
     ny: u32,
-    /// Per patch (row-major, south first), per level: monotone error (m) and the world
-    /// position of the max-error vertex.
-    errors: Vec<Vec<(f64, DVec3)>>,
+    /// Per patch (row-major, south first), per level (`levels` entries per patch, one
+    /// contiguous array): monotone error (m) and the world position of the max-error vertex.
+    errors: Vec<(f64, DVec3)>,
     /// Leaves of `patch_cells` cells: leaf `(i, j)` is patch `(i, j)`, its box the patch's
     /// samples' (min/max pyramid above).
     qt: Quadtree,
@@ -152,7 +152,7 @@ impl GeomipScene {
         let (w, h) = (hm.width() as u32, hm.height() as u32);
         let nx = (w.saturating_sub(1)).div_ceil(p).max(1);
         let ny = (h.saturating_sub(1)).div_ceil(p).max(1);
-        let mut errors = Vec::with_capacity((nx * ny) as usize);
+        let mut errors = Vec::with_capacity((nx * ny) as usize * levels);
         for pj in 0..ny {
             for pi in 0..nx {
                 let (x0, y0) = ((pi * p) as usize, (pj * p) as usize);
@@ -163,7 +163,6 @@ impl GeomipScene {
                     Triangulation::UnionJack,
                 );
                 let origin = hm.grid_to_world(x0 as f64, y0 as f64).extend(0.0);
-                let mut v = Vec::with_capacity(levels);
                 let mut running: f64 = 0.0;
                 for l in 0..levels {
                     let (e, pos) = match lv.get(l).and_then(|e| e.vertex.map(|v| (e.error, v))) {
@@ -171,9 +170,8 @@ impl GeomipScene {
                         None => (0.0, origin),
                     };
                     running = running.max(e);
-                    v.push((running, pos));
+                    errors.push((running, pos));
                 }
-                errors.push(v);
             }
         }
         let qt = Quadtree::new(hm, p);
@@ -198,19 +196,19 @@ impl GeomipScene {
 
     /// The monotone max error (metres) of `level` of patch `(i, j)`.
     pub fn level_error(&self, i: u32, j: u32, level: usize) -> f64 {
-        self.errors[(j * self.nx + i) as usize][level].0
+        self.errors[(j * self.nx + i) as usize * self.levels + level].0
     }
 
-    /// The continuous factor of one patch before the neighbour envelope (see the module docs).
-    fn factor(&self, k: usize, camera: &Camera, tau: f64) -> f32 {
-        let lambda = camera.lambda();
+    /// The continuous factor of one patch before the neighbour envelope (see the module docs),
+    /// for an eye at `eye` with `lambda = camera.lambda()`.
+    fn factor(&self, k: usize, eye: DVec3, lambda: f64, tau: f64) -> f32 {
         let mut c = 0.0;
         let mut prev = 1.0f64;
-        for &(delta, pos) in &self.errors[k][1..] {
+        for &(delta, pos) in &self.errors[k * self.levels + 1..(k + 1) * self.levels] {
             let a = if delta <= 0.0 {
                 0.0
             } else {
-                let d = (pos - camera.position).length();
+                let d = (pos - eye).length();
                 if d <= 1e-9 { f64::INFINITY } else { lambda * delta / (tau * d) }
             };
             let w = (2.0 - 2.0 * a).clamp(0.0, 1.0).min(prev);
@@ -236,9 +234,10 @@ impl GeomipScene {
         let max_level = self.levels - 1;
         let win = RowWindow::dilated(cells.clone(), max_level, nx, ny);
         let mut c = vec![0.0f32; win.len()];
+        let (eye, lambda) = (camera.position, camera.lambda());
         for (j, lo, hi, off) in win.rows() {
             for i in lo..=hi {
-                c[off + i - lo] = self.factor(j * nx + i, camera, tau);
+                c[off + i - lo] = self.factor(j * nx + i, eye, lambda, tau);
             }
         }
         // Lower envelope c'_p = min_q (c_q + |p - q|_1): forward then backward pass.
@@ -363,7 +362,8 @@ mod reference {
     ) -> GeomipSelection {
         let tau = cfg.pixel_threshold.max(1e-9);
         let (nx, ny) = (scene.nx as usize, scene.ny as usize);
-        let mut c: Vec<f32> = (0..nx * ny).map(|k| scene.factor(k, camera, tau)).collect();
+        let (eye, lambda) = (camera.position, camera.lambda());
+        let mut c: Vec<f32> = (0..nx * ny).map(|k| scene.factor(k, eye, lambda, tau)).collect();
         for j in 0..ny {
             for i in 0..nx {
                 let k = j * nx + i;
