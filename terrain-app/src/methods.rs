@@ -452,7 +452,8 @@ impl MethodScene {
                 }
             })
             .collect();
-        patches.sort_by_key(|p| p.node.dfs_key());
+        // Keys are distinct: one key computation per patch, same order as a stable sort.
+        patches.sort_by_cached_key(|p| p.node.dfs_key());
         let stats = SelectionStats {
             traversal_leaves: patches.len(),
             patches: patches.len(),

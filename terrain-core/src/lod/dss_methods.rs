@@ -33,8 +33,9 @@ use std::collections::HashMap;
 use std::time::Instant;
 
 use super::edges::EdgeRule;
-use super::patch::{Edge, MAX_FACTOR, Selection};
+use super::patch::{Edge, MAX_FACTOR, Patch, Selection, SelectionStats};
 use super::run;
+use super::window::RowWindow;
 use crate::geometry::Camera;
 use crate::heightmap::Heightmap;
 use crate::metrics::Region;
@@ -212,7 +213,8 @@ fn pow2_up(f: f32) -> f32 {
 }
 
 /// The DSS methods' edge rule: max across same-level edges, nested powers of two across
-/// levels (see the module docs).
+/// levels (see the module docs). Method II takes the same rule through
+/// [`assemble_uniform`].
 struct DssEdges {
     want: HashMap<NodeId, f32>,
 }
@@ -266,17 +268,69 @@ fn select_dss(
             run::leaves(qt, camera, &mut split, cfg.frustum_cull, true)
         }
     };
+    if uniform.is_some() {
+        return assemble_uniform(qt, &metric, leaves, stats, start);
+    }
     let want = leaves
         .iter()
         .map(|&n| {
             let info = qt.node_info(n).expect("selected nodes exist");
-            let f = metric.factor(n, &info);
-            (n, if uniform.is_some() { f } else { pow2_up(f) })
+            (n, pow2_up(metric.factor(n, &info)))
         })
         .collect();
     let rule = DssEdges { want };
     let inner = |n: NodeId, _: &[f32; 4]| [rule.want(n); 2];
     run::assemble(leaves, stats, &rule, inner, start)
+}
+
+/// Method II's patches: [`run::assemble`] with [`DssEdges`], without its per-frame hash maps.
+/// Every leaf is at the one uniform level, so the leaf across an edge is the same-level
+/// neighbour when it is selected (edge at the max of both factors) and none otherwise (the
+/// block's own factor); the selected leaves are indexed densely by row ([`RowWindow`]), so
+/// the cost is linear in the blocks in view. Same output as the general path (the tests
+/// compare them bit for bit).
+fn assemble_uniform(
+    qt: &Quadtree,
+    metric: &Metric<'_>,
+    leaves: Vec<NodeId>,
+    mut stats: SelectionStats,
+    start: Instant,
+) -> Selection {
+    let want: Vec<f32> = leaves
+        .iter()
+        .map(|&n| metric.factor(n, &qt.node_info(n).expect("selected nodes exist")))
+        .collect();
+    let side = leaves.first().map_or(1, |n| n.nodes_per_side() as usize);
+    let win =
+        RowWindow::dilated(leaves.iter().map(|n| (n.i as usize, n.j as usize)), 0, side, side);
+    // Slot -> position in `leaves` + 1 (0: not selected).
+    let mut slot = vec![0u32; win.len()];
+    for (k, n) in leaves.iter().enumerate() {
+        let s = win.index(n.i as usize, n.j as usize).expect("a leaf is in its own window");
+        slot[s] = k as u32 + 1;
+    }
+    let patches: Vec<Patch> = leaves
+        .iter()
+        .zip(&want)
+        .map(|(&node, &f)| {
+            debug_assert_eq!(node.level, leaves[0].level, "Method II leaves share one level");
+            let outer = Edge::ALL.map(|e| {
+                let across = node.neighbour(e.direction()).and_then(|m| {
+                    let s = win.index(m.i as usize, m.j as usize)?;
+                    slot[s].checked_sub(1)
+                });
+                match across {
+                    Some(k) => f.max(want[k as usize]),
+                    None => f,
+                }
+            });
+            Patch { node, outer, inner: [f; 2] }
+        })
+        .collect();
+    stats.patches = patches.len();
+    stats.max_level = patches.iter().map(|p| p.node.level).max().unwrap_or(0);
+    stats.cpu_time = start.elapsed();
+    Selection { patches, stats }
 }
 
 /// The DSS paper's Method I: quadtree split by Eq. 3 on `delta_32`, balanced, factors from
@@ -354,5 +408,83 @@ mod tests {
             assert_eq!(a.node, b.node);
             assert!(b.inner[0] >= a.inner[0]);
         }
+    }
+
+    /// Method II as it was: factors into a hash map, patches through [`run::assemble`] (the
+    /// general `LeafSet` neighbour search) with [`DssEdges`].
+    fn select_dss_uniform_reference(
+        qt: &Quadtree,
+        camera: &Camera,
+        table: &DssErrorTable,
+        cfg: &DssConfig,
+    ) -> Selection {
+        let start = Instant::now();
+        let metric = Metric::new(table, camera, cfg.rho_thr);
+        let block = cfg.uniform_block_cells.max(1);
+        let level = (qt.root_cells() / block.min(qt.root_cells())).max(1).ilog2() as u8;
+        let mut split = SplitToLevel(level.min(qt.max_level()));
+        let (leaves, stats) = run::leaves(qt, camera, &mut split, cfg.frustum_cull, false);
+        let want = leaves
+            .iter()
+            .map(|&n| (n, metric.factor(n, &qt.node_info(n).expect("selected"))))
+            .collect();
+        let rule = DssEdges { want };
+        let inner = |n: NodeId, _: &[f32; 4]| [rule.want(n); 2];
+        run::assemble(leaves, stats, &rule, inner, start)
+    }
+
+    fn assert_uniform_matches_reference(hm: &Heightmap, cfg: &DssConfig, cameras: usize) {
+        let qt = cfg.quadtree(hm);
+        let table = DssErrorTable::new(hm, &qt);
+        let (w, h) = (hm.width() as f64, hm.height() as f64);
+        let mut x = 0x853c_49e6_748f_ea9bu64;
+        let mut unit = move || {
+            x ^= x << 13;
+            x ^= x >> 7;
+            x ^= x << 17;
+            (x >> 11) as f64 / (1u64 << 53) as f64
+        };
+        let (mut drawn, mut partial, mut empty) = (0, false, false);
+        for k in 0..cameras {
+            let g = hm.grid_to_world(-0.3 * w + 1.6 * w * unit(), -0.3 * h + 1.6 * h * unit());
+            let z = 30.0 + 3000.0 * unit() * unit();
+            let mut cam = Camera::from_yaw_pitch(g.extend(z), 360.0 * unit(), 5.0 - 85.0 * unit())
+                .with_viewport(1280.0, 720.0);
+            if k % 3 == 1 {
+                cam = cam.with_clip(1.0, (w + h) * hm.georef().spacing_m.x * (0.05 + 0.5 * unit()));
+            }
+            let cfg = DssConfig {
+                rho_thr: [1.0, 0.25, 4.0][k % 3],
+                frustum_cull: k % 7 != 6,
+                ..cfg.clone()
+            };
+            let fast = select_dss_uniform(&qt, &cam, &table, &cfg);
+            let slow = select_dss_uniform_reference(&qt, &cam, &table, &cfg);
+            let bits = |s: &Selection| -> Vec<_> {
+                s.patches
+                    .iter()
+                    .map(|p| (p.node, p.outer.map(f32::to_bits), p.inner.map(f32::to_bits)))
+                    .collect()
+            };
+            assert_eq!(bits(&fast), bits(&slow), "camera {k}");
+            let stats = |s: &Selection| SelectionStats { cpu_time: Default::default(), ..s.stats };
+            assert_eq!(stats(&fast), stats(&slow), "camera {k}");
+            drawn += fast.patches.len();
+            partial |= fast.stats.culled > 0 && !fast.patches.is_empty();
+            empty |= fast.patches.is_empty();
+        }
+        assert!(drawn > 0 && partial && empty, "{drawn} {partial} {empty}");
+    }
+
+    #[test]
+    fn method_two_equals_the_hash_map_reference() {
+        let fractal =
+            crate::synth::FractalConfig::with_size(513, 513, 10.0).to_heightmap().unwrap();
+        let cfg = DssConfig { uniform_block_cells: 16, ..Default::default() };
+        assert_uniform_matches_reference(&fractal, &cfg, 80);
+        // Odd, non-square: the east and north blocks are clipped.
+        let odd = crate::synth::FractalConfig::with_size(301, 203, 30.0).to_heightmap().unwrap();
+        let cfg = DssConfig { leaf_cells: 8, uniform_block_cells: 16, ..Default::default() };
+        assert_uniform_matches_reference(&odd, &cfg, 80);
     }
 }

@@ -20,6 +20,8 @@
 //! - [`geomipmap`]: the geomorphing article's (Wagner 2003) geo-mipmapped patches: a level and
 //!   a continuous tween factor per patch, neighbours within one level, border rules.
 //! - [`surface`]: rebuilds the drawn surface on the CPU from a selection and a tessellator.
+//! - `window` (private): a dense per-row index over the patches a frame considers, so
+//!   selections cost what is in view, not the grid's size.
 //!
 //! # The crack-freedom invariant
 //! For every edge shared by two selected leaves, both patches assign that edge the same
@@ -44,6 +46,7 @@ pub mod geomipmap;
 pub mod patch;
 pub mod pvps;
 pub mod surface;
+mod window;
 
 pub use dss_file::DssFileError;
 pub use dss_methods::{DssConfig, DssErrorTable, select_dss_power_of_two, select_dss_uniform};

@@ -95,6 +95,16 @@ pub struct NodeId {
     pub j: u32,
 }
 
+/// Bit `k` of `v` moved to bit `2k` (the standard "magic numbers" bit interleave).
+fn spread_bits(v: u32) -> u64 {
+    let mut x = u64::from(v);
+    x = (x | (x << 16)) & 0x0000_ffff_0000_ffff;
+    x = (x | (x << 8)) & 0x00ff_00ff_00ff_00ff;
+    x = (x | (x << 4)) & 0x0f0f_0f0f_0f0f_0f0f;
+    x = (x | (x << 2)) & 0x3333_3333_3333_3333;
+    (x | (x << 1)) & 0x5555_5555_5555_5555
+}
+
 impl NodeId {
     /// Deepest level addressable (indices are u32; DSS ids and traversal keys need 2 bits
     /// per level in 64 bits).
@@ -173,14 +183,19 @@ impl NodeId {
     /// A key ordering nodes depth-first in child order (SW, SE, NE, NW): the traversal's
     /// output order. Disjoint nodes never compare equal; an ancestor sorts before its
     /// descendants.
+    ///
+    /// O(1): the quadrant of the level-`l` ancestor is `2 j_b + (i_b xor j_b)` with `i_b`, `j_b`
+    /// bit `level - l` of `i` and `j` (SW 0, SE 1, NE 2, NW 3), and level `l` takes key bits
+    /// `63 - 2(l - 1)` and `62 - 2(l - 1)`; so the key is the bit interleaving (a Morton code)
+    /// of `j` and `i xor j`, shifted to the top (sorting calls it `n log n` times).
     pub fn dfs_key(self) -> (u64, u8) {
-        let mut key = 0u64;
-        for l in 1..=self.level {
-            let q = self.ancestor(l).quadrant() as u64;
-            let shift = 62 - 2 * (l as u32 - 1);
-            key |= q << shift;
+        if self.level == 0 {
+            return (0, 0);
         }
-        (key, self.level)
+        let mask = if self.level >= 32 { u32::MAX } else { (1u32 << self.level) - 1 };
+        let (i, j) = (self.i & mask, self.j & mask);
+        let key = (spread_bits(j) << 1) | spread_bits(i ^ j);
+        (key << (64 - 2 * u32::from(self.level)), self.level)
     }
 
     /// Whether two nodes share part of an edge (positive length), at any levels.
@@ -258,5 +273,41 @@ mod tests {
             ]
         );
         assert!(NodeId::ROOT.dfs_key() < NodeId::new(1, 0, 0).dfs_key());
+    }
+
+    /// The former per-level loop, kept as the reference of the O(1) key.
+    fn dfs_key_reference(n: NodeId) -> (u64, u8) {
+        let mut key = 0u64;
+        for l in 1..=n.level {
+            let q = n.ancestor(l).quadrant() as u64;
+            key |= q << (62 - 2 * (l as u32 - 1));
+        }
+        (key, n.level)
+    }
+
+    #[test]
+    fn dfs_key_matches_the_per_level_definition() {
+        // Every node down to level 5, and pseudo-random ones at every level to the deepest.
+        let mut seen = std::collections::HashSet::new();
+        for level in 0..=5u8 {
+            for j in 0..1u32 << level {
+                for i in 0..1u32 << level {
+                    let n = NodeId::new(level, i, j);
+                    assert_eq!(n.dfs_key(), dfs_key_reference(n), "{n:?}");
+                    assert!(seen.insert(n.dfs_key()), "keys of distinct nodes differ");
+                }
+            }
+        }
+        let mut x = 0x9e37_79b9_7f4a_7c15u64;
+        for level in 0..=NodeId::MAX_LEVEL {
+            for _ in 0..200 {
+                x ^= x << 13;
+                x ^= x >> 7;
+                x ^= x << 17;
+                let m = (1u64 << level) - 1;
+                let n = NodeId::new(level, (x & m) as u32, ((x >> 32) & m) as u32);
+                assert_eq!(n.dfs_key(), dfs_key_reference(n), "{n:?}");
+            }
+        }
     }
 }
