@@ -21,8 +21,8 @@
 //! Leaves are clamped to each block's resident level (the split stops there: the runtime
 //! serves coarser levels while finer ones load), balanced across blocks (terrain-core's
 //! `balance_with`: neighbours within one level) and given outer factors by terrain-core's one
-//! [`EdgeRule`] resolver ([`StoreEdges`]: a shared edge takes the larger of the two sides'
-//! wishes, a coarse edge facing finer patches a power of two that nests with all of them), so
+//! [`EdgeRule`](terrain_core::lod::EdgeRule) resolver with its [`WishEdges`] rule (a shared edge takes the larger of the two
+//! sides' wishes, a coarse edge facing finer patches a power of two that nests with all of them), so
 //! `terrain_core::lod::check_shared_edges` holds and the tessellated surface is watertight
 //! over pages of any level (the renderer's page lookup gives every shared sample one value).
 //!
@@ -37,9 +37,7 @@ use std::time::Instant;
 
 use glam::{DVec2, DVec3};
 use terrain_core::geometry::{Aabb, Camera, GroundRegion, project_view_to_ground};
-use terrain_core::lod::{
-    Edge, EdgeRule, MAX_FACTOR, Patch, Selection, SelectionStats, outer_factors,
-};
+use terrain_core::lod::{MAX_FACTOR, Patch, Selection, SelectionStats, WishEdges, outer_factors};
 use terrain_core::metrics::screen::sight_line_eq7;
 use terrain_core::quadtree::{
     BoundingCircleCull, Cull, CullPolicy, GridRect, LeafSet, NodeId, NodeInfo, NodeSource,
@@ -478,49 +476,12 @@ impl NodeSource for StoreTree {
     }
 }
 
-/// terrain-core's one [`EdgeRule`] for store patches: each patch wishes for its own factor
-/// (`want`); a shared edge at one level takes the larger wish, a coarse edge facing finer
-/// patches the smallest power of two that is at least its own wish, every finer patch's wish
-/// times `2^d` and `2^(d + 1)` (so each finer side gets a power of two of at least 2).
-#[derive(Debug, Clone, Default)]
-pub struct StoreEdges {
-    /// Each patch's factor (a power of two, at least 2).
-    pub want: HashMap<NodeId, f32>,
-}
-
-impl StoreEdges {
-    fn want(&self, n: NodeId) -> f32 {
-        self.want.get(&n).copied().unwrap_or(2.0)
-    }
-}
-
-impl EdgeRule for StoreEdges {
-    fn same_level(&self, a: NodeId, _: Edge, b: NodeId) -> f32 {
-        self.want(a).max(self.want(b))
-    }
-
-    fn coarse_edge(&self, coarse: NodeId, _: Edge, finer: &[NodeId]) -> f32 {
-        let mut f = self.want(coarse);
-        let mut dmax = 0u8;
-        for &m in finer {
-            let d = m.level.saturating_sub(coarse.level).min(5);
-            dmax = dmax.max(d);
-            f = f.max(self.want(m) * (1u32 << d) as f32);
-        }
-        f.max((2u32 << dmax) as f32).min(MAX_FACTOR)
-    }
-
-    fn unshared(&self, node: NodeId, _: Edge) -> f32 {
-        self.want(node)
-    }
-}
-
 /// The crack-free patches of a store for `camera`: terrain-core's [`traverse`] over the
 /// [`StoreTree`] with the Eq. 7 split and the paper's [`BoundingCircleCull`] against the view
 /// projected on the ground, only over blocks with a level resident (`resident(block)`: the
 /// finest level that may be drawn, `None` = not drawn), the split stopped at that level;
 /// then balanced, factors from [`needed_vertex_level`] (clamped to the resident level, at
-/// least 2) and outer factors from [`StoreEdges`]. Patches are global nodes of the tree
+/// least 2) and outer factors from terrain-core's [`WishEdges`]. Patches are global nodes of the tree
 /// (`NodeId::grid_rect(tree.root_cells())` is their square of grid samples), in traversal
 /// order; `terrain_core::lod::check_shared_edges` holds.
 pub fn select_patches(
@@ -563,7 +524,7 @@ pub fn select_patches(
     let leaves: Vec<NodeId> = leaves.into_iter().filter(|n| n.level >= bl).collect();
     stats.traversal_leaves = leaves.len();
     let leaves = balance_with(&leaves, |n| tree.contains(n));
-    let mut rule = StoreEdges::default();
+    let mut rule = WishEdges::default();
     for &n in &leaves {
         let (b, local) = tree.block_of(n).expect("block nodes");
         let max = resident(b).unwrap_or(0);

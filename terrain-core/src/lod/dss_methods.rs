@@ -29,10 +29,10 @@
 //! `d` and `theta` per block). Straight-down views are floored by
 //! [`crate::metrics::screen::MIN_VIEW_SIN`].
 
-use std::collections::HashMap;
 use std::time::Instant;
 
-use super::edges::EdgeRule;
+use super::edges::WishEdges;
+use super::edges::pow2_up;
 use super::patch::{Edge, MAX_FACTOR, Patch, Selection, SelectionStats};
 use super::run;
 use super::window::RowWindow;
@@ -206,46 +206,6 @@ impl<'a> Metric<'a> {
     }
 }
 
-/// The smallest power of two `>= f`, within `[2, 64]`.
-fn pow2_up(f: f32) -> f32 {
-    let f = f.clamp(2.0, MAX_FACTOR);
-    (f.ceil() as u32).next_power_of_two() as f32
-}
-
-/// The DSS methods' edge rule: max across same-level edges, nested powers of two across
-/// levels (see the module docs). Method II takes the same rule through
-/// [`assemble_uniform`].
-struct DssEdges {
-    want: HashMap<NodeId, f32>,
-}
-
-impl DssEdges {
-    fn want(&self, n: NodeId) -> f32 {
-        self.want.get(&n).copied().unwrap_or(2.0)
-    }
-}
-
-impl EdgeRule for DssEdges {
-    fn same_level(&self, a: NodeId, _: Edge, b: NodeId) -> f32 {
-        self.want(a).max(self.want(b))
-    }
-
-    fn coarse_edge(&self, coarse: NodeId, _: Edge, finer: &[NodeId]) -> f32 {
-        let mut f = self.want(coarse);
-        let mut dmax = 0u8;
-        for &m in finer {
-            let d = m.level.saturating_sub(coarse.level).min(5);
-            dmax = dmax.max(d);
-            f = f.max(self.want(m) * (1u32 << d) as f32);
-        }
-        pow2_up(f).max((2u32 << dmax) as f32).min(MAX_FACTOR)
-    }
-
-    fn unshared(&self, node: NodeId, _: Edge) -> f32 {
-        self.want(node)
-    }
-}
-
 fn select_dss(
     qt: &Quadtree,
     camera: &Camera,
@@ -278,12 +238,12 @@ fn select_dss(
             (n, pow2_up(metric.factor(n, &info)))
         })
         .collect();
-    let rule = DssEdges { want };
+    let rule = WishEdges { want };
     let inner = |n: NodeId, _: &[f32; 4]| [rule.want(n); 2];
     run::assemble(leaves, stats, &rule, inner, start)
 }
 
-/// Method II's patches: [`run::assemble`] with [`DssEdges`], without its per-frame hash maps.
+/// Method II's patches: [`run::assemble`] with [`WishEdges`], without its per-frame hash maps.
 /// Every leaf is at the one uniform level, so the leaf across an edge is the same-level
 /// neighbour when it is selected (edge at the max of both factors) and none otherwise (the
 /// block's own factor); the selected leaves are indexed densely by row ([`RowWindow`]), so
@@ -411,7 +371,7 @@ mod tests {
     }
 
     /// Method II as it was: factors into a hash map, patches through [`run::assemble`] (the
-    /// general `LeafSet` neighbour search) with [`DssEdges`].
+    /// general `LeafSet` neighbour search) with [`WishEdges`].
     fn select_dss_uniform_reference(
         qt: &Quadtree,
         camera: &Camera,
@@ -428,7 +388,7 @@ mod tests {
             .iter()
             .map(|&n| (n, metric.factor(n, &qt.node_info(n).expect("selected"))))
             .collect();
-        let rule = DssEdges { want };
+        let rule = WishEdges { want };
         let inner = |n: NodeId, _: &[f32; 4]| [rule.want(n); 2];
         run::assemble(leaves, stats, &rule, inner, start)
     }

@@ -22,7 +22,9 @@
 //! 3. **No neighbour** (terrain border, culled region): [`EdgeRule::unshared`]; nothing to
 //!    match.
 
-use super::patch::{Edge, Selection};
+use std::collections::HashMap;
+
+use super::patch::{Edge, MAX_FACTOR, Selection};
 use crate::quadtree::{LeafSet, NodeId};
 
 /// How a method assigns outer factors (see the module docs for the contract).
@@ -38,6 +40,52 @@ pub trait EdgeRule {
 
     /// Factor of an edge with no selected leaf across it (terrain border or culled region).
     fn unshared(&self, node: NodeId, edge: Edge) -> f32;
+}
+
+/// The smallest power of two `>= f`, within `[2, MAX_FACTOR]`.
+pub(crate) fn pow2_up(f: f32) -> f32 {
+    let f = f.clamp(2.0, MAX_FACTOR);
+    (f.ceil() as u32).next_power_of_two() as f32
+}
+
+/// The edge rule of methods whose patches each wish for a factor (`want`; 2 for a node
+/// without a wish): a same-level edge takes the larger wish; a coarse edge facing finer
+/// patches the smallest power of two that is at least its own wish, every finer patch's wish
+/// times `2^d` and `2^(d + 1)` (so each finer side gets a power of two of at least 2); an
+/// unshared edge its own wish. Used by the DSS paper's Methods I and II and by the
+/// out-of-core store's patches (terrain-stream).
+#[derive(Debug, Clone, Default)]
+pub struct WishEdges {
+    /// Each patch's wished factor.
+    pub want: HashMap<NodeId, f32>,
+}
+
+impl WishEdges {
+    /// The factor `n` wishes for (2 without a wish).
+    pub fn want(&self, n: NodeId) -> f32 {
+        self.want.get(&n).copied().unwrap_or(2.0)
+    }
+}
+
+impl EdgeRule for WishEdges {
+    fn same_level(&self, a: NodeId, _: Edge, b: NodeId) -> f32 {
+        self.want(a).max(self.want(b))
+    }
+
+    fn coarse_edge(&self, coarse: NodeId, _: Edge, finer: &[NodeId]) -> f32 {
+        let mut f = self.want(coarse);
+        let mut dmax = 0u8;
+        for &m in finer {
+            let d = m.level.saturating_sub(coarse.level).min(5);
+            dmax = dmax.max(d);
+            f = f.max(self.want(m) * (1u32 << d) as f32);
+        }
+        pow2_up(f).max((2u32 << dmax) as f32).min(MAX_FACTOR)
+    }
+
+    fn unshared(&self, node: NodeId, _: Edge) -> f32 {
+        self.want(node)
+    }
 }
 
 /// The outer factors of `node` (in [`Edge`] order) among the selected `leaves`.

@@ -53,7 +53,7 @@ pub use dss_methods::{DssConfig, DssErrorTable, select_dss_power_of_two, select_
 pub use dss_strips::{
     DssStripFrame, DssStripsConfig, MBlock, PBlock, Strip, frame_from_leaves, select_dss_strips,
 };
-pub use edges::{EdgeMismatch, EdgeRule, check_shared_edges, outer_factors};
+pub use edges::{EdgeMismatch, EdgeRule, WishEdges, check_shared_edges, outer_factors};
 pub use geomipmap::{GeomipConfig, GeomipScene, GeomipSelection, PatchLod};
 pub use patch::{Edge, MAX_FACTOR, MIN_FACTOR, Patch, Selection, SelectionStats, clamp_factor};
 pub use pvps::{Method, NodeDistance, PvpsConfig, select_pvps, select_pvps_with_cull};
