@@ -23,7 +23,7 @@ const MAX_IN_MEMORY_SYNTHETIC: u64 = 8193;
 
 /// Arguments of `terrain bake`.
 #[derive(Debug, Args)]
-pub struct BakeArgs {
+pub(crate) struct BakeArgs {
     #[command(flatten)]
     pub source: SourceArgs,
     /// Output store folder.
@@ -94,7 +94,7 @@ fn streamed(args: &BakeArgs) -> anyhow::Result<Option<RowReader>> {
 }
 
 /// Runs `terrain bake`.
-pub fn run(args: &BakeArgs) -> anyhow::Result<()> {
+pub(crate) fn run(args: &BakeArgs) -> anyhow::Result<()> {
     let bounded = HeightEncoding::Bounded { max_error_m: args.max_error };
     let mut config = BakeConfig {
         k: args.block_k,

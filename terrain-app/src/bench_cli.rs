@@ -16,7 +16,7 @@ use crate::source::SourceArgs;
 
 /// Arguments of `terrain bench`.
 #[derive(Debug, Args)]
-pub struct BenchArgs {
+pub(crate) struct BenchArgs {
     #[command(flatten)]
     pub source: SourceArgs,
     /// Flight files (JSON), flown in this order.
@@ -75,7 +75,11 @@ pub struct BenchArgs {
 }
 
 /// Writes `<dir>/<name>.json`, `.md` and `.svg`; returns the three paths.
-pub fn write_report(report: &BenchReport, dir: &Path, name: &str) -> anyhow::Result<[PathBuf; 3]> {
+pub(crate) fn write_report(
+    report: &BenchReport,
+    dir: &Path,
+    name: &str,
+) -> anyhow::Result<[PathBuf; 3]> {
     std::fs::create_dir_all(dir).with_context(|| format!("could not create {}", dir.display()))?;
     let paths = ["json", "md", "svg"].map(|e| dir.join(format!("{name}.{e}")));
     let contents = [serde_json::to_string_pretty(report)?, report.to_markdown(), report.to_svg()];
@@ -86,7 +90,7 @@ pub fn write_report(report: &BenchReport, dir: &Path, name: &str) -> anyhow::Res
 }
 
 /// Runs `terrain bench`.
-pub fn run(args: &BenchArgs) -> anyhow::Result<()> {
+pub(crate) fn run(args: &BenchArgs) -> anyhow::Result<()> {
     let mut cfg = if args.quick { BenchConfig::quick() } else { BenchConfig::default() };
     if !args.methods.is_empty() {
         cfg.methods = args.methods.clone();

@@ -21,14 +21,14 @@ const FLIGHTS: [&str; 2] =
 
 /// Arguments of `terrain demo`.
 #[derive(Debug, Args)]
-pub struct DemoArgs {
+pub(crate) struct DemoArgs {
     /// Output folder (created).
     #[arg(short, long, default_value = "terrain-demo")]
     pub output: PathBuf,
 }
 
 /// Runs `terrain demo`.
-pub fn run(args: &DemoArgs) -> anyhow::Result<()> {
+pub(crate) fn run(args: &DemoArgs) -> anyhow::Result<()> {
     let start = std::time::Instant::now();
     let flights = FLIGHTS
         .iter()

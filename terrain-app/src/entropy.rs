@@ -25,7 +25,7 @@ use crate::source::SourceArgs;
 
 /// Arguments of `terrain entropy`.
 #[derive(Debug, Args)]
-pub struct EntropyArgs {
+pub(crate) struct EntropyArgs {
     #[command(flatten)]
     pub source: SourceArgs,
     /// Output PNG of the local entropy (8-bit grey, north up, 0 .. log2(min(M, N)) bits
@@ -46,7 +46,7 @@ pub struct EntropyArgs {
 
 /// Window and binning of the local entropy (shared with `terrain mesh --entropy`).
 #[derive(Debug, Args, Clone)]
-pub struct WindowArgs {
+pub(crate) struct WindowArgs {
     /// Window radius r: the window is (2r+1)² samples (N of Eq. 2).
     #[arg(long, default_value_t = EntropyConfig::default().radius)]
     pub radius: usize,
@@ -60,7 +60,7 @@ pub struct WindowArgs {
 
 impl WindowArgs {
     /// The entropy configuration, validated.
-    pub fn config(&self) -> anyhow::Result<EntropyConfig> {
+    pub(crate) fn config(&self) -> anyhow::Result<EntropyConfig> {
         anyhow::ensure!(
             (1..=64).contains(&self.radius),
             "--radius must be 1..=64, got {}",
@@ -90,7 +90,7 @@ fn write_png(path: &Path, w: usize, h: usize, grey: Vec<u8>) -> anyhow::Result<(
 }
 
 /// Runs `terrain entropy`.
-pub fn run(args: &EntropyArgs) -> anyhow::Result<()> {
+pub(crate) fn run(args: &EntropyArgs) -> anyhow::Result<()> {
     let cfg = args.window.config()?;
     let hm = match args.source.load()? {
         Some(dem) => dem.heightmap,
@@ -140,7 +140,7 @@ pub fn run(args: &EntropyArgs) -> anyhow::Result<()> {
 
 /// `--interpolation` values.
 #[derive(Debug, Clone, Copy, ValueEnum)]
-pub enum InterpolationArg {
+pub(crate) enum InterpolationArg {
     /// Natural-neighbour (Sibson) over the Delaunay triangulation of the points.
     Natural,
     /// Inverse distance weighting, 12 nearest, power 2 (the paper's).
@@ -148,7 +148,7 @@ pub enum InterpolationArg {
 }
 
 /// What `terrain mesh --entropy` built.
-pub struct EntropyMeshResult {
+pub(crate) struct EntropyMeshResult {
     /// The grid the mesh is measured against (the DEM, or the scattered points' raster).
     pub hm: Heightmap,
     /// The mesh.
@@ -164,7 +164,7 @@ pub struct EntropyMeshResult {
 }
 
 /// Builds the entropy mesh of `terrain mesh --entropy E0`: from the DEM, or from `points`.
-pub fn build_mesh(
+pub(crate) fn build_mesh(
     source: &SourceArgs,
     points: Option<&Path>,
     window: &WindowArgs,

@@ -21,7 +21,7 @@ use crate::source::SourceArgs;
 
 /// Arguments of `terrain fly`.
 #[derive(Debug, Args)]
-pub struct FlyArgs {
+pub(crate) struct FlyArgs {
     #[command(flatten)]
     pub source: SourceArgs,
     /// Flight file (JSON; see flights/README.md).
@@ -50,7 +50,7 @@ pub struct FlyArgs {
 
 /// What a fly writes, besides the folder.
 #[derive(Debug, Clone)]
-pub struct FlyOptions {
+pub(crate) struct FlyOptions {
     /// The method.
     pub method: LodMethod,
     /// Leaf cells.
@@ -65,7 +65,7 @@ pub struct FlyOptions {
 
 /// Flies `spec` over `hm` into `out` with the GPU `ctx`: PNG frames, stats.csv, stats.json.
 /// Returns the frames' records.
-pub fn fly(
+pub(crate) fn fly(
     hm: Heightmap,
     spec: &FlightSpec,
     options: FlyOptions,
@@ -141,7 +141,7 @@ pub fn fly(
 }
 
 /// Runs `terrain fly`.
-pub fn run(args: &FlyArgs) -> anyhow::Result<()> {
+pub(crate) fn run(args: &FlyArgs) -> anyhow::Result<()> {
     let size = parse_size(&args.size)?;
     if args.leaf_cells == 0 {
         bail!("--leaf-cells must be at least 1");

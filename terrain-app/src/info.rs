@@ -9,7 +9,7 @@ use crate::source::SourceArgs;
 
 /// Arguments of `terrain info`.
 #[derive(Debug, Args)]
-pub struct InfoArgs {
+pub(crate) struct InfoArgs {
     #[command(flatten)]
     pub source: SourceArgs,
     /// Print JSON instead of text.
@@ -19,7 +19,7 @@ pub struct InfoArgs {
 
 /// Everything `terrain info` reports, serialisable for `--json`.
 #[derive(Debug, Serialize)]
-pub struct InfoReport {
+pub(crate) struct InfoReport {
     pub source: String,
     pub format: String,
     pub sample_type: String,
@@ -43,7 +43,7 @@ pub struct InfoReport {
 
 impl InfoReport {
     /// Builds the report for a heightmap and a description of its source.
-    pub fn new(
+    pub(crate) fn new(
         hm: &Heightmap,
         source: String,
         format: String,
@@ -81,7 +81,7 @@ impl InfoReport {
     }
 
     /// Human-readable text, one fact per line.
-    pub fn to_text(&self) -> String {
+    pub(crate) fn to_text(&self) -> String {
         let n = self.width * self.height;
         let pct = 100.0 * self.voids as f64 / n as f64;
         let unit = if self.units == "degrees" { "°" } else { " m" };
@@ -119,7 +119,7 @@ impl InfoReport {
 }
 
 /// Runs `terrain info`.
-pub fn run(args: &InfoArgs) -> anyhow::Result<()> {
+pub(crate) fn run(args: &InfoArgs) -> anyhow::Result<()> {
     let report = match args.source.load()? {
         Some(dem) => {
             let src = &dem.source;

@@ -32,7 +32,7 @@ use crate::source::SourceArgs;
 
 /// Arguments of `terrain mesh`.
 #[derive(Debug, Args)]
-pub struct MeshArgs {
+pub(crate) struct MeshArgs {
     #[command(flatten)]
     pub source: SourceArgs,
     /// Largest vertical error allowed at any sample, metres (>= 0). Required unless --camera.
@@ -80,7 +80,7 @@ pub struct MeshArgs {
 
 /// `--algorithm` values.
 #[derive(Debug, Clone, Copy, ValueEnum)]
-pub enum AlgorithmArg {
+pub(crate) enum AlgorithmArg {
     /// Right-triangulated irregular network.
     Rtin,
     /// Greedy Delaunay refinement (Garland & Heckbert 1995).
@@ -122,7 +122,7 @@ struct Stats {
 }
 
 /// Runs `terrain mesh`.
-pub fn run(args: &MeshArgs) -> anyhow::Result<()> {
+pub(crate) fn run(args: &MeshArgs) -> anyhow::Result<()> {
     let format = match &args.output {
         Some(p) => Some(format_of(p)?),
         None if args.stats => None,

@@ -17,7 +17,7 @@ use crate::source::SourceArgs;
 
 /// The PVS bake's settings (shared by `terrain bake` and `terrain pvs`).
 #[derive(Debug, Args)]
-pub struct PvsArgs {
+pub(crate) struct PvsArgs {
     /// View cells per side (the paper: 32).
     #[arg(long, default_value_t = 32)]
     pub pvs_cells: u32,
@@ -44,7 +44,7 @@ pub struct PvsArgs {
 
 impl PvsArgs {
     /// The bake configuration.
-    pub fn config(&self) -> anyhow::Result<PvsConfig> {
+    pub(crate) fn config(&self) -> anyhow::Result<PvsConfig> {
         if self.pvs_patch_level > 10 {
             bail!("--pvs-patch-level must be at most 10");
         }
@@ -69,7 +69,7 @@ impl PvsArgs {
 }
 
 /// Bakes both PVS modes of `hm` and writes them into scene folder `dir`.
-pub fn bake_into_scene(hm: &Heightmap, cfg: &PvsConfig, dir: &Path) -> anyhow::Result<()> {
+pub(crate) fn bake_into_scene(hm: &Heightmap, cfg: &PvsConfig, dir: &Path) -> anyhow::Result<()> {
     let bar = Progress::new("PVS", true);
     let (sampled, conservative, stats) =
         bake_both_with_progress(hm, cfg, &|done, total| bar.update(done as f64, total as f64));
@@ -93,7 +93,7 @@ pub fn bake_into_scene(hm: &Heightmap, cfg: &PvsConfig, dir: &Path) -> anyhow::R
 
 /// Arguments of `terrain pvs`.
 #[derive(Debug, Args)]
-pub struct PvsCmdArgs {
+pub(crate) struct PvsCmdArgs {
     /// The positional argument is a scene folder from `terrain bake` (its PVS file is read)
     /// or a DEM file (the PVS is baked in memory with the `--pvs-*` settings).
     #[command(flatten)]
@@ -131,7 +131,7 @@ fn parse_cell(s: &str) -> anyhow::Result<CellId> {
 }
 
 /// Runs `terrain pvs`.
-pub fn run(args: &PvsCmdArgs) -> anyhow::Result<()> {
+pub(crate) fn run(args: &PvsCmdArgs) -> anyhow::Result<()> {
     let cell = parse_cell(&args.cell)?;
     let mode = if args.conservative { PvsMode::Conservative } else { PvsMode::Sampled };
     let Some(scene) = args.source.dem.first() else {

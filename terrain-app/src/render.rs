@@ -25,7 +25,7 @@ use crate::source::SourceArgs;
 
 /// Arguments of `terrain render`.
 #[derive(Debug, Args)]
-pub struct RenderArgs {
+pub(crate) struct RenderArgs {
     #[command(flatten)]
     pub source: SourceArgs,
     /// Camera as x,y,z,yaw,pitch: position in the DEM's world coordinates (metres; the CRS's
@@ -280,7 +280,7 @@ fn draw_frames(
 }
 
 /// Runs `terrain render`.
-pub fn run(args: &RenderArgs) -> anyhow::Result<()> {
+pub(crate) fn run(args: &RenderArgs) -> anyhow::Result<()> {
     let (width, height) = parse_size(&args.size)?;
     let background = parse_rgb(&args.background)?;
     if args.leaf_cells == 0 {

@@ -13,7 +13,7 @@ use crate::source::SourceArgs;
 
 /// Arguments of `terrain roughness`.
 #[derive(Debug, Args)]
-pub struct RoughnessArgs {
+pub(crate) struct RoughnessArgs {
     #[command(flatten)]
     pub source: SourceArgs,
     /// Which roughness: c = the PVPS paper's Eq. 5 (normalised 0-255), b = Dong's height range,
@@ -30,7 +30,7 @@ pub struct RoughnessArgs {
 
 /// The roughness measure to export.
 #[derive(Debug, Clone, Copy, ValueEnum)]
-pub enum Method {
+pub(crate) enum Method {
     /// PVPS method A (Zhai): Röttger's d2.
     A,
     /// PVPS method B (Dong): max - min height, metres.
@@ -40,7 +40,7 @@ pub enum Method {
 }
 
 /// Runs `terrain roughness`.
-pub fn run(args: &RoughnessArgs) -> anyhow::Result<()> {
+pub(crate) fn run(args: &RoughnessArgs) -> anyhow::Result<()> {
     anyhow::ensure!(
         (1..=12).contains(&args.levels),
         "--levels must be 1..=12, got {}",

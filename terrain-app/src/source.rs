@@ -9,7 +9,7 @@ use terrain_core::dem::{self, Dem, Format, LoadOptions, RawSampleType, RawSpec};
 
 /// Options shared by every command that reads terrain.
 #[derive(Debug, Args)]
-pub struct SourceArgs {
+pub(crate) struct SourceArgs {
     /// DEM file(s); several adjacent tiles are joined into one mosaic. None: the embedded
     /// synthetic terrain.
     pub dem: Vec<PathBuf>,
@@ -35,7 +35,7 @@ pub struct SourceArgs {
 
 /// `--format` values.
 #[derive(Debug, Clone, Copy, ValueEnum)]
-pub enum FormatArg {
+pub(crate) enum FormatArg {
     /// GeoTIFF.
     Geotiff,
     /// SRTM .hgt.
@@ -52,7 +52,7 @@ pub enum FormatArg {
 
 impl SourceArgs {
     /// The reading options these arguments describe.
-    pub fn load_options(&self) -> anyhow::Result<LoadOptions> {
+    pub(crate) fn load_options(&self) -> anyhow::Result<LoadOptions> {
         let raw = self.raw.as_deref().map(parse_raw).transpose()?;
         let format = match self.format {
             None if raw.is_some() => Some(Format::Raw),
@@ -85,7 +85,7 @@ impl SourceArgs {
     }
 
     /// Reads the DEM(s); `None` when no file was given (the caller uses the embedded terrain).
-    pub fn load(&self) -> anyhow::Result<Option<Dem>> {
+    pub(crate) fn load(&self) -> anyhow::Result<Option<Dem>> {
         let options = self.load_options()?;
         match self.dem.as_slice() {
             [] => Ok(None),

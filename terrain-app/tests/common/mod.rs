@@ -8,7 +8,7 @@ use std::process::{Command, Output};
 
 /// A file of `../shared/data` (or `$TERRAIN_DATA`); panics with a clear message if missing,
 /// because the tests are defined over these files.
-pub fn data(rel: &str) -> PathBuf {
+pub(crate) fn data(rel: &str) -> PathBuf {
     let root = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("..");
     let dir =
         std::env::var_os("TERRAIN_DATA").map(PathBuf::from).unwrap_or(root.join("../shared/data"));
@@ -18,7 +18,7 @@ pub fn data(rel: &str) -> PathBuf {
 }
 
 /// Runs `terrain ARGS` and returns its output.
-pub fn terrain(args: &[&str]) -> Output {
+pub(crate) fn terrain(args: &[&str]) -> Output {
     Command::new(env!("CARGO_BIN_EXE_terrain"))
         .args(args)
         .output()
@@ -26,7 +26,7 @@ pub fn terrain(args: &[&str]) -> Output {
 }
 
 /// An empty scratch folder unique to this test process, `test` and `name`.
-pub fn scratch(test: &str, name: &str) -> PathBuf {
+pub(crate) fn scratch(test: &str, name: &str) -> PathBuf {
     let d = std::env::temp_dir().join(format!("terrain-{test}-{}-{name}", std::process::id()));
     let _ = std::fs::remove_dir_all(&d);
     std::fs::create_dir_all(&d).unwrap();

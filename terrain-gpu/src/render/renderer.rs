@@ -22,7 +22,7 @@ use crate::tess::{
 };
 
 /// The shader source.
-pub const SHADER: &str = include_str!("terrain.wgsl");
+pub(super) const SHADER: &str = include_str!("terrain.wgsl");
 
 /// `Frame` in `terrain.wgsl`.
 #[repr(C)]
