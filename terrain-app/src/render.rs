@@ -292,6 +292,16 @@ pub(crate) fn run(args: &RenderArgs) -> anyhow::Result<()> {
     if let [one] = args.source.dem.as_slice()
         && ooc::is_store(one)
     {
+        if args.method != LodMethod::OutOfCore {
+            // Only the out-of-core method draws from a store so far (issue 13): say so rather
+            // than ignore --method silently.
+            eprintln!(
+                "note: {} is a baked store, drawn with the out-of-core method (ooc); --method {} \
+                 needs the DEM file for now",
+                one.display(),
+                args.method.name()
+            );
+        }
         return run_store(args, one, (width, height), background);
     }
     let hm = match args.source.load()? {

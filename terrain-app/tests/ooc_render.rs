@@ -445,6 +445,8 @@ fn terrain_render_draws_a_store_baked_from_puget_sound() {
         "4",
         "--frames",
         "2",
+        "--method",
+        "pvps-c",
         "--background",
         "255,0,255",
         "--stats-json",
@@ -463,6 +465,13 @@ fn terrain_render_draws_a_store_baked_from_puget_sound() {
     }
     assert!(out.status.success(), "{stdout}\n{stderr}");
     println!("{stdout}");
+    // Only ooc draws from a store so far: --method is not ignored in silence.
+    assert!(
+        stderr.contains(
+            "drawn with the out-of-core method (ooc); --method pvps-c needs the DEM file"
+        ),
+        "{stderr}"
+    );
     for field in [
         "adapter:",
         "method ooc",
