@@ -197,21 +197,7 @@ impl FrameRenderer {
                 }
                 // Extra triangles (strips, the entropy mesh) are uploaded every frame.
                 bytes += (extra.points.len() * 16 + extra.indices.len() * 4) as u64;
-                DrawStats {
-                    patches: s.patches,
-                    triangles: s.triangles,
-                    vertices: Some(s.vertices),
-                    cpu_ms: s.cpu_ms,
-                    wall_ms,
-                    gpu_ms: s.gpu_ms,
-                    gpu_draw_ms: s.gpu_draw_ms,
-                    tessellated: Some(s.tessellated),
-                    upload_bytes: bytes + anchor_bytes,
-                    passes_skipped: None,
-                    batches: s.batches,
-                    gpu_text: s.gpu_text(),
-                    adapter: s.adapter,
-                }
+                DrawStats::of_terrain(s, wall_ms, bytes + anchor_bytes)
             }
             (Inner::Geomorph(r), Draw::Morph(lods)) => {
                 let t = Instant::now();
@@ -239,21 +225,7 @@ impl FrameRenderer {
                 let s = r.render(camera, &f.patches, options)?;
                 let wall_ms = ms(t);
                 let pages = f.updates.iter().filter(|u| u.fill.is_some()).count() as u64;
-                DrawStats {
-                    patches: s.patches,
-                    triangles: s.triangles,
-                    vertices: Some(s.vertices),
-                    cpu_ms: s.cpu_ms,
-                    wall_ms,
-                    gpu_ms: s.gpu_ms,
-                    gpu_draw_ms: s.gpu_draw_ms,
-                    tessellated: Some(s.tessellated),
-                    upload_bytes: 128 + pages * self.page_bytes,
-                    passes_skipped: None,
-                    batches: s.batches,
-                    gpu_text: s.gpu_text(),
-                    adapter: s.adapter,
-                }
+                DrawStats::of_terrain(s, wall_ms, 128 + pages * self.page_bytes)
             }
             (_, draw) => anyhow::bail!(
                 "the {:?} renderer cannot draw a {} frame",
@@ -268,6 +240,29 @@ impl FrameRenderer {
         uploads.last_anchor = Some(anchor);
         uploads.drawn = true;
         Ok(stats)
+    }
+}
+
+impl DrawStats {
+    /// The figures of a frame the tessellation renderer drew (whole heightmap or pages), its
+    /// wall time and the bytes it uploaded.
+    fn of_terrain(s: terrain_gpu::render::FrameStats, wall_ms: f64, upload_bytes: u64) -> Self {
+        let gpu_text = s.gpu_text();
+        Self {
+            patches: s.patches,
+            triangles: s.triangles,
+            vertices: Some(s.vertices),
+            cpu_ms: s.cpu_ms,
+            wall_ms,
+            gpu_ms: s.gpu_ms,
+            gpu_draw_ms: s.gpu_draw_ms,
+            tessellated: Some(s.tessellated),
+            upload_bytes,
+            passes_skipped: None,
+            batches: s.batches,
+            gpu_text,
+            adapter: s.adapter,
+        }
     }
 }
 
