@@ -45,8 +45,8 @@ use terrain_gpu::geomorph::{
 use terrain_core::Heightmap;
 use terrain_core::geometry::Camera;
 use terrain_core::lod::{
-    DssConfig, DssErrorTable, DssStripsConfig, MAX_FACTOR, MIN_FACTOR, Patch, PvpsConfig,
-    Selection, SelectionStats, SurfaceMesh, build_surface, select_dss_power_of_two,
+    DssConfig, DssErrorTable, DssStripsConfig, GridSource, MAX_FACTOR, MIN_FACTOR, Patch,
+    PvpsConfig, Selection, SelectionStats, SurfaceMesh, build_surface, select_dss_power_of_two,
     select_dss_strips, select_dss_uniform, select_pvps, select_pvps_with_cull,
 };
 use terrain_core::quadtree::{FrustumCull, Quadtree, SplitToLevel, select};
@@ -241,6 +241,11 @@ impl MethodScene {
         }
     }
 
+    /// The terrain as the methods' selections read it (the heightmap and its quadtree).
+    pub fn source(&self) -> GridSource<'_> {
+        GridSource::new(&self.qt, &self.hm)
+    }
+
     /// Roughness of PVPS method A (0), B (1) or C (2), computed on first use.
     fn roughness(&self, k: usize) -> &NodePyramid {
         self.roughness[k].get_or_init(|| {
@@ -338,7 +343,7 @@ impl MethodScene {
     /// The patches `method` draws from `camera`, with their tessellation factors.
     pub fn select(&self, method: LodMethod, camera: &Camera) -> Selection {
         let pvps =
-            |field: &NodePyramid| select_pvps(&self.qt, &self.hm, camera, field, &self.config.pvps);
+            |field: &NodePyramid| select_pvps(&self.source(), camera, field, &self.config.pvps);
         match method {
             LodMethod::Uniform => self.select_uniform(camera),
             LodMethod::PvpsA => pvps(self.roughness(0)),
@@ -362,8 +367,7 @@ impl MethodScene {
                 match self.pvs(k) {
                     // Section 2.3.3: camera -> cell (or Cell_other) -> O(1) per node.
                     Some(pvs) => select_pvps_with_cull(
-                        &self.qt,
-                        &self.hm,
+                        &self.source(),
                         camera,
                         field,
                         &self.config.pvps,

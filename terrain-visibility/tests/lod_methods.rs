@@ -6,8 +6,8 @@ use glam::{DVec3, dvec3};
 use terrain_core::geometry::Camera;
 use terrain_core::lod::surface::fan_tessellation;
 use terrain_core::lod::{
-    DssConfig, DssErrorTable, Method, PvpsConfig, Selection, build_surface, check_shared_edges,
-    select_dss_power_of_two, select_dss_uniform, select_pvps,
+    DssConfig, DssErrorTable, GridSource, Method, PvpsConfig, Selection, build_surface,
+    check_shared_edges, select_dss_power_of_two, select_dss_uniform, select_pvps,
 };
 use terrain_core::quadtree::{Quadtree, is_balanced};
 use terrain_core::synth::{FractalConfig, HardCase};
@@ -55,7 +55,10 @@ impl Scene {
         let mut out = Vec::new();
         let pcfg = PvpsConfig { frustum_cull: cull, ..self.pvps_cfg() };
         for (m, f) in &self.fields {
-            out.push((m.name().to_string(), select_pvps(&self.qt, &self.hm, cam, f, &pcfg)));
+            out.push((
+                m.name().to_string(),
+                select_pvps(&GridSource::new(&self.qt, &self.hm), cam, f, &pcfg),
+            ));
         }
         let dcfg = DssConfig { frustum_cull: cull, ..self.dss_cfg() };
         out.push(("dss-1".into(), select_dss_power_of_two(&self.qt, cam, &self.dss, &dcfg)));
@@ -222,8 +225,8 @@ fn flat_terrain_gets_fewer_patches_than_rough() {
         let (_, f) = &flat.fields[2];
         assert!(f.level(0)[0] == 0.0 && r.level(0)[0] > 0.0);
         let cfg = rough.pvps_cfg();
-        let a = select_pvps(&rough.qt, &rough.hm, &cam, r, &cfg);
-        let b = select_pvps(&flat.qt, &flat.hm, &cam, f, &cfg);
+        let a = select_pvps(&GridSource::new(&rough.qt, &rough.hm), &cam, r, &cfg);
+        let b = select_pvps(&GridSource::new(&flat.qt, &flat.hm), &cam, f, &cfg);
         assert!(b.factors_in_range() && a.factors_in_range());
         if kind == "grazing" || kind == "straight down" {
             assert!(
@@ -254,7 +257,7 @@ fn larger_c1_never_selects_more_patches() {
         let mut counts = Vec::new();
         for c1 in [5.0, 10.0, 20.0, 50.0, 100.0, 200.0, 1000.0] {
             let cfg = PvpsConfig { c1, frustum_cull: false, ..s.pvps_cfg() };
-            let n = select_pvps(&s.qt, &s.hm, &cam, field, &cfg).stats.patches;
+            let n = select_pvps(&GridSource::new(&s.qt, &s.hm), &cam, field, &cfg).stats.patches;
             assert!(n <= last, "{kind}: {counts:?} then {n}");
             counts.push(n);
             last = n;
@@ -278,9 +281,13 @@ fn frustum_culling_drops_patches_behind_the_camera() {
             })
             .count()
     };
-    let on = select_pvps(&s.qt, &s.hm, &cam, field, &s.pvps_cfg());
-    let off =
-        select_pvps(&s.qt, &s.hm, &cam, field, &PvpsConfig { frustum_cull: false, ..s.pvps_cfg() });
+    let on = select_pvps(&GridSource::new(&s.qt, &s.hm), &cam, field, &s.pvps_cfg());
+    let off = select_pvps(
+        &GridSource::new(&s.qt, &s.hm),
+        &cam,
+        field,
+        &PvpsConfig { frustum_cull: false, ..s.pvps_cfg() },
+    );
     assert!(behind(&off) > 0);
     assert_eq!(behind(&on), 0);
     assert!(on.stats.culled > 0 && off.stats.culled == 0);
@@ -319,7 +326,7 @@ fn straight_down_and_inside_a_node_box_give_finite_factors() {
         let inside = terrain_core::quadtree::NodeId::new(4, 7, 7);
         assert!(s.qt.node_info(inside).unwrap().aabb.contains(cam.position));
         let (_, f) = &s.fields[2];
-        let sel = select_pvps(&s.qt, &s.hm, &cam, f, &s.pvps_cfg());
+        let sel = select_pvps(&GridSource::new(&s.qt, &s.hm), &cam, f, &s.pvps_cfg());
         assert!(sel.patch(inside).is_some(), "{}", s.name);
         assert!(sel.factors_in_range());
         assert_eq!(sel.stats.max_level, s.qt.max_level());

@@ -12,7 +12,9 @@ use terrain_core::Heightmap;
 use terrain_core::dem::{LoadOptions, load};
 use terrain_core::geometry::Camera;
 use terrain_core::georef::Georef;
-use terrain_core::lod::{ConstantField, PvpsConfig, select_pvps, select_pvps_with_cull};
+use terrain_core::lod::{
+    ConstantField, GridSource, PvpsConfig, select_pvps, select_pvps_with_cull,
+};
 use terrain_core::measure::LineOfSight;
 use terrain_core::quadtree::{NodeId, Quadtree};
 use terrain_core::synth::FractalConfig;
@@ -255,8 +257,8 @@ fn the_cull_policy_drops_hidden_nodes_and_cell_other_drops_nothing() {
     let mut cull = k.cull_for(cam.position);
     assert_eq!(cull.cell, Some(CellId { a: 0, b: 2, k: 0 }));
     let field = ConstantField(100.0);
-    let culled = select_pvps_with_cull(&qt, &hm, &cam, &field, &pcfg, &mut cull);
-    let plain = select_pvps(&qt, &hm, &cam, &field, &pcfg);
+    let culled = select_pvps_with_cull(&GridSource::new(&qt, &hm), &cam, &field, &pcfg, &mut cull);
+    let plain = select_pvps(&GridSource::new(&qt, &hm), &cam, &field, &pcfg);
     let xs = |sel: &terrain_core::lod::Selection| {
         sel.patches.iter().map(|p| qt.node_plan_rect(p.node).unwrap().0.x).collect::<Vec<_>>()
     };
@@ -270,8 +272,8 @@ fn the_cull_policy_drops_hidden_nodes_and_cell_other_drops_nothing() {
     let high = Camera::from_yaw_pitch(dvec3(100.0, 640.0, 900.0), 0.0, -30.0);
     let mut other = k.cull_for(high.position);
     assert_eq!(other.cell, None);
-    let a = select_pvps_with_cull(&qt, &hm, &high, &field, &pcfg, &mut other);
-    let b = select_pvps(&qt, &hm, &high, &field, &pcfg);
+    let a = select_pvps_with_cull(&GridSource::new(&qt, &hm), &high, &field, &pcfg, &mut other);
+    let b = select_pvps(&GridSource::new(&qt, &hm), &high, &field, &pcfg);
     assert_eq!(a.patches, b.patches);
 }
 

@@ -29,6 +29,7 @@
 //! `d` and `theta` per block). Straight-down views are floored by
 //! [`crate::metrics::screen::MIN_VIEW_SIN`].
 
+use crate::quadtree::NodeTree;
 use std::time::Instant;
 
 use super::edges::WishEdges;
@@ -207,14 +208,14 @@ impl<'a> Metric<'a> {
 }
 
 fn select_dss(
-    qt: &Quadtree,
+    src: &dyn NodeTree,
     camera: &Camera,
     table: &DssErrorTable,
     cfg: &DssConfig,
     uniform: Option<u8>,
 ) -> Selection {
     let start = Instant::now();
-    assert_eq!(table.root_cells(), qt.root_cells(), "error table of another quadtree");
+    assert_eq!(table.root_cells(), src.shape().root_cells(), "error table of another quadtree");
     let metric = Metric {
         table,
         lambda: screen::lambda(camera.viewport_px.y, camera.fov_y),
@@ -222,19 +223,19 @@ fn select_dss(
         thr: cfg.rho_thr,
     };
     let (leaves, stats) = match uniform {
-        Some(level) => run::leaves(qt, camera, &mut SplitToLevel(level), cfg.frustum_cull, false),
+        Some(level) => run::leaves(src, camera, &mut SplitToLevel(level), cfg.frustum_cull, false),
         None => {
             let mut split = |n: NodeId, info: &NodeInfo| metric.must_split(n, info);
-            run::leaves(qt, camera, &mut split, cfg.frustum_cull, true)
+            run::leaves(src, camera, &mut split, cfg.frustum_cull, true)
         }
     };
     if uniform.is_some() {
-        return assemble_uniform(qt, &metric, leaves, stats, start);
+        return assemble_uniform(src, &metric, leaves, stats, start);
     }
     let want = leaves
         .iter()
         .map(|&n| {
-            let info = qt.node_info(n).expect("selected nodes exist");
+            let info = src.node_info(n).expect("selected nodes exist");
             (n, pow2_up(metric.factor(n, &info)))
         })
         .collect();
@@ -250,7 +251,7 @@ fn select_dss(
 /// the cost is linear in the blocks in view. Same output as the general path (the tests
 /// compare them bit for bit).
 fn assemble_uniform(
-    qt: &Quadtree,
+    src: &dyn NodeTree,
     metric: &Metric<'_>,
     leaves: Vec<NodeId>,
     mut stats: SelectionStats,
@@ -258,7 +259,7 @@ fn assemble_uniform(
 ) -> Selection {
     let want: Vec<f32> = leaves
         .iter()
-        .map(|&n| metric.factor(n, &qt.node_info(n).expect("selected nodes exist")))
+        .map(|&n| metric.factor(n, &src.node_info(n).expect("selected nodes exist")))
         .collect();
     let side = leaves.first().map_or(1, |n| n.nodes_per_side() as usize);
     let win =
@@ -296,25 +297,26 @@ fn assemble_uniform(
 /// The DSS paper's Method I: quadtree split by Eq. 3 on `delta_32`, balanced, factors from
 /// Eq. 4 rounded up to powers of two, shared edges matched (see the module docs).
 pub fn select_dss_power_of_two(
-    qt: &Quadtree,
+    src: &dyn NodeTree,
     camera: &Camera,
     table: &DssErrorTable,
     cfg: &DssConfig,
 ) -> Selection {
-    select_dss(qt, camera, table, cfg, None)
+    select_dss(src, camera, table, cfg, None)
 }
 
 /// The DSS paper's Method II: uniform blocks of [`DssConfig::uniform_block_cells`], each with
 /// its continuous `F_thr` (Eq. 4), shared edges at the max of both sides.
 pub fn select_dss_uniform(
-    qt: &Quadtree,
+    src: &dyn NodeTree,
     camera: &Camera,
     table: &DssErrorTable,
     cfg: &DssConfig,
 ) -> Selection {
     let block = cfg.uniform_block_cells.max(1);
-    let level = (qt.root_cells() / block.min(qt.root_cells())).max(1).ilog2() as u8;
-    select_dss(qt, camera, table, cfg, Some(level.min(qt.max_level())))
+    let shape = src.shape();
+    let level = (shape.root_cells() / block.min(shape.root_cells())).max(1).ilog2() as u8;
+    select_dss(src, camera, table, cfg, Some(level.min(shape.max_level())))
 }
 
 #[cfg(test)]

@@ -47,6 +47,7 @@
 //! none of whose visible blocks' edges is in the frustum is discarded (a strip is built whole
 //! or not at all: dropping single edges would open it).
 
+use crate::quadtree::NodeTree;
 use std::collections::HashMap;
 use std::time::Instant;
 
@@ -183,13 +184,13 @@ impl DssStripFrame {
 /// The multilevel update (section 3.3.1) and the block/strip structure of one frame; see the
 /// module docs.
 pub fn select_dss_strips(
-    qt: &Quadtree,
+    qt: &dyn NodeTree,
     camera: &Camera,
     table: &DssErrorTable,
     cfg: &DssStripsConfig,
 ) -> DssStripFrame {
     let start = Instant::now();
-    assert_eq!(table.root_cells(), qt.root_cells(), "error table of another quadtree");
+    assert_eq!(table.root_cells(), qt.shape().root_cells(), "error table of another quadtree");
     let s = cfg.half_width_cells.max(1);
     let metric = Metric::new(table, camera, cfg.dss.rho_thr);
     let mut stats = SelectionStats::default();
@@ -239,7 +240,7 @@ pub fn select_dss_strips(
 /// the nodes split to reach them; edges are culled against `frustum` when given. Returns the
 /// strips discarded by edge culling too.
 fn assemble(
-    qt: &Quadtree,
+    qt: &dyn NodeTree,
     mut nodes: Vec<(NodeId, bool)>,
     splits: &[NodeId],
     factor: impl Fn(NodeId, &NodeInfo) -> f32,
@@ -247,13 +248,14 @@ fn assemble(
     frustum: Option<&Frustum>,
 ) -> (Vec<MBlock>, Vec<PBlock>, Vec<Strip>, usize) {
     nodes.sort_unstable_by_key(|(n, _)| n.dfs_key());
-    let (w1, h1) = (qt.width() - 1, qt.height() - 1);
+    let shape = qt.shape();
+    let (w1, h1) = (shape.width() - 1, shape.height() - 1);
     let blocks: Vec<MBlock> = nodes
         .iter()
         .map(|&(node, visible)| {
             let info = qt.node_info(node).expect("selected nodes exist");
             let neighbours = dss_neighbours(node);
-            let (x0, y0, c) = node.grid_rect(qt.root_cells());
+            let (x0, y0, c) = node.grid_rect(shape.root_cells());
             let border = [
                 neighbours[0].is_none() || y0 == 0,
                 neighbours[1].is_none() || x0 + c >= w1,
@@ -282,7 +284,7 @@ fn assemble(
     let mut pblocks = Vec::new();
     for &n in splits {
         let children = n.children();
-        if !children.iter().all(|&c| qt.contains_node(c)) {
+        if !children.iter().all(|&c| shape.contains_node(c)) {
             continue;
         }
         // The block at child q's corner next to the centre: descend towards the centre.
@@ -336,7 +338,7 @@ fn assemble(
             Edge::North => (DVec2::new(x0, y1 - sf), DVec2::new(x1, y1 + sf)),
             Edge::West => (DVec2::new(x0 - sf, y0), DVec2::new(x0 + sf, y1)),
         };
-        let world = |g: DVec2| qt.world_origin() + g * qt.spacing();
+        let world = |g: DVec2| shape.grid_to_world(g);
         let (wa, wc) = (world(a), world(c));
         let bx = Aabb::new(
             DVec3::new(wa.x, wa.y, info.aabb.min.z),

@@ -45,6 +45,7 @@ pub mod edges;
 pub mod geomipmap;
 pub mod patch;
 pub mod pvps;
+pub mod source;
 pub mod surface;
 mod window;
 
@@ -57,6 +58,7 @@ pub use edges::{EdgeMismatch, EdgeRule, WishEdges, check_shared_edges, outer_fac
 pub use geomipmap::{GeomipConfig, GeomipScene, GeomipSelection, PatchLod};
 pub use patch::{Edge, MAX_FACTOR, MIN_FACTOR, Patch, Selection, SelectionStats, clamp_factor};
 pub use pvps::{Method, NodeDistance, PvpsConfig, select_pvps, select_pvps_with_cull};
+pub use source::{GridSource, TerrainSource};
 pub use surface::{SurfaceMesh, build_surface, edge_segment, patch_grid_point};
 
 use crate::quadtree::NodeId;
@@ -99,14 +101,14 @@ pub(crate) mod run {
     use crate::geometry::Camera;
     use crate::metrics::screen::{MAX_FOV_Y, MIN_DISTANCE_M, MIN_FOV_Y};
     use crate::quadtree::{
-        CullPolicy, FrustumCull, LeafSet, NoCull, NodeId, NodeInfo, Quadtree, SplitPolicy, Visit,
-        balance, traverse,
+        CullPolicy, FrustumCull, LeafSet, NoCull, NodeId, NodeInfo, NodeTree, SplitPolicy, Visit,
+        balance_with, traverse,
     };
 
     /// Runs the one traversal with `split` and (optionally) frustum culling, then balances
     /// when `balanced`. Returns the leaves in traversal order and the counts so far.
     pub(crate) fn leaves(
-        qt: &Quadtree,
+        qt: &dyn NodeTree,
         camera: &Camera,
         split: &mut dyn SplitPolicy,
         frustum_cull: bool,
@@ -117,7 +119,7 @@ pub(crate) mod run {
 
     /// [`leaves`] with a second cull policy (an occlusion lookup) after the frustum's.
     pub(crate) fn leaves_with_cull(
-        qt: &Quadtree,
+        qt: &dyn NodeTree,
         camera: &Camera,
         split: &mut dyn SplitPolicy,
         frustum_cull: bool,
@@ -143,7 +145,9 @@ pub(crate) mod run {
         let mut both = (first, second);
         let mut out = traverse(qt, split, &mut both, &mut visit);
         if balanced {
-            out = balance(qt, &out);
+            // Balancing adds only children of selected leaves that exist in the tree.
+            let shape = qt.shape();
+            out = balance_with(&out, |n| shape.contains_node(n));
         }
         stats.balance_added = out.len().saturating_sub(stats.traversal_leaves);
         (out, stats)

@@ -51,6 +51,7 @@ use super::NodeField;
 use super::edges::EdgeRule;
 use super::patch::{Edge, MAX_FACTOR, Selection, clamp_factor};
 use super::run;
+use super::source::TerrainSource;
 use super::surface::edge_segment;
 use crate::geometry::Camera;
 use crate::heightmap::Heightmap;
@@ -156,8 +157,7 @@ impl PvpsConfig {
 
 /// Algorithm 1's edge classification as an [`EdgeRule`].
 struct PvpsEdges<'a> {
-    hm: &'a Heightmap,
-    qt: &'a Quadtree,
+    src: &'a dyn TerrainSource,
     camera: &'a Camera,
     constant: f64,
     /// Deepest level (`MinEdgeLength`'s).
@@ -174,7 +174,7 @@ impl PvpsEdges<'_> {
     }
 
     fn screen(&self, node: NodeId, edge: Edge) -> f64 {
-        let (a, b) = edge_segment(self.hm, self.qt, node, edge);
+        let (a, b) = edge_segment(self.src, node, edge);
         run::screen_length(self.camera, a, b)
     }
 }
@@ -196,17 +196,17 @@ impl EdgeRule for PvpsEdges<'_> {
     }
 }
 
-/// Selects the patches of a PVPS method for `camera` over `qt`, the quadtree of `hm`: the
-/// method (A, B or C, see [`Method`]) is the choice of the roughness `field` (0..255, see the
-/// module docs); everything else is shared.
+/// Selects the patches of a PVPS method for `camera` over terrain `src` (a heightmap in
+/// memory, [`super::GridSource`], or a store's resident pages): the method (A, B or C, see
+/// [`Method`]) is the choice of the roughness `field` (0..255, see the module docs);
+/// everything else is shared.
 pub fn select_pvps(
-    qt: &Quadtree,
-    hm: &Heightmap,
+    src: &dyn TerrainSource,
     camera: &Camera,
     field: &dyn NodeField,
     cfg: &PvpsConfig,
 ) -> Selection {
-    select_pvps_with_cull(qt, hm, camera, field, cfg, &mut NoCull)
+    select_pvps_with_cull(src, camera, field, cfg, &mut NoCull)
 }
 
 /// [`select_pvps`] with occlusion culling (section 2.3.3): `occlusion` is asked after the
@@ -215,16 +215,15 @@ pub fn select_pvps(
 /// selected leaves, so it never brings back a culled area. With [`NoCull`] this is
 /// [`select_pvps`].
 pub fn select_pvps_with_cull(
-    qt: &Quadtree,
-    hm: &Heightmap,
+    src: &dyn TerrainSource,
     camera: &Camera,
     field: &dyn NodeField,
     cfg: &PvpsConfig,
     occlusion: &mut dyn CullPolicy,
 ) -> Selection {
     let start = Instant::now();
-    let finest = cfg.max_level.min(qt.max_level());
-    let root = qt.root_length_m();
+    let finest = cfg.max_level.min(src.shape().max_level());
+    let root = src.shape().root_length_m();
     let length = root.x.max(root.y);
     let eye = camera.position;
     let mut split = |node: NodeId, info: &NodeInfo| -> bool {
@@ -240,10 +239,9 @@ pub fn select_pvps_with_cull(
         split_ratio(d, span(length, node.level as u32), r, cfg.c1, cfg.c2) < 1.0
     };
     let (leaves, stats) =
-        run::leaves_with_cull(qt, camera, &mut split, cfg.frustum_cull, occlusion, true);
+        run::leaves_with_cull(src, camera, &mut split, cfg.frustum_cull, occlusion, true);
     let rule = PvpsEdges {
-        hm,
-        qt,
+        src,
         camera,
         constant: cfg.outer_constant,
         finest,
@@ -265,7 +263,7 @@ pub fn select_pvps_with_cull(
 mod tests {
     use super::*;
     use crate::georef::Georef;
-    use crate::lod::{ConstantField, check_shared_edges};
+    use crate::lod::{ConstantField, GridSource, check_shared_edges};
     use glam::dvec3;
 
     fn bumpy(n: usize) -> Heightmap {
@@ -282,7 +280,7 @@ mod tests {
         let qt = cfg.quadtree(&hm);
         assert_eq!(qt.max_level(), 5);
         let cam = Camera::from_yaw_pitch(dvec3(100.0, 100.0, 400.0), 45.0, -20.0);
-        let sel = select_pvps(&qt, &hm, &cam, &ConstantField(100.0), &cfg);
+        let sel = select_pvps(&GridSource::new(&qt, &hm), &cam, &ConstantField(100.0), &cfg);
         assert!(sel.stats.patches > 4 && sel.stats.patches == sel.patches.len());
         assert!(sel.factors_in_range());
         assert_eq!(check_shared_edges(&sel), []);
@@ -300,9 +298,9 @@ mod tests {
     fn transition_factors_are_the_papers_ratio_doubled() {
         let hm = bumpy(65);
         let qt = Quadtree::new(&hm, 4);
+        let src = GridSource::new(&qt, &hm);
         let cam = Camera::from_yaw_pitch(dvec3(0.0, 0.0, 100.0), 0.0, -30.0);
-        let rule =
-            PvpsEdges { hm: &hm, qt: &qt, camera: &cam, constant: 10.0, finest: 4, scale: 2 };
+        let rule = PvpsEdges { src: &src, camera: &cam, constant: 10.0, finest: 4, scale: 2 };
         assert_eq!(rule.transition(4), 2.0);
         assert_eq!(rule.transition(3), 4.0);
         assert_eq!(rule.transition(0), 32.0);

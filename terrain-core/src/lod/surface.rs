@@ -17,35 +17,37 @@ use std::collections::HashMap;
 use glam::{DVec2, DVec3};
 
 use super::patch::{Edge, Patch, Selection};
+use super::source::TerrainSource;
 use crate::heightmap::Heightmap;
-use crate::quadtree::{NodeId, Quadtree};
+use crate::quadtree::{NodeId, Quadtree, TreeShape};
 
 /// Grid position (fractional samples, x east, y north) of domain point `uv` of `node`'s patch:
 /// the unclipped node square, clamped to the grid (see the module docs).
-pub fn patch_grid_point(qt: &Quadtree, node: NodeId, uv: [f32; 2]) -> DVec2 {
-    let (x0, y0, c) = node.grid_rect(qt.root_cells());
+pub fn patch_grid_point(shape: &TreeShape, node: NodeId, uv: [f32; 2]) -> DVec2 {
+    let (x0, y0, c) = node.grid_rect(shape.root_cells());
     let x = x0 as f64 + f64::from(uv[0]) * c as f64;
     let y = y0 as f64 + f64::from(uv[1]) * c as f64;
-    DVec2::new(x.clamp(0.0, (qt.width() - 1) as f64), y.clamp(0.0, (qt.height() - 1) as f64))
+    DVec2::new(x.clamp(0.0, (shape.width() - 1) as f64), y.clamp(0.0, (shape.height() - 1) as f64))
 }
 
-/// World position of domain point `uv` of `node`'s patch: [`patch_grid_point`], the
-/// heightmap's bilinear height there.
-pub fn patch_world_point(hm: &Heightmap, qt: &Quadtree, node: NodeId, uv: [f32; 2]) -> DVec3 {
-    let g = patch_grid_point(qt, node, uv);
-    hm.grid_to_world(g.x, g.y).extend(f64::from(hm.sample_grid(g.x, g.y)))
+/// World position of domain point `uv` of `node`'s patch: [`patch_grid_point`], the source's
+/// bilinear height there.
+pub fn patch_world_point(src: &dyn TerrainSource, node: NodeId, uv: [f32; 2]) -> DVec3 {
+    let shape = src.shape();
+    let g = patch_grid_point(shape, node, uv);
+    shape.grid_to_world(g).extend(f64::from(src.height(g)))
 }
 
 /// The world segment of a patch edge (clamped like every domain point), from its south or
 /// west end: two same-level patches sharing an edge get the identical segment.
-pub fn edge_segment(hm: &Heightmap, qt: &Quadtree, node: NodeId, edge: Edge) -> (DVec3, DVec3) {
+pub fn edge_segment(src: &dyn TerrainSource, node: NodeId, edge: Edge) -> (DVec3, DVec3) {
     let (a, b) = match edge {
         Edge::South => ([0.0, 0.0], [1.0, 0.0]),
         Edge::East => ([1.0, 0.0], [1.0, 1.0]),
         Edge::North => ([0.0, 1.0], [1.0, 1.0]),
         Edge::West => ([0.0, 0.0], [0.0, 1.0]),
     };
-    (patch_world_point(hm, qt, node, a), patch_world_point(hm, qt, node, b))
+    (patch_world_point(src, node, a), patch_world_point(src, node, b))
 }
 
 /// A triangle mesh in world coordinates, vertices welded where they coincide exactly.
@@ -97,7 +99,7 @@ where
         let ids: Vec<u32> = points
             .iter()
             .map(|&uv| {
-                let g = patch_grid_point(qt, p.node, uv);
+                let g = patch_grid_point(qt.shape(), p.node, uv);
                 *weld.entry((g.x.to_bits(), g.y.to_bits())).or_insert_with(|| {
                     mesh.positions.push(
                         hm.grid_to_world(g.x, g.y).extend(f64::from(hm.sample_grid(g.x, g.y))),
@@ -134,6 +136,7 @@ pub fn fan_tessellation(p: &Patch) -> (Vec<[f32; 2]>, Vec<[u32; 3]>) {
 mod tests {
     use super::*;
     use crate::georef::Georef;
+    use crate::lod::GridSource;
     use crate::lod::edges::{EdgeRule, outer_factors};
     use crate::quadtree::{LeafSet, balance};
 
@@ -227,11 +230,11 @@ mod tests {
         let qt = Quadtree::new(&hm, 4);
         assert_eq!(qt.root_cells(), 64);
         let n = NodeId::new(1, 1, 1); // samples 32..=64 by 32..=64, clipped to 49 x 36
-        assert_eq!(patch_grid_point(&qt, n, [0.0, 0.0]), DVec2::new(32.0, 32.0));
-        assert_eq!(patch_grid_point(&qt, n, [0.25, 0.125]), DVec2::new(40.0, 36.0));
-        assert_eq!(patch_grid_point(&qt, n, [1.0, 1.0]), DVec2::new(49.0, 36.0));
-        let (a, b) = edge_segment(&hm, &qt, NodeId::new(1, 0, 0), Edge::East);
-        let (c, d) = edge_segment(&hm, &qt, NodeId::new(1, 1, 0), Edge::West);
+        assert_eq!(patch_grid_point(qt.shape(), n, [0.0, 0.0]), DVec2::new(32.0, 32.0));
+        assert_eq!(patch_grid_point(qt.shape(), n, [0.25, 0.125]), DVec2::new(40.0, 36.0));
+        assert_eq!(patch_grid_point(qt.shape(), n, [1.0, 1.0]), DVec2::new(49.0, 36.0));
+        let (a, b) = edge_segment(&GridSource::new(&qt, &hm), NodeId::new(1, 0, 0), Edge::East);
+        let (c, d) = edge_segment(&GridSource::new(&qt, &hm), NodeId::new(1, 1, 0), Edge::West);
         assert_eq!((a, b), (c, d));
     }
 }

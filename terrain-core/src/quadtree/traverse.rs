@@ -9,7 +9,7 @@
 use std::collections::HashSet;
 
 use super::node::{Direction, NodeId, Quadrant};
-use super::tree::{NodeInfo, Quadtree};
+use super::tree::{NodeInfo, Quadtree, TreeShape};
 use crate::geometry::{Classification, Frustum, GroundRegion, circle_vs_region};
 
 /// What [`traverse`] needs from a node space: the per-node values the policies read. The
@@ -34,6 +34,27 @@ impl NodeSource for Quadtree {
 impl<T: NodeSource + ?Sized> NodeSource for &T {
     fn node_info(&self, node: NodeId) -> Option<NodeInfo> {
         (**self).node_info(node)
+    }
+}
+
+/// A [`NodeSource`] with the geometry of its quadtree ([`TreeShape`]: which nodes exist, how
+/// they are clipped and placed): what a selection that reads no heights needs (the DSS
+/// paper's methods). The in-memory [`Quadtree`] and a baked store's tree implement it; the
+/// methods that also read heights take terrain-core's `lod::TerrainSource`.
+pub trait NodeTree: NodeSource {
+    /// The quadtree's geometry: every node the source answers for exists in it.
+    fn shape(&self) -> &TreeShape;
+}
+
+impl NodeTree for Quadtree {
+    fn shape(&self) -> &TreeShape {
+        Quadtree::shape(self)
+    }
+}
+
+impl<T: NodeTree + ?Sized> NodeTree for &T {
+    fn shape(&self) -> &TreeShape {
+        (**self).shape()
     }
 }
 

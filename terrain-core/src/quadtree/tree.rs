@@ -98,6 +98,15 @@ struct Level {
 /// A quadtree over a heightmap's grid with a void-aware min/max height pyramid.
 #[derive(Debug, Clone)]
 pub struct Quadtree {
+    shape: TreeShape,
+    levels: Vec<Level>,
+}
+
+/// The geometry of the quadtree over a grid, without heights: grid size, root and leaf cells,
+/// levels, georeference. What every node space shares (the in-memory [`Quadtree`], a baked
+/// store's tree), so that both address and clip nodes identically (see the module docs).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct TreeShape {
     width: u32,
     height: u32,
     root_cells: u32,
@@ -105,7 +114,104 @@ pub struct Quadtree {
     max_level: u8,
     origin: DVec2,
     spacing: DVec2,
-    levels: Vec<Level>,
+}
+
+impl TreeShape {
+    /// The shape of a `width x height` sample grid (sample (0, 0) at world `origin`, `spacing`
+    /// metres apart) with finest nodes of `leaf_cells` cells (a power of two): the root is the
+    /// next power of two of cells at or above the larger side, and at least `leaf_cells`.
+    ///
+    /// # Panics
+    /// If `leaf_cells` is not a power of two, the grid is empty, or the tree would be deeper
+    /// than [`NodeId::MAX_LEVEL`].
+    pub fn new(width: u32, height: u32, leaf_cells: u32, origin: DVec2, spacing: DVec2) -> Self {
+        assert!(leaf_cells.is_power_of_two(), "leaf_cells must be a power of two");
+        assert!(width >= 1 && height >= 1, "an empty grid has no quadtree");
+        let cells = (width - 1).max(height - 1).max(1);
+        let root_cells = cells.next_power_of_two().max(leaf_cells);
+        let max_level = (root_cells / leaf_cells).trailing_zeros() as u8;
+        assert!(max_level <= NodeId::MAX_LEVEL);
+        Self { width, height, root_cells, leaf_cells, max_level, origin, spacing }
+    }
+
+    /// Nodes per side at `level` that hold at least one grid cell.
+    pub fn level_dims(&self, level: u8) -> (u32, u32) {
+        let c = self.root_cells >> level;
+        let cx = (self.width - 1).max(1);
+        let cy = (self.height - 1).max(1);
+        (cx.div_ceil(c), cy.div_ceil(c))
+    }
+
+    fn clip(&self, n: NodeId) -> GridRect {
+        let (x0, y0, c) = n.grid_rect(self.root_cells);
+        GridRect { x0, y0, x1: (x0 + c).min(self.width - 1), y1: (y0 + c).min(self.height - 1) }
+    }
+
+    /// Grid width in samples.
+    pub fn width(&self) -> u32 {
+        self.width
+    }
+
+    /// Grid height in samples.
+    pub fn height(&self) -> u32 {
+        self.height
+    }
+
+    /// Cells per side of the root (a power of two).
+    pub fn root_cells(&self) -> u32 {
+        self.root_cells
+    }
+
+    /// Cells per side of a finest-level node.
+    pub fn leaf_cells(&self) -> u32 {
+        self.leaf_cells
+    }
+
+    /// The finest level: `log2(root_cells / leaf_cells)`.
+    pub fn max_level(&self) -> u8 {
+        self.max_level
+    }
+
+    /// Grid spacing in metres (x east, y north).
+    pub fn spacing(&self) -> DVec2 {
+        self.spacing
+    }
+
+    /// World position of sample (0, 0).
+    pub fn world_origin(&self) -> DVec2 {
+        self.origin
+    }
+
+    /// World plan position of fractional grid position `g`.
+    pub fn grid_to_world(&self, g: DVec2) -> DVec2 {
+        self.origin + g * self.spacing
+    }
+
+    /// Side of the root patch in metres along x and y (the PVPS paper's `Length`).
+    pub fn root_length_m(&self) -> DVec2 {
+        self.spacing * self.root_cells as f64
+    }
+
+    /// Whether `n` is within `max_level` and holds at least one grid cell.
+    pub fn contains_node(&self, n: NodeId) -> bool {
+        if n.level > self.max_level {
+            return false;
+        }
+        let (nx, ny) = self.level_dims(n.level);
+        n.i < nx && n.j < ny
+    }
+
+    /// The node's samples clipped to the grid, or `None` when it holds no cell.
+    pub fn clipped_rect(&self, n: NodeId) -> Option<GridRect> {
+        self.contains_node(n).then(|| self.clip(n))
+    }
+
+    /// The world plan box of clipped rectangle `rect`: `(south-west, north-east)`.
+    pub fn plan_box(&self, rect: &GridRect) -> (DVec2, DVec2) {
+        let lo = self.origin + DVec2::new(rect.x0 as f64, rect.y0 as f64) * self.spacing;
+        let hi = self.origin + DVec2::new(rect.x1 as f64, rect.y1 as f64) * self.spacing;
+        (lo, hi)
+    }
 }
 
 impl Quadtree {
@@ -114,23 +220,11 @@ impl Quadtree {
     ///
     /// Memory is about 20 bytes per node: `(cells / leaf_cells)^2 * 4/3` nodes.
     pub fn new(hm: &Heightmap, leaf_cells: u32) -> Self {
-        assert!(leaf_cells.is_power_of_two(), "leaf_cells must be a power of two");
         let (w, h) = (hm.width() as u32, hm.height() as u32);
-        let cells = (w - 1).max(h - 1).max(1);
-        let root_cells = cells.next_power_of_two().max(leaf_cells);
-        let max_level = (root_cells / leaf_cells).trailing_zeros() as u8;
-        assert!(max_level <= NodeId::MAX_LEVEL);
         let g = hm.georef();
-        let mut qt = Self {
-            width: w,
-            height: h,
-            root_cells,
-            leaf_cells,
-            max_level,
-            origin: g.world_origin,
-            spacing: g.spacing_m,
-            levels: Vec::new(),
-        };
+        let shape = TreeShape::new(w, h, leaf_cells, g.world_origin, g.spacing_m);
+        let max_level = shape.max_level;
+        let mut qt = Self { shape, levels: Vec::new() };
         // Finest level from the samples, coarser levels by merging children.
         let mut levels: Vec<Level> = Vec::with_capacity(max_level as usize + 1);
         let (nx, ny) = qt.level_dims(max_level);
@@ -184,71 +278,67 @@ impl Quadtree {
         qt
     }
 
-    /// Nodes per side at `level` that hold at least one grid cell.
     fn level_dims(&self, level: u8) -> (u32, u32) {
-        let c = self.root_cells >> level;
-        let cx = (self.width - 1).max(1);
-        let cy = (self.height - 1).max(1);
-        (cx.div_ceil(c), cy.div_ceil(c))
+        self.shape.level_dims(level)
     }
 
     fn clip(&self, n: NodeId) -> GridRect {
-        let (x0, y0, c) = n.grid_rect(self.root_cells);
-        GridRect { x0, y0, x1: (x0 + c).min(self.width - 1), y1: (y0 + c).min(self.height - 1) }
+        self.shape.clip(n)
+    }
+
+    /// The tree's geometry (what a store's tree of the same grid shares).
+    pub fn shape(&self) -> &TreeShape {
+        &self.shape
     }
 
     /// Grid width in samples.
     pub fn width(&self) -> u32 {
-        self.width
+        self.shape.width
     }
 
     /// Grid height in samples.
     pub fn height(&self) -> u32 {
-        self.height
+        self.shape.height
     }
 
     /// Cells per side of the root (a power of two).
     pub fn root_cells(&self) -> u32 {
-        self.root_cells
+        self.shape.root_cells
     }
 
     /// Cells per side of a finest-level node.
     pub fn leaf_cells(&self) -> u32 {
-        self.leaf_cells
+        self.shape.leaf_cells
     }
 
     /// The finest level: `log2(root_cells / leaf_cells)`.
     pub fn max_level(&self) -> u8 {
-        self.max_level
+        self.shape.max_level
     }
 
     /// Grid spacing in metres (x east, y north).
     pub fn spacing(&self) -> DVec2 {
-        self.spacing
+        self.shape.spacing
     }
 
     /// World position of sample (0, 0).
     pub fn world_origin(&self) -> DVec2 {
-        self.origin
+        self.shape.origin
     }
 
     /// Side of the root patch in metres along x and y (the PVPS paper's `Length`).
     pub fn root_length_m(&self) -> DVec2 {
-        self.spacing * self.root_cells as f64
+        self.shape.root_length_m()
     }
 
     /// Whether `n` is within `max_level` and holds at least one grid cell.
     pub fn contains_node(&self, n: NodeId) -> bool {
-        if n.level > self.max_level {
-            return false;
-        }
-        let (nx, ny) = self.level_dims(n.level);
-        n.i < nx && n.j < ny
+        self.shape.contains_node(n)
     }
 
     /// The node's samples clipped to the grid, or `None` when it holds no cell.
     pub fn clipped_rect(&self, n: NodeId) -> Option<GridRect> {
-        self.contains_node(n).then(|| self.clip(n))
+        self.shape.clipped_rect(n)
     }
 
     /// Everything the policies need about `n`, or `None` when it holds no grid cell.
@@ -259,18 +349,17 @@ impl Quadtree {
         let lv = &self.levels[n.level as usize];
         let r = lv.ranges[(n.j * lv.nx + n.i) as usize];
         let rect = self.clip(n);
-        let lo = self.origin + DVec2::new(rect.x0 as f64, rect.y0 as f64) * self.spacing;
-        let hi = self.origin + DVec2::new(rect.x1 as f64, rect.y1 as f64) * self.spacing;
+        let (lo, hi) = self.shape.plan_box(&rect);
         Some(NodeInfo {
             rect,
-            cells: self.root_cells >> n.level,
+            cells: self.shape.root_cells >> n.level,
             aabb: Aabb {
                 min: DVec3::new(lo.x, lo.y, r.min as f64),
                 max: DVec3::new(hi.x, hi.y, r.max as f64),
             },
             data_range: (r.dmin <= r.dmax).then_some((r.dmin, r.dmax)),
             has_voids: r.voids,
-            is_finest: n.level == self.max_level,
+            is_finest: n.level == self.shape.max_level,
         })
     }
 
