@@ -273,17 +273,7 @@ impl Heightmap {
 
     /// Bilinear height at fractional grid coordinates `(u, v)` (in samples), clamped to the grid.
     pub fn sample_grid(&self, u: f64, v: f64) -> f32 {
-        let u = u.clamp(0.0, (self.width - 1) as f64);
-        let v = v.clamp(0.0, (self.height - 1) as f64);
-        let i0 = (u.floor() as usize).min(self.width.saturating_sub(2));
-        let j0 = (v.floor() as usize).min(self.height.saturating_sub(2));
-        let i1 = (i0 + 1).min(self.width - 1);
-        let j1 = (j0 + 1).min(self.height - 1);
-        let fu = (u - i0 as f64) as f32;
-        let fv = (v - j0 as f64) as f32;
-        let a = self.get(i0, j0) + (self.get(i1, j0) - self.get(i0, j0)) * fu;
-        let b = self.get(i0, j1) + (self.get(i1, j1) - self.get(i0, j1)) * fu;
-        a + (b - a) * fv
+        bilinear_clamped(self.width, self.height, u, v, |i, j| self.get(i, j))
     }
 
     /// Bilinear height at a world position (metres, world frame), clamped to the grid.
@@ -320,4 +310,28 @@ impl Heightmap {
     pub fn into_parts(self) -> (usize, usize, Vec<f32>, VoidMask, Georef) {
         (self.width, self.height, self.data, self.voids, self.georef)
     }
+}
+
+/// Bilinear height at fractional grid coordinates `(u, v)` of a `width x height` grid whose
+/// samples `get(i, j)` gives, clamped to the grid: the one bilinear lookup of the engine
+/// ([`Heightmap::sample_grid`], a store's resident levels), so every holder of the same samples
+/// answers bit for bit the same.
+pub fn bilinear_clamped(
+    width: usize,
+    height: usize,
+    u: f64,
+    v: f64,
+    get: impl Fn(usize, usize) -> f32,
+) -> f32 {
+    let u = u.clamp(0.0, (width - 1) as f64);
+    let v = v.clamp(0.0, (height - 1) as f64);
+    let i0 = (u.floor() as usize).min(width.saturating_sub(2));
+    let j0 = (v.floor() as usize).min(height.saturating_sub(2));
+    let i1 = (i0 + 1).min(width - 1);
+    let j1 = (j0 + 1).min(height - 1);
+    let fu = (u - i0 as f64) as f32;
+    let fv = (v - j0 as f64) as f32;
+    let a = get(i0, j0) + (get(i1, j0) - get(i0, j0)) * fu;
+    let b = get(i0, j1) + (get(i1, j1) - get(i0, j1)) * fu;
+    a + (b - a) * fv
 }

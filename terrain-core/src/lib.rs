@@ -31,4 +31,4 @@ pub mod synth;
 
 pub use error::{DemError, DemErrorKind};
 pub use georef::{Crs, Georef};
-pub use heightmap::{Heightmap, HeightmapError, VoidMask};
+pub use heightmap::{Heightmap, HeightmapError, VoidMask, bilinear_clamped};

@@ -87,7 +87,9 @@ impl HeightEncoding {
 #[derive(Debug, Clone, PartialEq)]
 pub struct BakeConfig {
     /// Blocks are `(2^k + 1)^2` vertices, `k` in 2..=12. Default 8 (257^2, chosen by the
-    /// stream bench; the paper used k = 10, 1025^2).
+    /// stream bench; the paper used k = 10, 1025^2). A grid smaller than one block gets the
+    /// smallest `k` whose block covers it (the store's quadtree is then the heightmap's); the
+    /// header records the `k` used.
     pub k: u8,
     /// How heights are stored. Default: 1 cm bound.
     pub encoding: HeightEncoding,
@@ -233,6 +235,15 @@ struct BakedBlock {
     lossless: bool,
 }
 
+/// The block exponent of a `w x h` grid: `k`, or smaller for a grid smaller than one block, so
+/// that the store's quadtree is the heightmap's (its root the next power of two of cells at or
+/// above the larger side; a block larger than that root would give the tree a larger root and
+/// other node ids). At least the smallest block of [`K_RANGE`]. The header records the `k` used.
+pub(crate) fn block_k(k: u8, w: u64, h: u64) -> u8 {
+    let cells = (w.max(h).max(2) - 1).next_power_of_two();
+    k.min(cells.trailing_zeros() as u8).max(*K_RANGE.start())
+}
+
 fn bake_into(
     source: &dyn HeightSource,
     dir: &Path,
@@ -241,7 +252,7 @@ fn bake_into(
 ) -> Result<BakeReport, BakeError> {
     let start = Instant::now();
     let (w, h) = (source.width(), source.height());
-    let k = config.k;
+    let k = block_k(config.k, w, h);
     let cells = 1u64 << k;
     let side = cells as usize + 1;
     let blocks_x = (w - 1).div_ceil(cells).max(1);

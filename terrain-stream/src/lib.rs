@@ -86,6 +86,7 @@ pub mod source;
 pub mod stats;
 pub mod store;
 pub mod streamer;
+pub mod terrain;
 mod workers;
 
 pub use bake::{BakeConfig, BakeProgress, BakeReport, HeightEncoding, bake};
@@ -97,5 +98,6 @@ pub use source::HeightSource;
 pub use stats::{FrameStats, StatsSummary};
 pub use store::{BlockLevels, LoadedLevel, Store};
 pub use streamer::{ScheduledBlock, StreamConfig, Streamer, WaitReport};
+pub use terrain::{StoreSource, demand_of};
 pub use terrain_core::geometry::Camera;
 pub use workers::LevelReader;

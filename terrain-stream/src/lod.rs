@@ -41,7 +41,7 @@ use terrain_core::lod::{MAX_FACTOR, Patch, Selection, SelectionStats, WishEdges,
 use terrain_core::metrics::screen::sight_line_eq7;
 use terrain_core::quadtree::{
     BoundingCircleCull, Cull, CullPolicy, GridRect, LeafSet, NodeId, NodeInfo, NodeSource,
-    SplitPolicy, Visit, balance_with, traverse,
+    NodeTree, SplitPolicy, TreeShape, Visit, balance_with, traverse,
 };
 
 use crate::format::{BlockEntry, BlockId, Header};
@@ -319,6 +319,8 @@ fn patch_level(h: &Header, cells: u32) -> u8 {
 #[derive(Debug, Clone)]
 pub struct StoreTree {
     store: Arc<Store>,
+    /// The geometry: the grid, the root over whole blocks, leaves of the smallest patch.
+    shape: TreeShape,
     block_level: u8,
     root_cells: u32,
     patch_level: u8,
@@ -367,7 +369,15 @@ impl StoreTree {
             n = m;
         }
         upper.reverse();
-        Self { store, block_level, root_cells, patch_level, upper }
+        let shape = TreeShape::with_root(
+            (h.width as u32).max(1),
+            (h.height as u32).max(1),
+            root_cells,
+            h.block_cells() >> patch_level,
+            h.georef.world_origin,
+            h.georef.spacing_m,
+        );
+        Self { store, shape, block_level, root_cells, patch_level, upper }
     }
 
     /// The store.
@@ -445,6 +455,12 @@ impl StoreTree {
             self.block_level
                 + needed_vertex_level(self.store.header(), e, local, aabb, view, max_level),
         )
+    }
+}
+
+impl NodeTree for StoreTree {
+    fn shape(&self) -> &TreeShape {
+        &self.shape
     }
 }
 

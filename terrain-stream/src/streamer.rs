@@ -140,6 +140,8 @@ pub struct Streamer {
     last_camera: Option<Camera>,
     scheduled: Vec<ScheduledBlock>,
     regions: Option<Regions>,
+    /// The levels a LOD method other than Eq. 7 needs per block ([`Streamer::set_demand`]).
+    demand: Option<Vec<(BlockId, u8)>>,
 }
 
 impl Streamer {
@@ -171,7 +173,20 @@ impl Streamer {
             last_camera: None,
             scheduled: Vec::new(),
             regions: None,
+            demand: None,
         }
+    }
+
+    /// What the next frames need, when a LOD method other than the paper's chooses what is
+    /// drawn: `Some(levels)` lists every block the method draws and the finest level its
+    /// patches there need (its patch level plus the tessellation factor's levels); those
+    /// blocks are the visual region M (each also at least at its [`shading_level`]), nearest
+    /// first, and the scheduling region N - M is preloaded as before (Eq. 8 with Eq. 7's
+    /// levels). `None` (the default): M and its levels from Eq. 7 (the out-of-core paper's
+    /// method). Takes effect at the next [`Streamer::update`] or
+    /// [`Streamer::wait_until_resident`].
+    pub fn set_demand(&mut self, demand: Option<Vec<(BlockId, u8)>>) {
+        self.demand = demand;
     }
 
     /// The store.
@@ -375,7 +390,26 @@ impl Streamer {
         };
         let mut scheduled = Vec::new();
         let mut in_m = BTreeSet::new();
-        for id in blocks_under_bbox(header, &reg.view) {
+        if let Some(demand) = &self.demand {
+            for &(id, level) in demand {
+                let Some(e) = store.entry(id) else { continue };
+                if !in_m.insert(id) {
+                    continue;
+                }
+                let (lo, hi) = block_rect(header, e, id);
+                let needed = level.max(shading_level(header, e, id, &view)).min(header.k);
+                scheduled.push(ScheduledBlock {
+                    block: id,
+                    needed,
+                    target: predicted(id, e, needed),
+                    visible: true,
+                    distance_m: rect_distance(eye, lo, hi),
+                });
+            }
+        }
+        let eq7 =
+            if self.demand.is_some() { Vec::new() } else { blocks_under_bbox(header, &reg.view) };
+        for id in eq7 {
             let Some(e) = store.entry(id) else { continue };
             let (lo, hi) = block_rect(header, e, id);
             if !polygon_meets_rect(reg.view.vertices(), lo, hi) {

@@ -125,10 +125,30 @@ impl TreeShape {
     /// If `leaf_cells` is not a power of two, the grid is empty, or the tree would be deeper
     /// than [`NodeId::MAX_LEVEL`].
     pub fn new(width: u32, height: u32, leaf_cells: u32, origin: DVec2, spacing: DVec2) -> Self {
-        assert!(leaf_cells.is_power_of_two(), "leaf_cells must be a power of two");
         assert!(width >= 1 && height >= 1, "an empty grid has no quadtree");
         let cells = (width - 1).max(height - 1).max(1);
         let root_cells = cells.next_power_of_two().max(leaf_cells);
+        Self::with_root(width, height, root_cells, leaf_cells, origin, spacing)
+    }
+
+    /// [`TreeShape::new`] with a larger root than the grid needs (a store's root covers whole
+    /// blocks: a grid smaller than one block lies in the south-west corner of its root).
+    ///
+    /// # Panics
+    /// If `root_cells` or `leaf_cells` is not a power of two, the root does not cover the grid
+    /// or is smaller than a leaf, or the tree would be deeper than [`NodeId::MAX_LEVEL`].
+    pub fn with_root(
+        width: u32,
+        height: u32,
+        root_cells: u32,
+        leaf_cells: u32,
+        origin: DVec2,
+        spacing: DVec2,
+    ) -> Self {
+        assert!(leaf_cells.is_power_of_two(), "leaf_cells must be a power of two");
+        assert!(root_cells.is_power_of_two() && root_cells >= leaf_cells, "root of {root_cells}");
+        assert!(width >= 1 && height >= 1, "an empty grid has no quadtree");
+        assert!((width - 1).max(height - 1) <= root_cells, "the root does not cover the grid");
         let max_level = (root_cells / leaf_cells).trailing_zeros() as u8;
         assert!(max_level <= NodeId::MAX_LEVEL);
         Self { width, height, root_cells, leaf_cells, max_level, origin, spacing }

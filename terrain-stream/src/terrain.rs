@@ -1,0 +1,143 @@
+//! A store's terrain as every LOD method reads it: [`StoreSource`], terrain-core's
+//! `TerrainSource` over a [`StoreTree`] (node bounds from the store's index, no heights in
+//! memory) and a [`Streamer`]'s resident levels (heights).
+//!
+//! With this, the in-memory methods (the PVPS paper's A/B/C, the DSS paper's Methods I and II,
+//! uniform) select their patches over a store exactly as over a heightmap: the tree's nodes
+//! are the heightmap quadtree's nodes (same root, same clipping, the same min/max when the
+//! store keeps per-node values down to the methods' leaves: the default bake's node levels
+//! reach 16-cell nodes), and a height at a grid sample is the stored sample whenever its level
+//! is resident (a patch corner of a node at block-local level `l` is a vertex of level `l` or
+//! coarser). Where it is not, the height is the bilinear value of the block's finest resident
+//! lattice, as the paged renderer draws it. The method's per-node error tables come from the
+//! scene files beside the store; what its patches need is handed to the streamer as its
+//! demand ([`Streamer::set_demand`], [`demand_of`]).
+
+use glam::DVec2;
+use terrain_core::bilinear_clamped;
+use terrain_core::lod::{Selection, TerrainSource};
+use terrain_core::quadtree::{NodeId, NodeInfo, NodeSource, NodeTree, TreeShape};
+
+use crate::format::BlockId;
+use crate::lod::StoreTree;
+use crate::store::BlockLevels;
+use crate::streamer::Streamer;
+
+/// A store's terrain for the LOD methods: its tree's nodes, heights from what `streamer` holds.
+#[derive(Debug, Clone, Copy)]
+pub struct StoreSource<'a> {
+    tree: &'a StoreTree,
+    streamer: &'a Streamer,
+}
+
+impl<'a> StoreSource<'a> {
+    /// The terrain of `tree`'s store with heights from `streamer` (over the same store).
+    pub fn new(tree: &'a StoreTree, streamer: &'a Streamer) -> Self {
+        Self { tree, streamer }
+    }
+
+    /// Height of grid sample `(x, y)`: the stored sample when a block holding it has its level
+    /// resident, else the finest resident lattice's bilinear value of the block it lies in
+    /// (the south-west-most holder), else that block's lowest height.
+    pub fn sample(&self, x: u32, y: u32) -> f32 {
+        let h = self.tree.store().header();
+        let b = h.block_cells();
+        let (bx, by) = (x / b, y / b);
+        let holders = |v: u32, bv: u32, n: u32| {
+            let mut out = [Some(bv.min(n - 1)), None];
+            if v.is_multiple_of(b) && v > 0 && bv >= 1 && bv - 1 < n {
+                out[1] = Some(bv - 1);
+            }
+            out
+        };
+        let cols = holders(x, bx, h.blocks_x);
+        let rows = holders(y, by, h.blocks_y);
+        let mut coarse: Option<(usize, f32)> = None;
+        for col in cols.into_iter().flatten() {
+            for row in rows.into_iter().flatten() {
+                let id = BlockId::new(row, col);
+                let Some(levels) = self.streamer.block(id) else { continue };
+                let (i, j) = (x - col * b, y - row * b);
+                if let Some(z) = levels.height(i, j) {
+                    return z;
+                }
+                let count = levels.count();
+                if count > 0 && coarse.is_none_or(|(c, _)| count > c) {
+                    coarse = Some((count, lattice_height(levels, h.k, i, j)));
+                }
+            }
+        }
+        if let Some((_, z)) = coarse {
+            return z;
+        }
+        let id = BlockId::new(by.min(h.blocks_y - 1), bx.min(h.blocks_x - 1));
+        self.tree.store().entry(id).map_or(0.0, |e| e.min)
+    }
+}
+
+/// Bilinear height of block vertex `(i, j)` on the finest resident level's lattice.
+fn lattice_height(levels: &BlockLevels, k: u8, i: u32, j: u32) -> f32 {
+    let level = (levels.count() - 1) as u8;
+    let d = 1u32 << (k - level);
+    let n = (1usize << level) + 1;
+    bilinear_clamped(n, n, f64::from(i) / f64::from(d), f64::from(j) / f64::from(d), |a, b| {
+        levels.height(a as u32 * d, b as u32 * d).unwrap_or(0.0)
+    })
+}
+
+impl NodeSource for StoreSource<'_> {
+    fn node_info(&self, node: NodeId) -> Option<NodeInfo> {
+        self.tree.node_info(node)
+    }
+}
+
+impl NodeTree for StoreSource<'_> {
+    fn shape(&self) -> &TreeShape {
+        self.tree.shape()
+    }
+}
+
+impl TerrainSource for StoreSource<'_> {
+    fn height(&self, g: DVec2) -> f32 {
+        let s = self.tree.shape();
+        bilinear_clamped(s.width() as usize, s.height() as usize, g.x, g.y, |i, j| {
+            self.sample(i as u32, j as u32)
+        })
+    }
+}
+
+/// The streamer's demand for a selection over `tree` ([`Streamer::set_demand`]): every block a
+/// patch lies in, with the finest level its patches there need (a patch of block-local level
+/// `l` with largest factor `f` needs level `l + log2(f)` rounded up, at most the block's
+/// finest), nearest block first is the streamer's business. Patches above the block level
+/// (larger than a block) need their blocks' level `log2(f)` less the levels they span.
+pub fn demand_of(tree: &StoreTree, selection: &Selection) -> Vec<(BlockId, u8)> {
+    let h = tree.store().header();
+    let bl = tree.block_level();
+    let mut need: std::collections::BTreeMap<BlockId, u8> = std::collections::BTreeMap::new();
+    for p in &selection.patches {
+        let f = p.outer.iter().chain(&p.inner).fold(1f32, |m, &f| m.max(f));
+        let steps = (f.max(1.0).ceil() as u32).next_power_of_two().trailing_zeros() as i32;
+        let n = p.node;
+        let blocks: Vec<BlockId> = match tree.block_of(n) {
+            Some((b, _)) => vec![b],
+            None => {
+                let s = bl - n.level;
+                let (c0, r0) = (n.i << s, n.j << s);
+                let side = 1u32 << s;
+                (r0..(r0 + side).min(h.blocks_y))
+                    .flat_map(|r| {
+                        (c0..(c0 + side).min(h.blocks_x)).map(move |c| BlockId::new(r, c))
+                    })
+                    .collect()
+            }
+        };
+        let local = i32::from(n.level) - i32::from(bl);
+        let level = (local + steps).clamp(0, i32::from(h.k)) as u8;
+        for b in blocks {
+            let e = need.entry(b).or_insert(0);
+            *e = (*e).max(level);
+        }
+    }
+    need.into_iter().collect()
+}
