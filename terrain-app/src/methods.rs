@@ -49,7 +49,7 @@ use terrain_core::lod::{
     PvpsConfig, Selection, SelectionStats, SurfaceMesh, build_surface, select_dss_power_of_two,
     select_dss_strips, select_dss_uniform, select_pvps, select_pvps_with_cull,
 };
-use terrain_core::quadtree::{FrustumCull, Quadtree, SplitToLevel, select};
+use terrain_core::quadtree::{FrustumCull, NodeTree, Quadtree, SplitToLevel, select};
 use terrain_gpu::render::{DrawPatch, ExtraTriangles};
 use terrain_gpu::strips::{self, StripMesh};
 use terrain_gpu::tess::{PatchFactors, tessellate};
@@ -293,7 +293,7 @@ impl MethodScene {
     pub fn set_pvs(&self, mode: PvsMode, pvs: Option<Pvs>) -> Result<(), String> {
         let k = usize::from(mode == PvsMode::Conservative);
         if let Some(p) = &pvs
-            && !p.matches(&self.qt)
+            && !p.matches(self.qt.shape())
         {
             let l = &p.layout;
             let _ = self.pvs[k].set(None);
@@ -486,20 +486,7 @@ impl MethodScene {
 
     /// Every finest-level patch inside the frustum, every factor `uniform_factor`.
     fn select_uniform(&self, camera: &Camera) -> Selection {
-        let start = std::time::Instant::now();
-        let mut cull = FrustumCull::new(camera.frustum());
-        let leaves = select(&self.qt, &mut SplitToLevel(self.qt.max_level()), &mut cull);
-        let f = self.config.uniform_factor.clamp(MIN_FACTOR, MAX_FACTOR);
-        let patches: Vec<Patch> =
-            leaves.iter().map(|&node| Patch { node, outer: [f; 4], inner: [f; 2] }).collect();
-        let stats = SelectionStats {
-            traversal_leaves: patches.len(),
-            patches: patches.len(),
-            max_level: self.qt.max_level(),
-            cpu_time: start.elapsed(),
-            ..SelectionStats::default()
-        };
-        Selection { patches, stats }
+        select_uniform(&self.qt, camera, self.config.uniform_factor)
     }
 
     /// The surface a selection draws, rebuilt on the CPU with the tessellator's CPU reference
@@ -513,6 +500,26 @@ impl MethodScene {
     pub fn draw_patches(&self, selection: &Selection) -> Vec<DrawPatch> {
         draw_patches(&self.qt, selection)
     }
+}
+
+/// Every finest-level patch in the frustum at one factor: the `uniform` method over any node
+/// tree (a heightmap's quadtree, a store's).
+pub fn select_uniform(src: &dyn NodeTree, camera: &Camera, factor: f32) -> Selection {
+    let start = std::time::Instant::now();
+    let mut cull = FrustumCull::new(camera.frustum());
+    let max = src.shape().max_level();
+    let leaves = select(src, &mut SplitToLevel(max), &mut cull);
+    let f = factor.clamp(MIN_FACTOR, MAX_FACTOR);
+    let patches: Vec<Patch> =
+        leaves.iter().map(|&node| Patch { node, outer: [f; 4], inner: [f; 2] }).collect();
+    let stats = SelectionStats {
+        traversal_leaves: patches.len(),
+        patches: patches.len(),
+        max_level: max,
+        cpu_time: start.elapsed(),
+        ..SelectionStats::default()
+    };
+    Selection { patches, stats }
 }
 
 /// What a method draws in one frame ([`MethodScene::frame`]).

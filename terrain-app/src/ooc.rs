@@ -29,6 +29,7 @@ use std::time::{Duration, Instant};
 
 use glam::{DVec2, DVec3, dvec3};
 use terrain_core::geometry::Camera;
+use terrain_core::lod::TerrainSource;
 use terrain_core::lod::{Selection, check_shared_edges};
 use terrain_core::{Crs, Georef, Heightmap};
 use terrain_gpu::paged::{Page, PageClass, PageLayout, PagedHeights, classes_for_budget};
@@ -37,7 +38,7 @@ use terrain_gpu::{RenderError, TerrainRenderer};
 use terrain_stream::format::{INDEX_FILE, MAGIC};
 use terrain_stream::lod::{DEFAULT_PATCH_CELLS, StoreTree, select_patches};
 use terrain_stream::schedule::ScheduleConfig;
-use terrain_stream::{BlockId, Store, StoreError, StreamConfig, Streamer};
+use terrain_stream::{BlockId, Store, StoreError, StoreSource, StreamConfig, Streamer, demand_of};
 
 use crate::methods::patch_factors;
 
@@ -402,6 +403,7 @@ impl OocScene {
     /// and measurements of the selection's own error (`--wait`).
     pub fn frame(&mut self, camera: &Camera, warm: bool) -> OocFrame {
         let t0 = Instant::now();
+        self.streamer.set_demand(None);
         let s = if warm {
             self.streamer.wait_until_resident(camera, self.config.warm_timeout).stats
         } else {
@@ -409,8 +411,75 @@ impl OocScene {
         };
         let mut stream = StreamRecord::new(&s);
         stream.stream_ms = t0.elapsed().as_secs_f64() * 1e3;
+        let (drawn, dropped) = self.assign_pages();
+        // The crack-free patches over the drawn blocks, each at most at its page's level.
+        let page_level: HashMap<BlockId, u8> = drawn.iter().copied().collect();
+        let selection =
+            select_patches(&self.tree, camera, self.config.tau, |b| page_level.get(&b).copied());
+        debug_assert!(check_shared_edges(&selection).is_empty());
+        self.finish_frame(selection, &drawn, dropped, stream)
+    }
 
-        let header = self.store.header().clone();
+    /// One frame of another LOD method drawn from this store: `select` chooses the patches
+    /// over the store's terrain (nodes of `tree`, the store's tree at the method's leaf size;
+    /// heights from the resident levels, [`StoreSource`]), the streamer loads what those
+    /// patches need ([`demand_of`], [`Streamer::set_demand`]; Eq. 8 preloading around it as
+    /// for `ooc`), and every block a patch lies in is drawn from its finest resident level.
+    /// Real time unless `warm`: then it waits until the patches' levels are resident and
+    /// selects again with the exact heights (the patch corners' heights enter PVPS's edge
+    /// factors), until the demand holds still (at most three rounds), so a warm frame draws
+    /// the patches the method selects from the heightmap in memory. Patches over a block with
+    /// no page (no slot left) are not drawn; the block is counted in
+    /// [`OocFrame::blocks_dropped`].
+    pub fn frame_for(
+        &mut self,
+        camera: &Camera,
+        warm: bool,
+        tree: &StoreTree,
+        select: &mut dyn FnMut(&dyn TerrainSource) -> Selection,
+    ) -> OocFrame {
+        let t0 = Instant::now();
+        let mut selection = select(&StoreSource::new(tree, &self.streamer));
+        let mut select_time = selection.stats.cpu_time;
+        let mut demand = demand_of(tree, &selection);
+        self.streamer.set_demand(Some(demand.clone()));
+        let s = if warm {
+            let mut s = self.streamer.wait_until_resident(camera, self.config.warm_timeout).stats;
+            for _ in 0..3 {
+                selection = select(&StoreSource::new(tree, &self.streamer));
+                select_time += selection.stats.cpu_time;
+                let again = demand_of(tree, &selection);
+                if again == demand {
+                    break;
+                }
+                demand = again;
+                self.streamer.set_demand(Some(demand.clone()));
+                s = self.streamer.wait_until_resident(camera, self.config.warm_timeout).stats;
+            }
+            s
+        } else {
+            self.streamer.update(camera)
+        };
+        let mut stream = StreamRecord::new(&s);
+        stream.stream_ms = (t0.elapsed() - select_time.min(t0.elapsed())).as_secs_f64() * 1e3;
+        let (drawn, dropped) = self.assign_pages();
+        let paged: HashMap<BlockId, u8> = drawn.iter().copied().collect();
+        let before = selection.patches.len();
+        selection
+            .patches
+            .retain(|p| tree.blocks_under(p.node).iter().all(|b| paged.contains_key(b)));
+        selection.stats.patches = selection.patches.len();
+        if selection.patches.len() < before {
+            debug_assert!(dropped > 0, "patches go only with dropped blocks");
+        }
+        self.finish_frame(selection, &drawn, dropped, stream)
+    }
+
+    /// The blocks of the last update's visual region M drawn this frame, nearest first, each at
+    /// the finest of its resident levels whose page class has a slot left; and how many
+    /// blocks of M got none.
+    fn assign_pages(&self) -> (Vec<(BlockId, u8)>, usize) {
+        let header = self.store.header();
         let mut drawn: Vec<(BlockId, u8)> = Vec::new();
         let mut dropped = 0;
         // Slots taken per class this frame: each block, nearest first, takes the finest of its
@@ -429,11 +498,18 @@ impl OocScene {
             used[header.k as usize - level] += 1;
             drawn.push((s.block, level as u8));
         }
-        // The crack-free patches over the drawn blocks, each at most at its page's level.
-        let page_level: HashMap<BlockId, u8> = drawn.iter().copied().collect();
-        let selection =
-            select_patches(&self.tree, camera, self.config.tau, |b| page_level.get(&b).copied());
-        debug_assert!(check_shared_edges(&selection).is_empty());
+        (drawn, dropped)
+    }
+
+    /// The frame of `selection` over the `drawn` blocks' pages: page changes (refill where the
+    /// drawn level changed, drop blocks no longer drawn), the mirror kept in step.
+    fn finish_frame(
+        &mut self,
+        selection: Selection,
+        drawn: &[(BlockId, u8)],
+        dropped: usize,
+        stream: StreamRecord,
+    ) -> OocFrame {
         let draw = selection
             .patches
             .iter()
@@ -442,8 +518,6 @@ impl OocScene {
                 DrawPatch { rect: [x0, y0, x0 + c, y0 + c], factors: patch_factors(p) }
             })
             .collect();
-
-        // Pages: refill where the resident level changed, drop blocks no longer drawn.
         let mut updates = Vec::new();
         let want: BTreeMap<[u32; 2], (BlockId, u8)> =
             drawn.iter().map(|&(id, l)| ([id.col, id.row], (id, l))).collect();

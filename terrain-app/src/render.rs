@@ -9,9 +9,7 @@ use std::path::PathBuf;
 use anyhow::{Context, bail};
 use clap::Args;
 use glam::DVec3;
-use terrain_app::method::{
-    self, FrameLoop, FrameRenderer, Method as _, MethodOptions, OocMethod, OocWait,
-};
+use terrain_app::method::{self, FrameLoop, FrameRenderer, MethodOptions, OocWait};
 use terrain_app::methods::{LodMethod, MethodConfig, MethodScene};
 use terrain_app::ooc;
 use terrain_core::geometry::Camera;
@@ -40,9 +38,10 @@ pub(crate) struct RenderArgs {
     /// Image size, WIDTHxHEIGHT.
     #[arg(long, default_value = "1280x720")]
     pub size: String,
-    /// LOD method: which patches to draw with which tessellation factors.
-    #[arg(long, value_enum, default_value_t = LodMethod::PvpsC)]
-    pub method: LodMethod,
+    /// LOD method: which patches to draw with which tessellation factors. Default: pvps-c for
+    /// a DEM, ooc (the out-of-core paper's) for a baked store.
+    #[arg(long, value_enum)]
+    pub method: Option<LodMethod>,
     /// Cells per side of the finest patch (the PVPS paper: a 64 x 64 patch grid).
     #[arg(long, default_value_t = 16)]
     pub leaf_cells: u32,
@@ -292,18 +291,9 @@ pub(crate) fn run(args: &RenderArgs) -> anyhow::Result<()> {
     if let [one] = args.source.dem.as_slice()
         && ooc::is_store(one)
     {
-        if args.method != LodMethod::OutOfCore {
-            // Only the out-of-core method draws from a store so far (issue 13): say so rather
-            // than ignore --method silently.
-            eprintln!(
-                "note: {} is a baked store, drawn with the out-of-core method (ooc); --method {} \
-                 needs the DEM file for now",
-                one.display(),
-                args.method.name()
-            );
-        }
         return run_store(args, one, (width, height), background);
     }
+    let method_kind = args.method.unwrap_or(LodMethod::PvpsC);
     let hm = match args.source.load()? {
         Some(dem) => dem.heightmap,
         None => synth::default_terrain(),
@@ -318,12 +308,12 @@ pub(crate) fn run(args: &RenderArgs) -> anyhow::Result<()> {
     };
     let scene = MethodScene::new(hm, method_config);
     if let Some(dir) = &args.scene {
-        for warning in terrain_app::scene_files::load(&scene, dir, &[args.method]) {
+        for warning in terrain_app::scene_files::load(&scene, dir, &[method_kind]) {
             eprintln!("warning: {warning}");
         }
     }
-    let method = method::build(args.method, &scene, &MethodOptions::default())?;
-    scene.prepare(&[args.method]);
+    let method = method::build(method_kind, &scene, &MethodOptions::default())?;
+    scene.prepare(&[method_kind]);
     let ctx = GpuContext::new(&DeviceConfig::from_env(BackendChoice::Auto))
         .context("no GPU adapter (Vulkan or GL) is available")?;
     println!("adapter: {}", ctx.describe());
@@ -361,7 +351,8 @@ fn save_image(renderer: &FrameRenderer, output: &std::path::Path) -> anyhow::Res
     Ok(())
 }
 
-/// `terrain render <store>`: the out-of-core method over a baked store.
+/// `terrain render <store>`: a method drawn from a baked store (default the out-of-core
+/// paper's, `ooc`; see [`method::store_method`] for the others).
 fn run_store(
     args: &RenderArgs,
     dir: &std::path::Path,
@@ -450,7 +441,15 @@ fn run_store(
     println!("adapter: {}", ctx.describe());
     let render_config = RenderConfig { width, height, texture, background, ..Default::default() };
     let wait = if args.wait { OocWait::EveryFrame } else { OocWait::FirstFrame };
-    let method = OocMethod::new(scene, wait);
+    let kind = args.method.unwrap_or(LodMethod::OutOfCore);
+    let method_config = MethodConfig {
+        leaf_cells: args.leaf_cells,
+        uniform_factor: args.factor,
+        ooc: config,
+        ..MethodConfig::default()
+    };
+    println!("method: {}", kind.name());
+    let method = method::store_method(kind, scene, &method_config, wait, None)?;
     let mut renderer = method.renderer(&ctx, &render_config)?;
     if let Some(r) = renderer.terrain_renderer() {
         println!(
@@ -461,9 +460,9 @@ fn run_store(
         );
     }
     let options = RenderOptions { wireframe: args.wireframe, ..Default::default() };
-    let mut frames =
-        FrameLoop::new(Box::new(method)).rendered(Some(&mut renderer)).with_options(options);
-    let records = draw_frames(&mut frames, &cameras, Some(args.tau))?;
+    let mut frames = FrameLoop::new(method).rendered(Some(&mut renderer)).with_options(options);
+    let records =
+        draw_frames(&mut frames, &cameras, (kind == LodMethod::OutOfCore).then_some(args.tau))?;
     drop(frames);
     let stream = |r: &FrameRecord| r.stream.clone().unwrap_or_default();
     let total =

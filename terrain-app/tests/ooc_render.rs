@@ -445,8 +445,6 @@ fn terrain_render_draws_a_store_baked_from_puget_sound() {
         "4",
         "--frames",
         "2",
-        "--method",
-        "pvps-c",
         "--background",
         "255,0,255",
         "--stats-json",
@@ -465,14 +463,8 @@ fn terrain_render_draws_a_store_baked_from_puget_sound() {
     }
     assert!(out.status.success(), "{stdout}\n{stderr}");
     println!("{stdout}");
-    // Only ooc draws from a store so far: --method is not ignored in silence.
-    assert!(
-        stderr.contains(
-            "drawn with the out-of-core method (ooc); --method pvps-c needs the DEM file"
-        ),
-        "{stderr}"
-    );
     for field in [
+        "method: ooc",
         "adapter:",
         "method ooc",
         "triangles",
@@ -500,6 +492,30 @@ fn terrain_render_draws_a_store_baked_from_puget_sound() {
     let img = image::open(&image).unwrap().to_rgba8();
     let terrain_px = img.pixels().filter(|p| p.0 != BACKGROUND).count();
     assert!(terrain_px * 4 > (128 * 72), "{terrain_px} terrain pixels");
+    // Another method from the same store: --method is honoured, not ignored.
+    let out = terrain(&[
+        "render",
+        s(&store),
+        "--size",
+        "128x72",
+        "--camera",
+        "80000,20000,9000,10,-30",
+        "--method",
+        "uniform",
+        "--factor",
+        "4",
+        "-o",
+        s(&image),
+    ]);
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(out.status.success(), "{stdout}\n{}", String::from_utf8_lossy(&out.stderr));
+    assert!(stdout.contains("method: uniform") && stdout.contains("method uniform"), "{stdout}");
+    // A method whose table the bake skipped says which file and option.
+    let out =
+        terrain(&["render", s(&store), "--size", "64x36", "--method", "dss-1", "-o", s(&image)]);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success());
+    assert!(stderr.contains("dss_errors.bin") && stderr.contains("--no-dss"), "{stderr}");
     let _ = std::fs::remove_dir_all(&dir);
 }
 

@@ -417,6 +417,20 @@ impl StoreTree {
         }
     }
 
+    /// The blocks global node `n` lies in: its block, or every block of the grid under a node
+    /// larger than a block.
+    pub fn blocks_under(&self, n: NodeId) -> Vec<BlockId> {
+        if let Some((b, _)) = self.block_of(n) {
+            return vec![b];
+        }
+        let h = self.store.header();
+        let s = self.block_level - n.level;
+        let (c0, r0, side) = (n.i << s, n.j << s, 1u32 << s);
+        (r0..(r0 + side).min(h.blocks_y))
+            .flat_map(|r| (c0..(c0 + side).min(h.blocks_x)).map(move |c| BlockId::new(r, c)))
+            .collect()
+    }
+
     /// Whether global node `n` holds a grid cell and is no finer than a block's finest level.
     pub fn contains(&self, n: NodeId) -> bool {
         let h = self.store.header();

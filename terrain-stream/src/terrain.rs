@@ -107,34 +107,34 @@ impl TerrainSource for StoreSource<'_> {
 }
 
 /// The streamer's demand for a selection over `tree` ([`Streamer::set_demand`]): every block a
-/// patch lies in, with the finest level its patches there need (a patch of block-local level
-/// `l` with largest factor `f` needs level `l + log2(f)` rounded up, at most the block's
-/// finest), nearest block first is the streamer's business. Patches above the block level
-/// (larger than a block) need their blocks' level `log2(f)` less the levels they span.
+/// patch lies in, with the finest level its patches there need to be drawn with the heights
+/// the whole heightmap gives them. A patch of `c` cells at block-local level `l` whose factors
+/// are all powers of two, the largest `f`, places its vertices on the lattice of level
+/// `l + log2(f)`; a factor that is not a power of two (continuous tessellation: the DSS
+/// paper's `F_thr`, PVPS's inner levels) places them between lattice samples, where the height
+/// is bilinear over the full-resolution samples, so it needs the patch's full resolution,
+/// `l + log2(c)`. Levels are capped at the block's finest. A patch larger than a block needs
+/// the same of every block under it (its local level is negative).
 pub fn demand_of(tree: &StoreTree, selection: &Selection) -> Vec<(BlockId, u8)> {
     let h = tree.store().header();
-    let bl = tree.block_level();
+    let bl = i32::from(tree.block_level());
+    let root = tree.root_cells();
     let mut need: std::collections::BTreeMap<BlockId, u8> = std::collections::BTreeMap::new();
     for p in &selection.patches {
-        let f = p.outer.iter().chain(&p.inner).fold(1f32, |m, &f| m.max(f));
-        let steps = (f.max(1.0).ceil() as u32).next_power_of_two().trailing_zeros() as i32;
         let n = p.node;
-        let blocks: Vec<BlockId> = match tree.block_of(n) {
-            Some((b, _)) => vec![b],
-            None => {
-                let s = bl - n.level;
-                let (c0, r0) = (n.i << s, n.j << s);
-                let side = 1u32 << s;
-                (r0..(r0 + side).min(h.blocks_y))
-                    .flat_map(|r| {
-                        (c0..(c0 + side).min(h.blocks_x)).map(move |c| BlockId::new(r, c))
-                    })
-                    .collect()
-            }
+        let cells = root >> n.level;
+        let factors = p.outer.iter().chain(&p.inner);
+        let nested =
+            factors.clone().all(|&f| f >= 1.0 && f.fract() == 0.0 && (f as u32).is_power_of_two());
+        let steps = if nested {
+            let f = factors.fold(1f32, |m, &f| m.max(f)) as u32;
+            f.min(cells).trailing_zeros() as i32
+        } else {
+            cells.max(1).trailing_zeros() as i32
         };
-        let local = i32::from(n.level) - i32::from(bl);
+        let local = i32::from(n.level) - bl;
         let level = (local + steps).clamp(0, i32::from(h.k)) as u8;
-        for b in blocks {
+        for b in tree.blocks_under(n) {
             let e = need.entry(b).or_insert(0);
             *e = (*e).max(level);
         }

@@ -25,6 +25,7 @@ mod memory;
 mod ooc;
 pub mod registry;
 mod renderer;
+mod store;
 
 use terrain_core::geometry::Camera;
 use terrain_core::lod::{GeomipSelection, Selection, SurfaceMesh};
@@ -37,6 +38,7 @@ pub use memory::MemoryMethod;
 pub use ooc::{OocMethod, OocWait};
 pub use registry::{MethodOptions, build};
 pub use renderer::{DrawStats, FrameRenderer, RendererKind};
+pub use store::{StoreMethod, draws_from_store, store_method};
 
 use crate::methods::LodMethod;
 use crate::ooc::{OocFrame, StreamRecord};

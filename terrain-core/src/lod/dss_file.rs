@@ -23,7 +23,7 @@ use super::dss_methods::DssErrorTable;
 use crate::checksum::{crc32, crc32_update};
 use crate::heightmap::Heightmap;
 use crate::metrics::dss::FACTORS;
-use crate::quadtree::Quadtree;
+use crate::quadtree::{Quadtree, TreeShape};
 
 /// The magic bytes.
 pub const MAGIC: [u8; 4] = *b"TDSS";
@@ -127,6 +127,19 @@ impl DssErrorTable {
     /// the file is whole (checksum), of this version, and made for this grid, root and heights
     /// with at least the quadtree's levels.
     pub fn decode(bytes: &[u8], hm: &Heightmap, qt: &Quadtree) -> Result<Self, DssFileError> {
+        assert_eq!((qt.width(), qt.height()), (hm.width() as u32, hm.height() as u32));
+        Self::decode_for(bytes, qt.shape(), Some(heights_checksum(hm)))
+    }
+
+    /// [`DssErrorTable::decode`] for the quadtree geometry `shape`, without a heightmap at
+    /// hand (a baked store's): the heights are checked against `heights` (a
+    /// [`heights_checksum`]) when given. A store folder is written whole by one bake, which
+    /// writes the table from the heights it stored, so a store's table is read with `None`.
+    pub fn decode_for(
+        bytes: &[u8],
+        shape: &TreeShape,
+        heights_crc: Option<u32>,
+    ) -> Result<Self, DssFileError> {
         if bytes.len() < 4 || bytes[..4] != MAGIC {
             return Err(DssFileError::Magic);
         }
@@ -174,21 +187,21 @@ impl DssErrorTable {
                 Err(DssFileError::Mismatch(format!("{what} {file} in the file, {here} here")))
             }
         };
-        expect("width", width, hm.width() as u32)?;
-        expect("height", height, hm.height() as u32)?;
-        expect("quadtree root cells", root_cells, qt.root_cells())?;
-        let used = qt.max_level() as usize + 1;
+        expect("width", width, shape.width())?;
+        expect("height", height, shape.height())?;
+        expect("quadtree root cells", root_cells, shape.root_cells())?;
+        let used = shape.max_level() as usize + 1;
         if (levels as usize) < used {
             return Err(DssFileError::Mismatch(format!(
                 "{levels} quadtree levels in the file, {used} needed (it was computed for larger leaves than this quadtree's)"
             )));
         }
-        if heights != heights_checksum(hm) {
+        if heights_crc.is_some_and(|c| c != heights) {
             return Err(DssFileError::Mismatch(
                 "the heights differ (another DEM, crop, void filling or vertical scale)".into(),
             ));
         }
-        let reference = DssErrorTable::shape(qt);
+        let reference = DssErrorTable::shape(shape);
         let mut at = HEADER_LEN + 8 * levels as usize;
         let mut out = Vec::with_capacity(used);
         for (l, &(nx, n)) in counts.iter().enumerate().take(used) {
@@ -225,7 +238,7 @@ mod tests {
 
     fn all_nodes(t: &DssErrorTable, qt: &Quadtree) -> Vec<u64> {
         let mut v = Vec::new();
-        for (l, (nx, n)) in DssErrorTable::shape(qt).into_iter().enumerate() {
+        for (l, (nx, n)) in DssErrorTable::shape(qt.shape()).into_iter().enumerate() {
             for k in 0..n as u32 {
                 let e = t.get(NodeId { level: l as u8, i: k % nx, j: k / nx }).unwrap();
                 v.extend(e.iter().map(|x| x.to_bits()));

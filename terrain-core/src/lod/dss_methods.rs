@@ -29,7 +29,7 @@
 //! `d` and `theta` per block). Straight-down views are floored by
 //! [`crate::metrics::screen::MIN_VIEW_SIN`].
 
-use crate::quadtree::NodeTree;
+use crate::quadtree::{NodeTree, TreeShape};
 use std::time::Instant;
 
 use super::edges::WishEdges;
@@ -102,7 +102,7 @@ impl DssErrorTable {
         ) -> Vec<Vec<[f64; FACTORS]>>,
     {
         assert_eq!((hm.width() as u32, hm.height() as u32), (qt.width(), qt.height()));
-        let dims = |level: u8| Self::level_dims(qt, level);
+        let dims = |level: u8| Self::level_dims(qt.shape(), level);
         let rows: Vec<(u8, u32)> = (0..=qt.max_level())
             .flat_map(|level| (0..dims(level).2).map(move |j| (level, j)))
             .collect();
@@ -117,8 +117,10 @@ impl DssErrorTable {
         };
         let computed = map(&rows, &row);
         assert_eq!(computed.len(), rows.len(), "DssErrorTable::new_with: map dropped rows");
-        let mut levels: Vec<(u32, Vec<[f64; FACTORS]>)> =
-            Self::shape(qt).into_iter().map(|(nx, n)| (nx, Vec::with_capacity(n))).collect();
+        let mut levels: Vec<(u32, Vec<[f64; FACTORS]>)> = Self::shape(qt.shape())
+            .into_iter()
+            .map(|(nx, n)| (nx, Vec::with_capacity(n)))
+            .collect();
         for (&(level, _), v) in rows.iter().zip(computed) {
             levels[level as usize].1.extend(v);
         }
@@ -126,15 +128,13 @@ impl DssErrorTable {
     }
 
     /// Cells per node side, nodes per row and rows of nodes at `level` of `qt`.
-    fn level_dims(qt: &Quadtree, level: u8) -> (u32, u32, u32) {
-        let c = qt.root_cells() >> level;
-        let nx = (qt.width() - 1).max(1).div_ceil(c);
-        let ny = (qt.height() - 1).max(1).div_ceil(c);
-        (c, nx, ny)
+    fn level_dims(qt: &TreeShape, level: u8) -> (u32, u32, u32) {
+        let (nx, ny) = qt.level_dims(level);
+        (qt.root_cells() >> level, nx, ny)
     }
 
     /// Per level of `qt`: nodes per row and nodes (what a table for `qt` holds).
-    pub(super) fn shape(qt: &Quadtree) -> Vec<(u32, usize)> {
+    pub(super) fn shape(qt: &TreeShape) -> Vec<(u32, usize)> {
         (0..=qt.max_level())
             .map(|l| {
                 let (_, nx, ny) = Self::level_dims(qt, l);

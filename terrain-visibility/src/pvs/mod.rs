@@ -46,7 +46,7 @@ pub mod truth;
 
 use glam::{DVec2, DVec3};
 use terrain_core::Heightmap;
-use terrain_core::quadtree::{Cull, CullPolicy, NodeId, NodeInfo, Quadtree};
+use terrain_core::quadtree::{Cull, CullPolicy, NodeId, NodeInfo, TreeShape};
 
 pub use bake::{BakeStats, bake, bake_both, bake_both_with_progress};
 pub use file::{PvsFileError, read_pvs, write_pvs};
@@ -401,8 +401,9 @@ impl Pvs {
         hidden as f64 / total.max(1) as f64
     }
 
-    /// Whether this PVS indexes nodes the way `qt` does (same grid and root square).
-    pub fn matches(&self, qt: &Quadtree) -> bool {
+    /// Whether this PVS indexes nodes the way a quadtree of geometry `qt` does (same grid and
+    /// root square): the heightmap's or a baked store's.
+    pub fn matches(&self, qt: &TreeShape) -> bool {
         (self.layout.width, self.layout.height, self.layout.root_cells)
             == (qt.width(), qt.height(), qt.root_cells())
     }

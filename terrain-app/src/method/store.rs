@@ -1,0 +1,254 @@
+//! The in-memory patch methods drawn from a baked store: `uniform`, `pvps-a/b/c` (with or
+//! without the PVS: `pvps-c-pvs`, `pvps-c-cons`), `dss-1` and `dss-2` select their patches
+//! with the same terrain-core functions as from memory, over the store's terrain
+//! (terrain-stream's `StoreSource`: node bounds from the index, heights from the resident
+//! levels) and the per-node tables the bake wrote beside the blocks (the DSS paper's errors,
+//! the roughness pyramids, the PVS files). The store's runtime ([`OocScene::frame_for`])
+//! loads what the patches need and the paged renderer draws them; nothing of the full grid is
+//! in memory. A warm frame (`--wait`, and the first frame) selects the patches the method
+//! selects from the heightmap in memory (tested patch for patch).
+//!
+//! Not from a store yet: `dss-strips` (its strips are drawn over the whole heightmap),
+//! `geomorph` (its morph reads the whole heightmap) and `entropy` (a mesh of the whole grid):
+//! [`store_method`] says so.
+
+use std::path::Path;
+
+use anyhow::Context;
+use terrain_core::geometry::Camera;
+use terrain_core::lod::{
+    DssErrorTable, Selection, TerrainSource, select_dss_power_of_two, select_dss_uniform,
+    select_pvps, select_pvps_with_cull,
+};
+use terrain_core::quadtree::NodeTree;
+use terrain_stream::lod::StoreTree;
+use terrain_visibility::pvs::{Pvs, PvsMode, read_pvs};
+use terrain_visibility::roughness::NodePyramid;
+
+use super::ooc::OocWait;
+use super::{
+    BlockStats, Draw, DrawnSurface, Frame, FrameRenderer, Method, MethodStats, OocMethod,
+    RendererKind,
+};
+use crate::methods::{LodMethod, MethodConfig, MethodScene, drawn_surface_of, select_uniform};
+use crate::ooc::OocScene;
+
+/// Which methods draw from a store.
+pub fn draws_from_store(kind: LodMethod) -> bool {
+    !matches!(kind, LodMethod::DssStrips | LodMethod::Geomorph | LodMethod::Entropy)
+}
+
+/// `kind` over the store of `scene` (its runtime), with `config`'s parameters; measured
+/// against `reference` (the same DEM in memory) when given. `ooc` is the out-of-core paper's
+/// own method ([`OocMethod`]); the others read their tables from the store folder and fail
+/// with what to bake when one is missing.
+pub fn store_method<'a>(
+    kind: LodMethod,
+    scene: OocScene,
+    config: &MethodConfig,
+    wait: OocWait,
+    reference: Option<&'a MethodScene>,
+) -> anyhow::Result<Box<dyn Method + 'a>> {
+    if kind == LodMethod::OutOfCore {
+        return Ok(match reference {
+            Some(r) => Box::new(OocMethod::measured(scene, r, wait)?),
+            None => Box::new(OocMethod::new(scene, wait)),
+        });
+    }
+    if !draws_from_store(kind) {
+        anyhow::bail!(
+            "--method {} draws from a DEM in memory only so far; from a store use ooc, uniform, \
+             pvps-a, pvps-b, pvps-c, pvps-c-pvs, pvps-c-cons, dss-1 or dss-2 (or render the DEM \
+             file itself)",
+            kind.name()
+        );
+    }
+    Ok(Box::new(StoreMethod::new(kind, scene, config, wait, reference)?))
+}
+
+/// The per-node tables a store-backed method reads.
+#[derive(Debug)]
+enum Tables {
+    None,
+    Roughness(NodePyramid),
+    RoughnessPvs(NodePyramid, Option<Pvs>),
+    Dss(DssErrorTable),
+}
+
+/// A patch method over a store (see the module docs).
+#[derive(Debug)]
+pub struct StoreMethod<'a> {
+    kind: LodMethod,
+    scene: OocScene,
+    /// The store's tree at the method's leaf size.
+    tree: StoreTree,
+    tables: Tables,
+    config: MethodConfig,
+    reference: Option<&'a MethodScene>,
+    wait: OocWait,
+    frames: usize,
+}
+
+impl<'a> StoreMethod<'a> {
+    fn new(
+        kind: LodMethod,
+        scene: OocScene,
+        config: &MethodConfig,
+        wait: OocWait,
+        reference: Option<&'a MethodScene>,
+    ) -> anyhow::Result<Self> {
+        let store = scene.store().clone();
+        let tree = StoreTree::new(store.clone(), config.leaf_cells.max(1));
+        let shape = *tree.shape();
+        let dir = store.dir().to_path_buf();
+        if let Some(r) = reference
+            && r.qt.shape() != &shape
+        {
+            anyhow::bail!(
+                "the store {} is not the quadtree of the DEM it is measured against (store: {} x \
+                 {} samples, root {} cells; DEM: {} x {}, root {}): bake it from that DEM",
+                dir.display(),
+                shape.width(),
+                shape.height(),
+                shape.root_cells(),
+                r.qt.width(),
+                r.qt.height(),
+                r.qt.root_cells()
+            );
+        }
+        let tables = match kind {
+            LodMethod::Uniform => Tables::None,
+            LodMethod::PvpsA | LodMethod::PvpsB | LodMethod::PvpsC => {
+                Tables::Roughness(read_roughness(&dir, kind, &shape)?)
+            }
+            LodMethod::PvpsCPvs | LodMethod::PvpsCConservative => {
+                let mode = if kind == LodMethod::PvpsCPvs {
+                    PvsMode::Sampled
+                } else {
+                    PvsMode::Conservative
+                };
+                let path = crate::pvs_scene::pvs_path(&dir, mode);
+                let pvs = match read_pvs(&path) {
+                    Ok(p) if p.mode == mode && p.matches(&shape) => Some(p),
+                    Ok(_) => {
+                        eprintln!(
+                            "warning: {} was baked for another grid or mode; drawing without \
+                             occlusion culling",
+                            path.display()
+                        );
+                        None
+                    }
+                    Err(e) => {
+                        eprintln!(
+                            "warning: {e}; drawing without occlusion culling (bake the store \
+                             without --no-pvs to have it)"
+                        );
+                        None
+                    }
+                };
+                Tables::RoughnessPvs(read_roughness(&dir, LodMethod::PvpsC, &shape)?, pvs)
+            }
+            _ => {
+                let path = crate::dss_scene::dss_path(&dir);
+                let bytes = std::fs::read(&path).with_context(|| {
+                    format!(
+                        "--method {} from a store reads the DSS errors the bake writes ({}); \
+                         bake the store again without --no-dss",
+                        kind.name(),
+                        path.display()
+                    )
+                })?;
+                let table = DssErrorTable::decode_for(&bytes, &shape, None)
+                    .with_context(|| format!("{} cannot be used", path.display()))?;
+                Tables::Dss(table)
+            }
+        };
+        let scene = match reference {
+            Some(_) => scene.with_mirror(),
+            None => scene,
+        };
+        Ok(Self { kind, scene, tree, tables, config: config.clone(), reference, wait, frames: 0 })
+    }
+}
+
+/// The roughness pyramid of PVPS method `kind` from the store folder `dir`.
+fn read_roughness(
+    dir: &Path,
+    kind: LodMethod,
+    shape: &terrain_core::quadtree::TreeShape,
+) -> anyhow::Result<NodePyramid> {
+    let _ = (kind, shape);
+    anyhow::bail!(
+        "--method {} from a store reads the roughness pyramids the bake writes (roughness.bin \
+         in {}); this store has none: bake it again with this version",
+        kind.name(),
+        dir.display()
+    )
+}
+
+impl Method for StoreMethod<'_> {
+    fn kind(&self) -> LodMethod {
+        self.kind
+    }
+
+    fn frame(&mut self, camera: &Camera) -> Frame {
+        let warm = self.wait == OocWait::EveryFrame || self.frames == 0;
+        self.frames += 1;
+        let (cfg, tables) = (&self.config, &self.tables);
+        let mut select = |src: &dyn TerrainSource| -> Selection {
+            match tables {
+                Tables::None => select_uniform(src, camera, cfg.uniform_factor),
+                Tables::Roughness(field) => select_pvps(src, camera, field, &cfg.pvps),
+                Tables::RoughnessPvs(field, Some(pvs)) => select_pvps_with_cull(
+                    src,
+                    camera,
+                    field,
+                    &cfg.pvps,
+                    &mut pvs.cull_for(camera.position),
+                ),
+                Tables::RoughnessPvs(field, None) => select_pvps(src, camera, field, &cfg.pvps),
+                Tables::Dss(table) if self.kind == LodMethod::Dss1 => {
+                    select_dss_power_of_two(src, camera, table, &cfg.dss)
+                }
+                Tables::Dss(table) => select_dss_uniform(src, camera, table, &cfg.dss),
+            }
+        };
+        let mut f = self.scene.frame_for(camera, warm, &self.tree, &mut select);
+        let selection = std::mem::take(&mut f.selection);
+        let stats = MethodStats {
+            selection_ms: selection.stats.cpu_time.as_secs_f64() * 1e3,
+            patches: selection.patches.len(),
+            stream: Some(f.stream.clone()),
+            blocks: Some(BlockStats {
+                blocks_drawn: f.blocks_drawn,
+                blocks_dropped: f.blocks_dropped,
+                pages_uploaded: f.updates.iter().filter(|u| u.fill.is_some()).count(),
+            }),
+            ..MethodStats::default()
+        };
+        Frame { selection, draw: Draw::Paged(Box::new(f)), stats, built: None }
+    }
+
+    /// The surface drawn from the pages' heights (the paged renderer's CPU reference).
+    fn surface(&self, frame: &mut Frame) -> anyhow::Result<DrawnSurface> {
+        let Some(reference) = self.reference else {
+            anyhow::bail!("a store-backed method is measured only against a DEM in memory");
+        };
+        let mirror = self.scene.mirror().expect("a measured runtime keeps its mirror");
+        let drawn = mirror.to_heightmap(&reference.hm);
+        let (mesh, triangles) = drawn_surface_of(&drawn, &reference.qt, &frame.selection);
+        Ok(DrawnSurface { mesh, triangles })
+    }
+
+    fn renderer_kind(&self) -> RendererKind {
+        RendererKind::Paged
+    }
+
+    fn renderer(
+        &self,
+        ctx: &terrain_gpu::GpuContext,
+        config: &terrain_gpu::RenderConfig,
+    ) -> anyhow::Result<FrameRenderer> {
+        FrameRenderer::paged(&self.scene, ctx, config)
+    }
+}

@@ -1,0 +1,184 @@
+//! Every LOD method that draws from a baked store selects, for the same camera, the same
+//! patches and draws the same heights as from the DEM in memory (issue 13, item 2): `uniform`,
+//! `dss-1` and `dss-2` over Puget Sound 1k and over a non-square GeoTIFF with voids (Crater
+//! Lake, 429 x 279, 39,489 void cells), warm frames; real-time frames before the levels arrive
+//! still draw every patch; methods that cannot draw from a store yet say so.
+
+mod common;
+
+use std::ops::ControlFlow;
+use std::path::Path;
+use std::sync::Arc;
+
+use terrain_app::method::{self, MethodOptions, OocWait};
+use terrain_app::methods::{LodMethod, MethodConfig, MethodScene};
+use terrain_app::ooc::{OocConfig, OocScene};
+use terrain_core::Heightmap;
+use terrain_core::dem::{LoadOptions, load};
+use terrain_core::geometry::Camera;
+use terrain_core::lod::check_shared_edges;
+use terrain_gpu::render::{clip_range, default_camera};
+use terrain_stream::{BakeConfig, BakeProgress, HeightEncoding, Store, bake};
+
+use common::{data, scratch};
+
+fn puget() -> Heightmap {
+    let options = LoadOptions { vertical_scale: 0.1, spacing_m: 160.0, ..Default::default() };
+    load(data("puget_sound/ps_height_1k.png"), &options).unwrap().heightmap
+}
+
+fn crater_lake() -> Heightmap {
+    let options = LoadOptions { nodata: Some(-32767.0), ..Default::default() };
+    let hm = load(data("crater_lake/craterlake-elev-16bit-30m.tif"), &options).unwrap().heightmap;
+    assert!(hm.voids().count() > 30_000, "the voids are read");
+    hm
+}
+
+/// `scene`'s DEM baked with exact f32 heights, with the DSS errors written beside the blocks
+/// as `terrain bake` writes them.
+fn bake_scene(scene: &MethodScene, dir: &Path) -> Arc<Store> {
+    let config = BakeConfig { encoding: HeightEncoding::F32, threads: 1, ..Default::default() };
+    bake(&scene.hm, dir, &config, &mut |_: &BakeProgress| ControlFlow::Continue(())).unwrap();
+    terrain_app::dss_scene::bake_into_scene(&scene.hm, &scene.qt, dir).unwrap();
+    Arc::new(Store::open(dir).unwrap())
+}
+
+fn cameras(hm: &Heightmap) -> Vec<Camera> {
+    let overview = default_camera(hm, 640, 360, 60.0);
+    let (w, h) = (hm.width() as f64, hm.height() as f64);
+    let low = {
+        let xy = hm.grid_to_world(0.3 * w, 0.2 * h);
+        let eye = xy.extend(f64::from(hm.max()) + 300.0);
+        let (near, far) = clip_range(hm, eye);
+        Camera::from_yaw_pitch(eye, 40.0, -20.0)
+            .with_fov_y_deg(60.0)
+            .with_viewport(640.0, 360.0)
+            .with_clip(near, far)
+    };
+    vec![overview, low]
+}
+
+fn check(name: &str, hm: Heightmap) {
+    let scene = MethodScene::new(hm, MethodConfig::default());
+    let dir = scratch("store-methods", name).join("store");
+    let store = bake_scene(&scene, &dir);
+    let ooc = OocConfig { threads: 1, ..OocConfig::default() };
+    for kind in [LodMethod::Uniform, LodMethod::Dss1, LodMethod::Dss2] {
+        scene.prepare(&[kind]);
+        let mut memory = method::build(kind, &scene, &MethodOptions::default()).unwrap();
+        let runtime = OocScene::new(store.clone(), ooc);
+        let mut stored =
+            method::store_method(kind, runtime, &scene.config, OocWait::EveryFrame, Some(&scene))
+                .unwrap();
+        assert_eq!(stored.kind(), kind);
+        for (c, camera) in cameras(&scene.hm).iter().enumerate() {
+            let mut a = memory.frame(camera);
+            let mut b = stored.frame(camera);
+            assert!(!a.selection.patches.is_empty(), "{name} {kind:?} camera {c}: draws");
+            assert_eq!(
+                a.selection.patches, b.selection.patches,
+                "{name} {kind:?} camera {c}: the same patches from the store"
+            );
+            assert!(check_shared_edges(&b.selection).is_empty());
+            let blocks = b.stats.blocks.unwrap();
+            assert_eq!(blocks.blocks_dropped, 0, "{name} {kind:?}: every block drawn");
+            let stream = b.stats.stream.clone().unwrap();
+            assert!(stream.at_needed_level, "{name} {kind:?}: a warm frame");
+            // The same heights: the drawn surfaces, rebuilt with the renderers' CPU references
+            // (the tessellator over the whole heightmap; over the store's pages).
+            let sa = memory.surface(&mut a).unwrap();
+            let sb = stored.surface(&mut b).unwrap();
+            assert_eq!(sa.triangles, sb.triangles, "{name} {kind:?} camera {c}");
+            assert_eq!(sa.mesh.positions.len(), sb.mesh.positions.len());
+            let worst = sa
+                .mesh
+                .positions
+                .iter()
+                .zip(&sb.mesh.positions)
+                .map(|(p, q)| (p.z - q.z).abs())
+                .fold(0.0, f64::max);
+            println!(
+                "{name} {}: camera {c}: {} patches, {} triangles, {} blocks, largest height \
+                 difference {worst} m",
+                kind.name(),
+                b.selection.patches.len(),
+                sb.triangles,
+                blocks.blocks_drawn
+            );
+            assert_eq!(worst, 0.0, "{name} {kind:?} camera {c}: the same heights");
+        }
+    }
+    let _ = std::fs::remove_dir_all(dir.parent().unwrap());
+}
+
+#[test]
+fn methods_draw_puget_sound_from_a_store_as_from_memory() {
+    check("puget", puget());
+}
+
+#[test]
+fn methods_draw_a_non_square_dem_with_voids_from_a_store_as_from_memory() {
+    check("crater", crater_lake());
+}
+
+/// Real time: the first frame waits, later ones never do; a camera jump draws every patch the
+/// method selects (coarser heights until the levels arrive), crack-free.
+#[test]
+fn real_time_frames_draw_every_patch_while_levels_load() {
+    let hm = crater_lake();
+    let scene = MethodScene::new(hm, MethodConfig::default());
+    let dir = scratch("store-methods", "realtime").join("store");
+    let store = bake_scene(&scene, &dir);
+    let ooc = OocConfig { threads: 1, budget_bytes: 4 << 20, ..OocConfig::default() };
+    let runtime = OocScene::new(store, ooc);
+    let mut m = method::store_method(
+        LodMethod::Dss2,
+        runtime,
+        &scene.config,
+        OocWait::FirstFrame,
+        Some(&scene),
+    )
+    .unwrap();
+    let cams = cameras(&scene.hm);
+    for (k, camera) in [cams[0], cams[1], cams[0], cams[1]].iter().enumerate() {
+        let mut f = m.frame(camera);
+        let stream = f.stats.stream.clone().unwrap();
+        assert_eq!(stream.waited_for_io, k == 0, "frame {k}: only the first frame waits");
+        assert!(!f.selection.patches.is_empty(), "frame {k}");
+        assert!(check_shared_edges(&f.selection).is_empty(), "frame {k}");
+        let s = m.surface(&mut f).unwrap();
+        assert!(s.triangles > 0 && s.mesh.positions.iter().all(|p| p.z.is_finite()));
+    }
+    let _ = std::fs::remove_dir_all(dir.parent().unwrap());
+}
+
+/// A method that cannot draw from a store yet fails with what to do instead; a store-backed
+/// method whose table was not baked names the file and the bake option.
+#[test]
+fn what_a_store_cannot_do_is_said() {
+    let hm = Heightmap::from_fn(129, 97, terrain_core::Georef::local(10.0), |i, j| {
+        ((i * 3 + j * 5) % 17) as f32
+    })
+    .unwrap();
+    let scene = MethodScene::new(hm, MethodConfig::default());
+    let dir = scratch("store-methods", "cannot").join("store");
+    let config = BakeConfig { k: 5, threads: 1, ..Default::default() };
+    bake(&scene.hm, &dir, &config, &mut |_: &BakeProgress| ControlFlow::Continue(())).unwrap();
+    let store = Arc::new(Store::open(&dir).unwrap());
+    let run = |kind| {
+        let runtime =
+            OocScene::new(store.clone(), OocConfig { threads: 1, ..OocConfig::default() });
+        method::store_method(kind, runtime, &scene.config, OocWait::FirstFrame, None)
+            .err()
+            .map(|e| format!("{e:#}"))
+    };
+    for kind in [LodMethod::Geomorph, LodMethod::DssStrips, LodMethod::Entropy] {
+        let e = run(kind).expect("refused");
+        assert!(e.contains("from a DEM in memory only") && e.contains(kind.name()), "{e}");
+    }
+    let e = run(LodMethod::Dss1).expect("no DSS table");
+    assert!(e.contains("dss_errors.bin") && e.contains("--no-dss"), "{e}");
+    assert!(run(LodMethod::Uniform).is_none(), "uniform needs no table");
+    assert!(run(LodMethod::OutOfCore).is_none());
+    let _ = std::fs::remove_dir_all(dir.parent().unwrap());
+}
