@@ -389,17 +389,7 @@ impl MethodScene {
         if method != LodMethod::DssStrips {
             return MethodFrame { selection: self.select(method, camera), strips: None };
         }
-        let cfg = DssStripsConfig {
-            dss: self.config.dss.clone(),
-            half_width_cells: self.config.strip_half_width_cells,
-        };
-        let frame = select_dss_strips(&self.qt, camera, self.dss_errors(), &cfg);
-        let update = frame.stats.cpu_time;
-        let mesh = strips::build_strips(&frame);
-        let mut selection = frame.selection();
-        selection.stats.cpu_time = update + mesh.cpu_time;
-        let patches = strips::draw_patches(&frame);
-        MethodFrame { selection, strips: Some(StripFrame { patches, mesh, update }) }
+        strips_frame(&self.qt, camera, self.dss_errors(), &self.config)
     }
 
     /// The surface a frame draws, rebuilt on the CPU (see [`MethodScene::drawn_surface`]),
@@ -522,6 +512,29 @@ pub fn select_uniform(src: &dyn NodeTree, camera: &Camera, factor: f32) -> Selec
     Selection { patches, stats }
 }
 
+/// The `dss-strips` frame over any node tree (a heightmap's quadtree, a store's): the
+/// multilevel update, the strips and P-blocks built this frame, the blocks as draw patches.
+/// The selection's `cpu_time` covers the update and the strip construction.
+pub fn strips_frame(
+    src: &dyn NodeTree,
+    camera: &Camera,
+    table: &DssErrorTable,
+    config: &MethodConfig,
+) -> MethodFrame {
+    let cfg = DssStripsConfig {
+        dss: config.dss.clone(),
+        half_width_cells: config.strip_half_width_cells,
+    };
+    let frame = select_dss_strips(src, camera, table, &cfg);
+    let update = frame.stats.cpu_time;
+    let mesh = strips::build_strips(&frame);
+    let mut selection = frame.selection();
+    selection.stats.cpu_time = update + mesh.cpu_time;
+    let patches = strips::draw_patches(&frame);
+    let nodes = frame.blocks.iter().map(|b| b.node).collect();
+    MethodFrame { selection, strips: Some(StripFrame { patches, nodes, mesh, update }) }
+}
+
 /// What a method draws in one frame ([`MethodScene::frame`]).
 #[derive(Debug, Clone)]
 pub struct MethodFrame {
@@ -536,6 +549,8 @@ pub struct MethodFrame {
 pub struct StripFrame {
     /// Every M-block (hidden ones with outer factors 0), the strips' patch indices.
     pub patches: Vec<DrawPatch>,
+    /// The quadtree node of each of `patches`.
+    pub nodes: Vec<NodeId>,
     /// Strips and P-blocks, with their construction time.
     pub mesh: StripMesh,
     /// The multilevel update's time (section 3.3.1).

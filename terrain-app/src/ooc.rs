@@ -31,16 +31,18 @@ use glam::{DVec2, DVec3, dvec3};
 use terrain_core::geometry::Camera;
 use terrain_core::lod::TerrainSource;
 use terrain_core::lod::{Selection, check_shared_edges};
+use terrain_core::quadtree::NodeId;
 use terrain_core::{Crs, Georef, Heightmap};
 use terrain_gpu::paged::{Page, PageClass, PageLayout, PagedHeights, classes_for_budget};
-use terrain_gpu::render::DrawPatch;
+use terrain_gpu::render::{DrawPatch, ExtraTriangles};
+use terrain_gpu::tess::PatchFactors;
 use terrain_gpu::{RenderError, TerrainRenderer};
 use terrain_stream::format::{INDEX_FILE, MAGIC};
 use terrain_stream::lod::{DEFAULT_PATCH_CELLS, StoreTree, select_patches};
 use terrain_stream::schedule::ScheduleConfig;
 use terrain_stream::{BlockId, Store, StoreError, StoreSource, StreamConfig, Streamer, demand_of};
 
-use crate::methods::patch_factors;
+use crate::methods::{StripFrame, patch_factors};
 
 /// Settings of the out-of-core method.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -255,8 +257,12 @@ pub struct PageUpdate {
 pub struct OocFrame {
     /// The patches (global quadtree nodes) with their factors.
     pub selection: Selection,
-    /// The same, as the renderer draws them.
+    /// The same, as the renderer draws them (`dss-strips`: every M-block, hidden ones with
+    /// factors 0).
     pub patches: Vec<DrawPatch>,
+    /// Triangles between the patches' domain points drawn in the same pass (`dss-strips`: the
+    /// stitching strips and P-blocks); empty for the other methods.
+    pub extra: ExtraTriangles,
     /// Page changes to apply before drawing.
     pub updates: Vec<PageUpdate>,
     /// Streaming statistics.
@@ -266,6 +272,41 @@ pub struct OocFrame {
     /// Blocks of M not drawn: nothing resident (a fault), or no slot left in the class of any
     /// of its resident levels.
     pub blocks_dropped: usize,
+}
+
+/// What `draw` needs from the store ([`demand_of`]): its patches' levels; with strips, the full
+/// resolution of every block a strip or P-block vertex lies on (the M-blocks are shrunk for
+/// the strips, so their vertices fall between lattice samples; strips also reach blocks that
+/// are hidden themselves).
+fn store_demand(tree: &StoreTree, draw: &StoreDraw) -> Vec<(BlockId, u8)> {
+    let Some(strips) = &draw.strips else { return demand_of(tree, &draw.selection, true) };
+    let mut used = vec![false; strips.nodes.len()];
+    for p in &strips.mesh.triangles.points {
+        if let Some(u) = used.get_mut(p.patch_index as usize) {
+            *u = true;
+        }
+    }
+    let mut all = draw.selection.clone();
+    all.patches.extend(
+        strips
+            .nodes
+            .iter()
+            .zip(&used)
+            .filter(|(_, u)| **u)
+            .map(|(&node, _)| terrain_core::lod::Patch { node, outer: [1.0; 4], inner: [1.0; 2] }),
+    );
+    demand_of(tree, &all, false)
+}
+
+/// What a LOD method drawn from a store selected ([`OocScene::frame_for`]).
+#[derive(Debug, Clone, Default)]
+pub struct StoreDraw {
+    /// The patches as quadtree nodes with their factors (the streamer's demand, the
+    /// measurement's coverage).
+    pub selection: Selection,
+    /// `dss-strips`: the draw patches (every M-block) and the strips' triangles, drawn instead of
+    /// the selection's patches.
+    pub strips: Option<StripFrame>,
 }
 
 /// The out-of-core method over one store.
@@ -417,7 +458,7 @@ impl OocScene {
         let selection =
             select_patches(&self.tree, camera, self.config.tau, |b| page_level.get(&b).copied());
         debug_assert!(check_shared_edges(&selection).is_empty());
-        self.finish_frame(selection, &drawn, dropped, stream)
+        self.finish_frame(selection, None, &drawn, dropped, stream)
     }
 
     /// One frame of another LOD method drawn from this store: `select` chooses the patches
@@ -436,19 +477,19 @@ impl OocScene {
         camera: &Camera,
         warm: bool,
         tree: &StoreTree,
-        select: &mut dyn FnMut(&dyn TerrainSource) -> Selection,
+        select: &mut dyn FnMut(&dyn TerrainSource) -> StoreDraw,
     ) -> OocFrame {
         let t0 = Instant::now();
-        let mut selection = select(&StoreSource::new(tree, &self.streamer));
-        let mut select_time = selection.stats.cpu_time;
-        let mut demand = demand_of(tree, &selection);
+        let mut draw = select(&StoreSource::new(tree, &self.streamer));
+        let mut select_time = draw.selection.stats.cpu_time;
+        let mut demand = store_demand(tree, &draw);
         self.streamer.set_demand(Some(demand.clone()));
         let s = if warm {
             let mut s = self.streamer.wait_until_resident(camera, self.config.warm_timeout).stats;
             for _ in 0..3 {
-                selection = select(&StoreSource::new(tree, &self.streamer));
-                select_time += selection.stats.cpu_time;
-                let again = demand_of(tree, &selection);
+                draw = select(&StoreSource::new(tree, &self.streamer));
+                select_time += draw.selection.stats.cpu_time;
+                let again = store_demand(tree, &draw);
                 if again == demand {
                     break;
                 }
@@ -464,15 +505,39 @@ impl OocScene {
         stream.stream_ms = (t0.elapsed() - select_time.min(t0.elapsed())).as_secs_f64() * 1e3;
         let (drawn, dropped) = self.assign_pages();
         let paged: HashMap<BlockId, u8> = drawn.iter().copied().collect();
-        let before = selection.patches.len();
-        selection
-            .patches
-            .retain(|p| tree.blocks_under(p.node).iter().all(|b| paged.contains_key(b)));
-        selection.stats.patches = selection.patches.len();
-        if selection.patches.len() < before {
-            debug_assert!(dropped > 0, "patches go only with dropped blocks");
-        }
-        self.finish_frame(selection, &drawn, dropped, stream)
+        let on_pages = |n: NodeId| tree.blocks_under(n).iter().all(|b| paged.contains_key(b));
+        let StoreDraw { mut selection, strips } = draw;
+        let mut frame = match strips {
+            None => {
+                selection.patches.retain(|p| on_pages(p.node));
+                selection.stats.patches = selection.patches.len();
+                self.finish_frame(selection, None, &drawn, dropped, stream)
+            }
+            Some(StripFrame { mut patches, nodes, mesh, .. }) => {
+                let mut extra = mesh.triangles;
+                // Blocks on no page are not drawn, nor the strip triangles that reach them.
+                let off: Vec<bool> = nodes.iter().map(|&n| !on_pages(n)).collect();
+                for (p, &off) in patches.iter_mut().zip(&off) {
+                    if off {
+                        p.factors = PatchFactors { inner: [0.0; 2], outer: [0.0; 4] };
+                    }
+                }
+                if off.iter().any(|&o| o) {
+                    let pts = &extra.points;
+                    let keep: Vec<u32> = extra
+                        .indices
+                        .chunks_exact(3)
+                        .filter(|t| t.iter().all(|&i| !off[pts[i as usize].patch_index as usize]))
+                        .flatten()
+                        .copied()
+                        .collect();
+                    extra.indices = keep;
+                }
+                self.finish_frame(selection, Some((patches, extra)), &drawn, dropped, stream)
+            }
+        };
+        frame.stream.stream_ms = frame.stream.stream_ms.max(0.0);
+        frame
     }
 
     /// The blocks of the last update's visual region M drawn this frame, nearest first, each at
@@ -506,18 +571,25 @@ impl OocScene {
     fn finish_frame(
         &mut self,
         selection: Selection,
+        strips: Option<(Vec<DrawPatch>, ExtraTriangles)>,
         drawn: &[(BlockId, u8)],
         dropped: usize,
         stream: StreamRecord,
     ) -> OocFrame {
-        let draw = selection
-            .patches
-            .iter()
-            .map(|p| {
-                let (x0, y0, c) = p.node.grid_rect(self.tree.root_cells());
-                DrawPatch { rect: [x0, y0, x0 + c, y0 + c], factors: patch_factors(p) }
-            })
-            .collect();
+        let (draw, extra) = match strips {
+            Some((patches, extra)) => (patches, extra),
+            None => (
+                selection
+                    .patches
+                    .iter()
+                    .map(|p| {
+                        let (x0, y0, c) = p.node.grid_rect(self.tree.root_cells());
+                        DrawPatch { rect: [x0, y0, x0 + c, y0 + c], factors: patch_factors(p) }
+                    })
+                    .collect(),
+                ExtraTriangles::default(),
+            ),
+        };
         let mut updates = Vec::new();
         let want: BTreeMap<[u32; 2], (BlockId, u8)> =
             drawn.iter().map(|&(id, l)| ([id.col, id.row], (id, l))).collect();
@@ -548,6 +620,7 @@ impl OocScene {
         OocFrame {
             selection,
             patches: draw,
+            extra,
             updates,
             stream,
             blocks_drawn: drawn.len(),

@@ -114,8 +114,11 @@ impl TerrainSource for StoreSource<'_> {
 /// paper's `F_thr`, PVPS's inner levels) places them between lattice samples, where the height
 /// is bilinear over the full-resolution samples, so it needs the patch's full resolution,
 /// `l + log2(c)`. Levels are capped at the block's finest. A patch larger than a block needs
-/// the same of every block under it (its local level is negative).
-pub fn demand_of(tree: &StoreTree, selection: &Selection) -> Vec<(BlockId, u8)> {
+/// the same of every block under it (its local level is negative). Without `on_squares` (a
+/// method that draws its patches over other rectangles than their nodes' squares, e.g. the
+/// DSS paper's M-blocks shrunk for their strips) every vertex may fall between lattice samples:
+/// every patch needs its full resolution.
+pub fn demand_of(tree: &StoreTree, selection: &Selection, on_squares: bool) -> Vec<(BlockId, u8)> {
     let h = tree.store().header();
     let bl = i32::from(tree.block_level());
     let root = tree.root_cells();
@@ -124,8 +127,10 @@ pub fn demand_of(tree: &StoreTree, selection: &Selection) -> Vec<(BlockId, u8)> 
         let n = p.node;
         let cells = root >> n.level;
         let factors = p.outer.iter().chain(&p.inner);
-        let nested =
-            factors.clone().all(|&f| f >= 1.0 && f.fract() == 0.0 && (f as u32).is_power_of_two());
+        let nested = on_squares
+            && factors
+                .clone()
+                .all(|&f| f >= 1.0 && f.fract() == 0.0 && (f as u32).is_power_of_two());
         let steps = if nested {
             let f = factors.fold(1f32, |m, &f| m.max(f)) as u32;
             f.min(cells).trailing_zeros() as i32

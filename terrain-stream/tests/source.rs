@@ -142,7 +142,7 @@ fn check_grid(w: usize, h: usize, voids: bool, k: u8, name: &str) {
     let cold = StoreSource::new(&tree, &streamer);
     let sel = selections(&cold, &table, &cams[0]);
     assert!(sel.iter().all(|s| !s.patches.is_empty()), "{name}: cold selections draw");
-    assert!(!demand_of(&tree, &sel[0]).is_empty());
+    assert!(!demand_of(&tree, &sel[0], true).is_empty());
 
     warm_all(&mut streamer, &store, &cams[0]);
     let warm = StoreSource::new(&tree, &streamer);
@@ -162,7 +162,7 @@ fn check_grid(w: usize, h: usize, voids: bool, k: u8, name: &str) {
             assert_eq!(x.patches, y.patches, "{name}: method {m} selects the same patches");
         }
         // The demand covers every block a patch lies in.
-        let demand = demand_of(&tree, &b[0]);
+        let demand = demand_of(&tree, &b[0], true);
         for p in &b[0].patches {
             if let Some((blk, _)) = tree.block_of(p.node) {
                 assert!(demand.iter().any(|&(d, _)| d == blk), "{name}: {blk:?} demanded");

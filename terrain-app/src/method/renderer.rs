@@ -71,10 +71,10 @@ pub struct DrawStats {
     pub gpu_draw_ms: Option<f64>,
     /// Whether the GPU tessellation pass ran (tessellation renderers).
     pub tessellated: Option<bool>,
-    /// Bytes uploaded this frame.
     /// Compute + draw batches the frame was split into (1 unless its tessellated points or
     /// indices exceed the device's largest storage binding).
     pub batches: usize,
+    /// Bytes uploaded this frame.
     pub upload_bytes: u64,
     /// Material passes skipped (geomorph renderer).
     pub passes_skipped: Option<usize>,
@@ -222,10 +222,11 @@ impl FrameRenderer {
             (Inner::Paged(r), Draw::Paged(f)) => {
                 OocScene::apply(r, f)?;
                 let t = Instant::now();
-                let s = r.render(camera, &f.patches, options)?;
+                let s = r.render_with_extra(camera, &f.patches, &f.extra, options)?;
                 let wall_ms = ms(t);
                 let pages = f.updates.iter().filter(|u| u.fill.is_some()).count() as u64;
-                DrawStats::of_terrain(s, wall_ms, 128 + pages * self.page_bytes)
+                let extra = (f.extra.points.len() * 16 + f.extra.indices.len() * 4) as u64;
+                DrawStats::of_terrain(s, wall_ms, 128 + pages * self.page_bytes + extra)
             }
             (_, draw) => anyhow::bail!(
                 "the {:?} renderer cannot draw a {} frame",

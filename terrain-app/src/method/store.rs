@@ -1,5 +1,6 @@
 //! The in-memory patch methods drawn from a baked store: `uniform`, `pvps-a/b/c` (with or
-//! without the PVS: `pvps-c-pvs`, `pvps-c-cons`), `dss-1` and `dss-2` select their patches
+//! without the PVS: `pvps-c-pvs`, `pvps-c-cons`), `dss-1`, `dss-2` and `dss-strips` (its
+//! M-blocks, P-blocks and stitching strips) select their patches
 //! with the same terrain-core functions as from memory, over the store's terrain
 //! (terrain-stream's `StoreSource`: node bounds from the index, heights from the resident
 //! levels) and the per-node tables the bake wrote beside the blocks (the DSS paper's errors,
@@ -8,19 +9,19 @@
 //! in memory. A warm frame (`--wait`, and the first frame) selects the patches the method
 //! selects from the heightmap in memory (tested patch for patch).
 //!
-//! Not from a store yet: `dss-strips` (its strips are drawn over the whole heightmap),
-//! `geomorph` (its morph reads the whole heightmap) and `entropy` (a mesh of the whole grid):
-//! [`store_method`] says so.
+//! Not from a store yet: `geomorph` (its morph reads the whole heightmap) and `entropy` (a mesh
+//! of the whole grid): [`store_method`] says so.
 
 use std::path::Path;
 
 use anyhow::Context;
 use terrain_core::geometry::Camera;
 use terrain_core::lod::{
-    DssErrorTable, Selection, TerrainSource, select_dss_power_of_two, select_dss_uniform,
-    select_pvps, select_pvps_with_cull,
+    DssErrorTable, TerrainSource, select_dss_power_of_two, select_dss_uniform, select_pvps,
+    select_pvps_with_cull,
 };
 use terrain_core::quadtree::NodeTree;
+use terrain_gpu::strips;
 use terrain_stream::lod::StoreTree;
 use terrain_visibility::pvs::{Pvs, PvsMode, read_pvs};
 use terrain_visibility::roughness::NodePyramid;
@@ -30,12 +31,14 @@ use super::{
     BlockStats, Draw, DrawnSurface, Frame, FrameRenderer, Method, MethodStats, OocMethod,
     RendererKind,
 };
-use crate::methods::{LodMethod, MethodConfig, MethodScene, drawn_surface_of, select_uniform};
-use crate::ooc::OocScene;
+use crate::methods::{
+    LodMethod, MethodConfig, MethodScene, drawn_surface_of, select_uniform, strips_frame,
+};
+use crate::ooc::{OocScene, StoreDraw};
 
 /// Which methods draw from a store.
 pub fn draws_from_store(kind: LodMethod) -> bool {
-    !matches!(kind, LodMethod::DssStrips | LodMethod::Geomorph | LodMethod::Entropy)
+    !matches!(kind, LodMethod::Geomorph | LodMethod::Entropy)
 }
 
 /// `kind` over the store of `scene` (its runtime), with `config`'s parameters; measured
@@ -58,8 +61,8 @@ pub fn store_method<'a>(
     if !draws_from_store(kind) {
         anyhow::bail!(
             "--method {} draws from a DEM in memory only so far; from a store use ooc, uniform, \
-             pvps-a, pvps-b, pvps-c, pvps-c-pvs, pvps-c-cons, dss-1 or dss-2 (or render the DEM \
-             file itself)",
+             pvps-a, pvps-b, pvps-c, pvps-c-pvs, pvps-c-cons, dss-1, dss-2 or dss-strips (or \
+             render the DEM file itself)",
             kind.name()
         );
     }
@@ -195,8 +198,9 @@ impl Method for StoreMethod<'_> {
         let warm = self.wait == OocWait::EveryFrame || self.frames == 0;
         self.frames += 1;
         let (cfg, tables) = (&self.config, &self.tables);
-        let mut select = |src: &dyn TerrainSource| -> Selection {
-            match tables {
+        let kind = self.kind;
+        let mut select = |src: &dyn TerrainSource| -> StoreDraw {
+            let selection = match tables {
                 Tables::None => select_uniform(src, camera, cfg.uniform_factor),
                 Tables::Roughness(field) => select_pvps(src, camera, field, &cfg.pvps),
                 Tables::RoughnessPvs(field, Some(pvs)) => select_pvps_with_cull(
@@ -207,11 +211,16 @@ impl Method for StoreMethod<'_> {
                     &mut pvs.cull_for(camera.position),
                 ),
                 Tables::RoughnessPvs(field, None) => select_pvps(src, camera, field, &cfg.pvps),
-                Tables::Dss(table) if self.kind == LodMethod::Dss1 => {
+                Tables::Dss(table) if kind == LodMethod::DssStrips => {
+                    let f = strips_frame(src, camera, table, cfg);
+                    return StoreDraw { selection: f.selection, strips: f.strips };
+                }
+                Tables::Dss(table) if kind == LodMethod::Dss1 => {
                     select_dss_power_of_two(src, camera, table, &cfg.dss)
                 }
                 Tables::Dss(table) => select_dss_uniform(src, camera, table, &cfg.dss),
-            }
+            };
+            StoreDraw { selection, strips: None }
         };
         let mut f = self.scene.frame_for(camera, warm, &self.tree, &mut select);
         let selection = std::mem::take(&mut f.selection);
@@ -236,7 +245,13 @@ impl Method for StoreMethod<'_> {
         };
         let mirror = self.scene.mirror().expect("a measured runtime keeps its mirror");
         let drawn = mirror.to_heightmap(&reference.hm);
-        let (mesh, triangles) = drawn_surface_of(&drawn, &reference.qt, &frame.selection);
+        let (mesh, triangles) = match &frame.draw {
+            // Blocks plus strips: the strips join blocks that share no edge.
+            Draw::Paged(f) if self.kind.has_strips() => {
+                strips::build_strip_surface(&drawn, &f.patches, &f.extra)
+            }
+            _ => drawn_surface_of(&drawn, &reference.qt, &frame.selection),
+        };
         Ok(DrawnSurface { mesh, triangles })
     }
 
