@@ -72,6 +72,12 @@ pub(crate) struct BenchArgs {
     /// time at its own frame rate, every frame, and late data is counted.
     #[arg(long)]
     pub wait: bool,
+    /// Also run every in-memory method that can draw from a store (all but entropy) from the
+    /// benchmark's store, side by side with the same method from memory (the report marks
+    /// those runs `(store)`; the store gets the tables the methods read). With `--wait` their
+    /// frames are warm, so they select and draw what the method does from memory.
+    #[arg(long)]
+    pub from_store: bool,
 }
 
 /// Writes `<dir>/<name>.json`, `.md` and `.svg`; returns the three paths.
@@ -119,6 +125,7 @@ pub(crate) fn run(args: &BenchArgs) -> anyhow::Result<()> {
     cfg.ooc_k = args.ooc_k;
     cfg.ooc.budget_bytes = args.ooc_cache_mb << 20;
     cfg.ooc_wait = args.wait;
+    cfg.from_store = args.from_store;
     let flights = args
         .flights
         .iter()

@@ -49,6 +49,9 @@ pub struct BenchConfig {
     /// real time: the flight is played at its own frame rate, every frame, paced in wall
     /// time, and the sampled frames are measured (the flight's clock stops while one is).
     pub ooc_wait: bool,
+    /// Also run every in-memory method that draws from a store from the benchmark's store
+    /// (`--from-store`), after the same method from memory. Default false.
+    pub from_store: bool,
 }
 
 impl Default for BenchConfig {
@@ -66,6 +69,7 @@ impl Default for BenchConfig {
             ooc_k: 8,
             ooc: OocConfig::default(),
             ooc_wait: false,
+            from_store: false,
         }
     }
 }

@@ -54,7 +54,7 @@ impl BenchReport {
                 let _ = writeln!(
                     s,
                     "| {} | {} = {} | {:.0} | {:.0} | {:.3} | {:.2} | {:.2} | {} | {:.3} / {:.3} | {:.3} | {:.3} | {:.4} | {:.4} | {:.3} / {:.3} | {} |",
-                    r.method.name(),
+                    r.label(),
                     r.parameter,
                     r.value,
                     m.median_triangles,

@@ -282,6 +282,9 @@ pub struct RunRecord {
     pub flight: String,
     /// The method.
     pub method: LodMethod,
+    /// Whether an in-memory method ran from the benchmark's store (`--from-store`).
+    #[serde(skip_serializing_if = "std::ops::Not::not")]
+    pub from_store: bool,
     /// The swept parameter's name (`factor`, `C1`, `rho_thr`).
     pub parameter: &'static str,
     /// Its value.
@@ -293,6 +296,18 @@ pub struct RunRecord {
     /// The out-of-core method: streaming over every played frame of the flight.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub stream: Option<crate::ooc::StreamSummary>,
+}
+
+impl RunRecord {
+    /// The method's name in reports: `(store)` appended for an in-memory method run from the
+    /// store.
+    pub fn label(&self) -> String {
+        if self.from_store {
+            format!("{} (store)", self.method.name())
+        } else {
+            self.method.name().to_string()
+        }
+    }
 }
 
 /// A flight as the benchmark flew it.

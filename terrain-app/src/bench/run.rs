@@ -13,8 +13,11 @@ use terrain_gpu::{GpuContext, RenderConfig};
 use super::config::{BenchConfig, frame_indices, pick_evenly};
 use super::record::{BenchReport, FlightInfo, RunRecord, RunSummary};
 use crate::method::registry::{self, MethodOptions, apply_parameter, sweep_values};
-use crate::method::{FrameLoop, FrameRenderer, OocWait};
+use crate::method::{FrameLoop, FrameRenderer, OocWait, draws_from_store, store_method};
 use crate::methods::{LodMethod, MethodScene};
+use crate::ooc::OocScene;
+use anyhow::Context;
+use terrain_visibility::pvs::{PvsMode, write_pvs};
 
 /// Progress of a benchmark: `done` of `total` frames, and what runs now.
 #[derive(Debug, Clone, PartialEq)]
@@ -101,25 +104,44 @@ pub fn run_bench(
             (m, name, pick_evenly(&all, cfg.sweep_points))
         })
         .collect();
-    let per_flight: usize = sweeps.iter().map(|s| s.2.len()).sum();
-    let total: usize = infos.iter().map(|i| i.frames.len() * per_flight).sum();
     let mut done = 0;
     let mut runs = Vec::new();
     let mut store: Option<Result<Arc<terrain_stream::Store>, String>> = None;
     // Renderers that hold only the terrain, shared by every run that needs their kind.
     let mut shared: Vec<FrameRenderer> = Vec::new();
+    // Each method from memory (or from the store when it needs one), then, with --from-store,
+    // from the store when it can draw from one.
+    let variants: Vec<(usize, bool)> = (0..sweeps.len())
+        .flat_map(|k| {
+            let m = sweeps[k].0;
+            let again = cfg.from_store && !registry::needs_store(m) && draws_from_store(m);
+            std::iter::once((k, false)).chain(again.then_some((k, true)))
+        })
+        .collect();
+    let per_flight: usize = variants.iter().map(|&(k, _)| sweeps[k].2.len()).sum();
+    let total: usize = infos.iter().map(|i| i.frames.len() * per_flight).sum();
+    let mut tables_written = false;
     for ((flight, _), info) in resolved.iter().zip(&infos) {
-        for (method, parameter, values) in &sweeps {
+        for &(k, from_store) in &variants {
+            let (method, parameter, values) = &sweeps[k];
             // Store-backed methods: real time (every frame of the flight played at its rate,
             // only the first waits) unless --wait (every sampled frame waits; see the note).
             let ooc_wait = if cfg.ooc_wait { OocWait::EveryFrame } else { OocWait::FirstFrame };
             let mut options = MethodOptions { morph: true, store: None, ooc_wait };
-            let real_time = registry::needs_store(*method) && !cfg.ooc_wait;
-            if registry::needs_store(*method) {
+            let on_store = registry::needs_store(*method) || from_store;
+            let real_time = on_store && !cfg.ooc_wait;
+            if on_store {
                 match store.get_or_insert_with(|| prepare_store(&scene.hm, cfg)) {
                     Ok(s) => options.store = Some(s.clone()),
                     Err(e) => anyhow::bail!("the {} method's store: {e}", method.name()),
                 }
+            }
+            // The temporary store gets the tables; a given store (`--scene`, `--ooc-store`) is
+            // the user's and must hold them from its bake (the method says so otherwise).
+            if from_store && !tables_written && cfg.ooc_store.is_none() {
+                let dir = options.store.as_ref().expect("the store").dir().to_path_buf();
+                write_tables(&scene, &cfg.methods, &dir)?;
+                tables_written = true;
             }
             for &value in values {
                 let mut config = cfg.method.clone();
@@ -129,8 +151,19 @@ pub fn run_bench(
                 config.ooc = cfg.ooc;
                 apply_parameter(&mut config, *method, value);
                 scene.config = config;
-                let label = format!("{} {} {parameter}={value}", info.name, method.name());
-                let built = registry::build(*method, &scene, &options)?;
+                let label = format!(
+                    "{} {}{} {parameter}={value}",
+                    info.name,
+                    method.name(),
+                    if from_store { " (store)" } else { "" }
+                );
+                let built = match (&options.store, from_store) {
+                    (Some(store), true) => {
+                        let runtime = OocScene::new(store.clone(), scene.config.ooc);
+                        store_method(*method, runtime, &scene.config, ooc_wait, Some(&scene))?
+                    }
+                    _ => registry::build(*method, &scene, &options)?,
+                };
                 let mut own = None;
                 let renderer = match (gpu, &render_config) {
                     (Some(ctx), Some(rc)) => {
@@ -190,6 +223,7 @@ pub fn run_bench(
                 runs.push(RunRecord {
                     flight: info.name.clone(),
                     method: *method,
+                    from_store,
                     parameter,
                     value,
                     summary: RunSummary::new(&frames),
@@ -213,6 +247,33 @@ pub fn run_bench(
         flights: infos,
         runs,
     })
+}
+
+/// Writes into store folder `dir` the per-node tables the store-backed runs of `methods` read
+/// (what `terrain bake` writes beside the blocks), from what `scene` computed in memory.
+fn write_tables(
+    scene: &MethodScene,
+    methods: &[LodMethod],
+    dir: &std::path::Path,
+) -> anyhow::Result<()> {
+    let uses = |m: &[LodMethod]| methods.iter().any(|x| m.contains(x));
+    if uses(&[LodMethod::Dss1, LodMethod::Dss2, LodMethod::DssStrips]) {
+        let path = crate::dss_scene::dss_path(dir);
+        std::fs::write(&path, scene.dss_errors().encode(&scene.hm))
+            .with_context(|| format!("could not write {}", path.display()))?;
+    }
+    for (kind, mode) in [
+        (LodMethod::PvpsCPvs, PvsMode::Sampled),
+        (LodMethod::PvpsCConservative, PvsMode::Conservative),
+    ] {
+        if uses(&[kind])
+            && let Some(pvs) = scene.pvs(usize::from(mode == PvsMode::Conservative))
+        {
+            let path = crate::pvs_scene::pvs_path(dir, mode);
+            write_pvs(pvs, &path).with_context(|| format!("could not write {}", path.display()))?;
+        }
+    }
+    Ok(())
 }
 
 /// The store of the out-of-core method: the configured one, or `hm` baked into a temporary

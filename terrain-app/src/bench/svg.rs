@@ -48,7 +48,9 @@ impl BenchReport {
             );
         }
         for (row, f) in self.flights.iter().enumerate() {
-            let runs: Vec<&RunRecord> = self.runs.iter().filter(|r| r.flight == f.name).collect();
+            // Runs from the store (`--from-store`) repeat their method's curve: the table has them.
+            let runs: Vec<&RunRecord> =
+                self.runs.iter().filter(|r| r.flight == f.name && !r.from_store).collect();
             let y0 = legend_h + row as f64 * ph;
             let panels: [(&str, Axis); 2] =
                 [("triangles", |m| m.median_triangles), ("CPU ms per frame", |m| m.median_cpu_ms)];
