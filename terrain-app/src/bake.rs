@@ -205,8 +205,9 @@ pub(crate) fn run(args: &BakeArgs) -> anyhow::Result<()> {
             eprintln!(
                 "warning: no PVS and no DSS errors for a grid read by rows or a synthetic \
                  terrain above {MAX_IN_MEMORY_SYNTHETIC}^2 samples (both need the whole grid in \
-                 memory); the scene draws without occlusion culling and the DSS methods compute \
-                 their errors when they run"
+                 memory for now): drawn from this store, pvps-c-pvs and pvps-c-cons draw \
+                 without occlusion culling and dss-1, dss-2 and dss-strips cannot run (from the \
+                 DEM file in memory they compute what they need)"
             );
             return Ok(());
         }

@@ -2,7 +2,7 @@
 //! [`Streamer`] (regions M and N, Eq. 8 preloading one frame ahead on the workers, real time:
 //! no frame waits for I/O after the first, late data counted; `warm` frames wait on purpose),
 //! the projected-frustum block culling of 3.1 (the blocks of M), then
-//! terrain-stream's crack-free patch selection ([`terrain_stream::lod::select_patches`]:
+//! terrain-stream's crack-free patch selection ([`terrain_stream::select_patches`]:
 //! terrain-core's one traversal over the store's index with the Eq. 7 split and the
 //! bounding-circle cull, patches of at least [`OocConfig::patch_cells`] cells clamped to each
 //! block's page level, balanced, tessellation factors from Eq. 7 and terrain-core's one
@@ -37,10 +37,10 @@ use terrain_gpu::paged::{Page, PageClass, PageLayout, PagedHeights, classes_for_
 use terrain_gpu::render::{DrawPatch, ExtraTriangles};
 use terrain_gpu::tess::PatchFactors;
 use terrain_gpu::{RenderError, TerrainRenderer};
-use terrain_stream::format::{INDEX_FILE, MAGIC};
-use terrain_stream::lod::{DEFAULT_PATCH_CELLS, StoreTree, select_patches};
-use terrain_stream::schedule::ScheduleConfig;
-use terrain_stream::{BlockId, Store, StoreError, StoreSource, StreamConfig, Streamer, demand_of};
+use terrain_stream::{
+    BlockId, DEFAULT_PATCH_CELLS, ScheduleConfig, Store, StoreError, StoreSource, StoreTree,
+    StreamConfig, Streamer, demand_of, select_patches,
+};
 
 use crate::methods::{StripFrame, patch_factors};
 
@@ -67,7 +67,7 @@ pub struct OocConfig {
     pub warm_timeout: Duration,
     /// Smallest patch, cells per side (a power of two, at most a block); patches are drawn by
     /// the tessellator with factors up to their cells. Default
-    /// [`terrain_stream::lod::DEFAULT_PATCH_CELLS`].
+    /// [`terrain_stream::DEFAULT_PATCH_CELLS`].
     pub patch_cells: u32,
 }
 
@@ -88,13 +88,7 @@ impl Default for OocConfig {
 
 /// Whether `path` is a baked store: a folder whose index file starts with the store's magic.
 pub fn is_store(path: &Path) -> bool {
-    use std::io::Read;
-    let mut magic = [0u8; 8];
-    path.is_dir()
-        && std::fs::File::open(path.join(INDEX_FILE))
-            .and_then(|mut f| f.read_exact(&mut magic))
-            .is_ok()
-        && magic == MAGIC
+    terrain_stream::is_store(path)
 }
 
 /// The streaming columns of one frame: the paper's Table 3 (needed, real-time loaded and
@@ -717,14 +711,14 @@ impl OocScene {
     /// the store's box, near is half the distance to the nearest block's box (at least
     /// `far / 1e6` and 0.05 m).
     pub fn clip_range(&self, position: DVec3) -> (f64, f64) {
-        let h = self.store.header();
         let mut far: f64 = 0.0;
         let mut nearest = f64::INFINITY;
         let mut lo = DVec3::splat(f64::INFINITY);
         let mut hi = DVec3::splat(f64::NEG_INFINITY);
         for id in self.store.block_ids() {
-            let Some(e) = self.store.entry(id) else { continue };
-            let (a, b) = terrain_stream::schedule::block_rect(h, e, id);
+            let (Some(e), Some((a, b))) = (self.store.entry(id), self.store.block_rect(id)) else {
+                continue;
+            };
             let a = dvec3(a.x, a.y, f64::from(e.min));
             let b = dvec3(b.x, b.y, f64::from(e.max));
             lo = lo.min(a);

@@ -162,7 +162,7 @@ fn a_streamed_bake_equals_the_whole_file_bake_at_valid_samples() {
     assert!(hm.voids().count() > 0);
     let (a, b) = (Store::open(&whole).unwrap(), Store::open(&rows).unwrap());
     let h = a.header().clone();
-    let same = terrain_stream::format::Header { bake_id: h.bake_id, ..b.header().clone() };
+    let same = terrain_stream::Header { bake_id: h.bake_id, ..b.header().clone() };
     assert_eq!(h, same, "same header but for the bake id");
     let cells = h.block_cells() as usize;
     let (mut valid, mut void) = (0usize, 0usize);

@@ -524,8 +524,8 @@ fn a_bad_store_is_an_error_naming_the_file() {
     let dir = scratch("ooc", "bad");
     let store = dir.join("broken");
     std::fs::create_dir_all(&store).unwrap();
-    let index: PathBuf = store.join(terrain_stream::format::INDEX_FILE);
-    let mut bytes = terrain_stream::format::MAGIC.to_vec();
+    let index: PathBuf = store.join(terrain_stream::INDEX_FILE);
+    let mut bytes = terrain_stream::MAGIC.to_vec();
     bytes.extend_from_slice(&[7u8; 40]);
     std::fs::write(&index, bytes).unwrap();
     let out = terrain(&["render", s(&store), "--size", "32x18", "-o", s(&dir.join("x.png"))]);

@@ -3,7 +3,8 @@
 //! patches to draw each frame (quadtree nodes with tessellation factors that agree on every
 //! shared edge), wait until the last frame's needed levels are resident, and read a block's
 //! heights at a level. Run with
-//! `cargo run -p terrain-stream --example embed`.
+//! `cargo run -p terrain-stream --example embed` (a synthetic terrain), or with a DEM file's
+//! path after `--` (baked in one call by `bake_file`).
 
 use std::ops::ControlFlow;
 use std::sync::Arc;
@@ -12,27 +13,51 @@ use std::time::Duration;
 use terrain_core::lod::check_shared_edges;
 use terrain_core::synth::FractalConfig;
 use terrain_stream::glam::dvec3;
-use terrain_stream::lod::DEFAULT_PATCH_CELLS;
 use terrain_stream::{
-    BakeConfig, BakeProgress, Camera, Store, StoreTree, StreamConfig, Streamer, bake,
-    select_streamed,
+    BakeConfig, BakeProgress, Camera, DEFAULT_PATCH_CELLS, Store, StoreTree, StreamConfig,
+    Streamer, bake, bake_file, select_streamed,
 };
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     let dir = std::env::temp_dir().join(format!("terrain-stream-embed-{}", std::process::id()));
-    // A 257 x 257 synthetic terrain at 10 m, streamed by rows into blocks of 65 x 65 vertices.
-    let source = FractalConfig::with_size(257, 257, 10.0);
     let config = BakeConfig { k: 6, overwrite: true, ..Default::default() };
-    bake(&source, &dir, &config, &mut |_: &BakeProgress| ControlFlow::Continue(()))?;
+    let mut progress = |_: &BakeProgress| ControlFlow::Continue(());
+    match std::env::args_os().nth(1) {
+        // A DEM file (GeoTIFF, .hgt, PNG, ...) in one call; large GeoTIFFs stream by rows.
+        Some(path) => {
+            let options = terrain_core::dem::LoadOptions::default();
+            bake_file(path.as_ref(), &options, &dir, &config, &mut progress)?;
+        }
+        // A 257 x 257 synthetic terrain at 10 m, streamed by rows into blocks of 65 x 65
+        // vertices.
+        None => {
+            let source = FractalConfig::with_size(257, 257, 10.0);
+            bake(&source, &dir, &config, &mut progress)?;
+        }
+    }
 
     let store = Arc::new(Store::open(&dir)?);
     let tree = StoreTree::new(store.clone(), DEFAULT_PATCH_CELLS);
     let mut streamer =
         Streamer::new(store.clone(), StreamConfig { threads: 1, ..Default::default() });
-    let mut camera = Camera::from_yaw_pitch(dvec3(1280.0, 0.0, 1800.0), 0.0, -30.0);
+    // A camera path northwards over the middle of the grid, looking north and down.
+    let h = store.header();
+    let (w, n) = ((h.width - 1) as f64, (h.height - 1) as f64);
+    let lo = h.georef.grid_to_world(dvec3(0.0, 0.0, 0.0).truncate());
+    let hi = h.georef.grid_to_world(dvec3(w, n, 0.0).truncate());
+    let (size, top) = (
+        (hi - lo).abs().max_element(),
+        store
+            .block_ids()
+            .filter_map(|b| store.entry(b))
+            .map(|e| f64::from(e.max))
+            .fold(0.0, f64::max),
+    );
+    let at = |t: f64| dvec3(0.5 * (lo.x + hi.x), lo.y + t * (hi.y - lo.y), top + 0.7 * size);
+    let mut camera = Camera::from_yaw_pitch(at(0.0), 0.0, -30.0);
     for frame in 0..20 {
-        let eye = dvec3(1280.0, 100.0 * frame as f64, 1800.0);
-        camera = Camera::from_yaw_pitch(eye, 0.0, -30.0).with_clip(1.0, 3000.0);
+        camera =
+            Camera::from_yaw_pitch(at(frame as f64 / 40.0), 0.0, -30.0).with_clip(1.0, 3.0 * size);
         let stats = streamer.update(&camera);
         // What to draw: global quadtree nodes (`node.grid_rect(tree.root_cells())` is a
         // patch's square of grid samples) with outer and inner tessellation factors.

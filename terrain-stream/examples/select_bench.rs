@@ -16,8 +16,9 @@ use std::time::Instant;
 
 use terrain_core::synth::FractalConfig;
 use terrain_stream::glam::dvec3;
-use terrain_stream::lod::{DEFAULT_PATCH_CELLS, select_patches};
-use terrain_stream::{BakeConfig, BakeProgress, Camera, Store, StoreTree, bake};
+use terrain_stream::{
+    BakeConfig, BakeProgress, Camera, DEFAULT_PATCH_CELLS, Store, StoreTree, bake, select_patches,
+};
 
 fn store(size: u64) -> PathBuf {
     let dir = std::env::temp_dir().join("terrain-select-bench").join(format!("s{size}"));

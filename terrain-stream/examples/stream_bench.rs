@@ -22,11 +22,9 @@ use terrain_core::dem::{LoadOptions, load};
 use terrain_core::geometry::Camera;
 use terrain_core::heightmap::Heightmap;
 use terrain_core::synth::FractalConfig;
-use terrain_stream::format::offset_end;
-use terrain_stream::schedule::ScheduleConfig;
 use terrain_stream::{
-    BakeConfig, BakeProgress, Codec, HeightEncoding, HeightSource, StatsSummary, Store,
-    StreamConfig, Streamer, bake,
+    BakeConfig, BakeProgress, BlockEntry, Codec, HeightEncoding, HeightSource, ScheduleConfig,
+    StatsSummary, Store, StreamConfig, Streamer, bake,
 };
 
 fn data() -> PathBuf {
@@ -101,7 +99,8 @@ fn storage() {
             let store = Store::open(dir.join("s")).unwrap();
             // Plain payloads hold i16 where values fit, so their width is the pyramid's.
             let w = store.blocks_bytes() as f64
-                / (store.header().block_count() as f64 * (offset_end(8) + 1) as f64);
+                / (store.header().block_count() as f64
+                    * (BlockEntry::resident_bytes(8) / 4) as f64);
             if codec == Codec::Plain {
                 pyr = pyramid_bytes(&store, w.round().max(1.0) as u64);
             }

@@ -12,7 +12,7 @@ use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
 use rayon::prelude::*;
-use terrain_core::dem::{Format, LoadOptions, RawSampleType, SourceInfo};
+use terrain_core::dem::{Format, LoadOptions, RawSampleType, RowReader, SourceInfo};
 use terrain_core::georef::Georef;
 use terrain_core::heightmap::{Heightmap, VoidMask};
 use terrain_core::metrics::Region;
@@ -233,6 +233,40 @@ struct BakedBlock {
     max_err: f64,
     max_void_err: f64,
     lossless: bool,
+}
+
+/// Samples above which [`bake_file`] reads a GeoTIFF or raw file by bands of rows: 2^28 (1 GiB
+/// of f32), the `terrain bake` default.
+pub const STREAM_ABOVE_SAMPLES: u64 = 1 << 28;
+
+/// Bakes the DEM file `path` into a store at `out` in one call: the embedder's entry point.
+/// Any format terrain-core reads (GeoTIFF, SRTM .hgt, grey and Terrain-RGB/Terrarium images,
+/// raw with `options.raw`), read as `options` says (no-data, vertical scale, spacing). GeoTIFF
+/// and raw files larger than [`STREAM_ABOVE_SAMPLES`] are read by bands of rows (memory stays
+/// bounded whatever the file's size; voids are then filled along rows and columns, see
+/// `terrain_core::dem::rows`); others are read whole. Integer sources are stored losslessly
+/// (their lattice, [`HeightEncoding::for_source`]); float sources with `config.encoding`.
+pub fn bake_file(
+    path: &Path,
+    options: &LoadOptions,
+    out: &Path,
+    config: &BakeConfig,
+    progress: &mut (dyn FnMut(&BakeProgress) -> ControlFlow<()> + Send),
+) -> Result<BakeReport, BakeError> {
+    let lossless =
+        |info: &SourceInfo, config: &BakeConfig| match HeightEncoding::for_source(info, options) {
+            q @ HeightEncoding::Quantized { .. } => BakeConfig { encoding: q, ..config.clone() },
+            _ => config.clone(),
+        };
+    if let Ok(rows) = RowReader::open(path, options)
+        && rows.width() * rows.height() > STREAM_ABOVE_SAMPLES
+    {
+        let config = lossless(rows.source(), config);
+        return bake(&rows, out, &config, progress);
+    }
+    let dem = terrain_core::dem::load(path, options)?;
+    let config = lossless(&dem.source, config);
+    bake(&dem.heightmap, out, &config, progress)
 }
 
 /// The block exponent of a `w x h` grid: `k`, or smaller for a grid smaller than one block, so

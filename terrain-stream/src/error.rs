@@ -202,4 +202,7 @@ pub enum BakeError {
     /// The progress callback asked to stop.
     #[error("the bake was cancelled")]
     Cancelled,
+    /// The DEM file could not be read ([`crate::bake_file`]); the error names the file.
+    #[error(transparent)]
+    Dem(#[from] terrain_core::DemError),
 }

@@ -35,16 +35,16 @@ use terrain_core::georef::{AngularOrLinear, Crs, Georef};
 /// Magic bytes of the index file.
 pub const MAGIC: [u8; 8] = *b"TSTRIDX\0";
 /// Magic bytes of a block file.
-pub const BLOCK_MAGIC: [u8; 8] = *b"TSTRBLK\0";
+pub(crate) const BLOCK_MAGIC: [u8; 8] = *b"TSTRBLK\0";
 /// The format version this crate writes and reads. Version 2 added the DSS paper's 32
 /// object-space errors to every block entry; version-1 stores must be baked again.
-pub const VERSION: u32 = 2;
+pub(crate) const VERSION: u32 = 2;
 /// Name of the grid index file inside a store folder.
 pub const INDEX_FILE: &str = "index.tsi";
 /// Bytes of a block file's header: magic, version, bake id, row, column.
-pub const BLOCK_HEADER_LEN: u64 = 8 + 4 + 8 + 4 + 4;
+pub(crate) const BLOCK_HEADER_LEN: u64 = 8 + 4 + 8 + 4 + 4;
 /// Smallest and largest block exponent `k` (blocks of `(2^k + 1)^2` vertices).
-pub const K_RANGE: std::ops::RangeInclusive<u8> = 2..=12;
+pub(crate) const K_RANGE: std::ops::RangeInclusive<u8> = 2..=12;
 
 /// A block of the grid: `col` counts east, `row` north, from the south-west block.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
@@ -69,29 +69,29 @@ impl fmt::Display for BlockId {
 }
 
 /// The path of a block's file relative to the store folder.
-pub fn block_file_name(id: BlockId) -> String {
+pub(crate) fn block_file_name(id: BlockId) -> String {
     format!("blocks/r{:05}_c{:05}.tsb", id.row, id.col)
 }
 
 /// Eq. 1: first position of level `n` in a block's linear sequence.
-pub fn offset_start(n: u8) -> usize {
+pub(crate) fn offset_start(n: u8) -> usize {
     if n == 0 { 0 } else { ((1usize << (n - 1)) + 1).pow(2) }
 }
 
 /// Eq. 2: last position of level `n` in a block's linear sequence.
-pub fn offset_end(n: u8) -> usize {
+pub(crate) fn offset_end(n: u8) -> usize {
     ((1usize << n) + 1).pow(2) - 1
 }
 
 /// Number of vertices stored at level `n`: `Offset(n)_end - Offset(n)_start + 1`.
-pub fn level_len(n: u8) -> usize {
+pub(crate) fn level_len(n: u8) -> usize {
     offset_end(n) + 1 - offset_start(n)
 }
 
 /// Where a vertex lives: its level, its order within the level, and its offset in the linear
 /// sequence (`offset_start(level) + order`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub struct VertexIndex {
+pub(crate) struct VertexIndex {
     /// The coarsest level holding the vertex.
     pub level: u8,
     /// Position within that level (the paper's order index).
@@ -102,7 +102,7 @@ pub struct VertexIndex {
 
 /// The level, order and offset of block vertex `(i, j)` (column east, row north) in a block
 /// of `(2^k + 1)^2` vertices. `None` outside the block.
-pub fn vertex_index(k: u8, i: u32, j: u32) -> Option<VertexIndex> {
+pub(crate) fn vertex_index(k: u8, i: u32, j: u32) -> Option<VertexIndex> {
     let side = 1u32 << k;
     if i > side || j > side {
         return None;
@@ -128,7 +128,7 @@ pub fn vertex_index(k: u8, i: u32, j: u32) -> Option<VertexIndex> {
 }
 
 /// Calls `f(i, j)` for every vertex of level `n` of a `2^k` block, in the stored order.
-pub fn for_each_level_vertex(k: u8, n: u8, mut f: impl FnMut(u32, u32)) {
+pub(crate) fn for_each_level_vertex(k: u8, n: u8, mut f: impl FnMut(u32, u32)) {
     let d = 1u32 << (k - n);
     let cnt = (1u32 << n) + 1;
     if n == 0 {
@@ -152,7 +152,7 @@ pub fn for_each_level_vertex(k: u8, n: u8, mut f: impl FnMut(u32, u32)) {
     }
 }
 
-pub use terrain_core::checksum::crc32;
+pub(crate) use terrain_core::checksum::crc32;
 
 /// How heights are stored.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -327,7 +327,7 @@ pub struct DssBlockErrors {
 }
 
 /// Number of DSS object-space errors per block (the paper's 32).
-pub const DSS_FACTORS: usize = terrain_core::metrics::dss::FACTORS;
+pub(crate) const DSS_FACTORS: usize = terrain_core::metrics::dss::FACTORS;
 
 impl BlockEntry {
     /// The values of node `(i, j)` at node level `l`, if stored.
@@ -352,7 +352,7 @@ impl BlockEntry {
 }
 
 /// Number of node entries for `levels` node levels: `(4^levels - 1) / 3`.
-pub fn node_count(levels: u8) -> usize {
+pub(crate) fn node_count(levels: u8) -> usize {
     ((1usize << (2 * levels as usize)) - 1) / 3
 }
 

@@ -5,17 +5,24 @@
 //! per-level storage (Eq. 1-2), a byte-budgeted cache, the frustum-extension preloading
 //! scheduler (Eq. 8) and a worker pool behind request/result channels.
 //!
-//! The principal types are [`Store`] (an opened store: header, grid index, positioned reads
-//! of one block level at a time), [`Streamer`] (the runtime: per frame it computes the
-//! visual region M and the scheduling region N, queues what M lacks and what N - M will need
-//! on worker threads, never waits for I/O after the first frame, and evicts to a byte budget;
-//! [`Streamer::wait_until_resident`] waits until warm on purpose) and [`bake`] (a [`HeightSource`] into a
-//! store). [`format`] documents the bytes on disk; [`lod`] is the CPU side of the paper's
-//! rendering method: [`StoreTree`] (the store's index as terrain-core's `NodeSource`) and
-//! [`select_patches`], the crack-free patch selection an embedder draws (terrain-core's one
-//! traversal with the Eq. 7 split and the bounding-circle cull, clamped to each block's
-//! resident level, balanced, tessellation factors agreeing on every shared edge).
-//! [`glam`] and the [`Camera`] are re-exported, so an embedder needs no other crate of ours.
+//! # The API (everything an embedder needs is at the crate root; the rest is private)
+//! - **Bake** a DEM file into a store in one call ([`bake_file`]: any format terrain-core
+//!   reads, large GeoTIFFs by bands of rows), or any [`HeightSource`] ([`bake`]); typed
+//!   [`BakeError`]s.
+//! - **Open** a store ([`Store::open`], [`is_store`]): its [`Header`], per-block
+//!   [`BlockEntry`]s, positioned reads of one level ([`Store::read_block`]); typed
+//!   [`StoreError`]s naming the file.
+//! - **Stream** ([`Streamer`]): per frame a camera goes in ([`Streamer::update`], real time:
+//!   never waits for I/O after the first frame; late data counted in its [`FrameStats`]), the
+//!   resident levels come out ([`Streamer::block`]: [`BlockLevels`]); the visual region M and
+//!   its levels from the paper's Eq. 7, or another LOD method's [`Streamer::set_demand`];
+//!   [`Streamer::wait_until_resident`] waits until warm on purpose. Worker threads are the
+//!   crate's own; reads go through the [`LevelReader`] trait.
+//! - **Select** crack-free patches with tessellation factors: the out-of-core paper's method
+//!   ([`select_streamed`] / [`select_patches`] over the [`StoreTree`]), or any of terrain-core's
+//!   LOD selections over the store's terrain ([`StoreSource`], a `TerrainSource`; what they
+//!   need loaded: [`demand_of`]).
+//! - [`glam`] and the [`Camera`] are re-exported, so an embedder needs no other crate of ours.
 //!
 //! # Example
 //!
@@ -32,10 +39,9 @@
 //! use terrain_core::lod::check_shared_edges;
 //! use terrain_core::synth::FractalConfig;
 //! use terrain_stream::glam::dvec3;
-//! use terrain_stream::lod::DEFAULT_PATCH_CELLS;
 //! use terrain_stream::{
-//!     BakeConfig, BakeProgress, Camera, Store, StoreTree, StreamConfig, Streamer, bake,
-//!     select_streamed,
+//!     BakeConfig, BakeProgress, Camera, DEFAULT_PATCH_CELLS, Store, StoreTree, StreamConfig,
+//!     Streamer, bake, select_streamed,
 //! };
 //!
 //! # fn main() -> Result<(), Box<dyn std::error::Error>> {
@@ -75,29 +81,38 @@
 
 #![deny(missing_docs)]
 
-pub mod bake;
+mod bake;
 mod cache;
 mod codec;
-pub mod error;
-pub mod format;
-pub mod lod;
-pub mod schedule;
-pub mod source;
-pub mod stats;
-pub mod store;
-pub mod streamer;
-pub mod terrain;
+mod error;
+mod format;
+mod lod;
+mod schedule;
+mod source;
+mod stats;
+mod store;
+mod streamer;
+mod terrain;
 mod workers;
 
-pub use bake::{BakeConfig, BakeProgress, BakeReport, HeightEncoding, bake};
+pub use bake::{
+    BakeConfig, BakeProgress, BakeReport, HeightEncoding, STREAM_ABOVE_SAMPLES, bake, bake_file,
+};
 pub use error::{BakeError, StoreError};
-pub use format::{BlockId, Codec, DssBlockErrors, Header};
+pub use format::{
+    BlockEntry, BlockId, Codec, DssBlockErrors, Header, INDEX_FILE, LevelEntry, MAGIC, NodeValues,
+    SampleEncoding,
+};
 pub use glam;
-pub use lod::{StoreTree, select_patches, select_streamed};
+pub use lod::{DEFAULT_PATCH_CELLS, StoreTree, select_patches, select_streamed};
+pub use schedule::ScheduleConfig;
 pub use source::HeightSource;
 pub use stats::{FrameStats, StatsSummary};
-pub use store::{BlockLevels, LoadedLevel, Store};
+pub use store::{BlockLevels, LoadedLevel, Store, is_store};
 pub use streamer::{ScheduledBlock, StreamConfig, Streamer, WaitReport};
 pub use terrain::{StoreSource, demand_of};
 pub use terrain_core::geometry::Camera;
 pub use workers::LevelReader;
+
+#[cfg(test)]
+mod tests;

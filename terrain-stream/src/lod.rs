@@ -169,7 +169,7 @@ impl NodeSource for BlockNodes<'_> {
 /// is still above the threshold need the next level's vertices. `StaticE` is monotone, so a
 /// sub-node under the threshold has no descendant above it: only the over-threshold ones are
 /// followed (the cost follows the detail drawn).
-pub fn needed_vertex_level(
+pub(crate) fn needed_vertex_level(
     h: &Header,
     e: &BlockEntry,
     n: NodeId,
@@ -213,7 +213,7 @@ pub fn needed_vertex_level(
 /// Eq. 7 as terrain-core's [`SplitPolicy`] (the paper's step 4: split while `rho > tau`), over
 /// a node space whose errors `error(node)` gives, stopping at `stop(node)` (a block's
 /// resident level).
-pub struct Eq7Split<E, S> {
+pub(crate) struct Eq7Split<E, S> {
     /// The view and `tau`.
     pub view: View,
     /// `StaticE` of a node (metres); `None` splits unconditionally (nodes above the blocks).
@@ -243,13 +243,13 @@ impl<E: FnMut(NodeId) -> Option<f32>, S: FnMut(NodeId) -> bool> SplitPolicy for 
 /// Largest size on screen (pixels) of a lattice cell of the level a block's page holds: the
 /// renderer shades every fragment with central-difference normals of the page's samples, so a
 /// page coarser than this draws visibly flat shading beside finer pages.
-pub const SHADING_CELL_PX: f64 = 1.0;
+pub(crate) const SHADING_CELL_PX: f64 = 1.0;
 
 /// The coarsest level of block `e` (of `b`) whose lattice cells are at most
 /// [`SHADING_CELL_PX`] on screen at the block's nearest point: what the fragment stage's
 /// normals need from the block's page, whatever its geometry needs (the criterion of texture
 /// mip-level selection, applied to the height samples the normals are computed from).
-pub fn shading_level(h: &Header, e: &BlockEntry, b: BlockId, view: &View) -> u8 {
+pub(crate) fn shading_level(h: &Header, e: &BlockEntry, b: BlockId, view: &View) -> u8 {
     let lo = h.vertex_world(b, 0.0, 0.0);
     let hi = h.vertex_world(b, (e.valid_w.max(1) - 1) as f64, (e.valid_h.max(1) - 1) as f64);
     let (lo, hi) = (lo.min(hi).extend(e.min.into()), lo.max(hi).extend(e.max.into()));
@@ -267,7 +267,7 @@ pub fn shading_level(h: &Header, e: &BlockEntry, b: BlockId, view: &View) -> u8 
 /// The finest level block `b` needs for `view`, or `None` when no node of it meets `region`:
 /// its [`needed_geometry_level`], and at least its [`shading_level`]. What the streamer loads
 /// for a block of the visual region M.
-pub fn needed_level(
+pub(crate) fn needed_level(
     h: &Header,
     e: &BlockEntry,
     b: BlockId,
@@ -281,7 +281,7 @@ pub fn needed_level(
 /// of the patches terrain-core's [`traverse`] selects in the block with the Eq. 7 split and
 /// [`BoundingCircleCull`], patches of [`DEFAULT_PATCH_CELLS`]), or `None` when no node of it
 /// meets `region`.
-pub fn needed_geometry_level(
+pub(crate) fn needed_geometry_level(
     h: &Header,
     e: &BlockEntry,
     b: BlockId,
@@ -454,7 +454,7 @@ impl StoreTree {
         Some(local_values(self.store.header(), e, local).2)
     }
 
-    /// [`needed_vertex_level`] of global node `n` with box `aabb` (at most `max_level`, a
+    /// `needed_vertex_level` of global node `n` with box `aabb` (at most `max_level`, a
     /// block-local level), as a global level; `None` above the blocks.
     pub fn needed_vertex_level(
         &self,
@@ -510,7 +510,7 @@ impl NodeSource for StoreTree {
 /// [`StoreTree`] with the Eq. 7 split and the paper's [`BoundingCircleCull`] against the view
 /// projected on the ground, only over blocks with a level resident (`resident(block)`: the
 /// finest level that may be drawn, `None` = not drawn), the split stopped at that level;
-/// then balanced, factors from [`needed_vertex_level`] (clamped to the resident level, at
+/// then balanced, factors from `needed_vertex_level` (clamped to the resident level, at
 /// least 2) and outer factors from terrain-core's [`WishEdges`]. Patches are global nodes of the tree
 /// (`NodeId::grid_rect(tree.root_cells())` is their square of grid samples), in traversal
 /// order; `terrain_core::lod::check_shared_edges` holds.

@@ -24,7 +24,7 @@ pub struct ScheduleConfig {
     /// The frame rate `f` of Eq. 8, frames per second. Default 60. The runtime measures the
     /// eye's speed as its displacement per frame times `f`, so `S = V cos(alpha) / f` is the
     /// displacement of one frame along the sight line whatever `f` is; `f` matters only to
-    /// callers of [`eq8_s`] and [`regions`] with a velocity of their own.
+    /// callers of `eq8_s` and `regions` with a velocity of their own.
     pub frame_rate_hz: f64,
     /// How many frames ahead the runtime preloads: `S` of Eq. 8 and the eye used for the
     /// levels prefetched one frame ahead are multiplied by this. Default 1: the paper's
@@ -40,7 +40,7 @@ impl Default for ScheduleConfig {
 
 /// Eq. 8: `S = V cos(alpha) / f` for `alpha` (between motion and sight line) in `[0, pi/2)`,
 /// else 0. `velocity` is the eye's plan velocity (m/s), `view_dir` the plan view direction.
-pub fn eq8_s(velocity: DVec2, view_dir: DVec2, frame_rate_hz: f64) -> f64 {
+pub(crate) fn eq8_s(velocity: DVec2, view_dir: DVec2, frame_rate_hz: f64) -> f64 {
     let v = velocity.length();
     let d = view_dir.length();
     if !(v.is_finite() && d.is_finite())
@@ -56,7 +56,7 @@ pub fn eq8_s(velocity: DVec2, view_dir: DVec2, frame_rate_hz: f64) -> f64 {
 }
 
 /// The view frustum extension of `view` (see the module docs).
-pub fn extend_region(view: &GroundRegion, l: f64, s: f64) -> GroundRegion {
+pub(crate) fn extend_region(view: &GroundRegion, l: f64, s: f64) -> GroundRegion {
     match view {
         GroundRegion::Triangle([b, r, lft]) => {
             let mid = (*r + *lft) * 0.5;
@@ -84,7 +84,7 @@ pub fn extend_region(view: &GroundRegion, l: f64, s: f64) -> GroundRegion {
 }
 
 /// Whether a convex counter-clockwise polygon meets the rectangle `[lo, hi]` (separating axes).
-pub fn polygon_meets_rect(poly: &[DVec2], lo: DVec2, hi: DVec2) -> bool {
+pub(crate) fn polygon_meets_rect(poly: &[DVec2], lo: DVec2, hi: DVec2) -> bool {
     if poly.is_empty() {
         return false;
     }
@@ -113,7 +113,7 @@ pub fn polygon_meets_rect(poly: &[DVec2], lo: DVec2, hi: DVec2) -> bool {
 }
 
 /// The plan rectangle (world metres) of a block's valid (non-padding) vertices.
-pub fn block_rect(header: &Header, entry: &BlockEntry, id: BlockId) -> (DVec2, DVec2) {
+pub(crate) fn block_rect(header: &Header, entry: &BlockEntry, id: BlockId) -> (DVec2, DVec2) {
     let a = header.vertex_world(id, 0.0, 0.0);
     let b = header.vertex_world(id, (entry.valid_w - 1) as f64, (entry.valid_h - 1) as f64);
     (a.min(b), a.max(b))
@@ -121,7 +121,7 @@ pub fn block_rect(header: &Header, entry: &BlockEntry, id: BlockId) -> (DVec2, D
 
 /// Candidate blocks under the bounding box of `region`, row-major (deterministic); callers
 /// test each with [`polygon_meets_rect`] against [`block_rect`].
-pub fn blocks_under_bbox(header: &Header, region: &GroundRegion) -> Vec<BlockId> {
+pub(crate) fn blocks_under_bbox(header: &Header, region: &GroundRegion) -> Vec<BlockId> {
     let v = region.vertices();
     if v.is_empty() {
         return Vec::new();
@@ -162,7 +162,7 @@ pub struct Regions {
 }
 
 /// The regions for `camera` moving at plan `velocity` (m/s).
-pub fn regions(
+pub(crate) fn regions(
     header: &Header,
     config: &ScheduleConfig,
     camera: &Camera,

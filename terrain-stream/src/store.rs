@@ -10,7 +10,7 @@ use std::time::{Duration, Instant};
 use crate::codec::decode_level;
 use crate::error::StoreError;
 use crate::format::{
-    BLOCK_HEADER_LEN, BLOCK_MAGIC, BlockEntry, BlockId, Header, INDEX_FILE, IndexError,
+    BLOCK_HEADER_LEN, BLOCK_MAGIC, BlockEntry, BlockId, Header, INDEX_FILE, IndexError, MAGIC,
     SampleEncoding, VERSION, block_file_name, crc32, level_len, read_index, vertex_index,
 };
 
@@ -66,6 +66,12 @@ impl Store {
     /// A block's index entry, or `None` outside the grid.
     pub fn entry(&self, id: BlockId) -> Option<&BlockEntry> {
         self.header.block_position(id).map(|p| &self.blocks[p])
+    }
+
+    /// The plan rectangle (world metres, south-west and north-east corners) of block `id`'s
+    /// valid (non-padding) vertices, or `None` outside the grid.
+    pub fn block_rect(&self, id: BlockId) -> Option<(glam::DVec2, glam::DVec2)> {
+        Some(crate::schedule::block_rect(&self.header, self.entry(id)?, id))
     }
 
     /// Every block, row-major from the south-west.
@@ -200,6 +206,15 @@ fn read_at(file: &mut File, offset: u64, buf: &mut [u8]) -> std::io::Result<()> 
         file.seek(SeekFrom::Start(offset))?;
         file.read_exact(buf)
     }
+}
+
+/// Whether `path` is a baked store: a folder whose index file starts with the store's magic.
+pub fn is_store(path: &Path) -> bool {
+    use std::io::Read;
+    let mut magic = [0u8; 8];
+    path.is_dir()
+        && File::open(path.join(INDEX_FILE)).and_then(|mut f| f.read_exact(&mut magic)).is_ok()
+        && magic == MAGIC
 }
 
 /// The resident levels `0..n` of one block, each level's samples in stored order: the

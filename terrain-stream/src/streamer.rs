@@ -180,8 +180,8 @@ impl Streamer {
     /// What the next frames need, when a LOD method other than the paper's chooses what is
     /// drawn: `Some(levels)` lists every block the method draws and the finest level its
     /// patches there need (its patch level plus the tessellation factor's levels); those
-    /// blocks are the visual region M (each also at least at its [`shading_level`]), nearest
-    /// first, and the scheduling region N - M is preloaded as before (Eq. 8 with Eq. 7's
+    /// blocks are the visual region M (each also at least at its shading level, whose cells
+    /// are a pixel or less on screen), nearest first, and the scheduling region N - M is preloaded as before (Eq. 8 with Eq. 7's
     /// levels). `None` (the default): M and its levels from Eq. 7 (the out-of-core paper's
     /// method). Takes effect at the next [`Streamer::update`] or
     /// [`Streamer::wait_until_resident`].

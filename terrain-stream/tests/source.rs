@@ -19,9 +19,10 @@ use terrain_core::lod::{
 };
 use terrain_core::quadtree::{NodeId, NodeSource, NodeTree, Quadtree};
 use terrain_core::{Georef, dem::voids::fill_voids};
-use terrain_stream::lod::StoreTree;
+
 use terrain_stream::{
-    BakeConfig, HeightEncoding, Store, StoreSource, StreamConfig, Streamer, bake, demand_of,
+    BakeConfig, HeightEncoding, Store, StoreSource, StoreTree, StreamConfig, Streamer, bake,
+    demand_of,
 };
 
 fn scratch(name: &str) -> PathBuf {
@@ -187,4 +188,64 @@ fn a_non_square_store_with_voids_selects_like_its_heightmap() {
 #[test]
 fn a_grid_smaller_than_a_block_selects_like_its_heightmap() {
     check_grid(100, 70, false, 8, "small");
+}
+
+/// `bake_file` bakes a DEM file in one call (here an SRTM .hgt tile and a GeoTIFF with voids
+/// that need `--nodata`), losslessly for integer sources, and the store reads back each
+/// file's valid samples exactly (filled voids within the recorded bound).
+#[test]
+fn a_dem_file_bakes_in_one_call() {
+    use terrain_core::dem::{LoadOptions, load};
+    let data = std::env::var_os("TERRAIN_DATA")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../shared/data"));
+    for (file, nodata) in
+        [("srtm/N52E008.hgt", None), ("crater_lake/craterlake-elev-16bit-30m.tif", Some(-32767.0))]
+    {
+        let path = data.join(file);
+        assert!(path.exists(), "test data {} is missing (set TERRAIN_DATA)", path.display());
+        let options = LoadOptions { nodata, ..LoadOptions::default() };
+        let dir = scratch(&format!("file-{}", file.replace('/', "-")));
+        let config = BakeConfig { k: 6, ..Default::default() };
+        let report = terrain_stream::bake_file(&path, &options, &dir, &config, &mut |_| {
+            ControlFlow::Continue(())
+        })
+        .unwrap();
+        assert!(report.lossless, "{file}: integer heights are stored exactly");
+        let hm = load(&path, &options).unwrap().heightmap;
+        let store = Arc::new(Store::open(&dir).unwrap());
+        let tree = StoreTree::new(store.clone(), 16);
+        let mut streamer =
+            Streamer::new(store.clone(), StreamConfig { threads: 1, ..Default::default() });
+        warm_all(&mut streamer, &store, &cameras(&hm)[0]);
+        let src = StoreSource::new(&tree, &streamer);
+        // Exact at every valid sample; filled void samples are stored on the integer lattice
+        // too, within the bound the header records.
+        let void_bound = store.header().max_void_error_m;
+        assert!(void_bound <= 0.5, "{file}: {void_bound}");
+        let mut valid = 0;
+        for y in (0..hm.height() as u32).step_by(7) {
+            for x in (0..hm.width() as u32).step_by(5) {
+                let (a, b) = (src.sample(x, y), hm.get(x as usize, y as usize));
+                if hm.voids().get(x as usize, y as usize) {
+                    assert!(f64::from((a - b).abs()) <= void_bound + 1e-6, "{file} ({x}, {y})");
+                } else {
+                    assert_eq!(a, b, "{file} ({x}, {y})");
+                    valid += 1;
+                }
+            }
+        }
+        assert!(valid > 1000, "{file}: {valid} samples compared");
+        drop(streamer);
+        let _ = std::fs::remove_dir_all(&dir);
+        let missing = terrain_stream::bake_file(
+            &data.join("no/such.tif"),
+            &options,
+            &dir,
+            &config,
+            &mut |_| ControlFlow::Continue(()),
+        )
+        .unwrap_err();
+        assert!(missing.to_string().contains("such.tif"), "{missing}");
+    }
 }

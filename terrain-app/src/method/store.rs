@@ -22,7 +22,7 @@ use terrain_core::lod::{
 };
 use terrain_core::quadtree::NodeTree;
 use terrain_gpu::strips;
-use terrain_stream::lod::StoreTree;
+use terrain_stream::StoreTree;
 use terrain_visibility::pvs::{Pvs, PvsMode, read_pvs};
 use terrain_visibility::roughness::NodePyramid;
 
@@ -156,7 +156,9 @@ impl<'a> StoreMethod<'a> {
                 let bytes = std::fs::read(&path).with_context(|| {
                     format!(
                         "--method {} from a store reads the DSS errors the bake writes ({}); \
-                         bake the store again without --no-dss",
+                         bake the store again without --no-dss (grids read by rows and \
+                         synthetic terrains above 8193^2 get none yet: draw the DEM file \
+                         itself, or use ooc or uniform on the store)",
                         kind.name(),
                         path.display()
                     )

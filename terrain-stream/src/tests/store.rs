@@ -4,12 +4,10 @@
 use std::ops::ControlFlow;
 use std::path::{Path, PathBuf};
 
+use crate::format::{VERSION, block_file_name, vertex_index};
+use crate::{BakeConfig, BakeError, BlockId, Codec, HeightEncoding, Store, StoreError, bake};
 use terrain_core::Georef;
 use terrain_core::heightmap::Heightmap;
-use terrain_stream::format::{VERSION, block_file_name, vertex_index};
-use terrain_stream::{
-    BakeConfig, BakeError, BlockId, Codec, HeightEncoding, Store, StoreError, bake,
-};
 
 fn scratch(name: &str) -> PathBuf {
     let d = std::env::temp_dir().join(format!("terrain-stream-test-{}-{name}", std::process::id()));
@@ -18,7 +16,7 @@ fn scratch(name: &str) -> PathBuf {
     d
 }
 
-fn go(_: &terrain_stream::BakeProgress) -> ControlFlow<()> {
+fn go(_: &crate::BakeProgress) -> ControlFlow<()> {
     ControlFlow::Continue(())
 }
 
@@ -143,7 +141,7 @@ fn an_interrupted_bake_leaves_no_valid_store() {
     let out = dir.join("scene");
     let cfg = BakeConfig { k: 5, ..Default::default() };
     let mut calls = 0;
-    let err = bake(&hm, &out, &cfg, &mut |_p: &terrain_stream::BakeProgress| {
+    let err = bake(&hm, &out, &cfg, &mut |_p: &crate::BakeProgress| {
         calls += 1;
         if calls == 2 { ControlFlow::Break(()) } else { ControlFlow::Continue(()) }
     })

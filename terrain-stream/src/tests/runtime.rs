@@ -10,16 +10,16 @@ use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::{Arc, Condvar, Mutex};
 use std::time::Duration;
 
+use crate::format::{BlockEntry, block_file_name};
+use crate::{
+    BakeConfig, BlockId, LevelReader, LoadedLevel, ScheduledBlock, StatsSummary, Store, StoreError,
+    StreamConfig, Streamer, bake,
+};
 use glam::dvec3;
 use terrain_core::Georef;
 use terrain_core::geometry::Camera;
 use terrain_core::heightmap::Heightmap;
 use terrain_core::synth::FractalConfig;
-use terrain_stream::format::{BlockEntry, block_file_name};
-use terrain_stream::{
-    BakeConfig, BlockId, LevelReader, LoadedLevel, ScheduledBlock, StatsSummary, Store, StoreError,
-    StreamConfig, Streamer, bake,
-};
 
 fn store(name: &str) -> (std::path::PathBuf, Arc<Store>) {
     let dir = std::env::temp_dir().join(format!("terrain-stream-rt-{}-{name}", std::process::id()));
@@ -32,10 +32,8 @@ fn store(name: &str) -> (std::path::PathBuf, Arc<Store>) {
     })
     .unwrap();
     let cfg = BakeConfig { k: 6, node_levels: 4, ..Default::default() };
-    bake(&hm, &dir.join("s"), &cfg, &mut |_: &terrain_stream::BakeProgress| {
-        ControlFlow::Continue(())
-    })
-    .unwrap();
+    bake(&hm, &dir.join("s"), &cfg, &mut |_: &crate::BakeProgress| ControlFlow::Continue(()))
+        .unwrap();
     let s = Arc::new(Store::open(dir.join("s")).unwrap());
     (dir, s)
 }
@@ -216,8 +214,7 @@ fn wait_until_resident_leaves_every_needed_level_resident() {
     let dir = std::env::temp_dir().join(format!("terrain-stream-rt-{}-embed", std::process::id()));
     let source = FractalConfig::with_size(257, 257, 10.0);
     let config = BakeConfig { k: 6, overwrite: true, ..Default::default() };
-    bake(&source, &dir, &config, &mut |_: &terrain_stream::BakeProgress| ControlFlow::Continue(()))
-        .unwrap();
+    bake(&source, &dir, &config, &mut |_: &crate::BakeProgress| ControlFlow::Continue(())).unwrap();
     let store = Arc::new(Store::open(&dir).unwrap());
     let mut s = Streamer::new(store.clone(), StreamConfig { threads: 1, ..Default::default() });
     let at = |f: usize| {

@@ -10,6 +10,10 @@ use std::ops::ControlFlow;
 use std::path::PathBuf;
 use std::sync::Arc;
 
+use crate::lod::{
+    StoreTree, View, needed_geometry_level, needed_level, select_patches, shading_level,
+};
+use crate::{BakeConfig, BlockId, HeightEncoding, Store, bake};
 use glam::{DVec3, dvec3};
 use terrain_core::Georef;
 use terrain_core::geometry::{Camera, project_view_to_ground};
@@ -17,10 +21,6 @@ use terrain_core::heightmap::Heightmap;
 use terrain_core::lod::{Selection, check_shared_edges};
 use terrain_core::metrics::screen::sight_line_eq7;
 use terrain_core::quadtree::{NodeId, NodeSource};
-use terrain_stream::lod::{
-    StoreTree, View, needed_geometry_level, needed_level, select_patches, shading_level,
-};
-use terrain_stream::{BakeConfig, BlockId, HeightEncoding, Store, bake};
 
 fn scratch(name: &str) -> PathBuf {
     let d = std::env::temp_dir().join(format!("terrain-stream-lod-{}-{name}", std::process::id()));
@@ -46,8 +46,7 @@ fn bake_store(hm: &Heightmap, name: &str, k: u8, node_levels: u8) -> (PathBuf, A
         encoding: HeightEncoding::Quantized { step_m: 1.0, offset_m: 0.0 },
         ..Default::default()
     };
-    let r = bake(hm, &dir, &cfg, &mut |_: &terrain_stream::BakeProgress| ControlFlow::Continue(()))
-        .unwrap();
+    let r = bake(hm, &dir, &cfg, &mut |_: &crate::BakeProgress| ControlFlow::Continue(())).unwrap();
     assert!(r.lossless);
     (dir.clone(), Arc::new(Store::open(&dir).unwrap()))
 }
