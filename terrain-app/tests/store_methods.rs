@@ -184,3 +184,81 @@ fn what_a_store_cannot_do_is_said() {
     assert!(run(LodMethod::OutOfCore).is_none());
     let _ = std::fs::remove_dir_all(dir.parent().unwrap());
 }
+
+/// On the GPU: the store-backed methods' real-time frames (a tiny cache, so blocks draw from
+/// coarse levels while finer ones load) draw no crack through the paged renderer, over the
+/// crack test's cameras; the negative control (the same patches and pages with each patch's
+/// edge factors drawn at random, so neighbours disagree) cracks, so the test can see cracks.
+#[test]
+fn store_backed_frames_draw_no_cracks_over_coarse_pages() {
+    use terrain_gpu::render::RenderConfig;
+    use terrain_gpu::render::crack::{crack_cameras, crack_pixels_on};
+    use terrain_gpu::{BackendChoice, DeviceConfig, GpuContext};
+    let ctx = match GpuContext::new(&DeviceConfig::from_env(BackendChoice::Auto)) {
+        Ok(ctx) => ctx,
+        Err(e) if std::env::var_os("TERRAIN_REQUIRE_GPU").is_none() => {
+            println!("SKIPPED: {e}; set TERRAIN_REQUIRE_GPU=1 to make this a failure");
+            return;
+        }
+        Err(e) => panic!("{e}"),
+    };
+    println!("adapter: {}", ctx.describe());
+    let scene = MethodScene::new(crater_lake(), MethodConfig::default());
+    let dir = scratch("store-methods", "cracks").join("store");
+    let config =
+        BakeConfig { k: 6, encoding: HeightEncoding::F32, threads: 1, ..Default::default() };
+    bake(&scene.hm, &dir, &config, &mut |_: &BakeProgress| ControlFlow::Continue(())).unwrap();
+    terrain_app::dss_scene::bake_into_scene(&scene.hm, &scene.qt, &dir).unwrap();
+    let store = Arc::new(Store::open(&dir).unwrap());
+    let cameras: Vec<Camera> = crack_cameras(&scene.hm, 17)
+        .into_iter()
+        .step_by(3)
+        .map(|c| c.with_viewport(256.0, 144.0))
+        .collect();
+    let depth = scene.hm.max() - scene.hm.min() + 100.0;
+    let (mut coarse, mut control) = (0usize, 0usize);
+    for kind in [LodMethod::Uniform, LodMethod::Dss1, LodMethod::Dss2] {
+        let ooc = OocConfig { threads: 1, budget_bytes: 64 << 10, ..OocConfig::default() };
+        let runtime = OocScene::new(store.clone(), ooc).with_mirror();
+        let mut m =
+            method::store_method(kind, runtime, &scene.config, OocWait::FirstFrame, Some(&scene))
+                .unwrap();
+        let rc = RenderConfig { width: 256, height: 144, ..Default::default() };
+        let mut renderer = m.renderer(&ctx, &rc).unwrap();
+        for (n, camera) in cameras.iter().enumerate() {
+            let frame = m.frame(camera);
+            renderer.apply(&frame).unwrap();
+            let terrain_app::method::Draw::Paged(f) = &frame.draw else { panic!("paged") };
+            if f.patches.is_empty() {
+                continue;
+            }
+            let stream = frame.stats.stream.as_ref().unwrap();
+            coarse += usize::from(!stream.at_needed_level);
+            let r = renderer.terrain_renderer_mut().expect("a paged renderer");
+            let cracks = crack_pixels_on(r, &f.patches, std::slice::from_ref(camera), depth);
+            assert_eq!(cracks, vec![0], "{kind:?} frame {n}: crack pixels");
+            // The negative control on the same pages.
+            let mut seed = 0x9e37_79b9_7f4a_7c15u64 ^ n as u64;
+            let mut next = || {
+                seed ^= seed << 13;
+                seed ^= seed >> 7;
+                seed ^= seed << 17;
+                1.0 + (seed % 31) as f32
+            };
+            let broken: Vec<_> = f
+                .patches
+                .iter()
+                .map(|p| {
+                    let mut p = *p;
+                    p.factors.outer = [next(), next(), next(), next()];
+                    p
+                })
+                .collect();
+            control += crack_pixels_on(r, &broken, std::slice::from_ref(camera), depth)[0];
+        }
+    }
+    println!("{coarse} frames drawn below their needed level; negative control: {control} px");
+    assert!(coarse > 0, "the tiny cache forced coarse levels");
+    assert!(control >= 20, "the negative control cracks visibly: {control} px");
+    let _ = std::fs::remove_dir_all(dir.parent().unwrap());
+}

@@ -156,6 +156,15 @@ impl FrameRenderer {
         }
     }
 
+    /// The tessellation (or paged) renderer inside, to draw with directly (tests' crack
+    /// checks over a frame's pages).
+    pub fn terrain_renderer_mut(&mut self) -> Option<&mut TerrainRenderer> {
+        match &mut self.inner {
+            Inner::Tessellation(r) | Inner::Paged(r) => Some(r),
+            Inner::Geomorph(_) => None,
+        }
+    }
+
     /// The last frame's image.
     pub fn read_image(&self) -> anyhow::Result<RgbaImage> {
         Ok(match &self.inner {
@@ -166,7 +175,7 @@ impl FrameRenderer {
 
     /// Applies what `frame` changes in the renderer's state without drawing (a store's page
     /// changes); nothing for the other renderers, which hold no per-frame state.
-    pub(crate) fn apply(&mut self, frame: &Frame) -> anyhow::Result<()> {
+    pub fn apply(&mut self, frame: &Frame) -> anyhow::Result<()> {
         if let (Inner::Paged(r), Draw::Paged(f)) = (&mut self.inner, &frame.draw) {
             OocScene::apply(r, f)?;
         }
