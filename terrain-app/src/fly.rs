@@ -90,7 +90,11 @@ pub(crate) fn fly(
             eprintln!("warning: {warning}");
         }
     }
-    let method = method::build(options.method, &scene, &MethodOptions::default())?;
+    let method = method::build(
+        options.method,
+        &scene,
+        &MethodOptions { morph: true, ..MethodOptions::default() },
+    )?;
     std::fs::create_dir_all(out).with_context(|| format!("could not create {}", out.display()))?;
     let mut renderer = method.renderer(
         ctx,

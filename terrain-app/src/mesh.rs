@@ -282,7 +282,11 @@ fn view_mesh(
     let t0 = Instant::now();
     let scene = MethodScene::new(hm, MethodConfig::default());
     // The method's frame and its drawn surface, through the one method interface.
-    let mut method = terrain_app::method::build(args.method, &scene, &MethodOptions::default())?;
+    let mut method = terrain_app::method::build(
+        args.method,
+        &scene,
+        &MethodOptions { morph: true, ..MethodOptions::default() },
+    )?;
     let mut frame = method.frame(&camera);
     let surface = method.surface(&mut frame)?.mesh;
     let selection = &frame.selection;

@@ -312,7 +312,11 @@ pub(crate) fn run(args: &RenderArgs) -> anyhow::Result<()> {
             eprintln!("warning: {warning}");
         }
     }
-    let method = method::build(method_kind, &scene, &MethodOptions::default())?;
+    let method = method::build(
+        method_kind,
+        &scene,
+        &MethodOptions { morph: true, ..MethodOptions::default() },
+    )?;
     scene.prepare(&[method_kind]);
     let ctx = GpuContext::new(&DeviceConfig::from_env(BackendChoice::Auto))
         .context("no GPU adapter (Vulkan or GL) is available")?;
