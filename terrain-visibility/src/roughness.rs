@@ -131,6 +131,14 @@ pub fn root_cells(width: usize, height: usize) -> usize {
     (width.max(height).saturating_sub(1)).max(1).next_power_of_two()
 }
 
+/// Levels of terrain-core's `Quadtree` over a `width x height` grid with leaves of
+/// `leaf_cells` (a power of two): its `max_level() + 1`, the levels the PVPS methods' pyramids
+/// have, known without the heights (a bake by rows, a store-backed method).
+pub fn quadtree_levels(width: usize, height: usize, leaf_cells: usize) -> usize {
+    let root = root_cells(width, height).max(leaf_cells.max(1));
+    (root / leaf_cells.max(1)).trailing_zeros() as usize + 1
+}
+
 /// One value per quadtree node, level 0 (the root, 1x1) to `levels - 1` (`2^(levels-1)` square).
 #[derive(Debug, Clone, PartialEq)]
 pub struct NodePyramid {
@@ -607,6 +615,14 @@ mod tests {
                         }
                     }
                 }
+            }
+            for leaf in [1, 2, 16, 64, 4096] {
+                let qt = Quadtree::new(&hm, leaf);
+                assert_eq!(
+                    quadtree_levels(w, h, leaf as usize),
+                    qt.max_level() as usize + 1,
+                    "{w}x{h} leaf {leaf}"
+                );
             }
             if qt.max_level() >= 4 {
                 let deep = NodeId::new(4, 3, 1);

@@ -6,8 +6,9 @@
 //!
 //! ```text
 //! magic "TRGH" | version u32 = 1 | width u32 | height u32 | root_cells u32 | levels u32 |
-//! heights u32 (CRC-32 of the heights and void mask, terrain_core::lod::dss_file::heights_checksum) |
-//! store bake_id u64 (0: not written into a store) | max_slope_deg f64 (RoughnessConfig) |
+//! heights u32 (CRC-32 of the heights and void mask: lod::dss_file::heights_checksum) |
+//! store index u32 (CRC-32 of the store's index content) | store bake_id u64 (both 0: written
+//! into no store) | max_slope_deg f64 (RoughnessConfig) |
 //! pyramids A, B, C: per level 0 .. levels, 4^level f32 row-major from the south |
 //! crc32 u32 (of every byte before it)
 //! ```
@@ -20,11 +21,14 @@
 //!   another DEM, crop, void filling or vertical scale is refused.
 //! * **Store** ([`TerrainTie::Store`]): a reader without the heightmap (a method drawing from a
 //!   baked store) compares the store's `bake_id` (terrain-stream's index header: a hash of every
-//!   stored level's checksum), which the bake records here after writing the blocks. This is
-//!   the simplest sound tie without the grid: another store (another DEM, scale, block size or
-//!   error bound) has another id, and the store format stays unchanged. Re-baking the same
-//!   DEM with the same settings gives the same store bytes, the same id, and the same
-//!   pyramids. A file with id 0 (written beside no store) never matches a store.
+//!   stored level's checksum) and the CRC-32 of the store's index content (the index file less
+//!   its own trailing CRC), both recorded here by the bake after it wrote the blocks. The id
+//!   alone is not enough: an integer DEM baked with another vertical scale stores the same
+//!   integer codes (same id) with another step in the index header; the index also holds the
+//!   georeference and every block's min/max and errors in metres. Reading the index is cheap
+//!   (no heights), the store format stays unchanged, and a bake is deterministic, so re-baking
+//!   the same DEM with the same settings gives the same index and the same pyramids. A file
+//!   written into no store (both 0) never matches a store.
 //!
 //! Either way the grid size, the level count (the quadtree's `max_level + 1` for the reader's
 //! leaf size; the pyramids' parents are sums of their children, so levels are not dropped) and
@@ -37,8 +41,8 @@ use terrain_core::checksum::crc32;
 pub const MAGIC: [u8; 4] = *b"TRGH";
 /// The format version this build reads and writes.
 pub const VERSION: u32 = 1;
-/// The fixed header: magic, six u32, bake id, slope clamp.
-const HEADER_LEN: usize = 4 + 4 * 6 + 8 + 8;
+/// The fixed header: magic, seven u32, bake id, slope clamp.
+const HEADER_LEN: usize = 4 + 4 * 7 + 8 + 8;
 /// Most levels a file may hold (a 2^20 root at leaf 1: far above any grid).
 const MAX_LEVELS: u32 = 21;
 
@@ -87,8 +91,13 @@ pub enum RoughnessFileError {
 pub enum TerrainTie {
     /// The heights' checksum ([`terrain_core::lod::dss_file::heights_checksum`]).
     Heights(u32),
-    /// A baked store's `bake_id`.
-    Store(u64),
+    /// A baked store's `bake_id` and the CRC-32 of its index content.
+    Store {
+        /// The store header's `bake_id`.
+        bake_id: u64,
+        /// CRC-32 of the index file's bytes before its own trailing CRC-32.
+        index_crc: u32,
+    },
 }
 
 /// What a file holds besides the values.
@@ -104,7 +113,9 @@ pub struct RoughnessHeader {
     pub levels: u32,
     /// The heights' checksum.
     pub heights_checksum: u32,
-    /// The store's `bake_id`, 0 when written beside no store.
+    /// CRC-32 of the store's index content, 0 when written into no store.
+    pub index_crc: u32,
+    /// The store's `bake_id`, 0 when written into no store.
     pub bake_id: u64,
     /// [`RoughnessConfig::max_slope_deg`] of method C.
     pub max_slope_deg: f64,
@@ -131,21 +142,29 @@ fn values_len(levels: u32) -> usize {
 }
 
 /// The file's bytes for `tables` of a `width x height` grid with heights checksum `heights`,
-/// written into the store with `bake_id` (0: none), computed with `config`.
+/// written into the store `store` (`(bake_id, index_crc)`; `None`: no store), computed with
+/// `config`.
 pub fn encode(
     tables: &RoughnessTables,
     width: usize,
     height: usize,
     heights: u32,
-    bake_id: u64,
+    store: Option<(u64, u32)>,
     config: &RoughnessConfig,
 ) -> Vec<u8> {
+    let (bake_id, index_crc) = store.unwrap_or((0, 0));
     let levels = tables.levels() as u32;
     let mut out = Vec::with_capacity(HEADER_LEN + values_len(levels) + 4);
     out.extend_from_slice(&MAGIC);
-    for v in
-        [VERSION, width as u32, height as u32, root_cells(width, height) as u32, levels, heights]
-    {
+    for v in [
+        VERSION,
+        width as u32,
+        height as u32,
+        root_cells(width, height) as u32,
+        levels,
+        heights,
+        index_crc,
+    ] {
         out.extend_from_slice(&v.to_le_bytes());
     }
     out.extend_from_slice(&bake_id.to_le_bytes());
@@ -183,8 +202,9 @@ pub fn decode(bytes: &[u8]) -> Result<(RoughnessHeader, RoughnessTables), Roughn
         root_cells: u32_at(16),
         levels: u32_at(20),
         heights_checksum: u32_at(24),
-        bake_id: u64_at(28),
-        max_slope_deg: f64::from_bits(u64_at(36)),
+        index_crc: u32_at(28),
+        bake_id: u64_at(32),
+        max_slope_deg: f64::from_bits(u64_at(40)),
     };
     if header.levels == 0 || header.levels > MAX_LEVELS {
         return Err(RoughnessFileError::Layout(format!("{} levels", header.levels)));
@@ -263,10 +283,13 @@ pub fn decode_for(
                 "the heights differ (another DEM, crop, void filling or vertical scale)".into(),
             ))
         }
-        TerrainTie::Store(id) if id != header.bake_id || id == 0 => {
+        TerrainTie::Store { bake_id, index_crc }
+            if (bake_id, index_crc) != (header.bake_id, header.index_crc)
+                || (bake_id, index_crc) == (0, 0) =>
+        {
             Err(RoughnessFileError::Mismatch(format!(
-                "baked for store {:016x}, this store is {id:016x} (baked again since?)",
-                header.bake_id
+                "baked for store {:016x} (index CRC {:08x}), this store is {bake_id:016x} (index CRC {index_crc:08x}): another store, or baked again since",
+                header.bake_id, header.index_crc
             )))
         }
         _ => Ok(tables),
@@ -284,7 +307,7 @@ mod tests {
         let config = RoughnessConfig::default();
         let tables = RoughnessTables::compute(&hm, 4, &config);
         let crc = heights_checksum(&hm);
-        let bytes = encode(&tables, 75, 40, crc, 0x1234, &config);
+        let bytes = encode(&tables, 75, 40, crc, Some((0x1234, 0xabcd)), &config);
         let expected =
             Expected { width: 75, height: 40, levels: 4, config, tie: TerrainTie::Heights(crc) };
         (hm, tables, bytes, expected)
@@ -296,14 +319,15 @@ mod tests {
         assert!(tables.c.level(3).iter().any(|&v| v > 0.0));
         let back = decode_for(&bytes, &expected).unwrap();
         assert!(back.bits_eq(&tables));
-        let store = Expected { tie: TerrainTie::Store(0x1234), ..expected };
+        let store =
+            Expected { tie: TerrainTie::Store { bake_id: 0x1234, index_crc: 0xabcd }, ..expected };
         assert!(decode_for(&bytes, &store).unwrap().bits_eq(&tables));
         let (header, _) = decode(&bytes).unwrap();
         assert_eq!(
             (header.width, header.height, header.root_cells, header.levels),
             (75, 40, 128, 4)
         );
-        assert_eq!(header.bake_id, 0x1234);
+        assert_eq!((header.bake_id, header.index_crc), (0x1234, 0xabcd));
         assert_eq!(bytes.len(), HEADER_LEN + 3 * 85 * 4 + 4);
     }
 
@@ -345,11 +369,20 @@ mod tests {
         let e = decode_for(&bytes, &other).unwrap_err();
         assert!(e.to_string().contains("heights differ"), "{e}");
         // Another store, and a file written beside no store.
-        let e = decode_for(&bytes, &Expected { tie: TerrainTie::Store(7), ..expected.clone() })
-            .unwrap_err();
+        let e = decode_for(
+            &bytes,
+            &Expected {
+                tie: TerrainTie::Store { bake_id: 7, index_crc: 0xabcd },
+                ..expected.clone()
+            },
+        )
+        .unwrap_err();
         assert!(e.to_string().contains("baked for store 0000000000001234"), "{e}");
-        let none = encode(&tables, 75, 40, 0, 0, &expected.config);
-        let e = decode_for(&none, &Expected { tie: TerrainTie::Store(0), ..expected.clone() });
+        let none = encode(&tables, 75, 40, 0, None, &expected.config);
+        let e = decode_for(
+            &none,
+            &Expected { tie: TerrainTie::Store { bake_id: 0, index_crc: 0 }, ..expected.clone() },
+        );
         assert!(matches!(e, Err(RoughnessFileError::Mismatch(_))));
         // Another grid, leaf size, slope clamp.
         let e = decode_for(&bytes, &Expected { width: 76, ..expected.clone() }).unwrap_err();
