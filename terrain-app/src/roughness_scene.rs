@@ -32,6 +32,10 @@ pub const ROUGHNESS_FILE: &str = "roughness.bin";
 /// flags, whatever the grid's size).
 const BAND_SAMPLES: usize = 1 << 22;
 
+/// Grids of at most this many samples keep their roughness between the two passes by rows (5
+/// bytes per sample, at most 168 MB) instead of reading the rows again.
+const KEEP_SAMPLES: usize = 1 << 25;
+
 /// What ties a roughness file to the store in folder `dir`: the index header's `bake_id` and
 /// the CRC-32 of the index file's content (see [`terrain_visibility::roughness::file`] for why
 /// both). Reads the index only.
@@ -73,13 +77,14 @@ pub fn bake_from_heightmap(
 }
 
 /// As [`bake_from_heightmap`], for a grid read through `read(j0, rows, heights, voids)` by
-/// bands of rows (twice; see [`terrain_visibility::roughness::stream`]) with bounded memory.
+/// bands of rows (twice, on rayon's threads; see [`terrain_visibility::roughness::stream`])
+/// with bounded memory.
 pub fn bake_by_rows(
     grid: &RowGrid,
     leaf_cells: u32,
     dir: &Path,
     store: bool,
-    read: impl FnMut(usize, usize, &mut [f32], &mut [bool]) -> anyhow::Result<()>,
+    read: impl Fn(usize, usize, &mut [f32], &mut [bool]) -> anyhow::Result<()> + Sync,
 ) -> anyhow::Result<()> {
     let start = Instant::now();
     let store = store.then(|| store_tie(dir)).transpose()?;
@@ -87,7 +92,8 @@ pub fn bake_by_rows(
     let config = RoughnessConfig::default();
     let bar = Progress::new("roughness", true);
     let band = (BAND_SAMPLES / grid.width.max(1)).max(1);
-    let out = tables_by_rows(grid, levels, &config, band, read, |f| bar.update(f, 1.0))?;
+    let out =
+        tables_by_rows(grid, levels, &config, band, KEEP_SAMPLES, read, |f| bar.update(f, 1.0))?;
     bar.finish();
     let bytes =
         file::encode(&out.tables, grid.width, grid.height, out.heights_checksum, store, &config);

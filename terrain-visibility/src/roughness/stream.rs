@@ -10,12 +10,14 @@
 //! with the whole grid's range before averaging it per node (the paper's grey image, Eq. 5):
 //! pass 1 takes that range, the heights' checksum ([`HeightsChecksum`]), method B's per-node
 //! min/max and method A's `d2` (which reads only the rows at a node's bottom, middle and top,
-//! clamped: kept while a pending node row needs them); pass 2 reads the rows again and
-//! averages the normalised roughness per node.
+//! clamped: kept while a pending node row needs them); pass 2 reads the rows again (or, for a
+//! grid small enough, takes pass 1's roughness kept in memory) and averages the normalised
+//! roughness per node.
 
 use std::collections::BTreeMap;
 
 use glam::DVec2;
+use rayon::prelude::*;
 use terrain_core::lod::dss_file::HeightsChecksum;
 
 use super::{
@@ -47,22 +49,28 @@ pub struct ByRows {
 /// Computes the three pyramids of `levels` levels of `grid`, reading it through `read(j0, rows,
 /// heights, voids)` (rows `j0 .. j0 + rows`, south first, row-major, voids filled as the
 /// heightmap would hold them, and the void mask) in bands of `band_rows` rows (each band is
-/// read with one row of margin on each side), twice. `progress` gets the fraction done.
-/// Errors of `read` are returned as they are.
-pub fn tables_by_rows<E>(
+/// read with one row of margin on each side), twice. Bands are read and their roughness
+/// computed on rayon's threads, as many bands at a time as it has threads (memory: that many
+/// bands); the sums are then taken in row order, so the result does not depend on the threads.
+/// A grid of at most `keep_samples` samples keeps pass 1's roughness and void flags (5 bytes
+/// per sample) instead of reading its rows again (a synthetic source regenerates them, a file
+/// decodes them again); 0 always reads twice. `progress` gets the fraction done. Errors of
+/// `read` are returned as they are.
+pub fn tables_by_rows<E: Send>(
     grid: &RowGrid,
     levels: usize,
     config: &RoughnessConfig,
     band_rows: usize,
-    mut read: impl FnMut(usize, usize, &mut [f32], &mut [bool]) -> Result<(), E>,
+    keep_samples: usize,
+    read: impl Fn(usize, usize, &mut [f32], &mut [bool]) -> Result<(), E> + Sync,
     mut progress: impl FnMut(f64),
 ) -> Result<ByRows, E> {
     assert!(levels >= 1, "a pyramid has at least the root level");
     let (w, h) = (grid.width, grid.height);
     let band = band_rows.max(1).min(h.max(1));
-    let mut heights = vec![0f32; (band + 2) * w];
-    let mut voids = vec![false; (band + 2) * w];
-    let mut rough = vec![0f32; w];
+    let bands: Vec<(usize, usize)> =
+        (0..h).step_by(band).map(|j0| (j0, (j0 + band).min(h))).collect();
+    let group = rayon::current_num_threads().max(1);
     let max = max_slope(config);
 
     let mut checksum = HeightsChecksum::new();
@@ -70,34 +78,63 @@ pub fn tables_by_rows<E>(
     let mut d2 = D2Rows::new(w, h, levels, d2_spacing(grid.spacing_m));
     let mut mean = PyramidAccumulator::new(w, h, levels, Reduce::Mean);
     let (mut lo, mut hi) = (f32::INFINITY, f32::NEG_INFINITY);
+    let keep = w.saturating_mul(h) <= keep_samples;
+    let mut kept: Vec<Band> = Vec::new();
     for pass in 0..2 {
-        let norm = Normalize255::new(lo, hi);
-        let mut j0 = 0;
-        while j0 < h {
-            let j1 = (j0 + band).min(h);
-            let (r0, r1) = (j0.saturating_sub(1), (j1 + 1).min(h));
-            let n = (r1 - r0) * w;
-            read(r0, r1 - r0, &mut heights[..n], &mut voids[..n])?;
-            let (hb, vb) = (&heights[..n], &voids[..n]);
-            for j in j0..j1 {
-                roughness_row(hb, vb, grid, r0, j, max, &mut rough);
-                let at = (j - r0) * w;
-                let (hrow, vrow) = (&hb[at..at + w], &vb[at..at + w]);
-                if pass == 0 {
-                    checksum.add_heights(hrow);
-                    checksum.add_voids(vrow);
-                    range.add_row(j, hrow, |i| vrow[i]);
-                    d2.push_row(j, hrow);
-                    (lo, hi) = rough.iter().fold((lo, hi), |(a, b), &v| (a.min(v), b.max(v)));
-                } else {
-                    for v in &mut rough {
-                        *v = norm.apply(*v);
+        if pass == 1 && keep {
+            // Pass 2 from pass 1's roughness: normalised the same way, summed in the same order.
+            let norm = Normalize255::new(lo, hi);
+            for b in &mut kept {
+                b.rough.iter_mut().for_each(|v| *v = norm.apply(*v));
+                for (j, r) in (b.j0..b.j1).zip(b.rough.chunks_exact(w.max(1))) {
+                    let at = (j - b.r0) * w;
+                    mean.add_row(j, r, |i| b.voids[at + i]);
+                }
+                progress((1.0 + b.j1 as f64 / h as f64) / 2.0);
+            }
+            break;
+        }
+        // Pass 2 normalises with the whole grid's range from pass 1.
+        let norm = (pass == 1).then(|| Normalize255::new(lo, hi));
+        for chunk in bands.chunks(group) {
+            let read_band = |&(j0, j1): &(usize, usize)| -> Result<Band, E> {
+                let (r0, r1) = (j0.saturating_sub(1), (j1 + 1).min(h));
+                let mut heights = vec![0f32; (r1 - r0) * w];
+                let mut voids = vec![false; (r1 - r0) * w];
+                read(r0, r1 - r0, &mut heights, &mut voids)?;
+                let mut rough = vec![0f32; (j1 - j0) * w];
+                for (j, out) in (j0..j1).zip(rough.chunks_exact_mut(w.max(1))) {
+                    roughness_row(&heights, &voids, grid, r0, j, max, out);
+                    if let Some(n) = norm {
+                        out.iter_mut().for_each(|v| *v = n.apply(*v));
                     }
-                    mean.add_row(j, &rough, |i| vrow[i]);
+                }
+                Ok(Band { j0, j1, r0, heights, voids, rough })
+            };
+            let read: Vec<Result<Band, E>> = chunk.par_iter().map(read_band).collect();
+            for b in read {
+                let b = b?;
+                for (j, r) in (b.j0..b.j1).zip(b.rough.chunks_exact(w.max(1))) {
+                    let at = (j - b.r0) * w;
+                    let (hrow, vrow) = (&b.heights[at..at + w], &b.voids[at..at + w]);
+                    if pass == 0 {
+                        checksum.add_heights(hrow);
+                        checksum.add_voids(vrow);
+                        range.add_row(j, hrow, |i| vrow[i]);
+                        d2.push_row(j, hrow);
+                        (lo, hi) = r.iter().fold((lo, hi), |(a, b), &v| (a.min(v), b.max(v)));
+                    } else {
+                        mean.add_row(j, r, |i| vrow[i]);
+                    }
+                }
+                progress((pass as f64 + b.j1 as f64 / h as f64) / 2.0);
+                if keep {
+                    // Only the band's own rows' void flags are needed again.
+                    let (a, z) = ((b.j0 - b.r0) * w, (b.j1 - b.r0) * w);
+                    let voids = b.voids[a..z].to_vec();
+                    kept.push(Band { r0: b.j0, heights: Vec::new(), voids, ..b });
                 }
             }
-            progress((pass as f64 + j1 as f64 / h as f64) / 2.0);
-            j0 = j1;
         }
     }
     Ok(ByRows {
@@ -108,6 +145,17 @@ pub fn tables_by_rows<E>(
         },
         heights_checksum: checksum.finish(),
     })
+}
+
+/// One band read: rows `j0 .. j1` with their margin from `r0`, and their roughness (normalised
+/// in pass 2).
+struct Band {
+    j0: usize,
+    j1: usize,
+    r0: usize,
+    heights: Vec<f32>,
+    voids: Vec<bool>,
+    rough: Vec<f32>,
 }
 
 /// Eq. 5 roughness of row `j` into `out`, from a band holding rows `r0 ..` (with the rows
@@ -246,31 +294,35 @@ mod tests {
     use terrain_core::synth::{FractalConfig, HardCase};
 
     /// The pyramids of `hm` by rows of `band` rows, read from the heightmap.
-    fn by_rows(hm: &Heightmap, levels: usize, band: usize) -> ByRows {
+    fn by_rows(hm: &Heightmap, levels: usize, band: usize, keep: usize) -> ByRows {
         let grid =
             RowGrid { width: hm.width(), height: hm.height(), spacing_m: hm.georef().spacing_m };
         let w = hm.width();
-        let mut reads = 0;
+        let reads = std::sync::atomic::AtomicUsize::new(0);
         let out = tables_by_rows(
             &grid,
             levels,
             &RoughnessConfig::default(),
             band,
+            keep,
             |j0, rows, heights: &mut [f32], voids: &mut [bool]| {
                 assert!(rows <= band + 2, "a band of {rows} rows for bands of {band}");
                 heights.copy_from_slice(&hm.data()[j0 * w..(j0 + rows) * w]);
                 for (k, v) in voids.iter_mut().enumerate() {
                     *v = hm.voids().get(k % w, j0 + k / w);
                 }
-                reads += rows;
+                reads.fetch_add(rows, std::sync::atomic::Ordering::Relaxed);
                 Ok::<_, std::convert::Infallible>(())
             },
             |_| {},
         )
         .unwrap();
-        // Two passes, each band with at most two rows of margin.
+        // Two passes (one when kept), each band with at most two rows of margin.
+        let reads = reads.into_inner();
+        let passes = if hm.width() * hm.height() <= keep { 1 } else { 2 };
         assert!(
-            reads >= 2 * hm.height() && reads <= 2 * (hm.height() + 2 * hm.height().div_ceil(band))
+            reads >= passes * hm.height()
+                && reads <= passes * (hm.height() + 2 * hm.height().div_ceil(band))
         );
         out
     }
@@ -296,7 +348,8 @@ mod tests {
         let want = RoughnessTables::compute(hm, levels, &RoughnessConfig::default());
         assert!(want.c.level(0)[0] > 0.0 || hm.max() == hm.min(), "{name}: C is all 0");
         for &band in bands {
-            let got = by_rows(hm, levels, band);
+            // Bands read twice, and pass 1's roughness kept.
+            let got = by_rows(hm, levels, band, if band % 2 == 0 { 0 } else { usize::MAX });
             for (k, (x, y)) in
                 [(&want.a, &got.tables.a), (&want.b, &got.tables.b), (&want.c, &got.tables.c)]
                     .into_iter()
