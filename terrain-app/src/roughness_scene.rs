@@ -28,8 +28,8 @@ use crate::progress::Progress;
 /// The roughness pyramids' file in a scene folder.
 pub const ROUGHNESS_FILE: &str = "roughness.bin";
 
-/// Samples per band when the pyramids are computed by rows (about 20 MB of heights and void
-/// flags, whatever the grid's size).
+/// Samples per band when the pyramids are computed by rows: about 38 MB of heights, void flags
+/// and roughness per band, one band per rayon thread in flight, whatever the grid's size.
 const BAND_SAMPLES: usize = 1 << 22;
 
 /// Grids of at most this many samples keep their roughness between the two passes by rows (5
