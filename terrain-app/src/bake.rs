@@ -1,6 +1,7 @@
 //! `terrain bake`: a DEM (or a synthetic terrain streamed by rows) into an out-of-core block
 //! store, with a plain-text progress bar on stderr, then the DSS paper's object-space errors
-//! (`dss_errors.bin`, unless `--no-dss`) and the PVS files of the scene (`pvs.bin`,
+//! (`dss_errors.bin`, unless `--no-dss`), the PVPS methods' roughness pyramids (`roughness.bin`,
+//! unless `--no-roughness`; by bands of rows when the bake streams) and the PVS files of the scene (`pvs.bin`,
 //! `pvs_conservative.bin`, see `terrain pvs`; unless `--no-pvs`).
 
 use std::io::Write;
@@ -13,6 +14,7 @@ use terrain_core::dem::RowReader;
 use terrain_core::quadtree::Quadtree;
 use terrain_core::synth::FractalConfig;
 use terrain_stream::{BakeConfig, BakeProgress, HeightEncoding, HeightSource, bake};
+use terrain_visibility::roughness::stream::RowGrid;
 
 use crate::source::SourceArgs;
 use terrain_app::methods::MethodConfig;
@@ -61,6 +63,11 @@ pub(crate) struct BakeArgs {
     /// `dss-strips`; seconds per million samples on two cores).
     #[arg(long)]
     pub no_dss: bool,
+    /// Do not compute the PVPS methods' roughness pyramids (`roughness.bin`, read by the
+    /// `pvps-*` methods with `--scene`; computed by bands of rows, in bounded memory, when the
+    /// bake streams).
+    #[arg(long)]
+    pub no_roughness: bool,
     #[command(flatten)]
     pub pvs: crate::pvs::PvsArgs,
     /// Read the DEM by bands of rows instead of whole (GeoTIFF and raw only): bounded memory
@@ -189,32 +196,60 @@ pub(crate) fn run(args: &BakeArgs) -> anyhow::Result<()> {
         secs,
         report.source_samples as f64 * 4.0 / 1e6 / secs.max(1e-9)
     );
-    if args.no_pvs && args.no_dss {
-        return Ok(());
-    }
+    let leaf = MethodConfig::default().leaf_cells;
     let synthetic_hm;
     let hm = match (source_hm, args.synthetic) {
-        (Some(hm), _) => hm,
-        (None, Some(n)) if n <= MAX_IN_MEMORY_SYNTHETIC => {
+        (Some(hm), _) => Some(hm),
+        (None, Some(n)) if n <= MAX_IN_MEMORY_SYNTHETIC && !(args.no_pvs && args.no_dss) => {
             // A streamed synthetic terrain: the PVS and the DSS errors need the whole grid.
             synthetic_hm =
                 FractalConfig::with_size(n, n, 10.0).to_heightmap().map_err(anyhow::Error::msg)?;
-            &synthetic_hm
+            Some(&synthetic_hm)
         }
-        (None, _) => {
-            eprintln!(
-                "warning: no PVS and no DSS errors for a grid read by rows or a synthetic \
-                 terrain above {MAX_IN_MEMORY_SYNTHETIC}^2 samples (both need the whole grid in \
-                 memory for now): drawn from this store, pvps-c-pvs and pvps-c-cons draw \
-                 without occlusion culling and dss-1, dss-2 and dss-strips cannot run (from the \
-                 DEM file in memory they compute what they need)"
-            );
-            return Ok(());
+        (None, _) => None,
+    };
+    if !args.no_roughness {
+        // The benchmark's default leaf size (the pyramids' levels are the quadtree's).
+        match hm {
+            Some(hm) => {
+                terrain_app::roughness_scene::bake_from_heightmap(hm, leaf, &args.output, true)?
+            }
+            None => {
+                let grid = RowGrid {
+                    width: source.width() as usize,
+                    height: source.height() as usize,
+                    spacing_m: source.georef().spacing_m,
+                };
+                let read = |j0: usize, n: usize, heights: &mut [f32], voids: &mut [bool]| {
+                    match rows.as_ref() {
+                        Some(reader) => reader.read_rows(j0 as u64, n, heights, voids)?,
+                        None => {
+                            source.read_rows(j0 as u64, n, heights)?;
+                            source.read_void_rows(j0 as u64, n, voids)?;
+                        }
+                    }
+                    Ok(())
+                };
+                terrain_app::roughness_scene::bake_by_rows(&grid, leaf, &args.output, true, read)?
+            }
         }
+    }
+    if args.no_pvs && args.no_dss {
+        return Ok(());
+    }
+    let Some(hm) = hm else {
+        eprintln!(
+            "warning: no PVS and no DSS errors for a grid read by rows or a synthetic \
+             terrain above {MAX_IN_MEMORY_SYNTHETIC}^2 samples (both need the whole grid in \
+             memory for now): drawn from this store, pvps-c-pvs and pvps-c-cons draw \
+             without occlusion culling and dss-1, dss-2 and dss-strips cannot run (from the \
+             DEM file in memory they compute what they need)"
+        );
+        return Ok(());
     };
     if !args.no_dss {
         // The benchmark's default leaf size; a table serves any coarser leaf size too.
-        let qt = Quadtree::new(hm, MethodConfig::default().leaf_cells);
+        let qt = Quadtree::new(hm, leaf);
         terrain_app::dss_scene::bake_into_scene(hm, &qt, &args.output)?;
     }
     if !args.no_pvs {

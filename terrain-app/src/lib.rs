@@ -10,4 +10,5 @@ pub mod methods;
 pub mod ooc;
 pub mod progress;
 pub mod pvs_scene;
+pub mod roughness_scene;
 pub mod scene_files;

@@ -55,7 +55,7 @@ use terrain_gpu::strips::{self, StripMesh};
 use terrain_gpu::tess::{PatchFactors, tessellate};
 use terrain_visibility::pvs::{Pvs, PvsConfig, PvsMode, bake_both};
 use terrain_visibility::roughness::{
-    NodePyramid, RoughnessConfig, d2_pyramid, range_pyramid, roughness_pyramid,
+    NodePyramid, RoughnessConfig, RoughnessTables, d2_pyramid, range_pyramid, roughness_pyramid,
 };
 
 /// A LOD method, by its CLI name.
@@ -256,6 +256,21 @@ impl MethodScene {
                 _ => roughness_pyramid(&self.hm, levels, &RoughnessConfig::default()),
             }
         })
+    }
+
+    /// Uses the roughness pyramids `tables` (read from a scene's `roughness.bin`, see
+    /// [`crate::roughness_scene`]) for PVPS methods A, B and C instead of computing them.
+    /// Returns false, and sets nothing, when the tables have another level count than this
+    /// scene's quadtree; a pyramid already computed or set is kept.
+    pub fn set_roughness(&self, tables: RoughnessTables) -> bool {
+        if tables.levels() != self.qt.max_level() as usize + 1 {
+            return false;
+        }
+        let mut all = true;
+        for (slot, p) in self.roughness.iter().zip(tables.into_array()) {
+            all &= slot.set(p).is_ok();
+        }
+        all
     }
 
     /// The DSS paper's object-space errors: the table given to [`MethodScene::set_dss_errors`]

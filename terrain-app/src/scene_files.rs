@@ -1,6 +1,7 @@
 //! A scene folder's precomputed files (from `terrain bake`) for the methods that use them: the
 //! PVS files ([`crate::pvs_scene`]) for `pvps-c-pvs` and `pvps-c-cons`, the DSS errors
-//! ([`crate::dss_scene`]) for `dss-1`, `dss-2` and `dss-strips`. `terrain bench`, `render` and
+//! ([`crate::dss_scene`]) for `dss-1`, `dss-2` and `dss-strips`, the roughness pyramids
+//! ([`crate::roughness_scene`]) for the PVPS methods. `terrain bench`, `render` and
 //! `fly` take it as `--scene`.
 
 use std::path::Path;
@@ -13,6 +14,18 @@ use crate::methods::{LodMethod, MethodScene};
 pub fn load(scene: &MethodScene, dir: &Path, methods: &[LodMethod]) -> Vec<String> {
     let uses = |m: &[LodMethod]| methods.iter().any(|x| m.contains(x));
     let mut warnings = Vec::new();
+    if uses(&[
+        LodMethod::PvpsA,
+        LodMethod::PvpsB,
+        LodMethod::PvpsC,
+        LodMethod::PvpsCPvs,
+        LodMethod::PvpsCConservative,
+    ]) {
+        match crate::roughness_scene::load_into(scene, dir) {
+            Ok(path) => eprintln!("roughness pyramids read from {}", path.display()),
+            Err(warning) => warnings.push(warning),
+        }
+    }
     if uses(&[LodMethod::PvpsCPvs, LodMethod::PvpsCConservative]) {
         warnings.extend(crate::pvs_scene::load_into(scene, dir));
     }

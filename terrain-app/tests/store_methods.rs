@@ -1,6 +1,6 @@
 //! Every LOD method that draws from a baked store selects, for the same camera, the same
 //! patches and draws the same heights as from the DEM in memory (issue 13, item 2): `uniform`,
-//! `dss-1`, `dss-2` and `dss-strips` over Puget Sound 1k and over a non-square GeoTIFF with voids (Crater
+//! `pvps-a/b/c`, `dss-1`, `dss-2` and `dss-strips` over Puget Sound 1k and over a non-square GeoTIFF with voids (Crater
 //! Lake, 429 x 279, 39,489 void cells), warm frames; real-time frames before the levels arrive
 //! still draw every patch; methods that cannot draw from a store yet say so.
 
@@ -40,6 +40,7 @@ fn bake_scene(scene: &MethodScene, dir: &Path) -> Arc<Store> {
     let config = BakeConfig { encoding: HeightEncoding::F32, threads: 1, ..Default::default() };
     bake(&scene.hm, dir, &config, &mut |_: &BakeProgress| ControlFlow::Continue(())).unwrap();
     terrain_app::dss_scene::bake_into_scene(&scene.hm, &scene.qt, dir).unwrap();
+    terrain_app::roughness_scene::bake_from_heightmap(&scene.hm, 16, dir, true).unwrap();
     Arc::new(Store::open(dir).unwrap())
 }
 
@@ -63,7 +64,15 @@ fn check(name: &str, hm: Heightmap) {
     let dir = scratch("store-methods", name).join("store");
     let store = bake_scene(&scene, &dir);
     let ooc = OocConfig { threads: 1, ..OocConfig::default() };
-    for kind in [LodMethod::Uniform, LodMethod::Dss1, LodMethod::Dss2, LodMethod::DssStrips] {
+    for kind in [
+        LodMethod::Uniform,
+        LodMethod::PvpsA,
+        LodMethod::PvpsB,
+        LodMethod::PvpsC,
+        LodMethod::Dss1,
+        LodMethod::Dss2,
+        LodMethod::DssStrips,
+    ] {
         scene.prepare(&[kind]);
         let mut memory = method::build(kind, &scene, &MethodOptions::default()).unwrap();
         let runtime = OocScene::new(store.clone(), ooc);
@@ -180,6 +189,8 @@ fn what_a_store_cannot_do_is_said() {
     }
     let e = run(LodMethod::Dss1).expect("no DSS table");
     assert!(e.contains("dss_errors.bin") && e.contains("--no-dss"), "{e}");
+    let e = run(LodMethod::PvpsC).expect("no roughness table");
+    assert!(e.contains("roughness") && e.contains("--no-roughness"), "{e}");
     assert!(run(LodMethod::Uniform).is_none(), "uniform needs no table");
     assert!(run(LodMethod::OutOfCore).is_none());
     let _ = std::fs::remove_dir_all(dir.parent().unwrap());

@@ -32,6 +32,60 @@ pub fn crc32_update(crc: u32, bytes: &[u8]) -> u32 {
     !c
 }
 
+/// The CRC-32 of `a ++ b` from `crc32(a)`, `crc32(b)` and `b`'s length, without `b`'s bytes:
+/// zlib's `crc32_combine` (Adler, zlib 1.2: appending `len_b` zero bytes is a linear map over
+/// GF(2), applied by repeated squaring of the one-zero-bit operator). Lets a checksum over two
+/// interleaved streams (a grid's samples, then its void flags) be computed in one pass.
+pub fn crc32_combine(crc_a: u32, crc_b: u32, len_b: u64) -> u32 {
+    fn times(mat: &[u32; 32], mut vec: u32) -> u32 {
+        let mut sum = 0;
+        let mut i = 0;
+        while vec != 0 {
+            if vec & 1 != 0 {
+                sum ^= mat[i];
+            }
+            vec >>= 1;
+            i += 1;
+        }
+        sum
+    }
+    fn square(mat: &[u32; 32]) -> [u32; 32] {
+        std::array::from_fn(|n| times(mat, mat[n]))
+    }
+    if len_b == 0 {
+        return crc_a;
+    }
+    // The operator for one zero bit, then two, then four.
+    let mut odd = [0u32; 32];
+    odd[0] = 0xEDB8_8320;
+    for (n, o) in odd.iter_mut().enumerate().skip(1) {
+        *o = 1 << (n - 1);
+    }
+    let mut even = square(&odd);
+    odd = square(&even);
+    let (mut crc, mut len) = (crc_a, len_b);
+    // Each round squares the operator (one byte, two, four...) and applies it per set bit.
+    loop {
+        even = square(&odd);
+        if len & 1 != 0 {
+            crc = times(&even, crc);
+        }
+        len >>= 1;
+        if len == 0 {
+            break;
+        }
+        odd = square(&even);
+        if len & 1 != 0 {
+            crc = times(&odd, crc);
+        }
+        len >>= 1;
+        if len == 0 {
+            break;
+        }
+    }
+    crc ^ crc_b
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -48,6 +102,19 @@ mod tests {
         for split in [0, 1, 7, all.len()] {
             let (a, b) = all.split_at(split);
             assert_eq!(crc32_update(crc32(a), b), crc32(all), "split at {split}");
+        }
+    }
+
+    #[test]
+    fn combine_equals_the_checksum_of_the_concatenation() {
+        let all: Vec<u8> = (0..3000u32).map(|k| (k * 7919 % 251) as u8).collect();
+        for split in [0, 1, 2, 3, 4, 5, 8, 100, 1023, 2999, 3000] {
+            let (a, b) = all.split_at(split);
+            assert_eq!(
+                crc32_combine(crc32(a), crc32(b), b.len() as u64),
+                crc32(&all),
+                "split at {split}"
+            );
         }
     }
 }

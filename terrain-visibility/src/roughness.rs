@@ -20,6 +20,9 @@ use terrain_core::Heightmap;
 use terrain_core::lod::NodeField;
 use terrain_core::quadtree::NodeId;
 
+pub mod file;
+pub mod stream;
+
 /// Settings of the roughness computation.
 #[derive(Debug, Clone, PartialEq)]
 pub struct RoughnessConfig {
@@ -57,26 +60,39 @@ pub fn slope_degrees(hm: &Heightmap) -> Vec<f32> {
                     hm.get(x as usize, y as usize) as f64
                 }
             };
-            // Horn 1981: weighted central differences, x east, y north.
-            let dzdx = ((z(1, 1) + 2.0 * z(1, 0) + z(1, -1))
-                - (z(-1, 1) + 2.0 * z(-1, 0) + z(-1, -1)))
-                / (8.0 * s.x);
-            let dzdy = ((z(-1, 1) + 2.0 * z(0, 1) + z(1, 1))
-                - (z(-1, -1) + 2.0 * z(0, -1) + z(1, -1)))
-                / (8.0 * s.y);
-            out.push(dzdx.hypot(dzdy).atan().to_degrees() as f32);
+            out.push(horn_slope_deg(z, s));
         }
     }
     out
 }
 
+/// Horn 1981's slope in degrees from a sample's 3x3 neighbourhood `z(di, dj)` (x east, y
+/// north; the caller gives the centre's height for a missing neighbour) and the grid spacing:
+/// the one kernel of [`slope_degrees`] and of the pyramids computed by bands of rows
+/// ([`stream`]), so both give the same bits.
+pub(crate) fn horn_slope_deg(z: impl Fn(i64, i64) -> f64, s: glam::DVec2) -> f32 {
+    // Horn 1981: weighted central differences, x east, y north.
+    let dzdx = ((z(1, 1) + 2.0 * z(1, 0) + z(1, -1)) - (z(-1, 1) + 2.0 * z(-1, 0) + z(-1, -1)))
+        / (8.0 * s.x);
+    let dzdy = ((z(-1, 1) + 2.0 * z(0, 1) + z(1, 1)) - (z(-1, -1) + 2.0 * z(0, -1) + z(1, -1)))
+        / (8.0 * s.y);
+    dzdx.hypot(dzdy).atan().to_degrees() as f32
+}
+
 /// Roughness per sample, PVPS paper Eq. 5: `1 / cos(slope)`, slope clamped (see the module doc).
 pub fn roughness(hm: &Heightmap, config: &RoughnessConfig) -> Vec<f32> {
-    let max = config.max_slope_deg.clamp(0.0, 89.999);
-    slope_degrees(hm)
-        .into_iter()
-        .map(|deg| (1.0 / (deg as f64).min(max).to_radians().cos()) as f32)
-        .collect()
+    let max = max_slope(config);
+    slope_degrees(hm).into_iter().map(|deg| secant(deg, max)).collect()
+}
+
+/// The slope clamp of Eq. 5 in degrees.
+pub(crate) fn max_slope(config: &RoughnessConfig) -> f64 {
+    config.max_slope_deg.clamp(0.0, 89.999)
+}
+
+/// Eq. 5 at one sample: `1 / cos(min(slope, max))`.
+pub(crate) fn secant(deg: f32, max: f64) -> f32 {
+    (1.0 / (deg as f64).min(max).to_radians().cos()) as f32
 }
 
 /// Normalises values to 0-255 (kept as float), as the paper does before storing its roughness
@@ -84,16 +100,43 @@ pub fn roughness(hm: &Heightmap, config: &RoughnessConfig) -> Vec<f32> {
 pub fn normalize_255(values: &[f32]) -> Vec<f32> {
     let (lo, hi) =
         values.iter().fold((f32::INFINITY, f32::NEG_INFINITY), |(a, b), &v| (a.min(v), b.max(v)));
-    if hi <= lo {
-        return vec![0.0; values.len()];
+    let n = Normalize255::new(lo, hi);
+    values.iter().map(|&v| n.apply(v)).collect()
+}
+
+/// [`normalize_255`]'s map from the values' range `lo ..= hi` (one implementation for the
+/// whole-grid and the by-rows pyramids).
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct Normalize255 {
+    lo: f32,
+    /// `None`: a constant field, all 0.
+    k: Option<f64>,
+}
+
+impl Normalize255 {
+    pub(crate) fn new(lo: f32, hi: f32) -> Self {
+        Self { lo, k: (hi > lo).then(|| 255.0 / (hi - lo) as f64) }
     }
-    let k = 255.0 / (hi - lo) as f64;
-    values.iter().map(|&v| ((v - lo) as f64 * k) as f32).collect()
+
+    pub(crate) fn apply(&self, v: f32) -> f32 {
+        match self.k {
+            Some(k) => ((v - self.lo) as f64 * k) as f32,
+            None => 0.0,
+        }
+    }
 }
 
 /// How the quadtree's root covers a grid: the next power of two of cells.
 pub fn root_cells(width: usize, height: usize) -> usize {
     (width.max(height).saturating_sub(1)).max(1).next_power_of_two()
+}
+
+/// Levels of terrain-core's `Quadtree` over a `width x height` grid with leaves of
+/// `leaf_cells` (a power of two): its `max_level() + 1`, the levels the PVPS methods' pyramids
+/// have, known without the heights (a bake by rows, a store-backed method).
+pub fn quadtree_levels(width: usize, height: usize, leaf_cells: usize) -> usize {
+    let root = root_cells(width, height).max(leaf_cells.max(1));
+    (root / leaf_cells.max(1)).trailing_zeros() as usize + 1
 }
 
 /// One value per quadtree node, level 0 (the root, 1x1) to `levels - 1` (`2^(levels-1)` square).
@@ -160,71 +203,128 @@ impl NodeField for NodePyramid {
 
 /// How a node's value is reduced from the samples it covers.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-enum Reduce {
+pub(crate) enum Reduce {
     Mean,
     Range,
 }
 
-fn build_pyramid(hm: &Heightmap, values: &[f32], levels: usize, reduce: Reduce) -> NodePyramid {
-    assert!(levels >= 1, "a pyramid has at least the root level");
-    let (w, h) = (hm.width(), hm.height());
-    let root = root_cells(w, h);
-    let finest = levels - 1;
-    let n = 1usize << finest;
-    // Per finest node: sum and count (mean) or min and max (range), over the samples
-    // [x0, x0 + c) x [y0, y0 + c) where c = root / n; the last sample row/column of the grid
-    // falls in the node that starts at or before it.
-    let c = (root / n).max(1);
-    let mut sum = vec![0.0f64; n * n];
-    let mut cnt = vec![0u64; n * n];
-    let mut lo = vec![f32::INFINITY; n * n];
-    let mut hi = vec![f32::NEG_INFINITY; n * n];
-    for j in 0..h {
-        let nj = (j / c).min(n - 1);
-        for i in 0..w {
-            if hm.voids().get(i, j) {
+/// The finest level of a pyramid being built, fed row by row (south first): per finest node
+/// the sum and count (mean) or min and max (range) of the samples it covers. Rows fed in
+/// order give the same sums, so the whole-grid and by-rows pyramids are bit-identical.
+#[derive(Debug, Clone)]
+pub(crate) struct PyramidAccumulator {
+    reduce: Reduce,
+    root: usize,
+    levels: usize,
+    /// Finest nodes per side.
+    n: usize,
+    /// Cells per finest node.
+    c: usize,
+    sum: Vec<f64>,
+    cnt: Vec<u64>,
+    lo: Vec<f32>,
+    hi: Vec<f32>,
+}
+
+impl PyramidAccumulator {
+    /// An empty pyramid of `levels` levels over a `width x height` grid.
+    pub(crate) fn new(width: usize, height: usize, levels: usize, reduce: Reduce) -> Self {
+        assert!(levels >= 1, "a pyramid has at least the root level");
+        let root = root_cells(width, height);
+        let n = 1usize << (levels - 1);
+        // Per finest node: the samples [x0, x0 + c) x [y0, y0 + c) where c = root / n; the last
+        // sample row/column of the grid falls in the node that starts at or before it.
+        let c = (root / n).max(1);
+        let (mean, range) = match reduce {
+            Reduce::Mean => (n * n, 0),
+            Reduce::Range => (0, n * n),
+        };
+        Self {
+            reduce,
+            root,
+            levels,
+            n,
+            c,
+            sum: vec![0.0; mean],
+            cnt: vec![0; mean],
+            lo: vec![f32::INFINITY; range],
+            hi: vec![f32::NEG_INFINITY; range],
+        }
+    }
+
+    /// Adds row `j`'s values; `is_void(i)` leaves sample `i` out.
+    pub(crate) fn add_row(&mut self, j: usize, values: &[f32], is_void: impl Fn(usize) -> bool) {
+        let (n, c) = (self.n, self.c);
+        let base = (j / c).min(n - 1) * n;
+        for (i, &v) in values.iter().enumerate() {
+            if is_void(i) {
                 continue;
             }
-            let k = nj * n + (i / c).min(n - 1);
-            let v = values[j * w + i];
-            sum[k] += v as f64;
-            cnt[k] += 1;
-            lo[k] = lo[k].min(v);
-            hi[k] = hi[k].max(v);
-        }
-    }
-    let mut out = vec![Vec::new(); levels];
-    let mut side = n;
-    loop {
-        let level = side.trailing_zeros() as usize;
-        out[level] = (0..side * side)
-            .map(|k| match reduce {
-                Reduce::Mean if cnt[k] > 0 => (sum[k] / cnt[k] as f64) as f32,
-                Reduce::Range if cnt[k] > 0 => hi[k] - lo[k],
-                _ => 0.0,
-            })
-            .collect();
-        if side == 1 {
-            break;
-        }
-        // Parents from their four children: sums and counts add, mins and maxes combine.
-        let half = side / 2;
-        let mut s2 = vec![0.0f64; half * half];
-        let mut c2 = vec![0u64; half * half];
-        let mut lo2 = vec![f32::INFINITY; half * half];
-        let mut hi2 = vec![f32::NEG_INFINITY; half * half];
-        for j in 0..side {
-            for i in 0..side {
-                let (k, p) = (j * side + i, (j / 2) * half + i / 2);
-                s2[p] += sum[k];
-                c2[p] += cnt[k];
-                lo2[p] = lo2[p].min(lo[k]);
-                hi2[p] = hi2[p].max(hi[k]);
+            let k = base + (i / c).min(n - 1);
+            match self.reduce {
+                Reduce::Mean => {
+                    self.sum[k] += v as f64;
+                    self.cnt[k] += 1;
+                }
+                Reduce::Range => {
+                    self.lo[k] = self.lo[k].min(v);
+                    self.hi[k] = self.hi[k].max(v);
+                }
             }
         }
-        (sum, cnt, lo, hi, side) = (s2, c2, lo2, hi2, half);
     }
-    NodePyramid { levels: out, root_cells: root }
+
+    /// The pyramid: the finest level's nodes, then each parent from its four children (sums
+    /// and counts add, mins and maxes combine). Nodes without samples hold 0.
+    pub(crate) fn finish(self) -> NodePyramid {
+        let Self { reduce, root, levels, n, mut sum, mut cnt, mut lo, mut hi, .. } = self;
+        let mut out = vec![Vec::new(); levels];
+        let mut side = n;
+        loop {
+            let level = side.trailing_zeros() as usize;
+            out[level] = (0..side * side)
+                .map(|k| match reduce {
+                    Reduce::Mean if cnt[k] > 0 => (sum[k] / cnt[k] as f64) as f32,
+                    // A node with samples has lo <= hi (heights are finite).
+                    Reduce::Range if lo[k] <= hi[k] => hi[k] - lo[k],
+                    _ => 0.0,
+                })
+                .collect();
+            if side == 1 {
+                break;
+            }
+            let half = side / 2;
+            let (mean, range) =
+                if reduce == Reduce::Mean { (half * half, 0) } else { (0, half * half) };
+            let mut s2 = vec![0.0f64; mean];
+            let mut c2 = vec![0u64; mean];
+            let mut lo2 = vec![f32::INFINITY; range];
+            let mut hi2 = vec![f32::NEG_INFINITY; range];
+            for j in 0..side {
+                for i in 0..side {
+                    let (k, p) = (j * side + i, (j / 2) * half + i / 2);
+                    if reduce == Reduce::Mean {
+                        s2[p] += sum[k];
+                        c2[p] += cnt[k];
+                    } else {
+                        lo2[p] = lo2[p].min(lo[k]);
+                        hi2[p] = hi2[p].max(hi[k]);
+                    }
+                }
+            }
+            (sum, cnt, lo, hi, side) = (s2, c2, lo2, hi2, half);
+        }
+        NodePyramid { levels: out, root_cells: root }
+    }
+}
+
+fn build_pyramid(hm: &Heightmap, values: &[f32], levels: usize, reduce: Reduce) -> NodePyramid {
+    let (w, h) = (hm.width(), hm.height());
+    let mut acc = PyramidAccumulator::new(w, h, levels, reduce);
+    for j in 0..h {
+        acc.add_row(j, &values[j * w..(j + 1) * w], |i| hm.voids().get(i, j));
+    }
+    acc.finish()
 }
 
 /// The PVPS paper's roughness image pyramid (method C): Eq. 5 roughness, normalised to 0-255,
@@ -249,7 +349,7 @@ pub fn range_pyramid(hm: &Heightmap, levels: usize) -> NodePyramid {
 /// of every level; nodes wholly outside the grid hold 0.
 pub fn d2_pyramid(hm: &Heightmap, levels: usize) -> NodePyramid {
     let root = root_cells(hm.width(), hm.height());
-    let spacing = hm.georef().spacing_m.x.min(hm.georef().spacing_m.y);
+    let spacing = d2_spacing(hm.georef().spacing_m);
     let z = |i: usize, j: usize| hm.get_clamped(i as i64, j as i64) as f64;
     let mut out = Vec::with_capacity(levels);
     for level in 0..levels {
@@ -262,23 +362,93 @@ pub fn d2_pyramid(hm: &Heightmap, levels: usize) -> NodePyramid {
                 if x0 >= hm.width() || y0 >= hm.height() {
                     continue;
                 }
-                let (x1, y1) = (x0 + c, y0 + c);
-                let (xm, ym) = (x0 + c / 2, y0 + c / 2);
-                let (a, b, cc, d) = (z(x0, y0), z(x1, y0), z(x0, y1), z(x1, y1));
-                let errs = [
-                    z(xm, y0) - (a + b) / 2.0,
-                    z(xm, y1) - (cc + d) / 2.0,
-                    z(x0, ym) - (a + cc) / 2.0,
-                    z(x1, ym) - (b + d) / 2.0,
-                    z(xm, ym) - (a + b + cc + d) / 4.0,
-                ];
-                let e = errs.iter().fold(0.0f64, |m, e| m.max(e.abs()));
-                v[nj * side + ni] = (e / (c as f64 * spacing)) as f32;
+                v[nj * side + ni] = d2_node(z, x0, y0, c, spacing);
             }
         }
         out.push(v);
     }
     NodePyramid { levels: out, root_cells: root }
+}
+
+/// The metres per cell that [`d2_pyramid`] divides by: the smaller of the two spacings.
+pub(crate) fn d2_spacing(s: glam::DVec2) -> f64 {
+    s.x.min(s.y)
+}
+
+/// Röttger's `d2` of the node of `c` cells from `(x0, y0)`, with `z(i, j)` the clamped height:
+/// the one kernel of [`d2_pyramid`] and of the by-rows pyramids ([`stream`]). It reads rows
+/// `y0`, `y0 + c / 2` and `y0 + c` (clamped into the grid) only.
+pub(crate) fn d2_node(
+    z: impl Fn(usize, usize) -> f64,
+    x0: usize,
+    y0: usize,
+    c: usize,
+    spacing: f64,
+) -> f32 {
+    let (x1, y1) = (x0 + c, y0 + c);
+    let (xm, ym) = (x0 + c / 2, y0 + c / 2);
+    let (a, b, cc, d) = (z(x0, y0), z(x1, y0), z(x0, y1), z(x1, y1));
+    let errs = [
+        z(xm, y0) - (a + b) / 2.0,
+        z(xm, y1) - (cc + d) / 2.0,
+        z(x0, ym) - (a + cc) / 2.0,
+        z(x1, ym) - (b + d) / 2.0,
+        z(xm, ym) - (a + b + cc + d) / 4.0,
+    ];
+    let e = errs.iter().fold(0.0f64, |m, e| m.max(e.abs()));
+    (e / (c as f64 * spacing)) as f32
+}
+
+/// The three roughness pyramids of the PVPS methods, exactly as they read them: A (`d2`) and B
+/// (height range) normalised to 0-255 ([`NodePyramid::normalized_255`]), C (Eq. 5) as
+/// [`roughness_pyramid`] gives it. `terrain bake` stores them as a scene file ([`file`]);
+/// [`stream`] computes them by bands of rows, bit-identical to [`RoughnessTables::compute`].
+#[derive(Debug, Clone, PartialEq)]
+pub struct RoughnessTables {
+    /// Method A: [`d2_pyramid`], normalised.
+    pub a: NodePyramid,
+    /// Method B: [`range_pyramid`], normalised.
+    pub b: NodePyramid,
+    /// Method C: [`roughness_pyramid`].
+    pub c: NodePyramid,
+}
+
+impl RoughnessTables {
+    /// The three pyramids of `hm` with `levels` levels each (the quadtree's levels:
+    /// `max_level + 1`), from the whole grid in memory.
+    pub fn compute(hm: &Heightmap, levels: usize, config: &RoughnessConfig) -> Self {
+        Self {
+            a: d2_pyramid(hm, levels).normalized_255(),
+            b: range_pyramid(hm, levels).normalized_255(),
+            c: roughness_pyramid(hm, levels, config),
+        }
+    }
+
+    /// Levels of each pyramid.
+    pub fn levels(&self) -> usize {
+        self.c.levels()
+    }
+
+    /// The pyramids in the order A, B, C.
+    pub fn into_array(self) -> [NodePyramid; 3] {
+        [self.a, self.b, self.c]
+    }
+
+    /// Whether every value of every pyramid has the same bits as `other`'s (`==` on floats
+    /// would call 0.0 and -0.0 equal).
+    pub fn bits_eq(&self, other: &Self) -> bool {
+        let bits = |t: &Self| -> Vec<u32> {
+            [&t.a, &t.b, &t.c]
+                .iter()
+                .flat_map(|p| p.levels.iter().flatten().map(|v| v.to_bits()))
+                .collect()
+        };
+        self.levels() == other.levels()
+            && [(&self.a, &other.a), (&self.b, &other.b), (&self.c, &other.c)]
+                .iter()
+                .all(|(x, y)| x.root_cells == y.root_cells && x.levels.len() == y.levels.len())
+            && bits(self) == bits(other)
+    }
 }
 
 /// An 8-bit grey image of one pyramid level (values clamped to 0-255 after `scale`), north up,
@@ -445,6 +615,14 @@ mod tests {
                         }
                     }
                 }
+            }
+            for leaf in [1, 2, 16, 64, 4096] {
+                let qt = Quadtree::new(&hm, leaf);
+                assert_eq!(
+                    quadtree_levels(w, h, leaf as usize),
+                    qt.max_level() as usize + 1,
+                    "{w}x{h} leaf {leaf}"
+                );
             }
             if qt.max_level() >= 4 {
                 let deep = NodeId::new(4, 3, 1);

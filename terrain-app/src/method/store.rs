@@ -3,8 +3,8 @@
 //! M-blocks, P-blocks and stitching strips) select their patches
 //! with the same terrain-core functions as from memory, over the store's terrain
 //! (terrain-stream's `StoreSource`: node bounds from the index, heights from the resident
-//! levels) and the per-node tables the bake wrote beside the blocks (the DSS paper's errors,
-//! the roughness pyramids, the PVS files). The store's runtime ([`OocScene::frame_for`])
+//! levels) and the per-node tables the bake wrote beside the blocks (`dss_errors.bin`,
+//! `roughness.bin`, the PVS files). The store's runtime ([`OocScene::frame_for`])
 //! loads what the patches need and the paged renderer draws them; nothing of the full grid is
 //! in memory. A warm frame (`--wait`, and the first frame) selects the patches the method
 //! selects from the heightmap in memory (tested patch for patch).
@@ -176,19 +176,28 @@ impl<'a> StoreMethod<'a> {
     }
 }
 
-/// The roughness pyramid of PVPS method `kind` from the store folder `dir`.
+/// The roughness pyramid of PVPS method `kind` from the store folder `dir` (`roughness.bin`,
+/// tied to the store; [`crate::roughness_scene::load_from_store`]).
 fn read_roughness(
     dir: &Path,
     kind: LodMethod,
     shape: &terrain_core::quadtree::TreeShape,
 ) -> anyhow::Result<NodePyramid> {
-    let _ = (kind, shape);
-    anyhow::bail!(
-        "--method {} from a store reads the roughness pyramids the bake writes (roughness.bin \
-         in {}); this store has none: bake it again with this version",
-        kind.name(),
-        dir.display()
-    )
+    let tables =
+        crate::roughness_scene::load_from_store(dir, shape.leaf_cells()).with_context(|| {
+            format!(
+                "--method {} from a store reads the roughness pyramids the bake writes for \
+             quadtrees of 16-cell leaves (this run asks for {}-cell leaves): bake the store \
+             again without --no-roughness, or keep the default --leaf-cells",
+                kind.name(),
+                shape.leaf_cells()
+            )
+        })?;
+    Ok(match kind {
+        LodMethod::PvpsA => tables.a,
+        LodMethod::PvpsB => tables.b,
+        _ => tables.c,
+    })
 }
 
 impl Method for StoreMethod<'_> {

@@ -20,7 +20,7 @@
 //! terrain-core does no file I/O here; the app reads and writes the bytes and names the file.
 
 use super::dss_methods::DssErrorTable;
-use crate::checksum::{crc32, crc32_update};
+use crate::checksum::{crc32, crc32_combine, crc32_update};
 use crate::heightmap::Heightmap;
 use crate::metrics::dss::FACTORS;
 use crate::quadtree::{Quadtree, TreeShape};
@@ -73,23 +73,65 @@ pub enum DssFileError {
 }
 
 /// CRC-32 of a heightmap's sample bits (row by row) and void flags: the terrain a table belongs
-/// to.
+/// to. [`HeightsChecksum`] computes the same value from rows streamed in order.
 pub fn heights_checksum(hm: &Heightmap) -> u32 {
-    let mut crc = 0;
-    let mut buf = Vec::with_capacity(hm.width() * 4);
-    for row in hm.data().chunks(hm.width().max(1)) {
-        buf.clear();
-        buf.extend(row.iter().flat_map(|z| z.to_bits().to_le_bytes()));
-        crc = crc32_update(crc, &buf);
-    }
-    if hm.voids().any() {
-        for j in 0..hm.height() {
-            buf.clear();
-            buf.extend((0..hm.width()).map(|i| u8::from(hm.voids().get(i, j))));
-            crc = crc32_update(crc, &buf);
+    let mut sum = HeightsChecksum::new();
+    let mut flags = Vec::with_capacity(hm.width());
+    let any = hm.voids().any();
+    for (j, row) in hm.data().chunks(hm.width().max(1)).enumerate() {
+        sum.add_heights(row);
+        if any {
+            flags.clear();
+            flags.extend((0..hm.width()).map(|i| hm.voids().get(i, j)));
+            sum.add_voids(&flags);
         }
     }
-    crc
+    sum.finish()
+}
+
+/// [`heights_checksum`] over rows given south first (a bake that reads the grid by bands):
+/// the heights' bytes and the void flags are checksummed side by side and joined at the end
+/// with [`crate::checksum::crc32_combine`], so the result equals the whole-grid function's.
+#[derive(Debug, Clone, Default)]
+pub struct HeightsChecksum {
+    heights: u32,
+    voids: u32,
+    void_bytes: u64,
+    any_void: bool,
+    buf: Vec<u8>,
+}
+
+impl HeightsChecksum {
+    /// An empty checksum.
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    /// Adds the next row's heights.
+    pub fn add_heights(&mut self, row: &[f32]) {
+        self.buf.clear();
+        self.buf.extend(row.iter().flat_map(|z| z.to_bits().to_le_bytes()));
+        self.heights = crc32_update(self.heights, &self.buf);
+    }
+
+    /// Adds the next row's void flags (every row's, or none at all: a grid without voids may
+    /// skip them).
+    pub fn add_voids(&mut self, row: &[bool]) {
+        self.buf.clear();
+        self.buf.extend(row.iter().map(|&v| u8::from(v)));
+        self.any_void |= row.iter().any(|&v| v);
+        self.voids = crc32_update(self.voids, &self.buf);
+        self.void_bytes += row.len() as u64;
+    }
+
+    /// The checksum: the heights' bytes, followed by the void flags when any sample is void.
+    pub fn finish(&self) -> u32 {
+        if self.any_void {
+            crc32_combine(self.heights, self.voids, self.void_bytes)
+        } else {
+            self.heights
+        }
+    }
 }
 
 impl DssErrorTable {
@@ -276,6 +318,38 @@ mod tests {
         let bytes = DssErrorTable::new(&hm, &coarse).encode(&hm);
         let e = DssErrorTable::decode(&bytes, &hm, &fine).unwrap_err();
         assert!(matches!(e, DssFileError::Mismatch(_)), "{e}");
+    }
+
+    #[test]
+    fn the_streamed_heights_checksum_is_the_checksum_of_heights_then_voids() {
+        let mut with_voids = terrain(37, 21);
+        let voids: Vec<(usize, usize)> = vec![(0, 0), (5, 3), (36, 20), (12, 12)];
+        {
+            let (w, h, data, mut mask, georef) = with_voids.clone().into_parts();
+            for &(i, j) in &voids {
+                mask.set(i, j, true);
+            }
+            with_voids = Heightmap::new(w, h, data, mask, georef).unwrap();
+        }
+        for hm in [terrain(37, 21), with_voids] {
+            // The definition: every sample's bits, then (only with voids) every flag.
+            let mut bytes: Vec<u8> =
+                hm.data().iter().flat_map(|z| z.to_bits().to_le_bytes()).collect();
+            if hm.voids().any() {
+                for j in 0..hm.height() {
+                    bytes.extend((0..hm.width()).map(|i| u8::from(hm.voids().get(i, j))));
+                }
+            }
+            assert_eq!(heights_checksum(&hm), crc32(&bytes));
+            // Streamed: heights and flags of every row, side by side.
+            let mut s = HeightsChecksum::new();
+            for j in 0..hm.height() {
+                s.add_heights(&hm.data()[j * hm.width()..(j + 1) * hm.width()]);
+                let flags: Vec<bool> = (0..hm.width()).map(|i| hm.voids().get(i, j)).collect();
+                s.add_voids(&flags);
+            }
+            assert_eq!(s.finish(), crc32(&bytes), "voids: {}", hm.voids().count());
+        }
     }
 
     #[test]
