@@ -1,6 +1,7 @@
 //! `terrain bake`: a DEM (or a synthetic terrain streamed by rows) into an out-of-core block
 //! store, with a plain-text progress bar on stderr, then the DSS paper's object-space errors
-//! (`dss_errors.bin`, unless `--no-dss`) and the PVS files of the scene (`pvs.bin`,
+//! (`dss_errors.bin`, unless `--no-dss`), geomorph's max-error vertices per patch
+//! (`geomip.bin`, unless `--no-geomip`) and the PVS files of the scene (`pvs.bin`,
 //! `pvs_conservative.bin`, see `terrain pvs`; unless `--no-pvs`).
 
 use std::io::Write;
@@ -61,6 +62,11 @@ pub(crate) struct BakeArgs {
     /// `dss-strips`; seconds per million samples on two cores).
     #[arg(long)]
     pub no_dss: bool,
+    /// Do not compute the geomorph method's max-error vertices per 16-cell patch
+    /// (`geomip.bin`, 40 bytes per patch, read by `--method geomorph` from the store; about a
+    /// second per 16 million samples on two cores).
+    #[arg(long)]
+    pub no_geomip: bool,
     #[command(flatten)]
     pub pvs: crate::pvs::PvsArgs,
     /// Read the DEM by bands of rows instead of whole (GeoTIFF and raw only): bounded memory
@@ -189,7 +195,7 @@ pub(crate) fn run(args: &BakeArgs) -> anyhow::Result<()> {
         secs,
         report.source_samples as f64 * 4.0 / 1e6 / secs.max(1e-9)
     );
-    if args.no_pvs && args.no_dss {
+    if args.no_pvs && args.no_dss && args.no_geomip {
         return Ok(());
     }
     let synthetic_hm;
@@ -203,10 +209,10 @@ pub(crate) fn run(args: &BakeArgs) -> anyhow::Result<()> {
         }
         (None, _) => {
             eprintln!(
-                "warning: no PVS and no DSS errors for a grid read by rows or a synthetic \
-                 terrain above {MAX_IN_MEMORY_SYNTHETIC}^2 samples (both need the whole grid in \
-                 memory); the scene draws without occlusion culling and the DSS methods compute \
-                 their errors when they run"
+                "warning: no PVS, no DSS errors and no geomorph table for a grid read by rows or \
+                 a synthetic terrain above {MAX_IN_MEMORY_SYNTHETIC}^2 samples (they are \
+                 computed from the whole grid in memory); the scene draws without occlusion \
+                 culling, and the DSS methods and geomorph draw from the DEM file only"
             );
             return Ok(());
         }
@@ -215,6 +221,10 @@ pub(crate) fn run(args: &BakeArgs) -> anyhow::Result<()> {
         // The benchmark's default leaf size; a table serves any coarser leaf size too.
         let qt = Quadtree::new(hm, MethodConfig::default().leaf_cells);
         terrain_app::dss_scene::bake_into_scene(hm, &qt, &args.output)?;
+    }
+    if !args.no_geomip {
+        let cells = MethodConfig::default().leaf_cells;
+        terrain_app::geomip_scene::bake_into_scene(hm, cells, &args.output)?;
     }
     if !args.no_pvs {
         crate::pvs::bake_into_scene(hm, &args.pvs.config()?, &args.output)?;

@@ -1,6 +1,6 @@
 //! Every LOD method that draws from a baked store selects, for the same camera, the same
 //! patches and draws the same heights as from the DEM in memory (issue 13, item 2): `uniform`,
-//! `dss-1`, `dss-2` and `dss-strips` over Puget Sound 1k and over a non-square GeoTIFF with voids (Crater
+//! `dss-1`, `dss-2`, `dss-strips` and `geomorph` (un-morphed) over Puget Sound 1k and over a non-square GeoTIFF with voids (Crater
 //! Lake, 429 x 279, 39,489 void cells), warm frames; real-time frames before the levels arrive
 //! still draw every patch; methods that cannot draw from a store yet say so.
 
@@ -34,12 +34,13 @@ fn crater_lake() -> Heightmap {
     hm
 }
 
-/// `scene`'s DEM baked with exact f32 heights, with the DSS errors written beside the blocks
-/// as `terrain bake` writes them.
+/// `scene`'s DEM baked with exact f32 heights, with the DSS errors and geomorph's table written
+/// beside the blocks as `terrain bake` writes them.
 fn bake_scene(scene: &MethodScene, dir: &Path) -> Arc<Store> {
     let config = BakeConfig { encoding: HeightEncoding::F32, threads: 1, ..Default::default() };
     bake(&scene.hm, dir, &config, &mut |_: &BakeProgress| ControlFlow::Continue(())).unwrap();
     terrain_app::dss_scene::bake_into_scene(&scene.hm, &scene.qt, dir).unwrap();
+    terrain_app::geomip_scene::bake_into_scene(&scene.hm, scene.config.leaf_cells, dir).unwrap();
     Arc::new(Store::open(dir).unwrap())
 }
 
@@ -63,7 +64,14 @@ fn check(name: &str, hm: Heightmap) {
     let dir = scratch("store-methods", name).join("store");
     let store = bake_scene(&scene, &dir);
     let ooc = OocConfig { threads: 1, ..OocConfig::default() };
-    for kind in [LodMethod::Uniform, LodMethod::Dss1, LodMethod::Dss2, LodMethod::DssStrips] {
+    let kinds = [
+        LodMethod::Uniform,
+        LodMethod::Dss1,
+        LodMethod::Dss2,
+        LodMethod::DssStrips,
+        LodMethod::Geomorph,
+    ];
+    for kind in kinds {
         scene.prepare(&[kind]);
         let mut memory = method::build(kind, &scene, &MethodOptions::default()).unwrap();
         let runtime = OocScene::new(store.clone(), ooc);
@@ -174,12 +182,16 @@ fn what_a_store_cannot_do_is_said() {
             .err()
             .map(|e| format!("{e:#}"))
     };
-    for kind in [LodMethod::Geomorph, LodMethod::Entropy] {
-        let e = run(kind).expect("refused");
-        assert!(e.contains("from a DEM in memory only") && e.contains(kind.name()), "{e}");
-    }
+    let e = run(LodMethod::Entropy).expect("refused");
+    assert!(e.contains("from a DEM in memory only") && e.contains("entropy"), "{e}");
     let e = run(LodMethod::Dss1).expect("no DSS table");
     assert!(e.contains("dss_errors.bin") && e.contains("--no-dss"), "{e}");
+    let e = run(LodMethod::Geomorph).expect("no geomorph table");
+    assert!(e.contains("geomip.bin") && e.contains("--no-geomip"), "{e}");
+    // A table of another patch size is refused with what it was made for.
+    terrain_app::geomip_scene::bake_into_scene(&scene.hm, 8, &dir).unwrap();
+    let e = run(LodMethod::Geomorph).expect("another patch size");
+    assert!(e.contains("patch cells 8 in the file, 16 here"), "{e}");
     assert!(run(LodMethod::Uniform).is_none(), "uniform needs no table");
     assert!(run(LodMethod::OutOfCore).is_none());
     let _ = std::fs::remove_dir_all(dir.parent().unwrap());
