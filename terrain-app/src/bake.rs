@@ -63,8 +63,8 @@ pub(crate) struct BakeArgs {
     #[arg(long)]
     pub no_dss: bool,
     /// Do not compute the geomorph method's max-error vertices per 16-cell patch
-    /// (`geomip.bin`, 40 bytes per patch, read by `--method geomorph` from the store; about a
-    /// second per 16 million samples on two cores).
+    /// (`geomip.bin`, 40 bytes per patch, read by `--method geomorph` from the store; from the
+    /// store's blocks, a block row at a time, when the grid is not held in memory).
     #[arg(long)]
     pub no_geomip: bool,
     #[command(flatten)]
@@ -208,12 +208,21 @@ pub(crate) fn run(args: &BakeArgs) -> anyhow::Result<()> {
             &synthetic_hm
         }
         (None, _) => {
-            eprintln!(
-                "warning: no PVS, no DSS errors and no geomorph table for a grid read by rows or \
-                 a synthetic terrain above {MAX_IN_MEMORY_SYNTHETIC}^2 samples (they are \
-                 computed from the whole grid in memory); the scene draws without occlusion \
-                 culling, and the DSS methods and geomorph draw from the DEM file only"
-            );
+            if !args.no_geomip {
+                // Geomorph's table needs only a band of rows: from the store's blocks.
+                let store = terrain_stream::Store::open(&args.output)
+                    .with_context(|| format!("opening {}", args.output.display()))?;
+                let cells = MethodConfig::default().leaf_cells;
+                terrain_app::geomip_scene::bake_from_store(&store, cells)?;
+            }
+            if !(args.no_pvs && args.no_dss) {
+                eprintln!(
+                    "warning: no PVS and no DSS errors for a grid read by rows or a synthetic \
+                     terrain above {MAX_IN_MEMORY_SYNTHETIC}^2 samples (both need the whole grid \
+                     in memory); the scene draws without occlusion culling and the DSS methods \
+                     compute their errors when they run"
+                );
+            }
             return Ok(());
         }
     };

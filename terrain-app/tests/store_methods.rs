@@ -196,3 +196,25 @@ fn what_a_store_cannot_do_is_said() {
     assert!(run(LodMethod::OutOfCore).is_none());
     let _ = std::fs::remove_dir_all(dir.parent().unwrap());
 }
+
+/// A grid not held in memory gets geomorph's table from its store's blocks, a block row at a
+/// time: equal to the one computed from the heightmap (exact f32 store, no voids), and so is
+/// the heights' checksum; on Puget Sound 1k and on an odd-sized grid whose last blocks and
+/// patches are clipped.
+#[test]
+fn the_geomip_table_from_a_store_equals_the_one_from_memory() {
+    let odd = terrain_core::synth::FractalConfig::with_size(301, 203, 30.0).to_heightmap().unwrap();
+    for (name, hm, k) in [("puget", puget(), 8), ("odd", odd, 6)] {
+        assert!(!hm.voids().any());
+        let dir = scratch("store-methods", &format!("geomip-{name}")).join("store");
+        let config =
+            BakeConfig { k, encoding: HeightEncoding::F32, threads: 1, ..Default::default() };
+        bake(&hm, &dir, &config, &mut |_: &BakeProgress| ControlFlow::Continue(())).unwrap();
+        let store = Store::open(&dir).unwrap();
+        let (table, crc) =
+            terrain_app::geomip_scene::compute_from_store(&store, 16, false).unwrap();
+        assert_eq!(table, terrain_core::lod::GeomipTable::new(&hm, 16), "{name}");
+        assert_eq!(crc, terrain_core::lod::dss_file::heights_checksum(&hm), "{name}");
+        let _ = std::fs::remove_dir_all(dir.parent().unwrap());
+    }
+}

@@ -94,13 +94,18 @@ impl GeomipTable {
     pub fn encode(&self, hm: &Heightmap) -> Vec<u8> {
         let (w, h) = self.grid_size();
         assert_eq!((w, h), (hm.width() as u32, hm.height() as u32), "the table of another grid");
+        self.encode_for(heights_checksum(hm))
+    }
+
+    /// The table as bytes, tied to heights whose [`heights_checksum`] is `heights_crc` (a
+    /// table computed band by band, with the checksum accumulated over the bands' rows).
+    pub fn encode_for(&self, heights_crc: u32) -> Vec<u8> {
+        let (w, h) = self.grid_size();
         let (nx, ny) = self.patch_counts();
         let (errors, heights, vertices) = self.parts();
         let mut out = Vec::with_capacity(HEADER_LEN + errors.len() * ENTRY_LEN + 4);
         out.extend_from_slice(&MAGIC);
-        for v in
-            [VERSION, w, h, self.patch_cells(), self.levels() as u32, nx, ny, heights_checksum(hm)]
-        {
+        for v in [VERSION, w, h, self.patch_cells(), self.levels() as u32, nx, ny, heights_crc] {
             out.extend_from_slice(&v.to_le_bytes());
         }
         for ((e, z), v) in errors.iter().zip(heights).zip(vertices) {
@@ -225,6 +230,58 @@ mod tests {
         let b = scene.select(&cam, &cfg);
         assert!(!a.patches.is_empty());
         assert_eq!((a.patches, a.factors), (b.patches, b.factors));
+    }
+
+    /// The grid's rows `y0..y0 + rows` as a heightmap, voids included.
+    fn band(hm: &Heightmap, y0: u32, rows: u32) -> Heightmap {
+        let (w, y0) = (hm.width(), y0 as usize);
+        let data = hm.data()[y0 * w..(y0 + rows as usize) * w].to_vec();
+        let mut voids = crate::heightmap::VoidMask::new(w, rows as usize);
+        for j in 0..rows as usize {
+            for i in 0..w {
+                voids.set(i, j, hm.voids().get(i, y0 + j));
+            }
+        }
+        Heightmap::new(w, rows as usize, data, voids, hm.georef().clone()).unwrap()
+    }
+
+    #[test]
+    fn a_table_read_band_by_band_equals_the_whole_grid_one() {
+        // Voids (not measured) and sides that the patch does not divide.
+        let f = terrain(203, 150);
+        let mut voids = crate::heightmap::VoidMask::new(203, 150);
+        for j in 40..70 {
+            for i in 90..120 {
+                voids.set(i, j, true);
+            }
+        }
+        let hm = Heightmap::new(203, 150, f.data().to_vec(), voids, f.georef().clone()).unwrap();
+        for (p, per_band) in [(16, 1), (16, 3), (8, 4), (32, 100)] {
+            let whole = GeomipTable::new(&hm, p);
+            let mut calls = 0;
+            let banded = GeomipTable::from_bands(
+                (203, 150),
+                p,
+                per_band,
+                |y0, rows| {
+                    calls += 1;
+                    Ok::<_, ()>(band(&hm, y0, rows))
+                },
+                |row, rows| rows.map(row).collect(),
+            )
+            .unwrap();
+            assert_eq!(banded, whole, "{p}-cell patches, {per_band} rows per band");
+            assert_eq!(calls, whole.patch_counts().1.div_ceil(per_band), "one read per band");
+        }
+        // A band's error is the caller's.
+        let e = GeomipTable::from_bands(
+            (203, 150),
+            16,
+            2,
+            |_, _| Err("no"),
+            |r, rows| rows.map(r).collect(),
+        );
+        assert_eq!(e.unwrap_err(), "no");
     }
 
     #[test]

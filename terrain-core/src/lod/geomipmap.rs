@@ -141,6 +141,41 @@ fn clamp_patch_cells(patch_cells: u32) -> u32 {
     patch_cells.clamp(2, 64).next_power_of_two().min(64)
 }
 
+/// Row `pj` of patches of `p` cells (`nx` per row, `levels` levels) from `hm`, which holds the
+/// grid's rows from `y_off` on (the whole grid when 0, or a band of it).
+fn patch_row(hm: &Heightmap, y_off: usize, pj: u32, p: u32, nx: u32, levels: usize) -> GeomipRow {
+    let n = nx as usize * (levels - 1);
+    let mut out = GeomipRow {
+        errors: Vec::with_capacity(n),
+        heights: Vec::with_capacity(n),
+        vertices: Vec::with_capacity(n),
+    };
+    for pi in 0..nx {
+        let (x0, y0) = ((pi * p) as usize, (pj * p) as usize - y_off);
+        let lv = max_error_vertices_with(
+            hm,
+            Region::new(x0, y0, p as usize),
+            Reference::FullResolution,
+            Triangulation::UnionJack,
+        );
+        let mut running: f64 = 0.0;
+        for l in 1..levels {
+            let (e, z, v) = match lv.get(l).and_then(|e| e.vertex.map(|v| (e.error, v))) {
+                Some((e, vx)) => {
+                    let (di, dj) = (vx.i - x0, vx.j - y0);
+                    (e, vx.offset.z as f32, (dj * (p as usize + 1) + di) as u16)
+                }
+                None => (0.0, 0.0, 0),
+            };
+            running = running.max(e);
+            out.errors.push(f32_at_or_above(running));
+            out.heights.push(z);
+            out.vertices.push(v);
+        }
+    }
+    out
+}
+
 impl GeomipTable {
     /// The max-error vertices of every patch of `hm` (one thread). `patch_cells` is rounded to
     /// a power of two in `2..=64`.
@@ -159,38 +194,7 @@ impl GeomipTable {
         let (w, h) = (hm.width() as u32, hm.height() as u32);
         let nx = (w.saturating_sub(1)).div_ceil(p).max(1);
         let ny = (h.saturating_sub(1)).div_ceil(p).max(1);
-        let row = |pj: u32| -> GeomipRow {
-            let n = nx as usize * (levels - 1);
-            let mut out = GeomipRow {
-                errors: Vec::with_capacity(n),
-                heights: Vec::with_capacity(n),
-                vertices: Vec::with_capacity(n),
-            };
-            for pi in 0..nx {
-                let (x0, y0) = ((pi * p) as usize, (pj * p) as usize);
-                let lv = max_error_vertices_with(
-                    hm,
-                    Region::new(x0, y0, p as usize),
-                    Reference::FullResolution,
-                    Triangulation::UnionJack,
-                );
-                let mut running: f64 = 0.0;
-                for l in 1..levels {
-                    let (e, z, v) = match lv.get(l).and_then(|e| e.vertex.map(|v| (e.error, v))) {
-                        Some((e, vx)) => {
-                            let (di, dj) = (vx.i - x0, vx.j - y0);
-                            (e, vx.offset.z as f32, (dj * (p as usize + 1) + di) as u16)
-                        }
-                        None => (0.0, 0.0, 0),
-                    };
-                    running = running.max(e);
-                    out.errors.push(f32_at_or_above(running));
-                    out.heights.push(z);
-                    out.vertices.push(v);
-                }
-            }
-            out
-        };
+        let row = |pj: u32| patch_row(hm, 0, pj, p, nx, levels);
         let rows = map(&row, ny);
         assert_eq!(rows.len(), ny as usize, "the map returns every row");
         let mut t = Self {
@@ -212,6 +216,52 @@ impl GeomipTable {
             t.vertices.extend(r.vertices);
         }
         t
+    }
+
+    /// The table of a `width` x `height` grid read band by band, for grids larger than
+    /// memory (a baked store's blocks): `band(y0, rows)` returns grid rows `y0..y0 + rows`,
+    /// every column, as a heightmap (south row first; its void mask decides which samples are
+    /// measured). Bands hold `band_patch_rows` rows of patches (rounded up to 1) and the
+    /// sample row they share with the next band. Equal to [`GeomipTable::new`] of the whole
+    /// grid when the bands are its rows. `map(row, rows)` must return `row(pj)` for `pj` in
+    /// `rows` (a band's patch rows), in order (the app spreads it over threads).
+    ///
+    /// # Errors
+    /// The first error `band` returns.
+    pub fn from_bands<E, B, M>(
+        (width, height): (u32, u32),
+        patch_cells: u32,
+        band_patch_rows: u32,
+        mut band: B,
+        mut map: M,
+    ) -> Result<Self, E>
+    where
+        B: FnMut(u32, u32) -> Result<Heightmap, E>,
+        M: FnMut(&(dyn Fn(u32) -> GeomipRow + Sync), std::ops::Range<u32>) -> Vec<GeomipRow>,
+    {
+        let p = clamp_patch_cells(patch_cells);
+        let levels = p.trailing_zeros() as usize + 1;
+        let nx = (width.saturating_sub(1)).div_ceil(p).max(1);
+        let ny = (height.saturating_sub(1)).div_ceil(p).max(1);
+        let per_band = band_patch_rows.max(1);
+        let (mut errors, mut heights, mut vertices) = (Vec::new(), Vec::new(), Vec::new());
+        let mut pj0 = 0;
+        while pj0 < ny {
+            let pj1 = (pj0 + per_band).min(ny);
+            let y0 = pj0 * p;
+            let rows = (pj1 * p + 1).min(height) - y0;
+            let hm = band(y0, rows.max(1))?;
+            let row = |pj: u32| patch_row(&hm, y0 as usize, pj, p, nx, levels);
+            let out = map(&row, pj0..pj1);
+            assert_eq!(out.len(), (pj1 - pj0) as usize, "the map returns every row");
+            for r in out {
+                errors.extend(r.errors);
+                heights.extend(r.heights);
+                vertices.extend(r.vertices);
+            }
+            pj0 = pj1;
+        }
+        Ok(Self::from_parts((width, height, p), errors, heights, vertices))
     }
 
     /// Cells per patch side (a power of two).
