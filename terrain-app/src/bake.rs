@@ -1,7 +1,8 @@
 //! `terrain bake`: a DEM (or a synthetic terrain streamed by rows) into an out-of-core block
 //! store, with a plain-text progress bar on stderr, then the DSS paper's object-space errors
 //! (`dss_errors.bin`, unless `--no-dss`), the PVPS methods' roughness pyramids (`roughness.bin`,
-//! unless `--no-roughness`; by bands of rows when the bake streams) and the PVS files of the scene (`pvs.bin`,
+//! unless `--no-roughness`; by bands of rows when the bake streams), geomorph's max-error
+//! vertices per patch (`geomip.bin`, unless `--no-geomip`) and the PVS files of the scene (`pvs.bin`,
 //! `pvs_conservative.bin`, see `terrain pvs`; unless `--no-pvs`).
 
 use std::io::Write;
@@ -68,6 +69,11 @@ pub(crate) struct BakeArgs {
     /// bake streams).
     #[arg(long)]
     pub no_roughness: bool,
+    /// Do not compute the geomorph method's max-error vertices per 16-cell patch
+    /// (`geomip.bin`, 40 bytes per patch, read by `--method geomorph` from the store; from the
+    /// store's blocks, a block row at a time, when the grid is not held in memory).
+    #[arg(long)]
+    pub no_geomip: bool,
     #[command(flatten)]
     pub pvs: crate::pvs::PvsArgs,
     /// Read the DEM by bands of rows instead of whole (GeoTIFF and raw only): bounded memory
@@ -231,6 +237,19 @@ pub(crate) fn run(args: &BakeArgs) -> anyhow::Result<()> {
                     Ok(())
                 };
                 terrain_app::roughness_scene::bake_by_rows(&grid, leaf, &args.output, true, read)?
+            }
+        }
+    }
+    if !args.no_geomip {
+        match hm {
+            Some(hm) => {
+                terrain_app::geomip_scene::bake_into_scene(hm, leaf, &args.output)?;
+            }
+            // Geomorph's table needs only a band of rows: from the store's blocks.
+            None => {
+                let store = terrain_stream::Store::open(&args.output)
+                    .with_context(|| format!("opening {}", args.output.display()))?;
+                terrain_app::geomip_scene::bake_from_store(&store, leaf)?;
             }
         }
     }

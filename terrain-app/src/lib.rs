@@ -5,6 +5,7 @@
 pub mod bench;
 pub mod dss_scene;
 pub mod entropy_method;
+pub mod geomip_scene;
 pub mod method;
 pub mod methods;
 pub mod ooc;

@@ -447,31 +447,7 @@ impl MethodScene {
     /// `leaf_cells / 2^(edge level)` and the inner factors `leaf_cells / 2^level`: what the
     /// measurement's coverage and the tessellation renderer read.
     pub fn geomorph_selection(&self, frame: &GeomipSelection) -> Selection {
-        let n = self.geomorph_patch_cells() as f32;
-        let leaf = self.qt.max_level();
-        let mut patches: Vec<Patch> = frame
-            .patches
-            .iter()
-            .map(|p| {
-                let f = |l: u8| (n / f32::from(1u8 << l)).clamp(MIN_FACTOR, MAX_FACTOR);
-                Patch {
-                    node: NodeId::new(leaf, p.i, p.j),
-                    outer: p.edge_level.map(f),
-                    inner: [f(p.level); 2],
-                }
-            })
-            .collect();
-        // Keys are distinct: one key computation per patch, same order as a stable sort.
-        patches.sort_by_cached_key(|p| p.node.dfs_key());
-        let stats = SelectionStats {
-            traversal_leaves: patches.len(),
-            patches: patches.len(),
-            culled: frame.culled,
-            max_level: leaf,
-            cpu_time: std::time::Duration::from_secs_f64(frame.cpu_ms / 1e3),
-            ..SelectionStats::default()
-        };
-        Selection { patches, stats }
+        geomorph_selection(frame, self.geomorph_patch_cells(), self.qt.max_level())
     }
 
     /// The surface the geomorph renderer draws for `frame` (the morph's CPU reference, the
@@ -612,6 +588,38 @@ pub fn draw_patches(qt: &Quadtree, selection: &Selection) -> Vec<DrawPatch> {
 pub fn patch_factors(p: &Patch) -> PatchFactors {
     let [s, e, n, w] = p.outer;
     PatchFactors { inner: p.inner, outer: [w, s, e, n] }
+}
+
+/// Geomorph patches (`frame`) of `patch_cells` cells as a quadtree [`Selection`] of the leaves
+/// at level `leaf_level` of the patch tree, each edge's factor `patch_cells / 2^(edge level)`
+/// and the inner factors `patch_cells / 2^level`: the un-morphed geo-mipmap as tessellated
+/// patches (what the measurement's coverage and the tessellation and paged renderers read),
+/// from memory or from a store.
+pub fn geomorph_selection(frame: &GeomipSelection, patch_cells: u32, leaf_level: u8) -> Selection {
+    let n = patch_cells as f32;
+    let mut patches: Vec<Patch> = frame
+        .patches
+        .iter()
+        .map(|p| {
+            let f = |l: u8| (n / f32::from(1u8 << l)).clamp(MIN_FACTOR, MAX_FACTOR);
+            Patch {
+                node: NodeId::new(leaf_level, p.i, p.j),
+                outer: p.edge_level.map(f),
+                inner: [f(p.level); 2],
+            }
+        })
+        .collect();
+    // Keys are distinct: one key computation per patch, same order as a stable sort.
+    patches.sort_by_cached_key(|p| p.node.dfs_key());
+    let stats = SelectionStats {
+        traversal_leaves: patches.len(),
+        patches: patches.len(),
+        culled: frame.culled,
+        max_level: leaf_level,
+        cpu_time: std::time::Duration::from_secs_f64(frame.cpu_ms / 1e3),
+        ..SelectionStats::default()
+    };
+    Selection { patches, stats }
 }
 
 #[cfg(test)]

@@ -186,6 +186,17 @@ fn a_streamed_bake_equals_the_whole_file_bake_at_valid_samples() {
         }
     }
     assert!(valid > 1_000_000 && void > 0, "{valid} valid, {void} void samples compared");
+    // The grid was never in memory: geomorph's table comes from the store's blocks; it is
+    // tied to the grid and to its 16-cell patches.
+    let table = std::fs::read(rows.join("geomip.bin")).expect("geomip.bin from the blocks");
+    let want = terrain_core::lod::GeomipFor {
+        width: h.width as u32,
+        height: h.height as u32,
+        patch_cells: 16,
+        heights_crc: None,
+    };
+    let t = terrain_core::lod::GeomipTable::decode(&table, &want).unwrap();
+    assert!(t.level_error(10, 10, 4) > 0.0);
     let out = terrain(&[
         "bake",
         s(&data("puget_sound/ps_height_1k.png")),

@@ -145,8 +145,11 @@ fn bake_stores_the_dss_errors_and_bench_reads_them() {
     let none = dir.join("none.scene");
     let mut args = vec!["bake", s(&dem)];
     args.extend(PUGET);
-    args.extend(["-o", s(&none), "--block-k", "8", "--no-dss", "--no-pvs"]);
+    args.extend(["-o", s(&none), "--block-k", "8", "--no-dss", "--no-pvs", "--no-geomip"]);
     ok(&terrain(&args));
     assert!(!none.join("dss_errors.bin").exists());
+    // --no-geomip writes no geomorph table; the default bake does.
+    assert!(!none.join("geomip.bin").exists());
+    assert!(synthetic.join("geomip.bin").exists());
     std::fs::remove_dir_all(&dir).unwrap();
 }

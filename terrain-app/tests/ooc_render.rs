@@ -516,6 +516,35 @@ fn terrain_render_draws_a_store_baked_from_puget_sound() {
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(!out.status.success());
     assert!(stderr.contains("dss_errors.bin") && stderr.contains("--no-dss"), "{stderr}");
+    // Geomorph from the store: the bake wrote geomip.bin by default; the un-morphed
+    // geo-mipmap is drawn over pages.
+    assert!(store.join("geomip.bin").exists());
+    let gjson = dir.join("geomorph.json");
+    let out = terrain(&[
+        "render",
+        s(&store),
+        "--size",
+        "128x72",
+        "--camera",
+        "80000,20000,9000,10,-30",
+        "--method",
+        "geomorph",
+        "--background",
+        "255,0,255",
+        "--stats-json",
+        s(&gjson),
+        "-o",
+        s(&image),
+    ]);
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(out.status.success(), "{stdout}\n{}", String::from_utf8_lossy(&out.stderr));
+    assert!(stdout.contains("method: geomorph"), "{stdout}");
+    let v: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&gjson).unwrap()).unwrap();
+    assert!(v["frames"][0]["triangles"].as_u64().unwrap() > 0, "{v}");
+    let img = image::open(&image).unwrap().to_rgba8();
+    let terrain_px = img.pixels().filter(|p| p.0 != BACKGROUND).count();
+    assert!(terrain_px * 4 > (128 * 72), "{terrain_px} terrain pixels");
     let _ = std::fs::remove_dir_all(&dir);
 }
 

@@ -1,6 +1,6 @@
 //! Every LOD method that draws from a baked store selects, for the same camera, the same
 //! patches and draws the same heights as from the DEM in memory (issue 13, item 2): `uniform`,
-//! `pvps-a/b/c`, `dss-1`, `dss-2` and `dss-strips` over Puget Sound 1k and over a non-square GeoTIFF with voids (Crater
+//! `pvps-a/b/c`, `dss-1`, `dss-2`, `dss-strips` and `geomorph` (un-morphed) over Puget Sound 1k and over a non-square GeoTIFF with voids (Crater
 //! Lake, 429 x 279, 39,489 void cells), warm frames; real-time frames before the levels arrive
 //! still draw every patch; methods that cannot draw from a store yet say so.
 
@@ -41,6 +41,7 @@ fn bake_scene(scene: &MethodScene, dir: &Path) -> Arc<Store> {
     bake(&scene.hm, dir, &config, &mut |_: &BakeProgress| ControlFlow::Continue(())).unwrap();
     terrain_app::dss_scene::bake_into_scene(&scene.hm, &scene.qt, dir).unwrap();
     terrain_app::roughness_scene::bake_from_heightmap(&scene.hm, 16, dir, true).unwrap();
+    terrain_app::geomip_scene::bake_into_scene(&scene.hm, scene.config.leaf_cells, dir).unwrap();
     Arc::new(Store::open(dir).unwrap())
 }
 
@@ -72,6 +73,7 @@ fn check(name: &str, hm: Heightmap) {
         LodMethod::Dss1,
         LodMethod::Dss2,
         LodMethod::DssStrips,
+        LodMethod::Geomorph,
     ] {
         scene.prepare(&[kind]);
         let mut memory = method::build(kind, &scene, &MethodOptions::default()).unwrap();
@@ -183,14 +185,18 @@ fn what_a_store_cannot_do_is_said() {
             .err()
             .map(|e| format!("{e:#}"))
     };
-    for kind in [LodMethod::Geomorph, LodMethod::Entropy] {
-        let e = run(kind).expect("refused");
-        assert!(e.contains("from a DEM in memory only") && e.contains(kind.name()), "{e}");
-    }
+    let e = run(LodMethod::Entropy).expect("refused");
+    assert!(e.contains("from a DEM in memory only") && e.contains("entropy"), "{e}");
+    let e = run(LodMethod::Geomorph).expect("no geomorph table");
+    assert!(e.contains("geomip.bin") && e.contains("--no-geomip"), "{e}");
     let e = run(LodMethod::Dss1).expect("no DSS table");
     assert!(e.contains("dss_errors.bin") && e.contains("--no-dss"), "{e}");
     let e = run(LodMethod::PvpsC).expect("no roughness table");
     assert!(e.contains("roughness") && e.contains("--no-roughness"), "{e}");
+    // A table of another patch size is refused with what it was made for.
+    terrain_app::geomip_scene::bake_into_scene(&scene.hm, 8, &dir).unwrap();
+    let e = run(LodMethod::Geomorph).expect("another patch size");
+    assert!(e.contains("patch cells 8 in the file, 16 here"), "{e}");
     assert!(run(LodMethod::Uniform).is_none(), "uniform needs no table");
     assert!(run(LodMethod::OutOfCore).is_none());
     let _ = std::fs::remove_dir_all(dir.parent().unwrap());
@@ -272,4 +278,26 @@ fn store_backed_frames_draw_no_cracks_over_coarse_pages() {
     assert!(coarse > 0, "the tiny cache forced coarse levels");
     assert!(control >= 20, "the negative control cracks visibly: {control} px");
     let _ = std::fs::remove_dir_all(dir.parent().unwrap());
+}
+
+/// A grid not held in memory gets geomorph's table from its store's blocks, a block row at a
+/// time: equal to the one computed from the heightmap (exact f32 store, no voids), and so is
+/// the heights' checksum; on Puget Sound 1k and on an odd-sized grid whose last blocks and
+/// patches are clipped.
+#[test]
+fn the_geomip_table_from_a_store_equals_the_one_from_memory() {
+    let odd = terrain_core::synth::FractalConfig::with_size(301, 203, 30.0).to_heightmap().unwrap();
+    for (name, hm, k) in [("puget", puget(), 8), ("odd", odd, 6)] {
+        assert!(!hm.voids().any());
+        let dir = scratch("store-methods", &format!("geomip-{name}")).join("store");
+        let config =
+            BakeConfig { k, encoding: HeightEncoding::F32, threads: 1, ..Default::default() };
+        bake(&hm, &dir, &config, &mut |_: &BakeProgress| ControlFlow::Continue(())).unwrap();
+        let store = Store::open(&dir).unwrap();
+        let (table, crc) =
+            terrain_app::geomip_scene::compute_from_store(&store, 16, false).unwrap();
+        assert_eq!(table, terrain_core::lod::GeomipTable::new(&hm, 16), "{name}");
+        assert_eq!(crc, terrain_core::lod::dss_file::heights_checksum(&hm), "{name}");
+        let _ = std::fs::remove_dir_all(dir.parent().unwrap());
+    }
 }

@@ -1,24 +1,26 @@
 //! The in-memory patch methods drawn from a baked store: `uniform`, `pvps-a/b/c` (with or
-//! without the PVS: `pvps-c-pvs`, `pvps-c-cons`), `dss-1`, `dss-2` and `dss-strips` (its
-//! M-blocks, P-blocks and stitching strips) select their patches
+//! without the PVS: `pvps-c-pvs`, `pvps-c-cons`), `dss-1`, `dss-2`, `dss-strips` (its
+//! M-blocks, P-blocks and stitching strips) and `geomorph` un-morphed (its patches at their
+//! levels' factors, as `MethodScene::geomorph_selection` converts them) select their patches
 //! with the same terrain-core functions as from memory, over the store's terrain
 //! (terrain-stream's `StoreSource`: node bounds from the index, heights from the resident
 //! levels) and the per-node tables the bake wrote beside the blocks (`dss_errors.bin`,
-//! `roughness.bin`, the PVS files). The store's runtime ([`OocScene::frame_for`])
+//! `roughness.bin`, `geomip.bin`, the PVS files). The store's runtime ([`OocScene::frame_for`])
 //! loads what the patches need and the paged renderer draws them; nothing of the full grid is
 //! in memory. A warm frame (`--wait`, and the first frame) selects the patches the method
 //! selects from the heightmap in memory (tested patch for patch).
 //!
-//! Not from a store yet: `geomorph` (its morph reads the whole heightmap) and `entropy` (a mesh
-//! of the whole grid): [`store_method`] says so.
+//! Not from a store yet: `geomorph`'s vertex-shader morph (terrain-gpu's geomorph shader reads
+//! a whole-heightmap texture, not pages: a store draws the un-morphed geo-mipmap) and `entropy`
+//! (a mesh of the whole grid): [`store_method`] says so.
 
 use std::path::Path;
 
 use anyhow::Context;
 use terrain_core::geometry::Camera;
 use terrain_core::lod::{
-    DssErrorTable, TerrainSource, select_dss_power_of_two, select_dss_uniform, select_pvps,
-    select_pvps_with_cull,
+    DssErrorTable, GeomipConfig, GeomipTable, TerrainSource, select_dss_power_of_two,
+    select_dss_uniform, select_pvps, select_pvps_with_cull,
 };
 use terrain_core::quadtree::NodeTree;
 use terrain_gpu::strips;
@@ -32,13 +34,14 @@ use super::{
     RendererKind,
 };
 use crate::methods::{
-    LodMethod, MethodConfig, MethodScene, drawn_surface_of, select_uniform, strips_frame,
+    LodMethod, MethodConfig, MethodScene, drawn_surface_of, geomorph_selection, select_uniform,
+    strips_frame,
 };
 use crate::ooc::{OocScene, StoreDraw};
 
 /// Which methods draw from a store.
 pub fn draws_from_store(kind: LodMethod) -> bool {
-    !matches!(kind, LodMethod::Geomorph | LodMethod::Entropy)
+    kind != LodMethod::Entropy
 }
 
 /// `kind` over the store of `scene` (its runtime), with `config`'s parameters; measured
@@ -61,8 +64,8 @@ pub fn store_method<'a>(
     if !draws_from_store(kind) {
         anyhow::bail!(
             "--method {} draws from a DEM in memory only so far; from a store use ooc, uniform, \
-             pvps-a, pvps-b, pvps-c, pvps-c-pvs, pvps-c-cons, dss-1, dss-2 or dss-strips (or \
-             render the DEM file itself)",
+             pvps-a, pvps-b, pvps-c, pvps-c-pvs, pvps-c-cons, dss-1, dss-2, dss-strips or \
+             geomorph (or render the DEM file itself)",
             kind.name()
         );
     }
@@ -76,6 +79,7 @@ enum Tables {
     Roughness(NodePyramid),
     RoughnessPvs(NodePyramid, Option<Pvs>),
     Dss(DssErrorTable),
+    Geomip(GeomipTable),
 }
 
 /// A patch method over a store (see the module docs).
@@ -101,7 +105,13 @@ impl<'a> StoreMethod<'a> {
         reference: Option<&'a MethodScene>,
     ) -> anyhow::Result<Self> {
         let store = scene.store().clone();
-        let tree = StoreTree::new(store.clone(), config.leaf_cells.max(1));
+        // Geomorph's patch tree: leaves of its patch size (the leaf size clamped to 2..=64, as
+        // `MethodScene::geomorph_patch_cells`).
+        let leaf_cells = match kind {
+            LodMethod::Geomorph => config.leaf_cells.clamp(2, 64).next_power_of_two().min(64),
+            _ => config.leaf_cells.max(1),
+        };
+        let tree = StoreTree::new(store.clone(), leaf_cells);
         let shape = *tree.shape();
         let dir = store.dir().to_path_buf();
         if let Some(r) = reference
@@ -150,6 +160,9 @@ impl<'a> StoreMethod<'a> {
                     }
                 };
                 Tables::RoughnessPvs(read_roughness(&dir, LodMethod::PvpsC, &shape)?, pvs)
+            }
+            LodMethod::Geomorph => {
+                Tables::Geomip(crate::geomip_scene::read_for_store(&dir, &shape)?)
             }
             _ => {
                 let path = crate::dss_scene::dss_path(&dir);
@@ -230,6 +243,16 @@ impl Method for StoreMethod<'_> {
                     select_dss_power_of_two(src, camera, table, &cfg.dss)
                 }
                 Tables::Dss(table) => select_dss_uniform(src, camera, table, &cfg.dss),
+                Tables::Geomip(table) => {
+                    // Un-morphed: integer levels (the morph needs the geomorph renderer).
+                    let geomip = GeomipConfig {
+                        patch_cells: table.patch_cells(),
+                        morph: false,
+                        ..cfg.geomip
+                    };
+                    let lods = table.select(&src, camera, &geomip);
+                    geomorph_selection(&lods, table.patch_cells(), src.shape().max_level())
+                }
             };
             StoreDraw { selection, strips: None }
         };

@@ -31,9 +31,16 @@
 //! (an exact two-pass distance transform), which is 1-Lipschitz across neighbours, still
 //! continuous, and only ever finer than asked.
 //!
+//! **Without the heightmap.** What the selection reads per patch is precomputed once
+//! ([`GeomipTable`]: the max-error vertices, 10 bytes per patch and level) and the patches'
+//! boxes come from a patch tree, any [`NodeTree`] whose leaves are the patches: the heightmap's
+//! [`Quadtree`] ([`GeomipScene`]) or a baked store's tree (terrain-stream's `StoreTree` at the
+//! patch size, with the table read from the store's `geomip.bin`). Same table, same boxes: the
+//! same selection, bit for bit, from memory or from a store.
+//!
 //! **Cost follows the view.** The visible patches come from the one quadtree traversal
-//! ([`crate::quadtree::traverse`], [`FrustumCull`] over a [`Quadtree`] whose leaves are the
-//! patches: a rejected or wholly visible node decides its whole subtree). Since `c <= L` (`L`
+//! ([`crate::quadtree::traverse`], [`FrustumCull`] over the patch tree: a rejected or wholly
+//! visible node decides its whole subtree). Since `c <= L` (`L`
 //! = the coarsest level) and a source `q` can only lower `c'_p` when `|p - q|_1 < c_p <= L`,
 //! the envelope of the drawn patches and their neighbours needs only the factors of patches
 //! within `L` of a visible one: the factors and the two passes run over that window
@@ -54,7 +61,7 @@
 
 use std::time::Instant;
 
-use glam::DVec3;
+use glam::{DVec2, DVec3};
 
 use super::patch::Edge;
 use super::window::RowWindow;
@@ -62,7 +69,7 @@ use crate::geometry::Camera;
 use crate::heightmap::Heightmap;
 use crate::metrics::Region;
 use crate::metrics::geomorph::{Reference, Triangulation, max_error_vertices_with};
-use crate::quadtree::{AlwaysSplit, FrustumCull, NoCull, Quadtree, select};
+use crate::quadtree::{AlwaysSplit, FrustumCull, NoCull, NodeTree, Quadtree, TreeShape, select};
 
 /// Settings of the geo-mipmapping selection.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -86,20 +93,268 @@ impl Default for GeomipConfig {
     }
 }
 
-/// Per-patch precomputation: the max-error vertex of every level, and the quadtree whose
-/// leaves are the patches (their boxes, for hierarchical frustum culling).
-#[derive(Debug, Clone)]
-pub struct GeomipScene {
+/// Per-patch precomputation without the heightmap: the max-error vertex of every level of
+/// every patch (what the level choice projects), compact, so a baked store's runtime holds it
+/// instead of the grid (`terrain bake` writes it as `geomip.bin`, see [`super::geomip_file`]).
+///
+/// Per patch and level `1..levels` (level 0 has no error: nothing is dropped): the monotone
+/// error `m_L = max_{l <= L} delta_l` as an `f32` rounded *up* (never below the `f64` value, so
+/// the level choice stays conservative), the vertex's true height (`f32`, as the grid holds it)
+/// and its sample within the patch (`u16`: `dj (P + 1) + di`). 10 bytes per level: 40 bytes per
+/// 16-cell patch (a 32769^2 grid has 2048^2 = 4.2 M patches: 168 MB; a 4097^2 grid 2.6 MB). The
+/// vertex's world position is rebuilt from the patch tree's geometry at selection time
+/// ([`TreeShape::grid_to_world`] of the patch's south-west sample plus the sample offsets), so
+/// the table does not depend on the projected origin.
+#[derive(Debug, Clone, PartialEq)]
+pub struct GeomipTable {
     patch_cells: u32,
     levels: usize,
+    width: u32,
+    height: u32,
     nx: u32,
     ny: u32,
-    /// Per patch (row-major, south first), per level (`levels` entries per patch, one
-    /// contiguous array): monotone error (m) and the world position of the max-error vertex.
-    errors: Vec<(f64, DVec3)>,
-    /// Leaves of `patch_cells` cells: leaf `(i, j)` is patch `(i, j)`, its box the patch's
-    /// samples' (min/max pyramid above).
-    qt: Quadtree,
+    /// Per patch (row-major, south first), per level `1..levels` (`levels - 1` entries per
+    /// patch): the monotone error, rounded up.
+    errors: Vec<f32>,
+    /// Parallel to `errors`: the max-error vertex's true height (0 where there is none).
+    heights: Vec<f32>,
+    /// Parallel to `errors`: the vertex's sample within the patch, `dj (P + 1) + di`.
+    vertices: Vec<u16>,
+}
+
+/// One row of patches of a [`GeomipTable`] being computed ([`GeomipTable::new_with`]): opaque.
+#[derive(Debug, Clone, Default)]
+pub struct GeomipRow {
+    errors: Vec<f32>,
+    heights: Vec<f32>,
+    vertices: Vec<u16>,
+}
+
+/// The smallest `f32` at or above `e` (a conservative error bound in single precision).
+fn f32_at_or_above(e: f64) -> f32 {
+    let f = e as f32;
+    if f64::from(f) < e { f.next_up() } else { f }
+}
+
+/// Patch cells as the geo-mipmap uses them: a power of two in `2..=64`.
+fn clamp_patch_cells(patch_cells: u32) -> u32 {
+    patch_cells.clamp(2, 64).next_power_of_two().min(64)
+}
+
+/// Row `pj` of patches of `p` cells (`nx` per row, `levels` levels) from `hm`, which holds the
+/// grid's rows from `y_off` on (the whole grid when 0, or a band of it).
+fn patch_row(hm: &Heightmap, y_off: usize, pj: u32, p: u32, nx: u32, levels: usize) -> GeomipRow {
+    let n = nx as usize * (levels - 1);
+    let mut out = GeomipRow {
+        errors: Vec::with_capacity(n),
+        heights: Vec::with_capacity(n),
+        vertices: Vec::with_capacity(n),
+    };
+    for pi in 0..nx {
+        let (x0, y0) = ((pi * p) as usize, (pj * p) as usize - y_off);
+        let lv = max_error_vertices_with(
+            hm,
+            Region::new(x0, y0, p as usize),
+            Reference::FullResolution,
+            Triangulation::UnionJack,
+        );
+        let mut running: f64 = 0.0;
+        for l in 1..levels {
+            let (e, z, v) = match lv.get(l).and_then(|e| e.vertex.map(|v| (e.error, v))) {
+                Some((e, vx)) => {
+                    let (di, dj) = (vx.i - x0, vx.j - y0);
+                    (e, vx.offset.z as f32, (dj * (p as usize + 1) + di) as u16)
+                }
+                None => (0.0, 0.0, 0),
+            };
+            running = running.max(e);
+            out.errors.push(f32_at_or_above(running));
+            out.heights.push(z);
+            out.vertices.push(v);
+        }
+    }
+    out
+}
+
+impl GeomipTable {
+    /// The max-error vertices of every patch of `hm` (one thread). `patch_cells` is rounded to
+    /// a power of two in `2..=64`.
+    pub fn new(hm: &Heightmap, patch_cells: u32) -> Self {
+        Self::new_with(hm, patch_cells, |row, rows| (0..rows).map(row).collect())
+    }
+
+    /// [`GeomipTable::new`] with the caller's map over the rows of patches: `map(row, rows)`
+    /// must return `row(pj)` for `pj` in `0..rows`, in order (the app spreads it over threads).
+    pub fn new_with<M>(hm: &Heightmap, patch_cells: u32, map: M) -> Self
+    where
+        M: FnOnce(&(dyn Fn(u32) -> GeomipRow + Sync), u32) -> Vec<GeomipRow>,
+    {
+        let p = clamp_patch_cells(patch_cells);
+        let levels = p.trailing_zeros() as usize + 1;
+        let (w, h) = (hm.width() as u32, hm.height() as u32);
+        let nx = (w.saturating_sub(1)).div_ceil(p).max(1);
+        let ny = (h.saturating_sub(1)).div_ceil(p).max(1);
+        let row = |pj: u32| patch_row(hm, 0, pj, p, nx, levels);
+        let rows = map(&row, ny);
+        assert_eq!(rows.len(), ny as usize, "the map returns every row");
+        let mut t = Self {
+            patch_cells: p,
+            levels,
+            width: w,
+            height: h,
+            nx,
+            ny,
+            errors: Vec::with_capacity((nx * ny) as usize * (levels - 1)),
+            heights: Vec::new(),
+            vertices: Vec::new(),
+        };
+        t.heights.reserve(t.errors.capacity());
+        t.vertices.reserve(t.errors.capacity());
+        for r in rows {
+            t.errors.extend(r.errors);
+            t.heights.extend(r.heights);
+            t.vertices.extend(r.vertices);
+        }
+        t
+    }
+
+    /// The table of a `width` x `height` grid read band by band, for grids larger than
+    /// memory (a baked store's blocks): `band(y0, rows)` returns grid rows `y0..y0 + rows`,
+    /// every column, as a heightmap (south row first; its void mask decides which samples are
+    /// measured). Bands hold `band_patch_rows` rows of patches (rounded up to 1) and the
+    /// sample row they share with the next band. Equal to [`GeomipTable::new`] of the whole
+    /// grid when the bands are its rows. `map(row, rows)` must return `row(pj)` for `pj` in
+    /// `rows` (a band's patch rows), in order (the app spreads it over threads).
+    ///
+    /// # Errors
+    /// The first error `band` returns.
+    pub fn from_bands<E, B, M>(
+        (width, height): (u32, u32),
+        patch_cells: u32,
+        band_patch_rows: u32,
+        mut band: B,
+        mut map: M,
+    ) -> Result<Self, E>
+    where
+        B: FnMut(u32, u32) -> Result<Heightmap, E>,
+        M: FnMut(&(dyn Fn(u32) -> GeomipRow + Sync), std::ops::Range<u32>) -> Vec<GeomipRow>,
+    {
+        let p = clamp_patch_cells(patch_cells);
+        let levels = p.trailing_zeros() as usize + 1;
+        let nx = (width.saturating_sub(1)).div_ceil(p).max(1);
+        let ny = (height.saturating_sub(1)).div_ceil(p).max(1);
+        let per_band = band_patch_rows.max(1);
+        let (mut errors, mut heights, mut vertices) = (Vec::new(), Vec::new(), Vec::new());
+        let mut pj0 = 0;
+        while pj0 < ny {
+            let pj1 = (pj0 + per_band).min(ny);
+            let y0 = pj0 * p;
+            let rows = (pj1 * p + 1).min(height) - y0;
+            let hm = band(y0, rows.max(1))?;
+            let row = |pj: u32| patch_row(&hm, y0 as usize, pj, p, nx, levels);
+            let out = map(&row, pj0..pj1);
+            assert_eq!(out.len(), (pj1 - pj0) as usize, "the map returns every row");
+            for r in out {
+                errors.extend(r.errors);
+                heights.extend(r.heights);
+                vertices.extend(r.vertices);
+            }
+            pj0 = pj1;
+        }
+        Ok(Self::from_parts((width, height, p), errors, heights, vertices))
+    }
+
+    /// Cells per patch side (a power of two).
+    pub fn patch_cells(&self) -> u32 {
+        self.patch_cells
+    }
+
+    /// Levels per patch (`log2(patch_cells) + 1`).
+    pub fn levels(&self) -> usize {
+        self.levels
+    }
+
+    /// Patches along x and y.
+    pub fn patch_counts(&self) -> (u32, u32) {
+        (self.nx, self.ny)
+    }
+
+    /// The grid's samples along x and y.
+    pub fn grid_size(&self) -> (u32, u32) {
+        (self.width, self.height)
+    }
+
+    /// Bytes the table holds in memory (10 per patch and level below the finest).
+    pub fn memory_bytes(&self) -> usize {
+        self.errors.len() * 10
+    }
+
+    /// Whether `shape` is a patch tree this table selects over: the same grid, leaves of
+    /// [`GeomipTable::patch_cells`] cells.
+    pub fn fits(&self, shape: &TreeShape) -> bool {
+        (shape.width(), shape.height(), shape.leaf_cells())
+            == (self.width, self.height, self.patch_cells)
+    }
+
+    /// The monotone max error (metres, rounded up to `f32`) of `level` of patch `(i, j)`.
+    pub fn level_error(&self, i: u32, j: u32, level: usize) -> f64 {
+        if level == 0 {
+            return 0.0;
+        }
+        f64::from(self.errors[(j * self.nx + i) as usize * (self.levels - 1) + level - 1])
+    }
+
+    /// The entries as raw parts (file encoding).
+    pub(super) fn parts(&self) -> (&[f32], &[f32], &[u16]) {
+        (&self.errors, &self.heights, &self.vertices)
+    }
+
+    /// A table from raw parts (file decoding; the caller has checked the counts).
+    pub(super) fn from_parts(
+        (width, height, patch_cells): (u32, u32, u32),
+        errors: Vec<f32>,
+        heights: Vec<f32>,
+        vertices: Vec<u16>,
+    ) -> Self {
+        let levels = patch_cells.trailing_zeros() as usize + 1;
+        let nx = (width.saturating_sub(1)).div_ceil(patch_cells).max(1);
+        let ny = (height.saturating_sub(1)).div_ceil(patch_cells).max(1);
+        debug_assert_eq!(errors.len(), (nx * ny) as usize * (levels - 1));
+        Self { patch_cells, levels, width, height, nx, ny, errors, heights, vertices }
+    }
+
+    /// The continuous factor of patch `k` before the neighbour envelope (see the module docs),
+    /// for an eye at `eye` with `lambda = camera.lambda()`; vertex positions from `shape`.
+    fn factor(&self, shape: &TreeShape, k: usize, eye: DVec3, lambda: f64, tau: f64) -> f32 {
+        let p = self.patch_cells;
+        let (pi, pj) = (k as u32 % self.nx, k as u32 / self.nx);
+        let origin =
+            shape.grid_to_world(DVec2::new(f64::from(pi * p), f64::from(pj * p))).extend(0.0);
+        let spacing = shape.spacing();
+        let stride = self.levels - 1;
+        let mut c = 0.0;
+        let mut prev = 1.0f64;
+        for e in k * stride..(k + 1) * stride {
+            let delta = f64::from(self.errors[e]);
+            let a = if delta <= 0.0 {
+                0.0
+            } else {
+                let v = u32::from(self.vertices[e]);
+                let (di, dj) = (v % (p + 1), v / (p + 1));
+                let offset = DVec3::new(
+                    f64::from(di) * spacing.x,
+                    f64::from(dj) * spacing.y,
+                    f64::from(self.heights[e]),
+                );
+                let d = (origin + offset - eye).length();
+                if d <= 1e-9 { f64::INFINITY } else { lambda * delta / (tau * d) }
+            };
+            let w = (2.0 - 2.0 * a).clamp(0.0, 1.0).min(prev);
+            prev = w;
+            c += w;
+        }
+        c as f32
+    }
 }
 
 /// One patch as drawn this frame.
@@ -143,92 +398,106 @@ pub struct GeomipSelection {
     pub cpu_ms: f64,
 }
 
+/// The geo-mipmap of a heightmap in memory: its [`GeomipTable`] and the quadtree whose leaves
+/// are the patches (their boxes, for hierarchical frustum culling).
+#[derive(Debug, Clone)]
+pub struct GeomipScene {
+    table: GeomipTable,
+    /// Leaves of `patch_cells` cells: leaf `(i, j)` is patch `(i, j)`, its box the patch's
+    /// samples' (min/max pyramid above).
+    qt: Quadtree,
+}
+
 impl GeomipScene {
     /// Precomputes the max-error vertices of every patch of `hm`. `patch_cells` is rounded to
     /// a power of two in `2..=64`.
     pub fn new(hm: &Heightmap, patch_cells: u32) -> Self {
-        let p = patch_cells.clamp(2, 64).next_power_of_two().min(64);
-        let levels = p.trailing_zeros() as usize + 1;
-        let (w, h) = (hm.width() as u32, hm.height() as u32);
-        let nx = (w.saturating_sub(1)).div_ceil(p).max(1);
-        let ny = (h.saturating_sub(1)).div_ceil(p).max(1);
-        let mut errors = Vec::with_capacity((nx * ny) as usize * levels);
-        for pj in 0..ny {
-            for pi in 0..nx {
-                let (x0, y0) = ((pi * p) as usize, (pj * p) as usize);
-                let lv = max_error_vertices_with(
-                    hm,
-                    Region::new(x0, y0, p as usize),
-                    Reference::FullResolution,
-                    Triangulation::UnionJack,
-                );
-                let origin = hm.grid_to_world(x0 as f64, y0 as f64).extend(0.0);
-                let mut running: f64 = 0.0;
-                for l in 0..levels {
-                    let (e, pos) = match lv.get(l).and_then(|e| e.vertex.map(|v| (e.error, v))) {
-                        Some((e, vx)) => (e, origin + vx.offset),
-                        None => (0.0, origin),
-                    };
-                    running = running.max(e);
-                    errors.push((running, pos));
-                }
-            }
-        }
-        let qt = Quadtree::new(hm, p);
-        debug_assert_eq!(qt.leaf_cells(), p);
-        Self { patch_cells: p, levels, nx, ny, errors, qt }
+        Self::with_table(hm, GeomipTable::new(hm, patch_cells))
+    }
+
+    /// The scene of `hm` with a table computed (or read) elsewhere.
+    ///
+    /// # Panics
+    /// If `table` was made for another grid size.
+    pub fn with_table(hm: &Heightmap, table: GeomipTable) -> Self {
+        let qt = Quadtree::new(hm, table.patch_cells());
+        assert!(table.fits(qt.shape()), "a geo-mipmap table of another grid");
+        Self { table, qt }
+    }
+
+    /// The per-patch table.
+    pub fn table(&self) -> &GeomipTable {
+        &self.table
+    }
+
+    /// The patch tree (leaves = patches).
+    pub fn patch_tree(&self) -> &Quadtree {
+        &self.qt
     }
 
     /// Cells per patch side (a power of two).
     pub fn patch_cells(&self) -> u32 {
-        self.patch_cells
+        self.table.patch_cells()
     }
 
     /// Levels per patch (`log2(patch_cells) + 1`).
     pub fn levels(&self) -> usize {
-        self.levels
+        self.table.levels()
     }
 
     /// Patches along x and y.
     pub fn patch_counts(&self) -> (u32, u32) {
-        (self.nx, self.ny)
+        self.table.patch_counts()
     }
 
     /// The monotone max error (metres) of `level` of patch `(i, j)`.
     pub fn level_error(&self, i: u32, j: u32, level: usize) -> f64 {
-        self.errors[(j * self.nx + i) as usize * self.levels + level].0
+        self.table.level_error(i, j, level)
     }
 
-    /// The continuous factor of one patch before the neighbour envelope (see the module docs),
-    /// for an eye at `eye` with `lambda = camera.lambda()`.
-    fn factor(&self, k: usize, eye: DVec3, lambda: f64, tau: f64) -> f32 {
-        let mut c = 0.0;
-        let mut prev = 1.0f64;
-        for &(delta, pos) in &self.errors[k * self.levels + 1..(k + 1) * self.levels] {
-            let a = if delta <= 0.0 {
-                0.0
-            } else {
-                let d = (pos - eye).length();
-                if d <= 1e-9 { f64::INFINITY } else { lambda * delta / (tau * d) }
-            };
-            let w = (2.0 - 2.0 * a).clamp(0.0, 1.0).min(prev);
-            prev = w;
-            c += w;
-        }
-        c as f32
-    }
-
-    /// Levels, tween factors and border rules for `camera` (see the module docs).
+    /// Levels, tween factors and border rules for `camera` (see the module docs):
+    /// [`GeomipTable::select`] over the heightmap's patch tree.
     pub fn select(&self, camera: &Camera, cfg: &GeomipConfig) -> GeomipSelection {
+        self.table.select(&self.qt, camera, cfg)
+    }
+}
+
+impl GeomipTable {
+    /// Levels, tween factors and border rules for `camera` (see the module docs), the visible
+    /// patches from `tree`: a patch tree of this grid whose leaves are the patches (the
+    /// heightmap's [`Quadtree`] with leaves of `patch_cells`, or a baked store's tree at that
+    /// size). The same table and tree boxes give the same selection whatever holds them.
+    ///
+    /// # Panics
+    /// If `tree` does not fit the table ([`GeomipTable::fits`]).
+    pub fn select(
+        &self,
+        tree: &dyn NodeTree,
+        camera: &Camera,
+        cfg: &GeomipConfig,
+    ) -> GeomipSelection {
         let start = Instant::now();
+        let shape = tree.shape();
+        assert!(
+            self.fits(shape),
+            "a patch tree of {} x {} samples with {}-cell leaves for a geo-mipmap table of {} x \
+             {} samples with {}-cell patches",
+            shape.width(),
+            shape.height(),
+            shape.leaf_cells(),
+            self.width,
+            self.height,
+            self.patch_cells
+        );
         let tau = cfg.pixel_threshold.max(1e-9);
         let (nx, ny) = (self.nx as usize, self.ny as usize);
         // The patches in view: the quadtree's leaves the frustum keeps, depth-first.
         let visible = if cfg.frustum_cull {
-            select(&self.qt, &mut AlwaysSplit, &mut FrustumCull::new(camera.frustum()))
+            select(tree, &mut AlwaysSplit, &mut FrustumCull::new(camera.frustum()))
         } else {
-            select(&self.qt, &mut AlwaysSplit, &mut NoCull)
+            select(tree, &mut AlwaysSplit, &mut NoCull)
         };
+        debug_assert!(visible.iter().all(|n| n.level == shape.max_level()), "leaves are patches");
         let cells = visible.iter().map(|n| (n.i as usize, n.j as usize));
         // Every patch within `L` of a visible one (see the module docs), densely indexed.
         let max_level = self.levels - 1;
@@ -237,7 +506,7 @@ impl GeomipScene {
         let (eye, lambda) = (camera.position, camera.lambda());
         for (j, lo, hi, off) in win.rows() {
             for i in lo..=hi {
-                c[off + i - lo] = self.factor(j * nx + i, eye, lambda, tau);
+                c[off + i - lo] = self.factor(shape, j * nx + i, eye, lambda, tau);
             }
         }
         // Lower envelope c'_p = min_q (c_q + |p - q|_1): forward then backward pass.
@@ -331,10 +600,10 @@ mod reference {
 
     /// Each patch's box, computed from the samples as before.
     pub(super) fn boxes(scene: &GeomipScene, hm: &Heightmap) -> Vec<Aabb> {
-        let p = scene.patch_cells as usize;
+        let p = scene.patch_cells() as usize;
         let mut boxes = Vec::new();
-        for pj in 0..scene.ny as usize {
-            for pi in 0..scene.nx as usize {
+        for pj in 0..scene.patch_counts().1 as usize {
+            for pi in 0..scene.patch_counts().0 as usize {
                 let (x0, y0) = (pi * p, pj * p);
                 let (x1, y1) = ((x0 + p).min(hm.width() - 1), (y0 + p).min(hm.height() - 1));
                 let (mut lo, mut hi) = (f32::INFINITY, f32::NEG_INFINITY);
@@ -361,9 +630,12 @@ mod reference {
         cfg: &GeomipConfig,
     ) -> GeomipSelection {
         let tau = cfg.pixel_threshold.max(1e-9);
-        let (nx, ny) = (scene.nx as usize, scene.ny as usize);
+        let (nx, ny) = scene.patch_counts();
+        let (nx, ny) = (nx as usize, ny as usize);
         let (eye, lambda) = (camera.position, camera.lambda());
-        let mut c: Vec<f32> = (0..nx * ny).map(|k| scene.factor(k, eye, lambda, tau)).collect();
+        let shape = scene.patch_tree().shape();
+        let mut c: Vec<f32> =
+            (0..nx * ny).map(|k| scene.table().factor(shape, k, eye, lambda, tau)).collect();
         for j in 0..ny {
             for i in 0..nx {
                 let k = j * nx + i;
@@ -386,7 +658,7 @@ mod reference {
                 }
             }
         }
-        let max_level = (scene.levels - 1) as f32;
+        let max_level = (scene.levels() - 1) as f32;
         let level_tween = |k: usize| -> (u8, f32) {
             let ck = c[k].clamp(0.0, max_level);
             let l = ck.floor();
@@ -528,7 +800,7 @@ mod tests {
             let slow = select_reference(&scene, &boxes, &cam, &cfg);
             assert_eq!(fast.culled, slow.culled, "camera {k}");
             assert_eq!(fast.patches.len(), slow.patches.len(), "camera {k}");
-            let nx = scene.nx as usize;
+            let nx = scene.patch_counts().0 as usize;
             for (a, b) in fast.patches.iter().zip(&slow.patches) {
                 assert_eq!(bits(a), bits(b), "camera {k}: {a:?} vs {b:?}");
             }

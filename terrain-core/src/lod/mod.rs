@@ -18,7 +18,9 @@
 //! - [`edges`]: the one place outer factors are resolved across shared edges, and the checker
 //!   of the crack-freedom invariant.
 //! - [`geomipmap`]: the geomorphing article's (Wagner 2003) geo-mipmapped patches: a level and
-//!   a continuous tween factor per patch, neighbours within one level, border rules.
+//!   a continuous tween factor per patch, neighbours within one level, border rules; its
+//!   per-patch [`GeomipTable`] selects over any patch tree (a heightmap's or a store's).
+//! - [`geomip_file`]: that table's file (`geomip.bin`, written by `terrain bake` into a store).
 //! - [`surface`]: rebuilds the drawn surface on the CPU from a selection and a tessellator.
 //! - `window` (private): a dense per-row index over the patches a frame considers, so
 //!   selections cost what is in view, not the grid's size.
@@ -42,6 +44,7 @@ pub mod dss_file;
 pub mod dss_methods;
 pub mod dss_strips;
 pub mod edges;
+pub mod geomip_file;
 pub mod geomipmap;
 pub mod patch;
 pub mod pvps;
@@ -55,7 +58,8 @@ pub use dss_strips::{
     DssStripFrame, DssStripsConfig, MBlock, PBlock, Strip, frame_from_leaves, select_dss_strips,
 };
 pub use edges::{EdgeMismatch, EdgeRule, WishEdges, check_shared_edges, outer_factors};
-pub use geomipmap::{GeomipConfig, GeomipScene, GeomipSelection, PatchLod};
+pub use geomip_file::{GeomipFileError, GeomipFor};
+pub use geomipmap::{GeomipConfig, GeomipRow, GeomipScene, GeomipSelection, GeomipTable, PatchLod};
 pub use patch::{Edge, MAX_FACTOR, MIN_FACTOR, Patch, Selection, SelectionStats, clamp_factor};
 pub use pvps::{Method, NodeDistance, PvpsConfig, select_pvps, select_pvps_with_cull};
 pub use source::{GridSource, TerrainSource};
