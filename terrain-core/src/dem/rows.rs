@@ -14,7 +14,7 @@
 
 use std::collections::VecDeque;
 use std::fs::File;
-use std::io::{BufReader, Read, Seek, SeekFrom};
+use std::io::{Read, Seek, SeekFrom};
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
@@ -38,7 +38,9 @@ enum Inner {
         offset: f64,
     },
     Tiff {
-        decoders: Mutex<Vec<Decoder<BufReader<File>>>>,
+        decoders: Mutex<Vec<Decoder<geotiff::Source>>>,
+        /// Deflate chunks, checked (Adler-32, end of stream) before each is decoded.
+        deflate: Option<geotiff::DeflateChunks>,
         /// Recently decoded chunks: a band's rows are read in several pieces (and once more
         /// for the void mask), and each piece would otherwise decode the same strips or tiles.
         recent: Mutex<VecDeque<(u32, Arc<Vec<f32>>)>>,
@@ -104,7 +106,7 @@ impl RowReader {
             Format::GeoTiff => {
                 // One chunk (strip or tile) at a time, as f64 at most.
                 let opened = geotiff::open(path, len, &unbounded, 1 << 30)?;
-                let geotiff::Opened { dec, width, height, georef, file_nodata } = opened;
+                let geotiff::Opened { dec, width, height, georef, file_nodata, deflate } = opened;
                 let (chunk_w, chunk_h) = dec.chunk_dimensions();
                 let chunk = dec.get_chunk_type();
                 if chunk_w == 0 || chunk_h == 0 {
@@ -127,6 +129,7 @@ impl RowReader {
                     },
                     inner: Inner::Tiff {
                         decoders: Mutex::new(vec![dec]),
+                        deflate,
                         recent: Mutex::new(VecDeque::new()),
                         // Two rows of chunks (a band can straddle a chunk row) plus slack.
                         recent_cap: match chunk {
@@ -218,7 +221,8 @@ impl RowReader {
 
     /// Decodes chunk `index` (strip or tile) as f32, with the sample type's name.
     fn decode_chunk(&self, index: u32) -> Result<(&'static str, Arc<Vec<f32>>), DemError> {
-        let Inner::Tiff { decoders, recent, recent_cap, max_bytes, .. } = &self.inner else {
+        let Inner::Tiff { decoders, deflate, recent, recent_cap, max_bytes, .. } = &self.inner
+        else {
             unreachable!("decode_chunk on a raw reader")
         };
         if let Some(hit) = recent
@@ -227,6 +231,14 @@ impl RowReader {
             .and_then(|r| r.iter().find(|(i, _)| *i == index).map(|(_, v)| Arc::clone(v)))
         {
             return Ok((self.sample_name(), hit));
+        }
+        if let Some(d) = deflate {
+            geotiff::check_deflate_chunks(
+                &self.path,
+                d.what,
+                &d.chunks,
+                [index as usize].into_iter(),
+            )?;
         }
         let pooled = decoders.lock().map(|mut d| d.pop()).unwrap_or(None);
         let mut dec = match pooled {
