@@ -1,13 +1,17 @@
 //! GeoTIFF and JPEG variants written by GDAL (`tests/data/geotiff/make.py`, from the shared
 //! SRTM heights) read against GDAL's own values stored beside them (`gdal_values.json`):
 //! WhiteIsZero files read as stored, projected CRSs in feet and user-defined projected CRSs
-//! placed in metres, damaged Deflate streams and truncated JPEGs refused.
+//! placed in metres, damaged Deflate streams and truncated JPEGs refused; implausible heights
+//! (void sentinels without a nodata value, grey images read at 1 m per level) warned about.
+
+mod common;
 
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicUsize, Ordering};
 
+use common::data;
 use serde_json::Value;
-use terrain_core::dem::{LoadOptions, RowReader, load};
+use terrain_core::dem::{LoadOptions, LoadWarning, RowReader, load};
 use terrain_core::georef::AngularOrLinear;
 use terrain_core::{Crs, Heightmap};
 
@@ -238,4 +242,83 @@ fn truncated_jpeg_heightmaps_are_refused() {
         assert!(msg.contains("cut_") && msg.contains("truncated"), "{msg}");
     }
     let _ = std::fs::remove_dir_all(&tmp);
+}
+
+/// The sentinel warnings of `dem`: (value, count).
+fn sentinels(dem: &terrain_core::dem::Dem) -> Vec<(f64, u64)> {
+    dem.warnings
+        .iter()
+        .filter_map(|w| match w {
+            LoadWarning::Sentinel { value, count, .. } => Some((*value, *count)),
+            _ => None,
+        })
+        .collect()
+}
+
+#[test]
+fn void_sentinels_without_a_nodata_value_are_warned_about() {
+    // The shared Crater Lake file: -32767 voids and no nodata tag (see data/README.md).
+    let crater = data("crater_lake/craterlake-elev-16bit-30m.tif");
+    let dem = load(&crater, &LoadOptions::default()).unwrap();
+    let found = sentinels(&dem);
+    assert_eq!(found.len(), 1, "{:?}", dem.warnings);
+    assert_eq!(found[0].0, -32767.0);
+    let stored = dem.heightmap.data().iter().filter(|&&z| z == -32767.0).count() as u64;
+    assert_eq!(found[0].1, stored, "the count is the samples read as -32767 m");
+    let msg = dem.warnings[0].to_string();
+    assert!(msg.contains("craterlake") && msg.contains("--nodata=-32767"), "{msg}");
+    // The heights are unchanged: the warning changes nothing.
+    assert!(stored > 0);
+    // With --nodata the samples are voids and nothing is said.
+    let fixed =
+        load(&crater, &LoadOptions { nodata: Some(-32767.0), ..Default::default() }).unwrap();
+    assert!(fixed.warnings.is_empty(), "{:?}", fixed.warnings);
+    assert_eq!(fixed.heightmap.voids().count() as u64, found[0].1);
+
+    // GDAL-written variants: the Rainier crop's voids as -9999 and as float32's lowest value,
+    // with no nodata tag; as many as the crop's voids (GDAL's count of the original).
+    let voids = gdal("wiz_int16.tif")["voids"].as_u64().unwrap();
+    for (name, value) in
+        [("sentinel_9999.tif", -9999.0), ("sentinel_f32min.tif", f64::from(f32::MIN))]
+    {
+        let dem = load(dir().join(name), &LoadOptions::default()).unwrap();
+        // As f32, the file's sample type (serde_json's float parsing is not exact to the last
+        // bit of an f64).
+        assert_eq!(f(&gdal(name)["min"]) as f32, value as f32, "{name}: GDAL's lowest value");
+        assert_eq!(sentinels(&dem), vec![(value, voids)], "{name}: {:?}", dem.warnings);
+        let msg = dem.warnings[0].to_string();
+        let option = format!(
+            "--nodata={}",
+            if value == -9999.0 { "-9999".to_string() } else { format!("{value:e}") }
+        );
+        assert!(msg.contains(name) && msg.contains(&option), "{msg}");
+    }
+
+    // Real files with their voids declared, or none: nothing to say.
+    for rel in ["big_tujunga/bigtujunga.tif", "lidar_prairie/dem.tif", "srtm/N52E008.hgt"] {
+        let dem = load(data(rel), &LoadOptions::default()).unwrap();
+        assert!(dem.warnings.is_empty(), "{rel}: {:?}", dem.warnings);
+    }
+}
+
+#[test]
+fn a_grey_png_read_without_a_vertical_scale_is_warned_about() {
+    // Puget Sound: 16-bit grey, 0..43798 raw, metres = raw x 0.1, 160 m spacing (README).
+    let png = data("puget_sound/ps_height_1k.png");
+    let dem = load(&png, &LoadOptions::default()).unwrap();
+    let relief: Vec<f64> = dem
+        .warnings
+        .iter()
+        .filter_map(|w| match w {
+            LoadWarning::Relief { relief_m, .. } => Some(*relief_m),
+            _ => None,
+        })
+        .collect();
+    assert_eq!(relief, vec![f64::from(dem.heightmap.max() - dem.heightmap.min())]);
+    let msg = dem.warnings[0].to_string();
+    assert!(msg.contains("ps_height_1k.png") && msg.contains("--vertical-scale"), "{msg}");
+    // Read as the README says: nothing to say.
+    let options = LoadOptions { vertical_scale: 0.1, spacing_m: 160.0, ..LoadOptions::default() };
+    let dem = load(&png, &options).unwrap();
+    assert!(dem.warnings.is_empty(), "{:?}", dem.warnings);
 }

@@ -147,7 +147,9 @@ pub fn load_mosaic(paths: &[impl AsRef<Path>], options: &LoadOptions) -> Result<
         sample_type: sample_type.clone(),
     };
     let heightmap = voids::build_heightmap(first, grid)?;
+    let warnings = tiles.iter().flat_map(|t| t.warnings.iter().cloned()).collect();
     Ok(Dem {
+        warnings,
         heightmap,
         source: SourceInfo {
             path: first.to_path_buf(),
