@@ -95,6 +95,8 @@ fn streamed(args: &BakeArgs) -> anyhow::Result<Option<RowReader>> {
 
 /// Runs `terrain bake`.
 pub(crate) fn run(args: &BakeArgs) -> anyhow::Result<()> {
+    // Before any work: a file or a folder of the user's files is never replaced.
+    terrain_stream::check_output(&args.output, args.overwrite)?;
     let bounded = HeightEncoding::Bounded { max_error_m: args.max_error };
     let mut config = BakeConfig {
         k: args.block_k,

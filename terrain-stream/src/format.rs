@@ -28,6 +28,7 @@
 //! order index files: the computation is a few bit operations.
 
 use std::fmt;
+use std::path::Path;
 
 use glam::DVec2;
 use terrain_core::georef::{AngularOrLinear, Crs, Georef};
@@ -491,6 +492,18 @@ fn read_georef(r: &mut Reader<'_>) -> Result<Georef, String> {
         return Err("georeference is not finite or has non-positive spacing".into());
     }
     Ok(g)
+}
+
+/// Whether `dir` is recognisably a store: a folder whose [`INDEX_FILE`] starts with [`MAGIC`]
+/// (any version, intact or not). Nothing else is ever replaced by a bake.
+pub fn is_store_dir(dir: &Path) -> bool {
+    use std::io::Read;
+    let mut magic = [0u8; 8];
+    dir.is_dir()
+        && std::fs::File::open(dir.join(INDEX_FILE))
+            .and_then(|mut f| f.read_exact(&mut magic))
+            .is_ok()
+        && magic == MAGIC
 }
 
 /// Serialises the index: magic, version, header, block entries, trailing CRC-32.

@@ -88,7 +88,7 @@ pub mod store;
 pub mod streamer;
 mod workers;
 
-pub use bake::{BakeConfig, BakeProgress, BakeReport, HeightEncoding, bake};
+pub use bake::{BakeConfig, BakeProgress, BakeReport, HeightEncoding, bake, check_output};
 pub use error::{BakeError, StoreError};
 pub use format::{BlockId, Codec, DssBlockErrors, Header};
 pub use glam;
