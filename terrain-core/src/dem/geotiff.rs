@@ -197,6 +197,11 @@ fn precheck_header(
         u16_at(&c[..2]) as u64
     };
     let entry_len = if big { 20 } else { 12 };
+    // Classic TIFF counts entries in a u16; a BigTIFF IFD with more than that is not a DEM's
+    // (and reading it whole below must stay small).
+    if entries > u64::from(u16::MAX) {
+        return Err(malformed(path, format!("the first IFD declares {entries} entries")));
+    }
     let ifd_len = count_len + entries.saturating_mul(entry_len);
     if ifd.saturating_add(ifd_len) > len {
         return Err(trunc("TIFF first IFD (entries)", ifd, ifd_len));
