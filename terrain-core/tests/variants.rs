@@ -322,3 +322,59 @@ fn a_grey_png_read_without_a_vertical_scale_is_warned_about() {
     let dem = load(&png, &options).unwrap();
     assert!(dem.warnings.is_empty(), "{:?}", dem.warnings);
 }
+
+/// `bytes` with the first occurrence of the GeoKey entry `from` (four u16, little-endian)
+/// replaced by `to`.
+fn patch_geokey(bytes: &[u8], from: [u16; 4], to: [u16; 4]) -> Vec<u8> {
+    let le = |k: [u16; 4]| k.iter().flat_map(|v| v.to_le_bytes()).collect::<Vec<u8>>();
+    let (from, to) = (le(from), le(to));
+    let at = bytes.windows(8).position(|w| w == from.as_slice()).expect("the key is in the file");
+    let mut out = bytes.to_vec();
+    out[at..at + 8].copy_from_slice(&to);
+    out
+}
+
+#[test]
+fn the_unit_of_an_epsg_crs_without_a_units_key_comes_from_its_name() {
+    // The EPSG:2272 variant with its ProjLinearUnitsGeoKey (3076 = 9003, US survey foot)
+    // renamed to an unknown key: the unit must come from the CRS name GDAL wrote in the
+    // citation ("NAD83 / Pennsylvania South (ftUS)").
+    let name = "ftus_epsg2272.tif";
+    let bytes = std::fs::read(dir().join(name)).unwrap();
+    let tmp = temp_dir();
+    let p = tmp.join("no_units_key.tif");
+    std::fs::write(&p, patch_geokey(&bytes, [3076, 0, 1, 9003], [3999, 0, 1, 9003])).unwrap();
+    let dem = load(&p, &LoadOptions::default()).unwrap();
+    let g = gdal(name);
+    let want = f(&g["geotransform"][1]) * f(&g["linear_unit_m"]);
+    assert!(
+        (dem.heightmap.georef().spacing_m.x - want).abs() < 1e-9,
+        "{:?}",
+        dem.heightmap.georef()
+    );
+    let _ = std::fs::remove_dir_all(&tmp);
+}
+
+#[test]
+fn unsupported_crs_kinds_are_refused_saying_what_is_not_read() {
+    let bytes = std::fs::read(dir().join("wiz_int16.tif")).unwrap();
+    let tmp = temp_dir();
+    for (from, to, said) in [
+        // GeogAngularUnitsGeoKey: degree (9102) -> radian (9101).
+        ([2054, 0, 1, 9102], [2054, 0, 1, 9101], "angular unit EPSG:9101"),
+        // GTModelTypeGeoKey: geographic (2) -> geocentric (3).
+        ([1024, 0, 1, 2], [1024, 0, 1, 3], "geocentric"),
+    ] {
+        let p = tmp.join("patched.tif");
+        std::fs::write(&p, patch_geokey(&bytes, from, to)).unwrap();
+        let e = load(&p, &LoadOptions::default()).map(|_| ()).unwrap_err().to_string();
+        assert!(e.contains("patched.tif") && e.contains(said), "{e}");
+    }
+    // A projected CRS in an unknown linear unit is refused, never taken as metres.
+    let bytes = std::fs::read(dir().join("ftus_epsg2272.tif")).unwrap();
+    let p = tmp.join("odd_unit.tif");
+    std::fs::write(&p, patch_geokey(&bytes, [3076, 0, 1, 9003], [3076, 0, 1, 9999])).unwrap();
+    let e = load(&p, &LoadOptions::default()).map(|_| ()).unwrap_err().to_string();
+    assert!(e.contains("EPSG:9999") && e.contains("linear unit"), "{e}");
+    let _ = std::fs::remove_dir_all(&tmp);
+}

@@ -446,31 +446,58 @@ fn parse_geokeys(
     Ok(keys)
 }
 
-/// Metres per unit of an EPSG linear unit code (EPSG dataset's unit of measure table, values as
-/// in PROJ's `proj.db`; the
-/// codes GeoTIFF writers use; GDAL reads the same through PROJ). `None` for a code not listed
-/// here, which is refused rather than guessed.
+/// Metres per unit of an EPSG linear unit code: every length unit of the EPSG dataset that is
+/// not deprecated, with the factors of PROJ's `proj.db` (through which GDAL reads them).
+/// `None` for any other code, which is refused rather than guessed.
 fn linear_unit_m(code: u16) -> Option<f64> {
     Some(match code {
-        9001 => 1.0,                // metre
-        9002 => 0.3048,             // international foot
-        9003 => 1200.0 / 3937.0,    // US survey foot
-        9005 => 0.3047972654,       // Clarke's foot
-        9014 => 1.8288,             // fathom
-        9030 => 1852.0,             // nautical mile
-        9033 => 20.11684023368047,  // US survey chain
-        9035 => 1609.3472186944375, // US survey mile
-        9036 => 1000.0,             // kilometre
-        9037 => 0.9143917962,       // Clarke's yard
-        9039 => 0.201166195164,     // Clarke's link
-        9040 => 0.9143984146160287, // British yard (Sears 1922)
-        9041 => 0.3047994715386762, // British foot (Sears 1922)
-        9042 => 20.116765121552632, // British chain (Sears 1922)
-        9084 => 0.9143985307444408, // Indian yard
-        9093 => 1609.344,           // statute mile
-        9095 => 0.3048007491,       // British foot (1936)
-        9096 => 0.9144,             // yard
-        9097 => 20.1168,            // chain
+        1025 => 0.001,               // millimetre
+        1033 => 0.01,                // centimetre
+        9001 => 1.0,                 // metre
+        9002 => 0.3048,              // foot
+        9003 => 1200.0 / 3937.0,     // US survey foot
+        9005 => 0.3047972654,        // Clarke's foot
+        9014 => 1.8288,              // fathom
+        9030 => 1852.0,              // nautical mile
+        9031 => 1.0000135965,        // German legal metre
+        9033 => 20.11684023368047,   // US survey chain
+        9034 => 0.2011684023368047,  // US survey link
+        9035 => 1609.3472186944375,  // US survey mile
+        9036 => 1000.0,              // kilometre
+        9037 => 0.9143917962,        // Clarke's yard
+        9038 => 20.1166195164,       // Clarke's chain
+        9039 => 0.201166195164,      // Clarke's link
+        9040 => 0.9143984146160287,  // British yard (Sears 1922)
+        9041 => 0.3047994715386762,  // British foot (Sears 1922)
+        9042 => 20.116765121552632,  // British chain (Sears 1922)
+        9043 => 0.2011676512155263,  // British link (Sears 1922)
+        9050 => 0.9143992,           // British yard (Benoit 1895 A)
+        9051 => 0.3047997333333333,  // British foot (Benoit 1895 A)
+        9052 => 20.1167824,          // British chain (Benoit 1895 A)
+        9053 => 0.201167824,         // British link (Benoit 1895 A)
+        9060 => 0.9143992042898124,  // British yard (Benoit 1895 B)
+        9061 => 0.30479973476327077, // British foot (Benoit 1895 B)
+        9062 => 20.116782494375872,  // British chain (Benoit 1895 B)
+        9063 => 0.2011678249437587,  // British link (Benoit 1895 B)
+        9070 => 0.30480083333333335, // British foot (1865)
+        9080 => 0.30479951024814694, // Indian foot
+        9081 => 0.30479841,          // Indian foot (1937)
+        9082 => 0.3047996,           // Indian foot (1962)
+        9083 => 0.3047995,           // Indian foot (1975)
+        9084 => 0.9143985307444408,  // Indian yard
+        9085 => 0.91439523,          // Indian yard (1937)
+        9086 => 0.9143988,           // Indian yard (1962)
+        9087 => 0.9143985,           // Indian yard (1975)
+        9093 => 1609.344,            // Statute mile
+        9094 => 0.3047997101815088,  // Gold Coast foot
+        9095 => 0.3048007491,        // British foot (1936)
+        9096 => 0.9144,              // yard
+        9097 => 20.1168,             // chain
+        9098 => 0.201168,            // link
+        9099 => 0.914398,            // British yard (Sears 1922 truncated)
+        9300 => 0.30479933333333337, // British foot (Sears 1922 truncated)
+        9301 => 20.116756,           // British chain (Sears 1922 truncated)
+        9302 => 0.20116756,          // British link (Sears 1922 truncated)
         _ => return None,
     })
 }
@@ -534,9 +561,8 @@ fn crs_kind(path: &Path, keys: &GeoKeys) -> Result<CrsKind, DemError> {
                 })?,
                 Some(u) => linear_unit_m(u).ok_or_else(|| {
                     unsupported(format!(
-                        "linear unit EPSG:{u} (ProjLinearUnitsGeoKey) is not known here; known: \
-                         metre, foot, US survey foot and the other EPSG units 9001-9097 GDAL \
-                         writes; convert the file to metres (gdalwarp -t_srs) to read it"
+                        "linear unit EPSG:{u} (ProjLinearUnitsGeoKey) is not an EPSG length unit; \
+                         convert the file to metres (gdalwarp -t_srs) to read it"
                     ))
                 })?,
                 None => keys.citation.as_deref().map_or(1.0, unit_from_name),
