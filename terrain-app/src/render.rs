@@ -392,9 +392,16 @@ pub(crate) fn check_image_output(path: &Path) -> anyhow::Result<ImageOut> {
 /// is opened for writing (not truncated); a new one is created and removed again.
 pub(crate) fn check_writable(path: &Path) -> anyhow::Result<()> {
     let existed = path.exists();
-    std::fs::OpenOptions::new().write(true).create(true).truncate(false).open(path).map_err(
-        |e| anyhow::anyhow!("cannot write {} ({e}); checked before rendering", path.display()),
-    )?;
+    let parent = path.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
+    if !parent.is_dir() {
+        bail!("cannot write {}: the folder {} does not exist", path.display(), parent.display());
+    }
+    std::fs::OpenOptions::new()
+        .write(true)
+        .create(true)
+        .truncate(false)
+        .open(path)
+        .map_err(|e| anyhow::anyhow!("cannot write {}: {}", path.display(), e.kind()))?;
     if !existed {
         let _ = std::fs::remove_file(path);
     }

@@ -256,9 +256,7 @@ pub fn check_output(out: &Path, overwrite: bool) -> Result<(), BakeError> {
         return Ok(());
     }
     if !crate::format::is_store_dir(out) {
-        return Err(not_a_store(
-            "is a folder that is not a store (no index.tsi with the store's magic)",
-        ));
+        return Err(not_a_store("is a folder that is not a store"));
     }
     if !overwrite {
         return Err(BakeError::Exists { path: out.to_path_buf() });
