@@ -165,6 +165,9 @@ pub(crate) fn run(args: &BakeArgs) -> anyhow::Result<()> {
     let report = bake(source, &args.output, &config, &mut bar)
         .with_context(|| format!("baking {}", args.output.display()))?;
     eprintln!();
+    for w in rows.as_ref().map(RowReader::warnings).unwrap_or_default() {
+        eprintln!("warning: {w}");
+    }
     if let Some(zero) = rows.as_ref().map(RowReader::zero_filled).filter(|&z| z > 0) {
         eprintln!(
             "warning: {zero} void samples had no valid sample in their row or within {} rows of their column: set to 0 m",

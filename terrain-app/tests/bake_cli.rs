@@ -264,3 +264,32 @@ fn a_killed_bakes_part_folder_is_removed_by_the_next_bake() {
     assert!(Store::open(&out).is_ok());
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+/// A DEM whose voids are -32767 with no nodata tag is baked as it is, with a warning naming
+/// the option that fixes it, whether read whole or by rows (issue 15 item 8).
+#[test]
+fn a_void_sentinel_without_nodata_is_warned_about_when_baking() {
+    let dir = scratch("sentinel");
+    let crater = data("crater_lake/craterlake-elev-16bit-30m.tif");
+    for (name, extra) in [("whole", &[][..]), ("rows", &["--stream"][..])] {
+        let out = dir.join(name);
+        let mut args = vec!["bake", s(&crater), "-o", s(&out), "--no-pvs", "--no-dss"];
+        args.extend(extra);
+        let r = terrain(&args);
+        ok(&r);
+        let err = String::from_utf8_lossy(&r.stderr);
+        let line = err.lines().find(|l| l.contains("warning") && l.contains("-32767"));
+        let line = line.unwrap_or_else(|| panic!("{name}: no warning: {err}"));
+        assert!(line.contains("craterlake") && line.contains("--nodata=-32767"), "{line}");
+        // With --nodata: nothing to say.
+        let fixed = dir.join(format!("{name}-fixed"));
+        let mut args = vec!["bake", s(&crater), "-o", s(&fixed), "--no-pvs", "--no-dss"];
+        args.extend(extra);
+        args.push("--nodata=-32767");
+        let r = terrain(&args);
+        ok(&r);
+        let err = String::from_utf8_lossy(&r.stderr);
+        assert!(!err.contains("-32767 and no nodata"), "{name}: {err}");
+    }
+    std::fs::remove_dir_all(&dir).unwrap();
+}

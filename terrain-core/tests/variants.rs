@@ -245,8 +245,8 @@ fn truncated_jpeg_heightmaps_are_refused() {
 }
 
 /// The sentinel warnings of `dem`: (value, count).
-fn sentinels(dem: &terrain_core::dem::Dem) -> Vec<(f64, u64)> {
-    dem.warnings
+fn sentinels(warnings: &[LoadWarning]) -> Vec<(f64, Option<u64>)> {
+    warnings
         .iter()
         .filter_map(|w| match w {
             LoadWarning::Sentinel { value, count, .. } => Some((*value, *count)),
@@ -260,11 +260,11 @@ fn void_sentinels_without_a_nodata_value_are_warned_about() {
     // The shared Crater Lake file: -32767 voids and no nodata tag (see data/README.md).
     let crater = data("crater_lake/craterlake-elev-16bit-30m.tif");
     let dem = load(&crater, &LoadOptions::default()).unwrap();
-    let found = sentinels(&dem);
+    let found = sentinels(&dem.warnings);
     assert_eq!(found.len(), 1, "{:?}", dem.warnings);
     assert_eq!(found[0].0, -32767.0);
     let stored = dem.heightmap.data().iter().filter(|&&z| z == -32767.0).count() as u64;
-    assert_eq!(found[0].1, stored, "the count is the samples read as -32767 m");
+    assert_eq!(found[0].1, Some(stored), "the count is the samples read as -32767 m");
     let msg = dem.warnings[0].to_string();
     assert!(msg.contains("craterlake") && msg.contains("--nodata=-32767"), "{msg}");
     // The heights are unchanged: the warning changes nothing.
@@ -273,7 +273,17 @@ fn void_sentinels_without_a_nodata_value_are_warned_about() {
     let fixed =
         load(&crater, &LoadOptions { nodata: Some(-32767.0), ..Default::default() }).unwrap();
     assert!(fixed.warnings.is_empty(), "{:?}", fixed.warnings);
-    assert_eq!(fixed.heightmap.voids().count() as u64, found[0].1);
+    assert_eq!(Some(fixed.heightmap.voids().count() as u64), found[0].1);
+    // Read by rows (bakes of DEMs larger than memory): the same warning, without a count.
+    let rows_of = |options: &LoadOptions| {
+        let r = RowReader::open(&crater, options).unwrap();
+        let (w, h) = (r.width() as usize, r.height() as usize);
+        let (mut z, mut v) = (vec![0f32; w * h], vec![false; w * h]);
+        r.read_rows(0, h, &mut z, &mut v).unwrap();
+        r.warnings()
+    };
+    assert_eq!(sentinels(&rows_of(&LoadOptions::default())), vec![(-32767.0, None)]);
+    assert!(rows_of(&LoadOptions { nodata: Some(-32767.0), ..Default::default() }).is_empty());
 
     // GDAL-written variants: the Rainier crop's voids as -9999 and as float32's lowest value,
     // with no nodata tag; as many as the crop's voids (GDAL's count of the original).
@@ -285,7 +295,12 @@ fn void_sentinels_without_a_nodata_value_are_warned_about() {
         // As f32, the file's sample type (serde_json's float parsing is not exact to the last
         // bit of an f64).
         assert_eq!(f(&gdal(name)["min"]) as f32, value as f32, "{name}: GDAL's lowest value");
-        assert_eq!(sentinels(&dem), vec![(value, voids)], "{name}: {:?}", dem.warnings);
+        assert_eq!(
+            sentinels(&dem.warnings),
+            vec![(value, Some(voids))],
+            "{name}: {:?}",
+            dem.warnings
+        );
         let msg = dem.warnings[0].to_string();
         let option = format!(
             "--nodata={}",

@@ -145,6 +145,11 @@ const HIGHEST_PLAUSIBLE_M: f64 = 9_000.0;
 const IN_RANGE_SENTINELS: [f64; 1] = [-9999.0];
 const SENTINEL_GAP_M: f64 = 1000.0;
 
+/// Whether a height in metres is one some terrain has.
+pub(crate) fn plausible(z: f64) -> bool {
+    (LOWEST_PLAUSIBLE_M..=HIGHEST_PLAUSIBLE_M).contains(&z)
+}
+
 /// Something in a DEM that looks like a mistake in how it was read. Reported, never acted on:
 /// the heights are read as the file and options say.
 #[derive(Debug, Clone, PartialEq)]
@@ -157,8 +162,8 @@ pub enum LoadWarning {
         path: PathBuf,
         /// The value.
         value: f64,
-        /// Samples with it.
-        count: u64,
+        /// Samples with it, where known (a file read whole; not when read by rows).
+        count: Option<u64>,
     },
     /// A grey image read at 1 m per grey level (no vertical scale given) whose relief is
     /// implausible: higher than any terrain, or steeper than 45 degrees across the whole grid.
@@ -178,9 +183,10 @@ impl std::fmt::Display for LoadWarning {
             LoadWarning::Sentinel { path, value, count } => {
                 // Short and parseable back: -32767, -9999, -3.4028234663852886e38.
                 let v = if value.abs() >= 1e7 { format!("{value:e}") } else { format!("{value}") };
+                let n = count.map_or_else(|| "some".to_string(), |c| c.to_string());
                 write!(
                     f,
-                    "{}: {count} samples are {v} and no nodata value is set, so they are read as \
+                    "{}: {n} samples are {v} and no nodata value is set, so they are read as \
                      heights of {v} m; if they are voids, give --nodata={v}",
                     path.display()
                 )
@@ -228,7 +234,7 @@ fn inspect(
         }
     } else if nodata.is_none() {
         for v in [lo, hi] {
-            let extreme = !(LOWEST_PLAUSIBLE_M..=HIGHEST_PLAUSIBLE_M).contains(&v);
+            let extreme = !plausible(v);
             let apart = IN_RANGE_SENTINELS.contains(&v) && {
                 let next = if v == lo {
                     valid().filter(|&z| z != v).fold(f64::INFINITY, f64::min) - v
@@ -242,7 +248,7 @@ fn inspect(
                     .iter()
                     .any(|o| matches!(o, LoadWarning::Sentinel { value, .. } if *value == v))
             {
-                let count = valid().filter(|&z| z == v).count() as u64;
+                let count = Some(valid().filter(|&z| z == v).count() as u64);
                 out.push(LoadWarning::Sentinel { path: path.to_path_buf(), value: v, count });
             }
         }

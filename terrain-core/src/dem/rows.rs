@@ -65,6 +65,8 @@ pub struct RowReader {
     source: SourceInfo,
     inner: Inner,
     zero_filled: AtomicU64,
+    /// Lowest and highest valid height read so far (for [`RowReader::warnings`]).
+    seen: Mutex<(f32, f32)>,
 }
 
 impl std::fmt::Debug for RowReader {
@@ -142,6 +144,7 @@ impl RowReader {
                         max_bytes: 1 << 30,
                     },
                     zero_filled: AtomicU64::new(0),
+                    seen: Mutex::new((f32::INFINITY, f32::NEG_INFINITY)),
                 };
                 // The sample type: decode the first chunk once (small).
                 let (name, _) = reader.decode_chunk(0)?;
@@ -181,6 +184,7 @@ impl RowReader {
                         offset: options.vertical_offset,
                     },
                     zero_filled: AtomicU64::new(0),
+                    seen: Mutex::new((f32::INFINITY, f32::NEG_INFINITY)),
                 })
             }
             other => Err(err(DemErrorKind::Unsupported {
@@ -213,6 +217,32 @@ impl RowReader {
     /// Void samples set to 0 m so far, for want of any valid sample within reach.
     pub fn zero_filled(&self) -> u64 {
         self.zero_filled.load(Ordering::Relaxed)
+    }
+
+    /// What looks like a mistake in the rows read so far (as [`super::load`] reports in
+    /// [`super::Dem::warnings`]): the lowest or highest valid height is a void sentinel no
+    /// terrain has (below -11,000 m or above 9,000 m) while no no-data value is in force. The
+    /// count of such samples is not known here (bands share rows).
+    pub fn warnings(&self) -> Vec<super::LoadWarning> {
+        let Ok(&(lo, hi)) = self.seen.lock().as_deref() else { return Vec::new() };
+        if self.source.nodata.is_some() || !(lo.is_finite() && hi.is_finite()) {
+            return Vec::new();
+        }
+        let mut out = Vec::new();
+        for v in [lo, hi] {
+            let v = f64::from(v);
+            let known = out
+                .iter()
+                .any(|w| matches!(w, super::LoadWarning::Sentinel { value, .. } if *value == v));
+            if !super::plausible(v) && !known {
+                out.push(super::LoadWarning::Sentinel {
+                    path: self.path.clone(),
+                    value: v,
+                    count: None,
+                });
+            }
+        }
+        out
     }
 
     fn error(&self, kind: DemErrorKind) -> DemError {
@@ -418,8 +448,16 @@ impl RowReader {
         }
         let wu = w as usize;
         self.read_south_rows(j0, rows, heights)?;
-        for (v, x) in voids.iter_mut().zip(heights.iter()) {
+        let (mut lo_z, mut hi_z) = (f32::INFINITY, f32::NEG_INFINITY);
+        for (v, &x) in voids.iter_mut().zip(heights.iter()) {
             *v = x.is_nan();
+            if !x.is_nan() {
+                lo_z = lo_z.min(x);
+                hi_z = hi_z.max(x);
+            }
+        }
+        if let Ok(mut seen) = self.seen.lock() {
+            *seen = (seen.0.min(lo_z), seen.1.max(hi_z));
         }
         if !voids.iter().any(|&v| v) {
             return Ok(());
