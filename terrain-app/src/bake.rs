@@ -108,6 +108,8 @@ fn streamed(args: &BakeArgs) -> anyhow::Result<Option<RowReader>> {
 
 /// Runs `terrain bake`.
 pub(crate) fn run(args: &BakeArgs) -> anyhow::Result<()> {
+    // Before any work: a file or a folder of the user's files is never replaced.
+    terrain_stream::check_output(&args.output, args.overwrite)?;
     let bounded = HeightEncoding::Bounded { max_error_m: args.max_error };
     let mut config = BakeConfig {
         k: args.block_k,
@@ -176,6 +178,9 @@ pub(crate) fn run(args: &BakeArgs) -> anyhow::Result<()> {
     let report = bake(source, &args.output, &config, &mut bar)
         .with_context(|| format!("baking {}", args.output.display()))?;
     eprintln!();
+    for w in rows.as_ref().map(RowReader::warnings).unwrap_or_default() {
+        eprintln!("warning: {w}");
+    }
     if let Some(zero) = rows.as_ref().map(RowReader::zero_filled).filter(|&z| z > 0) {
         eprintln!(
             "warning: {zero} void samples had no valid sample in their row or within {} rows of their column: set to 0 m",

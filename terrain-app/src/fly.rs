@@ -150,6 +150,10 @@ pub(crate) fn run(args: &FlyArgs) -> anyhow::Result<()> {
     if args.leaf_cells == 0 {
         bail!("--leaf-cells must be at least 1");
     }
+    // The output folder, checked before any work: created, and a frame can be written there.
+    std::fs::create_dir_all(&args.output)
+        .with_context(|| format!("could not create the output folder {}", args.output.display()))?;
+    crate::render::check_writable(&args.output.join("frame_00000.png"))?;
     let spec = FlightSpec::load(&args.flight)
         .with_context(|| format!("could not load the flight {}", args.flight.display()))?;
     let hm = match args.source.load()? {

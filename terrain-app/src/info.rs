@@ -64,9 +64,10 @@ impl InfoReport {
                 terrain_core::Crs::Epsg(c) => Some(c),
                 _ => None,
             },
-            units: match g.units {
-                AngularOrLinear::Metres => "metres".into(),
-                AngularOrLinear::Degrees => "degrees".into(),
+            units: match (g.units, g.linear_unit_m()) {
+                (AngularOrLinear::Degrees, _) => "degrees".into(),
+                (AngularOrLinear::Metres, Some(u)) if u != 1.0 => format!("units of {u} m"),
+                (AngularOrLinear::Metres, _) => "metres".into(),
             },
             origin: g.native_origin.to_array(),
             corner_ne: ne.to_array(),
@@ -84,7 +85,11 @@ impl InfoReport {
     pub(crate) fn to_text(&self) -> String {
         let n = self.width * self.height;
         let pct = 100.0 * self.voids as f64 / n as f64;
-        let unit = if self.units == "degrees" { "°" } else { " m" };
+        let unit = match self.units.as_str() {
+            "degrees" => "°",
+            "metres" => " m",
+            _ => " (CRS units)",
+        };
         let mut s = String::new();
         s += &format!("source       {}\n", self.source);
         s += &format!("format       {} ({})\n", self.format, self.sample_type);

@@ -313,12 +313,22 @@ impl MethodScene {
             let l = &p.layout;
             let _ = self.pvs[k].set(None);
             return Err(format!(
-                "the PVS was baked for a {} x {} grid, this terrain is {} x {}",
+                "the PVS was baked for a {} x {} grid, this terrain is {} x {}: it belongs to \
+                 another DEM; bake the scene again (terrain bake)",
                 l.width,
                 l.height,
                 self.qt.width(),
                 self.qt.height()
             ));
+        }
+        if let Some(p) = &pvs
+            && !p.matches_heights(&self.hm)
+        {
+            let _ = self.pvs[k].set(None);
+            return Err("the PVS is stale: it was baked from other heights (another DEM of the \
+                 same size, an edited file, or other --nodata / --vertical-scale options); bake \
+                 the scene again (terrain bake)"
+                .to_string());
         }
         let _ = self.pvs[k].set(pvs);
         Ok(())

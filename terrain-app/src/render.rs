@@ -4,7 +4,7 @@
 //! ([`terrain_app::ooc`]) streams its blocks into a paged renderer, so a DEM larger than
 //! memory renders; the stream statistics (the paper's Table 3) join the frame statistics.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 use anyhow::{Context, bail};
 use clap::Args;
@@ -94,7 +94,7 @@ pub(crate) struct RenderArgs {
     /// With --flight: frames drawn at most, evenly spaced (0 = every frame).
     #[arg(long, default_value_t = 0)]
     pub max_frames: usize,
-    /// Output PNG.
+    /// Output image: .png (RGBA) or .jpg (RGB); checked before rendering.
     #[arg(short, long)]
     pub output: PathBuf,
 }
@@ -288,10 +288,15 @@ pub(crate) fn run(args: &RenderArgs) -> anyhow::Result<()> {
     if !(args.factor.is_finite() && args.factor > 0.0) {
         bail!("--factor must be a positive number, got {}", args.factor);
     }
+    if let Some(c) = &args.camera {
+        parse_camera(c)?;
+    }
+    // The arguments are fine: now the output, before any loading or rendering.
+    let kind = check_image_output(&args.output)?;
     if let [one] = args.source.dem.as_slice()
         && ooc::is_store(one)
     {
-        return run_store(args, one, (width, height), background);
+        return run_store(args, one, (width, height), background, kind);
     }
     let method_kind = args.method.unwrap_or(LodMethod::PvpsC);
     let hm = match args.source.load()? {
@@ -343,14 +348,87 @@ pub(crate) fn run(args: &RenderArgs) -> anyhow::Result<()> {
         std::fs::write(path, serde_json::to_string_pretty(&json)?)
             .with_context(|| format!("could not write {}", path.display()))?;
     }
-    save_image(&renderer, &args.output)
+    save_image(&renderer, &args.output, kind)
 }
 
-fn save_image(renderer: &FrameRenderer, output: &std::path::Path) -> anyhow::Result<()> {
+/// The image formats `-o` writes, from its extension.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) enum ImageOut {
+    /// `.png`: RGBA.
+    Png,
+    /// `.jpg` / `.jpeg`: RGB (JPEG has no alpha).
+    Jpeg,
+}
+
+/// Checks `-o` before any work: an extension we write (`.png`, `.jpg`, `.jpeg`) and a place we
+/// can write to, so a typo fails at once instead of after the rendering.
+pub(crate) fn check_image_output(path: &Path) -> anyhow::Result<ImageOut> {
+    if path.is_dir() {
+        bail!("-o {}: is a folder; give an image file name (.png or .jpg)", path.display());
+    }
+    let ext = path.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase);
+    let kind = match ext.as_deref() {
+        Some("png") => ImageOut::Png,
+        Some("jpg" | "jpeg") => ImageOut::Jpeg,
+        Some(e) => bail!(
+            "-o {}: .{e} images are not written; give a file name ending in .png or .jpg",
+            path.display()
+        ),
+        None => {
+            bail!("-o {}: no extension; give a file name ending in .png or .jpg", path.display())
+        }
+    };
+    check_writable(path)?;
+    Ok(kind)
+}
+
+/// Checks a file can be written at `path` before the work that produces it: an existing file
+/// is opened for writing (not truncated); a new one is created and removed again.
+pub(crate) fn check_writable(path: &Path) -> anyhow::Result<()> {
+    let existed = path.exists();
+    let parent = path.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
+    if !parent.is_dir() {
+        bail!("cannot write {}: the folder {} does not exist", path.display(), parent.display());
+    }
+    std::fs::OpenOptions::new()
+        .write(true)
+        .create(true)
+        .truncate(false)
+        .open(path)
+        .map_err(|e| anyhow::anyhow!("cannot write {}: {}", path.display(), e.kind()))?;
+    if !existed {
+        let _ = std::fs::remove_file(path);
+    }
+    Ok(())
+}
+
+fn save_image(renderer: &FrameRenderer, output: &Path, kind: ImageOut) -> anyhow::Result<()> {
     let image = renderer.read_image()?;
-    let raw: Vec<u8> = image.pixels.iter().flatten().copied().collect();
-    image::save_buffer(output, &raw, image.width, image.height, image::ColorType::Rgba8)
-        .with_context(|| format!("could not write {}", output.display()))?;
+    let written = match kind {
+        ImageOut::Png => {
+            let raw: Vec<u8> = image.pixels.iter().flatten().copied().collect();
+            image::save_buffer_with_format(
+                output,
+                &raw,
+                image.width,
+                image.height,
+                image::ColorType::Rgba8,
+                image::ImageFormat::Png,
+            )
+        }
+        ImageOut::Jpeg => {
+            let rgb: Vec<u8> = image.pixels.iter().flat_map(|p| [p[0], p[1], p[2]]).collect();
+            image::save_buffer_with_format(
+                output,
+                &rgb,
+                image.width,
+                image.height,
+                image::ColorType::Rgb8,
+                image::ImageFormat::Jpeg,
+            )
+        }
+    };
+    written.with_context(|| format!("could not write {}", output.display()))?;
     println!("wrote {} ({} x {})", output.display(), image.width, image.height);
     Ok(())
 }
@@ -362,6 +440,7 @@ fn run_store(
     dir: &std::path::Path,
     (width, height): (u32, u32),
     background: [u8; 4],
+    kind: ImageOut,
 ) -> anyhow::Result<()> {
     if !(args.tau.is_finite() && args.tau > 0.0) {
         bail!("--tau must be a positive number of pixels, got {}", args.tau);
@@ -445,15 +524,15 @@ fn run_store(
     println!("adapter: {}", ctx.describe());
     let render_config = RenderConfig { width, height, texture, background, ..Default::default() };
     let wait = if args.wait { OocWait::EveryFrame } else { OocWait::FirstFrame };
-    let kind = args.method.unwrap_or(LodMethod::OutOfCore);
+    let method_kind = args.method.unwrap_or(LodMethod::OutOfCore);
     let method_config = MethodConfig {
         leaf_cells: args.leaf_cells,
         uniform_factor: args.factor,
         ooc: config,
         ..MethodConfig::default()
     };
-    println!("method: {}", kind.name());
-    let method = method::store_method(kind, scene, &method_config, wait, None)?;
+    println!("method: {}", method_kind.name());
+    let method = method::store_method(method_kind, scene, &method_config, wait, None)?;
     let mut renderer = method.renderer(&ctx, &render_config)?;
     if let Some(r) = renderer.terrain_renderer() {
         println!(
@@ -465,8 +544,11 @@ fn run_store(
     }
     let options = RenderOptions { wireframe: args.wireframe, ..Default::default() };
     let mut frames = FrameLoop::new(method).rendered(Some(&mut renderer)).with_options(options);
-    let records =
-        draw_frames(&mut frames, &cameras, (kind == LodMethod::OutOfCore).then_some(args.tau))?;
+    let records = draw_frames(
+        &mut frames,
+        &cameras,
+        (method_kind == LodMethod::OutOfCore).then_some(args.tau),
+    )?;
     drop(frames);
     let stream = |r: &FrameRecord| r.stream.clone().unwrap_or_default();
     let total =
@@ -500,7 +582,7 @@ fn run_store(
         std::fs::write(path, serde_json::to_string_pretty(&json)?)
             .with_context(|| format!("could not write {}", path.display()))?;
     }
-    save_image(&renderer, &args.output)
+    save_image(&renderer, &args.output, kind)
 }
 
 /// Says when a frame was drawn in several batches (its tessellated points or indices exceed

@@ -87,13 +87,16 @@ impl SourceArgs {
     /// Reads the DEM(s); `None` when no file was given (the caller uses the embedded terrain).
     pub(crate) fn load(&self) -> anyhow::Result<Option<Dem>> {
         let options = self.load_options()?;
-        match self.dem.as_slice() {
-            [] => Ok(None),
-            [one] => Ok(Some(dem::load(one, &options)?)),
-            many => {
-                Ok(Some(dem::load_mosaic(many, &options).context("could not build the mosaic")?))
-            }
+        let dem = match self.dem.as_slice() {
+            [] => return Ok(None),
+            [one] => dem::load(one, &options)?,
+            many => dem::load_mosaic(many, &options).context("could not build the mosaic")?,
+        };
+        // Heights that look like a mistake: said, never changed.
+        for w in &dem.warnings {
+            eprintln!("warning: {w}");
         }
+        Ok(Some(dem))
     }
 }
 

@@ -212,3 +212,95 @@ fn a_streamed_bake_equals_the_whole_file_bake_at_valid_samples() {
     assert!(!dir.join("png").exists());
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+/// Runs a small synthetic bake into `out` with `extra` arguments.
+fn bake_synthetic(out: &Path, extra: &[&str]) -> Output {
+    let mut args =
+        vec!["bake", "--synthetic", "129", "-o", s(out), "--block-k", "5", "--no-pvs", "--no-dss"];
+    args.extend(extra);
+    terrain(&args)
+}
+
+/// `--overwrite` replaces only a store: a folder of the user's files and a regular file are
+/// refused before any work (no progress shown), named, left as they were, and no `.NAME.part`
+/// folder is left behind (issue 15: both were lost or damaged).
+#[test]
+fn overwrite_replaces_only_a_store_and_refuses_before_working() {
+    let dir = scratch("guard");
+    let mine = dir.join("photos");
+    std::fs::create_dir_all(&mine).unwrap();
+    std::fs::write(mine.join("holiday.txt"), b"mine").unwrap();
+    let notes = dir.join("notes.txt");
+    std::fs::write(&notes, b"also mine").unwrap();
+    for (out, what) in [(&mine, "not a store"), (&notes, "is a file")] {
+        for extra in [&["--overwrite"][..], &[][..]] {
+            let r = bake_synthetic(out, extra);
+            let err = String::from_utf8_lossy(&r.stderr);
+            assert!(!r.status.success(), "{} {extra:?} was baked over", out.display());
+            assert!(err.contains(s(out)) && err.contains(what), "{extra:?}: {err}");
+            assert!(!err.contains("blocks,"), "the bake ran before refusing: {err}");
+            assert!(!err.contains("panicked"), "{err}");
+        }
+    }
+    assert_eq!(std::fs::read(mine.join("holiday.txt")).unwrap(), b"mine");
+    assert_eq!(std::fs::read(&notes).unwrap(), b"also mine");
+    let mut left: Vec<String> = std::fs::read_dir(&dir)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .collect();
+    left.sort();
+    assert_eq!(left, ["notes.txt", "photos"], "something was left behind");
+
+    // A store is replaced; an empty folder is baked into.
+    let store = dir.join("store");
+    ok(&bake_synthetic(&store, &[]));
+    ok(&bake_synthetic(&store, &["--overwrite"]));
+    let empty = dir.join("empty");
+    std::fs::create_dir_all(&empty).unwrap();
+    ok(&bake_synthetic(&empty, &[]));
+    assert!(Store::open(&empty).is_ok());
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// The `.NAME.part` folder a killed bake leaves is removed by the next bake of that output.
+#[test]
+fn a_killed_bakes_part_folder_is_removed_by_the_next_bake() {
+    let dir = scratch("part");
+    let out = dir.join("scene");
+    let part = dir.join(".scene.part");
+    std::fs::create_dir_all(part.join("blocks")).unwrap();
+    std::fs::write(part.join("blocks/r0_c0.tsb"), b"half a block").unwrap();
+    ok(&bake_synthetic(&out, &[]));
+    assert!(!part.exists(), "the stale .part folder is still there");
+    assert!(Store::open(&out).is_ok());
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// A DEM whose voids are -32767 with no nodata tag is baked as it is, with a warning naming
+/// the option that fixes it, whether read whole or by rows (issue 15 item 8).
+#[test]
+fn a_void_sentinel_without_nodata_is_warned_about_when_baking() {
+    let dir = scratch("sentinel");
+    let crater = data("crater_lake/craterlake-elev-16bit-30m.tif");
+    for (name, extra) in [("whole", &[][..]), ("rows", &["--stream"][..])] {
+        let out = dir.join(name);
+        let mut args = vec!["bake", s(&crater), "-o", s(&out), "--no-pvs", "--no-dss"];
+        args.extend(extra);
+        let r = terrain(&args);
+        ok(&r);
+        let err = String::from_utf8_lossy(&r.stderr);
+        let line = err.lines().find(|l| l.contains("warning") && l.contains("-32767"));
+        let line = line.unwrap_or_else(|| panic!("{name}: no warning: {err}"));
+        assert!(line.contains("craterlake") && line.contains("--nodata=-32767"), "{line}");
+        // With --nodata: nothing to say.
+        let fixed = dir.join(format!("{name}-fixed"));
+        let mut args = vec!["bake", s(&crater), "-o", s(&fixed), "--no-pvs", "--no-dss"];
+        args.extend(extra);
+        args.push("--nodata=-32767");
+        let r = terrain(&args);
+        ok(&r);
+        let err = String::from_utf8_lossy(&r.stderr);
+        assert!(!err.contains("-32767 and no nodata"), "{name}: {err}");
+    }
+    std::fs::remove_dir_all(&dir).unwrap();
+}

@@ -100,3 +100,50 @@ fn pvs_bakes_a_dem_on_the_fly() {
     assert_eq!(image::open(&png).unwrap().to_luma8().dimensions(), (8, 8));
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+/// A PVS baked from one DEM is refused for another DEM of the same grid size (issue 15 item 7:
+/// the check compared only the grid size), with a warning naming the file and saying to bake
+/// again; the benchmark then runs without occlusion culling.
+#[test]
+fn a_stale_pvs_is_refused_naming_the_file() {
+    let dir = common::scratch("pvs-cli", "stale");
+    let scene = dir.join("n41");
+    let n41 = data("srtm/N41E001.hgt");
+    let mut args = vec!["bake", s(&n41), "-o", s(&scene), "--block-k", "8", "--no-dss"];
+    args.extend(SMALL);
+    ok(&terrain(&args));
+    let bench = |dem: &Path, out: &str| {
+        terrain(&[
+            "bench",
+            s(dem),
+            "--flight",
+            s(&Path::new(env!("CARGO_MANIFEST_DIR")).join("../flights/pvps_884.json")),
+            "--methods",
+            "pvps-c-pvs",
+            "--frames",
+            "1",
+            "--sweep",
+            "1",
+            "--no-render",
+            "--scene",
+            s(&scene),
+            "-o",
+            s(&dir.join(out)),
+        ])
+    };
+    // The DEM it was baked from: no warning about the PVS.
+    let same = bench(&data("srtm/N41E001.hgt"), "same");
+    let err = String::from_utf8_lossy(&same.stderr);
+    assert!(same.status.success(), "{err}");
+    assert!(!err.contains("pvs.bin"), "the PVS of this very DEM was refused: {err}");
+    // Another tile of the same size: stale.
+    let other = bench(&data("srtm/N42E001.hgt"), "other");
+    let err = String::from_utf8_lossy(&other.stderr);
+    assert!(other.status.success(), "{err}");
+    let line = err.lines().find(|l| l.contains("pvs.bin")).unwrap_or_else(|| panic!("{err}"));
+    assert!(
+        line.contains("stale") && line.contains("terrain bake") && line.contains("warning"),
+        "{line}"
+    );
+    std::fs::remove_dir_all(&dir).unwrap();
+}

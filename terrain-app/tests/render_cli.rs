@@ -154,3 +154,49 @@ fn every_lod_method_renders_and_reports_json_stats() {
     assert!(triangles[1..].iter().any(|&(_, t)| t != uniform), "{triangles:?}");
     std::fs::remove_dir_all(&dir).ok();
 }
+
+/// `-o` is checked before any rendering (an extension we cannot write, a folder that does not
+/// exist: no adapter is even opened), and `-o x.jpg` writes a JPEG in RGB (issue 15: RGBA into
+/// JPEG failed after the rendering).
+#[test]
+fn render_checks_its_output_first_and_writes_jpeg() {
+    let dir = std::env::temp_dir().join(format!("terrain-render-out-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let run = |out: &std::path::Path| {
+        Command::new(env!("CARGO_BIN_EXE_terrain"))
+            .args(["render", "--size", "48x27", "--method", "uniform", "--leaf-cells", "64"])
+            .arg("-o")
+            .arg(out)
+            .output()
+            .expect("the terrain binary runs")
+    };
+    for (out, said) in [
+        (dir.join("frame.bmp"), ".png or .jpg"),
+        (dir.join("no-such-folder/frame.png"), "cannot write"),
+        (dir.clone(), "is a folder"),
+    ] {
+        let r = run(&out);
+        let (stdout, stderr) =
+            (String::from_utf8_lossy(&r.stdout), String::from_utf8_lossy(&r.stderr));
+        assert!(!r.status.success(), "{} was accepted", out.display());
+        assert!(stderr.contains(out.to_str().unwrap()) && stderr.contains(said), "{stderr}");
+        assert!(!stdout.contains("adapter:"), "checked only after opening the GPU: {stdout}");
+    }
+    let jpg = dir.join("frame.jpg");
+    let r = run(&jpg);
+    let stderr = String::from_utf8_lossy(&r.stderr);
+    if !r.status.success()
+        && stderr.contains("no GPU adapter")
+        && std::env::var_os("TERRAIN_REQUIRE_GPU").is_none()
+    {
+        println!("SKIPPED: {stderr}; set TERRAIN_REQUIRE_GPU=1 to make this a failure");
+        return;
+    }
+    assert!(r.status.success(), "{stderr}");
+    let bytes = std::fs::read(&jpg).unwrap();
+    assert_eq!(image::guess_format(&bytes).unwrap(), image::ImageFormat::Jpeg);
+    let img = image::load_from_memory(&bytes).unwrap();
+    assert_eq!(img.color(), image::ColorType::Rgb8);
+    assert_eq!((img.width(), img.height()), (48, 27));
+    std::fs::remove_dir_all(&dir).unwrap();
+}

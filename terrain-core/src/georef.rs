@@ -34,7 +34,9 @@ impl std::fmt::Display for Crs {
 /// Units of the CRS's horizontal axes.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
 pub enum AngularOrLinear {
-    /// Projected: metres.
+    /// Projected: a linear unit. Metres for most CRSs; for a CRS in feet (EPSG:2272, US survey
+    /// feet) the native origin and spacing stay in feet and `spacing_m` / `world_origin` are
+    /// converted ([`Georef::projected_in`]; [`Georef::linear_unit_m`] gives the unit).
     Metres,
     /// Geographic: degrees of longitude (x) and latitude (y).
     Degrees,
@@ -88,6 +90,29 @@ impl Georef {
             native_spacing: spacing,
             spacing_m: spacing,
             world_origin: origin,
+        }
+    }
+
+    /// A projected CRS whose linear unit is `unit_m` metres (1 for metres, 0.3048 for the
+    /// international foot, 1200/3937 for the US survey foot): native coordinates stay in the
+    /// CRS's unit; the world frame and `spacing_m` are in metres.
+    pub fn projected_in(crs: Crs, origin: DVec2, spacing: DVec2, unit_m: f64) -> Self {
+        Self {
+            spacing_m: spacing * unit_m,
+            world_origin: origin * unit_m,
+            ..Self::projected(crs, origin, spacing)
+        }
+    }
+
+    /// Metres per native unit of a projected georeference (1 unless its CRS is in feet or
+    /// another linear unit); `None` for a geographic one.
+    pub fn linear_unit_m(&self) -> Option<f64> {
+        match self.units {
+            AngularOrLinear::Degrees => None,
+            AngularOrLinear::Metres if self.native_spacing.x > 0.0 => {
+                Some(self.spacing_m.x / self.native_spacing.x)
+            }
+            AngularOrLinear::Metres => Some(1.0),
         }
     }
 

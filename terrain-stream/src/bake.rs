@@ -186,17 +186,16 @@ pub fn bake(
     if w == 0 || h == 0 {
         return Err(BakeError::InvalidConfig(format!("empty source ({w} x {h})")));
     }
-    if out.exists() && !config.overwrite {
-        return Err(BakeError::Exists { path: out.to_path_buf() });
-    }
-    let name = out
-        .file_name()
-        .ok_or_else(|| BakeError::InvalidConfig(format!("{} has no file name", out.display())))?;
-    let tmp = out.with_file_name(format!(".{}.part", name.to_string_lossy()));
-    if tmp.exists() {
+    check_output(out, config.overwrite)?;
+    let tmp = part_dir(out)?;
+    // A `.NAME.part` folder is ours: left by a killed bake of the same output.
+    if tmp.is_dir() {
         fs::remove_dir_all(&tmp).map_err(io_err(&tmp))?;
     }
-    fs::create_dir_all(tmp.join("blocks")).map_err(io_err(&tmp))?;
+    fs::create_dir_all(tmp.join("blocks")).map_err(|e| {
+        let _ = fs::remove_dir_all(&tmp);
+        io_err(&tmp)(e)
+    })?;
     let mut run = || bake_into(source, &tmp, config, progress);
     let result = if config.threads > 0 {
         match rayon::ThreadPoolBuilder::new().num_threads(config.threads).build() {
@@ -213,11 +212,58 @@ pub fn bake(
             return Err(e);
         }
     };
-    if out.exists() {
-        fs::remove_dir_all(out).map_err(io_err(out))?;
+    // Checked again: the output may have appeared while we baked.
+    let replaced = check_output(out, config.overwrite)
+        .and_then(
+            |()| if out.exists() { fs::remove_dir_all(out).map_err(io_err(out)) } else { Ok(()) },
+        )
+        .and_then(|()| fs::rename(&tmp, out).map_err(io_err(out)));
+    if let Err(e) = replaced {
+        let _ = fs::remove_dir_all(&tmp);
+        return Err(e);
     }
-    fs::rename(&tmp, out).map_err(io_err(out))?;
     Ok(report)
+}
+
+/// The temporary folder a bake of `out` writes to: `.NAME.part` beside it.
+fn part_dir(out: &Path) -> Result<PathBuf, BakeError> {
+    let name = out
+        .file_name()
+        .ok_or_else(|| BakeError::InvalidConfig(format!("{} has no file name", out.display())))?;
+    Ok(out.with_file_name(format!(".{}.part", name.to_string_lossy())))
+}
+
+/// Checks, before any work, that a bake may write the store folder `out`: it does not exist,
+/// or it is an empty folder, or it is a store ([`crate::is_store`]) and `overwrite`
+/// is set. A file, or a folder that is not a store, is refused whatever `overwrite` says
+/// ([`BakeError::NotAStore`]): it may hold the user's files.
+pub fn check_output(out: &Path, overwrite: bool) -> Result<(), BakeError> {
+    part_dir(out)?;
+    let Ok(meta) = fs::metadata(out) else {
+        // Nothing there (or a dangling link, which the rename replaces).
+        return Ok(());
+    };
+    let not_a_store =
+        |what: &str| BakeError::NotAStore { path: out.to_path_buf(), what: what.into() };
+    // A folder, or a link to one.
+    if !out.is_dir() {
+        return Err(not_a_store(if meta.is_file() {
+            "is a file, not a store folder"
+        } else {
+            "exists and is not a folder"
+        }));
+    }
+    let empty = fs::read_dir(out).map(|mut d| d.next().is_none()).unwrap_or(false);
+    if empty {
+        return Ok(());
+    }
+    if !crate::store::is_store(out) {
+        return Err(not_a_store("is a folder that is not a store"));
+    }
+    if !overwrite {
+        return Err(BakeError::Exists { path: out.to_path_buf() });
+    }
+    Ok(())
 }
 
 /// Quantization parameters in force.

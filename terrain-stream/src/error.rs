@@ -183,6 +183,19 @@ pub enum BakeError {
         /// The output folder.
         path: PathBuf,
     },
+    /// The output exists and is not a store: a file, or a folder without the store's index.
+    /// Never replaced, even with `BakeConfig::overwrite`: it may hold the user's files.
+    #[error(
+        "{}: {what}; a bake replaces only a store folder (one holding index.tsi with the store's \
+         magic): choose another output, or move it away yourself",
+        path.display()
+    )]
+    NotAStore {
+        /// The output path.
+        path: PathBuf,
+        /// What it is instead.
+        what: String,
+    },
     /// Caller misuse: a config value out of range.
     #[error("invalid bake config: {0}")]
     InvalidConfig(String),

@@ -97,6 +97,7 @@ mod workers;
 
 pub use bake::{
     BakeConfig, BakeProgress, BakeReport, HeightEncoding, STREAM_ABOVE_SAMPLES, bake, bake_file,
+    check_output,
 };
 pub use error::{BakeError, StoreError};
 pub use format::{

@@ -208,7 +208,8 @@ fn read_at(file: &mut File, offset: u64, buf: &mut [u8]) -> std::io::Result<()> 
     }
 }
 
-/// Whether `path` is a baked store: a folder whose index file starts with the store's magic.
+/// Whether `path` is a baked store: a folder whose index file starts with the store's magic
+/// (any version, intact or not). Nothing else is ever replaced by a bake.
 pub fn is_store(path: &Path) -> bool {
     use std::io::Read;
     let mut magic = [0u8; 8];

@@ -159,6 +159,21 @@ fn visibility_only_grows_with_height() {
     assert!(seen > pairs / 10 && seen < pairs, "{seen} of {pairs}");
 }
 
+/// A PVS is tied to the heights it was baked from (issue 15 item 7): the same grid size with
+/// one sample changed, or one more void, does not match; the heights read back from the file
+/// do.
+#[test]
+fn a_pvs_matches_only_the_heights_it_was_baked_from() {
+    let hm = grid(65, |i, j| ((i * 7 + j * 3) % 23) as f32 * 4.0);
+    let (s, _, _) = bake_both(&hm, &small_cfg(2, 2, 10.0, 3));
+    let back = decode(&encode(&s), std::path::Path::new("pvs.bin")).unwrap();
+    assert!(back.matches_heights(&hm));
+    let edited =
+        grid(65, |i, j| if (i, j) == (40, 20) { 1.0 } else { ((i * 7 + j * 3) % 23) as f32 * 4.0 });
+    assert!(back.matches(Quadtree::new(&edited, 8).shape()));
+    assert!(!back.matches_heights(&edited), "a PVS of other heights matched");
+}
+
 #[test]
 fn the_file_round_trips_and_refuses_corruption() {
     let hm = grid(65, |i, j| ((i * 7 + j * 3) % 23) as f32 * 4.0);
@@ -185,9 +200,15 @@ fn the_file_round_trips_and_refuses_corruption() {
     assert!(e.contains("truncated"), "{e}");
     let e = decode(b"PNG\0 not a pvs file", &path).unwrap_err().to_string();
     assert!(e.contains("not a PVS file"), "{e}");
-    let mut v2 = bytes.clone();
-    v2[4] = 2;
-    assert!(matches!(decode(&v2, &path), Err(PvsFileError::Version { found: 2, .. })));
+    let mut v3 = bytes.clone();
+    v3[4] = 3;
+    assert!(matches!(decode(&v3, &path), Err(PvsFileError::Version { found: 3, .. })));
+    // A file of format 1 (no heights' checksum, written by earlier builds): refused, saying
+    // it was baked by an older version and to bake again.
+    let mut v1 = bytes.clone();
+    v1[4] = 1;
+    let e = decode(&v1, &path).unwrap_err().to_string();
+    assert!(e.contains("pvs.bin") && e.contains("older version") && e.contains("bake"), "{e}");
     let e = read_pvs(&dir.join("missing.bin")).unwrap_err().to_string();
     assert!(e.contains("missing.bin"), "{e}");
     std::fs::remove_dir_all(&dir).unwrap();

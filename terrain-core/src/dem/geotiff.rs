@@ -9,9 +9,31 @@
 //! * `ModelTransformationTag` (34264): a 4x4 affine; read when it has no rotation/shear.
 //! * `GeoKeyDirectoryTag` (34735): keys `GTModelTypeGeoKey` (1024: 1 projected, 2 geographic),
 //!   `GTRasterTypeGeoKey` (1025: 1 PixelIsArea, 2 PixelIsPoint), `GTCitationGeoKey` (1026),
-//!   `GeographicTypeGeoKey` (2048), `ProjectedCSTypeGeoKey` (3072), `PCSCitationGeoKey` (3073).
-//!   ASCII key values live in `GeoAsciiParamsTag` (34737).
+//!   `GeographicTypeGeoKey` (2048), `GeogAngularUnitsGeoKey` (2054), `ProjectedCSTypeGeoKey`
+//!   (3072), `PCSCitationGeoKey` (3073), `ProjLinearUnitsGeoKey` (3076),
+//!   `ProjLinearUnitSizeGeoKey` (3077). ASCII key values live in `GeoAsciiParamsTag` (34737),
+//!   doubles in `GeoDoubleParamsTag` (34736).
 //! * `GDAL_NODATA` (42113): ASCII no-data value.
+//!
+//! CRS kinds, as GDAL reads them:
+//! * Projected (`GTModelTypeGeoKey` 1, or a `ProjectedCSTypeGeoKey`), with an EPSG code or
+//!   user-defined (32767: a transverse Mercator, Albers... described by keys): the grid is
+//!   placed by its projected coordinates, whatever the projection (the engine never
+//!   reprojects). The linear unit comes from `ProjLinearUnitsGeoKey` (EPSG unit codes: metre,
+//!   international foot, US survey foot, ...; user-defined: `ProjLinearUnitSizeGeoKey` metres)
+//!   or, for an EPSG code without that key, from the CRS name in the citation ("ftUS", "ft",
+//!   "feet"); native coordinates stay in that unit and the world frame is in metres. An
+//!   unknown unit code is refused, never taken as metres.
+//! * Geographic (`GTModelTypeGeoKey` 2, or an EPSG geographic code): degrees; another angular
+//!   unit (radians, grads) is refused.
+//! * Geocentric (3) is refused. No georeference: a local frame with `LoadOptions::spacing_m`.
+//!
+//! Samples are read as stored, like GDAL: `PhotometricInterpretation` WhiteIsZero (0) is a
+//! display hint, not a change of values, so the decoder is shown BlackIsZero (the tag's value
+//! is overlaid while reading, [`Patched`]); the `tiff` crate would otherwise invert unsigned
+//! samples (`2^n - 1 - v`), turn floats into `1 - v` and refuse signed ones. Deflate strips and
+//! tiles are inflated once more with their zlib Adler-32 and end of stream checked (the decoder
+//! stops reading when it has its bytes, so a damaged stream could read as numbers).
 //!
 //! With PixelIsArea (the default), raster point `(0, 0)` is the *corner* of the first pixel, so
 //! sample centres are at `+0.5` pixel; with PixelIsPoint it is the centre. `native_origin` is
@@ -22,6 +44,8 @@ use std::io::{BufReader, Read, Seek, SeekFrom};
 use std::path::Path;
 
 use glam::{DVec2, dvec2};
+use miniz_oxide::inflate::stream::{InflateState, inflate};
+use miniz_oxide::{DataFormat, MZError, MZFlush, MZStatus};
 use tiff::decoder::{ChunkType, Decoder, DecodingResult, Limits};
 use tiff::tags::Tag;
 use tiff::{ColorType, TiffError};
@@ -34,15 +58,26 @@ const FORMAT: &str = "GeoTIFF";
 
 /// GeoTIFF tag numbers not named by the `tiff` crate.
 const MODEL_TRANSFORMATION_TAG: u16 = 34264;
+const GEO_DOUBLE_PARAMS_TAG: u16 = 34736;
 const GEO_ASCII_PARAMS_TAG: u16 = 34737;
+/// `PhotometricInterpretation` (262) and its WhiteIsZero / BlackIsZero values.
+const PHOTOMETRIC_TAG: u16 = 262;
+const WHITE_IS_ZERO: u16 = 0;
+const BLACK_IS_ZERO: u16 = 1;
 
 /// GeoKey IDs (GeoTIFF spec section 6.2).
 const GT_MODEL_TYPE: u16 = 1024;
 const GT_RASTER_TYPE: u16 = 1025;
 const GT_CITATION: u16 = 1026;
 const GEOGRAPHIC_TYPE: u16 = 2048;
+const GEOG_ANGULAR_UNITS: u16 = 2054;
 const PROJECTED_CS_TYPE: u16 = 3072;
 const PCS_CITATION: u16 = 3073;
+const PROJ_LINEAR_UNITS: u16 = 3076;
+const PROJ_LINEAR_UNIT_SIZE: u16 = 3077;
+/// EPSG angular unit codes read as degrees (9102 degree, 9122 degree supplier to define
+/// representation).
+const DEGREE_UNITS: [u16; 2] = [9102, 9122];
 /// "User-defined" key value: the CRS is described by other keys, not an EPSG code.
 const USER_DEFINED: u16 = 32767;
 
@@ -77,17 +112,61 @@ fn map_tiff_error(path: &Path, file_len: u64, e: TiffError) -> DemError {
     DemError::new(path, kind)
 }
 
+/// The file's bytes as the decoder sees them: a few bytes overlaid while reading (the
+/// `PhotometricInterpretation` value of a WhiteIsZero file, shown as BlackIsZero so samples
+/// come out as stored). Everything else reads through unchanged.
+#[derive(Debug)]
+pub(crate) struct Patched {
+    file: File,
+    pos: u64,
+    /// `(file offset, bytes)` to show instead of the file's own.
+    patches: Vec<(u64, Vec<u8>)>,
+}
+
+impl Read for Patched {
+    fn read(&mut self, buf: &mut [u8]) -> std::io::Result<usize> {
+        let n = self.file.read(buf)?;
+        let (start, end) = (self.pos, self.pos + n as u64);
+        for (at, bytes) in &self.patches {
+            for (k, &b) in bytes.iter().enumerate() {
+                let o = at + k as u64;
+                if (start..end).contains(&o) {
+                    buf[(o - start) as usize] = b;
+                }
+            }
+        }
+        self.pos = end;
+        Ok(n)
+    }
+}
+
+impl Seek for Patched {
+    fn seek(&mut self, to: SeekFrom) -> std::io::Result<u64> {
+        self.pos = self.file.seek(to)?;
+        Ok(self.pos)
+    }
+}
+
+/// What the decoder reads: the file through [`Patched`], buffered.
+pub(crate) type Source = BufReader<Patched>;
+
 /// Checks the TIFF header and the first IFD lie inside the file, so a truncated file gets a
-/// precise [`DemErrorKind::Truncated`] rather than a generic end-of-file error.
-fn precheck_header(path: &Path, file: &mut File, len: u64) -> Result<(), DemError> {
+/// precise [`DemErrorKind::Truncated`] rather than a generic end-of-file error. Returns the
+/// overlay that shows a WhiteIsZero first image as BlackIsZero (empty otherwise).
+fn precheck_header(
+    path: &Path,
+    file: &mut File,
+    len: u64,
+) -> Result<Vec<(u64, Vec<u8>)>, DemError> {
     let trunc = |what, offset: u64, expected: u64| {
         DemError::new(
             path,
             DemErrorKind::Truncated { what, offset, expected, got: len.saturating_sub(offset) },
         )
     };
+    let io = |e| DemError::new(path, DemErrorKind::Io(e));
     let mut head = [0u8; 16];
-    let n = file.read(&mut head).map_err(|e| DemError::new(path, DemErrorKind::Io(e)))?;
+    let n = file.read(&mut head).map_err(io)?;
     let le = head[0] == b'I';
     let u16_at = |b: &[u8]| {
         if le { u16::from_le_bytes([b[0], b[1]]) } else { u16::from_be_bytes([b[0], b[1]]) }
@@ -108,26 +187,129 @@ fn precheck_header(path: &Path, file: &mut File, len: u64) -> Result<(), DemErro
     if ifd.saturating_add(count_len) > len {
         return Err(trunc("TIFF first IFD (entry count)", ifd, count_len));
     }
-    file.seek(SeekFrom::Start(ifd)).map_err(|e| DemError::new(path, DemErrorKind::Io(e)))?;
+    file.seek(SeekFrom::Start(ifd)).map_err(io)?;
     let mut c = [0u8; 8];
-    file.read_exact(&mut c[..count_len as usize])
-        .map_err(|e| DemError::new(path, DemErrorKind::Io(e)))?;
+    file.read_exact(&mut c[..count_len as usize]).map_err(io)?;
     let entries = if big {
         if le { u64::from_le_bytes(c) } else { u64::from_be_bytes(c) }
     } else {
         u16_at(&c[..2]) as u64
     };
     let entry_len = if big { 20 } else { 12 };
+    // Classic TIFF counts entries in a u16; a BigTIFF IFD with more than that is not a DEM's
+    // (and reading it whole below must stay small).
+    if entries > u64::from(u16::MAX) {
+        return Err(malformed(path, format!("the first IFD declares {entries} entries")));
+    }
     let ifd_len = count_len + entries.saturating_mul(entry_len);
     if ifd.saturating_add(ifd_len) > len {
         return Err(trunc("TIFF first IFD (entries)", ifd, ifd_len));
     }
-    file.seek(SeekFrom::Start(0)).map_err(|e| DemError::new(path, DemErrorKind::Io(e)))?;
+    // The IFD lies inside the file (checked above), so reading it whole is bounded by the file.
+    let mut table = vec![0u8; (ifd_len - count_len) as usize];
+    file.read_exact(&mut table).map_err(io)?;
+    let mut patches = Vec::new();
+    for (k, e) in table.chunks_exact(entry_len as usize).enumerate() {
+        // Entry: tag u16, type u16 (3 = SHORT), count, then the value inline (4 or 8 bytes).
+        let (tag, typ) = (u16_at(&e[0..2]), u16_at(&e[2..4]));
+        let value_at = if big { 12 } else { 8 };
+        if tag == PHOTOMETRIC_TAG && typ == 3 && u16_at(&e[value_at..value_at + 2]) == WHITE_IS_ZERO
+        {
+            let at = ifd + count_len + k as u64 * entry_len + value_at as u64;
+            let v = if le { BLACK_IS_ZERO.to_le_bytes() } else { BLACK_IS_ZERO.to_be_bytes() };
+            patches.push((at, v.to_vec()));
+        }
+    }
+    file.seek(SeekFrom::Start(0)).map_err(io)?;
+    Ok(patches)
+}
+
+/// Inflates the zlib stream of one Deflate strip or tile to its end, discarding the output,
+/// and checks its Adler-32 (RFC 1950 section 2.2): the decoder of the `tiff` crate stops
+/// reading once it has the chunk's bytes, so without this a damaged stream can read as
+/// (wrong) numbers. GDAL's zlib refuses such a chunk.
+fn check_deflate_chunk(
+    path: &Path,
+    file: &mut File,
+    (what, index): (&str, usize),
+    (offset, count): (u64, u64),
+) -> Result<(), DemError> {
+    if count == 0 {
+        // A sparse chunk (GDAL's SPARSE_OK): nothing to check here.
+        return Ok(());
+    }
+    let io = |e| DemError::new(path, DemErrorKind::Io(e));
+    let damaged = |why: String| {
+        malformed(
+            path,
+            format!(
+                "{what} {index} (bytes {offset}..{}): corrupt Deflate stream ({why}); the file is damaged, read a good copy",
+                offset + count
+            ),
+        )
+    };
+    file.seek(SeekFrom::Start(offset)).map_err(io)?;
+    let mut state = InflateState::new_boxed(DataFormat::Zlib);
+    let mut input = vec![0u8; count.min(1 << 20) as usize];
+    let mut out = vec![0u8; 1 << 16];
+    let mut left = count;
+    while left > 0 {
+        let n = input.len().min(left as usize);
+        file.read_exact(&mut input[..n]).map_err(io)?;
+        left -= n as u64;
+        let mut chunk = &input[..n];
+        loop {
+            // MZFlush::None throughout: Finish on a first call would ask for the whole output
+            // in one buffer.
+            let r = inflate(&mut state, chunk, &mut out, MZFlush::None);
+            chunk = &chunk[r.bytes_consumed..];
+            let progress = r.bytes_consumed > 0 || r.bytes_written > 0;
+            match r.status {
+                Ok(MZStatus::StreamEnd) => return Ok(()),
+                Ok(_) | Err(MZError::Buf) if progress => {}
+                Ok(_) | Err(MZError::Buf) => break,
+                Err(MZError::Data) => {
+                    return Err(damaged("invalid data or Adler-32 checksum mismatch".into()));
+                }
+                Err(e) => return Err(damaged(format!("{e:?}"))),
+            }
+        }
+    }
+    Err(damaged("the stream ends before its end marker and checksum".into()))
+}
+
+/// Checks every Deflate chunk of `chunks` (offset, byte count) with [`check_deflate_chunk`].
+pub(crate) fn check_deflate_chunks(
+    path: &Path,
+    what: &str,
+    chunks: &[(u64, u64)],
+    indices: impl Iterator<Item = usize>,
+) -> Result<(), DemError> {
+    let mut file = File::open(path).map_err(|e| DemError::new(path, DemErrorKind::Io(e)))?;
+    for k in indices {
+        if let Some(&c) = chunks.get(k) {
+            check_deflate_chunk(path, &mut file, (what, k), c)?;
+        }
+    }
     Ok(())
 }
 
+/// The chunks of a Deflate-compressed file, for [`check_deflate_chunks`].
+#[derive(Debug, Clone)]
+pub(crate) struct DeflateChunks {
+    /// "TIFF strip" or "TIFF tile".
+    pub what: &'static str,
+    /// `(offset, byte count)` per chunk.
+    pub chunks: Vec<(u64, u64)>,
+}
+
 /// Checks every strip/tile lies inside the file (a truncated file fails here, precisely).
-fn check_chunks(path: &Path, dec: &mut Decoder<BufReader<File>>, len: u64) -> Result<(), DemError> {
+/// Returns the chunks when they are Deflate streams (compression 8 or 32946).
+fn check_chunks(
+    path: &Path,
+    dec: &mut Decoder<Source>,
+    len: u64,
+) -> Result<Option<DeflateChunks>, DemError> {
     let (off_tag, cnt_tag, what) = match dec.get_chunk_type() {
         ChunkType::Strip => (Tag::StripOffsets, Tag::StripByteCounts, "TIFF strip"),
         ChunkType::Tile => (Tag::TileOffsets, Tag::TileByteCounts, "TIFF tile"),
@@ -173,13 +355,16 @@ fn check_chunks(path: &Path, dec: &mut Decoder<BufReader<File>>, len: u64) -> Re
             },
         ));
     }
-    Ok(())
+    Ok(matches!(compression, 8 | 32946).then(|| DeflateChunks {
+        what,
+        chunks: offsets.iter().copied().zip(counts.iter().copied()).collect(),
+    }))
 }
 
 /// Reads an optional tag as f64s, naming the tag on failure.
 fn tag_f64s(
     path: &Path,
-    dec: &mut Decoder<BufReader<File>>,
+    dec: &mut Decoder<Source>,
     tag: Tag,
     name: &str,
 ) -> Result<Option<Vec<f64>>, DemError> {
@@ -198,11 +383,19 @@ struct GeoKeys {
     model_type: Option<u16>,
     raster_type: Option<u16>,
     geographic: Option<u16>,
+    angular_units: Option<u16>,
     projected: Option<u16>,
+    linear_units: Option<u16>,
+    linear_unit_size: Option<f64>,
     citation: Option<String>,
 }
 
-fn parse_geokeys(path: &Path, dir: &[u16], ascii: Option<&str>) -> Result<GeoKeys, DemError> {
+fn parse_geokeys(
+    path: &Path,
+    dir: &[u16],
+    ascii: Option<&str>,
+    doubles: Option<&[f64]>,
+) -> Result<GeoKeys, DemError> {
     if dir.len() < 4 {
         return Err(malformed(
             path,
@@ -230,17 +423,171 @@ fn parse_geokeys(path: &Path, dir: &[u16], ascii: Option<&str>) -> Result<GeoKey
                 .flatten()
                 .map(|s| s.trim_end_matches(['|', '\0']).trim().to_string())
         };
+        // GeoDoubleParamsTag: `count` doubles from index `value`.
+        let double = || {
+            (loc == GEO_DOUBLE_PARAMS_TAG && count >= 1)
+                .then(|| doubles.and_then(|d| d.get(value).copied()))
+                .flatten()
+        };
         match id {
             GT_MODEL_TYPE => keys.model_type = short,
             GT_RASTER_TYPE => keys.raster_type = short,
             GEOGRAPHIC_TYPE => keys.geographic = short,
+            GEOG_ANGULAR_UNITS => keys.angular_units = short,
             PROJECTED_CS_TYPE => keys.projected = short,
+            PROJ_LINEAR_UNITS => keys.linear_units = short,
+            PROJ_LINEAR_UNIT_SIZE => keys.linear_unit_size = double(),
             PCS_CITATION => keys.citation = text().or(keys.citation.take()),
             GT_CITATION if keys.citation.is_none() => keys.citation = text(),
             _ => {}
         }
     }
     Ok(keys)
+}
+
+/// Metres per unit of an EPSG linear unit code: every length unit of the EPSG dataset that is
+/// not deprecated, with the factors of PROJ's `proj.db` (through which GDAL reads them).
+/// `None` for any other code, which is refused rather than guessed.
+fn linear_unit_m(code: u16) -> Option<f64> {
+    Some(match code {
+        1025 => 0.001,               // millimetre
+        1033 => 0.01,                // centimetre
+        9001 => 1.0,                 // metre
+        9002 => 0.3048,              // foot
+        9003 => 1200.0 / 3937.0,     // US survey foot
+        9005 => 0.3047972654,        // Clarke's foot
+        9014 => 1.8288,              // fathom
+        9030 => 1852.0,              // nautical mile
+        9031 => 1.0000135965,        // German legal metre
+        9033 => 20.11684023368047,   // US survey chain
+        9034 => 0.2011684023368047,  // US survey link
+        9035 => 1609.3472186944375,  // US survey mile
+        9036 => 1000.0,              // kilometre
+        9037 => 0.9143917962,        // Clarke's yard
+        9038 => 20.1166195164,       // Clarke's chain
+        9039 => 0.201166195164,      // Clarke's link
+        9040 => 0.9143984146160287,  // British yard (Sears 1922)
+        9041 => 0.3047994715386762,  // British foot (Sears 1922)
+        9042 => 20.116765121552632,  // British chain (Sears 1922)
+        9043 => 0.2011676512155263,  // British link (Sears 1922)
+        9050 => 0.9143992,           // British yard (Benoit 1895 A)
+        9051 => 0.3047997333333333,  // British foot (Benoit 1895 A)
+        9052 => 20.1167824,          // British chain (Benoit 1895 A)
+        9053 => 0.201167824,         // British link (Benoit 1895 A)
+        9060 => 0.9143992042898124,  // British yard (Benoit 1895 B)
+        9061 => 0.30479973476327077, // British foot (Benoit 1895 B)
+        9062 => 20.116782494375872,  // British chain (Benoit 1895 B)
+        9063 => 0.2011678249437587,  // British link (Benoit 1895 B)
+        9070 => 0.30480083333333335, // British foot (1865)
+        9080 => 0.30479951024814694, // Indian foot
+        9081 => 0.30479841,          // Indian foot (1937)
+        9082 => 0.3047996,           // Indian foot (1962)
+        9083 => 0.3047995,           // Indian foot (1975)
+        9084 => 0.9143985307444408,  // Indian yard
+        9085 => 0.91439523,          // Indian yard (1937)
+        9086 => 0.9143988,           // Indian yard (1962)
+        9087 => 0.9143985,           // Indian yard (1975)
+        9093 => 1609.344,            // Statute mile
+        9094 => 0.3047997101815088,  // Gold Coast foot
+        9095 => 0.3048007491,        // British foot (1936)
+        9096 => 0.9144,              // yard
+        9097 => 20.1168,             // chain
+        9098 => 0.201168,            // link
+        9099 => 0.914398,            // British yard (Sears 1922 truncated)
+        9300 => 0.30479933333333337, // British foot (Sears 1922 truncated)
+        9301 => 20.116756,           // British chain (Sears 1922 truncated)
+        9302 => 0.20116756,          // British link (Sears 1922 truncated)
+        _ => return None,
+    })
+}
+
+/// The linear unit of a projected CRS named only by its EPSG code and citation (no
+/// `ProjLinearUnitsGeoKey`): EPSG's names carry it ("NAD83 / Pennsylvania South (ftUS)",
+/// "... (ft)", "... feet"). Metres otherwise.
+fn unit_from_name(name: &str) -> f64 {
+    let n = name.to_ascii_lowercase();
+    if n.contains("ftus") || n.contains("us survey foot") || n.contains("us survey feet") {
+        1200.0 / 3937.0
+    } else if n.contains("(ft)") || n.contains("feet") || n.contains("foot") {
+        0.3048
+    } else {
+        1.0
+    }
+}
+
+/// What the GeoKeys say the CRS is.
+enum CrsKind {
+    /// Projected, with metres per linear unit.
+    Projected { crs: Crs, unit_m: f64 },
+    /// Geographic, in degrees.
+    Geographic(Crs),
+    /// No model type and no CRS code: the coordinates are taken as metres.
+    Unknown(Crs),
+}
+
+/// The CRS of `keys` (see the module docs for what is and is not supported).
+fn crs_kind(path: &Path, keys: &GeoKeys) -> Result<CrsKind, DemError> {
+    let unsupported = |message: String| {
+        DemError::new(path, DemErrorKind::Unsupported { format: FORMAT, message })
+    };
+    let code = |c: Option<u16>| c.filter(|&c| c != 0 && c != USER_DEFINED);
+    let projected_code = code(keys.projected);
+    let geographic_code = code(keys.geographic);
+    // GTModelTypeGeoKey decides; without it, a projected code, then a geographic one.
+    let model = match keys.model_type {
+        Some(m) => m,
+        None if keys.projected.is_some_and(|c| c != 0) => 1,
+        None if geographic_code.is_some_and(is_geographic_code) => 2,
+        None => 0,
+    };
+    match model {
+        1 => {
+            let crs = match (projected_code, &keys.citation) {
+                (Some(c), _) => Crs::Epsg(u32::from(c)),
+                (None, Some(t)) => Crs::Text(t.clone()),
+                (None, None) => Crs::Text("user-defined projected CRS".into()),
+            };
+            let unit_m = match keys.linear_units {
+                Some(USER_DEFINED) => keys
+                    .linear_unit_size
+                    .filter(|u| u.is_finite() && *u > 0.0)
+                    .ok_or_else(|| {
+                    unsupported(
+                        "a user-defined linear unit (ProjLinearUnitsGeoKey 32767) without a valid \
+                         ProjLinearUnitSizeGeoKey (3077)"
+                            .into(),
+                    )
+                })?,
+                Some(u) => linear_unit_m(u).ok_or_else(|| {
+                    unsupported(format!(
+                        "linear unit EPSG:{u} (ProjLinearUnitsGeoKey) is not an EPSG length unit; \
+                         convert the file to metres (gdalwarp -t_srs) to read it"
+                    ))
+                })?,
+                None => keys.citation.as_deref().map_or(1.0, unit_from_name),
+            };
+            Ok(CrsKind::Projected { crs, unit_m })
+        }
+        2 => {
+            if let Some(u) = keys.angular_units.filter(|u| !DEGREE_UNITS.contains(u)) {
+                return Err(unsupported(format!(
+                    "a geographic CRS in angular unit EPSG:{u} (GeogAngularUnitsGeoKey); only \
+                     degrees are read: convert the file (gdalwarp -t_srs EPSG:4326)"
+                )));
+            }
+            let crs = match (geographic_code, &keys.citation) {
+                (Some(c), _) => Crs::Epsg(u32::from(c)),
+                (None, Some(t)) => Crs::Text(t.clone()),
+                (None, None) => Crs::Text("user-defined geographic".into()),
+            };
+            Ok(CrsKind::Geographic(crs))
+        }
+        3 => Err(unsupported(
+            "a geocentric CRS (GTModelTypeGeoKey 3): only projected and geographic grids are read"
+                .into(),
+        )),
+        _ => Ok(CrsKind::Unknown(keys.citation.clone().map_or(Crs::Unknown, Crs::Text))),
+    }
 }
 
 /// Whether an EPSG code is a geographic 2D CRS (EPSG's 4001..4999 range: 4326 WGS 84, 4269 NAD83...).
@@ -250,11 +597,13 @@ fn is_geographic_code(code: u16) -> bool {
 
 /// A GeoTIFF whose header and georeference have been read, samples not yet decoded.
 pub(crate) struct Opened {
-    pub dec: Decoder<BufReader<File>>,
+    pub dec: Decoder<Source>,
     pub width: u32,
     pub height: u32,
     pub georef: Georef,
     pub file_nodata: Option<f64>,
+    /// The strips or tiles when they are Deflate streams (checked before decoding).
+    pub deflate: Option<DeflateChunks>,
 }
 
 /// Opens a decoder on `path` with the decoding limits of `options` (a buffer of at most
@@ -263,8 +612,10 @@ pub(crate) fn decoder(
     path: &Path,
     len: u64,
     max_bytes: usize,
-) -> Result<Decoder<BufReader<File>>, DemError> {
-    let file = File::open(path).map_err(|e| DemError::new(path, DemErrorKind::Io(e)))?;
+) -> Result<Decoder<Source>, DemError> {
+    let mut file = File::open(path).map_err(|e| DemError::new(path, DemErrorKind::Io(e)))?;
+    let patches = precheck_header(path, &mut file, len)?;
+    let file = Patched { file, pos: 0, patches };
     let limits = {
         let mut l = Limits::default();
         l.decoding_buffer_size = max_bytes;
@@ -287,8 +638,11 @@ pub(crate) fn read(path: &Path, len: u64, options: &LoadOptions) -> Result<RawGr
     // Decoding buffer: the whole image as f64 at most; checked against max_samples before any
     // decode happens, so this limit is a second line of defence.
     let max_bytes = options.max_samples.saturating_mul(8).min(usize::MAX as u64) as usize;
-    let Opened { mut dec, width: w, height: h, georef, file_nodata, .. } =
+    let Opened { mut dec, width: w, height: h, georef, file_nodata, deflate } =
         open(path, len, options, max_bytes)?;
+    if let Some(d) = &deflate {
+        check_deflate_chunks(path, d.what, &d.chunks, 0..d.chunks.len())?;
+    }
     let result = dec.read_image().map_err(|e| map_tiff_error(path, len, e))?;
     let (sample_type, values) = samples_to_f32(path, result)?;
     let (w, h) = (w as usize, h as usize);
@@ -351,9 +705,6 @@ pub(crate) fn open(
     max_bytes: usize,
 ) -> Result<Opened, DemError> {
     let err = |kind| DemError::new(path, kind);
-    let mut file = File::open(path).map_err(|e| err(DemErrorKind::Io(e)))?;
-    precheck_header(path, &mut file, len)?;
-    drop(file);
     let mut dec = decoder(path, len, max_bytes)?;
 
     let (w, h) = dec.dimensions().map_err(|e| map_tiff_error(path, len, e))?;
@@ -369,7 +720,7 @@ pub(crate) fn open(
             }));
         }
     }
-    check_chunks(path, &mut dec, len)?;
+    let deflate = check_chunks(path, &mut dec, len)?;
 
     // --- Georeference ---
     let scale = tag_f64s(path, &mut dec, Tag::ModelPixelScaleTag, "ModelPixelScaleTag (33550)")?;
@@ -392,8 +743,12 @@ pub(crate) fn open(
         Ok(Some(v)) => v.into_string().ok(),
         _ => None,
     };
+    let doubles =
+        tag_f64s(path, &mut dec, Tag::Unknown(GEO_DOUBLE_PARAMS_TAG), "GeoDoubleParamsTag (34736)")
+            .ok()
+            .flatten();
     let keys = match &geo_dir {
-        Some(d) => parse_geokeys(path, d, ascii.as_deref())?,
+        Some(d) => parse_geokeys(path, d, ascii.as_deref(), doubles.as_deref())?,
         None => GeoKeys::default(),
     };
     let file_nodata = match dec.find_tag(Tag::GdalNodata) {
@@ -462,42 +817,27 @@ pub(crate) fn open(
             let half = if keys.raster_type == Some(2) { 0.0 } else { 0.5 };
             let sw =
                 dvec2(corner.x + half * spacing.x, corner.y - (h as f64 - 1.0 + half) * spacing.y);
-            let projected = keys.projected.filter(|&c| c != 0 && c != USER_DEFINED);
-            let geographic_code = keys.geographic.filter(|&c| c != 0 && c != USER_DEFINED);
-            let geographic = projected.is_none()
-                && (keys.model_type == Some(2) || geographic_code.is_some_and(is_geographic_code));
-            let crs = if let Some(p) = projected {
-                Crs::Epsg(p as u32)
-            } else if geographic {
-                geographic_code.map_or_else(
-                    || {
-                        Crs::Text(
-                            keys.citation
-                                .clone()
-                                .unwrap_or_else(|| "user-defined geographic".into()),
-                        )
-                    },
-                    |c| Crs::Epsg(c as u32),
-                )
-            } else if let Some(c) = &keys.citation {
-                Crs::Text(c.clone())
-            } else {
-                Crs::Unknown
-            };
-            if geographic {
-                let centre_lat = sw.y + 0.5 * (h as f64 - 1.0) * spacing.y;
-                if !(-90.0..=90.0).contains(&centre_lat) {
-                    return Err(malformed(
-                        path,
-                        format!("geographic grid centred at latitude {centre_lat}"),
-                    ));
+            match crs_kind(path, &keys)? {
+                CrsKind::Projected { crs, unit_m } => {
+                    Georef::projected_in(crs, sw, spacing, unit_m)
                 }
-                Georef::geographic(crs, sw, spacing, centre_lat)
-            } else {
-                Georef::projected(crs, sw, spacing)
+                CrsKind::Geographic(crs) => {
+                    let centre_lat = sw.y + 0.5 * (h as f64 - 1.0) * spacing.y;
+                    if !(-90.0..=90.0).contains(&centre_lat) {
+                        return Err(malformed(
+                            path,
+                            format!(
+                                "geographic grid (degrees) centred at latitude {centre_lat}: the \
+                                 georeference is not in degrees"
+                            ),
+                        ));
+                    }
+                    Georef::geographic(crs, sw, spacing, centre_lat)
+                }
+                CrsKind::Unknown(crs) => Georef::projected(crs, sw, spacing),
             }
         }
     };
 
-    Ok(Opened { dec, width: w, height: h, georef, file_nodata })
+    Ok(Opened { dec, width: w, height: h, georef, file_nodata, deflate })
 }

@@ -47,6 +47,72 @@ fn map_image_error(path: &Path, magic: Magic, e: ImageError) -> DemError {
     DemError::new(path, kind)
 }
 
+/// Refuses a JPEG that ends before its end-of-image marker (`FF D9`): the decoder fills the
+/// missing part of a truncated file grey and reports success. Walks the marker segments
+/// (ITU-T T.81 annex B: every segment but SOI, EOI, RSTn and TEM carries a 16-bit length;
+/// after each SOS the entropy-coded data runs to the next marker, with `FF` stuffed as
+/// `FF 00`), so an EOI inside an embedded thumbnail (an APP1 segment) is not taken for the
+/// image's own.
+fn check_jpeg_complete(path: &Path, bytes: &[u8]) -> Result<(), DemError> {
+    let len = bytes.len();
+    let truncated = |at: usize, what: &str| {
+        DemError::new(
+            path,
+            DemErrorKind::Malformed {
+                format: "JPEG",
+                message: format!(
+                    "the file ends ({len} bytes) {what} at byte {at}, before the end-of-image \
+                     marker (FF D9): it is truncated; read a complete copy"
+                ),
+            },
+        )
+    };
+    let mut pos = 2; // after SOI
+    loop {
+        // Fill bytes (FF FF ...) may precede a marker.
+        while pos < len && bytes[pos] != 0xFF {
+            pos += 1;
+        }
+        while pos + 1 < len && bytes[pos + 1] == 0xFF {
+            pos += 1;
+        }
+        if pos + 1 >= len {
+            return Err(truncated(pos, "looking for a marker"));
+        }
+        let marker = bytes[pos + 1];
+        match marker {
+            0xD9 => return Ok(()),
+            0x01 | 0xD0..=0xD8 => pos += 2,
+            _ => {
+                if pos + 4 > len {
+                    return Err(truncated(pos, "in a segment header"));
+                }
+                let seg = usize::from(u16::from_be_bytes([bytes[pos + 2], bytes[pos + 3]]));
+                if pos + 2 + seg > len {
+                    return Err(truncated(pos, "inside a segment"));
+                }
+                pos += 2 + seg;
+                if marker == 0xDA {
+                    // Entropy-coded data up to the next marker that is not a stuffed FF 00 or
+                    // a restart marker.
+                    loop {
+                        if pos + 1 >= len {
+                            return Err(truncated(pos, "inside the compressed image data"));
+                        }
+                        if bytes[pos] == 0xFF
+                            && bytes[pos + 1] != 0x00
+                            && !(0xD0..=0xD7).contains(&bytes[pos + 1])
+                        {
+                            break;
+                        }
+                        pos += 1;
+                    }
+                }
+            }
+        }
+    }
+}
+
 fn open(path: &Path, magic: Magic) -> Result<ImageReader<BufReader<std::fs::File>>, DemError> {
     let file = std::fs::File::open(path).map_err(|e| DemError::new(path, DemErrorKind::Io(e)))?;
     let fmt = if magic == Magic::Jpeg { ImageFormat::Jpeg } else { ImageFormat::Png };
@@ -61,6 +127,11 @@ pub(crate) fn read(
     options: &LoadOptions,
 ) -> Result<RawGrid, DemError> {
     let err = |kind| DemError::new(path, kind);
+    if magic == Magic::Jpeg {
+        // Whole: the decoder reads the whole file too.
+        let bytes = std::fs::read(path).map_err(|e| err(DemErrorKind::Io(e)))?;
+        check_jpeg_complete(path, &bytes)?;
+    }
     // Read the header first and refuse oversized images before the decoder allocates.
     let (w, h) =
         open(path, magic)?.into_dimensions().map_err(|e| map_image_error(path, magic, e))?;

@@ -130,6 +130,130 @@ pub struct Dem {
     pub heightmap: Heightmap,
     /// The source.
     pub source: SourceInfo,
+    /// What looks like a mistake in how the file was read (the data is never changed for it):
+    /// callers show these to the user.
+    pub warnings: Vec<LoadWarning>,
+}
+
+/// Heights below the deepest ocean floor (Challenger Deep, about -10,935 m) or above the
+/// highest summit (Everest, 8,849 m), with margins: no terrain has them, so they are void
+/// sentinels, a wrong vertical unit or a wrong sample type.
+const LOWEST_PLAUSIBLE_M: f64 = -11_000.0;
+const HIGHEST_PLAUSIBLE_M: f64 = 9_000.0;
+/// Common void sentinels that are plausible heights (ocean depths); flagged only when they
+/// stand apart from every other sample by more than [`SENTINEL_GAP_M`].
+const IN_RANGE_SENTINELS: [f64; 1] = [-9999.0];
+const SENTINEL_GAP_M: f64 = 1000.0;
+
+/// Whether a height in metres is one some terrain has.
+pub(crate) fn plausible(z: f64) -> bool {
+    (LOWEST_PLAUSIBLE_M..=HIGHEST_PLAUSIBLE_M).contains(&z)
+}
+
+/// Something in a DEM that looks like a mistake in how it was read. Reported, never acted on:
+/// the heights are read as the file and options say.
+#[derive(Debug, Clone, PartialEq)]
+#[non_exhaustive]
+pub enum LoadWarning {
+    /// Samples at an extreme value (a void sentinel such as -32767, -9999 or -3.4e38) while no
+    /// no-data value is in force: they are read as heights.
+    Sentinel {
+        /// The file.
+        path: PathBuf,
+        /// The value.
+        value: f64,
+        /// Samples with it, where known (a file read whole; not when read by rows).
+        count: Option<u64>,
+    },
+    /// A grey image read at 1 m per grey level (no vertical scale given) whose relief is
+    /// implausible: higher than any terrain, or steeper than 45 degrees across the whole grid.
+    Relief {
+        /// The file.
+        path: PathBuf,
+        /// Highest minus lowest valid height, metres.
+        relief_m: f64,
+        /// The grid's larger horizontal extent, metres.
+        extent_m: f64,
+    },
+}
+
+impl std::fmt::Display for LoadWarning {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            LoadWarning::Sentinel { path, value, count } => {
+                // Short and parseable back: -32767, -9999, -3.4028234663852886e38.
+                let v = if value.abs() >= 1e7 { format!("{value:e}") } else { format!("{value}") };
+                let n = count.map_or_else(|| "some".to_string(), |c| c.to_string());
+                write!(
+                    f,
+                    "{}: {n} samples are {v} and no nodata value is set, so they are read as \
+                     heights of {v} m; if they are voids, give --nodata={v}",
+                    path.display()
+                )
+            }
+            LoadWarning::Relief { path, relief_m, extent_m } => write!(
+                f,
+                "{}: read as 1 m per grey level (no --vertical-scale), the relief is {relief_m:.0} \
+                 m over {extent_m:.0} m, which no terrain has; give --vertical-scale (metres per \
+                 grey level) and --spacing (metres per sample)",
+                path.display()
+            ),
+        }
+    }
+}
+
+/// Looks for what [`LoadWarning`] describes in a heightmap just read from `path`.
+fn inspect(
+    path: &Path,
+    format: Format,
+    options: &LoadOptions,
+    hm: &Heightmap,
+    nodata: Option<f64>,
+) -> Vec<LoadWarning> {
+    let (w, h) = (hm.width(), hm.height());
+    let valid = || {
+        (0..h)
+            .flat_map(move |j| (0..w).map(move |i| (i, j)))
+            .filter(|&(i, j)| !hm.voids().get(i, j))
+            .map(|(i, j)| f64::from(hm.get(i, j)))
+    };
+    let (lo, hi) =
+        valid().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), z| (a.min(z), b.max(z)));
+    if !(lo.is_finite() && hi.is_finite()) {
+        return Vec::new();
+    }
+    let mut out = Vec::new();
+    let image = matches!(format, Format::GreyImage);
+    if image {
+        let default_scale = options.vertical_scale == 1.0 && options.vertical_offset == 0.0;
+        let g = hm.georef();
+        let extent_m = ((w - 1) as f64 * g.spacing_m.x).max((h - 1) as f64 * g.spacing_m.y);
+        let relief_m = hi - lo;
+        if default_scale && (relief_m > HIGHEST_PLAUSIBLE_M || relief_m > extent_m.max(1.0)) {
+            out.push(LoadWarning::Relief { path: path.to_path_buf(), relief_m, extent_m });
+        }
+    } else if nodata.is_none() {
+        for v in [lo, hi] {
+            let extreme = !plausible(v);
+            let apart = IN_RANGE_SENTINELS.contains(&v) && {
+                let next = if v == lo {
+                    valid().filter(|&z| z != v).fold(f64::INFINITY, f64::min) - v
+                } else {
+                    v - valid().filter(|&z| z != v).fold(f64::NEG_INFINITY, f64::max)
+                };
+                next > SENTINEL_GAP_M
+            };
+            if (extreme || apart)
+                && !out
+                    .iter()
+                    .any(|o| matches!(o, LoadWarning::Sentinel { value, .. } if *value == v))
+            {
+                let count = Some(valid().filter(|&z| z == v).count() as u64);
+                out.push(LoadWarning::Sentinel { path: path.to_path_buf(), value: v, count });
+            }
+        }
+    }
+    out
 }
 
 /// Magic bytes of the formats we detect (and of a few we recognise only to name them).
@@ -306,8 +430,10 @@ pub fn load(path: impl AsRef<Path>, options: &LoadOptions) -> Result<Dem, DemErr
     let nodata = grid.nodata;
     let sample_type = grid.sample_type.clone();
     let heightmap = voids::build_heightmap(path, grid)?;
+    let warnings = inspect(path, format, options, &heightmap, nodata);
     Ok(Dem {
         heightmap,
         source: SourceInfo { path: path.to_path_buf(), format, sample_type, nodata },
+        warnings,
     })
 }

@@ -128,7 +128,9 @@ pub fn load_mosaic(paths: &[impl AsRef<Path>], options: &LoadOptions) -> Result<
         AngularOrLinear::Degrees => {
             Georef::geographic(g0.crs.clone(), origin, sp, origin.y + 0.5 * (h as f64 - 1.0) * sp.y)
         }
-        AngularOrLinear::Metres => Georef::projected(g0.crs.clone(), origin, sp),
+        AngularOrLinear::Metres => {
+            Georef::projected_in(g0.crs.clone(), origin, sp, g0.linear_unit_m().unwrap_or(1.0))
+        }
     };
     let s0 = &tiles[0].source;
     let sample_type = if tiles.iter().all(|t| t.source.sample_type == s0.sample_type) {
@@ -145,7 +147,9 @@ pub fn load_mosaic(paths: &[impl AsRef<Path>], options: &LoadOptions) -> Result<
         sample_type: sample_type.clone(),
     };
     let heightmap = voids::build_heightmap(first, grid)?;
+    let warnings = tiles.iter().flat_map(|t| t.warnings.iter().cloned()).collect();
     Ok(Dem {
+        warnings,
         heightmap,
         source: SourceInfo {
             path: first.to_path_buf(),

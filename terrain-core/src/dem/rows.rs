@@ -14,7 +14,7 @@
 
 use std::collections::VecDeque;
 use std::fs::File;
-use std::io::{BufReader, Read, Seek, SeekFrom};
+use std::io::{Read, Seek, SeekFrom};
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
@@ -38,7 +38,9 @@ enum Inner {
         offset: f64,
     },
     Tiff {
-        decoders: Mutex<Vec<Decoder<BufReader<File>>>>,
+        decoders: Mutex<Vec<Decoder<geotiff::Source>>>,
+        /// Deflate chunks, checked (Adler-32, end of stream) before each is decoded.
+        deflate: Option<geotiff::DeflateChunks>,
         /// Recently decoded chunks: a band's rows are read in several pieces (and once more
         /// for the void mask), and each piece would otherwise decode the same strips or tiles.
         recent: Mutex<VecDeque<(u32, Arc<Vec<f32>>)>>,
@@ -63,6 +65,8 @@ pub struct RowReader {
     source: SourceInfo,
     inner: Inner,
     zero_filled: AtomicU64,
+    /// Lowest and highest valid height read so far (for [`RowReader::warnings`]).
+    seen: Mutex<(f32, f32)>,
 }
 
 impl std::fmt::Debug for RowReader {
@@ -104,7 +108,7 @@ impl RowReader {
             Format::GeoTiff => {
                 // One chunk (strip or tile) at a time, as f64 at most.
                 let opened = geotiff::open(path, len, &unbounded, 1 << 30)?;
-                let geotiff::Opened { dec, width, height, georef, file_nodata } = opened;
+                let geotiff::Opened { dec, width, height, georef, file_nodata, deflate } = opened;
                 let (chunk_w, chunk_h) = dec.chunk_dimensions();
                 let chunk = dec.get_chunk_type();
                 if chunk_w == 0 || chunk_h == 0 {
@@ -127,6 +131,7 @@ impl RowReader {
                     },
                     inner: Inner::Tiff {
                         decoders: Mutex::new(vec![dec]),
+                        deflate,
                         recent: Mutex::new(VecDeque::new()),
                         // Two rows of chunks (a band can straddle a chunk row) plus slack.
                         recent_cap: match chunk {
@@ -139,6 +144,7 @@ impl RowReader {
                         max_bytes: 1 << 30,
                     },
                     zero_filled: AtomicU64::new(0),
+                    seen: Mutex::new((f32::INFINITY, f32::NEG_INFINITY)),
                 };
                 // The sample type: decode the first chunk once (small).
                 let (name, _) = reader.decode_chunk(0)?;
@@ -178,6 +184,7 @@ impl RowReader {
                         offset: options.vertical_offset,
                     },
                     zero_filled: AtomicU64::new(0),
+                    seen: Mutex::new((f32::INFINITY, f32::NEG_INFINITY)),
                 })
             }
             other => Err(err(DemErrorKind::Unsupported {
@@ -212,13 +219,40 @@ impl RowReader {
         self.zero_filled.load(Ordering::Relaxed)
     }
 
+    /// What looks like a mistake in the rows read so far (as [`super::load`] reports in
+    /// [`super::Dem::warnings`]): the lowest or highest valid height is a void sentinel no
+    /// terrain has (below -11,000 m or above 9,000 m) while no no-data value is in force. The
+    /// count of such samples is not known here (bands share rows).
+    pub fn warnings(&self) -> Vec<super::LoadWarning> {
+        let Ok(&(lo, hi)) = self.seen.lock().as_deref() else { return Vec::new() };
+        if self.source.nodata.is_some() || !(lo.is_finite() && hi.is_finite()) {
+            return Vec::new();
+        }
+        let mut out = Vec::new();
+        for v in [lo, hi] {
+            let v = f64::from(v);
+            let known = out
+                .iter()
+                .any(|w| matches!(w, super::LoadWarning::Sentinel { value, .. } if *value == v));
+            if !super::plausible(v) && !known {
+                out.push(super::LoadWarning::Sentinel {
+                    path: self.path.clone(),
+                    value: v,
+                    count: None,
+                });
+            }
+        }
+        out
+    }
+
     fn error(&self, kind: DemErrorKind) -> DemError {
         DemError::new(&self.path, kind)
     }
 
     /// Decodes chunk `index` (strip or tile) as f32, with the sample type's name.
     fn decode_chunk(&self, index: u32) -> Result<(&'static str, Arc<Vec<f32>>), DemError> {
-        let Inner::Tiff { decoders, recent, recent_cap, max_bytes, .. } = &self.inner else {
+        let Inner::Tiff { decoders, deflate, recent, recent_cap, max_bytes, .. } = &self.inner
+        else {
             unreachable!("decode_chunk on a raw reader")
         };
         if let Some(hit) = recent
@@ -227,6 +261,14 @@ impl RowReader {
             .and_then(|r| r.iter().find(|(i, _)| *i == index).map(|(_, v)| Arc::clone(v)))
         {
             return Ok((self.sample_name(), hit));
+        }
+        if let Some(d) = deflate {
+            geotiff::check_deflate_chunks(
+                &self.path,
+                d.what,
+                &d.chunks,
+                [index as usize].into_iter(),
+            )?;
         }
         let pooled = decoders.lock().map(|mut d| d.pop()).unwrap_or(None);
         let mut dec = match pooled {
@@ -406,8 +448,16 @@ impl RowReader {
         }
         let wu = w as usize;
         self.read_south_rows(j0, rows, heights)?;
-        for (v, x) in voids.iter_mut().zip(heights.iter()) {
+        let (mut lo_z, mut hi_z) = (f32::INFINITY, f32::NEG_INFINITY);
+        for (v, &x) in voids.iter_mut().zip(heights.iter()) {
             *v = x.is_nan();
+            if !x.is_nan() {
+                lo_z = lo_z.min(x);
+                hi_z = hi_z.max(x);
+            }
+        }
+        if let Ok(mut seen) = self.seen.lock() {
+            *seen = (seen.0.min(lo_z), seen.1.max(hi_z));
         }
         if !voids.iter().any(|&v| v) {
             return Ok(());

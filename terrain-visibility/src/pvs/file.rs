@@ -4,12 +4,16 @@
 //!
 //! Layout, little-endian:
 //! ```text
-//! magic "TPVS" | version u32 = 1 | mode u8 (0 sampled, 1 conservative) | patch_level u8 |
+//! magic "TPVS" | version u32 = 2 | mode u8 (0 sampled, 1 conservative) | patch_level u8 |
 //! 2 bytes zero | width u32 | height u32 | root_cells u32 | cells_x u32 | cells_y u32 |
 //! floors u32 | floor_height_m f64 | origin 2 x f64 | spacing 2 x f64 |
+//! heights u32 (CRC-32 of the heights and void mask baked, as in the DSS table) |
 //! bases: cells_x cells_y x (bottom f32, top f32) |
 //! bits: cells_x cells_y floors x bytes_per_cell | crc32 u32 (of all bytes before it)
 //! ```
+//!
+//! Version 1 had no `heights`: a stale PVS (same grid size, other heights) could not be told
+//! from a good one. Version 1 files are refused with a message to bake again.
 
 use std::path::{Path, PathBuf};
 
@@ -20,8 +24,8 @@ use super::{Pvs, PvsLayout, PvsMode};
 /// The file's magic bytes.
 pub const MAGIC: [u8; 4] = *b"TPVS";
 /// The format version this code writes and reads.
-pub const VERSION: u32 = 1;
-const HEADER_BYTES: usize = 4 + 4 + 4 + 6 * 4 + 8 + 4 * 8;
+pub const VERSION: u32 = 2;
+const HEADER_BYTES: usize = 4 + 4 + 4 + 6 * 4 + 8 + 4 * 8 + 4;
 
 /// Why a PVS file could not be read or written.
 #[derive(Debug, thiserror::Error)]
@@ -45,7 +49,12 @@ pub enum PvsFileError {
     },
     /// The file was written by another version of the format.
     #[error(
-        "{path}: PVS format version {found}, this build reads version {VERSION}: bake it again"
+        "{path}: {}: bake the scene again (terrain bake)",
+        if *found < VERSION {
+            format!("baked by an older version of terrain (PVS format {found}, this one reads {VERSION})")
+        } else {
+            format!("baked by a newer version of terrain (PVS format {found}, this one reads {VERSION})")
+        }
     )]
     Version {
         /// The file.
@@ -75,6 +84,7 @@ pub fn encode(pvs: &Pvs) -> Vec<u8> {
     for v in [l.floor_height_m, l.origin.x, l.origin.y, l.spacing.x, l.spacing.y] {
         out.extend_from_slice(&v.to_le_bytes());
     }
+    out.extend_from_slice(&l.heights.to_le_bytes());
     for &(a, b) in &l.bases {
         out.extend_from_slice(&a.to_le_bytes());
         out.extend_from_slice(&b.to_le_bytes());
@@ -114,6 +124,7 @@ pub fn decode(bytes: &[u8], path: &Path) -> Result<Pvs, PvsFileError> {
     let [width, height, root_cells, cells_x, cells_y, floors] =
         std::array::from_fn(|k| u32_at(12 + 4 * k));
     let [floor_height_m, ox, oy, sx, sy] = std::array::from_fn(|k| f64_at(36 + 8 * k));
+    let heights = u32_at(76);
     if patch_level > 12
         || width < 2
         || height < 2
@@ -138,6 +149,7 @@ pub fn decode(bytes: &[u8], path: &Path) -> Result<Pvs, PvsFileError> {
         origin: DVec2::new(ox, oy),
         spacing: DVec2::new(sx, sy),
         bases: Vec::new(),
+        heights,
     };
     let bits_len = layout.cell_count() * layout.bytes_per_cell();
     let expected = HEADER_BYTES + plan * 8 + bits_len;

@@ -46,6 +46,7 @@ pub mod truth;
 
 use glam::{DVec2, DVec3};
 use terrain_core::Heightmap;
+use terrain_core::lod::dss_file::heights_checksum;
 use terrain_core::quadtree::{Cull, CullPolicy, NodeId, NodeInfo, TreeShape};
 
 pub use bake::{BakeStats, bake, bake_both, bake_both_with_progress};
@@ -181,6 +182,10 @@ pub struct PvsLayout {
     /// Per plan cell (row-major, `b * cells_x + a`): the `bottom` and `top` of its floors'
     /// formula; NaN for a cell outside the grid.
     pub bases: Vec<(f32, f32)>,
+    /// CRC-32 of the heights and void mask baked (terrain-core's `heights_checksum`, as the DSS
+    /// table keeps): a PVS is tied to its terrain, and a stale one (the DEM re-read with other
+    /// options, edited, re-cropped at the same size) is refused rather than used.
+    pub heights: u32,
 }
 
 impl PvsLayout {
@@ -205,6 +210,7 @@ impl PvsLayout {
             origin: g.world_origin,
             spacing: g.spacing_m,
             bases: Vec::with_capacity((cx * cy) as usize),
+            heights: heights_checksum(hm),
         };
         layout.floor_height_m = match cfg.floor_rule {
             FloorRule::AboveTerrain { height_m } => height_m.unwrap_or(relief / f64::from(floors)),
@@ -406,6 +412,12 @@ impl Pvs {
     pub fn matches(&self, qt: &TreeShape) -> bool {
         (self.layout.width, self.layout.height, self.layout.root_cells)
             == (qt.width(), qt.height(), qt.root_cells())
+    }
+
+    /// Whether this PVS was baked from exactly these heights (and void mask): the CRC-32 it
+    /// stores against `hm`'s ([`PvsLayout::heights`]).
+    pub fn matches_heights(&self, hm: &Heightmap) -> bool {
+        self.layout.heights == heights_checksum(hm)
     }
 
     /// The cull policy for a camera at `eye` (see [`PvsCull`]).

@@ -1,0 +1,395 @@
+//! GeoTIFF and JPEG variants written by GDAL (`tests/data/geotiff/make.py`, from the shared
+//! SRTM heights) read against GDAL's own values stored beside them (`gdal_values.json`):
+//! WhiteIsZero files read as stored, projected CRSs in feet and user-defined projected CRSs
+//! placed in metres, damaged Deflate streams and truncated JPEGs refused; implausible heights
+//! (void sentinels without a nodata value, grey images read at 1 m per level) warned about.
+
+mod common;
+
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicUsize, Ordering};
+
+use common::data;
+use serde_json::Value;
+use terrain_core::dem::{LoadOptions, LoadWarning, RowReader, load};
+use terrain_core::georef::AngularOrLinear;
+use terrain_core::{Crs, Heightmap};
+
+fn dir() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/geotiff")
+}
+
+/// GDAL's values of variant `name`.
+fn gdal(name: &str) -> Value {
+    let text = std::fs::read_to_string(dir().join("gdal_values.json")).expect("gdal_values.json");
+    let all: Value = serde_json::from_str(&text).expect("JSON");
+    all["variants"]
+        .as_array()
+        .expect("variants")
+        .iter()
+        .find(|v| v["file"] == name)
+        .unwrap_or_else(|| panic!("{name} not in gdal_values.json"))
+        .clone()
+}
+
+fn f(v: &Value) -> f64 {
+    v.as_f64().unwrap_or_else(|| panic!("{v} is not a number"))
+}
+
+fn temp_dir() -> PathBuf {
+    static N: AtomicUsize = AtomicUsize::new(0);
+    let d = std::env::temp_dir().join(format!(
+        "terrain-core-variants-{}-{}",
+        std::process::id(),
+        N.fetch_add(1, Ordering::Relaxed)
+    ));
+    std::fs::create_dir_all(&d).expect("create temp dir");
+    d
+}
+
+/// Void count, min, max and sum of the valid samples.
+fn stats(hm: &Heightmap) -> (usize, f64, f64, f64) {
+    let (mut lo, mut hi, mut sum) = (f64::INFINITY, f64::NEG_INFINITY, 0.0);
+    for j in 0..hm.height() {
+        for i in 0..hm.width() {
+            if !hm.voids().get(i, j) {
+                let z = f64::from(hm.get(i, j));
+                lo = lo.min(z);
+                hi = hi.max(z);
+                sum += z;
+            }
+        }
+    }
+    (hm.voids().count(), lo, hi, sum)
+}
+
+/// Size, voids, min, max and sum equal GDAL's.
+fn assert_samples_like_gdal(name: &str, hm: &Heightmap) {
+    let g = gdal(name);
+    assert_eq!(hm.width() as u64, g["size"][0].as_u64().unwrap(), "{name}: width");
+    assert_eq!(hm.height() as u64, g["size"][1].as_u64().unwrap(), "{name}: height");
+    let (voids, lo, hi, sum) = stats(hm);
+    assert_eq!(voids as u64, g["voids"].as_u64().unwrap(), "{name}: voids");
+    assert_eq!(lo, f(&g["min"]), "{name}: min");
+    assert_eq!(hi, f(&g["max"]), "{name}: max");
+    assert_eq!(sum, f(&g["sum"]), "{name}: sum of the valid samples");
+}
+
+#[test]
+fn white_is_zero_reads_the_stored_values_like_gdal() {
+    for name in ["wiz_int16.tif", "wiz_float32.tif"] {
+        let dem = load(dir().join(name), &LoadOptions::default())
+            .unwrap_or_else(|e| panic!("{name}: {e}"));
+        assert_eq!(dem.source.nodata, gdal(name)["nodata"].as_f64(), "{name}: nodata");
+        assert_samples_like_gdal(name, &dem.heightmap);
+    }
+}
+
+#[test]
+fn white_is_zero_streams_the_stored_values_too() {
+    for name in ["wiz_int16.tif", "wiz_float32.tif"] {
+        let path = dir().join(name);
+        let whole = load(&path, &LoadOptions::default()).unwrap();
+        let r = RowReader::open(&path, &LoadOptions::default()).unwrap();
+        let (w, h) = (r.width() as usize, r.height() as usize);
+        let mut rows = vec![0f32; w * h];
+        let mut voids = vec![false; w * h];
+        r.read_rows(0, h, &mut rows, &mut voids).unwrap();
+        for j in 0..h {
+            for i in 0..w {
+                assert_eq!(
+                    voids[j * w + i],
+                    whole.heightmap.voids().get(i, j),
+                    "{name} ({i}, {j})"
+                );
+                if !voids[j * w + i] {
+                    assert_eq!(rows[j * w + i], whole.heightmap.get(i, j), "{name} ({i}, {j})");
+                }
+            }
+        }
+    }
+}
+
+/// Native origin (centre of the south-west sample) and spacing from GDAL's geotransform, and
+/// the metric spacing from GDAL's linear unit.
+fn assert_placed_like_gdal(name: &str, hm: &Heightmap) {
+    let g = gdal(name);
+    let gt: Vec<f64> = g["geotransform"].as_array().unwrap().iter().map(f).collect();
+    let h = g["size"][1].as_f64().unwrap();
+    let unit = f(&g["linear_unit_m"]);
+    assert!(g["projected"].as_bool().unwrap(), "{name}: GDAL reads a projected CRS");
+    let geo = hm.georef();
+    assert_eq!(geo.units, AngularOrLinear::Metres, "{name}: linear units, not degrees");
+    let close = |a: f64, b: f64| (a - b).abs() <= 1e-9 * b.abs().max(1.0);
+    assert!(close(geo.native_spacing.x, gt[1]), "{name}: native dx {}", geo.native_spacing.x);
+    assert!(close(geo.native_spacing.y, -gt[5]), "{name}: native dy {}", geo.native_spacing.y);
+    assert!(close(geo.native_origin.x, gt[0] + 0.5 * gt[1]), "{name}: x0");
+    assert!(close(geo.native_origin.y, gt[3] + (h - 0.5) * gt[5]), "{name}: y0");
+    assert!(
+        close(geo.spacing_m.x, gt[1] * unit) && close(geo.spacing_m.y, -gt[5] * unit),
+        "{name}: spacing {:?} m, GDAL: {} units of {unit} m",
+        geo.spacing_m,
+        gt[1]
+    );
+    assert!(close(geo.world_origin.x, geo.native_origin.x * unit), "{name}: world x0");
+    assert!(close(geo.world_origin.y, geo.native_origin.y * unit), "{name}: world y0");
+}
+
+#[test]
+fn projected_crs_in_us_survey_feet_is_converted_to_metres() {
+    let name = "ftus_epsg2272.tif";
+    let dem = load(dir().join(name), &LoadOptions::default()).unwrap();
+    assert_eq!(dem.heightmap.georef().crs, Crs::Epsg(2272));
+    assert_placed_like_gdal(name, &dem.heightmap);
+    assert_samples_like_gdal(name, &dem.heightmap);
+    // The row reader places it the same way.
+    let r = RowReader::open(dir().join(name), &LoadOptions::default()).unwrap();
+    assert_eq!(r.georef(), dem.heightmap.georef());
+}
+
+#[test]
+fn user_defined_projected_crs_is_not_taken_for_degrees() {
+    for name in ["ftintl_user_tmerc.tif", "m_user_tmerc.tif", "m_user_albers.tif"] {
+        let dem = load(dir().join(name), &LoadOptions::default())
+            .unwrap_or_else(|e| panic!("{name}: {e}"));
+        assert!(
+            !matches!(dem.heightmap.georef().crs, Crs::Epsg(_)),
+            "{name}: no EPSG code, got {}",
+            dem.heightmap.georef().crs
+        );
+        assert_placed_like_gdal(name, &dem.heightmap);
+    }
+}
+
+/// Single-bit flips of a Deflate strip longer than 32 KiB (every bit of its last 64 bytes,
+/// every 97th before them): every flip the reference zlib refuses (its verdicts are recorded
+/// by `make.py`) is refused by the whole-file and the row readers, and the message names the
+/// file.
+#[test]
+fn damaged_deflate_streams_are_refused_like_zlib_refuses_them() {
+    let name = "deflate_strip.tif";
+    let path = dir().join(name);
+    let good = load(&path, &LoadOptions::default()).unwrap();
+    assert_samples_like_gdal(name, &good.heightmap);
+    let all: Value =
+        serde_json::from_str(&std::fs::read_to_string(dir().join("gdal_values.json")).unwrap())
+            .unwrap();
+    let flips = &all["deflate_flips"];
+    assert_eq!(flips["file"], name);
+    let (offset, count) = (flips["offset"].as_u64().unwrap(), flips["bytes"].as_u64().unwrap());
+    let (every, tail) =
+        (flips["every_nth_bit"].as_u64().unwrap(), flips["tail_bytes"].as_u64().unwrap());
+    let bits: Vec<u64> = (0..(count - tail) * 8)
+        .step_by(every as usize)
+        .chain((count - tail) * 8..count * 8)
+        .collect();
+    assert_eq!(bits.len() as u64, flips["flips"].as_u64().unwrap());
+    let zlib_ok: std::collections::HashSet<u64> = flips["zlib_accepted_bits"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|b| b.as_u64().unwrap())
+        .collect();
+    let bytes = std::fs::read(&path).unwrap();
+    let tmp = temp_dir();
+    let p = tmp.join("flipped.tif");
+    let (mut refused, mut checked) = (0, 0);
+    for &bit in bits.iter().filter(|b| !zlib_ok.contains(b)) {
+        let mut b = bytes.clone();
+        b[(offset + bit / 8) as usize] ^= 1 << (bit % 8);
+        std::fs::write(&p, &b).unwrap();
+        checked += 1;
+        match load(&p, &LoadOptions::default()) {
+            Err(e) => {
+                refused += 1;
+                let msg = e.to_string();
+                assert!(msg.contains("flipped.tif"), "the message names the file: {msg}");
+            }
+            Ok(_) => panic!("bit {bit} of the strip flipped: zlib refuses it, we read it"),
+        }
+        // The row reader (bakes) refuses it too.
+        if let Ok(r) = RowReader::open(&p, &LoadOptions::default()) {
+            let (w, h) = (r.width() as usize, r.height() as usize);
+            let mut rows = vec![0f32; w * h];
+            let mut voids = vec![false; w * h];
+            assert!(
+                r.read_rows(0, h, &mut rows, &mut voids).is_err(),
+                "rows: bit {bit} flipped read as numbers"
+            );
+        }
+    }
+    assert_eq!(refused, checked);
+    assert!(checked > 4_000, "{checked} flips checked");
+    let _ = std::fs::remove_dir_all(&tmp);
+}
+
+#[test]
+fn truncated_jpeg_heightmaps_are_refused() {
+    let path = dir().join("grey.jpg");
+    let whole = load(&path, &LoadOptions::default()).unwrap();
+    let g = gdal("grey.jpg");
+    assert_eq!(whole.heightmap.width() as u64, g["size"][0].as_u64().unwrap());
+    assert_eq!(whole.heightmap.height() as u64, g["size"][1].as_u64().unwrap());
+    let bytes = std::fs::read(&path).unwrap();
+    let tmp = temp_dir();
+    for keep in [bytes.len() / 10, bytes.len() / 2, bytes.len() * 9 / 10, bytes.len() - 2] {
+        let p = tmp.join(format!("cut_{keep}.jpg"));
+        std::fs::write(&p, &bytes[..keep]).unwrap();
+        let e = load(&p, &LoadOptions::default())
+            .map(|_| ())
+            .expect_err(&format!("{keep} of {} bytes read as a heightmap", bytes.len()));
+        let msg = e.to_string();
+        assert!(msg.contains("cut_") && msg.contains("truncated"), "{msg}");
+    }
+    let _ = std::fs::remove_dir_all(&tmp);
+}
+
+/// The sentinel warnings of `dem`: (value, count).
+fn sentinels(warnings: &[LoadWarning]) -> Vec<(f64, Option<u64>)> {
+    warnings
+        .iter()
+        .filter_map(|w| match w {
+            LoadWarning::Sentinel { value, count, .. } => Some((*value, *count)),
+            _ => None,
+        })
+        .collect()
+}
+
+#[test]
+fn void_sentinels_without_a_nodata_value_are_warned_about() {
+    // The shared Crater Lake file: -32767 voids and no nodata tag (see data/README.md).
+    let crater = data("crater_lake/craterlake-elev-16bit-30m.tif");
+    let dem = load(&crater, &LoadOptions::default()).unwrap();
+    let found = sentinels(&dem.warnings);
+    assert_eq!(found.len(), 1, "{:?}", dem.warnings);
+    assert_eq!(found[0].0, -32767.0);
+    let stored = dem.heightmap.data().iter().filter(|&&z| z == -32767.0).count() as u64;
+    assert_eq!(found[0].1, Some(stored), "the count is the samples read as -32767 m");
+    let msg = dem.warnings[0].to_string();
+    assert!(msg.contains("craterlake") && msg.contains("--nodata=-32767"), "{msg}");
+    // The heights are unchanged: the warning changes nothing.
+    assert!(stored > 0);
+    // With --nodata the samples are voids and nothing is said.
+    let fixed =
+        load(&crater, &LoadOptions { nodata: Some(-32767.0), ..Default::default() }).unwrap();
+    assert!(fixed.warnings.is_empty(), "{:?}", fixed.warnings);
+    assert_eq!(Some(fixed.heightmap.voids().count() as u64), found[0].1);
+    // Read by rows (bakes of DEMs larger than memory): the same warning, without a count.
+    let rows_of = |options: &LoadOptions| {
+        let r = RowReader::open(&crater, options).unwrap();
+        let (w, h) = (r.width() as usize, r.height() as usize);
+        let (mut z, mut v) = (vec![0f32; w * h], vec![false; w * h]);
+        r.read_rows(0, h, &mut z, &mut v).unwrap();
+        r.warnings()
+    };
+    assert_eq!(sentinels(&rows_of(&LoadOptions::default())), vec![(-32767.0, None)]);
+    assert!(rows_of(&LoadOptions { nodata: Some(-32767.0), ..Default::default() }).is_empty());
+
+    // GDAL-written variants: the Rainier crop's voids as -9999 and as float32's lowest value,
+    // with no nodata tag; as many as the crop's voids (GDAL's count of the original).
+    let voids = gdal("wiz_int16.tif")["voids"].as_u64().unwrap();
+    for (name, value) in
+        [("sentinel_9999.tif", -9999.0), ("sentinel_f32min.tif", f64::from(f32::MIN))]
+    {
+        let dem = load(dir().join(name), &LoadOptions::default()).unwrap();
+        // As f32, the file's sample type (serde_json's float parsing is not exact to the last
+        // bit of an f64).
+        assert_eq!(f(&gdal(name)["min"]) as f32, value as f32, "{name}: GDAL's lowest value");
+        assert_eq!(
+            sentinels(&dem.warnings),
+            vec![(value, Some(voids))],
+            "{name}: {:?}",
+            dem.warnings
+        );
+        let msg = dem.warnings[0].to_string();
+        let option = format!(
+            "--nodata={}",
+            if value == -9999.0 { "-9999".to_string() } else { format!("{value:e}") }
+        );
+        assert!(msg.contains(name) && msg.contains(&option), "{msg}");
+    }
+
+    // Real files with their voids declared, or none: nothing to say.
+    for rel in ["big_tujunga/bigtujunga.tif", "lidar_prairie/dem.tif", "srtm/N52E008.hgt"] {
+        let dem = load(data(rel), &LoadOptions::default()).unwrap();
+        assert!(dem.warnings.is_empty(), "{rel}: {:?}", dem.warnings);
+    }
+}
+
+#[test]
+fn a_grey_png_read_without_a_vertical_scale_is_warned_about() {
+    // Puget Sound: 16-bit grey, 0..43798 raw, metres = raw x 0.1, 160 m spacing (README).
+    let png = data("puget_sound/ps_height_1k.png");
+    let dem = load(&png, &LoadOptions::default()).unwrap();
+    let relief: Vec<f64> = dem
+        .warnings
+        .iter()
+        .filter_map(|w| match w {
+            LoadWarning::Relief { relief_m, .. } => Some(*relief_m),
+            _ => None,
+        })
+        .collect();
+    assert_eq!(relief, vec![f64::from(dem.heightmap.max() - dem.heightmap.min())]);
+    let msg = dem.warnings[0].to_string();
+    assert!(msg.contains("ps_height_1k.png") && msg.contains("--vertical-scale"), "{msg}");
+    // Read as the README says: nothing to say.
+    let options = LoadOptions { vertical_scale: 0.1, spacing_m: 160.0, ..LoadOptions::default() };
+    let dem = load(&png, &options).unwrap();
+    assert!(dem.warnings.is_empty(), "{:?}", dem.warnings);
+}
+
+/// `bytes` with the first occurrence of the GeoKey entry `from` (four u16, little-endian)
+/// replaced by `to`.
+fn patch_geokey(bytes: &[u8], from: [u16; 4], to: [u16; 4]) -> Vec<u8> {
+    let le = |k: [u16; 4]| k.iter().flat_map(|v| v.to_le_bytes()).collect::<Vec<u8>>();
+    let (from, to) = (le(from), le(to));
+    let at = bytes.windows(8).position(|w| w == from.as_slice()).expect("the key is in the file");
+    let mut out = bytes.to_vec();
+    out[at..at + 8].copy_from_slice(&to);
+    out
+}
+
+#[test]
+fn the_unit_of_an_epsg_crs_without_a_units_key_comes_from_its_name() {
+    // The EPSG:2272 variant with its ProjLinearUnitsGeoKey (3076 = 9003, US survey foot)
+    // renamed to an unknown key: the unit must come from the CRS name GDAL wrote in the
+    // citation ("NAD83 / Pennsylvania South (ftUS)").
+    let name = "ftus_epsg2272.tif";
+    let bytes = std::fs::read(dir().join(name)).unwrap();
+    let tmp = temp_dir();
+    let p = tmp.join("no_units_key.tif");
+    std::fs::write(&p, patch_geokey(&bytes, [3076, 0, 1, 9003], [3999, 0, 1, 9003])).unwrap();
+    let dem = load(&p, &LoadOptions::default()).unwrap();
+    let g = gdal(name);
+    let want = f(&g["geotransform"][1]) * f(&g["linear_unit_m"]);
+    assert!(
+        (dem.heightmap.georef().spacing_m.x - want).abs() < 1e-9,
+        "{:?}",
+        dem.heightmap.georef()
+    );
+    let _ = std::fs::remove_dir_all(&tmp);
+}
+
+#[test]
+fn unsupported_crs_kinds_are_refused_saying_what_is_not_read() {
+    let bytes = std::fs::read(dir().join("wiz_int16.tif")).unwrap();
+    let tmp = temp_dir();
+    for (from, to, said) in [
+        // GeogAngularUnitsGeoKey: degree (9102) -> radian (9101).
+        ([2054, 0, 1, 9102], [2054, 0, 1, 9101], "angular unit EPSG:9101"),
+        // GTModelTypeGeoKey: geographic (2) -> geocentric (3).
+        ([1024, 0, 1, 2], [1024, 0, 1, 3], "geocentric"),
+    ] {
+        let p = tmp.join("patched.tif");
+        std::fs::write(&p, patch_geokey(&bytes, from, to)).unwrap();
+        let e = load(&p, &LoadOptions::default()).map(|_| ()).unwrap_err().to_string();
+        assert!(e.contains("patched.tif") && e.contains(said), "{e}");
+    }
+    // A projected CRS in an unknown linear unit is refused, never taken as metres.
+    let bytes = std::fs::read(dir().join("ftus_epsg2272.tif")).unwrap();
+    let p = tmp.join("odd_unit.tif");
+    std::fs::write(&p, patch_geokey(&bytes, [3076, 0, 1, 9003], [3076, 0, 1, 9999])).unwrap();
+    let e = load(&p, &LoadOptions::default()).map(|_| ()).unwrap_err().to_string();
+    assert!(e.contains("EPSG:9999") && e.contains("linear unit"), "{e}");
+    let _ = std::fs::remove_dir_all(&tmp);
+}
