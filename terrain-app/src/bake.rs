@@ -158,26 +158,34 @@ pub(crate) fn run(args: &BakeArgs) -> anyhow::Result<()> {
     }
     let start = std::time::Instant::now();
     let mut err = std::io::stderr();
+    let terminal = terrain_app::progress::on_terminal();
+    let mut quarter = 0;
     let mut bar = |p: &BakeProgress| {
         let frac = p.blocks_done as f64 / p.blocks_total.max(1) as f64;
         let filled = (frac * 40.0).round() as usize;
-        let _ = write!(
-            err,
-            "\r[{}{}] {:5.1}% {}/{} blocks, {:.1} MB written, {:.0} s",
-            "#".repeat(filled),
-            " ".repeat(40 - filled),
+        let line = format!(
+            "{:5.1}% {}/{} blocks, {:.1} MB written, {:.0} s",
             frac * 100.0,
             p.blocks_done,
             p.blocks_total,
             p.bytes_written as f64 / 1e6,
             start.elapsed().as_secs_f64()
         );
+        if terminal {
+            let _ = write!(err, "\r[{}{}] {line}", "#".repeat(filled), " ".repeat(40 - filled));
+        } else if (frac * 4.0) as u32 > quarter {
+            // A log: a plain line at each quarter, no carriage returns.
+            quarter = (frac * 4.0) as u32;
+            let _ = writeln!(err, "blocks: {line}");
+        }
         let _ = err.flush();
         ControlFlow::Continue(())
     };
     let report = bake(source, &args.output, &config, &mut bar)
         .with_context(|| format!("baking {}", args.output.display()))?;
-    eprintln!();
+    if terminal {
+        eprintln!();
+    }
     for w in rows.as_ref().map(RowReader::warnings).unwrap_or_default() {
         eprintln!("warning: {w}");
     }

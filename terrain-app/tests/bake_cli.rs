@@ -20,6 +20,8 @@ fn ok(out: &Output) -> String {
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(out.status.success(), "terrain bake failed: {err}");
     assert!(!err.contains("panicked"), "{err}");
+    // Not a terminal (a pipe): progress as plain lines, never carriage returns in a log.
+    assert!(!err.contains('\r'), "carriage returns in a non-terminal log: {err:?}");
     String::from_utf8_lossy(&out.stdout).into_owned()
 }
 

@@ -30,10 +30,18 @@ pub struct BenchProgress {
     pub label: String,
 }
 
-/// A plain-text progress bar on stderr, rewritten in place.
+/// A plain-text progress bar on stderr, rewritten in place on a terminal; elsewhere (a log, CI)
+/// a plain line at each tenth of the frames, without carriage returns.
 pub fn print_progress(p: &BenchProgress) {
     let width = 30;
     let filled = (p.done * width).checked_div(p.total).unwrap_or(width);
+    if !crate::progress::on_terminal() {
+        let tenth = |d: usize| (d * 10).checked_div(p.total).unwrap_or(10);
+        if p.done == p.total || tenth(p.done) > tenth(p.done.saturating_sub(1)) {
+            eprintln!("{}/{} frames: {}", p.done, p.total, p.label);
+        }
+        return;
+    }
     eprint!(
         "\r[{}{}] {}/{} {:<40}",
         "#".repeat(filled),
