@@ -123,8 +123,110 @@ impl InfoReport {
     }
 }
 
+/// What `terrain info` says about a baked store (a folder, not a DEM file).
+#[derive(Debug, Serialize)]
+pub(crate) struct StoreReport {
+    pub store: String,
+    pub width: u64,
+    pub height: u64,
+    pub crs: String,
+    pub spacing_m: [f64; 2],
+    pub block_side: u32,
+    pub blocks: [u32; 2],
+    pub encoding: String,
+    pub max_error_m: f64,
+    pub min_m: f32,
+    pub max_m: f32,
+    pub bytes: u64,
+    /// The per-node tables the store-backed methods read, present in the folder.
+    pub tables: Vec<String>,
+}
+
+impl StoreReport {
+    fn new(dir: &std::path::Path) -> anyhow::Result<Self> {
+        use anyhow::Context;
+        let store = terrain_stream::Store::open(dir)
+            .with_context(|| format!("could not open the store {}", dir.display()))?;
+        let h = store.header();
+        let (mut lo, mut hi) = (f32::INFINITY, f32::NEG_INFINITY);
+        for id in store.block_ids() {
+            if let Some(e) = store.entry(id) {
+                lo = lo.min(e.min);
+                hi = hi.max(e.max);
+            }
+        }
+        let encoding = match h.encoding {
+            terrain_stream::SampleEncoding::Quantized { step_m, offset_m } => {
+                format!("integer steps of {step_m} m from {offset_m} m")
+            }
+            terrain_stream::SampleEncoding::F32 => "f32".to_string(),
+        };
+        let tables =
+            ["dss_errors.bin", "roughness.bin", "geomip.bin", "pvs.bin", "pvs_conservative.bin"]
+                .iter()
+                .filter(|f| dir.join(f).is_file())
+                .map(|f| f.to_string())
+                .collect();
+        let index = std::fs::metadata(dir.join(terrain_stream::INDEX_FILE)).map_or(0, |m| m.len());
+        Ok(Self {
+            store: dir.display().to_string(),
+            width: h.width,
+            height: h.height,
+            crs: h.georef.crs.to_string(),
+            spacing_m: h.georef.spacing_m.to_array(),
+            block_side: h.block_side(),
+            blocks: [h.blocks_x, h.blocks_y],
+            encoding,
+            max_error_m: h.max_error_m,
+            min_m: lo,
+            max_m: hi,
+            bytes: index + store.blocks_bytes(),
+            tables,
+        })
+    }
+
+    fn to_text(&self) -> String {
+        let mut s = String::new();
+        s += &format!("store        {} (a baked block store)\n", self.store);
+        s += &format!("size         {} x {} samples\n", self.width, self.height);
+        s += &format!("crs          {}\n", self.crs);
+        s += &format!("spacing (m)  {:.3} x {:.3} m\n", self.spacing_m[0], self.spacing_m[1]);
+        s += &format!(
+            "blocks       {} x {} of {}^2 vertices, {:.1} MB\n",
+            self.blocks[0],
+            self.blocks[1],
+            self.block_side,
+            self.bytes as f64 / 1e6
+        );
+        let exact = if self.max_error_m == 0.0 {
+            "lossless".to_string()
+        } else {
+            format!("max vertical error {:.4} m", self.max_error_m)
+        };
+        s += &format!(
+            "heights      {:.2} .. {:.2} m, {}, {exact}\n",
+            self.min_m, self.max_m, self.encoding
+        );
+        let tables =
+            if self.tables.is_empty() { "none".to_string() } else { self.tables.join(", ") };
+        s += &format!("tables       {tables}\n");
+        s
+    }
+}
+
 /// Runs `terrain info`.
 pub(crate) fn run(args: &InfoArgs) -> anyhow::Result<()> {
+    if let [one] = args.source.dem.as_slice()
+        && terrain_stream::is_store(one)
+    {
+        let report = StoreReport::new(one)?;
+        if args.json {
+            println!("{}", serde_json::to_string_pretty(&report)?);
+        } else {
+            print!("{}", report.to_text());
+        }
+        return Ok(());
+    }
     let report = match args.source.load()? {
         Some(dem) => {
             let src = &dem.source;

@@ -47,6 +47,17 @@ fn an_hgt_bakes_losslessly_and_reads_back_bit_exact() {
         "--no-pvs",
     ]));
     assert!(stdout.contains("lossless") && stdout.contains("1201 x 1201"), "{stdout}");
+    // `terrain info` describes the store (a folder), in text and JSON.
+    let info = ok(&terrain(&["info", s(&out)]));
+    assert!(
+        info.contains("a baked block store")
+            && info.contains("1201 x 1201")
+            && info.contains("lossless"),
+        "{info}"
+    );
+    let json: serde_json::Value =
+        serde_json::from_str(&ok(&terrain(&["info", s(&out), "--json"]))).unwrap();
+    assert_eq!(json["blocks"], serde_json::json!([5, 5]), "{json}");
 
     let dem = load(&hgt, &LoadOptions::default()).unwrap();
     let hm = &dem.heightmap;

@@ -278,6 +278,14 @@ fn mosaic_errors() {
     )
     .unwrap_err();
     assert!(e.to_string().contains("EPSG:32611"), "{e}");
+    // The same tile twice is not a mosaic.
+    let e = load_mosaic(
+        &[data("srtm/N41E001.hgt"), data("srtm/N42E001.hgt"), data("srtm/N41E001.hgt")],
+        &LoadOptions::default(),
+    )
+    .unwrap_err();
+    assert!(matches!(e.kind, DemErrorKind::Mosaic(_)), "{e}");
+    assert!(e.to_string().contains("given twice") && e.to_string().contains("N41E001"), "{e}");
 }
 
 #[test]

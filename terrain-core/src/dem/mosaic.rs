@@ -73,7 +73,20 @@ pub fn load_mosaic(paths: &[impl AsRef<Path>], options: &LoadOptions) -> Result<
                 r.x, r.y
             )));
         }
-        placed.push((r.x as i64, r.y as i64, t));
+        // The same area twice (the same tile given twice, or a copy of it) is a mistake, not
+        // a mosaic: refused rather than silently merged.
+        let (pi, pj) = (r.x as i64, r.y as i64);
+        let size = (t.heightmap.width(), t.heightmap.height());
+        if let Some(k) = placed.iter().position(|&(qi, qj, q): &(i64, i64, &Dem)| {
+            (qi, qj) == (pi, pj) && (q.heightmap.width(), q.heightmap.height()) == size
+        }) {
+            return Err(merr(format!(
+                "{name} covers exactly the area of {} (the same tile given twice?): give each \
+                 tile once",
+                paths[k].as_ref().display()
+            )));
+        }
+        placed.push((pi, pj, t));
     }
     let i0 = placed.iter().map(|p| p.0).min().unwrap_or(0);
     let j0 = placed.iter().map(|p| p.1).min().unwrap_or(0);
