@@ -69,31 +69,12 @@ impl Method for OocMethod<'_> {
     fn frame(&mut self, camera: &Camera) -> Frame {
         let warm = self.wait == OocWait::EveryFrame || self.frames == 0;
         self.frames += 1;
-        let mut f = self.scene.frame(camera, warm);
-        let selection = std::mem::take(&mut f.selection);
-        let stats = MethodStats {
-            selection_ms: selection.stats.cpu_time.as_secs_f64() * 1e3,
-            patches: selection.patches.len(),
-            stream: Some(f.stream.clone()),
-            blocks: Some(BlockStats {
-                blocks_drawn: f.blocks_drawn,
-                blocks_dropped: f.blocks_dropped,
-                pages_uploaded: f.updates.iter().filter(|u| u.fill.is_some()).count(),
-            }),
-            ..MethodStats::default()
-        };
-        Frame { selection, draw: Draw::Paged(Box::new(f)), stats, built: None }
+        paged_frame(self.scene.frame(camera, warm))
     }
 
     /// The surface drawn from the pages' heights (the paged renderer's CPU reference).
     fn surface(&self, frame: &mut Frame) -> anyhow::Result<DrawnSurface> {
-        let Some(reference) = self.reference else {
-            anyhow::bail!("the out-of-core method is measured only against a DEM in memory");
-        };
-        let mirror = self.scene.mirror().expect("a measured runtime keeps its mirror");
-        let drawn = mirror.to_heightmap(&reference.hm);
-        let (mesh, triangles) = drawn_surface_of(&drawn, &reference.qt, &frame.selection);
-        Ok(DrawnSurface { mesh, triangles })
+        paged_surface(&self.scene, self.reference, frame)
     }
 
     fn renderer_kind(&self) -> RendererKind {
@@ -107,4 +88,46 @@ impl Method for OocMethod<'_> {
     ) -> anyhow::Result<FrameRenderer> {
         FrameRenderer::paged(&self.scene, ctx, config)
     }
+}
+
+/// A store's frame ([`OocScene::frame`] or [`OocScene::frame_for`]) as a [`Frame`] for the
+/// paged renderer, with its selection, stream and block figures: one conversion for every
+/// store-backed method.
+pub(super) fn paged_frame(mut f: crate::ooc::OocFrame) -> Frame {
+    let selection = std::mem::take(&mut f.selection);
+    let stats = MethodStats {
+        selection_ms: selection.stats.cpu_time.as_secs_f64() * 1e3,
+        patches: selection.patches.len(),
+        stream: Some(f.stream.clone()),
+        blocks: Some(BlockStats {
+            blocks_drawn: f.blocks_drawn,
+            blocks_dropped: f.blocks_dropped,
+            pages_uploaded: f.updates.iter().filter(|u| u.fill.is_some()).count(),
+        }),
+        ..MethodStats::default()
+    };
+    Frame { selection, draw: Draw::Paged(Box::new(f)), stats, built: None }
+}
+
+/// The surface a store's frame draws, rebuilt from the pages' heights (the CPU mirror of the
+/// paged renderer, holes filled from `reference`'s DEM where no page is resident): the
+/// tessellated patches, and the strips' triangles when the frame has them.
+pub(super) fn paged_surface(
+    scene: &OocScene,
+    reference: Option<&MethodScene>,
+    frame: &Frame,
+) -> anyhow::Result<DrawnSurface> {
+    let Some(reference) = reference else {
+        anyhow::bail!("a method drawn from a store is measured only against a DEM in memory");
+    };
+    let mirror = scene.mirror().expect("a measured runtime keeps its mirror");
+    let drawn = mirror.to_heightmap(&reference.hm);
+    let (mesh, triangles) = match &frame.draw {
+        // Blocks plus strips: the strips join blocks that share no edge.
+        Draw::Paged(f) if !f.extra.indices.is_empty() => {
+            terrain_gpu::strips::build_strip_surface(&drawn, &f.patches, &f.extra)
+        }
+        _ => drawn_surface_of(&drawn, &reference.qt, &frame.selection),
+    };
+    Ok(DrawnSurface { mesh, triangles })
 }

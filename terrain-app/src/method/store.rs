@@ -23,19 +23,14 @@ use terrain_core::lod::{
     select_dss_uniform, select_pvps, select_pvps_with_cull,
 };
 use terrain_core::quadtree::NodeTree;
-use terrain_gpu::strips;
 use terrain_stream::StoreTree;
 use terrain_visibility::pvs::{Pvs, PvsMode, read_pvs};
 use terrain_visibility::roughness::NodePyramid;
 
-use super::ooc::OocWait;
-use super::{
-    BlockStats, Draw, DrawnSurface, Frame, FrameRenderer, Method, MethodStats, OocMethod,
-    RendererKind,
-};
+use super::ooc::{OocWait, paged_frame, paged_surface};
+use super::{DrawnSurface, Frame, FrameRenderer, Method, OocMethod, RendererKind};
 use crate::methods::{
-    LodMethod, MethodConfig, MethodScene, drawn_surface_of, geomorph_selection, select_uniform,
-    strips_frame,
+    LodMethod, MethodConfig, MethodScene, geomorph_selection, select_uniform, strips_frame,
 };
 use crate::ooc::{OocScene, StoreDraw};
 
@@ -256,37 +251,12 @@ impl Method for StoreMethod<'_> {
             };
             StoreDraw { selection, strips: None }
         };
-        let mut f = self.scene.frame_for(camera, warm, &self.tree, &mut select);
-        let selection = std::mem::take(&mut f.selection);
-        let stats = MethodStats {
-            selection_ms: selection.stats.cpu_time.as_secs_f64() * 1e3,
-            patches: selection.patches.len(),
-            stream: Some(f.stream.clone()),
-            blocks: Some(BlockStats {
-                blocks_drawn: f.blocks_drawn,
-                blocks_dropped: f.blocks_dropped,
-                pages_uploaded: f.updates.iter().filter(|u| u.fill.is_some()).count(),
-            }),
-            ..MethodStats::default()
-        };
-        Frame { selection, draw: Draw::Paged(Box::new(f)), stats, built: None }
+        paged_frame(self.scene.frame_for(camera, warm, &self.tree, &mut select))
     }
 
     /// The surface drawn from the pages' heights (the paged renderer's CPU reference).
     fn surface(&self, frame: &mut Frame) -> anyhow::Result<DrawnSurface> {
-        let Some(reference) = self.reference else {
-            anyhow::bail!("a store-backed method is measured only against a DEM in memory");
-        };
-        let mirror = self.scene.mirror().expect("a measured runtime keeps its mirror");
-        let drawn = mirror.to_heightmap(&reference.hm);
-        let (mesh, triangles) = match &frame.draw {
-            // Blocks plus strips: the strips join blocks that share no edge.
-            Draw::Paged(f) if self.kind.has_strips() => {
-                strips::build_strip_surface(&drawn, &f.patches, &f.extra)
-            }
-            _ => drawn_surface_of(&drawn, &reference.qt, &frame.selection),
-        };
-        Ok(DrawnSurface { mesh, triangles })
+        paged_surface(&self.scene, self.reference, frame)
     }
 
     fn renderer_kind(&self) -> RendererKind {
