@@ -87,7 +87,7 @@ pub fn streams(format: Format) -> bool {
 
 impl RowReader {
     /// Opens `path` (format detected as [`load`](super::load) does, or `options.format`),
-    /// reading only its header. `options.max_samples` does not apply: nothing of the grid's
+    /// reading only its header. `options.max_samples` and `max_memory_bytes` do not apply: nothing of the grid's
     /// size is ever allocated. Formats other than GeoTIFF and raw are refused with
     /// [`DemErrorKind::Unsupported`] (their readers decode the whole file; use `load`).
     pub fn open(path: impl AsRef<Path>, options: &LoadOptions) -> Result<Self, DemError> {
@@ -103,7 +103,8 @@ impl RowReader {
                     "rows can be streamed from GeoTIFF and raw files only".to_string(),
                 ))
             })?;
-        let unbounded = LoadOptions { max_samples: u64::MAX, ..options.clone() };
+        let unbounded =
+            LoadOptions { max_samples: u64::MAX, max_memory_bytes: u64::MAX, ..options.clone() };
         match format {
             Format::GeoTiff => {
                 // One chunk (strip or tile) at a time, as f64 at most.
@@ -157,7 +158,7 @@ impl RowReader {
                         "a raw file needs LoadOptions::raw (width, height, sample type)".into(),
                     )));
                 };
-                super::check_size(path, spec.width, spec.height, &unbounded)?;
+                super::check_size(path, spec.width, spec.height, 0, &unbounded)?;
                 let (bytes, name) = raw_sample(spec.sample);
                 let expected = spec.width * spec.height * bytes;
                 if len != expected {
