@@ -76,12 +76,12 @@ pub enum DemErrorKind {
         /// The limit in samples.
         limit: u64,
     },
-    /// Reading the declared size would need more memory than allowed; nothing of that size was
+    /// Reading the declared size would need more memory than allowed
+    /// (`LoadOptions::max_memory_bytes`, the CLI's `--max-memory`); nothing of that size was
     /// allocated.
     #[error(
         "declared size {width} x {height} samples would need {} to read, over the memory limit \
-         of {}; raise it with --max-memory (LoadOptions::max_memory_bytes) if the file is \
-         meant to be that large",
+         of {}; raise it with --max-memory if the file is meant to be that large",
         crate::error::mib(*bytes),
         crate::error::mib(*limit)
     )]

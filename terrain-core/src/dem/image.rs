@@ -209,13 +209,10 @@ pub(crate) fn read(
     check_declared_size(path, magic, len, w as u64, h as u64)?;
     let mut reader = open(path, magic)?;
     let mut limits = image::Limits::default();
-    // Decoded image plus decoder slack, never over the memory limit.
-    limits.max_alloc = Some(
-        (w as u64 * h as u64)
-            .saturating_mul(2 * pixel_bytes)
-            .max(64 << 20)
-            .min(options.max_memory_bytes),
-    );
+    // Decoded image plus decoder slack (a progressive JPEG keeps 16-bit coefficients of every
+    // component), never over the memory limit.
+    limits.max_alloc =
+        Some((w as u64 * h as u64).saturating_mul(16).max(64 << 20).min(options.max_memory_bytes));
     reader.limits(limits);
     let img = reader.decode().map_err(|e| map_image_error(path, magic, e))?;
     let (w, h) = (w as usize, h as usize);
