@@ -95,6 +95,27 @@ pub enum DemErrorKind {
         /// The limit in bytes.
         limit: u64,
     },
+    /// Reading by rows would hold more strip or tile memory than allowed
+    /// (`LoadOptions::max_memory_bytes`, the CLI's `--max-memory`).
+    #[error(
+        "reading by rows holds {chunks} strips or tiles of {chunk_w} x {chunk_h} samples at \
+         once, which would need {}, over the memory limit of {}; raise it with --max-memory \
+         if the file is meant to be read so",
+        crate::error::mib(*bytes),
+        crate::error::mib(*limit)
+    )]
+    ChunkMemoryLimit {
+        /// Columns of a strip or tile.
+        chunk_w: u32,
+        /// Rows of a strip or tile.
+        chunk_h: u32,
+        /// Strips or tiles held at once.
+        chunks: usize,
+        /// Estimated bytes needed.
+        bytes: u64,
+        /// The limit in bytes.
+        limit: u64,
+    },
     /// Width or height is zero.
     #[error("the grid is empty ({width} x {height} samples)")]
     ZeroSize {

@@ -211,3 +211,31 @@ fn raw_and_hgt_are_under_the_limit() {
     let e = load(&p, &low).unwrap_err();
     assert_eq!(memory_limit(&e).2, bytes_to_read(1201, 1201, 2));
 }
+
+/// Reading by rows holds a few strips or tiles, not the grid: those are under the limit too.
+#[test]
+fn rows_hold_strips_under_the_limit() {
+    use terrain_core::dem::RowReader;
+    use tiff::encoder::{TiffEncoder, colortype::Gray32Float};
+    let (w, h) = (512u32, 512u32);
+    let mut out = Cursor::new(Vec::new());
+    let data = vec![7f32; (w * h) as usize];
+    TiffEncoder::new(&mut out).unwrap().write_image::<Gray32Float>(w, h, &data).unwrap();
+    let p = write_temp("strips.tif", &out.into_inner());
+
+    let r = RowReader::open(&p, &LoadOptions::default()).unwrap();
+    let (mut row, mut voids) = (vec![0f32; w as usize], vec![false; w as usize]);
+    r.read_rows(0, 1, &mut row, &mut voids).unwrap();
+    assert_eq!(row[3], 7.0);
+    // Under the whole-grid estimate of a load, but over what 4 cached strips and one decode take.
+    let opts = LoadOptions { max_memory_bytes: 4 << 10, ..Default::default() };
+    let Err(e) = RowReader::open(&p, &opts) else { panic!("not refused") };
+    let DemErrorKind::ChunkMemoryLimit { chunk_w, chunks, bytes, limit, .. } = e.kind else {
+        panic!("expected ChunkMemoryLimit, got {e}");
+    };
+    assert_eq!((chunk_w, chunks, limit), (512, 4, 4 << 10));
+    assert!(bytes > limit);
+    let msg = e.to_string();
+    assert!(msg.contains("strips.tif") && msg.contains("--max-memory"), "{msg}");
+    assert_no_huge_allocation();
+}
