@@ -82,7 +82,8 @@ pub(crate) struct BakeArgs {
     /// `terrain_core::dem::rows`), not from the whole void's rim.
     #[arg(long)]
     pub stream: bool,
-    /// Stream GeoTIFF and raw DEMs with more samples than this (default 2^28: 1 GiB of f32).
+    /// Stream GeoTIFF and raw DEMs with more samples than this (default 2^28: 1 GiB of f32), or
+    /// whose whole read would need more than --max-memory.
     #[arg(long, default_value_t = 1 << 28)]
     pub stream_above: u64,
 }
@@ -98,7 +99,16 @@ fn streamed(args: &BakeArgs) -> anyhow::Result<Option<RowReader>> {
     };
     let options = args.source.load_options()?;
     match RowReader::open(path, &options) {
-        Ok(r) if args.stream || r.width() * r.height() > args.stream_above => Ok(Some(r)),
+        // Also by rows when reading the whole file would pass --max-memory (12 bytes a sample
+        // while decoding: float64 and its f32 copy, the most a GeoTIFF or raw file takes).
+        Ok(r)
+            if args.stream
+                || r.width() * r.height() > args.stream_above
+                || terrain_core::dem::bytes_to_read(r.width(), r.height(), 12)
+                    > options.max_memory_bytes =>
+        {
+            Ok(Some(r))
+        }
         Ok(_) => Ok(None),
         Err(e) if args.stream => Err(e.into()),
         // Not a streamable format (PNG, .hgt...) or unreadable: the whole-file reader says why.

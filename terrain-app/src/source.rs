@@ -31,6 +31,11 @@ pub(crate) struct SourceArgs {
     /// Raw files: WIDTHxHEIGHT:TYPE with TYPE one of i16, u16, f32 (little-endian, north row first).
     #[arg(long)]
     pub raw: Option<String>,
+    /// Most memory reading a DEM may take (heights, void mask and decoding buffers, estimated
+    /// from its declared size before anything is allocated): bytes, or a number with KiB, MiB,
+    /// GiB or TiB. Files that would need more are refused.
+    #[arg(long, default_value = "4GiB", value_parser = parse_memory)]
+    pub max_memory: u64,
 }
 
 /// `--format` values.
@@ -80,6 +85,7 @@ impl SourceArgs {
             vertical_offset: self.vertical_offset,
             spacing_m: self.spacing,
             raw,
+            max_memory_bytes: self.max_memory,
             ..LoadOptions::default()
         })
     }
@@ -100,6 +106,32 @@ impl SourceArgs {
     }
 }
 
+/// Parses `--max-memory`: bytes, or a number with a binary unit (KiB, MiB, GiB, TiB).
+fn parse_memory(s: &str) -> Result<u64, String> {
+    let t = s.trim();
+    let split = t.find(|c: char| !(c.is_ascii_digit() || c == '.')).unwrap_or(t.len());
+    let (num, unit) = t.split_at(split);
+    let shift = match unit.trim().to_ascii_lowercase().as_str() {
+        "" | "b" => 0,
+        "kib" => 10,
+        "mib" => 20,
+        "gib" => 30,
+        "tib" => 40,
+        other => {
+            return Err(format!(
+                "unit `{other}` in `{s}`: give bytes or a number with KiB, MiB, GiB or TiB \
+                 (binary units, e.g. 8GiB)"
+            ));
+        }
+    };
+    let v: f64 = num.parse().map_err(|_| format!("`{s}` is not a size such as 4GiB"))?;
+    let bytes = v * (1u64 << shift) as f64;
+    if !(bytes.is_finite() && bytes >= 1.0 && bytes < u64::MAX as f64) {
+        return Err(format!("`{s}` is not a positive size below 16 EiB"));
+    }
+    Ok(bytes as u64)
+}
+
 fn parse_raw(s: &str) -> anyhow::Result<RawSpec> {
     let bad = || format!("--raw expects WIDTHxHEIGHT:TYPE (e.g. 1024x768:f32), got `{s}`");
     let (dims, ty) = s.split_once(':').with_context(bad)?;
@@ -118,6 +150,32 @@ fn parse_raw(s: &str) -> anyhow::Result<RawSpec> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn max_memory_parses_binary_units_and_rejects_others() {
+        assert_eq!(parse_memory("4GiB").unwrap(), 4 << 30);
+        assert_eq!(parse_memory("512 MiB").unwrap(), 512 << 20);
+        assert_eq!(parse_memory("1.5kib").unwrap(), 1536);
+        assert_eq!(parse_memory("1000").unwrap(), 1000);
+        for bad in ["4GB", "-1GiB", "0", "GiB", "1e30TiB"] {
+            let e = parse_memory(bad).unwrap_err();
+            assert!(e.contains(bad.trim_start_matches('-')), "{bad}: {e}");
+        }
+    }
+
+    #[test]
+    fn max_memory_reaches_the_load_options() {
+        use clap::Parser;
+        #[derive(Parser)]
+        struct Cli {
+            #[command(flatten)]
+            source: SourceArgs,
+        }
+        let default = Cli::try_parse_from(["t"]).unwrap().source.load_options().unwrap();
+        assert_eq!(default.max_memory_bytes, dem::DEFAULT_MAX_MEMORY_BYTES);
+        let cli = Cli::try_parse_from(["t", "--max-memory", "64MiB"]).unwrap();
+        assert_eq!(cli.source.load_options().unwrap().max_memory_bytes, 64 << 20);
+    }
 
     #[test]
     fn raw_spec_parses_and_rejects() {

@@ -315,5 +315,20 @@ fn a_void_sentinel_without_nodata_is_warned_about_when_baking() {
         let err = String::from_utf8_lossy(&r.stderr);
         assert!(!err.contains("-32767 and no nodata"), "{name}: {err}");
     }
+    // A whole read over --max-memory: baked by rows instead of refused.
+    let low = dir.join("low");
+    let r = terrain(&[
+        "bake",
+        s(&crater),
+        "-o",
+        s(&low),
+        "--no-pvs",
+        "--no-dss",
+        "--max-memory",
+        "1MiB",
+    ]);
+    let err = ok(&r);
+    let err = format!("{err}{}", String::from_utf8_lossy(&r.stderr));
+    assert!(err.contains("read by bands of rows"), "{err}");
     std::fs::remove_dir_all(&dir).unwrap();
 }

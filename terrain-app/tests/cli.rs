@@ -154,3 +154,39 @@ fn roughness_pyramids_export_one_png_per_level() {
     }
     std::fs::remove_dir_all(&dir).ok();
 }
+
+/// A JPEG whose header declares 65535 x 40000 pixels is refused before the decoder allocates,
+/// naming the file, the bytes and `--max-memory`; a real file over a lowered limit too.
+#[test]
+fn max_memory_refuses_huge_declared_sizes() {
+    let dir = std::env::temp_dir().join(format!("terrain-cli-mem-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let mut bytes = std::fs::read(data("puget_sound/ps_height_4k.jpg")).unwrap();
+    // Frame header (SOF0..SOF2): FF C0..C2, length, precision, height, width.
+    let at = (0..bytes.len() - 1)
+        .find(|&i| bytes[i] == 0xFF && (0xC0..=0xC2).contains(&bytes[i + 1]))
+        .expect("a frame header");
+    bytes[at + 5..at + 7].copy_from_slice(&40000u16.to_be_bytes());
+    bytes[at + 7..at + 9].copy_from_slice(&65535u16.to_be_bytes());
+    let huge = dir.join("huge.jpg");
+    std::fs::write(&huge, &bytes).unwrap();
+    let out = terrain(&["info", huge.to_str().unwrap()]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success());
+    assert!(err.contains("huge.jpg") && err.contains("--max-memory"), "{err}");
+    assert!(err.contains("65535 x 40000"), "{err}");
+    // Raising the limit does not help a file too small for what it declares.
+    let out = terrain(&["info", "--max-memory", "1TiB", huge.to_str().unwrap()]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success());
+    assert!(err.contains("huge.jpg") && err.contains("corrupt"), "{err}");
+
+    let png = data("puget_sound/ps_height_1k.png");
+    let out = terrain(&["info", "--max-memory", "1MiB", png.to_str().unwrap()]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success());
+    assert!(err.contains("ps_height_1k.png") && err.contains("1048576"), "{err}");
+    let out = terrain(&["info", "--max-memory", "4GB", png.to_str().unwrap()]);
+    assert!(String::from_utf8_lossy(&out.stderr).contains("GiB"));
+    std::fs::remove_dir_all(&dir).ok();
+}

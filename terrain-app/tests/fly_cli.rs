@@ -96,6 +96,17 @@ fn bad_flights_give_clear_errors() {
     assert!(!output.status.success());
     assert!(stderr.contains("malformed.json") && stderr.contains("line 1"), "{stderr}");
     assert!(!stderr.contains("panicked"), "{stderr}");
+
+    // fps 1e9 over 60 s: refused when read (it used to abort allocating 6e10 cameras).
+    let absurd = dir.join("absurd.json");
+    let fast = TINY.replace("\"fps\": 30", "\"fps\": 1e9").replace("\"t\": 0.1", "\"t\": 60");
+    assert_ne!(fast, TINY);
+    std::fs::write(&absurd, fast).unwrap();
+    let output = fly(&absurd, &dir.join("out"));
+    let stderr = String::from_utf8_lossy(&output.stderr);
+    assert!(!output.status.success());
+    assert!(stderr.contains("absurd.json") && stderr.contains("fps = 1000000000"), "{stderr}");
+    assert!(stderr.contains("1000000"), "{stderr}");
     let _ = std::fs::remove_dir_all(&dir);
 }
 

@@ -76,6 +76,46 @@ pub enum DemErrorKind {
         /// The limit in samples.
         limit: u64,
     },
+    /// Reading the declared size would need more memory than allowed
+    /// (`LoadOptions::max_memory_bytes`, the CLI's `--max-memory`); nothing of that size was
+    /// allocated.
+    #[error(
+        "declared size {width} x {height} samples would need {} to read, over the memory limit \
+         of {}; raise it with --max-memory if the file is meant to be that large",
+        crate::error::mib(*bytes),
+        crate::error::mib(*limit)
+    )]
+    MemoryLimit {
+        /// Declared columns.
+        width: u64,
+        /// Declared rows.
+        height: u64,
+        /// Estimated bytes needed ([`crate::dem::bytes_to_read`]).
+        bytes: u64,
+        /// The limit in bytes.
+        limit: u64,
+    },
+    /// Reading by rows would hold more strip or tile memory than allowed
+    /// (`LoadOptions::max_memory_bytes`, the CLI's `--max-memory`).
+    #[error(
+        "reading by rows holds {chunks} strips or tiles of {chunk_w} x {chunk_h} samples at \
+         once, which would need {}, over the memory limit of {}; raise it with --max-memory \
+         if the file is meant to be read so",
+        crate::error::mib(*bytes),
+        crate::error::mib(*limit)
+    )]
+    ChunkMemoryLimit {
+        /// Columns of a strip or tile.
+        chunk_w: u32,
+        /// Rows of a strip or tile.
+        chunk_h: u32,
+        /// Strips or tiles held at once.
+        chunks: usize,
+        /// Estimated bytes needed.
+        bytes: u64,
+        /// The limit in bytes.
+        limit: u64,
+    },
     /// Width or height is zero.
     #[error("the grid is empty ({width} x {height} samples)")]
     ZeroSize {
@@ -98,4 +138,9 @@ pub enum DemErrorKind {
     /// Tiles of a mosaic do not fit together.
     #[error("mosaic: {0}")]
     Mosaic(String),
+}
+
+/// `bytes` as "N bytes (X MiB)" for messages.
+pub(crate) fn mib(bytes: u64) -> String {
+    format!("{bytes} bytes ({:.1} MiB)", bytes as f64 / (1u64 << 20) as f64)
 }

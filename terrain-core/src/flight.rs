@@ -10,6 +10,9 @@
 //!     { "t": 60, "position": [1000.0, 2000.0, 900.0], "yaw": 90, "pitch": -15 } ] }
 //! ```
 //! - `fps` (> 0) and `t` in seconds; the first keyframe is at `t = 0`, times strictly increase.
+//!   A flight has at most [`MAX_FRAMES`] frames (`fps` x the last `t`): every frame's camera
+//!   is computed when the flight is placed on a DEM, so an absurd `fps` or end time is refused
+//!   when the file is read ([`FlightError::TooManyFrames`]) instead of exhausting memory.
 //! - A keyframe's position is exactly one of:
 //!   - `"position": [x, y, z]`: world metres (x east, y north, z up);
 //!   - `"relative": [u, v, h]`: `u`, `v` fractions of the DEM's extent from its south-west
@@ -107,6 +110,25 @@ pub enum FlightError {
         field: &'static str,
         /// Its value.
         value: f64,
+    },
+    /// `fps` x the last keyframe's `t` is more than [`MAX_FRAMES`] frames.
+    #[error(
+        "{}fps = {fps} with the last keyframe at t = {duration} s makes {frames:.3e} frames, more \
+         than the {max} a flight may have (about 9 hours at 30 fps); lower \"fps\" or the \
+         keyframes' \"t\"",
+        path.as_ref().map(|p| format!("{}: ", p.display())).unwrap_or_default()
+    )]
+    TooManyFrames {
+        /// The file, when read from one.
+        path: Option<PathBuf>,
+        /// Frames per second.
+        fps: f64,
+        /// The last keyframe's time, seconds.
+        duration: f64,
+        /// `fps x duration`.
+        frames: f64,
+        /// [`MAX_FRAMES`].
+        max: usize,
     },
     /// A keyframe gives no position or more than one.
     #[error("keyframe {index}: give exactly one of \"position\", \"relative\", \"peak_relative\"")]
@@ -318,6 +340,11 @@ impl Flight {
     }
 }
 
+/// Most frames a flight may have: one million, 9.3 hours at 30 fps, about 96 MB of cameras
+/// (`Camera` is 12 f64). Far beyond any benchmark flight (the papers' are minutes long), far
+/// below what would exhaust memory.
+pub const MAX_FRAMES: usize = 1_000_000;
+
 /// Number of frames of a flight of `duration` seconds at `fps`: every `k` with `k / fps <
 /// duration` (at least one).
 pub fn frame_count(duration: f64, fps: f64) -> usize {
@@ -379,6 +406,15 @@ impl FlightSpec {
         Self::parse(&text).map_err(|e| match e {
             FlightError::Json { path: None, line, column, message } => {
                 FlightError::Json { path: Some(path.to_owned()), line, column, message }
+            }
+            FlightError::TooManyFrames { path: None, fps, duration, frames, max } => {
+                FlightError::TooManyFrames {
+                    path: Some(path.to_owned()),
+                    fps,
+                    duration,
+                    frames,
+                    max,
+                }
             }
             e => e,
         })
@@ -472,11 +508,26 @@ impl FlightSpec {
                 });
             }
         }
+        let duration = self.keyframes[self.keyframes.len() - 1].t;
+        let frames = duration * self.fps;
+        // Checked in f64 before any count is made: fps 1e9 or t 1e12 would overflow nothing
+        // here, and frame_count below never sees them.
+        if !(frames <= MAX_FRAMES as f64 && frame_count(duration, self.fps) <= MAX_FRAMES) {
+            return Err(FlightError::TooManyFrames {
+                path: None,
+                fps: self.fps,
+                duration,
+                frames,
+                max: MAX_FRAMES,
+            });
+        }
         Ok(())
     }
 
     /// Places the flight on `hm`: resolves relative positions and targets, clamps keyframes
-    /// (see the module docs) and computes every frame's camera.
+    /// (see the module docs) and computes every frame's camera. The spec must have passed
+    /// [`validate`](Self::validate) (as [`parse`](Self::parse) and [`load`](Self::load)
+    /// do), which bounds the frames by [`MAX_FRAMES`].
     pub fn resolve(&self, hm: &Heightmap, cfg: &FlightConfig) -> (Flight, Vec<FlightWarning>) {
         let terrain = TerrainFacts::new(hm, cfg);
         let mut warnings = Vec::new();

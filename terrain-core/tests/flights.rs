@@ -88,3 +88,41 @@ fn dss_approach_looks_at_the_peak_and_closes_in() {
         assert!((c.forward() - (peak - c.position).normalize()).length() < 1e-9, "frame {k}");
     }
 }
+
+/// A flight with an absurd fps or end time is refused when read, naming the file and the
+/// fields, before any frame is computed (it used to ask for terabytes of cameras).
+#[test]
+fn absurd_flights_are_refused_when_read() {
+    use terrain_core::flight::{FlightError, MAX_FRAMES};
+    let dir = std::env::temp_dir().join(format!("terrain-core-flights-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let flight = |fps: &str, end: &str| {
+        format!(
+            r#"{{"name":"x","fps":{fps},"keyframes":[
+                {{"t":0,"relative":[0.2,0.2,0.5],"yaw":0,"pitch":-10}},
+                {{"t":{end},"relative":[0.8,0.8,0.5],"yaw":90,"pitch":-10}}]}}"#
+        )
+    };
+    for (name, fps, end) in [("fast.json", "1e9", "60"), ("long.json", "30", "1e12")] {
+        let p = dir.join(name);
+        std::fs::write(&p, flight(fps, end)).unwrap();
+        let e = FlightSpec::load(&p).unwrap_err();
+        let FlightError::TooManyFrames { path, frames, max, .. } = &e else {
+            panic!("{name}: expected TooManyFrames, got {e}");
+        };
+        assert_eq!(path.as_deref(), Some(p.as_path()));
+        assert_eq!(*max, MAX_FRAMES);
+        assert!(*frames >= 6e10, "{frames}");
+        let msg = e.to_string();
+        for want in [name, "fps", "\"t\"", &MAX_FRAMES.to_string()] {
+            assert!(msg.contains(want), "{msg} lacks {want}");
+        }
+    }
+    // Exactly MAX_FRAMES frames is allowed, one more is not.
+    let at = |fps: f64| FlightSpec::parse(&flight(&fps.to_string(), "1000"));
+    assert!(at(MAX_FRAMES as f64 / 1000.0).is_ok());
+    assert!(matches!(
+        at((MAX_FRAMES + 1) as f64 / 1000.0),
+        Err(FlightError::TooManyFrames { path: None, .. })
+    ));
+}

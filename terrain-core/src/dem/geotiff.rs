@@ -708,9 +708,8 @@ pub(crate) fn open(
     let mut dec = decoder(path, len, max_bytes)?;
 
     let (w, h) = dec.dimensions().map_err(|e| map_tiff_error(path, len, e))?;
-    check_size(path, w as u64, h as u64, options)?;
-    match dec.colortype().map_err(|e| map_tiff_error(path, len, e))? {
-        ColorType::Gray(_) => {}
+    let bits = match dec.colortype().map_err(|e| map_tiff_error(path, len, e))? {
+        ColorType::Gray(bits) => u64::from(bits),
         other => {
             return Err(err(DemErrorKind::Unsupported {
                 format: FORMAT,
@@ -719,7 +718,10 @@ pub(crate) fn open(
                 ),
             }));
         }
-    }
+    };
+    // While decoding: the file's samples, then their conversion to f32 (the flip into the kept
+    // grid is counted by check_size).
+    check_size(path, w as u64, h as u64, bits.div_ceil(8) + 4, options)?;
     let deflate = check_chunks(path, &mut dec, len)?;
 
     // --- Georeference ---

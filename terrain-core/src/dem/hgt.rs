@@ -76,7 +76,8 @@ pub(crate) fn read(path: &Path, len: u64, options: &LoadOptions) -> Result<RawGr
             ),
         }));
     };
-    check_size(path, side, side, options)?;
+    // The file's int16 samples are read whole.
+    check_size(path, side, side, 2, options)?;
     let name = path.file_name().and_then(|n| n.to_str()).unwrap_or("");
     let Some((lat, lon)) = parse_tile_name(name) else {
         return Err(err(DemErrorKind::Malformed {

@@ -14,7 +14,7 @@
 use std::io::BufReader;
 use std::path::Path;
 
-use image::{DynamicImage, ImageError, ImageFormat, ImageReader};
+use image::{DynamicImage, ImageDecoder, ImageError, ImageFormat, ImageReader};
 
 use crate::dem::{Format, LoadOptions, Magic, RawGrid, check_size};
 use crate::error::{DemError, DemErrorKind};
@@ -113,6 +113,71 @@ fn check_jpeg_complete(path: &Path, bytes: &[u8]) -> Result<(), DemError> {
     }
 }
 
+/// Deflate's largest expansion: a 258-byte match coded in 2 bits (1 bit length code, 1 bit
+/// distance code) is 1032 output bytes per input byte (RFC 1951; zlib's "technical details").
+const DEFLATE_MAX_RATIO: u64 = 1032;
+/// Fewest pixels one byte of baseline or progressive JPEG can describe: every 8x8 block of a
+/// full-resolution component codes at least its DC difference, one Huffman code of at least
+/// one bit (ITU-T T.81 F.1.2.1, G.1.2.1), so 64 pixels per bit.
+const JPEG_MAX_PIXELS_PER_BYTE: u64 = 64 * 8;
+
+/// Refuses an image whose declared size its file is far too small to hold, before a decoder
+/// allocates for it: a PNG's zlib stream inflates at most [`DEFLATE_MAX_RATIO`] times, a JPEG
+/// codes at most [`JPEG_MAX_PIXELS_PER_BYTE`] pixels a byte. Both bounds are generous (real
+/// files are far from them), so only a corrupt or crafted header is refused.
+fn check_declared_size(
+    path: &Path,
+    magic: Magic,
+    len: u64,
+    w: u64,
+    h: u64,
+) -> Result<(), DemError> {
+    let pixels = w.saturating_mul(h);
+    let min_bytes = if magic == Magic::Jpeg {
+        pixels.div_ceil(JPEG_MAX_PIXELS_PER_BYTE)
+    } else {
+        // Filtered rows: one filter byte each plus the row's packed samples (fewer than an
+        // interlaced image has, so a lower bound).
+        let bits = png_bits_per_pixel(path).unwrap_or(1);
+        let raw = h.saturating_mul(1 + w.saturating_mul(bits).div_ceil(8));
+        raw.div_ceil(DEFLATE_MAX_RATIO)
+    };
+    if len < min_bytes {
+        let format = format_name(magic);
+        return Err(DemError::new(
+            path,
+            DemErrorKind::Malformed {
+                format,
+                message: format!(
+                    "the header declares {w} x {h} pixels, which no {format} file under \
+                     {min_bytes} bytes can hold, and the file has {len} bytes: the header is \
+                     corrupt"
+                ),
+            },
+        ));
+    }
+    Ok(())
+}
+
+/// Bits per pixel a PNG declares in its IHDR chunk, which the PNG specification places
+/// first (bytes 8..33: length, "IHDR", width, height, bit depth, colour type, ...); `None`
+/// when the file cannot say (the decoder then reports the fault).
+fn png_bits_per_pixel(path: &Path) -> Option<u64> {
+    let mut head = [0u8; 26];
+    std::io::Read::read_exact(&mut std::fs::File::open(path).ok()?, &mut head).ok()?;
+    if &head[12..16] != b"IHDR" {
+        return None;
+    }
+    let channels = match head[25] {
+        0 | 3 => 1, // grey, palette index
+        4 => 2,     // grey + alpha
+        2 => 3,     // RGB
+        6 => 4,     // RGBA
+        _ => return None,
+    };
+    Some(u64::from(head[24]) * channels)
+}
+
 fn open(path: &Path, magic: Magic) -> Result<ImageReader<BufReader<std::fs::File>>, DemError> {
     let file = std::fs::File::open(path).map_err(|e| DemError::new(path, DemErrorKind::Io(e)))?;
     let fmt = if magic == Magic::Jpeg { ImageFormat::Jpeg } else { ImageFormat::Png };
@@ -122,6 +187,7 @@ fn open(path: &Path, magic: Magic) -> Result<ImageReader<BufReader<std::fs::File
 /// Reads an image DEM as `format` (grey, Terrain-RGB or Terrarium).
 pub(crate) fn read(
     path: &Path,
+    len: u64,
     format: Format,
     magic: Magic,
     options: &LoadOptions,
@@ -133,13 +199,20 @@ pub(crate) fn read(
         check_jpeg_complete(path, &bytes)?;
     }
     // Read the header first and refuse oversized images before the decoder allocates.
-    let (w, h) =
-        open(path, magic)?.into_dimensions().map_err(|e| map_image_error(path, magic, e))?;
-    check_size(path, w as u64, h as u64, options)?;
+    let decoder = open(path, magic)?.into_decoder().map_err(|e| map_image_error(path, magic, e))?;
+    let (w, h) = decoder.dimensions();
+    let pixel_bytes = u64::from(decoder.color_type().bytes_per_pixel());
+    drop(decoder);
+    // While decoding: the decoded pixels, then at most one converted copy (RGBA8 for the RGB
+    // encodings, luma for a colour JPEG: at most 4 bytes a pixel).
+    check_size(path, w as u64, h as u64, pixel_bytes + 4, options)?;
+    check_declared_size(path, magic, len, w as u64, h as u64)?;
     let mut reader = open(path, magic)?;
     let mut limits = image::Limits::default();
-    // Decoded image: up to 8 bytes per pixel (RGBA16), plus decoder slack.
-    limits.max_alloc = Some((w as u64 * h as u64).saturating_mul(16).max(64 << 20));
+    // Decoded image plus decoder slack (a progressive JPEG keeps 16-bit coefficients of every
+    // component), never over the memory limit.
+    limits.max_alloc =
+        Some((w as u64 * h as u64).saturating_mul(16).max(64 << 20).min(options.max_memory_bytes));
     reader.limits(limits);
     let img = reader.decode().map_err(|e| map_image_error(path, magic, e))?;
     let (w, h) = (w as usize, h as usize);

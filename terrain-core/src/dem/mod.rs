@@ -94,6 +94,29 @@ pub struct LoadOptions {
     pub raw: Option<RawSpec>,
     /// Refuse grids with more samples than this before allocating anything. Default 2^32 (16 GiB of f32).
     pub max_samples: u64,
+    /// Refuse, before allocating, a grid whose reading would need more than this many bytes
+    /// (the kept heights and void mask plus the reader's decoding buffers, estimated from the
+    /// declared size: see [`bytes_to_read`]). Default [`DEFAULT_MAX_MEMORY_BYTES`] (4 GiB).
+    /// The CLI's `--max-memory` sets it.
+    pub max_memory_bytes: u64,
+}
+
+/// Default of [`LoadOptions::max_memory_bytes`]: 4 GiB. A fixed figure rather than a share of
+/// the machine's memory, so a run refuses or reads the same file the same way everywhere; it
+/// holds a 16k x 16k float32 grid (the largest map of the papers) and refuses the multi-GB
+/// allocations a few hundred bytes of hostile header can ask for.
+pub const DEFAULT_MAX_MEMORY_BYTES: u64 = 4 << 30;
+
+/// Bytes per sample a read grid keeps: an f32 height and (at most) one byte of void mask.
+pub const KEPT_BYTES_PER_SAMPLE: u64 = 5;
+
+/// Estimated peak bytes to read a `width` x `height` grid whose reader also holds
+/// `transient_bytes_per_sample` bytes per sample while decoding (the decoded file samples and
+/// their conversion to f32): `samples x (KEPT_BYTES_PER_SAMPLE + transient)`, saturating.
+pub fn bytes_to_read(width: u64, height: u64, transient_bytes_per_sample: u64) -> u64 {
+    width
+        .saturating_mul(height)
+        .saturating_mul(KEPT_BYTES_PER_SAMPLE.saturating_add(transient_bytes_per_sample))
 }
 
 impl Default for LoadOptions {
@@ -106,6 +129,7 @@ impl Default for LoadOptions {
             spacing_m: 1.0,
             raw: None,
             max_samples: 1 << 32,
+            max_memory_bytes: DEFAULT_MAX_MEMORY_BYTES,
         }
     }
 }
@@ -341,12 +365,14 @@ pub(crate) struct RawGrid {
     pub sample_type: String,
 }
 
-/// Refuses empty grids and grids over `LoadOptions::max_samples`, before anything of that size
-/// is allocated.
+/// Refuses empty grids, grids over `LoadOptions::max_samples` and grids whose reading would
+/// need more than `LoadOptions::max_memory_bytes` ([`bytes_to_read`] with the reader's
+/// `transient_bytes_per_sample`), before anything of that size is allocated.
 pub(crate) fn check_size(
     path: &Path,
     width: u64,
     height: u64,
+    transient_bytes_per_sample: u64,
     options: &LoadOptions,
 ) -> Result<(), DemError> {
     if width == 0 || height == 0 {
@@ -357,6 +383,11 @@ pub(crate) fn check_size(
     // The grid also has to be addressable in memory as f32 on this platform.
     if samples > limit || usize::try_from(samples).map_or(true, |s| s > isize::MAX as usize / 8) {
         return Err(DemError::new(path, DemErrorKind::TooLarge { width, height, limit }));
+    }
+    let bytes = bytes_to_read(width, height, transient_bytes_per_sample);
+    if bytes > options.max_memory_bytes {
+        let limit = options.max_memory_bytes;
+        return Err(DemError::new(path, DemErrorKind::MemoryLimit { width, height, bytes, limit }));
     }
     Ok(())
 }
@@ -423,7 +454,7 @@ pub fn load(path: impl AsRef<Path>, options: &LoadOptions) -> Result<Dem, DemErr
         Format::GeoTiff => geotiff::read(path, len, options)?,
         Format::Hgt => hgt::read(path, len, options)?,
         Format::GreyImage | Format::TerrainRgb | Format::Terrarium => {
-            image::read(path, format, magic, options)?
+            image::read(path, len, format, magic, options)?
         }
         Format::Raw => raw::read(path, len, options)?,
     };

@@ -93,7 +93,8 @@ pub fn load_mosaic(paths: &[impl AsRef<Path>], options: &LoadOptions) -> Result<
     let i1 = placed.iter().map(|p| p.0 + p.2.heightmap.width() as i64).max().unwrap_or(0);
     let j1 = placed.iter().map(|p| p.1 + p.2.heightmap.height() as i64).max().unwrap_or(0);
     let (w, h) = ((i1 - i0) as u64, (j1 - j0) as u64);
-    check_size(first, w, h, options)?;
+    // The joined grid plus its coverage flags (one byte each).
+    check_size(first, w, h, 1, options)?;
     let (w, h) = (w as usize, h as usize);
 
     let mut data = vec![f32::NAN; w * h];

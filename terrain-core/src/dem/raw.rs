@@ -19,12 +19,13 @@ pub(crate) fn read(path: &Path, len: u64, options: &LoadOptions) -> Result<RawGr
             "a raw file needs LoadOptions::raw (width, height, sample type)".to_string(),
         )));
     };
-    check_size(path, spec.width, spec.height, options)?;
     let (bytes_per, name) = match spec.sample {
         RawSampleType::I16 => (2u64, "int16"),
         RawSampleType::U16 => (2, "uint16"),
         RawSampleType::F32 => (4, "float32"),
     };
+    // The file's samples are read whole.
+    check_size(path, spec.width, spec.height, bytes_per, options)?;
     // check_size bounded width * height, so this cannot overflow.
     let expected = spec.width * spec.height * bytes_per;
     if len != expected {

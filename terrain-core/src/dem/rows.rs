@@ -87,9 +87,10 @@ pub fn streams(format: Format) -> bool {
 
 impl RowReader {
     /// Opens `path` (format detected as [`load`](super::load) does, or `options.format`),
-    /// reading only its header. `options.max_samples` does not apply: nothing of the grid's
-    /// size is ever allocated. Formats other than GeoTIFF and raw are refused with
-    /// [`DemErrorKind::Unsupported`] (their readers decode the whole file; use `load`).
+    /// reading only its header. `options.max_samples` does not apply (nothing of the grid's
+    /// size is ever allocated) and `options.max_memory_bytes` bounds the strips or tiles held
+    /// at once ([`DemErrorKind::ChunkMemoryLimit`]). Formats other than GeoTIFF and raw are
+    /// refused with [`DemErrorKind::Unsupported`] (their readers decode the whole file; use `load`).
     pub fn open(path: impl AsRef<Path>, options: &LoadOptions) -> Result<Self, DemError> {
         let path = path.as_ref();
         let err = |kind| DemError::new(path, kind);
@@ -103,11 +104,13 @@ impl RowReader {
                     "rows can be streamed from GeoTIFF and raw files only".to_string(),
                 ))
             })?;
-        let unbounded = LoadOptions { max_samples: u64::MAX, ..options.clone() };
+        let unbounded =
+            LoadOptions { max_samples: u64::MAX, max_memory_bytes: u64::MAX, ..options.clone() };
         match format {
             Format::GeoTiff => {
-                // One chunk (strip or tile) at a time, as f64 at most.
-                let opened = geotiff::open(path, len, &unbounded, 1 << 30)?;
+                // One chunk (strip or tile) at a time, as f64 at most, within the memory limit.
+                let max_bytes = options.max_memory_bytes.min(1 << 30) as usize;
+                let opened = geotiff::open(path, len, &unbounded, max_bytes)?;
                 let geotiff::Opened { dec, width, height, georef, file_nodata, deflate } = opened;
                 let (chunk_w, chunk_h) = dec.chunk_dimensions();
                 let chunk = dec.get_chunk_type();
@@ -115,6 +118,27 @@ impl RowReader {
                     return Err(err(DemErrorKind::Malformed {
                         format: "GeoTIFF",
                         message: format!("chunk size {chunk_w} x {chunk_h}"),
+                    }));
+                }
+                // Two rows of chunks (a band can straddle a chunk row) plus slack.
+                let recent_cap = match chunk {
+                    ChunkType::Strip => 4,
+                    ChunkType::Tile => 2 * (width as usize).div_ceil(chunk_w as usize) + 4,
+                };
+                // What reading by rows holds at once: the cached chunks as f32 and one chunk
+                // being decoded (as f64 at most, and its f32 copy: 12 bytes a sample).
+                let chunk_samples = u64::from(chunk_w) * u64::from(chunk_h);
+                let bytes = chunk_samples
+                    .saturating_mul(4)
+                    .saturating_mul(recent_cap as u64)
+                    .saturating_add(chunk_samples.saturating_mul(12));
+                if bytes > options.max_memory_bytes {
+                    return Err(err(DemErrorKind::ChunkMemoryLimit {
+                        chunk_w,
+                        chunk_h,
+                        chunks: recent_cap,
+                        bytes,
+                        limit: options.max_memory_bytes,
                     }));
                 }
                 let mut reader = Self {
@@ -133,15 +157,11 @@ impl RowReader {
                         decoders: Mutex::new(vec![dec]),
                         deflate,
                         recent: Mutex::new(VecDeque::new()),
-                        // Two rows of chunks (a band can straddle a chunk row) plus slack.
-                        recent_cap: match chunk {
-                            ChunkType::Strip => 4,
-                            ChunkType::Tile => 2 * (width as usize).div_ceil(chunk_w as usize) + 4,
-                        },
+                        recent_cap,
                         chunk,
                         chunk_w,
                         chunk_h,
-                        max_bytes: 1 << 30,
+                        max_bytes,
                     },
                     zero_filled: AtomicU64::new(0),
                     seen: Mutex::new((f32::INFINITY, f32::NEG_INFINITY)),
@@ -157,7 +177,7 @@ impl RowReader {
                         "a raw file needs LoadOptions::raw (width, height, sample type)".into(),
                     )));
                 };
-                super::check_size(path, spec.width, spec.height, &unbounded)?;
+                super::check_size(path, spec.width, spec.height, 0, &unbounded)?;
                 let (bytes, name) = raw_sample(spec.sample);
                 let expected = spec.width * spec.height * bytes;
                 if len != expected {
