@@ -1,5 +1,8 @@
 //! CRC-32 for the engine's file formats (the block store, PVS files, DSS error tables): one
-//! implementation, so every file is checked with the same function.
+//! implementation, so every file is checked with the same function; and the one error of the
+//! per-node table files ([`TableFileError`]: the DSS errors, the roughness pyramids,
+//! geomorph's table), which share their framing (magic, version, CRC-32, what they were made
+//! for).
 
 /// CRC-32 (IEEE 802.3, reflected, polynomial 0xEDB88320), as zlib and PNG compute it; the
 /// table is built at compile time.
@@ -117,4 +120,51 @@ mod tests {
             );
         }
     }
+}
+
+/// Why a per-node table file's bytes cannot be used: the one error of the table files (the DSS
+/// paper's errors, the PVPS roughness pyramids, geomorph's max-error vertices), which share
+/// their framing. `table` names the kind of file.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum TableFileError {
+    /// Not this kind of table (wrong magic bytes).
+    #[error("not a {table} (wrong magic bytes)")]
+    Magic {
+        /// The kind of table expected.
+        table: &'static str,
+    },
+    /// Another format version.
+    #[error("{table} format version {found}, this build reads version {expected}: bake it again")]
+    Version {
+        /// The kind of table.
+        table: &'static str,
+        /// The version found.
+        found: u32,
+        /// The version this build reads.
+        expected: u32,
+    },
+    /// Shorter or longer than its header says.
+    #[error("truncated: {len} bytes, the header needs {needed}")]
+    Truncated {
+        /// Bytes present.
+        len: usize,
+        /// Bytes the header implies.
+        needed: usize,
+    },
+    /// The checksum does not match (a damaged file).
+    #[error(
+        "checksum mismatch (stored {stored:#010x}, computed {computed:#010x}): the file is damaged"
+    )]
+    Checksum {
+        /// Stored CRC-32.
+        stored: u32,
+        /// Computed CRC-32.
+        computed: u32,
+    },
+    /// Inconsistent values inside the file.
+    #[error("inconsistent table: {0}")]
+    Layout(String),
+    /// Made for another terrain, store, grid, leaf or patch size.
+    #[error("made for another terrain: {0}")]
+    Mismatch(String),
 }

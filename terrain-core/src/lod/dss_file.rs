@@ -32,45 +32,11 @@ pub const VERSION: u32 = 1;
 /// The length of the fixed header before the per-level counts.
 const HEADER_LEN: usize = 4 + 4 * 6;
 
-/// Why a DSS error table's bytes cannot be used.
-#[derive(Debug, Clone, PartialEq, thiserror::Error)]
-pub enum DssFileError {
-    /// Not a DSS table.
-    #[error("not a DSS error table (no TDSS magic)")]
-    Magic,
-    /// Another format version.
-    #[error(
-        "DSS error table format version {found}, this build reads version {VERSION}: bake it again"
-    )]
-    Version {
-        /// The version found.
-        found: u32,
-    },
-    /// Shorter than its header says.
-    #[error("truncated: {len} bytes, the header needs {needed}")]
-    Truncated {
-        /// Bytes present.
-        len: usize,
-        /// Bytes the header implies.
-        needed: usize,
-    },
-    /// The checksum does not match (a damaged file).
-    #[error(
-        "checksum mismatch (stored {stored:#010x}, computed {computed:#010x}): the file is damaged"
-    )]
-    Checksum {
-        /// Stored CRC-32.
-        stored: u32,
-        /// Computed CRC-32.
-        computed: u32,
-    },
-    /// Inconsistent counts inside the file.
-    #[error("inconsistent table: {0}")]
-    Layout(String),
-    /// Made for another terrain or quadtree.
-    #[error("made for another terrain: {0}")]
-    Mismatch(String),
-}
+/// Why a DSS error table's bytes cannot be used: the table files' one error.
+pub type DssFileError = crate::checksum::TableFileError;
+
+/// The kind of table, in its errors.
+const TABLE: &str = "DSS error table";
 
 /// CRC-32 of a heightmap's sample bits (row by row) and void flags: the terrain a table belongs
 /// to. [`HeightsChecksum`] computes the same value from rows streamed in order.
@@ -183,7 +149,7 @@ impl DssErrorTable {
         heights_crc: Option<u32>,
     ) -> Result<Self, DssFileError> {
         if bytes.len() < 4 || bytes[..4] != MAGIC {
-            return Err(DssFileError::Magic);
+            return Err(DssFileError::Magic { table: TABLE });
         }
         if bytes.len() < HEADER_LEN {
             return Err(DssFileError::Truncated { len: bytes.len(), needed: HEADER_LEN });
@@ -196,7 +162,7 @@ impl DssErrorTable {
         };
         let version = u32_at(4)?;
         if version != VERSION {
-            return Err(DssFileError::Version { found: version });
+            return Err(DssFileError::Version { table: TABLE, found: version, expected: VERSION });
         }
         let (width, height, root_cells) = (u32_at(8)?, u32_at(12)?, u32_at(16)?);
         let (levels, heights) = (u32_at(20)?, u32_at(24)?);
@@ -358,7 +324,7 @@ mod tests {
         let qt = Quadtree::new(&hm, 8);
         let bytes = DssErrorTable::new(&hm, &qt).encode(&hm);
         let dec = |b: &[u8]| DssErrorTable::decode(b, &hm, &qt).unwrap_err();
-        assert_eq!(dec(b"PNG\x0d"), DssFileError::Magic);
+        assert_eq!(dec(b"PNG\x0d"), DssFileError::Magic { table: TABLE });
         assert!(matches!(dec(&bytes[..10]), DssFileError::Truncated { .. }));
         assert!(matches!(dec(&bytes[..bytes.len() - 9]), DssFileError::Truncated { .. }));
         let mut flipped = bytes.clone();
@@ -366,7 +332,7 @@ mod tests {
         assert!(matches!(dec(&flipped), DssFileError::Checksum { .. }));
         let mut v2 = bytes.clone();
         v2[4] = 2;
-        assert_eq!(dec(&v2), DssFileError::Version { found: 2 });
+        assert_eq!(dec(&v2), DssFileError::Version { table: TABLE, found: 2, expected: VERSION });
         // Same size, other heights (a vertical scale): refused by the heights' checksum.
         let scaled =
             Heightmap::from_fn(33, 33, hm.georef().clone(), |i, j| hm.get(i, j) * 2.0).unwrap();

@@ -33,45 +33,11 @@ const HEADER_LEN: usize = 4 + 4 * 8;
 /// Bytes per patch and level.
 const ENTRY_LEN: usize = 10;
 
-/// Why a geo-mipmap table's bytes cannot be used.
-#[derive(Debug, Clone, PartialEq, thiserror::Error)]
-pub enum GeomipFileError {
-    /// Not a geo-mipmap table.
-    #[error("not a geo-mipmap table (no TGMP magic)")]
-    Magic,
-    /// Another format version.
-    #[error(
-        "geo-mipmap table format version {found}, this build reads version {VERSION}: bake it again"
-    )]
-    Version {
-        /// The version found.
-        found: u32,
-    },
-    /// Shorter or longer than its header says.
-    #[error("truncated: {len} bytes, the header needs {needed}")]
-    Truncated {
-        /// Bytes present.
-        len: usize,
-        /// Bytes the header implies.
-        needed: usize,
-    },
-    /// The checksum does not match (a damaged file).
-    #[error(
-        "checksum mismatch (stored {stored:#010x}, computed {computed:#010x}): the file is damaged"
-    )]
-    Checksum {
-        /// Stored CRC-32.
-        stored: u32,
-        /// Computed CRC-32.
-        computed: u32,
-    },
-    /// Inconsistent values inside the file.
-    #[error("inconsistent table: {0}")]
-    Layout(String),
-    /// Made for another grid, patch size or terrain.
-    #[error("made for another terrain: {0}")]
-    Mismatch(String),
-}
+/// Why a geo-mipmap table's bytes cannot be used: the table files' one error.
+pub type GeomipFileError = crate::checksum::TableFileError;
+
+/// The kind of table, in its errors.
+const TABLE: &str = "geo-mipmap table";
 
 /// What a table must have been made for.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -122,7 +88,7 @@ impl GeomipTable {
     /// version, consistent, and made for `want`'s grid, patch size and (when given) heights.
     pub fn decode(bytes: &[u8], want: &GeomipFor) -> Result<Self, GeomipFileError> {
         if bytes.len() < 4 || bytes[..4] != MAGIC {
-            return Err(GeomipFileError::Magic);
+            return Err(GeomipFileError::Magic { table: TABLE });
         }
         if bytes.len() < HEADER_LEN {
             return Err(GeomipFileError::Truncated { len: bytes.len(), needed: HEADER_LEN });
@@ -130,7 +96,11 @@ impl GeomipTable {
         let u32_at = |o: usize| u32::from_le_bytes(bytes[o..o + 4].try_into().expect("4 bytes"));
         let version = u32_at(4);
         if version != VERSION {
-            return Err(GeomipFileError::Version { found: version });
+            return Err(GeomipFileError::Version {
+                table: TABLE,
+                found: version,
+                expected: VERSION,
+            });
         }
         let (width, height, p, levels) = (u32_at(8), u32_at(12), u32_at(16), u32_at(20));
         let (nx, ny, heights_crc) = (u32_at(24), u32_at(28), u32_at(32));
@@ -308,7 +278,7 @@ mod tests {
         let hm = terrain(33, 49);
         let bytes = GeomipTable::new(&hm, 8).encode(&hm);
         let dec = |b: &[u8]| GeomipTable::decode(b, &want(&hm, 8)).unwrap_err();
-        assert_eq!(dec(b"PNG\x0d"), GeomipFileError::Magic);
+        assert_eq!(dec(b"PNG\x0d"), GeomipFileError::Magic { table: TABLE });
         assert!(matches!(dec(&bytes[..10]), GeomipFileError::Truncated { .. }));
         assert!(matches!(dec(&bytes[..bytes.len() - 7]), GeomipFileError::Truncated { .. }));
         let mut flipped = bytes.clone();
@@ -316,7 +286,10 @@ mod tests {
         assert!(matches!(dec(&flipped), GeomipFileError::Checksum { .. }));
         let mut v2 = bytes.clone();
         v2[4] = 2;
-        assert_eq!(dec(&v2), GeomipFileError::Version { found: 2 });
+        assert_eq!(
+            dec(&v2),
+            GeomipFileError::Version { table: TABLE, found: 2, expected: VERSION }
+        );
         let e = GeomipTable::decode(&bytes, &want(&hm, 16)).unwrap_err();
         assert!(e.to_string().contains("patch cells 8 in the file, 16 here"), "{e}");
         let other = terrain(40, 49);

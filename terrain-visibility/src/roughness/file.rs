@@ -46,45 +46,11 @@ const HEADER_LEN: usize = 4 + 4 * 7 + 8 + 8;
 /// Most levels a file may hold (a 2^20 root at leaf 1: far above any grid).
 const MAX_LEVELS: u32 = 21;
 
-/// Why a roughness file's bytes cannot be used.
-#[derive(Debug, Clone, PartialEq, thiserror::Error)]
-pub enum RoughnessFileError {
-    /// Not a roughness file.
-    #[error("not a roughness table (no TRGH magic)")]
-    Magic,
-    /// Another format version.
-    #[error(
-        "roughness table format version {found}, this build reads version {VERSION}: bake it again"
-    )]
-    Version {
-        /// The version found.
-        found: u32,
-    },
-    /// Shorter or longer than its header says.
-    #[error("truncated: {len} bytes, the header needs {needed}")]
-    Truncated {
-        /// Bytes present.
-        len: usize,
-        /// Bytes the header implies.
-        needed: usize,
-    },
-    /// The checksum does not match (a damaged file).
-    #[error(
-        "checksum mismatch (stored {stored:#010x}, computed {computed:#010x}): the file is damaged"
-    )]
-    Checksum {
-        /// Stored CRC-32.
-        stored: u32,
-        /// Computed CRC-32.
-        computed: u32,
-    },
-    /// Inconsistent header values.
-    #[error("inconsistent table: {0}")]
-    Layout(String),
-    /// Made for another terrain, store, leaf size or slope clamp.
-    #[error("made for another terrain: {0}")]
-    Mismatch(String),
-}
+/// Why a roughness table's bytes cannot be used: the table files' one error.
+pub type RoughnessFileError = terrain_core::checksum::TableFileError;
+
+/// The kind of table, in its errors.
+const TABLE: &str = "roughness table";
 
 /// What ties a file to the terrain its reader has.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -185,7 +151,7 @@ pub fn encode(
 /// checksum. Says nothing about which terrain it fits: see [`decode_for`].
 pub fn decode(bytes: &[u8]) -> Result<(RoughnessHeader, RoughnessTables), RoughnessFileError> {
     if bytes.len() < 4 || bytes[..4] != MAGIC {
-        return Err(RoughnessFileError::Magic);
+        return Err(RoughnessFileError::Magic { table: TABLE });
     }
     if bytes.len() < HEADER_LEN {
         return Err(RoughnessFileError::Truncated { len: bytes.len(), needed: HEADER_LEN });
@@ -194,7 +160,11 @@ pub fn decode(bytes: &[u8]) -> Result<(RoughnessHeader, RoughnessTables), Roughn
     let u64_at = |o: usize| u64::from_le_bytes(bytes[o..o + 8].try_into().expect("8 bytes"));
     let version = u32_at(4);
     if version != VERSION {
-        return Err(RoughnessFileError::Version { found: version });
+        return Err(RoughnessFileError::Version {
+            table: TABLE,
+            found: version,
+            expected: VERSION,
+        });
     }
     let header = RoughnessHeader {
         width: u32_at(8),
@@ -335,8 +305,8 @@ mod tests {
     fn damaged_files_are_refused() {
         let (_, _, bytes, expected) = setup();
         let dec = |b: &[u8]| decode_for(b, &expected).unwrap_err();
-        assert_eq!(dec(b"TDSS\x01\0\0\0"), RoughnessFileError::Magic);
-        assert_eq!(dec(b""), RoughnessFileError::Magic);
+        assert_eq!(dec(b"TDSS\x01\0\0\0"), RoughnessFileError::Magic { table: TABLE });
+        assert_eq!(dec(b""), RoughnessFileError::Magic { table: TABLE });
         assert!(matches!(dec(&bytes[..20]), RoughnessFileError::Truncated { .. }));
         assert!(matches!(dec(&bytes[..bytes.len() - 1]), RoughnessFileError::Truncated { .. }));
         let mut longer = bytes.clone();
@@ -349,7 +319,10 @@ mod tests {
         }
         let mut v2 = bytes.clone();
         v2[4] = 2;
-        assert_eq!(dec(&v2), RoughnessFileError::Version { found: 2 });
+        assert_eq!(
+            dec(&v2),
+            RoughnessFileError::Version { table: TABLE, found: 2, expected: VERSION }
+        );
         assert!(dec(&v2).to_string().contains("bake it again"));
         let mut levels = bytes.clone();
         levels[20] = 40;
