@@ -496,12 +496,12 @@ impl OocScene {
             self.streamer.update(camera)
         };
         let mut stream = StreamRecord::new(&s);
-        stream.stream_ms = (t0.elapsed() - select_time.min(t0.elapsed())).as_secs_f64() * 1e3;
+        stream.stream_ms = t0.elapsed().saturating_sub(select_time).as_secs_f64() * 1e3;
         let (drawn, dropped) = self.assign_pages();
         let paged: HashMap<BlockId, u8> = drawn.iter().copied().collect();
         let on_pages = |n: NodeId| tree.blocks_under(n).iter().all(|b| paged.contains_key(b));
         let StoreDraw { mut selection, strips } = draw;
-        let mut frame = match strips {
+        match strips {
             None => {
                 selection.patches.retain(|p| on_pages(p.node));
                 selection.stats.patches = selection.patches.len();
@@ -529,9 +529,7 @@ impl OocScene {
                 }
                 self.finish_frame(selection, Some((patches, extra)), &drawn, dropped, stream)
             }
-        };
-        frame.stream.stream_ms = frame.stream.stream_ms.max(0.0);
-        frame
+        }
     }
 
     /// The blocks of the last update's visual region M drawn this frame, nearest first, each at
