@@ -125,6 +125,12 @@ pub fn bake_into_scene(hm: &Heightmap, patch_cells: u32, dir: &Path) -> anyhow::
     write_table(&table, &table.encode(hm), dir, start)
 }
 
+/// Writes `table`, already computed from `hm` (a `MethodScene`'s), into store folder `dir`
+/// like [`bake_into_scene`]. Returns the file's size in bytes.
+pub fn write_into_scene(table: &GeomipTable, hm: &Heightmap, dir: &Path) -> anyhow::Result<u64> {
+    write_table(table, &table.encode(hm), dir, Instant::now())
+}
+
 fn write_table(
     table: &GeomipTable,
     bytes: &[u8],

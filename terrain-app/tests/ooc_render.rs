@@ -637,3 +637,55 @@ fn the_benchmark_runs_the_out_of_core_method_with_stream_statistics() {
     }
     assert!(report.to_markdown().contains("Out-of-core real time"));
 }
+
+/// `--from-store`: every method that can draw from a store also runs from the benchmark's
+/// temporary store, which gets the tables those methods read (roughness, DSS errors, geomorph's
+/// table); warm frames draw what the same method draws from memory.
+#[test]
+fn the_benchmark_runs_methods_from_its_store_side_by_side() {
+    use terrain_app::bench::{BenchConfig, run_bench};
+    use terrain_app::methods::{LodMethod, MethodConfig};
+    use terrain_core::flight::FlightSpec;
+    let flight = FlightSpec::parse(
+        r#"{"name": "pass", "fps": 10, "height_above": "ground",
+            "keyframes": [{"t": 0, "relative": [0.1, 0.1, 0.3], "yaw": 45, "pitch": -30},
+                          {"t": 1, "relative": [0.5, 0.5, 0.3], "yaw": 45, "pitch": -30}]}"#,
+    )
+    .unwrap();
+    let methods = [LodMethod::PvpsC, LodMethod::Dss2, LodMethod::Geomorph];
+    let cfg = BenchConfig {
+        methods: methods.to_vec(),
+        max_frames: 3,
+        sweep_points: 1,
+        render_size: None,
+        method: MethodConfig { leaf_cells: 4, ..MethodConfig::default() },
+        ooc_k: 4,
+        ooc_wait: true,
+        from_store: true,
+        ..BenchConfig::default()
+    };
+    let report = run_bench(
+        "puget crop",
+        puget_crop(),
+        std::slice::from_ref(&flight),
+        &cfg,
+        None,
+        &mut |_| {},
+    )
+    .unwrap();
+    for m in methods {
+        let run = |store: bool| {
+            report.runs.iter().find(|r| r.method == m && r.from_store == store).expect("a run")
+        };
+        let (memory, store) = (run(false), run(true));
+        assert!(store.frames.iter().all(|f| f.triangles > 0), "{m:?}");
+        // Geomorph morphs from memory and draws its un-morphed geo-mipmap from a store.
+        if m != LodMethod::Geomorph {
+            let tris = |r: &terrain_app::bench::RunRecord| {
+                r.frames.iter().map(|f| f.triangles).collect::<Vec<_>>()
+            };
+            assert_eq!(tris(memory), tris(store), "{m:?}: the same triangles from the store");
+        }
+    }
+    assert!(report.to_markdown().contains("| pvps-c (store) |"));
+}

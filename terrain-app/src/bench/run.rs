@@ -265,6 +265,20 @@ fn write_tables(
     dir: &std::path::Path,
 ) -> anyhow::Result<()> {
     let uses = |m: &[LodMethod]| methods.iter().any(|x| m.contains(x));
+    let pvps = [
+        LodMethod::PvpsA,
+        LodMethod::PvpsB,
+        LodMethod::PvpsC,
+        LodMethod::PvpsCPvs,
+        LodMethod::PvpsCConservative,
+    ];
+    if uses(&pvps) {
+        let leaf = scene.qt.leaf_cells();
+        crate::roughness_scene::bake_from_heightmap(&scene.hm, leaf, dir, true)?;
+    }
+    if uses(&[LodMethod::Geomorph]) {
+        crate::geomip_scene::write_into_scene(scene.geomip_scene().table(), &scene.hm, dir)?;
+    }
     if uses(&[LodMethod::Dss1, LodMethod::Dss2, LodMethod::DssStrips]) {
         let path = crate::dss_scene::dss_path(dir);
         std::fs::write(&path, scene.dss_errors().encode(&scene.hm))
