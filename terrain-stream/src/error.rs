@@ -51,7 +51,10 @@ pub enum StoreError {
         message: String,
     },
     /// A file is shorter than the index says.
-    #[error("{}: block {block} level {level}: truncated, needs {expected} bytes, the file has {got}", path.display())]
+    #[error(
+        "{}: block {block} level {level}: truncated at byte {got} (the index says the file has {expected} bytes)",
+        path.display()
+    )]
     Truncated {
         /// The block file.
         path: PathBuf,
@@ -59,7 +62,7 @@ pub enum StoreError {
         block: BlockId,
         /// The level being read.
         level: u8,
-        /// Bytes needed (end offset).
+        /// The file's length in the index.
         expected: u64,
         /// File length.
         got: u64,
@@ -82,7 +85,7 @@ pub enum StoreError {
         computed: u32,
     },
     /// A block's file is missing.
-    #[error("{}: block {block} level {level}: the block file is missing", path.display())]
+    #[error("{}: block {block} level {level}: missing file (the block file is not there)", path.display())]
     MissingBlock {
         /// The expected path.
         path: PathBuf,
@@ -91,9 +94,33 @@ pub enum StoreError {
         /// The level being read.
         level: u8,
     },
-    /// A block file belongs to another bake, or changed length, since the store was opened.
-    #[error("{}: block {block} level {level}: the file changed since the store was opened ({message})", path.display())]
+    /// A block file is longer than the index says (it changed since the store was baked or
+    /// opened).
+    #[error("{}: block {block} level {level}: the file changed since the store was baked ({message})", path.display())]
     Changed {
+        /// The block file.
+        path: PathBuf,
+        /// The block.
+        block: BlockId,
+        /// The level being read.
+        level: u8,
+        /// What differs.
+        message: String,
+    },
+    /// A block file that is not a store block: it does not start with the block file's magic
+    /// bytes.
+    #[error("{}: block {block} level {level}: not a store block (the file does not start with a block header)", path.display())]
+    NotABlock {
+        /// The block file.
+        path: PathBuf,
+        /// The block.
+        block: BlockId,
+        /// The level being read.
+        level: u8,
+    },
+    /// A store block, but of another store or bake, or of another block position.
+    #[error("{}: block {block} level {level}: a block of another store ({message})", path.display())]
+    Foreign {
         /// The block file.
         path: PathBuf,
         /// The block.
@@ -143,6 +170,8 @@ impl StoreError {
             | StoreError::Checksum { block, .. }
             | StoreError::MissingBlock { block, .. }
             | StoreError::Changed { block, .. }
+            | StoreError::NotABlock { block, .. }
+            | StoreError::Foreign { block, .. }
             | StoreError::CorruptLevel { block, .. }
             | StoreError::BadRequest { block, .. }
             | StoreError::WorkerPanicked { block, .. } => Some(*block),
@@ -157,6 +186,8 @@ impl StoreError {
             | StoreError::Checksum { level, .. }
             | StoreError::MissingBlock { level, .. }
             | StoreError::Changed { level, .. }
+            | StoreError::NotABlock { level, .. }
+            | StoreError::Foreign { level, .. }
             | StoreError::CorruptLevel { level, .. }
             | StoreError::BadRequest { level, .. }
             | StoreError::WorkerPanicked { level, .. } => Some(*level),
@@ -178,7 +209,7 @@ pub enum BakeError {
         source: std::io::Error,
     },
     /// The output exists and `BakeConfig::overwrite` is off.
-    #[error("{}: already exists (set overwrite to replace it)", path.display())]
+    #[error("{}: already exists (give --overwrite to replace it)", path.display())]
     Exists {
         /// The output folder.
         path: PathBuf,

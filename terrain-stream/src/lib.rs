@@ -108,7 +108,7 @@ pub use glam;
 pub use lod::{DEFAULT_PATCH_CELLS, StoreTree, select_patches, select_streamed};
 pub use schedule::ScheduleConfig;
 pub use source::HeightSource;
-pub use stats::{FrameStats, StatsSummary};
+pub use stats::{Fault, FrameStats, StatsSummary};
 pub use store::{BlockLevels, LoadedLevel, Store, is_store};
 pub use streamer::{ScheduledBlock, StreamConfig, Streamer, WaitReport};
 pub use terrain::{StoreSource, demand_of};

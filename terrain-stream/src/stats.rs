@@ -3,9 +3,56 @@
 //! queue depth, faults, and what the real-time runtime adds: late data (needed by the frame,
 //! not resident when it was drawn) and whether the frame was drawn at its needed level.
 
+use std::fmt;
 use std::time::Duration;
 
+use glam::DVec2;
+
 use crate::error::StoreError;
+
+/// A block level that could not be read, as the runtime met it: the error (which names the
+/// file, the block, the level and the cause), where the block lies, and what the runtime
+/// draws instead.
+#[derive(Debug)]
+pub struct Fault {
+    /// What went wrong (file, block, level, cause).
+    pub error: StoreError,
+    /// The block's plan rectangle (world metres, south-west and north-east corners), when
+    /// the block is in the store's grid.
+    pub area: Option<(DVec2, DVec2)>,
+    /// The block's levels still resident when the fault arrived (`0..resident_levels`): the
+    /// block is drawn from level `resident_levels - 1`, or not at all when 0.
+    pub resident_levels: usize,
+    /// Whether this is the first time this block and level failed in this session (a block
+    /// is retried after [`crate::StreamConfig::retry_after_frames`] frames; a fault that
+    /// repeats is not new). Report the new ones only.
+    pub first: bool,
+}
+
+impl Fault {
+    /// The level the block is drawn from instead of the one that failed, or `None` when the
+    /// block has nothing resident (it cannot be drawn: a hole where it is in view).
+    pub fn drawn_level(&self) -> Option<u8> {
+        self.resident_levels.checked_sub(1).map(|l| l as u8)
+    }
+}
+
+impl fmt::Display for Fault {
+    /// One line for the user: the error, the block's area and what is drawn instead.
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "{}", self.error)?;
+        if let Some((a, b)) = self.area {
+            write!(f, "; the block covers x {:.1}..{:.1} m, y {:.1}..{:.1} m", a.x, b.x, a.y, b.y)?;
+        }
+        match (self.drawn_level(), self.error.level()) {
+            (Some(l), Some(failed)) if l < failed => {
+                write!(f, "; drawn from its coarser level {l} instead")
+            }
+            (Some(l), _) => write!(f, "; drawn from its resident level {l}"),
+            (None, _) => write!(f, "; no level of this block can be read: it is not drawn"),
+        }
+    }
+}
 
 /// What one frame of [`crate::Streamer::update`] did. Byte counts are decoded bytes in memory
 /// (4 per sample) unless named `disk`.
@@ -61,8 +108,9 @@ pub struct FrameStats {
     /// Time the frame thread waited for the workers ([`crate::Streamer::wait_until_resident`];
     /// zero for a real-time frame).
     pub wait_time: Duration,
-    /// Faults reported this frame (the runtime keeps serving coarser levels).
-    pub faults: Vec<StoreError>,
+    /// Faults met this frame: each with what is drawn instead (a coarser resident level, or
+    /// nothing) and whether it is new this session ([`Fault::first`]).
+    pub faults: Vec<Fault>,
     /// Time `update` took on the frame thread.
     pub frame_time: Duration,
 }

@@ -102,22 +102,27 @@ impl Store {
         })?;
         let io = |source| StoreError::Io { path: path.clone(), source };
         let len = file.metadata().map_err(io)?.len();
-        let end = le.offset + le.len as u64;
-        if len < end {
-            return Err(StoreError::Truncated { path, block: id, level, expected: end, got: len });
+        if len < entry.file_len {
+            return Err(StoreError::Truncated {
+                path,
+                block: id,
+                level,
+                expected: entry.file_len,
+                got: len,
+            });
         }
         if len != entry.file_len {
             return Err(StoreError::Changed {
                 path,
                 block: id,
                 level,
-                message: format!("length {len}, the index says {}", entry.file_len),
+                message: format!("{len} bytes, the index says {}", entry.file_len),
             });
         }
         let mut head = [0u8; BLOCK_HEADER_LEN as usize];
         read_at(&mut file, 0, &mut head).map_err(io)?;
         if head[..8] != BLOCK_MAGIC {
-            return Err(StoreError::BadMagic { path, what: "block file" });
+            return Err(StoreError::NotABlock { path, block: id, level });
         }
         let u32_at =
             |o: usize| u32::from_le_bytes([head[o], head[o + 1], head[o + 2], head[o + 3]]);
@@ -129,12 +134,12 @@ impl Store {
         idb.copy_from_slice(&head[12..20]);
         let bake_id = u64::from_le_bytes(idb);
         if bake_id != self.header.bake_id || u32_at(20) != id.row || u32_at(24) != id.col {
-            return Err(StoreError::Changed {
+            return Err(StoreError::Foreign {
                 path,
                 block: id,
                 level,
                 message: format!(
-                    "header says bake {bake_id:016x} block (row {}, col {}), the index bake {:016x}",
+                    "its header says bake {bake_id:016x} block (row {}, col {}), the index bake {:016x}",
                     u32_at(20),
                     u32_at(24),
                     self.header.bake_id

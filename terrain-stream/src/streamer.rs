@@ -52,7 +52,7 @@ use crate::lod::{View, needed_level, shading_level};
 use crate::schedule::{
     Regions, ScheduleConfig, block_rect, blocks_under_bbox, polygon_meets_rect, regions,
 };
-use crate::stats::FrameStats;
+use crate::stats::{Fault, FrameStats};
 use crate::store::{BlockLevels, Store};
 use crate::workers::{LevelReader, LoadRequest, LoadResult, Outcome, WorkerPool};
 
@@ -142,6 +142,8 @@ pub struct Streamer {
     regions: Option<Regions>,
     /// The levels a LOD method other than Eq. 7 needs per block ([`Streamer::set_demand`]).
     demand: Option<Vec<(BlockId, u8)>>,
+    /// Block levels that have failed this session ([`Fault::first`]).
+    faulted: BTreeSet<(BlockId, u8)>,
 }
 
 impl Streamer {
@@ -174,6 +176,7 @@ impl Streamer {
             scheduled: Vec::new(),
             regions: None,
             demand: None,
+            faulted: BTreeSet::new(),
         }
     }
 
@@ -252,10 +255,13 @@ impl Streamer {
                     stats.prefetched_bytes += b;
                 }
             }
-            Outcome::Failed(e) => {
-                self.cache.entry(r.block, &header).retry_at_frame =
-                    self.frame + self.config.retry_after_frames;
-                stats.faults.push(e);
+            Outcome::Failed(error) => {
+                let entry = self.cache.entry(r.block, &header);
+                entry.retry_at_frame = self.frame + self.config.retry_after_frames;
+                let resident_levels = entry.levels.count();
+                let first = self.faulted.insert((r.block, r.level));
+                let area = self.store.block_rect(r.block);
+                stats.faults.push(Fault { error, area, resident_levels, first });
             }
             Outcome::Cancelled => {}
         }

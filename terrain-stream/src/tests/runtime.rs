@@ -321,8 +321,10 @@ fn a_block_deleted_mid_flight_is_a_fault_not_a_panic() {
     std::fs::write(&p, &bytes).unwrap();
 
     let st = s.update(&near);
-    let mut faults = st.faults;
-    faults.extend(s.finish_loads().faults);
+    let mut reported = st.faults;
+    reported.extend(s.finish_loads().faults);
+    assert!(reported.iter().all(|f| f.first), "{reported:?}");
+    let faults: Vec<StoreError> = reported.into_iter().map(|f| f.error).collect();
     // Exactly the two faults, typed, each naming its block and the first level it lacks.
     assert_eq!(faults.len(), 2, "{faults:?}");
     let missing_fault = faults

@@ -184,12 +184,20 @@ fn corrupt_truncated_changed_and_missing_files_are_typed_errors() {
     // Truncated.
     std::fs::write(&path, &original[..original.len() - 10]).unwrap();
     assert!(matches!(store.read_level_bytes(id, 5), Err(StoreError::Truncated { level: 5, .. })));
-    assert!(matches!(store.read_level_bytes(id, 0), Err(StoreError::Changed { level: 0, .. })));
+    assert!(matches!(store.read_level_bytes(id, 0), Err(StoreError::Truncated { level: 0, .. })));
 
     // Replaced by another block's file (changed during reading).
     std::fs::copy(out.join(block_file_name(BlockId::new(0, 0))), &path).unwrap();
     let r = store.read_level_bytes(id, 0);
-    assert!(matches!(r, Err(StoreError::Changed { .. } | StoreError::Truncated { .. })), "{r:?}");
+    assert!(
+        matches!(
+            r,
+            Err(StoreError::Foreign { .. }
+                | StoreError::Changed { .. }
+                | StoreError::Truncated { .. })
+        ),
+        "{r:?}"
+    );
 
     // Missing.
     std::fs::remove_file(&path).unwrap();
