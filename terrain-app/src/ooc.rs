@@ -143,8 +143,13 @@ pub struct StreamRecord {
     pub blocks_visible: usize,
     /// Blocks in the scheduling region N (M included).
     pub blocks_scheduled: usize,
-    /// Faults (the runtime served coarser levels).
+    /// Store faults met this frame (block levels that could not be read), repeats included.
     pub faults: usize,
+    /// The faults new this session, one line each in the user's words: the block file, the
+    /// block, its level and area, the cause, and what is drawn instead (a coarser level, or
+    /// nothing). A fault that repeats (the block is retried) is not listed again.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub new_faults: Vec<String>,
     /// Time the streamer took on the frame thread (the wait of a warm frame included), ms.
     pub stream_ms: f64,
 }
@@ -178,6 +183,7 @@ impl StreamRecord {
             blocks_visible: s.blocks_visible,
             blocks_scheduled: s.blocks_scheduled,
             faults: s.faults.len(),
+            new_faults: s.faults.iter().filter(|f| f.first).map(ToString::to_string).collect(),
             stream_ms: 0.0,
         }
     }

@@ -207,10 +207,8 @@ fn draw_frames(
         let r = &f.record;
         // What the frame computed before drawing: the selection (and the entropy mesh's build).
         let selection_ms = r.selection_ms + r.cpu_tess_ms;
-        if let Some(st) = &r.stream
-            && st.faults > 0
-        {
-            eprintln!("warning: {} store fault(s) this frame; coarser levels are drawn", st.faults);
+        for fault in r.stream.iter().flat_map(|st| &st.new_faults) {
+            eprintln!("warning: store fault: {fault}");
         }
         let verbose = cameras.len() <= 20 || frame % 50 == 1 || frame as usize == cameras.len();
         if verbose {
@@ -550,6 +548,7 @@ fn run_store(
         (method_kind == LodMethod::OutOfCore).then_some(args.tau),
     )?;
     drop(frames);
+    check_something_drawn(&records, dir)?;
     let stream = |r: &FrameRecord| r.stream.clone().unwrap_or_default();
     let total =
         |g: &dyn Fn(&ooc::StreamRecord) -> f64| records.iter().map(|r| g(&stream(r))).sum::<f64>();
@@ -583,6 +582,30 @@ fn run_store(
             .with_context(|| format!("could not write {}", path.display()))?;
     }
     save_image(&renderer, &args.output, kind)
+}
+
+/// Fails when the image's frame (the last of `records`) drew nothing of the store although
+/// blocks were in view: every one of them failed to load (the faults were reported above as
+/// they happened), or found no page slot. There is no picture to write, only the background.
+fn check_something_drawn(records: &[FrameRecord], dir: &Path) -> anyhow::Result<()> {
+    let Some(b) = records.last().and_then(|r| r.blocks) else { return Ok(()) };
+    if b.blocks_drawn > 0 || b.blocks_dropped == 0 {
+        return Ok(());
+    }
+    let faults: usize = records.iter().filter_map(|r| r.stream.as_ref()).map(|s| s.faults).sum();
+    if faults > 0 {
+        bail!(
+            "nothing could be drawn from the store {}: none of the {} blocks in view has a level              that could be read ({faults} store fault(s), each described above); no image              written. Bake the store again (`terrain bake DEM -o {} --overwrite`)",
+            dir.display(),
+            b.blocks_dropped,
+            dir.display()
+        );
+    }
+    bail!(
+        "nothing could be drawn from the store {}: none of the {} blocks in view found a page          slot on the device; no image written. Give more page memory (--page-mb)",
+        dir.display(),
+        b.blocks_dropped
+    );
 }
 
 /// Says when a frame was drawn in several batches (its tessellated points or indices exceed

@@ -10,6 +10,17 @@ fn opt4(x: Option<f64>) -> String {
     x.map(|x| format!("{x:.4}")).unwrap_or_else(|| "n/a".to_string())
 }
 
+/// `x` with `digits` decimals, `n/a` for NaN (an error figure of a run whose every frame
+/// missed data).
+fn num(x: f64, digits: usize) -> String {
+    if x.is_nan() { "n/a".to_string() } else { format!("{x:.digits$}") }
+}
+
+/// The frames missing data: `0`, or `k of n (not scored)`.
+fn missing(k: usize, n: usize) -> String {
+    if k == 0 { "0".to_string() } else { format!("{k} of {n} (not scored)") }
+}
+
 fn opt(x: Option<f64>) -> String {
     x.map(|x| format!("{x:.2}")).unwrap_or_else(|| "n/a".to_string())
 }
@@ -46,14 +57,14 @@ impl BenchReport {
             s.push_str(
                 "| method | parameter | triangles | patches | selection ms | CPU ms | frame ms | GPU ms | \
                  p99 px (median / max) | max px | RMSE m | popping RMS m | RMSE change m | \
-                 height jump m (median / max) | false culls |\n\
-                 |---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n",
+                 height jump m (median / max) | false culls | frames missing data |\n\
+                 |---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n",
             );
             for r in self.runs.iter().filter(|r| r.flight == f.name) {
                 let m = &r.summary;
                 let _ = writeln!(
                     s,
-                    "| {} | {} = {} | {:.0} | {:.0} | {:.3} | {:.2} | {:.2} | {} | {:.3} / {:.3} | {:.3} | {:.3} | {:.4} | {:.4} | {:.3} / {:.3} | {} |",
+                    "| {} | {} = {} | {:.0} | {:.0} | {:.3} | {:.2} | {:.2} | {} | {} / {} | {} | {} | {} | {} | {} / {} | {} | {} |",
                     r.label(),
                     r.parameter,
                     r.value,
@@ -63,15 +74,20 @@ impl BenchReport {
                     m.median_cpu_ms,
                     m.median_frame_ms,
                     opt(m.median_gpu_ms),
-                    m.median_p99_px,
-                    m.max_p99_px,
-                    m.max_px,
-                    m.median_rmse_m,
-                    m.median_popping_rms_m,
-                    m.median_rmse_change_m,
-                    m.median_max_jump_m,
-                    m.max_popping_m,
-                    m.false_culls
+                    num(m.median_p99_px, 3),
+                    num(m.max_p99_px, 3),
+                    num(m.max_px, 3),
+                    num(m.median_rmse_m, 3),
+                    num(m.median_popping_rms_m, 4),
+                    num(m.median_rmse_change_m, 4),
+                    num(m.median_max_jump_m, 3),
+                    num(m.max_popping_m, 3),
+                    if m.frames_missing_data == m.frames && m.frames > 0 {
+                        "n/a".to_string()
+                    } else {
+                        m.false_culls.to_string()
+                    },
+                    missing(m.frames_missing_data, m.frames)
                 );
             }
         }
@@ -156,7 +172,8 @@ impl BenchReport {
         }
         s.push_str(
             "\nMedians over the frames. Triangles are non-degenerate ones; CPU ms and frame ms as \
-             in the notes above; popping is the RMS change of the height error between \
+             in the notes above; error figures leave out the frames missing data (blocks in \
+             view that could not be read or drawn: holes in the picture); popping is the RMS change of the height error between \
              consecutive measured frames, RMSE change the change of the RMSE (the DSS paper's \
              measure), height jump the largest change of the drawn height at one DEM sample.\n",
         );

@@ -88,4 +88,54 @@ mod tests {
         assert_eq!(s.max_popping_m, 9.0);
         assert_eq!(s.median_rmse_m, 6.0);
     }
+
+    #[test]
+    fn frames_missing_data_are_counted_and_not_scored() {
+        let frame = |p99: f64, missing_blocks: usize| FrameRecord {
+            triangles: if missing_blocks > 0 { 0 } else { 10 },
+            missing_blocks,
+            errors: FrameErrors { p99_px: p99, rmse_m: p99, ..FrameErrors::default() },
+            ..FrameRecord::default()
+        };
+        // A frame with every block missing measures nothing: its zeros are not a perfect score.
+        let frames = [frame(0.0, 4), frame(2.0, 0), frame(3.0, 0)];
+        let s = RunSummary::new(&frames);
+        assert_eq!(s.frames_missing_data, 1);
+        assert_eq!((s.median_p99_px, s.median_rmse_m), (2.5, 2.5));
+        let all = RunSummary::new(&[frame(0.0, 4), frame(0.0, 9)]);
+        assert_eq!(all.frames_missing_data, 2);
+        assert!(all.median_p99_px.is_nan() && all.max_px.is_nan() && all.median_rmse_m.is_nan());
+        let report = BenchReport {
+            terrain: "t".into(),
+            grid: [3, 3],
+            adapter: None,
+            timing_notes: Vec::new(),
+            leaf_cells: 16,
+            measure_viewport: [1280, 720],
+            render_size: None,
+            flights: vec![FlightInfo {
+                name: "f".into(),
+                total_frames: 2,
+                frames: vec![0, 1],
+                warnings: Vec::new(),
+            }],
+            runs: vec![RunRecord {
+                flight: "f".into(),
+                method: LodMethod::OutOfCore,
+                from_store: false,
+                parameter: "tau",
+                value: 2.0,
+                summary: all,
+                frames: vec![frame(0.0, 4), frame(0.0, 9)],
+                stream: None,
+            }],
+        };
+        let md = report.to_markdown();
+        let row = md.lines().find(|l| l.starts_with("| ooc")).unwrap();
+        assert!(row.contains("n/a / n/a") && row.ends_with("| 2 of 2 (not scored) |"), "{row}");
+        let json = serde_json::to_string(&report).unwrap();
+        assert!(json.contains("\"median_p99_px\":null") && json.contains("\"missing_blocks\":9"));
+        assert!(FrameRecord::CSV_HEADER.ends_with(",missing_blocks"));
+        assert!(frame(0.0, 9).csv_row().ends_with(",9"));
+    }
 }

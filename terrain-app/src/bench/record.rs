@@ -43,6 +43,11 @@ pub struct FrameRecord {
     pub frame_ms: f64,
     /// Resident memory after the frame, bytes (`/proc/self/statm`; `None` elsewhere).
     pub rss_bytes: Option<u64>,
+    /// Blocks in view the frame has no data for (a store-backed method: blocks whose levels
+    /// could not be read, or that found no page slot): the picture has holes there and the
+    /// errors are of the rest only, so such a frame is not scored ([`RunSummary`] leaves it
+    /// out of the error figures and counts it in `frames_missing_data`).
+    pub missing_blocks: usize,
     /// The measured errors.
     #[serde(flatten)]
     pub errors: FrameErrors,
@@ -93,7 +98,8 @@ impl FrameRecord {
     /// The CSV header matching [`FrameRecord::csv_row`].
     pub const CSV_HEADER: &'static str = "frame,patches,triangles,selection_ms,cpu_tess_ms,\
 measure_ms,encode_ms,render_ms,gpu_ms,gpu_draw_ms,upload_bytes,cpu_ms,frame_ms,rss_bytes,\
-max_px,p99_px,rmse_m,max_abs_m,popping_rms_m,popping_max_m,false_culls,culled_samples,samples,stride";
+max_px,p99_px,rmse_m,max_abs_m,popping_rms_m,popping_max_m,false_culls,culled_samples,samples,stride,\
+missing_blocks";
 
     /// One CSV row (empty cells for absent values).
     pub fn csv_row(&self) -> String {
@@ -101,7 +107,7 @@ max_px,p99_px,rmse_m,max_abs_m,popping_rms_m,popping_max_m,false_culls,culled_sa
         let u = |x: Option<u64>| x.map(|x| x.to_string()).unwrap_or_default();
         let e = &self.errors;
         format!(
-            "{},{},{},{:.4},{:.4},{:.4},{},{},{},{},{},{:.4},{:.4},{},{:.5},{:.5},{:.5},{:.5},{:.5},{:.5},{},{},{},{}",
+            "{},{},{},{:.4},{:.4},{:.4},{},{},{},{},{},{:.4},{:.4},{},{:.5},{:.5},{:.5},{:.5},{:.5},{:.5},{},{},{},{},{}",
             self.frame,
             self.patches,
             self.triangles,
@@ -125,7 +131,8 @@ max_px,p99_px,rmse_m,max_abs_m,popping_rms_m,popping_max_m,false_culls,culled_sa
             e.false_culls,
             e.culled_samples,
             e.samples,
-            e.stride
+            e.stride,
+            self.missing_blocks
         )
     }
 }
@@ -160,11 +167,16 @@ pub fn process_cpu_s() -> f64 {
         _ => f64::NAN,
     }
 }
-/// Medians and extremes of one run's frames.
+/// Medians and extremes of one run's frames. The error figures (pixel errors, RMSE, popping,
+/// false culls) are over the frames with all their data ([`FrameRecord::missing_blocks`] 0):
+/// a frame with holes is not scored as if its picture were right; with no such frame they are
+/// `NaN` (`null` in JSON, `n/a` in Markdown).
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct RunSummary {
     /// Frames measured.
     pub frames: usize,
+    /// Frames with blocks in view they had no data for (left out of the error figures).
+    pub frames_missing_data: usize,
     /// Median patches.
     pub median_patches: f64,
     /// Median non-degenerate triangles.
@@ -229,13 +241,20 @@ pub(super) fn median(mut v: Vec<f64>) -> f64 {
 
 impl RunSummary {
     /// Summarises `frames`.
-    pub fn new(frames: &[FrameRecord]) -> Self {
-        let med = |f: &dyn Fn(&FrameRecord) -> f64| median(frames.iter().map(f).collect());
+    pub fn new(all: &[FrameRecord]) -> Self {
+        let med = |f: &dyn Fn(&FrameRecord) -> f64| median(all.iter().map(f).collect());
+        // The error figures: the frames with all their data only, NaN without any.
+        let scored: Vec<&FrameRecord> = all.iter().filter(|r| r.missing_blocks == 0).collect();
+        let none = scored.is_empty();
+        let err_med = |v: Vec<f64>| if none { f64::NAN } else { median(v) };
+        let err_max = |f: &dyn Fn(&FrameRecord) -> f64| {
+            if none { f64::NAN } else { scored.iter().map(|r| f(r)).fold(0.0, f64::max) }
+        };
+        let frames = all;
         let opt_med = |f: &dyn Fn(&FrameRecord) -> Option<f64>| {
             let v: Vec<f64> = frames.iter().filter_map(f).collect();
             (!v.is_empty()).then(|| median(v))
         };
-        let max = |f: &dyn Fn(&FrameRecord) -> f64| frames.iter().map(f).fold(0.0, f64::max);
         let uploads: Vec<u64> = frames.iter().filter_map(|r| r.upload_bytes).collect();
         Self {
             frames: frames.len(),
@@ -247,22 +266,23 @@ impl RunSummary {
             median_frame_ms: med(&|r| r.frame_ms),
             median_gpu_ms: opt_med(&|r| r.gpu_ms),
             median_gpu_draw_ms: opt_med(&|r| r.gpu_draw_ms),
-            median_p99_px: med(&|r| r.errors.p99_px),
-            max_p99_px: max(&|r| r.errors.p99_px),
-            max_px: max(&|r| r.errors.max_px),
-            median_rmse_m: med(&|r| r.errors.rmse_m),
-            max_abs_m: max(&|r| r.errors.max_abs_m),
-            median_popping_rms_m: median(
-                frames.iter().skip(1).map(|r| r.errors.popping_rms_m).collect(),
+            frames_missing_data: all.len() - scored.len(),
+            median_p99_px: err_med(scored.iter().map(|r| r.errors.p99_px).collect()),
+            max_p99_px: err_max(&|r| r.errors.p99_px),
+            max_px: err_max(&|r| r.errors.max_px),
+            median_rmse_m: err_med(scored.iter().map(|r| r.errors.rmse_m).collect()),
+            max_abs_m: err_max(&|r| r.errors.max_abs_m),
+            median_popping_rms_m: err_med(
+                scored.iter().skip(1).map(|r| r.errors.popping_rms_m).collect(),
             ),
-            max_popping_m: max(&|r| r.errors.popping_max_m),
-            median_max_jump_m: median(
-                frames.iter().skip(1).map(|r| r.errors.popping_max_m).collect(),
+            max_popping_m: err_max(&|r| r.errors.popping_max_m),
+            median_max_jump_m: err_med(
+                scored.iter().skip(1).map(|r| r.errors.popping_max_m).collect(),
             ),
-            median_rmse_change_m: median(
-                frames.iter().filter_map(|r| r.errors.rmse_change_m).collect(),
+            median_rmse_change_m: err_med(
+                scored.iter().filter_map(|r| r.errors.rmse_change_m).collect(),
             ),
-            false_culls: frames.iter().map(|r| r.errors.false_culls).sum(),
+            false_culls: scored.iter().map(|r| r.errors.false_culls).sum(),
             max_rss_bytes: frames.iter().filter_map(|r| r.rss_bytes).max(),
             mean_upload_bytes: (!uploads.is_empty())
                 .then(|| uploads.iter().sum::<u64>() as f64 / uploads.len() as f64),

@@ -114,6 +114,8 @@ pub fn run_bench(
         .collect();
     let mut done = 0;
     let mut runs = Vec::new();
+    // Store faults already said (every run of a store meets the same ones).
+    let mut faults_said = std::collections::BTreeSet::new();
     let mut store: Option<Result<Arc<terrain_stream::Store>, String>> = None;
     // Renderers that hold only the terrain, shared by every run that needs their kind.
     let mut shared: Vec<FrameRenderer> = Vec::new();
@@ -225,6 +227,11 @@ pub fn run_bench(
                     done += 1;
                     progress(&BenchProgress { done, total, label: label.clone() });
                     (clock, since) = (Instant::now(), 0);
+                }
+                for fault in streamed.iter().flat_map(|s| &s.new_faults) {
+                    if faults_said.insert(fault.clone()) {
+                        eprintln!("warning: store fault: {fault}");
+                    }
                 }
                 let stream = (!streamed.is_empty())
                     .then(|| crate::ooc::StreamSummary::new(&streamed, real_time, behind));

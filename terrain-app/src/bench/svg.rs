@@ -56,8 +56,10 @@ impl BenchReport {
                 [("triangles", |m| m.median_triangles), ("CPU ms per frame", |m| m.median_cpu_ms)];
             for (col, (ylabel, yof)) in panels.into_iter().enumerate() {
                 let title = format!("{}: {ylabel} vs p99 px ({})", f.name, self.terrain);
+                // A run whose every frame missed data has no error to plot (NaN).
                 let points: Vec<(LodMethod, f64, f64)> = runs
                     .iter()
+                    .filter(|r| !r.summary.median_p99_px.is_nan())
                     .map(|r| (r.method, r.summary.median_p99_px.max(PX_FLOOR), yof(&r.summary)))
                     .collect();
                 plot_panel(&mut s, col as f64 * pw, y0, pw, ph, &title, ylabel, &methods, &points);

@@ -121,6 +121,7 @@ impl<'a> FrameLoop<'a> {
             vertex_jump_m: jumps.map(|j| j[0]),
             vertex_jump_no_morph_m: jumps.map(|j| j[1]),
             stream: stats.stream.clone(),
+            missing_blocks: stats.blocks.map_or(0, |b| b.blocks_dropped),
             ..FrameRecord::measured(
                 index,
                 stats.patches,
