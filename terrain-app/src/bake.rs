@@ -78,8 +78,8 @@ pub(crate) struct BakeArgs {
     pub pvs: crate::pvs::PvsArgs,
     /// Read the DEM by bands of rows instead of whole (GeoTIFF and raw only): bounded memory
     /// for DEMs larger than memory. Automatic above --stream-above samples. Voids are then
-    /// filled from the nearest valid samples along their row and column (see
-    /// `terrain_core::dem::rows`), not from the whole void's rim.
+    /// filled from the nearest valid samples along their row and column, not from the whole
+    /// void's rim.
     #[arg(long)]
     pub stream: bool,
     /// Stream GeoTIFF and raw DEMs with more samples than this (default 2^28: 1 GiB of f32), or

@@ -129,10 +129,8 @@ pub(crate) fn run(args: &BenchArgs) -> anyhow::Result<()> {
     let flights = args
         .flights
         .iter()
-        .map(|p| {
-            FlightSpec::load(p)
-                .with_context(|| format!("could not load the flight {}", p.display()))
-        })
+        // The flight's errors name its file.
+        .map(|p| FlightSpec::load(p).context("could not load the flight"))
         .collect::<anyhow::Result<Vec<_>>>()?;
     let (hm, default_name) = match args.source.load()? {
         Some(dem) => {

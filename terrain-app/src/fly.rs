@@ -154,8 +154,8 @@ pub(crate) fn run(args: &FlyArgs) -> anyhow::Result<()> {
     std::fs::create_dir_all(&args.output)
         .with_context(|| format!("could not create the output folder {}", args.output.display()))?;
     crate::render::check_writable(&args.output.join("frame_00000.png"))?;
-    let spec = FlightSpec::load(&args.flight)
-        .with_context(|| format!("could not load the flight {}", args.flight.display()))?;
+    // The flight's errors name its file.
+    let spec = FlightSpec::load(&args.flight).context("could not load the flight")?;
     let hm = match args.source.load()? {
         Some(dem) => dem.heightmap,
         None => synth::default_terrain(),

@@ -95,7 +95,7 @@ pub enum LodMethod {
     #[serde(rename = "dss-strips")]
     DssStrips,
     /// The out-of-core paper's method (Qiu 2013): blocks from a store through the streamer,
-    /// Eq. 7 screen error with threshold tau ([`crate::ooc`]).
+    /// Eq. 7 screen error with threshold --tau (needs a store from `terrain bake`).
     #[value(name = "ooc")]
     #[serde(rename = "ooc")]
     OutOfCore,

@@ -329,11 +329,13 @@ pub(crate) fn run(args: &RenderArgs) -> anyhow::Result<()> {
     let options = RenderOptions { wireframe: args.wireframe, ..Default::default() };
     let p = camera.position;
     println!(
-        "camera: {:.1},{:.1},{:.1} looking {:.1?}, near {:.2} m, far {:.0} m",
+        "camera: {:.1},{:.1},{:.1} looking along {:.2},{:.2},{:.2} (east, north, up), near {:.2} m, far {:.0} m",
         p.x,
         p.y,
         p.z,
-        camera.forward(),
+        camera.forward().x,
+        camera.forward().y,
+        camera.forward().z,
         camera.near,
         camera.far
     );

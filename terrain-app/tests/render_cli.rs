@@ -57,8 +57,11 @@ fn assert_terrain_drawn(image: &image::RgbaImage, size: (u32, u32)) {
 #[test]
 fn render_the_default_terrain() {
     let args = ["--size", "96x54", "--method", "uniform", "--leaf-cells", "64", "--factor", "8"];
-    let Some((image, _)) = render("default", None, &args) else { return };
+    let Some((image, stdout)) = render("default", None, &args) else { return };
     assert_terrain_drawn(&image, (96, 54));
+    // The view direction as plain numbers, not a library type's debug form.
+    let camera = stdout.lines().find(|l| l.starts_with("camera:")).expect("a camera line");
+    assert!(camera.contains("looking along") && !camera.contains("DVec3"), "{camera}");
 }
 
 #[test]

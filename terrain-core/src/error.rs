@@ -65,8 +65,7 @@ pub enum DemErrorKind {
     },
     /// The declared size is beyond the limit; nothing of that size was allocated.
     #[error(
-        "declared size {width} x {height} samples exceeds the limit of {limit} samples \
-         (raise LoadOptions::max_samples if this is intended)"
+        "declared size {width} x {height} samples exceeds the limit of {limit} samples (the largest grid read)"
     )]
     TooLarge {
         /// Declared columns.

@@ -60,12 +60,12 @@ use crate::heightmap::Heightmap;
 #[non_exhaustive]
 pub enum FlightError {
     /// The file could not be read (missing, permissions).
-    #[error("{}: cannot read the flight file: {source}", path.display())]
+    #[error("{}: cannot read the flight file: {cause}", path.display())]
     Io {
         /// The file.
         path: PathBuf,
-        /// The cause.
-        source: std::io::Error,
+        /// The cause (in the message; not an error `source`, so an error chain prints it once).
+        cause: std::io::Error,
     },
     /// Not valid JSON, or not the flight schema.
     #[error("{}line {line}, column {column}: {message}", path.as_ref().map(|p| format!("{}: ", p.display())).unwrap_or_default())]
@@ -402,7 +402,7 @@ impl FlightSpec {
     pub fn load(path: impl AsRef<Path>) -> Result<Self, FlightError> {
         let path = path.as_ref();
         let text = std::fs::read_to_string(path)
-            .map_err(|source| FlightError::Io { path: path.to_owned(), source })?;
+            .map_err(|cause| FlightError::Io { path: path.to_owned(), cause })?;
         Self::parse(&text).map_err(|e| match e {
             FlightError::Json { path: None, line, column, message } => {
                 FlightError::Json { path: Some(path.to_owned()), line, column, message }

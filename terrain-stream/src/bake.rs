@@ -148,7 +148,7 @@ pub struct BakeReport {
 }
 
 fn io_err(path: &Path) -> impl FnOnce(std::io::Error) -> BakeError + '_ {
-    move |source| BakeError::Io { path: path.to_path_buf(), source }
+    move |cause| BakeError::Io { path: path.to_path_buf(), cause }
 }
 
 /// Bakes `source` into the store folder `out`.
@@ -373,13 +373,13 @@ fn bake_into(
             source.read_rows(r0, n, out).map_err(|e| BakeError::Source {
                 j0: r0,
                 rows: n,
-                source: e,
+                cause: e,
             })
         })?;
         source.read_void_rows(j0, rows, voids).map_err(|e| BakeError::Source {
             j0,
             rows,
-            source: e,
+            cause: e,
         })?;
         if let Some(p) = band.iter().position(|z| !z.is_finite()) {
             return Err(BakeError::Encoding(format!(

@@ -14,12 +14,12 @@ use crate::format::BlockId;
 #[non_exhaustive]
 pub enum StoreError {
     /// The operating system refused.
-    #[error("{}: I/O error: {source}", path.display())]
+    #[error("{}: I/O error: {cause}", path.display())]
     Io {
         /// The file.
         path: PathBuf,
-        /// The cause.
-        source: std::io::Error,
+        /// The cause (in the message; not an error `source`, so an error chain prints it once).
+        cause: std::io::Error,
     },
     /// The file does not start with the store's magic bytes.
     #[error("{}: not a terrain store ({what} has the wrong magic bytes)", path.display())]
@@ -201,12 +201,12 @@ impl StoreError {
 #[non_exhaustive]
 pub enum BakeError {
     /// The operating system refused.
-    #[error("{}: I/O error: {source}", path.display())]
+    #[error("{}: I/O error: {cause}", path.display())]
     Io {
         /// The file or folder.
         path: PathBuf,
-        /// The cause.
-        source: std::io::Error,
+        /// The cause (in the message; not an error `source`, so an error chain prints it once).
+        cause: std::io::Error,
     },
     /// The output exists and `BakeConfig::overwrite` is off.
     #[error("{}: already exists (give --overwrite to replace it)", path.display())]
@@ -231,14 +231,14 @@ pub enum BakeError {
     #[error("invalid bake config: {0}")]
     InvalidConfig(String),
     /// The source could not deliver rows.
-    #[error("reading source rows {j0}..{}: {source}", j0 + *rows as u64)]
+    #[error("reading source rows {j0}..{}: {cause}", j0 + *rows as u64)]
     Source {
         /// First row.
         j0: u64,
         /// Rows asked for.
         rows: usize,
-        /// The cause.
-        source: std::io::Error,
+        /// The cause (in the message; not an error `source`, so an error chain prints it once).
+        cause: std::io::Error,
     },
     /// A height does not fit the chosen quantization, or the error bound was not met.
     #[error("height encoding: {0}")]

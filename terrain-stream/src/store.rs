@@ -40,7 +40,7 @@ impl Store {
         let dir = dir.as_ref().to_path_buf();
         let path = dir.join(INDEX_FILE);
         let bytes =
-            std::fs::read(&path).map_err(|source| StoreError::Io { path: path.clone(), source })?;
+            std::fs::read(&path).map_err(|cause| StoreError::Io { path: path.clone(), cause })?;
         let (header, blocks) = read_index(&bytes).map_err(|e| match e {
             IndexError::BadMagic => StoreError::BadMagic { path: path.clone(), what: "index" },
             IndexError::Version(found) => {
@@ -93,14 +93,14 @@ impl Store {
             .get(level as usize)
             .ok_or_else(|| bad(format!("the finest level is {}", self.header.k)))?;
         let path = self.dir.join(block_file_name(id));
-        let mut file = File::open(&path).map_err(|source| {
-            if source.kind() == std::io::ErrorKind::NotFound {
+        let mut file = File::open(&path).map_err(|cause| {
+            if cause.kind() == std::io::ErrorKind::NotFound {
                 StoreError::MissingBlock { path: path.clone(), block: id, level }
             } else {
-                StoreError::Io { path: path.clone(), source }
+                StoreError::Io { path: path.clone(), cause }
             }
         })?;
-        let io = |source| StoreError::Io { path: path.clone(), source };
+        let io = |cause| StoreError::Io { path: path.clone(), cause };
         let len = file.metadata().map_err(io)?.len();
         if len < entry.file_len {
             return Err(StoreError::Truncated {

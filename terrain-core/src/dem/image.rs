@@ -270,8 +270,8 @@ pub(crate) fn read(
                 return Err(err(DemErrorKind::Unsupported {
                     format: "PNG",
                     message: format!(
-                        "a colour PNG ({:?}) is not a grey heightmap; set LoadOptions::format to \
-                         TerrainRgb or Terrarium if it encodes heights in RGB",
+                        "a colour PNG ({:?}) is not a grey heightmap; give --format terrain-rgb \
+                         or --format terrarium if it encodes heights in RGB",
                         other.color()
                     ),
                 }));

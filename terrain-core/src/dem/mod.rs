@@ -327,7 +327,7 @@ fn describe_unknown(head: &[u8]) -> String {
     };
     format!(
         "{what}; first bytes {}; expected TIFF (II*\\0 / MM\\0*), PNG, JPEG, a .hgt name, \
-         or LoadOptions::format = Raw with a RawSpec",
+         or a raw grid given with --raw WIDTHxHEIGHT:TYPE",
         hex.join(" ")
     )
 }

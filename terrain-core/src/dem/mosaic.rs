@@ -93,6 +93,43 @@ pub fn load_mosaic(paths: &[impl AsRef<Path>], options: &LoadOptions) -> Result<
     let i1 = placed.iter().map(|p| p.0 + p.2.heightmap.width() as i64).max().unwrap_or(0);
     let j1 = placed.iter().map(|p| p.1 + p.2.heightmap.height() as i64).max().unwrap_or(0);
     let (w, h) = ((i1 - i0) as u64, (j1 - j0) as u64);
+    // Tiles that are not adjacent leave a gap: say so before sizing their bounding grid
+    // (two tiles far apart would otherwise read as one absurdly large grid).
+    let rect = |&(pi, pj, t): &(i64, i64, &Dem)| {
+        (pi, pj, pi + t.heightmap.width() as i64, pj + t.heightmap.height() as i64)
+    };
+    // Rectangles of samples that overlap or lie side by side (a one-sample step between them).
+    let touch = |a: (i64, i64, i64, i64), b: (i64, i64, i64, i64)| {
+        a.0 <= b.2 && b.0 <= a.2 && a.1 <= b.3 && b.1 <= a.3
+    };
+    if placed.len() > 1 {
+        for (k, p) in placed.iter().enumerate() {
+            let a = rect(p);
+            if !placed.iter().enumerate().any(|(m, q)| m != k && touch(a, rect(q))) {
+                let other = if k == 0 { 1 } else { 0 };
+                let (di, dj) = (p.0 - placed[other].0, p.1 - placed[other].1);
+                return Err(merr(format!(
+                    "{} is not adjacent to any other tile (it starts {} samples {} and {} \
+                     samples {} of {}): a mosaic joins adjacent tiles only; give them one at a \
+                     time",
+                    paths[k].as_ref().display(),
+                    di.unsigned_abs(),
+                    if di < 0 { "west" } else { "east" },
+                    dj.unsigned_abs(),
+                    if dj < 0 { "south" } else { "north" },
+                    paths[other].as_ref().display()
+                )));
+            }
+        }
+    }
+    let area: u64 =
+        placed.iter().map(|p| (p.2.heightmap.width() * p.2.heightmap.height()) as u64).sum();
+    if area < w.saturating_mul(h) {
+        return Err(merr(format!(
+            "the tiles do not cover a rectangle: they leave a gap in their {w} x {h} sample \
+             bounding grid; a mosaic joins adjacent tiles that cover one"
+        )));
+    }
     // The joined grid plus its coverage flags (one byte each).
     check_size(first, w, h, 1, options)?;
     let (w, h) = (w as usize, h as usize);

@@ -16,7 +16,7 @@ pub(crate) fn read(path: &Path, len: u64, options: &LoadOptions) -> Result<RawGr
     let err = |kind| DemError::new(path, kind);
     let Some(spec) = options.raw else {
         return Err(err(DemErrorKind::InvalidOptions(
-            "a raw file needs LoadOptions::raw (width, height, sample type)".to_string(),
+            "a raw file needs its size and sample type: --raw WIDTHxHEIGHT:TYPE (TYPE f32, i16 or u16)".to_string(),
         )));
     };
     let (bytes_per, name) = match spec.sample {

@@ -174,7 +174,7 @@ impl RowReader {
             Format::Raw => {
                 let Some(spec) = options.raw else {
                     return Err(err(DemErrorKind::InvalidOptions(
-                        "a raw file needs LoadOptions::raw (width, height, sample type)".into(),
+                        "a raw file needs its size and sample type: --raw WIDTHxHEIGHT:TYPE (TYPE f32, i16 or u16)".into(),
                     )));
                 };
                 super::check_size(path, spec.width, spec.height, 0, &unbounded)?;

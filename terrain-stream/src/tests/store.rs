@@ -57,8 +57,11 @@ fn check_heights(store: &Store, hm: &Heightmap, tol: f32) {
 
 #[test]
 fn puget_sound_1k_is_lossless_and_deterministic() {
-    let path = Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("../../shared/data/puget_sound/ps_height_1k.png");
+    // `$TERRAIN_DATA`, else `../shared/data` beside the repository (as every DEM test).
+    let data = std::env::var_os("TERRAIN_DATA")
+        .map(std::path::PathBuf::from)
+        .unwrap_or_else(|| Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/data"));
+    let path = data.join("puget_sound/ps_height_1k.png");
     let opts = terrain_core::dem::LoadOptions {
         vertical_scale: 0.1,
         spacing_m: 160.0,

@@ -32,12 +32,13 @@ const HEADER_BYTES: usize = 4 + 4 + 4 + 6 * 4 + 8 + 4 * 8 + 4;
 #[non_exhaustive]
 pub enum PvsFileError {
     /// The file could not be opened, read or written.
-    #[error("{path}: {source}")]
+    #[error("{}: {cause}", path.display())]
     Io {
         /// The file.
         path: PathBuf,
-        /// The I/O error.
-        source: std::io::Error,
+        /// The I/O error (in the message; not an error `source`, so an error chain prints it
+        /// once).
+        cause: std::io::Error,
     },
     /// The file is not a PVS file, is truncated or corrupt.
     #[error("{path}: {problem}")]
@@ -182,7 +183,7 @@ pub fn decode(bytes: &[u8], path: &Path) -> Result<Pvs, PvsFileError> {
 pub fn write_pvs(pvs: &Pvs, path: &Path) -> Result<u64, PvsFileError> {
     let bytes = encode(pvs);
     let tmp = path.with_extension("bin.tmp");
-    let io = |source| PvsFileError::Io { path: path.to_path_buf(), source };
+    let io = |cause| PvsFileError::Io { path: path.to_path_buf(), cause };
     std::fs::write(&tmp, &bytes).map_err(io)?;
     std::fs::rename(&tmp, path).map_err(io)?;
     Ok(bytes.len() as u64)
@@ -191,6 +192,6 @@ pub fn write_pvs(pvs: &Pvs, path: &Path) -> Result<u64, PvsFileError> {
 /// Reads a PVS file.
 pub fn read_pvs(path: &Path) -> Result<Pvs, PvsFileError> {
     let bytes = std::fs::read(path)
-        .map_err(|source| PvsFileError::Io { path: path.to_path_buf(), source })?;
+        .map_err(|cause| PvsFileError::Io { path: path.to_path_buf(), cause })?;
     decode(&bytes, path)
 }
