@@ -105,9 +105,16 @@ pub enum EntropyError {
     /// A point is not finite.
     #[error("point {0} has a non-finite coordinate")]
     NonFinite(usize),
-    /// The raster could not be made.
+    /// The raster could not be made (the cause in the message, not an error `source`, so an
+    /// error chain prints it once).
     #[error("raster: {0}")]
-    Raster(#[from] HeightmapError),
+    Raster(HeightmapError),
+}
+
+impl From<HeightmapError> for EntropyError {
+    fn from(e: HeightmapError) -> Self {
+        Self::Raster(e)
+    }
 }
 
 impl TreeConfig {
