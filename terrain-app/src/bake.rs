@@ -151,11 +151,19 @@ pub(crate) fn run(args: &BakeArgs) -> anyhow::Result<()> {
         if matches!(config.encoding, HeightEncoding::Bounded { .. }) {
             config.encoding = bounded;
         }
+        let g = reader.georef();
+        crate::source::check_surface(
+            &reader.source().path.display().to_string(),
+            (reader.width(), reader.height()),
+            g.spacing_m,
+            None,
+            g.crs == terrain_core::Crs::Unknown,
+        )?;
         rows = Some(reader);
         rows.as_ref().expect("just set")
     } else {
         let options = args.source.load_options()?;
-        dem = args.source.load()?.context("give a DEM file or --synthetic SIZE")?;
+        dem = args.source.load_surface()?.context("give a DEM file or --synthetic SIZE")?;
         config.encoding = HeightEncoding::for_source(&dem.source, &options);
         if matches!(config.encoding, HeightEncoding::Bounded { .. }) {
             config.encoding = bounded;

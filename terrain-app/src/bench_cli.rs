@@ -132,7 +132,7 @@ pub(crate) fn run(args: &BenchArgs) -> anyhow::Result<()> {
         // The flight's errors name its file.
         .map(|p| FlightSpec::load(p).context("could not load the flight"))
         .collect::<anyhow::Result<Vec<_>>>()?;
-    let (hm, default_name) = match args.source.load()? {
+    let (hm, default_name) = match args.source.load_surface()? {
         Some(dem) => {
             let stem = args.source.dem[0].file_stem().map(|s| s.to_string_lossy().into_owned());
             (dem.heightmap, stem.unwrap_or_else(|| "dem".to_string()))

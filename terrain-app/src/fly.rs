@@ -156,7 +156,7 @@ pub(crate) fn run(args: &FlyArgs) -> anyhow::Result<()> {
     crate::render::check_writable(&args.output.join("frame_00000.png"))?;
     // The flight's errors name its file.
     let spec = FlightSpec::load(&args.flight).context("could not load the flight")?;
-    let hm = match args.source.load()? {
+    let hm = match args.source.load_surface()? {
         Some(dem) => dem.heightmap,
         None => synth::default_terrain(),
     };

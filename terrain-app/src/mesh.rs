@@ -131,7 +131,7 @@ pub(crate) fn run(args: &MeshArgs) -> anyhow::Result<()> {
     if let Some(e0) = args.entropy {
         return entropy_mesh(args, e0, format);
     }
-    let hm = match args.source.load()? {
+    let hm = match args.source.load_surface()? {
         Some(dem) => dem.heightmap,
         None => terrain_core::synth::default_terrain(),
     };

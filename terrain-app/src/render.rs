@@ -297,7 +297,7 @@ pub(crate) fn run(args: &RenderArgs) -> anyhow::Result<()> {
         return run_store(args, one, (width, height), background, kind);
     }
     let method_kind = args.method.unwrap_or(LodMethod::PvpsC);
-    let hm = match args.source.load()? {
+    let hm = match args.source.load_surface()? {
         Some(dem) => dem.heightmap,
         None => synth::default_terrain(),
     };

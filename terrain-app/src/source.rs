@@ -72,8 +72,12 @@ impl SourceArgs {
         if matches!(format, Some(Format::Raw)) && raw.is_none() {
             bail!("--format raw needs --raw WIDTHxHEIGHT:TYPE");
         }
-        if !(self.spacing.is_finite() && self.spacing > 0.0) {
-            bail!("--spacing must be a positive number of metres, got {}", self.spacing);
+        if !(self.spacing.is_finite() && (MIN_SPACING_M..=MAX_SPACING_M).contains(&self.spacing)) {
+            bail!(
+                "--spacing must be between {MIN_SPACING_M} and {MAX_SPACING_M} metres between \
+                 samples, got {}",
+                plain(self.spacing)
+            );
         }
         if !self.vertical_scale.is_finite() || self.vertical_scale == 0.0 {
             bail!("--vertical-scale must be finite and non-zero, got {}", self.vertical_scale);
@@ -90,6 +94,21 @@ impl SourceArgs {
         })
     }
 
+    /// Reads the DEM(s) as [`SourceArgs::load`] does and refuses a grid no surface can be made
+    /// of ([`check_surface`]): what `bake`, `render`, `fly`, `bench` and `mesh` read.
+    pub(crate) fn load_surface(&self) -> anyhow::Result<Option<Dem>> {
+        let Some(dem) = self.load()? else { return Ok(None) };
+        let hm = &dem.heightmap;
+        check_surface(
+            &dem.source.path.display().to_string(),
+            (hm.width() as u64, hm.height() as u64),
+            hm.georef().spacing_m,
+            Some((hm.min(), hm.max())),
+            hm.georef().crs == terrain_core::Crs::Unknown,
+        )?;
+        Ok(Some(dem))
+    }
+
     /// Reads the DEM(s); `None` when no file was given (the caller uses the embedded terrain).
     pub(crate) fn load(&self) -> anyhow::Result<Option<Dem>> {
         let options = self.load_options()?;
@@ -104,6 +123,64 @@ impl SourceArgs {
         }
         Ok(Some(dem))
     }
+}
+
+/// Smallest `--spacing`, metres (1 mm: finer than any survey's grid).
+pub(crate) const MIN_SPACING_M: f64 = 1e-3;
+/// Largest `--spacing`, metres (1000 km: a global grid at one degree has 111 km).
+pub(crate) const MAX_SPACING_M: f64 = 1e6;
+/// Largest extent of a grid a surface is made of, metres (2.5 times the Earth's circumference).
+pub(crate) const MAX_EXTENT_M: f64 = 1e8;
+/// Largest height, metres (no terrain is within two orders of magnitude of it).
+pub(crate) const MAX_ABS_HEIGHT_M: f64 = 1e6;
+
+/// Refuses, before any work, a grid no surface can be made of: fewer than 2 x 2 samples (no
+/// cell to draw, bake or mesh), a sample spacing under a millimetre or an extent beyond
+/// `MAX_EXTENT_M` (a camera framing it would be at infinity), or heights beyond
+/// `MAX_ABS_HEIGHT_M`. Says what is wrong, why, and which option sets it. `from_options`: the
+/// spacing came from `--spacing` (the file has no georeference).
+pub(crate) fn check_surface(
+    name: &str,
+    (width, height): (u64, u64),
+    spacing_m: glam::DVec2,
+    heights: Option<(f32, f32)>,
+    from_options: bool,
+) -> anyhow::Result<()> {
+    if width < 2 || height < 2 {
+        bail!(
+            "{name}: the grid is {width} x {height} samples; a surface needs at least 2 x 2 \
+             samples (one cell) to be drawn, baked or meshed"
+        );
+    }
+    let spacing = if from_options { "--spacing" } else { "the file's georeference" };
+    let extent = glam::dvec2((width - 1) as f64, (height - 1) as f64) * spacing_m;
+    if !(spacing_m.min_element() >= MIN_SPACING_M && extent.max_element() <= MAX_EXTENT_M) {
+        bail!(
+            "{name}: {width} x {height} samples at {} x {} m spacing span {:.4e} x {:.4e} m; a \
+             terrain spans at most {MAX_EXTENT_M:e} m with samples at least {MIN_SPACING_M} m \
+             apart (a camera framing it would be at infinity): check the spacing ({spacing})",
+            plain(spacing_m.x),
+            plain(spacing_m.y),
+            extent.x,
+            extent.y
+        );
+    }
+    if let Some((lo, hi)) = heights
+        && f64::from(lo.abs().max(hi.abs())) > MAX_ABS_HEIGHT_M
+    {
+        bail!(
+            "{name}: heights from {} to {} m; no terrain reaches {MAX_ABS_HEIGHT_M:e} m: check \
+             --vertical-scale and --vertical-offset (or the file's sample type and nodata)",
+            plain(f64::from(lo)),
+            plain(f64::from(hi))
+        );
+    }
+    Ok(())
+}
+
+/// A number as users write it: plain, or in exponent form when very large or small.
+fn plain(x: f64) -> String {
+    if x != 0.0 && !(1e-3..1e6).contains(&x.abs()) { format!("{x:e}") } else { format!("{x}") }
 }
 
 /// Parses `--max-memory`: bytes, or a number with a binary unit (KiB, MiB, GiB, TiB).
