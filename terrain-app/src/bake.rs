@@ -182,11 +182,11 @@ pub(crate) fn run(args: &BakeArgs) -> anyhow::Result<()> {
         let frac = p.blocks_done as f64 / p.blocks_total.max(1) as f64;
         let filled = (frac * 40.0).round() as usize;
         let line = format!(
-            "{:5.1}% {}/{} blocks, {:.1} MB written, {:.0} s",
+            "{:5.1}% {}/{} blocks, {:.1} MiB written, {:.0} s",
             frac * 100.0,
             p.blocks_done,
             p.blocks_total,
-            p.bytes_written as f64 / 1e6,
+            p.bytes_written as f64 / terrain_app::MIB,
             start.elapsed().as_secs_f64()
         );
         if terminal {
@@ -216,14 +216,14 @@ pub(crate) fn run(args: &BakeArgs) -> anyhow::Result<()> {
     let h = &report.header;
     let secs = report.elapsed.as_secs_f64();
     println!(
-        "{}: {} x {} samples in {} x {} blocks of {}^2, {:.1} MB ({:.2} bytes/sample), {}, {:.1} s, {:.1} MB/s of f32 input",
+        "{}: {} x {} samples in {} x {} blocks of {}^2, {:.1} MiB ({:.2} bytes/sample), {}, {:.1} s, {:.1} MiB/s of f32 input",
         args.output.display(),
         h.width,
         h.height,
         h.blocks_x,
         h.blocks_y,
         h.block_side(),
-        report.store_bytes as f64 / 1e6,
+        report.store_bytes as f64 / terrain_app::MIB,
         report.store_bytes as f64 / report.source_samples as f64,
         if report.lossless {
             "lossless".to_string()
@@ -231,7 +231,7 @@ pub(crate) fn run(args: &BakeArgs) -> anyhow::Result<()> {
             format!("max vertical error {:.4} m", h.max_error_m)
         },
         secs,
-        report.source_samples as f64 * 4.0 / 1e6 / secs.max(1e-9)
+        report.source_samples as f64 * 4.0 / terrain_app::MIB / secs.max(1e-9)
     );
     let leaf = MethodConfig::default().leaf_cells;
     let synthetic_hm;

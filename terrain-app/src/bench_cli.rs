@@ -64,9 +64,9 @@ pub(crate) struct BenchArgs {
     /// The `ooc` method: k of the temporary store.
     #[arg(long, default_value_t = 8)]
     pub ooc_k: u8,
-    /// The `ooc` method: the stream cache's budget, MiB.
-    #[arg(long, default_value_t = 256)]
-    pub ooc_cache_mb: u64,
+    /// The `ooc` method: the stream cache's budget, MiB (2^20 bytes).
+    #[arg(long, alias = "ooc-cache-mb", default_value_t = 256)]
+    pub ooc_cache_mib: u64,
     /// The `ooc` method: every sampled frame waits until the levels it needs are resident
     /// (warm: the error is the selection's own). By default the flight is played in real
     /// time at its own frame rate, every frame, and late data is counted.
@@ -123,7 +123,7 @@ pub(crate) fn run(args: &BenchArgs) -> anyhow::Result<()> {
     cfg.scene = args.scene.clone();
     cfg.ooc_store = args.ooc_store.clone().or_else(|| args.scene.clone());
     cfg.ooc_k = args.ooc_k;
-    cfg.ooc.budget_bytes = args.ooc_cache_mb << 20;
+    cfg.ooc.budget_bytes = args.ooc_cache_mib << 20;
     cfg.ooc_wait = args.wait;
     cfg.from_store = args.from_store;
     let flights = args

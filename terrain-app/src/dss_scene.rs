@@ -62,10 +62,10 @@ pub fn bake_into_scene(hm: &Heightmap, qt: &Quadtree, dir: &Path) -> anyhow::Res
     std::fs::rename(&tmp, &path)
         .with_context(|| format!("renaming {} to {}", tmp.display(), path.display()))?;
     println!(
-        "{}: the DSS paper's 32 object-space errors of {} quadtree levels, {:.1} MB, {:.1} s",
+        "{}: the DSS paper's 32 object-space errors of {} quadtree levels, {:.1} MiB, {:.1} s",
         path.display(),
         qt.max_level() + 1,
-        bytes.len() as f64 / 1e6,
+        bytes.len() as f64 / crate::MIB,
         start.elapsed().as_secs_f64()
     );
     Ok(())

@@ -144,12 +144,12 @@ fn write_table(
         .with_context(|| format!("renaming {} to {}", tmp.display(), path.display()))?;
     let (nx, ny) = table.patch_counts();
     println!(
-        "{}: geomorph's max-error vertices of {} x {} patches of {} cells, {:.2} MB, {:.2} s",
+        "{}: geomorph's max-error vertices of {} x {} patches of {} cells, {:.2} MiB, {:.2} s",
         path.display(),
         nx,
         ny,
         table.patch_cells(),
-        bytes.len() as f64 / 1e6,
+        bytes.len() as f64 / crate::MIB,
         start.elapsed().as_secs_f64()
     );
     Ok(bytes.len() as u64)

@@ -192,11 +192,11 @@ impl StoreReport {
         s += &format!("crs          {}\n", self.crs);
         s += &format!("spacing (m)  {:.3} x {:.3} m\n", self.spacing_m[0], self.spacing_m[1]);
         s += &format!(
-            "blocks       {} x {} of {}^2 vertices, {:.1} MB\n",
+            "blocks       {} x {} of {}^2 vertices, {:.1} MiB\n",
             self.blocks[0],
             self.blocks[1],
             self.block_side,
-            self.bytes as f64 / 1e6
+            self.bytes as f64 / terrain_app::MIB
         );
         let exact = if self.max_error_m == 0.0 {
             "lossless".to_string()

@@ -2,6 +2,11 @@
 //! and the integration tests: LOD methods assembled from terrain-core (quadtree, metrics,
 //! selection), terrain-visibility (roughness) and handed to terrain-gpu as draw patches.
 
+/// Bytes in a MiB (2^20). Every size the `terrain` command takes or prints is in binary
+/// units: options in MiB (`--cache-mib`, `--page-mib`), `--max-memory` in KiB/MiB/GiB/TiB,
+/// messages and reports in MiB.
+pub const MIB: f64 = (1u64 << 20) as f64;
+
 pub mod bench;
 pub mod dss_scene;
 pub mod entropy_method;

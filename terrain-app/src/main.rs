@@ -12,7 +12,7 @@ mod render;
 mod roughness;
 mod source;
 
-use clap::{Parser, Subcommand};
+use clap::{CommandFactory, FromArgMatches, Parser, Subcommand};
 
 /// Large-scale terrain: real DEMs in, measured level of detail out.
 #[derive(Debug, Parser)]
@@ -50,8 +50,28 @@ enum Command {
     Demo(demo::DemoArgs),
 }
 
+/// The command line with every option that takes a value accepting a negative number without
+/// `=` (`--vertical-scale -0.1`, `--tau -1` reaches its own check), the same for every
+/// command and option.
+fn command() -> clap::Command {
+    fn negatives(cmd: clap::Command) -> clap::Command {
+        let subs: Vec<String> = cmd.get_subcommands().map(|c| c.get_name().to_string()).collect();
+        let mut cmd = cmd.mut_args(|a| {
+            if a.get_action().takes_values() { a.allow_negative_numbers(true) } else { a }
+        });
+        for name in subs {
+            cmd = cmd.mut_subcommand(name, negatives);
+        }
+        cmd
+    }
+    negatives(Cli::command())
+}
+
 fn main() -> std::process::ExitCode {
-    let cli = Cli::parse();
+    let cli = match Cli::from_arg_matches(&command().get_matches()) {
+        Ok(cli) => cli,
+        Err(e) => e.exit(),
+    };
     let result = match cli.command {
         Command::Info(args) => info::run(&args),
         Command::Entropy(args) => entropy::run(&args),
@@ -69,6 +89,59 @@ fn main() -> std::process::ExitCode {
         Err(e) => {
             eprintln!("error: {e:#}");
             std::process::ExitCode::FAILURE
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Every option of every command that takes a value takes `-5` without `=`: the parser
+    /// never reads it as an unknown option (the command's own checks may still refuse it).
+    #[test]
+    fn every_value_option_accepts_a_negative_number() {
+        command().debug_assert();
+        let cmd = command();
+        let mut checked = 0;
+        for sub in cmd.get_subcommands() {
+            for arg in sub.get_arguments() {
+                let Some(long) = arg.get_long() else { continue };
+                if !arg.get_action().takes_values() {
+                    continue;
+                }
+                let flag = format!("--{long}");
+                let r = command().try_get_matches_from(["terrain", sub.get_name(), &flag, "-5"]);
+                if let Err(e) = r {
+                    assert_ne!(
+                        e.kind(),
+                        clap::error::ErrorKind::UnknownArgument,
+                        "terrain {} {flag} -5: {e}",
+                        sub.get_name()
+                    );
+                    assert!(!e.to_string().contains("unexpected argument '-5'"), "{e}");
+                }
+                checked += 1;
+            }
+        }
+        assert!(checked > 50, "only {checked} options checked");
+    }
+
+    /// Sizes are options in MiB; the old `-mb` spellings still parse.
+    #[test]
+    fn mib_options_keep_their_old_spellings() {
+        for (sub, new, old) in [
+            ("render", "cache_mib", "--cache-mb"),
+            ("render", "page_mib", "--page-mb"),
+            ("bench", "ooc_cache_mib", "--ooc-cache-mb"),
+        ] {
+            let mut args = vec!["terrain", sub, old, "64", "-o", "x.png"];
+            if sub == "bench" {
+                args.extend(["--flight", "f.json"]);
+            }
+            let m = command().try_get_matches_from(args).unwrap();
+            let (_, m) = m.subcommand().unwrap();
+            assert_eq!(m.get_one::<u64>(new), Some(&64), "{sub} {old}");
         }
     }
 }

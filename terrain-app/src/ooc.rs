@@ -42,6 +42,7 @@ use terrain_stream::{
     StreamConfig, Streamer, demand_of, select_patches,
 };
 
+use crate::MIB;
 use crate::methods::{StripFrame, patch_factors};
 
 /// Settings of the out-of-core method.
@@ -97,13 +98,13 @@ pub fn is_store(path: &Path) -> bool {
 /// needed level.
 #[derive(Debug, Clone, Default, PartialEq, serde::Serialize)]
 pub struct StreamRecord {
-    /// Bytes of the levels the blocks of M need (MB, 10^6 bytes, decoded).
-    pub needed_mb: f64,
-    /// Of those, resident when the frame was drawn (MB).
-    pub needed_resident_mb: f64,
-    /// Late data: needed, not resident when the frame was drawn (MB); the blocks were drawn
+    /// Bytes of the levels the blocks of M need (MiB, 2^20 bytes, decoded).
+    pub needed_mib: f64,
+    /// Of those, resident when the frame was drawn (MiB).
+    pub needed_resident_mib: f64,
+    /// Late data: needed, not resident when the frame was drawn (MiB); the blocks were drawn
     /// at their finest resident level instead.
-    pub late_mb: f64,
+    pub late_mib: f64,
     /// Blocks of M lacking some needed level when the frame was drawn.
     pub late_blocks: usize,
     /// Levels short, summed over the blocks of M.
@@ -111,12 +112,12 @@ pub struct StreamRecord {
     /// Whether every block of M had its needed levels resident (drawn at its needed level).
     pub at_needed_level: bool,
     /// Loaded on the frame thread (the paper's real-time loaded data; only the first frame of
-    /// a real-time session), MB.
-    pub sync_mb: f64,
-    /// Arrived from the workers (prefetched data), MB.
-    pub prefetched_mb: f64,
-    /// Read from disk, MB.
-    pub disk_mb: f64,
+    /// a real-time session), MiB.
+    pub sync_mib: f64,
+    /// Arrived from the workers (prefetched data), MiB.
+    pub prefetched_mib: f64,
+    /// Read from disk, MiB.
+    pub disk_mib: f64,
     /// I/O time (synchronous reads plus the workers' reads that arrived), ms.
     pub io_ms: f64,
     /// Blocks loaded synchronously.
@@ -133,10 +134,10 @@ pub struct StreamRecord {
     pub evictions: usize,
     /// Stale requests cancelled (their blocks left the scheduling region).
     pub cancelled: usize,
-    /// Resident bytes after the frame (MB).
-    pub resident_mb: f64,
-    /// The budget, MB.
-    pub budget_mb: f64,
+    /// Resident bytes after the frame (MiB).
+    pub resident_mib: f64,
+    /// The budget, MiB.
+    pub budget_mib: f64,
     /// Requests queued or loading.
     pub queue_depth: usize,
     /// Blocks in M.
@@ -154,21 +155,19 @@ pub struct StreamRecord {
     pub stream_ms: f64,
 }
 
-const MB: f64 = 1e6;
-
 impl StreamRecord {
     fn new(s: &terrain_stream::FrameStats) -> Self {
         let ms = |d: std::time::Duration| d.as_secs_f64() * 1e3;
         Self {
-            needed_mb: s.needed_bytes as f64 / MB,
-            needed_resident_mb: s.needed_resident_bytes as f64 / MB,
-            late_mb: s.late_bytes as f64 / MB,
+            needed_mib: s.needed_bytes as f64 / MIB,
+            needed_resident_mib: s.needed_resident_bytes as f64 / MIB,
+            late_mib: s.late_bytes as f64 / MIB,
             late_blocks: s.late_blocks,
             late_levels: s.late_levels,
             at_needed_level: s.at_needed_level(),
-            sync_mb: s.sync_bytes as f64 / MB,
-            prefetched_mb: s.prefetched_bytes as f64 / MB,
-            disk_mb: s.disk_bytes as f64 / MB,
+            sync_mib: s.sync_bytes as f64 / MIB,
+            prefetched_mib: s.prefetched_bytes as f64 / MIB,
+            disk_mib: s.disk_bytes as f64 / MIB,
             io_ms: ms(s.io_time),
             sync_loads: s.sync_loads,
             waited_for_io: s.waited_for_io(),
@@ -177,8 +176,8 @@ impl StreamRecord {
             cache_misses: s.cache_misses,
             evictions: s.evictions,
             cancelled: s.cancelled,
-            resident_mb: s.resident_bytes as f64 / MB,
-            budget_mb: s.budget_bytes as f64 / MB,
+            resident_mib: s.resident_bytes as f64 / MIB,
+            budget_mib: s.budget_bytes as f64 / MIB,
             queue_depth: s.queue_depth,
             blocks_visible: s.blocks_visible,
             blocks_scheduled: s.blocks_scheduled,
@@ -202,19 +201,19 @@ pub struct StreamSummary {
     pub at_needed_level: usize,
     /// Share of frames drawn at their needed level, 0..1.
     pub at_needed_level_share: f64,
-    /// Late MB per frame: median and maximum.
-    pub late_mb_median: f64,
-    /// Late MB per frame, maximum.
-    pub late_mb_max: f64,
-    /// Needed MB per frame, median.
-    pub needed_mb_median: f64,
-    /// Prefetched MB per frame, mean.
-    pub prefetched_mb_mean: f64,
+    /// Late MiB per frame: median and maximum.
+    pub late_mib_median: f64,
+    /// Late MiB per frame, maximum.
+    pub late_mib_max: f64,
+    /// Needed MiB per frame, median.
+    pub needed_mib_median: f64,
+    /// Prefetched MiB per frame, mean.
+    pub prefetched_mib_mean: f64,
     /// Frames whose start was already past their due time (the frame loop fell behind the
     /// flight's frame rate).
     pub behind_schedule: usize,
-    /// Largest resident MB.
-    pub peak_resident_mb: f64,
+    /// Largest resident MiB.
+    pub peak_resident_mib: f64,
 }
 
 impl StreamSummary {
@@ -232,13 +231,13 @@ impl StreamSummary {
             waited_after_first: frames.iter().skip(1).filter(|f| f.waited_for_io).count(),
             at_needed_level: at,
             at_needed_level_share: if n == 0 { 0.0 } else { at as f64 / n as f64 },
-            late_mb_median: median(frames.iter().map(|f| f.late_mb).collect()),
-            late_mb_max: frames.iter().map(|f| f.late_mb).fold(0.0, f64::max),
-            needed_mb_median: median(frames.iter().map(|f| f.needed_mb).collect()),
-            prefetched_mb_mean: frames.iter().map(|f| f.prefetched_mb).sum::<f64>()
+            late_mib_median: median(frames.iter().map(|f| f.late_mib).collect()),
+            late_mib_max: frames.iter().map(|f| f.late_mib).fold(0.0, f64::max),
+            needed_mib_median: median(frames.iter().map(|f| f.needed_mib).collect()),
+            prefetched_mib_mean: frames.iter().map(|f| f.prefetched_mib).sum::<f64>()
                 / n.max(1) as f64,
             behind_schedule: behind,
-            peak_resident_mb: frames.iter().map(|f| f.resident_mb).fold(0.0, f64::max),
+            peak_resident_mib: frames.iter().map(|f| f.resident_mib).fold(0.0, f64::max),
         }
     }
 }

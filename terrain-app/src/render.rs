@@ -70,17 +70,17 @@ pub(crate) struct RenderArgs {
     /// A store: the screen-error threshold tau of Eq. 7 (out-of-core paper), pixels.
     #[arg(long, default_value_t = 2.0)]
     pub tau: f64,
-    /// A store: the stream cache's budget, MiB.
-    #[arg(long, default_value_t = 256)]
-    pub cache_mb: u64,
+    /// A store: the stream cache's budget, MiB (2^20 bytes).
+    #[arg(long, alias = "cache-mb", default_value_t = 256)]
+    pub cache_mib: u64,
     /// A store: full-resolution pages the renderer holds at most (slots of (2^k + 1)^2 f32
     /// each); blocks beyond them are drawn from coarser slot classes.
     #[arg(long, default_value_t = 1024)]
     pub page_capacity: u32,
     /// A store: MiB of page atlas on the device, shared by the slot classes of every level
     /// (a block drawn at level L takes a (2^L + 1)^2 slot).
-    #[arg(long, default_value_t = 256)]
-    pub page_mb: u64,
+    #[arg(long, alias = "page-mb", default_value_t = 256)]
+    pub page_mib: u64,
     /// A store: fly this camera flight (JSON, see `flights/`) instead of one camera, placed on
     /// an overview of the store's level-4 vertices; frames after the first do not wait for
     /// I/O (real time: blocks drawn at their finest resident level, late data counted) unless
@@ -232,23 +232,23 @@ fn draw_frames(
             );
             if let Some(st) = &r.stream {
                 println!(
-                    "  stream: needed {:.3} MB ({:.3} resident, late {:.3} MB in {} blocks), \
-                     synchronous {:.3} MB ({} loads), \
-                     prefetched {:.3} MB, I/O {:.2} ms, cache hits {} misses {}, evictions {}, \
-                     resident {:.3} / {:.0} MB, queue {}, waited {:.1} ms, faults {}",
-                    st.needed_mb,
-                    st.needed_resident_mb,
-                    st.late_mb,
+                    "  stream: needed {:.3} MiB ({:.3} resident, late {:.3} MiB in {} blocks), \
+                     synchronous {:.3} MiB ({} loads), \
+                     prefetched {:.3} MiB, I/O {:.2} ms, cache hits {} misses {}, evictions {}, \
+                     resident {:.3} / {:.0} MiB, queue {}, waited {:.1} ms, faults {}",
+                    st.needed_mib,
+                    st.needed_resident_mib,
+                    st.late_mib,
                     st.late_blocks,
-                    st.sync_mb,
+                    st.sync_mib,
                     st.sync_loads,
-                    st.prefetched_mb,
+                    st.prefetched_mib,
                     st.io_ms,
                     st.cache_hits,
                     st.cache_misses,
                     st.evictions,
-                    st.resident_mb,
-                    st.budget_mb,
+                    st.resident_mib,
+                    st.budget_mib,
                     st.queue_depth,
                     st.wait_ms,
                     st.faults
@@ -450,9 +450,9 @@ fn run_store(
     }
     let config = ooc::OocConfig {
         tau: args.tau,
-        budget_bytes: args.cache_mb << 20,
+        budget_bytes: args.cache_mib << 20,
         page_capacity: args.page_capacity,
-        page_budget_bytes: args.page_mb << 20,
+        page_budget_bytes: args.page_mib << 20,
         ..ooc::OocConfig::default()
     };
     let scene = ooc::OocScene::open(dir, config)
@@ -536,10 +536,10 @@ fn run_store(
     let mut renderer = method.renderer(&ctx, &render_config)?;
     if let Some(r) = renderer.terrain_renderer() {
         println!(
-            "pages: {} slots ({} full resolution), {:.1} MB of page atlas on the device",
+            "pages: {} slots ({} full resolution), {:.1} MiB of page atlas on the device",
             r.page_capacity(),
             r.page_classes().first().map_or(0, |c| c.capacity),
-            r.page_atlas_bytes() as f64 / 1e6
+            r.page_atlas_bytes() as f64 / terrain_app::MIB
         );
     }
     let options = RenderOptions { wireframe: args.wireframe, ..Default::default() };
@@ -558,20 +558,20 @@ fn run_store(
     let summary = ooc::StreamSummary::new(&streams, !args.wait, 0);
     println!(
         "summary: {} frames ({}), frames that waited for I/O after frame 1: {}, \
-         drawn at their needed level: {:.1} %, late {:.3} MB per frame (median), \
-         synchronous loads after frame 1: {}, synchronous {:.2} MB, \
-         prefetched {:.2} MB, I/O {:.1} ms, peak resident {:.1} MB (budget {} MiB), max triangles {}",
+         drawn at their needed level: {:.1} %, late {:.3} MiB per frame (median), \
+         synchronous loads after frame 1: {}, synchronous {:.2} MiB, \
+         prefetched {:.2} MiB, I/O {:.1} ms, peak resident {:.1} MiB (budget {} MiB), max triangles {}",
         records.len(),
         if args.wait { "warm: every frame waits" } else { "real time" },
         summary.waited_after_first,
         100.0 * summary.at_needed_level_share,
-        summary.late_mb_median,
+        summary.late_mib_median,
         records.iter().skip(1).map(|r| stream(r).sync_loads).sum::<usize>(),
-        total(&|s| s.sync_mb),
-        total(&|s| s.prefetched_mb),
+        total(&|s| s.sync_mib),
+        total(&|s| s.prefetched_mib),
         total(&|s| s.io_ms),
-        records.iter().map(|r| stream(r).resident_mb).fold(0.0, f64::max),
-        args.cache_mb,
+        records.iter().map(|r| stream(r).resident_mib).fold(0.0, f64::max),
+        args.cache_mib,
         records.iter().map(|r| r.triangles).max().unwrap_or(0)
     );
     if let Some(path) = &args.stats_json {
@@ -597,14 +597,17 @@ fn check_something_drawn(records: &[FrameRecord], dir: &Path) -> anyhow::Result<
     let faults: usize = records.iter().filter_map(|r| r.stream.as_ref()).map(|s| s.faults).sum();
     if faults > 0 {
         bail!(
-            "nothing could be drawn from the store {}: none of the {} blocks in view has a level              that could be read ({faults} store fault(s), each described above); no image              written. Bake the store again (`terrain bake DEM -o {} --overwrite`)",
+            "nothing could be drawn from the store {}: none of the {} blocks in view has a level \
+             that could be read ({faults} store fault(s), each described above); no image \
+             written. Bake the store again (`terrain bake DEM -o {} --overwrite`)",
             dir.display(),
             b.blocks_dropped,
             dir.display()
         );
     }
     bail!(
-        "nothing could be drawn from the store {}: none of the {} blocks in view found a page          slot on the device; no image written. Give more page memory (--page-mb)",
+        "nothing could be drawn from the store {}: none of the {} blocks in view found a page \
+         slot on the device; no image written. Give more page memory (--page-mib)",
         dir.display(),
         b.blocks_dropped
     );

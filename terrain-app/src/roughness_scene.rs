@@ -109,9 +109,9 @@ fn write(dir: &Path, bytes: &[u8], levels: usize, start: Instant, how: &str) -> 
     std::fs::rename(&tmp, &path)
         .with_context(|| format!("renaming {} to {}", tmp.display(), path.display()))?;
     println!(
-        "{}: the PVPS methods' roughness pyramids A, B, C of {levels} quadtree levels ({how}), {:.2} MB, {:.1} s",
+        "{}: the PVPS methods' roughness pyramids A, B, C of {levels} quadtree levels ({how}), {:.2} MiB, {:.1} s",
         path.display(),
-        bytes.len() as f64 / 1e6,
+        bytes.len() as f64 / crate::MIB,
         start.elapsed().as_secs_f64()
     );
     Ok(())

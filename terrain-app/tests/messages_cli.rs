@@ -93,3 +93,28 @@ fn errors_name_the_option_that_fixes_them() {
     assert!(!err.contains("max_samples") && !err.contains("exceeds"), "{err}");
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+/// Every option, help text and message gives sizes in MiB (the code computes with 2^20).
+#[test]
+fn sizes_are_in_mib_everywhere() {
+    let is_mb = |t: &str| {
+        t.split(|c: char| !c.is_ascii_alphanumeric() && c != '-')
+            .any(|w| w == "MB" || w.ends_with("-mb"))
+    };
+    for c in ["render", "bench", "bake", "info", "fly", "mesh"] {
+        let help = String::from_utf8(terrain(&[c, "--help"]).stdout).unwrap();
+        assert!(!is_mb(&help), "{c} --help:\n{help}");
+    }
+    let render = String::from_utf8(terrain(&["render", "--help"]).stdout).unwrap();
+    assert!(render.contains("--cache-mib") && render.contains("--page-mib"), "{render}");
+    let dir = scratch("messages", "mib");
+    let store = dir.join("s.scene");
+    let out =
+        terrain(&["bake", "--synthetic", "65", "--block-k", "5", "-o", s(&store), "--no-pvs"]);
+    let text = format!("{}{}", String::from_utf8_lossy(&out.stdout), stderr(&out));
+    assert!(out.status.success() && text.contains("MiB") && !is_mb(&text), "{text}");
+    let info = terrain(&["info", s(&store)]);
+    let text = String::from_utf8_lossy(&info.stdout);
+    assert!(text.contains("MiB") && !is_mb(&text), "{text}");
+    std::fs::remove_dir_all(&dir).unwrap();
+}

@@ -281,9 +281,9 @@ fn a_tiny_cache_pages_coarse_levels_without_cracks() {
         // or, when the visible blocks alone need more, under what they need plus the pinned
         // level 0 of every block (16 bytes each; real time: no block is ever a hole).
         let pinned = 16.0 * scene.store().header().block_count() as f64;
-        let cap = (budget as f64).max(st.needed_mb * 1e6 + pinned) + 0.5;
-        assert!(st.resident_mb * 1e6 <= cap, "frame {n}: resident {} MB, {st:?}", st.resident_mb);
-        over_budget += usize::from(st.resident_mb * 1e6 > budget as f64);
+        let cap = (budget as f64).max(st.needed_mib * 1e6 + pinned) + 0.5;
+        assert!(st.resident_mib * 1e6 <= cap, "frame {n}: resident {} MB, {st:?}", st.resident_mib);
+        over_budget += usize::from(st.resident_mib * 1e6 > budget as f64);
         assert!(check_shared_edges(&frame.selection).is_empty(), "frame {n}");
         for (_, p) in scene.mirror().unwrap().pages() {
             strides.insert(p.stride);
@@ -481,7 +481,7 @@ fn terrain_render_draws_a_store_baked_from_puget_sound() {
     let frames = v["frames"].as_array().unwrap();
     assert_eq!(frames.len(), 2);
     let first = &frames[0]["stream"];
-    assert!(first["needed_mb"].as_f64().unwrap() > 0.0, "{first}");
+    assert!(first["needed_mib"].as_f64().unwrap() > 0.0, "{first}");
     assert!(first["sync_loads"].as_u64().unwrap() > 0, "the first frame loads synchronously");
     assert_eq!(
         frames[1]["stream"]["sync_loads"].as_u64(),
@@ -602,7 +602,7 @@ fn the_benchmark_runs_the_out_of_core_method_with_stream_statistics() {
         assert_eq!(r.frames.len(), 4);
         for f in &r.frames {
             let st = f.stream.as_ref().expect("stream statistics per frame");
-            assert!(st.needed_mb > 0.0 && st.needed_resident_mb == st.needed_mb, "{st:?}");
+            assert!(st.needed_mib > 0.0 && st.needed_resident_mib == st.needed_mib, "{st:?}");
             assert!(f.triangles > 0 && f.errors.samples > 0);
         }
         assert!(r.frames[0].stream.as_ref().unwrap().sync_loads > 0);
@@ -614,7 +614,7 @@ fn the_benchmark_runs_the_out_of_core_method_with_stream_statistics() {
     let md = report.to_markdown();
     assert!(md.contains("Table 3") && md.contains("| ooc |"), "{md}");
     let json = serde_json::to_string(&report).unwrap();
-    assert!(json.contains("\"prefetched_mb\"") && json.contains("\"method\":\"ooc\""));
+    assert!(json.contains("\"prefetched_mib\"") && json.contains("\"method\":\"ooc\""));
     for r in &report.runs {
         let st = r.stream.as_ref().expect("a streaming summary");
         assert!(!st.real_time && st.frames == 4 && st.at_needed_level == 4, "{st:?}");
@@ -633,7 +633,7 @@ fn the_benchmark_runs_the_out_of_core_method_with_stream_statistics() {
     for f in &r.frames[1..] {
         let x = f.stream.as_ref().unwrap();
         assert!(!x.waited_for_io && x.sync_loads == 0 && x.wait_ms == 0.0, "{x:?}");
-        assert!((x.late_mb - (x.needed_mb - x.needed_resident_mb)).abs() < 1e-9, "{x:?}");
+        assert!((x.late_mib - (x.needed_mib - x.needed_resident_mib)).abs() < 1e-9, "{x:?}");
     }
     assert!(report.to_markdown().contains("Out-of-core real time"));
 }

@@ -114,9 +114,9 @@ impl BenchReport {
         if !ooc.is_empty() {
             s.push_str(
                 "\n## Out-of-core streaming (the paper's Table 3 columns)\n\n\
-                 | flight | tau | needed MB (median) | synchronous MB (sum) | sync loads after frame 1 | \
-                 prefetched MB (sum) | I/O ms (median / max) | cache hits | evictions | \
-                 peak resident MB | budget MB | max queue |\n\
+                 | flight | tau | needed MiB (median) | synchronous MiB (sum) | sync loads after frame 1 | \
+                 prefetched MiB (sum) | I/O ms (median / max) | cache hits | evictions | \
+                 peak resident MiB | budget MiB | max queue |\n\
                  |---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n",
             );
             for r in &ooc {
@@ -130,24 +130,24 @@ impl BenchReport {
                     "| {} | {} | {:.3} | {:.3} | {} | {:.3} | {:.2} / {:.2} | {} | {} | {:.2} | {:.0} | {} |",
                     r.flight,
                     r.value,
-                    median(st.iter().map(|x| x.needed_mb).collect()),
-                    sum(&|x| x.sync_mb),
+                    median(st.iter().map(|x| x.needed_mib).collect()),
+                    sum(&|x| x.sync_mib),
                     st.iter().skip(1).map(|x| x.sync_loads).sum::<usize>(),
-                    sum(&|x| x.prefetched_mb),
+                    sum(&|x| x.prefetched_mib),
                     median(st.iter().map(|x| x.io_ms).collect()),
                     max(&|x| x.io_ms),
                     st.iter().map(|x| x.cache_hits).sum::<usize>(),
                     st.iter().map(|x| x.evictions).sum::<usize>(),
-                    max(&|x| x.resident_mb),
-                    max(&|x| x.budget_mb),
+                    max(&|x| x.resident_mib),
+                    max(&|x| x.budget_mib),
                     st.iter().map(|x| x.queue_depth).max().unwrap_or(0),
                 );
             }
             s.push_str(
                 "\n### Out-of-core real time (every played frame)\n\n\
                  | flight | tau | mode | frames played | waited for I/O after frame 1 | \
-                 drawn at needed level | late MB median / max | needed MB median | \
-                 prefetched MB/frame | behind schedule | peak resident MB |\n\
+                 drawn at needed level | late MiB median / max | needed MiB median | \
+                 prefetched MiB/frame | behind schedule | peak resident MiB |\n\
                  |---|---:|---|---:|---:|---:|---|---:|---:|---:|---:|\n",
             );
             for r in ooc.iter().filter_map(|r| r.stream.as_ref().map(|x| (r, x))) {
@@ -161,12 +161,12 @@ impl BenchReport {
                     x.frames,
                     x.waited_after_first,
                     100.0 * x.at_needed_level_share,
-                    x.late_mb_median,
-                    x.late_mb_max,
-                    x.needed_mb_median,
-                    x.prefetched_mb_mean,
+                    x.late_mib_median,
+                    x.late_mib_max,
+                    x.needed_mib_median,
+                    x.prefetched_mib_mean,
                     x.behind_schedule,
-                    x.peak_resident_mb,
+                    x.peak_resident_mib,
                 );
             }
         }
