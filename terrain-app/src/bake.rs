@@ -308,11 +308,11 @@ pub(crate) fn run(args: &BakeArgs) -> anyhow::Result<()> {
         eprintln!(
             "warning: no PVS files (pvs.bin, pvs_conservative.bin) for this store: the PVS \
              bake casts sight lines across the whole grid and reads it through a min/max mip \
-             and a column-major copy of the heights (about {:.1} GB for {w} x {h} samples), \
+             and a column-major copy of the heights (about {:.0} MB for {w} x {h} samples), \
              and this bake reads the grid by bands of rows{}. Drawn from this store, \
-             pvps-c-pvs and pvps-c-cons run without occlusion culling (the other methods, \
-             dss-1, dss-2 and dss-strips included, have their tables). {}",
-            (w * h) as f64 * PVS_BYTES_PER_SAMPLE / 1e9,
+             pvps-c-pvs and pvps-c-cons run without occlusion culling (the other methods \
+             read the tables this bake wrote). {}",
+            (w * h) as f64 * PVS_BYTES_PER_SAMPLE / 1e6,
             if args.synthetic.is_some() {
                 format!(" (a synthetic terrain above {MAX_IN_MEMORY_SYNTHETIC}^2 samples)")
             } else {
@@ -325,7 +325,8 @@ pub(crate) fn run(args: &BakeArgs) -> anyhow::Result<()> {
             } else {
                 format!(
                     "To get a PVS, bake with the grid in memory if it fits: without --stream, \
-                     with --stream-above above {} and --max-memory above the DEM's whole read; \
+                     with --stream-above {} (or more) and a --max-memory that holds the \
+                     DEM's whole read; \
                      --no-pvs silences this warning.",
                     w * h
                 )
