@@ -165,10 +165,10 @@ impl DssErrorTable {
         let mut summed = 0usize; // rows added to the checksum
         let mut sum_rows =
             |band: &RowBand<'_>, upto: usize, checksum: &mut super::dss_file::HeightsChecksum| {
-                let last = (band.j0 + band.rows()).min(upto);
-                for j in summed.max(band.j0)..last {
+                let last = (band.first_row() + band.rows()).min(upto);
+                for j in summed.max(band.first_row())..last {
                     checksum.add_heights(band.row(j));
-                    checksum.add_voids(&band.voids[(j - band.j0) * w..(j - band.j0 + 1) * w]);
+                    checksum.add_voids(band.void_row(j));
                 }
                 summed = summed.max(last);
             };
@@ -187,7 +187,7 @@ impl DssErrorTable {
             while start + 1 < h {
                 let end = (start + window + 1).min(h - 1);
                 read_band(start, end - start + 1, &mut heights, &mut voids)?;
-                let band = RowBand { j0: start, width: w, heights: &heights, voids: &voids };
+                let band = RowBand::new(start, w, &heights, &voids);
                 // Every row of the grid passes through a window, in order.
                 let upto = if start + window + 1 >= h { h } else { start + window };
                 sum_rows(&band, upto, &mut checksum);
@@ -237,7 +237,7 @@ impl DssErrorTable {
                     let j0 = wanted[k];
                     let end = (j0 + band_rows - 1).min(h - 1);
                     read_band(j0, end - j0 + 1, &mut heights, &mut voids)?;
-                    let band = RowBand { j0, width: w, heights: &heights, voids: &voids };
+                    let band = RowBand::new(j0, w, &heights, &voids);
                     par.for_each_acc(&mut accs, &|acc| acc.fill_vertices(&band));
                     while k < wanted.len() && wanted[k] < end {
                         k += 1;
@@ -248,7 +248,7 @@ impl DssErrorTable {
                 while j <= y1 {
                     let n = band_rows.min(y1 + 1 - j);
                     read_band(j, n, &mut heights, &mut voids)?;
-                    let band = RowBand { j0: j, width: w, heights: &heights, voids: &voids };
+                    let band = RowBand::new(j, w, &heights, &voids);
                     if small.is_empty() && l == 0 {
                         sum_rows(&band, h, &mut checksum);
                     }

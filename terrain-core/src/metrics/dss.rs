@@ -188,14 +188,30 @@ impl SampleRows for Heightmap {
 /// flags row-major, south row first (what a reader by bands of rows fills).
 #[derive(Debug, Clone, Copy)]
 pub struct RowBand<'a> {
-    /// The first row.
-    pub j0: usize,
-    /// Samples per row (the grid's width).
-    pub width: usize,
-    /// Heights, row-major.
-    pub heights: &'a [f32],
-    /// Void flags, row-major (the same length as `heights`).
-    pub voids: &'a [bool],
+    j0: usize,
+    width: usize,
+    heights: &'a [f32],
+    voids: &'a [bool],
+    /// Whether any flag is set (scanned once, not per node).
+    any_void: bool,
+}
+
+impl<'a> RowBand<'a> {
+    /// Rows from `j0` of a grid `width` samples wide (`voids` as long as `heights`).
+    ///
+    /// # Panics
+    /// If the lengths differ or are not whole rows.
+    pub fn new(j0: usize, width: usize, heights: &'a [f32], voids: &'a [bool]) -> Self {
+        assert_eq!(heights.len(), voids.len(), "one void flag per height");
+        assert_eq!(heights.len() % width.max(1), 0, "whole rows");
+        Self { j0, width, heights, voids, any_void: voids.iter().any(|&v| v) }
+    }
+
+    /// Row `j`'s void flags.
+    pub fn void_row(&self, j: usize) -> &'a [bool] {
+        let o = (j - self.j0) * self.width;
+        &self.voids[o..o + self.width]
+    }
 }
 
 impl SampleRows for RowBand<'_> {
@@ -210,7 +226,7 @@ impl SampleRows for RowBand<'_> {
         &self.heights[o..o + self.width]
     }
     fn any_void(&self) -> bool {
-        self.voids.iter().any(|&v| v)
+        self.any_void
     }
     fn void(&self, i: usize, j: usize) -> bool {
         self.voids[(j - self.j0) * self.width + i]
