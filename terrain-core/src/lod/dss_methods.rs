@@ -143,7 +143,7 @@ impl DssErrorTable {
     /// then its samples band by band, so each of these levels reads its rows about twice.
     /// Memory: one band (`band_rows x width` samples), plus, for a coarse node row, each
     /// node's vertices (at most 47,904 f64 for the 32 factors) and per-factor column tables
-    /// (about 1 KiB per sample column of the row). `par` spreads the nodes over threads
+    /// (about 2 KiB per sample column of the row). `par` spreads the nodes over threads
     /// (terrain-core has none; [`Sequential`] runs them in order), `progress` gets the done
     /// fraction.
     pub fn from_rows<E>(
@@ -227,7 +227,9 @@ impl DssErrorTable {
                     })
                     .collect();
                 let Some(y1) = accs.first().map(|(_, a)| a.clip().y1) else { continue };
-                // The vertices: bands from each missing vertex row, one row of overlap.
+                // The vertices: row pairs (j, j + 1) for every wanted j, read in bands of
+                // consecutive wanted rows at most VERTEX_GAP apart (a coarse node's vertex
+                // rows are sparse: at most 649 pairs for the 32 factors whatever its size).
                 let mut wanted: Vec<usize> =
                     accs.iter().flat_map(|(_, a)| a.vertex_rows()).collect();
                 wanted.sort_unstable();
@@ -235,13 +237,18 @@ impl DssErrorTable {
                 let mut k = 0;
                 while k < wanted.len() {
                     let j0 = wanted[k];
-                    let end = (j0 + band_rows - 1).min(h - 1);
+                    let mut last = k;
+                    while last + 1 < wanted.len()
+                        && wanted[last + 1] - wanted[last] <= VERTEX_GAP
+                        && wanted[last + 1] + 1 < j0 + band_rows
+                    {
+                        last += 1;
+                    }
+                    let end = (wanted[last] + 1).min(h - 1);
                     read_band(j0, end - j0 + 1, &mut heights, &mut voids)?;
                     let band = RowBand::new(j0, w, &heights, &voids);
                     par.for_each_acc(&mut accs, &|acc| acc.fill_vertices(&band));
-                    while k < wanted.len() && wanted[k] < end {
-                        k += 1;
-                    }
+                    k = last + 1;
                 }
                 // The samples, band by band, in order.
                 let mut j = y0;
@@ -383,6 +390,10 @@ fn select_dss(
     let inner = |n: NodeId, _: &[f32; 4]| [rule.want(n); 2];
     run::assemble(leaves, stats, &rule, inner, start)
 }
+
+/// Largest gap between vertex rows that [`DssErrorTable::from_rows`] reads through rather than
+/// starting a new band.
+const VERTEX_GAP: usize = 4;
 
 /// What [`DssErrorTable::from_rows`] reads rows with: `read(j0, rows, heights, voids)` fills
 /// full-width rows `j0..j0 + rows`, south first.
