@@ -20,9 +20,13 @@ use terrain_visibility::roughness::stream::RowGrid;
 use crate::source::SourceArgs;
 use terrain_app::methods::MethodConfig;
 
-/// Largest synthetic side whose PVS and DSS errors `terrain bake` computes (the grid is held
-/// in memory).
+/// Largest synthetic side whose PVS `terrain bake` computes (the grid is held in memory; the
+/// DSS errors of a larger one are computed by bands of rows).
 const MAX_IN_MEMORY_SYNTHETIC: u64 = 8193;
+
+/// What the PVS bake holds per sample besides the heightmap (5 bytes: heights and void mask):
+/// the column-major copy (4 bytes) and the min/max mip (about 8 / 3 bytes); for the warning.
+const PVS_BYTES_PER_SAMPLE: f64 = 5.0 + 4.0 + 8.0 / 3.0;
 
 /// Arguments of `terrain bake`.
 #[derive(Debug, Args)]
@@ -238,12 +242,25 @@ pub(crate) fn run(args: &BakeArgs) -> anyhow::Result<()> {
     let hm = match (source_hm, args.synthetic) {
         (Some(hm), _) => Some(hm),
         (None, Some(n)) if n <= MAX_IN_MEMORY_SYNTHETIC && !(args.no_pvs && args.no_dss) => {
-            // A streamed synthetic terrain: the PVS and the DSS errors need the whole grid.
+            // A streamed synthetic terrain: the PVS needs the whole grid (the DSS errors and
+            // roughness are then computed from it in memory too, faster than by rows).
             synthetic_hm =
                 FractalConfig::with_size(n, n, 10.0).to_heightmap().map_err(anyhow::Error::msg)?;
             Some(&synthetic_hm)
         }
         (None, _) => None,
+    };
+    // The grid by bands of rows, when it is not in memory: the DEM's rows again, or the
+    // synthetic terrain generated again.
+    let read = |j0: usize, n: usize, heights: &mut [f32], voids: &mut [bool]| {
+        match rows.as_ref() {
+            Some(reader) => reader.read_rows(j0 as u64, n, heights, voids)?,
+            None => {
+                source.read_rows(j0 as u64, n, heights)?;
+                source.read_void_rows(j0 as u64, n, voids)?;
+            }
+        }
+        Ok(())
     };
     if !args.no_roughness {
         // The benchmark's default leaf size (the pyramids' levels are the quadtree's).
@@ -256,16 +273,6 @@ pub(crate) fn run(args: &BakeArgs) -> anyhow::Result<()> {
                     width: source.width() as usize,
                     height: source.height() as usize,
                     spacing_m: source.georef().spacing_m,
-                };
-                let read = |j0: usize, n: usize, heights: &mut [f32], voids: &mut [bool]| {
-                    match rows.as_ref() {
-                        Some(reader) => reader.read_rows(j0 as u64, n, heights, voids)?,
-                        None => {
-                            source.read_rows(j0 as u64, n, heights)?;
-                            source.read_void_rows(j0 as u64, n, voids)?;
-                        }
-                    }
-                    Ok(())
                 };
                 terrain_app::roughness_scene::bake_by_rows(&grid, leaf, &args.output, true, read)?
             }
@@ -284,26 +291,57 @@ pub(crate) fn run(args: &BakeArgs) -> anyhow::Result<()> {
             }
         }
     }
-    if args.no_pvs && args.no_dss {
+    if !args.no_dss {
+        // The benchmark's default leaf size; a table serves any coarser leaf size too.
+        match hm {
+            Some(hm) => {
+                let qt = Quadtree::new(hm, leaf);
+                terrain_app::dss_scene::bake_into_scene(hm, &qt, &args.output)?;
+            }
+            // From the same rows as the roughness (the source's heights, bit for bit the table
+            // the grid in memory gives), a band at a time.
+            None => {
+                let (w, h) = (source.width() as u32, source.height() as u32);
+                let band_bytes = args.source.load_options()?.max_memory_bytes / 4;
+                let out = &args.output;
+                terrain_app::dss_scene::bake_by_rows(w, h, leaf, band_bytes, out, true, read)?;
+            }
+        }
+    }
+    if args.no_pvs {
         return Ok(());
     }
     let Some(hm) = hm else {
+        let (w, h) = (source.width(), source.height());
         eprintln!(
-            "warning: no PVS and no DSS errors for a grid read by rows or a synthetic \
-             terrain above {MAX_IN_MEMORY_SYNTHETIC}^2 samples (both need the whole grid in \
-             memory for now): drawn from this store, pvps-c-pvs and pvps-c-cons draw \
-             without occlusion culling and dss-1, dss-2 and dss-strips cannot run (from the \
-             DEM file in memory they compute what they need)"
+            "warning: no PVS files (pvs.bin, pvs_conservative.bin) for this store: the PVS \
+             bake casts sight lines across the whole grid and reads it through a min/max mip \
+             and a column-major copy of the heights (about {:.0} MiB for {w} x {h} samples), \
+             and this bake reads the grid by bands of rows{}. Drawn from this store, \
+             pvps-c-pvs and pvps-c-cons run without occlusion culling (the other methods \
+             read the tables this bake wrote). {}",
+            (w * h) as f64 * PVS_BYTES_PER_SAMPLE / terrain_app::MIB,
+            if args.synthetic.is_some() {
+                format!(" (a synthetic terrain above {MAX_IN_MEMORY_SYNTHETIC}^2 samples)")
+            } else {
+                String::new()
+            },
+            if args.synthetic.is_some() {
+                format!(
+                    "To get a PVS, bake a synthetic terrain of at most {MAX_IN_MEMORY_SYNTHETIC}^2 samples."
+                )
+            } else {
+                format!(
+                    "To get a PVS, bake with the grid in memory if it fits: without --stream, \
+                     with --stream-above {} (or more) and a --max-memory that holds the \
+                     DEM's whole read; \
+                     --no-pvs silences this warning.",
+                    w * h
+                )
+            }
         );
         return Ok(());
     };
-    if !args.no_dss {
-        // The benchmark's default leaf size; a table serves any coarser leaf size too.
-        let qt = Quadtree::new(hm, leaf);
-        terrain_app::dss_scene::bake_into_scene(hm, &qt, &args.output)?;
-    }
-    if !args.no_pvs {
-        crate::pvs::bake_into_scene(hm, &args.pvs.config()?, &args.output)?;
-    }
+    crate::pvs::bake_into_scene(hm, &args.pvs.config()?, &args.output)?;
     Ok(())
 }

@@ -2,17 +2,21 @@
 //! 2..64) in a scene folder: `terrain bake` computes them on every core and writes
 //! `dss_errors.bin`; the benchmark reads them instead of computing them. A missing or bad file
 //! is a warning, and the errors are computed in memory (the selections are the same either way:
-//! the file holds the computed values bit for bit).
+//! the file holds the computed values bit for bit). A grid that is not in memory (a bake by
+//! rows, a large synthetic terrain) gets the same table by bands of rows ([`bake_by_rows`]).
 
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::Instant;
 
 use anyhow::Context;
+use glam::DVec2;
 use rayon::prelude::*;
 use terrain_core::Heightmap;
-use terrain_core::lod::DssErrorTable;
-use terrain_core::quadtree::Quadtree;
+use terrain_core::lod::{DssErrorTable, DssParallel};
+use terrain_core::metrics::Region;
+use terrain_core::metrics::dss::{FACTORS, ObjectErrorsAcc};
+use terrain_core::quadtree::{Quadtree, TreeShape};
 
 use crate::methods::MethodScene;
 use crate::progress::Progress;
@@ -55,16 +59,73 @@ pub fn compute(hm: &Heightmap, qt: &Quadtree, progress: bool) -> DssErrorTable {
 pub fn bake_into_scene(hm: &Heightmap, qt: &Quadtree, dir: &Path) -> anyhow::Result<()> {
     let start = Instant::now();
     let table = compute(hm, qt, true);
-    let bytes = table.encode(hm);
+    write(dir, &table.encode(hm), qt.max_level(), start, "in memory")
+}
+
+/// Samples per band when the table is computed by rows (about 40 MB (10^6 bytes) of heights and void flags
+/// per band; the finer quadtree levels are computed from windows of up to a band's rows).
+const BAND_SAMPLES: usize = 1 << 23;
+
+/// Nodes spread over rayon's threads.
+struct Rayon;
+
+impl DssParallel for Rayon {
+    fn map_regions(
+        &self,
+        regions: &[(usize, Region)],
+        f: &(dyn Fn(&(usize, Region)) -> [f64; FACTORS] + Sync),
+    ) -> Vec<[f64; FACTORS]> {
+        regions.par_iter().map(f).collect()
+    }
+    fn for_each_acc(
+        &self,
+        accs: &mut [(usize, ObjectErrorsAcc)],
+        f: &(dyn Fn(&mut ObjectErrorsAcc) + Sync),
+    ) {
+        accs.par_iter_mut().for_each(|(_, a)| f(a));
+    }
+}
+
+/// As [`bake_into_scene`], for a `width x height` grid read through `read(j0, rows, heights,
+/// voids)` by bands of rows ([`DssErrorTable::from_rows`]: the same bytes as from the grid in
+/// memory, in memory bounded by a band and a coarse node row), with the quadtree of
+/// `leaf_cells` leaves; a band holds at most `max_band_bytes` of heights and void flags (5 bytes
+/// a sample; `terrain bake` gives a quarter of `--max-memory`), and at least two leaves' rows.
+/// Returns the table's path.
+pub fn bake_by_rows(
+    width: u32,
+    height: u32,
+    leaf_cells: u32,
+    max_band_bytes: u64,
+    dir: &Path,
+    progress: bool,
+    mut read: impl FnMut(usize, usize, &mut [f32], &mut [bool]) -> anyhow::Result<()>,
+) -> anyhow::Result<PathBuf> {
+    let start = Instant::now();
+    let shape = TreeShape::new(width, height, leaf_cells, DVec2::ZERO, DVec2::ONE);
+    let by_budget = usize::try_from(max_band_bytes / 5).unwrap_or(usize::MAX);
+    let band =
+        (BAND_SAMPLES.min(by_budget) / width.max(1) as usize).max(2 * leaf_cells as usize + 2);
+    let bar = Progress::new("DSS errors", progress);
+    let (table, crc) =
+        DssErrorTable::from_rows(&shape, band, &mut read, &Rayon, &mut |f| bar.update(f, 1.0))?;
+    bar.finish();
+    let bytes = table.encode_for(width, height, crc);
+    write(dir, &bytes, shape.max_level(), start, "by bands of rows")?;
+    Ok(dss_path(dir))
+}
+
+/// Writes the table's bytes into `dir` through a temporary file and says so.
+fn write(dir: &Path, bytes: &[u8], max_level: u8, start: Instant, how: &str) -> anyhow::Result<()> {
     let path = dss_path(dir);
     let tmp = dir.join(format!("{DSS_FILE}.tmp"));
-    std::fs::write(&tmp, &bytes).with_context(|| format!("writing {}", tmp.display()))?;
+    std::fs::write(&tmp, bytes).with_context(|| format!("writing {}", tmp.display()))?;
     std::fs::rename(&tmp, &path)
         .with_context(|| format!("renaming {} to {}", tmp.display(), path.display()))?;
     println!(
-        "{}: the DSS paper's 32 object-space errors of {} quadtree levels, {:.1} MiB, {:.1} s",
+        "{}: the DSS paper's 32 object-space errors of {} quadtree levels ({how}), {:.1} MiB, {:.1} s",
         path.display(),
-        qt.max_level() + 1,
+        max_level + 1,
         bytes.len() as f64 / crate::MIB,
         start.elapsed().as_secs_f64()
     );

@@ -1,6 +1,9 @@
 //! `terrain fly`: flies a camera flight over a DEM (or the embedded terrain) with one LOD method,
 //! writing numbered PNG frames and per-frame statistics (stage timings, triangles, exact errors)
-//! as CSV and JSON, with a progress bar on stderr.
+//! as CSV and JSON, with a progress bar on stderr. Over a baked store (a folder whose index
+//! starts with the store's magic) the method draws from the store as `terrain render <store>
+//! --flight` does (the same store method, the same frame loop): frames are not measured (no
+//! full DEM in memory), and each record carries the stream's statistics, summarised at the end.
 
 use std::io::Write as _;
 use std::path::{Path, PathBuf};
@@ -9,9 +12,11 @@ use anyhow::{Context, bail};
 use clap::Args;
 use glam::dvec2;
 use terrain_app::bench::{BenchProgress, FrameRecord, frame_indices, print_progress};
-use terrain_app::method::{self, FrameLoop, MethodOptions};
+use terrain_app::method::{self, FrameLoop, MethodOptions, OocWait};
 use terrain_app::methods::{LodMethod, MethodConfig, MethodScene};
+use terrain_app::ooc::{self, OocConfig, StreamRecord, StreamSummary};
 use terrain_core::flight::{FlightConfig, FlightSpec};
+use terrain_core::geometry::Camera;
 use terrain_core::measure::MeasureConfig;
 use terrain_core::{Heightmap, synth};
 use terrain_gpu::{BackendChoice, DeviceConfig, GpuContext, RenderConfig};
@@ -27,9 +32,10 @@ pub(crate) struct FlyArgs {
     /// Flight file (JSON; see flights/README.md).
     #[arg(long)]
     pub flight: PathBuf,
-    /// LOD method.
-    #[arg(long, value_enum, default_value_t = LodMethod::PvpsC)]
-    pub method: LodMethod,
+    /// LOD method. Default: pvps-c for a DEM, ooc (the out-of-core paper's) for a baked
+    /// store; from a store every method `terrain render <store> --method` takes.
+    #[arg(long, value_enum)]
+    pub method: Option<LodMethod>,
     /// Cells per side of the finest patch.
     #[arg(long, default_value_t = 16)]
     pub leaf_cells: u32,
@@ -43,6 +49,23 @@ pub(crate) struct FlyArgs {
     /// At most this many frames, evenly spaced over the flight; 0 = every frame.
     #[arg(long, default_value_t = 0)]
     pub frames: usize,
+    /// A store: the screen-error threshold tau of Eq. 7 (out-of-core paper), pixels.
+    #[arg(long, default_value_t = 2.0)]
+    pub tau: f64,
+    /// A store: the stream cache's budget, MiB (2^20 bytes).
+    #[arg(long, alias = "cache-mb", default_value_t = 256)]
+    pub cache_mib: u64,
+    /// A store: full-resolution pages the renderer holds at most; blocks beyond them are
+    /// drawn from coarser slot classes.
+    #[arg(long, default_value_t = 1024)]
+    pub page_capacity: u32,
+    /// A store: MiB of page atlas on the device, shared by the slot classes of every level.
+    #[arg(long, alias = "page-mb", default_value_t = 256)]
+    pub page_mib: u64,
+    /// A store: every frame waits until the levels it needs are resident (warm); by default
+    /// only the first frame does, later ones draw the finest resident levels (real time).
+    #[arg(long)]
+    pub wait: bool,
     /// Output folder (created): frame_NNNNN.png, stats.csv, stats.json.
     #[arg(short, long)]
     pub output: PathBuf,
@@ -106,29 +129,9 @@ pub(crate) fn fly(
         .measured(&scene.hm, &scene.qt, measure)
         .rendered(Some(&mut renderer));
     let indices = frame_indices(flight.frames().len(), options.max_frames);
-    let mut records = Vec::with_capacity(indices.len());
+    let cameras: Vec<Camera> = indices.iter().map(|&k| flight.frames()[k]).collect();
     let label = format!("{} {}", flight.name, options.method.name());
-    for (n, &k) in indices.iter().enumerate() {
-        let record = runner.frame(k, &flight.frames()[k], None)?.record;
-        let image = runner.renderer().expect("rendering").read_image()?;
-        let raw: Vec<u8> = image.pixels.iter().flatten().copied().collect();
-        let path = out.join(format!("frame_{k:05}.png"));
-        image::save_buffer(&path, &raw, image.width, image.height, image::ColorType::Rgba8)
-            .with_context(|| format!("could not write {}", path.display()))?;
-        records.push(record);
-        print_progress(&BenchProgress { done: n + 1, total: indices.len(), label: label.clone() });
-    }
-
-    let csv_path = out.join("stats.csv");
-    let mut csv = std::io::BufWriter::new(
-        std::fs::File::create(&csv_path)
-            .with_context(|| format!("could not write {}", csv_path.display()))?,
-    );
-    writeln!(csv, "{}", FrameRecord::CSV_HEADER)?;
-    for r in &records {
-        writeln!(csv, "{}", r.csv_row())?;
-    }
-    csv.flush()?;
+    let records = write_frames(&mut runner, &indices, &cameras, out, &label)?;
     let json = serde_json::json!({
         "adapter": ctx.describe(),
         "flight": flight.name,
@@ -138,9 +141,116 @@ pub(crate) fn fly(
         "warnings": warnings.iter().map(ToString::to_string).collect::<Vec<_>>(),
         "frames": records,
     });
+    write_stats(out, &records, &json)?;
+    Ok(records)
+}
+
+/// Plays `cameras` (frames `indices` of the flight) through `runner`, writing each drawn frame
+/// as `frame_NNNNN.png` into `out`, with a progress bar labelled `label`; returns the records.
+fn write_frames(
+    runner: &mut FrameLoop<'_>,
+    indices: &[usize],
+    cameras: &[Camera],
+    out: &Path,
+    label: &str,
+) -> anyhow::Result<Vec<FrameRecord>> {
+    let mut records = Vec::with_capacity(indices.len());
+    for (n, (&k, camera)) in indices.iter().zip(cameras).enumerate() {
+        let record = runner.frame(k, camera, None)?.record;
+        let image = runner.renderer().expect("rendering").read_image()?;
+        let raw: Vec<u8> = image.pixels.iter().flatten().copied().collect();
+        let path = out.join(format!("frame_{k:05}.png"));
+        image::save_buffer(&path, &raw, image.width, image.height, image::ColorType::Rgba8)
+            .with_context(|| format!("could not write {}", path.display()))?;
+        records.push(record);
+        print_progress(&BenchProgress {
+            done: n + 1,
+            total: indices.len(),
+            label: label.to_string(),
+        });
+    }
+    Ok(records)
+}
+
+/// Writes `stats.csv` (one row per record) and `stats.json` (`json`) into `out`.
+fn write_stats(
+    out: &Path,
+    records: &[FrameRecord],
+    json: &serde_json::Value,
+) -> anyhow::Result<()> {
+    let csv_path = out.join("stats.csv");
+    let mut csv = std::io::BufWriter::new(
+        std::fs::File::create(&csv_path)
+            .with_context(|| format!("could not write {}", csv_path.display()))?,
+    );
+    writeln!(csv, "{}", FrameRecord::CSV_HEADER)?;
+    for r in records {
+        writeln!(csv, "{}", r.csv_row())?;
+    }
+    csv.flush()?;
     let json_path = out.join("stats.json");
-    std::fs::write(&json_path, serde_json::to_string_pretty(&json)?)
+    std::fs::write(&json_path, serde_json::to_string_pretty(json)?)
         .with_context(|| format!("could not write {}", json_path.display()))?;
+    Ok(())
+}
+
+/// `terrain fly <store>`: `args.flight` over the store in `dir` with a store method (default
+/// `ooc`), through the same store method and frame loop as `terrain render <store>`; frames
+/// are drawn, not measured, and their stream statistics summarised. Returns the records.
+fn fly_store(args: &FlyArgs, dir: &Path, size: (u32, u32)) -> anyhow::Result<Vec<FrameRecord>> {
+    if !(args.tau.is_finite() && args.tau > 0.0) {
+        bail!("--tau must be a positive number of pixels, got {}", args.tau);
+    }
+    if args.page_capacity == 0 {
+        bail!("--page-capacity must be at least 1");
+    }
+    let config = OocConfig {
+        tau: args.tau,
+        budget_bytes: args.cache_mib << 20,
+        page_capacity: args.page_capacity,
+        page_budget_bytes: args.page_mib << 20,
+        ..OocConfig::default()
+    };
+    let spec = FlightSpec::load(&args.flight)
+        .with_context(|| format!("could not load the flight {}", args.flight.display()))?;
+    let scene = crate::render::open_store(dir, config)?;
+    let flight = crate::render::store_flight(&scene, dir, &spec, size, args.frames)?;
+    let ctx = GpuContext::new(&DeviceConfig::from_env(BackendChoice::Auto))
+        .context("no GPU adapter (Vulkan or GL) is available")?;
+    println!("adapter: {}", ctx.describe());
+    let kind = args.method.unwrap_or(LodMethod::OutOfCore);
+    println!("method: {}", kind.name());
+    let method_config =
+        MethodConfig { leaf_cells: args.leaf_cells, ooc: config, ..MethodConfig::default() };
+    let wait = if args.wait { OocWait::EveryFrame } else { OocWait::FirstFrame };
+    let method = method::store_method(kind, scene, &method_config, wait, None)?;
+    let (width, height) = size;
+    let mut renderer = method.renderer(
+        &ctx,
+        &RenderConfig { width, height, background: [150, 185, 225, 255], ..Default::default() },
+    )?;
+    let mut runner = FrameLoop::new(method).rendered(Some(&mut renderer));
+    let label = format!("{} {}", flight.name, kind.name());
+    let records =
+        write_frames(&mut runner, &flight.indices, &flight.cameras, &args.output, &label)?;
+    drop(runner);
+    let streams: Vec<StreamRecord> =
+        records.iter().map(|r| r.stream.clone().unwrap_or_default()).collect();
+    let json = serde_json::json!({
+        "adapter": ctx.describe(),
+        "store": dir.display().to_string(),
+        "flight": flight.name,
+        "method": kind,
+        "size": [width, height],
+        "total_frames": flight.total_frames,
+        "warnings": flight.warnings,
+        "real_time": !args.wait,
+        "stream_summary": StreamSummary::new(&streams, !args.wait, 0),
+        "frames": records,
+    });
+    write_stats(&args.output, &records, &json)?;
+    let max_triangles = records.iter().map(|r| r.triangles).max().unwrap_or(0);
+    crate::render::print_stream_summary(&streams, max_triangles, args.wait, args.cache_mib);
     Ok(records)
 }
 
@@ -154,23 +264,37 @@ pub(crate) fn run(args: &FlyArgs) -> anyhow::Result<()> {
     std::fs::create_dir_all(&args.output)
         .with_context(|| format!("could not create the output folder {}", args.output.display()))?;
     crate::render::check_writable(&args.output.join("frame_00000.png"))?;
-    // The flight's errors name its file.
-    let spec = FlightSpec::load(&args.flight).context("could not load the flight")?;
-    let hm = match args.source.load_surface()? {
-        Some(dem) => dem.heightmap,
-        None => synth::default_terrain(),
+    let store = matches!(args.source.dem.as_slice(), [one] if ooc::is_store(one));
+    let records = match args.source.dem.as_slice() {
+        [one] if store => {
+            if args.scene.is_some() {
+                bail!(
+                    "--scene is for a DEM file: a store folder holds its own tables ({} reads them)",
+                    one.display()
+                );
+            }
+            fly_store(args, one, size)?
+        }
+        _ => {
+            // The flight's errors name its file.
+            let spec = FlightSpec::load(&args.flight).context("could not load the flight")?;
+            let hm = match args.source.load_surface()? {
+                Some(dem) => dem.heightmap,
+                None => synth::default_terrain(),
+            };
+            let ctx = GpuContext::new(&DeviceConfig::from_env(BackendChoice::Auto))
+                .context("no GPU adapter (Vulkan or GL) is available")?;
+            println!("adapter: {}", ctx.describe());
+            let options = FlyOptions {
+                method: args.method.unwrap_or(LodMethod::PvpsC),
+                leaf_cells: args.leaf_cells,
+                size,
+                max_frames: args.frames,
+                scene: args.scene.clone(),
+            };
+            fly(hm, &spec, options, &ctx, &args.output)?
+        }
     };
-    let ctx = GpuContext::new(&DeviceConfig::from_env(BackendChoice::Auto))
-        .context("no GPU adapter (Vulkan or GL) is available")?;
-    println!("adapter: {}", ctx.describe());
-    let options = FlyOptions {
-        method: args.method,
-        leaf_cells: args.leaf_cells,
-        size,
-        max_frames: args.frames,
-        scene: args.scene.clone(),
-    };
-    let records = fly(hm, &spec, options, &ctx, &args.output)?;
     let median = |f: fn(&FrameRecord) -> f64| {
         let mut v: Vec<f64> = records.iter().map(f).collect();
         v.sort_by(f64::total_cmp);
@@ -178,13 +302,17 @@ pub(crate) fn run(args: &FlyArgs) -> anyhow::Result<()> {
     };
     println!(
         "wrote {} frames, stats.csv and stats.json to {}: median triangles {:.0}, CPU {:.2} ms, \
-         frame {:.2} ms, p99 {:.3} px",
+         frame {:.2} ms, {}",
         records.len(),
         args.output.display(),
         median(|r| r.triangles as f64),
         median(|r| r.cpu_ms),
         median(|r| r.frame_ms),
-        median(|r| r.errors.p99_px),
+        if store {
+            "errors not measured (no DEM in memory)".to_string()
+        } else {
+            format!("p99 {:.3} px", median(|r| r.errors.p99_px))
+        },
     );
     Ok(())
 }

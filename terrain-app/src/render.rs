@@ -455,19 +455,7 @@ fn run_store(
         page_budget_bytes: args.page_mib << 20,
         ..ooc::OocConfig::default()
     };
-    let scene = ooc::OocScene::open(dir, config)
-        .with_context(|| format!("could not open the store {}", dir.display()))?;
-    let h = scene.store().header().clone();
-    println!(
-        "store: {} ({} x {} samples, blocks of {} x {} vertices, {} x {} blocks)",
-        dir.display(),
-        h.width,
-        h.height,
-        h.block_side(),
-        h.block_side(),
-        h.blocks_x,
-        h.blocks_y
-    );
+    let scene = open_store(dir, config)?;
     if !(args.fov.is_finite() && args.fov > 0.0 && args.fov < 180.0) {
         bail!("--fov must be between 0 and 180 degrees, got {}", args.fov);
     }
@@ -490,32 +478,7 @@ fn run_store(
         None => vec![camera; args.frames.max(1) as usize],
         Some(path) => {
             let spec = terrain_core::flight::FlightSpec::load(path)?;
-            let overview = scene
-                .overview(4)
-                .with_context(|| format!("could not read the store {}", dir.display()))?;
-            let cfg = terrain_core::flight::FlightConfig {
-                viewport_px: glam::dvec2(f64::from(width), f64::from(height)),
-                ..Default::default()
-            };
-            let (flight, warnings) = spec.resolve(&overview, &cfg);
-            for w in &warnings {
-                eprintln!("warning: flight {}: {w}", flight.name);
-            }
-            let indices = terrain_app::bench::frame_indices(flight.frames().len(), args.max_frames);
-            println!(
-                "flight {}: {} of {} frames",
-                flight.name,
-                indices.len(),
-                flight.frames().len()
-            );
-            indices
-                .iter()
-                .map(|&k| {
-                    let c = flight.frames()[k];
-                    let (near, far) = scene.clip_range(c.position);
-                    c.with_clip(near, far)
-                })
-                .collect()
+            store_flight(&scene, dir, &spec, (width, height), args.max_frames)?.cameras
         }
     };
     let texture = args.texture.as_ref().map(load_texture).transpose()?;
@@ -551,29 +514,10 @@ fn run_store(
     )?;
     drop(frames);
     check_something_drawn(&records, dir)?;
-    let stream = |r: &FrameRecord| r.stream.clone().unwrap_or_default();
-    let total =
-        |g: &dyn Fn(&ooc::StreamRecord) -> f64| records.iter().map(|r| g(&stream(r))).sum::<f64>();
-    let streams: Vec<ooc::StreamRecord> = records.iter().map(stream).collect();
-    let summary = ooc::StreamSummary::new(&streams, !args.wait, 0);
-    println!(
-        "summary: {} frames ({}), frames that waited for I/O after frame 1: {}, \
-         drawn at their needed level: {:.1} %, late {:.3} MiB per frame (median), \
-         synchronous loads after frame 1: {}, synchronous {:.2} MiB, \
-         prefetched {:.2} MiB, I/O {:.1} ms, peak resident {:.1} MiB (budget {} MiB), max triangles {}",
-        records.len(),
-        if args.wait { "warm: every frame waits" } else { "real time" },
-        summary.waited_after_first,
-        100.0 * summary.at_needed_level_share,
-        summary.late_mib_median,
-        records.iter().skip(1).map(|r| stream(r).sync_loads).sum::<usize>(),
-        total(&|s| s.sync_mib),
-        total(&|s| s.prefetched_mib),
-        total(&|s| s.io_ms),
-        records.iter().map(|r| stream(r).resident_mib).fold(0.0, f64::max),
-        args.cache_mib,
-        records.iter().map(|r| r.triangles).max().unwrap_or(0)
-    );
+    let streams: Vec<ooc::StreamRecord> =
+        records.iter().map(|r| r.stream.clone().unwrap_or_default()).collect();
+    let max_triangles = records.iter().map(|r| r.triangles).max().unwrap_or(0);
+    print_stream_summary(&streams, max_triangles, args.wait, args.cache_mib);
     if let Some(path) = &args.stats_json {
         let json = serde_json::json!({
             "adapter": ctx.describe(),
@@ -610,6 +554,108 @@ fn check_something_drawn(records: &[FrameRecord], dir: &Path) -> anyhow::Result<
          slot on the device; no image written. Give more page memory (--page-mib)",
         dir.display(),
         b.blocks_dropped
+    );
+}
+
+/// Opens the store in `dir` for drawing with `config` and says what it holds.
+pub(crate) fn open_store(dir: &Path, config: ooc::OocConfig) -> anyhow::Result<ooc::OocScene> {
+    let scene = ooc::OocScene::open(dir, config)
+        .with_context(|| format!("could not open the store {}", dir.display()))?;
+    let h = scene.store().header().clone();
+    println!(
+        "store: {} ({} x {} samples, blocks of {} x {} vertices, {} x {} blocks)",
+        dir.display(),
+        h.width,
+        h.height,
+        h.block_side(),
+        h.block_side(),
+        h.blocks_x,
+        h.blocks_y
+    );
+    Ok(scene)
+}
+
+/// A flight resolved over a store (placed on an overview of its level-4 vertices, since no
+/// heightmap is in memory): the frames drawn and their cameras, clipped to the store's range.
+pub(crate) struct StoreFlight {
+    /// The flight's name.
+    pub name: String,
+    /// Its frames in all.
+    pub total_frames: usize,
+    /// The flight's index of every drawn frame.
+    pub indices: Vec<usize>,
+    /// The drawn frames' cameras.
+    pub cameras: Vec<Camera>,
+    /// What resolving the flight warned about.
+    pub warnings: Vec<String>,
+}
+
+/// Resolves `spec` over the store of `scene` (folder `dir`) for `size` images: at most
+/// `max_frames` frames, evenly spaced (0 = every frame). Warnings are printed too.
+pub(crate) fn store_flight(
+    scene: &ooc::OocScene,
+    dir: &Path,
+    spec: &terrain_core::flight::FlightSpec,
+    (width, height): (u32, u32),
+    max_frames: usize,
+) -> anyhow::Result<StoreFlight> {
+    let overview =
+        scene.overview(4).with_context(|| format!("could not read the store {}", dir.display()))?;
+    let cfg = terrain_core::flight::FlightConfig {
+        viewport_px: glam::dvec2(f64::from(width), f64::from(height)),
+        ..Default::default()
+    };
+    let (flight, warnings) = spec.resolve(&overview, &cfg);
+    for w in &warnings {
+        eprintln!("warning: flight {}: {w}", flight.name);
+    }
+    let indices = terrain_app::bench::frame_indices(flight.frames().len(), max_frames);
+    println!("flight {}: {} of {} frames", flight.name, indices.len(), flight.frames().len());
+    let cameras = indices
+        .iter()
+        .map(|&k| {
+            let c = flight.frames()[k];
+            let (near, far) = scene.clip_range(c.position);
+            c.with_clip(near, far)
+        })
+        .collect();
+    Ok(StoreFlight {
+        name: flight.name.clone(),
+        total_frames: flight.frames().len(),
+        indices,
+        cameras,
+        warnings: warnings.iter().map(ToString::to_string).collect(),
+    })
+}
+
+/// Prints the streaming summary of frames drawn from a store: their stream records (`wait`:
+/// every frame waited until warm; `cache_mib`: the stream cache's budget) and their largest
+/// triangle count.
+pub(crate) fn print_stream_summary(
+    streams: &[ooc::StreamRecord],
+    max_triangles: u64,
+    wait: bool,
+    cache_mib: u64,
+) {
+    let total = |g: &dyn Fn(&ooc::StreamRecord) -> f64| streams.iter().map(g).sum::<f64>();
+    let summary = ooc::StreamSummary::new(streams, !wait, 0);
+    println!(
+        "summary: {} frames ({}), frames that waited for I/O after frame 1: {}, \
+         drawn at their needed level: {:.1} %, late {:.3} MiB per frame (median), \
+         synchronous loads after frame 1: {}, synchronous {:.2} MiB, \
+         prefetched {:.2} MiB, I/O {:.1} ms, peak resident {:.1} MiB (budget {} MiB), max triangles {}",
+        streams.len(),
+        if wait { "warm: every frame waits" } else { "real time" },
+        summary.waited_after_first,
+        100.0 * summary.at_needed_level_share,
+        summary.late_mib_median,
+        streams.iter().skip(1).map(|s| s.sync_loads).sum::<usize>(),
+        total(&|s| s.sync_mib),
+        total(&|s| s.prefetched_mib),
+        total(&|s| s.io_ms),
+        streams.iter().map(|s| s.resident_mib).fold(0.0, f64::max),
+        cache_mib,
+        max_triangles
     );
 }
 

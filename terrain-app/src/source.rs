@@ -11,7 +11,7 @@ use terrain_core::dem::{self, Dem, Format, LoadOptions, RawSampleType, RawSpec};
 #[derive(Debug, Args)]
 pub(crate) struct SourceArgs {
     /// DEM file(s); several adjacent tiles are joined into one mosaic. None: the embedded
-    /// synthetic terrain.
+    /// synthetic terrain. `render` and `fly` also take a store folder from `terrain bake`.
     pub dem: Vec<PathBuf>,
     /// Format, when it cannot be detected from the file (terrain-rgb, terrarium, raw).
     #[arg(long, value_enum)]

@@ -153,3 +153,78 @@ fn bake_stores_the_dss_errors_and_bench_reads_them() {
     assert!(synthetic.join("geomip.bin").exists());
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+/// Bakes `args` (blocks and DSS errors only) into `dir/name`; returns the table's bytes and
+/// the bake's stdout and stderr.
+fn bake_dss(dir: &Path, name: &str, args: &[&str]) -> (Vec<u8>, String, String) {
+    let out = dir.join(name);
+    let mut a = vec!["bake"];
+    a.extend(args);
+    a.extend(["--no-pvs", "--no-roughness", "--no-geomip", "--threads", "2", "-o", s(&out)]);
+    let (stdout, stderr) = ok(&terrain(&a));
+    let bytes = std::fs::read(out.join("dss_errors.bin")).expect("dss_errors.bin written");
+    (bytes, stdout, stderr)
+}
+
+/// A DEM read by bands of rows (`--stream`, or forced by a small `--max-memory`) gets the
+/// same `dss_errors.bin`, byte for byte, as the same DEM baked from memory; with voids, the
+/// table of the rows the stream read.
+#[test]
+fn a_bake_by_rows_writes_the_dss_errors_of_the_in_memory_bake_byte_for_byte() {
+    use terrain_core::Heightmap;
+    use terrain_core::dem::{LoadOptions, RowReader};
+    use terrain_core::heightmap::VoidMask;
+    use terrain_core::lod::DssErrorTable;
+    use terrain_core::quadtree::Quadtree;
+
+    let dir = scratch("dss-scene", "rows");
+    // A GeoTIFF without voids (float32, 400 x 400): whole, --stream, and --max-memory.
+    let tif = data("lidar_prairie/dem.tif");
+    let (whole, out, _) = bake_dss(&dir, "whole", &[s(&tif)]);
+    assert!(out.contains("dss_errors.bin") && out.contains("(in memory)"), "{out}");
+    let (rows, out, err) = bake_dss(&dir, "rows", &[s(&tif), "--stream"]);
+    assert!(out.contains("(by bands of rows)"), "{out}");
+    assert!(err.contains("DSS errors: 100 %"), "progress shown: {err}");
+    assert_eq!(rows.len(), whole.len());
+    assert!(rows == whole, "the streamed table differs from the in-memory one");
+    // The PVS still needs the grid in memory: the warning says what, why and how.
+    let pvs = dir.join("pvs");
+    let a = ["bake", s(&tif), "--stream", "--no-roughness", "--no-geomip", "-o", s(&pvs)];
+    let (_, err) = ok(&terrain(&a));
+    for what in ["no PVS files", "column-major copy", "pvps-c-pvs", "--stream-above 160000"] {
+        assert!(err.contains(what), "{what}: {err}");
+    }
+    assert!(pvs.join("dss_errors.bin").exists() && !pvs.join("pvs.bin").exists());
+    let (small, out, _) = bake_dss(&dir, "small", &[s(&tif), "--max-memory", "2MiB"]);
+    assert!(out.contains("(by bands of rows)"), "{out}");
+    assert!(small == whole, "the table under --max-memory differs");
+    // Not a constant table: the comparison compares something.
+    let qt = Quadtree::new(&load_whole(&tif, LoadOptions::default()), 16);
+    let table = DssErrorTable::decode_for(&whole, qt.shape(), None).unwrap();
+    let root = table.get(terrain_core::quadtree::NodeId::new(0, 0, 0)).unwrap();
+    assert!(root[0] > root[31] && root[31] >= 0.0, "{root:?}");
+
+    // Voids (Crater Lake): streamed voids are filled along rows and columns, so the reference
+    // is the in-memory table of the grid the row reader gives.
+    let crater = data("crater_lake/craterlake-elev-16bit-30m.tif");
+    let (got, out, _) = bake_dss(&dir, "crater", &[s(&crater), "--nodata", "-32767", "--stream"]);
+    assert!(out.contains("(by bands of rows)"), "{out}");
+    let opts = LoadOptions { nodata: Some(-32767.0), ..LoadOptions::default() };
+    let reader = RowReader::open(&crater, &opts).unwrap();
+    let (w, h) = (reader.width() as usize, reader.height() as usize);
+    let mut heights = vec![0f32; w * h];
+    let mut flags = vec![false; w * h];
+    reader.read_rows(0, h, &mut heights, &mut flags).unwrap();
+    let mut mask = VoidMask::new(w, h);
+    for (k, &v) in flags.iter().enumerate() {
+        mask.set(k % w, k / w, v);
+    }
+    assert!(mask.count() > 30_000, "{} voids", mask.count());
+    let hm = Heightmap::new(w, h, heights, mask, reader.georef().clone()).unwrap();
+    assert!(got == DssErrorTable::new(&hm, &Quadtree::new(&hm, 16)).encode(&hm));
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+fn load_whole(path: &Path, opts: terrain_core::dem::LoadOptions) -> terrain_core::Heightmap {
+    terrain_core::dem::load(path, &opts).unwrap().heightmap
+}

@@ -2,6 +2,9 @@
 //! PNGs, stats.csv and stats.json that parse; bad flights (missing file, malformed JSON) fail
 //! with clear errors and a keyframe under the terrain is clamped with a printed warning. Where
 //! no adapter exists the rendering tests print why and pass, unless `TERRAIN_REQUIRE_GPU` is set.
+//! `terrain fly <store>` flies a baked store (a DEM baked by rows) with the store methods.
+
+mod common;
 
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
@@ -153,5 +156,80 @@ fn fly_draws_the_entropy_mesh() {
     let image = image::open(out.join("frame_00002.png")).unwrap().to_rgba8();
     let first = image.get_pixel(0, 0).0;
     assert!(image.pixels().any(|p| p.0 != first), "a uniform image: nothing drawn");
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// A DEM baked by rows (its DSS errors computed by bands) flown as a store: `ooc` (the
+/// default) and `dss-2` write their frames (terrain drawn, not only sky) and stats, each
+/// frame's record carries the stream's statistics, and the summary is printed and stored.
+#[test]
+fn fly_over_a_store_writes_frames_and_stream_statistics() {
+    let dir = temp_dir("store");
+    let store = dir.join("lidar.scene");
+    let tif = common::data("lidar_prairie/dem.tif");
+    let bake = common::terrain(&[
+        "bake",
+        tif.to_str().unwrap(),
+        "--stream",
+        "--no-pvs",
+        "--threads",
+        "2",
+        "-o",
+        store.to_str().unwrap(),
+    ]);
+    let err = String::from_utf8_lossy(&bake.stderr);
+    assert!(bake.status.success(), "{err}");
+    assert!(store.join("dss_errors.bin").exists(), "the bake by rows wrote the DSS errors");
+    let flight = dir.join("tiny.json");
+    std::fs::write(&flight, TINY).unwrap();
+    for method in [None, Some("dss-2")] {
+        let out = dir.join(format!("out-{}", method.unwrap_or("ooc")));
+        let mut cmd = Command::new(env!("CARGO_BIN_EXE_terrain"));
+        cmd.args(["fly", store.to_str().unwrap(), "--size", "96x54", "--flight"]);
+        cmd.arg(&flight).arg("-o").arg(&out);
+        if let Some(m) = method {
+            cmd.args(["--method", m]);
+        }
+        let Some((stdout, _)) = succeeded(&cmd.output().unwrap()) else { return };
+        let name = method.unwrap_or("ooc");
+        assert!(stdout.contains(&format!("method: {name}")), "{stdout}");
+        assert!(stdout.contains("frames that waited for I/O after frame 1"), "{stdout}");
+        assert!(stdout.contains("errors not measured"), "{stdout}");
+        for k in 0..3 {
+            let png = out.join(format!("frame_{k:05}.png"));
+            let image = image::open(&png).unwrap().to_rgba8();
+            assert_eq!(image.dimensions(), (96, 54));
+            let terrain = image.pixels().filter(|p| p.0 != [150, 185, 225, 255]).count();
+            assert!(terrain > 96 * 54 / 10, "{name} frame {k}: {terrain} terrain pixels");
+        }
+        let csv = std::fs::read_to_string(out.join("stats.csv")).unwrap();
+        assert_eq!(csv.lines().count(), 4, "{csv}");
+        let json: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(out.join("stats.json")).unwrap())
+                .unwrap();
+        assert_eq!(json["method"], name);
+        assert!(json["store"].as_str().unwrap().ends_with("lidar.scene"));
+        let frames = json["frames"].as_array().unwrap();
+        assert_eq!(frames.len(), 3);
+        for f in frames {
+            assert!(f["triangles"].as_u64().unwrap() > 0, "{f}");
+            let needed = f["stream"]["needed_mib"].as_f64().unwrap();
+            assert!(needed > 0.0, "{name}: every frame needs data: {f}");
+        }
+        let summary = &json["stream_summary"];
+        assert_eq!(summary["frames"], 3);
+        assert_eq!(summary["real_time"], true);
+        assert_eq!(summary["waited_after_first"], 0, "{summary}");
+    }
+    // A store with --scene is refused: the store holds its own tables.
+    let out = Command::new(env!("CARGO_BIN_EXE_terrain"))
+        .args(["fly", store.to_str().unwrap(), "--scene", store.to_str().unwrap(), "--flight"])
+        .arg(&flight)
+        .arg("-o")
+        .arg(dir.join("refused"))
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success() && err.contains("--scene is for a DEM file"), "{err}");
     let _ = std::fs::remove_dir_all(&dir);
 }

@@ -281,9 +281,14 @@ fn a_tiny_cache_pages_coarse_levels_without_cracks() {
         // or, when the visible blocks alone need more, under what they need plus the pinned
         // level 0 of every block (16 bytes each; real time: no block is ever a hole).
         let pinned = 16.0 * scene.store().header().block_count() as f64;
-        let cap = (budget as f64).max(st.needed_mib * 1e6 + pinned) + 0.5;
-        assert!(st.resident_mib * 1e6 <= cap, "frame {n}: resident {} MB, {st:?}", st.resident_mib);
-        over_budget += usize::from(st.resident_mib * 1e6 > budget as f64);
+        let mib = (1u64 << 20) as f64;
+        let cap = (budget as f64).max(st.needed_mib * mib + pinned) + 0.5;
+        assert!(
+            st.resident_mib * mib <= cap,
+            "frame {n}: resident {} MiB, {st:?}",
+            st.resident_mib
+        );
+        over_budget += usize::from(st.resident_mib * mib > budget as f64);
         assert!(check_shared_edges(&frame.selection).is_empty(), "frame {n}");
         for (_, p) in scene.mirror().unwrap().pages() {
             strides.insert(p.stride);

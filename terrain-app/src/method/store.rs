@@ -164,9 +164,8 @@ impl<'a> StoreMethod<'a> {
                 let bytes = std::fs::read(&path).with_context(|| {
                     format!(
                         "--method {} from a store reads the DSS errors the bake writes ({}); \
-                         bake the store again without --no-dss (grids read by rows and \
-                         synthetic terrains above 8193^2 get none yet: draw the DEM file \
-                         itself, or use ooc or uniform on the store)",
+                         bake the store again without --no-dss (a grid read by rows gets them \
+                         too, computed by bands of rows), or use ooc or uniform on the store",
                         kind.name(),
                         path.display()
                     )

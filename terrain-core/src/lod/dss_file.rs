@@ -103,18 +103,18 @@ impl HeightsChecksum {
 impl DssErrorTable {
     /// The table as bytes, tied to `hm` (the terrain it was computed from).
     pub fn encode(&self, hm: &Heightmap) -> Vec<u8> {
+        self.encode_for(hm.width() as u32, hm.height() as u32, heights_checksum(hm))
+    }
+
+    /// [`DssErrorTable::encode`] for a `width x height` grid whose heights have checksum
+    /// `heights_crc` ([`heights_checksum`]; a grid read by rows: [`DssErrorTable::from_rows`]
+    /// returns it).
+    pub fn encode_for(&self, width: u32, height: u32, heights_crc: u32) -> Vec<u8> {
         let nodes: usize = self.levels.iter().map(|(_, v)| v.len()).sum();
         let mut out =
             Vec::with_capacity(HEADER_LEN + 8 * self.levels.len() + nodes * FACTORS * 8 + 4);
         out.extend_from_slice(&MAGIC);
-        for v in [
-            VERSION,
-            hm.width() as u32,
-            hm.height() as u32,
-            self.root_cells,
-            self.levels.len() as u32,
-            heights_checksum(hm),
-        ] {
+        for v in [VERSION, width, height, self.root_cells, self.levels.len() as u32, heights_crc] {
             out.extend_from_slice(&v.to_le_bytes());
         }
         for (nx, v) in &self.levels {
@@ -315,6 +315,53 @@ mod tests {
                 s.add_voids(&flags);
             }
             assert_eq!(s.finish(), crc32(&bytes), "voids: {}", hm.voids().count());
+        }
+    }
+
+    /// `hm` read back by rows, counting the largest band asked for.
+    fn by_rows(hm: &Heightmap, qt: &Quadtree, band: usize) -> (Vec<u8>, usize) {
+        let w = hm.width();
+        let mut largest = 0;
+        let mut read = |j0: usize, n: usize, heights: &mut [f32], voids: &mut [bool]| {
+            largest = largest.max(n);
+            heights.copy_from_slice(&hm.data()[j0 * w..(j0 + n) * w]);
+            for (k, v) in voids.iter_mut().enumerate() {
+                *v = hm.voids().get(k % w, j0 + k / w);
+            }
+            Ok::<(), std::convert::Infallible>(())
+        };
+        let (table, crc) = DssErrorTable::from_rows(
+            qt.shape(),
+            band,
+            &mut read,
+            &crate::lod::Sequential,
+            &mut |_| {},
+        )
+        .unwrap();
+        (table.encode_for(w as u32, hm.height() as u32, crc), largest)
+    }
+
+    #[test]
+    fn a_table_computed_by_bands_of_rows_is_the_in_memory_one_byte_for_byte() {
+        // Non-square, non-power-of-two, with voids (a row of them, scattered ones).
+        let (w, h, data, mut mask, georef) = terrain(83, 57).into_parts();
+        for (i, j) in [(3, 4), (40, 30), (82, 56), (0, 56)] {
+            mask.set(i, j, true);
+        }
+        (10..30).for_each(|i| mask.set(i, 20, true));
+        let voided = Heightmap::new(w, h, data, mask, georef).unwrap();
+        for hm in [terrain(65, 65), voided] {
+            let qt = Quadtree::new(&hm, 4);
+            let whole = DssErrorTable::new(&hm, &qt).encode(&hm);
+            // Bands of 2 rows: every level accumulated over bands; 10 and 20: the finer
+            // levels by windows, the coarser accumulated; 200: one window for all.
+            for band in [2, 3, 10, 20, 200] {
+                let (bytes, largest) = by_rows(&hm, &qt, band);
+                assert!(largest <= band, "band {band}: read {largest} rows at once");
+                assert_eq!(bytes.len(), whole.len());
+                let first = bytes.iter().zip(&whole).position(|(a, b)| a != b);
+                assert_eq!(first, None, "band {band}: first differing byte");
+            }
         }
     }
 

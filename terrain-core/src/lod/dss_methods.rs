@@ -40,7 +40,9 @@ use super::window::RowWindow;
 use crate::geometry::Camera;
 use crate::heightmap::Heightmap;
 use crate::metrics::Region;
-use crate::metrics::dss::{FACTORS, Tessellation, object_errors, tessellation_factor};
+use crate::metrics::dss::{
+    FACTORS, ObjectErrorsAcc, RowBand, SampleRows, Tessellation, object_errors, tessellation_factor,
+};
 use crate::metrics::screen;
 use crate::quadtree::{NodeId, NodeInfo, Quadtree, SplitToLevel};
 
@@ -125,6 +127,151 @@ impl DssErrorTable {
             levels[level as usize].1.extend(v);
         }
         Self { root_cells: qt.root_cells(), levels }
+    }
+
+    /// [`DssErrorTable::new`] for a grid that is not in memory: its rows are read through
+    /// `read(j0, rows, heights, voids)` (full-width rows `j0..j0 + rows`, south first) in
+    /// bands of at most `band_rows` rows, and the result is the same table bit for bit (every
+    /// node is an [`ObjectErrorsAcc`], which gives [`object_errors`]'s bits whatever the
+    /// bands). Also returns the heights' checksum ([`super::dss_file::heights_checksum`] of
+    /// the rows read), which [`DssErrorTable::encode_for`] writes.
+    ///
+    /// Levels whose nodes fit in a band (`cells + 2 <= band_rows`: the node's rows and the row
+    /// above its top vertices) are computed in one pass over windows of the coarsest such
+    /// level's node rows, each node whole from its window. A coarser node row is accumulated
+    /// over several bands: first its tessellated vertices from the bands holding their rows,
+    /// then its samples band by band, so each of these levels reads its rows about twice.
+    /// Memory: one band (`band_rows x width` samples), plus, for a coarse node row, each
+    /// node's vertices (at most 47,904 f64 for the 32 factors) and per-factor column tables
+    /// (about 2 KiB per sample column of the row). `par` spreads the nodes over threads
+    /// (terrain-core has none; [`Sequential`] runs them in order), `progress` gets the done
+    /// fraction.
+    pub fn from_rows<E>(
+        shape: &TreeShape,
+        band_rows: usize,
+        read: &mut ReadRows<'_, E>,
+        par: &dyn DssParallel,
+        progress: &mut dyn FnMut(f64),
+    ) -> Result<(Self, u32), E> {
+        let (w, h) = (shape.width() as usize, shape.height() as usize);
+        let band_rows = band_rows.max(2);
+        let levels = shape.max_level() as usize + 1;
+        let mut table: Vec<(u32, Vec<[f64; FACTORS]>)> =
+            Self::shape(shape).into_iter().map(|(nx, n)| (nx, vec![[0.0; FACTORS]; n])).collect();
+        let cells = |level: usize| (shape.root_cells() >> level) as usize;
+        // Levels whose node rows fit a band, and the window: the coarsest one's node rows.
+        let small: Vec<usize> = (0..levels).filter(|&l| cells(l) + 2 <= band_rows).collect();
+        let mut checksum = super::dss_file::HeightsChecksum::new();
+        let mut summed = 0usize; // rows added to the checksum
+        let mut sum_rows =
+            |band: &RowBand<'_>, upto: usize, checksum: &mut super::dss_file::HeightsChecksum| {
+                let last = (band.first_row() + band.rows()).min(upto);
+                for j in summed.max(band.first_row())..last {
+                    checksum.add_heights(band.row(j));
+                    checksum.add_voids(band.void_row(j));
+                }
+                summed = summed.max(last);
+            };
+        let total_rows = (levels * h).max(1) as f64;
+        let mut done_rows = 0usize;
+        let mut heights = Vec::new();
+        let mut voids = Vec::new();
+        let mut read_band = |j0: usize, n: usize, heights: &mut Vec<f32>, voids: &mut Vec<bool>| {
+            heights.resize(n * w, 0.0);
+            voids.resize(n * w, false);
+            read(j0, n, heights, voids)
+        };
+        if let Some(&coarsest) = small.first() {
+            let window = cells(coarsest);
+            let mut start = 0;
+            while start + 1 < h {
+                let end = (start + window + 1).min(h - 1);
+                read_band(start, end - start + 1, &mut heights, &mut voids)?;
+                let band = RowBand::new(start, w, &heights, &voids);
+                // Every row of the grid passes through a window, in order.
+                let upto = if start + window + 1 >= h { h } else { start + window };
+                sum_rows(&band, upto, &mut checksum);
+                let mut regions = Vec::new();
+                for &l in &small {
+                    let c = cells(l);
+                    let (nx, _) = shape.level_dims(l as u8);
+                    for y0 in (start..start + window).step_by(c).take_while(|&y| y + 1 < h) {
+                        regions.extend((0..nx as usize).map(|i| (l, Region::new(i * c, y0, c))));
+                    }
+                }
+                let errors = par.map_regions(&regions, &|&(_, r)| {
+                    ObjectErrorsAcc::new(r, w, h).map_or([0.0; FACTORS], |mut acc| {
+                        acc.fill_vertices(&band);
+                        acc.add_rows(&band);
+                        acc.finish().avg
+                    })
+                });
+                for (&(l, r), e) in regions.iter().zip(errors) {
+                    let c = cells(l);
+                    let (nx, v) = &mut table[l];
+                    v[(r.y0 / c) * *nx as usize + r.x0 / c] = e;
+                }
+                done_rows += (upto - start) * small.len();
+                progress(done_rows as f64 / total_rows);
+                start += window;
+            }
+        }
+        for l in (0..levels).filter(|l| !small.contains(l)) {
+            let c = cells(l);
+            let (nx, ny) = shape.level_dims(l as u8);
+            for t in 0..ny as usize {
+                let y0 = t * c;
+                let mut accs: Vec<(usize, ObjectErrorsAcc)> = (0..nx as usize)
+                    .filter_map(|i| {
+                        ObjectErrorsAcc::new(Region::new(i * c, y0, c), w, h).map(|a| (i, a))
+                    })
+                    .collect();
+                let Some(y1) = accs.first().map(|(_, a)| a.clip().y1) else { continue };
+                // The vertices: row pairs (j, j + 1) for every wanted j, read in bands of
+                // consecutive wanted rows at most VERTEX_GAP apart (a coarse node's vertex
+                // rows are sparse: at most 649 pairs for the 32 factors whatever its size).
+                let mut wanted: Vec<usize> =
+                    accs.iter().flat_map(|(_, a)| a.vertex_rows()).collect();
+                wanted.sort_unstable();
+                wanted.dedup();
+                let mut k = 0;
+                while k < wanted.len() {
+                    let j0 = wanted[k];
+                    let mut last = k;
+                    while last + 1 < wanted.len()
+                        && wanted[last + 1] - wanted[last] <= VERTEX_GAP
+                        && wanted[last + 1] + 1 < j0 + band_rows
+                    {
+                        last += 1;
+                    }
+                    let end = (wanted[last] + 1).min(h - 1);
+                    read_band(j0, end - j0 + 1, &mut heights, &mut voids)?;
+                    let band = RowBand::new(j0, w, &heights, &voids);
+                    par.for_each_acc(&mut accs, &|acc| acc.fill_vertices(&band));
+                    k = last + 1;
+                }
+                // The samples, band by band, in order.
+                let mut j = y0;
+                while j <= y1 {
+                    let n = band_rows.min(y1 + 1 - j);
+                    read_band(j, n, &mut heights, &mut voids)?;
+                    let band = RowBand::new(j, w, &heights, &voids);
+                    if small.is_empty() && l == 0 {
+                        sum_rows(&band, h, &mut checksum);
+                    }
+                    par.for_each_acc(&mut accs, &|acc| acc.add_rows(&band));
+                    j += n;
+                    done_rows += n;
+                    progress(done_rows as f64 / total_rows);
+                }
+                let (nx, v) = &mut table[l];
+                for (i, acc) in &accs {
+                    v[t * *nx as usize + i] = acc.finish().avg;
+                }
+            }
+        }
+        assert_eq!(summed, h, "every row enters the heights' checksum once");
+        Ok((Self { root_cells: shape.root_cells(), levels: table }, checksum.finish()))
     }
 
     /// Cells per node side, nodes per row and rows of nodes at `level` of `qt`.
@@ -242,6 +389,53 @@ fn select_dss(
     let rule = WishEdges { want };
     let inner = |n: NodeId, _: &[f32; 4]| [rule.want(n); 2];
     run::assemble(leaves, stats, &rule, inner, start)
+}
+
+/// Largest gap between vertex rows that [`DssErrorTable::from_rows`] reads through rather than
+/// starting a new band.
+const VERTEX_GAP: usize = 4;
+
+/// What [`DssErrorTable::from_rows`] reads rows with: `read(j0, rows, heights, voids)` fills
+/// full-width rows `j0..j0 + rows`, south first.
+pub type ReadRows<'a, E> = dyn FnMut(usize, usize, &mut [f32], &mut [bool]) -> Result<(), E> + 'a;
+
+/// How [`DssErrorTable::from_rows`] spreads its nodes over threads (terrain-core spawns
+/// none): both functions must apply `f` to every item once, and `map_regions` return the
+/// results in order.
+pub trait DssParallel {
+    /// `regions.iter().map(f).collect()`.
+    fn map_regions(
+        &self,
+        regions: &[(usize, Region)],
+        f: &(dyn Fn(&(usize, Region)) -> [f64; FACTORS] + Sync),
+    ) -> Vec<[f64; FACTORS]>;
+    /// `accs.iter_mut().for_each(|(_, a)| f(a))`.
+    fn for_each_acc(
+        &self,
+        accs: &mut [(usize, ObjectErrorsAcc)],
+        f: &(dyn Fn(&mut ObjectErrorsAcc) + Sync),
+    );
+}
+
+/// [`DssParallel`] on the calling thread, in order.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct Sequential;
+
+impl DssParallel for Sequential {
+    fn map_regions(
+        &self,
+        regions: &[(usize, Region)],
+        f: &(dyn Fn(&(usize, Region)) -> [f64; FACTORS] + Sync),
+    ) -> Vec<[f64; FACTORS]> {
+        regions.iter().map(f).collect()
+    }
+    fn for_each_acc(
+        &self,
+        accs: &mut [(usize, ObjectErrorsAcc)],
+        f: &(dyn Fn(&mut ObjectErrorsAcc) + Sync),
+    ) {
+        accs.iter_mut().for_each(|(_, a)| f(a));
+    }
 }
 
 /// Method II's patches: [`run::assemble`] with [`WishEdges`], without its per-frame hash maps.

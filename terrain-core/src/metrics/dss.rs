@@ -32,7 +32,9 @@
 use glam::DVec3;
 
 use crate::heightmap::Heightmap;
-use crate::metrics::{Coverage, Region, bilerp, bilinear_axis, dem_bilinear, screen};
+use crate::metrics::{
+    ClippedRegion, Coverage, Region, bilerp, bilinear_axis, dem_bilinear, screen,
+};
 
 /// Number of object-space errors per block (DSS paper: 32).
 pub const FACTORS: usize = 32;
@@ -134,119 +136,335 @@ impl DssErrors {
 /// - the tessellated cell and fraction of every sample column are located once per factor;
 /// - the surface's two `x` interpolations (the first half of the bilinear blend) are made once
 ///   per tessellated cell row instead of once per sample.
+///
+/// It is [`ObjectErrorsAcc`] fed the whole heightmap at once; a grid read by bands of rows
+/// feeds the accumulator band by band and gets the same bits.
 pub fn object_errors(hm: &Heightmap, region: Region) -> DssErrors {
-    let mut out = DssErrors { avg: [0.0; FACTORS], max: [0.0; FACTORS], coverage: Coverage::Empty };
-    let Some(clip) = region.clip(hm) else {
-        return out;
-    };
-    let (x0, y0) = (clip.x0, clip.y0);
-    let (cx, cy) = (clip.x1 - x0, clip.y1 - y0);
-    let (w, data, voids) = (hm.width(), hm.data(), hm.voids());
-    let any_void = voids.any();
-    let z = |i: usize, j: usize| f64::from(data[j * w + i]);
-    let mut b = Buffers::default();
-    let mut count = 0usize;
-    for k in 0..FACTORS {
-        let f = factor(k);
-        // As object_error's `locate`: local sample index -> (tessellated cell, fraction).
-        let locate = |k: usize, c: usize| -> (usize, f64) {
-            let num = k * f;
-            let cell = (num / c).min(f - 1);
-            (cell, (num - cell * c) as f64 / c as f64)
-        };
-        b.cols.clear();
-        b.cols.extend((0..=cx).map(|i| locate(i, cx)));
-        b.rows.clear();
-        b.rows.extend((0..=cy).map(|j| locate(j, cy)));
-        // The vertices used: columns a, a + 1 of every sample column's cell (rows alike), each
-        // with its compact index and its dem_bilinear axis lookup at x0 + cx a / f.
-        let used = |cells: &mut dyn Iterator<Item = usize>,
-                    map: &mut Vec<usize>,
-                    at: &mut Vec<(usize, usize, f64)>,
-                    origin: usize,
-                    c: usize,
-                    n: usize| {
-            map.clear();
-            map.resize(f + 1, usize::MAX);
-            at.clear();
-            for cell in cells {
-                for a in [cell, cell + 1] {
-                    if map[a] == usize::MAX {
-                        map[a] = at.len();
-                        at.push(bilinear_axis(origin as f64 + (c * a) as f64 / f as f64, n));
-                    }
-                }
-            }
-        };
-        used(&mut b.cols.iter().map(|c| c.0), &mut b.col_map, &mut b.col_at, x0, cx, w);
-        used(&mut b.rows.iter().map(|r| r.0), &mut b.row_map, &mut b.row_at, y0, cy, hm.height());
-        // Vertex heights: dem_bilinear's bilerp, with its lookups shared.
-        let nc = b.col_at.len();
-        b.vz.clear();
-        for &(j0, j1, fv) in &b.row_at {
-            for &(i0, i1, fu) in &b.col_at {
-                b.vz.push(bilerp(z(i0, j0), z(i1, j0), z(i0, j1), z(i1, j1), fu, fv));
-            }
+    match ObjectErrorsAcc::new(region, hm.width(), hm.height()) {
+        None => DssErrors { avg: [0.0; FACTORS], max: [0.0; FACTORS], coverage: Coverage::Empty },
+        Some(mut acc) => {
+            acc.fill_vertices(hm);
+            acc.add_rows(hm);
+            acc.finish()
         }
-        let (mut sum, mut max) = (0.0f64, 0.0f64);
-        count = 0;
-        let mut row_cell = usize::MAX;
-        b.lo.resize(cx + 1, 0.0);
-        b.hi.resize(cx + 1, 0.0);
-        for j in clip.y0..=clip.y1 {
-            let (cell_b, t) = b.rows[j - y0];
-            if cell_b != row_cell {
-                // bilerp's first half (`a` and `b` there) for every column of this cell row.
-                row_cell = cell_b;
-                let (r0, r1) = (b.row_map[cell_b] * nc, b.row_map[cell_b + 1] * nc);
-                for (i, &(a, s)) in b.cols.iter().enumerate() {
-                    let (c0, c1) = (b.col_map[a], b.col_map[a + 1]);
-                    let (z00, z10) = (b.vz[r0 + c0], b.vz[r0 + c1]);
-                    let (z01, z11) = (b.vz[r1 + c0], b.vz[r1 + c1]);
-                    b.lo[i] = z00 + (z10 - z00) * s;
-                    b.hi[i] = z01 + (z11 - z01) * s;
-                }
-            }
-            let row = &data[j * w + x0..=j * w + clip.x1];
-            for (i, &h) in row.iter().enumerate() {
-                if any_void && voids.get(x0 + i, j) {
-                    continue;
-                }
-                let (l, u) = (b.lo[i], b.hi[i]);
-                let e = (f64::from(h) - (l + (u - l) * t)).abs();
-                sum += e;
-                max = max.max(e);
-                count += 1;
-            }
-        }
-        out.avg[k] = if count == 0 { 0.0 } else { sum / count as f64 };
-        out.max[k] = max;
     }
-    out.coverage = Coverage::from_count(count);
-    out
 }
 
-/// Scratch space of [`object_errors`], reused across its 32 factors.
-#[derive(Default)]
-struct Buffers {
+/// Full-width rows of a grid's samples, as [`ObjectErrorsAcc`] reads them: the whole
+/// [`Heightmap`], or a band of rows read from a file ([`RowBand`]). Rows are absolute grid
+/// rows (0 south).
+pub trait SampleRows {
+    /// The first row present.
+    fn first_row(&self) -> usize;
+    /// How many rows are present (`first_row()..first_row() + rows()`).
+    fn rows(&self) -> usize;
+    /// Row `j`'s heights, the grid's full width.
+    fn row(&self, j: usize) -> &[f32];
+    /// Whether any present sample may be void (`false`: [`SampleRows::void`] is never asked).
+    fn any_void(&self) -> bool;
+    /// Whether sample `(i, j)` is void.
+    fn void(&self, i: usize, j: usize) -> bool;
+}
+
+impl SampleRows for Heightmap {
+    fn first_row(&self) -> usize {
+        0
+    }
+    fn rows(&self) -> usize {
+        self.height()
+    }
+    fn row(&self, j: usize) -> &[f32] {
+        &self.data()[j * self.width()..(j + 1) * self.width()]
+    }
+    fn any_void(&self) -> bool {
+        self.voids().any()
+    }
+    fn void(&self, i: usize, j: usize) -> bool {
+        self.voids().get(i, j)
+    }
+}
+
+/// Rows `j0..j0 + heights.len() / width` of a grid `width` samples wide: heights and void
+/// flags row-major, south row first (what a reader by bands of rows fills).
+#[derive(Debug, Clone, Copy)]
+pub struct RowBand<'a> {
+    j0: usize,
+    width: usize,
+    heights: &'a [f32],
+    voids: &'a [bool],
+    /// Whether any flag is set (scanned once, not per node).
+    any_void: bool,
+}
+
+impl<'a> RowBand<'a> {
+    /// Rows from `j0` of a grid `width` samples wide (`voids` as long as `heights`).
+    ///
+    /// # Panics
+    /// If the lengths differ or are not whole rows.
+    pub fn new(j0: usize, width: usize, heights: &'a [f32], voids: &'a [bool]) -> Self {
+        assert_eq!(heights.len(), voids.len(), "one void flag per height");
+        assert_eq!(heights.len() % width.max(1), 0, "whole rows");
+        Self { j0, width, heights, voids, any_void: voids.iter().any(|&v| v) }
+    }
+
+    /// Row `j`'s void flags.
+    pub fn void_row(&self, j: usize) -> &'a [bool] {
+        let o = (j - self.j0) * self.width;
+        &self.voids[o..o + self.width]
+    }
+}
+
+impl SampleRows for RowBand<'_> {
+    fn first_row(&self) -> usize {
+        self.j0
+    }
+    fn rows(&self) -> usize {
+        self.heights.len() / self.width.max(1)
+    }
+    fn row(&self, j: usize) -> &[f32] {
+        let o = (j - self.j0) * self.width;
+        &self.heights[o..o + self.width]
+    }
+    fn any_void(&self) -> bool {
+        self.any_void
+    }
+    fn void(&self, i: usize, j: usize) -> bool {
+        self.voids[(j - self.j0) * self.width + i]
+    }
+}
+
+/// [`object_errors`] of one region, accumulated from rows given in any number of bands: first
+/// [`ObjectErrorsAcc::fill_vertices`] with bands holding the rows the tessellated vertices
+/// read ([`ObjectErrorsAcc::vertex_rows`]: each vertex needs two adjacent rows, so bands that
+/// overlap by one row cover them), then [`ObjectErrorsAcc::add_rows`] with the region's rows
+/// in order (bands overlapping or not), then [`ObjectErrorsAcc::finish`]. Every value is the
+/// same f64 operation on the same inputs as [`object_error`]'s, and each factor's sum runs
+/// over the samples in the same row-major order, so the result does not depend on the bands.
+/// Memory: per factor, one entry per sample column and row of the region and the used
+/// vertices (at most `(f + 1)^2`).
+#[derive(Debug, Clone)]
+pub struct ObjectErrorsAcc {
+    clip: ClippedRegion,
+    factors: Vec<FactorAcc>,
+    /// The next sample row [`ObjectErrorsAcc::add_rows`] expects.
+    next_row: usize,
+    count: usize,
+}
+
+/// One factor's state in [`ObjectErrorsAcc`].
+#[derive(Debug, Clone)]
+struct FactorAcc {
     /// Per sample column: tessellated cell and fraction.
     cols: Vec<(usize, f64)>,
     /// Per sample row: tessellated cell and fraction.
     rows: Vec<(usize, f64)>,
-    /// Vertex column -> compact index (`usize::MAX`: unused).
-    col_map: Vec<usize>,
-    /// Vertex row -> compact index.
+    /// Vertex row -> compact index (`usize::MAX`: unused).
     row_map: Vec<usize>,
+    /// Per sample column: compact indices of its cell's two vertex columns.
+    col_pair: Vec<(usize, usize)>,
     /// Per used vertex column: its [`bilinear_axis`] lookup.
     col_at: Vec<(usize, usize, f64)>,
     /// Per used vertex row: its lookup.
     row_at: Vec<(usize, usize, f64)>,
+    /// Per used vertex row: whether its heights are in `vz`.
+    row_filled: Vec<bool>,
     /// Used vertex heights, row-major over the used rows and columns.
     vz: Vec<f64>,
+    /// The tessellated cell row `lo` and `hi` are for.
+    row_cell: usize,
     /// Per sample column, the surface along the current cell row's south edge.
     lo: Vec<f64>,
     /// ... and north edge.
     hi: Vec<f64>,
+    sum: f64,
+    max: f64,
+}
+
+impl ObjectErrorsAcc {
+    /// The accumulator of `region` in a `width x height` grid; `None` for a region with no
+    /// area there ([`object_errors`] gives 0, [`Coverage::Empty`]).
+    pub fn new(region: Region, width: usize, height: usize) -> Option<Self> {
+        let clip = region.clip_to(width, height)?;
+        let (x0, y0) = (clip.x0, clip.y0);
+        let (cx, cy) = (clip.x1 - x0, clip.y1 - y0);
+        let factors = (0..FACTORS)
+            .map(|k| {
+                let f = factor(k);
+                // As object_error's `locate`: local sample index -> (tessellated cell, fraction).
+                let locate = |k: usize, c: usize| -> (usize, f64) {
+                    let num = k * f;
+                    let cell = (num / c).min(f - 1);
+                    (cell, (num - cell * c) as f64 / c as f64)
+                };
+                let cols: Vec<(usize, f64)> = (0..=cx).map(|i| locate(i, cx)).collect();
+                let rows: Vec<(usize, f64)> = (0..=cy).map(|j| locate(j, cy)).collect();
+                // The vertices used: columns a, a + 1 of every sample column's cell (rows
+                // alike), each with its compact index and its dem_bilinear axis lookup at
+                // x0 + cx a / f.
+                let used = |cells: &mut dyn Iterator<Item = usize>,
+                            map: &mut Vec<usize>,
+                            at: &mut Vec<(usize, usize, f64)>,
+                            origin: usize,
+                            c: usize,
+                            n: usize| {
+                    map.clear();
+                    map.resize(f + 1, usize::MAX);
+                    for cell in cells {
+                        for a in [cell, cell + 1] {
+                            if map[a] == usize::MAX {
+                                map[a] = at.len();
+                                at.push(bilinear_axis(
+                                    origin as f64 + (c * a) as f64 / f as f64,
+                                    n,
+                                ));
+                            }
+                        }
+                    }
+                };
+                let (mut col_map, mut col_at) = (Vec::new(), Vec::new());
+                used(&mut cols.iter().map(|c| c.0), &mut col_map, &mut col_at, x0, cx, width);
+                let (mut row_map, mut row_at) = (Vec::new(), Vec::new());
+                used(&mut rows.iter().map(|r| r.0), &mut row_map, &mut row_at, y0, cy, height);
+                let col_pair = cols.iter().map(|&(a, _)| (col_map[a], col_map[a + 1])).collect();
+                FactorAcc {
+                    cols,
+                    rows,
+                    row_map,
+                    col_pair,
+                    vz: vec![0.0; row_at.len() * col_at.len()],
+                    row_filled: vec![false; row_at.len()],
+                    col_at,
+                    row_at,
+                    row_cell: usize::MAX,
+                    lo: vec![0.0; cx + 1],
+                    hi: vec![0.0; cx + 1],
+                    sum: 0.0,
+                    max: 0.0,
+                }
+            })
+            .collect();
+        Some(Self { clip, factors, next_row: y0, count: 0 })
+    }
+
+    /// The region clipped to the grid.
+    pub fn clip(&self) -> ClippedRegion {
+        self.clip
+    }
+
+    /// The first of the two adjacent rows of every tessellated vertex row still missing,
+    /// ascending, without repeats (a vertex reads rows `j` and `j + 1`).
+    pub fn vertex_rows(&self) -> Vec<usize> {
+        let mut out: Vec<usize> = self
+            .factors
+            .iter()
+            .flat_map(|fa| {
+                fa.row_at.iter().zip(&fa.row_filled).filter(|(_, f)| !**f).map(|(r, _)| r.0)
+            })
+            .collect();
+        out.sort_unstable();
+        out.dedup();
+        out
+    }
+
+    /// Interpolates the tessellated vertices whose two rows are both in `rows` (vertices
+    /// already filled are left alone: any band gives them the same bits).
+    pub fn fill_vertices(&mut self, rows: &impl SampleRows) {
+        let (first, end) = (rows.first_row(), rows.first_row() + rows.rows());
+        for fa in &mut self.factors {
+            let nc = fa.col_at.len();
+            for (r, &(j0, j1, fv)) in fa.row_at.iter().enumerate() {
+                if fa.row_filled[r] || j0 < first || j1 >= end {
+                    continue;
+                }
+                let (row0, row1) = (rows.row(j0), rows.row(j1));
+                // dem_bilinear's bilerp, with its lookups shared.
+                for (c, &(i0, i1, fu)) in fa.col_at.iter().enumerate() {
+                    let z = |row: &[f32], i: usize| f64::from(row[i]);
+                    fa.vz[r * nc + c] =
+                        bilerp(z(row0, i0), z(row0, i1), z(row1, i0), z(row1, i1), fu, fv);
+                }
+                fa.row_filled[r] = true;
+            }
+        }
+    }
+
+    /// Adds the region's rows present in `rows` that were not added yet, in order.
+    ///
+    /// # Panics
+    /// If `rows` starts after the next row expected (a row would be skipped), or a vertex the
+    /// rows need was not filled.
+    pub fn add_rows(&mut self, rows: &impl SampleRows) {
+        let clip = self.clip;
+        let first = self.next_row.max(rows.first_row());
+        let last = clip.y1.min((rows.first_row() + rows.rows()).saturating_sub(1));
+        if first > last {
+            return;
+        }
+        assert_eq!(first, self.next_row, "rows {}..{first} were never added", self.next_row);
+        let any_void = rows.any_void();
+        let x0 = clip.x0;
+        let mut count = 0usize;
+        for fa in &mut self.factors {
+            let nc = fa.col_at.len();
+            let (mut sum, mut max) = (fa.sum, fa.max);
+            count = 0;
+            for j in first..=last {
+                let (cell_b, t) = fa.rows[j - clip.y0];
+                if cell_b != fa.row_cell {
+                    // bilerp's first half (`a` and `b` there) for every column of this cell row.
+                    fa.row_cell = cell_b;
+                    let (rb0, rb1) = (fa.row_map[cell_b], fa.row_map[cell_b + 1]);
+                    assert!(fa.row_filled[rb0] && fa.row_filled[rb1], "vertex rows not filled");
+                    let (r0, r1) = (rb0 * nc, rb1 * nc);
+                    for (i, (&(_, s), &(c0, c1))) in fa.cols.iter().zip(&fa.col_pair).enumerate() {
+                        let (z00, z10) = (fa.vz[r0 + c0], fa.vz[r0 + c1]);
+                        let (z01, z11) = (fa.vz[r1 + c0], fa.vz[r1 + c1]);
+                        fa.lo[i] = z00 + (z10 - z00) * s;
+                        fa.hi[i] = z01 + (z11 - z01) * s;
+                    }
+                }
+                let row = &rows.row(j)[x0..=clip.x1];
+                for (i, &h) in row.iter().enumerate() {
+                    if any_void && rows.void(x0 + i, j) {
+                        continue;
+                    }
+                    let (l, u) = (fa.lo[i], fa.hi[i]);
+                    let e = (f64::from(h) - (l + (u - l) * t)).abs();
+                    sum += e;
+                    max = max.max(e);
+                    count += 1;
+                }
+            }
+            fa.sum = sum;
+            fa.max = max;
+        }
+        self.count += count;
+        self.next_row = last + 1;
+    }
+
+    /// Whether every row of the region was added.
+    pub fn is_complete(&self) -> bool {
+        self.next_row > self.clip.y1
+    }
+
+    /// The 32 errors.
+    ///
+    /// # Panics
+    /// If rows of the region were not added.
+    pub fn finish(&self) -> DssErrors {
+        assert!(self.is_complete(), "rows {}..={} were not added", self.next_row, self.clip.y1);
+        let count = self.count;
+        let mut out = DssErrors {
+            avg: [0.0; FACTORS],
+            max: [0.0; FACTORS],
+            coverage: Coverage::from_count(count),
+        };
+        for (k, fa) in self.factors.iter().enumerate() {
+            out.avg[k] = if count == 0 { 0.0 } else { fa.sum / count as f64 };
+            out.max[k] = fa.max;
+        }
+        out
+    }
 }
 
 /// Eq. 3 for every factor: `rho_i = lambda * delta_i / d * sin(theta)` (see

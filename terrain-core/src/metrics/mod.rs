@@ -94,14 +94,20 @@ impl Region {
     /// Clips to the grid; `None` for a zero-area region (`cells == 0`, or clipped away
     /// entirely, or clipped to a single row or column of samples).
     pub fn clip(&self, hm: &Heightmap) -> Option<ClippedRegion> {
-        if self.cells == 0 || self.x0 + 1 >= hm.width() || self.y0 + 1 >= hm.height() {
+        self.clip_to(hm.width(), hm.height())
+    }
+
+    /// [`Region::clip`] to a `width x height` grid whose samples are not at hand (read by
+    /// bands of rows).
+    pub fn clip_to(&self, width: usize, height: usize) -> Option<ClippedRegion> {
+        if self.cells == 0 || self.x0 + 1 >= width || self.y0 + 1 >= height {
             return None;
         }
         Some(ClippedRegion {
             x0: self.x0,
             y0: self.y0,
-            x1: (self.x0 + self.cells).min(hm.width() - 1),
-            y1: (self.y0 + self.cells).min(hm.height() - 1),
+            x1: (self.x0 + self.cells).min(width - 1),
+            y1: (self.y0 + self.cells).min(height - 1),
         })
     }
 
