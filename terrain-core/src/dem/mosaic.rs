@@ -159,6 +159,7 @@ pub fn load_mosaic(paths: &[impl AsRef<Path>], options: &LoadOptions) -> Result<
         georef,
         nodata: None,
         sample_type: sample_type.clone(),
+        notes: Vec::new(),
     };
     let heightmap = voids::build_heightmap(first, grid)?;
     let warnings = tiles.iter().flat_map(|t| t.warnings.iter().cloned()).collect();
