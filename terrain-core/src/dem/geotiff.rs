@@ -1,6 +1,8 @@
-//! GeoTIFF: single-band int8/uint8/int16/uint16/int32/uint32/float32/float64 grids, in strips
-//! or tiles, uncompressed, Deflate or LZW (decoded by the `tiff` crate), with their
-//! georeference.
+//! GeoTIFF: 1- to 8-bit, int16/uint16/int32/uint32/float32/float64 grids, in strips or tiles,
+//! uncompressed, Deflate, LZW, PackBits, JPEG (decoded by the `tiff` crate) or ZSTD, one band
+//! of one or several, with their georeference. Chunks are decoded one at a time by
+//! [`super::geotiff_chunks`] (sparse blocks, bit-packed samples, ZSTD and its predictors, the
+//! band, GDAL's internal mask, scale and offset: see there).
 //!
 //! Georeference tags (GeoTIFF 1.0 spec, OGC 19-008r4):
 //! * `ModelPixelScaleTag` (33550): `(ScaleX, ScaleY, ScaleZ)`; y spacing is positive and rows
@@ -730,14 +732,15 @@ pub(crate) fn read(path: &Path, len: u64, options: &LoadOptions) -> Result<RawGr
             }
         }
     }
-    Ok(RawGrid { width: w, height: h, data, georef, nodata, sample_type, notes })
+    let vertical = (vertical.scale, vertical.offset);
+    Ok(RawGrid { width: w, height: h, data, georef, nodata, sample_type, notes, vertical })
 }
 
 /// A GeoTIFF sample's way to metres: GDAL's band scale and offset, then the options'.
 #[derive(Debug, Clone, Copy)]
 pub(crate) struct Vertical {
-    scale: f64,
-    offset: f64,
+    pub scale: f64,
+    pub offset: f64,
 }
 
 impl Vertical {
@@ -889,6 +892,7 @@ pub(crate) fn open(
         scale: band_scale,
         offset: band_offset,
         mask_ifd: None,
+        max_chunk_bytes: options.max_memory_bytes,
     };
     let needed = u64::from(layout.per_plane()) * if planar == 2 { u64::from(bands) } else { 1 };
     if (layout.chunks.len() as u64) < needed {

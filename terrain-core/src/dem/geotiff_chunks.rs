@@ -112,6 +112,9 @@ pub(crate) struct Layout {
     pub offset: f64,
     /// The IFD index of the internal mask, if any.
     pub mask_ifd: Option<usize>,
+    /// The most bytes one inflated ZSTD chunk may take (`LoadOptions::max_memory_bytes`): a
+    /// tile may be declared far larger than its image.
+    pub max_chunk_bytes: u64,
 }
 
 impl Layout {
@@ -302,7 +305,19 @@ fn zstd_chunk(
 ) -> Result<Vec<u8>, DemError> {
     let io = |e| DemError::new(path, DemErrorKind::Io(e));
     let stride = row_bytes(layout, full_w);
-    let expected = stride * rows;
+    let expected = stride.saturating_mul(rows);
+    if expected as u64 > layout.max_chunk_bytes {
+        return Err(DemError::new(
+            path,
+            DemErrorKind::ChunkMemoryLimit {
+                chunk_w: full_w as u32,
+                chunk_h: rows as u32,
+                chunks: 1,
+                bytes: expected as u64,
+                limit: layout.max_chunk_bytes,
+            },
+        ));
+    }
     let mut file = File::open(path).map_err(io)?;
     file.seek(SeekFrom::Start(offset)).map_err(io)?;
     // The chunk lies inside the file (checked when opened), so this is bounded by its size.
@@ -575,6 +590,36 @@ mod tests {
                 .collect();
             assert_eq!(got, vec![1000, 1001, 999], "big-endian: {be}");
         }
+    }
+
+    #[test]
+    fn a_zstd_tile_beyond_the_memory_limit_is_refused_before_reading() {
+        // One 65535 x 65535 int16 tile declared for a 10 x 10 image: 8 GiB inflated.
+        let layout = Layout {
+            width: 10,
+            height: 10,
+            chunk: ChunkType::Tile,
+            chunk_w: 65535,
+            chunk_h: 65535,
+            chunks: vec![(8, 100)],
+            compression: ZSTD,
+            bits: 16,
+            sample_format: 2,
+            samples: 1,
+            planar: 1,
+            predictor: 1,
+            big_endian: false,
+            band: 0,
+            sparse_fill: 0.0,
+            scale: 1.0,
+            offset: 0.0,
+            mask_ifd: None,
+            max_chunk_bytes: 1 << 30,
+        };
+        // The file is never opened: the size is refused first.
+        let e = zstd_chunk(Path::new("no/such/file.tif"), &layout, 0, (8, 100), 65535, 65535)
+            .unwrap_err();
+        assert!(matches!(e.kind, DemErrorKind::ChunkMemoryLimit { .. }), "{e}");
     }
 
     #[test]

@@ -129,6 +129,7 @@ pub(crate) fn read(path: &Path, len: u64, options: &LoadOptions) -> Result<RawGr
         nodata: Some(nodata),
         sample_type: "int16".to_string(),
         notes: Vec::new(),
+        vertical: (scale, offset),
     })
 }
 

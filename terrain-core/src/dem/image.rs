@@ -330,5 +330,6 @@ pub(crate) fn read(
         nodata,
         sample_type,
         notes: Vec::new(),
+        vertical: if format == Format::GreyImage { (scale, offset) } else { (1.0, 0.0) },
     })
 }

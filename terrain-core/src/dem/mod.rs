@@ -159,6 +159,10 @@ pub struct SourceInfo {
     pub sample_type: String,
     /// The no-data value in force, if any.
     pub nodata: Option<f64>,
+    /// `(scale, offset)`: metres = stored value x scale + offset (a GeoTIFF's own band scale
+    /// and offset, then the options' vertical scale and offset); integer samples lie on this
+    /// lattice. `(1, 0)` for samples read as stored; NaN when the tiles of a mosaic differ.
+    pub vertical: (f64, f64),
 }
 
 /// A DEM as read: the heightmap plus where it came from.
@@ -417,6 +421,8 @@ pub(crate) struct RawGrid {
     pub sample_type: String,
     /// What the reader has to say (a band chosen among several).
     pub notes: Vec<LoadWarning>,
+    /// See [`SourceInfo::vertical`].
+    pub vertical: (f64, f64),
 }
 
 /// `raw * scale + offset` as an f32 height; refused when a finite sample leaves f32's range
@@ -548,12 +554,13 @@ pub fn load(path: impl AsRef<Path>, options: &LoadOptions) -> Result<Dem, DemErr
     let nodata = grid.nodata;
     let sample_type = grid.sample_type.clone();
     let mut warnings = grid.notes.clone();
+    let vertical = grid.vertical;
     let heightmap = voids::build_heightmap(path, grid)?;
     warnings.extend(rescaled(path, format, options));
     warnings.extend(inspect(path, format, options, &heightmap, nodata));
     Ok(Dem {
         heightmap,
-        source: SourceInfo { path: path.to_path_buf(), format, sample_type, nodata },
+        source: SourceInfo { path: path.to_path_buf(), format, sample_type, nodata, vertical },
         warnings,
     })
 }

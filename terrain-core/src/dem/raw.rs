@@ -73,5 +73,6 @@ pub(crate) fn read(path: &Path, len: u64, options: &LoadOptions) -> Result<RawGr
         nodata,
         sample_type: name.to_string(),
         notes: Vec::new(),
+        vertical: (scale, offset),
     })
 }

@@ -125,10 +125,11 @@ impl RowReader {
                     height,
                     georef,
                     file_nodata,
-                    layout,
+                    mut layout,
                     sample_type,
                     bands,
                 } = opened;
+                layout.max_chunk_bytes = options.max_memory_bytes;
                 let (chunk_w, chunk_h, chunk) = (layout.chunk_w, layout.chunk_h, layout.chunk);
                 let mut notes = Vec::new();
                 if bands > 1 {
@@ -157,6 +158,7 @@ impl RowReader {
                         limit: options.max_memory_bytes,
                     }));
                 }
+                let vertical = geotiff::Vertical::new(&layout, options);
                 let reader = Self {
                     path: path.to_path_buf(),
                     len,
@@ -168,10 +170,11 @@ impl RowReader {
                         format,
                         sample_type,
                         nodata: options.nodata.or(file_nodata),
+                        vertical: (vertical.scale, vertical.offset),
                     },
                     inner: Inner::Tiff {
                         decoders: Mutex::new(vec![dec]),
-                        vertical: geotiff::Vertical::new(&layout, options),
+                        vertical,
                         layout: Box::new(layout),
                         recent: Mutex::new(VecDeque::new()),
                         recent_cap,
@@ -215,6 +218,7 @@ impl RowReader {
                         format,
                         sample_type: name.to_string(),
                         nodata: options.nodata,
+                        vertical: (options.vertical_scale, options.vertical_offset),
                     },
                     inner: Inner::Raw {
                         sample: spec.sample,
