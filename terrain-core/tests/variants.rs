@@ -483,8 +483,13 @@ fn damaged_zstd_chunks_are_refused_naming_the_file() {
 
 #[test]
 fn unsupported_compressions_are_refused_by_name() {
-    for (name, said) in [("lerc.tif", "LERC (34887)"), ("lzma.tif", "LZMA (34925)")] {
-        assert_eq!(gdal(name)["compression"], said.split(' ').next().unwrap(), "{name}");
+    for (name, said) in [
+        ("lerc.tif", "LERC (34887)"),
+        ("lzma.tif", "LZMA (34925)"),
+        ("webp_rgb.tif", "WebP (50001)"),
+    ] {
+        let gdal_name = gdal(name)["compression"].as_str().unwrap().to_string();
+        assert!(said.to_ascii_uppercase().starts_with(&gdal_name), "{name}: GDAL says {gdal_name}");
         for e in [
             load(dir().join(name), &LoadOptions::default()).map(|_| ()).unwrap_err(),
             RowReader::open(dir().join(name), &LoadOptions::default()).map(|_| ()).unwrap_err(),

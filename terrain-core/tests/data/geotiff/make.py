@@ -288,7 +288,12 @@ def main():
     # Compressions that are refused, by name.
     crop("lerc.tif", ["-co", "COMPRESS=LERC"])
     crop("lzma.tif", ["-co", "COMPRESS=LZMA"])
-    made += ["lerc.tif", "lzma.tif"]
+    # WebP takes 8-bit RGB(A) only: the crop scaled to bytes, three times.
+    gdal.Translate(path("webp_rgb.tif"), SRC,
+                   options=["-q", "-srcwin", *map(str, SRCWIN), "-ot", "Byte", "-scale", "0",
+                            "4400", "0", "255", "-a_nodata", "none", "-b", "1", "-b", "1", "-b", "1",
+                            "-co", "COMPRESS=WEBP", "-co", "WEBP_LOSSLESS=TRUE"])
+    made += ["lerc.tif", "lzma.tif", "webp_rgb.tif"]
     # Several bands: pixel- and band-interleaved.
     multiband("bands3_pixel.tif", 3, ["INTERLEAVE=PIXEL"])
     multiband("bands2_band.tif", 2, ["INTERLEAVE=BAND", "TILED=YES", "BLOCKXSIZE=16",
