@@ -295,9 +295,9 @@ def main():
                             "-co", "COMPRESS=WEBP", "-co", "WEBP_LOSSLESS=TRUE"])
     made += ["lerc.tif", "lzma.tif", "webp_rgb.tif"]
     # Several bands: pixel- and band-interleaved.
-    multiband("bands3_pixel.tif", 3, ["INTERLEAVE=PIXEL"])
-    multiband("bands2_band.tif", 2, ["INTERLEAVE=BAND", "TILED=YES", "BLOCKXSIZE=16",
-                                     "BLOCKYSIZE=16"])
+    multiband("bands3_pixel.tif", 3, ["INTERLEAVE=PIXEL", "COMPRESS=DEFLATE"])
+    multiband("bands2_band.tif", 2, ["INTERLEAVE=BAND", "COMPRESS=LZW", "TILED=YES",
+                                     "BLOCKXSIZE=16", "BLOCKYSIZE=16"])
     made += ["bands3_pixel.tif", "bands2_band.tif"]
     # GDAL band scale and offset (metadata tag 42112).
     crop("scaled.tif", ["-a_scale", "0.5", "-a_offset", "100"])
