@@ -645,3 +645,15 @@ fn spacing_is_refused_for_georeferenced_files() {
     let dem = load(dir().join("grey.jpg"), &given).unwrap();
     assert_eq!(dem.heightmap.georef().spacing_m.x, 30.0);
 }
+
+#[test]
+fn a_first_ifd_offset_of_zero_is_refused_as_such() {
+    let mut bytes = std::fs::read(dir().join("wiz_int16.tif")).unwrap();
+    bytes[4..8].fill(0);
+    let tmp = temp_dir();
+    let p = tmp.join("no_ifd.tif");
+    std::fs::write(&p, &bytes).unwrap();
+    let e = load(&p, &LoadOptions::default()).map(|_| ()).unwrap_err().to_string();
+    assert!(e.contains("no_ifd.tif") && e.contains("first IFD offset is 0"), "{e}");
+    let _ = std::fs::remove_dir_all(&tmp);
+}

@@ -210,6 +210,9 @@ fn precheck_header(path: &Path, file: &mut File, len: u64) -> Result<Precheck, D
     let mut mask_ifd = None;
     for index in 0..MAX_IFDS_WALKED {
         let first = index == 0;
+        if first && ifd == 0 {
+            return Err(malformed(path, "the header's first IFD offset is 0 (no image)"));
+        }
         if ifd == 0 || ifd.saturating_add(count_len) > len {
             if first {
                 return Err(trunc("TIFF first IFD (entry count)", ifd, count_len));
