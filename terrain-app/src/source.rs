@@ -19,15 +19,21 @@ pub(crate) struct SourceArgs {
     /// No-data value, for files without a no-data tag (or to override it).
     #[arg(long, allow_hyphen_values = true)]
     pub nodata: Option<f64>,
-    /// Grey images and raw files: metres per raw unit.
+    /// Metres per raw unit: for grey images and raw files, which have no vertical unit; for
+    /// GeoTIFF (after its own scale/offset) and .hgt, a conversion of the file's vertical unit
+    /// (e.g. 0.3048 for heights in feet), reported when used.
     #[arg(long, default_value_t = 1.0)]
     pub vertical_scale: f64,
-    /// Grey images and raw files: metres added after scaling.
+    /// Metres added after scaling (see --vertical-scale).
     #[arg(long, default_value_t = 0.0, allow_hyphen_values = true)]
     pub vertical_offset: f64,
-    /// Horizontal spacing in metres, for files without georeference (images, raw).
-    #[arg(long, default_value_t = 1.0)]
-    pub spacing: f64,
+    /// Horizontal spacing in metres (default 1), for files without georeference (images, raw,
+    /// GeoTIFF without one); refused for georeferenced files, whose own spacing is used.
+    #[arg(long)]
+    pub spacing: Option<f64>,
+    /// The band of a multi-band GeoTIFF read as heights, from 1 (GDAL's numbering).
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u16).range(1..))]
+    pub band: u16,
     /// Raw files: WIDTHxHEIGHT:TYPE with TYPE one of i16, u16, f32 (little-endian, north row first).
     #[arg(long)]
     pub raw: Option<String>,
@@ -72,11 +78,12 @@ impl SourceArgs {
         if matches!(format, Some(Format::Raw)) && raw.is_none() {
             bail!("--format raw needs --raw WIDTHxHEIGHT:TYPE");
         }
-        if !(self.spacing.is_finite() && (MIN_SPACING_M..=MAX_SPACING_M).contains(&self.spacing)) {
+        let spacing = self.spacing.unwrap_or(1.0);
+        if !(spacing.is_finite() && (MIN_SPACING_M..=MAX_SPACING_M).contains(&spacing)) {
             bail!(
                 "--spacing must be between {MIN_SPACING_M} and {MAX_SPACING_M} metres between \
                  samples, got {}",
-                plain(self.spacing)
+                plain(spacing)
             );
         }
         if !self.vertical_scale.is_finite() || self.vertical_scale == 0.0 {
@@ -87,7 +94,9 @@ impl SourceArgs {
             nodata: self.nodata,
             vertical_scale: self.vertical_scale,
             vertical_offset: self.vertical_offset,
-            spacing_m: self.spacing,
+            spacing_m: spacing,
+            spacing_given: self.spacing.is_some(),
+            band: self.band,
             raw,
             max_memory_bytes: self.max_memory,
             ..LoadOptions::default()
@@ -252,6 +261,22 @@ mod tests {
         assert_eq!(default.max_memory_bytes, dem::DEFAULT_MAX_MEMORY_BYTES);
         let cli = Cli::try_parse_from(["t", "--max-memory", "64MiB"]).unwrap();
         assert_eq!(cli.source.load_options().unwrap().max_memory_bytes, 64 << 20);
+    }
+
+    #[test]
+    fn band_and_spacing_reach_the_load_options() {
+        use clap::Parser;
+        #[derive(Parser)]
+        struct Cli {
+            #[command(flatten)]
+            source: SourceArgs,
+        }
+        let default = Cli::try_parse_from(["t"]).unwrap().source.load_options().unwrap();
+        assert_eq!((default.band, default.spacing_given, default.spacing_m), (1, false, 1.0));
+        let cli = Cli::try_parse_from(["t", "--band", "3", "--spacing", "30"]).unwrap();
+        let o = cli.source.load_options().unwrap();
+        assert_eq!((o.band, o.spacing_given, o.spacing_m), (3, true, 30.0));
+        assert!(Cli::try_parse_from(["t", "--band", "0"]).is_err(), "bands count from 1");
     }
 
     #[test]

@@ -190,3 +190,73 @@ fn max_memory_refuses_huge_declared_sizes() {
     assert!(String::from_utf8_lossy(&out.stderr).contains("GiB"));
     std::fs::remove_dir_all(&dir).ok();
 }
+
+/// A variant of the GeoTIFF corpus (terrain-core/tests/data/geotiff) and GDAL's values of it.
+fn corpus(name: &str) -> (String, serde_json::Value) {
+    let dir =
+        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../terrain-core/tests/data/geotiff");
+    let all: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.join("gdal_values.json")).unwrap())
+            .unwrap();
+    let g = all["variants"].as_array().unwrap().iter().find(|v| v["file"] == name).unwrap().clone();
+    (dir.join(name).to_str().unwrap().to_string(), g)
+}
+
+#[test]
+fn band_reads_one_band_of_a_multi_band_geotiff() {
+    let (path, g) = corpus("bands3_pixel.tif");
+    for band in ["1", "2", "3"] {
+        let j = info_json(&[&path, "--band", band]);
+        let want = &g["per_band"][band.parse::<usize>().unwrap() - 1];
+        assert_eq!(j["max_m"].as_f64(), want["max"].as_f64(), "band {band}");
+        assert_eq!(j["min_m"].as_f64(), want["min"].as_f64(), "band {band}");
+    }
+    // Band 1 by default, and said.
+    let out = terrain(&["info", &path]);
+    assert!(out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("3 bands, band 1") && err.contains("--band"), "{err}");
+    // A band the file lacks: refused before any work, by every command that reads a DEM.
+    let store = std::env::temp_dir().join(format!("terrain-cli-band-{}", std::process::id()));
+    for cmd in [
+        vec!["info", &path, "--band", "4"],
+        vec!["bake", &path, "--band", "4", "-o", store.to_str().unwrap()],
+        vec!["mesh", &path, "--band", "4", "--max-error", "1", "--stats"],
+    ] {
+        let out = terrain(&cmd);
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(!out.status.success(), "{cmd:?}");
+        assert!(err.contains("band 4") && err.contains("3 bands"), "{cmd:?}: {err}");
+    }
+    assert!(!store.exists());
+    for cmd in ["bake", "render", "fly", "bench", "mesh", "info"] {
+        let out = terrain(&[cmd, "--help"]);
+        assert!(String::from_utf8_lossy(&out.stdout).contains("--band"), "{cmd} --help");
+    }
+}
+
+#[test]
+fn vertical_scale_and_spacing_on_georeferenced_files() {
+    let (path, g) = corpus("wiz_int16.tif");
+    // Beyond f32: refused, not turned into voids and filled.
+    let out = terrain(&["info", &path, "--vertical-scale", "1e36"]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success());
+    assert!(err.contains("wiz_int16.tif") && err.contains("--vertical-scale"), "{err}");
+    // A unit conversion: applied, and said.
+    let out = terrain(&["info", "--json", &path, "--vertical-scale", "0.3048"]);
+    assert!(out.status.success());
+    let j: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let want = (g["max"].as_f64().unwrap() * 0.3048) as f32;
+    // JSON holds the f32 in its shortest form.
+    assert_eq!(j["max_m"].as_f64().map(|v| v as f32), Some(want));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("x 0.3048"));
+    // --spacing: refused for a GeoTIFF with a georeference and for .hgt.
+    let hgt = data("srtm/N52E008.hgt");
+    for file in [path.as_str(), hgt.to_str().unwrap()] {
+        let out = terrain(&["info", file, "--spacing", "30"]);
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(!out.status.success(), "{file}");
+        assert!(err.contains("--spacing") && err.contains("georeference"), "{err}");
+    }
+}

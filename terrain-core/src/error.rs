@@ -63,6 +63,21 @@ pub enum DemErrorKind {
         /// What is not supported.
         message: String,
     },
+    /// The vertical scale and offset take a valid sample out of f32's range.
+    #[error(
+        "the vertical scale {scale:e} and offset {offset} take the sample {raw} to {metres:e} m, \
+         beyond the range of heights (f32, about ±3.4e38 m): give a smaller --vertical-scale"
+    )]
+    VerticalRange {
+        /// The sample as stored.
+        raw: f64,
+        /// The scale in force (the file's times the options').
+        scale: f64,
+        /// The offset in force.
+        offset: f64,
+        /// What it became.
+        metres: f64,
+    },
     /// The declared size is beyond the limit; nothing of that size was allocated.
     #[error(
         "declared size {width} x {height} samples exceeds the limit of {limit} samples (the largest grid read)"

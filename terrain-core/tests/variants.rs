@@ -393,3 +393,267 @@ fn unsupported_crs_kinds_are_refused_saying_what_is_not_read() {
     assert!(e.contains("EPSG:9999") && e.contains("linear unit"), "{e}");
     let _ = std::fs::remove_dir_all(&tmp);
 }
+
+/// The row reader (bakes) reads `name` as the whole-file reader does: same voids, same heights.
+fn assert_rows_like_load(name: &str, options: &LoadOptions) {
+    let path = dir().join(name);
+    let whole = load(&path, options).unwrap_or_else(|e| panic!("{name}: {e}"));
+    let r = RowReader::open(&path, options).unwrap_or_else(|e| panic!("{name} by rows: {e}"));
+    let (w, h) = (r.width() as usize, r.height() as usize);
+    assert_eq!((w, h), (whole.heightmap.width(), whole.heightmap.height()), "{name}");
+    assert_eq!(r.source().sample_type, whole.source.sample_type, "{name}");
+    let mut rows = vec![0f32; w * h];
+    let mut voids = vec![false; w * h];
+    r.read_rows(0, h, &mut rows, &mut voids).unwrap();
+    for j in 0..h {
+        for i in 0..w {
+            let void = whole.heightmap.voids().get(i, j);
+            assert_eq!(voids[j * w + i], void, "{name} ({i}, {j}): void");
+            if !void {
+                assert_eq!(rows[j * w + i], whole.heightmap.get(i, j), "{name} ({i}, {j})");
+            }
+        }
+    }
+}
+
+/// Loads `name` and compares it with GDAL's values, whole and by rows.
+fn assert_reads_like_gdal(name: &str) {
+    let dem =
+        load(dir().join(name), &LoadOptions::default()).unwrap_or_else(|e| panic!("{name}: {e}"));
+    assert_samples_like_gdal(name, &dem.heightmap);
+    assert_rows_like_load(name, &LoadOptions::default());
+}
+
+#[test]
+fn sparse_blocks_read_as_no_data_or_zero_like_gdal() {
+    // Tiles of a Deflate file with a nodata value (voids), strips of a file without one (0 m).
+    for name in ["sparse_tiled_deflate.tif", "sparse_strips_nonodata.tif"] {
+        assert_reads_like_gdal(name);
+    }
+    let dem = load(dir().join("sparse_strips_nonodata.tif"), &LoadOptions::default()).unwrap();
+    let south_row_zeros = (0..dem.heightmap.width()).all(|i| dem.heightmap.get(i, 0) == 0.0);
+    assert!(south_row_zeros, "the unwritten southern strips read as 0 m");
+}
+
+#[test]
+fn one_to_seven_bit_samples_read_like_gdal() {
+    for name in ["nbits1.tif", "nbits3_tiled_deflate.tif", "nbits7_lzw.tif"] {
+        assert_reads_like_gdal(name);
+        let g = gdal(name);
+        let dem = load(dir().join(name), &LoadOptions::default()).unwrap();
+        assert_eq!(
+            dem.source.sample_type,
+            format!("uint{}", g["nbits"].as_str().unwrap()),
+            "{name}: sample type"
+        );
+    }
+}
+
+#[test]
+fn zstd_with_predictors_1_2_3_reads_like_gdal() {
+    for name in
+        ["zstd_p1.tif", "zstd_p2_tiled.tif", "zstd_p2_be.tif", "zstd_p3_f32.tif", "zstd_p3_f64.tif"]
+    {
+        assert_eq!(gdal(name)["compression"], "ZSTD", "{name}");
+        assert_reads_like_gdal(name);
+    }
+}
+
+#[test]
+fn damaged_zstd_chunks_are_refused_naming_the_file() {
+    let name = "zstd_p2_tiled.tif";
+    let bytes = std::fs::read(dir().join(name)).unwrap();
+    let good = load(dir().join(name), &LoadOptions::default()).unwrap();
+    let tmp = temp_dir();
+    let p = tmp.join("zstd_cut.tif");
+    // Zero the last 200 bytes (tile data; the IFD comes first in GDAL's files).
+    let mut b = bytes.clone();
+    let n = b.len();
+    b[n - 200..].fill(0);
+    std::fs::write(&p, &b).unwrap();
+    match load(&p, &LoadOptions::default()) {
+        Err(e) => {
+            let msg = e.to_string();
+            assert!(msg.contains("zstd_cut.tif") && msg.contains("ZSTD"), "{msg}");
+        }
+        Ok(d) => assert_ne!(d.heightmap.data(), good.heightmap.data(), "damage unnoticed"),
+    }
+    let _ = std::fs::remove_dir_all(&tmp);
+}
+
+#[test]
+fn unsupported_compressions_are_refused_by_name() {
+    for (name, said) in [
+        ("lerc.tif", "LERC (34887)"),
+        ("lzma.tif", "LZMA (34925)"),
+        ("webp_rgb.tif", "WebP (50001)"),
+    ] {
+        let gdal_name = gdal(name)["compression"].as_str().unwrap().to_string();
+        assert!(said.to_ascii_uppercase().starts_with(&gdal_name), "{name}: GDAL says {gdal_name}");
+        for e in [
+            load(dir().join(name), &LoadOptions::default()).map(|_| ()).unwrap_err(),
+            RowReader::open(dir().join(name), &LoadOptions::default()).map(|_| ()).unwrap_err(),
+        ] {
+            let msg = e.to_string();
+            assert!(
+                msg.contains(name) && msg.contains(said) && msg.contains("not supported"),
+                "{msg}"
+            );
+            assert!(!msg.contains("Unknown("), "{msg}");
+        }
+    }
+}
+
+/// Per-band GDAL values of a multi-band variant: (voids, min, max, sum).
+fn band_stats(name: &str, band: usize) -> (u64, f64, f64, f64) {
+    let b = &gdal(name)["per_band"][band - 1];
+    (b["voids"].as_u64().unwrap(), f(&b["min"]), f(&b["max"]), f(&b["sum"]))
+}
+
+#[test]
+fn multi_band_files_read_band_1_or_the_band_asked_for() {
+    for name in ["bands3_pixel.tif", "bands2_band.tif"] {
+        let bands = gdal(name)["bands"].as_u64().unwrap() as u16;
+        assert!(bands > 1, "{name}");
+        for band in 1..=bands {
+            let options = LoadOptions { band, ..LoadOptions::default() };
+            let dem = load(dir().join(name), &options).unwrap_or_else(|e| panic!("{name}: {e}"));
+            let (voids, lo, hi, sum) = stats(&dem.heightmap);
+            assert_eq!(
+                (voids as u64, lo, hi, sum),
+                band_stats(name, band as usize),
+                "{name} band {band}"
+            );
+            let said: Vec<_> = dem
+                .warnings
+                .iter()
+                .filter(|w| matches!(w, LoadWarning::Bands { .. }))
+                .map(|w| w.to_string())
+                .collect();
+            assert_eq!(said.len(), 1, "{name}: {:?}", dem.warnings);
+            assert!(said[0].contains(&format!("{bands} bands, band {band}")), "{}", said[0]);
+            assert_rows_like_load(name, &options);
+        }
+        // Band 1 is the default.
+        let dem = load(dir().join(name), &LoadOptions::default()).unwrap();
+        assert_samples_like_gdal(name, &dem.heightmap);
+        // A band the file does not have is refused, saying how many it has.
+        let options = LoadOptions { band: bands + 1, ..LoadOptions::default() };
+        for e in [
+            load(dir().join(name), &options).map(|_| ()).unwrap_err(),
+            RowReader::open(dir().join(name), &options).map(|_| ()).unwrap_err(),
+        ] {
+            let msg = e.to_string();
+            assert!(
+                msg.contains(&format!("band {}", bands + 1))
+                    && msg.contains(&format!("{bands} bands")),
+                "{msg}"
+            );
+        }
+    }
+    // A single-band file has no band 2, and says nothing about bands.
+    let options = LoadOptions { band: 2, ..LoadOptions::default() };
+    let e = load(dir().join("wiz_int16.tif"), &options).map(|_| ()).unwrap_err().to_string();
+    assert!(e.contains("band 2") && e.contains("1 band"), "{e}");
+}
+
+#[test]
+fn gdal_band_scale_and_offset_are_applied() {
+    let name = "scaled.tif";
+    let g = gdal(name);
+    let (scale, offset) = (f(&g["scale"]), f(&g["offset"]));
+    assert_ne!((scale, offset), (1.0, 0.0), "the variant has a scale and an offset");
+    let dem = load(dir().join(name), &LoadOptions::default()).unwrap();
+    let (voids, lo, hi, sum) = stats(&dem.heightmap);
+    let valid = (g["size"][0].as_u64().unwrap() * g["size"][1].as_u64().unwrap()
+        - g["voids"].as_u64().unwrap()) as f64;
+    assert_eq!(voids as u64, g["voids"].as_u64().unwrap(), "voids: nodata is a raw value");
+    assert_eq!(lo, f(&g["min"]) * scale + offset);
+    assert_eq!(hi, f(&g["max"]) * scale + offset);
+    assert_eq!(sum, f(&g["sum"]) * scale + offset * valid);
+    assert_rows_like_load(name, &LoadOptions::default());
+    // The options' vertical scale converts on top: feet to metres.
+    let feet = LoadOptions { vertical_scale: 0.3048, ..LoadOptions::default() };
+    let dem = load(dir().join(name), &feet).unwrap();
+    assert_eq!(
+        f64::from(dem.heightmap.max()),
+        f64::from(((f(&g["max"]) * scale + offset) * 0.3048) as f32)
+    );
+}
+
+#[test]
+fn internal_masks_make_voids_like_gdal() {
+    let name = "mask_internal.tif";
+    let g = gdal(name);
+    assert!(g["nodata"].is_null(), "no nodata value: the voids come from the mask");
+    assert_eq!(g["mask_flags"].as_u64(), Some(2), "GDAL's per-dataset mask");
+    assert_reads_like_gdal(name);
+}
+
+#[test]
+fn vertical_scale_beyond_f32_is_refused_and_applied_otherwise() {
+    // The crop's heights are 989..1971 m: x 1e35 fits f32 (1.97e38), x 1e36 does not (the
+    // issue's 1e35 on the whole Rainier tile, 4,392 m, does not either).
+    for name in ["wiz_int16.tif", "zstd_p3_f32.tif"] {
+        let path = dir().join(name);
+        let huge = LoadOptions { vertical_scale: 1e36, ..LoadOptions::default() };
+        for e in [load(&path, &huge).map(|_| ()).unwrap_err(), {
+            let r = RowReader::open(&path, &huge);
+            r.and_then(|r| {
+                let (w, h) = (r.width() as usize, r.height() as usize);
+                r.read_rows(0, h, &mut vec![0f32; w * h], &mut vec![false; w * h])
+            })
+            .unwrap_err()
+        }] {
+            let msg = e.to_string();
+            assert!(msg.contains(name) && msg.contains("vertical scale 1e36"), "{msg}");
+        }
+        // Feet: applied, and said.
+        let feet = LoadOptions { vertical_scale: 0.3048, ..LoadOptions::default() };
+        let dem = load(&path, &feet).unwrap();
+        assert_eq!(
+            f64::from(dem.heightmap.max()),
+            f64::from((f(&gdal(name)["max"]) * 0.3048) as f32)
+        );
+        assert!(
+            dem.warnings
+                .iter()
+                .any(|w| matches!(w, LoadWarning::Rescaled { scale, .. } if *scale == 0.3048)),
+            "{:?}",
+            dem.warnings
+        );
+        assert_rows_like_load(name, &feet);
+    }
+    // Grey images too: 255 x 1e37 is beyond f32.
+    let huge = LoadOptions { vertical_scale: 1e37, ..LoadOptions::default() };
+    let e = load(dir().join("grey.jpg"), &huge).map(|_| ()).unwrap_err().to_string();
+    assert!(e.contains("grey.jpg") && e.contains("vertical scale"), "{e}");
+}
+
+#[test]
+fn spacing_is_refused_for_georeferenced_files() {
+    let given = LoadOptions { spacing_m: 30.0, spacing_given: true, ..LoadOptions::default() };
+    for path in [dir().join("wiz_int16.tif"), data("srtm/N52E008.hgt")] {
+        let e = load(&path, &given).map(|_| ()).unwrap_err().to_string();
+        assert!(e.contains("--spacing") && e.contains("georeference"), "{e}");
+        // Not given: read.
+        assert!(load(&path, &LoadOptions { spacing_m: 30.0, ..LoadOptions::default() }).is_ok());
+    }
+    let e = RowReader::open(dir().join("wiz_int16.tif"), &given).map(|_| ()).unwrap_err();
+    assert!(e.to_string().contains("--spacing"), "{e}");
+    // A grey image has no georeference: the spacing is used.
+    let dem = load(dir().join("grey.jpg"), &given).unwrap();
+    assert_eq!(dem.heightmap.georef().spacing_m.x, 30.0);
+}
+
+#[test]
+fn a_first_ifd_offset_of_zero_is_refused_as_such() {
+    let mut bytes = std::fs::read(dir().join("wiz_int16.tif")).unwrap();
+    bytes[4..8].fill(0);
+    let tmp = temp_dir();
+    let p = tmp.join("no_ifd.tif");
+    std::fs::write(&p, &bytes).unwrap();
+    let e = load(&p, &LoadOptions::default()).map(|_| ()).unwrap_err().to_string();
+    assert!(e.contains("no_ifd.tif") && e.contains("first IFD offset is 0"), "{e}");
+    let _ = std::fs::remove_dir_all(&tmp);
+}

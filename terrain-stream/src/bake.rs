@@ -77,7 +77,11 @@ impl HeightEncoding {
                 Some(RawSampleType::I16 | RawSampleType::U16) => scaled(),
                 _ => HeightEncoding::default(),
             },
-            _ if integer => HeightEncoding::Quantized { step_m: 1.0, offset_m: 0.0 },
+            // Integer GeoTIFF and .hgt samples, through their scale and offset (GDAL's band
+            // scale/offset, a --vertical-scale): on that lattice.
+            _ if integer && info.vertical.0.is_finite() && info.vertical.1.is_finite() => {
+                HeightEncoding::Quantized { step_m: info.vertical.0, offset_m: info.vertical.1 }
+            }
             _ => HeightEncoding::default(),
         }
     }

@@ -1,6 +1,8 @@
-//! GeoTIFF: single-band int8/uint8/int16/uint16/int32/uint32/float32/float64 grids, in strips
-//! or tiles, uncompressed, Deflate or LZW (decoded by the `tiff` crate), with their
-//! georeference.
+//! GeoTIFF: 1- to 8-bit, int16/uint16/int32/uint32/float32/float64 grids, in strips or tiles,
+//! uncompressed, Deflate, LZW, PackBits, JPEG (decoded by the `tiff` crate) or ZSTD, one band
+//! of one or several, with their georeference. Chunks are decoded one at a time by
+//! [`super::geotiff_chunks`] (sparse blocks, bit-packed samples, ZSTD and its predictors, the
+//! band, GDAL's internal mask, scale and offset: see there).
 //!
 //! Georeference tags (GeoTIFF 1.0 spec, OGC 19-008r4):
 //! * `ModelPixelScaleTag` (33550): `(ScaleX, ScaleY, ScaleZ)`; y spacing is positive and rows
@@ -50,6 +52,7 @@ use tiff::decoder::{ChunkType, Decoder, DecodingResult, Limits};
 use tiff::tags::Tag;
 use tiff::{ColorType, TiffError};
 
+use crate::dem::geotiff_chunks::{self, Layout};
 use crate::dem::{LoadOptions, RawGrid, check_size};
 use crate::error::{DemError, DemErrorKind};
 use crate::georef::{Crs, Georef};
@@ -60,6 +63,8 @@ const FORMAT: &str = "GeoTIFF";
 const MODEL_TRANSFORMATION_TAG: u16 = 34264;
 const GEO_DOUBLE_PARAMS_TAG: u16 = 34736;
 const GEO_ASCII_PARAMS_TAG: u16 = 34737;
+/// `GDAL_METADATA` (42112): XML, with the bands' scale and offset.
+const GDAL_METADATA_TAG: u16 = 42112;
 /// `PhotometricInterpretation` (262) and its WhiteIsZero / BlackIsZero values.
 const PHOTOMETRIC_TAG: u16 = 262;
 const WHITE_IS_ZERO: u16 = 0;
@@ -150,14 +155,27 @@ impl Seek for Patched {
 /// What the decoder reads: the file through [`Patched`], buffered.
 pub(crate) type Source = BufReader<Patched>;
 
+/// `NewSubfileType` (254): bit 0 reduced resolution, bit 2 transparency mask.
+const NEW_SUBFILE_TYPE_TAG: u16 = 254;
+/// `PhotometricInterpretation` 4: transparency mask (TIFF 6.0 section 8).
+const TRANSPARENCY_MASK: u16 = 4;
+/// IFDs looked through for an internal mask (GDAL writes it right after its image).
+const MAX_IFDS_WALKED: usize = 64;
+
+/// What [`precheck_header`] found: the overlay for the decoder and the internal mask's IFD.
+struct Precheck {
+    patches: Vec<(u64, Vec<u8>)>,
+    mask_ifd: Option<usize>,
+}
+
 /// Checks the TIFF header and the first IFD lie inside the file, so a truncated file gets a
 /// precise [`DemErrorKind::Truncated`] rather than a generic end-of-file error. Returns the
-/// overlay that shows a WhiteIsZero first image as BlackIsZero (empty otherwise).
-fn precheck_header(
-    path: &Path,
-    file: &mut File,
-    len: u64,
-) -> Result<Vec<(u64, Vec<u8>)>, DemError> {
+/// overlay that shows a WhiteIsZero first image as BlackIsZero (and GDAL's 1-bit internal
+/// mask, `PhotometricInterpretation` 4, as 1-bit BlackIsZero, which the decoder reads), and
+/// the IFD index of that full-resolution mask, found by walking the IFD chain (at most
+/// [`MAX_IFDS_WALKED`] IFDs inside the file; a broken chain after the first IFD only ends the
+/// search).
+fn precheck_header(path: &Path, file: &mut File, len: u64) -> Result<Precheck, DemError> {
     let trunc = |what, offset: u64, expected: u64| {
         DemError::new(
             path,
@@ -171,57 +189,96 @@ fn precheck_header(
     let u16_at = |b: &[u8]| {
         if le { u16::from_le_bytes([b[0], b[1]]) } else { u16::from_be_bytes([b[0], b[1]]) }
     };
+    let u32_at = |b: &[u8]| {
+        let b: [u8; 4] = b[..4].try_into().unwrap_or([0; 4]);
+        if le { u32::from_le_bytes(b) } else { u32::from_be_bytes(b) }
+    };
+    let u64_at = |b: &[u8]| {
+        let b: [u8; 8] = b[..8].try_into().unwrap_or([0; 8]);
+        if le { u64::from_le_bytes(b) } else { u64::from_be_bytes(b) }
+    };
     let big = n >= 4 && u16_at(&head[2..4]) == 43;
     let header_len = if big { 16 } else { 8 };
     if (n as u64) < header_len {
         return Err(trunc("TIFF header", 0, header_len));
     }
-    let ifd = if big {
-        let b: [u8; 8] = head[8..16].try_into().unwrap_or([0; 8]);
-        if le { u64::from_le_bytes(b) } else { u64::from_be_bytes(b) }
-    } else {
-        let b: [u8; 4] = head[4..8].try_into().unwrap_or([0; 4]);
-        (if le { u32::from_le_bytes(b) } else { u32::from_be_bytes(b) }) as u64
-    };
+    let mut ifd = if big { u64_at(&head[8..16]) } else { u64::from(u32_at(&head[4..8])) };
     let count_len = if big { 8 } else { 2 };
-    if ifd.saturating_add(count_len) > len {
-        return Err(trunc("TIFF first IFD (entry count)", ifd, count_len));
-    }
-    file.seek(SeekFrom::Start(ifd)).map_err(io)?;
-    let mut c = [0u8; 8];
-    file.read_exact(&mut c[..count_len as usize]).map_err(io)?;
-    let entries = if big {
-        if le { u64::from_le_bytes(c) } else { u64::from_be_bytes(c) }
-    } else {
-        u16_at(&c[..2]) as u64
-    };
-    let entry_len = if big { 20 } else { 12 };
-    // Classic TIFF counts entries in a u16; a BigTIFF IFD with more than that is not a DEM's
-    // (and reading it whole below must stay small).
-    if entries > u64::from(u16::MAX) {
-        return Err(malformed(path, format!("the first IFD declares {entries} entries")));
-    }
-    let ifd_len = count_len + entries.saturating_mul(entry_len);
-    if ifd.saturating_add(ifd_len) > len {
-        return Err(trunc("TIFF first IFD (entries)", ifd, ifd_len));
-    }
-    // The IFD lies inside the file (checked above), so reading it whole is bounded by the file.
-    let mut table = vec![0u8; (ifd_len - count_len) as usize];
-    file.read_exact(&mut table).map_err(io)?;
+    let entry_len: u64 = if big { 20 } else { 12 };
+    let value_at = if big { 12 } else { 8 };
     let mut patches = Vec::new();
-    for (k, e) in table.chunks_exact(entry_len as usize).enumerate() {
-        // Entry: tag u16, type u16 (3 = SHORT), count, then the value inline (4 or 8 bytes).
-        let (tag, typ) = (u16_at(&e[0..2]), u16_at(&e[2..4]));
-        let value_at = if big { 12 } else { 8 };
-        if tag == PHOTOMETRIC_TAG && typ == 3 && u16_at(&e[value_at..value_at + 2]) == WHITE_IS_ZERO
-        {
-            let at = ifd + count_len + k as u64 * entry_len + value_at as u64;
-            let v = if le { BLACK_IS_ZERO.to_le_bytes() } else { BLACK_IS_ZERO.to_be_bytes() };
-            patches.push((at, v.to_vec()));
+    let mut mask_ifd = None;
+    for index in 0..MAX_IFDS_WALKED {
+        let first = index == 0;
+        if first && ifd == 0 {
+            return Err(malformed(path, "the header's first IFD offset is 0 (no image)"));
         }
+        if ifd == 0 || ifd.saturating_add(count_len) > len {
+            if first {
+                return Err(trunc("TIFF first IFD (entry count)", ifd, count_len));
+            }
+            break;
+        }
+        file.seek(SeekFrom::Start(ifd)).map_err(io)?;
+        let mut c = [0u8; 8];
+        file.read_exact(&mut c[..count_len as usize]).map_err(io)?;
+        let entries = if big { u64_at(&c) } else { u64::from(u16_at(&c[..2])) };
+        // Classic TIFF counts entries in a u16; a BigTIFF IFD with more than that is not a
+        // DEM's (and reading it whole below must stay small).
+        if entries > u64::from(u16::MAX) {
+            if first {
+                return Err(malformed(path, format!("the first IFD declares {entries} entries")));
+            }
+            break;
+        }
+        let next_len = if big { 8 } else { 4 };
+        let ifd_len = count_len + entries.saturating_mul(entry_len);
+        if ifd.saturating_add(ifd_len) > len {
+            if first {
+                return Err(trunc("TIFF first IFD (entries)", ifd, ifd_len));
+            }
+            break;
+        }
+        // The IFD lies inside the file (checked above): reading it whole is bounded by the file.
+        let mut table = vec![0u8; (ifd_len - count_len) as usize];
+        file.read_exact(&mut table).map_err(io)?;
+        let (mut subfile, mut photometric) = (0u32, None);
+        for (k, e) in table.chunks_exact(entry_len as usize).enumerate() {
+            // Entry: tag u16, type u16 (3 SHORT, 4 LONG), count, then the value inline.
+            let (tag, typ) = (u16_at(&e[0..2]), u16_at(&e[2..4]));
+            let at = ifd + count_len + k as u64 * entry_len + value_at as u64;
+            match (tag, typ) {
+                (PHOTOMETRIC_TAG, 3) => {
+                    photometric = Some((at, u16_at(&e[value_at..value_at + 2])));
+                }
+                (NEW_SUBFILE_TYPE_TAG, 3) => subfile = u32::from(u16_at(&e[value_at..])),
+                (NEW_SUBFILE_TYPE_TAG, 4) => subfile = u32_at(&e[value_at..]),
+                _ => {}
+            }
+        }
+        let short = |v: u16| if le { v.to_le_bytes() } else { v.to_be_bytes() }.to_vec();
+        match photometric {
+            Some((at, WHITE_IS_ZERO)) if first => patches.push((at, short(BLACK_IS_ZERO))),
+            Some((at, TRANSPARENCY_MASK))
+                if !first && mask_ifd.is_none() && subfile & 4 != 0 && subfile & 1 == 0 =>
+            {
+                patches.push((at, short(BLACK_IS_ZERO)));
+                mask_ifd = Some(index);
+            }
+            _ => {}
+        }
+        if mask_ifd.is_some() {
+            break;
+        }
+        let mut next = [0u8; 8];
+        if ifd.saturating_add(ifd_len + next_len) > len {
+            break;
+        }
+        file.read_exact(&mut next[..next_len as usize]).map_err(io)?;
+        ifd = if big { u64_at(&next) } else { u64::from(u32_at(&next)) };
     }
     file.seek(SeekFrom::Start(0)).map_err(io)?;
-    Ok(patches)
+    Ok(Precheck { patches, mask_ifd })
 }
 
 /// Inflates the zlib stream of one Deflate strip or tile to its end, discarding the output,
@@ -294,28 +351,27 @@ pub(crate) fn check_deflate_chunks(
     Ok(())
 }
 
-/// The chunks of a Deflate-compressed file, for [`check_deflate_chunks`].
-#[derive(Debug, Clone)]
-pub(crate) struct DeflateChunks {
-    /// "TIFF strip" or "TIFF tile".
-    pub what: &'static str,
-    /// `(offset, byte count)` per chunk.
-    pub chunks: Vec<(u64, u64)>,
-}
-
-/// Checks every strip/tile lies inside the file (a truncated file fails here, precisely).
-/// Returns the chunks when they are Deflate streams (compression 8 or 32946).
+/// Checks every strip/tile lies inside the file (a truncated file fails here, precisely) and
+/// that the data can hold the declared grid. Returns `(offset, byte count)` of every chunk.
+/// Sparse chunks (byte count 0, GDAL's `SPARSE_OK`) are allowed.
 fn check_chunks(
     path: &Path,
     dec: &mut Decoder<Source>,
     len: u64,
-) -> Result<Option<DeflateChunks>, DemError> {
+    compression: u16,
+) -> Result<Vec<(u64, u64)>, DemError> {
     let (off_tag, cnt_tag, what) = match dec.get_chunk_type() {
         ChunkType::Strip => (Tag::StripOffsets, Tag::StripByteCounts, "TIFF strip"),
         ChunkType::Tile => (Tag::TileOffsets, Tag::TileByteCounts, "TIFF tile"),
     };
     let offsets = dec.get_tag_u64_vec(off_tag).map_err(|e| map_tiff_error(path, len, e))?;
     let counts = dec.get_tag_u64_vec(cnt_tag).map_err(|e| map_tiff_error(path, len, e))?;
+    if offsets.len() != counts.len() {
+        return Err(malformed(
+            path,
+            format!("{} chunk offsets and {} byte counts", offsets.len(), counts.len()),
+        ));
+    }
     for (&o, &c) in offsets.iter().zip(&counts) {
         if o.saturating_add(c) > len {
             return Err(DemError::new(
@@ -329,10 +385,10 @@ fn check_chunks(
             ));
         }
     }
-    // The decoder allocates the whole image before reading chunks, so refuse files whose data
-    // cannot possibly hold the declared grid: uncompressed data must be at least w x h x bytes;
-    // compressed data cannot expand more than 4096:1 (LZW's 12-bit codes emit at most 4096
-    // bytes each; Deflate's limit is about 1032:1).
+    // Refuse files whose data cannot possibly hold the declared grid: uncompressed data must
+    // be at least w x h x bytes; compressed data cannot expand more than 4096:1 (LZW's 12-bit
+    // codes emit at most 4096 bytes each; Deflate's limit is about 1032:1). Sparse chunks hold
+    // nothing and are left out of both sides.
     let (w, h) = dec.dimensions().map_err(|e| map_tiff_error(path, len, e))?;
     let bits: u64 = dec
         .find_tag_unsigned_vec::<u64>(Tag::BitsPerSample)
@@ -340,8 +396,9 @@ fn check_chunks(
         .flatten()
         .and_then(|v| v.first().copied())
         .unwrap_or(1);
-    let compression: u64 = dec.find_tag_unsigned(Tag::Compression).ok().flatten().unwrap_or(1);
-    let needed = (w as u64).saturating_mul(h as u64).saturating_mul(bits) / 8;
+    let stored = counts.iter().filter(|&&c| c > 0).count() as u64;
+    let all = counts.len().max(1) as u64;
+    let needed = (w as u64).saturating_mul(h as u64).saturating_mul(bits) / 8 / all * stored;
     let total: u64 = counts.iter().fold(0u64, |a, &c| a.saturating_add(c));
     let capacity = if compression == 1 { total } else { total.saturating_mul(4096) };
     if needed > capacity {
@@ -355,10 +412,7 @@ fn check_chunks(
             },
         ));
     }
-    Ok(matches!(compression, 8 | 32946).then(|| DeflateChunks {
-        what,
-        chunks: offsets.iter().copied().zip(counts.iter().copied()).collect(),
-    }))
+    Ok(offsets.into_iter().zip(counts).collect())
 }
 
 /// Reads an optional tag as f64s, naming the tag on failure.
@@ -602,8 +656,12 @@ pub(crate) struct Opened {
     pub height: u32,
     pub georef: Georef,
     pub file_nodata: Option<f64>,
-    /// The strips or tiles when they are Deflate streams (checked before decoding).
-    pub deflate: Option<DeflateChunks>,
+    /// How the samples lie in the chunks, and the band read.
+    pub layout: Layout,
+    /// The sample type's name ("int16", "uint3"...).
+    pub sample_type: String,
+    /// Bands in the file.
+    pub bands: u16,
 }
 
 /// Opens a decoder on `path` with the decoding limits of `options` (a buffer of at most
@@ -613,8 +671,17 @@ pub(crate) fn decoder(
     len: u64,
     max_bytes: usize,
 ) -> Result<Decoder<Source>, DemError> {
+    Ok(decoder_and_mask(path, len, max_bytes)?.0)
+}
+
+/// [`decoder`], with the IFD index of the internal mask (if any).
+fn decoder_and_mask(
+    path: &Path,
+    len: u64,
+    max_bytes: usize,
+) -> Result<(Decoder<Source>, Option<usize>), DemError> {
     let mut file = File::open(path).map_err(|e| DemError::new(path, DemErrorKind::Io(e)))?;
-    let patches = precheck_header(path, &mut file, len)?;
+    let Precheck { patches, mask_ifd } = precheck_header(path, &mut file, len)?;
     let file = Patched { file, pos: 0, patches };
     let limits = {
         let mut l = Limits::default();
@@ -623,9 +690,10 @@ pub(crate) fn decoder(
         l.ifd_value_size = 64 << 20;
         l
     };
-    Ok(Decoder::new(BufReader::new(file))
+    let dec = Decoder::new(BufReader::new(file))
         .map_err(|e| map_tiff_error(path, len, e))?
-        .with_limits(limits))
+        .with_limits(limits);
+    Ok((dec, mask_ifd))
 }
 
 /// Maps a `tiff` error while decoding samples (for [`super::rows`]).
@@ -633,40 +701,75 @@ pub(crate) fn decode_error(path: &Path, len: u64, e: TiffError) -> DemError {
     map_tiff_error(path, len, e)
 }
 
-/// Reads a GeoTIFF of `len` bytes.
+/// Reads a GeoTIFF of `len` bytes: band [`LoadOptions::band`], chunk by chunk
+/// ([`geotiff_chunks::band_chunk`]), no-data, masked and sparse samples as NaN, the others in
+/// metres (GDAL's scale and offset, then `vertical_scale` and `vertical_offset`).
 pub(crate) fn read(path: &Path, len: u64, options: &LoadOptions) -> Result<RawGrid, DemError> {
-    // Decoding buffer: the whole image as f64 at most; checked against max_samples before any
-    // decode happens, so this limit is a second line of defence.
+    // Decoding buffer: one chunk as f64 at most; the image was checked against max_samples
+    // before any decode happens, so this limit is a second line of defence.
     let max_bytes = options.max_samples.saturating_mul(8).min(usize::MAX as u64) as usize;
-    let Opened { mut dec, width: w, height: h, georef, file_nodata, deflate } =
+    let Opened { mut dec, width: w, height: h, georef, file_nodata, layout, sample_type, bands } =
         open(path, len, options, max_bytes)?;
-    if let Some(d) = &deflate {
-        check_deflate_chunks(path, d.what, &d.chunks, 0..d.chunks.len())?;
+    let mut notes = Vec::new();
+    if bands > 1 {
+        let band = options.band;
+        notes.push(super::LoadWarning::Bands { path: path.to_path_buf(), band, bands });
     }
-    let result = dec.read_image().map_err(|e| map_tiff_error(path, len, e))?;
-    let (sample_type, values) = samples_to_f32(path, result)?;
     let (w, h) = (w as usize, h as usize);
-    let n = w * h;
-    if values.len() < n {
-        return Err(malformed(
-            path,
-            format!("decoded {} samples, the header declares {w} x {h}", values.len()),
-        ));
+    let nodata = options.nodata.or(file_nodata);
+    let vertical = Vertical::new(&layout, options);
+    let mut data = vec![0f32; w * h];
+    for index in 0..layout.per_plane() {
+        let values = geotiff_chunks::band_chunk(path, len, &mut dec, &layout, index)?;
+        let mask = geotiff_chunks::mask_chunk(path, len, &mut dec, &layout, index)?;
+        let (dw, dh) = layout.data_dims(index);
+        let (across, cw, ch) = (layout.across(), layout.chunk_w, layout.chunk_h);
+        let (x0, r0) = (((index % across) * cw) as usize, ((index / across) * ch) as usize);
+        for r in 0..dh {
+            // File rows are north first; ours are south first.
+            let j = h - 1 - (r0 + r);
+            for c in 0..dw {
+                let k = r * dw + c;
+                let valid = mask.as_ref().is_none_or(|m| m[k]);
+                data[j * w + x0 + c] = vertical.metres(path, values[k], nodata, valid)?;
+            }
+        }
     }
-    // File rows are north first; ours are south first.
-    let mut data = vec![0f32; n];
-    for (r, row) in values.chunks_exact(w).take(h).enumerate() {
-        let j = h - 1 - r;
-        data[j * w..(j + 1) * w].copy_from_slice(row);
+    let vertical = (vertical.scale, vertical.offset);
+    Ok(RawGrid { width: w, height: h, data, georef, nodata, sample_type, notes, vertical })
+}
+
+/// A GeoTIFF sample's way to metres: GDAL's band scale and offset, then the options'.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct Vertical {
+    pub scale: f64,
+    pub offset: f64,
+}
+
+impl Vertical {
+    pub(crate) fn new(layout: &Layout, options: &LoadOptions) -> Self {
+        let (s, o) = (options.vertical_scale, options.vertical_offset);
+        Self { scale: layout.scale * s, offset: layout.offset * s + o }
     }
-    Ok(RawGrid {
-        width: w,
-        height: h,
-        data,
-        georef,
-        nodata: options.nodata.or(file_nodata),
-        sample_type: sample_type.to_string(),
-    })
+
+    /// Sample `raw` in metres, NaN when it is void (no-data, NaN, masked); refused when the
+    /// scale takes it out of f32's range.
+    pub(crate) fn metres(
+        &self,
+        path: &Path,
+        raw: f32,
+        nodata: Option<f64>,
+        valid: bool,
+    ) -> Result<f32, DemError> {
+        let v = f64::from(raw);
+        let void = !valid
+            || !v.is_finite()
+            || nodata.is_some_and(|nd| v == nd || nd.is_nan() && v.is_nan());
+        if void {
+            return Ok(f32::NAN);
+        }
+        super::metres(path, v, self.scale, self.offset)
+    }
 }
 
 /// Decoded samples as f32, with the file's sample type name.
@@ -705,24 +808,123 @@ pub(crate) fn open(
     max_bytes: usize,
 ) -> Result<Opened, DemError> {
     let err = |kind| DemError::new(path, kind);
-    let mut dec = decoder(path, len, max_bytes)?;
+    let unsupported = |message: String| {
+        DemError::new(path, DemErrorKind::Unsupported { format: FORMAT, message })
+    };
+    let (mut dec, mask_ifd) = decoder_and_mask(path, len, max_bytes)?;
 
     let (w, h) = dec.dimensions().map_err(|e| map_tiff_error(path, len, e))?;
-    let bits = match dec.colortype().map_err(|e| map_tiff_error(path, len, e))? {
-        ColorType::Gray(bits) => u64::from(bits),
+    let compression: u16 = dec.find_tag_unsigned(Tag::Compression).ok().flatten().unwrap_or(1);
+    geotiff_chunks::check_compression(path, compression)?;
+    // Bits per sample and samples per pixel (bands): every band is a grid of heights to GDAL,
+    // whatever the photometric interpretation says.
+    let (bits, bands) = match dec.colortype().map_err(|e| map_tiff_error(path, len, e))? {
+        ColorType::Gray(b) => (b, 1),
+        ColorType::GrayA(b) => (b, 2),
+        ColorType::RGB(b) => (b, 3),
+        ColorType::RGBA(b) | ColorType::CMYK(b) => (b, 4),
+        ColorType::Multiband { bit_depth, num_samples } => (bit_depth, num_samples),
         other => {
-            return Err(err(DemErrorKind::Unsupported {
-                format: FORMAT,
-                message: format!(
-                    "only single-band elevation rasters are read, this one is {other:?}"
-                ),
-            }));
+            return Err(unsupported(format!(
+                "samples of colour type {other:?}: elevation rasters are read from grey or \
+                 multi-band files"
+            )));
         }
     };
+    if !(matches!(bits, 1..=8 | 16 | 32 | 64)) {
+        return Err(unsupported(format!(
+            "{bits}-bit samples (NBITS={bits}) are not supported (read: 1 to 8, 16, 32 or 64 \
+             bits); convert the file, e.g. gdal_translate -ot UInt16"
+        )));
+    }
+    let band = options.band;
+    if band == 0 || band > bands {
+        return Err(err(DemErrorKind::InvalidOptions(format!(
+            "band {band} was asked for (--band), the file has {bands} band{} (1..={bands})",
+            if bands == 1 { "" } else { "s" }
+        ))));
+    }
     // While decoding: the file's samples, then their conversion to f32 (the flip into the kept
     // grid is counted by check_size).
-    check_size(path, w as u64, h as u64, bits.div_ceil(8) + 4, options)?;
-    let deflate = check_chunks(path, &mut dec, len)?;
+    check_size(path, w as u64, h as u64, u64::from(bits).div_ceil(8) + 4, options)?;
+    let chunks = check_chunks(path, &mut dec, len, compression)?;
+    let (chunk_w, chunk_h) = dec.chunk_dimensions();
+    if chunk_w == 0 || chunk_h == 0 {
+        return Err(malformed(path, format!("chunk size {chunk_w} x {chunk_h}")));
+    }
+    let tag_u16 = |dec: &mut Decoder<Source>, tag: Tag, default: u16| {
+        dec.find_tag_unsigned_vec::<u16>(tag)
+            .ok()
+            .flatten()
+            .and_then(|v| v.first().copied())
+            .unwrap_or(default)
+    };
+    let sample_format = tag_u16(&mut dec, Tag::SampleFormat, 1);
+    let planar = tag_u16(&mut dec, Tag::PlanarConfiguration, 1);
+    let predictor = tag_u16(&mut dec, Tag::Predictor, 1);
+    let big_endian = matches!(dec.byte_order(), tiff::tags::ByteOrder::BigEndian);
+    let metadata = match dec.find_tag(Tag::Unknown(GDAL_METADATA_TAG)) {
+        Ok(Some(v)) => v.into_string().ok(),
+        _ => None,
+    };
+    let (band_scale, band_offset) = metadata
+        .as_deref()
+        .map_or((1.0, 0.0), |xml| geotiff_chunks::gdal_scale_offset(xml, band - 1));
+    let sample_type = match (sample_format, bits) {
+        (_, 1..=7) => format!("uint{bits}"),
+        (2, b) => format!("int{b}"),
+        (3, b) => format!("float{b}"),
+        (_, b) => format!("uint{b}"),
+    };
+    let mut layout = Layout {
+        width: w,
+        height: h,
+        chunk: dec.get_chunk_type(),
+        chunk_w,
+        chunk_h,
+        chunks,
+        compression,
+        bits: u16::from(bits),
+        sample_format,
+        samples: bands,
+        planar,
+        predictor,
+        big_endian,
+        band: band - 1,
+        sparse_fill: 0.0,
+        scale: band_scale,
+        offset: band_offset,
+        mask_ifd: None,
+        max_chunk_bytes: options.max_memory_bytes,
+    };
+    let needed = u64::from(layout.per_plane()) * if planar == 2 { u64::from(bands) } else { 1 };
+    if (layout.chunks.len() as u64) < needed {
+        return Err(malformed(
+            path,
+            format!(
+                "{} strip/tile offsets for {needed} chunks ({w} x {h} in {chunk_w} x {chunk_h}, \
+                 {bands} band(s))",
+                layout.chunks.len()
+            ),
+        ));
+    }
+    if let Some(ifd) = mask_ifd {
+        // GDAL writes the mask with the image's size and blocks; anything else is refused.
+        let e = |e| map_tiff_error(path, len, e);
+        dec.seek_to_image(ifd).map_err(e)?;
+        let same = dec.dimensions().map_err(e)? == (w, h)
+            && dec.chunk_dimensions() == (chunk_w, chunk_h)
+            && dec.get_chunk_type() == layout.chunk
+            && matches!(dec.colortype(), Ok(ColorType::Gray(1)));
+        dec.seek_to_image(0).map_err(e)?;
+        if !same {
+            return Err(unsupported(format!(
+                "an internal mask (IFD {ifd}) unlike GDAL's (not 1-bit, or its size or blocks \
+                 differ from the image's)"
+            )));
+        }
+        layout.mask_ifd = Some(ifd);
+    }
 
     // --- Georeference ---
     let scale = tag_f64s(path, &mut dec, Tag::ModelPixelScaleTag, "ModelPixelScaleTag (33550)")?;
@@ -841,5 +1043,14 @@ pub(crate) fn open(
         }
     };
 
-    Ok(Opened { dec, width: w, height: h, georef, file_nodata, deflate })
+    if affine.is_some() && options.spacing_given {
+        return Err(err(DemErrorKind::InvalidOptions(format!(
+            "--spacing is for files without a georeference; this GeoTIFF is placed by its own \
+             ({} x {} m per sample), which is used: leave --spacing out",
+            georef.spacing_m.x, georef.spacing_m.y
+        ))));
+    }
+    // A sparse block is no-data where the band has a no-data value (a void), 0 otherwise.
+    layout.sparse_fill = if file_nodata.is_some() { f32::NAN } else { 0.0 };
+    Ok(Opened { dec, width: w, height: h, georef, file_nodata, layout, sample_type, bands })
 }

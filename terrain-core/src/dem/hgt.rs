@@ -99,16 +99,6 @@ pub(crate) fn read(path: &Path, len: u64, options: &LoadOptions) -> Result<RawGr
             got: bytes.len() as u64,
         }));
     }
-    let side = side as usize;
-    let mut data = vec![0f32; side * side];
-    // File rows are north first; ours are south first.
-    for (r, row) in bytes.chunks_exact(side * 2).enumerate() {
-        let j = side - 1 - r;
-        let out = &mut data[j * side..(j + 1) * side];
-        for (o, s) in out.iter_mut().zip(row.chunks_exact(2)) {
-            *o = i16::from_be_bytes([s[0], s[1]]) as f32;
-        }
-    }
     let d = arcsec / 3600.0;
     let georef = Georef::geographic(
         Crs::Epsg(4326),
@@ -116,13 +106,30 @@ pub(crate) fn read(path: &Path, len: u64, options: &LoadOptions) -> Result<RawGr
         dvec2(d, d),
         lat as f64 + 0.5 * (side - 1) as f64 * d,
     );
+    super::refuse_spacing(path, options, "this .hgt tile", &georef)?;
+    let side = side as usize;
+    let mut data = vec![0f32; side * side];
+    let nodata = options.nodata.unwrap_or(HGT_NODATA);
+    let (scale, offset) = (options.vertical_scale, options.vertical_offset);
+    // File rows are north first; ours are south first. Voids stay NaN through the vertical
+    // scale (the options' conversion of the file's metres, if any).
+    for (r, row) in bytes.chunks_exact(side * 2).enumerate() {
+        let j = side - 1 - r;
+        let out = &mut data[j * side..(j + 1) * side];
+        for (o, s) in out.iter_mut().zip(row.chunks_exact(2)) {
+            let v = f64::from(i16::from_be_bytes([s[0], s[1]]));
+            *o = if v == nodata { f32::NAN } else { super::metres(path, v, scale, offset)? };
+        }
+    }
     Ok(RawGrid {
         width: side,
         height: side,
         data,
         georef,
-        nodata: Some(options.nodata.unwrap_or(HGT_NODATA)),
+        nodata: Some(nodata),
         sample_type: "int16".to_string(),
+        notes: Vec::new(),
+        vertical: (scale, offset),
     })
 }
 

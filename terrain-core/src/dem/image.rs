@@ -229,8 +229,17 @@ pub(crate) fn read(
     let (scale, offset) = (options.vertical_scale, options.vertical_offset);
     let nodata = options.nodata;
     // No-data applies to the raw value; voids become NaN so the void mask finds them.
+    // A sample the scale takes beyond f32's range: refused below, not read as a void.
+    let overflow = std::cell::Cell::new(None::<f64>);
     let grey = |raw: f64| -> f32 {
-        if nodata.is_some_and(|nd| raw == nd) { f32::NAN } else { (raw * scale + offset) as f32 }
+        if nodata.is_some_and(|nd| raw == nd) {
+            return f32::NAN;
+        }
+        let z = (raw * scale + offset) as f32;
+        if !z.is_finite() && overflow.get().is_none() {
+            overflow.set(Some(raw));
+        }
+        z
     };
 
     let sample_type = match format {
@@ -310,6 +319,9 @@ pub(crate) fn read(
         }
     };
 
+    if let Some(raw) = overflow.get() {
+        super::metres(path, raw, scale, offset)?;
+    }
     Ok(RawGrid {
         width: w,
         height: h,
@@ -317,5 +329,7 @@ pub(crate) fn read(
         georef: Georef::local(options.spacing_m),
         nodata,
         sample_type,
+        notes: Vec::new(),
+        vertical: if format == Format::GreyImage { (scale, offset) } else { (1.0, 0.0) },
     })
 }

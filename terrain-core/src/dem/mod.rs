@@ -12,6 +12,7 @@ use crate::georef::Georef;
 use crate::heightmap::Heightmap;
 
 pub mod geotiff;
+mod geotiff_chunks;
 pub mod hgt;
 pub mod image;
 pub mod mosaic;
@@ -26,7 +27,8 @@ pub use rows::RowReader;
 #[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
 #[non_exhaustive]
 pub enum Format {
-    /// GeoTIFF: int16, uint16, int32, float32, float64; strips or tiles; none, Deflate, LZW.
+    /// GeoTIFF: 1- to 8-bit, 16-, 32- and 64-bit integer and float samples; strips or tiles
+    /// (sparse too); none, Deflate, LZW, PackBits, JPEG, ZSTD; one band of several.
     GeoTiff,
     /// SRTM `.hgt`: big-endian int16, square, size from the file length, origin from the name.
     Hgt,
@@ -84,12 +86,22 @@ pub struct LoadOptions {
     pub format: Option<Format>,
     /// No-data value that overrides (or supplies) the file's own (GDAL_NODATA, -32768 in .hgt).
     pub nodata: Option<f64>,
-    /// For grey images and raw files: metres = raw * vertical_scale + vertical_offset. Default 1.
+    /// metres = raw * vertical_scale + vertical_offset. Default 1. Grey images and raw files
+    /// have no vertical unit of their own; for GeoTIFF (after GDAL's band scale and offset) and
+    /// .hgt it converts the file's vertical unit (feet, decimetres...) and is reported in
+    /// [`Dem::warnings`]. A scale that takes a valid sample beyond f32's range is refused
+    /// ([`DemErrorKind::VerticalRange`]).
     pub vertical_scale: f64,
     /// See `vertical_scale`. Default 0.
     pub vertical_offset: f64,
     /// Horizontal spacing in metres for files that carry no georeference (images, raw). Default 1.
     pub spacing_m: f64,
+    /// Whether the user gave `spacing_m`: a georeferenced file (a GeoTIFF with a georeference,
+    /// .hgt) then refuses to be read rather than silently keeping its own spacing. Default false.
+    pub spacing_given: bool,
+    /// The band read from a multi-band GeoTIFF, from 1 (GDAL's numbering). Default 1; a file
+    /// with several bands says which one was read in [`Dem::warnings`].
+    pub band: u16,
     /// Dimensions of a raw file.
     pub raw: Option<RawSpec>,
     /// Refuse grids with more samples than this before allocating anything. Default 2^32 (16 GiB of f32).
@@ -127,6 +139,8 @@ impl Default for LoadOptions {
             vertical_scale: 1.0,
             vertical_offset: 0.0,
             spacing_m: 1.0,
+            spacing_given: false,
+            band: 1,
             raw: None,
             max_samples: 1 << 32,
             max_memory_bytes: DEFAULT_MAX_MEMORY_BYTES,
@@ -145,6 +159,10 @@ pub struct SourceInfo {
     pub sample_type: String,
     /// The no-data value in force, if any.
     pub nodata: Option<f64>,
+    /// `(scale, offset)`: metres = stored value x scale + offset (a GeoTIFF's own band scale
+    /// and offset, then the options' vertical scale and offset); integer samples lie on this
+    /// lattice. `(1, 0)` for samples read as stored; NaN when the tiles of a mosaic differ.
+    pub vertical: (f64, f64),
 }
 
 /// A DEM as read: the heightmap plus where it came from.
@@ -199,6 +217,25 @@ pub enum LoadWarning {
         /// The grid's larger horizontal extent, metres.
         extent_m: f64,
     },
+    /// A multi-band file: one band was read (not a mistake, said so the user knows).
+    Bands {
+        /// The file.
+        path: PathBuf,
+        /// The band read, from 1.
+        band: u16,
+        /// Bands in the file.
+        bands: u16,
+    },
+    /// A georeferenced file (GeoTIFF, .hgt) read with a vertical scale or offset: heights are
+    /// the file's (with its own scale and offset) times `scale` plus `offset`.
+    Rescaled {
+        /// The file.
+        path: PathBuf,
+        /// The vertical scale given.
+        scale: f64,
+        /// The vertical offset given, metres.
+        offset: f64,
+    },
 }
 
 impl std::fmt::Display for LoadWarning {
@@ -222,8 +259,27 @@ impl std::fmt::Display for LoadWarning {
                  grey level) and --spacing (metres per sample)",
                 path.display()
             ),
+            LoadWarning::Bands { path, band, bands } => write!(
+                f,
+                "{}: the file has {bands} bands, band {band} is read as heights (--band N reads \
+                 another)",
+                path.display()
+            ),
+            LoadWarning::Rescaled { path, scale, offset } => write!(
+                f,
+                "{}: heights are the file's values x {scale} + {offset} m (--vertical-scale, \
+                 --vertical-offset), on top of its own vertical unit",
+                path.display()
+            ),
         }
     }
+}
+
+/// The note that a georeferenced format's heights were rescaled by the options.
+pub(crate) fn rescaled(path: &Path, format: Format, options: &LoadOptions) -> Option<LoadWarning> {
+    let (scale, offset) = (options.vertical_scale, options.vertical_offset);
+    (matches!(format, Format::GeoTiff | Format::Hgt) && (scale != 1.0 || offset != 0.0))
+        .then(|| LoadWarning::Rescaled { path: path.to_path_buf(), scale, offset })
 }
 
 /// Looks for what [`LoadWarning`] describes in a heightmap just read from `path`.
@@ -363,6 +419,43 @@ pub(crate) struct RawGrid {
     pub georef: Georef,
     pub nodata: Option<f64>,
     pub sample_type: String,
+    /// What the reader has to say (a band chosen among several).
+    pub notes: Vec<LoadWarning>,
+    /// See [`SourceInfo::vertical`].
+    pub vertical: (f64, f64),
+}
+
+/// `raw * scale + offset` as an f32 height; refused when a finite sample leaves f32's range
+/// (it would otherwise become an infinite height, then a void, then be filled).
+pub(crate) fn metres(path: &Path, raw: f64, scale: f64, offset: f64) -> Result<f32, DemError> {
+    let m = raw * scale + offset;
+    let z = m as f32;
+    if z.is_finite() {
+        Ok(z)
+    } else {
+        Err(DemError::new(path, DemErrorKind::VerticalRange { raw, scale, offset, metres: m }))
+    }
+}
+
+/// Refuses `spacing_m` given for a file placed by its own georeference (`what`, e.g. "this
+/// .hgt tile"), rather than keeping its spacing silently.
+pub(crate) fn refuse_spacing(
+    path: &Path,
+    options: &LoadOptions,
+    what: &str,
+    georef: &Georef,
+) -> Result<(), DemError> {
+    if !options.spacing_given {
+        return Ok(());
+    }
+    Err(DemError::new(
+        path,
+        DemErrorKind::InvalidOptions(format!(
+            "--spacing is for files without a georeference; {what} is placed by its own ({} x \
+             {} m per sample), which is used: leave --spacing out",
+            georef.spacing_m.x, georef.spacing_m.y
+        )),
+    ))
 }
 
 /// Refuses empty grids, grids over `LoadOptions::max_samples` and grids whose reading would
@@ -460,11 +553,14 @@ pub fn load(path: impl AsRef<Path>, options: &LoadOptions) -> Result<Dem, DemErr
     };
     let nodata = grid.nodata;
     let sample_type = grid.sample_type.clone();
+    let mut warnings = grid.notes.clone();
+    let vertical = grid.vertical;
     let heightmap = voids::build_heightmap(path, grid)?;
-    let warnings = inspect(path, format, options, &heightmap, nodata);
+    warnings.extend(rescaled(path, format, options));
+    warnings.extend(inspect(path, format, options, &heightmap, nodata));
     Ok(Dem {
         heightmap,
-        source: SourceInfo { path: path.to_path_buf(), format, sample_type, nodata },
+        source: SourceInfo { path: path.to_path_buf(), format, sample_type, nodata, vertical },
         warnings,
     })
 }

@@ -189,6 +189,11 @@ pub fn load_mosaic(paths: &[impl AsRef<Path>], options: &LoadOptions) -> Result<
     } else {
         tiles.iter().map(|t| t.source.sample_type.as_str()).collect::<Vec<_>>().join(" + ")
     };
+    let vertical = if tiles.iter().all(|t| t.source.vertical == s0.vertical) {
+        s0.vertical
+    } else {
+        (f64::NAN, f64::NAN)
+    };
     let grid = RawGrid {
         width: w,
         height: h,
@@ -196,6 +201,8 @@ pub fn load_mosaic(paths: &[impl AsRef<Path>], options: &LoadOptions) -> Result<
         georef,
         nodata: None,
         sample_type: sample_type.clone(),
+        notes: Vec::new(),
+        vertical,
     };
     let heightmap = voids::build_heightmap(first, grid)?;
     let warnings = tiles.iter().flat_map(|t| t.warnings.iter().cloned()).collect();
@@ -207,6 +214,7 @@ pub fn load_mosaic(paths: &[impl AsRef<Path>], options: &LoadOptions) -> Result<
             format: s0.format,
             sample_type,
             nodata: s0.nodata,
+            vertical,
         },
     })
 }

@@ -61,7 +61,7 @@ pub(crate) fn read(path: &Path, len: u64, options: &LoadOptions) -> Result<RawGr
             *o = if nodata.is_some_and(|nd| v == nd) || !v.is_finite() {
                 f32::NAN
             } else {
-                (v * scale + offset) as f32
+                super::metres(path, v, scale, offset)?
             };
         }
     }
@@ -72,5 +72,7 @@ pub(crate) fn read(path: &Path, len: u64, options: &LoadOptions) -> Result<RawGr
         georef: Georef::local(options.spacing_m),
         nodata,
         sample_type: name.to_string(),
+        notes: Vec::new(),
+        vertical: (scale, offset),
     })
 }

@@ -21,7 +21,9 @@ use std::sync::{Arc, Mutex};
 
 use tiff::decoder::{ChunkType, Decoder};
 
-use super::{Format, LoadOptions, RawSampleType, SourceInfo, detect_format, geotiff};
+use super::{
+    Format, LoadOptions, RawSampleType, SourceInfo, detect_format, geotiff, geotiff_chunks,
+};
 use crate::error::{DemError, DemErrorKind};
 use crate::georef::Georef;
 
@@ -39,10 +41,13 @@ enum Inner {
     },
     Tiff {
         decoders: Mutex<Vec<Decoder<geotiff::Source>>>,
-        /// Deflate chunks, checked (Adler-32, end of stream) before each is decoded.
-        deflate: Option<geotiff::DeflateChunks>,
-        /// Recently decoded chunks: a band's rows are read in several pieces (and once more
-        /// for the void mask), and each piece would otherwise decode the same strips or tiles.
+        /// How the samples lie in the chunks (Deflate chunks are checked, Adler-32 and end of
+        /// stream, before each is decoded), the band read, GDAL's scale and offset, the mask.
+        layout: Box<geotiff_chunks::Layout>,
+        vertical: geotiff::Vertical,
+        /// Recently decoded chunks, in metres, voids NaN: a band's rows are read in several
+        /// pieces (and once more for the void mask), and each piece would otherwise decode the
+        /// same strips or tiles.
         recent: Mutex<VecDeque<(u32, Arc<Vec<f32>>)>>,
         recent_cap: usize,
         chunk: ChunkType,
@@ -67,6 +72,9 @@ pub struct RowReader {
     zero_filled: AtomicU64,
     /// Lowest and highest valid height read so far (for [`RowReader::warnings`]).
     seen: Mutex<(f32, f32)>,
+    /// What was known when the file was opened (a band chosen among several, heights
+    /// rescaled by the options), for [`RowReader::warnings`].
+    notes: Vec<super::LoadWarning>,
 }
 
 impl std::fmt::Debug for RowReader {
@@ -111,15 +119,24 @@ impl RowReader {
                 // One chunk (strip or tile) at a time, as f64 at most, within the memory limit.
                 let max_bytes = options.max_memory_bytes.min(1 << 30) as usize;
                 let opened = geotiff::open(path, len, &unbounded, max_bytes)?;
-                let geotiff::Opened { dec, width, height, georef, file_nodata, deflate } = opened;
-                let (chunk_w, chunk_h) = dec.chunk_dimensions();
-                let chunk = dec.get_chunk_type();
-                if chunk_w == 0 || chunk_h == 0 {
-                    return Err(err(DemErrorKind::Malformed {
-                        format: "GeoTIFF",
-                        message: format!("chunk size {chunk_w} x {chunk_h}"),
-                    }));
+                let geotiff::Opened {
+                    dec,
+                    width,
+                    height,
+                    georef,
+                    file_nodata,
+                    mut layout,
+                    sample_type,
+                    bands,
+                } = opened;
+                layout.max_chunk_bytes = options.max_memory_bytes;
+                let (chunk_w, chunk_h, chunk) = (layout.chunk_w, layout.chunk_h, layout.chunk);
+                let mut notes = Vec::new();
+                if bands > 1 {
+                    let band = options.band;
+                    notes.push(super::LoadWarning::Bands { path: path.to_path_buf(), band, bands });
                 }
+                notes.extend(super::rescaled(path, format, options));
                 // Two rows of chunks (a band can straddle a chunk row) plus slack.
                 let recent_cap = match chunk {
                     ChunkType::Strip => 4,
@@ -141,7 +158,8 @@ impl RowReader {
                         limit: options.max_memory_bytes,
                     }));
                 }
-                let mut reader = Self {
+                let vertical = geotiff::Vertical::new(&layout, options);
+                let reader = Self {
                     path: path.to_path_buf(),
                     len,
                     width: width as u64,
@@ -150,12 +168,14 @@ impl RowReader {
                     source: SourceInfo {
                         path: path.to_path_buf(),
                         format,
-                        sample_type: String::new(),
+                        sample_type,
                         nodata: options.nodata.or(file_nodata),
+                        vertical: (vertical.scale, vertical.offset),
                     },
                     inner: Inner::Tiff {
                         decoders: Mutex::new(vec![dec]),
-                        deflate,
+                        vertical,
+                        layout: Box::new(layout),
                         recent: Mutex::new(VecDeque::new()),
                         recent_cap,
                         chunk,
@@ -165,10 +185,11 @@ impl RowReader {
                     },
                     zero_filled: AtomicU64::new(0),
                     seen: Mutex::new((f32::INFINITY, f32::NEG_INFINITY)),
+                    notes,
                 };
-                // The sample type: decode the first chunk once (small).
-                let (name, _) = reader.decode_chunk(0)?;
-                reader.source.sample_type = name.to_string();
+                // Decode the first chunk once (small), so a file that cannot be decoded is
+                // refused when opened.
+                reader.decode_chunk(0)?;
                 Ok(reader)
             }
             Format::Raw => {
@@ -197,6 +218,7 @@ impl RowReader {
                         format,
                         sample_type: name.to_string(),
                         nodata: options.nodata,
+                        vertical: (options.vertical_scale, options.vertical_offset),
                     },
                     inner: Inner::Raw {
                         sample: spec.sample,
@@ -205,6 +227,7 @@ impl RowReader {
                     },
                     zero_filled: AtomicU64::new(0),
                     seen: Mutex::new((f32::INFINITY, f32::NEG_INFINITY)),
+                    notes: Vec::new(),
                 })
             }
             other => Err(err(DemErrorKind::Unsupported {
@@ -244,11 +267,11 @@ impl RowReader {
     /// terrain has (below -11,000 m or above 9,000 m) while no no-data value is in force. The
     /// count of such samples is not known here (bands share rows).
     pub fn warnings(&self) -> Vec<super::LoadWarning> {
-        let Ok(&(lo, hi)) = self.seen.lock().as_deref() else { return Vec::new() };
+        let mut out = self.notes.clone();
+        let Ok(&(lo, hi)) = self.seen.lock().as_deref() else { return out };
         if self.source.nodata.is_some() || !(lo.is_finite() && hi.is_finite()) {
-            return Vec::new();
+            return out;
         }
-        let mut out = Vec::new();
         for v in [lo, hi] {
             let v = f64::from(v);
             let known = out
@@ -269,9 +292,11 @@ impl RowReader {
         DemError::new(&self.path, kind)
     }
 
-    /// Decodes chunk `index` (strip or tile) as f32, with the sample type's name.
-    fn decode_chunk(&self, index: u32) -> Result<(&'static str, Arc<Vec<f32>>), DemError> {
-        let Inner::Tiff { decoders, deflate, recent, recent_cap, max_bytes, .. } = &self.inner
+    /// Decodes plane chunk `index` (strip or tile) of the band read: heights in metres, voids
+    /// (no-data, masked, sparse with no-data) NaN.
+    fn decode_chunk(&self, index: u32) -> Result<Arc<Vec<f32>>, DemError> {
+        let Inner::Tiff { decoders, layout, vertical, recent, recent_cap, max_bytes, .. } =
+            &self.inner
         else {
             unreachable!("decode_chunk on a raw reader")
         };
@@ -280,29 +305,29 @@ impl RowReader {
             .ok()
             .and_then(|r| r.iter().find(|(i, _)| *i == index).map(|(_, v)| Arc::clone(v)))
         {
-            return Ok((self.sample_name(), hit));
-        }
-        if let Some(d) = deflate {
-            geotiff::check_deflate_chunks(
-                &self.path,
-                d.what,
-                &d.chunks,
-                [index as usize].into_iter(),
-            )?;
+            return Ok(hit);
         }
         let pooled = decoders.lock().map(|mut d| d.pop()).unwrap_or(None);
         let mut dec = match pooled {
             Some(d) => d,
             None => geotiff::decoder(&self.path, self.len, *max_bytes)?,
         };
-        let result =
-            dec.read_chunk(index).map_err(|e| geotiff::decode_error(&self.path, self.len, e))?;
+        let raw = geotiff_chunks::band_chunk(&self.path, self.len, &mut dec, layout, index)?;
+        let mask = geotiff_chunks::mask_chunk(&self.path, self.len, &mut dec, layout, index)?;
         if let Ok(mut pool) = decoders.lock()
             && pool.len() < DECODER_POOL
         {
             pool.push(dec);
         }
-        let (name, values) = geotiff::samples_to_f32(&self.path, result)?;
+        let nodata = self.source.nodata;
+        let values = raw
+            .iter()
+            .enumerate()
+            .map(|(k, &v)| {
+                let valid = mask.as_ref().is_none_or(|m| m[k]);
+                vertical.metres(&self.path, v, nodata, valid)
+            })
+            .collect::<Result<Vec<f32>, DemError>>()?;
         let values = Arc::new(values);
         if let Ok(mut r) = recent.lock() {
             if r.len() >= *recent_cap {
@@ -310,20 +335,7 @@ impl RowReader {
             }
             r.push_back((index, Arc::clone(&values)));
         }
-        Ok((name, values))
-    }
-
-    fn sample_name(&self) -> &'static str {
-        match self.source.sample_type.as_str() {
-            "int8" => "int8",
-            "uint8" => "uint8",
-            "int16" => "int16",
-            "uint16" => "uint16",
-            "int32" => "int32",
-            "uint32" => "uint32",
-            "float64" => "float64",
-            _ => "float32",
-        }
+        Ok(values)
     }
 
     /// File rows `r0 .. r0 + n` (north first, as stored), row-major, no-data as NaN.
@@ -345,7 +357,7 @@ impl RowReader {
                         RawSampleType::U16 => u16::from_le_bytes([s[0], s[1]]) as f64,
                         RawSampleType::F32 => f32::from_le_bytes([s[0], s[1], s[2], s[3]]) as f64,
                     };
-                    *o = self.value(v, *scale, *offset);
+                    *o = self.value(v, *scale, *offset)?;
                 }
             }
             Inner::Tiff { chunk, chunk_w, chunk_h, .. } => {
@@ -364,7 +376,7 @@ impl RowReader {
                                 message: format!("chunk index {} out of range", band * across + t),
                             })
                         })?;
-                        let (_, values) = self.decode_chunk(index)?;
+                        let values = self.decode_chunk(index)?;
                         // Strips span the whole width; tiles `cw` columns. The decoder
                         // returns a chunk's data without the padding of east and south edge
                         // tiles, so a row of the result is `min(cw, w - x0)` samples.
@@ -385,7 +397,7 @@ impl RowReader {
                             }
                             let dst = (r - r0) as usize * w + x0;
                             for c in 0..cols {
-                                out[dst + c] = self.value(values[k * stride + c] as f64, 1.0, 0.0);
+                                out[dst + c] = values[k * stride + c];
                             }
                         }
                     }
@@ -395,14 +407,14 @@ impl RowReader {
         Ok(())
     }
 
-    /// A file value in metres, NaN for no-data.
-    fn value(&self, v: f64, scale: f64, offset: f64) -> f32 {
+    /// A raw file's value in metres, NaN for no-data.
+    fn value(&self, v: f64, scale: f64, offset: f64) -> Result<f32, DemError> {
         if self.source.nodata.is_some_and(|nd| v == nd || (nd.is_nan() && v.is_nan()))
             || !v.is_finite()
         {
-            f32::NAN
+            Ok(f32::NAN)
         } else {
-            (v * scale + offset) as f32
+            super::metres(&self.path, v, scale, offset)
         }
     }
 

@@ -328,3 +328,26 @@ fn the_index_holds_the_dss_object_errors_of_every_block() {
     assert_eq!(nonzero, store.header().block_count());
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+#[test]
+fn scaled_integer_geotiffs_are_stored_on_their_own_lattice() {
+    // GDAL's band scale 0.5 and offset 100 (terrain-core's corpus): heights are half metres
+    // from 100 m, which a 1 m lattice would round.
+    let path =
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("../terrain-core/tests/data/geotiff/scaled.tif");
+    let opts = terrain_core::dem::LoadOptions::default();
+    let dem = terrain_core::dem::load(&path, &opts).unwrap();
+    let enc = HeightEncoding::for_source(&dem.source, &opts);
+    assert_eq!(enc, HeightEncoding::Quantized { step_m: 0.5, offset_m: 100.0 });
+    let dir = scratch("scaled");
+    let cfg = BakeConfig { k: 4, encoding: enc, ..Default::default() };
+    let a = bake(&dem.heightmap, &dir.join("a"), &cfg, &mut go).unwrap();
+    assert!(a.lossless, "the valid samples are stored without loss");
+    // (The filled voids are off the lattice: rounded to it, within half a step.)
+    check_heights(&Store::open(dir.join("a")).unwrap(), &dem.heightmap, 0.25);
+    // With a vertical scale on top (feet): its lattice too.
+    let feet = terrain_core::dem::LoadOptions { vertical_scale: 0.3048, ..opts };
+    let dem = terrain_core::dem::load(&path, &feet).unwrap();
+    let enc = HeightEncoding::for_source(&dem.source, &feet);
+    assert_eq!(enc, HeightEncoding::Quantized { step_m: 0.5 * 0.3048, offset_m: 100.0 * 0.3048 });
+}

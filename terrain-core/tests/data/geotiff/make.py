@@ -66,13 +66,94 @@ def resentinel(name, src, value):
     d = None
 
 
+def band_values(b):
+    """Void count, min, max and sum of the valid samples of band `b` as GDAL reads them: a
+    sample is valid where GDAL's mask band says so (nodata, an internal mask, sparse tiles),
+    its value unscaled (GDAL's ReadRaster does not apply the band's scale/offset)."""
+    raw = array.array("d", b.ReadRaster(buf_type=gdal.GDT_Float64))
+    mask = b.GetMaskBand().ReadRaster(buf_type=gdal.GDT_Byte)
+    valid = [v for v, m in zip(raw, mask) if m != 0]
+    return {"voids": len(raw) - len(valid), "min": min(valid), "max": max(valid),
+            "sum": sum(valid), "checksum": b.Checksum()}
+
+
+def read_crop(srcwin=SRCWIN):
+    """The crop's int16 samples (north row first), size, geotransform and projection."""
+    s = gdal.Open(SRC)
+    x, y, w, h = srcwin
+    a = array.array("h", s.GetRasterBand(1).ReadRaster(x, y, w, h, buf_type=gdal.GDT_Int16))
+    gt = list(s.GetGeoTransform())
+    gt[0] += x * gt[1]
+    gt[3] += y * gt[5]
+    return a, w, h, gt, s.GetProjection()
+
+
+def create(name, w, h, bands, dtype, gt, proj, options):
+    d = gdal.GetDriverByName("GTiff").Create(path(name), w, h, bands, dtype, options=options)
+    d.SetGeoTransform(gt)
+    d.SetProjection(proj)
+    return d
+
+
+def sparse(name, nodata, options, tiled):
+    """The crop written with SPARSE_OK=TRUE, only its west half (tiles) or north half (strips):
+    the other blocks are never written, so their offset and byte count stay 0 (GDAL reads them
+    as nodata, or 0 when the band has none)."""
+    a, w, h, gt, proj = read_crop()
+    d = create(name, w, h, 1, gdal.GDT_Int16, gt, proj, ["SPARSE_OK=TRUE", *options])
+    b = d.GetRasterBand(1)
+    if nodata is not None:
+        b.SetNoDataValue(nodata)
+    cols, rows = (w // 2, h) if tiled else (w, h // 2)
+    part = array.array("h", (a[r * w + c] for r in range(rows) for c in range(cols)))
+    b.WriteRaster(0, 0, cols, rows, part.tobytes(), buf_type=gdal.GDT_Int16)
+    d = None
+
+
+def nbits(name, n, options):
+    """A 61 x 47 crop (rows end inside a byte at any NBITS) quantised to n bits: 900..2000 m to
+    0..2^n-1 (rounded), voids to 0."""
+    a, w, h, gt, proj = read_crop([840, 0, 61, 47])
+    top = (1 << n) - 1
+    q = array.array("B", (0 if v == VOID else max(0, min(top, ((v - 900) * top + 550) // 1100)) for v in a))
+    d = create(name, w, h, 1, gdal.GDT_Byte, gt, proj, [f"NBITS={n}", *options])
+    d.GetRasterBand(1).WriteRaster(0, 0, w, h, q.tobytes(), buf_type=gdal.GDT_Byte)
+    d = None
+
+
+def multiband(name, bands, options):
+    """The crop in `bands` bands, band k (from 1) the heights plus 1000 (k - 1) m, voids kept."""
+    a, w, h, gt, proj = read_crop()
+    d = create(name, w, h, bands, gdal.GDT_Int16, gt, proj, options)
+    for k in range(bands):
+        b = d.GetRasterBand(k + 1)
+        b.SetNoDataValue(VOID)
+        v = array.array("h", (x if x == VOID else x + 1000 * k for x in a))
+        b.WriteRaster(0, 0, w, h, v.tobytes(), buf_type=gdal.GDT_Int16)
+    d = None
+
+
+def masked(name, options):
+    """The crop without a nodata value and with a per-dataset internal mask (a second IFD,
+    NewSubfileType 4): masked where the crop has voids and in its 8 x 8 north-west corner."""
+    a, w, h, gt, proj = read_crop()
+    gdal.SetConfigOption("GDAL_TIFF_INTERNAL_MASK", "YES")
+    d = create(name, w, h, 1, gdal.GDT_Int16, gt, proj, options)
+    d.GetRasterBand(1).WriteRaster(0, 0, w, h, a.tobytes(), buf_type=gdal.GDT_Int16)
+    d.CreateMaskBand(gdal.GMF_PER_DATASET)
+    m = array.array("B", (0 if a[r * w + c] == VOID or (r < 8 and c < 8) else 255
+                          for r in range(h) for c in range(w)))
+    d.GetRasterBand(1).GetMaskBand().WriteRaster(0, 0, w, h, m.tobytes(), buf_type=gdal.GDT_Byte)
+    d = None
+    gdal.SetConfigOption("GDAL_TIFF_INTERNAL_MASK", None)
+
+
 def values(name):
     ds = gdal.Open(path(name))
     b = ds.GetRasterBand(1)
     nd = b.GetNoDataValue()
     w, h = ds.RasterXSize, ds.RasterYSize
-    raw = array.array("d", b.ReadRaster(buf_type=gdal.GDT_Float64))
-    valid = [v for v in raw if nd is None or v != nd]
+    one = band_values(b)
     srs = ds.GetSpatialRef()
     unit = None
     if srs is not None and srs.IsProjected():
@@ -88,11 +169,13 @@ def values(name):
         "photometric": ds.GetMetadataItem("PHOTOMETRIC", "IMAGE_STRUCTURE") if name.endswith(".tif") else None,
         "compression": ds.GetMetadataItem("COMPRESSION", "IMAGE_STRUCTURE"),
         "nodata": nd,
-        "voids": w * h - len(valid),
-        "min": min(valid),
-        "max": max(valid),
-        "sum": sum(valid),
-        "checksum": b.Checksum(),
+        **one,
+        "bands": ds.RasterCount,
+        "per_band": [band_values(ds.GetRasterBand(k + 1)) for k in range(ds.RasterCount)],
+        "nbits": b.GetMetadataItem("NBITS", "IMAGE_STRUCTURE"),
+        "scale": b.GetScale(),
+        "offset": b.GetOffset(),
+        "mask_flags": b.GetMaskFlags(),
     }
 
 
@@ -177,6 +260,51 @@ def main():
     resentinel("sentinel_9999.tif", "wiz_int16.tif", -9999)
     resentinel("sentinel_f32min.tif", "wiz_int16.tif", -3.4028234663852886e38)
     made += ["sentinel_9999.tif", "sentinel_f32min.tif"]
+    # Issue 15, item 6 and the sparse/NBITS/compression/band bullet.
+    # Sparse tiles and strips: byte count 0, read as nodata (or 0 without a nodata value).
+    sparse("sparse_tiled_deflate.tif", VOID, ["TILED=YES", "BLOCKXSIZE=16", "BLOCKYSIZE=16",
+                                              "COMPRESS=DEFLATE"], True)
+    sparse("sparse_strips_nonodata.tif", None, ["BLOCKYSIZE=8"], False)
+    made += ["sparse_tiled_deflate.tif", "sparse_strips_nonodata.tif"]
+    # 1- to 7-bit samples (bit-packed rows).
+    nbits("nbits1.tif", 1, [])
+    nbits("nbits3_tiled_deflate.tif", 3, ["TILED=YES", "BLOCKXSIZE=16", "BLOCKYSIZE=16",
+                                          "COMPRESS=DEFLATE"])
+    nbits("nbits7_lzw.tif", 7, ["COMPRESS=LZW", "BLOCKYSIZE=10"])
+    made += ["nbits1.tif", "nbits3_tiled_deflate.tif", "nbits7_lzw.tif"]
+    # ZSTD (compression 50000) with predictors 1, 2 and 3, both byte orders.
+    crop("zstd_p1.tif", ["-co", "COMPRESS=ZSTD"])
+    crop("zstd_p2_tiled.tif", ["-co", "COMPRESS=ZSTD", "-co", "PREDICTOR=2", "-co", "TILED=YES",
+                               "-co", "BLOCKXSIZE=16", "-co", "BLOCKYSIZE=16"])
+    crop("zstd_p2_be.tif", ["-co", "COMPRESS=ZSTD", "-co", "PREDICTOR=2", "-co", "ENDIANNESS=BIG",
+                            "-co", "BLOCKYSIZE=16"])
+    crop("zstd_p3_f32.tif", ["-co", "COMPRESS=ZSTD", "-co", "PREDICTOR=3"], ot="Float32")
+    # (No big-endian file with predictor 3: GDAL 3.6 reads its own such files, float32 or
+    # float64, back as garbage, so there is no truth to compare with.)
+    crop("zstd_p3_f64.tif", ["-co", "COMPRESS=ZSTD", "-co", "PREDICTOR=3", "-co",
+                             "BLOCKYSIZE=16"], ot="Float64")
+    made += ["zstd_p1.tif", "zstd_p2_tiled.tif", "zstd_p2_be.tif", "zstd_p3_f32.tif",
+             "zstd_p3_f64.tif"]
+    # Compressions that are refused, by name.
+    crop("lerc.tif", ["-co", "COMPRESS=LERC"])
+    crop("lzma.tif", ["-co", "COMPRESS=LZMA"])
+    # WebP takes 8-bit RGB(A) only: the crop scaled to bytes, three times.
+    gdal.Translate(path("webp_rgb.tif"), SRC,
+                   options=["-q", "-srcwin", *map(str, SRCWIN), "-ot", "Byte", "-scale", "0",
+                            "4400", "0", "255", "-a_nodata", "none", "-b", "1", "-b", "1", "-b", "1",
+                            "-co", "COMPRESS=WEBP", "-co", "WEBP_LOSSLESS=TRUE"])
+    made += ["lerc.tif", "lzma.tif", "webp_rgb.tif"]
+    # Several bands: pixel- and band-interleaved.
+    multiband("bands3_pixel.tif", 3, ["INTERLEAVE=PIXEL", "COMPRESS=DEFLATE"])
+    multiband("bands2_band.tif", 2, ["INTERLEAVE=BAND", "COMPRESS=LZW", "TILED=YES",
+                                     "BLOCKXSIZE=16", "BLOCKYSIZE=16"])
+    made += ["bands3_pixel.tif", "bands2_band.tif"]
+    # GDAL band scale and offset (metadata tag 42112).
+    crop("scaled.tif", ["-a_scale", "0.5", "-a_offset", "100"])
+    made.append("scaled.tif")
+    # An internal per-dataset mask.
+    masked("mask_internal.tif", ["COMPRESS=DEFLATE"])
+    made.append("mask_internal.tif")
     for f in os.listdir(HERE):
         if f.endswith(".aux.xml"):
             os.remove(path(f))
