@@ -130,6 +130,17 @@ fn check(name: &str, hm: Heightmap) {
                 blocks.blocks_drawn
             );
             assert_eq!(worst, 0.0, "{name} {kind:?} camera {c}: the same heights");
+            // Geomorph's popping figures from the store, as from memory.
+            let previous = cameras(&scene.hm)[0];
+            let ja = memory.vertex_jumps(&previous, camera, &sa);
+            let jb = stored.vertex_jumps(&previous, camera, &sb);
+            assert_eq!(ja.is_some(), kind == LodMethod::Geomorph, "{name} {kind:?}");
+            if let (Some(ja), Some(jb)) = (ja, jb) {
+                println!("{name} geomorph camera {c}: vertex jumps memory {ja:?}, store {jb:?}");
+                assert_eq!(ja, jb, "{name} camera {c}: the same vertex jumps");
+            } else {
+                assert!(jb.is_none(), "{name} {kind:?}");
+            }
         }
     }
     let _ = std::fs::remove_dir_all(dir.parent().unwrap());

@@ -26,8 +26,10 @@ use terrain_core::lod::{
     select_dss_uniform, select_pvps, select_pvps_with_cull,
 };
 use terrain_core::quadtree::{NodeId, NodeTree};
-use terrain_gpu::geomorph::{GpuMorphPatch, MeshLibrary, MorphGrid, build_surface};
-use terrain_stream::StoreTree;
+use terrain_gpu::geomorph::{
+    GpuMorphPatch, MeshLibrary, MorphGrid, build_surface, max_vertex_jump,
+};
+use terrain_stream::{StoreSource, StoreTree};
 use terrain_visibility::pvs::{Pvs, PvsMode, read_pvs};
 use terrain_visibility::roughness::NodePyramid;
 
@@ -301,6 +303,34 @@ impl Method for StoreMethod<'_> {
             lods.patches.iter().map(|p| GpuMorphPatch::from_lod(p, n)).collect();
         let (mesh, triangles) = build_surface(&MorphGrid::new(&drawn, n), lib, &patches);
         Ok(DrawnSurface { mesh, triangles })
+    }
+
+    /// Geomorph: the jump from `previous`'s morphed surface, and the same with tweening off,
+    /// as from memory (`GeomorphMethod::vertex_jumps`), both cameras selected over the store's
+    /// terrain as it is now and drawn from the pages' heights now (a warm frame's are the
+    /// exact heights, so the previous frame's surface is the one it drew).
+    fn vertex_jumps(
+        &self,
+        previous: &Camera,
+        camera: &Camera,
+        drawn: &DrawnSurface,
+    ) -> Option<[f64; 2]> {
+        let (Tables::Geomip(table, lib), Some(reference)) = (&self.tables, self.reference) else {
+            return None;
+        };
+        let heights = self.scene.mirror()?.to_heightmap(&reference.hm);
+        let src = StoreSource::new(&self.tree, self.scene.streamer());
+        let n = table.patch_cells();
+        let grid = MorphGrid::new(&heights, n);
+        let surface = |c: &Camera, morph: bool| {
+            let cfg = GeomipConfig { patch_cells: n, morph, ..self.config.geomip };
+            let lods = table.select(&src, c, &cfg);
+            let patches: Vec<GpuMorphPatch> =
+                lods.patches.iter().map(|p| GpuMorphPatch::from_lod(p, n)).collect();
+            build_surface(&grid, lib, &patches).0
+        };
+        let morph = max_vertex_jump(&surface(previous, true), &drawn.mesh);
+        Some([morph, max_vertex_jump(&surface(previous, false), &surface(camera, false))])
     }
 
     fn renderer_kind(&self) -> RendererKind {
