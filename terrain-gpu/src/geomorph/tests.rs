@@ -513,3 +513,56 @@ fn paged_mode_draws_no_cracks_and_the_control_does() {
     let e = whole.render_paged(&mut pages, &camera, &sel.patches, &GeomorphOptions::default());
     assert!(e.is_err());
 }
+
+/// Paged mode's shading (per-fragment normals from the pages, the materials blended per
+/// fragment) looks like the whole heightmap's (lightmap and alpha maps, no shadows) over the
+/// same heights (every page at stride 1): the same coverage, colours within a few levels
+/// (per sample and filtered there, per fragment here).
+#[test]
+fn paged_mode_looks_like_the_whole_heightmaps() {
+    let Some(ctx) = context(BackendChoice::Vulkan) else { return };
+    let hm = fractal();
+    let (w, h) = (240, 135);
+    let camera = crate::render::default_camera(&hm, w, h, 60.0);
+    let lightmap = terrain_core::lightmap::LightmapConfig { shadows: false, ..Default::default() };
+    let config = GeomorphConfig { width: w, height: h, lightmap, ..Default::default() };
+    let sel = GeomipScene::new(&hm, 16).select(&camera, &GeomipConfig::default());
+    let mut whole = GeomorphRenderer::new(&ctx, &hm, &config).unwrap();
+    whole.render(&camera, &sel.patches, &GeomorphOptions::default()).unwrap();
+    let a = whole.read_image().unwrap();
+    let full = PagedHeights::from_heightmap(&hm, 64);
+    let classes = [PageClass { stride: 1, capacity: 16 }];
+    let rc = crate::render::RenderConfig { width: 1, height: 1, ..Default::default() };
+    let mut pages = TerrainRenderer::new_paged_classes(
+        &ctx,
+        *full.layout(),
+        &classes,
+        [hm.min(), hm.max()],
+        &rc,
+    )
+    .unwrap();
+    for (&page, p) in full.pages() {
+        pages.set_page_lattice(page, &p.samples, 1).unwrap();
+    }
+    let mut paged = GeomorphRenderer::new_paged(&ctx, &pages, &config).unwrap();
+    paged.render_paged(&mut pages, &camera, &sel.patches, &GeomorphOptions::default()).unwrap();
+    let b = paged.read_image().unwrap();
+    let (mut sum, mut n) = (0.0, 0usize);
+    for (p, q) in a.pixels.iter().zip(&b.pixels) {
+        if *p != BACKGROUND && *q != BACKGROUND {
+            sum += (0..3).map(|c| f64::from(p[c].abs_diff(q[c]))).sum::<f64>() / 3.0;
+            n += 1;
+        }
+    }
+    let both = a
+        .pixels
+        .iter()
+        .zip(&b.pixels)
+        .filter(|(p, q)| (**p == BACKGROUND) == (**q == BACKGROUND))
+        .count();
+    let mean = sum / n.max(1) as f64;
+    println!("paged vs whole: mean |difference| {mean:.2} levels over {n} pixels, coverage {both}");
+    assert!(n > 1000, "{n} terrain pixels");
+    assert!(both as f64 > 0.99 * a.pixels.len() as f64);
+    assert!(mean < 6.0, "mean difference {mean} levels");
+}
