@@ -1,8 +1,11 @@
 //! Every LOD method that draws from a baked store selects, for the same camera, the same
 //! patches and draws the same heights as from the DEM in memory (issue 13, item 2): `uniform`,
-//! `pvps-a/b/c`, `dss-1`, `dss-2`, `dss-strips` and `geomorph` (un-morphed) over Puget Sound 1k and over a non-square GeoTIFF with voids (Crater
-//! Lake, 429 x 279, 39,489 void cells), warm frames; real-time frames before the levels arrive
-//! still draw every patch; methods that cannot draw from a store yet say so.
+//! `pvps-a/b/c`, `dss-1`, `dss-2`, `dss-strips` and `geomorph` (with its vertex-shader morph:
+//! the same morphed heights, vertex for vertex) over Puget Sound 1k and over a non-square
+//! GeoTIFF with voids (Crater Lake, 429 x 279, 39,489 void cells), warm frames; real-time
+//! frames before the levels arrive still draw every patch, and geomorph's morph over coarse
+//! pages draws no crack on the GPU (with its negative control); methods that cannot draw from
+//! a store yet say so.
 
 mod common;
 
@@ -10,7 +13,7 @@ use std::ops::ControlFlow;
 use std::path::Path;
 use std::sync::Arc;
 
-use terrain_app::method::{self, MethodOptions, OocWait};
+use terrain_app::method::{self, Draw, MethodOptions, OocWait};
 use terrain_app::methods::{LodMethod, MethodConfig, MethodScene};
 use terrain_app::ooc::{OocConfig, OocScene};
 use terrain_core::Heightmap;
@@ -76,7 +79,9 @@ fn check(name: &str, hm: Heightmap) {
         LodMethod::Geomorph,
     ] {
         scene.prepare(&[kind]);
-        let mut memory = method::build(kind, &scene, &MethodOptions::default()).unwrap();
+        // Geomorph with its morph from memory, as from the store.
+        let options = MethodOptions { morph: kind == LodMethod::Geomorph, ..Default::default() };
+        let mut memory = method::build(kind, &scene, &options).unwrap();
         let runtime = OocScene::new(store.clone(), ooc);
         let mut stored =
             method::store_method(kind, runtime, &scene.config, OocWait::EveryFrame, Some(&scene))
@@ -97,6 +102,12 @@ fn check(name: &str, hm: Heightmap) {
             assert_eq!(blocks.blocks_dropped, 0, "{name} {kind:?}: every block drawn");
             let stream = b.stats.stream.clone().unwrap();
             assert!(stream.at_needed_level, "{name} {kind:?}: a warm frame");
+            if let (Draw::Morph(la), Draw::PagedMorph(_, lb)) = (&a.draw, &b.draw) {
+                assert_eq!(la.patches, lb.patches, "{name} camera {c}: the same levels and tweens");
+                assert!(lb.patches.iter().any(|p| p.tween > 0.0), "{name} camera {c}: morphing");
+            } else {
+                assert!(kind != LodMethod::Geomorph, "{name} camera {c}: geomorph morphs");
+            }
             // The same heights: the drawn surfaces, rebuilt with the renderers' CPU references
             // (the tessellator over the whole heightmap; over the store's pages).
             let sa = memory.surface(&mut a).unwrap();
@@ -119,6 +130,17 @@ fn check(name: &str, hm: Heightmap) {
                 blocks.blocks_drawn
             );
             assert_eq!(worst, 0.0, "{name} {kind:?} camera {c}: the same heights");
+            // Geomorph's popping figures from the store, as from memory.
+            let previous = cameras(&scene.hm)[0];
+            let ja = memory.vertex_jumps(&previous, camera, &sa);
+            let jb = stored.vertex_jumps(&previous, camera, &sb);
+            assert_eq!(ja.is_some(), kind == LodMethod::Geomorph, "{name} {kind:?}");
+            if let (Some(ja), Some(jb)) = (ja, jb) {
+                println!("{name} geomorph camera {c}: vertex jumps memory {ja:?}, store {jb:?}");
+                assert_eq!(ja, jb, "{name} camera {c}: the same vertex jumps");
+            } else {
+                assert!(jb.is_none(), "{name} {kind:?}");
+            }
         }
     }
     let _ = std::fs::remove_dir_all(dir.parent().unwrap());
@@ -278,6 +300,128 @@ fn store_backed_frames_draw_no_cracks_over_coarse_pages() {
     assert!(coarse > 0, "the tiny cache forced coarse levels");
     assert!(control >= 20, "the negative control cracks visibly: {control} px");
     let _ = std::fs::remove_dir_all(dir.parent().unwrap());
+}
+
+/// On the GPU: geomorph drawn from a store with its vertex-shader morph (the geomorph renderer
+/// reading the paged renderer's pages) in real time with a tiny cache (blocks at coarse levels
+/// while finer ones load) draws no crack over the crack test's cameras (skirts as the
+/// reference: magenta background without them, terrain with them); the negative control (the
+/// same pages, each patch ignoring its coarser neighbours: no adapting triangles, border
+/// vertices at their own heights) cracks. And every drawn vertex the vertex stage morphs from
+/// the store's pages (read back) equals the CPU reference (`MorphGrid`) over a CPU mirror of
+/// the same pages (`PagedHeights`, kept here from the frames' page changes).
+#[test]
+fn geomorph_from_a_store_morphs_on_the_gpu_without_cracks() {
+    use terrain_core::lod::PatchLod;
+    use terrain_gpu::geomorph::{GeomorphOptions, GpuMorphPatch, MeshLibrary, MorphGrid};
+    use terrain_gpu::render::crack::crack_cameras;
+    use terrain_gpu::render::{BACKGROUND, RenderConfig, TerrainRenderer};
+    use terrain_gpu::{BackendChoice, DeviceConfig, GpuContext};
+    let ctx = match GpuContext::new(&DeviceConfig::from_env(BackendChoice::Auto)) {
+        Ok(ctx) => ctx,
+        Err(e) if std::env::var_os("TERRAIN_REQUIRE_GPU").is_none() => {
+            println!("SKIPPED: {e}; set TERRAIN_REQUIRE_GPU=1 to make this a failure");
+            return;
+        }
+        Err(e) => panic!("{e}"),
+    };
+    println!("adapter: {}", ctx.describe());
+    for (name, hm, k) in [("puget", puget(), 7), ("crater", crater_lake(), 6)] {
+        let scene = MethodScene::new(hm, MethodConfig::default());
+        let dir = scratch("store-methods", &format!("geomorph-{name}")).join("store");
+        let config =
+            BakeConfig { k, encoding: HeightEncoding::F32, threads: 1, ..Default::default() };
+        bake(&scene.hm, &dir, &config, &mut |_: &BakeProgress| ControlFlow::Continue(())).unwrap();
+        terrain_app::geomip_scene::bake_into_scene(&scene.hm, 16, &dir).unwrap();
+        let store = Arc::new(Store::open(&dir).unwrap());
+        let cameras: Vec<Camera> = crack_cameras(&scene.hm, 17)
+            .into_iter()
+            .step_by(3)
+            .map(|c| c.with_viewport(256.0, 144.0))
+            .collect();
+        let skirt = GeomorphOptions { skirt_depth_m: scene.hm.max() - scene.hm.min() + 100.0 };
+        let lib = MeshLibrary::new(16);
+        let (mut coarse, mut control, mut checked) = (0usize, 0usize, 0usize);
+        let ooc = OocConfig { threads: 1, budget_bytes: 64 << 10, ..OocConfig::default() };
+        let runtime = OocScene::new(store.clone(), ooc).with_mirror();
+        let mut m = method::store_method(
+            LodMethod::Geomorph,
+            runtime,
+            &scene.config,
+            OocWait::FirstFrame,
+            Some(&scene),
+        )
+        .unwrap();
+        let rc = RenderConfig { width: 256, height: 144, ..Default::default() };
+        let mut renderer = m.renderer(&ctx, &rc).unwrap();
+        let layout = *renderer.terrain_renderer().expect("the pages' renderer").page_layout();
+        let mut mirror = terrain_gpu::PagedHeights::new(layout);
+        for (n, camera) in cameras.iter().enumerate() {
+            let frame = m.frame(camera);
+            renderer.apply(&frame).unwrap();
+            let Draw::PagedMorph(f, lods) = &frame.draw else { panic!("a morphed frame") };
+            for u in &f.updates {
+                match &u.fill {
+                    Some(p) => mirror.insert(u.page, p.clone()).unwrap(),
+                    None => assert!(mirror.remove(u.page)),
+                }
+            }
+            if lods.patches.is_empty() {
+                continue;
+            }
+            let lods = lods.clone();
+            coarse += usize::from(!frame.stats.stream.as_ref().unwrap().at_needed_level);
+            let (morph, pages) = renderer.paged_morph_mut().expect("a paged geomorph renderer");
+            let mut cracks = |lods: &[PatchLod]| {
+                morph.render_paged(pages, camera, lods, &GeomorphOptions::default()).unwrap();
+                let plain = morph.read_image().unwrap();
+                morph.render_paged(pages, camera, lods, &skirt).unwrap();
+                let reference = morph.read_image().unwrap();
+                assert!(plain.pixels.iter().any(|&p| p != BACKGROUND), "frame {n}: terrain");
+                plain
+                    .pixels
+                    .iter()
+                    .zip(&reference.pixels)
+                    .filter(|&(&a, &b)| a == BACKGROUND && b != BACKGROUND)
+                    .count()
+            };
+            assert_eq!(cracks(&lods.patches), 0, "{name} frame {n}: crack pixels");
+            let broken: Vec<PatchLod> = lods
+                .patches
+                .iter()
+                .map(|p| PatchLod { edge_level: [p.level; 4], edge_tween: [0.0; 4], ..*p })
+                .collect();
+            control += cracks(&broken);
+            // The vertex stage's morph over these pages = the CPU reference over the mirror.
+            let gpu: Vec<GpuMorphPatch> =
+                lods.patches.iter().map(|p| GpuMorphPatch::from_lod(p, 16)).collect();
+            let items: Vec<[u32; 2]> = (0..gpu.len() as u32)
+                .flat_map(|k| {
+                    let mut ids = lib.triangles(&gpu[k as usize]).to_vec();
+                    ids.sort_unstable();
+                    ids.dedup();
+                    ids.into_iter().map(move |id| [k, id])
+                })
+                .collect();
+            let read = morph.morph_read_back_paged(pages, camera.position, &gpu, &items).unwrap();
+            let grid = MorphGrid::new(&mirror, 16);
+            let anchor = TerrainRenderer::anchor_for(camera.position);
+            let tol = 16.0 * f32::EPSILON * (scene.hm.max().abs() + anchor.z.abs() as f32 + 1.0);
+            for (&[k, id], g) in items.iter().zip(&read) {
+                let cpu = grid.relative_position(&gpu[k as usize], id % 17, id / 17, anchor);
+                assert_eq!((g[0], g[1]), (cpu[0], cpu[1]), "{name} frame {n}");
+                assert!((g[3] - cpu[3]).abs() <= tol, "{name} frame {n}: {g:?} vs {cpu:?}");
+                checked += 1;
+            }
+        }
+        println!(
+            "{name}: {coarse} frames below their needed level; {checked} vertices GPU = CPU; \
+             negative control {control} crack px"
+        );
+        assert!(coarse > 0, "{name}: the tiny cache forced coarse levels");
+        assert!(control >= 20, "{name}: the negative control cracks visibly: {control} px");
+        let _ = std::fs::remove_dir_all(dir.parent().unwrap());
+    }
 }
 
 /// A grid not held in memory gets geomorph's table from its store's blocks, a block row at a

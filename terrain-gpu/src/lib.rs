@@ -37,3 +37,10 @@ pub use render::{
     TerrainRenderer, uniform_patches,
 };
 pub use target::{OffscreenTarget, RgbaImage};
+
+/// Every shader module made of several `.wgsl` files, as the renderers create it (a name and
+/// the concatenated source): the tessellation renderer's and the geomorph renderer's, each
+/// with the one paged lookup (`paged_lookup.wgsl`). `tests/shaders.rs` validates them with
+/// naga.
+pub const SHADER_MODULES: &[(&str, &str)] =
+    &[("render/terrain.wgsl", render::SHADER), ("geomorph/geomorph.wgsl", geomorph::SHADER)];

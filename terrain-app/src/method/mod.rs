@@ -2,7 +2,8 @@
 //! it precomputes lives in its [`MethodScene`] or, for the out-of-core method, its store and
 //! streaming runtime); then, per frame, a camera goes in and a [`Frame`] comes out: what to
 //! draw ([`Draw`]: tessellated patches with optional extra triangles, geo-mipmapped patches to
-//! morph, or patches over paged heights with the page changes to apply), the patches that
+//! morph, or patches over paged heights with the page changes to apply, tessellated or
+//! morphed), the patches that
 //! cover it (for the measurement) and the frame's statistics ([`MethodStats`]: selection CPU
 //! time, patches, streaming figures where there are any). [`Method::surface`] rebuilds on the
 //! CPU exactly what the frame draws (the benchmark's measurement).
@@ -60,6 +61,10 @@ pub enum Draw {
     /// patches and the page changes to apply first; its selection moved to
     /// [`Frame::selection`]).
     Paged(Box<OocFrame>),
+    /// Geomorph over a store's paged heights: the runtime's frame (its page changes; its
+    /// tessellated patches are not drawn) and the geo-mipmapped patches with their levels and
+    /// tween factors, for the geomorph renderer reading the paged renderer's pages.
+    PagedMorph(Box<OocFrame>, GeomipSelection),
 }
 
 /// A store-backed method's block figures of one frame.

@@ -1,7 +1,8 @@
 //! The renderer-facing half of the frame loop: [`FrameRenderer`] draws a method's [`Frame`]
 //! with the renderer its [`Draw`] needs: terrain-gpu's tessellation renderer (patches and extra
 //! triangles), its geomorph renderer (vertex-shader morph), or the paged renderer of a store
-//! (page changes applied first). It also counts the bytes a frame uploads.
+//! (page changes applied first), alone or read by a paged geomorph renderer (geomorph from a
+//! store). It also counts the bytes a frame uploads.
 
 use std::time::Instant;
 
@@ -24,13 +25,16 @@ pub enum RendererKind {
     Geomorph,
     /// A paged renderer tied to one store's runtime (one per method instance).
     Paged,
+    /// A paged renderer holding one store's pages and a geomorph renderer drawing from them
+    /// (one per method instance).
+    PagedMorph,
 }
 
 impl RendererKind {
     /// Whether one renderer of this kind can draw the frames of several method instances in
     /// turn (it holds only the terrain); a paged renderer holds one runtime's pages.
     pub fn shareable(self) -> bool {
-        self != RendererKind::Paged
+        !matches!(self, RendererKind::Paged | RendererKind::PagedMorph)
     }
 }
 
@@ -39,6 +43,12 @@ enum Inner {
     Tessellation(TerrainRenderer),
     Geomorph(GeomorphRenderer),
     Paged(TerrainRenderer),
+    /// The pages (a paged tessellation renderer's atlas, never drawn itself) and the geomorph
+    /// renderer reading them.
+    PagedMorph {
+        pages: Box<TerrainRenderer>,
+        morph: Box<GeomorphRenderer>,
+    },
 }
 
 /// A renderer that draws [`Frame`]s.
@@ -139,12 +149,47 @@ impl FrameRenderer {
         })
     }
 
+    /// The geomorph renderer over the pages of a store's runtime, with patches of
+    /// `patch_cells` cells: the paged renderer holds the pages ([`OocScene::renderer`], its
+    /// own target 1 x 1, never drawn) and [`GeomorphRenderer::new_paged`] draws from them.
+    pub fn paged_morph(
+        scene: &OocScene,
+        ctx: &GpuContext,
+        patch_cells: u32,
+        config: &RenderConfig,
+    ) -> anyhow::Result<Self> {
+        let pages = scene.renderer(ctx, &RenderConfig { width: 1, height: 1, ..config.clone() })?;
+        let gc = GeomorphConfig {
+            width: config.width,
+            height: config.height,
+            patch_cells,
+            background: config.background,
+            ..Default::default()
+        };
+        let morph = GeomorphRenderer::new_paged(ctx, &pages, &gc)?;
+        Ok(Self {
+            inner: Inner::PagedMorph { pages: Box::new(pages), morph: Box::new(morph) },
+            anchor_bytes: 4 * u64::from(scene.layout().grid[0] + scene.layout().grid[1]),
+            page_bytes: scene.layout().page_len() as u64 * 4,
+        })
+    }
+
     /// Its kind.
     pub fn kind(&self) -> RendererKind {
         match self.inner {
             Inner::Tessellation(_) => RendererKind::Tessellation,
             Inner::Geomorph(_) => RendererKind::Geomorph,
             Inner::Paged(_) => RendererKind::Paged,
+            Inner::PagedMorph { .. } => RendererKind::PagedMorph,
+        }
+    }
+
+    /// The geomorph renderer and the paged renderer whose pages it reads (geomorph from a
+    /// store), to draw with directly (tests' crack checks over a frame's pages).
+    pub fn paged_morph_mut(&mut self) -> Option<(&mut GeomorphRenderer, &mut TerrainRenderer)> {
+        match &mut self.inner {
+            Inner::PagedMorph { pages, morph } => Some((morph, pages)),
+            _ => None,
         }
     }
 
@@ -152,6 +197,7 @@ impl FrameRenderer {
     pub fn terrain_renderer(&self) -> Option<&TerrainRenderer> {
         match &self.inner {
             Inner::Tessellation(r) | Inner::Paged(r) => Some(r),
+            Inner::PagedMorph { pages, .. } => Some(pages),
             Inner::Geomorph(_) => None,
         }
     }
@@ -161,7 +207,7 @@ impl FrameRenderer {
     pub fn terrain_renderer_mut(&mut self) -> Option<&mut TerrainRenderer> {
         match &mut self.inner {
             Inner::Tessellation(r) | Inner::Paged(r) => Some(r),
-            Inner::Geomorph(_) => None,
+            Inner::Geomorph(_) | Inner::PagedMorph { .. } => None,
         }
     }
 
@@ -170,14 +216,17 @@ impl FrameRenderer {
         Ok(match &self.inner {
             Inner::Tessellation(r) | Inner::Paged(r) => r.read_image()?,
             Inner::Geomorph(r) => r.read_image()?,
+            Inner::PagedMorph { morph, .. } => morph.read_image()?,
         })
     }
 
     /// Applies what `frame` changes in the renderer's state without drawing (a store's page
     /// changes); nothing for the other renderers, which hold no per-frame state.
     pub fn apply(&mut self, frame: &Frame) -> anyhow::Result<()> {
-        if let (Inner::Paged(r), Draw::Paged(f)) = (&mut self.inner, &frame.draw) {
-            OocScene::apply(r, f)?;
+        match (&mut self.inner, &frame.draw) {
+            (Inner::Paged(r), Draw::Paged(f)) => OocScene::apply(r, f)?,
+            (Inner::PagedMorph { pages, .. }, Draw::PagedMorph(f, _)) => OocScene::apply(pages, f)?,
+            _ => {}
         }
         Ok(())
     }
@@ -211,22 +260,19 @@ impl FrameRenderer {
             (Inner::Geomorph(r), Draw::Morph(lods)) => {
                 let t = Instant::now();
                 let s = r.render(camera, &lods.patches, &GeomorphOptions::default())?;
-                let wall_ms = ms(t);
-                DrawStats {
-                    patches: s.patches,
-                    triangles: s.triangles,
-                    vertices: None,
-                    cpu_ms: s.cpu_ms,
-                    wall_ms,
-                    gpu_ms: None,
-                    gpu_draw_ms: None,
-                    tessellated: None,
-                    upload_bytes: s.upload_bytes + anchor_bytes,
-                    passes_skipped: Some(s.passes_skipped),
-                    batches: 1,
-                    gpu_text: "n/a (the geomorph renderer has no timestamps)".to_string(),
-                    adapter: s.adapter,
-                }
+                DrawStats::of_geomorph(s, ms(t), anchor_bytes)
+            }
+            (Inner::PagedMorph { pages, morph }, Draw::PagedMorph(f, lods)) => {
+                OocScene::apply(pages, f)?;
+                let t = Instant::now();
+                let s = morph.render_paged(
+                    pages,
+                    camera,
+                    &lods.patches,
+                    &GeomorphOptions::default(),
+                )?;
+                let uploaded = f.updates.iter().filter(|u| u.fill.is_some()).count() as u64;
+                DrawStats::of_geomorph(s, ms(t), uploaded * self.page_bytes + anchor_bytes)
             }
             (Inner::Paged(r), Draw::Paged(f)) => {
                 OocScene::apply(r, f)?;
@@ -244,6 +290,7 @@ impl FrameRenderer {
                     Draw::Tessellated { .. } => "tessellated",
                     Draw::Morph(_) => "geomorph",
                     Draw::Paged(_) => "paged",
+                    Draw::PagedMorph(..) => "paged geomorph",
                 }
             ),
         };
@@ -254,6 +301,30 @@ impl FrameRenderer {
 }
 
 impl DrawStats {
+    /// The figures of a frame the geomorph renderer drew, its wall time and the bytes
+    /// uploaded besides its own (anchor offsets, pages).
+    fn of_geomorph(
+        s: terrain_gpu::geomorph::GeomorphFrameStats,
+        wall_ms: f64,
+        more_bytes: u64,
+    ) -> Self {
+        Self {
+            patches: s.patches,
+            triangles: s.triangles,
+            vertices: None,
+            cpu_ms: s.cpu_ms,
+            wall_ms,
+            gpu_ms: None,
+            gpu_draw_ms: None,
+            tessellated: None,
+            upload_bytes: s.upload_bytes + more_bytes,
+            passes_skipped: Some(s.passes_skipped),
+            batches: 1,
+            gpu_text: "n/a (the geomorph renderer has no timestamps)".to_string(),
+            adapter: s.adapter,
+        }
+    }
+
     /// The figures of a frame the tessellation renderer drew (whole heightmap or pages), its
     /// wall time and the bytes it uploaded.
     fn of_terrain(s: terrain_gpu::render::FrameStats, wall_ms: f64, upload_bytes: u64) -> Self {

@@ -1,34 +1,40 @@
 //! The in-memory patch methods drawn from a baked store: `uniform`, `pvps-a/b/c` (with or
 //! without the PVS: `pvps-c-pvs`, `pvps-c-cons`), `dss-1`, `dss-2`, `dss-strips` (its
-//! M-blocks, P-blocks and stitching strips) and `geomorph` un-morphed (its patches at their
-//! levels' factors, as `MethodScene::geomorph_selection` converts them) select their patches
+//! M-blocks, P-blocks and stitching strips) and `geomorph` (its geo-mipmapped patches with
+//! their levels and tween factors, morphed in the vertex shader) select their patches
 //! with the same terrain-core functions as from memory, over the store's terrain
 //! (terrain-stream's `StoreSource`: node bounds from the index, heights from the resident
 //! levels) and the per-node tables the bake wrote beside the blocks (`dss_errors.bin`,
 //! `roughness.bin`, `geomip.bin`, the PVS files). The store's runtime ([`OocScene::frame_for`])
-//! loads what the patches need and the paged renderer draws them; nothing of the full grid is
-//! in memory. A warm frame (`--wait`, and the first frame) selects the patches the method
-//! selects from the heightmap in memory (tested patch for patch).
+//! loads what the patches need (geomorph: each patch's level, as its un-morphed geo-mipmap
+//! `geomorph_selection` says; the morph only reads vertices of that level and coarser) and the
+//! paged renderer draws them, or, for geomorph, terrain-gpu's `GeomorphRenderer` in paged mode
+//! reads the paged renderer's pages through the same lookup; nothing of the full grid is in
+//! memory. A warm frame (`--wait`, and the first frame) selects the patches the method selects
+//! from the heightmap in memory (tested patch for patch, and geomorph's morphed heights vertex
+//! for vertex).
 //!
-//! Not from a store yet: `geomorph`'s vertex-shader morph (terrain-gpu's geomorph shader reads
-//! a whole-heightmap texture, not pages: a store draws the un-morphed geo-mipmap) and `entropy`
-//! (a mesh of the whole grid): [`store_method`] says so.
+//! Not from a store yet: `entropy` (a mesh of the whole grid): [`store_method`] says so.
 
 use std::path::Path;
 
 use anyhow::Context;
 use terrain_core::geometry::Camera;
+use terrain_core::lod::GeomipSelection;
 use terrain_core::lod::{
     DssErrorTable, GeomipConfig, GeomipTable, TerrainSource, select_dss_power_of_two,
     select_dss_uniform, select_pvps, select_pvps_with_cull,
 };
-use terrain_core::quadtree::NodeTree;
-use terrain_stream::StoreTree;
+use terrain_core::quadtree::{NodeId, NodeTree};
+use terrain_gpu::geomorph::{
+    GpuMorphPatch, MeshLibrary, MorphGrid, build_surface, max_vertex_jump,
+};
+use terrain_stream::{StoreSource, StoreTree};
 use terrain_visibility::pvs::{Pvs, PvsMode, read_pvs};
 use terrain_visibility::roughness::NodePyramid;
 
 use super::ooc::{OocWait, paged_frame, paged_surface};
-use super::{DrawnSurface, Frame, FrameRenderer, Method, OocMethod, RendererKind};
+use super::{Draw, DrawnSurface, Frame, FrameRenderer, Method, OocMethod, RendererKind};
 use crate::methods::{
     LodMethod, MethodConfig, MethodScene, geomorph_selection, select_uniform, strips_frame,
 };
@@ -74,7 +80,8 @@ enum Tables {
     Roughness(NodePyramid),
     RoughnessPvs(NodePyramid, Option<Pvs>),
     Dss(DssErrorTable),
-    Geomip(GeomipTable),
+    /// Geomorph's max-error vertices and its triangle lists (the CPU reference's).
+    Geomip(GeomipTable, MeshLibrary),
 }
 
 /// A patch method over a store (see the module docs).
@@ -157,7 +164,9 @@ impl<'a> StoreMethod<'a> {
                 Tables::RoughnessPvs(read_roughness(&dir, LodMethod::PvpsC, &shape)?, pvs)
             }
             LodMethod::Geomorph => {
-                Tables::Geomip(crate::geomip_scene::read_for_store(&dir, &shape)?)
+                let table = crate::geomip_scene::read_for_store(&dir, &shape)?;
+                let lib = MeshLibrary::new(table.patch_cells());
+                Tables::Geomip(table, lib)
             }
             _ => {
                 let path = crate::dss_scene::dss_path(&dir);
@@ -217,6 +226,8 @@ impl Method for StoreMethod<'_> {
         self.frames += 1;
         let (cfg, tables) = (&self.config, &self.tables);
         let kind = self.kind;
+        // Geomorph's patches with their levels and tween factors (the last selection's).
+        let mut morph: Option<GeomipSelection> = None;
         let mut select = |src: &dyn TerrainSource| -> StoreDraw {
             let selection = match tables {
                 Tables::None => select_uniform(src, camera, cfg.uniform_factor),
@@ -237,29 +248,95 @@ impl Method for StoreMethod<'_> {
                     select_dss_power_of_two(src, camera, table, &cfg.dss)
                 }
                 Tables::Dss(table) => select_dss_uniform(src, camera, table, &cfg.dss),
-                Tables::Geomip(table) => {
-                    // Un-morphed: integer levels (the morph needs the geomorph renderer).
-                    let geomip = GeomipConfig {
-                        patch_cells: table.patch_cells(),
-                        morph: false,
-                        ..cfg.geomip
-                    };
+                Tables::Geomip(table, _) => {
+                    // The morph's levels and tween factors, as from memory
+                    // (`MethodScene::select_geomorph`); the streamer's demand and the
+                    // measurement's coverage are the patches at their levels.
+                    let geomip = GeomipConfig { patch_cells: table.patch_cells(), ..cfg.geomip };
                     let lods = table.select(&src, camera, &geomip);
-                    geomorph_selection(&lods, table.patch_cells(), src.shape().max_level())
+                    let s = geomorph_selection(&lods, table.patch_cells(), src.shape().max_level());
+                    morph = Some(lods);
+                    s
                 }
             };
             StoreDraw { selection, strips: None }
         };
-        paged_frame(self.scene.frame_for(camera, warm, &self.tree, &mut select))
+        let mut frame = paged_frame(self.scene.frame_for(camera, warm, &self.tree, &mut select));
+        if let Some(mut lods) = morph {
+            // Only the patches over drawn blocks (those `frame_for` kept).
+            let leaf = self.tree.shape().max_level();
+            let kept: std::collections::HashSet<NodeId> =
+                frame.selection.patches.iter().map(|p| p.node).collect();
+            let keep: Vec<bool> =
+                lods.patches.iter().map(|p| kept.contains(&NodeId::new(leaf, p.i, p.j))).collect();
+            let mut k = keep.iter();
+            lods.patches.retain(|_| *k.next().expect("parallel"));
+            if lods.factors.len() == keep.len() {
+                let mut k = keep.iter();
+                lods.factors.retain(|_| *k.next().expect("parallel"));
+            }
+            frame.draw = match frame.draw {
+                Draw::Paged(f) => Draw::PagedMorph(f, lods),
+                other => other,
+            };
+        }
+        frame
     }
 
-    /// The surface drawn from the pages' heights (the paged renderer's CPU reference).
+    /// The surface drawn from the pages' heights (the paged renderer's CPU reference; for
+    /// geomorph the morph's, `MorphGrid` over the pages).
     fn surface(&self, frame: &mut Frame) -> anyhow::Result<DrawnSurface> {
-        paged_surface(&self.scene, self.reference, frame)
+        let (Draw::PagedMorph(_, lods), Tables::Geomip(table, lib)) = (&frame.draw, &self.tables)
+        else {
+            return paged_surface(&self.scene, self.reference, frame);
+        };
+        let Some(reference) = self.reference else {
+            anyhow::bail!("a method drawn from a store is measured only against a DEM in memory");
+        };
+        // The pages' heights where resident (the mirror's lookup), the DEM's elsewhere (no
+        // patch is drawn there).
+        let mirror = self.scene.mirror().expect("a measured runtime keeps its mirror");
+        let drawn = mirror.to_heightmap(&reference.hm);
+        let n = table.patch_cells();
+        let patches: Vec<GpuMorphPatch> =
+            lods.patches.iter().map(|p| GpuMorphPatch::from_lod(p, n)).collect();
+        let (mesh, triangles) = build_surface(&MorphGrid::new(&drawn, n), lib, &patches);
+        Ok(DrawnSurface { mesh, triangles })
+    }
+
+    /// Geomorph: the jump from `previous`'s morphed surface, and the same with tweening off,
+    /// as from memory (`GeomorphMethod::vertex_jumps`), both cameras selected over the store's
+    /// terrain as it is now and drawn from the pages' heights now (a warm frame's are the
+    /// exact heights, so the previous frame's surface is the one it drew).
+    fn vertex_jumps(
+        &self,
+        previous: &Camera,
+        camera: &Camera,
+        drawn: &DrawnSurface,
+    ) -> Option<[f64; 2]> {
+        let (Tables::Geomip(table, lib), Some(reference)) = (&self.tables, self.reference) else {
+            return None;
+        };
+        let heights = self.scene.mirror()?.to_heightmap(&reference.hm);
+        let src = StoreSource::new(&self.tree, self.scene.streamer());
+        let n = table.patch_cells();
+        let grid = MorphGrid::new(&heights, n);
+        let surface = |c: &Camera, morph: bool| {
+            let cfg = GeomipConfig { patch_cells: n, morph, ..self.config.geomip };
+            let lods = table.select(&src, c, &cfg);
+            let patches: Vec<GpuMorphPatch> =
+                lods.patches.iter().map(|p| GpuMorphPatch::from_lod(p, n)).collect();
+            build_surface(&grid, lib, &patches).0
+        };
+        let morph = max_vertex_jump(&surface(previous, true), &drawn.mesh);
+        Some([morph, max_vertex_jump(&surface(previous, false), &surface(camera, false))])
     }
 
     fn renderer_kind(&self) -> RendererKind {
-        RendererKind::Paged
+        match self.tables {
+            Tables::Geomip(..) => RendererKind::PagedMorph,
+            _ => RendererKind::Paged,
+        }
     }
 
     fn renderer(
@@ -267,6 +344,11 @@ impl Method for StoreMethod<'_> {
         ctx: &terrain_gpu::GpuContext,
         config: &terrain_gpu::RenderConfig,
     ) -> anyhow::Result<FrameRenderer> {
-        FrameRenderer::paged(&self.scene, ctx, config)
+        match &self.tables {
+            Tables::Geomip(table, _) => {
+                FrameRenderer::paged_morph(&self.scene, ctx, table.patch_cells(), config)
+            }
+            _ => FrameRenderer::paged(&self.scene, ctx, config),
+        }
     }
 }

@@ -6,9 +6,18 @@
 // `true_h`, `edge_h`, `point_h` and `morph_h` are the twins of geomorph/morph.rs (the CPU
 // reference), operation for operation in f32; change both. Positions are camera-relative as in
 // render/terrain.wgsl: `col_x[i]` and `row_y[j]` are `world - anchor` rounded once to f32.
-
+//
+// Heights come from pages (`height_sample`, paged_lookup.wgsl, concatenated after this file
+// when the module is created: the tessellation renderer's lookup, not a copy): a whole
+// heightmap is one resident page; a store's blocks are pages of the paged renderer's atlas.
+// In paged mode (FLAG_PAGED) the lightmap and alpha maps, which need the whole grid, are 1 x 1
+// placeholders: the fragment stage (`fs_paged`) takes its normal from the pages (`normal_at`,
+// per fragment, as the tessellation renderer) and blends the materials by the same alphas per
+// fragment in one pass.
 struct Frame {
     view_proj: mat4x4<f32>,
+    // Direction towards the sun (world frame, unit), w unused: paged mode's per-fragment light.
+    sun: vec4<f32>,
     spacing: vec2<f32>,
     grid_max: vec2<u32>,
     // -anchor.z: heights plus this are camera-relative.
@@ -18,10 +27,15 @@ struct Frame {
     max_level: u32,
     // Patches this frame.
     patch_count: u32,
-    pad0: u32,
-    pad1: u32,
-    pad2: u32,
+    flags: u32,
+    // Paged mode: the material alphas' height range (lowest, highest - lowest).
+    height_min: f32,
+    height_range: f32,
 }
+
+// Heights from a store's pages: no lightmap or alpha maps (geomorph/renderer.rs; the
+// pipelines use `fs_paged`).
+const FLAG_PAGED: u32 = 1u;
 
 struct GmPatch {
     origin: vec2<u32>,
@@ -41,7 +55,6 @@ const SKIRT_BIT: u32 = 8192u;
 const PATCH_SHIFT: u32 = 14u;
 
 @group(0) @binding(0) var<uniform> frame: Frame;
-@group(0) @binding(1) var heights: texture_2d<f32>;
 @group(0) @binding(2) var<storage, read> patches: array<GmPatch>;
 @group(0) @binding(3) var<storage, read> col_x: array<f32>;
 @group(0) @binding(4) var<storage, read> row_y: array<f32>;
@@ -53,8 +66,18 @@ fn sample_of(p: GmPatch, x: u32, y: u32) -> vec2<u32> {
     return min(p.origin + vec2<u32>(x, y), frame.grid_max);
 }
 
+// Set per pipeline (geomorph/renderer.rs): false for a whole heightmap, whose one page of
+// stride 1 sits at the atlas's origin, so the lookup of sample g reads texel g: the same
+// value without the page table's reads (a software rasteriser's vertex stage pays for them).
+override PAGED: bool = true;
+
+// morph.rs MorphGrid::true_h: the sample's height from the pages (0 on no resident page).
 fn true_h(p: GmPatch, x: u32, y: u32) -> f32 {
-    return textureLoad(heights, vec2<i32>(sample_of(p, x, y)), 0).r;
+    let g = vec2<i32>(sample_of(p, x, y));
+    if !PAGED {
+        return textureLoad(heights, g, 0).r;
+    }
+    return height_sample(g.x, g.y);
 }
 
 // morph.rs MorphGrid::edge_h.
@@ -160,6 +183,8 @@ struct VsOut {
     @builtin(position) @invariant clip: vec4<f32>,
     @location(0) grid: vec2<f32>,
     @location(1) @interpolate(flat) material: u32,
+    // Absolute morphed height (paged mode's material alphas).
+    @location(2) height: f32,
 }
 
 @vertex
@@ -177,6 +202,7 @@ fn vs(@builtin(vertex_index) vi: u32, @builtin(instance_index) ii: u32) -> VsOut
     out.clip = frame.view_proj * vec4<f32>(pos, 1.0);
     out.grid = v.grid;
     out.material = ii;
+    out.height = v.height;
     return out;
 }
 
@@ -188,6 +214,32 @@ fn material_colour(k: u32) -> vec3<f32> {
         case 3u: { return vec3<f32>(0.93, 0.94, 0.96); }
         default: { return vec3<f32>(0.36, 0.52, 0.24); }
     }
+}
+
+// materials.rs MaterialMaps::new, per fragment: the alpha of material k (1..=4) for a height
+// and a normal.
+fn material_alpha(k: u32, height: f32, n: vec3<f32>) -> f32 {
+    let t = clamp((height - frame.height_min) / max(frame.height_range, 1e-6), 0.0, 1.0);
+    switch k {
+        case 1u: { return smoothstep(0.0, 0.35, t); }
+        case 2u: { return smoothstep(0.45, 0.75, t); }
+        case 3u: { return smoothstep(0.8, 0.95, t); }
+        default: { return smoothstep(0.55, 0.8, 1.0 - n.z); }
+    }
+}
+
+// Paged mode's fragment stage (its own pipeline, so the whole heightmap's pays nothing for
+// it): one pass, the materials blended in pass order with their alphas, lambert from the
+// pages' normal (at least the ambient 0.3, green above zero: never the background).
+@fragment
+fn fs_paged(in: VsOut) -> @location(0) vec4<f32> {
+    let n = normal_at(in.grid);
+    var c = material_colour(0u);
+    for (var k = 1u; k < 5u; k++) {
+        c = mix(c, material_colour(k), material_alpha(k, in.height, n));
+    }
+    let light = 0.3 + 0.7 * max(dot(n, frame.sun.xyz), 0.0);
+    return vec4<f32>(c * light, 1.0);
 }
 
 @fragment

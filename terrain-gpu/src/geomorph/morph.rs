@@ -46,9 +46,10 @@ use std::collections::HashMap;
 
 use bytemuck::{Pod, Zeroable};
 use glam::{DVec2, DVec3};
-use terrain_core::Heightmap;
 use terrain_core::lod::{PatchLod, SurfaceMesh};
 use terrain_core::measure::TriangleGrid;
+
+use crate::paged::HeightGrid;
 
 /// Edge indices in `terrain_core::lod::Edge` order.
 const SOUTH: usize = 0;
@@ -98,19 +99,33 @@ impl GpuMorphPatch {
     }
 }
 
-/// The morph over one heightmap with patches of `patch_cells` cells.
-#[derive(Debug, Clone, Copy)]
+/// The morph over one grid of heights with patches of `patch_cells` cells: a whole
+/// `Heightmap`, or the pages a paged renderer holds ([`crate::paged::PagedHeights`], the CPU
+/// mirror of its atlas: a store's blocks at their resident levels), read through the same
+/// [`HeightGrid::sample`] as the shader's `height_sample` (a sample on no resident page reads
+/// 0, as on the GPU).
+#[derive(Clone, Copy)]
 pub struct MorphGrid<'a> {
-    hm: &'a Heightmap,
+    hm: &'a dyn HeightGrid,
+    size: [u32; 2],
     patch_cells: u32,
     max_level: u32,
 }
 
+impl std::fmt::Debug for MorphGrid<'_> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("MorphGrid")
+            .field("size", &self.size)
+            .field("patch_cells", &self.patch_cells)
+            .finish_non_exhaustive()
+    }
+}
+
 impl<'a> MorphGrid<'a> {
     /// `patch_cells` must be a power of two.
-    pub fn new(hm: &'a Heightmap, patch_cells: u32) -> Self {
+    pub fn new(hm: &'a dyn HeightGrid, patch_cells: u32) -> Self {
         assert!(patch_cells.is_power_of_two() && patch_cells >= 2);
-        Self { hm, patch_cells, max_level: patch_cells.trailing_zeros() }
+        Self { hm, size: hm.size(), patch_cells, max_level: patch_cells.trailing_zeros() }
     }
 
     /// Cells per patch side.
@@ -120,15 +135,15 @@ impl<'a> MorphGrid<'a> {
 
     /// Grid sample of local lattice point `(x, y)` of `p`, clamped to the grid.
     pub fn sample_of(&self, p: &GpuMorphPatch, x: u32, y: u32) -> (u32, u32) {
-        let gi = (p.origin[0] + x).min(self.hm.width() as u32 - 1);
-        let gj = (p.origin[1] + y).min(self.hm.height() as u32 - 1);
+        let gi = (p.origin[0] + x).min(self.size[0] - 1);
+        let gj = (p.origin[1] + y).min(self.size[1] - 1);
         (gi, gj)
     }
 
-    /// `true_h`: the sample's height.
+    /// `true_h`: the sample's height (0 on no resident page, as `height_sample` reads it).
     fn true_h(&self, p: &GpuMorphPatch, x: u32, y: u32) -> f32 {
         let (i, j) = self.sample_of(p, x, y);
-        self.hm.get(i as usize, j as usize)
+        self.hm.sample(i, j).unwrap_or(0.0)
     }
 
     /// `edge_h`: a border vertex, morphing along its edge with the edge's level and tween.
@@ -202,7 +217,9 @@ impl<'a> MorphGrid<'a> {
     /// and [`MorphGrid::height`].
     pub fn world_position(&self, p: &GpuMorphPatch, x: u32, y: u32) -> DVec3 {
         let (i, j) = self.sample_of(p, x, y);
-        self.hm.grid_to_world(f64::from(i), f64::from(j)).extend(f64::from(self.height(p, x, y)))
+        let (origin, spacing) = self.hm.frame();
+        let plan = origin + DVec2::new(f64::from(i), f64::from(j)) * spacing;
+        plan.extend(f64::from(self.height(p, x, y)))
     }
 
     /// What the vertex stage computes for local point `(x, y)` of `p` with camera-relative
@@ -211,9 +228,9 @@ impl<'a> MorphGrid<'a> {
     /// height.
     pub fn relative_position(&self, p: &GpuMorphPatch, x: u32, y: u32, anchor: DVec3) -> [f32; 4] {
         let (i, j) = self.sample_of(p, x, y);
-        let geo = self.hm.georef();
-        let cx = (geo.world_origin.x + f64::from(i) * geo.spacing_m.x - anchor.x) as f32;
-        let cy = (geo.world_origin.y + f64::from(j) * geo.spacing_m.y - anchor.y) as f32;
+        let (origin, spacing) = self.hm.frame();
+        let cx = (origin.x + f64::from(i) * spacing.x - anchor.x) as f32;
+        let cy = (origin.y + f64::from(j) * spacing.y - anchor.y) as f32;
         let h = self.height(p, x, y);
         [cx, cy, h + (-anchor.z) as f32, h]
     }
@@ -405,7 +422,7 @@ pub fn max_vertex_jump(prev: &SurfaceMesh, next: &SurfaceMesh) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use terrain_core::Georef;
+    use terrain_core::{Georef, Heightmap};
 
     fn patch(level: u32, tween: f32, edge_level: [u32; 4], edge_tween: [f32; 4]) -> GpuMorphPatch {
         GpuMorphPatch { origin: [0, 0], level, tween, edge_level, edge_tween }

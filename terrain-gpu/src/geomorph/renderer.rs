@@ -1,6 +1,8 @@
-//! [`GeomorphRenderer`]: the heightmap, lightmap and alpha maps on the device, the mesh
-//! library, the pipelines of `geomorph.wgsl` (an opaque base pass and alpha-blended material
-//! passes), and the read-back hook the tests compare with the CPU reference.
+//! [`GeomorphRenderer`]: the heights (pages of a [`TerrainRenderer`]'s atlas: one page for a
+//! whole heightmap, a store's blocks in paged mode), the lightmap and alpha maps of a whole
+//! heightmap, the mesh library, the pipelines of `geomorph.wgsl` (an opaque base pass and
+//! alpha-blended material passes; one pass with per-fragment normals in paged mode), and the
+//! read-back hook the tests compare with the CPU reference.
 
 use std::mem::size_of;
 use std::time::Instant;
@@ -15,17 +17,21 @@ use terrain_core::lod::PatchLod;
 use super::materials::{MATERIALS, MaterialMaps};
 use super::morph::{GpuMorphPatch, MeshLibrary, PATCH_SHIFT};
 use crate::device::{GpuContext, GpuError, read_buffer};
+use crate::paged::PageLayout;
 use crate::render::{BACKGROUND, RenderError, TerrainRenderer};
 use crate::target::{COLOR_FORMAT, OffscreenTarget, RgbaImage};
 
-/// The shader source.
-pub const SHADER: &str = include_str!("geomorph.wgsl");
+/// The shader module: `geomorph.wgsl` with the paged lookup (`paged_lookup.wgsl`, shared with
+/// the tessellation renderer) after it.
+pub const SHADER: &str =
+    concat!(include_str!("geomorph.wgsl"), "\n", include_str!("../paged_lookup.wgsl"));
 
 /// `Frame` in `geomorph.wgsl`.
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
 struct GpuFrame {
     view_proj: [[f32; 4]; 4],
+    sun: [f32; 4],
     spacing: [f32; 2],
     grid_max: [u32; 2],
     height_offset: f32,
@@ -33,10 +39,15 @@ struct GpuFrame {
     patch_cells: u32,
     max_level: u32,
     patch_count: u32,
-    pad: [u32; 3],
+    flags: u32,
+    height_min: f32,
+    height_range: f32,
 }
 
-const _: () = assert!(size_of::<GpuFrame>() == 112);
+const _: () = assert!(size_of::<GpuFrame>() == 128);
+
+/// `FLAG_PAGED` in `geomorph.wgsl`.
+const FLAG_PAGED: u32 = 1;
 
 /// How the geomorph renderer is set up.
 #[derive(Clone, Debug, PartialEq)]
@@ -48,7 +59,8 @@ pub struct GeomorphConfig {
     /// Cells per patch side (a power of two; the selection's). Default 16.
     pub patch_cells: u32,
     /// The lightmap (sun, ambient, shadows). Default [`LightmapConfig::default`], the
-    /// tessellation renderer's sun, with horizon shadows.
+    /// tessellation renderer's sun, with horizon shadows. In paged mode only its sun is used
+    /// (per-fragment lambert with the renderer's ambient 0.3 and diffuse 0.7, no shadows).
     pub lightmap: LightmapConfig,
     /// Clear colour. Default [`BACKGROUND`] (magenta, never drawn).
     pub background: [u8; 4],
@@ -94,8 +106,32 @@ pub struct GeomorphFrameStats {
     pub adapter: String,
 }
 
+/// Where a [`GeomorphRenderer`]'s heights come from.
+#[derive(Debug)]
+enum Heights {
+    /// A whole heightmap as one R32Float texture (texel `(i, j)` = sample `(i, j)`: the one
+    /// page of stride 1 the lookup would find at the atlas's origin, read directly, shader
+    /// constant `PAGED` false; the page table bound is a placeholder), with the lightmap and
+    /// alpha maps.
+    Whole { heights: wgpu::TextureView, table: wgpu::Buffer, materials: MaterialMaps },
+    /// The pages of a paged [`TerrainRenderer`] the caller owns and passes to
+    /// [`GeomorphRenderer::render_paged`] (a store's blocks); its layout and height range.
+    Paged(PageLayout, [f32; 2]),
+}
+
+/// The bind group and what it binds.
+#[derive(Debug)]
+struct Bound {
+    atlas: wgpu::TextureView,
+    table: wgpu::Buffer,
+    patches: wgpu::Buffer,
+    group: wgpu::BindGroup,
+}
+
 /// Draws geo-mipmapped, geomorphed patches ([`PatchLod`]s from
-/// `terrain_core::lod::GeomipScene::select`) into an offscreen RGBA8 target.
+/// `terrain_core::lod::GeomipScene::select`) into an offscreen RGBA8 target, from a whole
+/// heightmap ([`GeomorphRenderer::new`]) or from the pages of a paged [`TerrainRenderer`]
+/// ([`GeomorphRenderer::new_paged`]: a store's blocks, at whatever level each is resident).
 #[derive(Debug)]
 pub struct GeomorphRenderer {
     device: wgpu::Device,
@@ -110,14 +146,15 @@ pub struct GeomorphRenderer {
     frame: wgpu::Buffer,
     col_x: wgpu::Buffer,
     row_y: wgpu::Buffer,
-    heights: wgpu::TextureView,
+    heights: Heights,
     light: wgpu::TextureView,
     alpha: wgpu::TextureView,
     sampler: wgpu::Sampler,
-    patches: Option<(wgpu::Buffer, u64, wgpu::BindGroup)>,
+    patches: Option<(wgpu::Buffer, u64)>,
+    bound: Option<Bound>,
     indices: Option<wgpu::Buffer>,
     lib: MeshLibrary,
-    materials: MaterialMaps,
+    sun: [f32; 4],
     grid: [u32; 2],
     origin: DVec2,
     spacing: DVec2,
@@ -150,17 +187,78 @@ fn texture(filterable: bool) -> wgpu::BindingType {
     }
 }
 
+/// The lightmap (R8) and alpha maps (RGBA8) as uploaded: a whole heightmap's, or 1 x 1
+/// placeholders in paged mode.
+struct Maps<'a> {
+    size: [u32; 2],
+    light: &'a [u8],
+    alpha: &'a [u8],
+}
+
+/// A `size[0]` x `size[1]` texture of `format` holding `bytes` (`texel` bytes each).
+fn upload_texture(
+    ctx: &GpuContext,
+    label: &str,
+    size: [u32; 2],
+    format: wgpu::TextureFormat,
+    bytes: &[u8],
+    texel: u32,
+) -> wgpu::TextureView {
+    let extent = wgpu::Extent3d { width: size[0], height: size[1], depth_or_array_layers: 1 };
+    let tex = ctx.device.create_texture(&wgpu::TextureDescriptor {
+        label: Some(label),
+        size: extent,
+        mip_level_count: 1,
+        sample_count: 1,
+        dimension: wgpu::TextureDimension::D2,
+        format,
+        usage: wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_DST,
+        view_formats: &[],
+    });
+    ctx.queue.write_texture(
+        tex.as_image_copy(),
+        bytes,
+        wgpu::TexelCopyBufferLayout {
+            offset: 0,
+            bytes_per_row: Some(size[0] * texel),
+            rows_per_image: Some(size[1]),
+        },
+        extent,
+    );
+    tex.create_view(&Default::default())
+}
+
+/// Refuses a target or patch size the renderer cannot draw.
+fn check_config(ctx: &GpuContext, config: &GeomorphConfig) -> Result<(), RenderError> {
+    let maximum = ctx.device.limits().max_texture_dimension_2d;
+    if config.width == 0 || config.height == 0 || config.width > maximum || config.height > maximum
+    {
+        return Err(RenderError::InvalidConfig(format!(
+            "target size {} x {} (allowed 1 to {maximum} per side)",
+            config.width, config.height
+        )));
+    }
+    let p = config.patch_cells;
+    if !(p.is_power_of_two() && (2..=64).contains(&p)) {
+        return Err(RenderError::InvalidConfig(format!(
+            "patch_cells {p}: a power of two from 2 to 64"
+        )));
+    }
+    Ok(())
+}
+
 impl GeomorphRenderer {
-    /// Uploads `hm`, its lightmap and alpha maps, the mesh library, and builds the pipelines
-    /// and a `config.width` x `config.height` target.
+    /// Uploads `hm` (one resident page of a tessellation renderer's atlas), its lightmap and
+    /// alpha maps, the mesh library, and builds the pipelines and a `config.width` x
+    /// `config.height` target.
     pub fn new(
         ctx: &GpuContext,
         hm: &Heightmap,
         config: &GeomorphConfig,
     ) -> Result<Self, RenderError> {
-        let device = &ctx.device;
-        let maximum = device.limits().max_texture_dimension_2d;
+        check_config(ctx, config)?;
         let (width, height) = (hm.width() as u32, hm.height() as u32);
+        let maximum = ctx.device.limits().max_texture_dimension_2d;
         if width > maximum || height > maximum {
             return Err(RenderError::TextureTooLarge {
                 what: "the heightmap",
@@ -169,64 +267,74 @@ impl GeomorphRenderer {
                 maximum,
             });
         }
-        if config.width == 0
-            || config.height == 0
-            || config.width > maximum
-            || config.height > maximum
-        {
-            return Err(RenderError::InvalidConfig(format!(
-                "target size {} x {} (allowed 1 to {maximum} per side)",
-                config.width, config.height
-            )));
-        }
-        let p = config.patch_cells;
-        if !(p.is_power_of_two() && (2..=64).contains(&p)) {
-            return Err(RenderError::InvalidConfig(format!(
-                "patch_cells {p}: a power of two from 2 to 64"
-            )));
-        }
-        let size = |w, h| wgpu::Extent3d { width: w, height: h, depth_or_array_layers: 1 };
-        let upload = |label, format: wgpu::TextureFormat, bytes: &[u8], texel: u32| {
-            let tex = device.create_texture(&wgpu::TextureDescriptor {
-                label: Some(label),
-                size: size(width, height),
-                mip_level_count: 1,
-                sample_count: 1,
-                dimension: wgpu::TextureDimension::D2,
-                format,
-                usage: wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_DST,
-                view_formats: &[],
-            });
-            ctx.queue.write_texture(
-                tex.as_image_copy(),
-                bytes,
-                wgpu::TexelCopyBufferLayout {
-                    offset: 0,
-                    bytes_per_row: Some(width * texel),
-                    rows_per_image: Some(height),
-                },
-                size(width, height),
-            );
-            tex.create_view(&Default::default())
-        };
-        let heights = upload(
-            "geomorph heights",
-            wgpu::TextureFormat::R32Float,
-            bytemuck::cast_slice(hm.data()),
-            4,
-        );
         let light_values: Vec<u8> = lightmap(hm, &config.lightmap)
             .iter()
             .map(|&l| (l * 255.0).round().clamp(0.0, 255.0) as u8)
             .collect();
-        let light = upload("lightmap", wgpu::TextureFormat::R8Unorm, &light_values, 1);
-        let materials = MaterialMaps::new(hm, p);
-        let alpha = upload(
-            "alpha maps",
-            wgpu::TextureFormat::Rgba8Unorm,
-            bytemuck::cast_slice(&materials.alpha),
+        let materials = MaterialMaps::new(hm, config.patch_cells);
+        let alpha: Vec<u8> = bytemuck::cast_slice(&materials.alpha).to_vec();
+        let maps = Maps { size: [width, height], light: &light_values, alpha: &alpha };
+        let heights = upload_texture(
+            ctx,
+            "geomorph heights",
+            [width, height],
+            wgpu::TextureFormat::R32Float,
+            bytemuck::cast_slice(hm.data()),
             4,
         );
+        let table = ctx.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("geomorph page table (unused)"),
+            size: 16,
+            usage: wgpu::BufferUsages::STORAGE,
+            mapped_at_creation: false,
+        });
+        let layout = PageLayout::whole(hm);
+        Self::build(ctx, &layout, Heights::Whole { heights, table, materials }, maps, config)
+    }
+
+    /// A renderer drawing from the pages of `pages`, a paged [`TerrainRenderer`]
+    /// ([`TerrainRenderer::new_paged_classes`]: a store's blocks, each at its resident level)
+    /// that the caller keeps and passes to every [`GeomorphRenderer::render_paged`]: the same
+    /// atlas, page table and lookup (`paged_lookup.wgsl`) the tessellation renderer draws
+    /// from, so both read every sample alike. No lightmap or alpha maps (they need the whole
+    /// grid): normals per fragment from the pages and the materials blended per fragment by
+    /// the same alphas, in one pass. Never allocates the grid (one `f32` per column and row).
+    pub fn new_paged(
+        ctx: &GpuContext,
+        pages: &TerrainRenderer,
+        config: &GeomorphConfig,
+    ) -> Result<Self, RenderError> {
+        check_config(ctx, config)?;
+        let maps = Maps { size: [1, 1], light: &[255], alpha: &[0; 4] };
+        let layout = *pages.page_layout();
+        Self::build(ctx, &layout, Heights::Paged(layout, pages.height_range()), maps, config)
+    }
+
+    fn build(
+        ctx: &GpuContext,
+        grid: &PageLayout,
+        heights: Heights,
+        maps: Maps<'_>,
+        config: &GeomorphConfig,
+    ) -> Result<Self, RenderError> {
+        let device = &ctx.device;
+        let [width, height] = grid.grid;
+        let p = config.patch_cells;
+        let light =
+            upload_texture(ctx, "lightmap", maps.size, wgpu::TextureFormat::R8Unorm, maps.light, 1);
+        let alpha = upload_texture(
+            ctx,
+            "alpha maps",
+            maps.size,
+            wgpu::TextureFormat::Rgba8Unorm,
+            maps.alpha,
+            4,
+        );
+        let sun = glam::DVec3::from(config.lightmap.sun_direction);
+        if !(sun.length() > 0.0 && sun.is_finite()) {
+            return Err(RenderError::InvalidConfig(format!("sun direction {sun}")));
+        }
+        let sun = sun.normalize().as_vec3().extend(0.0).to_array();
         let sampler = device.create_sampler(&wgpu::SamplerDescriptor {
             label: Some("geomorph maps"),
             mag_filter: wgpu::FilterMode::Linear,
@@ -251,6 +359,7 @@ impl GeomorphRenderer {
                 entry(6, texture(true)),
                 entry(7, texture(true)),
                 entry(8, wgpu::BindingType::Sampler(wgpu::SamplerBindingType::Filtering)),
+                entry(9, storage(true)),
             ],
         });
         let debug_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
@@ -279,6 +388,13 @@ impl GeomorphRenderer {
             bind_group_layouts: &[Some(&layout)],
             immediate_size: 0,
         });
+        // Paged mode shades per fragment from the pages (`fs_paged`); a whole heightmap from
+        // its lightmap and alpha maps (`fs`).
+        let paged = matches!(heights, Heights::Paged(..));
+        let fragment = if paged { "fs_paged" } else { "fs" };
+        let constants = [("PAGED", if paged { 1.0 } else { 0.0 })];
+        let options =
+            || wgpu::PipelineCompilationOptions { constants: &constants, ..Default::default() };
         let pipeline = |label, depth: wgpu::DepthStencilState, target: wgpu::ColorTargetState| {
             device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
                 label: Some(label),
@@ -286,7 +402,7 @@ impl GeomorphRenderer {
                 vertex: wgpu::VertexState {
                     module: &module,
                     entry_point: Some("vs"),
-                    compilation_options: Default::default(),
+                    compilation_options: options(),
                     buffers: &[],
                 },
                 // No culling: skirts are seen from both sides.
@@ -295,8 +411,8 @@ impl GeomorphRenderer {
                 multisample: Default::default(),
                 fragment: Some(wgpu::FragmentState {
                     module: &module,
-                    entry_point: Some("fs"),
-                    compilation_options: Default::default(),
+                    entry_point: Some(fragment),
+                    compilation_options: options(),
                     targets: &[Some(target)],
                 }),
                 multiview_mask: None,
@@ -330,7 +446,7 @@ impl GeomorphRenderer {
             layout: Some(&debug_pipeline_layout),
             module: &module,
             entry_point: Some("debug_morph"),
-            compilation_options: Default::default(),
+            compilation_options: options(),
             cache: None,
         });
         use wgpu::BufferUsages as U;
@@ -347,7 +463,6 @@ impl GeomorphRenderer {
         let col_x = buffer("geomorph columns", 4 * u64::from(width), U::STORAGE | U::COPY_DST);
         let row_y = buffer("geomorph rows", 4 * u64::from(height), U::STORAGE | U::COPY_DST);
         let lib = MeshLibrary::new(p);
-        let geo = hm.georef();
         Ok(Self {
             device: ctx.device.clone(),
             queue: ctx.queue.clone(),
@@ -366,12 +481,13 @@ impl GeomorphRenderer {
             alpha,
             sampler,
             patches: None,
+            bound: None,
             indices: None,
             lib,
-            materials,
+            sun,
             grid: [width, height],
-            origin: geo.world_origin,
-            spacing: geo.spacing_m,
+            origin: grid.origin,
+            spacing: grid.spacing,
             background: config.background,
             anchor: None,
         })
@@ -387,9 +503,18 @@ impl GeomorphRenderer {
         &self.adapter
     }
 
-    /// The material maps and per-patch pass masks.
-    pub fn materials(&self) -> &MaterialMaps {
-        &self.materials
+    /// The material maps and per-patch pass masks (a whole heightmap's; `None` in paged
+    /// mode, which blends the materials per fragment in one pass).
+    pub fn materials(&self) -> Option<&MaterialMaps> {
+        match &self.heights {
+            Heights::Whole { materials, .. } => Some(materials),
+            Heights::Paged(..) => None,
+        }
+    }
+
+    /// Whether it draws from a paged renderer's pages ([`GeomorphRenderer::new_paged`]).
+    pub fn is_paged(&self) -> bool {
+        matches!(self.heights, Heights::Paged(..))
     }
 
     /// The mesh library.
@@ -397,9 +522,35 @@ impl GeomorphRenderer {
         &self.lib
     }
 
-    /// Uploads `lods` (growing the patch buffer when needed) and the frame uniform.
+    /// The page atlas and page table to bind: the own tessellation renderer's (whole
+    /// heightmap, `pages` `None`) or those of `pages` (paged mode), page-table changes written
+    /// to the device first.
+    fn page_resources(
+        &mut self,
+        pages: Option<&mut TerrainRenderer>,
+    ) -> Result<(wgpu::TextureView, wgpu::Buffer), RenderError> {
+        match (&mut self.heights, pages) {
+            (Heights::Whole { heights, table, .. }, None) => Ok((heights.clone(), table.clone())),
+            (Heights::Paged(layout, _), Some(p)) if p.page_layout() == layout => {
+                Ok(p.page_resources())
+            }
+            (Heights::Paged(..), Some(_)) => Err(RenderError::InvalidConfig(
+                "the pages given are of another layout than the renderer was made for".into(),
+            )),
+            (Heights::Paged(..), None) => Err(RenderError::InvalidConfig(
+                "a paged geomorph renderer draws the pages given to render_paged".into(),
+            )),
+            (Heights::Whole { .. }, Some(_)) => Err(RenderError::InvalidConfig(
+                "a whole-heightmap geomorph renderer draws its own heights: call render".into(),
+            )),
+        }
+    }
+
+    /// Uploads `lods` (growing the patch buffer when needed) and the frame uniform, and binds
+    /// the heights of `pages` (see [`GeomorphRenderer::page_resources`]).
     fn upload(
         &mut self,
+        pages: Option<&mut TerrainRenderer>,
         camera: &Camera,
         lods: &[GpuMorphPatch],
         options: &GeomorphOptions,
@@ -430,8 +581,9 @@ impl GeomorphRenderer {
                 1u64 << (32 - PATCH_SHIFT)
             )));
         }
+        let (atlas, table) = self.page_resources(pages)?;
         let bytes = (lods.len().max(1) * size_of::<GpuMorphPatch>()) as u64;
-        if self.patches.as_ref().is_none_or(|(_, cap, _)| *cap < bytes) {
+        if self.patches.as_ref().is_none_or(|(_, cap)| *cap < bytes) {
             let cap = bytes.next_power_of_two();
             let buf = self.device.create_buffer(&wgpu::BufferDescriptor {
                 label: Some("geomorph patches"),
@@ -439,24 +591,32 @@ impl GeomorphRenderer {
                 usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
                 mapped_at_creation: false,
             });
+            self.patches = Some((buf, cap));
+        }
+        let (buf, _) = self.patches.as_ref().expect("allocated above");
+        if self
+            .bound
+            .as_ref()
+            .is_none_or(|b| b.atlas != atlas || b.table != table || b.patches != *buf)
+        {
             let bind = |binding, resource| wgpu::BindGroupEntry { binding, resource };
             let group = self.device.create_bind_group(&wgpu::BindGroupDescriptor {
                 label: Some("geomorph"),
                 layout: &self.layout,
                 entries: &[
                     bind(0, self.frame.as_entire_binding()),
-                    bind(1, wgpu::BindingResource::TextureView(&self.heights)),
+                    bind(1, wgpu::BindingResource::TextureView(&atlas)),
                     bind(2, buf.as_entire_binding()),
                     bind(3, self.col_x.as_entire_binding()),
                     bind(4, self.row_y.as_entire_binding()),
                     bind(6, wgpu::BindingResource::TextureView(&self.light)),
                     bind(7, wgpu::BindingResource::TextureView(&self.alpha)),
                     bind(8, wgpu::BindingResource::Sampler(&self.sampler)),
+                    bind(9, table.as_entire_binding()),
                 ],
             });
-            self.patches = Some((buf, cap, group));
+            self.bound = Some(Bound { atlas, table, patches: buf.clone(), group });
         }
-        let (buf, _, _) = self.patches.as_ref().expect("allocated above");
         if !lods.is_empty() {
             self.queue.write_buffer(buf, 0, bytemuck::cast_slice(lods));
         }
@@ -471,8 +631,13 @@ impl GeomorphRenderer {
             self.queue.write_buffer(&self.row_y, 0, bytemuck::cast_slice(&rows));
             self.anchor = Some(anchor);
         }
+        let (flags, [lo, hi]) = match self.heights {
+            Heights::Whole { .. } => (0, [0.0, 0.0]),
+            Heights::Paged(_, range) => (FLAG_PAGED, range),
+        };
         let frame = GpuFrame {
             view_proj: camera.view_proj_for_anchor(anchor).to_cols_array_2d(),
+            sun: self.sun,
             spacing: self.spacing.as_vec2().to_array(),
             grid_max: [w - 1, h - 1],
             height_offset: (-anchor.z) as f32,
@@ -480,7 +645,9 @@ impl GeomorphRenderer {
             patch_cells: self.lib.patch_cells,
             max_level: self.lib.patch_cells.trailing_zeros(),
             patch_count: lods.len().max(1) as u32,
-            pad: [0; 3],
+            flags,
+            height_min: lo,
+            height_range: (hi - lo).max(0.0),
         };
         self.queue.write_buffer(&self.frame, 0, bytemuck::bytes_of(&frame));
         Ok(())
@@ -488,9 +655,34 @@ impl GeomorphRenderer {
 
     /// Draws `lods` as seen by `camera` (its viewport is replaced by the target's size): the
     /// base material on every patch, then each further material on the patches whose alpha
-    /// map is not zero there. Waits for the device.
+    /// map is not zero there. Waits for the device. A whole-heightmap renderer's
+    /// ([`GeomorphRenderer::new`]); a paged one draws with [`GeomorphRenderer::render_paged`].
     pub fn render(
         &mut self,
+        camera: &Camera,
+        lods: &[PatchLod],
+        options: &GeomorphOptions,
+    ) -> Result<GeomorphFrameStats, RenderError> {
+        self.draw(None, camera, lods, options)
+    }
+
+    /// Draws `lods` as seen by `camera` from the resident pages of `pages` (the paged
+    /// renderer given to [`GeomorphRenderer::new_paged`]; a sample on no resident page reads
+    /// 0, so callers draw only patches over resident pages): one pass, materials blended per
+    /// fragment. Waits for the device.
+    pub fn render_paged(
+        &mut self,
+        pages: &mut TerrainRenderer,
+        camera: &Camera,
+        lods: &[PatchLod],
+        options: &GeomorphOptions,
+    ) -> Result<GeomorphFrameStats, RenderError> {
+        self.draw(Some(pages), camera, lods, options)
+    }
+
+    fn draw(
+        &mut self,
+        pages: Option<&mut TerrainRenderer>,
         camera: &Camera,
         lods: &[PatchLod],
         options: &GeomorphOptions,
@@ -500,7 +692,13 @@ impl GeomorphRenderer {
         let camera = camera.with_viewport(f64::from(tw), f64::from(th));
         let n = self.lib.patch_cells;
         let gpu: Vec<GpuMorphPatch> = lods.iter().map(|p| GpuMorphPatch::from_lod(p, n)).collect();
-        self.upload(&camera, &gpu, options)?;
+        self.upload(pages, &camera, &gpu, options)?;
+        // Paged mode: the base pass only (it blends every material per fragment).
+        let materials = match &self.heights {
+            Heights::Whole { materials, .. } => Some(materials),
+            Heights::Paged(..) => None,
+        };
+        let passes_of = if materials.is_some() { MATERIALS } else { 1 };
         let [w, h] = self.grid;
         let mut stats = GeomorphFrameStats {
             patches: lods.len(),
@@ -516,10 +714,10 @@ impl GeomorphRenderer {
         // (software rasterisers pay per draw) and vertex_index carries patch and local id.
         let mut indices: Vec<u32> = Vec::new();
         let mut passes: Vec<(usize, u32, u32)> = Vec::new();
-        for material in 0..MATERIALS {
+        for material in 0..passes_of {
             let first = indices.len() as u32;
             for (k, (p, lod)) in gpu.iter().zip(lods).enumerate() {
-                if !self.materials.draws(lod.i, lod.j, material) {
+                if materials.is_some_and(|m| !m.draws(lod.i, lod.j, material)) {
                     stats.passes_skipped += 1;
                     continue;
                 }
@@ -559,7 +757,7 @@ impl GeomorphRenderer {
         if !indices.is_empty() {
             self.queue.write_buffer(index_buffer, 0, bytemuck::cast_slice(&indices));
         }
-        let (_, _, group) = self.patches.as_ref().expect("uploaded");
+        let group = &self.bound.as_ref().expect("uploaded").group;
         let mut encoder = self.device.create_command_encoder(&Default::default());
         {
             let [r, g, b, a] = self.background.map(|c| f64::from(c) / 255.0);
@@ -592,9 +790,32 @@ impl GeomorphRenderer {
         lods: &[GpuMorphPatch],
         items: &[[u32; 2]],
     ) -> Result<Vec<[f32; 4]>, RenderError> {
+        self.read_back(None, camera_position, lods, items)
+    }
+
+    /// Test hook: [`GeomorphRenderer::morph_read_back`] of a paged renderer over the pages of
+    /// `pages`. Compare with [`super::morph::MorphGrid::relative_position`] over the pages'
+    /// CPU mirror ([`crate::paged::PagedHeights`]).
+    pub fn morph_read_back_paged(
+        &mut self,
+        pages: &mut TerrainRenderer,
+        camera_position: DVec3,
+        lods: &[GpuMorphPatch],
+        items: &[[u32; 2]],
+    ) -> Result<Vec<[f32; 4]>, RenderError> {
+        self.read_back(Some(pages), camera_position, lods, items)
+    }
+
+    fn read_back(
+        &mut self,
+        pages: Option<&mut TerrainRenderer>,
+        camera_position: DVec3,
+        lods: &[GpuMorphPatch],
+        items: &[[u32; 2]],
+    ) -> Result<Vec<[f32; 4]>, RenderError> {
         let camera = Camera::from_yaw_pitch(camera_position, 0.0, 0.0);
-        self.upload(&camera, lods, &GeomorphOptions::default())?;
-        let (_, _, group) = self.patches.as_ref().expect("uploaded");
+        self.upload(pages, &camera, lods, &GeomorphOptions::default())?;
+        let group = &self.bound.as_ref().expect("uploaded").group;
         let n = items.len().max(1) as u64;
         let groups = (n as u32).div_ceil(64);
         let items_buf = self.device.create_buffer(&wgpu::BufferDescriptor {

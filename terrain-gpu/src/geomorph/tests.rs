@@ -1,8 +1,10 @@
 //! Tests of the geomorph: continuity under small camera steps (and its failure without
 //! morphing), crack-freedom on the CPU (`open_edges`) and on the GPU (magenta background
 //! against a skirted reference, naming the adapter), the GPU's morph against the CPU reference,
-//! the material passes, and Puget Sound 1k. GPU tests print why and pass where no adapter
-//! exists, unless `TERRAIN_REQUIRE_GPU` is set.
+//! the material passes, Puget Sound 1k, and the paged mode (heights from a paged renderer's
+//! pages of mixed strides, as a store's blocks at their resident levels: GPU = CPU reference
+//! over the pages' mirror, no cracks). GPU tests print why and pass where no adapter exists,
+//! unless `TERRAIN_REQUIRE_GPU` is set.
 
 use std::path::PathBuf;
 
@@ -14,7 +16,9 @@ use terrain_core::synth::FractalConfig;
 
 use super::*;
 use crate::device::BackendChoice;
+use crate::paged::{Page, PageClass, PagedHeights};
 use crate::render::BACKGROUND;
+use crate::render::TerrainRenderer;
 use crate::render::crack::crack_cameras;
 use crate::test_support::{context, puget_sound};
 
@@ -223,7 +227,7 @@ fn puget_sound_watertight_crack_free_and_skips_materials() {
     let Some(ctx) = context(BackendChoice::Vulkan) else { return };
     let config = GeomorphConfig { width: 256, height: 144, ..Default::default() };
     let mut renderer = GeomorphRenderer::new(&ctx, &hm, &config).unwrap();
-    let maps = renderer.materials();
+    let maps = renderer.materials().expect("a whole heightmap has material maps");
     let (nx, ny) = maps.patches;
     let no_snow = (0..ny)
         .flat_map(|j| (0..nx).map(move |i| (i, j)))
@@ -357,4 +361,208 @@ fn no_cracks_fractal_gl() {
     let cracks = geomorph_cracks(&mut renderer, &hm, 2.0, &crack_cameras(&hm, 17)[..7]);
     println!("{}: crack pixels {cracks:?}", ctx.describe());
     assert!(cracks.iter().all(|&c| c == 0), "cracks {cracks:?}");
+}
+
+/// `hm` in pages of 64 cells, page `k` stored at stride `2^(k mod 4)` (1 to 8: a store's blocks
+/// at different resident levels) and the page at `(1, 1)` left out when `hole`; the CPU mirror
+/// and a paged tessellation renderer holding the same pages.
+fn mixed_pages(
+    ctx: &crate::GpuContext,
+    hm: &Heightmap,
+    hole: bool,
+) -> (PagedHeights, TerrainRenderer) {
+    let full = PagedHeights::from_heightmap(hm, 64);
+    let layout = *full.layout();
+    let w = layout.page_samples()[0] as usize;
+    let mut mirror = PagedHeights::new(layout);
+    for (k, (&page, p)) in full.pages().enumerate() {
+        if hole && page == [1, 1] {
+            continue;
+        }
+        let d = 1usize << (k % 4);
+        let n = 64 / d;
+        let lattice: Vec<f32> = (0..=n)
+            .flat_map(|b| (0..=n).map(move |a| (a, b)))
+            .map(|(a, b)| p.samples[b * d * w + a * d])
+            .collect();
+        mirror.insert(page, Page { samples: lattice, stride: d as u32 }).unwrap();
+    }
+    let classes: Vec<PageClass> =
+        [1, 2, 4, 8].map(|stride| PageClass { stride, capacity: 16 }).to_vec();
+    let rc = crate::render::RenderConfig { width: 1, height: 1, ..Default::default() };
+    let mut pages =
+        TerrainRenderer::new_paged_classes(ctx, layout, &classes, [hm.min(), hm.max()], &rc)
+            .unwrap();
+    for (&page, p) in mirror.pages() {
+        pages.set_page_lattice(page, &p.samples, p.stride).unwrap();
+    }
+    (mirror, pages)
+}
+
+/// Paged mode: the morph the vertex stage computes from a paged renderer's pages (mixed
+/// strides) equals the CPU reference over the pages' mirror (`MorphGrid` over
+/// `PagedHeights`), with the tolerance of `gpu_morph_matches_cpu`; the coarse pages change
+/// the heights (the control: the whole heightmap's morph differs there).
+fn paged_morph_matches_cpu(backend: BackendChoice) {
+    let Some(ctx) = context(backend) else { return };
+    let hm = fractal();
+    let (mirror, mut pages) = mixed_pages(&ctx, &hm, false);
+    let config = GeomorphConfig { width: 64, height: 64, ..Default::default() };
+    let mut renderer = GeomorphRenderer::new_paged(&ctx, &pages, &config).unwrap();
+    assert!(renderer.is_paged() && renderer.materials().is_none());
+    let scene = GeomipScene::new(&hm, 16);
+    let paged = MorphGrid::new(&mirror, 16);
+    let whole = MorphGrid::new(&hm, 16);
+    let cfg = GeomipConfig { frustum_cull: false, pixel_threshold: 2.0, ..Default::default() };
+    let (mut worst, mut differs, mut compared) = (0.0f32, 0usize, 0usize);
+    for c in crack_cameras(&hm, 17).into_iter().step_by(5) {
+        let c = c.with_viewport(1280.0, 720.0);
+        let sel = scene.select(&c, &cfg);
+        let patches = gpu_patches(&sel.patches, 16);
+        assert!(patches.iter().any(|p| p.tween > 0.0));
+        let mut items = Vec::new();
+        for (k, p) in patches.iter().enumerate() {
+            let mut ids: Vec<u32> = renderer.library().triangles(p).to_vec();
+            ids.sort_unstable();
+            ids.dedup();
+            items.extend(ids.into_iter().map(|id| [k as u32, id]));
+        }
+        let gpu = renderer.morph_read_back_paged(&mut pages, c.position, &patches, &items).unwrap();
+        let anchor = TerrainRenderer::anchor_for(c.position);
+        let tol = 16.0
+            * f32::EPSILON
+            * (hm.max().abs().max(hm.min().abs()) + anchor.z.abs() as f32 + 1.0);
+        for (&[k, id], g) in items.iter().zip(&gpu) {
+            let (x, y) = (id % 17, id / 17);
+            let p = &patches[k as usize];
+            let cpu = paged.relative_position(p, x, y, anchor);
+            assert_eq!((g[0], g[1]), (cpu[0], cpu[1]), "plan position of {k}/{id}");
+            for c in [2, 3] {
+                let d = (g[c] - cpu[c]).abs();
+                worst = worst.max(d);
+                assert!(d <= tol, "patch {k} vertex ({x}, {y}): GPU {g:?} CPU {cpu:?}");
+            }
+            differs += usize::from(whole.height(p, x, y) != cpu[3]);
+            compared += 1;
+        }
+    }
+    println!(
+        "{} paged: largest height difference GPU - CPU {worst} m over {compared} vertices; \
+         {differs} differ from the whole heightmap's morph",
+        renderer.adapter()
+    );
+    assert!(differs > compared / 10, "coarse pages change the morph: {differs} of {compared}");
+}
+
+#[test]
+fn paged_morph_matches_the_cpu_reference_vulkan() {
+    paged_morph_matches_cpu(BackendChoice::Vulkan);
+}
+
+#[test]
+fn paged_morph_matches_the_cpu_reference_gl() {
+    paged_morph_matches_cpu(BackendChoice::Gl);
+}
+
+/// Paged mode draws no crack over pages of mixed strides (the crack cameras, skirts as the
+/// reference), and the negative control (patches ignoring their coarser neighbours) cracks on
+/// the same pages. With all pages at stride 1 it draws the whole-heightmap renderer's
+/// geometry: the same depth-tested coverage.
+#[test]
+fn paged_mode_draws_no_cracks_and_the_control_does() {
+    let Some(ctx) = context(BackendChoice::Vulkan) else { return };
+    let hm = fractal();
+    let (_, mut pages) = mixed_pages(&ctx, &hm, false);
+    let config = GeomorphConfig { width: 256, height: 144, ..Default::default() };
+    let mut renderer = GeomorphRenderer::new_paged(&ctx, &pages, &config).unwrap();
+    let scene = GeomipScene::new(&hm, 16);
+    let skirt = GeomorphOptions { skirt_depth_m: hm.max() - hm.min() + 10.0 };
+    let mut crack_pixels = |renderer: &mut GeomorphRenderer, lods: &[PatchLod], camera: &Camera| {
+        renderer.render_paged(&mut pages, camera, lods, &GeomorphOptions::default()).unwrap();
+        let plain = renderer.read_image().unwrap();
+        renderer.render_paged(&mut pages, camera, lods, &skirt).unwrap();
+        let reference = renderer.read_image().unwrap();
+        assert!(plain.pixels.iter().any(|&p| p != BACKGROUND), "terrain in view");
+        plain
+            .pixels
+            .iter()
+            .zip(&reference.pixels)
+            .filter(|&(&a, &b)| a == BACKGROUND && b != BACKGROUND)
+            .count()
+    };
+    let (mut cracks, mut control) = (Vec::new(), 0);
+    for camera in crack_cameras(&hm, 17).iter().take(7) {
+        let cfg = GeomipConfig { pixel_threshold: 2.0, ..Default::default() };
+        let sel = scene.select(&camera.with_viewport(1280.0, 720.0), &cfg);
+        cracks.push(crack_pixels(&mut renderer, &sel.patches, camera));
+        let broken: Vec<PatchLod> = sel
+            .patches
+            .iter()
+            .map(|p| PatchLod { edge_level: [p.level; 4], edge_tween: [0.0; 4], ..*p })
+            .collect();
+        control += crack_pixels(&mut renderer, &broken, camera);
+    }
+    println!("{} paged: crack pixels {cracks:?}, negative control {control}", ctx.describe());
+    assert!(cracks.iter().all(|&c| c == 0), "cracks {cracks:?}");
+    assert!(control > 0, "the crack test cannot see cracks");
+    // A paged renderer refuses to draw without its pages, and a whole one with pages.
+    let sel = scene.select(&crack_cameras(&hm, 17)[0], &GeomipConfig::default());
+    let camera = crack_cameras(&hm, 17)[0];
+    assert!(renderer.render(&camera, &sel.patches, &GeomorphOptions::default()).is_err());
+    let mut whole = GeomorphRenderer::new(&ctx, &hm, &config).unwrap();
+    let e = whole.render_paged(&mut pages, &camera, &sel.patches, &GeomorphOptions::default());
+    assert!(e.is_err());
+}
+
+/// Paged mode's shading (per-fragment normals from the pages, the materials blended per
+/// fragment) looks like the whole heightmap's (lightmap and alpha maps, no shadows) over the
+/// same heights (every page at stride 1): the same coverage, colours within a few levels
+/// (per sample and filtered there, per fragment here).
+#[test]
+fn paged_mode_looks_like_the_whole_heightmaps() {
+    let Some(ctx) = context(BackendChoice::Vulkan) else { return };
+    let hm = fractal();
+    let (w, h) = (240, 135);
+    let camera = crate::render::default_camera(&hm, w, h, 60.0);
+    let lightmap = terrain_core::lightmap::LightmapConfig { shadows: false, ..Default::default() };
+    let config = GeomorphConfig { width: w, height: h, lightmap, ..Default::default() };
+    let sel = GeomipScene::new(&hm, 16).select(&camera, &GeomipConfig::default());
+    let mut whole = GeomorphRenderer::new(&ctx, &hm, &config).unwrap();
+    whole.render(&camera, &sel.patches, &GeomorphOptions::default()).unwrap();
+    let a = whole.read_image().unwrap();
+    let full = PagedHeights::from_heightmap(&hm, 64);
+    let classes = [PageClass { stride: 1, capacity: 16 }];
+    let rc = crate::render::RenderConfig { width: 1, height: 1, ..Default::default() };
+    let mut pages = TerrainRenderer::new_paged_classes(
+        &ctx,
+        *full.layout(),
+        &classes,
+        [hm.min(), hm.max()],
+        &rc,
+    )
+    .unwrap();
+    for (&page, p) in full.pages() {
+        pages.set_page_lattice(page, &p.samples, 1).unwrap();
+    }
+    let mut paged = GeomorphRenderer::new_paged(&ctx, &pages, &config).unwrap();
+    paged.render_paged(&mut pages, &camera, &sel.patches, &GeomorphOptions::default()).unwrap();
+    let b = paged.read_image().unwrap();
+    let (mut sum, mut n) = (0.0, 0usize);
+    for (p, q) in a.pixels.iter().zip(&b.pixels) {
+        if *p != BACKGROUND && *q != BACKGROUND {
+            sum += (0..3).map(|c| f64::from(p[c].abs_diff(q[c]))).sum::<f64>() / 3.0;
+            n += 1;
+        }
+    }
+    let both = a
+        .pixels
+        .iter()
+        .zip(&b.pixels)
+        .filter(|(p, q)| (**p == BACKGROUND) == (**q == BACKGROUND))
+        .count();
+    let mean = sum / n.max(1) as f64;
+    println!("paged vs whole: mean |difference| {mean:.2} levels over {n} pixels, coverage {both}");
+    assert!(n > 1000, "{n} terrain pixels");
+    assert!(both as f64 > 0.99 * a.pixels.len() as f64);
+    assert!(mean < 6.0, "mean difference {mean} levels");
 }

@@ -53,6 +53,7 @@ mod renderer;
 mod tests;
 
 pub use framing::{clip_range, default_camera};
+pub(crate) use renderer::SHADER;
 pub use renderer::{FrameStats, RenderError, SurfaceReadBack, TerrainRenderer};
 
 use terrain_core::Heightmap;

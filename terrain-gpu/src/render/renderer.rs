@@ -22,7 +22,9 @@ use crate::tess::{
 };
 
 /// The shader source.
-pub(super) const SHADER: &str = include_str!("terrain.wgsl");
+/// The shader module: `terrain.wgsl` with the paged lookup (`paged_lookup.wgsl`) after it.
+pub(crate) const SHADER: &str =
+    concat!(include_str!("terrain.wgsl"), "\n", include_str!("../paged_lookup.wgsl"));
 
 /// `Frame` in `terrain.wgsl`.
 #[repr(C)]
@@ -846,6 +848,22 @@ impl TerrainRenderer {
     /// The page layout.
     pub fn page_layout(&self) -> &PageLayout {
         &self.page_layout
+    }
+
+    /// The page atlas's view and the page table, as `paged_lookup.wgsl` binds them (bindings
+    /// 1 and 9), page-table changes written to the device first: the geomorph renderer draws
+    /// from the same pages ([`crate::geomorph::GeomorphRenderer::new_paged`]).
+    pub(crate) fn page_resources(&mut self) -> (wgpu::TextureView, wgpu::Buffer) {
+        if self.table_dirty {
+            self.queue.write_buffer(&self.page_table, 0, bytemuck::cast_slice(&self.table));
+            self.table_dirty = false;
+        }
+        (self.heights.clone(), self.page_table.clone())
+    }
+
+    /// Lowest and highest height the colour ramp spans.
+    pub fn height_range(&self) -> [f32; 2] {
+        [self.height_min, self.height_max]
     }
 
     /// Page slots in the atlas, all classes.
