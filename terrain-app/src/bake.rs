@@ -120,6 +120,8 @@ fn streamed(args: &BakeArgs) -> anyhow::Result<Option<RowReader>> {
 pub(crate) fn run(args: &BakeArgs) -> anyhow::Result<()> {
     // Before any work: a file or a folder of the user's files is never replaced.
     terrain_stream::check_output(&args.output, args.overwrite)?;
+    // Ctrl-C / SIGTERM: checked after each row of blocks and between the tables.
+    crate::interrupt::install()?;
     let bounded = HeightEncoding::Bounded { max_error_m: args.max_error };
     let mut config = BakeConfig {
         k: args.block_k,
@@ -197,10 +199,35 @@ pub(crate) fn run(args: &BakeArgs) -> anyhow::Result<()> {
             let _ = writeln!(err, "blocks: {line}");
         }
         let _ = err.flush();
-        ControlFlow::Continue(())
+        if crate::interrupt::interrupted() {
+            ControlFlow::Break(())
+        } else {
+            ControlFlow::Continue(())
+        }
     };
-    let report = bake(source, &args.output, &config, &mut bar)
-        .with_context(|| format!("baking {}", args.output.display()))?;
+    let report = match bake(source, &args.output, &config, &mut bar) {
+        // The library removed its `.NAME.part` folder; an existing store was not touched.
+        Err(terrain_stream::BakeError::Cancelled) => {
+            return Err(crate::interrupt::Interrupted(format!(
+                "no store written, {} is as it was",
+                args.output.display()
+            ))
+            .into());
+        }
+        r => r.with_context(|| format!("baking {}", args.output.display()))?,
+    };
+    // After the blocks the store is complete: an interruption stops before the next table.
+    let stop_before = |table: &str| -> anyhow::Result<()> {
+        if crate::interrupt::interrupted() {
+            return Err(crate::interrupt::Interrupted(format!(
+                "the store {} is written, without its {table} and the tables after it: bake \
+                 again with --overwrite for them",
+                args.output.display()
+            ))
+            .into());
+        }
+        Ok(())
+    };
     if terminal {
         eprintln!();
     }
@@ -246,6 +273,7 @@ pub(crate) fn run(args: &BakeArgs) -> anyhow::Result<()> {
         (None, _) => None,
     };
     if !args.no_roughness {
+        stop_before("roughness pyramids")?;
         // The benchmark's default leaf size (the pyramids' levels are the quadtree's).
         match hm {
             Some(hm) => {
@@ -272,6 +300,7 @@ pub(crate) fn run(args: &BakeArgs) -> anyhow::Result<()> {
         }
     }
     if !args.no_geomip {
+        stop_before("geomorph table")?;
         match hm {
             Some(hm) => {
                 terrain_app::geomip_scene::bake_into_scene(hm, leaf, &args.output)?;
@@ -298,11 +327,13 @@ pub(crate) fn run(args: &BakeArgs) -> anyhow::Result<()> {
         return Ok(());
     };
     if !args.no_dss {
+        stop_before("DSS errors")?;
         // The benchmark's default leaf size; a table serves any coarser leaf size too.
         let qt = Quadtree::new(hm, leaf);
         terrain_app::dss_scene::bake_into_scene(hm, &qt, &args.output)?;
     }
     if !args.no_pvs {
+        stop_before("PVS")?;
         crate::pvs::bake_into_scene(hm, &args.pvs.config()?, &args.output)?;
     }
     Ok(())

@@ -150,16 +150,17 @@ pub(crate) fn run(args: &FlyArgs) -> anyhow::Result<()> {
     if args.leaf_cells == 0 {
         bail!("--leaf-cells must be at least 1");
     }
-    // The output folder, checked before any work: created, and a frame can be written there.
-    std::fs::create_dir_all(&args.output)
-        .with_context(|| format!("could not create the output folder {}", args.output.display()))?;
-    crate::render::check_writable(&args.output.join("frame_00000.png"))?;
-    // The flight's errors name its file.
+    // The inputs first (the flight's errors name its file): nothing is created when one is bad.
     let spec = FlightSpec::load(&args.flight).context("could not load the flight")?;
     let hm = match args.source.load_surface()? {
         Some(dem) => dem.heightmap,
         None => synth::default_terrain(),
     };
+    // Then the output folder, before the GPU and any frame: created, and a frame can be
+    // written there.
+    std::fs::create_dir_all(&args.output)
+        .with_context(|| format!("could not create the output folder {}", args.output.display()))?;
+    crate::render::check_writable(&args.output.join("frame_00000.png"))?;
     let ctx = GpuContext::new(&DeviceConfig::from_env(BackendChoice::Auto))
         .context("no GPU adapter (Vulkan or GL) is available")?;
     println!("adapter: {}", ctx.describe());

@@ -155,3 +155,32 @@ fn fly_draws_the_entropy_mesh() {
     assert!(image.pixels().any(|p| p.0 != first), "a uniform image: nothing drawn");
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// The inputs are checked before the output folder is made: a bad flight or a bad DEM
+/// leaves nothing behind.
+#[test]
+fn bad_inputs_create_no_output_folder() {
+    let dir = temp_dir("no-output");
+    let out = dir.join("out");
+    let output = fly(&dir.join("nope.json"), &out);
+    assert!(!output.status.success());
+    assert!(!out.exists(), "a missing flight created {}", out.display());
+
+    let flight = dir.join("tiny.json");
+    std::fs::write(&flight, TINY).unwrap();
+    let not_a_dem = dir.join("notes.txt");
+    std::fs::write(&not_a_dem, "not a DEM").unwrap();
+    let output = Command::new(env!("CARGO_BIN_EXE_terrain"))
+        .arg("fly")
+        .arg(&not_a_dem)
+        .arg("--flight")
+        .arg(&flight)
+        .arg("-o")
+        .arg(&out)
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&output.stderr);
+    assert!(!output.status.success() && stderr.contains("notes.txt"), "{stderr}");
+    assert!(!out.exists(), "a bad DEM created {}", out.display());
+    let _ = std::fs::remove_dir_all(&dir);
+}
