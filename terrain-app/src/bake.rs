@@ -39,8 +39,9 @@ pub(crate) struct BakeArgs {
     /// streamed by rows (e.g. 32769).
     #[arg(long)]
     pub synthetic: Option<u64>,
-    /// Vertical error bound in metres for float sources (integer sources are lossless).
-    #[arg(long, default_value_t = 0.01)]
+    /// Vertical error bound in metres for float sources (integer sources are lossless; not
+    /// with --raw-f32).
+    #[arg(long, default_value_t = 0.01, conflicts_with = "raw_f32")]
     pub max_error: f64,
     /// Store float heights as raw f32 instead.
     #[arg(long)]
@@ -79,12 +80,12 @@ pub(crate) struct BakeArgs {
     /// Read the DEM by bands of rows instead of whole (GeoTIFF and raw only): bounded memory
     /// for DEMs larger than memory. Automatic above --stream-above samples. Voids are then
     /// filled from the nearest valid samples along their row and column, not from the whole
-    /// void's rim.
-    #[arg(long)]
+    /// void's rim. (--synthetic is always streamed.)
+    #[arg(long, conflicts_with = "synthetic")]
     pub stream: bool,
     /// Stream GeoTIFF and raw DEMs with more samples than this (default 2^28: 1 GiB of f32), or
     /// whose whole read would need more than --max-memory.
-    #[arg(long, default_value_t = 1 << 28)]
+    #[arg(long, default_value_t = 1 << 28, conflicts_with_all = ["stream", "synthetic"])]
     pub stream_above: u64,
 }
 
@@ -120,6 +121,11 @@ fn streamed(args: &BakeArgs) -> anyhow::Result<Option<RowReader>> {
 pub(crate) fn run(args: &BakeArgs) -> anyhow::Result<()> {
     // Before any work: a file or a folder of the user's files is never replaced.
     terrain_stream::check_output(&args.output, args.overwrite)?;
+    if args.no_pvs
+        && let Some(first) = args.pvs.given().first()
+    {
+        anyhow::bail!("{first} applies to the PVS, and --no-pvs bakes none");
+    }
     // Ctrl-C / SIGTERM: checked after each row of blocks and between the tables.
     crate::interrupt::install()?;
     let bounded = HeightEncoding::Bounded { max_error_m: args.max_error };

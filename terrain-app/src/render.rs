@@ -375,6 +375,9 @@ fn refuse_ignored(args: &RenderArgs, store: bool) -> anyhow::Result<()> {
             many => bail!("{} apply {why}", many.join(", ")),
         }
     };
+    if store {
+        args.source.refuse_reading_options("a baked store (its heights are stored)")?;
+    }
     if !store {
         refuse(
             given(&[

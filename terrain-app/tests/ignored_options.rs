@@ -2,8 +2,11 @@
 //! named with where it applies: `terrain bench`'s store options without the ooc method or
 //! `--from-store`, `--ooc-k` with a store already baked, `--size` with `--no-render`;
 //! `terrain mesh`'s `--method`/`--size` without `--camera`, `--interpolation` without
-//! `--points`, `--algorithm` with `--camera` or `--entropy`. (`terrain render`'s are in
-//! `render_cli.rs`.)
+//! `--points`, `--algorithm` with `--camera` or `--entropy`; `terrain bake`'s `--stream` and
+//! `--stream-above` with `--synthetic`, `--max-error` with `--raw-f32`, `--pvs-*` with
+//! `--no-pvs`, `--pvs-article` with the cell flags; the DEM reading options with a store
+//! (`info`, `render`) or a scene folder (`pvs`, also its `--pvs-*`). (`terrain render`'s own
+//! are in `render_cli.rs`.)
 
 mod common;
 
@@ -60,5 +63,54 @@ fn mesh_refuses_options_of_another_mode() {
     refused(&["mesh", "--camera", camera, "--algorithm", "rtin", "-o", obj], &["--algorithm"]);
     refused(&["mesh", "--entropy", "30", "--algorithm", "rtin", "-o", obj], &["--algorithm"]);
     assert!(!Path::new(obj).exists());
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+fn bake_refuses_options_it_would_ignore() {
+    let dir = scratch("ignored", "bake");
+    let out = dir.join("s");
+    let out = out.to_str().unwrap();
+    let bake = ["bake", "--synthetic", "65", "--no-dss", "-o", out];
+    let with = |extra: &[&'static str]| -> Vec<&str> {
+        bake.iter().copied().chain(extra.iter().copied()).collect()
+    };
+    refused(&with(&["--stream"]), &["--stream", "--synthetic"]);
+    refused(&with(&["--stream-above", "100"]), &["--stream-above", "--synthetic"]);
+    refused(&with(&["--raw-f32", "--max-error", "0.5"]), &["--max-error", "--raw-f32"]);
+    refused(&with(&["--no-pvs", "--pvs-cells", "8"]), &["--pvs-cells applies", "--no-pvs"]);
+    refused(&with(&["--pvs-article", "--pvs-floors", "2"]), &["--pvs-article", "--pvs-floors"]);
+    assert!(!Path::new(out).exists(), "a refused bake wrote {out}");
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+fn reading_options_are_refused_for_a_store_or_a_scene() {
+    let dir = scratch("ignored", "store");
+    let store = dir.join("s");
+    let store = store.to_str().unwrap();
+    let baked = terrain(&["bake", "--synthetic", "65", "--no-pvs", "--no-dss", "-o", store]);
+    assert!(baked.status.success(), "{}", String::from_utf8_lossy(&baked.stderr));
+    // The same store is accepted without them (the refusals below are about the options).
+    assert!(terrain(&["info", store]).status.success());
+    refused(&["info", store, "--vertical-scale", "2"], &["--vertical-scale applies", "store"]);
+    refused(
+        &["info", store, "--spacing", "30", "--nodata", "0"],
+        &["--nodata, --spacing apply to reading a DEM file", "store"],
+    );
+    let png = dir.join("r.png");
+    refused(
+        &["render", store, "--max-memory", "1MiB", "-o", png.to_str().unwrap()],
+        &["--max-memory", "store"],
+    );
+    refused(
+        &["pvs", store, "--cell", "0,0,0", "--vertical-offset", "5", "-o", "p.png"],
+        &["--vertical-offset", "scene folder"],
+    );
+    refused(
+        &["pvs", store, "--cell", "0,0,0", "--pvs-cells", "8", "-o", "p.png"],
+        &["--pvs-cells applies", "scene folder"],
+    );
+    assert!(!png.exists() && !Path::new("p.png").exists());
     let _ = std::fs::remove_dir_all(&dir);
 }
