@@ -118,6 +118,10 @@ fn refuse_unused_store_options(args: &BenchArgs, cfg: &BenchConfig) -> anyhow::R
             if given.len() == 1 { "applies" } else { "apply" }
         );
     }
+    // --scene is also the ooc method's store.
+    if args.scene.is_some() && !uses_store {
+        terrain_app::scene_files::check_used(&cfg.methods).map_err(anyhow::Error::msg)?;
+    }
     if args.ooc_k.is_some() && cfg.ooc_store.is_some() {
         bail!(
             "--ooc-k applies to the store the benchmark bakes for itself; the store named by \

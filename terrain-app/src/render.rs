@@ -392,6 +392,10 @@ fn refuse_ignored(args: &RenderArgs, store: bool) -> anyhow::Result<()> {
             "to a baked store (`terrain render STORE`, a folder from `terrain bake`), not to a \
              DEM file",
         )?;
+        if args.scene.is_some() {
+            let method = args.method.unwrap_or(LodMethod::PvpsC);
+            terrain_app::scene_files::check_used(&[method]).map_err(anyhow::Error::msg)?;
+        }
     } else if args.scene.is_some() {
         bail!(
             "--scene applies to a DEM file: a store's tables (from `terrain bake`) are read \

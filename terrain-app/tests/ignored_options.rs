@@ -1,12 +1,12 @@
 //! Options a command would accept and then ignore in the mode it runs in are refused, each
 //! named with where it applies: `terrain bench`'s store options without the ooc method or
-//! `--from-store`, `--ooc-k` with a store already baked, `--size` with `--no-render`;
-//! `terrain mesh`'s `--method`/`--size` without `--camera`, `--interpolation` without
-//! `--points`, `--algorithm` with `--camera` or `--entropy`; `terrain bake`'s `--stream` and
-//! `--stream-above` with `--synthetic`, `--max-error` with `--raw-f32`, `--pvs-*` with
-//! `--no-pvs`, `--pvs-article` with the cell flags; the DEM reading options with a store
-//! (`info`, `render`) or a scene folder (`pvs`, also its `--pvs-*`). (`terrain render`'s own
-//! are in `render_cli.rs`.)
+//! `--from-store`, `--ooc-k` with a store already baked, `--size` with `--no-render`,
+//! `--scene` when no method reads it; `terrain mesh`'s `--method`/`--size` without
+//! `--camera`, `--interpolation` without `--points`, `--algorithm` with `--camera` or
+//! `--entropy`; `terrain bake`'s `--stream` and `--stream-above` with `--synthetic`,
+//! `--max-error` with `--raw-f32`, `--pvs-*` with `--no-pvs`, `--pvs-article` with the cell
+//! flags; the DEM reading options with a store (`info`, `render`) or a scene folder (`pvs`,
+//! also its `--pvs-*`). (`terrain render`'s own are in `render_cli.rs`.)
 
 mod common;
 
@@ -47,6 +47,9 @@ fn bench_refuses_options_no_run_uses() {
     args.push(scene);
     refused(&args, &["--ooc-k", "--scene", "already baked"]);
     refused(&with(&["--no-render", "--size", "64x36"]), &["--size", "--no-render"]);
+    let mut args = with(&["--no-render", "--methods", "uniform,entropy", "--scene"]);
+    args.push(scene);
+    refused(&args, &["--scene is read by", "uniform, entropy reads nothing"]);
     assert!(!dir.join("out").exists(), "a refused bench wrote its report");
     let _ = std::fs::remove_dir_all(&dir);
 }

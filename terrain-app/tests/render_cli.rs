@@ -145,6 +145,10 @@ fn options_a_mode_ignores_are_refused() {
         (&[store, "--flight", flight, "--frames", "2"], &["--frames", "--flight"]),
         (&[store, "--max-frames", "2"], &["--max-frames", "--flight"]),
         (&["--factor", "8"], &["--factor", "--method uniform"]),
+        (
+            &["--method", "uniform", "--scene", store],
+            &["--scene is read by", "uniform reads nothing"],
+        ),
         (&[store, "--method", "ooc", "--factor", "8"], &["--factor", "--method uniform"]),
     ] {
         let output = Command::new(env!("CARGO_BIN_EXE_terrain"))
