@@ -150,6 +150,9 @@ pub(crate) fn run(args: &FlyArgs) -> anyhow::Result<()> {
     if args.leaf_cells == 0 {
         bail!("--leaf-cells must be at least 1");
     }
+    if args.scene.is_some() {
+        terrain_app::scene_files::check_used(&[args.method]).map_err(anyhow::Error::msg)?;
+    }
     // The inputs first (the flight's errors name its file): nothing is created when one is bad.
     let spec = FlightSpec::load(&args.flight).context("could not load the flight")?;
     let hm = match args.source.load_surface()? {

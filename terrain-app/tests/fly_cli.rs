@@ -156,8 +156,8 @@ fn fly_draws_the_entropy_mesh() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
-/// The inputs are checked before the output folder is made: a bad flight or a bad DEM
-/// leaves nothing behind.
+/// The inputs are checked before the output folder is made: a bad flight, a bad DEM or a
+/// `--scene` the method would not read leaves nothing behind.
 #[test]
 fn bad_inputs_create_no_output_folder() {
     let dir = temp_dir("no-output");
@@ -182,5 +182,19 @@ fn bad_inputs_create_no_output_folder() {
     let stderr = String::from_utf8_lossy(&output.stderr);
     assert!(!output.status.success() && stderr.contains("notes.txt"), "{stderr}");
     assert!(!out.exists(), "a bad DEM created {}", out.display());
+
+    // A scene folder no method reads: refused, not ignored.
+    let output = Command::new(env!("CARGO_BIN_EXE_terrain"))
+        .args(["fly", "--method", "uniform", "--scene"])
+        .arg(&dir)
+        .arg("--flight")
+        .arg(&flight)
+        .arg("-o")
+        .arg(&out)
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&output.stderr);
+    assert!(!output.status.success() && stderr.contains("--scene is read by"), "{stderr}");
+    assert!(!out.exists(), "a refused fly created {}", out.display());
     let _ = std::fs::remove_dir_all(&dir);
 }
