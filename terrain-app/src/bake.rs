@@ -43,8 +43,9 @@ pub(crate) struct BakeArgs {
     /// streamed by rows (e.g. 32769).
     #[arg(long)]
     pub synthetic: Option<u64>,
-    /// Vertical error bound in metres for float sources (integer sources are lossless).
-    #[arg(long, default_value_t = 0.01)]
+    /// Vertical error bound in metres for float sources (integer sources are lossless; not
+    /// with --raw-f32).
+    #[arg(long, default_value_t = 0.01, conflicts_with = "raw_f32")]
     pub max_error: f64,
     /// Store float heights as raw f32 instead.
     #[arg(long)]
@@ -83,12 +84,12 @@ pub(crate) struct BakeArgs {
     /// Read the DEM by bands of rows instead of whole (GeoTIFF and raw only): bounded memory
     /// for DEMs larger than memory. Automatic above --stream-above samples. Voids are then
     /// filled from the nearest valid samples along their row and column, not from the whole
-    /// void's rim.
-    #[arg(long)]
+    /// void's rim. (--synthetic is always streamed.)
+    #[arg(long, conflicts_with = "synthetic")]
     pub stream: bool,
     /// Stream GeoTIFF and raw DEMs with more samples than this (default 2^28: 1 GiB of f32), or
     /// whose whole read would need more than --max-memory.
-    #[arg(long, default_value_t = 1 << 28)]
+    #[arg(long, default_value_t = 1 << 28, conflicts_with_all = ["stream", "synthetic"])]
     pub stream_above: u64,
 }
 
@@ -124,6 +125,13 @@ fn streamed(args: &BakeArgs) -> anyhow::Result<Option<RowReader>> {
 pub(crate) fn run(args: &BakeArgs) -> anyhow::Result<()> {
     // Before any work: a file or a folder of the user's files is never replaced.
     terrain_stream::check_output(&args.output, args.overwrite)?;
+    if args.no_pvs
+        && let Some(first) = args.pvs.given().first()
+    {
+        anyhow::bail!("{first} applies to the PVS, and --no-pvs bakes none");
+    }
+    // Ctrl-C / SIGTERM: checked after each row of blocks and between the tables.
+    crate::interrupt::install()?;
     let bounded = HeightEncoding::Bounded { max_error_m: args.max_error };
     let mut config = BakeConfig {
         k: args.block_k,
@@ -201,10 +209,35 @@ pub(crate) fn run(args: &BakeArgs) -> anyhow::Result<()> {
             let _ = writeln!(err, "blocks: {line}");
         }
         let _ = err.flush();
-        ControlFlow::Continue(())
+        if crate::interrupt::interrupted() {
+            ControlFlow::Break(())
+        } else {
+            ControlFlow::Continue(())
+        }
     };
-    let report = bake(source, &args.output, &config, &mut bar)
-        .with_context(|| format!("baking {}", args.output.display()))?;
+    let report = match bake(source, &args.output, &config, &mut bar) {
+        // The library removed its `.NAME.part` folder; an existing store was not touched.
+        Err(terrain_stream::BakeError::Cancelled) => {
+            return Err(crate::interrupt::Interrupted(format!(
+                "no store written, {} is as it was",
+                args.output.display()
+            ))
+            .into());
+        }
+        r => r.with_context(|| format!("baking {}", args.output.display()))?,
+    };
+    // After the blocks the store is complete: an interruption stops before the next table.
+    let stop_before = |table: &str| -> anyhow::Result<()> {
+        if crate::interrupt::interrupted() {
+            return Err(crate::interrupt::Interrupted(format!(
+                "the store {} is written, without its {table} and the tables after it: bake \
+                 again with --overwrite for them",
+                args.output.display()
+            ))
+            .into());
+        }
+        Ok(())
+    };
     if terminal {
         eprintln!();
     }
@@ -263,6 +296,7 @@ pub(crate) fn run(args: &BakeArgs) -> anyhow::Result<()> {
         Ok(())
     };
     if !args.no_roughness {
+        stop_before("roughness pyramids")?;
         // The benchmark's default leaf size (the pyramids' levels are the quadtree's).
         match hm {
             Some(hm) => {
@@ -279,6 +313,7 @@ pub(crate) fn run(args: &BakeArgs) -> anyhow::Result<()> {
         }
     }
     if !args.no_geomip {
+        stop_before("geomorph table")?;
         match hm {
             Some(hm) => {
                 terrain_app::geomip_scene::bake_into_scene(hm, leaf, &args.output)?;
@@ -292,6 +327,7 @@ pub(crate) fn run(args: &BakeArgs) -> anyhow::Result<()> {
         }
     }
     if !args.no_dss {
+        stop_before("DSS errors")?;
         // The benchmark's default leaf size; a table serves any coarser leaf size too.
         match hm {
             Some(hm) => {
@@ -342,6 +378,7 @@ pub(crate) fn run(args: &BakeArgs) -> anyhow::Result<()> {
         );
         return Ok(());
     };
+    stop_before("PVS")?;
     crate::pvs::bake_into_scene(hm, &args.pvs.config()?, &args.output)?;
     Ok(())
 }

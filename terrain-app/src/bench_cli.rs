@@ -61,12 +61,13 @@ pub(crate) struct BenchArgs {
     /// one baked to a temporary folder with blocks of 2^ooc-k + 1 vertices).
     #[arg(long)]
     pub ooc_store: Option<PathBuf>,
-    /// The `ooc` method: k of the temporary store.
-    #[arg(long, default_value_t = 8)]
-    pub ooc_k: u8,
-    /// The `ooc` method: the stream cache's budget, MiB (2^20 bytes).
-    #[arg(long, alias = "ooc-cache-mb", default_value_t = 256)]
-    pub ooc_cache_mib: u64,
+    /// The `ooc` method: k of the temporary store (not with `--ooc-store` or `--scene`, whose
+    /// store is already baked) [default: 8].
+    #[arg(long)]
+    pub ooc_k: Option<u8>,
+    /// The `ooc` method: the stream cache's budget, MiB (2^20 bytes) [default: 256].
+    #[arg(long, alias = "ooc-cache-mb")]
+    pub ooc_cache_mib: Option<u64>,
     /// The `ooc` method: every sampled frame waits until the levels it needs are resident
     /// (warm: the error is the selection's own). By default the flight is played in real
     /// time at its own frame rate, every frame, and late data is counted.
@@ -95,6 +96,42 @@ pub(crate) fn write_report(
     Ok(paths)
 }
 
+/// Refuses the store options no run would use: they apply to the `ooc` method (in `--methods`,
+/// or by default) or to `--from-store`; `--ooc-k` only to the temporary store baked when
+/// neither `--ooc-store` nor `--scene` names one.
+fn refuse_unused_store_options(args: &BenchArgs, cfg: &BenchConfig) -> anyhow::Result<()> {
+    let uses_store = args.from_store || cfg.methods.contains(&LodMethod::OutOfCore);
+    let given: Vec<&str> = [
+        ("--ooc-store", args.ooc_store.is_some()),
+        ("--ooc-k", args.ooc_k.is_some()),
+        ("--ooc-cache-mib", args.ooc_cache_mib.is_some()),
+        ("--wait", args.wait),
+    ]
+    .iter()
+    .filter(|(_, g)| *g)
+    .map(|(name, _)| *name)
+    .collect();
+    if !uses_store && !given.is_empty() {
+        bail!(
+            "{} {} to the ooc method and --from-store, and --methods has no ooc",
+            given.join(", "),
+            if given.len() == 1 { "applies" } else { "apply" }
+        );
+    }
+    // --scene is also the ooc method's store.
+    if args.scene.is_some() && !uses_store {
+        terrain_app::scene_files::check_used(&cfg.methods).map_err(anyhow::Error::msg)?;
+    }
+    if args.ooc_k.is_some() && cfg.ooc_store.is_some() {
+        bail!(
+            "--ooc-k applies to the store the benchmark bakes for itself; the store named by \
+             {} is already baked",
+            if args.ooc_store.is_some() { "--ooc-store" } else { "--scene" }
+        );
+    }
+    Ok(())
+}
+
 /// Runs `terrain bench`.
 pub(crate) fn run(args: &BenchArgs) -> anyhow::Result<()> {
     let mut cfg = if args.quick { BenchConfig::quick() } else { BenchConfig::default() };
@@ -114,6 +151,9 @@ pub(crate) fn run(args: &BenchArgs) -> anyhow::Result<()> {
         cfg.render_size = Some(parse_size(s)?);
     }
     if args.no_render {
+        if args.size.is_some() {
+            bail!("--size applies to the rendered images, and --no-render draws none");
+        }
         cfg.render_size = None;
     }
     if args.leaf_cells == 0 {
@@ -122,8 +162,11 @@ pub(crate) fn run(args: &BenchArgs) -> anyhow::Result<()> {
     cfg.method = MethodConfig { leaf_cells: args.leaf_cells, ..MethodConfig::default() };
     cfg.scene = args.scene.clone();
     cfg.ooc_store = args.ooc_store.clone().or_else(|| args.scene.clone());
-    cfg.ooc_k = args.ooc_k;
-    cfg.ooc.budget_bytes = args.ooc_cache_mib << 20;
+    refuse_unused_store_options(args, &cfg)?;
+    cfg.ooc_k = args.ooc_k.unwrap_or(cfg.ooc_k);
+    if let Some(mib) = args.ooc_cache_mib {
+        cfg.ooc.budget_bytes = mib << 20;
+    }
     cfg.ooc_wait = args.wait;
     cfg.from_store = args.from_store;
     let flights = args

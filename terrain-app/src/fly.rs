@@ -194,27 +194,35 @@ fn write_stats(
     Ok(())
 }
 
-/// `terrain fly <store>`: `args.flight` over the store in `dir` with a store method (default
-/// `ooc`), through the same store method and frame loop as `terrain render <store>`; frames
-/// are drawn, not measured, and their stream statistics summarised. Returns the records.
-fn fly_store(args: &FlyArgs, dir: &Path, size: (u32, u32)) -> anyhow::Result<Vec<FrameRecord>> {
+/// The stream configuration of `terrain fly <store>` from its options, checked.
+fn store_config(args: &FlyArgs) -> anyhow::Result<OocConfig> {
     if !(args.tau.is_finite() && args.tau > 0.0) {
         bail!("--tau must be a positive number of pixels, got {}", args.tau);
     }
     if args.page_capacity == 0 {
         bail!("--page-capacity must be at least 1");
     }
-    let config = OocConfig {
+    Ok(OocConfig {
         tau: args.tau,
         budget_bytes: args.cache_mib << 20,
         page_capacity: args.page_capacity,
         page_budget_bytes: args.page_mib << 20,
         ..OocConfig::default()
-    };
-    let spec = FlightSpec::load(&args.flight)
-        .with_context(|| format!("could not load the flight {}", args.flight.display()))?;
+    })
+}
+
+/// `terrain fly <store>`: `args.flight` over the store in `dir` with a store method (default
+/// `ooc`), through the same store method and frame loop as `terrain render <store>`; frames
+/// are drawn, not measured, and their stream statistics summarised. Returns the records.
+fn fly_store(
+    args: &FlyArgs,
+    dir: &Path,
+    size: (u32, u32),
+    spec: &FlightSpec,
+    config: OocConfig,
+) -> anyhow::Result<Vec<FrameRecord>> {
     let scene = crate::render::open_store(dir, config)?;
-    let flight = crate::render::store_flight(&scene, dir, &spec, size, args.frames)?;
+    let flight = crate::render::store_flight(&scene, dir, spec, size, args.frames)?;
     let ctx = GpuContext::new(&DeviceConfig::from_env(BackendChoice::Auto))
         .context("no GPU adapter (Vulkan or GL) is available")?;
     println!("adapter: {}", ctx.describe());
@@ -260,28 +268,44 @@ pub(crate) fn run(args: &FlyArgs) -> anyhow::Result<()> {
     if args.leaf_cells == 0 {
         bail!("--leaf-cells must be at least 1");
     }
-    // The output folder, checked before any work: created, and a frame can be written there.
+    let store = match args.source.dem.as_slice() {
+        [one] if ooc::is_store(one) => Some(one.as_path()),
+        _ => None,
+    };
+    if let Some(dir) = store {
+        if args.scene.is_some() {
+            bail!(
+                "--scene is for a DEM file: a store folder holds its own tables ({} reads them)",
+                dir.display()
+            );
+        }
+        args.source.refuse_reading_options("a baked store (its heights are stored)")?;
+    } else if args.scene.is_some() {
+        let method = args.method.unwrap_or(LodMethod::PvpsC);
+        terrain_app::scene_files::check_used(&[method]).map_err(anyhow::Error::msg)?;
+    }
+    // The inputs first (the flight's errors name its file): nothing is created when one is bad.
+    let spec = FlightSpec::load(&args.flight).context("could not load the flight")?;
+    /// What the flight is drawn from.
+    enum Input<'a> {
+        Store(&'a Path, OocConfig),
+        Dem(Heightmap),
+    }
+    let input = match store {
+        Some(dir) => Input::Store(dir, store_config(args)?),
+        None => Input::Dem(match args.source.load_surface()? {
+            Some(dem) => dem.heightmap,
+            None => synth::default_terrain(),
+        }),
+    };
+    // Then the output folder, before the GPU and any frame: created, and a frame can be
+    // written there.
     std::fs::create_dir_all(&args.output)
         .with_context(|| format!("could not create the output folder {}", args.output.display()))?;
     crate::render::check_writable(&args.output.join("frame_00000.png"))?;
-    let store = matches!(args.source.dem.as_slice(), [one] if ooc::is_store(one));
-    let records = match args.source.dem.as_slice() {
-        [one] if store => {
-            if args.scene.is_some() {
-                bail!(
-                    "--scene is for a DEM file: a store folder holds its own tables ({} reads them)",
-                    one.display()
-                );
-            }
-            fly_store(args, one, size)?
-        }
-        _ => {
-            // The flight's errors name its file.
-            let spec = FlightSpec::load(&args.flight).context("could not load the flight")?;
-            let hm = match args.source.load_surface()? {
-                Some(dem) => dem.heightmap,
-                None => synth::default_terrain(),
-            };
+    let records = match input {
+        Input::Store(dir, config) => fly_store(args, dir, size, &spec, config)?,
+        Input::Dem(hm) => {
             let ctx = GpuContext::new(&DeviceConfig::from_env(BackendChoice::Auto))
                 .context("no GPU adapter (Vulkan or GL) is available")?;
             println!("adapter: {}", ctx.describe());
@@ -308,7 +332,7 @@ pub(crate) fn run(args: &FlyArgs) -> anyhow::Result<()> {
         median(|r| r.triangles as f64),
         median(|r| r.cpu_ms),
         median(|r| r.frame_ms),
-        if store {
+        if store.is_some() {
             "errors not measured (no DEM in memory)".to_string()
         } else {
             format!("p99 {:.3} px", median(|r| r.errors.p99_px))

@@ -219,6 +219,7 @@ pub(crate) fn run(args: &InfoArgs) -> anyhow::Result<()> {
     if let [one] = args.source.dem.as_slice()
         && terrain_stream::is_store(one)
     {
+        args.source.refuse_reading_options("a baked store (its heights are stored)")?;
         let report = StoreReport::new(one)?;
         if args.json {
             println!("{}", serde_json::to_string_pretty(&report)?);

@@ -6,6 +6,7 @@ mod demo;
 mod entropy;
 mod fly;
 mod info;
+mod interrupt;
 mod mesh;
 mod pvs;
 mod render;
@@ -86,6 +87,10 @@ fn main() -> std::process::ExitCode {
     };
     match result {
         Ok(()) => std::process::ExitCode::SUCCESS,
+        Err(e) if e.downcast_ref::<interrupt::Interrupted>().is_some() => {
+            eprintln!("{e:#}");
+            std::process::ExitCode::from(interrupt::EXIT_CODE)
+        }
         Err(e) => {
             eprintln!("error: {e:#}");
             std::process::ExitCode::FAILURE

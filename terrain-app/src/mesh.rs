@@ -50,7 +50,7 @@ pub(crate) struct MeshArgs {
     #[arg(long, requires = "entropy")]
     pub points: Option<PathBuf>,
     /// With --entropy --points: the height interpolation at new vertices.
-    #[arg(long, value_enum, default_value_t = crate::entropy::InterpolationArg::Natural)]
+    #[arg(long, value_enum, default_value_t = crate::entropy::InterpolationArg::Natural, requires = "points")]
     pub interpolation: crate::entropy::InterpolationArg,
     /// With --entropy: entropy window and classes.
     #[command(flatten)]
@@ -61,17 +61,17 @@ pub(crate) struct MeshArgs {
     #[arg(long, allow_hyphen_values = true)]
     pub camera: Option<String>,
     /// With --camera: the LOD method whose surface is exported.
-    #[arg(long, value_enum, default_value_t = LodMethod::PvpsC)]
+    #[arg(long, value_enum, default_value_t = LodMethod::PvpsC, requires = "camera")]
     pub method: LodMethod,
     /// With --camera: the view's size in pixels, WIDTHxHEIGHT (screen-space errors depend on it).
-    #[arg(long, default_value = "1280x720")]
+    #[arg(long, default_value = "1280x720", requires = "camera")]
     pub size: String,
     /// Output file: .glb, .gltf (with a .bin beside it) or .obj. Optional with --stats.
     #[arg(short, long)]
     pub output: Option<PathBuf>,
     /// rtin: fast right-triangulated irregular network; delaunay: greedy insertion, fewest
     /// triangles.
-    #[arg(long, value_enum, default_value_t = AlgorithmArg::Delaunay)]
+    #[arg(long, value_enum, default_value_t = AlgorithmArg::Delaunay, conflicts_with_all = ["camera", "entropy"])]
     pub algorithm: AlgorithmArg,
     /// Print the measurement (triangles, errors, timings) as JSON.
     #[arg(long)]

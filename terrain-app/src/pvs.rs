@@ -34,8 +34,8 @@ pub(crate) struct PvsArgs {
     #[arg(long, default_value_t = 7)]
     pub pvs_test_points: u32,
     /// The geomorphing article's variant: cells on the patch grid, 32 layers up to three
-    /// reliefs (overrides the cell and floor flags).
-    #[arg(long)]
+    /// reliefs (not with the cell and floor flags, which it replaces).
+    #[arg(long, conflicts_with_all = ["pvs_cells", "pvs_floors", "pvs_floor_height"])]
     pub pvs_article: bool,
     /// PVS bake threads (0 = one per core).
     #[arg(long, default_value_t = 0)]
@@ -43,6 +43,23 @@ pub(crate) struct PvsArgs {
 }
 
 impl PvsArgs {
+    /// The `--pvs-*` options given (not at their defaults): refused where no PVS is baked.
+    pub(crate) fn given(&self) -> Vec<&'static str> {
+        [
+            ("--pvs-cells", self.pvs_cells != 32),
+            ("--pvs-floors", self.pvs_floors != 3),
+            ("--pvs-floor-height", self.pvs_floor_height.is_some()),
+            ("--pvs-patch-level", self.pvs_patch_level != 6),
+            ("--pvs-test-points", self.pvs_test_points != 7),
+            ("--pvs-article", self.pvs_article),
+            ("--pvs-threads", self.pvs_threads != 0),
+        ]
+        .iter()
+        .filter(|(_, g)| *g)
+        .map(|(name, _)| *name)
+        .collect()
+    }
+
     /// The bake configuration.
     pub(crate) fn config(&self) -> anyhow::Result<PvsConfig> {
         if self.pvs_patch_level > 10 {
@@ -138,6 +155,10 @@ pub(crate) fn run(args: &PvsCmdArgs) -> anyhow::Result<()> {
         bail!("give a scene folder (from terrain bake) or a DEM file");
     };
     let pvs: Pvs = if scene.is_dir() {
+        args.source.refuse_reading_options("a scene folder (its PVS is baked)")?;
+        if let Some(first) = args.pvs.given().first() {
+            bail!("{first} applies to a PVS baked from a DEM file; a scene folder's is baked");
+        }
         let path = pvs_path(scene, mode);
         read_pvs(&path).with_context(|| format!("reading the PVS of scene {}", scene.display()))?
     } else {

@@ -49,9 +49,10 @@ pub(crate) struct RenderArgs {
     /// read instead of computed (a bad file is a warning; see `terrain bench --scene`).
     #[arg(long)]
     pub scene: Option<PathBuf>,
-    /// `--method uniform`: tessellation factor of every patch (fractional-even: 2 to 64).
-    #[arg(long, default_value_t = 16.0)]
-    pub factor: f32,
+    /// `--method uniform`: tessellation factor of every patch (fractional-even: 2 to 64)
+    /// [default: 16].
+    #[arg(long)]
+    pub factor: Option<f32>,
     /// Background colour R,G,B (0-255).
     #[arg(long, default_value = "150,185,225")]
     pub background: String,
@@ -64,23 +65,25 @@ pub(crate) struct RenderArgs {
     /// Colour texture (PNG or JPEG) stretched over the whole DEM, its first row at the north.
     #[arg(long)]
     pub texture: Option<PathBuf>,
-    /// Frames to draw (the tessellation is reused after the first): for timing.
-    #[arg(long, default_value_t = 1)]
-    pub frames: u32,
-    /// A store: the screen-error threshold tau of Eq. 7 (out-of-core paper), pixels.
-    #[arg(long, default_value_t = 2.0)]
-    pub tau: f64,
-    /// A store: the stream cache's budget, MiB (2^20 bytes).
-    #[arg(long, alias = "cache-mb", default_value_t = 256)]
-    pub cache_mib: u64,
+    /// Frames to draw with the one camera (the tessellation is reused after the first): for
+    /// timing; not with --flight [default: 1].
+    #[arg(long)]
+    pub frames: Option<u32>,
+    /// A store: the screen-error threshold tau of Eq. 7 (out-of-core paper), pixels
+    /// [default: 2].
+    #[arg(long)]
+    pub tau: Option<f64>,
+    /// A store: the stream cache's budget, MiB (2^20 bytes) [default: 256].
+    #[arg(long, alias = "cache-mb")]
+    pub cache_mib: Option<u64>,
     /// A store: full-resolution pages the renderer holds at most (slots of (2^k + 1)^2 f32
-    /// each); blocks beyond them are drawn from coarser slot classes.
-    #[arg(long, default_value_t = 1024)]
-    pub page_capacity: u32,
+    /// each); blocks beyond them are drawn from coarser slot classes [default: 1024].
+    #[arg(long)]
+    pub page_capacity: Option<u32>,
     /// A store: MiB of page atlas on the device, shared by the slot classes of every level
-    /// (a block drawn at level L takes a (2^L + 1)^2 slot).
-    #[arg(long, alias = "page-mb", default_value_t = 256)]
-    pub page_mib: u64,
+    /// (a block drawn at level L takes a (2^L + 1)^2 slot) [default: 256].
+    #[arg(long, alias = "page-mb")]
+    pub page_mib: Option<u64>,
     /// A store: fly this camera flight (JSON, see `flights/`) instead of one camera, placed on
     /// an overview of the store's level-4 vertices; frames after the first do not wait for
     /// I/O (real time: blocks drawn at their finest resident level, late data counted) unless
@@ -91,9 +94,9 @@ pub(crate) struct RenderArgs {
     /// measurements and still images); by default only the first frame does.
     #[arg(long)]
     pub wait: bool,
-    /// With --flight: frames drawn at most, evenly spaced (0 = every frame).
-    #[arg(long, default_value_t = 0)]
-    pub max_frames: usize,
+    /// With --flight: frames drawn at most, evenly spaced (0 = every frame) [default: 0].
+    #[arg(long)]
+    pub max_frames: Option<usize>,
     /// Output image: .png (RGBA) or .jpg (RGB); checked before rendering.
     #[arg(short, long)]
     pub output: PathBuf,
@@ -283,17 +286,21 @@ pub(crate) fn run(args: &RenderArgs) -> anyhow::Result<()> {
     if args.leaf_cells == 0 {
         bail!("--leaf-cells must be at least 1");
     }
-    if !(args.factor.is_finite() && args.factor > 0.0) {
-        bail!("--factor must be a positive number, got {}", args.factor);
+    let factor = args.factor.unwrap_or(DEFAULT_FACTOR);
+    if !(factor.is_finite() && factor > 0.0) {
+        bail!("--factor must be a positive number, got {factor}");
     }
     if let Some(c) = &args.camera {
         parse_camera(c)?;
     }
+    let store = match args.source.dem.as_slice() {
+        [one] if ooc::is_store(one) => Some(one),
+        _ => None,
+    };
+    refuse_ignored(args, store.is_some())?;
     // The arguments are fine: now the output, before any loading or rendering.
     let kind = check_image_output(&args.output)?;
-    if let [one] = args.source.dem.as_slice()
-        && ooc::is_store(one)
-    {
+    if let Some(one) = store {
         return run_store(args, one, (width, height), background, kind);
     }
     let method_kind = args.method.unwrap_or(LodMethod::PvpsC);
@@ -306,7 +313,7 @@ pub(crate) fn run(args: &RenderArgs) -> anyhow::Result<()> {
 
     let method_config = MethodConfig {
         leaf_cells: args.leaf_cells,
-        uniform_factor: args.factor,
+        uniform_factor: factor,
         ..MethodConfig::default()
     };
     let scene = MethodScene::new(hm, method_config);
@@ -339,7 +346,7 @@ pub(crate) fn run(args: &RenderArgs) -> anyhow::Result<()> {
         camera.near,
         camera.far
     );
-    let cameras = vec![camera; args.frames.max(1) as usize];
+    let cameras = vec![camera; args.frames.unwrap_or(1).max(1) as usize];
     let mut frames = FrameLoop::new(method).rendered(Some(&mut renderer)).with_options(options);
     let records = draw_frames(&mut frames, &cameras, None)?;
     drop(frames);
@@ -349,6 +356,62 @@ pub(crate) fn run(args: &RenderArgs) -> anyhow::Result<()> {
             .with_context(|| format!("could not write {}", path.display()))?;
     }
     save_image(&renderer, &args.output, kind)
+}
+
+/// `--factor` when not given.
+const DEFAULT_FACTOR: f32 = 16.0;
+
+/// Refuses the options this mode would ignore, naming each and where it applies: the store
+/// options with a DEM, `--scene` with a store (its tables are in its own folder), `--frames`
+/// with `--flight`, `--max-frames` without it, `--factor` with a method other than uniform.
+fn refuse_ignored(args: &RenderArgs, store: bool) -> anyhow::Result<()> {
+    let given = |list: &[(&'static str, bool)]| -> Vec<&'static str> {
+        list.iter().filter(|(_, g)| *g).map(|(name, _)| *name).collect()
+    };
+    let refuse = |names: Vec<&str>, why: &str| -> anyhow::Result<()> {
+        match names.as_slice() {
+            [] => Ok(()),
+            [one] => bail!("{one} applies {why}"),
+            many => bail!("{} apply {why}", many.join(", ")),
+        }
+    };
+    if store {
+        args.source.refuse_reading_options("a baked store (its heights are stored)")?;
+    }
+    if !store {
+        refuse(
+            given(&[
+                ("--tau", args.tau.is_some()),
+                ("--cache-mib", args.cache_mib.is_some()),
+                ("--page-capacity", args.page_capacity.is_some()),
+                ("--page-mib", args.page_mib.is_some()),
+                ("--flight", args.flight.is_some()),
+                ("--wait", args.wait),
+                ("--max-frames", args.max_frames.is_some()),
+            ]),
+            "to a baked store (`terrain render STORE`, a folder from `terrain bake`), not to a \
+             DEM file",
+        )?;
+        if args.scene.is_some() {
+            let method = args.method.unwrap_or(LodMethod::PvpsC);
+            terrain_app::scene_files::check_used(&[method]).map_err(anyhow::Error::msg)?;
+        }
+    } else if args.scene.is_some() {
+        bail!(
+            "--scene applies to a DEM file: a store's tables (from `terrain bake`) are read \
+             from the store folder itself"
+        );
+    }
+    if args.flight.is_some() {
+        refuse(given(&[("--frames", args.frames.is_some())]), "to one camera, not to --flight")?;
+    } else if store {
+        refuse(given(&[("--max-frames", args.max_frames.is_some())]), "only with --flight")?;
+    }
+    let uniform = args.method == Some(LodMethod::Uniform);
+    if !uniform && args.factor.is_some() {
+        bail!("--factor applies only to --method uniform");
+    }
+    Ok(())
 }
 
 /// The image formats `-o` writes, from its extension.
@@ -442,17 +505,21 @@ fn run_store(
     background: [u8; 4],
     kind: ImageOut,
 ) -> anyhow::Result<()> {
-    if !(args.tau.is_finite() && args.tau > 0.0) {
-        bail!("--tau must be a positive number of pixels, got {}", args.tau);
+    let tau = args.tau.unwrap_or(2.0);
+    let cache_mib = args.cache_mib.unwrap_or(256);
+    let page_capacity = args.page_capacity.unwrap_or(1024);
+    let page_mib = args.page_mib.unwrap_or(256);
+    if !(tau.is_finite() && tau > 0.0) {
+        bail!("--tau must be a positive number of pixels, got {tau}");
     }
-    if args.page_capacity == 0 {
+    if page_capacity == 0 {
         bail!("--page-capacity must be at least 1");
     }
     let config = ooc::OocConfig {
-        tau: args.tau,
-        budget_bytes: args.cache_mib << 20,
-        page_capacity: args.page_capacity,
-        page_budget_bytes: args.page_mib << 20,
+        tau,
+        budget_bytes: cache_mib << 20,
+        page_capacity,
+        page_budget_bytes: page_mib << 20,
         ..ooc::OocConfig::default()
     };
     let scene = open_store(dir, config)?;
@@ -475,10 +542,10 @@ fn run_store(
         }
     };
     let cameras: Vec<Camera> = match &args.flight {
-        None => vec![camera; args.frames.max(1) as usize],
+        None => vec![camera; args.frames.unwrap_or(1).max(1) as usize],
         Some(path) => {
             let spec = terrain_core::flight::FlightSpec::load(path)?;
-            store_flight(&scene, dir, &spec, (width, height), args.max_frames)?.cameras
+            store_flight(&scene, dir, &spec, (width, height), args.max_frames.unwrap_or(0))?.cameras
         }
     };
     let texture = args.texture.as_ref().map(load_texture).transpose()?;
@@ -490,7 +557,7 @@ fn run_store(
     let method_kind = args.method.unwrap_or(LodMethod::OutOfCore);
     let method_config = MethodConfig {
         leaf_cells: args.leaf_cells,
-        uniform_factor: args.factor,
+        uniform_factor: args.factor.unwrap_or(DEFAULT_FACTOR),
         ooc: config,
         ..MethodConfig::default()
     };
@@ -507,17 +574,14 @@ fn run_store(
     }
     let options = RenderOptions { wireframe: args.wireframe, ..Default::default() };
     let mut frames = FrameLoop::new(method).rendered(Some(&mut renderer)).with_options(options);
-    let records = draw_frames(
-        &mut frames,
-        &cameras,
-        (method_kind == LodMethod::OutOfCore).then_some(args.tau),
-    )?;
+    let records =
+        draw_frames(&mut frames, &cameras, (method_kind == LodMethod::OutOfCore).then_some(tau))?;
     drop(frames);
     check_something_drawn(&records, dir)?;
     let streams: Vec<ooc::StreamRecord> =
         records.iter().map(|r| r.stream.clone().unwrap_or_default()).collect();
     let max_triangles = records.iter().map(|r| r.triangles).max().unwrap_or(0);
-    print_stream_summary(&streams, max_triangles, args.wait, args.cache_mib);
+    print_stream_summary(&streams, max_triangles, args.wait, cache_mib);
     if let Some(path) = &args.stats_json {
         let json = serde_json::json!({
             "adapter": ctx.describe(),

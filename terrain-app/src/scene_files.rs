@@ -8,6 +8,33 @@ use std::path::Path;
 
 use crate::methods::{LodMethod, MethodScene};
 
+/// The methods that read a scene folder's files ([`load`]): the PVPS methods (roughness
+/// pyramids; `pvps-c-pvs` and `pvps-c-cons` also the PVS) and the DSS methods (their errors).
+pub const READ_BY: [LodMethod; 8] = [
+    LodMethod::PvpsA,
+    LodMethod::PvpsB,
+    LodMethod::PvpsC,
+    LodMethod::PvpsCPvs,
+    LodMethod::PvpsCConservative,
+    LodMethod::Dss1,
+    LodMethod::Dss2,
+    LodMethod::DssStrips,
+];
+
+/// Refuses `--scene` for `methods` none of which reads a scene folder (it would be ignored).
+pub fn check_used(methods: &[LodMethod]) -> Result<(), String> {
+    if methods.iter().any(|m| READ_BY.contains(m)) {
+        return Ok(());
+    }
+    let names: Vec<&str> = methods.iter().map(|m| m.name()).collect();
+    let readers: Vec<&str> = READ_BY.iter().map(|m| m.name()).collect();
+    Err(format!(
+        "--scene is read by {} only, and {} reads nothing from it",
+        readers.join(", "),
+        names.join(", ")
+    ))
+}
+
 /// Reads what `methods` use from scene folder `dir` into `scene`, saying on stderr what was
 /// read. Returns the warnings (one per file that could not be used; the method then bakes or
 /// computes in memory, or, for a PVS, draws without occlusion culling).

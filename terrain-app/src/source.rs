@@ -61,6 +61,9 @@ pub(crate) enum FormatArg {
     Raw,
 }
 
+/// `--max-memory`'s default, 4 GiB.
+const DEFAULT_MAX_MEMORY: u64 = 4 << 30;
+
 impl SourceArgs {
     /// The reading options these arguments describe.
     pub(crate) fn load_options(&self) -> anyhow::Result<LoadOptions> {
@@ -101,6 +104,31 @@ impl SourceArgs {
             max_memory_bytes: self.max_memory,
             ..LoadOptions::default()
         })
+    }
+
+    /// Refuses the reading options when the input is not a DEM file but `what` (a baked store,
+    /// a scene folder), whose heights are already read: each given option is named. An option
+    /// at its default value changes nothing and passes.
+    pub(crate) fn refuse_reading_options(&self, what: &str) -> anyhow::Result<()> {
+        let given: Vec<&str> = [
+            ("--format", self.format.is_some()),
+            ("--nodata", self.nodata.is_some()),
+            ("--vertical-scale", self.vertical_scale != 1.0),
+            ("--vertical-offset", self.vertical_offset != 0.0),
+            ("--spacing", self.spacing.is_some()),
+            ("--band", self.band != 1),
+            ("--raw", self.raw.is_some()),
+            ("--max-memory", self.max_memory != DEFAULT_MAX_MEMORY),
+        ]
+        .iter()
+        .filter(|(_, g)| *g)
+        .map(|(name, _)| *name)
+        .collect();
+        match given.as_slice() {
+            [] => Ok(()),
+            [one] => bail!("{one} applies to reading a DEM file, not to {what}"),
+            many => bail!("{} apply to reading a DEM file, not to {what}", many.join(", ")),
+        }
     }
 
     /// Reads the DEM(s) as [`SourceArgs::load`] does and refuses a grid no surface can be made

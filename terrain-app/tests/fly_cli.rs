@@ -233,3 +233,46 @@ fn fly_over_a_store_writes_frames_and_stream_statistics() {
     assert!(!out.status.success() && err.contains("--scene is for a DEM file"), "{err}");
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// The inputs are checked before the output folder is made: a bad flight, a bad DEM or a
+/// `--scene` the method would not read leaves nothing behind.
+#[test]
+fn bad_inputs_create_no_output_folder() {
+    let dir = temp_dir("no-output");
+    let out = dir.join("out");
+    let output = fly(&dir.join("nope.json"), &out);
+    assert!(!output.status.success());
+    assert!(!out.exists(), "a missing flight created {}", out.display());
+
+    let flight = dir.join("tiny.json");
+    std::fs::write(&flight, TINY).unwrap();
+    let not_a_dem = dir.join("notes.txt");
+    std::fs::write(&not_a_dem, "not a DEM").unwrap();
+    let output = Command::new(env!("CARGO_BIN_EXE_terrain"))
+        .arg("fly")
+        .arg(&not_a_dem)
+        .arg("--flight")
+        .arg(&flight)
+        .arg("-o")
+        .arg(&out)
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&output.stderr);
+    assert!(!output.status.success() && stderr.contains("notes.txt"), "{stderr}");
+    assert!(!out.exists(), "a bad DEM created {}", out.display());
+
+    // A scene folder no method reads: refused, not ignored.
+    let output = Command::new(env!("CARGO_BIN_EXE_terrain"))
+        .args(["fly", "--method", "uniform", "--scene"])
+        .arg(&dir)
+        .arg("--flight")
+        .arg(&flight)
+        .arg("-o")
+        .arg(&out)
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&output.stderr);
+    assert!(!output.status.success() && stderr.contains("--scene is read by"), "{stderr}");
+    assert!(!out.exists(), "a refused fly created {}", out.display());
+    let _ = std::fs::remove_dir_all(&dir);
+}

@@ -114,6 +114,58 @@ fn bad_arguments_are_reported() {
     }
 }
 
+/// Options a mode would ignore are refused, each named with where it applies: the store
+/// options with a DEM (here the embedded terrain), `--scene` with a store, `--frames` with
+/// `--flight`, `--max-frames` without it, `--factor` without `--method uniform`.
+#[test]
+fn options_a_mode_ignores_are_refused() {
+    let dir = std::env::temp_dir().join(format!("terrain-render-ignored-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    let store = dir.join("s");
+    let baked = Command::new(env!("CARGO_BIN_EXE_terrain"))
+        .args(["bake", "--synthetic", "65", "--block-k", "5", "--no-pvs", "--no-dss", "-o"])
+        .arg(&store)
+        .output()
+        .unwrap();
+    assert!(baked.status.success(), "{}", String::from_utf8_lossy(&baked.stderr));
+    let flight = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../flights/pvps_884.json");
+    let (store, flight) = (store.to_str().unwrap(), flight.to_str().unwrap());
+    let image = dir.join("never.png");
+    for (args, needles) in [
+        (&["--tau", "3"][..], &["--tau", "store"][..]),
+        (&["--cache-mib", "64"], &["--cache-mib", "store"]),
+        (&["--page-capacity", "8"], &["--page-capacity", "store"]),
+        (&["--page-mib", "8"], &["--page-mib", "store"]),
+        (&["--flight", flight], &["--flight", "store"]),
+        (&["--wait"], &["--wait", "store"]),
+        (&["--max-frames", "3"], &["--max-frames", "store"]),
+        (&["--tau", "3", "--wait"], &["--tau, --wait apply", "store"]),
+        (&[store, "--scene", store], &["--scene applies to a DEM"]),
+        (&[store, "--flight", flight, "--frames", "2"], &["--frames", "--flight"]),
+        (&[store, "--max-frames", "2"], &["--max-frames", "--flight"]),
+        (&["--factor", "8"], &["--factor", "--method uniform"]),
+        (
+            &["--method", "uniform", "--scene", store],
+            &["--scene is read by", "uniform reads nothing"],
+        ),
+        (&[store, "--method", "ooc", "--factor", "8"], &["--factor", "--method uniform"]),
+    ] {
+        let output = Command::new(env!("CARGO_BIN_EXE_terrain"))
+            .arg("render")
+            .args(args)
+            .arg("-o")
+            .arg(&image)
+            .output()
+            .unwrap();
+        let stderr = String::from_utf8_lossy(&output.stderr);
+        assert!(!output.status.success(), "{args:?} was accepted: {stderr}");
+        assert!(needles.iter().all(|n| stderr.contains(n)), "{args:?}: {stderr}");
+        assert!(!image.exists());
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
 #[test]
 fn every_lod_method_renders_and_reports_json_stats() {
     let dir = std::env::temp_dir().join(format!("terrain-render-methods-{}", std::process::id()));
