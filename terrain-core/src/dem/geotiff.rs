@@ -213,6 +213,26 @@ fn precheck_header(
         // Entry: tag u16, type u16 (3 = SHORT), count, then the value inline (4 or 8 bytes).
         let (tag, typ) = (u16_at(&e[0..2]), u16_at(&e[2..4]));
         let value_at = if big { 12 } else { 8 };
+        // Values that do not fit in the entry lie elsewhere in the file, so a tag declaring
+        // more bytes of values than the whole file holds is damaged: refused here, before the
+        // decoder sizes a buffer from the count (1.45 GB for an ASCII tag of a 700-byte file).
+        let count = if big {
+            let b: [u8; 8] = e[4..12].try_into().expect("8 bytes");
+            if le { u64::from_le_bytes(b) } else { u64::from_be_bytes(b) }
+        } else {
+            let b: [u8; 4] = e[4..8].try_into().expect("4 bytes");
+            u64::from(if le { u32::from_le_bytes(b) } else { u32::from_be_bytes(b) })
+        };
+        let value_bytes = count.saturating_mul(tiff_type_bytes(typ));
+        if value_bytes > (entry_len - value_at as u64) && value_bytes > len {
+            return Err(malformed(
+                path,
+                format!(
+                    "TIFF tag {tag} declares {count} values ({value_bytes} bytes), more than \
+                     the file's {len} bytes; the file is damaged"
+                ),
+            ));
+        }
         if tag == PHOTOMETRIC_TAG && typ == 3 && u16_at(&e[value_at..value_at + 2]) == WHITE_IS_ZERO
         {
             let at = ifd + count_len + k as u64 * entry_len + value_at as u64;
@@ -222,6 +242,17 @@ fn precheck_header(
     }
     file.seek(SeekFrom::Start(0)).map_err(io)?;
     Ok(patches)
+}
+
+/// Bytes of one value of TIFF field type `typ` (TIFF 6.0 section 2, BigTIFF's 16..18); 1 for
+/// an unknown type, so a count alone still bounds it.
+fn tiff_type_bytes(typ: u16) -> u64 {
+    match typ {
+        3 | 8 => 2,
+        4 | 9 | 11 | 13 => 4,
+        5 | 10 | 12 | 16 | 17 | 18 => 8,
+        _ => 1,
+    }
 }
 
 /// Inflates the zlib stream of one Deflate strip or tile to its end, discarding the output,
@@ -637,7 +668,10 @@ pub(crate) fn decode_error(path: &Path, len: u64, e: TiffError) -> DemError {
 pub(crate) fn read(path: &Path, len: u64, options: &LoadOptions) -> Result<RawGrid, DemError> {
     // Decoding buffer: the whole image as f64 at most; checked against max_samples before any
     // decode happens, so this limit is a second line of defence.
-    let max_bytes = options.max_samples.saturating_mul(8).min(usize::MAX as u64) as usize;
+    // Also capped by the memory limit: the decoder sizes tag value lists by it too.
+    let max_bytes =
+        options.max_samples.saturating_mul(8).min(options.max_memory_bytes).min(usize::MAX as u64)
+            as usize;
     let Opened { mut dec, width: w, height: h, georef, file_nodata, deflate } =
         open(path, len, options, max_bytes)?;
     if let Some(d) = &deflate {
