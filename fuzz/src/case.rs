@@ -237,3 +237,43 @@ pub(crate) fn run_dem(
         Target::Store(_) => unreachable!("store cases run in crate::store"),
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_saved_case_reads_back_the_same() {
+        let dir = std::env::temp_dir().join(format!("terrain-fuzz-case-{}", std::process::id()));
+        let opts = Opts {
+            format: Some(Format::Raw),
+            raw: Some(RawSpec { width: 3, height: 2, sample: RawSampleType::U16 }),
+            nodata: Some(f64::NAN),
+            vertical_scale: 1e35,
+        };
+        for target in [Target::Rows(opts.clone()), Target::Store(1)] {
+            let case = Case {
+                target: target.clone(),
+                files: vec![("a.u16".into(), vec![1, 2, 3]), ("blocks/b.tsb".into(), vec![9])],
+                seed: 5,
+                iteration: 77,
+                what: "two\nlines".into(),
+            };
+            case.save(&dir).unwrap();
+            let back = Case::load(&dir).unwrap();
+            assert_eq!((back.seed, back.iteration, back.files), (5, 77, case.files));
+            assert_eq!(back.what, "two lines");
+            match (&back.target, &target) {
+                (Target::Rows(a), Target::Rows(b)) => {
+                    assert_eq!(
+                        (a.format, a.raw, a.vertical_scale),
+                        (b.format, b.raw, b.vertical_scale)
+                    );
+                    assert!(a.nodata.unwrap().is_nan());
+                }
+                (a, b) => assert_eq!(a, b),
+            }
+        }
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+}

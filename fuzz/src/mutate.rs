@@ -552,3 +552,62 @@ fn table_header(bytes: &mut [u8], rng: &mut Rng) -> Option<String> {
     put_u32(bytes, at, v, true);
     Some(format!("header word at {at} := {v:#x}"))
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn small_tiff() -> Vec<u8> {
+        use tiff::encoder::{TiffEncoder, colortype::Gray16};
+        let mut out = std::io::Cursor::new(Vec::new());
+        TiffEncoder::new(&mut out).unwrap().write_image::<Gray16>(8, 4, &[3u16; 32]).unwrap();
+        out.into_inner()
+    }
+
+    #[test]
+    fn the_tiff_layout_is_found_and_its_fields_mutated() {
+        let bytes = small_tiff();
+        let (le, big, entries, pointers) = tiff_layout(&bytes).unwrap();
+        assert!(le && !big);
+        assert_eq!(pointers[0], 4);
+        let width = entries.iter().find(|e| e.tag == 256).unwrap();
+        assert_eq!(width.count, 1);
+        assert_eq!(get_u16(&bytes, width.value_at, le), Some(8));
+        // Some iteration changes the header fields, and every mutant differs from the seed.
+        let mut changed_entries = 0;
+        for i in 0..200 {
+            let mut b = bytes.clone();
+            let mut rng = Rng::for_case(1, i);
+            if tiff(&mut b, &mut rng).is_some() && b[..bytes.len().min(b.len())] != bytes[..] {
+                changed_entries += 1;
+            }
+        }
+        assert!(changed_entries > 100, "{changed_entries} of 200 TIFF mutations changed the file");
+    }
+
+    #[test]
+    fn crc_fixing_mutators_leave_valid_checksums() {
+        let mut table = b"TDSS0123456789abcdef".to_vec();
+        table.extend_from_slice(&[0; 4]);
+        fix_crc_tail(&mut table);
+        let n = table.len() - 4;
+        assert_eq!(table[n..], crc32(&table[..n]).to_le_bytes());
+
+        let img = image::GrayImage::from_pixel(8, 8, image::Luma([5u8]));
+        let mut png_bytes = std::io::Cursor::new(Vec::new());
+        img.write_to(&mut png_bytes, image::ImageFormat::Png).unwrap();
+        let png_bytes = png_bytes.into_inner();
+        let mut ihdr_changed = 0;
+        for i in 0..300 {
+            let mut b = png_bytes.clone();
+            let what = png(&mut b, &mut Rng::for_case(2, i)).unwrap();
+            // A field of the header (not its length, which its CRC does not cover).
+            if what.starts_with("PNG IHDR") && !what.contains("length") && b != png_bytes {
+                let (at, n, _) = png_chunks(&b)[0];
+                let crc_ok = get_u32(&b, at + 8 + n, false) == Some(crc32(&b[at + 4..at + 8 + n]));
+                ihdr_changed += usize::from(crc_ok);
+            }
+        }
+        assert!(ihdr_changed > 10, "{ihdr_changed} IHDR mutants with a valid CRC");
+    }
+}

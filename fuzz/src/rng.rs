@@ -37,3 +37,21 @@ impl Rng {
         &items[self.below(items.len())]
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::Rng;
+
+    #[test]
+    fn a_case_stream_is_a_function_of_seed_and_iteration() {
+        let draw = |s, i| {
+            let mut r = Rng::for_case(s, i);
+            (0..4).map(|_| r.next_u64()).collect::<Vec<_>>()
+        };
+        assert_eq!(draw(7, 42), draw(7, 42));
+        assert_ne!(draw(7, 42), draw(7, 43));
+        assert_ne!(draw(7, 42), draw(8, 42));
+        let mut r = Rng::for_case(1, 1);
+        assert!((0..1000).all(|_| r.below(3) < 3));
+    }
+}
