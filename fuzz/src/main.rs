@@ -183,8 +183,13 @@ impl Harness {
         let names: Vec<String> = case.files.iter().map(|(n, _)| n.clone()).collect();
         let max_memory = self.config.max_memory;
         let (tx, rx) = channel();
+        let (tid_tx, tid_rx) = channel();
         alloc::start_case();
         let worker = std::thread::Builder::new().name("fuzz-case".into()).spawn(move || {
+            // `/proc/thread-self` links to `<pid>/task/<tid>`, relative to /proc.
+            let _ = tid_tx.send(
+                std::fs::read_link("/proc/thread-self").ok().map(|t| Path::new("/proc").join(t)),
+            );
             let r = std::panic::catch_unwind(AssertUnwindSafe(|| match &target {
                 Target::Store(_) => store::run(&dir),
                 t => case::run_dem(t, &dir, &names, max_memory),
@@ -194,7 +199,25 @@ impl Harness {
         let Ok(worker) = worker else {
             return Outcome::Returned(Err("harness: could not start a worker thread".into()));
         };
-        match rx.recv_timeout(self.config.timeout) {
+        // The deadline is on the case's CPU time where the system says it (Linux: /proc), so a
+        // busy machine does not turn a slow case into a time-out; a case that waits without
+        // computing (blocked, or busy on other threads) still fails at 6x in wall time.
+        let cpu_stat = tid_rx.recv().ok().flatten().map(|t| t.join("stat"));
+        let start = Instant::now();
+        let timeout = self.config.timeout;
+        let received = loop {
+            match rx.recv_timeout(Duration::from_millis(100).min(timeout)) {
+                Err(RecvTimeoutError::Timeout) => {
+                    let cpu = cpu_stat.as_deref().and_then(thread_cpu_time);
+                    let wall = start.elapsed();
+                    if cpu.map_or(wall >= timeout, |c| c >= timeout) || wall >= timeout * 6 {
+                        break Err(RecvTimeoutError::Timeout);
+                    }
+                }
+                other => break other,
+            }
+        };
+        match received {
             Ok(Ok(r)) => {
                 let _ = worker.join();
                 Outcome::Returned(r)
@@ -207,6 +230,18 @@ impl Harness {
             Err(RecvTimeoutError::Timeout) => Outcome::TimedOut,
         }
     }
+}
+
+/// CPU time (user + system) of the thread whose `/proc/.../stat` is `stat`, at the kernel's
+/// usual 100 ticks a second (`USER_HZ`), or `None` where it cannot be read.
+fn thread_cpu_time(stat: &Path) -> Option<Duration> {
+    let text = std::fs::read_to_string(stat).ok()?;
+    // Fields after the command name (which is in parentheses and may hold spaces): state is
+    // field 3, utime and stime are fields 14 and 15.
+    let rest = &text[text.rfind(')')? + 2..];
+    let f: Vec<&str> = rest.split_whitespace().collect();
+    let ticks = f.get(11)?.parse::<u64>().ok()? + f.get(12)?.parse::<u64>().ok()?;
+    Some(Duration::from_millis(ticks * 10))
 }
 
 /// A copy of the pristine store with `files` replacing its own, in `dir`.
@@ -307,7 +342,7 @@ fn run(config: Config) -> Result<bool, String> {
                 false
             }
             Outcome::TimedOut => {
-                println!("FAIL: still running after {:?}", h.config.timeout);
+                println!("FAIL: still running after {:?} of CPU time", h.config.timeout);
                 std::process::exit(1);
             }
         });
@@ -364,7 +399,10 @@ fn run(config: Config) -> Result<bool, String> {
             }
             Outcome::TimedOut => {
                 t.timeouts += 1;
-                Some(format!("still running after {:?}", h.config.timeout))
+                Some(format!(
+                    "still running after {:?} of CPU time (or 6x that in wall time)",
+                    h.config.timeout
+                ))
             }
         };
         if let Some(f) = failure {
@@ -435,4 +473,26 @@ fn run(config: Config) -> Result<bool, String> {
         std::process::exit(1);
     }
     Ok(ok)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[cfg(target_os = "linux")]
+    #[test]
+    fn a_threads_cpu_time_is_read_from_proc() {
+        let stat =
+            Path::new("/proc").join(std::fs::read_link("/proc/thread-self").unwrap()).join("stat");
+        let before = thread_cpu_time(&stat).unwrap();
+        let spin = Instant::now();
+        let mut x = 0u64;
+        while spin.elapsed() < Duration::from_millis(300) {
+            x = std::hint::black_box(x.wrapping_mul(31).wrapping_add(7));
+        }
+        let spent = thread_cpu_time(&stat).unwrap() - before;
+        // Busy for 300 ms of wall time: at least some of it on this thread's CPU clock, and
+        // never more than the wall time (plus a tick).
+        assert!(spent > Duration::ZERO && spent <= Duration::from_millis(320), "{spent:?}");
+    }
 }
