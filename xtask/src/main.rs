@@ -25,7 +25,7 @@ tasks:
   fuzz    [--minutes N] [--seed S] [--iterations N] [--timeout SECONDS] | --replay CASE_DIR
           mutants of the shared DEMs (TERRAIN_DATA or ../shared/data), the GeoTIFF corpus and a
           tiny store through every reader, in-process; fails on a panic, a case over its
-          deadline (10 s) or an allocation over 1 GiB (readers' limit 256 MiB). Failing cases
+          deadline (10 s of CPU) or an allocation over 1 GiB (readers' limit 256 MiB). Failing cases
           are saved in target/fuzz-run/failures/ for --replay.";
 
 fn main() -> anyhow::Result<()> {
