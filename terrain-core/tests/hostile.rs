@@ -239,3 +239,41 @@ fn rows_hold_strips_under_the_limit() {
     assert!(msg.contains("strips.tif") && msg.contains("--max-memory"), "{msg}");
     assert_no_huge_allocation();
 }
+
+/// The first IFD entry of a classic little-endian TIFF with tag `tag`: its position.
+fn ifd_entry(bytes: &[u8], tag: u16) -> usize {
+    let ifd = u32::from_le_bytes(bytes[4..8].try_into().unwrap()) as usize;
+    let n = u16::from_le_bytes(bytes[ifd..ifd + 2].try_into().unwrap()) as usize;
+    (0..n)
+        .map(|k| ifd + 2 + 12 * k)
+        .find(|&at| u16::from_le_bytes(bytes[at..at + 2].try_into().unwrap()) == tag)
+        .expect("the tag is in the first IFD")
+}
+
+/// Found by `cargo xtask fuzz`: an ASCII tag declaring 1.45 billion characters (in a file of
+/// 700 bytes) made the `tiff` crate allocate 1.45 GB to read it under the default memory
+/// limit. A tag whose values cannot fit in the file is refused
+/// before the decoder reads it.
+#[test]
+fn a_tag_declaring_more_values_than_the_file_holds_is_refused_without_allocating() {
+    use tiff::encoder::{TiffEncoder, colortype::Gray16};
+    let mut out = Cursor::new(Vec::new());
+    let mut enc = TiffEncoder::new(&mut out).unwrap();
+    let mut img = enc.new_image::<Gray16>(16, 16).unwrap();
+    // GDAL_NODATA (42113), read by every GeoTIFF load: 8 characters, out of line.
+    img.encoder().write_tag(tiff::tags::Tag::Unknown(42113), "-32768 ").unwrap();
+    img.write_data(&[7u16; 256]).unwrap();
+    let mut bytes = out.into_inner();
+    let ok = write_temp("ascii.tif", &bytes);
+    load(&ok, &LoadOptions::default()).unwrap();
+
+    let at = ifd_entry(&bytes, 42113);
+    bytes[at + 4..at + 8].copy_from_slice(&1_450_457_600u32.to_le_bytes());
+    let p = write_temp("ascii_huge.tif", &bytes);
+    let e = load(&p, &LoadOptions::default()).unwrap_err();
+    assert!(matches!(e.kind, DemErrorKind::Malformed { format: "GeoTIFF", .. }), "{e}");
+    let msg = e.to_string();
+    assert!(msg.contains("42113") && msg.contains("1450457600"), "{msg}");
+    assert!(terrain_core::dem::RowReader::open(&p, &LoadOptions::default()).is_err());
+    assert_no_huge_allocation();
+}

@@ -214,6 +214,25 @@ fn the_file_round_trips_and_refuses_corruption() {
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
+/// Found by `cargo xtask fuzz`: header counts whose product overflows 64 bits (cells and
+/// floors of 2^32 - 1 each) panicked with an arithmetic overflow while checking them, before
+/// the checksum; they are refused as implausible.
+#[test]
+fn huge_header_counts_are_refused_without_overflow() {
+    let hm = grid(33, |i, j| (i + j) as f32);
+    let (s, _, _) = bake_both(&hm, &small_cfg(2, 1, 10.0, 2));
+    let path = std::path::Path::new("pvs.bin");
+    for field in [24usize, 28, 32] {
+        let mut bytes = encode(&s);
+        for f in [24usize, 28, 32] {
+            let v: u32 = if f == field { u32::MAX } else { 0xFFFF_0000 };
+            bytes[f..f + 4].copy_from_slice(&v.to_le_bytes());
+        }
+        let e = decode(&bytes, path).unwrap_err().to_string();
+        assert!(e.contains("implausible header values"), "{e}");
+    }
+}
+
 #[test]
 fn the_proofs_do_not_change_the_papers_test_and_sampled_is_within_conservative() {
     let hm = FractalConfig::with_size(65, 65, 30.0).to_heightmap().unwrap();

@@ -9,7 +9,7 @@ use std::process::Command;
 use serde_json::Value;
 use terrain_tests::workspace_root;
 
-const OURS: [&str; 7] = [
+const OURS: [&str; 8] = [
     "terrain-core",
     "terrain-visibility",
     "terrain-stream",
@@ -17,6 +17,7 @@ const OURS: [&str; 7] = [
     "terrain-app",
     "xtask",
     "terrain-tests",
+    "terrain-fuzz",
 ];
 
 fn host_triple(cargo: &str) -> String {
@@ -108,10 +109,16 @@ fn dependencies_flow_one_way() {
         BTreeSet::from(["terrain-core", "terrain-visibility", "terrain-stream", "terrain-gpu"]),
         "terrain-app composes the four library crates"
     );
-    // Nothing depends on xtask or the tests crate; only the tests crate (and xtask) may use the
-    // app's composition library.
+    // The fuzzing harness drives the library crates' public APIs, never the app's.
+    assert_eq!(
+        direct("terrain-fuzz"),
+        BTreeSet::from(["terrain-core", "terrain-visibility", "terrain-stream"]),
+        "terrain-fuzz drives the readers and the store opener"
+    );
+    // Nothing depends on xtask, the tests crate or the harness; only the tests crate (and
+    // xtask) may use the app's composition library.
     for (pkg, deps) in &g {
-        for top in ["xtask", "terrain-tests"] {
+        for top in ["xtask", "terrain-tests", "terrain-fuzz"] {
             assert!(!deps.contains(top), "{pkg} depends on {top}");
         }
         if deps.contains("terrain-app") {

@@ -1,8 +1,9 @@
 //! `cargo xtask`: developer workflows that are code rather than shell (matklad's cargo-xtask).
 //!
-//! Tasks: `lint` (the formatting and clippy gates of `.ci/run`) and `bench` (every LOD method
+//! Tasks: `lint` (the formatting and clippy gates of `.ci/run`), `bench` (every LOD method
 //! over the shipped flights, through `terrain bench` built in release; results in
-//! `bench/results/`).
+//! `bench/results/`) and `fuzz` (builds the `terrain-fuzz` harness with the `fuzz` profile and
+//! runs it on the shared DEMs and the corpus; failing cases in `target/fuzz-run/failures/`).
 
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -20,14 +21,20 @@ tasks:
           DIR/<dem>-<backend>.{json,md,svg} (DIR default bench/results).
           --quick: the default backend only, 20 frames per flight, 3 sweep points, 320x180,
           the embedded terrain and Puget Sound 1k, flights pvps_884 and dss_approach.
-          Full: Vulkan then GL, 60 frames per flight, 5 sweep points, 640x360, every flight.";
+          Full: Vulkan then GL, 60 frames per flight, 5 sweep points, 640x360, every flight.
+  fuzz    [--minutes N] [--seed S] [--iterations N] [--timeout SECONDS] | --replay CASE_DIR
+          mutants of the shared DEMs (TERRAIN_DATA or ../shared/data), the GeoTIFF corpus and a
+          tiny store through every reader, in-process; fails on a panic, a case over its
+          deadline (10 s of CPU) or an allocation over 1 GiB (readers' limit 256 MiB). Failing cases
+          are saved in target/fuzz-run/failures/ for --replay.";
 
 fn main() -> anyhow::Result<()> {
     let args: Vec<String> = std::env::args().skip(1).collect();
     match args.first().map(String::as_str) {
         Some("lint") => lint(),
         Some("bench") => bench(&args[1..]),
-        Some(other) => bail!("unknown task `{other}`; tasks: lint, bench"),
+        Some("fuzz") => fuzz(&args[1..]),
+        Some(other) => bail!("unknown task `{other}`; tasks: lint, bench, fuzz"),
         None => {
             println!("{USAGE}");
             Ok(())
@@ -56,11 +63,44 @@ fn root() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).parent().expect("xtask has a parent").to_path_buf()
 }
 
+/// The shared DEM folder: `$TERRAIN_DATA`, else `../shared/data` beside the checkout.
+fn data_dir() -> PathBuf {
+    std::env::var_os("TERRAIN_DATA")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| root().join("../shared/data"))
+}
+
+/// Builds the harness (release speed, our crates' overflow checks on: the `fuzz` profile) and
+/// runs it; its own options pass through.
+fn fuzz(args: &[String]) -> anyhow::Result<()> {
+    run("cargo", &["build", "--profile", "fuzz", "-q", "-p", "terrain-fuzz"])?;
+    let bin = root().join("target/fuzz/terrain-fuzz");
+    let out = root().join("target/fuzz-run");
+    let mut cmd = Command::new(&bin);
+    cmd.arg("--data").arg(data_dir());
+    cmd.arg("--corpus").arg(root().join("terrain-core/tests/data/geotiff"));
+    cmd.arg("--out").arg(&out).args(args);
+    let status = cmd.status().with_context(|| format!("could not start {}", bin.display()))?;
+    if status.code().is_none() {
+        // Killed by a signal: an abort on an allocation refused over the limit (the harness
+        // saved the case before running it), or the machine's OOM killer.
+        let current = out.join("work/current");
+        bail!(
+            "the fuzz harness died ({status}) while running the case saved in {}; replay it \
+             with `cargo xtask fuzz --replay {}` after copying it elsewhere",
+            current.display(),
+            current.display()
+        );
+    }
+    if !status.success() {
+        bail!("fuzzing found failures ({status}): see the FAIL lines above");
+    }
+    Ok(())
+}
+
 /// A DEM of the benchmark: a report name and the `terrain bench` arguments that load it.
 fn dem_args(spec: &str) -> anyhow::Result<(String, Vec<String>)> {
-    let data = std::env::var_os("TERRAIN_DATA")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| root().join("../shared/data"));
+    let data = data_dir();
     Ok(match spec {
         "default" => ("default".to_string(), vec![]),
         "puget1k" => {

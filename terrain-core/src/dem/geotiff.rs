@@ -247,6 +247,21 @@ fn precheck_header(path: &Path, file: &mut File, len: u64) -> Result<Precheck, D
             // Entry: tag u16, type u16 (3 SHORT, 4 LONG), count, then the value inline.
             let (tag, typ) = (u16_at(&e[0..2]), u16_at(&e[2..4]));
             let at = ifd + count_len + k as u64 * entry_len + value_at as u64;
+            // Values that do not fit in the entry lie elsewhere in the file, so a tag declaring
+            // more bytes of values than the whole file holds is damaged: refused here, before
+            // the decoder sizes a buffer from the count (1.45 GB for an ASCII tag of a 700-byte
+            // file, found by `cargo xtask fuzz`).
+            let count = if big { u64_at(&e[4..12]) } else { u64::from(u32_at(&e[4..8])) };
+            let value_bytes = count.saturating_mul(tiff_type_bytes(typ));
+            if value_bytes > (entry_len - value_at as u64) && value_bytes > len {
+                return Err(malformed(
+                    path,
+                    format!(
+                        "TIFF tag {tag} declares {count} values ({value_bytes} bytes), more than \
+                         the file's {len} bytes; the file is damaged"
+                    ),
+                ));
+            }
             match (tag, typ) {
                 (PHOTOMETRIC_TAG, 3) => {
                     photometric = Some((at, u16_at(&e[value_at..value_at + 2])));
@@ -279,6 +294,17 @@ fn precheck_header(path: &Path, file: &mut File, len: u64) -> Result<Precheck, D
     }
     file.seek(SeekFrom::Start(0)).map_err(io)?;
     Ok(Precheck { patches, mask_ifd })
+}
+
+/// Bytes of one value of TIFF field type `typ` (TIFF 6.0 section 2, BigTIFF's 16..18); 1 for
+/// an unknown type, so a count alone still bounds it.
+fn tiff_type_bytes(typ: u16) -> u64 {
+    match typ {
+        3 | 8 => 2,
+        4 | 9 | 11 | 13 => 4,
+        5 | 10 | 12 | 16 | 17 | 18 => 8,
+        _ => 1,
+    }
 }
 
 /// Inflates the zlib stream of one Deflate strip or tile to its end, discarding the output,
@@ -706,8 +732,11 @@ pub(crate) fn decode_error(path: &Path, len: u64, e: TiffError) -> DemError {
 /// metres (GDAL's scale and offset, then `vertical_scale` and `vertical_offset`).
 pub(crate) fn read(path: &Path, len: u64, options: &LoadOptions) -> Result<RawGrid, DemError> {
     // Decoding buffer: one chunk as f64 at most; the image was checked against max_samples
-    // before any decode happens, so this limit is a second line of defence.
-    let max_bytes = options.max_samples.saturating_mul(8).min(usize::MAX as u64) as usize;
+    // before any decode happens, so this limit is a second line of defence. Also capped by the
+    // memory limit: the decoder sizes tag value lists by it too.
+    let max_bytes =
+        options.max_samples.saturating_mul(8).min(options.max_memory_bytes).min(usize::MAX as u64)
+            as usize;
     let Opened { mut dec, width: w, height: h, georef, file_nodata, layout, sample_type, bands } =
         open(path, len, options, max_bytes)?;
     let mut notes = Vec::new();

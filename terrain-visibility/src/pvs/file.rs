@@ -133,7 +133,9 @@ pub fn decode(bytes: &[u8], path: &Path) -> Result<Pvs, PvsFileError> {
         || cells_y == 0
         || floors == 0
         || !root_cells.is_power_of_two()
-        || u64::from(cells_x) * u64::from(cells_y) * u64::from(floors) > 1 << 24
+        // Saturating: three u32 counts can overflow even 64 bits (a hostile header).
+        || u64::from(cells_x).saturating_mul(u64::from(cells_y)).saturating_mul(u64::from(floors))
+            > 1 << 24
     {
         return Err(corrupt("implausible header values".into()));
     }
