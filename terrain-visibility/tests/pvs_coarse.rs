@@ -91,10 +91,13 @@ fn the_coarse_layout_is_the_fine_grids_with_its_heights_crc() {
     assert!(!k.matches_heights(&edited), "a coarse PVS matched other heights");
 }
 
-/// Checks the coarse PVS of `hm` against its exact bake on every cell and patch: the coarse
-/// conservative PVS contains every patch either exact PVS finds visible (sampled: always, by
-/// the module's argument; conservative: counted). Returns (exact conservative visible pairs
-/// the coarse one culls, pairs the coarse conservative PVS culls, pairs the exact one culls).
+/// Checks the coarse PVS of `hm` against its exact bake on every cell, pyramid level and
+/// patch: the coarse conservative PVS contains every node the exact sampled PVS finds visible
+/// (always, by the argument of `pvs::coarse`) and the coarse sampled one. Returns, over the
+/// finest patches, (pairs the exact *conservative* PVS keeps that the coarse one culls: not
+/// guaranteed 0 in general, since the coarse proofs split into fewer parts and may prove what
+/// the exact bake's budget could not, but every such cull is a true one, see the dense truth
+/// test; pairs the coarse conservative PVS culls; pairs the exact one culls).
 fn assert_superset(hm: &Heightmap, c: &PvsConfig, factor: u32) -> (usize, usize, usize) {
     let (s, k, _) = bake_both(hm, c);
     let t = CoarseTerrain::from_heightmap(hm, c, factor).unwrap();
