@@ -234,7 +234,10 @@ impl CoarseTerrain {
                 .map_err(|source| CoarseError::Grid { factor: f as u32, source })
         };
         if f == 1 {
-            let hm = Heightmap::from_fn(w, h, georef.clone(), |i, j| whole[j * w + i])
+            // Moved, not copied; the void flags are not needed (the layout and CRC-32 have
+            // them, the bake reads heights only).
+            let voids = terrain_core::VoidMask::new(w, h);
+            let hm = Heightmap::new(w, h, whole, voids, georef.clone())
                 .map_err(|source| CoarseError::Grid { factor: 1, source })?;
             return Ok(Self { factor: 1, occluders: hm.clone(), targets: hm, layout });
         }
