@@ -57,7 +57,9 @@ pub(crate) struct BakeArgs {
     pub threads: usize,
     /// Do not bake the scene's PVS (both files, sampled and conservative, written into the
     /// store folder after the blocks; see `terrain pvs`). At the paper's configuration
-    /// (`--pvs-*` defaults) the PVS of a 4096^2 DEM takes about 80 s on two cores.
+    /// (`--pvs-*` defaults) the PVS of a 4096^2 DEM takes about 80 s on two cores. A grid read
+    /// by rows gets its PVS from a coarse conservative version of it that fits a quarter of
+    /// --max-memory (it never culls what the exact PVS sees; it culls less).
     #[arg(long)]
     pub no_pvs: bool,
     /// Do not compute the DSS paper's 32 object-space errors per quadtree node
