@@ -20,13 +20,10 @@ use terrain_visibility::roughness::stream::RowGrid;
 use crate::source::SourceArgs;
 use terrain_app::methods::MethodConfig;
 
-/// Largest synthetic side whose PVS `terrain bake` computes (the grid is held in memory; the
-/// DSS errors of a larger one are computed by bands of rows).
+/// Largest synthetic side `terrain bake` holds in memory for the PVS, DSS errors and
+/// roughness (a larger one is read by bands of rows: the DSS errors and roughness computed by
+/// bands, the PVS against a coarse conservative grid).
 const MAX_IN_MEMORY_SYNTHETIC: u64 = 8193;
-
-/// What the PVS bake holds per sample besides the heightmap (5 bytes: heights and void mask):
-/// the column-major copy (4 bytes) and the min/max mip (about 8 / 3 bytes); for the warning.
-const PVS_BYTES_PER_SAMPLE: f64 = 5.0 + 4.0 + 8.0 / 3.0;
 
 /// Arguments of `terrain bake`.
 #[derive(Debug, Args)]
@@ -61,7 +58,9 @@ pub(crate) struct BakeArgs {
     pub threads: usize,
     /// Do not bake the scene's PVS (both files, sampled and conservative, written into the
     /// store folder after the blocks; see `terrain pvs`). At the paper's configuration
-    /// (`--pvs-*` defaults) the PVS of a 4096^2 DEM takes about 80 s on two cores.
+    /// (`--pvs-*` defaults) the PVS of a 4096^2 DEM takes about 80 s on two cores. A grid read
+    /// by rows gets its PVS from a coarse conservative version of it that fits a quarter of
+    /// --max-memory (it never culls what the exact PVS sees; it culls less).
     #[arg(long)]
     pub no_pvs: bool,
     /// Do not compute the DSS paper's 32 object-space errors per quadtree node
@@ -275,8 +274,9 @@ pub(crate) fn run(args: &BakeArgs) -> anyhow::Result<()> {
     let hm = match (source_hm, args.synthetic) {
         (Some(hm), _) => Some(hm),
         (None, Some(n)) if n <= MAX_IN_MEMORY_SYNTHETIC && !(args.no_pvs && args.no_dss) => {
-            // A streamed synthetic terrain: the PVS needs the whole grid (the DSS errors and
-            // roughness are then computed from it in memory too, faster than by rows).
+            // A streamed synthetic terrain that fits: the exact PVS from the whole grid (the
+            // DSS errors and roughness are then computed from it in memory too, faster than by
+            // rows); a larger one gets the PVS of a coarse conservative grid, below.
             synthetic_hm =
                 FractalConfig::with_size(n, n, 10.0).to_heightmap().map_err(anyhow::Error::msg)?;
             Some(&synthetic_hm)
@@ -348,34 +348,15 @@ pub(crate) fn run(args: &BakeArgs) -> anyhow::Result<()> {
         return Ok(());
     }
     let Some(hm) = hm else {
-        let (w, h) = (source.width(), source.height());
-        eprintln!(
-            "warning: no PVS files (pvs.bin, pvs_conservative.bin) for this store: the PVS \
-             bake casts sight lines across the whole grid and reads it through a min/max mip \
-             and a column-major copy of the heights (about {:.0} MiB for {w} x {h} samples), \
-             and this bake reads the grid by bands of rows{}. Drawn from this store, \
-             pvps-c-pvs and pvps-c-cons run without occlusion culling (the other methods \
-             read the tables this bake wrote). {}",
-            (w * h) as f64 * PVS_BYTES_PER_SAMPLE / terrain_app::MIB,
-            if args.synthetic.is_some() {
-                format!(" (a synthetic terrain above {MAX_IN_MEMORY_SYNTHETIC}^2 samples)")
-            } else {
-                String::new()
-            },
-            if args.synthetic.is_some() {
-                format!(
-                    "To get a PVS, bake a synthetic terrain of at most {MAX_IN_MEMORY_SYNTHETIC}^2 samples."
-                )
-            } else {
-                format!(
-                    "To get a PVS, bake with the grid in memory if it fits: without --stream, \
-                     with --stream-above {} (or more) and a --max-memory that holds the \
-                     DEM's whole read; \
-                     --no-pvs silences this warning.",
-                    w * h
-                )
-            }
-        );
+        // The grid is not in memory: the PVS against a coarse conservative version of it,
+        // gathered by bands of rows (the DEM's rows again, or the synthetic terrain generated
+        // again) in a quarter of --max-memory.
+        let (w, h) = (source.width() as usize, source.height() as usize);
+        let georef = source.georef();
+        let budget = args.source.load_options()?.max_memory_bytes / 4;
+        let out = &args.output;
+        let cfg = args.pvs.config()?;
+        crate::pvs::bake_by_rows_into_scene((w, h, &georef), &cfg, budget, out, read)?;
         return Ok(());
     };
     stop_before("PVS")?;

@@ -6,9 +6,14 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{Context, bail};
 use clap::Args;
+use std::time::Instant;
 use terrain_app::progress::Progress;
 use terrain_app::pvs_scene::pvs_path;
+
 use terrain_core::Heightmap;
+use terrain_core::georef::Georef;
+use terrain_core::quadtree::NodeId;
+use terrain_visibility::pvs::coarse::{BYTES_PER_COARSE_SAMPLE, CoarseTerrain, factor_for};
 use terrain_visibility::pvs::{
     CellId, FloorRule, Pvs, PvsConfig, PvsMode, bake, bake_both_with_progress, read_pvs, write_pvs,
 };
@@ -91,21 +96,100 @@ pub(crate) fn bake_into_scene(hm: &Heightmap, cfg: &PvsConfig, dir: &Path) -> an
     let (sampled, conservative, stats) =
         bake_both_with_progress(hm, cfg, &|done, total| bar.update(done as f64, total as f64));
     bar.finish();
-    for pvs in [&sampled, &conservative] {
+    write_into_scene(&[&sampled, &conservative], stats.cells, dir)?;
+    println!("PVS bake: {:.1} s", stats.elapsed.as_secs_f64());
+    Ok(())
+}
+
+/// Bakes both PVS modes of a `width x height` grid at `georef` that is not held in memory,
+/// reading it through `read(j0, rows, heights, voids)` by bands of rows, against a coarse
+/// conservative version of it that fits `max_bytes` (terrain-visibility's `pvs::coarse`:
+/// occluders never above, targets never below the terrain), and writes them into scene folder
+/// `dir`. The files keep the grid's layout and the CRC-32 of its full-resolution heights.
+pub(crate) fn bake_by_rows_into_scene(
+    (width, height, georef): (usize, usize, &Georef),
+    cfg: &PvsConfig,
+    max_bytes: u64,
+    dir: &Path,
+    read: impl Fn(usize, usize, &mut [f32], &mut [bool]) -> anyhow::Result<()>,
+) -> anyhow::Result<()> {
+    let start = Instant::now();
+    let (factor, fits) = factor_for(width as u64, height as u64, cfg, max_bytes);
+    let coarse_side = |n: usize| (n.saturating_sub(1)).div_ceil(factor as usize) + 1;
+    let coarse_mib = (coarse_side(width) * coarse_side(height)) as f64
+        * BYTES_PER_COARSE_SAMPLE as f64
+        / terrain_app::MIB;
+    if !fits {
+        eprintln!(
+            "warning: the PVS bake's coarse grid needs {coarse_mib:.0} MiB, more than its budget \
+             of {:.0} MiB (a quarter of --max-memory): it is coarsened at most to one coarse \
+             cell per patch (factor {factor}); a smaller --pvs-patch-level coarsens further",
+            max_bytes as f64 / terrain_app::MIB
+        );
+    }
+    // A band of rows in at most an eighth of the budget (5 bytes a sample: height and void).
+    let band = ((max_bytes / 8) / (5 * width.max(1) as u64)).clamp(1, 4096) as usize;
+    let coarse =
+        CoarseTerrain::from_rows(width, height, georef, cfg, factor, band, |j0, n, h, v| {
+            read(j0, n, h, v)
+        })
+        .context("reading the grid by rows for the PVS")?;
+    let gathered = start.elapsed();
+    let (cw, ch) = (coarse.occluders.width(), coarse.occluders.height());
+    let bar = Progress::new("PVS", true);
+    let (sampled, conservative, stats) =
+        coarse.bake_both(cfg, &|done, total| bar.update(done as f64, total as f64));
+    bar.finish();
+    write_into_scene(&[&sampled, &conservative], stats.cells, dir)?;
+    println!(
+        "PVS bake: {:.1} s (by bands of rows: against a {cw} x {ch} conservative grid, {factor}x \
+         coarser, about {coarse_mib:.0} MiB; rows read in {:.1} s)",
+        start.elapsed().as_secs_f64(),
+        gathered.as_secs_f64()
+    );
+    Ok(())
+}
+
+/// Writes baked PVSs into scene folder `dir`, with one line each.
+fn write_into_scene(pvss: &[&Pvs], cells: usize, dir: &Path) -> anyhow::Result<()> {
+    for pvs in pvss {
         let path = pvs_path(dir, pvs.mode);
         let bytes = write_pvs(pvs, &path).with_context(|| format!("writing {}", path.display()))?;
         println!(
-            "{}: {} PVS of {} cells x {}^2 patches, {:.1} KB, culled {:.1} % of (cell, patch) pairs",
+            "{}: {} PVS of {} cells x {}^2 patches, {:.1} KB, culled {:.1} % of (cell, patch) pairs, {:.1} visible patches per cell",
             path.display(),
             pvs.mode.name(),
-            stats.cells,
+            cells,
             pvs.layout.patches_per_side(),
             bytes as f64 / 1e3,
-            100.0 * pvs.culled_fraction()
+            100.0 * pvs.culled_fraction(),
+            visible_per_cell(pvs)
         );
     }
-    println!("PVS bake: {:.1} s", stats.elapsed.as_secs_f64());
     Ok(())
+}
+
+/// The mean number of finest patches holding samples that a PVS keeps per view cell inside
+/// the grid.
+pub(crate) fn visible_per_cell(pvs: &Pvs) -> f64 {
+    let lay = &pvs.layout;
+    let (l, side) = (lay.patch_level, lay.patches_per_side());
+    let (mut visible, mut cells) = (0u64, 0u64);
+    for n in 0..lay.cell_count() {
+        let c = lay.cell_at_index(n);
+        if lay.floor_bounds(c).is_none() {
+            continue;
+        }
+        cells += 1;
+        for b in 0..side {
+            for a in 0..side {
+                if lay.patch_samples(l, a, b).is_some() {
+                    visible += u64::from(pvs.visible(c, NodeId::new(l, a, b)));
+                }
+            }
+        }
+    }
+    visible as f64 / cells.max(1) as f64
 }
 
 /// Arguments of `terrain pvs`.

@@ -147,3 +147,65 @@ fn a_stale_pvs_is_refused_naming_the_file() {
     );
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+/// Issue 13: a DEM baked by bands of rows (`--stream`, a small `--max-memory`) gets both PVS
+/// files, baked against a coarse conservative grid and tied to the full-resolution heights,
+/// and `terrain render <store> --method pvps-c-pvs` draws with them (no warning); without the
+/// file it warns (the negative control).
+#[test]
+fn a_bake_by_rows_writes_a_pvs_that_render_uses() {
+    use terrain_core::dem::{LoadOptions, RowReader};
+    use terrain_core::lod::dss_file::HeightsChecksum;
+    use terrain_visibility::pvs::read_pvs;
+
+    let dir = common::scratch("pvs-cli", "rows");
+    let store = dir.join("bt.scene");
+    let tif = data("big_tujunga/bigtujunga.tif");
+    let mut args = vec!["bake", s(&tif), "--stream", "--max-memory", "4MiB", "--no-dss"];
+    args.extend(["--no-geomip", "-o", s(&store)]);
+    args.extend(["--pvs-cells", "8", "--pvs-patch-level", "4"]);
+    let out = terrain(&args);
+    let stdout = ok(&out);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!stderr.contains("no PVS files"), "{stderr}");
+    assert!(stdout.contains("by bands of rows: against a 151 x 82 conservative grid"), "{stdout}");
+    // Tied to the grid's full-resolution heights, as the row reader gives them.
+    let reader = RowReader::open(&tif, &LoadOptions::default()).unwrap();
+    let (w, h) = (reader.width() as usize, reader.height() as usize);
+    let (mut heights, mut voids) = (vec![0f32; w], vec![false; w]);
+    let mut crc = HeightsChecksum::new();
+    for j in 0..h {
+        reader.read_rows(j as u64, 1, &mut heights, &mut voids).unwrap();
+        crc.add_heights(&heights);
+        crc.add_voids(&voids);
+    }
+    for name in ["pvs.bin", "pvs_conservative.bin"] {
+        let pvs = read_pvs(&store.join(name)).unwrap();
+        assert_eq!((pvs.layout.width, pvs.layout.height), (w as u32, h as u32), "{name}");
+        assert_eq!(pvs.layout.heights, crc.finish(), "{name}: not the full-resolution CRC");
+    }
+    // Drawn from the store with its PVS; then without it (negative control).
+    let render = |tag: &str| {
+        let png = dir.join(format!("{tag}.png"));
+        let args = ["render", s(&store), "--method", "pvps-c-pvs", "--size", "160x120"];
+        terrain(&[&args[..], &["-o", s(&png)]].concat())
+    };
+    let drawn = render("with");
+    let err = String::from_utf8_lossy(&drawn.stderr).into_owned();
+    if !drawn.status.success()
+        && err.contains("no GPU adapter")
+        && std::env::var_os("TERRAIN_REQUIRE_GPU").is_none()
+    {
+        println!("SKIPPED the render: {err}; set TERRAIN_REQUIRE_GPU=1 to make this a failure");
+        return;
+    }
+    let stdout = ok(&drawn);
+    assert!(stdout.contains("method: pvps-c-pvs"), "{stdout}");
+    assert!(!err.contains("occlusion culling"), "the PVS was not used: {err}");
+    std::fs::remove_file(store.join("pvs.bin")).unwrap();
+    let without = render("without");
+    ok(&without);
+    let err = String::from_utf8_lossy(&without.stderr);
+    assert!(err.contains("drawing without occlusion culling"), "{err}");
+    std::fs::remove_dir_all(&dir).unwrap();
+}

@@ -123,8 +123,16 @@ pub fn bake_cells(hm: &Heightmap, cfg: &PvsConfig, cells: &[usize]) -> Vec<(Vec<
     let layout = PvsLayout::new(hm, cfg);
     let mip = HeightMip::new(hm);
     let lines = LineMins::new(hm);
-    let ctx =
-        Ctx { hm, mip: &mip, lines: &lines, layout: &layout, cfg, proofs: true, sampled: true };
+    let ctx = Ctx {
+        hm,
+        mip: &mip,
+        lines: &lines,
+        layout: &layout,
+        cfg,
+        proofs: true,
+        sampled: true,
+        targets: &mip,
+    };
     cells.par_iter().map(|&n| ctx.cell(n)).collect()
 }
 
@@ -138,8 +146,16 @@ pub fn bake_columns(
     let layout = PvsLayout::new(hm, cfg);
     let mip = HeightMip::new(hm);
     let lines = LineMins::new(hm);
-    let ctx =
-        Ctx { hm, mip: &mip, lines: &lines, layout: &layout, cfg, proofs: true, sampled: true };
+    let ctx = Ctx {
+        hm,
+        mip: &mip,
+        lines: &lines,
+        layout: &layout,
+        cfg,
+        proofs: true,
+        sampled: true,
+        targets: &mip,
+    };
     plan.par_iter().map(|&(a, b)| ctx.column(a, b)).collect()
 }
 
@@ -153,8 +169,25 @@ fn bake_impl(
     let start = Instant::now();
     let layout = PvsLayout::new(hm, cfg);
     let mip = HeightMip::new(hm);
+    bake_grids(&mip, &mip, layout, cfg, proofs, sampled, progress, start)
+}
+
+/// The bake of `layout`'s cells with occluders `mip` (sight lines, proofs) and target
+/// heights `targets` (the same mip for a bake of the grid itself; see [`super::coarse`]).
+#[allow(clippy::too_many_arguments)]
+pub(super) fn bake_grids(
+    mip: &HeightMip<'_>,
+    targets: &HeightMip<'_>,
+    layout: PvsLayout,
+    cfg: &PvsConfig,
+    proofs: bool,
+    sampled: bool,
+    progress: &(dyn Fn(usize, usize) + Sync),
+    start: Instant,
+) -> (Pvs, Pvs, BakeStats) {
+    let hm = mip.heightmap();
     let lines = LineMins::new(hm);
-    let ctx = Ctx { hm, mip: &mip, lines: &lines, layout: &layout, cfg, proofs, sampled };
+    let ctx = Ctx { hm, mip, lines: &lines, layout: &layout, cfg, proofs, sampled, targets };
     // Rayon over plan cells; each bakes its floors lowest first (see [`Below`]).
     let run = || -> Vec<(Vec<u8>, Vec<u8>)> {
         let total = (layout.cells_x * layout.cells_y) as usize;
@@ -204,6 +237,10 @@ struct Ctx<'a> {
     hm: &'a Heightmap,
     mip: &'a HeightMip<'a>,
     lines: &'a LineMins,
+    /// The targets' heights (test points, witnesses, a patch's max height `Hp`): the occluders'
+    /// own ([`Self::mip`]) in a bake of the grid itself, a max-reduced grid in the coarse bake
+    /// of [`super::coarse`] (occluders never higher, targets never lower than the terrain).
+    targets: &'a HeightMip<'a>,
     layout: &'a PvsLayout,
     cfg: &'a PvsConfig,
     proofs: bool,
@@ -315,13 +352,11 @@ impl Ctx<'_> {
                 _ => None,
             };
             let seen_below = match (lower, z) {
-                (Some((_, _, w, Some(z0))), Some(z1)) if chain_margin(self.hm, *z0, z1) => {
-                    Some(w.as_slice())
-                }
+                (Some((_, _, w, Some(z0))), Some(z1)) if self.margin(*z0, z1) => Some(w.as_slice()),
                 _ => None,
             };
             let above = match (upper, z) {
-                (Some((s, c, _, Some(z1))), Some(z0)) if chain_margin(self.hm, z0, *z1) => {
+                (Some((s, c, _, Some(z1))), Some(z0)) if self.margin(z0, *z1) => {
                     Some(Above { sampled: s.as_slice(), conservative: c.as_slice(), z: *z1 })
                 }
                 _ => None,
@@ -330,6 +365,11 @@ impl Ctx<'_> {
             done[k as usize] = Some((s, c, w, z));
         }
         done.into_iter().map(|d| d.map(|(s, c, _, _)| (s, c)).unwrap_or_default()).collect()
+    }
+
+    /// [`chain_margin`] for the occluders' and the targets' heights.
+    fn margin(&self, z0: f64, z1: f64) -> bool {
+        chain_margin(self.hm, z0, z1) && chain_margin(self.targets.heightmap(), z0, z1)
     }
 
     fn cell(&self, n: usize) -> (Vec<u8>, Vec<u8>) {
@@ -405,8 +445,15 @@ impl Ctx<'_> {
                 } else {
                     // Hidden from a higher plane: only the test points between the planes.
                     let between = top.above.filter(|u| !bit(u.sampled, l, i, j)).map(|u| u.z);
-                    let (seen, chain) =
-                        sampled_patch_visible(self.mip, top, q, self.cfg, between, hints);
+                    let (seen, chain) = sampled_patch_visible(
+                        self.mip,
+                        self.targets,
+                        top,
+                        q,
+                        self.cfg,
+                        between,
+                        hints,
+                    );
                     if chain {
                         w[p / 8] |= 1 << (p % 8);
                     }
@@ -452,7 +499,7 @@ impl Ctx<'_> {
         let t = DVec3::new(
             f64::from(cx),
             f64::from(cy),
-            f64::from(self.hm.get(cx as usize, cy as usize)),
+            f64::from(self.targets.heightmap().get(cx as usize, cy as usize)),
         );
         let c = (top.lo + top.hi) * 0.5;
         los::visible(self.mip, c.extend(top.z), t, self.cfg.epsilon_m)
@@ -478,7 +525,11 @@ impl Ctx<'_> {
         ];
         [my, q.1, q.3].iter().any(|&y| {
             [mx, q.0, q.2].iter().any(|&x| {
-                let t = DVec3::new(f64::from(x), f64::from(y), witness_height(self.hm, q, x, y));
+                let t = DVec3::new(
+                    f64::from(x),
+                    f64::from(y),
+                    witness_height(self.targets.heightmap(), q, x, y),
+                );
                 views.iter().any(|v| {
                     los::visible_with(self.mip, v.extend(top.z), t, self.cfg.epsilon_m, hints)
                 })
@@ -488,7 +539,7 @@ impl Ctx<'_> {
 
     fn proven(&self, top: &Top<'_>, q: (u32, u32, u32, u32), budget: u32) -> bool {
         let mut budget = budget;
-        let occ = Occluders { mip: self.mip, lines: self.lines };
+        let occ = Occluders { mip: self.mip, lines: self.lines, targets: self.targets };
         prove(&occ, top.lo, top.hi, top.z, q, self.cfg.epsilon_m, &mut budget)
     }
 }
@@ -515,6 +566,9 @@ pub struct Occluders<'a> {
     pub mip: &'a HeightMip<'a>,
     /// Per grid line mins.
     pub lines: &'a LineMins,
+    /// Where a target's max height `Hp` is read (the same mip as `mip` for a bake of the grid
+    /// itself; see [`super::coarse`]).
+    pub targets: &'a HeightMip<'a>,
 }
 
 /// Whether every sight line from `R x {z}` (`r_lo..r_hi`, grid coordinates) to the samples of
@@ -575,8 +629,12 @@ fn part_proven(
 ) -> bool {
     let (q_lo, q_hi) =
         (DVec2::new(f64::from(q.0), f64::from(q.1)), DVec2::new(f64::from(q.2), f64::from(q.3)));
-    let hp =
-        f64::from(occ.mip.range(i64::from(q.0), i64::from(q.1), i64::from(q.2), i64::from(q.3)).1);
+    let hp = f64::from(occ.targets.range_max(
+        i64::from(q.0),
+        i64::from(q.1),
+        i64::from(q.2),
+        i64::from(q.3),
+    ));
     intervals_prove(occ.mip, r_lo, r_hi, z, q_lo, q_hi, hp, eps)
         || lines_prove(occ.lines, r_lo, r_hi, z, q_lo, q_hi, hp, eps)
 }
@@ -759,13 +817,14 @@ fn chain_margin(hm: &Heightmap, z0: f64, z1: f64) -> bool {
 /// skipped.
 fn sampled_patch_visible(
     mip: &HeightMip<'_>,
+    targets: &HeightMip<'_>,
     top: &Top<'_>,
     q: (u32, u32, u32, u32),
     cfg: &PvsConfig,
     between: Option<f64>,
     hints: &mut los::Hints,
 ) -> (bool, bool) {
-    let hm = mip.heightmap();
+    let hm = targets.heightmap();
     let n = cfg.test_points.max(1);
     let coord = |a: u32, b: u32, k: u32| -> u32 {
         if n == 1 {
@@ -913,6 +972,7 @@ mod tests {
             cfg: &cfg,
             proofs: true,
             sampled: true,
+            targets: &mip,
         };
         let (mut witnesses, mut proven_above, mut hidden_above) = (0u32, 0u32, 0u32);
         for n in 0..16u32 {
@@ -980,12 +1040,20 @@ mod tests {
                         for i in 0..8u32 {
                             let q = (i * 16, j * 16, i * 16 + 16, j * 16 + 16);
                             let mut hints = los::Hints::new();
-                            if sampled_patch_visible(&mip, &tu, q, &cfg, None, &mut hints).0 {
+                            if sampled_patch_visible(&mip, &mip, &tu, q, &cfg, None, &mut hints).0 {
                                 continue;
                             }
-                            let full = sampled_patch_visible(&mip, &tk, q, &cfg, None, &mut hints);
-                            let skip =
-                                sampled_patch_visible(&mip, &tk, q, &cfg, Some(zu), &mut hints);
+                            let full =
+                                sampled_patch_visible(&mip, &mip, &tk, q, &cfg, None, &mut hints);
+                            let skip = sampled_patch_visible(
+                                &mip,
+                                &mip,
+                                &tk,
+                                q,
+                                &cfg,
+                                Some(zu),
+                                &mut hints,
+                            );
                             assert_eq!(full.0, skip.0, "plane {n}, z {zk} / {zu}, patch {i} {j}");
                             checked += 1;
                             let z = |x: u32, y: u32| f64::from(hm.get(x as usize, y as usize));

@@ -39,6 +39,7 @@
 //! max-height box (see `bake`'s module docs), so it never culls a visible patch.
 
 pub mod bake;
+pub mod coarse;
 pub mod file;
 pub mod los;
 pub mod mip;
@@ -156,6 +157,25 @@ pub struct CellId {
     pub k: u32,
 }
 
+/// What a [`PvsLayout`] needs of a grid besides its cells' ranges: its size, height range
+/// (of the samples that are not void, as [`Heightmap::min`]), georeference and heights'
+/// checksum.
+#[derive(Debug, Clone, PartialEq)]
+pub struct GridStats {
+    /// Samples per row.
+    pub width: u32,
+    /// Rows.
+    pub height: u32,
+    /// The least height (not void).
+    pub min: f32,
+    /// The greatest height (not void).
+    pub max: f32,
+    /// Where the grid is.
+    pub georef: terrain_core::georef::Georef,
+    /// CRC-32 of the heights and void mask ([`PvsLayout::heights`]).
+    pub heights: u32,
+}
+
 /// Where cells and patches are (everything but the bits); stored in the PVS file's header.
 #[derive(Debug, Clone, PartialEq)]
 pub struct PvsLayout {
@@ -191,13 +211,42 @@ pub struct PvsLayout {
 impl PvsLayout {
     /// The layout of `cfg` on `hm`.
     pub fn new(hm: &Heightmap, cfg: &PvsConfig) -> Self {
-        let (w, h) = (hm.width() as u32, hm.height() as u32);
+        let stats = GridStats {
+            width: hm.width() as u32,
+            height: hm.height() as u32,
+            min: hm.min(),
+            max: hm.max(),
+            georef: hm.georef().clone(),
+            heights: heights_checksum(hm),
+        };
+        Self::from_stats(&stats, cfg, |x0, y0, x1, y1| {
+            let (mut lo, mut hi) = (f32::INFINITY, f32::NEG_INFINITY);
+            for y in y0..=y1 {
+                for x in x0..=x1 {
+                    let z = hm.get(x as usize, y as usize);
+                    lo = lo.min(z);
+                    hi = hi.max(z);
+                }
+            }
+            (lo, hi)
+        })
+    }
+
+    /// The layout of `cfg` on a grid known by its [`GridStats`], with `range(x0, y0, x1, y1)`
+    /// the min and max of the samples of an inclusive rectangle (a plan cell's, for its
+    /// floors; a bake by rows gathers them beforehand, see [`coarse`]).
+    pub fn from_stats(
+        stats: &GridStats,
+        cfg: &PvsConfig,
+        mut range: impl FnMut(u32, u32, u32, u32) -> (f32, f32),
+    ) -> Self {
+        let (w, h) = (stats.width, stats.height);
         let cells = (w - 1).max(h - 1).max(1);
         let root_cells = cells.next_power_of_two();
         let (cx, cy) = (cfg.cells.0.max(1), cfg.cells.1.max(1));
         let floors = cfg.floors.max(1);
-        let relief = f64::from(hm.max() - hm.min()).max(1.0);
-        let g = hm.georef();
+        let relief = f64::from(stats.max - stats.min).max(1.0);
+        let g = &stats.georef;
         let mut layout = Self {
             width: w,
             height: h,
@@ -210,7 +259,7 @@ impl PvsLayout {
             origin: g.world_origin,
             spacing: g.spacing_m,
             bases: Vec::with_capacity((cx * cy) as usize),
-            heights: heights_checksum(hm),
+            heights: stats.heights,
         };
         layout.floor_height_m = match cfg.floor_rule {
             FloorRule::AboveTerrain { height_m } => height_m.unwrap_or(relief / f64::from(floors)),
@@ -222,18 +271,8 @@ impl PvsLayout {
                 let base = match layout.cell_samples(a, b) {
                     None => (f32::NAN, f32::NAN),
                     Some((x0, y0, x1, y1)) => match cfg.floor_rule {
-                        FloorRule::Layers { .. } => (hm.min(), hm.min()),
-                        FloorRule::AboveTerrain { .. } => {
-                            let (mut lo, mut hi) = (f32::INFINITY, f32::NEG_INFINITY);
-                            for y in y0..=y1 {
-                                for x in x0..=x1 {
-                                    let z = hm.get(x as usize, y as usize);
-                                    lo = lo.min(z);
-                                    hi = hi.max(z);
-                                }
-                            }
-                            (lo, hi)
-                        }
+                        FloorRule::Layers { .. } => (stats.min, stats.min),
+                        FloorRule::AboveTerrain { .. } => range(x0, y0, x1, y1),
                     },
                 };
                 layout.bases.push(base);
@@ -288,7 +327,7 @@ impl PvsLayout {
     }
 
     /// The integer sample rectangle touching a plan cell (inclusive), `None` outside.
-    fn cell_samples(&self, a: u32, b: u32) -> Option<(u32, u32, u32, u32)> {
+    pub fn cell_samples(&self, a: u32, b: u32) -> Option<(u32, u32, u32, u32)> {
         let (lo, hi) = self.cell_rect_clipped(a, b)?;
         Some((lo.x.floor() as u32, lo.y.floor() as u32, hi.x.ceil() as u32, hi.y.ceil() as u32))
     }
