@@ -514,10 +514,10 @@ fn paged_mode_draws_no_cracks_and_the_control_does() {
     assert!(e.is_err());
 }
 
-/// Paged mode's shading (per-fragment normals from the pages, the materials blended per
+/// Paged mode's shading (per-vertex normals from the pages, the materials blended per
 /// fragment) looks like the whole heightmap's (lightmap and alpha maps, no shadows) over the
 /// same heights (every page at stride 1): the same coverage, colours within a few levels
-/// (per sample and filtered there, per fragment here).
+/// (per sample and filtered there, per vertex and interpolated here).
 #[test]
 fn paged_mode_looks_like_the_whole_heightmaps() {
     let Some(ctx) = context(BackendChoice::Vulkan) else { return };
