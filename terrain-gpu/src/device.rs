@@ -284,3 +284,36 @@ fn is_llvmpipe(info: &wgpu::AdapterInfo) -> bool {
     let hay = format!("{} {} {}", info.name, info.driver, info.driver_info).to_ascii_lowercase();
     hay.contains("llvmpipe") || hay.contains("lavapipe")
 }
+
+/// A `size[0]` x `size[1]` texture of `format` holding `bytes` (`texel` bytes each).
+pub(crate) fn upload_texture(
+    ctx: &GpuContext,
+    label: &str,
+    size: [u32; 2],
+    format: wgpu::TextureFormat,
+    bytes: &[u8],
+    texel: u32,
+) -> wgpu::TextureView {
+    let extent = wgpu::Extent3d { width: size[0], height: size[1], depth_or_array_layers: 1 };
+    let tex = ctx.device.create_texture(&wgpu::TextureDescriptor {
+        label: Some(label),
+        size: extent,
+        mip_level_count: 1,
+        sample_count: 1,
+        dimension: wgpu::TextureDimension::D2,
+        format,
+        usage: wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_DST,
+        view_formats: &[],
+    });
+    ctx.queue.write_texture(
+        tex.as_image_copy(),
+        bytes,
+        wgpu::TexelCopyBufferLayout {
+            offset: 0,
+            bytes_per_row: Some(size[0] * texel),
+            rows_per_image: Some(size[1]),
+        },
+        extent,
+    );
+    tex.create_view(&Default::default())
+}

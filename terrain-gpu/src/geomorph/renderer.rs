@@ -16,7 +16,7 @@ use terrain_core::lod::PatchLod;
 
 use super::materials::{MATERIALS, MaterialMaps};
 use super::morph::{GpuMorphPatch, MeshLibrary, PATCH_SHIFT};
-use crate::device::{GpuContext, GpuError, read_buffer};
+use crate::device::{GpuContext, GpuError, read_buffer, upload_texture};
 use crate::paged::PageLayout;
 use crate::render::{BACKGROUND, RenderError, TerrainRenderer};
 use crate::target::{COLOR_FORMAT, OffscreenTarget, RgbaImage};
@@ -193,39 +193,6 @@ struct Maps<'a> {
     size: [u32; 2],
     light: &'a [u8],
     alpha: &'a [u8],
-}
-
-/// A `size[0]` x `size[1]` texture of `format` holding `bytes` (`texel` bytes each).
-fn upload_texture(
-    ctx: &GpuContext,
-    label: &str,
-    size: [u32; 2],
-    format: wgpu::TextureFormat,
-    bytes: &[u8],
-    texel: u32,
-) -> wgpu::TextureView {
-    let extent = wgpu::Extent3d { width: size[0], height: size[1], depth_or_array_layers: 1 };
-    let tex = ctx.device.create_texture(&wgpu::TextureDescriptor {
-        label: Some(label),
-        size: extent,
-        mip_level_count: 1,
-        sample_count: 1,
-        dimension: wgpu::TextureDimension::D2,
-        format,
-        usage: wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_DST,
-        view_formats: &[],
-    });
-    ctx.queue.write_texture(
-        tex.as_image_copy(),
-        bytes,
-        wgpu::TexelCopyBufferLayout {
-            offset: 0,
-            bytes_per_row: Some(size[0] * texel),
-            rows_per_image: Some(size[1]),
-        },
-        extent,
-    );
-    tex.create_view(&Default::default())
 }
 
 /// Refuses a target or patch size the renderer cannot draw.

@@ -13,7 +13,7 @@ use terrain_core::Heightmap;
 use terrain_core::geometry::Camera;
 
 use super::{DrawPatch, ExtraTriangles, RenderConfig, RenderOptions};
-use crate::device::{GpuContext, GpuError, GpuFeatures, read_buffer};
+use crate::device::{GpuContext, GpuError, GpuFeatures, read_buffer, upload_texture};
 use crate::paged::{PageClass, PageError, PageLayout, check_page};
 use crate::target::{COLOR_FORMAT, OffscreenTarget, RgbaImage};
 use crate::tess::{
@@ -548,30 +548,9 @@ impl TerrainRenderer {
         }
 
         let size = |w, h| wgpu::Extent3d { width: w, height: h, depth_or_array_layers: 1 };
-        let upload =
-            |label, format: wgpu::TextureFormat, w: u32, h: u32, bytes: &[u8], texel: u32| {
-                let tex = device.create_texture(&wgpu::TextureDescriptor {
-                    label: Some(label),
-                    size: size(w, h),
-                    mip_level_count: 1,
-                    sample_count: 1,
-                    dimension: wgpu::TextureDimension::D2,
-                    format,
-                    usage: wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_DST,
-                    view_formats: &[],
-                });
-                ctx.queue.write_texture(
-                    tex.as_image_copy(),
-                    bytes,
-                    wgpu::TexelCopyBufferLayout {
-                        offset: 0,
-                        bytes_per_row: Some(w * texel),
-                        rows_per_image: Some(h),
-                    },
-                    size(w, h),
-                );
-                tex.create_view(&Default::default())
-            };
+        let upload = |label, format, w: u32, h: u32, bytes: &[u8], texel| {
+            upload_texture(ctx, label, [w, h], format, bytes, texel)
+        };
         let atlas = device.create_texture(&wgpu::TextureDescriptor {
             label: Some("height pages"),
             size: size(atlas_w, atlas_h),
