@@ -79,6 +79,11 @@ pub(crate) struct BenchArgs {
     /// frames are warm, so they select and draw what the method does from memory.
     #[arg(long)]
     pub from_store: bool,
+    /// Sweep these screen-space error targets, pixels, comma-separated, instead of each
+    /// method's own parameter: every method at each target through the one mapping of
+    /// `--error-px` (the report's notes give each method's mapped parameter). Not with --sweep.
+    #[arg(long, value_delimiter = ',', conflicts_with = "sweep")]
+    pub error_px: Vec<f64>,
 }
 
 /// Writes `<dir>/<name>.json`, `.md` and `.svg`; returns the three paths.
@@ -169,6 +174,12 @@ pub(crate) fn run(args: &BenchArgs) -> anyhow::Result<()> {
     }
     cfg.ooc_wait = args.wait;
     cfg.from_store = args.from_store;
+    if !args.error_px.is_empty() {
+        if let Some(px) = args.error_px.iter().find(|p| !(p.is_finite() && **p > 0.0)) {
+            bail!("--error-px takes positive numbers of pixels, got {px}");
+        }
+        cfg.error_px = Some(args.error_px.clone());
+    }
     let flights = args
         .flights
         .iter()

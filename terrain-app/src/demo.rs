@@ -50,6 +50,7 @@ pub(crate) fn run(args: &DemoArgs) -> anyhow::Result<()> {
                 size: (640, 360),
                 max_frames: 48,
                 scene: None,
+                config: crate::quality::default_config(LodMethod::PvpsC, 360),
             };
             fly(synth::default_terrain(), &flights[0], options, ctx, &out.join("frames"))?;
         }

@@ -12,6 +12,7 @@ use anyhow::{Context, bail};
 use clap::Args;
 use glam::dvec2;
 use terrain_app::bench::{BenchProgress, FrameRecord, frame_indices, print_progress};
+use terrain_app::method::registry::ErrorView;
 use terrain_app::method::{self, FrameLoop, MethodOptions, OocWait};
 use terrain_app::methods::{LodMethod, MethodConfig, MethodScene};
 use terrain_app::ooc::{self, OocConfig, StreamRecord, StreamSummary};
@@ -49,9 +50,12 @@ pub(crate) struct FlyArgs {
     /// At most this many frames, evenly spaced over the flight; 0 = every frame.
     #[arg(long, default_value_t = 0)]
     pub frames: usize,
-    /// A store: the screen-error threshold tau of Eq. 7 (out-of-core paper), pixels.
-    #[arg(long, default_value_t = 2.0)]
-    pub tau: f64,
+    /// A store: the screen-error threshold tau of Eq. 7 (out-of-core paper), pixels
+    /// [default: 2, the balanced preset].
+    #[arg(long)]
+    pub tau: Option<f64>,
+    #[command(flatten)]
+    pub quality: crate::quality::QualityArgs,
     /// A store: the stream cache's budget, MiB (2^20 bytes).
     #[arg(long, alias = "cache-mb", default_value_t = 256)]
     pub cache_mib: u64,
@@ -84,6 +88,9 @@ pub(crate) struct FlyOptions {
     pub max_frames: usize,
     /// A scene folder whose precomputed files the method reads ([`terrain_app::scene_files`]).
     pub scene: Option<PathBuf>,
+    /// The methods' settings (its parameter from the quality options; `leaf_cells` is
+    /// replaced by the field above).
+    pub config: MethodConfig,
 }
 
 /// Flies `spec` over `hm` into `out` with the GPU `ctx`: PNG frames, stats.csv, stats.json.
@@ -104,10 +111,8 @@ pub(crate) fn fly(
     for w in &warnings {
         eprintln!("warning: flight {}: {w}", flight.name);
     }
-    let scene = MethodScene::new(
-        hm,
-        MethodConfig { leaf_cells: options.leaf_cells, ..MethodConfig::default() },
-    );
+    let scene =
+        MethodScene::new(hm, MethodConfig { leaf_cells: options.leaf_cells, ..options.config });
     if let Some(dir) = &options.scene {
         for warning in terrain_app::scene_files::load(&scene, dir, &[options.method]) {
             eprintln!("warning: {warning}");
@@ -195,15 +200,15 @@ fn write_stats(
 }
 
 /// The stream configuration of `terrain fly <store>` from its options, checked.
-fn store_config(args: &FlyArgs) -> anyhow::Result<OocConfig> {
-    if !(args.tau.is_finite() && args.tau > 0.0) {
-        bail!("--tau must be a positive number of pixels, got {}", args.tau);
+fn store_config(args: &FlyArgs, tau: f64) -> anyhow::Result<OocConfig> {
+    if !(tau.is_finite() && tau > 0.0) {
+        bail!("--tau must be a positive number of pixels, got {tau}");
     }
     if args.page_capacity == 0 {
         bail!("--page-capacity must be at least 1");
     }
     Ok(OocConfig {
-        tau: args.tau,
+        tau,
         budget_bytes: args.cache_mib << 20,
         page_capacity: args.page_capacity,
         page_budget_bytes: args.page_mib << 20,
@@ -220,6 +225,7 @@ fn fly_store(
     size: (u32, u32),
     spec: &FlightSpec,
     config: OocConfig,
+    method_config: MethodConfig,
 ) -> anyhow::Result<Vec<FrameRecord>> {
     let scene = crate::render::open_store(dir, config)?;
     let flight = crate::render::store_flight(&scene, dir, spec, size, args.frames)?;
@@ -228,8 +234,7 @@ fn fly_store(
     println!("adapter: {}", ctx.describe());
     let kind = args.method.unwrap_or(LodMethod::OutOfCore);
     println!("method: {}", kind.name());
-    let method_config =
-        MethodConfig { leaf_cells: args.leaf_cells, ooc: config, ..MethodConfig::default() };
+    let method_config = MethodConfig { ooc: config, ..method_config };
     let wait = if args.wait { OocWait::EveryFrame } else { OocWait::FirstFrame };
     let method = method::store_method(kind, scene, &method_config, wait, None)?;
     let (width, height) = size;
@@ -286,13 +291,25 @@ pub(crate) fn run(args: &FlyArgs) -> anyhow::Result<()> {
     }
     // The inputs first (the flight's errors name its file): nothing is created when one is bad.
     let spec = FlightSpec::load(&args.flight).context("could not load the flight")?;
+    let kind = args.method.unwrap_or(if store.is_some() {
+        LodMethod::OutOfCore
+    } else {
+        LodMethod::PvpsC
+    });
+    let mut method_config = MethodConfig { leaf_cells: args.leaf_cells, ..MethodConfig::default() };
+    method_config.ooc.tau = args.tau.unwrap_or(2.0);
+    let view = ErrorView { height_px: f64::from(size.1), fov_y_deg: spec.fov_y_deg };
+    let own = [("--tau", args.tau.is_some())];
+    if let Some(p) = args.quality.apply(&mut method_config, kind, view, &own)? {
+        println!("quality: {p}");
+    }
     /// What the flight is drawn from.
     enum Input<'a> {
         Store(&'a Path, OocConfig),
         Dem(Heightmap),
     }
     let input = match store {
-        Some(dir) => Input::Store(dir, store_config(args)?),
+        Some(dir) => Input::Store(dir, store_config(args, method_config.ooc.tau)?),
         None => Input::Dem(match args.source.load_surface()? {
             Some(dem) => dem.heightmap,
             None => synth::default_terrain(),
@@ -304,7 +321,7 @@ pub(crate) fn run(args: &FlyArgs) -> anyhow::Result<()> {
         .with_context(|| format!("could not create the output folder {}", args.output.display()))?;
     crate::render::check_writable(&args.output.join("frame_00000.png"))?;
     let records = match input {
-        Input::Store(dir, config) => fly_store(args, dir, size, &spec, config)?,
+        Input::Store(dir, config) => fly_store(args, dir, size, &spec, config, method_config)?,
         Input::Dem(hm) => {
             let ctx = GpuContext::new(&DeviceConfig::from_env(BackendChoice::Auto))
                 .context("no GPU adapter (Vulkan or GL) is available")?;
@@ -315,6 +332,7 @@ pub(crate) fn run(args: &FlyArgs) -> anyhow::Result<()> {
                 size,
                 max_frames: args.frames,
                 scene: args.scene.clone(),
+                config: method_config,
             };
             fly(hm, &spec, options, &ctx, &args.output)?
         }

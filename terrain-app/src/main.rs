@@ -9,6 +9,7 @@ mod info;
 mod interrupt;
 mod mesh;
 mod pvs;
+mod quality;
 mod render;
 mod roughness;
 mod source;

@@ -26,6 +26,7 @@ use terrain_core::mesh::{self, Algorithm, MeshConfig, TriMesh, verify};
 use terrain_core::{Crs, Heightmap};
 
 use terrain_app::method::MethodOptions;
+use terrain_app::method::registry::ErrorView;
 use terrain_app::methods::{LodMethod, MethodConfig, MethodScene};
 
 use crate::source::SourceArgs;
@@ -66,6 +67,10 @@ pub(crate) struct MeshArgs {
     /// With --camera: the view's size in pixels, WIDTHxHEIGHT (screen-space errors depend on it).
     #[arg(long, default_value = "1280x720", requires = "camera")]
     pub size: String,
+    /// With --camera: the method's quality (`terrain render`'s --error-px, --quality,
+    /// --method-param).
+    #[command(flatten)]
+    pub quality: crate::quality::QualityArgs,
     /// Output file: .glb, .gltf (with a .bin beside it) or .obj. Optional with --stats.
     #[arg(short, long)]
     pub output: Option<PathBuf>,
@@ -128,6 +133,14 @@ pub(crate) fn run(args: &MeshArgs) -> anyhow::Result<()> {
         None if args.stats => None,
         None => bail!("give an output file with -o (.glb, .gltf or .obj), or --stats"),
     };
+    let q = &args.quality;
+    if args.camera.is_none()
+        && (q.error_px.is_some() || q.quality.is_some() || q.method_param.is_some())
+    {
+        bail!(
+            "--error-px, --quality and --method-param apply with --camera (a view's LOD surface)"
+        );
+    }
     if let Some(e0) = args.entropy {
         return entropy_mesh(args, e0, format);
     }
@@ -280,7 +293,10 @@ fn view_mesh(
         .with_viewport(f64::from(width), f64::from(height))
         .with_clip(near, far);
     let t0 = Instant::now();
-    let scene = MethodScene::new(hm, MethodConfig::default());
+    let mut config = MethodConfig::default();
+    let view = ErrorView { height_px: f64::from(height), fov_y_deg: camera.fov_y.to_degrees() };
+    args.quality.apply(&mut config, args.method, view, &[])?;
+    let scene = MethodScene::new(hm, config);
     // The method's frame and its drawn surface, through the one method interface.
     let mut method = terrain_app::method::build(
         args.method,

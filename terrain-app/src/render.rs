@@ -9,6 +9,7 @@ use std::path::{Path, PathBuf};
 use anyhow::{Context, bail};
 use clap::Args;
 use glam::DVec3;
+use terrain_app::method::registry::ErrorView;
 use terrain_app::method::{self, FrameLoop, FrameRenderer, MethodOptions, OocWait};
 use terrain_app::methods::{LodMethod, MethodConfig, MethodScene};
 use terrain_app::ooc;
@@ -50,9 +51,11 @@ pub(crate) struct RenderArgs {
     #[arg(long)]
     pub scene: Option<PathBuf>,
     /// `--method uniform`: tessellation factor of every patch (fractional-even: 2 to 64)
-    /// [default: 16].
+    /// [default: from the quality preset balanced].
     #[arg(long)]
     pub factor: Option<f32>,
+    #[command(flatten)]
+    pub quality: crate::quality::QualityArgs,
     /// Background colour R,G,B (0-255).
     #[arg(long, default_value = "150,185,225")]
     pub background: String,
@@ -311,11 +314,16 @@ pub(crate) fn run(args: &RenderArgs) -> anyhow::Result<()> {
     let texture = args.texture.as_ref().map(load_texture).transpose()?;
     let camera = camera_for(args, &hm, width, height)?;
 
-    let method_config = MethodConfig {
+    let mut method_config = MethodConfig {
         leaf_cells: args.leaf_cells,
         uniform_factor: factor,
         ..MethodConfig::default()
     };
+    let view = ErrorView { height_px: f64::from(height), fov_y_deg: args.fov };
+    let own = [("--factor", args.factor.is_some())];
+    if let Some(p) = args.quality.apply(&mut method_config, method_kind, view, &own)? {
+        println!("quality: {p}");
+    }
     let scene = MethodScene::new(hm, method_config);
     if let Some(dir) = &args.scene {
         for warning in terrain_app::scene_files::load(&scene, dir, &[method_kind]) {
@@ -505,7 +513,19 @@ fn run_store(
     background: [u8; 4],
     kind: ImageOut,
 ) -> anyhow::Result<()> {
-    let tau = args.tau.unwrap_or(2.0);
+    let method_kind = args.method.unwrap_or(LodMethod::OutOfCore);
+    let mut method_config = MethodConfig {
+        leaf_cells: args.leaf_cells,
+        uniform_factor: args.factor.unwrap_or(DEFAULT_FACTOR),
+        ..MethodConfig::default()
+    };
+    method_config.ooc.tau = args.tau.unwrap_or(2.0);
+    let view = ErrorView { height_px: f64::from(height), fov_y_deg: args.fov };
+    let own = [("--factor", args.factor.is_some()), ("--tau", args.tau.is_some())];
+    if let Some(p) = args.quality.apply(&mut method_config, method_kind, view, &own)? {
+        println!("quality: {p}");
+    }
+    let tau = method_config.ooc.tau;
     let cache_mib = args.cache_mib.unwrap_or(256);
     let page_capacity = args.page_capacity.unwrap_or(1024);
     let page_mib = args.page_mib.unwrap_or(256);
@@ -554,13 +574,7 @@ fn run_store(
     println!("adapter: {}", ctx.describe());
     let render_config = RenderConfig { width, height, texture, background, ..Default::default() };
     let wait = if args.wait { OocWait::EveryFrame } else { OocWait::FirstFrame };
-    let method_kind = args.method.unwrap_or(LodMethod::OutOfCore);
-    let method_config = MethodConfig {
-        leaf_cells: args.leaf_cells,
-        uniform_factor: args.factor.unwrap_or(DEFAULT_FACTOR),
-        ooc: config,
-        ..MethodConfig::default()
-    };
+    let method_config = MethodConfig { ooc: config, ..method_config };
     println!("method: {}", method_kind.name());
     let method = method::store_method(method_kind, scene, &method_config, wait, None)?;
     let mut renderer = method.renderer(&ctx, &render_config)?;

@@ -52,6 +52,11 @@ pub struct BenchConfig {
     /// Also run every in-memory method that draws from a store from the benchmark's store
     /// (`--from-store`), after the same method from memory. Default false.
     pub from_store: bool,
+    /// Sweep screen-space error targets in pixels instead of each method's own parameter
+    /// (`--error-px`): every method at each target, through
+    /// [`crate::method::registry::params_for_error_px`]; `sweep_points` is then unused.
+    /// Default `None`.
+    pub error_px: Option<Vec<f64>>,
 }
 
 impl Default for BenchConfig {
@@ -70,6 +75,7 @@ impl Default for BenchConfig {
             ooc: OocConfig::default(),
             ooc_wait: false,
             from_store: false,
+            error_px: None,
         }
     }
 }

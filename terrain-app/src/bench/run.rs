@@ -107,11 +107,34 @@ pub fn run_bench(
     let sweeps: Vec<(LodMethod, &'static str, Vec<f64>)> = cfg
         .methods
         .iter()
-        .map(|&m| {
-            let (name, all) = sweep_values(m, leaf_cells);
-            (m, name, pick_evenly(&all, cfg.sweep_points))
+        .map(|&m| match &cfg.error_px {
+            // One screen-error target for every method, mapped onto each one's parameter.
+            Some(px) => (m, "error_px", px.clone()),
+            None => {
+                let (name, all) = sweep_values(m, leaf_cells);
+                (m, name, pick_evenly(&all, cfg.sweep_points))
+            }
         })
         .collect();
+    let error_view = registry::ErrorView {
+        height_px: f64::from(cfg.measure_viewport.1),
+        fov_y_deg: resolved
+            .first()
+            .and_then(|(f, _)| f.frames().first().map(|c| c.fov_y.to_degrees()))
+            .unwrap_or(registry::ErrorView::REFERENCE.fov_y_deg),
+    };
+    if let Some(targets) = &cfg.error_px {
+        for &m in &cfg.methods {
+            let mapped: Vec<String> = targets
+                .iter()
+                .map(|&px| {
+                    let p = registry::params_for_error_px(m, px, error_view);
+                    format!("{} px -> {} = {:.4}", px, p.parameter, p.value)
+                })
+                .collect();
+            notes.push(format!("{} error_px: {}", m.name(), mapped.join(", ")));
+        }
+    }
     let mut done = 0;
     let mut runs = Vec::new();
     // Store faults already said (every run of a store meets the same ones).
@@ -159,7 +182,11 @@ pub fn run_bench(
                 config.pvps.leaf_cells = leaf_cells;
                 config.dss.leaf_cells = leaf_cells;
                 config.ooc = cfg.ooc;
-                apply_parameter(&mut config, *method, value);
+                if cfg.error_px.is_some() {
+                    registry::params_for_error_px(*method, value, error_view).apply(&mut config);
+                } else {
+                    apply_parameter(&mut config, *method, value);
+                }
                 scene.config = config;
                 let label = format!(
                     "{} {}{} {parameter}={value}",

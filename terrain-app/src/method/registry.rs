@@ -1,8 +1,9 @@
 //! Everything the callers need to know about each method, in one place: how it is built
 //! ([`build`]), its swept parameter and values ([`sweep_values`], [`apply_parameter`]), its
 //! plot colour ([`colour`]), what the benchmark report says about how it is timed ([`note`])
-//! and whether it draws from a store ([`needs_store`]). `render`, `fly` and `bench` hold no
-//! per-method cases.
+//! and whether it draws from a store ([`needs_store`]), and how its own parameter follows from
+//! one screen-space error target in pixels ([`params_for_error_px`], the `--error-px` and
+//! `--quality` knob). `render`, `fly`, `mesh` and `bench` hold no per-method cases.
 
 use std::sync::Arc;
 
@@ -140,4 +141,217 @@ pub fn colour(m: LodMethod) -> &'static str {
         LodMethod::DssStrips => "#7f7f7f",
         LodMethod::OutOfCore => "#aec7e8",
     }
+}
+
+/// The `--quality` presets: each is a screen-space error target in pixels
+/// ([`Quality::error_px`]), mapped onto every method's own parameter by
+/// [`params_for_error_px`].
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum Quality {
+    /// 4 px.
+    Fast,
+    /// 2 px: the default of `render`, `fly` and `mesh --camera` when no quality option and no
+    /// own parameter of the method is given.
+    Balanced,
+    /// 1 px.
+    Best,
+}
+
+impl Quality {
+    /// The preset of a command given no quality option and no own parameter of the method.
+    pub const DEFAULT: Quality = Quality::Balanced;
+
+    /// The preset's screen-space error target, pixels.
+    pub fn error_px(self) -> f64 {
+        match self {
+            Quality::Fast => 4.0,
+            Quality::Balanced => 2.0,
+            Quality::Best => 1.0,
+        }
+    }
+}
+
+/// The view a pixel target refers to: the viewport's height and vertical field of view (the
+/// `lambda = H / (2 tan(fov / 2))` of every screen-error formula here).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ErrorView {
+    /// Viewport height, pixels.
+    pub height_px: f64,
+    /// Vertical field of view, degrees.
+    pub fov_y_deg: f64,
+}
+
+impl ErrorView {
+    /// The view the calibrations were measured in: 1280 x 720, 60 degrees (the benchmark's).
+    pub const REFERENCE: ErrorView = ErrorView { height_px: 720.0, fov_y_deg: 60.0 };
+
+    /// `lambda`: pixels per radian-ish unit of `delta / d` (DSS Eq. 3, out-of-core Eq. 6).
+    pub fn lambda(&self) -> f64 {
+        terrain_core::metrics::screen::lambda(self.height_px, self.fov_y_deg.to_radians())
+    }
+
+    /// `lambda` relative to the reference view's: a pixel target in this view is the target
+    /// divided by this in the reference view (errors in pixels scale with `lambda`).
+    fn scale(&self) -> f64 {
+        let s = self.lambda() / Self::REFERENCE.lambda();
+        if s.is_finite() && s > 0.0 { s } else { 1.0 }
+    }
+}
+
+/// How a method's parameter follows from the pixel target.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum ErrorPxBasis {
+    /// The parameter is a screen-space error in pixels already (geomorph's and ooc's tau).
+    Direct,
+    /// Through the method's own model linking its parameter to a screen error (DSS Eq. 3,
+    /// PVPS Eq. 12), with a measured correction where the model's error is not the measured
+    /// p99 (see [`params_for_error_px`]).
+    Model,
+    /// No model: a fit measured on the shared flights (see [`params_for_error_px`]).
+    Calibrated,
+}
+
+/// A method's own parameter for a pixel target ([`params_for_error_px`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ErrorPxParams {
+    /// The method.
+    pub method: LodMethod,
+    /// The target, pixels.
+    pub error_px: f64,
+    /// The parameter's name (as [`sweep_values`] names it; PVPS: `C3`).
+    pub parameter: &'static str,
+    /// Its value.
+    pub value: f64,
+    /// How it was derived.
+    pub basis: ErrorPxBasis,
+}
+
+impl ErrorPxParams {
+    /// Sets the parameter in `config` (PVPS: Eq. 12's `C3`, and Algorithm 1's `Constant =
+    /// C3 C4` with it, so a flat patch keeps equal inner and outer factors).
+    pub fn apply(&self, config: &mut MethodConfig) {
+        match self.method {
+            LodMethod::PvpsA
+            | LodMethod::PvpsB
+            | LodMethod::PvpsC
+            | LodMethod::PvpsCPvs
+            | LodMethod::PvpsCConservative => {
+                config.pvps.c3 = self.value;
+                config.pvps.outer_constant = self.value * config.pvps.c4;
+            }
+            m => apply_parameter(config, m, self.value),
+        }
+    }
+}
+
+impl std::fmt::Display for ErrorPxParams {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let how = match self.basis {
+            ErrorPxBasis::Direct => "its own pixel threshold",
+            ErrorPxBasis::Model => "through its screen-error model",
+            ErrorPxBasis::Calibrated => "by a measured calibration",
+        };
+        write!(
+            f,
+            "{}: {} = {:.4} for {} px ({how})",
+            self.method.name(),
+            self.parameter,
+            self.value,
+            self.error_px
+        )
+    }
+}
+
+/// `method`'s own parameter for a screen-space error target of `error_px` pixels in `view`:
+/// the one mapping behind `--error-px` and `--quality` (README "One quality knob" has the
+/// table with the measured figures).
+///
+/// - `geomorph` (`tau_px`) and `ooc` (`tau`): the parameter is a pixel threshold already (the
+///   projected max-error vertex of the drawn level, Wagner 2003; out-of-core Eq. 6-7): the
+///   target itself.
+/// - `dss-1`, `dss-2`, `dss-strips` (`rho_thr`): DSS Eq. 3 turns the block's *mean*
+///   object-space error into pixels, so `rho_thr` bounds the mean, not the p99 that is
+///   measured; `rho_thr = error_px / DSS_P99_OVER_MEAN`, the p99-to-mean ratio measured on
+///   the shared flights.
+/// - `pvps-*` (`C3`): Eq. 12 sets a patch's inner factor to `C3 x ScreenSpaceLength x
+///   (RoughnessValue + C4)`, the screen length in NDC (2 = the viewport's height): a flat
+///   patch's tessellated segments are `H / (2 C3 C4)` pixels long. The vertical error of a
+///   segment grows with its length; the measured p99 is `PVPS_P99_PER_SEGMENT_PX` of the
+///   segment length, so `C3 = H PVPS_P99_PER_SEGMENT_PX / (2 C4 error_px)` (and Algorithm 1's
+///   `Constant = C3 C4`).
+/// - `uniform` (factor) and `entropy` (`E0`): no model links the parameter to a screen error
+///   (a uniform factor's error depends on how near the terrain is; Eq. 5's `E0` is an entropy
+///   threshold): measured calibrations, `UNIFORM_P99_PER_CELL_PX` pixels of p99 per cell of
+///   tessellated segment, and `E0` interpolated in [`ENTROPY_E0_BY_P99`].
+///
+/// Targets in another view than the calibrations' ([`ErrorView::REFERENCE`]) are scaled by
+/// `lambda`: screen errors are `lambda delta / d`.
+pub fn params_for_error_px(method: LodMethod, error_px: f64, view: ErrorView) -> ErrorPxParams {
+    let px = if error_px.is_finite() && error_px > 0.0 { error_px } else { 1.0 };
+    let reference_px = px / view.scale();
+    let leaf = f64::from(MethodConfig::default().leaf_cells);
+    let (parameter, value, basis) = match method {
+        LodMethod::Geomorph => ("tau_px", px, ErrorPxBasis::Direct),
+        LodMethod::OutOfCore => ("tau", px, ErrorPxBasis::Direct),
+        LodMethod::Dss1 | LodMethod::Dss2 | LodMethod::DssStrips => {
+            ("rho_thr", px / DSS_P99_OVER_MEAN, ErrorPxBasis::Model)
+        }
+        LodMethod::PvpsA
+        | LodMethod::PvpsB
+        | LodMethod::PvpsC
+        | LodMethod::PvpsCPvs
+        | LodMethod::PvpsCConservative => {
+            let c4 = terrain_core::lod::PvpsConfig::default().c4;
+            let c3 = view.height_px * PVPS_P99_PER_SEGMENT_PX / (2.0 * c4 * px);
+            ("C3", c3, ErrorPxBasis::Model)
+        }
+        LodMethod::Uniform => {
+            // Segment length in cells for the target, as a factor of a leaf.
+            let cells = reference_px / UNIFORM_P99_PER_CELL_PX;
+            ("factor", (leaf / cells).clamp(2.0, leaf), ErrorPxBasis::Calibrated)
+        }
+        LodMethod::Entropy => ("E0", entropy_e0(reference_px), ErrorPxBasis::Calibrated),
+    };
+    ErrorPxParams { method, error_px: px, parameter, value, basis }
+}
+
+/// DSS: measured p99 pixel error over the Eq. 3 threshold on the mean error (see
+/// [`params_for_error_px`]).
+pub const DSS_P99_OVER_MEAN: f64 = 3.0;
+
+/// PVPS: measured p99 pixel error per pixel of a flat patch's Eq. 12 segment length.
+pub const PVPS_P99_PER_SEGMENT_PX: f64 = 0.1;
+
+/// `uniform`: measured p99 pixel error per cell of tessellated segment (reference view).
+pub const UNIFORM_P99_PER_CELL_PX: f64 = 0.4;
+
+/// `entropy`: measured median p99 (reference view) against `E0`, increasing in both.
+pub const ENTROPY_E0_BY_P99: [(f64, f64); 4] =
+    [(0.8, 18.0), (2.0, 50.0), (5.5, 70.0), (13.0, 95.0)];
+
+/// `E0` for a p99 target by log-linear interpolation in [`ENTROPY_E0_BY_P99`], clamped to its
+/// ends.
+fn entropy_e0(px: f64) -> f64 {
+    let t = &ENTROPY_E0_BY_P99;
+    if px <= t[0].0 {
+        return t[0].1;
+    }
+    for w in t.windows(2) {
+        let ((p0, e0), (p1, e1)) = (w[0], w[1]);
+        if px <= p1 {
+            let f = (px.ln() - p0.ln()) / (p1.ln() - p0.ln());
+            return e0 + f * (e1 - e0);
+        }
+    }
+    t[t.len() - 1].1
+}
+
+/// The methods' settings with `method`'s parameter from the default preset
+/// ([`Quality::DEFAULT`]) in `view`: what `render`, `fly` and `mesh --camera` draw when given
+/// no quality option and no own parameter.
+pub fn default_config(method: LodMethod, view: ErrorView) -> MethodConfig {
+    let mut config = MethodConfig::default();
+    params_for_error_px(method, Quality::DEFAULT.error_px(), view).apply(&mut config);
+    config
 }
