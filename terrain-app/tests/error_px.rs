@@ -153,3 +153,36 @@ fn no_method_draws_a_handful_of_triangles_at_the_default() {
     }
     assert!(failures.is_empty(), "{}", failures.join("\n"));
 }
+
+/// A quality option and the method's own parameter together are refused, naming both; a bad
+/// target is refused; `mesh` takes them only with `--camera`.
+#[test]
+fn own_parameter_and_error_px_are_refused_together() {
+    let out = std::env::temp_dir().join(format!("terrain-error-px-{}.png", std::process::id()));
+    let out = out.to_str().unwrap();
+    for (args, names) in [
+        (
+            &["--method", "uniform", "--factor", "4", "--error-px", "1"][..],
+            ["--factor", "--error-px"],
+        ),
+        (
+            &["--method", "dss-1", "--method-param", "0.5", "--quality", "fast"][..],
+            ["--method-param", "--quality"],
+        ),
+    ] {
+        let mut all = vec!["render"];
+        all.extend_from_slice(args);
+        all.extend_from_slice(&["-o", out]);
+        let o = common::terrain(&all);
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(!o.status.success(), "{args:?}");
+        for n in names {
+            assert!(err.contains(n), "{args:?}: {err}");
+        }
+    }
+    let o = common::terrain(&["render", "--error-px", "-1", "-o", out]);
+    assert!(String::from_utf8_lossy(&o.stderr).contains("--error-px must be a positive"));
+    let o = common::terrain(&["mesh", "--max-error", "4", "--error-px", "1", "--stats"]);
+    assert!(!o.status.success());
+    assert!(String::from_utf8_lossy(&o.stderr).contains("apply with --camera"));
+}

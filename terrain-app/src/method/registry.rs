@@ -265,37 +265,43 @@ impl std::fmt::Display for ErrorPxParams {
 
 /// `method`'s own parameter for a screen-space error target of `error_px` pixels in `view`:
 /// the one mapping behind `--error-px` and `--quality` (README "One quality knob" has the
-/// table with the measured figures).
+/// table with the measured figures; `cargo run --release -p terrain-app --example
+/// error_px_calibration` measures the fits below).
 ///
 /// - `geomorph` (`tau_px`) and `ooc` (`tau`): the parameter is a pixel threshold already (the
 ///   projected max-error vertex of the drawn level, Wagner 2003; out-of-core Eq. 6-7): the
-///   target itself.
-/// - `dss-1`, `dss-2`, `dss-strips` (`rho_thr`): DSS Eq. 3 turns the block's *mean*
-///   object-space error into pixels, so `rho_thr` bounds the mean, not the p99 that is
-///   measured; `rho_thr = error_px / DSS_P99_OVER_MEAN`, the p99-to-mean ratio measured on
-///   the shared flights.
+///   target itself. Both bound the *largest* error of a patch or block, so the measured p99
+///   lies below the target (geomorph about 0.45 of it).
+/// - `dss-1`, `dss-2`, `dss-strips` (`rho_thr`): DSS Eq. 3 projects a block's *mean*
+///   object-space error (section 3.3.1), so `rho_thr` bounds the mean, not the p99 that is
+///   measured. Measured on Puget Sound 1k (two shipped flights, `rho_thr` 0.25-8): p99 =
+///   [`DSS_P99_AT_RHO_1`] `rho_thr ^` [`DSS_P99_EXPONENT`] for all three; inverted here.
 /// - `pvps-*` (`C3`): Eq. 12 sets a patch's inner factor to `C3 x ScreenSpaceLength x
 ///   (RoughnessValue + C4)`, the screen length in NDC (2 = the viewport's height): a flat
-///   patch's tessellated segments are `H / (2 C3 C4)` pixels long. The vertical error of a
-///   segment grows with its length; the measured p99 is `PVPS_P99_PER_SEGMENT_PX` of the
-///   segment length, so `C3 = H PVPS_P99_PER_SEGMENT_PX / (2 C4 error_px)` (and Algorithm 1's
-///   `Constant = C3 C4`).
+///   patch's tessellated segments are `s = H / (2 C3 C4)` pixels long. A segment's error grows
+///   with its length; measured (Puget Sound 1k, methods A and C, `C3` 5-160): p99 =
+///   [`PVPS_P99_AT_SEGMENT_1PX`] `s ^` [`PVPS_P99_EXPONENT`]; inverted for `s`, then
+///   `C3 = H / (2 C4 s)` (Algorithm 1's `Constant = C3 C4` with it).
 /// - `uniform` (factor) and `entropy` (`E0`): no model links the parameter to a screen error
 ///   (a uniform factor's error depends on how near the terrain is; Eq. 5's `E0` is an entropy
-///   threshold): measured calibrations, `UNIFORM_P99_PER_CELL_PX` pixels of p99 per cell of
-///   tessellated segment, and `E0` interpolated in [`ENTROPY_E0_BY_P99`].
+///   threshold): measured calibrations, [`UNIFORM_P99_PER_CELL_PX`] pixels of p99 per cell of
+///   tessellated segment, and `E0` interpolated in [`ENTROPY_E0_BY_P99`] (entropy cannot go
+///   below about 1 px at its finest `E0`, 10; smaller targets get `E0 = 10`).
 ///
-/// Targets in another view than the calibrations' ([`ErrorView::REFERENCE`]) are scaled by
-/// `lambda`: screen errors are `lambda delta / d`.
+/// The fits were measured at 1280 x 720 and 60 degrees ([`ErrorView::REFERENCE`]); another
+/// view's target is first scaled by `lambda` (screen errors are `lambda delta / d`, and so are
+/// `rho_thr` and the uniform and entropy errors), and `C3` (NDC) needs no scaling.
 pub fn params_for_error_px(method: LodMethod, error_px: f64, view: ErrorView) -> ErrorPxParams {
     let px = if error_px.is_finite() && error_px > 0.0 { error_px } else { 1.0 };
-    let reference_px = px / view.scale();
+    let scale = view.scale();
+    let reference_px = px / scale;
     let leaf = f64::from(MethodConfig::default().leaf_cells);
     let (parameter, value, basis) = match method {
         LodMethod::Geomorph => ("tau_px", px, ErrorPxBasis::Direct),
         LodMethod::OutOfCore => ("tau", px, ErrorPxBasis::Direct),
         LodMethod::Dss1 | LodMethod::Dss2 | LodMethod::DssStrips => {
-            ("rho_thr", px / DSS_P99_OVER_MEAN, ErrorPxBasis::Model)
+            let rho = (reference_px / DSS_P99_AT_RHO_1).powf(1.0 / DSS_P99_EXPONENT);
+            ("rho_thr", rho * scale, ErrorPxBasis::Model)
         }
         LodMethod::PvpsA
         | LodMethod::PvpsB
@@ -303,8 +309,8 @@ pub fn params_for_error_px(method: LodMethod, error_px: f64, view: ErrorView) ->
         | LodMethod::PvpsCPvs
         | LodMethod::PvpsCConservative => {
             let c4 = terrain_core::lod::PvpsConfig::default().c4;
-            let c3 = view.height_px * PVPS_P99_PER_SEGMENT_PX / (2.0 * c4 * px);
-            ("C3", c3, ErrorPxBasis::Model)
+            let segment_px = (reference_px / PVPS_P99_AT_SEGMENT_1PX).powf(1.0 / PVPS_P99_EXPONENT);
+            ("C3", ErrorView::REFERENCE.height_px / (2.0 * c4 * segment_px), ErrorPxBasis::Model)
         }
         LodMethod::Uniform => {
             // Segment length in cells for the target, as a factor of a leaf.
@@ -316,19 +322,24 @@ pub fn params_for_error_px(method: LodMethod, error_px: f64, view: ErrorView) ->
     ErrorPxParams { method, error_px: px, parameter, value, basis }
 }
 
-/// DSS: measured p99 pixel error over the Eq. 3 threshold on the mean error (see
-/// [`params_for_error_px`]).
-pub const DSS_P99_OVER_MEAN: f64 = 3.0;
+/// DSS: the measured median p99 (pixels) at `rho_thr = 1` (see [`params_for_error_px`]).
+pub const DSS_P99_AT_RHO_1: f64 = 2.8;
 
-/// PVPS: measured p99 pixel error per pixel of a flat patch's Eq. 12 segment length.
-pub const PVPS_P99_PER_SEGMENT_PX: f64 = 0.1;
+/// DSS: the exponent of the measured p99 against `rho_thr`.
+pub const DSS_P99_EXPONENT: f64 = 0.71;
+
+/// PVPS: the measured median p99 (pixels) for Eq. 12 segments of 1 pixel.
+pub const PVPS_P99_AT_SEGMENT_1PX: f64 = 0.30;
+
+/// PVPS: the exponent of the measured p99 against the Eq. 12 segment length.
+pub const PVPS_P99_EXPONENT: f64 = 0.77;
 
 /// `uniform`: measured p99 pixel error per cell of tessellated segment (reference view).
-pub const UNIFORM_P99_PER_CELL_PX: f64 = 0.4;
+pub const UNIFORM_P99_PER_CELL_PX: f64 = 0.46;
 
-/// `entropy`: measured median p99 (reference view) against `E0`, increasing in both.
-pub const ENTROPY_E0_BY_P99: [(f64, f64); 4] =
-    [(0.8, 18.0), (2.0, 50.0), (5.5, 70.0), (13.0, 95.0)];
+/// `entropy`: measured median p99 (pixels, reference view) against `E0`, both increasing.
+pub const ENTROPY_E0_BY_P99: [(f64, f64); 6] =
+    [(1.02, 10.0), (1.31, 18.0), (1.76, 30.0), (2.87, 50.0), (5.67, 70.0), (9.9, 85.0)];
 
 /// `E0` for a p99 target by log-linear interpolation in [`ENTROPY_E0_BY_P99`], clamped to its
 /// ends.
@@ -354,4 +365,83 @@ pub fn default_config(method: LodMethod, view: ErrorView) -> MethodConfig {
     let mut config = MethodConfig::default();
     params_for_error_px(method, Quality::DEFAULT.error_px(), view).apply(&mut config);
     config
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A larger target never asks for more detail: each method's parameter moves towards
+    /// coarser as the target grows (uniform's factor and PVPS's C3 down, the thresholds up).
+    #[test]
+    fn parameters_coarsen_as_the_target_grows() {
+        let targets = [0.25, 0.5, 1.0, 2.0, 4.0, 8.0];
+        for m in LodMethod::ALL {
+            let v: Vec<f64> = targets
+                .iter()
+                .map(|&px| params_for_error_px(m, px, ErrorView::REFERENCE).value)
+                .collect();
+            // Uniform's factor and PVPS's C3 grow with detail; the thresholds shrink.
+            let parameter = params_for_error_px(m, 1.0, ErrorView::REFERENCE).parameter;
+            let finer_is_larger = parameter == "factor" || parameter == "C3";
+            for w in v.windows(2) {
+                let ok = if finer_is_larger { w[1] <= w[0] } else { w[1] >= w[0] };
+                assert!(ok, "{m:?}: {v:?}");
+            }
+            assert!(v.iter().all(|x| x.is_finite() && *x > 0.0), "{m:?}: {v:?}");
+        }
+    }
+
+    /// The pixel thresholds are the target itself; the DSS and PVPS fits invert to the
+    /// measured p99 they were fitted to.
+    #[test]
+    fn mappings_invert_their_fits() {
+        let view = ErrorView::REFERENCE;
+        for px in [0.5, 1.0, 3.0] {
+            assert_eq!(params_for_error_px(LodMethod::Geomorph, px, view).value, px);
+            assert_eq!(params_for_error_px(LodMethod::OutOfCore, px, view).value, px);
+            let rho = params_for_error_px(LodMethod::Dss1, px, view).value;
+            let p99 = DSS_P99_AT_RHO_1 * rho.powf(DSS_P99_EXPONENT);
+            assert!((p99 - px).abs() < 1e-9, "{px} {rho} {p99}");
+            let c3 = params_for_error_px(LodMethod::PvpsC, px, view).value;
+            let segment = view.height_px / (2.0 * c3);
+            let p99 = PVPS_P99_AT_SEGMENT_1PX * segment.powf(PVPS_P99_EXPONENT);
+            assert!((p99 - px).abs() < 1e-9, "{px} {c3} {p99}");
+        }
+        // Entropy's table ends clamp; its points are met exactly.
+        assert_eq!(params_for_error_px(LodMethod::Entropy, 0.1, view).value, 10.0);
+        assert_eq!(params_for_error_px(LodMethod::Entropy, 100.0, view).value, 85.0);
+        assert!((params_for_error_px(LodMethod::Entropy, 2.87, view).value - 50.0).abs() < 1e-9);
+    }
+
+    /// A view twice as tall in pixels (same fov) selects what the reference view selects at
+    /// half the target: `rho_thr` doubles with the view for the same selection, C3 (NDC) stays.
+    #[test]
+    fn other_views_scale_by_lambda() {
+        let big = ErrorView { height_px: 1440.0, fov_y_deg: 60.0 };
+        let r = ErrorView::REFERENCE;
+        let dss = |v, px| params_for_error_px(LodMethod::Dss2, px, v).value;
+        assert!((dss(big, 2.0) - 2.0 * dss(r, 1.0)).abs() < 1e-9);
+        let c3 = |v, px| params_for_error_px(LodMethod::PvpsB, px, v).value;
+        assert!((c3(big, 2.0) - c3(r, 1.0)).abs() < 1e-9);
+        let f = |v, px| params_for_error_px(LodMethod::Uniform, px, v).value;
+        assert!((f(big, 2.0) - f(r, 1.0)).abs() < 1e-9);
+    }
+
+    /// Applying a mapping sets the named parameter (PVPS: C3 and Algorithm 1's constant).
+    #[test]
+    fn apply_sets_the_parameter() {
+        let mut c = MethodConfig::default();
+        let p = params_for_error_px(LodMethod::PvpsC, 1.0, ErrorView::REFERENCE);
+        p.apply(&mut c);
+        assert_eq!(c.pvps.c3, p.value);
+        assert_eq!(c.pvps.outer_constant, p.value * c.pvps.c4);
+        let p = params_for_error_px(LodMethod::DssStrips, 1.0, ErrorView::REFERENCE);
+        p.apply(&mut c);
+        assert_eq!(c.dss.rho_thr, p.value);
+        let p = params_for_error_px(LodMethod::Uniform, 1.0, ErrorView::REFERENCE);
+        p.apply(&mut c);
+        assert_eq!(c.uniform_factor, p.value as f32);
+        assert_eq!(default_config(LodMethod::OutOfCore, ErrorView::REFERENCE).ooc.tau, 2.0);
+    }
 }
