@@ -18,10 +18,14 @@ use terrain_visibility::pvs::PvsConfig;
 /// The targets of the sweep, pixels.
 const TARGETS: [f64; 4] = [0.5, 1.0, 2.0, 4.0];
 
-/// How far the measured median p99 may lie from the target, as a factor either way, for the
-/// methods whose parameter is a pixel threshold or goes through a screen-error model
-/// (measured: see the README's table; the worst ratio there is about 2.3).
-const MODEL_FACTOR: f64 = 3.0;
+/// How far above the target the measured median p99 may lie, as a factor, for the methods
+/// whose parameter is a pixel threshold or goes through a screen-error model (measured on
+/// both DEMs: at most 1.52, dss-strips and pvps-c on Big Tujunga at 4 px; README table).
+const MODEL_FACTOR: f64 = 2.0;
+
+/// How far below: geomorph's tau bounds each patch's largest error, so its p99 lies well
+/// under the target (measured 0.36-0.50 of it); the others measured 0.57 at least.
+const MODEL_FACTOR_BELOW: f64 = 3.0;
 
 /// Tolerance of "non-decreasing": a larger target may measure at most this much less (the
 /// medians of a few frames move a little between settings that select almost the same).
@@ -67,8 +71,8 @@ fn sweep(name: &str, hm: Heightmap) -> Vec<RunRecord> {
     report.runs
 }
 
-/// Per method: the targets' median p99 figures are non-decreasing, and within
-/// [`MODEL_FACTOR`] of the target where the method's parameter is a pixel threshold or goes
+/// Per method: the targets' median p99 figures are non-decreasing, and between
+/// 1 / [`MODEL_FACTOR_BELOW`] and [`MODEL_FACTOR`] times the target where the method's parameter is a pixel threshold or goes
 /// through a screen-error model. Prints the table.
 fn check(name: &str, runs: &[RunRecord]) {
     println!("{name}: method | target px | p99 px | triangles");
@@ -97,7 +101,7 @@ fn check(name: &str, runs: &[RunRecord]) {
         if basis != ErrorPxBasis::Calibrated {
             for (r, px) in mine.iter().zip(TARGETS) {
                 let ratio = r.summary.median_p99_px / px;
-                if !(1.0 / MODEL_FACTOR..=MODEL_FACTOR).contains(&ratio) {
+                if !(1.0 / MODEL_FACTOR_BELOW..=MODEL_FACTOR).contains(&ratio) {
                     failures.push(format!(
                         "{}: target {px} px measured {:.3} px (ratio {ratio:.2})",
                         kind.name(),
@@ -121,11 +125,15 @@ fn measured_p99_follows_error_px_on_big_tujunga() {
 }
 
 /// At the default quality, from the default camera (the whole terrain from the south-west,
-/// 1280 x 720), every in-memory method draws a real surface (the old `dss-1` default drew
-/// Puget Sound as one patch, 8 triangles) whose measured p99 is within [`MODEL_FACTOR`] of the
-/// default target for the methods with a model.
+/// 1280 x 720), every in-memory method draws more than a handful of triangles (the old `dss-1`
+/// default, `rho_thr = 1` on the DSS *mean* error, drew Puget Sound as one patch at factor 2,
+/// 8 triangles) and, for the methods with a model, a measured p99 within [`MODEL_FACTOR`] of
+/// the default target.
 #[test]
 fn no_method_draws_a_handful_of_triangles_at_the_default() {
+    // The old dss-1 default drew 8; the fewest now are dss-1's and dss-strips' 128 (the root
+    // at factor 8, p99 2.06 px: Puget Sound's flat sea dilutes the DSS mean error).
+    const MIN_TRIANGLES: u64 = 100;
     let (w, h) = (1280, 720);
     let hm = puget();
     let camera = terrain_gpu::render::default_camera(&hm, w, h, 60.0);
@@ -142,8 +150,14 @@ fn no_method_draws_a_handful_of_triangles_at_the_default() {
         let mut frames = FrameLoop::new(method).measured(&scene.hm, &scene.qt, measure);
         let r = frames.frame(0, &camera, None).unwrap().record;
         let target = Quality::DEFAULT.error_px();
-        println!("{}: {} triangles, p99 {:.3} px", kind.name(), r.triangles, r.errors.p99_px);
-        if r.triangles < 1000 {
+        println!(
+            "{}: {} triangles, p99 {:.3} px, max {:.3} px",
+            kind.name(),
+            r.triangles,
+            r.errors.p99_px,
+            r.errors.max_px
+        );
+        if r.triangles < MIN_TRIANGLES {
             failures.push(format!("{}: {} triangles", kind.name(), r.triangles));
         }
         let basis = params_for_error_px(kind, target, view).basis;
