@@ -66,8 +66,8 @@ impl QualityArgs {
             );
         }
         if let Some(v) = self.method_param {
-            if !v.is_finite() {
-                bail!("--method-param must be a finite number, got {v}");
+            if !(v.is_finite() && v > 0.0) {
+                bail!("--method-param must be a positive number, got {v}");
             }
             apply_parameter(config, method, v);
             return Ok(None);
