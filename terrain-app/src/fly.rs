@@ -299,7 +299,8 @@ pub(crate) fn run(args: &FlyArgs) -> anyhow::Result<()> {
     let mut method_config = MethodConfig { leaf_cells: args.leaf_cells, ..MethodConfig::default() };
     method_config.ooc.tau = args.tau.unwrap_or(2.0);
     let view = ErrorView { height_px: f64::from(size.1), fov_y_deg: spec.fov_y_deg };
-    let own = [("--tau", args.tau.is_some())];
+    // --tau is the store's (Eq. 7); a DEM's fly does not read it.
+    let own = [("--tau", args.tau.is_some() && store.is_some())];
     if let Some(p) = args.quality.apply(&mut method_config, kind, view, &own)? {
         println!("quality: {p}");
     }
