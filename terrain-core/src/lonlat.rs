@@ -208,9 +208,9 @@ mod tests {
     fn projected_crs_agree_with_proj() {
         let cases = [
             // UTM 11N (WGS84), UTM 15N (NAD83), Pennsylvania South (NAD83, US survey feet).
-            (32611, 1.0, dvec2(-118.25, 34.25), dvec2(384_901.1043, 3_790_582.7345)),
-            (26915, 1.0, dvec2(-96.5, 45.0), dvec2(224_146.2710, 4_988_911.8385)),
-            (2272, 1200.0 / 3937.0, dvec2(-75.5, 40.0), dvec2(2_598_792.4328, 250_887.2426)),
+            (32611, 1.0, dvec2(-118.25, 34.25), dvec2(384901.1043, 3790582.7345)),
+            (26915, 1.0, dvec2(-96.5, 45.0), dvec2(224146.2710, 4988911.8385)),
+            (2272, 1200.0 / 3937.0, dvec2(-75.5, 40.0), dvec2(2598792.4328, 250887.2426)),
         ];
         for (code, unit, ll, native) in cases {
             let g = Georef::projected_in(Crs::Epsg(code), native, DVec2::ONE, unit);
