@@ -168,6 +168,15 @@ pub(crate) fn place_camera(
     Ok(c)
 }
 
+/// The `camera:` line: position, view direction, near and far.
+fn print_camera(camera: &Camera) {
+    let (p, f) = (camera.position, camera.forward());
+    println!(
+        "camera: {:.1},{:.1},{:.1} looking along {:.2},{:.2},{:.2} (east, north, up), near {:.2} m, far {:.0} m",
+        p.x, p.y, p.z, f.x, f.y, f.z, camera.near, camera.far
+    );
+}
+
 /// Warns when the camera was lifted out of the ground or sees no terrain of `heights`.
 fn say_view(placed: &camera::Placed, heights: &Heightmap, c: &Camera) {
     if let Some(w) = placed.lift_warning() {
@@ -340,18 +349,7 @@ pub(crate) fn run(args: &RenderArgs) -> anyhow::Result<()> {
     let config = RenderConfig { width, height, texture, background, ..Default::default() };
     let mut renderer = method.renderer(&ctx, &config)?;
     let options = RenderOptions { wireframe: args.wireframe, ..Default::default() };
-    let p = camera.position;
-    println!(
-        "camera: {:.1},{:.1},{:.1} looking along {:.2},{:.2},{:.2} (east, north, up), near {:.2} m, far {:.0} m",
-        p.x,
-        p.y,
-        p.z,
-        camera.forward().x,
-        camera.forward().y,
-        camera.forward().z,
-        camera.near,
-        camera.far
-    );
+    print_camera(&camera);
     let cameras = vec![camera; args.frames.unwrap_or(1).max(1) as usize];
     let mut frames = FrameLoop::new(method).rendered(Some(&mut renderer)).with_options(options);
     let records = draw_frames(&mut frames, &cameras, None)?;
@@ -615,6 +613,7 @@ fn store_camera(
     let placed = camera::place(spec, &Ground { heights: &overview, georef }, &view)?;
     let (near, far) = scene.clip_range(placed.camera.position);
     let c = placed.camera.with_clip(near, far);
+    print_camera(&c);
     say_view(&placed, &overview, &c);
     Ok(c)
 }

@@ -143,6 +143,38 @@ fn lonlat_lands_on_a_projected_dem_where_proj_says() {
     assert_eq!(z, 3000.0);
 }
 
+/// A store keeps its CRS: `lonlat:` and `agl` (on its level-4 overview) work on it, and its
+/// default view fills the image too. The lidar tile's centre (429452.313, 5150685.425) on UTM
+/// 15N is 93 55'10.23" W, 46 30'21.75" N (gdalinfo).
+#[test]
+fn cameras_are_placed_on_a_store() {
+    let dir = scratch("camera-cli", "store");
+    let store = dir.join("lidar.store");
+    let dem = data("lidar_prairie/dem.tif");
+    let r = terrain(&[
+        "bake",
+        dem.to_str().unwrap(),
+        "--no-pvs",
+        "--no-dss",
+        "-o",
+        store.to_str().unwrap(),
+    ]);
+    assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+    let s = store.to_str().unwrap();
+    let Some(r) = render("store-default", &[s]) else { return };
+    assert!(r.coverage() >= DEFAULT_COVERAGE, "{:.3}", r.coverage());
+    let lon = -(93.0 + 55.0 / 60.0 + 10.23 / 3600.0);
+    let lat = 46.0 + 30.0 / 60.0 + 21.75 / 3600.0;
+    let camera = format!("lonlat:{lon},{lat},50agl,0,-60");
+    let Some(r) = render("store-lonlat", &[s, "--camera", &camera]) else { return };
+    let [x, y, z] = r.eye();
+    assert!((x - 429_452.313).abs() < 0.5 && (y - 5_150_685.425).abs() < 0.5, "{x}, {y}");
+    // The tile's heights are 379.7 to 410.8 m.
+    assert!((379.7 + 50.0..=410.8 + 50.0).contains(&z), "{z}");
+    assert!(r.coverage() > 0.5, "{:.3}", r.coverage());
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
 #[test]
 fn lonlat_without_a_crs_is_refused_by_name() {
     let dem = data("puget_sound/ps_height_1k.png");
