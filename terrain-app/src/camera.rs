@@ -303,28 +303,37 @@ pub enum NoTerrain {
     },
 }
 
-impl std::fmt::Display for NoTerrain {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+impl NoTerrain {
+    /// Why, without the advice.
+    pub fn reason(&self) -> String {
         match self {
-            NoTerrain::TooFar { distance_m, size_px } => write!(
-                f,
-                "the camera sees no terrain: it is {:.0} km away and {size_px:.2} px across on \
-                 screen; move the camera closer (--camera, or leave --camera out for the \
-                 default framing)",
+            NoTerrain::TooFar { distance_m, size_px } => format!(
+                "the terrain is {:.0} km away and {size_px:.2} px across on screen",
                 distance_m / 1000.0
             ),
-            NoTerrain::NotInView { behind: true } => write!(
-                f,
-                "the camera sees no terrain: the terrain is behind it; turn it round (the yaw \
-                 and pitch of --camera) or aim it with --look-at"
-            ),
-            NoTerrain::NotInView { behind: false } => write!(
-                f,
-                "the camera sees no terrain: the view misses it (beside it, or above the \
-                 horizon); change the yaw and pitch of --camera (negative pitch looks down) or \
-                 aim it with --look-at"
-            ),
+            NoTerrain::NotInView { behind: true } => "the terrain is behind the camera".into(),
+            NoTerrain::NotInView { behind: false } => {
+                "the view misses the terrain (beside it, or above the horizon)".into()
+            }
         }
+    }
+}
+
+impl std::fmt::Display for NoTerrain {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let advice = match self {
+            NoTerrain::TooFar { .. } => {
+                "move the camera closer (--camera, or leave --camera out for the default framing)"
+            }
+            NoTerrain::NotInView { behind: true } => {
+                "turn it round (the yaw and pitch of --camera) or aim it with --look-at"
+            }
+            NoTerrain::NotInView { behind: false } => {
+                "change the yaw and pitch of --camera (negative pitch looks down) or aim it with \
+                 --look-at"
+            }
+        };
+        write!(f, "the camera sees no terrain: {}; {advice}", self.reason())
     }
 }
 
@@ -349,6 +358,29 @@ pub fn check_view(heights: &Heightmap, camera: &Camera) -> Option<NoTerrain> {
     }
     let centre = (lo + hi) * 0.5;
     Some(NoTerrain::NotInView { behind: (centre - camera.position).dot(camera.forward()) < 0.0 })
+}
+
+/// The frames of a flight (`cameras`) that see no terrain of `heights`, with why: each checked
+/// as [`check_view`] does, on a copy of at most 257 x 257 samples (a flight has many frames).
+pub fn frames_without_terrain(heights: &Heightmap, cameras: &[Camera]) -> Vec<(usize, NoTerrain)> {
+    let coarse = geometry::coarse_copy(heights, 257);
+    cameras
+        .iter()
+        .enumerate()
+        .filter_map(|(k, c)| check_view(&coarse, c).map(|why| (k, why)))
+        .collect()
+}
+
+/// The one warning for a flight whose frames (of `total`) see no terrain, or `None`.
+pub fn flight_warning(name: &str, frames: &[(usize, NoTerrain)], total: usize) -> Option<String> {
+    let (first, why) = frames.first()?;
+    Some(format!(
+        "flight {name}: {} of {total} drawn frames see no terrain (the first, drawn frame {}: \
+         {}); a flight's cameras come from its keyframes: check their positions and yaw/pitch",
+        frames.len(),
+        first + 1,
+        why.reason()
+    ))
 }
 
 #[cfg(test)]
@@ -463,6 +495,11 @@ mod tests {
         let behind = at("384500,3789000,800,180,-30").with_clip(1.0, 1e9);
         let e = check_view(&hm, &behind).unwrap();
         assert_eq!(e, NoTerrain::NotInView { behind: true });
+        let frames = frames_without_terrain(&hm, &[good, far, good]);
+        assert_eq!(frames.iter().map(|f| f.0).collect::<Vec<_>>(), [1]);
+        let w = flight_warning("f", &frames, 3).unwrap();
+        assert!(w.contains("1 of 3") && w.contains("frame 2"), "{w}");
+        assert_eq!(flight_warning("f", &[], 3), None);
         let sky = at("384500,3789000,800,0,40").with_clip(1.0, 1e9);
         let e = check_view(&hm, &sky).unwrap();
         assert_eq!(e, NoTerrain::NotInView { behind: false });

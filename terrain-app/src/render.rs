@@ -706,7 +706,11 @@ pub(crate) fn store_flight(
             let (near, far) = scene.clip_range(c.position);
             c.with_clip(near, far)
         })
-        .collect();
+        .collect::<Vec<Camera>>();
+    let blind = camera::frames_without_terrain(&overview, &cameras);
+    if let Some(w) = camera::flight_warning(&flight.name, &blind, cameras.len()) {
+        eprintln!("warning: {w}");
+    }
     Ok(StoreFlight {
         name: flight.name.clone(),
         total_frames: flight.frames().len(),

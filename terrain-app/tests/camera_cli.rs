@@ -208,7 +208,7 @@ fn cameras_that_see_no_terrain_are_warned_about() {
     for (name, camera, said) in [
         ("far", "429452,-5000000,400,0,0", "km away"),
         ("behind", "429452,5150000,500,180,-20", "behind"),
-        ("sky", "429452,5150000,500,0,30", "misses it"),
+        ("sky", "429452,5150000,500,0,30", "misses the terrain"),
     ] {
         let Some(r) = render(name, &[dem, "--camera", camera]) else { return };
         assert!(
@@ -223,6 +223,44 @@ fn cameras_that_see_no_terrain_are_warned_about() {
     assert!(r.stderr.contains("under the ground") && r.stderr.contains("--camera"), "{}", r.stderr);
     assert!(r.eye()[2] > 379.0, "{:?}", r.eye());
     assert!(!r.stderr.contains("sees no terrain"), "{}", r.stderr);
+}
+
+/// A flight whose frames look at the sky draws them and says so once, naming the frames.
+#[test]
+fn a_flight_that_sees_no_terrain_is_warned_about() {
+    let dir = scratch("camera-cli", "fly");
+    let flight = dir.join("up.json");
+    std::fs::write(
+        &flight,
+        r#"{"name": "up", "fps": 2, "height_above": "ground", "keyframes": [
+            {"t": 0, "relative": [0.2, 0.5, 0.3], "yaw": 90, "pitch": 60},
+            {"t": 1, "relative": [0.8, 0.5, 0.3], "yaw": 90, "pitch": 60}]}"#,
+    )
+    .unwrap();
+    let dem = data("lidar_prairie/dem.tif");
+    let out = dir.join("frames");
+    let r = terrain(&[
+        "fly",
+        dem.to_str().unwrap(),
+        "--flight",
+        flight.to_str().unwrap(),
+        "--size",
+        "64x36",
+        "-o",
+        out.to_str().unwrap(),
+    ]);
+    let stderr = String::from_utf8_lossy(&r.stderr);
+    if !r.status.success()
+        && stderr.contains("no GPU adapter")
+        && std::env::var_os("TERRAIN_REQUIRE_GPU").is_none()
+    {
+        println!("SKIPPED: {stderr}; set TERRAIN_REQUIRE_GPU=1 to make this a failure");
+        return;
+    }
+    assert!(r.status.success(), "{stderr}");
+    assert!(stderr.contains("flight up: 2 of 2 drawn frames see no terrain"), "{stderr}");
+    assert!(stderr.contains("misses the terrain") && stderr.contains("keyframes"), "{stderr}");
+    let _ = std::fs::remove_dir_all(&dir);
 }
 
 /// `info --json`'s height range with and without `--vertical-scale 3`.

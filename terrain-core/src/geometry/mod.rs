@@ -21,6 +21,6 @@ pub use camera::Camera;
 pub use frustum::{Classification, Frustum, Plane};
 pub use ground::{GroundRegion, circle_vs_region, project_view_to_ground};
 pub use view::{
-    FILL_TARGET, fill_camera, footprint_share, projected_size_px, ray_hit, terrain_box,
-    terrain_coverage,
+    FILL_TARGET, coarse_copy, fill_camera, footprint_share, projected_size_px, ray_hit,
+    terrain_box, terrain_coverage,
 };

@@ -177,8 +177,8 @@ fn coverage_grid(viewport_px: DVec2) -> (u32, u32) {
 
 /// Every `s`-th sample of `hm` with `s` chosen so neither side exceeds `max_side` samples, on
 /// the same world frame (the extent rounded down to the stride). The heightmap itself when
-/// it is small enough.
-fn coarse_copy(hm: &Heightmap, max_side: usize) -> std::borrow::Cow<'_, Heightmap> {
+/// it is small enough. What the estimates of this module run on when many cameras are checked.
+pub fn coarse_copy(hm: &Heightmap, max_side: usize) -> std::borrow::Cow<'_, Heightmap> {
     let side = hm.width().max(hm.height());
     if side <= max_side {
         return std::borrow::Cow::Borrowed(hm);
