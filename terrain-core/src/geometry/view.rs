@@ -150,7 +150,8 @@ pub fn fill_camera(hm: &Heightmap, viewport_px: DVec2, fov_y_deg: f64) -> Camera
         let (mut near, mut far) = (radius * 1e-3, radius * 8.0);
         let filled_near = cover(near);
         let target = FILL_TARGET.min(filled_near);
-        for _ in 0..20 {
+        // 12 halvings of a ratio of 8000 in log space: the distance to 0.2 %.
+        for _ in 0..12 {
             let mid = (near * far).sqrt();
             if cover(mid) >= target { near = mid } else { far = mid }
         }
