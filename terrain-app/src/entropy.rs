@@ -185,7 +185,14 @@ pub(crate) fn build_mesh(
     let t = Instant::now();
     let (hm, mut tree) = match points {
         Some(path) => {
-            let pts = read_points(path)?;
+            // Points have no vertical unit of their own: --vertical-scale and --vertical-offset
+            // apply to their z as to a grid's heights (exaggeration or unit conversion).
+            source.load_options()?; // checks the scale
+            let (scale, offset) = (source.vertical_scale, source.vertical_offset);
+            let mut pts = read_points(path)?;
+            for p in &mut pts {
+                p.z = p.z * scale + offset;
+            }
             let src = ScatteredPoints::new(pts, cfg.interpolation)
                 .with_context(|| format!("{}", path.display()))?;
             let built = build_from_points(&src, &cfg)?;

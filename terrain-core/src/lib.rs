@@ -22,6 +22,7 @@ mod hash;
 pub mod heightmap;
 pub mod lightmap;
 pub mod lod;
+pub mod lonlat;
 pub mod measure;
 pub mod mesh;
 pub mod metrics;
