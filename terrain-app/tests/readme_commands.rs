@@ -352,6 +352,18 @@ fn run_shell(cmd: &str, dir: &Path, bin: &Path, logs: &Path, n: usize) -> (bool,
     (status.success(), read(&out_path), read(&err_path))
 }
 
+/// CPU seconds (user + system) of this process's waited-for children so far, from
+/// `/proc/self/stat` (`cutime`, `cstime`, at the usual 100 ticks a second); 0 where there is no
+/// `/proc`. Load-independent, unlike wall time on a shared machine.
+fn children_cpu_s() -> f64 {
+    let Ok(stat) = std::fs::read_to_string("/proc/self/stat") else { return 0.0 };
+    // Fields after the command name (which may hold spaces) in parentheses.
+    let rest = stat.rsplit_once(')').map_or("", |(_, r)| r);
+    let f: Vec<f64> = rest.split_whitespace().map(|w| w.parse().unwrap_or(0.0)).collect();
+    // `cutime` and `cstime` are fields 16 and 17 of the file, 14 and 15 after the name.
+    (f.get(13).unwrap_or(&0.0) + f.get(14).unwrap_or(&0.0)) / 100.0
+}
+
 /// The shared DEMs folder: `$TERRAIN_DATA`, else `../shared/data` beside the repository.
 fn data_dir() -> PathBuf {
     let dir = common::data(".");
@@ -413,9 +425,9 @@ fn every_readme_command_runs_as_written() {
             }
             None => as_run(&c.text),
         };
-        let start = Instant::now();
+        let (start, cpu0) = (Instant::now(), children_cpu_s());
         let (ok, stdout, stderr) = run_shell(&run, &repo, &bin, &logs, n);
-        let secs = start.elapsed().as_secs_f64();
+        let (secs, cpu) = (start.elapsed().as_secs_f64(), children_cpu_s() - cpu0);
         if !ok && !require_gpu && stderr.contains("no GPU adapter") {
             println!("SKIPPED {shown}: no GPU adapter; set TERRAIN_REQUIRE_GPU=1 to fail instead");
             report.push(format!("skipped  {shown} (no GPU)"));
@@ -437,10 +449,15 @@ fn every_readme_command_runs_as_written() {
                 .unwrap_or_else(|e| panic!("{shown}: stdout is not JSON: {e}\n{stdout}"));
             checked += 1;
         }
-        println!("ok {secs:6.1} s  {shown}  ({checked} outputs checked)");
-        report.push(format!("{secs:6.1} s  {shown}"));
+        println!("ok {secs:6.1} s wall {cpu:6.1} s CPU  {shown}  ({checked} outputs checked)");
+        report.push(format!("{secs:6.1} s wall {cpu:6.1} s CPU  {shown}"));
     }
-    println!("\n{} README commands in {:.0} s:", commands.len(), total.elapsed().as_secs_f64());
+    println!(
+        "\n{} README commands in {:.0} s wall, {:.0} s CPU:",
+        commands.len(),
+        total.elapsed().as_secs_f64(),
+        children_cpu_s()
+    );
     for r in &report {
         println!("  {r}");
     }
