@@ -73,7 +73,7 @@ fn main() -> std::process::ExitCode {
         Ok(cli) => cli,
         Err(e) => e.exit(),
     };
-    let result = create_output_folders(&cli.command).and_then(|()| match cli.command {
+    let result = match cli.command {
         Command::Info(args) => info::run(&args),
         Command::Entropy(args) => entropy::run(&args),
         Command::Roughness(args) => roughness::run(&args),
@@ -84,7 +84,7 @@ fn main() -> std::process::ExitCode {
         Command::Bench(args) => bench_cli::run(&args),
         Command::Pvs(args) => pvs::run(&args),
         Command::Demo(args) => demo::run(&args),
-    });
+    };
     match result {
         Ok(()) => std::process::ExitCode::SUCCESS,
         Err(e) if e.downcast_ref::<interrupt::Interrupted>().is_some() => {
@@ -96,27 +96,6 @@ fn main() -> std::process::ExitCode {
             std::process::ExitCode::FAILURE
         }
     }
-}
-
-/// Creates the folder of each output file the command names, as `mkdir -p` would: the README's
-/// outputs go under the git-ignored `out/`, which a fresh clone does not have. The commands that
-/// write a folder (`bake`, `fly`, `roughness`, `bench`, `demo`) create it themselves.
-fn create_output_folders(command: &Command) -> anyhow::Result<()> {
-    let files = match command {
-        Command::Render(a) => vec![Some(&a.output), a.stats_json.as_ref()],
-        Command::Entropy(a) => vec![Some(&a.output), a.curvature.as_ref()],
-        Command::Mesh(a) => vec![a.output.as_ref()],
-        Command::Pvs(a) => vec![Some(&a.output)],
-        _ => vec![],
-    };
-    for file in files.into_iter().flatten() {
-        if let Some(dir) = file.parent().filter(|d| !d.as_os_str().is_empty() && !d.is_dir()) {
-            std::fs::create_dir_all(dir).map_err(|e| {
-                anyhow::anyhow!("cannot write {}: creating {}: {e}", file.display(), dir.display())
-            })?;
-        }
-    }
-    Ok(())
 }
 
 #[cfg(test)]
