@@ -531,3 +531,14 @@ fn output_checks_catch_a_blank_image_and_a_missing_file() {
     assert!(std::panic::catch_unwind(|| check_output("t", &dir.join("bad.json"))).is_err());
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+#[test]
+fn a_failing_command_is_seen_with_its_stderr() {
+    let dir = common::scratch("readme", "shell");
+    let (ok, _, stderr) = run_shell("echo said >&2; false | cat", &dir, &dir, &dir, 0);
+    assert!(!ok, "a failing pipeline passed (pipefail)");
+    assert_eq!(stderr.trim(), "said");
+    let (ok, stdout, _) = run_shell("terrain-not-on-path || echo fine", &dir, &dir, &dir, 1);
+    assert!(ok && stdout.trim() == "fine", "{stdout}");
+    let _ = std::fs::remove_dir_all(&dir);
+}
