@@ -319,6 +319,19 @@ fn output_paths(cmd: &str) -> Vec<PathBuf> {
     out
 }
 
+/// Where a command writes when it names no output: `terrain bench` into `out/bench`, `terrain
+/// demo` into `out/demo` (their defaults, under the git-ignored `out/`).
+fn default_output(cmd: &str) -> Option<PathBuf> {
+    if !output_paths(cmd).is_empty() {
+        return None;
+    }
+    match cmd.split_whitespace().take(2).collect::<Vec<_>>()[..] {
+        ["terrain", "bench"] => Some(PathBuf::from("out/bench")),
+        ["terrain", "demo"] => Some(PathBuf::from("out/demo")),
+        _ => None,
+    }
+}
+
 /// Runs `bash -c cmd` in `dir` with `bin` first on PATH; returns (success, stdout, stderr).
 fn run_shell(cmd: &str, dir: &Path, bin: &Path, logs: &Path, n: usize) -> (bool, String, String) {
     let path = std::env::join_paths(
@@ -441,7 +454,7 @@ fn every_readme_command_runs_as_written() {
         );
         // What the command wrote makes sense.
         let mut checked = 0;
-        for p in output_paths(&run) {
+        for p in output_paths(&run).into_iter().chain(default_output(&run)) {
             checked += check_output(&c.text, &repo.join(p));
         }
         if c.text.starts_with("terrain info") && c.text.split_whitespace().any(|w| w == "--json") {
@@ -509,6 +522,9 @@ fn sh_blocks_are_read_as_the_shell_reads_them() {
         [PathBuf::from("out/e.png"), PathBuf::from("out/c.png")]
     );
     assert_eq!(output_paths("grep v a.obj | cut -f2- > out/p.xyz"), [PathBuf::from("out/p.xyz")]);
+    assert_eq!(default_output("terrain bench a.tif --flight f.json"), Some("out/bench".into()));
+    assert_eq!(default_output("terrain bench a.tif --flight f.json -o x"), None);
+    assert_eq!(default_output("terrain info a.tif"), None);
 }
 
 #[test]
