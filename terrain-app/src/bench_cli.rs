@@ -48,7 +48,7 @@ pub(crate) struct BenchArgs {
     #[arg(long)]
     pub name: Option<String>,
     /// Output folder (created).
-    #[arg(short, long, visible_alias = "output", default_value = "bench/results")]
+    #[arg(short, long, visible_alias = "output", default_value = "out/bench")]
     pub out: PathBuf,
     /// A scene folder from `terrain bake` of the same DEM: its PVS files (for `pvps-c-pvs` and
     /// `pvps-c-cons`) and its DSS errors (for `dss-1`, `dss-2`, `dss-strips`) are read instead

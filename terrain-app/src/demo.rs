@@ -23,7 +23,7 @@ const FLIGHTS: [&str; 2] =
 #[derive(Debug, Args)]
 pub(crate) struct DemoArgs {
     /// Output folder (created).
-    #[arg(short, long, default_value = "terrain-demo")]
+    #[arg(short, long, default_value = "out/demo")]
     pub output: PathBuf,
 }
 

@@ -2,7 +2,7 @@
 //!
 //! Tasks: `lint` (the formatting and clippy gates of `.ci/run`), `bench` (every LOD method
 //! over the shipped flights, through `terrain bench` built in release; results in
-//! `bench/results/`) and `fuzz` (builds the `terrain-fuzz` harness with the `fuzz` profile and
+//! `out/bench/`) and `fuzz` (builds the `terrain-fuzz` harness with the `fuzz` profile and
 //! runs it on the shared DEMs and the corpus; failing cases in `target/fuzz-run/failures/`).
 
 use std::path::{Path, PathBuf};
@@ -18,7 +18,7 @@ tasks:
   bench   [--quick] [--dem default|puget1k|PATH]... [--methods a,b,..] [--flight FILE]...
           [--frames N] [--out DIR]
           every method over every flight, each threshold swept; writes
-          DIR/<dem>-<backend>.{json,md,svg} (DIR default bench/results).
+          DIR/<dem>-<backend>.{json,md,svg} (DIR default out/bench).
           --quick: the default backend only, 20 frames per flight, 3 sweep points, 320x180,
           the embedded terrain and Puget Sound 1k, flights pvps_884 and dss_approach.
           Full: Vulkan then GL, 60 frames per flight, 5 sweep points, 640x360, every flight.
@@ -126,7 +126,7 @@ fn dem_args(spec: &str) -> anyhow::Result<(String, Vec<String>)> {
 
 fn bench(args: &[String]) -> anyhow::Result<()> {
     let (mut quick, mut dems, mut flights, mut extra) = (false, vec![], vec![], vec![]);
-    let mut out = root().join("bench/results");
+    let mut out = root().join("out/bench");
     let mut it = args.iter();
     while let Some(a) = it.next() {
         let mut value = || it.next().with_context(|| format!("{a} needs a value"));
