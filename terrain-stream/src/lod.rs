@@ -122,7 +122,7 @@ const FACTOR_LEVELS: u8 = 6;
 /// with its corners. Their `StaticE` is at most `n`'s (monotone, Eq. 3-5) and at most the
 /// block's per-level maximum at that level; 0 at or below the block's finest level (every
 /// sample drawn).
-fn patch_error(h: &Header, e: &BlockEntry, n: NodeId) -> f32 {
+pub(crate) fn patch_error(h: &Header, e: &BlockEntry, n: NodeId) -> f32 {
     let level = n.level + FACTOR_LEVELS;
     if level >= h.k {
         return 0.0;
