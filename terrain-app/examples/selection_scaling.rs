@@ -1,31 +1,100 @@
-//! Selection cost against grid size: the median per-frame selection time of every in-memory
-//! LOD method on seeded synthetic grids of growing size, flown with the same relative camera
-//! poses, and the growth from the smallest to the largest grid (issue 13: "selection cost
-//! follows the view, not the grid"). No rendering, no error measurement (`terrain bench` does
-//! those); each method at its default parameter.
+//! Selection cost against grid size: the median per-frame selection time of every LOD method
+//! on seeded synthetic grids of growing size, flown with the same relative camera poses, and
+//! the growth from the smallest to the largest grid (issue 13: "selection cost follows the
+//! view, not the grid"). No rendering, no error measurement (`terrain bench` does those); each
+//! method at its default parameter.
 //!
 //! ```sh
 //! cargo run --release -p terrain-app --example selection_scaling -- \
 //!     [--sizes 1025,4097,16385] [--flight flights/pvps_884.json] [--frames 30] \
-//!     [--methods uniform,pvps-a,pvps-b,pvps-c,dss-1,dss-2,geomorph] [--reps 3]
+//!     [--methods uniform,pvps-a,pvps-b,pvps-c,dss-1,dss-2,geomorph] [--reps 3] \
+//!     [--stores 1025=DIR,4097=DIR,32769=DIR] [--tau 2]
 //! ```
 //! Grids: `FractalConfig::with_size(n, n, 10.0)` (seed 1, 10 m spacing, 1500 m relief), built
 //! once per size with every method's precomputation (`MethodScene::prepare`, timed apart).
 //! Cameras: the flight resolved onto each grid (relative coordinates: the same fractions of the
 //! extent and of the relief), `--frames` frames evenly spaced, 1280 x 720. Each frame is
-//! selected `--reps` times and its fastest time kept (less noise from other processes); the
-//! table gives the median over frames, milliseconds, and the patches drawn (median).
+//! selected `--reps` times and its fastest time kept (less noise from other processes).
+//!
+//! `--stores SIZE=DIR` adds the out-of-core method (`ooc`, Eq. 7 at `--tau` pixels) over a
+//! store of the same synthetic terrain (`stream_bench bake SIZE 8 NAME` or `terrain bake
+//! --synthetic SIZE`), warm: every level resident, `terrain_stream::select_patches` over the
+//! store's `StoreTree` (the runtime's selection once every level has arrived), with the
+//! runtime's clip range. A size with a store and no in-memory grid in `--sizes` (e.g. 32769,
+//! 4 GiB of f32) resolves the flight onto the store's level-4 overview, as `terrain render`
+//! does.
+//!
+//! Per method and size the table gives the median over frames of: selection ms, patches
+//! selected, nodes the traversal visited (`SelectionStats::visited`; `-` where the method does
+//! not count them), ns per selected patch, and the nominal triangles (each patch at its inner
+//! factors, `2 f_u f_v`; geomorph's `2 (16 / 2^level)^2`); then the growth of the ms from the
+//! smallest size to the largest.
 
+use std::path::PathBuf;
+use std::sync::Arc;
 use std::time::Instant;
 
 use anyhow::Context;
 use terrain_app::methods::{LodMethod, MethodConfig, MethodScene};
+use terrain_app::ooc::{OocConfig, OocScene};
 use terrain_core::flight::{FlightConfig, FlightSpec};
+use terrain_core::geometry::Camera;
 use terrain_core::synth::FractalConfig;
+use terrain_stream::{Store, StoreTree, select_patches};
 
 fn median(mut v: Vec<f64>) -> f64 {
     v.sort_by(f64::total_cmp);
     if v.is_empty() { 0.0 } else { v[v.len() / 2] }
+}
+
+/// One method at one size: medians of ms, patches, visited (NaN: not counted), nominal
+/// triangles.
+#[derive(Debug, Clone, Copy)]
+struct Row {
+    ms: f64,
+    patches: f64,
+    visited: f64,
+    triangles: f64,
+}
+
+/// Triangles a selection's patches tessellate to at their inner factors (`2 f_u f_v` per
+/// patch; the outer factors change a few per edge): a size figure comparable between methods.
+fn nominal_triangles(sel: &terrain_core::lod::Selection) -> usize {
+    sel.patches.iter().map(|p| (2.0 * p.inner[0].ceil() * p.inner[1].ceil()) as usize).sum()
+}
+
+/// Times `select` on every camera (fastest of `reps` per camera) and takes the medians.
+fn measure(
+    cameras: &[Camera],
+    reps: usize,
+    mut select: impl FnMut(&Camera) -> (usize, Option<usize>, usize),
+) -> Row {
+    let (mut times, mut patches, mut visited) = (Vec::new(), Vec::new(), Vec::new());
+    let mut triangles = Vec::new();
+    for c in cameras {
+        let mut best = f64::INFINITY;
+        let mut counts = (0, None, 0);
+        for _ in 0..reps {
+            let t = Instant::now();
+            counts = select(c);
+            best = best.min(t.elapsed().as_secs_f64() * 1e3);
+        }
+        times.push(best);
+        patches.push(counts.0 as f64);
+        visited.push(counts.1.map_or(f64::NAN, |v| v as f64));
+        triangles.push(counts.2 as f64);
+    }
+    let visited = if visited.iter().all(|v| v.is_nan()) {
+        f64::NAN
+    } else {
+        median(visited.into_iter().map(|v| if v.is_nan() { 0.0 } else { v }).collect())
+    };
+    Row { ms: median(times), patches: median(patches), visited, triangles: median(triangles) }
+}
+
+fn frames_of(all: &[Camera], frames: usize) -> Vec<Camera> {
+    let step = (all.len() / frames.max(1)).max(1);
+    all.iter().step_by(step).take(frames.max(1)).cloned().collect()
 }
 
 fn main() -> anyhow::Result<()> {
@@ -40,16 +109,34 @@ fn main() -> anyhow::Result<()> {
             _ => default.to_string(),
         }
     };
-    let sizes: Vec<u64> = take("--sizes", "1025,4097,16385")
+    let mut sizes: Vec<u64> = take("--sizes", "1025,4097,16385")
         .split(',')
+        .filter(|s| !s.is_empty())
         .map(|s| s.parse().context("--sizes: comma-separated sample counts"))
         .collect::<anyhow::Result<_>>()?;
+    let in_memory = sizes.clone();
+    let stores: Vec<(u64, PathBuf)> = take("--stores", "")
+        .split(',')
+        .filter(|s| !s.is_empty())
+        .map(|s| {
+            let (n, dir) = s.split_once('=').context("--stores: SIZE=DIR,...")?;
+            Ok((n.parse().context("--stores: SIZE")?, PathBuf::from(dir)))
+        })
+        .collect::<anyhow::Result<_>>()?;
+    for (n, _) in &stores {
+        if !sizes.contains(n) {
+            sizes.push(*n);
+        }
+    }
+    sizes.sort_unstable();
     let flight = take("--flight", "flights/pvps_884.json");
     let frames: usize = take("--frames", "30").parse().context("--frames")?;
     let reps: usize = take("--reps", "3").parse::<usize>().context("--reps")?.max(1);
-    let methods: Vec<LodMethod> =
+    let tau: f64 = take("--tau", "2").parse().context("--tau")?;
+    let mut methods: Vec<LodMethod> =
         take("--methods", "uniform,pvps-a,pvps-b,pvps-c,dss-1,dss-2,geomorph")
             .split(',')
+            .filter(|s| !s.is_empty())
             .map(|m| {
                 LodMethod::ALL
                     .iter()
@@ -58,60 +145,144 @@ fn main() -> anyhow::Result<()> {
                     .with_context(|| format!("unknown method {m}"))
             })
             .collect::<anyhow::Result<_>>()?;
+    methods.retain(|&m| m != LodMethod::OutOfCore);
+    let mut names: Vec<String> = methods.iter().map(|m| m.name().to_string()).collect();
+    if !stores.is_empty() {
+        names.push(format!("ooc (tau {tau})"));
+    }
     let spec = FlightSpec::load(&flight).with_context(|| format!("flight {flight}"))?;
+    let flight_cfg = FlightConfig::default();
 
-    // Per method: per size, (median ms, median patches).
-    let mut table: Vec<Vec<(f64, f64)>> = vec![Vec::new(); methods.len()];
+    // Per method: per size, the row (None: not run at that size).
+    let mut table: Vec<Vec<Option<Row>>> = vec![Vec::new(); names.len()];
     for &n in &sizes {
-        let t = Instant::now();
-        let hm = FractalConfig::with_size(n, n, 10.0).to_heightmap().map_err(anyhow::Error::msg)?;
-        let gen_s = t.elapsed().as_secs_f64();
-        let (resolved, _) = spec.resolve(&hm, &FlightConfig::default());
-        let all = resolved.frames();
-        let step = (all.len() / frames.max(1)).max(1);
-        let cameras: Vec<_> = all.iter().step_by(step).take(frames.max(1)).cloned().collect();
-        let scene = MethodScene::new(hm, MethodConfig::default());
-        let t = Instant::now();
-        scene.prepare(&methods);
-        eprintln!(
-            "{n}^2: grid {gen_s:.1} s, precomputation {:.1} s, {} cameras",
-            t.elapsed().as_secs_f64(),
-            cameras.len()
-        );
-        for (k, &m) in methods.iter().enumerate() {
-            let mut times = Vec::new();
-            let mut patches = Vec::new();
-            for c in &cameras {
-                let mut best = f64::INFINITY;
-                let mut count = 0;
-                for _ in 0..reps {
-                    let t = Instant::now();
-                    let sel = scene.select(m, c);
-                    best = best.min(t.elapsed().as_secs_f64() * 1e3);
-                    count = sel.patches.len();
-                }
-                times.push(best);
-                patches.push(count as f64);
+        let store = stores.iter().find(|(m, _)| *m == n).map(|(_, d)| d);
+        let mut cameras = None;
+        if in_memory.contains(&n) {
+            let t = Instant::now();
+            let hm =
+                FractalConfig::with_size(n, n, 10.0).to_heightmap().map_err(anyhow::Error::msg)?;
+            let gen_s = t.elapsed().as_secs_f64();
+            let (resolved, _) = spec.resolve(&hm, &flight_cfg);
+            let cams = frames_of(resolved.frames(), frames);
+            let scene = MethodScene::new(hm, MethodConfig::default());
+            let t = Instant::now();
+            scene.prepare(&methods);
+            eprintln!(
+                "{n}^2: grid {gen_s:.1} s, precomputation {:.1} s, {} cameras",
+                t.elapsed().as_secs_f64(),
+                cams.len()
+            );
+            for (k, &m) in methods.iter().enumerate() {
+                let row = measure(&cams, reps, |c| {
+                    if m == LodMethod::Geomorph {
+                        // Its own selection (levels, tween factors): what the morph draws.
+                        let lods = scene.select_geomorph(c);
+                        let n = scene.geomorph_patch_cells() as usize;
+                        let tris = lods.patches.iter().map(|p| 2 * (n >> p.level).pow(2)).sum();
+                        (lods.patches.len(), None, tris)
+                    } else {
+                        let sel = scene.select(m, c);
+                        // `uniform` does not count its visits (0).
+                        let visited = sel.stats.visited;
+                        (
+                            sel.patches.len(),
+                            (visited > 0).then_some(visited),
+                            nominal_triangles(&sel),
+                        )
+                    }
+                });
+                eprintln!(
+                    "  {:<9} {:>9.3} ms {:>8.0} patches {:>8.0} visited {:>9.0} triangles",
+                    m.name(),
+                    row.ms,
+                    row.patches,
+                    row.visited,
+                    row.triangles
+                );
+                table[k].push(Some(row));
             }
-            let row = (median(times), median(patches));
-            eprintln!("  {:<9} {:>9.3} ms {:>8.0} patches", m.name(), row.0, row.1);
-            table[k].push(row);
+            cameras = Some(cams);
+        } else {
+            for column in table.iter_mut().take(methods.len()) {
+                column.push(None);
+            }
+        }
+        if let Some(dir) = store {
+            let scene = OocScene::open(dir, OocConfig::default())
+                .with_context(|| format!("store {}", dir.display()))?;
+            let cams = match cameras {
+                Some(c) => c,
+                None => {
+                    let overview = scene.overview(4).context("the store's overview")?;
+                    let (resolved, _) = spec.resolve(&overview, &flight_cfg);
+                    frames_of(resolved.frames(), frames)
+                }
+            };
+            let cams: Vec<Camera> = cams
+                .iter()
+                .map(|c| {
+                    let (near, far) = scene.clip_range(c.position);
+                    c.with_clip(near, far)
+                })
+                .collect();
+            let store: Arc<Store> = scene.store().clone();
+            let k = store.header().k;
+            let tree = StoreTree::new(store, scene.config().patch_cells);
+            let row = measure(&cams, reps, |c| {
+                let sel = select_patches(&tree, c, tau, |_| Some(k));
+                (sel.patches.len(), Some(sel.stats.visited), nominal_triangles(&sel))
+            });
+            eprintln!(
+                "  {:<9} {:>9.3} ms {:>8.0} patches {:>8.0} visited {:>9.0} triangles (store {})",
+                "ooc",
+                row.ms,
+                row.patches,
+                row.visited,
+                row.triangles,
+                dir.display()
+            );
+            table[names.len() - 1].push(Some(row));
+        } else if !stores.is_empty() {
+            table[names.len() - 1].push(None);
         }
     }
-    println!("\nmedian selection ms per frame (patches), flight {flight}, {frames} frames");
+    println!(
+        "\nmedian per frame: selection ms / patches / visited nodes / ns per patch / nominal triangles; flight \
+         {flight}, {frames} frames, 1280x720"
+    );
     print!("| method |");
     for n in &sizes {
         print!(" {n}^2 |");
     }
-    println!(" growth {}^2 / {}^2 |", sizes[sizes.len() - 1], sizes[0]);
+    println!(" growth of ms, largest / smallest size |");
     println!("|---|{}---|", "---|".repeat(sizes.len()));
-    for (k, m) in methods.iter().enumerate() {
-        print!("| {} |", m.name());
-        for (ms, p) in &table[k] {
-            print!(" {ms:.3} ({p:.0}) |");
+    for (k, name) in names.iter().enumerate() {
+        print!("| {name} |");
+        for row in &table[k] {
+            match row {
+                Some(r) => {
+                    let visited = if r.visited.is_nan() {
+                        "-".to_string()
+                    } else {
+                        format!("{:.0}", r.visited)
+                    };
+                    print!(
+                        " {:.3} / {:.0} / {visited} / {:.0} / {:.0} |",
+                        r.ms,
+                        r.patches,
+                        r.ms * 1e6 / r.patches.max(1.0),
+                        r.triangles
+                    );
+                }
+                None => print!(" |"),
+            }
         }
-        let (first, last) = (table[k][0].0, table[k][table[k].len() - 1].0);
-        println!(" {:.1}x |", last / first.max(1e-9));
+        let run: Vec<&Row> = table[k].iter().flatten().collect();
+        match (run.first(), run.last()) {
+            (Some(a), Some(b)) if run.len() > 1 => println!(" {:.1}x |", b.ms / a.ms.max(1e-9)),
+            _ => println!(" |"),
+        }
     }
     Ok(())
 }

@@ -9,8 +9,15 @@
 //! and edge midpoints. Here, as in the in-memory methods, the drawn unit is a *patch*: a
 //! quadtree node of at least [`StoreTree::patch_cells`] cells inside one block (the nodes with
 //! stored per-node values, so the split test reads the index only), drawn by the renderer's
-//! tessellator with a power-of-two factor. The traversal splits while Eq. 7 says the node's
-//! `StaticE` is too large on screen (`rho > tau`, the paper's step 4); a leaf patch then takes
+//! tessellator with a power-of-two factor. The traversal splits while Eq. 7 says the node is
+//! too coarse on screen (`rho > tau`, the paper's step 4) even when drawn at the largest
+//! factor, [`MAX_FACTOR`] = 64: the error that decides is not the node's own `StaticE` (its
+//! four corners) but that of its descendants six levels down, whose corners the patch's
+//! tessellation draws ([`patch_error`]). The paper's node is one fan of vertices, so it splits
+//! on its own `StaticE`; a tessellated patch refines inside itself, and splitting it on its
+//! corners alone drew nearly every patch at the smallest size whatever `tau` (the patch count
+//! grew with the grid: 370 / 5,410 / 67,716 patches at 1025^2 / 4097^2 / 16385^2 on the same
+//! relative flight). A leaf patch then takes
 //! as its factor the resolution the same recursion would reach inside it
 //! ([`needed_vertex_level`]: the paper's split continued below the patch, every sub-node
 //! evaluated at the patch's own distance and `beta`, which only overestimates), at most the
@@ -104,6 +111,24 @@ fn local_values(h: &Header, e: &BlockEntry, n: NodeId) -> (f32, f32, f32) {
         Some(v) => (v.min, v.max, bound.min(v.static_error)),
         None => (e.min, e.max, bound),
     }
+}
+
+/// Levels a patch's tessellation adds below its node at the largest factor
+/// ([`MAX_FACTOR`] = 64 = 2^6 segments per side).
+const FACTOR_LEVELS: u8 = 6;
+
+/// A bound on the error of block-local node `n` drawn as one patch at the largest factor: its
+/// vertices [`FACTOR_LEVELS`] levels below it, i.e. each of its descendants at that level drawn
+/// with its corners. Their `StaticE` is at most `n`'s (monotone, Eq. 3-5) and at most the
+/// block's per-level maximum at that level; 0 at or below the block's finest level (every
+/// sample drawn).
+pub(crate) fn patch_error(h: &Header, e: &BlockEntry, n: NodeId) -> f32 {
+    let level = n.level + FACTOR_LEVELS;
+    if level >= h.k {
+        return 0.0;
+    }
+    let finest = e.level_errors.get(level as usize).copied().unwrap_or(0.0);
+    local_values(h, e, n).2.min(finest)
 }
 
 /// The nodes of one block, block-local ids (level 0 = the block), rectangles in the whole
@@ -292,7 +317,7 @@ pub(crate) fn needed_geometry_level(
     let nodes = BlockNodes { header: h, entry: e, id: b, patch_level };
     let mut split = Eq7Split {
         view: *view,
-        error: |n: NodeId| Some(local_values(h, e, n).2),
+        error: |n: NodeId| Some(patch_error(h, e, n)),
         stop: |_: NodeId| false,
     };
     let mut cull = BoundingCircleCull::new(region.clone());
@@ -454,6 +479,13 @@ impl StoreTree {
         Some(local_values(self.store.header(), e, local).2)
     }
 
+    /// [`patch_error`] of global node `n` (metres), or `None` above the blocks or outside the
+    /// grid.
+    fn patch_error(&self, n: NodeId) -> Option<f32> {
+        let (b, local) = self.block_of(n)?;
+        Some(patch_error(self.store.header(), self.store.entry(b)?, local))
+    }
+
     /// `needed_vertex_level` of global node `n` with box `aabb` (at most `max_level`, a
     /// block-local level), as a global level; `None` above the blocks.
     pub fn needed_vertex_level(
@@ -535,7 +567,7 @@ pub fn select_patches(
     };
     let mut split = Eq7Split {
         view,
-        error: |n: NodeId| tree.static_error(n),
+        error: |n: NodeId| tree.patch_error(n),
         stop: |n: NodeId| {
             tree.block_of(n).is_some_and(|(b, local)| local.level >= resident(b).unwrap_or(0))
         },

@@ -12,7 +12,7 @@ use terrain_gpu::render::{DrawPatch, ExtraTriangles};
 use terrain_gpu::tess::GpuDomainPoint;
 
 use super::memory::ms;
-use super::{Draw, DrawnSurface, Frame, FrameRenderer, Method, MethodStats, RendererKind};
+use super::{Draw, DrawSource, DrawnSurface, Frame, Method, MethodStats};
 use crate::entropy_method::whole_terrain_selection;
 use crate::methods::{LodMethod, MethodScene};
 
@@ -65,16 +65,8 @@ impl Method for EntropyMethod<'_> {
         Ok(DrawnSurface { mesh, triangles })
     }
 
-    fn renderer_kind(&self) -> RendererKind {
-        RendererKind::Tessellation
-    }
-
-    fn renderer(
-        &self,
-        ctx: &terrain_gpu::GpuContext,
-        config: &terrain_gpu::RenderConfig,
-    ) -> anyhow::Result<FrameRenderer> {
-        FrameRenderer::tessellation(ctx, &self.scene.hm, config)
+    fn draws_on(&self) -> DrawSource<'_> {
+        DrawSource::Tessellation(&self.scene.hm)
     }
 }
 

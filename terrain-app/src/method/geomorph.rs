@@ -9,7 +9,7 @@ use terrain_core::geometry::Camera;
 use terrain_gpu::geomorph::max_vertex_jump;
 
 use super::memory::ms;
-use super::{Draw, DrawnSurface, Frame, FrameRenderer, Method, MethodStats, RendererKind};
+use super::{Draw, DrawSource, DrawnSurface, Frame, Method, MethodStats};
 use crate::methods::{LodMethod, MethodScene};
 
 /// `geomorph` with the morph renderer, over a [`MethodScene`] (its current config).
@@ -75,15 +75,7 @@ impl Method for GeomorphMethod<'_> {
         Some([morph, max_vertex_jump(&still(previous), &still(camera))])
     }
 
-    fn renderer_kind(&self) -> RendererKind {
-        RendererKind::Geomorph
-    }
-
-    fn renderer(
-        &self,
-        ctx: &terrain_gpu::GpuContext,
-        config: &terrain_gpu::RenderConfig,
-    ) -> anyhow::Result<FrameRenderer> {
-        FrameRenderer::geomorph(ctx, &self.scene.hm, self.scene.geomorph_patch_cells(), config)
+    fn draws_on(&self) -> DrawSource<'_> {
+        DrawSource::Geomorph(&self.scene.hm, self.scene.geomorph_patch_cells())
     }
 }

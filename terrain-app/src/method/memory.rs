@@ -10,7 +10,7 @@ use terrain_core::geometry::Camera;
 use terrain_gpu::render::ExtraTriangles;
 use terrain_gpu::strips;
 
-use super::{Draw, DrawnSurface, Frame, FrameRenderer, Method, MethodStats, RendererKind};
+use super::{Draw, DrawSource, DrawnSurface, Frame, Method, MethodStats};
 use crate::methods::{LodMethod, MethodScene};
 
 /// A patch method over a [`MethodScene`] (its current config).
@@ -67,16 +67,8 @@ impl Method for MemoryMethod<'_> {
         Ok(DrawnSurface { mesh, triangles })
     }
 
-    fn renderer_kind(&self) -> RendererKind {
-        RendererKind::Tessellation
-    }
-
-    fn renderer(
-        &self,
-        ctx: &terrain_gpu::GpuContext,
-        config: &terrain_gpu::RenderConfig,
-    ) -> anyhow::Result<FrameRenderer> {
-        FrameRenderer::tessellation(ctx, &self.scene.hm, config)
+    fn draws_on(&self) -> DrawSource<'_> {
+        DrawSource::Tessellation(&self.scene.hm)
     }
 }
 

@@ -38,7 +38,7 @@ pub use geomorph::GeomorphMethod;
 pub use memory::MemoryMethod;
 pub use ooc::{OocMethod, OocWait};
 pub use registry::{MethodOptions, build};
-pub use renderer::{DrawStats, FrameRenderer, RendererKind};
+pub use renderer::{DrawSource, DrawStats, FrameRenderer, RendererKind};
 pub use store::{StoreMethod, draws_from_store, store_method};
 
 use crate::methods::LodMethod;
@@ -146,15 +146,24 @@ pub trait Method: std::fmt::Debug {
         None
     }
 
+    /// What this method's frames are drawn over: the renderer they need and the terrain it
+    /// reads (the one place a method says it; [`Method::renderer_kind`] and
+    /// [`Method::renderer`] follow from it).
+    fn draws_on(&self) -> DrawSource<'_>;
+
     /// The renderer kind this method's frames need.
-    fn renderer_kind(&self) -> RendererKind;
+    fn renderer_kind(&self) -> RendererKind {
+        self.draws_on().kind()
+    }
 
     /// A renderer for this method's frames (of [`Method::renderer_kind`]).
     fn renderer(
         &self,
         ctx: &terrain_gpu::GpuContext,
         config: &terrain_gpu::RenderConfig,
-    ) -> anyhow::Result<FrameRenderer>;
+    ) -> anyhow::Result<FrameRenderer> {
+        self.draws_on().renderer(ctx, config)
+    }
 }
 
 #[cfg(test)]

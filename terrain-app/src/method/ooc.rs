@@ -5,9 +5,7 @@
 
 use terrain_core::geometry::Camera;
 
-use super::{
-    BlockStats, Draw, DrawnSurface, Frame, FrameRenderer, Method, MethodStats, RendererKind,
-};
+use super::{BlockStats, Draw, DrawSource, DrawnSurface, Frame, Method, MethodStats};
 use crate::methods::{LodMethod, MethodScene, drawn_surface_of};
 use crate::ooc::OocScene;
 
@@ -18,6 +16,15 @@ pub enum OocWait {
     FirstFrame,
     /// Every frame (measurements: the error is the selection's, not the stream's).
     EveryFrame,
+}
+
+impl OocWait {
+    /// Whether the next frame, after `frames` frames, waits until warm; counts it.
+    pub(super) fn next_is_warm(self, frames: &mut usize) -> bool {
+        let warm = self == OocWait::EveryFrame || *frames == 0;
+        *frames += 1;
+        warm
+    }
 }
 
 /// `ooc` over one store's runtime.
@@ -67,8 +74,7 @@ impl Method for OocMethod<'_> {
     }
 
     fn frame(&mut self, camera: &Camera) -> Frame {
-        let warm = self.wait == OocWait::EveryFrame || self.frames == 0;
-        self.frames += 1;
+        let warm = self.wait.next_is_warm(&mut self.frames);
         paged_frame(self.scene.frame(camera, warm))
     }
 
@@ -77,16 +83,8 @@ impl Method for OocMethod<'_> {
         paged_surface(&self.scene, self.reference, frame)
     }
 
-    fn renderer_kind(&self) -> RendererKind {
-        RendererKind::Paged
-    }
-
-    fn renderer(
-        &self,
-        ctx: &terrain_gpu::GpuContext,
-        config: &terrain_gpu::RenderConfig,
-    ) -> anyhow::Result<FrameRenderer> {
-        FrameRenderer::paged(&self.scene, ctx, config)
+    fn draws_on(&self) -> DrawSource<'_> {
+        DrawSource::Paged(&self.scene)
     }
 }
 

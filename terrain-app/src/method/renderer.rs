@@ -30,6 +30,46 @@ pub enum RendererKind {
     PagedMorph,
 }
 
+/// What a method's frames are drawn over ([`super::Method::draws_on`]): a renderer kind
+/// with the terrain it reads.
+#[derive(Debug, Clone, Copy)]
+pub enum DrawSource<'a> {
+    /// The tessellation renderer over a heightmap in memory.
+    Tessellation(&'a Heightmap),
+    /// The geomorph renderer over a heightmap in memory, patches of `.1` cells.
+    Geomorph(&'a Heightmap, u32),
+    /// The paged renderer over a store's runtime.
+    Paged(&'a OocScene),
+    /// The geomorph renderer over a store's pages, patches of `.1` cells.
+    PagedMorph(&'a OocScene, u32),
+}
+
+impl DrawSource<'_> {
+    /// The renderer kind.
+    pub fn kind(self) -> RendererKind {
+        match self {
+            DrawSource::Tessellation(_) => RendererKind::Tessellation,
+            DrawSource::Geomorph(..) => RendererKind::Geomorph,
+            DrawSource::Paged(_) => RendererKind::Paged,
+            DrawSource::PagedMorph(..) => RendererKind::PagedMorph,
+        }
+    }
+
+    /// A renderer of [`DrawSource::kind`] over this terrain.
+    pub fn renderer(
+        self,
+        ctx: &GpuContext,
+        config: &RenderConfig,
+    ) -> anyhow::Result<FrameRenderer> {
+        match self {
+            DrawSource::Tessellation(hm) => FrameRenderer::tessellation(ctx, hm, config),
+            DrawSource::Geomorph(hm, n) => FrameRenderer::geomorph(ctx, hm, n, config),
+            DrawSource::Paged(scene) => FrameRenderer::paged(scene, ctx, config),
+            DrawSource::PagedMorph(scene, n) => FrameRenderer::paged_morph(scene, ctx, n, config),
+        }
+    }
+}
+
 impl RendererKind {
     /// Whether one renderer of this kind can draw the frames of several method instances in
     /// turn (it holds only the terrain); a paged renderer holds one runtime's pages.

@@ -34,7 +34,7 @@ use terrain_visibility::pvs::{Pvs, PvsMode, read_pvs};
 use terrain_visibility::roughness::NodePyramid;
 
 use super::ooc::{OocWait, paged_frame, paged_surface};
-use super::{Draw, DrawnSurface, Frame, FrameRenderer, Method, OocMethod, RendererKind};
+use super::{Draw, DrawSource, DrawnSurface, Frame, Method, OocMethod};
 use crate::methods::{
     LodMethod, MethodConfig, MethodScene, geomorph_selection, select_uniform, strips_frame,
 };
@@ -222,8 +222,7 @@ impl Method for StoreMethod<'_> {
     }
 
     fn frame(&mut self, camera: &Camera) -> Frame {
-        let warm = self.wait == OocWait::EveryFrame || self.frames == 0;
-        self.frames += 1;
+        let warm = self.wait.next_is_warm(&mut self.frames);
         let (cfg, tables) = (&self.config, &self.tables);
         let kind = self.kind;
         // Geomorph's patches with their levels and tween factors (the last selection's).
@@ -332,23 +331,10 @@ impl Method for StoreMethod<'_> {
         Some([morph, max_vertex_jump(&surface(previous, false), &surface(camera, false))])
     }
 
-    fn renderer_kind(&self) -> RendererKind {
-        match self.tables {
-            Tables::Geomip(..) => RendererKind::PagedMorph,
-            _ => RendererKind::Paged,
-        }
-    }
-
-    fn renderer(
-        &self,
-        ctx: &terrain_gpu::GpuContext,
-        config: &terrain_gpu::RenderConfig,
-    ) -> anyhow::Result<FrameRenderer> {
+    fn draws_on(&self) -> DrawSource<'_> {
         match &self.tables {
-            Tables::Geomip(table, _) => {
-                FrameRenderer::paged_morph(&self.scene, ctx, table.patch_cells(), config)
-            }
-            _ => FrameRenderer::paged(&self.scene, ctx, config),
+            Tables::Geomip(table, _) => DrawSource::PagedMorph(&self.scene, table.patch_cells()),
+            _ => DrawSource::Paged(&self.scene),
         }
     }
 }

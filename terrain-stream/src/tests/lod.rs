@@ -265,3 +265,51 @@ fn clamped_and_missing_blocks_stay_crack_free() {
     assert!(total > 50, "{total} patches");
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+/// A patch is split only where even its largest factor (64: its descendants' corners six
+/// levels down) misses Eq. 7's tau: the parent of every selected patch inside a block had
+/// that bound above tau at its box (or balancing split it). Splitting on the node's own
+/// corners, as before, split parents whose tessellation would have met tau.
+#[test]
+fn patches_split_only_where_their_largest_factor_misses_tau() {
+    // 513 x 513 at 10 m in blocks of 257^2 (k = 8, 2 x 2): nodes of 256 and 128 cells can
+    // split inside a block (their vertices six levels down are coarser than the samples).
+    let hm = terrain(513, 513);
+    let (dir, store) = bake_store(&hm, "split", 8, 4);
+    let h = store.header().clone();
+    let all: HashMap<BlockId, u8> = store.block_ids().map(|b| (b, 8)).collect();
+    let tree = StoreTree::new(store.clone(), 32);
+    let (mut inside, mut total) = (0, 0);
+    for cam in cameras() {
+        for tau in [0.25, 0.5, 2.0, 8.0] {
+            let sel = select_patches(&tree, &cam, tau, |b| all.get(&b).copied());
+            total += check(&tree, &cam, tau, &all, &sel);
+            let view = View::new(&cam, tau);
+            for p in &sel.patches {
+                let (b, local) = tree.block_of(p.node).expect("patches lie in blocks");
+                let Some(parent) = local.parent() else { continue };
+                inside += 1;
+                if sel.stats.balance_added > 0 {
+                    continue;
+                }
+                let e = store.entry(b).unwrap();
+                // Independently of `patch_error`: the parent's bound, and the block's
+                // per-level maximum six levels below it.
+                let err = if parent.level + 6 >= h.k {
+                    0.0
+                } else {
+                    bound(&store, b, parent)
+                        .min(f64::from(e.level_errors[parent.level as usize + 6]))
+                };
+                let global = tree.global(b, parent);
+                assert!(
+                    err > 0.0 && rho_per_metre(&tree, &view, global) * err > tau * (1.0 - 1e-6),
+                    "{:?} split though its largest factor meets tau {tau}",
+                    global
+                );
+            }
+        }
+    }
+    assert!(inside > 20 && total > inside, "{inside} patches inside blocks of {total}");
+    std::fs::remove_dir_all(&dir).unwrap();
+}

@@ -120,20 +120,7 @@ pub fn bake_sampled_without_proofs(hm: &Heightmap, cfg: &PvsConfig) -> Pvs {
 /// The bits of some cells only (by [`PvsLayout::cell_index`]): `(sampled, conservative)` per
 /// cell, as [`bake_both`] computes them. For timing a sample of cells and for tests.
 pub fn bake_cells(hm: &Heightmap, cfg: &PvsConfig, cells: &[usize]) -> Vec<(Vec<u8>, Vec<u8>)> {
-    let layout = PvsLayout::new(hm, cfg);
-    let mip = HeightMip::new(hm);
-    let lines = LineMins::new(hm);
-    let ctx = Ctx {
-        hm,
-        mip: &mip,
-        lines: &lines,
-        layout: &layout,
-        cfg,
-        proofs: true,
-        sampled: true,
-        targets: &mip,
-    };
-    cells.par_iter().map(|&n| ctx.cell(n)).collect()
+    with_grid_ctx(hm, cfg, |ctx| cells.par_iter().map(|&n| ctx.cell(n)).collect())
 }
 
 /// The bits of every floor of some plan cells `(a, b)`, lowest floor first, as [`bake_both`]
@@ -143,20 +130,16 @@ pub fn bake_columns(
     cfg: &PvsConfig,
     plan: &[(u32, u32)],
 ) -> Vec<Vec<(Vec<u8>, Vec<u8>)>> {
+    with_grid_ctx(hm, cfg, |ctx| plan.par_iter().map(|&(a, b)| ctx.column(a, b)).collect())
+}
+
+/// Runs `f` with the context of a bake of `hm` itself (its layout, mip and grid-line minima;
+/// occlusion proofs and the sampled test on): what [`bake_cells`] and [`bake_columns`] share.
+fn with_grid_ctx<R>(hm: &Heightmap, cfg: &PvsConfig, f: impl FnOnce(&Ctx<'_>) -> R) -> R {
     let layout = PvsLayout::new(hm, cfg);
     let mip = HeightMip::new(hm);
     let lines = LineMins::new(hm);
-    let ctx = Ctx {
-        hm,
-        mip: &mip,
-        lines: &lines,
-        layout: &layout,
-        cfg,
-        proofs: true,
-        sampled: true,
-        targets: &mip,
-    };
-    plan.par_iter().map(|&(a, b)| ctx.column(a, b)).collect()
+    f(&Ctx::of_grid(hm, &mip, &lines, &layout, cfg))
 }
 
 fn bake_impl(
@@ -187,7 +170,7 @@ pub(super) fn bake_grids(
 ) -> (Pvs, Pvs, BakeStats) {
     let hm = mip.heightmap();
     let lines = LineMins::new(hm);
-    let ctx = Ctx { hm, mip, lines: &lines, layout: &layout, cfg, proofs, sampled, targets };
+    let ctx = Ctx { proofs, sampled, targets, ..Ctx::of_grid(hm, mip, &lines, &layout, cfg) };
     // Rayon over plan cells; each bakes its floors lowest first (see [`Below`]).
     let run = || -> Vec<(Vec<u8>, Vec<u8>)> {
         let total = (layout.cells_x * layout.cells_y) as usize;
@@ -310,6 +293,20 @@ impl Below<'_> {
 fn set(bits: &mut [u8], l: u8, i: u32, j: u32) {
     let n = PvsLayout::level_offset(l) + (j * (1 << l) + i) as usize;
     bits[n / 8] |= 1 << (n % 8);
+}
+
+impl<'a> Ctx<'a> {
+    /// The context of a bake of `hm` itself: targets are the occluders' own heights (`mip`),
+    /// occlusion proofs and the paper's sampled test on.
+    fn of_grid(
+        hm: &'a Heightmap,
+        mip: &'a HeightMip<'a>,
+        lines: &'a LineMins,
+        layout: &'a PvsLayout,
+        cfg: &'a PvsConfig,
+    ) -> Self {
+        Ctx { hm, mip, lines, layout, cfg, proofs: true, sampled: true, targets: mip }
+    }
 }
 
 impl Ctx<'_> {
@@ -964,16 +961,7 @@ mod tests {
         let layout = PvsLayout::new(&hm, &cfg);
         let mip = HeightMip::new(&hm);
         let lines = LineMins::new(&hm);
-        let ctx = Ctx {
-            hm: &hm,
-            mip: &mip,
-            lines: &lines,
-            layout: &layout,
-            cfg: &cfg,
-            proofs: true,
-            sampled: true,
-            targets: &mip,
-        };
+        let ctx = Ctx::of_grid(&hm, &mip, &lines, &layout, &cfg);
         let (mut witnesses, mut proven_above, mut hidden_above) = (0u32, 0u32, 0u32);
         for n in 0..16u32 {
             let (a, b) = (n % 4, n / 4);
