@@ -25,10 +25,11 @@ pub(crate) struct BenchArgs {
     /// Methods, comma-separated (default: all).
     #[arg(long, value_enum, value_delimiter = ',')]
     pub methods: Vec<LodMethod>,
-    /// The CI settings: 20 frames per flight, 3 sweep points, 320x180 images.
+    /// The CI settings: 5 frames per flight, 3 sweep points, 320x180 images, the ooc
+    /// method's frames warm (as --wait).
     #[arg(long)]
     pub quick: bool,
-    /// At most this many frames per flight, evenly spaced (0 = all). Default 60 (quick: 20).
+    /// At most this many frames per flight, evenly spaced (0 = all). Default 60 (quick: 5).
     #[arg(long)]
     pub frames: Option<usize>,
     /// Sweep points per method. Default 5 (quick: 3).
@@ -172,7 +173,7 @@ pub(crate) fn run(args: &BenchArgs) -> anyhow::Result<()> {
     if let Some(mib) = args.ooc_cache_mib {
         cfg.ooc.budget_bytes = mib << 20;
     }
-    cfg.ooc_wait = args.wait;
+    cfg.ooc_wait |= args.wait;
     cfg.from_store = args.from_store;
     if !args.error_px.is_empty() {
         if let Some(px) = args.error_px.iter().find(|p| !(p.is_finite() && **p > 0.0)) {

@@ -81,10 +81,3 @@ impl QualityArgs {
         Ok(Some(params))
     }
 }
-
-/// The methods' settings with `method`'s parameter from the default preset (balanced) for a
-/// view `height_px` pixels high at 60 degrees: what a command without quality options draws.
-pub(crate) fn default_config(method: LodMethod, height_px: u32) -> MethodConfig {
-    let view = ErrorView { height_px: f64::from(height_px), fov_y_deg: 60.0 };
-    registry::default_config(method, view)
-}

@@ -57,6 +57,13 @@ pub struct BenchConfig {
     /// [`crate::method::registry::params_for_error_px`]; `sweep_points` is then unused.
     /// Default `None`.
     pub error_px: Option<Vec<f64>>,
+    /// Run every method from the store only (`terrain demo`): no run from memory, and no
+    /// in-memory tables prepared; the store (`ooc_store`) must hold the tables the methods read.
+    /// Default false.
+    pub store_only: bool,
+    /// Sweep values given per method, replacing [`crate::method::registry::sweep_values`]'
+    /// (taken as they are, not thinned by `sweep_points`). Default none.
+    pub sweep_override: Vec<(LodMethod, Vec<f64>)>,
 }
 
 impl Default for BenchConfig {
@@ -76,19 +83,25 @@ impl Default for BenchConfig {
             ooc_wait: false,
             from_store: false,
             error_px: None,
+            store_only: false,
+            sweep_override: Vec::new(),
         }
     }
 }
 
 impl BenchConfig {
-    /// The `--quick` settings: 20 frames per flight, 3 sweep points, 320 x 180 images and a
-    /// 200,000-sample budget per frame (strided on large grids: errors biased low, see `measure`).
+    /// The `--quick` settings (`cargo xtask bench --quick` in under 5 minutes on two cores):
+    /// 5 frames per flight, 3 sweep points, 320 x 180 images, a 200,000-sample budget per
+    /// frame (strided on large grids: errors biased low, see `measure`), and the `ooc` method's
+    /// sampled frames warm (`ooc_wait`; played in real time, each of its runs would last the
+    /// flight's duration).
     pub fn quick() -> Self {
         Self {
-            max_frames: 20,
+            max_frames: 5,
             sweep_points: 3,
             render_size: Some((320, 180)),
             measure: MeasureConfig { max_samples: 200_000, ..MeasureConfig::default() },
+            ooc_wait: true,
             ..Self::default()
         }
     }

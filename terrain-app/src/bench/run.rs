@@ -102,7 +102,16 @@ pub fn run_bench(
             notes.push(warning);
         }
     }
-    scene.prepare(&cfg.methods);
+    if cfg.store_only {
+        if cfg.ooc_store.is_none() {
+            anyhow::bail!("a benchmark from the store only needs a baked store (ooc_store)");
+        }
+        if let Some(m) = cfg.methods.iter().find(|&&m| !draws_from_store(m)) {
+            anyhow::bail!("{} does not draw from a store", m.name());
+        }
+    } else {
+        scene.prepare(&cfg.methods);
+    }
     let leaf_cells = scene.config.leaf_cells;
     let sweeps: Vec<(LodMethod, &'static str, Vec<f64>)> = cfg
         .methods
@@ -112,7 +121,10 @@ pub fn run_bench(
             Some(px) => (m, "error_px", px.clone()),
             None => {
                 let (name, all) = sweep_values(m, leaf_cells);
-                (m, name, pick_evenly(&all, cfg.sweep_points))
+                match cfg.sweep_override.iter().find(|(o, _)| *o == m) {
+                    Some((_, given)) => (m, name, given.clone()),
+                    None => (m, name, pick_evenly(&all, cfg.sweep_points)),
+                }
             }
         })
         .collect();
@@ -147,8 +159,12 @@ pub fn run_bench(
     let variants: Vec<(usize, bool)> = (0..sweeps.len())
         .flat_map(|k| {
             let m = sweeps[k].0;
+            if cfg.store_only {
+                // `ooc` is the store's own method; the others are drawn from it.
+                return vec![(k, !registry::needs_store(m))];
+            }
             let again = cfg.from_store && !registry::needs_store(m) && draws_from_store(m);
-            std::iter::once((k, false)).chain(again.then_some((k, true)))
+            std::iter::once((k, false)).chain(again.then_some((k, true))).collect()
         })
         .collect();
     let per_flight: usize = variants.iter().map(|&(k, _)| sweeps[k].2.len()).sum();

@@ -125,10 +125,11 @@ pub fn note(method: LodMethod) -> Option<&'static str> {
     }
 }
 
-/// A method's colour in the plots.
+/// A method's colour in the plots: one per method (with [`marker`], no two methods share
+/// the pair; tested).
 pub fn colour(m: LodMethod) -> &'static str {
     match m {
-        LodMethod::Uniform => "#555555",
+        LodMethod::Uniform => "#222222",
         LodMethod::PvpsA => "#1f77b4",
         LodMethod::PvpsB => "#2ca02c",
         LodMethod::PvpsC => "#d62728",
@@ -138,8 +139,38 @@ pub fn colour(m: LodMethod) -> &'static str {
         LodMethod::Geomorph => "#e377c2",
         LodMethod::PvpsCPvs => "#bcbd22",
         LodMethod::PvpsCConservative => "#17becf",
-        LodMethod::DssStrips => "#7f7f7f",
-        LodMethod::OutOfCore => "#aec7e8",
+        LodMethod::DssStrips => "#393b79",
+        LodMethod::OutOfCore => "#6b8e23",
+    }
+}
+
+/// A plot marker's shape.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Marker {
+    /// A filled circle.
+    Circle,
+    /// A filled square.
+    Square,
+    /// A filled triangle, point up.
+    Triangle,
+    /// A filled diamond.
+    Diamond,
+    /// A filled triangle, point down.
+    TriangleDown,
+    /// An open circle (a ring).
+    Ring,
+}
+
+/// A method's marker in the plots (with [`colour`], no two methods share the pair).
+pub fn marker(m: LodMethod) -> Marker {
+    match m {
+        LodMethod::Uniform => Marker::Square,
+        LodMethod::PvpsA | LodMethod::Geomorph => Marker::Triangle,
+        LodMethod::PvpsB | LodMethod::DssStrips => Marker::Diamond,
+        LodMethod::PvpsC => Marker::Circle,
+        LodMethod::Dss1 | LodMethod::OutOfCore => Marker::TriangleDown,
+        LodMethod::Dss2 | LodMethod::Entropy => Marker::Ring,
+        LodMethod::PvpsCPvs | LodMethod::PvpsCConservative => Marker::Square,
     }
 }
 
