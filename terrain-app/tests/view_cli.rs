@@ -130,9 +130,9 @@ fn golden_diff(a: &image::RgbaImage, b: &image::RgbaImage) -> ([f64; 3], f64) {
     let (mut sum, mut far_off) = ([0u64; 3], 0usize);
     for (x, y) in a.pixels().zip(b.pixels()) {
         let mut off = false;
-        for c in 0..3 {
+        for (c, s) in sum.iter_mut().enumerate() {
             let d = x.0[c].abs_diff(y.0[c]);
-            sum[c] += u64::from(d);
+            *s += u64::from(d);
             off |= d > 16;
         }
         far_off += usize::from(off);

@@ -139,7 +139,7 @@ pub(crate) fn run(args: &ViewArgs) -> anyhow::Result<()> {
     let terrain = match &store {
         Some(dir) => {
             args.source.refuse_reading_options("a baked store (its heights are stored)")?;
-            Terrain::Store(StoreTerrain::open(dir, config, kind, &ctx, &render_config)?)
+            Terrain::Store(Box::new(StoreTerrain::open(dir, config, kind, &ctx, &render_config)?))
         }
         None => {
             let hm = match args.source.load_surface()? {
@@ -358,7 +358,7 @@ impl StoreTerrain {
 
 enum Terrain {
     Memory(MemoryTerrain),
-    Store(StoreTerrain),
+    Store(Box<StoreTerrain>),
 }
 
 impl Terrain {
@@ -908,12 +908,14 @@ impl App {
                     &MethodOptions { morph: true, ..MethodOptions::default() },
                 )?;
                 let kind = method.renderer_kind();
-                if !m.renderers.contains_key(&kind) {
-                    let mut r = method.renderer(&self.ctx, &self.render_config)?;
-                    r.set_sun_direction(self.render_config.sun_direction)?;
-                    m.renderers.insert(kind, r);
-                }
-                let renderer = m.renderers.get_mut(&kind).expect("inserted above");
+                let renderer = match m.renderers.entry(kind) {
+                    std::collections::hash_map::Entry::Occupied(e) => e.into_mut(),
+                    std::collections::hash_map::Entry::Vacant(e) => {
+                        let mut r = method.renderer(&self.ctx, &self.render_config)?;
+                        r.set_sun_direction(self.render_config.sun_direction)?;
+                        e.insert(r)
+                    }
+                };
                 let mut frames =
                     FrameLoop::new(method).rendered(Some(renderer)).with_options(options);
                 if measure {
