@@ -13,6 +13,7 @@ mod quality;
 mod render;
 mod roughness;
 mod source;
+mod view;
 
 use clap::{CommandFactory, FromArgMatches, Parser, Subcommand};
 
@@ -50,6 +51,9 @@ enum Command {
     Bench(bench_cli::BenchArgs),
     /// The embedded terrain end to end: a flight, its frames, a benchmark report and plot.
     Demo(demo::DemoArgs),
+    /// An interactive window over a DEM or a baked store, drawn by the engine: fly or orbit,
+    /// switch methods, one quality slider, live figures; `--script` drives it without a person.
+    View(view::ViewArgs),
 }
 
 /// The command line with every option that takes a value accepting a negative number without
@@ -85,6 +89,7 @@ fn main() -> std::process::ExitCode {
         Command::Bench(args) => bench_cli::run(&args),
         Command::Pvs(args) => pvs::run(&args),
         Command::Demo(args) => demo::run(&args),
+        Command::View(args) => view::run(&args),
     };
     match result {
         Ok(()) => std::process::ExitCode::SUCCESS,

@@ -28,7 +28,8 @@ impl RgbaImage {
     }
 }
 
-/// A colour and a depth texture of the same size, both renderable and the colour copyable.
+/// A colour and a depth texture of the same size, both renderable, the colour copyable and
+/// sampleable (`terrain view` copies it into a window with one `textureLoad` pass).
 #[derive(Debug)]
 pub struct OffscreenTarget {
     /// The colour texture ([`COLOR_FORMAT`]).
@@ -55,7 +56,11 @@ impl OffscreenTarget {
             })
         };
         use wgpu::TextureUsages as U;
-        let color = texture("offscreen colour", COLOR_FORMAT, U::RENDER_ATTACHMENT | U::COPY_SRC);
+        let color = texture(
+            "offscreen colour",
+            COLOR_FORMAT,
+            U::RENDER_ATTACHMENT | U::COPY_SRC | U::TEXTURE_BINDING,
+        );
         let depth = texture("offscreen depth", DEPTH_FORMAT, U::RENDER_ATTACHMENT);
         let color_view = color.create_view(&Default::default());
         let depth_view = depth.create_view(&Default::default());

@@ -22,9 +22,26 @@ use crate::bench::{FrameRecord, rss_bytes};
 pub struct FrameLoop<'a> {
     method: Box<dyn Method + 'a>,
     measurer: Option<Measurer<'a>>,
-    renderer: Option<&'a mut FrameRenderer>,
+    renderer: Option<Slot<'a>>,
     options: RenderOptions,
     uploads: Uploads,
+}
+
+/// The loop's renderer: borrowed (`render`, `fly`, `bench` share renderers between loops) or
+/// owned (a loop that lives as long as its method: `terrain view` over a store).
+#[derive(Debug)]
+enum Slot<'a> {
+    Borrowed(&'a mut FrameRenderer),
+    Owned(Box<FrameRenderer>),
+}
+
+impl Slot<'_> {
+    fn get(&mut self) -> &mut FrameRenderer {
+        match self {
+            Slot::Borrowed(r) => r,
+            Slot::Owned(r) => r,
+        }
+    }
 }
 
 /// One frame through the loop.
@@ -59,8 +76,19 @@ impl<'a> FrameLoop<'a> {
 
     /// Draws every frame with `renderer` (of the method's [`Method::renderer_kind`]) when given.
     pub fn rendered(mut self, renderer: Option<&'a mut FrameRenderer>) -> Self {
-        self.renderer = renderer;
+        self.renderer = renderer.map(Slot::Borrowed);
         self
+    }
+
+    /// Draws every frame with `renderer`, which the loop owns from now on.
+    pub fn rendered_by(mut self, renderer: FrameRenderer) -> Self {
+        self.renderer = Some(Slot::Owned(Box::new(renderer)));
+        self
+    }
+
+    /// Sets the render options (wireframe) of the next frames.
+    pub fn set_options(&mut self, options: RenderOptions) {
+        self.options = options;
     }
 
     /// Render options (wireframe) of the drawn frames.
@@ -76,7 +104,7 @@ impl<'a> FrameLoop<'a> {
 
     /// The renderer, for reading the last frame back.
     pub fn renderer(&mut self) -> Option<&mut FrameRenderer> {
-        self.renderer.as_deref_mut()
+        self.renderer.as_mut().map(Slot::get)
     }
 
     /// Plays a frame that is neither measured nor drawn (a real-time flight's frames between
@@ -85,7 +113,7 @@ impl<'a> FrameLoop<'a> {
     /// the frame's statistics.
     pub fn play(&mut self, camera: &Camera) -> anyhow::Result<MethodStats> {
         let frame = self.method.frame(camera);
-        if let Some(renderer) = self.renderer.as_deref_mut() {
+        if let Some(renderer) = self.renderer.as_mut().map(Slot::get) {
             renderer.apply(&frame)?;
         }
         Ok(frame.stats)
@@ -98,6 +126,18 @@ impl<'a> FrameLoop<'a> {
         &mut self,
         index: usize,
         camera: &Camera,
+        previous: Option<&Camera>,
+    ) -> anyhow::Result<LoopFrame> {
+        self.frame_drawn_from(index, camera, camera, previous)
+    }
+
+    /// [`FrameLoop::frame`] selected (and measured) from `camera` but drawn from `eye`: a
+    /// frozen selection looked at from elsewhere (`terrain view`'s freeze).
+    pub fn frame_drawn_from(
+        &mut self,
+        index: usize,
+        camera: &Camera,
+        eye: &Camera,
         previous: Option<&Camera>,
     ) -> anyhow::Result<LoopFrame> {
         let mut frame = self.method.frame(camera);
@@ -131,8 +171,8 @@ impl<'a> FrameLoop<'a> {
             )
         };
         let mut drawn = None;
-        if let Some(renderer) = self.renderer.as_deref_mut() {
-            let s = renderer.draw(camera, &frame, &self.options, &mut self.uploads)?;
+        if let Some(renderer) = self.renderer.as_mut().map(Slot::get) {
+            let s = renderer.draw(eye, &frame, &self.options, &mut self.uploads)?;
             // The frame's CPU work before the renderer: selection, building what is drawn
             // (the entropy mesh) and converting it to the renderer's input.
             let before = stats.selection_ms + stats.build_ms + stats.convert_ms;

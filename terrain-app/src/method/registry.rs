@@ -101,6 +101,33 @@ pub fn apply_parameter(config: &mut MethodConfig, method: LodMethod, value: f64)
     }
 }
 
+/// The current value of `method`'s swept parameter in `config` (what [`apply_parameter`]
+/// sets).
+pub fn parameter(config: &MethodConfig, method: LodMethod) -> f64 {
+    match method {
+        LodMethod::Uniform => f64::from(config.uniform_factor),
+        LodMethod::PvpsA | LodMethod::PvpsB | LodMethod::PvpsC => config.pvps.c1,
+        LodMethod::Dss1 | LodMethod::Dss2 | LodMethod::DssStrips => config.dss.rho_thr,
+        LodMethod::Entropy => config.entropy.e0,
+        LodMethod::Geomorph => config.geomip.pixel_threshold,
+        LodMethod::PvpsCPvs | LodMethod::PvpsCConservative => config.pvps.c1,
+        LodMethod::OutOfCore => config.ooc.tau,
+    }
+}
+
+/// Whether `method`'s swept parameter is a screen-space error bound in pixels (what the
+/// method promises about the drawn error), rather than a factor or a roughness constant.
+pub fn parameter_is_pixels(method: LodMethod) -> bool {
+    matches!(
+        method,
+        LodMethod::Dss1
+            | LodMethod::Dss2
+            | LodMethod::DssStrips
+            | LodMethod::Geomorph
+            | LodMethod::OutOfCore
+    )
+}
+
 /// What the benchmark report says about how `method` is timed and measured, if anything
 /// beyond the common notes.
 pub fn note(method: LodMethod) -> Option<&'static str> {

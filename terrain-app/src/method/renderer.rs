@@ -260,6 +260,29 @@ impl FrameRenderer {
         })
     }
 
+    /// The offscreen colour texture the last frame was drawn into (RGBA8 unorm): what
+    /// `terrain view` copies to its window's surface.
+    pub fn color_texture(&self) -> &wgpu::Texture {
+        match &self.inner {
+            Inner::Tessellation(r) | Inner::Paged(r) => r.color_texture(),
+            Inner::Geomorph(r) => r.color_texture(),
+            Inner::PagedMorph { morph, .. } => morph.color_texture(),
+        }
+    }
+
+    /// Sets the sun direction of the next frames where the renderer shades per fragment (the
+    /// tessellation and paged renderers); `false` where it cannot (the geomorph renderers bake
+    /// their sun into a lightmap).
+    pub fn set_sun_direction(&mut self, direction: [f64; 3]) -> anyhow::Result<bool> {
+        match &mut self.inner {
+            Inner::Tessellation(r) | Inner::Paged(r) => {
+                r.set_sun_direction(direction)?;
+                Ok(true)
+            }
+            Inner::Geomorph(_) | Inner::PagedMorph { .. } => Ok(false),
+        }
+    }
+
     /// Applies what `frame` changes in the renderer's state without drawing (a store's page
     /// changes); nothing for the other renderers, which hold no per-frame state.
     pub fn apply(&mut self, frame: &Frame) -> anyhow::Result<()> {

@@ -465,6 +465,12 @@ impl GeomorphRenderer {
         (self.target.width(), self.target.height())
     }
 
+    /// The offscreen colour texture the last frame was drawn into (RGBA8 unorm, `COPY_SRC`):
+    /// a windowed viewer copies it to its surface.
+    pub fn color_texture(&self) -> &wgpu::Texture {
+        &self.target.color
+    }
+
     /// The adapter, as [`GpuContext::describe`] says.
     pub fn adapter(&self) -> &str {
         &self.adapter

@@ -865,6 +865,23 @@ impl TerrainRenderer {
         (self.target.width(), self.target.height())
     }
 
+    /// Sets the direction towards the sun (world frame, normalised here) for the next frames:
+    /// the shading is per fragment, so nothing is rebuilt. Refuses a zero or non-finite one.
+    pub fn set_sun_direction(&mut self, direction: [f64; 3]) -> Result<(), RenderError> {
+        let sun = glam::DVec3::from(direction);
+        if !(sun.length() > 0.0 && sun.is_finite()) {
+            return Err(RenderError::InvalidConfig(format!("sun direction {sun}")));
+        }
+        self.sun = sun.normalize().as_vec3();
+        Ok(())
+    }
+
+    /// The offscreen colour texture the last frame was drawn into (RGBA8 unorm, `COPY_SRC`):
+    /// a windowed viewer copies it to its surface.
+    pub fn color_texture(&self) -> &wgpu::Texture {
+        &self.target.color
+    }
+
     /// The adapter, as [`GpuContext::describe`] says.
     pub fn adapter(&self) -> &str {
         &self.adapter

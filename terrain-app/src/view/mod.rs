@@ -1,0 +1,1097 @@
+//! `terrain view <dem | store>`: an interactive window drawn by the engine. Every frame goes
+//! through the one frame loop ([`FrameLoop`]) and the method's own renderer
+//! ([`FrameRenderer`]), exactly as `terrain render` draws it; [`present::Presenter`] copies the
+//! renderer's image into the window's surface and draws the egui panel over it.
+//!
+//! - Input ([`camera`]): fly mode (drag with a mouse button to look, WASD/QE, wheel = speed,
+//!   shift = 4x) and orbit mode (O toggles); the eye stays above the ground. R records a
+//!   flight ([`record`]), F freezes the selection, P hides the panel, Esc quits.
+//! - Scripts ([`script`]): `--script FILE` drives the same actions without a person.
+//! - Loading never blocks the event loop: a method switch or a vertical exaggeration over a
+//!   DEM in memory prepares its tables on a worker thread while the old method keeps drawing;
+//!   a store is drawn in the streamer's real-time mode (after the first frame, which loads the
+//!   coarse levels, no frame waits for I/O).
+
+mod camera;
+mod panel;
+mod present;
+mod record;
+mod script;
+
+use std::collections::{HashMap, HashSet, VecDeque};
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::thread::JoinHandle;
+use std::time::Instant;
+
+use anyhow::{Context, bail};
+use clap::Args;
+use glam::DVec3;
+use terrain_app::method::registry::{self, apply_parameter, parameter};
+use terrain_app::method::{
+    self, FrameLoop, FrameRenderer, LoopFrame, MethodOptions, OocWait, RendererKind,
+};
+use terrain_app::methods::{LodMethod, MethodConfig, MethodScene};
+use terrain_app::ooc;
+use terrain_core::geometry::Camera;
+use terrain_core::measure::MeasureConfig;
+use terrain_core::{Heightmap, synth};
+use terrain_gpu::render::clip_range;
+use terrain_gpu::{BackendChoice, DeviceConfig, GpuContext, RenderConfig, RenderOptions};
+use winit::application::ApplicationHandler;
+use winit::event::{ElementState, MouseButton, MouseScrollDelta, WindowEvent};
+use winit::event_loop::{ActiveEventLoop, ControlFlow, EventLoop};
+use winit::keyboard::{KeyCode, PhysicalKey};
+use winit::window::{Window, WindowId};
+
+use self::camera::{Motion, ViewCamera};
+use self::script::{Command, Key, Toggle};
+use crate::render::parse_size;
+use crate::source::SourceArgs;
+use terrain_app::camera::{self as camera_spec, Ground, ViewConfig};
+
+/// Arguments of `terrain view`.
+#[derive(Debug, Args)]
+pub(crate) struct ViewArgs {
+    #[command(flatten)]
+    pub source: SourceArgs,
+    /// Start camera as x,y,z,yaw,pitch (as `terrain render --camera`). Default: the whole
+    /// terrain from the south-west, as `terrain render`.
+    #[arg(long, allow_hyphen_values = true)]
+    pub camera: Option<String>,
+    /// Vertical field of view, degrees.
+    #[arg(long, default_value_t = 60.0)]
+    pub fov: f64,
+    /// Window size, WIDTHxHEIGHT (the renderer draws at this size; the window is not resizable).
+    #[arg(long, default_value = "1280x720")]
+    pub size: String,
+    /// LOD method at start. Default: pvps-c for a DEM, ooc for a baked store.
+    #[arg(long, value_enum)]
+    pub method: Option<LodMethod>,
+    /// Cells per side of the finest patch.
+    #[arg(long, default_value_t = 16)]
+    pub leaf_cells: u32,
+    /// The quality slider's value at start: the method's own swept parameter (uniform: the
+    /// factor, PVPS: C1, DSS: rho_thr px, entropy: E0, geomorph: tau px, ooc: tau px).
+    #[arg(long)]
+    pub quality: Option<f64>,
+    /// Drive the viewer from a script (one command per line; see README, "terrain view").
+    #[arg(long)]
+    pub script: Option<PathBuf>,
+    /// Play this flight (JSON, see `flights/`) from the start, then fly freely.
+    #[arg(long)]
+    pub flight: Option<PathBuf>,
+    /// Where the R key (or the script's `record`) writes the recorded flight.
+    #[arg(long, default_value = "recorded_flight.json")]
+    pub record_to: PathBuf,
+    /// A store: the stream cache's budget, MiB.
+    #[arg(long, default_value_t = 256)]
+    pub cache_mib: u64,
+}
+
+/// Runs `terrain view`.
+pub(crate) fn run(args: &ViewArgs) -> anyhow::Result<()> {
+    let size = parse_size(&args.size)?;
+    let spec = args.camera.as_deref().map(|c| camera_spec::parse(c, None)).transpose()?;
+    if !(args.fov.is_finite() && args.fov > 0.0 && args.fov < 180.0) {
+        bail!("--fov must be between 0 and 180 degrees, got {}", args.fov);
+    }
+    if args.leaf_cells == 0 {
+        bail!("--leaf-cells must be at least 1");
+    }
+    let script = match &args.script {
+        Some(p) => {
+            let text = std::fs::read_to_string(p)
+                .with_context(|| format!("could not read the script {}", p.display()))?;
+            script::parse(&text).with_context(|| format!("script {}", p.display()))?
+        }
+        None => Vec::new(),
+    };
+    let store = match args.source.dem.as_slice() {
+        [one] if ooc::is_store(one) => Some(one.clone()),
+        _ => None,
+    };
+    // The window first: without a display there is nothing to do.
+    let event_loop = EventLoop::new().context(
+        "could not open a window: `terrain view` needs a display (X11: is DISPLAY set?)",
+    )?;
+    let ctx = GpuContext::new(&DeviceConfig::from_env(BackendChoice::Auto))
+        .context("no GPU adapter (Vulkan or GL) is available")?;
+    println!("adapter: {}", ctx.describe());
+    let mut config = MethodConfig { leaf_cells: args.leaf_cells, ..MethodConfig::default() };
+    config.ooc.budget_bytes = args.cache_mib << 20;
+    let kind = args.method.unwrap_or(if store.is_some() {
+        LodMethod::OutOfCore
+    } else {
+        LodMethod::PvpsC
+    });
+    if let Some(q) = args.quality {
+        check_quality(q)?;
+        apply_parameter(&mut config, kind, q);
+    }
+    let render_config = RenderConfig {
+        width: size.0,
+        height: size.1,
+        background: [150, 185, 225, 255],
+        ..Default::default()
+    };
+    let terrain = match &store {
+        Some(dir) => {
+            args.source.refuse_reading_options("a baked store (its heights are stored)")?;
+            Terrain::Store(Box::new(StoreTerrain::open(dir, config, kind, &ctx, &render_config)?))
+        }
+        None => {
+            let hm = match args.source.load_surface()? {
+                Some(dem) => dem.heightmap,
+                None => synth::default_terrain(),
+            };
+            let scene = MethodScene::new(hm, config);
+            scene.prepare(&[kind]);
+            Terrain::Memory(MemoryTerrain {
+                scene: Arc::new(scene),
+                renderers: HashMap::new(),
+                job: None,
+                exaggeration: 1.0,
+            })
+        }
+    };
+    let ground = terrain.ground();
+    let (lo, hi) = (f64::from(ground.min()), f64::from(ground.max()));
+    let extent = ground.extent_m().max_element();
+    let clearance = (0.002 * extent).clamp(1.0, 50.0);
+    // `--camera` in any of `render`'s forms (world, lonlat:, agl), or the default framing
+    // that fills the image with the terrain: the one camera module.
+    let view = ViewConfig {
+        size_px: glam::dvec2(f64::from(size.0), f64::from(size.1)),
+        fov_y_deg: args.fov,
+    };
+    let placed = camera_spec::place(spec.as_ref(), &terrain.camera_ground(), &view)?;
+    if let Some(w) = placed.lift_warning() {
+        eprintln!("warning: {w}");
+    }
+    let start = {
+        let c = placed.camera;
+        let (yaw, pitch) = yaw_pitch_of(c.forward());
+        ViewCamera::new(c.position, yaw, pitch, extent / 20.0, clearance)
+    };
+    let flight = match &args.flight {
+        Some(path) => {
+            let spec = terrain_core::flight::FlightSpec::load(path)?;
+            let cfg = terrain_core::flight::FlightConfig {
+                viewport_px: glam::dvec2(f64::from(size.0), f64::from(size.1)),
+                ..Default::default()
+            };
+            let (flight, warnings) = spec.resolve(ground, &cfg);
+            for w in &warnings {
+                eprintln!("warning: flight {}: {w}", flight.name);
+            }
+            println!("flight {}: {} frames", flight.name, flight.frames().len());
+            flight
+                .frames()
+                .iter()
+                .map(|c| {
+                    let (yaw, pitch) = yaw_pitch_of(c.forward());
+                    (c.position, yaw, pitch)
+                })
+                .collect()
+        }
+        None => VecDeque::new(),
+    };
+    println!("terrain: heights {lo:.1} to {hi:.1} m, extent {extent:.0} m");
+    let mut app = App {
+        ctx,
+        render_config,
+        size,
+        fov: args.fov,
+        terrain,
+        kind,
+        camera: start,
+        window: None,
+        presenter: None,
+        egui_state: None,
+        egui_ctx: egui::Context::default(),
+        held: HashSet::new(),
+        dragging: false,
+        cursor: None,
+        drag: (0.0, 0.0),
+        wheel: 0.0,
+        ui: UiState::default(),
+        frozen: None,
+        sun: SUN_DEFAULT,
+        script: script.into(),
+        scripted: args.script.is_some(),
+        script_wait: 0,
+        flight,
+        recorder: None,
+        record_to: args.record_to.clone(),
+        stats: Stats::default(),
+        frame_index: 0,
+        frame_times: Vec::new(),
+        last_frame: None,
+        measure_next: false,
+        error: None,
+        quit: false,
+    };
+    event_loop.set_control_flow(ControlFlow::Poll);
+    event_loop.run_app(&mut app).context("the window's event loop failed")?;
+    let frames = app.frame_index;
+    let error = app.error.take();
+    if frames > 0 {
+        // Frame 0 builds pipelines and tessellates: the median is of the frames after it.
+        let later = &app.frame_times[1.min(frames - 1)..];
+        let median = |k: usize| {
+            let mut v: Vec<f64> = later.iter().map(|t| if k == 0 { t.0 } else { t.1 }).collect();
+            v.sort_by(f64::total_cmp);
+            v[v.len() / 2]
+        };
+        println!(
+            "view: {frames} frames, median after the first: viewer frame {:.2} ms, engine \
+             frame {:.2} ms",
+            median(0),
+            median(1)
+        );
+    }
+    let threads_before = threads();
+    let had_store = matches!(app.terrain, Terrain::Store(_));
+    drop(app);
+    if had_store {
+        // The store's runtime was dropped with the app: its workers are joined by now.
+        eprintln!(
+            "view: closed after {frames} frames; store runtime dropped, worker threads joined \
+             ({} threads before, {} after)",
+            threads_before.map_or("?".into(), |t| t.to_string()),
+            threads().map_or("?".into(), |t| t.to_string())
+        );
+    } else {
+        eprintln!("view: closed after {frames} frames");
+    }
+    match error {
+        Some(e) => Err(e),
+        None => Ok(()),
+    }
+}
+
+/// The sun at start (azimuth and elevation in degrees): the renderer's default, from the
+/// north-west 45 degrees up.
+const SUN_DEFAULT: (f64, f64) = (315.0, 45.0);
+
+fn check_quality(q: f64) -> anyhow::Result<()> {
+    if !(q.is_finite() && q > 0.0) {
+        bail!("the quality value must be a positive number, got {q}");
+    }
+    Ok(())
+}
+
+/// Compass yaw and pitch (degrees) of a view direction.
+fn yaw_pitch_of(f: DVec3) -> (f64, f64) {
+    let yaw = f.x.atan2(f.y).to_degrees().rem_euclid(360.0);
+    let pitch = f.z.clamp(-1.0, 1.0).asin().to_degrees();
+    (yaw, pitch)
+}
+
+/// Threads of this process (Linux), to show the store's workers are gone after closing.
+fn threads() -> Option<usize> {
+    let s = std::fs::read_to_string("/proc/self/status").ok()?;
+    s.lines().find_map(|l| l.strip_prefix("Threads:")).and_then(|v| v.trim().parse().ok())
+}
+
+/// Work on a worker thread whose result the next frames pick up.
+enum Job {
+    /// The tables of a method (the scene's lazily computed ones).
+    Prepare(LodMethod, JoinHandle<()>),
+    /// A scene with heights exaggerated by the factor, prepared for the method.
+    Rescale(f64, JoinHandle<MethodScene>),
+}
+
+/// A DEM in memory.
+struct MemoryTerrain {
+    scene: Arc<MethodScene>,
+    /// One renderer per kind (shared by the methods of that kind).
+    renderers: HashMap<RendererKind, FrameRenderer>,
+    job: Option<Job>,
+    /// The scene's vertical exaggeration.
+    exaggeration: f64,
+}
+
+/// A baked store, drawn in real time.
+struct StoreTerrain {
+    dir: PathBuf,
+    config: MethodConfig,
+    /// The method (its streaming runtime) and its paged renderer, in one loop for the session.
+    frames: Option<FrameLoop<'static>>,
+    /// Level-4 overview: the ground under the camera and the clip range.
+    overview: Heightmap,
+    /// The store's georeference (its CRS places `lonlat:` cameras).
+    georef: terrain_core::Georef,
+}
+
+impl StoreTerrain {
+    fn open(
+        dir: &Path,
+        config: MethodConfig,
+        kind: LodMethod,
+        ctx: &GpuContext,
+        render_config: &RenderConfig,
+    ) -> anyhow::Result<Self> {
+        let scene = crate::render::open_store(dir, config.ooc)?;
+        let overview = scene
+            .overview(4)
+            .with_context(|| format!("could not read the store {}", dir.display()))?;
+        let georef = scene.store().header().georef.clone();
+        let method = method::store_method(kind, scene, &config, OocWait::FirstFrame, None)?;
+        let renderer = method.renderer(ctx, render_config)?;
+        let frames = Some(FrameLoop::new(method).rendered_by(renderer));
+        Ok(Self { dir: dir.to_path_buf(), config, frames, overview, georef })
+    }
+
+    /// The method again over a new runtime of the same store (a new method or parameter).
+    fn rebuild(
+        &mut self,
+        kind: LodMethod,
+        ctx: &GpuContext,
+        render_config: &RenderConfig,
+    ) -> anyhow::Result<()> {
+        // The old runtime goes first (its workers joined), then the new one starts.
+        self.frames = None;
+        let scene = ooc::OocScene::open(&self.dir, self.config.ooc)
+            .with_context(|| format!("could not open the store {}", self.dir.display()))?;
+        let method = method::store_method(kind, scene, &self.config, OocWait::FirstFrame, None)?;
+        let renderer = method.renderer(ctx, render_config)?;
+        self.frames = Some(FrameLoop::new(method).rendered_by(renderer));
+        Ok(())
+    }
+}
+
+enum Terrain {
+    Memory(MemoryTerrain),
+    Store(Box<StoreTerrain>),
+}
+
+impl Terrain {
+    fn ground(&self) -> &Heightmap {
+        match self {
+            Terrain::Memory(m) => &m.scene.hm,
+            Terrain::Store(s) => &s.overview,
+        }
+    }
+
+    /// The ground cameras are placed on, with the georeference that converts lon/lat.
+    fn camera_ground(&self) -> Ground<'_> {
+        match self {
+            Terrain::Memory(m) => Ground::of(&m.scene.hm),
+            Terrain::Store(s) => Ground { heights: &s.overview, georef: &s.georef },
+        }
+    }
+
+    fn config(&self) -> &MethodConfig {
+        match self {
+            Terrain::Memory(m) => &m.scene.config,
+            Terrain::Store(s) => &s.config,
+        }
+    }
+}
+
+/// What the panel shows and the user changes (see [`panel`]).
+#[derive(Debug, Clone)]
+pub(crate) struct UiState {
+    pub show: bool,
+    pub wireframe: bool,
+    pub colour_levels: bool,
+    pub freeze: bool,
+    pub exaggeration: f64,
+    pub measured_p99: Option<String>,
+    pub message: Option<String>,
+}
+
+impl Default for UiState {
+    fn default() -> Self {
+        Self {
+            show: true,
+            wireframe: false,
+            colour_levels: false,
+            freeze: false,
+            exaggeration: 1.0,
+            measured_p99: None,
+            message: None,
+        }
+    }
+}
+
+/// Live figures.
+#[derive(Debug, Clone, Default)]
+pub(crate) struct Stats {
+    /// Seconds between the last frames (exponential mean).
+    pub frame_s: f64,
+    /// The last frame's CPU ms (selection, conversion, encoding).
+    pub cpu_ms: f64,
+    /// The last frame's engine wall ms (selection to GPU done) and whole viewer frame ms.
+    pub engine_ms: f64,
+    pub viewer_ms: f64,
+    /// GPU time as the renderer reads it ("n/a ..." where not available).
+    pub gpu: String,
+    pub triangles: u64,
+    pub patches: usize,
+    pub stream: Option<ooc::StreamRecord>,
+}
+
+/// What the user (panel, keys, script) asks for; every source goes through [`App::apply`].
+#[derive(Debug, Clone, PartialEq)]
+pub(crate) enum Action {
+    Method(LodMethod),
+    Quality(f64),
+    Set(Toggle, bool),
+    Exaggeration(f64),
+    Sun(f64, f64),
+    Measure,
+    Record,
+    Orbit,
+    Quit,
+}
+
+struct App {
+    ctx: GpuContext,
+    render_config: RenderConfig,
+    size: (u32, u32),
+    fov: f64,
+    terrain: Terrain,
+    kind: LodMethod,
+    camera: ViewCamera,
+    window: Option<Arc<Window>>,
+    presenter: Option<present::Presenter>,
+    egui_state: Option<egui_winit::State>,
+    egui_ctx: egui::Context,
+    held: HashSet<Key>,
+    dragging: bool,
+    cursor: Option<(f64, f64)>,
+    /// Mouse drag and wheel steps since the last frame.
+    drag: (f64, f64),
+    wheel: f64,
+    ui: UiState,
+    /// The camera the selection was frozen at.
+    frozen: Option<Camera>,
+    sun: (f64, f64),
+    script: VecDeque<Command>,
+    scripted: bool,
+    script_wait: u32,
+    /// Poses still to play from `--flight`.
+    flight: VecDeque<(DVec3, f64, f64)>,
+    recorder: Option<record::Recorder>,
+    record_to: PathBuf,
+    stats: Stats,
+    frame_index: usize,
+    /// Every frame's viewer ms (whole frame: script, engine, panel, present) and engine ms
+    /// (the frame loop's selection to GPU done), for the closing summary.
+    frame_times: Vec<(f64, f64)>,
+    last_frame: Option<Instant>,
+    measure_next: bool,
+    error: Option<anyhow::Error>,
+    quit: bool,
+}
+
+impl ApplicationHandler for App {
+    fn resumed(&mut self, event_loop: &ActiveEventLoop) {
+        if self.window.is_some() {
+            return;
+        }
+        let attrs = Window::default_attributes()
+            .with_title("terrain view")
+            .with_inner_size(winit::dpi::PhysicalSize::new(self.size.0, self.size.1))
+            .with_resizable(false);
+        let made = event_loop
+            .create_window(attrs)
+            .context("could not create the window")
+            .map(Arc::new)
+            .and_then(|w| Ok((present::Presenter::new(&self.ctx, w.clone())?, w)));
+        match made {
+            Ok((presenter, window)) => {
+                println!("window: {:?}, surface {:?}", window.inner_size(), presenter.format());
+                if !presenter.readable() {
+                    eprintln!("warning: this surface cannot be read back: no screenshots");
+                }
+                self.egui_state = Some(egui_winit::State::new(
+                    self.egui_ctx.clone(),
+                    egui::ViewportId::ROOT,
+                    &*window,
+                    Some(window.scale_factor() as f32),
+                    None,
+                    None,
+                ));
+                self.presenter = Some(presenter);
+                window.request_redraw();
+                self.window = Some(window);
+            }
+            Err(e) => self.fail(event_loop, e),
+        }
+    }
+
+    fn window_event(&mut self, event_loop: &ActiveEventLoop, _id: WindowId, event: WindowEvent) {
+        let Some(window) = self.window.clone() else { return };
+        let consumed = match self.egui_state.as_mut() {
+            Some(s) if self.ui.show => s.on_window_event(&window, &event).consumed,
+            _ => false,
+        };
+        match event {
+            WindowEvent::CloseRequested => self.quit = true,
+            WindowEvent::RedrawRequested => {
+                if let Err(e) = self.redraw() {
+                    self.fail(event_loop, e);
+                    return;
+                }
+                if self.quit {
+                    event_loop.exit();
+                }
+            }
+            WindowEvent::KeyboardInput { event, .. } if !consumed => {
+                let down = event.state == ElementState::Pressed;
+                let PhysicalKey::Code(code) = event.physical_key else { return };
+                if let Some(key) = key_of(code) {
+                    if down {
+                        self.held.insert(key);
+                    } else {
+                        self.held.remove(&key);
+                    }
+                } else if down && !event.repeat {
+                    let action = match code {
+                        KeyCode::KeyO => Some(Action::Orbit),
+                        KeyCode::KeyR => Some(Action::Record),
+                        KeyCode::KeyF => Some(Action::Set(Toggle::Freeze, !self.ui.freeze)),
+                        KeyCode::KeyP => Some(Action::Set(Toggle::Panel, !self.ui.show)),
+                        KeyCode::KeyM => Some(Action::Measure),
+                        KeyCode::Escape => Some(Action::Quit),
+                        _ => None,
+                    };
+                    if let Some(a) = action {
+                        self.apply(a);
+                    }
+                }
+            }
+            WindowEvent::MouseInput { state, button, .. } => {
+                if matches!(button, MouseButton::Left | MouseButton::Right) {
+                    self.dragging = state == ElementState::Pressed && !consumed;
+                }
+            }
+            WindowEvent::CursorMoved { position, .. } => {
+                let p = (position.x, position.y);
+                if let (true, Some(c)) = (self.dragging, self.cursor) {
+                    self.drag.0 += p.0 - c.0;
+                    self.drag.1 += p.1 - c.1;
+                }
+                self.cursor = Some(p);
+            }
+            WindowEvent::MouseWheel { delta, .. } if !consumed => {
+                self.wheel += match delta {
+                    MouseScrollDelta::LineDelta(_, y) => f64::from(y),
+                    MouseScrollDelta::PixelDelta(p) => p.y / 40.0,
+                };
+            }
+            _ => {}
+        }
+    }
+
+    fn about_to_wait(&mut self, event_loop: &ActiveEventLoop) {
+        if self.quit {
+            event_loop.exit();
+        } else if let Some(w) = &self.window {
+            w.request_redraw();
+        }
+    }
+}
+
+fn key_of(code: KeyCode) -> Option<Key> {
+    Some(match code {
+        KeyCode::KeyW => Key::W,
+        KeyCode::KeyA => Key::A,
+        KeyCode::KeyS => Key::S,
+        KeyCode::KeyD => Key::D,
+        KeyCode::KeyQ => Key::Q,
+        KeyCode::KeyE => Key::E,
+        KeyCode::ShiftLeft | KeyCode::ShiftRight => Key::Shift,
+        _ => return None,
+    })
+}
+
+impl App {
+    fn fail(&mut self, event_loop: &ActiveEventLoop, e: anyhow::Error) {
+        self.error.get_or_insert(e);
+        self.quit = true;
+        event_loop.exit();
+    }
+
+    /// The scene's parameter value of the current method (the quality slider).
+    fn quality(&self) -> f64 {
+        parameter(self.terrain.config(), self.kind)
+    }
+
+    /// Sets the quality slider's value: the method's own swept parameter (the one place the
+    /// slider's value reaches the method; a mapping such as `--error-px` plugs in here).
+    fn set_quality(&mut self, value: f64) -> anyhow::Result<()> {
+        check_quality(value)?;
+        let kind = self.kind;
+        match &mut self.terrain {
+            Terrain::Memory(m) => {
+                let Some(scene) = Arc::get_mut(&mut m.scene) else {
+                    bail!("the quality cannot change while a method is being prepared");
+                };
+                apply_parameter(&mut scene.config, kind, value);
+            }
+            Terrain::Store(s) => {
+                apply_parameter(&mut s.config, kind, value);
+                s.rebuild(kind, &self.ctx, &self.render_config)?;
+            }
+        }
+        Ok(())
+    }
+
+    /// Whether a worker thread is preparing something.
+    fn busy(&self) -> bool {
+        matches!(&self.terrain, Terrain::Memory(m) if m.job.is_some())
+    }
+
+    fn apply(&mut self, action: Action) {
+        let result = self.try_apply(action);
+        if let Err(e) = result {
+            eprintln!("warning: {e:#}");
+            self.ui.message = Some(format!("{e:#}"));
+        }
+    }
+
+    fn try_apply(&mut self, action: Action) -> anyhow::Result<()> {
+        match action {
+            Action::Method(kind) => {
+                if kind == self.kind {
+                    return Ok(());
+                }
+                match &mut self.terrain {
+                    Terrain::Memory(m) => {
+                        if registry::needs_store(kind) {
+                            bail!("{}", registry::OOC_NEEDS_STORE);
+                        }
+                        if m.job.is_some() {
+                            bail!("still preparing; try again in a moment");
+                        }
+                        let scene = m.scene.clone();
+                        let handle = std::thread::Builder::new()
+                            .name("view-prepare".into())
+                            .spawn(move || scene.prepare(&[kind]))?;
+                        m.job = Some(Job::Prepare(kind, handle));
+                        self.ui.message = Some(format!("preparing {}", kind.name()));
+                    }
+                    Terrain::Store(s) => {
+                        s.rebuild(kind, &self.ctx, &self.render_config)?;
+                        self.kind = kind;
+                    }
+                }
+            }
+            Action::Quality(v) => self.set_quality(v)?,
+            Action::Set(t, on) => match t {
+                Toggle::Wireframe => self.ui.wireframe = on,
+                Toggle::Panel => self.ui.show = on,
+                Toggle::ColourLevels => {
+                    self.ui.colour_levels = false;
+                    if on {
+                        bail!("LOD-level colouring is not in the renderers yet");
+                    }
+                }
+                Toggle::Freeze => {
+                    self.ui.freeze = on;
+                    self.frozen = None;
+                }
+            },
+            Action::Exaggeration(v) => {
+                check_quality(v)?;
+                let Terrain::Memory(m) = &mut self.terrain else {
+                    bail!(
+                        "vertical exaggeration of a store: bake it with --vertical-scale (its \
+                         heights are stored)"
+                    );
+                };
+                if m.job.is_some() {
+                    bail!("still preparing; try again in a moment");
+                }
+                let (scene, kind, old) = (m.scene.clone(), self.kind, m.exaggeration);
+                let handle =
+                    std::thread::Builder::new().name("view-rescale".into()).spawn(move || {
+                        let hm = &scene.hm;
+                        let k = (v / old) as f32;
+                        let data: Vec<f32> = hm.data().iter().map(|h| h * k).collect();
+                        let scaled = Heightmap::new(
+                            hm.width(),
+                            hm.height(),
+                            data,
+                            hm.voids().clone(),
+                            hm.georef().clone(),
+                        )
+                        .expect("a rescaled heightmap of the same size");
+                        let s = MethodScene::new(scaled, scene.config.clone());
+                        s.prepare(&[kind]);
+                        s
+                    })?;
+                m.job = Some(Job::Rescale(v, handle));
+                self.ui.message = Some(format!("exaggerating x{v}"));
+            }
+            Action::Sun(az, el) => {
+                self.sun = (az, el);
+                let dir = sun_direction(az, el);
+                let renderers: Vec<&mut FrameRenderer> = match &mut self.terrain {
+                    Terrain::Memory(m) => m.renderers.values_mut().collect(),
+                    Terrain::Store(s) => {
+                        s.frames.as_mut().and_then(|f| f.renderer()).into_iter().collect()
+                    }
+                };
+                let mut all = true;
+                for r in renderers {
+                    all &= r.set_sun_direction(dir)?;
+                }
+                self.render_config.sun_direction = dir;
+                if !all {
+                    self.ui.message =
+                        Some("the geomorph renderer bakes its sun: not changed there".into());
+                }
+            }
+            Action::Measure => self.measure_next = true,
+            Action::Record => match self.recorder.take() {
+                None => {
+                    self.recorder = Some(record::Recorder::default());
+                    println!("view: recording a flight");
+                }
+                Some(r) => {
+                    r.save(&self.record_to, 30.0, self.fov)?;
+                    println!(
+                        "view: wrote the flight {} ({} keyframes)",
+                        self.record_to.display(),
+                        r.len()
+                    );
+                }
+            },
+            Action::Orbit => {
+                let extent = self.terrain.ground().extent_m().max_element();
+                let ground = self.terrain.ground();
+                self.camera.toggle_mode(ground, extent / 2.0);
+            }
+            Action::Quit => self.quit = true,
+        }
+        Ok(())
+    }
+
+    /// Runs script commands until one waits. Returns the screenshot path to take this frame.
+    fn run_script(&mut self) -> anyhow::Result<Option<PathBuf>> {
+        if !self.scripted {
+            return Ok(None);
+        }
+        if self.busy() {
+            return Ok(None); // a `method` or `exaggeration` waits until ready
+        }
+        if self.script_wait > 0 {
+            self.script_wait -= 1;
+            return Ok(None);
+        }
+        while let Some(cmd) = self.script.pop_front() {
+            match cmd {
+                Command::Key(k, down) => {
+                    if down {
+                        self.held.insert(k);
+                    } else {
+                        self.held.remove(&k);
+                    }
+                }
+                Command::Mouse(dx, dy) => self.camera.look(dx, dy, self.terrain.ground()),
+                Command::Wheel(n) => self.camera.wheel(n, self.terrain.ground()),
+                Command::Orbit => self.apply(Action::Orbit),
+                Command::Method(k) => {
+                    self.try_apply(Action::Method(k))?;
+                    return Ok(None);
+                }
+                Command::Quality(v) => self.try_apply(Action::Quality(v))?,
+                Command::Set(t, on) => self.try_apply(Action::Set(t, on))?,
+                Command::Exaggeration(v) => {
+                    self.try_apply(Action::Exaggeration(v))?;
+                    return Ok(None);
+                }
+                Command::Camera(s) => {
+                    let spec = camera_spec::parse(&s, None)?;
+                    let view = ViewConfig {
+                        size_px: glam::dvec2(f64::from(self.size.0), f64::from(self.size.1)),
+                        fov_y_deg: self.fov,
+                    };
+                    let c = camera_spec::place(Some(&spec), &self.terrain.camera_ground(), &view)?
+                        .camera;
+                    let (yaw, pitch) = yaw_pitch_of(c.forward());
+                    self.camera.position = c.position;
+                    self.camera.yaw = yaw;
+                    self.camera.pitch = pitch;
+                }
+                Command::Record => self.try_apply(Action::Record)?,
+                Command::Screenshot(p) => return Ok(Some(p)),
+                Command::Wait(n) => {
+                    self.script_wait = n.saturating_sub(1);
+                    return Ok(None);
+                }
+                Command::Quit => {
+                    self.quit = true;
+                    return Ok(None);
+                }
+            }
+        }
+        Ok(None)
+    }
+
+    /// Picks up a finished worker job.
+    fn poll_job(&mut self) -> anyhow::Result<()> {
+        let Terrain::Memory(m) = &mut self.terrain else { return Ok(()) };
+        let finished = match &m.job {
+            Some(Job::Prepare(_, h)) => h.is_finished(),
+            Some(Job::Rescale(_, h)) => h.is_finished(),
+            None => false,
+        };
+        if !finished {
+            return Ok(());
+        }
+        match m.job.take() {
+            Some(Job::Prepare(kind, h)) => {
+                h.join().map_err(|_| anyhow::anyhow!("preparing {} panicked", kind.name()))?;
+                self.kind = kind;
+                self.ui.message = Some(format!("{} ready", kind.name()));
+                println!("view: method {}", kind.name());
+            }
+            Some(Job::Rescale(v, h)) => {
+                let scene = h.join().map_err(|_| anyhow::anyhow!("rescaling panicked"))?;
+                m.scene = Arc::new(scene);
+                m.exaggeration = v;
+                self.ui.exaggeration = v;
+                // The renderers hold the old heights.
+                m.renderers.clear();
+                self.ui.message = Some(format!("exaggeration x{v}"));
+            }
+            None => {}
+        }
+        Ok(())
+    }
+
+    /// One frame: script, input, the method's frame through the frame loop, the panel, present.
+    fn redraw(&mut self) -> anyhow::Result<()> {
+        let t0 = Instant::now();
+        let dt = match (self.scripted, self.last_frame) {
+            (true, _) | (false, None) => 1.0 / 60.0,
+            (false, Some(t)) => t.elapsed().as_secs_f64().min(0.1),
+        };
+        if let Some(t) = self.last_frame {
+            let s = t.elapsed().as_secs_f64();
+            self.stats.frame_s =
+                if self.stats.frame_s == 0.0 { s } else { 0.9 * self.stats.frame_s + 0.1 * s };
+        }
+        self.last_frame = Some(t0);
+        self.poll_job()?;
+        let shot = self.run_script()?;
+        // Input: flight playback, then keys, drag and wheel.
+        let ground: &Heightmap = self.terrain.ground();
+        if let Some((p, yaw, pitch)) = self.flight.pop_front() {
+            self.camera.position = p;
+            self.camera.yaw = yaw;
+            self.camera.pitch = pitch;
+        }
+        let axis = |a: Key, b: Key| {
+            f64::from(u8::from(self.held.contains(&a)))
+                - f64::from(u8::from(self.held.contains(&b)))
+        };
+        let boost = if self.held.contains(&Key::Shift) { 4.0 } else { 1.0 };
+        let motion = Motion {
+            forward: axis(Key::W, Key::S) * boost,
+            right: axis(Key::D, Key::A) * boost,
+            up: axis(Key::E, Key::Q) * boost,
+        };
+        self.camera.step(motion, dt, ground);
+        let (dx, dy) = std::mem::take(&mut self.drag);
+        if dx != 0.0 || dy != 0.0 {
+            self.camera.look(dx, dy, ground);
+        }
+        let wheel = std::mem::take(&mut self.wheel);
+        if wheel != 0.0 {
+            self.camera.wheel(wheel, ground);
+        }
+        if let Some(r) = &mut self.recorder {
+            r.tick(dt, self.camera.position, self.camera.yaw, self.camera.pitch);
+        }
+        let eye = self.camera.camera(self.fov, self.size, clip_range(ground, self.camera.position));
+        if self.ui.freeze && self.frozen.is_none() {
+            self.frozen = Some(eye);
+        }
+        let select = self.frozen.filter(|_| self.ui.freeze).unwrap_or(eye);
+        // The engine's frame.
+        let options = RenderOptions { wireframe: self.ui.wireframe, ..Default::default() };
+        let measure = std::mem::take(&mut self.measure_next);
+        let index = self.frame_index;
+        let (frame, measured, drawn_kind) = match &mut self.terrain {
+            Terrain::Memory(m) => {
+                let scene: &MethodScene = &m.scene;
+                let method = method::build(
+                    self.kind,
+                    scene,
+                    &MethodOptions { morph: true, ..MethodOptions::default() },
+                )?;
+                let kind = method.renderer_kind();
+                let renderer = match m.renderers.entry(kind) {
+                    std::collections::hash_map::Entry::Occupied(e) => e.into_mut(),
+                    std::collections::hash_map::Entry::Vacant(e) => {
+                        let mut r = method.renderer(&self.ctx, &self.render_config)?;
+                        r.set_sun_direction(self.render_config.sun_direction)?;
+                        e.insert(r)
+                    }
+                };
+                let mut frames =
+                    FrameLoop::new(method).rendered(Some(renderer)).with_options(options);
+                if measure {
+                    frames = frames.measured(&scene.hm, &scene.qt, MeasureConfig::default());
+                }
+                (frames.frame_drawn_from(index, &select, &eye, None)?, measure, Some(kind))
+            }
+            Terrain::Store(s) => {
+                let frames = s.frames.as_mut().context("the store's method was lost")?;
+                frames.set_options(options);
+                let f = frames.frame_drawn_from(index, &select, &eye, None);
+                if measure {
+                    self.ui.measured_p99 =
+                        Some("n/a: a store has no full DEM in memory to measure against".into());
+                }
+                (f?, false, None)
+            }
+        };
+        self.record_stats(&frame, measured);
+        // The panel, then present.
+        let overlay = if self.ui.show { Some(self.panel()?) } else { None };
+        let image = match &mut self.terrain {
+            Terrain::Memory(m) => {
+                // The renderer this frame drew with.
+                let r = drawn_kind.and_then(|k| m.renderers.get(&k)).context("no renderer")?;
+                r.color_texture()
+            }
+            Terrain::Store(s) => {
+                s.frames.as_mut().and_then(|f| f.renderer()).context("no renderer")?.color_texture()
+            }
+        };
+        let presenter = self.presenter.as_mut().context("no window")?;
+        let shot_image = presenter.present(
+            &self.ctx,
+            image,
+            overlay.as_ref().map(|o| present::Overlay {
+                primitives: &o.0,
+                textures: &o.1.0,
+                pixels_per_point: o.2,
+            }),
+            shot.is_some(),
+        )?;
+        if let (Some(path), Some(img)) = (&shot, shot_image) {
+            let raw: Vec<u8> = img.pixels.iter().flatten().copied().collect();
+            image::save_buffer(path, &raw, img.width, img.height, image::ColorType::Rgba8)
+                .with_context(|| format!("could not write {}", path.display()))?;
+            println!(
+                "view: screenshot {} camera {} method {} quality {} frame {}",
+                path.display(),
+                self.camera.spec(),
+                self.kind.name(),
+                self.quality(),
+                index
+            );
+        }
+        self.stats.viewer_ms = t0.elapsed().as_secs_f64() * 1e3;
+        self.frame_times.push((self.stats.viewer_ms, self.stats.engine_ms));
+        self.frame_index += 1;
+        Ok(())
+    }
+
+    fn record_stats(&mut self, f: &LoopFrame, measured: bool) {
+        let r = &f.record;
+        self.stats.cpu_ms = r.cpu_ms;
+        self.stats.engine_ms = r.frame_ms;
+        self.stats.triangles = r.triangles;
+        self.stats.patches = r.patches;
+        self.stats.stream = r.stream.clone();
+        self.stats.gpu = f.drawn.as_ref().map_or_else(|| "n/a".into(), |d| d.gpu_text.clone());
+        if !self.ctx.features.compute_timestamps_trustworthy && self.ctx.features.timestamp_query {
+            self.stats.gpu.push_str(" [lavapipe: timestamps untrustworthy]");
+        }
+        if measured {
+            self.ui.measured_p99 = Some(format!(
+                "p99 {:.3} px, max {:.3} px ({} samples)",
+                r.errors.p99_px, r.errors.max_px, r.errors.samples
+            ));
+            println!("view: measured {}", self.ui.measured_p99.as_deref().unwrap_or(""));
+        }
+    }
+
+    /// Runs the panel; returns egui's triangles, texture changes and scale.
+    fn panel(&mut self) -> anyhow::Result<(Vec<egui::ClippedPrimitive>, present::Textures, f32)> {
+        let window = self.window.clone().context("no window")?;
+        let view = panel::PanelView {
+            kind: self.kind,
+            store: matches!(self.terrain, Terrain::Store(_)),
+            quality: self.quality(),
+            quality_name: registry::sweep_values(self.kind, self.terrain.config().leaf_cells).0,
+            quality_range: quality_range(self.kind, self.terrain.config().leaf_cells),
+            pixels: registry::parameter_is_pixels(self.kind),
+            sun: self.sun,
+            busy: self.busy(),
+            recording: self.recorder.as_ref().map(record::Recorder::len),
+            adapter: self.ctx.describe(),
+            orbit: self.camera.mode == camera::Mode::Orbit,
+            speed: self.camera.speed,
+        };
+        let state = self.egui_state.as_mut().context("no panel state")?;
+        let raw = state.take_egui_input(&window);
+        let mut actions = Vec::new();
+        let (ui, stats) = (&self.ui, &self.stats);
+        let out = self.egui_ctx.run_ui(raw, |root| {
+            panel::ui(root.ctx(), &view, ui, stats, &mut actions);
+        });
+        state.handle_platform_output(&window, out.platform_output);
+        let prims = self.egui_ctx.tessellate(out.shapes, out.pixels_per_point);
+        for a in actions {
+            self.apply(a);
+        }
+        Ok((prims, present::Textures(out.textures_delta), out.pixels_per_point))
+    }
+}
+
+/// The slider's range: the registry's sweep, widened by 2x on both sides.
+fn quality_range(kind: LodMethod, leaf_cells: u32) -> (f64, f64) {
+    let v = registry::sweep_values(kind, leaf_cells).1;
+    let lo = v.iter().copied().fold(f64::INFINITY, f64::min);
+    let hi = v.iter().copied().fold(0.0, f64::max);
+    (lo / 2.0, hi * 2.0)
+}
+
+/// The direction towards the sun from its compass azimuth and elevation, degrees.
+fn sun_direction(az: f64, el: f64) -> [f64; 3] {
+    let (a, e) = (az.to_radians(), el.to_radians());
+    [a.sin() * e.cos(), a.cos() * e.cos(), e.sin()]
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_default_sun_is_the_renderers() {
+        let d = DVec3::from(sun_direction(SUN_DEFAULT.0, SUN_DEFAULT.1));
+        let want = DVec3::from(RenderConfig::default().sun_direction).normalize();
+        assert!((d - want).length() < 1e-12, "{d} vs {want}");
+    }
+
+    #[test]
+    fn yaw_pitch_round_trip_through_the_camera() {
+        for (yaw, pitch) in [(0.0, -30.0), (90.0, 0.0), (225.5, 12.0), (359.0, -89.0)] {
+            let c = Camera::from_yaw_pitch(DVec3::ZERO, yaw, pitch);
+            let (y, p) = yaw_pitch_of(c.forward());
+            assert!((y - yaw).abs() < 1e-9 && (p - pitch).abs() < 1e-9, "{yaw},{pitch}: {y},{p}");
+        }
+    }
+
+    #[test]
+    fn every_method_has_a_quality_range_around_its_sweep() {
+        for &m in LodMethod::ALL.iter() {
+            let (lo, hi) = quality_range(m, 16);
+            let now = parameter(&MethodConfig::default(), m);
+            assert!(lo > 0.0 && lo < hi, "{m:?}");
+            assert!(now.is_finite(), "{m:?}");
+        }
+    }
+}

@@ -1,0 +1,298 @@
+//! `terrain view` in a real window: the test starts its own X server (Xvfb on a free display,
+//! killed at the end even when an assertion fails), drives the viewer with a script (moves, a
+//! method switch, a quality change, screenshots read back from the window's surface), and
+//! compares the screenshot with `terrain render` of the same camera and method within the
+//! golden-image tolerance (terrain-gpu `render::tests::golden`: per-channel mean < 2, fewer
+//! than 1 % of pixels off by more than 16). A second run over a small baked store quits
+//! mid-stream and must exit 0 within a bounded time with its workers joined. With
+//! `TERRAIN_REQUIRE_GPU=1` a missing Xvfb or adapter fails instead of skipping.
+
+mod common;
+
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+
+use common::{scratch, terrain};
+
+fn require() -> bool {
+    std::env::var_os("TERRAIN_REQUIRE_GPU").is_some_and(|v| v != "0")
+}
+
+/// An Xvfb server on a display of its own; killed on drop.
+struct Xvfb {
+    child: Child,
+    display: String,
+}
+
+impl Drop for Xvfb {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+/// Starts Xvfb on the first free display from 100 + 50 (pid mod 50) + `offset` (each test of
+/// this process its own offset: they run in parallel); `None` when there is no Xvfb binary (a
+/// failure under `TERRAIN_REQUIRE_GPU`).
+fn start_xvfb(offset: u32) -> Option<Xvfb> {
+    let found =
+        Command::new("Xvfb").arg("-help").stderr(Stdio::null()).stdout(Stdio::null()).status();
+    if found.is_err() {
+        assert!(!require(), "Xvfb is not installed (apt-get install xvfb; .ci/run does)");
+        eprintln!("skipping: no Xvfb");
+        return None;
+    }
+    let base = 100 + 50 * (std::process::id() % 50) + offset;
+    for n in base..base + 20 {
+        let lock = PathBuf::from(format!("/tmp/.X{n}-lock"));
+        let socket = PathBuf::from(format!("/tmp/.X11-unix/X{n}"));
+        if lock.exists() || socket.exists() {
+            continue;
+        }
+        let display = format!(":{n}");
+        let child = Command::new("Xvfb")
+            .args([display.as_str(), "-screen", "0", "1280x800x24", "-nolisten", "tcp"])
+            .stdout(Stdio::null())
+            .stderr(Stdio::null())
+            .spawn()
+            .expect("Xvfb starts");
+        let mut x = Xvfb { child, display };
+        let t = Instant::now();
+        while t.elapsed() < Duration::from_secs(15) {
+            if let Ok(Some(_)) = x.child.try_wait() {
+                break; // lost a race for this display: try the next
+            }
+            if socket.exists() {
+                // Ours only if our server is still up a moment later.
+                std::thread::sleep(Duration::from_millis(200));
+                if let Ok(None) = x.child.try_wait() {
+                    return Some(x);
+                }
+                break;
+            }
+            std::thread::sleep(Duration::from_millis(50));
+        }
+    }
+    panic!("could not start Xvfb on any display from :{base}");
+}
+
+/// Runs `terrain view ARGS` on `display` (Vulkan: lavapipe here), waiting at most `limit`;
+/// returns (exit ok, stdout, stderr). A hang is a failure, and the process is killed.
+fn view(display: &str, args: &[&str], limit: Duration) -> (bool, String, String) {
+    let dir = std::env::temp_dir();
+    let tag = format!("terrain-view-{}-{}", std::process::id(), args.len());
+    let (out_path, err_path) = (dir.join(format!("{tag}.out")), dir.join(format!("{tag}.err")));
+    let mut child = Command::new(env!("CARGO_BIN_EXE_terrain"))
+        .arg("view")
+        .args(args)
+        .env("DISPLAY", display)
+        .env("TERRAIN_GPU_BACKEND", "vulkan")
+        .env_remove("WAYLAND_DISPLAY")
+        .stdout(std::fs::File::create(&out_path).unwrap())
+        .stderr(std::fs::File::create(&err_path).unwrap())
+        .spawn()
+        .expect("terrain view starts");
+    let t = Instant::now();
+    let status = loop {
+        if let Some(s) = child.try_wait().unwrap() {
+            break Some(s);
+        }
+        if t.elapsed() > limit {
+            let _ = child.kill();
+            let _ = child.wait();
+            break None;
+        }
+        std::thread::sleep(Duration::from_millis(50));
+    };
+    let out = std::fs::read_to_string(&out_path).unwrap_or_default();
+    let err = std::fs::read_to_string(&err_path).unwrap_or_default();
+    let _ = std::fs::remove_file(&out_path);
+    let _ = std::fs::remove_file(&err_path);
+    let Some(status) = status else {
+        panic!("terrain view {args:?} did not exit within {limit:?}\n{out}\n{err}");
+    };
+    (status.success(), out, err)
+}
+
+/// Whether the viewer failed for want of an adapter (a skip unless required).
+fn no_adapter(err: &str) -> bool {
+    err.contains("no GPU adapter")
+}
+
+fn load(path: &Path) -> image::RgbaImage {
+    image::open(path).unwrap_or_else(|e| panic!("{}: {e}", path.display())).to_rgba8()
+}
+
+/// Per-channel mean |difference| and the fraction of pixels off by more than 16 levels.
+fn golden_diff(a: &image::RgbaImage, b: &image::RgbaImage) -> ([f64; 3], f64) {
+    assert_eq!(a.dimensions(), b.dimensions());
+    let (mut sum, mut far_off) = ([0u64; 3], 0usize);
+    for (x, y) in a.pixels().zip(b.pixels()) {
+        let mut off = false;
+        for (c, s) in sum.iter_mut().enumerate() {
+            let d = x.0[c].abs_diff(y.0[c]);
+            *s += u64::from(d);
+            off |= d > 16;
+        }
+        far_off += usize::from(off);
+    }
+    let n = f64::from(a.width() * a.height());
+    (sum.map(|s| s as f64 / n), far_off as f64 / n)
+}
+
+/// The field after `key ` in a `view: screenshot ...` line.
+fn field<'a>(line: &'a str, key: &str) -> &'a str {
+    let rest = &line[line.find(&format!(" {key} ")).unwrap_or_else(|| panic!("{key}: {line}"))..];
+    rest.split_whitespace().nth(1).unwrap()
+}
+
+/// Where the scripted camera starts: over the embedded terrain, looking north-east and down.
+const START: &str = "1500,1500,2600,45,-25";
+
+/// The window's surface, read back after scripted moves, a method switch and a quality
+/// change, equals `terrain render` of the same camera, method and parameter within the golden
+/// tolerance; the panel draws over the terrain when shown.
+#[test]
+fn the_window_shows_what_render_draws_for_the_same_camera() {
+    let Some(x) = start_xvfb(0) else { return };
+    let dir = scratch("view", "window");
+    let (panel, shot) = (dir.join("panel.png"), dir.join("view.png"));
+    let script = dir.join("script.txt");
+    std::fs::write(
+        &script,
+        format!(
+            "camera {START}\nrecord\nwait 2\nkey down W\nwait 30\nkey up W\nmouse 40 12\nkey down D\nwait 4\nkey up D\n\
+             wheel 1\nkey down E\nwait 3\nkey up E\nrecord\n\
+             method uniform\nquality 8\nwait 2\nscreenshot {}\npanel off\nwait 1\n\
+             screenshot {}\nquit\n",
+            panel.display(),
+            shot.display()
+        ),
+    )
+    .unwrap();
+    let flight = dir.join("recorded.json");
+    let args = [
+        "--size",
+        "320x180",
+        "--script",
+        script.to_str().unwrap(),
+        "--record-to",
+        flight.to_str().unwrap(),
+    ];
+    let (ok, out, err) = view(&x.display, &args, Duration::from_secs(300));
+    if !ok && no_adapter(&err) && !require() {
+        eprintln!("skipping: {err}");
+        return;
+    }
+    assert!(ok, "terrain view failed:\n{out}\n{err}");
+    let adapter = out.lines().find(|l| l.starts_with("adapter:")).expect("adapter line");
+    println!("{adapter}");
+    let line = out
+        .lines()
+        .filter(|l| l.starts_with("view: screenshot"))
+        .nth(1)
+        .unwrap_or_else(|| panic!("no second screenshot line:\n{out}"));
+    assert_eq!(field(line, "method"), "uniform");
+    assert_eq!(field(line, "quality"), "8");
+    let camera = field(line, "camera");
+    // The scripted moves moved the camera away from the default one.
+    let start = out.lines().find(|l| l.starts_with("view: screenshot")).unwrap();
+    assert_eq!(field(start, "camera"), camera, "the camera moved between the two screenshots");
+    let rendered = dir.join("render.png");
+    let r = terrain(&[
+        "render",
+        "--size",
+        "320x180",
+        "--method",
+        "uniform",
+        "--factor",
+        "8",
+        "--camera",
+        camera,
+        "-o",
+        rendered.to_str().unwrap(),
+    ]);
+    assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+    let (window, offscreen) = (load(&shot), load(&rendered));
+    // Not a trivial match: most of the image is terrain, not sky.
+    let sky = offscreen.pixels().filter(|p| p.0[..3] == [150, 185, 225]).count();
+    assert!(sky * 2 < offscreen.pixels().len(), "{sky} sky pixels of {}", offscreen.len() / 4);
+    let (mean, far) = golden_diff(&window, &offscreen);
+    println!("window vs render: mean {mean:?}, {:.3} % off by > 16", far * 100.0);
+    assert!(mean.iter().all(|&m| m < 2.0) && far < 0.01, "mean {mean:?}, far {far}");
+    // The recorded flight (R) reads back in the `flights/` format: 39 script frames of 1/60 s
+    // while recording, a keyframe every 0.5 s of the viewer's clock: at 0 and 0.5 s.
+    let spec = terrain_core::flight::FlightSpec::load(&flight).expect("a readable flight");
+    assert_eq!(spec.keyframes.len(), 2, "{spec:?}");
+    // The panel covers part of the image when shown.
+    let (_, panel_far) = golden_diff(&load(&panel), &window);
+    assert!(panel_far > 0.02, "the panel changed only {:.3} % of pixels", panel_far * 100.0);
+    // The moves happened: the picture is not the one from the start camera.
+    let start_png = dir.join("start.png");
+    let d = terrain(&[
+        "render",
+        "--size",
+        "320x180",
+        "--method",
+        "uniform",
+        "--factor",
+        "8",
+        "--camera",
+        START,
+        "-o",
+        start_png.to_str().unwrap(),
+    ]);
+    assert!(d.status.success(), "{}", String::from_utf8_lossy(&d.stderr));
+    assert_ne!(camera, START);
+    let (_, moved) = golden_diff(&load(&start_png), &offscreen);
+    assert!(moved > 0.05, "the scripted moves changed only {:.3} % of pixels", moved * 100.0);
+    drop(x);
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// Over a small baked store the viewer streams in real time; a `quit` mid-stream closes the
+/// window, exits 0 within a bounded time, and the store's worker threads are joined.
+#[test]
+fn the_window_closes_cleanly_mid_stream() {
+    let Some(x) = start_xvfb(25) else { return };
+    let dir = scratch("view", "store");
+    let store = dir.join("s.scene");
+    let b = terrain(&[
+        "bake",
+        "--synthetic",
+        "1025",
+        "-o",
+        store.to_str().unwrap(),
+        "--no-pvs",
+        "--no-dss",
+        "--no-roughness",
+        "--no-geomip",
+    ]);
+    assert!(b.status.success(), "{}", String::from_utf8_lossy(&b.stderr));
+    let script = dir.join("script.txt");
+    std::fs::write(
+        &script,
+        "wait 2\nkey down W\nkey down shift\nwait 6\nmouse 90 0\nwait 2\nquit\n",
+    )
+    .unwrap();
+    let args = [store.to_str().unwrap(), "--size", "320x180", "--script", script.to_str().unwrap()];
+    let (ok, out, err) = view(&x.display, &args, Duration::from_secs(180));
+    if !ok && no_adapter(&err) && !require() {
+        eprintln!("skipping: {err}");
+        return;
+    }
+    assert!(ok, "terrain view of a store failed:\n{out}\n{err}");
+    let closed = err
+        .lines()
+        .find(|l| l.starts_with("view: closed"))
+        .unwrap_or_else(|| panic!("no closing line:\n{err}"));
+    assert!(closed.contains("worker threads joined"), "{closed}");
+    // "(B threads before, A after)": the workers are gone.
+    let nums: Vec<usize> =
+        closed.split(|c: char| !c.is_ascii_digit()).filter_map(|s| s.parse().ok()).collect();
+    let (before, after) = (nums[nums.len() - 2], nums[nums.len() - 1]);
+    assert!(after < before, "threads {before} before closing the store, {after} after");
+    drop(x);
+    let _ = std::fs::remove_dir_all(&dir);
+}
