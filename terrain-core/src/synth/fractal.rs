@@ -285,6 +285,7 @@ fn lattice_hash(salt: u64, ix: i64, iy: i64) -> u64 {
 /// Two gradient dot products at one lattice point for offset `(dx, dy)`: the gradients are
 /// picked by independent bit fields of one hash (bits 60..64 and 56..60), so one hash feeds
 /// two independent noise fields.
+#[cfg(test)]
 #[inline(always)]
 fn grad2(h: u64, dx: f64, dy: f64) -> (f64, f64) {
     let (ax, ay) = GRADIENTS[(h >> 60) as usize];
