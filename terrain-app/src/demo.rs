@@ -27,7 +27,7 @@ use rayon::prelude::*;
 use terrain_app::bench::{
     BenchConfig, BenchProgress, BenchReport, RunRecord, process_cpu_s, run_bench,
 };
-use terrain_app::method::{FrameLoop, OocWait, store_method};
+use terrain_app::method::{FrameLoop, OocWait, registry, store_method};
 use terrain_app::methods::{LodMethod, MethodConfig};
 use terrain_app::ooc::{OocConfig, OocScene};
 use terrain_core::flight::{FlightConfig, FlightSpec, HeightRef, KeyPosition, KeySpec, KeyView};
@@ -40,15 +40,14 @@ use crate::bench_cli::write_report;
 
 /// The methods the demo compares, in report order: uniform (no LOD) first.
 const METHODS: [LodMethod; 3] = [LodMethod::Uniform, LodMethod::Geomorph, LodMethod::OutOfCore];
-/// The swept values: uniform's factors (patches of 16 cells split into 2 or 4 segments a
-/// side, triangle counts of the LOD methods' range; finer factors draw tens of millions),
-/// geomorph's pixel threshold tau and ooc's tau (Eq. 7), pixels. Two points each: a curve per
-/// method in the time the demo has.
-const SWEEPS: [(LodMethod, [f64; 2]); 3] = [
-    (LodMethod::Uniform, [2.0, 4.0]),
-    (LodMethod::Geomorph, [1.0, 4.0]),
-    (LodMethod::OutOfCore, [2.0, 8.0]),
-];
+/// The screen-space error targets every method is swept at, pixels (at 1280 x 720), mapped
+/// onto each method's own parameter by `--error-px`'s mapping
+/// ([`terrain_app::method::registry::params_for_error_px`]): the methods' points line up
+/// by target. Two points each: a curve per method in the time the demo has. Measured on this
+/// flight the mapping is conservative (3 px gives a p99 of about 1.3 px; 1 px about 0.4 px,
+/// with 7-15 million triangles a frame, seconds of measurement each), so the targets are
+/// coarse ones. The PNG frames use the first.
+const ERROR_PX: [f64; 2] = [3.0, 6.0];
 /// Frames of the flight measured per run.
 const BENCH_FRAMES: usize = 3;
 /// Frames written as PNG.
@@ -59,6 +58,8 @@ const PNG_SIZE: (u32, u32) = (640, 360);
 const SKY: [u8; 4] = [150, 185, 225, 255];
 /// Least height of the eye over any ground within [`CLEARANCE_RADIUS_M`] of it, metres.
 pub(crate) const CLEARANCE_M: f64 = 120.0;
+/// The flight's pitch, degrees (negative: down). Low, so the view runs across the grid.
+const PITCH_DEG: f64 = -4.0;
 /// Radius of the clearance check around the eye, metres.
 const CLEARANCE_RADIUS_M: f64 = 1000.0;
 
@@ -75,20 +76,40 @@ pub(crate) struct DemoArgs {
     pub size: u64,
 }
 
+/// The steps' shares of the demo's time (measured at 8193^2, release, two loaded cores: 43,
+/// 41, 0.5, 36 and 15 s of wall time): the progress lines' estimate of the time left for the
+/// whole demo.
+const STEP_SHARES: [f64; 5] = [0.31, 0.30, 0.01, 0.27, 0.11];
+
 /// Progress lines: at most one every five seconds (and the last), with the step's elapsed time
-/// and the time left at its rate so far.
+/// and the time left for the whole demo: the time so far over the share of the work done
+/// (the steps before at their [`STEP_SHARES`], this one by its own progress).
 struct Ticker {
     step: String,
     start: Instant,
+    /// The demo's start.
+    demo_start: Instant,
+    /// The share of the demo's work before this step, and this step's.
+    before: f64,
+    share: f64,
     /// The process's CPU seconds at the start (all threads).
     cpu: f64,
     last: Option<Instant>,
 }
 
 impl Ticker {
-    fn new(step: String) -> Self {
+    /// Step `index` (0-based, of [`STEP_SHARES`]) of the demo started at `demo_start`.
+    fn new(step: String, index: usize, demo_start: Instant) -> Self {
         println!("{step}");
-        Self { step, start: Instant::now(), cpu: process_cpu_s(), last: None }
+        Self {
+            step,
+            start: Instant::now(),
+            demo_start,
+            before: STEP_SHARES[..index].iter().sum(),
+            share: STEP_SHARES[index],
+            cpu: process_cpu_s(),
+            last: None,
+        }
     }
 
     fn tick(&mut self, done: usize, total: usize, what: &str) {
@@ -98,10 +119,12 @@ impl Ticker {
         }
         self.last = Some(now);
         let elapsed = (now - self.start).as_secs_f64();
-        let left = if done == 0 {
+        let fraction = self.before + self.share * done as f64 / total.max(1) as f64;
+        let left = if fraction <= 0.0 {
             String::new()
         } else {
-            format!(", about {:.0} s left", elapsed * (total - done) as f64 / done as f64)
+            let so_far = (now - self.demo_start).as_secs_f64();
+            format!(", demo about {:.0} s from its end", so_far * (1.0 - fraction) / fraction)
         };
         println!("    {done}/{total} {what}, {elapsed:.0} s{left}");
         let _ = std::io::stdout().flush();
@@ -182,9 +205,11 @@ fn max_height_near(hm: &Heightmap, x: f64, y: f64, radius: f64) -> f64 {
 }
 
 /// A 20 s flight over `hm` made for it: four keyframes on a gentle arc from the south-west
-/// quarter towards the north-east, heading along the arc and looking 12 degrees down, so each
-/// frame sees the ground a few hundred metres ahead and tens of kilometres of terrain beyond
-/// (near and far in one view: where LOD matters). Each keyframe flies [`CLEARANCE_M`] plus
+/// quarter towards the north-east, heading along the arc and looking [`PITCH_DEG`] down,
+/// across the grid towards its far side, so each frame sees the ground a few hundred metres
+/// ahead and tens of kilometres of terrain beyond (near and far in one view: where LOD
+/// matters, and a uniform grid fine enough for the near ground spends most of its triangles
+/// on the far). Each keyframe flies [`CLEARANCE_M`] plus
 /// 40 m over the highest ground within two clearance radii (the spline between keyframes stays near them): no frame is close to a
 /// slope, none is raised by the flight's own clearance clamp (checked by the tests).
 pub(crate) fn demo_flight(hm: &Heightmap) -> FlightSpec {
@@ -206,7 +231,7 @@ pub(crate) fn demo_flight(hm: &Heightmap) -> FlightSpec {
             KeySpec {
                 t: 20.0 * k as f64 / (path.len() - 1) as f64,
                 position: KeyPosition::World(DVec3::new(x, y, ground + CLEARANCE_M + 40.0)),
-                view: KeyView::YawPitch { yaw, pitch: -12.0 },
+                view: KeyView::YawPitch { yaw, pitch: PITCH_DEG },
             }
         })
         .collect();
@@ -365,17 +390,24 @@ pub(crate) fn run(args: &DemoArgs) -> anyhow::Result<()> {
     );
     let ctx = GpuContext::try_new(&DeviceConfig::from_env(BackendChoice::Auto))?;
 
-    let mut t = Ticker::new(format!("1/5 terrain: the seeded fractal, {n} x {n} samples at 10 m"));
+    let mut t = Ticker::new(
+        format!("1/5 terrain: the seeded fractal, {n} x {n} samples at 10 m"),
+        0,
+        start,
+    );
     let hm = generate(&demo_terrain(n), &mut t)?;
     t.done();
 
     let store = out.join("store");
-    let mut t =
-        Ticker::new(format!("2/5 store: baking {} with the table of geomorph", store.display()));
+    let mut t = Ticker::new(
+        format!("2/5 store: baking {} with the table of geomorph", store.display()),
+        1,
+        start,
+    );
     bake_store(&hm, &store, &mut t)?;
     t.done();
 
-    let t = Ticker::new("3/5 flight: 20 s over the ridges, looking ahead".to_string());
+    let t = Ticker::new("3/5 flight: 20 s over the ridges, looking ahead".to_string(), 2, start);
     let spec = demo_flight(&hm);
     let viewport = |(w, h): (u32, u32)| FlightConfig {
         viewport_px: dvec2(f64::from(w), f64::from(h)),
@@ -397,20 +429,25 @@ pub(crate) fn run(args: &DemoArgs) -> anyhow::Result<()> {
     let bench_cfg = BenchConfig {
         methods: METHODS.to_vec(),
         max_frames: BENCH_FRAMES,
-        sweep_points: 3,
         render_size: None,
         measure: MeasureConfig { max_samples: 200_000, ..MeasureConfig::default() },
         ooc_store: Some(store.clone()),
         ooc_wait: true,
         store_only: true,
-        sweep_override: SWEEPS.iter().map(|(m, v)| (*m, v.to_vec())).collect(),
+        error_px: Some(ERROR_PX.to_vec()),
+        popping: false,
         ..BenchConfig::default()
     };
-    let mut t = Ticker::new(format!(
-        "4/5 benchmark: {} drawn from the store, {BENCH_FRAMES} frames a run, each measured \
-         against the grid",
-        METHODS.map(|m| m.name()).join(", ")
-    ));
+    let mut t = Ticker::new(
+        format!(
+            "4/5 benchmark: {} drawn from the store at {} px of error (p99 targets), \
+         {BENCH_FRAMES} frames a run, each measured against the grid",
+            METHODS.map(|m| m.name()).join(", "),
+            ERROR_PX.map(|p| p.to_string()).join(" and ")
+        ),
+        3,
+        start,
+    );
     let name = format!("synthetic {n}");
     let report = run_bench(&name, hm, &[spec], &bench_cfg, None, &mut |p: &BenchProgress| {
         t.tick(p.done, p.total, &format!("frames ({})", p.label));
@@ -423,17 +460,29 @@ pub(crate) fn run(args: &DemoArgs) -> anyhow::Result<()> {
     let mut bad = Vec::new();
     match &ctx {
         Some(ctx) => {
-            let t = Ticker::new(format!(
-                "5/5 frames: {PNG_FRAMES} of the flight from the store with geomorph at {}x{} ({})",
-                PNG_SIZE.0,
-                PNG_SIZE.1,
-                ctx.describe()
-            ));
+            let target = ERROR_PX[0];
+            let t = Ticker::new(
+                format!(
+                    "5/5 frames: {PNG_FRAMES} of the flight from the store with geomorph (error \
+                     {target} px) at {}x{} ({})",
+                    PNG_SIZE.0,
+                    PNG_SIZE.1,
+                    ctx.describe()
+                ),
+                4,
+                start,
+            );
             std::fs::create_dir_all(&frames_dir)
                 .with_context(|| format!("could not create {}", frames_dir.display()))?;
             let store = Arc::new(terrain_stream::Store::open(&store)?);
             let runtime = OocScene::new(store, OocConfig::default());
-            let config = MethodConfig::default();
+            let mut config = MethodConfig::default();
+            registry::params_for_error_px(
+                LodMethod::Geomorph,
+                target,
+                registry::ErrorView::REFERENCE,
+            )
+            .apply(&mut config);
             let method =
                 store_method(LodMethod::Geomorph, runtime, &config, OocWait::EveryFrame, None)?;
             let (width, height) = PNG_SIZE;

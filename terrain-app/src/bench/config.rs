@@ -64,6 +64,10 @@ pub struct BenchConfig {
     /// Sweep values given per method, replacing [`crate::method::registry::sweep_values`]'
     /// (taken as they are, not thinned by `sweep_points`). Default none.
     pub sweep_override: Vec<(LodMethod, Vec<f64>)>,
+    /// Measure geomorph's popping (the per-vertex jump from the previous flight frame's
+    /// surface, with and without the morph: two more surfaces a frame). Default true; the
+    /// demo skips it.
+    pub popping: bool,
 }
 
 impl Default for BenchConfig {
@@ -85,6 +89,7 @@ impl Default for BenchConfig {
             error_px: None,
             store_only: false,
             sweep_override: Vec::new(),
+            popping: true,
         }
     }
 }

@@ -263,7 +263,7 @@ pub fn run_bench(
                         streamed.extend(stats.stream);
                         continue;
                     }
-                    let previous = k.checked_sub(1).map(|p| &cams[p]);
+                    let previous = k.checked_sub(1).filter(|_| cfg.popping).map(|p| &cams[p]);
                     let record = frames_loop.frame(k, &cams[k], previous)?.record;
                     streamed.extend(record.stream.clone());
                     frames.push(record);

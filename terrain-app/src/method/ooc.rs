@@ -44,14 +44,14 @@ impl<'a> OocMethod<'a> {
     }
 
     /// The method over `scene` with its drawn surface measurable against `reference` (the same
-    /// DEM in memory): keeps a CPU mirror of the pages. Fails when the store's blocks do not
-    /// tile the reference's quadtree.
+    /// DEM in memory): keeps a CPU mirror of the pages unless every frame waits (see
+    /// [`paged_surface`]). Fails when the store's blocks do not tile the reference's quadtree.
     pub fn measured(
         scene: OocScene,
         reference: &'a MethodScene,
         wait: OocWait,
     ) -> anyhow::Result<Self> {
-        let scene = scene.with_mirror();
+        let scene = mirrored(scene, wait);
         if scene.root_cells() != reference.qt.root_cells() {
             anyhow::bail!(
                 "the store's blocks ({} cells) do not tile the DEM's quadtree (root {} cells): bake with a smaller k",
@@ -107,9 +107,34 @@ pub(super) fn paged_frame(mut f: crate::ooc::OocFrame) -> Frame {
     Frame { selection, draw: Draw::Paged(Box::new(f)), stats, built: None }
 }
 
-/// The surface a store's frame draws, rebuilt from the pages' heights (the CPU mirror of the
-/// paged renderer, holes filled from `reference`'s DEM where no page is resident): the
-/// tessellated patches, and the strips' triangles when the frame has them.
+/// `scene` with a CPU mirror of its pages when frames may draw what is resident
+/// ([`OocWait::FirstFrame`]); without one when every frame waits: a warm frame draws every
+/// patch from pages of its level or finer, whose lattice samples are the DEM's up to the
+/// store's quantization (its encoding's bound, 5 cm for the demo's 10 cm steps), so the
+/// drawn surface is rebuilt from the DEM in memory instead of copying the pages into a
+/// whole grid each frame (268 MB a frame on 8193^2).
+pub(super) fn mirrored(scene: OocScene, wait: OocWait) -> OocScene {
+    match wait {
+        OocWait::FirstFrame => scene.with_mirror(),
+        OocWait::EveryFrame => scene,
+    }
+}
+
+/// The heights a store's frame is drawn from: the pages' (the CPU mirror, holes filled from
+/// `reference`'s DEM) when `scene` keeps a mirror, else the DEM itself (every frame warm;
+/// see [`mirrored`]).
+pub(super) fn drawn_heights<'h>(
+    scene: &OocScene,
+    reference: &'h MethodScene,
+) -> std::borrow::Cow<'h, terrain_core::Heightmap> {
+    match scene.mirror() {
+        Some(mirror) => std::borrow::Cow::Owned(mirror.to_heightmap(&reference.hm)),
+        None => std::borrow::Cow::Borrowed(&reference.hm),
+    }
+}
+
+/// The surface a store's frame draws, rebuilt from the pages' heights ([`drawn_heights`]):
+/// the tessellated patches, and the strips' triangles when the frame has them.
 pub(super) fn paged_surface(
     scene: &OocScene,
     reference: Option<&MethodScene>,
@@ -118,14 +143,14 @@ pub(super) fn paged_surface(
     let Some(reference) = reference else {
         anyhow::bail!("a method drawn from a store is measured only against a DEM in memory");
     };
-    let mirror = scene.mirror().expect("a measured runtime keeps its mirror");
-    let drawn = mirror.to_heightmap(&reference.hm);
+    let drawn = drawn_heights(scene, reference);
+    let drawn = drawn.as_ref();
     let (mesh, triangles) = match &frame.draw {
         // Blocks plus strips: the strips join blocks that share no edge.
         Draw::Paged(f) if !f.extra.indices.is_empty() => {
-            terrain_gpu::strips::build_strip_surface(&drawn, &f.patches, &f.extra)
+            terrain_gpu::strips::build_strip_surface(drawn, &f.patches, &f.extra)
         }
-        _ => drawn_surface_of(&drawn, &reference.qt, &frame.selection),
+        _ => drawn_surface_of(drawn, &reference.qt, &frame.selection),
     };
     Ok(DrawnSurface { mesh, triangles })
 }

@@ -33,7 +33,7 @@ use terrain_stream::{StoreSource, StoreTree};
 use terrain_visibility::pvs::{Pvs, PvsMode, read_pvs};
 use terrain_visibility::roughness::NodePyramid;
 
-use super::ooc::{OocWait, paged_frame, paged_surface};
+use super::ooc::{OocWait, drawn_heights, mirrored, paged_frame, paged_surface};
 use super::{Draw, DrawSource, DrawnSurface, Frame, Method, OocMethod};
 use crate::methods::{
     LodMethod, MethodConfig, MethodScene, geomorph_selection, select_uniform, strips_frame,
@@ -185,7 +185,7 @@ impl<'a> StoreMethod<'a> {
             }
         };
         let scene = match reference {
-            Some(_) => scene.with_mirror(),
+            Some(_) => mirrored(scene, wait),
             None => scene,
         };
         Ok(Self { kind, scene, tree, tables, config: config.clone(), reference, wait, frames: 0 })
@@ -293,13 +293,12 @@ impl Method for StoreMethod<'_> {
             anyhow::bail!("a method drawn from a store is measured only against a DEM in memory");
         };
         // The pages' heights where resident (the mirror's lookup), the DEM's elsewhere (no
-        // patch is drawn there).
-        let mirror = self.scene.mirror().expect("a measured runtime keeps its mirror");
-        let drawn = mirror.to_heightmap(&reference.hm);
+        // patch is drawn there); the DEM's when every frame waits (`drawn_heights`).
+        let drawn = drawn_heights(&self.scene, reference);
         let n = table.patch_cells();
         let patches: Vec<GpuMorphPatch> =
             lods.patches.iter().map(|p| GpuMorphPatch::from_lod(p, n)).collect();
-        let (mesh, triangles) = build_surface(&MorphGrid::new(&drawn, n), lib, &patches);
+        let (mesh, triangles) = build_surface(&MorphGrid::new(drawn.as_ref(), n), lib, &patches);
         Ok(DrawnSurface { mesh, triangles })
     }
 
@@ -316,10 +315,10 @@ impl Method for StoreMethod<'_> {
         let (Tables::Geomip(table, lib), Some(reference)) = (&self.tables, self.reference) else {
             return None;
         };
-        let heights = self.scene.mirror()?.to_heightmap(&reference.hm);
+        let heights = drawn_heights(&self.scene, reference);
         let src = StoreSource::new(&self.tree, self.scene.streamer());
         let n = table.patch_cells();
-        let grid = MorphGrid::new(&heights, n);
+        let grid = MorphGrid::new(heights.as_ref(), n);
         let surface = |c: &Camera, morph: bool| {
             let cfg = GeomipConfig { patch_cells: n, morph, ..self.config.geomip };
             let lods = table.select(&src, c, &cfg);

@@ -165,10 +165,12 @@ impl FractalConfig {
             return;
         }
         let g = Generator::new(self);
+        // Along a row neighbouring samples share lattice cells: one cache per noise field.
+        let mut caches = Caches::new();
         for (r, row) in out.chunks_exact_mut(w).enumerate() {
             let j = y0 + r as u64;
             for (c, z) in row.iter_mut().enumerate() {
-                *z = g.sample(x0 + c as u64, j);
+                *z = g.sample_cached(x0 + c as u64, j, &mut caches);
             }
         }
     }
@@ -283,6 +285,7 @@ fn lattice_hash(salt: u64, ix: i64, iy: i64) -> u64 {
 /// Two gradient dot products at one lattice point for offset `(dx, dy)`: the gradients are
 /// picked by independent bit fields of one hash (bits 60..64 and 56..60), so one hash feeds
 /// two independent noise fields.
+#[cfg(test)]
 #[inline(always)]
 fn grad2(h: u64, dx: f64, dy: f64) -> (f64, f64) {
     let (ax, ay) = GRADIENTS[(h >> 60) as usize];
@@ -303,8 +306,9 @@ fn floor_i64(x: f64) -> i64 {
     if (t as f64) > x { t - 1 } else { t }
 }
 
-/// Two independent 2-D gradient noise fields at `(x, y)`, each in `[-1, 1]`.
-#[inline]
+/// Two independent 2-D gradient noise fields at `(x, y)`, each in `[-1, 1]` (the reference
+/// of [`noise2_cached`], which the generator uses).
+#[cfg(test)]
 fn noise2(salt: u64, x: f64, y: f64) -> (f64, f64) {
     let (ix, iy) = (floor_i64(x), floor_i64(y));
     let (fx, fy) = (x - ix as f64, y - iy as f64);
@@ -322,8 +326,76 @@ fn noise2(salt: u64, x: f64, y: f64) -> (f64, f64) {
     (interp(a00.0, a10.0, a01.0, a11.0), interp(a00.1, a10.1, a01.1, a11.1))
 }
 
-/// 2-D gradient noise in `[-1, 1]` (the first field of [`noise2`]).
+/// The gradients of the last lattice cell one noise field was evaluated in: neighbouring
+/// samples mostly fall in the same cell (hundreds of samples a cell at the coarse octaves),
+/// so [`noise2_cached`] hashes a cell once per run of samples instead of once per sample. The
+/// hashes are pure functions of the cell, so the result is bit-identical to [`noise2`].
+#[derive(Clone, Copy)]
+struct CellCache {
+    cell: (i64, i64),
+    /// Both fields' gradients at the cell's corners `00, 10, 01, 11`: `(ax, ay, bx, by)`.
+    grads: [(f64, f64, f64, f64); 4],
+}
+
+impl CellCache {
+    /// A cache that matches no cell yet.
+    const EMPTY: Self = Self { cell: (i64::MIN, i64::MIN), grads: [(0.0, 0.0, 0.0, 0.0); 4] };
+}
+
+/// [`noise2`] through a [`CellCache`] (same result, bit for bit).
 #[inline]
+fn noise2_cached(salt: u64, x: f64, y: f64, cache: &mut CellCache) -> (f64, f64) {
+    let (ix, iy) = (floor_i64(x), floor_i64(y));
+    if cache.cell != (ix, iy) {
+        let g = |h: u64| {
+            let (ax, ay) = GRADIENTS[(h >> 60) as usize];
+            let (bx, by) = GRADIENTS[((h >> 56) & 15) as usize];
+            (ax, ay, bx, by)
+        };
+        cache.cell = (ix, iy);
+        cache.grads = [
+            g(lattice_hash(salt, ix, iy)),
+            g(lattice_hash(salt, ix + 1, iy)),
+            g(lattice_hash(salt, ix, iy + 1)),
+            g(lattice_hash(salt, ix + 1, iy + 1)),
+        ];
+    }
+    let (fx, fy) = (x - ix as f64, y - iy as f64);
+    // The same products, in the same order, as `grad2`.
+    let dot =
+        |g: (f64, f64, f64, f64), dx: f64, dy: f64| (g.0 * dx + g.1 * dy, g.2 * dx + g.3 * dy);
+    let a00 = dot(cache.grads[0], fx, fy);
+    let a10 = dot(cache.grads[1], fx - 1.0, fy);
+    let a01 = dot(cache.grads[2], fx, fy - 1.0);
+    let a11 = dot(cache.grads[3], fx - 1.0, fy - 1.0);
+    let (u, v) = (fade(fx), fade(fy));
+    let interp = |n00: f64, n10: f64, n01: f64, n11: f64| {
+        let a = n00 + (n10 - n00) * u;
+        let b = n01 + (n11 - n01) * u;
+        ((a + (b - a) * v) * std::f64::consts::SQRT_2).clamp(-1.0, 1.0)
+    };
+    (interp(a00.0, a10.0, a01.0, a11.0), interp(a00.1, a10.1, a01.1, a11.1))
+}
+
+/// One [`CellCache`] per noise field of a [`Generator`] (warp, octaves, valleys).
+struct Caches {
+    warp: [CellCache; WARP_OCTAVES],
+    octave: [CellCache; MAX_OCTAVES as usize],
+    valley: [CellCache; VALLEY_OCTAVES],
+}
+
+impl Caches {
+    fn new() -> Self {
+        Self {
+            warp: [CellCache::EMPTY; WARP_OCTAVES],
+            octave: [CellCache::EMPTY; MAX_OCTAVES as usize],
+            valley: [CellCache::EMPTY; VALLEY_OCTAVES],
+        }
+    }
+}
+
+/// 2-D gradient noise in `[-1, 1]` (the first field of [`noise2`]).
+#[cfg(test)]
 fn noise(salt: u64, x: f64, y: f64) -> f64 {
     noise2(salt, x, y).0
 }
@@ -436,10 +508,19 @@ impl Generator {
     /// Normalised height `t ∈ [0, 1]` at feature-space position `(x, y)`.
     #[inline]
     fn unit_height(&self, x: f64, y: f64) -> f64 {
+        self.unit_height_cached(x, y, &mut Caches::new())
+    }
+
+    /// [`Generator::unit_height`] with the noise fields' lattice cells cached in `caches`
+    /// (bit-identical; faster along a row).
+    #[inline]
+    fn unit_height_cached(&self, x: f64, y: f64, caches: &mut Caches) -> f64 {
         // Domain warp: two 3-octave fBm fields at half the base frequency.
         let (mut wx, mut wy, mut f) = (0.0, 0.0, 0.5);
-        for (&salt, &amp) in self.warp_salt.iter().zip(&WARP_AMPS) {
-            let (nx, ny) = noise2(salt, x * f, y * f);
+        for ((&salt, &amp), cache) in
+            self.warp_salt.iter().zip(&WARP_AMPS).zip(caches.warp.iter_mut())
+        {
+            let (nx, ny) = noise2_cached(salt, x * f, y * f, cache);
             wx += amp * nx;
             wy += amp * ny;
             f *= 2.0;
@@ -454,7 +535,7 @@ impl Generator {
         for k in 0..self.octaves {
             let fk = self.freq[k];
             let (px, py) = (qx * fk, qy * fk);
-            let (nr, nf) = noise2(self.salt[k], px, py);
+            let (nr, nf) = noise2_cached(self.salt[k], px, py, &mut caches.octave[k]);
             let s = RIDGE_OFFSET - nr.abs();
             let s = s * s * weight;
             ridged += s * self.ridged_amp[k];
@@ -472,8 +553,10 @@ impl Generator {
         let (vx, vy) = (qx * self.valley_scale, qy * self.valley_scale);
         let mut v = 0.0;
         let mut f = 1.0;
-        for (&salt, &amp) in self.valley_salt.iter().zip(&VALLEY_AMPS) {
-            v += amp * noise(salt, vx * f, vy * f);
+        for ((&salt, &amp), cache) in
+            self.valley_salt.iter().zip(&VALLEY_AMPS).zip(caches.valley.iter_mut())
+        {
+            v += amp * noise2_cached(salt, vx * f, vy * f, cache).0;
             f *= 2.0;
         }
         let carve = smoothstep(0.0, self.valley_width, v.abs());
@@ -483,6 +566,13 @@ impl Generator {
     #[inline]
     fn sample(&self, i: u64, j: u64) -> f32 {
         let t = self.unit_height(i as f64 * self.scale, j as f64 * self.scale);
+        (t.clamp(0.0, 1.0) * self.relief) as f32
+    }
+
+    /// [`Generator::sample`] through `caches` (bit-identical).
+    #[inline]
+    fn sample_cached(&self, i: u64, j: u64, caches: &mut Caches) -> f32 {
+        let t = self.unit_height_cached(i as f64 * self.scale, j as f64 * self.scale, caches);
         (t.clamp(0.0, 1.0) * self.relief) as f32
     }
 }
@@ -559,6 +649,26 @@ mod tests {
                     );
                 }
             }
+        }
+    }
+
+    /// The cached noise equals the reference bit for bit, along a path that stays in a cell,
+    /// steps to its neighbours, jumps back and crosses zero (negative lattice indices).
+    #[test]
+    fn cached_noise_is_bit_identical() {
+        let mut cache = CellCache::EMPTY;
+        let mut state = 0x1234_5678_u64;
+        let mut x = -3.3f64;
+        let mut y = 0.7f64;
+        for k in 0..20_000 {
+            state = mix64(state);
+            // Mostly small steps (same cell), sometimes a jump.
+            let step = if k % 97 == 0 { 5.0 } else { 0.03 };
+            x += ((state >> 11) as f64 / (1u64 << 53) as f64 - 0.45) * step;
+            y += ((state & 0xFFFF) as f64 / 65536.0 - 0.5) * step;
+            let (a, b) = noise2_cached(99, x, y, &mut cache);
+            let (c, d) = noise2(99, x, y);
+            assert_eq!((a.to_bits(), b.to_bits()), (c.to_bits(), d.to_bits()), "at ({x}, {y})");
         }
     }
 
