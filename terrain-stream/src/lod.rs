@@ -235,13 +235,22 @@ fn needed_level_below(h: &Header, e: &BlockEntry, n: NodeId, limit: f32, max_lev
         return n.level;
     }
     // The deepest level the stored walk may reach.
-    let stop = max_level.min(h.node_levels.saturating_sub(1)).max(n.level);
+    let last = max_level.min(h.node_levels.saturating_sub(1)).max(n.level);
+    let mut stop = last;
+    // A cheap bound first: no node at level `l` is over `limit` where the smaller of `n`'s
+    // `StaticE` and the block's per-level maximum is not (both bound it, Eq. 3-5), so the walk
+    // need not look at that level or below (the answer is at most `l`).
+    if let Some(l) = (n.level + 1..=stop)
+        .find(|&l| e.level_errors.get(l as usize).copied().unwrap_or(0.0).min(err) <= limit)
+    {
+        stop = l - 1;
+    }
     let mut deepest = n.level;
     let mut worst = err;
     if n.level < stop {
         over_walk(h, e, n, limit, stop, &mut deepest, &mut worst);
     }
-    if deepest < stop || deepest >= max_level {
+    if deepest < last || deepest >= max_level {
         // No over-threshold node at the next level (or the cap is reached).
         return (deepest + 1).min(max_level);
     }
