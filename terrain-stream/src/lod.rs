@@ -38,17 +38,20 @@
 //! error is the smaller of the deepest stored ancestor's `StaticE` and the block's per-level
 //! maximum (both bound it, Eq. 3) and the height range is the ancestor's.
 
+use std::cell::Cell;
 use std::collections::HashMap;
+use std::hash::BuildHasherDefault;
 use std::sync::Arc;
 use std::time::Instant;
 
 use glam::{DVec2, DVec3};
-use terrain_core::geometry::{Aabb, Camera, GroundRegion, project_view_to_ground};
+use rustc_hash::FxHasher;
+use terrain_core::geometry::{Aabb, Camera, Frustum, GroundRegion, project_view_to_ground};
 use terrain_core::lod::{MAX_FACTOR, Patch, Selection, SelectionStats, WishEdges, outer_factors};
 use terrain_core::metrics::screen::sight_line_eq7;
 use terrain_core::quadtree::{
-    BoundingCircleCull, Cull, CullPolicy, GridRect, LeafSet, NodeId, NodeInfo, NodeSource,
-    NodeTree, SplitPolicy, TreeShape, Visit, balance_with, traverse,
+    BoundingCircleCull, Cull, CullPolicy, FrustumCull, GridRect, LeafSet, NodeId, NodeInfo,
+    NodeSource, NodeTree, SplitPolicy, TreeShape, Visit, balance_with, traverse,
 };
 
 use crate::format::{BlockEntry, BlockId, Header};
@@ -123,12 +126,17 @@ const FACTOR_LEVELS: u8 = 6;
 /// block's per-level maximum at that level; 0 at or below the block's finest level (every
 /// sample drawn).
 pub(crate) fn patch_error(h: &Header, e: &BlockEntry, n: NodeId) -> f32 {
+    patch_error_of(h, e, n, local_values(h, e, n).2)
+}
+
+/// [`patch_error`] of `n` whose own `StaticE` (`local_values`) is `static_error`.
+fn patch_error_of(h: &Header, e: &BlockEntry, n: NodeId, static_error: f32) -> f32 {
     let level = n.level + FACTOR_LEVELS;
     if level >= h.k {
         return 0.0;
     }
     let finest = e.level_errors.get(level as usize).copied().unwrap_or(0.0);
-    local_values(h, e, n).2.min(finest)
+    static_error.min(finest)
 }
 
 /// The nodes of one block, block-local ids (level 0 = the block), rectangles in the whole
@@ -211,20 +219,44 @@ pub(crate) fn needed_vertex_level(
         return max_level;
     }
     let limit = (view.tau / per_metre) as f32;
-    let over = |m: NodeId| local_values(h, e, m).2 > limit;
-    let mut frontier: Vec<NodeId> = if over(n) { vec![n] } else { Vec::new() };
-    let mut level = n.level;
-    // Stored levels: follow the over-threshold nodes.
-    while !frontier.is_empty() && level < max_level && level + 1 < h.node_levels {
-        level += 1;
-        frontier = frontier.iter().flat_map(|m| m.children()).filter(|&m| over(m)).collect();
+    needed_level_below(h, e, n, limit, max_level)
+}
+
+/// [`needed_vertex_level`] once the node's error threshold `limit` (metres: `tau` over Eq. 7's
+/// `rho` per metre at `n`) is known. A depth-first walk of the stored levels without
+/// allocation: it finds the deepest stored level (at most `max_level`, at most the last
+/// stored node level) holding a node over `limit` whose ancestors are all over it, and the
+/// largest `StaticE` over `limit` there; the same result as the level-by-level frontier of the
+/// paper's split (the frontier at a level is exactly the over-threshold nodes whose ancestors
+/// are over it).
+fn needed_level_below(h: &Header, e: &BlockEntry, n: NodeId, limit: f32, max_level: u8) -> u8 {
+    let err = local_values(h, e, n).2;
+    if err <= limit {
+        return n.level;
     }
-    if frontier.is_empty() || level >= max_level {
-        return level;
+    // The deepest level the stored walk may reach.
+    let last = max_level.min(h.node_levels.saturating_sub(1)).max(n.level);
+    let mut stop = last;
+    // A cheap bound first: no node at level `l` is over `limit` where the smaller of `n`'s
+    // `StaticE` and the block's per-level maximum is not (both bound it, Eq. 3-5), so the walk
+    // need not look at that level or below (the answer is at most `l`).
+    if let Some(l) = (n.level + 1..=stop)
+        .find(|&l| e.level_errors.get(l as usize).copied().unwrap_or(0.0).min(err) <= limit)
+    {
+        stop = l - 1;
+    }
+    let mut deepest = n.level;
+    let mut worst = err;
+    if n.level < stop {
+        over_walk(h, e, n, limit, stop, &mut deepest, &mut worst);
+    }
+    if deepest < last || deepest >= max_level {
+        // No over-threshold node at the next level (or the cap is reached).
+        return (deepest + 1).min(max_level);
     }
     // Below the stored levels every descendant has the same bound per level: the smaller of
     // its stored ancestor's StaticE and the block's per-level maximum.
-    let worst = frontier.iter().map(|&m| local_values(h, e, m).2).fold(0f32, f32::max);
+    let mut level = deepest;
     while level < max_level {
         let bound = e.level_errors.get(level as usize).copied().unwrap_or(0.0).min(worst);
         if bound <= limit {
@@ -233,6 +265,34 @@ pub(crate) fn needed_vertex_level(
         level += 1;
     }
     level
+}
+
+/// The depth-first part of [`needed_level_below`]: the children of `m` (over `limit`) that
+/// are over `limit`, down to level `stop`; recursion depth at most the stored node levels.
+fn over_walk(
+    h: &Header,
+    e: &BlockEntry,
+    m: NodeId,
+    limit: f32,
+    stop: u8,
+    deepest: &mut u8,
+    worst: &mut f32,
+) {
+    for c in m.children() {
+        let v = local_values(h, e, c).2;
+        if v <= limit {
+            continue;
+        }
+        if c.level > *deepest {
+            *deepest = c.level;
+            *worst = v;
+        } else if c.level == *deepest {
+            *worst = worst.max(v);
+        }
+        if c.level < stop {
+            over_walk(h, e, c, limit, stop, deepest, worst);
+        }
+    }
 }
 
 /// Eq. 7 as terrain-core's [`SplitPolicy`] (the paper's step 4: split while `rho > tau`), over
@@ -486,6 +546,43 @@ impl StoreTree {
         Some(patch_error(self.store.header(), self.store.entry(b)?, local))
     }
 
+    /// [`NodeSource::node_info`] of global node `n` with its [`patch_error`] (`None` above
+    /// the blocks), from one read of the block's index entry.
+    fn info_and_patch_error(&self, n: NodeId) -> Option<(NodeInfo, Option<f32>)> {
+        if !self.contains(n) {
+            return None;
+        }
+        match self.block_of(n) {
+            Some((b, local)) => {
+                let nodes = self.block_nodes(b)?;
+                let (info, err) = nodes.info(local)?;
+                Some((info, Some(patch_error_of(nodes.header, nodes.entry, local, err))))
+            }
+            None => Some((self.upper_info(n), None)),
+        }
+    }
+
+    /// The values of global node `n` above the block level (min/max over its blocks).
+    fn upper_info(&self, n: NodeId) -> NodeInfo {
+        let h = self.store.header();
+        let (x0, y0, c) = n.grid_rect(self.root_cells);
+        let (w, hh) = ((h.width as u32).max(2) - 1, (h.height as u32).max(2) - 1);
+        let rect = GridRect { x0, y0, x1: (x0 + c).min(w), y1: (y0 + c).min(hh) };
+        let [min, max] = self.upper[n.level as usize][(n.j * (1 << n.level) + n.i) as usize];
+        let (min, max) = if min <= max { (min, max) } else { (0.0, 0.0) };
+        let g = &h.georef;
+        let lo = g.grid_to_world(DVec2::new(rect.x0 as f64, rect.y0 as f64));
+        let hi = g.grid_to_world(DVec2::new(rect.x1 as f64, rect.y1 as f64));
+        NodeInfo {
+            rect,
+            cells: c,
+            aabb: Aabb { min: lo.min(hi).extend(min.into()), max: lo.max(hi).extend(max.into()) },
+            data_range: Some((min, max)),
+            has_voids: false,
+            is_finest: false,
+        }
+    }
+
     /// `needed_vertex_level` of global node `n` with box `aabb` (at most `max_level`, a
     /// block-local level), as a global level; `None` above the blocks.
     pub fn needed_vertex_level(
@@ -518,34 +615,57 @@ impl NodeSource for StoreTree {
         if let Some((b, local)) = self.block_of(n) {
             return self.block_nodes(b)?.node_info(local);
         }
-        let h = self.store.header();
-        let (x0, y0, c) = n.grid_rect(self.root_cells);
-        let (w, hh) = ((h.width as u32).max(2) - 1, (h.height as u32).max(2) - 1);
-        let rect = GridRect { x0, y0, x1: (x0 + c).min(w), y1: (y0 + c).min(hh) };
-        let [min, max] = self.upper[n.level as usize][(n.j * (1 << n.level) + n.i) as usize];
-        let (min, max) = if min <= max { (min, max) } else { (0.0, 0.0) };
-        let g = &h.georef;
-        let lo = g.grid_to_world(DVec2::new(rect.x0 as f64, rect.y0 as f64));
-        let hi = g.grid_to_world(DVec2::new(rect.x1 as f64, rect.y1 as f64));
-        Some(NodeInfo {
-            rect,
-            cells: c,
-            aabb: Aabb { min: lo.min(hi).extend(min.into()), max: lo.max(hi).extend(max.into()) },
-            data_range: Some((min, max)),
-            has_voids: false,
-            is_finest: false,
-        })
+        Some(self.upper_info(n))
+    }
+}
+
+/// The traversal's node space for one selection: the [`StoreTree`], remembering the node it
+/// was last asked about with its box and [`patch_error`], so that the split test and the
+/// leaf's factor reuse the index values [`traverse`] just read (it asks for a node's info, then
+/// culls it, splits it or reports it, before it asks for the next node).
+struct FrameNodes<'a> {
+    tree: &'a StoreTree,
+    last: Cell<Option<(NodeId, NodeInfo, Option<f32>)>>,
+}
+
+impl FrameNodes<'_> {
+    /// The info and patch error of `n` if it was the last node asked about.
+    fn cached(&self, n: NodeId) -> Option<(NodeInfo, Option<f32>)> {
+        match self.last.get() {
+            Some((m, info, err)) if m == n => Some((info, err)),
+            _ => None,
+        }
+    }
+
+    /// The patch error of `n` (`None` above the blocks or outside the grid).
+    fn patch_error(&self, n: NodeId) -> Option<f32> {
+        match self.cached(n) {
+            Some((_, err)) => err,
+            None => self.tree.patch_error(n),
+        }
+    }
+}
+
+impl NodeSource for FrameNodes<'_> {
+    fn node_info(&self, n: NodeId) -> Option<NodeInfo> {
+        let (info, err) = self.tree.info_and_patch_error(n)?;
+        self.last.set(Some((n, info, err)));
+        Some(info)
     }
 }
 
 /// The crack-free patches of a store for `camera`: terrain-core's [`traverse`] over the
-/// [`StoreTree`] with the Eq. 7 split and the paper's [`BoundingCircleCull`] against the view
-/// projected on the ground, only over blocks with a level resident (`resident(block)`: the
-/// finest level that may be drawn, `None` = not drawn), the split stopped at that level;
-/// then balanced, factors from `needed_vertex_level` (clamped to the resident level, at
-/// least 2) and outer factors from terrain-core's [`WishEdges`]. Patches are global nodes of the tree
-/// (`NodeId::grid_rect(tree.root_cells())` is their square of grid samples), in traversal
-/// order; `terrain_core::lod::check_shared_edges` holds.
+/// [`StoreTree`] with the Eq. 7 split and two culls, only over blocks with a level resident
+/// (`resident(block)`: the finest level that may be drawn, `None` = not drawn), the split
+/// stopped at that level; then balanced, factors from `needed_vertex_level` (clamped to the
+/// resident level, at least 2) and outer factors from terrain-core's [`WishEdges`]. The culls:
+/// the paper's [`BoundingCircleCull`] against the view projected on the ground (section 3.3,
+/// steps 2-3), and terrain-core's [`FrustumCull`] of each node's world box (its min/max
+/// heights): the circle keeps nodes beside and behind the view triangle's sides, and a node
+/// whose box is outside the frustum cannot be seen (the standard six-plane box test, exact for
+/// "outside"). Patches are global nodes of the tree (`NodeId::grid_rect(tree.root_cells())` is
+/// their square of grid samples), in traversal order; `terrain_core::lod::check_shared_edges`
+/// holds.
 pub fn select_patches(
     tree: &StoreTree,
     camera: &Camera,
@@ -556,42 +676,69 @@ pub fn select_patches(
     let view = View::new(camera, tau);
     let bl = tree.block_level;
     let mut circle = BoundingCircleCull::new(project_view_to_ground(camera));
-    let mut cull = |n: NodeId, info: &NodeInfo| match tree.block_of(n) {
-        // Above the blocks: never "all inside", so every block is asked whether it is drawn.
-        None => match circle.classify(n, info) {
-            Cull::AcceptAll => Cull::Accept,
-            c => c,
-        },
-        Some((b, local)) if local.level == 0 && resident(b).is_none() => Cull::Reject,
-        Some(_) => circle.classify(n, info),
+    let mut frustum = FrustumCull::new(Frustum::from_camera(camera));
+    let mut cull = |n: NodeId, info: &NodeInfo| {
+        let c = match tree.block_of(n) {
+            // Above the blocks: never "all inside", so every block is asked whether it is drawn.
+            None => match circle.classify(n, info) {
+                Cull::AcceptAll => Cull::Accept,
+                c => c,
+            },
+            Some((b, local)) if local.level == 0 && resident(b).is_none() => Cull::Reject,
+            Some(_) => circle.classify(n, info),
+        };
+        match (c, frustum.classify(n, info)) {
+            (Cull::Reject, _) | (_, Cull::Reject) => Cull::Reject,
+            (Cull::AcceptAll, Cull::AcceptAll) => Cull::AcceptAll,
+            _ => Cull::Accept,
+        }
     };
+    let nodes = FrameNodes { tree, last: Cell::new(None) };
     let mut split = Eq7Split {
         view,
-        error: |n: NodeId| tree.patch_error(n),
+        error: |n: NodeId| nodes.patch_error(n),
         stop: |n: NodeId| {
             tree.block_of(n).is_some_and(|(b, local)| local.level >= resident(b).unwrap_or(0))
         },
     };
     let mut stats = SelectionStats::default();
-    let leaves = traverse(tree, &mut split, &mut cull, &mut |_, v| {
+    // The leaves at or below the block level with their boxes, in traversal order. Nodes
+    // above the block level never end as leaves unless the block is not resident.
+    let mut boxed: Vec<(NodeId, Aabb)> = Vec::new();
+    traverse(&nodes, &mut split, &mut cull, &mut |n, v| {
         stats.visited += 1;
         match v {
             Visit::Culled => stats.culled += 1,
             Visit::Split => stats.split += 1,
+            Visit::Leaf if n.level >= bl => {
+                if let Some((info, _)) = nodes.cached(n) {
+                    boxed.push((n, info.aabb));
+                }
+            }
             Visit::Leaf => {}
         }
     });
-    // Nodes above the block level never end as leaves unless the block is not resident:
-    // keep block nodes only.
-    let leaves: Vec<NodeId> = leaves.into_iter().filter(|n| n.level >= bl).collect();
-    stats.traversal_leaves = leaves.len();
-    let leaves = balance_with(&leaves, |n| tree.contains(n));
-    let mut rule = WishEdges::default();
+    stats.traversal_leaves = boxed.len();
+    let traversed: Vec<NodeId> = boxed.iter().map(|&(n, _)| n).collect();
+    // Balanced leaves, sorted by `dfs_key` like the traversal's: a leaf the balance kept is
+    // found by walking both lists together.
+    let leaves = balance_with(&traversed, |n| tree.contains(n));
+    let mut rule = WishEdges::<BuildHasherDefault<FxHasher>>::default();
+    rule.want.reserve(leaves.len());
+    let mut k = 0;
     for &n in &leaves {
+        let key = n.dfs_key();
+        while k < boxed.len() && boxed[k].0.dfs_key() < key {
+            k += 1;
+        }
+        let aabb = match boxed.get(k) {
+            Some(&(m, aabb)) if m == n => Some(aabb),
+            _ => tree.node_info(n).map(|i| i.aabb),
+        };
         let (b, local) = tree.block_of(n).expect("block nodes");
         let max = resident(b).unwrap_or(0);
-        let level = match tree.node_info(n) {
-            Some(info) => tree.needed_vertex_level(n, &info.aabb, &view, max).unwrap_or(n.level),
+        let level = match aabb {
+            Some(aabb) => tree.needed_vertex_level(n, &aabb, &view, max).unwrap_or(n.level),
             None => n.level,
         };
         let m = level.saturating_sub(bl + local.level).min(6);

@@ -386,7 +386,7 @@ fn select_dss(
             (n, pow2_up(metric.factor(n, &info)))
         })
         .collect();
-    let rule = WishEdges { want };
+    let rule: WishEdges = WishEdges { want };
     let inner = |n: NodeId, _: &[f32; 4]| [rule.want(n); 2];
     run::assemble(leaves, stats, &rule, inner, start)
 }
@@ -584,7 +584,7 @@ mod tests {
             .iter()
             .map(|&n| (n, metric.factor(n, &qt.node_info(n).expect("selected"))))
             .collect();
-        let rule = WishEdges { want };
+        let rule: WishEdges = WishEdges { want };
         let inner = |n: NodeId, _: &[f32; 4]| [rule.want(n); 2];
         run::assemble(leaves, stats, &rule, inner, start)
     }

@@ -23,6 +23,7 @@
 //!    match.
 
 use std::collections::HashMap;
+use std::hash::{BuildHasher, RandomState};
 
 use super::patch::{Edge, MAX_FACTOR, Selection};
 use crate::quadtree::{LeafSet, NodeId};
@@ -54,20 +55,23 @@ pub(crate) fn pow2_up(f: f32) -> f32 {
 /// times `2^d` and `2^(d + 1)` (so each finer side gets a power of two of at least 2); an
 /// unshared edge its own wish. Used by the DSS paper's Methods I and II and by the
 /// out-of-core store's patches (terrain-stream).
+///
+/// The map's hasher `S` is std's by default; a caller that builds the map every frame may
+/// pass a faster one (terrain-stream uses FxHash).
 #[derive(Debug, Clone, Default)]
-pub struct WishEdges {
+pub struct WishEdges<S = RandomState> {
     /// Each patch's wished factor.
-    pub want: HashMap<NodeId, f32>,
+    pub want: HashMap<NodeId, f32, S>,
 }
 
-impl WishEdges {
+impl<S: BuildHasher> WishEdges<S> {
     /// The factor `n` wishes for (2 without a wish).
     pub fn want(&self, n: NodeId) -> f32 {
         self.want.get(&n).copied().unwrap_or(2.0)
     }
 }
 
-impl EdgeRule for WishEdges {
+impl<S: BuildHasher> EdgeRule for WishEdges<S> {
     fn same_level(&self, a: NodeId, _: Edge, b: NodeId) -> f32 {
         self.want(a).max(self.want(b))
     }

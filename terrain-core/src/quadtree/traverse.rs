@@ -6,7 +6,7 @@
 //! [`BoundingCircleCull`], a PVS lookup, or several combined with a tuple `(a, b)`), and
 //! [`traverse`] does the rest.
 
-use std::collections::HashSet;
+use rustc_hash::FxHashSet;
 
 use super::node::{Direction, NodeId, Quadrant};
 use super::tree::{NodeInfo, Quadtree, TreeShape};
@@ -265,14 +265,16 @@ where
 /// A set of selected leaves with neighbour lookup across level boundaries.
 #[derive(Debug, Clone, Default)]
 pub struct LeafSet {
-    set: HashSet<NodeId>,
+    /// FxHash (rustc's hasher): the set is built and probed several times per leaf every
+    /// frame, and std's SipHash showed in profiles of the store selection.
+    set: FxHashSet<NodeId>,
     max_level: u8,
 }
 
 impl LeafSet {
     /// The set of `leaves` (assumed disjoint: no leaf is an ancestor of another).
     pub fn new(leaves: impl IntoIterator<Item = NodeId>) -> Self {
-        let set: HashSet<NodeId> = leaves.into_iter().collect();
+        let set: FxHashSet<NodeId> = leaves.into_iter().collect();
         let max_level = set.iter().map(|n| n.level).max().unwrap_or(0);
         Self { set, max_level }
     }
@@ -359,7 +361,7 @@ pub fn balance(qt: &Quadtree, leaves: &[NodeId]) -> Vec<NodeId> {
 /// [`balance`] without a [`Quadtree`]: `contains(node)` says whether a child holds a grid cell
 /// (an out-of-core store's node space, whose heights are not in memory).
 pub fn balance_with(leaves: &[NodeId], contains: impl Fn(NodeId) -> bool) -> Vec<NodeId> {
-    let mut set: HashSet<NodeId> = leaves.iter().copied().collect();
+    let mut set: FxHashSet<NodeId> = leaves.iter().copied().collect();
     let mut work: Vec<NodeId> = leaves.to_vec();
     // Popped deepest first: fewer repeated splits.
     work.sort_by_key(|n| n.level);

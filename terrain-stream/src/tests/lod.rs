@@ -1,9 +1,10 @@
 //! `lod::select_patches` (Qiu 2013, sections 3.1-3.3, through terrain-core's traversal) against
 //! a brute force over the index: every patch's drawn resolution meets Eq. 7 with the index's
 //! `StaticE` and is the coarsest that does, patches cover the visible part of the grid without
-//! overlap, shared edges agree (`check_shared_edges`), no patch is drawn finer than its data
-//! or its block's resident level, and the streamer's `needed_level` is the deepest level the
-//! selection draws in a block.
+//! overlap (every cell in the view region whose own box meets the frustum is drawn), shared
+//! edges agree (`check_shared_edges`), no patch is drawn finer than its data or its block's
+//! resident level, no traversal leaf lies outside the frustum, and the streamer's
+//! `needed_level` is the deepest level the selection draws in a block.
 
 use std::collections::HashMap;
 use std::ops::ControlFlow;
@@ -16,7 +17,7 @@ use crate::lod::{
 use crate::{BakeConfig, BlockId, HeightEncoding, Store, bake};
 use glam::{DVec3, dvec3};
 use terrain_core::Georef;
-use terrain_core::geometry::{Camera, project_view_to_ground};
+use terrain_core::geometry::{Aabb, Camera, Classification, Frustum, project_view_to_ground};
 use terrain_core::heightmap::Heightmap;
 use terrain_core::lod::{Selection, check_shared_edges};
 use terrain_core::metrics::screen::sight_line_eq7;
@@ -103,14 +104,16 @@ fn level_max(store: &Store, b: BlockId, n: NodeId, level: u8) -> f64 {
     m
 }
 
-/// Checks one selection; returns its patch count.
+/// Checks one selection of the store baked from `hm`; returns its patch count and the number
+/// of cells in the view region left out because their box is outside the frustum.
 fn check(
+    hm: &Heightmap,
     tree: &StoreTree,
     camera: &Camera,
     tau: f64,
     resident: &HashMap<BlockId, u8>,
     sel: &Selection,
-) -> usize {
+) -> (usize, usize) {
     let store = tree.store();
     let h = store.header();
     let view = View::new(camera, tau);
@@ -154,9 +157,21 @@ fn check(
             );
         }
     }
+    // The frustum cull: only patches the balance added (not culled again) may lie outside.
+    let frustum = Frustum::from_camera(camera);
+    let outside = sel
+        .patches
+        .iter()
+        .filter(|p| {
+            frustum.classify(&tree.node_info(p.node).unwrap().aabb) == Classification::Outside
+        })
+        .count();
+    assert!(outside <= sel.stats.balance_added, "{outside} patches outside the frustum");
     // Cover without overlap: each grid cell in a resident block lies in at most one patch,
-    // and in exactly one when its centre is inside the view region.
+    // and in exactly one when its centre is inside the view region and its own box (its
+    // corners' heights, inside every node box that holds the cell) meets the frustum.
     let region = project_view_to_ground(camera);
+    let mut culled = 0;
     let root = tree.root_cells();
     let mut owner = vec![0u8; (h.width * h.height) as usize];
     for p in &sel.patches {
@@ -174,11 +189,25 @@ fn check(
             let b = BlockId::new(y / h.block_cells(), x / h.block_cells());
             let centre = h.georef.grid_to_world(glam::dvec2(x as f64 + 0.5, y as f64 + 0.5));
             if region.contains(centre) && resident.contains_key(&b) {
-                assert_eq!(n, 1, "cell ({x}, {y}) in view not drawn");
+                let (i, j) = (x as usize, y as usize);
+                let z = [hm.get(i, j), hm.get(i + 1, j), hm.get(i, j + 1), hm.get(i + 1, j + 1)];
+                let lo = h.georef.grid_to_world(glam::dvec2(x as f64, y as f64));
+                let hi = h.georef.grid_to_world(glam::dvec2(x as f64 + 1.0, y as f64 + 1.0));
+                let cell = Aabb {
+                    min: lo.min(hi).extend(z.iter().copied().fold(f32::INFINITY, f32::min).into()),
+                    max: lo
+                        .max(hi)
+                        .extend(z.iter().copied().fold(f32::NEG_INFINITY, f32::max).into()),
+                };
+                if frustum.classify(&cell) == Classification::Outside {
+                    culled += usize::from(n == 0);
+                } else {
+                    assert_eq!(n, 1, "cell ({x}, {y}) in view not drawn");
+                }
             }
         }
     }
-    sel.patches.len()
+    (sel.patches.len(), culled)
 }
 
 #[test]
@@ -189,14 +218,15 @@ fn patches_meet_eq7_minimally_and_cover_the_view() {
     let hm = terrain(257, 257);
     let (dir, store) = bake_store(&hm, "eq7", 6, 4);
     let all: HashMap<BlockId, u8> = store.block_ids().map(|b| (b, 6)).collect();
-    let mut total = 0;
+    let (mut total, mut culled) = (0, 0);
     let mut factors = std::collections::BTreeSet::new();
     for patch_cells in [4, 32] {
         let tree = StoreTree::new(store.clone(), patch_cells);
         for (ci, cam) in cameras().iter().enumerate() {
             for tau in [0.5, 2.0, 8.0] {
                 let sel = select_patches(&tree, cam, tau, |b| all.get(&b).copied());
-                let n = check(&tree, cam, tau, &all, &sel);
+                let (n, c) = check(&hm, &tree, cam, tau, &all, &sel);
+                culled += c;
                 if ci == 3 {
                     assert_eq!(n, 0, "patches behind the camera");
                 }
@@ -225,8 +255,10 @@ fn patches_meet_eq7_minimally_and_cover_the_view() {
                         );
                         // Factor 2 is the least: a patch needing only its corners draws its
                         // next level's vertices by interpolation. (Balancing across blocks
-                        // can split a block's leaves further; then only presence agrees.)
-                        assert_eq!(need.is_some(), drawn.is_some(), "{b}");
+                        // can split a block's leaves further; then only presence agrees. The
+                        // streamer loads the blocks of the view region; the selection drops
+                        // those outside the frustum too.)
+                        assert!(drawn.is_none() || need.is_some(), "{b}");
                         if let (Some(n), Some(d)) = (need, drawn)
                             && sel.stats.balance_added == 0
                         {
@@ -239,6 +271,8 @@ fn patches_meet_eq7_minimally_and_cover_the_view() {
     }
     assert!(total > 100, "{total} patches");
     assert!(factors.len() >= 3, "factors used: {factors:?}");
+    // The frustum cull matters here: cells of the bounding-circle region are left out.
+    assert!(culled > 100, "{culled} cells culled by the frustum");
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
@@ -259,7 +293,7 @@ fn clamped_and_missing_blocks_stay_crack_free() {
     for cam in cameras() {
         for tau in [0.5, 2.0, 8.0] {
             let sel = select_patches(&tree, &cam, tau, |b| resident.get(&b).copied());
-            total += check(&tree, &cam, tau, &resident, &sel);
+            total += check(&hm, &tree, &cam, tau, &resident, &sel).0;
         }
     }
     assert!(total > 50, "{total} patches");
@@ -283,7 +317,7 @@ fn patches_split_only_where_their_largest_factor_misses_tau() {
     for cam in cameras() {
         for tau in [0.25, 0.5, 2.0, 8.0] {
             let sel = select_patches(&tree, &cam, tau, |b| all.get(&b).copied());
-            total += check(&tree, &cam, tau, &all, &sel);
+            total += check(&hm, &tree, &cam, tau, &all, &sel).0;
             let view = View::new(&cam, tau);
             for p in &sel.patches {
                 let (b, local) = tree.block_of(p.node).expect("patches lie in blocks");
