@@ -144,7 +144,8 @@ const ALLOW_LIST: &[(&str, Treatment)] = &[
         },
     ),
     (
-        "terrain view ../shared/data/puget_sound/ps_height_1k.png --vertical-scale 0.1 --spacing 160",
+        "terrain view ../shared/data/puget_sound/ps_height_1k.png --vertical-scale 0.1 --spacing \
+         160",
         Treatment::Reduced {
             run: under_xvfb!(
                 "terrain view ../shared/data/puget_sound/ps_height_1k.png \
@@ -185,7 +186,8 @@ const ALLOW_LIST: &[(&str, Treatment)] = &[
         },
     ),
     (
-        "terrain view ../shared/data/puget_sound/ps_height_1k.png --vertical-scale 0.1 --spacing 160 --flight flights/valley_low.json",
+        "terrain view ../shared/data/puget_sound/ps_height_1k.png --vertical-scale 0.1 --spacing \
+         160 --flight flights/valley_low.json",
         Treatment::Reduced {
             run: under_xvfb!(
                 "terrain view ../shared/data/puget_sound/ps_height_1k.png \
