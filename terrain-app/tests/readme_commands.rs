@@ -29,6 +29,22 @@ enum Treatment {
     Reduced { run: &'static str, why: &'static str },
 }
 
+/// A `terrain view` command run under `xvfb-run` (a display of its own; Vulkan, lavapipe
+/// here, as in `view_cli.rs`).
+macro_rules! under_xvfb {
+    ($tail:literal) => {
+        concat!(
+            "TERRAIN_GPU_BACKEND=vulkan xvfb-run -a -s \"-screen 0 1280x800x24 -nolisten tcp\" ",
+            $tail
+        )
+    };
+}
+
+/// Why the `terrain view` lines run reduced.
+const VIEW_WHY: &str = "a window needs a display: run under xvfb-run (Vulkan: lavapipe here) at \
+                        320x180 with the README's example script docs/view_script.txt, which \
+                        moves, sets the quality slider, takes a screenshot and quits";
+
 /// The README commands (exactly as [`sh_commands`] gives them: continuation lines joined,
 /// comments and repeated blanks removed) that this test does not run as written, each with why.
 const ALLOW_LIST: &[(&str, Treatment)] = &[
@@ -129,6 +145,67 @@ const ALLOW_LIST: &[(&str, Treatment)] = &[
             why: "--quick still measures twelve methods x 3 sweep points x 20 frames x 2 flights, \
                   several minutes in a debug build; four methods, 2 points and 2 frames each run \
                   every stage (render, CPU surface, exact error) and write the same report files",
+        },
+    ),
+    (
+        "terrain view ../shared/data/puget_sound/ps_height_1k.png --vertical-scale 0.1 --spacing \
+         160",
+        Treatment::Reduced {
+            run: under_xvfb!(
+                "terrain view ../shared/data/puget_sound/ps_height_1k.png \
+                --vertical-scale 0.1 --spacing 160 --size 320x180 --script \
+                docs/view_script.txt"
+            ),
+            why: VIEW_WHY,
+        },
+    ),
+    (
+        "terrain view out/ps1k.scene",
+        Treatment::Reduced {
+            run: under_xvfb!(
+                "terrain view out/ps1k.scene --size 320x180 --script \
+                docs/view_script.txt"
+            ),
+            why: VIEW_WHY,
+        },
+    ),
+    (
+        "terrain view --method dss-1 --error-px 1 --size 1600x900",
+        Treatment::Reduced {
+            run: under_xvfb!(
+                "terrain view --method dss-1 --error-px 1 --size 320x180 --script \
+                docs/view_script.txt"
+            ),
+            why: VIEW_WHY,
+        },
+    ),
+    (
+        "terrain view --method geomorph --quality fast",
+        Treatment::Reduced {
+            run: under_xvfb!(
+                "terrain view --method geomorph --quality fast --size 320x180 --script \
+                docs/view_script.txt"
+            ),
+            why: VIEW_WHY,
+        },
+    ),
+    (
+        "terrain view ../shared/data/puget_sound/ps_height_1k.png --vertical-scale 0.1 --spacing \
+         160 --flight flights/valley_low.json",
+        Treatment::Reduced {
+            run: under_xvfb!(
+                "terrain view ../shared/data/puget_sound/ps_height_1k.png \
+                --vertical-scale 0.1 --spacing 160 --flight flights/valley_low.json \
+                --size 320x180 --script docs/view_script.txt"
+            ),
+            why: VIEW_WHY,
+        },
+    ),
+    (
+        "terrain view --script docs/view_script.txt",
+        Treatment::Reduced {
+            run: under_xvfb!("terrain view --script docs/view_script.txt --size 320x180"),
+            why: VIEW_WHY,
         },
     ),
 ];
@@ -423,6 +500,11 @@ fn every_readme_command_runs_as_written() {
     std::os::unix::fs::symlink(data_dir(), root.join("shared/data")).unwrap();
     std::os::unix::fs::symlink(env!("CARGO_BIN_EXE_terrain"), bin.join("terrain")).unwrap();
     copy_dir(&repo_root().join("flights"), &repo.join("flights"));
+    // The README's example viewer script (its `terrain view --script` line, and the script
+    // every reduced `terrain view` line runs with).
+    std::fs::create_dir_all(repo.join("docs")).unwrap();
+    std::fs::copy(repo_root().join("docs/view_script.txt"), repo.join("docs/view_script.txt"))
+        .unwrap();
     let before = tree(&repo);
 
     let require_gpu = std::env::var_os("TERRAIN_REQUIRE_GPU").is_some();
@@ -448,6 +530,11 @@ fn every_readme_command_runs_as_written() {
         if !ok && !require_gpu && stderr.contains("no GPU adapter") {
             println!("SKIPPED {shown}: no GPU adapter; set TERRAIN_REQUIRE_GPU=1 to fail instead");
             report.push(format!("skipped  {shown} (no GPU)"));
+            continue;
+        }
+        if !ok && !require_gpu && stderr.contains("xvfb-run: command not found") {
+            println!("SKIPPED {shown}: no xvfb-run (apt-get install xvfb; .ci/run does)");
+            report.push(format!("skipped  {shown} (no xvfb-run)"));
             continue;
         }
         assert!(

@@ -164,7 +164,7 @@ fn the_window_shows_what_render_draws_for_the_same_camera() {
         format!(
             "camera {START}\nrecord\nwait 2\nkey down W\nwait 30\nkey up W\nmouse 40 12\nkey down D\nwait 4\nkey up D\n\
              wheel 1\nkey down E\nwait 3\nkey up E\nrecord\n\
-             method uniform\nquality 8\nwait 2\nscreenshot {}\npanel off\nwait 1\n\
+             method uniform\nquality 3\nwait 2\nscreenshot {}\npanel off\nwait 1\n\
              screenshot {}\nquit\n",
             panel.display(),
             shot.display()
@@ -194,7 +194,12 @@ fn the_window_shows_what_render_draws_for_the_same_camera() {
         .nth(1)
         .unwrap_or_else(|| panic!("no second screenshot line:\n{out}"));
     assert_eq!(field(line, "method"), "uniform");
-    assert_eq!(field(line, "quality"), "8");
+    // The slider's `quality 3` is a pixel target, mapped onto uniform's own factor.
+    assert_eq!(field(line, "error-px"), "3");
+    let param = field(line, "param");
+    let factor = param.strip_prefix("factor=").unwrap_or_else(|| panic!("{param}"));
+    let mapped: f64 = factor.parse().unwrap();
+    assert!(mapped > 1.0 && mapped != 8.0, "uniform factor {mapped} for 3 px");
     let camera = field(line, "camera");
     // The scripted moves moved the camera away from the default one.
     let start = out.lines().find(|l| l.starts_with("view: screenshot")).unwrap();
@@ -206,14 +211,17 @@ fn the_window_shows_what_render_draws_for_the_same_camera() {
         "320x180",
         "--method",
         "uniform",
-        "--factor",
-        "8",
+        "--error-px",
+        "3",
         "--camera",
         camera,
         "-o",
         rendered.to_str().unwrap(),
     ]);
     assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+    // `render --error-px 3` maps onto the same factor as the viewer's slider at 3 px.
+    let said = String::from_utf8_lossy(&r.stdout);
+    assert!(said.contains(&format!("factor = {mapped:.4} for 3 px")), "{mapped}:\n{said}");
     let (window, offscreen) = (load(&shot), load(&rendered));
     // Not a trivial match: most of the image is terrain, not sky.
     let sky = offscreen.pixels().filter(|p| p.0[..3] == [150, 185, 225]).count();
@@ -236,8 +244,8 @@ fn the_window_shows_what_render_draws_for_the_same_camera() {
         "320x180",
         "--method",
         "uniform",
-        "--factor",
-        "8",
+        "--method-param",
+        factor,
         "--camera",
         START,
         "-o",

@@ -27,7 +27,7 @@ use std::time::Instant;
 use anyhow::{Context, bail};
 use clap::Args;
 use glam::DVec3;
-use terrain_app::method::registry::{self, apply_parameter, parameter};
+use terrain_app::method::registry::{self, ErrorPxParams, ErrorView, parameter};
 use terrain_app::method::{
     self, FrameLoop, FrameRenderer, LoopFrame, MethodOptions, OocWait, RendererKind,
 };
@@ -71,10 +71,11 @@ pub(crate) struct ViewArgs {
     /// Cells per side of the finest patch.
     #[arg(long, default_value_t = 16)]
     pub leaf_cells: u32,
-    /// The quality slider's value at start: the method's own swept parameter (uniform: the
-    /// factor, PVPS: C1, DSS: rho_thr px, entropy: E0, geomorph: tau px, ooc: tau px).
-    #[arg(long)]
-    pub quality: Option<f64>,
+    /// The quality at start, as in `render` and `fly`: `--error-px`, a `--quality` preset
+    /// (default balanced, 2 px) or the method's own `--method-param`. The panel's slider is
+    /// the error target in pixels.
+    #[command(flatten)]
+    pub quality: crate::quality::QualityArgs,
     /// Drive the viewer from a script (one command per line; see README, "terrain view").
     #[arg(long)]
     pub script: Option<PathBuf>,
@@ -125,9 +126,12 @@ pub(crate) fn run(args: &ViewArgs) -> anyhow::Result<()> {
     } else {
         LodMethod::PvpsC
     });
-    if let Some(q) = args.quality {
-        check_quality(q)?;
-        apply_parameter(&mut config, kind, q);
+    // The one quality knob (README "One quality knob"): the pixel target mapped onto the
+    // method's own parameter for this window's height and field of view.
+    let error_view = ErrorView { height_px: f64::from(size.1), fov_y_deg: args.fov };
+    let mapped = args.quality.apply(&mut config, kind, error_view, &[])?;
+    if let Some(p) = &mapped {
+        println!("quality: {p}");
     }
     let render_config = RenderConfig {
         width: size.0,
@@ -205,6 +209,8 @@ pub(crate) fn run(args: &ViewArgs) -> anyhow::Result<()> {
         fov: args.fov,
         terrain,
         kind,
+        error_view,
+        mapped,
         camera: start,
         window: None,
         presenter: None,
@@ -275,9 +281,9 @@ pub(crate) fn run(args: &ViewArgs) -> anyhow::Result<()> {
 /// north-west 45 degrees up.
 const SUN_DEFAULT: (f64, f64) = (315.0, 45.0);
 
-fn check_quality(q: f64) -> anyhow::Result<()> {
+fn check_exaggeration(q: f64) -> anyhow::Result<()> {
     if !(q.is_finite() && q > 0.0) {
-        bail!("the quality value must be a positive number, got {q}");
+        bail!("the vertical exaggeration must be a positive number, got {q}");
     }
     Ok(())
 }
@@ -455,6 +461,11 @@ struct App {
     fov: f64,
     terrain: Terrain,
     kind: LodMethod,
+    /// The view the pixel target refers to (the window's height and field of view).
+    error_view: ErrorView,
+    /// The pixel target's mapping onto the current method's own parameter; `None` while the
+    /// method's own parameter (`--method-param`) rules, until the slider or a script moves.
+    mapped: Option<ErrorPxParams>,
     camera: ViewCamera,
     window: Option<Arc<Window>>,
     presenter: Option<present::Presenter>,
@@ -617,28 +628,46 @@ impl App {
         event_loop.exit();
     }
 
-    /// The scene's parameter value of the current method (the quality slider).
-    fn quality(&self) -> f64 {
-        parameter(self.terrain.config(), self.kind)
+    /// The quality slider's value: the error target in pixels (`None`: the method's own
+    /// parameter was given with `--method-param`).
+    fn error_px(&self) -> Option<f64> {
+        self.mapped.map(|p| p.error_px)
     }
 
-    /// Sets the quality slider's value: the method's own swept parameter (the one place the
-    /// slider's value reaches the method; a mapping such as `--error-px` plugs in here).
-    fn set_quality(&mut self, value: f64) -> anyhow::Result<()> {
-        check_quality(value)?;
-        let kind = self.kind;
+    /// The current method's own parameter as set: its name and value (PVPS under a pixel
+    /// target: Eq. 12's C3, which the mapping sets; otherwise the swept parameter).
+    fn own_parameter(&self) -> (&'static str, f64) {
+        match self.mapped {
+            Some(p) if p.method == self.kind => (p.parameter, p.value),
+            _ => (
+                registry::sweep_values(self.kind, self.terrain.config().leaf_cells).0,
+                parameter(self.terrain.config(), self.kind),
+            ),
+        }
+    }
+
+    /// Sets the quality slider's value, an error target in pixels: mapped onto the current
+    /// method's own parameter through [`registry::params_for_error_px`] for the window's view
+    /// (the one mapping of `--error-px` and `--quality`).
+    fn set_quality(&mut self, error_px: f64) -> anyhow::Result<()> {
+        if !(error_px.is_finite() && error_px > 0.0) {
+            bail!("the error target must be a positive number of pixels, got {error_px}");
+        }
+        let params = registry::params_for_error_px(self.kind, error_px, self.error_view);
         match &mut self.terrain {
             Terrain::Memory(m) => {
                 let Some(scene) = Arc::get_mut(&mut m.scene) else {
                     bail!("the quality cannot change while a method is being prepared");
                 };
-                apply_parameter(&mut scene.config, kind, value);
+                params.apply(&mut scene.config);
             }
             Terrain::Store(s) => {
-                apply_parameter(&mut s.config, kind, value);
-                s.rebuild(kind, &self.ctx, &self.render_config)?;
+                params.apply(&mut s.config);
+                s.rebuild(self.kind, &self.ctx, &self.render_config)?;
             }
         }
+        self.mapped = Some(params);
+        println!("view: quality: {params}");
         Ok(())
     }
 
@@ -677,8 +706,19 @@ impl App {
                         self.ui.message = Some(format!("preparing {}", kind.name()));
                     }
                     Terrain::Store(s) => {
+                        // The pixel target carries over: mapped onto the new method's own
+                        // parameter before its runtime is built.
+                        let mapped = self.mapped.map(|p| {
+                            let q =
+                                registry::params_for_error_px(kind, p.error_px, self.error_view);
+                            q.apply(&mut s.config);
+                            q
+                        });
                         s.rebuild(kind, &self.ctx, &self.render_config)?;
                         self.kind = kind;
+                        if mapped.is_some() {
+                            self.mapped = mapped;
+                        }
                     }
                 }
             }
@@ -698,7 +738,7 @@ impl App {
                 }
             },
             Action::Exaggeration(v) => {
-                check_quality(v)?;
+                check_exaggeration(v)?;
                 let Terrain::Memory(m) = &mut self.terrain else {
                     bail!(
                         "vertical exaggeration of a store: bake it with --vertical-scale (its \
@@ -850,6 +890,10 @@ impl App {
             Some(Job::Prepare(kind, h)) => {
                 h.join().map_err(|_| anyhow::anyhow!("preparing {} panicked", kind.name()))?;
                 self.kind = kind;
+                // The pixel target carries over to the new method (its own parameter mapped).
+                if let Some(px) = self.error_px() {
+                    self.set_quality(px)?;
+                }
                 self.ui.message = Some(format!("{} ready", kind.name()));
                 println!("view: method {}", kind.name());
             }
@@ -984,11 +1028,13 @@ impl App {
             image::save_buffer(path, &raw, img.width, img.height, image::ColorType::Rgba8)
                 .with_context(|| format!("could not write {}", path.display()))?;
             println!(
-                "view: screenshot {} camera {} method {} quality {} frame {}",
+                "view: screenshot {} camera {} method {} error-px {} param {}={} frame {}",
                 path.display(),
                 self.camera.spec(),
                 self.kind.name(),
-                self.quality(),
+                self.error_px().map_or("own".into(), |px| px.to_string()),
+                self.own_parameter().0,
+                self.own_parameter().1,
                 index
             );
         }
@@ -1024,9 +1070,8 @@ impl App {
         let view = panel::PanelView {
             kind: self.kind,
             store: matches!(self.terrain, Terrain::Store(_)),
-            quality: self.quality(),
-            quality_name: registry::sweep_values(self.kind, self.terrain.config().leaf_cells).0,
-            quality_range: quality_range(self.kind, self.terrain.config().leaf_cells),
+            error_px: self.error_px(),
+            own: self.own_parameter(),
             pixels: registry::parameter_is_pixels(self.kind),
             sun: self.sun,
             busy: self.busy(),
@@ -1051,13 +1096,13 @@ impl App {
     }
 }
 
-/// The slider's range: the registry's sweep, widened by 2x on both sides.
-fn quality_range(kind: LodMethod, leaf_cells: u32) -> (f64, f64) {
-    let v = registry::sweep_values(kind, leaf_cells).1;
-    let lo = v.iter().copied().fold(f64::INFINITY, f64::min);
-    let hi = v.iter().copied().fold(0.0, f64::max);
-    (lo / 2.0, hi * 2.0)
-}
+/// The quality slider's range, pixels of screen-space error: a quarter of the finest preset
+/// to four times the coarsest.
+pub(crate) const ERROR_PX_RANGE: (f64, f64) = (0.25, 16.0);
+
+/// The slider's value when the method's own parameter rules (`--method-param`): the default
+/// preset's target.
+pub(crate) const ERROR_PX_DEFAULT: f64 = 2.0;
 
 /// The direction towards the sun from its compass azimuth and elevation, degrees.
 fn sun_direction(az: f64, el: f64) -> [f64; 3] {
@@ -1068,6 +1113,7 @@ fn sun_direction(az: f64, el: f64) -> [f64; 3] {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use terrain_app::method::registry::Quality;
 
     #[test]
     fn the_default_sun_is_the_renderers() {
@@ -1085,13 +1131,30 @@ mod tests {
         }
     }
 
+    /// The slider covers every preset, and across its range the mapping gives every method
+    /// a finite positive parameter that moves with the target (a slider that changes nothing
+    /// for some method would fail here).
     #[test]
-    fn every_method_has_a_quality_range_around_its_sweep() {
+    fn the_pixel_slider_reaches_every_methods_parameter() {
+        let (lo, hi) = ERROR_PX_RANGE;
+        for q in [Quality::Fast, Quality::Balanced, Quality::Best] {
+            assert!(lo <= q.error_px() && q.error_px() <= hi, "{q:?}");
+        }
+        assert_eq!(ERROR_PX_DEFAULT, Quality::DEFAULT.error_px());
+        let view = ErrorView { height_px: 720.0, fov_y_deg: 60.0 };
         for &m in LodMethod::ALL.iter() {
-            let (lo, hi) = quality_range(m, 16);
-            let now = parameter(&MethodConfig::default(), m);
-            assert!(lo > 0.0 && lo < hi, "{m:?}");
-            assert!(now.is_finite(), "{m:?}");
+            let at = |px: f64| registry::params_for_error_px(m, px, view);
+            let (a, b) = (at(1.0), at(8.0));
+            assert!(a.value.is_finite() && a.value > 0.0, "{m:?}: {a}");
+            assert!(b.value.is_finite() && b.value > 0.0, "{m:?}: {b}");
+            assert_ne!(a.value, b.value, "{m:?}: 1 px and 8 px give the same {}", a.parameter);
+            let mut config = MethodConfig::default();
+            b.apply(&mut config);
+            if !matches!(a.parameter, "C3") {
+                let set = parameter(&config, m);
+                // Uniform's factor is stored as f32.
+                assert!((set - b.value).abs() <= 1e-6 * b.value, "{m:?}: {set} set for {b}");
+            }
         }
     }
 }

@@ -14,9 +14,10 @@ use super::{Action, Stats, UiState};
 pub(crate) struct PanelView {
     pub kind: LodMethod,
     pub store: bool,
-    pub quality: f64,
-    pub quality_name: &'static str,
-    pub quality_range: (f64, f64),
+    /// The slider's error target, pixels (`None`: the method's own parameter was given).
+    pub error_px: Option<f64>,
+    /// The method's own parameter as set: name and value.
+    pub own: (&'static str, f64),
     /// Whether the quality is a screen-space error bound in pixels.
     pub pixels: bool,
     pub sun: (f64, f64),
@@ -53,15 +54,25 @@ pub(crate) fn ui(
         if view.busy {
             ui.label("preparing ...");
         }
-        let mut q = view.quality;
-        let (lo, hi) = view.quality_range;
-        let slider = egui::Slider::new(&mut q, lo..=hi)
-            .logarithmic(true)
-            .text(format!("quality ({})", view.quality_name));
-        let r = ui.add(slider);
-        if r.drag_stopped() || (r.changed() && !r.dragged()) {
-            actions.push(Action::Quality(q));
-        }
+        // The one quality slider: the error target in pixels, mapped onto the method's own
+        // parameter (shown beside it) by the registry, as `--error-px` is.
+        let mut q = view.error_px.unwrap_or(super::ERROR_PX_DEFAULT);
+        let (lo, hi) = super::ERROR_PX_RANGE;
+        ui.horizontal(|ui| {
+            let slider = egui::Slider::new(&mut q, lo..=hi)
+                .logarithmic(true)
+                .suffix(" px")
+                .text("error target");
+            let r = ui.add(slider);
+            if r.drag_stopped() || (r.changed() && !r.dragged()) {
+                actions.push(Action::Quality(q));
+            }
+            let (name, value) = view.own;
+            ui.label(match view.error_px {
+                Some(_) => format!("-> {name} = {value:.4}"),
+                None => format!("({name} = {value:.4} from --method-param)"),
+            });
+        });
         let mut toggle = |ui: &mut egui::Ui, t: Toggle, on: bool, label: &str| {
             let mut v = on;
             if ui.checkbox(&mut v, label).changed() {
@@ -90,13 +101,11 @@ pub(crate) fn ui(
         ui.label(format!("engine frame {:.1} ms, CPU {:.1} ms", stats.engine_ms, stats.cpu_ms));
         ui.label(format!("GPU {}", stats.gpu));
         ui.label(format!("{} triangles, {} patches", stats.triangles, stats.patches));
+        let (name, value) = view.own;
         ui.label(if view.pixels {
-            format!("error bound: {} = {:.3} px (screen space)", view.quality_name, view.quality)
+            format!("error bound: {name} = {value:.3} px (screen space)")
         } else {
-            format!(
-                "error bound: none in pixels ({} = {:.3}); measure it",
-                view.quality_name, view.quality
-            )
+            format!("error bound: none in pixels ({name} = {value:.3}); measure it")
         });
         ui.horizontal(|ui| {
             if ui.button("measure p99 (M)").clicked() {

@@ -11,7 +11,7 @@
 //! wheel 2           # wheel steps: faster (fly) or closer (orbit)
 //! orbit             # toggle fly / orbit (the O key)
 //! method dss-1      # switch method; the script waits until it is ready
-//! quality 8         # the quality slider's value (the method's own swept parameter)
+//! quality 3         # the quality slider: an error target in pixels (as --error-px)
 //! wireframe on      # on | off; also: freeze on|off, colour-levels on|off, panel on|off
 //! exaggeration 2    # vertical exaggeration
 //! camera 1,2,3,90,-30   # set the pose (as --camera)
@@ -87,7 +87,7 @@ pub(crate) enum Command {
     Orbit,
     /// Switch the method.
     Method(LodMethod),
-    /// The quality slider.
+    /// The quality slider: an error target in pixels, mapped onto the method's own parameter.
     Quality(f64),
     /// A panel switch.
     Set(Toggle, bool),
