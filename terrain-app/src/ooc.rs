@@ -673,9 +673,16 @@ impl OocScene {
         let per_block = 1usize << level;
         let (w, hh) = (((h.width - 1) / d + 1) as usize, ((h.height - 1) / d + 1) as usize);
         let mut data = vec![0f32; w * hh];
+        let mid = 0.5 * (self.height_range[0] + self.height_range[1]);
         for id in self.store.block_ids() {
-            let b = self.store.read_block(id, level)?;
-            let grid = b.grid(level).expect("levels read");
+            // A damaged block (checksum, truncation) gives its finest readable coarser level,
+            // sampled nearest; with no level readable, the middle of the store's height range.
+            // The overview only places cameras and frames views: the renderer reports each
+            // fault itself when it streams the block, so nothing is said here.
+            let read = (0..=level).rev().find_map(|l| {
+                let b = self.store.read_block(id, l).ok()?;
+                Some((l, b.grid(l)?))
+            });
             let side = per_block + 1;
             for bj in 0..side {
                 let j = id.row as usize * per_block + bj;
@@ -685,7 +692,13 @@ impl OocScene {
                 for bi in 0..side {
                     let i = id.col as usize * per_block + bi;
                     if i < w {
-                        data[j * w + i] = grid[bj * side + bi];
+                        data[j * w + i] = match &read {
+                            Some((l, grid)) => {
+                                let (ls, shift) = ((1usize << l) + 1, level - l);
+                                grid[(bj >> shift) * ls + (bi >> shift)]
+                            }
+                            None => mid,
+                        };
                     }
                 }
             }
