@@ -316,6 +316,13 @@ fn noise2(salt: u64, x: f64, y: f64) -> (f64, f64) {
     let a10 = grad2(lattice_hash(salt, ix + 1, iy), fx - 1.0, fy);
     let a01 = grad2(lattice_hash(salt, ix, iy + 1), fx, fy - 1.0);
     let a11 = grad2(lattice_hash(salt, ix + 1, iy + 1), fx - 1.0, fy - 1.0);
+    blend([a00, a10, a01, a11], fx, fy)
+}
+
+/// Both fields' corner values `00, 10, 01, 11` interpolated at `(fx, fy)` in the cell (the
+/// one interpolation of [`noise2`] and [`noise2_cached`]).
+#[inline]
+fn blend(c: [(f64, f64); 4], fx: f64, fy: f64) -> (f64, f64) {
     let (u, v) = (fade(fx), fade(fy));
     let interp = |n00: f64, n10: f64, n01: f64, n11: f64| {
         let a = n00 + (n10 - n00) * u;
@@ -323,7 +330,7 @@ fn noise2(salt: u64, x: f64, y: f64) -> (f64, f64) {
         // Perlin noise with unit gradients lies in [-sqrt(2)/2, sqrt(2)/2].
         ((a + (b - a) * v) * std::f64::consts::SQRT_2).clamp(-1.0, 1.0)
     };
-    (interp(a00.0, a10.0, a01.0, a11.0), interp(a00.1, a10.1, a01.1, a11.1))
+    (interp(c[0].0, c[1].0, c[2].0, c[3].0), interp(c[0].1, c[1].1, c[2].1, c[3].1))
 }
 
 /// The gradients of the last lattice cell one noise field was evaluated in: neighbouring
@@ -368,13 +375,7 @@ fn noise2_cached(salt: u64, x: f64, y: f64, cache: &mut CellCache) -> (f64, f64)
     let a10 = dot(cache.grads[1], fx - 1.0, fy);
     let a01 = dot(cache.grads[2], fx, fy - 1.0);
     let a11 = dot(cache.grads[3], fx - 1.0, fy - 1.0);
-    let (u, v) = (fade(fx), fade(fy));
-    let interp = |n00: f64, n10: f64, n01: f64, n11: f64| {
-        let a = n00 + (n10 - n00) * u;
-        let b = n01 + (n11 - n01) * u;
-        ((a + (b - a) * v) * std::f64::consts::SQRT_2).clamp(-1.0, 1.0)
-    };
-    (interp(a00.0, a10.0, a01.0, a11.0), interp(a00.1, a10.1, a01.1, a11.1))
+    blend([a00, a10, a01, a11], fx, fy)
 }
 
 /// One [`CellCache`] per noise field of a [`Generator`] (warp, octaves, valleys).
