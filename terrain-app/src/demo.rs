@@ -326,6 +326,14 @@ pub(crate) fn verdict(report: &BenchReport) -> Vec<String> {
             s.median_selection_ms
         );
         let at = |pts: &[(f64, f64)]| log_interp(pts, s.median_p99_px);
+        // One of uniform's end points `(p99, triangles, ms)`, when this run's p99 lies beyond it.
+        let end_point = |what: &str, (p99, t, ms): &(f64, f64, f64)| {
+            format!(
+                "; uniform's {what} (p99 {p99:.2} px) with {} triangles ({:.1}x), {ms:.1} ms",
+                count(*t),
+                t / s.median_triangles.max(1.0),
+            )
+        };
         match (at(&tri), at(&sel), uniform.first(), uniform.last()) {
             (Some(t), Some(ms), _, _) => line.push_str(&format!(
                 "; uniform at that p99: {} triangles ({:.1}x), {:.1} ms ({:.1}x)",
@@ -334,22 +342,10 @@ pub(crate) fn verdict(report: &BenchReport) -> Vec<String> {
                 ms,
                 ms / s.median_selection_ms.max(1e-6)
             )),
-            (_, _, Some(fine), _) if s.median_p99_px < fine.0 => line.push_str(&format!(
-                "; uniform's finest point is coarser (p99 {:.2} px) with {} triangles ({:.1}x), \
-                 {:.1} ms",
-                fine.0,
-                count(fine.1),
-                fine.1 / s.median_triangles.max(1.0),
-                fine.2
-            )),
-            (_, _, _, Some(coarse)) => line.push_str(&format!(
-                "; uniform's coarsest point is finer (p99 {:.2} px) with {} triangles ({:.1}x), \
-                 {:.1} ms",
-                coarse.0,
-                count(coarse.1),
-                coarse.1 / s.median_triangles.max(1.0),
-                coarse.2
-            )),
+            (_, _, Some(fine), _) if s.median_p99_px < fine.0 => {
+                line.push_str(&end_point("finest point is coarser", fine));
+            }
+            (_, _, _, Some(coarse)) => line.push_str(&end_point("coarsest point is finer", coarse)),
             _ => line.push_str("; no uniform run to compare"),
         }
         lines.push(line);
