@@ -8,7 +8,8 @@
 //! The paper splits nodes down to single cells and draws each node as a fan of its corners
 //! and edge midpoints. Here, as in the in-memory methods, the drawn unit is a *patch*: a
 //! quadtree node of at least [`StoreTree::patch_cells`] cells inside one block (the nodes with
-//! stored per-node values, so the split test reads the index only), drawn by the renderer's
+//! stored per-node values, so the split test reads the index only) or, far away, spanning
+//! several blocks (below), drawn by the renderer's
 //! tessellator with a power-of-two factor. The traversal splits while Eq. 7 says the node is
 //! too coarse on screen (`rho > tau`, the paper's step 4) even when drawn at the largest
 //! factor, [`MAX_FACTOR`] = 64: the error that decides is not the node's own `StaticE` (its
@@ -23,6 +24,21 @@
 //! evaluated at the patch's own distance and `beta`, which only overestimates), at most the
 //! block's resident level and never finer than the data (a patch of `c` cells has a factor of
 //! at most `c`), so no frame draws more triangles than the full-resolution grid in view.
+//!
+//! # Far terrain: patches spanning several blocks
+//! A node above the blocks (spanning `2^s x 2^s` of them) has no per-node values in the
+//! index; [`StoreTree::new`] computes once, from the index, a flat array per node above the
+//! blocks of the largest per-level error of its blocks (`level_errors[l]`, the bound of every
+//! block drawn with its level-`l` vertices) beside their min/max. Such a node stays one patch
+//! when some factor of at most 64 (`2^(s + l)` segments across it: each block's level-`l`
+//! vertices, `l <= 6 - s`) meets Eq. 7 at its box with that bound (`spanning_level`: the least
+//! such `l`), and each of its blocks holds level `l` (else it splits). It is drawn as one
+//! tessellated patch over its square of grid samples; the renderer reads each vertex from the
+//! page of the block it lies in (pages at level `l` or finer hold it exactly), so a spanning
+//! patch is one more node of the balanced leaf set, with edge factors like any other. This
+//! is how CDLOD draws far terrain (Strugar 2009: one node of the quadtree per patch whatever
+//! its size, the error bound a max over the node's area); without it every block in view
+//! was at least one patch.
 //!
 //! # Crack-free selection ([`select_patches`])
 //! Leaves are clamped to each block's resident level (the split stops there: the runtime
@@ -397,10 +413,66 @@ fn patch_level(h: &Header, cells: u32) -> u8 {
     h.k - cells.trailing_zeros() as u8
 }
 
+/// Index of node `n` above the blocks in [`StoreTree`]'s flat per-node arrays (level-major,
+/// row-major within a level, like `BlockEntry::nodes`).
+fn upper_index(n: NodeId) -> usize {
+    let side = 1usize << n.level;
+    (side * side - 1) / 3 + n.j as usize * side + n.i as usize
+}
+
+/// The values of every node above the blocks of `store`, whose block level is `block_level`:
+/// min/max over its blocks, and per block-local lattice level `0..=k` the largest of its
+/// blocks' `level_errors` (`k + 1` per node), both in [`upper_index`] order. Computed once
+/// from the index when the tree is built (no store format change): the blocks' values at the
+/// block level, then each coarser level as the min/max and max of its four children.
+fn upper_bounds(store: &Store, block_level: u8) -> (Vec<[f32; 2]>, Vec<f32>) {
+    let h = store.header();
+    let per = h.k as usize + 1;
+    let nodes = upper_index(NodeId { level: block_level, i: 0, j: 0 });
+    let mut mm = vec![[f32::INFINITY, f32::NEG_INFINITY]; nodes];
+    let mut err = vec![0f32; nodes * per];
+    // The block level itself (not kept: the blocks' own entries hold it).
+    let side = 1usize << block_level;
+    let mut level_mm = vec![[f32::INFINITY, f32::NEG_INFINITY]; side * side];
+    let mut level_err = vec![0f32; side * side * per];
+    for id in store.block_ids() {
+        if let Some(e) = store.entry(id) {
+            let k = id.row as usize * side + id.col as usize;
+            level_mm[k] = [e.min, e.max];
+            for (l, v) in e.level_errors.iter().take(h.k as usize).enumerate() {
+                level_err[k * per + l] = *v;
+            }
+        }
+    }
+    for level in (0..block_level).rev() {
+        let m = 1usize << level;
+        let base = upper_index(NodeId { level, i: 0, j: 0 });
+        for j in 0..m {
+            for i in 0..m {
+                let (o, acc_e) = (base + j * m + i, (base + j * m + i) * per);
+                for (ci, cj) in
+                    [(2 * i, 2 * j), (2 * i + 1, 2 * j), (2 * i, 2 * j + 1), (2 * i + 1, 2 * j + 1)]
+                {
+                    let c = cj * (2 * m) + ci;
+                    mm[o][0] = mm[o][0].min(level_mm[c][0]);
+                    mm[o][1] = mm[o][1].max(level_mm[c][1]);
+                    for l in 0..per {
+                        err[acc_e + l] = err[acc_e + l].max(level_err[c * per + l]);
+                    }
+                }
+            }
+        }
+        level_mm = mm[base..base + m * m].to_vec();
+        level_err = err[base * per..(base + m * m) * per].to_vec();
+    }
+    (mm, err)
+}
+
 /// The quadtree of a whole store's grid as a [`NodeSource`]: the root covers the blocks
 /// rounded up to a power of two per side (block `(row, col)` is node `(block_level, col,
-/// row)`), nodes inside a block read the block's index entry, nodes above the blocks a min/max
-/// pyramid over the blocks built once. No heights in memory.
+/// row)`), nodes inside a block read the block's index entry, nodes above the blocks flat
+/// arrays built once from the index (min/max and per-level error bounds over their blocks).
+/// No heights in memory.
 #[derive(Debug, Clone)]
 pub struct StoreTree {
     store: Arc<Store>,
@@ -409,8 +481,13 @@ pub struct StoreTree {
     block_level: u8,
     root_cells: u32,
     patch_level: u8,
-    /// Per level above the blocks: min/max per node, row-major `2^l` per side.
-    upper: Vec<Vec<[f32; 2]>>,
+    /// Per node above the blocks, flat and level-major like `BlockEntry::nodes` (node `(l, i,
+    /// j)` at `(4^l - 1) / 3 + j 2^l + i`): min/max over its blocks.
+    upper: Vec<[f32; 2]>,
+    /// Per node above the blocks (same order), `k + 1` values: for each block-local lattice
+    /// level `l`, the largest `BlockEntry::level_errors[l]` of its blocks (0 at `l = k`), the
+    /// bound on the error of every block under it drawn with its level-`l` vertices.
+    upper_err: Vec<f32>,
 }
 
 impl StoreTree {
@@ -422,38 +499,7 @@ impl StoreTree {
         let block_level = blocks.trailing_zeros() as u8;
         let root_cells = blocks * h.block_cells();
         let patch_level = patch_level(h, patch_cells);
-        let mut upper: Vec<Vec<[f32; 2]>> = Vec::with_capacity(block_level as usize);
-        // The block level itself, then coarser ones by merging.
-        let mut level = vec![[f32::INFINITY, f32::NEG_INFINITY]; (blocks * blocks) as usize];
-        for id in store.block_ids() {
-            if let Some(e) = store.entry(id) {
-                level[(id.row * blocks + id.col) as usize] = [e.min, e.max];
-            }
-        }
-        let mut n = blocks;
-        while n > 1 {
-            let m = n / 2;
-            let mut next = vec![[f32::INFINITY, f32::NEG_INFINITY]; (m * m) as usize];
-            for j in 0..m {
-                for i in 0..m {
-                    let acc = &mut next[(j * m + i) as usize];
-                    for (ci, cj) in [
-                        (2 * i, 2 * j),
-                        (2 * i + 1, 2 * j),
-                        (2 * i, 2 * j + 1),
-                        (2 * i + 1, 2 * j + 1),
-                    ] {
-                        let c = level[(cj * n + ci) as usize];
-                        acc[0] = acc[0].min(c[0]);
-                        acc[1] = acc[1].max(c[1]);
-                    }
-                }
-            }
-            upper.push(next.clone());
-            level = next;
-            n = m;
-        }
-        upper.reverse();
+        let (upper, upper_err) = upper_bounds(&store, block_level);
         let shape = TreeShape::with_root(
             (h.width as u32).max(1),
             (h.height as u32).max(1),
@@ -462,7 +508,7 @@ impl StoreTree {
             h.georef.world_origin,
             h.georef.spacing_m,
         );
-        Self { store, shape, block_level, root_cells, patch_level, upper }
+        Self { store, shape, block_level, root_cells, patch_level, upper, upper_err }
     }
 
     /// The store.
@@ -568,7 +614,7 @@ impl StoreTree {
         let (x0, y0, c) = n.grid_rect(self.root_cells);
         let (w, hh) = ((h.width as u32).max(2) - 1, (h.height as u32).max(2) - 1);
         let rect = GridRect { x0, y0, x1: (x0 + c).min(w), y1: (y0 + c).min(hh) };
-        let [min, max] = self.upper[n.level as usize][(n.j * (1 << n.level) + n.i) as usize];
+        let [min, max] = self.upper[upper_index(n)];
         let (min, max) = if min <= max { (min, max) } else { (0.0, 0.0) };
         let g = &h.georef;
         let lo = g.grid_to_world(DVec2::new(rect.x0 as f64, rect.y0 as f64));
@@ -581,6 +627,58 @@ impl StoreTree {
             has_voids: false,
             is_finest: false,
         }
+    }
+
+    /// The block-local lattice level at which node `n` above the blocks (`s` levels above
+    /// them), box `aabb`, drawn as one patch spanning its blocks, meets Eq. 7's `tau` for
+    /// `view`: the least `l` whose bound (the largest `level_errors[l]` of its blocks, each
+    /// block drawn with its level-`l` vertices) times Eq. 7's `rho` per metre at `n`'s box is
+    /// at most `tau`, among the levels a factor of at most [`MAX_FACTOR`] reaches (`2^(s + l)`
+    /// segments across `n`: `l <= 6 - s`); `None` when none does (the node splits), when `n`
+    /// is at or below the blocks, or when the eye is in its box.
+    pub(crate) fn spanning_level(&self, n: NodeId, aabb: &Aabb, view: &View) -> Option<u8> {
+        let s = self.block_level.checked_sub(n.level).filter(|&s| s > 0)?;
+        let top = FACTOR_LEVELS.checked_sub(s)?.min(self.store.header().k);
+        let per_metre = view.rho_per_metre(aabb);
+        if !per_metre.is_finite() {
+            return None;
+        }
+        let errs = self.upper_errors(n);
+        (0..=top).find(|&l| per_metre * f64::from(errs[l as usize]) <= view.tau)
+    }
+
+    /// The `k + 1` per-level bounds of node `n` above the blocks (`upper_err`).
+    fn upper_errors(&self, n: NodeId) -> &[f32] {
+        let per = self.store.header().k as usize + 1;
+        let o = upper_index(n) * per;
+        &self.upper_err[o..o + per]
+    }
+
+    /// The least of `resident` over the blocks under node `n` (its block at or below the
+    /// block level), or `None` when one of them has nothing resident. Stops early (`Some` of
+    /// a value below `at_least`) once a block holds less than `at_least`.
+    fn least_resident(
+        &self,
+        n: NodeId,
+        at_least: u8,
+        resident: &impl Fn(BlockId) -> Option<u8>,
+    ) -> Option<u8> {
+        if let Some((b, _)) = self.block_of(n) {
+            return resident(b);
+        }
+        let h = self.store.header();
+        let s = self.block_level - n.level;
+        let (c0, r0, side) = (n.i << s, n.j << s, 1u32 << s);
+        let mut least = u8::MAX;
+        for r in r0..(r0 + side).min(h.blocks_y) {
+            for c in c0..(c0 + side).min(h.blocks_x) {
+                least = least.min(resident(BlockId::new(r, c))?);
+                if least < at_least {
+                    return Some(least);
+                }
+            }
+        }
+        Some(least)
     }
 
     /// `needed_vertex_level` of global node `n` with box `aabb` (at most `max_level`, a
@@ -694,28 +792,41 @@ pub fn select_patches(
         }
     };
     let nodes = FrameNodes { tree, last: Cell::new(None) };
-    let mut split = Eq7Split {
-        view,
-        error: |n: NodeId| nodes.patch_error(n),
-        stop: |n: NodeId| {
-            tree.block_of(n).is_some_and(|(b, local)| local.level >= resident(b).unwrap_or(0))
-        },
+    // Eq. 7 (the paper's step 4: split while `rho > tau`) on each node's patch error, stopped
+    // at its block's resident level. A node above the blocks stays one patch spanning its
+    // blocks when some factor of at most 64 meets `tau` (`spanning_level`, from the largest
+    // per-level error of its blocks) and each of its blocks holds that level; else it splits.
+    let mut split = |n: NodeId, info: &NodeInfo| -> bool {
+        match tree.block_of(n) {
+            Some((b, local)) => {
+                if local.level >= resident(b).unwrap_or(0) {
+                    return false;
+                }
+                match nodes.patch_error(n) {
+                    None => true,
+                    Some(err) => view.splits(err, &info.aabb),
+                }
+            }
+            None => match tree.spanning_level(n, &info.aabb, &view) {
+                Some(l) => tree.least_resident(n, l, &resident).is_none_or(|r| r < l),
+                None => true,
+            },
+        }
     };
     let mut stats = SelectionStats::default();
-    // The leaves at or below the block level with their boxes, in traversal order. Nodes
-    // above the block level never end as leaves unless the block is not resident.
+    // The leaves with their boxes, in traversal order: inside blocks, and above them the
+    // patches spanning several blocks.
     let mut boxed: Vec<(NodeId, Aabb)> = Vec::new();
     traverse(&nodes, &mut split, &mut cull, &mut |n, v| {
         stats.visited += 1;
         match v {
             Visit::Culled => stats.culled += 1,
             Visit::Split => stats.split += 1,
-            Visit::Leaf if n.level >= bl => {
+            Visit::Leaf => {
                 if let Some((info, _)) = nodes.cached(n) {
                     boxed.push((n, info.aabb));
                 }
             }
-            Visit::Leaf => {}
         }
     });
     stats.traversal_leaves = boxed.len();
@@ -735,13 +846,26 @@ pub fn select_patches(
             Some(&(m, aabb)) if m == n => Some(aabb),
             _ => tree.node_info(n).map(|i| i.aabb),
         };
-        let (b, local) = tree.block_of(n).expect("block nodes");
-        let max = resident(b).unwrap_or(0);
-        let level = match aabb {
-            Some(aabb) => tree.needed_vertex_level(n, &aabb, &view, max).unwrap_or(n.level),
-            None => n.level,
+        let m = match tree.block_of(n) {
+            Some((b, local)) => {
+                let max = resident(b).unwrap_or(0);
+                let level = match aabb {
+                    Some(aabb) => tree.needed_vertex_level(n, &aabb, &view, max).unwrap_or(n.level),
+                    None => n.level,
+                };
+                level.saturating_sub(bl + local.level).min(FACTOR_LEVELS)
+            }
+            // A patch spanning `2^s` blocks per side: `2^(s + l)` segments put the level-`l`
+            // vertices of each block (a balance-added child of a spanning leaf may miss `tau`
+            // at any factor: then its largest), at most its blocks' least resident level.
+            None => {
+                let s = bl - n.level;
+                let top = FACTOR_LEVELS.saturating_sub(s);
+                let l = aabb.and_then(|a| tree.spanning_level(n, &a, &view)).unwrap_or(top);
+                let l = l.min(tree.least_resident(n, 0, &resident).unwrap_or(0));
+                (s + l).min(FACTOR_LEVELS)
+            }
         };
-        let m = level.saturating_sub(bl + local.level).min(6);
         rule.want.insert(n, ((1u32 << m) as f32).clamp(2.0, MAX_FACTOR));
     }
     let set = LeafSet::new(leaves.iter().copied());

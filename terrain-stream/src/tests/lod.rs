@@ -104,6 +104,49 @@ fn level_max(store: &Store, b: BlockId, n: NodeId, level: u8) -> f64 {
     m
 }
 
+/// Checks a patch spanning several blocks: a power-of-two factor putting each block's
+/// level-`l` vertices (`2^(s + l)` segments for `2^s` blocks per side), every block under it
+/// resident at `l` or finer, and (unless the balance added patches) Eq. 7 at the patch's box
+/// met at `l` with the brute force's bounds of every block, and not at `l - 1`.
+fn check_spanning(
+    tree: &StoreTree,
+    view: &View,
+    resident: &HashMap<BlockId, u8>,
+    sel: &Selection,
+    p: &terrain_core::lod::Patch,
+) {
+    let store = tree.store();
+    let s = tree.block_level() - p.node.level;
+    let f = p.inner[0];
+    assert_eq!(p.inner[1], f);
+    assert!(f.log2().fract() == 0.0 && (2.0..=64.0).contains(&f), "{:?}: factor {f}", p.node);
+    let segments = f.log2() as u8;
+    assert!(segments >= s, "{:?}: factor {f} coarser than its blocks' corners", p.node);
+    let l = segments - s;
+    let blocks = tree.blocks_under(p.node);
+    assert!(!blocks.is_empty());
+    for b in &blocks {
+        let res =
+            *resident.get(b).unwrap_or_else(|| panic!("{:?}: block {b} not resident", p.node));
+        assert!(res >= l, "{:?}: draws level {l} of block {b}, resident {res}", p.node);
+    }
+    if sel.stats.balance_added > 0 {
+        return;
+    }
+    let root = NodeId { level: 0, i: 0, j: 0 };
+    let err = |l: u8| blocks.iter().map(|&b| level_max(store, b, root, l)).fold(0.0, f64::max);
+    let per_metre = rho_per_metre(tree, view, p.node);
+    assert!(per_metre * err(l) <= view.tau * (1.0 + 1e-6), "{:?}: level {l} misses tau", p.node);
+    if l > 0 {
+        assert!(
+            per_metre * err(l - 1) > view.tau * (1.0 - 1e-6),
+            "{:?}: level {} would meet tau",
+            p.node,
+            l - 1
+        );
+    }
+}
+
 /// Checks one selection of the store baked from `hm`; returns its patch count and the number
 /// of cells in the view region left out because their box is outside the frustum.
 fn check(
@@ -120,7 +163,10 @@ fn check(
     assert!(check_shared_edges(sel).is_empty(), "shared edges disagree");
     assert!(sel.factors_in_range());
     for p in &sel.patches {
-        let (b, local) = tree.block_of(p.node).expect("patches lie in blocks");
+        let Some((b, local)) = tree.block_of(p.node) else {
+            check_spanning(tree, &view, resident, sel, p);
+            continue;
+        };
         let res = *resident.get(&b).expect("only resident blocks are drawn");
         let cells = h.block_cells() >> local.level;
         let f = p.inner[0];
@@ -272,7 +318,10 @@ fn patches_meet_eq7_minimally_and_cover_the_view() {
     assert!(total > 100, "{total} patches");
     assert!(factors.len() >= 3, "factors used: {factors:?}");
     // The frustum cull matters here: cells of the bounding-circle region are left out.
-    assert!(culled > 100, "{culled} cells culled by the frustum");
+    // The frustum cull matters (cells of the bounding-circle region left out) on a grid of
+    // more blocks: `spanning_patches_meet_eq7_over_their_blocks`. Here a far view draws the
+    // whole 4 x 4 blocks as one patch spanning them when its box meets the frustum.
+    let _ = culled;
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
@@ -320,7 +369,8 @@ fn patches_split_only_where_their_largest_factor_misses_tau() {
             total += check(&hm, &tree, &cam, tau, &all, &sel).0;
             let view = View::new(&cam, tau);
             for p in &sel.patches {
-                let (b, local) = tree.block_of(p.node).expect("patches lie in blocks");
+                // Patches spanning blocks: `spanning_patches_meet_eq7_over_their_blocks`.
+                let Some((b, local)) = tree.block_of(p.node) else { continue };
                 let Some(parent) = local.parent() else { continue };
                 inside += 1;
                 if sel.stats.balance_added > 0 {
@@ -345,5 +395,78 @@ fn patches_split_only_where_their_largest_factor_misses_tau() {
         }
     }
     assert!(inside > 20 && total > inside, "{inside} patches inside blocks of {total}");
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// Far terrain is drawn by patches spanning several blocks: a node above the blocks stays one
+/// patch when Eq. 7 holds at some factor of at most 64 with the largest per-level error of its
+/// blocks, and each of its blocks holds that level. Every spanning patch meets Eq. 7 minimally
+/// over its blocks (`check`), the surface stays crack-free with resident levels varying per
+/// block and a block with nothing resident, and a node above the blocks was split only where
+/// no factor met `tau` or a block under it lacked the level.
+#[test]
+fn spanning_patches_meet_eq7_over_their_blocks() {
+    // 513 x 513 at 10 m in blocks of 33^2 (16 x 16 blocks, 4 levels above them).
+    let hm = terrain(513, 513);
+    let (dir, store) = bake_store(&hm, "span", 5, 3);
+    let h = store.header().clone();
+    assert_eq!((h.blocks_x, h.blocks_y), (16, 16));
+    let tree = StoreTree::new(store.clone(), 32);
+    let all: HashMap<BlockId, u8> = store.block_ids().map(|b| (b, h.k)).collect();
+    let varied: HashMap<BlockId, u8> = store
+        .block_ids()
+        .filter(|b| *b != BlockId::new(9, 9))
+        .map(|b| (b, ((b.row * 3 + b.col) % 6) as u8))
+        .collect();
+    let cam = |x, y, z, yaw, pitch| Camera::from_yaw_pitch(dvec3(x, y, z), yaw, pitch);
+    let cams = [
+        cam(300.0, 400.0, 420.0, 45.0, -8.0).with_clip(1.0, 9000.0),
+        cam(2500.0, 300.0, 600.0, 0.0, -15.0).with_clip(1.0, 9000.0),
+        cam(2560.0, 2560.0, 6000.0, 30.0, -70.0).with_clip(1.0, 20000.0),
+    ];
+    let (mut spanning, mut blocks_spanned, mut culled, mut parents) = (0, 0, 0, 0);
+    for resident in [&all, &varied] {
+        for c in &cams {
+            for tau in [0.5, 2.0, 8.0] {
+                let sel = select_patches(&tree, c, tau, |b| resident.get(&b).copied());
+                culled += check(&hm, &tree, c, tau, resident, &sel).1;
+                let view = View::new(c, tau);
+                for p in &sel.patches {
+                    if p.node.level < tree.block_level() {
+                        spanning += 1;
+                        blocks_spanned += tree.blocks_under(p.node).len();
+                    }
+                    // A parent above the blocks split: no factor met tau over its blocks, or
+                    // one of them lacked the level that did.
+                    let Some(parent) = p.node.parent() else { continue };
+                    if parent.level >= tree.block_level() || sel.stats.balance_added > 0 {
+                        continue;
+                    }
+                    parents += 1;
+                    let s = tree.block_level() - parent.level;
+                    let blocks = tree.blocks_under(parent);
+                    let root = NodeId { level: 0, i: 0, j: 0 };
+                    let per_metre = rho_per_metre(&tree, &view, parent);
+                    let met = (0..=6u8.saturating_sub(s)).filter(|_| s <= 6).find(|&l| {
+                        let err = blocks
+                            .iter()
+                            .map(|&b| level_max(&store, b, root, l.min(h.k)))
+                            .fold(0.0, f64::max);
+                        per_metre * err <= tau * (1.0 - 1e-6)
+                    });
+                    if let Some(l) = met {
+                        assert!(
+                            blocks.iter().any(|b| resident.get(b).is_none_or(|&r| r < l)),
+                            "{parent:?} split though level {l} of its resident blocks meets tau"
+                        );
+                    }
+                }
+            }
+        }
+    }
+    assert!(spanning > 20, "{spanning} spanning patches");
+    assert!(blocks_spanned > 2 * spanning, "{blocks_spanned} blocks under {spanning} patches");
+    assert!(parents > 20, "{parents} parents above the blocks checked");
+    assert!(culled > 100, "{culled} cells culled by the frustum");
     std::fs::remove_dir_all(&dir).unwrap();
 }
