@@ -14,6 +14,14 @@
 //! empty (the paper's Table 3: "all the needed data are loaded from external memory" in frame
 //! 1). These count as the frame's synchronous (real-time loaded) data.
 //!
+//! **By the frustum.** The visual region M is the blocks of the paper's projected view
+//! triangle whose box (plan rectangle, min/max heights) meets the view frustum: the triangle
+//! alone keeps blocks under a pitched camera that the frustum's lower plane leaves out, which
+//! the selection never draws. The pre-loading region N - M is the Eq. 8 extension (the paper's
+//! margin around the view, for motion and turning) less the blocks outside the frustum and
+//! wholly behind the eye (behind the vertical plane through it across the plan view
+//! direction): nothing behind the camera is loaded.
+//!
 //! **Priorities.** Requests go to the workers in this order, at most `max_in_flight` at a
 //! time: (0) the coarse levels of visible blocks with nothing resident, nearest first (every
 //! visible block soon has something to draw); (1) the missing levels of visible blocks, nearest
@@ -43,7 +51,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
 use glam::{DVec2, DVec3};
-use terrain_core::geometry::{Camera, GroundRegion};
+use terrain_core::geometry::{Aabb, Camera, Classification, Frustum, GroundRegion};
 use terrain_core::metrics::screen::{MIN_DISTANCE_M, view_sin};
 
 use crate::cache::Cache;
@@ -394,6 +402,25 @@ impl Streamer {
         let needed = |id: BlockId, e: &BlockEntry, region: &GroundRegion| {
             needed_level_fast(header, e, id, &view, region)
         };
+        // M is the blocks of the view region whose box meets the view frustum (the paper's
+        // projected triangle alone keeps blocks below and beside a pitched view); N - M, the
+        // Eq. 8 extension around it, leaves out blocks outside the frustum and wholly behind
+        // the eye (behind the vertical plane through it across the plan view direction).
+        let frustum = Frustum::from_camera(camera);
+        let plan_dir = camera.forward().truncate().normalize_or_zero();
+        let block_box = |e: &BlockEntry, lo: DVec2, hi: DVec2| Aabb {
+            min: lo.extend(e.min.into()),
+            max: hi.extend(e.max.into()),
+        };
+        let behind = |lo: DVec2, hi: DVec2, b: &Aabb| {
+            let far_corner = DVec2::new(
+                if plan_dir.x >= 0.0 { hi.x } else { lo.x },
+                if plan_dir.y >= 0.0 { hi.y } else { lo.y },
+            );
+            plan_dir != DVec2::ZERO
+                && (far_corner - eye).dot(plan_dir) < 0.0
+                && frustum.classify(b) == Classification::Outside
+        };
         let mut scheduled = Vec::new();
         let mut in_m = BTreeSet::new();
         if let Some(demand) = &self.demand {
@@ -418,7 +445,9 @@ impl Streamer {
         for id in eq7 {
             let Some(e) = store.entry(id) else { continue };
             let (lo, hi) = block_rect(header, e, id);
-            if !polygon_meets_rect(reg.view.vertices(), lo, hi) {
+            if !polygon_meets_rect(reg.view.vertices(), lo, hi)
+                || frustum.classify(&block_box(e, lo, hi)) == Classification::Outside
+            {
                 continue;
             }
             if let Some(needed) = needed(id, e, &reg.view) {
@@ -438,7 +467,9 @@ impl Streamer {
             }
             let Some(e) = store.entry(id) else { continue };
             let (lo, hi) = block_rect(header, e, id);
-            if !polygon_meets_rect(reg.extension.vertices(), lo, hi) {
+            if !polygon_meets_rect(reg.extension.vertices(), lo, hi)
+                || behind(lo, hi, &block_box(e, lo, hi))
+            {
                 continue;
             }
             let needed = needed(id, e, &reg.extension).unwrap_or(0);

@@ -385,3 +385,69 @@ fn a_block_deleted_mid_flight_is_a_fault_not_a_panic() {
     drop(s);
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+/// The streamer's visual region M is the blocks of the projected view triangle whose box meets
+/// the view frustum, and the pre-loading region N - M (the Eq. 8 extension) leaves out blocks
+/// wholly behind the eye: a pitched camera over the middle of the store schedules neither the
+/// blocks under it that the frustum's lower plane leaves out nor those behind it, though both
+/// meet the paper's regions (the negative controls).
+#[test]
+fn the_needed_set_follows_the_frustum_and_nothing_behind_the_eye_is_loaded() {
+    use crate::schedule::{block_rect, blocks_under_bbox, polygon_meets_rect};
+    use terrain_core::geometry::{Aabb, Classification, Frustum};
+    let (dir, store) = store("frustum");
+    let h = store.header().clone();
+    let config =
+        StreamConfig { budget_bytes: 64 << 20, threads: 1, tau: 2.0, ..Default::default() };
+    let mut s = Streamer::new(store.clone(), config);
+    let (mut left_out_below, mut left_out_behind) = (0, 0);
+    for (x, y, yaw) in [(2560.0, 2560.0, 0.0), (2000.0, 3000.0, 135.0), (3000.0, 1500.0, 250.0)] {
+        let cam = Camera::from_yaw_pitch(dvec3(x, y, 900.0), yaw, -25.0).with_clip(1.0, 2500.0);
+        s.update(&cam);
+        let frustum = Frustum::from_camera(&cam);
+        let boxed = |id: BlockId| {
+            let e = store.entry(id).unwrap();
+            let (lo, hi) = block_rect(&h, e, id);
+            (lo, hi, Aabb { min: lo.extend(e.min.into()), max: hi.extend(e.max.into()) })
+        };
+        // Wholly behind the vertical plane through the eye across the plan view direction.
+        let dir = cam.forward().truncate().normalize();
+        let behind = |b: &Aabb| {
+            (0..4).all(|k| {
+                let c = glam::dvec2(
+                    if k & 1 == 0 { b.min.x } else { b.max.x },
+                    if k & 2 == 0 { b.min.y } else { b.max.y },
+                );
+                (c - cam.position.truncate()).dot(dir) < 0.0
+            })
+        };
+        let scheduled: std::collections::HashMap<BlockId, bool> =
+            s.scheduled().iter().map(|b| (b.block, b.visible)).collect();
+        assert!(scheduled.values().any(|&v| v), "nothing visible");
+        for (&id, &visible) in &scheduled {
+            let (_, _, b) = boxed(id);
+            if visible {
+                assert_ne!(frustum.classify(&b), Classification::Outside, "{id} in M");
+            }
+            assert!(!behind(&b), "{id} behind the eye scheduled");
+        }
+        let reg = s.regions().unwrap().clone();
+        for id in blocks_under_bbox(&h, &reg.extension) {
+            let (lo, hi, b) = boxed(id);
+            if polygon_meets_rect(reg.view.vertices(), lo, hi)
+                && frustum.classify(&b) == Classification::Outside
+            {
+                left_out_below += 1;
+                assert_ne!(scheduled.get(&id), Some(&true), "{id}");
+            }
+            if polygon_meets_rect(reg.extension.vertices(), lo, hi) && behind(&b) {
+                left_out_behind += 1;
+                assert!(!scheduled.contains_key(&id), "{id}");
+            }
+        }
+    }
+    assert!(left_out_below > 0, "no block of the view triangle outside the frustum");
+    assert!(left_out_behind > 0, "no block of the extension behind the eye");
+    drop(s);
+    std::fs::remove_dir_all(&dir).unwrap();
+}
