@@ -235,7 +235,7 @@ pub(crate) fn needed_vertex_level(
         return max_level;
     }
     let limit = (view.tau / per_metre) as f32;
-    needed_level_below(h, e, n, limit, max_level)
+    needed_level_below(h, e, n, limit, max_level, None)
 }
 
 /// [`needed_vertex_level`] once the node's error threshold `limit` (metres: `tau` over Eq. 7's
@@ -245,7 +245,18 @@ pub(crate) fn needed_vertex_level(
 /// largest `StaticE` over `limit` there; the same result as the level-by-level frontier of the
 /// paper's split (the frontier at a level is exactly the over-threshold nodes whose ancestors
 /// are over it).
-fn needed_level_below(h: &Header, e: &BlockEntry, n: NodeId, limit: f32, max_level: u8) -> u8 {
+///
+/// `sub`, when given, holds for each stored level `l` (indexed by `l`, entries above
+/// `n.level` used) the largest `StaticE` of `n`'s descendants at `l` ([`StoreTree`]'s
+/// per-patch arrays): the walk is then one look per level instead of one per node.
+fn needed_level_below(
+    h: &Header,
+    e: &BlockEntry,
+    n: NodeId,
+    limit: f32,
+    max_level: u8,
+    sub: Option<&[f32]>,
+) -> u8 {
     let err = local_values(h, e, n).2;
     if err <= limit {
         return n.level;
@@ -263,8 +274,24 @@ fn needed_level_below(h: &Header, e: &BlockEntry, n: NodeId, limit: f32, max_lev
     }
     let mut deepest = n.level;
     let mut worst = err;
-    if n.level < stop {
-        over_walk(h, e, n, limit, stop, &mut deepest, &mut worst);
+    match sub {
+        // The largest `StaticE` per level under `n`: `StaticE` is monotone (Eq. 3-5: a node's
+        // is at least each child's), so the nodes over `limit` at a level all have their
+        // ancestors over it, and the walk's deepest level is the deepest whose maximum is over
+        // `limit` (the maxima do not grow with the level), its `worst` that maximum.
+        Some(sub) => {
+            for l in n.level + 1..=stop {
+                match sub.get(l as usize) {
+                    Some(&m) if m > limit => {
+                        deepest = l;
+                        worst = m;
+                    }
+                    _ => break,
+                }
+            }
+        }
+        None if n.level < stop => over_walk(h, e, n, limit, stop, &mut deepest, &mut worst),
+        None => {}
     }
     if deepest < last || deepest >= max_level {
         // No over-threshold node at the next level (or the cap is reached).
@@ -468,6 +495,49 @@ fn upper_bounds(store: &Store, block_level: u8) -> (Vec<[f32; 2]>, Vec<f32>) {
     (mm, err)
 }
 
+/// The per-level maxima of `StaticE` under every stored node of local level at most
+/// `patch_level` of every block of `store` (see `StoreTree::sub_max`), and the nodes per block.
+/// Computed once when the tree is built: for each such node and each deeper stored level, the
+/// maximum over its descendants there (each level's nodes read once per ancestor level).
+fn subtree_maxima(store: &Store, patch_level: u8) -> (Vec<f32>, usize) {
+    let h = store.header();
+    let levels = h.node_levels;
+    if levels == 0 {
+        return (Vec::new(), 0);
+    }
+    let top = patch_level.min(levels - 1);
+    let per = levels as usize;
+    let nodes = upper_index(NodeId { level: top + 1, i: 0, j: 0 });
+    let mut out = vec![0f32; h.block_count() * nodes * per];
+    for (p, id) in store.block_ids().enumerate() {
+        let Some(e) = store.entry(id) else { continue };
+        let block = &mut out[p * nodes * per..(p + 1) * nodes * per];
+        for level in 0..=top {
+            let side = 1u32 << level;
+            for j in 0..side {
+                for i in 0..side {
+                    let n = NodeId { level, i, j };
+                    let o = upper_index(n) * per;
+                    for l in level..levels {
+                        let s = l - level;
+                        let mut m = 0f32;
+                        for dj in 0..1u32 << s {
+                            for di in 0..1u32 << s {
+                                let (ci, cj) = ((i << s) + di, (j << s) + dj);
+                                if let Some(v) = e.node(l, ci, cj) {
+                                    m = m.max(v.static_error);
+                                }
+                            }
+                        }
+                        block[o + l as usize] = m;
+                    }
+                }
+            }
+        }
+    }
+    (out, nodes)
+}
+
 /// The quadtree of a whole store's grid as a [`NodeSource`]: the root covers the blocks
 /// rounded up to a power of two per side (block `(row, col)` is node `(block_level, col,
 /// row)`), nodes inside a block read the block's index entry, nodes above the blocks flat
@@ -488,6 +558,13 @@ pub struct StoreTree {
     /// level `l`, the largest `BlockEntry::level_errors[l]` of its blocks (0 at `l = k`), the
     /// bound on the error of every block under it drawn with its level-`l` vertices.
     upper_err: Vec<f32>,
+    /// Per block (row-major position) and per stored node of local level at most the patch
+    /// level (`BlockEntry::nodes` order), `node_levels` values: at index `l`, the largest
+    /// `StaticE` of the node's descendants at stored level `l` (its own at its level; unused
+    /// above it). The leaves' factor walk (`needed_level_below`) reads one value per level.
+    sub_max: Vec<f32>,
+    /// Nodes per block in `sub_max`.
+    sub_nodes: usize,
 }
 
 impl StoreTree {
@@ -508,7 +585,18 @@ impl StoreTree {
             h.georef.world_origin,
             h.georef.spacing_m,
         );
-        Self { store, shape, block_level, root_cells, patch_level, upper, upper_err }
+        let (sub_max, sub_nodes) = subtree_maxima(&store, patch_level);
+        Self {
+            store,
+            shape,
+            block_level,
+            root_cells,
+            patch_level,
+            upper,
+            upper_err,
+            sub_max,
+            sub_nodes,
+        }
     }
 
     /// The store.
@@ -691,11 +779,25 @@ impl StoreTree {
         max_level: u8,
     ) -> Option<u8> {
         let (b, local) = self.block_of(n)?;
+        let h = self.store.header();
         let e = self.store.entry(b)?;
-        Some(
-            self.block_level
-                + needed_vertex_level(self.store.header(), e, local, aabb, view, max_level),
-        )
+        let max_level = max_level.min(h.k);
+        if local.level >= max_level {
+            return Some(self.block_level + local.level.min(max_level));
+        }
+        let per_metre = view.rho_per_metre(aabb);
+        if !per_metre.is_finite() {
+            return Some(self.block_level + max_level);
+        }
+        let limit = (view.tau / per_metre) as f32;
+        let per = h.node_levels as usize;
+        let sub = (local.level <= self.patch_level && local.level < h.node_levels)
+            .then(|| {
+                let o = (h.block_position(b)? * self.sub_nodes + upper_index(local)) * per;
+                self.sub_max.get(o..o + per)
+            })
+            .flatten();
+        Some(self.block_level + needed_level_below(h, e, local, limit, max_level, sub))
     }
 }
 

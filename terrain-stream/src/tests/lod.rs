@@ -12,7 +12,8 @@ use std::path::PathBuf;
 use std::sync::Arc;
 
 use crate::lod::{
-    StoreTree, View, needed_geometry_level, needed_level, select_patches, shading_level,
+    StoreTree, View, needed_geometry_level, needed_level, needed_vertex_level, select_patches,
+    shading_level,
 };
 use crate::{BakeConfig, BlockId, HeightEncoding, Store, bake};
 use glam::{DVec3, dvec3};
@@ -469,4 +470,50 @@ fn spanning_patches_meet_eq7_over_their_blocks() {
     assert!(parents > 20, "{parents} parents above the blocks checked");
     assert!(culled > 100, "{culled} cells culled by the frustum");
     std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// The leaves' factor from the tree's per-node arrays (the largest `StaticE` per level under
+/// each node, one look per level) is the Eq. 7 walk's below the node, node by node: for every
+/// node a patch can be, several cameras, `tau` and resident levels, on stores whose stored
+/// node levels end above and below the patch level.
+#[test]
+fn patch_factor_from_level_maxima_equals_the_walk() {
+    let hm = terrain(257, 257);
+    let mut compared = 0;
+    let mut levels = std::collections::BTreeSet::new();
+    for (name, k, node_levels, patch_cells) in [("walk6", 6, 4, 4), ("walk6b", 6, 6, 8)] {
+        let (dir, store) = bake_store(&hm, name, k, node_levels);
+        let h = store.header().clone();
+        let tree = StoreTree::new(store.clone(), patch_cells);
+        for cam in cameras() {
+            for tau in [0.25, 1.0, 4.0] {
+                let view = View::new(&cam, tau);
+                for b in store.block_ids() {
+                    let e = store.entry(b).unwrap();
+                    for level in 0..=h.k - patch_cells.trailing_zeros() as u8 {
+                        for j in 0..1u32 << level {
+                            for i in 0..1u32 << level {
+                                let local = NodeId { level, i, j };
+                                let global = tree.global(b, local);
+                                let Some(info) = tree.node_info(global) else { continue };
+                                for max in [2, h.k] {
+                                    let walk =
+                                        needed_vertex_level(&h, e, local, &info.aabb, &view, max);
+                                    let fast = tree
+                                        .needed_vertex_level(global, &info.aabb, &view, max)
+                                        .unwrap();
+                                    assert_eq!(fast - tree.block_level(), walk, "{b} {local:?}");
+                                    levels.insert(walk);
+                                    compared += 1;
+                                }
+                            }
+                        }
+                    }
+                }
+            }
+        }
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+    assert!(compared > 1000, "{compared}");
+    assert!(levels.len() >= 4, "levels reached: {levels:?}");
 }
