@@ -692,3 +692,52 @@ fn the_benchmark_runs_methods_from_its_store_side_by_side() {
     }
     assert!(report.to_markdown().contains("| pvps-c (store) |"));
 }
+
+/// Far terrain drawn by patches spanning several blocks (terrain-stream's `select_patches`:
+/// a node above the blocks stays one patch where Eq. 7 allows it) is watertight on the GPU:
+/// the skirt crack test gives 0 crack pixels for every camera, over pages of the blocks'
+/// resident levels, and spanning patches are drawn (the test would not see them otherwise).
+#[test]
+fn patches_spanning_blocks_draw_no_cracks() {
+    // 257 x 257 of Puget Sound 1k at 160 m in blocks of 17^2 (k = 4): 16 x 16 blocks.
+    let options = LoadOptions { vertical_scale: 0.1, spacing_m: 160.0, ..Default::default() };
+    let ps = load(data("puget_sound/ps_height_1k.png"), &options).unwrap().heightmap;
+    let hm = Heightmap::from_fn(257, 257, Georef::local(160.0), |i, j| ps.get(i + 400, j + 500))
+        .unwrap();
+    let dir = scratch("ooc", "spanning");
+    let store = bake_f32(&hm, &dir.join("store"));
+    assert_eq!(store.header().blocks_x, 16);
+    let config = OocConfig { tau: 4.0, threads: 1, ..OocConfig::default() };
+    let mut scene = OocScene::new(store, config);
+    let block_level = (scene.root_cells() / scene.store().header().block_cells()).trailing_zeros();
+    let ctx = context();
+    let mut renderer = ctx.as_ref().map(|ctx| {
+        scene
+            .renderer(ctx, &RenderConfig { width: 256, height: 144, ..Default::default() })
+            .unwrap()
+    });
+    let (mut spanning, mut frames) = (0, 0);
+    for (n, camera) in crack_cameras(&hm, 17).iter().enumerate() {
+        let frame = scene.frame(camera, true);
+        assert!(check_shared_edges(&frame.selection).is_empty(), "frame {n}");
+        let here = frame.selection.patches.iter().filter(|p| u32::from(p.node.level) < block_level);
+        spanning += here.count();
+        frames += 1;
+        if let Some(r) = renderer.as_mut() {
+            OocScene::apply(r, &frame).unwrap();
+            if frame.patches.is_empty() {
+                continue;
+            }
+            let cracks = crack_pixels_on(
+                r,
+                &frame.patches,
+                std::slice::from_ref(camera),
+                hm.max() - hm.min() + 100.0,
+            );
+            assert_eq!(cracks, vec![0], "frame {n}: crack pixels");
+        }
+    }
+    println!("{spanning} patches spanning blocks over {frames} frames");
+    assert!(spanning > 0, "no patch spanned blocks");
+    let _ = std::fs::remove_dir_all(&dir);
+}
