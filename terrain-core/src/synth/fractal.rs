@@ -335,9 +335,8 @@ fn blend(c: [(f64, f64); 4], fx: f64, fy: f64) -> (f64, f64) {
 
 /// The gradients of the last lattice cell one noise field was evaluated in: neighbouring
 /// samples mostly fall in the same cell (hundreds of samples a cell at the coarse octaves),
-/// so [`noise2_cached`] hashes a cell once per run of samples instead of once per sample, and
-/// on a step to the next cell east hashes only its two new corners. The hashes are pure
-/// functions of the lattice points, so the result is bit-identical to [`noise2`].
+/// so [`noise2_cached`] hashes a cell once per run of samples instead of once per sample. The
+/// hashes are pure functions of the cell, so the result is bit-identical to [`noise2`].
 #[derive(Clone, Copy)]
 struct CellCache {
     cell: (i64, i64),
@@ -360,24 +359,13 @@ fn noise2_cached(salt: u64, x: f64, y: f64, cache: &mut CellCache) -> (f64, f64)
             let (bx, by) = GRADIENTS[((h >> 56) & 15) as usize];
             (ax, ay, bx, by)
         };
-        if cache.cell != CellCache::EMPTY.cell && cache.cell == (ix.wrapping_sub(1), iy) {
-            // One cell east (the common step along a row): the old east corners are the new
-            // west ones, so only the two new corners are hashed.
-            cache.grads = [
-                cache.grads[1],
-                g(lattice_hash(salt, ix + 1, iy)),
-                cache.grads[3],
-                g(lattice_hash(salt, ix + 1, iy + 1)),
-            ];
-        } else {
-            cache.grads = [
-                g(lattice_hash(salt, ix, iy)),
-                g(lattice_hash(salt, ix + 1, iy)),
-                g(lattice_hash(salt, ix, iy + 1)),
-                g(lattice_hash(salt, ix + 1, iy + 1)),
-            ];
-        }
         cache.cell = (ix, iy);
+        cache.grads = [
+            g(lattice_hash(salt, ix, iy)),
+            g(lattice_hash(salt, ix + 1, iy)),
+            g(lattice_hash(salt, ix, iy + 1)),
+            g(lattice_hash(salt, ix + 1, iy + 1)),
+        ];
     }
     let (fx, fy) = (x - ix as f64, y - iy as f64);
     // The same products, in the same order, as `grad2`.
