@@ -208,6 +208,9 @@ struct FrameRecord {
     gpu_ms: Option<f64>,
     draw_pass_ms: Option<f64>,
     wall_ms: f64,
+    /// The frame loop's whole frame: selection, building and converting what is drawn, and
+    /// the renderer's wall time (what `terrain view --stats-json` calls `engine_ms`).
+    frame_ms: f64,
     #[serde(skip_serializing_if = "Option::is_none")]
     stream: Option<ooc::StreamRecord>,
 }
@@ -292,6 +295,7 @@ fn draw_frames(
             // The renderer waits for the GPU before returning, so this is the frame's whole
             // cost after selection: encode, tessellate (when the patches changed), draw.
             wall_ms: s.wall_ms,
+            frame_ms: r.frame_ms,
             stream: r.stream.clone(),
         });
     }

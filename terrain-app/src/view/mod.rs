@@ -36,7 +36,7 @@ use terrain_app::ooc;
 use terrain_core::geometry::Camera;
 use terrain_core::measure::MeasureConfig;
 use terrain_core::{Heightmap, synth};
-use terrain_gpu::render::clip_range;
+use terrain_gpu::render::ClipBoxes;
 use terrain_gpu::{BackendChoice, DeviceConfig, GpuContext, RenderConfig, RenderOptions};
 use winit::application::ApplicationHandler;
 use winit::event::{ElementState, MouseButton, MouseScrollDelta, WindowEvent};
@@ -82,9 +82,15 @@ pub(crate) struct ViewArgs {
     /// Play this flight (JSON, see `flights/`) from the start, then fly freely.
     #[arg(long)]
     pub flight: Option<PathBuf>,
-    /// Where the R key (or the script's `record`) writes the recorded flight.
-    #[arg(long, default_value = "recorded_flight.json")]
+    /// Where the R key (or the script's `record`) writes the recorded flight (its folder is
+    /// created; `out/` is git-ignored).
+    #[arg(long, default_value = "out/recorded_flight.json")]
     pub record_to: PathBuf,
+    /// Write every frame's times (the viewer's frame period and its parts: engine frame,
+    /// panel, present) as JSON to this file when the window closes: the viewer-overhead
+    /// measurement against `terrain render --frames N --stats-json`.
+    #[arg(long)]
+    pub stats_json: Option<PathBuf>,
     /// A store: the stream cache's budget, MiB.
     #[arg(long, default_value_t = 256)]
     pub cache_mib: u64,
@@ -154,6 +160,7 @@ pub(crate) fn run(args: &ViewArgs) -> anyhow::Result<()> {
             Terrain::Memory(MemoryTerrain {
                 scene: Arc::new(scene),
                 renderers: HashMap::new(),
+                last_kind: None,
                 job: None,
                 exaggeration: 1.0,
             })
@@ -202,11 +209,16 @@ pub(crate) fn run(args: &ViewArgs) -> anyhow::Result<()> {
         None => VecDeque::new(),
     };
     println!("terrain: heights {lo:.1} to {hi:.1} m, extent {extent:.0} m");
+    if let Some(path) = &args.stats_json {
+        crate::render::check_writable(path)?;
+    }
+    let clip = ClipBoxes::new(ground);
     let mut app = App {
         ctx,
         render_config,
         size,
         fov: args.fov,
+        clip,
         terrain,
         kind,
         error_view,
@@ -233,6 +245,7 @@ pub(crate) fn run(args: &ViewArgs) -> anyhow::Result<()> {
         stats: Stats::default(),
         frame_index: 0,
         frame_times: Vec::new(),
+        uploads: method::Uploads::default(),
         last_frame: None,
         measure_next: false,
         error: None,
@@ -242,20 +255,24 @@ pub(crate) fn run(args: &ViewArgs) -> anyhow::Result<()> {
     event_loop.run_app(&mut app).context("the window's event loop failed")?;
     let frames = app.frame_index;
     let error = app.error.take();
-    if frames > 0 {
-        // Frame 0 builds pipelines and tessellates: the median is of the frames after it.
-        let later = &app.frame_times[1.min(frames - 1)..];
-        let median = |k: usize| {
-            let mut v: Vec<f64> = later.iter().map(|t| if k == 0 { t.0 } else { t.1 }).collect();
-            v.sort_by(f64::total_cmp);
-            v[v.len() / 2]
-        };
+    let times = FrameTimes::of(&app.frame_times);
+    if let Some(m) = &times.median {
         println!(
-            "view: {frames} frames, median after the first: viewer frame {:.2} ms, engine \
-             frame {:.2} ms",
-            median(0),
-            median(1)
+            "view: {frames} frames, median after the first: viewer frame {:.2} ms (period \
+             {:.2} ms), engine frame {:.2} ms, panel {:.2} ms, present {:.2} ms",
+            m.viewer_ms, m.period_ms, m.engine_ms, m.panel_ms, m.present_ms
         );
+    }
+    if let Some(path) = &args.stats_json {
+        let json = serde_json::json!({
+            "adapter": app.ctx.describe(),
+            "size": [size.0, size.1],
+            "frames": times.frames,
+            "median_after_first": times.median,
+        });
+        std::fs::write(path, serde_json::to_string_pretty(&json)?)
+            .with_context(|| format!("could not write {}", path.display()))?;
+        println!("view: wrote {}", path.display());
     }
     let threads_before = threads();
     let had_store = matches!(app.terrain, Terrain::Store(_));
@@ -274,6 +291,66 @@ pub(crate) fn run(args: &ViewArgs) -> anyhow::Result<()> {
     match error {
         Some(e) => Err(e),
         None => Ok(()),
+    }
+}
+
+/// One viewer frame's times, ms.
+#[derive(Debug, Clone, Copy, Default, serde::Serialize)]
+struct FrameTime {
+    /// Frame index.
+    frame: usize,
+    /// The method that drew it.
+    method: &'static str,
+    /// Start of this frame to the start of the next (the last frame: its own redraw): the
+    /// frame time a user sees, event handling included.
+    period_ms: f64,
+    /// The redraw: script and input, the engine's frame, the panel, present.
+    viewer_ms: f64,
+    /// The frame loop's frame (selection to the GPU done), as `terrain render` times it.
+    engine_ms: f64,
+    /// The panel (egui's layout and tessellation).
+    panel_ms: f64,
+    /// The copy into the window's surface, the panel's draw and present.
+    present_ms: f64,
+    /// When the redraw started, for the periods (not written).
+    #[serde(skip)]
+    start: Option<Instant>,
+}
+
+/// The frames' times and their medians after the first (which builds pipelines).
+struct FrameTimes {
+    frames: Vec<FrameTime>,
+    median: Option<FrameTime>,
+}
+
+impl FrameTimes {
+    fn of(times: &[FrameTime]) -> Self {
+        let mut frames = times.to_vec();
+        for k in 0..frames.len() {
+            frames[k].period_ms = match (frames[k].start, frames.get(k + 1).and_then(|f| f.start)) {
+                (Some(a), Some(b)) => (b - a).as_secs_f64() * 1e3,
+                _ => frames[k].viewer_ms,
+            };
+        }
+        let later = &frames[1.min(frames.len())..];
+        let median = (!later.is_empty()).then(|| {
+            let m = |f: fn(&FrameTime) -> f64| {
+                let mut v: Vec<f64> = later.iter().map(f).collect();
+                v.sort_by(f64::total_cmp);
+                v[v.len() / 2]
+            };
+            FrameTime {
+                frame: later.len(),
+                method: "",
+                period_ms: m(|t| t.period_ms),
+                viewer_ms: m(|t| t.viewer_ms),
+                engine_ms: m(|t| t.engine_ms),
+                panel_ms: m(|t| t.panel_ms),
+                present_ms: m(|t| t.present_ms),
+                start: None,
+            }
+        });
+        Self { frames, median }
     }
 }
 
@@ -314,6 +391,8 @@ struct MemoryTerrain {
     scene: Arc<MethodScene>,
     /// One renderer per kind (shared by the methods of that kind).
     renderers: HashMap<RendererKind, FrameRenderer>,
+    /// The renderer kind of the last frame (its upload bookkeeping carries over).
+    last_kind: Option<RendererKind>,
     job: Option<Job>,
     /// The scene's vertical exaggeration.
     exaggeration: f64,
@@ -459,6 +538,9 @@ struct App {
     render_config: RenderConfig,
     size: (u32, u32),
     fov: f64,
+    /// The ground's block boxes for the near and far planes (computed once per terrain, not
+    /// every frame).
+    clip: ClipBoxes,
     terrain: Terrain,
     kind: LodMethod,
     /// The view the pixel target refers to (the window's height and field of view).
@@ -490,9 +572,11 @@ struct App {
     record_to: PathBuf,
     stats: Stats,
     frame_index: usize,
-    /// Every frame's viewer ms (whole frame: script, engine, panel, present) and engine ms
-    /// (the frame loop's selection to GPU done), for the closing summary.
-    frame_times: Vec<(f64, f64)>,
+    /// Every frame's times, for the closing summary and `--stats-json`.
+    frame_times: Vec<FrameTime>,
+    /// The upload bookkeeping carried from frame to frame over a DEM in memory (whose frame
+    /// loop is built per frame).
+    uploads: method::Uploads,
     last_frame: Option<Instant>,
     measure_next: bool,
     error: Option<anyhow::Error>,
@@ -795,6 +879,11 @@ impl App {
                     println!("view: recording a flight");
                 }
                 Some(r) => {
+                    if let Some(dir) = self.record_to.parent().filter(|d| !d.as_os_str().is_empty())
+                    {
+                        std::fs::create_dir_all(dir)
+                            .with_context(|| format!("could not create {}", dir.display()))?;
+                    }
                     r.save(&self.record_to, 30.0, self.fov)?;
                     println!(
                         "view: wrote the flight {} ({} keyframes)",
@@ -904,6 +993,8 @@ impl App {
                 self.ui.exaggeration = v;
                 // The renderers hold the old heights.
                 m.renderers.clear();
+                self.uploads = method::Uploads::default();
+                self.clip = ClipBoxes::new(&m.scene.hm);
                 self.ui.message = Some(format!("exaggeration x{v}"));
             }
             None => {}
@@ -955,7 +1046,7 @@ impl App {
         if let Some(r) = &mut self.recorder {
             r.tick(dt, self.camera.position, self.camera.yaw, self.camera.pitch);
         }
-        let eye = self.camera.camera(self.fov, self.size, clip_range(ground, self.camera.position));
+        let eye = self.camera.camera(self.fov, self.size, self.clip.range(self.camera.position));
         if self.ui.freeze && self.frozen.is_none() {
             self.frozen = Some(eye);
         }
@@ -981,12 +1072,20 @@ impl App {
                         e.insert(r)
                     }
                 };
-                let mut frames =
-                    FrameLoop::new(method).rendered(Some(renderer)).with_options(options);
+                // A new renderer starts its upload bookkeeping afresh.
+                let uploads =
+                    if m.last_kind == Some(kind) { self.uploads } else { Default::default() };
+                m.last_kind = Some(kind);
+                let mut frames = FrameLoop::new(method)
+                    .rendered(Some(renderer))
+                    .with_options(options)
+                    .with_uploads(uploads);
                 if measure {
                     frames = frames.measured(&scene.hm, &scene.qt, MeasureConfig::default());
                 }
-                (frames.frame_drawn_from(index, &select, &eye, None)?, measure, Some(kind))
+                let f = frames.frame_drawn_from(index, &select, &eye, None)?;
+                self.uploads = frames.uploads();
+                (f, measure, Some(kind))
             }
             Terrain::Store(s) => {
                 let frames = s.frames.as_mut().context("the store's method was lost")?;
@@ -1001,7 +1100,10 @@ impl App {
         };
         self.record_stats(&frame, measured);
         // The panel, then present.
+        let t_panel = Instant::now();
         let overlay = if self.ui.show { Some(self.panel()?) } else { None };
+        let panel_ms = t_panel.elapsed().as_secs_f64() * 1e3;
+        let t_present = Instant::now();
         let image = match &mut self.terrain {
             Terrain::Memory(m) => {
                 // The renderer this frame drew with.
@@ -1023,6 +1125,7 @@ impl App {
             }),
             shot.is_some(),
         )?;
+        let present_ms = t_present.elapsed().as_secs_f64() * 1e3;
         if let (Some(path), Some(img)) = (&shot, shot_image) {
             let raw: Vec<u8> = img.pixels.iter().flatten().copied().collect();
             image::save_buffer(path, &raw, img.width, img.height, image::ColorType::Rgba8)
@@ -1039,7 +1142,16 @@ impl App {
             );
         }
         self.stats.viewer_ms = t0.elapsed().as_secs_f64() * 1e3;
-        self.frame_times.push((self.stats.viewer_ms, self.stats.engine_ms));
+        self.frame_times.push(FrameTime {
+            frame: index,
+            method: self.kind.name(),
+            period_ms: 0.0,
+            viewer_ms: self.stats.viewer_ms,
+            engine_ms: self.stats.engine_ms,
+            panel_ms,
+            present_ms,
+            start: Some(t0),
+        });
         self.frame_index += 1;
         Ok(())
     }
