@@ -72,6 +72,10 @@ pub(crate) struct RenderArgs {
     /// Darken triangle edges.
     #[arg(long)]
     pub wireframe: bool,
+    /// Colour every patch by its level of detail (grid cells per triangle edge; the legend is
+    /// in README, "terrain view") instead of the height ramp; not drawn by geomorph's renderer.
+    #[arg(long)]
+    pub lod_colours: bool,
     /// Colour texture (PNG or JPEG) stretched over the whole DEM, its first row at the north.
     #[arg(long)]
     pub texture: Option<PathBuf>,
@@ -360,7 +364,11 @@ pub(crate) fn run(args: &RenderArgs) -> anyhow::Result<()> {
     println!("adapter: {}", ctx.describe());
     let config = RenderConfig { width, height, texture, background, ..Default::default() };
     let mut renderer = method.renderer(&ctx, &config)?;
-    let options = RenderOptions { wireframe: args.wireframe, ..Default::default() };
+    let options = RenderOptions {
+        wireframe: args.wireframe,
+        lod_colours: args.lod_colours,
+        ..Default::default()
+    };
     print_camera(&camera);
     let cameras = vec![camera; args.frames.unwrap_or(1).max(1) as usize];
     let mut frames = FrameLoop::new(method).rendered(Some(&mut renderer)).with_options(options);
@@ -590,7 +598,11 @@ fn run_store(
             r.page_atlas_bytes() as f64 / terrain_app::MIB
         );
     }
-    let options = RenderOptions { wireframe: args.wireframe, ..Default::default() };
+    let options = RenderOptions {
+        wireframe: args.wireframe,
+        lod_colours: args.lod_colours,
+        ..Default::default()
+    };
     let mut frames = FrameLoop::new(method).rendered(Some(&mut renderer)).with_options(options);
     let records =
         draw_frames(&mut frames, &cameras, (method_kind == LodMethod::OutOfCore).then_some(tau))?;

@@ -652,6 +652,9 @@ impl ApplicationHandler for App {
                         KeyCode::KeyF => Some(Action::Set(Toggle::Freeze, !self.ui.freeze)),
                         KeyCode::KeyP => Some(Action::Set(Toggle::Panel, !self.ui.show)),
                         KeyCode::KeyM => Some(Action::Measure),
+                        KeyCode::KeyL => {
+                            Some(Action::Set(Toggle::ColourLevels, !self.ui.colour_levels))
+                        }
                         KeyCode::Escape => Some(Action::Quit),
                         _ => None,
                     };
@@ -811,10 +814,8 @@ impl App {
                 Toggle::Wireframe => self.ui.wireframe = on,
                 Toggle::Panel => self.ui.show = on,
                 Toggle::ColourLevels => {
-                    self.ui.colour_levels = false;
-                    if on {
-                        bail!("LOD-level colouring is not in the renderers yet");
-                    }
+                    self.ui.colour_levels = on;
+                    println!("view: LOD colours {}", if on { "on" } else { "off" });
                 }
                 Toggle::Freeze => {
                     self.ui.freeze = on;
@@ -1052,7 +1053,11 @@ impl App {
         }
         let select = self.frozen.filter(|_| self.ui.freeze).unwrap_or(eye);
         // The engine's frame.
-        let options = RenderOptions { wireframe: self.ui.wireframe, ..Default::default() };
+        let options = RenderOptions {
+            wireframe: self.ui.wireframe,
+            lod_colours: self.ui.colour_levels,
+            ..Default::default()
+        };
         let measure = std::mem::take(&mut self.measure_next);
         let index = self.frame_index;
         let (frame, measured, drawn_kind) = match &mut self.terrain {
