@@ -307,7 +307,7 @@ fn the_window_closes_cleanly_mid_stream() {
     let script = dir.join("script.txt");
     std::fs::write(
         &script,
-        "wait 2\nrecord\nkey down W\nkey down shift\nwait 36\nmouse 90 0\nwait 2\nrecord\nquit\n",
+        "wait 2\nrecord\nkey down W\nkey down shift\nwait 36\nmouse 90 0\nquality 3\nwait 2\nrecord\nquit\n",
     )
     .unwrap();
     let args = [store.to_str().unwrap(), "--size", "320x180", "--script", script.to_str().unwrap()];
@@ -327,6 +327,9 @@ fn the_window_closes_cleanly_mid_stream() {
         closed.split(|c: char| !c.is_ascii_digit()).filter_map(|s| s.parse().ok()).collect();
     let (before, after) = (nums[nums.len() - 2], nums[nums.len() - 1]);
     assert!(after < before, "threads {before} before closing the store, {after} after");
+    // A quality change over a store builds the new runtime on a worker while the old one
+    // draws, then swaps it in.
+    assert!(out.contains("view: store method ooc ready;"), "no store rebuild:\n{out}\n{err}");
     // Without --record-to the recorded flight goes under the git-ignored out/ of the working
     // folder.
     let recorded = dir.join("out/recorded_flight.json");

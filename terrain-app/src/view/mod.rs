@@ -9,8 +9,9 @@
 //! - Scripts ([`script`]): `--script FILE` drives the same actions without a person.
 //! - Loading never blocks the event loop: a method switch or a vertical exaggeration over a
 //!   DEM in memory prepares its tables on a worker thread while the old method keeps drawing;
-//!   a store is drawn in the streamer's real-time mode (after the first frame, which loads the
-//!   coarse levels, no frame waits for I/O).
+//!   over a store a method or quality change builds the new runtime and renderer on a worker
+//!   (which plays its first, waiting frame) while the old one draws; a store is drawn in the
+//!   streamer's real-time mode (no later frame waits for I/O).
 
 mod camera;
 mod panel;
@@ -122,8 +123,10 @@ pub(crate) fn run(args: &ViewArgs) -> anyhow::Result<()> {
     let event_loop = EventLoop::new().context(
         "could not open a window: `terrain view` needs a display (X11: is DISPLAY set?)",
     )?;
-    let ctx = GpuContext::new(&DeviceConfig::from_env(BackendChoice::Auto))
-        .context("no GPU adapter (Vulkan or GL) is available")?;
+    let ctx = Arc::new(
+        GpuContext::new(&DeviceConfig::from_env(BackendChoice::Auto))
+            .context("no GPU adapter (Vulkan or GL) is available")?,
+    );
     println!("adapter: {}", ctx.describe());
     let mut config = MethodConfig { leaf_cells: args.leaf_cells, ..MethodConfig::default() };
     config.ooc.budget_bytes = args.cache_mib << 20;
@@ -408,6 +411,23 @@ struct StoreTerrain {
     overview: Heightmap,
     /// The store's georeference (its CRS places `lonlat:` cameras).
     georef: terrain_core::Georef,
+    /// A method or quality change being built on a worker while the current one draws.
+    job: Option<StoreJob>,
+}
+
+/// A store's method (its new runtime) and renderer, built on a worker thread with its first
+/// frame played (the one that waits for the coarse levels), so the event loop never waits.
+type Built = anyhow::Result<(Box<dyn method::Method + Send>, FrameRenderer)>;
+
+/// A store rebuild in flight.
+struct StoreJob {
+    kind: LodMethod,
+    config: MethodConfig,
+    /// The pixel target's mapping the new method takes (`None`: its own parameter rules).
+    mapped: Option<ErrorPxParams>,
+    /// Frames drawn by the old method while the worker built the new one.
+    frames_meanwhile: usize,
+    handle: JoinHandle<Built>,
 }
 
 impl StoreTerrain {
@@ -426,23 +446,38 @@ impl StoreTerrain {
         let method = method::store_method(kind, scene, &config, OocWait::FirstFrame, None)?;
         let renderer = method.renderer(ctx, render_config)?;
         let frames = Some(FrameLoop::new(method).rendered_by(renderer));
-        Ok(Self { dir: dir.to_path_buf(), config, frames, overview, georef })
+        Ok(Self { dir: dir.to_path_buf(), config, frames, overview, georef, job: None })
     }
 
-    /// The method again over a new runtime of the same store (a new method or parameter).
+    /// Starts building `kind` with `config` over a new runtime of the same store on a worker
+    /// thread (a new method or parameter); the current method keeps drawing until
+    /// [`StoreTerrain::poll`] swaps it in. Both runtimes' caches are resident meanwhile.
     fn rebuild(
         &mut self,
         kind: LodMethod,
-        ctx: &GpuContext,
+        config: MethodConfig,
+        mapped: Option<ErrorPxParams>,
+        camera: Camera,
+        ctx: &Arc<GpuContext>,
         render_config: &RenderConfig,
     ) -> anyhow::Result<()> {
-        // The old runtime goes first (its workers joined), then the new one starts.
-        self.frames = None;
-        let scene = ooc::OocScene::open(&self.dir, self.config.ooc)
-            .with_context(|| format!("could not open the store {}", self.dir.display()))?;
-        let method = method::store_method(kind, scene, &self.config, OocWait::FirstFrame, None)?;
-        let renderer = method.renderer(ctx, render_config)?;
-        self.frames = Some(FrameLoop::new(method).rendered_by(renderer));
+        if self.job.is_some() {
+            bail!("still preparing; try again in a moment");
+        }
+        let (dir, ctx, rc, c) =
+            (self.dir.clone(), ctx.clone(), render_config.clone(), config.clone());
+        let handle = std::thread::Builder::new().name("view-store".into()).spawn(move || {
+            let scene = ooc::OocScene::open(&dir, c.ooc)
+                .with_context(|| format!("could not open the store {}", dir.display()))?;
+            let mut method = method::store_method(kind, scene, &c, OocWait::FirstFrame, None)?;
+            let mut renderer = method.renderer(&ctx, &rc)?;
+            renderer.set_sun_direction(rc.sun_direction)?;
+            // The frame that waits for the coarse levels, played here.
+            let first = method.frame(&camera);
+            renderer.apply(&first)?;
+            Ok((method, renderer))
+        })?;
+        self.job = Some(StoreJob { kind, config, mapped, frames_meanwhile: 0, handle });
         Ok(())
     }
 }
@@ -534,7 +569,8 @@ pub(crate) enum Action {
 }
 
 struct App {
-    ctx: GpuContext,
+    /// Shared with the worker that builds a store's method.
+    ctx: Arc<GpuContext>,
     render_config: RenderConfig,
     size: (u32, u32),
     fov: f64,
@@ -749,8 +785,13 @@ impl App {
                 params.apply(&mut scene.config);
             }
             Terrain::Store(s) => {
-                params.apply(&mut s.config);
-                s.rebuild(self.kind, &self.ctx, &self.render_config)?;
+                let mut config = s.config.clone();
+                params.apply(&mut config);
+                let camera =
+                    self.camera.camera(self.fov, self.size, self.clip.range(self.camera.position));
+                s.rebuild(self.kind, config, Some(params), camera, &self.ctx, &self.render_config)?;
+                self.ui.message = Some(format!("preparing {} at {error_px} px", self.kind.name()));
+                return Ok(());
             }
         }
         self.mapped = Some(params);
@@ -760,7 +801,10 @@ impl App {
 
     /// Whether a worker thread is preparing something.
     fn busy(&self) -> bool {
-        matches!(&self.terrain, Terrain::Memory(m) if m.job.is_some())
+        match &self.terrain {
+            Terrain::Memory(m) => m.job.is_some(),
+            Terrain::Store(s) => s.job.is_some(),
+        }
     }
 
     fn apply(&mut self, action: Action) {
@@ -794,18 +838,21 @@ impl App {
                     }
                     Terrain::Store(s) => {
                         // The pixel target carries over: mapped onto the new method's own
-                        // parameter before its runtime is built.
+                        // parameter before its runtime is built (on a worker).
+                        let mut config = s.config.clone();
                         let mapped = self.mapped.map(|p| {
                             let q =
                                 registry::params_for_error_px(kind, p.error_px, self.error_view);
-                            q.apply(&mut s.config);
+                            q.apply(&mut config);
                             q
                         });
-                        s.rebuild(kind, &self.ctx, &self.render_config)?;
-                        self.kind = kind;
-                        if mapped.is_some() {
-                            self.mapped = mapped;
-                        }
+                        let camera = self.camera.camera(
+                            self.fov,
+                            self.size,
+                            self.clip.range(self.camera.position),
+                        );
+                        s.rebuild(kind, config, mapped, camera, &self.ctx, &self.render_config)?;
+                        self.ui.message = Some(format!("preparing {}", kind.name()));
                     }
                 }
             }
@@ -965,8 +1012,51 @@ impl App {
         Ok(None)
     }
 
+    /// Picks up a finished store rebuild: the new method and renderer replace the old ones (a
+    /// failed one is a message, and the old method keeps drawing).
+    fn poll_store_job(&mut self) -> anyhow::Result<()> {
+        let Terrain::Store(s) = &mut self.terrain else { return Ok(()) };
+        let Some(job) = s.job.as_mut() else { return Ok(()) };
+        if !job.handle.is_finished() {
+            job.frames_meanwhile += 1;
+            return Ok(());
+        }
+        let job = s.job.take().context("the store job")?;
+        let built = job
+            .handle
+            .join()
+            .map_err(|_| anyhow::anyhow!("building {} panicked", job.kind.name()))?;
+        match built {
+            Ok((method, renderer)) => {
+                // The old runtime goes (its workers joined), the new one draws.
+                s.frames = None;
+                s.frames = Some(FrameLoop::new(method).rendered_by(renderer));
+                s.config = job.config;
+                self.kind = job.kind;
+                if job.mapped.is_some() {
+                    self.mapped = job.mapped;
+                }
+                if let Some(p) = &job.mapped {
+                    println!("view: quality: {p}");
+                }
+                println!(
+                    "view: store method {} ready; {} frames drawn meanwhile by the previous one",
+                    job.kind.name(),
+                    job.frames_meanwhile
+                );
+                self.ui.message = Some(format!("{} ready", job.kind.name()));
+            }
+            Err(e) => {
+                eprintln!("warning: {e:#}");
+                self.ui.message = Some(format!("{e:#}"));
+            }
+        }
+        Ok(())
+    }
+
     /// Picks up a finished worker job.
     fn poll_job(&mut self) -> anyhow::Result<()> {
+        self.poll_store_job()?;
         let Terrain::Memory(m) = &mut self.terrain else { return Ok(()) };
         let finished = match &m.job {
             Some(Job::Prepare(_, h)) => h.is_finished(),
