@@ -56,27 +56,17 @@ use terrain_app::camera::{self as camera_spec, Ground, ViewConfig};
 pub(crate) struct ViewArgs {
     #[command(flatten)]
     pub source: SourceArgs,
-    /// Start camera as x,y,z,yaw,pitch (as `terrain render --camera`). Default: the whole
-    /// terrain from the south-west, as `terrain render`.
-    #[arg(long, allow_hyphen_values = true)]
-    pub camera: Option<String>,
-    /// Vertical field of view, degrees.
-    #[arg(long, default_value_t = 60.0)]
-    pub fov: f64,
+    /// The start camera, as `terrain render`'s.
+    #[command(flatten)]
+    pub eye: crate::draw_args::CameraArgs,
     /// Window size, WIDTHxHEIGHT (the renderer draws at this size; the window is not resizable).
     #[arg(long, default_value = "1280x720")]
     pub size: String,
-    /// LOD method at start. Default: pvps-c for a DEM, ooc for a baked store.
-    #[arg(long, value_enum)]
-    pub method: Option<LodMethod>,
-    /// Cells per side of the finest patch.
-    #[arg(long, default_value_t = 16)]
-    pub leaf_cells: u32,
-    /// The quality at start, as in `render` and `fly`: `--error-px`, a `--quality` preset
-    /// (default balanced, 2 px) or the method's own `--method-param`. The panel's slider is
-    /// the error target in pixels.
+    /// The method at start and its quality, as in `render` and `fly`: `--error-px`, a
+    /// `--quality` preset (default balanced, 2 px) or the method's own `--method-param`. The
+    /// panel's slider is the error target in pixels.
     #[command(flatten)]
-    pub quality: crate::quality::QualityArgs,
+    pub lod: crate::draw_args::MethodArgs,
     /// Drive the viewer from a script (one command per line; see README, "terrain view").
     #[arg(long)]
     pub script: Option<PathBuf>,
@@ -92,21 +82,15 @@ pub(crate) struct ViewArgs {
     /// measurement against `terrain render --frames N --stats-json`.
     #[arg(long)]
     pub stats_json: Option<PathBuf>,
-    /// A store: the stream cache's budget, MiB.
-    #[arg(long, default_value_t = 256)]
-    pub cache_mib: u64,
+    #[command(flatten)]
+    pub store: crate::draw_args::StoreArgs,
 }
 
 /// Runs `terrain view`.
 pub(crate) fn run(args: &ViewArgs) -> anyhow::Result<()> {
     let size = parse_size(&args.size)?;
-    let spec = args.camera.as_deref().map(|c| camera_spec::parse(c, None)).transpose()?;
-    if !(args.fov.is_finite() && args.fov > 0.0 && args.fov < 180.0) {
-        bail!("--fov must be between 0 and 180 degrees, got {}", args.fov);
-    }
-    if args.leaf_cells == 0 {
-        bail!("--leaf-cells must be at least 1");
-    }
+    let spec = args.eye.spec()?;
+    args.lod.check()?;
     let script = match &args.script {
         Some(p) => {
             let text = std::fs::read_to_string(p)
@@ -119,6 +103,14 @@ pub(crate) fn run(args: &ViewArgs) -> anyhow::Result<()> {
         [one] if ooc::is_store(one) => Some(one.clone()),
         _ => None,
     };
+    // Options the mode would ignore are refused before anything opens.
+    if store.is_none() {
+        let given: Vec<&str> =
+            args.store.given().iter().filter(|(_, g)| *g).map(|(n, _)| *n).collect();
+        if !given.is_empty() {
+            bail!("{} apply to a baked store, not to a DEM file", given.join(", "));
+        }
+    }
     // The window first: without a display there is nothing to do.
     let event_loop = EventLoop::new().context(
         "could not open a window: `terrain view` needs a display (X11: is DISPLAY set?)",
@@ -128,17 +120,17 @@ pub(crate) fn run(args: &ViewArgs) -> anyhow::Result<()> {
             .context("no GPU adapter (Vulkan or GL) is available")?,
     );
     println!("adapter: {}", ctx.describe());
-    let mut config = MethodConfig { leaf_cells: args.leaf_cells, ..MethodConfig::default() };
-    config.ooc.budget_bytes = args.cache_mib << 20;
-    let kind = args.method.unwrap_or(if store.is_some() {
-        LodMethod::OutOfCore
-    } else {
-        LodMethod::PvpsC
-    });
+    let mut config = MethodConfig { leaf_cells: args.lod.leaf_cells, ..MethodConfig::default() };
+    let kind = args.lod.kind(store.is_some());
+    config.ooc.tau = args.store.tau.unwrap_or(2.0);
     // The one quality knob (README "One quality knob"): the pixel target mapped onto the
     // method's own parameter for this window's height and field of view.
-    let error_view = ErrorView { height_px: f64::from(size.1), fov_y_deg: args.fov };
-    let mapped = args.quality.apply(&mut config, kind, error_view, &[])?;
+    let error_view = ErrorView { height_px: f64::from(size.1), fov_y_deg: args.eye.fov };
+    let own = [("--tau", args.store.tau.is_some())];
+    let mapped = args.lod.quality.apply(&mut config, kind, error_view, &own)?;
+    if store.is_some() {
+        config.ooc = args.store.config(config.ooc.tau)?;
+    }
     if let Some(p) = &mapped {
         println!("quality: {p}");
     }
@@ -177,7 +169,7 @@ pub(crate) fn run(args: &ViewArgs) -> anyhow::Result<()> {
     // that fills the image with the terrain: the one camera module.
     let view = ViewConfig {
         size_px: glam::dvec2(f64::from(size.0), f64::from(size.1)),
-        fov_y_deg: args.fov,
+        fov_y_deg: args.eye.fov,
     };
     let placed = camera_spec::place(spec.as_ref(), &terrain.camera_ground(), &view)?;
     if let Some(w) = placed.lift_warning() {
@@ -220,7 +212,7 @@ pub(crate) fn run(args: &ViewArgs) -> anyhow::Result<()> {
         ctx,
         render_config,
         size,
-        fov: args.fov,
+        fov: args.eye.fov,
         clip,
         terrain,
         kind,
