@@ -33,13 +33,8 @@ pub(crate) struct FlyArgs {
     /// Flight file (JSON; see flights/README.md).
     #[arg(long)]
     pub flight: PathBuf,
-    /// LOD method. Default: pvps-c for a DEM, ooc (the out-of-core paper's) for a baked
-    /// store; from a store every method `terrain render <store> --method` takes.
-    #[arg(long, value_enum)]
-    pub method: Option<LodMethod>,
-    /// Cells per side of the finest patch.
-    #[arg(long, default_value_t = 16)]
-    pub leaf_cells: u32,
+    #[command(flatten)]
+    pub lod: crate::draw_args::MethodArgs,
     /// A scene folder from `terrain bake` of the same DEM: its PVS files and DSS errors are
     /// read instead of computed (a bad file is a warning; see `terrain bench --scene`).
     #[arg(long)]
@@ -50,22 +45,8 @@ pub(crate) struct FlyArgs {
     /// At most this many frames, evenly spaced over the flight; 0 = every frame.
     #[arg(long, default_value_t = 0)]
     pub frames: usize,
-    /// A store: the screen-error threshold tau of Eq. 7 (out-of-core paper), pixels
-    /// [default: 2, the balanced preset].
-    #[arg(long)]
-    pub tau: Option<f64>,
     #[command(flatten)]
-    pub quality: crate::quality::QualityArgs,
-    /// A store: the stream cache's budget, MiB (2^20 bytes).
-    #[arg(long, alias = "cache-mb", default_value_t = 256)]
-    pub cache_mib: u64,
-    /// A store: full-resolution pages the renderer holds at most; blocks beyond them are
-    /// drawn from coarser slot classes.
-    #[arg(long, default_value_t = 1024)]
-    pub page_capacity: u32,
-    /// A store: MiB of page atlas on the device, shared by the slot classes of every level.
-    #[arg(long, alias = "page-mb", default_value_t = 256)]
-    pub page_mib: u64,
+    pub store: crate::draw_args::StoreArgs,
     /// A store: every frame waits until the levels it needs are resident (warm); by default
     /// only the first frame does, later ones draw the finest resident levels (real time).
     #[arg(long)]
@@ -203,23 +184,6 @@ fn write_stats(
     Ok(())
 }
 
-/// The stream configuration of `terrain fly <store>` from its options, checked.
-fn store_config(args: &FlyArgs, tau: f64) -> anyhow::Result<OocConfig> {
-    if !(tau.is_finite() && tau > 0.0) {
-        bail!("--tau must be a positive number of pixels, got {tau}");
-    }
-    if args.page_capacity == 0 {
-        bail!("--page-capacity must be at least 1");
-    }
-    Ok(OocConfig {
-        tau,
-        budget_bytes: args.cache_mib << 20,
-        page_capacity: args.page_capacity,
-        page_budget_bytes: args.page_mib << 20,
-        ..OocConfig::default()
-    })
-}
-
 /// `terrain fly <store>`: `args.flight` over the store in `dir` with a store method (default
 /// `ooc`), through the same store method and frame loop as `terrain render <store>`; frames
 /// are drawn, not measured, and their stream statistics summarised. Returns the records.
@@ -236,7 +200,7 @@ fn fly_store(
     let ctx = GpuContext::new(&DeviceConfig::from_env(BackendChoice::Auto))
         .context("no GPU adapter (Vulkan or GL) is available")?;
     println!("adapter: {}", ctx.describe());
-    let kind = args.method.unwrap_or(LodMethod::OutOfCore);
+    let kind = args.lod.kind(true);
     println!("method: {}", kind.name());
     let method_config = MethodConfig { ooc: config, ..method_config };
     let wait = if args.wait { OocWait::EveryFrame } else { OocWait::FirstFrame };
@@ -267,16 +231,14 @@ fn fly_store(
     });
     write_stats(&args.output, &records, &json)?;
     let max_triangles = records.iter().map(|r| r.triangles).max().unwrap_or(0);
-    crate::render::print_stream_summary(&streams, max_triangles, args.wait, args.cache_mib);
+    crate::render::print_stream_summary(&streams, max_triangles, args.wait, args.store.cache_mib());
     Ok(records)
 }
 
 /// Runs `terrain fly`.
 pub(crate) fn run(args: &FlyArgs) -> anyhow::Result<()> {
     let size = parse_size(&args.size)?;
-    if args.leaf_cells == 0 {
-        bail!("--leaf-cells must be at least 1");
-    }
+    args.lod.check()?;
     let store = match args.source.dem.as_slice() {
         [one] if ooc::is_store(one) => Some(one.as_path()),
         _ => None,
@@ -290,22 +252,19 @@ pub(crate) fn run(args: &FlyArgs) -> anyhow::Result<()> {
         }
         args.source.refuse_reading_options("a baked store (its heights are stored)")?;
     } else if args.scene.is_some() {
-        let method = args.method.unwrap_or(LodMethod::PvpsC);
+        let method = args.lod.kind(false);
         terrain_app::scene_files::check_used(&[method]).map_err(anyhow::Error::msg)?;
     }
     // The inputs first (the flight's errors name its file): nothing is created when one is bad.
     let spec = FlightSpec::load(&args.flight).context("could not load the flight")?;
-    let kind = args.method.unwrap_or(if store.is_some() {
-        LodMethod::OutOfCore
-    } else {
-        LodMethod::PvpsC
-    });
-    let mut method_config = MethodConfig { leaf_cells: args.leaf_cells, ..MethodConfig::default() };
-    method_config.ooc.tau = args.tau.unwrap_or(2.0);
+    let kind = args.lod.kind(store.is_some());
+    let mut method_config =
+        MethodConfig { leaf_cells: args.lod.leaf_cells, ..MethodConfig::default() };
+    method_config.ooc.tau = args.store.tau.unwrap_or(2.0);
     let view = ErrorView { height_px: f64::from(size.1), fov_y_deg: spec.fov_y_deg };
     // --tau is the store's (Eq. 7); a DEM's fly does not read it.
-    let own = [("--tau", args.tau.is_some() && store.is_some())];
-    if let Some(p) = args.quality.apply(&mut method_config, kind, view, &own)? {
+    let own = [("--tau", args.store.tau.is_some() && store.is_some())];
+    if let Some(p) = args.lod.quality.apply(&mut method_config, kind, view, &own)? {
         println!("quality: {p}");
     }
     /// What the flight is drawn from.
@@ -314,7 +273,7 @@ pub(crate) fn run(args: &FlyArgs) -> anyhow::Result<()> {
         Dem(Heightmap),
     }
     let input = match store {
-        Some(dir) => Input::Store(dir, store_config(args, method_config.ooc.tau)?),
+        Some(dir) => Input::Store(dir, args.store.config(method_config.ooc.tau)?),
         None => Input::Dem(match args.source.load_surface()? {
             Some(dem) => dem.heightmap,
             None => synth::default_terrain(),
@@ -332,8 +291,8 @@ pub(crate) fn run(args: &FlyArgs) -> anyhow::Result<()> {
                 .context("no GPU adapter (Vulkan or GL) is available")?;
             println!("adapter: {}", ctx.describe());
             let options = FlyOptions {
-                method: args.method.unwrap_or(LodMethod::PvpsC),
-                leaf_cells: args.leaf_cells,
+                method: args.lod.kind(false),
+                leaf_cells: args.lod.leaf_cells,
                 size,
                 max_frames: args.frames,
                 scene: args.scene.clone(),

@@ -3,6 +3,7 @@
 mod bake;
 mod bench_cli;
 mod demo;
+mod draw_args;
 mod entropy;
 mod fly;
 mod info;

@@ -27,32 +27,13 @@ use crate::source::SourceArgs;
 pub(crate) struct RenderArgs {
     #[command(flatten)]
     pub source: SourceArgs,
-    /// Camera as x,y,z,yaw,pitch: position in the DEM's world coordinates (metres; the CRS's
-    /// coordinates for projected DEMs), compass yaw in degrees (0 north, 90 east), pitch in
-    /// degrees (negative looks down). Default: a view that fills the image with the terrain,
-    /// looking across its longer side.
-    /// Also `lonlat:LON,LAT,Z,yaw,pitch` (WGS84 degrees, converted to the DEM's CRS), and Z as
-    /// metres above the ground with an `agl` suffix (`300agl`). An eye under the ground is
-    /// lifted above it (with a warning); a camera that sees no terrain is a warning.
-    #[arg(long, allow_hyphen_values = true)]
-    pub camera: Option<String>,
-    /// Aim the camera at X,Y[,Z] or lonlat:LON,LAT[,Z] (Z default: the ground there; `agl`
-    /// suffix as in --camera) instead of giving yaw and pitch: --camera is then X,Y,Z.
-    #[arg(long, allow_hyphen_values = true, requires = "camera")]
-    pub look_at: Option<String>,
-    /// Vertical field of view, degrees.
-    #[arg(long, default_value_t = 60.0)]
-    pub fov: f64,
+    #[command(flatten)]
+    pub eye: crate::draw_args::CameraArgs,
     /// Image size, WIDTHxHEIGHT.
     #[arg(long, default_value = "1280x720")]
     pub size: String,
-    /// LOD method: which patches to draw with which tessellation factors. Default: pvps-c for
-    /// a DEM, ooc (the out-of-core paper's) for a baked store.
-    #[arg(long, value_enum)]
-    pub method: Option<LodMethod>,
-    /// Cells per side of the finest patch (the PVPS paper: a 64 x 64 patch grid).
-    #[arg(long, default_value_t = 16)]
-    pub leaf_cells: u32,
+    #[command(flatten)]
+    pub lod: crate::draw_args::MethodArgs,
     /// A scene folder from `terrain bake` of the same DEM: its PVS files and DSS errors are
     /// read instead of computed (a bad file is a warning; see `terrain bench --scene`).
     #[arg(long)]
@@ -61,8 +42,6 @@ pub(crate) struct RenderArgs {
     /// [default: from the quality preset balanced].
     #[arg(long)]
     pub factor: Option<f32>,
-    #[command(flatten)]
-    pub quality: crate::quality::QualityArgs,
     /// Background colour R,G,B (0-255).
     #[arg(long, default_value = "150,185,225")]
     pub background: String,
@@ -72,6 +51,10 @@ pub(crate) struct RenderArgs {
     /// Darken triangle edges.
     #[arg(long)]
     pub wireframe: bool,
+    /// Colour every patch by its level of detail (grid cells per triangle edge; the legend is
+    /// in README, "terrain view") instead of the height ramp; not drawn by geomorph's renderer.
+    #[arg(long)]
+    pub lod_colours: bool,
     /// Colour texture (PNG or JPEG) stretched over the whole DEM, its first row at the north.
     #[arg(long)]
     pub texture: Option<PathBuf>,
@@ -79,21 +62,8 @@ pub(crate) struct RenderArgs {
     /// timing; not with --flight [default: 1].
     #[arg(long)]
     pub frames: Option<u32>,
-    /// A store: the screen-error threshold tau of Eq. 7 (out-of-core paper), pixels
-    /// [default: 2].
-    #[arg(long)]
-    pub tau: Option<f64>,
-    /// A store: the stream cache's budget, MiB (2^20 bytes) [default: 256].
-    #[arg(long, alias = "cache-mb")]
-    pub cache_mib: Option<u64>,
-    /// A store: full-resolution pages the renderer holds at most (slots of (2^k + 1)^2 f32
-    /// each); blocks beyond them are drawn from coarser slot classes [default: 1024].
-    #[arg(long)]
-    pub page_capacity: Option<u32>,
-    /// A store: MiB of page atlas on the device, shared by the slot classes of every level
-    /// (a block drawn at level L takes a (2^L + 1)^2 slot) [default: 256].
-    #[arg(long, alias = "page-mb")]
-    pub page_mib: Option<u64>,
+    #[command(flatten)]
+    pub store: crate::draw_args::StoreArgs,
     /// A store: fly this camera flight (JSON, see `flights/`) instead of one camera, placed on
     /// an overview of the store's level-4 vertices; frames after the first do not wait for
     /// I/O (real time: blocks drawn at their finest resident level, late data counted) unless
@@ -150,7 +120,7 @@ fn camera_for(
     width: u32,
     height: u32,
 ) -> anyhow::Result<Camera> {
-    place_camera(spec, hm, (width, height), args.fov)
+    place_camera(spec, hm, (width, height), args.eye.fov)
 }
 
 /// `--camera`/`--look-at` placed on the DEM `hm` (the default framing without them), its near
@@ -208,6 +178,9 @@ struct FrameRecord {
     gpu_ms: Option<f64>,
     draw_pass_ms: Option<f64>,
     wall_ms: f64,
+    /// The frame loop's whole frame: selection, building and converting what is drawn, and
+    /// the renderer's wall time (what `terrain view --stats-json` calls `engine_ms`).
+    frame_ms: f64,
     #[serde(skip_serializing_if = "Option::is_none")]
     stream: Option<ooc::StreamRecord>,
 }
@@ -292,6 +265,7 @@ fn draw_frames(
             // The renderer waits for the GPU before returning, so this is the frame's whole
             // cost after selection: encode, tessellate (when the patches changed), draw.
             wall_ms: s.wall_ms,
+            frame_ms: r.frame_ms,
             stream: r.stream.clone(),
         });
     }
@@ -302,15 +276,12 @@ fn draw_frames(
 pub(crate) fn run(args: &RenderArgs) -> anyhow::Result<()> {
     let (width, height) = parse_size(&args.size)?;
     let background = parse_rgb(&args.background)?;
-    if args.leaf_cells == 0 {
-        bail!("--leaf-cells must be at least 1");
-    }
+    args.lod.check()?;
     let factor = args.factor.unwrap_or(DEFAULT_FACTOR);
     if !(factor.is_finite() && factor > 0.0) {
         bail!("--factor must be a positive number, got {factor}");
     }
-    let spec =
-        args.camera.as_deref().map(|c| camera::parse(c, args.look_at.as_deref())).transpose()?;
+    let spec = args.eye.spec()?;
     let store = match args.source.dem.as_slice() {
         [one] if ooc::is_store(one) => Some(one),
         _ => None,
@@ -321,7 +292,7 @@ pub(crate) fn run(args: &RenderArgs) -> anyhow::Result<()> {
     if let Some(one) = store {
         return run_store(args, spec.as_ref(), one, (width, height), background, kind);
     }
-    let method_kind = args.method.unwrap_or(LodMethod::PvpsC);
+    let method_kind = args.lod.kind(false);
     let hm = match args.source.load_surface()? {
         Some(dem) => dem.heightmap,
         None => synth::default_terrain(),
@@ -330,13 +301,13 @@ pub(crate) fn run(args: &RenderArgs) -> anyhow::Result<()> {
     let camera = camera_for(args, spec.as_ref(), &hm, width, height)?;
 
     let mut method_config = MethodConfig {
-        leaf_cells: args.leaf_cells,
+        leaf_cells: args.lod.leaf_cells,
         uniform_factor: factor,
         ..MethodConfig::default()
     };
-    let view = ErrorView { height_px: f64::from(height), fov_y_deg: args.fov };
+    let view = ErrorView { height_px: f64::from(height), fov_y_deg: args.eye.fov };
     let own = [("--factor", args.factor.is_some())];
-    if let Some(p) = args.quality.apply(&mut method_config, method_kind, view, &own)? {
+    if let Some(p) = args.lod.quality.apply(&mut method_config, method_kind, view, &own)? {
         println!("quality: {p}");
     }
     let scene = MethodScene::new(hm, method_config);
@@ -356,7 +327,11 @@ pub(crate) fn run(args: &RenderArgs) -> anyhow::Result<()> {
     println!("adapter: {}", ctx.describe());
     let config = RenderConfig { width, height, texture, background, ..Default::default() };
     let mut renderer = method.renderer(&ctx, &config)?;
-    let options = RenderOptions { wireframe: args.wireframe, ..Default::default() };
+    let options = RenderOptions {
+        wireframe: args.wireframe,
+        lod_colours: args.lod_colours,
+        ..Default::default()
+    };
     print_camera(&camera);
     let cameras = vec![camera; args.frames.unwrap_or(1).max(1) as usize];
     let mut frames = FrameLoop::new(method).rendered(Some(&mut renderer)).with_options(options);
@@ -393,10 +368,10 @@ fn refuse_ignored(args: &RenderArgs, store: bool) -> anyhow::Result<()> {
     if !store {
         refuse(
             given(&[
-                ("--tau", args.tau.is_some()),
-                ("--cache-mib", args.cache_mib.is_some()),
-                ("--page-capacity", args.page_capacity.is_some()),
-                ("--page-mib", args.page_mib.is_some()),
+                args.store.given()[0],
+                args.store.given()[1],
+                args.store.given()[2],
+                args.store.given()[3],
                 ("--flight", args.flight.is_some()),
                 ("--wait", args.wait),
                 ("--max-frames", args.max_frames.is_some()),
@@ -405,7 +380,7 @@ fn refuse_ignored(args: &RenderArgs, store: bool) -> anyhow::Result<()> {
              DEM file",
         )?;
         if args.scene.is_some() {
-            let method = args.method.unwrap_or(LodMethod::PvpsC);
+            let method = args.lod.kind(false);
             terrain_app::scene_files::check_used(&[method]).map_err(anyhow::Error::msg)?;
         }
     } else if args.scene.is_some() {
@@ -418,15 +393,15 @@ fn refuse_ignored(args: &RenderArgs, store: bool) -> anyhow::Result<()> {
         refuse(
             given(&[
                 ("--frames", args.frames.is_some()),
-                ("--camera", args.camera.is_some()),
-                ("--look-at", args.look_at.is_some()),
+                ("--camera", args.eye.camera.is_some()),
+                ("--look-at", args.eye.look_at.is_some()),
             ]),
             "to one camera, not to --flight",
         )?;
     } else if store {
         refuse(given(&[("--max-frames", args.max_frames.is_some())]), "only with --flight")?;
     }
-    let uniform = args.method == Some(LodMethod::Uniform);
+    let uniform = args.lod.method == Some(LodMethod::Uniform);
     if !uniform && args.factor.is_some() {
         bail!("--factor applies only to --method uniform");
     }
@@ -525,42 +500,25 @@ fn run_store(
     background: [u8; 4],
     kind: ImageOut,
 ) -> anyhow::Result<()> {
-    let method_kind = args.method.unwrap_or(LodMethod::OutOfCore);
+    let method_kind = args.lod.kind(true);
     let mut method_config = MethodConfig {
-        leaf_cells: args.leaf_cells,
+        leaf_cells: args.lod.leaf_cells,
         uniform_factor: args.factor.unwrap_or(DEFAULT_FACTOR),
         ..MethodConfig::default()
     };
-    method_config.ooc.tau = args.tau.unwrap_or(2.0);
-    let view = ErrorView { height_px: f64::from(height), fov_y_deg: args.fov };
-    let own = [("--factor", args.factor.is_some()), ("--tau", args.tau.is_some())];
-    if let Some(p) = args.quality.apply(&mut method_config, method_kind, view, &own)? {
+    method_config.ooc.tau = args.store.tau.unwrap_or(2.0);
+    let view = ErrorView { height_px: f64::from(height), fov_y_deg: args.eye.fov };
+    let own = [("--factor", args.factor.is_some()), ("--tau", args.store.tau.is_some())];
+    if let Some(p) = args.lod.quality.apply(&mut method_config, method_kind, view, &own)? {
         println!("quality: {p}");
     }
     let tau = method_config.ooc.tau;
-    let cache_mib = args.cache_mib.unwrap_or(256);
-    let page_capacity = args.page_capacity.unwrap_or(1024);
-    let page_mib = args.page_mib.unwrap_or(256);
-    if !(tau.is_finite() && tau > 0.0) {
-        bail!("--tau must be a positive number of pixels, got {tau}");
-    }
-    if page_capacity == 0 {
-        bail!("--page-capacity must be at least 1");
-    }
-    let config = ooc::OocConfig {
-        tau,
-        budget_bytes: cache_mib << 20,
-        page_capacity,
-        page_budget_bytes: page_mib << 20,
-        ..ooc::OocConfig::default()
-    };
+    let cache_mib = args.store.cache_mib();
+    let config = args.store.config(tau)?;
     let scene = open_store(dir, config)?;
-    if !(args.fov.is_finite() && args.fov > 0.0 && args.fov < 180.0) {
-        bail!("--fov must be between 0 and 180 degrees, got {}", args.fov);
-    }
     let cameras: Vec<Camera> = match &args.flight {
         None => {
-            let camera = store_camera(&scene, dir, spec, (width, height), args.fov)?;
+            let camera = store_camera(&scene, dir, spec, (width, height), args.eye.fov)?;
             vec![camera; args.frames.unwrap_or(1).max(1) as usize]
         }
         Some(path) => {
@@ -586,7 +544,11 @@ fn run_store(
             r.page_atlas_bytes() as f64 / terrain_app::MIB
         );
     }
-    let options = RenderOptions { wireframe: args.wireframe, ..Default::default() };
+    let options = RenderOptions {
+        wireframe: args.wireframe,
+        lod_colours: args.lod_colours,
+        ..Default::default()
+    };
     let mut frames = FrameLoop::new(method).rendered(Some(&mut renderer)).with_options(options);
     let records =
         draw_frames(&mut frames, &cameras, (method_kind == LodMethod::OutOfCore).then_some(tau))?;

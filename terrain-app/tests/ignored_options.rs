@@ -117,3 +117,30 @@ fn reading_options_are_refused_for_a_store_or_a_scene() {
     assert!(!png.exists() && !Path::new("p.png").exists());
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// `render`, `fly` and `view` share one definition of their options (`draw_args`): the same
+/// checks in all three (a bad field of view, a zero leaf size), and `view` refuses a store's
+/// options with a DEM before it opens a window (the embedded terrain here; no display needed).
+#[test]
+fn shared_drawing_options_are_checked_alike() {
+    let dir = scratch("ignored", "shared");
+    let flight = Path::new(env!("CARGO_MANIFEST_DIR")).join("../flights/pvps_884.json");
+    let (flight, png, out) =
+        (flight.to_str().unwrap(), dir.join("x.png"), dir.join("fly").to_str().unwrap().to_owned());
+    let png = png.to_str().unwrap();
+    refused(&["render", "--fov", "200", "-o", png], &["--fov must be between 0 and 180"]);
+    refused(&["view", "--fov", "200"], &["--fov must be between 0 and 180"]);
+    for cmd in [
+        vec!["render", "--leaf-cells", "0", "-o", png],
+        vec!["view", "--leaf-cells", "0"],
+        vec!["fly", "--flight", flight, "--leaf-cells", "0", "-o", &out],
+    ] {
+        refused(&cmd, &["--leaf-cells must be at least 1"]);
+    }
+    refused(
+        &["view", "--cache-mib", "8", "--page-mib", "4"],
+        &["--cache-mib, --page-mib apply to a baked store"],
+    );
+    refused(&["render", "--page-capacity", "8", "-o", png], &["--page-capacity applies"]);
+    let _ = std::fs::remove_dir_all(&dir);
+}

@@ -79,13 +79,14 @@ fn start_xvfb(offset: u32) -> Option<Xvfb> {
 
 /// Runs `terrain view ARGS` on `display` (Vulkan: lavapipe here), waiting at most `limit`;
 /// returns (exit ok, stdout, stderr). A hang is a failure, and the process is killed.
-fn view(display: &str, args: &[&str], limit: Duration) -> (bool, String, String) {
+fn view(display: &str, cwd: &Path, args: &[&str], limit: Duration) -> (bool, String, String) {
     let dir = std::env::temp_dir();
     let tag = format!("terrain-view-{}-{}", std::process::id(), args.len());
     let (out_path, err_path) = (dir.join(format!("{tag}.out")), dir.join(format!("{tag}.err")));
     let mut child = Command::new(env!("CARGO_BIN_EXE_terrain"))
         .arg("view")
         .args(args)
+        .current_dir(cwd)
         .env("DISPLAY", display)
         .env("TERRAIN_GPU_BACKEND", "vulkan")
         .env_remove("WAYLAND_DISPLAY")
@@ -157,7 +158,7 @@ const START: &str = "1500,1500,2600,45,-25";
 fn the_window_shows_what_render_draws_for_the_same_camera() {
     let Some(x) = start_xvfb(0) else { return };
     let dir = scratch("view", "window");
-    let (panel, shot) = (dir.join("panel.png"), dir.join("view.png"));
+    let (panel, shot, lod) = (dir.join("panel.png"), dir.join("view.png"), dir.join("lod.png"));
     let script = dir.join("script.txt");
     std::fs::write(
         &script,
@@ -165,9 +166,10 @@ fn the_window_shows_what_render_draws_for_the_same_camera() {
             "camera {START}\nrecord\nwait 2\nkey down W\nwait 30\nkey up W\nmouse 40 12\nkey down D\nwait 4\nkey up D\n\
              wheel 1\nkey down E\nwait 3\nkey up E\nrecord\n\
              method uniform\nquality 3\nwait 2\nscreenshot {}\npanel off\nwait 1\n\
-             screenshot {}\nquit\n",
+             screenshot {}\ncolour-levels on\nwait 1\nscreenshot {}\nquit\n",
             panel.display(),
-            shot.display()
+            shot.display(),
+            lod.display()
         ),
     )
     .unwrap();
@@ -180,7 +182,7 @@ fn the_window_shows_what_render_draws_for_the_same_camera() {
         "--record-to",
         flight.to_str().unwrap(),
     ];
-    let (ok, out, err) = view(&x.display, &args, Duration::from_secs(300));
+    let (ok, out, err) = view(&x.display, &dir, &args, Duration::from_secs(300));
     if !ok && no_adapter(&err) && !require() {
         eprintln!("skipping: {err}");
         return;
@@ -255,6 +257,30 @@ fn the_window_shows_what_render_draws_for_the_same_camera() {
     assert_ne!(camera, START);
     let (_, moved) = golden_diff(&load(&start_png), &offscreen);
     assert!(moved > 0.05, "the scripted moves changed only {:.3} % of pixels", moved * 100.0);
+    // LOD colours (`colour-levels on`): the window shows what `render --lod-colours` draws,
+    // and the colours are not the height ramp's.
+    let lod_png = dir.join("render-lod.png");
+    let l = terrain(&[
+        "render",
+        "--size",
+        "320x180",
+        "--method",
+        "uniform",
+        "--error-px",
+        "3",
+        "--camera",
+        camera,
+        "--lod-colours",
+        "-o",
+        lod_png.to_str().unwrap(),
+    ]);
+    assert!(l.status.success(), "{}", String::from_utf8_lossy(&l.stderr));
+    let (window_lod, offscreen_lod) = (load(&lod), load(&lod_png));
+    let (mean, far) = golden_diff(&window_lod, &offscreen_lod);
+    println!("LOD colours, window vs render: mean {mean:?}, {:.3} % off", far * 100.0);
+    assert!(mean.iter().all(|&m| m < 2.0) && far < 0.01, "mean {mean:?}, far {far}");
+    let (_, recoloured) = golden_diff(&window_lod, &window);
+    assert!(recoloured > 0.3, "LOD colours changed only {:.3} % of pixels", recoloured * 100.0);
     drop(x);
     let _ = std::fs::remove_dir_all(&dir);
 }
@@ -281,11 +307,11 @@ fn the_window_closes_cleanly_mid_stream() {
     let script = dir.join("script.txt");
     std::fs::write(
         &script,
-        "wait 2\nkey down W\nkey down shift\nwait 6\nmouse 90 0\nwait 2\nquit\n",
+        "wait 2\nrecord\nkey down W\nkey down shift\nwait 36\nmouse 90 0\nquality 3\nwait 2\nrecord\nquit\n",
     )
     .unwrap();
     let args = [store.to_str().unwrap(), "--size", "320x180", "--script", script.to_str().unwrap()];
-    let (ok, out, err) = view(&x.display, &args, Duration::from_secs(180));
+    let (ok, out, err) = view(&x.display, &dir, &args, Duration::from_secs(180));
     if !ok && no_adapter(&err) && !require() {
         eprintln!("skipping: {err}");
         return;
@@ -301,6 +327,14 @@ fn the_window_closes_cleanly_mid_stream() {
         closed.split(|c: char| !c.is_ascii_digit()).filter_map(|s| s.parse().ok()).collect();
     let (before, after) = (nums[nums.len() - 2], nums[nums.len() - 1]);
     assert!(after < before, "threads {before} before closing the store, {after} after");
+    // A quality change over a store builds the new runtime on a worker while the old one
+    // draws, then swaps it in.
+    assert!(out.contains("view: store method ooc ready;"), "no store rebuild:\n{out}\n{err}");
+    // Without --record-to the recorded flight goes under the git-ignored out/ of the working
+    // folder.
+    let recorded = dir.join("out/recorded_flight.json");
+    terrain_core::flight::FlightSpec::load(&recorded)
+        .unwrap_or_else(|e| panic!("{}: {e}\n{out}", recorded.display()));
     drop(x);
     let _ = std::fs::remove_dir_all(&dir);
 }

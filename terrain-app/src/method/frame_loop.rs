@@ -86,6 +86,18 @@ impl<'a> FrameLoop<'a> {
         self
     }
 
+    /// Continues the upload bookkeeping of an earlier loop over the same renderer (see
+    /// [`Uploads`]).
+    pub fn with_uploads(mut self, uploads: Uploads) -> Self {
+        self.uploads = uploads;
+        self
+    }
+
+    /// The upload bookkeeping so far, for [`FrameLoop::with_uploads`].
+    pub fn uploads(&self) -> Uploads {
+        self.uploads
+    }
+
     /// Sets the render options (wireframe) of the next frames.
     pub fn set_options(&mut self, options: RenderOptions) {
         self.options = options;

@@ -38,7 +38,7 @@ pub use geomorph::GeomorphMethod;
 pub use memory::MemoryMethod;
 pub use ooc::{OocMethod, OocWait};
 pub use registry::{MethodOptions, build};
-pub use renderer::{DrawSource, DrawStats, FrameRenderer, RendererKind};
+pub use renderer::{DrawSource, DrawStats, FrameRenderer, RendererKind, Uploads};
 pub use store::{StoreMethod, draws_from_store, store_method};
 
 use crate::methods::LodMethod;

@@ -134,9 +134,12 @@ pub struct DrawStats {
     pub adapter: String,
 }
 
-/// Upload bookkeeping of one run of frames (the frame loop's).
-#[derive(Debug, Clone, Copy, Default)]
-pub(crate) struct Uploads {
+/// Upload bookkeeping of one run of frames (the frame loop's): the anchor last uploaded and
+/// whether anything was drawn yet. A caller that builds a [`super::FrameLoop`] per frame over
+/// the same renderer (`terrain view` over a DEM in memory) carries it from loop to loop
+/// ([`super::FrameLoop::with_uploads`]), so the anchor offsets count only when they move.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct Uploads {
     last_anchor: Option<DVec3>,
     drawn: bool,
 }

@@ -48,14 +48,15 @@ pub fn draws_from_store(kind: LodMethod) -> bool {
 /// `kind` over the store of `scene` (its runtime), with `config`'s parameters; measured
 /// against `reference` (the same DEM in memory) when given. `ooc` is the out-of-core paper's
 /// own method ([`OocMethod`]); the others read their tables from the store folder and fail
-/// with what to bake when one is missing.
+/// with what to bake when one is missing. The method is `Send`: `terrain view` builds it (and
+/// plays its first, waiting frame) on a worker thread.
 pub fn store_method<'a>(
     kind: LodMethod,
     scene: OocScene,
     config: &MethodConfig,
     wait: OocWait,
     reference: Option<&'a MethodScene>,
-) -> anyhow::Result<Box<dyn Method + 'a>> {
+) -> anyhow::Result<Box<dyn Method + Send + 'a>> {
     if kind == LodMethod::OutOfCore {
         return Ok(match reference {
             Some(r) => Box::new(OocMethod::measured(scene, r, wait)?),

@@ -9,8 +9,9 @@
 //! - Scripts ([`script`]): `--script FILE` drives the same actions without a person.
 //! - Loading never blocks the event loop: a method switch or a vertical exaggeration over a
 //!   DEM in memory prepares its tables on a worker thread while the old method keeps drawing;
-//!   a store is drawn in the streamer's real-time mode (after the first frame, which loads the
-//!   coarse levels, no frame waits for I/O).
+//!   over a store a method or quality change builds the new runtime and renderer on a worker
+//!   (which plays its first, waiting frame) while the old one draws; a store is drawn in the
+//!   streamer's real-time mode (no later frame waits for I/O).
 
 mod camera;
 mod panel;
@@ -36,7 +37,7 @@ use terrain_app::ooc;
 use terrain_core::geometry::Camera;
 use terrain_core::measure::MeasureConfig;
 use terrain_core::{Heightmap, synth};
-use terrain_gpu::render::clip_range;
+use terrain_gpu::render::ClipBoxes;
 use terrain_gpu::{BackendChoice, DeviceConfig, GpuContext, RenderConfig, RenderOptions};
 use winit::application::ApplicationHandler;
 use winit::event::{ElementState, MouseButton, MouseScrollDelta, WindowEvent};
@@ -55,51 +56,41 @@ use terrain_app::camera::{self as camera_spec, Ground, ViewConfig};
 pub(crate) struct ViewArgs {
     #[command(flatten)]
     pub source: SourceArgs,
-    /// Start camera as x,y,z,yaw,pitch (as `terrain render --camera`). Default: the whole
-    /// terrain from the south-west, as `terrain render`.
-    #[arg(long, allow_hyphen_values = true)]
-    pub camera: Option<String>,
-    /// Vertical field of view, degrees.
-    #[arg(long, default_value_t = 60.0)]
-    pub fov: f64,
+    /// The start camera, as `terrain render`'s.
+    #[command(flatten)]
+    pub eye: crate::draw_args::CameraArgs,
     /// Window size, WIDTHxHEIGHT (the renderer draws at this size; the window is not resizable).
     #[arg(long, default_value = "1280x720")]
     pub size: String,
-    /// LOD method at start. Default: pvps-c for a DEM, ooc for a baked store.
-    #[arg(long, value_enum)]
-    pub method: Option<LodMethod>,
-    /// Cells per side of the finest patch.
-    #[arg(long, default_value_t = 16)]
-    pub leaf_cells: u32,
-    /// The quality at start, as in `render` and `fly`: `--error-px`, a `--quality` preset
-    /// (default balanced, 2 px) or the method's own `--method-param`. The panel's slider is
-    /// the error target in pixels.
+    /// The method at start and its quality, as in `render` and `fly`: `--error-px`, a
+    /// `--quality` preset (default balanced, 2 px) or the method's own `--method-param`. The
+    /// panel's slider is the error target in pixels.
     #[command(flatten)]
-    pub quality: crate::quality::QualityArgs,
+    pub lod: crate::draw_args::MethodArgs,
     /// Drive the viewer from a script (one command per line; see README, "terrain view").
     #[arg(long)]
     pub script: Option<PathBuf>,
     /// Play this flight (JSON, see `flights/`) from the start, then fly freely.
     #[arg(long)]
     pub flight: Option<PathBuf>,
-    /// Where the R key (or the script's `record`) writes the recorded flight.
-    #[arg(long, default_value = "recorded_flight.json")]
+    /// Where the R key (or the script's `record`) writes the recorded flight (its folder is
+    /// created; `out/` is git-ignored).
+    #[arg(long, default_value = "out/recorded_flight.json")]
     pub record_to: PathBuf,
-    /// A store: the stream cache's budget, MiB.
-    #[arg(long, default_value_t = 256)]
-    pub cache_mib: u64,
+    /// Write every frame's times (the viewer's frame period and its parts: engine frame,
+    /// panel, present) as JSON to this file when the window closes: the viewer-overhead
+    /// measurement against `terrain render --frames N --stats-json`.
+    #[arg(long)]
+    pub stats_json: Option<PathBuf>,
+    #[command(flatten)]
+    pub store: crate::draw_args::StoreArgs,
 }
 
 /// Runs `terrain view`.
 pub(crate) fn run(args: &ViewArgs) -> anyhow::Result<()> {
     let size = parse_size(&args.size)?;
-    let spec = args.camera.as_deref().map(|c| camera_spec::parse(c, None)).transpose()?;
-    if !(args.fov.is_finite() && args.fov > 0.0 && args.fov < 180.0) {
-        bail!("--fov must be between 0 and 180 degrees, got {}", args.fov);
-    }
-    if args.leaf_cells == 0 {
-        bail!("--leaf-cells must be at least 1");
-    }
+    let spec = args.eye.spec()?;
+    args.lod.check()?;
     let script = match &args.script {
         Some(p) => {
             let text = std::fs::read_to_string(p)
@@ -112,24 +103,34 @@ pub(crate) fn run(args: &ViewArgs) -> anyhow::Result<()> {
         [one] if ooc::is_store(one) => Some(one.clone()),
         _ => None,
     };
+    // Options the mode would ignore are refused before anything opens.
+    if store.is_none() {
+        let given: Vec<&str> =
+            args.store.given().iter().filter(|(_, g)| *g).map(|(n, _)| *n).collect();
+        if !given.is_empty() {
+            bail!("{} apply to a baked store, not to a DEM file", given.join(", "));
+        }
+    }
     // The window first: without a display there is nothing to do.
     let event_loop = EventLoop::new().context(
         "could not open a window: `terrain view` needs a display (X11: is DISPLAY set?)",
     )?;
-    let ctx = GpuContext::new(&DeviceConfig::from_env(BackendChoice::Auto))
-        .context("no GPU adapter (Vulkan or GL) is available")?;
+    let ctx = Arc::new(
+        GpuContext::new(&DeviceConfig::from_env(BackendChoice::Auto))
+            .context("no GPU adapter (Vulkan or GL) is available")?,
+    );
     println!("adapter: {}", ctx.describe());
-    let mut config = MethodConfig { leaf_cells: args.leaf_cells, ..MethodConfig::default() };
-    config.ooc.budget_bytes = args.cache_mib << 20;
-    let kind = args.method.unwrap_or(if store.is_some() {
-        LodMethod::OutOfCore
-    } else {
-        LodMethod::PvpsC
-    });
+    let mut config = MethodConfig { leaf_cells: args.lod.leaf_cells, ..MethodConfig::default() };
+    let kind = args.lod.kind(store.is_some());
+    config.ooc.tau = args.store.tau.unwrap_or(2.0);
     // The one quality knob (README "One quality knob"): the pixel target mapped onto the
     // method's own parameter for this window's height and field of view.
-    let error_view = ErrorView { height_px: f64::from(size.1), fov_y_deg: args.fov };
-    let mapped = args.quality.apply(&mut config, kind, error_view, &[])?;
+    let error_view = ErrorView { height_px: f64::from(size.1), fov_y_deg: args.eye.fov };
+    let own = [("--tau", args.store.tau.is_some())];
+    let mapped = args.lod.quality.apply(&mut config, kind, error_view, &own)?;
+    if store.is_some() {
+        config.ooc = args.store.config(config.ooc.tau)?;
+    }
     if let Some(p) = &mapped {
         println!("quality: {p}");
     }
@@ -154,6 +155,7 @@ pub(crate) fn run(args: &ViewArgs) -> anyhow::Result<()> {
             Terrain::Memory(MemoryTerrain {
                 scene: Arc::new(scene),
                 renderers: HashMap::new(),
+                last_kind: None,
                 job: None,
                 exaggeration: 1.0,
             })
@@ -167,7 +169,7 @@ pub(crate) fn run(args: &ViewArgs) -> anyhow::Result<()> {
     // that fills the image with the terrain: the one camera module.
     let view = ViewConfig {
         size_px: glam::dvec2(f64::from(size.0), f64::from(size.1)),
-        fov_y_deg: args.fov,
+        fov_y_deg: args.eye.fov,
     };
     let placed = camera_spec::place(spec.as_ref(), &terrain.camera_ground(), &view)?;
     if let Some(w) = placed.lift_warning() {
@@ -202,11 +204,16 @@ pub(crate) fn run(args: &ViewArgs) -> anyhow::Result<()> {
         None => VecDeque::new(),
     };
     println!("terrain: heights {lo:.1} to {hi:.1} m, extent {extent:.0} m");
+    if let Some(path) = &args.stats_json {
+        crate::render::check_writable(path)?;
+    }
+    let clip = ClipBoxes::new(ground);
     let mut app = App {
         ctx,
         render_config,
         size,
-        fov: args.fov,
+        fov: args.eye.fov,
+        clip,
         terrain,
         kind,
         error_view,
@@ -233,6 +240,7 @@ pub(crate) fn run(args: &ViewArgs) -> anyhow::Result<()> {
         stats: Stats::default(),
         frame_index: 0,
         frame_times: Vec::new(),
+        uploads: method::Uploads::default(),
         last_frame: None,
         measure_next: false,
         error: None,
@@ -242,20 +250,24 @@ pub(crate) fn run(args: &ViewArgs) -> anyhow::Result<()> {
     event_loop.run_app(&mut app).context("the window's event loop failed")?;
     let frames = app.frame_index;
     let error = app.error.take();
-    if frames > 0 {
-        // Frame 0 builds pipelines and tessellates: the median is of the frames after it.
-        let later = &app.frame_times[1.min(frames - 1)..];
-        let median = |k: usize| {
-            let mut v: Vec<f64> = later.iter().map(|t| if k == 0 { t.0 } else { t.1 }).collect();
-            v.sort_by(f64::total_cmp);
-            v[v.len() / 2]
-        };
+    let times = FrameTimes::of(&app.frame_times);
+    if let Some(m) = &times.median {
         println!(
-            "view: {frames} frames, median after the first: viewer frame {:.2} ms, engine \
-             frame {:.2} ms",
-            median(0),
-            median(1)
+            "view: {frames} frames, median after the first: viewer frame {:.2} ms (period \
+             {:.2} ms), engine frame {:.2} ms, panel {:.2} ms, present {:.2} ms",
+            m.viewer_ms, m.period_ms, m.engine_ms, m.panel_ms, m.present_ms
         );
+    }
+    if let Some(path) = &args.stats_json {
+        let json = serde_json::json!({
+            "adapter": app.ctx.describe(),
+            "size": [size.0, size.1],
+            "frames": times.frames,
+            "median_after_first": times.median,
+        });
+        std::fs::write(path, serde_json::to_string_pretty(&json)?)
+            .with_context(|| format!("could not write {}", path.display()))?;
+        println!("view: wrote {}", path.display());
     }
     let threads_before = threads();
     let had_store = matches!(app.terrain, Terrain::Store(_));
@@ -274,6 +286,66 @@ pub(crate) fn run(args: &ViewArgs) -> anyhow::Result<()> {
     match error {
         Some(e) => Err(e),
         None => Ok(()),
+    }
+}
+
+/// One viewer frame's times, ms.
+#[derive(Debug, Clone, Copy, Default, serde::Serialize)]
+struct FrameTime {
+    /// Frame index.
+    frame: usize,
+    /// The method that drew it.
+    method: &'static str,
+    /// Start of this frame to the start of the next (the last frame: its own redraw): the
+    /// frame time a user sees, event handling included.
+    period_ms: f64,
+    /// The redraw: script and input, the engine's frame, the panel, present.
+    viewer_ms: f64,
+    /// The frame loop's frame (selection to the GPU done), as `terrain render` times it.
+    engine_ms: f64,
+    /// The panel (egui's layout and tessellation).
+    panel_ms: f64,
+    /// The copy into the window's surface, the panel's draw and present.
+    present_ms: f64,
+    /// When the redraw started, for the periods (not written).
+    #[serde(skip)]
+    start: Option<Instant>,
+}
+
+/// The frames' times and their medians after the first (which builds pipelines).
+struct FrameTimes {
+    frames: Vec<FrameTime>,
+    median: Option<FrameTime>,
+}
+
+impl FrameTimes {
+    fn of(times: &[FrameTime]) -> Self {
+        let mut frames = times.to_vec();
+        for k in 0..frames.len() {
+            frames[k].period_ms = match (frames[k].start, frames.get(k + 1).and_then(|f| f.start)) {
+                (Some(a), Some(b)) => (b - a).as_secs_f64() * 1e3,
+                _ => frames[k].viewer_ms,
+            };
+        }
+        let later = &frames[1.min(frames.len())..];
+        let median = (!later.is_empty()).then(|| {
+            let m = |f: fn(&FrameTime) -> f64| {
+                let mut v: Vec<f64> = later.iter().map(f).collect();
+                v.sort_by(f64::total_cmp);
+                v[v.len() / 2]
+            };
+            FrameTime {
+                frame: later.len(),
+                method: "",
+                period_ms: m(|t| t.period_ms),
+                viewer_ms: m(|t| t.viewer_ms),
+                engine_ms: m(|t| t.engine_ms),
+                panel_ms: m(|t| t.panel_ms),
+                present_ms: m(|t| t.present_ms),
+                start: None,
+            }
+        });
+        Self { frames, median }
     }
 }
 
@@ -314,6 +386,8 @@ struct MemoryTerrain {
     scene: Arc<MethodScene>,
     /// One renderer per kind (shared by the methods of that kind).
     renderers: HashMap<RendererKind, FrameRenderer>,
+    /// The renderer kind of the last frame (its upload bookkeeping carries over).
+    last_kind: Option<RendererKind>,
     job: Option<Job>,
     /// The scene's vertical exaggeration.
     exaggeration: f64,
@@ -329,6 +403,23 @@ struct StoreTerrain {
     overview: Heightmap,
     /// The store's georeference (its CRS places `lonlat:` cameras).
     georef: terrain_core::Georef,
+    /// A method or quality change being built on a worker while the current one draws.
+    job: Option<StoreJob>,
+}
+
+/// A store's method (its new runtime) and renderer, built on a worker thread with its first
+/// frame played (the one that waits for the coarse levels), so the event loop never waits.
+type Built = anyhow::Result<(Box<dyn method::Method + Send>, FrameRenderer)>;
+
+/// A store rebuild in flight.
+struct StoreJob {
+    kind: LodMethod,
+    config: MethodConfig,
+    /// The pixel target's mapping the new method takes (`None`: its own parameter rules).
+    mapped: Option<ErrorPxParams>,
+    /// Frames drawn by the old method while the worker built the new one.
+    frames_meanwhile: usize,
+    handle: JoinHandle<Built>,
 }
 
 impl StoreTerrain {
@@ -347,23 +438,38 @@ impl StoreTerrain {
         let method = method::store_method(kind, scene, &config, OocWait::FirstFrame, None)?;
         let renderer = method.renderer(ctx, render_config)?;
         let frames = Some(FrameLoop::new(method).rendered_by(renderer));
-        Ok(Self { dir: dir.to_path_buf(), config, frames, overview, georef })
+        Ok(Self { dir: dir.to_path_buf(), config, frames, overview, georef, job: None })
     }
 
-    /// The method again over a new runtime of the same store (a new method or parameter).
+    /// Starts building `kind` with `config` over a new runtime of the same store on a worker
+    /// thread (a new method or parameter); the current method keeps drawing until
+    /// [`StoreTerrain::poll`] swaps it in. Both runtimes' caches are resident meanwhile.
     fn rebuild(
         &mut self,
         kind: LodMethod,
-        ctx: &GpuContext,
+        config: MethodConfig,
+        mapped: Option<ErrorPxParams>,
+        camera: Camera,
+        ctx: &Arc<GpuContext>,
         render_config: &RenderConfig,
     ) -> anyhow::Result<()> {
-        // The old runtime goes first (its workers joined), then the new one starts.
-        self.frames = None;
-        let scene = ooc::OocScene::open(&self.dir, self.config.ooc)
-            .with_context(|| format!("could not open the store {}", self.dir.display()))?;
-        let method = method::store_method(kind, scene, &self.config, OocWait::FirstFrame, None)?;
-        let renderer = method.renderer(ctx, render_config)?;
-        self.frames = Some(FrameLoop::new(method).rendered_by(renderer));
+        if self.job.is_some() {
+            bail!("still preparing; try again in a moment");
+        }
+        let (dir, ctx, rc, c) =
+            (self.dir.clone(), ctx.clone(), render_config.clone(), config.clone());
+        let handle = std::thread::Builder::new().name("view-store".into()).spawn(move || {
+            let scene = ooc::OocScene::open(&dir, c.ooc)
+                .with_context(|| format!("could not open the store {}", dir.display()))?;
+            let mut method = method::store_method(kind, scene, &c, OocWait::FirstFrame, None)?;
+            let mut renderer = method.renderer(&ctx, &rc)?;
+            renderer.set_sun_direction(rc.sun_direction)?;
+            // The frame that waits for the coarse levels, played here.
+            let first = method.frame(&camera);
+            renderer.apply(&first)?;
+            Ok((method, renderer))
+        })?;
+        self.job = Some(StoreJob { kind, config, mapped, frames_meanwhile: 0, handle });
         Ok(())
     }
 }
@@ -455,10 +561,14 @@ pub(crate) enum Action {
 }
 
 struct App {
-    ctx: GpuContext,
+    /// Shared with the worker that builds a store's method.
+    ctx: Arc<GpuContext>,
     render_config: RenderConfig,
     size: (u32, u32),
     fov: f64,
+    /// The ground's block boxes for the near and far planes (computed once per terrain, not
+    /// every frame).
+    clip: ClipBoxes,
     terrain: Terrain,
     kind: LodMethod,
     /// The view the pixel target refers to (the window's height and field of view).
@@ -490,9 +600,11 @@ struct App {
     record_to: PathBuf,
     stats: Stats,
     frame_index: usize,
-    /// Every frame's viewer ms (whole frame: script, engine, panel, present) and engine ms
-    /// (the frame loop's selection to GPU done), for the closing summary.
-    frame_times: Vec<(f64, f64)>,
+    /// Every frame's times, for the closing summary and `--stats-json`.
+    frame_times: Vec<FrameTime>,
+    /// The upload bookkeeping carried from frame to frame over a DEM in memory (whose frame
+    /// loop is built per frame).
+    uploads: method::Uploads,
     last_frame: Option<Instant>,
     measure_next: bool,
     error: Option<anyhow::Error>,
@@ -568,6 +680,9 @@ impl ApplicationHandler for App {
                         KeyCode::KeyF => Some(Action::Set(Toggle::Freeze, !self.ui.freeze)),
                         KeyCode::KeyP => Some(Action::Set(Toggle::Panel, !self.ui.show)),
                         KeyCode::KeyM => Some(Action::Measure),
+                        KeyCode::KeyL => {
+                            Some(Action::Set(Toggle::ColourLevels, !self.ui.colour_levels))
+                        }
                         KeyCode::Escape => Some(Action::Quit),
                         _ => None,
                     };
@@ -662,8 +777,13 @@ impl App {
                 params.apply(&mut scene.config);
             }
             Terrain::Store(s) => {
-                params.apply(&mut s.config);
-                s.rebuild(self.kind, &self.ctx, &self.render_config)?;
+                let mut config = s.config.clone();
+                params.apply(&mut config);
+                let camera =
+                    self.camera.camera(self.fov, self.size, self.clip.range(self.camera.position));
+                s.rebuild(self.kind, config, Some(params), camera, &self.ctx, &self.render_config)?;
+                self.ui.message = Some(format!("preparing {} at {error_px} px", self.kind.name()));
+                return Ok(());
             }
         }
         self.mapped = Some(params);
@@ -673,7 +793,10 @@ impl App {
 
     /// Whether a worker thread is preparing something.
     fn busy(&self) -> bool {
-        matches!(&self.terrain, Terrain::Memory(m) if m.job.is_some())
+        match &self.terrain {
+            Terrain::Memory(m) => m.job.is_some(),
+            Terrain::Store(s) => s.job.is_some(),
+        }
     }
 
     fn apply(&mut self, action: Action) {
@@ -707,18 +830,21 @@ impl App {
                     }
                     Terrain::Store(s) => {
                         // The pixel target carries over: mapped onto the new method's own
-                        // parameter before its runtime is built.
+                        // parameter before its runtime is built (on a worker).
+                        let mut config = s.config.clone();
                         let mapped = self.mapped.map(|p| {
                             let q =
                                 registry::params_for_error_px(kind, p.error_px, self.error_view);
-                            q.apply(&mut s.config);
+                            q.apply(&mut config);
                             q
                         });
-                        s.rebuild(kind, &self.ctx, &self.render_config)?;
-                        self.kind = kind;
-                        if mapped.is_some() {
-                            self.mapped = mapped;
-                        }
+                        let camera = self.camera.camera(
+                            self.fov,
+                            self.size,
+                            self.clip.range(self.camera.position),
+                        );
+                        s.rebuild(kind, config, mapped, camera, &self.ctx, &self.render_config)?;
+                        self.ui.message = Some(format!("preparing {}", kind.name()));
                     }
                 }
             }
@@ -727,10 +853,8 @@ impl App {
                 Toggle::Wireframe => self.ui.wireframe = on,
                 Toggle::Panel => self.ui.show = on,
                 Toggle::ColourLevels => {
-                    self.ui.colour_levels = false;
-                    if on {
-                        bail!("LOD-level colouring is not in the renderers yet");
-                    }
+                    self.ui.colour_levels = on;
+                    println!("view: LOD colours {}", if on { "on" } else { "off" });
                 }
                 Toggle::Freeze => {
                     self.ui.freeze = on;
@@ -795,6 +919,11 @@ impl App {
                     println!("view: recording a flight");
                 }
                 Some(r) => {
+                    if let Some(dir) = self.record_to.parent().filter(|d| !d.as_os_str().is_empty())
+                    {
+                        std::fs::create_dir_all(dir)
+                            .with_context(|| format!("could not create {}", dir.display()))?;
+                    }
                     r.save(&self.record_to, 30.0, self.fov)?;
                     println!(
                         "view: wrote the flight {} ({} keyframes)",
@@ -875,8 +1004,51 @@ impl App {
         Ok(None)
     }
 
+    /// Picks up a finished store rebuild: the new method and renderer replace the old ones (a
+    /// failed one is a message, and the old method keeps drawing).
+    fn poll_store_job(&mut self) -> anyhow::Result<()> {
+        let Terrain::Store(s) = &mut self.terrain else { return Ok(()) };
+        let Some(job) = s.job.as_mut() else { return Ok(()) };
+        if !job.handle.is_finished() {
+            job.frames_meanwhile += 1;
+            return Ok(());
+        }
+        let job = s.job.take().context("the store job")?;
+        let built = job
+            .handle
+            .join()
+            .map_err(|_| anyhow::anyhow!("building {} panicked", job.kind.name()))?;
+        match built {
+            Ok((method, renderer)) => {
+                // The old runtime goes (its workers joined), the new one draws.
+                s.frames = None;
+                s.frames = Some(FrameLoop::new(method).rendered_by(renderer));
+                s.config = job.config;
+                self.kind = job.kind;
+                if job.mapped.is_some() {
+                    self.mapped = job.mapped;
+                }
+                if let Some(p) = &job.mapped {
+                    println!("view: quality: {p}");
+                }
+                println!(
+                    "view: store method {} ready; {} frames drawn meanwhile by the previous one",
+                    job.kind.name(),
+                    job.frames_meanwhile
+                );
+                self.ui.message = Some(format!("{} ready", job.kind.name()));
+            }
+            Err(e) => {
+                eprintln!("warning: {e:#}");
+                self.ui.message = Some(format!("{e:#}"));
+            }
+        }
+        Ok(())
+    }
+
     /// Picks up a finished worker job.
     fn poll_job(&mut self) -> anyhow::Result<()> {
+        self.poll_store_job()?;
         let Terrain::Memory(m) = &mut self.terrain else { return Ok(()) };
         let finished = match &m.job {
             Some(Job::Prepare(_, h)) => h.is_finished(),
@@ -904,6 +1076,8 @@ impl App {
                 self.ui.exaggeration = v;
                 // The renderers hold the old heights.
                 m.renderers.clear();
+                self.uploads = method::Uploads::default();
+                self.clip = ClipBoxes::new(&m.scene.hm);
                 self.ui.message = Some(format!("exaggeration x{v}"));
             }
             None => {}
@@ -955,13 +1129,17 @@ impl App {
         if let Some(r) = &mut self.recorder {
             r.tick(dt, self.camera.position, self.camera.yaw, self.camera.pitch);
         }
-        let eye = self.camera.camera(self.fov, self.size, clip_range(ground, self.camera.position));
+        let eye = self.camera.camera(self.fov, self.size, self.clip.range(self.camera.position));
         if self.ui.freeze && self.frozen.is_none() {
             self.frozen = Some(eye);
         }
         let select = self.frozen.filter(|_| self.ui.freeze).unwrap_or(eye);
         // The engine's frame.
-        let options = RenderOptions { wireframe: self.ui.wireframe, ..Default::default() };
+        let options = RenderOptions {
+            wireframe: self.ui.wireframe,
+            lod_colours: self.ui.colour_levels,
+            ..Default::default()
+        };
         let measure = std::mem::take(&mut self.measure_next);
         let index = self.frame_index;
         let (frame, measured, drawn_kind) = match &mut self.terrain {
@@ -981,12 +1159,20 @@ impl App {
                         e.insert(r)
                     }
                 };
-                let mut frames =
-                    FrameLoop::new(method).rendered(Some(renderer)).with_options(options);
+                // A new renderer starts its upload bookkeeping afresh.
+                let uploads =
+                    if m.last_kind == Some(kind) { self.uploads } else { Default::default() };
+                m.last_kind = Some(kind);
+                let mut frames = FrameLoop::new(method)
+                    .rendered(Some(renderer))
+                    .with_options(options)
+                    .with_uploads(uploads);
                 if measure {
                     frames = frames.measured(&scene.hm, &scene.qt, MeasureConfig::default());
                 }
-                (frames.frame_drawn_from(index, &select, &eye, None)?, measure, Some(kind))
+                let f = frames.frame_drawn_from(index, &select, &eye, None)?;
+                self.uploads = frames.uploads();
+                (f, measure, Some(kind))
             }
             Terrain::Store(s) => {
                 let frames = s.frames.as_mut().context("the store's method was lost")?;
@@ -1001,7 +1187,10 @@ impl App {
         };
         self.record_stats(&frame, measured);
         // The panel, then present.
+        let t_panel = Instant::now();
         let overlay = if self.ui.show { Some(self.panel()?) } else { None };
+        let panel_ms = t_panel.elapsed().as_secs_f64() * 1e3;
+        let t_present = Instant::now();
         let image = match &mut self.terrain {
             Terrain::Memory(m) => {
                 // The renderer this frame drew with.
@@ -1023,6 +1212,7 @@ impl App {
             }),
             shot.is_some(),
         )?;
+        let present_ms = t_present.elapsed().as_secs_f64() * 1e3;
         if let (Some(path), Some(img)) = (&shot, shot_image) {
             let raw: Vec<u8> = img.pixels.iter().flatten().copied().collect();
             image::save_buffer(path, &raw, img.width, img.height, image::ColorType::Rgba8)
@@ -1039,7 +1229,16 @@ impl App {
             );
         }
         self.stats.viewer_ms = t0.elapsed().as_secs_f64() * 1e3;
-        self.frame_times.push((self.stats.viewer_ms, self.stats.engine_ms));
+        self.frame_times.push(FrameTime {
+            frame: index,
+            method: self.kind.name(),
+            period_ms: 0.0,
+            viewer_ms: self.stats.viewer_ms,
+            engine_ms: self.stats.engine_ms,
+            panel_ms,
+            present_ms,
+            start: Some(t0),
+        });
         self.frame_index += 1;
         Ok(())
     }

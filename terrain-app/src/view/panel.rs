@@ -29,6 +29,33 @@ pub(crate) struct PanelView {
     pub speed: f64,
 }
 
+/// The LOD colours' legend: grid cells per triangle edge, finest first (terrain-gpu's
+/// palette, the colours the renderer draws).
+fn lod_legend(ui: &mut egui::Ui, kind: LodMethod) {
+    use terrain_gpu::render::{LOD_NO_PATCH, LOD_PALETTE};
+    let swatch = |ui: &mut egui::Ui, c: [f32; 3], text: &str| {
+        ui.horizontal(|ui| {
+            let [r, g, b] = c.map(|v| (v * 255.0).round() as u8);
+            let (rect, _) = ui.allocate_exact_size(egui::vec2(14.0, 10.0), egui::Sense::hover());
+            ui.painter().rect_filled(rect, 0.0, egui::Color32::from_rgb(r, g, b));
+            ui.label(text);
+        });
+    };
+    if kind == LodMethod::Geomorph {
+        ui.label("geomorph's renderer draws no LOD colours yet");
+        return;
+    }
+    ui.label("cells per triangle edge:");
+    ui.horizontal_wrapped(|ui| {
+        for (c, name) in LOD_PALETTE {
+            swatch(ui, c, name);
+        }
+        if kind == LodMethod::Entropy {
+            swatch(ui, LOD_NO_PATCH, "a mesh, no patches");
+        }
+    });
+}
+
 /// Draws the panel and pushes what the user changed to `actions`.
 pub(crate) fn ui(
     ctx: &egui::Context,
@@ -80,7 +107,10 @@ pub(crate) fn ui(
             }
         };
         toggle(ui, Toggle::Wireframe, state.wireframe, "wireframe");
-        toggle(ui, Toggle::ColourLevels, state.colour_levels, "LOD-level colours (not yet)");
+        toggle(ui, Toggle::ColourLevels, state.colour_levels, "LOD colours (L)");
+        if state.colour_levels {
+            lod_legend(ui, view.kind);
+        }
         toggle(ui, Toggle::Freeze, state.freeze, "freeze selection (F)");
         let mut ex = state.exaggeration;
         if ui

@@ -18,38 +18,68 @@ const BLOCK: usize = 16;
 /// Near and far clipping distances for a camera at `position`: far reaches the farthest
 /// corner of the terrain's bounding box (with 5 % to spare); near is half the distance to the
 /// nearest box around a block of 16 x 16 samples (so no terrain is nearer than near and none
-/// is clipped by it), at least `far / 1e6` and 0.05 m.
+/// is clipped by it), at least `far / 1e6` and 0.05 m. Scans the whole heightmap; a caller
+/// asking every frame (`terrain view`) keeps a [`ClipBoxes`] instead.
 pub fn clip_range(hm: &Heightmap, position: DVec3) -> (f64, f64) {
-    let (lo, hi) = bounds(hm);
-    let mut far: f64 = 0.0;
-    for k in 0..8 {
-        let c = dvec3(
-            if k & 1 == 0 { lo.x } else { hi.x },
-            if k & 2 == 0 { lo.y } else { hi.y },
-            if k & 4 == 0 { lo.z } else { hi.z },
-        );
-        far = far.max((c - position).length());
-    }
-    far = far * 1.05 + 1.0;
-    let (w, h) = (hm.width(), hm.height());
-    let mut nearest = f64::INFINITY;
-    for j0 in (0..h).step_by(BLOCK) {
-        let j1 = (j0 + BLOCK).min(h - 1);
-        for i0 in (0..w).step_by(BLOCK) {
-            let i1 = (i0 + BLOCK).min(w - 1);
-            let (mut zlo, mut zhi) = (f32::INFINITY, f32::NEG_INFINITY);
-            for j in j0..=j1 {
-                for &z in &hm.data()[j * w + i0..=j * w + i1] {
-                    zlo = zlo.min(z);
-                    zhi = zhi.max(z);
+    ClipBoxes::new(hm).range(position)
+}
+
+/// The block boxes [`clip_range`] measures distances to, computed once per heightmap: the
+/// same near and far for any position without scanning the heights again.
+#[derive(Debug, Clone)]
+pub struct ClipBoxes {
+    /// The terrain's bounding box.
+    lo: DVec3,
+    hi: DVec3,
+    /// Per block of 16 x 16 samples: its box's corners.
+    boxes: Vec<(DVec3, DVec3)>,
+}
+
+impl ClipBoxes {
+    /// The boxes of `hm`'s blocks (one pass over its heights).
+    pub fn new(hm: &Heightmap) -> Self {
+        let (lo, hi) = bounds(hm);
+        let (w, h) = (hm.width(), hm.height());
+        let mut boxes = Vec::with_capacity(w.div_ceil(BLOCK) * h.div_ceil(BLOCK));
+        for j0 in (0..h).step_by(BLOCK) {
+            let j1 = (j0 + BLOCK).min(h - 1);
+            for i0 in (0..w).step_by(BLOCK) {
+                let i1 = (i0 + BLOCK).min(w - 1);
+                let (mut zlo, mut zhi) = (f32::INFINITY, f32::NEG_INFINITY);
+                for j in j0..=j1 {
+                    for &z in &hm.data()[j * w + i0..=j * w + i1] {
+                        zlo = zlo.min(z);
+                        zhi = zhi.max(z);
+                    }
                 }
+                let a = hm.grid_to_world(i0 as f64, j0 as f64).extend(f64::from(zlo));
+                let b = hm.grid_to_world(i1 as f64, j1 as f64).extend(f64::from(zhi));
+                boxes.push((a, b));
             }
-            let a = hm.grid_to_world(i0 as f64, j0 as f64).extend(f64::from(zlo));
-            let b = hm.grid_to_world(i1 as f64, j1 as f64).extend(f64::from(zhi));
-            nearest = nearest.min((position.clamp(a, b) - position).length());
         }
+        Self { lo, hi, boxes }
     }
-    ((0.5 * nearest).max(far * 1e-6).max(0.05), far)
+
+    /// Near and far for a camera at `position` (see [`clip_range`]).
+    pub fn range(&self, position: DVec3) -> (f64, f64) {
+        let (lo, hi) = (self.lo, self.hi);
+        let mut far: f64 = 0.0;
+        for k in 0..8 {
+            let c = dvec3(
+                if k & 1 == 0 { lo.x } else { hi.x },
+                if k & 2 == 0 { lo.y } else { hi.y },
+                if k & 4 == 0 { lo.z } else { hi.z },
+            );
+            far = far.max((c - position).length());
+        }
+        far = far * 1.05 + 1.0;
+        let nearest = self
+            .boxes
+            .iter()
+            .map(|&(a, b)| (position.clamp(a, b) - position).length())
+            .fold(f64::INFINITY, f64::min);
+        ((0.5 * nearest).max(far * 1e-6).max(0.05), far)
+    }
 }
 
 /// A camera that frames the whole terrain from the south-west, looking north-east and 35
@@ -87,4 +117,44 @@ pub fn default_camera(hm: &Heightmap, width: u32, height: u32, fov_y_deg: f64) -
     let camera = at(far);
     let (near, far) = clip_range(hm, camera.position);
     camera.with_clip(near, far)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use terrain_core::synth::FractalConfig;
+
+    /// Kept boxes give a near plane that clips no sample, and close to it: within half a
+    /// block's diagonal of half the distance to the nearest sample; far reaches every sample.
+    #[test]
+    fn kept_boxes_bound_the_distance_to_every_sample() {
+        let hm = FractalConfig::with_size(97, 70, 10.0).to_heightmap().unwrap();
+        let boxes = ClipBoxes::new(&hm);
+        let (lo, hi) = bounds(&hm);
+        let diag = (hm.grid_to_world(BLOCK as f64, BLOCK as f64) - hm.grid_to_world(0.0, 0.0))
+            .length()
+            .hypot(f64::from(hm.max() - hm.min()));
+        for (k, p) in [
+            dvec3(lo.x - 50.0, lo.y - 80.0, hi.z + 200.0),
+            dvec3(0.5 * (lo.x + hi.x), 0.5 * (lo.y + hi.y), hi.z + 5.0),
+            dvec3(hi.x + 900.0, lo.y + 10.0, lo.z + 1.0),
+        ]
+        .into_iter()
+        .enumerate()
+        {
+            let (near, far) = boxes.range(p);
+            let (mut nearest, mut farthest) = (f64::INFINITY, 0.0f64);
+            for j in 0..hm.height() {
+                for i in 0..hm.width() {
+                    let s = hm.grid_to_world(i as f64, j as f64).extend(f64::from(hm.get(i, j)));
+                    nearest = nearest.min((s - p).length());
+                    farthest = farthest.max((s - p).length());
+                }
+            }
+            assert!(near <= 0.5 * nearest + 1e-9, "{k}: near {near}, nearest sample {nearest}");
+            assert!(near >= 0.5 * (nearest - diag) - 1e-9, "{k}: near {near} of {nearest}");
+            assert!(far >= farthest, "{k}: far {far}, farthest sample {farthest}");
+            assert_eq!((near, far), clip_range(&hm, p), "{k}: the one-shot function agrees");
+        }
+    }
 }

@@ -52,7 +52,7 @@ mod renderer;
 #[cfg(test)]
 mod tests;
 
-pub use framing::{clip_range, default_camera};
+pub use framing::{ClipBoxes, clip_range, default_camera};
 pub(crate) use renderer::SHADER;
 pub use renderer::{FrameStats, RenderError, SurfaceReadBack, TerrainRenderer};
 
@@ -173,4 +173,52 @@ pub struct RenderOptions {
     /// that another patch shares (not below the grid's border). Skirts hide cracks; the crack
     /// test uses them to build a reference image that has none. Default 0 (no skirts).
     pub skirt_depth_m: f32,
+    /// Colour every patch by its level of detail ([`lod_colour`] of [`lod_step`]: grid cells
+    /// per triangle edge) instead of the height ramp or texture, still shaded by the sun.
+    /// Default off.
+    pub lod_colours: bool,
+}
+
+/// Grid cells per triangle edge of a patch: its rect's cells over its inner factor, the
+/// coarser of its two axes (1 = every sample drawn); `f32::INFINITY` for a patch drawn with
+/// no triangles of its own (factor 0: the entropy mesh's carrier). The level of detail
+/// [`lod_colour`] shows.
+pub fn lod_step(patch: &DrawPatch) -> f32 {
+    let [x0, y0, x1, y1] = patch.rect;
+    let [fu, fv] = patch.factors.inner;
+    if fu <= 0.0 || fv <= 0.0 {
+        return f32::INFINITY;
+    }
+    ((x1 - x0) as f32 / fu).max((y1 - y0) as f32 / fv)
+}
+
+/// The LOD colours (sRGB, 0-1) by band, finest first, and the legend's names: band `k` holds
+/// steps of about `2^k` cells per triangle edge (see [`lod_band`]).
+pub const LOD_PALETTE: [([f32; 3], &str); 7] = [
+    ([0.85, 0.15, 0.15], "1 cell (every sample)"),
+    ([0.95, 0.55, 0.10], "2 cells"),
+    ([0.90, 0.85, 0.15], "4 cells"),
+    ([0.25, 0.70, 0.25], "8 cells"),
+    ([0.15, 0.70, 0.80], "16 cells"),
+    ([0.20, 0.35, 0.90], "32 cells"),
+    ([0.60, 0.25, 0.80], "64+ cells"),
+];
+
+/// The colour of a mesh that has no patches of its own (the entropy method's triangles).
+pub const LOD_NO_PATCH: [f32; 3] = [0.60, 0.60, 0.60];
+
+/// The palette band of a step (cells per triangle edge): `log2(step)` rounded to the nearest
+/// band, clamped to the palette; `None` for a patch without triangles of its own.
+pub fn lod_band(step: f32) -> Option<usize> {
+    if !step.is_finite() || step <= 0.0 {
+        return None;
+    }
+    Some((step.log2() + 0.5).floor().clamp(0.0, (LOD_PALETTE.len() - 1) as f32) as usize)
+}
+
+/// A patch's LOD colour (sRGB, 0-1): the CPU reference of what the renderers draw with
+/// [`RenderOptions::lod_colours`] (the colour is computed here and uploaded per patch; the
+/// fragment stage shades it like the height ramp).
+pub fn lod_colour(step: f32) -> [f32; 3] {
+    lod_band(step).map_or(LOD_NO_PATCH, |k| LOD_PALETTE[k].0)
 }

@@ -62,6 +62,16 @@ struct SlotClass {
 
 const FLAG_WIREFRAME: u32 = 1;
 const FLAG_TEXTURE: u32 = 2;
+const FLAG_LOD: u32 = 4;
+
+/// One patch as the shaders read it (`PatchRect` in terrain.wgsl): its rect and its LOD colour
+/// ([`super::lod_colour`], drawn with [`RenderOptions::lod_colours`]).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
+struct GpuPatchRect {
+    rect: [u32; 4],
+    lod_colour: [f32; 4],
+}
 
 const _: () = {
     assert!(size_of::<GpuFrame>() == 128);
@@ -959,13 +969,19 @@ impl TerrainRenderer {
     }
 
     fn rects_buffer(&self, label: &str, patches: &[DrawPatch]) -> wgpu::Buffer {
-        let mut rects: Vec<[u32; 4]> = patches.iter().map(|p| p.rect).collect();
+        let mut rects: Vec<GpuPatchRect> = patches
+            .iter()
+            .map(|p| {
+                let [r, g, b] = super::lod_colour(super::lod_step(p));
+                GpuPatchRect { rect: p.rect, lod_colour: [r, g, b, 1.0] }
+            })
+            .collect();
         if rects.is_empty() {
-            rects.push([0; 4]);
+            rects.push(GpuPatchRect::default());
         }
         let buf = self.device.create_buffer(&wgpu::BufferDescriptor {
             label: Some(label),
-            size: (rects.len() * 16) as u64,
+            size: (rects.len() * size_of::<GpuPatchRect>()) as u64,
             usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
             mapped_at_creation: false,
         });
@@ -1034,6 +1050,9 @@ impl TerrainRenderer {
         }
         if self.has_texture {
             flags |= FLAG_TEXTURE;
+        }
+        if options.lod_colours {
+            flags |= FLAG_LOD;
         }
         let frame = GpuFrame {
             view_proj: camera.view_proj_for_anchor(anchor).to_cols_array_2d(),

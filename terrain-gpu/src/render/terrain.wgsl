@@ -43,6 +43,14 @@ struct DomainPoint {
 
 const FLAG_WIREFRAME: u32 = 1u;
 const FLAG_TEXTURE: u32 = 2u;
+const FLAG_LOD: u32 = 4u;
+
+// A patch: its rect of grid samples and its LOD colour (render::lod_colour, computed on the
+// CPU per patch; drawn instead of the ramp with FLAG_LOD).
+struct PatchRect {
+    rect: vec4<u32>,
+    lod_colour: vec4<f32>,
+}
 
 // Set by the pipelines of sRGB targets (render/renderer.rs): the colours below are already
 // sRGB-encoded (an Rgba8Unorm target stores them as they are, and PNGs are sRGB), so for a
@@ -57,7 +65,7 @@ fn srgb_to_linear(c: vec3<f32>) -> vec3<f32> {
 }
 
 @group(0) @binding(0) var<uniform> frame: Frame;
-@group(0) @binding(2) var<storage, read> rects: array<vec4<u32>>;
+@group(0) @binding(2) var<storage, read> rects: array<PatchRect>;
 @group(0) @binding(3) var<storage, read> col_x: array<f32>;
 @group(0) @binding(4) var<storage, read> row_y: array<f32>;
 @group(0) @binding(5) var color_tex: texture_2d<f32>;
@@ -66,7 +74,7 @@ fn srgb_to_linear(c: vec3<f32>) -> vec3<f32> {
 @group(0) @binding(8) var<storage, read> indices: array<u32>;
 // surface::grid_coords.
 fn grid_of(uv: vec2<f32>, patch_index: u32) -> vec2<f32> {
-    let r = rects[patch_index];
+    let r = rects[patch_index].rect;
     let lo = vec2<f32>(r.xy);
     let size = vec2<f32>(r.zw - r.xy);
     return lo + uv * size;
@@ -99,6 +107,7 @@ struct VsOut {
     @location(0) grid: vec2<f32>,
     @location(1) height: f32,
     @location(2) bary: vec3<f32>,
+    @location(3) @interpolate(flat) lod_colour: vec3<f32>,
 }
 
 fn vertex(p: DomainPoint, bary: vec3<f32>) -> VsOut {
@@ -113,6 +122,7 @@ fn vertex(p: DomainPoint, bary: vec3<f32>) -> VsOut {
     out.grid = g;
     out.height = s.height;
     out.bary = bary;
+    out.lod_colour = rects[p.patch_index].lod_colour.rgb;
     return out;
 }
 
@@ -163,6 +173,9 @@ fn fs(in: VsOut) -> @location(0) vec4<f32> {
         albedo = textureSampleLevel(color_tex, color_sampler, st, 0.0).rgb;
     } else {
         albedo = ramp(in.height, n);
+    }
+    if (frame.flags & FLAG_LOD) != 0u {
+        albedo = in.lod_colour;
     }
     let lambert = max(dot(n, frame.sun.xyz), 0.0);
     var c = albedo * (0.3 + 0.7 * lambert);

@@ -389,6 +389,77 @@ fn texture_is_north_up_on_gl() {
     texture_is_north_up(BackendChoice::Gl);
 }
 
+/// LOD colours: over flat ground lit from straight above (Lambert 1), every patch's pixels
+/// carry exactly the CPU reference's colour of its step (`lod_colour(lod_step(patch))`): fine
+/// patches (factor 16: 1 cell per edge) in the west, coarse ones (factor 2: 8 cells) in the
+/// east; without the option the ramp is drawn instead.
+fn lod_colours_are_the_cpu_references(backend: BackendChoice) {
+    let Some(ctx) = context(backend) else { return };
+    let hm = HardCase::Flat.build();
+    let config = RenderConfig {
+        width: 64,
+        height: 64,
+        sun_direction: [0.0, 0.0, 1.0],
+        ..RenderConfig::default()
+    };
+    let mut renderer = TerrainRenderer::new(&ctx, &hm, &config).unwrap();
+    let centre = hm.grid_to_world(32.0, 32.0).extend(f64::from(hm.max()) + 900.0);
+    let camera = Camera::from_yaw_pitch(centre, 0.0, -90.0).with_clip(10.0, 2000.0);
+    let mut patches = uniform_patches(&hm, 16, 16.0);
+    for p in &mut patches {
+        if p.rect[0] >= 32 {
+            p.factors = PatchFactors::uniform(2.0);
+        }
+    }
+    let (west, east) = (patches[0], *patches.iter().find(|p| p.rect[0] >= 32).unwrap());
+    assert_eq!((lod_step(&west), lod_step(&east)), (1.0, 8.0));
+    let lod = RenderOptions { lod_colours: true, ..Default::default() };
+    renderer.render(&camera, &patches, &lod).unwrap();
+    let image = renderer.read_image().unwrap();
+    for (x, patch) in [(20, west), (44, east)] {
+        let want = lod_colour(lod_step(&patch)).map(|c| (c * 255.0).round() as i32);
+        let got = image.get(x, 32);
+        println!("x {x}: {got:?}, reference {want:?}");
+        for c in 0..3 {
+            assert!((i32::from(got[c]) - want[c]).abs() <= 2, "x {x}: {got:?} vs {want:?}");
+        }
+    }
+    renderer.render(&camera, &patches, &RenderOptions::default()).unwrap();
+    let plain = renderer.read_image().unwrap();
+    assert_eq!(plain.get(20, 32), plain.get(44, 32), "the ramp does not depend on the factors");
+    assert_ne!(plain.get(20, 32), image.get(20, 32));
+}
+
+#[test]
+fn lod_colours_are_the_cpu_references_on_vulkan() {
+    lod_colours_are_the_cpu_references(BackendChoice::Vulkan);
+}
+
+#[test]
+fn lod_colours_are_the_cpu_references_on_gl() {
+    lod_colours_are_the_cpu_references(BackendChoice::Gl);
+}
+
+/// The palette's bands: powers of two land in their own band, the entropy carrier (factor
+/// 0) in none, and every band's colour differs from the others.
+#[test]
+fn lod_bands_follow_the_step() {
+    for k in 0..LOD_PALETTE.len() {
+        assert_eq!(lod_band((1u32 << k) as f32), Some(k));
+    }
+    assert_eq!(lod_band(1024.0), Some(LOD_PALETTE.len() - 1));
+    assert_eq!(lod_band(0.5), Some(0));
+    assert_eq!(lod_band(f32::INFINITY), None);
+    let carrier = DrawPatch { rect: [0, 0, 64, 64], factors: PatchFactors::uniform(0.0) };
+    assert_eq!(lod_colour(lod_step(&carrier)), LOD_NO_PATCH);
+    for (a, (ca, _)) in LOD_PALETTE.iter().enumerate() {
+        for (cb, _) in &LOD_PALETTE[a + 1..] {
+            assert_ne!(ca, cb);
+        }
+        assert_ne!(*ca, LOD_NO_PATCH);
+    }
+}
+
 fn frame_stats(backend: BackendChoice) {
     let Some(ctx) = context(backend) else { return };
     let hm = default_terrain();
