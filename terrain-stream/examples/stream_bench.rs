@@ -2,9 +2,13 @@
 //! real DEMs and a big synthetic, bake throughput, and long flights (Table-3 rows per speed).
 //!
 //! `cargo run --release -p terrain-stream --example stream_bench -- [all|storage|codec|flight
-//! FRAMES [puget|big]|bake SIZE K [NAME]|realtime STORE FLIGHT [CACHE_MIB [in_flight=N]
+//! FRAMES [puget|big]|bake SIZE K [NAME]|raw SIZE PATH|bakeraw PATH SIZE K NAME|realtime STORE FLIGHT [CACHE_MIB [in_flight=N]
 //! [threads=N] [lookahead=F]]]` (peak RSS: prefix
 //! with `/usr/bin/time -v`). Data from `../shared/data`.
+//!
+//! `raw SIZE PATH` writes the synthetic terrain's rows to a headerless little-endian f32 file
+//! (row 0 first), and `bakeraw PATH SIZE K NAME` bakes such a file read by bands of rows, for
+//! the bake's throughput from a file.
 //!
 //! `realtime` plays a flight (e.g. `flights/fast_pass.json`) over a store at the flight's own
 //! frame rate, paced in real wall time, every frame through the real-time `Streamer::update`
@@ -18,6 +22,7 @@ use std::sync::Arc;
 use std::time::Instant;
 
 use glam::dvec3;
+use rayon::prelude::*;
 use terrain_core::dem::{LoadOptions, load};
 use terrain_core::geometry::Camera;
 use terrain_core::heightmap::Heightmap;
@@ -483,6 +488,54 @@ fn bake_big(size: u64, k: u8, name: &str) {
     );
 }
 
+/// The synthetic terrain's rows into a raw f32 file, generated a band at a time on every core.
+fn write_raw(size: u64, path: &Path) {
+    use std::io::Write;
+    let src = FractalConfig::with_size(size, size, 10.0);
+    let mut f = std::io::BufWriter::new(std::fs::File::create(path).unwrap());
+    let band = 256usize;
+    let w = size as usize;
+    let mut buf = vec![0f32; w * band];
+    let mut j0 = 0u64;
+    while j0 < size {
+        let n = band.min((size - j0) as usize);
+        let rows = &mut buf[..w * n];
+        rows.par_chunks_mut(w).enumerate().for_each(|(r, row)| {
+            src.read_rows(j0 + r as u64, 1, row).unwrap();
+        });
+        for z in rows.iter() {
+            f.write_all(&z.to_le_bytes()).unwrap();
+        }
+        j0 += n as u64;
+    }
+    f.flush().unwrap();
+}
+
+/// A raw f32 file of `size^2` samples baked by bands of rows (as `terrain bake` streams one).
+fn bake_raw(path: &Path, size: u64, k: u8, name: &str) {
+    let options = LoadOptions {
+        format: Some(terrain_core::dem::Format::Raw),
+        raw: Some(terrain_core::dem::RawSpec {
+            width: size,
+            height: size,
+            sample: terrain_core::dem::RawSampleType::F32,
+        }),
+        ..Default::default()
+    };
+    let rows = terrain_core::dem::RowReader::open(path, &options).unwrap();
+    let cfg = BakeConfig { k, overwrite: true, ..Default::default() };
+    let t = Instant::now();
+    let r = bake(&rows, &scratch().join(name), &cfg, &mut go).unwrap();
+    let s = t.elapsed().as_secs_f64();
+    let n = size * size;
+    println!(
+        "raw f32 {size}^2 k={k}: {:.1} MB store, {:.1} s, {:.1} MB/s of f32 input",
+        r.store_bytes as f64 / 1e6,
+        s,
+        n as f64 * 4.0 / 1e6 / s
+    );
+}
+
 fn main() {
     let args: Vec<String> = std::env::args().skip(1).collect();
     match args.first().map(String::as_str) {
@@ -496,6 +549,16 @@ fn main() {
             args.get(1).and_then(|s| s.parse().ok()).unwrap_or(16385),
             args.get(2).and_then(|s| s.parse().ok()).unwrap_or(8),
             args.get(3).map_or("big", String::as_str),
+        ),
+        Some("raw") => write_raw(
+            args.get(1).and_then(|s| s.parse().ok()).expect("raw SIZE PATH"),
+            Path::new(args.get(2).expect("raw SIZE PATH")),
+        ),
+        Some("bakeraw") => bake_raw(
+            Path::new(args.get(1).expect("bakeraw PATH SIZE K NAME")),
+            args.get(2).and_then(|s| s.parse().ok()).expect("bakeraw PATH SIZE K NAME"),
+            args.get(3).and_then(|s| s.parse().ok()).unwrap_or(8),
+            args.get(4).map_or("raw", String::as_str),
         ),
         Some("realtime") => realtime(
             Path::new(args.get(1).expect("realtime STORE FLIGHT [CACHE_MIB]")),

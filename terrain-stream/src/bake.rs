@@ -369,22 +369,20 @@ fn bake_into(
         let rows = (h - j0).min(side as u64) as usize;
         let band = &mut band[..width * rows];
         let voids = &mut voids[..width * rows];
-        // Read the band in parallel chunks of rows.
+        // Read the band in parallel chunks of rows, heights and void flags in one read.
         let chunk = rows.div_ceil(rayon::current_num_threads() * 2).max(1);
-        band.par_chunks_mut(width * chunk).enumerate().try_for_each(|(c, out)| {
-            let r0 = j0 + (c * chunk) as u64;
-            let n = out.len() / width;
-            source.read_rows(r0, n, out).map_err(|e| BakeError::Source {
-                j0: r0,
-                rows: n,
-                cause: e,
-            })
-        })?;
-        source.read_void_rows(j0, rows, voids).map_err(|e| BakeError::Source {
-            j0,
-            rows,
-            cause: e,
-        })?;
+        band.par_chunks_mut(width * chunk)
+            .zip(voids.par_chunks_mut(width * chunk))
+            .enumerate()
+            .try_for_each(|(c, (out, void))| {
+                let r0 = j0 + (c * chunk) as u64;
+                let n = out.len() / width;
+                source.read_rows_and_voids(r0, n, out, void).map_err(|e| BakeError::Source {
+                    j0: r0,
+                    rows: n,
+                    cause: e,
+                })
+            })?;
         if let Some(p) = band.iter().position(|z| !z.is_finite()) {
             return Err(BakeError::Encoding(format!(
                 "sample ({}, {}) is not finite",

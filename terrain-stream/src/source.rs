@@ -24,6 +24,19 @@ pub trait HeightSource: Sync {
         out.fill(false);
         Ok(())
     }
+    /// Both at once: [`HeightSource::read_rows`] into `heights` and
+    /// [`HeightSource::read_void_rows`] into `voids` (the default calls one, then the other; a
+    /// file reader reads the rows once for both).
+    fn read_rows_and_voids(
+        &self,
+        j0: u64,
+        rows: usize,
+        heights: &mut [f32],
+        voids: &mut [bool],
+    ) -> std::io::Result<()> {
+        self.read_rows(j0, rows, heights)?;
+        self.read_void_rows(j0, rows, voids)
+    }
 }
 
 fn check(w: u64, h: u64, j0: u64, rows: usize, len: usize) -> std::io::Result<()> {
@@ -109,5 +122,14 @@ impl HeightSource for RowReader {
     }
     fn read_void_rows(&self, j0: u64, rows: usize, out: &mut [bool]) -> std::io::Result<()> {
         RowReader::read_void_rows(self, j0, rows, out).map_err(std::io::Error::other)
+    }
+    fn read_rows_and_voids(
+        &self,
+        j0: u64,
+        rows: usize,
+        heights: &mut [f32],
+        voids: &mut [bool],
+    ) -> std::io::Result<()> {
+        RowReader::read_rows(self, j0, rows, heights, voids).map_err(std::io::Error::other)
     }
 }

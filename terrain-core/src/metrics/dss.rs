@@ -251,6 +251,10 @@ pub struct ObjectErrorsAcc {
     count: usize,
 }
 
+/// Factors whose sums [`ObjectErrorsAcc::add_rows`] accumulates side by side.
+const LANES: usize = 4;
+const _: () = assert!(FACTORS.is_multiple_of(LANES));
+
 /// One factor's state in [`ObjectErrorsAcc`].
 #[derive(Debug, Clone)]
 struct FactorAcc {
@@ -278,6 +282,24 @@ struct FactorAcc {
     hi: Vec<f64>,
     sum: f64,
     max: f64,
+}
+
+impl FactorAcc {
+    /// Enters tessellated cell row `cell_b`: bilerp's first half (`a` and `b` there) for every
+    /// sample column, the surface along the cell row's south (`lo`) and north (`hi`) edges.
+    fn start_cell_row(&mut self, cell_b: usize) {
+        self.row_cell = cell_b;
+        let nc = self.col_at.len();
+        let (rb0, rb1) = (self.row_map[cell_b], self.row_map[cell_b + 1]);
+        assert!(self.row_filled[rb0] && self.row_filled[rb1], "vertex rows not filled");
+        let (r0, r1) = (rb0 * nc, rb1 * nc);
+        for (i, (&(_, s), &(c0, c1))) in self.cols.iter().zip(&self.col_pair).enumerate() {
+            let (z00, z10) = (self.vz[r0 + c0], self.vz[r0 + c1]);
+            let (z01, z11) = (self.vz[r1 + c0], self.vz[r1 + c1]);
+            self.lo[i] = z00 + (z10 - z00) * s;
+            self.hi[i] = z01 + (z11 - z01) * s;
+        }
+    }
 }
 
 impl ObjectErrorsAcc {
@@ -404,39 +426,48 @@ impl ObjectErrorsAcc {
         let any_void = rows.any_void();
         let x0 = clip.x0;
         let mut count = 0usize;
-        for fa in &mut self.factors {
-            let nc = fa.col_at.len();
-            let (mut sum, mut max) = (fa.sum, fa.max);
-            count = 0;
+        // Factors in groups of LANES, each row's samples visited once per group: the groups'
+        // sums are independent chains the CPU runs side by side (one chain per factor was
+        // bound by the latency of its f64 additions). Each factor's sum still adds its
+        // samples in row-major order, so every bit is as before.
+        for group in self.factors.chunks_exact_mut(LANES) {
+            // The rows' non-void samples (the same for every group).
+            let mut group_count = 0usize;
+            let mut sum = [0.0f64; LANES];
+            let mut max = [0.0f64; LANES];
+            for (g, fa) in group.iter().enumerate() {
+                (sum[g], max[g]) = (fa.sum, fa.max);
+            }
+            let mut t = [0.0f64; LANES];
             for j in first..=last {
-                let (cell_b, t) = fa.rows[j - clip.y0];
-                if cell_b != fa.row_cell {
-                    // bilerp's first half (`a` and `b` there) for every column of this cell row.
-                    fa.row_cell = cell_b;
-                    let (rb0, rb1) = (fa.row_map[cell_b], fa.row_map[cell_b + 1]);
-                    assert!(fa.row_filled[rb0] && fa.row_filled[rb1], "vertex rows not filled");
-                    let (r0, r1) = (rb0 * nc, rb1 * nc);
-                    for (i, (&(_, s), &(c0, c1))) in fa.cols.iter().zip(&fa.col_pair).enumerate() {
-                        let (z00, z10) = (fa.vz[r0 + c0], fa.vz[r0 + c1]);
-                        let (z01, z11) = (fa.vz[r1 + c0], fa.vz[r1 + c1]);
-                        fa.lo[i] = z00 + (z10 - z00) * s;
-                        fa.hi[i] = z01 + (z11 - z01) * s;
+                for (g, fa) in group.iter_mut().enumerate() {
+                    let (cell_b, tt) = fa.rows[j - clip.y0];
+                    t[g] = tt;
+                    if cell_b != fa.row_cell {
+                        fa.start_cell_row(cell_b);
                     }
                 }
                 let row = &rows.row(j)[x0..=clip.x1];
+                let lo: [&[f64]; LANES] = std::array::from_fn(|g| &group[g].lo[..row.len()]);
+                let hi: [&[f64]; LANES] = std::array::from_fn(|g| &group[g].hi[..row.len()]);
                 for (i, &h) in row.iter().enumerate() {
                     if any_void && rows.void(x0 + i, j) {
                         continue;
                     }
-                    let (l, u) = (fa.lo[i], fa.hi[i]);
-                    let e = (f64::from(h) - (l + (u - l) * t)).abs();
-                    sum += e;
-                    max = max.max(e);
-                    count += 1;
+                    let h = f64::from(h);
+                    for g in 0..LANES {
+                        let (l, u) = (lo[g][i], hi[g][i]);
+                        let e = (h - (l + (u - l) * t[g])).abs();
+                        sum[g] += e;
+                        max[g] = max[g].max(e);
+                    }
+                    group_count += 1;
                 }
             }
-            fa.sum = sum;
-            fa.max = max;
+            for (g, fa) in group.iter_mut().enumerate() {
+                (fa.sum, fa.max) = (sum[g], max[g]);
+            }
+            count = group_count;
         }
         self.count += count;
         self.next_row = last + 1;
