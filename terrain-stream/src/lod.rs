@@ -66,8 +66,8 @@ use terrain_core::geometry::{Aabb, Camera, Frustum, GroundRegion, project_view_t
 use terrain_core::lod::{MAX_FACTOR, Patch, Selection, SelectionStats, WishEdges, outer_factors};
 use terrain_core::metrics::screen::sight_line_eq7;
 use terrain_core::quadtree::{
-    BoundingCircleCull, Cull, CullPolicy, FrustumCull, GridRect, LeafSet, NodeId, NodeInfo,
-    NodeSource, NodeTree, SplitPolicy, TreeShape, Visit, balance_with, traverse,
+    BoundingCircleCull, Cull, CullPolicy, FrustumCull, GridRect, NodeId, NodeInfo, NodeSource,
+    NodeTree, SplitPolicy, TreeShape, Visit, balance_with_set, traverse,
 };
 
 use crate::format::{BlockEntry, BlockId, Header};
@@ -935,7 +935,7 @@ pub fn select_patches(
     let traversed: Vec<NodeId> = boxed.iter().map(|&(n, _)| n).collect();
     // Balanced leaves, sorted by `dfs_key` like the traversal's: a leaf the balance kept is
     // found by walking both lists together.
-    let leaves = balance_with(&traversed, |n| tree.contains(n));
+    let (leaves, set) = balance_with_set(&traversed, |n| tree.contains(n));
     let mut rule = WishEdges::<BuildHasherDefault<FxHasher>>::default();
     rule.want.reserve(leaves.len());
     let mut k = 0;
@@ -970,7 +970,6 @@ pub fn select_patches(
         };
         rule.want.insert(n, ((1u32 << m) as f32).clamp(2.0, MAX_FACTOR));
     }
-    let set = LeafSet::new(leaves.iter().copied());
     let patches: Vec<Patch> = leaves
         .iter()
         .map(|&node| {

@@ -6,7 +6,7 @@
 //! [`BoundingCircleCull`], a PVS lookup, or several combined with a tuple `(a, b)`), and
 //! [`traverse`] does the rest.
 
-use rustc_hash::FxHashSet;
+use rustc_hash::FxHashMap;
 
 use super::node::{Direction, NodeId, Quadrant};
 use super::tree::{NodeInfo, Quadtree, TreeShape};
@@ -263,47 +263,73 @@ where
 }
 
 /// A set of selected leaves with neighbour lookup across level boundaries.
+///
+/// Holds the leaves and their ancestors (a linear quadtree's nodes, keyed by
+/// [`NodeId::key`]), so the leaf across an edge is one lookup when it is at the same level or
+/// finer, and a region without leaves (culled, outside the grid) is known at once instead of
+/// by a search down to the finest level.
 #[derive(Debug, Clone, Default)]
 pub struct LeafSet {
     /// FxHash (rustc's hasher): the set is built and probed several times per leaf every
     /// frame, and std's SipHash showed in profiles of the store selection.
-    set: FxHashSet<NodeId>,
-    max_level: u8,
+    nodes: ExistingNodes,
+    len: usize,
 }
 
 impl LeafSet {
     /// The set of `leaves` (assumed disjoint: no leaf is an ancestor of another).
     pub fn new(leaves: impl IntoIterator<Item = NodeId>) -> Self {
-        let set: FxHashSet<NodeId> = leaves.into_iter().collect();
-        let max_level = set.iter().map(|n| n.level).max().unwrap_or(0);
-        Self { set, max_level }
+        let mut nodes = ExistingNodes::default();
+        let mut len = 0;
+        for n in leaves {
+            if nodes.get(n) != Some(Exists::Leaf) {
+                len += 1;
+            }
+            nodes.add_leaf(n);
+        }
+        Self { nodes, len }
     }
 
     /// Whether `n` is a selected leaf.
     pub fn contains(&self, n: NodeId) -> bool {
-        self.set.contains(&n)
+        self.nodes.get(n) == Some(Exists::Leaf)
     }
 
     /// Number of leaves.
     pub fn len(&self) -> usize {
-        self.set.len()
+        self.len
     }
 
     /// Whether there are no leaves.
     pub fn is_empty(&self) -> bool {
-        self.set.is_empty()
+        self.len == 0
     }
 
     /// The leaves in traversal order.
     pub fn sorted(&self) -> Vec<NodeId> {
-        let mut v: Vec<NodeId> = self.set.iter().copied().collect();
+        let mut v: Vec<NodeId> = self
+            .nodes
+            .map
+            .iter()
+            .filter(|&(_, &e)| e == Exists::Leaf)
+            .map(|(&k, _)| NodeId::from_key(k))
+            .collect();
         v.sort_by_key(|n| n.dfs_key());
         v
     }
 
     /// The selected leaf that contains `n` (is `n` or an ancestor of it), if any.
     pub fn leaf_covering(&self, n: NodeId) -> Option<NodeId> {
-        (0..=n.level).rev().map(|l| n.ancestor(l)).find(|a| self.set.contains(a))
+        // The deepest node of the set at or above `n`: a leaf covers `n`; a split node has
+        // its leaves below (finer than `n`, or none in `n`: a hole).
+        let mut a = n;
+        loop {
+            match self.nodes.get(a) {
+                Some(Exists::Leaf) => return Some(a),
+                Some(Exists::Split) => return None,
+                None => a = a.parent()?,
+            }
+        }
     }
 
     /// The selected leaves across edge `d` of `node`: a single leaf at the same or a
@@ -329,12 +355,13 @@ impl LeafSet {
 
     /// Leaves inside `n` touching its side `side`, in west->east / south->north order.
     fn collect_facing(&self, n: NodeId, side: Direction, out: &mut Vec<NodeId>) {
-        if self.set.contains(&n) {
-            out.push(n);
-            return;
-        }
-        if n.level >= self.max_level {
-            return;
+        match self.nodes.get(n) {
+            Some(Exists::Leaf) => {
+                out.push(n);
+                return;
+            }
+            Some(Exists::Split) => {}
+            None => return,
         }
         let qs = match side {
             Direction::North => [Quadrant::NorthWest, Quadrant::NorthEast],
@@ -360,35 +387,139 @@ pub fn balance(qt: &Quadtree, leaves: &[NodeId]) -> Vec<NodeId> {
 
 /// [`balance`] without a [`Quadtree`]: `contains(node)` says whether a child holds a grid cell
 /// (an out-of-core store's node space, whose heights are not in memory).
+///
+/// The restricted quadtree (Von Herzen & Barr 1987) by a sweep from the finest level to the
+/// coarsest over the leaves bucketed by level (Moore 1995, "The cost of balancing quadtrees";
+/// Sundar, Sampath & Biros 2008 balance linear octrees level by level the same way): a leaf
+/// `f` at level `l` needs the node at level `l - 1` across each of its edges to exist (as a
+/// leaf or split); where a leaf coarser than that covers it, that leaf is split down to it.
+/// Splits only create leaves coarser than `l`, and splitting never makes a leaf coarser, so
+/// once level `l` is swept its leaves stay satisfied: one pass reaches the fixed point. Every
+/// split is forced, so the result is the least balanced refinement of `leaves`, the same set
+/// any order of forced splits reaches (test `balance_equals_the_hash_walk_on_random_trees`
+/// against the former per-ancestor hash walk).
+///
+/// The nodes that exist (leaves and their ancestors) are kept in one hash map, so a leaf's
+/// neighbour costs one lookup when it is at the same level or finer (the common case) and
+/// none across an edge inside the parent, instead of one per coarser level. The output is
+/// written by descending each input leaf in child order, so it comes sorted by
+/// [`NodeId::dfs_key`] without sorting the balanced set.
 pub fn balance_with(leaves: &[NodeId], contains: impl Fn(NodeId) -> bool) -> Vec<NodeId> {
-    let mut set: FxHashSet<NodeId> = leaves.iter().copied().collect();
-    let mut work: Vec<NodeId> = leaves.to_vec();
-    // Popped deepest first: fewer repeated splits.
-    work.sort_by_key(|n| n.level);
-    while let Some(f) = work.pop() {
-        if !set.contains(&f) || f.level < 2 {
-            continue;
-        }
-        for d in Direction::ALL {
-            let Some(g) = f.neighbour(d) else { continue };
-            // Split the leaf covering g while it is two or more levels coarser than f.
-            loop {
-                let coarse =
-                    (0..f.level - 1).rev().map(|l| g.ancestor(l)).find(|a| set.contains(a));
-                let Some(a) = coarse else { break };
-                set.remove(&a);
-                for c in a.children() {
-                    if contains(c) {
-                        set.insert(c);
-                        work.push(c);
+    balance_with_set(leaves, contains).0
+}
+
+/// [`balance_with`] and the balanced leaves as a [`LeafSet`] for neighbour lookup, built from
+/// the balance's own node map (no second pass over the leaves).
+pub fn balance_with_set(
+    leaves: &[NodeId],
+    contains: impl Fn(NodeId) -> bool,
+) -> (Vec<NodeId>, LeafSet) {
+    let mut input = leaves.to_vec();
+    // Already in traversal order from `traverse`: the stable sort only checks the run.
+    input.sort_by_key(|n| n.dfs_key());
+    input.dedup();
+    let mut nodes = ExistingNodes::default();
+    nodes.map.reserve(input.len() * 2);
+    let max_level = input.iter().map(|n| n.level).max().unwrap_or(0);
+    let mut buckets: Vec<Vec<NodeId>> = vec![Vec::new(); usize::from(max_level) + 1];
+    for &n in &input {
+        nodes.add_leaf(n);
+        buckets[usize::from(n.level)].push(n);
+    }
+    for l in (2..=max_level).rev() {
+        // Leaves at level `l` are only ever created while sweeping finer levels, so the
+        // bucket is complete; entries split since are no longer leaves and are skipped.
+        let bucket = std::mem::take(&mut buckets[usize::from(l)]);
+        for &f in &bucket {
+            if nodes.get(f) != Some(Exists::Leaf) {
+                continue;
+            }
+            for d in Direction::ALL {
+                let Some(g) = f.neighbour(d) else { continue };
+                let p = NodeId { level: l - 1, i: g.i >> 1, j: g.j >> 1 };
+                if p.i == f.i >> 1 && p.j == f.j >> 1 {
+                    continue; // across an edge inside the parent, which exists
+                }
+                if nodes.get(p).is_some() {
+                    continue; // a leaf at level l - 1, or split: balanced across this edge
+                }
+                // The deepest existing ancestor: a leaf two or more levels coarser (split it
+                // down to `p`), or a split node whose children there were culled (a hole).
+                let mut a = p;
+                let kind = loop {
+                    let Some(up) = a.parent() else { break None };
+                    a = up;
+                    if let Some(k) = nodes.get(a) {
+                        break Some(k);
                     }
+                };
+                if kind != Some(Exists::Leaf) {
+                    continue;
+                }
+                while a.level < p.level {
+                    nodes.map.insert(a.key(), Exists::Split);
+                    let next = p.ancestor(a.level + 1);
+                    let mut go_on = false;
+                    for c in a.children() {
+                        if contains(c) {
+                            nodes.map.insert(c.key(), Exists::Leaf);
+                            buckets[usize::from(c.level)].push(c);
+                            go_on |= c == next;
+                        }
+                    }
+                    if !go_on {
+                        break;
+                    }
+                    a = next;
                 }
             }
         }
     }
-    let mut v: Vec<NodeId> = set.into_iter().collect();
-    v.sort_by_key(|n| n.dfs_key());
-    v
+    let mut out = Vec::with_capacity(nodes.map.len());
+    let mut stack = Vec::new();
+    for &n in &input {
+        stack.push(n);
+        while let Some(m) = stack.pop() {
+            match nodes.get(m) {
+                Some(Exists::Leaf) => out.push(m),
+                Some(Exists::Split) => stack.extend(m.children().into_iter().rev()),
+                None => {}
+            }
+        }
+    }
+    let len = out.len();
+    (out, LeafSet { nodes, len })
+}
+
+/// Whether a node of a leaf set is a leaf or split (an ancestor of leaves).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Exists {
+    Leaf,
+    Split,
+}
+
+/// The nodes of a leaf set (leaves and their ancestors), keyed by [`NodeId::key`].
+#[derive(Debug, Clone, Default)]
+struct ExistingNodes {
+    map: FxHashMap<u64, Exists>,
+}
+
+impl ExistingNodes {
+    fn get(&self, n: NodeId) -> Option<Exists> {
+        self.map.get(&n.key()).copied()
+    }
+
+    /// Adds leaf `n` and marks its ancestors split (stops at the first one already there).
+    fn add_leaf(&mut self, n: NodeId) {
+        self.map.insert(n.key(), Exists::Leaf);
+        let mut a = n;
+        while let Some(p) = a.parent() {
+            if self.map.insert(p.key(), Exists::Split).is_some() {
+                break;
+            }
+            a = p;
+        }
+    }
 }
 
 /// Whether every two leaves that share an edge differ by at most one level.
@@ -399,4 +530,161 @@ pub fn is_balanced(leaves: &[NodeId]) -> bool {
             .iter()
             .all(|&d| set.neighbours(n, d).iter().all(|m| m.level.abs_diff(n.level) <= 1))
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rustc_hash::FxHashSet;
+
+    /// The former `balance_with`, kept as the reference: a work list popped deepest first,
+    /// one hash lookup per coarser ancestor level of each neighbour, a sort at the end.
+    fn balance_reference(leaves: &[NodeId], contains: impl Fn(NodeId) -> bool) -> Vec<NodeId> {
+        let mut set: FxHashSet<NodeId> = leaves.iter().copied().collect();
+        let mut work: Vec<NodeId> = leaves.to_vec();
+        work.sort_by_key(|n| n.level);
+        while let Some(f) = work.pop() {
+            if !set.contains(&f) || f.level < 2 {
+                continue;
+            }
+            for d in Direction::ALL {
+                let Some(g) = f.neighbour(d) else { continue };
+                loop {
+                    let coarse =
+                        (0..f.level - 1).rev().map(|l| g.ancestor(l)).find(|a| set.contains(a));
+                    let Some(a) = coarse else { break };
+                    set.remove(&a);
+                    for c in a.children() {
+                        if contains(c) {
+                            set.insert(c);
+                            work.push(c);
+                        }
+                    }
+                }
+            }
+        }
+        let mut v: Vec<NodeId> = set.into_iter().collect();
+        v.sort_by_key(|n| n.dfs_key());
+        v
+    }
+
+    /// The former `LeafSet` neighbour search: one lookup per ancestor level, then down to the
+    /// finest level.
+    fn neighbours_reference(set: &FxHashSet<NodeId>, node: NodeId, d: Direction) -> Vec<NodeId> {
+        fn facing(
+            set: &FxHashSet<NodeId>,
+            max: u8,
+            n: NodeId,
+            side: Direction,
+            out: &mut Vec<NodeId>,
+        ) {
+            if set.contains(&n) {
+                out.push(n);
+                return;
+            }
+            if n.level >= max {
+                return;
+            }
+            let qs = match side {
+                Direction::North => [Quadrant::NorthWest, Quadrant::NorthEast],
+                Direction::South => [Quadrant::SouthWest, Quadrant::SouthEast],
+                Direction::East => [Quadrant::SouthEast, Quadrant::NorthEast],
+                Direction::West => [Quadrant::SouthWest, Quadrant::NorthWest],
+            };
+            for q in qs {
+                facing(set, max, n.child(q), side, out);
+            }
+        }
+        let Some(g) = node.neighbour(d) else { return Vec::new() };
+        if let Some(l) = (0..=g.level).rev().map(|l| g.ancestor(l)).find(|a| set.contains(a)) {
+            return vec![l];
+        }
+        let max = set.iter().map(|n| n.level).max().unwrap_or(0);
+        let mut out = Vec::new();
+        facing(set, max, g, d.opposite(), &mut out);
+        out
+    }
+
+    /// A random disjoint leaf set: each node splits with a probability that falls with depth
+    /// (sometimes deep, to force long ripples), some subtrees are culled (holes), and nodes
+    /// past a `w x h`-cell grid's east or north border (root of `2^max` cells) are absent.
+    fn random_tree(seed: u64, max: u8, w: u32, h: u32) -> (Vec<NodeId>, impl Fn(NodeId) -> bool) {
+        let mut x = seed | 1;
+        let mut unit = move || {
+            x ^= x << 13;
+            x ^= x >> 7;
+            x ^= x << 17;
+            (x >> 11) as f64 / (1u64 << 53) as f64
+        };
+        let contains = move |n: NodeId| {
+            let cells = 1u32 << (max - n.level);
+            n.i * cells < w && n.j * cells < h
+        };
+        let mut out = Vec::new();
+        let mut stack = vec![NodeId::ROOT];
+        while let Some(n) = stack.pop() {
+            if !contains(n) || (n.level >= 2 && unit() < 0.06) {
+                continue; // outside the grid, or culled
+            }
+            let p = if n.level < 2 { 1.0 } else { 0.75 - 0.06 * f64::from(n.level) };
+            if n.level < max && unit() < p {
+                stack.extend(n.children().into_iter().rev());
+            } else {
+                out.push(n);
+            }
+        }
+        out.sort_by_key(|n| n.dfs_key());
+        (out, contains)
+    }
+
+    #[test]
+    fn balance_equals_the_hash_walk_on_random_trees() {
+        let (mut changed, mut holes) = (0, 0);
+        for seed in 0..400u64 {
+            let max = 3 + (seed % 9) as u8;
+            let side = 1u32 << max;
+            let (w, h) = (
+                side - (seed as u32 * 7) % (side / 2),
+                side - (seed as u32 * 3) % (side / 3).max(1),
+            );
+            let (leaves, contains) =
+                random_tree(seed.wrapping_mul(0x9e37_79b9_7f4a_7c15), max, w, h);
+            let want = balance_reference(&leaves, &contains);
+            let got = balance_with(&leaves, &contains);
+            assert_eq!(got, want, "seed {seed}");
+            assert!(is_balanced(&got), "seed {seed}");
+            // Input order does not matter.
+            let mut rev = leaves.clone();
+            rev.reverse();
+            assert_eq!(balance_with(&rev, &contains), want, "seed {seed} reversed");
+            changed += usize::from(got != leaves);
+            // The neighbour search of the new `LeafSet` against the old one on the result.
+            let set = LeafSet::new(got.iter().copied());
+            let (again, from_balance) = balance_with_set(&leaves, &contains);
+            assert_eq!(again, got);
+            assert_eq!(from_balance.sorted(), got);
+            let old: FxHashSet<NodeId> = got.iter().copied().collect();
+            assert_eq!(set.len(), got.len());
+            assert_eq!(set.sorted(), got);
+            for &n in &got {
+                for d in Direction::ALL {
+                    let r = neighbours_reference(&old, n, d);
+                    holes += usize::from(r.is_empty() && n.neighbour(d).is_some());
+                    assert_eq!(set.neighbours(n, d), r, "seed {seed} {n:?} {d:?}");
+                    assert_eq!(from_balance.neighbours(n, d), r, "seed {seed} {n:?} {d:?}");
+                }
+            }
+        }
+        // The trees exercise the balance and the holes (else the test could not fail).
+        assert!(changed > 200, "{changed} of 400 trees needed balancing");
+        assert!(holes > 100, "{holes} edges face a hole");
+    }
+
+    #[test]
+    fn node_keys_round_trip() {
+        for n in [NodeId::ROOT, NodeId::new(30, (1 << 30) - 1, 5), NodeId::new(7, 100, 3)] {
+            assert_eq!(NodeId::from_key(n.key()), n);
+        }
+        assert_ne!(NodeId::new(1, 0, 1).key(), NodeId::new(2, 0, 1).key());
+    }
 }
