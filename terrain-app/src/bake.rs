@@ -1,6 +1,6 @@
 //! `terrain bake`: a DEM (or a synthetic terrain streamed by rows) into an out-of-core block
 //! store, with a plain-text progress bar on stderr, then the DSS paper's object-space errors
-//! (`dss_errors.bin`, unless `--no-dss`), the PVPS methods' roughness pyramids (`roughness.bin`,
+//! (`dss_errors.bin`, and per block in the index, unless `--no-dss`), the PVPS methods' roughness pyramids (`roughness.bin`,
 //! unless `--no-roughness`; by bands of rows when the bake streams), geomorph's max-error
 //! vertices per patch (`geomip.bin`, unless `--no-geomip`) and the PVS files of the scene (`pvs.bin`,
 //! `pvs_conservative.bin`, see `terrain pvs`; unless `--no-pvs`).
@@ -64,8 +64,9 @@ pub(crate) struct BakeArgs {
     #[arg(long)]
     pub no_pvs: bool,
     /// Do not compute the DSS paper's 32 object-space errors per quadtree node
-    /// (`dss_errors.bin`, read by `terrain bench --scene` for `dss-1`, `dss-2`,
-    /// `dss-strips`; seconds per million samples on two cores).
+    /// (`dss_errors.bin`, read by `dss-1`, `dss-2` and `dss-strips` from the store; seconds
+    /// per million samples on two cores) nor per block in the index (`BakeConfig::dss_errors`;
+    /// `terrain info` then lists `dss errors: none` and those methods refuse the store).
     #[arg(long)]
     pub no_dss: bool,
     /// Do not compute the PVPS methods' roughness pyramids (`roughness.bin`, read by the
@@ -137,6 +138,7 @@ pub(crate) fn run(args: &BakeArgs) -> anyhow::Result<()> {
         encoding: bounded,
         overwrite: args.overwrite,
         threads: args.threads,
+        dss_errors: !args.no_dss,
         ..BakeConfig::default()
     };
     if args.no_compression {

@@ -140,6 +140,9 @@ pub(crate) struct StoreReport {
     pub bytes: u64,
     /// The per-node tables the store-backed methods read, present in the folder.
     pub tables: Vec<String>,
+    /// Whether the index holds the DSS paper's per-block errors (a bake with `--no-dss`, or
+    /// `terrain demo`'s, skips them; `dss-1`, `dss-2` and `dss-strips` then refuse the store).
+    pub dss_block_errors: bool,
 }
 
 impl StoreReport {
@@ -182,6 +185,7 @@ impl StoreReport {
             max_m: hi,
             bytes: index + store.blocks_bytes(),
             tables,
+            dss_block_errors: store.has_dss_errors(),
         })
     }
 
@@ -210,6 +214,12 @@ impl StoreReport {
         let tables =
             if self.tables.is_empty() { "none".to_string() } else { self.tables.join(", ") };
         s += &format!("tables       {tables}\n");
+        let dss = if self.dss_block_errors {
+            "per block in the index"
+        } else {
+            "none (baked without them: dss-1, dss-2 and dss-strips refuse this store)"
+        };
+        s += &format!("dss errors   {dss}\n");
         s
     }
 }

@@ -148,6 +148,24 @@ fn bake_stores_the_dss_errors_and_bench_reads_them() {
     args.extend(["-o", s(&none), "--block-k", "8", "--no-dss", "--no-pvs", "--no-geomip"]);
     ok(&terrain(&args));
     assert!(!none.join("dss_errors.bin").exists());
+    // ... nor the per-block errors in the index: `terrain info` says so, and the DSS methods
+    // refuse the store by name and say how to bake it.
+    let (info, _) = ok(&terrain(&["info", s(&none)]));
+    assert!(info.contains("dss errors   none (baked without them"), "{info}");
+    let json: Value = serde_json::from_str(&ok(&terrain(&["info", "--json", s(&none)])).0).unwrap();
+    assert_eq!(json["dss_block_errors"], Value::Bool(false), "{json}");
+    let (info, _) = ok(&terrain(&["info", s(&scene)]));
+    assert!(info.contains("dss errors   per block in the index"), "{info}");
+    for method in ["dss-1", "dss-2", "dss-strips"] {
+        let image = dir.join("refused.png");
+        let r =
+            terrain(&["render", s(&none), "--size", "64x36", "--method", method, "-o", s(&image)]);
+        let err = String::from_utf8_lossy(&r.stderr);
+        assert!(!r.status.success() && !image.exists(), "{method}: {err}");
+        let named = format!("the store {} was baked without them", none.display());
+        assert!(err.contains(&named), "{err}");
+        assert!(err.contains("bake it again without --no-dss"), "{err}");
+    }
     // --no-geomip writes no geomorph table; the default bake does.
     assert!(!none.join("geomip.bin").exists());
     assert!(synthetic.join("geomip.bin").exists());

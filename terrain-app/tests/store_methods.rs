@@ -215,6 +215,23 @@ fn what_a_store_cannot_do_is_said() {
     assert!(e.contains("dss_errors.bin") && e.contains("--no-dss"), "{e}");
     let e = run(LodMethod::PvpsC).expect("no roughness table");
     assert!(e.contains("roughness") && e.contains("--no-roughness"), "{e}");
+    // A store baked without the DSS errors (`BakeConfig::dss_errors` false, as the demo's) is
+    // refused by name for every DSS method.
+    let bare = dir.with_file_name("no-dss");
+    let config = BakeConfig { dss_errors: false, ..config };
+    bake(&scene.hm, &bare, &config, &mut |_: &BakeProgress| ControlFlow::Continue(())).unwrap();
+    let bare_store = Arc::new(Store::open(&bare).unwrap());
+    assert!(store.has_dss_errors() && !bare_store.has_dss_errors());
+    for kind in [LodMethod::Dss1, LodMethod::Dss2, LodMethod::DssStrips] {
+        let runtime =
+            OocScene::new(bare_store.clone(), OocConfig { threads: 1, ..OocConfig::default() });
+        let e = method::store_method(kind, runtime, &scene.config, OocWait::FirstFrame, None)
+            .err()
+            .map(|e| format!("{e:#}"))
+            .expect("refused");
+        let named = format!("the store {} was baked without them", bare.display());
+        assert!(e.contains(&named) && e.contains("bake it again without --no-dss"), "{e}");
+    }
     // A table of another patch size is refused with what it was made for.
     terrain_app::geomip_scene::bake_into_scene(&scene.hm, 8, &dir).unwrap();
     let e = run(LodMethod::Geomorph).expect("another patch size");

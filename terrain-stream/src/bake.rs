@@ -106,6 +106,10 @@ pub struct BakeConfig {
     pub threads: usize,
     /// Replace an existing output folder. Default false.
     pub overwrite: bool,
+    /// Compute the DSS paper's 32 object-space errors of every block into the index. Default
+    /// true; false skips them (most of a bake's CPU after the heights; no method reads them
+    /// from the index) and the store says so (`Store::has_dss_errors`).
+    pub dss_errors: bool,
 }
 
 impl Default for BakeConfig {
@@ -117,6 +121,7 @@ impl Default for BakeConfig {
             node_levels: 5,
             threads: 0,
             overwrite: false,
+            dss_errors: true,
         }
     }
 }
@@ -397,7 +402,7 @@ fn bake_into(
             .into_par_iter()
             .map(|bx| {
                 let id = BlockId::new(by as u32, bx);
-                bake_block(dir, id, k, band, voids, width, rows, quant, config.codec, node_levels)
+                bake_block(dir, id, k, band, voids, width, rows, quant, config, node_levels)
             })
             .collect::<Result<_, _>>()?;
         for b in baked {
@@ -474,9 +479,10 @@ fn bake_block(
     width: usize,
     rows: usize,
     quant: Quant,
-    codec: Codec,
+    config: &BakeConfig,
     node_levels: u8,
 ) -> Result<BakedBlock, BakeError> {
+    let codec = config.codec;
     let cells = 1usize << k;
     let side = cells + 1;
     let x0 = id.col as usize * cells;
@@ -524,7 +530,7 @@ fn bake_block(
             z[j * side + i] = back;
         }
     }
-    let dss = dss_errors(&z, &mask, side, valid_w, valid_h);
+    let dss = config.dss_errors.then(|| dss_errors(&z, &mask, side, valid_w, valid_h));
     // Node values from the stored heights (what the runtime draws).
     let all_void = mask.count() == side * side;
     let hm = Heightmap::new(

@@ -10,8 +10,9 @@
 //!   (source size, block exponent `k`, grid of blocks, height encoding, georeference and CRS),
 //!   then one [`BlockEntry`] per block, row-major from the south-west block (extent, file
 //!   length, height range, per level `(offset, length, crc32)`, per-level maximum `StaticE`,
-//!   the 32 DSS mean then 32 DSS max errors, per-node min/max/`StaticE`), then the CRC-32 of
-//!   everything before it.
+//!   the 32 DSS mean then 32 DSS max errors (all 64 NaN in every block of a store baked
+//!   without them, `BakeConfig::dss_errors` false), per-node min/max/`StaticE`), then the
+//!   CRC-32 of everything before it.
 //! - `blocks/r{row}_c{col}.tsb`, one file per block: [`BLOCK_MAGIC`], [`VERSION`], the bake id
 //!   (which ties the file to its index), row and column, then the levels' payloads in level
 //!   order (level 0 first), each located by the index's `(offset, length, crc32)`.
@@ -312,8 +313,9 @@ pub struct BlockEntry {
     pub level_errors: Vec<f32>,
     /// The DSS paper's (Zhang 2019, section 3.3.1) 32 object-space errors of the whole block
     /// (its valid extent), precomputed by the bake with
-    /// `terrain_core::metrics::dss::object_errors` from the stored heights.
-    pub dss: DssBlockErrors,
+    /// `terrain_core::metrics::dss::object_errors` from the stored heights; `None` in every
+    /// block of a store baked without them (`BakeConfig::dss_errors` false; stored as NaN).
+    pub dss: Option<DssBlockErrors>,
 }
 
 /// The DSS paper's 32 object-space errors of a block, index `i` for the tessellation factor
@@ -544,8 +546,10 @@ pub(crate) fn write_index(header: &Header, blocks: &[BlockEntry]) -> Vec<u8> {
         for e in &b.level_errors {
             w.f32(*e);
         }
-        for e in b.dss.avg.iter().chain(&b.dss.max) {
-            w.f32(*e);
+        match &b.dss {
+            Some(d) => d.avg.iter().chain(&d.max).for_each(|e| w.f32(*e)),
+            // Absent: NaN, which no measured error is.
+            None => (0..2 * DSS_FACTORS).for_each(|_| w.f32(f32::NAN)),
         }
         for n in &b.nodes {
             w.f32(n.min);
@@ -706,12 +710,20 @@ pub(crate) fn read_index(bytes: &[u8]) -> Result<(Header, Vec<BlockEntry>), Inde
             )));
         }
         let level_errors = (0..k).map(|_| r.f32()).collect::<Result<Vec<_>, _>>()?;
-        let mut dss = DssBlockErrors { avg: [0.0; DSS_FACTORS], max: [0.0; DSS_FACTORS] };
-        for v in dss.avg.iter_mut().chain(dss.max.iter_mut()) {
+        let mut d = DssBlockErrors { avg: [0.0; DSS_FACTORS], max: [0.0; DSS_FACTORS] };
+        for v in d.avg.iter_mut().chain(d.max.iter_mut()) {
             *v = r.f32()?;
-            if !(v.is_finite() && *v >= 0.0) {
-                return Err(IndexError::Corrupt(format!("block {id}: bad DSS error {v}")));
-            }
+        }
+        let absent = d.avg.iter().chain(&d.max).all(|v| v.is_nan());
+        if !absent && !d.avg.iter().chain(&d.max).all(|v| v.is_finite() && *v >= 0.0) {
+            return Err(IndexError::Corrupt(format!("block {id}: bad DSS errors")));
+        }
+        let dss = (!absent).then_some(d);
+        // A store has the errors in every block or in none (one bake wrote them all).
+        if blocks.first().is_some_and(|b: &BlockEntry| b.dss.is_some() != dss.is_some()) {
+            return Err(IndexError::Corrupt(format!(
+                "block {id}: DSS errors present in some blocks only"
+            )));
         }
         let mut nodes = Vec::with_capacity(node_count(node_levels));
         for _ in 0..node_count(node_levels) {

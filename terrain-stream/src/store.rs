@@ -63,6 +63,12 @@ impl Store {
         &self.header
     }
 
+    /// Whether the bake wrote the DSS paper's per-block object-space errors into the index
+    /// (`BakeConfig::dss_errors`; every block has them or none does).
+    pub fn has_dss_errors(&self) -> bool {
+        self.blocks.first().is_some_and(|b| b.dss.is_some())
+    }
+
     /// A block's index entry, or `None` outside the grid.
     pub fn entry(&self, id: BlockId) -> Option<&BlockEntry> {
         self.header.block_position(id).map(|p| &self.blocks[p])

@@ -170,7 +170,20 @@ impl<'a> StoreMethod<'a> {
                 Tables::Geomip(table, lib)
             }
             _ => {
+                // A store baked without the DSS errors (`--no-dss`, `terrain demo`) has neither
+                // the per-block errors in its index nor the per-node table beside it.
                 let path = crate::dss_scene::dss_path(&dir);
+                if !store.has_dss_errors() && !path.is_file() {
+                    anyhow::bail!(
+                        "--method {} needs the DSS paper's object-space errors, and the store {} \
+                         was baked without them (no per-block errors in its index, no {} beside \
+                         it: terrain bake --no-dss, or terrain demo's bake): bake it again \
+                         without --no-dss, or use ooc or uniform on this store",
+                        kind.name(),
+                        dir.display(),
+                        crate::dss_scene::DSS_FILE
+                    );
+                }
                 let bytes = std::fs::read(&path).with_context(|| {
                     format!(
                         "--method {} from a store reads the DSS errors the bake writes ({}); \

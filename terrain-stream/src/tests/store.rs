@@ -5,7 +5,9 @@ use std::ops::ControlFlow;
 use std::path::{Path, PathBuf};
 
 use crate::format::{VERSION, block_file_name, vertex_index};
-use crate::{BakeConfig, BakeError, BlockId, Codec, HeightEncoding, Store, StoreError, bake};
+use crate::{
+    BakeConfig, BakeError, BlockEntry, BlockId, Codec, HeightEncoding, Store, StoreError, bake,
+};
 use terrain_core::Georef;
 use terrain_core::heightmap::Heightmap;
 
@@ -315,17 +317,54 @@ fn the_index_holds_the_dss_object_errors_of_every_block() {
         let block =
             Heightmap::from_fn(w, h, Georef::local(1.0), |i, j| hm.get(x0 + i, y0 + j)).unwrap();
         let exact = object_errors(&block, Region::new(0, 0, cells));
+        let d = e.dss.expect("a default bake writes the DSS errors");
         for f in 0..FACTORS {
-            assert_eq!(e.dss.avg[f], exact.avg[f] as f32, "{id} factor {f}");
-            assert_eq!(e.dss.max[f], exact.max[f] as f32, "{id} factor {f}");
+            assert_eq!(d.avg[f], exact.avg[f] as f32, "{id} factor {f}");
+            assert_eq!(d.max[f], exact.max[f] as f32, "{id} factor {f}");
         }
         // Factor 32 = the block's cells: every sample of a full block is a vertex, no error.
         if (w, h) == (cells + 1, cells + 1) {
-            assert_eq!(e.dss.max[15], 0.0, "{id}");
+            assert_eq!(d.max[15], 0.0, "{id}");
         }
-        nonzero += (e.dss.avg[0] > 0.0) as usize;
+        nonzero += (d.avg[0] > 0.0) as usize;
     }
     assert_eq!(nonzero, store.header().block_count());
+    assert!(store.has_dss_errors());
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn a_bake_without_dss_errors_says_so_and_keeps_everything_else() {
+    let hm = Heightmap::from_fn(200, 150, Georef::local(30.0), |i, j| {
+        (400.0 + 120.0 * (i as f32 * 0.07).sin() * (j as f32 * 0.05).cos()).round()
+    })
+    .unwrap();
+    let dir = scratch("no_dss");
+    let with = BakeConfig {
+        k: 5,
+        encoding: HeightEncoding::Quantized { step_m: 1.0, offset_m: 0.0 },
+        ..Default::default()
+    };
+    let without = BakeConfig { dss_errors: false, ..with.clone() };
+    bake(&hm, &dir.join("with"), &with, &mut go).unwrap();
+    bake(&hm, &dir.join("without"), &without, &mut go).unwrap();
+    let (a, b) =
+        (Store::open(dir.join("with")).unwrap(), Store::open(dir.join("without")).unwrap());
+    assert!(a.has_dss_errors());
+    assert!(!b.has_dss_errors());
+    assert_eq!(a.header().block_count(), b.header().block_count());
+    for id in a.block_ids() {
+        let (ea, eb) = (a.entry(id).unwrap(), b.entry(id).unwrap());
+        assert!(ea.dss.is_some() && eb.dss.is_none(), "{id}");
+        // Everything but the DSS errors is the same bake.
+        assert_eq!(&BlockEntry { dss: None, ..ea.clone() }, eb, "{id}");
+        for level in 0..a.header().levels() {
+            assert_eq!(
+                a.read_level_bytes(id, level).unwrap(),
+                b.read_level_bytes(id, level).unwrap()
+            );
+        }
+    }
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
