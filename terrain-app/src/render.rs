@@ -52,7 +52,7 @@ pub(crate) struct RenderArgs {
     #[arg(long)]
     pub wireframe: bool,
     /// Colour every patch by its level of detail (grid cells per triangle edge; the legend is
-    /// in README, "terrain view") instead of the height ramp; not drawn by geomorph's renderer.
+    /// in README, "terrain view") instead of the height ramp (geomorph: its patch's level, 2^level cells).
     #[arg(long)]
     pub lod_colours: bool,
     /// Colour texture (PNG or JPEG) stretched over the whole DEM, its first row at the north.

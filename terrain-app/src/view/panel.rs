@@ -41,11 +41,11 @@ fn lod_legend(ui: &mut egui::Ui, kind: LodMethod) {
             ui.label(text);
         });
     };
-    if kind == LodMethod::Geomorph {
-        ui.label("geomorph's renderer draws no LOD colours yet");
-        return;
-    }
-    ui.label("cells per triangle edge:");
+    ui.label(if kind == LodMethod::Geomorph {
+        "cells per triangle edge (2^level):"
+    } else {
+        "cells per triangle edge:"
+    });
     ui.horizontal_wrapped(|ui| {
         for (c, name) in LOD_PALETTE {
             swatch(ui, c, name);
