@@ -230,7 +230,7 @@ fn draw_frames(
                     "  stream: needed {:.3} MiB ({:.3} resident, late {:.3} MiB in {} blocks), \
                      synchronous {:.3} MiB ({} loads), \
                      prefetched {:.3} MiB, I/O {:.2} ms, cache hits {} misses {}, evictions {}, \
-                     resident {:.3} / {:.0} MiB, queue {}, waited {:.1} ms, faults {}",
+                     resident {:.3} / {:.0} MiB, queue {} ({:.3} MiB), waited {:.1} ms, faults {}",
                     st.needed_mib,
                     st.needed_resident_mib,
                     st.late_mib,
@@ -245,6 +245,7 @@ fn draw_frames(
                     st.resident_mib,
                     st.budget_mib,
                     st.queue_depth,
+                    st.queued_mib,
                     st.wait_ms,
                     st.faults
                 );

@@ -145,8 +145,14 @@ pub(crate) fn ui(
         });
         if let Some(s) = &stats.stream {
             ui.label(format!(
-                "stream: resident {:.1} / {:.0} MiB, late {:.2} MiB ({} blocks), queued {}",
-                s.resident_mib, s.budget_mib, s.late_mib, s.late_blocks, s.queue_depth
+                "stream: resident {:.1} / {:.0} MiB, late {:.2} MiB ({} blocks), queued {:.2} \
+                 MiB ({} requests)",
+                s.resident_mib,
+                s.budget_mib,
+                s.late_mib,
+                s.late_blocks,
+                s.queued_mib,
+                s.queue_depth
             ));
         }
         ui.separator();
