@@ -140,6 +140,8 @@ pub struct StreamRecord {
     pub budget_mib: f64,
     /// Requests queued or loading.
     pub queue_depth: usize,
+    /// Decoded data those requests have not delivered yet (MiB).
+    pub queued_mib: f64,
     /// Blocks in M.
     pub blocks_visible: usize,
     /// Blocks in the scheduling region N (M included).
@@ -179,6 +181,7 @@ impl StreamRecord {
             resident_mib: s.resident_bytes as f64 / MIB,
             budget_mib: s.budget_bytes as f64 / MIB,
             queue_depth: s.queue_depth,
+            queued_mib: s.queued_bytes as f64 / MIB,
             blocks_visible: s.blocks_visible,
             blocks_scheduled: s.blocks_scheduled,
             faults: s.faults.len(),

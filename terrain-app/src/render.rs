@@ -52,7 +52,7 @@ pub(crate) struct RenderArgs {
     #[arg(long)]
     pub wireframe: bool,
     /// Colour every patch by its level of detail (grid cells per triangle edge; the legend is
-    /// in README, "terrain view") instead of the height ramp; not drawn by geomorph's renderer.
+    /// in README, "terrain view") instead of the height ramp (geomorph: its patch's level, 2^level cells).
     #[arg(long)]
     pub lod_colours: bool,
     /// Colour texture (PNG or JPEG) stretched over the whole DEM, its first row at the north.
@@ -230,7 +230,7 @@ fn draw_frames(
                     "  stream: needed {:.3} MiB ({:.3} resident, late {:.3} MiB in {} blocks), \
                      synchronous {:.3} MiB ({} loads), \
                      prefetched {:.3} MiB, I/O {:.2} ms, cache hits {} misses {}, evictions {}, \
-                     resident {:.3} / {:.0} MiB, queue {}, waited {:.1} ms, faults {}",
+                     resident {:.3} / {:.0} MiB, queue {} ({:.3} MiB), waited {:.1} ms, faults {}",
                     st.needed_mib,
                     st.needed_resident_mib,
                     st.late_mib,
@@ -245,6 +245,7 @@ fn draw_frames(
                     st.resident_mib,
                     st.budget_mib,
                     st.queue_depth,
+                    st.queued_mib,
                     st.wait_ms,
                     st.faults
                 );

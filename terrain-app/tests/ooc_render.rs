@@ -639,6 +639,8 @@ fn the_benchmark_runs_the_out_of_core_method_with_stream_statistics() {
         let x = f.stream.as_ref().unwrap();
         assert!(!x.waited_for_io && x.sync_loads == 0 && x.wait_ms == 0.0, "{x:?}");
         assert!((x.late_mib - (x.needed_mib - x.needed_resident_mib)).abs() < 1e-9, "{x:?}");
+        // A request in flight has a level not delivered yet: queued bytes with requests only.
+        assert_eq!(x.queue_depth > 0, x.queued_mib > 0.0, "{x:?}");
     }
     assert!(report.to_markdown().contains("Out-of-core real time"));
 }

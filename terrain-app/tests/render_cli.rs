@@ -254,3 +254,49 @@ fn render_checks_its_output_first_and_writes_jpeg() {
     assert_eq!((img.width(), img.height()), (48, 27));
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+/// The band of `pixel` in the LOD palette: the entry whose colour, scaled by the light, it is
+/// (channels over their largest, within 0.06), or `None`.
+fn lod_band_of(pixel: &image::Rgba<u8>) -> Option<usize> {
+    use terrain_gpu::render::LOD_PALETTE;
+    let [r, g, b, _] = pixel.0.map(f32::from);
+    let top = r.max(g).max(b);
+    if top < 60.0 {
+        return None;
+    }
+    LOD_PALETTE.iter().position(|(c, _)| {
+        let m = c[0].max(c[1]).max(c[2]);
+        [r, g, b].iter().zip(c).all(|(p, q)| (p / top - q / m).abs() < 0.06)
+    })
+}
+
+/// `render --method geomorph --lod-colours`: geomorph's patches are drawn in the LOD palette
+/// (their level's colour, lit), more than one level shows, and without the option (the
+/// materials) almost no pixel is a palette colour.
+#[test]
+fn geomorph_draws_lod_colours() {
+    let args = ["--size", "160x90", "--method", "geomorph"];
+    let Some((plain, _)) = render("geomorph-plain", None, &args) else { return };
+    let Some((lod, _)) = render("geomorph-lod", None, &[&args[..], &["--lod-colours"]].concat())
+    else {
+        return;
+    };
+    assert_terrain_drawn(&lod, (160, 90));
+    let terrain: Vec<_> = lod.pixels().filter(|p| p.0 != BACKGROUND).collect();
+    let bands: Vec<Option<usize>> = terrain.iter().map(|p| lod_band_of(p)).collect();
+    let in_palette = bands.iter().filter(|b| b.is_some()).count();
+    let mut seen: Vec<usize> = bands.iter().flatten().copied().collect();
+    seen.sort_unstable();
+    seen.dedup();
+    let plain_in = plain.pixels().filter(|p| p.0 != BACKGROUND && lod_band_of(p).is_some()).count();
+    println!(
+        "LOD colours: {in_palette} of {} terrain pixels in the palette, bands {seen:?}; \
+         plain: {plain_in}",
+        terrain.len()
+    );
+    // Pixels in the lightmap's shadows (too dark to classify) and on edges between patches of
+    // two bands are not counted: about a fifth of them at this size.
+    assert!(in_palette as f64 > 0.7 * terrain.len() as f64, "{in_palette} of {}", terrain.len());
+    assert!(seen.len() >= 2, "one level only: {seen:?}");
+    assert!((plain_in as f64) < 0.1 * terrain.len() as f64, "plain: {plain_in}");
+}

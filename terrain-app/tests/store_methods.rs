@@ -356,7 +356,10 @@ fn geomorph_from_a_store_morphs_on_the_gpu_without_cracks() {
             .step_by(3)
             .map(|c| c.with_viewport(256.0, 144.0))
             .collect();
-        let skirt = GeomorphOptions { skirt_depth_m: scene.hm.max() - scene.hm.min() + 100.0 };
+        let skirt = GeomorphOptions {
+            skirt_depth_m: scene.hm.max() - scene.hm.min() + 100.0,
+            ..Default::default()
+        };
         let lib = MeshLibrary::new(16);
         let (mut coarse, mut control, mut checked) = (0usize, 0usize, 0usize);
         let ooc = OocConfig { threads: 1, budget_bytes: 64 << 10, ..OocConfig::default() };

@@ -101,6 +101,9 @@ pub struct FrameStats {
     pub budget_bytes: u64,
     /// Requests waiting or being loaded by the workers.
     pub queue_depth: usize,
+    /// Decoded bytes of the levels those requests ask for and have not delivered yet (what
+    /// [`FrameStats::queue_depth`] counts in requests, in bytes).
+    pub queued_bytes: u64,
     /// Requests submitted this frame.
     pub requests: usize,
     /// Stale requests cancelled this frame (their blocks left the scheduling region).
@@ -148,6 +151,7 @@ impl FrameStats {
         self.late_levels = later.late_levels;
         self.resident_bytes = later.resident_bytes;
         self.queue_depth = later.queue_depth;
+        self.queued_bytes = later.queued_bytes;
     }
 }
 

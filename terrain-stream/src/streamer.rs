@@ -296,6 +296,8 @@ impl Streamer {
             self.apply(r, &mut stats);
         }
         stats.resident_bytes = self.cache.resident_bytes();
+        stats.queue_depth = self.pool.in_flight();
+        stats.queued_bytes = self.pool.queued_bytes();
         stats
     }
 
@@ -638,6 +640,7 @@ impl Streamer {
         stats.late_levels = levels;
         stats.resident_bytes = self.cache.resident_bytes();
         stats.queue_depth = self.pool.in_flight();
+        stats.queued_bytes = self.pool.queued_bytes();
     }
 
     /// The session's first frame waits for the workers to load the coarse levels of the

@@ -18,6 +18,7 @@
 //! the level it is on (results are dropped if nobody receives them) and exits; the pool joins
 //! every thread before returning.
 
+use std::collections::HashMap;
 use std::panic::{AssertUnwindSafe, catch_unwind};
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -27,7 +28,7 @@ use std::time::Instant;
 use crossbeam::channel::{Receiver, RecvTimeoutError, Sender, TryRecvError, unbounded};
 
 use crate::error::StoreError;
-use crate::format::BlockId;
+use crate::format::{BlockEntry, BlockId};
 use crate::store::{LoadedLevel, Store};
 
 /// Reads one level of one block on top of its coarser levels: the [`Store`] itself, or a
@@ -100,7 +101,18 @@ pub(crate) struct WorkerPool {
     requests: Option<Sender<LoadRequest>>,
     results: Receiver<LoadResult>,
     in_flight: usize,
+    /// Per block with a request in flight (the streamer keeps at most one per block), the
+    /// decoded bytes of its levels not received yet.
+    pending: HashMap<BlockId, u64>,
+    /// The sum of `pending`.
+    queued_bytes: u64,
     threads: Vec<JoinHandle<()>>,
+}
+
+/// Decoded bytes of level `level` alone (levels `0..=level` less levels `0..level`).
+fn level_bytes(level: u8) -> u64 {
+    let below = level.checked_sub(1).map_or(0, BlockEntry::resident_bytes);
+    BlockEntry::resident_bytes(level) - below
 }
 
 impl WorkerPool {
@@ -122,7 +134,14 @@ impl WorkerPool {
                     .expect("the OS can spawn a worker thread")
             })
             .collect();
-        Self { requests: Some(req_tx), results: res_rx, in_flight: 0, threads }
+        Self {
+            requests: Some(req_tx),
+            results: res_rx,
+            in_flight: 0,
+            pending: HashMap::new(),
+            queued_bytes: 0,
+            threads,
+        }
     }
 
     /// Number of worker threads.
@@ -135,17 +154,41 @@ impl WorkerPool {
         self.in_flight
     }
 
+    /// Decoded bytes of the levels requested and not received yet (waiting or being loaded).
+    pub(crate) fn queued_bytes(&self) -> u64 {
+        self.queued_bytes
+    }
+
     /// Queues a request.
     pub(crate) fn submit(&mut self, request: LoadRequest) {
+        let (block, bytes) =
+            (request.block, (request.first..=request.last).map(level_bytes).sum::<u64>());
         if let Some(tx) = &self.requests
             && tx.send(request).is_ok()
         {
             self.in_flight += 1;
+            *self.pending.entry(block).or_default() += bytes;
+            self.queued_bytes += bytes;
         }
     }
 
     fn received(&mut self, r: LoadResult) -> LoadResult {
+        // A level received leaves the queue; a request's end (its last level, an error, a
+        // cancel) takes whatever of it is left.
+        let gone = match self.pending.get_mut(&r.block) {
+            Some(left) if r.done => std::mem::take(left),
+            Some(left) => {
+                let b =
+                    if matches!(r.outcome, Outcome::Loaded(_)) { level_bytes(r.level) } else { 0 };
+                let b = b.min(*left);
+                *left -= b;
+                b
+            }
+            None => 0,
+        };
+        self.queued_bytes -= gone;
         if r.done {
+            self.pending.remove(&r.block);
             self.in_flight -= 1;
         }
         r

@@ -325,18 +325,14 @@ impl FrameRenderer {
             }
             (Inner::Geomorph(r), Draw::Morph(lods)) => {
                 let t = Instant::now();
-                let s = r.render(camera, &lods.patches, &GeomorphOptions::default())?;
+                let s = r.render(camera, &lods.patches, &morph_options(options))?;
                 DrawStats::of_geomorph(s, ms(t), anchor_bytes)
             }
             (Inner::PagedMorph { pages, morph }, Draw::PagedMorph(f, lods)) => {
                 OocScene::apply(pages, f)?;
                 let t = Instant::now();
-                let s = morph.render_paged(
-                    pages,
-                    camera,
-                    &lods.patches,
-                    &GeomorphOptions::default(),
-                )?;
+                let s =
+                    morph.render_paged(pages, camera, &lods.patches, &morph_options(options))?;
                 let uploaded = f.updates.iter().filter(|u| u.fill.is_some()).count() as u64;
                 DrawStats::of_geomorph(s, ms(t), uploaded * self.page_bytes + anchor_bytes)
             }
@@ -415,4 +411,11 @@ impl DrawStats {
 
 fn ms(t: Instant) -> f64 {
     t.elapsed().as_secs_f64() * 1e3
+}
+
+/// The geomorph renderer's options for a frame drawn with `options`: its LOD colours (the
+/// patch's level through the same `lod_colour`); wireframe and skirts are the tessellation
+/// renderer's only.
+fn morph_options(options: &RenderOptions) -> GeomorphOptions {
+    GeomorphOptions { lod_colours: options.lod_colours, ..Default::default() }
 }

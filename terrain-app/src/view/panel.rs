@@ -41,11 +41,11 @@ fn lod_legend(ui: &mut egui::Ui, kind: LodMethod) {
             ui.label(text);
         });
     };
-    if kind == LodMethod::Geomorph {
-        ui.label("geomorph's renderer draws no LOD colours yet");
-        return;
-    }
-    ui.label("cells per triangle edge:");
+    ui.label(if kind == LodMethod::Geomorph {
+        "cells per triangle edge (2^level):"
+    } else {
+        "cells per triangle edge:"
+    });
     ui.horizontal_wrapped(|ui| {
         for (c, name) in LOD_PALETTE {
             swatch(ui, c, name);
@@ -145,8 +145,14 @@ pub(crate) fn ui(
         });
         if let Some(s) = &stats.stream {
             ui.label(format!(
-                "stream: resident {:.1} / {:.0} MiB, late {:.2} MiB ({} blocks), queued {}",
-                s.resident_mib, s.budget_mib, s.late_mib, s.late_blocks, s.queue_depth
+                "stream: resident {:.1} / {:.0} MiB, late {:.2} MiB ({} blocks), queued {:.2} \
+                 MiB ({} requests)",
+                s.resident_mib,
+                s.budget_mib,
+                s.late_mib,
+                s.late_blocks,
+                s.queued_mib,
+                s.queue_depth
             ));
         }
         ui.separator();

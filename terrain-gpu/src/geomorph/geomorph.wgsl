@@ -32,11 +32,16 @@ struct Frame {
     // Paged mode: the material alphas' height range (lowest, highest - lowest).
     height_min: f32,
     height_range: f32,
+    // FLAG_LOD_COLOURS: the colour of each level (renderer.rs level_colours: the CPU reference
+    // render::lod_colour of 2^level cells per triangle edge), the last for every coarser level.
+    level_colours: array<vec4<f32>, 8>,
 }
 
 // Heights from a store's pages: no lightmap or alpha maps (geomorph/renderer.rs; the
 // pipelines use `fs_paged`).
 const FLAG_PAGED: u32 = 1u;
+// Colour every patch by its level (GeomorphOptions::lod_colours): base pass only.
+const FLAG_LOD_COLOURS: u32 = 2u;
 
 struct GmPatch {
     origin: vec2<u32>,
@@ -188,6 +193,8 @@ struct VsOut {
     @location(2) height: f32,
     // Paged mode: the height gradient (dz/dx, dz/dy) at the vertex's sample, interpolated.
     @location(3) grad: vec2<f32>,
+    // FLAG_LOD_COLOURS: the patch's level colour.
+    @location(4) @interpolate(flat) lod_colour: vec3<f32>,
 }
 
 @vertex
@@ -206,6 +213,7 @@ fn vs(@builtin(vertex_index) vi: u32, @builtin(instance_index) ii: u32) -> VsOut
     out.grid = v.grid;
     out.material = ii;
     out.height = v.height;
+    out.lod_colour = frame.level_colours[min(p.level, 7u)].rgb;
     // Paged mode's normal per vertex: gradient_at_sample at the vertex's own sample (5 lookups,
     // the centre being the one true_h read), interpolated over the triangle. At the samples it
     // is the lightmap's normal (the whole heightmap's `fs`, also per sample and filtered
@@ -252,6 +260,9 @@ fn fs_paged(in: VsOut) -> @location(0) vec4<f32> {
     for (var k = 1u; k < 5u; k++) {
         c = mix(c, material_colour(k), material_alpha(k, in.height, n));
     }
+    if (frame.flags & FLAG_LOD_COLOURS) != 0u {
+        c = in.lod_colour;
+    }
     let light = 0.3 + 0.7 * max(dot(n, frame.sun.xyz), 0.0);
     return vec4<f32>(c * light, 1.0);
 }
@@ -267,6 +278,9 @@ fn fs(in: VsOut) -> @location(0) vec4<f32> {
     }
     // Every material has green above zero and light is at least the ambient 0.3, so the
     // magenta background never comes out of this shader.
+    if (frame.flags & FLAG_LOD_COLOURS) != 0u {
+        return vec4<f32>(in.lod_colour * light, 1.0);
+    }
     return vec4<f32>(material_colour(in.material) * light, alpha);
 }
 

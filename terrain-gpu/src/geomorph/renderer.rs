@@ -42,12 +42,38 @@ struct GpuFrame {
     flags: u32,
     height_min: f32,
     height_range: f32,
+    /// The LOD colour of each level (`lod_colour(2^level)`, rgb and 1; the last one for every
+    /// coarser level), read when `FLAG_LOD_COLOURS` is set.
+    level_colours: [[f32; 4]; LEVEL_COLOURS],
 }
 
-const _: () = assert!(size_of::<GpuFrame>() == 128);
+const _: () = assert!(size_of::<GpuFrame>() == 256);
 
 /// `FLAG_PAGED` in `geomorph.wgsl`.
 const FLAG_PAGED: u32 = 1;
+/// `FLAG_LOD_COLOURS` in `geomorph.wgsl`.
+const FLAG_LOD_COLOURS: u32 = 2;
+/// Entries of `Frame::level_colours` in `geomorph.wgsl`: levels 0..=7 (steps 1 to 128 cells;
+/// the palette's last band starts at 64).
+pub(crate) const LEVEL_COLOURS: usize = 8;
+
+/// Grid cells per triangle edge of a geo-mipmapped patch drawn at `level`: `2^level` (the
+/// level's lattice; the tween morphs its vertices towards level `level + 1` but draws the same
+/// triangles). The step [`crate::render::lod_colour`] bands, as [`crate::render::lod_step`] is
+/// for the tessellation renderer's patches, so a level-`k` patch has the colour of a
+/// tessellated patch of `2^k` cells per edge.
+pub fn lod_step(lod: &PatchLod) -> f32 {
+    (1u32 << u32::from(lod.level).min(31)) as f32
+}
+
+/// The colours `Frame::level_colours` holds: the CPU reference [`crate::render::lod_colour`] of
+/// each level's [`lod_step`].
+fn level_colours() -> [[f32; 4]; LEVEL_COLOURS] {
+    std::array::from_fn(|level| {
+        let [r, g, b] = crate::render::lod_colour((1u32 << level) as f32);
+        [r, g, b, 1.0]
+    })
+}
 
 /// How the geomorph renderer is set up.
 #[derive(Clone, Debug, PartialEq)]
@@ -84,6 +110,10 @@ pub struct GeomorphOptions {
     /// When positive, hang skirts of this depth (metres) below every patch edge another patch
     /// shares: the crack test's reference. Default 0.
     pub skirt_depth_m: f32,
+    /// Colour every patch by its level ([`crate::render::lod_colour`] of [`lod_step`]: `2^level`
+    /// cells per triangle edge) instead of the materials, still lit (the lightmap of a whole
+    /// heightmap, the per-fragment sun in paged mode). Default off.
+    pub lod_colours: bool,
 }
 
 /// What one frame drew and cost.
@@ -604,10 +634,13 @@ impl GeomorphRenderer {
             self.queue.write_buffer(&self.row_y, 0, bytemuck::cast_slice(&rows));
             self.anchor = Some(anchor);
         }
-        let (flags, [lo, hi]) = match self.heights {
+        let (mut flags, [lo, hi]) = match self.heights {
             Heights::Whole { .. } => (0, [0.0, 0.0]),
             Heights::Paged(_, range) => (FLAG_PAGED, range),
         };
+        if options.lod_colours {
+            flags |= FLAG_LOD_COLOURS;
+        }
         let frame = GpuFrame {
             view_proj: camera.view_proj_for_anchor(anchor).to_cols_array_2d(),
             sun: self.sun,
@@ -621,6 +654,7 @@ impl GeomorphRenderer {
             flags,
             height_min: lo,
             height_range: (hi - lo).max(0.0),
+            level_colours: level_colours(),
         };
         self.queue.write_buffer(&self.frame, 0, bytemuck::bytes_of(&frame));
         Ok(())
@@ -671,7 +705,8 @@ impl GeomorphRenderer {
             Heights::Whole { materials, .. } => Some(materials),
             Heights::Paged(..) => None,
         };
-        let passes_of = if materials.is_some() { MATERIALS } else { 1 };
+        // LOD colours replace the materials: the base pass only.
+        let passes_of = if materials.is_some() && !options.lod_colours { MATERIALS } else { 1 };
         let [w, h] = self.grid;
         let mut stats = GeomorphFrameStats {
             patches: lods.len(),

@@ -184,7 +184,7 @@ fn geomorph_cracks(
 ) -> Vec<usize> {
     let scene = GeomipScene::new(hm, 16);
     let cfg = GeomipConfig { pixel_threshold: tau, ..Default::default() };
-    let skirt = GeomorphOptions { skirt_depth_m: hm.max() - hm.min() + 10.0 };
+    let skirt = GeomorphOptions { skirt_depth_m: hm.max() - hm.min() + 10.0, ..Default::default() };
     cameras
         .iter()
         .map(|camera| {
@@ -258,7 +258,7 @@ fn ignored_coarser_neighbours_are_detected_as_cracks() {
     let config = GeomorphConfig { width: 256, height: 144, ..Default::default() };
     let mut renderer = GeomorphRenderer::new(&ctx, &hm, &config).unwrap();
     let scene = GeomipScene::new(&hm, 16);
-    let skirt = GeomorphOptions { skirt_depth_m: hm.max() - hm.min() + 10.0 };
+    let skirt = GeomorphOptions { skirt_depth_m: hm.max() - hm.min() + 10.0, ..Default::default() };
     let mut total = 0;
     for camera in crack_cameras(&hm, 17).iter().take(7) {
         let sel = scene.select(
@@ -476,7 +476,7 @@ fn paged_mode_draws_no_cracks_and_the_control_does() {
     let config = GeomorphConfig { width: 256, height: 144, ..Default::default() };
     let mut renderer = GeomorphRenderer::new_paged(&ctx, &pages, &config).unwrap();
     let scene = GeomipScene::new(&hm, 16);
-    let skirt = GeomorphOptions { skirt_depth_m: hm.max() - hm.min() + 10.0 };
+    let skirt = GeomorphOptions { skirt_depth_m: hm.max() - hm.min() + 10.0, ..Default::default() };
     let mut crack_pixels = |renderer: &mut GeomorphRenderer, lods: &[PatchLod], camera: &Camera| {
         renderer.render_paged(&mut pages, camera, lods, &GeomorphOptions::default()).unwrap();
         let plain = renderer.read_image().unwrap();
@@ -565,4 +565,73 @@ fn paged_mode_looks_like_the_whole_heightmaps() {
     assert!(n > 1000, "{n} terrain pixels");
     assert!(both as f64 > 0.99 * a.pixels.len() as f64);
     assert!(mean < 6.0, "mean difference {mean} levels");
+}
+
+/// LOD colours: over flat ground lit from straight above (light 1), every patch's pixels carry
+/// exactly the CPU reference's colour of its level (`lod_colour(lod_step(patch))`, `2^level`
+/// cells per triangle edge): level 0 in the west, level 3 in the east, from a whole heightmap
+/// (lightmap) and from pages (per-fragment sun); without the option the materials are drawn.
+fn lod_colours_are_the_cpu_references(backend: BackendChoice) {
+    let Some(ctx) = context(backend) else { return };
+    let hm = terrain_core::synth::HardCase::Flat.build();
+    let lightmap = terrain_core::lightmap::LightmapConfig {
+        sun_direction: [0.0, 0.0, 1.0],
+        shadows: false,
+        ..Default::default()
+    };
+    let config = GeomorphConfig { width: 64, height: 64, lightmap, ..Default::default() };
+    let centre = hm.grid_to_world(32.0, 32.0).extend(f64::from(hm.max()) + 900.0);
+    let camera = Camera::from_yaw_pitch(centre, 0.0, -90.0).with_clip(10.0, 2000.0);
+    let lods: Vec<PatchLod> = (0..4)
+        .flat_map(|j| (0..4).map(move |i| (i, j)))
+        .map(|(i, j)| {
+            let level = if i < 2 { 0 } else { 3 };
+            PatchLod { i, j, level, tween: 0.0, edge_level: [level; 4], edge_tween: [0.0; 4] }
+        })
+        .collect();
+    assert_eq!((lod_step(&lods[0]), lod_step(&lods[3])), (1.0, 8.0));
+    let on = GeomorphOptions { lod_colours: true, ..Default::default() };
+    let mut whole = GeomorphRenderer::new(&ctx, &hm, &config).unwrap();
+    let pages_hm = PagedHeights::from_heightmap(&hm, 64);
+    let rc = crate::render::RenderConfig { width: 1, height: 1, ..Default::default() };
+    let range = [hm.min(), hm.max()];
+    let mut pages = TerrainRenderer::new_paged(&ctx, *pages_hm.layout(), 4, range, &rc).unwrap();
+    for (&page, p) in pages_hm.pages() {
+        pages.set_page_lattice(page, &p.samples, p.stride).unwrap();
+    }
+    let mut paged = GeomorphRenderer::new_paged(&ctx, &pages, &config).unwrap();
+    let mut draw = |options: &GeomorphOptions| {
+        whole.render(&camera, &lods, options).unwrap();
+        paged.render_paged(&mut pages, &camera, &lods, options).unwrap();
+        [whole.read_image().unwrap(), paged.read_image().unwrap()]
+    };
+    let coloured = draw(&on);
+    let plain = draw(&GeomorphOptions::default());
+    for (mode, image, plain) in
+        [("whole", &coloured[0], &plain[0]), ("paged", &coloured[1], &plain[1])]
+    {
+        for (x, lod) in [(20, &lods[0]), (44, &lods[3])] {
+            let want = crate::render::lod_colour(lod_step(lod)).map(|c| (c * 255.0).round() as i32);
+            let got = image.get(x, 32);
+            println!("{mode} x {x}: {got:?}, reference {want:?}");
+            for c in 0..3 {
+                assert!(
+                    (i32::from(got[c]) - want[c]).abs() <= 2,
+                    "{mode} x {x}: {got:?} vs {want:?}"
+                );
+            }
+        }
+        assert_eq!(plain.get(20, 32), plain.get(44, 32), "{mode}: materials ignore the level");
+        assert_ne!(plain.get(20, 32), image.get(20, 32), "{mode}");
+    }
+}
+
+#[test]
+fn lod_colours_are_the_cpu_references_vulkan() {
+    lod_colours_are_the_cpu_references(BackendChoice::Vulkan);
+}
+
+#[test]
+fn lod_colours_are_the_cpu_references_gl() {
+    lod_colours_are_the_cpu_references(BackendChoice::Gl);
 }

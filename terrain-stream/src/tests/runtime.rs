@@ -170,6 +170,17 @@ fn frames_never_block_on_a_slow_reader_and_stale_requests_are_dropped() {
         assert_eq!(st.prefetched_bytes, 0, "frame {f}: the gate is closed");
         assert!(st.late_bytes > 0 && !st.at_needed_level(), "frame {f}: {st:?}");
         assert!(st.queue_depth > 0, "frame {f}: requests wait for the workers");
+        // Every request waiting asks for at least one level above 0 (level 0 is resident) and
+        // at most every level of its block: the queue in bytes lies between those sums.
+        let (finest, one) =
+            (store.header().levels() - 1, crate::format::BlockEntry::resident_bytes);
+        let depth = st.queue_depth as u64;
+        assert!(
+            st.queued_bytes >= depth * (one(1) - one(0))
+                && st.queued_bytes <= depth * (one(finest) - one(0)),
+            "frame {f}: {} queued bytes for {depth} requests",
+            st.queued_bytes
+        );
         // No block is a hole: level 0 of every block stays resident.
         for b in s.scheduled() {
             assert!(s.block(b.block).is_some(), "frame {f}: {} has nothing", b.block);
@@ -204,6 +215,10 @@ fn frames_never_block_on_a_slow_reader_and_stale_requests_are_dropped() {
     // Next real-time frame of the same view: drawn at its needed level.
     let st = s.update(&north);
     assert!(st.at_needed_level() && st.late_bytes == 0, "{st:?}");
+    // Nothing in flight, nothing queued: every request's bytes left the queue (loaded or
+    // cancelled).
+    let st = s.finish_loads();
+    assert_eq!((st.queue_depth, st.queued_bytes), (0, 0), "{st:?}");
     drop(s);
     std::fs::remove_dir_all(&dir).unwrap();
 }
