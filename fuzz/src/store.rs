@@ -55,6 +55,8 @@ pub(crate) fn fixture(work: &Path) -> Result<Vec<Pristine>, String> {
             codec: Codec::Plain,
             encoding: HeightEncoding::Bounded { max_error_m: 0.01 },
             node_levels: 2,
+            // The index without DSS errors (NaN), so the reader's presence check is fuzzed too.
+            dss_errors: false,
         },
     ];
     let mut out = Vec::new();
