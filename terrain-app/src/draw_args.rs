@@ -43,7 +43,7 @@ impl MethodArgs {
 }
 
 /// The stream cache's budget when `--cache-mib` is not given, MiB.
-pub(crate) const CACHE_MIB: u64 = 256;
+pub(crate) const CACHE_MIB: u64 = 1024;
 /// Full-resolution pages when `--page-capacity` is not given.
 pub(crate) const PAGE_CAPACITY: u32 = 1024;
 /// The page atlas when `--page-mib` is not given, MiB.

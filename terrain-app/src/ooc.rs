@@ -50,7 +50,7 @@ use crate::methods::{StripFrame, patch_factors};
 pub struct OocConfig {
     /// Screen-error threshold `tau` of Eq. 7, pixels. Default 2 (the paper's figures).
     pub tau: f64,
-    /// The stream cache's budget, decoded bytes. Default 256 MiB.
+    /// The stream cache's budget, decoded bytes. Default 1 GiB ([`LOOKAHEAD_FRAMES`] says why).
     pub budget_bytes: u64,
     /// Worker threads; 0 (the default) = one per core.
     pub threads: usize,
@@ -61,7 +61,8 @@ pub struct OocConfig {
     /// beyond them are drawn from coarser classes. Default 1024.
     pub page_capacity: u32,
     /// Load requests in flight at most: the workers keep loading while the frame thread draws
-    /// (a software renderer's frame takes long). Default 32.
+    /// (a software renderer's frame takes long). Default 0: the streamer's own default (1024 per
+    /// worker; 32 left most frames of a fast flight short of their level, bench/ooc/README.md).
     pub max_in_flight: usize,
     /// A warm frame ([`OocScene::frame`] with `warm`) waits at most this long for its needed
     /// levels ([`Streamer::wait_until_resident`]). Default 60 s.
@@ -72,15 +73,23 @@ pub struct OocConfig {
     pub patch_cells: u32,
 }
 
+/// Frames the streamer preloads ahead (Eq. 8's `S` times this). The paper's Eq. 8 looks one
+/// frame ahead; on the 32769^2 synthetic store's `fast_pass` (30 fps, two workers, an idle
+/// 2-core machine, `stream_bench realtime`, 1 GiB budget, 2048 in flight) one frame drew 77 % of
+/// the frames at their needed level, two frames 97 % and three 98-99 %: a worker's load takes
+/// longer than one frame there. The working set of that flight peaked at 590 MiB resident,
+/// which is why the cache's default budget is 1 GiB (256 MiB: 27-38 %, 512 MiB: 70-83 %).
+pub const LOOKAHEAD_FRAMES: f64 = 2.0;
+
 impl Default for OocConfig {
     fn default() -> Self {
         Self {
             tau: 2.0,
-            budget_bytes: 256 << 20,
+            budget_bytes: 1 << 30,
             threads: 0,
             page_budget_bytes: 256 << 20,
             page_capacity: 1024,
-            max_in_flight: 32,
+            max_in_flight: 0,
             warm_timeout: Duration::from_secs(60),
             patch_cells: DEFAULT_PATCH_CELLS,
         }
@@ -357,7 +366,10 @@ impl OocScene {
             threads: config.threads,
             tau: config.tau,
             max_in_flight: config.max_in_flight,
-            schedule: ScheduleConfig::default(),
+            schedule: ScheduleConfig {
+                lookahead_frames: LOOKAHEAD_FRAMES,
+                ..ScheduleConfig::default()
+            },
             ..StreamConfig::default()
         };
         let streamer = Streamer::new(store.clone(), stream);
