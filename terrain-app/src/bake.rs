@@ -65,8 +65,9 @@ pub(crate) struct BakeArgs {
     pub no_pvs: bool,
     /// Do not compute the DSS paper's 32 object-space errors per quadtree node
     /// (`dss_errors.bin`, read by `dss-1`, `dss-2` and `dss-strips` from the store; seconds
-    /// per million samples on two cores) nor per block in the index (`BakeConfig::dss_errors`;
-    /// `terrain info` then lists `dss errors: none` and those methods refuse the store).
+    /// per million samples on two cores) nor per block in the index (the library's
+    /// `dss_errors` switch; `terrain info` then lists `dss errors: none` and those methods
+    /// refuse the store).
     #[arg(long)]
     pub no_dss: bool,
     /// Do not compute the PVPS methods' roughness pyramids (`roughness.bin`, read by the
