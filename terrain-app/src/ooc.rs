@@ -742,7 +742,6 @@ impl OocScene {
     /// the store's box, near is half the distance to the nearest block's box (at least
     /// `far / 1e6` and 0.05 m).
     pub fn clip_range(&self, position: DVec3) -> (f64, f64) {
-        let mut far: f64 = 0.0;
         let mut nearest = f64::INFINITY;
         let mut lo = DVec3::splat(f64::INFINITY);
         let mut hi = DVec3::splat(f64::NEG_INFINITY);
@@ -756,15 +755,6 @@ impl OocScene {
             hi = hi.max(b);
             nearest = nearest.min((position.clamp(a, b) - position).length());
         }
-        for k in 0..8 {
-            let c = dvec3(
-                if k & 1 == 0 { lo.x } else { hi.x },
-                if k & 2 == 0 { lo.y } else { hi.y },
-                if k & 4 == 0 { lo.z } else { hi.z },
-            );
-            far = far.max((c - position).length());
-        }
-        far = far * 1.05 + 1.0;
-        ((0.5 * nearest).max(far * 1e-6).max(0.05), far)
+        terrain_gpu::render::near_far(lo, hi, nearest, position)
     }
 }

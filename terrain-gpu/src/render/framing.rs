@@ -62,24 +62,31 @@ impl ClipBoxes {
 
     /// Near and far for a camera at `position` (see [`clip_range`]).
     pub fn range(&self, position: DVec3) -> (f64, f64) {
-        let (lo, hi) = (self.lo, self.hi);
-        let mut far: f64 = 0.0;
-        for k in 0..8 {
-            let c = dvec3(
-                if k & 1 == 0 { lo.x } else { hi.x },
-                if k & 2 == 0 { lo.y } else { hi.y },
-                if k & 4 == 0 { lo.z } else { hi.z },
-            );
-            far = far.max((c - position).length());
-        }
-        far = far * 1.05 + 1.0;
         let nearest = self
             .boxes
             .iter()
             .map(|&(a, b)| (position.clamp(a, b) - position).length())
             .fold(f64::INFINITY, f64::min);
-        ((0.5 * nearest).max(far * 1e-6).max(0.05), far)
+        near_far(self.lo, self.hi, nearest, position)
     }
+}
+
+/// Near and far planes for a camera at `position` over terrain inside the box `lo..hi`,
+/// `nearest` metres from the nearest part of it: far reaches the box's farthest corner (plus
+/// 5 % and 1 m), near is half the nearest distance, at least `far / 1e6` and 0.05 m. The one
+/// rule of every renderer's clip range (whole DEMs here, stores in the app's `ooc`).
+pub fn near_far(lo: DVec3, hi: DVec3, nearest: f64, position: DVec3) -> (f64, f64) {
+    let mut far: f64 = 0.0;
+    for k in 0..8 {
+        let c = dvec3(
+            if k & 1 == 0 { lo.x } else { hi.x },
+            if k & 2 == 0 { lo.y } else { hi.y },
+            if k & 4 == 0 { lo.z } else { hi.z },
+        );
+        far = far.max((c - position).length());
+    }
+    far = far * 1.05 + 1.0;
+    ((0.5 * nearest).max(far * 1e-6).max(0.05), far)
 }
 
 /// A camera that frames the whole terrain from the south-west, looking north-east and 35

@@ -52,7 +52,7 @@ mod renderer;
 #[cfg(test)]
 mod tests;
 
-pub use framing::{ClipBoxes, clip_range, default_camera};
+pub use framing::{ClipBoxes, clip_range, default_camera, near_far};
 pub(crate) use renderer::SHADER;
 pub use renderer::{FrameStats, RenderError, SurfaceReadBack, TerrainRenderer};
 
