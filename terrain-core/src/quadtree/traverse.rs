@@ -363,13 +363,7 @@ impl LeafSet {
             Some(Exists::Split) => {}
             None => return,
         }
-        let qs = match side {
-            Direction::North => [Quadrant::NorthWest, Quadrant::NorthEast],
-            Direction::South => [Quadrant::SouthWest, Quadrant::SouthEast],
-            Direction::East => [Quadrant::SouthEast, Quadrant::NorthEast],
-            Direction::West => [Quadrant::SouthWest, Quadrant::NorthWest],
-        };
-        for q in qs {
+        for q in facing_quadrants(side) {
             self.collect_facing(n.child(q), side, out);
         }
     }
@@ -532,6 +526,16 @@ pub fn is_balanced(leaves: &[NodeId]) -> bool {
     })
 }
 
+/// The two children of a node that touch its `side`.
+fn facing_quadrants(side: Direction) -> [Quadrant; 2] {
+    match side {
+        Direction::North => [Quadrant::NorthWest, Quadrant::NorthEast],
+        Direction::South => [Quadrant::SouthWest, Quadrant::SouthEast],
+        Direction::East => [Quadrant::SouthEast, Quadrant::NorthEast],
+        Direction::West => [Quadrant::SouthWest, Quadrant::NorthWest],
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -585,13 +589,7 @@ mod tests {
             if n.level >= max {
                 return;
             }
-            let qs = match side {
-                Direction::North => [Quadrant::NorthWest, Quadrant::NorthEast],
-                Direction::South => [Quadrant::SouthWest, Quadrant::SouthEast],
-                Direction::East => [Quadrant::SouthEast, Quadrant::NorthEast],
-                Direction::West => [Quadrant::SouthWest, Quadrant::NorthWest],
-            };
-            for q in qs {
+            for q in super::facing_quadrants(side) {
                 facing(set, max, n.child(q), side, out);
             }
         }
