@@ -4,7 +4,7 @@
 //!
 //! ```sh
 //! cargo build --release -p terrain-app
-//! xvfb-run -a -s "-screen 0 1280x800x24" \
+//! xvfb-run -a -s "-screen 0 1280x800x24 -noreset" \
 //!     cargo run --release -p terrain-app --example view_overhead -- \
 //!     [--methods uniform,pvps-c,...] [--frames 10] [--rounds 2] [--size 1280x720] \
 //!     [--camera X,Y,Z,YAW,PITCH] [--panel off] [DEM options, e.g. a DEM path ...]
@@ -21,7 +21,8 @@
 //! each frame costs, which other processes on the machine do not inflate as wall times. Both
 //! runs must draw the same triangles (checked). The binary is `target/release/terrain` (or
 //! `TERRAIN_BIN`); the window needs a display (`DISPLAY`, e.g.
-//! under `xvfb-run`) and runs on Vulkan (lavapipe without a GPU).
+//! under `xvfb-run`; `-noreset` keeps the server up between the runs, or a viewer started as
+//! the previous one closes may find it resetting) and runs on Vulkan (lavapipe without a GPU).
 
 use std::path::{Path, PathBuf};
 use std::process::Command;
