@@ -174,6 +174,7 @@ fn the_window_shows_what_render_draws_for_the_same_camera() {
     )
     .unwrap();
     let flight = dir.join("recorded.json");
+    let view_json = dir.join("view.json");
     let args = [
         "--size",
         "320x180",
@@ -181,6 +182,8 @@ fn the_window_shows_what_render_draws_for_the_same_camera() {
         script.to_str().unwrap(),
         "--record-to",
         flight.to_str().unwrap(),
+        "--stats-json",
+        view_json.to_str().unwrap(),
     ];
     let (ok, out, err) = view(&x.display, &dir, &args, Duration::from_secs(300));
     if !ok && no_adapter(&err) && !require() {
@@ -207,6 +210,7 @@ fn the_window_shows_what_render_draws_for_the_same_camera() {
     let start = out.lines().find(|l| l.starts_with("view: screenshot")).unwrap();
     assert_eq!(field(start, "camera"), camera, "the camera moved between the two screenshots");
     let rendered = dir.join("render.png");
+    let render_json = dir.join("render.json");
     let r = terrain(&[
         "render",
         "--size",
@@ -217,6 +221,8 @@ fn the_window_shows_what_render_draws_for_the_same_camera() {
         "3",
         "--camera",
         camera,
+        "--stats-json",
+        render_json.to_str().unwrap(),
         "-o",
         rendered.to_str().unwrap(),
     ]);
@@ -224,6 +230,25 @@ fn the_window_shows_what_render_draws_for_the_same_camera() {
     // `render --error-px 3` maps onto the same factor as the viewer's slider at 3 px.
     let said = String::from_utf8_lossy(&r.stdout);
     assert!(said.contains(&format!("factor = {mapped:.4} for 3 px")), "{mapped}:\n{said}");
+    // Both stats files describe the same frame (the viewer-overhead comparison rests on
+    // it): the screenshot's frame drew render's triangles, and both give the process's CPU
+    // time of each frame.
+    let json = |p: &Path| -> serde_json::Value {
+        serde_json::from_str(&std::fs::read_to_string(p).unwrap()).unwrap()
+    };
+    let (vj, rj) = (json(&view_json), json(&render_json));
+    let shot_frame: usize = field(line, "frame").parse().unwrap();
+    let vf = vj["frames"]
+        .as_array()
+        .and_then(|f| f.iter().find(|f| f["frame"].as_u64() == Some(shot_frame as u64)))
+        .unwrap_or_else(|| panic!("no frame {shot_frame} in {vj}"));
+    let rf = &rj["frames"][0];
+    assert!(rf["triangles"].as_u64().is_some_and(|t| t > 0), "{rf}");
+    assert_eq!(vf["triangles"], rf["triangles"], "viewer {vf}\nrender {rf}");
+    for f in [vf, rf] {
+        let cpu = f["process_cpu_ms"].as_f64().unwrap_or_else(|| panic!("{f}"));
+        assert!(cpu.is_finite() && cpu >= 0.0, "{f}");
+    }
     let (window, offscreen) = (load(&shot), load(&rendered));
     // Not a trivial match: most of the image is terrain, not sky.
     let sky = offscreen.pixels().filter(|p| p.0[..3] == [150, 185, 225]).count();

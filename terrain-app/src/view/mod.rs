@@ -254,8 +254,9 @@ pub(crate) fn run(args: &ViewArgs) -> anyhow::Result<()> {
     if let Some(m) = &times.median {
         println!(
             "view: {frames} frames, median after the first: viewer frame {:.2} ms (period \
-             {:.2} ms), engine frame {:.2} ms, panel {:.2} ms, present {:.2} ms",
-            m.viewer_ms, m.period_ms, m.engine_ms, m.panel_ms, m.present_ms
+             {:.2} ms), engine frame {:.2} ms, panel {:.2} ms, present {:.2} ms, process CPU \
+             {:.0} ms per period",
+            m.viewer_ms, m.period_ms, m.engine_ms, m.panel_ms, m.present_ms, m.process_cpu_ms
         );
     }
     if let Some(path) = &args.stats_json {
@@ -307,9 +308,17 @@ struct FrameTime {
     panel_ms: f64,
     /// The copy into the window's surface, the panel's draw and present.
     present_ms: f64,
-    /// When the redraw started, for the periods (not written).
+    /// CPU time of the whole process over the period (every thread: the viewer's and the
+    /// driver's; on lavapipe its rasterizer threads), ms, 10 ms ticks: the work of a frame,
+    /// comparable with `terrain render --stats-json`'s `process_cpu_ms` whatever else runs.
+    process_cpu_ms: f64,
+    /// Patches and triangles drawn (the same work as `render`'s frame of the same camera).
+    patches: usize,
+    triangles: u64,
+    /// When the redraw started and the process's CPU seconds then, for the periods (not
+    /// written).
     #[serde(skip)]
-    start: Option<Instant>,
+    start: Option<(Instant, f64)>,
 }
 
 /// The frames' times and their medians after the first (which builds pipelines).
@@ -322,10 +331,13 @@ impl FrameTimes {
     fn of(times: &[FrameTime]) -> Self {
         let mut frames = times.to_vec();
         for k in 0..frames.len() {
-            frames[k].period_ms = match (frames[k].start, frames.get(k + 1).and_then(|f| f.start)) {
-                (Some(a), Some(b)) => (b - a).as_secs_f64() * 1e3,
-                _ => frames[k].viewer_ms,
-            };
+            // The last frame's period is its own redraw (its CPU figure was taken at its end).
+            if let (Some(a), Some(b)) = (frames[k].start, frames.get(k + 1).and_then(|f| f.start)) {
+                frames[k].period_ms = (b.0 - a.0).as_secs_f64() * 1e3;
+                frames[k].process_cpu_ms = (b.1 - a.1) * 1e3;
+            } else {
+                frames[k].period_ms = frames[k].viewer_ms;
+            }
         }
         let later = &frames[1.min(frames.len())..];
         let median = (!later.is_empty()).then(|| {
@@ -342,6 +354,9 @@ impl FrameTimes {
                 engine_ms: m(|t| t.engine_ms),
                 panel_ms: m(|t| t.panel_ms),
                 present_ms: m(|t| t.present_ms),
+                process_cpu_ms: m(|t| t.process_cpu_ms),
+                patches: later[later.len() / 2].patches,
+                triangles: later[later.len() / 2].triangles,
                 start: None,
             }
         });
@@ -1088,6 +1103,7 @@ impl App {
     /// One frame: script, input, the method's frame through the frame loop, the panel, present.
     fn redraw(&mut self) -> anyhow::Result<()> {
         let t0 = Instant::now();
+        let cpu0 = terrain_app::bench::process_cpu_s();
         let dt = match (self.scripted, self.last_frame) {
             (true, _) | (false, None) => 1.0 / 60.0,
             (false, Some(t)) => t.elapsed().as_secs_f64().min(0.1),
@@ -1237,7 +1253,10 @@ impl App {
             engine_ms: self.stats.engine_ms,
             panel_ms,
             present_ms,
-            start: Some(t0),
+            process_cpu_ms: (terrain_app::bench::process_cpu_s() - cpu0) * 1e3,
+            patches: self.stats.patches,
+            triangles: self.stats.triangles,
+            start: Some((t0, cpu0)),
         });
         self.frame_index += 1;
         Ok(())

@@ -234,7 +234,10 @@ impl Presenter {
             }
             let extra =
                 self.egui.update_buffers(device, &ctx.queue, &mut encoder, o.primitives, &screen);
-            ctx.queue.submit(extra);
+            // Paint callbacks' command buffers (the panel has none): no empty submission.
+            if !extra.is_empty() {
+                ctx.queue.submit(extra);
+            }
         }
         {
             let mut pass = encoder
