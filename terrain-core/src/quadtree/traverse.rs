@@ -527,7 +527,7 @@ pub fn is_balanced(leaves: &[NodeId]) -> bool {
 }
 
 /// The two children of a node that touch its `side`.
-fn facing_quadrants(side: Direction) -> [Quadrant; 2] {
+pub(super) fn facing_quadrants(side: Direction) -> [Quadrant; 2] {
     match side {
         Direction::North => [Quadrant::NorthWest, Quadrant::NorthEast],
         Direction::South => [Quadrant::SouthWest, Quadrant::SouthEast],
@@ -676,6 +676,44 @@ mod tests {
         // The trees exercise the balance and the holes (else the test could not fail).
         assert!(changed > 200, "{changed} of 400 trees needed balancing");
         assert!(holes > 100, "{holes} edges face a hole");
+    }
+
+    #[test]
+    fn leaf_tree_neighbours_equal_the_leaf_set_s() {
+        let (mut finer, mut coarser, mut holes) = (0, 0, 0);
+        for seed in 0..300u64 {
+            let max = 3 + (seed % 8) as u8;
+            let side = 1u32 << max;
+            let (w, h) = (side - (seed as u32 * 5) % (side / 2), side);
+            let (raw, contains) = random_tree(seed.wrapping_mul(0x2545_f491_4f6c_dd1d), max, w, h);
+            let balanced = balance_with(&raw, &contains);
+            // Unbalanced and balanced sets, in depth-first and in reversed order.
+            for leaves in [raw.clone(), balanced] {
+                let mut rev = leaves.clone();
+                rev.reverse();
+                for input in [leaves.clone(), rev] {
+                    let set = LeafSet::new(input.iter().copied());
+                    let tree = super::super::leaf_tree::LeafTree::new(&input);
+                    assert_eq!(tree.leaves(), &input[..]);
+                    for (k, &n) in input.iter().enumerate() {
+                        for d in Direction::ALL {
+                            let want = set.neighbours(n, d);
+                            let got: Vec<NodeId> =
+                                tree.neighbours(k, d).into_iter().map(|m| input[m]).collect();
+                            assert_eq!(got, want, "seed {seed} {n:?} {d:?}");
+                            match want.as_slice() {
+                                [] => holes += usize::from(n.neighbour(d).is_some()),
+                                [m] if m.level < n.level => coarser += 1,
+                                [m] if m.level == n.level => {}
+                                _ => finer += 1,
+                            }
+                        }
+                    }
+                }
+            }
+        }
+        // Every case is exercised (else the comparison could pass vacuously).
+        assert!(finer > 1000 && coarser > 1000 && holes > 100, "{finer} {coarser} {holes}");
     }
 
     #[test]
