@@ -43,9 +43,10 @@
 //! # Crack-free selection ([`select_patches`])
 //! Leaves are clamped to each block's resident level (the split stops there: the runtime
 //! serves coarser levels while finer ones load), balanced across blocks (terrain-core's
-//! `balance_with`: neighbours within one level) and given outer factors by terrain-core's one
-//! resolver with the [`WishEdges`](terrain_core::lod::WishEdges) rule, the wishes beside the
-//! leaves ([`wish_outer_factors`] over a [`LeafTree`]: neighbours by index, no hashing; a
+//! [`LeafTree::balanced`]: neighbours within one level) and given outer factors by
+//! terrain-core's one resolver with the [`WishEdges`](terrain_core::lod::WishEdges) rule, the
+//! wishes beside the leaves ([`wish_outer_factors`] over the balance's tree: neighbours by
+//! index, no hashing; a
 //! shared edge takes the larger of the two sides' wishes, a coarse edge facing finer patches a
 //! power of two that nests with all of them), so
 //! `terrain_core::lod::check_shared_edges` holds and the tessellated surface is watertight
@@ -64,10 +65,10 @@ use std::time::Instant;
 use glam::{DVec2, DVec3};
 use terrain_core::geometry::{Aabb, Camera, Frustum, GroundRegion, project_view_to_ground};
 use terrain_core::lod::{MAX_FACTOR, Patch, Selection, SelectionStats, wish_outer_factors};
-use terrain_core::metrics::screen::sight_line_eq7;
+use terrain_core::metrics::screen::SightLineEq7;
 use terrain_core::quadtree::{
     BoundingCircleCull, Cull, CullPolicy, FrustumCull, GridRect, LeafTree, NodeId, NodeInfo,
-    NodeSource, NodeTree, SplitPolicy, TreeShape, Visit, balance_with, traverse,
+    NodeSource, NodeTree, SplitPolicy, TreeShape, Visit, traverse,
 };
 
 use crate::format::{BlockEntry, BlockId, Header};
@@ -88,12 +89,15 @@ pub struct View {
     pub lambda: f64,
     /// Screen-error threshold `tau`, pixels.
     pub tau: f64,
+    /// Eq. 7's per-view part (from `dir` and `lambda`).
+    pub(crate) eq7: SightLineEq7,
 }
 
 impl View {
     /// The view of `camera` with threshold `tau` pixels.
     pub fn new(camera: &Camera, tau: f64) -> Self {
-        Self { eye: camera.position, dir: camera.forward(), lambda: camera.lambda(), tau }
+        let (dir, lambda) = (camera.forward(), camera.lambda());
+        Self { eye: camera.position, dir, lambda, tau, eq7: SightLineEq7::new(lambda, dir) }
     }
 
     /// Eq. 7's `rho` per metre of error for a node with world box `aabb` (distance from the eye
@@ -103,7 +107,7 @@ impl View {
         let (lo, hi) = (aabb.min, aabb.max);
         let d = (lo - self.eye).max(self.eye - hi).max(DVec3::ZERO).length();
         let to_centre = (lo - self.eye) + (hi - lo) * 0.5;
-        sight_line_eq7(self.lambda, 1.0, d, self.dir, to_centre)
+        self.eq7.rho(1.0, d, to_centre)
     }
 
     /// Whether a node with error `err` (metres) and box `aabb` splits: Eq. 7 `rho > tau`.
@@ -967,11 +971,12 @@ pub fn select_patches(
     let traversed: Vec<NodeId> = boxed.iter().map(|&(n, ..)| n).collect();
     // Balanced leaves, sorted by `dfs_key` like the traversal's: a leaf the balance kept is
     // found by walking both lists together.
-    let leaves = balance_with(&traversed, |n| tree.contains(n));
+    let set = LeafTree::balanced(&traversed, |n| tree.contains(n));
+    let leaves = set.leaves();
     // Each leaf's wished factor, beside it (index-aligned with `leaves`).
     let mut want = Vec::with_capacity(leaves.len());
     let mut k = 0;
-    for &n in &leaves {
+    for &n in leaves {
         let key = n.dfs_key();
         while k < boxed.len() && boxed[k].0.dfs_key() < key {
             k += 1;
@@ -1004,7 +1009,6 @@ pub fn select_patches(
         };
         want.push(((1u32 << m) as f32).clamp(2.0, MAX_FACTOR));
     }
-    let set = LeafTree::new(&leaves);
     let patches: Vec<Patch> = wish_outer_factors(&set, &want)
         .into_iter()
         .zip(leaves.iter().zip(&want))

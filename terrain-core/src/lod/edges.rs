@@ -172,7 +172,8 @@ fn resolve_all(
                 Across::Finer(s) => {
                     finer.clear();
                     tree.facing(s, e.direction().opposite(), &mut finer);
-                    coarse(k, e, &finer)
+                    // The split node's leaves may all lie away from the edge (a hole).
+                    if finer.is_empty() { unshared(k, e) } else { coarse(k, e, &finer) }
                 }
             };
         }

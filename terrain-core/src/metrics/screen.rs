@@ -133,8 +133,33 @@ pub fn sight_line_eq6(lambda: f64, delta: f64, d: f64, view_dir: DVec3) -> f64 {
 /// (section 3.3, step 4) splits when `rho > tau`, which is the one that makes sense and the
 /// one callers should use.
 pub fn sight_line_eq7(lambda: f64, delta: f64, d: f64, view_dir: DVec3, eye_to_node: DVec3) -> f64 {
-    let rho = sight_line_eq6(lambda, delta, d, view_dir);
-    if rho.is_infinite() { rho } else { rho / (1.0 + sin_beta(view_dir, eye_to_node)) }
+    SightLineEq7::new(lambda, view_dir).rho(delta, d, eye_to_node)
+}
+
+/// [`sight_line_eq7`] with its per-view part computed once (`lambda cos(theta)` and the unit
+/// sight line): a selection evaluates Eq. 7 for thousands of nodes per frame.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SightLineEq7 {
+    /// `lambda` times [`view_sin`] (Eq. 6's `H cos(theta) / (2 tan(alpha / 2))`).
+    lambda_cos: f64,
+    /// The unit sight line (zero for a zero or non-finite one: `beta = 0`).
+    dir: DVec3,
+}
+
+impl SightLineEq7 {
+    /// The per-view part of Eq. 7 for `lambda` and the sight line `view_dir`.
+    pub fn new(lambda: f64, view_dir: DVec3) -> Self {
+        let len = view_dir.length();
+        let dir = if len.is_finite() && len > 0.0 { view_dir / len } else { DVec3::ZERO };
+        Self { lambda_cos: lambda * view_sin(view_dir), dir }
+    }
+
+    /// Eq. 7's `rho` for object-space error `delta` at distance `d`, the node at `eye_to_node`
+    /// (the degenerate cases of [`plain`]).
+    pub fn rho(&self, delta: f64, d: f64, eye_to_node: DVec3) -> f64 {
+        let rho = plain(self.lambda_cos, delta, d);
+        if rho.is_infinite() { rho } else { rho / (1.0 + sin_beta(self.dir, eye_to_node)) }
+    }
 }
 
 /// The axis-aligned world box of a node: its clipped samples' extent and height range (filled
