@@ -43,9 +43,12 @@
 //! # Crack-free selection ([`select_patches`])
 //! Leaves are clamped to each block's resident level (the split stops there: the runtime
 //! serves coarser levels while finer ones load), balanced across blocks (terrain-core's
-//! `balance_with`: neighbours within one level) and given outer factors by terrain-core's one
-//! [`EdgeRule`](terrain_core::lod::EdgeRule) resolver with its [`WishEdges`] rule (a shared edge takes the larger of the two
-//! sides' wishes, a coarse edge facing finer patches a power of two that nests with all of them), so
+//! [`LeafTree::balanced`]: neighbours within one level) and given outer factors by
+//! terrain-core's one resolver with the [`WishEdges`](terrain_core::lod::WishEdges) rule, the
+//! wishes beside the leaves ([`wish_outer_factors`] over the balance's tree: neighbours by
+//! index, no hashing; a
+//! shared edge takes the larger of the two sides' wishes, a coarse edge facing finer patches a
+//! power of two that nests with all of them), so
 //! `terrain_core::lod::check_shared_edges` holds and the tessellated surface is watertight
 //! over pages of any level (the renderer's page lookup gives every shared sample one value).
 //!
@@ -56,18 +59,16 @@
 
 use std::cell::Cell;
 use std::collections::HashMap;
-use std::hash::BuildHasherDefault;
 use std::sync::Arc;
 use std::time::Instant;
 
 use glam::{DVec2, DVec3};
-use rustc_hash::FxHasher;
 use terrain_core::geometry::{Aabb, Camera, Frustum, GroundRegion, project_view_to_ground};
-use terrain_core::lod::{MAX_FACTOR, Patch, Selection, SelectionStats, WishEdges, outer_factors};
-use terrain_core::metrics::screen::sight_line_eq7;
+use terrain_core::lod::{MAX_FACTOR, Patch, Selection, SelectionStats, wish_outer_factors};
+use terrain_core::metrics::screen::SightLineEq7;
 use terrain_core::quadtree::{
-    BoundingCircleCull, Cull, CullPolicy, FrustumCull, GridRect, NodeId, NodeInfo, NodeSource,
-    NodeTree, SplitPolicy, TreeShape, Visit, balance_with_set, traverse,
+    BoundingCircleCull, Cull, CullPolicy, FrustumCull, GridRect, LeafTree, NodeId, NodeInfo,
+    NodeSource, NodeTree, SplitPolicy, TreeShape, Visit, traverse,
 };
 
 use crate::format::{BlockEntry, BlockId, Header};
@@ -88,12 +89,15 @@ pub struct View {
     pub lambda: f64,
     /// Screen-error threshold `tau`, pixels.
     pub tau: f64,
+    /// Eq. 7's per-view part (from `dir` and `lambda`).
+    pub(crate) eq7: SightLineEq7,
 }
 
 impl View {
     /// The view of `camera` with threshold `tau` pixels.
     pub fn new(camera: &Camera, tau: f64) -> Self {
-        Self { eye: camera.position, dir: camera.forward(), lambda: camera.lambda(), tau }
+        let (dir, lambda) = (camera.forward(), camera.lambda());
+        Self { eye: camera.position, dir, lambda, tau, eq7: SightLineEq7::new(lambda, dir) }
     }
 
     /// Eq. 7's `rho` per metre of error for a node with world box `aabb` (distance from the eye
@@ -103,12 +107,17 @@ impl View {
         let (lo, hi) = (aabb.min, aabb.max);
         let d = (lo - self.eye).max(self.eye - hi).max(DVec3::ZERO).length();
         let to_centre = (lo - self.eye) + (hi - lo) * 0.5;
-        sight_line_eq7(self.lambda, 1.0, d, self.dir, to_centre)
+        self.eq7.rho(1.0, d, to_centre)
     }
 
     /// Whether a node with error `err` (metres) and box `aabb` splits: Eq. 7 `rho > tau`.
     fn splits(&self, err: f32, aabb: &Aabb) -> bool {
-        err > 0.0 && self.rho_per_metre(aabb) * f64::from(err) > self.tau
+        err > 0.0 && self.splits_at(err, self.rho_per_metre(aabb))
+    }
+
+    /// [`View::splits`] once the box's [`View::rho_per_metre`] is known.
+    fn splits_at(&self, err: f32, per_metre: f64) -> bool {
+        err > 0.0 && per_metre * f64::from(err) > self.tau
     }
 }
 
@@ -780,12 +789,30 @@ impl StoreTree {
     ) -> Option<u8> {
         let (b, local) = self.block_of(n)?;
         let h = self.store.header();
+        self.store.entry(b)?;
+        let max_level = max_level.min(h.k);
+        if local.level >= max_level {
+            return Some(self.block_level + local.level.min(max_level));
+        }
+        self.needed_vertex_level_at(n, view.rho_per_metre(aabb), view, max_level)
+    }
+
+    /// [`StoreTree::needed_vertex_level`] once Eq. 7's `rho` per metre at the node's box is
+    /// known (the split test computed it).
+    fn needed_vertex_level_at(
+        &self,
+        n: NodeId,
+        per_metre: f64,
+        view: &View,
+        max_level: u8,
+    ) -> Option<u8> {
+        let (b, local) = self.block_of(n)?;
+        let h = self.store.header();
         let e = self.store.entry(b)?;
         let max_level = max_level.min(h.k);
         if local.level >= max_level {
             return Some(self.block_level + local.level.min(max_level));
         }
-        let per_metre = view.rho_per_metre(aabb);
         if !per_metre.is_finite() {
             return Some(self.block_level + max_level);
         }
@@ -858,7 +885,7 @@ impl NodeSource for FrameNodes<'_> {
 /// [`StoreTree`] with the Eq. 7 split and two culls, only over blocks with a level resident
 /// (`resident(block)`: the finest level that may be drawn, `None` = not drawn), the split
 /// stopped at that level; then balanced, factors from `needed_vertex_level` (clamped to the
-/// resident level, at least 2) and outer factors from terrain-core's [`WishEdges`]. The culls:
+/// resident level, at least 2) and outer factors by terrain-core's [`wish_outer_factors`]. The culls:
 /// the paper's [`BoundingCircleCull`] against the view projected on the ground (section 3.3,
 /// steps 2-3), and terrain-core's [`FrustumCull`] of each node's world box (its min/max
 /// heights): the circle keeps nodes beside and behind the view triangle's sides, and a node
@@ -898,6 +925,9 @@ pub fn select_patches(
     // at its block's resident level. A node above the blocks stays one patch spanning its
     // blocks when some factor of at most 64 meets `tau` (`spanning_level`, from the largest
     // per-level error of its blocks) and each of its blocks holds that level; else it splits.
+    // Eq. 7's `rho` per metre of the last node the split test asked about: a leaf's factor
+    // (`needed_vertex_level`) reuses it.
+    let last_rho: Cell<Option<(NodeId, f64)>> = Cell::new(None);
     let mut split = |n: NodeId, info: &NodeInfo| -> bool {
         match tree.block_of(n) {
             Some((b, local)) => {
@@ -906,7 +936,11 @@ pub fn select_patches(
                 }
                 match nodes.patch_error(n) {
                     None => true,
-                    Some(err) => view.splits(err, &info.aabb),
+                    Some(err) => {
+                        let per_metre = view.rho_per_metre(&info.aabb);
+                        last_rho.set(Some((n, per_metre)));
+                        view.splits_at(err, per_metre)
+                    }
                 }
             }
             None => match tree.spanning_level(n, &info.aabb, &view) {
@@ -918,7 +952,8 @@ pub fn select_patches(
     let mut stats = SelectionStats::default();
     // The leaves with their boxes, in traversal order: inside blocks, and above them the
     // patches spanning several blocks.
-    let mut boxed: Vec<(NodeId, Aabb)> = Vec::new();
+    // With Eq. 7's `rho` per metre where the split test computed it.
+    let mut boxed: Vec<(NodeId, Aabb, Option<f64>)> = Vec::new();
     traverse(&nodes, &mut split, &mut cull, &mut |n, v| {
         stats.visited += 1;
         match v {
@@ -926,35 +961,39 @@ pub fn select_patches(
             Visit::Split => stats.split += 1,
             Visit::Leaf => {
                 if let Some((info, _)) = nodes.cached(n) {
-                    boxed.push((n, info.aabb));
+                    let rho = last_rho.get().filter(|&(m, _)| m == n).map(|(_, r)| r);
+                    boxed.push((n, info.aabb, rho));
                 }
             }
         }
     });
     stats.traversal_leaves = boxed.len();
-    let traversed: Vec<NodeId> = boxed.iter().map(|&(n, _)| n).collect();
+    let traversed: Vec<NodeId> = boxed.iter().map(|&(n, ..)| n).collect();
     // Balanced leaves, sorted by `dfs_key` like the traversal's: a leaf the balance kept is
     // found by walking both lists together.
-    let (leaves, set) = balance_with_set(&traversed, |n| tree.contains(n));
-    let mut rule = WishEdges::<BuildHasherDefault<FxHasher>>::default();
-    rule.want.reserve(leaves.len());
+    let set = LeafTree::balanced(&traversed, |n| tree.contains(n));
+    let leaves = set.leaves();
+    // Each leaf's wished factor, beside it (index-aligned with `leaves`).
+    let mut want = Vec::with_capacity(leaves.len());
     let mut k = 0;
-    for &n in &leaves {
+    for &n in leaves {
         let key = n.dfs_key();
         while k < boxed.len() && boxed[k].0.dfs_key() < key {
             k += 1;
         }
-        let aabb = match boxed.get(k) {
-            Some(&(m, aabb)) if m == n => Some(aabb),
-            _ => tree.node_info(n).map(|i| i.aabb),
+        let (aabb, rho) = match boxed.get(k) {
+            Some(&(m, aabb, rho)) if m == n => (Some(aabb), rho),
+            _ => (tree.node_info(n).map(|i| i.aabb), None),
         };
         let m = match tree.block_of(n) {
             Some((b, local)) => {
                 let max = resident(b).unwrap_or(0);
-                let level = match aabb {
-                    Some(aabb) => tree.needed_vertex_level(n, &aabb, &view, max).unwrap_or(n.level),
-                    None => n.level,
-                };
+                let level = match (rho, aabb) {
+                    (Some(rho), _) => tree.needed_vertex_level_at(n, rho, &view, max),
+                    (None, Some(aabb)) => tree.needed_vertex_level(n, &aabb, &view, max),
+                    (None, None) => None,
+                }
+                .unwrap_or(n.level);
                 level.saturating_sub(bl + local.level).min(FACTOR_LEVELS)
             }
             // A patch spanning `2^s` blocks per side: `2^(s + l)` segments put the level-`l`
@@ -968,14 +1007,12 @@ pub fn select_patches(
                 (s + l).min(FACTOR_LEVELS)
             }
         };
-        rule.want.insert(n, ((1u32 << m) as f32).clamp(2.0, MAX_FACTOR));
+        want.push(((1u32 << m) as f32).clamp(2.0, MAX_FACTOR));
     }
-    let patches: Vec<Patch> = leaves
-        .iter()
-        .map(|&node| {
-            let w = rule.want(node);
-            Patch { node, outer: outer_factors(&set, node, &rule), inner: [w, w] }
-        })
+    let patches: Vec<Patch> = wish_outer_factors(&set, &want)
+        .into_iter()
+        .zip(leaves.iter().zip(&want))
+        .map(|(outer, (&node, &w))| Patch { node, outer, inner: [w, w] })
         .collect();
     stats.patches = patches.len();
     stats.balance_added = patches.len().saturating_sub(stats.traversal_leaves);

@@ -26,7 +26,7 @@ use std::collections::HashMap;
 use std::hash::{BuildHasher, RandomState};
 
 use super::patch::{Edge, MAX_FACTOR, Selection};
-use crate::quadtree::{LeafSet, NodeId};
+use crate::quadtree::{Across, LeafSet, LeafTree, NodeId};
 
 /// How a method assigns outer factors (see the module docs for the contract).
 pub trait EdgeRule {
@@ -73,18 +73,14 @@ impl<S: BuildHasher> WishEdges<S> {
 
 impl<S: BuildHasher> EdgeRule for WishEdges<S> {
     fn same_level(&self, a: NodeId, _: Edge, b: NodeId) -> f32 {
-        self.want(a).max(self.want(b))
+        wish_same_level(self.want(a), self.want(b))
     }
 
     fn coarse_edge(&self, coarse: NodeId, _: Edge, finer: &[NodeId]) -> f32 {
-        let mut f = self.want(coarse);
-        let mut dmax = 0u8;
-        for &m in finer {
-            let d = m.level.saturating_sub(coarse.level).min(5);
-            dmax = dmax.max(d);
-            f = f.max(self.want(m) * (1u32 << d) as f32);
-        }
-        pow2_up(f).max((2u32 << dmax) as f32).min(MAX_FACTOR)
+        wish_coarse_edge(
+            self.want(coarse),
+            finer.iter().map(|&m| (self.want(m), m.level.saturating_sub(coarse.level))),
+        )
     }
 
     fn unshared(&self, node: NodeId, _: Edge) -> f32 {
@@ -92,7 +88,105 @@ impl<S: BuildHasher> EdgeRule for WishEdges<S> {
     }
 }
 
-/// The outer factors of `node` (in [`Edge`] order) among the selected `leaves`.
+/// [`WishEdges`]'s same-level edge: the larger of the two wishes.
+fn wish_same_level(a: f32, b: f32) -> f32 {
+    a.max(b)
+}
+
+/// [`WishEdges`]'s coarse edge: a coarse patch wishing `coarse` facing finer patches, each
+/// `(wish, levels finer)`.
+fn wish_coarse_edge(coarse: f32, finer: impl Iterator<Item = (f32, u8)>) -> f32 {
+    let mut f = coarse;
+    let mut dmax = 0u8;
+    for (want, d) in finer {
+        let d = d.min(5);
+        dmax = dmax.max(d);
+        f = f.max(want * (1u32 << d) as f32);
+    }
+    pow2_up(f).max((2u32 << dmax) as f32).min(MAX_FACTOR)
+}
+
+/// The outer factors of every leaf of `tree` (in [`LeafTree::leaves`] order) for `rule`: what
+/// [`outer_factors`] gives for each leaf, from the tree's neighbours by index (no lookups) and
+/// each coarse edge's factor computed once, its finer side dividing it (case 2 of the module
+/// docs). What every method's selection uses (test
+/// `the_batch_resolver_equals_the_per_node_one`).
+pub fn outer_factors_all<R: EdgeRule + ?Sized>(tree: &LeafTree, rule: &R) -> Vec<[f32; 4]> {
+    let leaves = tree.leaves();
+    let mut finer = Vec::new();
+    resolve_all(
+        tree,
+        |k, e, m| rule.same_level(leaves[k], e, leaves[m]),
+        |k, e, across| {
+            finer.clear();
+            finer.extend(across.iter().map(|&m| leaves[m]));
+            rule.coarse_edge(leaves[k], e, &finer)
+        },
+        |k, e| rule.unshared(leaves[k], e),
+    )
+}
+
+/// [`outer_factors_all`] with [`WishEdges`]'s rule, the wishes beside the leaves (`want[k]` of
+/// leaf `k` of `tree`; 2 where missing) instead of in a map.
+pub fn wish_outer_factors(tree: &LeafTree, want: &[f32]) -> Vec<[f32; 4]> {
+    let leaves = tree.leaves();
+    let w = |k: usize| want.get(k).copied().unwrap_or(2.0);
+    resolve_all(
+        tree,
+        |k, _, m| wish_same_level(w(k), w(m)),
+        |k, _, finer| {
+            let level = leaves[k].level;
+            wish_coarse_edge(
+                w(k),
+                finer.iter().map(|&m| (w(m), leaves[m].level.saturating_sub(level))),
+            )
+        },
+        |k, _| w(k),
+    )
+}
+
+/// The three cases of the module docs for every edge of every leaf of `tree`: `same(k, e, m)`
+/// for a same-level leaf `m`, `coarse(k, e, finer)` for the whole edge of `k` facing finer
+/// leaves, `unshared(k, e)`; a leaf facing a coarser one takes that one's factor for the
+/// shared edge divided by `2^(level difference)`.
+fn resolve_all(
+    tree: &LeafTree,
+    mut same: impl FnMut(usize, Edge, usize) -> f32,
+    mut coarse: impl FnMut(usize, Edge, &[usize]) -> f32,
+    mut unshared: impl FnMut(usize, Edge) -> f32,
+) -> Vec<[f32; 4]> {
+    let leaves = tree.leaves();
+    let mut out = vec![[0f32; 4]; leaves.len()];
+    let mut finer = Vec::new();
+    // Edges facing a coarser leaf: filled once every coarse edge is known.
+    let mut later: Vec<(usize, Edge, usize)> = Vec::new();
+    for (k, factors) in out.iter_mut().enumerate() {
+        for e in Edge::ALL {
+            factors[e as usize] = match tree.across(k, e.direction()) {
+                Across::Nothing => unshared(k, e),
+                Across::Leaf(m) if leaves[m].level >= leaves[k].level => same(k, e, m),
+                Across::Leaf(m) => {
+                    later.push((k, e, m));
+                    0.0
+                }
+                Across::Finer(s) => {
+                    finer.clear();
+                    tree.facing(s, e.direction().opposite(), &mut finer);
+                    // The split node's leaves may all lie away from the edge (a hole).
+                    if finer.is_empty() { unshared(k, e) } else { coarse(k, e, &finer) }
+                }
+            };
+        }
+    }
+    for (k, e, m) in later {
+        let d = leaves[k].level - leaves[m].level;
+        out[k][e as usize] = out[m][e.opposite() as usize] / (1u32 << d) as f32;
+    }
+    out
+}
+
+/// The outer factors of `node` (in [`Edge`] order) among the selected `leaves`, one node at a
+/// time (by hash lookups; [`outer_factors_all`] gives every leaf's from one pass).
 pub fn outer_factors<R: EdgeRule + ?Sized>(leaves: &LeafSet, node: NodeId, rule: &R) -> [f32; 4] {
     Edge::ALL.map(|e| {
         let across = leaves.neighbours(node, e.direction());
@@ -194,6 +288,65 @@ mod tests {
             .map(|n| Patch { node: n, outer: outer_factors(&set, n, rule), inner: [1.0; 2] })
             .collect();
         Selection { patches, ..Default::default() }
+    }
+
+    #[test]
+    fn the_batch_resolver_equals_the_per_node_one() {
+        let mut x = 0x9e37_79b9_7f4a_7c15u64;
+        let mut unit = move || {
+            x ^= x << 13;
+            x ^= x >> 7;
+            x ^= x << 17;
+            (x >> 11) as f64 / (1u64 << 53) as f64
+        };
+        let (mut coarse, mut finer) = (0, 0);
+        for seed in 0..200 {
+            let max = 3 + (seed % 7) as u8;
+            // Random leaves with culled holes, then balanced on even seeds.
+            let mut raw = Vec::new();
+            let mut stack = vec![NodeId::ROOT];
+            while let Some(n) = stack.pop() {
+                if n.level >= 2 && unit() < 0.05 {
+                    continue;
+                }
+                let p = if n.level < 2 { 1.0 } else { 0.8 - 0.07 * f64::from(n.level) };
+                if n.level < max && unit() < p {
+                    stack.extend(n.children().into_iter().rev());
+                } else {
+                    raw.push(n);
+                }
+            }
+            let leaves =
+                if seed % 2 == 0 { crate::quadtree::balance_with(&raw, |_| true) } else { raw };
+            let mut rule = WishEdges::<RandomState>::default();
+            let want: Vec<f32> = leaves
+                .iter()
+                .map(|_| [2.0, 4.0, 8.0, 16.0, 64.0][(unit() * 5.0) as usize])
+                .collect();
+            for (&n, &w) in leaves.iter().zip(&want) {
+                rule.want.insert(n, w);
+            }
+            let set = LeafSet::new(leaves.iter().copied());
+            let tree = LeafTree::new(&leaves);
+            let all = outer_factors_all(&tree, &rule);
+            let wished = wish_outer_factors(&tree, &want);
+            let careless = outer_factors_all(&tree, &Careless);
+            for (k, &n) in leaves.iter().enumerate() {
+                let per_node = outer_factors(&set, n, &rule);
+                assert_eq!(all[k], per_node, "seed {seed} {n:?}");
+                assert_eq!(wished[k], per_node, "seed {seed} {n:?}");
+                assert_eq!(careless[k], outer_factors(&set, n, &Careless), "seed {seed} {n:?}");
+                for e in Edge::ALL {
+                    match set.neighbours(n, e.direction()).as_slice() {
+                        [m] if m.level < n.level => coarse += 1,
+                        [m] if m.level == n.level => {}
+                        [] => {}
+                        _ => finer += 1,
+                    }
+                }
+            }
+        }
+        assert!(coarse > 500 && finer > 500, "{coarse} {finer}");
     }
 
     #[test]

@@ -59,7 +59,10 @@ pub use dss_methods::{
 pub use dss_strips::{
     DssStripFrame, DssStripsConfig, MBlock, PBlock, Strip, frame_from_leaves, select_dss_strips,
 };
-pub use edges::{EdgeMismatch, EdgeRule, WishEdges, check_shared_edges, outer_factors};
+pub use edges::{
+    EdgeMismatch, EdgeRule, WishEdges, check_shared_edges, outer_factors, outer_factors_all,
+    wish_outer_factors,
+};
 pub use geomip_file::{GeomipFileError, GeomipFor};
 pub use geomipmap::{GeomipConfig, GeomipRow, GeomipScene, GeomipSelection, GeomipTable, PatchLod};
 pub use patch::{Edge, MAX_FACTOR, MIN_FACTOR, Patch, Selection, SelectionStats, clamp_factor};
@@ -102,12 +105,12 @@ pub(crate) mod run {
 
     use glam::DVec3;
 
-    use super::edges::{EdgeRule, outer_factors};
+    use super::edges::{EdgeRule, outer_factors_all};
     use super::patch::{Patch, Selection, SelectionStats};
     use crate::geometry::Camera;
     use crate::metrics::screen::{MAX_FOV_Y, MIN_DISTANCE_M, MIN_FOV_Y};
     use crate::quadtree::{
-        CullPolicy, FrustumCull, LeafSet, NoCull, NodeId, NodeInfo, NodeTree, SplitPolicy, Visit,
+        CullPolicy, FrustumCull, LeafTree, NoCull, NodeId, NodeInfo, NodeTree, SplitPolicy, Visit,
         balance_with, traverse,
     };
 
@@ -167,13 +170,11 @@ pub(crate) mod run {
         inner: impl Fn(NodeId, &[f32; 4]) -> [f32; 2],
         start: Instant,
     ) -> Selection {
-        let set = LeafSet::new(leaves.iter().copied());
+        let tree = LeafTree::new(&leaves);
         let patches: Vec<Patch> = leaves
             .iter()
-            .map(|&node| {
-                let outer = outer_factors(&set, node, rule);
-                Patch { node, outer, inner: inner(node, &outer) }
-            })
+            .zip(outer_factors_all(&tree, rule))
+            .map(|(&node, outer)| Patch { node, outer, inner: inner(node, &outer) })
             .collect();
         stats.patches = patches.len();
         stats.max_level = patches.iter().map(|p| p.node.level).max().unwrap_or(0);

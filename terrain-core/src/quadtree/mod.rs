@@ -8,12 +8,14 @@
 //! `i` counts east, `j` north, row 0 is south (the heightmap's convention).
 
 pub mod dss;
+mod leaf_tree;
 mod node;
 pub mod pvps;
 mod traverse;
 mod tree;
 
 pub use dss::{DSS_ROOT_ID, dss_block_id, dss_child_neighbours, dss_neighbours, dss_node};
+pub use leaf_tree::{Across, LeafTree, SplitNode};
 pub use node::{Direction, NodeId, Quadrant};
 pub use pvps::{pvps_node_center, pvps_node_center_as_printed, pvps_patch_corners, pvps_span};
 pub use traverse::{

@@ -8,6 +8,7 @@
 
 use rustc_hash::FxHashMap;
 
+use super::leaf_tree::LeafTree;
 use super::node::{Direction, NodeId, Quadrant};
 use super::tree::{NodeInfo, Quadtree, TreeShape};
 use crate::geometry::{Classification, Frustum, GroundRegion, circle_vs_region};
@@ -382,107 +383,22 @@ pub fn balance(qt: &Quadtree, leaves: &[NodeId]) -> Vec<NodeId> {
 /// [`balance`] without a [`Quadtree`]: `contains(node)` says whether a child holds a grid cell
 /// (an out-of-core store's node space, whose heights are not in memory).
 ///
-/// The restricted quadtree (Von Herzen & Barr 1987) by a sweep from the finest level to the
-/// coarsest over the leaves bucketed by level (Moore 1995, "The cost of balancing quadtrees";
-/// Sundar, Sampath & Biros 2008 balance linear octrees level by level the same way): a leaf
-/// `f` at level `l` needs the node at level `l - 1` across each of its edges to exist (as a
-/// leaf or split); where a leaf coarser than that covers it, that leaf is split down to it.
-/// Splits only create leaves coarser than `l`, and splitting never makes a leaf coarser, so
-/// once level `l` is swept its leaves stay satisfied: one pass reaches the fixed point. Every
-/// split is forced, so the result is the least balanced refinement of `leaves`, the same set
-/// any order of forced splits reaches (test `balance_equals_the_hash_walk_on_random_trees`
-/// against the former per-ancestor hash walk).
-///
-/// The nodes that exist (leaves and their ancestors) are kept in one hash map, so a leaf's
-/// neighbour costs one lookup when it is at the same level or finer (the common case) and
-/// none across an edge inside the parent, instead of one per coarser level. The output is
-/// written by descending each input leaf in child order, so it comes sorted by
-/// [`NodeId::dfs_key`] without sorting the balanced set.
+/// The restricted quadtree by one sweep from the finest level to the coarsest over an explicit
+/// tree of the leaves ([`LeafTree::balanced`], which documents the algorithm); the output is
+/// sorted by [`NodeId::dfs_key`].
 pub fn balance_with(leaves: &[NodeId], contains: impl Fn(NodeId) -> bool) -> Vec<NodeId> {
-    balance_with_set(leaves, contains).0
+    LeafTree::balanced(leaves, contains).into_leaves()
 }
 
-/// [`balance_with`] and the balanced leaves as a [`LeafSet`] for neighbour lookup, built from
-/// the balance's own node map (no second pass over the leaves).
+/// [`balance_with`] and the balanced leaves as a [`LeafSet`] for neighbour lookup by node.
+/// (Neighbours by index: [`LeafTree::balanced`].)
 pub fn balance_with_set(
     leaves: &[NodeId],
     contains: impl Fn(NodeId) -> bool,
 ) -> (Vec<NodeId>, LeafSet) {
-    let mut input = leaves.to_vec();
-    // Already in traversal order from `traverse`: the stable sort only checks the run.
-    input.sort_by_key(|n| n.dfs_key());
-    input.dedup();
-    let mut nodes = ExistingNodes::default();
-    nodes.map.reserve(input.len() * 2);
-    let max_level = input.iter().map(|n| n.level).max().unwrap_or(0);
-    let mut buckets: Vec<Vec<NodeId>> = vec![Vec::new(); usize::from(max_level) + 1];
-    for &n in &input {
-        nodes.add_leaf(n);
-        buckets[usize::from(n.level)].push(n);
-    }
-    for l in (2..=max_level).rev() {
-        // Leaves at level `l` are only ever created while sweeping finer levels, so the
-        // bucket is complete; entries split since are no longer leaves and are skipped.
-        let bucket = std::mem::take(&mut buckets[usize::from(l)]);
-        for &f in &bucket {
-            if nodes.get(f) != Some(Exists::Leaf) {
-                continue;
-            }
-            for d in Direction::ALL {
-                let Some(g) = f.neighbour(d) else { continue };
-                let p = NodeId { level: l - 1, i: g.i >> 1, j: g.j >> 1 };
-                if p.i == f.i >> 1 && p.j == f.j >> 1 {
-                    continue; // across an edge inside the parent, which exists
-                }
-                if nodes.get(p).is_some() {
-                    continue; // a leaf at level l - 1, or split: balanced across this edge
-                }
-                // The deepest existing ancestor: a leaf two or more levels coarser (split it
-                // down to `p`), or a split node whose children there were culled (a hole).
-                let mut a = p;
-                let kind = loop {
-                    let Some(up) = a.parent() else { break None };
-                    a = up;
-                    if let Some(k) = nodes.get(a) {
-                        break Some(k);
-                    }
-                };
-                if kind != Some(Exists::Leaf) {
-                    continue;
-                }
-                while a.level < p.level {
-                    nodes.map.insert(a.key(), Exists::Split);
-                    let next = p.ancestor(a.level + 1);
-                    let mut go_on = false;
-                    for c in a.children() {
-                        if contains(c) {
-                            nodes.map.insert(c.key(), Exists::Leaf);
-                            buckets[usize::from(c.level)].push(c);
-                            go_on |= c == next;
-                        }
-                    }
-                    if !go_on {
-                        break;
-                    }
-                    a = next;
-                }
-            }
-        }
-    }
-    let mut out = Vec::with_capacity(nodes.map.len());
-    let mut stack = Vec::new();
-    for &n in &input {
-        stack.push(n);
-        while let Some(m) = stack.pop() {
-            match nodes.get(m) {
-                Some(Exists::Leaf) => out.push(m),
-                Some(Exists::Split) => stack.extend(m.children().into_iter().rev()),
-                None => {}
-            }
-        }
-    }
-    let len = out.len();
-    (out, LeafSet { nodes, len })
+    let out = balance_with(leaves, contains);
+    let set = LeafSet::new(out.iter().copied());
+    (out, set)
 }
 
 /// Whether a node of a leaf set is a leaf or split (an ancestor of leaves).
@@ -527,7 +443,7 @@ pub fn is_balanced(leaves: &[NodeId]) -> bool {
 }
 
 /// The two children of a node that touch its `side`.
-fn facing_quadrants(side: Direction) -> [Quadrant; 2] {
+pub(super) fn facing_quadrants(side: Direction) -> [Quadrant; 2] {
     match side {
         Direction::North => [Quadrant::NorthWest, Quadrant::NorthEast],
         Direction::South => [Quadrant::SouthWest, Quadrant::SouthEast],
@@ -676,6 +592,44 @@ mod tests {
         // The trees exercise the balance and the holes (else the test could not fail).
         assert!(changed > 200, "{changed} of 400 trees needed balancing");
         assert!(holes > 100, "{holes} edges face a hole");
+    }
+
+    #[test]
+    fn leaf_tree_neighbours_equal_the_leaf_set_s() {
+        let (mut finer, mut coarser, mut holes) = (0, 0, 0);
+        for seed in 0..300u64 {
+            let max = 3 + (seed % 8) as u8;
+            let side = 1u32 << max;
+            let (w, h) = (side - (seed as u32 * 5) % (side / 2), side);
+            let (raw, contains) = random_tree(seed.wrapping_mul(0x2545_f491_4f6c_dd1d), max, w, h);
+            let balanced = balance_with(&raw, &contains);
+            // Unbalanced and balanced sets, in depth-first and in reversed order.
+            for leaves in [raw.clone(), balanced] {
+                let mut rev = leaves.clone();
+                rev.reverse();
+                for input in [leaves.clone(), rev] {
+                    let set = LeafSet::new(input.iter().copied());
+                    let tree = super::super::leaf_tree::LeafTree::new(&input);
+                    assert_eq!(tree.leaves(), &input[..]);
+                    for (k, &n) in input.iter().enumerate() {
+                        for d in Direction::ALL {
+                            let want = set.neighbours(n, d);
+                            let got: Vec<NodeId> =
+                                tree.neighbours(k, d).into_iter().map(|m| input[m]).collect();
+                            assert_eq!(got, want, "seed {seed} {n:?} {d:?}");
+                            match want.as_slice() {
+                                [] => holes += usize::from(n.neighbour(d).is_some()),
+                                [m] if m.level < n.level => coarser += 1,
+                                [m] if m.level == n.level => {}
+                                _ => finer += 1,
+                            }
+                        }
+                    }
+                }
+            }
+        }
+        // Every case is exercised (else the comparison could pass vacuously).
+        assert!(finer > 1000 && coarser > 1000 && holes > 100, "{finer} {coarser} {holes}");
     }
 
     #[test]
