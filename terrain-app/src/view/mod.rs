@@ -339,7 +339,7 @@ struct FrameTime {
     cpu_ms: f64,
     /// The selection's CPU time (a store's streamer update included).
     selection_ms: f64,
-    /// The streamer's time on the frame thread (a store; the first frame's wait included).
+    /// The streamer's time on the frame thread (a store): not part of `engine_ms`.
     stream_ms: f64,
     /// Uploading the pages that arrived (a store), on the frame thread.
     pages_ms: f64,
@@ -380,7 +380,8 @@ struct SlowFrame {
     queued_mib: f64,
     /// What made it slow, by the figures: `loading` when it waited for I/O or its streamer
     /// and page uploads took more than half its period, else `drawing` (the engine's frame
-    /// without them) or `viewer` (event handling, the panel, present).
+    /// without the page uploads; the streamer's update is outside it) or `viewer` (event
+    /// handling, the panel, present).
     cause: &'static str,
 }
 
@@ -449,7 +450,7 @@ impl FrameTimes {
                 let loading = t.stream_ms + t.pages_ms;
                 let cause = if t.waited_for_io || loading > 0.5 * t.period_ms {
                     "loading"
-                } else if t.engine_ms - loading > 0.5 * t.period_ms {
+                } else if t.engine_ms - t.pages_ms > 0.5 * t.period_ms {
                     "drawing"
                 } else {
                     "viewer"
