@@ -337,7 +337,7 @@ struct FrameTime {
     engine_ms: f64,
     /// The engine frame's CPU time (selection, conversion, the renderer's encoding).
     cpu_ms: f64,
-    /// The selection's CPU time (a store's streamer update included).
+    /// The selection's CPU time.
     selection_ms: f64,
     /// The streamer's time on the frame thread (a store): not part of `engine_ms`.
     stream_ms: f64,
@@ -1237,7 +1237,7 @@ impl App {
         let ground: &Heightmap = self.terrain.ground();
         // The flight waits for the store's first method (built on a worker at start).
         let loading = matches!(&self.terrain, Terrain::Store(s) if s.frames.is_none());
-        if let Some((p, yaw, pitch)) = self.flight.pop_front().filter(|_| !loading) {
+        if !loading && let Some((p, yaw, pitch)) = self.flight.pop_front() {
             self.camera.position = p;
             self.camera.yaw = yaw;
             self.camera.pitch = pitch;
