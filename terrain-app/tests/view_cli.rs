@@ -4,7 +4,8 @@
 //! compares the screenshot with `terrain render` of the same camera and method within the
 //! golden-image tolerance (terrain-gpu `render::tests::golden`: per-channel mean < 2, fewer
 //! than 1 % of pixels off by more than 16). A second run over a small baked store quits
-//! mid-stream and must exit 0 within a bounded time with its workers joined. With
+//! mid-stream and must exit 0 within a bounded time with its workers joined, its per-frame log
+//! (`--stats-json`) showing no frame that waited for I/O. With
 //! `TERRAIN_REQUIRE_GPU=1` a missing Xvfb or adapter fails instead of skipping.
 
 mod common;
@@ -310,8 +311,9 @@ fn the_window_shows_what_render_draws_for_the_same_camera() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
-/// Over a small baked store the viewer streams in real time; a `quit` mid-stream closes the
-/// window, exits 0 within a bounded time, and the store's worker threads are joined.
+/// Over a small baked store the viewer streams in real time (the per-frame log shows no frame
+/// that waited for I/O); a `quit` mid-stream closes the window, exits 0 within a bounded
+/// time, and the store's worker threads are joined.
 #[test]
 fn the_window_closes_cleanly_mid_stream() {
     let Some(x) = start_xvfb(25) else { return };
@@ -335,7 +337,16 @@ fn the_window_closes_cleanly_mid_stream() {
         "wait 2\nrecord\nkey down W\nkey down shift\nwait 36\nmouse 90 0\nquality 3\nwait 2\nrecord\nquit\n",
     )
     .unwrap();
-    let args = [store.to_str().unwrap(), "--size", "320x180", "--script", script.to_str().unwrap()];
+    let log = dir.join("frames.json");
+    let args = [
+        store.to_str().unwrap(),
+        "--size",
+        "320x180",
+        "--script",
+        script.to_str().unwrap(),
+        "--stats-json",
+        log.to_str().unwrap(),
+    ];
     let (ok, out, err) = view(&x.display, &dir, &args, Duration::from_secs(180));
     if !ok && no_adapter(&err) && !require() {
         eprintln!("skipping: {err}");
@@ -352,9 +363,28 @@ fn the_window_closes_cleanly_mid_stream() {
         closed.split(|c: char| !c.is_ascii_digit()).filter_map(|s| s.parse().ok()).collect();
     let (before, after) = (nums[nums.len() - 2], nums[nums.len() - 1]);
     assert!(after < before, "threads {before} before closing the store, {after} after");
-    // A quality change over a store builds the new runtime on a worker while the old one
-    // draws, then swaps it in.
-    assert!(out.contains("view: store method ooc ready;"), "no store rebuild:\n{out}\n{err}");
+    // The per-frame log: every frame streamed (a store record each), and no frame the event
+    // loop drew read from disk or waited for the workers: the first, waiting frame is played
+    // on a worker at start (the window shows the sky meanwhile) and again for the quality
+    // change's rebuild.
+    let log: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&log).unwrap()).unwrap();
+    let frames = log["frames"].as_array().unwrap_or_else(|| panic!("no frames: {log}"));
+    assert!(frames.len() >= 40, "{} frames logged", frames.len());
+    for f in frames {
+        assert!(f["stream"].is_object(), "a store frame without its stream figures: {f}");
+        assert_eq!(f["waited_for_io"], f["stream"]["waited_for_io"], "{f}");
+    }
+    let waited: Vec<&serde_json::Value> =
+        frames.iter().filter(|f| f["waited_for_io"] != false).map(|f| &f["frame"]).collect();
+    assert!(waited.is_empty(), "frames that waited for I/O: {waited:?}");
+    // Both methods (the first at start, the quality change's) were built on a worker.
+    assert_eq!(out.matches("view: store method ooc ready;").count(), 2, "{out}");
+    // The logged frames streamed: data kept arriving from the workers after the first.
+    let arrived = frames[1..].iter().filter(|f| f["stream"]["prefetched_mib"].as_f64() > Some(0.0));
+    assert!(arrived.count() > 0, "no data arrived after the first frame: {log}");
+    println!("last frame: {}", frames[frames.len() - 1]);
+    assert!(log["over_twice_the_median"].is_array(), "{log}");
     // Without --record-to the recorded flight goes under the git-ignored out/ of the working
     // folder.
     let recorded = dir.join("out/recorded_flight.json");

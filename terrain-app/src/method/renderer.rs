@@ -126,6 +126,9 @@ pub struct DrawStats {
     pub batches: usize,
     /// Bytes uploaded this frame.
     pub upload_bytes: u64,
+    /// Wall time of applying a store's page changes (uploading the pages that arrived, on the
+    /// frame thread), ms; part of `wall_ms`. 0 for the whole-heightmap renderers.
+    pub pages_ms: f64,
     /// Material passes skipped (geomorph renderer).
     pub passes_skipped: Option<usize>,
     /// The GPU time as a user reads it.
@@ -329,21 +332,31 @@ impl FrameRenderer {
                 DrawStats::of_geomorph(s, ms(t), anchor_bytes)
             }
             (Inner::PagedMorph { pages, morph }, Draw::PagedMorph(f, lods)) => {
-                OocScene::apply(pages, f)?;
                 let t = Instant::now();
+                OocScene::apply(pages, f)?;
+                let pages_ms = ms(t);
                 let s =
                     morph.render_paged(pages, camera, &lods.patches, &morph_options(options))?;
                 let uploaded = f.updates.iter().filter(|u| u.fill.is_some()).count() as u64;
-                DrawStats::of_geomorph(s, ms(t), uploaded * self.page_bytes + anchor_bytes)
+                let mut d =
+                    DrawStats::of_geomorph(s, ms(t), uploaded * self.page_bytes + anchor_bytes);
+                d.pages_ms = pages_ms;
+                d
             }
             (Inner::Paged(r), Draw::Paged(f)) => {
-                OocScene::apply(r, f)?;
+                // The page changes are part of the frame's wall time: the pages that arrived
+                // are uploaded on the frame thread.
                 let t = Instant::now();
+                OocScene::apply(r, f)?;
+                let pages_ms = ms(t);
                 let s = r.render_with_extra(camera, &f.patches, &f.extra, options)?;
                 let wall_ms = ms(t);
                 let pages = f.updates.iter().filter(|u| u.fill.is_some()).count() as u64;
                 let extra = (f.extra.points.len() * 16 + f.extra.indices.len() * 4) as u64;
-                DrawStats::of_terrain(s, wall_ms, 128 + pages * self.page_bytes + extra)
+                let mut d =
+                    DrawStats::of_terrain(s, wall_ms, 128 + pages * self.page_bytes + extra);
+                d.pages_ms = pages_ms;
+                d
             }
             (_, draw) => anyhow::bail!(
                 "the {:?} renderer cannot draw a {} frame",
@@ -381,6 +394,7 @@ impl DrawStats {
             tessellated: None,
             upload_bytes: s.upload_bytes + more_bytes,
             passes_skipped: Some(s.passes_skipped),
+            pages_ms: 0.0,
             batches: 1,
             gpu_text: "n/a (the geomorph renderer has no timestamps)".to_string(),
             adapter: s.adapter,
@@ -402,6 +416,7 @@ impl DrawStats {
             tessellated: Some(s.tessellated),
             upload_bytes,
             passes_skipped: None,
+            pages_ms: 0.0,
             batches: s.batches,
             gpu_text,
             adapter: s.adapter,

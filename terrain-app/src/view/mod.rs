@@ -10,8 +10,11 @@
 //! - Loading never blocks the event loop: a method switch or a vertical exaggeration over a
 //!   DEM in memory prepares its tables on a worker thread while the old method keeps drawing;
 //!   over a store a method or quality change builds the new runtime and renderer on a worker
-//!   (which plays its first, waiting frame) while the old one draws; a store is drawn in the
-//!   streamer's real-time mode (no later frame waits for I/O).
+//!   (which plays its first, waiting frame) while the old one draws, and so does the first
+//!   method at start while the window shows the sky; a store is drawn in the streamer's
+//!   real-time mode (no frame the event loop draws waits for I/O).
+//! - `--stats-json` writes the per-frame log (times, triangles, a store's late and queued
+//!   data, whether the frame waited) with the medians, p95, max and the slow frames' causes.
 
 mod camera;
 mod panel;
@@ -143,7 +146,7 @@ pub(crate) fn run(args: &ViewArgs) -> anyhow::Result<()> {
     let terrain = match &store {
         Some(dir) => {
             args.source.refuse_reading_options("a baked store (its heights are stored)")?;
-            Terrain::Store(Box::new(StoreTerrain::open(dir, config, kind, &ctx, &render_config)?))
+            Terrain::Store(Box::new(StoreTerrain::open(dir, config)?))
         }
         None => {
             let hm = match args.source.load_surface()? {
@@ -208,6 +211,20 @@ pub(crate) fn run(args: &ViewArgs) -> anyhow::Result<()> {
         crate::render::check_writable(path)?;
     }
     let clip = ClipBoxes::new(ground);
+    let mut terrain = terrain;
+    if let Terrain::Store(s) = &mut terrain {
+        // The method and its renderer are built, and the first frame (the one that waits for
+        // the coarse levels) played, on a worker: the window opens and handles events
+        // meanwhile.
+        let config = s.config.clone();
+        // The pose of the first frame drawn: the flight's first, else the start camera.
+        let mut first = start.clone();
+        if let Some(&(p, yaw, pitch)) = flight.front() {
+            (first.position, first.yaw, first.pitch) = (p, yaw, pitch);
+        }
+        let camera = first.camera(args.eye.fov, size, clip.range(first.position));
+        s.rebuild(kind, config, None, camera, &ctx, &render_config)?;
+    }
     let mut app = App {
         ctx,
         render_config,
@@ -243,6 +260,7 @@ pub(crate) fn run(args: &ViewArgs) -> anyhow::Result<()> {
         uploads: method::Uploads::default(),
         last_frame: None,
         measure_next: false,
+        sky: None,
         error: None,
         quit: false,
     };
@@ -258,6 +276,16 @@ pub(crate) fn run(args: &ViewArgs) -> anyhow::Result<()> {
              {:.0} ms per period",
             m.viewer_ms, m.period_ms, m.engine_ms, m.panel_ms, m.present_ms, m.process_cpu_ms
         );
+        let waited = times.frames.iter().skip(1).filter(|t| t.waited_for_io).count();
+        let loading = times.slow.iter().filter(|s| s.cause == "loading").count();
+        println!(
+            "view: period p95 {:.2} ms, max {:.2} ms; {} frames over twice the median ({} by \
+             loading); {waited} frames after the first waited for I/O",
+            times.period_p95_ms,
+            times.period_max_ms,
+            times.slow.len(),
+            loading
+        );
     }
     if let Some(path) = &args.stats_json {
         let json = serde_json::json!({
@@ -265,6 +293,9 @@ pub(crate) fn run(args: &ViewArgs) -> anyhow::Result<()> {
             "size": [size.0, size.1],
             "frames": times.frames,
             "median_after_first": times.median,
+            "period_p95_ms": times.period_p95_ms,
+            "period_max_ms": times.period_max_ms,
+            "over_twice_the_median": times.slow,
         });
         std::fs::write(path, serde_json::to_string_pretty(&json)?)
             .with_context(|| format!("could not write {}", path.display()))?;
@@ -290,8 +321,9 @@ pub(crate) fn run(args: &ViewArgs) -> anyhow::Result<()> {
     }
 }
 
-/// One viewer frame's times, ms.
-#[derive(Debug, Clone, Copy, Default, serde::Serialize)]
+/// One viewer frame's times (ms) and what it drew and streamed: a line of the per-frame log
+/// (`--stats-json`).
+#[derive(Debug, Clone, Default, serde::Serialize)]
 struct FrameTime {
     /// Frame index.
     frame: usize,
@@ -304,6 +336,14 @@ struct FrameTime {
     viewer_ms: f64,
     /// The frame loop's frame (selection to the GPU done), as `terrain render` times it.
     engine_ms: f64,
+    /// The engine frame's CPU time (selection, conversion, the renderer's encoding).
+    cpu_ms: f64,
+    /// The selection's CPU time.
+    selection_ms: f64,
+    /// The streamer's time on the frame thread (a store): not part of `engine_ms`.
+    stream_ms: f64,
+    /// Uploading the pages that arrived (a store), on the frame thread.
+    pages_ms: f64,
     /// The panel (egui's layout and tessellation).
     panel_ms: f64,
     /// The copy into the window's surface, the panel's draw and present.
@@ -315,16 +355,62 @@ struct FrameTime {
     /// Patches and triangles drawn (the same work as `render`'s frame of the same camera).
     patches: usize,
     triangles: u64,
+    /// Bytes uploaded by the renderer (pages, patch lists, uniforms), MiB.
+    upload_mib: f64,
+    /// Late data: needed by this frame, not resident when it was drawn (a store), MiB.
+    late_mib: f64,
+    /// Requested from the workers, not delivered yet (a store), MiB.
+    queued_mib: f64,
+    /// Whether the frame thread read from disk or waited for the workers (a store).
+    waited_for_io: bool,
+    /// The store's streaming figures of this frame.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    stream: Option<ooc::StreamRecord>,
     /// When the redraw started and the process's CPU seconds then, for the periods (not
     /// written).
     #[serde(skip)]
     start: Option<(Instant, f64)>,
 }
 
-/// The frames' times and their medians after the first (which builds pipelines).
+/// A frame longer than twice the median period, and whether loading caused it.
+#[derive(Debug, Clone, serde::Serialize)]
+struct SlowFrame {
+    frame: usize,
+    period_ms: f64,
+    /// The frame thread waited for I/O (read from disk or waited for the workers).
+    waited_for_io: bool,
+    /// The streamer's and the page uploads' share of the frame, ms.
+    stream_ms: f64,
+    pages_ms: f64,
+    /// Late and queued data of the frame, MiB.
+    late_mib: f64,
+    queued_mib: f64,
+    /// What made it slow, by the figures: `loading` when it waited for I/O or its streamer
+    /// and page uploads took more than half its period, else `drawing` (the engine's frame
+    /// without the page uploads; the streamer's update is outside it) or `viewer` (event
+    /// handling, the panel, present).
+    cause: &'static str,
+}
+
+/// The frames' times, their medians after the first (which builds pipelines and, over a
+/// store, waits for the coarse levels), the period's 95th percentile and maximum, and the
+/// frames longer than twice the median period.
 struct FrameTimes {
     frames: Vec<FrameTime>,
     median: Option<FrameTime>,
+    period_p95_ms: f64,
+    period_max_ms: f64,
+    slow: Vec<SlowFrame>,
+}
+
+/// The `q` quantile (nearest rank) of `v`, sorted in place; 0 when empty.
+fn quantile(v: &mut [f64], q: f64) -> f64 {
+    if v.is_empty() {
+        return 0.0;
+    }
+    v.sort_by(f64::total_cmp);
+    let i = ((q * v.len() as f64).ceil() as usize).clamp(1, v.len()) - 1;
+    v[i]
 }
 
 impl FrameTimes {
@@ -340,27 +426,60 @@ impl FrameTimes {
             }
         }
         let later = &frames[1.min(frames.len())..];
-        let median = (!later.is_empty()).then(|| {
-            let m = |f: fn(&FrameTime) -> f64| {
-                let mut v: Vec<f64> = later.iter().map(f).collect();
-                v.sort_by(f64::total_cmp);
-                v[v.len() / 2]
-            };
-            FrameTime {
-                frame: later.len(),
-                method: "",
-                period_ms: m(|t| t.period_ms),
-                viewer_ms: m(|t| t.viewer_ms),
-                engine_ms: m(|t| t.engine_ms),
-                panel_ms: m(|t| t.panel_ms),
-                present_ms: m(|t| t.present_ms),
-                process_cpu_ms: m(|t| t.process_cpu_ms),
-                patches: later[later.len() / 2].patches,
-                triangles: later[later.len() / 2].triangles,
-                start: None,
-            }
+        let m = |f: fn(&FrameTime) -> f64| {
+            let mut v: Vec<f64> = later.iter().map(f).collect();
+            v.sort_by(f64::total_cmp);
+            v[v.len() / 2]
+        };
+        let median = (!later.is_empty()).then(|| FrameTime {
+            frame: later.len(),
+            method: "",
+            period_ms: m(|t| t.period_ms),
+            viewer_ms: m(|t| t.viewer_ms),
+            engine_ms: m(|t| t.engine_ms),
+            cpu_ms: m(|t| t.cpu_ms),
+            selection_ms: m(|t| t.selection_ms),
+            stream_ms: m(|t| t.stream_ms),
+            pages_ms: m(|t| t.pages_ms),
+            panel_ms: m(|t| t.panel_ms),
+            present_ms: m(|t| t.present_ms),
+            process_cpu_ms: m(|t| t.process_cpu_ms),
+            patches: m(|t| t.patches as f64) as usize,
+            triangles: m(|t| t.triangles as f64) as u64,
+            upload_mib: m(|t| t.upload_mib),
+            late_mib: m(|t| t.late_mib),
+            queued_mib: m(|t| t.queued_mib),
+            ..FrameTime::default()
         });
-        Self { frames, median }
+        let mut periods: Vec<f64> = later.iter().map(|t| t.period_ms).collect();
+        let period_p95_ms = quantile(&mut periods, 0.95);
+        let period_max_ms = periods.last().copied().unwrap_or(0.0);
+        let limit = 2.0 * median.as_ref().map_or(f64::INFINITY, |m| m.period_ms);
+        let slow = later
+            .iter()
+            .filter(|t| t.period_ms > limit)
+            .map(|t| {
+                let loading = t.stream_ms + t.pages_ms;
+                let cause = if t.waited_for_io || loading > 0.5 * t.period_ms {
+                    "loading"
+                } else if t.engine_ms - t.pages_ms > 0.5 * t.period_ms {
+                    "drawing"
+                } else {
+                    "viewer"
+                };
+                SlowFrame {
+                    frame: t.frame,
+                    period_ms: t.period_ms,
+                    waited_for_io: t.waited_for_io,
+                    stream_ms: t.stream_ms,
+                    pages_ms: t.pages_ms,
+                    late_mib: t.late_mib,
+                    queued_mib: t.queued_mib,
+                    cause,
+                }
+            })
+            .collect();
+        Self { frames, median, period_p95_ms, period_max_ms, slow }
     }
 }
 
@@ -418,8 +537,11 @@ struct StoreTerrain {
     overview: Heightmap,
     /// The store's georeference (its CRS places `lonlat:` cameras).
     georef: terrain_core::Georef,
-    /// A method or quality change being built on a worker while the current one draws.
+    /// A method or quality change being built on a worker while the current one draws (at
+    /// start: the first method, while the window shows the sky).
     job: Option<StoreJob>,
+    /// The runtime opened at start, until the first method's worker takes it.
+    scene: Option<ooc::OocScene>,
 }
 
 /// A store's method (its new runtime) and renderer, built on a worker thread with its first
@@ -438,27 +560,29 @@ struct StoreJob {
 }
 
 impl StoreTerrain {
-    fn open(
-        dir: &Path,
-        config: MethodConfig,
-        kind: LodMethod,
-        ctx: &GpuContext,
-        render_config: &RenderConfig,
-    ) -> anyhow::Result<Self> {
+    /// Opens the store (its index and level-4 overview, read before the window opens); no
+    /// method yet: [`StoreTerrain::rebuild`] builds the first one on a worker.
+    fn open(dir: &Path, config: MethodConfig) -> anyhow::Result<Self> {
         let scene = crate::render::open_store(dir, config.ooc)?;
         let overview = scene
             .overview(4)
             .with_context(|| format!("could not read the store {}", dir.display()))?;
         let georef = scene.store().header().georef.clone();
-        let method = method::store_method(kind, scene, &config, OocWait::FirstFrame, None)?;
-        let renderer = method.renderer(ctx, render_config)?;
-        let frames = Some(FrameLoop::new(method).rendered_by(renderer));
-        Ok(Self { dir: dir.to_path_buf(), config, frames, overview, georef, job: None })
+        Ok(Self {
+            dir: dir.to_path_buf(),
+            config,
+            frames: None,
+            overview,
+            georef,
+            job: None,
+            scene: Some(scene),
+        })
     }
 
-    /// Starts building `kind` with `config` over a new runtime of the same store on a worker
-    /// thread (a new method or parameter); the current method keeps drawing until
-    /// [`StoreTerrain::poll`] swaps it in. Both runtimes' caches are resident meanwhile.
+    /// Starts building `kind` with `config` on a worker thread over the runtime opened at
+    /// start (the first method) or a new runtime of the same store (a new method or
+    /// parameter); the current method, if any, keeps drawing until [`App::poll_store_job`]
+    /// swaps it in. Both runtimes' caches are resident meanwhile.
     fn rebuild(
         &mut self,
         kind: LodMethod,
@@ -473,9 +597,13 @@ impl StoreTerrain {
         }
         let (dir, ctx, rc, c) =
             (self.dir.clone(), ctx.clone(), render_config.clone(), config.clone());
+        let scene = self.scene.take();
         let handle = std::thread::Builder::new().name("view-store".into()).spawn(move || {
-            let scene = ooc::OocScene::open(&dir, c.ooc)
-                .with_context(|| format!("could not open the store {}", dir.display()))?;
+            let scene = match scene {
+                Some(s) => s,
+                None => ooc::OocScene::open(&dir, c.ooc)
+                    .with_context(|| format!("could not open the store {}", dir.display()))?,
+            };
             let mut method = method::store_method(kind, scene, &c, OocWait::FirstFrame, None)?;
             let mut renderer = method.renderer(&ctx, &rc)?;
             renderer.set_sun_direction(rc.sun_direction)?;
@@ -622,6 +750,8 @@ struct App {
     uploads: method::Uploads,
     last_frame: Option<Instant>,
     measure_next: bool,
+    /// The sky shown while a store's first method is built (made on first use).
+    sky: Option<wgpu::Texture>,
     error: Option<anyhow::Error>,
     quit: bool,
 }
@@ -1047,7 +1177,7 @@ impl App {
                     println!("view: quality: {p}");
                 }
                 println!(
-                    "view: store method {} ready; {} frames drawn meanwhile by the previous one",
+                    "view: store method {} ready; {} frames shown meanwhile",
                     job.kind.name(),
                     job.frames_meanwhile
                 );
@@ -1118,7 +1248,9 @@ impl App {
         let shot = self.run_script()?;
         // Input: flight playback, then keys, drag and wheel.
         let ground: &Heightmap = self.terrain.ground();
-        if let Some((p, yaw, pitch)) = self.flight.pop_front() {
+        // The flight waits for the store's first method (built on a worker at start).
+        let loading = matches!(&self.terrain, Terrain::Store(s) if s.frames.is_none());
+        if !loading && let Some((p, yaw, pitch)) = self.flight.pop_front() {
             self.camera.position = p;
             self.camera.yaw = yaw;
             self.camera.pitch = pitch;
@@ -1188,7 +1320,14 @@ impl App {
                 }
                 let f = frames.frame_drawn_from(index, &select, &eye, None)?;
                 self.uploads = frames.uploads();
-                (f, measure, Some(kind))
+                (Some(f), measure, Some(kind))
+            }
+            Terrain::Store(s) if s.frames.is_none() => {
+                // The first method is still being built on a worker: the sky is shown.
+                if measure {
+                    self.measure_next = true;
+                }
+                (None, false, None)
             }
             Terrain::Store(s) => {
                 let frames = s.frames.as_mut().context("the store's method was lost")?;
@@ -1198,10 +1337,12 @@ impl App {
                     self.ui.measured_p99 =
                         Some("n/a: a store has no full DEM in memory to measure against".into());
                 }
-                (f?, false, None)
+                (Some(f?), false, None)
             }
         };
-        self.record_stats(&frame, measured);
+        if let Some(f) = &frame {
+            self.record_stats(f, measured);
+        }
         // The panel, then present.
         let t_panel = Instant::now();
         let overlay = if self.ui.show { Some(self.panel()?) } else { None };
@@ -1213,9 +1354,10 @@ impl App {
                 let r = drawn_kind.and_then(|k| m.renderers.get(&k)).context("no renderer")?;
                 r.color_texture()
             }
-            Terrain::Store(s) => {
-                s.frames.as_mut().and_then(|f| f.renderer()).context("no renderer")?.color_texture()
-            }
+            Terrain::Store(s) => match s.frames.as_mut().and_then(|f| f.renderer()) {
+                Some(r) => r.color_texture(),
+                None => self.sky.get_or_insert_with(|| sky_texture(&self.ctx, &self.render_config)),
+            },
         };
         let presenter = self.presenter.as_mut().context("no window")?;
         let shot_image = presenter.present(
@@ -1245,17 +1387,32 @@ impl App {
             );
         }
         self.stats.viewer_ms = t0.elapsed().as_secs_f64() * 1e3;
+        let Some(frame) = frame else {
+            // No engine frame (the store's first method is being built): not logged.
+            return Ok(());
+        };
+        let r = &frame.record;
+        let stream = r.stream.clone();
         self.frame_times.push(FrameTime {
             frame: index,
             method: self.kind.name(),
             period_ms: 0.0,
             viewer_ms: self.stats.viewer_ms,
-            engine_ms: self.stats.engine_ms,
+            engine_ms: r.frame_ms,
+            cpu_ms: r.cpu_ms,
+            selection_ms: r.selection_ms,
+            stream_ms: stream.as_ref().map_or(0.0, |s| s.stream_ms),
+            pages_ms: frame.drawn.as_ref().map_or(0.0, |d| d.pages_ms),
             panel_ms,
             present_ms,
             process_cpu_ms: (terrain_app::bench::process_cpu_s() - cpu0) * 1e3,
             patches: self.stats.patches,
-            triangles: self.stats.triangles,
+            triangles: r.triangles,
+            upload_mib: r.upload_bytes.unwrap_or(0) as f64 / terrain_app::MIB,
+            late_mib: stream.as_ref().map_or(0.0, |s| s.late_mib),
+            queued_mib: stream.as_ref().map_or(0.0, |s| s.queued_mib),
+            waited_for_io: stream.as_ref().is_some_and(|s| s.waited_for_io),
+            stream,
             start: Some((t0, cpu0)),
         });
         self.frame_index += 1;
@@ -1321,6 +1478,41 @@ pub(crate) const ERROR_PX_RANGE: (f64, f64) = (0.25, 16.0);
 /// The slider's value when the method's own parameter rules (`--method-param`): the default
 /// preset's target.
 pub(crate) const ERROR_PX_DEFAULT: f64 = 2.0;
+
+/// A texture of the renderer's size in its background colour (the renderers' colour format):
+/// what the window shows before a store's first frame is ready.
+fn sky_texture(ctx: &GpuContext, config: &RenderConfig) -> wgpu::Texture {
+    let size =
+        wgpu::Extent3d { width: config.width, height: config.height, depth_or_array_layers: 1 };
+    let texture = ctx.device.create_texture(&wgpu::TextureDescriptor {
+        label: Some("view sky"),
+        size,
+        mip_level_count: 1,
+        sample_count: 1,
+        dimension: wgpu::TextureDimension::D2,
+        format: terrain_gpu::target::COLOR_FORMAT,
+        usage: wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_DST,
+        view_formats: &[],
+    });
+    let pixels = (config.width * config.height) as usize;
+    let data: Vec<u8> = config.background.iter().copied().cycle().take(4 * pixels).collect();
+    ctx.queue.write_texture(
+        wgpu::TexelCopyTextureInfo {
+            texture: &texture,
+            mip_level: 0,
+            origin: wgpu::Origin3d::ZERO,
+            aspect: wgpu::TextureAspect::All,
+        },
+        &data,
+        wgpu::TexelCopyBufferLayout {
+            offset: 0,
+            bytes_per_row: Some(4 * config.width),
+            rows_per_image: Some(config.height),
+        },
+        size,
+    );
+    texture
+}
 
 /// The direction towards the sun from its compass azimuth and elevation, degrees.
 fn sun_direction(az: f64, el: f64) -> [f64; 3] {
