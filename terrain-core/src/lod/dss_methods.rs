@@ -229,11 +229,17 @@ impl DssErrorTable {
                 }
                 let band = RowBand::new(start, w, &heights, &voids);
                 par.for_each_acc(&mut live, &|acc| acc.fill_vertices(&band));
-                // The tessellated vertices the window's rows need above it (for each factor,
-                // at most the top of the cell row the window ends in), read ahead in bands of
-                // consecutive wanted rows at most VERTEX_GAP apart.
+                // The coarse nodes take the step's rows (the rest of the window is look-ahead
+                // for their vertices).
+                let top = (start + step).min(h - 1);
+                let rows = (top + 1 - start) * w;
+                let samples = RowBand::new(start, w, &heights[..rows], &voids[..rows]);
+                // The tessellated vertices the step's rows need above the window (for each
+                // factor, at most the top of the cell row the step ends in, when that cell row
+                // is taller than the look-ahead), read ahead in bands of consecutive wanted
+                // rows at most VERTEX_GAP apart.
                 let mut wanted: Vec<usize> =
-                    live.iter().flat_map(|(_, a)| a.vertex_rows_until(end)).collect();
+                    live.iter().flat_map(|(_, a)| a.vertex_rows_until(top)).collect();
                 wanted.sort_unstable();
                 wanted.dedup();
                 let mut k = 0;
@@ -285,7 +291,7 @@ impl DssErrorTable {
                         v[(r.y0 / c) * *nx as usize + r.x0 / c] = e;
                     }
                 }
-                par.for_each_acc(&mut live, &|acc| acc.add_rows(&band));
+                par.for_each_acc(&mut live, &|acc| acc.add_rows(&samples));
                 for (key, acc) in live.iter().filter(|(_, a)| a.is_complete()) {
                     table[key & 63].1[key >> 6] = acc.finish().avg;
                 }
