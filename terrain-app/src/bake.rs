@@ -287,16 +287,11 @@ pub(crate) fn run(args: &BakeArgs) -> anyhow::Result<()> {
         (None, _) => None,
     };
     // The grid by bands of rows, when it is not in memory: the DEM's rows again, or the
-    // synthetic terrain generated again.
+    // synthetic terrain generated again, each band in chunks of rows on every core.
     let read = |j0: usize, n: usize, heights: &mut [f32], voids: &mut [bool]| {
-        match rows.as_ref() {
-            Some(reader) => reader.read_rows(j0 as u64, n, heights, voids)?,
-            None => {
-                source.read_rows(j0 as u64, n, heights)?;
-                source.read_void_rows(j0 as u64, n, voids)?;
-            }
-        }
-        Ok(())
+        debug_assert_eq!(heights.len(), n * source.width() as usize);
+        terrain_stream::read_rows_parallel(source, j0 as u64, heights, voids)?;
+        anyhow::Ok(())
     };
     if !args.no_roughness {
         stop_before("roughness pyramids")?;

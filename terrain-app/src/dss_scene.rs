@@ -13,7 +13,7 @@ use anyhow::Context;
 use glam::DVec2;
 use rayon::prelude::*;
 use terrain_core::Heightmap;
-use terrain_core::lod::{DssErrorTable, DssParallel};
+use terrain_core::lod::{DssErrorTable, DssParallel, RowsBudget};
 use terrain_core::metrics::Region;
 use terrain_core::metrics::dss::{FACTORS, ObjectErrorsAcc};
 use terrain_core::quadtree::{Quadtree, TreeShape};
@@ -90,7 +90,8 @@ impl DssParallel for Rayon {
 /// voids)` by bands of rows ([`DssErrorTable::from_rows`]: the same bytes as from the grid in
 /// memory, in memory bounded by a band and a coarse node row), with the quadtree of
 /// `leaf_cells` leaves; a band holds at most `max_band_bytes` of heights and void flags (5 bytes
-/// a sample; `terrain bake` gives a quarter of `--max-memory`), and at least two leaves' rows.
+/// a sample; `terrain bake` gives a quarter of `--max-memory`), and at least two leaves' rows,
+/// and the coarse levels' node rows accumulated at once take what the band leaves of it.
 /// Returns the table's path.
 pub fn bake_by_rows(
     width: u32,
@@ -106,12 +107,29 @@ pub fn bake_by_rows(
     let by_budget = usize::try_from(max_band_bytes / 5).unwrap_or(usize::MAX);
     let band =
         (BAND_SAMPLES.min(by_budget) / width.max(1) as usize).max(2 * leaf_cells as usize + 2);
+    // The coarse levels' node rows, accumulated in one sweep, in what the band leaves of the
+    // budget.
+    let band_bytes = (band * width as usize).saturating_mul(5);
+    let coarse_bytes =
+        usize::try_from(max_band_bytes).unwrap_or(usize::MAX).saturating_sub(band_bytes);
+    let budget = RowsBudget { band_rows: band, coarse_bytes };
     let bar = Progress::new("DSS errors", progress);
-    let (table, crc) =
-        DssErrorTable::from_rows(&shape, band, &mut read, &Rayon, &mut |f| bar.update(f, 1.0))?;
+    // Rows read, to say how many times the grid was read.
+    let mut rows_read = 0usize;
+    let mut counted = |j0: usize, n: usize, heights: &mut [f32], voids: &mut [bool]| {
+        rows_read += n;
+        read(j0, n, heights, voids)
+    };
+    let (table, crc) = DssErrorTable::from_rows(&shape, &budget, &mut counted, &Rayon, &mut |f| {
+        bar.update(f, 1.0)
+    })?;
     bar.finish();
     let bytes = table.encode_for(width, height, crc);
-    write(dir, &bytes, shape.max_level(), start, "by bands of rows")?;
+    let how = format!(
+        "by bands of rows, the grid read {:.2} times",
+        rows_read as f64 / f64::from(height.max(1))
+    );
+    write(dir, &bytes, shape.max_level(), start, &how)?;
     Ok(dss_path(dir))
 }
 

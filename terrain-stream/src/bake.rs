@@ -375,19 +375,7 @@ fn bake_into(
         let band = &mut band[..width * rows];
         let voids = &mut voids[..width * rows];
         // Read the band in parallel chunks of rows, heights and void flags in one read.
-        let chunk = rows.div_ceil(rayon::current_num_threads() * 2).max(1);
-        band.par_chunks_mut(width * chunk)
-            .zip(voids.par_chunks_mut(width * chunk))
-            .enumerate()
-            .try_for_each(|(c, (out, void))| {
-                let r0 = j0 + (c * chunk) as u64;
-                let n = out.len() / width;
-                source.read_rows_and_voids(r0, n, out, void).map_err(|e| BakeError::Source {
-                    j0: r0,
-                    rows: n,
-                    cause: e,
-                })
-            })?;
+        crate::source::read_rows_parallel(source, j0, band, voids)?;
         if let Some(p) = band.iter().position(|z| !z.is_finite()) {
             return Err(BakeError::Encoding(format!(
                 "sample ({}, {}) is not finite",

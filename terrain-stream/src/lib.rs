@@ -107,7 +107,7 @@ pub use format::{
 pub use glam;
 pub use lod::{DEFAULT_PATCH_CELLS, StoreTree, select_patches, select_streamed};
 pub use schedule::ScheduleConfig;
-pub use source::HeightSource;
+pub use source::{HeightSource, read_rows_parallel};
 pub use stats::{Fault, FrameStats, StatsSummary};
 pub use store::{BlockLevels, LoadedLevel, Store, is_store};
 pub use streamer::{ScheduledBlock, StreamConfig, Streamer, WaitReport};

@@ -1,6 +1,7 @@
 //! What a bake reads: [`HeightSource`], a grid delivered by rows, so that grids larger than
 //! memory (the 32769^2 synthetic terrain) stream through the bake in bounded memory.
 
+use rayon::prelude::*;
 use terrain_core::dem::RowReader;
 use terrain_core::georef::Georef;
 use terrain_core::heightmap::Heightmap;
@@ -37,6 +38,34 @@ pub trait HeightSource: Sync {
         self.read_rows(j0, rows, heights)?;
         self.read_void_rows(j0, rows, voids)
     }
+}
+
+/// Rows `j0 .. j0 + heights.len() / width` of `source`, heights and void flags, read in chunks
+/// of rows on rayon's threads (a synthetic source generates them, a file decodes them, on every
+/// core); the bytes are those of one [`HeightSource::read_rows_and_voids`] of the whole band.
+/// The error names the chunk that failed.
+pub fn read_rows_parallel(
+    source: &dyn HeightSource,
+    j0: u64,
+    heights: &mut [f32],
+    voids: &mut [bool],
+) -> Result<(), crate::BakeError> {
+    let width = usize::try_from(source.width()).unwrap_or(usize::MAX).max(1);
+    let rows = heights.len() / width;
+    let chunk = rows.div_ceil(rayon::current_num_threads() * 2).max(1);
+    heights
+        .par_chunks_mut(width * chunk)
+        .zip(voids.par_chunks_mut(width * chunk))
+        .enumerate()
+        .try_for_each(|(c, (out, void))| {
+            let r0 = j0 + (c * chunk) as u64;
+            let n = out.len() / width;
+            source.read_rows_and_voids(r0, n, out, void).map_err(|e| crate::BakeError::Source {
+                j0: r0,
+                rows: n,
+                cause: e,
+            })
+        })
 }
 
 fn check(w: u64, h: u64, j0: u64, rows: usize, len: usize) -> std::io::Result<()> {

@@ -237,6 +237,7 @@ impl DssErrorTable {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::lod::RowsBudget;
     use crate::quadtree::NodeId;
     use crate::synth::FractalConfig;
 
@@ -319,7 +320,12 @@ mod tests {
     }
 
     /// `hm` read back by rows, counting the largest band asked for.
-    fn by_rows(hm: &Heightmap, qt: &Quadtree, band: usize) -> (Vec<u8>, usize) {
+    fn by_rows(
+        hm: &Heightmap,
+        qt: &Quadtree,
+        band: usize,
+        coarse_bytes: usize,
+    ) -> (Vec<u8>, usize) {
         let w = hm.width();
         let mut largest = 0;
         let mut read = |j0: usize, n: usize, heights: &mut [f32], voids: &mut [bool]| {
@@ -330,9 +336,10 @@ mod tests {
             }
             Ok::<(), std::convert::Infallible>(())
         };
+        let budget = RowsBudget { band_rows: band, coarse_bytes };
         let (table, crc) = DssErrorTable::from_rows(
             qt.shape(),
-            band,
+            &budget,
             &mut read,
             &crate::lod::Sequential,
             &mut |_| {},
@@ -354,14 +361,24 @@ mod tests {
             let qt = Quadtree::new(&hm, 4);
             let whole = DssErrorTable::new(&hm, &qt).encode(&hm);
             // Bands of 2 rows: every level accumulated over bands; 10 and 20: the finer
-            // levels by windows, the coarser accumulated; 200: one window for all.
+            // levels by windows, the coarser accumulated; 200: one window for all. The coarse
+            // levels in one sweep (no byte bound), or one sweep each (1 byte).
             for band in [2, 3, 10, 20, 200] {
-                let (bytes, largest) = by_rows(&hm, &qt, band);
-                assert!(largest <= band, "band {band}: read {largest} rows at once");
-                assert_eq!(bytes.len(), whole.len());
-                let first = bytes.iter().zip(&whole).position(|(a, b)| a != b);
-                assert_eq!(first, None, "band {band}: first differing byte");
+                for coarse_bytes in [usize::MAX, 1] {
+                    let (bytes, largest) = by_rows(&hm, &qt, band, coarse_bytes);
+                    assert!(largest <= band, "band {band}: read {largest} rows at once");
+                    assert_eq!(bytes.len(), whole.len());
+                    let first = bytes.iter().zip(&whole).position(|(a, b)| a != b);
+                    assert_eq!(first, None, "band {band}, {coarse_bytes} B: first differing byte");
+                }
             }
+            // Negative control: one height changed, the table by rows differs.
+            let (w, h, mut data, mask, georef) = hm.clone().into_parts();
+            data[w * (h / 2) + w / 3] += 5.0;
+            let changed = Heightmap::new(w, h, data, mask, georef).unwrap();
+            let (bytes, _) = by_rows(&changed, &qt, 10, usize::MAX);
+            let errors = |b: &[u8]| b[HEADER_LEN..b.len() - 4].to_vec();
+            assert_ne!(errors(&bytes), errors(&whole), "a changed height changes the errors");
         }
     }
 

@@ -131,107 +131,115 @@ impl DssErrorTable {
 
     /// [`DssErrorTable::new`] for a grid that is not in memory: its rows are read through
     /// `read(j0, rows, heights, voids)` (full-width rows `j0..j0 + rows`, south first) in
-    /// bands of at most `band_rows` rows, and the result is the same table bit for bit (every
-    /// node is an [`ObjectErrorsAcc`], which gives [`object_errors`]'s bits whatever the
+    /// bands of at most `budget.band_rows` rows, and the result is the same table bit for bit
+    /// (every node is an [`ObjectErrorsAcc`], which gives [`object_errors`]'s bits whatever the
     /// bands). Also returns the heights' checksum ([`super::dss_file::heights_checksum`] of
     /// the rows read), which [`DssErrorTable::encode_for`] writes.
     ///
-    /// Levels whose nodes fit in a band (`cells + 2 <= band_rows`: the node's rows and the row
-    /// above its top vertices) are computed in one pass over windows of the coarsest such
-    /// level's node rows, each node whole from its window. A coarser node row is accumulated
-    /// over several bands: first its tessellated vertices from the bands holding their rows,
-    /// then its samples band by band, so each of these levels reads its rows about twice.
-    /// Memory: one band (`band_rows x width` samples), plus, for a coarse node row, each
-    /// node's vertices (at most 47,904 f64 for the 32 factors) and per-factor column tables
-    /// (about 2 KiB per sample column of the row). `par` spreads the nodes over threads
-    /// (terrain-core has none; [`Sequential`] runs them in order), `progress` gets the done
-    /// fraction.
+    /// One sweep over the rows, in bands of the coarsest *small* level's node rows (a small
+    /// level's nodes fit a band: `cells + 2 <= band_rows`, the node's rows and the row above
+    /// its top vertices), computes every small level's nodes whole from the band and, at the
+    /// same time, accumulates the node rows of every coarser level that the band crosses: a
+    /// coarse node row is created when the sweep reaches its first row and its samples added
+    /// band by band; its tessellated vertices are filled from the bands as they pass, and the
+    /// few a band needs above it (per factor, the top of the cell row the band ends in:
+    /// [`ObjectErrorsAcc::vertex_rows_until`]) are read ahead, once, in sparse bands shared by
+    /// every level. So the grid is read about once, plus those rows, whatever the number of
+    /// levels (the former per-level passes read it about twice per coarse level). The coarse node rows
+    /// held at once take about `budget.coarse_bytes` ([`ObjectErrorsAcc::bytes_estimate`]);
+    /// levels beyond that get a further sweep (at least one level per sweep). `par` spreads the
+    /// nodes over threads (terrain-core has none; [`Sequential`] runs them in order; every
+    /// node's sums run in the same order either way), `progress` gets the done fraction.
     pub fn from_rows<E>(
         shape: &TreeShape,
-        band_rows: usize,
+        budget: &RowsBudget,
         read: &mut ReadRows<'_, E>,
         par: &dyn DssParallel,
         progress: &mut dyn FnMut(f64),
     ) -> Result<(Self, u32), E> {
         let (w, h) = (shape.width() as usize, shape.height() as usize);
-        let band_rows = band_rows.max(2);
+        let band_rows = budget.band_rows.max(2);
         let levels = shape.max_level() as usize + 1;
         let mut table: Vec<(u32, Vec<[f64; FACTORS]>)> =
             Self::shape(shape).into_iter().map(|(nx, n)| (nx, vec![[0.0; FACTORS]; n])).collect();
         let cells = |level: usize| (shape.root_cells() >> level) as usize;
-        // Levels whose node rows fit a band, and the window: the coarsest one's node rows.
-        let small: Vec<usize> = (0..levels).filter(|&l| cells(l) + 2 <= band_rows).collect();
+        // Levels whose node rows fit half a band (computed whole from the sweep's window), and
+        // the others (coarsest first), accumulated.
+        let small: Vec<usize> = (0..levels).filter(|&l| 2 * cells(l) + 2 <= band_rows).collect();
+        let coarse: Vec<usize> = (0..levels).filter(|&l| 2 * cells(l) + 2 > band_rows).collect();
+        // The sweep's step: the coarsest small level's node side, or the largest power of two
+        // under half a band. Node sides are powers of two, so it divides every coarse node
+        // side: a coarse node row starts at a step. The window the sweep holds is a band of
+        // `band_rows` rows from the step's first row: the step, the row above the small nodes'
+        // top vertices, and at least a step of look-ahead for the coarse nodes' vertices.
+        let step = small.first().map_or_else(
+            || 1usize << (usize::BITS - 1 - ((band_rows - 1) / 2).max(1).leading_zeros()),
+            |&l| cells(l),
+        );
+        // The coarse levels in groups whose node rows fit `coarse_bytes` together.
+        let mut groups: Vec<Vec<usize>> = vec![Vec::new()];
+        let mut group_bytes = 0usize;
+        for &l in &coarse {
+            let c = cells(l);
+            let nx = shape.level_dims(l as u8).0 as usize;
+            let bytes = nx.saturating_mul(ObjectErrorsAcc::bytes_estimate(c.min(w - 1), c));
+            let last = groups.last_mut().expect("one group at least");
+            if !last.is_empty() && group_bytes.saturating_add(bytes) > budget.coarse_bytes {
+                groups.push(Vec::new());
+                group_bytes = 0;
+            }
+            groups.last_mut().expect("one group at least").push(l);
+            group_bytes = group_bytes.saturating_add(bytes);
+        }
+        let sweeps = groups.len() as f64;
         let mut checksum = super::dss_file::HeightsChecksum::new();
         let mut summed = 0usize; // rows added to the checksum
-        let mut sum_rows =
-            |band: &RowBand<'_>, upto: usize, checksum: &mut super::dss_file::HeightsChecksum| {
-                let last = (band.first_row() + band.rows()).min(upto);
-                for j in summed.max(band.first_row())..last {
-                    checksum.add_heights(band.row(j));
-                    checksum.add_voids(band.void_row(j));
-                }
-                summed = summed.max(last);
-            };
-        let total_rows = (levels * h).max(1) as f64;
-        let mut done_rows = 0usize;
-        let mut heights = Vec::new();
-        let mut voids = Vec::new();
-        let mut read_band = |j0: usize, n: usize, heights: &mut Vec<f32>, voids: &mut Vec<bool>| {
-            heights.resize(n * w, 0.0);
-            voids.resize(n * w, false);
-            read(j0, n, heights, voids)
-        };
-        if let Some(&coarsest) = small.first() {
-            let window = cells(coarsest);
+        // The sweep's window (rows `held.0..held.1`) and the look-ahead reads' band.
+        let (mut heights, mut voids) = (Vec::new(), Vec::new());
+        let (mut ahead_h, mut ahead_v) = (Vec::new(), Vec::new());
+        for (sweep, group) in groups.iter().enumerate() {
+            // Live coarse nodes: key = position in its level's table * 64 + level.
+            let mut live: Vec<(usize, ObjectErrorsAcc)> = Vec::new();
             let mut start = 0;
+            let mut held = (0usize, 0usize);
+            heights.clear();
+            voids.clear();
             while start + 1 < h {
-                let end = (start + window + 1).min(h - 1);
-                read_band(start, end - start + 1, &mut heights, &mut voids)?;
+                let end = (start + band_rows - 1).min(h - 1);
+                // The coarse node rows starting here.
+                for &l in group.iter().filter(|&&l| start.is_multiple_of(cells(l))) {
+                    let (c, t) = (cells(l), start / cells(l));
+                    let nx = table[l].0 as usize;
+                    live.extend((0..nx).filter_map(|i| {
+                        ObjectErrorsAcc::new(Region::new(i * c, start, c), w, h)
+                            .map(|a| (((t * nx + i) << 6) | l, a))
+                    }));
+                }
+                // Slide the window to `start..=end`: keep the rows held, read the new ones.
+                let drop = (start.min(held.1) - held.0) * w;
+                heights.drain(..drop);
+                voids.drain(..drop);
+                held = (start, held.1.max(start));
+                if end + 1 > held.1 {
+                    let (old, n) = (heights.len(), end + 1 - held.1);
+                    heights.resize(old + n * w, 0.0);
+                    voids.resize(old + n * w, false);
+                    read(held.1, n, &mut heights[old..], &mut voids[old..])?;
+                    held.1 = end + 1;
+                }
                 let band = RowBand::new(start, w, &heights, &voids);
-                // Every row of the grid passes through a window, in order.
-                let upto = if start + window + 1 >= h { h } else { start + window };
-                sum_rows(&band, upto, &mut checksum);
-                let mut regions = Vec::new();
-                for &l in &small {
-                    let c = cells(l);
-                    let (nx, _) = shape.level_dims(l as u8);
-                    for y0 in (start..start + window).step_by(c).take_while(|&y| y + 1 < h) {
-                        regions.extend((0..nx as usize).map(|i| (l, Region::new(i * c, y0, c))));
-                    }
-                }
-                let errors = par.map_regions(&regions, &|&(_, r)| {
-                    ObjectErrorsAcc::new(r, w, h).map_or([0.0; FACTORS], |mut acc| {
-                        acc.fill_vertices(&band);
-                        acc.add_rows(&band);
-                        acc.finish().avg
-                    })
-                });
-                for (&(l, r), e) in regions.iter().zip(errors) {
-                    let c = cells(l);
-                    let (nx, v) = &mut table[l];
-                    v[(r.y0 / c) * *nx as usize + r.x0 / c] = e;
-                }
-                done_rows += (upto - start) * small.len();
-                progress(done_rows as f64 / total_rows);
-                start += window;
-            }
-        }
-        for l in (0..levels).filter(|l| !small.contains(l)) {
-            let c = cells(l);
-            let (nx, ny) = shape.level_dims(l as u8);
-            for t in 0..ny as usize {
-                let y0 = t * c;
-                let mut accs: Vec<(usize, ObjectErrorsAcc)> = (0..nx as usize)
-                    .filter_map(|i| {
-                        ObjectErrorsAcc::new(Region::new(i * c, y0, c), w, h).map(|a| (i, a))
-                    })
-                    .collect();
-                let Some(y1) = accs.first().map(|(_, a)| a.clip().y1) else { continue };
-                // The vertices: row pairs (j, j + 1) for every wanted j, read in bands of
-                // consecutive wanted rows at most VERTEX_GAP apart (a coarse node's vertex
-                // rows are sparse: at most 649 pairs for the 32 factors whatever its size).
+                par.for_each_acc(&mut live, &|acc| acc.fill_vertices(&band));
+                // The coarse nodes take the step's rows (the rest of the window is look-ahead
+                // for their vertices).
+                let top = (start + step).min(h - 1);
+                let rows = (top + 1 - start) * w;
+                let samples = RowBand::new(start, w, &heights[..rows], &voids[..rows]);
+                // The tessellated vertices the step's rows need above the window (for each
+                // factor, at most the top of the cell row the step ends in, when that cell row
+                // is taller than the look-ahead), read ahead in bands of consecutive wanted
+                // rows at most VERTEX_GAP apart.
                 let mut wanted: Vec<usize> =
-                    accs.iter().flat_map(|(_, a)| a.vertex_rows()).collect();
+                    live.iter().flat_map(|(_, a)| a.vertex_rows_until(top)).collect();
                 wanted.sort_unstable();
                 wanted.dedup();
                 let mut k = 0;
@@ -244,31 +252,54 @@ impl DssErrorTable {
                     {
                         last += 1;
                     }
-                    let end = (wanted[last] + 1).min(h - 1);
-                    read_band(j0, end - j0 + 1, &mut heights, &mut voids)?;
-                    let band = RowBand::new(j0, w, &heights, &voids);
-                    par.for_each_acc(&mut accs, &|acc| acc.fill_vertices(&band));
+                    let n = (wanted[last] + 1).min(h - 1) - j0 + 1;
+                    ahead_h.resize(n * w, 0.0);
+                    ahead_v.resize(n * w, false);
+                    read(j0, n, &mut ahead_h, &mut ahead_v)?;
+                    let ahead = RowBand::new(j0, w, &ahead_h, &ahead_v);
+                    par.for_each_acc(&mut live, &|acc| acc.fill_vertices(&ahead));
                     k = last + 1;
                 }
-                // The samples, band by band, in order.
-                let mut j = y0;
-                while j <= y1 {
-                    let n = band_rows.min(y1 + 1 - j);
-                    read_band(j, n, &mut heights, &mut voids)?;
-                    let band = RowBand::new(j, w, &heights, &voids);
-                    if small.is_empty() && l == 0 {
-                        sum_rows(&band, h, &mut checksum);
+                if sweep == 0 {
+                    // Every row of the grid enters the checksum once, in order.
+                    let upto = if start + step + 1 >= h { h } else { start + step };
+                    for j in summed.max(start)..upto {
+                        checksum.add_heights(band.row(j));
+                        checksum.add_voids(band.void_row(j));
                     }
-                    par.for_each_acc(&mut accs, &|acc| acc.add_rows(&band));
-                    j += n;
-                    done_rows += n;
-                    progress(done_rows as f64 / total_rows);
+                    summed = summed.max(upto);
+                    // The small levels' nodes in this band, each whole.
+                    let mut regions = Vec::new();
+                    for &l in &small {
+                        let c = cells(l);
+                        let (nx, _) = shape.level_dims(l as u8);
+                        for y0 in (start..start + step).step_by(c).take_while(|&y| y + 1 < h) {
+                            regions
+                                .extend((0..nx as usize).map(|i| (l, Region::new(i * c, y0, c))));
+                        }
+                    }
+                    let errors = par.map_regions(&regions, &|&(_, r)| {
+                        ObjectErrorsAcc::new(r, w, h).map_or([0.0; FACTORS], |mut acc| {
+                            acc.fill_vertices(&band);
+                            acc.add_rows(&band);
+                            acc.finish().avg
+                        })
+                    });
+                    for (&(l, r), e) in regions.iter().zip(errors) {
+                        let c = cells(l);
+                        let (nx, v) = &mut table[l];
+                        v[(r.y0 / c) * *nx as usize + r.x0 / c] = e;
+                    }
                 }
-                let (nx, v) = &mut table[l];
-                for (i, acc) in &accs {
-                    v[t * *nx as usize + i] = acc.finish().avg;
+                par.for_each_acc(&mut live, &|acc| acc.add_rows(&samples));
+                for (key, acc) in live.iter().filter(|(_, a)| a.is_complete()) {
+                    table[key & 63].1[key >> 6] = acc.finish().avg;
                 }
+                live.retain(|(_, a)| !a.is_complete());
+                progress((sweep as f64 + (end + 1) as f64 / h as f64) / sweeps);
+                start += step;
             }
+            debug_assert!(live.is_empty(), "every coarse node row was completed");
         }
         assert_eq!(summed, h, "every row enters the heights' checksum once");
         Ok((Self { root_cells: shape.root_cells(), levels: table }, checksum.finish()))
@@ -389,6 +420,16 @@ fn select_dss(
     let rule: WishEdges = WishEdges { want };
     let inner = |n: NodeId, _: &[f32; 4]| [rule.want(n); 2];
     run::assemble(leaves, stats, &rule, inner, start)
+}
+
+/// How much of a grid [`DssErrorTable::from_rows`] holds at once.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct RowsBudget {
+    /// Rows per band read (at least 2).
+    pub band_rows: usize,
+    /// Bytes of the coarse levels' node rows accumulated at once, by
+    /// [`ObjectErrorsAcc::bytes_estimate`] (at least one level is, whatever this says).
+    pub coarse_bytes: usize,
 }
 
 /// Largest gap between vertex rows that [`DssErrorTable::from_rows`] reads through rather than

@@ -54,7 +54,8 @@ mod window;
 
 pub use dss_file::DssFileError;
 pub use dss_methods::{
-    DssConfig, DssErrorTable, DssParallel, Sequential, select_dss_power_of_two, select_dss_uniform,
+    DssConfig, DssErrorTable, DssParallel, RowsBudget, Sequential, select_dss_power_of_two,
+    select_dss_uniform,
 };
 pub use dss_strips::{
     DssStripFrame, DssStripsConfig, MBlock, PBlock, Strip, frame_from_leaves, select_dss_strips,

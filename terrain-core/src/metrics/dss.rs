@@ -368,6 +368,23 @@ impl ObjectErrorsAcc {
         Some(Self { clip, factors, next_row: y0, count: 0 })
     }
 
+    /// About how many bytes the accumulator of a region of `cx x cy` cells holds (its column
+    /// and row tables, the surface along a cell row and the used vertices, for the 32
+    /// factors), for callers that bound how many they keep at once.
+    pub fn bytes_estimate(cx: usize, cy: usize) -> usize {
+        (0..FACTORS)
+            .map(|k| {
+                let used = factor(k) + 1;
+                let per_col =
+                    size_of::<(usize, f64)>() + size_of::<(usize, usize)>() + 2 * size_of::<f64>();
+                let per_row = size_of::<(usize, f64)>();
+                let vertices = used.min(cx + 1) * used.min(cy + 1) * size_of::<f64>();
+                (cx + 1) * per_col + (cy + 1) * per_row + vertices + 2 * used * 40
+            })
+            .sum::<usize>()
+            + size_of::<Self>()
+    }
+
     /// The region clipped to the grid.
     pub fn clip(&self) -> ClippedRegion {
         self.clip
@@ -381,6 +398,33 @@ impl ObjectErrorsAcc {
             .iter()
             .flat_map(|fa| {
                 fa.row_at.iter().zip(&fa.row_filled).filter(|(_, f)| !**f).map(|(r, _)| r.0)
+            })
+            .collect();
+        out.sort_unstable();
+        out.dedup();
+        out
+    }
+
+    /// As [`ObjectErrorsAcc::vertex_rows`], only those that adding the region's rows up to
+    /// `last_row` (inclusive) needs: the vertex rows of the tessellated cell rows those sample
+    /// rows fall in (for each factor, at most one vertex row beyond `last_row`). A reader by
+    /// bands asks this before each band and reads ahead only these.
+    pub fn vertex_rows_until(&self, last_row: usize) -> Vec<usize> {
+        let clip = self.clip;
+        let last = last_row.min(clip.y1);
+        if last < self.next_row {
+            return Vec::new();
+        }
+        let (a, z) = (self.next_row - clip.y0, last - clip.y0);
+        let mut out: Vec<usize> = self
+            .factors
+            .iter()
+            .flat_map(|fa| {
+                (fa.rows[a].0..=fa.rows[z].0 + 1)
+                    .map(|b| fa.row_map[b])
+                    // Cell rows holding no sample row (a factor finer than the rows) use none.
+                    .filter(|&r| r != usize::MAX && !fa.row_filled[r])
+                    .map(|r| fa.row_at[r].0)
             })
             .collect();
         out.sort_unstable();
