@@ -201,7 +201,7 @@ fn a_bake_by_rows_writes_the_dss_errors_of_the_in_memory_bake_byte_for_byte() {
     let (whole, out, _) = bake_dss(&dir, "whole", &[s(&tif)]);
     assert!(out.contains("dss_errors.bin") && out.contains("(in memory)"), "{out}");
     let (rows, out, err) = bake_dss(&dir, "rows", &[s(&tif), "--stream"]);
-    assert!(out.contains("(by bands of rows)"), "{out}");
+    assert!(out.contains("(by bands of rows, the grid read 1.00 times)"), "{out}");
     assert!(err.contains("DSS errors: 100 %"), "progress shown: {err}");
     assert_eq!(rows.len(), whole.len());
     assert!(rows == whole, "the streamed table differs from the in-memory one");
@@ -215,7 +215,7 @@ fn a_bake_by_rows_writes_the_dss_errors_of_the_in_memory_bake_byte_for_byte() {
     assert!(pvs.join("dss_errors.bin").exists() && pvs.join("pvs.bin").exists());
     assert!(pvs.join("pvs_conservative.bin").exists());
     let (small, out, _) = bake_dss(&dir, "small", &[s(&tif), "--max-memory", "2MiB"]);
-    assert!(out.contains("(by bands of rows)"), "{out}");
+    assert!(out.contains("(by bands of rows, the grid read "), "{out}");
     assert!(small == whole, "the table under --max-memory differs");
     // Not a constant table: the comparison compares something.
     let qt = Quadtree::new(&load_whole(&tif, LoadOptions::default()), 16);
@@ -227,7 +227,7 @@ fn a_bake_by_rows_writes_the_dss_errors_of_the_in_memory_bake_byte_for_byte() {
     // is the in-memory table of the grid the row reader gives.
     let crater = data("crater_lake/craterlake-elev-16bit-30m.tif");
     let (got, out, _) = bake_dss(&dir, "crater", &[s(&crater), "--nodata", "-32767", "--stream"]);
-    assert!(out.contains("(by bands of rows)"), "{out}");
+    assert!(out.contains("(by bands of rows, the grid read "), "{out}");
     let opts = LoadOptions { nodata: Some(-32767.0), ..LoadOptions::default() };
     let reader = RowReader::open(&crater, &opts).unwrap();
     let (w, h) = (reader.width() as usize, reader.height() as usize);
