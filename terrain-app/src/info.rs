@@ -143,6 +143,10 @@ pub(crate) struct StoreReport {
     /// Whether the index holds the DSS paper's per-block errors (a bake with `--no-dss`, or
     /// `terrain demo`'s, skips them; `dss-1`, `dss-2` and `dss-strips` then refuse the store).
     pub dss_block_errors: bool,
+    /// Whether the index holds the fine maxima (index version 3: per deepest stored node, its
+    /// descendants' largest `StaticE` at each finer level), which `ooc`'s factor walk reads;
+    /// a version-2 index has none and the walk bounds those levels by the block's maximum.
+    pub fine_maxima: bool,
 }
 
 impl StoreReport {
@@ -186,6 +190,7 @@ impl StoreReport {
             bytes: index + store.blocks_bytes(),
             tables,
             dss_block_errors: store.has_dss_errors(),
+            fine_maxima: store.has_fine_errors(),
         })
     }
 
@@ -220,6 +225,13 @@ impl StoreReport {
             "none (baked without them: dss-1, dss-2 and dss-strips refuse this store)"
         };
         s += &format!("dss errors   {dss}\n");
+        let fine = if self.fine_maxima {
+            "yes (ooc's factor walk is exact below the stored node levels)"
+        } else {
+            "none (an index of format version 2: ooc bounds nodes below the stored levels by the \
+             block's per-level maximum and draws more triangles; bake again to add them)"
+        };
+        s += &format!("fine maxima  {fine}\n");
         s
     }
 }

@@ -154,8 +154,11 @@ fn bake_stores_the_dss_errors_and_bench_reads_them() {
     assert!(info.contains("dss errors   none (baked without them"), "{info}");
     let json: Value = serde_json::from_str(&ok(&terrain(&["info", "--json", s(&none)])).0).unwrap();
     assert_eq!(json["dss_block_errors"], Value::Bool(false), "{json}");
+    // Both bakes write the fine maxima `ooc`'s factor walk reads (index version 3).
+    assert_eq!(json["fine_maxima"], Value::Bool(true), "{json}");
     let (info, _) = ok(&terrain(&["info", s(&scene)]));
     assert!(info.contains("dss errors   per block in the index"), "{info}");
+    assert!(info.contains("fine maxima  yes"), "{info}");
     for method in ["dss-1", "dss-2", "dss-strips"] {
         let image = dir.join("refused.png");
         let r =

@@ -24,7 +24,7 @@ use crate::error::BakeError;
 use crate::format::{
     BLOCK_HEADER_LEN, BlockEntry, BlockId, Codec, DSS_FACTORS, DssBlockErrors, Header, INDEX_FILE,
     K_RANGE, LevelEntry, NodeValues, SampleEncoding, block_file_name, block_header, crc32,
-    node_count, write_index,
+    fine_count, node_count, write_index,
 };
 use crate::source::HeightSource;
 
@@ -571,6 +571,31 @@ fn bake_block(
             }
         }
     }
+    // The fine maxima: per deepest stored node, its descendants' largest StaticE per finer level.
+    let fine_errors = match node_levels.checked_sub(1) {
+        Some(top) if node_levels < k => {
+            let side = 1usize << top;
+            let mut out = Vec::with_capacity(fine_count(k, node_levels));
+            for j in 0..side {
+                for i in 0..side {
+                    for l in node_levels as usize..k as usize {
+                        let s = l - top as usize;
+                        let mut m = 0f64;
+                        if l < pyr.levels() {
+                            for dj in 0..1usize << s {
+                                for di in 0..1usize << s {
+                                    m = m.max(pyr.get(l, (i << s) + di, (j << s) + dj));
+                                }
+                            }
+                        }
+                        out.push(m as f32);
+                    }
+                }
+            }
+            out
+        }
+        _ => Vec::new(),
+    };
     // Payloads, written after a header whose bake id is patched in at the end of the bake.
     let predictive_ok = !matches!(quant.encoding, SampleEncoding::F32);
     let mut file = block_header(0, id);
@@ -597,6 +622,7 @@ fn bake_block(
             levels,
             nodes,
             level_errors,
+            fine_errors,
             dss,
         },
         max_err,

@@ -31,7 +31,7 @@ pub enum StoreError {
     },
     /// A store of another format version.
     #[error(
-        "{}: store format version {found}, this reader reads version {expected} only; bake the store again (`terrain bake`)",
+        "{}: store format version {found}, which this reader does not read (it writes version {expected}); bake the store again (`terrain bake`)",
         path.display()
     )]
     Version {

@@ -11,8 +11,10 @@
 //!   then one [`BlockEntry`] per block, row-major from the south-west block (extent, file
 //!   length, height range, per level `(offset, length, crc32)`, per-level maximum `StaticE`,
 //!   the 32 DSS mean then 32 DSS max errors (all 64 NaN in every block of a store baked
-//!   without them, `BakeConfig::dss_errors` false), per-node min/max/`StaticE`), then the
-//!   CRC-32 of everything before it.
+//!   without them, `BakeConfig::dss_errors` false), per-node min/max/`StaticE`, and (index
+//!   version 3, [`INDEX_VERSION`]) the fine maxima: per deepest stored node, its descendants'
+//!   largest `StaticE` at each finer level), then the CRC-32 of everything before it. A
+//!   version-2 index (no fine maxima) still opens.
 //! - `blocks/r{row}_c{col}.tsb`, one file per block: [`BLOCK_MAGIC`], [`VERSION`], the bake id
 //!   (which ties the file to its index), row and column, then the levels' payloads in level
 //!   order (level 0 first), each located by the index's `(offset, length, crc32)`.
@@ -37,9 +39,16 @@ use terrain_core::georef::{AngularOrLinear, Crs, Georef};
 pub const MAGIC: [u8; 8] = *b"TSTRIDX\0";
 /// Magic bytes of a block file.
 pub(crate) const BLOCK_MAGIC: [u8; 8] = *b"TSTRBLK\0";
-/// The format version this crate writes and reads. Version 2 added the DSS paper's 32
-/// object-space errors to every block entry; version-1 stores must be baked again.
+/// The block files' format version, which this crate writes and reads, and the oldest index
+/// version it reads. Version 2 added the DSS paper's 32 object-space errors to every block
+/// entry; version-1 stores must be baked again.
 pub(crate) const VERSION: u32 = 2;
+
+/// The index version this crate writes. Version 3 added, per block, the fine maxima
+/// ([`BlockEntry::fine_errors`]); a version-2 index (block files unchanged) still opens,
+/// without them (the factor walk then bounds nodes below the stored levels by the block's
+/// per-level maximum, as before).
+pub(crate) const INDEX_VERSION: u32 = 3;
 /// Name of the grid index file inside a store folder.
 pub const INDEX_FILE: &str = "index.tsi";
 /// Bytes of a block file's header: magic, version, bake id, row, column.
@@ -311,6 +320,12 @@ pub struct BlockEntry {
     /// Per quadtree level `l` in `0..k`: the largest `StaticE` of any node at that level
     /// (bounds every node below the stored node levels).
     pub level_errors: Vec<f32>,
+    /// The fine maxima: per node of the deepest stored level `L = node_levels - 1` (row-major
+    /// `j * 2^L + i`), `k - node_levels` values: at `l - node_levels`, the largest `StaticE` of
+    /// its descendants at level `l` (`node_levels <= l < k`). Empty in a version-2 index (or
+    /// when `node_levels` is 0 or `k`): nodes below the stored levels are then bounded by
+    /// `level_errors`.
+    pub fine_errors: Vec<f32>,
     /// The DSS paper's (Zhang 2019, section 3.3.1) 32 object-space errors of the whole block
     /// (its valid extent), precomputed by the bake with
     /// `terrain_core::metrics::dss::object_errors` from the stored heights; `None` in every
@@ -342,6 +357,19 @@ impl BlockEntry {
         self.nodes.get(base + j as usize * n + i as usize)
     }
 
+    /// The largest `StaticE` at level `l` (`node_levels <= l < k`) under node `(i, j)` of the
+    /// deepest stored level `node_levels - 1` ([`BlockEntry::fine_errors`]), if stored.
+    pub fn fine_error(&self, node_levels: u8, k: u8, i: u32, j: u32, l: u8) -> Option<f32> {
+        let top = node_levels.checked_sub(1)?;
+        let side = 1usize << top;
+        if l < node_levels || l >= k || i as usize >= side || j as usize >= side {
+            return None;
+        }
+        let per = (k - node_levels) as usize;
+        let o = (j as usize * side + i as usize) * per + (l - node_levels) as usize;
+        self.fine_errors.get(o).copied()
+    }
+
     /// Decoded bytes of levels `0..=level` in memory.
     pub fn resident_bytes(level: u8) -> u64 {
         (offset_end(level) as u64 + 1) * Header::SAMPLE_BYTES
@@ -350,6 +378,15 @@ impl BlockEntry {
     /// Stored bytes of levels `0..=level` on disk.
     pub fn disk_bytes(&self, level: u8) -> u64 {
         self.levels.iter().take(level as usize + 1).map(|l| l.len as u64).sum()
+    }
+}
+
+/// Number of fine maxima per block ([`BlockEntry::fine_errors`]) for block exponent `k` and
+/// `node_levels` stored node levels.
+pub(crate) fn fine_count(k: u8, node_levels: u8) -> usize {
+    match node_levels.checked_sub(1) {
+        Some(top) => (1usize << (2 * top as usize)) * k.saturating_sub(node_levels) as usize,
+        None => 0,
     }
 }
 
@@ -504,10 +541,11 @@ pub(crate) fn write_index(header: &Header, blocks: &[BlockEntry]) -> Vec<u8> {
             + b.level_errors.len() * 4
             + 2 * DSS_FACTORS * 4
             + b.nodes.len() * 12
+            + b.fine_errors.len() * 4
     });
     let mut w = Writer { buf: Vec::with_capacity(512 + blocks.len() * per_block) };
     w.bytes(&MAGIC);
-    w.u32(VERSION);
+    w.u32(INDEX_VERSION);
     w.u64(header.width);
     w.u64(header.height);
     w.u8(header.k);
@@ -556,6 +594,9 @@ pub(crate) fn write_index(header: &Header, blocks: &[BlockEntry]) -> Vec<u8> {
             w.f32(n.max);
             w.f32(n.static_error);
         }
+        for e in &b.fine_errors {
+            w.f32(*e);
+        }
     }
     let crc = crc32(&w.buf);
     w.u32(crc);
@@ -582,7 +623,7 @@ pub(crate) fn read_index(bytes: &[u8]) -> Result<(Header, Vec<BlockEntry>), Inde
         return Err(IndexError::BadMagic);
     }
     let version = u32::from_le_bytes([bytes[8], bytes[9], bytes[10], bytes[11]]);
-    if version != VERSION {
+    if !(VERSION..=INDEX_VERSION).contains(&version) {
         return Err(IndexError::Version(version));
     }
     if bytes.len() < 16 {
@@ -659,6 +700,7 @@ pub(crate) fn read_index(bytes: &[u8]) -> Result<(Header, Vec<BlockEntry>), Inde
         bake_id,
     };
     let n_blocks = header.block_count();
+    let fine = if version >= 3 { fine_count(k, node_levels) } else { 0 };
     let per_block = 4
         + 4
         + 8
@@ -666,7 +708,8 @@ pub(crate) fn read_index(bytes: &[u8]) -> Result<(Header, Vec<BlockEntry>), Inde
         + (k as usize + 1) * 16
         + k as usize * 4
         + 2 * DSS_FACTORS * 4
-        + node_count(node_levels) * 12;
+        + node_count(node_levels) * 12
+        + fine * 4;
     if r.remaining() != n_blocks * per_block {
         return Err(IndexError::Corrupt(format!(
             "{} bytes of block entries, expected {} for {n_blocks} blocks",
@@ -729,6 +772,10 @@ pub(crate) fn read_index(bytes: &[u8]) -> Result<(Header, Vec<BlockEntry>), Inde
         for _ in 0..node_count(node_levels) {
             nodes.push(NodeValues { min: r.f32()?, max: r.f32()?, static_error: r.f32()? });
         }
+        let fine_errors = (0..fine).map(|_| r.f32()).collect::<Result<Vec<_>, _>>()?;
+        if !fine_errors.iter().all(|v| v.is_finite() && *v >= 0.0) {
+            return Err(IndexError::Corrupt(format!("block {id}: bad fine maxima")));
+        }
         blocks.push(BlockEntry {
             valid_w,
             valid_h,
@@ -738,6 +785,7 @@ pub(crate) fn read_index(bytes: &[u8]) -> Result<(Header, Vec<BlockEntry>), Inde
             levels,
             nodes,
             level_errors,
+            fine_errors,
             dss,
         });
     }

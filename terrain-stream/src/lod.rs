@@ -54,8 +54,12 @@
 //!
 //! # Node values below the stored node levels
 //! Blocks store per-node min/max and `StaticE` down to [`Header::node_levels`]; below, the
-//! error is the smaller of the deepest stored ancestor's `StaticE` and the block's per-level
-//! maximum (both bound it, Eq. 3) and the height range is the ancestor's.
+//! error is the smaller of the deepest stored ancestor's `StaticE` and, with the index's fine
+//! maxima (version 3: per deepest stored node, its descendants' largest `StaticE` per finer
+//! level), that maximum, else the block's per-level maximum (all bound it, Eq. 3), and the
+//! height range is the ancestor's. With the fine maxima the factor walk's result equals the
+//! one over node values stored to full depth (`StaticE` is monotone, so a level's largest
+//! value decides whether any node there is over the threshold).
 
 use std::cell::Cell;
 use std::collections::HashMap;
@@ -128,17 +132,41 @@ fn local_values(h: &Header, e: &BlockEntry, n: NodeId) -> (f32, f32, f32) {
     {
         return (v.min, v.max, v.static_error);
     }
-    let bound = if n.level >= h.k {
-        0.0
-    } else {
-        e.level_errors.get(n.level as usize).copied().unwrap_or(0.0)
-    };
+    let bound = if n.level >= h.k { 0.0 } else { below_bound(h, e, n, n.level) };
     // The deepest stored ancestor (none when the store keeps no node values).
     let stored = (h.node_levels > 0).then(|| n.ancestor(n.level.min(h.node_levels - 1)));
     match stored.and_then(|a| e.node(a.level, a.i, a.j)) {
         Some(v) => (v.min, v.max, bound.min(v.static_error)),
         None => (e.min, e.max, bound),
     }
+}
+
+/// A bound on the `StaticE` of every descendant at level `l` (below the stored node levels,
+/// `l >= node_levels`) of block-local node `n`: with the fine maxima (index version 3), the
+/// largest of theirs over `n`'s deepest stored descendants (or its deepest stored ancestor's
+/// when `n` is below the stored levels), which is the exact maximum at `l`; without them, the
+/// block's per-level maximum `level_errors[l]`.
+fn below_bound(h: &Header, e: &BlockEntry, n: NodeId, l: u8) -> f32 {
+    let block_wide = || e.level_errors.get(l as usize).copied().unwrap_or(0.0);
+    if e.fine_errors.is_empty() || l < h.node_levels || l >= h.k {
+        return block_wide();
+    }
+    let top = h.node_levels - 1;
+    let fine = |a: NodeId| e.fine_error(h.node_levels, h.k, a.i, a.j, l);
+    if n.level >= top {
+        return fine(n.ancestor(top)).unwrap_or_else(block_wide);
+    }
+    let s = top - n.level;
+    let mut m = 0f32;
+    for j in n.j << s..(n.j + 1) << s {
+        for i in n.i << s..(n.i + 1) << s {
+            match fine(NodeId { level: top, i, j }) {
+                Some(v) => m = m.max(v),
+                None => return block_wide(),
+            }
+        }
+    }
+    m
 }
 
 /// Levels a patch's tessellation adds below its node at the largest factor
@@ -257,7 +285,10 @@ pub(crate) fn needed_vertex_level(
 ///
 /// `sub`, when given, holds for each stored level `l` (indexed by `l`, entries above
 /// `n.level` used) the largest `StaticE` of `n`'s descendants at `l` ([`StoreTree`]'s
-/// per-patch arrays): the walk is then one look per level instead of one per node.
+/// per-patch arrays), with the fine maxima for every level below `k` (then the walk is exact
+/// at every level, as with node values stored to full depth): the walk is then one look per
+/// level instead of one per node. Below the levels it covers, [`below_bound`] bounds the
+/// nodes.
 fn needed_level_below(
     h: &Header,
     e: &BlockEntry,
@@ -271,7 +302,8 @@ fn needed_level_below(
         return n.level;
     }
     // The deepest level the stored walk may reach.
-    let last = max_level.min(h.node_levels.saturating_sub(1)).max(n.level);
+    let walked = sub.map_or(h.node_levels, |s| (s.len() as u8).max(h.node_levels));
+    let last = max_level.min(walked.saturating_sub(1)).max(n.level);
     let mut stop = last;
     // A cheap bound first: no node at level `l` is over `limit` where the smaller of `n`'s
     // `StaticE` and the block's per-level maximum is not (both bound it, Eq. 3-5), so the walk
@@ -306,11 +338,13 @@ fn needed_level_below(
         // No over-threshold node at the next level (or the cap is reached).
         return (deepest + 1).min(max_level);
     }
-    // Below the stored levels every descendant has the same bound per level: the smaller of
-    // its stored ancestor's StaticE and the block's per-level maximum.
+    // Below the walked levels every descendant has the same bound per level: the smaller of
+    // the largest over-threshold StaticE there and `below_bound` (with the fine maxima the
+    // largest StaticE under `n` at that level; without, the block's per-level maximum).
     let mut level = deepest;
     while level < max_level {
-        let bound = e.level_errors.get(level as usize).copied().unwrap_or(0.0).min(worst);
+        let at = sub.and_then(|s| s.get(level as usize).copied());
+        let bound = at.unwrap_or_else(|| below_bound(h, e, n, level)).min(worst);
         if bound <= limit {
             break;
         }
@@ -508,14 +542,16 @@ fn upper_bounds(store: &Store, block_level: u8) -> (Vec<[f32; 2]>, Vec<f32>) {
 /// `patch_level` of every block of `store` (see `StoreTree::sub_max`), and the nodes per block.
 /// Computed once when the tree is built: for each such node and each deeper stored level, the
 /// maximum over its descendants there (each level's nodes read once per ancestor level).
-fn subtree_maxima(store: &Store, patch_level: u8) -> (Vec<f32>, usize) {
+fn subtree_maxima(store: &Store, patch_level: u8) -> (Vec<f32>, usize, usize) {
     let h = store.header();
     let levels = h.node_levels;
     if levels == 0 {
-        return (Vec::new(), 0);
+        return (Vec::new(), 0, 0);
     }
     let top = patch_level.min(levels - 1);
-    let per = levels as usize;
+    // With the fine maxima, every level below `k` (levels `node_levels..k` from them).
+    let fine = store.has_fine_errors() && levels < h.k;
+    let per = if fine { h.k as usize } else { levels as usize };
     let nodes = upper_index(NodeId { level: top + 1, i: 0, j: 0 });
     let mut out = vec![0f32; h.block_count() * nodes * per];
     for (p, id) in store.block_ids().enumerate() {
@@ -540,11 +576,16 @@ fn subtree_maxima(store: &Store, patch_level: u8) -> (Vec<f32>, usize) {
                         }
                         block[o + l as usize] = m;
                     }
+                    if fine {
+                        for l in levels..h.k {
+                            block[o + l as usize] = below_bound(h, e, n, l);
+                        }
+                    }
                 }
             }
         }
     }
-    (out, nodes)
+    (out, nodes, per)
 }
 
 /// The quadtree of a whole store's grid as a [`NodeSource`]: the root covers the blocks
@@ -568,12 +609,14 @@ pub struct StoreTree {
     /// bound on the error of every block under it drawn with its level-`l` vertices.
     upper_err: Vec<f32>,
     /// Per block (row-major position) and per stored node of local level at most the patch
-    /// level (`BlockEntry::nodes` order), `node_levels` values: at index `l`, the largest
-    /// `StaticE` of the node's descendants at stored level `l` (its own at its level; unused
-    /// above it). The leaves' factor walk (`needed_level_below`) reads one value per level.
+    /// level (`BlockEntry::nodes` order), `sub_per` values: at index `l`, the largest
+    /// `StaticE` of the node's descendants at level `l` (its own at its level; unused above
+    /// it), stored levels and, with the fine maxima, every level below `k`. The leaves' factor walk (`needed_level_below`) reads one value per level.
     sub_max: Vec<f32>,
     /// Nodes per block in `sub_max`.
     sub_nodes: usize,
+    /// Values per node in `sub_max`: `node_levels`, or `k` with the fine maxima.
+    sub_per: usize,
 }
 
 impl StoreTree {
@@ -594,7 +637,7 @@ impl StoreTree {
             h.georef.world_origin,
             h.georef.spacing_m,
         );
-        let (sub_max, sub_nodes) = subtree_maxima(&store, patch_level);
+        let (sub_max, sub_nodes, sub_per) = subtree_maxima(&store, patch_level);
         Self {
             store,
             shape,
@@ -605,6 +648,7 @@ impl StoreTree {
             upper_err,
             sub_max,
             sub_nodes,
+            sub_per,
         }
     }
 
@@ -817,7 +861,7 @@ impl StoreTree {
             return Some(self.block_level + max_level);
         }
         let limit = (view.tau / per_metre) as f32;
-        let per = h.node_levels as usize;
+        let per = self.sub_per;
         let sub = (local.level <= self.patch_level && local.level < h.node_levels)
             .then(|| {
                 let o = (h.block_position(b)? * self.sub_nodes + upper_index(local)) * per;

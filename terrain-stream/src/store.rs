@@ -10,8 +10,9 @@ use std::time::{Duration, Instant};
 use crate::codec::decode_level;
 use crate::error::StoreError;
 use crate::format::{
-    BLOCK_HEADER_LEN, BLOCK_MAGIC, BlockEntry, BlockId, Header, INDEX_FILE, IndexError, MAGIC,
-    SampleEncoding, VERSION, block_file_name, crc32, level_len, read_index, vertex_index,
+    BLOCK_HEADER_LEN, BLOCK_MAGIC, BlockEntry, BlockId, Header, INDEX_FILE, INDEX_VERSION,
+    IndexError, MAGIC, SampleEncoding, VERSION, block_file_name, crc32, level_len, read_index,
+    vertex_index,
 };
 
 /// An open store: the header and every block's index entry in memory, block files on disk.
@@ -44,7 +45,7 @@ impl Store {
         let (header, blocks) = read_index(&bytes).map_err(|e| match e {
             IndexError::BadMagic => StoreError::BadMagic { path: path.clone(), what: "index" },
             IndexError::Version(found) => {
-                StoreError::Version { path: path.clone(), found, expected: VERSION }
+                StoreError::Version { path: path.clone(), found, expected: INDEX_VERSION }
             }
             IndexError::Corrupt(message) => {
                 StoreError::CorruptIndex { path: path.clone(), message }
@@ -67,6 +68,16 @@ impl Store {
     /// (`BakeConfig::dss_errors`; every block has them or none does).
     pub fn has_dss_errors(&self) -> bool {
         self.blocks.first().is_some_and(|b| b.dss.is_some())
+    }
+
+    /// Whether the index holds the fine maxima ([`BlockEntry::fine_errors`], index version 3),
+    /// or needs none (node values stored down to the finest level). Without them (a version-2
+    /// index) nodes below the stored levels are bounded by the block's per-level maximum.
+    pub fn has_fine_errors(&self) -> bool {
+        let h = &self.header;
+        h.node_levels == 0
+            || h.node_levels >= h.k
+            || self.blocks.first().is_some_and(|b| !b.fine_errors.is_empty())
     }
 
     /// A block's index entry, or `None` outside the grid.

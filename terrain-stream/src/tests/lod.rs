@@ -70,7 +70,8 @@ fn cameras() -> Vec<Camera> {
 }
 
 /// The brute force's error bound of block-local node `n`: stored per node down to
-/// `node_levels`; below, the per-level maximum capped by the deepest stored ancestor's.
+/// `node_levels`; below, the deepest stored ancestor's fine maximum at `n`'s level (index
+/// version 3) or else the block's per-level maximum, capped by the ancestor's `StaticE`.
 fn bound(store: &Store, b: BlockId, n: NodeId) -> f64 {
     let h = store.header();
     let e = store.entry(b).unwrap();
@@ -79,8 +80,36 @@ fn bound(store: &Store, b: BlockId, n: NodeId) -> f64 {
     }
     let stored = n.level.min(h.node_levels - 1);
     let s = n.level - stored;
-    let anc = e.node(stored, n.i >> s, n.j >> s).unwrap().static_error as f64;
-    if n.level < h.node_levels { anc } else { anc.min(e.level_errors[n.level as usize] as f64) }
+    let (ai, aj) = (n.i >> s, n.j >> s);
+    let anc = e.node(stored, ai, aj).unwrap().static_error as f64;
+    if n.level < h.node_levels {
+        return anc;
+    }
+    let below = e.fine_error(h.node_levels, h.k, ai, aj, n.level);
+    anc.min(below.unwrap_or(e.level_errors[n.level as usize]) as f64)
+}
+
+/// A copy of store `from`'s folder at `to` whose index is of format version 2 (no fine
+/// maxima), as an earlier bake wrote it.
+fn as_version_2(from: &std::path::Path, to: &std::path::Path) -> Arc<Store> {
+    let _ = std::fs::remove_dir_all(to);
+    std::fs::create_dir_all(to.join("blocks")).unwrap();
+    for f in std::fs::read_dir(from.join("blocks")).unwrap() {
+        let p = f.unwrap().path();
+        std::fs::copy(&p, to.join("blocks").join(p.file_name().unwrap())).unwrap();
+    }
+    let (h, mut blocks) =
+        crate::format::read_index(&std::fs::read(from.join("index.tsi")).unwrap()).unwrap();
+    for e in &mut blocks {
+        e.fine_errors.clear();
+    }
+    let mut bytes = crate::format::write_index(&h, &blocks);
+    bytes[8..12].copy_from_slice(&2u32.to_le_bytes());
+    let body = bytes.len() - 4;
+    let crc = crate::format::crc32(&bytes[..body]);
+    bytes[body..].copy_from_slice(&crc.to_le_bytes());
+    std::fs::write(to.join("index.tsi"), bytes).unwrap();
+    Arc::new(Store::open(to).unwrap())
 }
 
 /// Eq. 7 per metre of error at the box of global node `n` (computed here from the tree's
@@ -516,4 +545,85 @@ fn patch_factor_from_level_maxima_equals_the_walk() {
     }
     assert!(compared > 1000, "{compared}");
     assert!(levels.len() >= 4, "levels reached: {levels:?}");
+}
+
+/// The fine maxima (index version 3) make the selection over node values stored to level 4 of
+/// 6 the same, patch for patch and factor for factor, as over node values stored to full
+/// depth (`node_levels` = `k`); the same store's version-2 index (no fine maxima, the block's
+/// per-level bound) still opens, draws at least as much, and its factor walk needs finer
+/// levels at some nodes (the negative control: the comparison sees a difference).
+#[test]
+fn fine_maxima_select_what_full_depth_node_values_select() {
+    // The ridges everywhere, the roughness in some 16-cell squares only: a block's largest
+    // error at a fine level is not every node's.
+    let hm = Heightmap::from_fn(257, 257, Georef::local(10.0), |i, j| {
+        let (x, y) = (i as f32, j as f32);
+        let rough = ((i / 16 + 2 * (j / 16)) % 5 == 0) as usize * ((i * 7 + j * 13) % 11);
+        (300.0 + 150.0 * (x * 0.05).sin() * (y * 0.04).cos() + rough as f32).round()
+    })
+    .unwrap();
+    let (full_dir, full) = bake_store(&hm, "full6", 6, 6);
+    let (fine_dir, fine) = bake_store(&hm, "fine6", 6, 4);
+    let v2_dir = scratch("fine6v2");
+    let v2 = as_version_2(&fine_dir, &v2_dir);
+    assert!(fine.has_fine_errors() && full.has_fine_errors() && !v2.has_fine_errors());
+    let all: HashMap<BlockId, u8> = fine.block_ids().map(|b| (b, 6)).collect();
+    let (mut compared, mut tris) = (0, [0f64; 2]);
+    for patch_cells in [4, 32] {
+        let trees = [&full, &fine, &v2].map(|s| StoreTree::new(s.clone(), patch_cells));
+        for cam in cameras() {
+            for tau in [0.5, 2.0, 8.0, 32.0] {
+                let [a, b, c] = trees
+                    .each_ref()
+                    .map(|t| select_patches(t, &cam, tau, |b| all.get(&b).copied()));
+                let key = |s: &Selection| {
+                    s.patches.iter().map(|p| (p.node, p.inner, p.outer)).collect::<Vec<_>>()
+                };
+                assert_eq!(key(&a), key(&b), "cells {patch_cells} tau {tau}");
+                check(&hm, &trees[1], &cam, tau, &all, &b);
+                let drawn = |s: &Selection| {
+                    s.patches.iter().map(|p| f64::from(p.inner[0]).powi(2)).sum::<f64>()
+                };
+                tris[0] += drawn(&b);
+                tris[1] += drawn(&c);
+                compared += a.patches.len();
+            }
+        }
+    }
+    // The free walk (the streamer's) too: equal to full depth at every stored node (below the
+    // stored levels a node takes its stored ancestor's maxima, a bound, not its own); the
+    // version-2 bounds make some nodes need finer levels.
+    let (h, hf) = (full.header().clone(), fine.header().clone());
+    let tree = StoreTree::new(fine.clone(), 4);
+    let mut walk_differ = 0;
+    for tau in [0.5, 2.0, 8.0] {
+        let view = View::new(&cameras()[0], tau);
+        for b in fine.block_ids() {
+            let (ef, ee, e2) =
+                (full.entry(b).unwrap(), fine.entry(b).unwrap(), v2.entry(b).unwrap());
+            for level in 0..hf.node_levels {
+                for j in 0..1u32 << level {
+                    for i in 0..1u32 << level {
+                        let n = NodeId { level, i, j };
+                        let Some(info) = tree.node_info(tree.global(b, n)) else { continue };
+                        let exact = needed_vertex_level(&h, ef, n, &info.aabb, &view, 6);
+                        assert_eq!(
+                            exact,
+                            needed_vertex_level(&hf, ee, n, &info.aabb, &view, 6),
+                            "{b} {n:?}"
+                        );
+                        let old = needed_vertex_level(&hf, e2, n, &info.aabb, &view, 6);
+                        assert!(old >= exact, "{b} {n:?}: version 2 {old} < {exact}");
+                        walk_differ += usize::from(old > exact);
+                    }
+                }
+            }
+        }
+    }
+    assert!(compared > 100, "{compared} patches");
+    assert!(walk_differ > 100, "the version-2 bounds changed {walk_differ} walks");
+    assert!(tris[1] >= tris[0], "version 2 draws {} against {}", tris[1], tris[0]);
+    for d in [full_dir, fine_dir, v2_dir] {
+        std::fs::remove_dir_all(d).unwrap();
+    }
 }

@@ -4,7 +4,7 @@
 use std::ops::ControlFlow;
 use std::path::{Path, PathBuf};
 
-use crate::format::{VERSION, block_file_name, vertex_index};
+use crate::format::{INDEX_VERSION, block_file_name, vertex_index};
 use crate::{
     BakeConfig, BakeError, BlockEntry, BlockId, Codec, HeightEncoding, Store, StoreError, bake,
 };
@@ -231,14 +231,14 @@ fn corrupt_truncated_changed_and_missing_files_are_typed_errors() {
     std::fs::write(&ip, &b).unwrap();
     assert!(matches!(
         Store::open(&out),
-        Err(StoreError::Version { found: 9, expected: VERSION, .. })
+        Err(StoreError::Version { found: 9, expected: INDEX_VERSION, .. })
     ));
     // A store of the previous format (version 1, before the DSS errors): a clear error.
     let mut b = index.clone();
     b[8..12].copy_from_slice(&1u32.to_le_bytes());
     std::fs::write(&ip, &b).unwrap();
     let err = Store::open(&out).unwrap_err();
-    assert!(matches!(err, StoreError::Version { found: 1, expected: 2, .. }), "{err:?}");
+    assert!(matches!(err, StoreError::Version { found: 1, expected: 3, .. }), "{err:?}");
     let msg = err.to_string();
     assert!(
         msg.contains("index.tsi") && msg.contains("version 1") && msg.contains("bake"),
