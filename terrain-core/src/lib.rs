@@ -29,6 +29,8 @@ pub mod metrics;
 pub mod points;
 pub mod quadtree;
 pub mod synth;
+#[cfg(test)]
+mod test_support;
 
 pub use error::{DemError, DemErrorKind};
 pub use georef::{Crs, Georef};

@@ -634,13 +634,7 @@ mod tests {
         let qt = cfg.quadtree(hm);
         let table = DssErrorTable::new(hm, &qt);
         let (w, h) = (hm.width() as f64, hm.height() as f64);
-        let mut x = 0x853c_49e6_748f_ea9bu64;
-        let mut unit = move || {
-            x ^= x << 13;
-            x ^= x >> 7;
-            x ^= x << 17;
-            (x >> 11) as f64 / (1u64 << 53) as f64
-        };
+        let mut unit = crate::test_support::unit_rng(0x853c_49e6_748f_ea9b);
         let (mut drawn, mut partial, mut empty) = (0, false, false);
         for k in 0..cameras {
             let g = hm.grid_to_world(-0.3 * w + 1.6 * w * unit(), -0.3 * h + 1.6 * h * unit());

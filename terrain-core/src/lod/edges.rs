@@ -292,32 +292,20 @@ mod tests {
 
     #[test]
     fn the_batch_resolver_equals_the_per_node_one() {
-        let mut x = 0x9e37_79b9_7f4a_7c15u64;
-        let mut unit = move || {
-            x ^= x << 13;
-            x ^= x >> 7;
-            x ^= x << 17;
-            (x >> 11) as f64 / (1u64 << 53) as f64
-        };
+        let mut unit = crate::test_support::unit_rng(0x9e37_79b9_7f4a_7c15);
         let (mut coarse, mut finer) = (0, 0);
-        for seed in 0..200 {
+        for seed in 0..200u64 {
             let max = 3 + (seed % 7) as u8;
             // Random leaves with culled holes, then balanced on even seeds.
-            let mut raw = Vec::new();
-            let mut stack = vec![NodeId::ROOT];
-            while let Some(n) = stack.pop() {
-                if n.level >= 2 && unit() < 0.05 {
-                    continue;
-                }
-                let p = if n.level < 2 { 1.0 } else { 0.8 - 0.07 * f64::from(n.level) };
-                if n.level < max && unit() < p {
-                    stack.extend(n.children().into_iter().rev());
-                } else {
-                    raw.push(n);
-                }
-            }
+            let side = 1u32 << max;
+            let (raw, contains) = crate::test_support::random_tree(
+                seed.wrapping_mul(0xbf58_476d_1ce4_e5b9),
+                max,
+                side,
+                side,
+            );
             let leaves =
-                if seed % 2 == 0 { crate::quadtree::balance_with(&raw, |_| true) } else { raw };
+                if seed % 2 == 0 { crate::quadtree::balance_with(&raw, contains) } else { raw };
             let mut rule = WishEdges::<RandomState>::default();
             let want: Vec<f32> = leaves
                 .iter()

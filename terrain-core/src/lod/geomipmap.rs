@@ -771,13 +771,7 @@ mod tests {
         let boxes = boxes(&scene, hm);
         let (w, h) = (hm.width() as f64, hm.height() as f64);
         let zmax = f64::from(hm.data().iter().copied().fold(f32::MIN, f32::max));
-        let mut x = 0x2545_f491_4f6c_dd1du64;
-        let mut unit = move || {
-            x ^= x << 13;
-            x ^= x >> 7;
-            x ^= x << 17;
-            (x >> 11) as f64 / (1u64 << 53) as f64
-        };
+        let mut unit = crate::test_support::unit_rng(0x2545_f491_4f6c_dd1d);
         let (mut drawn, mut some_culled, mut some_empty) = (0, false, false);
         for k in 0..cameras {
             let gx = -0.3 * w + 1.6 * w * unit();

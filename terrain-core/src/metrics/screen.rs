@@ -257,13 +257,8 @@ mod tests {
 
     #[test]
     fn sin_beta_equals_the_angle_s_sine() {
-        let mut x = 0x9e37_79b9_7f4a_7c15u64;
-        let mut unit = move || {
-            x ^= x << 13;
-            x ^= x >> 7;
-            x ^= x << 17;
-            (x >> 11) as f64 / (1u64 << 53) as f64 * 2.0 - 1.0
-        };
+        let mut uniform = crate::test_support::unit_rng(0x9e37_79b9_7f4a_7c15);
+        let mut unit = move || uniform() * 2.0 - 1.0;
         for k in 0..20_000 {
             let v = dvec3(unit(), unit(), unit());
             // Some nodes almost on the sight line (small beta: there `acos` of a cosine near 1

@@ -455,6 +455,7 @@ pub(super) fn facing_quadrants(side: Direction) -> [Quadrant; 2] {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::test_support::random_tree;
     use rustc_hash::FxHashSet;
 
     /// The former `balance_with`, kept as the reference: a work list popped deepest first,
@@ -517,38 +518,6 @@ mod tests {
         let mut out = Vec::new();
         facing(set, max, g, d.opposite(), &mut out);
         out
-    }
-
-    /// A random disjoint leaf set: each node splits with a probability that falls with depth
-    /// (sometimes deep, to force long ripples), some subtrees are culled (holes), and nodes
-    /// past a `w x h`-cell grid's east or north border (root of `2^max` cells) are absent.
-    fn random_tree(seed: u64, max: u8, w: u32, h: u32) -> (Vec<NodeId>, impl Fn(NodeId) -> bool) {
-        let mut x = seed | 1;
-        let mut unit = move || {
-            x ^= x << 13;
-            x ^= x >> 7;
-            x ^= x << 17;
-            (x >> 11) as f64 / (1u64 << 53) as f64
-        };
-        let contains = move |n: NodeId| {
-            let cells = 1u32 << (max - n.level);
-            n.i * cells < w && n.j * cells < h
-        };
-        let mut out = Vec::new();
-        let mut stack = vec![NodeId::ROOT];
-        while let Some(n) = stack.pop() {
-            if !contains(n) || (n.level >= 2 && unit() < 0.06) {
-                continue; // outside the grid, or culled
-            }
-            let p = if n.level < 2 { 1.0 } else { 0.75 - 0.06 * f64::from(n.level) };
-            if n.level < max && unit() < p {
-                stack.extend(n.children().into_iter().rev());
-            } else {
-                out.push(n);
-            }
-        }
-        out.sort_by_key(|n| n.dfs_key());
-        (out, contains)
     }
 
     #[test]

@@ -1,0 +1,48 @@
+//! What the crate's unit tests share: a seeded uniform generator and random leaf sets.
+
+use crate::quadtree::NodeId;
+
+/// Uniform numbers in `[0, 1)` from Marsaglia's xorshift64 (13, 7, 17) and the top 53 bits:
+/// deterministic and platform-independent. `seed` must be non-zero (xorshift's fixed point).
+pub(crate) fn unit_rng(seed: u64) -> impl FnMut() -> f64 {
+    assert_ne!(seed, 0, "xorshift needs a non-zero seed");
+    let mut x = seed;
+    move || {
+        x ^= x << 13;
+        x ^= x >> 7;
+        x ^= x << 17;
+        (x >> 11) as f64 / (1u64 << 53) as f64
+    }
+}
+
+/// A random disjoint leaf set, sorted by `dfs_key`: each node splits with a probability that
+/// falls with depth (sometimes deep, to force long ripples), some subtrees are culled (holes),
+/// and nodes past a `w x h`-cell grid's east or north border (root of `2^max` cells) are
+/// absent; also the grid's `contains`.
+pub(crate) fn random_tree(
+    seed: u64,
+    max: u8,
+    w: u32,
+    h: u32,
+) -> (Vec<NodeId>, impl Fn(NodeId) -> bool) {
+    let mut unit = unit_rng(seed | 1);
+    let contains = move |n: NodeId| {
+        let cells = 1u32 << (max - n.level);
+        n.i * cells < w && n.j * cells < h
+    };
+    let mut out = Vec::new();
+    let mut stack = vec![NodeId::ROOT];
+    while let Some(n) = stack.pop() {
+        if !contains(n) || (n.level >= 2 && unit() < 0.06) {
+            continue; // outside the grid, or culled
+        }
+        let p = if n.level < 2 { 1.0 } else { 0.75 - 0.06 * f64::from(n.level) };
+        if n.level < max && unit() < p {
+            stack.extend(n.children().into_iter().rev());
+        } else {
+            out.push(n);
+        }
+    }
+    out.sort_by_key(|n| n.dfs_key());
+    (out, contains)
+}
