@@ -403,16 +403,6 @@ struct FrameTimes {
     slow: Vec<SlowFrame>,
 }
 
-/// The `q` quantile (nearest rank) of `v`, sorted in place; 0 when empty.
-fn quantile(v: &mut [f64], q: f64) -> f64 {
-    if v.is_empty() {
-        return 0.0;
-    }
-    v.sort_by(f64::total_cmp);
-    let i = ((q * v.len() as f64).ceil() as usize).clamp(1, v.len()) - 1;
-    v[i]
-}
-
 impl FrameTimes {
     fn of(times: &[FrameTime]) -> Self {
         let mut frames = times.to_vec();
@@ -452,8 +442,8 @@ impl FrameTimes {
             ..FrameTime::default()
         });
         let mut periods: Vec<f64> = later.iter().map(|t| t.period_ms).collect();
-        let period_p95_ms = quantile(&mut periods, 0.95);
-        let period_max_ms = periods.last().copied().unwrap_or(0.0);
+        let period_max_ms = periods.iter().copied().fold(0.0, f64::max);
+        let period_p95_ms = terrain_core::measure::percentile(&mut periods, 0.95);
         let limit = 2.0 * median.as_ref().map_or(f64::INFINITY, |m| m.period_ms);
         let slow = later
             .iter()
