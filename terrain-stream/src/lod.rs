@@ -831,22 +831,15 @@ impl StoreTree {
         view: &View,
         max_level: u8,
     ) -> Option<u8> {
-        let (b, local) = self.block_of(n)?;
-        let h = self.store.header();
-        self.store.entry(b)?;
-        let max_level = max_level.min(h.k);
-        if local.level >= max_level {
-            return Some(self.block_level + local.level.min(max_level));
-        }
-        self.needed_vertex_level_at(n, view.rho_per_metre(aabb), view, max_level)
+        self.needed_vertex_level_at(n, || view.rho_per_metre(aabb), view, max_level)
     }
 
-    /// [`StoreTree::needed_vertex_level`] once Eq. 7's `rho` per metre at the node's box is
-    /// known (the split test computed it).
+    /// [`StoreTree::needed_vertex_level`] with Eq. 7's `rho` per metre at the node's box from
+    /// `per_metre` (the split test's when it computed it), asked only when the walk needs it.
     fn needed_vertex_level_at(
         &self,
         n: NodeId,
-        per_metre: f64,
+        per_metre: impl FnOnce() -> f64,
         view: &View,
         max_level: u8,
     ) -> Option<u8> {
@@ -857,6 +850,7 @@ impl StoreTree {
         if local.level >= max_level {
             return Some(self.block_level + local.level.min(max_level));
         }
+        let per_metre = per_metre();
         if !per_metre.is_finite() {
             return Some(self.block_level + max_level);
         }
@@ -1033,7 +1027,7 @@ pub fn select_patches(
             Some((b, local)) => {
                 let max = resident(b).unwrap_or(0);
                 let level = match (rho, aabb) {
-                    (Some(rho), _) => tree.needed_vertex_level_at(n, rho, &view, max),
+                    (Some(rho), _) => tree.needed_vertex_level_at(n, || rho, &view, max),
                     (None, Some(aabb)) => tree.needed_vertex_level(n, &aabb, &view, max),
                     (None, None) => None,
                 }
