@@ -20,7 +20,7 @@ pub use node::{Direction, NodeId, Quadrant};
 pub use pvps::{pvps_node_center, pvps_node_center_as_printed, pvps_patch_corners, pvps_span};
 pub use traverse::{
     AlwaysSplit, BoundingCircleCull, Cull, CullPolicy, FrustumCull, LeafSet, NoCull, NodeSource,
-    NodeTree, SplitPolicy, SplitToLevel, Visit, balance, balance_with, balance_with_set,
-    is_balanced, select, traverse,
+    NodeTree, SplitPolicy, SplitToLevel, Visit, balance, balance_with, is_balanced, select,
+    traverse,
 };
 pub use tree::{GridRect, NodeInfo, Quadtree, TreeShape};

@@ -390,17 +390,6 @@ pub fn balance_with(leaves: &[NodeId], contains: impl Fn(NodeId) -> bool) -> Vec
     LeafTree::balanced(leaves, contains).into_leaves()
 }
 
-/// [`balance_with`] and the balanced leaves as a [`LeafSet`] for neighbour lookup by node.
-/// (Neighbours by index: [`LeafTree::balanced`].)
-pub fn balance_with_set(
-    leaves: &[NodeId],
-    contains: impl Fn(NodeId) -> bool,
-) -> (Vec<NodeId>, LeafSet) {
-    let out = balance_with(leaves, contains);
-    let set = LeafSet::new(out.iter().copied());
-    (out, set)
-}
-
 /// Whether a node of a leaf set is a leaf or split (an ancestor of leaves).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 enum Exists {
@@ -543,9 +532,6 @@ mod tests {
             changed += usize::from(got != leaves);
             // The neighbour search of the new `LeafSet` against the old one on the result.
             let set = LeafSet::new(got.iter().copied());
-            let (again, from_balance) = balance_with_set(&leaves, &contains);
-            assert_eq!(again, got);
-            assert_eq!(from_balance.sorted(), got);
             let old: FxHashSet<NodeId> = got.iter().copied().collect();
             assert_eq!(set.len(), got.len());
             assert_eq!(set.sorted(), got);
@@ -554,7 +540,6 @@ mod tests {
                     let r = neighbours_reference(&old, n, d);
                     holes += usize::from(r.is_empty() && n.neighbour(d).is_some());
                     assert_eq!(set.neighbours(n, d), r, "seed {seed} {n:?} {d:?}");
-                    assert_eq!(from_balance.neighbours(n, d), r, "seed {seed} {n:?} {d:?}");
                 }
             }
         }
