@@ -173,29 +173,26 @@ pub fn bake(
     config: &BakeConfig,
     progress: &mut (dyn FnMut(&BakeProgress) -> ControlFlow<()> + Send),
 ) -> Result<BakeReport, BakeError> {
-    if !K_RANGE.contains(&config.k) {
-        return Err(BakeError::InvalidConfig(format!("k = {} is outside {K_RANGE:?}", config.k)));
-    }
-    match config.encoding {
-        HeightEncoding::Quantized { step_m, offset_m }
-            if !(step_m.is_finite() && step_m > 0.0 && offset_m.is_finite()) =>
-        {
-            return Err(BakeError::InvalidConfig(format!(
-                "quantization step {step_m} / offset {offset_m}"
-            )));
-        }
-        HeightEncoding::Bounded { max_error_m }
-            if !(max_error_m.is_finite() && max_error_m > 0.0) =>
-        {
-            return Err(BakeError::InvalidConfig(format!("error bound {max_error_m} m")));
-        }
-        _ => {}
-    }
-    let (w, h) = (source.width(), source.height());
-    if w == 0 || h == 0 {
-        return Err(BakeError::InvalidConfig(format!("empty source ({w} x {h})")));
-    }
-    check_output(out, config.overwrite)?;
+    let start = Instant::now();
+    let plan = Plan::new(source, config)?;
+    publish(out, config.overwrite, config.threads, crate::store::is_store, |tmp| {
+        let rows = bake_rows(source, tmp, &plan, config, 0..plan.blocks_y, progress)?;
+        finish(tmp, rows, start)
+    })
+}
+
+/// Runs `work` on a fresh temporary folder beside `out` (on `threads` workers, 0 = rayon's
+/// global pool) and renames it to `out` when it succeeds; removes it when it fails. An existing
+/// `out` is replaced only with `overwrite` and only when `is_ours` says it is what this kind
+/// of bake writes ([`check_output`]).
+pub(crate) fn publish<T: Send>(
+    out: &Path,
+    overwrite: bool,
+    threads: usize,
+    is_ours: fn(&Path) -> bool,
+    work: impl FnOnce(&Path) -> Result<T, BakeError> + Send,
+) -> Result<T, BakeError> {
+    check_output_of(out, overwrite, is_ours)?;
     let tmp = part_dir(out)?;
     // A `.NAME.part` folder is ours: left by a killed bake of the same output.
     if tmp.is_dir() {
@@ -205,9 +202,9 @@ pub fn bake(
         let _ = fs::remove_dir_all(&tmp);
         io_err(&tmp)(e)
     })?;
-    let mut run = || bake_into(source, &tmp, config, progress);
-    let result = if config.threads > 0 {
-        match rayon::ThreadPoolBuilder::new().num_threads(config.threads).build() {
+    let run = || work(&tmp);
+    let result = if threads > 0 {
+        match rayon::ThreadPoolBuilder::new().num_threads(threads).build() {
             Ok(pool) => pool.install(run),
             Err(e) => Err(BakeError::InvalidConfig(format!("thread pool: {e}"))),
         }
@@ -222,7 +219,7 @@ pub fn bake(
         }
     };
     // Checked again: the output may have appeared while we baked.
-    let replaced = check_output(out, config.overwrite)
+    let replaced = check_output_of(out, overwrite, is_ours)
         .and_then(
             |()| if out.exists() { fs::remove_dir_all(out).map_err(io_err(out)) } else { Ok(()) },
         )
@@ -247,6 +244,15 @@ fn part_dir(out: &Path) -> Result<PathBuf, BakeError> {
 /// is set. A file, or a folder that is not a store, is refused whatever `overwrite` says
 /// ([`BakeError::NotAStore`]): it may hold the user's files.
 pub fn check_output(out: &Path, overwrite: bool) -> Result<(), BakeError> {
+    check_output_of(out, overwrite, crate::store::is_store)
+}
+
+/// [`check_output`] for an output that `is_ours` recognises (a store, a shard's part).
+pub(crate) fn check_output_of(
+    out: &Path,
+    overwrite: bool,
+    is_ours: fn(&Path) -> bool,
+) -> Result<(), BakeError> {
     part_dir(out)?;
     let Ok(meta) = fs::metadata(out) else {
         // Nothing there (or a dangling link, which the rename replaces).
@@ -266,7 +272,7 @@ pub fn check_output(out: &Path, overwrite: bool) -> Result<(), BakeError> {
     if empty {
         return Ok(());
     }
-    if !crate::store::is_store(out) {
+    if !is_ours(out) {
         return Err(not_a_store("is a folder that is not a store"));
     }
     if !overwrite {
@@ -277,7 +283,7 @@ pub fn check_output(out: &Path, overwrite: bool) -> Result<(), BakeError> {
 
 /// Quantization parameters in force.
 #[derive(Debug, Clone, Copy)]
-struct Quant {
+pub(crate) struct Quant {
     encoding: SampleEncoding,
     bound: Option<f64>,
 }
@@ -333,43 +339,102 @@ pub(crate) fn block_k(k: u8, w: u64, h: u64) -> u8 {
     k.min(cells.trailing_zeros() as u8).max(*K_RANGE.start())
 }
 
-fn bake_into(
+/// The block grid and quantization of a bake: what every shard of it must agree on.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct Plan {
+    pub k: u8,
+    pub blocks_x: u64,
+    pub blocks_y: u64,
+    width: usize,
+    node_levels: u8,
+    quant: Quant,
+}
+
+impl Plan {
+    /// Checks the config and the source's size, and lays out the blocks.
+    pub(crate) fn new(source: &dyn HeightSource, config: &BakeConfig) -> Result<Self, BakeError> {
+        if !K_RANGE.contains(&config.k) {
+            return Err(BakeError::InvalidConfig(format!(
+                "k = {} is outside {K_RANGE:?}",
+                config.k
+            )));
+        }
+        match config.encoding {
+            HeightEncoding::Quantized { step_m, offset_m }
+                if !(step_m.is_finite() && step_m > 0.0 && offset_m.is_finite()) =>
+            {
+                return Err(BakeError::InvalidConfig(format!(
+                    "quantization step {step_m} / offset {offset_m}"
+                )));
+            }
+            HeightEncoding::Bounded { max_error_m }
+                if !(max_error_m.is_finite() && max_error_m > 0.0) =>
+            {
+                return Err(BakeError::InvalidConfig(format!("error bound {max_error_m} m")));
+            }
+            _ => {}
+        }
+        let (w, h) = (source.width(), source.height());
+        if w == 0 || h == 0 {
+            return Err(BakeError::InvalidConfig(format!("empty source ({w} x {h})")));
+        }
+        let k = block_k(config.k, w, h);
+        let cells = 1u64 << k;
+        let blocks_x = (w - 1).div_ceil(cells).max(1);
+        let blocks_y = (h - 1).div_ceil(cells).max(1);
+        if blocks_x > u32::MAX as u64 || blocks_y > u32::MAX as u64 {
+            return Err(BakeError::InvalidConfig("too many blocks".into()));
+        }
+        let width =
+            usize::try_from(w).map_err(|_| BakeError::InvalidConfig("width too large".into()))?;
+        let quant = match config.encoding {
+            HeightEncoding::Quantized { step_m, offset_m } => {
+                Quant { encoding: SampleEncoding::Quantized { step_m, offset_m }, bound: None }
+            }
+            HeightEncoding::Bounded { max_error_m } => Quant {
+                encoding: SampleEncoding::Quantized { step_m: 1.8 * max_error_m, offset_m: 0.0 },
+                bound: Some(max_error_m),
+            },
+            HeightEncoding::F32 => Quant { encoding: SampleEncoding::F32, bound: None },
+        };
+        Ok(Self { k, blocks_x, blocks_y, width, node_levels: config.node_levels.min(k), quant })
+    }
+}
+
+/// Blocks baked for some rows of the block grid: their entries (row-major) and what their
+/// encoding measured. The header's `bake_id` is 0 and its error fields are these rows' own:
+/// [`finish`] sets them for the whole store.
+#[derive(Debug, Clone)]
+pub(crate) struct BakedRows {
+    pub header: Header,
+    pub entries: Vec<BlockEntry>,
+    pub lossless: bool,
+    /// The error bound the encoding promised (`HeightEncoding::Bounded`), metres.
+    pub bound: Option<f64>,
+}
+
+/// Bakes block rows `rows` (a range of `0..plan.blocks_y`) of `source` into `dir/blocks`, their
+/// block files with a bake id of 0 (patched by [`finish`]).
+pub(crate) fn bake_rows(
     source: &dyn HeightSource,
     dir: &Path,
+    plan: &Plan,
     config: &BakeConfig,
+    rows: std::ops::Range<u64>,
     progress: &mut (dyn FnMut(&BakeProgress) -> ControlFlow<()> + Send),
-) -> Result<BakeReport, BakeError> {
-    let start = Instant::now();
+) -> Result<BakedRows, BakeError> {
     let (w, h) = (source.width(), source.height());
-    let k = block_k(config.k, w, h);
+    let Plan { k, blocks_x, width, node_levels, quant, .. } = *plan;
     let cells = 1u64 << k;
     let side = cells as usize + 1;
-    let blocks_x = (w - 1).div_ceil(cells).max(1);
-    let blocks_y = (h - 1).div_ceil(cells).max(1);
-    if blocks_x > u32::MAX as u64 || blocks_y > u32::MAX as u64 {
-        return Err(BakeError::InvalidConfig("too many blocks".into()));
-    }
-    let width =
-        usize::try_from(w).map_err(|_| BakeError::InvalidConfig("width too large".into()))?;
-    let node_levels = config.node_levels.min(k);
-    let quant = match config.encoding {
-        HeightEncoding::Quantized { step_m, offset_m } => {
-            Quant { encoding: SampleEncoding::Quantized { step_m, offset_m }, bound: None }
-        }
-        HeightEncoding::Bounded { max_error_m } => Quant {
-            encoding: SampleEncoding::Quantized { step_m: 1.8 * max_error_m, offset_m: 0.0 },
-            bound: Some(max_error_m),
-        },
-        HeightEncoding::F32 => Quant { encoding: SampleEncoding::F32, bound: None },
-    };
-    let total = (blocks_x * blocks_y) as usize;
-    let mut band = vec![0f32; width * side];
-    let mut voids = vec![false; width * side];
+    let total = (blocks_x * (rows.end - rows.start)) as usize;
+    let mut band = vec![0f32; if total == 0 { 0 } else { width * side }];
+    let mut voids = vec![false; band.len()];
     let mut entries: Vec<BlockEntry> = Vec::with_capacity(total);
     let (mut max_err, mut max_void_err, mut lossless) = (0f64, 0f64, true);
     let mut prog =
         BakeProgress { blocks_done: 0, blocks_total: total, rows_read: 0, bytes_written: 0 };
-    for by in 0..blocks_y {
+    for by in rows {
         let j0 = by * cells;
         let rows = (h - j0).min(side as u64) as usize;
         let band = &mut band[..width * rows];
@@ -412,7 +477,34 @@ fn bake_into(
             return Err(BakeError::Cancelled);
         }
     }
-    // The bake id ties block files to this index: FNV-1a over every level's checksum.
+    let header = Header {
+        width: w,
+        height: h,
+        k,
+        blocks_x: blocks_x as u32,
+        blocks_y: plan.blocks_y as u32,
+        encoding: quant.encoding,
+        codec: config.codec,
+        max_error_m: max_err,
+        max_void_error_m: max_void_err,
+        error_bound_m: 0.0,
+        node_levels,
+        georef: source.georef(),
+        bake_id: 0,
+    };
+    Ok(BakedRows { header, entries, lossless, bound: quant.bound })
+}
+
+/// Completes a store in `dir` whose block files (bake id 0) and entries, every row of the
+/// grid, are in `baked`: the bake id, an FNV-1a hash over every level's checksum, patched
+/// into every block file, then the index, written last.
+pub(crate) fn finish(
+    dir: &Path,
+    baked: BakedRows,
+    start: Instant,
+) -> Result<BakeReport, BakeError> {
+    let BakedRows { mut header, entries, lossless, bound } = baked;
+    debug_assert_eq!(entries.len(), header.block_count());
     let mut id = 0xcbf2_9ce4_8422_2325u64;
     for e in &entries {
         for l in &e.levels {
@@ -421,37 +513,24 @@ fn bake_into(
             }
         }
     }
-    for pos in 0..entries.len() {
-        let bid = BlockId::new((pos as u64 / blocks_x) as u32, (pos as u64 % blocks_x) as u32);
-        let path = dir.join(block_file_name(bid));
+    let bytes_written: u64 = entries.iter().map(|e| e.file_len).sum();
+    (0..entries.len()).into_par_iter().try_for_each(|pos| {
+        let path = dir.join(block_file_name(header.block_at(pos)));
         let mut f = fs::OpenOptions::new().write(true).open(&path).map_err(io_err(&path))?;
         f.seek(SeekFrom::Start(12)).map_err(io_err(&path))?;
-        f.write_all(&id.to_le_bytes()).map_err(io_err(&path))?;
-    }
-    let header = Header {
-        width: w,
-        height: h,
-        k,
-        blocks_x: blocks_x as u32,
-        blocks_y: blocks_y as u32,
-        encoding: quant.encoding,
-        codec: config.codec,
-        max_error_m: max_err,
-        max_void_error_m: max_void_err,
-        error_bound_m: quant.bound.unwrap_or(if lossless { 0.0 } else { max_err }),
-        node_levels,
-        georef: source.georef(),
-        bake_id: id,
-    };
+        f.write_all(&id.to_le_bytes()).map_err(io_err(&path))
+    })?;
+    header.bake_id = id;
+    header.error_bound_m = bound.unwrap_or(if lossless { 0.0 } else { header.max_error_m });
     let index = write_index(&header, &entries);
     let path = dir.join(INDEX_FILE);
     fs::write(&path, &index).map_err(io_err(&path))?;
-    let store_bytes = prog.bytes_written + index.len() as u64;
+    let source_samples = header.width * header.height;
     Ok(BakeReport {
         header,
-        store_bytes,
+        store_bytes: bytes_written + index.len() as u64,
         index_bytes: index.len() as u64,
-        source_samples: w * h,
+        source_samples,
         elapsed: start.elapsed(),
         lossless,
     })

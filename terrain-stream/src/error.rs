@@ -246,6 +246,19 @@ pub enum BakeError {
     /// The progress callback asked to stop.
     #[error("the bake was cancelled")]
     Cancelled,
+    /// A shard's part folder cannot be merged: unreadable, corrupt, or of another bake (another
+    /// source, other options, another grid or number of shards). The reason names what differs.
+    #[error("{}: {reason}", path.display())]
+    BadPart {
+        /// The part folder.
+        path: PathBuf,
+        /// Why.
+        reason: String,
+    },
+    /// The parts given to a merge are not every shard of one bake once: one is given twice or
+    /// some are missing (named).
+    #[error("merging parts: {0}")]
+    Shards(String),
     /// The DEM file could not be read ([`crate::bake_file`]); the error names the file.
     #[error(transparent)]
     Dem(#[from] terrain_core::DemError),

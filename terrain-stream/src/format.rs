@@ -532,20 +532,8 @@ fn read_georef(r: &mut Reader<'_>) -> Result<Georef, String> {
     Ok(g)
 }
 
-/// Serialises the index: magic, version, header, block entries, trailing CRC-32.
-pub(crate) fn write_index(header: &Header, blocks: &[BlockEntry]) -> Vec<u8> {
-    // Sized up front: the index of a big store is megabytes, and growing by doubling would
-    // hold two copies at once (the bake's peak memory).
-    let per_block = blocks.first().map_or(0, |b| {
-        24 + b.levels.len() * 16
-            + b.level_errors.len() * 4
-            + 2 * DSS_FACTORS * 4
-            + b.nodes.len() * 12
-            + b.fine_errors.len() * 4
-    });
-    let mut w = Writer { buf: Vec::with_capacity(512 + blocks.len() * per_block) };
-    w.bytes(&MAGIC);
-    w.u32(INDEX_VERSION);
+/// The header's fields, as the index stores them after its magic and version.
+pub(crate) fn write_header(w: &mut Writer, header: &Header) {
     w.u64(header.width);
     w.u64(header.height);
     w.u8(header.k);
@@ -568,35 +556,57 @@ pub(crate) fn write_index(header: &Header, blocks: &[BlockEntry]) -> Vec<u8> {
     w.f64(header.max_void_error_m);
     w.f64(header.error_bound_m);
     w.u8(header.node_levels);
-    write_georef(&mut w, &header.georef);
+    write_georef(w, &header.georef);
     w.u64(header.bake_id);
+}
+
+/// One block's entry, as the index stores it.
+pub(crate) fn write_entry(w: &mut Writer, b: &BlockEntry) {
+    w.u32(b.valid_w);
+    w.u32(b.valid_h);
+    w.u64(b.file_len);
+    w.f32(b.min);
+    w.f32(b.max);
+    for l in &b.levels {
+        w.u64(l.offset);
+        w.u32(l.len);
+        w.u32(l.crc32);
+    }
+    for e in &b.level_errors {
+        w.f32(*e);
+    }
+    match &b.dss {
+        Some(d) => d.avg.iter().chain(&d.max).for_each(|e| w.f32(*e)),
+        // Absent: NaN, which no measured error is.
+        None => (0..2 * DSS_FACTORS).for_each(|_| w.f32(f32::NAN)),
+    }
+    for n in &b.nodes {
+        w.f32(n.min);
+        w.f32(n.max);
+        w.f32(n.static_error);
+    }
+    for e in &b.fine_errors {
+        w.f32(*e);
+    }
+}
+
+/// Serialises the index: magic, version, header, block entries, trailing CRC-32.
+pub(crate) fn write_index(header: &Header, blocks: &[BlockEntry]) -> Vec<u8> {
+    // Sized up front: the index of a big store is megabytes, and growing by doubling would
+    // hold two copies at once (the bake's peak memory).
+    let per_block = blocks.first().map_or(0, |b| {
+        24 + b.levels.len() * 16
+            + b.level_errors.len() * 4
+            + 2 * DSS_FACTORS * 4
+            + b.nodes.len() * 12
+            + b.fine_errors.len() * 4
+    });
+    let mut w = Writer { buf: Vec::with_capacity(512 + blocks.len() * per_block) };
+    w.bytes(&MAGIC);
+    w.u32(INDEX_VERSION);
+    write_header(&mut w, header);
     for b in blocks {
-        w.u32(b.valid_w);
-        w.u32(b.valid_h);
-        w.u64(b.file_len);
-        w.f32(b.min);
-        w.f32(b.max);
-        for l in &b.levels {
-            w.u64(l.offset);
-            w.u32(l.len);
-            w.u32(l.crc32);
-        }
-        for e in &b.level_errors {
-            w.f32(*e);
-        }
-        match &b.dss {
-            Some(d) => d.avg.iter().chain(&d.max).for_each(|e| w.f32(*e)),
-            // Absent: NaN, which no measured error is.
-            None => (0..2 * DSS_FACTORS).for_each(|_| w.f32(f32::NAN)),
-        }
-        for n in &b.nodes {
-            w.f32(n.min);
-            w.f32(n.max);
-            w.f32(n.static_error);
-        }
-        for e in &b.fine_errors {
-            w.f32(*e);
-        }
+        write_entry(&mut w, b);
     }
     let crc = crc32(&w.buf);
     w.u32(crc);
@@ -617,27 +627,9 @@ impl From<String> for IndexError {
     }
 }
 
-/// Parses and checks an index.
-pub(crate) fn read_index(bytes: &[u8]) -> Result<(Header, Vec<BlockEntry>), IndexError> {
-    if bytes.len() < 12 || bytes[..8] != MAGIC {
-        return Err(IndexError::BadMagic);
-    }
-    let version = u32::from_le_bytes([bytes[8], bytes[9], bytes[10], bytes[11]]);
-    if !(VERSION..=INDEX_VERSION).contains(&version) {
-        return Err(IndexError::Version(version));
-    }
-    if bytes.len() < 16 {
-        return Err(IndexError::Corrupt("shorter than its checksum".into()));
-    }
-    let (body, tail) = bytes.split_at(bytes.len() - 4);
-    let stored = u32::from_le_bytes([tail[0], tail[1], tail[2], tail[3]]);
-    let computed = crc32(body);
-    if stored != computed {
-        return Err(IndexError::Corrupt(format!(
-            "checksum mismatch (stored {stored:08x}, computed {computed:08x})"
-        )));
-    }
-    let mut r = Reader::new(&body[12..]);
+/// The header's fields after the index's magic and version, checked (the grid of blocks
+/// covers the size, tags and values in range).
+pub(crate) fn read_header(r: &mut Reader<'_>) -> Result<Header, IndexError> {
     let width = r.u64()?;
     let height = r.u64()?;
     let k = r.u8()?;
@@ -682,9 +674,9 @@ pub(crate) fn read_index(bytes: &[u8]) -> Result<(Header, Vec<BlockEntry>), Inde
     if node_levels > k {
         return Err(IndexError::Corrupt(format!("{node_levels} node levels for k = {k}")));
     }
-    let georef = read_georef(&mut r)?;
+    let georef = read_georef(r)?;
     let bake_id = r.u64()?;
-    let header = Header {
+    Ok(Header {
         width,
         height,
         k,
@@ -698,7 +690,106 @@ pub(crate) fn read_index(bytes: &[u8]) -> Result<(Header, Vec<BlockEntry>), Inde
         node_levels,
         georef,
         bake_id,
-    };
+    })
+}
+
+/// One block's entry (`id` names it in errors), checked against the header: level offsets
+/// that tile the file, a sane extent and height range, errors that are finite.
+pub(crate) fn read_entry(
+    r: &mut Reader<'_>,
+    header: &Header,
+    id: BlockId,
+    fine: usize,
+) -> Result<BlockEntry, IndexError> {
+    let (k, node_levels) = (header.k, header.node_levels);
+    let valid_w = r.u32()?;
+    let valid_h = r.u32()?;
+    let file_len = r.u64()?;
+    let min = r.f32()?;
+    let max = r.f32()?;
+    let side = header.block_side();
+    if valid_w == 0
+        || valid_h == 0
+        || valid_w > side
+        || valid_h > side
+        || min.partial_cmp(&max).is_none_or(|o| o.is_gt())
+    {
+        return Err(IndexError::Corrupt(format!("block {id}: bad extent or height range")));
+    }
+    let mut levels = Vec::with_capacity(k as usize + 1);
+    let mut end = BLOCK_HEADER_LEN;
+    for l in 0..=k {
+        let e = LevelEntry { offset: r.u64()?, len: r.u32()?, crc32: r.u32()? };
+        if e.offset != end {
+            return Err(IndexError::Corrupt(format!(
+                "block {id} level {l}: offset {} != {end}",
+                e.offset
+            )));
+        }
+        end += e.len as u64;
+        levels.push(e);
+    }
+    if end != file_len {
+        return Err(IndexError::Corrupt(format!(
+            "block {id}: levels end at {end}, file length {file_len}"
+        )));
+    }
+    let level_errors = (0..k).map(|_| r.f32()).collect::<Result<Vec<_>, _>>()?;
+    let mut d = DssBlockErrors { avg: [0.0; DSS_FACTORS], max: [0.0; DSS_FACTORS] };
+    for v in d.avg.iter_mut().chain(d.max.iter_mut()) {
+        *v = r.f32()?;
+    }
+    let absent = d.avg.iter().chain(&d.max).all(|v| v.is_nan());
+    if !absent && !d.avg.iter().chain(&d.max).all(|v| v.is_finite() && *v >= 0.0) {
+        return Err(IndexError::Corrupt(format!("block {id}: bad DSS errors")));
+    }
+    let dss = (!absent).then_some(d);
+    let mut nodes = Vec::with_capacity(node_count(node_levels));
+    for _ in 0..node_count(node_levels) {
+        nodes.push(NodeValues { min: r.f32()?, max: r.f32()?, static_error: r.f32()? });
+    }
+    let fine_errors = (0..fine).map(|_| r.f32()).collect::<Result<Vec<_>, _>>()?;
+    if !fine_errors.iter().all(|v| v.is_finite() && *v >= 0.0) {
+        return Err(IndexError::Corrupt(format!("block {id}: bad fine maxima")));
+    }
+    Ok(BlockEntry {
+        valid_w,
+        valid_h,
+        file_len,
+        min,
+        max,
+        levels,
+        nodes,
+        level_errors,
+        fine_errors,
+        dss,
+    })
+}
+
+/// Parses and checks an index.
+pub(crate) fn read_index(bytes: &[u8]) -> Result<(Header, Vec<BlockEntry>), IndexError> {
+    if bytes.len() < 12 || bytes[..8] != MAGIC {
+        return Err(IndexError::BadMagic);
+    }
+    let version = u32::from_le_bytes([bytes[8], bytes[9], bytes[10], bytes[11]]);
+    if !(VERSION..=INDEX_VERSION).contains(&version) {
+        return Err(IndexError::Version(version));
+    }
+    if bytes.len() < 16 {
+        return Err(IndexError::Corrupt("shorter than its checksum".into()));
+    }
+    let (body, tail) = bytes.split_at(bytes.len() - 4);
+    let stored = u32::from_le_bytes([tail[0], tail[1], tail[2], tail[3]]);
+    let computed = crc32(body);
+    if stored != computed {
+        return Err(IndexError::Corrupt(format!(
+            "checksum mismatch (stored {stored:08x}, computed {computed:08x})"
+        )));
+    }
+    let mut r = Reader::new(&body[12..]);
+    let header = read_header(&mut r)?;
+    let k = header.k;
+    let node_levels = header.node_levels;
     let n_blocks = header.block_count();
     let fine = if version >= 3 { fine_count(k, node_levels) } else { 0 };
     let per_block = 4
@@ -720,74 +811,15 @@ pub(crate) fn read_index(bytes: &[u8]) -> Result<(Header, Vec<BlockEntry>), Inde
     let mut blocks = Vec::with_capacity(n_blocks);
     for pos in 0..n_blocks {
         let id = header.block_at(pos);
-        let valid_w = r.u32()?;
-        let valid_h = r.u32()?;
-        let file_len = r.u64()?;
-        let min = r.f32()?;
-        let max = r.f32()?;
-        let side = header.block_side();
-        if valid_w == 0
-            || valid_h == 0
-            || valid_w > side
-            || valid_h > side
-            || min.partial_cmp(&max).is_none_or(|o| o.is_gt())
-        {
-            return Err(IndexError::Corrupt(format!("block {id}: bad extent or height range")));
-        }
-        let mut levels = Vec::with_capacity(k as usize + 1);
-        let mut end = BLOCK_HEADER_LEN;
-        for l in 0..=k {
-            let e = LevelEntry { offset: r.u64()?, len: r.u32()?, crc32: r.u32()? };
-            if e.offset != end {
-                return Err(IndexError::Corrupt(format!(
-                    "block {id} level {l}: offset {} != {end}",
-                    e.offset
-                )));
-            }
-            end += e.len as u64;
-            levels.push(e);
-        }
-        if end != file_len {
-            return Err(IndexError::Corrupt(format!(
-                "block {id}: levels end at {end}, file length {file_len}"
-            )));
-        }
-        let level_errors = (0..k).map(|_| r.f32()).collect::<Result<Vec<_>, _>>()?;
-        let mut d = DssBlockErrors { avg: [0.0; DSS_FACTORS], max: [0.0; DSS_FACTORS] };
-        for v in d.avg.iter_mut().chain(d.max.iter_mut()) {
-            *v = r.f32()?;
-        }
-        let absent = d.avg.iter().chain(&d.max).all(|v| v.is_nan());
-        if !absent && !d.avg.iter().chain(&d.max).all(|v| v.is_finite() && *v >= 0.0) {
-            return Err(IndexError::Corrupt(format!("block {id}: bad DSS errors")));
-        }
-        let dss = (!absent).then_some(d);
+        let entry = read_entry(&mut r, &header, id, fine)?;
+        let dss = &entry.dss;
         // A store has the errors in every block or in none (one bake wrote them all).
         if blocks.first().is_some_and(|b: &BlockEntry| b.dss.is_some() != dss.is_some()) {
             return Err(IndexError::Corrupt(format!(
                 "block {id}: DSS errors present in some blocks only"
             )));
         }
-        let mut nodes = Vec::with_capacity(node_count(node_levels));
-        for _ in 0..node_count(node_levels) {
-            nodes.push(NodeValues { min: r.f32()?, max: r.f32()?, static_error: r.f32()? });
-        }
-        let fine_errors = (0..fine).map(|_| r.f32()).collect::<Result<Vec<_>, _>>()?;
-        if !fine_errors.iter().all(|v| v.is_finite() && *v >= 0.0) {
-            return Err(IndexError::Corrupt(format!("block {id}: bad fine maxima")));
-        }
-        blocks.push(BlockEntry {
-            valid_w,
-            valid_h,
-            file_len,
-            min,
-            max,
-            levels,
-            nodes,
-            level_errors,
-            fine_errors,
-            dss,
-        });
+        blocks.push(entry);
     }
     Ok((header, blocks))
 }

@@ -9,6 +9,9 @@
 //! - **Bake** a DEM file into a store in one call ([`bake_file`]: any format terrain-core
 //!   reads, large GeoTIFFs by bands of rows), or any [`HeightSource`] ([`bake`]); typed
 //!   [`BakeError`]s.
+//! - **Shard** a bake across processes or machines ([`bake_shard`]: shard `K/N` writes a part
+//!   folder of its block rows) and [`merge`] the parts into the store a single bake writes,
+//!   byte for byte; a merge refuses missing, duplicated or foreign parts by name.
 //! - **Open** a store ([`Store::open`], [`is_store`]): its [`Header`], per-block
 //!   [`BlockEntry`]s, positioned reads of one level ([`Store::read_block`]); typed
 //!   [`StoreError`]s naming the file.
@@ -88,6 +91,7 @@ mod error;
 mod format;
 mod lod;
 mod schedule;
+mod shard;
 mod source;
 mod stats;
 mod store;
@@ -107,6 +111,10 @@ pub use format::{
 pub use glam;
 pub use lod::{DEFAULT_PATCH_CELLS, StoreTree, select_patches, select_streamed};
 pub use schedule::ScheduleConfig;
+pub use shard::{
+    MergeConfig, PART_FILE, PartInfo, Shard, ShardReport, bake_options, bake_shard, find_parts,
+    is_part, merge, read_part,
+};
 pub use source::{HeightSource, read_rows_parallel};
 pub use stats::{Fault, FrameStats, StatsSummary};
 pub use store::{BlockLevels, LoadedLevel, Store, is_store};

@@ -3,6 +3,11 @@
 //! read by bands of rows (heights and void flags in one read), with one thread or several, gives
 //! the same store, every file byte for byte. A negative control (one sample changed) shows the
 //! comparison sees a difference.
+//!
+//! A sharded bake (`bake_shard` K/N, then `merge`) is the same store too, for N = 1..5, on a
+//! generated grid and one with voids (a negative control: one shard of a changed grid shows);
+//! a merge refuses missing, duplicated, foreign and damaged parts by name; a shard that died
+//! is baked again alone, the other parts untouched.
 
 use std::collections::BTreeMap;
 use std::io::Write;
@@ -12,7 +17,9 @@ use std::path::{Path, PathBuf};
 use terrain_core::dem::{Format, LoadOptions, RawSampleType, RawSpec, RowReader};
 use terrain_core::heightmap::Heightmap;
 use terrain_core::synth::FractalConfig;
-use terrain_stream::{BakeConfig, HeightSource, bake};
+use terrain_stream::{
+    BakeConfig, BakeError, HeightSource, MergeConfig, Shard, bake, bake_shard, find_parts, merge,
+};
 
 fn scratch(name: &str) -> PathBuf {
     let d =
@@ -101,6 +108,194 @@ fn a_bake_is_the_same_bytes_whatever_way_its_rows_arrive() {
     assert!(diff.contains("blocks") || diff.contains("index"), "{diff}");
 
     for d in [generated, in_memory, from_file, other, raw.parent().unwrap().to_path_buf()] {
+        let _ = std::fs::remove_dir_all(d);
+    }
+}
+
+// --- Sharded bakes: parts merged into the same bytes ------------------------------------------
+
+const SHARD_SOURCE: &str = "test grid";
+
+fn cfg() -> BakeConfig {
+    BakeConfig { k: 6, threads: 2, ..BakeConfig::default() }
+}
+
+/// Bakes shards `which` of `n` into `dir/pK`, returning their folders.
+fn bake_parts(source: &dyn HeightSource, dir: &Path, n: u32, which: &[u32]) -> Vec<PathBuf> {
+    which
+        .iter()
+        .map(|&k| {
+            let part = dir.join(format!("p{k}"));
+            let shard = Shard::new(k, n).unwrap();
+            bake_shard(source, &part, &cfg(), shard, SHARD_SOURCE, &mut |_| {
+                ControlFlow::Continue(())
+            })
+            .unwrap();
+            part
+        })
+        .collect()
+}
+
+fn merge_into(parts: &[PathBuf], out: &Path) -> Result<terrain_stream::BakeReport, BakeError> {
+    let config = MergeConfig {
+        source_id: Some(SHARD_SOURCE.into()),
+        bake: Some(cfg()),
+        ..MergeConfig::default()
+    };
+    merge(parts, out, &config, &mut |_| ControlFlow::Continue(()))
+}
+
+/// A 301 x 203 grid (padded east and north blocks) with a void rectangle across a block edge.
+fn grid_with_voids() -> Heightmap {
+    let hm = FractalConfig::with_size(301, 203, 10.0).to_heightmap().unwrap();
+    let mut voids = terrain_core::heightmap::VoidMask::new(301, 203);
+    for j in 50..90 {
+        for i in 40..150 {
+            voids.set(i, j, true);
+        }
+    }
+    Heightmap::new(301, 203, hm.data().to_vec(), voids, hm.georef().clone()).unwrap()
+}
+
+#[test]
+fn a_merged_store_is_the_bytes_of_a_single_bake() {
+    let synth = FractalConfig::with_size(301, 203, 10.0);
+    let voids = grid_with_voids();
+    let sources: [(&str, &dyn HeightSource); 2] = [("generated", &synth), ("voids", &voids)];
+    for (name, source) in sources {
+        let single = scratch(&format!("single-{name}"));
+        bake(source, &single, &cfg(), &mut |_| ControlFlow::Continue(())).unwrap();
+        // 4 block rows: N = 4 is one row a shard, N = 5 leaves a shard empty.
+        for n in 1..=5u32 {
+            let dir = scratch(&format!("shards-{name}-{n}"));
+            let parts = bake_parts(source, &dir, n, &(0..n).collect::<Vec<_>>());
+            let out = dir.join("merged");
+            // Given in reverse: the merge orders the parts by shard.
+            let reversed: Vec<PathBuf> = parts.iter().rev().cloned().collect();
+            merge_into(&reversed, &out).unwrap();
+            assert_eq!(first_difference(&single, &out), None, "{name}, {n} shards");
+            // A folder of parts is found whole.
+            assert_eq!(find_parts(&dir).unwrap(), parts, "{name}, {n} shards");
+            let _ = std::fs::remove_dir_all(dir);
+        }
+        let _ = std::fs::remove_dir_all(single);
+    }
+
+    // Negative control: shard 1 of 2 baked from a grid with one sample 5 m higher (and the
+    // same source id, so the merge cannot tell) gives a store that differs from the single bake.
+    let hm = synth.to_heightmap().unwrap();
+    let mut data = hm.data().to_vec();
+    data[150 * 301 + 77] += 5.0;
+    let changed = Heightmap::new(301, 203, data, hm.voids().clone(), hm.georef().clone()).unwrap();
+    let single = scratch("single-control");
+    bake(&synth, &single, &cfg(), &mut |_| ControlFlow::Continue(())).unwrap();
+    let dir = scratch("shards-control");
+    let mut parts = bake_parts(&synth, &dir, 2, &[0]);
+    let other = scratch("shards-control-changed");
+    parts.extend(bake_parts(&changed, &other, 2, &[1]));
+    merge_into(&parts, &dir.join("merged")).unwrap();
+    let diff = first_difference(&single, &dir.join("merged")).expect("a changed sample shows");
+    assert!(diff.contains("blocks") || diff.contains("index"), "{diff}");
+    for d in [single, dir, other] {
+        let _ = std::fs::remove_dir_all(d);
+    }
+}
+
+/// Every file of a folder with its modification time, to show a folder was left alone.
+fn snapshot(dir: &Path) -> Vec<(String, Vec<u8>, std::time::SystemTime)> {
+    files(dir)
+        .into_iter()
+        .map(|(name, bytes)| {
+            let t = std::fs::metadata(dir.join(&name)).unwrap().modified().unwrap();
+            (name, bytes, t)
+        })
+        .collect()
+}
+
+#[test]
+fn a_merge_refuses_missing_duplicated_and_foreign_parts_by_name() {
+    let synth = FractalConfig::with_size(301, 203, 10.0);
+    let dir = scratch("refusals");
+    let parts = bake_parts(&synth, &dir, 3, &[0, 1, 2]);
+    let out = dir.join("merged");
+    let err = |parts: &[PathBuf]| merge_into(parts, &out).unwrap_err().to_string();
+
+    let e = err(&[parts[0].clone(), parts[2].clone()]);
+    assert!(e.contains("shard 1/3 missing"), "{e}");
+    let e = err(&[parts[0].clone(), parts[1].clone(), parts[1].clone(), parts[2].clone()]);
+    assert!(e.contains("shard 1/3 is given twice") && e.contains("p1"), "{e}");
+
+    // Another source (its id), other options, another shard count: named by their folder.
+    let foreign = scratch("refusals-foreign");
+    let shard = Shard::new(1, 3).unwrap();
+    let go = &mut |_: &_| ControlFlow::Continue(());
+    let other_dem = foreign.join("other-dem");
+    bake_shard(&synth, &other_dem, &cfg(), shard, "another DEM", go).unwrap();
+    let e = err(&[parts[0].clone(), other_dem.clone(), parts[2].clone()]);
+    assert!(e.contains("other-dem") && e.contains("another source"), "{e}");
+    let other_opts = foreign.join("other-options");
+    let no_dss = BakeConfig { dss_errors: false, ..cfg() };
+    bake_shard(&synth, &other_opts, &no_dss, shard, SHARD_SOURCE, go).unwrap();
+    let e = err(&[parts[0].clone(), other_opts.clone(), parts[2].clone()]);
+    assert!(e.contains("other-options") && e.contains("other options"), "{e}");
+    let other_n = foreign.join("other-n");
+    bake_shard(&synth, &other_n, &cfg(), Shard::new(1, 2).unwrap(), SHARD_SOURCE, go).unwrap();
+    let e = err(&[parts[0].clone(), other_n, parts[2].clone()]);
+    assert!(e.contains("other-n") && e.contains("2-shard"), "{e}");
+    // A part whose block file was damaged after it was published.
+    let damaged = foreign.join("damaged");
+    bake_shard(&synth, &damaged, &cfg(), shard, SHARD_SOURCE, go).unwrap();
+    let block = std::fs::read_dir(damaged.join("blocks")).unwrap().next().unwrap().unwrap().path();
+    let mut bytes = std::fs::read(&block).unwrap();
+    let last = bytes.len() - 1;
+    bytes[last] ^= 0x55;
+    std::fs::write(&block, bytes).unwrap();
+    let e = err(&[parts[0].clone(), damaged, parts[2].clone()]);
+    assert!(e.contains("damaged") && e.contains("checksum"), "{e}");
+    // Nothing was published by the refused merges, and a bad `K/N` is refused.
+    assert!(!out.exists());
+    assert!("3/3".parse::<Shard>().is_err() && "1-3".parse::<Shard>().is_err());
+    assert_eq!("2/3".parse::<Shard>().unwrap(), Shard::new(2, 3).unwrap());
+    for d in [dir, foreign] {
+        let _ = std::fs::remove_dir_all(d);
+    }
+}
+
+#[test]
+fn a_dead_shard_is_baked_again_alone() {
+    let synth = FractalConfig::with_size(301, 203, 10.0);
+    let single = scratch("dead-single");
+    bake(&synth, &single, &cfg(), &mut |_| ControlFlow::Continue(())).unwrap();
+    let dir = scratch("dead");
+    let parts = bake_parts(&synth, &dir, 3, &[0, 2]);
+    // Shard 1 dies: cancelled after its first row, it publishes nothing; a killed process
+    // leaves its half-written `.p1.part` folder, which the merge skips.
+    let p1 = dir.join("p1");
+    let died =
+        bake_shard(&synth, &p1, &cfg(), Shard::new(1, 3).unwrap(), SHARD_SOURCE, &mut |_| {
+            ControlFlow::Break(())
+        });
+    assert!(matches!(died, Err(BakeError::Cancelled)), "{died:?}");
+    assert!(!p1.exists());
+    std::fs::create_dir_all(dir.join(".p1.part/blocks")).unwrap();
+    std::fs::write(dir.join(".p1.part/blocks/r00001_c00000.tsb"), b"half").unwrap();
+    let found = find_parts(&dir).unwrap();
+    assert_eq!(found, parts);
+    let e = merge_into(&found, &dir.join("merged")).unwrap_err().to_string();
+    assert!(e.contains("shard 1/3 missing"), "{e}");
+
+    let before: Vec<_> = parts.iter().map(|p| snapshot(p)).collect();
+    std::thread::sleep(std::time::Duration::from_millis(20));
+    bake_parts(&synth, &dir, 3, &[1]);
+    assert!(!dir.join(".p1.part").exists(), "the re-run replaced the dead shard's folder");
+    let after: Vec<_> = parts.iter().map(|p| snapshot(p)).collect();
+    assert!(before == after, "shards 0 and 2 were not touched");
+    merge_into(&find_parts(&dir).unwrap(), &dir.join("merged")).unwrap();
+    assert_eq!(first_difference(&single, &dir.join("merged")), None);
+    // The parts are only read by a merge: merging again into another folder works.
+    merge_into(&find_parts(&dir).unwrap(), &dir.join("merged-again")).unwrap();
+    assert_eq!(first_difference(&single, &dir.join("merged-again")), None);
+    for d in [single, dir] {
         let _ = std::fs::remove_dir_all(d);
     }
 }

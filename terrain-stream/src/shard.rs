@@ -1,0 +1,482 @@
+//! Sharded bakes: shard `K` of `N` bakes a contiguous, disjoint range of block rows into a
+//! *part* folder ([`bake_shard`]); [`merge`] joins the `N` parts into a store that is byte for
+//! byte the store a single [`crate::bake`] of the same source and config writes.
+//!
+//! Why it is byte-identical: a block's file and entry depend only on the block's own samples
+//! and the config, never on its neighbours' blocks or the bake's order, so the shards write the
+//! same block files (with a bake id of 0) and entries as the single bake; the store-wide
+//! values are reductions the merge computes from the parts exactly (the largest errors, the
+//! `lossless` flag) or from the entries in row-major order (the bake id, an FNV-1a hash of
+//! every level's checksum), and the index is then written by the same function.
+//!
+//! A part is a folder published atomically like a store (written as `.NAME.part`, renamed
+//! when complete), holding `blocks/` and [`PART_FILE`]: the shard `K/N` and its block rows, the
+//! caller's identity of the source (a DEM's size and checksum) and the bake options, the
+//! grid's header, and the entries of its blocks, with a trailing CRC-32. A shard that died
+//! left no part (only its `.NAME.part` folder, which its re-run removes), so re-running that
+//! shard alone is enough; the merge reads the parts and never changes them.
+
+use std::fmt;
+use std::fs;
+use std::ops::{ControlFlow, Range};
+use std::path::{Path, PathBuf};
+use std::str::FromStr;
+use std::time::{Duration, Instant};
+
+use rayon::prelude::*;
+
+use crate::bake::{BakeConfig, BakeProgress, BakeReport, BakedRows, Plan, bake_rows, publish};
+use crate::error::BakeError;
+use crate::format::{
+    BLOCK_HEADER_LEN, BlockEntry, Header, IndexError, Reader, Writer, block_file_name, crc32,
+    fine_count, read_entry, read_header, write_entry, write_header,
+};
+use crate::source::HeightSource;
+
+/// Name of the part file inside a part folder.
+pub const PART_FILE: &str = "part.tsp";
+const PART_MAGIC: [u8; 8] = *b"TSTRPRT\0";
+const PART_VERSION: u32 = 1;
+
+/// Shard `index` of `count` (`index` counts from 0, as a Kubernetes Indexed Job's
+/// `JOB_COMPLETION_INDEX` does). Written and parsed as `K/N`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub struct Shard {
+    /// `K`, in `0..count`.
+    pub index: u32,
+    /// `N`, at least 1.
+    pub count: u32,
+}
+
+impl Shard {
+    /// Shard `index` of `count`; refuses `count == 0` and `index >= count`.
+    pub fn new(index: u32, count: u32) -> Result<Self, BakeError> {
+        if count == 0 || index >= count {
+            return Err(BakeError::InvalidConfig(format!(
+                "shard {index}/{count}: K/N needs N >= 1 and K in 0..N (K counts from 0)"
+            )));
+        }
+        Ok(Self { index, count })
+    }
+
+    /// The block rows this shard bakes out of `blocks_y`: `K * rows / N .. (K + 1) * rows / N`,
+    /// contiguous so a shard reads only its own bands of the source. Empty when there are
+    /// fewer rows than shards.
+    pub fn rows(&self, blocks_y: u64) -> Range<u64> {
+        let (k, n) = (self.index as u64, self.count as u64);
+        k * blocks_y / n..(k + 1) * blocks_y / n
+    }
+}
+
+impl fmt::Display for Shard {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "{}/{}", self.index, self.count)
+    }
+}
+
+impl FromStr for Shard {
+    type Err = BakeError;
+
+    /// `K/N`, e.g. `0/4` for the first of four shards.
+    fn from_str(s: &str) -> Result<Self, BakeError> {
+        let bad = || BakeError::InvalidConfig(format!("shard {s:?}: expected K/N, e.g. 0/4"));
+        let (k, n) = s.split_once('/').ok_or_else(bad)?;
+        Shard::new(k.trim().parse().map_err(|_| bad())?, n.trim().parse().map_err(|_| bad())?)
+    }
+}
+
+/// The bake options a part records, in words: every [`BakeConfig`] field that changes the
+/// bytes (not `threads` nor `overwrite`).
+pub fn bake_options(config: &BakeConfig) -> String {
+    format!(
+        "k {}, {:?}, {:?}, {} node levels, DSS errors {}",
+        config.k,
+        config.encoding,
+        config.codec,
+        config.node_levels,
+        if config.dss_errors { "on" } else { "off" }
+    )
+}
+
+/// What one shard baked.
+#[derive(Debug, Clone)]
+pub struct ShardReport {
+    /// The shard.
+    pub shard: Shard,
+    /// Its block rows.
+    pub rows: Range<u64>,
+    /// Blocks baked.
+    pub blocks: usize,
+    /// Bytes of its block files.
+    pub bytes: u64,
+    /// Wall time.
+    pub elapsed: Duration,
+}
+
+/// What a part folder holds (its [`PART_FILE`], checked).
+#[derive(Debug, Clone)]
+pub struct PartInfo {
+    /// The part folder.
+    pub path: PathBuf,
+    /// Its shard.
+    pub shard: Shard,
+    /// Its block rows.
+    pub rows: Range<u64>,
+    /// The caller's identity of the source (`bake_shard`'s `source_id`).
+    pub source_id: String,
+    /// The bake options ([`bake_options`]).
+    pub options: String,
+    /// The grid's header, with this part's own largest errors and a bake id of 0.
+    pub header: Header,
+    lossless: bool,
+    bound: Option<f64>,
+    entries: Vec<BlockEntry>,
+}
+
+impl PartInfo {
+    /// Blocks in the part.
+    pub fn blocks(&self) -> usize {
+        self.entries.len()
+    }
+}
+
+/// Bakes shard `shard` of `source` into the part folder `part` (published atomically; an
+/// existing part is replaced only with `config.overwrite`). `source_id` names the source (a
+/// DEM's name, size and checksum): the merge refuses parts whose ids differ.
+pub fn bake_shard(
+    source: &dyn HeightSource,
+    part: &Path,
+    config: &BakeConfig,
+    shard: Shard,
+    source_id: &str,
+    progress: &mut (dyn FnMut(&BakeProgress) -> ControlFlow<()> + Send),
+) -> Result<ShardReport, BakeError> {
+    let start = Instant::now();
+    let shard = Shard::new(shard.index, shard.count)?;
+    let plan = Plan::new(source, config)?;
+    let rows = shard.rows(plan.blocks_y);
+    publish(part, config.overwrite, config.threads, is_part, |tmp| {
+        let baked = bake_rows(source, tmp, &plan, config, rows.clone(), progress)?;
+        let bytes = baked.entries.iter().map(|e| e.file_len).sum();
+        let blocks = baked.entries.len();
+        let file = write_part(shard, &rows, source_id, &bake_options(config), &baked);
+        let path = tmp.join(PART_FILE);
+        fs::write(&path, file).map_err(|cause| BakeError::Io { path, cause })?;
+        Ok(ShardReport { shard, rows: rows.clone(), blocks, bytes, elapsed: start.elapsed() })
+    })
+}
+
+/// Whether `path` is a part folder (it holds a [`PART_FILE`] with the part's magic).
+pub fn is_part(path: &Path) -> bool {
+    use std::io::Read;
+    let mut magic = [0u8; 8];
+    path.is_dir()
+        && fs::File::open(path.join(PART_FILE)).and_then(|mut f| f.read_exact(&mut magic)).is_ok()
+        && magic == PART_MAGIC
+}
+
+/// The parts `path` names: itself when it is a part, else the parts among its sub-folders
+/// (sorted by name; hidden `.NAME.part` folders of unfinished bakes are skipped). A folder that
+/// is neither, or holds no part, is an error.
+pub fn find_parts(path: &Path) -> Result<Vec<PathBuf>, BakeError> {
+    if is_part(path) {
+        return Ok(vec![path.to_path_buf()]);
+    }
+    let bad = |reason: &str| BakeError::BadPart { path: path.to_path_buf(), reason: reason.into() };
+    if !path.is_dir() {
+        return Err(bad("not a shard's part folder nor a folder of parts"));
+    }
+    let dir =
+        fs::read_dir(path).map_err(|cause| BakeError::Io { path: path.to_path_buf(), cause })?;
+    let mut parts: Vec<PathBuf> = dir
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .filter(|p| !p.file_name().is_some_and(|n| n.to_string_lossy().starts_with('.')))
+        .filter(|p| is_part(p))
+        .collect();
+    parts.sort();
+    if parts.is_empty() {
+        return Err(bad("a folder with no shard's part in it (none has a part.tsp)"));
+    }
+    Ok(parts)
+}
+
+fn write_part(
+    shard: Shard,
+    rows: &Range<u64>,
+    source_id: &str,
+    options: &str,
+    baked: &BakedRows,
+) -> Vec<u8> {
+    let mut w = Writer::default();
+    w.bytes(&PART_MAGIC);
+    w.u32(PART_VERSION);
+    w.u32(shard.index);
+    w.u32(shard.count);
+    w.u64(rows.start);
+    w.u64(rows.end);
+    for s in [source_id, options] {
+        w.u32(s.len() as u32);
+        w.bytes(s.as_bytes());
+    }
+    w.u8(baked.lossless as u8);
+    w.u8(baked.bound.is_some() as u8);
+    w.f64(baked.bound.unwrap_or(0.0));
+    write_header(&mut w, &baked.header);
+    w.u64(baked.entries.len() as u64);
+    for e in &baked.entries {
+        write_entry(&mut w, e);
+    }
+    let crc = crc32(&w.buf);
+    w.u32(crc);
+    w.buf
+}
+
+/// Reads and checks the part folder `part`: its file's magic, version, checksum, and that its
+/// entries are its shard's rows of the grid.
+pub fn read_part(part: &Path) -> Result<PartInfo, BakeError> {
+    let file = part.join(PART_FILE);
+    let bytes = fs::read(&file).map_err(|cause| BakeError::Io { path: file.clone(), cause })?;
+    let bad = |reason: String| BakeError::BadPart { path: part.to_path_buf(), reason };
+    if bytes.len() < 16 || bytes[..8] != PART_MAGIC {
+        return Err(bad(format!("{PART_FILE} is not a shard's part file (wrong magic bytes)")));
+    }
+    let (body, tail) = bytes.split_at(bytes.len() - 4);
+    if crc32(body).to_le_bytes() != tail {
+        return Err(bad(format!("{PART_FILE}: checksum mismatch (the file is corrupt)")));
+    }
+    let mut r = Reader::new(&body[8..]);
+    let parse = |r: &mut Reader<'_>| -> Result<PartInfo, String> {
+        let version = r.u32()?;
+        if version != PART_VERSION {
+            return Err(format!("part format version {version}, this reader reads {PART_VERSION}"));
+        }
+        let shard = Shard::new(r.u32()?, r.u32()?).map_err(|e| e.to_string())?;
+        let rows = r.u64()?..r.u64()?;
+        let mut text = || -> Result<String, String> {
+            let n = r.u32()? as usize;
+            String::from_utf8(r.take(n)?.to_vec()).map_err(|_| "text is not UTF-8".to_string())
+        };
+        let (source_id, options) = (text()?, text()?);
+        let lossless = r.u8()? != 0;
+        let has_bound = r.u8()? != 0;
+        let bound = r.f64()?;
+        let bound = has_bound.then_some(bound);
+        let header = read_header(r).map_err(|e| format!("header: {}", index_error(e)))?;
+        if rows != shard.rows(header.blocks_y as u64) {
+            return Err(format!(
+                "block rows {rows:?}, but shard {shard} of {} rows is {:?}",
+                header.blocks_y,
+                shard.rows(header.blocks_y as u64)
+            ));
+        }
+        let n = r.u64()?;
+        let expected = (rows.end - rows.start) * header.blocks_x as u64;
+        if n != expected {
+            return Err(format!("{n} block entries, expected {expected} for rows {rows:?}"));
+        }
+        let fine = fine_count(header.k, header.node_levels);
+        let first = rows.start as usize * header.blocks_x as usize;
+        let entries = (0..n as usize)
+            .map(|i| read_entry(r, &header, header.block_at(first + i), fine))
+            .collect::<Result<Vec<_>, _>>()
+            .map_err(index_error)?;
+        if r.remaining() != 0 {
+            return Err(format!("{} bytes after the last entry", r.remaining()));
+        }
+        Ok(PartInfo {
+            path: part.to_path_buf(),
+            shard,
+            rows,
+            source_id,
+            options,
+            header,
+            lossless,
+            bound,
+            entries,
+        })
+    };
+    parse(&mut r).map_err(|m| bad(format!("{PART_FILE}: {m}")))
+}
+
+fn index_error(e: IndexError) -> String {
+    match e {
+        IndexError::Corrupt(m) => m,
+        IndexError::BadMagic => "bad magic bytes".into(),
+        IndexError::Version(v) => format!("version {v}"),
+    }
+}
+
+/// How [`merge`] runs, and what the parts must hold.
+#[derive(Debug, Clone, Default)]
+pub struct MergeConfig {
+    /// Replace an existing store at the output.
+    pub overwrite: bool,
+    /// Worker threads; 0 = rayon's global pool.
+    pub threads: usize,
+    /// The source every part must be of (`bake_shard`'s `source_id`); `None`: any, as long as
+    /// the parts agree.
+    pub source_id: Option<String>,
+    /// The options every part must have been baked with; `None`: any, as long as the parts
+    /// agree.
+    pub bake: Option<BakeConfig>,
+}
+
+/// Joins the part folders `parts` (every shard `0..N` of one bake, exactly once) into the store
+/// folder `out`, byte for byte what [`crate::bake`] writes for the same source and config.
+/// Refuses, naming the part, a part of another source, other options, another grid or another
+/// `N`, a shard given twice, and names the shards missing. The parts are only read (a failed
+/// merge can be run again); every level's checksum is verified as its block is copied.
+pub fn merge(
+    parts: &[PathBuf],
+    out: &Path,
+    config: &MergeConfig,
+    progress: &mut (dyn FnMut(&BakeProgress) -> ControlFlow<()> + Send),
+) -> Result<BakeReport, BakeError> {
+    let start = Instant::now();
+    let mut infos = parts.iter().map(|p| read_part(p)).collect::<Result<Vec<_>, _>>()?;
+    check_parts(&mut infos, config)?;
+    let total: usize = infos.iter().map(PartInfo::blocks).sum();
+    publish(out, config.overwrite, config.threads, crate::store::is_store, |tmp| {
+        let mut prog =
+            BakeProgress { blocks_done: 0, blocks_total: total, rows_read: 0, bytes_written: 0 };
+        let first = &infos[0];
+        let mut all = BakedRows {
+            header: first.header.clone(),
+            entries: Vec::with_capacity(total),
+            lossless: true,
+            bound: first.bound,
+        };
+        for part in &infos {
+            copy_blocks(part, tmp)?;
+            all.header.max_error_m = all.header.max_error_m.max(part.header.max_error_m);
+            all.header.max_void_error_m =
+                all.header.max_void_error_m.max(part.header.max_void_error_m);
+            all.lossless &= part.lossless;
+            all.entries.extend(part.entries.iter().cloned());
+            prog.blocks_done = all.entries.len();
+            prog.rows_read += part.rows.end - part.rows.start;
+            prog.bytes_written += part.entries.iter().map(|e| e.file_len).sum::<u64>();
+            if progress(&prog).is_break() {
+                return Err(BakeError::Cancelled);
+            }
+        }
+        crate::bake::finish(tmp, all, start)
+    })
+}
+
+/// Checks that `infos` are every shard of one bake, once, and sorts them by shard.
+fn check_parts(infos: &mut [PartInfo], config: &MergeConfig) -> Result<(), BakeError> {
+    let Some(first) = infos.first() else {
+        return Err(BakeError::Shards("no part to merge".into()));
+    };
+    let foreign =
+        |p: &PartInfo, reason: String| BakeError::BadPart { path: p.path.clone(), reason };
+    let want_source = config.source_id.clone().unwrap_or_else(|| first.source_id.clone());
+    let want_options = config.bake.as_ref().map(bake_options).unwrap_or(first.options.clone());
+    let same_grid = |a: &Header, b: &Header| {
+        (a.width, a.height, a.k, a.blocks_x, a.blocks_y, a.node_levels)
+            == (b.width, b.height, b.k, b.blocks_x, b.blocks_y, b.node_levels)
+            && (a.encoding, a.codec, &a.georef) == (b.encoding, b.codec, &b.georef)
+    };
+    for p in infos.iter() {
+        if p.source_id != want_source {
+            return Err(foreign(
+                p,
+                format!(
+                    "a part of another source: it holds {:?}, this merge is of {want_source:?}",
+                    p.source_id
+                ),
+            ));
+        }
+        if p.options != want_options {
+            return Err(foreign(
+                p,
+                format!(
+                    "a part baked with other options: {:?}, this merge's are {want_options:?}",
+                    p.options
+                ),
+            ));
+        }
+        if p.shard.count != first.shard.count {
+            return Err(foreign(
+                p,
+                format!(
+                    "shard {} of a {}-shard bake, but {} is shard {} of {}",
+                    p.shard,
+                    p.shard.count,
+                    first.path.display(),
+                    first.shard,
+                    first.shard.count
+                ),
+            ));
+        }
+        if !same_grid(&p.header, &first.header) || p.bound != first.bound {
+            return Err(foreign(
+                p,
+                format!("a part of another grid or encoding than {}", first.path.display()),
+            ));
+        }
+    }
+    let n = first.shard.count;
+    infos.sort_by_key(|p| p.shard.index);
+    for pair in infos.windows(2) {
+        if pair[0].shard == pair[1].shard {
+            return Err(BakeError::Shards(format!(
+                "shard {} is given twice: {} and {}",
+                pair[0].shard,
+                pair[0].path.display(),
+                pair[1].path.display()
+            )));
+        }
+    }
+    let missing: Vec<String> = (0..n)
+        .filter(|k| !infos.iter().any(|p| p.shard.index == *k))
+        .map(|k| format!("{k}/{n}"))
+        .collect();
+    if !missing.is_empty() {
+        return Err(BakeError::Shards(format!(
+            "shard{} {} missing (no part among the {} given holds {}): bake {} again with --shard",
+            if missing.len() > 1 { "s" } else { "" },
+            missing.join(", "),
+            infos.len(),
+            if missing.len() > 1 { "them" } else { "it" },
+            if missing.len() > 1 { "them" } else { "it" },
+        )));
+    }
+    Ok(())
+}
+
+/// Copies a part's block files into the store folder `dir`, checking each against its entry:
+/// the block header (magic, bake id 0, row and column), the length, every level's CRC-32.
+fn copy_blocks(part: &PartInfo, dir: &Path) -> Result<(), BakeError> {
+    let first = part.rows.start as usize * part.header.blocks_x as usize;
+    part.entries.par_iter().enumerate().try_for_each(|(i, e)| {
+        let id = part.header.block_at(first + i);
+        let name = block_file_name(id);
+        let from = part.path.join(&name);
+        let bytes = fs::read(&from).map_err(|cause| BakeError::Io { path: from.clone(), cause })?;
+        let bad = |what: String| BakeError::BadPart {
+            path: part.path.clone(),
+            reason: format!("{name}: {what}; bake shard {} again", part.shard),
+        };
+        if bytes.len() as u64 != e.file_len {
+            return Err(bad(format!(
+                "{} bytes, the part's entry says {}",
+                bytes.len(),
+                e.file_len
+            )));
+        }
+        let head = crate::format::block_header(0, id);
+        if bytes[..BLOCK_HEADER_LEN as usize] != head[..] {
+            return Err(bad("not this block's header".into()));
+        }
+        for (l, level) in e.levels.iter().enumerate() {
+            let data = &bytes[level.offset as usize..(level.offset + level.len as u64) as usize];
+            if crc32(data) != level.crc32 {
+                return Err(bad(format!("level {l} fails its checksum")));
+            }
+        }
+        let to = dir.join(&name);
+        fs::write(&to, &bytes).map_err(|cause| BakeError::Io { path: to, cause })
+    })
+}
