@@ -14,7 +14,7 @@ use clap::Args;
 use terrain_core::dem::RowReader;
 use terrain_core::quadtree::Quadtree;
 use terrain_core::synth::FractalConfig;
-use terrain_stream::{BakeConfig, BakeProgress, HeightEncoding, HeightSource, bake};
+use terrain_stream::{BakeConfig, BakeProgress, HeightEncoding, HeightSource};
 use terrain_visibility::roughness::stream::RowGrid;
 
 use crate::source::SourceArgs;
@@ -88,6 +88,17 @@ pub(crate) struct BakeArgs {
     /// void's rim. (--synthetic is always streamed.)
     #[arg(long, conflicts_with = "synthetic")]
     pub stream: bool,
+    /// Bake only shard K of N (K counts from 0): a contiguous range of block rows, into the
+    /// part folder -o, without the scene tables. `terrain bake` with the same DEM and options
+    /// and `--merge` then joins the N parts into the store a single bake writes, byte for
+    /// byte, and bakes the tables. A part records the DEM's checksum and the options.
+    #[arg(long, value_name = "K/N", conflicts_with = "merge")]
+    pub shard: Option<terrain_stream::Shard>,
+    /// Join the parts of a sharded bake (part folders, or folders holding them) into the store
+    /// -o, then bake the scene tables from the DEM (give the DEM and options of the shards:
+    /// parts of another DEM or other options, missing or duplicated shards are refused).
+    #[arg(long, value_name = "PART", num_args = 1..)]
+    pub merge: Vec<PathBuf>,
     /// Stream GeoTIFF and raw DEMs with more samples than this (default 2^28: 1 GiB of f32), or
     /// whose whole read would need more than --max-memory.
     #[arg(long, default_value_t = 1 << 28, conflicts_with_all = ["stream", "synthetic"])]
@@ -124,8 +135,11 @@ fn streamed(args: &BakeArgs) -> anyhow::Result<Option<RowReader>> {
 
 /// Runs `terrain bake`.
 pub(crate) fn run(args: &BakeArgs) -> anyhow::Result<()> {
-    // Before any work: a file or a folder of the user's files is never replaced.
-    terrain_stream::check_output(&args.output, args.overwrite)?;
+    // Before any work: a file or a folder of the user's files is never replaced (a shard's
+    // part folder is checked by its bake).
+    if args.shard.is_none() {
+        terrain_stream::check_output(&args.output, args.overwrite)?;
+    }
     if args.no_pvs
         && let Some(first) = args.pvs.given().first()
     {
@@ -217,7 +231,11 @@ pub(crate) fn run(args: &BakeArgs) -> anyhow::Result<()> {
             ControlFlow::Continue(())
         }
     };
-    let report = match bake(source, &args.output, &config, &mut bar) {
+    if let Some(shard) = args.shard {
+        return crate::shard::run_shard(args, source, &config, shard, rows.is_some(), &mut bar);
+    }
+    let report = match crate::shard::bake_or_merge(args, source, &config, rows.is_some(), &mut bar)?
+    {
         // The library removed its `.NAME.part` folder; an existing store was not touched.
         Err(terrain_stream::BakeError::Cancelled) => {
             return Err(crate::interrupt::Interrupted(format!(

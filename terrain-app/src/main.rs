@@ -13,6 +13,7 @@ mod pvs;
 mod quality;
 mod render;
 mod roughness;
+mod shard;
 mod source;
 mod view;
 
