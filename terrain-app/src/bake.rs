@@ -91,7 +91,10 @@ pub(crate) struct BakeArgs {
     /// Bake only shard K of N (K counts from 0): a contiguous range of block rows, into the
     /// part folder -o, without the scene tables. `terrain bake` with the same DEM and options
     /// and `--merge` then joins the N parts into the store a single bake writes, byte for
-    /// byte, and bakes the tables. A part records the DEM's checksum and the options.
+    /// byte, and bakes the tables. A part records the DEM's checksum and the options. The
+    /// table options (--no-pvs, --no-roughness, --no-geomip, --pvs-*) are accepted and apply
+    /// to the merge, so shards and merge take one command line (--no-dss also drops the
+    /// per-block errors the shards write into the index).
     #[arg(long, value_name = "K/N", conflicts_with = "merge")]
     pub shard: Option<terrain_stream::Shard>,
     /// Join the parts of a sharded bake (part folders, or folders holding them) into the store
