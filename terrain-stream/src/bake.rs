@@ -442,6 +442,7 @@ fn bake_into(
         node_levels,
         georef: source.georef(),
         bake_id: id,
+        vertical_scale: 1.0,
     };
     let index = write_index(&header, &entries);
     let path = dir.join(INDEX_FILE);
