@@ -581,7 +581,11 @@ fn an_exaggerated_store_draws_as_the_exaggerated_dem() {
         OocScene::apply(&mut paged, &f).unwrap();
         paged.render(&camera, &f.patches, &terrain_gpu::RenderOptions::default()).unwrap();
         let d = golden_diff(&paged.read_image().unwrap(), &memory_image(&f.patches));
-        println!("{name} x{K}: store vs memory image: mean |diff| {:.3?}, {:.3} % off", d.0, d.1 * 100.0);
+        println!(
+            "{name} x{K}: store vs memory image: mean |diff| {:.3?}, {:.3} % off",
+            d.0,
+            d.1 * 100.0
+        );
         assert_eq!(within_golden(d), expect, "{name}: {d:?}");
     }
     // uniform from the store, through its method and paged renderer.
@@ -596,7 +600,11 @@ fn an_exaggerated_store_draws_as_the_exaggerated_dem() {
     let paged = r.terrain_renderer_mut().unwrap();
     paged.render(&camera, &pf.patches, &terrain_gpu::RenderOptions::default()).unwrap();
     let d = golden_diff(&paged.read_image().unwrap(), &memory_image(&pf.patches));
-    println!("uniform x{K}: store vs memory image: mean |diff| {:.3?}, {:.3} % off", d.0, d.1 * 100.0);
+    println!(
+        "uniform x{K}: store vs memory image: mean |diff| {:.3?}, {:.3} % off",
+        d.0,
+        d.1 * 100.0
+    );
     assert!(within_golden(d), "uniform: {d:?}");
     let _ = std::fs::remove_dir_all(&dir);
 }

@@ -177,8 +177,8 @@ impl<'a> StoreMethod<'a> {
                 Tables::RoughnessPvs(read_roughness(&dir, LodMethod::PvpsC, &shape)?, pvs)
             }
             LodMethod::Geomorph => {
-                let table = crate::geomip_scene::read_for_store(&dir, &shape)?
-                    .exaggerated(vertical_scale);
+                let table =
+                    crate::geomip_scene::read_for_store(&dir, &shape)?.exaggerated(vertical_scale);
                 let lib = MeshLibrary::new(table.patch_cells());
                 Tables::Geomip(table, lib)
             }
@@ -272,13 +272,9 @@ impl Method for StoreMethod<'_> {
             let selection = match tables {
                 Tables::None => select_uniform(src, camera, cfg.uniform_factor),
                 Tables::Roughness(field) => select_pvps(src, camera, field, &cfg.pvps),
-                Tables::RoughnessPvs(field, Some(pvs)) => select_pvps_with_cull(
-                    src,
-                    camera,
-                    field,
-                    &cfg.pvps,
-                    &mut pvs.cull_for(pvs_eye),
-                ),
+                Tables::RoughnessPvs(field, Some(pvs)) => {
+                    select_pvps_with_cull(src, camera, field, &cfg.pvps, &mut pvs.cull_for(pvs_eye))
+                }
                 Tables::RoughnessPvs(field, None) => select_pvps(src, camera, field, &cfg.pvps),
                 Tables::Dss(table) if kind == LodMethod::DssStrips => {
                     let f = strips_frame(src, camera, table, cfg);

@@ -154,9 +154,7 @@ pub(crate) fn run(args: &ViewArgs) -> anyhow::Result<()> {
         ..Default::default()
     };
     let terrain = match &store {
-        Some(dir) => {
-            Terrain::Store(Box::new(StoreTerrain::open(dir, config)?))
-        }
+        Some(dir) => Terrain::Store(Box::new(StoreTerrain::open(dir, config)?)),
         None => {
             let hm = match args.source.load_surface()? {
                 Some(dem) => dem.heightmap,

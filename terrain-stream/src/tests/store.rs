@@ -399,10 +399,9 @@ fn scaled_integer_geotiffs_are_stored_on_their_own_lattice() {
 #[test]
 fn an_exaggerated_store_reads_as_the_store_of_scaled_heights() {
     let hm = float_grid();
-    let tripled = Heightmap::from_fn(hm.width(), hm.height(), hm.georef().clone(), |i, j| {
-        hm.get(i, j) * 3.0
-    })
-    .unwrap();
+    let tripled =
+        Heightmap::from_fn(hm.width(), hm.height(), hm.georef().clone(), |i, j| hm.get(i, j) * 3.0)
+            .unwrap();
     let dir = scratch("exaggerated");
     let cfg = BakeConfig { k: 5, encoding: HeightEncoding::F32, ..Default::default() };
     bake(&hm, &dir.join("a"), &cfg, &mut go).unwrap();
