@@ -348,10 +348,11 @@ fn vertical_scale_applies_to_every_reader() {
     assert!(baked.status.success(), "{}", String::from_utf8_lossy(&baked.stderr));
     // A store's --vertical-scale exaggerates it as it is read; not a positive number, and a
     // --vertical-offset (a unit conversion), are refused, the latter saying to bake again.
+    let png = dir.join("s.png");
     let render_store = |opts: &[&str]| {
         let mut args = vec!["render", store.to_str().unwrap(), "--size", "64x36"];
         args.extend_from_slice(opts);
-        args.extend_from_slice(&["-o", dir.join("s.png").to_str().unwrap()]);
+        args.extend_from_slice(&["-o", png.to_str().unwrap()]);
         terrain(&args)
     };
     let r = render_store(&["--vertical-scale", "3"]);
