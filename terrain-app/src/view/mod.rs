@@ -401,6 +401,10 @@ struct FrameTime {
     /// The `--flight` frame shown (paced: frames between the shown ones were skipped).
     #[serde(skip_serializing_if = "Option::is_none")]
     flight_frame: Option<usize>,
+    /// `--paced`: the flight time the pose was taken at, seconds (`flight_frame` is its
+    /// frame, `floor(flight_s fps)`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    flight_s: Option<f64>,
     /// The store's streaming figures of this frame.
     #[serde(skip_serializing_if = "Option::is_none")]
     stream: Option<ooc::StreamRecord>,
@@ -558,18 +562,20 @@ struct FlightPlay {
 }
 
 impl FlightPlay {
-    /// The pose of a frame starting now and its index in the flight; `None` once the flight
-    /// has ended.
-    fn pose(&mut self) -> Option<(usize, (DVec3, f64, f64))> {
-        let k = if self.paced {
-            let t0 = *self.started.get_or_insert_with(Instant::now);
-            ((t0.elapsed().as_secs_f64() * self.fps).floor() as usize).max(self.next)
+    /// The pose of a frame starting now, its index in the flight and (paced) the flight time
+    /// it was taken at, seconds; `None` once the flight has ended. Paced, frame
+    /// `floor(t fps)` of the flight time `t`: a fast frame may show the pose of the frame
+    /// before it again, a slow one skips poses.
+    fn pose(&mut self) -> Option<(usize, Option<f64>, (DVec3, f64, f64))> {
+        let (k, t) = if self.paced {
+            let t = self.started.get_or_insert_with(Instant::now).elapsed().as_secs_f64();
+            ((t * self.fps).floor() as usize, Some(t))
         } else {
-            self.next
+            (self.next, None)
         };
         let pose = *self.poses.get(k)?;
         self.next = k + 1;
-        Some((k, pose))
+        Some((k, t, pose))
     }
 
     /// Whether every pose has been shown or skipped.
@@ -1346,12 +1352,12 @@ impl App {
         let ground: &Heightmap = self.terrain.ground();
         // The flight waits for the store's first method (built on a worker at start).
         let loading = matches!(&self.terrain, Terrain::Store(s) if s.frames.is_none());
-        let mut flight_frame = None;
-        if !loading && let Some((k, (p, yaw, pitch))) = self.flight.pose() {
+        let (mut flight_frame, mut flight_s) = (None, None);
+        if !loading && let Some((k, t, (p, yaw, pitch))) = self.flight.pose() {
             self.camera.position = p;
             self.camera.yaw = yaw;
             self.camera.pitch = pitch;
-            flight_frame = Some(k);
+            (flight_frame, flight_s) = (Some(k), t);
         }
         let axis = |a: Key, b: Key| {
             f64::from(u8::from(self.held.contains(&a)))
@@ -1511,6 +1517,7 @@ impl App {
             queued_mib: stream.as_ref().map_or(0.0, |s| s.queued_mib),
             waited_for_io: stream.as_ref().is_some_and(|s| s.waited_for_io),
             flight_frame,
+            flight_s,
             stream,
             start: Some((t0, cpu0)),
         });
