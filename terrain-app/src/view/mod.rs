@@ -547,12 +547,15 @@ fn threads() -> Option<usize> {
     s.lines().find_map(|l| l.strip_prefix("Threads:")).and_then(|v| v.trim().parse().ok())
 }
 
+/// A flight pose: position, yaw and pitch (degrees).
+type Pose = (DVec3, f64, f64);
+
 /// `--flight` played by the window: every drawn frame shows the next pose, or, `paced`, the
 /// pose at the flight time elapsed since its first frame (frames between are skipped).
 #[derive(Debug, Default)]
 struct FlightPlay {
     /// The flight's poses: position, yaw, pitch; frame `k` at `k / fps` seconds.
-    poses: Vec<(DVec3, f64, f64)>,
+    poses: Vec<Pose>,
     /// The first pose not shown yet.
     next: usize,
     fps: f64,
@@ -566,7 +569,7 @@ impl FlightPlay {
     /// it was taken at, seconds; `None` once the flight has ended. Paced, frame
     /// `floor(t fps)` of the flight time `t`: a fast frame may show the pose of the frame
     /// before it again, a slow one skips poses.
-    fn pose(&mut self) -> Option<(usize, Option<f64>, (DVec3, f64, f64))> {
+    fn pose(&mut self) -> Option<(usize, Option<f64>, Pose)> {
         let (k, t) = if self.paced {
             let t = self.started.get_or_insert_with(Instant::now).elapsed().as_secs_f64();
             ((t * self.fps).floor() as usize, Some(t))
