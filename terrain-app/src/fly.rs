@@ -250,7 +250,7 @@ pub(crate) fn run(args: &FlyArgs) -> anyhow::Result<()> {
                 dir.display()
             );
         }
-        args.source.refuse_reading_options("a baked store (its heights are stored)")?;
+        args.source.store_exaggeration()?;
     } else if args.scene.is_some() {
         let method = args.lod.kind(false);
         terrain_app::scene_files::check_used(&[method]).map_err(anyhow::Error::msg)?;
@@ -273,7 +273,13 @@ pub(crate) fn run(args: &FlyArgs) -> anyhow::Result<()> {
         Dem(Heightmap),
     }
     let input = match store {
-        Some(dir) => Input::Store(dir, args.store.config(method_config.ooc.tau)?),
+        Some(dir) => Input::Store(
+            dir,
+            OocConfig {
+                vertical_scale: args.source.store_exaggeration()?,
+                ..args.store.config(method_config.ooc.tau)?
+            },
+        ),
         None => Input::Dem(match args.source.load_surface()? {
             Some(dem) => dem.heightmap,
             None => synth::default_terrain(),

@@ -71,6 +71,10 @@ pub struct OocConfig {
     /// the tessellator with factors up to their cells. Default
     /// [`terrain_stream::DEFAULT_PATCH_CELLS`].
     pub patch_cells: u32,
+    /// Vertical exaggeration of the store's heights, applied by [`OocScene::open`] as the
+    /// store is read ([`Store::exaggerated`]: heights, boxes and every selection error scale
+    /// with it). Default 1. [`OocScene::new`] takes its store as opened.
+    pub vertical_scale: f64,
 }
 
 /// Frames the streamer preloads ahead (Eq. 8's `S` times this). The paper's Eq. 8 looks one
@@ -92,6 +96,7 @@ impl Default for OocConfig {
             max_in_flight: 0,
             warm_timeout: Duration::from_secs(60),
             patch_cells: DEFAULT_PATCH_CELLS,
+            vertical_scale: 1.0,
         }
     }
 }
@@ -338,13 +343,18 @@ pub struct OocScene {
 }
 
 impl OocScene {
-    /// Opens the store in `dir` and starts its runtime.
+    /// Opens the store in `dir`, exaggerated by [`OocConfig::vertical_scale`], and starts its
+    /// runtime.
     pub fn open(dir: &Path, config: OocConfig) -> Result<Self, StoreError> {
-        let store = Arc::new(Store::open(dir)?);
-        Ok(Self::new(store, config))
+        let mut store = Store::open(dir)?;
+        if config.vertical_scale != 1.0 {
+            store = store.exaggerated(config.vertical_scale)?;
+        }
+        Ok(Self::new(Arc::new(store), config))
     }
 
-    /// The method over an opened store.
+    /// The method over an opened store (exaggerated as it was opened:
+    /// [`OocConfig::vertical_scale`] is not read here).
     pub fn new(store: Arc<Store>, config: OocConfig) -> Self {
         let h = store.header().clone();
         let cells = h.block_cells();

@@ -371,7 +371,7 @@ fn refuse_ignored(args: &RenderArgs, store: bool) -> anyhow::Result<()> {
         }
     };
     if store {
-        args.source.refuse_reading_options("a baked store (its heights are stored)")?;
+        args.source.store_exaggeration()?;
     }
     if !store {
         refuse(
@@ -522,7 +522,10 @@ fn run_store(
     }
     let tau = method_config.ooc.tau;
     let cache_mib = args.store.cache_mib();
-    let config = args.store.config(tau)?;
+    let config = ooc::OocConfig {
+        vertical_scale: args.source.store_exaggeration()?,
+        ..args.store.config(tau)?
+    };
     let scene = open_store(dir, config)?;
     let cameras: Vec<Camera> = match &args.flight {
         None => {
@@ -644,6 +647,9 @@ pub(crate) fn open_store(dir: &Path, config: ooc::OocConfig) -> anyhow::Result<o
         h.blocks_x,
         h.blocks_y
     );
+    if h.vertical_scale != 1.0 {
+        println!("store: heights exaggerated x{}", h.vertical_scale);
+    }
     Ok(scene)
 }
 

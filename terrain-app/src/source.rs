@@ -22,8 +22,9 @@ pub(crate) struct SourceArgs {
     /// Metres per raw unit: for grey images and raw files, which have no vertical unit; for
     /// GeoTIFF (after its own scale/offset) and .hgt, a conversion of the file's vertical unit
     /// (e.g. 0.3048 for heights in feet), reported when used. Also a vertical exaggeration
-    /// (e.g. 3) for every input, scattered points (`mesh --points`) included; a baked store
-    /// refuses it (its heights are stored: bake it again with the scale).
+    /// (e.g. 3) for every input, scattered points (`mesh --points`) included; for a baked store
+    /// (`render`, `fly`, `view`) it exaggerates the stored heights as they are read, and every
+    /// method's selection errors with them (a positive number).
     #[arg(long, default_value_t = 1.0)]
     pub vertical_scale: f64,
     /// Metres added after scaling (see --vertical-scale).
@@ -112,10 +113,31 @@ impl SourceArgs {
     /// a scene folder), whose heights are already read: each given option is named. An option
     /// at its default value changes nothing and passes.
     pub(crate) fn refuse_reading_options(&self, what: &str) -> anyhow::Result<()> {
+        self.refuse_reading_options_but(what, false)
+    }
+
+    /// A baked store's vertical exaggeration (`--vertical-scale`, applied as the store is
+    /// read: `terrain_stream::Store::exaggerated`), refusing the other reading options as
+    /// [`SourceArgs::refuse_reading_options`] does.
+    pub(crate) fn store_exaggeration(&self) -> anyhow::Result<f64> {
+        self.refuse_reading_options_but("a baked store (its heights are stored)", true)?;
+        let s = self.vertical_scale;
+        if !(s.is_finite() && s > 0.0) {
+            bail!(
+                "--vertical-scale over a baked store is a vertical exaggeration: a positive \
+                 number, got {s}"
+            );
+        }
+        Ok(s)
+    }
+
+    /// [`SourceArgs::refuse_reading_options`], `--vertical-scale` let through when
+    /// `exaggeration` (a store's).
+    fn refuse_reading_options_but(&self, what: &str, exaggeration: bool) -> anyhow::Result<()> {
         let given: Vec<&str> = [
             ("--format", self.format.is_some()),
             ("--nodata", self.nodata.is_some()),
-            ("--vertical-scale", self.vertical_scale != 1.0),
+            ("--vertical-scale", self.vertical_scale != 1.0 && !exaggeration),
             ("--vertical-offset", self.vertical_offset != 0.0),
             ("--spacing", self.spacing.is_some()),
             ("--band", self.band != 1),
@@ -128,8 +150,9 @@ impl SourceArgs {
         .collect();
         // A store's or scene's heights were scaled when it was baked: say how to scale them.
         let rebake = if given.iter().any(|g| g.starts_with("--vertical")) {
-            "; its heights are stored as baked: to exaggerate or convert them, bake it again \
-             from the DEM with them (`terrain bake DEM --vertical-scale S -o FOLDER --overwrite`)"
+            "; its heights are stored as baked: to convert them, bake it again from the DEM with \
+             them (`terrain bake DEM --vertical-scale S -o FOLDER --overwrite`; a store's \
+             --vertical-scale alone exaggerates it in render, fly and view)"
         } else {
             ""
         };

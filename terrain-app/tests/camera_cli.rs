@@ -274,7 +274,7 @@ fn heights(file: &str, extra: &[&str], scale: &str) -> (f64, f64) {
 }
 
 /// `--vertical-scale` multiplies the heights of every reader: GeoTIFF, .hgt, grey PNG, raw
-/// (and scattered points, in `mesh --points`); a store refuses it and says to bake again.
+/// (and scattered points, in `mesh --points`) and a baked store (exaggerated as read).
 #[test]
 fn vertical_scale_applies_to_every_reader() {
     let dir = scratch("camera-cli", "vscale");
@@ -346,16 +346,25 @@ fn vertical_scale_applies_to_every_reader() {
         store.to_str().unwrap(),
     ]);
     assert!(baked.status.success(), "{}", String::from_utf8_lossy(&baked.stderr));
-    let r = terrain(&[
-        "render",
-        store.to_str().unwrap(),
-        "--vertical-scale",
-        "3",
-        "-o",
-        dir.join("never.png").to_str().unwrap(),
-    ]);
+    // A store's --vertical-scale exaggerates it as it is read; not a positive number, and a
+    // --vertical-offset (a unit conversion), are refused, the latter saying to bake again.
+    let png = dir.join("s.png");
+    let render_store = |opts: &[&str]| {
+        let mut args = vec!["render", store.to_str().unwrap(), "--size", "64x36"];
+        args.extend_from_slice(opts);
+        args.extend_from_slice(&["-o", png.to_str().unwrap()]);
+        terrain(&args)
+    };
+    let r = render_store(&["--vertical-scale", "3"]);
+    let stdout = String::from_utf8_lossy(&r.stdout);
+    assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+    assert!(stdout.contains("heights exaggerated x3"), "{stdout}");
+    let r = render_store(&["--vertical-scale", "-3"]);
     let stderr = String::from_utf8_lossy(&r.stderr);
-    assert!(!r.status.success() && stderr.contains("--vertical-scale"), "{stderr}");
+    assert!(!r.status.success() && stderr.contains("positive number"), "{stderr}");
+    let r = render_store(&["--vertical-offset", "5"]);
+    let stderr = String::from_utf8_lossy(&r.stderr);
+    assert!(!r.status.success() && stderr.contains("--vertical-offset"), "{stderr}");
     assert!(stderr.contains("bake it again") && stderr.contains("terrain bake"), "{stderr}");
     let _ = std::fs::remove_dir_all(&dir);
 }

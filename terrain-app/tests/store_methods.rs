@@ -465,3 +465,158 @@ fn the_geomip_table_from_a_store_equals_the_one_from_memory() {
         let _ = std::fs::remove_dir_all(dir.parent().unwrap());
     }
 }
+
+/// `hm` with every height times `k` (a vertical exaggeration applied in memory).
+fn times(hm: &Heightmap, k: f32) -> Heightmap {
+    let data: Vec<f32> = hm.data().iter().map(|h| h * k).collect();
+    Heightmap::new(hm.width(), hm.height(), data, hm.voids().clone(), hm.georef().clone()).unwrap()
+}
+
+/// Per-channel mean |difference| and the fraction of pixels off by more than 16 levels: the
+/// golden-image test's measure (terrain-gpu `render::tests::golden`: mean < 2, < 1 %).
+fn golden_diff(
+    a: &terrain_gpu::target::RgbaImage,
+    b: &terrain_gpu::target::RgbaImage,
+) -> ([f64; 3], f64) {
+    let (mut sum, mut far_off) = ([0u64; 3], 0usize);
+    for (x, y) in a.pixels.iter().zip(&b.pixels) {
+        let mut off = false;
+        for c in 0..3 {
+            let d = x[c].abs_diff(y[c]);
+            sum[c] += u64::from(d);
+            off |= d > 16;
+        }
+        far_off += usize::from(off);
+    }
+    let n = a.pixels.len() as f64;
+    (sum.map(|s| s as f64 / n), far_off as f64 / n)
+}
+
+fn within_golden(d: ([f64; 3], f64)) -> bool {
+    d.0.iter().all(|&m| m < 2.0) && d.1 < 0.01
+}
+
+/// Vertical exaggeration of a store (issue 14, `--vertical-scale` over a store): Puget Sound
+/// baked once, read exaggerated 3 times (`Store::exaggerated`), selects for the same camera the
+/// same patches as the DEM exaggerated 3 times in memory, with the same heights, for `ooc`
+/// (against the store baked from the exaggerated heights: `ooc` needs a store), `uniform`,
+/// `dss-2` and `geomorph` (whose selection errors are the scaled index, DSS table and
+/// max-error vertices); and the store's GPU image equals the in-memory render of the same
+/// patches at exaggeration 3 within the golden tolerance, for `ooc` and `uniform`. Negative
+/// control: the store read without the exaggeration fails the image comparison.
+#[test]
+fn an_exaggerated_store_draws_as_the_exaggerated_dem() {
+    const K: f32 = 3.0;
+    let scene1 = MethodScene::new(puget(), MethodConfig::default());
+    let scene = MethodScene::new(times(&scene1.hm, K), MethodConfig::default());
+    let dir = scratch("store-methods", "exaggerated");
+    let plain = bake_scene(&scene1, &dir.join("store"));
+    let store = Arc::new(plain.exaggerated(f64::from(K)).unwrap());
+    let ooc = OocConfig { threads: 1, ..OocConfig::default() };
+    let camera = cameras(&scene.hm)[1];
+    // The patch methods: the same patches and heights as from the exaggerated DEM.
+    for kind in [LodMethod::Uniform, LodMethod::Dss2, LodMethod::Geomorph] {
+        scene.prepare(&[kind]);
+        let options = MethodOptions { morph: kind == LodMethod::Geomorph, ..Default::default() };
+        let mut memory = method::build(kind, &scene, &options).unwrap();
+        let runtime = OocScene::new(store.clone(), ooc);
+        let mut stored =
+            method::store_method(kind, runtime, &scene.config, OocWait::EveryFrame, Some(&scene))
+                .unwrap();
+        let mut a = memory.frame(&camera);
+        let mut b = stored.frame(&camera);
+        assert!(!a.selection.patches.is_empty());
+        // The same nodes; the factors of DSS (interpolated in its errors) equal up to f32
+        // rounding (errors of heights times 3 against errors times 3).
+        let (pa, pb) = (&a.selection.patches, &b.selection.patches);
+        assert_eq!(pa.len(), pb.len(), "{kind:?}: as many patches");
+        let close = |x: f32, y: f32| (x - y).abs() <= 1e-5 * x.abs().max(1.0);
+        for (p, q) in pa.iter().zip(pb) {
+            assert_eq!(p.node, q.node, "{kind:?}: the same patches");
+            let factors = p.outer.iter().chain(&p.inner).zip(q.outer.iter().chain(&q.inner));
+            assert!(factors.into_iter().all(|(x, y)| close(*x, *y)), "{kind:?}: {p:?} {q:?}");
+        }
+        let (sa, sb) = (memory.surface(&mut a).unwrap(), stored.surface(&mut b).unwrap());
+        assert_eq!(sa.triangles, sb.triangles, "{kind:?}");
+        let worst = sa
+            .mesh
+            .positions
+            .iter()
+            .zip(&sb.mesh.positions)
+            .map(|(p, q)| (p.z - q.z).abs())
+            .fold(0.0, f64::max);
+        println!(
+            "exaggerated x{K} {}: {} patches, largest height difference {worst} m",
+            kind.name(),
+            b.selection.patches.len()
+        );
+        assert!(worst <= 1e-2, "{kind:?}: the same heights ({worst} m apart)");
+    }
+    // ooc: the store read exaggerated selects as the store of the exaggerated heights.
+    let baked3 = bake_scene(&scene, &dir.join("store3"));
+    let mut read3 = OocScene::new(store.clone(), ooc);
+    let mut want = OocScene::new(baked3, ooc);
+    let fa = read3.frame(&camera, true);
+    let fb = want.frame(&camera, true);
+    assert!(!fa.patches.is_empty());
+    let nodes = |f: &terrain_app::ooc::OocFrame| {
+        f.selection.patches.iter().map(|p| p.node).collect::<Vec<_>>()
+    };
+    assert_eq!(nodes(&fa), nodes(&fb), "ooc: the same patches");
+
+    let Some(ctx) = gpu() else { return };
+    let (w, h) = (320, 180);
+    let camera = camera.with_viewport(f64::from(w), f64::from(h));
+    let rc = terrain_gpu::RenderConfig { width: w, height: h, ..Default::default() };
+    let mut whole = terrain_gpu::TerrainRenderer::new(&ctx, &scene.hm, &rc).unwrap();
+    let mut memory_image = |patches: &[terrain_gpu::render::DrawPatch]| {
+        whole.render(&camera, patches, &terrain_gpu::RenderOptions::default()).unwrap();
+        whole.read_image().unwrap()
+    };
+    // ooc, and its negative control (the same store read without the exaggeration).
+    for (name, s, expect) in [("ooc", store.clone(), true), ("ooc unexaggerated", plain, false)] {
+        let mut scene_s = OocScene::new(s, ooc);
+        let f = scene_s.frame(&camera, true);
+        let mut paged = scene_s.renderer(&ctx, &rc).unwrap();
+        OocScene::apply(&mut paged, &f).unwrap();
+        paged.render(&camera, &f.patches, &terrain_gpu::RenderOptions::default()).unwrap();
+        let d = golden_diff(&paged.read_image().unwrap(), &memory_image(&f.patches));
+        println!(
+            "{name} x{K}: store vs memory image: mean |diff| {:.3?}, {:.3} % off",
+            d.0,
+            d.1 * 100.0
+        );
+        assert_eq!(within_golden(d), expect, "{name}: {d:?}");
+    }
+    // uniform from the store, through its method and paged renderer.
+    let runtime = OocScene::new(store, ooc);
+    let mut stored =
+        method::store_method(LodMethod::Uniform, runtime, &scene.config, OocWait::EveryFrame, None)
+            .unwrap();
+    let f = stored.frame(&camera);
+    let mut r = stored.renderer(&ctx, &rc).unwrap();
+    r.apply(&f).unwrap();
+    let Draw::Paged(pf) = &f.draw else { panic!("a paged frame") };
+    let paged = r.terrain_renderer_mut().unwrap();
+    paged.render(&camera, &pf.patches, &terrain_gpu::RenderOptions::default()).unwrap();
+    let d = golden_diff(&paged.read_image().unwrap(), &memory_image(&pf.patches));
+    println!(
+        "uniform x{K}: store vs memory image: mean |diff| {:.3?}, {:.3} % off",
+        d.0,
+        d.1 * 100.0
+    );
+    assert!(within_golden(d), "uniform: {d:?}");
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+fn gpu() -> Option<terrain_gpu::GpuContext> {
+    use terrain_gpu::{BackendChoice, DeviceConfig, GpuContext};
+    match GpuContext::new(&DeviceConfig::from_env(BackendChoice::Auto)) {
+        Ok(ctx) => Some(ctx),
+        Err(e) if std::env::var_os("TERRAIN_REQUIRE_GPU").is_none() => {
+            println!("SKIPPED: {e}; set TERRAIN_REQUIRE_GPU=1 to make this a failure");
+            None
+        }
+        Err(e) => panic!("{e}"),
+    }
+}

@@ -393,3 +393,70 @@ fn the_window_closes_cleanly_mid_stream() {
     drop(x);
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// A store viewed with `--vertical-scale 2` is read exaggerated, the script's `exaggeration 3`
+/// rebuilds its runtime at 3x, and `--paced` plays the flight at its own clock: every drawn
+/// frame shows the flight's frame `floor(t fps)` of the flight time `t` when it started (never
+/// the next pose in line: the clock, not the frame count, advances the flight), to its end.
+#[test]
+fn a_store_is_exaggerated_and_a_paced_flight_keeps_its_clock() {
+    let Some(x) = start_xvfb(27) else { return };
+    let dir = scratch("view", "paced");
+    let store = dir.join("s.scene");
+    let b = terrain(&[
+        "bake",
+        "--synthetic",
+        "257",
+        "--block-k",
+        "5",
+        "-o",
+        store.to_str().unwrap(),
+        "--no-pvs",
+        "--no-dss",
+        "--no-roughness",
+        "--no-geomip",
+    ]);
+    assert!(b.status.success(), "{}", String::from_utf8_lossy(&b.stderr));
+    let script = dir.join("script.txt");
+    std::fs::write(&script, "exaggeration 3\nwait-flight\nquit\n").unwrap();
+    let flight = Path::new(env!("CARGO_MANIFEST_DIR")).join("../flights/fast_pass.json");
+    let log = dir.join("frames.json");
+    let args = [
+        store.to_str().unwrap(),
+        "--vertical-scale",
+        "2",
+        "--size",
+        "160x90",
+        "--flight",
+        flight.to_str().unwrap(),
+        "--paced",
+        "--script",
+        script.to_str().unwrap(),
+        "--stats-json",
+        log.to_str().unwrap(),
+    ];
+    let (ok, out, err) = view(&x.display, &dir, &args, Duration::from_secs(240));
+    if !ok && no_adapter(&err) && !require() {
+        eprintln!("skipping: {err}");
+        return;
+    }
+    assert!(ok, "terrain view failed:\n{out}\n{err}");
+    assert!(out.contains("store: heights exaggerated x2"), "{out}");
+    assert!(out.contains("view: exaggeration x3"), "{out}");
+    assert!(out.contains("(paced: the others skipped)"), "{out}");
+    let log: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&log).unwrap()).unwrap();
+    let frames = log["frames"].as_array().unwrap();
+    let shown: Vec<(usize, f64)> = frames
+        .iter()
+        .filter_map(|f| Some((f["flight_frame"].as_u64()? as usize, f["flight_s"].as_f64()?)))
+        .collect();
+    assert!(shown.len() >= 3, "{} flight frames drawn", shown.len());
+    for (k, t) in &shown {
+        assert_eq!(*k, (t * 30.0).floor() as usize, "frame {k} shown at flight time {t} s");
+    }
+    assert!(shown.windows(2).all(|w| w[1].1 > w[0].1 && w[1].0 >= w[0].0), "{shown:?}");
+    let last = shown[shown.len() - 1].0;
+    println!("{} frames drawn showed flight frames 0..{last}", shown.len());
+    assert!(last >= 240, "the flight played to near its end (frame {last} of 300)");
+}

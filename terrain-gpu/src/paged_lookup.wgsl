@@ -120,46 +120,60 @@ fn cell_of(g: vec2<f32>) -> Cell {
     return Cell(i0, i1, gc - cell);
 }
 
-// One-sided at the border and next to a sample on no resident page (surface.rs).
-fn gradient_at_sample(i: i32, j: i32) -> vec2<f32> {
+// A sample of the normals' stencil: not found outside the grid (the differences turn
+// one-sided at the border) nor on no resident page (surface::stencil).
+fn stencil(i: i32, j: i32) -> Lookup {
     let gm = vec2<i32>(frame.grid_max);
+    if i < 0 || j < 0 || i > gm.x || j > gm.y {
+        return Lookup(0.0, false);
+    }
+    return lookup(i, j);
+}
+
+// The central difference across a sample of height `c` from `a` (before it) to `b` (after it),
+// one-sided where one of them is not found, per metre of `spacing` (surface::difference).
+fn difference(a: Lookup, c: f32, b: Lookup, spacing: f32) -> f32 {
+    let ha = select(c, a.h, a.found);
+    let hb = select(c, b.h, b.found);
+    return (hb - ha) / (f32(max(i32(a.found) + i32(b.found), 1)) * spacing);
+}
+
+// The gradient at sample (i, j) from its four neighbours (one-sided at the border and next to
+// a sample on no resident page): a vertex's (geomorph.wgsl).
+fn gradient_at_sample(i: i32, j: i32) -> vec2<f32> {
     let c = height_sample(i, j);
-    var l = Lookup(c, false);
-    var r = Lookup(c, false);
-    var d = Lookup(c, false);
-    var u = Lookup(c, false);
-    if i > 0 {
-        l = lookup(i - 1, j);
-    }
-    if i < gm.x {
-        r = lookup(i + 1, j);
-    }
-    if j > 0 {
-        d = lookup(i, j - 1);
-    }
-    if j < gm.y {
-        u = lookup(i, j + 1);
-    }
-    let il = select(i, i - 1, l.found);
-    let ir = select(i, i + 1, r.found);
-    let jd = select(j, j - 1, d.found);
-    let ju = select(j, j + 1, u.found);
-    let hl = select(c, l.h, l.found);
-    let hr = select(c, r.h, r.found);
-    let hd = select(c, d.h, d.found);
-    let hu = select(c, u.h, u.found);
-    let dx = (hr - hl) / (f32(max(ir - il, 1)) * frame.spacing.x);
-    let dy = (hu - hd) / (f32(max(ju - jd, 1)) * frame.spacing.y);
+    let dx = difference(stencil(i - 1, j), c, stencil(i + 1, j), frame.spacing.x);
+    let dy = difference(stencil(i, j - 1), c, stencil(i, j + 1), frame.spacing.y);
     return vec2<f32>(dx, dy);
 }
 
-// surface::normal_at.
+// surface::normal_at: the bilinear blend of the gradients at the cell's four corners, whose
+// central differences share their samples: rows j and j + 1 at columns i - 1 .. i + 2, and
+// columns i and i + 1 at rows j - 1 and j + 2, 12 lookups (not 4 x 5 = 20). At the grid's last
+// column (row) the corners i + 1 (j + 1) lie outside it, and their gradients are weighted 0
+// (the fraction there is 0); the corners inside read what gradient_at_sample reads.
 fn normal_at(g: vec2<f32>) -> vec3<f32> {
     let c = cell_of(g);
-    let g00 = gradient_at_sample(c.i0.x, c.i0.y);
-    let g10 = gradient_at_sample(c.i1.x, c.i0.y);
-    let g01 = gradient_at_sample(c.i0.x, c.i1.y);
-    let g11 = gradient_at_sample(c.i1.x, c.i1.y);
+    let i = c.i0.x;
+    let j = c.i0.y;
+    let a0 = stencil(i - 1, j);
+    let a1 = stencil(i, j);
+    let a2 = stencil(i + 1, j);
+    let a3 = stencil(i + 2, j);
+    let b0 = stencil(i - 1, j + 1);
+    let b1 = stencil(i, j + 1);
+    let b2 = stencil(i + 1, j + 1);
+    let b3 = stencil(i + 2, j + 1);
+    let d0 = stencil(i, j - 1);
+    let d1 = stencil(i + 1, j - 1);
+    let u0 = stencil(i, j + 2);
+    let u1 = stencil(i + 1, j + 2);
+    let sx = frame.spacing.x;
+    let sy = frame.spacing.y;
+    let g00 = vec2<f32>(difference(a0, a1.h, a2, sx), difference(d0, a1.h, b1, sy));
+    let g10 = vec2<f32>(difference(a1, a2.h, a3, sx), difference(d1, a2.h, b2, sy));
+    let g01 = vec2<f32>(difference(b0, b1.h, b2, sx), difference(a1, b1.h, u0, sy));
+    let g11 = vec2<f32>(difference(b1, b2.h, b3, sx), difference(a2, b2.h, u1, sy));
     let a = g00 + (g10 - g00) * c.f.x;
     let b = g01 + (g11 - g01) * c.f.x;
     let grad = a + (b - a) * c.f.y;

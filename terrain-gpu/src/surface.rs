@@ -78,31 +78,44 @@ pub fn surface_position<G: HeightGrid + ?Sized>(hm: &G, g: Vec2) -> DVec3 {
     DVec3::new(x, y, f64::from(height_at(hm, g)))
 }
 
-/// Height gradient `(dz/dx, dz/dy)` at sample `(i, j)` by central differences, one-sided at
-/// the border and where a neighbouring sample is on no resident page, f32 as on the GPU.
-fn gradient_at_sample<G: HeightGrid + ?Sized>(hm: &G, i: u32, j: u32) -> Vec2 {
+/// A sample of the normals' stencil: `None` outside the grid (the differences turn one-sided
+/// at the border) and on no resident page.
+fn stencil<G: HeightGrid + ?Sized>(hm: &G, i: i64, j: i64) -> Option<f32> {
     let [w, h] = hm.size();
-    let s = hm.frame().1.as_vec2();
-    let resident = |a: u32, b: u32| hm.sample(a, b).is_some();
-    let il = if i > 0 && resident(i - 1, j) { i - 1 } else { i };
-    let ir = if i + 1 < w && resident(i + 1, j) { i + 1 } else { i };
-    let jd = if j > 0 && resident(i, j - 1) { j - 1 } else { j };
-    let ju = if j + 1 < h && resident(i, j + 1) { j + 1 } else { j };
-    let dx =
-        (height_sample(hm, ir, j) - height_sample(hm, il, j)) / ((ir - il).max(1) as f32 * s.x);
-    let dy =
-        (height_sample(hm, i, ju) - height_sample(hm, i, jd)) / ((ju - jd).max(1) as f32 * s.y);
-    Vec2::new(dx, dy)
+    if i < 0 || j < 0 || i >= i64::from(w) || j >= i64::from(h) {
+        return None;
+    }
+    hm.sample(i as u32, j as u32)
+}
+
+/// The central difference across a sample of height `c` from `a` (before it) to `b` (after
+/// it), one-sided where one of them is `None`, per metre of `spacing`; f32 as on the GPU.
+fn difference(a: Option<f32>, c: f32, b: Option<f32>, spacing: f32) -> f32 {
+    let n = u32::from(a.is_some()) + u32::from(b.is_some());
+    (b.unwrap_or(c) - a.unwrap_or(c)) / (n.max(1) as f32 * spacing)
 }
 
 /// Unit normal (world frame, z up) at grid coordinates `g`: the bilinear blend of the
-/// central-difference gradients at the four samples around `g`.
+/// central-difference gradients (one-sided at the border and next to a sample on no resident
+/// page) at the four samples around `g`. The four gradients share their samples: rows `j` and
+/// `j + 1` at columns `i - 1 ..= i + 2`, and columns `i` and `i + 1` at rows `j - 1` and `j + 2`,
+/// 12 reads (the shader's lookups) instead of 4 x 5. At the grid's last column (row) the
+/// corners `i + 1` (`j + 1`) lie outside it and their gradients are weighted 0 (the fraction
+/// there is 0).
 pub fn normal_at<G: HeightGrid + ?Sized>(hm: &G, g: Vec2) -> Vec3 {
-    let (i0, i1, f) = cell_of(hm, g);
-    let g00 = gradient_at_sample(hm, i0[0], i0[1]);
-    let g10 = gradient_at_sample(hm, i1[0], i0[1]);
-    let g01 = gradient_at_sample(hm, i0[0], i1[1]);
-    let g11 = gradient_at_sample(hm, i1[0], i1[1]);
+    let (i0, _, f) = cell_of(hm, g);
+    let (i, j) = (i64::from(i0[0]), i64::from(i0[1]));
+    let at = |di: i64, dj: i64| stencil(hm, i + di, j + dj);
+    let [a0, a1, a2, a3] = [at(-1, 0), at(0, 0), at(1, 0), at(2, 0)];
+    let [b0, b1, b2, b3] = [at(-1, 1), at(0, 1), at(1, 1), at(2, 1)];
+    let [d0, d1, u0, u1] = [at(0, -1), at(1, -1), at(0, 2), at(1, 2)];
+    let s = hm.frame().1.as_vec2();
+    // The centre's height as the shader reads it: 0 on no resident page.
+    let h = |x: Option<f32>| x.unwrap_or(0.0);
+    let g00 = Vec2::new(difference(a0, h(a1), a2, s.x), difference(d0, h(a1), b1, s.y));
+    let g10 = Vec2::new(difference(a1, h(a2), a3, s.x), difference(d1, h(a2), b2, s.y));
+    let g01 = Vec2::new(difference(b0, h(b1), b2, s.x), difference(a1, h(b1), u0, s.y));
+    let g11 = Vec2::new(difference(b1, h(b2), b3, s.x), difference(a2, h(b2), u1, s.y));
     let a = g00 + (g10 - g00) * f.x;
     let b = g01 + (g11 - g01) * f.x;
     let grad = a + (b - a) * f.y;

@@ -491,6 +491,7 @@ pub(crate) fn bake_rows(
         node_levels,
         georef: source.georef(),
         bake_id: 0,
+        vertical_scale: 1.0,
     };
     Ok(BakedRows { header, entries, lossless, bound: quant.bound })
 }

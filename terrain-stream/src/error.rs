@@ -13,6 +13,17 @@ use crate::format::BlockId;
 #[derive(Debug, thiserror::Error)]
 #[non_exhaustive]
 pub enum StoreError {
+    /// A vertical exaggeration that is not a positive number ([`crate::Store::exaggerated`]).
+    #[error(
+        "{}: a vertical exaggeration must be a finite positive number, got {scale}",
+        path.display()
+    )]
+    Exaggeration {
+        /// The store folder.
+        path: PathBuf,
+        /// The exaggeration asked for.
+        scale: f64,
+    },
     /// The operating system refused.
     #[error("{}: I/O error: {cause}", path.display())]
     Io {

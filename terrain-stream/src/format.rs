@@ -187,6 +187,19 @@ impl SampleEncoding {
             SampleEncoding::F32 => f32::from_bits(q as u32),
         }
     }
+
+    /// [`SampleEncoding::height`] times `scale` (a vertical exaggeration), multiplied in f64
+    /// and rounded to f32 once: for f32 heights the correctly rounded `height * scale`, as a
+    /// DEM's f32 heights scaled in f32 (`height` itself at `scale` 1).
+    #[inline]
+    pub fn height_scaled(&self, q: i32, scale: f64) -> f32 {
+        match *self {
+            SampleEncoding::Quantized { step_m, offset_m } => {
+                ((offset_m + q as f64 * step_m) * scale) as f32
+            }
+            SampleEncoding::F32 => (f64::from(f32::from_bits(q as u32)) * scale) as f32,
+        }
+    }
 }
 
 /// Payload codec of a level (the first byte of every payload says which was used).
@@ -232,6 +245,9 @@ pub struct Header {
     pub georef: Georef,
     /// Ties block files to this index: a hash of every level's checksum.
     pub bake_id: u64,
+    /// Not stored: the vertical exaggeration every height and height error of this store is
+    /// read with ([`crate::Store::exaggerated`]); 1 as the index is read and as a bake writes it.
+    pub vertical_scale: f64,
 }
 
 impl Header {
@@ -690,6 +706,7 @@ pub(crate) fn read_header(r: &mut Reader<'_>) -> Result<Header, IndexError> {
         node_levels,
         georef,
         bake_id,
+        vertical_scale: 1.0,
     })
 }
 

@@ -17,7 +17,7 @@ use crate::format::{
 
 /// An open store: the header and every block's index entry in memory, block files on disk.
 /// `Sync`: worker threads share it behind an `Arc`.
-#[derive(Debug)]
+#[derive(Debug, Clone)]
 pub struct Store {
     dir: PathBuf,
     header: Header,
@@ -52,6 +52,43 @@ impl Store {
             }
         })?;
         Ok(Self { dir, header, blocks })
+    }
+
+    /// This store read with its heights exaggerated `scale` times (a vertical exaggeration):
+    /// every decoded height ([`BlockLevels::height`], multiplied in f64 and rounded once) and
+    /// every height and height error of the index (block and node minima and maxima,
+    /// `StaticE`, the per-level and fine maxima, the DSS errors, the header's error bounds)
+    /// times `scale`, so everything that selects from the store (the streamer's Eq. 7 and Eq. 8,
+    /// the culling boxes, the patch selection) sees the exaggerated terrain: all of these are
+    /// vertical distances, linear in the heights. Scales compose (`exaggerated(a)` then
+    /// `exaggerated(b)` reads `a b`). The block files are unchanged; `scale` must be finite and
+    /// positive.
+    pub fn exaggerated(&self, scale: f64) -> Result<Store, StoreError> {
+        if !(scale.is_finite() && scale > 0.0) {
+            return Err(StoreError::Exaggeration { path: self.dir.clone(), scale });
+        }
+        let mut s = self.clone();
+        let f = |v: &mut f32| *v = (f64::from(*v) * scale) as f32;
+        let h = &mut s.header;
+        h.vertical_scale *= scale;
+        h.max_error_m *= scale;
+        h.max_void_error_m *= scale;
+        h.error_bound_m *= scale;
+        for b in &mut s.blocks {
+            f(&mut b.min);
+            f(&mut b.max);
+            for n in &mut b.nodes {
+                f(&mut n.min);
+                f(&mut n.max);
+                f(&mut n.static_error);
+            }
+            b.level_errors.iter_mut().for_each(f);
+            b.fine_errors.iter_mut().for_each(f);
+            if let Some(d) = &mut b.dss {
+                d.avg.iter_mut().chain(d.max.iter_mut()).for_each(f);
+            }
+        }
+        Ok(s)
     }
 
     /// The store folder.
@@ -246,13 +283,20 @@ pub fn is_store(path: &Path) -> bool {
 pub struct BlockLevels {
     k: u8,
     encoding: SampleEncoding,
+    /// The store's vertical exaggeration ([`Header::vertical_scale`]).
+    scale: f64,
     levels: Vec<Arc<[i32]>>,
 }
 
 impl BlockLevels {
     /// No level resident.
     pub fn new(header: &Header) -> Self {
-        Self { k: header.k, encoding: header.encoding, levels: Vec::new() }
+        Self {
+            k: header.k,
+            encoding: header.encoding,
+            scale: header.vertical_scale,
+            levels: Vec::new(),
+        }
     }
 
     /// Number of resident levels (`0` = none; levels `0..count` are resident).
@@ -287,11 +331,16 @@ impl BlockLevels {
         self.levels.iter().map(|l| l.len() as u64).sum::<u64>() * Header::SAMPLE_BYTES
     }
 
-    /// Height of block vertex `(i, j)`, if its level is resident.
+    /// Height of block vertex `(i, j)` (exaggerated as the store is read,
+    /// [`Store::exaggerated`]), if its level is resident.
     pub fn height(&self, i: u32, j: u32) -> Option<f32> {
         let v = vertex_index(self.k, i, j)?;
         let q = *self.levels.get(v.level as usize)?.get(v.order as usize)?;
-        Some(self.encoding.height(q))
+        Some(if self.scale == 1.0 {
+            self.encoding.height(q)
+        } else {
+            self.encoding.height_scaled(q, self.scale)
+        })
     }
 
     /// The `(2^level + 1)^2` grid of heights at `level` (row-major, south row first), if

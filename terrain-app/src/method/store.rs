@@ -14,6 +14,15 @@
 //! from the heightmap in memory (tested patch for patch, and geomorph's morphed heights vertex
 //! for vertex).
 //!
+//! A store opened exaggerated ([`terrain_stream::Store::exaggerated`], `--vertical-scale`)
+//! is the terrain of the heights times the exaggeration: its heights and index errors are
+//! scaled as read, and so are the object-space tables read here (DSS's errors and geomorph's
+//! max-error vertices, vertical distances: `exaggerated`); the PVS, a visibility relation,
+//! is invariant under the vertical scaling (an affine map keeps sight lines), so the eye is
+//! looked up at its unexaggerated height. PVPS's roughness (Eq. 5, `1 / cos(slope)`,
+//! normalised) is not linear in the heights: it is read as baked, so an exaggerated PVPS
+//! selection differs from PVPS over the exaggerated DEM in memory.
+//!
 //! Not from a store yet: `entropy` (a mesh of the whole grid): [`store_method`] says so.
 
 use std::path::Path;
@@ -97,6 +106,8 @@ pub struct StoreMethod<'a> {
     reference: Option<&'a MethodScene>,
     wait: OocWait,
     frames: usize,
+    /// The store's vertical exaggeration (its header's).
+    vertical_scale: f64,
 }
 
 impl<'a> StoreMethod<'a> {
@@ -108,6 +119,7 @@ impl<'a> StoreMethod<'a> {
         reference: Option<&'a MethodScene>,
     ) -> anyhow::Result<Self> {
         let store = scene.store().clone();
+        let vertical_scale = store.header().vertical_scale;
         // Geomorph's patch tree: leaves of its patch size (the leaf size clamped to 2..=64, as
         // `MethodScene::geomorph_patch_cells`).
         let leaf_cells = match kind {
@@ -165,7 +177,8 @@ impl<'a> StoreMethod<'a> {
                 Tables::RoughnessPvs(read_roughness(&dir, LodMethod::PvpsC, &shape)?, pvs)
             }
             LodMethod::Geomorph => {
-                let table = crate::geomip_scene::read_for_store(&dir, &shape)?;
+                let table =
+                    crate::geomip_scene::read_for_store(&dir, &shape)?.exaggerated(vertical_scale);
                 let lib = MeshLibrary::new(table.patch_cells());
                 Tables::Geomip(table, lib)
             }
@@ -194,7 +207,8 @@ impl<'a> StoreMethod<'a> {
                     )
                 })?;
                 let table = DssErrorTable::decode_for(&bytes, &shape, None)
-                    .with_context(|| format!("{} cannot be used", path.display()))?;
+                    .with_context(|| format!("{} cannot be used", path.display()))?
+                    .exaggerated(vertical_scale);
                 Tables::Dss(table)
             }
         };
@@ -202,7 +216,17 @@ impl<'a> StoreMethod<'a> {
             Some(_) => mirrored(scene, wait),
             None => scene,
         };
-        Ok(Self { kind, scene, tree, tables, config: config.clone(), reference, wait, frames: 0 })
+        Ok(Self {
+            kind,
+            scene,
+            tree,
+            tables,
+            config: config.clone(),
+            reference,
+            wait,
+            frames: 0,
+            vertical_scale,
+        })
     }
 }
 
@@ -239,19 +263,18 @@ impl Method for StoreMethod<'_> {
         let warm = self.wait.next_is_warm(&mut self.frames);
         let (cfg, tables) = (&self.config, &self.tables);
         let kind = self.kind;
+        // The PVS of the unexaggerated terrain, looked up where the eye is over it.
+        let mut pvs_eye = camera.position;
+        pvs_eye.z /= self.vertical_scale;
         // Geomorph's patches with their levels and tween factors (the last selection's).
         let mut morph: Option<GeomipSelection> = None;
         let mut select = |src: &dyn TerrainSource| -> StoreDraw {
             let selection = match tables {
                 Tables::None => select_uniform(src, camera, cfg.uniform_factor),
                 Tables::Roughness(field) => select_pvps(src, camera, field, &cfg.pvps),
-                Tables::RoughnessPvs(field, Some(pvs)) => select_pvps_with_cull(
-                    src,
-                    camera,
-                    field,
-                    &cfg.pvps,
-                    &mut pvs.cull_for(camera.position),
-                ),
+                Tables::RoughnessPvs(field, Some(pvs)) => {
+                    select_pvps_with_cull(src, camera, field, &cfg.pvps, &mut pvs.cull_for(pvs_eye))
+                }
                 Tables::RoughnessPvs(field, None) => select_pvps(src, camera, field, &cfg.pvps),
                 Tables::Dss(table) if kind == LodMethod::DssStrips => {
                     let f = strips_frame(src, camera, table, cfg);

@@ -9,7 +9,8 @@
 //! - Scripts ([`script`]): `--script FILE` drives the same actions without a person.
 //! - Loading never blocks the event loop: a method switch or a vertical exaggeration over a
 //!   DEM in memory prepares its tables on a worker thread while the old method keeps drawing;
-//!   over a store a method or quality change builds the new runtime and renderer on a worker
+//!   over a store a method, quality or exaggeration change builds the new runtime (the store
+//!   read exaggerated) and renderer on a worker
 //!   (which plays its first, waiting frame) while the old one draws, and so does the first
 //!   method at start while the window shows the sky; a store is drawn in the streamer's
 //!   real-time mode (no frame the event loop draws waits for I/O).
@@ -76,6 +77,12 @@ pub(crate) struct ViewArgs {
     /// Play this flight (JSON, see `flights/`) from the start, then fly freely.
     #[arg(long)]
     pub flight: Option<PathBuf>,
+    /// Play `--flight` at its own clock: each drawn frame shows the flight's pose at the time
+    /// elapsed since the flight began when the frame starts (frame k at k / fps), so slow frames
+    /// skip flight time and the flight lasts its own duration. Without it every drawn frame
+    /// shows the flight's next frame.
+    #[arg(long, requires = "flight")]
+    pub paced: bool,
     /// Where the R key (or the script's `record`) writes the recorded flight (its folder is
     /// created; `out/` is git-ignored).
     #[arg(long, default_value = "out/recorded_flight.json")]
@@ -132,7 +139,10 @@ pub(crate) fn run(args: &ViewArgs) -> anyhow::Result<()> {
     let own = [("--tau", args.store.tau.is_some())];
     let mapped = args.lod.quality.apply(&mut config, kind, error_view, &own)?;
     if store.is_some() {
-        config.ooc = args.store.config(config.ooc.tau)?;
+        config.ooc = ooc::OocConfig {
+            vertical_scale: args.source.store_exaggeration()?,
+            ..args.store.config(config.ooc.tau)?
+        };
     }
     if let Some(p) = &mapped {
         println!("quality: {p}");
@@ -144,10 +154,7 @@ pub(crate) fn run(args: &ViewArgs) -> anyhow::Result<()> {
         ..Default::default()
     };
     let terrain = match &store {
-        Some(dir) => {
-            args.source.refuse_reading_options("a baked store (its heights are stored)")?;
-            Terrain::Store(Box::new(StoreTerrain::open(dir, config)?))
-        }
+        Some(dir) => Terrain::Store(Box::new(StoreTerrain::open(dir, config)?)),
         None => {
             let hm = match args.source.load_surface()? {
                 Some(dem) => dem.heightmap,
@@ -194,23 +201,41 @@ pub(crate) fn run(args: &ViewArgs) -> anyhow::Result<()> {
             for w in &warnings {
                 eprintln!("warning: flight {}: {w}", flight.name);
             }
-            println!("flight {}: {} frames", flight.name, flight.frames().len());
-            flight
-                .frames()
-                .iter()
-                .map(|c| {
-                    let (yaw, pitch) = yaw_pitch_of(c.forward());
-                    (c.position, yaw, pitch)
-                })
-                .collect()
+            println!(
+                "flight {}: {} frames at {} fps{}",
+                flight.name,
+                flight.frames().len(),
+                spec.fps,
+                if args.paced { ", paced at its own clock" } else { "" }
+            );
+            FlightPlay {
+                poses: flight
+                    .frames()
+                    .iter()
+                    .map(|c| {
+                        let (yaw, pitch) = yaw_pitch_of(c.forward());
+                        (c.position, yaw, pitch)
+                    })
+                    .collect(),
+                next: 0,
+                fps: spec.fps,
+                paced: args.paced,
+                started: None,
+            }
         }
-        None => VecDeque::new(),
+        None => FlightPlay::default(),
     };
     println!("terrain: heights {lo:.1} to {hi:.1} m, extent {extent:.0} m");
     if let Some(path) = &args.stats_json {
         crate::render::check_writable(path)?;
     }
     let clip = ClipBoxes::new(ground);
+    // The panel's exaggeration: a store's as read (its heights are metres), 1 for a DEM in
+    // memory (its --vertical-scale, a unit or an exaggeration, is in its heights).
+    let exaggeration = match &terrain {
+        Terrain::Store(s) => s.config.ooc.vertical_scale,
+        Terrain::Memory(_) => 1.0,
+    };
     let mut terrain = terrain;
     if let Terrain::Store(s) = &mut terrain {
         // The method and its renderer are built, and the first frame (the one that waits for
@@ -219,7 +244,7 @@ pub(crate) fn run(args: &ViewArgs) -> anyhow::Result<()> {
         let config = s.config.clone();
         // The pose of the first frame drawn: the flight's first, else the start camera.
         let mut first = start.clone();
-        if let Some(&(p, yaw, pitch)) = flight.front() {
+        if let Some(&(p, yaw, pitch)) = flight.poses.first() {
             (first.position, first.yaw, first.pitch) = (p, yaw, pitch);
         }
         let camera = first.camera(args.eye.fov, size, clip.range(first.position));
@@ -245,13 +270,14 @@ pub(crate) fn run(args: &ViewArgs) -> anyhow::Result<()> {
         cursor: None,
         drag: (0.0, 0.0),
         wheel: 0.0,
-        ui: UiState::default(),
+        ui: UiState { exaggeration, ..UiState::default() },
         frozen: None,
         sun: SUN_DEFAULT,
         script: script.into(),
         scripted: args.script.is_some(),
         script_wait: 0,
         flight,
+        wait_flight: false,
         recorder: None,
         record_to: args.record_to.clone(),
         stats: Stats::default(),
@@ -285,6 +311,15 @@ pub(crate) fn run(args: &ViewArgs) -> anyhow::Result<()> {
             times.period_max_ms,
             times.slow.len(),
             loading
+        );
+    }
+    let shown: Vec<usize> = times.frames.iter().filter_map(|t| t.flight_frame).collect();
+    if let (Some(first), Some(last)) = (shown.first(), shown.last()) {
+        println!(
+            "view: flight: {} drawn frames showed its frames {first} to {last} of {}{}",
+            shown.len(),
+            app.flight.poses.len(),
+            if app.flight.paced { " (paced: the others skipped)" } else { "" }
         );
     }
     if let Some(path) = &args.stats_json {
@@ -363,6 +398,13 @@ struct FrameTime {
     queued_mib: f64,
     /// Whether the frame thread read from disk or waited for the workers (a store).
     waited_for_io: bool,
+    /// The `--flight` frame shown (paced: frames between the shown ones were skipped).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    flight_frame: Option<usize>,
+    /// `--paced`: the flight time the pose was taken at, seconds (`flight_frame` is its
+    /// frame, `floor(flight_s fps)`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    flight_s: Option<f64>,
     /// The store's streaming figures of this frame.
     #[serde(skip_serializing_if = "Option::is_none")]
     stream: Option<ooc::StreamRecord>,
@@ -484,6 +526,14 @@ fn check_exaggeration(q: f64) -> anyhow::Result<()> {
     Ok(())
 }
 
+/// `hm` with every height times `k`: a DEM in memory exaggerated anew, or a store's overview
+/// following its store's exaggeration.
+fn rescaled(hm: &Heightmap, k: f32) -> anyhow::Result<Heightmap> {
+    let data: Vec<f32> = hm.data().iter().map(|h| h * k).collect();
+    Heightmap::new(hm.width(), hm.height(), data, hm.voids().clone(), hm.georef().clone())
+        .context("the exaggerated heights")
+}
+
 /// Compass yaw and pitch (degrees) of a view direction.
 fn yaw_pitch_of(f: DVec3) -> (f64, f64) {
     let yaw = f.x.atan2(f.y).to_degrees().rem_euclid(360.0);
@@ -497,12 +547,56 @@ fn threads() -> Option<usize> {
     s.lines().find_map(|l| l.strip_prefix("Threads:")).and_then(|v| v.trim().parse().ok())
 }
 
+/// A flight pose: position, yaw and pitch (degrees).
+type Pose = (DVec3, f64, f64);
+
+/// `--flight` played by the window: every drawn frame shows the next pose, or, `paced`, the
+/// pose at the flight time elapsed since its first frame (frames between are skipped).
+#[derive(Debug, Default)]
+struct FlightPlay {
+    /// The flight's poses: position, yaw, pitch; frame `k` at `k / fps` seconds.
+    poses: Vec<Pose>,
+    /// The first pose not shown yet.
+    next: usize,
+    fps: f64,
+    paced: bool,
+    /// When the first pose was shown (paced).
+    started: Option<Instant>,
+}
+
+impl FlightPlay {
+    /// The pose of a frame starting now, its index in the flight and (paced) the flight time
+    /// it was taken at, seconds; `None` once the flight has ended. Paced, frame
+    /// `floor(t fps)` of the flight time `t`: a fast frame may show the pose of the frame
+    /// before it again, a slow one skips poses.
+    fn pose(&mut self) -> Option<(usize, Option<f64>, Pose)> {
+        let (k, t) = if self.paced {
+            let t = self.started.get_or_insert_with(Instant::now).elapsed().as_secs_f64();
+            ((t * self.fps).floor() as usize, Some(t))
+        } else {
+            (self.next, None)
+        };
+        let pose = *self.poses.get(k)?;
+        self.next = k + 1;
+        Some((k, t, pose))
+    }
+
+    /// Whether every pose has been shown or skipped.
+    fn ended(&self) -> bool {
+        self.next >= self.poses.len()
+            || self.paced
+                && self.started.is_some_and(|t| {
+                    t.elapsed().as_secs_f64() * self.fps >= self.poses.len() as f64
+                })
+    }
+}
+
 /// Work on a worker thread whose result the next frames pick up.
 enum Job {
     /// The tables of a method (the scene's lazily computed ones).
     Prepare(LodMethod, JoinHandle<()>),
     /// A scene with heights exaggerated by the factor, prepared for the method.
-    Rescale(f64, JoinHandle<MethodScene>),
+    Rescale(f64, JoinHandle<anyhow::Result<MethodScene>>),
 }
 
 /// A DEM in memory.
@@ -727,8 +821,10 @@ struct App {
     script: VecDeque<Command>,
     scripted: bool,
     script_wait: u32,
-    /// Poses still to play from `--flight`.
-    flight: VecDeque<(DVec3, f64, f64)>,
+    /// `--flight` being played.
+    flight: FlightPlay,
+    /// The script waits until the flight has played to its end (`wait-flight`).
+    wait_flight: bool,
     recorder: Option<record::Recorder>,
     record_to: PathBuf,
     stats: Stats,
@@ -998,11 +1094,22 @@ impl App {
             },
             Action::Exaggeration(v) => {
                 check_exaggeration(v)?;
-                let Terrain::Memory(m) = &mut self.terrain else {
-                    bail!(
-                        "vertical exaggeration of a store: bake it with --vertical-scale (its \
-                         heights are stored)"
-                    );
+                let m = match &mut self.terrain {
+                    Terrain::Memory(m) => m,
+                    Terrain::Store(s) => {
+                        // A new runtime over the store read exaggerated `v` times (heights,
+                        // boxes and selection errors), built on a worker as a method change.
+                        let mut config = s.config.clone();
+                        config.ooc.vertical_scale = v;
+                        let camera = self.camera.camera(
+                            self.fov,
+                            self.size,
+                            self.clip.range(self.camera.position),
+                        );
+                        s.rebuild(self.kind, config, None, camera, &self.ctx, &self.render_config)?;
+                        self.ui.message = Some(format!("exaggerating x{v}"));
+                        return Ok(());
+                    }
                 };
                 if m.job.is_some() {
                     bail!("still preparing; try again in a moment");
@@ -1010,20 +1117,10 @@ impl App {
                 let (scene, kind, old) = (m.scene.clone(), self.kind, m.exaggeration);
                 let handle =
                     std::thread::Builder::new().name("view-rescale".into()).spawn(move || {
-                        let hm = &scene.hm;
-                        let k = (v / old) as f32;
-                        let data: Vec<f32> = hm.data().iter().map(|h| h * k).collect();
-                        let scaled = Heightmap::new(
-                            hm.width(),
-                            hm.height(),
-                            data,
-                            hm.voids().clone(),
-                            hm.georef().clone(),
-                        )
-                        .expect("a rescaled heightmap of the same size");
+                        let scaled = rescaled(&scene.hm, (v / old) as f32)?;
                         let s = MethodScene::new(scaled, scene.config.clone());
                         s.prepare(&[kind]);
-                        s
+                        Ok(s)
                     })?;
                 m.job = Some(Job::Rescale(v, handle));
                 self.ui.message = Some(format!("exaggerating x{v}"));
@@ -1089,6 +1186,12 @@ impl App {
             self.script_wait -= 1;
             return Ok(None);
         }
+        if self.wait_flight {
+            if !self.flight.ended() {
+                return Ok(None);
+            }
+            self.wait_flight = false;
+        }
         while let Some(cmd) = self.script.pop_front() {
             match cmd {
                 Command::Key(k, down) => {
@@ -1126,6 +1229,10 @@ impl App {
                 }
                 Command::Record => self.try_apply(Action::Record)?,
                 Command::Screenshot(p) => return Ok(Some(p)),
+                Command::WaitFlight => {
+                    self.wait_flight = true;
+                    return Ok(None);
+                }
                 Command::Wait(n) => {
                     self.script_wait = n.saturating_sub(1);
                     return Ok(None);
@@ -1158,6 +1265,14 @@ impl App {
                 // The old runtime goes (its workers joined), the new one draws.
                 s.frames = None;
                 s.frames = Some(FrameLoop::new(method).rendered_by(renderer));
+                let (old, new) = (s.config.ooc.vertical_scale, job.config.ooc.vertical_scale);
+                if new != old {
+                    // The ground the camera stays above follows the exaggeration.
+                    s.overview = rescaled(&s.overview, (new / old) as f32)?;
+                    self.clip = ClipBoxes::new(&s.overview);
+                    self.ui.exaggeration = new;
+                    println!("view: exaggeration x{new}");
+                }
                 s.config = job.config;
                 self.kind = job.kind;
                 if job.mapped.is_some() {
@@ -1205,7 +1320,7 @@ impl App {
                 println!("view: method {}", kind.name());
             }
             Some(Job::Rescale(v, h)) => {
-                let scene = h.join().map_err(|_| anyhow::anyhow!("rescaling panicked"))?;
+                let scene = h.join().map_err(|_| anyhow::anyhow!("rescaling panicked"))??;
                 m.scene = Arc::new(scene);
                 m.exaggeration = v;
                 self.ui.exaggeration = v;
@@ -1240,10 +1355,12 @@ impl App {
         let ground: &Heightmap = self.terrain.ground();
         // The flight waits for the store's first method (built on a worker at start).
         let loading = matches!(&self.terrain, Terrain::Store(s) if s.frames.is_none());
-        if !loading && let Some((p, yaw, pitch)) = self.flight.pop_front() {
+        let (mut flight_frame, mut flight_s) = (None, None);
+        if !loading && let Some((k, t, (p, yaw, pitch))) = self.flight.pose() {
             self.camera.position = p;
             self.camera.yaw = yaw;
             self.camera.pitch = pitch;
+            (flight_frame, flight_s) = (Some(k), t);
         }
         let axis = |a: Key, b: Key| {
             f64::from(u8::from(self.held.contains(&a)))
@@ -1402,6 +1519,8 @@ impl App {
             late_mib: stream.as_ref().map_or(0.0, |s| s.late_mib),
             queued_mib: stream.as_ref().map_or(0.0, |s| s.queued_mib),
             waited_for_io: stream.as_ref().is_some_and(|s| s.waited_for_io),
+            flight_frame,
+            flight_s,
             stream,
             start: Some((t0, cpu0)),
         });

@@ -101,6 +101,8 @@ pub(crate) enum Command {
     Screenshot(PathBuf),
     /// Draw this many frames.
     Wait(u32),
+    /// Draw frames until `--flight` has played to its end.
+    WaitFlight,
     /// Close and exit.
     Quit,
 }
@@ -170,6 +172,7 @@ fn parse_line(line: &str) -> anyhow::Result<Command> {
         ["record"] => Command::Record,
         ["screenshot", path] => Command::Screenshot(PathBuf::from(path)),
         ["wait", n] => Command::Wait(n.parse().with_context(|| format!("`{n}` frames?"))?),
+        ["wait-flight"] => Command::WaitFlight,
         ["quit"] => Command::Quit,
         _ => bail!("unknown command (see `terrain view --help` for the script format)"),
     })

@@ -85,6 +85,18 @@ pub struct DssErrorTable {
 }
 
 impl DssErrorTable {
+    /// The table of the heights times `scale` (a vertical exaggeration): every object-space
+    /// error is a vertical distance (section 3.3.1's mean vertical deviation), linear in the
+    /// heights, so each is multiplied by `scale`.
+    pub fn exaggerated(mut self, scale: f64) -> Self {
+        for (_, nodes) in &mut self.levels {
+            for e in nodes.iter_mut().flatten() {
+                *e *= scale;
+            }
+        }
+        self
+    }
+
     /// Computes every node's errors. Cost: about `32 x samples x levels` sample updates
     /// (seconds for a 4097 x 4097 grid; see [`DssErrorTable::new_with`] to spread it over
     /// threads).

@@ -289,6 +289,20 @@ impl GeomipTable {
         self.errors.len() * 10
     }
 
+    /// The table of the heights times `scale` (a vertical exaggeration, positive): each level's
+    /// error is a vertical distance and its max-error vertex stays the same vertex, so the
+    /// errors and the vertices' heights are multiplied by `scale` (rounded up to `f32` as the
+    /// computed errors are).
+    pub fn exaggerated(mut self, scale: f64) -> Self {
+        for e in &mut self.errors {
+            *e = f32_at_or_above(f64::from(*e) * scale);
+        }
+        for h in &mut self.heights {
+            *h = (f64::from(*h) * scale) as f32;
+        }
+        self
+    }
+
     /// Whether `shape` is a patch tree this table selects over: the same grid, leaves of
     /// [`GeomipTable::patch_cells`] cells.
     pub fn fits(&self, shape: &TreeShape) -> bool {

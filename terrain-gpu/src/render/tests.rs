@@ -934,3 +934,67 @@ fn pages_are_checked() {
         TerrainRenderer::new_paged_classes(&ctx, layout, &bad, [0.0, 1.0], &config(8, 8)).is_err()
     );
 }
+
+/// The normal from 12 shared lookups (`surface::normal_at`, the shader's `normal_at`) is the
+/// bilinear blend of four separate central-difference gradients of 5 lookups each (the
+/// formulation it replaces, written out here as the reference), bit for bit: inside the grid,
+/// on its last column and row, and next to a page that is not resident (one-sided
+/// differences). The GPU side is checked against `surface::normal_at` by the surface tests.
+#[test]
+fn the_shared_stencil_normal_is_the_four_gradient_normal() {
+    use crate::paged::HeightGrid;
+    use glam::{Vec2, Vec3};
+    fn gradient<G: HeightGrid + ?Sized>(hm: &G, i: u32, j: u32) -> Vec2 {
+        let [w, h] = hm.size();
+        let s = hm.frame().1.as_vec2();
+        let at = |a: u32, b: u32| hm.sample(a, b).unwrap_or(0.0);
+        let here = |a: u32, b: u32| hm.sample(a, b).is_some();
+        let il = if i > 0 && here(i - 1, j) { i - 1 } else { i };
+        let ir = if i + 1 < w && here(i + 1, j) { i + 1 } else { i };
+        let jd = if j > 0 && here(i, j - 1) { j - 1 } else { j };
+        let ju = if j + 1 < h && here(i, j + 1) { j + 1 } else { j };
+        Vec2::new(
+            (at(ir, j) - at(il, j)) / ((ir - il).max(1) as f32 * s.x),
+            (at(i, ju) - at(i, jd)) / ((ju - jd).max(1) as f32 * s.y),
+        )
+    }
+    fn four_gradients<G: HeightGrid + ?Sized>(hm: &G, g: Vec2) -> Vec3 {
+        let [w, h] = hm.size();
+        let g = g.clamp(Vec2::ZERO, Vec2::new((w - 1) as f32, (h - 1) as f32));
+        let cell = g.floor();
+        let f = g - cell;
+        let (i0, j0) = (cell.x as u32, cell.y as u32);
+        let (i1, j1) = ((i0 + 1).min(w - 1), (j0 + 1).min(h - 1));
+        let a = gradient(hm, i0, j0) + (gradient(hm, i1, j0) - gradient(hm, i0, j0)) * f.x;
+        let b = gradient(hm, i0, j1) + (gradient(hm, i1, j1) - gradient(hm, i0, j1)) * f.x;
+        let grad = a + (b - a) * f.y;
+        Vec3::new(-grad.x, -grad.y, 1.0).normalize()
+    }
+    let hm = default_terrain();
+    let mut paged = mixed_level_pages(&hm);
+    assert!(paged.remove([2, 3]));
+    let (w, h) = (hm.width() as f32, hm.height() as f32);
+    let mut points = vec![Vec2::new(w - 1.0, h - 1.0), Vec2::new(0.0, 0.0)];
+    for k in 0..4000u32 {
+        // A scattered walk over the grid, with whole and fractional coordinates.
+        let x = ((k * 37) % hm.width() as u32) as f32 + [0.0, 0.25, 0.5, 0.999][(k % 4) as usize];
+        let y = ((k * 53) % hm.height() as u32) as f32 + [0.0, 0.7, 0.1, 0.5][(k % 3) as usize];
+        points.push(Vec2::new(x.min(w - 1.0), y.min(h - 1.0)));
+        points.push(Vec2::new(w - 1.0, y.min(h - 1.0)));
+        points.push(Vec2::new(x.min(w - 1.0), h - 1.0));
+    }
+    // Around the page taken out (cells 64-96 x 96-128).
+    for y in (90..134).step_by(3) {
+        for x in (58..102).step_by(3) {
+            points.push(Vec2::new(x as f32 + 0.3, y as f32 + 0.6));
+        }
+    }
+    let mut one_sided = 0;
+    for g in &points {
+        assert_eq!(surface::normal_at(&hm, *g), four_gradients(&hm, *g), "whole grid at {g}");
+        assert_eq!(surface::normal_at(&paged, *g), four_gradients(&paged, *g), "pages at {g}");
+        let east = g.x as u32 + 1;
+        one_sided += usize::from(east + 1 < w as u32 && paged.sample(east, g.y as u32).is_none());
+    }
+    assert!(one_sided > 10, "{one_sided} points next to the hole: the test reaches it");
+}

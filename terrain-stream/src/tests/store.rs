@@ -390,3 +390,52 @@ fn scaled_integer_geotiffs_are_stored_on_their_own_lattice() {
     let enc = HeightEncoding::for_source(&dem.source, &feet);
     assert_eq!(enc, HeightEncoding::Quantized { step_m: 0.5 * 0.3048, offset_m: 100.0 * 0.3048 });
 }
+
+/// A store read exaggerated 3 times is the store baked from the heights times 3: the same
+/// decoded heights bit for bit (f32 heights scaled in f64, rounded once, as `h * 3.0f32`), and
+/// the same index values (minima, maxima, `StaticE`, per-level maxima, the DSS errors) up to
+/// f32 rounding of errors computed from scaled heights; a scale that is not positive is
+/// refused with a typed error. Negative control: the store read unscaled fails the comparison.
+#[test]
+fn an_exaggerated_store_reads_as_the_store_of_scaled_heights() {
+    let hm = float_grid();
+    let tripled =
+        Heightmap::from_fn(hm.width(), hm.height(), hm.georef().clone(), |i, j| hm.get(i, j) * 3.0)
+            .unwrap();
+    let dir = scratch("exaggerated");
+    let cfg = BakeConfig { k: 5, encoding: HeightEncoding::F32, ..Default::default() };
+    bake(&hm, &dir.join("a"), &cfg, &mut go).unwrap();
+    bake(&tripled, &dir.join("b"), &cfg, &mut go).unwrap();
+    let plain = Store::open(dir.join("a")).unwrap();
+    let scaled = plain.exaggerated(3.0).unwrap();
+    let want = Store::open(dir.join("b")).unwrap();
+    assert_eq!(scaled.header().vertical_scale, 3.0);
+    check_heights(&scaled, &tripled, 0.0);
+    // Errors are differences of heights computed in f32: a few units in the last place of the
+    // largest height apart.
+    let top = want.block_ids().map(|id| want.entry(id).unwrap().max).fold(0.0f32, f32::max);
+    let close = |a: f32, b: f32| (a - b).abs() <= 4.0 * f32::EPSILON * top;
+    let same_index = |s: &Store| {
+        s.block_ids().all(|id| {
+            let (a, b) = (s.entry(id).unwrap(), want.entry(id).unwrap());
+            let dss = match (&a.dss, &b.dss) {
+                (Some(x), Some(y)) => x.avg.iter().zip(&y.avg).all(|(p, q)| close(*p, *q)),
+                (x, y) => x.is_none() && y.is_none(),
+            };
+            a.min == b.min
+                && a.max == b.max
+                && a.nodes.iter().zip(&b.nodes).all(|(p, q)| {
+                    p.min == q.min && p.max == q.max && close(p.static_error, q.static_error)
+                })
+                && a.level_errors.iter().zip(&b.level_errors).all(|(p, q)| close(*p, *q))
+                && dss
+        })
+    };
+    assert!(same_index(&scaled), "the exaggerated index is the scaled store's");
+    assert!(!same_index(&plain), "negative control: the unscaled index differs");
+    for bad in [0.0, -2.0, f64::NAN, f64::INFINITY] {
+        let e = plain.exaggerated(bad).unwrap_err();
+        assert!(matches!(e, StoreError::Exaggeration { .. }), "{bad}: {e}");
+    }
+    std::fs::remove_dir_all(&dir).unwrap();
+}
