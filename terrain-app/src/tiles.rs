@@ -182,7 +182,7 @@ pub(crate) fn run(args: &TilesArgs) -> anyhow::Result<()> {
         let bound = tin::level_error(tile.level, args.error_scale);
         let mesh = tin::build_tile(&grid, tile, bound)?;
         let children =
-            (tile.level < max_level).then(|| range(tile.level + 1).below(tile)).flatten();
+            if tile.level < max_level { range(tile.level + 1).below(tile) } else { None };
         let mut bytes = quantized_mesh::encode(&mesh, children)
             .with_context(|| format!("encoding tile {}/{}/{}", tile.level, tile.x, tile.y))?;
         if args.gzip {
