@@ -214,7 +214,8 @@ impl<'a> GeoGrid<'a> {
         let grid = Self { hm, origin: g.native_origin, spacing: g.native_spacing };
         let e = grid.extent();
         let ok = e.west >= -180.0 && e.east <= 180.0 && e.south >= -90.0 && e.north <= 90.0;
-        if !ok || !(grid.spacing.min_element() > 0.0) {
+        if !ok || grid.spacing.min_element().partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater)
+        {
             return Err(TinError::OutOfRange {
                 west: e.west,
                 south: e.south,

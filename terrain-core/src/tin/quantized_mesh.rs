@@ -263,7 +263,7 @@ pub fn encode(mesh: &TileMesh, children: Option<TileRange>) -> Result<Vec<u8>, Q
         out.extend_from_slice(&v.to_le_bytes());
     }
     out.extend_from_slice(&(n as u32).to_le_bytes());
-    for c in 0..3 {
+    for c in [0usize, 1, 2] {
         let mut prev = 0i32;
         for &k in &first_use {
             let v = i32::from(qv[k as usize][c]);
@@ -273,7 +273,7 @@ pub fn encode(mesh: &TileMesh, children: Option<TileRange>) -> Result<Vec<u8>, Q
     }
     let wide = n > 65536;
     let size = if wide { 4 } else { 2 };
-    while out.len() % size != 0 {
+    while !out.len().is_multiple_of(size) {
         out.push(0);
     }
     let put = |out: &mut Vec<u8>, i: u32| {
@@ -290,11 +290,10 @@ pub fn encode(mesh: &TileMesh, children: Option<TileRange>) -> Result<Vec<u8>, Q
         put(&mut out, c);
     }
     let max = QUANTIZED_MAX as u16;
-    let edges: [&dyn Fn(&[u16; 3]) -> bool; 4] =
-        [&|v| v[0] == 0, &|v| v[1] == 0, &|v| v[0] == max, &|v| v[1] == max];
-    for on in edges {
+    // West (u = 0), south (v = 0), east (u = max), north (v = max): (coordinate, value).
+    for (c, at) in [(0usize, 0u16), (1, 0), (0, max), (1, max)] {
         let list: Vec<u32> =
-            (0..n as u32).filter(|&i| on(&qv[first_use[i as usize] as usize])).collect();
+            (0..n as u32).filter(|&i| qv[first_use[i as usize] as usize][c] == at).collect();
         out.extend_from_slice(&(list.len() as u32).to_le_bytes());
         for i in list {
             put(&mut out, i);
@@ -410,7 +409,7 @@ pub fn decode(bytes: &[u8]) -> Result<Decoded, QmError> {
     let vertices: Vec<[u16; 3]> = (0..n).map(|k| [cols[0][k], cols[1][k], cols[2][k]]).collect();
     let wide = n > 65536;
     let size = if wide { 4 } else { 2 };
-    while r.at % size != 0 {
+    while !r.at.is_multiple_of(size) {
         r.take(1, "padding")?;
     }
     let nt = r.count(3 * size, "triangle count")?;
