@@ -15,6 +15,7 @@ mod render;
 mod roughness;
 mod shard;
 mod source;
+mod tiles;
 mod view;
 
 use clap::{CommandFactory, FromArgMatches, Parser, Subcommand};
@@ -44,6 +45,9 @@ enum Command {
     /// A triangle mesh within --max-error metres of every sample (RTIN or greedy Delaunay),
     /// verified, then written as .glb, .gltf or .obj.
     Mesh(mesh::MeshArgs),
+    /// A Cesium quantized-mesh-1.0 tileset (z/x/y.terrain + layer.json): per level an
+    /// error-bounded TIN, verified against every DEM sample of each tile.
+    Tiles(tiles::TilesArgs),
     /// Fly a camera flight: numbered PNG frames plus per-frame stats as CSV and JSON.
     Fly(fly::FlyArgs),
     /// Export a view cell's potential visible patch set (PVPS paper) as a PNG, from a scene's
@@ -87,6 +91,7 @@ fn main() -> std::process::ExitCode {
         Command::Bake(args) => bake::run(&args),
         Command::Render(args) => render::run(&args),
         Command::Mesh(args) => mesh::run(&args),
+        Command::Tiles(args) => tiles::run(&args),
         Command::Fly(args) => fly::run(&args),
         Command::Bench(args) => bench_cli::run(&args),
         Command::Pvs(args) => pvs::run(&args),

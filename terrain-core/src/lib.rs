@@ -31,6 +31,7 @@ pub mod quadtree;
 pub mod synth;
 #[cfg(test)]
 mod test_support;
+pub mod tin;
 
 pub use error::{DemError, DemErrorKind};
 pub use georef::{Crs, Georef};

@@ -1,0 +1,199 @@
+//! End-to-end tests of `terrain tiles`: tilesets decoded by an independent decoder,
+//! `@loaders.gl/terrain`'s quantized-mesh loader under node (tests/quantized_mesh/check.mjs,
+//! installed from the npm registry into the git-ignored tests/quantized_mesh/node_modules by
+//! tests/quantized_mesh/install.sh, which `.ci/run` calls and this test calls when it is missing),
+//! checked against the DEM they were built from, with negative controls: a wrong bound and a
+//! corrupted tile must fail the check.
+
+mod common;
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+use common::{data, terrain};
+use terrain_core::Heightmap;
+use terrain_core::dem::{self, LoadOptions};
+
+/// The checker's folder, with its npm packages installed.
+fn checker() -> PathBuf {
+    let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tests/quantized_mesh");
+    if !dir.join("node_modules/@loaders.gl/terrain/package.json").exists() {
+        let out = Command::new("bash")
+            .arg(dir.join("install.sh"))
+            .output()
+            .expect("bash runs tests/quantized_mesh/install.sh");
+        assert!(
+            out.status.success(),
+            "installing @loaders.gl/terrain with npm failed (node 20 and the npm registry are \
+             needed): {}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+    }
+    dir
+}
+
+/// Writes the grid the tiles were built from as check.mjs reads it.
+fn write_dem(hm: &Heightmap, path: &Path) {
+    let g = hm.georef();
+    let voids: Vec<usize> = (0..hm.width() * hm.height())
+        .filter(|&k| hm.voids().get(k % hm.width(), k / hm.width()))
+        .collect();
+    let json = serde_json::json!({
+        "width": hm.width(),
+        "height": hm.height(),
+        "origin": [g.native_origin.x, g.native_origin.y],
+        "spacing": [g.native_spacing.x, g.native_spacing.y],
+        "heights": hm.data(),
+        "voids": voids,
+    });
+    std::fs::write(path, json.to_string()).unwrap();
+}
+
+fn check(tiles: &Path, dem: &Path, scale: &str, factor: &str) -> Output {
+    Command::new("node")
+        .arg(checker().join("check.mjs"))
+        .args([tiles.to_str().unwrap(), dem.to_str().unwrap(), scale, factor])
+        .output()
+        .expect("node runs (node 20 is needed for this test)")
+}
+
+fn tile_files(dir: &Path) -> Vec<PathBuf> {
+    let mut out = Vec::new();
+    let mut stack = vec![dir.to_path_buf()];
+    while let Some(d) = stack.pop() {
+        for e in std::fs::read_dir(&d).unwrap() {
+            let p = e.unwrap().path();
+            if p.is_dir() {
+                stack.push(p);
+            } else if p.extension().is_some_and(|x| x == "terrain") {
+                out.push(p);
+            }
+        }
+    }
+    out.sort();
+    out
+}
+
+#[test]
+fn crater_lake_tiles_decode_with_loaders_gl_within_their_bounds() {
+    let src = data("crater_lake/craterlake-elev-16bit-30m.tif");
+    let dir = common::scratch("tiles-cli", "crater");
+    let tiles = dir.join("tiles");
+    let out = terrain(&[
+        "tiles",
+        src.to_str().unwrap(),
+        "--nodata",
+        "-32767",
+        "--error-scale",
+        "0.5",
+        "--quiet",
+        "-o",
+        tiles.to_str().unwrap(),
+    ]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let summary: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(tiles.join("tiles.json")).unwrap()).unwrap();
+    let files = tile_files(&tiles);
+    assert_eq!(summary["tiles"].as_u64().unwrap() as usize, files.len());
+    assert!(files.len() > 20, "{} tiles", files.len());
+    // The same grid, read as the command read it.
+    let options = LoadOptions { nodata: Some(-32767.0), ..LoadOptions::default() };
+    let hm = dem::load(&src, &options).unwrap().heightmap;
+    assert!(hm.voids().any(), "crater lake has voids: they must be skipped, not measured");
+    let dem_json = dir.join("dem.json");
+    write_dem(&hm, &dem_json);
+
+    let ok = check(&tiles, &dem_json, "0.5", "1");
+    let said = String::from_utf8_lossy(&ok.stdout);
+    assert!(ok.status.success(), "{said}\n{}", String::from_utf8_lossy(&ok.stderr));
+    let report: serde_json::Value = serde_json::from_str(said.trim()).unwrap();
+    assert_eq!(report["tiles"].as_u64().unwrap() as usize, files.len());
+    let samples = report["samples"].as_u64().unwrap() as usize;
+    let non_void = hm.width() * hm.height() - hm.voids().count();
+    assert!(samples >= non_void, "every non-void sample is checked at least once: {samples}");
+    let worst = report["worstErrorOverBound"].as_f64().unwrap();
+    // Above 1 only by the quantization slack the checker allows per sample.
+    assert!(worst > 0.5 && worst < 1.1, "the bound is used, not exceeded: {worst}");
+
+    // Negative control 1: a quarter of the bound must be exceeded somewhere.
+    let tight = check(&tiles, &dem_json, "0.5", "0.25");
+    assert!(!tight.status.success(), "a quarter of the bound passed");
+    assert!(String::from_utf8_lossy(&tight.stderr).contains("m off"));
+
+    // Negative control 2: the finest tile with the most triangles (real relief, not void fill)
+    // gets its first height delta changed: every height of the tile moves, which the check
+    // must see.
+    let finest = summary["max_level"].as_u64().unwrap().to_string();
+    let victim = files
+        .iter()
+        .filter(|p| {
+            p.strip_prefix(&tiles).unwrap().components().next().unwrap().as_os_str()
+                == finest.as_str()
+        })
+        .max_by_key(|p| {
+            let b = std::fs::read(p).unwrap();
+            terrain_core::tin::quantized_mesh::decode(&b).unwrap().triangles.len()
+        })
+        .expect("a finest tile");
+    let mut bytes = std::fs::read(victim).unwrap();
+    let n = u32::from_le_bytes(bytes[88..92].try_into().unwrap()) as usize;
+    let first_height = 92 + 4 * n;
+    bytes[first_height..first_height + 2].copy_from_slice(&10_000u16.to_le_bytes());
+    std::fs::write(victim, &bytes).unwrap();
+    let bad = check(&tiles, &dem_json, "0.5", "1");
+    assert!(!bad.status.success(), "a corrupted tile passed: {}", victim.display());
+}
+
+#[test]
+fn a_utm_dem_is_reprojected_and_a_dem_without_georeference_needs_lonlat() {
+    let src = data("lidar_prairie/dem.tif");
+    let dir = common::scratch("tiles-cli", "prairie");
+    let tiles = dir.join("tiles");
+    let out = terrain(&[
+        "tiles",
+        src.to_str().unwrap(),
+        "--gzip",
+        "--quiet",
+        "-o",
+        tiles.to_str().unwrap(),
+    ]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("reprojected EPSG:26915 to EPSG:4326"));
+    let any = &tile_files(&tiles)[0];
+    assert!(terrain_core::tin::quantized_mesh::is_gzip(&std::fs::read(any).unwrap()));
+    let hm = dem::load(&src, &LoadOptions::default()).unwrap().heightmap;
+    let geo = terrain_core::tin::warp::to_geographic(&hm).unwrap();
+    let dem_json = dir.join("dem.json");
+    write_dem(&geo, &dem_json);
+    let ok = check(&tiles, &dem_json, "1", "1");
+    assert!(ok.status.success(), "{}", String::from_utf8_lossy(&ok.stderr));
+
+    let png = data("puget_sound/ps_height_1k.png");
+    let png = png.to_str().unwrap();
+    let refused = terrain(&["tiles", png, "-o", dir.join("ps").to_str().unwrap()]);
+    assert!(!refused.status.success());
+    let why = String::from_utf8_lossy(&refused.stderr);
+    assert!(why.contains("no georeference") && why.contains("--lonlat"), "{why}");
+    let placed = terrain(&[
+        "tiles",
+        png,
+        "--spacing",
+        "160",
+        "--vertical-scale",
+        "0.1",
+        "--lonlat=-122.9,46.1",
+        "--max-level",
+        "8",
+        "--quiet",
+        "-o",
+        dir.join("ps").to_str().unwrap(),
+    ]);
+    assert!(placed.status.success(), "{}", String::from_utf8_lossy(&placed.stderr));
+    let layer: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(dir.join("ps/layer.json")).unwrap()).unwrap();
+    let b: Vec<f64> =
+        layer["bounds"].as_array().unwrap().iter().map(|v| v.as_f64().unwrap()).collect();
+    assert!((b[0] + 122.9).abs() < 1e-9 && (b[1] - 46.1).abs() < 1e-9, "{b:?}");
+    // 1024 samples of 160 m: about 2.2 degrees of longitude and 1.5 of latitude there.
+    assert!((b[2] - b[0] - 2.2).abs() < 0.2 && (b[3] - b[1] - 1.47).abs() < 0.1, "{b:?}");
+}
