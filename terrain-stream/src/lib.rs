@@ -105,7 +105,10 @@ pub use format::{
     SampleEncoding,
 };
 pub use glam;
-pub use lod::{DEFAULT_PATCH_CELLS, StoreTree, select_patches, select_streamed};
+pub use lod::{
+    DEFAULT_PATCH_CELLS, DEFAULT_SPLIT, Refinement, SplitRule, StoreTree, select_patches,
+    select_streamed,
+};
 pub use schedule::ScheduleConfig;
 pub use source::{HeightSource, read_rows_parallel};
 pub use stats::{Fault, FrameStats, StatsSummary};
