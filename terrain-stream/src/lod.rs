@@ -1,8 +1,9 @@
 //! The out-of-core paper's rendering method (Qiu 2013, sections 3.1-3.3) over a store's index,
 //! through terrain-core's one [`traverse`]: the store is a [`NodeSource`] ([`StoreTree`]: the
 //! quadtree of the whole grid, per-node values from the index, no heights in memory), the
-//! paper's dynamic LOD construction is an Eq. 7 [`SplitPolicy`] ([`BlockNodes::splits`], optionally with a cost split: [`SplitRule`]) and its
-//! bounding-circle test is terrain-core's [`BoundingCircleCull`].
+//! paper's dynamic LOD construction is an Eq. 7 split ([`BlockNodes::splits`], optionally
+//! with a cost split: [`SplitRule`]) and its bounding-circle test is terrain-core's
+//! [`BoundingCircleCull`].
 //!
 //! # Patches, not per-vertex nodes
 //! The paper splits nodes down to single cells and draws each node as a fan of its corners
@@ -14,7 +15,8 @@
 //! too coarse on screen (`rho > tau`, the paper's step 4) even when drawn at the largest
 //! factor, [`MAX_FACTOR`] = 64: the error that decides is not the node's own `StaticE` (its
 //! four corners) but that of its descendants six levels down, whose corners the patch's
-//! tessellation draws ([`BlockNodes::patch_error`]). The paper's node is one fan of vertices, so it splits
+//! tessellation draws ([`BlockNodes::patch_error`]: their largest `StaticE`, exact with the
+//! index's fine maxima). The paper's node is one fan of vertices, so it splits
 //! on its own `StaticE`; a tessellated patch refines inside itself, and splitting it on its
 //! corners alone drew nearly every patch at the smallest size whatever `tau` (the patch count
 //! grew with the grid: 370 / 5,410 / 67,716 patches at 1025^2 / 4097^2 / 16385^2 on the same
@@ -24,6 +26,14 @@
 //! evaluated at the patch's own distance and `beta`, which only overestimates), at most the
 //! block's resident level and never finer than the data (a patch of `c` cells has a factor of
 //! at most `c`), so no frame draws more triangles than the full-resolution grid in view.
+//!
+//! Eq. 7 alone never splits a node that factor 64 draws with every sample (64 cells with
+//! `k` 8), so a patch near the eye draws its whole square at the level its roughest or nearest
+//! corner needs. [`SplitRule::Cost`] (a [`Refinement`] of the tree and of the streamer) also
+//! splits a node while its four children at their own Eq. 7 factors draw fewer triangles
+//! (greedy cost-based refinement, as ROAM's split queue), down to [`Refinement::patch_cells`]
+//! (16 cells: a node's children are then still stored nodes with their own boxes and
+//! maxima); leaves keep Eq. 7's factor, the balance and the edge rule.
 //!
 //! # Far terrain: patches spanning several blocks
 //! A node above the blocks (spanning `2^s x 2^s` of them) has no per-node values in the
