@@ -480,14 +480,22 @@ mod tests {
         }
     }
 
-    /// The pixel thresholds are the target itself; the DSS and PVPS fits invert to the
-    /// measured p99 they were fitted to.
+    /// Geomorph's pixel threshold is the target itself; ooc's `tau` and the DSS and PVPS fits
+    /// invert to the measured p99 they were fitted to.
     #[test]
     fn mappings_invert_their_fits() {
         let view = ErrorView::REFERENCE;
         for px in [0.5, 1.0, 3.0] {
             assert_eq!(params_for_error_px(LodMethod::Geomorph, px, view).value, px);
-            assert_eq!(params_for_error_px(LodMethod::OutOfCore, px, view).value, px);
+            // ooc: the target over the measured p99 per pixel of tau, by split rule.
+            let tau = params_for_error_px(LodMethod::OutOfCore, px, view).value;
+            assert!((tau * ooc_p99_per_tau(DEFAULT_SPLIT) - px).abs() < 1e-9, "{px} {tau}");
+            for split in [SplitRule::Eq7, SplitRule::Cost] {
+                let mut c = MethodConfig::default();
+                c.ooc.split = split;
+                params_for_error_px(LodMethod::OutOfCore, px, view).apply(&mut c);
+                assert!((c.ooc.tau * ooc_p99_per_tau(split) - px).abs() < 1e-9, "{split:?}");
+            }
             let rho = params_for_error_px(LodMethod::Dss1, px, view).value;
             let p99 = DSS_P99_AT_RHO_1 * rho.powf(DSS_P99_EXPONENT);
             assert!((p99 - px).abs() < 1e-9, "{px} {rho} {p99}");
@@ -530,6 +538,7 @@ mod tests {
         let p = params_for_error_px(LodMethod::Uniform, 1.0, ErrorView::REFERENCE);
         p.apply(&mut c);
         assert_eq!(c.uniform_factor, p.value as f32);
-        assert_eq!(default_config(LodMethod::OutOfCore, ErrorView::REFERENCE).ooc.tau, 2.0);
+        let tau = default_config(LodMethod::OutOfCore, ErrorView::REFERENCE).ooc.tau;
+        assert_eq!(tau, Quality::DEFAULT.error_px() / ooc_p99_per_tau(DEFAULT_SPLIT));
     }
 }
