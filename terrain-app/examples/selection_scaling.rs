@@ -8,7 +8,7 @@
 //! cargo run --release -p terrain-app --example selection_scaling -- \
 //!     [--sizes 1025,4097,16385] [--flight flights/pvps_884.json] [--frames 30] \
 //!     [--methods uniform,pvps-a,pvps-b,pvps-c,dss-1,dss-2,geomorph] [--reps 3] \
-//!     [--stores 1025=DIR,4097=DIR,32769=DIR] [--tau 2]
+//!     [--stores 1025=DIR,4097=DIR,32769=DIR] [--tau 2] [--ooc-refine eq7:32,cost:16]
 //! ```
 //! Grids: `FractalConfig::with_size(n, n, 10.0)` (seed 1, 10 m spacing, 1500 m relief), built
 //! once per size with every method's precomputation (`MethodScene::prepare`, timed apart).
@@ -20,7 +20,8 @@
 //! store of the same synthetic terrain (`stream_bench bake SIZE 8 NAME` or `terrain bake
 //! --synthetic SIZE`), warm: every level resident, `terrain_stream::select_patches` over the
 //! store's `StoreTree` (the runtime's selection once every level has arrived), with the
-//! runtime's clip range. A size with a store and no in-memory grid in `--sizes` (e.g. 32769,
+//! runtime's clip range; one `ooc` column per `--ooc-refine RULE:CELLS` (split rule `eq7` or
+//! `cost`, smallest patch in cells; default `eq7:32`, the default `OocConfig`). A size with a store and no in-memory grid in `--sizes` (e.g. 32769,
 //! 4 GiB of f32) resolves the flight onto the store's level-4 overview, as `terrain render`
 //! does.
 //!
@@ -40,7 +41,7 @@ use terrain_app::ooc::{OocConfig, OocScene};
 use terrain_core::flight::{FlightConfig, FlightSpec};
 use terrain_core::geometry::Camera;
 use terrain_core::synth::FractalConfig;
-use terrain_stream::{Store, StoreTree, select_patches};
+use terrain_stream::{Refinement, SplitRule, Store, StoreTree, select_patches};
 
 fn median(mut v: Vec<f64>) -> f64 {
     v.sort_by(f64::total_cmp);
@@ -147,8 +148,22 @@ fn main() -> anyhow::Result<()> {
             .collect::<anyhow::Result<_>>()?;
     methods.retain(|&m| m != LodMethod::OutOfCore);
     let mut names: Vec<String> = methods.iter().map(|m| m.name().to_string()).collect();
+    let refines: Vec<(String, Refinement)> = take("--ooc-refine", "eq7:32")
+        .split(',')
+        .filter(|s| !s.is_empty())
+        .map(|r| {
+            let (rule, cells) = r.split_once(':').with_context(|| format!("--ooc-refine {r}"))?;
+            let split = match rule {
+                "eq7" => SplitRule::Eq7,
+                "cost" => SplitRule::Cost,
+                _ => anyhow::bail!("--ooc-refine: unknown split rule {rule} (eq7 or cost)"),
+            };
+            let patch_cells = cells.parse().with_context(|| format!("--ooc-refine {r}"))?;
+            Ok((r.to_string(), Refinement { patch_cells, split }))
+        })
+        .collect::<anyhow::Result<_>>()?;
     if !stores.is_empty() {
-        names.push(format!("ooc (tau {tau})"));
+        names.extend(refines.iter().map(|(r, _)| format!("ooc {r} (tau {tau})")));
     }
     let spec = FlightSpec::load(&flight).with_context(|| format!("flight {flight}"))?;
     let flight_cfg = FlightConfig::default();
@@ -228,23 +243,26 @@ fn main() -> anyhow::Result<()> {
                 .collect();
             let store: Arc<Store> = scene.store().clone();
             let k = store.header().k;
-            let tree = StoreTree::new(store, scene.config().patch_cells);
-            let row = measure(&cams, reps, |c| {
-                let sel = select_patches(&tree, c, tau, |_| Some(k));
-                (sel.patches.len(), Some(sel.stats.visited), nominal_triangles(&sel))
-            });
-            eprintln!(
-                "  {:<9} {:>9.3} ms {:>8.0} patches {:>8.0} visited {:>9.0} triangles (store {})",
-                "ooc",
-                row.ms,
-                row.patches,
-                row.visited,
-                row.triangles,
-                dir.display()
-            );
-            table[names.len() - 1].push(Some(row));
+            for (r, (name, refine)) in refines.iter().enumerate() {
+                let tree = StoreTree::with_refinement(store.clone(), *refine);
+                let row = measure(&cams, reps, |c| {
+                    let sel = select_patches(&tree, c, tau, |_| Some(k));
+                    (sel.patches.len(), Some(sel.stats.visited), nominal_triangles(&sel))
+                });
+                eprintln!(
+                    "  ooc {name:<9} {:>9.3} ms {:>8.0} patches {:>8.0} visited {:>9.0} triangles (store {})",
+                    row.ms,
+                    row.patches,
+                    row.visited,
+                    row.triangles,
+                    dir.display()
+                );
+                table[methods.len() + r].push(Some(row));
+            }
         } else if !stores.is_empty() {
-            table[names.len() - 1].push(None);
+            for column in table.iter_mut().skip(methods.len()) {
+                column.push(None);
+            }
         }
     }
     println!(

@@ -10,6 +10,7 @@ use terrain_app::methods::{LodMethod, MethodConfig};
 use terrain_core::flight::FlightSpec;
 use terrain_core::synth;
 use terrain_gpu::{BackendChoice, DeviceConfig, GpuContext};
+use terrain_stream::SplitRule;
 
 use crate::render::parse_size;
 use crate::source::SourceArgs;
@@ -69,6 +70,13 @@ pub(crate) struct BenchArgs {
     /// The `ooc` method: the stream cache's budget, MiB (2^20 bytes) [default: 256].
     #[arg(long, alias = "ooc-cache-mb")]
     pub ooc_cache_mib: Option<u64>,
+    /// The `ooc` method: the split rule inside the blocks, `eq7` (Eq. 7 alone) or `cost`
+    /// (Eq. 7 and the cost split) [default: eq7].
+    #[arg(long, value_parser = ["eq7", "cost"])]
+    pub ooc_split: Option<String>,
+    /// The `ooc` method: the smallest patch, cells per side (a power of two) [default: 32].
+    #[arg(long)]
+    pub ooc_patch_cells: Option<u32>,
     /// The `ooc` method: every sampled frame waits until the levels it needs are resident
     /// (warm: the error is the selection's own). By default the flight is played in real
     /// time at its own frame rate, every frame, and late data is counted.
@@ -111,6 +119,8 @@ fn refuse_unused_store_options(args: &BenchArgs, cfg: &BenchConfig) -> anyhow::R
         ("--ooc-store", args.ooc_store.is_some()),
         ("--ooc-k", args.ooc_k.is_some()),
         ("--ooc-cache-mib", args.ooc_cache_mib.is_some()),
+        ("--ooc-split", args.ooc_split.is_some()),
+        ("--ooc-patch-cells", args.ooc_patch_cells.is_some()),
         ("--wait", args.wait),
     ]
     .iter()
@@ -172,6 +182,15 @@ pub(crate) fn run(args: &BenchArgs) -> anyhow::Result<()> {
     cfg.ooc_k = args.ooc_k.unwrap_or(cfg.ooc_k);
     if let Some(mib) = args.ooc_cache_mib {
         cfg.ooc.budget_bytes = mib << 20;
+    }
+    if let Some(split) = &args.ooc_split {
+        cfg.ooc.split = if split == "cost" { SplitRule::Cost } else { SplitRule::Eq7 };
+    }
+    if let Some(cells) = args.ooc_patch_cells {
+        if !cells.is_power_of_two() {
+            bail!("--ooc-patch-cells must be a power of two, got {cells}");
+        }
+        cfg.ooc.patch_cells = cells;
     }
     cfg.ooc_wait |= args.wait;
     cfg.from_store = args.from_store;

@@ -38,8 +38,8 @@ use terrain_gpu::render::{DrawPatch, ExtraTriangles};
 use terrain_gpu::tess::PatchFactors;
 use terrain_gpu::{RenderError, TerrainRenderer};
 use terrain_stream::{
-    BlockId, DEFAULT_PATCH_CELLS, ScheduleConfig, Store, StoreError, StoreSource, StoreTree,
-    StreamConfig, Streamer, demand_of, select_patches,
+    BlockId, DEFAULT_PATCH_CELLS, DEFAULT_SPLIT, Refinement, ScheduleConfig, SplitRule, Store,
+    StoreError, StoreSource, StoreTree, StreamConfig, Streamer, demand_of, select_patches,
 };
 
 use crate::MIB;
@@ -75,6 +75,10 @@ pub struct OocConfig {
     /// store is read ([`Store::exaggerated`]: heights, boxes and every selection error scale
     /// with it). Default 1. [`OocScene::new`] takes its store as opened.
     pub vertical_scale: f64,
+    /// The split rule inside the blocks ([`SplitRule`]: Eq. 7 alone, or Eq. 7 with the cost
+    /// split, which with 16-cell patches draws fewer triangles at equal error, see
+    /// bench/ooc/README.md). Default [`terrain_stream::DEFAULT_SPLIT`].
+    pub split: SplitRule,
 }
 
 /// Frames the streamer preloads ahead (Eq. 8's `S` times this). The paper's Eq. 8 looks one
@@ -84,6 +88,14 @@ pub struct OocConfig {
 /// longer than one frame there. The working set of that flight peaked at 590 MiB resident,
 /// which is why the cache's default budget is 1 GiB (256 MiB: 27-38 %, 512 MiB: 70-83 %).
 pub const LOOKAHEAD_FRAMES: f64 = 2.0;
+
+impl OocConfig {
+    /// The selection's refinement ([`OocConfig::patch_cells`], [`OocConfig::split`]), shared
+    /// by the tree and the streamer's needed levels.
+    pub fn refinement(&self) -> Refinement {
+        Refinement { patch_cells: self.patch_cells, split: self.split }
+    }
+}
 
 impl Default for OocConfig {
     fn default() -> Self {
@@ -97,6 +109,7 @@ impl Default for OocConfig {
             warm_timeout: Duration::from_secs(60),
             patch_cells: DEFAULT_PATCH_CELLS,
             vertical_scale: 1.0,
+            split: DEFAULT_SPLIT,
         }
     }
 }
@@ -371,7 +384,9 @@ impl OocScene {
             origin: h.georef.world_origin,
             spacing: h.georef.spacing_m,
         };
+        let refinement = config.refinement();
         let stream = StreamConfig {
+            refinement,
             budget_bytes: config.budget_bytes,
             threads: config.threads,
             tau: config.tau,
@@ -386,7 +401,7 @@ impl OocScene {
         let mut classes = classes_for_budget(&layout, config.page_budget_bytes);
         classes[0].capacity = classes[0].capacity.min(config.page_capacity.max(1));
         Self {
-            tree: StoreTree::new(store.clone(), config.patch_cells),
+            tree: StoreTree::with_refinement(store.clone(), refinement),
             store,
             streamer,
             config,

@@ -109,7 +109,10 @@ pub use format::{
     SampleEncoding,
 };
 pub use glam;
-pub use lod::{DEFAULT_PATCH_CELLS, StoreTree, select_patches, select_streamed};
+pub use lod::{
+    DEFAULT_PATCH_CELLS, DEFAULT_SPLIT, Refinement, SplitRule, StoreTree, select_patches,
+    select_streamed,
+};
 pub use schedule::ScheduleConfig;
 pub use shard::{
     MergeConfig, PART_FILE, PartInfo, Shard, ShardReport, bake_options, bake_shard, find_parts,

@@ -1,8 +1,9 @@
 //! The out-of-core paper's rendering method (Qiu 2013, sections 3.1-3.3) over a store's index,
 //! through terrain-core's one [`traverse`]: the store is a [`NodeSource`] ([`StoreTree`]: the
 //! quadtree of the whole grid, per-node values from the index, no heights in memory), the
-//! paper's dynamic LOD construction is an Eq. 7 [`SplitPolicy`] ([`Eq7Split`]) and its
-//! bounding-circle test is terrain-core's [`BoundingCircleCull`].
+//! paper's dynamic LOD construction is an Eq. 7 split ([`BlockNodes::splits`], optionally
+//! with a cost split: [`SplitRule`]) and its bounding-circle test is terrain-core's
+//! [`BoundingCircleCull`].
 //!
 //! # Patches, not per-vertex nodes
 //! The paper splits nodes down to single cells and draws each node as a fan of its corners
@@ -14,7 +15,8 @@
 //! too coarse on screen (`rho > tau`, the paper's step 4) even when drawn at the largest
 //! factor, [`MAX_FACTOR`] = 64: the error that decides is not the node's own `StaticE` (its
 //! four corners) but that of its descendants six levels down, whose corners the patch's
-//! tessellation draws ([`patch_error`]). The paper's node is one fan of vertices, so it splits
+//! tessellation draws ([`BlockNodes::patch_error`]: their largest `StaticE`, exact with the
+//! index's fine maxima). The paper's node is one fan of vertices, so it splits
 //! on its own `StaticE`; a tessellated patch refines inside itself, and splitting it on its
 //! corners alone drew nearly every patch at the smallest size whatever `tau` (the patch count
 //! grew with the grid: 370 / 5,410 / 67,716 patches at 1025^2 / 4097^2 / 16385^2 on the same
@@ -24,6 +26,14 @@
 //! evaluated at the patch's own distance and `beta`, which only overestimates), at most the
 //! block's resident level and never finer than the data (a patch of `c` cells has a factor of
 //! at most `c`), so no frame draws more triangles than the full-resolution grid in view.
+//!
+//! Eq. 7 alone never splits a node that factor 64 draws with every sample (64 cells with
+//! `k` 8), so a patch near the eye draws its whole square at the level its roughest or nearest
+//! corner needs. [`SplitRule::Cost`] (a [`Refinement`] of the tree and of the streamer) also
+//! splits a node while its four children at their own Eq. 7 factors draw fewer triangles
+//! (greedy cost-based refinement, as ROAM's split queue), down to [`Refinement::patch_cells`]
+//! (16 cells: a node's children are then still stored nodes with their own boxes and
+//! maxima); leaves keep Eq. 7's factor, the balance and the edge rule.
 //!
 //! # Far terrain: patches spanning several blocks
 //! A node above the blocks (spanning `2^s x 2^s` of them) has no per-node values in the
@@ -114,12 +124,8 @@ impl View {
         self.eq7.rho(1.0, d, to_centre)
     }
 
-    /// Whether a node with error `err` (metres) and box `aabb` splits: Eq. 7 `rho > tau`.
-    fn splits(&self, err: f32, aabb: &Aabb) -> bool {
-        err > 0.0 && self.splits_at(err, self.rho_per_metre(aabb))
-    }
-
-    /// [`View::splits`] once the box's [`View::rho_per_metre`] is known.
+    /// Whether a node with error `err` (metres) whose box has Eq. 7 `rho` per metre
+    /// `per_metre` ([`View::rho_per_metre`]) splits: Eq. 7 `rho > tau`.
     fn splits_at(&self, err: f32, per_metre: f64) -> bool {
         err > 0.0 && per_metre * f64::from(err) > self.tau
     }
@@ -169,27 +175,56 @@ fn below_bound(h: &Header, e: &BlockEntry, n: NodeId, l: u8) -> f32 {
     m
 }
 
+/// Default [`Refinement::split`]: see [`SplitRule`].
+pub const DEFAULT_SPLIT: SplitRule = SplitRule::Eq7;
+
+/// How the selection splits the nodes inside a block (the nodes above the blocks split by
+/// `spanning_level` whatever the rule).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum SplitRule {
+    /// Eq. 7 alone: a node splits while even its largest factor (64) misses `tau`
+    /// ([`BlockNodes::patch_error`]); every other node is one patch at the factor Eq. 7 needs.
+    #[default]
+    Eq7,
+    /// Eq. 7 as above, and besides a node splits while its four children, each drawn at the
+    /// factor Eq. 7 needs at its own box, draw fewer triangles than the node at its own
+    /// factor: greedy cost-based refinement (the split-priority queue of ROAM, Duchaineau et
+    /// al. 1997, with the patch's triangle count as the priority and the split taken only
+    /// where it pays; leaves keep Eq. 7's factor and the balance/edge rule, so the surface
+    /// stays crack-free and every leaf still meets Eq. 7). Only nodes larger than the smallest
+    /// patch split so; with patches of 16 cells (`patch_cells`) a node of 64 cells, which Eq. 7
+    /// alone never splits (drawn at factor 64 it has every sample), can become four or
+    /// sixteen smaller patches where only part of it is rough or near.
+    Cost,
+}
+
+/// How a store's quadtree is refined into patches: what the selection ([`StoreTree`]) and the
+/// streamer's needed levels (`StreamConfig::refinement`) share, so that what is loaded is
+/// what is drawn.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Refinement {
+    /// Smallest patch, cells per side (a power of two, at most a block). Default
+    /// [`DEFAULT_PATCH_CELLS`].
+    pub patch_cells: u32,
+    /// The split rule inside the blocks. Default [`DEFAULT_SPLIT`].
+    pub split: SplitRule,
+}
+
+impl Default for Refinement {
+    fn default() -> Self {
+        Self { patch_cells: DEFAULT_PATCH_CELLS, split: DEFAULT_SPLIT }
+    }
+}
+
 /// Levels a patch's tessellation adds below its node at the largest factor
 /// ([`MAX_FACTOR`] = 64 = 2^6 segments per side).
 const FACTOR_LEVELS: u8 = 6;
 
-/// A bound on the error of block-local node `n` drawn as one patch at the largest factor: its
-/// vertices [`FACTOR_LEVELS`] levels below it, i.e. each of its descendants at that level drawn
-/// with its corners. Their `StaticE` is at most `n`'s (monotone, Eq. 3-5) and at most the
-/// block's per-level maximum at that level; 0 at or below the block's finest level (every
-/// sample drawn).
-pub(crate) fn patch_error(h: &Header, e: &BlockEntry, n: NodeId) -> f32 {
-    patch_error_of(h, e, n, local_values(h, e, n).2)
-}
-
-/// [`patch_error`] of `n` whose own `StaticE` (`local_values`) is `static_error`.
-fn patch_error_of(h: &Header, e: &BlockEntry, n: NodeId, static_error: f32) -> f32 {
-    let level = n.level + FACTOR_LEVELS;
-    if level >= h.k {
-        return 0.0;
-    }
-    let finest = e.level_errors.get(level as usize).copied().unwrap_or(0.0);
-    static_error.min(finest)
+/// Triangles pairs (a factor's square) of a block-local node of level `node` drawn with the
+/// vertices of level `vertices` (at least factor 2, at most [`MAX_FACTOR`]): the cost
+/// [`SplitRule::Cost`] compares.
+fn patch_cost(node: u8, vertices: u8) -> u32 {
+    1 << (2 * vertices.saturating_sub(node).clamp(1, FACTOR_LEVELS))
 }
 
 /// The nodes of one block, block-local ids (level 0 = the block), rectangles in the whole
@@ -201,9 +236,102 @@ struct BlockNodes<'a> {
     id: BlockId,
     /// Local level of the smallest patch (`is_finest`).
     patch_level: u8,
+    /// This block's part of [`StoreTree`]'s `sub_max` and its values per node, when the nodes
+    /// come from a tree (the streamer's walk computes the same values from the index).
+    sub: Option<(&'a [f32], usize)>,
 }
 
-impl BlockNodes<'_> {
+impl<'a> BlockNodes<'a> {
+    /// The largest `StaticE` per level under `n` (`StoreTree::sub_max`), if the tree has it.
+    fn sub(&self, n: NodeId) -> Option<&'a [f32]> {
+        let (values, per) = self.sub?;
+        if n.level > self.patch_level || n.level >= self.header.node_levels {
+            return None;
+        }
+        let o = upper_index(n) * per;
+        values.get(o..o + per)
+    }
+
+    /// The largest `StaticE` of `n`'s descendants at level `l > n.level`: stored node values,
+    /// then [`below_bound`] (exact with the fine maxima of index version 3, else the block's
+    /// per-level maximum). From `sub_max` when the tree has it (the same values).
+    fn level_max(&self, n: NodeId, l: u8) -> f32 {
+        let (h, e) = (self.header, self.entry);
+        if let Some(&v) = self.sub(n).and_then(|s| s.get(l as usize)) {
+            return v;
+        }
+        if l >= h.node_levels || n.level >= l {
+            return below_bound(h, e, n, l);
+        }
+        let s = l - n.level;
+        let mut m = 0f32;
+        for j in n.j << s..(n.j + 1) << s {
+            for i in n.i << s..(n.i + 1) << s {
+                m = m.max(e.node(l, i, j).map_or(0.0, |v| v.static_error));
+            }
+        }
+        m
+    }
+
+    /// The error of `n` (own `StaticE` `static_error`) drawn as one patch at the largest
+    /// factor: that of its vertices [`FACTOR_LEVELS`] levels below it, i.e. the largest
+    /// `StaticE` of its descendants there ([`BlockNodes::level_max`]; at most `n`'s own:
+    /// monotone, Eq. 3-5); 0 at or below the block's finest level (every sample drawn).
+    fn patch_error(&self, n: NodeId, static_error: f32) -> f32 {
+        let level = n.level + FACTOR_LEVELS;
+        if level >= self.header.k {
+            return 0.0;
+        }
+        static_error.min(self.level_max(n, level))
+    }
+
+    /// The finest vertex level `n` needs ([`needed_vertex_level`]) at most `max_level`, with
+    /// Eq. 7's `rho` per metre at its box `per_metre` (asked only when the walk needs it).
+    fn needed_level(
+        &self,
+        n: NodeId,
+        per_metre: impl FnOnce() -> f64,
+        view: &View,
+        max_level: u8,
+    ) -> u8 {
+        needed_at(self.header, self.entry, n, per_metre, view, max_level, self.sub(n))
+    }
+
+    /// Whether `n` (box `rho` per metre `per_metre`, [`BlockNodes::patch_error`] `patch_err`)
+    /// splits under `rule`: Eq. 7 (the paper's step 4, `rho > tau`) on its patch error, and
+    /// with [`SplitRule::Cost`] also when its children drawn at their own Eq. 7 factors cost
+    /// fewer triangles than it does at its own ([`patch_cost`], each capped at the largest
+    /// factor, needed levels at most the block's finest whatever is resident, so the split is
+    /// the same for the streamer's needed levels as for the selection). Nodes of the smallest
+    /// patch do not split.
+    fn splits(
+        &self,
+        rule: SplitRule,
+        view: &View,
+        n: NodeId,
+        patch_err: f32,
+        per_metre: f64,
+    ) -> bool {
+        if view.splits_at(patch_err, per_metre) {
+            return true;
+        }
+        if rule != SplitRule::Cost || n.level >= self.patch_level.min(self.header.k) {
+            return false;
+        }
+        let k = self.header.k;
+        let own = patch_cost(n.level, self.needed_level(n, || per_metre, view, k));
+        let mut children = 0;
+        for c in n.children() {
+            let Some((info, _)) = self.info(c) else { continue };
+            let level = self.needed_level(c, || view.rho_per_metre(&info.aabb), view, k);
+            children += patch_cost(c.level, level);
+            if children >= own {
+                return false;
+            }
+        }
+        children < own
+    }
+
     fn rect(&self, n: NodeId) -> Option<GridRect> {
         let h = self.header;
         if n.level > h.k {
@@ -255,6 +383,7 @@ impl NodeSource for BlockNodes<'_> {
 /// is still above the threshold need the next level's vertices. `StaticE` is monotone, so a
 /// sub-node under the threshold has no descendant above it: only the over-threshold ones are
 /// followed (the cost follows the detail drawn).
+#[cfg(test)]
 pub(crate) fn needed_vertex_level(
     h: &Header,
     e: &BlockEntry,
@@ -263,16 +392,31 @@ pub(crate) fn needed_vertex_level(
     view: &View,
     max_level: u8,
 ) -> u8 {
+    needed_at(h, e, n, || view.rho_per_metre(aabb), view, max_level, None)
+}
+
+/// [`needed_vertex_level`] with Eq. 7's `rho` per metre at `n`'s box from `per_metre` (asked
+/// only when the walk needs it) and `n`'s per-level maxima `sub` when known
+/// ([`needed_level_below`]).
+fn needed_at(
+    h: &Header,
+    e: &BlockEntry,
+    n: NodeId,
+    per_metre: impl FnOnce() -> f64,
+    view: &View,
+    max_level: u8,
+    sub: Option<&[f32]>,
+) -> u8 {
     let max_level = max_level.min(h.k);
     if n.level >= max_level {
         return n.level.min(max_level);
     }
-    let per_metre = view.rho_per_metre(aabb);
+    let per_metre = per_metre();
     if !per_metre.is_finite() {
         return max_level;
     }
     let limit = (view.tau / per_metre) as f32;
-    needed_level_below(h, e, n, limit, max_level, None)
+    needed_level_below(h, e, n, limit, max_level, sub)
 }
 
 /// [`needed_vertex_level`] once the node's error threshold `limit` (metres: `tau` over Eq. 7's
@@ -381,33 +525,19 @@ fn over_walk(
     }
 }
 
-/// Eq. 7 as terrain-core's [`SplitPolicy`] (the paper's step 4: split while `rho > tau`), over
-/// a node space whose errors `error(node)` gives, stopping at `stop(node)` (a block's
-/// resident level).
-pub(crate) struct Eq7Split<E, S> {
-    /// The view and `tau`.
-    pub view: View,
-    /// `StaticE` of a node (metres); `None` splits unconditionally (nodes above the blocks).
-    pub error: E,
-    /// Whether a node may not split (it is at its block's finest resident level).
-    pub stop: S,
+/// The split of one block's nodes ([`BlockNodes::splits`] under `rule`) as terrain-core's
+/// [`SplitPolicy`]: the streamer's walk of a block for its needed level.
+struct BlockSplit<'a> {
+    nodes: BlockNodes<'a>,
+    view: View,
+    rule: SplitRule,
 }
 
-impl<E, S> std::fmt::Debug for Eq7Split<E, S> {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("Eq7Split").field("view", &self.view).finish_non_exhaustive()
-    }
-}
-
-impl<E: FnMut(NodeId) -> Option<f32>, S: FnMut(NodeId) -> bool> SplitPolicy for Eq7Split<E, S> {
+impl SplitPolicy for BlockSplit<'_> {
     fn should_split(&mut self, node: NodeId, info: &NodeInfo) -> bool {
-        if (self.stop)(node) {
-            return false;
-        }
-        match (self.error)(node) {
-            None => true,
-            Some(err) => self.view.splits(err, &info.aabb),
-        }
+        let n = &self.nodes;
+        let err = n.patch_error(node, local_values(n.header, n.entry, node).2);
+        n.splits(self.rule, &self.view, node, err, self.view.rho_per_metre(&info.aabb))
     }
 }
 
@@ -444,35 +574,33 @@ pub(crate) fn needed_level(
     b: BlockId,
     view: &View,
     region: &GroundRegion,
+    refine: Refinement,
 ) -> Option<u8> {
-    Some(needed_geometry_level(h, e, b, view, region)?.max(shading_level(h, e, b, view)))
+    Some(needed_geometry_level(h, e, b, view, region, refine)?.max(shading_level(h, e, b, view)))
 }
 
 /// The deepest vertex level the patches of block `b` need for `view` ([`needed_vertex_level`]
-/// of the patches terrain-core's [`traverse`] selects in the block with the Eq. 7 split and
-/// [`BoundingCircleCull`], patches of [`DEFAULT_PATCH_CELLS`]), or `None` when no node of it
-/// meets `region`.
+/// of the patches terrain-core's [`traverse`] selects in the block with the selection's split
+/// ([`BlockNodes::splits`] under `refine`, the patches of `refine.patch_cells`) and the
+/// [`BoundingCircleCull`]), or `None` when no node of it meets `region`.
 pub(crate) fn needed_geometry_level(
     h: &Header,
     e: &BlockEntry,
     b: BlockId,
     view: &View,
     region: &GroundRegion,
+    refine: Refinement,
 ) -> Option<u8> {
-    let patch_level = patch_level(h, DEFAULT_PATCH_CELLS);
-    let nodes = BlockNodes { header: h, entry: e, id: b, patch_level };
-    let mut split = Eq7Split {
-        view: *view,
-        error: |n: NodeId| Some(patch_error(h, e, n)),
-        stop: |_: NodeId| false,
-    };
+    let patch_level = patch_level(h, refine.patch_cells);
+    let nodes = BlockNodes { header: h, entry: e, id: b, patch_level, sub: None };
+    let mut split = BlockSplit { nodes, view: *view, rule: refine.split };
     let mut cull = BoundingCircleCull::new(region.clone());
     let leaves = traverse(&nodes, &mut split, &mut cull, &mut |_, _| {});
     leaves
         .into_iter()
         .filter_map(|n| {
             let info = nodes.node_info(n)?;
-            Some(needed_vertex_level(h, e, n, &info.aabb, view, h.k))
+            Some(nodes.needed_level(n, || view.rho_per_metre(&info.aabb), view, h.k))
         })
         .max()
 }
@@ -617,12 +745,21 @@ pub struct StoreTree {
     sub_nodes: usize,
     /// Values per node in `sub_max`: `node_levels`, or `k` with the fine maxima.
     sub_per: usize,
+    /// The split rule inside the blocks.
+    split: SplitRule,
 }
 
 impl StoreTree {
     /// The tree of `store` with patches of at least `patch_cells` cells (a power of two, at
-    /// most a block; e.g. [`DEFAULT_PATCH_CELLS`]).
+    /// most a block; e.g. [`DEFAULT_PATCH_CELLS`]) and the default split rule.
     pub fn new(store: Arc<Store>, patch_cells: u32) -> Self {
+        Self::with_refinement(store, Refinement { patch_cells, ..Refinement::default() })
+    }
+
+    /// The tree of `store` refined by `refine` (give the streamer the same:
+    /// `StreamConfig::refinement`).
+    pub fn with_refinement(store: Arc<Store>, refine: Refinement) -> Self {
+        let patch_cells = refine.patch_cells;
         let h = store.header();
         let blocks = h.blocks_x.max(h.blocks_y).next_power_of_two();
         let block_level = blocks.trailing_zeros() as u8;
@@ -649,7 +786,13 @@ impl StoreTree {
             sub_max,
             sub_nodes,
             sub_per,
+            split: refine.split,
         }
+    }
+
+    /// How the tree is refined.
+    pub fn refinement(&self) -> Refinement {
+        Refinement { patch_cells: self.patch_cells(), split: self.split }
     }
 
     /// The store.
@@ -716,7 +859,13 @@ impl StoreTree {
     fn block_nodes(&self, b: BlockId) -> Option<BlockNodes<'_>> {
         let header = self.store.header();
         let entry = self.store.entry(b)?;
-        Some(BlockNodes { header, entry, id: b, patch_level: self.patch_level })
+        let per_block = self.sub_nodes * self.sub_per;
+        let sub = header
+            .block_position(b)
+            .and_then(|p| self.sub_max.get(p * per_block..(p + 1) * per_block))
+            .filter(|v| !v.is_empty())
+            .map(|v| (v, self.sub_per));
+        Some(BlockNodes { header, entry, id: b, patch_level: self.patch_level, sub })
     }
 
     /// `StaticE` of global node `n` (metres), or `None` above the blocks or outside the grid.
@@ -726,14 +875,15 @@ impl StoreTree {
         Some(local_values(self.store.header(), e, local).2)
     }
 
-    /// [`patch_error`] of global node `n` (metres), or `None` above the blocks or outside the
+    /// [`BlockNodes::patch_error`] of global node `n` (metres), or `None` above the blocks or outside the
     /// grid.
     fn patch_error(&self, n: NodeId) -> Option<f32> {
         let (b, local) = self.block_of(n)?;
-        Some(patch_error(self.store.header(), self.store.entry(b)?, local))
+        let nodes = self.block_nodes(b)?;
+        Some(nodes.patch_error(local, local_values(nodes.header, nodes.entry, local).2))
     }
 
-    /// [`NodeSource::node_info`] of global node `n` with its [`patch_error`] (`None` above
+    /// [`NodeSource::node_info`] of global node `n` with its [`BlockNodes::patch_error`] (`None` above
     /// the blocks), from one read of the block's index entry.
     fn info_and_patch_error(&self, n: NodeId) -> Option<(NodeInfo, Option<f32>)> {
         if !self.contains(n) {
@@ -743,7 +893,7 @@ impl StoreTree {
             Some((b, local)) => {
                 let nodes = self.block_nodes(b)?;
                 let (info, err) = nodes.info(local)?;
-                Some((info, Some(patch_error_of(nodes.header, nodes.entry, local, err))))
+                Some((info, Some(nodes.patch_error(local, err))))
             }
             None => Some((self.upper_info(n), None)),
         }
@@ -844,25 +994,8 @@ impl StoreTree {
         max_level: u8,
     ) -> Option<u8> {
         let (b, local) = self.block_of(n)?;
-        let h = self.store.header();
-        let e = self.store.entry(b)?;
-        let max_level = max_level.min(h.k);
-        if local.level >= max_level {
-            return Some(self.block_level + local.level.min(max_level));
-        }
-        let per_metre = per_metre();
-        if !per_metre.is_finite() {
-            return Some(self.block_level + max_level);
-        }
-        let limit = (view.tau / per_metre) as f32;
-        let per = self.sub_per;
-        let sub = (local.level <= self.patch_level && local.level < h.node_levels)
-            .then(|| {
-                let o = (h.block_position(b)? * self.sub_nodes + upper_index(local)) * per;
-                self.sub_max.get(o..o + per)
-            })
-            .flatten();
-        Some(self.block_level + needed_level_below(h, e, local, limit, max_level, sub))
+        let nodes = self.block_nodes(b)?;
+        Some(self.block_level + nodes.needed_level(local, per_metre, view, max_level))
     }
 }
 
@@ -885,7 +1018,7 @@ impl NodeSource for StoreTree {
 }
 
 /// The traversal's node space for one selection: the [`StoreTree`], remembering the node it
-/// was last asked about with its box and [`patch_error`], so that the split test and the
+/// was last asked about with its box and [`BlockNodes::patch_error`], so that the split test and the
 /// leaf's factor reuse the index values [`traverse`] just read (it asks for a node's info, then
 /// culls it, splits it or reports it, before it asks for the next node).
 struct FrameNodes<'a> {
@@ -919,27 +1052,16 @@ impl NodeSource for FrameNodes<'_> {
     }
 }
 
-/// The crack-free patches of a store for `camera`: terrain-core's [`traverse`] over the
-/// [`StoreTree`] with the Eq. 7 split and two culls, only over blocks with a level resident
-/// (`resident(block)`: the finest level that may be drawn, `None` = not drawn), the split
-/// stopped at that level; then balanced, factors from `needed_vertex_level` (clamped to the
-/// resident level, at least 2) and outer factors by terrain-core's [`wish_outer_factors`]. The culls:
-/// the paper's [`BoundingCircleCull`] against the view projected on the ground (section 3.3,
-/// steps 2-3), and terrain-core's [`FrustumCull`] of each node's world box (its min/max
-/// heights): the circle keeps nodes beside and behind the view triangle's sides, and a node
-/// whose box is outside the frustum cannot be seen (the standard six-plane box test, exact for
-/// "outside"). Patches are global nodes of the tree (`NodeId::grid_rect(tree.root_cells())` is
-/// their square of grid samples), in traversal order; `terrain_core::lod::check_shared_edges`
-/// holds.
-pub fn select_patches(
+/// The traversal part of [`select_patches`]: terrain-core's [`traverse`] over `tree` with the
+/// split and the culls, before the balance; its leaves in traversal order with their boxes and
+/// Eq. 7's `rho` per metre where the split test computed it.
+fn traverse_store(
     tree: &StoreTree,
     camera: &Camera,
-    tau: f64,
-    resident: impl Fn(BlockId) -> Option<u8>,
-) -> Selection {
-    let start = Instant::now();
-    let view = View::new(camera, tau);
-    let bl = tree.block_level;
+    view: &View,
+    resident: &impl Fn(BlockId) -> Option<u8>,
+) -> (Vec<(NodeId, Aabb, Option<f64>)>, SelectionStats) {
+    let view = *view;
     let mut circle = BoundingCircleCull::new(project_view_to_ground(camera));
     let mut frustum = FrustumCull::new(Frustum::from_camera(camera));
     let mut cull = |n: NodeId, info: &NodeInfo| {
@@ -972,13 +1094,13 @@ pub fn select_patches(
                 if local.level >= resident(b).unwrap_or(0) {
                     return false;
                 }
-                match nodes.patch_error(n) {
-                    None => true,
-                    Some(err) => {
+                match (nodes.patch_error(n), tree.block_nodes(b)) {
+                    (Some(err), Some(block)) => {
                         let per_metre = view.rho_per_metre(&info.aabb);
                         last_rho.set(Some((n, per_metre)));
-                        view.splits_at(err, per_metre)
+                        block.splits(tree.split, &view, local, err, per_metre)
                     }
+                    _ => true,
                 }
             }
             None => match tree.spanning_level(n, &info.aabb, &view) {
@@ -1006,6 +1128,46 @@ pub fn select_patches(
         }
     });
     stats.traversal_leaves = boxed.len();
+    (boxed, stats)
+}
+
+/// The leaves of [`select_patches`]' traversal, before the balance (tests).
+#[cfg(test)]
+pub(crate) fn traversal_leaves(
+    tree: &StoreTree,
+    camera: &Camera,
+    tau: f64,
+    resident: impl Fn(BlockId) -> Option<u8>,
+) -> Vec<NodeId> {
+    traverse_store(tree, camera, &View::new(camera, tau), &resident)
+        .0
+        .into_iter()
+        .map(|l| l.0)
+        .collect()
+}
+
+/// The crack-free patches of a store for `camera`: terrain-core's [`traverse`] over the
+/// [`StoreTree`] with the Eq. 7 split and two culls, only over blocks with a level resident
+/// (`resident(block)`: the finest level that may be drawn, `None` = not drawn), the split
+/// stopped at that level; then balanced, factors from `needed_vertex_level` (clamped to the
+/// resident level, at least 2) and outer factors by terrain-core's [`wish_outer_factors`]. The culls:
+/// the paper's [`BoundingCircleCull`] against the view projected on the ground (section 3.3,
+/// steps 2-3), and terrain-core's [`FrustumCull`] of each node's world box (its min/max
+/// heights): the circle keeps nodes beside and behind the view triangle's sides, and a node
+/// whose box is outside the frustum cannot be seen (the standard six-plane box test, exact for
+/// "outside"). Patches are global nodes of the tree (`NodeId::grid_rect(tree.root_cells())` is
+/// their square of grid samples), in traversal order; `terrain_core::lod::check_shared_edges`
+/// holds.
+pub fn select_patches(
+    tree: &StoreTree,
+    camera: &Camera,
+    tau: f64,
+    resident: impl Fn(BlockId) -> Option<u8>,
+) -> Selection {
+    let start = Instant::now();
+    let view = View::new(camera, tau);
+    let bl = tree.block_level;
+    let (boxed, mut stats) = traverse_store(tree, camera, &view, &resident);
     let traversed: Vec<NodeId> = boxed.iter().map(|&(n, ..)| n).collect();
     // Balanced leaves, sorted by `dfs_key` like the traversal's: a leaf the balance kept is
     // found by walking both lists together.

@@ -56,7 +56,7 @@ use terrain_core::metrics::screen::{MIN_DISTANCE_M, view_sin};
 
 use crate::cache::Cache;
 use crate::format::{BlockEntry, BlockId, Header};
-use crate::lod::{View, needed_level, shading_level};
+use crate::lod::{Refinement, View, needed_level, shading_level};
 use crate::schedule::{
     Regions, ScheduleConfig, block_rect, blocks_under_bbox, polygon_meets_rect, regions,
 };
@@ -97,6 +97,10 @@ pub struct StreamConfig {
     pub max_in_flight: usize,
     /// Frames before a block whose load failed is tried again. Default 120.
     pub retry_after_frames: u64,
+    /// How the selection refines the store (its smallest patch and split rule): the needed
+    /// level of a block is the deepest level the selection's patches need in it, so give the
+    /// [`crate::StoreTree`] the same ([`crate::StoreTree::with_refinement`]).
+    pub refinement: Refinement,
 }
 
 impl Default for StreamConfig {
@@ -110,6 +114,7 @@ impl Default for StreamConfig {
             pin_level_zero: true,
             max_in_flight: 0,
             retry_after_frames: 120,
+            refinement: Refinement::default(),
         }
     }
 }
@@ -401,13 +406,15 @@ impl Streamer {
         let store = &self.store;
         let header = store.header();
         let view = View::new(camera, self.config.tau);
+        let refine = self.config.refinement;
         let next = (ahead != DVec3::ZERO).then(|| View { eye: view.eye + ahead, ..view });
         let eye = camera.position.truncate();
         let predicted = |id: BlockId, e: &BlockEntry, now: u8| {
-            next.as_ref().map_or(now, |v| level_ahead(header, e, id, v, &reg.extension, now))
+            next.as_ref()
+                .map_or(now, |v| level_ahead(header, e, id, v, &reg.extension, now, refine))
         };
         let needed = |id: BlockId, e: &BlockEntry, region: &GroundRegion| {
-            needed_level_fast(header, e, id, &view, region)
+            needed_level_fast(header, e, id, &view, region, refine)
         };
         // M is the blocks of the view region whose box meets the view frustum (the paper's
         // projected triangle alone keeps blocks below and beside a pitched view); N - M, the
@@ -700,12 +707,13 @@ fn needed_level_fast(
     b: BlockId,
     view: &View,
     region: &GroundRegion,
+    refine: Refinement,
 ) -> Option<u8> {
     let shade = shading_level(h, e, b, view);
     if geometry_level_bound(h, e, b, view) <= shade {
         Some(shade)
     } else {
-        needed_level(h, e, b, view, region)
+        needed_level(h, e, b, view, region, refine)
     }
 }
 
@@ -719,6 +727,7 @@ fn level_ahead(
     view: &View,
     region: &GroundRegion,
     now: u8,
+    refine: Refinement,
 ) -> u8 {
     let (shade, bound) = (shading_level(h, e, b, view), geometry_level_bound(h, e, b, view));
     if shade.max(bound) <= now {
@@ -726,7 +735,7 @@ fn level_ahead(
     } else if bound <= shade {
         shade.max(now)
     } else {
-        needed_level(h, e, b, view, region).map_or(now, |l| l.max(now))
+        needed_level(h, e, b, view, region, refine).map_or(now, |l| l.max(now))
     }
 }
 
@@ -771,6 +780,7 @@ fn rect_distance(p: DVec2, lo: DVec2, hi: DVec2) -> f64 {
 mod tests {
     use super::*;
     use crate::bake::{BakeConfig, bake};
+    use crate::lod::SplitRule;
     use crate::schedule::{ScheduleConfig, regions};
     use glam::{dvec2, dvec3};
     use std::ops::ControlFlow;
@@ -816,7 +826,10 @@ mod tests {
                 )
                 .with_clip(1.0, ext.length() * 2.0);
                 let reg = regions(&h, &ScheduleConfig::default(), &cam, dvec2(0.0, 300.0));
-                for tau in [0.5, 2.0, 8.0] {
+                for (tau, refine) in [0.5, 2.0, 8.0].into_iter().flat_map(|t| {
+                    [Refinement::default(), Refinement { patch_cells: 4, split: SplitRule::Cost }]
+                        .map(|r| (t, r))
+                }) {
                     let view = View::new(&cam, tau);
                     for region in [&reg.view, &reg.extension] {
                         for id in blocks_under_bbox(&h, region) {
@@ -825,7 +838,7 @@ mod tests {
                             if !polygon_meets_rect(region.vertices(), lo, hi) {
                                 continue;
                             }
-                            let slow = needed_level(&h, e, id, &view, region);
+                            let slow = needed_level(&h, e, id, &view, region, refine);
                             assert!(slow.is_some(), "{id} meets the region but has no leaf");
                             let shade = shading_level(&h, e, id, &view);
                             if geometry_level_bound(&h, e, id, &view) <= shade {
@@ -833,10 +846,14 @@ mod tests {
                             } else {
                                 walked += 1;
                             }
-                            assert_eq!(needed_level_fast(&h, e, id, &view, region), slow, "{id}");
+                            assert_eq!(
+                                needed_level_fast(&h, e, id, &view, region, refine),
+                                slow,
+                                "{id}"
+                            );
                             for now in 0..=h.k {
                                 assert_eq!(
-                                    level_ahead(&h, e, id, &view, region, now),
+                                    level_ahead(&h, e, id, &view, region, now, refine),
                                     slow.map_or(now, |l| l.max(now)),
                                     "{id} now {now}"
                                 );
@@ -869,10 +886,14 @@ mod tests {
                     hi + 1.0,
                     dvec2(lo.x - 1.0, hi.y + 1.0),
                 ]);
-                let walk = crate::lod::needed_geometry_level(&h, e, id, &view, &all).unwrap();
                 let bound = geometry_level_bound(&h, e, id, &view);
-                assert!(bound >= walk, "{id}: bound {bound} < walk {walk}");
-                tight += usize::from(bound == walk);
+                for split in [SplitRule::Eq7, SplitRule::Cost] {
+                    let refine = Refinement { patch_cells: 4, split };
+                    let walk =
+                        crate::lod::needed_geometry_level(&h, e, id, &view, &all, refine).unwrap();
+                    assert!(bound >= walk, "{id}: bound {bound} < walk {walk} ({split:?})");
+                    tight += usize::from(bound == walk);
+                }
             }
         }
         assert!(tight > 0);

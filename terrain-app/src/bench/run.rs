@@ -141,7 +141,11 @@ pub fn run_bench(
                 .iter()
                 .map(|&px| {
                     let p = registry::params_for_error_px(m, px, error_view);
-                    format!("{} px -> {} = {:.4}", px, p.parameter, p.value)
+                    // The value the run applies (ooc's depends on its configured split rule).
+                    let mut c = crate::methods::MethodConfig { ooc: cfg.ooc, ..Default::default() };
+                    p.apply(&mut c);
+                    let value = if m == LodMethod::OutOfCore { c.ooc.tau } else { p.value };
+                    format!("{} px -> {} = {:.4}", px, p.parameter, value)
                 })
                 .collect();
             notes.push(format!("{} error_px: {}", m.name(), mapped.join(", ")));

@@ -10,6 +10,7 @@ use std::sync::Arc;
 use super::{EntropyMethod, GeomorphMethod, MemoryMethod, Method, OocMethod, OocWait};
 use crate::methods::{LodMethod, MethodConfig, MethodScene};
 use crate::ooc::OocScene;
+use terrain_stream::{DEFAULT_SPLIT, SplitRule};
 
 /// What [`build`] needs besides the scene.
 #[derive(Debug, Clone)]
@@ -298,6 +299,10 @@ impl ErrorPxParams {
                 config.pvps.c3 = self.value;
                 config.pvps.outer_constant = self.value * config.pvps.c4;
             }
+            // The split rule configured, which moves the p99 (`ooc_p99_per_tau`).
+            LodMethod::OutOfCore => {
+                config.ooc.tau = self.error_px / ooc_p99_per_tau(config.ooc.split);
+            }
             m => apply_parameter(config, m, self.value),
         }
     }
@@ -326,10 +331,13 @@ impl std::fmt::Display for ErrorPxParams {
 /// table with the measured figures; `cargo run --release -p terrain-app --example
 /// error_px_calibration` measures the fits below).
 ///
-/// - `geomorph` (`tau_px`) and `ooc` (`tau`): the parameter is a pixel threshold already (the
-///   projected max-error vertex of the drawn level, Wagner 2003; out-of-core Eq. 6-7): the
-///   target itself. Both bound the *largest* error of a patch or block, so the measured p99
-///   lies below the target (geomorph about 0.45 of it).
+/// - `geomorph` (`tau_px`): the parameter is a pixel threshold already (the projected
+///   max-error vertex of the drawn level, Wagner 2003): the target itself. It bounds the
+///   *largest* error of a patch, so the measured p99 lies below the target (about 0.45 of it).
+/// - `ooc` (`tau`): out-of-core Eq. 6-7 is a pixel threshold on each patch's `StaticE`
+///   (Eq. 3-5, the largest midpoint deviation below it), not on the drawn error; `tau` is the
+///   target over the measured median p99 per pixel of `tau` ([`ooc_p99_per_tau`], by split
+///   rule: [`ErrorPxParams::apply`] uses the configured rule).
 /// - `dss-1`, `dss-2`, `dss-strips` (`rho_thr`): DSS Eq. 3 projects a block's *mean*
 ///   object-space error (section 3.3.1), so `rho_thr` bounds the mean, not the p99 that is
 ///   measured. Measured on Puget Sound 1k (two shipped flights, `rho_thr` 0.25-8): p99 =
@@ -356,7 +364,9 @@ pub fn params_for_error_px(method: LodMethod, error_px: f64, view: ErrorView) ->
     let leaf = f64::from(MethodConfig::default().leaf_cells);
     let (parameter, value, basis) = match method {
         LodMethod::Geomorph => ("tau_px", px, ErrorPxBasis::Direct),
-        LodMethod::OutOfCore => ("tau", px, ErrorPxBasis::Direct),
+        LodMethod::OutOfCore => {
+            ("tau", px / ooc_p99_per_tau(DEFAULT_SPLIT), ErrorPxBasis::Calibrated)
+        }
         LodMethod::Dss1 | LodMethod::Dss2 | LodMethod::DssStrips => {
             let rho = (reference_px / DSS_P99_AT_RHO_1).powf(1.0 / DSS_P99_EXPONENT);
             ("rho_thr", rho * scale, ErrorPxBasis::Model)
@@ -379,6 +389,26 @@ pub fn params_for_error_px(method: LodMethod, error_px: f64, view: ErrorView) ->
     };
     ErrorPxParams { method, error_px: px, parameter, value, basis }
 }
+
+/// `ooc`: the measured median p99 (pixels) per pixel of Eq. 7's `tau` under `split`: the
+/// median of the ratio over `terrain bench --error-px 0.5,0.7,1,1.4,2,2.8,4 --wait` on
+/// `flights/pvps_884.json` (6 frames) on Puget Sound 1k, N42E001, the synthetic 1025^2 grid
+/// and Big Tujunga (bench/ooc/README.md, "The cost split as an option"). Eq. 7 bounds each
+/// patch's `StaticE`, not the drawn error; the ratio varies by DEM and `tau` (28 points each:
+/// Eq. 7 alone 0.08-0.81, median 0.50, lowest on the synthetic grid at small `tau`; the cost
+/// split 0.71-1.16, median 1.06).
+pub fn ooc_p99_per_tau(split: SplitRule) -> f64 {
+    match split {
+        SplitRule::Eq7 => OOC_P99_PER_TAU_EQ7,
+        SplitRule::Cost => OOC_P99_PER_TAU_COST,
+    }
+}
+
+/// [`ooc_p99_per_tau`] under Eq. 7 alone.
+const OOC_P99_PER_TAU_EQ7: f64 = 0.50;
+
+/// [`ooc_p99_per_tau`] under the cost split.
+const OOC_P99_PER_TAU_COST: f64 = 1.06;
 
 /// DSS: the measured median p99 (pixels) at `rho_thr = 1` (see [`params_for_error_px`]).
 pub const DSS_P99_AT_RHO_1: f64 = 2.8;
@@ -450,14 +480,22 @@ mod tests {
         }
     }
 
-    /// The pixel thresholds are the target itself; the DSS and PVPS fits invert to the
-    /// measured p99 they were fitted to.
+    /// Geomorph's pixel threshold is the target itself; ooc's `tau` and the DSS and PVPS fits
+    /// invert to the measured p99 they were fitted to.
     #[test]
     fn mappings_invert_their_fits() {
         let view = ErrorView::REFERENCE;
         for px in [0.5, 1.0, 3.0] {
             assert_eq!(params_for_error_px(LodMethod::Geomorph, px, view).value, px);
-            assert_eq!(params_for_error_px(LodMethod::OutOfCore, px, view).value, px);
+            // ooc: the target over the measured p99 per pixel of tau, by split rule.
+            let tau = params_for_error_px(LodMethod::OutOfCore, px, view).value;
+            assert!((tau * ooc_p99_per_tau(DEFAULT_SPLIT) - px).abs() < 1e-9, "{px} {tau}");
+            for split in [SplitRule::Eq7, SplitRule::Cost] {
+                let mut c = MethodConfig::default();
+                c.ooc.split = split;
+                params_for_error_px(LodMethod::OutOfCore, px, view).apply(&mut c);
+                assert!((c.ooc.tau * ooc_p99_per_tau(split) - px).abs() < 1e-9, "{split:?}");
+            }
             let rho = params_for_error_px(LodMethod::Dss1, px, view).value;
             let p99 = DSS_P99_AT_RHO_1 * rho.powf(DSS_P99_EXPONENT);
             assert!((p99 - px).abs() < 1e-9, "{px} {rho} {p99}");
@@ -500,6 +538,7 @@ mod tests {
         let p = params_for_error_px(LodMethod::Uniform, 1.0, ErrorView::REFERENCE);
         p.apply(&mut c);
         assert_eq!(c.uniform_factor, p.value as f32);
-        assert_eq!(default_config(LodMethod::OutOfCore, ErrorView::REFERENCE).ooc.tau, 2.0);
+        let tau = default_config(LodMethod::OutOfCore, ErrorView::REFERENCE).ooc.tau;
+        assert_eq!(tau, Quality::DEFAULT.error_px() / ooc_p99_per_tau(DEFAULT_SPLIT));
     }
 }

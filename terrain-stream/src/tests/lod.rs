@@ -12,8 +12,8 @@ use std::path::PathBuf;
 use std::sync::Arc;
 
 use crate::lod::{
-    StoreTree, View, needed_geometry_level, needed_level, needed_vertex_level, select_patches,
-    shading_level,
+    Refinement, SplitRule, StoreTree, View, needed_geometry_level, needed_level,
+    needed_vertex_level, select_patches, shading_level, traversal_leaves,
 };
 use crate::{BakeConfig, BlockId, HeightEncoding, Store, bake};
 use glam::{DVec3, dvec3};
@@ -296,8 +296,11 @@ fn patches_meet_eq7_minimally_and_cover_the_view() {
     let all: HashMap<BlockId, u8> = store.block_ids().map(|b| (b, 6)).collect();
     let (mut total, mut culled) = (0, 0);
     let mut factors = std::collections::BTreeSet::new();
-    for patch_cells in [4, 32] {
-        let tree = StoreTree::new(store.clone(), patch_cells);
+    let refines =
+        [(4, SplitRule::Eq7), (32, SplitRule::Eq7), (4, SplitRule::Cost), (16, SplitRule::Cost)]
+            .map(|(patch_cells, split)| Refinement { patch_cells, split });
+    for refine in refines {
+        let tree = StoreTree::with_refinement(store.clone(), refine);
         for (ci, cam) in cameras().iter().enumerate() {
             for tau in [0.5, 2.0, 8.0] {
                 let sel = select_patches(&tree, cam, tau, |b| all.get(&b).copied());
@@ -309,8 +312,8 @@ fn patches_meet_eq7_minimally_and_cover_the_view() {
                 total += n;
                 factors.extend(sel.patches.iter().map(|p| p.inner[0] as u32));
                 // The streamer's needed level is the deepest level drawn in each block (the
-                // same traversal; exact for the default patch size).
-                if patch_cells == 32 {
+                // same traversal and split, given the tree's refinement).
+                {
                     let view = View::new(cam, tau);
                     let region = project_view_to_ground(cam);
                     for b in store.block_ids() {
@@ -323,22 +326,24 @@ fn patches_meet_eq7_minimally_and_cover_the_view() {
                             })
                             .max();
                         let (h, e) = (store.header(), store.entry(b).unwrap());
-                        let need = needed_geometry_level(h, e, b, &view, &region);
+                        let need = needed_geometry_level(h, e, b, &view, &region, refine);
                         // What the streamer loads: that, and at least the shading level.
                         assert_eq!(
-                            needed_level(h, e, b, &view, &region),
+                            needed_level(h, e, b, &view, &region, refine),
                             need.map(|n| n.max(shading_level(h, e, b, &view)))
                         );
                         // Factor 2 is the least: a patch needing only its corners draws its
                         // next level's vertices by interpolation. (Balancing across blocks
-                        // can split a block's leaves further; then only presence agrees. The
+                        // can split a block's leaves further, or split a patch spanning blocks
+                        // into blocks outside the view region; then nothing is compared. The
                         // streamer loads the blocks of the view region; the selection drops
                         // those outside the frustum too.)
-                        assert!(drawn.is_none() || need.is_some(), "{b}");
+                        let balanced = sel.stats.balance_added > 0;
+                        assert!(drawn.is_none() || need.is_some() || balanced, "{b} {refine:?}");
                         if let (Some(n), Some(d)) = (need, drawn)
                             && sel.stats.balance_added == 0
                         {
-                            assert!(d == n || d == n + 1, "{b}: needed {n}, drawn {d}");
+                            assert!(d == n || d == n + 1, "{b}: needed {n}, drawn {d} {refine:?}");
                         }
                     }
                 }
@@ -407,13 +412,15 @@ fn patches_split_only_where_their_largest_factor_misses_tau() {
                     continue;
                 }
                 let e = store.entry(b).unwrap();
-                // Independently of `patch_error`: the parent's bound, and the block's
-                // per-level maximum six levels below it.
+                // Independently of `patch_error`: the parent's bound, and the largest bound
+                // of its descendants six levels below it (exact with the fine maxima; at most
+                // the block's per-level maximum there).
                 let err = if parent.level + 6 >= h.k {
                     0.0
                 } else {
-                    bound(&store, b, parent)
-                        .min(f64::from(e.level_errors[parent.level as usize + 6]))
+                    let six = level_max(&store, b, parent, parent.level + 6);
+                    assert!(six <= f64::from(e.level_errors[parent.level as usize + 6]));
+                    bound(&store, b, parent).min(six)
                 };
                 let global = tree.global(b, parent);
                 assert!(
@@ -425,6 +432,102 @@ fn patches_split_only_where_their_largest_factor_misses_tau() {
         }
     }
     assert!(inside > 20 && total > inside, "{inside} patches inside blocks of {total}");
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// The cost split ([`SplitRule::Cost`], 16-cell patches): inside a block a node splits where
+/// even its largest factor misses Eq. 7's `tau` or where its four children, each at the
+/// coarsest level meeting Eq. 7 at its own box, draw fewer triangles than it does at its own;
+/// a traversal leaf larger than the smallest patch meets neither (minimality under the rule;
+/// the balance may split leaves further for the edge rule, as under Eq. 7 alone). Checked
+/// against a brute force over the index (each level's largest bound under the node, not the
+/// selection's walk), skipping nodes within 1e-6 of a threshold; every selection also passes
+/// `check` (Eq. 7 per patch, cover, shared edges). Eq. 7 alone on the same views draws more
+/// triangles (the rule changes the selection).
+#[test]
+fn cost_split_splits_where_the_children_draw_fewer_triangles() {
+    // 513 x 513 at 10 m in blocks of 257^2 (k = 8, 2 x 2), node values to level 4 plus the
+    // fine maxima, as a default bake.
+    let hm = terrain(513, 513);
+    let (dir, store) = bake_store(&hm, "cost", 8, 5);
+    let h = store.header().clone();
+    let all: HashMap<BlockId, u8> = store.block_ids().map(|b| (b, 8)).collect();
+    let tree_of =
+        |split| StoreTree::with_refinement(store.clone(), Refinement { patch_cells: 16, split });
+    let (eq7, cost) = (tree_of(SplitRule::Eq7), tree_of(SplitRule::Cost));
+    let patch_level = h.k - 4;
+    let drawn =
+        |s: &Selection| s.patches.iter().map(|p| f64::from(p.inner[0]).powi(2)).sum::<f64>();
+    let (mut by_cost, mut leaves, mut tris) = (0, 0, [0f64; 2]);
+    for cam in cameras() {
+        for tau in [0.5, 1.0, 2.0, 8.0] {
+            let sel = select_patches(&cost, &cam, tau, |b| all.get(&b).copied());
+            check(&hm, &cost, &cam, tau, &all, &sel);
+            tris[0] += drawn(&select_patches(&eq7, &cam, tau, |b| all.get(&b).copied()));
+            tris[1] += drawn(&sel);
+            let view = View::new(&cam, tau);
+            // The brute force's least level meeting Eq. 7 at threshold `t` for local node `m`.
+            let needed = |b: BlockId, m: NodeId, t: f64| {
+                let pm = rho_per_metre(&cost, &view, cost.global(b, m));
+                (m.level..h.k).find(|&l| pm * level_max(&store, b, m, l) <= t).unwrap_or(h.k)
+            };
+            let triangles = |b: BlockId, m: NodeId, t: f64| {
+                1u64 << (2 * (needed(b, m, t) - m.level).clamp(1, 6))
+            };
+            // Whether the rule splits `n` (`None`: within rounding of a threshold), and
+            // whether only the cost decided.
+            let decide = |b: BlockId, n: NodeId| -> Option<(bool, bool)> {
+                let pm = rho_per_metre(&cost, &view, cost.global(b, n));
+                let six = if n.level + 6 >= h.k {
+                    0.0
+                } else {
+                    bound(&store, b, n).min(level_max(&store, b, n, n.level + 6))
+                };
+                if pm * six > tau * (1.0 + 1e-6) {
+                    return Some((true, false));
+                }
+                if pm * six > tau * (1.0 - 1e-6) {
+                    return None;
+                }
+                let at = |t: f64| {
+                    let kids: u64 = n
+                        .children()
+                        .iter()
+                        .filter(|&&c| cost.node_info(cost.global(b, c)).is_some())
+                        .map(|&c| triangles(b, c, t))
+                        .sum();
+                    kids < triangles(b, n, t)
+                };
+                let split = at(tau * (1.0 + 1e-6));
+                (split == at(tau * (1.0 - 1e-6))).then_some((split, true))
+            };
+            let mut seen = std::collections::HashSet::new();
+            // The traversal's leaves (the balance then splits some further).
+            for leaf in traversal_leaves(&cost, &cam, tau, |b| all.get(&b).copied()) {
+                let Some((b, local)) = cost.block_of(leaf) else { continue };
+                if local.level < patch_level
+                    && let Some((split, _)) = decide(b, local)
+                {
+                    assert!(!split, "{leaf:?} (tau {tau}) should have split");
+                    leaves += 1;
+                }
+                let mut a = local;
+                while let Some(parent) = a.parent() {
+                    a = parent;
+                    if !seen.insert((b, parent)) {
+                        continue;
+                    }
+                    if let Some((split, cost_only)) = decide(b, parent) {
+                        assert!(split, "{:?} (tau {tau}) split", cost.global(b, parent));
+                        by_cost += usize::from(cost_only);
+                    }
+                }
+            }
+        }
+    }
+    assert!(by_cost > 20, "{by_cost} nodes split by their cost alone");
+    assert!(leaves > 20, "{leaves} leaves larger than the smallest patch checked");
+    assert!(tris[1] < tris[0], "cost split {} against Eq. 7 alone {}", tris[1], tris[0]);
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
@@ -569,8 +672,12 @@ fn fine_maxima_select_what_full_depth_node_values_select() {
     assert!(fine.has_fine_errors() && full.has_fine_errors() && !v2.has_fine_errors());
     let all: HashMap<BlockId, u8> = fine.block_ids().map(|b| (b, 6)).collect();
     let (mut compared, mut tris) = (0, [0f64; 2]);
-    for patch_cells in [4, 32] {
-        let trees = [&full, &fine, &v2].map(|s| StoreTree::new(s.clone(), patch_cells));
+    // The cost split compares a node with its children: exact where the children are stored
+    // nodes (patches of at least 8 cells here: level 3 of the stored 0-3).
+    let refines = [(4, SplitRule::Eq7), (32, SplitRule::Eq7), (8, SplitRule::Cost)]
+        .map(|(patch_cells, split)| Refinement { patch_cells, split });
+    for refine in refines {
+        let trees = [&full, &fine, &v2].map(|s| StoreTree::with_refinement(s.clone(), refine));
         for cam in cameras() {
             for tau in [0.5, 2.0, 8.0, 32.0] {
                 let [a, b, c] = trees
@@ -579,13 +686,19 @@ fn fine_maxima_select_what_full_depth_node_values_select() {
                 let key = |s: &Selection| {
                     s.patches.iter().map(|p| (p.node, p.inner, p.outer)).collect::<Vec<_>>()
                 };
-                assert_eq!(key(&a), key(&b), "cells {patch_cells} tau {tau}");
+                assert_eq!(key(&a), key(&b), "{refine:?} tau {tau}");
                 check(&hm, &trees[1], &cam, tau, &all, &b);
                 let drawn = |s: &Selection| {
                     s.patches.iter().map(|p| f64::from(p.inner[0]).powi(2)).sum::<f64>()
                 };
-                tris[0] += drawn(&b);
-                tris[1] += drawn(&c);
+                // The version-2 bounds draw at least as much under Eq. 7 alone (the cost split
+                // is greedy: coarser bounds may split a node into cheaper children).
+                if refine.split == SplitRule::Eq7 {
+                    tris[0] += drawn(&b);
+                    tris[1] += drawn(&c);
+                } else {
+                    check(&hm, &trees[2], &cam, tau, &all, &c);
+                }
                 compared += a.patches.len();
             }
         }
