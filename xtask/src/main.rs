@@ -32,11 +32,13 @@ tasks:
           deadline (10 s of CPU) or an allocation over 1 GiB (readers' limit 256 MiB). Failing cases
           are saved in target/fuzz-run/failures/ for --replay.
   papers  [--paper pvps|ooc|geomorph|entropy|dss]... [--quick] [--out DIR] [--store NAME=DIR]...
+          [--terrain BINARY]
           each paper's result tables in its own layout, run on the shared data through
           `terrain bench`, `bake` and `info` built in release, beside the paper's numbers with a
           computed verdict per claim; Markdown + JSON (+ SVG) in DIR/<paper>/ (default
           bench/papers, --quick: out/papers-quick). --store adds a baked store to the
-          out-of-core paper's Table 1. Fails when a table or verdict could not be computed.
+          out-of-core paper's Table 1; --terrain runs a given binary instead of building one.
+          Fails when a table or verdict could not be computed.
           --quick: few frames, small images (under 10 minutes on two cores).";
 
 fn main() -> anyhow::Result<()> {

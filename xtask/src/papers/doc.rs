@@ -179,7 +179,7 @@ pub(crate) fn lower_is_better(
             paper + t,
             format!(
                 "lower is better: beaten below paper - {t}, reproduced within paper +- {t}, \
-                 reversed at or above {worst}, not reproduced between"
+                 reversed at or above {worst:.3}, not reproduced between"
             ),
         ),
         None => (
@@ -187,7 +187,7 @@ pub(crate) fn lower_is_better(
             paper * 1.5,
             format!(
                 "lower is better: beaten below paper / 1.5, reproduced up to paper x 1.5, \
-                 reversed at or above {worst}, not reproduced between"
+                 reversed at or above {worst:.3}, not reproduced between"
             ),
         ),
     };

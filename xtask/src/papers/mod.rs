@@ -170,11 +170,12 @@ fn date() -> String {
 }
 
 const USAGE: &str = "cargo xtask papers [--paper pvps|ooc|geomorph|entropy|dss]... [--quick] \
-[--out DIR] [--store NAME=DIR]...";
+[--out DIR] [--store NAME=DIR]... [--terrain BINARY]";
 
 /// Runs `cargo xtask papers`.
 pub(crate) fn papers(args: &[String]) -> anyhow::Result<()> {
     let (mut quick, mut which, mut out, mut stores) = (false, Vec::new(), None, Vec::new());
+    let mut binary = None;
     let mut it = args.iter();
     while let Some(a) = it.next() {
         let mut value = || it.next().with_context(|| format!("{a} needs a value\n\n{USAGE}"));
@@ -188,6 +189,7 @@ pub(crate) fn papers(args: &[String]) -> anyhow::Result<()> {
                 which.push(p.clone());
             }
             "--out" => out = Some(PathBuf::from(value()?)),
+            "--terrain" => binary = Some(PathBuf::from(value()?)),
             "--store" => {
                 let v = value()?;
                 let (name, dir) = v
@@ -205,10 +207,16 @@ pub(crate) fn papers(args: &[String]) -> anyhow::Result<()> {
     let out =
         out.unwrap_or_else(|| root.join(if quick { "out/papers-quick" } else { "bench/papers" }));
     let start = Instant::now();
-    super::run("cargo", &["build", "--release", "-q", "-p", "terrain-app"])?;
-    println!("release build: {:.1} s", start.elapsed().as_secs_f64());
+    let terrain = match binary {
+        Some(b) => b,
+        None => {
+            super::run("cargo", &["build", "--release", "-q", "-p", "terrain-app"])?;
+            println!("release build: {:.1} s", start.elapsed().as_secs_f64());
+            root.join("target/release/terrain")
+        }
+    };
     let mut ctx = Ctx {
-        terrain: root.join("target/release/terrain"),
+        terrain,
         data: super::data_dir(),
         flights: root.join("flights"),
         work: root.join(if quick { "out/papers-work-quick" } else { "out/papers-work" }),

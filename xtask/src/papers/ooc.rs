@@ -284,12 +284,15 @@ fn table3(report: &Value, dem: &str, flight: &str) -> Section {
     );
     let mut shares = Vec::new();
     let mut ios = Vec::new();
+    let mut used = Vec::new();
     for (k, (pf, ..)) in PAPER_T3.iter().enumerate() {
         let target = ((*pf as f64 - 1.0) / 9999.0 * (total - 1.0)).round();
         let near = frames.iter().min_by(|a, b| {
             (f(a, "frame") - target).abs().total_cmp(&(f(b, "frame") - target).abs())
         });
-        let Some(fr) = near else { continue };
+        // A row whose nearest measured frame an earlier row took is left out (few frames).
+        let Some(fr) = near.filter(|fr| !used.contains(&f(fr, "frame"))) else { continue };
+        used.push(f(fr, "frame"));
         let st = &fr["stream"];
         let (need, rt, io) = (f(st, "needed_mib"), realtime_mib(st), f(st, "io_ms"));
         t.rows.push(vec![
@@ -407,6 +410,8 @@ pub(crate) fn run(ctx: &mut Ctx) -> anyhow::Result<PaperDoc> {
             size,
             "--ooc-store",
             &store.display().to_string(),
+            "--ooc-cache-mib",
+            "1",
         ]
         .map(String::from),
     );
@@ -420,7 +425,8 @@ pub(crate) fn run(ctx: &mut Ctx) -> anyhow::Result<PaperDoc> {
             "Blocks of 257^2 vertices (k = 8, the store's default); the paper's are 1025^2.".into(),
             "Viewport 1024x768 as in the paper; the rendered image is the viewport in full runs (320x240 in --quick).".into(),
             "Hardware: a shared 2-core machine drawing with Mesa's software Vulkan (lavapipe); the paper: Windows XP, 2 GB, NVIDIA 9800GT. Frame rates compare by ratio only.".into(),
-            "Flights: ours are 60 s (1800 frames; `pvps_884`) where the paper flies 10,000 frames; Table 3's rows are mapped by position along the flight.".into(),
+            format!("Flight `{flight}` (full runs: `pvps_884`, 60 s, 1800 frames; --quick: `fast_pass`, 10 s) where the paper flies 10,000 frames; Table 3's rows are mapped by position along the flight."),
+            "Stream cache budget 1 MiB: the whole 1k store decodes to 4 MiB and would stay resident after the first frame under the default 256 MiB, leaving nothing to stream; at 1 MiB (the streamer keeps at least what the frame needs) levels are evicted and read again, as in the paper, whose peak memory is 85-102 MB for its 555 MB store.".into(),
         ],
         commands: Vec::new(),
         load: Vec::new(),
