@@ -137,25 +137,31 @@ pub(crate) struct Verdict {
 }
 
 /// The rule of [`effect`], in words.
-pub(crate) const EFFECT_RULE: &str = "effect = ratio - 1, signed; reversed: ours of the opposite sign \
-and beyond 2 %; not reproduced: |ours| < 0.5 |paper| (or within 2 %); beaten: |ours| > 1.5 \
-|paper|; reproduced otherwise";
+pub(crate) const EFFECT_RULE: &str = "effect = ratio - 1, signed, in the claim's direction; \
+reversed: ours against the claim and beyond 2 %; not reproduced: |ours| within 2 %, or below \
+0.5 |paper|; beaten: |ours| above 1.5 |paper|, or the claim held where the paper's own numbers \
+do not show it; reproduced otherwise";
 
-/// A claimed relative effect (`ratio - 1`, e.g. -0.31 for "31 % fewer triangles"): the
-/// paper's `paper`, ours `ours` ([`EFFECT_RULE`]).
+/// A claimed relative effect (`ratio - 1`, e.g. -0.31 for "31 % fewer triangles") in the
+/// direction of the paper's own figure `paper`; ours `ours` ([`EFFECT_RULE`]).
 pub(crate) fn effect(claim: impl Into<String>, paper: f64, ours: f64) -> Verdict {
-    let outcome = if !(paper.is_finite() && ours.is_finite()) {
+    effect_towards(claim, paper.signum(), paper, ours)
+}
+
+/// A claimed relative effect in direction `dir` (-1: ours lower, +1: higher), with the
+/// paper's figure `paper` (which may itself go against the claim) and ours ([`EFFECT_RULE`]).
+pub(crate) fn effect_towards(claim: impl Into<String>, dir: f64, paper: f64, ours: f64) -> Verdict {
+    let along = |x: f64| x * dir.signum();
+    let outcome = if !(paper.is_finite() && ours.is_finite() && dir != 0.0) {
         Outcome::NotComputed
-    } else if ours.abs() <= 0.02 || ours.abs() < 0.5 * paper.abs() {
-        if ours.signum() != paper.signum() && ours.abs() > 0.02 {
-            Outcome::Reversed
-        } else {
-            Outcome::NotReproduced
-        }
-    } else if ours.signum() != paper.signum() {
+    } else if along(ours) < -0.02 {
         Outcome::Reversed
-    } else if ours.abs() > 1.5 * paper.abs() {
+    } else if along(ours) <= 0.02 {
+        Outcome::NotReproduced
+    } else if along(paper) <= 0.0 || along(ours) > 1.5 * along(paper) {
         Outcome::Beaten
+    } else if along(ours) < 0.5 * along(paper) {
+        Outcome::NotReproduced
     } else {
         Outcome::Reproduced
     };
@@ -484,6 +490,9 @@ mod tests {
         assert_eq!(effect("c", -0.3, 0.2).outcome, Outcome::Reversed);
         assert_eq!(effect("c", -0.3, 0.05).outcome, Outcome::Reversed);
         assert_eq!(effect("c", -0.3, f64::NAN).outcome, Outcome::NotComputed);
+        // The claim says lower; the paper's own figure went up: ours lower beats it.
+        assert_eq!(effect_towards("c", -1.0, 0.06, -0.2).outcome, Outcome::Beaten);
+        assert_eq!(effect_towards("c", -1.0, 0.06, 0.5).outcome, Outcome::Reversed);
     }
 
     #[test]

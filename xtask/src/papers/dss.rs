@@ -4,7 +4,7 @@
 
 use serde_json::Value;
 
-use super::doc::{PaperDoc, Section, Table, effect, num, text};
+use super::doc::{PaperDoc, Section, Table, effect_towards, num, text};
 use super::{Ctx, f, frame_mean, runs};
 
 /// The methods: CLI name, the paper's name.
@@ -91,15 +91,17 @@ fn tables23(report: &Value, setting: &str) -> Section {
     }
     s.paper = Some(p);
     for (k, other) in [(0, "Method I"), (1, "Method II")] {
-        s.verdicts.push(effect(
+        s.verdicts.push(effect_towards(
             format!(
                 "the strips' mean RMSE over the four viewpoints is below {other}'s (ratio - 1)"
             ),
+            -1.0,
             mean(&PAPER_T3[2]) / mean(&PAPER_T3[k]) - 1.0,
             mean(&ours[2]) / mean(&ours[k]) - 1.0,
         ));
-        s.verdicts.push(effect(
+        s.verdicts.push(effect_towards(
             format!("the strips' RMSE changes less between viewpoints than {other}'s (mean |change of RMSE|, ratio - 1; the paper's popping measure)"),
+            -1.0,
             mean_change(&PAPER_T3[2]) / mean_change(&PAPER_T3[k]) - 1.0,
             mean_change(&ours[2]) / mean_change(&ours[k]) - 1.0,
         ));
@@ -146,10 +148,11 @@ fn popping(report: &Value, setting: &str) -> Section {
     }
     s.ours.push(t);
     for (k, other) in [(0, "Method I"), (1, "Method II")] {
-        s.verdicts.push(effect(
+        s.verdicts.push(effect_towards(
             format!(
                 "the strips pop less than {other} along the flight (median popping RMS, ratio - 1)"
             ),
+            -1.0,
             mean_change(&PAPER_T3[2]) / mean_change(&PAPER_T3[k]) - 1.0,
             pop[2] / pop[k] - 1.0,
         ));
@@ -188,8 +191,9 @@ fn table4(report: &Value, setting: &str) -> Section {
     }
     s.paper = Some(p);
     for (k, other) in [(0, "Method I"), (1, "Method II")] {
-        s.verdicts.push(effect(
+        s.verdicts.push(effect_towards(
             format!("the strips cost more CPU than {other} (ratio - 1)"),
+            1.0,
             PAPER_CPU[2] / PAPER_CPU[k] - 1.0,
             cpu[2] / cpu[k] - 1.0,
         ));

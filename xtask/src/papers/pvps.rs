@@ -215,7 +215,7 @@ fn table3(reports: &[(f64, f64, Value)], setting: &str) -> Section {
 /// Runs the PVPS paper's tables.
 pub(crate) fn run(ctx: &mut Ctx) -> anyhow::Result<PaperDoc> {
     let ps = ctx.puget1k()?;
-    let (frames, size) = if ctx.quick { ("3", "320x214") } else { ("30", "1200x800") };
+    let (frames, size) = if ctx.quick { ("3", "320x214") } else { ("20", "600x400") };
     let mut args = ps.clone();
     args.push("--flight".into());
     for (flight, _) in HEIGHTS {
