@@ -168,6 +168,30 @@ pub(crate) fn effect_towards(claim: impl Into<String>, dir: f64, paper: f64, our
     Verdict { claim: claim.into(), paper, ours, rule: EFFECT_RULE.to_string(), outcome }
 }
 
+/// A hypothesis's prediction: `ours` at least (or, with `at_least` false, at most) `bound`
+/// (kept as the "paper" figure): reproduced when it is, not reproduced otherwise.
+pub(crate) fn prediction(
+    claim: impl Into<String>,
+    bound: f64,
+    ours: f64,
+    at_least: bool,
+) -> Verdict {
+    let holds = if at_least { ours >= bound } else { ours <= bound };
+    let outcome = if !(bound.is_finite() && ours.is_finite()) {
+        Outcome::NotComputed
+    } else if holds {
+        Outcome::Reproduced
+    } else {
+        Outcome::NotReproduced
+    };
+    let rule = format!(
+        "a prediction (its bound in place of the paper's figure): reproduced when ours is at {} \
+         the bound, not reproduced otherwise",
+        if at_least { "least" } else { "most" }
+    );
+    Verdict { claim: claim.into(), paper: bound, ours, rule, outcome }
+}
+
 /// A figure where lower is better (a share of data loaded late, a storage ratio): beaten below
 /// `paper / 1.5` (or `paper - tol` when `tol` is given, for ratios near 1), reproduced up to
 /// `paper x 1.5` (or `+ tol`), reversed at or above `worst` (the claim's opposite: e.g. the
@@ -493,6 +517,8 @@ mod tests {
         // The claim says lower; the paper's own figure went up: ours lower beats it.
         assert_eq!(effect_towards("c", -1.0, 0.06, -0.2).outcome, Outcome::Beaten);
         assert_eq!(effect_towards("c", -1.0, 0.06, 0.5).outcome, Outcome::Reversed);
+        assert_eq!(prediction("c", 0.9, 0.95, true).outcome, Outcome::Reproduced);
+        assert_eq!(prediction("c", 0.5, 0.95, false).outcome, Outcome::NotReproduced);
     }
 
     #[test]

@@ -57,6 +57,18 @@ impl Ctx {
         ])
     }
 
+    /// The shared Puget Sound 4k DEM (8-bit JPEG, terraced) and its reading options (the
+    /// data README's: about 25.6 m per grey level, about 40 m spacing).
+    pub(crate) fn puget4k(&self) -> anyhow::Result<Vec<String>> {
+        let p = self.data.join("puget_sound/ps_height_4k.jpg");
+        if !p.exists() {
+            bail!("{} is missing (set TERRAIN_DATA)", p.display());
+        }
+        Ok([p.display().to_string().as_str(), "--vertical-scale", "25.6", "--spacing", "40"]
+            .map(String::from)
+            .to_vec())
+    }
+
     /// A shipped flight file.
     pub(crate) fn flight(&self, name: &str) -> String {
         self.flights.join(name).display().to_string()
