@@ -241,7 +241,7 @@ pub(crate) fn papers(args: &[String]) -> anyhow::Result<()> {
     let mut problems = Vec::new();
     for key in &which {
         ctx.commands.clear();
-        let (load0, t0) = (loadavg(), Instant::now());
+        let (load0, t0, date0) = (loadavg(), Instant::now(), date());
         let mut doc = match key.as_str() {
             "ooc" => ooc::run(&mut ctx)?,
             "pvps" => pvps::run(&mut ctx)?,
@@ -252,7 +252,7 @@ pub(crate) fn papers(args: &[String]) -> anyhow::Result<()> {
         doc.quick = quick;
         doc.commands = std::mem::take(&mut ctx.commands);
         doc.load = vec![
-            format!("started {}, load average (1, 5, 15 min) {load0}", date()),
+            format!("started {date0}, load average (1, 5, 15 min) {load0}"),
             format!(
                 "finished after {:.0} s, load average {}; machine: {} cores",
                 t0.elapsed().as_secs_f64(),
