@@ -93,6 +93,32 @@ pub(crate) struct BenchArgs {
     /// `--error-px` (the report's notes give each method's mapped parameter). Not with --sweep.
     #[arg(long, value_delimiter = ',', conflicts_with = "sweep")]
     pub error_px: Vec<f64>,
+    /// The swept parameter's values, comma-separated, for every method in `--methods` (each
+    /// its own parameter: C1, rho_thr, tau, ...) instead of `--sweep` points of each method's
+    /// list: how `cargo xtask papers` runs a paper's settings. Not with --sweep or --error-px.
+    #[arg(long, value_delimiter = ',', conflicts_with_all = ["sweep", "error_px"])]
+    pub values: Vec<f64>,
+    /// PVPS methods: Eq. 12's adjustment coefficients as C3:C4 (default 10:1, the paper's
+    /// Table 2); Algorithm 1's `Constant` follows as C3 x C4. The PVPS paper's Table 3 sweeps
+    /// them.
+    #[arg(long, value_name = "C3:C4")]
+    pub pvps_c3_c4: Option<String>,
+    /// The viewport of the flights' cameras, WIDTHxHEIGHT, for selection and pixel errors
+    /// (default 1280x720); the papers' screens differ (PVPS 1200x800, out-of-core 1024x768).
+    #[arg(long)]
+    pub viewport: Option<String>,
+}
+
+/// Parses `C3:C4` (both positive and finite).
+fn parse_c3_c4(s: &str) -> anyhow::Result<(f64, f64)> {
+    let bad = || format!("--pvps-c3-c4 expects C3:C4 (e.g. 12.5:0.5), got `{s}`");
+    let (a, b) = s.split_once(':').with_context(bad)?;
+    let (c3, c4): (f64, f64) =
+        (a.trim().parse().with_context(bad)?, b.trim().parse().with_context(bad)?);
+    if !(c3.is_finite() && c4.is_finite() && c3 > 0.0 && c4 >= 0.0) {
+        bail!("{}: C3 must be positive and C4 not negative", bad());
+    }
+    Ok((c3, c4))
 }
 
 /// Writes `<dir>/<name>.json`, `.md` and `.svg`; returns the three paths.
@@ -176,6 +202,21 @@ pub(crate) fn run(args: &BenchArgs) -> anyhow::Result<()> {
         bail!("--leaf-cells must be at least 1");
     }
     cfg.method = MethodConfig { leaf_cells: args.leaf_cells, ..MethodConfig::default() };
+    if let Some(pair) = &args.pvps_c3_c4 {
+        let (c3, c4) = parse_c3_c4(pair)?;
+        cfg.method.pvps.c3 = c3;
+        cfg.method.pvps.c4 = c4;
+        cfg.method.pvps.outer_constant = c3 * c4;
+    }
+    if let Some(v) = &args.viewport {
+        cfg.measure_viewport = parse_size(v).context("--viewport")?;
+    }
+    if !args.values.is_empty() {
+        if let Some(v) = args.values.iter().find(|v| !v.is_finite()) {
+            bail!("--values takes finite numbers, got {v}");
+        }
+        cfg.sweep_override = cfg.methods.iter().map(|&m| (m, args.values.clone())).collect();
+    }
     cfg.scene = args.scene.clone();
     cfg.ooc_store = args.ooc_store.clone().or_else(|| args.scene.clone());
     refuse_unused_store_options(args, &cfg)?;

@@ -147,6 +147,49 @@ pub(crate) struct StoreReport {
     /// descendants' largest `StaticE` at each finer level), which `ooc`'s factor walk reads;
     /// a version-2 index has none and the walk bounds those levels by the block's maximum.
     pub fine_maxima: bool,
+    /// Storage per block level (the out-of-core paper's non-redundant levels, Eq. 1-2), over
+    /// every block of the store.
+    pub levels: Vec<LevelStorage>,
+}
+
+/// One block level's storage over the whole store: the vertices new at that level (Qiu 2013
+/// Eq. 1-2: `Offset(n)_end - Offset(n)_start + 1` per block), their stored (encoded, on disk)
+/// bytes and their decoded bytes in memory.
+#[derive(Debug, Serialize)]
+pub(crate) struct LevelStorage {
+    pub level: u8,
+    /// Vertices new at this level, summed over the blocks.
+    pub vertices: u64,
+    /// Bytes of the level's payloads in the block files, summed over the blocks.
+    pub disk_bytes: u64,
+    /// Bytes of the level decoded in memory, summed over the blocks.
+    pub decoded_bytes: u64,
+}
+
+/// Storage per level of `store`, summed over its blocks.
+fn level_storage(store: &terrain_stream::Store) -> Vec<LevelStorage> {
+    let levels = store.header().levels();
+    let sample = terrain_stream::Header::SAMPLE_BYTES;
+    let mut out: Vec<LevelStorage> = (0..levels)
+        .map(|level| {
+            let below = level.checked_sub(1).map_or(0, terrain_stream::BlockEntry::resident_bytes);
+            let per_block = terrain_stream::BlockEntry::resident_bytes(level) - below;
+            LevelStorage { level, vertices: 0, disk_bytes: 0, decoded_bytes: per_block }
+        })
+        .collect();
+    let mut blocks = 0u64;
+    for id in store.block_ids() {
+        let Some(e) = store.entry(id) else { continue };
+        blocks += 1;
+        for (l, entry) in out.iter_mut().zip(&e.levels) {
+            l.disk_bytes += u64::from(entry.len);
+        }
+    }
+    for l in &mut out {
+        l.decoded_bytes *= blocks;
+        l.vertices = l.decoded_bytes / sample;
+    }
+    out
 }
 
 impl StoreReport {
@@ -191,6 +234,7 @@ impl StoreReport {
             tables,
             dss_block_errors: store.has_dss_errors(),
             fine_maxima: store.has_fine_errors(),
+            levels: level_storage(&store),
         })
     }
 
@@ -232,6 +276,16 @@ impl StoreReport {
              block's per-level maximum and draws more triangles; bake again to add them)"
         };
         s += &format!("fine maxima  {fine}\n");
+        s += "levels       level: new vertices, stored MiB (decoded MiB)\n";
+        for l in &self.levels {
+            s += &format!(
+                "             {}: {}, {:.3} ({:.3})\n",
+                l.level,
+                l.vertices,
+                l.disk_bytes as f64 / terrain_app::MIB,
+                l.decoded_bytes as f64 / terrain_app::MIB
+            );
+        }
         s
     }
 }

@@ -58,6 +58,24 @@ fn an_hgt_bakes_losslessly_and_reads_back_bit_exact() {
     let json: serde_json::Value =
         serde_json::from_str(&ok(&terrain(&["info", s(&out), "--json"]))).unwrap();
     assert_eq!(json["blocks"], serde_json::json!([5, 5]), "{json}");
+    // Storage per level (the out-of-core paper's Table 1): Eq. 1-2's new vertices per level
+    // times the 25 blocks, every block vertex once over levels 0..=8, and the levels' stored
+    // bytes within the store's.
+    let levels = json["levels"].as_array().expect("levels");
+    assert_eq!(levels.len(), 9, "{json}");
+    let mut vertices = 0;
+    let mut disk = 0;
+    for (n, l) in levels.iter().enumerate() {
+        let side = |n: u32| (1u64 << n) + 1;
+        let new = side(n as u32).pow(2) - if n == 0 { 0 } else { side(n as u32 - 1).pow(2) };
+        assert_eq!(l["vertices"].as_u64(), Some(25 * new), "level {n}: {l}");
+        assert_eq!(l["decoded_bytes"].as_u64(), Some(25 * new * 4), "level {n}: {l}");
+        vertices += l["vertices"].as_u64().unwrap();
+        disk += l["disk_bytes"].as_u64().unwrap();
+    }
+    assert_eq!(vertices, 25 * 257 * 257);
+    assert!(disk > 0 && disk < json["bytes"].as_u64().unwrap(), "{disk} {json}");
+    assert!(info.contains("levels       level: new vertices"), "{info}");
 
     let dem = load(&hgt, &LoadOptions::default()).unwrap();
     let hm = &dem.heightmap;

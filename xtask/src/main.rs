@@ -1,6 +1,7 @@
 //! `cargo xtask`: developer workflows that are code rather than shell (matklad's cargo-xtask).
 //!
-//! Tasks: `lint` (the formatting and clippy gates of `.ci/run`), `bench` (every LOD method
+//! Tasks: `papers` (the source papers' result tables regenerated beside the papers' numbers,
+//! with verdicts: [`papers`]), `lint` (the formatting and clippy gates of `.ci/run`), `bench` (every LOD method
 //! over the shipped flights, through `terrain bench` built in release; results in
 //! `out/bench/`) and `fuzz` (builds the `terrain-fuzz` harness with the `fuzz` profile and
 //! runs it on the shared DEMs and the corpus; failing cases in `target/fuzz-run/failures/`).
@@ -10,6 +11,8 @@ use std::process::Command;
 use std::time::Instant;
 
 use anyhow::{Context, bail};
+
+mod papers;
 
 const USAGE: &str = "cargo xtask <task>
 
@@ -27,7 +30,16 @@ tasks:
           mutants of the shared DEMs (TERRAIN_DATA or ../shared/data), the GeoTIFF corpus and a
           tiny store through every reader, in-process; fails on a panic, a case over its
           deadline (10 s of CPU) or an allocation over 1 GiB (readers' limit 256 MiB). Failing cases
-          are saved in target/fuzz-run/failures/ for --replay.";
+          are saved in target/fuzz-run/failures/ for --replay.
+  papers  [--paper pvps|ooc|geomorph|entropy|dss]... [--quick] [--out DIR] [--store NAME=DIR]...
+          [--terrain BINARY]
+          each paper's result tables in its own layout, run on the shared data through
+          `terrain bench`, `bake` and `info` built in release, beside the paper's numbers with a
+          computed verdict per claim; Markdown + JSON (+ SVG) in DIR/<paper>/ (default
+          bench/papers, --quick: out/papers-quick). --store adds a baked store to the
+          out-of-core paper's Table 1; --terrain runs a given binary instead of building one.
+          Fails when a table or verdict could not be computed.
+          --quick: few frames, small images (under 10 minutes on two cores).";
 
 fn main() -> anyhow::Result<()> {
     let args: Vec<String> = std::env::args().skip(1).collect();
@@ -35,7 +47,8 @@ fn main() -> anyhow::Result<()> {
         Some("lint") => lint(),
         Some("bench") => bench(&args[1..]),
         Some("fuzz") => fuzz(&args[1..]),
-        Some(other) => bail!("unknown task `{other}`; tasks: lint, bench, fuzz"),
+        Some("papers") => papers::papers(&args[1..]),
+        Some(other) => bail!("unknown task `{other}`; tasks: lint, bench, fuzz, papers"),
         None => {
             println!("{USAGE}");
             Ok(())
