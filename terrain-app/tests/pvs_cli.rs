@@ -244,7 +244,10 @@ fn the_default_bake_skips_a_pvs_that_does_not_pay_and_pvs_forces_it() {
             continue;
         }
         ok(&drawn);
-        assert!(err.contains("drawing without occlusion culling") && err.contains("--pvs"), "{err}");
+        assert!(
+            err.contains("drawing without occlusion culling") && err.contains("--pvs"),
+            "{err}"
+        );
         assert!(png.is_file(), "{method}: no image");
     }
     let (forced, store) = bake("forced", &["--pvs"]);

@@ -408,7 +408,9 @@ fn the_cull_estimate_of_a_sample_is_the_full_bakes_on_those_cells() {
     for (a, b) in spread_sample(4, 4, 2) {
         for k in 0..2 {
             let n = lay.cell_index(CellId { a, b, k });
-            if let Some((h, t)) = lay.hidden_patches(lay.cell_at_index(n), &s.bits[n * per..][..per]) {
+            if let Some((h, t)) =
+                lay.hidden_patches(lay.cell_at_index(n), &s.bits[n * per..][..per])
+            {
                 (hidden, total) = (hidden + h, total + t);
             }
         }

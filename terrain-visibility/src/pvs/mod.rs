@@ -51,8 +51,7 @@ use terrain_core::lod::dss_file::heights_checksum;
 use terrain_core::quadtree::{Cull, CullPolicy, NodeId, NodeInfo, TreeShape};
 
 pub use bake::{
-    BakeStats, CullEstimate, bake, bake_both, bake_both_with_progress, estimate_cull,
-    spread_sample,
+    BakeStats, CullEstimate, bake, bake_both, bake_both_with_progress, estimate_cull, spread_sample,
 };
 pub use file::{PvsFileError, read_pvs, write_pvs};
 
