@@ -101,7 +101,7 @@ impl PvsArgs {
 
 /// The least fraction of (view cell, patch) pairs that the paper's sampled PVS must hide in
 /// a spread sample of the view cells ([`terrain_visibility::pvs::estimate_cull`]) for
-/// `terrain bake` to bake the PVS by default. Measured on six DEMs (bench/ooc/README.md,
+/// `terrain bake` to bake the PVS by default. Measured on seven DEMs (bench/ooc/README.md,
 /// "The PVS only where it pays"): along the shipped flights `pvps-c-pvs` drew at most 4 % fewer
 /// triangles than `pvps-c` (the conservative PVS at most 1.4 %) where the PVS hid 13-40 % of
 /// the pairs, for a bake of 15-300 times the rest of a default bake's CPU time; half the pairs

@@ -151,13 +151,11 @@ pub struct CullEstimate {
 }
 
 /// The plan cells of a spread sample of a `cells_x x cells_y` layout: the middle cell of every
-/// `stride x stride` block (at least one cell, the middle one, whatever the stride).
+/// `stride x stride` block (clipped to the layout: at least one cell whatever the stride).
 pub fn spread_sample(cells_x: u32, cells_y: u32, stride: u32) -> Vec<(u32, u32)> {
     let s = stride.max(1);
-    let axis = |n: u32| -> Vec<u32> {
-        let v: Vec<u32> = (0..n.div_ceil(s)).map(|k| (k * s + s / 2).min(n - 1)).collect();
-        if v.is_empty() { vec![n / 2] } else { v }
-    };
+    let axis =
+        |n: u32| -> Vec<u32> { (0..n.div_ceil(s)).map(|k| (k * s + s / 2).min(n - 1)).collect() };
     let (xs, ys) = (axis(cells_x.max(1)), axis(cells_y.max(1)));
     ys.iter().flat_map(|&b| xs.iter().map(move |&a| (a, b))).collect()
 }
