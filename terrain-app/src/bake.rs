@@ -3,7 +3,8 @@
 //! (`dss_errors.bin`, and per block in the index, unless `--no-dss`), the PVPS methods' roughness pyramids (`roughness.bin`,
 //! unless `--no-roughness`; by bands of rows when the bake streams), geomorph's max-error
 //! vertices per patch (`geomip.bin`, unless `--no-geomip`) and the PVS files of the scene (`pvs.bin`,
-//! `pvs_conservative.bin`, see `terrain pvs`; unless `--no-pvs`).
+//! `pvs_conservative.bin`, see `terrain pvs`): with `--pvs`, or where a spread sample of its
+//! view cells says it pays (`crate::pvs::PVS_MIN_CULLED`); never with `--no-pvs`.
 
 use std::io::Write;
 use std::ops::ControlFlow;
@@ -56,13 +57,19 @@ pub(crate) struct BakeArgs {
     /// Worker threads (0 = one per core).
     #[arg(long, default_value_t = 0)]
     pub threads: usize,
-    /// Do not bake the scene's PVS (both files, sampled and conservative, written into the
-    /// store folder after the blocks; see `terrain pvs`). At the paper's configuration
-    /// (`--pvs-*` defaults) the PVS of a 4096^2 DEM takes about 80 s on two cores. A grid read
-    /// by rows gets its PVS from a coarse conservative version of it that fits a quarter of
-    /// --max-memory (it never culls what the exact PVS sees; it culls less).
-    #[arg(long)]
+    /// Do not bake the scene's PVS, not even where it would pay (see --pvs).
+    #[arg(long, conflicts_with = "force_pvs")]
     pub no_pvs: bool,
+    /// Bake the scene's PVS (both files, sampled and conservative, written into the store
+    /// folder after the blocks; see `terrain pvs`; read by `pvps-c-pvs` and `pvps-c-cons`)
+    /// whatever it culls. By default it is baked only where it pays: when a spread sample of
+    /// its view cells hides at least PVS_MIN_CULL_PCT % of the patches (see README.md,
+    /// "Occlusion culling"); any `--pvs-*` option implies --pvs. Cells and patches are scaled
+    /// to the grid (`--pvs-cells`, `--pvs-patch-level`). A grid read by rows gets its PVS from
+    /// a coarse conservative version of it that fits a quarter of --max-memory (it never
+    /// culls what the exact PVS sees; it culls less).
+    #[arg(long = "pvs")]
+    pub force_pvs: bool,
     /// Do not compute the DSS paper's 32 object-space errors per quadtree node
     /// (`dss_errors.bin`, read by `dss-1`, `dss-2` and `dss-strips` from the store; seconds
     /// per million samples on two cores) nor per block in the index (the library's
@@ -366,19 +373,25 @@ pub(crate) fn run(args: &BakeArgs) -> anyhow::Result<()> {
     if args.no_pvs {
         return Ok(());
     }
+    // `--pvs` or any `--pvs-*` option: baked whatever it culls; otherwise where it pays.
+    let when = if args.force_pvs || !args.pvs.given().is_empty() {
+        crate::pvs::When::Always
+    } else {
+        crate::pvs::When::IfItPays
+    };
+    let (w, h) = (source.width() as usize, source.height() as usize);
+    let cfg = args.pvs.config(w as u32, h as u32)?;
+    stop_before("PVS")?;
     let Some(hm) = hm else {
         // The grid is not in memory: the PVS against a coarse conservative version of it,
         // gathered by bands of rows (the DEM's rows again, or the synthetic terrain generated
         // again) in a quarter of --max-memory.
-        let (w, h) = (source.width() as usize, source.height() as usize);
         let georef = source.georef();
         let budget = args.source.load_options()?.max_memory_bytes / 4;
         let out = &args.output;
-        let cfg = args.pvs.config()?;
-        crate::pvs::bake_by_rows_into_scene((w, h, &georef), &cfg, budget, out, read)?;
+        crate::pvs::bake_by_rows_into_scene((w, h, &georef), &cfg, budget, out, when, read)?;
         return Ok(());
     };
-    stop_before("PVS")?;
-    crate::pvs::bake_into_scene(hm, &args.pvs.config()?, &args.output)?;
+    crate::pvs::bake_into_scene(hm, &cfg, &args.output, when)?;
     Ok(())
 }

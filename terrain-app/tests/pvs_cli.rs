@@ -209,3 +209,53 @@ fn a_bake_by_rows_writes_a_pvs_that_render_uses() {
     assert!(err.contains("drawing without occlusion culling"), "{err}");
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+/// Issue 18: by default the bake takes a spread sample of the PVS's view cells and bakes the
+/// PVS only where it pays; on a nearly flat lowland it does not, so no PVS files are written,
+/// and the store still draws `pvps-c-pvs` and `pvps-c-cons` (without occlusion culling, with a
+/// warning saying how to have it). `--pvs` bakes it whatever it culls (the negative control),
+/// and `--pvs` with `--no-pvs` is refused.
+#[test]
+fn the_default_bake_skips_a_pvs_that_does_not_pay_and_pvs_forces_it() {
+    let dir = common::scratch("pvs-cli", "pays");
+    let flat = data("srtm/N52E008.hgt");
+    let bake = |name: &str, extra: &[&str]| {
+        let out = dir.join(name);
+        let mut args = vec!["bake", s(&flat), "-o", s(&out), "--block-k", "8", "--no-dss"];
+        args.extend(["--no-geomip"]);
+        args.extend(extra);
+        (terrain(&args), out)
+    };
+    let (skipped, store) = bake("default", &[]);
+    let stdout = ok(&skipped);
+    assert!(stdout.contains("PVS sample: 16 of 256 view cell columns"), "{stdout}");
+    assert!(stdout.contains("no PVS is baked") && stdout.contains("--pvs"), "{stdout}");
+    assert!(!store.join("pvs.bin").exists() && !store.join("pvs_conservative.bin").exists());
+    for method in ["pvps-c-pvs", "pvps-c-cons"] {
+        let png = dir.join(format!("{method}.png"));
+        let args = ["render", s(&store), "--method", method, "--size", "160x120", "-o", s(&png)];
+        let drawn = terrain(&args);
+        let err = String::from_utf8_lossy(&drawn.stderr).into_owned();
+        if !drawn.status.success()
+            && err.contains("no GPU adapter")
+            && std::env::var_os("TERRAIN_REQUIRE_GPU").is_none()
+        {
+            println!("SKIPPED the render: {err}; set TERRAIN_REQUIRE_GPU=1 to make this a failure");
+            continue;
+        }
+        ok(&drawn);
+        assert!(
+            err.contains("drawing without occlusion culling") && err.contains("--pvs"),
+            "{err}"
+        );
+        assert!(png.is_file(), "{method}: no image");
+    }
+    let (forced, store) = bake("forced", &["--pvs"]);
+    let stdout = ok(&forced);
+    assert!(!stdout.contains("PVS sample") && stdout.contains("PVS bake"), "{stdout}");
+    assert!(stdout.contains("cells x 32^2 patches"), "not scaled to the grid: {stdout}");
+    assert!(store.join("pvs.bin").is_file() && store.join("pvs_conservative.bin").is_file());
+    let both = bake("both", &["--pvs", "--no-pvs"]).0;
+    assert!(!both.status.success());
+    std::fs::remove_dir_all(&dir).unwrap();
+}

@@ -106,16 +106,6 @@ const ALLOW_LIST: &[(&str, Treatment)] = &[
         },
     ),
     (
-        "terrain bake ../shared/data/srtm/N42E001.hgt -o out/n42.scene",
-        Treatment::Reduced {
-            run: "terrain bake ../shared/data/srtm/N42E001.hgt -o out/n42.scene --pvs-cells 4 \
-                  --pvs-floors 1",
-            why: "the paper's PVS (32 x 32 cells x 3 floors) takes about ten minutes in a debug \
-                  build on two cores; 4 x 4 x 1 cells run the same bake (blocks, DSS errors, \
-                  roughness, geomorph table, both PVS files)",
-        },
-    ),
-    (
         "terrain fly --flight flights/pvps_884.json --frames 90 -o out/fly/",
         Treatment::Reduced {
             run: "terrain fly --flight flights/pvps_884.json --frames 6 -o out/fly/",

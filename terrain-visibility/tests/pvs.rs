@@ -347,3 +347,76 @@ fn cells_floors_and_the_articles_layers() {
     assert_eq!((art.bits_per_cell(), art.bytes_per_cell()), (341, 43));
     assert_eq!(art.cell_count() * 256 / 8, 262_144);
 }
+
+#[test]
+fn the_scaled_configuration_keeps_the_papers_patch_and_cell_sizes() {
+    use terrain_visibility::pvs::{PAPER_PATCH_CELLS, cells_per_side};
+    // The paper's 4096^2 DEM: exactly its configuration (64 x 64 patches, 32 x 32 x 3 cells).
+    assert_eq!(PvsConfig::scaled(4097, 4097), PvsConfig::default());
+    assert_eq!(PvsConfig::scaled(4096, 3000), PvsConfig::default());
+    // Larger: still 64 x 64 patches (larger ones), as before.
+    assert_eq!(PvsConfig::scaled(16385, 16385), PvsConfig::default());
+    let at = |w, h| {
+        let c = PvsConfig::scaled(w, h);
+        (c.patch_level, c.cells.0, c.cells.1, c.floors)
+    };
+    // An SRTM tile: root 2048 cells, 32 patches of 64 cells under 16 x 16 cells.
+    assert_eq!(at(1201, 1201), (5, 16, 16, 3));
+    assert_eq!(at(1025, 1025), (4, 8, 8, 3));
+    assert_eq!(at(429, 279), (3, 4, 4, 3));
+    // Grids of one patch or less: one patch, one cell per floor.
+    assert_eq!(at(65, 65), (0, 1, 1, 3));
+    assert_eq!(at(2, 2), (0, 1, 1, 3));
+    // Every size: patches of at least 64 cells (at most 64 per side), two patches a cell.
+    for n in [2u32, 3, 64, 65, 66, 129, 600, 2049, 5000, 40000] {
+        let c = PvsConfig::scaled(n, n);
+        let lay = PvsLayout::new(&grid(n.min(700) as usize, |_, _| 0.0), &c);
+        let root = terrain_visibility::pvs::root_cells(n, n);
+        assert!(root >> c.patch_level >= PAPER_PATCH_CELLS.min(root), "{n}: {c:?}");
+        assert!(c.patch_level <= 6 && c.cells.0 == cells_per_side(c.patch_level), "{n}");
+        assert_eq!(cells_per_side(c.patch_level), ((1u32 << c.patch_level) / 2).max(1));
+        assert!(lay.cell_count() >= 3);
+    }
+}
+
+#[test]
+fn spread_samples_take_the_middle_of_each_block() {
+    use terrain_visibility::pvs::spread_sample;
+    assert_eq!(spread_sample(8, 4, 4), vec![(2, 2), (6, 2)]);
+    assert_eq!(spread_sample(1, 1, 4), vec![(0, 0)]);
+    // A block cut by the edge keeps its cell inside the layout.
+    assert_eq!(spread_sample(5, 2, 4), vec![(2, 1), (4, 1)]);
+    assert_eq!(spread_sample(3, 3, 1).len(), 9);
+}
+
+#[test]
+fn the_cull_estimate_of_a_sample_is_the_full_bakes_on_those_cells() {
+    use terrain_visibility::pvs::{estimate_cull, spread_sample};
+    let hm = puget_crop();
+    let cfg = small_cfg(4, 2, 60.0, 4);
+    let (s, c, _) = bake_both(&hm, &cfg);
+    // Stride 1: every cell, so the whole bake's fractions.
+    let all = estimate_cull(&hm, &cfg, 1);
+    assert_eq!((all.plan_cells, all.plan_total), (16, 16));
+    assert_eq!((all.sampled, all.conservative), (s.culled_fraction(), c.culled_fraction()));
+    assert!(all.sampled > 0.0, "the crop hides something from some cell");
+    // Stride 2: the same counts over the sampled cells of the full bake.
+    let e = estimate_cull(&hm, &cfg, 2);
+    let lay = &s.layout;
+    let per = lay.bytes_per_cell();
+    let (mut hidden, mut total) = (0, 0);
+    for (a, b) in spread_sample(4, 4, 2) {
+        for k in 0..2 {
+            let n = lay.cell_index(CellId { a, b, k });
+            if let Some((h, t)) =
+                lay.hidden_patches(lay.cell_at_index(n), &s.bits[n * per..][..per])
+            {
+                (hidden, total) = (hidden + h, total + t);
+            }
+        }
+    }
+    assert_eq!(e.plan_cells, 4);
+    assert_eq!(e.sampled, hidden as f64 / total as f64);
+    // Negative control: another cell's bits count differently somewhere.
+    assert_ne!(e.sampled, all.sampled, "the sample is not the whole");
+}

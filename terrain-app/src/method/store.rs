@@ -168,8 +168,8 @@ impl<'a> StoreMethod<'a> {
                     }
                     Err(e) => {
                         eprintln!(
-                            "warning: {e}; drawing without occlusion culling (bake the store \
-                             without --no-pvs to have it)"
+                            "warning: {e}; drawing without occlusion culling (the bake skips \
+                             the PVS where it would not pay: bake the store with --pvs to have it)"
                         );
                         None
                     }

@@ -133,6 +133,81 @@ pub fn bake_columns(
     with_grid_ctx(hm, cfg, |ctx| plan.par_iter().map(|&(a, b)| ctx.column(a, b)).collect())
 }
 
+/// What a spread sample of a bake's view cells culls ([`estimate_cull`]): a bake's cost and
+/// benefit known before it is run whole.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct CullEstimate {
+    /// Plan cells baked (each with all its floors).
+    pub plan_cells: usize,
+    /// Plan cells of the whole layout.
+    pub plan_total: usize,
+    /// Fraction of the sample's (cell inside the grid, finest patch holding samples) pairs
+    /// hidden in the paper's sampled PVS ([`Pvs::culled_fraction`] of the sample).
+    pub sampled: f64,
+    /// The same in the conservative PVS.
+    pub conservative: f64,
+    /// Wall time of the sample.
+    pub elapsed: Duration,
+}
+
+/// The plan cells of a spread sample of a `cells_x x cells_y` layout: the middle cell of every
+/// `stride x stride` block (clipped to the layout: at least one cell whatever the stride).
+pub fn spread_sample(cells_x: u32, cells_y: u32, stride: u32) -> Vec<(u32, u32)> {
+    let s = stride.max(1);
+    let axis =
+        |n: u32| -> Vec<u32> { (0..n.div_ceil(s)).map(|k| (k * s + s / 2).min(n - 1)).collect() };
+    let (xs, ys) = (axis(cells_x.max(1)), axis(cells_y.max(1)));
+    ys.iter().flat_map(|&b| xs.iter().map(move |&a| (a, b))).collect()
+}
+
+/// Bakes the plan cells of [`spread_sample`]`(stride)` of `cfg`'s layout on `hm` (every floor,
+/// bits as [`bake_both`] computes them) and returns what they cull: about `1 / stride^2` of
+/// the whole bake's time.
+pub fn estimate_cull(hm: &Heightmap, cfg: &PvsConfig, stride: u32) -> CullEstimate {
+    let start = Instant::now();
+    let layout = PvsLayout::new(hm, cfg);
+    let mip = HeightMip::new(hm);
+    estimate_grids(&mip, &mip, &layout, cfg, stride, start)
+}
+
+/// [`estimate_cull`] with occluders `mip` and targets `targets` (see [`bake_grids`]).
+pub(super) fn estimate_grids(
+    mip: &HeightMip<'_>,
+    targets: &HeightMip<'_>,
+    layout: &PvsLayout,
+    cfg: &PvsConfig,
+    stride: u32,
+    start: Instant,
+) -> CullEstimate {
+    let hm = mip.heightmap();
+    let lines = LineMins::new(hm);
+    let ctx = Ctx { targets, ..Ctx::of_grid(hm, mip, &lines, layout, cfg) };
+    let plan = spread_sample(layout.cells_x, layout.cells_y, stride);
+    let columns: Vec<Vec<(Vec<u8>, Vec<u8>)>> =
+        plan.par_iter().map(|&(a, b)| ctx.column(a, b)).collect();
+    let (mut s, mut c) = ((0u64, 0u64), (0u64, 0u64));
+    for (&(a, b), floors) in plan.iter().zip(&columns) {
+        for (k, (sampled, conservative)) in floors.iter().enumerate() {
+            let cell = CellId { a, b, k: k as u32 };
+            let add = |acc: &mut (u64, u64), bits: &[u8]| {
+                if let Some((hidden, total)) = layout.hidden_patches(cell, bits) {
+                    *acc = (acc.0 + hidden, acc.1 + total);
+                }
+            };
+            add(&mut s, sampled);
+            add(&mut c, conservative);
+        }
+    }
+    let frac = |(hidden, total): (u64, u64)| hidden as f64 / total.max(1) as f64;
+    CullEstimate {
+        plan_cells: plan.len(),
+        plan_total: (layout.cells_x * layout.cells_y) as usize,
+        sampled: frac(s),
+        conservative: frac(c),
+        elapsed: start.elapsed(),
+    }
+}
+
 /// Runs `f` with the context of a bake of `hm` itself (its layout, mip and grid-line minima;
 /// occlusion proofs and the sampled test on): what [`bake_cells`] and [`bake_columns`] share.
 fn with_grid_ctx<R>(hm: &Heightmap, cfg: &PvsConfig, f: impl FnOnce(&Ctx<'_>) -> R) -> R {

@@ -39,7 +39,7 @@
 use terrain_core::lod::dss_file::HeightsChecksum;
 use terrain_core::{Heightmap, HeightmapError};
 
-use super::bake::{BakeStats, bake_grids};
+use super::bake::{BakeStats, CullEstimate, bake_grids, estimate_grids};
 use super::mip::HeightMip;
 use super::{GridStats, Pvs, PvsConfig, PvsLayout};
 
@@ -275,6 +275,15 @@ impl CoarseTerrain {
         l.root_cells = (self.layout.root_cells / f).max(1);
         l.spacing *= f64::from(f);
         l
+    }
+
+    /// What a spread sample of the coarse bake's view cells culls ([`super::estimate_cull`]
+    /// against this coarse terrain).
+    pub fn estimate_cull(&self, cfg: &PvsConfig, stride: u32) -> CullEstimate {
+        let start = std::time::Instant::now();
+        let occ = HeightMip::new(&self.occluders);
+        let tgt = HeightMip::new(&self.targets);
+        estimate_grids(&occ, &tgt, &self.coarse_layout(), cfg, stride, start)
     }
 
     /// Bakes both PVS modes against the coarse terrain: `(sampled, conservative, stats)`, each

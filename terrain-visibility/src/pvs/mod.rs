@@ -50,7 +50,9 @@ use terrain_core::Heightmap;
 use terrain_core::lod::dss_file::heights_checksum;
 use terrain_core::quadtree::{Cull, CullPolicy, NodeId, NodeInfo, TreeShape};
 
-pub use bake::{BakeStats, bake, bake_both, bake_both_with_progress};
+pub use bake::{
+    BakeStats, CullEstimate, bake, bake_both, bake_both_with_progress, estimate_cull, spread_sample,
+};
 pub use file::{PvsFileError, read_pvs, write_pvs};
 
 /// How the floors of view cells are placed (see the module docs).
@@ -131,7 +133,49 @@ impl Default for PvsConfig {
     }
 }
 
+/// The PVPS paper's patch side in grid cells: 64 x 64 patches over its 4096^2 DEM (section
+/// 2.2.1, Eq. 2). [`PvsConfig::scaled`] keeps patches this size on other grids.
+pub const PAPER_PATCH_CELLS: u32 = 64;
+
+/// The PVPS paper's patches per view cell side: 64 x 64 patches (Eq. 2) under 32 x 32 view
+/// cells per floor (Eq. 3).
+pub const PAPER_PATCHES_PER_CELL: u32 = 2;
+
+/// The quadtree root square's side in cells of a `width x height` grid (the next power of two
+/// of its larger side in cells, see terrain-core's quadtree invariant).
+pub fn root_cells(width: u32, height: u32) -> u32 {
+    (width.saturating_sub(1)).max(height.saturating_sub(1)).max(1).next_power_of_two()
+}
+
+/// View cells per side over `2^patch_level` patches per side at the paper's ratio
+/// ([`PAPER_PATCHES_PER_CELL`] patches a cell side), at least 1.
+pub fn cells_per_side(patch_level: u8) -> u32 {
+    ((1u32 << patch_level) / PAPER_PATCHES_PER_CELL).max(1)
+}
+
 impl PvsConfig {
+    /// The paper's configuration scaled to a `width x height` grid (what `terrain bake` uses
+    /// unless told otherwise). The paper fixes 64 x 64 patches and 32 x 32 x 3 view cells for
+    /// its 4096^2 DEM; a fixed count makes a small grid's patches and cells tiny (on a 2 x 2
+    /// grid, 3,072 view cells over 4 one-cell patches) and its bake as long as a large one's.
+    /// Scaled, the rule keeps the paper's *sizes* instead:
+    /// - patches of [`PAPER_PATCH_CELLS`] cells a side: `patch_level = log2(root_cells / 64)`,
+    ///   at most 6 (the paper's 64 x 64; a larger grid gets larger patches, as the paper's
+    ///   default does today) and at least 0 (one patch);
+    /// - view cells of [`PAPER_PATCHES_PER_CELL`] patches a side: `2^patch_level / 2` cells
+    ///   per side, at least 1;
+    /// - the paper's 3 floors, 7 x 7 test points and 16 key viewpoints.
+    ///
+    /// On a 4096^2 grid this is exactly [`PvsConfig::default`] (the paper's); on a 1201^2
+    /// grid (root 2048 cells) 32 x 32 patches under 16 x 16 x 3 cells; on a 429 x 279 grid
+    /// (root 512) 8 x 8 patches under 4 x 4 x 3 cells.
+    pub fn scaled(width: u32, height: u32) -> Self {
+        let root = root_cells(width, height);
+        let patch_level = (root / PAPER_PATCH_CELLS).max(1).trailing_zeros().min(6) as u8;
+        let cells = cells_per_side(patch_level);
+        Self { cells: (cells, cells), patch_level, ..Self::default() }
+    }
+
     /// The geomorphing article's variant: view cells on the patch grid itself (`2^L x 2^L`),
     /// 32 layers up to three times the terrain's relief, the same bake.
     pub fn article(patch_level: u8) -> Self {
@@ -241,8 +285,7 @@ impl PvsLayout {
         mut range: impl FnMut(u32, u32, u32, u32) -> (f32, f32),
     ) -> Self {
         let (w, h) = (stats.width, stats.height);
-        let cells = (w - 1).max(h - 1).max(1);
-        let root_cells = cells.next_power_of_two();
+        let root_cells = root_cells(w, h);
         let (cx, cy) = (cfg.cells.0.max(1), cfg.cells.1.max(1));
         let floors = cfg.floors.max(1);
         let relief = f64::from(stats.max - stats.min).max(1.0);
@@ -376,6 +419,24 @@ impl PvsLayout {
         ((1usize << (2 * l as usize)) - 1) / 3
     }
 
+    /// How many of the finest patches holding samples a cell's bits (`bytes_per_cell` bytes,
+    /// see [`Pvs::bits`]) hide: `(hidden, patches)`; `None` for a cell outside the grid.
+    pub fn hidden_patches(&self, c: CellId, bits: &[u8]) -> Option<(u64, u64)> {
+        self.floor_bounds(c)?;
+        let (l, side) = (self.patch_level, self.patches_per_side());
+        let (mut hidden, mut total) = (0u64, 0u64);
+        for j in 0..side {
+            for i in 0..side {
+                if self.patch_samples(l, i, j).is_some() {
+                    let n = Self::level_offset(l) + (j * side + i) as usize;
+                    total += 1;
+                    hidden += u64::from(bits[n / 8] >> (n % 8) & 1 == 0);
+                }
+            }
+        }
+        Some((hidden, total))
+    }
+
     /// Bits per cell (all pyramid levels).
     pub fn bits_per_cell(&self) -> usize {
         Self::level_offset(self.patch_level + 1)
@@ -426,21 +487,12 @@ impl Pvs {
     /// inside the grid: what culling can save.
     pub fn culled_fraction(&self) -> f64 {
         let lay = &self.layout;
-        let l = lay.patch_level;
-        let side = lay.patches_per_side();
+        let per = lay.bytes_per_cell();
         let (mut hidden, mut total) = (0u64, 0u64);
         for n in 0..lay.cell_count() {
-            let c = lay.cell_at_index(n);
-            if lay.floor_bounds(c).is_none() {
-                continue;
-            }
-            for b in 0..side {
-                for a in 0..side {
-                    if lay.patch_samples(l, a, b).is_some() {
-                        total += 1;
-                        hidden += u64::from(!self.visible(c, NodeId::new(l, a, b)));
-                    }
-                }
+            let bits = &self.bits[n * per..(n + 1) * per];
+            if let Some((h, t)) = lay.hidden_patches(lay.cell_at_index(n), bits) {
+                (hidden, total) = (hidden + h, total + t);
             }
         }
         hidden as f64 / total.max(1) as f64
