@@ -168,18 +168,8 @@ fn golden_diff(
     a: &terrain_gpu::target::RgbaImage,
     b: &terrain_gpu::target::RgbaImage,
 ) -> ([f64; 3], f64) {
-    let (mut sum, mut far_off) = ([0u64; 3], 0usize);
-    for (x, y) in a.pixels.iter().zip(&b.pixels) {
-        let mut off = false;
-        for c in 0..3 {
-            let d = x[c].abs_diff(y[c]);
-            sum[c] += u64::from(d);
-            off |= d > 16;
-        }
-        far_off += usize::from(off);
-    }
-    let n = a.pixels.len() as f64;
-    (sum.map(|s| s as f64 / n), far_off as f64 / n)
+    let d = terrain_gpu::target::image_diff(a.pixels.iter().copied(), b.pixels.iter().copied());
+    (d.mean, d.far_off)
 }
 
 /// The regression (`terrain bake mt_rainier_90m.tif --no-pvs --no-dss`, then `terrain

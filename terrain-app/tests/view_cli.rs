@@ -129,18 +129,8 @@ fn load(path: &Path) -> image::RgbaImage {
 /// Per-channel mean |difference| and the fraction of pixels off by more than 16 levels.
 fn golden_diff(a: &image::RgbaImage, b: &image::RgbaImage) -> ([f64; 3], f64) {
     assert_eq!(a.dimensions(), b.dimensions());
-    let (mut sum, mut far_off) = ([0u64; 3], 0usize);
-    for (x, y) in a.pixels().zip(b.pixels()) {
-        let mut off = false;
-        for (c, s) in sum.iter_mut().enumerate() {
-            let d = x.0[c].abs_diff(y.0[c]);
-            *s += u64::from(d);
-            off |= d > 16;
-        }
-        far_off += usize::from(off);
-    }
-    let n = f64::from(a.width() * a.height());
-    (sum.map(|s| s as f64 / n), far_off as f64 / n)
+    let d = terrain_gpu::target::image_diff(a.pixels().map(|p| p.0), b.pixels().map(|p| p.0));
+    (d.mean, d.far_off)
 }
 
 /// The field after `key ` in a `view: screenshot ...` line.

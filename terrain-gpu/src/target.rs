@@ -28,6 +28,41 @@ impl RgbaImage {
     }
 }
 
+/// Levels (0-255) by which a pixel's channel may differ before [`ImageDiff::far_off`] counts it.
+pub const GOLDEN_LEVELS: u8 = 16;
+
+/// How far two renders of one camera are apart, the two figures of the golden tolerance
+/// (the project's render tests: the mean below 2 levels, under 1 % of pixels far off).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ImageDiff {
+    /// Mean |difference| per colour channel (R, G, B), levels.
+    pub mean: [f64; 3],
+    /// Share of pixels (0-1) with a channel off by more than [`GOLDEN_LEVELS`].
+    pub far_off: f64,
+}
+
+/// Compares two images' pixels pairwise (RGBA, alpha ignored), in order, as far as the shorter
+/// one goes; callers check the sizes. With no pixels both figures are NaN, so that no
+/// tolerance passes on an empty image.
+pub fn image_diff(
+    a: impl IntoIterator<Item = [u8; 4]>,
+    b: impl IntoIterator<Item = [u8; 4]>,
+) -> ImageDiff {
+    let (mut sum, mut far_off, mut n) = ([0u64; 3], 0usize, 0usize);
+    for (x, y) in a.into_iter().zip(b) {
+        let mut off = false;
+        for (c, s) in sum.iter_mut().enumerate() {
+            let d = x[c].abs_diff(y[c]);
+            *s += u64::from(d);
+            off |= d > GOLDEN_LEVELS;
+        }
+        far_off += usize::from(off);
+        n += 1;
+    }
+    let n = if n == 0 { f64::NAN } else { n as f64 };
+    ImageDiff { mean: sum.map(|s| s as f64 / n), far_off: far_off as f64 / n }
+}
+
 /// A colour and a depth texture of the same size, both renderable, the colour copyable and
 /// sampleable (`terrain view` copies it into a window with one `textureLoad` pass).
 #[derive(Debug)]
@@ -205,4 +240,23 @@ pub fn read_texture_8bit4(
         pixels.extend(line.chunks_exact(4).map(|p| [p[0], p[1], p[2], p[3]]));
     }
     Ok(RgbaImage { width, height, pixels })
+}
+
+#[cfg(test)]
+mod diff_tests {
+    use super::image_diff;
+
+    #[test]
+    fn image_diff_counts_means_and_far_off_pixels() {
+        let a = [[10, 20, 30, 255]; 4];
+        let mut b = a;
+        b[1] = [10 + 17, 20, 30, 0]; // off by 17 in red: far off; alpha ignored
+        b[2] = [10, 20 + 16, 30, 255]; // off by 16: not far off
+        let d = image_diff(a, b);
+        assert_eq!(d.mean, [17.0 / 4.0, 16.0 / 4.0, 0.0]);
+        assert_eq!(d.far_off, 0.25);
+        assert_eq!(image_diff(a, a).far_off, 0.0);
+        let empty = image_diff([], []);
+        assert!(empty.far_off.is_nan() && empty.mean.iter().all(|m| m.is_nan()));
+    }
 }

@@ -283,19 +283,9 @@ fn golden(backend: BackendChoice) {
         })
         .to_rgba8();
     assert_eq!((want.width(), want.height()), (image.width, image.height));
-    let (mut sum, mut far_off) = ([0u64; 3], 0usize);
-    for (got, want) in image.pixels.iter().zip(want.pixels()) {
-        let mut off = false;
-        for c in 0..3 {
-            let d = got[c].abs_diff(want.0[c]);
-            sum[c] += u64::from(d);
-            off |= d > 16;
-        }
-        far_off += usize::from(off);
-    }
-    let n = image.pixels.len() as f64;
-    let mean = sum.map(|s| s as f64 / n);
-    let far_fraction = far_off as f64 / n;
+    let diff = crate::target::image_diff(image.pixels.iter().copied(), want.pixels().map(|p| p.0));
+    let (mean, far_fraction) = (diff.mean, diff.far_off);
+    let far_off = (far_fraction * image.pixels.len() as f64).round();
     println!(
         "golden: mean |diff| per channel {mean:.3?}, {:.3} % of pixels off by > 16",
         far_fraction * 100.0
