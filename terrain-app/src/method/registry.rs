@@ -336,7 +336,7 @@ impl std::fmt::Display for ErrorPxParams {
 ///   *largest* error of a patch, so the measured p99 lies below the target (about 0.45 of it).
 /// - `ooc` (`tau`): out-of-core Eq. 6-7 is a pixel threshold on each patch's `StaticE`
 ///   (Eq. 3-5, the largest midpoint deviation below it), not on the drawn error; `tau` is the
-///   target over the measured median p99 per pixel of `tau` ([`ooc_p99_per_tau`], by split
+///   target over the largest measured p99 per pixel of `tau` ([`ooc_p99_per_tau`], by split
 ///   rule: [`ErrorPxParams::apply`] uses the configured rule).
 /// - `dss-1`, `dss-2`, `dss-strips` (`rho_thr`): DSS Eq. 3 projects a block's *mean*
 ///   object-space error (section 3.3.1), so `rho_thr` bounds the mean, not the p99 that is
@@ -390,13 +390,15 @@ pub fn params_for_error_px(method: LodMethod, error_px: f64, view: ErrorView) ->
     ErrorPxParams { method, error_px: px, parameter, value, basis }
 }
 
-/// `ooc`: the measured median p99 (pixels) per pixel of Eq. 7's `tau` under `split`: the
-/// median of the ratio over `terrain bench --error-px 0.5,0.7,1,1.4,2,2.8,4 --wait` on
+/// `ooc`: the measured p99 (pixels) per pixel of Eq. 7's `tau` under `split`: the largest
+/// ratio over `terrain bench --error-px 0.5,0.7,1,1.4,2,2.8,4 --wait` on
 /// `flights/pvps_884.json` (6 frames) on Puget Sound 1k, N42E001, the synthetic 1025^2 grid
 /// and Big Tujunga (bench/ooc/README.md, "The cost split as an option"). Eq. 7 bounds each
 /// patch's `StaticE`, not the drawn error; the ratio varies by DEM and `tau` (28 points each:
 /// Eq. 7 alone 0.08-0.81, median 0.50, lowest on the synthetic grid at small `tau`; the cost
-/// split 0.71-1.16, median 1.06).
+/// split 0.71-1.16, median 1.06). The largest, not the median: with the median the p99 of
+/// N42E001 at 2 px measured 3.27 px (1.6x the target); with the largest, every measured DEM
+/// stays at or under the target, and the smoother ones are drawn finer than they need.
 pub fn ooc_p99_per_tau(split: SplitRule) -> f64 {
     match split {
         SplitRule::Eq7 => OOC_P99_PER_TAU_EQ7,
@@ -405,10 +407,10 @@ pub fn ooc_p99_per_tau(split: SplitRule) -> f64 {
 }
 
 /// [`ooc_p99_per_tau`] under Eq. 7 alone.
-const OOC_P99_PER_TAU_EQ7: f64 = 0.50;
+const OOC_P99_PER_TAU_EQ7: f64 = 0.81;
 
 /// [`ooc_p99_per_tau`] under the cost split.
-const OOC_P99_PER_TAU_COST: f64 = 1.06;
+const OOC_P99_PER_TAU_COST: f64 = 1.16;
 
 /// DSS: the measured median p99 (pixels) at `rho_thr = 1` (see [`params_for_error_px`]).
 pub const DSS_P99_AT_RHO_1: f64 = 2.8;
