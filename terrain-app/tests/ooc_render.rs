@@ -162,16 +162,6 @@ fn finest_levels_draw_exactly_the_heightmap() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
-/// Per-channel mean |difference| and fraction of pixels off by more than 16 levels: the
-/// golden-image test's measure (terrain-gpu `render::tests::golden`: mean < 2, < 1 %).
-fn golden_diff(
-    a: &terrain_gpu::target::RgbaImage,
-    b: &terrain_gpu::target::RgbaImage,
-) -> ([f64; 3], f64) {
-    let d = terrain_gpu::target::image_diff(a.pixels.iter().copied(), b.pixels.iter().copied());
-    (d.mean, d.far_off)
-}
-
 /// The regression (`terrain bake mt_rainier_90m.tif --no-pvs --no-dss`, then `terrain
 /// render` of the store with its default camera drew dark seams along block borders and
 /// blocks almost flat beside detailed ones): the store baked as `terrain bake` does (blocks of
@@ -204,7 +194,7 @@ fn baked_rainier_renders_like_the_heightmap() {
     let mut whole = TerrainRenderer::new(&ctx, &hm, &rc).unwrap();
     whole.render(&camera, &frame.patches, &RenderOptions::default()).unwrap();
     let memory = whole.read_image().unwrap();
-    let (mean, far_off) = golden_diff(&ooc, &memory);
+    let (mean, far_off) = common::golden_diff(&ooc, &memory);
     let terrain = ooc.pixels.iter().filter(|&&p| p != BACKGROUND).count();
     let seams = ooc
         .pixels

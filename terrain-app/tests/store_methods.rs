@@ -472,16 +472,6 @@ fn times(hm: &Heightmap, k: f32) -> Heightmap {
     Heightmap::new(hm.width(), hm.height(), data, hm.voids().clone(), hm.georef().clone()).unwrap()
 }
 
-/// Per-channel mean |difference| and the fraction of pixels off by more than 16 levels: the
-/// golden-image test's measure (terrain-gpu `render::tests::golden`: mean < 2, < 1 %).
-fn golden_diff(
-    a: &terrain_gpu::target::RgbaImage,
-    b: &terrain_gpu::target::RgbaImage,
-) -> ([f64; 3], f64) {
-    let d = terrain_gpu::target::image_diff(a.pixels.iter().copied(), b.pixels.iter().copied());
-    (d.mean, d.far_off)
-}
-
 fn within_golden(d: ([f64; 3], f64)) -> bool {
     d.0.iter().all(|&m| m < 2.0) && d.1 < 0.01
 }
@@ -570,7 +560,7 @@ fn an_exaggerated_store_draws_as_the_exaggerated_dem() {
         let mut paged = scene_s.renderer(&ctx, &rc).unwrap();
         OocScene::apply(&mut paged, &f).unwrap();
         paged.render(&camera, &f.patches, &terrain_gpu::RenderOptions::default()).unwrap();
-        let d = golden_diff(&paged.read_image().unwrap(), &memory_image(&f.patches));
+        let d = common::golden_diff(&paged.read_image().unwrap(), &memory_image(&f.patches));
         println!(
             "{name} x{K}: store vs memory image: mean |diff| {:.3?}, {:.3} % off",
             d.0,
@@ -589,7 +579,7 @@ fn an_exaggerated_store_draws_as_the_exaggerated_dem() {
     let Draw::Paged(pf) = &f.draw else { panic!("a paged frame") };
     let paged = r.terrain_renderer_mut().unwrap();
     paged.render(&camera, &pf.patches, &terrain_gpu::RenderOptions::default()).unwrap();
-    let d = golden_diff(&paged.read_image().unwrap(), &memory_image(&pf.patches));
+    let d = common::golden_diff(&paged.read_image().unwrap(), &memory_image(&pf.patches));
     println!(
         "uniform x{K}: store vs memory image: mean |diff| {:.3?}, {:.3} % off",
         d.0,

@@ -50,3 +50,14 @@ pub(crate) fn files_under(dir: &Path) -> Vec<PathBuf> {
     out.sort();
     out
 }
+
+/// Per-channel mean |difference| and the fraction of pixels off by more than 16 levels of two
+/// renders (`terrain_gpu::target::image_diff`): the golden-image test's measure (terrain-gpu
+/// `render::tests::golden`: mean < 2, < 1 %).
+pub(crate) fn golden_diff(
+    a: &terrain_gpu::target::RgbaImage,
+    b: &terrain_gpu::target::RgbaImage,
+) -> ([f64; 3], f64) {
+    let d = terrain_gpu::target::image_diff(a.pixels.iter().copied(), b.pixels.iter().copied());
+    (d.mean, d.far_off)
+}
