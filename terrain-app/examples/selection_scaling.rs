@@ -152,14 +152,21 @@ fn main() -> anyhow::Result<()> {
         .split(',')
         .filter(|s| !s.is_empty())
         .map(|r| {
-            let (rule, cells) = r.split_once(':').with_context(|| format!("--ooc-refine {r}"))?;
+            // RULE:CELLS[:PX] (PX: the cost split's screen-size floor, default the library's).
+            let mut parts = r.split(':');
+            let (rule, cells) = (parts.next().unwrap_or(""), parts.next());
+            let cells = cells.with_context(|| format!("--ooc-refine {r}: RULE:CELLS[:PX]"))?;
+            let cost_split_px = match parts.next() {
+                Some(px) => px.parse().with_context(|| format!("--ooc-refine {r}"))?,
+                None => Refinement::default().cost_split_px,
+            };
             let split = match rule {
                 "eq7" => SplitRule::Eq7,
                 "cost" => SplitRule::Cost,
                 _ => anyhow::bail!("--ooc-refine: unknown split rule {rule} (eq7 or cost)"),
             };
             let patch_cells = cells.parse().with_context(|| format!("--ooc-refine {r}"))?;
-            Ok((r.to_string(), Refinement { patch_cells, split }))
+            Ok((r.to_string(), Refinement { patch_cells, split, cost_split_px }))
         })
         .collect::<anyhow::Result<_>>()?;
     if !stores.is_empty() {

@@ -77,6 +77,10 @@ pub(crate) struct BenchArgs {
     /// The `ooc` method: the smallest patch, cells per side (a power of two) [default: 32].
     #[arg(long)]
     pub ooc_patch_cells: Option<u32>,
+    /// The `ooc` method: the cost split's screen-size floor, pixels (0: everywhere)
+    /// [default: 0].
+    #[arg(long)]
+    pub ooc_cost_px: Option<u32>,
     /// The `ooc` method: every sampled frame waits until the levels it needs are resident
     /// (warm: the error is the selection's own). By default the flight is played in real
     /// time at its own frame rate, every frame, and late data is counted.
@@ -146,6 +150,7 @@ fn refuse_unused_store_options(args: &BenchArgs, cfg: &BenchConfig) -> anyhow::R
         ("--ooc-k", args.ooc_k.is_some()),
         ("--ooc-cache-mib", args.ooc_cache_mib.is_some()),
         ("--ooc-split", args.ooc_split.is_some()),
+        ("--ooc-cost-px", args.ooc_cost_px.is_some()),
         ("--ooc-patch-cells", args.ooc_patch_cells.is_some()),
         ("--wait", args.wait),
     ]
@@ -226,6 +231,9 @@ pub(crate) fn run(args: &BenchArgs) -> anyhow::Result<()> {
     }
     if let Some(split) = &args.ooc_split {
         cfg.ooc.split = if split == "cost" { SplitRule::Cost } else { SplitRule::Eq7 };
+    }
+    if let Some(px) = args.ooc_cost_px {
+        cfg.ooc.cost_split_px = px;
     }
     if let Some(cells) = args.ooc_patch_cells {
         if !cells.is_power_of_two() {

@@ -38,8 +38,9 @@ use terrain_gpu::render::{DrawPatch, ExtraTriangles};
 use terrain_gpu::tess::PatchFactors;
 use terrain_gpu::{RenderError, TerrainRenderer};
 use terrain_stream::{
-    BlockId, DEFAULT_PATCH_CELLS, DEFAULT_SPLIT, Refinement, ScheduleConfig, SplitRule, Store,
-    StoreError, StoreSource, StoreTree, StreamConfig, Streamer, demand_of, select_patches,
+    BlockId, DEFAULT_COST_SPLIT_PX, DEFAULT_PATCH_CELLS, DEFAULT_SPLIT, Refinement, ScheduleConfig,
+    SplitRule, Store, StoreError, StoreSource, StoreTree, StreamConfig, Streamer, demand_of,
+    select_patches,
 };
 
 use crate::MIB;
@@ -79,6 +80,9 @@ pub struct OocConfig {
     /// split, which with 16-cell patches draws fewer triangles at equal error, see
     /// bench/ooc/README.md). Default [`terrain_stream::DEFAULT_SPLIT`].
     pub split: SplitRule,
+    /// The cost split's screen-size floor ([`Refinement::cost_split_px`]). Default
+    /// [`terrain_stream::DEFAULT_COST_SPLIT_PX`].
+    pub cost_split_px: u32,
 }
 
 /// Frames the streamer preloads ahead (Eq. 8's `S` times this). The paper's Eq. 8 looks one
@@ -93,7 +97,11 @@ impl OocConfig {
     /// The selection's refinement ([`OocConfig::patch_cells`], [`OocConfig::split`]), shared
     /// by the tree and the streamer's needed levels.
     pub fn refinement(&self) -> Refinement {
-        Refinement { patch_cells: self.patch_cells, split: self.split }
+        Refinement {
+            patch_cells: self.patch_cells,
+            split: self.split,
+            cost_split_px: self.cost_split_px,
+        }
     }
 }
 
@@ -110,6 +118,7 @@ impl Default for OocConfig {
             patch_cells: DEFAULT_PATCH_CELLS,
             vertical_scale: 1.0,
             split: DEFAULT_SPLIT,
+            cost_split_px: DEFAULT_COST_SPLIT_PX,
         }
     }
 }

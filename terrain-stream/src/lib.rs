@@ -110,8 +110,8 @@ pub use format::{
 };
 pub use glam;
 pub use lod::{
-    DEFAULT_PATCH_CELLS, DEFAULT_SPLIT, Refinement, SplitRule, StoreTree, select_patches,
-    select_streamed,
+    DEFAULT_COST_SPLIT_PX, DEFAULT_PATCH_CELLS, DEFAULT_SPLIT, Refinement, SplitRule, StoreTree,
+    select_patches, select_streamed,
 };
 pub use schedule::ScheduleConfig;
 pub use shard::{

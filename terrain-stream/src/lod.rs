@@ -119,9 +119,20 @@ impl View {
     /// in `delta`). Infinite when the eye is inside or on the box (`MUST_SPLIT`).
     fn rho_per_metre(&self, aabb: &Aabb) -> f64 {
         let (lo, hi) = (aabb.min, aabb.max);
-        let d = (lo - self.eye).max(self.eye - hi).max(DVec3::ZERO).length();
         let to_centre = (lo - self.eye) + (hi - lo) * 0.5;
-        self.eq7.rho(1.0, d, to_centre)
+        self.eq7.rho(1.0, self.distance(aabb), to_centre)
+    }
+
+    /// Distance from the eye to the box `aabb` (0 inside it).
+    fn distance(&self, aabb: &Aabb) -> f64 {
+        (aabb.min - self.eye).max(self.eye - aabb.max).max(DVec3::ZERO).length()
+    }
+
+    /// Size on screen (pixels) of a length of `metres` at the nearest point of `aabb`
+    /// (`lambda metres / d`); infinite when the eye is in the box.
+    pub(crate) fn size_px(&self, metres: f64, aabb: &Aabb) -> f64 {
+        let d = self.distance(aabb);
+        if d > 0.0 { self.lambda * metres / d } else { f64::INFINITY }
     }
 
     /// Whether a node with error `err` (metres) whose box has Eq. 7 `rho` per metre
@@ -208,13 +219,26 @@ pub struct Refinement {
     pub patch_cells: u32,
     /// The split rule inside the blocks. Default [`DEFAULT_SPLIT`].
     pub split: SplitRule,
+    /// [`SplitRule::Cost`] only: the cost split considers a node only while its children are
+    /// at least this many pixels across on screen at the node's nearest point
+    /// ([`View::size_px`]); 0: at every distance. A floor on a patch's screen size bounds the
+    /// patches the cost split adds by the screen's area, whatever the grid's size (the bound
+    /// CDLOD's and Chunked LOD's node counts have). Default [`DEFAULT_COST_SPLIT_PX`].
+    pub cost_split_px: u32,
 }
 
 impl Default for Refinement {
     fn default() -> Self {
-        Self { patch_cells: DEFAULT_PATCH_CELLS, split: DEFAULT_SPLIT }
+        Self {
+            patch_cells: DEFAULT_PATCH_CELLS,
+            split: DEFAULT_SPLIT,
+            cost_split_px: DEFAULT_COST_SPLIT_PX,
+        }
     }
 }
+
+/// Default [`Refinement::cost_split_px`].
+pub const DEFAULT_COST_SPLIT_PX: u32 = 0;
 
 /// Levels a patch's tessellation adds below its node at the largest factor
 /// ([`MAX_FACTOR`] = 64 = 2^6 segments per side).
@@ -306,16 +330,23 @@ impl<'a> BlockNodes<'a> {
     /// patch do not split.
     fn splits(
         &self,
-        rule: SplitRule,
+        refine: Refinement,
         view: &View,
         n: NodeId,
+        aabb: &Aabb,
         patch_err: f32,
         per_metre: f64,
     ) -> bool {
         if view.splits_at(patch_err, per_metre) {
             return true;
         }
-        if rule != SplitRule::Cost || n.level >= self.patch_level.min(self.header.k) {
+        if refine.split != SplitRule::Cost || n.level >= self.patch_level.min(self.header.k) {
+            return false;
+        }
+        // The screen-size floor: children smaller than `cost_split_px` on screen stay whole.
+        let child_m = (aabb.max.x - aabb.min.x).max(aabb.max.y - aabb.min.y) * 0.5;
+        if refine.cost_split_px > 0 && view.size_px(child_m, aabb) < f64::from(refine.cost_split_px)
+        {
             return false;
         }
         let k = self.header.k;
@@ -530,14 +561,15 @@ fn over_walk(
 struct BlockSplit<'a> {
     nodes: BlockNodes<'a>,
     view: View,
-    rule: SplitRule,
+    refine: Refinement,
 }
 
 impl SplitPolicy for BlockSplit<'_> {
     fn should_split(&mut self, node: NodeId, info: &NodeInfo) -> bool {
         let n = &self.nodes;
         let err = n.patch_error(node, local_values(n.header, n.entry, node).2);
-        n.splits(self.rule, &self.view, node, err, self.view.rho_per_metre(&info.aabb))
+        let per_metre = self.view.rho_per_metre(&info.aabb);
+        n.splits(self.refine, &self.view, node, &info.aabb, err, per_metre)
     }
 }
 
@@ -593,7 +625,7 @@ pub(crate) fn needed_geometry_level(
 ) -> Option<u8> {
     let patch_level = patch_level(h, refine.patch_cells);
     let nodes = BlockNodes { header: h, entry: e, id: b, patch_level, sub: None };
-    let mut split = BlockSplit { nodes, view: *view, rule: refine.split };
+    let mut split = BlockSplit { nodes, view: *view, refine };
     let mut cull = BoundingCircleCull::new(region.clone());
     let leaves = traverse(&nodes, &mut split, &mut cull, &mut |_, _| {});
     leaves
@@ -745,8 +777,8 @@ pub struct StoreTree {
     sub_nodes: usize,
     /// Values per node in `sub_max`: `node_levels`, or `k` with the fine maxima.
     sub_per: usize,
-    /// The split rule inside the blocks.
-    split: SplitRule,
+    /// The split rule inside the blocks and its screen-size floor.
+    refine: Refinement,
 }
 
 impl StoreTree {
@@ -786,13 +818,13 @@ impl StoreTree {
             sub_max,
             sub_nodes,
             sub_per,
-            split: refine.split,
+            refine,
         }
     }
 
     /// How the tree is refined.
     pub fn refinement(&self) -> Refinement {
-        Refinement { patch_cells: self.patch_cells(), split: self.split }
+        Refinement { patch_cells: self.patch_cells(), ..self.refine }
     }
 
     /// The store.
@@ -1098,7 +1130,7 @@ fn traverse_store(
                     (Some(err), Some(block)) => {
                         let per_metre = view.rho_per_metre(&info.aabb);
                         last_rho.set(Some((n, per_metre)));
-                        block.splits(tree.split, &view, local, err, per_metre)
+                        block.splits(tree.refine, &view, local, &info.aabb, err, per_metre)
                     }
                     _ => true,
                 }

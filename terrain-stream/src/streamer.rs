@@ -827,8 +827,11 @@ mod tests {
                 .with_clip(1.0, ext.length() * 2.0);
                 let reg = regions(&h, &ScheduleConfig::default(), &cam, dvec2(0.0, 300.0));
                 for (tau, refine) in [0.5, 2.0, 8.0].into_iter().flat_map(|t| {
-                    [Refinement::default(), Refinement { patch_cells: 4, split: SplitRule::Cost }]
-                        .map(|r| (t, r))
+                    [
+                        Refinement::default(),
+                        Refinement { patch_cells: 4, split: SplitRule::Cost, cost_split_px: 0 },
+                    ]
+                    .map(|r| (t, r))
                 }) {
                     let view = View::new(&cam, tau);
                     for region in [&reg.view, &reg.extension] {
@@ -888,7 +891,7 @@ mod tests {
                 ]);
                 let bound = geometry_level_bound(&h, e, id, &view);
                 for split in [SplitRule::Eq7, SplitRule::Cost] {
-                    let refine = Refinement { patch_cells: 4, split };
+                    let refine = Refinement { patch_cells: 4, split, cost_split_px: 0 };
                     let walk =
                         crate::lod::needed_geometry_level(&h, e, id, &view, &all, refine).unwrap();
                     assert!(bound >= walk, "{id}: bound {bound} < walk {walk} ({split:?})");

@@ -298,7 +298,7 @@ fn patches_meet_eq7_minimally_and_cover_the_view() {
     let mut factors = std::collections::BTreeSet::new();
     let refines =
         [(4, SplitRule::Eq7), (32, SplitRule::Eq7), (4, SplitRule::Cost), (16, SplitRule::Cost)]
-            .map(|(patch_cells, split)| Refinement { patch_cells, split });
+            .map(|(patch_cells, split)| Refinement { patch_cells, split, cost_split_px: 0 });
     for refine in refines {
         let tree = StoreTree::with_refinement(store.clone(), refine);
         for (ci, cam) in cameras().iter().enumerate() {
@@ -443,17 +443,43 @@ fn patches_split_only_where_their_largest_factor_misses_tau() {
 /// against a brute force over the index (each level's largest bound under the node, not the
 /// selection's walk), skipping nodes within 1e-6 of a threshold; every selection also passes
 /// `check` (Eq. 7 per patch, cover, shared edges). Eq. 7 alone on the same views draws more
-/// triangles (the rule changes the selection).
+/// triangles (the rule changes the selection). With a screen-size floor
+/// ([`Refinement::cost_split_px`]) the cost decides only nodes whose children are at least
+/// the floor across on screen at the node's nearest point (the brute force applies the same
+/// floor; nodes within 1e-6 of it are skipped), so it splits fewer nodes by cost than without.
 #[test]
 fn cost_split_splits_where_the_children_draw_fewer_triangles() {
     // 513 x 513 at 10 m in blocks of 257^2 (k = 8, 2 x 2), node values to level 4 plus the
     // fine maxima, as a default bake.
     let hm = terrain(513, 513);
     let (dir, store) = bake_store(&hm, "cost", 8, 5);
-    let h = store.header().clone();
     let all: HashMap<BlockId, u8> = store.block_ids().map(|b| (b, 8)).collect();
-    let tree_of =
-        |split| StoreTree::with_refinement(store.clone(), Refinement { patch_cells: 16, split });
+    let mut by_cost_at = Vec::new();
+    for px in [0u32, 200] {
+        by_cost_at.push(cost_split_against_brute_force(&hm, &store, &all, px));
+    }
+    assert!(
+        by_cost_at[1] < by_cost_at[0],
+        "nodes split by cost with the floor {} against without {}",
+        by_cost_at[1],
+        by_cost_at[0]
+    );
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// [`cost_split_splits_where_the_children_draw_fewer_triangles`] with the floor `px`: the
+/// number of nodes split by their cost alone.
+fn cost_split_against_brute_force(
+    hm: &Heightmap,
+    store: &Arc<Store>,
+    all: &HashMap<BlockId, u8>,
+    px: u32,
+) -> usize {
+    let h = store.header().clone();
+    let tree_of = |split| {
+        let refine = Refinement { patch_cells: 16, split, cost_split_px: px };
+        StoreTree::with_refinement(store.clone(), refine)
+    };
     let (eq7, cost) = (tree_of(SplitRule::Eq7), tree_of(SplitRule::Cost));
     let patch_level = h.k - 4;
     let drawn =
@@ -462,14 +488,14 @@ fn cost_split_splits_where_the_children_draw_fewer_triangles() {
     for cam in cameras() {
         for tau in [0.5, 1.0, 2.0, 8.0] {
             let sel = select_patches(&cost, &cam, tau, |b| all.get(&b).copied());
-            check(&hm, &cost, &cam, tau, &all, &sel);
+            check(hm, &cost, &cam, tau, all, &sel);
             tris[0] += drawn(&select_patches(&eq7, &cam, tau, |b| all.get(&b).copied()));
             tris[1] += drawn(&sel);
             let view = View::new(&cam, tau);
             // The brute force's least level meeting Eq. 7 at threshold `t` for local node `m`.
             let needed = |b: BlockId, m: NodeId, t: f64| {
                 let pm = rho_per_metre(&cost, &view, cost.global(b, m));
-                (m.level..h.k).find(|&l| pm * level_max(&store, b, m, l) <= t).unwrap_or(h.k)
+                (m.level..h.k).find(|&l| pm * level_max(store, b, m, l) <= t).unwrap_or(h.k)
             };
             let triangles = |b: BlockId, m: NodeId, t: f64| {
                 1u64 << (2 * (needed(b, m, t) - m.level).clamp(1, 6))
@@ -481,12 +507,23 @@ fn cost_split_splits_where_the_children_draw_fewer_triangles() {
                 let six = if n.level + 6 >= h.k {
                     0.0
                 } else {
-                    bound(&store, b, n).min(level_max(&store, b, n, n.level + 6))
+                    bound(store, b, n).min(level_max(store, b, n, n.level + 6))
                 };
                 if pm * six > tau * (1.0 + 1e-6) {
                     return Some((true, false));
                 }
                 if pm * six > tau * (1.0 - 1e-6) {
+                    return None;
+                }
+                // The floor: a child's side on screen at the node's nearest point.
+                let aabb = cost.node_info(cost.global(b, n)).unwrap().aabb;
+                let d = (aabb.min - view.eye).max(view.eye - aabb.max).max(DVec3::ZERO).length();
+                let side = (aabb.max.x - aabb.min.x).max(aabb.max.y - aabb.min.y) * 0.5;
+                let on_screen = if d > 0.0 { view.lambda * side / d } else { f64::INFINITY };
+                if px > 0 && on_screen < f64::from(px) * (1.0 - 1e-6) {
+                    return Some((false, false));
+                }
+                if px > 0 && on_screen < f64::from(px) * (1.0 + 1e-6) {
                     return None;
                 }
                 let at = |t: f64| {
@@ -525,10 +562,12 @@ fn cost_split_splits_where_the_children_draw_fewer_triangles() {
             }
         }
     }
-    assert!(by_cost > 20, "{by_cost} nodes split by their cost alone");
+    // Fewer with the floor (18 at 200 px), but some: the floor is exercised on both sides.
+    let least = if px == 0 { 20 } else { 5 };
+    assert!(by_cost > least, "{by_cost} nodes split by their cost alone (floor {px} px)");
     assert!(leaves > 20, "{leaves} leaves larger than the smallest patch checked");
     assert!(tris[1] < tris[0], "cost split {} against Eq. 7 alone {}", tris[1], tris[0]);
-    std::fs::remove_dir_all(&dir).unwrap();
+    by_cost
 }
 
 /// Far terrain is drawn by patches spanning several blocks: a node above the blocks stays one
@@ -675,7 +714,7 @@ fn fine_maxima_select_what_full_depth_node_values_select() {
     // The cost split compares a node with its children: exact where the children are stored
     // nodes (patches of at least 8 cells here: level 3 of the stored 0-3).
     let refines = [(4, SplitRule::Eq7), (32, SplitRule::Eq7), (8, SplitRule::Cost)]
-        .map(|(patch_cells, split)| Refinement { patch_cells, split });
+        .map(|(patch_cells, split)| Refinement { patch_cells, split, cost_split_px: 0 });
     for refine in refines {
         let trees = [&full, &fine, &v2].map(|s| StoreTree::with_refinement(s.clone(), refine));
         for cam in cameras() {
