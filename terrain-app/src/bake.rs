@@ -157,6 +157,8 @@ pub(crate) fn run(args: &BakeArgs) -> anyhow::Result<()> {
     }
     // Ctrl-C / SIGTERM: checked after each row of blocks and between the tables.
     crate::interrupt::install()?;
+    let mut stages = terrain_app::progress::Stages::new();
+    let leaf = MethodConfig::default().leaf_cells;
     let bounded = HeightEncoding::Bounded { max_error_m: args.max_error };
     let mut config = BakeConfig {
         k: args.block_k,
@@ -164,6 +166,8 @@ pub(crate) fn run(args: &BakeArgs) -> anyhow::Result<()> {
         overwrite: args.overwrite,
         threads: args.threads,
         dss_errors: !args.no_dss,
+        // Geomorph's table from the blocks' own bands of rows, in the same pass.
+        geomip_patch_cells: (!args.no_geomip).then_some(leaf),
         ..BakeConfig::default()
     };
     if args.no_compression {
@@ -211,6 +215,9 @@ pub(crate) fn run(args: &BakeArgs) -> anyhow::Result<()> {
     };
     if args.raw_f32 {
         config.encoding = HeightEncoding::F32;
+    }
+    if source_hm.is_some() {
+        stages.end("read");
     }
     let start = std::time::Instant::now();
     let mut err = std::io::stderr();
@@ -280,6 +287,8 @@ pub(crate) fn run(args: &BakeArgs) -> anyhow::Result<()> {
             terrain_core::dem::rows::FILL_REACH_ROWS
         );
     }
+    let (_, blocks_cpu) =
+        stages.end(if args.merge.is_empty() { "blocks" } else { "merge of the parts" });
     let h = &report.header;
     let secs = report.elapsed.as_secs_f64();
     println!(
@@ -300,7 +309,21 @@ pub(crate) fn run(args: &BakeArgs) -> anyhow::Result<()> {
         secs,
         report.source_samples as f64 * 4.0 / terrain_app::MIB / secs.max(1e-9)
     );
-    let leaf = MethodConfig::default().leaf_cells;
+    if let Some(cpu) = blocks_cpu.filter(|_| args.merge.is_empty()) {
+        println!(
+            "blocks: {:.1} CPU s, {:.1} MiB/s of f32 input per CPU second",
+            cpu,
+            report.source_samples as f64 * 4.0 / terrain_app::MIB / cpu.max(1e-9)
+        );
+    }
+    if let Some(bytes) = report.geomip_bytes {
+        println!(
+            "{}: geomorph's max-error vertices of {leaf}-cell patches, computed with the blocks \
+             from the same bands of rows, {:.2} MiB",
+            terrain_app::geomip_scene::geomip_path(&args.output).display(),
+            bytes as f64 / terrain_app::MIB
+        );
+    }
     let synthetic_hm;
     let hm = match (source_hm, args.synthetic) {
         (Some(hm), _) => Some(hm),
@@ -310,6 +333,7 @@ pub(crate) fn run(args: &BakeArgs) -> anyhow::Result<()> {
             // rows); a larger one gets the PVS of a coarse conservative grid, below.
             synthetic_hm =
                 FractalConfig::with_size(n, n, 10.0).to_heightmap().map_err(anyhow::Error::msg)?;
+            stages.end("grid in memory");
             Some(&synthetic_hm)
         }
         (None, _) => None,
@@ -337,8 +361,9 @@ pub(crate) fn run(args: &BakeArgs) -> anyhow::Result<()> {
                 terrain_app::roughness_scene::bake_by_rows(&grid, leaf, &args.output, true, read)?
             }
         }
+        stages.end("roughness");
     }
-    if !args.no_geomip {
+    if !args.no_geomip && report.geomip_bytes.is_none() {
         stop_before("geomorph table")?;
         match hm {
             Some(hm) => {
@@ -351,6 +376,7 @@ pub(crate) fn run(args: &BakeArgs) -> anyhow::Result<()> {
                 terrain_app::geomip_scene::bake_from_store(&store, leaf)?;
             }
         }
+        stages.end("geomorph");
     }
     if !args.no_dss {
         stop_before("DSS errors")?;
@@ -369,8 +395,10 @@ pub(crate) fn run(args: &BakeArgs) -> anyhow::Result<()> {
                 terrain_app::dss_scene::bake_by_rows(w, h, leaf, band_bytes, out, true, read)?;
             }
         }
+        stages.end("DSS errors");
     }
     if args.no_pvs {
+        println!("{}", stages.summary());
         return Ok(());
     }
     // `--pvs` or any `--pvs-*` option: baked whatever it culls; otherwise where it pays.
@@ -390,8 +418,12 @@ pub(crate) fn run(args: &BakeArgs) -> anyhow::Result<()> {
         let budget = args.source.load_options()?.max_memory_bytes / 4;
         let out = &args.output;
         crate::pvs::bake_by_rows_into_scene((w, h, &georef), &cfg, budget, out, when, read)?;
+        stages.end("PVS");
+        println!("{}", stages.summary());
         return Ok(());
     };
     crate::pvs::bake_into_scene(hm, &cfg, &args.output, when)?;
+    stages.end("PVS");
+    println!("{}", stages.summary());
     Ok(())
 }
