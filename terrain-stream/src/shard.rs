@@ -410,9 +410,7 @@ pub fn merge(
 /// its rows and the checksum of its rows' heights, joined; `None` unless every part has them
 /// (a part whose rows had a band without a valid sample has none, and then neither has the
 /// single bake).
-fn geomip_of(
-    infos: &[PartInfo],
-) -> Result<Option<(Vec<GeomipTable>, HeightsChecksum)>, BakeError> {
+fn geomip_of(infos: &[PartInfo]) -> Result<Option<(Vec<GeomipTable>, HeightsChecksum)>, BakeError> {
     let mut tables = Vec::new();
     let mut heights = HeightsChecksum::new();
     for part in infos {
