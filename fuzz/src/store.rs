@@ -57,6 +57,7 @@ pub(crate) fn fixture(work: &Path) -> Result<Vec<Pristine>, String> {
             node_levels: 2,
             // The index without DSS errors (NaN), so the reader's presence check is fuzzed too.
             dss_errors: false,
+            geomip_patch_cells: None,
         },
     ];
     let mut out = Vec::new();

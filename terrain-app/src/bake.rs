@@ -2,7 +2,8 @@
 //! store, with a plain-text progress bar on stderr, then the DSS paper's object-space errors
 //! (`dss_errors.bin`, and per block in the index, unless `--no-dss`), the PVPS methods' roughness pyramids (`roughness.bin`,
 //! unless `--no-roughness`; by bands of rows when the bake streams), geomorph's max-error
-//! vertices per patch (`geomip.bin`, unless `--no-geomip`) and the PVS files of the scene (`pvs.bin`,
+//! vertices per patch (`geomip.bin`, unless `--no-geomip`; computed by the bake with the
+//! blocks, from the same bands of rows) and the PVS files of the scene (`pvs.bin`,
 //! `pvs_conservative.bin`, see `terrain pvs`): with `--pvs`, or where a spread sample of its
 //! view cells says it pays (`crate::pvs::PVS_MIN_CULLED`); never with `--no-pvs`.
 
@@ -83,8 +84,8 @@ pub(crate) struct BakeArgs {
     #[arg(long)]
     pub no_roughness: bool,
     /// Do not compute the geomorph method's max-error vertices per 16-cell patch
-    /// (`geomip.bin`, 40 bytes per patch, read by `--method geomorph` from the store; from the
-    /// store's blocks, a block row at a time, when the grid is not held in memory).
+    /// (`geomip.bin`, 40 bytes per patch, read by `--method geomorph` from the store; computed
+    /// with the blocks from the same bands of rows, and by each shard for its rows).
     #[arg(long)]
     pub no_geomip: bool,
     #[command(flatten)]
@@ -96,12 +97,13 @@ pub(crate) struct BakeArgs {
     #[arg(long, conflicts_with = "synthetic")]
     pub stream: bool,
     /// Bake only shard K of N (K counts from 0): a contiguous range of block rows, into the
-    /// part folder -o, without the scene tables. `terrain bake` with the same DEM and options
-    /// and `--merge` then joins the N parts into the store a single bake writes, byte for
-    /// byte, and bakes the tables. A part records the DEM's checksum and the options. The
-    /// table options (--no-pvs, --no-roughness, --no-geomip, --pvs-*) are accepted and apply
-    /// to the merge, so shards and merge take one command line (--no-dss also drops the
-    /// per-block errors the shards write into the index).
+    /// part folder -o, with geomorph's table of its rows and no other scene table. `terrain
+    /// bake` with the same DEM and options and `--merge` then joins the N parts into the store
+    /// a single bake writes, byte for byte, and bakes the other tables. A part records the
+    /// DEM's checksum and the options. The table options (--no-pvs, --no-roughness, --pvs-*)
+    /// are accepted and apply to the merge, so shards and merge take one command line (--no-dss
+    /// also drops the per-block errors the shards write into the index, --no-geomip the
+    /// shards' geomorph tables).
     #[arg(long, value_name = "K/N", conflicts_with = "merge")]
     pub shard: Option<terrain_stream::Shard>,
     /// Join the parts of a sharded bake (part folders, or folders holding them) into the store
@@ -143,6 +145,26 @@ fn streamed(args: &BakeArgs) -> anyhow::Result<Option<RowReader>> {
     }
 }
 
+/// Whether the synthetic terrain of `n x n` samples is held in memory for the tables: it fits
+/// ([`MAX_IN_MEMORY_SYNTHETIC`]) and the PVS or the DSS errors are baked (the exact PVS needs
+/// the whole grid; the DSS errors and roughness are then computed from it in memory too,
+/// faster than by rows); a larger one gets the PVS of a coarse conservative grid.
+fn synthetic_held(args: &BakeArgs, n: u64) -> bool {
+    n <= MAX_IN_MEMORY_SYNTHETIC && !(args.no_pvs && args.no_dss)
+}
+
+/// The synthetic terrain as a heightmap, its rows generated on every core
+/// (`FractalConfig::to_heightmap`'s samples and georeference, bit for bit).
+fn in_memory(synthetic: &FractalConfig) -> anyhow::Result<terrain_core::Heightmap> {
+    let (w, h) = (synthetic.width() as usize, synthetic.height() as usize);
+    let mut data = vec![0f32; w * h];
+    let mut voids = vec![false; w * h];
+    terrain_stream::read_rows_parallel(synthetic, 0, &mut data, &mut voids)?;
+    drop(voids);
+    let mask = terrain_core::heightmap::VoidMask::new(w, h);
+    Ok(terrain_core::Heightmap::new(w, h, data, mask, synthetic.georef())?)
+}
+
 /// Runs `terrain bake`.
 pub(crate) fn run(args: &BakeArgs) -> anyhow::Result<()> {
     // Before any work: a file or a folder of the user's files is never replaced (a shard's
@@ -157,6 +179,8 @@ pub(crate) fn run(args: &BakeArgs) -> anyhow::Result<()> {
     }
     // Ctrl-C / SIGTERM: checked after each row of blocks and between the tables.
     crate::interrupt::install()?;
+    let mut stages = terrain_app::progress::Stages::new();
+    let leaf = MethodConfig::default().leaf_cells;
     let bounded = HeightEncoding::Bounded { max_error_m: args.max_error };
     let mut config = BakeConfig {
         k: args.block_k,
@@ -164,19 +188,30 @@ pub(crate) fn run(args: &BakeArgs) -> anyhow::Result<()> {
         overwrite: args.overwrite,
         threads: args.threads,
         dss_errors: !args.no_dss,
+        // Geomorph's table from the blocks' own bands of rows, in the same pass.
+        geomip_patch_cells: (!args.no_geomip).then_some(leaf),
         ..BakeConfig::default()
     };
     if args.no_compression {
         config.codec = terrain_stream::Codec::Plain;
     }
     let synthetic;
+    let synthetic_hm;
     let dem;
     let mut rows: Option<RowReader> = None;
     let mut source_hm: Option<&terrain_core::Heightmap> = None;
     let source: &dyn HeightSource = if let Some(n) = args.synthetic {
         synthetic = FractalConfig::with_size(n, n, 10.0);
         synthetic.validate().map_err(anyhow::Error::msg)?;
-        &synthetic
+        if synthetic_held(args, n) && args.shard.is_none() && args.merge.is_empty() {
+            // The tables will need the whole grid: generated once, and the blocks baked from it.
+            synthetic_hm = in_memory(&synthetic)?;
+            stages.end("grid in memory");
+            source_hm = Some(&synthetic_hm);
+            &synthetic_hm
+        } else {
+            &synthetic
+        }
     } else if let Some(reader) = streamed(args)? {
         let options = args.source.load_options()?;
         eprintln!(
@@ -211,6 +246,9 @@ pub(crate) fn run(args: &BakeArgs) -> anyhow::Result<()> {
     };
     if args.raw_f32 {
         config.encoding = HeightEncoding::F32;
+    }
+    if source_hm.is_some() && args.synthetic.is_none() {
+        stages.end("read");
     }
     let start = std::time::Instant::now();
     let mut err = std::io::stderr();
@@ -280,6 +318,8 @@ pub(crate) fn run(args: &BakeArgs) -> anyhow::Result<()> {
             terrain_core::dem::rows::FILL_REACH_ROWS
         );
     }
+    let (_, blocks_cpu) =
+        stages.end(if args.merge.is_empty() { "blocks" } else { "merge of the parts" });
     let h = &report.header;
     let secs = report.elapsed.as_secs_f64();
     println!(
@@ -300,17 +340,29 @@ pub(crate) fn run(args: &BakeArgs) -> anyhow::Result<()> {
         secs,
         report.source_samples as f64 * 4.0 / terrain_app::MIB / secs.max(1e-9)
     );
-    let leaf = MethodConfig::default().leaf_cells;
-    let synthetic_hm;
+    if let Some(cpu) = blocks_cpu.filter(|_| args.merge.is_empty()) {
+        println!(
+            "blocks: {:.1} CPU s, {:.1} MiB/s of f32 input per CPU second",
+            cpu,
+            report.source_samples as f64 * 4.0 / terrain_app::MIB / cpu.max(1e-9)
+        );
+    }
+    if let Some(bytes) = report.geomip_bytes {
+        println!(
+            "{}: geomorph's max-error vertices of {leaf}-cell patches, computed with the blocks \
+             from the same bands of rows, {:.2} MiB",
+            terrain_app::geomip_scene::geomip_path(&args.output).display(),
+            bytes as f64 / terrain_app::MIB
+        );
+    }
+    let merged_hm;
     let hm = match (source_hm, args.synthetic) {
         (Some(hm), _) => Some(hm),
-        (None, Some(n)) if n <= MAX_IN_MEMORY_SYNTHETIC && !(args.no_pvs && args.no_dss) => {
-            // A streamed synthetic terrain that fits: the exact PVS from the whole grid (the
-            // DSS errors and roughness are then computed from it in memory too, faster than by
-            // rows); a larger one gets the PVS of a coarse conservative grid, below.
-            synthetic_hm =
-                FractalConfig::with_size(n, n, 10.0).to_heightmap().map_err(anyhow::Error::msg)?;
-            Some(&synthetic_hm)
+        (None, Some(n)) if synthetic_held(args, n) => {
+            // A merge of a synthetic terrain that fits (a single bake generated it above).
+            merged_hm = in_memory(&FractalConfig::with_size(n, n, 10.0))?;
+            stages.end("grid in memory");
+            Some(&merged_hm)
         }
         (None, _) => None,
     };
@@ -337,8 +389,9 @@ pub(crate) fn run(args: &BakeArgs) -> anyhow::Result<()> {
                 terrain_app::roughness_scene::bake_by_rows(&grid, leaf, &args.output, true, read)?
             }
         }
+        stages.end("roughness");
     }
-    if !args.no_geomip {
+    if !args.no_geomip && report.geomip_bytes.is_none() {
         stop_before("geomorph table")?;
         match hm {
             Some(hm) => {
@@ -351,6 +404,7 @@ pub(crate) fn run(args: &BakeArgs) -> anyhow::Result<()> {
                 terrain_app::geomip_scene::bake_from_store(&store, leaf)?;
             }
         }
+        stages.end("geomorph");
     }
     if !args.no_dss {
         stop_before("DSS errors")?;
@@ -369,8 +423,10 @@ pub(crate) fn run(args: &BakeArgs) -> anyhow::Result<()> {
                 terrain_app::dss_scene::bake_by_rows(w, h, leaf, band_bytes, out, true, read)?;
             }
         }
+        stages.end("DSS errors");
     }
     if args.no_pvs {
+        println!("{}", stages.summary());
         return Ok(());
     }
     // `--pvs` or any `--pvs-*` option: baked whatever it culls; otherwise where it pays.
@@ -390,8 +446,12 @@ pub(crate) fn run(args: &BakeArgs) -> anyhow::Result<()> {
         let budget = args.source.load_options()?.max_memory_bytes / 4;
         let out = &args.output;
         crate::pvs::bake_by_rows_into_scene((w, h, &georef), &cfg, budget, out, when, read)?;
+        stages.end("PVS");
+        println!("{}", stages.summary());
         return Ok(());
     };
     crate::pvs::bake_into_scene(hm, &cfg, &args.output, when)?;
+    stages.end("PVS");
+    println!("{}", stages.summary());
     Ok(())
 }

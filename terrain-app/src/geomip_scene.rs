@@ -21,8 +21,9 @@ use terrain_stream::{BlockId, Store};
 
 use crate::progress::Progress;
 
-/// The geo-mipmap table in a store folder.
-pub const GEOMIP_FILE: &str = "geomip.bin";
+/// The geo-mipmap table in a store folder (the bake writes it with the blocks when it can:
+/// `terrain_stream::BakeConfig::geomip_patch_cells`).
+pub const GEOMIP_FILE: &str = terrain_stream::GEOMIP_FILE;
 
 /// The geo-mipmap table's path in store folder `dir`.
 pub fn geomip_path(dir: &Path) -> PathBuf {

@@ -67,3 +67,65 @@ impl Progress {
         }
     }
 }
+
+/// CPU seconds (user + system, every thread) this process has used so far, from
+/// `/proc/self/stat` (Linux; its clock ticks are USER_HZ, 100 a second on every Linux
+/// architecture); `None` elsewhere.
+pub fn process_cpu_seconds() -> Option<f64> {
+    let stat = std::fs::read_to_string("/proc/self/stat").ok()?;
+    // Fields after the command name (which may hold spaces) in parentheses.
+    let rest = &stat[stat.rfind(')')? + 1..];
+    let fields: Vec<&str> = rest.split_whitespace().collect();
+    // utime and stime are fields 14 and 15 of the line, 12 and 13 after the name.
+    let ticks = fields.get(11)?.parse::<u64>().ok()? + fields.get(12)?.parse::<u64>().ok()?;
+    Some(ticks as f64 / 100.0)
+}
+
+/// The stages of a long command (`terrain bake`'s blocks and tables) with their wall and CPU
+/// seconds, for one summary line at the end.
+#[derive(Debug)]
+pub struct Stages {
+    start: Instant,
+    cpu0: Option<f64>,
+    mark: (Instant, Option<f64>),
+    done: Vec<(&'static str, f64, Option<f64>)>,
+}
+
+impl Default for Stages {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl Stages {
+    /// Starts the clock (the first stage starts now).
+    pub fn new() -> Self {
+        let (now, cpu) = (Instant::now(), process_cpu_seconds());
+        Self { start: now, cpu0: cpu, mark: (now, cpu), done: Vec::new() }
+    }
+
+    /// Ends the current stage, named `name`, and starts the next. Returns its (wall, CPU)
+    /// seconds.
+    pub fn end(&mut self, name: &'static str) -> (f64, Option<f64>) {
+        let (now, cpu) = (Instant::now(), process_cpu_seconds());
+        let wall = now.duration_since(self.mark.0).as_secs_f64();
+        let used = cpu.zip(self.mark.1).map(|(b, a)| b - a);
+        self.done.push((name, wall, used));
+        self.mark = (now, cpu);
+        (wall, used)
+    }
+
+    /// `stages (wall s / CPU s): a 1.2 / 2.3, b ...; total ...`.
+    pub fn summary(&self) -> String {
+        let cpu = |c: Option<f64>| c.map_or("?".to_string(), |c| format!("{c:.1}"));
+        let parts: Vec<String> =
+            self.done.iter().map(|(n, w, c)| format!("{n} {w:.1} / {}", cpu(*c))).collect();
+        let total_cpu = process_cpu_seconds().zip(self.cpu0).map(|(b, a)| b - a);
+        format!(
+            "stages (wall s / CPU s): {}; total {:.1} / {}",
+            parts.join(", "),
+            self.start.elapsed().as_secs_f64(),
+            cpu(total_cpu)
+        )
+    }
+}

@@ -3,8 +3,8 @@
 //! (`terrain_stream::merge`) into the store a single `terrain bake` writes, byte for byte.
 //!
 //! The shards bake the blocks and their index entries (per-node min/max/StaticE, the DSS
-//! paper's 32 errors per block). The scene tables (roughness pyramids, DSS errors per node,
-//! geomorph's table, PVS) are baked by the merge, from the DEM given to it again, by the very
+//! paper's 32 errors per block) and geomorph's table of their rows (joined by the merge). The
+//! other scene tables (roughness pyramids, DSS errors per node, PVS) are baked by the merge, from the DEM given to it again, by the very
 //! code a single bake runs: they are computed from the source's heights (not the stored,
 //! quantized ones), and the roughness, DSS and PVS tables need the whole grid's quadtree.
 //!

@@ -4,8 +4,8 @@
 //! geomorph's table), which share their framing (magic, version, CRC-32, what they were made
 //! for).
 
-/// CRC-32 (IEEE 802.3, reflected, polynomial 0xEDB88320), as zlib and PNG compute it; the
-/// table is built at compile time.
+/// CRC-32 (IEEE 802.3, reflected, polynomial 0xEDB88320), as zlib and PNG compute it
+/// (crc32fast: SIMD where the CPU has it, a table otherwise; the same values either way).
 pub fn crc32(bytes: &[u8]) -> u32 {
     crc32_update(0, bytes)
 }
@@ -13,26 +13,9 @@ pub fn crc32(bytes: &[u8]) -> u32 {
 /// Continues a CRC-32: `crc32_update(crc32(a), b) == crc32(a ++ b)`, for checksumming data
 /// that is not in one slice (a heightmap's samples, converted as they go).
 pub fn crc32_update(crc: u32, bytes: &[u8]) -> u32 {
-    const TABLE: [u32; 256] = {
-        let mut t = [0u32; 256];
-        let mut n = 0;
-        while n < 256 {
-            let mut c = n as u32;
-            let mut k = 0;
-            while k < 8 {
-                c = if c & 1 != 0 { 0xEDB8_8320 ^ (c >> 1) } else { c >> 1 };
-                k += 1;
-            }
-            t[n] = c;
-            n += 1;
-        }
-        t
-    };
-    let mut c = !crc;
-    for &b in bytes {
-        c = TABLE[((c ^ u32::from(b)) & 0xFF) as usize] ^ (c >> 8);
-    }
-    !c
+    let mut h = crc32fast::Hasher::new_with_initial(crc);
+    h.update(bytes);
+    h.finalize()
 }
 
 /// The CRC-32 of `a ++ b` from `crc32(a)`, `crc32(b)` and `b`'s length, without `b`'s bytes:

@@ -4,6 +4,9 @@
 //! Memory: one band of `2^k + 1` source rows (f32 and a void flag per sample) plus, per
 //! worker thread, one block's samples, its static-error pyramid and its payloads. Nothing of
 //! the whole grid is allocated, so a 32769^2 float grid (4 GiB) bakes in a few hundred MiB.
+//! With [`BakeConfig::geomip_patch_cells`], geomorph's table is computed from each band beside
+//! its blocks (one more copy of the band, as a heightmap) and held until the end: 40 bytes per
+//! 16-cell patch (168 MB at 32769^2, 10.5 MB at 8193^2).
 
 use std::fs;
 use std::io::{Seek, SeekFrom, Write};
@@ -15,6 +18,8 @@ use rayon::prelude::*;
 use terrain_core::dem::{Format, LoadOptions, RawSampleType, RowReader, SourceInfo};
 use terrain_core::georef::Georef;
 use terrain_core::heightmap::{Heightmap, VoidMask};
+use terrain_core::lod::GeomipTable;
+use terrain_core::lod::dss_file::HeightsChecksum;
 use terrain_core::metrics::Region;
 use terrain_core::metrics::dss::object_errors;
 use terrain_core::metrics::static_error::StaticErrorPyramid;
@@ -110,7 +115,17 @@ pub struct BakeConfig {
     /// true; false skips them (most of a bake's CPU after the heights; no method reads them
     /// from the index) and the store says so (`Store::has_dss_errors`).
     pub dss_errors: bool,
+    /// Compute geomorph's per-patch table (terrain-core's `GeomipTable`, patches of this many
+    /// cells, rounded as it rounds them) from the bake's own bands of source rows, in the same
+    /// pass as the blocks, and write it into the store as [`GEOMIP_FILE`] (tied to the source
+    /// heights' checksum, `heights_checksum`): the bytes of `GeomipTable::new` of the whole
+    /// grid, without reading the grid again. Not computed (`BakeReport::geomip_bytes` is
+    /// `None`) when the blocks are smaller than a patch. Default `None`.
+    pub geomip_patch_cells: Option<u32>,
 }
+
+/// Geomorph's table in a store folder ([`BakeConfig::geomip_patch_cells`]).
+pub const GEOMIP_FILE: &str = "geomip.bin";
 
 impl Default for BakeConfig {
     fn default() -> Self {
@@ -122,6 +137,7 @@ impl Default for BakeConfig {
             threads: 0,
             overwrite: false,
             dss_errors: true,
+            geomip_patch_cells: None,
         }
     }
 }
@@ -154,6 +170,8 @@ pub struct BakeReport {
     pub elapsed: Duration,
     /// Whether every non-void sample is stored bit-exactly.
     pub lossless: bool,
+    /// Bytes of the [`GEOMIP_FILE`] written with the blocks ([`BakeConfig::geomip_patch_cells`]).
+    pub geomip_bytes: Option<u64>,
 }
 
 fn io_err(path: &Path) -> impl FnOnce(std::io::Error) -> BakeError + '_ {
@@ -348,6 +366,8 @@ pub(crate) struct Plan {
     width: usize,
     node_levels: u8,
     quant: Quant,
+    /// Geomorph's patch cells, when its table is computed in the pass (they divide a block).
+    pub geomip: Option<u32>,
 }
 
 impl Plan {
@@ -397,7 +417,12 @@ impl Plan {
             },
             HeightEncoding::F32 => Quant { encoding: SampleEncoding::F32, bound: None },
         };
-        Ok(Self { k, blocks_x, blocks_y, width, node_levels: config.node_levels.min(k), quant })
+        let geomip = config
+            .geomip_patch_cells
+            .map(GeomipTable::patch_cells_for)
+            .filter(|&p| u64::from(p) <= cells);
+        let node_levels = config.node_levels.min(k);
+        Ok(Self { k, blocks_x, blocks_y, width, node_levels, quant, geomip })
     }
 }
 
@@ -411,6 +436,10 @@ pub(crate) struct BakedRows {
     pub lossless: bool,
     /// The error bound the encoding promised (`HeightEncoding::Bounded`), metres.
     pub bound: Option<f64>,
+    /// Geomorph's table of these rows ([`Plan::geomip`]): the tables of the rows' bands as
+    /// grids of their own (stacked by `GeomipTable::stack`) and the checksum of the rows'
+    /// source heights, each row once (a shared top row belongs to the rows above).
+    pub geomip: Option<(Vec<GeomipTable>, HeightsChecksum)>,
 }
 
 /// Bakes block rows `rows` (a range of `0..plan.blocks_y`) of `source` into `dir/blocks`, their
@@ -424,7 +453,7 @@ pub(crate) fn bake_rows(
     progress: &mut (dyn FnMut(&BakeProgress) -> ControlFlow<()> + Send),
 ) -> Result<BakedRows, BakeError> {
     let (w, h) = (source.width(), source.height());
-    let Plan { k, blocks_x, width, node_levels, quant, .. } = *plan;
+    let Plan { k, blocks_x, width, node_levels, quant, geomip: patch, .. } = *plan;
     let cells = 1u64 << k;
     let side = cells as usize + 1;
     let total = (blocks_x * (rows.end - rows.start)) as usize;
@@ -434,6 +463,7 @@ pub(crate) fn bake_rows(
     let (mut max_err, mut max_void_err, mut lossless) = (0f64, 0f64, true);
     let mut prog =
         BakeProgress { blocks_done: 0, blocks_total: total, rows_read: 0, bytes_written: 0 };
+    let mut geomip = patch.map(|_| (Vec::new(), HeightsChecksum::new()));
     for by in rows {
         let j0 = by * cells;
         let rows = (h - j0).min(side as u64) as usize;
@@ -451,13 +481,36 @@ pub(crate) fn bake_rows(
         prog.rows_read += rows as u64;
         let band: &[f32] = band;
         let voids: &[bool] = voids;
-        let baked: Vec<BakedBlock> = (0..blocks_x as u32)
-            .into_par_iter()
-            .map(|bx| {
-                let id = BlockId::new(by as u32, bx);
-                bake_block(dir, id, k, band, voids, width, rows, quant, config, node_levels)
-            })
-            .collect::<Result<_, _>>()?;
+        // The blocks and, beside them on the same threads, the band's geomorph patches.
+        let blocks = || {
+            (0..blocks_x as u32)
+                .into_par_iter()
+                .map(|bx| {
+                    let id = BlockId::new(by as u32, bx);
+                    bake_block(dir, id, k, band, voids, width, rows, quant, config, node_levels)
+                })
+                .collect::<Result<Vec<BakedBlock>, _>>()
+        };
+        let patches = || patch.map(|p| band_geomip(band, voids, width, rows, p, source.georef()));
+        let (baked, table) = rayon::join(blocks, patches);
+        let baked = baked?;
+        // A band with no valid sample has no heightmap: then the table is left to the caller.
+        let table = match table.transpose()? {
+            Some(None) => {
+                geomip = None;
+                None
+            }
+            t => t.flatten(),
+        };
+        if let (Some((tables, sum)), Some(table)) = (geomip.as_mut(), table) {
+            tables.push(table);
+            // Every row once: the band's top row is the next band's first.
+            let own = if j0 + rows as u64 >= h { rows } else { rows - 1 };
+            for j in 0..own {
+                sum.add_heights(&band[j * width..(j + 1) * width]);
+                sum.add_voids(&voids[j * width..(j + 1) * width]);
+            }
+        }
         for b in baked {
             max_err = max_err.max(b.max_err);
             max_void_err = max_void_err.max(b.max_void_err);
@@ -493,7 +546,45 @@ pub(crate) fn bake_rows(
         bake_id: 0,
         vertical_scale: 1.0,
     };
-    Ok(BakedRows { header, entries, lossless, bound: quant.bound })
+    Ok(BakedRows { header, entries, lossless, bound: quant.bound, geomip })
+}
+
+/// Geomorph's table of one band of source rows (`rows` rows of `width` samples and their void
+/// flags) as a grid of its own, its rows of patches on rayon's threads; `None` when every
+/// sample of the band is void (no heightmap has no valid sample).
+fn band_geomip(
+    band: &[f32],
+    voids: &[bool],
+    width: usize,
+    rows: usize,
+    patch_cells: u32,
+    georef: Georef,
+) -> Result<Option<GeomipTable>, BakeError> {
+    let n = width * rows;
+    let mut mask = VoidMask::new(width, rows);
+    let void = voids[..n].iter().filter(|&&v| v).count();
+    if void == n {
+        return Ok(None);
+    }
+    if void > 0 {
+        for (p, _) in voids[..n].iter().enumerate().filter(|(_, v)| **v) {
+            mask.set(p % width, p / width, true);
+        }
+    }
+    let hm = Heightmap::new(width, rows, band[..n].to_vec(), mask, georef)
+        .map_err(|e| BakeError::Encoding(format!("a band of {rows} rows for geomorph: {e}")))?;
+    let map = |row: &(dyn Fn(u32) -> _ + Sync), n| (0..n).into_par_iter().map(row).collect();
+    Ok(Some(GeomipTable::new_with(&hm, patch_cells, map)))
+}
+
+/// Geomorph's table of the whole grid from the bands' tables, as the bytes of its file.
+pub(crate) fn stack_geomip(
+    tables: Vec<GeomipTable>,
+    heights: &HeightsChecksum,
+) -> Result<Vec<u8>, BakeError> {
+    let table = GeomipTable::stack(tables)
+        .map_err(|e| BakeError::Encoding(format!("geomorph's table: {e}")))?;
+    Ok(table.encode_for(heights.finish()))
 }
 
 /// Completes a store in `dir` whose block files (bake id 0) and entries, every row of the
@@ -504,7 +595,7 @@ pub(crate) fn finish(
     baked: BakedRows,
     start: Instant,
 ) -> Result<BakeReport, BakeError> {
-    let BakedRows { mut header, entries, lossless, bound } = baked;
+    let BakedRows { mut header, entries, lossless, bound, geomip } = baked;
     debug_assert_eq!(entries.len(), header.block_count());
     let mut id = 0xcbf2_9ce4_8422_2325u64;
     for e in &entries {
@@ -523,6 +614,15 @@ pub(crate) fn finish(
     })?;
     header.bake_id = id;
     header.error_bound_m = bound.unwrap_or(if lossless { 0.0 } else { header.max_error_m });
+    let geomip_bytes = match geomip {
+        Some((tables, heights)) => {
+            let bytes = stack_geomip(tables, &heights)?;
+            let path = dir.join(GEOMIP_FILE);
+            fs::write(&path, &bytes).map_err(io_err(&path))?;
+            Some(bytes.len() as u64)
+        }
+        None => None,
+    };
     let index = write_index(&header, &entries);
     let path = dir.join(INDEX_FILE);
     fs::write(&path, &index).map_err(io_err(&path))?;
@@ -534,6 +634,7 @@ pub(crate) fn finish(
         source_samples,
         elapsed: start.elapsed(),
         lossless,
+        geomip_bytes,
     })
 }
 

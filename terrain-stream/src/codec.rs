@@ -19,12 +19,31 @@
 //! | Puget 4k | 16.91 MB, 137 MB/s | 4.88 MB, 465 MB/s | 2.60 MB, 116 MB/s |
 //! | N42E001 .hgt | 1.69 MB, 129 MB/s | 2.09 MB, 329 MB/s | 1.09 MB, 94 MB/s |
 //!
+//! (Those figures are for the former Deflate level 6; see below for the levels now used.)
+//!
 //! Predictive + Deflate is the smallest everywhere (1.3-1.9x smaller than deflate alone,
 //! 1.2-6.5x smaller than the varints alone), and the disk bytes are what an out-of-core
 //! runtime waits on; decoding runs on the worker threads at 70-85% of the varint decoder's
 //! speed (about 2 ms for the finest level of a 257^2 block, against 1.5 ms), so it is the
 //! default. Deflate alone decodes 1.5-3.5x faster: the varint decoder, not inflation, is the
 //! slow part, and the place to optimise if decoding ever shows in the frame budget.
+//!
+//! **Deflate levels (the bake's cost).** Level 6 took a quarter of a bake's CPU. Every level
+//! writes a raw Deflate stream that the same inflater reads, so the level is not part of the
+//! format (stores of either level read alike). Re-packing the varints of real stores' payloads
+//! at each miniz level (release, one thread; packed bytes / varint bytes, MB/s of varints):
+//!
+//! | varints of | level 1 | level 2 | level 3 | level 6 |
+//! |---|---|---|---|---|
+//! | synthetic 8193^2 (200 blocks, 20.8 MB) | 0.865, 29.2 MB/s | 0.874, 5.7 | 0.874, 5.0 | 0.874, 3.7 |
+//! | Puget 4k (13.2 MB) | 0.230, 62.6 MB/s | 0.181, 26.6 | 0.166, 14.3 | 0.155, 3.5 |
+//! | N42E001 .hgt (1.7 MB) | 0.630, 32.9 MB/s | 0.650, 12.4 | 0.651, 12.8 | 0.649, 15.0 |
+//!
+//! Level 1 (miniz's greedy compressor) is 4-8x faster than level 6 and as small or smaller on
+//! rough terrain; on smooth terrain (runs of zero residuals) it is 1.5x larger. So a payload
+//! is packed at level 1, and packed again at level 3 where level 1 left under half of the
+//! varints (smooth terrain: 1.07x level 6's bytes at a quarter of its time); the smaller is
+//! kept. Deterministic, like every choice of the codec.
 
 use crate::format::{Codec, for_each_level_vertex, level_len, vertex_index};
 
@@ -36,8 +55,14 @@ const TAG_I32: u8 = 1;
 const TAG_PREDICTIVE: u8 = 2;
 /// Payload tag: predictive zig-zag varints, deflated (raw Deflate stream).
 const TAG_PREDICTIVE_DEFLATE: u8 = 3;
-/// Deflate effort (miniz level 6, zlib's default).
-const DEFLATE_LEVEL: u8 = 6;
+/// Deflate effort first tried: miniz level 1 (its greedy one-probe compressor). See the module
+/// docs for the measurement behind the two levels.
+const DEFLATE_FAST: u8 = 1;
+/// Deflate effort for varints that level 1 packs below [`SMOOTH_RATIO`] of their size (smooth
+/// terrain, long runs of zero residuals, where more effort still pays in disk bytes).
+const DEFLATE_SMOOTH: u8 = 3;
+/// Packed / varint size under which a payload is packed again at [`DEFLATE_SMOOTH`].
+const SMOOTH_RATIO: f64 = 0.5;
 /// Bytes of one varint at most (a 64-bit zig-zag value).
 const MAX_VARINT: usize = 10;
 
@@ -96,7 +121,14 @@ pub(crate) fn encode_level(
             put_varint(&mut out, zigzag(v - p));
         });
         if codec == Codec::PredictiveDeflate {
-            let packed = miniz_oxide::deflate::compress_to_vec(&out[1..], DEFLATE_LEVEL);
+            let varints = &out[1..];
+            let mut packed = miniz_oxide::deflate::compress_to_vec(varints, DEFLATE_FAST);
+            if (packed.len() as f64) < SMOOTH_RATIO * varints.len() as f64 {
+                let smooth = miniz_oxide::deflate::compress_to_vec(varints, DEFLATE_SMOOTH);
+                if smooth.len() < packed.len() {
+                    packed = smooth;
+                }
+            }
             if packed.len() + 1 < out.len() {
                 let mut d = Vec::with_capacity(packed.len() + 1);
                 d.push(TAG_PREDICTIVE_DEFLATE);

@@ -100,8 +100,8 @@ mod terrain;
 mod workers;
 
 pub use bake::{
-    BakeConfig, BakeProgress, BakeReport, HeightEncoding, STREAM_ABOVE_SAMPLES, bake, bake_file,
-    check_output,
+    BakeConfig, BakeProgress, BakeReport, GEOMIP_FILE, HeightEncoding, STREAM_ABOVE_SAMPLES, bake,
+    bake_file, check_output,
 };
 pub use error::{BakeError, StoreError};
 pub use format::{

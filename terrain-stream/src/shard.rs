@@ -25,7 +25,13 @@ use std::time::{Duration, Instant};
 
 use rayon::prelude::*;
 
-use crate::bake::{BakeConfig, BakeProgress, BakeReport, BakedRows, Plan, bake_rows, publish};
+use terrain_core::lod::GeomipTable;
+use terrain_core::lod::dss_file::{HEIGHTS_CHECKSUM_BYTES, HeightsChecksum};
+use terrain_core::lod::geomip_file::GeomipFor;
+
+use crate::bake::{
+    BakeConfig, BakeProgress, BakeReport, BakedRows, GEOMIP_FILE, Plan, bake_rows, publish,
+};
 use crate::error::BakeError;
 use crate::format::{
     BLOCK_HEADER_LEN, BlockEntry, Header, IndexError, Reader, Writer, block_file_name, crc32,
@@ -36,7 +42,7 @@ use crate::source::HeightSource;
 /// Name of the part file inside a part folder.
 pub const PART_FILE: &str = "part.tsp";
 const PART_MAGIC: [u8; 8] = *b"TSTRPRT\0";
-const PART_VERSION: u32 = 1;
+const PART_VERSION: u32 = 2;
 
 /// Shard `index` of `count` (`index` counts from 0, as a Kubernetes Indexed Job's
 /// `JOB_COMPLETION_INDEX` does). Written and parsed as `K/N`.
@@ -89,12 +95,16 @@ impl FromStr for Shard {
 /// bytes (not `threads` nor `overwrite`).
 pub fn bake_options(config: &BakeConfig) -> String {
     format!(
-        "k {}, {:?}, {:?}, {} node levels, DSS errors {}",
+        "k {}, {:?}, {:?}, {} node levels, DSS errors {}, geomorph table {}",
         config.k,
         config.encoding,
         config.codec,
         config.node_levels,
-        if config.dss_errors { "on" } else { "off" }
+        if config.dss_errors { "on" } else { "off" },
+        match config.geomip_patch_cells {
+            Some(p) => format!("of {}-cell patches", GeomipTable::patch_cells_for(p)),
+            None => "off".into(),
+        }
     )
 }
 
@@ -131,6 +141,9 @@ pub struct PartInfo {
     lossless: bool,
     bound: Option<f64>,
     entries: Vec<BlockEntry>,
+    /// Geomorph's table of the part's rows: its patch cells and the rows' heights checksum
+    /// (the table itself is the part's [`GEOMIP_FILE`], of the part's rows as a grid).
+    geomip: Option<(u32, HeightsChecksum)>,
 }
 
 impl PartInfo {
@@ -156,10 +169,22 @@ pub fn bake_shard(
     let plan = Plan::new(source, config)?;
     let rows = shard.rows(plan.blocks_y);
     publish(part, config.overwrite, config.threads, is_part, |tmp| {
-        let baked = bake_rows(source, tmp, &plan, config, rows.clone(), progress)?;
+        let mut baked = bake_rows(source, tmp, &plan, config, rows.clone(), progress)?;
         let bytes = baked.entries.iter().map(|e| e.file_len).sum();
         let blocks = baked.entries.len();
-        let file = write_part(shard, &rows, source_id, &bake_options(config), &baked);
+        // Geomorph's table of the shard's rows, as a grid of their own.
+        let geomip = match (baked.geomip.take(), plan.geomip) {
+            (Some((tables, heights)), Some(p)) => {
+                if !tables.is_empty() {
+                    let bytes = crate::bake::stack_geomip(tables, &HeightsChecksum::new())?;
+                    let path = tmp.join(GEOMIP_FILE);
+                    fs::write(&path, bytes).map_err(|cause| BakeError::Io { path, cause })?;
+                }
+                Some((p, heights))
+            }
+            _ => None,
+        };
+        let file = write_part(shard, &rows, source_id, &bake_options(config), &baked, &geomip);
         let path = tmp.join(PART_FILE);
         fs::write(&path, file).map_err(|cause| BakeError::Io { path, cause })?;
         Ok(ShardReport { shard, rows: rows.clone(), blocks, bytes, elapsed: start.elapsed() })
@@ -206,6 +231,7 @@ fn write_part(
     source_id: &str,
     options: &str,
     baked: &BakedRows,
+    geomip: &Option<(u32, HeightsChecksum)>,
 ) -> Vec<u8> {
     let mut w = Writer::default();
     w.bytes(&PART_MAGIC);
@@ -225,6 +251,11 @@ fn write_part(
     w.u64(baked.entries.len() as u64);
     for e in &baked.entries {
         write_entry(&mut w, e);
+    }
+    w.u8(geomip.is_some() as u8);
+    if let Some((p, heights)) = geomip {
+        w.u32(*p);
+        w.bytes(&heights.to_bytes());
     }
     let crc = crc32(&w.buf);
     w.u32(crc);
@@ -280,6 +311,15 @@ pub fn read_part(part: &Path) -> Result<PartInfo, BakeError> {
             .map(|i| read_entry(r, &header, header.block_at(first + i), fine))
             .collect::<Result<Vec<_>, _>>()
             .map_err(index_error)?;
+        let geomip = match r.u8()? {
+            0 => None,
+            _ => {
+                let p = r.u32()?;
+                let state: &[u8; HEIGHTS_CHECKSUM_BYTES] =
+                    r.take(HEIGHTS_CHECKSUM_BYTES)?.try_into().map_err(|_| "checksum state")?;
+                Some((p, HeightsChecksum::from_bytes(state)))
+            }
+        };
         if r.remaining() != 0 {
             return Err(format!("{} bytes after the last entry", r.remaining()));
         }
@@ -293,6 +333,7 @@ pub fn read_part(part: &Path) -> Result<PartInfo, BakeError> {
             lossless,
             bound,
             entries,
+            geomip,
         })
     };
     parse(&mut r).map_err(|m| bad(format!("{PART_FILE}: {m}")))
@@ -345,6 +386,7 @@ pub fn merge(
             entries: Vec::with_capacity(total),
             lossless: true,
             bound: first.bound,
+            geomip: geomip_of(&infos)?,
         };
         for part in &infos {
             copy_blocks(part, tmp)?;
@@ -362,6 +404,40 @@ pub fn merge(
         }
         crate::bake::finish(tmp, all, start)
     })
+}
+
+/// Geomorph's table of the whole grid from the parts (sorted by shard): each part's table of
+/// its rows and the checksum of its rows' heights, joined; `None` unless every part has them
+/// (a part whose rows had a band without a valid sample has none, and then neither has the
+/// single bake).
+fn geomip_of(infos: &[PartInfo]) -> Result<Option<(Vec<GeomipTable>, HeightsChecksum)>, BakeError> {
+    let mut tables = Vec::new();
+    let mut heights = HeightsChecksum::new();
+    for part in infos {
+        let Some((p, sum)) = &part.geomip else {
+            return Ok(None);
+        };
+        heights.append(sum);
+        if part.rows.is_empty() {
+            continue;
+        }
+        let h = &part.header;
+        let cells = 1u64 << h.k;
+        let (y0, y1) = (part.rows.start * cells, (part.rows.end * cells).min(h.height - 1));
+        let path = part.path.join(GEOMIP_FILE);
+        let bad = |reason: String| BakeError::BadPart { path: part.path.clone(), reason };
+        let bytes = fs::read(&path).map_err(|cause| BakeError::Io { path: path.clone(), cause })?;
+        let want = GeomipFor {
+            width: h.width as u32,
+            height: (y1 - y0 + 1) as u32,
+            patch_cells: *p,
+            heights_crc: None,
+        };
+        let table = GeomipTable::decode(&bytes, &want)
+            .map_err(|e| bad(format!("{GEOMIP_FILE}: {e}; bake shard {} again", part.shard)))?;
+        tables.push(table);
+    }
+    Ok(Some((tables, heights)))
 }
 
 /// Checks that `infos` are every shard of one bake, once, and sorts them by shard.

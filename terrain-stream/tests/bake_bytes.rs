@@ -1,11 +1,13 @@
 //! The bake's output does not depend on how its rows arrive: a grid baked from rows generated
 //! band by band (the synthetic source), from the same grid in memory, and from a raw f32 file
 //! read by bands of rows (heights and void flags in one read), with one thread or several, gives
-//! the same store, every file byte for byte. A negative control (one sample changed) shows the
-//! comparison sees a difference.
+//! the same store, every file byte for byte (geomorph's table, computed from the same bands,
+//! included). A negative control (one sample changed) shows the comparison sees a difference.
 //!
 //! A sharded bake (`bake_shard` K/N, then `merge`) is the same store too, for N = 1..5, on a
-//! generated grid and one with voids (a negative control: one shard of a changed grid shows);
+//! generated grid and one with voids (a negative control: one shard of a changed grid shows),
+//! and its geomorph table, computed by the shards from their rows and stacked by the merge, is
+//! the in-memory table of the whole grid, byte for byte;
 //! a merge refuses missing, duplicated, foreign and damaged parts by name; a shard that died
 //! is baked again alone, the other parts untouched.
 
@@ -48,7 +50,7 @@ fn files(dir: &Path) -> BTreeMap<String, Vec<u8>> {
 
 fn bake_dir(source: &dyn HeightSource, name: &str, threads: usize) -> PathBuf {
     let out = scratch(name);
-    let cfg = BakeConfig { k: 6, threads, ..BakeConfig::default() };
+    let cfg = BakeConfig { k: 6, threads, geomip_patch_cells: Some(16), ..BakeConfig::default() };
     bake(source, &out, &cfg, &mut |_| ControlFlow::Continue(())).unwrap();
     out
 }
@@ -117,7 +119,7 @@ fn a_bake_is_the_same_bytes_whatever_way_its_rows_arrive() {
 const SHARD_SOURCE: &str = "test grid";
 
 fn cfg() -> BakeConfig {
-    BakeConfig { k: 6, threads: 2, ..BakeConfig::default() }
+    BakeConfig { k: 6, threads: 2, geomip_patch_cells: Some(16), ..BakeConfig::default() }
 }
 
 /// Bakes shards `which` of `n` into `dir/pK`, returning their folders.
@@ -161,10 +163,16 @@ fn grid_with_voids() -> Heightmap {
 fn a_merged_store_is_the_bytes_of_a_single_bake() {
     let synth = FractalConfig::with_size(301, 203, 10.0);
     let voids = grid_with_voids();
-    let sources: [(&str, &dyn HeightSource); 2] = [("generated", &synth), ("voids", &voids)];
-    for (name, source) in sources {
+    let hm = synth.to_heightmap().unwrap();
+    let sources: [(&str, &dyn HeightSource, &Heightmap); 2] =
+        [("generated", &synth, &hm), ("voids", &voids, &voids)];
+    for (name, source, grid) in sources {
         let single = scratch(&format!("single-{name}"));
         bake(source, &single, &cfg(), &mut |_| ControlFlow::Continue(())).unwrap();
+        // Geomorph's table from the bake's bands is the whole grid's, computed in memory.
+        let table = std::fs::read(single.join(terrain_stream::GEOMIP_FILE)).unwrap();
+        let whole = terrain_core::lod::GeomipTable::new(grid, 16).encode(grid);
+        assert!(table == whole, "{name}: geomip.bin is not the in-memory table");
         // 4 block rows: N = 4 is one row a shard, N = 5 leaves a shard empty.
         for n in 1..=5u32 {
             let dir = scratch(&format!("shards-{name}-{n}"));

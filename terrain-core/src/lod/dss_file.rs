@@ -61,11 +61,15 @@ pub fn heights_checksum(hm: &Heightmap) -> u32 {
 #[derive(Debug, Clone, Default)]
 pub struct HeightsChecksum {
     heights: u32,
+    height_bytes: u64,
     voids: u32,
     void_bytes: u64,
     any_void: bool,
     buf: Vec<u8>,
 }
+
+/// Bytes of [`HeightsChecksum::to_bytes`].
+pub const HEIGHTS_CHECKSUM_BYTES: usize = 4 + 8 + 4 + 8 + 1;
 
 impl HeightsChecksum {
     /// An empty checksum.
@@ -78,6 +82,7 @@ impl HeightsChecksum {
         self.buf.clear();
         self.buf.extend(row.iter().flat_map(|z| z.to_bits().to_le_bytes()));
         self.heights = crc32_update(self.heights, &self.buf);
+        self.height_bytes += self.buf.len() as u64;
     }
 
     /// Adds the next row's void flags (every row's, or none at all: a grid without voids may
@@ -88,6 +93,45 @@ impl HeightsChecksum {
         self.any_void |= row.iter().any(|&v| v);
         self.voids = crc32_update(self.voids, &self.buf);
         self.void_bytes += row.len() as u64;
+    }
+
+    /// Appends `next`, the checksum of the rows that follow this one's (a sharded bake joins
+    /// its shards' checksums, south first, with [`crate::checksum::crc32_combine`]): the result
+    /// is the checksum of all the rows added to either. Both must hold void flags for every
+    /// row or for none.
+    pub fn append(&mut self, next: &HeightsChecksum) {
+        self.heights = crc32_combine(self.heights, next.heights, next.height_bytes);
+        self.height_bytes += next.height_bytes;
+        self.voids = crc32_combine(self.voids, next.voids, next.void_bytes);
+        self.void_bytes += next.void_bytes;
+        self.any_void |= next.any_void;
+    }
+
+    /// The running state as bytes (a shard's part records it for the merge's [`append`]).
+    ///
+    /// [`append`]: HeightsChecksum::append
+    pub fn to_bytes(&self) -> [u8; HEIGHTS_CHECKSUM_BYTES] {
+        let mut out = [0u8; HEIGHTS_CHECKSUM_BYTES];
+        out[..4].copy_from_slice(&self.heights.to_le_bytes());
+        out[4..12].copy_from_slice(&self.height_bytes.to_le_bytes());
+        out[12..16].copy_from_slice(&self.voids.to_le_bytes());
+        out[16..24].copy_from_slice(&self.void_bytes.to_le_bytes());
+        out[24] = u8::from(self.any_void);
+        out
+    }
+
+    /// The state [`HeightsChecksum::to_bytes`] wrote.
+    pub fn from_bytes(b: &[u8; HEIGHTS_CHECKSUM_BYTES]) -> Self {
+        let u32_at = |o: usize| u32::from_le_bytes(b[o..o + 4].try_into().expect("4 bytes"));
+        let u64_at = |o: usize| u64::from_le_bytes(b[o..o + 8].try_into().expect("8 bytes"));
+        Self {
+            heights: u32_at(0),
+            height_bytes: u64_at(4),
+            voids: u32_at(12),
+            void_bytes: u64_at(16),
+            any_void: b[24] != 0,
+            buf: Vec::new(),
+        }
     }
 
     /// The checksum: the heights' bytes, followed by the void flags when any sample is void.
@@ -243,6 +287,35 @@ mod tests {
 
     fn terrain(w: u64, h: u64) -> Heightmap {
         FractalConfig::with_size(w, h, 10.0).to_heightmap().unwrap()
+    }
+
+    #[test]
+    fn checksums_of_consecutive_rows_appended_are_the_whole_grids() {
+        let w = 37;
+        let rows: Vec<Vec<f32>> =
+            (0..11).map(|j| (0..w).map(|i| (i * 7 + j * 13) as f32 * 0.25).collect()).collect();
+        for with_voids in [false, true] {
+            let voids = |j: usize| -> Vec<bool> { (0..w).map(|i| with_voids && i == j).collect() };
+            let sum = |range: std::ops::Range<usize>| {
+                let mut c = HeightsChecksum::new();
+                for j in range {
+                    c.add_heights(&rows[j]);
+                    c.add_voids(&voids(j));
+                }
+                c
+            };
+            let whole = sum(0..11).finish();
+            for split in [0, 1, 5, 11] {
+                let mut a = sum(0..split);
+                let b = HeightsChecksum::from_bytes(&sum(split..11).to_bytes());
+                a.append(&b);
+                assert_eq!(a.finish(), whole, "split at {split}, voids {with_voids}");
+            }
+            // Negative control: rows appended in the wrong order.
+            let mut b = sum(5..11);
+            b.append(&sum(0..5));
+            assert_ne!(b.finish(), whole);
+        }
     }
 
     fn all_nodes(t: &DssErrorTable, qt: &Quadtree) -> Vec<u64> {

@@ -264,6 +264,50 @@ impl GeomipTable {
         Ok(Self::from_parts((width, height, p), errors, heights, vertices))
     }
 
+    /// The table of a grid from the tables of its bands of rows, south first: `parts[b]` is
+    /// the table of grid rows `y_b ..= y_b + h_b - 1` as a grid of its own (the rows of
+    /// its patches: a patch reads only its own samples, so its entries are the whole grid's),
+    /// where each band but the last spans whole rows of patches and shares its top row with
+    /// the next band. Equal to the table of the whole grid (a bake's block rows, or a
+    /// sharded bake's shards, computed apart). The error says which part does not fit.
+    pub fn stack(parts: Vec<GeomipTable>) -> Result<Self, String> {
+        let Some(first) = parts.first() else {
+            return Err("no band to stack".into());
+        };
+        let (width, p) = (first.width, first.patch_cells);
+        let mut height = 1u32;
+        let last = parts.len() - 1;
+        for (b, t) in parts.iter().enumerate() {
+            if (t.width, t.patch_cells) != (width, p) {
+                return Err(format!(
+                    "band {b}: {} samples wide in {}-cell patches, the first band {width} in {p}",
+                    t.width, t.patch_cells
+                ));
+            }
+            let cells = t.height.saturating_sub(1);
+            if (cells == 0 && last > 0) || (b < last && !cells.is_multiple_of(p)) {
+                return Err(format!(
+                    "band {b}: {} rows are not whole rows of {p}-cell patches",
+                    t.height
+                ));
+            }
+            height += cells;
+        }
+        let (mut errors, mut heights, mut vertices) = (Vec::new(), Vec::new(), Vec::new());
+        for t in parts {
+            errors.extend(t.errors);
+            heights.extend(t.heights);
+            vertices.extend(t.vertices);
+        }
+        Ok(Self::from_parts((width, height, p), errors, heights, vertices))
+    }
+
+    /// The patch size a table asked for `patch_cells` has: rounded to a power of two in
+    /// `2..=64`.
+    pub fn patch_cells_for(patch_cells: u32) -> u32 {
+        clamp_patch_cells(patch_cells)
+    }
+
     /// Cells per patch side (a power of two).
     pub fn patch_cells(&self) -> u32 {
         self.patch_cells
@@ -724,6 +768,53 @@ mod tests {
     fn camera(hm: &Heightmap, x: f64, y: f64, z: f64) -> Camera {
         let p = hm.grid_to_world(x, y).extend(z);
         Camera::from_yaw_pitch(p, 45.0, -30.0).with_viewport(1280.0, 720.0)
+    }
+
+    /// Rows `y0..y0 + rows` of `hm` as a grid of their own (with their voids).
+    fn rows_of(hm: &Heightmap, y0: usize, rows: usize) -> Heightmap {
+        let w = hm.width();
+        let data = hm.data()[y0 * w..(y0 + rows) * w].to_vec();
+        let mut voids = crate::heightmap::VoidMask::new(w, rows);
+        for j in 0..rows {
+            for i in 0..w {
+                voids.set(i, j, hm.voids().get(i, y0 + j));
+            }
+        }
+        Heightmap::new(w, rows, data, voids, hm.georef().clone()).unwrap()
+    }
+
+    #[test]
+    fn the_tables_of_bands_stacked_are_the_whole_grids_table() {
+        // 97 x 75 samples: the last band is not whole patches; some voids.
+        let mut hm = FractalConfig::with_size(97, 75, 10.0).to_heightmap().unwrap();
+        let (w, h, data, mut voids, g) = hm.clone().into_parts();
+        for i in 20..30 {
+            voids.set(i, 40, true);
+        }
+        hm = Heightmap::new(w, h, data, voids, g).unwrap();
+        let whole = GeomipTable::new(&hm, 8);
+        for band in [8usize, 16, 32, 64] {
+            let mut parts = Vec::new();
+            let mut y0 = 0;
+            while y0 + 1 < h {
+                let rows = (band + 1).min(h - y0);
+                parts.push(GeomipTable::new(&rows_of(&hm, y0, rows), 8));
+                y0 += band;
+            }
+            assert_eq!(GeomipTable::stack(parts).unwrap(), whole, "bands of {band} rows");
+        }
+        // Negative control: a band whose rows are not whole patches is refused, and a band of
+        // other heights gives another table.
+        let parts = vec![
+            GeomipTable::new(&rows_of(&hm, 0, 13), 8),
+            GeomipTable::new(&rows_of(&hm, 12, 63), 8),
+        ];
+        assert!(GeomipTable::stack(parts).unwrap_err().contains("band 0"));
+        let parts = vec![
+            GeomipTable::new(&rows_of(&hm, 0, 33), 8),
+            GeomipTable::new(&rows_of(&hm, 0, 43), 8),
+        ];
+        assert_ne!(GeomipTable::stack(parts).unwrap(), whole);
     }
 
     #[test]
