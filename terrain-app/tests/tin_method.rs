@@ -191,6 +191,22 @@ fn no_crack_with_stitches_and_cracks_without() {
                 skirts(&scene, p, &tiles, &mut extra);
                 frames.push((camera, patches, extra));
             }
+            if stitch {
+                // What each way of hiding cracks costs over these views: stitches against
+                // skirts (two triangles per border segment of every drawn tile).
+                let (mut tiles_t, mut stitches, mut skirts_t) = (0, 0, 0);
+                for camera in &cameras {
+                    let sel = p.select(&camera.with_viewport(128.0, 72.0), scene.config.tin.tau_px);
+                    let s = p.surface(&scene.hm, &sel.tiles, true);
+                    tiles_t += s.tile_triangles;
+                    stitches += s.stitch_triangles;
+                    skirts_t += 2 * s.border_segments;
+                }
+                println!(
+                    "{name}: {tiles_t} tile triangles; stitches {stitches}, skirts would be {skirts_t}"
+                );
+                assert!(stitches < skirts_t);
+            }
             let refs: Vec<_> = frames.iter().map(|(c, p, e)| (*c, p.as_slice(), e)).collect();
             let cracks = crack_pixels_with_extra(&ctx, &scene.hm, &refs, (128, 72));
             println!("{name}: stitches {stitch}: crack pixels {cracks:?}");
