@@ -94,12 +94,12 @@ pub fn simplify_profile(heights: &[f32], voids: &[bool], bound: f64) -> Vec<usiz
     while let Some((a, b)) = spans.pop() {
         let (za, zb) = (f64::from(heights[a]), f64::from(heights[b]));
         let mut worst = (limit, None);
-        for k in a + 1..b {
+        for (k, &z) in heights.iter().enumerate().take(b).skip(a + 1) {
             if voids.get(k).copied().unwrap_or(false) {
                 continue;
             }
             let t = (k - a) as f64 / (b - a) as f64;
-            let e = (f64::from(heights[k]) - (za + t * (zb - za))).abs();
+            let e = (f64::from(z) - (za + t * (zb - za))).abs();
             if e > worst.0 {
                 worst = (e, Some(k));
             }
