@@ -30,6 +30,11 @@
 //!   [`MethodScene::select`] returns an empty selection for it; [`crate::method::OocMethod`]
 //!   drives it.
 //!
+//! - `tin`: our own method, an error-bounded TIN pyramid on the grid's quadtree
+//!   (`terrain_core::tin::grid`, [`crate::method::TinMethod`]): a triangle mesh like
+//!   `entropy`; [`MethodScene::select`] gives its tiles as patches (what the measurement
+//!   counts as covered).
+//!
 //! Every method behind one per-frame interface (what `render`, `fly` and `bench` call) is
 //! [`crate::method::Method`]; this module is what the in-memory methods precompute and select.
 
@@ -50,6 +55,7 @@ use terrain_core::lod::{
     select_dss_strips, select_dss_uniform, select_pvps, select_pvps_with_cull,
 };
 use terrain_core::quadtree::{FrustumCull, NodeTree, Quadtree, SplitToLevel, select};
+use terrain_core::tin::grid::GridTinPyramid;
 use terrain_gpu::render::{DrawPatch, ExtraTriangles};
 use terrain_gpu::strips::{self, StripMesh};
 use terrain_gpu::tess::{PatchFactors, tessellate};
@@ -99,11 +105,14 @@ pub enum LodMethod {
     #[value(name = "ooc")]
     #[serde(rename = "ooc")]
     OutOfCore,
+    /// Our own method: an error-bounded TIN pyramid on the grid's quadtree, tiles chosen by
+    /// Cesium's screen-space error against --tau-px (`terrain_core::tin::grid`).
+    Tin,
 }
 
 impl LodMethod {
     /// Every method, in a fixed order (the benchmark's).
-    pub const ALL: [LodMethod; 12] = [
+    pub const ALL: [LodMethod; 13] = [
         LodMethod::Uniform,
         LodMethod::PvpsA,
         LodMethod::PvpsB,
@@ -116,6 +125,7 @@ impl LodMethod {
         LodMethod::PvpsCConservative,
         LodMethod::DssStrips,
         LodMethod::OutOfCore,
+        LodMethod::Tin,
     ];
 
     /// The CLI and report name.
@@ -133,6 +143,7 @@ impl LodMethod {
             LodMethod::PvpsCConservative => "pvps-c-cons",
             LodMethod::DssStrips => "dss-strips",
             LodMethod::OutOfCore => "ooc",
+            LodMethod::Tin => "tin",
         }
     }
 
@@ -171,6 +182,8 @@ pub struct MethodConfig {
     /// `ooc`: the out-of-core runtime's settings (Eq. 7's tau, cache and page budgets), read
     /// when the method is built over a store ([`crate::method::registry::build`]).
     pub ooc: crate::ooc::OocConfig,
+    /// `tin`: its screen-space error threshold and pyramid.
+    pub tin: crate::method::TinConfig,
 }
 
 impl Default for MethodConfig {
@@ -190,6 +203,7 @@ impl Default for MethodConfig {
             pvs: PvsConfig { cells: (16, 16), patch_level: 5, ..PvsConfig::default() },
             strip_half_width_cells: 1,
             ooc: crate::ooc::OocConfig::default(),
+            tin: crate::method::TinConfig::default(),
         }
     }
 }
@@ -215,6 +229,8 @@ pub struct MethodScene {
     geomorph_lib: OnceLock<MeshLibrary>,
     /// The sampled (0) and conservative (1) PVS; `None` inside: no occlusion culling.
     pvs: [OnceLock<Option<Pvs>>; 2],
+    /// The `tin` method's pyramid (or why it could not be built).
+    tin: OnceLock<Result<GridTinPyramid, String>>,
     /// The settings.
     pub config: MethodConfig,
 }
@@ -237,6 +253,7 @@ impl MethodScene {
             geomip: OnceLock::new(),
             geomorph_lib: OnceLock::new(),
             pvs: Default::default(),
+            tin: OnceLock::new(),
             config,
         }
     }
@@ -288,6 +305,16 @@ impl MethodScene {
     /// The entropy paper's full quadtree, built on first use.
     pub fn entropy_scene(&self) -> &EntropyScene {
         self.entropy.get_or_init(|| EntropyScene::new(&self.hm, &self.config.entropy))
+    }
+
+    /// The `tin` method's pyramid, built on every core on first use (with
+    /// `config.tin.pyramid` as it is then).
+    pub fn tin_pyramid(&self) -> anyhow::Result<&GridTinPyramid> {
+        let built = self.tin.get_or_init(|| {
+            crate::method::build_tin_pyramid(&self.hm, &self.config.tin.pyramid)
+                .map_err(|e| e.to_string())
+        });
+        built.as_ref().map_err(|e| anyhow::anyhow!("the TIN pyramid: {e}"))
     }
 
     /// The PVS of mode `k` (0 sampled, 1 conservative): the one given to
@@ -360,6 +387,10 @@ impl MethodScene {
                     self.roughness(2);
                     self.pvs(usize::from(*m == LodMethod::PvpsCConservative));
                 }
+                LodMethod::Tin => {
+                    // A failure is reported when the method is built.
+                    let _ = self.tin_pyramid();
+                }
                 LodMethod::Uniform | LodMethod::OutOfCore => {}
             }
         }
@@ -404,6 +435,11 @@ impl MethodScene {
             LodMethod::DssStrips => self.frame(method, camera).selection,
             // Stateful: crate::ooc::OocScene draws it (see the module docs).
             LodMethod::OutOfCore => Selection::default(),
+            // A mesh; its tiles as patches (nothing without a pyramid).
+            LodMethod::Tin => match self.tin_pyramid() {
+                Ok(p) => crate::method::tin_selection(&p.select(camera, self.config.tin.tau_px)),
+                Err(_) => Selection::default(),
+            },
         }
     }
 

@@ -5,6 +5,7 @@
 //! for why that reference, not a full-resolution render). Skips with a printed reason only when
 //! no adapter exists and `TERRAIN_REQUIRE_GPU` is unset.
 
+use terrain_app::method::registry::draws_mesh;
 use terrain_app::methods::{LodMethod, MethodConfig, MethodScene};
 use terrain_core::Heightmap;
 use terrain_core::dem::{self, LoadOptions};
@@ -62,13 +63,14 @@ fn no_method_draws_a_crack(name: &str, hm: Heightmap) {
         let cameras = crack_cameras(&scene.hm, leaf_cells as usize + 1);
         assert!(cameras.len() >= 20);
         // dss-strips draws extra triangles and shares no patch edges: tests/tests/dss_strips.rs.
-        // entropy draws a triangle mesh, not patches: its watertightness is tested in
+        // entropy and tin draw a triangle mesh, not patches: tin in terrain-app/tests/tin_method.rs;
+        // entropy's watertightness is tested in
         // terrain-visibility/tests/entropy.rs and terrain-app/tests/entropy_method.rs.
         // `ooc` draws from a store through its own runtime (terrain_app::ooc); its cracks are
         // tested in terrain-app/tests/ooc_render.rs.
         let patch_methods = LodMethod::ALL
             .into_iter()
-            .filter(|&m| !m.has_strips() && m != LodMethod::Entropy && m != LodMethod::OutOfCore);
+            .filter(|&m| !m.has_strips() && !draws_mesh(m) && m != LodMethod::OutOfCore);
         for method in patch_methods {
             let mut levels = std::collections::BTreeSet::new();
             let mut patches_per_camera = Vec::new();

@@ -70,7 +70,7 @@ impl Method for EntropyMethod<'_> {
     }
 }
 
-/// A triangle mesh in grid coordinates (the entropy method's) as the renderer's extra
+/// A triangle mesh in grid coordinates (the entropy and tin methods') as the renderer's extra
 /// triangles: every vertex is a domain point of one carrier patch spanning the whole grid,
 /// whose factors are 0 so that the tessellator emits nothing for it (a patch with an outer
 /// factor `<= 0` is culled). The vertex stage maps `(u, v)` to `x0 + u (x1 - x0)`, so a vertex

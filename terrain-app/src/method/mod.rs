@@ -27,6 +27,7 @@ mod ooc;
 pub mod registry;
 mod renderer;
 mod store;
+mod tin;
 
 use terrain_core::geometry::Camera;
 use terrain_core::lod::{GeomipSelection, Selection, SurfaceMesh};
@@ -40,6 +41,7 @@ pub use ooc::{OocMethod, OocWait};
 pub use registry::{MethodOptions, build};
 pub use renderer::{DrawSource, DrawStats, FrameRenderer, RendererKind, Uploads};
 pub use store::{StoreMethod, draws_from_store, store_method};
+pub use tin::{TinConfig, TinMethod, build_pyramid as build_tin_pyramid, tin_selection};
 
 use crate::methods::LodMethod;
 use crate::ooc::{OocFrame, StreamRecord};

@@ -7,7 +7,7 @@
 
 use std::sync::Arc;
 
-use super::{EntropyMethod, GeomorphMethod, MemoryMethod, Method, OocMethod, OocWait};
+use super::{EntropyMethod, GeomorphMethod, MemoryMethod, Method, OocMethod, OocWait, TinMethod};
 use crate::methods::{LodMethod, MethodConfig, MethodScene};
 use crate::ooc::OocScene;
 use terrain_stream::{DEFAULT_SPLIT, SplitRule};
@@ -44,6 +44,7 @@ pub fn build<'a>(
 ) -> anyhow::Result<Box<dyn Method + 'a>> {
     Ok(match kind {
         LodMethod::Entropy => Box::new(EntropyMethod::new(scene)),
+        LodMethod::Tin => Box::new(TinMethod::new(scene)?),
         LodMethod::Geomorph if options.morph => Box::new(GeomorphMethod::new(scene)),
         LodMethod::OutOfCore => {
             let Some(store) = &options.store else { anyhow::bail!("{OOC_NEEDS_STORE}") };
@@ -52,6 +53,12 @@ pub fn build<'a>(
         }
         _ => Box::new(MemoryMethod::new(scene, kind)),
     })
+}
+
+/// Whether `kind` draws a triangle mesh of its own (as the renderer's extra triangles over a
+/// carrier patch), not tessellated patches: `entropy` and `tin`.
+pub fn draws_mesh(kind: LodMethod) -> bool {
+    matches!(kind, LodMethod::Entropy | LodMethod::Tin)
 }
 
 /// Whether `kind` draws from a baked store ([`MethodOptions::store`]).
@@ -86,6 +93,8 @@ pub fn sweep_values(method: LodMethod, leaf_cells: u32) -> (&'static str, Vec<f6
         }
         // Qiu 2013 Eq. 7 threshold, pixels (the paper's figures use 2).
         LodMethod::OutOfCore => ("tau", vec![0.5, 1.0, 2.0, 4.0, 8.0]),
+        // Cesium's screen-space error threshold, pixels.
+        LodMethod::Tin => ("tau_px", vec![0.5, 1.0, 2.0, 4.0, 8.0]),
     }
 }
 
@@ -99,6 +108,7 @@ pub fn apply_parameter(config: &mut MethodConfig, method: LodMethod, value: f64)
         LodMethod::Geomorph => config.geomip.pixel_threshold = value,
         LodMethod::PvpsCPvs | LodMethod::PvpsCConservative => config.pvps.c1 = value,
         LodMethod::OutOfCore => config.ooc.tau = value,
+        LodMethod::Tin => config.tin.tau_px = value,
     }
 }
 
@@ -113,6 +123,7 @@ pub fn parameter(config: &MethodConfig, method: LodMethod) -> f64 {
         LodMethod::Geomorph => config.geomip.pixel_threshold,
         LodMethod::PvpsCPvs | LodMethod::PvpsCConservative => config.pvps.c1,
         LodMethod::OutOfCore => config.ooc.tau,
+        LodMethod::Tin => config.tin.tau_px,
     }
 }
 
@@ -126,6 +137,7 @@ pub fn parameter_is_pixels(method: LodMethod) -> bool {
             | LodMethod::DssStrips
             | LodMethod::Geomorph
             | LodMethod::OutOfCore
+            | LodMethod::Tin
     )
 }
 
@@ -149,6 +161,13 @@ pub fn note(method: LodMethod) -> Option<&'static str> {
              it needs are resident (warm), so its error is the selection's; sampled frames are \
              then further apart than the flight's frame rate, so Eq. 8's speed is overestimated.",
         ),
+        LodMethod::Tin => Some(
+            "tin: tiles of an error-bounded TIN pyramid (greedy Delaunay per tile, verified), \
+             chosen by Cesium's screen-space error; a triangle mesh (tiles and the stitches \
+             where levels meet, the stitches without plan area) measured on the CPU and drawn \
+             as the renderer's extra triangles (uploaded every frame); its selection time is \
+             the traversal, its tessellation time the joining of the tiles and stitches.",
+        ),
         _ => None,
     }
 }
@@ -169,6 +188,7 @@ pub fn colour(m: LodMethod) -> &'static str {
         LodMethod::PvpsCConservative => "#17becf",
         LodMethod::DssStrips => "#393b79",
         LodMethod::OutOfCore => "#6b8e23",
+        LodMethod::Tin => "#b8860b",
     }
 }
 
@@ -195,7 +215,7 @@ pub fn marker(m: LodMethod) -> Marker {
         LodMethod::Uniform => Marker::Square,
         LodMethod::PvpsA | LodMethod::Geomorph => Marker::Triangle,
         LodMethod::PvpsB | LodMethod::DssStrips => Marker::Diamond,
-        LodMethod::PvpsC => Marker::Circle,
+        LodMethod::PvpsC | LodMethod::Tin => Marker::Circle,
         LodMethod::Dss1 | LodMethod::OutOfCore => Marker::TriangleDown,
         LodMethod::Dss2 | LodMethod::Entropy => Marker::Ring,
         LodMethod::PvpsCPvs | LodMethod::PvpsCConservative => Marker::Square,
@@ -348,6 +368,11 @@ impl std::fmt::Display for ErrorPxParams {
 ///   with its length; measured (Puget Sound 1k, methods A and C, `C3` 5-160): p99 =
 ///   [`PVPS_P99_AT_SEGMENT_1PX`] `s ^` [`PVPS_P99_EXPONENT`]; inverted for `s`, then
 ///   `C3 = H / (2 C4 s)` (Algorithm 1's `Constant = C3 C4` with it).
+/// - `tin` (`tau_px`): Cesium's screen-space error `e_L lambda / d` of each drawn tile is at
+///   most `tau_px`, and it bounds the projected error of every sample of the tile (its
+///   error is at most `e_L`, its distance at least `d`), so `tau_px` bounds the largest
+///   pixel error and the measured p99 lies below it: `tau_px` is the target over the
+///   largest measured p99 per pixel of `tau_px` ([`TIN_P99_PER_TAU`]).
 /// - `uniform` (factor) and `entropy` (`E0`): no model links the parameter to a screen error
 ///   (a uniform factor's error depends on how near the terrain is; Eq. 5's `E0` is an entropy
 ///   threshold): measured calibrations, [`UNIFORM_P99_PER_CELL_PX`] pixels of p99 per cell of
@@ -386,6 +411,8 @@ pub fn params_for_error_px(method: LodMethod, error_px: f64, view: ErrorView) ->
             ("factor", (leaf / cells).clamp(2.0, leaf), ErrorPxBasis::Calibrated)
         }
         LodMethod::Entropy => ("E0", entropy_e0(reference_px), ErrorPxBasis::Calibrated),
+        // Cesium's SSE is in the camera's own pixels (lambda of the view): no scaling.
+        LodMethod::Tin => ("tau_px", px / TIN_P99_PER_TAU, ErrorPxBasis::Calibrated),
     };
     ErrorPxParams { method, error_px: px, parameter, value, basis }
 }
@@ -405,6 +432,12 @@ pub fn ooc_p99_per_tau(split: SplitRule) -> f64 {
         SplitRule::Cost => OOC_P99_PER_TAU_COST,
     }
 }
+
+/// `tin`: the measured p99 (pixels) per pixel of Cesium's SSE threshold `tau_px` (see
+/// [`params_for_error_px`]): the largest median p99 over `tau_px` of `terrain bench
+/// --methods tin --error-px 0.5,1,2,4` (then `tau_px` = target) on `flights/pvps_884.json`
+/// (6 frames) over Puget Sound 1k: 0.64, 0.57, 0.43, 0.35 (README, "The `tin` method").
+pub const TIN_P99_PER_TAU: f64 = 0.64;
 
 /// [`ooc_p99_per_tau`] under Eq. 7 alone.
 const OOC_P99_PER_TAU_EQ7: f64 = 0.81;

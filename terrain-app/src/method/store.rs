@@ -51,7 +51,7 @@ use crate::ooc::{OocScene, StoreDraw};
 
 /// Which methods draw from a store.
 pub fn draws_from_store(kind: LodMethod) -> bool {
-    kind != LodMethod::Entropy
+    !super::registry::draws_mesh(kind)
 }
 
 /// `kind` over the store of `scene` (its runtime), with `config`'s parameters; measured

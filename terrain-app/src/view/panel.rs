@@ -50,7 +50,7 @@ fn lod_legend(ui: &mut egui::Ui, kind: LodMethod) {
         for (c, name) in LOD_PALETTE {
             swatch(ui, c, name);
         }
-        if kind == LodMethod::Entropy {
+        if terrain_app::method::registry::draws_mesh(kind) {
             swatch(ui, LOD_NO_PATCH, "a mesh, no patches");
         }
     });

@@ -17,6 +17,10 @@
 //!   the mesh refines; the heap adds `O(log n)` per candidate. This is G&H's
 //!   `O((m + n) log m)` expected behaviour, not `O(n^2)`.
 //!
+//! [`build_seeded`] starts from given samples besides the corners and may lock the grid's
+//! border (its samples are never inserted by the greedy loop): the TIN pyramids
+//! ([`crate::tin::tile`]) fix each tile's border vertices that way, so neighbours agree.
+//!
 //! Points are inserted in grid coordinates (integers in f64, exact for spade's robust
 //! predicates); world positions are applied when the mesh is assembled.
 
@@ -67,13 +71,16 @@ fn grid_of(p: Point2<f64>) -> [i64; 2] {
     [p.x as i64, p.y as i64]
 }
 
-/// Scans face `face` and returns its candidate if its worst sample exceeds `max_error`.
+/// Scans face `face` and returns its candidate if its worst sample exceeds `max_error`
+/// (samples on the grid's border skipped when `lock_border`).
 fn candidate(
     hm: &Heightmap,
     tin: &Tin,
     face: FixedFaceHandle<InnerTag>,
     max_error: f64,
+    lock_border: bool,
 ) -> Option<Candidate> {
+    let (w, h) = (hm.width() as i64, hm.height() as i64);
     let f = tin.face(face);
     let vs = f.vertices();
     let g = vs.map(|v| grid_of(v.position()));
@@ -81,6 +88,9 @@ fn candidate(
     let voids = hm.voids().any().then(|| hm.voids());
     let mut best = (max_error, None);
     raster::for_each_sample(g, z, |i, j, zi| {
+        if lock_border && (i == 0 || j == 0 || i == w - 1 || j == h - 1) {
+            return;
+        }
         let (i, j) = (i as usize, j as usize);
         if voids.is_some_and(|m| m.get(i, j)) {
             return;
@@ -99,17 +109,39 @@ fn candidate(
 /// # Panics
 /// On a grid smaller than 2 x 2 or a negative or NaN bound; [`crate::mesh::build`] checks both.
 pub fn build(hm: &Heightmap, max_error: f64) -> TriMesh {
+    build_seeded(hm, max_error, &[], false)
+}
+
+/// [`build`] starting from the grid's corners and `seeds` (grid samples `[i, j]`, inserted in
+/// order; outside the grid they are skipped); with `lock_border`, samples on the grid's
+/// border are never candidates, so the border's vertices are the corners and the seeds on
+/// it. The bound then holds on the border only if the seeds there keep it (the caller's
+/// verification checks it).
+///
+/// # Panics
+/// As [`build`].
+pub fn build_seeded(
+    hm: &Heightmap,
+    max_error: f64,
+    seeds: &[[u32; 2]],
+    lock_border: bool,
+) -> TriMesh {
     assert!(max_error >= 0.0, "max_error must be >= 0, got {max_error}");
     let (w, h) = (hm.width(), hm.height());
     assert!(w >= 2 && h >= 2, "a mesh needs at least 2 x 2 samples");
     let mut tin = Tin::new();
-    for (i, j) in [(0, 0), (w - 1, 0), (w - 1, h - 1), (0, h - 1)] {
-        tin.insert(Point2::new(i as f64, j as f64)).expect("grid coordinates are finite");
+    let corners =
+        [[0, 0], [w - 1, 0], [w - 1, h - 1], [0, h - 1]].map(|[i, j]| [i as u32, j as u32]);
+    for [i, j] in corners.iter().chain(seeds) {
+        if (*i as usize) < w && (*j as usize) < h {
+            tin.insert(Point2::new(f64::from(*i), f64::from(*j)))
+                .expect("grid coordinates are finite");
+        }
     }
     let mut heap = BinaryHeap::new();
     let faces: Vec<_> = tin.fixed_inner_faces().collect();
     for f in faces {
-        heap.extend(candidate(hm, &tin, f, max_error));
+        heap.extend(candidate(hm, &tin, f, max_error, lock_border));
     }
     while let Some(c) = heap.pop() {
         // Entries only exist above the bound; a stale one belongs to a destroyed triangle.
@@ -126,7 +158,7 @@ pub fn build(hm: &Heightmap, max_error: f64) -> TriMesh {
             .map(|f| f.fix())
             .collect();
         for f in star {
-            heap.extend(candidate(hm, &tin, f, max_error));
+            heap.extend(candidate(hm, &tin, f, max_error, lock_border));
         }
     }
     let vertices: Vec<[u32; 2]> = tin

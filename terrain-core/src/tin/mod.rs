@@ -13,9 +13,9 @@
 //!
 //! **One tile** ([`build_tile`]): the DEM samples that cover the tile's rectangle (the samples
 //! inside it and one more on each side, where the DEM has them) are meshed by greedy Delaunay
-//! insertion ([`crate::mesh::delaunay`], Garland & Heckbert 1995) within `e_L`, the mesh is
-//! verified against every non-void sample of that sub-grid ([`crate::mesh::verify::check`])
-//! and then clipped to the tile's rectangle (Sutherland & Hodgman 1974, polygon clipping
+//! insertion within `e_L` and verified against every non-void sample of that sub-grid by the
+//! one tile mesher both pyramids share ([`tile::mesh_window`]; the grid-space pyramid of the
+//! `tin` LOD method is [`grid`]), and then clipped to the tile's rectangle (Sutherland & Hodgman 1974, polygon clipping
 //! against each border line in turn). Clipping keeps the surface, so every non-void DEM
 //! sample inside the tile is within `e_L` of the tile's surface. Where the tile extends beyond
 //! the DEM, the rest of its rectangle is filled at height 0 (the ellipsoid, as
@@ -30,15 +30,17 @@
 //! **Voids.** Void samples are not measured (the DEM readers fill them for the surface, and the
 //! builder and the check skip them); the tile's surface over a void is that fill's.
 
+pub mod grid;
 pub mod quantized_mesh;
+pub mod tile;
 pub mod warp;
 
 use glam::{DVec2, DVec3, dvec2};
 
 use crate::georef::AngularOrLinear;
-use crate::heightmap::{Heightmap, VoidMask};
-use crate::mesh::verify::{self, ErrorStats, VerifyError};
-use crate::mesh::{self, MeshError};
+use crate::heightmap::Heightmap;
+use crate::mesh::MeshError;
+use crate::mesh::verify::{ErrorStats, VerifyError};
 
 /// The geometric error CesiumJS assumes for a level-0 quantized-mesh tile, metres:
 /// `TerrainProvider.getEstimatedLevelZeroGeometricErrorForAHeightmap` with the WGS84 radius,
@@ -180,6 +182,16 @@ pub enum TinError {
         /// Why.
         source: MeshError,
     },
+    /// The tile is not in the grid's quadtree (grid-space pyramid).
+    #[error("tile {level}/{x}/{y} holds no cell of the grid")]
+    OutsideGrid {
+        /// Level.
+        level: u32,
+        /// Column.
+        x: u32,
+        /// Row.
+        y: u32,
+    },
     /// The tile's mesh failed its check against the DEM (a bug: the mesher guarantees it).
     #[error("tile {level}/{x}/{y} failed its check against the DEM: {source}")]
     Verify {
@@ -192,6 +204,16 @@ pub enum TinError {
         /// Why.
         source: VerifyError,
     },
+}
+
+impl TinError {
+    /// The error of tile `level/x/y` from the tile mesher's.
+    pub fn from_tile(e: tile::TileError, level: u32, x: u32, y: u32) -> Self {
+        match e {
+            tile::TileError::Mesh(source) => TinError::Mesh { level, x, y, source },
+            tile::TileError::Verify(source) => TinError::Verify { level, x, y, source },
+        }
+    }
 }
 
 /// A grid in longitude/latitude degrees: the input of the pyramid.
@@ -305,34 +327,11 @@ struct Rect {
     y1: f64,
 }
 
-/// The part of `hm` from sample `(i0, j0)` to `(i1, j1)` (inclusive), with a local georeference
-/// of one metre per sample, so its world coordinates are its grid coordinates.
+/// The part of `hm` from sample `(i0, j0)` to `(i1, j1)` (inclusive) as a [`tile::window`].
 fn crop(hm: &Heightmap, i0: usize, j0: usize, i1: usize, j1: usize) -> Heightmap {
-    let (w, h) = (i1 - i0 + 1, j1 - j0 + 1);
-    let mut data = Vec::with_capacity(w * h);
-    let mut voids = VoidMask::new(w, h);
-    for j in 0..h {
-        let row = (j0 + j) * hm.width() + i0;
-        data.extend_from_slice(&hm.data()[row..row + w]);
-        for i in 0..w {
-            if hm.voids().get(i0 + i, j0 + j) {
-                voids.set(i, j, true);
-                // A void may hold anything; the mesh's vertices need a finite height.
-                let z = &mut data[j * w + i];
-                if !z.is_finite() {
-                    *z = 0.0;
-                }
-            }
-        }
-    }
-    // Every sample void: they hold the readers' fill, and none can be measured; the crop is
-    // taken as it is then (the fill is what the surface shows).
-    if voids.count() == w * h {
-        voids = VoidMask::new(w, h);
-    }
-    // The parts come from a valid heightmap: the same sizes, finite non-void samples.
-    Heightmap::new(w, h, data, voids, crate::Georef::local(1.0))
-        .unwrap_or_else(|e| unreachable!("a crop of a valid heightmap: {e}"))
+    tile::window(i1 - i0 + 1, j1 - j0 + 1, |i, j| {
+        (hm.get(i0 + i, j0 + j), hm.voids().get(i0 + i, j0 + j))
+    })
 }
 
 /// Vertices of the output, deduplicated by exact position.
@@ -403,15 +402,8 @@ pub fn build_tile(grid: &GeoGrid<'_>, tile: TileId, bound: f64) -> Result<TileMe
         let (i0, j0) = (p.x0.floor() as usize, p.y0.floor() as usize);
         let (i1, j1) = (p.x1.ceil() as usize, p.y1.ceil() as usize);
         let sub = crop(hm, i0, j0, i1, j1);
-        let at = |source| TinError::Mesh { level: tile.level, x: tile.x, y: tile.y, source };
-        mesh::validate(&sub, bound).map_err(at)?;
-        let m = mesh::delaunay::build(&sub, bound);
-        let stats = verify::check(&sub, &m, bound).map_err(|source| TinError::Verify {
-            level: tile.level,
-            x: tile.x,
-            y: tile.y,
-            source,
-        })?;
+        let (m, stats) = tile::mesh_window(&sub, bound, tile::Borders::Free)
+            .map_err(|e| TinError::from_tile(e, tile.level, tile.x, tile.y))?;
         measured = Some(stats);
         let off = DVec3::new(i0 as f64, j0 as f64, 0.0);
         for t in &m.triangles {

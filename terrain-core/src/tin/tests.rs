@@ -5,6 +5,7 @@ use glam::{DVec2, Vec3, dvec2};
 use super::quantized_mesh::{self as qm, QmError};
 use super::*;
 use crate::georef::{Crs, Georef};
+use crate::heightmap::VoidMask;
 use crate::test_support::unit_rng;
 
 /// A bumpy geographic grid (3 arc-seconds) whose origin is on no tile border, with a few voids.

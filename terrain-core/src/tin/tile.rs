@@ -1,0 +1,208 @@
+//! The one tile mesher of both TIN pyramids: the geographic one of `terrain tiles`
+//! ([`super::build_tile`]) and the grid-space one of the `tin` LOD method ([`super::grid`]).
+//!
+//! A tile is a window of DEM samples ([`window`]: any source fills it through a closure, a
+//! heightmap in memory or a store's blocks), meshed by greedy Delaunay insertion
+//! ([`crate::mesh::delaunay`], Garland & Heckbert 1995) within the tile's bound and verified
+//! against every non-void sample of the window ([`crate::mesh::verify::check`]) before it is
+//! returned ([`mesh_window`]).
+//!
+//! **Borders.** With [`Borders::Free`] the greedy insertion picks border samples like any
+//! other (the geographic tiles: their cracks are hidden by skirts). With
+//! [`Borders::Simplified`] each side's vertices are fixed first by a top-down simplification
+//! of the side's height profile alone ([`simplify_profile`]: Douglas & Peucker 1973 with the
+//! vertical error, split at the worst sample until every sample is within the bound), and the
+//! greedy loop never inserts another border sample: two tiles of the same bound that share a
+//! side compute the same profile from the same samples, so they share their border vertices
+//! exactly (no crack between them).
+
+use crate::Georef;
+use crate::heightmap::{Heightmap, VoidMask};
+use crate::mesh::verify::{self, ErrorStats, VerifyError};
+use crate::mesh::{self, MeshError, TriMesh};
+
+/// How a tile's border vertices are chosen.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Borders {
+    /// By the greedy insertion, like interior samples.
+    Free,
+    /// By [`simplify_profile`] of each side alone, then locked.
+    Simplified,
+}
+
+/// Why a tile could not be meshed.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[non_exhaustive]
+pub enum TileError {
+    /// The mesher refused the window or the bound.
+    #[error(transparent)]
+    Mesh(#[from] MeshError),
+    /// The mesh failed its check against the window's samples.
+    #[error(transparent)]
+    Verify(#[from] VerifyError),
+}
+
+/// A window of `width x height` samples, sample `(i, j)` being `sample(i, j)` = `(height,
+/// void)`, with a local georeference of one metre per sample (so its world coordinates are
+/// its grid coordinates). A void sample may hold anything (a non-finite height is replaced by
+/// 0: the mesh's vertices need finite heights); a window of only void samples is taken as it
+/// is, unmasked (the fill is what the surface shows, and nothing can be measured).
+pub fn window(
+    width: usize,
+    height: usize,
+    mut sample: impl FnMut(usize, usize) -> (f32, bool),
+) -> Heightmap {
+    let mut data = Vec::with_capacity(width * height);
+    let mut voids = VoidMask::new(width, height);
+    for j in 0..height {
+        for i in 0..width {
+            let (mut z, void) = sample(i, j);
+            if void {
+                voids.set(i, j, true);
+                if !z.is_finite() {
+                    z = 0.0;
+                }
+            }
+            data.push(if z.is_finite() { z } else { 0.0 });
+        }
+    }
+    if voids.count() == width * height {
+        voids = VoidMask::new(width, height);
+    }
+    // Same sizes, finite heights.
+    Heightmap::new(width, height, data, voids, Georef::local(1.0))
+        .unwrap_or_else(|e| unreachable!("a window of finite samples: {e}"))
+}
+
+/// The samples of a height profile to keep so that linear interpolation between consecutive
+/// kept samples is within `bound` of every non-void sample: indices in increasing order, the
+/// first and last always kept. Top-down: split a span at its worst sample while that sample
+/// is more than `bound` off (Douglas & Peucker 1973, vertical error). The result depends on
+/// the profile and the bound only. A small margin (`bound x 1e-6`) keeps the bound through
+/// the meshes' own interpolation, which rounds differently; a bound under `1e-6` m keeps every
+/// sample.
+pub fn simplify_profile(heights: &[f32], voids: &[bool], bound: f64) -> Vec<usize> {
+    let n = heights.len();
+    if n <= 2 || bound < 1e-6 {
+        return (0..n).collect();
+    }
+    let limit = bound * (1.0 - 1e-6);
+    let mut keep = vec![false; n];
+    keep[0] = true;
+    keep[n - 1] = true;
+    let mut spans = vec![(0usize, n - 1)];
+    while let Some((a, b)) = spans.pop() {
+        let (za, zb) = (f64::from(heights[a]), f64::from(heights[b]));
+        let mut worst = (limit, None);
+        for (k, &z) in heights.iter().enumerate().take(b).skip(a + 1) {
+            if voids.get(k).copied().unwrap_or(false) {
+                continue;
+            }
+            let t = (k - a) as f64 / (b - a) as f64;
+            let e = (f64::from(z) - (za + t * (zb - za))).abs();
+            if e > worst.0 {
+                worst = (e, Some(k));
+            }
+        }
+        if let Some(k) = worst.1 {
+            keep[k] = true;
+            spans.push((a, k));
+            spans.push((k, b));
+        }
+    }
+    (0..n).filter(|&k| keep[k]).collect()
+}
+
+/// The border seeds of `sub` under [`Borders::Simplified`]: each side's kept samples.
+fn border_seeds(sub: &Heightmap, bound: f64) -> Vec<[u32; 2]> {
+    let (w, h) = (sub.width(), sub.height());
+    let voids = sub.voids();
+    let mut seeds = Vec::new();
+    for j in [0, h - 1] {
+        let z: Vec<f32> = (0..w).map(|i| sub.get(i, j)).collect();
+        let v: Vec<bool> = (0..w).map(|i| voids.get(i, j)).collect();
+        seeds.extend(simplify_profile(&z, &v, bound).into_iter().map(|i| [i as u32, j as u32]));
+    }
+    for i in [0, w - 1] {
+        let z: Vec<f32> = (0..h).map(|j| sub.get(i, j)).collect();
+        let v: Vec<bool> = (0..h).map(|j| voids.get(i, j)).collect();
+        seeds.extend(simplify_profile(&z, &v, bound).into_iter().map(|j| [i as u32, j as u32]));
+    }
+    seeds
+}
+
+/// Meshes `sub` (a [`window`]) within `bound` metres of every non-void sample and verifies
+/// it: the mesh in the window's grid coordinates (x, y) with the samples' heights, and the
+/// measured error.
+pub fn mesh_window(
+    sub: &Heightmap,
+    bound: f64,
+    borders: Borders,
+) -> Result<(TriMesh, ErrorStats), TileError> {
+    mesh::validate(sub, bound)?;
+    let m = match borders {
+        Borders::Free => mesh::delaunay::build(sub, bound),
+        Borders::Simplified => {
+            mesh::delaunay::build_seeded(sub, bound, &border_seeds(sub, bound), true)
+        }
+    };
+    let stats = verify::check(sub, &m, bound)?;
+    Ok((m, stats))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The profile keeps what the bound needs, and only that on a polyline of known corners.
+    #[test]
+    fn a_profile_keeps_its_corners_only() {
+        // A tent: 0 at both ends, 10 in the middle, straight in between.
+        let z: Vec<f32> = (0..21).map(|k| 10.0 - (k as f32 - 10.0).abs()).collect();
+        let none = vec![false; z.len()];
+        assert_eq!(simplify_profile(&z, &none, 0.5), vec![0, 10, 20]);
+        // A bound above the tent's height keeps only the ends.
+        assert_eq!(simplify_profile(&z, &none, 10.5), vec![0, 20]);
+        // A void apex is not measured.
+        let mut v = none.clone();
+        v[10] = true;
+        let kept = simplify_profile(&z, &v, 0.5);
+        assert!(!kept.contains(&10) && kept.len() == 4, "{kept:?}");
+    }
+
+    /// Two windows sharing a side get the same vertices on it, and the bound holds.
+    #[test]
+    fn neighbours_share_their_side() {
+        let f = |i: usize, j: usize| {
+            let (x, y) = (i as f64, j as f64);
+            ((x * 0.37).sin() * 20.0 + (y * 0.23).cos() * 15.0 + (x * y * 0.01).sin() * 5.0) as f32
+        };
+        let left = window(33, 33, |i, j| (f(i, j), false));
+        let right = window(33, 33, |i, j| (f(i + 32, j), false));
+        for bound in [0.5, 2.0, 8.0] {
+            let (a, sa) = mesh_window(&left, bound, Borders::Simplified).unwrap();
+            let (b, sb) = mesh_window(&right, bound, Borders::Simplified).unwrap();
+            assert!(sa.max_error <= bound && sb.max_error <= bound);
+            let mut east: Vec<i64> =
+                a.positions.iter().filter(|p| p.x == 32.0).map(|p| p.y as i64).collect();
+            let mut west: Vec<i64> =
+                b.positions.iter().filter(|p| p.x == 0.0).map(|p| p.y as i64).collect();
+            east.sort_unstable();
+            west.sort_unstable();
+            assert_eq!(east, west, "bound {bound}");
+            assert!(east.len() > 2, "the side needs vertices besides its corners at {bound}");
+            // Free borders (the negative control) do not agree.
+            let (a, _) = mesh_window(&left, bound, Borders::Free).unwrap();
+            let (b, _) = mesh_window(&right, bound, Borders::Free).unwrap();
+            let mut east: Vec<i64> =
+                a.positions.iter().filter(|p| p.x == 32.0).map(|p| p.y as i64).collect();
+            let mut west: Vec<i64> =
+                b.positions.iter().filter(|p| p.x == 0.0).map(|p| p.y as i64).collect();
+            east.sort_unstable();
+            west.sort_unstable();
+            if bound == 0.5 {
+                assert_ne!(east, west, "free borders happen to agree");
+            }
+        }
+    }
+}
