@@ -15,11 +15,11 @@ use terrain_core::Heightmap;
 use terrain_core::heightmap::VoidMask;
 use terrain_stream::{BlockId, BlockLevels, Store};
 
-/// A window of samples: `width` x `height` heights (row-major, south row first) and voids.
+/// A window of samples: `width` x (`data.len() / width`) heights (row-major, south row first)
+/// and voids.
 #[derive(Debug, Clone)]
 pub(crate) struct Window {
     pub width: usize,
-    pub height: usize,
     pub data: Vec<f32>,
     /// `None`: no void in the window.
     pub voids: Option<VoidMask>,
@@ -77,7 +77,7 @@ impl Samples for HeightmapSamples<'_> {
             }
             m
         });
-        Ok(Window { width, height, data, voids })
+        Ok(Window { width, data, voids })
     }
 }
 
@@ -243,7 +243,7 @@ impl Samples for StoreSamples {
                 }
             }
         }
-        Ok(Window { width, height, data, voids: None })
+        Ok(Window { width, data, voids: None })
     }
 }
 
