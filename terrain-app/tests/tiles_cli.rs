@@ -199,10 +199,11 @@ fn tileset_bytes(dir: &Path) -> Vec<(PathBuf, Vec<u8>)> {
 
 #[test]
 fn a_store_gives_the_tileset_of_its_dem_in_memory_within_its_cache() {
-    // SRTM N52E008: 1201^2 int16 samples in degrees without voids, baked losslessly.
+    // SRTM N52E008: 1201^2 int16 samples in degrees, baked losslessly. It has a few voids: the
+    // store holds the reader's fill there, the DEM in memory the same fill under a void mask
+    // (which only keeps them out of the meshes' checks); the tiles come out the same here.
     let src = data("srtm/N52E008.hgt");
     let hm = dem::load(&src, &LoadOptions::default()).unwrap().heightmap;
-    assert!(!hm.voids().any(), "the comparison needs a DEM without voids (a store fills them)");
     let dir = common::scratch("tiles-cli", "store");
     let store = dir.join("store");
     let s = |p: &Path| p.to_str().unwrap().to_string();
