@@ -50,7 +50,7 @@ fn samples_inside(layout: &GridLayout, tile: TileId) -> Option<[usize; 4]> {
     let j0 = (a.y - 1e-9).ceil().max(0.0);
     let i1 = (b.x + 1e-9).floor().min(w);
     let j1 = (b.y + 1e-9).floor().min(h);
-    (i0 <= i1 && j0 <= j1).then(|| [i0 as usize, j0 as usize, i1 as usize, j1 as usize])
+    (i0 <= i1 && j0 <= j1).then_some([i0 as usize, j0 as usize, i1 as usize, j1 as usize])
 }
 
 /// The stride (log2) a tile is meshed at: the smallest `s` with at most `max_cells` cells
