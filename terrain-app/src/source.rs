@@ -255,7 +255,7 @@ fn plain(x: f64) -> String {
 }
 
 /// Parses `--max-memory`: bytes, or a number with a binary unit (KiB, MiB, GiB, TiB).
-fn parse_memory(s: &str) -> Result<u64, String> {
+pub(crate) fn parse_memory(s: &str) -> Result<u64, String> {
     let t = s.trim();
     let split = t.find(|c: char| !(c.is_ascii_digit() || c == '.')).unwrap_or(t.len());
     let (num, unit) = t.split_at(split);

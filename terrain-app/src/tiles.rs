@@ -10,6 +10,17 @@
 //! DEM without a georeference (images, raw grids) is placed with `--lonlat` (the position of
 //! its south-west sample) and `--spacing`, or refused: tiles must sit somewhere on the Earth,
 //! and users of such files know where their terrain is while no default would be right.
+//!
+//! A baked store (`terrain bake`) is read tile by tile ([`samples::StoreSamples`]: each tile's
+//! samples at the stride its level needs, from the store's levels, through a byte-budgeted
+//! cache, `--cache`), so a DEM of any size is tiled in bounded memory; a store without a
+//! georeference is placed with `--lonlat` as a bare heightmap is, a projected store is refused
+//! (reprojection resamples the whole grid: tile its DEM, or bake a geographic one). Every
+//! source goes through the same per-tile path ([`build`]), so a losslessly baked store gives
+//! the tileset its DEM gives in memory.
+
+mod build;
+mod samples;
 
 use std::path::PathBuf;
 use std::sync::Mutex;
@@ -21,12 +32,14 @@ use clap::Args;
 use glam::dvec2;
 use rayon::prelude::*;
 use serde::Serialize;
-use terrain_core::tin::{self, GeoGrid, TileId, TileRange, quantized_mesh, warp};
+use terrain_core::tin::{self, GridLayout, TileId, TileMesh, TileRange, quantized_mesh, warp};
 use terrain_core::{Crs, Heightmap};
 
 use terrain_app::progress::Progress;
 
-use crate::source::SourceArgs;
+use crate::source::{SourceArgs, parse_memory};
+use build::ResolutionConfig;
+use samples::{HeightmapSamples, Samples, StoreSamples};
 
 /// Deepest `--max-level` accepted (tiles of about 5 m at the equator).
 const MAX_LEVEL: u32 = 22;
@@ -57,6 +70,10 @@ pub(crate) struct TilesArgs {
     /// spacing is --spacing metres.
     #[arg(long, allow_hyphen_values = true)]
     pub lonlat: Option<String>,
+    /// For a baked store: most memory its decoded blocks may take (bytes, or a number with
+    /// KiB, MiB, GiB or TiB); the tiles' memory is bounded by it, not by the DEM.
+    #[arg(long, default_value = "512MiB", value_parser = parse_memory)]
+    pub cache: u64,
     /// No progress line.
     #[arg(long)]
     pub quiet: bool,
@@ -93,6 +110,13 @@ struct Summary {
     build_s: f64,
     threads: usize,
     levels: Vec<LevelStats>,
+    /// Decimated tiles (meshed from every 2^s-th sample, then checked against every sample)
+    /// and how many of them were built again one stride finer after failing that check.
+    decimated_tiles: usize,
+    rebuilt_tiles: usize,
+    /// For a store: the most bytes of decoded blocks resident at once, and block levels decoded.
+    cache_peak_bytes: Option<u64>,
+    block_levels_decoded: Option<u64>,
 }
 
 fn parse_lonlat(s: &str) -> anyhow::Result<glam::DVec2> {
@@ -134,19 +158,91 @@ fn geographic(args: &TilesArgs, hm: Heightmap) -> anyhow::Result<(Heightmap, Opt
     }
 }
 
-/// Runs `terrain tiles`.
-pub(crate) fn run(args: &TilesArgs) -> anyhow::Result<()> {
-    if !(args.error_scale.is_finite() && args.error_scale > 0.0) {
-        bail!("--error-scale must be a positive number, got {}", args.error_scale);
+/// Where the heights come from: a DEM in memory or a store read by windows.
+enum Source {
+    Memory(Heightmap),
+    Store(Box<StoreSamples>),
+}
+
+/// Opens the input: a store folder (read by windows) or DEM file(s) (loaded, put on
+/// longitude/latitude): its layout, name, size as given and the CRS it was reprojected from.
+fn open(args: &TilesArgs) -> anyhow::Result<(Source, GridLayout, String, Option<String>)> {
+    if let [one] = args.source.dem.as_slice()
+        && terrain_stream::is_store(one)
+    {
+        args.source.refuse_reading_options("a baked store (its heights are stored)")?;
+        let store = terrain_stream::Store::open(one)
+            .with_context(|| format!("opening the store {}", one.display()))?;
+        let h = store.header();
+        let size = (h.width as usize, h.height as usize);
+        let georef = match (&h.georef.crs, &args.lonlat) {
+            (Crs::Unknown, None) => bail!(
+                "the store has no georeference, so its tiles cannot be placed on the Earth: give \
+                 --lonlat LON,LAT (its south-west sample)"
+            ),
+            (Crs::Unknown, Some(s)) => warp::place_georef(&h.georef, size, parse_lonlat(s)?)?,
+            (crs, Some(_)) => bail!(
+                "--lonlat places a store without a georeference; this one is georeferenced ({crs})"
+            ),
+            (_, None) if h.georef.units == terrain_core::georef::AngularOrLinear::Degrees => {
+                h.georef.clone()
+            }
+            (crs, None) => bail!(
+                "the store is in {crs}, a projected CRS: tiles from a store need one in degrees \
+                 (reprojecting resamples the whole grid in memory); give `terrain tiles` its DEM \
+                 file, or bake a store from a DEM in longitude/latitude"
+            ),
+        };
+        let layout = GridLayout::new(size.0, size.1, &georef)?;
+        let name = one.display().to_string();
+        return Ok((
+            Source::Store(Box::new(StoreSamples::new(store, args.cache))),
+            layout,
+            name,
+            None,
+        ));
     }
     let (hm, name) = match args.source.load_surface()? {
         Some(dem) => (dem.heightmap, dem.source.path.display().to_string()),
         None => (terrain_core::synth::default_terrain(), "the embedded synthetic terrain".into()),
     };
-    let (width, height) = (hm.width(), hm.height());
     let (hm, reprojected_from) = geographic(args, hm)?;
-    let grid = GeoGrid::new(&hm)?;
-    let max_level = args.max_level.unwrap_or_else(|| grid.native_level(64.0));
+    let layout = GridLayout::new(hm.width(), hm.height(), hm.georef())?;
+    Ok((Source::Memory(hm), layout, name, reprojected_from))
+}
+
+/// Position of a tile on a Morton (Z-order) curve at `level` (its south-west corner): tiles
+/// near each other in it read the same blocks, so the cache serves them.
+fn morton(tile: TileId, level: u32) -> u64 {
+    let shift = level.saturating_sub(tile.level);
+    let (x, y) = (u64::from(tile.x) << shift, u64::from(tile.y) << shift);
+    let spread = |mut v: u64| {
+        v &= 0xffff_ffff;
+        v = (v | (v << 16)) & 0x0000_ffff_0000_ffff;
+        v = (v | (v << 8)) & 0x00ff_00ff_00ff_00ff;
+        v = (v | (v << 4)) & 0x0f0f_0f0f_0f0f_0f0f;
+        v = (v | (v << 2)) & 0x3333_3333_3333_3333;
+        (v | (v << 1)) & 0x5555_5555_5555_5555
+    };
+    spread(x) | (spread(y) << 1)
+}
+
+/// Runs `terrain tiles`.
+pub(crate) fn run(args: &TilesArgs) -> anyhow::Result<()> {
+    if !(args.error_scale.is_finite() && args.error_scale > 0.0) {
+        bail!("--error-scale must be a positive number, got {}", args.error_scale);
+    }
+    let (source, layout, name, reprojected_from) = open(args)?;
+    let samples: &dyn Samples = match &source {
+        Source::Memory(hm) => &HeightmapSamples(hm),
+        Source::Store(s) => s.as_ref(),
+    };
+    let region = match &source {
+        Source::Memory(_) => 256,
+        Source::Store(s) => s.block_cells(),
+    };
+    let (width, height) = samples.size();
+    let max_level = args.max_level.unwrap_or_else(|| layout.native_level(64.0));
     if max_level > MAX_LEVEL || args.min_level > max_level {
         bail!(
             "levels {}..={max_level}: need --min-level <= --max-level <= {MAX_LEVEL}",
@@ -158,11 +254,17 @@ pub(crate) fn run(args: &TilesArgs) -> anyhow::Result<()> {
         if level == 0 {
             TileRange { start_x: 0, start_y: 0, end_x: 1, end_y: 0 }
         } else {
-            grid.tile_range(level)
+            layout.tile_range(level)
         }
     };
-    let tiles: Vec<TileId> =
-        levels.clone().flat_map(|l| range(l).tiles(l).collect::<Vec<_>>()).collect();
+    let resolution = ResolutionConfig::default();
+    let mut tiles: Vec<(TileId, u32)> = levels
+        .clone()
+        .flat_map(|l| range(l).tiles(l).collect::<Vec<_>>())
+        .map(|t| (t, build::stride_log2(&layout, t, &resolution)))
+        .collect();
+    tiles.sort_by_key(|&(t, _)| (morton(t, max_level), t.level));
+    let total = tiles.len();
     std::fs::create_dir_all(&args.output)
         .with_context(|| format!("creating {}", args.output.display()))?;
     let t0 = Instant::now();
@@ -178,12 +280,11 @@ pub(crate) fn run(args: &TilesArgs) -> anyhow::Result<()> {
             })
             .collect(),
     );
-    tiles.par_iter().try_for_each(|&tile| -> anyhow::Result<()> {
-        let bound = tin::level_error(tile.level, args.error_scale);
-        let mesh = tin::build_tile(&grid, tile, bound)?;
+    let write = |mesh: &TileMesh, measured: f64| -> anyhow::Result<()> {
+        let tile = mesh.tile;
         let children =
             if tile.level < max_level { range(tile.level + 1).below(tile) } else { None };
-        let mut bytes = quantized_mesh::encode(&mesh, children)
+        let mut bytes = quantized_mesh::encode(mesh, children)
             .with_context(|| format!("encoding tile {}/{}/{}", tile.level, tile.x, tile.y))?;
         if args.gzip {
             bytes = quantized_mesh::gzip(&bytes);
@@ -199,20 +300,53 @@ pub(crate) fn run(args: &TilesArgs) -> anyhow::Result<()> {
             s.triangles += mesh.triangles.len();
             s.vertices += mesh.vertices.len();
             s.bytes += bytes.len() as u64;
-            if let Some(m) = mesh.measured {
-                s.max_measured_error_m = s.max_measured_error_m.max(m.max_error);
-            }
+            s.max_measured_error_m = s.max_measured_error_m.max(measured);
         }
         let n = done.fetch_add(1, Ordering::Relaxed) + 1;
-        bar.update(n as f64, tiles.len() as f64);
+        bar.update(n as f64, total as f64);
         Ok(())
-    })?;
+    };
+    let bound_of = |tile: TileId| tin::level_error(tile.level, args.error_scale);
+    // A tile on the DEM's own samples: the builder verified it against every one.
+    let exact = |tile: TileId| -> anyhow::Result<()> {
+        let bound = bound_of(tile);
+        let mesh = build::build(samples, &layout, tile, 0, bound, bound)?;
+        let measured = mesh.measured.map_or(0.0, |m| m.max_error);
+        write(&mesh, measured)
+    };
+    // Decimated tiles: meshed from every 2^s-th sample, checked against every sample, built
+    // again one stride finer where that fails (at stride 1 the builder's own check holds).
+    let (mut pending, fine): (Vec<_>, Vec<_>) = tiles.into_iter().partition(|&(_, s)| s > 0);
+    let decimated_tiles = pending.len();
+    let mut rebuilt_tiles = 0;
+    while !pending.is_empty() {
+        let meshes = pending
+            .par_iter()
+            .map(|&(tile, s)| {
+                let bound = bound_of(tile);
+                build::build(samples, &layout, tile, s, resolution.coarse_factor * bound, bound)
+            })
+            .collect::<anyhow::Result<Vec<TileMesh>>>()?;
+        let worst = build::check_regions(samples, &layout, &meshes, region)?;
+        let mut failed = Vec::new();
+        for ((mesh, e), &(tile, s)) in meshes.iter().zip(worst).zip(&pending) {
+            match e {
+                Some(e) if e <= mesh.bound => write(mesh, e)?,
+                _ => failed.push((tile, s - 1)),
+            }
+        }
+        rebuilt_tiles += failed.len();
+        let (again, exact_now): (Vec<_>, Vec<_>) = failed.into_iter().partition(|&(_, s)| s > 0);
+        exact_now.par_iter().try_for_each(|&(tile, _)| exact(tile))?;
+        pending = again;
+    }
+    fine.par_iter().try_for_each(|&(tile, _)| exact(tile))?;
     bar.finish();
     let build_s = t0.elapsed().as_secs_f64();
     let available: Vec<Vec<TileRange>> = (0..=max_level)
         .map(|l| if l < args.min_level { Vec::new() } else { vec![range(l)] })
         .collect();
-    let extent = grid.extent();
+    let extent = layout.extent();
     let layer = serde_json::json!({
         "tilejson": "2.1.0",
         "name": name,
@@ -230,12 +364,21 @@ pub(crate) fn run(args: &TilesArgs) -> anyhow::Result<()> {
         "minzoom": args.min_level,
         "maxzoom": max_level,
         "extensions": ["octvertexnormals", "metadata"],
+        // Every tile's metadata lists its children (the next level): CesiumJS reads a tile's
+        // availability from its parent's then. Without this key CesiumJS takes `available`
+        // alone and fails on the first tile's metadata ("Cannot read properties of undefined
+        // (reading 'addAvailableTileRange')", seen in headless Chromium with cesium 1.145).
+        "metadataAvailability": 1,
         "available": available,
     });
     let layer_path = args.output.join("layer.json");
     std::fs::write(&layer_path, serde_json::to_string_pretty(&layer)?)
         .with_context(|| format!("writing {}", layer_path.display()))?;
     let levels = stats.into_inner().unwrap_or_else(|e| e.into_inner());
+    let cache = match &source {
+        Source::Store(s) => Some(s.cache_stats()),
+        Source::Memory(_) => None,
+    };
     let summary = Summary {
         dem: name,
         width,
@@ -246,11 +389,15 @@ pub(crate) fn run(args: &TilesArgs) -> anyhow::Result<()> {
         min_level: args.min_level,
         max_level,
         gzip: args.gzip,
-        tiles: tiles.len(),
+        tiles: total,
         triangles: levels.iter().map(|l| l.triangles).sum(),
         build_s,
         threads: rayon::current_num_threads(),
         levels,
+        decimated_tiles,
+        rebuilt_tiles,
+        cache_peak_bytes: cache.map(|c| c.0),
+        block_levels_decoded: cache.map(|c| c.1),
     };
     let summary_path = args.output.join("tiles.json");
     std::fs::write(&summary_path, serde_json::to_string_pretty(&summary)?)
@@ -262,8 +409,11 @@ pub(crate) fn run(args: &TilesArgs) -> anyhow::Result<()> {
         );
     }
     println!(
-        "{} tiles, {} triangles in {build_s:.2} s on {} threads: {}",
+        "{} tiles ({} decimated, {} of them rebuilt finer), {} triangles in {build_s:.2} s on {} \
+         threads: {}",
         summary.tiles,
+        summary.decimated_tiles,
+        summary.rebuilt_tiles,
         summary.triangles,
         summary.threads,
         args.output.display()

@@ -186,3 +186,142 @@ fn a_utm_dem_is_reprojected_and_a_dem_without_georeference_needs_lonlat() {
     // 1024 samples of 160 m: about 2.2 degrees of longitude and 1.5 of latitude there.
     assert!((b[2] - b[0] - 2.2).abs() < 0.2 && (b[3] - b[1] - 1.47).abs() < 0.1, "{b:?}");
 }
+
+/// The `.terrain` files under `dir`, relative, with their bytes.
+fn tileset_bytes(dir: &Path) -> Vec<(PathBuf, Vec<u8>)> {
+    let mut out: Vec<(PathBuf, Vec<u8>)> = tile_files(dir)
+        .into_iter()
+        .map(|p| (p.strip_prefix(dir).unwrap().to_path_buf(), std::fs::read(&p).unwrap()))
+        .collect();
+    out.sort();
+    out
+}
+
+#[test]
+fn a_store_gives_the_tileset_of_its_dem_in_memory_within_its_cache() {
+    // SRTM N52E008: 1201^2 int16 samples in degrees, baked losslessly. It has a few voids: the
+    // store holds the reader's fill there, the DEM in memory the same fill under a void mask
+    // (which only keeps them out of the meshes' checks); the tiles come out the same here.
+    let src = data("srtm/N52E008.hgt");
+    let hm = dem::load(&src, &LoadOptions::default()).unwrap().heightmap;
+    let dir = common::scratch("tiles-cli", "store");
+    let store = dir.join("store");
+    let s = |p: &Path| p.to_str().unwrap().to_string();
+    let baked = terrain(&[
+        "bake",
+        &s(&src),
+        "--no-dss",
+        "--no-pvs",
+        "--no-roughness",
+        "--no-geomip",
+        "--overwrite",
+        "-o",
+        &s(&store),
+    ]);
+    assert!(baked.status.success(), "{}", String::from_utf8_lossy(&baked.stderr));
+    // Level 10's tiles span about 211 samples: levels 0..=9 are meshed from every 2nd..256th
+    // sample and checked against every sample, level 10 from every sample.
+    let run = |input: &Path, out: &Path, extra: &[&str]| {
+        let mut a = vec!["tiles", input.to_str().unwrap(), "--max-level", "10", "--quiet"];
+        a.extend_from_slice(extra);
+        a.extend_from_slice(&["-o", out.to_str().unwrap()]);
+        let o = terrain(&a);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        serde_json::from_slice::<serde_json::Value>(&std::fs::read(out.join("tiles.json")).unwrap())
+            .unwrap()
+    };
+    let (mem_dir, store_dir) = (dir.join("mem"), dir.join("from-store"));
+    let mem = run(&src, &mem_dir, &[]);
+    // A cache of 2 MiB: about 8 decoded blocks of 257^2 (the DEM decoded is 5.5 MiB).
+    let st = run(&store, &store_dir, &["--cache", "2MiB"]);
+    assert!(st["decimated_tiles"].as_u64().unwrap() > 10, "{st}");
+    let peak = st["cache_peak_bytes"].as_u64().unwrap();
+    let block = 257 * 257 * 4;
+    assert!(peak <= (2 << 20) + 2 * block, "the cache held {peak} bytes, over its 2 MiB");
+    assert!(st["block_levels_decoded"].as_u64().unwrap() > 0);
+    // The same tiles, byte for byte: both go through one per-tile path and the store is
+    // lossless (int16 samples on their integer lattice).
+    let (a, b) = (tileset_bytes(&mem_dir), tileset_bytes(&store_dir));
+    assert_eq!(a.len(), mem["tiles"].as_u64().unwrap() as usize);
+    assert_eq!(a.len(), b.len());
+    let differ: Vec<_> = a.iter().zip(&b).filter(|(x, y)| x != y).map(|(x, _)| &x.0).collect();
+    assert!(differ.is_empty(), "{} tiles differ, e.g. {:?}", differ.len(), differ.first());
+    // And the independent decoder finds every tile within its bound of every DEM sample.
+    let dem_json = dir.join("dem.json");
+    write_dem(&hm, &dem_json);
+    let ok = check(&store_dir, &dem_json, "1", "1");
+    assert!(ok.status.success(), "{}", String::from_utf8_lossy(&ok.stderr));
+    let report: serde_json::Value =
+        serde_json::from_str(String::from_utf8_lossy(&ok.stdout).trim()).unwrap();
+    let worst = report["worstErrorOverBound"].as_f64().unwrap();
+    assert!(worst > 0.3 && worst < 1.1, "the bound is used, not exceeded: {worst}");
+
+    // A store without a georeference needs --lonlat, as a bare heightmap does; one with a
+    // georeference refuses it.
+    let refused = terrain(&["tiles", &s(&store), "--lonlat=8,52", "-o", &s(&dir.join("x"))]);
+    assert!(!refused.status.success());
+    assert!(String::from_utf8_lossy(&refused.stderr).contains("georeferenced"));
+}
+
+/// The CesiumJS check's folder, with its npm packages installed.
+fn cesium_checker() -> PathBuf {
+    let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tests/cesium");
+    if !dir.join("node_modules/cesium/package.json").exists() {
+        let out = Command::new("bash")
+            .arg(dir.join("install.sh"))
+            .output()
+            .expect("bash runs tests/cesium/install.sh");
+        assert!(
+            out.status.success(),
+            "installing cesium and playwright-core with npm failed: {}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+    }
+    dir
+}
+
+#[test]
+fn cesium_loads_a_tileset_in_headless_chromium_and_fails_on_a_missing_tile() {
+    assert!(
+        Path::new("/usr/bin/chromium").exists(),
+        "Debian's chromium is needed (`apt-get install chromium`; .ci/run installs it)"
+    );
+    let dir = common::scratch("tiles-cli", "cesium");
+    let tiles = dir.join("tiles");
+    let out = terrain(&[
+        "tiles",
+        data("srtm/N52E008.hgt").to_str().unwrap(),
+        "--max-level",
+        "9",
+        "--gzip",
+        "--quiet",
+        "-o",
+        tiles.to_str().unwrap(),
+    ]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let script = cesium_checker().join("check.mjs");
+    let shot = dir.join("cesium.png");
+    let run = || {
+        Command::new("node")
+            .arg(&script)
+            .args([tiles.to_str().unwrap(), shot.to_str().unwrap(), "300"])
+            .output()
+            .expect("node runs")
+    };
+    let ok = run();
+    let said = String::from_utf8_lossy(&ok.stdout);
+    assert!(ok.status.success(), "{said}\n{}", String::from_utf8_lossy(&ok.stderr));
+    let report: serde_json::Value = serde_json::from_str(said.trim()).unwrap();
+    assert!(report["tilesServed"].as_u64().unwrap() >= 4, "{report}");
+    assert!(report["deepestLevel"].as_i64().unwrap() >= 5, "{report}");
+    // The screenshot shows lit terrain, not one flat colour.
+    let img = image::open(&shot).unwrap().to_luma8();
+    let (lo, hi) = img.pixels().fold((255u8, 0u8), |(lo, hi), p| (lo.min(p[0]), hi.max(p[0])));
+    assert!(hi - lo > 40, "a flat screenshot: grey {lo}..{hi}");
+
+    // Negative control: a missing root tile is a tile request error.
+    std::fs::remove_file(tiles.join("0/1/0.terrain")).unwrap();
+    let bad = run();
+    assert!(!bad.status.success(), "a missing tile passed");
+    assert!(String::from_utf8_lossy(&bad.stderr).contains("404"));
+}

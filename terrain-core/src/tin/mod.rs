@@ -216,27 +216,34 @@ impl TinError {
     }
 }
 
-/// A grid in longitude/latitude degrees: the input of the pyramid.
-#[derive(Debug, Clone, Copy)]
-pub struct GeoGrid<'a> {
-    hm: &'a Heightmap,
+/// Where a grid in longitude/latitude degrees lies, without its samples: its size, origin and
+/// spacing. What the pyramid's tiling needs (extent, tile ranges, native level), shared by a
+/// grid in memory ([`GeoGrid`]) and one read tile by tile from elsewhere (a baked store).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct GridLayout {
+    /// Columns.
+    pub width: usize,
+    /// Rows.
+    pub height: usize,
     /// Longitude/latitude of sample (0, 0).
-    origin: DVec2,
+    pub origin: DVec2,
     /// Degrees per sample.
-    spacing: DVec2,
+    pub spacing: DVec2,
 }
 
-impl<'a> GeoGrid<'a> {
-    /// Wraps a heightmap whose georeference is geographic (degrees; taken as WGS84).
-    pub fn new(hm: &'a Heightmap) -> Result<Self, TinError> {
-        let g = hm.georef();
-        if g.units != AngularOrLinear::Degrees {
-            return Err(TinError::NotGeographic { crs: g.crs.to_string() });
+impl GridLayout {
+    /// The layout of a `width` x `height` grid whose georeference is geographic (degrees;
+    /// taken as WGS84), checked to lie within longitude -180..180, latitude -90..90.
+    pub fn new(width: usize, height: usize, georef: &crate::Georef) -> Result<Self, TinError> {
+        if georef.units != AngularOrLinear::Degrees {
+            return Err(TinError::NotGeographic { crs: georef.crs.to_string() });
         }
-        let grid = Self { hm, origin: g.native_origin, spacing: g.native_spacing };
-        let e = grid.extent();
+        let layout =
+            Self { width, height, origin: georef.native_origin, spacing: georef.native_spacing };
+        let e = layout.extent();
         let ok = e.west >= -180.0 && e.east <= 180.0 && e.south >= -90.0 && e.north <= 90.0;
-        if !ok || grid.spacing.min_element().partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater)
+        if !ok
+            || layout.spacing.min_element().partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater)
         {
             return Err(TinError::OutOfRange {
                 west: e.west,
@@ -245,12 +252,7 @@ impl<'a> GeoGrid<'a> {
                 north: e.north,
             });
         }
-        Ok(grid)
-    }
-
-    /// The heightmap.
-    pub fn heightmap(&self) -> &'a Heightmap {
-        self.hm
+        Ok(layout)
     }
 
     /// Fractional grid coordinates of a longitude/latitude.
@@ -265,7 +267,7 @@ impl<'a> GeoGrid<'a> {
 
     /// The rectangle of the sample centres.
     pub fn extent(&self) -> LonLatRect {
-        let (w, h) = (self.hm.width() as f64 - 1.0, self.hm.height() as f64 - 1.0);
+        let (w, h) = (self.width as f64 - 1.0, self.height as f64 - 1.0);
         let ne = self.to_lonlat(dvec2(w, h));
         LonLatRect { west: self.origin.x, south: self.origin.y, east: ne.x, north: ne.y }
     }
@@ -288,6 +290,56 @@ impl<'a> GeoGrid<'a> {
     pub fn native_level(&self, cells: f64) -> u32 {
         let per_sample = self.spacing.max_element();
         (0..MAX_LEVEL).find(|&l| TileId::size_deg(l) / per_sample <= cells).unwrap_or(MAX_LEVEL)
+    }
+}
+
+/// A grid in longitude/latitude degrees: the input of the pyramid.
+#[derive(Debug, Clone, Copy)]
+pub struct GeoGrid<'a> {
+    hm: &'a Heightmap,
+    layout: GridLayout,
+}
+
+impl<'a> GeoGrid<'a> {
+    /// Wraps a heightmap whose georeference is geographic (degrees; taken as WGS84).
+    pub fn new(hm: &'a Heightmap) -> Result<Self, TinError> {
+        let layout = GridLayout::new(hm.width(), hm.height(), hm.georef())?;
+        Ok(Self { hm, layout })
+    }
+
+    /// The heightmap.
+    pub fn heightmap(&self) -> &'a Heightmap {
+        self.hm
+    }
+
+    /// Where the grid lies ([`GridLayout`]).
+    pub fn layout(&self) -> &GridLayout {
+        &self.layout
+    }
+
+    /// Fractional grid coordinates of a longitude/latitude.
+    pub fn to_grid(&self, lonlat: DVec2) -> DVec2 {
+        self.layout.to_grid(lonlat)
+    }
+
+    /// Longitude/latitude of fractional grid coordinates.
+    pub fn to_lonlat(&self, g: DVec2) -> DVec2 {
+        self.layout.to_lonlat(g)
+    }
+
+    /// The rectangle of the sample centres.
+    pub fn extent(&self) -> LonLatRect {
+        self.layout.extent()
+    }
+
+    /// The tiles at `level` whose rectangle overlaps the grid's extent (with positive area).
+    pub fn tile_range(&self, level: u32) -> TileRange {
+        self.layout.tile_range(level)
+    }
+
+    /// The deepest level worth building ([`GridLayout::native_level`]).
+    pub fn native_level(&self, cells: f64) -> u32 {
+        self.layout.native_level(cells)
     }
 }
 

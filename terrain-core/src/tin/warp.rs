@@ -62,22 +62,34 @@ fn geographic(origin: DVec2, spacing_deg: DVec2, size: (usize, usize)) -> Georef
 /// (degrees): its metric spacing becomes degrees at its centre latitude (an equirectangular
 /// placement, exact at the centre). The heights are unchanged.
 pub fn place(hm: &Heightmap, sw_lonlat: DVec2) -> Result<Heightmap, WarpError> {
+    let g = place_georef(hm.georef(), (hm.width(), hm.height()), sw_lonlat)?;
+    Ok(hm.clone().with_georef(g))
+}
+
+/// The geographic georeference [`place`] gives a grid of `size` samples whose georeference is
+/// `georef` (its metric spacing is kept): for grids read without loading them (a store).
+pub fn place_georef(
+    georef: &Georef,
+    size: (usize, usize),
+    sw_lonlat: DVec2,
+) -> Result<Georef, WarpError> {
     let (lon, lat) = (sw_lonlat.x, sw_lonlat.y);
     let refuse = |reason: &str| WarpError::Placement { lon, lat, reason: reason.into() };
     if !(sw_lonlat.is_finite() && (-180.0..=180.0).contains(&lon) && (-90.0..=90.0).contains(&lat))
     {
         return Err(refuse("not within longitude -180..180, latitude -90..90"));
     }
-    let s = hm.georef().spacing_m;
-    let extent_m = dvec2((hm.width() - 1) as f64 * s.x, (hm.height() - 1) as f64 * s.y);
+    let s = georef.spacing_m;
+    let cells = dvec2(size.0.saturating_sub(1) as f64, size.1.saturating_sub(1) as f64);
+    let extent_m = cells * s;
     let centre_lat = lat + 0.5 * extent_m.y / metres_per_degree_lat(lat);
     let spacing =
         dvec2(s.x / metres_per_degree_lon(centre_lat), s.y / metres_per_degree_lat(centre_lat));
-    let ne = sw_lonlat + spacing * dvec2((hm.width() - 1) as f64, (hm.height() - 1) as f64);
+    let ne = sw_lonlat + spacing * cells;
     if !(ne.is_finite() && ne.x <= 180.0 && ne.y <= 90.0) || centre_lat.abs() >= 89.0 {
         return Err(refuse("the grid would reach beyond longitude 180 or latitude 90 from there"));
     }
-    Ok(hm.clone().with_georef(geographic(sw_lonlat, spacing, (hm.width(), hm.height()))))
+    Ok(geographic(sw_lonlat, spacing, size))
 }
 
 /// The grid resampled onto longitude/latitude (EPSG:4326) at the source's resolution; a grid

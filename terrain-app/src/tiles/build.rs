@@ -1,0 +1,306 @@
+//! One tile of `terrain tiles` from a [`Samples`] source, at the resolution its level needs,
+//! and the check of a coarse tile against every DEM sample under it.
+//!
+//! **Resolution per level.** A tile spanning `N` DEM samples is meshed from every `2^s`-th
+//! sample, `s` the smallest with `N / 2^s <= max_cells` (cesium-terrain-builder resamples
+//! every tile to a fixed grid the same way; we keep the DEM's own samples, which a store holds
+//! as its levels). At `s = 0` the tile is [`tin::build_tile`] on the DEM's own samples, which
+//! verifies it against every one of them. At `s > 0` it is meshed within `coarse_factor` of its
+//! bound against the decimated samples and then checked against every DEM sample under it
+//! ([`check_regions`]); a tile that fails is built again one stride finer, down to `s = 0`,
+//! where the builder's own check holds by construction. So every written tile is within its
+//! bound of every non-void DEM sample, at any level, while the coarse levels read and mesh a
+//! bounded number of samples.
+
+use glam::{DVec2, dvec2};
+use rayon::prelude::*;
+use terrain_core::heightmap::VoidMask;
+use terrain_core::tin::{self, GeoGrid, GridLayout, TileId, TileMesh};
+use terrain_core::{Crs, Georef, Heightmap};
+
+use super::samples::Samples;
+
+/// How tiles are sampled.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct ResolutionConfig {
+    /// Most cells across a tile's mesh input before it is decimated.
+    pub max_cells: usize,
+    /// The fraction of a decimated tile's bound its mesh may use against the decimated
+    /// samples; the rest is left for the samples between them.
+    pub coarse_factor: f64,
+}
+
+impl Default for ResolutionConfig {
+    fn default() -> Self {
+        Self { max_cells: 256, coarse_factor: 0.75 }
+    }
+}
+
+/// The tile's rectangle in fractional grid coordinates (south-west, north-east).
+fn grid_rect(layout: &GridLayout, tile: TileId) -> (DVec2, DVec2) {
+    let r = tile.rect();
+    (layout.to_grid(dvec2(r.west, r.south)), layout.to_grid(dvec2(r.east, r.north)))
+}
+
+/// The DEM samples inside the tile (inclusive index ranges), or `None` if none is.
+fn samples_inside(layout: &GridLayout, tile: TileId) -> Option<[usize; 4]> {
+    let (a, b) = grid_rect(layout, tile);
+    let (w, h) = (layout.width as f64 - 1.0, layout.height as f64 - 1.0);
+    let i0 = (a.x - 1e-9).ceil().max(0.0);
+    let j0 = (a.y - 1e-9).ceil().max(0.0);
+    let i1 = (b.x + 1e-9).floor().min(w);
+    let j1 = (b.y + 1e-9).floor().min(h);
+    (i0 <= i1 && j0 <= j1).then_some([i0 as usize, j0 as usize, i1 as usize, j1 as usize])
+}
+
+/// The stride (log2) a tile is meshed at: the smallest `s` with at most `max_cells` cells
+/// across at stride `2^s`.
+pub(crate) fn stride_log2(layout: &GridLayout, tile: TileId, config: &ResolutionConfig) -> u32 {
+    let (a, b) = grid_rect(layout, tile);
+    let (w, h) = (layout.width as f64 - 1.0, layout.height as f64 - 1.0);
+    let span = (b.x.min(w) - a.x.max(0.0)).max(b.y.min(h) - a.y.max(0.0)).max(0.0);
+    let mut s = 0;
+    while span / f64::from(1u32 << s) > config.max_cells as f64 && s < 30 {
+        s += 1;
+    }
+    s
+}
+
+/// Builds `tile` from every `2^s`-th sample within `budget` metres of them (see the module
+/// docs); the mesh's `bound` is set to `bound`, the tile's own.
+pub(crate) fn build(
+    samples: &dyn Samples,
+    layout: &GridLayout,
+    tile: TileId,
+    s: u32,
+    budget: f64,
+    bound: f64,
+) -> anyhow::Result<TileMesh> {
+    let (a, b) = grid_rect(layout, tile);
+    let (w, h) = (layout.width, layout.height);
+    let t = 1usize << s;
+    // The window: every 2^s-th sample from the one at or before the tile's west (south)
+    // border to the one at or after its east (north) border, clipped to the DEM (the last
+    // may lie past it and reads the last column or row).
+    let lo = |v: f64| ((v.floor().max(0.0) as usize) >> s) << s;
+    let hi = |v: f64, n: usize| (v.ceil().min(n as f64 - 1.0).max(0.0) as usize).div_ceil(t) * t;
+    let (i0, j0) = (lo(a.x).min(w - 1), lo(a.y).min(h - 1));
+    let (i1, j1) = (hi(b.x, w).max(i0 + t), hi(b.y, h).max(j0 + t));
+    let (ww, wh) = ((i1 - i0) / t + 1, (j1 - j0) / t + 1);
+    let win = samples.window(i0, j0, ww, wh, s)?;
+    let mut data = win.data;
+    let voids = match win.voids {
+        Some(m) if m.count() < ww * wh => {
+            // A void may hold anything; the mesh's vertices need a finite height.
+            for (k, z) in data.iter_mut().enumerate() {
+                if m.get(k % ww, k / ww) && !z.is_finite() {
+                    *z = 0.0;
+                }
+            }
+            m
+        }
+        // Every sample void: they hold the readers' fill, taken as it is (as the builder does).
+        _ => VoidMask::new(ww, wh),
+    };
+    let origin = layout.to_lonlat(dvec2(i0 as f64, j0 as f64));
+    let spacing = layout.spacing * t as f64;
+    let centre_lat = origin.y + 0.5 * (wh as f64 - 1.0) * spacing.y;
+    let georef = Georef::geographic(Crs::Epsg(4326), origin, spacing, centre_lat);
+    let sub = Heightmap::new(ww, wh, data, voids, georef)?;
+    let mut mesh = tin::build_tile(&GeoGrid::new(&sub)?, tile, budget)?;
+    mesh.bound = bound;
+    Ok(mesh)
+}
+
+/// The largest error of each of `meshes` against every non-void DEM sample under it, read by
+/// windows of `region` x `region` cells in parallel; `None` for a mesh that leaves a sample
+/// uncovered (which the caller treats as a failure).
+pub(crate) fn check_regions(
+    samples: &dyn Samples,
+    layout: &GridLayout,
+    meshes: &[TileMesh],
+    region: usize,
+) -> anyhow::Result<Vec<Option<f64>>> {
+    let inside: Vec<Option<[usize; 4]>> =
+        meshes.iter().map(|m| samples_inside(layout, m.tile)).collect();
+    // Each mesh's triangles in grid coordinates, once.
+    let tris: Vec<Vec<Tri>> = meshes.iter().map(|m| grid_triangles(layout, m)).collect();
+    let (w, h) = (layout.width, layout.height);
+    let (rx, ry) = ((w - 1).div_ceil(region).max(1), (h - 1).div_ceil(region).max(1));
+    let regions: Vec<(usize, usize)> =
+        (0..ry).flat_map(|y| (0..rx).map(move |x| (x * region, y * region))).collect();
+    let per_region = regions
+        .par_iter()
+        .map(|&(i0, j0)| -> anyhow::Result<Vec<(usize, Option<f64>)>> {
+            let (i1, j1) = ((i0 + region).min(w - 1), (j0 + region).min(h - 1));
+            let mut out = Vec::new();
+            let mut win = None;
+            for (m, r) in inside.iter().enumerate() {
+                let Some([ti0, tj0, ti1, tj1]) = *r else { continue };
+                let (x0, y0, x1, y1) = (ti0.max(i0), tj0.max(j0), ti1.min(i1), tj1.min(j1));
+                if x0 > x1 || y0 > y1 {
+                    continue;
+                }
+                let win = match &win {
+                    Some(w) => w,
+                    None => win.insert(samples.window(i0, j0, i1 - i0 + 1, j1 - j0 + 1, 0)?),
+                };
+                let at = |i: usize, j: usize| {
+                    let k = (j - j0) * win.width + (i - i0);
+                    let void = win.voids.as_ref().is_some_and(|v| v.get(i - i0, j - j0));
+                    (!void).then(|| win.data[k])
+                };
+                out.push((m, max_error(&tris[m], [x0, y0, x1, y1], at)));
+            }
+            Ok(out)
+        })
+        .collect::<anyhow::Result<Vec<_>>>()?;
+    let mut worst: Vec<Option<f64>> = vec![Some(0.0); meshes.len()];
+    for (m, e) in per_region.into_iter().flatten() {
+        worst[m] = match (worst[m], e) {
+            (Some(a), Some(b)) => Some(a.max(b)),
+            _ => None,
+        };
+    }
+    Ok(worst)
+}
+
+/// A triangle in grid coordinates with its plane.
+struct Tri {
+    p: [DVec2; 3],
+    z0: f64,
+    /// Height gradient per grid unit.
+    g: DVec2,
+    lo: DVec2,
+    hi: DVec2,
+}
+
+fn grid_triangles(layout: &GridLayout, m: &TileMesh) -> Vec<Tri> {
+    let (a, b) = grid_rect(layout, m.tile);
+    let pos: Vec<(DVec2, f64)> = m
+        .vertices
+        .iter()
+        .map(|v| (dvec2(a.x + v.x * (b.x - a.x), a.y + v.y * (b.y - a.y)), v.z))
+        .collect();
+    m.triangles
+        .iter()
+        .filter_map(|t| {
+            let [(p0, z0), (p1, z1), (p2, z2)] = t.map(|k| pos[k as usize]);
+            let (e1, e2) = (p1 - p0, p2 - p0);
+            let d = e1.perp_dot(e2);
+            if d <= 0.0 {
+                return None;
+            }
+            // z = z0 + g . (q - p0), solved from the two edges.
+            let g = dvec2(
+                ((z1 - z0) * e2.y - (z2 - z0) * e1.y) / d,
+                ((z2 - z0) * e1.x - (z1 - z0) * e2.x) / d,
+            );
+            Some(Tri { p: [p0, p1, p2], z0, g, lo: p0.min(p1).min(p2), hi: p0.max(p1).max(p2) })
+        })
+        .collect()
+}
+
+/// The largest `|mesh - sample|` over the samples `[i0, j0]..=[i1, j1]` that `at` gives
+/// (`None`: void), `None` if a non-void one lies in no triangle. Each triangle is scanned row
+/// by row over the samples inside it (edge functions with a tolerance of 1e-7 cells, so the
+/// samples on shared edges count for both triangles).
+fn max_error(
+    tris: &[Tri],
+    [i0, j0, i1, j1]: [usize; 4],
+    at: impl Fn(usize, usize) -> Option<f32>,
+) -> Option<f64> {
+    let (nw, nh) = (i1 - i0 + 1, j1 - j0 + 1);
+    let mut covered = vec![false; nw * nh];
+    let mut worst = 0f64;
+    const EPS: f64 = 1e-7;
+    for t in tris {
+        if t.hi.x < i0 as f64 - EPS
+            || t.lo.x > i1 as f64 + EPS
+            || t.hi.y < j0 as f64 - EPS
+            || t.lo.y > j1 as f64 + EPS
+        {
+            continue;
+        }
+        let ja = ((t.lo.y - EPS).ceil().max(j0 as f64)) as usize;
+        let jb = ((t.hi.y + EPS).floor().min(j1 as f64)) as usize;
+        for j in ja..=jb {
+            let y = j as f64;
+            // The x-interval where all three edge functions are >= -EPS (counter-clockwise).
+            let (mut xa, mut xb) = (t.lo.x - EPS, t.hi.x + EPS);
+            for k in 0..3 {
+                let (p, q) = (t.p[k], t.p[(k + 1) % 3]);
+                let e = q - p;
+                // e x (x - p) = e.x (y - p.y) - e.y (x - p.x) >= -EPS |e|
+                let c = e.x * (y - p.y) + e.y * p.x + EPS * e.length();
+                // -e.y x + c >= 0
+                if e.y > 0.0 {
+                    xb = xb.min(c / e.y);
+                } else if e.y < 0.0 {
+                    xa = xa.max(c / e.y);
+                } else if c < 0.0 {
+                    xa = f64::INFINITY;
+                }
+            }
+            let xa = xa.ceil().max(i0 as f64);
+            let xb = xb.floor().min(i1 as f64);
+            if xa > xb {
+                continue;
+            }
+            for i in xa as usize..=xb as usize {
+                covered[(j - j0) * nw + (i - i0)] = true;
+                if let Some(z) = at(i, j) {
+                    let q = dvec2(i as f64, y) - t.p[0];
+                    let m = t.z0 + t.g.dot(q);
+                    worst = worst.max((m - f64::from(z)).abs());
+                }
+            }
+        }
+    }
+    for j in 0..nh {
+        for i in 0..nw {
+            if !covered[j * nw + i] && at(i0 + i, j0 + j).is_some() {
+                return None;
+            }
+        }
+    }
+    Some(worst)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn tri(p: [DVec2; 3], z: [f64; 3]) -> Vec<Tri> {
+        let m = TileMesh {
+            tile: TileId { level: 0, x: 0, y: 0 },
+            vertices: p.iter().zip(z).map(|(p, z)| glam::DVec3::new(p.x, p.y, z)).collect(),
+            triangles: vec![[0, 1, 2]],
+            bound: 1.0,
+            measured: None,
+        };
+        // A layout where tile 0/0/0 is the grid square 0..10 x 0..10.
+        let layout = GridLayout {
+            width: 11,
+            height: 11,
+            origin: dvec2(-180.0, -90.0),
+            spacing: dvec2(18.0, 18.0),
+        };
+        grid_triangles(&layout, &m)
+    }
+
+    #[test]
+    fn the_scan_measures_every_sample_and_finds_gaps() {
+        // Two triangles covering the 0..10 square, the plane z = x; samples z = x + (i == 3).
+        let mut t = tri([dvec2(0.0, 0.0), dvec2(1.0, 0.0), dvec2(1.0, 1.0)], [0.0, 10.0, 10.0]);
+        t.extend(tri([dvec2(0.0, 0.0), dvec2(1.0, 1.0), dvec2(0.0, 1.0)], [0.0, 10.0, 0.0]));
+        let at = |i: usize, j: usize| Some(i as f32 + if (i, j) == (3, 7) { 2.5 } else { 0.0 });
+        let e = max_error(&t, [0, 0, 10, 10], at).unwrap();
+        assert!((e - 2.5).abs() < 1e-9, "{e}");
+        // One triangle only: the samples above the diagonal are uncovered.
+        assert_eq!(max_error(&t[..1], [0, 0, 10, 10], at), None);
+        // ... unless they are void.
+        let void_above = |i: usize, j: usize| (j <= i).then_some(i as f32);
+        assert_eq!(max_error(&t[..1], [0, 0, 10, 10], void_above), Some(0.0));
+    }
+}

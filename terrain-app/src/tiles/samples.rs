@@ -1,0 +1,263 @@
+//! Where `terrain tiles` reads heights from, one window at a time and at a power-of-two
+//! stride: a DEM in memory ([`HeightmapSamples`]) or a baked store ([`StoreSamples`]), whose
+//! blocks are read level by level (a stride of `2^s` needs only block levels `0..=k - s`,
+//! the store's non-redundant levels, Qiu 2013 Eq. 1-2) through a byte-budgeted LRU cache of
+//! decoded blocks, so the memory the tiles take is bounded by that cache, not by the DEM.
+//!
+//! Both sources answer the same question the same way (indices past the last row or column
+//! read the last one, as the store's padding does), so a tileset built from a losslessly baked
+//! store is the one built from its DEM in memory.
+
+use std::collections::HashMap;
+use std::sync::{Arc, Mutex};
+
+use terrain_core::Heightmap;
+use terrain_core::heightmap::VoidMask;
+use terrain_stream::{BlockId, BlockLevels, Store};
+
+/// A window of samples: `width` x (`data.len() / width`) heights (row-major, south row first)
+/// and voids.
+#[derive(Debug, Clone)]
+pub(crate) struct Window {
+    pub width: usize,
+    pub data: Vec<f32>,
+    /// `None`: no void in the window.
+    pub voids: Option<VoidMask>,
+}
+
+/// Heights of a grid, read by windows.
+pub(crate) trait Samples: Sync {
+    /// Columns and rows of the grid.
+    fn size(&self) -> (usize, usize);
+    /// The samples at columns `i0 + a t` and rows `j0 + b t` for `a < width`, `b < height`
+    /// (`t = 2^stride_log2`); an index past the last column or row reads the last one.
+    fn window(
+        &self,
+        i0: usize,
+        j0: usize,
+        width: usize,
+        height: usize,
+        stride_log2: u32,
+    ) -> anyhow::Result<Window>;
+}
+
+/// A DEM in memory.
+pub(crate) struct HeightmapSamples<'a>(pub &'a Heightmap);
+
+impl Samples for HeightmapSamples<'_> {
+    fn size(&self) -> (usize, usize) {
+        (self.0.width(), self.0.height())
+    }
+
+    fn window(
+        &self,
+        i0: usize,
+        j0: usize,
+        width: usize,
+        height: usize,
+        stride_log2: u32,
+    ) -> anyhow::Result<Window> {
+        let hm = self.0;
+        let (w, h) = (hm.width(), hm.height());
+        let col = |a: usize| (i0 + (a << stride_log2)).min(w - 1);
+        let row = |b: usize| (j0 + (b << stride_log2)).min(h - 1);
+        let mut data = Vec::with_capacity(width * height);
+        for b in 0..height {
+            let r = row(b) * w;
+            data.extend((0..width).map(|a| hm.data()[r + col(a)]));
+        }
+        let voids = hm.voids().any().then(|| {
+            let mut m = VoidMask::new(width, height);
+            for b in 0..height {
+                for a in 0..width {
+                    if hm.voids().get(col(a), row(b)) {
+                        m.set(a, b, true);
+                    }
+                }
+            }
+            m
+        });
+        Ok(Window { width, data, voids })
+    }
+}
+
+/// A baked store, read through a byte-budgeted LRU cache of decoded block levels.
+pub(crate) struct StoreSamples {
+    store: Store,
+    cache: Mutex<BlockCache>,
+}
+
+/// Decoded blocks (levels `0..n`), least recently used dropped first while over the budget.
+struct BlockCache {
+    budget: u64,
+    resident: u64,
+    clock: u64,
+    blocks: HashMap<BlockId, (Arc<BlockLevels>, u64)>,
+    /// Most bytes resident at once.
+    peak: u64,
+    /// Block levels decoded.
+    decoded: u64,
+}
+
+impl StoreSamples {
+    /// Reads `store` with at most `budget` bytes of decoded blocks resident (one block more
+    /// while a read that needs it is under way per thread).
+    pub(crate) fn new(store: Store, budget: u64) -> Self {
+        let cache = BlockCache {
+            budget,
+            resident: 0,
+            clock: 0,
+            blocks: HashMap::new(),
+            peak: 0,
+            decoded: 0,
+        };
+        Self { store, cache: Mutex::new(cache) }
+    }
+
+    /// Cells per block side: windows aligned to blocks read each block once.
+    pub(crate) fn block_cells(&self) -> usize {
+        self.store.header().block_cells() as usize
+    }
+
+    /// The most bytes of decoded blocks resident at once, and the block levels decoded.
+    pub(crate) fn cache_stats(&self) -> (u64, u64) {
+        let c = self.cache.lock().unwrap_or_else(|e| e.into_inner());
+        (c.peak, c.decoded)
+    }
+
+    /// Block `id` with levels `0..=level` decoded.
+    fn block(&self, id: BlockId, level: u8) -> anyhow::Result<Arc<BlockLevels>> {
+        let have = {
+            let mut c = self.cache.lock().unwrap_or_else(|e| e.into_inner());
+            c.clock += 1;
+            let now = c.clock;
+            match c.blocks.get_mut(&id) {
+                Some((b, used)) => {
+                    *used = now;
+                    if b.count() > level as usize {
+                        return Ok(b.clone());
+                    }
+                    Some(b.clone())
+                }
+                None => None,
+            }
+        };
+        // Decode outside the lock, on top of the coarser levels already decoded.
+        let mut b = match have {
+            Some(b) => (*b).clone(),
+            None => BlockLevels::new(self.store.header()),
+        };
+        let from = b.count() as u8;
+        for l in from..=level {
+            let loaded = self.store.load_level(id, l, b.levels())?;
+            b.push(loaded.samples);
+        }
+        let b = Arc::new(b);
+        let mut c = self.cache.lock().unwrap_or_else(|e| e.into_inner());
+        c.decoded += u64::from(level + 1 - from);
+        c.clock += 1;
+        let now = c.clock;
+        let bytes = b.bytes();
+        if let Some((old, _)) = c.blocks.insert(id, (b.clone(), now)) {
+            c.resident -= old.bytes();
+        }
+        c.resident += bytes;
+        c.peak = c.peak.max(c.resident);
+        while c.resident > c.budget && c.blocks.len() > 1 {
+            let Some((&lru, _)) =
+                c.blocks.iter().filter(|(k, _)| **k != id).min_by_key(|(_, (_, used))| *used)
+            else {
+                break;
+            };
+            if let Some((gone, _)) = c.blocks.remove(&lru) {
+                c.resident -= gone.bytes();
+            }
+        }
+        Ok(b)
+    }
+}
+
+/// The level of a block at which vertex `(i, j)` is stored (the store's non-redundant order:
+/// the level whose stride is the largest power of two dividing both coordinates).
+fn vertex_level(k: u8, i: u32, j: u32) -> u8 {
+    let s = (i | j | (1u32 << k)).trailing_zeros().min(u32::from(k));
+    k - s as u8
+}
+
+impl Samples for StoreSamples {
+    fn size(&self) -> (usize, usize) {
+        let h = self.store.header();
+        (h.width as usize, h.height as usize)
+    }
+
+    fn window(
+        &self,
+        i0: usize,
+        j0: usize,
+        width: usize,
+        height: usize,
+        stride_log2: u32,
+    ) -> anyhow::Result<Window> {
+        let h = self.store.header();
+        let (w, ht) = (h.width as usize, h.height as usize);
+        let k = h.k;
+        let cells = 1usize << k;
+        let col = |a: usize| (i0 + (a << stride_log2)).min(w - 1);
+        let row = |b: usize| (j0 + (b << stride_log2)).min(ht - 1);
+        // A sample on a block border belongs to both blocks; read it from the one west or
+        // south of it only past the last block.
+        let block_of = |g: usize, n: u32| ((g / cells) as u32).min(n - 1);
+        let mut data = vec![0f32; width * height];
+        // Per block row and column: which window rows/columns fall in it.
+        let group = |len: usize, at: &dyn Fn(usize) -> usize, n: u32| {
+            let mut spans: Vec<(u32, Vec<usize>)> = Vec::new();
+            for a in 0..len {
+                let blk = block_of(at(a), n);
+                match spans.last_mut() {
+                    Some((b, v)) if *b == blk => v.push(a),
+                    _ => spans.push((blk, vec![a])),
+                }
+            }
+            spans
+        };
+        let cols = group(width, &col, h.blocks_x);
+        let rows = group(height, &row, h.blocks_y);
+        for (brow, bs) in &rows {
+            for (bcol, as_) in &cols {
+                let (ox, oy) = (*bcol as usize * cells, *brow as usize * cells);
+                let local = |g: usize, o: usize| (g - o) as u32;
+                // The finest level any of these samples needs.
+                let lx = as_.iter().map(|&a| vertex_level(k, local(col(a), ox), 0)).max();
+                let ly = bs.iter().map(|&b| vertex_level(k, 0, local(row(b), oy))).max();
+                let level = lx.unwrap_or(0).max(ly.unwrap_or(0));
+                let id = BlockId::new(*brow, *bcol);
+                let blk = self.block(id, level)?;
+                for &b in bs {
+                    let lj = local(row(b), oy);
+                    for &a in as_ {
+                        let li = local(col(a), ox);
+                        data[b * width + a] = blk.height(li, lj).ok_or_else(|| {
+                            anyhow::anyhow!("store block {id}: vertex ({li}, {lj}) not decoded")
+                        })?;
+                    }
+                }
+            }
+        }
+        Ok(Window { width, data, voids: None })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::vertex_level;
+
+    #[test]
+    fn vertex_levels_follow_the_stride() {
+        assert_eq!(vertex_level(8, 0, 0), 0);
+        assert_eq!(vertex_level(8, 256, 0), 0);
+        assert_eq!(vertex_level(8, 128, 0), 1);
+        assert_eq!(vertex_level(8, 128, 64), 2);
+        assert_eq!(vertex_level(8, 1, 0), 8);
+        assert_eq!(vertex_level(8, 0, 3), 8);
+    }
+}
