@@ -51,7 +51,8 @@ use crate::ooc::{OocScene, StoreDraw};
 
 /// Which methods draw from a store.
 pub fn draws_from_store(kind: LodMethod) -> bool {
-    kind != LodMethod::Entropy
+    // geomorph-static and geomorph-cpu (the article's Table 1 comparison) draw from memory.
+    !matches!(kind, LodMethod::Entropy | LodMethod::GeomorphStatic | LodMethod::GeomorphCpu)
 }
 
 /// `kind` over the store of `scene` (its runtime), with `config`'s parameters; measured
