@@ -88,6 +88,11 @@ pub(crate) struct BenchArgs {
     /// frames are warm, so they select and draw what the method does from memory.
     #[arg(long)]
     pub from_store: bool,
+    /// Rendered frames colour every patch by its level of detail: the geomorph methods then
+    /// draw one pass (base colour and lightmap: the geomorphing article's "minimum scene")
+    /// instead of their material passes.
+    #[arg(long)]
+    pub lod_colours: bool,
     /// Sweep these screen-space error targets, pixels, comma-separated, instead of each
     /// method's own parameter: every method at each target through the one mapping of
     /// `--error-px` (the report's notes give each method's mapped parameter). Not with --sweep.
@@ -234,6 +239,7 @@ pub(crate) fn run(args: &BenchArgs) -> anyhow::Result<()> {
         cfg.ooc.patch_cells = cells;
     }
     cfg.ooc_wait |= args.wait;
+    cfg.lod_colours = args.lod_colours;
     cfg.from_store = args.from_store;
     if !args.error_px.is_empty() {
         if let Some(px) = args.error_px.iter().find(|p| !(p.is_finite() && **p > 0.0)) {

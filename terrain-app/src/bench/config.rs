@@ -68,6 +68,11 @@ pub struct BenchConfig {
     /// surface, with and without the morph: two more surfaces a frame). Default true; the
     /// demo skips it.
     pub popping: bool,
+    /// Rendered frames colour every patch by its level (`RenderOptions::lod_colours`): the
+    /// geomorph renderer then draws its base pass only, lit by the lightmap (the geomorphing
+    /// article's "minimum scene": one pass; without it, its material passes, our "full
+    /// scene"). Default false.
+    pub lod_colours: bool,
 }
 
 impl Default for BenchConfig {
@@ -85,6 +90,7 @@ impl Default for BenchConfig {
             ooc_k: 8,
             ooc: OocConfig::default(),
             ooc_wait: false,
+            lod_colours: false,
             from_store: false,
             error_px: None,
             store_only: false,
