@@ -23,7 +23,8 @@ pub(crate) struct BenchArgs {
     /// Flight files (JSON), flown in this order.
     #[arg(long = "flight", required = true, num_args = 1..)]
     pub flights: Vec<PathBuf>,
-    /// Methods, comma-separated (default: all).
+    /// Methods, comma-separated (default: all but geomorph-static and geomorph-cpu, the
+    /// geomorphing article's Table 1 paths).
     #[arg(long, value_enum, value_delimiter = ',')]
     pub methods: Vec<LodMethod>,
     /// The CI settings: 5 frames per flight, 3 sweep points, 320x180 images, the ooc

@@ -9,7 +9,8 @@ use crate::ooc::OocConfig;
 /// How a benchmark runs.
 #[derive(Debug, Clone, PartialEq)]
 pub struct BenchConfig {
-    /// Methods, in report order. Default [`LodMethod::ALL`].
+    /// Methods, in report order. Default [`LodMethod::ALL`] but the geomorphing article's
+    /// comparison paths (`crate::method::registry::benched_by_default`).
     pub methods: Vec<LodMethod>,
     /// Frames per flight: at most this many, evenly spaced over the flight (first and last
     /// included); 0 = every frame. Popping is then measured between consecutive *sampled*
@@ -78,7 +79,10 @@ pub struct BenchConfig {
 impl Default for BenchConfig {
     fn default() -> Self {
         Self {
-            methods: LodMethod::ALL.to_vec(),
+            methods: LodMethod::ALL
+                .into_iter()
+                .filter(|&m| crate::method::registry::benched_by_default(m))
+                .collect(),
             max_frames: 60,
             sweep_points: 5,
             render_size: Some((640, 360)),

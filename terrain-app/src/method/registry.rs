@@ -58,6 +58,13 @@ pub fn build<'a>(
     })
 }
 
+/// Whether `terrain bench` runs `kind` when no `--methods` are given: every method but the
+/// geomorphing article's two comparison paths (`geomorph-static`, `geomorph-cpu`: its Table
+/// 1, `cargo xtask papers --paper geomorph`), which draw what `geomorph` draws.
+pub fn benched_by_default(kind: LodMethod) -> bool {
+    !matches!(kind, LodMethod::GeomorphStatic | LodMethod::GeomorphCpu)
+}
+
 /// Whether `kind` draws from a baked store ([`MethodOptions::store`]).
 pub fn needs_store(kind: LodMethod) -> bool {
     kind == LodMethod::OutOfCore
