@@ -23,7 +23,8 @@ pub(crate) struct BenchArgs {
     /// Flight files (JSON), flown in this order.
     #[arg(long = "flight", required = true, num_args = 1..)]
     pub flights: Vec<PathBuf>,
-    /// Methods, comma-separated (default: all).
+    /// Methods, comma-separated (default: all but geomorph-static and geomorph-cpu, the
+    /// geomorphing article's Table 1 paths).
     #[arg(long, value_enum, value_delimiter = ',')]
     pub methods: Vec<LodMethod>,
     /// The CI settings: 5 frames per flight, 3 sweep points, 320x180 images, the ooc
@@ -92,6 +93,11 @@ pub(crate) struct BenchArgs {
     /// frames are warm, so they select and draw what the method does from memory.
     #[arg(long)]
     pub from_store: bool,
+    /// Rendered frames colour every patch by its level of detail: the geomorph methods then
+    /// draw one pass (base colour and lightmap: the geomorphing article's "minimum scene")
+    /// instead of their material passes.
+    #[arg(long)]
+    pub lod_colours: bool,
     /// Sweep these screen-space error targets, pixels, comma-separated, instead of each
     /// method's own parameter: every method at each target through the one mapping of
     /// `--error-px` (the report's notes give each method's mapped parameter). Not with --sweep.
@@ -242,6 +248,7 @@ pub(crate) fn run(args: &BenchArgs) -> anyhow::Result<()> {
         cfg.ooc.patch_cells = cells;
     }
     cfg.ooc_wait |= args.wait;
+    cfg.lod_colours = args.lod_colours;
     cfg.from_store = args.from_store;
     if !args.error_px.is_empty() {
         if let Some(px) = args.error_px.iter().find(|p| !(p.is_finite() && **p > 0.0)) {

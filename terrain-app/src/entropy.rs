@@ -29,9 +29,9 @@ pub(crate) struct EntropyArgs {
     #[command(flatten)]
     pub source: SourceArgs,
     /// Output PNG of the local entropy (8-bit grey, north up, 0 .. log2(min(M, N)) bits
-    /// mapped to 1..255; voids black).
-    #[arg(short, long)]
-    pub output: PathBuf,
+    /// mapped to 1..255; voids black). Required unless --table is given.
+    #[arg(short, long, required_unless_present = "table")]
+    pub output: Option<PathBuf>,
     /// Also write the profile curvature map (8-bit grey, the class range [-c, c] mapped to
     /// 1..255, clipped; voids black).
     #[arg(long)]
@@ -42,6 +42,15 @@ pub(crate) struct EntropyArgs {
     /// 0.5 m of height noise) as JSON.
     #[arg(long)]
     pub compare: bool,
+    /// Print the entropy paper's Table 1 columns as JSON for these thresholds E0 (percent of
+    /// the largest entropy, comma-separated): tiles, triangles, quadtree construction
+    /// (Algorithm 1 over the entropy map, computed once and timed apart) and crack-elimination
+    /// times, simplification against the full tree of --depth.
+    #[arg(long, value_delimiter = ',')]
+    pub table: Option<Vec<f64>>,
+    /// The quadtree's depth D for --table (the paper's Table 1: 8).
+    #[arg(long, default_value_t = 8)]
+    pub depth: u32,
 }
 
 /// Window and binning of the local entropy (shared with `terrain mesh --entropy`).
@@ -96,13 +105,20 @@ pub(crate) fn run(args: &EntropyArgs) -> anyhow::Result<()> {
         Some(dem) => dem.heightmap,
         None => terrain_core::synth::default_terrain(),
     };
+    if let Some(e0s) = &args.table {
+        println!("{}", serde_json::to_string_pretty(&table(&hm, &cfg, args.depth, e0s)?)?);
+        if args.output.is_none() {
+            return Ok(());
+        }
+    }
+    let output = args.output.as_ref().context("--output is required without --table")?;
     let t = Instant::now();
     let curv = profile_curvature(&hm);
     let c = class_range(&curv, &cfg);
     let ent = local_entropy_with_range(&curv, &cfg, c);
     let ms = t.elapsed().as_secs_f64() * 1e3;
     let (w, h) = (hm.width(), hm.height());
-    write_png(&args.output, w, h, to_grey8(&ent, 0.0, cfg.max_entropy_bits() as f32))?;
+    write_png(output, w, h, to_grey8(&ent, 0.0, cfg.max_entropy_bits() as f32))?;
     if let Some(p) = &args.curvature {
         write_png(p, w, h, to_grey8(&curv, -c, c))?;
     }
@@ -113,7 +129,7 @@ pub(crate) fn run(args: &EntropyArgs) -> anyhow::Result<()> {
         2 * cfg.radius + 1,
         cfg.classes,
         cfg.max_entropy_bits(),
-        args.output.display()
+        output.display()
     );
     if args.compare {
         let r = compare_curvature_entropy(&hm, &cfg, 20, 0.5);
@@ -136,6 +152,59 @@ pub(crate) fn run(args: &EntropyArgs) -> anyhow::Result<()> {
         println!("{}", serde_json::to_string_pretty(&out)?);
     }
     Ok(())
+}
+
+/// `terrain entropy --table`: the entropy paper's Table 1 columns (Chen 2018) for each `E0` of
+/// `e0s` at depth `depth`: the entropy map once (timed), then per threshold Algorithm 1 over
+/// it (the quadtree construction), the three-pass crack elimination and the per-tile
+/// triangulation, each timed on the wall clock, and the simplification against the full
+/// tree's `2 x 4^D` triangles (the paper's E0 = 0 row).
+fn table(
+    hm: &Heightmap,
+    entropy: &EntropyConfig,
+    depth: u32,
+    e0s: &[f64],
+) -> anyhow::Result<serde_json::Value> {
+    anyhow::ensure!(depth <= terrain_visibility::entropy::MAX_DEPTH, "--depth must be 0..=16");
+    anyhow::ensure!(e0s.iter().all(|e| e.is_finite()), "--table thresholds must be numbers");
+    let base = TreeConfig { max_depth: depth, entropy: entropy.clone(), ..TreeConfig::default() };
+    let t = Instant::now();
+    let emap = entropy_map(hm, &base);
+    let map_s = t.elapsed().as_secs_f64();
+    let full = 2u64 << (2 * depth);
+    let mut rows = Vec::new();
+    for &e0 in e0s {
+        let cfg = TreeConfig { e0, ..base.clone() };
+        let t = Instant::now();
+        let mut tree = build_from_grid_with_map(hm, &emap, &cfg);
+        let construction_s = t.elapsed().as_secs_f64();
+        let crack_ms = tree.eliminate_cracks() * 1e3;
+        let t = Instant::now();
+        let mesh = tree.mesh();
+        let triangulation_ms = t.elapsed().as_secs_f64() * 1e3;
+        mesh.check_watertight(tree.lattice.depth).map_err(|e| {
+            anyhow::anyhow!("internal error, the entropy mesh is not watertight: {e}")
+        })?;
+        let triangles = mesh.triangles.len() as u64;
+        rows.push(serde_json::json!({
+            "e0": e0,
+            "tiles": tree.tiles(),
+            "triangles": triangles,
+            "construction_s": construction_s,
+            "crack_ms": crack_ms,
+            "triangulation_ms": triangulation_ms,
+            "simplification_pct": 100.0 * (1.0 - triangles as f64 / full as f64),
+        }));
+    }
+    Ok(serde_json::json!({
+        "width": hm.width(),
+        "height": hm.height(),
+        "depth": depth,
+        "full_triangles": full,
+        "entropy_map_s": map_s,
+        "e0_unit": "percent of the largest entropy, log2(min(M, N)) bits",
+        "rows": rows,
+    }))
 }
 
 /// `--interpolation` values.

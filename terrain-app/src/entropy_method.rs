@@ -79,10 +79,11 @@ impl EntropyScene {
         let dir = camera.forward();
         // Eq. 4 against the horizontal plane at the terrain's mid height.
         let centre = ViewThreshold::visual_centre(eye, dir, self.mean_height);
+        let zoom = fov_zoom(camera.fov_y);
         let view = ViewThreshold {
             e0: config.e0,
-            c1: config.c1_per_diagonal / self.diagonal_m,
-            c2: config.c2_per_diagonal / self.diagonal_m,
+            c1: zoom * config.c1_per_diagonal / self.diagonal_m,
+            c2: zoom * config.c2_per_diagonal / self.diagonal_m,
             centre,
             eye,
         };
@@ -97,6 +98,17 @@ impl EntropyScene {
     }
 }
 
+/// The field of view in Eq. 5 (issue 17: the paper's `E = E0 + c1 r + c2 d` has none): the
+/// distances `r` and `d` count as `tan(fov / 2) / tan(30 deg)` times their length, so a view
+/// of vertical field `fov` refines a tile as the reference 60 degree view refines one whose
+/// projection is as large on screen (the standard zoom compensation of distance-based LOD:
+/// projected size goes as `1 / (d tan(fov / 2))`). 1 at 60 degrees, where `c1` and `c2` were
+/// chosen; narrower views (zoomed in) refine further out.
+fn fov_zoom(fov_y: f64) -> f64 {
+    let z = (0.5 * fov_y).tan() / 30f64.to_radians().tan();
+    if z.is_finite() && z > 0.0 { z } else { 1.0 }
+}
+
 /// A selection that covers the whole terrain (the root node), for the measurement's coverage.
 pub fn whole_terrain_selection(tiles: usize, cpu_ms: f64) -> Selection {
     let f = 1.0;
@@ -108,5 +120,28 @@ pub fn whole_terrain_selection(tiles: usize, cpu_ms: f64) -> Selection {
             cpu_time: std::time::Duration::from_secs_f64(cpu_ms / 1e3),
             ..SelectionStats::default()
         },
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use terrain_core::synth::FractalConfig;
+    use terrain_gpu::render::default_camera;
+
+    /// Eq. 5 with the field of view: the 60 degree view cuts as before (zoom 1), a narrower
+    /// one keeps more tiles (the same terrain looks larger), a wider one fewer.
+    #[test]
+    fn narrower_views_refine_more() {
+        assert!((fov_zoom(60f64.to_radians()) - 1.0).abs() < 1e-12);
+        let hm = FractalConfig::with_size(257, 257, 10.0).to_heightmap().unwrap();
+        let config = EntropyMethodConfig { max_depth: 6, e0: 30.0, ..Default::default() };
+        let scene = EntropyScene::new(&hm, &config);
+        let base = default_camera(&hm, 320, 180, 60.0);
+        let tiles = |deg: f64| scene.frame(&base.with_fov_y_deg(deg), &config).tiles;
+        let (narrow, normal, wide) = (tiles(30.0), tiles(60.0), tiles(90.0));
+        println!("tiles at 30 / 60 / 90 degrees: {narrow} / {normal} / {wide}");
+        assert!(narrow > normal && normal > wide, "{narrow} {normal} {wide}");
+        assert_eq!(fov_zoom(f64::NAN), 1.0);
     }
 }

@@ -108,11 +108,21 @@ pub enum LodMethod {
     /// Our own method: an error-bounded TIN pyramid on the grid's quadtree, tiles chosen by
     /// Cesium's screen-space error against --tau-px (`terrain_core::tin::grid`).
     Tin,
+    /// Geomorphing article's Table 1 "static LOD": geomorph's patches with tweening off
+    /// (integer levels), drawn at their true heights by the geomorph renderer.
+    #[value(name = "geomorph-static")]
+    #[serde(rename = "geomorph-static")]
+    GeomorphStatic,
+    /// Geomorphing article's Table 1 "software morphing": geomorph's levels and tweens, every
+    /// vertex morphed on the CPU each frame and uploaded, drawn without the shader's morph.
+    #[value(name = "geomorph-cpu")]
+    #[serde(rename = "geomorph-cpu")]
+    GeomorphCpu,
 }
 
 impl LodMethod {
     /// Every method, in a fixed order (the benchmark's).
-    pub const ALL: [LodMethod; 13] = [
+    pub const ALL: [LodMethod; 15] = [
         LodMethod::Uniform,
         LodMethod::PvpsA,
         LodMethod::PvpsB,
@@ -126,6 +136,8 @@ impl LodMethod {
         LodMethod::DssStrips,
         LodMethod::OutOfCore,
         LodMethod::Tin,
+        LodMethod::GeomorphStatic,
+        LodMethod::GeomorphCpu,
     ];
 
     /// The CLI and report name.
@@ -144,6 +156,8 @@ impl LodMethod {
             LodMethod::DssStrips => "dss-strips",
             LodMethod::OutOfCore => "ooc",
             LodMethod::Tin => "tin",
+            LodMethod::GeomorphStatic => "geomorph-static",
+            LodMethod::GeomorphCpu => "geomorph-cpu",
         }
     }
 
@@ -151,6 +165,12 @@ impl LodMethod {
     /// share no edges, so `lod::check_shared_edges` does not apply to it).
     pub fn has_strips(self) -> bool {
         self == LodMethod::DssStrips
+    }
+
+    /// Whether the method is one of the geomorphing article's three Table 1 paths (the same
+    /// geo-mipmapped patches: `geomorph`, `geomorph-static`, `geomorph-cpu`).
+    pub fn is_geomorph(self) -> bool {
+        matches!(self, LodMethod::Geomorph | LodMethod::GeomorphStatic | LodMethod::GeomorphCpu)
     }
 }
 
@@ -380,7 +400,7 @@ impl MethodScene {
                 LodMethod::Entropy => {
                     self.entropy_scene();
                 }
-                LodMethod::Geomorph => {
+                LodMethod::Geomorph | LodMethod::GeomorphStatic | LodMethod::GeomorphCpu => {
                     self.geomip_scene();
                 }
                 LodMethod::PvpsCPvs | LodMethod::PvpsCConservative => {
@@ -413,8 +433,8 @@ impl MethodScene {
             }
             // A mesh, not patches: see `EntropyScene::frame`; the root stands for "everything".
             LodMethod::Entropy => whole_terrain_selection(1, 0.0),
-            LodMethod::Geomorph => {
-                let frame = self.select_geomorph(camera);
+            LodMethod::Geomorph | LodMethod::GeomorphStatic | LodMethod::GeomorphCpu => {
+                let frame = self.select_geomorph_with(camera, method != LodMethod::GeomorphStatic);
                 self.geomorph_selection(&frame)
             }
             LodMethod::PvpsCPvs | LodMethod::PvpsCConservative => {
@@ -485,7 +505,14 @@ impl MethodScene {
 
     /// The geomorph method's levels, tween factors and border rules for `camera`.
     pub fn select_geomorph(&self, camera: &Camera) -> GeomipSelection {
-        let cfg = GeomipConfig { patch_cells: self.geomorph_patch_cells(), ..self.config.geomip };
+        self.select_geomorph_with(camera, self.config.geomip.morph)
+    }
+
+    /// [`MethodScene::select_geomorph`] with tweening on or off (`geomorph-static`: integer
+    /// levels, every tween factor 0).
+    pub fn select_geomorph_with(&self, camera: &Camera, morph: bool) -> GeomipSelection {
+        let cfg =
+            GeomipConfig { patch_cells: self.geomorph_patch_cells(), morph, ..self.config.geomip };
         self.geomip_scene().select(camera, &cfg)
     }
 

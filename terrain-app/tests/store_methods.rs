@@ -102,7 +102,7 @@ fn check(name: &str, hm: Heightmap) {
             assert_eq!(blocks.blocks_dropped, 0, "{name} {kind:?}: every block drawn");
             let stream = b.stats.stream.clone().unwrap();
             assert!(stream.at_needed_level, "{name} {kind:?}: a warm frame");
-            if let (Draw::Morph(la), Draw::PagedMorph(_, lb)) = (&a.draw, &b.draw) {
+            if let (Draw::Morph(la, _), Draw::PagedMorph(_, lb)) = (&a.draw, &b.draw) {
                 assert_eq!(la.patches, lb.patches, "{name} camera {c}: the same levels and tweens");
                 assert!(lb.patches.iter().any(|p| p.tween > 0.0), "{name} camera {c}: morphing");
             } else {

@@ -9,7 +9,8 @@ use crate::ooc::OocConfig;
 /// How a benchmark runs.
 #[derive(Debug, Clone, PartialEq)]
 pub struct BenchConfig {
-    /// Methods, in report order. Default [`LodMethod::ALL`].
+    /// Methods, in report order. Default [`LodMethod::ALL`] but the geomorphing article's
+    /// comparison paths (`crate::method::registry::benched_by_default`).
     pub methods: Vec<LodMethod>,
     /// Frames per flight: at most this many, evenly spaced over the flight (first and last
     /// included); 0 = every frame. Popping is then measured between consecutive *sampled*
@@ -68,12 +69,20 @@ pub struct BenchConfig {
     /// surface, with and without the morph: two more surfaces a frame). Default true; the
     /// demo skips it.
     pub popping: bool,
+    /// Rendered frames colour every patch by its level (`RenderOptions::lod_colours`): the
+    /// geomorph renderer then draws its base pass only, lit by the lightmap (the geomorphing
+    /// article's "minimum scene": one pass; without it, its material passes, our "full
+    /// scene"). Default false.
+    pub lod_colours: bool,
 }
 
 impl Default for BenchConfig {
     fn default() -> Self {
         Self {
-            methods: LodMethod::ALL.to_vec(),
+            methods: LodMethod::ALL
+                .into_iter()
+                .filter(|&m| crate::method::registry::benched_by_default(m))
+                .collect(),
             max_frames: 60,
             sweep_points: 5,
             render_size: Some((640, 360)),
@@ -85,6 +94,7 @@ impl Default for BenchConfig {
             ooc_k: 8,
             ooc: OocConfig::default(),
             ooc_wait: false,
+            lod_colours: false,
             from_store: false,
             error_px: None,
             store_only: false,

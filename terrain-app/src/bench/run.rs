@@ -242,7 +242,11 @@ pub fn run_bench(
                 };
                 let mut frames_loop = FrameLoop::new(built)
                     .measured(&scene.hm, &scene.qt, cfg.measure)
-                    .rendered(renderer);
+                    .rendered(renderer)
+                    .with_options(terrain_gpu::RenderOptions {
+                        lod_colours: cfg.lod_colours,
+                        ..Default::default()
+                    });
                 let cams = flight.frames();
                 let mut frames = Vec::with_capacity(info.frames.len());
                 // Real time: every frame at the flight's rate, the clock restarting after each

@@ -1,55 +1,95 @@
 //! The geomorphing article's (Wagner 2003) method drawn with its vertex-shader morph: the
 //! geo-mipmapped patches with levels and tween factors for terrain-gpu's `GeomorphRenderer`,
 //! measured through the morph's CPU reference, and the popping it removes (the per-vertex jump
-//! between consecutive cameras, with tweening and without).
+//! between consecutive cameras, with tweening and without). The article's Table 1 compares
+//! three paths over the same patches ([`MorphPath`]): the vertex-shader morph (`geomorph`),
+//! no morph (`geomorph-static`) and the morph computed on the CPU and uploaded every frame
+//! (`geomorph-cpu`).
 
 use std::time::Instant;
 
 use terrain_core::geometry::Camera;
-use terrain_gpu::geomorph::max_vertex_jump;
+use terrain_gpu::geomorph::{GpuMorphPatch, MorphGrid, max_vertex_jump};
 
 use super::memory::ms;
-use super::{Draw, DrawSource, DrawnSurface, Frame, Method, MethodStats};
+use super::{Draw, DrawSource, DrawnSurface, Frame, Method, MethodStats, MorphHeights};
 use crate::methods::{LodMethod, MethodScene};
 
-/// `geomorph` with the morph renderer, over a [`MethodScene`] (its current config).
+/// Which of the article's Table 1 paths draws the geo-mipmapped patches.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum MorphPath {
+    /// Morphed in the vertex shader ("hardware morphing"): `geomorph`.
+    Shader,
+    /// Tweening off, true heights ("static LOD"): `geomorph-static`.
+    Static,
+    /// Morphed on the CPU every frame and uploaded ("software morphing"): `geomorph-cpu`.
+    Cpu,
+}
+
+/// `geomorph` (and its Table 1 variants) with the morph renderer, over a [`MethodScene`] (its
+/// current config).
 #[derive(Debug)]
 pub struct GeomorphMethod<'a> {
     scene: &'a MethodScene,
+    path: MorphPath,
 }
 
 impl<'a> GeomorphMethod<'a> {
-    /// The method over `scene`.
-    pub fn new(scene: &'a MethodScene) -> Self {
-        Self { scene }
+    /// The method over `scene`, drawn by `path`.
+    pub fn new(scene: &'a MethodScene, path: MorphPath) -> Self {
+        Self { scene, path }
     }
 }
 
 impl Method for GeomorphMethod<'_> {
     fn kind(&self) -> LodMethod {
-        LodMethod::Geomorph
+        match self.path {
+            MorphPath::Shader => LodMethod::Geomorph,
+            MorphPath::Static => LodMethod::GeomorphStatic,
+            MorphPath::Cpu => LodMethod::GeomorphCpu,
+        }
     }
 
     fn frame(&mut self, camera: &Camera) -> Frame {
         let t = Instant::now();
-        let lods = self.scene.select_geomorph(camera);
+        let morph = self.path != MorphPath::Static && self.scene.config.geomip.morph;
+        let lods = self.scene.select_geomorph_with(camera, morph);
         let selection_ms = ms(t);
+        // Software morphing: every vertex of every patch morphed on the CPU (the shader's
+        // tested reference), the frame's build stage; the renderer uploads the result.
+        let (heights, build_ms) = match self.path {
+            MorphPath::Shader => (MorphHeights::Shader, 0.0),
+            MorphPath::Static => (MorphHeights::Static, 0.0),
+            MorphPath::Cpu => {
+                let t = Instant::now();
+                let n = self.scene.geomorph_patch_cells();
+                let grid = MorphGrid::new(&self.scene.hm, n);
+                let patches: Vec<GpuMorphPatch> =
+                    lods.patches.iter().map(|p| GpuMorphPatch::from_lod(p, n)).collect();
+                let mut h = Vec::new();
+                grid.patch_heights(&patches, &mut h);
+                (MorphHeights::Cpu(h), ms(t))
+            }
+        };
         // The leaves as a quadtree selection: the measurement's coverage.
         let selection = self.scene.geomorph_selection(&lods);
         Frame {
             stats: MethodStats {
                 selection_ms,
+                build_ms,
                 patches: lods.patches.len(),
                 ..MethodStats::default()
             },
             selection,
-            draw: Draw::Morph(lods),
+            draw: Draw::Morph(lods, heights),
             built: None,
         }
     }
 
+    /// The morph's CPU reference over the frame's patches: the true heights where the tween
+    /// factors are 0 (`geomorph-static`), the CPU-morphed heights `geomorph-cpu` uploads.
     fn surface(&self, frame: &mut Frame) -> anyhow::Result<DrawnSurface> {
-        let Draw::Morph(lods) = &frame.draw else {
+        let Draw::Morph(lods, _) = &frame.draw else {
             anyhow::bail!("a geomorph frame draws morphed patches");
         };
         let (mesh, triangles) = self.scene.geomorph_surface(lods);
@@ -57,13 +97,17 @@ impl Method for GeomorphMethod<'_> {
     }
 
     /// The jump from `previous`'s surface (morphing), and the same with tweening off (integer
-    /// levels): the popping geomorphing removes.
+    /// levels): the popping geomorphing removes. `None` for `geomorph-static`, which does not
+    /// morph.
     fn vertex_jumps(
         &self,
         previous: &Camera,
         camera: &Camera,
         drawn: &DrawnSurface,
     ) -> Option<[f64; 2]> {
+        if self.path == MorphPath::Static {
+            return None;
+        }
         let scene = self.scene;
         let (before, _) = scene.geomorph_surface(&scene.select_geomorph(previous));
         let morph = max_vertex_jump(&before, &drawn.mesh);

@@ -35,7 +35,7 @@ use terrain_gpu::render::{DrawPatch, ExtraTriangles};
 
 pub use entropy::{EntropyMethod, entropy_extra};
 pub use frame_loop::{FrameLoop, LoopFrame};
-pub use geomorph::GeomorphMethod;
+pub use geomorph::{GeomorphMethod, MorphPath};
 pub use memory::MemoryMethod;
 pub use ooc::{OocMethod, OocWait};
 pub use registry::{MethodOptions, build};
@@ -57,8 +57,9 @@ pub enum Draw {
         /// Triangles between patch domain points, drawn in the same pass.
         extra: ExtraTriangles,
     },
-    /// Geo-mipmapped patches with their levels and tween factors, for the geomorph renderer.
-    Morph(GeomipSelection),
+    /// Geo-mipmapped patches with their levels and tween factors, for the geomorph renderer,
+    /// and where the drawn heights come from (the geomorphing article's Table 1 paths).
+    Morph(GeomipSelection, MorphHeights),
     /// Patches over a store's paged heights, for the paged renderer: the runtime's frame (its
     /// patches and the page changes to apply first; its selection moved to
     /// [`Frame::selection`]).
@@ -67,6 +68,17 @@ pub enum Draw {
     /// tessellated patches are not drawn) and the geo-mipmapped patches with their levels and
     /// tween factors, for the geomorph renderer reading the paged renderer's pages.
     PagedMorph(Box<OocFrame>, GeomipSelection),
+}
+
+/// Where a [`Draw::Morph`] frame's heights come from (terrain-gpu's `MorphSource`).
+#[derive(Debug, Clone, PartialEq)]
+pub enum MorphHeights {
+    /// Morphed in the vertex shader.
+    Shader,
+    /// True heights, no morph (tween factors 0).
+    Static,
+    /// Morphed on the CPU (`MorphGrid::patch_heights`), uploaded by the renderer.
+    Cpu(Vec<f32>),
 }
 
 /// A store-backed method's block figures of one frame.

@@ -7,7 +7,9 @@
 
 use std::sync::Arc;
 
-use super::{EntropyMethod, GeomorphMethod, MemoryMethod, Method, OocMethod, OocWait, TinMethod};
+use super::{
+    EntropyMethod, GeomorphMethod, MemoryMethod, Method, MorphPath, OocMethod, OocWait, TinMethod,
+};
 use crate::methods::{LodMethod, MethodConfig, MethodScene};
 use crate::ooc::OocScene;
 use terrain_stream::{DEFAULT_SPLIT, SplitRule};
@@ -45,7 +47,11 @@ pub fn build<'a>(
     Ok(match kind {
         LodMethod::Entropy => Box::new(EntropyMethod::new(scene)),
         LodMethod::Tin => Box::new(TinMethod::new(scene)?),
-        LodMethod::Geomorph if options.morph => Box::new(GeomorphMethod::new(scene)),
+        LodMethod::Geomorph if options.morph => {
+            Box::new(GeomorphMethod::new(scene, MorphPath::Shader))
+        }
+        LodMethod::GeomorphStatic => Box::new(GeomorphMethod::new(scene, MorphPath::Static)),
+        LodMethod::GeomorphCpu => Box::new(GeomorphMethod::new(scene, MorphPath::Cpu)),
         LodMethod::OutOfCore => {
             let Some(store) = &options.store else { anyhow::bail!("{OOC_NEEDS_STORE}") };
             let runtime = OocScene::new(store.clone(), scene.config.ooc);
@@ -59,6 +65,13 @@ pub fn build<'a>(
 /// carrier patch), not tessellated patches: `entropy` and `tin`.
 pub fn draws_mesh(kind: LodMethod) -> bool {
     matches!(kind, LodMethod::Entropy | LodMethod::Tin)
+}
+
+/// Whether `terrain bench` runs `kind` when no `--methods` are given: every method but the
+/// geomorphing article's two comparison paths (`geomorph-static`, `geomorph-cpu`: its Table
+/// 1, `cargo xtask papers --paper geomorph`), which draw what `geomorph` draws.
+pub fn benched_by_default(kind: LodMethod) -> bool {
+    !matches!(kind, LodMethod::GeomorphStatic | LodMethod::GeomorphCpu)
 }
 
 /// Whether `kind` draws from a baked store ([`MethodOptions::store`]).
@@ -87,7 +100,9 @@ pub fn sweep_values(method: LodMethod, leaf_cells: u32) -> (&'static str, Vec<f6
         // entropy scale; see `terrain_visibility::entropy::source::EntropyScale`). E0 = 0 is
         // the full-depth mesh, the uniform method's job, and seconds per frame: not swept.
         LodMethod::Entropy => ("E0", vec![18.0, 50.0, 70.0, 85.0, 95.0]),
-        LodMethod::Geomorph => ("tau_px", vec![0.5, 1.0, 2.0, 4.0, 8.0]),
+        LodMethod::Geomorph | LodMethod::GeomorphStatic | LodMethod::GeomorphCpu => {
+            ("tau_px", vec![0.5, 1.0, 2.0, 4.0, 8.0])
+        }
         LodMethod::PvpsCPvs | LodMethod::PvpsCConservative => {
             ("C1", vec![12.5, 25.0, 50.0, 100.0, 200.0])
         }
@@ -105,7 +120,9 @@ pub fn apply_parameter(config: &mut MethodConfig, method: LodMethod, value: f64)
         LodMethod::PvpsA | LodMethod::PvpsB | LodMethod::PvpsC => config.pvps.c1 = value,
         LodMethod::Dss1 | LodMethod::Dss2 | LodMethod::DssStrips => config.dss.rho_thr = value,
         LodMethod::Entropy => config.entropy.e0 = value,
-        LodMethod::Geomorph => config.geomip.pixel_threshold = value,
+        LodMethod::Geomorph | LodMethod::GeomorphStatic | LodMethod::GeomorphCpu => {
+            config.geomip.pixel_threshold = value
+        }
         LodMethod::PvpsCPvs | LodMethod::PvpsCConservative => config.pvps.c1 = value,
         LodMethod::OutOfCore => config.ooc.tau = value,
         LodMethod::Tin => config.tin.tau_px = value,
@@ -120,7 +137,9 @@ pub fn parameter(config: &MethodConfig, method: LodMethod) -> f64 {
         LodMethod::PvpsA | LodMethod::PvpsB | LodMethod::PvpsC => config.pvps.c1,
         LodMethod::Dss1 | LodMethod::Dss2 | LodMethod::DssStrips => config.dss.rho_thr,
         LodMethod::Entropy => config.entropy.e0,
-        LodMethod::Geomorph => config.geomip.pixel_threshold,
+        LodMethod::Geomorph | LodMethod::GeomorphStatic | LodMethod::GeomorphCpu => {
+            config.geomip.pixel_threshold
+        }
         LodMethod::PvpsCPvs | LodMethod::PvpsCConservative => config.pvps.c1,
         LodMethod::OutOfCore => config.ooc.tau,
         LodMethod::Tin => config.tin.tau_px,
@@ -136,6 +155,8 @@ pub fn parameter_is_pixels(method: LodMethod) -> bool {
             | LodMethod::Dss2
             | LodMethod::DssStrips
             | LodMethod::Geomorph
+            | LodMethod::GeomorphStatic
+            | LodMethod::GeomorphCpu
             | LodMethod::OutOfCore
             | LodMethod::Tin
     )
@@ -149,6 +170,17 @@ pub fn note(method: LodMethod) -> Option<&'static str> {
             "entropy: a triangle mesh, measured on the CPU and drawn as the renderer's extra \
              triangles (uploaded every frame); its selection time is the Eq. 5 cut, its \
              tessellation time the crack elimination and tile triangulation.",
+        ),
+        LodMethod::GeomorphStatic => Some(
+            "geomorph-static: the geomorphing article's Table 1 'static LOD': geomorph's patches \
+             with tweening off (integer levels), drawn by the geomorph renderer at their true \
+             heights (no morph in the vertex stage).",
+        ),
+        LodMethod::GeomorphCpu => Some(
+            "geomorph-cpu: the geomorphing article's Table 1 'software morphing': geomorph's \
+             levels and tweens, every vertex of every drawn patch morphed on the CPU each frame \
+             (the morph's CPU reference, timed as the frame's build stage) and uploaded, drawn \
+             by a pipeline that reads the heights and does not morph.",
         ),
         LodMethod::OutOfCore => Some(
             "ooc: blocks come from a store through the streamer. By default the flight is played \
@@ -189,6 +221,8 @@ pub fn colour(m: LodMethod) -> &'static str {
         LodMethod::DssStrips => "#393b79",
         LodMethod::OutOfCore => "#6b8e23",
         LodMethod::Tin => "#b8860b",
+        LodMethod::GeomorphStatic => "#f7b6d2",
+        LodMethod::GeomorphCpu => "#c49c94",
     }
 }
 
@@ -213,7 +247,10 @@ pub enum Marker {
 pub fn marker(m: LodMethod) -> Marker {
     match m {
         LodMethod::Uniform => Marker::Square,
-        LodMethod::PvpsA | LodMethod::Geomorph => Marker::Triangle,
+        LodMethod::PvpsA
+        | LodMethod::Geomorph
+        | LodMethod::GeomorphStatic
+        | LodMethod::GeomorphCpu => Marker::Triangle,
         LodMethod::PvpsB | LodMethod::DssStrips => Marker::Diamond,
         LodMethod::PvpsC | LodMethod::Tin => Marker::Circle,
         LodMethod::Dss1 | LodMethod::OutOfCore => Marker::TriangleDown,
@@ -388,7 +425,9 @@ pub fn params_for_error_px(method: LodMethod, error_px: f64, view: ErrorView) ->
     let reference_px = px / scale;
     let leaf = f64::from(MethodConfig::default().leaf_cells);
     let (parameter, value, basis) = match method {
-        LodMethod::Geomorph => ("tau_px", px, ErrorPxBasis::Direct),
+        LodMethod::Geomorph | LodMethod::GeomorphStatic | LodMethod::GeomorphCpu => {
+            ("tau_px", px, ErrorPxBasis::Direct)
+        }
         LodMethod::OutOfCore => {
             ("tau", px / ooc_p99_per_tau(DEFAULT_SPLIT), ErrorPxBasis::Calibrated)
         }

@@ -9,11 +9,11 @@ use std::time::Instant;
 use glam::DVec3;
 use terrain_core::Heightmap;
 use terrain_core::geometry::Camera;
-use terrain_gpu::geomorph::{GeomorphConfig, GeomorphOptions, GeomorphRenderer};
+use terrain_gpu::geomorph::{GeomorphConfig, GeomorphOptions, GeomorphRenderer, MorphSource};
 use terrain_gpu::tess::{GpuPatchFactors, PatchRange};
 use terrain_gpu::{GpuContext, RenderConfig, RenderOptions, RgbaImage, TerrainRenderer};
 
-use super::{Draw, Frame};
+use super::{Draw, Frame, MorphHeights};
 use crate::ooc::OocScene;
 
 /// Which renderer a method's frames need.
@@ -326,9 +326,14 @@ impl FrameRenderer {
                 bytes += (extra.points.len() * 16 + extra.indices.len() * 4) as u64;
                 DrawStats::of_terrain(s, wall_ms, bytes + anchor_bytes)
             }
-            (Inner::Geomorph(r), Draw::Morph(lods)) => {
+            (Inner::Geomorph(r), Draw::Morph(lods, heights)) => {
+                let source = match heights {
+                    MorphHeights::Shader => MorphSource::Shader,
+                    MorphHeights::Static => MorphSource::Static,
+                    MorphHeights::Cpu(h) => MorphSource::Cpu(h),
+                };
                 let t = Instant::now();
-                let s = r.render(camera, &lods.patches, &morph_options(options))?;
+                let s = r.render_with(camera, &lods.patches, source, &morph_options(options))?;
                 DrawStats::of_geomorph(s, ms(t), anchor_bytes)
             }
             (Inner::PagedMorph { pages, morph }, Draw::PagedMorph(f, lods)) => {
@@ -363,7 +368,7 @@ impl FrameRenderer {
                 self.kind(),
                 match draw {
                     Draw::Tessellated { .. } => "tessellated",
-                    Draw::Morph(_) => "geomorph",
+                    Draw::Morph(..) => "geomorph",
                     Draw::Paged(_) => "paged",
                     Draw::PagedMorph(..) => "paged geomorph",
                 }

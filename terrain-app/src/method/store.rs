@@ -51,7 +51,9 @@ use crate::ooc::{OocScene, StoreDraw};
 
 /// Which methods draw from a store.
 pub fn draws_from_store(kind: LodMethod) -> bool {
-    !super::registry::draws_mesh(kind)
+    // geomorph-static and geomorph-cpu (the article's Table 1 comparison) draw from memory.
+    !(super::registry::draws_mesh(kind)
+        || matches!(kind, LodMethod::GeomorphStatic | LodMethod::GeomorphCpu))
 }
 
 /// `kind` over the store of `scene` (its runtime), with `config`'s parameters; measured

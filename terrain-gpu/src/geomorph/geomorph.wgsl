@@ -176,12 +176,27 @@ struct Morphed {
     grid: vec2<f32>,
 }
 
-fn morphed_vertex(p: GmPatch, local: u32) -> Morphed {
+// Set per pipeline (geomorph/renderer.rs `MorphSource`), the article's Table 1 columns:
+// 0 morphs in the vertex stage (hardware morphing); 1 draws every vertex at its true height
+// (static geo-mipmapping: no tweening); 2 reads the height the CPU morphed and uploaded this
+// frame (software morphing: `cpu_h[patch index * (patch_cells + 1)^2 + local]`, morph.rs
+// `MorphGrid::patch_heights`, the same reference `morph_h` is tested against).
+override MORPH_MODE: u32 = 0u;
+@group(0) @binding(10) var<storage, read> cpu_h: array<f32>;
+
+fn morphed_vertex(p: GmPatch, pi: u32, local: u32) -> Morphed {
     let n1 = frame.patch_cells + 1u;
     let x = local % n1;
     let y = local / n1;
     let g = sample_of(p, x, y);
-    let h = morph_h(p, x, y);
+    var h: f32;
+    if MORPH_MODE == 1u {
+        h = true_h(p, x, y);
+    } else if MORPH_MODE == 2u {
+        h = cpu_h[pi * n1 * n1 + local];
+    } else {
+        h = morph_h(p, x, y);
+    }
     return Morphed(vec3<f32>(col_x[g.x], row_y[g.y], h + frame.height_offset), h, vec2<f32>(g));
 }
 
@@ -203,7 +218,7 @@ fn vs(@builtin(vertex_index) vi: u32, @builtin(instance_index) ii: u32) -> VsOut
     // holds the patch and the local lattice id (geomorph/renderer.rs).
     let p = patches[vi >> PATCH_SHIFT];
     let id = vi & ((1u << PATCH_SHIFT) - 1u);
-    let v = morphed_vertex(p, id & (SKIRT_BIT - 1u));
+    let v = morphed_vertex(p, vi >> PATCH_SHIFT, id & (SKIRT_BIT - 1u));
     var pos = v.pos;
     if (id & SKIRT_BIT) != 0u {
         pos.z -= frame.skirt_depth;
@@ -296,6 +311,6 @@ fn debug_morph(@builtin(global_invocation_id) gid: vec3<u32>) {
         return;
     }
     let item = items[k];
-    let v = morphed_vertex(patches[item.x], item.y);
+    let v = morphed_vertex(patches[item.x], item.x, item.y);
     morph_out[k] = vec4<f32>(v.pos, v.height);
 }

@@ -27,5 +27,6 @@ mod tests;
 pub use materials::MaterialMaps;
 pub use morph::{GpuMorphPatch, MeshLibrary, MorphGrid, build_surface, max_vertex_jump};
 pub use renderer::{
-    GeomorphConfig, GeomorphFrameStats, GeomorphOptions, GeomorphRenderer, SHADER, lod_step,
+    GeomorphConfig, GeomorphFrameStats, GeomorphOptions, GeomorphRenderer, MorphSource, SHADER,
+    lod_step,
 };

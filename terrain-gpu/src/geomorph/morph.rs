@@ -213,6 +213,22 @@ impl<'a> MorphGrid<'a> {
         a + p.tween * (m - a)
     }
 
+    /// Every lattice point's [`MorphGrid::height`] of every patch, `(patch_cells + 1)^2` per
+    /// patch in local-id order (`y (patch_cells + 1) + x`), patches in order: the article's
+    /// "software morphing" (the CPU morphs, the renderer uploads the result every frame,
+    /// `MorphSource::Cpu`). Points a patch's level does not draw are computed too (the
+    /// article's CPU path also sends every vertex); `out` is cleared first and reused.
+    pub fn patch_heights(&self, patches: &[GpuMorphPatch], out: &mut Vec<f32>) {
+        let n1 = self.patch_cells + 1;
+        out.clear();
+        out.reserve(patches.len() * (n1 * n1) as usize);
+        for p in patches {
+            for y in 0..n1 {
+                out.extend((0..n1).map(|x| self.height(p, x, y)));
+            }
+        }
+    }
+
     /// World position (f64, metres) of local point `(x, y)` of `p`: the sample's plan position
     /// and [`MorphGrid::height`].
     pub fn world_position(&self, p: &GpuMorphPatch, x: u32, y: u32) -> DVec3 {

@@ -116,6 +116,34 @@ pub struct GeomorphOptions {
     pub lod_colours: bool,
 }
 
+/// Where a frame's drawn heights come from: the geomorphing article's Table 1 columns (Wagner
+/// 2003, "Results"), each drawn by its own pipeline of `geomorph.wgsl` (`MORPH_MODE`).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub enum MorphSource<'a> {
+    /// Morphed in the vertex stage ("hardware morphing", the article's method).
+    #[default]
+    Shader,
+    /// Every vertex at its true height, tween factors ignored ("static LOD": geo-mipmapping
+    /// without geomorphing).
+    Static,
+    /// Heights morphed on the CPU by [`super::MorphGrid::patch_heights`] (the reference the
+    /// vertex stage's morph is tested against) and uploaded every frame ("software
+    /// morphing"): `(patch_cells + 1)^2` per patch, in the order of the patches; the pipeline
+    /// reads them and does no morphing.
+    Cpu(&'a [f32]),
+}
+
+impl MorphSource<'_> {
+    /// `MORPH_MODE` in `geomorph.wgsl`.
+    fn mode(&self) -> usize {
+        match self {
+            MorphSource::Shader => 0,
+            MorphSource::Static => 1,
+            MorphSource::Cpu(_) => 2,
+        }
+    }
+}
+
 /// What one frame drew and cost.
 #[derive(Clone, Debug, PartialEq)]
 pub struct GeomorphFrameStats {
@@ -127,8 +155,9 @@ pub struct GeomorphFrameStats {
     pub passes_drawn: usize,
     /// Material passes skipped because the material's alpha is zero over the patch.
     pub passes_skipped: usize,
-    /// Bytes uploaded this frame: the frame uniform, the patches and the passes' index lists
-    /// (not the column/row offsets written when the anchor moves).
+    /// Bytes uploaded this frame: the frame uniform, the patches, the passes' index lists and,
+    /// with [`MorphSource::Cpu`], the morphed heights (not the column/row offsets written
+    /// when the anchor moves).
     pub upload_bytes: u64,
     /// CPU time to upload, encode and submit, milliseconds.
     pub cpu_ms: f64,
@@ -155,7 +184,15 @@ struct Bound {
     atlas: wgpu::TextureView,
     table: wgpu::Buffer,
     patches: wgpu::Buffer,
+    cpu: wgpu::Buffer,
     group: wgpu::BindGroup,
+}
+
+/// The base and material pipelines of one [`MorphSource`].
+#[derive(Debug)]
+struct Pipelines {
+    base: wgpu::RenderPipeline,
+    overlay: wgpu::RenderPipeline,
 }
 
 /// Draws geo-mipmapped, geomorphed patches ([`PatchLod`]s from
@@ -170,9 +207,13 @@ pub struct GeomorphRenderer {
     target: OffscreenTarget,
     layout: wgpu::BindGroupLayout,
     debug_layout: wgpu::BindGroupLayout,
-    base: wgpu::RenderPipeline,
-    overlay: wgpu::RenderPipeline,
+    module: wgpu::ShaderModule,
+    render_layout: wgpu::PipelineLayout,
+    /// Per [`MorphSource::mode`]: built on first use (the shader's morph at creation).
+    pipelines: [Option<Pipelines>; 3],
     debug: wgpu::ComputePipeline,
+    /// [`MorphSource::Cpu`]'s heights (binding 10; 4 bytes when never used) and capacity.
+    cpu_heights: (wgpu::Buffer, u64),
     frame: wgpu::Buffer,
     col_x: wgpu::Buffer,
     row_y: wgpu::Buffer,
@@ -357,6 +398,7 @@ impl GeomorphRenderer {
                 entry(7, texture(true)),
                 entry(8, wgpu::BindingType::Sampler(wgpu::SamplerBindingType::Filtering)),
                 entry(9, storage(true)),
+                entry(10, storage(true)),
             ],
         });
         let debug_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
@@ -385,65 +427,24 @@ impl GeomorphRenderer {
             bind_group_layouts: &[Some(&layout)],
             immediate_size: 0,
         });
-        // Paged mode shades per fragment from the pages (`fs_paged`); a whole heightmap from
-        // its lightmap and alpha maps (`fs`).
         let paged = matches!(heights, Heights::Paged(..));
-        let fragment = if paged { "fs_paged" } else { "fs" };
-        let constants = [("PAGED", if paged { 1.0 } else { 0.0 })];
-        let options =
-            || wgpu::PipelineCompilationOptions { constants: &constants, ..Default::default() };
-        let pipeline = |label, depth: wgpu::DepthStencilState, target: wgpu::ColorTargetState| {
-            device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
-                label: Some(label),
-                layout: Some(&render_layout),
-                vertex: wgpu::VertexState {
-                    module: &module,
-                    entry_point: Some("vs"),
-                    compilation_options: options(),
-                    buffers: &[],
-                },
-                // No culling: skirts are seen from both sides.
-                primitive: wgpu::PrimitiveState::default(),
-                depth_stencil: Some(depth),
-                multisample: Default::default(),
-                fragment: Some(wgpu::FragmentState {
-                    module: &module,
-                    entry_point: Some(fragment),
-                    compilation_options: options(),
-                    targets: &[Some(target)],
-                }),
-                multiview_mask: None,
-                cache: None,
-            })
-        };
-        let base = pipeline("geomorph base", OffscreenTarget::depth_state(), COLOR_FORMAT.into());
-        // Material passes: the same vertices (the position is @invariant), depth equal or
-        // nearer, no depth writes, blended over the colour, alpha kept from the base pass.
-        let overlay = pipeline(
-            "geomorph material",
-            wgpu::DepthStencilState {
-                depth_write_enabled: Some(false),
-                depth_compare: Some(wgpu::CompareFunction::LessEqual),
-                ..OffscreenTarget::depth_state()
-            },
-            wgpu::ColorTargetState {
-                format: COLOR_FORMAT,
-                blend: Some(wgpu::BlendState::ALPHA_BLENDING),
-                write_mask: wgpu::ColorWrites::COLOR,
-            },
-        );
+        let shader = make_pipelines(device, &module, &render_layout, paged, 0);
         let debug_pipeline_layout =
             device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
                 label: Some("geomorph debug"),
                 bind_group_layouts: &[Some(&layout), Some(&debug_layout)],
                 immediate_size: 0,
             });
+        let constants = [("PAGED", if paged { 1.0 } else { 0.0 })];
         let debug = device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
             label: Some("debug_morph"),
             layout: Some(&debug_pipeline_layout),
             module: &module,
             entry_point: Some("debug_morph"),
-            compilation_options: options(),
+            compilation_options: wgpu::PipelineCompilationOptions {
+                constants: &constants,
+                ..Default::default()
+            },
             cache: None,
         });
         use wgpu::BufferUsages as U;
@@ -459,6 +460,7 @@ impl GeomorphRenderer {
             buffer("geomorph frame", size_of::<GpuFrame>() as u64, U::UNIFORM | U::COPY_DST);
         let col_x = buffer("geomorph columns", 4 * u64::from(width), U::STORAGE | U::COPY_DST);
         let row_y = buffer("geomorph rows", 4 * u64::from(height), U::STORAGE | U::COPY_DST);
+        let cpu_heights = buffer("geomorph cpu heights", 4, U::STORAGE | U::COPY_DST);
         let lib = MeshLibrary::new(p);
         Ok(Self {
             device: ctx.device.clone(),
@@ -467,9 +469,11 @@ impl GeomorphRenderer {
             target: OffscreenTarget::new(device, config.width, config.height),
             layout,
             debug_layout,
-            base,
-            overlay,
+            module,
+            render_layout,
+            pipelines: [Some(shader), None, None],
             debug,
+            cpu_heights: (cpu_heights, 4),
             frame,
             col_x,
             row_y,
@@ -556,6 +560,7 @@ impl GeomorphRenderer {
         pages: Option<&mut TerrainRenderer>,
         camera: &Camera,
         lods: &[GpuMorphPatch],
+        cpu_heights: Option<&[f32]>,
         options: &GeomorphOptions,
     ) -> Result<(), RenderError> {
         let [w, h] = self.grid;
@@ -596,12 +601,35 @@ impl GeomorphRenderer {
             });
             self.patches = Some((buf, cap));
         }
+        if let Some(hs) = cpu_heights {
+            let n1 = self.lib.patch_cells as usize + 1;
+            if hs.len() != lods.len() * n1 * n1 {
+                return Err(RenderError::InvalidConfig(format!(
+                    "{} CPU-morphed heights for {} patches of {n1} x {n1} vertices",
+                    hs.len(),
+                    lods.len()
+                )));
+            }
+            let bytes = (hs.len().max(1) * 4) as u64;
+            if self.cpu_heights.1 < bytes {
+                let cap = bytes.next_power_of_two();
+                let buf = self.device.create_buffer(&wgpu::BufferDescriptor {
+                    label: Some("geomorph cpu heights"),
+                    size: cap,
+                    usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
+                    mapped_at_creation: false,
+                });
+                self.cpu_heights = (buf, cap);
+            }
+            if !hs.is_empty() {
+                self.queue.write_buffer(&self.cpu_heights.0, 0, bytemuck::cast_slice(hs));
+            }
+        }
+        let cpu = &self.cpu_heights.0;
         let (buf, _) = self.patches.as_ref().expect("allocated above");
-        if self
-            .bound
-            .as_ref()
-            .is_none_or(|b| b.atlas != atlas || b.table != table || b.patches != *buf)
-        {
+        if self.bound.as_ref().is_none_or(|b| {
+            b.atlas != atlas || b.table != table || b.patches != *buf || b.cpu != *cpu
+        }) {
             let bind = |binding, resource| wgpu::BindGroupEntry { binding, resource };
             let group = self.device.create_bind_group(&wgpu::BindGroupDescriptor {
                 label: Some("geomorph"),
@@ -616,9 +644,11 @@ impl GeomorphRenderer {
                     bind(7, wgpu::BindingResource::TextureView(&self.alpha)),
                     bind(8, wgpu::BindingResource::Sampler(&self.sampler)),
                     bind(9, table.as_entire_binding()),
+                    bind(10, cpu.as_entire_binding()),
                 ],
             });
-            self.bound = Some(Bound { atlas, table, patches: buf.clone(), group });
+            self.bound =
+                Some(Bound { atlas, table, patches: buf.clone(), cpu: cpu.clone(), group });
         }
         if !lods.is_empty() {
             self.queue.write_buffer(buf, 0, bytemuck::cast_slice(lods));
@@ -670,7 +700,19 @@ impl GeomorphRenderer {
         lods: &[PatchLod],
         options: &GeomorphOptions,
     ) -> Result<GeomorphFrameStats, RenderError> {
-        self.draw(None, camera, lods, options)
+        self.draw(None, camera, lods, MorphSource::Shader, options)
+    }
+
+    /// [`GeomorphRenderer::render`] with the heights from `source`: the vertex stage's morph,
+    /// the true heights (static geo-mipmapping) or heights morphed on the CPU and uploaded.
+    pub fn render_with(
+        &mut self,
+        camera: &Camera,
+        lods: &[PatchLod],
+        source: MorphSource<'_>,
+        options: &GeomorphOptions,
+    ) -> Result<GeomorphFrameStats, RenderError> {
+        self.draw(None, camera, lods, source, options)
     }
 
     /// Draws `lods` as seen by `camera` from the resident pages of `pages` (the paged
@@ -684,7 +726,7 @@ impl GeomorphRenderer {
         lods: &[PatchLod],
         options: &GeomorphOptions,
     ) -> Result<GeomorphFrameStats, RenderError> {
-        self.draw(Some(pages), camera, lods, options)
+        self.draw(Some(pages), camera, lods, MorphSource::Shader, options)
     }
 
     fn draw(
@@ -692,6 +734,7 @@ impl GeomorphRenderer {
         pages: Option<&mut TerrainRenderer>,
         camera: &Camera,
         lods: &[PatchLod],
+        source: MorphSource<'_>,
         options: &GeomorphOptions,
     ) -> Result<GeomorphFrameStats, RenderError> {
         let start = Instant::now();
@@ -699,7 +742,17 @@ impl GeomorphRenderer {
         let camera = camera.with_viewport(f64::from(tw), f64::from(th));
         let n = self.lib.patch_cells;
         let gpu: Vec<GpuMorphPatch> = lods.iter().map(|p| GpuMorphPatch::from_lod(p, n)).collect();
-        self.upload(pages, &camera, &gpu, options)?;
+        let cpu_heights = match source {
+            MorphSource::Cpu(h) => Some(h),
+            _ => None,
+        };
+        self.upload(pages, &camera, &gpu, cpu_heights, options)?;
+        let mode = source.mode();
+        if self.pipelines[mode].is_none() {
+            let paged = matches!(self.heights, Heights::Paged(..));
+            self.pipelines[mode] =
+                Some(make_pipelines(&self.device, &self.module, &self.render_layout, paged, mode));
+        }
         // Paged mode: the base pass only (it blends every material per fragment).
         let materials = match &self.heights {
             Heights::Whole { materials, .. } => Some(materials),
@@ -751,7 +804,8 @@ impl GeomorphRenderer {
         }
         stats.upload_bytes = (size_of::<GpuFrame>()
             + gpu.len() * size_of::<GpuMorphPatch>()
-            + indices.len() * 4) as u64;
+            + indices.len() * 4
+            + cpu_heights.map_or(0, |h| h.len() * 4)) as u64;
         let bytes = (indices.len().max(4) * 4) as u64;
         if self.indices.as_ref().is_none_or(|b| b.size() < bytes) {
             self.indices = Some(self.device.create_buffer(&wgpu::BufferDescriptor {
@@ -766,6 +820,7 @@ impl GeomorphRenderer {
             self.queue.write_buffer(index_buffer, 0, bytemuck::cast_slice(&indices));
         }
         let group = &self.bound.as_ref().expect("uploaded").group;
+        let pipelines = self.pipelines[mode].as_ref().expect("built above");
         let mut encoder = self.device.create_command_encoder(&Default::default());
         {
             let [r, g, b, a] = self.background.map(|c| f64::from(c) / 255.0);
@@ -773,7 +828,7 @@ impl GeomorphRenderer {
             pass.set_bind_group(0, group, &[]);
             pass.set_index_buffer(index_buffer.slice(..), wgpu::IndexFormat::Uint32);
             for &(material, first, count) in passes.iter().filter(|p| p.2 > 0) {
-                pass.set_pipeline(if material == 0 { &self.base } else { &self.overlay });
+                pass.set_pipeline(if material == 0 { &pipelines.base } else { &pipelines.overlay });
                 // The instance index is the material.
                 pass.draw_indexed(first..first + count, 0, material as u32..material as u32 + 1);
             }
@@ -822,7 +877,7 @@ impl GeomorphRenderer {
         items: &[[u32; 2]],
     ) -> Result<Vec<[f32; 4]>, RenderError> {
         let camera = Camera::from_yaw_pitch(camera_position, 0.0, 0.0);
-        self.upload(pages, &camera, lods, &GeomorphOptions::default())?;
+        self.upload(pages, &camera, lods, None, &GeomorphOptions::default())?;
         let group = &self.bound.as_ref().expect("uploaded").group;
         let n = items.len().max(1) as u64;
         let groups = (n as u32).div_ceil(64);
@@ -861,4 +916,61 @@ impl GeomorphRenderer {
         v.truncate(items.len());
         Ok(v)
     }
+}
+
+/// The base and material pipelines of `geomorph.wgsl` with `MORPH_MODE = mode`
+/// ([`MorphSource::mode`]). Paged mode shades per fragment from the pages (`fs_paged`); a whole
+/// heightmap from its lightmap and alpha maps (`fs`).
+fn make_pipelines(
+    device: &wgpu::Device,
+    module: &wgpu::ShaderModule,
+    layout: &wgpu::PipelineLayout,
+    paged: bool,
+    mode: usize,
+) -> Pipelines {
+    let fragment = if paged { "fs_paged" } else { "fs" };
+    let constants = [("PAGED", if paged { 1.0 } else { 0.0 }), ("MORPH_MODE", mode as f64)];
+    let options =
+        || wgpu::PipelineCompilationOptions { constants: &constants, ..Default::default() };
+    let pipeline = |label, depth: wgpu::DepthStencilState, target: wgpu::ColorTargetState| {
+        device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
+            label: Some(label),
+            layout: Some(layout),
+            vertex: wgpu::VertexState {
+                module,
+                entry_point: Some("vs"),
+                compilation_options: options(),
+                buffers: &[],
+            },
+            // No culling: skirts are seen from both sides.
+            primitive: wgpu::PrimitiveState::default(),
+            depth_stencil: Some(depth),
+            multisample: Default::default(),
+            fragment: Some(wgpu::FragmentState {
+                module,
+                entry_point: Some(fragment),
+                compilation_options: options(),
+                targets: &[Some(target)],
+            }),
+            multiview_mask: None,
+            cache: None,
+        })
+    };
+    let base = pipeline("geomorph base", OffscreenTarget::depth_state(), COLOR_FORMAT.into());
+    // Material passes: the same vertices (the position is @invariant), depth equal or
+    // nearer, no depth writes, blended over the colour, alpha kept from the base pass.
+    let overlay = pipeline(
+        "geomorph material",
+        wgpu::DepthStencilState {
+            depth_write_enabled: Some(false),
+            depth_compare: Some(wgpu::CompareFunction::LessEqual),
+            ..OffscreenTarget::depth_state()
+        },
+        wgpu::ColorTargetState {
+            format: COLOR_FORMAT,
+            blend: Some(wgpu::BlendState::ALPHA_BLENDING),
+            write_mask: wgpu::ColorWrites::COLOR,
+        },
+    );
+    Pipelines { base, overlay }
 }

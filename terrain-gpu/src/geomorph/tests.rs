@@ -635,3 +635,66 @@ fn lod_colours_are_the_cpu_references_vulkan() {
 fn lod_colours_are_the_cpu_references_gl() {
     lod_colours_are_the_cpu_references(BackendChoice::Gl);
 }
+
+/// The article's three Table 1 paths draw the same frame: heights morphed on the CPU
+/// (`MorphGrid::patch_heights`, uploaded: "software morphing") give the vertex stage's morph
+/// image ("hardware morphing") but for pixels where the two differ by an FMA's rounding, and
+/// the true heights ("static LOD") a visibly different one when patches tween.
+fn cpu_morph_draws_the_shaders_morph(backend: BackendChoice) {
+    let Some(ctx) = context(backend) else { return };
+    let hm = fractal();
+    let config = GeomorphConfig { width: 320, height: 180, ..Default::default() };
+    let mut renderer = GeomorphRenderer::new(&ctx, &hm, &config).unwrap();
+    let scene = GeomipScene::new(&hm, 16);
+    let grid = MorphGrid::new(&hm, 16);
+    let cfg = GeomipConfig { pixel_threshold: 2.0, ..Default::default() };
+    let options = GeomorphOptions::default();
+    let mut heights = Vec::new();
+    let (mut cpu_off, mut static_off, mut total) = (0usize, 0usize, 0usize);
+    for c in crack_cameras(&hm, 17).into_iter().step_by(5) {
+        let c = c.with_viewport(1280.0, 720.0);
+        let sel = scene.select(&c, &cfg);
+        let patches = gpu_patches(&sel.patches, 16);
+        assert!(patches.iter().any(|p| p.tween > 0.0));
+        grid.patch_heights(&patches, &mut heights);
+        assert_eq!(heights.len(), patches.len() * 17 * 17);
+        let mut image = |source| {
+            renderer.render_with(&c, &sel.patches, source, &options).unwrap();
+            renderer.read_image().unwrap()
+        };
+        let shader = image(MorphSource::Shader);
+        let cpu = image(MorphSource::Cpu(&heights));
+        let still = image(MorphSource::Static);
+        let differ = |a: &crate::RgbaImage, b: &crate::RgbaImage| {
+            a.pixels.iter().zip(&b.pixels).filter(|(p, q)| p != q).count()
+        };
+        cpu_off += differ(&shader, &cpu);
+        static_off += differ(&shader, &still);
+        total += shader.pixels.len();
+    }
+    // Wrong lengths are refused, not drawn.
+    let sel = scene.select(&crack_cameras(&hm, 17)[0].with_viewport(1280.0, 720.0), &cfg);
+    let short = vec![0.0f32; 3];
+    assert!(
+        renderer
+            .render_with(
+                &crack_cameras(&hm, 17)[0],
+                &sel.patches,
+                MorphSource::Cpu(&short),
+                &options
+            )
+            .is_err()
+    );
+    println!(
+        "{}: pixels differing from the shader's morph: CPU morph {cpu_off}, static {static_off} \
+         of {total}",
+        renderer.adapter()
+    );
+    assert!(cpu_off * 1000 <= total, "CPU morph: {cpu_off} of {total} pixels differ");
+    assert!(static_off > 10 * cpu_off.max(10), "static {static_off}, CPU morph {cpu_off}");
+}
+
+#[test]
+fn cpu_morph_draws_the_shaders_morph_vulkan() {
+    cpu_morph_draws_the_shaders_morph(BackendChoice::Vulkan);
+}

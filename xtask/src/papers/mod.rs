@@ -6,9 +6,10 @@
 
 mod doc;
 mod dss;
+mod entropy;
+mod geomorph;
 mod ooc;
 mod pvps;
-mod rest;
 
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -246,8 +247,8 @@ pub(crate) fn papers(args: &[String]) -> anyhow::Result<()> {
             "ooc" => ooc::run(&mut ctx)?,
             "pvps" => pvps::run(&mut ctx)?,
             "dss" => dss::run(&mut ctx)?,
-            "geomorph" => rest::geomorph(),
-            _ => rest::entropy(),
+            "geomorph" => geomorph::run(&mut ctx)?,
+            _ => entropy::run(&mut ctx)?,
         };
         doc.quick = quick;
         doc.commands = std::mem::take(&mut ctx.commands);
