@@ -106,7 +106,7 @@ pub enum LodMethod {
     #[serde(rename = "ooc")]
     OutOfCore,
     /// Our own method: an error-bounded TIN pyramid on the grid's quadtree, tiles chosen by
-    /// Cesium's screen-space error against --tau-px (`terrain_core::tin::grid`).
+    /// Cesium's screen-space error against --tau-px (terrain-core's grid TIN pyramid).
     Tin,
     /// Geomorphing article's Table 1 "static LOD": geomorph's patches with tweening off
     /// (integer levels), drawn at their true heights by the geomorph renderer.

@@ -179,6 +179,12 @@ mod tests {
         };
         let left = window(33, 33, |i, j| (f(i, j), false));
         let right = window(33, 33, |i, j| (f(i + 32, j), false));
+        // No negative control with free borders: on a rectangle a border sample lies on a hull
+        // edge, so its error depends on the side's vertices alone and greedy insertion picks
+        // the same side vertices in both windows (checked: they agreed at every bound here).
+        // The lock matters where neighbours' sides differ in length (levels apart) or where
+        // the inserted vertices would be tried in another order; `Borders::Simplified` makes
+        // the side a function of its profile alone by construction.
         for bound in [0.5, 2.0, 8.0] {
             let (a, sa) = mesh_window(&left, bound, Borders::Simplified).unwrap();
             let (b, sb) = mesh_window(&right, bound, Borders::Simplified).unwrap();
@@ -191,18 +197,6 @@ mod tests {
             west.sort_unstable();
             assert_eq!(east, west, "bound {bound}");
             assert!(east.len() > 2, "the side needs vertices besides its corners at {bound}");
-            // Free borders (the negative control) do not agree.
-            let (a, _) = mesh_window(&left, bound, Borders::Free).unwrap();
-            let (b, _) = mesh_window(&right, bound, Borders::Free).unwrap();
-            let mut east: Vec<i64> =
-                a.positions.iter().filter(|p| p.x == 32.0).map(|p| p.y as i64).collect();
-            let mut west: Vec<i64> =
-                b.positions.iter().filter(|p| p.x == 0.0).map(|p| p.y as i64).collect();
-            east.sort_unstable();
-            west.sort_unstable();
-            if bound == 0.5 {
-                assert_ne!(east, west, "free borders happen to agree");
-            }
         }
     }
 }
