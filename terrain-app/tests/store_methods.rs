@@ -544,7 +544,7 @@ fn an_exaggerated_store_draws_as_the_exaggerated_dem() {
     };
     assert_eq!(nodes(&fa), nodes(&fb), "ooc: the same patches");
 
-    let Some(ctx) = gpu() else { return };
+    let Some(ctx) = common::gpu() else { return };
     let (w, h) = (320, 180);
     let camera = camera.with_viewport(f64::from(w), f64::from(h));
     let rc = terrain_gpu::RenderConfig { width: w, height: h, ..Default::default() };
@@ -587,16 +587,4 @@ fn an_exaggerated_store_draws_as_the_exaggerated_dem() {
     );
     assert!(within_golden(d), "uniform: {d:?}");
     let _ = std::fs::remove_dir_all(&dir);
-}
-
-fn gpu() -> Option<terrain_gpu::GpuContext> {
-    use terrain_gpu::{BackendChoice, DeviceConfig, GpuContext};
-    match GpuContext::new(&DeviceConfig::from_env(BackendChoice::Auto)) {
-        Ok(ctx) => Some(ctx),
-        Err(e) if std::env::var_os("TERRAIN_REQUIRE_GPU").is_none() => {
-            println!("SKIPPED: {e}; set TERRAIN_REQUIRE_GPU=1 to make this a failure");
-            None
-        }
-        Err(e) => panic!("{e}"),
-    }
 }

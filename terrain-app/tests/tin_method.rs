@@ -19,7 +19,7 @@ use terrain_core::tin::grid::GridTinPyramid;
 use terrain_gpu::render::crack::{crack_cameras, crack_pixels_with_extra};
 use terrain_gpu::render::{DrawPatch, ExtraTriangles, default_camera};
 use terrain_gpu::tess::GpuDomainPoint;
-use terrain_gpu::{BackendChoice, DeviceConfig, GpuContext, RenderConfig, RenderOptions};
+use terrain_gpu::{RenderConfig, RenderOptions};
 
 fn fractal() -> Heightmap {
     FractalConfig::with_size(257, 193, 10.0).to_heightmap().unwrap()
@@ -38,17 +38,6 @@ fn crater_lake() -> Heightmap {
         .heightmap;
     assert!(hm.voids().count() > 30_000 && hm.width() != hm.height());
     hm
-}
-
-fn gpu() -> Option<GpuContext> {
-    match GpuContext::new(&DeviceConfig::from_env(BackendChoice::Auto)) {
-        Ok(ctx) => Some(ctx),
-        Err(e) if std::env::var_os("TERRAIN_REQUIRE_GPU").is_none() => {
-            println!("SKIPPED: {e}; set TERRAIN_REQUIRE_GPU=1 to make this a failure");
-            None
-        }
-        Err(e) => panic!("{e}"),
-    }
 }
 
 /// Every tile is within its level's bound (measured against its samples), the bounds halve per
@@ -171,7 +160,7 @@ fn skirts(scene: &MethodScene, p: &GridTinPyramid, tiles: &[NodeId], extra: &mut
 /// some do.
 #[test]
 fn no_crack_with_stitches_and_cracks_without() {
-    let Some(ctx) = gpu() else { return };
+    let Some(ctx) = common::gpu() else { return };
     for (name, hm) in [("fractal", fractal()), ("puget sound 1k", puget())] {
         let mut scene = MethodScene::new(hm, MethodConfig::default());
         scene.tin_pyramid().unwrap();
@@ -225,7 +214,7 @@ fn no_crack_with_stitches_and_cracks_without() {
 /// half its triangles dropped (the negative control) does not.
 #[test]
 fn renders_as_the_full_grid() {
-    let Some(ctx) = gpu() else { return };
+    let Some(ctx) = common::gpu() else { return };
     let (w, h) = (320, 180);
     for (name, hm) in [("puget sound 1k", puget()), ("crater lake", crater_lake())] {
         let mut scene = MethodScene::new(hm, MethodConfig::default());

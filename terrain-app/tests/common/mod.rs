@@ -61,3 +61,17 @@ pub(crate) fn golden_diff(
     let d = terrain_gpu::target::image_diff(a.pixels.iter().copied(), b.pixels.iter().copied());
     (d.mean, d.far_off)
 }
+
+/// The GPU context for a test: `None` (the test says SKIPPED) when there is no adapter, a
+/// failure instead when `TERRAIN_REQUIRE_GPU` is set (as `.ci/run` does).
+pub(crate) fn gpu() -> Option<terrain_gpu::GpuContext> {
+    use terrain_gpu::{BackendChoice, DeviceConfig, GpuContext};
+    match GpuContext::new(&DeviceConfig::from_env(BackendChoice::Auto)) {
+        Ok(ctx) => Some(ctx),
+        Err(e) if std::env::var_os("TERRAIN_REQUIRE_GPU").is_none() => {
+            println!("SKIPPED: {e}; set TERRAIN_REQUIRE_GPU=1 to make this a failure");
+            None
+        }
+        Err(e) => panic!("{e}"),
+    }
+}
