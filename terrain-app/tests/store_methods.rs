@@ -114,13 +114,7 @@ fn check(name: &str, hm: Heightmap) {
             let sb = stored.surface(&mut b).unwrap();
             assert_eq!(sa.triangles, sb.triangles, "{name} {kind:?} camera {c}");
             assert_eq!(sa.mesh.positions.len(), sb.mesh.positions.len());
-            let worst = sa
-                .mesh
-                .positions
-                .iter()
-                .zip(&sb.mesh.positions)
-                .map(|(p, q)| (p.z - q.z).abs())
-                .fold(0.0, f64::max);
+            let worst = largest_height_difference(&sa.mesh.positions, &sb.mesh.positions);
             println!(
                 "{name} {}: camera {c}: {} patches, {} triangles, {} blocks, largest height \
                  difference {worst} m",
@@ -518,13 +512,7 @@ fn an_exaggerated_store_draws_as_the_exaggerated_dem() {
         }
         let (sa, sb) = (memory.surface(&mut a).unwrap(), stored.surface(&mut b).unwrap());
         assert_eq!(sa.triangles, sb.triangles, "{kind:?}");
-        let worst = sa
-            .mesh
-            .positions
-            .iter()
-            .zip(&sb.mesh.positions)
-            .map(|(p, q)| (p.z - q.z).abs())
-            .fold(0.0, f64::max);
+        let worst = largest_height_difference(&sa.mesh.positions, &sb.mesh.positions);
         println!(
             "exaggerated x{K} {}: {} patches, largest height difference {worst} m",
             kind.name(),
@@ -587,4 +575,9 @@ fn an_exaggerated_store_draws_as_the_exaggerated_dem() {
     );
     assert!(within_golden(d), "uniform: {d:?}");
     let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// The largest height difference between the corresponding vertices of two surfaces, metres.
+fn largest_height_difference(a: &[glam::DVec3], b: &[glam::DVec3]) -> f64 {
+    a.iter().zip(b).map(|(p, q)| (p.z - q.z).abs()).fold(0.0, f64::max)
 }

@@ -110,6 +110,14 @@ pub(crate) struct VertexIndex {
     pub offset: u32,
 }
 
+/// The coarsest level of a block of `(2^k + 1)^2` vertices that holds vertex `(i, j)` (the
+/// store's non-redundant order, Eq. 1-2): the vertex first appears at the level whose stride
+/// is the largest power of two dividing both coordinates (the corners at level 0).
+pub fn vertex_level(k: u8, i: u32, j: u32) -> u8 {
+    let s = (i | j | (1u32 << k)).trailing_zeros().min(u32::from(k));
+    k - s as u8
+}
+
 /// The level, order and offset of block vertex `(i, j)` (column east, row north) in a block
 /// of `(2^k + 1)^2` vertices. `None` outside the block.
 pub(crate) fn vertex_index(k: u8, i: u32, j: u32) -> Option<VertexIndex> {
@@ -117,10 +125,8 @@ pub(crate) fn vertex_index(k: u8, i: u32, j: u32) -> Option<VertexIndex> {
     if i > side || j > side {
         return None;
     }
-    // The vertex first appears at the level whose stride is the largest power of two
-    // dividing both coordinates.
-    let s = (i | j | side).trailing_zeros().min(k as u32);
-    let level = (k as u32 - s) as u8;
+    let level = vertex_level(k, i, j);
+    let s = u32::from(k - level);
     let d = 1u32 << s;
     let (a, b) = (i >> s, j >> s);
     let order = if level == 0 {
@@ -855,6 +861,17 @@ pub(crate) fn block_header(bake_id: u64, id: BlockId) -> Vec<u8> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The level of a vertex follows the largest power of two dividing its coordinates.
+    #[test]
+    fn vertex_levels_follow_the_stride() {
+        assert_eq!(vertex_level(8, 0, 0), 0);
+        assert_eq!(vertex_level(8, 256, 0), 0);
+        assert_eq!(vertex_level(8, 128, 0), 1);
+        assert_eq!(vertex_level(8, 128, 64), 2);
+        assert_eq!(vertex_level(8, 1, 0), 8);
+        assert_eq!(vertex_level(8, 0, 3), 8);
+    }
 
     #[test]
     fn the_papers_5x5_example() {

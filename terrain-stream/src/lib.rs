@@ -106,7 +106,7 @@ pub use bake::{
 pub use error::{BakeError, StoreError};
 pub use format::{
     BlockEntry, BlockId, Codec, DssBlockErrors, Header, INDEX_FILE, LevelEntry, MAGIC, NodeValues,
-    SampleEncoding,
+    SampleEncoding, vertex_level,
 };
 pub use glam;
 pub use lod::{

@@ -13,7 +13,7 @@ use std::sync::{Arc, Mutex};
 
 use terrain_core::Heightmap;
 use terrain_core::heightmap::VoidMask;
-use terrain_stream::{BlockId, BlockLevels, Store};
+use terrain_stream::{BlockId, BlockLevels, Store, vertex_level};
 
 /// A window of samples: `width` x (`data.len() / width`) heights (row-major, south row first)
 /// and voids.
@@ -177,13 +177,6 @@ impl StoreSamples {
     }
 }
 
-/// The level of a block at which vertex `(i, j)` is stored (the store's non-redundant order:
-/// the level whose stride is the largest power of two dividing both coordinates).
-fn vertex_level(k: u8, i: u32, j: u32) -> u8 {
-    let s = (i | j | (1u32 << k)).trailing_zeros().min(u32::from(k));
-    k - s as u8
-}
-
 impl Samples for StoreSamples {
     fn size(&self) -> (usize, usize) {
         let h = self.store.header();
@@ -244,20 +237,5 @@ impl Samples for StoreSamples {
             }
         }
         Ok(Window { width, data, voids: None })
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::vertex_level;
-
-    #[test]
-    fn vertex_levels_follow_the_stride() {
-        assert_eq!(vertex_level(8, 0, 0), 0);
-        assert_eq!(vertex_level(8, 256, 0), 0);
-        assert_eq!(vertex_level(8, 128, 0), 1);
-        assert_eq!(vertex_level(8, 128, 64), 2);
-        assert_eq!(vertex_level(8, 1, 0), 8);
-        assert_eq!(vertex_level(8, 0, 3), 8);
     }
 }
