@@ -81,9 +81,9 @@ fn start_xvfb(offset: u32) -> Option<Xvfb> {
 /// Runs `terrain view ARGS` on `display` (Vulkan: lavapipe here), waiting at most `limit`;
 /// returns (exit ok, stdout, stderr). A hang is a failure, and the process is killed.
 fn view(display: &str, cwd: &Path, args: &[&str], limit: Duration) -> (bool, String, String) {
-    let dir = std::env::temp_dir();
-    let tag = format!("terrain-view-{}-{}", std::process::id(), args.len());
-    let (out_path, err_path) = (dir.join(format!("{tag}.out")), dir.join(format!("{tag}.err")));
+    // The output files live in the calling test's own folder: tests run in parallel threads of
+    // one process, so a name from the process id alone would be shared.
+    let (out_path, err_path) = (cwd.join("view.out"), cwd.join("view.err"));
     let mut child = Command::new(env!("CARGO_BIN_EXE_terrain"))
         .arg("view")
         .args(args)
