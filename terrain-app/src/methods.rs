@@ -118,11 +118,16 @@ pub enum LodMethod {
     #[value(name = "geomorph-cpu")]
     #[serde(rename = "geomorph-cpu")]
     GeomorphCpu,
+    /// Geomorphing article's PVS step: `geomorph` (morphed in the vertex shader) without the
+    /// patches the conservative PVS proves hidden from the camera's view cell.
+    #[value(name = "geomorph-pvs")]
+    #[serde(rename = "geomorph-pvs")]
+    GeomorphPvs,
 }
 
 impl LodMethod {
     /// Every method, in a fixed order (the benchmark's).
-    pub const ALL: [LodMethod; 15] = [
+    pub const ALL: [LodMethod; 16] = [
         LodMethod::Uniform,
         LodMethod::PvpsA,
         LodMethod::PvpsB,
@@ -138,6 +143,7 @@ impl LodMethod {
         LodMethod::Tin,
         LodMethod::GeomorphStatic,
         LodMethod::GeomorphCpu,
+        LodMethod::GeomorphPvs,
     ];
 
     /// The CLI and report name.
@@ -158,6 +164,7 @@ impl LodMethod {
             LodMethod::Tin => "tin",
             LodMethod::GeomorphStatic => "geomorph-static",
             LodMethod::GeomorphCpu => "geomorph-cpu",
+            LodMethod::GeomorphPvs => "geomorph-pvs",
         }
     }
 
@@ -167,10 +174,16 @@ impl LodMethod {
         self == LodMethod::DssStrips
     }
 
-    /// Whether the method is one of the geomorphing article's three Table 1 paths (the same
-    /// geo-mipmapped patches: `geomorph`, `geomorph-static`, `geomorph-cpu`).
+    /// Whether the method draws the geomorphing article's geo-mipmapped patches: its three
+    /// Table 1 paths (`geomorph`, `geomorph-static`, `geomorph-cpu`) and `geomorph-pvs`.
     pub fn is_geomorph(self) -> bool {
-        matches!(self, LodMethod::Geomorph | LodMethod::GeomorphStatic | LodMethod::GeomorphCpu)
+        matches!(
+            self,
+            LodMethod::Geomorph
+                | LodMethod::GeomorphStatic
+                | LodMethod::GeomorphCpu
+                | LodMethod::GeomorphPvs
+        )
     }
 }
 
@@ -403,6 +416,10 @@ impl MethodScene {
                 LodMethod::Geomorph | LodMethod::GeomorphStatic | LodMethod::GeomorphCpu => {
                     self.geomip_scene();
                 }
+                LodMethod::GeomorphPvs => {
+                    self.geomip_scene();
+                    self.pvs(1);
+                }
                 LodMethod::PvpsCPvs | LodMethod::PvpsCConservative => {
                     self.roughness(2);
                     self.pvs(usize::from(*m == LodMethod::PvpsCConservative));
@@ -433,8 +450,15 @@ impl MethodScene {
             }
             // A mesh, not patches: see `EntropyScene::frame`; the root stands for "everything".
             LodMethod::Entropy => whole_terrain_selection(1, 0.0),
-            LodMethod::Geomorph | LodMethod::GeomorphStatic | LodMethod::GeomorphCpu => {
-                let frame = self.select_geomorph_with(camera, method != LodMethod::GeomorphStatic);
+            LodMethod::Geomorph
+            | LodMethod::GeomorphStatic
+            | LodMethod::GeomorphCpu
+            | LodMethod::GeomorphPvs => {
+                let mut frame =
+                    self.select_geomorph_with(camera, method != LodMethod::GeomorphStatic);
+                if method == LodMethod::GeomorphPvs {
+                    self.cull_geomorph_pvs(&mut frame, camera);
+                }
                 self.geomorph_selection(&frame)
             }
             LodMethod::PvpsCPvs | LodMethod::PvpsCConservative => {
@@ -514,6 +538,36 @@ impl MethodScene {
         let cfg =
             GeomipConfig { patch_cells: self.geomorph_patch_cells(), morph, ..self.config.geomip };
         self.geomip_scene().select(camera, &cfg)
+    }
+
+    /// `geomorph-pvs`: removes from `frame` the patches that the conservative PVS proves hidden
+    /// from the camera's view cell, and counts them as culled. This is the geomorphing
+    /// article's third culling step (its "PVS" section: after the ground rectangle and the
+    /// frustum, the patches hidden by other patches), with our conservative bake in place of
+    /// its line-of-sight samples, so that no visible patch is removed (the sampled bake culls
+    /// some; terrain-visibility's `pvs` module docs). The remaining patches keep their levels,
+    /// tween factors and border rules, so they join each other as in `geomorph`. Nothing is
+    /// removed without a PVS or when the camera is in `Cell_other` (outside the cells or above
+    /// the top floor).
+    pub fn cull_geomorph_pvs(&self, frame: &mut GeomipSelection, camera: &Camera) {
+        let Some(pvs) = self.pvs(1) else { return };
+        let Some(cell) = pvs.cull_for(camera.position).cell else { return };
+        // A patch of `n` cells is a node of the scene's quadtree (leaves of `leaf_cells`),
+        // `log2(leaf_cells / n)` levels below its leaves; the PVS reads a deeper node's ancestor.
+        let n = self.geomorph_patch_cells();
+        let leaf = self.qt.leaf_cells().max(1);
+        let level = (i32::from(self.qt.max_level()) + leaf.trailing_zeros() as i32
+            - n.trailing_zeros() as i32)
+            .clamp(0, 31) as u8;
+        let before = frame.patches.len();
+        let keep: Vec<bool> =
+            frame.patches.iter().map(|p| pvs.visible(cell, NodeId::new(level, p.i, p.j))).collect();
+        // `retain` visits the elements once each, in order; `factors` is parallel to `patches`.
+        let mut k = keep.iter().copied();
+        frame.patches.retain(|_| k.next() == Some(true));
+        let mut k = keep.iter().copied();
+        frame.factors.retain(|_| k.next() == Some(true));
+        frame.culled += before - frame.patches.len();
     }
 
     /// The geomorph patches as a quadtree [`Selection`] of leaves, each edge's factor
@@ -705,6 +759,32 @@ mod tests {
     /// The geomorph method through the common path: its leaves agree on every shared edge's
     /// factor (so `render`/`fly` draw it without cracks), cover what its own surface covers,
     /// and that surface is watertight.
+    /// `geomorph-pvs` draws geomorph's patches minus those the conservative PVS hides, each
+    /// with its level and tween unchanged, and counts the removed ones as culled; on the
+    /// crack-test cameras some patch is hidden (else the test could not tell culling from none).
+    #[test]
+    fn geomorph_pvs_draws_a_subset_of_geomorph_and_hides_some() {
+        let hm = FractalConfig::with_size(257, 257, 10.0).to_heightmap().unwrap();
+        let scene = MethodScene::new(hm, MethodConfig::default());
+        let mut hidden = 0;
+        for camera in crack_cameras(&scene.hm, 17) {
+            let camera = camera.with_viewport(1280.0, 720.0);
+            let all = scene.select_geomorph(&camera);
+            let mut some = all.clone();
+            scene.cull_geomorph_pvs(&mut some, &camera);
+            assert_eq!(some.patches.len(), some.factors.len());
+            for (p, f) in some.patches.iter().zip(&some.factors) {
+                let k = all.patches.iter().position(|q| q == p).expect("a patch geomorph draws");
+                assert_eq!(all.factors[k], *f);
+            }
+            assert_eq!(some.culled - all.culled, all.patches.len() - some.patches.len());
+            hidden += all.patches.len() - some.patches.len();
+            let selection = scene.geomorph_selection(&some);
+            assert!(check_shared_edges(&selection).is_empty());
+        }
+        assert!(hidden > 0, "no patch was hidden from any camera");
+    }
+
     #[test]
     fn geomorph_selection_agrees_on_shared_edges() {
         let hm = FractalConfig::with_size(257, 257, 10.0).to_heightmap().unwrap();

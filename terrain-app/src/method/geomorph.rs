@@ -26,24 +26,42 @@ pub enum MorphPath {
     Cpu,
 }
 
-/// `geomorph` (and its Table 1 variants) with the morph renderer, over a [`MethodScene`] (its
-/// current config).
+/// `geomorph` (and its Table 1 variants, and `geomorph-pvs`) with the morph renderer, over a
+/// [`MethodScene`] (its current config).
 #[derive(Debug)]
 pub struct GeomorphMethod<'a> {
     scene: &'a MethodScene,
     path: MorphPath,
+    /// `geomorph-pvs`: the patches the conservative PVS proves hidden are not drawn
+    /// ([`MethodScene::cull_geomorph_pvs`]).
+    pvs: bool,
 }
 
 impl<'a> GeomorphMethod<'a> {
     /// The method over `scene`, drawn by `path`.
     pub fn new(scene: &'a MethodScene, path: MorphPath) -> Self {
-        Self { scene, path }
+        Self { scene, path, pvs: false }
+    }
+
+    /// `geomorph-pvs`: the vertex-shader morph over the patches the PVS leaves.
+    pub fn with_pvs(scene: &'a MethodScene) -> Self {
+        Self { scene, path: MorphPath::Shader, pvs: true }
+    }
+
+    /// The levels and tween factors this method draws from `camera`.
+    fn select(&self, camera: &Camera, morph: bool) -> terrain_core::lod::GeomipSelection {
+        let mut lods = self.scene.select_geomorph_with(camera, morph);
+        if self.pvs {
+            self.scene.cull_geomorph_pvs(&mut lods, camera);
+        }
+        lods
     }
 }
 
 impl Method for GeomorphMethod<'_> {
     fn kind(&self) -> LodMethod {
         match self.path {
+            MorphPath::Shader if self.pvs => LodMethod::GeomorphPvs,
             MorphPath::Shader => LodMethod::Geomorph,
             MorphPath::Static => LodMethod::GeomorphStatic,
             MorphPath::Cpu => LodMethod::GeomorphCpu,
@@ -53,7 +71,7 @@ impl Method for GeomorphMethod<'_> {
     fn frame(&mut self, camera: &Camera) -> Frame {
         let t = Instant::now();
         let morph = self.path != MorphPath::Static && self.scene.config.geomip.morph;
-        let lods = self.scene.select_geomorph_with(camera, morph);
+        let lods = self.select(camera, morph);
         let selection_ms = ms(t);
         // Software morphing: every vertex of every patch morphed on the CPU (the shader's
         // tested reference), the frame's build stage; the renderer uploads the result.
@@ -109,13 +127,19 @@ impl Method for GeomorphMethod<'_> {
             return None;
         }
         let scene = self.scene;
-        let (before, _) = scene.geomorph_surface(&scene.select_geomorph(previous));
+        let (before, _) = scene.geomorph_surface(&self.select(previous, scene.config.geomip.morph));
         let morph = max_vertex_jump(&before, &drawn.mesh);
         drop(before);
         let mut off = scene.config.geomip;
         off.morph = false;
         off.patch_cells = scene.geomorph_patch_cells();
-        let still = |c: &Camera| scene.geomorph_surface(&scene.geomip_scene().select(c, &off)).0;
+        let still = |c: &Camera| {
+            let mut lods = scene.geomip_scene().select(c, &off);
+            if self.pvs {
+                scene.cull_geomorph_pvs(&mut lods, c);
+            }
+            scene.geomorph_surface(&lods).0
+        };
         Some([morph, max_vertex_jump(&still(previous), &still(camera))])
     }
 

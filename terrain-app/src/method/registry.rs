@@ -52,6 +52,7 @@ pub fn build<'a>(
         }
         LodMethod::GeomorphStatic => Box::new(GeomorphMethod::new(scene, MorphPath::Static)),
         LodMethod::GeomorphCpu => Box::new(GeomorphMethod::new(scene, MorphPath::Cpu)),
+        LodMethod::GeomorphPvs if options.morph => Box::new(GeomorphMethod::with_pvs(scene)),
         LodMethod::OutOfCore => {
             let Some(store) = &options.store else { anyhow::bail!("{OOC_NEEDS_STORE}") };
             let runtime = OocScene::new(store.clone(), scene.config.ooc);
@@ -68,10 +69,11 @@ pub fn draws_mesh(kind: LodMethod) -> bool {
 }
 
 /// Whether `terrain bench` runs `kind` when no `--methods` are given: every method but the
-/// geomorphing article's two comparison paths (`geomorph-static`, `geomorph-cpu`: its Table
-/// 1, `cargo xtask papers --paper geomorph`), which draw what `geomorph` draws.
+/// geomorphing article's comparison paths (`geomorph-static`, `geomorph-cpu`: its Table 1;
+/// `geomorph-pvs`: its PVS; `cargo xtask papers --paper geomorph`), which draw what
+/// `geomorph` draws, or a subset of it.
 pub fn benched_by_default(kind: LodMethod) -> bool {
-    !matches!(kind, LodMethod::GeomorphStatic | LodMethod::GeomorphCpu)
+    !matches!(kind, LodMethod::GeomorphStatic | LodMethod::GeomorphCpu | LodMethod::GeomorphPvs)
 }
 
 /// Whether `kind` draws from a baked store ([`MethodOptions::store`]).
@@ -100,9 +102,10 @@ pub fn sweep_values(method: LodMethod, leaf_cells: u32) -> (&'static str, Vec<f6
         // entropy scale; see `terrain_visibility::entropy::source::EntropyScale`). E0 = 0 is
         // the full-depth mesh, the uniform method's job, and seconds per frame: not swept.
         LodMethod::Entropy => ("E0", vec![18.0, 50.0, 70.0, 85.0, 95.0]),
-        LodMethod::Geomorph | LodMethod::GeomorphStatic | LodMethod::GeomorphCpu => {
-            ("tau_px", vec![0.5, 1.0, 2.0, 4.0, 8.0])
-        }
+        LodMethod::Geomorph
+        | LodMethod::GeomorphStatic
+        | LodMethod::GeomorphCpu
+        | LodMethod::GeomorphPvs => ("tau_px", vec![0.5, 1.0, 2.0, 4.0, 8.0]),
         LodMethod::PvpsCPvs | LodMethod::PvpsCConservative => {
             ("C1", vec![12.5, 25.0, 50.0, 100.0, 200.0])
         }
@@ -120,9 +123,10 @@ pub fn apply_parameter(config: &mut MethodConfig, method: LodMethod, value: f64)
         LodMethod::PvpsA | LodMethod::PvpsB | LodMethod::PvpsC => config.pvps.c1 = value,
         LodMethod::Dss1 | LodMethod::Dss2 | LodMethod::DssStrips => config.dss.rho_thr = value,
         LodMethod::Entropy => config.entropy.e0 = value,
-        LodMethod::Geomorph | LodMethod::GeomorphStatic | LodMethod::GeomorphCpu => {
-            config.geomip.pixel_threshold = value
-        }
+        LodMethod::Geomorph
+        | LodMethod::GeomorphStatic
+        | LodMethod::GeomorphCpu
+        | LodMethod::GeomorphPvs => config.geomip.pixel_threshold = value,
         LodMethod::PvpsCPvs | LodMethod::PvpsCConservative => config.pvps.c1 = value,
         LodMethod::OutOfCore => config.ooc.tau = value,
         LodMethod::Tin => config.tin.tau_px = value,
@@ -137,9 +141,10 @@ pub fn parameter(config: &MethodConfig, method: LodMethod) -> f64 {
         LodMethod::PvpsA | LodMethod::PvpsB | LodMethod::PvpsC => config.pvps.c1,
         LodMethod::Dss1 | LodMethod::Dss2 | LodMethod::DssStrips => config.dss.rho_thr,
         LodMethod::Entropy => config.entropy.e0,
-        LodMethod::Geomorph | LodMethod::GeomorphStatic | LodMethod::GeomorphCpu => {
-            config.geomip.pixel_threshold
-        }
+        LodMethod::Geomorph
+        | LodMethod::GeomorphStatic
+        | LodMethod::GeomorphCpu
+        | LodMethod::GeomorphPvs => config.geomip.pixel_threshold,
         LodMethod::PvpsCPvs | LodMethod::PvpsCConservative => config.pvps.c1,
         LodMethod::OutOfCore => config.ooc.tau,
         LodMethod::Tin => config.tin.tau_px,
@@ -157,6 +162,7 @@ pub fn parameter_is_pixels(method: LodMethod) -> bool {
             | LodMethod::Geomorph
             | LodMethod::GeomorphStatic
             | LodMethod::GeomorphCpu
+            | LodMethod::GeomorphPvs
             | LodMethod::OutOfCore
             | LodMethod::Tin
     )
@@ -181,6 +187,11 @@ pub fn note(method: LodMethod) -> Option<&'static str> {
              levels and tweens, every vertex of every drawn patch morphed on the CPU each frame \
              (the morph's CPU reference, timed as the frame's build stage) and uploaded, drawn \
              by a pipeline that reads the heights and does not morph.",
+        ),
+        LodMethod::GeomorphPvs => Some(
+            "geomorph-pvs: geomorph (morphed in the vertex shader) without the patches that the \
+             conservative PVS proves hidden from the camera's view cell (the geomorphing \
+             article's PVS step; the scene's PVS, or one baked in memory).",
         ),
         LodMethod::OutOfCore => Some(
             "ooc: blocks come from a store through the streamer. By default the flight is played \
@@ -223,6 +234,7 @@ pub fn colour(m: LodMethod) -> &'static str {
         LodMethod::Tin => "#b8860b",
         LodMethod::GeomorphStatic => "#f7b6d2",
         LodMethod::GeomorphCpu => "#c49c94",
+        LodMethod::GeomorphPvs => "#7b4173",
     }
 }
 
@@ -250,7 +262,8 @@ pub fn marker(m: LodMethod) -> Marker {
         LodMethod::PvpsA
         | LodMethod::Geomorph
         | LodMethod::GeomorphStatic
-        | LodMethod::GeomorphCpu => Marker::Triangle,
+        | LodMethod::GeomorphCpu
+        | LodMethod::GeomorphPvs => Marker::Triangle,
         LodMethod::PvpsB | LodMethod::DssStrips => Marker::Diamond,
         LodMethod::PvpsC | LodMethod::Tin => Marker::Circle,
         LodMethod::Dss1 | LodMethod::OutOfCore => Marker::TriangleDown,
@@ -425,9 +438,10 @@ pub fn params_for_error_px(method: LodMethod, error_px: f64, view: ErrorView) ->
     let reference_px = px / scale;
     let leaf = f64::from(MethodConfig::default().leaf_cells);
     let (parameter, value, basis) = match method {
-        LodMethod::Geomorph | LodMethod::GeomorphStatic | LodMethod::GeomorphCpu => {
-            ("tau_px", px, ErrorPxBasis::Direct)
-        }
+        LodMethod::Geomorph
+        | LodMethod::GeomorphStatic
+        | LodMethod::GeomorphCpu
+        | LodMethod::GeomorphPvs => ("tau_px", px, ErrorPxBasis::Direct),
         LodMethod::OutOfCore => {
             ("tau", px / ooc_p99_per_tau(DEFAULT_SPLIT), ErrorPxBasis::Calibrated)
         }

@@ -51,9 +51,13 @@ use crate::ooc::{OocScene, StoreDraw};
 
 /// Which methods draw from a store.
 pub fn draws_from_store(kind: LodMethod) -> bool {
-    // geomorph-static and geomorph-cpu (the article's Table 1 comparison) draw from memory.
+    // geomorph-static and geomorph-cpu (the article's Table 1 comparison) and geomorph-pvs
+    // (its PVS step) draw from memory.
     !(super::registry::draws_mesh(kind)
-        || matches!(kind, LodMethod::GeomorphStatic | LodMethod::GeomorphCpu))
+        || matches!(
+            kind,
+            LodMethod::GeomorphStatic | LodMethod::GeomorphCpu | LodMethod::GeomorphPvs
+        ))
 }
 
 /// `kind` over the store of `scene` (its runtime), with `config`'s parameters; measured

@@ -450,7 +450,7 @@ pub struct GeomipSelection {
     /// The continuous factor `c'` of each drawn patch (parallel to `patches`; culled patches
     /// are not computed: the selection's cost follows the view).
     pub factors: Vec<f32>,
-    /// Patches culled by the frustum.
+    /// Patches culled: by the frustum here; a caller that culls further (a PVS) adds its own.
     pub culled: usize,
     /// CPU time of the selection, milliseconds.
     pub cpu_ms: f64,

@@ -189,9 +189,8 @@ pub(crate) fn run(ctx: &mut Ctx) -> anyhow::Result<PaperDoc> {
              CPU cores as the CPU morph, and uploads are memory copies. Frame rates compare by \
              ratio only."
                 .into(),
-            "PVS: the article's PVS layers are baked (`PvsConfig::article`) but the geomorph \
-             methods do not cull with them (docs/papers.md): every row here draws every patch \
-             in the frustum."
+            "PVS: the rows here draw every patch in the frustum; the article's PVS step is the \
+             separate method `geomorph-pvs` (docs/papers.md), not part of Table 1."
                 .into(),
         ],
         commands: Vec::new(),
