@@ -337,7 +337,7 @@ fn write_tables(
     if uses(&[LodMethod::Geomorph]) {
         crate::geomip_scene::write_into_scene(scene.geomip_scene().table(), &scene.hm, dir)?;
     }
-    if uses(&[LodMethod::Dss1, LodMethod::Dss2, LodMethod::DssStrips]) {
+    if uses(&[LodMethod::Dss1, LodMethod::Dss2, LodMethod::DssStrips, LodMethod::DssStripsPow2]) {
         let path = crate::dss_scene::dss_path(dir);
         std::fs::write(&path, scene.dss_errors().encode(&scene.hm))
             .with_context(|| format!("could not write {}", path.display()))?;
