@@ -363,8 +363,12 @@ fn prepare_store(hm: &Heightmap, cfg: &BenchConfig) -> Result<Arc<terrain_stream
     let dir = match &cfg.ooc_store {
         Some(d) => d.clone(),
         None => {
+            // One folder per call: parallel tests of one process bench grids of the same
+            // width, and a shared name let one bake overwrite the store another was reading.
+            static SERIAL: std::sync::atomic::AtomicUsize = std::sync::atomic::AtomicUsize::new(0);
+            let serial = SERIAL.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
             let dir = std::env::temp_dir().join(format!(
-                "terrain-bench-ooc-{}-{}",
+                "terrain-bench-ooc-{}-{serial}-{}",
                 std::process::id(),
                 hm.width()
             ));
