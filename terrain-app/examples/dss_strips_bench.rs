@@ -18,7 +18,7 @@ use glam::dvec2;
 use terrain_app::methods::{LodMethod, MethodConfig, MethodScene};
 use terrain_core::dem::{LoadOptions, load};
 use terrain_core::flight::{FlightConfig, FlightSpec};
-use terrain_core::lod::{DssStripsConfig, select_dss_strips};
+use terrain_core::lod::{DssStripsConfig, StripFactors, select_dss_strips};
 use terrain_gpu::strips::build_strips_with;
 
 fn median(mut v: Vec<f64>) -> f64 {
@@ -112,6 +112,7 @@ fn main() -> anyhow::Result<()> {
             let cfg = DssStripsConfig {
                 dss: scene.config.dss.clone(),
                 half_width_cells: scene.config.strip_half_width_cells,
+                factors: StripFactors::Sliding,
             };
             let f = select_dss_strips(&scene.qt, &all[k], scene.dss_errors(), &cfg);
             serial.push(build_strips_with(&f, false).cpu_time.as_secs_f64() * 1e3);

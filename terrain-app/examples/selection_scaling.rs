@@ -166,7 +166,10 @@ fn main() -> anyhow::Result<()> {
                 _ => anyhow::bail!("--ooc-refine: unknown split rule {rule} (eq7 or cost)"),
             };
             let patch_cells = cells.parse().with_context(|| format!("--ooc-refine {r}"))?;
-            Ok((r.to_string(), Refinement { patch_cells, split, cost_split_px }))
+            Ok((
+                r.to_string(),
+                Refinement { patch_cells, split, cost_split_px, ..Refinement::default() },
+            ))
         })
         .collect::<anyhow::Result<_>>()?;
     if !stores.is_empty() {

@@ -82,6 +82,12 @@ pub(crate) struct BenchArgs {
     /// [default: 0].
     #[arg(long)]
     pub ooc_cost_px: Option<u32>,
+    /// The floor of the view-angle factor, in [0, 1]: DSS Eq. 3's `sin(theta)` (`dss-1`,
+    /// `dss-2`, `dss-strips`, `dss-strips-pow2`) and the out-of-core Eq. 6-7's `cos(theta)`
+    /// (`ooc`); not in the papers (0 is theirs: no error below a straight-down camera)
+    /// [default: 0.25].
+    #[arg(long)]
+    pub view_angle_floor: Option<f64>,
     /// The `ooc` method: every sampled frame waits until the levels it needs are resident
     /// (warm: the error is the selection's own). By default the flight is played in real
     /// time at its own frame rate, every frame, and late data is counted.
@@ -240,6 +246,13 @@ pub(crate) fn run(args: &BenchArgs) -> anyhow::Result<()> {
     }
     if let Some(px) = args.ooc_cost_px {
         cfg.ooc.cost_split_px = px;
+    }
+    if let Some(floor) = args.view_angle_floor {
+        if !(0.0..=1.0).contains(&floor) {
+            bail!("--view-angle-floor takes a number in [0, 1], got {floor}");
+        }
+        cfg.method.dss.view_angle_floor = floor;
+        cfg.ooc.view_angle_floor = floor;
     }
     if let Some(cells) = args.ooc_patch_cells {
         if !cells.is_power_of_two() {

@@ -51,8 +51,9 @@ use terrain_core::Heightmap;
 use terrain_core::geometry::Camera;
 use terrain_core::lod::{
     DssConfig, DssErrorTable, DssStripsConfig, GridSource, MAX_FACTOR, MIN_FACTOR, Patch,
-    PvpsConfig, Selection, SelectionStats, SurfaceMesh, build_surface, select_dss_power_of_two,
-    select_dss_strips, select_dss_uniform, select_pvps, select_pvps_with_cull,
+    PvpsConfig, Selection, SelectionStats, StripFactors, SurfaceMesh, build_surface,
+    select_dss_power_of_two, select_dss_strips, select_dss_uniform, select_pvps,
+    select_pvps_with_cull,
 };
 use terrain_core::quadtree::{FrustumCull, NodeTree, Quadtree, SplitToLevel, select};
 use terrain_core::tin::grid::GridTinPyramid;
@@ -100,6 +101,11 @@ pub enum LodMethod {
     #[value(name = "dss-strips")]
     #[serde(rename = "dss-strips")]
     DssStrips,
+    /// `dss-strips` with each block's factor rounded up to a power of two (not the paper's:
+    /// issue 17's test of whether the sliding continuous factors make the strips pop).
+    #[value(name = "dss-strips-pow2")]
+    #[serde(rename = "dss-strips-pow2")]
+    DssStripsPow2,
     /// The out-of-core paper's method (Qiu 2013): blocks from a store through the streamer,
     /// Eq. 7 screen error with threshold --tau (needs a store from `terrain bake`).
     #[value(name = "ooc")]
@@ -127,7 +133,7 @@ pub enum LodMethod {
 
 impl LodMethod {
     /// Every method, in a fixed order (the benchmark's).
-    pub const ALL: [LodMethod; 16] = [
+    pub const ALL: [LodMethod; 17] = [
         LodMethod::Uniform,
         LodMethod::PvpsA,
         LodMethod::PvpsB,
@@ -144,6 +150,7 @@ impl LodMethod {
         LodMethod::GeomorphStatic,
         LodMethod::GeomorphCpu,
         LodMethod::GeomorphPvs,
+        LodMethod::DssStripsPow2,
     ];
 
     /// The CLI and report name.
@@ -160,6 +167,7 @@ impl LodMethod {
             LodMethod::PvpsCPvs => "pvps-c-pvs",
             LodMethod::PvpsCConservative => "pvps-c-cons",
             LodMethod::DssStrips => "dss-strips",
+            LodMethod::DssStripsPow2 => "dss-strips-pow2",
             LodMethod::OutOfCore => "ooc",
             LodMethod::Tin => "tin",
             LodMethod::GeomorphStatic => "geomorph-static",
@@ -171,7 +179,17 @@ impl LodMethod {
     /// Whether the method draws extra triangles besides its patches (its selection's patches
     /// share no edges, so `lod::check_shared_edges` does not apply to it).
     pub fn has_strips(self) -> bool {
-        self == LodMethod::DssStrips
+        self.strip_factors().is_some()
+    }
+
+    /// The stitching-strip methods' block factors (`dss-strips`: the paper's sliding ones;
+    /// `dss-strips-pow2`: powers of two); `None` for every other method.
+    pub fn strip_factors(self) -> Option<StripFactors> {
+        match self {
+            LodMethod::DssStrips => Some(StripFactors::Sliding),
+            LodMethod::DssStripsPow2 => Some(StripFactors::PowerOfTwo),
+            _ => None,
+        }
     }
 
     /// Whether the method draws the geomorphing article's geo-mipmapped patches: its three
@@ -407,7 +425,10 @@ impl MethodScene {
                 LodMethod::PvpsC => {
                     self.roughness(2);
                 }
-                LodMethod::Dss1 | LodMethod::Dss2 | LodMethod::DssStrips => {
+                LodMethod::Dss1
+                | LodMethod::Dss2
+                | LodMethod::DssStrips
+                | LodMethod::DssStripsPow2 => {
                     self.dss_errors();
                 }
                 LodMethod::Entropy => {
@@ -476,7 +497,7 @@ impl MethodScene {
                     None => pvps(field),
                 }
             }
-            LodMethod::DssStrips => self.frame(method, camera).selection,
+            LodMethod::DssStrips | LodMethod::DssStripsPow2 => self.frame(method, camera).selection,
             // Stateful: crate::ooc::OocScene draws it (see the module docs).
             LodMethod::OutOfCore => Selection::default(),
             // A mesh; its tiles as patches (nothing without a pyramid).
@@ -491,10 +512,10 @@ impl MethodScene {
     /// and the strips built this frame. The selection's `cpu_time` covers all of it (for
     /// `dss-strips`: the multilevel update plus the strip construction).
     pub fn frame(&self, method: LodMethod, camera: &Camera) -> MethodFrame {
-        if method != LodMethod::DssStrips {
+        let Some(factors) = method.strip_factors() else {
             return MethodFrame { selection: self.select(method, camera), strips: None };
-        }
-        strips_frame(&self.qt, camera, self.dss_errors(), &self.config)
+        };
+        strips_frame(&self.qt, camera, self.dss_errors(), &self.config, factors)
     }
 
     /// The surface a frame draws, rebuilt on the CPU (see [`MethodScene::drawn_surface`]),
@@ -632,16 +653,19 @@ pub fn select_uniform(src: &dyn NodeTree, camera: &Camera, factor: f32) -> Selec
 
 /// The `dss-strips` frame over any node tree (a heightmap's quadtree, a store's): the
 /// multilevel update, the strips and P-blocks built this frame, the blocks as draw patches.
-/// The selection's `cpu_time` covers the update and the strip construction.
+/// The selection's `cpu_time` covers the update and the strip construction; `factors` is the
+/// method's ([`LodMethod::strip_factors`]).
 pub fn strips_frame(
     src: &dyn NodeTree,
     camera: &Camera,
     table: &DssErrorTable,
     config: &MethodConfig,
+    factors: StripFactors,
 ) -> MethodFrame {
     let cfg = DssStripsConfig {
         dss: config.dss.clone(),
         half_width_cells: config.strip_half_width_cells,
+        factors,
     };
     let frame = select_dss_strips(src, camera, table, &cfg);
     let update = frame.stats.cpu_time;

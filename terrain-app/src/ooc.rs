@@ -83,6 +83,9 @@ pub struct OocConfig {
     /// The cost split's screen-size floor ([`Refinement::cost_split_px`]). Default
     /// [`terrain_stream::DEFAULT_COST_SPLIT_PX`].
     pub cost_split_px: u32,
+    /// The floor of Eq. 6-7's `cos(theta)` ([`Refinement::view_angle_floor`]). Default
+    /// [`terrain_core::metrics::screen::MIN_VIEW_SIN`] (0.25).
+    pub view_angle_floor: f64,
 }
 
 /// Frames the streamer preloads ahead (Eq. 8's `S` times this). The paper's Eq. 8 looks one
@@ -101,6 +104,7 @@ impl OocConfig {
             patch_cells: self.patch_cells,
             split: self.split,
             cost_split_px: self.cost_split_px,
+            view_angle_floor: self.view_angle_floor,
         }
     }
 }
@@ -119,6 +123,7 @@ impl Default for OocConfig {
             vertical_scale: 1.0,
             split: DEFAULT_SPLIT,
             cost_split_px: DEFAULT_COST_SPLIT_PX,
+            view_angle_floor: terrain_core::metrics::screen::MIN_VIEW_SIN,
         }
     }
 }

@@ -10,7 +10,7 @@ use crate::methods::{LodMethod, MethodScene};
 
 /// The methods that read a scene folder's files ([`load`]): the PVPS methods (roughness
 /// pyramids; `pvps-c-pvs` and `pvps-c-cons` also the PVS) and the DSS methods (their errors).
-pub const READ_BY: [LodMethod; 8] = [
+pub const READ_BY: [LodMethod; 9] = [
     LodMethod::PvpsA,
     LodMethod::PvpsB,
     LodMethod::PvpsC,
@@ -19,6 +19,7 @@ pub const READ_BY: [LodMethod; 8] = [
     LodMethod::Dss1,
     LodMethod::Dss2,
     LodMethod::DssStrips,
+    LodMethod::DssStripsPow2,
 ];
 
 /// Refuses `--scene` for `methods` none of which reads a scene folder (it would be ignored).
@@ -56,7 +57,7 @@ pub fn load(scene: &MethodScene, dir: &Path, methods: &[LodMethod]) -> Vec<Strin
     if uses(&[LodMethod::PvpsCPvs, LodMethod::PvpsCConservative]) {
         warnings.extend(crate::pvs_scene::load_into(scene, dir));
     }
-    if uses(&[LodMethod::Dss1, LodMethod::Dss2, LodMethod::DssStrips]) {
+    if uses(&[LodMethod::Dss1, LodMethod::Dss2, LodMethod::DssStrips, LodMethod::DssStripsPow2]) {
         match crate::dss_scene::load_into(scene, dir) {
             Ok(path) => eprintln!("DSS errors read from {}", path.display()),
             Err(warning) => warnings.push(warning),

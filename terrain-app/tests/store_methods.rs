@@ -216,7 +216,7 @@ fn what_a_store_cannot_do_is_said() {
     bake(&scene.hm, &bare, &config, &mut |_: &BakeProgress| ControlFlow::Continue(())).unwrap();
     let bare_store = Arc::new(Store::open(&bare).unwrap());
     assert!(store.has_dss_errors() && !bare_store.has_dss_errors());
-    for kind in [LodMethod::Dss1, LodMethod::Dss2, LodMethod::DssStrips] {
+    for kind in [LodMethod::Dss1, LodMethod::Dss2, LodMethod::DssStrips, LodMethod::DssStripsPow2] {
         let runtime =
             OocScene::new(bare_store.clone(), OocConfig { threads: 1, ..OocConfig::default() });
         let e = method::store_method(kind, runtime, &scene.config, OocWait::FirstFrame, None)

@@ -10,7 +10,7 @@ use terrain_core::dem::{LoadOptions, load};
 use terrain_core::flight::{FlightConfig, FlightSpec, frame_count};
 use terrain_core::synth::default_terrain;
 
-const SHIPPED: [(&str, f64); 8] = [
+const SHIPPED: [(&str, f64); 9] = [
     ("pvps_884", 60.0),
     ("pvps_1012", 60.0),
     ("pvps_1140", 60.0),
@@ -19,6 +19,7 @@ const SHIPPED: [(&str, f64); 8] = [
     ("valley_low", 30.0),
     ("overview_high", 40.0),
     ("fast_pass", 10.0),
+    ("straight_down", 20.0),
 ];
 
 fn check_all(hm: &Heightmap, what: &str) {

@@ -79,7 +79,7 @@ use std::time::Instant;
 use glam::{DVec2, DVec3};
 use terrain_core::geometry::{Aabb, Camera, Frustum, GroundRegion, project_view_to_ground};
 use terrain_core::lod::{MAX_FACTOR, Patch, Selection, SelectionStats, wish_outer_factors};
-use terrain_core::metrics::screen::SightLineEq7;
+use terrain_core::metrics::screen::{self, SightLineEq7};
 use terrain_core::quadtree::{
     BoundingCircleCull, Cull, CullPolicy, FrustumCull, GridRect, LeafTree, NodeId, NodeInfo,
     NodeSource, NodeTree, SplitPolicy, TreeShape, Visit, traverse,
@@ -103,15 +103,24 @@ pub struct View {
     pub lambda: f64,
     /// Screen-error threshold `tau`, pixels.
     pub tau: f64,
-    /// Eq. 7's per-view part (from `dir` and `lambda`).
+    /// The floor of Eq. 6-7's `cos(theta)` ([`Refinement::view_angle_floor`]).
+    pub floor: f64,
+    /// Eq. 7's per-view part (from `dir`, `lambda` and `floor`).
     pub(crate) eq7: SightLineEq7,
 }
 
 impl View {
-    /// The view of `camera` with threshold `tau` pixels.
+    /// The view of `camera` with threshold `tau` pixels and the default view-angle floor
+    /// ([`screen::MIN_VIEW_SIN`]).
     pub fn new(camera: &Camera, tau: f64) -> Self {
+        Self::floored(camera, tau, screen::MIN_VIEW_SIN)
+    }
+
+    /// The view of `camera` with threshold `tau` pixels and view-angle floor `floor`.
+    pub fn floored(camera: &Camera, tau: f64, floor: f64) -> Self {
         let (dir, lambda) = (camera.forward(), camera.lambda());
-        Self { eye: camera.position, dir, lambda, tau, eq7: SightLineEq7::new(lambda, dir) }
+        let eq7 = SightLineEq7::floored(lambda, dir, floor);
+        Self { eye: camera.position, dir, lambda, tau, floor, eq7 }
     }
 
     /// Eq. 7's `rho` per metre of error for a node with world box `aabb` (distance from the eye
@@ -212,7 +221,7 @@ pub enum SplitRule {
 /// How a store's quadtree is refined into patches: what the selection ([`StoreTree`]) and the
 /// streamer's needed levels (`StreamConfig::refinement`) share, so that what is loaded is
 /// what is drawn.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Refinement {
     /// Smallest patch, cells per side (a power of two, at most a block). Default
     /// [`DEFAULT_PATCH_CELLS`].
@@ -225,6 +234,10 @@ pub struct Refinement {
     /// patches the cost split adds by the screen's area, whatever the grid's size (the bound
     /// CDLOD's and Chunked LOD's node counts have). Default [`DEFAULT_COST_SPLIT_PX`].
     pub cost_split_px: u32,
+    /// The floor of Eq. 6-7's `cos(theta)` ([`screen::view_sin_floored`]; not the paper's,
+    /// which has none: a straight-down view would see no error). Default
+    /// [`screen::MIN_VIEW_SIN`] (0.25).
+    pub view_angle_floor: f64,
 }
 
 impl Default for Refinement {
@@ -233,6 +246,7 @@ impl Default for Refinement {
             patch_cells: DEFAULT_PATCH_CELLS,
             split: DEFAULT_SPLIT,
             cost_split_px: DEFAULT_COST_SPLIT_PX,
+            view_angle_floor: screen::MIN_VIEW_SIN,
         }
     }
 }
@@ -1171,11 +1185,16 @@ pub(crate) fn traversal_leaves(
     tau: f64,
     resident: impl Fn(BlockId) -> Option<u8>,
 ) -> Vec<NodeId> {
-    traverse_store(tree, camera, &View::new(camera, tau), &resident)
-        .0
-        .into_iter()
-        .map(|l| l.0)
-        .collect()
+    traverse_store(
+        tree,
+        camera,
+        &View::floored(camera, tau, tree.refine.view_angle_floor),
+        &resident,
+    )
+    .0
+    .into_iter()
+    .map(|l| l.0)
+    .collect()
 }
 
 /// The crack-free patches of a store for `camera`: terrain-core's [`traverse`] over the
@@ -1197,7 +1216,7 @@ pub fn select_patches(
     resident: impl Fn(BlockId) -> Option<u8>,
 ) -> Selection {
     let start = Instant::now();
-    let view = View::new(camera, tau);
+    let view = View::floored(camera, tau, tree.refine.view_angle_floor);
     let bl = tree.block_level;
     let (boxed, mut stats) = traverse_store(tree, camera, &view, &resident);
     let traversed: Vec<NodeId> = boxed.iter().map(|&(n, ..)| n).collect();

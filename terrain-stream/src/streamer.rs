@@ -52,7 +52,7 @@ use std::time::{Duration, Instant};
 
 use glam::{DVec2, DVec3};
 use terrain_core::geometry::{Aabb, Camera, Classification, Frustum, GroundRegion};
-use terrain_core::metrics::screen::{MIN_DISTANCE_M, view_sin};
+use terrain_core::metrics::screen::{MIN_DISTANCE_M, view_sin_floored};
 
 use crate::cache::Cache;
 use crate::format::{BlockEntry, BlockId, Header};
@@ -405,8 +405,8 @@ impl Streamer {
     fn schedule(&self, camera: &Camera, reg: &Regions, ahead: DVec3) -> Vec<ScheduledBlock> {
         let store = &self.store;
         let header = store.header();
-        let view = View::new(camera, self.config.tau);
         let refine = self.config.refinement;
+        let view = View::floored(camera, self.config.tau, refine.view_angle_floor);
         let next = (ahead != DVec3::ZERO).then(|| View { eye: view.eye + ahead, ..view });
         let eye = camera.position.truncate();
         let predicted = |id: BlockId, e: &BlockEntry, now: u8| {
@@ -758,7 +758,7 @@ fn geometry_level_bound(h: &Header, e: &BlockEntry, b: BlockId, view: &View) -> 
     if !(d.is_finite() && d > 2.0 * MIN_DISTANCE_M) {
         return h.k;
     }
-    let per_metre = view.lambda * view_sin(view.dir) / d * (1.0 + 1e-9);
+    let per_metre = view.lambda * view_sin_floored(view.dir, view.floor) / d * (1.0 + 1e-9);
     let limit = view.tau / per_metre;
     if !limit.is_finite() {
         return h.k;
@@ -829,7 +829,12 @@ mod tests {
                 for (tau, refine) in [0.5, 2.0, 8.0].into_iter().flat_map(|t| {
                     [
                         Refinement::default(),
-                        Refinement { patch_cells: 4, split: SplitRule::Cost, cost_split_px: 0 },
+                        Refinement {
+                            patch_cells: 4,
+                            split: SplitRule::Cost,
+                            cost_split_px: 0,
+                            ..Refinement::default()
+                        },
                     ]
                     .map(|r| (t, r))
                 }) {
@@ -891,7 +896,12 @@ mod tests {
                 ]);
                 let bound = geometry_level_bound(&h, e, id, &view);
                 for split in [SplitRule::Eq7, SplitRule::Cost] {
-                    let refine = Refinement { patch_cells: 4, split, cost_split_px: 0 };
+                    let refine = Refinement {
+                        patch_cells: 4,
+                        split,
+                        cost_split_px: 0,
+                        ..Refinement::default()
+                    };
                     let walk =
                         crate::lod::needed_geometry_level(&h, e, id, &view, &all, refine).unwrap();
                     assert!(bound >= walk, "{id}: bound {bound} < walk {walk} ({split:?})");

@@ -10,7 +10,7 @@ use crate::ooc::OocConfig;
 #[derive(Debug, Clone, PartialEq)]
 pub struct BenchConfig {
     /// Methods, in report order. Default [`LodMethod::ALL`] but the geomorphing article's
-    /// comparison paths (`crate::method::registry::benched_by_default`).
+    /// comparison paths and `dss-strips-pow2` (`crate::method::registry::benched_by_default`).
     pub methods: Vec<LodMethod>,
     /// Frames per flight: at most this many, evenly spaced over the flight (first and last
     /// included); 0 = every frame. Popping is then measured between consecutive *sampled*

@@ -41,6 +41,14 @@ pub struct FrameRecord {
     pub cpu_ms: f64,
     /// Selection + render wall time when rendered (selection + CPU tessellation otherwise), ms.
     pub frame_ms: f64,
+    /// The stitching-strip methods (from memory): CPU time of the multilevel update (DSS
+    /// section 3.3.1), ms; part of `selection_ms`. The DSS paper's Fig. 20 stages.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub update_ms: Option<f64>,
+    /// The stitching-strip methods (from memory): CPU time of the strips' and P-blocks'
+    /// construction (section 3.2), ms; part of `selection_ms`.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub strips_ms: Option<f64>,
     /// Resident memory after the frame, bytes (`/proc/self/statm`; `None` elsewhere).
     pub rss_bytes: Option<u64>,
     /// Blocks in view the frame has no data for (a store-backed method: blocks whose levels

@@ -337,7 +337,7 @@ fn write_tables(
     if uses(&[LodMethod::Geomorph]) {
         crate::geomip_scene::write_into_scene(scene.geomip_scene().table(), &scene.hm, dir)?;
     }
-    if uses(&[LodMethod::Dss1, LodMethod::Dss2, LodMethod::DssStrips]) {
+    if uses(&[LodMethod::Dss1, LodMethod::Dss2, LodMethod::DssStrips, LodMethod::DssStripsPow2]) {
         let path = crate::dss_scene::dss_path(dir);
         std::fs::write(&path, scene.dss_errors().encode(&scene.hm))
             .with_context(|| format!("could not write {}", path.display()))?;
@@ -363,8 +363,12 @@ fn prepare_store(hm: &Heightmap, cfg: &BenchConfig) -> Result<Arc<terrain_stream
     let dir = match &cfg.ooc_store {
         Some(d) => d.clone(),
         None => {
+            // One folder per call: parallel tests of one process bench grids of the same
+            // width, and a shared name let one bake overwrite the store another was reading.
+            static SERIAL: std::sync::atomic::AtomicUsize = std::sync::atomic::AtomicUsize::new(0);
+            let serial = SERIAL.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
             let dir = std::env::temp_dir().join(format!(
-                "terrain-bench-ooc-{}-{}",
+                "terrain-bench-ooc-{}-{serial}-{}",
                 std::process::id(),
                 hm.width()
             ));

@@ -174,6 +174,8 @@ impl<'a> FrameLoop<'a> {
             vertex_jump_no_morph_m: jumps.map(|j| j[1]),
             stream: stats.stream.clone(),
             missing_blocks: stats.blocks.map_or(0, |b| b.blocks_dropped),
+            update_ms: stats.strip_stages_ms.map(|s| s[0]),
+            strips_ms: stats.strip_stages_ms.map(|s| s[1]),
             ..FrameRecord::measured(
                 index,
                 stats.patches,

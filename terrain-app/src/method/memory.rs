@@ -37,6 +37,10 @@ impl Method for MemoryMethod<'_> {
         let t = Instant::now();
         let drawn = scene.frame(self.kind, camera);
         let selection_ms = ms(t);
+        let strip_stages_ms = drawn
+            .strips
+            .as_ref()
+            .map(|s| [s.update.as_secs_f64() * 1e3, s.mesh.cpu_time.as_secs_f64() * 1e3]);
         let t = Instant::now();
         let (patches, extra) = match drawn.strips {
             None => (scene.draw_patches(&drawn.selection), ExtraTriangles::default()),
@@ -48,6 +52,7 @@ impl Method for MemoryMethod<'_> {
                 selection_ms,
                 convert_ms,
                 patches: drawn.selection.patches.len(),
+                strip_stages_ms,
                 ..MethodStats::default()
             },
             selection: drawn.selection,

@@ -106,6 +106,10 @@ pub struct MethodStats {
     pub convert_ms: f64,
     /// Patches selected (the entropy method: tiles of its cut).
     pub patches: usize,
+    /// The stitching-strip methods from memory: the multilevel update's and the strips'
+    /// construction's CPU times, ms (both inside `selection_ms`; the DSS paper's Fig. 20
+    /// stages).
+    pub strip_stages_ms: Option<[f64; 2]>,
     /// Streaming figures (store-backed methods).
     pub stream: Option<StreamRecord>,
     /// Block figures (store-backed methods).

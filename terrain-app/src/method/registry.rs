@@ -71,9 +71,16 @@ pub fn draws_mesh(kind: LodMethod) -> bool {
 /// Whether `terrain bench` runs `kind` when no `--methods` are given: every method but the
 /// geomorphing article's comparison paths (`geomorph-static`, `geomorph-cpu`: its Table 1;
 /// `geomorph-pvs`: its PVS; `cargo xtask papers --paper geomorph`), which draw what
-/// `geomorph` draws, or a subset of it.
+/// `geomorph` draws or a subset of it, and `dss-strips-pow2` (the DSS popping study, `cargo
+/// xtask papers --paper dss`).
 pub fn benched_by_default(kind: LodMethod) -> bool {
-    !matches!(kind, LodMethod::GeomorphStatic | LodMethod::GeomorphCpu | LodMethod::GeomorphPvs)
+    !matches!(
+        kind,
+        LodMethod::GeomorphStatic
+            | LodMethod::GeomorphCpu
+            | LodMethod::GeomorphPvs
+            | LodMethod::DssStripsPow2
+    )
 }
 
 /// Whether `kind` draws from a baked store ([`MethodOptions::store`]).
@@ -95,7 +102,7 @@ pub fn sweep_values(method: LodMethod, leaf_cells: u32) -> (&'static str, Vec<f6
         LodMethod::PvpsA | LodMethod::PvpsB | LodMethod::PvpsC => {
             ("C1", vec![12.5, 25.0, 50.0, 100.0, 200.0])
         }
-        LodMethod::Dss1 | LodMethod::Dss2 | LodMethod::DssStrips => {
+        LodMethod::Dss1 | LodMethod::Dss2 | LodMethod::DssStrips | LodMethod::DssStripsPow2 => {
             ("rho_thr", vec![0.25, 0.5, 1.0, 2.0, 4.0, 8.0])
         }
         // E0 in percent of the largest entropy (the paper's 10..18 barely simplify at our
@@ -121,7 +128,9 @@ pub fn apply_parameter(config: &mut MethodConfig, method: LodMethod, value: f64)
     match method {
         LodMethod::Uniform => config.uniform_factor = value as f32,
         LodMethod::PvpsA | LodMethod::PvpsB | LodMethod::PvpsC => config.pvps.c1 = value,
-        LodMethod::Dss1 | LodMethod::Dss2 | LodMethod::DssStrips => config.dss.rho_thr = value,
+        LodMethod::Dss1 | LodMethod::Dss2 | LodMethod::DssStrips | LodMethod::DssStripsPow2 => {
+            config.dss.rho_thr = value
+        }
         LodMethod::Entropy => config.entropy.e0 = value,
         LodMethod::Geomorph
         | LodMethod::GeomorphStatic
@@ -139,7 +148,9 @@ pub fn parameter(config: &MethodConfig, method: LodMethod) -> f64 {
     match method {
         LodMethod::Uniform => f64::from(config.uniform_factor),
         LodMethod::PvpsA | LodMethod::PvpsB | LodMethod::PvpsC => config.pvps.c1,
-        LodMethod::Dss1 | LodMethod::Dss2 | LodMethod::DssStrips => config.dss.rho_thr,
+        LodMethod::Dss1 | LodMethod::Dss2 | LodMethod::DssStrips | LodMethod::DssStripsPow2 => {
+            config.dss.rho_thr
+        }
         LodMethod::Entropy => config.entropy.e0,
         LodMethod::Geomorph
         | LodMethod::GeomorphStatic
@@ -159,6 +170,7 @@ pub fn parameter_is_pixels(method: LodMethod) -> bool {
         LodMethod::Dss1
             | LodMethod::Dss2
             | LodMethod::DssStrips
+            | LodMethod::DssStripsPow2
             | LodMethod::Geomorph
             | LodMethod::GeomorphStatic
             | LodMethod::GeomorphCpu
@@ -176,6 +188,11 @@ pub fn note(method: LodMethod) -> Option<&'static str> {
             "entropy: a triangle mesh, measured on the CPU and drawn as the renderer's extra \
              triangles (uploaded every frame); its selection time is the Eq. 5 cut, its \
              tessellation time the crack elimination and tile triangulation.",
+        ),
+        LodMethod::DssStripsPow2 => Some(
+            "dss-strips-pow2: dss-strips with every block's factor rounded up to a power of two \
+             (not the paper's: the test of whether the paper's sliding continuous factors make \
+             the strips pop); the same blocks and strips.",
         ),
         LodMethod::GeomorphStatic => Some(
             "geomorph-static: the geomorphing article's Table 1 'static LOD': geomorph's patches \
@@ -230,6 +247,7 @@ pub fn colour(m: LodMethod) -> &'static str {
         LodMethod::PvpsCPvs => "#bcbd22",
         LodMethod::PvpsCConservative => "#17becf",
         LodMethod::DssStrips => "#393b79",
+        LodMethod::DssStripsPow2 => "#637939",
         LodMethod::OutOfCore => "#6b8e23",
         LodMethod::Tin => "#b8860b",
         LodMethod::GeomorphStatic => "#f7b6d2",
@@ -264,7 +282,7 @@ pub fn marker(m: LodMethod) -> Marker {
         | LodMethod::GeomorphStatic
         | LodMethod::GeomorphCpu
         | LodMethod::GeomorphPvs => Marker::Triangle,
-        LodMethod::PvpsB | LodMethod::DssStrips => Marker::Diamond,
+        LodMethod::PvpsB | LodMethod::DssStrips | LodMethod::DssStripsPow2 => Marker::Diamond,
         LodMethod::PvpsC | LodMethod::Tin => Marker::Circle,
         LodMethod::Dss1 | LodMethod::OutOfCore => Marker::TriangleDown,
         LodMethod::Dss2 | LodMethod::Entropy => Marker::Ring,
@@ -445,7 +463,7 @@ pub fn params_for_error_px(method: LodMethod, error_px: f64, view: ErrorView) ->
         LodMethod::OutOfCore => {
             ("tau", px / ooc_p99_per_tau(DEFAULT_SPLIT), ErrorPxBasis::Calibrated)
         }
-        LodMethod::Dss1 | LodMethod::Dss2 | LodMethod::DssStrips => {
+        LodMethod::Dss1 | LodMethod::Dss2 | LodMethod::DssStrips | LodMethod::DssStripsPow2 => {
             let rho = (reference_px / DSS_P99_AT_RHO_1).powf(1.0 / DSS_P99_EXPONENT);
             ("rho_thr", rho * scale, ErrorPxBasis::Model)
         }

@@ -282,8 +282,9 @@ impl Method for StoreMethod<'_> {
                     select_pvps_with_cull(src, camera, field, &cfg.pvps, &mut pvs.cull_for(pvs_eye))
                 }
                 Tables::RoughnessPvs(field, None) => select_pvps(src, camera, field, &cfg.pvps),
-                Tables::Dss(table) if kind == LodMethod::DssStrips => {
-                    let f = strips_frame(src, camera, table, cfg);
+                Tables::Dss(table) if kind.has_strips() => {
+                    let factors = kind.strip_factors().unwrap_or_default();
+                    let f = strips_frame(src, camera, table, cfg, factors);
                     return StoreDraw { selection: f.selection, strips: f.strips };
                 }
                 Tables::Dss(table) if kind == LodMethod::Dss1 => {

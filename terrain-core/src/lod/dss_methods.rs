@@ -59,11 +59,20 @@ pub struct DssConfig {
     /// Whether to cull node boxes against the view frustum (the paper's hierarchical culling,
     /// section 3.3.2, first step). Default true.
     pub frustum_cull: bool,
+    /// The floor of Eq. 3's `sin(theta)` ([`screen::view_sin_floored`]; not the paper's, which
+    /// has none). Default [`screen::MIN_VIEW_SIN`] (0.25).
+    pub view_angle_floor: f64,
 }
 
 impl Default for DssConfig {
     fn default() -> Self {
-        Self { rho_thr: 1.0, leaf_cells: 16, uniform_block_cells: 64, frustum_cull: true }
+        Self {
+            rho_thr: 1.0,
+            leaf_cells: 16,
+            uniform_block_cells: 64,
+            frustum_cull: true,
+            view_angle_floor: screen::MIN_VIEW_SIN,
+        }
     }
 }
 
@@ -354,16 +363,19 @@ pub(super) struct Metric<'a> {
     pub(super) lambda: f64,
     pub(super) eye: glam::DVec3,
     pub(super) thr: f64,
+    /// The floor of Eq. 3's `sin(theta)`.
+    pub(super) floor: f64,
 }
 
 impl<'a> Metric<'a> {
-    /// The metric of `camera` with threshold `rho_thr` pixels.
-    pub(super) fn new(table: &'a DssErrorTable, camera: &Camera, rho_thr: f64) -> Self {
+    /// The metric of `camera` with `cfg`'s threshold `rho_thr` (pixels) and view-angle floor.
+    pub(super) fn new(table: &'a DssErrorTable, camera: &Camera, cfg: &DssConfig) -> Self {
         Self {
             table,
             lambda: screen::lambda(camera.viewport_px.y, camera.fov_y),
             eye: camera.position,
-            thr: rho_thr,
+            thr: cfg.rho_thr,
+            floor: cfg.view_angle_floor,
         }
     }
 
@@ -373,22 +385,24 @@ impl<'a> Metric<'a> {
 
     /// Eq. 3 for the finest factor: split when `rho_32 > rho_thr`.
     pub(super) fn must_split(&self, node: NodeId, info: &NodeInfo) -> bool {
-        let rho = screen::dss(
+        let rho = screen::dss_floored(
             self.lambda,
             self.delta(node)[FACTORS - 1],
             info.aabb.distance(self.eye),
             info.aabb.center() - self.eye,
+            self.floor,
         );
         rho > self.thr
     }
 
     /// Eq. 3 and 4: the continuous factor `F_thr` (64 where even 64 misses the threshold).
     pub(super) fn factor(&self, node: NodeId, info: &NodeInfo) -> f32 {
-        let rho = crate::metrics::dss::screen_errors(
+        let rho = crate::metrics::dss::screen_errors_floored(
             &self.delta(node),
             self.lambda,
             info.aabb.distance(self.eye),
             info.aabb.center() - self.eye,
+            self.floor,
         );
         match tessellation_factor(&rho, self.thr) {
             Tessellation::MustSplit => MAX_FACTOR,
@@ -406,12 +420,7 @@ fn select_dss(
 ) -> Selection {
     let start = Instant::now();
     assert_eq!(table.root_cells(), src.shape().root_cells(), "error table of another quadtree");
-    let metric = Metric {
-        table,
-        lambda: screen::lambda(camera.viewport_px.y, camera.fov_y),
-        eye: camera.position,
-        thr: cfg.rho_thr,
-    };
+    let metric = Metric::new(table, camera, cfg);
     let (leaves, stats) = match uniform {
         Some(level) => run::leaves(src, camera, &mut SplitToLevel(level), cfg.frustum_cull, false),
         None => {
@@ -580,6 +589,46 @@ mod tests {
         .unwrap()
     }
 
+    /// The view-angle floor of Eq. 3 (`DssConfig::view_angle_floor`): a node seen at
+    /// `sin(theta)` at or above both floors gets the same split decision and factor under
+    /// either; only nodes seen steeper than a floor can change, and some do (negative
+    /// control: a camera looking down at the middle sees nodes steeper than 0.25).
+    #[test]
+    fn the_view_angle_floor_changes_only_blocks_seen_steeper_than_it() {
+        let hm = bumpy(129);
+        let cfg = DssConfig { leaf_cells: 8, ..Default::default() };
+        let qt = cfg.quadtree(&hm);
+        let table = DssErrorTable::new(&hm, &qt);
+        let cam = Camera::from_yaw_pitch(dvec3(640.0, 640.0, 400.0), 0.0, -89.0);
+        let with = |floor: f64| DssConfig { view_angle_floor: floor, ..cfg.clone() };
+        let (low, high) = (with(0.1), with(screen::MIN_VIEW_SIN));
+        assert_eq!(DssConfig::default().view_angle_floor, screen::MIN_VIEW_SIN);
+        let (ml, mh) = (Metric::new(&table, &cam, &low), Metric::new(&table, &cam, &high));
+        let (mut steep_changed, mut shallow) = (0, 0);
+        let mut stack = vec![NodeId::ROOT];
+        while let Some(n) = stack.pop() {
+            let Some(info) = qt.node_info(n) else { continue };
+            let raw = screen::view_sin_floored(info.aabb.center() - cam.position, 0.0);
+            let same = ml.factor(n, &info) == mh.factor(n, &info)
+                && ml.must_split(n, &info) == mh.must_split(n, &info);
+            if raw >= screen::MIN_VIEW_SIN {
+                assert!(same, "{n:?} seen at sin {raw:.3} changed with the floor");
+                shallow += 1;
+            } else if !same {
+                steep_changed += 1;
+            }
+            if n.level < qt.max_level() {
+                stack.extend(n.children());
+            }
+        }
+        assert!(shallow > 0, "no node seen shallower than the floor: nothing compared");
+        assert!(steep_changed > 0, "no node seen steeper than the floor changed");
+        // Through the selection: the floor changes what a straight-down view draws.
+        let a = select_dss_power_of_two(&qt, &cam, &table, &with(0.0));
+        let b = select_dss_power_of_two(&qt, &cam, &table, &with(1.0));
+        assert!(a.patches.len() < b.patches.len(), "{} vs {}", a.patches.len(), b.patches.len());
+    }
+
     #[test]
     fn pow2_rounds_up() {
         assert_eq!(
@@ -628,7 +677,7 @@ mod tests {
         cfg: &DssConfig,
     ) -> Selection {
         let start = Instant::now();
-        let metric = Metric::new(table, camera, cfg.rho_thr);
+        let metric = Metric::new(table, camera, cfg);
         let block = cfg.uniform_block_cells.max(1);
         let level = (qt.root_cells() / block.min(qt.root_cells())).max(1).ilog2() as u8;
         let mut split = SplitToLevel(level.min(qt.max_level()));

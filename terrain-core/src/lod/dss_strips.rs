@@ -54,6 +54,7 @@ use std::time::Instant;
 use glam::{DVec2, DVec3};
 
 use super::dss_methods::{DssConfig, DssErrorTable, Metric};
+use super::edges::pow2_up;
 use super::patch::{Edge, Patch, Selection, SelectionStats};
 use crate::geometry::{Aabb, Camera, Classification, Frustum};
 use crate::quadtree::{
@@ -71,12 +72,29 @@ pub struct DssStripsConfig {
     /// is split only while its children keep at least two cells inside their strips
     /// (`cells / 2 >= 2 s + 2`). Default 1.
     pub half_width_cells: u32,
+    /// How each block's factor follows Eq. 4. Default [`StripFactors::Sliding`] (the
+    /// paper's).
+    pub factors: StripFactors,
 }
 
 impl Default for DssStripsConfig {
     fn default() -> Self {
-        Self { dss: DssConfig::default(), half_width_cells: 1 }
+        Self { dss: DssConfig::default(), half_width_cells: 1, factors: StripFactors::Sliding }
     }
+}
+
+/// The factor a block tessellates with.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum StripFactors {
+    /// The paper's: the continuous `F_thr` of Eq. 4 (fractional-even spacing), which changes
+    /// with every move of the camera and slides every tessellated vertex of the block.
+    #[default]
+    Sliding,
+    /// Not the paper's (issue 17's test of why the strips pop): `F_thr` rounded *up* to a power
+    /// of two (2, 4, ..., 64), as Method I's, so a block's surface changes only when its factor
+    /// doubles or halves (or the block splits or merges); the strips still join any two
+    /// factors. Rounding up keeps every block within the threshold.
+    PowerOfTwo,
 }
 
 /// One M-block: a quadtree leaf with the paper's M-block data (MBD, section 3.1.1).
@@ -192,7 +210,7 @@ pub fn select_dss_strips(
     let start = Instant::now();
     assert_eq!(table.root_cells(), qt.shape().root_cells(), "error table of another quadtree");
     let s = cfg.half_width_cells.max(1);
-    let metric = Metric::new(table, camera, cfg.dss.rho_thr);
+    let metric = Metric::new(table, camera, &cfg.dss);
     let mut stats = SelectionStats::default();
     let mut hidden: Vec<NodeId> = Vec::new();
     let mut splits: Vec<NodeId> = Vec::new();
@@ -226,8 +244,12 @@ pub fn select_dss_strips(
     let mut nodes: Vec<(NodeId, bool)> = leaves.iter().map(|&n| (n, true)).collect();
     nodes.extend(hidden.iter().map(|&n| (n, false)));
     let frustum = cfg.dss.frustum_cull.then(|| camera.frustum());
-    // Zhang 2019 (DSS), Eq. 4: the continuous factor F_thr from the 32 screen errors (Eq. 3).
-    let factor = |n: NodeId, info: &NodeInfo| metric.factor(n, info);
+    // Zhang 2019 (DSS), Eq. 4: the continuous factor F_thr from the 32 screen errors (Eq. 3);
+    // rounded up to a power of two for [`StripFactors::PowerOfTwo`] (not the paper's).
+    let factor = |n: NodeId, info: &NodeInfo| match cfg.factors {
+        StripFactors::Sliding => metric.factor(n, info),
+        StripFactors::PowerOfTwo => pow2_up(metric.factor(n, info)),
+    };
     let (blocks, pblocks, strips, culled_strips) =
         assemble(qt, nodes, &splits, factor, s, frustum.as_ref());
     stats.patches = blocks.iter().filter(|b| b.visible).count();
@@ -437,6 +459,7 @@ mod tests {
                 ..Default::default()
             },
             half_width_cells: 1,
+            factors: StripFactors::Sliding,
         };
         let qt = cfg.dss.quadtree(&hm);
         let table = DssErrorTable::new(&hm, &qt);

@@ -58,7 +58,8 @@ pub use dss_methods::{
     select_dss_uniform,
 };
 pub use dss_strips::{
-    DssStripFrame, DssStripsConfig, MBlock, PBlock, Strip, frame_from_leaves, select_dss_strips,
+    DssStripFrame, DssStripsConfig, MBlock, PBlock, Strip, StripFactors, frame_from_leaves,
+    select_dss_strips,
 };
 pub use edges::{
     EdgeMismatch, EdgeRule, WishEdges, check_shared_edges, outer_factors, outer_factors_all,

@@ -550,7 +550,18 @@ pub fn screen_errors(
     d: f64,
     view_dir: DVec3,
 ) -> [f64; FACTORS] {
-    delta.map(|e| screen::dss(lambda, e, d, view_dir))
+    screen_errors_floored(delta, lambda, d, view_dir, screen::MIN_VIEW_SIN)
+}
+
+/// [`screen_errors`] with the view-angle floor `floor` ([`screen::dss_floored`]).
+pub fn screen_errors_floored(
+    delta: &[f64; FACTORS],
+    lambda: f64,
+    d: f64,
+    view_dir: DVec3,
+    floor: f64,
+) -> [f64; FACTORS] {
+    delta.map(|e| screen::dss_floored(lambda, e, d, view_dir, floor))
 }
 
 /// The tessellation decision of Eq. 4.

@@ -29,7 +29,10 @@ pub const MIN_DISTANCE_M: f64 = 1e-9;
 /// silhouettes, shading and parallax. 0.25 (about 14.5 degrees from vertical) keeps refinement
 /// alive below the camera (at a quarter of the horizontal rate, i.e. blocks refine at a quarter
 /// of the distance) while leaving every view more than 14.5 degrees off vertical exactly as the
-/// papers define it. It is not in either paper.
+/// papers define it. It is not in either paper. The default of the methods' configurable
+/// floor (`DssConfig::view_angle_floor`, the out-of-core `Refinement::view_angle_floor`; the
+/// floor study on a straight-down flight, `cargo xtask papers --paper dss`, says what each
+/// choice does: 0 leaves the error unbounded below the camera, 1 ignores the angle).
 pub const MIN_VIEW_SIN: f64 = 0.25;
 
 /// Smallest vertical field of view (radians) accepted by [`lambda`]; smaller ones are clamped
@@ -73,18 +76,30 @@ pub fn plain(lambda: f64, delta: f64, d: f64) -> f64 {
 /// the terrain (our xy plane). Both equal `|e_xy| / |e|`. A zero or non-finite `view_dir` has
 /// no angle and counts as horizontal (factor 1).
 pub fn view_sin(view_dir: DVec3) -> f64 {
+    view_sin_floored(view_dir, MIN_VIEW_SIN)
+}
+
+/// [`view_sin`] with the floor `floor` in place of [`MIN_VIEW_SIN`] (clamped into `[0, 1]`;
+/// NaN counts as [`MIN_VIEW_SIN`]): 0 is the papers' own factor, 1 ignores the view angle.
+pub fn view_sin_floored(view_dir: DVec3, floor: f64) -> f64 {
+    let floor = if floor.is_nan() { MIN_VIEW_SIN } else { floor.clamp(0.0, 1.0) };
     let len = view_dir.length();
     if !len.is_finite() || len == 0.0 {
         return 1.0;
     }
-    (view_dir.truncate().length() / len).clamp(MIN_VIEW_SIN, 1.0)
+    (view_dir.truncate().length() / len).clamp(floor, 1.0)
 }
 
 /// DSS paper Eq. 3: `rho = lambda * delta / d * sin(theta)`, with `sin(theta)` from
 /// [`view_sin`] (floored at [`MIN_VIEW_SIN`]) and the degenerate cases of [`plain`].
 pub fn dss(lambda: f64, delta: f64, d: f64, view_dir: DVec3) -> f64 {
+    dss_floored(lambda, delta, d, view_dir, MIN_VIEW_SIN)
+}
+
+/// [`dss`] with the view-angle floor `floor` ([`view_sin_floored`]).
+pub fn dss_floored(lambda: f64, delta: f64, d: f64, view_dir: DVec3, floor: f64) -> f64 {
     let rho = plain(lambda, delta, d);
-    if rho.is_infinite() { rho } else { rho * view_sin(view_dir) }
+    if rho.is_infinite() { rho } else { rho * view_sin_floored(view_dir, floor) }
 }
 
 /// The out-of-core paper's `beta` (Eq. 7): the angle between the sight line (`view_dir`) and
@@ -149,9 +164,14 @@ pub struct SightLineEq7 {
 impl SightLineEq7 {
     /// The per-view part of Eq. 7 for `lambda` and the sight line `view_dir`.
     pub fn new(lambda: f64, view_dir: DVec3) -> Self {
+        Self::floored(lambda, view_dir, MIN_VIEW_SIN)
+    }
+
+    /// [`SightLineEq7::new`] with the view-angle floor `floor` ([`view_sin_floored`]).
+    pub fn floored(lambda: f64, view_dir: DVec3, floor: f64) -> Self {
         let len = view_dir.length();
         let dir = if len.is_finite() && len > 0.0 { view_dir / len } else { DVec3::ZERO };
-        Self { lambda_cos: lambda * view_sin(view_dir), dir }
+        Self { lambda_cos: lambda * view_sin_floored(view_dir, floor), dir }
     }
 
     /// Eq. 7's `rho` for object-space error `delta` at distance `d`, the node at `eye_to_node`

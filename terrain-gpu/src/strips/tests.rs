@@ -98,6 +98,61 @@ fn on_edge(uv: [f32; 2], e: Edge) -> bool {
     }
 }
 
+/// The checks every strip frame passes (the strips' watertightness, shared by the tests):
+/// serial and parallel construction agree; blocks plus strips leave only the grid's border
+/// open and cover the grid exactly once, anti-clockwise; each side of each strip has exactly
+/// the edge vertices of the block's own tessellation (bit for bit, after clamping).
+fn assert_watertight(hm: &Heightmap, frame: &DssStripFrame, label: &str) {
+    let (w, h) = (hm.width(), hm.height());
+    let patches = draw_patches(frame);
+    let strips = build_strips(frame);
+    let serial = build_strips_with(frame, false);
+    let parallel = build_strips_with(frame, true);
+    assert_eq!(serial.triangles, parallel.triangles, "{label}");
+    assert_eq!(serial.triangles, strips.triangles, "{label}");
+    let (mesh, count) = build_strip_surface(hm, &patches, &strips.triangles);
+    assert!(count > 0, "{label}");
+
+    // Only the grid's border is open.
+    let (wm, hmax) = ((w - 1) as f64, (h - 1) as f64);
+    let open = mesh.open_edges();
+    let inner: Vec<_> = open.iter().filter(|&&e| !on_border(&mesh, e, wm, hmax)).collect();
+    assert!(inner.is_empty(), "{label}: open edges {inner:?}");
+    // The surface covers the grid exactly once: plan areas add up, none is negative.
+    let mut area = 0.0;
+    for t in &mesh.triangles {
+        let [a, b, c] = t.map(|k| mesh.grid[k as usize]);
+        let s = 0.5 * (b - a).perp_dot(c - a);
+        assert!(s >= 0.0, "{label}: clockwise triangle {t:?}");
+        area += s;
+    }
+    assert!((area - wm * hmax).abs() < 1e-6 * wm * hmax, "{label}: area {area} vs {}", wm * hmax);
+
+    // Each side of each strip: exactly the edge vertices the block's tessellation has.
+    for s in &frame.strips {
+        let (pts, _) = build_strip(frame, s);
+        for (hi, side) in [(false, &s.low), (true, &s.high)] {
+            let e = s.facing_edge(hi);
+            for &k in side.iter() {
+                let p = &patches[k];
+                let tess: BTreeSet<_> = tessellate(&p.factors)
+                    .points
+                    .iter()
+                    .filter(|&&uv| on_edge(uv, e))
+                    .map(|&uv| clamped_bits(hm, grid_coords(p, uv)))
+                    .collect();
+                let strip: BTreeSet<_> = pts
+                    .iter()
+                    .filter(|q| q.patch_index as usize == k && on_edge(q.uv, e))
+                    .map(|q| clamped_bits(hm, grid_coords(p, q.uv)))
+                    .collect();
+                assert!(!tess.is_empty(), "{label}");
+                assert_eq!(tess, strip, "{label}: block {k} edge {e:?} of strip {}", s.id);
+            }
+        }
+    }
+}
+
 #[test]
 fn random_quadtrees_are_watertight_and_strips_share_the_blocks_edge_vertices() {
     let mut levels_apart = 0u8;
@@ -115,58 +170,14 @@ fn random_quadtrees_are_watertight_and_strips_share_the_blocks_edge_vertices() {
                 let [x0, y0, x1, y1] = p.rect;
                 assert!(x0 < x1 && y0 < y1 && x0 + 1 < w as u32 && y0 + 1 < h as u32, "{p:?}");
             }
-            let strips = build_strips(&frame);
-            let serial = build_strips_with(&frame, false);
-            let parallel = build_strips_with(&frame, true);
-            assert_eq!(serial.triangles, parallel.triangles);
-            assert_eq!(serial.triangles, strips.triangles);
-            let (mesh, count) = build_strip_surface(&hm, &patches, &strips.triangles);
-            assert!(count > 0);
+            assert_watertight(&hm, &frame, &format!("{w}x{h} seed {seed}"));
             factors_seen.extend(frame.blocks.iter().map(|b| b.factor.to_bits()));
-
-            // Only the grid's border is open.
-            let (wm, hmax) = ((w - 1) as f64, (h - 1) as f64);
-            let open = mesh.open_edges();
-            let inner: Vec<_> = open.iter().filter(|&&e| !on_border(&mesh, e, wm, hmax)).collect();
-            assert!(inner.is_empty(), "{w}x{h} seed {seed}: open edges {inner:?}");
-            // The surface covers the grid exactly once: plan areas add up, none is negative.
-            let mut area = 0.0;
-            for t in &mesh.triangles {
-                let [a, b, c] = t.map(|k| mesh.grid[k as usize]);
-                let s = 0.5 * (b - a).perp_dot(c - a);
-                assert!(s >= 0.0, "{w}x{h} seed {seed}: clockwise triangle {t:?}");
-                area += s;
-            }
-            assert!((area - wm * hmax).abs() < 1e-6 * wm * hmax, "area {area} vs {}", wm * hmax);
-
-            // Each side of each strip: exactly the edge vertices the block's tessellation has.
+            // Neighbours across a strip, levels apart.
             for s in &frame.strips {
-                for (hi, side) in [(false, &s.low), (true, &s.high)] {
-                    let e = s.facing_edge(hi);
-                    for &k in side.iter() {
-                        let p = &patches[k];
-                        let tess: BTreeSet<_> = tessellate(&p.factors)
-                            .points
-                            .iter()
-                            .filter(|&&uv| on_edge(uv, e))
-                            .map(|&uv| clamped_bits(&hm, grid_coords(p, uv)))
-                            .collect();
-                        let (pts, _) = build_strip(&frame, s);
-                        let strip: BTreeSet<_> = pts
-                            .iter()
-                            .filter(|q| q.patch_index as usize == k && on_edge(q.uv, e))
-                            .map(|q| clamped_bits(&hm, grid_coords(p, q.uv)))
-                            .collect();
-                        assert!(!tess.is_empty());
-                        assert_eq!(tess, strip, "block {k} edge {e:?} of strip {}", s.id);
-                    }
-                    // Neighbours across the strip, levels apart.
-                    let other = if hi { &s.low } else { &s.high };
-                    for &a in side.iter() {
-                        for &b in other.iter() {
-                            let (la, lb) = (frame.blocks[a].node.level, frame.blocks[b].node.level);
-                            levels_apart = levels_apart.max(la.abs_diff(lb));
-                        }
+                for &a in &s.low {
+                    for &b in &s.high {
+                        let (la, lb) = (frame.blocks[a].node.level, frame.blocks[b].node.level);
+                        levels_apart = levels_apart.max(la.abs_diff(lb));
                     }
                 }
             }
@@ -258,4 +269,53 @@ fn bisector_rule_avoids_the_thin_triangles_of_the_sequential_order() {
     assert!(mean_bis >= 1.4 * mean_seq, "{mean_bis} vs {mean_seq}");
     assert!(thin_bis * 5 <= thin_seq * 4, "{thin_bis} vs {thin_seq}");
     assert!(worst_ratio > 0.0, "{worst_ratio}");
+}
+
+/// `dss-strips-pow2` (issue 17's test of why the strips pop): the multilevel update with
+/// [`StripFactors::PowerOfTwo`] gives every visible block a power-of-two factor, the round-up
+/// of the paper's sliding one on the same view, and its blocks and strips stay watertight.
+#[test]
+fn power_of_two_strip_factors_are_powers_of_two_and_watertight() {
+    use glam::dvec3;
+    use terrain_core::geometry::Camera;
+    use terrain_core::lod::select_dss_strips;
+    use terrain_core::lod::{DssConfig, DssErrorTable, DssStripsConfig, StripFactors};
+    let hm = terrain(129, 129);
+    let qt = Quadtree::new(&hm, 4);
+    let table = DssErrorTable::new(&hm, &qt);
+    let cfg = |factors| DssStripsConfig {
+        dss: DssConfig { leaf_cells: 4, rho_thr: 0.5, frustum_cull: false, ..Default::default() },
+        half_width_cells: 1,
+        factors,
+    };
+    let mut fractional = 0;
+    for (k, eye) in
+        [dvec3(100.0, 100.0, 120.0), dvec3(600.0, 50.0, 60.0), dvec3(320.0, 320.0, 400.0)]
+            .into_iter()
+            .enumerate()
+    {
+        let cam = Camera::from_yaw_pitch(eye, 35.0 + 40.0 * k as f64, -30.0);
+        let sliding = select_dss_strips(&qt, &cam, &table, &cfg(StripFactors::Sliding));
+        let pow2 = select_dss_strips(&qt, &cam, &table, &cfg(StripFactors::PowerOfTwo));
+        // The same blocks (the split rule does not read the factors), each factor rounded up.
+        assert_eq!(sliding.blocks.len(), pow2.blocks.len());
+        for (a, b) in sliding.blocks.iter().zip(&pow2.blocks) {
+            assert_eq!(a.node, b.node);
+            if !b.visible {
+                continue;
+            }
+            assert!(
+                (b.factor as u32).is_power_of_two() && b.factor.fract() == 0.0,
+                "view {k}: block {:?} factor {}",
+                b.node,
+                b.factor
+            );
+            assert!(b.factor >= a.factor && b.factor < 2.0 * a.factor.max(1.0), "{a:?} {b:?}");
+            fractional += usize::from(a.factor.fract() != 0.0);
+        }
+        assert_watertight(&hm, &pow2, &format!("pow2 view {k}"));
+        assert_watertight(&hm, &sliding, &format!("sliding view {k}"));
+    }
+    // Negative control: the paper's factors on these views are not powers of two.
+    assert!(fractional > 0, "every sliding factor was whole: the test compares nothing");
 }

@@ -298,7 +298,12 @@ fn patches_meet_eq7_minimally_and_cover_the_view() {
     let mut factors = std::collections::BTreeSet::new();
     let refines =
         [(4, SplitRule::Eq7), (32, SplitRule::Eq7), (4, SplitRule::Cost), (16, SplitRule::Cost)]
-            .map(|(patch_cells, split)| Refinement { patch_cells, split, cost_split_px: 0 });
+            .map(|(patch_cells, split)| Refinement {
+                patch_cells,
+                split,
+                cost_split_px: 0,
+                ..Refinement::default()
+            });
     for refine in refines {
         let tree = StoreTree::with_refinement(store.clone(), refine);
         for (ci, cam) in cameras().iter().enumerate() {
@@ -477,7 +482,8 @@ fn cost_split_against_brute_force(
 ) -> usize {
     let h = store.header().clone();
     let tree_of = |split| {
-        let refine = Refinement { patch_cells: 16, split, cost_split_px: px };
+        let refine =
+            Refinement { patch_cells: 16, split, cost_split_px: px, ..Refinement::default() };
         StoreTree::with_refinement(store.clone(), refine)
     };
     let (eq7, cost) = (tree_of(SplitRule::Eq7), tree_of(SplitRule::Cost));
@@ -713,8 +719,14 @@ fn fine_maxima_select_what_full_depth_node_values_select() {
     let (mut compared, mut tris) = (0, [0f64; 2]);
     // The cost split compares a node with its children: exact where the children are stored
     // nodes (patches of at least 8 cells here: level 3 of the stored 0-3).
-    let refines = [(4, SplitRule::Eq7), (32, SplitRule::Eq7), (8, SplitRule::Cost)]
-        .map(|(patch_cells, split)| Refinement { patch_cells, split, cost_split_px: 0 });
+    let refines = [(4, SplitRule::Eq7), (32, SplitRule::Eq7), (8, SplitRule::Cost)].map(
+        |(patch_cells, split)| Refinement {
+            patch_cells,
+            split,
+            cost_split_px: 0,
+            ..Refinement::default()
+        },
+    );
     for refine in refines {
         let trees = [&full, &fine, &v2].map(|s| StoreTree::with_refinement(s.clone(), refine));
         for cam in cameras() {
@@ -778,4 +790,40 @@ fn fine_maxima_select_what_full_depth_node_values_select() {
     for d in [full_dir, fine_dir, v2_dir] {
         std::fs::remove_dir_all(d).unwrap();
     }
+}
+
+/// The view-angle floor of Eq. 6-7 ([`Refinement::view_angle_floor`]): out-of-core `cos(theta)`
+/// is the sight line's, one per view, so a view seen shallower than both floors selects the
+/// same patches under either, and a view steeper than them (looking almost straight down)
+/// selects fewer under the lower floor (the negative control: the comparison sees a
+/// difference).
+#[test]
+fn the_view_angle_floor_changes_only_views_steeper_than_it() {
+    let hm = terrain(257, 257);
+    let (dir, store) = bake_store(&hm, "floor", 6, 6);
+    let all: HashMap<BlockId, u8> = store.block_ids().map(|b| (b, 6)).collect();
+    let tree = |floor: f64| {
+        let refine =
+            Refinement { patch_cells: 4, view_angle_floor: floor, ..Refinement::default() };
+        StoreTree::with_refinement(store.clone(), refine)
+    };
+    let (low, high) = (tree(0.1), tree(0.25));
+    assert_eq!(Refinement::default().view_angle_floor, 0.25);
+    let key =
+        |s: &Selection| s.patches.iter().map(|p| (p.node, p.inner, p.outer)).collect::<Vec<_>>();
+    let at = |pitch: f64| {
+        Camera::from_yaw_pitch(dvec3(1280.0, 1280.0, 900.0), 30.0, pitch).with_clip(1.0, 8000.0)
+    };
+    // cos(theta) = cos(pitch): 0.87 at -30 degrees, 0.5 at -60 (above both floors).
+    for pitch in [-30.0, -60.0] {
+        let cam = at(pitch);
+        let [a, b] = [&low, &high].map(|t| select_patches(t, &cam, 1.0, |b| all.get(&b).copied()));
+        assert!(!a.patches.is_empty());
+        assert_eq!(key(&a), key(&b), "pitch {pitch}");
+    }
+    // cos(89 degrees) = 0.017: below both floors, each floor is the factor.
+    let cam = at(-89.0);
+    let [a, b] = [&low, &high].map(|t| select_patches(t, &cam, 1.0, |b| all.get(&b).copied()));
+    assert!(a.patches.len() < b.patches.len(), "{} vs {}", a.patches.len(), b.patches.len());
+    let _ = std::fs::remove_dir_all(dir);
 }

@@ -444,7 +444,11 @@ pub(crate) fn run(ctx: &mut Ctx) -> anyhow::Result<PaperDoc> {
 
 /// Bakes the DEM `dem` (its `terrain` arguments) into the work folder's `stores/<name>` (the
 /// blocks only) and returns the store and its `terrain info --json`.
-fn bake(ctx: &mut Ctx, name: &str, dem: &[String]) -> anyhow::Result<(std::path::PathBuf, Value)> {
+pub(crate) fn bake(
+    ctx: &mut Ctx,
+    name: &str,
+    dem: &[String],
+) -> anyhow::Result<(std::path::PathBuf, Value)> {
     let store = ctx.work.join("stores").join(name);
     let mut args = vec!["bake".to_string()];
     args.extend(dem.iter().cloned());
