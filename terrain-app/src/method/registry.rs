@@ -356,10 +356,9 @@ impl ErrorPxParams {
                 config.pvps.c3 = self.value;
                 config.pvps.outer_constant = self.value * config.pvps.c4;
             }
-            // The split rule configured, which moves the p99 (`ooc_p99_per_tau`).
-            LodMethod::OutOfCore => {
-                config.ooc.tau = self.error_px / ooc_p99_per_tau(config.ooc.split);
-            }
+            // The store's calibration when it has one for the configured refinement, else the
+            // shared one of the configured split rule (`ooc_p99_per_tau`).
+            LodMethod::OutOfCore => config.ooc.tau = config.ooc.tau_for_error_px(self.error_px).0,
             m => apply_parameter(config, m, self.value),
         }
     }
@@ -469,6 +468,17 @@ pub fn ooc_p99_per_tau(split: SplitRule) -> f64 {
     match split {
         SplitRule::Eq7 => OOC_P99_PER_TAU_EQ7,
         SplitRule::Cost => OOC_P99_PER_TAU_COST,
+    }
+}
+
+/// `ooc`: the smallest and largest measured p99 per pixel of `tau` under `split` over the
+/// four DEMs of [`ooc_p99_per_tau`] (bench/ooc/README.md): what a store without its own
+/// calibration ([`crate::ooc_calibration`]) can expect, the target times `low / largest` to
+/// the target.
+pub fn ooc_p99_per_tau_spread(split: SplitRule) -> (f64, f64) {
+    match split {
+        SplitRule::Eq7 => (0.08, OOC_P99_PER_TAU_EQ7),
+        SplitRule::Cost => (0.71, OOC_P99_PER_TAU_COST),
     }
 }
 

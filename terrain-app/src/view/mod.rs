@@ -133,6 +133,9 @@ pub(crate) fn run(args: &ViewArgs) -> anyhow::Result<()> {
     let mut config = MethodConfig { leaf_cells: args.lod.leaf_cells, ..MethodConfig::default() };
     let kind = args.lod.kind(store.is_some());
     config.ooc.tau = args.store.tau.unwrap_or(2.0);
+    if let Some(dir) = &store {
+        config.ooc.calibration = terrain_app::ooc_calibration::of_store(dir)?;
+    }
     // The one quality knob (README "One quality knob"): the pixel target mapped onto the
     // method's own parameter for this window's height and field of view.
     let error_view = ErrorView { height_px: f64::from(size.1), fov_y_deg: args.eye.fov };
@@ -141,6 +144,7 @@ pub(crate) fn run(args: &ViewArgs) -> anyhow::Result<()> {
     if store.is_some() {
         config.ooc = ooc::OocConfig {
             vertical_scale: args.source.store_exaggeration()?,
+            calibration: config.ooc.calibration,
             ..args.store.config(config.ooc.tau)?
         };
     }
