@@ -124,19 +124,23 @@ fn foreign_and_garbled_files_are_refused() {
 fn the_commands_write_and_refuse() {
     let root = scratch("ooc-calibration", "cli");
     let dir = root.join("store");
-    bake_store(&synthetic(129), 5, &dir);
+    bake_store(&synthetic(257), 6, &dir);
     let d = dir.to_str().unwrap();
-    let out = terrain(&["calibrate", d, "--taus", "1,4", "--frames", "1"]);
+    let out = terrain(&["calibrate", d, "--frames", "2"]);
     let stdout = String::from_utf8_lossy(&out.stdout);
     assert!(out.status.success(), "{stdout}{}", String::from_utf8_lossy(&out.stderr));
     assert!(stdout.contains("--error-px 1: tau"), "{stdout}");
     assert!(ooc_calibration::of_store(&dir).unwrap().is_some());
     let other = root.join("elsewhere.txt");
-    let out = terrain(&["calibrate", d, "--taus", "1,4", "--frames", "1", "-o"]).status.success();
-    assert!(!out, "-o needs a value");
-    let out =
-        terrain(&["calibrate", d, "--taus", "1,4", "--frames", "1", "-o", other.to_str().unwrap()]);
+    let out = terrain(&["calibrate", d, "--frames", "2", "-o", other.to_str().unwrap()]);
     assert!(out.status.success() && other.is_file());
+    // Too small a terrain (drawn exactly at every tau) is refused, saying why.
+    let tiny = root.join("tiny");
+    bake_store(&synthetic(129), 5, &tiny);
+    let out = terrain(&["calibrate", tiny.to_str().unwrap(), "--taus", "0.5,1", "--frames", "1"]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success() && err.contains("at least 2 measured points"), "{err}");
+    assert!(!tiny.join(FILE_NAME).exists());
 
     let out = terrain(&["calibrate", root.to_str().unwrap()]);
     let err = String::from_utf8_lossy(&out.stderr);
@@ -149,7 +153,7 @@ fn the_commands_write_and_refuse() {
         let out_dir = root.join(format!("baked{}", flag.replace('-', "_")));
         let o = out_dir.to_str().unwrap();
         let mut args =
-            vec!["bake", "--synthetic", "129", "--block-k", "5", "-o", o, "--no-pvs", "--no-dss"];
+            vec!["bake", "--synthetic", "257", "--block-k", "6", "-o", o, "--no-pvs", "--no-dss"];
         args.extend(["--no-roughness", "--no-geomip"]);
         if !flag.is_empty() {
             args.push(flag);
