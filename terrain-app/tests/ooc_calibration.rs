@@ -78,6 +78,28 @@ fn the_store_calibration_lands_the_target_where_the_shared_one_does_not() {
     assert!(off(theirs) > off(mine), "the shared calibration is further off: {theirs} vs {mine}");
 }
 
+/// A store wider than the window is measured on a centred window of whole blocks (baked into a
+/// temporary store), and the calibration names the store itself, not the window's bake; a
+/// window of the whole grid measures what the whole store measures (negative control: the
+/// same points), and a smaller one differs.
+#[test]
+fn a_large_store_is_measured_on_a_window() {
+    let dir = scratch("ooc-calibration", "window").join("store");
+    let hm = synthetic(513);
+    let store = bake_store(&hm, 6, &dir);
+    let config = OocConfig { threads: 1, ..OocConfig::default() };
+    let taus = vec![2.0, 4.0, 8.0, 16.0];
+    let whole = CalibrateOptions { taus: taus.clone(), window: 513, ..options(2) };
+    let window = CalibrateOptions { taus, window: 257, ..options(2) };
+    let a = ooc_calibration::calibrate_store(&dir, &config, &whole).unwrap();
+    let b = ooc_calibration::calibrate_store(&dir, &config, &window).unwrap();
+    assert_eq!(b.terrain, TerrainId::of(&store), "the store's identity, not the window's");
+    let direct = ooc_calibration::measure(hm, store, &config, &whole).unwrap();
+    let direct = Calibration::fit(a.terrain, a.refinement, 2, &direct).unwrap();
+    assert_eq!(a.points(), direct.points(), "the whole grid is the store itself");
+    assert_ne!(a.points(), b.points(), "a window is another terrain for the flight");
+}
+
 /// A calibration of another store is refused, naming the file and both stores; a garbled file
 /// names its line; a missing file is no calibration; `terrain info` says which is used.
 #[test]
