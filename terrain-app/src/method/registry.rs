@@ -580,6 +580,17 @@ mod tests {
                 params_for_error_px(LodMethod::OutOfCore, px, view).apply(&mut c);
                 assert!((c.ooc.tau * ooc_p99_per_tau(split) - px).abs() < 1e-9, "{split:?}");
             }
+            // With a store's calibration of the configured refinement: its map, not the
+            // shared one (whose tau differs at these points).
+            let mut c = MethodConfig::default();
+            let store = crate::ooc_calibration::TerrainId { width: 9, height: 9, k: 3, bake_id: 1 };
+            let fit = [(1.0, 0.5), (4.0, 2.0), (16.0, 3.0)];
+            let cal = crate::ooc_calibration::Calibration::fit(store, c.ooc.refinement(), 1, &fit)
+                .expect("a fit");
+            c.ooc.calibration = Some(cal);
+            params_for_error_px(LodMethod::OutOfCore, px, view).apply(&mut c);
+            assert!((c.ooc.tau - cal.tau_for(px)).abs() < 1e-12, "{px}");
+            assert!((c.ooc.tau - px / ooc_p99_per_tau(DEFAULT_SPLIT)).abs() > 0.1, "{px}");
             let rho = params_for_error_px(LodMethod::Dss1, px, view).value;
             let p99 = DSS_P99_AT_RHO_1 * rho.powf(DSS_P99_EXPONENT);
             assert!((p99 - px).abs() < 1e-9, "{px} {rho} {p99}");
