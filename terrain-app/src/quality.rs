@@ -79,11 +79,10 @@ impl QualityArgs {
         }
         let px = knob.map_or(Quality::DEFAULT.error_px(), |(_, px)| px);
         let mut params = registry::params_for_error_px(method, px, view);
-        params.apply(config);
+        params.apply_recorded(config);
         if method == LodMethod::OutOfCore {
-            // The tau applied: the store's calibration when it has one for this refinement.
-            let (tau, source) = config.ooc.tau_for_error_px(px);
-            params.value = tau;
+            // The store's calibration when it has one for this refinement.
+            let (_, source) = config.ooc.tau_for_error_px(px);
             println!(
                 "ooc calibration: {}",
                 match source {

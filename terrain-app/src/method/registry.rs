@@ -364,6 +364,18 @@ impl ErrorPxParams {
     }
 }
 
+impl ErrorPxParams {
+    /// Sets the parameter in `config` ([`ErrorPxParams::apply`]) and records the value set:
+    /// `ooc`'s tau follows the configured calibration and split rule
+    /// ([`crate::ooc::OocConfig::tau_for_error_px`]), not [`params_for_error_px`]'s shared map.
+    pub fn apply_recorded(&mut self, config: &mut MethodConfig) {
+        self.apply(config);
+        if self.method == LodMethod::OutOfCore {
+            self.value = config.ooc.tau;
+        }
+    }
+}
+
 impl std::fmt::Display for ErrorPxParams {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         let how = match self.basis {

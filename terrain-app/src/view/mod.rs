@@ -1003,17 +1003,17 @@ impl App {
         if !(error_px.is_finite() && error_px > 0.0) {
             bail!("the error target must be a positive number of pixels, got {error_px}");
         }
-        let params = registry::params_for_error_px(self.kind, error_px, self.error_view);
+        let mut params = registry::params_for_error_px(self.kind, error_px, self.error_view);
         match &mut self.terrain {
             Terrain::Memory(m) => {
                 let Some(scene) = Arc::get_mut(&mut m.scene) else {
                     bail!("the quality cannot change while a method is being prepared");
                 };
-                params.apply(&mut scene.config);
+                params.apply_recorded(&mut scene.config);
             }
             Terrain::Store(s) => {
                 let mut config = s.config.clone();
-                params.apply(&mut config);
+                params.apply_recorded(&mut config);
                 let camera =
                     self.camera.camera(self.fov, self.size, self.clip.range(self.camera.position));
                 s.rebuild(self.kind, config, Some(params), camera, &self.ctx, &self.render_config)?;
@@ -1068,9 +1068,9 @@ impl App {
                         // parameter before its runtime is built (on a worker).
                         let mut config = s.config.clone();
                         let mapped = self.mapped.map(|p| {
-                            let q =
+                            let mut q =
                                 registry::params_for_error_px(kind, p.error_px, self.error_view);
-                            q.apply(&mut config);
+                            q.apply_recorded(&mut config);
                             q
                         });
                         let camera = self.camera.camera(
