@@ -255,6 +255,9 @@ pub(crate) fn run(args: &BenchArgs) -> anyhow::Result<()> {
         cfg.ooc.patch_cells = cells;
     }
     if let Some(c) = &args.ooc_calibration {
+        if args.error_px.is_empty() {
+            bail!("--ooc-calibration maps --error-px onto ooc's tau: give --error-px too");
+        }
         cfg.ooc_calibration = terrain_app::bench::OocCalibration::parse(c);
     }
     cfg.ooc_wait |= args.wait;

@@ -171,6 +171,21 @@ fn the_commands_write_and_refuse() {
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(!out.status.success() && err.contains("--ooc-split must be eq7 or cost"), "{err}");
 
+    // `bench --ooc-calibration` without `--error-px` would be unused: refused.
+    let flight = Path::new(env!("CARGO_MANIFEST_DIR")).join("../flights/pvps_884.json");
+    let out = terrain(&[
+        "bench",
+        "--flight",
+        flight.to_str().unwrap(),
+        "--methods",
+        "ooc",
+        "--ooc-calibration",
+        "shared",
+        "--no-render",
+    ]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success() && err.contains("give --error-px too"), "{err}");
+
     for (flag, written) in [("--calibrate", true), ("--no-calibration", false), ("", false)] {
         let out_dir = root.join(format!("baked{}", flag.replace('-', "_")));
         let o = out_dir.to_str().unwrap();
