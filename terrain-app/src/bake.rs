@@ -5,7 +5,9 @@
 //! vertices per patch (`geomip.bin`, unless `--no-geomip`; computed by the bake with the
 //! blocks, from the same bands of rows) and the PVS files of the scene (`pvs.bin`,
 //! `pvs_conservative.bin`, see `terrain pvs`): with `--pvs`, or where a spread sample of its
-//! view cells says it pays (`crate::pvs::PVS_MIN_CULLED`); never with `--no-pvs`.
+//! view cells says it pays (`crate::pvs::PVS_MIN_CULLED`); never with `--no-pvs`; and the
+//! out-of-core method's calibration (`ooc-calibration.txt`, `terrain calibrate`) for grids of
+//! more than `--calibrate-above` samples or with `--calibrate`.
 
 use std::io::Write;
 use std::ops::ControlFlow;
@@ -111,6 +113,17 @@ pub(crate) struct BakeArgs {
     /// parts of another DEM or other options, missing or duplicated shards are refused).
     #[arg(long, value_name = "PART", num_args = 1..)]
     pub merge: Vec<PathBuf>,
+    /// Write the out-of-core method's calibration (`ooc-calibration.txt`, see `terrain
+    /// calibrate`) whatever the grid's size; by default only above --calibrate-above samples.
+    #[arg(long, conflicts_with = "no_calibration")]
+    pub calibrate: bool,
+    /// Do not write the out-of-core method's calibration (`--error-px` then uses the shared
+    /// one for this store).
+    #[arg(long)]
+    pub no_calibration: bool,
+    /// Write the calibration for grids with more samples than this (default 2^22, 2049^2).
+    #[arg(long, default_value_t = 1 << 22)]
+    pub calibrate_above: u64,
     /// Stream GeoTIFF and raw DEMs with more samples than this (default 2^28: 1 GiB of f32), or
     /// whose whole read would need more than --max-memory.
     #[arg(long, default_value_t = 1 << 28, conflicts_with_all = ["stream", "synthetic"])]
@@ -424,6 +437,20 @@ pub(crate) fn run(args: &BakeArgs) -> anyhow::Result<()> {
             }
         }
         stages.end("DSS errors");
+    }
+    if !args.no_calibration && (args.calibrate || h.width * h.height > args.calibrate_above) {
+        stop_before("ooc calibration")?;
+        let options = terrain_app::ooc_calibration::CalibrateOptions::default();
+        let config = terrain_app::ooc::OocConfig::default();
+        // The store is complete without it: a terrain the measurement cannot fit (drawn
+        // exactly at every tau) keeps the shared calibration, said as a warning.
+        if let Err(e) = crate::calibrate::calibrate_and_write(&args.output, None, &config, &options)
+        {
+            eprintln!(
+                "warning: no ooc calibration written ({e:#}): --error-px uses the shared one"
+            );
+        }
+        stages.end("ooc calibration");
     }
     if args.no_pvs {
         println!("{}", stages.summary());

@@ -88,6 +88,12 @@ pub(crate) struct BenchArgs {
     /// [default: 0.25].
     #[arg(long)]
     pub view_angle_floor: Option<f64>,
+    /// The `ooc` method: which calibration maps --error-px onto its tau: `auto` (the store's
+    /// ooc-calibration.txt when it has one for the refinement, else the shared one), `shared`,
+    /// or a calibration FILE of the benchmark's store (`terrain calibrate STORE -o FILE`)
+    /// [default: auto].
+    #[arg(long, value_name = "auto|shared|FILE")]
+    pub ooc_calibration: Option<String>,
     /// The `ooc` method: every sampled frame waits until the levels it needs are resident
     /// (warm: the error is the selection's own). By default the flight is played in real
     /// time at its own frame rate, every frame, and late data is counted.
@@ -164,6 +170,7 @@ fn refuse_unused_store_options(args: &BenchArgs, cfg: &BenchConfig) -> anyhow::R
         ("--ooc-split", args.ooc_split.is_some()),
         ("--ooc-cost-px", args.ooc_cost_px.is_some()),
         ("--ooc-patch-cells", args.ooc_patch_cells.is_some()),
+        ("--ooc-calibration", args.ooc_calibration.is_some()),
         ("--wait", args.wait),
     ]
     .iter()
@@ -259,6 +266,12 @@ pub(crate) fn run(args: &BenchArgs) -> anyhow::Result<()> {
             bail!("--ooc-patch-cells must be a power of two, got {cells}");
         }
         cfg.ooc.patch_cells = cells;
+    }
+    if let Some(c) = &args.ooc_calibration {
+        if args.error_px.is_empty() {
+            bail!("--ooc-calibration maps --error-px onto ooc's tau: give --error-px too");
+        }
+        cfg.ooc_calibration = terrain_app::bench::OocCalibration::parse(c);
     }
     cfg.ooc_wait |= args.wait;
     cfg.lod_colours = args.lod_colours;

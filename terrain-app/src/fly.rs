@@ -261,6 +261,9 @@ pub(crate) fn run(args: &FlyArgs) -> anyhow::Result<()> {
     let mut method_config =
         MethodConfig { leaf_cells: args.lod.leaf_cells, ..MethodConfig::default() };
     method_config.ooc.tau = args.store.tau.unwrap_or(2.0);
+    if let Some(dir) = store {
+        method_config.ooc.calibration = terrain_app::ooc_calibration::of_store(dir)?;
+    }
     let view = ErrorView { height_px: f64::from(size.1), fov_y_deg: spec.fov_y_deg };
     // --tau is the store's (Eq. 7); a DEM's fly does not read it.
     let own = [("--tau", args.store.tau.is_some() && store.is_some())];
@@ -277,6 +280,7 @@ pub(crate) fn run(args: &FlyArgs) -> anyhow::Result<()> {
             dir,
             OocConfig {
                 vertical_scale: args.source.store_exaggeration()?,
+                calibration: method_config.ooc.calibration,
                 ..args.store.config(method_config.ooc.tau)?
             },
         ),

@@ -150,6 +150,9 @@ pub(crate) struct StoreReport {
     /// Storage per block level (the out-of-core paper's non-redundant levels, Eq. 1-2), over
     /// every block of the store.
     pub levels: Vec<LevelStorage>,
+    /// What `--error-px` uses for the out-of-core method on this store: its calibration
+    /// (`ooc-calibration.txt`), or the shared one and what to expect from it.
+    pub ooc_calibration: String,
 }
 
 /// One block level's storage over the whole store: the vertices new at that level (Qiu 2013
@@ -235,6 +238,7 @@ impl StoreReport {
             dss_block_errors: store.has_dss_errors(),
             fine_maxima: store.has_fine_errors(),
             levels: level_storage(&store),
+            ooc_calibration: ooc_calibration_text(dir),
         })
     }
 
@@ -276,6 +280,7 @@ impl StoreReport {
              block's per-level maximum and draws more triangles; bake again to add them)"
         };
         s += &format!("fine maxima  {fine}\n");
+        s += &format!("ooc --error-px {}\n", self.ooc_calibration);
         s += "levels       level: new vertices, stored MiB (decoded MiB)\n";
         for l in &self.levels {
             s += &format!(
@@ -287,6 +292,48 @@ impl StoreReport {
             );
         }
         s
+    }
+}
+
+/// What `--error-px` uses for `ooc` on the store in `dir`, in words: the store's calibration
+/// (measured points, and where the default refinement's target lands), or the shared one with
+/// its measured spread; a refused file says why.
+fn ooc_calibration_text(dir: &std::path::Path) -> String {
+    use terrain_app::method::registry::{ooc_p99_per_tau, ooc_p99_per_tau_spread};
+    use terrain_app::ooc::OocConfig;
+    use terrain_app::ooc_calibration::{self, FILE_NAME, split_name};
+    let config = OocConfig::default();
+    let split = split_name(config.split);
+    let (lo, hi) = ooc_p99_per_tau_spread(config.split);
+    let r = ooc_p99_per_tau(config.split);
+    let shared = format!(
+        "the shared calibration ({split}: tau = PX / {r}, the largest p99 per tau of four DEMs; \
+         expect a p99 of {:.0}-{:.0} % of the target)",
+        100.0 * lo / r,
+        100.0 * hi / r
+    );
+    match ooc_calibration::of_store(dir) {
+        Ok(Some(c)) => {
+            let rr = c.refinement;
+            let applies = if rr == config.refinement() {
+                String::new()
+            } else {
+                format!(" (not the default refinement's: with the default, {shared})")
+            };
+            let points: Vec<String> =
+                c.points().iter().map(|[t, p]| format!("{t}: {p:.2} px")).collect();
+            format!(
+                "{FILE_NAME}, measured under {} split, {}-cell patches, floor {} px; tau -> p99 \
+                 {}; 1 px -> tau {:.3}{applies}",
+                split_name(rr.split),
+                rr.patch_cells,
+                rr.cost_split_px,
+                points.join(", "),
+                c.tau_for(1.0)
+            )
+        }
+        Ok(None) => format!("{shared}; `terrain calibrate` measures this store's own"),
+        Err(e) => format!("{shared}; {FILE_NAME} refused: {e}"),
     }
 }
 

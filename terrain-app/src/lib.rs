@@ -15,6 +15,7 @@ pub mod geomip_scene;
 pub mod method;
 pub mod methods;
 pub mod ooc;
+pub mod ooc_calibration;
 pub mod progress;
 pub mod pvs_scene;
 pub mod roughness_scene;

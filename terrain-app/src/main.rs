@@ -2,6 +2,7 @@
 
 mod bake;
 mod bench_cli;
+mod calibrate;
 mod demo;
 mod draw_args;
 mod entropy;
@@ -40,6 +41,9 @@ enum Command {
     Roughness(roughness::RoughnessArgs),
     /// Bake a DEM (or `--synthetic SIZE`) into an out-of-core block store.
     Bake(bake::BakeArgs),
+    /// Measure the out-of-core method's p99 pixel error against its tau on a baked store and
+    /// write the map --error-px uses for it (STORE/ooc-calibration.txt).
+    Calibrate(calibrate::CalibrateArgs),
     /// Draw a DEM (or the embedded synthetic terrain) with the GPU tessellator into a PNG.
     Render(render::RenderArgs),
     /// A triangle mesh within --max-error metres of every sample (RTIN or greedy Delaunay),
@@ -89,6 +93,7 @@ fn main() -> std::process::ExitCode {
         Command::Entropy(args) => entropy::run(&args),
         Command::Roughness(args) => roughness::run(&args),
         Command::Bake(args) => bake::run(&args),
+        Command::Calibrate(args) => calibrate::run(&args),
         Command::Render(args) => render::run(&args),
         Command::Mesh(args) => mesh::run(&args),
         Command::Tiles(args) => tiles::run(&args),

@@ -86,6 +86,12 @@ pub struct OocConfig {
     /// The floor of Eq. 6-7's `cos(theta)` ([`Refinement::view_angle_floor`]). Default
     /// [`terrain_core::metrics::screen::MIN_VIEW_SIN`] (0.25).
     pub view_angle_floor: f64,
+    /// The store's measured map from a pixel target to `tau`
+    /// ([`crate::ooc_calibration`], its file beside the store's index), used by `--error-px`
+    /// and `--quality` ([`OocConfig::tau_for_error_px`]) when measured under this
+    /// refinement; `None` (the default): the shared calibration. `tau` itself is not changed
+    /// by it.
+    pub calibration: Option<crate::ooc_calibration::Calibration>,
 }
 
 /// Frames the streamer preloads ahead (Eq. 8's `S` times this). The paper's Eq. 8 looks one
@@ -124,6 +130,7 @@ impl Default for OocConfig {
             split: DEFAULT_SPLIT,
             cost_split_px: DEFAULT_COST_SPLIT_PX,
             view_angle_floor: terrain_core::metrics::screen::MIN_VIEW_SIN,
+            calibration: None,
         }
     }
 }
@@ -719,47 +726,11 @@ impl OocScene {
     /// An overview heightmap of the whole store from every block's levels `0..=level` (every
     /// `2^(k - level)`-th sample, the grid's extent rounded down to that step): what a flight is
     /// placed on (relief, clearance) without reading the full grid. Reads each block's coarse
-    /// levels once.
+    /// levels once ([`store_heightmap`] over every block).
     pub fn overview(&self, level: u8) -> Result<Heightmap, StoreError> {
         let h = self.store.header();
-        let level = level.min(h.k);
-        let d = 1u64 << (h.k - level);
-        let per_block = 1usize << level;
-        let (w, hh) = (((h.width - 1) / d + 1) as usize, ((h.height - 1) / d + 1) as usize);
-        let mut data = vec![0f32; w * hh];
         let mid = 0.5 * (self.height_range[0] + self.height_range[1]);
-        for id in self.store.block_ids() {
-            // A damaged block (checksum, truncation) gives its finest readable coarser level,
-            // sampled nearest; with no level readable, the middle of the store's height range.
-            // The overview only places cameras and frames views: the renderer reports each
-            // fault itself when it streams the block, so nothing is said here.
-            let read = (0..=level).rev().find_map(|l| {
-                let b = self.store.read_block(id, l).ok()?;
-                Some((l, b.grid(l)?))
-            });
-            let side = per_block + 1;
-            for bj in 0..side {
-                let j = id.row as usize * per_block + bj;
-                if j >= hh {
-                    break;
-                }
-                for bi in 0..side {
-                    let i = id.col as usize * per_block + bi;
-                    if i < w {
-                        data[j * w + i] = match &read {
-                            Some((l, grid)) => {
-                                let (ls, shift) = ((1usize << l) + 1, level - l);
-                                grid[(bj >> shift) * ls + (bi >> shift)]
-                            }
-                            None => mid,
-                        };
-                    }
-                }
-            }
-        }
-        let g =
-            Georef::projected(Crs::Unknown, h.georef.world_origin, h.georef.spacing_m * d as f64);
-        Ok(Heightmap::from_fn(w, hh, g, |i, j| data[j * w + i]).expect("finite store heights"))
+        store_heightmap(&self.store, level, [0..h.blocks_x, 0..h.blocks_y], mid)
     }
 
     /// A heightmap of 2 x 2 samples with the store's extent and height range: enough for the
@@ -796,4 +767,81 @@ impl OocScene {
         }
         terrain_gpu::render::near_far(lo, hi, nearest, position)
     }
+}
+
+/// Bakes `hm` into the folder `dir` (replaced) with blocks of `2^k` cells, for a measurement:
+/// lossless where the heights lie on a 0.1 m lattice (scaled grey images, integer DEMs), else
+/// the store's default 1 cm bound. The benchmark's temporary store and a calibration's window
+/// ([`crate::ooc_calibration`]).
+pub fn bake_temporary(hm: &Heightmap, k: u8, dir: &Path) -> anyhow::Result<()> {
+    use terrain_stream::{BakeConfig, BakeProgress, HeightEncoding, bake};
+    let lattice = hm.data().iter().all(|&h| ((h * 10.0).round() - h * 10.0).abs() < 1e-3);
+    let encoding = if lattice {
+        HeightEncoding::Quantized { step_m: 0.1, offset_m: 0.0 }
+    } else {
+        HeightEncoding::default()
+    };
+    let config = BakeConfig { k, encoding, overwrite: true, ..Default::default() };
+    bake(hm, dir, &config, &mut |_: &BakeProgress| std::ops::ControlFlow::Continue(()))
+        .map_err(|e| anyhow::anyhow!("could not bake {}: {e}", dir.display()))?;
+    Ok(())
+}
+
+/// The heights of `store`'s blocks in columns `blocks[0]` and rows `blocks[1]` at `level` (every
+/// `2^(k - level)`-th sample; `k` gives the full grid; the ranges are of existing blocks, not
+/// empty), as a heightmap placed where those
+/// samples lie in the world, clipped to the grid's extent (rounded down to the step): the
+/// overview of [`OocScene::overview`] (every block) and the window a calibration is measured
+/// on ([`crate::ooc_calibration`]). A damaged block (checksum, truncation) gives its finest
+/// readable coarser level, sampled nearest; with no level readable, `fill` metres. Heights as
+/// `store` reads them (its exaggeration).
+pub fn store_heightmap(
+    store: &Store,
+    level: u8,
+    blocks: [std::ops::Range<u32>; 2],
+    fill: f32,
+) -> Result<Heightmap, StoreError> {
+    let h = store.header();
+    let level = level.min(h.k);
+    let d = 1u64 << (h.k - level);
+    let per_block = 1usize << level;
+    let [cols, rows] = blocks;
+    let (i0, j0) = (cols.start as usize * per_block, rows.start as usize * per_block);
+    let (full_w, full_h) = (((h.width - 1) / d + 1) as usize, ((h.height - 1) / d + 1) as usize);
+    let w = full_w.saturating_sub(i0).min(cols.len() * per_block + 1);
+    let hh = full_h.saturating_sub(j0).min(rows.len() * per_block + 1);
+    // A baked grid is at least 2 x 2 samples, and so is every block's share of it at `k`.
+    let (w, hh) = (w.max(2), hh.max(2));
+    let mut data = vec![0f32; w * hh];
+    for id in store.block_ids().filter(|b| cols.contains(&b.col) && rows.contains(&b.row)) {
+        // The overview only places cameras and frames views: the renderer reports each
+        // fault itself when it streams the block, so nothing is said here.
+        let read = (0..=level).rev().find_map(|l| {
+            let b = store.read_block(id, l).ok()?;
+            Some((l, b.grid(l)?))
+        });
+        let side = per_block + 1;
+        for bj in 0..side {
+            let j = (id.row - rows.start) as usize * per_block + bj;
+            if j >= hh {
+                break;
+            }
+            for bi in 0..side {
+                let i = (id.col - cols.start) as usize * per_block + bi;
+                if i < w {
+                    data[j * w + i] = match &read {
+                        Some((l, grid)) => {
+                            let (ls, shift) = ((1usize << l) + 1, level - l);
+                            grid[(bj >> shift) * ls + (bi >> shift)]
+                        }
+                        None => fill,
+                    };
+                }
+            }
+        }
+    }
+    let spacing = h.georef.spacing_m * d as f64;
+    let origin = h.georef.world_origin + DVec2::new(i0 as f64, j0 as f64) * h.georef.spacing_m;
+    let g = Georef::projected(Crs::Unknown, origin, spacing);
+    Ok(Heightmap::from_fn(w, hh, g, |i, j| data[j * w + i]).expect("finite store heights"))
 }

@@ -9,6 +9,7 @@ use terrain_app::method::registry::{
     self, ErrorPxParams, ErrorView, Quality, apply_parameter, sweep_values,
 };
 use terrain_app::methods::{LodMethod, MethodConfig};
+use terrain_app::ooc_calibration::TauSource;
 
 /// The quality options every drawing command shares.
 #[derive(Debug, Clone, Args)]
@@ -41,7 +42,8 @@ impl QualityArgs {
     }
 
     /// Sets `method`'s parameter in `config`: the pixel target's mapping (the default preset
-    /// when nothing is given), or the own parameter. `own` names the command's own parameter
+    /// when nothing is given; `ooc`: through `config.ooc.calibration`, the store's, when set),
+    /// or the own parameter. `own` names the command's own parameter
     /// options and whether each was given (`--factor`, `--tau`); the caller applies those.
     /// Giving a quality option and an own parameter is refused, naming both. Returns the
     /// mapping when one was applied.
@@ -76,8 +78,20 @@ impl QualityArgs {
             return Ok(None);
         }
         let px = knob.map_or(Quality::DEFAULT.error_px(), |(_, px)| px);
-        let params = registry::params_for_error_px(method, px, view);
-        params.apply(config);
+        let mut params = registry::params_for_error_px(method, px, view);
+        params.apply_recorded(config);
+        if method == LodMethod::OutOfCore {
+            // The store's calibration when it has one for this refinement.
+            let (_, source) = config.ooc.tau_for_error_px(px);
+            println!(
+                "ooc calibration: {}",
+                match source {
+                    TauSource::Store => "the store's (ooc-calibration.txt)",
+                    TauSource::Shared =>
+                        "the shared one (the store has none for this refinement: `terrain calibrate STORE` measures it)",
+                }
+            );
+        }
         Ok(Some(params))
     }
 }

@@ -515,6 +515,7 @@ fn run_store(
         ..MethodConfig::default()
     };
     method_config.ooc.tau = args.store.tau.unwrap_or(2.0);
+    method_config.ooc.calibration = terrain_app::ooc_calibration::of_store(dir)?;
     let view = ErrorView { height_px: f64::from(height), fov_y_deg: args.eye.fov };
     let own = [("--factor", args.factor.is_some()), ("--tau", args.store.tau.is_some())];
     if let Some(p) = args.lod.quality.apply(&mut method_config, method_kind, view, &own)? {
@@ -524,6 +525,7 @@ fn run_store(
     let cache_mib = args.store.cache_mib();
     let config = ooc::OocConfig {
         vertical_scale: args.source.store_exaggeration()?,
+        calibration: method_config.ooc.calibration,
         ..args.store.config(tau)?
     };
     let scene = open_store(dir, config)?;

@@ -45,6 +45,9 @@ pub struct BenchConfig {
     pub ooc_k: u8,
     /// The out-of-core runtime's settings (tau is swept; budget, threads, page capacity).
     pub ooc: OocConfig,
+    /// Which calibration maps `--error-px` onto `ooc`'s tau (`--ooc-calibration`). Default
+    /// [`OocCalibration::Auto`].
+    pub ooc_calibration: OocCalibration,
     /// The out-of-core method: `true` = every sampled frame waits until its needed levels are
     /// resident (warm: the error is the selection's own; `--wait`); `false` (the default) =
     /// real time: the flight is played at its own frame rate, every frame, paced in wall
@@ -93,6 +96,7 @@ impl Default for BenchConfig {
             ooc_store: None,
             ooc_k: 8,
             ooc: OocConfig::default(),
+            ooc_calibration: OocCalibration::Auto,
             ooc_wait: false,
             lod_colours: false,
             from_store: false,
@@ -151,4 +155,42 @@ pub fn frame_indices(n: usize, max: usize) -> Vec<usize> {
         (0..max).map(|k| ((k * (n - 1)) as f64 / (max - 1) as f64).round() as usize).collect();
     v.dedup();
     v
+}
+
+/// Which calibration maps a pixel target onto the `ooc` method's tau in a benchmark
+/// ([`crate::ooc_calibration`]).
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum OocCalibration {
+    /// The store's (`ooc-calibration.txt` in its folder) when it has one for the configured
+    /// refinement, else the shared one (a temporary store has none).
+    Auto,
+    /// The shared one, whatever the store has.
+    Shared,
+    /// This file, which must be a calibration of the benchmark's store.
+    File(std::path::PathBuf),
+}
+
+impl OocCalibration {
+    /// `auto`, `shared` or a file's path.
+    pub fn parse(s: &str) -> Self {
+        match s {
+            "auto" => Self::Auto,
+            "shared" => Self::Shared,
+            path => Self::File(path.into()),
+        }
+    }
+
+    /// The calibration chosen for `store`.
+    pub fn resolve(
+        &self,
+        store: &terrain_stream::Store,
+    ) -> Result<Option<crate::ooc_calibration::Calibration>, crate::ooc_calibration::CalibrationError>
+    {
+        use crate::ooc_calibration::{Calibration, TerrainId};
+        match self {
+            Self::Auto => Calibration::load(store.dir(), TerrainId::of(store)),
+            Self::Shared => Ok(None),
+            Self::File(path) => Calibration::load_file(path, TerrainId::of(store)).map(Some),
+        }
+    }
 }

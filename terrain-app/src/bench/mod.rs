@@ -23,7 +23,7 @@ mod svg;
 
 pub use crate::method::entropy_extra;
 pub use crate::method::registry::{apply_parameter, sweep_values};
-pub use config::{BenchConfig, frame_indices, pick_evenly};
+pub use config::{BenchConfig, OocCalibration, frame_indices, pick_evenly};
 pub use record::{
     BenchReport, FlightInfo, FrameRecord, RunRecord, RunSummary, process_cpu_s, rss_bytes,
     thread_cpu_s,

@@ -135,6 +135,25 @@ pub fn run_bench(
             .and_then(|(f, _)| f.frames().first().map(|c| c.fov_y.to_degrees()))
             .unwrap_or(registry::ErrorView::REFERENCE.fov_y_deg),
     };
+    let mut store: Option<Result<Arc<terrain_stream::Store>, String>> = None;
+    // `ooc`'s settings with the chosen calibration of its store (prepared now for it).
+    let mut ooc = cfg.ooc;
+    if cfg.methods.contains(&LodMethod::OutOfCore) && cfg.error_px.is_some() {
+        match store.get_or_insert_with(|| prepare_store(&scene.hm, cfg)) {
+            Ok(s) => {
+                ooc.calibration = cfg.ooc_calibration.resolve(s)?;
+                notes.push(format!(
+                    "ooc calibration: {}",
+                    if ooc.tau_for_error_px(1.0).1 == crate::ooc_calibration::TauSource::Store {
+                        "the store's"
+                    } else {
+                        "the shared one"
+                    }
+                ));
+            }
+            Err(e) => anyhow::bail!("the ooc method's store: {e}"),
+        }
+    }
     if let Some(targets) = &cfg.error_px {
         for &m in &cfg.methods {
             let mapped: Vec<String> = targets
@@ -142,7 +161,7 @@ pub fn run_bench(
                 .map(|&px| {
                     let p = registry::params_for_error_px(m, px, error_view);
                     // The value the run applies (ooc's depends on its configured split rule).
-                    let mut c = crate::methods::MethodConfig { ooc: cfg.ooc, ..Default::default() };
+                    let mut c = crate::methods::MethodConfig { ooc, ..Default::default() };
                     p.apply(&mut c);
                     let value = if m == LodMethod::OutOfCore { c.ooc.tau } else { p.value };
                     format!("{} px -> {} = {:.4}", px, p.parameter, value)
@@ -155,7 +174,6 @@ pub fn run_bench(
     let mut runs = Vec::new();
     // Store faults already said (every run of a store meets the same ones).
     let mut faults_said = std::collections::BTreeSet::new();
-    let mut store: Option<Result<Arc<terrain_stream::Store>, String>> = None;
     // Renderers that hold only the terrain, shared by every run that needs their kind.
     let mut shared: Vec<FrameRenderer> = Vec::new();
     // Each method from memory (or from the store when it needs one), then, with --from-store,
@@ -201,7 +219,7 @@ pub fn run_bench(
                 config.leaf_cells = leaf_cells;
                 config.pvps.leaf_cells = leaf_cells;
                 config.dss.leaf_cells = leaf_cells;
-                config.ooc = cfg.ooc;
+                config.ooc = ooc;
                 if cfg.error_px.is_some() {
                     registry::params_for_error_px(*method, value, error_view).apply(&mut config);
                 } else {
@@ -359,7 +377,7 @@ fn write_tables(
 /// The store of the out-of-core method: the configured one, or `hm` baked into a temporary
 /// folder (see [`BenchConfig::ooc_store`]).
 fn prepare_store(hm: &Heightmap, cfg: &BenchConfig) -> Result<Arc<terrain_stream::Store>, String> {
-    use terrain_stream::{BakeConfig, BakeProgress, HeightEncoding, Store, bake};
+    use terrain_stream::Store;
     let dir = match &cfg.ooc_store {
         Some(d) => d.clone(),
         None => {
@@ -372,18 +390,7 @@ fn prepare_store(hm: &Heightmap, cfg: &BenchConfig) -> Result<Arc<terrain_stream
                 std::process::id(),
                 hm.width()
             ));
-            // Lossless where the heights lie on a 0.1 m lattice (scaled grey images, integer
-            // DEMs), else the store's default 1 cm bound.
-            let lattice = hm.data().iter().all(|&h| ((h * 10.0).round() - h * 10.0).abs() < 1e-3);
-            let encoding = if lattice {
-                HeightEncoding::Quantized { step_m: 0.1, offset_m: 0.0 }
-            } else {
-                HeightEncoding::default()
-            };
-            let config =
-                BakeConfig { k: cfg.ooc_k, encoding, overwrite: true, ..Default::default() };
-            bake(hm, &dir, &config, &mut |_: &BakeProgress| std::ops::ControlFlow::Continue(()))
-                .map_err(|e| e.to_string())?;
+            crate::ooc::bake_temporary(hm, cfg.ooc_k, &dir).map_err(|e| format!("{e:#}"))?;
             dir
         }
     };

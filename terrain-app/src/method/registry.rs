@@ -387,11 +387,22 @@ impl ErrorPxParams {
                 config.pvps.c3 = self.value;
                 config.pvps.outer_constant = self.value * config.pvps.c4;
             }
-            // The split rule configured, which moves the p99 (`ooc_p99_per_tau`).
-            LodMethod::OutOfCore => {
-                config.ooc.tau = self.error_px / ooc_p99_per_tau(config.ooc.split);
-            }
+            // The store's calibration when it has one for the configured refinement, else the
+            // shared one of the configured split rule (`ooc_p99_per_tau`).
+            LodMethod::OutOfCore => config.ooc.tau = config.ooc.tau_for_error_px(self.error_px).0,
             m => apply_parameter(config, m, self.value),
+        }
+    }
+}
+
+impl ErrorPxParams {
+    /// Sets the parameter in `config` ([`ErrorPxParams::apply`]) and records the value set:
+    /// `ooc`'s tau follows the configured calibration and split rule
+    /// ([`crate::ooc::OocConfig::tau_for_error_px`]), not [`params_for_error_px`]'s shared map.
+    pub fn apply_recorded(&mut self, config: &mut MethodConfig) {
+        self.apply(config);
+        if self.method == LodMethod::OutOfCore {
+            self.value = config.ooc.tau;
         }
     }
 }
@@ -504,6 +515,17 @@ pub fn ooc_p99_per_tau(split: SplitRule) -> f64 {
     }
 }
 
+/// `ooc`: the smallest and largest measured p99 per pixel of `tau` under `split` over the
+/// four DEMs of [`ooc_p99_per_tau`] (bench/ooc/README.md): what a store without its own
+/// calibration ([`crate::ooc_calibration`]) can expect, the target times `low / largest` to
+/// the target.
+pub fn ooc_p99_per_tau_spread(split: SplitRule) -> (f64, f64) {
+    match split {
+        SplitRule::Eq7 => (0.08, OOC_P99_PER_TAU_EQ7),
+        SplitRule::Cost => (0.71, OOC_P99_PER_TAU_COST),
+    }
+}
+
 /// `tin`: the measured p99 (pixels) per pixel of Cesium's SSE threshold `tau_px` (see
 /// [`params_for_error_px`]): the largest median p99 over `tau_px` of `terrain bench
 /// --methods tin --error-px 0.5,1,2,4` (then `tau_px` = target) on `flights/pvps_884.json`
@@ -602,6 +624,17 @@ mod tests {
                 params_for_error_px(LodMethod::OutOfCore, px, view).apply(&mut c);
                 assert!((c.ooc.tau * ooc_p99_per_tau(split) - px).abs() < 1e-9, "{split:?}");
             }
+            // With a store's calibration of the configured refinement: its map, not the
+            // shared one (whose tau differs at these points).
+            let mut c = MethodConfig::default();
+            let store = crate::ooc_calibration::TerrainId { width: 9, height: 9, k: 3, bake_id: 1 };
+            let fit = [(1.0, 0.5), (4.0, 2.0), (16.0, 3.0)];
+            let cal = crate::ooc_calibration::Calibration::fit(store, c.ooc.refinement(), 1, &fit)
+                .expect("a fit");
+            c.ooc.calibration = Some(cal);
+            params_for_error_px(LodMethod::OutOfCore, px, view).apply(&mut c);
+            assert!((c.ooc.tau - cal.tau_for(px)).abs() < 1e-12, "{px}");
+            assert!((c.ooc.tau - px / ooc_p99_per_tau(DEFAULT_SPLIT)).abs() > 0.1, "{px}");
             let rho = params_for_error_px(LodMethod::Dss1, px, view).value;
             let p99 = DSS_P99_AT_RHO_1 * rho.powf(DSS_P99_EXPONENT);
             assert!((p99 - px).abs() < 1e-9, "{px} {rho} {p99}");

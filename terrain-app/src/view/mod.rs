@@ -133,6 +133,9 @@ pub(crate) fn run(args: &ViewArgs) -> anyhow::Result<()> {
     let mut config = MethodConfig { leaf_cells: args.lod.leaf_cells, ..MethodConfig::default() };
     let kind = args.lod.kind(store.is_some());
     config.ooc.tau = args.store.tau.unwrap_or(2.0);
+    if let Some(dir) = &store {
+        config.ooc.calibration = terrain_app::ooc_calibration::of_store(dir)?;
+    }
     // The one quality knob (README "One quality knob"): the pixel target mapped onto the
     // method's own parameter for this window's height and field of view.
     let error_view = ErrorView { height_px: f64::from(size.1), fov_y_deg: args.eye.fov };
@@ -141,6 +144,7 @@ pub(crate) fn run(args: &ViewArgs) -> anyhow::Result<()> {
     if store.is_some() {
         config.ooc = ooc::OocConfig {
             vertical_scale: args.source.store_exaggeration()?,
+            calibration: config.ooc.calibration,
             ..args.store.config(config.ooc.tau)?
         };
     }
@@ -999,17 +1003,17 @@ impl App {
         if !(error_px.is_finite() && error_px > 0.0) {
             bail!("the error target must be a positive number of pixels, got {error_px}");
         }
-        let params = registry::params_for_error_px(self.kind, error_px, self.error_view);
+        let mut params = registry::params_for_error_px(self.kind, error_px, self.error_view);
         match &mut self.terrain {
             Terrain::Memory(m) => {
                 let Some(scene) = Arc::get_mut(&mut m.scene) else {
                     bail!("the quality cannot change while a method is being prepared");
                 };
-                params.apply(&mut scene.config);
+                params.apply_recorded(&mut scene.config);
             }
             Terrain::Store(s) => {
                 let mut config = s.config.clone();
-                params.apply(&mut config);
+                params.apply_recorded(&mut config);
                 let camera =
                     self.camera.camera(self.fov, self.size, self.clip.range(self.camera.position));
                 s.rebuild(self.kind, config, Some(params), camera, &self.ctx, &self.render_config)?;
@@ -1064,9 +1068,9 @@ impl App {
                         // parameter before its runtime is built (on a worker).
                         let mut config = s.config.clone();
                         let mapped = self.mapped.map(|p| {
-                            let q =
+                            let mut q =
                                 registry::params_for_error_px(kind, p.error_px, self.error_view);
-                            q.apply(&mut config);
+                            q.apply_recorded(&mut config);
                             q
                         });
                         let camera = self.camera.camera(
