@@ -21,6 +21,7 @@
 
 mod build;
 mod samples;
+mod walk;
 
 use std::path::PathBuf;
 use std::sync::Mutex;
@@ -30,7 +31,6 @@ use std::time::Instant;
 use anyhow::{Context, bail};
 use clap::Args;
 use glam::dvec2;
-use rayon::prelude::*;
 use serde::Serialize;
 use terrain_core::tin::{self, GridLayout, TileId, TileMesh, TileRange, quantized_mesh, warp};
 use terrain_core::{Crs, Heightmap};
@@ -38,7 +38,7 @@ use terrain_core::{Crs, Heightmap};
 use terrain_app::progress::Progress;
 
 use crate::source::{SourceArgs, parse_memory};
-use build::ResolutionConfig;
+use build::{Decimation, ResolutionConfig};
 use samples::{HeightmapSamples, Samples, StoreSamples};
 
 /// Deepest `--max-level` accepted (tiles of about 5 m at the equator).
@@ -91,6 +91,9 @@ struct LevelStats {
     bytes: u64,
     /// The largest error measured against the DEM samples of a tile of this level, metres.
     max_measured_error_m: f64,
+    /// The largest decimation error a tile of this level was meshed under (0: every tile
+    /// meshed from every sample), metres.
+    decimation_error_m: f64,
 }
 
 /// `tiles.json`.
@@ -110,10 +113,18 @@ struct Summary {
     build_s: f64,
     threads: usize,
     levels: Vec<LevelStats>,
-    /// Decimated tiles (meshed from every 2^s-th sample, then checked against every sample)
-    /// and how many of them were built again one stride finer after failing that check.
+    /// Decimated tiles (meshed from every 2^s-th sample within their bound less the measured
+    /// decimation error, at least this fraction of it, then checked against every sample) and
+    /// their rebuilds after failing that check.
+    min_budget_fraction: f64,
     decimated_tiles: usize,
-    rebuilt_tiles: usize,
+    retries: usize,
+    /// Measuring the decimation error (once per region and stride): seconds, and the largest
+    /// error found at any stride, metres.
+    decimation_s: f64,
+    decimation_error_m: f64,
+    /// Most tiles whose mesh was held at once by the depth-first walk.
+    peak_pending_tiles: usize,
     /// For a store: the most bytes of decoded blocks resident at once, and block levels decoded.
     cache_peak_bytes: Option<u64>,
     block_levels_decoded: Option<u64>,
@@ -211,22 +222,6 @@ fn open(args: &TilesArgs) -> anyhow::Result<(Source, GridLayout, String, Option<
     Ok((Source::Memory(hm), layout, name, reprojected_from))
 }
 
-/// Position of a tile on a Morton (Z-order) curve at `level` (its south-west corner): tiles
-/// near each other in it read the same blocks, so the cache serves them.
-fn morton(tile: TileId, level: u32) -> u64 {
-    let shift = level.saturating_sub(tile.level);
-    let (x, y) = (u64::from(tile.x) << shift, u64::from(tile.y) << shift);
-    let spread = |mut v: u64| {
-        v &= 0xffff_ffff;
-        v = (v | (v << 16)) & 0x0000_ffff_0000_ffff;
-        v = (v | (v << 8)) & 0x00ff_00ff_00ff_00ff;
-        v = (v | (v << 4)) & 0x0f0f_0f0f_0f0f_0f0f;
-        v = (v | (v << 2)) & 0x3333_3333_3333_3333;
-        (v | (v << 1)) & 0x5555_5555_5555_5555
-    };
-    spread(x) | (spread(y) << 1)
-}
-
 /// Runs `terrain tiles`.
 pub(crate) fn run(args: &TilesArgs) -> anyhow::Result<()> {
     if !(args.error_scale.is_finite() && args.error_scale > 0.0) {
@@ -258,16 +253,18 @@ pub(crate) fn run(args: &TilesArgs) -> anyhow::Result<()> {
         }
     };
     let resolution = ResolutionConfig::default();
-    let mut tiles: Vec<(TileId, u32)> = levels
-        .clone()
-        .flat_map(|l| range(l).tiles(l).collect::<Vec<_>>())
-        .map(|t| (t, build::stride_log2(&layout, t, &resolution)))
-        .collect();
-    tiles.sort_by_key(|&(t, _)| (morton(t, max_level), t.level));
-    let total = tiles.len();
+    let total: usize = levels.clone().map(|l| range(l).len() as usize).sum();
     std::fs::create_dir_all(&args.output)
         .with_context(|| format!("creating {}", args.output.display()))?;
     let t0 = Instant::now();
+    // The strides the decimated tiles may use: up to the coarsest level's.
+    let max_s = range(args.min_level)
+        .tiles(args.min_level)
+        .map(|t| build::stride_log2(&layout, t, &resolution))
+        .max()
+        .unwrap_or(0);
+    let decimation = Decimation::measure(samples, &layout, build::DECIMATION_REGION, max_s)?;
+    let decimation_s = t0.elapsed().as_secs_f64();
     let bar = Progress::new("tiles", !args.quiet);
     let done = AtomicUsize::new(0);
     let stats: Mutex<Vec<LevelStats>> = Mutex::new(
@@ -280,7 +277,7 @@ pub(crate) fn run(args: &TilesArgs) -> anyhow::Result<()> {
             })
             .collect(),
     );
-    let write = |mesh: &TileMesh, measured: f64| -> anyhow::Result<()> {
+    let write = |mesh: &TileMesh, measured: f64, decimation: f64| -> anyhow::Result<()> {
         let tile = mesh.tile;
         let children =
             if tile.level < max_level { range(tile.level + 1).below(tile) } else { None };
@@ -301,46 +298,26 @@ pub(crate) fn run(args: &TilesArgs) -> anyhow::Result<()> {
             s.vertices += mesh.vertices.len();
             s.bytes += bytes.len() as u64;
             s.max_measured_error_m = s.max_measured_error_m.max(measured);
+            s.decimation_error_m = s.decimation_error_m.max(decimation);
         }
         let n = done.fetch_add(1, Ordering::Relaxed) + 1;
         bar.update(n as f64, total as f64);
         Ok(())
     };
     let bound_of = |tile: TileId| tin::level_error(tile.level, args.error_scale);
-    // A tile on the DEM's own samples: the builder verified it against every one.
-    let exact = |tile: TileId| -> anyhow::Result<()> {
-        let bound = bound_of(tile);
-        let mesh = build::build(samples, &layout, tile, 0, bound, bound)?;
-        let measured = mesh.measured.map_or(0.0, |m| m.max_error);
-        write(&mesh, measured)
+    let walk = walk::Walk {
+        samples,
+        layout: &layout,
+        resolution,
+        decimation: &decimation,
+        check_region: region,
+        max_level,
+        range: &range,
+        bound: &bound_of,
+        write: &write,
     };
-    // Decimated tiles: meshed from every 2^s-th sample, checked against every sample, built
-    // again one stride finer where that fails (at stride 1 the builder's own check holds).
-    let (mut pending, fine): (Vec<_>, Vec<_>) = tiles.into_iter().partition(|&(_, s)| s > 0);
-    let decimated_tiles = pending.len();
-    let mut rebuilt_tiles = 0;
-    while !pending.is_empty() {
-        let meshes = pending
-            .par_iter()
-            .map(|&(tile, s)| {
-                let bound = bound_of(tile);
-                build::build(samples, &layout, tile, s, resolution.coarse_factor * bound, bound)
-            })
-            .collect::<anyhow::Result<Vec<TileMesh>>>()?;
-        let worst = build::check_regions(samples, &layout, &meshes, region)?;
-        let mut failed = Vec::new();
-        for ((mesh, e), &(tile, s)) in meshes.iter().zip(worst).zip(&pending) {
-            match e {
-                Some(e) if e <= mesh.bound => write(mesh, e)?,
-                _ => failed.push((tile, s - 1)),
-            }
-        }
-        rebuilt_tiles += failed.len();
-        let (again, exact_now): (Vec<_>, Vec<_>) = failed.into_iter().partition(|&(_, s)| s > 0);
-        exact_now.par_iter().try_for_each(|&(tile, _)| exact(tile))?;
-        pending = again;
-    }
-    fine.par_iter().try_for_each(|&(tile, _)| exact(tile))?;
+    let roots: Vec<TileId> = range(args.min_level).tiles(args.min_level).collect();
+    let walked = walk.run(&roots)?;
     bar.finish();
     let build_s = t0.elapsed().as_secs_f64();
     let available: Vec<Vec<TileRange>> = (0..=max_level)
@@ -389,13 +366,17 @@ pub(crate) fn run(args: &TilesArgs) -> anyhow::Result<()> {
         min_level: args.min_level,
         max_level,
         gzip: args.gzip,
-        tiles: total,
+        tiles: done.load(Ordering::Relaxed),
         triangles: levels.iter().map(|l| l.triangles).sum(),
         build_s,
         threads: rayon::current_num_threads(),
         levels,
-        decimated_tiles,
-        rebuilt_tiles,
+        min_budget_fraction: resolution.min_budget_fraction,
+        decimated_tiles: walked.decimated_tiles,
+        retries: walked.retries,
+        decimation_s,
+        decimation_error_m: decimation.max(),
+        peak_pending_tiles: walked.peak_pending_tiles,
         cache_peak_bytes: cache.map(|c| c.0),
         block_levels_decoded: cache.map(|c| c.1),
     };
@@ -409,11 +390,12 @@ pub(crate) fn run(args: &TilesArgs) -> anyhow::Result<()> {
         );
     }
     println!(
-        "{} tiles ({} decimated, {} of them rebuilt finer), {} triangles in {build_s:.2} s on {} \
-         threads: {}",
+        "{} tiles ({} decimated, {} retries, at most {} pending), {} triangles in {build_s:.2} s \
+         on {} threads: {}",
         summary.tiles,
         summary.decimated_tiles,
-        summary.rebuilt_tiles,
+        summary.retries,
+        summary.peak_pending_tiles,
         summary.triangles,
         summary.threads,
         args.output.display()

@@ -1,16 +1,16 @@
 //! One tile of `terrain tiles` from a [`Samples`] source, at the resolution its level needs,
-//! and the check of a coarse tile against every DEM sample under it.
+//! the decimation error of the DEM per region and stride ([`Decimation`]), and the check of a
+//! coarse tile against every DEM sample under it ([`check`]).
 //!
 //! **Resolution per level.** A tile spanning `N` DEM samples is meshed from every `2^s`-th
 //! sample, `s` the smallest with `N / 2^s <= max_cells` (cesium-terrain-builder resamples
 //! every tile to a fixed grid the same way; we keep the DEM's own samples, which a store holds
 //! as its levels). At `s = 0` the tile is [`tin::build_tile`] on the DEM's own samples, which
-//! verifies it against every one of them. At `s > 0` it is meshed within `coarse_factor` of its
+//! verifies it against every one of them. At `s > 0` it is meshed within a budget under its
 //! bound against the decimated samples and then checked against every DEM sample under it
-//! ([`check_regions`]); a tile that fails is built again one stride finer, down to `s = 0`,
-//! where the builder's own check holds by construction. So every written tile is within its
-//! bound of every non-void DEM sample, at any level, while the coarse levels read and mesh a
-//! bounded number of samples.
+//! ([`check`]); the budgets and retries are [`super::walk`]'s. So every written tile is within
+//! its bound of every non-void DEM sample, at any level, while the coarse levels read and mesh
+//! a bounded number of samples.
 
 use glam::{DVec2, dvec2};
 use rayon::prelude::*;
@@ -25,16 +25,21 @@ use super::samples::Samples;
 pub(crate) struct ResolutionConfig {
     /// Most cells across a tile's mesh input before it is decimated.
     pub max_cells: usize,
-    /// The fraction of a decimated tile's bound its mesh may use against the decimated
-    /// samples; the rest is left for the samples between them.
-    pub coarse_factor: f64,
+    /// The least fraction of a decimated tile's bound its mesh gets against the decimated
+    /// samples (the bound less their measured decimation error): below it the tile is meshed
+    /// one stride finer.
+    pub min_budget_fraction: f64,
 }
 
 impl Default for ResolutionConfig {
     fn default() -> Self {
-        Self { max_cells: 256, coarse_factor: 0.75 }
+        Self { max_cells: 256, min_budget_fraction: 0.25 }
     }
 }
+
+/// Cells per side of the regions the decimation error is measured in, for every source (so a
+/// store and its DEM in memory get the same budgets, and the same tiles).
+pub(crate) const DECIMATION_REGION: usize = 256;
 
 /// The tile's rectangle in fractional grid coordinates (south-west, north-east).
 fn grid_rect(layout: &GridLayout, tile: TileId) -> (DVec2, DVec2) {
@@ -112,57 +117,158 @@ pub(crate) fn build(
     Ok(mesh)
 }
 
-/// The largest error of each of `meshes` against every non-void DEM sample under it, read by
-/// windows of `region` x `region` cells in parallel; `None` for a mesh that leaves a sample
-/// uncovered (which the caller treats as a failure).
-pub(crate) fn check_regions(
+/// The largest error of `mesh` against every non-void DEM sample under it, read by windows of
+/// `region` x `region` cells in parallel (each window meets only the triangles binned to it);
+/// `None` if the mesh leaves a sample uncovered (which the caller treats as a failure).
+pub(crate) fn check(
     samples: &dyn Samples,
     layout: &GridLayout,
-    meshes: &[TileMesh],
+    mesh: &TileMesh,
     region: usize,
-) -> anyhow::Result<Vec<Option<f64>>> {
-    let inside: Vec<Option<[usize; 4]>> =
-        meshes.iter().map(|m| samples_inside(layout, m.tile)).collect();
-    // Each mesh's triangles in grid coordinates, once.
-    let tris: Vec<Vec<Tri>> = meshes.iter().map(|m| grid_triangles(layout, m)).collect();
+) -> anyhow::Result<Option<f64>> {
+    let Some([ti0, tj0, ti1, tj1]) = samples_inside(layout, mesh.tile) else {
+        return Ok(Some(0.0));
+    };
+    let tris = grid_triangles(layout, mesh);
     let (w, h) = (layout.width, layout.height);
-    let (rx, ry) = ((w - 1).div_ceil(region).max(1), (h - 1).div_ceil(region).max(1));
-    let regions: Vec<(usize, usize)> =
-        (0..ry).flat_map(|y| (0..rx).map(move |x| (x * region, y * region))).collect();
-    let per_region = regions
-        .par_iter()
-        .map(|&(i0, j0)| -> anyhow::Result<Vec<(usize, Option<f64>)>> {
-            let (i1, j1) = ((i0 + region).min(w - 1), (j0 + region).min(h - 1));
-            let mut out = Vec::new();
-            let mut win = None;
-            for (m, r) in inside.iter().enumerate() {
-                let Some([ti0, tj0, ti1, tj1]) = *r else { continue };
-                let (x0, y0, x1, y1) = (ti0.max(i0), tj0.max(j0), ti1.min(i1), tj1.min(j1));
-                if x0 > x1 || y0 > y1 {
-                    continue;
-                }
-                let win = match &win {
-                    Some(w) => w,
-                    None => win.insert(samples.window(i0, j0, i1 - i0 + 1, j1 - j0 + 1, 0)?),
-                };
-                let at = |i: usize, j: usize| {
-                    let k = (j - j0) * win.width + (i - i0);
-                    let void = win.voids.as_ref().is_some_and(|v| v.get(i - i0, j - j0));
-                    (!void).then(|| win.data[k])
-                };
-                out.push((m, max_error(&tris[m], [x0, y0, x1, y1], at)));
+    let (rx0, ry0) = (ti0 / region, tj0 / region);
+    // A sample on a region border belongs to the region before it, except at the grid's edge.
+    let last = |t: usize, n: usize| t.saturating_sub(1).min(n.saturating_sub(2)) / region;
+    let (rx1, ry1) = (last(ti1, w).max(rx0), last(tj1, h).max(ry0));
+    let (nx, ny) = (rx1 - rx0 + 1, ry1 - ry0 + 1);
+    // Each triangle's index in every region its bounding box meets (with the scan's tolerance).
+    let mut bins: Vec<Vec<u32>> = vec![Vec::new(); nx * ny];
+    const EPS: f64 = 1e-7;
+    let cell = |v: f64, r0: usize, n: usize| -> usize {
+        ((v.max(0.0) / region as f64) as usize).clamp(r0, r0 + n - 1) - r0
+    };
+    for (k, t) in tris.iter().enumerate() {
+        let (x0, x1) = (cell(t.lo.x - EPS, rx0, nx), cell(t.hi.x + EPS, rx0, nx));
+        let (y0, y1) = (cell(t.lo.y - EPS, ry0, ny), cell(t.hi.y + EPS, ry0, ny));
+        for y in y0..=y1 {
+            for x in x0..=x1 {
+                bins[y * nx + x].push(k as u32);
             }
-            Ok(out)
+        }
+    }
+    let worst = (0..nx * ny)
+        .into_par_iter()
+        .map(|r| -> anyhow::Result<Option<f64>> {
+            let (i0, j0) = ((rx0 + r % nx) * region, (ry0 + r / nx) * region);
+            let (i1, j1) = ((i0 + region).min(w - 1), (j0 + region).min(h - 1));
+            let (x0, y0, x1, y1) = (ti0.max(i0), tj0.max(j0), ti1.min(i1), tj1.min(j1));
+            if x0 > x1 || y0 > y1 {
+                return Ok(Some(0.0));
+            }
+            let win = samples.window(x0, y0, x1 - x0 + 1, y1 - y0 + 1, 0)?;
+            let at = |i: usize, j: usize| {
+                let k = (j - y0) * win.width + (i - x0);
+                let void = win.voids.as_ref().is_some_and(|v| v.get(i - x0, j - y0));
+                (!void).then(|| win.data[k])
+            };
+            let mine: Vec<&Tri> = bins[r].iter().map(|&k| &tris[k as usize]).collect();
+            Ok(max_error(&mine, [x0, y0, x1, y1], at))
         })
         .collect::<anyhow::Result<Vec<_>>>()?;
-    let mut worst: Vec<Option<f64>> = vec![Some(0.0); meshes.len()];
-    for (m, e) in per_region.into_iter().flatten() {
-        worst[m] = match (worst[m], e) {
-            (Some(a), Some(b)) => Some(a.max(b)),
-            _ => None,
-        };
+    Ok(worst.into_iter().try_fold(0f64, |a, e| e.map(|e| a.max(e))))
+}
+
+/// The decimation error of the DEM, measured once: for every region of `region` x `region`
+/// cells and every stride `2^s` (`1 <= s <= max_s`), the largest difference between a
+/// non-void DEM sample in it and the bilinear interpolation of the strided samples (every
+/// `2^s`-th row and column, as [`build`] reads them, the last row or column standing in past
+/// the grid's edge). A tile meshed at stride `2^s` within `bound - error` of the strided
+/// samples is then within its bound of every sample up to the difference between the mesh's
+/// triangles and the bilinear cells, which [`check`] measures.
+#[derive(Debug, Clone)]
+pub(crate) struct Decimation {
+    region: usize,
+    regions_x: usize,
+    max_s: u32,
+    /// Per region (row-major), per stride `s - 1`, metres.
+    errors: Vec<f32>,
+}
+
+impl Decimation {
+    /// Measures every region on every core (each region's samples read once at stride 1).
+    pub(crate) fn measure(
+        samples: &dyn Samples,
+        layout: &GridLayout,
+        region: usize,
+        max_s: u32,
+    ) -> anyhow::Result<Self> {
+        let (w, h) = (layout.width, layout.height);
+        let (rx, ry) = ((w - 1).div_ceil(region).max(1), (h - 1).div_ceil(region).max(1));
+        let per_region = (0..rx * ry)
+            .into_par_iter()
+            .map(|r| -> anyhow::Result<Vec<f32>> {
+                let (i0, j0) = ((r % rx) * region, (r / rx) * region);
+                let (i1, j1) = ((i0 + region).min(w - 1), (j0 + region).min(h - 1));
+                let (nw, nh) = (i1 - i0 + 1, j1 - j0 + 1);
+                let fine = samples.window(i0, j0, nw, nh, 0)?;
+                let finite = |z: f32| if z.is_finite() { f64::from(z) } else { 0.0 };
+                (1..=max_s)
+                    .map(|s| -> anyhow::Result<f32> {
+                        let t = 1usize << s;
+                        // The strided samples around the region: from the one at or before
+                        // its first sample to the one at or after its last.
+                        let (a0, b0) = ((i0 / t) * t, (j0 / t) * t);
+                        let (na, nb) =
+                            ((i1.div_ceil(t) * t - a0) / t + 1, (j1.div_ceil(t) * t - b0) / t + 1);
+                        let (na, nb) = (na.max(2), nb.max(2));
+                        let lattice = samples.window(a0, b0, na, nb, s)?;
+                        let lz = |a: usize, b: usize| finite(lattice.data[b * na + a]);
+                        let mut worst = 0f64;
+                        for j in j0..=j1 {
+                            let (b, fy) = ((j - b0) / t, ((j - b0) % t) as f64 / t as f64);
+                            let b1 = (b + 1).min(nb - 1);
+                            for i in i0..=i1 {
+                                if fine.voids.as_ref().is_some_and(|v| v.get(i - i0, j - j0)) {
+                                    continue;
+                                }
+                                let (a, fx) = ((i - a0) / t, ((i - a0) % t) as f64 / t as f64);
+                                let a1 = (a + 1).min(na - 1);
+                                let south = lz(a, b) + fx * (lz(a1, b) - lz(a, b));
+                                let north = lz(a, b1) + fx * (lz(a1, b1) - lz(a, b1));
+                                let z = south + fy * (north - south);
+                                let d = (finite(fine.data[(j - j0) * nw + (i - i0)]) - z).abs();
+                                worst = worst.max(d);
+                            }
+                        }
+                        Ok(worst as f32)
+                    })
+                    .collect()
+            })
+            .collect::<anyhow::Result<Vec<_>>>()?;
+        Ok(Self { region, regions_x: rx, max_s, errors: per_region.concat() })
     }
-    Ok(worst)
+
+    /// The largest decimation error at stride `2^s` over the regions under `tile` (0 at
+    /// `s = 0` or for a tile without samples; infinite past the strides measured).
+    pub(crate) fn error(&self, layout: &GridLayout, tile: TileId, s: u32) -> f64 {
+        if s == 0 {
+            return 0.0;
+        }
+        if s > self.max_s {
+            return f64::INFINITY;
+        }
+        let Some([i0, j0, i1, j1]) = samples_inside(layout, tile) else { return 0.0 };
+        let ry = self.errors.len() / (self.regions_x * self.max_s as usize);
+        let r = |v: usize, n: usize| (v / self.region).min(n - 1);
+        let mut worst = 0f64;
+        for y in r(j0, ry)..=r(j1, ry) {
+            for x in r(i0, self.regions_x)..=r(i1, self.regions_x) {
+                let k = (y * self.regions_x + x) * self.max_s as usize + (s - 1) as usize;
+                worst = worst.max(f64::from(self.errors[k]));
+            }
+        }
+        worst
+    }
+
+    /// The largest decimation error measured at any stride anywhere, metres.
+    pub(crate) fn max(&self) -> f64 {
+        self.errors.iter().fold(0f64, |a, &e| a.max(f64::from(e)))
+    }
 }
 
 /// A triangle in grid coordinates with its plane.
@@ -206,7 +312,7 @@ fn grid_triangles(layout: &GridLayout, m: &TileMesh) -> Vec<Tri> {
 /// by row over the samples inside it (edge functions with a tolerance of 1e-7 cells, so the
 /// samples on shared edges count for both triangles).
 fn max_error(
-    tris: &[Tri],
+    tris: &[&Tri],
     [i0, j0, i1, j1]: [usize; 4],
     at: impl Fn(usize, usize) -> Option<f32>,
 ) -> Option<f64> {
@@ -295,6 +401,7 @@ mod tests {
         let mut t = tri([dvec2(0.0, 0.0), dvec2(1.0, 0.0), dvec2(1.0, 1.0)], [0.0, 10.0, 10.0]);
         t.extend(tri([dvec2(0.0, 0.0), dvec2(1.0, 1.0), dvec2(0.0, 1.0)], [0.0, 10.0, 0.0]));
         let at = |i: usize, j: usize| Some(i as f32 + if (i, j) == (3, 7) { 2.5 } else { 0.0 });
+        let t: Vec<&Tri> = t.iter().collect();
         let e = max_error(&t, [0, 0, 10, 10], at).unwrap();
         assert!((e - 2.5).abs() < 1e-9, "{e}");
         // One triangle only: the samples above the diagonal are uncovered.
