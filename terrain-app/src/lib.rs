@@ -18,4 +18,5 @@ pub mod ooc;
 pub mod progress;
 pub mod pvs_scene;
 pub mod roughness_scene;
+pub mod samples;
 pub mod scene_files;
