@@ -274,13 +274,8 @@ fn baked(name: &str, hm: &Heightmap) -> Arc<Store> {
 /// mask, so its tiles mesh them as data; the memory pyramid it is compared with does too.
 fn without_voids(hm: &Heightmap) -> Heightmap {
     let (w, h) = (hm.width(), hm.height());
-    let data = (0..h).flat_map(|j| (0..w).map(move |i| (i, j))).map(|(i, j)| hm.get(i, j));
-    Heightmap::new(w, h, data.collect(), Default::default(), hm.georef().clone()).unwrap_or_else(
-        |_| {
-            let mask = terrain_core::heightmap::VoidMask::new(w, h);
-            Heightmap::new(w, h, hm.data().to_vec(), mask, hm.georef().clone()).unwrap()
-        },
-    )
+    let mask = terrain_core::heightmap::VoidMask::new(w, h);
+    Heightmap::new(w, h, hm.data().to_vec(), mask, hm.georef().clone()).unwrap()
 }
 
 fn store_cameras(hm: &Heightmap) -> Vec<Camera> {

@@ -122,7 +122,8 @@ impl Shared {
         Ok(build_tile_from(node, &win, &w.data, w.voids.as_ref(), bound)?)
     }
 
-    /// Drops least recently drawn tiles (not the current frame's) while over the budget.
+    /// Drops least recently drawn tiles while over the budget: not the current frame's (the
+    /// tiles it draws, and those built since the last frame was resolved).
     fn evict(&self, st: &mut State) {
         while st.bytes > self.budget {
             let frame = st.frame;
@@ -346,6 +347,8 @@ impl TinTiles {
                 Some(e.tile.clone())
             })
             .collect();
+        // What the previous frames drew and this one does not may go now.
+        self.shared.evict(&mut st);
         ResolvedTiles { tiles, late }
     }
 
