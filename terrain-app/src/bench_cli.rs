@@ -105,6 +105,12 @@ pub(crate) struct BenchArgs {
     /// frames are warm, so they select and draw what the method does from memory.
     #[arg(long)]
     pub from_store: bool,
+    /// Run every method from the store only (`--ooc-store` or `--scene`), none from memory,
+    /// and prepare no in-memory tables: for DEMs whose in-memory methods would take too long
+    /// to prepare (`tin`'s whole pyramid, geomorph's tables on 16385^2). The DEM is still
+    /// read to measure the drawn surfaces against.
+    #[arg(long)]
+    pub store_only: bool,
     /// Rendered frames colour every patch by its level of detail: the geomorph methods then
     /// draw one pass (base colour and lightmap: the geomorphing article's "minimum scene")
     /// instead of their material passes.
@@ -162,7 +168,8 @@ pub(crate) fn write_report(
 /// or by default) or to `--from-store`; `--ooc-k` only to the temporary store baked when
 /// neither `--ooc-store` nor `--scene` names one.
 fn refuse_unused_store_options(args: &BenchArgs, cfg: &BenchConfig) -> anyhow::Result<()> {
-    let uses_store = args.from_store || cfg.methods.contains(&LodMethod::OutOfCore);
+    let uses_store =
+        args.from_store || args.store_only || cfg.methods.contains(&LodMethod::OutOfCore);
     let given: Vec<&str> = [
         ("--ooc-store", args.ooc_store.is_some()),
         ("--ooc-k", args.ooc_k.is_some()),
@@ -275,7 +282,8 @@ pub(crate) fn run(args: &BenchArgs) -> anyhow::Result<()> {
     }
     cfg.ooc_wait |= args.wait;
     cfg.lod_colours = args.lod_colours;
-    cfg.from_store = args.from_store;
+    cfg.from_store = args.from_store || args.store_only;
+    cfg.store_only = args.store_only;
     if !args.error_px.is_empty() {
         if let Some(px) = args.error_px.iter().find(|p| !(p.is_finite() && **p > 0.0)) {
             bail!("--error-px takes positive numbers of pixels, got {px}");

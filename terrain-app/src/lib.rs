@@ -19,4 +19,5 @@ pub mod ooc_calibration;
 pub mod progress;
 pub mod pvs_scene;
 pub mod roughness_scene;
+pub mod samples;
 pub mod scene_files;

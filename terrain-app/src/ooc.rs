@@ -159,6 +159,8 @@ pub struct StreamRecord {
     pub late_levels: usize,
     /// Whether every block of M had its needed levels resident (drawn at its needed level).
     pub at_needed_level: bool,
+    /// `tin` from a store: selected tiles not built yet, drawn by a coarser ancestor.
+    pub late_tiles: usize,
     /// Loaded on the frame thread (the paper's real-time loaded data; only the first frame of
     /// a real-time session), MiB.
     pub sync_mib: f64,
@@ -215,6 +217,7 @@ impl StreamRecord {
             late_blocks: s.late_blocks,
             late_levels: s.late_levels,
             at_needed_level: s.at_needed_level(),
+            late_tiles: 0,
             sync_mib: s.sync_bytes as f64 / MIB,
             prefetched_mib: s.prefetched_bytes as f64 / MIB,
             disk_mib: s.disk_bytes as f64 / MIB,
@@ -329,6 +332,7 @@ pub struct OocFrame {
 /// the strips, so their vertices fall between lattice samples; strips also reach blocks that
 /// are hidden themselves).
 fn store_demand(tree: &StoreTree, draw: &StoreDraw) -> Vec<(BlockId, u8)> {
+    // A mesh's vertices lie on the lattices its selection's factors say (`tin`).
     let Some(strips) = &draw.strips else { return demand_of(tree, &draw.selection, true) };
     let mut used = vec![false; strips.nodes.len()];
     for p in &strips.mesh.triangles.points {
@@ -357,6 +361,10 @@ pub struct StoreDraw {
     /// `dss-strips`: the draw patches (every M-block) and the strips' triangles, drawn instead of
     /// the selection's patches.
     pub strips: Option<StripFrame>,
+    /// `tin`: triangles between lattice samples, drawn instead of the selection's patches, each
+    /// point on the hidden carrier patch (factors 0) of its selection patch (same index). The
+    /// selection's factors say which lattice each patch's points lie on (its demand).
+    pub mesh: Option<ExtraTriangles>,
 }
 
 /// The out-of-core method over one store.
@@ -566,7 +574,31 @@ impl OocScene {
         let (drawn, dropped) = self.assign_pages();
         let paged: HashMap<BlockId, u8> = drawn.iter().copied().collect();
         let on_pages = |n: NodeId| tree.blocks_under(n).iter().all(|b| paged.contains_key(b));
-        let StoreDraw { mut selection, strips } = draw;
+        let StoreDraw { mut selection, strips, mesh } = draw;
+        if let Some(mut extra) = mesh {
+            let root = tree.root_cells();
+            let off: Vec<bool> = selection.patches.iter().map(|p| !on_pages(p.node)).collect();
+            let patches: Vec<DrawPatch> = selection
+                .patches
+                .iter()
+                .map(|p| {
+                    let (x0, y0, c) = p.node.grid_rect(root);
+                    let factors = PatchFactors { inner: [0.0; 2], outer: [0.0; 4] };
+                    DrawPatch { rect: [x0, y0, x0 + c, y0 + c], factors }
+                })
+                .collect();
+            if off.iter().any(|&o| o) {
+                let pts = &extra.points;
+                extra.indices = extra
+                    .indices
+                    .chunks_exact(3)
+                    .filter(|t| t.iter().all(|&i| !off[pts[i as usize].patch_index as usize]))
+                    .flatten()
+                    .copied()
+                    .collect();
+            }
+            return self.finish_frame(selection, Some((patches, extra)), &drawn, dropped, stream);
+        }
         match strips {
             None => {
                 selection.patches.retain(|p| on_pages(p.node));

@@ -11,7 +11,7 @@
 //! its south-west sample) and `--spacing`, or refused: tiles must sit somewhere on the Earth,
 //! and users of such files know where their terrain is while no default would be right.
 //!
-//! A baked store (`terrain bake`) is read tile by tile ([`samples::StoreSamples`]: each tile's
+//! A baked store (`terrain bake`) is read tile by tile ([`terrain_app::samples::StoreSamples`]: each tile's
 //! samples at the stride its level needs, from the store's levels, through a byte-budgeted
 //! cache, `--cache`), so a DEM of any size is tiled in bounded memory; a store without a
 //! georeference is placed with `--lonlat` as a bare heightmap is, a projected store is refused
@@ -20,7 +20,6 @@
 //! the tileset its DEM gives in memory.
 
 mod build;
-mod samples;
 mod walk;
 
 use std::path::PathBuf;
@@ -39,7 +38,7 @@ use terrain_app::progress::Progress;
 
 use crate::source::{SourceArgs, parse_memory};
 use build::{Decimation, ResolutionConfig};
-use samples::{HeightmapSamples, Samples, StoreSamples};
+use terrain_app::samples::{HeightmapSamples, Samples, StoreSamples};
 
 /// Deepest `--max-level` accepted (tiles of about 5 m at the equator).
 const MAX_LEVEL: u32 = 22;

@@ -2,12 +2,19 @@
 //! its selection follows Cesium's screen-space error rule and covers the view without
 //! overlap, its drawn surface has no crack (the renderer's skirt test, with stitches off as
 //! the negative control), and its render matches the full grid's within the golden tolerance
-//! on Puget Sound 1k and on Crater Lake (non-square, voids).
+//! on Puget Sound 1k and on Crater Lake (non-square, voids). From a baked store (issue 13,
+//! item 2) it selects the same tiles and draws the same heights as from memory, with no
+//! crack; its tile cache stays within its budget; a frame before its tiles arrive draws
+//! coarser ones without waiting and counts them late.
 
 mod common;
 
-use terrain_app::method::{self, Draw, MethodOptions, registry};
+use std::ops::ControlFlow;
+use std::sync::Arc;
+
+use terrain_app::method::{self, Draw, MethodOptions, OocWait, TinTiles, registry};
 use terrain_app::methods::{LodMethod, MethodConfig, MethodScene, select_uniform};
+use terrain_app::ooc::{OocConfig, OocScene};
 use terrain_core::Heightmap;
 use terrain_core::dem::{self, LoadOptions};
 use terrain_core::geometry::Camera;
@@ -20,6 +27,7 @@ use terrain_gpu::render::crack::{crack_cameras, crack_pixels_with_extra};
 use terrain_gpu::render::{DrawPatch, ExtraTriangles, default_camera};
 use terrain_gpu::tess::GpuDomainPoint;
 use terrain_gpu::{RenderConfig, RenderOptions};
+use terrain_stream::{BakeConfig, BakeProgress, HeightEncoding, Store, bake};
 
 fn fractal() -> Heightmap {
     FractalConfig::with_size(257, 193, 10.0).to_heightmap().unwrap()
@@ -252,4 +260,222 @@ fn renders_as_the_full_grid() {
             assert_eq!(within, expect, "{name} {what}: {d:?}");
         }
     }
+}
+
+/// `hm` baked into a scratch store with exact f32 heights.
+fn baked(name: &str, hm: &Heightmap) -> Arc<Store> {
+    let dir = common::scratch("tin-store", name).join("store");
+    let config = BakeConfig { encoding: HeightEncoding::F32, threads: 1, ..Default::default() };
+    bake(hm, &dir, &config, &mut |_: &BakeProgress| ControlFlow::Continue(())).unwrap();
+    Arc::new(Store::open(&dir).unwrap())
+}
+
+/// `hm` without its void mask: a store keeps the bake's fill heights in its voids and no
+/// mask, so its tiles mesh them as data; the memory pyramid it is compared with does too.
+fn without_voids(hm: &Heightmap) -> Heightmap {
+    let (w, h) = (hm.width(), hm.height());
+    let mask = terrain_core::heightmap::VoidMask::new(w, h);
+    Heightmap::new(w, h, hm.data().to_vec(), mask, hm.georef().clone()).unwrap()
+}
+
+fn store_cameras(hm: &Heightmap) -> Vec<Camera> {
+    let overview = default_camera(hm, 640, 360, 60.0);
+    let (w, h) = (hm.width() as f64, hm.height() as f64);
+    let xy = hm.grid_to_world(0.3 * w, 0.2 * h);
+    let eye = xy.extend(f64::from(hm.max()) + 300.0);
+    let (near, far) = terrain_gpu::render::clip_range(hm, eye);
+    let low = Camera::from_yaw_pitch(eye, 40.0, -20.0)
+        .with_fov_y_deg(60.0)
+        .with_viewport(640.0, 360.0)
+        .with_clip(near, far);
+    vec![overview, low]
+}
+
+/// From a store, warm frames: the tiles selected over the store's index are the pyramid's in
+/// memory for the same camera (built at the same stride), and the drawn surface has the same
+/// vertices, heights and triangles; on Puget Sound 1k and Crater Lake (non-square, voids).
+#[test]
+fn tin_from_a_store_selects_and_draws_as_from_memory() {
+    for (name, hm) in [("puget", puget()), ("crater-lake", without_voids(&crater_lake()))] {
+        let mut config = MethodConfig::default();
+        config.tin.pyramid.max_tile_cells = Some(config.tin.store.max_tile_cells);
+        let scene = MethodScene::new(hm, config);
+        let p = scene.tin_pyramid().unwrap();
+        let store = baked(name, &scene.hm);
+        let runtime = OocScene::new(store, OocConfig { threads: 1, ..OocConfig::default() });
+        let mut stored = method::store_method(
+            LodMethod::Tin,
+            runtime,
+            &scene.config,
+            OocWait::EveryFrame,
+            Some(&scene),
+        )
+        .unwrap();
+        for (c, camera) in store_cameras(&scene.hm).iter().enumerate() {
+            let sel = p.select(camera, scene.config.tin.tau_px);
+            let mem = p.surface(&scene.hm, &sel.tiles, true);
+            let mut f = stored.frame(camera);
+            let tiles: Vec<NodeId> = f.selection.patches.iter().map(|q| q.node).collect();
+            assert_eq!(tiles, sel.tiles, "{name} camera {c}: the same tiles");
+            let stream = f.stats.stream.clone().unwrap();
+            assert!(stream.at_needed_level && stream.late_tiles == 0, "{name}: warm");
+            let Draw::Paged(paged) = &f.draw else { panic!("{name}: paged") };
+            assert_eq!(paged.extra.indices.len(), 3 * mem.mesh.triangles.len());
+            let s = stored.surface(&mut f).unwrap();
+            assert_eq!(s.triangles, mem.tile_triangles + mem.stitch_triangles, "{name} {c}");
+            assert_eq!(s.mesh.triangles, mem.mesh.triangles, "{name} camera {c}");
+            assert_eq!(s.mesh.grid, mem.mesh.grid, "{name} camera {c}: the same vertices");
+            assert_eq!(s.mesh.positions, mem.mesh.positions, "{name} camera {c}: heights");
+            // Every vertex at its sample's height (the negative control of a stride mix-up).
+            for (g, q) in s.mesh.grid.iter().zip(&s.mesh.positions) {
+                assert_eq!(q.z, f64::from(scene.hm.get(g.x as usize, g.y as usize)));
+            }
+            println!(
+                "{name} camera {c}: {} tiles, {} triangles ({} stitches), levels {:?}",
+                tiles.len(),
+                s.triangles,
+                mem.stitch_triangles,
+                tiles.iter().map(|n| n.level).collect::<std::collections::BTreeSet<_>>()
+            );
+        }
+    }
+}
+
+/// Real time: a frame whose tiles are not built draws their nearest built ancestors at once
+/// (disjoint, covering every selected tile) and counts the selected tiles late; once built,
+/// the same frame draws them. The method's frames after the first do not wait for tiles.
+#[test]
+fn a_frame_before_its_tiles_arrive_draws_coarser_ones_without_waiting() {
+    let scene = MethodScene::new(puget(), MethodConfig::default());
+    let store = baked("late", &scene.hm);
+    let config = scene.config.tin;
+    let tree = terrain_stream::StoreTree::new(store.clone(), config.pyramid.finest_cells);
+    let shape = *terrain_core::quadtree::NodeTree::shape(&tree);
+    let tiles = TinTiles::new((*store).clone(), shape, &config);
+    let camera = store_cameras(&scene.hm)[1];
+    let sel = terrain_core::tin::grid::select_tiles(&tree, tiles.errors(), &camera, 1.0);
+    assert!(sel.tiles.len() > 20 && sel.tiles.iter().all(|n| n.level > 1));
+    // Nothing built: nothing to draw, every tile late.
+    let r = tiles.resolve(&sel.tiles);
+    assert!(r.tiles.is_empty() && r.late == sel.tiles.len());
+    // The root only: it stands for every selected tile.
+    tiles.wait_for(&[NodeId::ROOT], std::time::Duration::from_secs(60)).unwrap();
+    let r = tiles.resolve(&sel.tiles);
+    assert_eq!(r.tiles.iter().map(|t| t.node).collect::<Vec<_>>(), vec![NodeId::ROOT]);
+    assert_eq!(r.late, sel.tiles.len());
+    // Every tile built: drawn as selected, none late.
+    tiles.wait_for(&sel.tiles, std::time::Duration::from_secs(120)).unwrap();
+    let r = tiles.resolve(&sel.tiles);
+    assert_eq!(r.tiles.iter().map(|t| t.node).collect::<Vec<_>>(), sel.tiles);
+    assert_eq!(r.late, 0);
+
+    // Through the method: the first frame waits, the next (a new view) does not; what it
+    // draws are selected tiles or their ancestors, disjoint.
+    let runtime = OocScene::new(store, OocConfig { threads: 1, ..OocConfig::default() });
+    let mut m =
+        method::store_method(LodMethod::Tin, runtime, &scene.config, OocWait::FirstFrame, None)
+            .unwrap();
+    let first = m.frame(&store_cameras(&scene.hm)[0]);
+    assert_eq!(first.stats.stream.as_ref().unwrap().late_tiles, 0);
+    let t = std::time::Instant::now();
+    let next = m.frame(&camera);
+    let took = t.elapsed();
+    let late = next.stats.stream.as_ref().unwrap().late_tiles;
+    let drawn: Vec<NodeId> = next.selection.patches.iter().map(|q| q.node).collect();
+    println!("real-time frame: {late} of {} tiles late, {took:?}", sel.tiles.len());
+    for &d in &drawn {
+        assert!(sel.tiles.iter().any(|s| d.is_ancestor_or_self_of(*s)), "{d:?} not selected");
+        assert!(!drawn.iter().any(|&o| o != d && o.is_ancestor_or_self_of(d)), "{d:?} overlaps");
+    }
+    assert!(late > 0 || drawn == sel.tiles, "late tiles counted");
+}
+
+/// The tile cache holds at most its budget plus the tiles of the frame being drawn, and drops
+/// the least recently drawn; with a large budget nothing is dropped (the control).
+#[test]
+fn the_tile_cache_stays_within_its_budget() {
+    let scene = MethodScene::new(puget(), MethodConfig::default());
+    let store = baked("budget", &scene.hm);
+    let tree = terrain_stream::StoreTree::new(store.clone(), 8);
+    let shape = *terrain_core::quadtree::NodeTree::shape(&tree);
+    let cameras = crack_cameras(&scene.hm, 6);
+    for budget in [256 << 10, 1 << 30] {
+        let mut config = scene.config.tin;
+        config.store.tile_cache_bytes = budget;
+        let tiles = TinTiles::new((*store).clone(), shape, &config);
+        for camera in &cameras {
+            let camera = camera.with_viewport(640.0, 360.0);
+            let sel = terrain_core::tin::grid::select_tiles(&tree, tiles.errors(), &camera, 1.0);
+            tiles.wait_for(&sel.tiles, std::time::Duration::from_secs(120)).unwrap();
+            let r = tiles.resolve(&sel.tiles);
+            assert_eq!(r.late, 0);
+            let frame: u64 = r.tiles.iter().map(|t| t.bytes()).sum();
+            let s = tiles.stats();
+            assert!(s.bytes <= budget + frame, "{s:?}: frame {frame}");
+        }
+        let s = tiles.stats();
+        println!("budget {budget}: {s:?}");
+        assert_eq!(s.evicted > 0, budget < 1 << 30, "{s:?}");
+    }
+}
+
+/// On the GPU: the store frame's triangles (tiles and stitches) drawn over the same grid show
+/// no crack pixel through the skirt test; with stitches off (the negative control) they do.
+#[test]
+fn tin_from_a_store_draws_no_crack() {
+    let Some(ctx) = common::gpu() else { return };
+    let mut config = MethodConfig::default();
+    config.tin.pyramid.max_tile_cells = Some(config.tin.store.max_tile_cells);
+    let mut scene = MethodScene::new(puget(), config);
+    scene.config.tin.tau_px = 4.0;
+    let store = baked("cracks", &scene.hm);
+    let pyramid = scene.tin_pyramid().unwrap().clone();
+    let p = &pyramid;
+    let cameras = crack_cameras(&scene.hm, 9);
+    let (w, h) = ((scene.hm.width() - 1) as f64, (scene.hm.height() - 1) as f64);
+    let mut counts = Vec::new();
+    for stitch in [true, false] {
+        scene.config.tin.stitch = stitch;
+        let runtime =
+            OocScene::new(store.clone(), OocConfig { threads: 1, ..OocConfig::default() });
+        let mut m = method::store_method(
+            LodMethod::Tin,
+            runtime,
+            &scene.config,
+            OocWait::EveryFrame,
+            Some(&scene),
+        )
+        .unwrap();
+        let mut frames: Vec<(Camera, Vec<DrawPatch>, ExtraTriangles)> = Vec::new();
+        for camera in &cameras {
+            let camera = camera.with_viewport(128.0, 72.0);
+            let mut f = m.frame(&camera);
+            let s = m.surface(&mut f).unwrap();
+            // The frame's mesh on one carrier over the whole grid, skirts below its tiles.
+            let carrier = DrawPatch {
+                rect: [0, 0, w as u32, h as u32],
+                factors: terrain_gpu::tess::PatchFactors::uniform(0.0),
+            };
+            let point = |g: glam::DVec2| GpuDomainPoint {
+                uv: [(g.x / w) as f32, (g.y / h) as f32],
+                patch_index: 0,
+                pad: 0,
+            };
+            let mut extra = ExtraTriangles {
+                points: s.mesh.grid.iter().map(|&g| point(g)).collect(),
+                indices: s.mesh.triangles.iter().flatten().copied().collect(),
+            };
+            // Skirts below the tiles' own sides: the pyramid's in memory at the same stride
+            // has the same tiles (`tin_from_a_store_selects_and_draws_as_from_memory`).
+            let tiles: Vec<NodeId> = f.selection.patches.iter().map(|q| q.node).collect();
+            skirts(&scene, p, &tiles, &mut extra);
+            frames.push((camera, vec![carrier], extra));
+        }
+        let refs: Vec<_> = frames.iter().map(|(c, p, e)| (*c, p.as_slice(), e)).collect();
+        let cracks = crack_pixels_with_extra(&ctx, &scene.hm, &refs, (128, 72));
+        println!("store: stitches {stitch}: crack pixels {cracks:?}");
+        counts.push(cracks.iter().sum::<usize>());
+    }
+    assert_eq!(counts[0], 0, "cracks with stitches");
+    assert!(counts[1] > 0, "the negative control shows no crack");
 }

@@ -28,6 +28,7 @@ pub mod registry;
 mod renderer;
 mod store;
 mod tin;
+mod tin_store;
 
 use terrain_core::geometry::Camera;
 use terrain_core::lod::{GeomipSelection, Selection, SurfaceMesh};
@@ -42,6 +43,7 @@ pub use registry::{MethodOptions, build};
 pub use renderer::{DrawSource, DrawStats, FrameRenderer, RendererKind, Uploads};
 pub use store::{StoreMethod, draws_from_store, store_method};
 pub use tin::{TinConfig, TinMethod, build_pyramid as build_tin_pyramid, tin_selection};
+pub use tin_store::{ResolvedTiles, TileCacheStats, TinStoreConfig, TinStoreMethod, TinTiles};
 
 use crate::methods::LodMethod;
 use crate::ooc::{OocFrame, StreamRecord};

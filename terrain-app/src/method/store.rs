@@ -52,12 +52,13 @@ use crate::ooc::{OocScene, StoreDraw};
 /// Which methods draw from a store.
 pub fn draws_from_store(kind: LodMethod) -> bool {
     // geomorph-static and geomorph-cpu (the article's Table 1 comparison) and geomorph-pvs
-    // (its PVS step) draw from memory.
-    !(super::registry::draws_mesh(kind)
-        || matches!(
-            kind,
-            LodMethod::GeomorphStatic | LodMethod::GeomorphCpu | LodMethod::GeomorphPvs
-        ))
+    // (its PVS step) draw from memory; tin draws its tiles from the store.
+    kind == LodMethod::Tin
+        || !(super::registry::draws_mesh(kind)
+            || matches!(
+                kind,
+                LodMethod::GeomorphStatic | LodMethod::GeomorphCpu | LodMethod::GeomorphPvs
+            ))
 }
 
 /// `kind` over the store of `scene` (its runtime), with `config`'s parameters; measured
@@ -78,11 +79,18 @@ pub fn store_method<'a>(
             None => Box::new(OocMethod::new(scene, wait)),
         });
     }
+    if kind == LodMethod::Tin {
+        let scene = match reference {
+            Some(_) => mirrored(scene, wait),
+            None => scene,
+        };
+        return Ok(Box::new(super::TinStoreMethod::new(scene, &config.tin, wait, reference)?));
+    }
     if !draws_from_store(kind) {
         anyhow::bail!(
             "--method {} draws from a DEM in memory only so far; from a store use ooc, uniform, \
-             pvps-a, pvps-b, pvps-c, pvps-c-pvs, pvps-c-cons, dss-1, dss-2, dss-strips or \
-             geomorph (or render the DEM file itself)",
+             pvps-a, pvps-b, pvps-c, pvps-c-pvs, pvps-c-cons, dss-1, dss-2, dss-strips, \
+             geomorph or tin (or render the DEM file itself)",
             kind.name()
         );
     }
@@ -285,7 +293,7 @@ impl Method for StoreMethod<'_> {
                 Tables::Dss(table) if kind.has_strips() => {
                     let factors = kind.strip_factors().unwrap_or_default();
                     let f = strips_frame(src, camera, table, cfg, factors);
-                    return StoreDraw { selection: f.selection, strips: f.strips };
+                    return StoreDraw { selection: f.selection, strips: f.strips, mesh: None };
                 }
                 Tables::Dss(table) if kind == LodMethod::Dss1 => {
                     select_dss_power_of_two(src, camera, table, &cfg.dss)
@@ -302,7 +310,7 @@ impl Method for StoreMethod<'_> {
                     s
                 }
             };
-            StoreDraw { selection, strips: None }
+            StoreDraw { selection, strips: None, mesh: None }
         };
         let mut frame = paged_frame(self.scene.frame_for(camera, warm, &self.tree, &mut select));
         if let Some(mut lods) = morph {

@@ -31,11 +31,18 @@ pub struct TinConfig {
     /// Close the gaps where a tile meets finer ones with stitches (default true; false is the
     /// crack test's negative control).
     pub stitch: bool,
+    /// How a store is read ([`super::TinStoreMethod`]).
+    pub store: super::TinStoreConfig,
 }
 
 impl Default for TinConfig {
     fn default() -> Self {
-        Self { tau_px: 1.0, pyramid: GridTinConfig::default(), stitch: true }
+        Self {
+            tau_px: 1.0,
+            pyramid: GridTinConfig::default(),
+            stitch: true,
+            store: super::TinStoreConfig::default(),
+        }
     }
 }
 

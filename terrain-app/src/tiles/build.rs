@@ -18,7 +18,7 @@ use terrain_core::heightmap::VoidMask;
 use terrain_core::tin::{self, GeoGrid, GridLayout, TileId, TileMesh};
 use terrain_core::{Crs, Georef, Heightmap};
 
-use super::samples::Samples;
+use terrain_app::samples::Samples;
 
 /// How tiles are sampled.
 #[derive(Debug, Clone, Copy)]

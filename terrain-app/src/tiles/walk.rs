@@ -19,7 +19,7 @@ use rayon::prelude::*;
 use terrain_core::tin::{GridLayout, TileId, TileMesh, TileRange};
 
 use super::build::{self, Decimation, ResolutionConfig};
-use super::samples::Samples;
+use terrain_app::samples::Samples;
 
 /// Rebuilds of a tile at one stride with a smaller budget before it goes one stride finer.
 pub(crate) const MAX_RETRIES: u32 = 2;

@@ -46,11 +46,12 @@ use glam::DVec2;
 use super::TinError;
 use super::tile::{self, Borders};
 use crate::geometry::Camera;
-use crate::heightmap::Heightmap;
+use crate::heightmap::{Heightmap, VoidMask};
 use crate::lod::SurfaceMesh;
 use crate::mesh::verify::ErrorStats;
 use crate::quadtree::{
-    Direction, FrustumCull, LeafSet, NodeId, NodeInfo, Quadtree, Visit, traverse,
+    Direction, FrustumCull, LeafSet, NodeId, NodeInfo, NodeSource, Quadtree, TreeShape, Visit,
+    traverse,
 };
 
 /// Cesium's heightmap quality of its geometric-error estimate.
@@ -67,12 +68,66 @@ pub struct GridTinConfig {
     /// Cells per side of the finest tiles (a power of two, at least 2). Default 8: bound
     /// `0.031` sample spacings.
     pub finest_cells: u32,
+    /// Most cells across a tile's mesh input: a tile spanning more is meshed from every
+    /// `2^s`-th sample, `s` the smallest with at most this many cells across ([`tile_window`]).
+    /// `None` (the default in memory): every tile from all of its samples, so its bound holds
+    /// against every sample; a store's tiles read a bounded number of samples
+    /// (`Some(64)`), their bound holding against the samples they were built from.
+    pub max_tile_cells: Option<u32>,
 }
 
 impl Default for GridTinConfig {
     fn default() -> Self {
-        Self { error_scale: 1.0, finest_cells: 8 }
+        Self { error_scale: 1.0, finest_cells: 8, max_tile_cells: None }
     }
+}
+
+/// Every level's bound for a tree of `shape` (level 0 first), metres.
+pub fn level_errors(shape: &TreeShape, error_scale: f64) -> Vec<f64> {
+    let spacing = shape.spacing().max_element();
+    let scale = if error_scale > 0.0 { error_scale } else { 1.0 };
+    (0..=shape.max_level()).map(|l| level_error(shape.root_cells() >> l, spacing, scale)).collect()
+}
+
+/// The samples a tile is built from: columns `x0 + a 2^s` for `a < width` and rows
+/// `y0 + b 2^s` for `b < height`, `s = stride_log2`, the last ones on the tile's clipped
+/// east and north borders.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct TileWindow {
+    /// First column.
+    pub x0: u32,
+    /// First row.
+    pub y0: u32,
+    /// Columns read.
+    pub width: usize,
+    /// Rows read.
+    pub height: usize,
+    /// log2 of the stride between the samples read.
+    pub stride_log2: u32,
+}
+
+/// The window tile `node` of a tree of `shape` is built from (`None` outside the grid): its
+/// clipped rectangle at the smallest stride `2^s` with at most `max_cells` cells across, and
+/// no larger than what divides both clipped spans (a tile clipped at the grid's east or north
+/// border keeps its last column and row on the lattice; such tiles read more samples).
+pub fn tile_window(shape: &TreeShape, node: NodeId, max_cells: Option<u32>) -> Option<TileWindow> {
+    let rect = shape.clipped_rect(node)?;
+    let (wc, hc) = (rect.x1 - rect.x0, rect.y1 - rect.y0);
+    let mut s = 0;
+    if let Some(max) = max_cells {
+        let max = max.max(2);
+        while (wc.max(hc) >> s) > max && s < 31 {
+            s += 1;
+        }
+        s = s.min(wc.trailing_zeros()).min(hc.trailing_zeros());
+    }
+    Some(TileWindow {
+        x0: rect.x0,
+        y0: rect.y0,
+        width: (wc >> s) as usize + 1,
+        height: (hc >> s) as usize + 1,
+        stride_log2: s,
+    })
 }
 
 /// The bound of tiles of `cells` cells per side on a grid of `spacing_m` metres per cell:
@@ -81,13 +136,20 @@ pub fn level_error(cells: u32, spacing_m: f64, error_scale: f64) -> f64 {
     error_scale * HEIGHTMAP_QUALITY * f64::from(cells) * spacing_m / NOMINAL_TILE_SAMPLES
 }
 
-/// One tile: its mesh over global grid samples and its border.
+/// One tile: its mesh over global grid samples, their heights and its border: everything
+/// the renderer and the surface need, so a tile built from a store is drawn without the grid.
 #[derive(Debug, Clone, PartialEq)]
 pub struct GridTile {
     /// The tile's node.
     pub node: NodeId,
     /// Vertices: grid samples `[i, j]` of the whole grid.
     pub vertices: Vec<[u32; 2]>,
+    /// The height of each vertex (its sample's), metres.
+    pub heights: Vec<f32>,
+    /// log2 of the stride of the samples the tile was built from ([`TileWindow`]).
+    pub stride_log2: u32,
+    /// Lowest and highest vertex height, metres.
+    pub range: [f32; 2],
     /// Counter-clockwise (from above) triangles over `vertices`.
     pub triangles: Vec<[u32; 3]>,
     /// The border vertices of each side (indices into `vertices`), in [`Direction::ALL`]
@@ -100,6 +162,16 @@ pub struct GridTile {
 }
 
 impl GridTile {
+    /// Bytes the tile takes in memory (its vectors' contents; a cache's budget unit).
+    pub fn bytes(&self) -> u64 {
+        let sides: usize = self.sides.iter().map(Vec::len).sum();
+        (std::mem::size_of::<Self>()
+            + self.vertices.len() * 8
+            + self.heights.len() * 4
+            + self.triangles.len() * 12
+            + sides * 4) as u64
+    }
+
     /// The border vertices of side `d`, as grid samples, ordered along it.
     pub fn side(&self, d: Direction) -> impl Iterator<Item = [u32; 2]> + '_ {
         self.sides[side_index(d)].iter().map(|&k| self.vertices[k as usize])
@@ -124,18 +196,61 @@ fn along(d: Direction, g: [u32; 2]) -> u32 {
     }
 }
 
-/// Builds tile `node` of `tree` (a quadtree over `hm`) within `bound` metres, verified.
+/// Builds tile `node` of `tree` (a quadtree over `hm`) within `bound` metres from all of its
+/// samples, verified against every one of them.
 pub fn build_tile(
     hm: &Heightmap,
     tree: &Quadtree,
     node: NodeId,
     bound: f64,
 ) -> Result<GridTile, TinError> {
+    build_tile_at(hm, tree.shape(), node, bound, None)
+}
+
+/// Builds tile `node` of a tree of `shape` over `hm` within `bound` metres from the samples
+/// of its [`tile_window`] under `max_cells` ([`build_tile_from`]).
+pub fn build_tile_at(
+    hm: &Heightmap,
+    shape: &TreeShape,
+    node: NodeId,
+    bound: f64,
+    max_cells: Option<u32>,
+) -> Result<GridTile, TinError> {
     let (level, x, y) = (u32::from(node.level), node.i, node.j);
-    let rect = tree.clipped_rect(node).ok_or(TinError::OutsideGrid { level, x, y })?;
-    let (x0, y0) = (rect.x0 as usize, rect.y0 as usize);
-    let (w, h) = ((rect.x1 - rect.x0) as usize + 1, (rect.y1 - rect.y0) as usize + 1);
-    let sub = tile::window(w, h, |i, j| (hm.get(x0 + i, y0 + j), hm.voids().get(x0 + i, y0 + j)));
+    let win = tile_window(shape, node, max_cells).ok_or(TinError::OutsideGrid { level, x, y })?;
+    let (w, h) = (hm.width() - 1, hm.height() - 1);
+    let s = win.stride_log2;
+    let col = |a: usize| (win.x0 as usize + (a << s)).min(w);
+    let row = |b: usize| (win.y0 as usize + (b << s)).min(h);
+    let mut heights = Vec::with_capacity(win.width * win.height);
+    let mut voids = hm.voids().any().then(|| VoidMask::new(win.width, win.height));
+    for b in 0..win.height {
+        for a in 0..win.width {
+            heights.push(hm.get(col(a), row(b)));
+            if let Some(v) = voids.as_mut()
+                && hm.voids().get(col(a), row(b))
+            {
+                v.set(a, b, true);
+            }
+        }
+    }
+    build_tile_from(node, &win, &heights, voids.as_ref(), bound)
+}
+
+/// The one tile builder from samples (in memory or read from a store): `heights` (row-major,
+/// south row first) and `voids` are the samples of `win`; the tile is meshed by
+/// [`tile::mesh_window`] within `bound` metres of them, verified against every non-void one,
+/// and its vertices placed back on the whole grid.
+pub fn build_tile_from(
+    node: NodeId,
+    win: &TileWindow,
+    heights: &[f32],
+    voids: Option<&VoidMask>,
+    bound: f64,
+) -> Result<GridTile, TinError> {
+    let (level, x, y) = (u32::from(node.level), node.i, node.j);
+    let (w, h) = (win.width, win.height);
+    let sub = tile::window(w, h, |i, j| (heights[j * w + i], voids.is_some_and(|v| v.get(i, j))));
     let (mesh, measured) = tile::mesh_window(&sub, bound, Borders::Simplified)
         .map_err(|e| TinError::from_tile(e, level, x, y))?;
     // Local positions are exact integers (one metre per sample from the origin).
@@ -153,8 +268,23 @@ pub fn build_tile(
         k.sort_by_key(|&k| along(d, local[k as usize]));
         sides[side_index(d)] = k;
     }
-    let vertices = local.iter().map(|g| [g[0] + rect.x0, g[1] + rect.y0]).collect();
-    Ok(GridTile { node, vertices, triangles: mesh.triangles, sides, bound, measured })
+    let s = win.stride_log2;
+    let heights: Vec<f32> = local.iter().map(|g| sub.get(g[0] as usize, g[1] as usize)).collect();
+    let range = heights
+        .iter()
+        .fold([f32::INFINITY, f32::NEG_INFINITY], |[lo, hi], &z| [lo.min(z), hi.max(z)]);
+    let vertices = local.iter().map(|g| [(g[0] << s) + win.x0, (g[1] << s) + win.y0]).collect();
+    Ok(GridTile {
+        node,
+        vertices,
+        heights,
+        stride_log2: s,
+        range,
+        triangles: mesh.triangles,
+        sides,
+        bound,
+        measured,
+    })
 }
 
 /// The tile builder handed to [`GridTinPyramid::build_with`]'s map.
@@ -192,6 +322,9 @@ pub struct TinSurface {
     pub stitch_triangles: u64,
     /// Border segments of the drawn tiles (what skirts would hang from: two triangles each).
     pub border_segments: u64,
+    /// Per vertex of `mesh`: the index (in the tiles drawn) of the tile it belongs to; a
+    /// stitch's vertices belong to its coarse tile, on whose side they lie.
+    pub owner: Vec<u32>,
 }
 
 impl GridTinPyramid {
@@ -219,12 +352,11 @@ impl GridTinPyramid {
         map: impl FnOnce(&[NodeId], &TileBuilder<'_>) -> Vec<Result<GridTile, TinError>>,
     ) -> Result<Self, TinError> {
         let (tree, nodes) = Self::plan(hm, config);
-        let spacing = tree.spacing().max_element();
-        let scale = if config.error_scale > 0.0 { config.error_scale } else { 1.0 };
-        let errors: Vec<f64> = (0..=tree.max_level())
-            .map(|l| level_error(tree.root_cells() >> l, spacing, scale))
-            .collect();
-        let build = |node: NodeId| build_tile(hm, &tree, node, errors[node.level as usize]);
+        let errors = level_errors(tree.shape(), config.error_scale);
+        let max_cells = config.max_tile_cells;
+        let build = |node: NodeId| {
+            build_tile_at(hm, tree.shape(), node, errors[node.level as usize], max_cells)
+        };
         let built = map(&nodes, &build);
         let mut levels: Vec<Vec<GridTile>> = vec![Vec::new(); errors.len()];
         for r in built {
@@ -267,91 +399,122 @@ impl GridTinPyramid {
     }
 
     /// The tiles drawn from `camera` at a screen-space error of at most `tau_px` pixels
-    /// (finest tiles excepted), frustum-culled.
+    /// (finest tiles excepted), frustum-culled ([`select_tiles`] over the pyramid's tree).
     pub fn select(&self, camera: &Camera, tau_px: f64) -> TinSelection {
-        let start = Instant::now();
-        let lambda = camera.lambda();
-        let eye = camera.position;
-        let tau = if tau_px > 0.0 { tau_px } else { f64::MIN_POSITIVE };
-        let mut split = |node: NodeId, info: &NodeInfo| {
-            // sse > tau, without dividing: e lambda > tau d (always with the eye in the box).
-            self.level_error(node.level) * lambda > tau * info.aabb.distance(eye)
-        };
-        let mut cull = FrustumCull::new(camera.frustum());
-        let mut culled = 0;
-        let tiles = traverse(&self.tree, &mut split, &mut cull, &mut |_, v| {
-            culled += usize::from(v == Visit::Culled);
-        });
-        TinSelection { tiles, culled, cpu_time: start.elapsed() }
+        select_tiles(&self.tree, &self.errors, camera, tau_px)
     }
 
-    /// The surface of `tiles` over `hm` (the heights every vertex takes): the tiles' meshes
-    /// and, with `stitch`, the stitches where a tile meets finer ones.
+    /// The surface of `tiles` (the heights every vertex takes: its sample's, as `hm` holds
+    /// it): the tiles' meshes and, with `stitch`, the stitches where a tile meets finer ones
+    /// ([`tin_surface`]).
     pub fn surface(&self, hm: &Heightmap, tiles: &[NodeId], stitch: bool) -> TinSurface {
-        let mut out = TinSurface::default();
-        let m = &mut out.mesh;
-        let push = |m: &mut SurfaceMesh, g: [u32; 2]| {
-            let (x, y) = (f64::from(g[0]), f64::from(g[1]));
-            m.grid.push(DVec2::new(x, y));
-            m.positions.push(
-                hm.grid_to_world(x, y).extend(f64::from(hm.get(g[0] as usize, g[1] as usize))),
-            );
-            (m.grid.len() - 1) as u32
-        };
-        for &node in tiles {
-            let Some(t) = self.tile(node) else { continue };
-            let base = m.grid.len() as u32;
-            for &g in &t.vertices {
-                push(m, g);
-            }
-            m.triangles.extend(t.triangles.iter().map(|tr| tr.map(|k| k + base)));
-            out.tile_triangles += t.triangles.len() as u64;
-            out.border_segments +=
-                t.sides.iter().map(|s| s.len().saturating_sub(1) as u64).sum::<u64>();
-        }
-        if !stitch {
-            return out;
-        }
-        let set = LeafSet::new(tiles.iter().copied());
-        let mut polygon: Vec<[u32; 2]> = Vec::new();
-        for &node in tiles {
-            let Some(t) = self.tile(node) else { continue };
-            for d in Direction::ALL {
-                let across = set.neighbours(node, d);
-                if across.is_empty() || across.iter().any(|n| n.level <= node.level) {
-                    continue;
-                }
-                let coarse: Vec<[u32; 2]> = t.side(d).collect();
-                let (Some(&s), Some(&e)) = (coarse.first(), coarse.last()) else { continue };
-                let (a0, a1) = (along(d, s), along(d, e));
-                let mut fine: Vec<[u32; 2]> = across
-                    .iter()
-                    .filter_map(|&n| self.tile(n))
-                    .flat_map(|f| f.side(d.opposite()))
-                    .filter(|g| (a0 + 1..a1).contains(&along(d, *g)))
-                    .collect();
-                fine.sort_by_key(|g| along(d, *g));
-                fine.dedup();
-                let inner = &coarse[1..coarse.len() - 1];
-                if fine == inner {
-                    continue;
-                }
-                // The polygon: s, the fine polyline, e, the coarse polyline back; a fan from s.
-                polygon.clear();
-                polygon.push(s);
-                polygon.extend_from_slice(&fine);
-                polygon.push(e);
-                polygon.extend(inner.iter().rev());
-                let base = m.grid.len() as u32;
-                for &g in &polygon {
-                    push(m, g);
-                }
-                for k in 1..polygon.len() as u32 - 1 {
-                    m.triangles.push([base, base + k, base + k + 1]);
-                }
-                out.stitch_triangles += polygon.len() as u64 - 2;
-            }
-        }
-        out
+        let drawn: Vec<&GridTile> = tiles.iter().filter_map(|&n| self.tile(n)).collect();
+        tin_surface(&drawn, |g| hm.grid_to_world(g.x, g.y), stitch)
     }
+}
+
+/// The tiles of a tree (`tree`: the in-memory quadtree, or a store's index) drawn from
+/// `camera` at a screen-space error of at most `tau_px` pixels (finest tiles excepted),
+/// frustum-culled: Cesium's `sse = e_L lambda / d > tau` refines (`errors`: per level, from
+/// [`level_errors`]), through the one [`traverse`].
+pub fn select_tiles<Q: NodeSource + ?Sized>(
+    tree: &Q,
+    errors: &[f64],
+    camera: &Camera,
+    tau_px: f64,
+) -> TinSelection {
+    let start = Instant::now();
+    let lambda = camera.lambda();
+    let eye = camera.position;
+    let tau = if tau_px > 0.0 { tau_px } else { f64::MIN_POSITIVE };
+    let error = |l: u8| errors.get(l as usize).copied().unwrap_or(0.0);
+    let mut split = |node: NodeId, info: &NodeInfo| {
+        // sse > tau, without dividing: e lambda > tau d (always with the eye in the box).
+        error(node.level) * lambda > tau * info.aabb.distance(eye)
+    };
+    let mut cull = FrustumCull::new(camera.frustum());
+    let mut culled = 0;
+    let tiles = traverse(tree, &mut split, &mut cull, &mut |_, v| {
+        culled += usize::from(v == Visit::Culled);
+    });
+    TinSelection { tiles, culled, cpu_time: start.elapsed() }
+}
+
+/// The surface of the drawn `tiles` (disjoint nodes covering the view), vertices at their
+/// tiles' heights and placed in the plane by `plan` (grid to world): the tiles' meshes and,
+/// with `stitch`, the stitches where a tile meets finer ones (see the module docs). One
+/// function for the pyramid in memory and the tiles built from a store.
+pub fn tin_surface(tiles: &[&GridTile], plan: impl Fn(DVec2) -> DVec2, stitch: bool) -> TinSurface {
+    let mut out = TinSurface::default();
+    let m = &mut out.mesh;
+    let owner = &mut out.owner;
+    let mut push = |m: &mut SurfaceMesh, g: [u32; 2], z: f32, tile: usize| {
+        let p = DVec2::new(f64::from(g[0]), f64::from(g[1]));
+        m.grid.push(p);
+        m.positions.push(plan(p).extend(f64::from(z)));
+        owner.push(tile as u32);
+        (m.grid.len() - 1) as u32
+    };
+    for (k, t) in tiles.iter().enumerate() {
+        let base = m.grid.len() as u32;
+        for (&g, &z) in t.vertices.iter().zip(&t.heights) {
+            push(m, g, z, k);
+        }
+        m.triangles.extend(t.triangles.iter().map(|tr| tr.map(|k| k + base)));
+        out.tile_triangles += t.triangles.len() as u64;
+        out.border_segments +=
+            t.sides.iter().map(|s| s.len().saturating_sub(1) as u64).sum::<u64>();
+    }
+    if !stitch {
+        return out;
+    }
+    let by_node: std::collections::HashMap<NodeId, &GridTile> =
+        tiles.iter().map(|t| (t.node, *t)).collect();
+    let set = LeafSet::new(tiles.iter().map(|t| t.node));
+    let side = |t: &GridTile, d: Direction| -> Vec<([u32; 2], f32)> {
+        t.sides[side_index(d)]
+            .iter()
+            .map(|&k| (t.vertices[k as usize], t.heights[k as usize]))
+            .collect()
+    };
+    let mut polygon: Vec<([u32; 2], f32)> = Vec::new();
+    for (k, t) in tiles.iter().enumerate() {
+        let node = t.node;
+        for d in Direction::ALL {
+            let across = set.neighbours(node, d);
+            if across.is_empty() || across.iter().any(|n| n.level <= node.level) {
+                continue;
+            }
+            let coarse = side(t, d);
+            let (Some(&s), Some(&e)) = (coarse.first(), coarse.last()) else { continue };
+            let (a0, a1) = (along(d, s.0), along(d, e.0));
+            let mut fine: Vec<([u32; 2], f32)> = across
+                .iter()
+                .filter_map(|n| by_node.get(n))
+                .flat_map(|f| side(f, d.opposite()))
+                .filter(|g| (a0 + 1..a1).contains(&along(d, g.0)))
+                .collect();
+            fine.sort_by_key(|g| along(d, g.0));
+            fine.dedup_by_key(|g| g.0);
+            let inner = &coarse[1..coarse.len() - 1];
+            if fine.iter().map(|g| g.0).eq(inner.iter().map(|g| g.0)) {
+                continue;
+            }
+            // The polygon: s, the fine polyline, e, the coarse polyline back; a fan from s.
+            polygon.clear();
+            polygon.push(s);
+            polygon.extend_from_slice(&fine);
+            polygon.push(e);
+            polygon.extend(inner.iter().rev());
+            let base = m.grid.len() as u32;
+            for &(g, z) in &polygon {
+                push(m, g, z, k);
+            }
+            for k in 1..polygon.len() as u32 - 1 {
+                m.triangles.push([base, base + k, base + k + 1]);
+            }
+            out.stitch_triangles += polygon.len() as u64 - 2;
+        }
+    }
+    out
 }

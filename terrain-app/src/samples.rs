@@ -1,4 +1,4 @@
-//! Where `terrain tiles` reads heights from, one window at a time and at a power-of-two
+//! Where `terrain tiles` and the `tin` method over a store read heights from, one window at a time and at a power-of-two
 //! stride: a DEM in memory ([`HeightmapSamples`]) or a baked store ([`StoreSamples`]), whose
 //! blocks are read level by level (a stride of `2^s` needs only block levels `0..=k - s`,
 //! the store's non-redundant levels, Qiu 2013 Eq. 1-2) through a byte-budgeted LRU cache of
@@ -18,15 +18,17 @@ use terrain_stream::{BlockId, BlockLevels, Store, vertex_level};
 /// A window of samples: `width` x (`data.len() / width`) heights (row-major, south row first)
 /// and voids.
 #[derive(Debug, Clone)]
-pub(crate) struct Window {
+pub struct Window {
+    /// Columns.
     pub width: usize,
+    /// Heights, row-major, south row first.
     pub data: Vec<f32>,
     /// `None`: no void in the window.
     pub voids: Option<VoidMask>,
 }
 
 /// Heights of a grid, read by windows.
-pub(crate) trait Samples: Sync {
+pub trait Samples: Sync {
     /// Columns and rows of the grid.
     fn size(&self) -> (usize, usize);
     /// The samples at columns `i0 + a t` and rows `j0 + b t` for `a < width`, `b < height`
@@ -42,7 +44,8 @@ pub(crate) trait Samples: Sync {
 }
 
 /// A DEM in memory.
-pub(crate) struct HeightmapSamples<'a>(pub &'a Heightmap);
+#[derive(Debug)]
+pub struct HeightmapSamples<'a>(pub &'a Heightmap);
 
 impl Samples for HeightmapSamples<'_> {
     fn size(&self) -> (usize, usize) {
@@ -82,12 +85,14 @@ impl Samples for HeightmapSamples<'_> {
 }
 
 /// A baked store, read through a byte-budgeted LRU cache of decoded block levels.
-pub(crate) struct StoreSamples {
+#[derive(Debug)]
+pub struct StoreSamples {
     store: Store,
     cache: Mutex<BlockCache>,
 }
 
 /// Decoded blocks (levels `0..n`), least recently used dropped first while over the budget.
+#[derive(Debug)]
 struct BlockCache {
     budget: u64,
     resident: u64,
@@ -102,7 +107,7 @@ struct BlockCache {
 impl StoreSamples {
     /// Reads `store` with at most `budget` bytes of decoded blocks resident (one block more
     /// while a read that needs it is under way per thread).
-    pub(crate) fn new(store: Store, budget: u64) -> Self {
+    pub fn new(store: Store, budget: u64) -> Self {
         let cache = BlockCache {
             budget,
             resident: 0,
@@ -115,12 +120,12 @@ impl StoreSamples {
     }
 
     /// Cells per block side: windows aligned to blocks read each block once.
-    pub(crate) fn block_cells(&self) -> usize {
+    pub fn block_cells(&self) -> usize {
         self.store.header().block_cells() as usize
     }
 
     /// The most bytes of decoded blocks resident at once, and the block levels decoded.
-    pub(crate) fn cache_stats(&self) -> (u64, u64) {
+    pub fn cache_stats(&self) -> (u64, u64) {
         let c = self.cache.lock().unwrap_or_else(|e| e.into_inner());
         (c.peak, c.decoded)
     }

@@ -1,0 +1,540 @@
+//! `tin` drawn from a baked store: the tiles of the TIN pyramid are built on demand, on a
+//! small pool of worker threads, from the store's blocks at the stride each tile's level
+//! needs ([`crate::samples::StoreSamples`], the reader `terrain tiles` uses, through its
+//! byte-budgeted block cache), and kept in a byte-budgeted LRU cache of built tiles
+//! ([`TinTiles`]). Nothing of the full grid is in memory.
+//!
+//! Per frame: the tiles are selected over the store's index ([`select_tiles`], the same
+//! function and bounds as from memory: the same tiles for the same camera), the missing ones
+//! (and their missing ancestors, coarse first) are queued for the workers, and the frame draws
+//! what is built: a tile not built yet is drawn by its nearest built ancestor (coarser; the
+//! selected tiles under that ancestor go with it, so the drawn tiles stay disjoint), and
+//! counted late ([`crate::ooc::StreamRecord::late_tiles`]). Selection never waits, except on
+//! the first frame and with `--wait` ([`OocWait::EveryFrame`], the benchmark's warm mode), which
+//! waits until every selected tile is built. The drawn surface ([`tin_surface`]: tiles and
+//! stitches) takes every vertex's height from its tile; the paged renderer draws the same
+//! triangles as extra triangles over each tile's hidden carrier patch, its heights from the
+//! store's pages at the lattice the tile was built on (the streamer's demand), which are those
+//! samples once resident.
+
+use std::collections::{HashMap, HashSet, VecDeque};
+use std::sync::{Arc, Condvar, Mutex, MutexGuard};
+use std::thread::JoinHandle;
+use std::time::{Duration, Instant};
+
+use terrain_core::geometry::Camera;
+use terrain_core::lod::{Patch, Selection, SelectionStats};
+use terrain_core::quadtree::{NodeId, TreeShape};
+use terrain_core::tin::grid::{
+    GridTile, TinSelection, build_tile_from, level_errors, select_tiles, tile_window, tin_surface,
+};
+use terrain_gpu::render::ExtraTriangles;
+use terrain_gpu::tess::GpuDomainPoint;
+use terrain_stream::{Store, StoreTree};
+
+use super::memory::ms;
+use super::ooc::paged_frame;
+use super::{DrawSource, DrawnSurface, Frame, Method, OocWait, TinConfig};
+use crate::methods::{LodMethod, MethodScene};
+use crate::ooc::{OocScene, StoreDraw};
+use crate::samples::{Samples, StoreSamples};
+
+/// How `tin` reads a store.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct TinStoreConfig {
+    /// Most bytes of built tiles kept (least recently drawn dropped first; the tiles of the
+    /// frame being drawn are kept even past it).
+    pub tile_cache_bytes: u64,
+    /// Most bytes of decoded store blocks the tile builders keep.
+    pub block_cache_bytes: u64,
+    /// Tile builder threads.
+    pub threads: usize,
+    /// Most cells across a tile's mesh input ([`terrain_core::tin::grid::tile_window`]).
+    pub max_tile_cells: u32,
+    /// Longest a waiting frame waits for its tiles.
+    pub wait_timeout: Duration,
+}
+
+impl Default for TinStoreConfig {
+    fn default() -> Self {
+        Self {
+            tile_cache_bytes: 256 << 20,
+            block_cache_bytes: 256 << 20,
+            threads: 2,
+            max_tile_cells: 64,
+            wait_timeout: Duration::from_secs(600),
+        }
+    }
+}
+
+/// A built tile in the cache and the frame that last drew it.
+#[derive(Debug)]
+struct Entry {
+    tile: Arc<GridTile>,
+    used: u64,
+}
+
+/// The cache's state, under one lock.
+#[derive(Debug, Default)]
+struct State {
+    tiles: HashMap<NodeId, Entry>,
+    bytes: u64,
+    /// Frames resolved so far; tiles used by the current one are not evicted.
+    frame: u64,
+    queue: VecDeque<NodeId>,
+    building: HashSet<NodeId>,
+    failed: HashMap<NodeId, String>,
+    stop: bool,
+    peak_bytes: u64,
+    built: u64,
+    evicted: u64,
+}
+
+#[derive(Debug)]
+struct Shared {
+    samples: StoreSamples,
+    shape: TreeShape,
+    errors: Vec<f64>,
+    max_cells: Option<u32>,
+    budget: u64,
+    state: Mutex<State>,
+    work: Condvar,
+    done: Condvar,
+}
+
+impl Shared {
+    fn lock(&self) -> MutexGuard<'_, State> {
+        self.state.lock().unwrap_or_else(|e| e.into_inner())
+    }
+
+    /// Tile `node` from the store's samples at its window's stride.
+    fn build(&self, node: NodeId) -> anyhow::Result<GridTile> {
+        let win = tile_window(&self.shape, node, self.max_cells)
+            .ok_or_else(|| anyhow::anyhow!("tile {node:?} lies outside the store's grid"))?;
+        let w = self.samples.window(
+            win.x0 as usize,
+            win.y0 as usize,
+            win.width,
+            win.height,
+            win.stride_log2,
+        )?;
+        let bound = self.errors.get(node.level as usize).copied().unwrap_or(0.0);
+        Ok(build_tile_from(node, &win, &w.data, w.voids.as_ref(), bound)?)
+    }
+
+    /// Drops least recently drawn tiles while over the budget: not the current frame's (the
+    /// tiles it draws, and those built since the last frame was resolved).
+    fn evict(&self, st: &mut State) {
+        while st.bytes > self.budget {
+            let frame = st.frame;
+            let Some((&lru, _)) =
+                st.tiles.iter().filter(|(_, e)| e.used < frame).min_by_key(|(_, e)| e.used)
+            else {
+                break;
+            };
+            if let Some(e) = st.tiles.remove(&lru) {
+                st.bytes -= e.tile.bytes();
+                st.evicted += 1;
+            }
+        }
+    }
+
+    fn worker(&self) {
+        loop {
+            let node = {
+                let mut st = self.lock();
+                loop {
+                    if st.stop {
+                        return;
+                    }
+                    if let Some(n) = st.queue.pop_front() {
+                        if st.tiles.contains_key(&n) || !st.building.insert(n) {
+                            continue;
+                        }
+                        break n;
+                    }
+                    st = self.work.wait(st).unwrap_or_else(|e| e.into_inner());
+                }
+            };
+            let built = self.build(node);
+            let mut st = self.lock();
+            st.building.remove(&node);
+            match built {
+                Ok(tile) => {
+                    let tile = Arc::new(tile);
+                    st.bytes += tile.bytes();
+                    let used = st.frame;
+                    st.tiles.insert(node, Entry { tile, used });
+                    st.built += 1;
+                    st.peak_bytes = st.peak_bytes.max(st.bytes);
+                    self.evict(&mut st);
+                }
+                Err(e) => {
+                    st.failed.insert(node, format!("{e:#}"));
+                }
+            }
+            self.done.notify_all();
+        }
+    }
+}
+
+/// The tiles of a frame as drawn: built tiles (selected ones or their nearest built
+/// ancestors), disjoint, in traversal order.
+#[derive(Debug, Clone, Default)]
+pub struct ResolvedTiles {
+    /// The tiles drawn.
+    pub tiles: Vec<Arc<GridTile>>,
+    /// Selected tiles drawn by an ancestor, or not at all (nothing built above them).
+    pub late: usize,
+}
+
+/// The cache's figures.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct TileCacheStats {
+    /// Bytes of built tiles held now.
+    pub bytes: u64,
+    /// Most bytes held at once.
+    pub peak_bytes: u64,
+    /// The budget.
+    pub budget: u64,
+    /// Tiles built so far.
+    pub built: u64,
+    /// Tiles dropped for the budget.
+    pub evicted: u64,
+    /// Tiles held now.
+    pub tiles: usize,
+}
+
+/// `tin`'s tiles of one store, built on demand by worker threads (see the module docs).
+#[derive(Debug)]
+pub struct TinTiles {
+    shared: Arc<Shared>,
+    workers: Vec<JoinHandle<()>>,
+}
+
+impl TinTiles {
+    /// The tiles of `store` (its tree `shape`, leaves of the pyramid's finest tiles) under
+    /// `config`'s pyramid and store settings; starts the workers.
+    pub fn new(store: Store, shape: TreeShape, config: &TinConfig) -> Self {
+        let s = &config.store;
+        let shared = Arc::new(Shared {
+            samples: StoreSamples::new(store, s.block_cache_bytes),
+            errors: level_errors(&shape, config.pyramid.error_scale),
+            shape,
+            max_cells: Some(s.max_tile_cells),
+            budget: s.tile_cache_bytes,
+            state: Mutex::new(State::default()),
+            work: Condvar::new(),
+            done: Condvar::new(),
+        });
+        let workers = (0..s.threads.max(1))
+            .map(|k| {
+                let shared = shared.clone();
+                std::thread::Builder::new()
+                    .name(format!("tin-tiles-{k}"))
+                    .spawn(move || shared.worker())
+                    .expect("a tile builder thread")
+            })
+            .collect();
+        Self { shared, workers }
+    }
+
+    /// Every level's bound, metres.
+    pub fn errors(&self) -> &[f64] {
+        &self.shared.errors
+    }
+
+    /// Queues what `nodes` need that is not built: their missing ancestors (coarse first, the
+    /// fallback of a frame that cannot wait) and themselves. Replaces the previous request.
+    pub fn request(&self, nodes: &[NodeId]) {
+        let mut st = self.shared.lock();
+        let mut queued: HashSet<NodeId> = HashSet::new();
+        let mut queue: Vec<NodeId> = Vec::new();
+        for &n in nodes {
+            let mut c = Some(n);
+            while let Some(m) = c {
+                if st.tiles.contains_key(&m) || st.failed.contains_key(&m) {
+                    break;
+                }
+                if queued.insert(m) {
+                    queue.push(m);
+                }
+                c = m.parent();
+            }
+        }
+        queue.sort_by_key(|n| (n.level, n.dfs_key()));
+        st.queue = queue.into();
+        drop(st);
+        self.shared.work.notify_all();
+    }
+
+    /// Waits until every one of `nodes` is built (at most `timeout`); the first failure or
+    /// the timeout is an error.
+    pub fn wait_for(&self, nodes: &[NodeId], timeout: Duration) -> anyhow::Result<()> {
+        self.request(nodes);
+        let deadline = Instant::now() + timeout;
+        let mut st = self.shared.lock();
+        loop {
+            if let Some((n, e)) = nodes.iter().find_map(|n| st.failed.get(n).map(|e| (n, e))) {
+                anyhow::bail!("tin tile {n:?}: {e}");
+            }
+            let missing: Vec<NodeId> =
+                nodes.iter().copied().filter(|n| !st.tiles.contains_key(n)).collect();
+            if missing.is_empty() {
+                return Ok(());
+            }
+            let now = Instant::now();
+            if now >= deadline {
+                anyhow::bail!("{} tin tiles not built within {timeout:?}", missing.len());
+            }
+            // Tiles evicted while waiting (a budget smaller than the frame) are asked again.
+            if st.queue.is_empty() && st.building.is_empty() {
+                drop(st);
+                self.request(&missing);
+                st = self.shared.lock();
+                continue;
+            }
+            st = self
+                .shared
+                .done
+                .wait_timeout(st, deadline - now)
+                .map_or_else(|e| e.into_inner().0, |(g, _)| g);
+        }
+    }
+
+    /// A frame's drawn tiles for the selected `nodes` (see [`ResolvedTiles`]); starts a new
+    /// frame of the cache (its tiles are kept while it is drawn).
+    pub fn resolve(&self, nodes: &[NodeId]) -> ResolvedTiles {
+        let mut st = self.shared.lock();
+        st.frame += 1;
+        let frame = st.frame;
+        let mut late = 0;
+        let mut drawn: HashSet<NodeId> = HashSet::new();
+        for &n in nodes {
+            let mut c = Some(n);
+            while let Some(m) = c {
+                if st.tiles.contains_key(&m) {
+                    break;
+                }
+                c = m.parent();
+            }
+            late += usize::from(c != Some(n));
+            if let Some(m) = c {
+                drawn.insert(m);
+            }
+        }
+        // An ancestor drawn for a late tile covers the selected tiles under it.
+        let mut keep: Vec<NodeId> = drawn
+            .iter()
+            .copied()
+            .filter(|n| {
+                let mut p = n.parent();
+                while let Some(a) = p {
+                    if drawn.contains(&a) {
+                        return false;
+                    }
+                    p = a.parent();
+                }
+                true
+            })
+            .collect();
+        keep.sort_by_key(|n| n.dfs_key());
+        let tiles = keep
+            .iter()
+            .filter_map(|n| {
+                let e = st.tiles.get_mut(n)?;
+                e.used = frame;
+                Some(e.tile.clone())
+            })
+            .collect();
+        // What the previous frames drew and this one does not may go now.
+        self.shared.evict(&mut st);
+        ResolvedTiles { tiles, late }
+    }
+
+    /// The cache's figures now.
+    pub fn stats(&self) -> TileCacheStats {
+        let st = self.shared.lock();
+        TileCacheStats {
+            bytes: st.bytes,
+            peak_bytes: st.peak_bytes,
+            budget: self.shared.budget,
+            built: st.built,
+            evicted: st.evicted,
+            tiles: st.tiles.len(),
+        }
+    }
+}
+
+impl Drop for TinTiles {
+    fn drop(&mut self) {
+        self.shared.lock().stop = true;
+        self.shared.work.notify_all();
+        for w in self.workers.drain(..) {
+            let _ = w.join();
+        }
+    }
+}
+
+/// `tin` over a store's runtime (see the module docs).
+#[derive(Debug)]
+pub struct TinStoreMethod<'a> {
+    scene: OocScene,
+    /// The store's tree with leaves of the pyramid's finest tiles.
+    tree: StoreTree,
+    tiles: TinTiles,
+    config: TinConfig,
+    wait: OocWait,
+    frames: usize,
+    reference: Option<&'a MethodScene>,
+}
+
+impl<'a> TinStoreMethod<'a> {
+    /// `tin` over `scene`'s store under `config`; measured against `reference` (the same DEM
+    /// in memory) when given.
+    pub fn new(
+        scene: OocScene,
+        config: &TinConfig,
+        wait: OocWait,
+        reference: Option<&'a MethodScene>,
+    ) -> anyhow::Result<Self> {
+        let store = scene.store().clone();
+        let cells = config.pyramid.finest_cells.clamp(2, 1 << 15).next_power_of_two();
+        let cells = cells.min(store.header().block_cells());
+        let tree = StoreTree::new(store.clone(), cells);
+        let shape = *terrain_core::quadtree::NodeTree::shape(&tree);
+        if let Some(r) = reference
+            && (r.qt.root_cells(), r.qt.width(), r.qt.height())
+                != (shape.root_cells(), shape.width(), shape.height())
+        {
+            anyhow::bail!(
+                "the store {} is not the grid of the DEM it is measured against (store: {} x {} \
+                 samples, root {} cells; DEM: {} x {}, root {}): bake it from that DEM",
+                store.dir().display(),
+                shape.width(),
+                shape.height(),
+                shape.root_cells(),
+                r.qt.width(),
+                r.qt.height(),
+                r.qt.root_cells()
+            );
+        }
+        let tiles = TinTiles::new((*store).clone(), shape, config);
+        Ok(Self { scene, tree, tiles, config: *config, wait, frames: 0, reference })
+    }
+
+    /// The tile cache.
+    pub fn tiles(&self) -> &TinTiles {
+        &self.tiles
+    }
+
+    /// The tiles `camera` selects over the store's index (no tile built).
+    pub fn select(&self, camera: &Camera) -> TinSelection {
+        select_tiles(&self.tree, self.tiles.errors(), camera, self.config.tau_px)
+    }
+}
+
+impl Method for TinStoreMethod<'_> {
+    fn kind(&self) -> LodMethod {
+        LodMethod::Tin
+    }
+
+    /// The selection and the tile lookup are the selection time (a wait for tiles is not);
+    /// joining the tiles and stitches the build time.
+    fn frame(&mut self, camera: &Camera) -> Frame {
+        let warm = self.wait.next_is_warm(&mut self.frames);
+        let sel = self.select(camera);
+        let t = Instant::now();
+        let waited = if warm {
+            let r = self.tiles.wait_for(&sel.tiles, self.config.store.wait_timeout);
+            if let Err(e) = &r {
+                eprintln!("warning: {e:#}; drawing the tiles built");
+            }
+            true
+        } else {
+            self.tiles.request(&sel.tiles);
+            false
+        };
+        let wait_ms = if waited { ms(t) } else { 0.0 };
+        let t = Instant::now();
+        let resolved = self.tiles.resolve(&sel.tiles);
+        let resolve_ms = ms(t);
+        let t = Instant::now();
+        let drawn: Vec<&GridTile> = resolved.tiles.iter().map(|t| &**t).collect();
+        let shape = *terrain_core::quadtree::NodeTree::shape(&self.tree);
+        let surface = tin_surface(&drawn, |g| shape.grid_to_world(g), self.config.stitch);
+        let build_ms = ms(t);
+        let t = Instant::now();
+        let root = shape.root_cells();
+        // Each tile's points on its node's carrier; its factor puts them on the lattice of the
+        // tile's stride (the streamer's demand).
+        let patches: Vec<Patch> = drawn
+            .iter()
+            .map(|t| {
+                let f = ((root >> t.node.level) >> t.stride_log2).max(1) as f32;
+                Patch { node: t.node, outer: [f; 4], inner: [f; 2] }
+            })
+            .collect();
+        let points = surface
+            .mesh
+            .grid
+            .iter()
+            .zip(&surface.owner)
+            .map(|(g, &k)| {
+                let (x0, y0, c) = drawn[k as usize].node.grid_rect(root);
+                let c = f64::from(c);
+                GpuDomainPoint {
+                    uv: [((g.x - f64::from(x0)) / c) as f32, ((g.y - f64::from(y0)) / c) as f32],
+                    patch_index: k,
+                    pad: 0,
+                }
+            })
+            .collect();
+        let indices = surface.mesh.triangles.iter().flatten().copied().collect();
+        let extra = ExtraTriangles { points, indices };
+        let convert_ms = ms(t);
+        let selection_time = sel.cpu_time + Duration::from_secs_f64(resolve_ms / 1e3);
+        let stats = SelectionStats {
+            traversal_leaves: sel.tiles.len(),
+            patches: patches.len(),
+            culled: sel.culled,
+            max_level: patches.iter().map(|p| p.node.level).max().unwrap_or(0),
+            cpu_time: selection_time,
+            ..SelectionStats::default()
+        };
+        let draw =
+            StoreDraw { selection: Selection { patches, stats }, strips: None, mesh: Some(extra) };
+        // A waiting frame selects again once its levels are resident: the same tiles.
+        let mut select = |_: &dyn terrain_core::lod::TerrainSource| -> StoreDraw { draw.clone() };
+        let f = self.scene.frame_for(camera, warm, &self.tree, &mut select);
+        let mut frame = paged_frame(f);
+        frame.stats.selection_ms = selection_time.as_secs_f64() * 1e3;
+        frame.stats.build_ms = build_ms;
+        frame.stats.convert_ms = convert_ms;
+        if let Some(s) = frame.stats.stream.as_mut() {
+            s.late_tiles = resolved.late;
+            s.at_needed_level &= resolved.late == 0;
+            s.wait_ms += wait_ms;
+            s.waited_for_io |= waited && wait_ms > 0.0;
+        }
+        for p in &mut frame.selection.patches {
+            *p = Patch { node: p.node, outer: [1.0; 4], inner: [1.0; 2] };
+        }
+        let triangles = surface.tile_triangles + surface.stitch_triangles;
+        frame.built = Some((surface.mesh, triangles));
+        frame
+    }
+
+    fn surface(&self, frame: &mut Frame) -> anyhow::Result<DrawnSurface> {
+        let _ = self.reference;
+        let (mesh, triangles) = frame
+            .built
+            .take()
+            .ok_or_else(|| anyhow::anyhow!("the tin frame's mesh was already taken"))?;
+        Ok(DrawnSurface { mesh, triangles })
+    }
+
+    fn draws_on(&self) -> DrawSource<'_> {
+        DrawSource::Paged(&self.scene)
+    }
+}
