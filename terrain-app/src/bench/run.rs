@@ -359,7 +359,7 @@ fn write_tables(
 /// The store of the out-of-core method: the configured one, or `hm` baked into a temporary
 /// folder (see [`BenchConfig::ooc_store`]).
 fn prepare_store(hm: &Heightmap, cfg: &BenchConfig) -> Result<Arc<terrain_stream::Store>, String> {
-    use terrain_stream::{BakeConfig, BakeProgress, HeightEncoding, Store, bake};
+    use terrain_stream::{BakeConfig, BakeProgress, HeightEncoding, bake};
     let dir = match &cfg.ooc_store {
         Some(d) => d.clone(),
         None => {
@@ -383,7 +383,7 @@ fn prepare_store(hm: &Heightmap, cfg: &BenchConfig) -> Result<Arc<terrain_stream
             dir
         }
     };
-    let store = Store::open(&dir).map_err(|e| e.to_string())?;
+    let store = crate::ooc::open_store(&dir).map_err(|e| e.to_string())?;
     let h = store.header();
     if (h.width, h.height) != (hm.width() as u64, hm.height() as u64) {
         return Err(format!(
