@@ -210,7 +210,7 @@ fn urls_are_told_from_paths() {
 fn a_store_over_http_reads_as_the_local_one_and_a_second_open_reads_the_disk_cache() {
     let dir = temp("same");
     let local = local_store(&dir);
-    let server = Server::start(dir.clone(), Arc::new(|_: &str, _, _| Action::Serve));
+    let server = Server::start(dir.join("store"), Arc::new(|_: &str, _, _| Action::Serve));
     let cache = dir.join("cache");
     let remote = Store::open_location_with(&server.url(), &options(&cache)).unwrap();
     assert!(remote.is_remote() && remote.location() == server.url());
@@ -295,7 +295,7 @@ fn flight_over_a_bad_server(name: &str, action: Action) {
         Some(&end) if b > end => action,
         _ => Action::Serve,
     });
-    let server = Server::start(dir.clone(), rule);
+    let server = Server::start(dir.join("store"), rule);
     let opts = RemoteOptions {
         request_timeout: Duration::from_millis(800),
         retries: 0,
