@@ -33,6 +33,9 @@ enum Action {
 
 type Rule = Arc<dyn Fn(&str, u64, u64) -> Action + Send + Sync>;
 
+/// Every request's path and byte range (`None`: no `Range` header).
+type RequestLog = Mutex<Vec<(String, Option<(u64, u64)>)>>;
+
 /// A std-only HTTP/1.1 server of one folder: GET and HEAD, `Range: bytes=a-b`, one request
 /// per connection; what it answers is decided per request by `rule`. Stops on drop.
 struct Server {
@@ -41,7 +44,7 @@ struct Server {
     /// Requests for block files (paths under `blocks/`).
     block_requests: Arc<AtomicUsize>,
     /// Every request's path and range.
-    log: Arc<Mutex<Vec<(String, Option<(u64, u64)>)>>>,
+    log: Arc<RequestLog>,
     thread: Option<std::thread::JoinHandle<()>>,
 }
 
@@ -91,7 +94,7 @@ fn serve(
     rule: &(dyn Fn(&str, u64, u64) -> Action + Send + Sync),
     stop: &AtomicBool,
     block_requests: &AtomicUsize,
-    log: &Mutex<Vec<(String, Option<(u64, u64)>)>>,
+    log: &RequestLog,
 ) -> std::io::Result<()> {
     conn.set_nonblocking(false)?;
     let mut reader = BufReader::new(conn.try_clone()?);
