@@ -11,7 +11,7 @@
 
 use std::io::Write;
 use std::ops::ControlFlow;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 use anyhow::Context;
 use clap::Args;
@@ -178,12 +178,46 @@ fn in_memory(synthetic: &FractalConfig) -> anyhow::Result<terrain_core::Heightma
     Ok(terrain_core::Heightmap::new(w, h, data, mask, synthetic.georef())?)
 }
 
-/// Runs `terrain bake`.
+/// Runs `terrain bake`: into a local folder, or with `-o URL` (`s3://`, `gs://`, `az://`)
+/// into a temporary folder, uploaded to the URL when complete (the index last) and removed.
 pub(crate) fn run(args: &BakeArgs) -> anyhow::Result<()> {
+    let Some(url) = terrain_app::ooc::store_url(&args.output) else {
+        return run_into(args, &args.output, &args.output.display().to_string());
+    };
+    if args.shard.is_some() {
+        anyhow::bail!(
+            "--shard writes a part folder on this machine: give a local -o, then join the parts \
+             with `terrain bake --merge PARTS -o {url}`"
+        );
+    }
+    let tmp = std::env::temp_dir().join(format!("terrain-bake-upload-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&tmp);
+    std::fs::create_dir_all(&tmp).with_context(|| format!("creating {}", tmp.display()))?;
+    let local = tmp.join("store");
+    let result = run_into(args, &local, url).and_then(|()| {
+        let t = std::time::Instant::now();
+        let r = terrain_stream::upload_store(&local, url, &terrain_app::ooc::remote_options())
+            .with_context(|| format!("uploading the store to {url}"))?;
+        println!(
+            "{url}: uploaded {} files, {:.1} MiB ({} as multipart uploads), the index last, {:.1} s",
+            r.files,
+            r.bytes as f64 / terrain_app::MIB,
+            r.multipart,
+            t.elapsed().as_secs_f64()
+        );
+        Ok(())
+    });
+    let _ = std::fs::remove_dir_all(&tmp);
+    result
+}
+
+/// `terrain bake` into the local folder `out` (every table and the blocks: one folder),
+/// naming the output `shown` in messages.
+fn run_into(args: &BakeArgs, out: &Path, shown: &str) -> anyhow::Result<()> {
     // Before any work: a file or a folder of the user's files is never replaced (a shard's
     // part folder is checked by its bake).
     if args.shard.is_none() {
-        terrain_stream::check_output(&args.output, args.overwrite)?;
+        terrain_stream::check_output(out, args.overwrite)?;
     }
     if args.no_pvs
         && let Some(first) = args.pvs.given().first()
@@ -295,25 +329,23 @@ pub(crate) fn run(args: &BakeArgs) -> anyhow::Result<()> {
     if let Some(shard) = args.shard {
         return crate::shard::run_shard(args, source, &config, shard, rows.is_some(), &mut bar);
     }
-    let report = match crate::shard::bake_or_merge(args, source, &config, rows.is_some(), &mut bar)?
-    {
-        // The library removed its `.NAME.part` folder; an existing store was not touched.
-        Err(terrain_stream::BakeError::Cancelled) => {
-            return Err(crate::interrupt::Interrupted(format!(
-                "no store written, {} is as it was",
-                args.output.display()
-            ))
-            .into());
-        }
-        r => r.with_context(|| format!("baking {}", args.output.display()))?,
-    };
+    let report =
+        match crate::shard::bake_or_merge(args, out, source, &config, rows.is_some(), &mut bar)? {
+            // The library removed its `.NAME.part` folder; an existing store was not touched.
+            Err(terrain_stream::BakeError::Cancelled) => {
+                return Err(crate::interrupt::Interrupted(format!(
+                    "no store written, {shown} is as it was"
+                ))
+                .into());
+            }
+            r => r.with_context(|| format!("baking {shown}"))?,
+        };
     // After the blocks the store is complete: an interruption stops before the next table.
     let stop_before = |table: &str| -> anyhow::Result<()> {
         if crate::interrupt::interrupted() {
             return Err(crate::interrupt::Interrupted(format!(
-                "the store {} is written, without its {table} and the tables after it: bake \
-                 again with --overwrite for them",
-                args.output.display()
+                "the store {shown} is written, without its {table} and the tables after it: bake \
+                 again with --overwrite for them"
             ))
             .into());
         }
@@ -337,7 +369,7 @@ pub(crate) fn run(args: &BakeArgs) -> anyhow::Result<()> {
     let secs = report.elapsed.as_secs_f64();
     println!(
         "{}: {} x {} samples in {} x {} blocks of {}^2, {:.1} MiB ({:.2} bytes/sample), {}, {:.1} s, {:.1} MiB/s of f32 input",
-        args.output.display(),
+        shown,
         h.width,
         h.height,
         h.blocks_x,
@@ -364,7 +396,7 @@ pub(crate) fn run(args: &BakeArgs) -> anyhow::Result<()> {
         println!(
             "{}: geomorph's max-error vertices of {leaf}-cell patches, computed with the blocks \
              from the same bands of rows, {:.2} MiB",
-            terrain_app::geomip_scene::geomip_path(&args.output).display(),
+            terrain_app::geomip_scene::geomip_path(out).display(),
             bytes as f64 / terrain_app::MIB
         );
     }
@@ -390,16 +422,14 @@ pub(crate) fn run(args: &BakeArgs) -> anyhow::Result<()> {
         stop_before("roughness pyramids")?;
         // The benchmark's default leaf size (the pyramids' levels are the quadtree's).
         match hm {
-            Some(hm) => {
-                terrain_app::roughness_scene::bake_from_heightmap(hm, leaf, &args.output, true)?
-            }
+            Some(hm) => terrain_app::roughness_scene::bake_from_heightmap(hm, leaf, out, true)?,
             None => {
                 let grid = RowGrid {
                     width: source.width() as usize,
                     height: source.height() as usize,
                     spacing_m: source.georef().spacing_m,
                 };
-                terrain_app::roughness_scene::bake_by_rows(&grid, leaf, &args.output, true, read)?
+                terrain_app::roughness_scene::bake_by_rows(&grid, leaf, out, true, read)?
             }
         }
         stages.end("roughness");
@@ -408,12 +438,12 @@ pub(crate) fn run(args: &BakeArgs) -> anyhow::Result<()> {
         stop_before("geomorph table")?;
         match hm {
             Some(hm) => {
-                terrain_app::geomip_scene::bake_into_scene(hm, leaf, &args.output)?;
+                terrain_app::geomip_scene::bake_into_scene(hm, leaf, out)?;
             }
             // Geomorph's table needs only a band of rows: from the store's blocks.
             None => {
-                let store = terrain_stream::Store::open(&args.output)
-                    .with_context(|| format!("opening {}", args.output.display()))?;
+                let store =
+                    terrain_stream::Store::open(out).with_context(|| format!("opening {shown}"))?;
                 terrain_app::geomip_scene::bake_from_store(&store, leaf)?;
             }
         }
@@ -425,14 +455,13 @@ pub(crate) fn run(args: &BakeArgs) -> anyhow::Result<()> {
         match hm {
             Some(hm) => {
                 let qt = Quadtree::new(hm, leaf);
-                terrain_app::dss_scene::bake_into_scene(hm, &qt, &args.output)?;
+                terrain_app::dss_scene::bake_into_scene(hm, &qt, out)?;
             }
             // From the same rows as the roughness (the source's heights, bit for bit the table
             // the grid in memory gives), a band at a time.
             None => {
                 let (w, h) = (source.width() as u32, source.height() as u32);
                 let band_bytes = args.source.load_options()?.max_memory_bytes / 4;
-                let out = &args.output;
                 terrain_app::dss_scene::bake_by_rows(w, h, leaf, band_bytes, out, true, read)?;
             }
         }
@@ -471,13 +500,12 @@ pub(crate) fn run(args: &BakeArgs) -> anyhow::Result<()> {
         // again) in a quarter of --max-memory.
         let georef = source.georef();
         let budget = args.source.load_options()?.max_memory_bytes / 4;
-        let out = &args.output;
         crate::pvs::bake_by_rows_into_scene((w, h, &georef), &cfg, budget, out, when, read)?;
         stages.end("PVS");
         println!("{}", stages.summary());
         return Ok(());
     };
-    crate::pvs::bake_into_scene(hm, &cfg, &args.output, when)?;
+    crate::pvs::bake_into_scene(hm, &cfg, out, when)?;
     stages.end("PVS");
     println!("{}", stages.summary());
     Ok(())

@@ -198,9 +198,11 @@ fn level_storage(store: &terrain_stream::Store) -> Vec<LevelStorage> {
 impl StoreReport {
     fn new(dir: &std::path::Path) -> anyhow::Result<Self> {
         use anyhow::Context;
-        let store = terrain_stream::Store::open(dir)
+        let store = terrain_app::ooc::open_store(dir)
             .with_context(|| format!("could not open the store {}", dir.display()))?;
         let h = store.header();
+        // A remote store's index and tables are in its local mirror.
+        let local = store.dir();
         let (mut lo, mut hi) = (f32::INFINITY, f32::NEG_INFINITY);
         for id in store.block_ids() {
             if let Some(e) = store.entry(id) {
@@ -217,10 +219,11 @@ impl StoreReport {
         let tables =
             ["dss_errors.bin", "roughness.bin", "geomip.bin", "pvs.bin", "pvs_conservative.bin"]
                 .iter()
-                .filter(|f| dir.join(f).is_file())
+                .filter(|f| local.join(f).is_file())
                 .map(|f| f.to_string())
                 .collect();
-        let index = std::fs::metadata(dir.join(terrain_stream::INDEX_FILE)).map_or(0, |m| m.len());
+        let index =
+            std::fs::metadata(local.join(terrain_stream::INDEX_FILE)).map_or(0, |m| m.len());
         Ok(Self {
             store: dir.display().to_string(),
             width: h.width,
@@ -340,7 +343,7 @@ fn ooc_calibration_text(dir: &std::path::Path) -> String {
 /// Runs `terrain info`.
 pub(crate) fn run(args: &InfoArgs) -> anyhow::Result<()> {
     if let [one] = args.source.dem.as_slice()
-        && terrain_stream::is_store(one)
+        && terrain_app::ooc::is_store(one)
     {
         args.source.refuse_reading_options("a baked store (its heights are stored)")?;
         let report = StoreReport::new(one)?;

@@ -27,6 +27,15 @@ use clap::{CommandFactory, FromArgMatches, Parser, Subcommand};
 struct Cli {
     #[command(subcommand)]
     command: Command,
+    /// The disk cache of stores read from a URL (`s3://`, `gs://`, `az://`, `http(s)://`):
+    /// block levels fetched are kept here for the next run. Default `$TERRAIN_CACHE_DIR`, else
+    /// `$XDG_CACHE_HOME/terrain`, else `~/.cache/terrain`.
+    #[arg(long, global = true, value_name = "DIR")]
+    cache_dir: Option<std::path::PathBuf>,
+    /// The disk cache's size in MiB (least recently used levels evicted first); 0 keeps
+    /// nothing. Default 2048.
+    #[arg(long, global = true, value_name = "MIB")]
+    disk_cache_mib: Option<u64>,
 }
 
 #[derive(Debug, Subcommand)]
@@ -88,6 +97,22 @@ fn main() -> std::process::ExitCode {
         Ok(cli) => cli,
         Err(e) => e.exit(),
     };
+    // The disk cache options apply to stores read from a URL: refused when no argument is one.
+    let given: Vec<&str> = [
+        ("--cache-dir", cli.cache_dir.is_some()),
+        ("--disk-cache-mib", cli.disk_cache_mib.is_some()),
+    ]
+    .into_iter()
+    .filter_map(|(n, g)| g.then_some(n))
+    .collect();
+    if !given.is_empty() && !std::env::args().any(|a| terrain_stream::is_url(&a)) {
+        eprintln!(
+            "error: {} apply to a store read from a URL (s3://, gs://, az://, http(s)://), and no argument is one",
+            given.join(", ")
+        );
+        return std::process::ExitCode::FAILURE;
+    }
+    terrain_app::ooc::set_disk_cache(cli.cache_dir.clone(), cli.disk_cache_mib);
     let result = match cli.command {
         Command::Info(args) => info::run(&args),
         Command::Entropy(args) => entropy::run(&args),

@@ -38,9 +38,9 @@ use terrain_gpu::render::{DrawPatch, ExtraTriangles};
 use terrain_gpu::tess::PatchFactors;
 use terrain_gpu::{RenderError, TerrainRenderer};
 use terrain_stream::{
-    BlockId, DEFAULT_COST_SPLIT_PX, DEFAULT_PATCH_CELLS, DEFAULT_SPLIT, Refinement, ScheduleConfig,
-    SplitRule, Store, StoreError, StoreSource, StoreTree, StreamConfig, Streamer, demand_of,
-    select_patches,
+    BlockId, DEFAULT_COST_SPLIT_PX, DEFAULT_PATCH_CELLS, DEFAULT_SPLIT, Refinement, RemoteOptions,
+    ScheduleConfig, SplitRule, Store, StoreError, StoreSource, StoreTree, StreamConfig, Streamer,
+    demand_of, select_patches,
 };
 
 use crate::MIB;
@@ -135,9 +135,57 @@ impl Default for OocConfig {
     }
 }
 
-/// Whether `path` is a baked store: a folder whose index file starts with the store's magic.
+/// Whether `path` is a baked store: a folder whose index file starts with the store's magic,
+/// or a URL (`s3://`, `gs://`, `az://`, `http(s)://`: opened, and checked, by [`open_store`]).
 pub fn is_store(path: &Path) -> bool {
-    terrain_stream::is_store(path)
+    store_url(path).is_some() || terrain_stream::is_store(path)
+}
+
+/// The URL a store path holds, when it is one (`s3://bucket/x`, `http://host/x`...).
+pub fn store_url(path: &Path) -> Option<&str> {
+    path.to_str().filter(|s| terrain_stream::is_url(s))
+}
+
+/// The tables the commands read beside a store's index (from [`Store::dir`]): a remote
+/// store's are fetched into its local mirror when it is opened.
+pub const STORE_TABLES: &[&str] = &[
+    terrain_stream::GEOMIP_FILE,
+    crate::dss_scene::DSS_FILE,
+    crate::pvs_scene::SAMPLED_FILE,
+    crate::pvs_scene::CONSERVATIVE_FILE,
+    crate::roughness_scene::ROUGHNESS_FILE,
+];
+
+static DISK_CACHE: std::sync::OnceLock<(Option<std::path::PathBuf>, Option<u64>)> =
+    std::sync::OnceLock::new();
+
+/// Sets the disk cache of remote stores for this process (`--cache-dir`, `--disk-cache-mib`);
+/// the first call wins.
+pub fn set_disk_cache(cache_dir: Option<std::path::PathBuf>, disk_cache_mib: Option<u64>) {
+    let _ = DISK_CACHE.set((cache_dir, disk_cache_mib));
+}
+
+/// How remote stores are read: [`RemoteOptions`]' defaults (2 GiB disk cache, 30 s request
+/// timeout, 3 retries), the disk cache as [`set_disk_cache`] set it, and [`STORE_TABLES`].
+pub fn remote_options() -> RemoteOptions {
+    let (dir, mib) = DISK_CACHE.get().cloned().unwrap_or_default();
+    let mut o = RemoteOptions {
+        cache_dir: dir,
+        side_files: STORE_TABLES.iter().map(|s| s.to_string()).collect(),
+        ..RemoteOptions::default()
+    };
+    if let Some(m) = mib {
+        o.disk_cache_bytes = m.saturating_mul(1 << 20);
+    }
+    o
+}
+
+/// Opens the store at `path`: a folder, or a URL ([`store_url`]) read through the disk cache.
+pub fn open_store(path: &Path) -> Result<Store, StoreError> {
+    match store_url(path) {
+        Some(url) => Store::open_location_with(url, &remote_options()),
+        None => Store::open(path),
+    }
 }
 
 /// The streaming columns of one frame: the paper's Table 3 (needed, real-time loaded and
@@ -388,7 +436,7 @@ impl OocScene {
     /// Opens the store in `dir`, exaggerated by [`OocConfig::vertical_scale`], and starts its
     /// runtime.
     pub fn open(dir: &Path, config: OocConfig) -> Result<Self, StoreError> {
-        let mut store = Store::open(dir)?;
+        let mut store = open_store(dir)?;
         if config.vertical_scale != 1.0 {
             store = store.exaggerated(config.vertical_scale)?;
         }

@@ -14,7 +14,7 @@
 
 use std::io::Read;
 use std::ops::ControlFlow;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 use anyhow::Context;
 use terrain_core::checksum::crc32_update;
@@ -97,18 +97,20 @@ pub(crate) fn run_shard(
     Ok(())
 }
 
-/// The store's blocks and index: baked, or with `--merge`, joined from the parts (each
+/// The store's blocks and index, into the local folder `out` (never `args.output`, which may
+/// be a URL): baked, or with `--merge`, joined from the parts (each
 /// argument a part folder or a folder of parts), which must be of this source and options.
 /// The outer error: the parts or the source could not be read; the inner: the bake's or merge's.
 pub(crate) fn bake_or_merge(
     args: &BakeArgs,
+    out: &Path,
     source: &dyn HeightSource,
     config: &BakeConfig,
     by_rows: bool,
     progress: &mut (dyn FnMut(&BakeProgress) -> ControlFlow<()> + Send),
 ) -> anyhow::Result<Result<BakeReport, BakeError>> {
     if args.merge.is_empty() {
-        return Ok(terrain_stream::bake(source, &args.output, config, progress));
+        return Ok(terrain_stream::bake(source, out, config, progress));
     }
     let mut parts: Vec<PathBuf> = Vec::new();
     for p in &args.merge {
@@ -120,5 +122,5 @@ pub(crate) fn bake_or_merge(
         source_id: Some(source_id(args, by_rows)?),
         bake: Some(config.clone()),
     };
-    Ok(terrain_stream::merge(&parts, &args.output, &merge, progress))
+    Ok(terrain_stream::merge(&parts, out, &merge, progress))
 }

@@ -343,8 +343,10 @@ fn overview(store: &Store, level: u8) -> Heightmap {
 /// `realtime`'s optional `key=value` settings: `in_flight=N` (default 128: on a
 /// 16385^2 store far blocks need many small levels at once, and 32 in flight left 55-62 % of
 /// frames short of their needed level against 33-35 % with 128; bench/ooc/README.md), `threads=N`
-/// (default 0: one per core), `lookahead=F` frames (default 1: the paper's Eq. 8), `trace=1`
-/// (one line per late frame on stderr).
+/// (default 0: one per core), `lookahead=F` frames (default 1: the paper's Eq. 8),
+/// `latency_aware=0` (the look-ahead not grown by the measured request latency), `trace=1`
+/// (one line per late frame on stderr). STORE may be a URL (`s3://`, `http://`...: read
+/// through the disk cache, `$TERRAIN_CACHE_DIR`).
 fn realtime_config(budget: u64, opts: &[String]) -> (StreamConfig, bool) {
     let mut trace = false;
     let mut config =
@@ -355,8 +357,11 @@ fn realtime_config(budget: u64, opts: &[String]) -> (StreamConfig, bool) {
             "in_flight" => config.max_in_flight = v.parse().expect("in_flight=N"),
             "threads" => config.threads = v.parse().expect("threads=N"),
             "lookahead" => config.schedule.lookahead_frames = v.parse().expect("lookahead=F"),
+            "latency_aware" => config.schedule.latency_aware = v == "1",
             "trace" => trace = v == "1",
-            _ => panic!("unknown setting {k} (in_flight, threads, lookahead, trace)"),
+            _ => {
+                panic!("unknown setting {k} (in_flight, threads, lookahead, latency_aware, trace)")
+            }
         }
     }
     (config, trace)
@@ -364,7 +369,7 @@ fn realtime_config(budget: u64, opts: &[String]) -> (StreamConfig, bool) {
 
 fn realtime(dir: &Path, flight: &Path, cache_mib: u64, opts: &[String]) {
     use terrain_core::flight::{FlightConfig, FlightSpec};
-    let store = Arc::new(Store::open(dir).unwrap());
+    let store = Arc::new(Store::open_location(dir.to_str().expect("a UTF-8 location")).unwrap());
     let h = store.header().clone();
     let spec = FlightSpec::load(flight).unwrap();
     let cfg = FlightConfig { viewport_px: glam::dvec2(1280.0, 720.0), ..Default::default() };
@@ -375,6 +380,7 @@ fn realtime(dir: &Path, flight: &Path, cache_mib: u64, opts: &[String]) {
     let mut s = Streamer::new(store.clone(), config);
     let mut sum = StatsSummary::default();
     let (mut late, mut needed, mut update_ms) = (Vec::new(), Vec::new(), Vec::new());
+    let (mut latency_ms, mut lookahead) = (Vec::new(), Vec::new());
     let fps = flight.fps;
     let start = Instant::now();
     let mut behind = 0;
@@ -409,6 +415,8 @@ fn realtime(dir: &Path, flight: &Path, cache_mib: u64, opts: &[String]) {
             );
         }
         update_ms.push(st.frame_time.as_secs_f64() * 1e3);
+        latency_ms.push(st.request_latency.as_secs_f64() * 1e3);
+        lookahead.push(st.lookahead_frames);
         late.push(st.late_bytes as f64 / 1e6);
         needed.push(st.needed_bytes as f64 / 1e6);
         sum.add(&st);
@@ -421,6 +429,8 @@ fn realtime(dir: &Path, flight: &Path, cache_mib: u64, opts: &[String]) {
     let (l50, l95, lmax) = med(late);
     let (n50, _, _) = med(needed);
     let (u50, u95, umax) = med(update_ms);
+    let (r50, _, _) = med(latency_ms);
+    let (a50, _, _) = med(lookahead);
     let f = sum.frames as f64;
     println!(
         "\n## Real-time flight `{}` over {} ({} x {} samples, k = {}): {} frames at {} fps, paced\n",
@@ -433,11 +443,11 @@ fn realtime(dir: &Path, flight: &Path, cache_mib: u64, opts: &[String]) {
         fps
     );
     println!(
-        "| frames | waited for I/O after frame 1 | at needed level | late MB/frame median / p95 / max | needed MB median | prefetched MB/frame | sync MB (frame 1) | update ms median / p95 / max | frames behind schedule | peak resident MiB / budget | peak RSS MiB | wall s |"
+        "| frames | waited for I/O after frame 1 | at needed level | late MB/frame median / p95 / max | needed MB median | prefetched MB/frame | sync MB (frame 1) | update ms median / p95 / max | frames behind schedule | peak resident MiB / budget | peak RSS MiB | wall s | worker request ms median | look-ahead frames median | faults |"
     );
-    println!("|---:|---:|---:|---|---:|---:|---:|---|---:|---|---:|---:|");
+    println!("|---:|---:|---:|---|---:|---:|---:|---|---:|---|---:|---:|---:|---:|---:|");
     println!(
-        "| {} | {} | {:.1} % | {:.3} / {:.3} / {:.3} | {:.3} | {:.3} | {:.3} | {:.2} / {:.2} / {:.2} | {} | {:.1} / {} | {:.0} | {:.1} |",
+        "| {} | {} | {:.1} % | {:.3} / {:.3} / {:.3} | {:.3} | {:.3} | {:.3} | {:.2} / {:.2} / {:.2} | {} | {:.1} / {} | {:.0} | {:.1} | {:.2} | {:.2} | {} |",
         sum.frames,
         sum.frames_waited_after_first,
         100.0 * sum.frames_at_needed_level as f64 / f,
@@ -454,7 +464,10 @@ fn realtime(dir: &Path, flight: &Path, cache_mib: u64, opts: &[String]) {
         sum.peak_resident_bytes as f64 / 1048576.0,
         cache_mib,
         peak_rss().map_or(f64::NAN, |b| b as f64 / 1048576.0),
-        wall
+        wall,
+        r50,
+        a50,
+        sum.faults
     );
 }
 

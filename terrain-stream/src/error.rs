@@ -161,6 +161,28 @@ pub enum StoreError {
         /// What is wrong.
         message: String,
     },
+    /// A store on object storage or HTTP could not be opened or reached (the message says
+    /// what the server or client said).
+    #[error("{location}: {message}")]
+    Remote {
+        /// The store's URL.
+        location: String,
+        /// What went wrong.
+        message: String,
+    },
+    /// A block's range request to a remote store failed (after the retries): a server error,
+    /// a timeout, a refused connection.
+    #[error("{location}: block {block} level {level}: request failed: {message}")]
+    RemoteBlock {
+        /// The block file's URL.
+        location: String,
+        /// The block.
+        block: BlockId,
+        /// The first level the request asked for.
+        level: u8,
+        /// What the server or client said.
+        message: String,
+    },
     /// A worker thread panicked while loading (reported, the pool keeps running).
     #[error("block {block} level {level}: the loading worker panicked: {message}")]
     WorkerPanicked {
@@ -185,7 +207,8 @@ impl StoreError {
             | StoreError::Foreign { block, .. }
             | StoreError::CorruptLevel { block, .. }
             | StoreError::BadRequest { block, .. }
-            | StoreError::WorkerPanicked { block, .. } => Some(*block),
+            | StoreError::WorkerPanicked { block, .. }
+            | StoreError::RemoteBlock { block, .. } => Some(*block),
             _ => None,
         }
     }
@@ -201,7 +224,8 @@ impl StoreError {
             | StoreError::Foreign { level, .. }
             | StoreError::CorruptLevel { level, .. }
             | StoreError::BadRequest { level, .. }
-            | StoreError::WorkerPanicked { level, .. } => Some(*level),
+            | StoreError::WorkerPanicked { level, .. }
+            | StoreError::RemoteBlock { level, .. } => Some(*level),
             _ => None,
         }
     }

@@ -30,11 +30,39 @@ pub struct ScheduleConfig {
     /// levels prefetched one frame ahead are multiplied by this. Default 1: the paper's
     /// one-frame Eq. 8 ("the predicted data of next frame").
     pub lookahead_frames: f64,
+    /// Latency-aware Eq. 8: the look-ahead grows with the measured request latency over the
+    /// frame interval, `lookahead_frames + latency * f` frames (at most
+    /// [`ScheduleConfig::MAX_LATENCY_FRAMES`] more), so a block requested now arrives before the
+    /// eye needs it even when each request takes many frames (a store on object storage or
+    /// HTTP). The latency is a moving average of the workers' request times
+    /// ([`crate::FrameStats::request_latency`]). Default true; on a local disk it adds a small
+    /// fraction of a frame.
+    pub latency_aware: bool,
+}
+
+impl ScheduleConfig {
+    /// The most frames the measured latency adds to the look-ahead.
+    pub const MAX_LATENCY_FRAMES: f64 = 60.0;
+
+    /// The look-ahead in frames for a measured request latency of `latency_s` seconds.
+    pub fn effective_lookahead(&self, latency_s: f64) -> f64 {
+        let extra = if self.latency_aware && latency_s.is_finite() && self.frame_rate_hz > 0.0 {
+            (latency_s * self.frame_rate_hz).clamp(0.0, Self::MAX_LATENCY_FRAMES)
+        } else {
+            0.0
+        };
+        self.lookahead_frames.max(0.0) + extra
+    }
 }
 
 impl Default for ScheduleConfig {
     fn default() -> Self {
-        Self { extension_l_m: None, frame_rate_hz: 60.0, lookahead_frames: 1.0 }
+        Self {
+            extension_l_m: None,
+            frame_rate_hz: 60.0,
+            lookahead_frames: 1.0,
+            latency_aware: true,
+        }
     }
 }
 

@@ -116,6 +116,11 @@ pub struct FrameStats {
     pub faults: Vec<Fault>,
     /// Time `update` took on the frame thread.
     pub frame_time: Duration,
+    /// The look-ahead used, frames (Eq. 8's `S` multiplier: the configured look-ahead plus,
+    /// latency-aware, the measured request latency over the frame interval).
+    pub lookahead_frames: f64,
+    /// The moving average of the workers' request latency when the frame was scheduled.
+    pub request_latency: Duration,
 }
 
 impl FrameStats {
@@ -152,6 +157,10 @@ impl FrameStats {
         self.resident_bytes = later.resident_bytes;
         self.queue_depth = later.queue_depth;
         self.queued_bytes = later.queued_bytes;
+        if later.lookahead_frames > 0.0 {
+            self.lookahead_frames = later.lookahead_frames;
+            self.request_latency = later.request_latency;
+        }
     }
 }
 

@@ -14,14 +14,19 @@ use crate::format::{
     IndexError, MAGIC, SampleEncoding, VERSION, block_file_name, crc32, level_len, read_index,
     vertex_index,
 };
+use crate::remote::{Remote, RemoteOptions, is_url};
 
-/// An open store: the header and every block's index entry in memory, block files on disk.
-/// `Sync`: worker threads share it behind an `Arc`.
+/// An open store: the header and every block's index entry in memory, block files on disk
+/// or, for a store opened from a URL ([`Store::open_location`]), on object storage or HTTP
+/// (read by range requests through a local disk cache). `Sync`: worker threads share it
+/// behind an `Arc`.
 #[derive(Debug, Clone)]
 pub struct Store {
+    /// The store folder; for a remote store, its local mirror (index and side tables).
     dir: PathBuf,
     header: Header,
     blocks: Vec<BlockEntry>,
+    remote: Option<Arc<Remote>>,
 }
 
 /// One level read and decoded, with what it cost.
@@ -42,18 +47,100 @@ impl Store {
         let path = dir.join(INDEX_FILE);
         let bytes =
             std::fs::read(&path).map_err(|cause| StoreError::Io { path: path.clone(), cause })?;
-        let (header, blocks) = read_index(&bytes).map_err(|e| match e {
-            IndexError::BadMagic => StoreError::BadMagic { path: path.clone(), what: "index" },
-            IndexError::Version(found) => {
-                StoreError::Version { path: path.clone(), found, expected: INDEX_VERSION }
-            }
-            IndexError::Corrupt(message) => {
-                StoreError::CorruptIndex { path: path.clone(), message }
-            }
-        })?;
-        Ok(Self { dir, header, blocks })
+        let (header, blocks) = parse_index(&bytes, path)?;
+        Ok(Self { dir, header, blocks, remote: None })
     }
 
+    /// Opens the store at `location`: a local folder ([`Store::open`]) or a URL (`s3://`,
+    /// `gs://`, `az://`, `http(s)://`, [`crate::is_url`]) read with the default
+    /// [`RemoteOptions`].
+    pub fn open_location(location: &str) -> Result<Self, StoreError> {
+        Self::open_location_with(location, &RemoteOptions::default())
+    }
+
+    /// [`Store::open_location`] with the remote options given (disk cache, timeouts,
+    /// retries, side tables to mirror). A URL's index is fetched once, here; its blocks are
+    /// read by range requests when loaded, through the disk cache.
+    pub fn open_location_with(location: &str, options: &RemoteOptions) -> Result<Self, StoreError> {
+        if !is_url(location) {
+            return Self::open(location);
+        }
+        let (remote, bytes) = Remote::open(location, options)?;
+        let path = PathBuf::from(format!("{}/{INDEX_FILE}", remote.url()));
+        let (header, blocks) = parse_index(&bytes, path)?;
+        let dir = remote.mirror().to_path_buf();
+        Ok(Self { dir, header, blocks, remote: Some(Arc::new(remote)) })
+    }
+
+    /// Where the store was opened from: its URL for a remote store, else its folder.
+    pub fn location(&self) -> String {
+        match &self.remote {
+            Some(r) => r.url().to_string(),
+            None => self.dir.display().to_string(),
+        }
+    }
+
+    /// Whether the store is read from object storage or HTTP.
+    pub fn is_remote(&self) -> bool {
+        self.remote.is_some()
+    }
+
+    /// For a remote store, fetches levels `first..=last` of block `id` in one range request
+    /// (those not in the disk cache), so the [`Store::load_level`] calls that follow read
+    /// them without a request each. Nothing for a local store.
+    pub fn prefetch_levels(&self, id: BlockId, first: u8, last: u8) -> Result<(), StoreError> {
+        match (&self.remote, self.entry(id)) {
+            (Some(r), Some(e)) => r.fetch_levels(id, e, first, last, self.header.bake_id),
+            _ => Ok(()),
+        }
+    }
+}
+
+/// The header and block entries of index bytes read from `path` (a file or a URL).
+fn parse_index(bytes: &[u8], path: PathBuf) -> Result<(Header, Vec<BlockEntry>), StoreError> {
+    read_index(bytes).map_err(|e| match e {
+        IndexError::BadMagic => StoreError::BadMagic { path, what: "index" },
+        IndexError::Version(found) => StoreError::Version { path, found, expected: INDEX_VERSION },
+        IndexError::Corrupt(message) => StoreError::CorruptIndex { path, message },
+    })
+}
+
+/// Checks a block file's header (magic, version, bake id, block position).
+pub(crate) fn check_block_header(
+    head: &[u8],
+    path: &Path,
+    id: BlockId,
+    level: u8,
+    bake_id: u64,
+) -> Result<(), StoreError> {
+    let path = path.to_path_buf();
+    if head[..8] != BLOCK_MAGIC {
+        return Err(StoreError::NotABlock { path, block: id, level });
+    }
+    let u32_at = |o: usize| u32::from_le_bytes([head[o], head[o + 1], head[o + 2], head[o + 3]]);
+    let version = u32_at(8);
+    if version != VERSION {
+        return Err(StoreError::Version { path, found: version, expected: VERSION });
+    }
+    let mut idb = [0u8; 8];
+    idb.copy_from_slice(&head[12..20]);
+    let found = u64::from_le_bytes(idb);
+    if found != bake_id || u32_at(20) != id.row || u32_at(24) != id.col {
+        return Err(StoreError::Foreign {
+            path,
+            block: id,
+            level,
+            message: format!(
+                "its header says bake {found:016x} block (row {}, col {}), the index bake {bake_id:016x}",
+                u32_at(20),
+                u32_at(24),
+            ),
+        });
+    }
+    Ok(())
+}
+
+impl Store {
     /// This store read with its heights exaggerated `scale` times (a vertical exaggeration):
     /// every decoded height ([`BlockLevels::height`], multiplied in f64 and rounded once) and
     /// every height and height error of the index (block and node minima and maxima,
@@ -146,6 +233,20 @@ impl Store {
             .levels
             .get(level as usize)
             .ok_or_else(|| bad(format!("the finest level is {}", self.header.k)))?;
+        if let Some(remote) = &self.remote {
+            let (payload, _) = remote.level(id, entry, level, self.header.bake_id)?;
+            let computed = crc32(&payload);
+            if computed != le.crc32 {
+                return Err(StoreError::Checksum {
+                    path: remote.block_url(id),
+                    block: id,
+                    level,
+                    stored: le.crc32,
+                    computed,
+                });
+            }
+            return Ok(payload);
+        }
         let path = self.dir.join(block_file_name(id));
         let mut file = File::open(&path).map_err(|cause| {
             if cause.kind() == std::io::ErrorKind::NotFound {
@@ -175,31 +276,7 @@ impl Store {
         }
         let mut head = [0u8; BLOCK_HEADER_LEN as usize];
         read_at(&mut file, 0, &mut head).map_err(io)?;
-        if head[..8] != BLOCK_MAGIC {
-            return Err(StoreError::NotABlock { path, block: id, level });
-        }
-        let u32_at =
-            |o: usize| u32::from_le_bytes([head[o], head[o + 1], head[o + 2], head[o + 3]]);
-        let version = u32_at(8);
-        if version != VERSION {
-            return Err(StoreError::Version { path, found: version, expected: VERSION });
-        }
-        let mut idb = [0u8; 8];
-        idb.copy_from_slice(&head[12..20]);
-        let bake_id = u64::from_le_bytes(idb);
-        if bake_id != self.header.bake_id || u32_at(20) != id.row || u32_at(24) != id.col {
-            return Err(StoreError::Foreign {
-                path,
-                block: id,
-                level,
-                message: format!(
-                    "its header says bake {bake_id:016x} block (row {}, col {}), the index bake {:016x}",
-                    u32_at(20),
-                    u32_at(24),
-                    self.header.bake_id
-                ),
-            });
-        }
+        check_block_header(&head, &path, id, level, self.header.bake_id)?;
         let mut payload = vec![0u8; le.len as usize];
         read_at(&mut file, le.offset, &mut payload).map_err(io)?;
         let computed = crc32(&payload);

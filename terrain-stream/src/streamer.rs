@@ -162,6 +162,8 @@ pub struct Streamer {
     demand: Option<Vec<(BlockId, u8)>>,
     /// Block levels that have failed this session ([`Fault::first`]).
     faulted: BTreeSet<(BlockId, u8)>,
+    /// Moving average of the workers' request latency, seconds (latency-aware Eq. 8).
+    latency_s: Option<f64>,
 }
 
 impl Streamer {
@@ -195,6 +197,7 @@ impl Streamer {
             regions: None,
             demand: None,
             faulted: BTreeSet::new(),
+            latency_s: None,
         }
     }
 
@@ -263,7 +266,18 @@ impl Streamer {
         }
     }
 
+    /// The moving average of the workers' request latency (what the latency-aware look-ahead
+    /// uses), if a request has completed.
+    pub fn request_latency(&self) -> Option<Duration> {
+        self.latency_s.map(Duration::from_secs_f64)
+    }
+
     fn apply(&mut self, r: LoadResult, stats: &mut FrameStats) {
+        if let Some(l) = r.latency {
+            // An exponential moving average over about the last 16 requests.
+            let l = l.as_secs_f64();
+            self.latency_s = Some(self.latency_s.map_or(l, |a| a + (l - a) / 16.0));
+        }
         let header = self.store.header().clone();
         match r.outcome {
             Outcome::Loaded(l) => {
@@ -327,8 +341,13 @@ impl Streamer {
         let velocity = step.truncate() * self.config.schedule.frame_rate_hz;
         self.last_eye = Some(camera.position);
         self.last_camera = Some(*camera);
-        let reg = regions(self.store.header(), &self.config.schedule, camera, velocity);
-        let ahead = step * self.config.schedule.lookahead_frames.max(0.0);
+        // Eq. 8 with the look-ahead grown by the measured request latency (latency-aware).
+        let lookahead = self.config.schedule.effective_lookahead(self.latency_s.unwrap_or(0.0));
+        let schedule = ScheduleConfig { lookahead_frames: lookahead, ..self.config.schedule };
+        let reg = regions(self.store.header(), &schedule, camera, velocity);
+        let ahead = step * lookahead;
+        stats.lookahead_frames = lookahead;
+        stats.request_latency = self.request_latency().unwrap_or_default();
         let scheduled = self.schedule(camera, &reg, ahead);
         stats.blocks_visible = scheduled.iter().filter(|s| s.visible).count();
         stats.blocks_scheduled = scheduled.len();

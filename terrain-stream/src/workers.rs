@@ -43,9 +43,21 @@ pub trait LevelReader: Send + Sync + std::fmt::Debug {
         level: u8,
         coarser: &[Arc<[i32]>],
     ) -> Result<LoadedLevel, StoreError>;
+
+    /// Called once per load request before its levels are loaded: a remote store fetches
+    /// levels `first..=last` of `id` in one range request here ([`Store::prefetch_levels`]).
+    /// An error ends the request as a fault of level `first`. Default: nothing.
+    fn prefetch(&self, id: BlockId, first: u8, last: u8) -> Result<(), StoreError> {
+        let _ = (id, first, last);
+        Ok(())
+    }
 }
 
 impl LevelReader for Store {
+    fn prefetch(&self, id: BlockId, first: u8, last: u8) -> Result<(), StoreError> {
+        self.prefetch_levels(id, first, last)
+    }
+
     fn load_level(
         &self,
         id: BlockId,
@@ -93,6 +105,10 @@ pub(crate) struct LoadResult {
     pub(crate) done: bool,
     /// What happened.
     pub(crate) outcome: Outcome,
+    /// On a request's first result: the time from the start of the request to this result
+    /// (the request's latency: one range request for a remote store, a disk read for a local
+    /// one). What the latency-aware look-ahead measures.
+    pub(crate) latency: Option<std::time::Duration>,
 }
 
 /// Worker threads loading block levels through a [`LevelReader`].
@@ -240,6 +256,15 @@ fn worker(
     while let Ok(req) = requests.recv() {
         let mut coarser = req.coarser;
         let mut level = req.first;
+        let start = Instant::now();
+        if !req.cancel.load(Ordering::Relaxed) {
+            // One range request for the levels; if it fails, each level is then read alone
+            // (its own request), so a fault names the level that cannot be read and the
+            // coarser levels the range held still load.
+            let _ =
+                catch_unwind(AssertUnwindSafe(|| reader.prefetch(req.block, req.first, req.last)));
+        }
+        let mut first_result = true;
         loop {
             let outcome = if req.cancel.load(Ordering::Relaxed) {
                 Outcome::Cancelled
@@ -267,7 +292,9 @@ fn worker(
             if let Outcome::Loaded(l) = &outcome {
                 coarser.push(l.samples.clone());
             }
-            let r = LoadResult { block: req.block, level, done, outcome };
+            let latency = first_result.then(|| start.elapsed());
+            first_result = false;
+            let r = LoadResult { block: req.block, level, done, outcome, latency };
             if results.send(r).is_err() {
                 return;
             }

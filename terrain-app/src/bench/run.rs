@@ -394,7 +394,7 @@ fn prepare_store(hm: &Heightmap, cfg: &BenchConfig) -> Result<Arc<terrain_stream
             dir
         }
     };
-    let store = Store::open(&dir).map_err(|e| e.to_string())?;
+    let store = crate::ooc::open_store(&dir).map_err(|e| e.to_string())?;
     let h = store.header();
     if (h.width, h.height) != (hm.width() as u64, hm.height() as u64) {
         return Err(format!(

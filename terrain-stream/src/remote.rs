@@ -1,0 +1,614 @@
+//! Stores on object storage and plain HTTP: `s3://`, `gs://`, `az://`, `http(s)://` locations
+//! read through the `object_store` crate, with retries and timeouts, and a local disk cache.
+//!
+//! **Runtime.** A [`Remote`] owns one small tokio runtime (two worker threads) that drives
+//! object_store's futures. Callers block on it with `block_on`: the stream's worker threads
+//! (and `Store::open_location`, `upload_store`) do; the frame thread never does after a
+//! session's first frame, because it never reads a block (the real-time contract of
+//! [`crate::Streamer`]).
+//!
+//! **What is fetched.** At open: the index (once), and the side tables the caller names
+//! ([`RemoteOptions::side_files`], those present) into a local mirror folder, which is the
+//! store's [`crate::Store::dir`], so code reading tables beside the index works unchanged.
+//! Blocks: by range GETs, one request per load request covering the levels asked for
+//! ([`Remote::fetch_levels`]); the first request of a block in a session starts at byte 0 so the
+//! block header and the object's size are checked as the local reader checks them.
+//!
+//! **Disk cache.** Each level's payload fetched is kept under the mirror folder
+//! (`blocks/rRRRRR_cCCCCC.tsb.L<level>`), checked by its index CRC-32 when read back, evicted
+//! least recently used first above [`RemoteOptions::disk_cache_bytes`] (over every store of
+//! the cache folder). A second run reads from disk. A changed index (another bake at the same
+//! URL) clears the store's mirror.
+
+use std::collections::HashMap;
+use std::path::{Path, PathBuf};
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, SystemTime};
+
+use object_store::path::Path as ObjectPath;
+use object_store::{
+    BackoffConfig, ClientOptions, GetOptions, GetRange, ObjectStore, PutPayload, RetryConfig,
+    WriteMultipart,
+};
+
+use crate::error::StoreError;
+use crate::format::{BLOCK_HEADER_LEN, BlockEntry, BlockId, INDEX_FILE, block_file_name};
+
+/// Objects above this size are uploaded in parts (multipart upload), 16 MiB each.
+pub const MULTIPART_ABOVE: usize = 16 << 20;
+
+/// Whether `location` names a store on object storage or HTTP (`s3://`, `gs://`, `az://`,
+/// `azure://`, `abfs://`, `abfss://`, `http://`, `https://`) rather than a local folder.
+pub fn is_url(location: &str) -> bool {
+    location.split_once("://").is_some_and(|(scheme, _)| {
+        matches!(
+            scheme.to_ascii_lowercase().as_str(),
+            "s3" | "s3a" | "gs" | "az" | "azure" | "abfs" | "abfss" | "http" | "https"
+        )
+    })
+}
+
+/// How a remote store is read: the disk cache, timeouts and retries, and the side tables
+/// mirrored at open.
+#[derive(Debug, Clone, PartialEq)]
+pub struct RemoteOptions {
+    /// The disk cache folder; `None` = `$TERRAIN_CACHE_DIR`, else `$XDG_CACHE_HOME/terrain`,
+    /// else `$HOME/.cache/terrain`, else the temporary folder's `terrain-cache`.
+    pub cache_dir: Option<PathBuf>,
+    /// Bytes of block levels kept in the disk cache, over every store of the folder (least
+    /// recently used evicted first). Default 2 GiB; 0 keeps none (every run fetches again).
+    pub disk_cache_bytes: u64,
+    /// Time limit of one request (connect, send, receive). Default 30 s.
+    pub request_timeout: Duration,
+    /// Time limit to connect. Default 5 s.
+    pub connect_timeout: Duration,
+    /// Retries of a failed request (server errors, timeouts, connection resets), with
+    /// exponential backoff. Default 3.
+    pub retries: usize,
+    /// Files beside the index fetched at open into the mirror folder when present (tables the
+    /// caller reads from [`crate::Store::dir`]); a missing one is skipped.
+    pub side_files: Vec<String>,
+}
+
+impl Default for RemoteOptions {
+    fn default() -> Self {
+        Self {
+            cache_dir: None,
+            disk_cache_bytes: 2 << 30,
+            request_timeout: Duration::from_secs(30),
+            connect_timeout: Duration::from_secs(5),
+            retries: 3,
+            side_files: Vec::new(),
+        }
+    }
+}
+
+impl RemoteOptions {
+    /// The disk cache folder these options use.
+    pub fn cache_folder(&self) -> PathBuf {
+        if let Some(d) = &self.cache_dir {
+            return d.clone();
+        }
+        let env = |k: &str| std::env::var_os(k).filter(|v| !v.is_empty()).map(PathBuf::from);
+        env("TERRAIN_CACHE_DIR")
+            .or_else(|| env("XDG_CACHE_HOME").map(|d| d.join("terrain")))
+            .or_else(|| env("HOME").map(|d| d.join(".cache").join("terrain")))
+            .unwrap_or_else(|| std::env::temp_dir().join("terrain-cache"))
+    }
+}
+
+/// A store's location on object storage or HTTP: the client, the key prefix, the runtime.
+pub(crate) struct Remote {
+    /// The location as given, without a trailing `/`.
+    url: String,
+    store: Arc<dyn ObjectStore>,
+    prefix: ObjectPath,
+    runtime: tokio::runtime::Runtime,
+    /// The local mirror folder (index, side tables, cached levels).
+    mirror: PathBuf,
+    disk: DiskCache,
+    /// Blocks whose header and object size were checked this session.
+    verified: Mutex<std::collections::HashSet<BlockId>>,
+    /// Levels fetched by [`Remote::fetch_levels`] not yet taken by [`Remote::level`].
+    fetched: Mutex<HashMap<(BlockId, u8), Vec<u8>>>,
+}
+
+impl std::fmt::Debug for Remote {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Remote").field("url", &self.url).field("mirror", &self.mirror).finish()
+    }
+}
+
+fn remote_err(url: &str, message: impl std::fmt::Display) -> StoreError {
+    StoreError::Remote { location: url.to_string(), message: message.to_string() }
+}
+
+/// The client for `url` (any scheme [`is_url`] accepts) and the key prefix of the store.
+fn client_for(
+    url: &str,
+    options: &RemoteOptions,
+) -> Result<(Arc<dyn ObjectStore>, ObjectPath), StoreError> {
+    let parsed = url::Url::parse(url).map_err(|e| remote_err(url, format!("not a URL: {e}")))?;
+    let client = ClientOptions::new()
+        .with_timeout(options.request_timeout)
+        .with_connect_timeout(options.connect_timeout);
+    let retry = RetryConfig {
+        backoff: BackoffConfig {
+            init_backoff: Duration::from_millis(100),
+            max_backoff: Duration::from_secs(5),
+            base: 2.0,
+        },
+        max_retries: options.retries,
+        retry_timeout: options.request_timeout * (options.retries as u32 + 1),
+    };
+    let env_true = |k: &str| std::env::var(k).is_ok_and(|v| v.eq_ignore_ascii_case("true"));
+    let bad = |e: object_store::Error| remote_err(url, e);
+    let key_prefix = || ObjectPath::from(parsed.path().trim_matches('/'));
+    match parsed.scheme().to_ascii_lowercase().as_str() {
+        "s3" | "s3a" => {
+            // `with_client_options` replaces the options `from_env` read (AWS_ALLOW_HTTP among
+            // them): allow plain HTTP again, explicitly, for an http:// endpoint.
+            let endpoint = std::env::var("AWS_ENDPOINT_URL")
+                .or_else(|_| std::env::var("AWS_ENDPOINT"))
+                .unwrap_or_default();
+            let allow_http = env_true("AWS_ALLOW_HTTP") || endpoint.starts_with("http://");
+            let b = object_store::aws::AmazonS3Builder::from_env()
+                .with_url(url)
+                .with_client_options(client)
+                .with_retry(retry)
+                .with_allow_http(allow_http);
+            Ok((Arc::new(b.build().map_err(bad)?), key_prefix()))
+        }
+        "gs" => {
+            let b = object_store::gcp::GoogleCloudStorageBuilder::from_env()
+                .with_url(url)
+                .with_client_options(client)
+                .with_retry(retry);
+            Ok((Arc::new(b.build().map_err(bad)?), key_prefix()))
+        }
+        "az" | "azure" | "abfs" | "abfss" => {
+            let b = object_store::azure::MicrosoftAzureBuilder::from_env()
+                .with_url(url)
+                .with_client_options(client)
+                .with_retry(retry)
+                .with_allow_http(env_true("AZURE_ALLOW_HTTP"));
+            Ok((Arc::new(b.build().map_err(bad)?), key_prefix()))
+        }
+        "http" | "https" => {
+            let b = object_store::http::HttpBuilder::new()
+                .with_url(url)
+                .with_client_options(client.with_allow_http(true))
+                .with_retry(retry);
+            Ok((Arc::new(b.build().map_err(bad)?), ObjectPath::default()))
+        }
+        other => Err(remote_err(url, format!("unsupported scheme {other}://"))),
+    }
+}
+
+fn runtime(url: &str) -> Result<tokio::runtime::Runtime, StoreError> {
+    tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .thread_name("terrain-remote")
+        .enable_all()
+        .build()
+        .map_err(|e| remote_err(url, format!("starting the I/O runtime: {e}")))
+}
+
+/// A short stable name of a URL for its mirror folder (FNV-1a, 64 bits, and the URL's tail).
+fn mirror_name(url: &str) -> String {
+    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
+    for b in url.bytes() {
+        h = (h ^ u64::from(b)).wrapping_mul(0x0100_0000_01b3);
+    }
+    let tail: String = url
+        .rsplit('/')
+        .find(|s| !s.is_empty())
+        .unwrap_or("store")
+        .chars()
+        .map(|c| if c.is_ascii_alphanumeric() || c == '-' || c == '_' { c } else { '_' })
+        .take(40)
+        .collect();
+    format!("{tail}-{h:016x}")
+}
+
+fn io_err(path: &Path) -> impl Fn(std::io::Error) -> StoreError + '_ {
+    move |cause| StoreError::Io { path: path.to_path_buf(), cause }
+}
+
+/// Writes `bytes` to `path` through a temporary file and a rename (readers never see half).
+fn write_atomic(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
+    if let Some(p) = path.parent() {
+        std::fs::create_dir_all(p)?;
+    }
+    let tmp = path.with_extension(format!("tmp{}", std::process::id()));
+    std::fs::write(&tmp, bytes)?;
+    std::fs::rename(&tmp, path)
+}
+
+impl Remote {
+    /// Opens the store at `url`: fetches its index (returned) and the side tables into the
+    /// mirror folder.
+    pub(crate) fn open(url: &str, options: &RemoteOptions) -> Result<(Self, Vec<u8>), StoreError> {
+        let url = url.trim_end_matches('/').to_string();
+        let (store, prefix) = client_for(&url, options)?;
+        let runtime = runtime(&url)?;
+        let cache = options.cache_folder();
+        let mirror = cache.join(mirror_name(&url));
+        let index_key = prefix.child(INDEX_FILE);
+        let index = runtime
+            .block_on(async { store.get(&index_key).await?.bytes().await })
+            .map_err(|e| match e {
+                object_store::Error::NotFound { .. } => remote_err(
+                    &url,
+                    format!("{INDEX_FILE} is not there: not a terrain store (bake one with `terrain bake -o URL`)"),
+                ),
+                e => remote_err(&url, format!("reading {INDEX_FILE}: {e}")),
+            })?
+            .to_vec();
+        let index_path = mirror.join(INDEX_FILE);
+        if std::fs::read(&index_path).ok().as_deref() != Some(&index[..]) {
+            // Another store at this URL (or the first open): nothing cached is valid.
+            let _ = std::fs::remove_dir_all(&mirror);
+            std::fs::create_dir_all(&mirror).map_err(io_err(&mirror))?;
+            let _ = std::fs::write(mirror.join("url.txt"), format!("{url}\n"));
+            for name in &options.side_files {
+                let key = prefix.child(name.as_str());
+                let got = runtime.block_on(async { store.get(&key).await?.bytes().await });
+                match got {
+                    Ok(bytes) => {
+                        let p = mirror.join(name);
+                        write_atomic(&p, &bytes).map_err(io_err(&p))?;
+                    }
+                    Err(object_store::Error::NotFound { .. }) => {}
+                    Err(e) => return Err(remote_err(&url, format!("reading {name}: {e}"))),
+                }
+            }
+            // The index last: a mirror with an index has its side tables.
+            write_atomic(&index_path, &index).map_err(io_err(&index_path))?;
+        }
+        let disk = DiskCache::open(&cache, options.disk_cache_bytes);
+        let remote = Self {
+            url,
+            store,
+            prefix,
+            runtime,
+            mirror,
+            disk,
+            verified: Mutex::default(),
+            fetched: Mutex::default(),
+        };
+        Ok((remote, index))
+    }
+
+    /// The location, without a trailing `/`.
+    pub(crate) fn url(&self) -> &str {
+        &self.url
+    }
+
+    /// The local mirror folder.
+    pub(crate) fn mirror(&self) -> &Path {
+        &self.mirror
+    }
+
+    /// The URL of a block's file (for messages).
+    pub(crate) fn block_url(&self, id: BlockId) -> PathBuf {
+        PathBuf::from(format!("{}/{}", self.url, block_file_name(id)))
+    }
+
+    fn cache_path(&self, id: BlockId, level: u8) -> PathBuf {
+        self.mirror.join(format!("{}.L{level}", block_file_name(id)))
+    }
+
+    /// Fetches levels `first..=last` of block `id` (those not in the disk cache) in one range
+    /// GET, checks the block header and object size on the block's first request, and keeps
+    /// the payloads for [`Remote::level`] (memory, and the disk cache). CRCs are checked when
+    /// the levels are taken.
+    pub(crate) fn fetch_levels(
+        &self,
+        id: BlockId,
+        entry: &BlockEntry,
+        first: u8,
+        last: u8,
+        bake_id: u64,
+    ) -> Result<(), StoreError> {
+        let last = last.min(entry.levels.len().saturating_sub(1) as u8);
+        let Some(first) = (first..=last).find(|&l| {
+            !self.fetched.lock().expect("fetched").contains_key(&(id, l))
+                && !self.disk.contains(&self.cache_path(id, l))
+        }) else {
+            return Ok(());
+        };
+        let verified = self.verified.lock().expect("verified").contains(&id);
+        let levels = &entry.levels[first as usize..=last as usize];
+        let start = if verified { levels[0].offset } else { 0 };
+        let end = levels.iter().map(|l| l.offset + u64::from(l.len)).max().unwrap_or(start);
+        let key =
+            self.prefix.child("blocks").child(block_file_name(id).trim_start_matches("blocks/"));
+        let path = self.block_url(id);
+        let opts = GetOptions { range: Some(GetRange::Bounded(start..end)), ..Default::default() };
+        let got = self.runtime.block_on(async {
+            let r = self.store.get_opts(&key, opts).await?;
+            let size = r.meta.size;
+            Ok::<_, object_store::Error>((size, r.bytes().await?))
+        });
+        let (size, bytes) = got.map_err(|e| match e {
+            object_store::Error::NotFound { .. } => {
+                StoreError::MissingBlock { path: path.clone(), block: id, level: first }
+            }
+            e => StoreError::RemoteBlock {
+                location: path.display().to_string(),
+                block: id,
+                level: first,
+                message: e.to_string(),
+            },
+        })?;
+        if size < entry.file_len || (bytes.len() as u64) < end - start {
+            return Err(StoreError::Truncated {
+                path,
+                block: id,
+                level: first,
+                expected: entry.file_len,
+                got: size.min(start + bytes.len() as u64),
+            });
+        }
+        if size != entry.file_len {
+            return Err(StoreError::Changed {
+                path,
+                block: id,
+                level: first,
+                message: format!("{size} bytes, the index says {}", entry.file_len),
+            });
+        }
+        if !verified {
+            crate::store::check_block_header(
+                &bytes[..BLOCK_HEADER_LEN as usize],
+                &path,
+                id,
+                first,
+                bake_id,
+            )?;
+            self.verified.lock().expect("verified").insert(id);
+        }
+        let mut fetched = self.fetched.lock().expect("fetched");
+        if fetched.len() > 4096 {
+            fetched.clear();
+        }
+        for (l, le) in (first..=last).zip(levels) {
+            let a = (le.offset - start) as usize;
+            let payload = bytes[a..a + le.len as usize].to_vec();
+            self.disk.put(&self.cache_path(id, l), &payload);
+            fetched.insert((id, l), payload);
+        }
+        Ok(())
+    }
+
+    /// The payload of `level` of block `id`: fetched by the last [`Remote::fetch_levels`], from
+    /// the disk cache, or fetched now. `crc` is the index's: a cached copy that fails it is
+    /// dropped and fetched again.
+    pub(crate) fn level(
+        &self,
+        id: BlockId,
+        entry: &BlockEntry,
+        level: u8,
+        bake_id: u64,
+    ) -> Result<(Vec<u8>, bool), StoreError> {
+        let crc = entry.levels[level as usize].crc32;
+        if let Some(p) = self.fetched.lock().expect("fetched").remove(&(id, level)) {
+            return Ok((p, true));
+        }
+        let cached = self.cache_path(id, level);
+        if let Some(p) = self.disk.get(&cached) {
+            if crate::format::crc32(&p) == crc {
+                return Ok((p, false));
+            }
+            self.disk.remove(&cached);
+        }
+        self.fetch_levels(id, entry, level, level, bake_id)?;
+        let p = self.fetched.lock().expect("fetched").remove(&(id, level));
+        p.map(|p| (p, true)).ok_or_else(|| StoreError::RemoteBlock {
+            location: self.block_url(id).display().to_string(),
+            block: id,
+            level,
+            message: "the level was fetched but is not there".into(),
+        })
+    }
+}
+
+/// The disk cache of block levels: files under the cache folder, least recently used evicted
+/// first above a byte limit (shared by every store of the folder; access order from the
+/// files' modification times at open, then this process's reads and writes).
+struct DiskCache {
+    limit: u64,
+    state: Mutex<LruState>,
+}
+
+#[derive(Default)]
+struct LruState {
+    clock: u64,
+    total: u64,
+    files: HashMap<PathBuf, (u64, u64)>,
+}
+
+impl DiskCache {
+    fn open(root: &Path, limit: u64) -> Self {
+        let mut found = Vec::new();
+        if limit > 0
+            && let Ok(stores) = std::fs::read_dir(root)
+        {
+            for s in stores.flatten() {
+                let Ok(blocks) = std::fs::read_dir(s.path().join("blocks")) else { continue };
+                for f in blocks.flatten() {
+                    let Ok(m) = f.metadata() else { continue };
+                    if m.is_file() {
+                        let t = m.modified().unwrap_or(SystemTime::UNIX_EPOCH);
+                        found.push((t, f.path(), m.len()));
+                    }
+                }
+            }
+        }
+        found.sort();
+        let mut state = LruState::default();
+        for (_, p, len) in found {
+            state.clock += 1;
+            state.total += len;
+            state.files.insert(p, (len, state.clock));
+        }
+        let cache = Self { limit, state: Mutex::new(state) };
+        cache.evict();
+        cache
+    }
+
+    fn contains(&self, p: &Path) -> bool {
+        self.limit > 0 && self.state.lock().expect("disk cache").files.contains_key(p)
+    }
+
+    fn get(&self, p: &Path) -> Option<Vec<u8>> {
+        if !self.contains(p) {
+            return None;
+        }
+        match std::fs::read(p) {
+            Ok(b) => {
+                let mut s = self.state.lock().expect("disk cache");
+                s.clock += 1;
+                let c = s.clock;
+                if let Some(e) = s.files.get_mut(p) {
+                    e.1 = c;
+                }
+                if let Ok(f) = std::fs::File::options().write(true).open(p) {
+                    let _ = f.set_modified(SystemTime::now());
+                }
+                Some(b)
+            }
+            Err(_) => {
+                self.remove(p);
+                None
+            }
+        }
+    }
+
+    fn put(&self, p: &Path, bytes: &[u8]) {
+        if self.limit == 0 || bytes.len() as u64 > self.limit || write_atomic(p, bytes).is_err() {
+            return;
+        }
+        {
+            let mut s = self.state.lock().expect("disk cache");
+            s.clock += 1;
+            let c = s.clock;
+            let len = bytes.len() as u64;
+            if let Some((old, _)) = s.files.insert(p.to_path_buf(), (len, c)) {
+                s.total -= old;
+            }
+            s.total += len;
+        }
+        self.evict();
+    }
+
+    fn remove(&self, p: &Path) {
+        let mut s = self.state.lock().expect("disk cache");
+        if let Some((len, _)) = s.files.remove(p) {
+            s.total -= len;
+        }
+        let _ = std::fs::remove_file(p);
+    }
+
+    fn evict(&self) {
+        let mut s = self.state.lock().expect("disk cache");
+        if s.total <= self.limit {
+            return;
+        }
+        let mut by_age: Vec<(u64, PathBuf, u64)> =
+            s.files.iter().map(|(p, &(len, t))| (t, p.clone(), len)).collect();
+        by_age.sort();
+        for (_, p, len) in by_age {
+            if s.total <= self.limit {
+                break;
+            }
+            let _ = std::fs::remove_file(&p);
+            s.files.remove(&p);
+            s.total -= len;
+        }
+    }
+}
+
+/// What [`upload_store`] sent.
+#[derive(Debug, Clone, Default, PartialEq, Eq)]
+pub struct UploadReport {
+    /// Files uploaded.
+    pub files: usize,
+    /// Bytes uploaded.
+    pub bytes: u64,
+    /// Of those files, the ones sent as multipart uploads (above [`MULTIPART_ABOVE`]).
+    pub multipart: usize,
+}
+
+/// Uploads the store folder `dir` (every file, recursively) to `url`: block files and tables
+/// first, the index **last**, so a reader never sees an index whose blocks are not all there.
+/// Files above [`MULTIPART_ABOVE`] go as multipart uploads. Retries and timeouts as
+/// `options` says.
+pub fn upload_store(
+    dir: &Path,
+    url: &str,
+    options: &RemoteOptions,
+) -> Result<UploadReport, StoreError> {
+    let url = url.trim_end_matches('/');
+    let (store, prefix) = client_for(url, options)?;
+    let runtime = runtime(url)?;
+    let mut files = Vec::new();
+    let mut stack = vec![dir.to_path_buf()];
+    while let Some(d) = stack.pop() {
+        for e in std::fs::read_dir(&d).map_err(io_err(&d))? {
+            let p = e.map_err(io_err(&d))?.path();
+            if p.is_dir() {
+                stack.push(p);
+            } else {
+                files.push(p);
+            }
+        }
+    }
+    files.sort();
+    let mut report = UploadReport::default();
+    let (index, rest): (Vec<PathBuf>, Vec<PathBuf>) = files
+        .into_iter()
+        .partition(|p| p.strip_prefix(dir).is_ok_and(|r| r == Path::new(INDEX_FILE)));
+    for batch in [rest, index] {
+        for chunk in batch.chunks(16) {
+            let mut tasks = Vec::new();
+            for p in chunk {
+                let rel = p.strip_prefix(dir).expect("under dir");
+                let key = rel
+                    .components()
+                    .fold(prefix.clone(), |k, c| k.child(&*c.as_os_str().to_string_lossy()));
+                let bytes = std::fs::read(p).map_err(io_err(p))?;
+                report.files += 1;
+                report.bytes += bytes.len() as u64;
+                let multipart = bytes.len() > MULTIPART_ABOVE;
+                report.multipart += usize::from(multipart);
+                let store = store.clone();
+                let name = rel.display().to_string();
+                tasks.push(runtime.spawn(async move {
+                    let r: object_store::Result<()> = async {
+                        if multipart {
+                            let upload = store.put_multipart(&key).await?;
+                            let mut w =
+                                WriteMultipart::new_with_chunk_size(upload, MULTIPART_ABOVE);
+                            w.write(&bytes);
+                            w.finish().await?;
+                        } else {
+                            store.put(&key, PutPayload::from(bytes)).await?;
+                        }
+                        Ok(())
+                    }
+                    .await;
+                    r.map_err(|e| format!("uploading {name}: {e}"))
+                }));
+            }
+            for t in tasks {
+                runtime
+                    .block_on(t)
+                    .map_err(|e| remote_err(url, format!("upload task: {e}")))?
+                    .map_err(|m| remote_err(url, m))?;
+            }
+        }
+    }
+    Ok(report)
+}

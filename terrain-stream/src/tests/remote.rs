@@ -1,0 +1,360 @@
+//! Stores read over HTTP (`Store::open_location`) from a tiny std-only HTTP server started by
+//! each test on 127.0.0.1 (range requests; a mode answering 500, a mode that never answers):
+//! the same heights as the local store, one range request per block for the levels asked for,
+//! a second open reading from the disk cache, the disk cache held to its limit, and the
+//! streamer over a failing or hanging server: faults naming block, level and error, coarser
+//! levels drawn, no frame stalled.
+
+use std::io::{BufRead, BufReader, Write};
+use std::net::{TcpListener, TcpStream};
+use std::ops::ControlFlow;
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+
+use glam::dvec3;
+use terrain_core::Georef;
+use terrain_core::geometry::Camera;
+use terrain_core::heightmap::Heightmap;
+
+use crate::format::block_file_name;
+use crate::{
+    BakeConfig, BlockId, RemoteOptions, Store, StoreError, StreamConfig, Streamer, bake, is_url,
+};
+
+/// What the server does with one request: the path and the byte range asked for.
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum Action {
+    Serve,
+    Fail500,
+    Hang,
+}
+
+type Rule = Arc<dyn Fn(&str, u64, u64) -> Action + Send + Sync>;
+
+/// Every request's path and byte range (`None`: no `Range` header).
+type RequestLog = Mutex<Vec<(String, Option<(u64, u64)>)>>;
+
+/// A std-only HTTP/1.1 server of one folder: GET and HEAD, `Range: bytes=a-b`, one request
+/// per connection; what it answers is decided per request by `rule`. Stops on drop.
+struct Server {
+    port: u16,
+    stop: Arc<AtomicBool>,
+    /// Requests for block files (paths under `blocks/`).
+    block_requests: Arc<AtomicUsize>,
+    /// Every request's path and range.
+    log: Arc<RequestLog>,
+    thread: Option<std::thread::JoinHandle<()>>,
+}
+
+impl Server {
+    fn start(root: PathBuf, rule: Rule) -> Self {
+        let listener = TcpListener::bind("127.0.0.1:0").unwrap();
+        listener.set_nonblocking(true).unwrap();
+        let port = listener.local_addr().unwrap().port();
+        let stop = Arc::new(AtomicBool::new(false));
+        let block_requests = Arc::new(AtomicUsize::new(0));
+        let log = Arc::new(Mutex::new(Vec::new()));
+        let (s, b, l) = (stop.clone(), block_requests.clone(), log.clone());
+        let thread = std::thread::spawn(move || {
+            while !s.load(Ordering::SeqCst) {
+                match listener.accept() {
+                    Ok((conn, _)) => {
+                        let (root, rule, s, b, l) =
+                            (root.clone(), rule.clone(), s.clone(), b.clone(), l.clone());
+                        std::thread::spawn(move || {
+                            let _ = serve(conn, &root, &*rule, &s, &b, &l);
+                        });
+                    }
+                    Err(_) => std::thread::sleep(Duration::from_millis(2)),
+                }
+            }
+        });
+        Self { port, stop, block_requests, log, thread: Some(thread) }
+    }
+
+    fn url(&self) -> String {
+        format!("http://127.0.0.1:{}/store", self.port)
+    }
+}
+
+impl Drop for Server {
+    fn drop(&mut self) {
+        self.stop.store(true, Ordering::SeqCst);
+        if let Some(t) = self.thread.take() {
+            let _ = t.join();
+        }
+    }
+}
+
+fn serve(
+    conn: TcpStream,
+    root: &Path,
+    rule: &(dyn Fn(&str, u64, u64) -> Action + Send + Sync),
+    stop: &AtomicBool,
+    block_requests: &AtomicUsize,
+    log: &RequestLog,
+) -> std::io::Result<()> {
+    conn.set_nonblocking(false)?;
+    let mut reader = BufReader::new(conn.try_clone()?);
+    let mut line = String::new();
+    reader.read_line(&mut line)?;
+    let mut parts = line.split_whitespace();
+    let (method, target) = (parts.next().unwrap_or(""), parts.next().unwrap_or("/"));
+    let mut range = None;
+    loop {
+        let mut h = String::new();
+        if reader.read_line(&mut h)? == 0 || h.trim().is_empty() {
+            break;
+        }
+        if let Some((k, v)) = h.split_once(':')
+            && k.trim().eq_ignore_ascii_case("range")
+            && let Some(r) = v.trim().strip_prefix("bytes=")
+            && let Some((a, b)) = r.split_once('-')
+        {
+            range = Some((a.parse::<u64>().unwrap_or(0), b.parse::<u64>().unwrap_or(u64::MAX)));
+        }
+    }
+    let path = target.strip_prefix("/store/").unwrap_or("").to_string();
+    log.lock().unwrap().push((path.clone(), range));
+    if path.starts_with("blocks/") {
+        block_requests.fetch_add(1, Ordering::SeqCst);
+    }
+    let mut out = conn;
+    let body = std::fs::read(root.join(&path)).ok();
+    let Some(body) = body.filter(|_| !path.is_empty() && !path.contains("..")) else {
+        return out.write_all(
+            b"HTTP/1.1 404 Not Found\r\nContent-Length: 0\r\nConnection: close\r\n\r\n",
+        );
+    };
+    let size = body.len() as u64;
+    let (a, b) = range.map_or((0, size.saturating_sub(1)), |(a, b)| (a, b.min(size - 1)));
+    match rule(&path, a, b + 1) {
+        Action::Serve => {}
+        Action::Fail500 => {
+            return out.write_all(
+                b"HTTP/1.1 500 Internal Server Error\r\nContent-Length: 0\r\nConnection: close\r\n\r\n",
+            );
+        }
+        Action::Hang => {
+            // Never answers (until the server stops).
+            while !stop.load(Ordering::SeqCst) {
+                std::thread::sleep(Duration::from_millis(20));
+            }
+            return Ok(());
+        }
+    }
+    let slice = &body[a as usize..=b as usize];
+    let status = if range.is_some() { "206 Partial Content" } else { "200 OK" };
+    let mut head = format!(
+        "HTTP/1.1 {status}\r\nContent-Length: {}\r\nAccept-Ranges: bytes\r\nLast-Modified: Thu, 01 Jan 2026 00:00:00 GMT\r\nETag: \"{size:x}\"\r\nConnection: close\r\n",
+        slice.len()
+    );
+    if range.is_some() {
+        head += &format!("Content-Range: bytes {a}-{b}/{size}\r\n");
+    }
+    head += "\r\n";
+    out.write_all(head.as_bytes())?;
+    if method != "HEAD" {
+        out.write_all(slice)?;
+    }
+    Ok(())
+}
+
+fn temp(name: &str) -> PathBuf {
+    let dir =
+        std::env::temp_dir().join(format!("terrain-stream-remote-{}-{name}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    dir
+}
+
+/// A 513^2 store with k = 6 (as the runtime tests'), in `dir/store`.
+fn local_store(dir: &Path) -> Store {
+    let hm = Heightmap::from_fn(513, 513, Georef::local(10.0), |i, j| {
+        300.0
+            + 200.0 * ((i as f32) * 0.02).sin() * ((j as f32) * 0.015).cos()
+            + ((i * 7 + j * 13) % 17) as f32
+    })
+    .unwrap();
+    let cfg = BakeConfig { k: 6, node_levels: 4, ..Default::default() };
+    bake(&hm, &dir.join("store"), &cfg, &mut |_: &crate::BakeProgress| ControlFlow::Continue(()))
+        .unwrap();
+    Store::open(dir.join("store")).unwrap()
+}
+
+fn options(cache: &Path) -> RemoteOptions {
+    RemoteOptions {
+        cache_dir: Some(cache.to_path_buf()),
+        request_timeout: Duration::from_secs(10),
+        retries: 1,
+        ..Default::default()
+    }
+}
+
+fn camera(y: f64) -> Camera {
+    Camera::from_yaw_pitch(dvec3(2560.0, y, 900.0), 0.0, -20.0)
+        .with_viewport(128.0, 72.0)
+        .with_clip(1.0, 2500.0)
+}
+
+#[test]
+fn urls_are_told_from_paths() {
+    for u in ["s3://b/x", "gs://b/x", "az://c/x", "http://h/x", "HTTPS://h/x"] {
+        assert!(is_url(u), "{u}");
+    }
+    for p in ["out/store", "/tmp/s3:/x", "s3:/x", "file.tif", "ftp://h/x", "C:\\x"] {
+        assert!(!is_url(p), "{p}");
+    }
+}
+
+#[test]
+fn a_store_over_http_reads_as_the_local_one_and_a_second_open_reads_the_disk_cache() {
+    let dir = temp("same");
+    let local = local_store(&dir);
+    let server = Server::start(dir.join("store"), Arc::new(|_: &str, _, _| Action::Serve));
+    let cache = dir.join("cache");
+    let remote = Store::open_location_with(&server.url(), &options(&cache)).unwrap();
+    assert!(remote.is_remote() && remote.location() == server.url());
+    assert_eq!(remote.header(), local.header());
+    assert!(remote.dir().starts_with(&cache), "the mirror is in the cache folder");
+    let k = local.header().k;
+    let ids: Vec<BlockId> = local.block_ids().collect();
+    // One range request per block covering every level asked for.
+    for &id in &ids {
+        remote.prefetch_levels(id, 0, k).unwrap();
+        let (a, b) = (remote.read_block(id, k).unwrap(), local.read_block(id, k).unwrap());
+        assert_eq!(a.grid(k), b.grid(k), "{id}");
+    }
+    assert_eq!(server.block_requests.load(Ordering::SeqCst), ids.len());
+    // The first request of a block starts at byte 0 (its header is checked); the next asks
+    // for the levels alone.
+    let id = ids[0];
+    let entry = local.entry(id).unwrap();
+    let third = Store::open_location_with(&server.url(), &options(&dir.join("cache2"))).unwrap();
+    third.prefetch_levels(id, 0, 2).unwrap();
+    third.prefetch_levels(id, 3, 4).unwrap();
+    let log = server.log.lock().unwrap().clone();
+    let name = block_file_name(id);
+    let ranges: Vec<(u64, u64)> =
+        log.iter().filter(|(p, _)| *p == name).filter_map(|(_, r)| *r).rev().take(2).collect();
+    let (l3, l4) = (entry.levels[3], entry.levels[4]);
+    assert_eq!(ranges[0], (l3.offset, l4.offset + u64::from(l4.len) - 1), "{log:?}");
+    assert_eq!(ranges[1].0, 0);
+    // A second open with the same cache: no block request, the same heights.
+    drop(remote);
+    let before = server.block_requests.load(Ordering::SeqCst);
+    let again = Store::open_location_with(&server.url(), &options(&cache)).unwrap();
+    for &id in &ids {
+        assert_eq!(
+            again.read_block(id, k).unwrap().grid(k),
+            local.read_block(id, k).unwrap().grid(k)
+        );
+    }
+    assert_eq!(server.block_requests.load(Ordering::SeqCst), before, "read from the disk cache");
+    // A cached level that no longer passes its CRC is fetched again (negative control of the
+    // cache's check).
+    let cached = again.dir().join(format!("{}.L{k}", block_file_name(id)));
+    std::fs::write(&cached, b"not the level").unwrap();
+    let again2 = Store::open_location_with(&server.url(), &options(&cache)).unwrap();
+    assert_eq!(again2.read_block(id, k).unwrap().grid(k), local.read_block(id, k).unwrap().grid(k));
+    assert_eq!(server.block_requests.load(Ordering::SeqCst), before + 1);
+    // A small disk cache holds to its limit (least recently used evicted).
+    let limit = 20_000;
+    let small = RemoteOptions { disk_cache_bytes: limit, ..options(&dir.join("small")) };
+    let s = Store::open_location_with(&server.url(), &small).unwrap();
+    for &id in &ids {
+        s.read_block(id, k).unwrap();
+    }
+    let blocks = s.dir().join("blocks");
+    let held: u64 =
+        std::fs::read_dir(&blocks).unwrap().map(|e| e.unwrap().metadata().unwrap().len()).sum();
+    assert!(held <= limit && held > 0, "{held} bytes cached, limit {limit}");
+    // Not a store: the error names the URL and the index.
+    let err = Store::open_location_with(&format!("{}/nothing", server.url()), &options(&cache))
+        .unwrap_err();
+    assert!(matches!(err, StoreError::Remote { .. }), "{err}");
+    assert!(err.to_string().contains("/nothing") && err.to_string().contains("index.tsi"), "{err}");
+    drop(server);
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// Byte offset where level `level` of each block ends (exclusive), from the index.
+fn level_end(store: &Store, id: BlockId, level: u8) -> u64 {
+    let le = store.entry(id).unwrap().levels[level as usize];
+    le.offset + u64::from(le.len)
+}
+
+/// Streams a flight from a server that fails (or never answers) every range reaching past
+/// level 2 of a block: every frame returns at once, faults name the block, the level and the
+/// error, and the blocks are drawn from their coarser levels.
+fn flight_over_a_bad_server(name: &str, action: Action) {
+    let dir = temp(name);
+    let local = Arc::new(local_store(&dir));
+    let ends: std::collections::HashMap<String, u64> =
+        local.block_ids().map(|id| (block_file_name(id), level_end(&local, id, 2))).collect();
+    let rule: Rule = Arc::new(move |path: &str, _a, b| match ends.get(path) {
+        Some(&end) if b > end => action,
+        _ => Action::Serve,
+    });
+    let server = Server::start(dir.join("store"), rule);
+    let opts = RemoteOptions {
+        request_timeout: Duration::from_millis(800),
+        retries: 0,
+        disk_cache_bytes: 0,
+        ..options(&dir.join("cache"))
+    };
+    let store = Arc::new(Store::open_location_with(&server.url(), &opts).unwrap());
+    let config = StreamConfig { threads: 2, tau: 1.0, coarse_level: 2, ..Default::default() };
+    let mut s = Streamer::new(store.clone(), config);
+    let mut faults = Vec::new();
+    let start = Instant::now();
+    let mut frames = 0;
+    while start.elapsed() < Duration::from_secs(60) {
+        let st = s.update(&camera(-500.0 + (frames % 40) as f64 * 10.0));
+        if frames > 0 {
+            // Never waits on the server: far below the request timeout.
+            assert!(!st.waited_for_io(), "frame {frames}");
+            assert!(
+                st.frame_time < Duration::from_millis(400),
+                "frame {frames}: {:?}",
+                st.frame_time
+            );
+        }
+        for b in s.scheduled().iter().filter(|b| b.visible) {
+            assert!(s.block(b.block).is_some(), "frame {frames}: {} is a hole", b.block);
+        }
+        faults.extend(st.faults);
+        frames += 1;
+        if faults.len() >= 3 {
+            break;
+        }
+        std::thread::sleep(Duration::from_millis(16));
+    }
+    assert!(faults.len() >= 3, "no fault named in {frames} frames");
+    for f in &faults {
+        assert!(f.error.level().is_some_and(|l| l >= 3), "{f}");
+        assert!(f.error.block().is_some(), "{f}");
+        assert!(f.drawn_level().is_some_and(|l| l <= 2), "{f}");
+        let text = f.to_string();
+        assert!(text.contains(&server.url()) && text.contains("level"), "{text}");
+        match action {
+            Action::Fail500 => assert!(text.contains("500"), "{text}"),
+            _ => assert!(matches!(f.error, StoreError::RemoteBlock { .. }), "{text}"),
+        }
+    }
+    drop(s);
+    drop(server);
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn a_server_answering_500_for_finer_levels_gives_named_faults_and_coarser_levels() {
+    flight_over_a_bad_server("fail", Action::Fail500);
+}
+
+#[test]
+fn a_hanging_server_never_stalls_a_frame() {
+    flight_over_a_bad_server("hang", Action::Hang);
+}
