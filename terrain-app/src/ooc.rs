@@ -154,6 +154,7 @@ pub const STORE_TABLES: &[&str] = &[
     crate::pvs_scene::SAMPLED_FILE,
     crate::pvs_scene::CONSERVATIVE_FILE,
     crate::roughness_scene::ROUGHNESS_FILE,
+    crate::ooc_calibration::FILE_NAME,
 ];
 
 static DISK_CACHE: std::sync::OnceLock<(Option<std::path::PathBuf>, Option<u64>)> =

@@ -424,15 +424,16 @@ impl Calibration {
     }
 }
 
-/// The calibration of the store in `dir` ([`FILE_NAME`] beside its index), if it has one;
-/// refused when it is another store's or garbled. Opens the store's index for its identity.
+/// The calibration of the store at `dir` ([`FILE_NAME`] beside its index), if it has one;
+/// refused when it is another store's or garbled. Opens the store's index for its identity;
+/// `dir` may be a URL (`crate::ooc::open_store`), whose file was mirrored with its tables.
 pub fn of_store(dir: &Path) -> Result<Option<Calibration>, CalibrationError> {
-    let store = Store::open(dir).map_err(|e| {
+    let store = crate::ooc::open_store(dir).map_err(|e| {
         CalibrationError::Measure(
             anyhow::Error::new(e).context(format!("could not open the store {}", dir.display())),
         )
     })?;
-    Calibration::load(dir, TerrainId::of(&store))
+    Calibration::load(store.dir(), TerrainId::of(&store))
 }
 
 /// The split rule's name in the file and on the command line (`--ooc-split`).
