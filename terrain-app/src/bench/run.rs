@@ -377,7 +377,6 @@ fn write_tables(
 /// The store of the out-of-core method: the configured one, or `hm` baked into a temporary
 /// folder (see [`BenchConfig::ooc_store`]).
 fn prepare_store(hm: &Heightmap, cfg: &BenchConfig) -> Result<Arc<terrain_stream::Store>, String> {
-    use terrain_stream::Store;
     let dir = match &cfg.ooc_store {
         Some(d) => d.clone(),
         None => {

@@ -5,3 +5,19 @@ mod lod;
 mod remote;
 mod runtime;
 mod store;
+
+/// The runtime and remote tests' 513^2 store (k = 6, 4 node levels): a smooth wave with a
+/// small integer ripple, baked into `dir`.
+fn bake_wave_513(dir: &std::path::Path) {
+    use crate::{BakeConfig, BakeProgress, bake};
+    use terrain_core::Georef;
+    use terrain_core::heightmap::Heightmap;
+    let hm = Heightmap::from_fn(513, 513, Georef::local(10.0), |i, j| {
+        300.0
+            + 200.0 * ((i as f32) * 0.02).sin() * ((j as f32) * 0.015).cos()
+            + ((i * 7 + j * 13) % 17) as f32
+    })
+    .unwrap();
+    let cfg = BakeConfig { k: 6, node_levels: 4, ..Default::default() };
+    bake(&hm, dir, &cfg, &mut |_: &BakeProgress| std::ops::ControlFlow::Continue(())).unwrap();
+}

@@ -7,21 +7,16 @@
 
 use std::io::{BufRead, BufReader, Write};
 use std::net::{TcpListener, TcpStream};
-use std::ops::ControlFlow;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use glam::dvec3;
-use terrain_core::Georef;
 use terrain_core::geometry::Camera;
-use terrain_core::heightmap::Heightmap;
 
 use crate::format::block_file_name;
-use crate::{
-    BakeConfig, BlockId, RemoteOptions, Store, StoreError, StreamConfig, Streamer, bake, is_url,
-};
+use crate::{BlockId, RemoteOptions, Store, StoreError, StreamConfig, Streamer, is_url};
 
 /// What the server does with one request: the path and the byte range asked for.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -172,15 +167,7 @@ fn temp(name: &str) -> PathBuf {
 
 /// A 513^2 store with k = 6 (as the runtime tests'), in `dir/store`.
 fn local_store(dir: &Path) -> Store {
-    let hm = Heightmap::from_fn(513, 513, Georef::local(10.0), |i, j| {
-        300.0
-            + 200.0 * ((i as f32) * 0.02).sin() * ((j as f32) * 0.015).cos()
-            + ((i * 7 + j * 13) % 17) as f32
-    })
-    .unwrap();
-    let cfg = BakeConfig { k: 6, node_levels: 4, ..Default::default() };
-    bake(&hm, &dir.join("store"), &cfg, &mut |_: &crate::BakeProgress| ControlFlow::Continue(()))
-        .unwrap();
+    super::bake_wave_513(&dir.join("store"));
     Store::open(dir.join("store")).unwrap()
 }
 

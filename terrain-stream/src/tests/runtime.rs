@@ -16,24 +16,14 @@ use crate::{
     StreamConfig, Streamer, bake,
 };
 use glam::dvec3;
-use terrain_core::Georef;
 use terrain_core::geometry::Camera;
-use terrain_core::heightmap::Heightmap;
 use terrain_core::synth::FractalConfig;
 
 fn store(name: &str) -> (std::path::PathBuf, Arc<Store>) {
     let dir = std::env::temp_dir().join(format!("terrain-stream-rt-{}-{name}", std::process::id()));
     let _ = std::fs::remove_dir_all(&dir);
     std::fs::create_dir_all(&dir).unwrap();
-    let hm = Heightmap::from_fn(513, 513, Georef::local(10.0), |i, j| {
-        300.0
-            + 200.0 * ((i as f32) * 0.02).sin() * ((j as f32) * 0.015).cos()
-            + ((i * 7 + j * 13) % 17) as f32
-    })
-    .unwrap();
-    let cfg = BakeConfig { k: 6, node_levels: 4, ..Default::default() };
-    bake(&hm, &dir.join("s"), &cfg, &mut |_: &crate::BakeProgress| ControlFlow::Continue(()))
-        .unwrap();
+    super::bake_wave_513(&dir.join("s"));
     let s = Arc::new(Store::open(dir.join("s")).unwrap());
     (dir, s)
 }
