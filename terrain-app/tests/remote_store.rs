@@ -302,11 +302,12 @@ fn a_store_baked_to_seaweedfs_reads_as_the_local_bake() {
     let (dem, store) = baked(&dir);
     let data = dir.join("weed");
     std::fs::create_dir_all(&data).unwrap();
-    // Seven distinct free ports (the listeners held until all are chosen).
-    let held: Vec<std::net::TcpListener> =
-        (0..7).map(|_| std::net::TcpListener::bind("127.0.0.1:0").unwrap()).collect();
-    let port: Vec<u16> = held.iter().map(|l| l.local_addr().unwrap().port()).collect();
-    drop(held);
+    // Eight distinct free ports below 55536: `weed` puts any port it is not given at the S3
+    // port + 10000 (its gRPC), which must stay a valid port (CI once drew a port where that
+    // overflowed, and weed died after the bucket was made). Every listener weed would open at a
+    // fixed default port (Iceberg 8181, Lance 9101) is switched off, so no other process on the
+    // machine can make it exit, and it sends no telemetry.
+    let port = free_ports(8);
     let (master, volume, filer, s3) = (port[0], port[1], port[2], port[3]);
     let log = dir.join("weed.log");
     let mut child = Command::new(weed())
@@ -324,6 +325,10 @@ fn a_store_baked_to_seaweedfs_reads_as_the_local_bake() {
             "-filer",
             "-s3",
             &format!("-s3.port={s3}"),
+            &format!("-s3.port.grpc={}", port[7]),
+            "-s3.port.iceberg=0",
+            "-s3.port.lance=0",
+            "-master.telemetry=false",
             "-volume.max=5",
             "-master.volumeSizeLimitMB=64",
         ])
@@ -332,7 +337,7 @@ fn a_store_baked_to_seaweedfs_reads_as_the_local_bake() {
         .spawn()
         .expect("weed runs");
     wait_for(s3, "SeaweedFS (weed server -s3)", &mut child, &dir.join("weed.err"));
-    let _server = Server { child, port: s3 };
+    let mut server = Server { child, port: s3 };
     let endpoint = format!("http://127.0.0.1:{s3}");
     let env = [
         ("AWS_ENDPOINT_URL", endpoint.as_str()),
@@ -347,7 +352,7 @@ fn a_store_baked_to_seaweedfs_reads_as_the_local_bake() {
     let url = "s3://bucket/x";
     let out = terrain_in(&dir, &cache, &env, &bake_args(&dem, url));
     let all = text(&out);
-    assert!(out.status.success(), "bake -o {url}: {all}");
+    assert!(out.status.success(), "bake -o {url}: {all}\n{}", weed_state(&mut server, &dir));
     // The summary names the URL, not the temporary folder, which is gone.
     assert!(all.lines().any(|l| l.starts_with(&format!("{url}: 129 x 129 samples"))), "{all}");
     assert!(all.contains("uploaded") && all.contains("the index last"), "{all}");
@@ -364,6 +369,37 @@ fn a_store_baked_to_seaweedfs_reads_as_the_local_bake() {
     assert_eq!(local, remote);
     assert!(!err.contains("store fault"), "{err}");
     std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// `n` distinct free ports on 127.0.0.1, each below 55536 (the listeners held until all are
+/// chosen).
+fn free_ports(n: usize) -> Vec<u16> {
+    let mut held = Vec::new();
+    let mut ports: Vec<u16> = Vec::new();
+    while ports.len() < n {
+        let l = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+        let p = l.local_addr().unwrap().port();
+        if p < 55536 && !ports.contains(&p) {
+            ports.push(p);
+        }
+        held.push(l);
+        assert!(held.len() < 10_000, "no {n} free ports below 55536 on 127.0.0.1");
+    }
+    ports
+}
+
+/// Whether weed still runs, and the warnings, errors and fatal lines of its log: what a failed
+/// upload's message needs to say why.
+fn weed_state(server: &mut Server, dir: &Path) -> String {
+    let running = match server.child.try_wait() {
+        Ok(None) => "weed is still running".to_string(),
+        Ok(Some(status)) => format!("weed exited ({status})"),
+        Err(e) => format!("weed's state is unknown ({e})"),
+    };
+    let log = std::fs::read_to_string(dir.join("weed.err")).unwrap_or_default();
+    let lines: Vec<&str> =
+        log.lines().filter(|l| l.starts_with('F') || l.starts_with('E')).take(40).collect();
+    format!("{running}; weed.err's error lines:\n{}", lines.join("\n"))
 }
 
 /// Creates an S3 bucket with an unsigned `PUT /bucket` (SeaweedFS without identities accepts it).
