@@ -166,6 +166,11 @@ pub trait Method: std::fmt::Debug {
         None
     }
 
+    /// Holds the I/O of a store-backed method's streaming runtime (`true`) or releases it
+    /// ([`terrain_stream::Streamer::hold_io`]): what a real-time benchmark does while it
+    /// measures and draws a frame off the flight's clock. Nothing for in-memory methods.
+    fn hold_io(&mut self, _held: bool) {}
+
     /// What this method's frames are drawn over: the renderer they need and the terrain it
     /// reads (the one place a method says it; [`Method::renderer_kind`] and
     /// [`Method::renderer`] follow from it).
