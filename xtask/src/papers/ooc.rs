@@ -247,7 +247,10 @@ fn table2(report: &Value, dem: &str, flight: &str, budget_mib: f64) -> Section {
         )
         .because(|| {
             format!(
-                "the mean frame takes {:.0} ms at tau 1 and {:.0} ms at tau 2 ({:+.1} %), of                  which drawing (lavapipe's wall time) {:.0} and {:.0} ms ({:+.1} %), for {:+.1} %                  triangles: the software renderer's per-pixel work at the image size does not                  shrink with the triangles as the paper's GPU's frame does",
+                "the mean frame takes {:.0} ms at tau 1 and {:.0} ms at tau 2 ({:+.1} %), of \
+                 which drawing (lavapipe's wall time) {:.0} and {:.0} ms ({:+.1} %), for {:+.1} % \
+                 triangles: the software renderer's per-pixel work at the image size does not \
+                 shrink with the triangles as the paper's GPU's frame does",
                 e1.1,
                 e2.1,
                 100.0 * (e2.1 / e1.1 - 1.0),
@@ -266,7 +269,11 @@ fn table2(report: &Value, dem: &str, flight: &str, budget_mib: f64) -> Section {
         )
         .because(|| {
             format!(
-                "the streamed data peaks at {:.2} MiB at tau 1 and {:.2} MiB at tau 2 against                  the cache budget of {budget_mib:.0} MiB: the streamer fills its budget with                  pre-loaded levels whatever tau, so the peak is the budget's; the data the                  frames need does fall with tau: {:.2} MiB at tau 1, {:.2} MiB at tau 2 on the                  mean frame ({:+.1} %; the paper's peak memory {:+.1} %)",
+                "the streamed data peaks at {:.2} MiB at tau 1 and {:.2} MiB at tau 2 against the \
+                 cache budget of {budget_mib:.0} MiB (kept above it when a frame needs more): the \
+                 streamer fills its budget with pre-loaded levels whatever tau, so the peak is \
+                 the budget's or the frames' need; the data the mean frame needs: {:.2} MiB at \
+                 tau 1, {:.2} MiB at tau 2 ({:+.1} %; the paper's peak memory {:+.1} %)",
                 one.3,
                 two.3,
                 e1.3,
@@ -395,8 +402,7 @@ fn table3(report: &Value, dem: &str, flight: &str, store_mib: f64) -> Section {
              flight {:.1} % of the frames were drawn at their needed level, the late data per \
              frame was {:.3} MiB at the median and {:.3} MiB at most (the median frame needs \
              {:.3} MiB), {:.3} MiB arrived pre-loaded per frame on average, and {} of the \
-             frames started behind the 30 fps schedule (the machine's load, in the header, \
-             shares the two cores with the workers)",
+             frames started behind the 30 fps schedule",
             shares.len(),
             100.0 * whole("at_needed_level_share"),
             whole("late_mib_median"),
