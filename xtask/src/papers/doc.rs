@@ -554,6 +554,29 @@ mod tests {
     }
 
     #[test]
+    fn a_reason_is_attached_only_where_a_claim_does_not_hold() {
+        let why = || "measured".to_string();
+        assert_eq!(effect("c", -0.3, -0.3).because(why).why, None);
+        assert_eq!(effect("c", -0.3, 0.0).because(why).why.as_deref(), Some("measured"));
+        assert_eq!(effect("c", -0.3, 0.5).because(why).why.as_deref(), Some("measured"));
+        let mut s = Section::new("Table 1", "t");
+        let mut t = Table::new("cap", &["a"]);
+        t.rows.push(vec![text("x")]);
+        s.ours.push(t);
+        s.verdicts.push(effect("fewer", -0.3, 0.0).because(why));
+        let doc = PaperDoc {
+            key: "k".into(),
+            title: "T".into(),
+            differences: vec![],
+            commands: vec![],
+            load: vec![],
+            quick: true,
+            sections: vec![s],
+        };
+        assert!(doc.to_markdown().contains("ours 0.000)\n  - why: measured\n"));
+    }
+
+    #[test]
     fn documents_flag_missing_numbers_and_write_every_part() {
         let mut s = Section::new("Table 1", "t");
         assert_eq!(s.problems().len(), 2);
