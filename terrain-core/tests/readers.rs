@@ -598,10 +598,11 @@ fn south_up_geotiff_reads_as_its_north_up_twin() {
     assert_eq!(b.heightmap.georef().native_origin, glam::dvec2(10.25, 49.125));
     assert_eq!(a.heightmap.georef().native_origin, b.heightmap.georef().native_origin);
     assert_eq!(a.heightmap.georef().native_spacing, b.heightmap.georef().native_spacing);
-    for j in 0..h as usize {
-        for i in 0..w as usize {
+    assert_eq!((a.heightmap.width(), a.heightmap.height()), (w as usize, h as usize));
+    for (j, row) in rows.iter().enumerate() {
+        for (i, &v) in row.iter().enumerate() {
             // Our row 0 is the south row [1 2 3] in both.
-            let want = f32::from(rows[j][i]);
+            let want = f32::from(v);
             assert_eq!(a.heightmap.get(i, j), want, "north-up ({i}, {j})");
             assert_eq!(b.heightmap.get(i, j), want, "south-up ({i}, {j})");
         }
