@@ -10,7 +10,8 @@
 //! ([`FrameStats::late_bytes`], `late_blocks`, `late_levels`). The **first frame** of a
 //! session waits while the workers load the coarse levels (`0..=min(needed, coarse_level)`) of
 //! every visible block and, with [`StreamConfig::pin_level_zero`], level 0 of every block of the
-//! store (kept resident from then on, so no block is ever a hole), so the first image is not
+//! store (kept resident from then on, so no block is ever a hole; a local store only, see
+//! [`StreamConfig::pin_level_zero`]), so the first image is not
 //! empty (the paper's Table 3: "all the needed data are loaded from external memory" in frame
 //! 1). These count as the frame's synchronous (real-time loaded) data.
 //!
@@ -70,7 +71,11 @@ pub struct StreamConfig {
     /// Cache budget in decoded bytes. Default 256 MiB. What the visible blocks need (and a
     /// pinned level 0, [`StreamConfig::pin_level_zero`]) is kept even above it.
     pub budget_bytes: u64,
-    /// Worker threads; 0 (the default) = one per available core.
+    /// Worker threads; 0 (the default) = one per available core, and for a store on object
+    /// storage or HTTP ([`Store::is_remote`]) at least [`StreamConfig::REMOTE_THREADS`]: a
+    /// worker waits out each range request, so the requests in the air are the worker count,
+    /// and with 2 workers and 50 ms a request the stream moved at most 40 requests a second
+    /// (bench/remote/README.md).
     pub threads: usize,
     /// The scheduler's `L`, frame rate and look-ahead (Eq. 8).
     pub schedule: ScheduleConfig,
@@ -85,7 +90,9 @@ pub struct StreamConfig {
     /// load, when all of them take at most 1/8 of the budget (a 32769^2 store with k = 8:
     /// 256 KiB). Default true. Pinned levels are never evicted: resident bytes stay within
     /// `max(budget, needed + 16 bytes per block)`. The standard "coarsest level always resident" of out-of-core
-    /// terrain (e.g. geometry clipmaps' coarsest level, Losasso & Hoppe 2004).
+    /// terrain (e.g. geometry clipmaps' coarsest level, Losasso & Hoppe 2004). For a store on
+    /// object storage or HTTP the first frame does not fetch every block's level 0 (a request
+    /// each); level 0 is kept from the first load of each block on.
     pub pin_level_zero: bool,
     /// Requests in flight at most; 0 (the default) = 1024 per worker thread. A short queue lets
     /// the current frame's priorities decide what loads next, but starves the workers between
@@ -101,6 +108,12 @@ pub struct StreamConfig {
     /// level of a block is the deepest level the selection's patches need in it, so give the
     /// [`crate::StoreTree`] the same ([`crate::StoreTree::with_refinement`]).
     pub refinement: Refinement,
+}
+
+impl StreamConfig {
+    /// The fewest worker threads a store on object storage or HTTP gets by default
+    /// ([`StreamConfig::threads`] 0): requests waiting on the network in parallel.
+    pub const REMOTE_THREADS: usize = 32;
 }
 
 impl Default for StreamConfig {
@@ -181,7 +194,13 @@ impl Streamer {
         config: StreamConfig,
         reader: Arc<dyn LevelReader>,
     ) -> Self {
-        let pool = WorkerPool::spawn(reader, config.threads);
+        let threads = if config.threads == 0 && store.is_remote() {
+            let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
+            cores.max(StreamConfig::REMOTE_THREADS)
+        } else {
+            config.threads
+        };
+        let pool = WorkerPool::spawn(reader, threads);
         let base = store.header().block_count() as u64 * BlockEntry::resident_bytes(0);
         let pinned = usize::from(config.pin_level_zero && base <= config.budget_bytes / 8);
         Self {
@@ -675,7 +694,8 @@ impl Streamer {
     }
 
     /// The session's first frame waits for the workers to load the coarse levels of the
-    /// visible blocks and the pinned level 0 of every other block (see the module docs).
+    /// visible blocks and the pinned level 0 of every other block of a local store (see the
+    /// module docs).
     fn first_frame(&mut self, scheduled: &[ScheduledBlock], stats: &mut FrameStats) {
         let t = Instant::now();
         let store = self.store.clone();
@@ -683,7 +703,10 @@ impl Streamer {
         let visible = scheduled.iter().filter(|s| s.visible);
         let mut wanted: Vec<(BlockId, u8)> =
             visible.map(|s| (s.block, s.needed.min(self.config.coarse_level))).collect();
-        if self.pinned > 0 {
+        // A remote store's level 0 is a range request per block (16384 on a 32769^2 store:
+        // 28 s at 50 ms a request with 32 workers, bench/remote/README.md): it is kept as the
+        // blocks load, not fetched for the whole store up front.
+        if self.pinned > 0 && !store.is_remote() {
             wanted.extend(store.block_ids().map(|id| (id, 0)));
         }
         for (id, last) in wanted {
