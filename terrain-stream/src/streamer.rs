@@ -10,8 +10,8 @@
 //! ([`FrameStats::late_bytes`], `late_blocks`, `late_levels`). The **first frame** of a
 //! session waits while the workers load the coarse levels (`0..=min(needed, coarse_level)`) of
 //! every visible block and, with [`StreamConfig::pin_level_zero`], level 0 of every block of the
-//! store (kept resident from then on, so no block is ever a hole; a local store only, see
-//! [`StreamConfig::pin_level_zero`]), so the first image is not
+//! store (kept resident from then on, so no block is ever a hole; not on a large remote store,
+//! see [`StreamConfig::pin_level_zero`]), so the first image is not
 //! empty (the paper's Table 3: "all the needed data are loaded from external memory" in frame
 //! 1). These count as the frame's synchronous (real-time loaded) data.
 //!
@@ -74,8 +74,9 @@ pub struct StreamConfig {
     /// Worker threads; 0 (the default) = one per available core, and for a store on object
     /// storage or HTTP ([`Store::is_remote`]) at least [`StreamConfig::REMOTE_THREADS`]: a
     /// worker waits out each range request, so the requests in the air are the worker count,
-    /// and with 2 workers and 50 ms a request the stream moved at most 40 requests a second
-    /// (bench/remote/README.md).
+    /// and with 2 workers and 50 ms a request the stream moved at most 40 requests a second;
+    /// 256 workers fetched 3-4x what 32 did on `fast_pass` over nginx + 50 ms
+    /// (bench/remote/README.md). They wait, not compute: the decoding is the same work.
     pub threads: usize,
     /// The scheduler's `L`, frame rate and look-ahead (Eq. 8).
     pub schedule: ScheduleConfig,
@@ -91,8 +92,9 @@ pub struct StreamConfig {
     /// 256 KiB). Default true. Pinned levels are never evicted: resident bytes stay within
     /// `max(budget, needed + 16 bytes per block)`. The standard "coarsest level always resident" of out-of-core
     /// terrain (e.g. geometry clipmaps' coarsest level, Losasso & Hoppe 2004). For a store on
-    /// object storage or HTTP the first frame does not fetch every block's level 0 (a request
-    /// each); level 0 is kept from the first load of each block on.
+    /// object storage or HTTP of more than [`StreamConfig::REMOTE_PIN_BLOCKS`] blocks the first
+    /// frame does not fetch every block's level 0 (a request each); level 0 is kept from the
+    /// first load of each block on.
     pub pin_level_zero: bool,
     /// Requests in flight at most; 0 (the default) = 1024 per worker thread. A short queue lets
     /// the current frame's priorities decide what loads next, but starves the workers between
@@ -113,7 +115,12 @@ pub struct StreamConfig {
 impl StreamConfig {
     /// The fewest worker threads a store on object storage or HTTP gets by default
     /// ([`StreamConfig::threads`] 0): requests waiting on the network in parallel.
-    pub const REMOTE_THREADS: usize = 32;
+    pub const REMOTE_THREADS: usize = 256;
+
+    /// The most blocks of a store on object storage or HTTP whose level 0 the first frame
+    /// fetches ([`StreamConfig::pin_level_zero`]): a range request each, about 1.6 s at 50 ms a
+    /// request with 32 workers.
+    pub const REMOTE_PIN_BLOCKS: usize = 1024;
 }
 
 impl Default for StreamConfig {
@@ -694,8 +701,8 @@ impl Streamer {
     }
 
     /// The session's first frame waits for the workers to load the coarse levels of the
-    /// visible blocks and the pinned level 0 of every other block of a local store (see the
-    /// module docs).
+    /// visible blocks and the pinned level 0 of every other block (not on a large remote store:
+    /// see the module docs).
     fn first_frame(&mut self, scheduled: &[ScheduledBlock], stats: &mut FrameStats) {
         let t = Instant::now();
         let store = self.store.clone();
@@ -704,9 +711,11 @@ impl Streamer {
         let mut wanted: Vec<(BlockId, u8)> =
             visible.map(|s| (s.block, s.needed.min(self.config.coarse_level))).collect();
         // A remote store's level 0 is a range request per block (16384 on a 32769^2 store:
-        // 28 s at 50 ms a request with 32 workers, bench/remote/README.md): it is kept as the
-        // blocks load, not fetched for the whole store up front.
-        if self.pinned > 0 && !store.is_remote() {
+        // 28 s at 50 ms a request with 32 workers, bench/remote/README.md): above
+        // REMOTE_PIN_BLOCKS blocks it is kept as the blocks load, not fetched up front.
+        if self.pinned > 0
+            && (!store.is_remote() || header.block_count() <= StreamConfig::REMOTE_PIN_BLOCKS)
+        {
             wanted.extend(store.block_ids().map(|id| (id, 0)));
         }
         for (id, last) in wanted {
