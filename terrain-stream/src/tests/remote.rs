@@ -361,7 +361,6 @@ fn a_remote_store_streams_with_many_workers() {
         Streamer::new(store.clone(), StreamConfig { threads, ..Default::default() }).threads()
     };
     assert_eq!(threads(&remote, 0), cores.max(StreamConfig::REMOTE_THREADS));
-    assert!(StreamConfig::REMOTE_THREADS >= 32);
     assert_eq!(threads(&local, 0), cores);
     assert_eq!(threads(&remote, 3), 3);
     assert_eq!(threads(&local, 3), 3);
