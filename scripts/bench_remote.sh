@@ -15,8 +15,9 @@
 # for every run (default `in_flight=2048 lookahead=2`: the app's streamer settings). Environment:
 # BIN (default target/release/examples/stream_bench: `cargo build --release -p terrain-stream
 # --example stream_bench`), DELAY_MS, S3=1, WEED (default .venv/bin/weed, from
-# scripts/requirements-s3.txt), RUNS (a space-separated subset of: local nginx delay-aware
-# delay-unaware s3-aware s3-unaware; default all but the s3 ones unless S3=1).
+# scripts/requirements-s3.txt), RUNS (a space-separated list of: local nginx delay-aware
+# delay-unaware s3-aware s3-unaware, each optionally with settings of its own,
+# `delay-aware:threads=32,lookahead=3`; default all but the s3 ones unless S3=1).
 #
 # Needs nginx (Debian's package), python3 and curl. Servers listen on free ports of 127.0.0.1
 # and are stopped on exit; their folders (the uploaded store, the disk caches) are removed.
@@ -135,17 +136,25 @@ run() {
     sed -n 3p <<<"$out" | sed "s/^|/| $label | $load | $gets |/"
 }
 
-for r in $runs; do
+for spec in $runs; do
+    # RUN or RUN:key=value,key=value (settings of that run alone, after the others).
+    r=${spec%%:*}
+    extra=()
+    more=""
+    if [ "$r" != "$spec" ]; then
+        IFS=, read -r -a extra <<<"${spec#*:}"
+        more=", ${spec#*:}"
+    fi
     case $r in
-        local) run "local disk" "$store" ;;
-        nginx) run "nginx" "http://127.0.0.1:$p_nginx/$name" ;;
-        delay-aware) run "nginx + $delay_ms ms, latency-aware" "http://127.0.0.1:$p_proxy/$name" latency_aware=1 ;;
-        delay-unaware) run "nginx + $delay_ms ms, not latency-aware" "http://127.0.0.1:$p_proxy/$name" latency_aware=0 ;;
+        local) run "local disk$more" "$store" "${extra[@]}" ;;
+        nginx) run "nginx$more" "http://127.0.0.1:$p_nginx/$name" "${extra[@]}" ;;
+        delay-aware) run "nginx + $delay_ms ms, latency-aware$more" "http://127.0.0.1:$p_proxy/$name" latency_aware=1 "${extra[@]}" ;;
+        delay-unaware) run "nginx + $delay_ms ms, not latency-aware$more" "http://127.0.0.1:$p_proxy/$name" latency_aware=0 "${extra[@]}" ;;
         s3-aware | s3-unaware)
             [ ${#s3_env[@]} -gt 0 ] || start_s3
             aware=1
             [ "$r" = s3-unaware ] && aware=0
-            run "SeaweedFS S3$([ $aware = 1 ] && echo ", latency-aware" || echo ", not latency-aware")" "s3://bucket/$name" latency_aware=$aware
+            run "SeaweedFS S3$([ $aware = 1 ] && echo ", latency-aware" || echo ", not latency-aware")$more" "s3://bucket/$name" latency_aware=$aware "${extra[@]}"
             ;;
         *) echo "unknown run $r (local nginx delay-aware delay-unaware s3-aware s3-unaware)" >&2; exit 1 ;;
     esac

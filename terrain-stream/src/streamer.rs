@@ -75,7 +75,7 @@ pub struct StreamConfig {
     /// storage or HTTP ([`Store::is_remote`]) at least [`StreamConfig::REMOTE_THREADS`]: a
     /// worker waits out each range request, so the requests in the air are the worker count,
     /// and with 2 workers and 50 ms a request the stream moved at most 40 requests a second;
-    /// 256 workers fetched 3-4x what 32 did on `fast_pass` over nginx + 50 ms
+    /// 256 workers fetched 4.5-5x what 32 did on `fast_pass` over nginx + 50 ms
     /// (bench/remote/README.md). They wait, not compute: the decoding is the same work.
     pub threads: usize,
     /// The scheduler's `L`, frame rate and look-ahead (Eq. 8).
