@@ -7,7 +7,9 @@
 //! `terrain bake -o s3://bucket/x` uploads a store that reads as the local bake, and leaves no
 //! `s3:` folder behind; a second bake to that URL is refused before any work unless
 //! `--overwrite` (as a local store folder is), a prefix holding other objects is never
-//! replaced, and `bake -o http://` is refused (a web server is read-only). Every server is stopped on drop (SIGTERM, then waited for); a server
+//! replaced, and `bake -o http://` is refused (a web server is read-only). **Azurite** (the
+//! Azure Storage emulator, npm, installed by terrain-app/tests/azurite/install.sh) does the same
+//! for `az://`: bake, info, a warm bench equal to the local store's, a second bake refused. Every server is stopped on drop (SIGTERM, then waited for); a server
 //! that does not answer within 30 s fails the test with its log.
 
 mod common;
@@ -428,6 +430,85 @@ fn a_store_baked_to_seaweedfs_reads_as_the_local_bake() {
         "{all}"
     );
     assert_eq!(get_object(s3, "bucket/notes/readme.txt"), "not a store");
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// The `azurite-blob` launcher of terrain-app/tests/azurite's node_modules (`bash
+/// terrain-app/tests/azurite/install.sh`, as .ci/run does).
+fn azurite() -> PathBuf {
+    let p =
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/azurite/node_modules/.bin/azurite-blob");
+    assert!(
+        p.exists(),
+        "{} is missing: `bash terrain-app/tests/azurite/install.sh` (as .ci/run does)",
+        p.display()
+    );
+    p
+}
+
+#[test]
+fn a_store_baked_to_azurite_reads_as_the_local_bake() {
+    let dir = scratch("remote-store", "az");
+    let (dem, store) = baked(&dir);
+    let port = free_ports(1)[0];
+    let log = dir.join("azurite.log");
+    let mut child = Command::new(azurite())
+        .args([
+            "--blobHost",
+            "127.0.0.1",
+            "--blobPort",
+            &port.to_string(),
+            "--location",
+            s(&dir.join("azurite")),
+            "--silent",
+            "--skipApiVersionCheck",
+            "--disableTelemetry",
+        ])
+        .stdout(std::fs::File::create(&log).unwrap())
+        .stderr(std::fs::File::create(dir.join("azurite.err")).unwrap())
+        .spawn()
+        .expect("azurite-blob runs (node)");
+    wait_for(port, "Azurite (azurite-blob)", &mut child, &dir.join("azurite.err"));
+    let server = Server { child, port };
+    // The container, with a request signed by the emulator's well-known key.
+    let made = Command::new("python3")
+        .arg(Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/azurite/container.py"))
+        .args([&port.to_string(), "terrain"])
+        .output()
+        .unwrap();
+    assert!(made.status.success(), "creating the container: {}", text(&made));
+    let endpoint = format!("http://127.0.0.1:{port}");
+    let env = [
+        ("AZURE_STORAGE_USE_EMULATOR", "true"),
+        ("AZURITE_BLOB_STORAGE_URL", endpoint.as_str()),
+        ("AZURE_ALLOW_HTTP", "true"),
+    ];
+    let cache = dir.join("cache");
+    let url = "az://terrain/x";
+    let out = terrain_in(&dir, &cache, &env, &bake_args(&dem, url));
+    let all = text(&out);
+    assert!(out.status.success(), "bake -o {url}: {all}");
+    assert!(all.contains("uploaded") && all.contains("the index last"), "{all}");
+    assert_eq!(info(&dir, &cache, &env, url), info(&dir, &cache, &env, s(&store)));
+    let (local, _) = bench(&dir, &cache, &env, &dem, s(&store), "local");
+    let (remote, err) = bench(&dir, &cache, &env, &dem, url, "remote");
+    assert_eq!(local, remote);
+    assert!(!err.contains("store fault"), "{err}");
+    // A second bake is refused, as on S3 and on disk.
+    let out = terrain_in(&dir, &cache, &env, &bake_args(&dem, url));
+    assert!(
+        text(&out).contains(&format!("{url}: already exists (give --overwrite to replace it)")),
+        "{}",
+        text(&out)
+    );
+    // Negative control: a container that does not exist is an error naming the URL.
+    let missing = terrain_in(&dir, &cache, &env, &["info", "az://nothere/x"]);
+    assert!(
+        !missing.status.success() && text(&missing).contains("az://nothere/x"),
+        "{}",
+        text(&missing)
+    );
+    drop(server);
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
