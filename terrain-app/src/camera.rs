@@ -175,7 +175,11 @@ impl<'a> Ground<'a> {
             Horizontal::World(p) => Ok(p),
             Horizontal::LonLat(ll) => {
                 let c = LonLat::new(self.georef).context("lonlat: in --camera or --look-at")?;
-                Ok(c.to_world(ll)?)
+                // The longitude modulo 360 nearest the terrain (a grid in 0..360 longitudes).
+                let (w, h) = (self.heights.width(), self.heights.height());
+                let centre =
+                    self.heights.grid_to_world((w as f64 - 1.0) / 2.0, (h as f64 - 1.0) / 2.0);
+                Ok(c.to_world_near(ll, centre)?)
             }
         }
     }

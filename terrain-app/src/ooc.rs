@@ -513,6 +513,11 @@ impl OocScene {
         &self.streamer
     }
 
+    /// Holds or releases the runtime's I/O ([`Streamer::hold_io`]).
+    pub fn hold_io(&mut self, held: bool) {
+        self.streamer.hold_io(held);
+    }
+
     /// The page layout (one page per block).
     pub fn layout(&self) -> PageLayout {
         self.layout

@@ -169,6 +169,20 @@ impl LonLat {
         Ok(world)
     }
 
+    /// [`LonLat::to_world`], with a geographic grid's longitude taken modulo 360 degrees to land
+    /// nearest world position `near` (the grid's centre, say): a grid in the 0..360 convention
+    /// (ocean and climate grids) or one crossing 180 is then found from -180..180 longitudes.
+    /// Projected grids are unaffected.
+    pub fn to_world_near(&self, lonlat: DVec2, near: DVec2) -> Result<DVec2, LonLatError> {
+        let w = self.to_world(lonlat)?;
+        if !self.geographic {
+            return Ok(w);
+        }
+        let turn = 360.0 * self.scale.x;
+        let k = ((near.x - w.x) / turn).round();
+        Ok(dvec2(w.x + k * turn, w.y))
+    }
+
     /// WGS84 lon/lat (degrees: x = longitude, y = latitude) of world position `world` (metres);
     /// the inverse of [`LonLat::to_world`].
     pub fn to_lonlat(&self, world: DVec2) -> Result<DVec2, LonLatError> {
@@ -244,6 +258,16 @@ mod tests {
 
     #[test]
     fn grids_without_a_usable_crs_are_refused_by_name() {
+        // A grid in 0..360 longitudes is found from -180..180 ones, and near 180 either way.
+        let east =
+            Georef::geographic(Crs::Epsg(4326), dvec2(234.0, 48.0), DVec2::splat(0.25), 49.0);
+        let c = LonLat::new(&east).unwrap();
+        let centre = east.grid_to_world(dvec2(8.0, 4.0));
+        let w = c.to_world_near(dvec2(-124.5, 48.5), centre).unwrap();
+        assert!((w.x / c.scale.x - 235.5).abs() < 1e-9, "{w}");
+        // Near the -180..180 place, the longitude stays as given.
+        let west = c.to_world(dvec2(-124.0, 48.0)).unwrap();
+        assert_eq!(c.to_world_near(dvec2(-124.5, 48.5), west), c.to_world(dvec2(-124.5, 48.5)));
         let e = LonLat::new(&Georef::local(10.0)).unwrap_err();
         assert!(matches!(e, LonLatError::NoCrs { .. }), "{e}");
         assert!(e.to_string().contains("no coordinate reference system"), "{e}");

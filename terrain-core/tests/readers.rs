@@ -568,6 +568,62 @@ fn geotiff_georeference_keys() {
     assert_err(&p, &LoadOptions::default(), "pixel scale");
 }
 
+/// A south-up GeoTIFF (negative y pixel scale: the first row is the southernmost, as numpy
+/// grids with latitude ascending are often written) reads as the north-up file with its rows
+/// reversed, whole and by rows; the tie point is then the south-west corner. A negative x
+/// scale (east to the left) stays refused.
+#[test]
+fn south_up_geotiff_reads_as_its_north_up_twin() {
+    use terrain_core::dem::RowReader;
+    let (w, h) = (3u32, 4u32);
+    let rows: Vec<[i16; 3]> = vec![[1, 2, 3], [4, 5, 6], [7, 8, 9], [10, 11, 12]];
+    let bytes = |rows: &[[i16; 3]]| -> Vec<u8> {
+        rows.iter().flatten().flat_map(|v| v.to_le_bytes()).collect()
+    };
+    let geo = |sy: f64, y0: f64| -> Vec<Field> {
+        vec![
+            (33550, 12, 3, doubles(&[0.5, sy, 0.0])),
+            (33922, 12, 6, doubles(&[0.0, 0.0, 0.0, 10.0, y0, 0.0])),
+            (34735, 3, 12, shorts(&[1, 1, 0, 2, 1024, 0, 1, 2, 2048, 0, 1, 4326])),
+        ]
+    };
+    // The same terrain: north-up stores row [10 11 12] (north, y 50..49.75) first; south-up
+    // stores [1 2 3] (south, y 49..49.25) first, its tie point at the south edge.
+    let mut reversed = rows.clone();
+    reversed.reverse();
+    let north = write_temp("north_up.tif", &build_tiff(w, h, &bytes(&reversed), geo(0.25, 50.0)));
+    let south = write_temp("south_up.tif", &build_tiff(w, h, &bytes(&rows), geo(-0.25, 49.0)));
+    let a = load(&north, &LoadOptions::default()).unwrap();
+    let b = load(&south, &LoadOptions::default()).unwrap();
+    assert_eq!(b.heightmap.georef().native_origin, glam::dvec2(10.25, 49.125));
+    assert_eq!(a.heightmap.georef().native_origin, b.heightmap.georef().native_origin);
+    assert_eq!(a.heightmap.georef().native_spacing, b.heightmap.georef().native_spacing);
+    for j in 0..h as usize {
+        for i in 0..w as usize {
+            // Our row 0 is the south row [1 2 3] in both.
+            let want = f32::from(rows[j][i]);
+            assert_eq!(a.heightmap.get(i, j), want, "north-up ({i}, {j})");
+            assert_eq!(b.heightmap.get(i, j), want, "south-up ({i}, {j})");
+        }
+    }
+    // By rows: rows 1..3 of the south-up file, south first.
+    let reader = RowReader::open(&south, &LoadOptions::default()).unwrap();
+    let mut heights = vec![0f32; 6];
+    let mut voids = vec![false; 6];
+    reader.read_rows(1, 2, &mut heights, &mut voids).unwrap();
+    assert_eq!(heights, vec![4.0, 5.0, 6.0, 7.0, 8.0, 9.0]);
+    // East to the left is not a raster we read.
+    let flipped_x = write_temp(
+        "east_left.tif",
+        &build_tiff(w, h, &bytes(&rows), {
+            let mut g = geo(0.25, 50.0);
+            g[0] = (33550, 12, 3, doubles(&[-0.5, 0.25, 0.0]));
+            g
+        }),
+    );
+    assert_err(&flipped_x, &LoadOptions::default(), "pixel scale");
+}
+
 /// Writes a 5 x 4 GeoTIFF of colour type `C` with `compression`, in strips of 2 rows, with
 /// geographic georeference tags and GDAL_NODATA 7, and checks every sample reads back flipped.
 fn roundtrip<C>(compression: tiff::encoder::Compression, name: &str, want_type: &str)

@@ -45,6 +45,10 @@
 //! until warm (still images, measurements that want the selection's own error): it requests
 //! every missing needed level of the frame's blocks and waits until all are resident, a fault
 //! makes that impossible, or a timeout.
+//!
+//! **Holding the I/O.** [`Streamer::hold_io`] stops the workers from starting reads while a
+//! benchmark does what a real-time frame does not (measuring, software drawing), so a flight
+//! paced at its frame rate gives the workers the flight's time only.
 
 use std::collections::{BTreeMap, BTreeSet};
 use std::sync::Arc;
@@ -292,6 +296,23 @@ impl Streamer {
         }
     }
 
+    /// Holds the I/O (`true`): the workers start no read (a level already being read, at most
+    /// one per worker, finishes and arrives at the next update) until released (`false`).
+    /// What a benchmark's real-time flight does while it works outside a real-time frame
+    /// (measuring a frame's error, drawing it on a software renderer, seconds a frame), so the
+    /// workers get the time of the flight's frames only and the late data counted is the
+    /// flight's (`terrain bench`'s real-time mode, `cargo xtask papers --paper ooc`). Requests
+    /// are still queued and stale ones cancelled while held; the first frame,
+    /// [`Streamer::wait_until_resident`] and [`Streamer::finish_loads`] read held or not.
+    pub fn hold_io(&mut self, held: bool) {
+        self.pool.set_held(held);
+    }
+
+    /// Whether the I/O is held ([`Streamer::hold_io`]).
+    pub fn io_held(&self) -> bool {
+        self.pool.is_held()
+    }
+
     /// The moving average of the workers' request latency (what the latency-aware look-ahead
     /// uses), if a request has completed.
     pub fn request_latency(&self) -> Option<Duration> {
@@ -342,9 +363,13 @@ impl Streamer {
     /// use [`Streamer::wait_until_resident`] for that. A frame loop never calls this.
     pub fn finish_loads(&mut self) -> FrameStats {
         let mut stats = FrameStats::default();
+        // Held or not, the requests in flight are read (see [`Streamer::hold_io`]).
+        let held = self.pool.is_held();
+        self.pool.set_held(false);
         while let Some(r) = self.pool.recv_until(None) {
             self.apply(r, &mut stats);
         }
+        self.pool.set_held(held);
         stats.resident_bytes = self.cache.resident_bytes();
         stats.queue_depth = self.pool.in_flight();
         stats.queued_bytes = self.pool.queued_bytes();
@@ -423,6 +448,9 @@ impl Streamer {
             self.update(camera)
         };
         let scheduled = self.scheduled.clone();
+        // Waiting on purpose reads, held or not (see [`Streamer::hold_io`]).
+        let held = self.pool.is_held();
+        self.pool.set_held(false);
         loop {
             let mut round = FrameStats::default();
             self.drain(&mut round);
@@ -441,6 +469,7 @@ impl Streamer {
             self.measure_late(&mut round);
             stats.merge(round);
         }
+        self.pool.set_held(held);
         stats.wait_time += start.elapsed();
         WaitReport { resident: stats.late_blocks == 0, stats }
     }
@@ -736,9 +765,13 @@ impl Streamer {
             stats.sync_loads += 1;
         }
         let mut arrived = FrameStats::default();
+        // The first frame waits for its loads, held or not (see [`Streamer::hold_io`]).
+        let held = self.pool.is_held();
+        self.pool.set_held(false);
         while let Some(r) = self.pool.recv_until(None) {
             self.apply(r, &mut arrived);
         }
+        self.pool.set_held(held);
         stats.sync_bytes += arrived.prefetched_bytes;
         stats.disk_bytes += arrived.disk_bytes;
         stats.io_time += arrived.io_time;

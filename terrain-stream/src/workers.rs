@@ -14,14 +14,20 @@
 //! request with [`Outcome::Cancelled`] (levels already sent stay valid), so a queue filled for
 //! an earlier view does not delay the blocks the current view needs.
 //!
+//! **Holding I/O.** [`WorkerPool::set_held`] closes a gate that every worker passes before it
+//! starts a request and before each level: while held, the workers start no read (a level
+//! already being read finishes). A benchmark holds the I/O while it does work that a real-time
+//! frame does not do (measuring a frame's error, drawing it on a software renderer), so that
+//! work does not give the workers time the flight would not have ([`crate::Streamer::hold_io`]).
+//!
 //! **Shutdown:** dropping the [`WorkerPool`] closes the request channel; each worker finishes
 //! the level it is on (results are dropped if nobody receives them) and exits; the pool joins
 //! every thread before returning.
 
 use std::collections::HashMap;
 use std::panic::{AssertUnwindSafe, catch_unwind};
-use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Condvar, Mutex};
 use std::thread::JoinHandle;
 use std::time::Instant;
 
@@ -123,6 +129,32 @@ pub(crate) struct WorkerPool {
     /// The sum of `pending`.
     queued_bytes: u64,
     threads: Vec<JoinHandle<()>>,
+    /// The hold gate the workers pass before each read.
+    gate: Arc<Gate>,
+}
+
+/// The workers' hold gate: closed (held) or open.
+#[derive(Debug, Default)]
+struct Gate {
+    held: Mutex<bool>,
+    opened: Condvar,
+}
+
+impl Gate {
+    fn set(&self, held: bool) {
+        *self.held.lock().unwrap_or_else(|e| e.into_inner()) = held;
+        self.opened.notify_all();
+    }
+
+    fn is_held(&self) -> bool {
+        *self.held.lock().unwrap_or_else(|e| e.into_inner())
+    }
+
+    /// Returns once the gate is open.
+    fn pass(&self) {
+        let held = self.held.lock().unwrap_or_else(|e| e.into_inner());
+        drop(self.opened.wait_while(held, |h| *h).unwrap_or_else(|e| e.into_inner()));
+    }
 }
 
 /// Decoded bytes of level `level` alone (levels `0..=level` less levels `0..level`).
@@ -141,12 +173,14 @@ impl WorkerPool {
         };
         let (req_tx, req_rx) = unbounded::<LoadRequest>();
         let (res_tx, res_rx) = unbounded::<LoadResult>();
+        let gate = Arc::new(Gate::default());
         let threads = (0..n)
             .map(|t| {
                 let (rx, tx, reader) = (req_rx.clone(), res_tx.clone(), reader.clone());
+                let gate = gate.clone();
                 std::thread::Builder::new()
                     .name(format!("terrain-stream-{t}"))
-                    .spawn(move || worker(&*reader, &rx, &tx))
+                    .spawn(move || worker(&*reader, &gate, &rx, &tx))
                     .expect("the OS can spawn a worker thread")
             })
             .collect();
@@ -157,7 +191,18 @@ impl WorkerPool {
             pending: HashMap::new(),
             queued_bytes: 0,
             threads,
+            gate,
         }
+    }
+
+    /// Holds the workers (`true`: no read starts until released) or releases them.
+    pub(crate) fn set_held(&self, held: bool) {
+        self.gate.set(held);
+    }
+
+    /// Whether the workers are held.
+    pub(crate) fn is_held(&self) -> bool {
+        self.gate.is_held()
     }
 
     /// Number of worker threads.
@@ -236,6 +281,8 @@ impl WorkerPool {
 
     fn stop(&mut self) {
         self.requests = None;
+        // A held worker must get past the gate to see the closed channel.
+        self.gate.set(false);
         for t in self.threads.drain(..) {
             let _ = t.join();
         }
@@ -250,10 +297,12 @@ impl Drop for WorkerPool {
 
 fn worker(
     reader: &dyn LevelReader,
+    gate: &Gate,
     requests: &Receiver<LoadRequest>,
     results: &Sender<LoadResult>,
 ) {
     while let Ok(req) = requests.recv() {
+        gate.pass();
         let mut coarser = req.coarser;
         let mut level = req.first;
         let start = Instant::now();
@@ -266,6 +315,7 @@ fn worker(
         }
         let mut first_result = true;
         loop {
+            gate.pass();
             let outcome = if req.cancel.load(Ordering::Relaxed) {
                 Outcome::Cancelled
             } else {

@@ -51,7 +51,9 @@ pub struct BenchConfig {
     /// The out-of-core method: `true` = every sampled frame waits until its needed levels are
     /// resident (warm: the error is the selection's own; `--wait`); `false` (the default) =
     /// real time: the flight is played at its own frame rate, every frame, paced in wall
-    /// time, and the sampled frames are measured (the flight's clock stops while one is).
+    /// time, and the sampled frames are measured (the flight's clock stops while one is, and
+    /// the store's I/O is held then: `Streamer::hold_io`, so the workers get the flight's
+    /// time only).
     pub ooc_wait: bool,
     /// Also run every in-memory method that draws from a store from the benchmark's store
     /// (`--from-store`), after the same method from memory. Default false.

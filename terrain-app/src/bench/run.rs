@@ -258,17 +258,22 @@ pub fn run_bench(
                     }
                     _ => None,
                 };
+                // Real time: a measured frame's measuring and drawing (seconds on a software
+                // renderer) hold the store's I/O, so the workers get the flight's time only.
                 let mut frames_loop = FrameLoop::new(built)
                     .measured(&scene.hm, &scene.qt, cfg.measure)
                     .rendered(renderer)
+                    .holding_io(real_time)
                     .with_options(terrain_gpu::RenderOptions {
                         lod_colours: cfg.lod_colours,
                         ..Default::default()
                     });
                 let cams = flight.frames();
                 let mut frames = Vec::with_capacity(info.frames.len());
-                // Real time: every frame at the flight's rate, the clock restarting after each
-                // measured frame; otherwise the sampled frames only.
+                // Real time: every frame at the flight's rate; a measured frame's held time
+                // (its measuring and drawing, the I/O held) is taken off the clock, so the
+                // next frame is due one period after its start plus that time. Otherwise the
+                // sampled frames only.
                 let played: Vec<usize> =
                     if real_time { (0..cams.len()).collect() } else { info.frames.clone() };
                 let measured: std::collections::BTreeSet<usize> =
@@ -290,12 +295,14 @@ pub fn run_bench(
                         continue;
                     }
                     let previous = k.checked_sub(1).filter(|_| cfg.popping).map(|p| &cams[p]);
-                    let record = frames_loop.frame(k, &cams[k], previous)?.record;
+                    let started = Instant::now();
+                    let looped = frames_loop.frame(k, &cams[k], previous)?;
+                    let record = looped.record;
                     streamed.extend(record.stream.clone());
                     frames.push(record);
                     done += 1;
                     progress(&BenchProgress { done, total, label: label.clone() });
-                    (clock, since) = (Instant::now(), 0);
+                    (clock, since) = (started + looped.held, 1);
                 }
                 for fault in streamed.iter().flat_map(|s| &s.new_faults) {
                     if faults_said.insert(fault.clone()) {

@@ -3,7 +3,7 @@
 //! and optionally drawn by a [`FrameRenderer`], recorded as one [`FrameRecord`]. `render`,
 //! `fly` and `bench` all drive their frames through [`FrameLoop::frame`].
 
-use std::time::Instant;
+use std::time::{Duration, Instant};
 
 use terrain_core::Heightmap;
 use terrain_core::geometry::Camera;
@@ -25,6 +25,8 @@ pub struct FrameLoop<'a> {
     renderer: Option<Slot<'a>>,
     options: RenderOptions,
     uploads: Uploads,
+    /// Whether a frame's measuring and drawing hold the method's I/O ([`FrameLoop::holding_io`]).
+    hold_io: bool,
 }
 
 /// The loop's renderer: borrowed (`render`, `fly`, `bench` share renderers between loops) or
@@ -54,6 +56,9 @@ pub struct LoopFrame {
     pub drawn: Option<DrawStats>,
     /// Block figures of store-backed methods.
     pub blocks: Option<BlockStats>,
+    /// How long the method's I/O was held after the selection (measuring and drawing, with
+    /// [`FrameLoop::holding_io`]); zero otherwise.
+    pub held: Duration,
 }
 
 impl<'a> FrameLoop<'a> {
@@ -65,7 +70,17 @@ impl<'a> FrameLoop<'a> {
             renderer: None,
             options: RenderOptions::default(),
             uploads: Uploads::default(),
+            hold_io: false,
         }
+    }
+
+    /// With `hold`, every [`FrameLoop::frame`] holds the method's I/O from the end of its
+    /// selection until its measuring and drawing are done ([`Method::hold_io`]): a real-time
+    /// flight's measured frames then give a store's workers no more time than a played frame,
+    /// so what arrives late is the flight's, not the benchmark's.
+    pub fn holding_io(mut self, hold: bool) -> Self {
+        self.hold_io = hold;
+        self
     }
 
     /// Measures every frame against `hm` (the full DEM, quadtree `qt`) with `config`.
@@ -153,6 +168,28 @@ impl<'a> FrameLoop<'a> {
         previous: Option<&Camera>,
     ) -> anyhow::Result<LoopFrame> {
         let mut frame = self.method.frame(camera);
+        let held_from = self.hold_io.then(|| {
+            self.method.hold_io(true);
+            Instant::now()
+        });
+        let result = self.measure_and_draw(index, camera, eye, previous, &mut frame);
+        let held = held_from.map_or(Duration::ZERO, |t| {
+            self.method.hold_io(false);
+            t.elapsed()
+        });
+        let (record, drawn) = result?;
+        Ok(LoopFrame { record, drawn, blocks: frame.stats.blocks, held })
+    }
+
+    /// The measuring and drawing of [`FrameLoop::frame_drawn_from`]'s selected `frame`.
+    fn measure_and_draw(
+        &mut self,
+        index: usize,
+        camera: &Camera,
+        eye: &Camera,
+        previous: Option<&Camera>,
+        frame: &mut super::Frame,
+    ) -> anyhow::Result<(FrameRecord, Option<DrawStats>)> {
         let stats = frame.stats.clone();
         let mut triangles = 0;
         let (mut cpu_tess_ms, mut measure_ms) = (stats.build_ms, 0.0);
@@ -160,7 +197,7 @@ impl<'a> FrameLoop<'a> {
         let mut jumps = None;
         if let Some(measurer) = self.measurer.as_mut() {
             let t = Instant::now();
-            let drawn = self.method.surface(&mut frame)?;
+            let drawn = self.method.surface(frame)?;
             cpu_tess_ms += ms(t);
             triangles = drawn.triangles;
             let t = Instant::now();
@@ -186,7 +223,7 @@ impl<'a> FrameLoop<'a> {
         };
         let mut drawn = None;
         if let Some(renderer) = self.renderer.as_mut().map(Slot::get) {
-            let s = renderer.draw(eye, &frame, &self.options, &mut self.uploads)?;
+            let s = renderer.draw(eye, frame, &self.options, &mut self.uploads)?;
             // The frame's CPU work before the renderer: selection, building what is drawn
             // (the entropy mesh) and converting it to the renderer's input.
             let before = stats.selection_ms + stats.build_ms + stats.convert_ms;
@@ -205,6 +242,6 @@ impl<'a> FrameLoop<'a> {
             drawn = Some(s);
         }
         record.rss_bytes = rss_bytes();
-        Ok(LoopFrame { record, drawn, blocks: stats.blocks })
+        Ok((record, drawn))
     }
 }

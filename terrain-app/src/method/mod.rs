@@ -166,6 +166,11 @@ pub trait Method: std::fmt::Debug {
         None
     }
 
+    /// Holds the I/O of a store-backed method's streaming runtime (`true`) or releases it
+    /// ([`terrain_stream::Streamer::hold_io`]): what a real-time benchmark does while it
+    /// measures and draws a frame off the flight's clock. Nothing for in-memory methods.
+    fn hold_io(&mut self, _held: bool) {}
+
     /// What this method's frames are drawn over: the renderer they need and the terrain it
     /// reads (the one place a method says it; [`Method::renderer_kind`] and
     /// [`Method::renderer`] follow from it).
@@ -289,6 +294,64 @@ mod tests {
             assert_eq!(r.vertex_jump_no_morph_m.is_some(), expect);
             for jump in [r.vertex_jump_m, r.vertex_jump_no_morph_m].into_iter().flatten() {
                 assert!(jump.is_finite() && jump >= 0.0, "{jump}");
+            }
+        }
+    }
+
+    /// A method that records the loop's `hold_io` calls around another.
+    #[derive(Debug)]
+    struct HoldRecorder<'a> {
+        inner: Box<dyn Method + 'a>,
+        calls: std::rc::Rc<std::cell::RefCell<Vec<bool>>>,
+    }
+
+    impl Method for HoldRecorder<'_> {
+        fn kind(&self) -> LodMethod {
+            self.inner.kind()
+        }
+        fn frame(&mut self, camera: &Camera) -> Frame {
+            assert!(self.calls.borrow().last() != Some(&true), "selected while held");
+            self.inner.frame(camera)
+        }
+        fn surface(&self, frame: &mut Frame) -> anyhow::Result<DrawnSurface> {
+            assert_eq!(self.calls.borrow().last(), Some(&true), "measured while not held");
+            self.inner.surface(frame)
+        }
+        fn draws_on(&self) -> DrawSource<'_> {
+            self.inner.draws_on()
+        }
+        fn hold_io(&mut self, held: bool) {
+            self.calls.borrow_mut().push(held);
+        }
+    }
+
+    /// `holding_io`: the I/O is held after the selection, through the measuring, and released
+    /// before the frame returns; played frames and loops without it never hold.
+    #[test]
+    fn a_holding_loop_holds_the_io_while_it_measures() {
+        let scene = scene();
+        let camera = default_camera(&scene.hm, 320, 180, 60.0);
+        let measure = MeasureConfig { max_samples: 20_000, ..MeasureConfig::default() };
+        for hold in [true, false] {
+            let calls = std::rc::Rc::new(std::cell::RefCell::new(Vec::new()));
+            let inner = build(LodMethod::PvpsC, &scene, &MethodOptions::default()).unwrap();
+            let method = Box::new(HoldRecorder { inner, calls: calls.clone() });
+            let mut frames = if hold {
+                FrameLoop::new(method).measured(&scene.hm, &scene.qt, measure).holding_io(true)
+            } else {
+                // The negative control: the surface's assertion expects a hold, so measure
+                // nothing and only check that no call is made.
+                FrameLoop::new(method)
+            };
+            frames.play(&camera).unwrap();
+            assert!(calls.borrow().is_empty(), "a played frame never holds");
+            let f = frames.frame(0, &camera, None).unwrap();
+            if hold {
+                assert_eq!(*calls.borrow(), [true, false]);
+                assert!(f.held > std::time::Duration::ZERO && f.record.errors.samples > 0);
+            } else {
+                assert!(calls.borrow().is_empty());
+                assert_eq!(f.held, std::time::Duration::ZERO);
             }
         }
     }

@@ -86,6 +86,10 @@ impl Method for OocMethod<'_> {
     fn draws_on(&self) -> DrawSource<'_> {
         DrawSource::Paged(&self.scene)
     }
+
+    fn hold_io(&mut self, held: bool) {
+        self.scene.hold_io(held);
+    }
 }
 
 /// A store's frame ([`OocScene::frame`] or [`OocScene::frame_for`]) as a [`Frame`] for the

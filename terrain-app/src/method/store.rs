@@ -388,4 +388,8 @@ impl Method for StoreMethod<'_> {
             _ => DrawSource::Paged(&self.scene),
         }
     }
+
+    fn hold_io(&mut self, held: bool) {
+        self.scene.hold_io(held);
+    }
 }

@@ -755,8 +755,8 @@ pub(crate) fn read(path: &Path, len: u64, options: &LoadOptions) -> Result<RawGr
         let (across, cw, ch) = (layout.across(), layout.chunk_w, layout.chunk_h);
         let (x0, r0) = (((index % across) * cw) as usize, ((index / across) * ch) as usize);
         for r in 0..dh {
-            // File rows are north first; ours are south first.
-            let j = h - 1 - (r0 + r);
+            // File rows are north first (south first when south-up); ours are south first.
+            let j = if layout.south_up { r0 + r } else { h - 1 - (r0 + r) };
             for c in 0..dw {
                 let k = r * dw + c;
                 let valid = mask.as_ref().is_none_or(|m| m[k]);
@@ -924,6 +924,7 @@ pub(crate) fn open(
         scale: band_scale,
         offset: band_offset,
         mask_ifd: None,
+        south_up: false,
         max_chunk_bytes: options.max_memory_bytes,
     };
     let needed = u64::from(layout.per_plane()) * if planar == 2 { u64::from(bands) } else { 1 };
@@ -1033,23 +1034,34 @@ pub(crate) fn open(
         None
     };
 
+    // A negative y pixel size (GeoTIFF's ModelPixelScale y, or a positive ModelTransformation
+    // [5]) puts the file's first row at the south edge: such a raster is read with its rows
+    // taken in file order (GDAL reads it the same way, as a "south-up" image). Its tie point is
+    // then the south-west corner.
+    let south_up = affine.is_some_and(|(_, s)| s.y < 0.0);
+    layout.south_up = south_up;
     let georef = match affine {
         None => Georef::local(options.spacing_m),
         Some((corner, spacing)) => {
+            let spacing = dvec2(spacing.x, spacing.y.abs());
             let finite = spacing.is_finite() && corner.is_finite();
             if !(finite && spacing.x > 0.0 && spacing.y > 0.0) {
                 return Err(malformed(
                     path,
                     format!(
-                        "pixel scale ({}, {}) must be finite and positive (north-up rasters only), origin ({}, {}) finite",
+                        "pixel scale ({}, {}) must be finite and non-zero, with x positive \
+                         (east to the right), origin ({}, {}) finite",
                         spacing.x, spacing.y, corner.x, corner.y
                     ),
                 ));
             }
             // GTRasterTypeGeoKey (1025): 1 = PixelIsArea (default), 2 = PixelIsPoint.
             let half = if keys.raster_type == Some(2) { 0.0 } else { 0.5 };
-            let sw =
-                dvec2(corner.x + half * spacing.x, corner.y - (h as f64 - 1.0 + half) * spacing.y);
+            let sw = if south_up {
+                dvec2(corner.x + half * spacing.x, corner.y + half * spacing.y)
+            } else {
+                dvec2(corner.x + half * spacing.x, corner.y - (h as f64 - 1.0 + half) * spacing.y)
+            };
             match crs_kind(path, &keys)? {
                 CrsKind::Projected { crs, unit_m } => {
                     Georef::projected_in(crs, sw, spacing, unit_m)

@@ -112,6 +112,10 @@ pub(crate) struct Layout {
     pub offset: f64,
     /// The IFD index of the internal mask, if any.
     pub mask_ifd: Option<usize>,
+    /// Whether the file's first row is its southernmost (a positive y pixel size, as numpy
+    /// grids with latitude ascending are often written); north-up files store the north row
+    /// first.
+    pub south_up: bool,
     /// The most bytes one inflated ZSTD chunk may take (`LoadOptions::max_memory_bytes`): a
     /// tile may be declared far larger than its image.
     pub max_chunk_bytes: u64,
@@ -614,6 +618,7 @@ mod tests {
             scale: 1.0,
             offset: 0.0,
             mask_ifd: None,
+            south_up: false,
             max_chunk_bytes: 1 << 30,
         };
         // The file is never opened: the size is refused first.

@@ -444,6 +444,12 @@ impl RowReader {
     /// (north first) flipped. South row `j` is file row `h - 1 - j`, so the band is file rows
     /// `[h - j0 - rows, h - j0)`.
     fn read_south_rows(&self, j0: u64, rows: usize, out: &mut [f32]) -> Result<(), DemError> {
+        if let Inner::Tiff { layout, .. } = &self.inner
+            && layout.south_up
+        {
+            // A south-up GeoTIFF stores the south row first: file rows are ours.
+            return self.read_file_rows(j0, rows, out);
+        }
         let wu = self.width as usize;
         let mut file_band = vec![0f32; out.len()];
         self.read_file_rows(self.height - j0 - rows as u64, rows, &mut file_band)?;

@@ -158,7 +158,8 @@ pub enum TinError {
     },
     /// The grid's extent is not within longitude -180..180, latitude -90..90.
     #[error(
-        "the grid spans longitude {west}..{east}, latitude {south}..{north}: outside -180..180, -90..90"
+        "the grid spans longitude {west}..{east}, latitude {south}..{north}: outside -180..180, -90..90 \
+         (a grid wholly within longitudes 180..360 is shifted by -360; one crossing 180 must be split there)"
     )]
     OutOfRange {
         /// Western longitude.
@@ -233,13 +234,19 @@ pub struct GridLayout {
 
 impl GridLayout {
     /// The layout of a `width` x `height` grid whose georeference is geographic (degrees;
-    /// taken as WGS84), checked to lie within longitude -180..180, latitude -90..90.
+    /// taken as WGS84), checked to lie within longitude -180..180, latitude -90..90. A grid in
+    /// the 0..360 convention (common for ocean and climate grids) that lies wholly east of 180
+    /// is the same place 360 degrees west, and is shifted there.
     pub fn new(width: usize, height: usize, georef: &crate::Georef) -> Result<Self, TinError> {
         if georef.units != AngularOrLinear::Degrees {
             return Err(TinError::NotGeographic { crs: georef.crs.to_string() });
         }
-        let layout =
+        let mut layout =
             Self { width, height, origin: georef.native_origin, spacing: georef.native_spacing };
+        let e = layout.extent();
+        if e.west >= 180.0 && e.east <= 360.0 {
+            layout.origin.x -= 360.0;
+        }
         let e = layout.extent();
         let ok = e.west >= -180.0 && e.east <= 180.0 && e.south >= -90.0 && e.north <= 90.0;
         if !ok

@@ -256,3 +256,19 @@ fn corrupt_tiles_and_gzip_are_refused() {
     bad[n - 6] ^= 1; // the CRC
     assert!(matches!(qm::gunzip(&bad), Err(QmError::Gzip(_))));
 }
+
+/// A grid in 0..360 longitudes wholly east of 180 is the same place 360 degrees west: its layout
+/// is shifted there and tiles as the -180..180 grid does; one crossing 180 is refused, saying
+/// to split it.
+#[test]
+fn longitudes_past_180_are_shifted_and_a_grid_across_180_is_refused() {
+    let spacing = DVec2::splat(0.25);
+    let geo = |west: f64| Georef::geographic(Crs::Epsg(4326), dvec2(west, 48.0), spacing, 49.0);
+    let east = GridLayout::new(17, 9, &geo(234.0)).unwrap();
+    let west = GridLayout::new(17, 9, &geo(-126.0)).unwrap();
+    assert_eq!(east, west);
+    assert_eq!(east.tile_range(6), west.tile_range(6));
+    let e = GridLayout::new(17, 9, &geo(178.0)).unwrap_err();
+    assert!(matches!(e, TinError::OutOfRange { .. }), "{e}");
+    assert!(e.to_string().contains("split there"), "{e}");
+}

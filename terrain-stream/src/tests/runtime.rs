@@ -3,7 +3,8 @@
 //! budget; frames never block on a slow reader (a gated test reader) and stale requests are
 //! dropped; `wait_until_resident` leaves every needed level resident; and the runtime survives
 //! a block file deleted and a level corrupted mid-flight: typed faults naming block and level,
-//! coarser levels still served, no panic, no worker lost.
+//! coarser levels still served, no panic, no worker lost. Held I/O (`Streamer::hold_io`)
+//! delivers nothing until released.
 
 use std::ops::ControlFlow;
 use std::sync::atomic::{AtomicUsize, Ordering};
@@ -209,6 +210,43 @@ fn frames_never_block_on_a_slow_reader_and_stale_requests_are_dropped() {
     // cancelled).
     let st = s.finish_loads();
     assert_eq!((st.queue_depth, st.queued_bytes), (0, 0), "{st:?}");
+    drop(s);
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn held_io_delivers_nothing_until_released() {
+    let (dir, store) = store("hold");
+    let config = StreamConfig { threads: 2, tau: 3.0, coarse_level: 0, ..Default::default() };
+    let mut s = Streamer::new(store.clone(), config);
+    // The first frame reads level 0 (held or not: it waits on purpose), then its finer
+    // requests finish, so nothing is in flight when the hold starts.
+    s.hold_io(true);
+    assert!(s.io_held());
+    let st = s.update(&camera(-500.0));
+    assert!(st.sync_loads > 0 && st.late_blocks > 0, "{st:?}");
+    s.finish_loads();
+    assert!(s.io_held(), "finish_loads restores the hold");
+    // Held: the camera moves on, requests queue, and not a byte arrives, however long the
+    // frames take.
+    for f in 1..12 {
+        std::thread::sleep(Duration::from_millis(20));
+        let st = s.update(&camera(-500.0 + f as f64 * 40.0));
+        assert_eq!(st.prefetched_bytes, 0, "frame {f}: held");
+        assert!(!st.waited_for_io(), "frame {f}");
+        assert!(st.late_bytes > 0 && st.queue_depth > 0, "frame {f}: {st:?}");
+    }
+    // Released (the negative control of the same frames): the queued levels arrive.
+    s.hold_io(false);
+    let mut arrived = 0;
+    for _ in 0..3000 {
+        std::thread::sleep(Duration::from_millis(10));
+        arrived += s.update(&camera(-60.0)).prefetched_bytes;
+        if arrived > 0 {
+            break;
+        }
+    }
+    assert!(arrived > 0, "released workers deliver");
     drop(s);
     std::fs::remove_dir_all(&dir).unwrap();
 }

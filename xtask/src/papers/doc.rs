@@ -134,6 +134,21 @@ pub(crate) struct Verdict {
     pub(crate) rule: String,
     /// The outcome.
     pub(crate) outcome: Outcome,
+    /// Why a claim does not hold here, measured ([`Verdict::because`]); printed under the
+    /// verdict.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub(crate) why: Option<String>,
+}
+
+impl Verdict {
+    /// The verdict with `why` (a measured reason) attached when the claim does not hold
+    /// (not reproduced or reversed); unchanged otherwise.
+    pub(crate) fn because(mut self, why: impl FnOnce() -> String) -> Self {
+        if matches!(self.outcome, Outcome::NotReproduced | Outcome::Reversed) {
+            self.why = Some(why());
+        }
+        self
+    }
 }
 
 /// The rule of [`effect`], in words.
@@ -165,7 +180,7 @@ pub(crate) fn effect_towards(claim: impl Into<String>, dir: f64, paper: f64, our
     } else {
         Outcome::Reproduced
     };
-    Verdict { claim: claim.into(), paper, ours, rule: EFFECT_RULE.to_string(), outcome }
+    Verdict { claim: claim.into(), paper, ours, rule: EFFECT_RULE.to_string(), outcome, why: None }
 }
 
 /// A hypothesis's prediction: `ours` at least (or, with `at_least` false, at most) `bound`
@@ -189,7 +204,7 @@ pub(crate) fn prediction(
          the bound, not reproduced otherwise",
         if at_least { "least" } else { "most" }
     );
-    Verdict { claim: claim.into(), paper: bound, ours, rule, outcome }
+    Verdict { claim: claim.into(), paper: bound, ours, rule, outcome, why: None }
 }
 
 /// A figure where lower is better (a share of data loaded late, a storage ratio): beaten below
@@ -232,7 +247,7 @@ pub(crate) fn lower_is_better(
     } else {
         Outcome::NotReproduced
     };
-    Verdict { claim: claim.into(), paper, ours, rule, outcome }
+    Verdict { claim: claim.into(), paper, ours, rule, outcome, why: None }
 }
 
 /// A line chart: one polyline per series over a shared x axis.
@@ -478,6 +493,9 @@ impl PaperDoc {
                         fig(v.paper),
                         fig(v.ours)
                     );
+                    if let Some(why) = &v.why {
+                        s += &format!("  - why: {why}\n");
+                    }
                     if !rules.contains(&v.rule.as_str()) {
                         rules.push(&v.rule);
                     }
@@ -533,6 +551,29 @@ mod tests {
         assert_eq!(t(0.7), Outcome::Beaten);
         assert_eq!(t(1.1), Outcome::Reproduced);
         assert_eq!(t(1.5), Outcome::NotReproduced);
+    }
+
+    #[test]
+    fn a_reason_is_attached_only_where_a_claim_does_not_hold() {
+        let why = || "measured".to_string();
+        assert_eq!(effect("c", -0.3, -0.3).because(why).why, None);
+        assert_eq!(effect("c", -0.3, 0.0).because(why).why.as_deref(), Some("measured"));
+        assert_eq!(effect("c", -0.3, 0.5).because(why).why.as_deref(), Some("measured"));
+        let mut s = Section::new("Table 1", "t");
+        let mut t = Table::new("cap", &["a"]);
+        t.rows.push(vec![text("x")]);
+        s.ours.push(t);
+        s.verdicts.push(effect("fewer", -0.3, 0.0).because(why));
+        let doc = PaperDoc {
+            key: "k".into(),
+            title: "T".into(),
+            differences: vec![],
+            commands: vec![],
+            load: vec![],
+            quick: true,
+            sections: vec![s],
+        };
+        assert!(doc.to_markdown().contains("ours 0.000)\n  - why: measured\n"));
     }
 
     #[test]
