@@ -190,6 +190,9 @@ pub(crate) fn run(args: &BakeArgs) -> anyhow::Result<()> {
              with `terrain bake --merge PARTS -o {url}`"
         );
     }
+    // Before any work, as for a local folder: a store at the URL is replaced only with
+    // --overwrite, and a prefix holding other objects never.
+    terrain_stream::check_remote_output(url, args.overwrite, &terrain_app::ooc::remote_options())?;
     let tmp = std::env::temp_dir().join(format!("terrain-bake-upload-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&tmp);
     std::fs::create_dir_all(&tmp).with_context(|| format!("creating {}", tmp.display()))?;

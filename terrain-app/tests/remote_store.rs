@@ -5,7 +5,11 @@
 //! warm `terrain bench --ooc-store URL` gives the local store's frames and figures; an nginx
 //! answering 500 for the finer levels' byte ranges gives named faults and coarser levels;
 //! `terrain bake -o s3://bucket/x` uploads a store that reads as the local bake, and leaves no
-//! `s3:` folder behind. Every server is stopped on drop (SIGTERM, then waited for); a server
+//! `s3:` folder behind; a second bake to that URL is refused before any work unless
+//! `--overwrite` (as a local store folder is), a prefix holding other objects is never
+//! replaced, and `bake -o http://` is refused (a web server is read-only). **Azurite** (the
+//! Azure Storage emulator, npm, installed by terrain-app/tests/azurite/install.sh) does the same
+//! for `az://`: bake, info, a warm bench equal to the local store's, a second bake refused. Every server is stopped on drop (SIGTERM, then waited for); a server
 //! that does not answer within 30 s fails the test with its log.
 
 mod common;
@@ -16,7 +20,7 @@ use std::process::{Child, Command, Output, Stdio};
 use std::time::{Duration, Instant};
 
 use common::scratch;
-use serde_json::Value;
+use serde_json::{Value, json};
 
 fn s(p: &Path) -> &str {
     p.to_str().unwrap()
@@ -244,6 +248,12 @@ fn a_store_served_by_nginx_reads_as_the_local_one_and_a_failing_nginx_gives_name
     // The disk cache holds the levels fetched.
     let cached: Vec<_> = std::fs::read_dir(&cache).unwrap().collect();
     assert_eq!(cached.len(), 1, "one mirror folder");
+    // A bake to an HTTP URL is refused before any work: nginx serves, it does not store.
+    let out = terrain_in(&dir, &cache, &[], &bake_args(&dem, &url));
+    let all = text(&out);
+    assert!(!out.status.success(), "{all}");
+    assert!(all.contains(&format!("{url}: an HTTP server is read-only")), "{all}");
+    assert!(!all.contains("blocks"), "it baked before refusing: {all}");
     drop(server);
 
     // nginx answering 500 for any range reaching byte 100 or beyond of a block file: the
@@ -368,6 +378,137 @@ fn a_store_baked_to_seaweedfs_reads_as_the_local_bake() {
     let (remote, err) = bench(&dir, &cache, &env, &dem, url, "remote");
     assert_eq!(local, remote);
     assert!(!err.contains("store fault"), "{err}");
+
+    // A second bake to the URL is refused before any work, as a local store folder is (the
+    // same message, naming --overwrite), and the store is as it was.
+    let before = info(&dir, &cache, &env, url);
+    let mut k4 = bake_args(&dem, url);
+    let k = k4.iter().position(|a| *a == "--block-k").unwrap() + 1;
+    k4[k] = "4";
+    let out = terrain_in(&dir, &cache, &env, &k4);
+    let all = text(&out);
+    assert!(!out.status.success(), "{all}");
+    assert!(
+        all.contains(&format!("{url}: already exists (give --overwrite to replace it)")),
+        "{all}"
+    );
+    assert!(!all.contains("uploaded") && !all.contains("blocks:"), "{all}");
+    assert_eq!(info(&dir, &cache, &env, url), before);
+    // The local bake says the same of an existing store folder (negative control of the match).
+    let local_again = terrain_in(&dir, &cache, &[], &bake_args(&dem, s(&store)));
+    assert!(
+        text(&local_again)
+            .contains(&format!("{}: already exists (give --overwrite to replace it)", s(&store))),
+        "{}",
+        text(&local_again)
+    );
+    // With --overwrite it is replaced: now 17^2 vertices a block, so 8 x 8 blocks (was 4 x 4).
+    k4.push("--overwrite");
+    let out = terrain_in(&dir, &cache, &env, &k4);
+    let all = text(&out);
+    assert!(
+        out.status.success(),
+        "bake -o {url} --overwrite: {all}\n{}",
+        weed_state(&mut server, &dir)
+    );
+    let after = info(&dir, &cache, &env, url);
+    assert_ne!(after, before);
+    assert_eq!((&after["block_side"], &after["blocks"]), (&json!(17), &json!([8, 8])), "{after}");
+
+    // A prefix holding objects that are not a store is never replaced, not even with
+    // --overwrite; the object is still there.
+    put_object(s3, "bucket/notes/readme.txt", "not a store");
+    let mut notes = bake_args(&dem, "s3://bucket/notes");
+    notes.push("--overwrite");
+    let out = terrain_in(&dir, &cache, &env, &notes);
+    let all = text(&out);
+    assert!(!out.status.success(), "{all}");
+    assert!(
+        all.contains(
+            "s3://bucket/notes: holds objects (notes/readme.txt among them) and no index.tsi"
+        ),
+        "{all}"
+    );
+    assert_eq!(get_object(s3, "bucket/notes/readme.txt"), "not a store");
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// The `azurite-blob` launcher of terrain-app/tests/azurite's node_modules (`bash
+/// terrain-app/tests/azurite/install.sh`, as .ci/run does).
+fn azurite() -> PathBuf {
+    let p =
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/azurite/node_modules/.bin/azurite-blob");
+    assert!(
+        p.exists(),
+        "{} is missing: `bash terrain-app/tests/azurite/install.sh` (as .ci/run does)",
+        p.display()
+    );
+    p
+}
+
+#[test]
+fn a_store_baked_to_azurite_reads_as_the_local_bake() {
+    let dir = scratch("remote-store", "az");
+    let (dem, store) = baked(&dir);
+    let port = free_ports(1)[0];
+    let log = dir.join("azurite.log");
+    let mut child = Command::new(azurite())
+        .args([
+            "--blobHost",
+            "127.0.0.1",
+            "--blobPort",
+            &port.to_string(),
+            "--location",
+            s(&dir.join("azurite")),
+            "--silent",
+            "--skipApiVersionCheck",
+            "--disableTelemetry",
+        ])
+        .stdout(std::fs::File::create(&log).unwrap())
+        .stderr(std::fs::File::create(dir.join("azurite.err")).unwrap())
+        .spawn()
+        .expect("azurite-blob runs (node)");
+    wait_for(port, "Azurite (azurite-blob)", &mut child, &dir.join("azurite.err"));
+    let server = Server { child, port };
+    // The container, with a request signed by the emulator's well-known key.
+    let made = Command::new("python3")
+        .arg(Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/azurite/container.py"))
+        .args([&port.to_string(), "terrain"])
+        .output()
+        .unwrap();
+    assert!(made.status.success(), "creating the container: {}", text(&made));
+    let endpoint = format!("http://127.0.0.1:{port}");
+    let env = [
+        ("AZURE_STORAGE_USE_EMULATOR", "true"),
+        ("AZURITE_BLOB_STORAGE_URL", endpoint.as_str()),
+        ("AZURE_ALLOW_HTTP", "true"),
+    ];
+    let cache = dir.join("cache");
+    let url = "az://terrain/x";
+    let out = terrain_in(&dir, &cache, &env, &bake_args(&dem, url));
+    let all = text(&out);
+    assert!(out.status.success(), "bake -o {url}: {all}");
+    assert!(all.contains("uploaded") && all.contains("the index last"), "{all}");
+    assert_eq!(info(&dir, &cache, &env, url), info(&dir, &cache, &env, s(&store)));
+    let (local, _) = bench(&dir, &cache, &env, &dem, s(&store), "local");
+    let (remote, err) = bench(&dir, &cache, &env, &dem, url, "remote");
+    assert_eq!(local, remote);
+    assert!(!err.contains("store fault"), "{err}");
+    // A second bake is refused, as on S3 and on disk.
+    let out = terrain_in(&dir, &cache, &env, &bake_args(&dem, url));
+    assert!(
+        text(&out).contains(&format!("{url}: already exists (give --overwrite to replace it)")),
+        "{}",
+        text(&out)
+    );
+    // Negative control: a container that does not exist is an error naming the URL.
+    let missing = terrain_in(&dir, &cache, &env, &["info", "az://nothere/x"]);
+    assert!(
+        !missing.status.success() && text(&missing).contains("az://nothere/x"),
+        "{}",
+        text(&missing)
+    );
+    drop(server);
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
@@ -400,6 +541,35 @@ fn weed_state(server: &mut Server, dir: &Path) -> String {
     let lines: Vec<&str> =
         log.lines().filter(|l| l.starts_with('F') || l.starts_with('E')).take(40).collect();
     format!("{running}; weed.err's error lines:\n{}", lines.join("\n"))
+}
+
+/// One unsigned HTTP request to 127.0.0.1:`port` (SeaweedFS without identities accepts
+/// them); the whole reply.
+fn http(port: u16, method: &str, path: &str, body: &str) -> String {
+    use std::io::{Read, Write};
+    let mut c = TcpStream::connect(("127.0.0.1", port)).unwrap();
+    write!(
+        c,
+        "{method} /{path} HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\nContent-Length: {}\r\nConnection: close\r\n\r\n{body}",
+        body.len()
+    )
+    .unwrap();
+    let mut reply = String::new();
+    let _ = c.read_to_string(&mut reply);
+    reply
+}
+
+/// Writes an object (`bucket/key`) with an unsigned PUT.
+fn put_object(port: u16, path: &str, body: &str) {
+    let reply = http(port, "PUT", path, body);
+    assert!(reply.starts_with("HTTP/1.1 200"), "PUT {path}: {reply}");
+}
+
+/// An object's body (`bucket/key`), by an unsigned GET.
+fn get_object(port: u16, path: &str) -> String {
+    let reply = http(port, "GET", path, "");
+    assert!(reply.starts_with("HTTP/1.1 200"), "GET {path}: {reply}");
+    reply.split_once("\r\n\r\n").map(|(_, b)| b.to_string()).unwrap_or_default()
 }
 
 /// Creates an S3 bucket with an unsigned `PUT /bucket` (SeaweedFS without identities accepts it).

@@ -2,13 +2,17 @@
 //! real DEMs and a big synthetic, bake throughput, and long flights (Table-3 rows per speed).
 //!
 //! `cargo run --release -p terrain-stream --example stream_bench -- [all|storage|codec|flight
-//! FRAMES [puget|big]|bake SIZE K [NAME]|raw SIZE PATH|bakeraw PATH SIZE K NAME|realtime STORE FLIGHT [CACHE_MIB [in_flight=N]
-//! [threads=N] [lookahead=F]]]` (peak RSS: prefix
+//! FRAMES [puget|big]|bake SIZE K [NAME]|raw SIZE PATH|bakeraw PATH SIZE K NAME|upload STORE_DIR URL|
+//! realtime STORE FLIGHT [CACHE_MIB [in_flight=N] [threads=N] [lookahead=F]]]` (peak RSS: prefix
 //! with `/usr/bin/time -v`). Data from `../shared/data`.
 //!
 //! `raw SIZE PATH` writes the synthetic terrain's rows to a headerless little-endian f32 file
 //! (row 0 first), and `bakeraw PATH SIZE K NAME` bakes such a file read by bands of rows, for
 //! the bake's throughput from a file.
+//!
+//! `upload STORE_DIR URL` uploads a baked store folder to `s3://`, `gs://` or `az://` (the
+//! bake's own `upload_store`; credentials and endpoint from the environment), for streaming
+//! an existing big store from object storage without baking it again.
 //!
 //! `realtime` plays a flight (e.g. `flights/fast_pass.json`) over a store at the flight's own
 //! frame rate, paced in real wall time, every frame through the real-time `Streamer::update`
@@ -344,13 +348,17 @@ fn overview(store: &Store, level: u8) -> Heightmap {
 /// 16385^2 store far blocks need many small levels at once, and 32 in flight left 55-62 % of
 /// frames short of their needed level against 33-35 % with 128; bench/ooc/README.md), `threads=N`
 /// (default 0: one per core), `lookahead=F` frames (default 1: the paper's Eq. 8),
-/// `latency_aware=0` (the look-ahead not grown by the measured request latency), `trace=1`
+/// `latency_aware=0` (the look-ahead not grown by the measured request latency), `ground=DIR`
+/// (the flight's ground heights from the local store DIR, the same store: see `realtime`), `trace=1`
 /// (one line per late frame on stderr). STORE may be a URL (`s3://`, `http://`...: read
 /// through the disk cache, `$TERRAIN_CACHE_DIR`).
-fn realtime_config(budget: u64, opts: &[String]) -> (StreamConfig, bool) {
+fn realtime_config(budget: u64, fps: f64, opts: &[String]) -> (StreamConfig, bool) {
     let mut trace = false;
     let mut config =
         StreamConfig { budget_bytes: budget, max_in_flight: 128, ..Default::default() };
+    // Eq. 8's `f` is the flight's frame rate: the latency-aware look-ahead converts the
+    // measured request latency into frames with it.
+    config.schedule.frame_rate_hz = fps;
     for o in opts {
         let (k, v) = o.split_once('=').expect("key=value");
         match k {
@@ -373,31 +381,52 @@ fn realtime(dir: &Path, flight: &Path, cache_mib: u64, opts: &[String]) {
     let h = store.header().clone();
     let spec = FlightSpec::load(flight).unwrap();
     let cfg = FlightConfig { viewport_px: glam::dvec2(1280.0, 720.0), ..Default::default() };
-    let (flight, _) = spec.resolve(&overview(&store, 4), &cfg);
+    // `ground=DIR`: the flight's heights above ground from a local copy of the store, so a
+    // remote store is not read (nor its disk cache filled) before the streamer starts.
+    let (ground, opts): (Vec<String>, Vec<String>) =
+        opts.iter().cloned().partition(|o| o.starts_with("ground="));
+    let local;
+    let ground: &Store = match ground.last() {
+        Some(g) => {
+            local = Store::open(&g["ground=".len()..]).unwrap();
+            &local
+        }
+        None => &store,
+    };
+    let (flight, _) = spec.resolve(&overview(ground, 4), &cfg);
     let ext = h.georef.spacing_m * glam::dvec2((h.width - 1) as f64, (h.height - 1) as f64);
     let budget = cache_mib << 20;
-    let (config, trace) = realtime_config(budget, opts);
+    let (config, trace) = realtime_config(budget, flight.fps, &opts);
     let mut s = Streamer::new(store.clone(), config);
     let mut sum = StatsSummary::default();
     let (mut late, mut needed, mut update_ms) = (Vec::new(), Vec::new(), Vec::new());
     let (mut latency_ms, mut lookahead) = (Vec::new(), Vec::new());
     let fps = flight.fps;
-    let start = Instant::now();
+    // Frame k > 0 is due (k - 1) / fps after the first frame returned: the first frame's wait
+    // (warm-up, every pinned level 0 fetched) does not eat the flight's time.
+    let mut start = Instant::now();
     let mut behind = 0;
+    let mut requests = 0;
+    let mut first_s = 0.0;
     for (k, cam) in flight.frames().iter().enumerate() {
         // The far plane reaches the far corner of the store (as `terrain render` sets it).
         let far = (cam.position.truncate() - h.georef.world_origin)
             .abs()
             .max((h.georef.world_origin + ext - cam.position.truncate()).abs());
         let cam = cam.with_clip(1.0, far.length() * 1.05 + 1.0);
-        let due = start + std::time::Duration::from_secs_f64(k as f64 / fps);
-        match due.checked_duration_since(Instant::now()) {
-            Some(w) => std::thread::sleep(w),
-            None => behind += 1,
+        if k > 0 {
+            let due = start + std::time::Duration::from_secs_f64((k - 1) as f64 / fps);
+            match due.checked_duration_since(Instant::now()) {
+                Some(w) => std::thread::sleep(w),
+                None => behind += 1,
+            }
         }
         // The first frame waits until warm (a session's first image); the others never wait.
         let st = if k == 0 {
-            s.wait_until_resident(&cam, std::time::Duration::from_secs(60)).stats
+            let st = s.wait_until_resident(&cam, std::time::Duration::from_secs(120)).stats;
+            first_s = start.elapsed().as_secs_f64();
+            start = Instant::now();
+            st
         } else {
             s.update(&cam)
         };
@@ -414,6 +443,7 @@ fn realtime(dir: &Path, flight: &Path, cache_mib: u64, opts: &[String]) {
                 st.frame_time.as_secs_f64() * 1e3
             );
         }
+        requests += st.requests + st.sync_loads;
         update_ms.push(st.frame_time.as_secs_f64() * 1e3);
         latency_ms.push(st.request_latency.as_secs_f64() * 1e3);
         lookahead.push(st.lookahead_frames);
@@ -443,11 +473,13 @@ fn realtime(dir: &Path, flight: &Path, cache_mib: u64, opts: &[String]) {
         fps
     );
     println!(
-        "| frames | waited for I/O after frame 1 | at needed level | late MB/frame median / p95 / max | needed MB median | prefetched MB/frame | sync MB (frame 1) | update ms median / p95 / max | frames behind schedule | peak resident MiB / budget | peak RSS MiB | wall s | worker request ms median | look-ahead frames median | faults |"
+        "| frames | waited for I/O after frame 1 | at needed level | late MB/frame median / p95 / max | needed MB median | prefetched MB/frame | sync MB (frame 1) | update ms median / p95 / max | frames behind schedule | peak resident MiB / budget | peak RSS MiB | frame 1 s | wall s after frame 1 | worker request ms median | look-ahead frames median | load requests | cache hits / misses | faults | threads |"
     );
-    println!("|---:|---:|---:|---|---:|---:|---:|---|---:|---|---:|---:|---:|---:|---:|");
     println!(
-        "| {} | {} | {:.1} % | {:.3} / {:.3} / {:.3} | {:.3} | {:.3} | {:.3} | {:.2} / {:.2} / {:.2} | {} | {:.1} / {} | {:.0} | {:.1} | {:.2} | {:.2} | {} |",
+        "|---:|---:|---:|---|---:|---:|---:|---|---:|---|---:|---:|---:|---:|---:|---:|---|---:|---:|"
+    );
+    println!(
+        "| {} | {} | {:.1} % | {:.3} / {:.3} / {:.3} | {:.3} | {:.3} | {:.3} | {:.2} / {:.2} / {:.2} | {} | {:.1} / {} | {:.0} | {:.1} | {:.1} | {:.2} | {:.2} | {} | {} / {} | {} | {} |",
         sum.frames,
         sum.frames_waited_after_first,
         100.0 * sum.frames_at_needed_level as f64 / f,
@@ -464,10 +496,15 @@ fn realtime(dir: &Path, flight: &Path, cache_mib: u64, opts: &[String]) {
         sum.peak_resident_bytes as f64 / 1048576.0,
         cache_mib,
         peak_rss().map_or(f64::NAN, |b| b as f64 / 1048576.0),
+        first_s,
         wall,
         r50,
         a50,
-        sum.faults
+        requests,
+        sum.cache_hits,
+        sum.cache_misses,
+        sum.faults,
+        s.threads()
     );
 }
 
@@ -573,6 +610,23 @@ fn main() {
             args.get(3).and_then(|s| s.parse().ok()).unwrap_or(8),
             args.get(4).map_or("raw", String::as_str),
         ),
+        Some("upload") => {
+            let (dir, url) = (
+                Path::new(args.get(1).expect("upload STORE_DIR URL")),
+                args.get(2).expect("upload STORE_DIR URL"),
+            );
+            let t = Instant::now();
+            let r =
+                terrain_stream::upload_store(dir, url, &terrain_stream::RemoteOptions::default())
+                    .unwrap();
+            println!(
+                "{url}: uploaded {} files, {:.1} MB ({} multipart), {:.1} s",
+                r.files,
+                r.bytes as f64 / 1e6,
+                r.multipart,
+                t.elapsed().as_secs_f64()
+            );
+        }
         Some("realtime") => realtime(
             Path::new(args.get(1).expect("realtime STORE FLIGHT [CACHE_MIB]")),
             Path::new(args.get(2).expect("realtime STORE FLIGHT [CACHE_MIB]")),

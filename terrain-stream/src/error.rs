@@ -262,6 +262,14 @@ pub enum BakeError {
         /// What it is instead.
         what: String,
     },
+    /// The output URL could not be checked (the server or client's answer in the message).
+    #[error("{location}: {message}")]
+    Remote {
+        /// The output URL.
+        location: String,
+        /// What went wrong.
+        message: String,
+    },
     /// Caller misuse: a config value out of range.
     #[error("invalid bake config: {0}")]
     InvalidConfig(String),

@@ -114,7 +114,9 @@ pub use lod::{
     DEFAULT_COST_SPLIT_PX, DEFAULT_PATCH_CELLS, DEFAULT_SPLIT, Refinement, SplitRule, StoreTree,
     select_patches, select_streamed,
 };
-pub use remote::{MULTIPART_ABOVE, RemoteOptions, UploadReport, is_url, upload_store};
+pub use remote::{
+    MULTIPART_ABOVE, RemoteOptions, UploadReport, check_remote_output, is_url, upload_store,
+};
 pub use schedule::ScheduleConfig;
 pub use shard::{
     MergeConfig, PART_FILE, PartInfo, Shard, ShardReport, bake_options, bake_shard, find_parts,

@@ -31,8 +31,8 @@ use object_store::{
     WriteMultipart,
 };
 
-use crate::error::StoreError;
-use crate::format::{BLOCK_HEADER_LEN, BlockEntry, BlockId, INDEX_FILE, block_file_name};
+use crate::error::{BakeError, StoreError};
+use crate::format::{BLOCK_HEADER_LEN, BlockEntry, BlockId, INDEX_FILE, MAGIC, block_file_name};
 
 /// Objects above this size are uploaded in parts (multipart upload), 16 MiB each.
 pub const MULTIPART_ABOVE: usize = 16 << 20;
@@ -530,6 +530,75 @@ impl DiskCache {
     }
 }
 
+/// Before a bake to `url`: refuses to replace what is there, as [`crate::check_output`] refuses
+/// a local folder. A store at the URL (an `index.tsi` object with the store's magic) is
+/// [`BakeError::Exists`] unless `overwrite`; other objects under the URL's prefix (a prefix
+/// that is not a store, or a store whose upload stopped before its index) are
+/// [`BakeError::NotAStore`], even with `overwrite` (they may be the user's); nothing there is
+/// fine. An `http(s)://` location is refused (a web server is read-only here: serve a baked
+/// folder instead). Server errors are [`BakeError::Remote`] naming the URL.
+pub fn check_remote_output(
+    url: &str,
+    overwrite: bool,
+    options: &RemoteOptions,
+) -> Result<(), BakeError> {
+    let url = url.trim_end_matches('/');
+    let bad = |message: String| BakeError::Remote { location: url.to_string(), message };
+    if url
+        .split_once("://")
+        .is_some_and(|(s, _)| s.eq_ignore_ascii_case("http") || s.eq_ignore_ascii_case("https"))
+    {
+        return Err(bad(
+            "an HTTP server is read-only: bake to a folder (or s3://, gs://, az://) and serve it"
+                .into(),
+        ));
+    }
+    let (store, prefix) = client_for(url, options).map_err(|e| bad(e.to_string()))?;
+    let runtime = runtime(url).map_err(|e| bad(e.to_string()))?;
+    let index_key = prefix.child(INDEX_FILE);
+    let magic = runtime.block_on(async {
+        match store
+            .get_opts(
+                &index_key,
+                GetOptions { range: Some(GetRange::Bounded(0..8)), ..Default::default() },
+            )
+            .await
+        {
+            Ok(r) => Ok(Some(r.bytes().await?)),
+            Err(object_store::Error::NotFound { .. }) => Ok(None),
+            Err(e) => Err(e),
+        }
+    });
+    let path = || PathBuf::from(url);
+    match magic.map_err(|e| bad(format!("checking for a store ({INDEX_FILE}): {e}")))? {
+        Some(m) if m.as_ref() == MAGIC => {
+            return if overwrite { Ok(()) } else { Err(BakeError::Exists { path: path() }) };
+        }
+        Some(_) => {
+            return Err(BakeError::NotAStore {
+                path: path(),
+                what: format!("holds an {INDEX_FILE} that is not a store's index"),
+            });
+        }
+        None => {}
+    }
+    // Anything else under the prefix (objects, or folders of objects).
+    let listed = runtime
+        .block_on(store.list_with_delimiter(Some(&prefix)))
+        .map_err(|e| bad(format!("listing what is there: {e}")))?;
+    let first = listed.objects.first().map(|o| &o.location).or(listed.common_prefixes.first());
+    if let Some(first) = first {
+        return Err(BakeError::NotAStore {
+            path: path(),
+            what: format!(
+                "holds objects ({first} among them) and no {INDEX_FILE}: not a store, or a store \
+                 whose upload stopped before its index"
+            ),
+        });
+    }
+    Ok(())
+}
+
 /// What [`upload_store`] sent.
 #[derive(Debug, Clone, Default, PartialEq, Eq)]
 pub struct UploadReport {
@@ -542,7 +611,8 @@ pub struct UploadReport {
 }
 
 /// Uploads the store folder `dir` (every file, recursively) to `url`: block files and tables
-/// first, the index **last**, so a reader never sees an index whose blocks are not all there.
+/// first, the index **last**, so a reader never sees an index whose blocks are not all there
+/// (an index already at the URL is deleted before anything is uploaded).
 /// Files above [`MULTIPART_ABOVE`] go as multipart uploads. Retries and timeouts as
 /// `options` says.
 pub fn upload_store(
@@ -567,6 +637,13 @@ pub fn upload_store(
     }
     files.sort();
     let mut report = UploadReport::default();
+    // A store being replaced (`--overwrite`) loses its index first: a reader sees no store
+    // while the new blocks go up, never the old index over new blocks.
+    let old_index = prefix.child(INDEX_FILE);
+    match runtime.block_on(store.delete(&old_index)) {
+        Ok(()) | Err(object_store::Error::NotFound { .. }) => {}
+        Err(e) => return Err(remote_err(url, format!("removing the old {INDEX_FILE}: {e}"))),
+    }
     let (index, rest): (Vec<PathBuf>, Vec<PathBuf>) = files
         .into_iter()
         .partition(|p| p.strip_prefix(dir).is_ok_and(|r| r == Path::new(INDEX_FILE)));

@@ -10,7 +10,8 @@
 //! ([`FrameStats::late_bytes`], `late_blocks`, `late_levels`). The **first frame** of a
 //! session waits while the workers load the coarse levels (`0..=min(needed, coarse_level)`) of
 //! every visible block and, with [`StreamConfig::pin_level_zero`], level 0 of every block of the
-//! store (kept resident from then on, so no block is ever a hole), so the first image is not
+//! store (kept resident from then on, so no block is ever a hole; not on a large remote store,
+//! see [`StreamConfig::pin_level_zero`]), so the first image is not
 //! empty (the paper's Table 3: "all the needed data are loaded from external memory" in frame
 //! 1). These count as the frame's synchronous (real-time loaded) data.
 //!
@@ -74,7 +75,12 @@ pub struct StreamConfig {
     /// Cache budget in decoded bytes. Default 256 MiB. What the visible blocks need (and a
     /// pinned level 0, [`StreamConfig::pin_level_zero`]) is kept even above it.
     pub budget_bytes: u64,
-    /// Worker threads; 0 (the default) = one per available core.
+    /// Worker threads; 0 (the default) = one per available core, and for a store on object
+    /// storage or HTTP ([`Store::is_remote`]) at least [`StreamConfig::REMOTE_THREADS`]: a
+    /// worker waits out each range request, so the requests in the air are the worker count,
+    /// and with 2 workers and 50 ms a request the stream moved at most 40 requests a second;
+    /// 256 workers fetched 4.5-5x what 32 did on `fast_pass` over nginx + 50 ms
+    /// (bench/remote/README.md). They wait, not compute: the decoding is the same work.
     pub threads: usize,
     /// The scheduler's `L`, frame rate and look-ahead (Eq. 8).
     pub schedule: ScheduleConfig,
@@ -89,7 +95,10 @@ pub struct StreamConfig {
     /// load, when all of them take at most 1/8 of the budget (a 32769^2 store with k = 8:
     /// 256 KiB). Default true. Pinned levels are never evicted: resident bytes stay within
     /// `max(budget, needed + 16 bytes per block)`. The standard "coarsest level always resident" of out-of-core
-    /// terrain (e.g. geometry clipmaps' coarsest level, Losasso & Hoppe 2004).
+    /// terrain (e.g. geometry clipmaps' coarsest level, Losasso & Hoppe 2004). For a store on
+    /// object storage or HTTP of more than [`StreamConfig::REMOTE_PIN_BLOCKS`] blocks the first
+    /// frame does not fetch every block's level 0 (a request each); level 0 is kept from the
+    /// first load of each block on.
     pub pin_level_zero: bool,
     /// Requests in flight at most; 0 (the default) = 1024 per worker thread. A short queue lets
     /// the current frame's priorities decide what loads next, but starves the workers between
@@ -105,6 +114,17 @@ pub struct StreamConfig {
     /// level of a block is the deepest level the selection's patches need in it, so give the
     /// [`crate::StoreTree`] the same ([`crate::StoreTree::with_refinement`]).
     pub refinement: Refinement,
+}
+
+impl StreamConfig {
+    /// The fewest worker threads a store on object storage or HTTP gets by default
+    /// ([`StreamConfig::threads`] 0): requests waiting on the network in parallel.
+    pub const REMOTE_THREADS: usize = 256;
+
+    /// The most blocks of a store on object storage or HTTP whose level 0 the first frame
+    /// fetches ([`StreamConfig::pin_level_zero`]): a range request each, about 1.6 s at 50 ms a
+    /// request with 32 workers.
+    pub const REMOTE_PIN_BLOCKS: usize = 1024;
 }
 
 impl Default for StreamConfig {
@@ -185,7 +205,13 @@ impl Streamer {
         config: StreamConfig,
         reader: Arc<dyn LevelReader>,
     ) -> Self {
-        let pool = WorkerPool::spawn(reader, config.threads);
+        let threads = if config.threads == 0 && store.is_remote() {
+            let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
+            cores.max(StreamConfig::REMOTE_THREADS)
+        } else {
+            config.threads
+        };
+        let pool = WorkerPool::spawn(reader, threads);
         let base = store.header().block_count() as u64 * BlockEntry::resident_bytes(0);
         let pinned = usize::from(config.pin_level_zero && base <= config.budget_bytes / 8);
         Self {
@@ -704,7 +730,8 @@ impl Streamer {
     }
 
     /// The session's first frame waits for the workers to load the coarse levels of the
-    /// visible blocks and the pinned level 0 of every other block (see the module docs).
+    /// visible blocks and the pinned level 0 of every other block (not on a large remote store:
+    /// see the module docs).
     fn first_frame(&mut self, scheduled: &[ScheduledBlock], stats: &mut FrameStats) {
         let t = Instant::now();
         let store = self.store.clone();
@@ -712,7 +739,12 @@ impl Streamer {
         let visible = scheduled.iter().filter(|s| s.visible);
         let mut wanted: Vec<(BlockId, u8)> =
             visible.map(|s| (s.block, s.needed.min(self.config.coarse_level))).collect();
-        if self.pinned > 0 {
+        // A remote store's level 0 is a range request per block (16384 on a 32769^2 store:
+        // 28 s at 50 ms a request with 32 workers, bench/remote/README.md): above
+        // REMOTE_PIN_BLOCKS blocks it is kept as the blocks load, not fetched up front.
+        if self.pinned > 0
+            && (!store.is_remote() || header.block_count() <= StreamConfig::REMOTE_PIN_BLOCKS)
+        {
             wanted.extend(store.block_ids().map(|id| (id, 0)));
         }
         for (id, last) in wanted {

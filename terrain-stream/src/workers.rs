@@ -342,7 +342,9 @@ fn worker(
             if let Outcome::Loaded(l) = &outcome {
                 coarser.push(l.samples.clone());
             }
-            let latency = first_result.then(|| start.elapsed());
+            // A request cancelled before it read anything measured no request.
+            let latency =
+                (first_result && !matches!(outcome, Outcome::Cancelled)).then(|| start.elapsed());
             first_result = false;
             let r = LoadResult { block: req.block, level, done, outcome, latency };
             if results.send(r).is_err() {

@@ -345,3 +345,25 @@ fn a_server_answering_500_for_finer_levels_gives_named_faults_and_coarser_levels
 fn a_hanging_server_never_stalls_a_frame() {
     flight_over_a_bad_server("hang", Action::Hang);
 }
+
+/// A remote store's streamer gets at least `REMOTE_THREADS` workers by default (each waits out
+/// its range request, so the workers are the requests in the air), a local store's one per
+/// core (the negative control); an explicit count is kept for both.
+#[test]
+fn a_remote_store_streams_with_many_workers() {
+    let dir = temp("workers");
+    let local = Arc::new(local_store(&dir));
+    let server = Server::start(dir.join("store"), Arc::new(|_: &str, _, _| Action::Serve));
+    let remote =
+        Arc::new(Store::open_location_with(&server.url(), &options(&dir.join("cache"))).unwrap());
+    let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
+    let threads = |store: &Arc<Store>, threads: usize| {
+        Streamer::new(store.clone(), StreamConfig { threads, ..Default::default() }).threads()
+    };
+    assert_eq!(threads(&remote, 0), cores.max(StreamConfig::REMOTE_THREADS));
+    assert_eq!(threads(&local, 0), cores);
+    assert_eq!(threads(&remote, 3), 3);
+    assert_eq!(threads(&local, 3), 3);
+    drop(server);
+    std::fs::remove_dir_all(&dir).unwrap();
+}
