@@ -738,18 +738,37 @@ fn bake_block(
         }
         (lo, hi)
     };
-    let (bmin, bmax) = valid_range(0, 0, cells);
-    let mut nodes = Vec::with_capacity(node_count(node_levels));
-    for l in 0..node_levels as usize {
+    // Each stored node's valid samples' range (its edges shared with its neighbours), the
+    // deepest stored level by scanning and each coarser node from its four children, whose
+    // closed ranges cover its own exactly (min and max are exact: the same values as a scan).
+    let mut ranges: Vec<Vec<(f32, f32)>> = vec![Vec::new(); node_levels as usize];
+    for l in (0..node_levels as usize).rev() {
         let n = 1usize << l;
         let c = cells >> l;
-        for j in 0..n {
-            for i in 0..n {
-                let (lo, hi) = valid_range(i * c, j * c, c);
-                let (lo, hi) = if lo <= hi { (lo, hi) } else { (bmin, bmax) };
-                let e = if l < pyr.levels() { pyr.get(l, i, j) } else { 0.0 };
-                nodes.push(NodeValues { min: lo, max: hi, static_error: e as f32 });
-            }
+        ranges[l] = if l + 1 == node_levels as usize {
+            (0..n * n).map(|p| valid_range(p % n * c, p / n * c, c)).collect()
+        } else {
+            let fine = &ranges[l + 1];
+            (0..n * n)
+                .map(|p| {
+                    let (i, j) = (2 * (p % n), 2 * (p / n));
+                    let r = |di: usize, dj: usize| fine[(j + dj) * 2 * n + i + di];
+                    let q = [r(0, 0), r(1, 0), r(0, 1), r(1, 1)];
+                    q.iter().fold((f32::INFINITY, f32::NEG_INFINITY), |(lo, hi), &(a, b)| {
+                        (lo.min(a), hi.max(b))
+                    })
+                })
+                .collect()
+        };
+    }
+    let (bmin, bmax) = ranges.first().map_or_else(|| valid_range(0, 0, cells), |r| r[0]);
+    let mut nodes = Vec::with_capacity(node_count(node_levels));
+    for (l, ranges) in ranges.iter().enumerate() {
+        let n = 1usize << l;
+        for (p, &(lo, hi)) in ranges.iter().enumerate() {
+            let (lo, hi) = if lo <= hi { (lo, hi) } else { (bmin, bmax) };
+            let e = if l < pyr.levels() { pyr.get(l, p % n, p / n) } else { 0.0 };
+            nodes.push(NodeValues { min: lo, max: hi, static_error: e as f32 });
         }
     }
     // The fine maxima: per deepest stored node, its descendants' largest StaticE per finer level.
