@@ -25,19 +25,17 @@ use std::time::{Duration, Instant};
 use terrain_core::geometry::Camera;
 use terrain_core::lod::{Patch, Selection, SelectionStats};
 use terrain_core::quadtree::{NodeId, TreeShape};
-use terrain_core::tin::grid::{
-    GridTile, TinSelection, build_tile_from, level_errors, select_tiles, tile_window, tin_surface,
-};
+use terrain_core::tin::grid::{GridTile, TinSelection, level_errors, select_tiles, tin_surface};
 use terrain_gpu::render::ExtraTriangles;
 use terrain_gpu::tess::GpuDomainPoint;
 use terrain_stream::{Store, StoreTree};
 
 use super::memory::ms;
 use super::ooc::paged_frame;
-use super::{DrawSource, DrawnSurface, Frame, Method, OocWait, TinConfig};
+use super::{DrawSource, DrawnSurface, Frame, GridTileBuilder, Method, OocWait, TinConfig};
 use crate::methods::{LodMethod, MethodScene};
 use crate::ooc::{OocScene, StoreDraw};
-use crate::samples::{Samples, StoreSamples};
+use crate::samples::StoreSamples;
 
 /// How `tin` reads a store.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -92,10 +90,7 @@ struct State {
 
 #[derive(Debug)]
 struct Shared {
-    samples: StoreSamples,
-    shape: TreeShape,
-    errors: Vec<f64>,
-    max_cells: Option<u32>,
+    builder: GridTileBuilder<StoreSamples>,
     budget: u64,
     state: Mutex<State>,
     work: Condvar,
@@ -107,19 +102,11 @@ impl Shared {
         self.state.lock().unwrap_or_else(|e| e.into_inner())
     }
 
-    /// Tile `node` from the store's samples at its window's stride.
+    /// Tile `node` from the store's samples: [`GridTileBuilder::build`], the builder of the
+    /// pyramid in memory (its window's stride, the budget less the decimation error under it,
+    /// checked against every sample under it).
     fn build(&self, node: NodeId) -> anyhow::Result<GridTile> {
-        let win = tile_window(&self.shape, node, self.max_cells)
-            .ok_or_else(|| anyhow::anyhow!("tile {node:?} lies outside the store's grid"))?;
-        let w = self.samples.window(
-            win.x0 as usize,
-            win.y0 as usize,
-            win.width,
-            win.height,
-            win.stride_log2,
-        )?;
-        let bound = self.errors.get(node.level as usize).copied().unwrap_or(0.0);
-        Ok(build_tile_from(node, &win, &w.data, w.voids.as_ref(), bound)?)
+        self.builder.build(node)
     }
 
     /// Drops least recently drawn tiles while over the budget: not the current frame's (the
@@ -217,11 +204,14 @@ impl TinTiles {
     /// `config`'s pyramid and store settings; starts the workers.
     pub fn new(store: Store, shape: TreeShape, config: &TinConfig) -> Self {
         let s = &config.store;
-        let shared = Arc::new(Shared {
-            samples: StoreSamples::new(store, s.block_cache_bytes),
-            errors: level_errors(&shape, config.pyramid.error_scale),
+        let builder = GridTileBuilder::new(
+            StoreSamples::new(store, s.block_cache_bytes),
             shape,
-            max_cells: Some(s.max_tile_cells),
+            level_errors(&shape, config.pyramid.error_scale),
+            Some(s.max_tile_cells),
+        );
+        let shared = Arc::new(Shared {
+            builder,
             budget: s.tile_cache_bytes,
             state: Mutex::new(State::default()),
             work: Condvar::new(),
@@ -241,7 +231,7 @@ impl TinTiles {
 
     /// Every level's bound, metres.
     pub fn errors(&self) -> &[f64] {
-        &self.shared.errors
+        self.shared.builder.errors()
     }
 
     /// Queues what `nodes` need that is not built: their missing ancestors (coarse first, the
