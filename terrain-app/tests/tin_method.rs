@@ -421,8 +421,9 @@ fn store_tiles_meet_their_bounds_against_every_sample() {
         assert_eq!(built.tiles.len(), nodes.len());
         let bound = tiles.errors()[level as usize];
         let (mut worst, mut old) = (0f64, 0f64);
-        let mut stride = 0;
+        let (mut stride, mut meshed) = (0, 0);
         for t in &built.tiles {
+            meshed = meshed.max(t.stride_log2);
             let r = shape.clipped_rect(t.node).unwrap();
             let rect = [r.x0, r.y0, r.x1, r.y1];
             let e = tile_error_full(&full, t, rect).unwrap();
@@ -438,9 +439,10 @@ fn store_tiles_meet_their_bounds_against_every_sample() {
             old = old.max(tile_error_full(&full, &o, rect).unwrap());
         }
         println!(
-            "level {level}: stride {}, bound {bound:.3} m, largest error {worst:.3} m \
-             (the old builder: {old:.3} m)",
-            1 << stride
+            "level {level}: stride {} (meshed at {}), bound {bound:.3} m, largest error \
+             {worst:.3} m (the old builder: {old:.3} m)",
+            1 << stride,
+            1 << meshed
         );
         old_worst = old_worst.max(old / bound);
     }

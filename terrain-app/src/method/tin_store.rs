@@ -1,12 +1,15 @@
 //! `tin` drawn from a baked store: the tiles of the TIN pyramid are built on demand, on a
-//! small pool of worker threads, from the store's blocks at the stride each tile's level
-//! needs ([`crate::samples::StoreSamples`], the reader `terrain tiles` uses, through its
-//! byte-budgeted block cache), and kept in a byte-budgeted LRU cache of built tiles
+//! small pool of worker threads, from the store's blocks ([`crate::samples::StoreSamples`],
+//! the reader `terrain tiles` uses, through its byte-budgeted block cache) by the builder of
+//! the pyramid in memory ([`super::GridTileBuilder`]: the stride each tile's level allows,
+//! within its bound less the decimation error under it, checked against every sample under
+//! it), and kept in a byte-budgeted LRU cache of built tiles
 //! ([`TinTiles`]). Nothing of the full grid is in memory.
 //!
 //! Per frame: the tiles are selected over the store's index ([`select_tiles`], the same
 //! function and bounds as from memory: the same tiles for the same camera), the missing ones
-//! (and their missing ancestors, coarse first) are queued for the workers, and the frame draws
+//! (and their missing ancestors, coarse first; a waiting frame queues its own tiles only) are
+//! queued for the workers, and the frame draws
 //! what is built: a tile not built yet is drawn by its nearest built ancestor (coarser; the
 //! selected tiles under that ancestor go with it, so the drawn tiles stay disjoint), and
 //! counted late ([`crate::ooc::StreamRecord::late_tiles`]). Selection never waits, except on
@@ -237,6 +240,13 @@ impl TinTiles {
     /// Queues what `nodes` need that is not built: their missing ancestors (coarse first, the
     /// fallback of a frame that cannot wait) and themselves. Replaces the previous request.
     pub fn request(&self, nodes: &[NodeId]) {
+        self.queue(nodes, true);
+    }
+
+    /// Queues the missing `nodes`, with their missing ancestors when `ancestors` (a waiting
+    /// frame draws its own tiles only: their ancestors, coarse tiles meshed from many samples
+    /// once their decimation error is counted, would only delay it).
+    fn queue(&self, nodes: &[NodeId], ancestors: bool) {
         let mut st = self.shared.lock();
         let mut queued: HashSet<NodeId> = HashSet::new();
         let mut queue: Vec<NodeId> = Vec::new();
@@ -249,7 +259,7 @@ impl TinTiles {
                 if queued.insert(m) {
                     queue.push(m);
                 }
-                c = m.parent();
+                c = if ancestors { m.parent() } else { None };
             }
         }
         queue.sort_by_key(|n| (n.level, n.dfs_key()));
@@ -261,7 +271,7 @@ impl TinTiles {
     /// Waits until every one of `nodes` is built (at most `timeout`); the first failure or
     /// the timeout is an error.
     pub fn wait_for(&self, nodes: &[NodeId], timeout: Duration) -> anyhow::Result<()> {
-        self.request(nodes);
+        self.queue(nodes, false);
         let deadline = Instant::now() + timeout;
         let mut st = self.shared.lock();
         loop {
@@ -280,7 +290,7 @@ impl TinTiles {
             // Tiles evicted while waiting (a budget smaller than the frame) are asked again.
             if st.queue.is_empty() && st.building.is_empty() {
                 drop(st);
-                self.request(&missing);
+                self.queue(&missing, false);
                 st = self.shared.lock();
                 continue;
             }
