@@ -24,7 +24,9 @@
 //!
 //! **Cracks: shared borders and stitches.** Each side of a tile is simplified on its own
 //! (Douglas-Peucker on the side's profile, [`super::tile::Borders::Simplified`]), so
-//! neighbours at the same level share their border vertices exactly. Where a tile meets finer
+//! neighbours at the same level share their border vertices exactly (when meshed within the
+//! same budget at the same stride; tiles built from decimated samples within different budgets
+//! get the stitches below between them too). Where a tile meets finer
 //! neighbours, their border vertices differ from its own (T-junctions); the gap between the
 //! two border polylines lies in the vertical plane of the side and is closed by a fan of
 //! triangles over the polygon made of the fine side's polyline and the coarse side's
@@ -545,7 +547,15 @@ pub fn tin_surface(tiles: &[&GridTile], plan: impl Fn(DVec2) -> DVec2, stitch: b
         let node = t.node;
         for d in Direction::ALL {
             let across = set.neighbours(node, d);
-            if across.is_empty() || across.iter().any(|n| n.level <= node.level) {
+            // A same-level neighbour shares this side's vertices unless the two were meshed
+            // within different budgets or strides (decimated tiles: the budget is the bound less
+            // the decimation error under each); then the gap between the two polylines is
+            // stitched like a level change, once per pair (from the south or west tile).
+            let same = across.len() == 1 && across[0].level == node.level;
+            if across.is_empty()
+                || (same && !matches!(d, Direction::North | Direction::East))
+                || (!same && across.iter().any(|n| n.level <= node.level))
+            {
                 continue;
             }
             let coarse = side(t, d);
