@@ -37,7 +37,8 @@ use terrain_core::{Crs, Heightmap};
 use terrain_app::progress::Progress;
 
 use crate::source::{SourceArgs, parse_memory};
-use build::{Decimation, ResolutionConfig};
+use build::ResolutionConfig;
+use terrain_app::decimation::{DECIMATION_REGION, Decimation};
 use terrain_app::samples::{HeightmapSamples, Samples, StoreSamples};
 
 /// Deepest `--max-level` accepted (tiles of about 5 m at the equator).
@@ -262,7 +263,9 @@ pub(crate) fn run(args: &TilesArgs) -> anyhow::Result<()> {
         .map(|t| build::stride_log2(&layout, t, &resolution))
         .max()
         .unwrap_or(0);
-    let decimation = Decimation::measure(samples, &layout, build::DECIMATION_REGION, max_s)?;
+    let (w, h) = samples.size();
+    let decimation = Decimation::new(w, h, DECIMATION_REGION, max_s);
+    decimation.measure_all(samples)?;
     let decimation_s = t0.elapsed().as_secs_f64();
     let bar = Progress::new("tiles", !args.quiet);
     let done = AtomicUsize::new(0);
@@ -370,7 +373,7 @@ pub(crate) fn run(args: &TilesArgs) -> anyhow::Result<()> {
         build_s,
         threads: rayon::current_num_threads(),
         levels,
-        min_budget_fraction: resolution.min_budget_fraction,
+        min_budget_fraction: resolution.policy.min_budget_fraction,
         decimated_tiles: walked.decimated_tiles,
         retries: walked.retries,
         decimation_s,

@@ -5,16 +5,20 @@
 //! on Puget Sound 1k and on Crater Lake (non-square, voids). From a baked store (issue 13,
 //! item 2) it selects the same tiles and draws the same heights as from memory, with no
 //! crack; its tile cache stays within its budget; a frame before its tiles arrive draws
-//! coarser ones without waiting and counts them late.
+//! coarser ones without waiting and counts them late. Every store tile, the decimated coarse
+//! ones included, is within its bound of every full-resolution sample under it.
 
 mod common;
 
 use std::ops::ControlFlow;
 use std::sync::Arc;
 
-use terrain_app::method::{self, Draw, MethodOptions, OocWait, TinTiles, registry};
+use terrain_app::method::{
+    self, Draw, MethodOptions, OocWait, TinTiles, registry, tile_error_full,
+};
 use terrain_app::methods::{LodMethod, MethodConfig, MethodScene, select_uniform};
 use terrain_app::ooc::{OocConfig, OocScene};
+use terrain_app::samples::{HeightmapSamples, Samples};
 use terrain_core::Heightmap;
 use terrain_core::dem::{self, LoadOptions};
 use terrain_core::geometry::Camera;
@@ -22,7 +26,7 @@ use terrain_core::quadtree::{
     Cull, CullPolicy, Direction, FrustumCull, NodeId, SplitToLevel, select,
 };
 use terrain_core::synth::FractalConfig;
-use terrain_core::tin::grid::GridTinPyramid;
+use terrain_core::tin::grid::{GridTinPyramid, build_tile_from, tile_window};
 use terrain_gpu::render::crack::{crack_cameras, crack_pixels_with_extra};
 use terrain_gpu::render::{DrawPatch, ExtraTriangles, default_camera};
 use terrain_gpu::tess::GpuDomainPoint;
@@ -388,6 +392,61 @@ fn a_frame_before_its_tiles_arrive_draws_coarser_ones_without_waiting() {
         assert!(!drawn.iter().any(|&o| o != d && o.is_ancestor_or_self_of(d)), "{d:?} overlaps");
     }
     assert!(late > 0 || drawn == sel.tiles, "late tiles counted");
+}
+
+/// From a store, every tile (the coarse levels meshed from decimated samples included) is
+/// within its level's bound of every sample of the DEM under it, measured against the
+/// full-resolution samples, not the strided ones it was meshed from. The negative control
+/// (the old builder): the same tiles meshed within their bound of their strided samples only
+/// miss it on this rough fractal.
+#[test]
+fn store_tiles_meet_their_bounds_against_every_sample() {
+    let hm = FractalConfig::with_size(1025, 769, 10.0).to_heightmap().unwrap();
+    let store = baked("full-res", &hm);
+    let config = MethodConfig::default().tin;
+    let tree = terrain_stream::StoreTree::new(store.clone(), config.pyramid.finest_cells);
+    let shape = *terrain_core::quadtree::NodeTree::shape(&tree);
+    let tiles = TinTiles::new((*store).clone(), shape, &config);
+    let full = HeightmapSamples(&hm);
+    let max_cells = Some(config.store.max_tile_cells);
+    let mut old_worst = 0f64;
+    for level in 0..=5u8 {
+        let (nx, ny) = shape.level_dims(level);
+        let nodes: Vec<NodeId> =
+            (0..ny).flat_map(|j| (0..nx).map(move |i| NodeId::new(level, i, j))).collect();
+        let nodes: Vec<NodeId> =
+            nodes.into_iter().filter(|&n| shape.clipped_rect(n).is_some()).collect();
+        tiles.wait_for(&nodes, std::time::Duration::from_secs(300)).unwrap();
+        let built = tiles.resolve(&nodes);
+        assert_eq!(built.tiles.len(), nodes.len());
+        let bound = tiles.errors()[level as usize];
+        let (mut worst, mut old) = (0f64, 0f64);
+        let (mut stride, mut meshed) = (0, 0);
+        for t in &built.tiles {
+            meshed = meshed.max(t.stride_log2);
+            let r = shape.clipped_rect(t.node).unwrap();
+            let rect = [r.x0, r.y0, r.x1, r.y1];
+            let e = tile_error_full(&full, t, rect).unwrap();
+            assert!(e <= bound, "level {level} tile {:?}: {e} m > bound {bound} m", t.node);
+            worst = worst.max(e);
+            // The old builder: within the bound of the window's strided samples only.
+            let win = tile_window(&shape, t.node, max_cells).unwrap();
+            stride = stride.max(win.stride_log2);
+            let w = full
+                .window(win.x0 as usize, win.y0 as usize, win.width, win.height, win.stride_log2)
+                .unwrap();
+            let o = build_tile_from(t.node, &win, &w.data, None, bound).unwrap();
+            old = old.max(tile_error_full(&full, &o, rect).unwrap());
+        }
+        println!(
+            "level {level}: stride {} (meshed at {}), bound {bound:.3} m, largest error \
+             {worst:.3} m (the old builder: {old:.3} m)",
+            1 << stride,
+            1 << meshed
+        );
+        old_worst = old_worst.max(old / bound);
+    }
+    assert!(old_worst > 1.0, "the negative control: the old tiles miss their bound");
 }
 
 /// The tile cache holds at most its budget plus the tiles of the frame being drawn, and drops

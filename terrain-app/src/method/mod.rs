@@ -42,7 +42,10 @@ pub use ooc::{OocMethod, OocWait};
 pub use registry::{MethodOptions, build};
 pub use renderer::{DrawSource, DrawStats, FrameRenderer, RendererKind, Uploads};
 pub use store::{StoreMethod, draws_from_store, store_method};
-pub use tin::{TinConfig, TinMethod, build_pyramid as build_tin_pyramid, tin_selection};
+pub use tin::{
+    GridTileBuilder, TinConfig, TinMethod, build_pyramid as build_tin_pyramid, tile_error_full,
+    tin_selection,
+};
 pub use tin_store::{ResolvedTiles, TileCacheStats, TinStoreConfig, TinStoreMethod, TinTiles};
 
 use crate::methods::LodMethod;

@@ -12,13 +12,18 @@ use rayon::prelude::*;
 use terrain_core::Heightmap;
 use terrain_core::geometry::Camera;
 use terrain_core::lod::{Patch, Selection, SelectionStats};
-use terrain_core::tin::TinError;
-use terrain_core::tin::grid::{GridTinConfig, GridTinPyramid, TinSelection};
+use terrain_core::quadtree::{NodeId, TreeShape};
+use terrain_core::tin::grid::{
+    GridTile, GridTinConfig, GridTinPyramid, TileWindow, TinSelection, build_tile_within,
+    tile_error_in, tile_window,
+};
 
 use super::memory::ms;
 use super::{Draw, DrawSource, DrawnSurface, Frame, Method, MethodStats, entropy_extra};
+use crate::decimation::{BudgetPolicy, DECIMATION_REGION, Decimation, build_within};
 use crate::methods::{LodMethod, MethodScene};
 use crate::progress::{Progress, on_terminal};
+use crate::samples::{HeightmapSamples, Samples};
 
 /// The `tin` method's settings.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -47,17 +52,25 @@ impl Default for TinConfig {
 }
 
 /// Builds the pyramid of `hm` on rayon's threads (tiles weighted by their samples in the
-/// progress line, shown on a terminal only).
-pub fn build_pyramid(hm: &Heightmap, config: &GridTinConfig) -> Result<GridTinPyramid, TinError> {
+/// progress line, shown on a terminal only), every tile by [`build_grid_tile`] (from all of its
+/// samples, or with `max_tile_cells` from decimated samples within a budget and checked, as
+/// from a store).
+pub fn build_pyramid(hm: &Heightmap, config: &GridTinConfig) -> anyhow::Result<GridTinPyramid> {
     let bar = Progress::new("TIN pyramid", on_terminal());
     let total = (hm.width() * hm.height()) as f64;
     let done = AtomicU64::new(0);
-    let pyramid = GridTinPyramid::build_with(hm, config, |nodes, build| {
+    let pyramid = GridTinPyramid::build_by(hm, config, |shape, errors, nodes| {
         let levels = nodes.iter().map(|n| n.level).max().map_or(1, |l| u64::from(l) + 1);
+        let tiles = GridTileBuilder::new(
+            HeightmapSamples(hm),
+            *shape,
+            errors.to_vec(),
+            config.max_tile_cells,
+        );
         nodes
             .par_iter()
             .map(|&n| {
-                let t = build(n);
+                let t = tiles.build(n);
                 if let Ok(t) = &t {
                     let samples = t.measured.samples.max(1) as u64;
                     let now = done.fetch_add(samples, Ordering::Relaxed) + samples;
@@ -65,10 +78,122 @@ pub fn build_pyramid(hm: &Heightmap, config: &GridTinConfig) -> Result<GridTinPy
                 }
                 t
             })
-            .collect()
+            .collect::<anyhow::Result<Vec<GridTile>>>()
     })?;
     bar.finish();
     Ok(pyramid)
+}
+
+/// The one builder of `tin`'s tiles from any sample source (a DEM in memory, a store): a
+/// tile is meshed from its [`tile_window`] (at the stride `max_cells` allows) within the
+/// budget [`build_within`] gives it against the decimation error under it
+/// ([`Decimation`], measured per region on first need), and a decimated tile is checked
+/// against every sample under it ([`tile_error_in`], window by window), so every tile is
+/// within its level's bound of every non-void sample, at any level.
+#[derive(Debug)]
+pub struct GridTileBuilder<S> {
+    samples: S,
+    shape: TreeShape,
+    errors: Vec<f64>,
+    max_cells: Option<u32>,
+    decimation: Decimation,
+    policy: BudgetPolicy,
+}
+
+impl<S: Samples> GridTileBuilder<S> {
+    /// Tiles of a tree of `shape` over `samples`, level bounds `errors`.
+    pub fn new(samples: S, shape: TreeShape, errors: Vec<f64>, max_cells: Option<u32>) -> Self {
+        let (w, h) = samples.size();
+        // The strides the tiles may use: up to the root's.
+        let max_s =
+            tile_window(&shape, NodeId::new(0, 0, 0), max_cells).map_or(0, |w| w.stride_log2);
+        let decimation = Decimation::new(w, h, DECIMATION_REGION, max_s);
+        Self { samples, shape, errors, max_cells, decimation, policy: BudgetPolicy::default() }
+    }
+
+    /// The sample source.
+    pub fn samples(&self) -> &S {
+        &self.samples
+    }
+
+    /// Every level's bound, metres.
+    pub fn errors(&self) -> &[f64] {
+        &self.errors
+    }
+
+    /// The tree's shape.
+    pub fn shape(&self) -> &TreeShape {
+        &self.shape
+    }
+
+    /// Tile `node` (see the type's docs).
+    pub fn build(&self, node: NodeId) -> anyhow::Result<GridTile> {
+        let own = tile_window(&self.shape, node, self.max_cells)
+            .ok_or_else(|| anyhow::anyhow!("tile {node:?} lies outside the grid"))?;
+        let rect = self
+            .shape
+            .clipped_rect(node)
+            .map(|r| [r.x0, r.y0, r.x1, r.y1])
+            .ok_or_else(|| anyhow::anyhow!("tile {node:?} lies outside the grid"))?;
+        let bound = self.errors.get(node.level as usize).copied().unwrap_or(0.0);
+        let samples = &self.samples as &dyn Samples;
+        let error = |s: u32| self.decimation.error_in(samples, rect.map(|v| v as usize), s);
+        let build = |s: u32, budget: f64| -> anyhow::Result<GridTile> {
+            let (wc, hc) = (rect[2] - rect[0], rect[3] - rect[1]);
+            let win = TileWindow {
+                width: (wc >> s) as usize + 1,
+                height: (hc >> s) as usize + 1,
+                stride_log2: s,
+                ..own
+            };
+            let w = samples.window(win.x0 as usize, win.y0 as usize, win.width, win.height, s)?;
+            Ok(build_tile_within(node, &win, &w.data, w.voids.as_ref(), budget, bound)?)
+        };
+        let check = |tile: &GridTile| -> anyhow::Result<Option<f64>> {
+            Ok(Some(tile_error_full(samples, tile, rect)?))
+        };
+        let built = build_within(
+            bound,
+            own.stride_log2,
+            &self.policy,
+            error,
+            build,
+            |t: &GridTile| t.measured.max_error,
+            check,
+        )?;
+        Ok(built.mesh)
+    }
+}
+
+/// The largest error of `tile` against every non-void sample of `rect` (`[x0, y0, x1, y1]`,
+/// inclusive), read window by window ([`DECIMATION_REGION`] cells a side).
+pub fn tile_error_full(
+    samples: &dyn Samples,
+    tile: &GridTile,
+    rect: [u32; 4],
+) -> anyhow::Result<f64> {
+    let r = DECIMATION_REGION as u32;
+    let mut worst = 0f64;
+    let mut y = rect[1];
+    while y <= rect[3] {
+        let y1 = (y + r - 1).min(rect[3]);
+        let mut x = rect[0];
+        while x <= rect[2] {
+            let x1 = (x + r - 1).min(rect[2]);
+            let (ww, wh) = ((x1 - x + 1) as usize, (y1 - y + 1) as usize);
+            let win = samples.window(x as usize, y as usize, ww, wh, 0)?;
+            let (x0, y0) = (x as usize, y as usize);
+            let e = tile_error_in(tile, [x, y, x1, y1], |i, j| {
+                let (a, b) = (i - x0, j - y0);
+                let void = win.voids.as_ref().is_some_and(|v| v.get(a, b));
+                (!void).then(|| win.data[b * ww + a])
+            });
+            worst = worst.max(e);
+            x = x1 + 1;
+        }
+        y = y1 + 1;
+    }
+    Ok(worst)
 }
 
 /// The tiles of a frame as a [`Selection`] of their nodes (what the measurement counts as

@@ -1,12 +1,15 @@
 //! `tin` drawn from a baked store: the tiles of the TIN pyramid are built on demand, on a
-//! small pool of worker threads, from the store's blocks at the stride each tile's level
-//! needs ([`crate::samples::StoreSamples`], the reader `terrain tiles` uses, through its
-//! byte-budgeted block cache), and kept in a byte-budgeted LRU cache of built tiles
+//! small pool of worker threads, from the store's blocks ([`crate::samples::StoreSamples`],
+//! the reader `terrain tiles` uses, through its byte-budgeted block cache) by the builder of
+//! the pyramid in memory ([`super::GridTileBuilder`]: the stride each tile's level allows,
+//! within its bound less the decimation error under it, checked against every sample under
+//! it), and kept in a byte-budgeted LRU cache of built tiles
 //! ([`TinTiles`]). Nothing of the full grid is in memory.
 //!
 //! Per frame: the tiles are selected over the store's index ([`select_tiles`], the same
 //! function and bounds as from memory: the same tiles for the same camera), the missing ones
-//! (and their missing ancestors, coarse first) are queued for the workers, and the frame draws
+//! (and their missing ancestors, coarse first; a waiting frame queues its own tiles only) are
+//! queued for the workers, and the frame draws
 //! what is built: a tile not built yet is drawn by its nearest built ancestor (coarser; the
 //! selected tiles under that ancestor go with it, so the drawn tiles stay disjoint), and
 //! counted late ([`crate::ooc::StreamRecord::late_tiles`]). Selection never waits, except on
@@ -25,19 +28,17 @@ use std::time::{Duration, Instant};
 use terrain_core::geometry::Camera;
 use terrain_core::lod::{Patch, Selection, SelectionStats};
 use terrain_core::quadtree::{NodeId, TreeShape};
-use terrain_core::tin::grid::{
-    GridTile, TinSelection, build_tile_from, level_errors, select_tiles, tile_window, tin_surface,
-};
+use terrain_core::tin::grid::{GridTile, TinSelection, level_errors, select_tiles, tin_surface};
 use terrain_gpu::render::ExtraTriangles;
 use terrain_gpu::tess::GpuDomainPoint;
 use terrain_stream::{Store, StoreTree};
 
 use super::memory::ms;
 use super::ooc::paged_frame;
-use super::{DrawSource, DrawnSurface, Frame, Method, OocWait, TinConfig};
+use super::{DrawSource, DrawnSurface, Frame, GridTileBuilder, Method, OocWait, TinConfig};
 use crate::methods::{LodMethod, MethodScene};
 use crate::ooc::{OocScene, StoreDraw};
-use crate::samples::{Samples, StoreSamples};
+use crate::samples::StoreSamples;
 
 /// How `tin` reads a store.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -92,10 +93,7 @@ struct State {
 
 #[derive(Debug)]
 struct Shared {
-    samples: StoreSamples,
-    shape: TreeShape,
-    errors: Vec<f64>,
-    max_cells: Option<u32>,
+    builder: GridTileBuilder<StoreSamples>,
     budget: u64,
     state: Mutex<State>,
     work: Condvar,
@@ -107,19 +105,11 @@ impl Shared {
         self.state.lock().unwrap_or_else(|e| e.into_inner())
     }
 
-    /// Tile `node` from the store's samples at its window's stride.
+    /// Tile `node` from the store's samples: [`GridTileBuilder::build`], the builder of the
+    /// pyramid in memory (its window's stride, the budget less the decimation error under it,
+    /// checked against every sample under it).
     fn build(&self, node: NodeId) -> anyhow::Result<GridTile> {
-        let win = tile_window(&self.shape, node, self.max_cells)
-            .ok_or_else(|| anyhow::anyhow!("tile {node:?} lies outside the store's grid"))?;
-        let w = self.samples.window(
-            win.x0 as usize,
-            win.y0 as usize,
-            win.width,
-            win.height,
-            win.stride_log2,
-        )?;
-        let bound = self.errors.get(node.level as usize).copied().unwrap_or(0.0);
-        Ok(build_tile_from(node, &win, &w.data, w.voids.as_ref(), bound)?)
+        self.builder.build(node)
     }
 
     /// Drops least recently drawn tiles while over the budget: not the current frame's (the
@@ -217,11 +207,14 @@ impl TinTiles {
     /// `config`'s pyramid and store settings; starts the workers.
     pub fn new(store: Store, shape: TreeShape, config: &TinConfig) -> Self {
         let s = &config.store;
-        let shared = Arc::new(Shared {
-            samples: StoreSamples::new(store, s.block_cache_bytes),
-            errors: level_errors(&shape, config.pyramid.error_scale),
+        let builder = GridTileBuilder::new(
+            StoreSamples::new(store, s.block_cache_bytes),
             shape,
-            max_cells: Some(s.max_tile_cells),
+            level_errors(&shape, config.pyramid.error_scale),
+            Some(s.max_tile_cells),
+        );
+        let shared = Arc::new(Shared {
+            builder,
             budget: s.tile_cache_bytes,
             state: Mutex::new(State::default()),
             work: Condvar::new(),
@@ -241,12 +234,19 @@ impl TinTiles {
 
     /// Every level's bound, metres.
     pub fn errors(&self) -> &[f64] {
-        &self.shared.errors
+        self.shared.builder.errors()
     }
 
     /// Queues what `nodes` need that is not built: their missing ancestors (coarse first, the
     /// fallback of a frame that cannot wait) and themselves. Replaces the previous request.
     pub fn request(&self, nodes: &[NodeId]) {
+        self.queue(nodes, true);
+    }
+
+    /// Queues the missing `nodes`, with their missing ancestors when `ancestors` (a waiting
+    /// frame draws its own tiles only: their ancestors, coarse tiles meshed from many samples
+    /// once their decimation error is counted, would only delay it).
+    fn queue(&self, nodes: &[NodeId], ancestors: bool) {
         let mut st = self.shared.lock();
         let mut queued: HashSet<NodeId> = HashSet::new();
         let mut queue: Vec<NodeId> = Vec::new();
@@ -259,7 +259,7 @@ impl TinTiles {
                 if queued.insert(m) {
                     queue.push(m);
                 }
-                c = m.parent();
+                c = if ancestors { m.parent() } else { None };
             }
         }
         queue.sort_by_key(|n| (n.level, n.dfs_key()));
@@ -271,7 +271,7 @@ impl TinTiles {
     /// Waits until every one of `nodes` is built (at most `timeout`); the first failure or
     /// the timeout is an error.
     pub fn wait_for(&self, nodes: &[NodeId], timeout: Duration) -> anyhow::Result<()> {
-        self.request(nodes);
+        self.queue(nodes, false);
         let deadline = Instant::now() + timeout;
         let mut st = self.shared.lock();
         loop {
@@ -290,7 +290,7 @@ impl TinTiles {
             // Tiles evicted while waiting (a budget smaller than the frame) are asked again.
             if st.queue.is_empty() && st.building.is_empty() {
                 drop(st);
-                self.request(&missing);
+                self.queue(&missing, false);
                 st = self.shared.lock();
                 continue;
             }

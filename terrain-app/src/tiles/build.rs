@@ -1,6 +1,7 @@
 //! One tile of `terrain tiles` from a [`Samples`] source, at the resolution its level needs,
-//! the decimation error of the DEM per region and stride ([`Decimation`]), and the check of a
-//! coarse tile against every DEM sample under it ([`check`]).
+//! the decimation error under a tile ([`decimation_error`]), and the check of a
+//! coarse tile against every DEM sample under it ([`check`]). The decimation error and the
+//! budget policy are the library's ([`terrain_app::decimation`], shared with the `tin` method).
 //!
 //! **Resolution per level.** A tile spanning `N` DEM samples is meshed from every `2^s`-th
 //! sample, `s` the smallest with `N / 2^s <= max_cells` (cesium-terrain-builder resamples
@@ -18,6 +19,7 @@ use terrain_core::heightmap::VoidMask;
 use terrain_core::tin::{self, GeoGrid, GridLayout, TileId, TileMesh};
 use terrain_core::{Crs, Georef, Heightmap};
 
+use terrain_app::decimation::{BudgetPolicy, Decimation};
 use terrain_app::samples::Samples;
 
 /// How tiles are sampled.
@@ -25,21 +27,16 @@ use terrain_app::samples::Samples;
 pub(crate) struct ResolutionConfig {
     /// Most cells across a tile's mesh input before it is decimated.
     pub max_cells: usize,
-    /// The least fraction of a decimated tile's bound its mesh gets against the decimated
-    /// samples (the bound less their measured decimation error): below it the tile is meshed
-    /// one stride finer.
-    pub min_budget_fraction: f64,
+    /// The budget a decimated tile gets, its retries and strides (the one policy both
+    /// pyramids use).
+    pub policy: BudgetPolicy,
 }
 
 impl Default for ResolutionConfig {
     fn default() -> Self {
-        Self { max_cells: 256, min_budget_fraction: 0.25 }
+        Self { max_cells: 256, policy: BudgetPolicy::default() }
     }
 }
-
-/// Cells per side of the regions the decimation error is measured in, for every source (so a
-/// store and its DEM in memory get the same budgets, and the same tiles).
-pub(crate) const DECIMATION_REGION: usize = 256;
 
 /// The tile's rectangle in fractional grid coordinates (south-west, north-east).
 fn grid_rect(layout: &GridLayout, tile: TileId) -> (DVec2, DVec2) {
@@ -173,101 +170,18 @@ pub(crate) fn check(
     Ok(worst.into_iter().try_fold(0f64, |a, e| e.map(|e| a.max(e))))
 }
 
-/// The decimation error of the DEM, measured once: for every region of `region` x `region`
-/// cells and every stride `2^s` (`1 <= s <= max_s`), the largest difference between a
-/// non-void DEM sample in it and the bilinear interpolation of the strided samples (every
-/// `2^s`-th row and column, as [`build`] reads them, the last row or column standing in past
-/// the grid's edge). A tile meshed at stride `2^s` within `bound - error` of the strided
-/// samples is then within its bound of every sample up to the difference between the mesh's
-/// triangles and the bilinear cells, which [`check`] measures.
-#[derive(Debug, Clone)]
-pub(crate) struct Decimation {
-    region: usize,
-    regions_x: usize,
-    max_s: u32,
-    /// Per region (row-major), per stride `s - 1`, metres.
-    errors: Vec<f32>,
-}
-
-impl Decimation {
-    /// Measures every region on every core (each region's samples read once at stride 1).
-    pub(crate) fn measure(
-        samples: &dyn Samples,
-        layout: &GridLayout,
-        region: usize,
-        max_s: u32,
-    ) -> anyhow::Result<Self> {
-        let (w, h) = (layout.width, layout.height);
-        let (rx, ry) = ((w - 1).div_ceil(region).max(1), (h - 1).div_ceil(region).max(1));
-        let per_region = (0..rx * ry)
-            .into_par_iter()
-            .map(|r| -> anyhow::Result<Vec<f32>> {
-                let (i0, j0) = ((r % rx) * region, (r / rx) * region);
-                let (i1, j1) = ((i0 + region).min(w - 1), (j0 + region).min(h - 1));
-                let (nw, nh) = (i1 - i0 + 1, j1 - j0 + 1);
-                let fine = samples.window(i0, j0, nw, nh, 0)?;
-                let finite = |z: f32| if z.is_finite() { f64::from(z) } else { 0.0 };
-                (1..=max_s)
-                    .map(|s| -> anyhow::Result<f32> {
-                        let t = 1usize << s;
-                        // The strided samples around the region: from the one at or before
-                        // its first sample to the one at or after its last.
-                        let (a0, b0) = ((i0 / t) * t, (j0 / t) * t);
-                        let (na, nb) =
-                            ((i1.div_ceil(t) * t - a0) / t + 1, (j1.div_ceil(t) * t - b0) / t + 1);
-                        let (na, nb) = (na.max(2), nb.max(2));
-                        let lattice = samples.window(a0, b0, na, nb, s)?;
-                        let lz = |a: usize, b: usize| finite(lattice.data[b * na + a]);
-                        let mut worst = 0f64;
-                        for j in j0..=j1 {
-                            let (b, fy) = ((j - b0) / t, ((j - b0) % t) as f64 / t as f64);
-                            let b1 = (b + 1).min(nb - 1);
-                            for i in i0..=i1 {
-                                if fine.voids.as_ref().is_some_and(|v| v.get(i - i0, j - j0)) {
-                                    continue;
-                                }
-                                let (a, fx) = ((i - a0) / t, ((i - a0) % t) as f64 / t as f64);
-                                let a1 = (a + 1).min(na - 1);
-                                let south = lz(a, b) + fx * (lz(a1, b) - lz(a, b));
-                                let north = lz(a, b1) + fx * (lz(a1, b1) - lz(a, b1));
-                                let z = south + fy * (north - south);
-                                let d = (finite(fine.data[(j - j0) * nw + (i - i0)]) - z).abs();
-                                worst = worst.max(d);
-                            }
-                        }
-                        Ok(worst as f32)
-                    })
-                    .collect()
-            })
-            .collect::<anyhow::Result<Vec<_>>>()?;
-        Ok(Self { region, regions_x: rx, max_s, errors: per_region.concat() })
-    }
-
-    /// The largest decimation error at stride `2^s` over the regions under `tile` (0 at
-    /// `s = 0` or for a tile without samples; infinite past the strides measured).
-    pub(crate) fn error(&self, layout: &GridLayout, tile: TileId, s: u32) -> f64 {
-        if s == 0 {
-            return 0.0;
-        }
-        if s > self.max_s {
-            return f64::INFINITY;
-        }
-        let Some([i0, j0, i1, j1]) = samples_inside(layout, tile) else { return 0.0 };
-        let ry = self.errors.len() / (self.regions_x * self.max_s as usize);
-        let r = |v: usize, n: usize| (v / self.region).min(n - 1);
-        let mut worst = 0f64;
-        for y in r(j0, ry)..=r(j1, ry) {
-            for x in r(i0, self.regions_x)..=r(i1, self.regions_x) {
-                let k = (y * self.regions_x + x) * self.max_s as usize + (s - 1) as usize;
-                worst = worst.max(f64::from(self.errors[k]));
-            }
-        }
-        worst
-    }
-
-    /// The largest decimation error measured at any stride anywhere, metres.
-    pub(crate) fn max(&self) -> f64 {
-        self.errors.iter().fold(0f64, |a, &e| a.max(f64::from(e)))
+/// The decimation error at stride `2^s` over the regions under `tile` (0 for a tile without
+/// samples): [`Decimation::error_in`] over the DEM samples inside it.
+pub(crate) fn decimation_error(
+    decimation: &Decimation,
+    samples: &dyn Samples,
+    layout: &GridLayout,
+    tile: TileId,
+    s: u32,
+) -> anyhow::Result<f64> {
+    match samples_inside(layout, tile) {
+        Some(rect) => decimation.error_in(samples, rect, s),
+        None => Ok(0.0),
     }
 }
 

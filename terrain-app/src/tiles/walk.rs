@@ -5,11 +5,11 @@
 //!
 //! **Budget per tile.** A tile at stride `2^s > 1` ([`build::stride_log2`]) is meshed within
 //! `bound - E` of the strided samples, `E` the decimation error measured once per region and
-//! stride ([`build::Decimation`]): the largest difference between a DEM sample and the strided
+//! stride ([`Decimation`]; the policy is [`build_within`], shared with the `tin` method): the largest difference between a DEM sample and the strided
 //! grid's interpolation. Where `bound - E` is under `min_budget_fraction x bound` the tile is
 //! meshed at the next finer stride instead (at `s = 0`, `E = 0`). Every decimated tile is then
 //! checked against every DEM sample under it ([`build::check`]); one that fails is built again
-//! with its budget cut by the excess measured, at most [`MAX_RETRIES`] times, then one stride
+//! with its budget cut by the excess measured, at most `max_retries` times, then one stride
 //! finer (each rebuild counts as a retry). At `s = 0` the builder's own check covers every
 //! sample.
 
@@ -18,11 +18,9 @@ use std::sync::atomic::{AtomicUsize, Ordering};
 use rayon::prelude::*;
 use terrain_core::tin::{GridLayout, TileId, TileMesh, TileRange};
 
-use super::build::{self, Decimation, ResolutionConfig};
+use super::build::{self, ResolutionConfig};
+use terrain_app::decimation::{Decimation, build_within};
 use terrain_app::samples::Samples;
-
-/// Rebuilds of a tile at one stride with a smaller budget before it goes one stride finer.
-pub(crate) const MAX_RETRIES: u32 = 2;
 
 /// What the walk needs.
 pub(crate) struct Walk<'a> {
@@ -91,48 +89,21 @@ impl Walk<'_> {
     /// Builds, checks and writes one tile; its mesh is dropped on return.
     fn one(&self, tile: TileId, c: &Counters) -> anyhow::Result<()> {
         let bound = (self.bound)(tile);
-        let floor = self.resolution.min_budget_fraction * bound;
-        let error = |s: u32| self.decimation.error(self.layout, tile, s);
-        // The coarsest stride, up to the tile's own, whose decimation error leaves the floor.
-        let coarsest = |mut s: u32| {
-            while s > 0 && bound - error(s) < floor {
-                s -= 1;
-            }
-            s
-        };
-        let mut s = coarsest(build::stride_log2(self.layout, tile, &self.resolution));
-        if s == 0 {
-            let mesh = build::build(self.samples, self.layout, tile, 0, bound, bound)?;
-            let measured = mesh.measured.map_or(0.0, |m| m.max_error);
-            return (self.write)(&mesh, measured, 0.0);
+        let error =
+            |s: u32| build::decimation_error(self.decimation, self.samples, self.layout, tile, s);
+        let built = build_within(
+            bound,
+            build::stride_log2(self.layout, tile, &self.resolution),
+            &self.resolution.policy,
+            error,
+            |s, budget| build::build(self.samples, self.layout, tile, s, budget, bound),
+            |mesh: &TileMesh| mesh.measured.map_or(0.0, |m| m.max_error),
+            |mesh| build::check(self.samples, self.layout, mesh, self.check_region),
+        )?;
+        if built.decimated {
+            c.decimated.fetch_add(1, Ordering::Relaxed);
         }
-        c.decimated.fetch_add(1, Ordering::Relaxed);
-        let mut budget = bound - error(s);
-        let mut tries = 0;
-        loop {
-            let mesh = build::build(self.samples, self.layout, tile, s, budget, bound)?;
-            let measured = build::check(self.samples, self.layout, &mesh, self.check_region)?;
-            match measured {
-                Some(e) if e <= bound => return (self.write)(&mesh, e, error(s)),
-                _ => {}
-            }
-            c.retries.fetch_add(1, Ordering::Relaxed);
-            tries += 1;
-            // Cut the budget by the excess (and a hundredth of the bound more), or go finer.
-            let cut = measured.map(|e| budget - (e - bound) - 0.01 * bound);
-            match cut {
-                Some(b) if tries <= MAX_RETRIES && b >= floor => budget = b,
-                _ => {
-                    s = coarsest(s - 1);
-                    tries = 0;
-                    budget = bound - error(s);
-                    if s == 0 {
-                        let mesh = build::build(self.samples, self.layout, tile, 0, bound, bound)?;
-                        let measured = mesh.measured.map_or(0.0, |m| m.max_error);
-                        return (self.write)(&mesh, measured, 0.0);
-                    }
-                }
-            }
-        }
+        c.retries.fetch_add(built.retries, Ordering::Relaxed);
+        (self.write)(&built.mesh, built.measured, built.decimation)
     }
 }

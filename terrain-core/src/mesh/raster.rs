@@ -30,16 +30,27 @@ fn div_ceil(n: i64, d: i64) -> i64 {
 /// vertex heights at `(i, j)`. Samples are visited row by row (south to north, west to east).
 ///
 /// Degenerate or clockwise triangles visit nothing.
-pub(crate) fn for_each_sample(v: [[i64; 2]; 3], z: [f64; 3], mut f: impl FnMut(i64, i64, f64)) {
+pub(crate) fn for_each_sample(v: [[i64; 2]; 3], z: [f64; 3], f: impl FnMut(i64, i64, f64)) {
+    for_each_sample_in(v, z, [i64::MIN, i64::MIN, i64::MAX, i64::MAX], f);
+}
+
+/// [`for_each_sample`] over the samples inside `clip` only (`[x0, y0, x1, y1]`, inclusive):
+/// a large triangle checked window by window visits each window's rows and columns only.
+pub(crate) fn for_each_sample_in(
+    v: [[i64; 2]; 3],
+    z: [f64; 3],
+    clip: [i64; 4],
+    mut f: impl FnMut(i64, i64, f64),
+) {
     let d = orient(v[0], v[1], v[2]);
     if d <= 0 {
         return;
     }
     let df = d as f64;
-    let y0 = v[0][1].min(v[1][1]).min(v[2][1]);
-    let y1 = v[0][1].max(v[1][1]).max(v[2][1]);
-    let x0 = v[0][0].min(v[1][0]).min(v[2][0]);
-    let x1 = v[0][0].max(v[1][0]).max(v[2][0]);
+    let y0 = v[0][1].min(v[1][1]).min(v[2][1]).max(clip[1]);
+    let y1 = v[0][1].max(v[1][1]).max(v[2][1]).min(clip[3]);
+    let x0 = v[0][0].min(v[1][0]).min(v[2][0]).max(clip[0]);
+    let x1 = v[0][0].max(v[1][0]).max(v[2][0]).min(clip[2]);
     // Edge k runs from v[k] to v[k + 1]; a sample s is inside (or on) it when
     // orient(p, q, s) = (qx - px)(sy - py) - (qy - py)(sx - px) >= 0. For a fixed row this is
     // `a * sx <= b` with a = qy - py and b = (qx - px)(sy - py) + a * px.

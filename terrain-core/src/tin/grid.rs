@@ -24,7 +24,9 @@
 //!
 //! **Cracks: shared borders and stitches.** Each side of a tile is simplified on its own
 //! (Douglas-Peucker on the side's profile, [`super::tile::Borders::Simplified`]), so
-//! neighbours at the same level share their border vertices exactly. Where a tile meets finer
+//! neighbours at the same level share their border vertices exactly (when meshed within the
+//! same budget at the same stride; tiles built from decimated samples within different budgets
+//! get the stitches below between them too). Where a tile meets finer
 //! neighbours, their border vertices differ from its own (T-junctions); the gap between the
 //! two border polylines lies in the vertical plane of the side and is closed by a fan of
 //! triangles over the polygon made of the fine side's polyline and the coarse side's
@@ -248,10 +250,25 @@ pub fn build_tile_from(
     voids: Option<&VoidMask>,
     bound: f64,
 ) -> Result<GridTile, TinError> {
+    build_tile_within(node, win, heights, voids, bound, bound)
+}
+
+/// [`build_tile_from`] meshed within `budget` metres of the window's samples (a decimated
+/// window's budget: the bound less the decimation error, so that the tile meets `bound`
+/// against every sample under it, which the caller checks with [`tile_error_in`]); the tile
+/// carries `bound`.
+pub fn build_tile_within(
+    node: NodeId,
+    win: &TileWindow,
+    heights: &[f32],
+    voids: Option<&VoidMask>,
+    budget: f64,
+    bound: f64,
+) -> Result<GridTile, TinError> {
     let (level, x, y) = (u32::from(node.level), node.i, node.j);
     let (w, h) = (win.width, win.height);
     let sub = tile::window(w, h, |i, j| (heights[j * w + i], voids.is_some_and(|v| v.get(i, j))));
-    let (mesh, measured) = tile::mesh_window(&sub, bound, Borders::Simplified)
+    let (mesh, measured) = tile::mesh_window(&sub, budget, Borders::Simplified)
         .map_err(|e| TinError::from_tile(e, level, x, y))?;
     // Local positions are exact integers (one metre per sample from the origin).
     let local: Vec<[u32; 2]> = mesh.positions.iter().map(|p| [p.x as u32, p.y as u32]).collect();
@@ -285,6 +302,35 @@ pub fn build_tile_from(
         bound,
         measured,
     })
+}
+
+/// The largest `|tile - sample|` over the grid samples in `rect` (`[x0, y0, x1, y1]`,
+/// inclusive) that `sample(i, j)` gives (`None`: void, not measured), by the exact scan
+/// conversion the meshers' verification uses; with `rect` the whole tile, the tile's error
+/// against every sample under it (read window by window for a large tile: the samples of one
+/// window at a time). Samples in no triangle are not measured (a tile covers its rectangle).
+pub fn tile_error_in(
+    tile: &GridTile,
+    rect: [u32; 4],
+    mut sample: impl FnMut(usize, usize) -> Option<f32>,
+) -> f64 {
+    let clip = rect.map(i64::from);
+    let mut worst = 0f64;
+    for t in &tile.triangles {
+        let v = t.map(|k| tile.vertices[k as usize].map(i64::from));
+        let lo = [v[0][0].min(v[1][0]).min(v[2][0]), v[0][1].min(v[1][1]).min(v[2][1])];
+        let hi = [v[0][0].max(v[1][0]).max(v[2][0]), v[0][1].max(v[1][1]).max(v[2][1])];
+        if hi[0] < clip[0] || lo[0] > clip[2] || hi[1] < clip[1] || lo[1] > clip[3] {
+            continue;
+        }
+        let z = t.map(|k| f64::from(tile.heights[k as usize]));
+        crate::mesh::raster::for_each_sample_in(v, z, clip, |i, j, m| {
+            if let Some(s) = sample(i as usize, j as usize) {
+                worst = worst.max((m - f64::from(s)).abs());
+            }
+        });
+    }
+    worst
 }
 
 /// The tile builder handed to [`GridTinPyramid::build_with`]'s map.
@@ -361,6 +407,25 @@ impl GridTinPyramid {
         let mut levels: Vec<Vec<GridTile>> = vec![Vec::new(); errors.len()];
         for r in built {
             let t = r?;
+            levels[t.node.level as usize].push(t);
+        }
+        Ok(Self { tree, levels, errors })
+    }
+
+    /// Builds every tile of `hm` by the caller's `build`, which receives the tree's shape,
+    /// every level's bound and the nodes to build (coarse levels first) and returns their
+    /// tiles in that order (the app's builder from any sample source, with its decimation
+    /// budget and check).
+    pub fn build_by<E>(
+        hm: &Heightmap,
+        config: &GridTinConfig,
+        build: impl FnOnce(&TreeShape, &[f64], &[NodeId]) -> Result<Vec<GridTile>, E>,
+    ) -> Result<Self, E> {
+        let (tree, nodes) = Self::plan(hm, config);
+        let errors = level_errors(tree.shape(), config.error_scale);
+        let built = build(tree.shape(), &errors, &nodes)?;
+        let mut levels: Vec<Vec<GridTile>> = vec![Vec::new(); errors.len()];
+        for t in built {
             levels[t.node.level as usize].push(t);
         }
         Ok(Self { tree, levels, errors })
@@ -482,7 +547,15 @@ pub fn tin_surface(tiles: &[&GridTile], plan: impl Fn(DVec2) -> DVec2, stitch: b
         let node = t.node;
         for d in Direction::ALL {
             let across = set.neighbours(node, d);
-            if across.is_empty() || across.iter().any(|n| n.level <= node.level) {
+            // A same-level neighbour shares this side's vertices unless the two were meshed
+            // within different budgets or strides (decimated tiles: the budget is the bound less
+            // the decimation error under each); then the gap between the two polylines is
+            // stitched like a level change, once per pair (from the south or west tile).
+            let same = across.len() == 1 && across[0].level == node.level;
+            if across.is_empty()
+                || (same && !matches!(d, Direction::North | Direction::East))
+                || (!same && across.iter().any(|n| n.level <= node.level))
+            {
                 continue;
             }
             let coarse = side(t, d);

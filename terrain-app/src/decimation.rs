@@ -1,0 +1,250 @@
+//! The decimation error of a DEM and the budget a tile meshed from decimated samples gets:
+//! **one implementation** for both error-bounded TIN pyramids built from strided samples, the
+//! geographic tiles of `terrain tiles` and the grid tiles of the `tin` method (in memory with
+//! `max_tile_cells`, and from a store).
+//!
+//! **Decimation error** ([`Decimation`]): for every region of `region x region` cells and every
+//! stride `2^s` (`1 <= s <= max_s`), the largest difference between a non-void sample in it
+//! and the bilinear interpolation of the strided samples (every `2^s`-th row and column from
+//! 0, the last row or column standing in past the grid's edge). Measured per region on first
+//! need ([`Decimation::error_in`]) or for every region at once on every core
+//! ([`Decimation::measure_all`]); either way a region is measured once and reads its samples
+//! at stride 1 once.
+//!
+//! **Budget** ([`build_within`]): a tile of bound `e` whose own stride is `2^s` is meshed within
+//! `e - E_s` of its strided samples, `E_s` the decimation error under it, at the coarsest
+//! stride up to its own where that budget is at least `min_budget_fraction x e` (at `s = 0`,
+//! `E = 0` and the mesher's own verification covers every sample). A decimated tile is then
+//! checked against every sample under it (the caller's check); one that fails is built again
+//! with its budget cut by the excess measured (and a hundredth of the bound), at most
+//! `max_retries` times, then one stride finer. So every tile returned is within its bound of
+//! every non-void sample, while coarse tiles read and mesh a bounded number of samples.
+
+use std::sync::OnceLock;
+
+use rayon::prelude::*;
+
+use crate::samples::Samples;
+
+/// Cells per side of the regions the decimation error is measured in, for every source (so a
+/// store and its DEM in memory get the same budgets, and the same tiles).
+pub const DECIMATION_REGION: usize = 256;
+
+/// The decimation error of a grid per region and stride (see the module docs).
+#[derive(Debug)]
+pub struct Decimation {
+    width: usize,
+    height: usize,
+    region: usize,
+    regions_x: usize,
+    regions_y: usize,
+    max_s: u32,
+    /// Per region (row-major): its error per stride `s - 1`, metres, once measured.
+    errors: Vec<OnceLock<Vec<f32>>>,
+}
+
+impl Decimation {
+    /// The (not yet measured) decimation error of a `width x height` grid in regions of
+    /// `region` cells, strides `2^1..=2^max_s`.
+    pub fn new(width: usize, height: usize, region: usize, max_s: u32) -> Self {
+        let region = region.max(1);
+        let (rx, ry) = (
+            width.saturating_sub(1).div_ceil(region).max(1),
+            height.saturating_sub(1).div_ceil(region).max(1),
+        );
+        let errors = (0..rx * ry).map(|_| OnceLock::new()).collect();
+        Self { width, height, region, regions_x: rx, regions_y: ry, max_s, errors }
+    }
+
+    /// Measures every region not measured yet, on every core.
+    pub fn measure_all(&self, samples: &dyn Samples) -> anyhow::Result<()> {
+        (0..self.errors.len())
+            .into_par_iter()
+            .try_for_each(|r| self.region_errors(samples, r).map(|_| ()))
+    }
+
+    /// The largest decimation error at stride `2^s` over the regions meeting the samples
+    /// `[i0, j0, i1, j1]` (inclusive), measuring those not measured yet (0 at `s = 0`;
+    /// infinite past the strides measured).
+    pub fn error_in(
+        &self,
+        samples: &dyn Samples,
+        [i0, j0, i1, j1]: [usize; 4],
+        s: u32,
+    ) -> anyhow::Result<f64> {
+        if s == 0 {
+            return Ok(0.0);
+        }
+        if s > self.max_s {
+            return Ok(f64::INFINITY);
+        }
+        let r = |v: usize, n: usize| (v / self.region).min(n - 1);
+        let mut worst = 0f64;
+        for y in r(j0, self.regions_y)..=r(j1, self.regions_y) {
+            for x in r(i0, self.regions_x)..=r(i1, self.regions_x) {
+                let e = self.region_errors(samples, y * self.regions_x + x)?;
+                worst = worst.max(f64::from(e[(s - 1) as usize]));
+            }
+        }
+        Ok(worst)
+    }
+
+    /// The largest decimation error measured so far at any stride anywhere, metres.
+    pub fn max(&self) -> f64 {
+        self.errors
+            .iter()
+            .filter_map(OnceLock::get)
+            .flatten()
+            .fold(0f64, |a, &e| a.max(f64::from(e)))
+    }
+
+    /// Region `r`'s errors per stride, measured on first need.
+    fn region_errors(&self, samples: &dyn Samples, r: usize) -> anyhow::Result<&[f32]> {
+        if let Some(e) = self.errors[r].get() {
+            return Ok(e);
+        }
+        let e = self.measure_region(samples, r)?;
+        // Another thread may have measured it meanwhile: the same numbers.
+        Ok(self.errors[r].get_or_init(|| e))
+    }
+
+    fn measure_region(&self, samples: &dyn Samples, r: usize) -> anyhow::Result<Vec<f32>> {
+        let (w, h, region) = (self.width, self.height, self.region);
+        let (i0, j0) = ((r % self.regions_x) * region, (r / self.regions_x) * region);
+        let (i1, j1) = ((i0 + region).min(w - 1), (j0 + region).min(h - 1));
+        let (nw, nh) = (i1 - i0 + 1, j1 - j0 + 1);
+        let fine = samples.window(i0, j0, nw, nh, 0)?;
+        let finite = |z: f32| if z.is_finite() { f64::from(z) } else { 0.0 };
+        (1..=self.max_s)
+            .map(|s| -> anyhow::Result<f32> {
+                let t = 1usize << s;
+                // The strided samples around the region: from the one at or before its first
+                // sample to the one at or after its last.
+                let (a0, b0) = ((i0 / t) * t, (j0 / t) * t);
+                let (na, nb) =
+                    ((i1.div_ceil(t) * t - a0) / t + 1, (j1.div_ceil(t) * t - b0) / t + 1);
+                let (na, nb) = (na.max(2), nb.max(2));
+                let lattice = samples.window(a0, b0, na, nb, s)?;
+                let lz = |a: usize, b: usize| finite(lattice.data[b * na + a]);
+                let mut worst = 0f64;
+                for j in j0..=j1 {
+                    let (b, fy) = ((j - b0) / t, ((j - b0) % t) as f64 / t as f64);
+                    let b1 = (b + 1).min(nb - 1);
+                    for i in i0..=i1 {
+                        if fine.voids.as_ref().is_some_and(|v| v.get(i - i0, j - j0)) {
+                            continue;
+                        }
+                        let (a, fx) = ((i - a0) / t, ((i - a0) % t) as f64 / t as f64);
+                        let a1 = (a + 1).min(na - 1);
+                        let south = lz(a, b) + fx * (lz(a1, b) - lz(a, b));
+                        let north = lz(a, b1) + fx * (lz(a1, b1) - lz(a, b1));
+                        let z = south + fy * (north - south);
+                        let d = (finite(fine.data[(j - j0) * nw + (i - i0)]) - z).abs();
+                        worst = worst.max(d);
+                    }
+                }
+                Ok(worst as f32)
+            })
+            .collect()
+    }
+}
+
+/// How a tile's budget and stride are chosen ([`build_within`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct BudgetPolicy {
+    /// The least fraction of a decimated tile's bound its mesh gets against the decimated
+    /// samples: below it the tile is meshed one stride finer.
+    pub min_budget_fraction: f64,
+    /// Rebuilds of a tile at one stride with a smaller budget before it goes one stride finer.
+    pub max_retries: u32,
+}
+
+impl Default for BudgetPolicy {
+    fn default() -> Self {
+        Self { min_budget_fraction: 0.25, max_retries: 2 }
+    }
+}
+
+/// A tile built by [`build_within`].
+#[derive(Debug, Clone)]
+pub struct Budgeted<M> {
+    /// The tile.
+    pub mesh: M,
+    /// Its largest error against every sample under it, metres.
+    pub measured: f64,
+    /// The decimation error of the stride it was meshed at (0 at full resolution), metres.
+    pub decimation: f64,
+    /// log2 of that stride.
+    pub stride_log2: u32,
+    /// Whether it was first meshed from decimated samples (and so checked).
+    pub decimated: bool,
+    /// Rebuilds after a failed check.
+    pub retries: usize,
+}
+
+/// Builds a tile of bound `bound` whose own stride is `2^s` (see the module docs): `error(s)`
+/// is the decimation error under it at stride `2^s`; `build(s, budget)` meshes it from every
+/// `2^s`-th sample within `budget` (at `s = 0`, within `bound`, verified against every sample
+/// by the builder, whose measured error `exact` reads); `check(mesh)` measures a decimated
+/// mesh against every sample under it (`None`: a sample left uncovered, a failure).
+pub fn build_within<M>(
+    bound: f64,
+    s: u32,
+    policy: &BudgetPolicy,
+    error: impl Fn(u32) -> anyhow::Result<f64>,
+    mut build: impl FnMut(u32, f64) -> anyhow::Result<M>,
+    exact: impl Fn(&M) -> f64,
+    mut check: impl FnMut(&M) -> anyhow::Result<Option<f64>>,
+) -> anyhow::Result<Budgeted<M>> {
+    let floor = policy.min_budget_fraction * bound;
+    // The coarsest stride, up to `s`, whose decimation error leaves the floor.
+    let coarsest = |mut s: u32| -> anyhow::Result<u32> {
+        while s > 0 && bound - error(s)? < floor {
+            s -= 1;
+        }
+        Ok(s)
+    };
+    let full = |build: &mut dyn FnMut(u32, f64) -> anyhow::Result<M>, retries: usize, decimated| {
+        let mesh = build(0, bound)?;
+        let measured = exact(&mesh);
+        Ok(Budgeted { mesh, measured, decimation: 0.0, stride_log2: 0, decimated, retries })
+    };
+    let mut s = coarsest(s)?;
+    if s == 0 {
+        return full(&mut build, 0, false);
+    }
+    let mut budget = bound - error(s)?;
+    let (mut tries, mut retries) = (0, 0);
+    loop {
+        let mesh = build(s, budget)?;
+        let measured = check(&mesh)?;
+        if let Some(e) = measured
+            && e <= bound
+        {
+            let decimation = error(s)?;
+            return Ok(Budgeted {
+                mesh,
+                measured: e,
+                decimation,
+                stride_log2: s,
+                decimated: true,
+                retries,
+            });
+        }
+        retries += 1;
+        tries += 1;
+        // Cut the budget by the excess (and a hundredth of the bound more), or go finer.
+        let cut = measured.map(|e| budget - (e - bound) - 0.01 * bound);
+        match cut {
+            Some(b) if tries <= policy.max_retries && b >= floor => budget = b,
+            _ => {
+                s = coarsest(s - 1)?;
+                tries = 0;
+                if s == 0 {
+                    return full(&mut build, retries, true);
+                }
+                budget = bound - error(s)?;
+            }
+        }
+    }
+}
