@@ -8,6 +8,7 @@ use std::time::Instant;
 
 use anyhow::Context;
 use clap::{Args, ValueEnum};
+use glam::DVec2;
 use terrain_core::Heightmap;
 use terrain_core::mesh::TriMesh;
 use terrain_core::points::read_points;
@@ -17,8 +18,8 @@ use terrain_visibility::entropy::local::{class_range, local_entropy_with_range};
 use terrain_visibility::entropy::source::build_from_grid_with_map;
 use terrain_visibility::entropy::source::entropy_map;
 use terrain_visibility::entropy::{
-    EntropyConfig, EntropyScale, Interpolation, ScatteredPoints, TreeConfig, build_from_points,
-    profile_curvature,
+    EntropyConfig, EntropyQuadtree, EntropyScale, FocusThreshold, Interpolation, ScatteredPoints,
+    TreeConfig, build_from_points, profile_curvature,
 };
 
 use crate::source::SourceArgs;
@@ -51,6 +52,16 @@ pub(crate) struct EntropyArgs {
     /// The quadtree's depth D for --table (the paper's Table 1: 8).
     #[arg(long, default_value_t = 8)]
     pub depth: u32,
+    /// With --table: also the static scheduling with four focuses of the paper's Fig. 13 on
+    /// each row's tree (focuses at the centres of the grid's quadrants; E = E0 + c1 r with `r`
+    /// the distance to the nearest focus and c1 = --focus-c1): tiles and triangles of the cut,
+    /// and whether the leaves holding each focus are the tree's own.
+    #[arg(long, requires = "table")]
+    pub foci: bool,
+    /// c1 of --foci, percent of the largest entropy per terrain diagonal (the paper gives none;
+    /// 400 raises the threshold by the whole entropy range a quarter diagonal from a focus).
+    #[arg(long, default_value_t = 400.0, requires = "foci")]
+    pub focus_c1: f64,
 }
 
 /// Window and binning of the local entropy (shared with `terrain mesh --entropy`).
@@ -106,7 +117,16 @@ pub(crate) fn run(args: &EntropyArgs) -> anyhow::Result<()> {
         None => terrain_core::synth::default_terrain(),
     };
     if let Some(e0s) = &args.table {
-        println!("{}", serde_json::to_string_pretty(&table(&hm, &cfg, args.depth, e0s)?)?);
+        println!(
+            "{}",
+            serde_json::to_string_pretty(&table(
+                &hm,
+                &cfg,
+                args.depth,
+                e0s,
+                args.foci.then_some(args.focus_c1)
+            )?)?
+        );
         if args.output.is_none() {
             return Ok(());
         }
@@ -158,13 +178,19 @@ pub(crate) fn run(args: &EntropyArgs) -> anyhow::Result<()> {
 /// `e0s` at depth `depth`: the entropy map once (timed), then per threshold Algorithm 1 over
 /// it (the quadtree construction), the three-pass crack elimination and the per-tile
 /// triangulation, each timed on the wall clock, and the simplification against the full
-/// tree's `2 x 4^D` triangles (the paper's E0 = 0 row).
+/// tree's `2 x 4^D` triangles (the paper's E0 = 0 row). With `focus_c1`, each row also gets
+/// the Fig. 13 cut with four focuses ([`focus_cut`]).
 fn table(
     hm: &Heightmap,
     entropy: &EntropyConfig,
     depth: u32,
     e0s: &[f64],
+    focus_c1: Option<f64>,
 ) -> anyhow::Result<serde_json::Value> {
+    anyhow::ensure!(
+        focus_c1.is_none_or(|c| c.is_finite() && c >= 0.0),
+        "--focus-c1 must be a number >= 0"
+    );
     anyhow::ensure!(depth <= terrain_visibility::entropy::MAX_DEPTH, "--depth must be 0..=16");
     anyhow::ensure!(e0s.iter().all(|e| e.is_finite()), "--table thresholds must be numbers");
     let base = TreeConfig { max_depth: depth, entropy: entropy.clone(), ..TreeConfig::default() };
@@ -186,7 +212,7 @@ fn table(
             anyhow::anyhow!("internal error, the entropy mesh is not watertight: {e}")
         })?;
         let triangles = mesh.triangles.len() as u64;
-        rows.push(serde_json::json!({
+        let mut row = serde_json::json!({
             "e0": e0,
             "tiles": tree.tiles(),
             "triangles": triangles,
@@ -194,7 +220,11 @@ fn table(
             "crack_ms": crack_ms,
             "triangulation_ms": triangulation_ms,
             "simplification_pct": 100.0 * (1.0 - triangles as f64 / full as f64),
-        }));
+        });
+        if let Some(c1) = focus_c1 {
+            row["foci"] = focus_cut(hm, &tree, e0, c1)?;
+        }
+        rows.push(row);
     }
     Ok(serde_json::json!({
         "width": hm.width(),
@@ -204,6 +234,57 @@ fn table(
         "entropy_map_s": map_s,
         "e0_unit": "percent of the largest entropy, log2(min(M, N)) bits",
         "rows": rows,
+    }))
+}
+
+/// The entropy paper's Fig. 13 on `tree` (built at threshold `e0`): the static cut with four
+/// focuses at the centres of the grid's quadrants, `E = E0 + c1 r` ([`FocusThreshold`];
+/// `c1_pct` in percent per terrain diagonal), made crack-free and triangulated; its tiles and
+/// triangles, and whether every focus lies in the same leaves as in the tree (the paper: "the
+/// grid cells in the four focus areas maintained the highest resolution").
+fn focus_cut(
+    hm: &Heightmap,
+    tree: &EntropyQuadtree,
+    e0: f64,
+    c1_pct: f64,
+) -> anyhow::Result<serde_json::Value> {
+    let (w, h) = (hm.width() as f64 - 1.0, hm.height() as f64 - 1.0);
+    let foci: Vec<DVec2> = [(0.25, 0.25), (0.75, 0.25), (0.25, 0.75), (0.75, 0.75)]
+        .iter()
+        .map(|&(u, v)| hm.grid_to_world(u * w, v * h))
+        .collect();
+    let diagonal = hm.extent_m().length().max(1.0);
+    let focus = FocusThreshold { e0, c1: c1_pct / diagonal, foci: foci.clone() };
+    let t = Instant::now();
+    let mut cut = tree.schedule_by(|lo, hi| focus.threshold_tile(lo, hi));
+    let cut_ms = t.elapsed().as_secs_f64() * 1e3;
+    let mesh = cut.mesh();
+    mesh.check_watertight(cut.lattice.depth)
+        .map_err(|e| anyhow::anyhow!("internal error, the focus cut is not watertight: {e}"))?;
+    let holding = |t: &EntropyQuadtree, p: DVec2| -> Vec<(u32, u32, u32)> {
+        t.nodes
+            .iter()
+            .filter(|n| n.children.is_none())
+            .filter(|n| {
+                let s = 1u32 << (t.lattice.depth - n.level);
+                let a = t.lattice.world(t.lattice.plan(n.i * s, n.j * s));
+                let b = t.lattice.world(t.lattice.plan(n.i * s + s, n.j * s + s));
+                let (a, b) = (a.min(b), a.max(b));
+                p.x >= a.x && p.x <= b.x && p.y >= a.y && p.y <= b.y
+            })
+            .map(|n| (n.level, n.i, n.j))
+            .collect::<std::collections::BTreeSet<_>>()
+            .into_iter()
+            .collect()
+    };
+    let kept = foci.iter().all(|f| holding(&cut, *f) == holding(tree, *f));
+    Ok(serde_json::json!({
+        "focuses": foci.iter().map(|f| [f.x, f.y]).collect::<Vec<_>>(),
+        "c1_pct_per_diagonal": c1_pct,
+        "tiles": cut.tiles(),
+        "triangles": mesh.triangles.len(),
+        "cut_ms": cut_ms,
+        "focus_leaves_kept": kept,
     }))
 }
 

@@ -18,9 +18,9 @@ use terrain_visibility::entropy::local::{
 use terrain_visibility::entropy::quadtree::WatertightError;
 use terrain_visibility::entropy::source::{build_from_grid_with_map, entropy_map, grid_depth_cap};
 use terrain_visibility::entropy::{
-    EntropyConfig, EntropyError, EntropyQuadtree, Interpolation, MAX_DEPTH, ScalarMap,
-    ScatteredPoints, TreeConfig, ViewThreshold, build_from_grid, build_from_points, local_entropy,
-    profile_curvature,
+    EntropyConfig, EntropyError, EntropyQuadtree, FocusThreshold, Interpolation, MAX_DEPTH,
+    ScalarMap, ScatteredPoints, TreeConfig, ViewThreshold, build_from_grid, build_from_points,
+    local_entropy, profile_curvature,
 };
 
 /// A `size x size` crop of a heightmap starting at `(i0, j0)`, voids kept.
@@ -459,6 +459,61 @@ fn view_dependent_cut_coarsens_far_tiles_and_stays_watertight() {
     // c1 = c2 = 0 and the same E0 is the tree itself.
     let same = tree.schedule(&ViewThreshold { c1: 0.0, ..view });
     assert_eq!(same.tiles(), full);
+}
+
+/// The static scheduling with several focuses (the paper's Fig. 13): every leaf of the initial
+/// tree that holds a focus is kept, tiles coarsen away from the focuses, the cut is watertight
+/// and has fewer tiles; one focus is Eq. 5's cut with the eye term off and the focus as centre.
+#[test]
+fn focus_scheduling_keeps_the_focus_areas_and_coarsens_elsewhere() {
+    let hm = puget_crop(257);
+    let cfg = TreeConfig { e0: 10.0, ..TreeConfig::default() };
+    let tree = build_from_grid(&hm, &cfg).unwrap();
+    let full = tree.tiles();
+    let foci: Vec<DVec2> = [(64.0, 64.0), (192.0, 64.0), (64.0, 192.0), (192.0, 192.0)]
+        .iter()
+        .map(|&(i, j)| hm.grid_to_world(i, j))
+        .collect();
+    let focus = FocusThreshold { e0: 10.0, c1: 0.01, foci: foci.clone() };
+    let mut cut = tree.schedule_by(|lo, hi| focus.threshold_tile(lo, hi));
+    assert!(cut.tiles() < full / 2, "{} of {full}", cut.tiles());
+    watertight(&mut cut);
+    // The leaves holding a focus, in the initial tree and in the cut, are the same tiles.
+    let holding = |t: &EntropyQuadtree, p: DVec2| -> Vec<(u32, u32, u32)> {
+        t.nodes
+            .iter()
+            .filter(|n| n.children.is_none())
+            .filter(|n| {
+                let s = 1u32 << (t.lattice.depth - n.level);
+                let a = t.lattice.world(t.lattice.plan(n.i * s, n.j * s));
+                let b = t.lattice.world(t.lattice.plan(n.i * s + s, n.j * s + s));
+                let (a, b) = (a.min(b), a.max(b));
+                p.x >= a.x && p.x <= b.x && p.y >= a.y && p.y <= b.y
+            })
+            .map(|n| (n.level, n.i, n.j))
+            .collect::<std::collections::BTreeSet<_>>()
+            .into_iter()
+            .collect()
+    };
+    for f in &foci {
+        assert_eq!(holding(&cut, *f), holding(&tree, *f), "at focus {f}");
+    }
+    // Halfway between the focuses (the centre of the grid) tiles are coarser than at a focus.
+    let mid = hm.grid_to_world(128.0, 128.0);
+    let deepest = |t: &EntropyQuadtree, p| holding(t, p).iter().map(|n| n.0).max().unwrap();
+    assert!(deepest(&cut, mid) < deepest(&tree, mid), "the middle was not coarsened");
+    // Negative control: without distance cost the cut is the initial tree.
+    let flat = FocusThreshold { c1: 0.0, ..focus.clone() };
+    assert_eq!(tree.schedule_by(|lo, hi| flat.threshold_tile(lo, hi)).tiles(), full);
+    // One focus is Eq. 5 with c2 = 0 centred on it.
+    let one = FocusThreshold { foci: vec![foci[0]], ..focus };
+    let eye = dvec3(foci[0].x, foci[0].y, 5000.0);
+    let view =
+        ViewThreshold { e0: 10.0, c1: 0.01, c2: 0.0, centre: eye.truncate().extend(0.0), eye };
+    assert_eq!(
+        tree.schedule_by(|lo, hi| one.threshold_tile(lo, hi)).tiles(),
+        tree.schedule(&view).tiles()
+    );
 }
 
 #[test]

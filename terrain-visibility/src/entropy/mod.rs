@@ -21,7 +21,7 @@ pub mod source;
 
 pub use curvature::{ScalarMap, profile_curvature};
 pub use local::{EntropyConfig, local_entropy};
-pub use quadtree::{EntropyMesh, EntropyQuadtree, MAX_DEPTH, ViewThreshold};
+pub use quadtree::{EntropyMesh, EntropyQuadtree, FocusThreshold, MAX_DEPTH, ViewThreshold};
 pub use source::{
     EntropyError, EntropyScale, Interpolation, ScatteredPoints, TreeConfig, build_from_grid,
     build_from_points,

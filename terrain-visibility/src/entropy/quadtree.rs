@@ -453,6 +453,13 @@ impl EntropyQuadtree {
     /// `E >= maxE` loses its children, `E` from [`ViewThreshold::threshold_tile`] (Eq. 5).
     /// [`Self::mesh`] eliminates the cracks of the result again.
     pub fn schedule(&self, view: &ViewThreshold) -> EntropyQuadtree {
+        self.schedule_by(|lo, hi| view.threshold_tile(lo, hi))
+    }
+
+    /// The cut of [`Self::schedule`] under any threshold `E(tile)` of a tile spanning
+    /// `[lo, hi]` (world metres): every node with `E >= maxE` loses its children. The static
+    /// scheduling with several focuses of the paper's Fig. 13 is [`FocusThreshold`].
+    pub fn schedule_by(&self, threshold: impl Fn(DVec2, DVec2) -> f64) -> EntropyQuadtree {
         let mut nodes: Vec<QuadNode> = Vec::with_capacity(self.nodes.len());
         // Edges are rebuilt by the crack elimination: copy nodes without them (no allocation).
         let bare = |n: &QuadNode| QuadNode { children: None, edges: Default::default(), ..*n };
@@ -465,7 +472,7 @@ impl EntropyQuadtree {
             let r = self.rect(n);
             let lo = self.lattice.world(self.lattice.plan(r[0], r[2]));
             let hi = self.lattice.world(self.lattice.plan(r[1], r[3]));
-            if view.threshold_tile(lo, hi) >= f64::from(n.max_e) {
+            if threshold(lo, hi) >= f64::from(n.max_e) {
                 continue;
             }
             let nf = nodes.len() as u32;
@@ -759,5 +766,31 @@ impl ViewThreshold {
         let r = (tile - self.centre.truncate()).length();
         let d = (self.eye - self.centre).length();
         self.e0 + self.c1 * r + self.c2 * d
+    }
+}
+
+/// The static scheduling of the entropy paper's Fig. 13 ("static scheduling ... by setting the
+/// focus areas"): `E = E0 + c1 r`, with `r` the distance from a tile to the nearest of several
+/// focus centres (0 inside a tile holding one). The paper gives the rule only in words ("the
+/// grid cells in the four focus areas maintained the highest resolution, while other places
+/// were simplified according to the distance to the centers of focuses"); this is Eq. 5
+/// without its eye term (a static cut has no eye) and with the nearest focus as its centre.
+#[derive(Debug, Clone, PartialEq)]
+pub struct FocusThreshold {
+    /// Base threshold `E0`: the initial tree's, so a tile holding a focus keeps its leaves.
+    pub e0: f64,
+    /// Threshold added per metre from the nearest focus.
+    pub c1: f64,
+    /// The focus centres, world metres.
+    pub foci: Vec<DVec2>,
+}
+
+impl FocusThreshold {
+    /// `E` of a tile spanning `[lo, hi]` (world metres); `E0` when there is no focus.
+    pub fn threshold_tile(&self, lo: DVec2, hi: DVec2) -> f64 {
+        let (a, b) = (lo.min(hi), lo.max(hi));
+        let r =
+            self.foci.iter().map(|f| (*f - f.clamp(a, b)).length()).fold(f64::INFINITY, f64::min);
+        if r.is_finite() { self.e0 + self.c1 * r } else { self.e0 }
     }
 }

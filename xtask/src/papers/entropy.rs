@@ -1,6 +1,7 @@
 //! The entropy paper (Chen 2018): Table 1 (tiles, triangles, quadtree construction and crack
 //! elimination times, simplification against the threshold E0) and Table 2 (the same at the
-//! paper's larger depths on two terrains), from `terrain entropy --table`.
+//! paper's larger depths on two terrains), from `terrain entropy --table`, and Fig. 13 (static
+//! scheduling with four focuses, `terrain entropy --table --foci`).
 
 use serde_json::Value;
 
@@ -39,6 +40,88 @@ fn nearest<'a>(rows: &[&'a Value], pct: f64) -> Option<&'a Value> {
                 .total_cmp(&(f(b, "simplification_pct") - pct).abs())
         })
         .copied()
+}
+
+/// The paper's Fig. 13: four focuses cut the tree of Fig. 12b (58,672 grid cells, the E0 = 10
+/// row of Table 1) to 7,369 cells.
+const PAPER_FIG13: (f64, f64) = (58_672.0, 7_369.0);
+
+/// Fig. 13 from the Table 1 report run with `--foci`: our row placed at the paper's Fig. 12b
+/// (E0 = 10, by equal simplification), its tiles before and after the four-focus cut.
+fn fig13(report: &Value, setting: &str) -> Section {
+    let mut s = Section::new(
+        "Fig. 13",
+        "Static scheduling of the multilevel terrain surface with multiple focuses (tiles before \
+         and after a cut with four focuses)",
+    );
+    s.setup.push(setting.to_string());
+    s.setup.push(
+        "The cut (`FocusThreshold`, `terrain entropy --table --foci`): E = E0 + c1 r with `r` \
+         the distance from a tile to the nearest of four focuses at the centres of the grid's \
+         quadrants. The paper states the rule only in words and gives neither its focus \
+         positions nor its distance weight; ours is c1 = 400 % of the largest entropy per \
+         terrain diagonal (the whole entropy range a quarter diagonal from a focus), chosen \
+         before the first run and not tuned. Tiles are the paper's grid cells (leaves)."
+            .into(),
+    );
+    let ours = rows(report);
+    let row = nearest(&ours, PAPER_T1[1][5]);
+    let g = |k: &str| row.map_or(f64::NAN, |r| f(r, k));
+    let fo = |k: &str| row.map_or(f64::NAN, |r| f(&r["foci"], k));
+    let kept = row.and_then(|r| r["foci"]["focus_leaves_kept"].as_bool());
+    let mut t = Table::new(
+        "Ours: the tree at the paper's Fig. 12b row, and its four-focus cut.",
+        &[
+            "Our E0 (%)",
+            "Tiles (initial)",
+            "Tiles (four focuses)",
+            "Ratio",
+            "Triangles (four focuses)",
+            "Cut (ms)",
+            "Focus leaves kept",
+        ],
+    );
+    t.rows.push(vec![
+        num(g("e0"), 0),
+        num(g("tiles"), 0),
+        num(fo("tiles"), 0),
+        num(fo("tiles") / g("tiles"), 3),
+        num(fo("triangles"), 0),
+        num(fo("cut_ms"), 2),
+        text(match kept {
+            Some(true) => "yes",
+            Some(false) => "no",
+            None => "n/a",
+        }),
+    ]);
+    s.ours.push(t);
+    let mut p = Table::new(
+        "The paper's Fig. 13 (on Fig. 12b's surface, four focuses).",
+        &["Tiles (initial)", "Tiles (four focuses)", "Ratio"],
+    );
+    p.rows.push(vec![
+        num(PAPER_FIG13.0, 0),
+        num(PAPER_FIG13.1, 0),
+        num(PAPER_FIG13.1 / PAPER_FIG13.0, 3),
+    ]);
+    s.paper = Some(p);
+    s.verdicts.push(effect_towards(
+        "four focuses cut the tiles (four-focus tiles over the initial tree's, - 1)",
+        -1.0,
+        PAPER_FIG13.1 / PAPER_FIG13.0 - 1.0,
+        fo("tiles") / g("tiles") - 1.0,
+    ));
+    s.verdicts.push(
+        prediction(
+            "the focus areas keep the highest resolution (1 when every focus lies in the same \
+             leaves of the cut as of the initial tree)",
+            1.0,
+            kept.map_or(f64::NAN, |k| if k { 1.0 } else { 0.0 }),
+            true,
+        )
+        .because(|| "a focus lies in a leaf the cut coarsened".into()),
+    );
+    s
 }
 
 fn e0_list(values: &[f64]) -> String {
@@ -260,6 +343,7 @@ pub(crate) fn run(ctx: &mut Ctx) -> anyhow::Result<PaperDoc> {
     let mut args = vec!["entropy".to_string()];
     args.extend(ctx.puget1k()?);
     args.extend(["--table".into(), e0_list(&sweep), "--depth".into(), "8".into()]);
+    args.push("--foci".into());
     let out = ctx.terrain(&args)?;
     let t1: Value = serde_json::from_str(&out)?;
     let setting1 = "Puget Sound 1k (1025^2 samples, 160 m; the paper: 2,509,683 scattered \
@@ -318,6 +402,6 @@ pub(crate) fn run(ctx: &mut Ctx) -> anyhow::Result<PaperDoc> {
         commands: Vec::new(),
         load: Vec::new(),
         quick: false,
-        sections: vec![table1(&t1, setting1), table2(&reports, &setting2)],
+        sections: vec![table1(&t1, setting1), table2(&reports, &setting2), fig13(&t1, setting1)],
     })
 }
