@@ -261,23 +261,7 @@ fn focus_cut(
     let mesh = cut.mesh();
     mesh.check_watertight(cut.lattice.depth)
         .map_err(|e| anyhow::anyhow!("internal error, the focus cut is not watertight: {e}"))?;
-    let holding = |t: &EntropyQuadtree, p: DVec2| -> Vec<(u32, u32, u32)> {
-        t.nodes
-            .iter()
-            .filter(|n| n.children.is_none())
-            .filter(|n| {
-                let s = 1u32 << (t.lattice.depth - n.level);
-                let a = t.lattice.world(t.lattice.plan(n.i * s, n.j * s));
-                let b = t.lattice.world(t.lattice.plan(n.i * s + s, n.j * s + s));
-                let (a, b) = (a.min(b), a.max(b));
-                p.x >= a.x && p.x <= b.x && p.y >= a.y && p.y <= b.y
-            })
-            .map(|n| (n.level, n.i, n.j))
-            .collect::<std::collections::BTreeSet<_>>()
-            .into_iter()
-            .collect()
-    };
-    let kept = foci.iter().all(|f| holding(&cut, *f) == holding(tree, *f));
+    let kept = foci.iter().all(|f| cut.leaves_at(*f) == tree.leaves_at(*f));
     Ok(serde_json::json!({
         "focuses": foci.iter().map(|f| [f.x, f.y]).collect::<Vec<_>>(),
         "c1_pct_per_diagonal": c1_pct,

@@ -479,28 +479,12 @@ fn focus_scheduling_keeps_the_focus_areas_and_coarsens_elsewhere() {
     assert!(cut.tiles() < full / 2, "{} of {full}", cut.tiles());
     watertight(&mut cut);
     // The leaves holding a focus, in the initial tree and in the cut, are the same tiles.
-    let holding = |t: &EntropyQuadtree, p: DVec2| -> Vec<(u32, u32, u32)> {
-        t.nodes
-            .iter()
-            .filter(|n| n.children.is_none())
-            .filter(|n| {
-                let s = 1u32 << (t.lattice.depth - n.level);
-                let a = t.lattice.world(t.lattice.plan(n.i * s, n.j * s));
-                let b = t.lattice.world(t.lattice.plan(n.i * s + s, n.j * s + s));
-                let (a, b) = (a.min(b), a.max(b));
-                p.x >= a.x && p.x <= b.x && p.y >= a.y && p.y <= b.y
-            })
-            .map(|n| (n.level, n.i, n.j))
-            .collect::<std::collections::BTreeSet<_>>()
-            .into_iter()
-            .collect()
-    };
     for f in &foci {
-        assert_eq!(holding(&cut, *f), holding(&tree, *f), "at focus {f}");
+        assert_eq!(cut.leaves_at(*f), tree.leaves_at(*f), "at focus {f}");
     }
     // Halfway between the focuses (the centre of the grid) tiles are coarser than at a focus.
     let mid = hm.grid_to_world(128.0, 128.0);
-    let deepest = |t: &EntropyQuadtree, p| holding(t, p).iter().map(|n| n.0).max().unwrap();
+    let deepest = |t: &EntropyQuadtree, p| t.leaves_at(p).iter().map(|n| n.0).max().unwrap();
     assert!(deepest(&cut, mid) < deepest(&tree, mid), "the middle was not coarsened");
     // Negative control: without distance cost the cut is the initial tree.
     let flat = FocusThreshold { c1: 0.0, ..focus.clone() };

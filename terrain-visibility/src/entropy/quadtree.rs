@@ -336,6 +336,26 @@ impl EntropyQuadtree {
         self.nodes.iter().filter(|n| n.children.is_none()).count()
     }
 
+    /// The leaves whose closed rectangle holds world point `p`, as `(level, i, j)`, sorted (one
+    /// leaf inside a tile, up to four on a tile corner; none outside the lattice).
+    pub fn leaves_at(&self, p: DVec2) -> Vec<(u32, u32, u32)> {
+        let mut out: Vec<(u32, u32, u32)> = self
+            .nodes
+            .iter()
+            .filter(|n| n.children.is_none())
+            .filter(|n| {
+                let r = self.rect(n);
+                let a = self.lattice.world(self.lattice.plan(r[0], r[2]));
+                let b = self.lattice.world(self.lattice.plan(r[1], r[3]));
+                let (a, b) = (a.min(b), a.max(b));
+                p.x >= a.x && p.x <= b.x && p.y >= a.y && p.y <= b.y
+            })
+            .map(|n| (n.level, n.i, n.j))
+            .collect();
+        out.sort_unstable();
+        out
+    }
+
     /// The deepest leaf's level.
     pub fn depth_reached(&self) -> u32 {
         self.nodes.iter().map(|n| n.level).max().unwrap_or(0)
