@@ -101,3 +101,30 @@ fn entropy_mesh_from_a_dem_and_from_points() {
     assert!(!out.status.success());
     assert!(String::from_utf8_lossy(&out.stderr).contains("depth"));
 }
+
+/// `terrain entropy --table E0s --foci` (the entropy paper's Table 1 and Fig. 13 as JSON): one
+/// row per threshold, fewer tiles as E0 rises, and a four-focus cut with fewer tiles than its
+/// tree that keeps the tree's leaves at every focus; `--foci` without `--table` is refused.
+#[test]
+fn entropy_table_with_four_focuses() {
+    let dem = data("srtm/N42E001.hgt");
+    let dem = dem.to_str().unwrap();
+    let out = terrain(&["entropy", dem, "--table", "0,90", "--depth", "6", "--foci"]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let rows = v["rows"].as_array().unwrap();
+    assert_eq!(rows.len(), 2, "{v}");
+    let tiles = |r: &serde_json::Value| r["tiles"].as_u64().unwrap();
+    assert!(tiles(&rows[1]) < tiles(&rows[0]), "{v}");
+    assert_eq!(tiles(&rows[0]), 4096, "E0 = 0 at depth 6 is the full tree: {v}");
+    for r in rows {
+        let foci = &r["foci"];
+        assert!(tiles(foci) < tiles(r), "{r}");
+        assert_eq!(foci["focus_leaves_kept"], serde_json::json!(true), "{r}");
+        assert_eq!(foci["focuses"].as_array().unwrap().len(), 4, "{r}");
+    }
+    let png = scratch("entropy-cli", "foci").join("x.png");
+    let out = terrain(&["entropy", dem, "-o", png.to_str().unwrap(), "--foci"]);
+    assert!(!out.status.success());
+    assert!(String::from_utf8_lossy(&out.stderr).contains("--table"), "{out:?}");
+}
