@@ -272,11 +272,20 @@ fn table2(reports: &[(&str, &str, Value, f64)], setting: &str) -> Section {
             "Simplification (%)",
         ],
     );
+    // (share of the construction alone, share with the entropy map counted, construction s,
+    // map s): the map is the part of our construction the paper's interpolation stands for.
     let mut shares = Vec::new();
+    let mut with_map = Vec::new();
     for ((label, _, report, target), (_, _)) in reports.iter().zip(PAPER_T2) {
         let r = nearest(&rows(report), *target);
         let g = |k: &str| r.map_or(f64::NAN, |r| f(r, k));
         shares.push(g("crack_ms") / 1e3 / g("construction_s"));
+        let map_s = f(report, "entropy_map_s");
+        with_map.push((
+            g("crack_ms") / 1e3 / (g("construction_s") + map_s),
+            g("construction_s"),
+            map_s,
+        ));
         t.rows.push(vec![
             text(*label),
             num(f(report, "width") * f(report, "height") / 1e6, 1),
@@ -318,17 +327,35 @@ fn table2(reports: &[(&str, &str, Value, f64)], setting: &str) -> Section {
         ]);
     }
     s.paper = Some(p);
-    for ((label, _, _, _), ((name, r), share)) in reports.iter().zip(PAPER_T2.iter().zip(&shares)) {
-        s.verdicts.push(prediction(
-            format!(
-                "{label} (the paper's {name}): crack elimination costs under 1 % of the \
-                 quadtree construction (the paper's {:.2} %; ours as a fraction)",
-                100.0 * r[6] / 1e3 / r[5]
-            ),
-            0.01,
-            *share,
-            false,
-        ));
+    for (((label, _, _, _), ((name, r), share)), &(share_map, build_s, map_s)) in
+        reports.iter().zip(PAPER_T2.iter().zip(&shares)).zip(&with_map)
+    {
+        s.verdicts.push(
+            prediction(
+                format!(
+                    "{label} (the paper's {name}): crack elimination costs under 1 % of the \
+                     quadtree construction (the paper's {:.2} %; ours as a fraction)",
+                    100.0 * r[6] / 1e3 / r[5]
+                ),
+                0.01,
+                *share,
+                false,
+            )
+            .because(|| {
+                format!(
+                    "crack elimination itself took {:.2} s (the paper's {:.2} s), but our \
+                     construction reads a grid and a precomputed entropy map: {build_s:.3} s \
+                     against the paper's {:.1} s, which include interpolating {:.1} MB of \
+                     scattered points; counting our entropy map ({map_s:.2} s) as construction, \
+                     crack elimination is {:.1} % of it",
+                    share * build_s,
+                    r[6] / 1e3,
+                    r[5],
+                    r[0],
+                    100.0 * share_map
+                )
+            }),
+        );
     }
     s
 }
