@@ -540,21 +540,13 @@ pub(crate) fn run(ctx: &mut Ctx) -> anyhow::Result<PaperDoc> {
     let ps = ctx.puget1k()?;
     // 7 or 31 evenly spaced frames of 900 include frames 0, 300, 599 and 899.
     let (frames, size) = if ctx.quick { ("7", "320x180") } else { ("31", "640x360") };
-    let mut args = ps.clone();
-    args.extend(
-        [
-            "--flight",
-            &ctx.flight("dss_approach.json"),
-            "--methods",
-            "dss-1,dss-2,dss-strips,dss-strips-pow2",
-            "--values",
-            "1",
-            "--frames",
-            frames,
-            "--size",
-            size,
-        ]
-        .map(String::from),
+    let args = ctx.flight_args(
+        &ps,
+        "dss_approach.json",
+        "dss-1,dss-2,dss-strips,dss-strips-pow2",
+        "1",
+        frames,
+        size,
     );
     let report = ctx.bench("dss_approach", &args)?;
     let floors = floor_study(ctx, &ps)?;

@@ -58,21 +58,13 @@ pub(crate) fn run(ctx: &mut Ctx) -> anyhow::Result<PaperDoc> {
     let (frames, size) = if ctx.quick { ("4", "320x180") } else { ("30", "640x360") };
     let mut ours = Vec::new();
     for (scene, lod_colours) in SCENES {
-        let mut args = ps.clone();
-        args.extend(
-            [
-                "--flight",
-                &ctx.flight("valley_low.json"),
-                "--methods",
-                "geomorph-static,geomorph-cpu,geomorph",
-                "--values",
-                "1",
-                "--frames",
-                frames,
-                "--size",
-                size,
-            ]
-            .map(String::from),
+        let mut args = ctx.flight_args(
+            &ps,
+            "valley_low.json",
+            "geomorph-static,geomorph-cpu,geomorph",
+            "1",
+            frames,
+            size,
         );
         if lod_colours {
             args.push("--lod-colours".into());
@@ -265,22 +257,7 @@ fn pvs_figures(report: &Value, method: &str) -> [f64; 5] {
 
 /// The article's PVS layers in use: `geomorph` and `geomorph-pvs` on the same flight.
 fn pvs_section(ctx: &mut Ctx, ps: &[String], frames: &str, size: &str) -> anyhow::Result<Section> {
-    let mut args = ps.to_vec();
-    args.extend(
-        [
-            "--flight",
-            &ctx.flight("valley_low.json"),
-            "--methods",
-            "geomorph,geomorph-pvs",
-            "--values",
-            "1",
-            "--frames",
-            frames,
-            "--size",
-            size,
-        ]
-        .map(String::from),
-    );
+    let args = ctx.flight_args(ps, "valley_low.json", "geomorph,geomorph-pvs", "1", frames, size);
     let report = ctx.bench("geomorph_pvs", &args)?;
     let mut s = Section::new(
         "PVS",

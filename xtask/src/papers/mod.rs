@@ -75,6 +75,38 @@ impl Ctx {
         self.flights.join(name).display().to_string()
     }
 
+    /// `terrain bench`'s arguments for one flight: the terrain's `dem` arguments, then the
+    /// shipped `flight`, `methods` at one parameter `values`, `frames` evenly spaced, the
+    /// rendered `size`.
+    pub(crate) fn flight_args(
+        &self,
+        dem: &[String],
+        flight: &str,
+        methods: &str,
+        values: &str,
+        frames: &str,
+        size: &str,
+    ) -> Vec<String> {
+        let mut args = dem.to_vec();
+        let flight = self.flight(flight);
+        args.extend(
+            [
+                "--flight",
+                &flight,
+                "--methods",
+                methods,
+                "--values",
+                values,
+                "--frames",
+                frames,
+                "--size",
+                size,
+            ]
+            .map(String::from),
+        );
+        args
+    }
+
     /// Runs `terrain <args>`, recording the command; returns its stdout.
     pub(crate) fn terrain(&mut self, args: &[String]) -> anyhow::Result<String> {
         let shown: Vec<String> = args.iter().map(|a| self.relative(a)).collect();
