@@ -493,20 +493,28 @@ fn a_store_baked_to_azurite_reads_as_the_local_bake() {
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
-/// `n` distinct free ports on 127.0.0.1, each below 55536 (the listeners held until all are
-/// chosen).
+/// `n` distinct free ports on 127.0.0.1 in 20000..32000 (so also below 55536, see
+/// [`start_weed`]).
 fn free_ports(n: usize) -> Vec<u16> {
-    let mut held = Vec::new();
+    // Below Linux's ephemeral range (32768..): a port released here before the server binds it
+    // cannot be handed to another test's `bind(127.0.0.1:0)` (nginx's `free_port`, clients'
+    // local ports) in the meantime. Each port is checked free by binding it. The tests of this
+    // file share one cursor, so two servers started at once never get the same port; the start
+    // is spread by the process id so concurrent test processes rarely probe the same ports.
+    static NEXT: std::sync::Mutex<u16> = std::sync::Mutex::new(0);
+    let mut next = NEXT.lock().unwrap_or_else(|e| e.into_inner());
+    if *next == 0 {
+        *next = 20_000 + (std::process::id() % 400) as u16 * 25;
+    }
     let mut ports: Vec<u16> = Vec::new();
-    while ports.len() < n {
-        let l = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
-        let p = l.local_addr().unwrap().port();
-        if p < 55536 && !ports.contains(&p) {
+    while ports.len() < n && *next < 32_000 {
+        let p = *next;
+        *next += 1;
+        if std::net::TcpListener::bind(("127.0.0.1", p)).is_ok() {
             ports.push(p);
         }
-        held.push(l);
-        assert!(held.len() < 10_000, "no {n} free ports below 55536 on 127.0.0.1");
     }
+    assert_eq!(ports.len(), n, "no {n} free ports below 32000 on 127.0.0.1");
     ports
 }
 
@@ -526,9 +534,9 @@ fn s3_env(endpoint: &str) -> [(&'static str, &str); 5] {
 fn start_weed(dir: &Path, attempt: usize) -> Server {
     let data = dir.join(format!("weed-{attempt}"));
     std::fs::create_dir_all(&data).unwrap();
-    // Eight distinct free ports below 55536: `weed` puts any port it is not given at the S3
-    // port + 10000 (its gRPC), which must stay a valid port (with an S3 port above 55535 weed
-    // exits once S3 is up: seen here). Every listener weed would open at a fixed default port
+    // Eight distinct free ports, below 55536 (`free_ports`): `weed` puts any port it is not
+    // given at the S3 port + 10000 (its gRPC), which must stay a valid port (with an S3 port
+    // above 55535 weed exits once S3 is up: seen here). Every listener weed would open at a fixed default port
     // (Iceberg 8181, Lance 9101) is switched off, so no other process on the machine can make
     // it exit, and it sends no telemetry.
     let port = free_ports(8);
