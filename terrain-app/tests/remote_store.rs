@@ -536,9 +536,9 @@ fn start_weed(dir: &Path, attempt: usize) -> Server {
     std::fs::create_dir_all(&data).unwrap();
     // Eight distinct free ports, below 55536 (`free_ports`): `weed` puts any port it is not
     // given at the S3 port + 10000 (its gRPC), which must stay a valid port (with an S3 port
-    // above 55535 weed exits once S3 is up: seen here). Every listener weed would open at a fixed default port
-    // (Iceberg 8181, Lance 9101) is switched off, so no other process on the machine can make
-    // it exit, and it sends no telemetry.
+    // above 55535 weed exits once S3 is up: seen here). Every listener weed would open at a
+    // fixed default port (Iceberg 8181, Lance 9101) is switched off, so no other process on
+    // the machine can make it exit, and it sends no telemetry.
     let port = free_ports(8);
     let (master, volume, filer, s3) = (port[0], port[1], port[2], port[3]);
     let err = dir.join(format!("weed-{attempt}.err"));
