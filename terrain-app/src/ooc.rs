@@ -641,16 +641,7 @@ impl OocScene {
                     DrawPatch { rect: [x0, y0, x0 + c, y0 + c], factors }
                 })
                 .collect();
-            if off.iter().any(|&o| o) {
-                let pts = &extra.points;
-                extra.indices = extra
-                    .indices
-                    .chunks_exact(3)
-                    .filter(|t| t.iter().all(|&i| !off[pts[i as usize].patch_index as usize]))
-                    .flatten()
-                    .copied()
-                    .collect();
-            }
+            drop_triangles_of(&mut extra, &off);
             return self.finish_frame(selection, Some((patches, extra)), &drawn, dropped, stream);
         }
         match strips {
@@ -668,17 +659,7 @@ impl OocScene {
                         p.factors = PatchFactors { inner: [0.0; 2], outer: [0.0; 4] };
                     }
                 }
-                if off.iter().any(|&o| o) {
-                    let pts = &extra.points;
-                    let keep: Vec<u32> = extra
-                        .indices
-                        .chunks_exact(3)
-                        .filter(|t| t.iter().all(|&i| !off[pts[i as usize].patch_index as usize]))
-                        .flatten()
-                        .copied()
-                        .collect();
-                    extra.indices = keep;
-                }
+                drop_triangles_of(&mut extra, &off);
                 self.finish_frame(selection, Some((patches, extra)), &drawn, dropped, stream)
             }
         }
@@ -930,4 +911,20 @@ pub fn store_heightmap(
     let origin = h.georef.world_origin + DVec2::new(i0 as f64, j0 as f64) * h.georef.spacing_m;
     let g = Georef::projected(Crs::Unknown, origin, spacing);
     Ok(Heightmap::from_fn(w, hh, g, |i, j| data[j * w + i]).expect("finite store heights"))
+}
+
+/// Drops from `extra` every triangle with a vertex on a patch marked `off` (indexed by the
+/// points' `patch_index`): a block on no page is not drawn, nor what reaches it.
+fn drop_triangles_of(extra: &mut ExtraTriangles, off: &[bool]) {
+    if !off.iter().any(|&o| o) {
+        return;
+    }
+    let pts = &extra.points;
+    extra.indices = extra
+        .indices
+        .chunks_exact(3)
+        .filter(|t| t.iter().all(|&i| !off[pts[i as usize].patch_index as usize]))
+        .flatten()
+        .copied()
+        .collect();
 }

@@ -43,6 +43,12 @@ pub trait Samples: Sync {
     ) -> anyhow::Result<Window>;
 }
 
+/// A window's grid index along one axis: its `a`-th sample from `start` every `2^stride_log2`
+/// samples, clamped to the last of `len` (the window's far edge lands on the grid's border).
+fn strided(start: usize, stride_log2: u32, len: usize) -> impl Fn(usize) -> usize {
+    move |a| (start + (a << stride_log2)).min(len - 1)
+}
+
 /// A DEM in memory.
 #[derive(Debug)]
 pub struct HeightmapSamples<'a>(pub &'a Heightmap);
@@ -61,9 +67,9 @@ impl Samples for HeightmapSamples<'_> {
         stride_log2: u32,
     ) -> anyhow::Result<Window> {
         let hm = self.0;
-        let (w, h) = (hm.width(), hm.height());
-        let col = |a: usize| (i0 + (a << stride_log2)).min(w - 1);
-        let row = |b: usize| (j0 + (b << stride_log2)).min(h - 1);
+        let w = hm.width();
+        let col = strided(i0, stride_log2, w);
+        let row = strided(j0, stride_log2, hm.height());
         let mut data = Vec::with_capacity(width * height);
         for b in 0..height {
             let r = row(b) * w;
@@ -200,8 +206,8 @@ impl Samples for StoreSamples {
         let (w, ht) = (h.width as usize, h.height as usize);
         let k = h.k;
         let cells = 1usize << k;
-        let col = |a: usize| (i0 + (a << stride_log2)).min(w - 1);
-        let row = |b: usize| (j0 + (b << stride_log2)).min(ht - 1);
+        let col = strided(i0, stride_log2, w);
+        let row = strided(j0, stride_log2, ht);
         // A sample on a block border belongs to both blocks; read it from the one west or
         // south of it only past the last block.
         let block_of = |g: usize, n: u32| ((g / cells) as u32).min(n - 1);

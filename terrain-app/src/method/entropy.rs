@@ -58,11 +58,7 @@ impl Method for EntropyMethod<'_> {
     }
 
     fn surface(&self, frame: &mut Frame) -> anyhow::Result<DrawnSurface> {
-        let (mesh, triangles) = frame
-            .built
-            .take()
-            .ok_or_else(|| anyhow::anyhow!("the entropy frame's mesh was already taken"))?;
-        Ok(DrawnSurface { mesh, triangles })
+        frame.take_built("entropy")
     }
 
     fn draws_on(&self) -> DrawSource<'_> {

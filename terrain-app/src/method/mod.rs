@@ -136,6 +136,18 @@ pub struct Frame {
     pub(crate) built: Option<(SurfaceMesh, u64)>,
 }
 
+impl Frame {
+    /// The surface the method built itself this frame ([`Frame::built`]), handed out once;
+    /// `method` names the method in the error of a second call.
+    pub(crate) fn take_built(&mut self, method: &str) -> anyhow::Result<DrawnSurface> {
+        let (mesh, triangles) = self
+            .built
+            .take()
+            .ok_or_else(|| anyhow::anyhow!("the {method} frame's mesh was already taken"))?;
+        Ok(DrawnSurface { mesh, triangles })
+    }
+}
+
 /// A frame's drawn surface rebuilt on the CPU (the same numbers as the GPU draws).
 #[derive(Debug)]
 pub struct DrawnSurface {

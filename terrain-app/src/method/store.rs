@@ -124,6 +124,27 @@ pub struct StoreMethod<'a> {
     vertical_scale: f64,
 }
 
+/// The error of a store-backed method whose store does not match the DEM in memory it is
+/// measured against: `what` (its quadtree, its grid) differs; both sizes and roots named.
+pub(super) fn not_the_reference(
+    dir: &Path,
+    what: &str,
+    shape: &terrain_core::quadtree::TreeShape,
+    r: &MethodScene,
+) -> anyhow::Error {
+    anyhow::anyhow!(
+        "the store {} is not the {what} of the DEM it is measured against (store: {} x {} \
+         samples, root {} cells; DEM: {} x {}, root {}): bake it from that DEM",
+        dir.display(),
+        shape.width(),
+        shape.height(),
+        shape.root_cells(),
+        r.qt.width(),
+        r.qt.height(),
+        r.qt.root_cells()
+    )
+}
+
 impl<'a> StoreMethod<'a> {
     fn new(
         kind: LodMethod,
@@ -146,17 +167,7 @@ impl<'a> StoreMethod<'a> {
         if let Some(r) = reference
             && r.qt.shape() != &shape
         {
-            anyhow::bail!(
-                "the store {} is not the quadtree of the DEM it is measured against (store: {} x \
-                 {} samples, root {} cells; DEM: {} x {}, root {}): bake it from that DEM",
-                dir.display(),
-                shape.width(),
-                shape.height(),
-                shape.root_cells(),
-                r.qt.width(),
-                r.qt.height(),
-                r.qt.root_cells()
-            );
+            return Err(not_the_reference(&dir, "quadtree", &shape, r));
         }
         let tables = match kind {
             LodMethod::Uniform => Tables::None,

@@ -258,11 +258,7 @@ impl Method for TinMethod<'_> {
     }
 
     fn surface(&self, frame: &mut Frame) -> anyhow::Result<DrawnSurface> {
-        let (mesh, triangles) = frame
-            .built
-            .take()
-            .ok_or_else(|| anyhow::anyhow!("the tin frame's mesh was already taken"))?;
-        Ok(DrawnSurface { mesh, triangles })
+        frame.take_built("tin")
     }
 
     fn draws_on(&self) -> DrawSource<'_> {

@@ -407,17 +407,7 @@ impl<'a> TinStoreMethod<'a> {
             && (r.qt.root_cells(), r.qt.width(), r.qt.height())
                 != (shape.root_cells(), shape.width(), shape.height())
         {
-            anyhow::bail!(
-                "the store {} is not the grid of the DEM it is measured against (store: {} x {} \
-                 samples, root {} cells; DEM: {} x {}, root {}): bake it from that DEM",
-                store.dir().display(),
-                shape.width(),
-                shape.height(),
-                shape.root_cells(),
-                r.qt.width(),
-                r.qt.height(),
-                r.qt.root_cells()
-            );
+            return Err(super::store::not_the_reference(store.dir(), "grid", &shape, r));
         }
         let tiles = TinTiles::new((*store).clone(), shape, config);
         Ok(Self { scene, tree, tiles, config: *config, wait, frames: 0, reference })
@@ -527,11 +517,7 @@ impl Method for TinStoreMethod<'_> {
 
     fn surface(&self, frame: &mut Frame) -> anyhow::Result<DrawnSurface> {
         let _ = self.reference;
-        let (mesh, triangles) = frame
-            .built
-            .take()
-            .ok_or_else(|| anyhow::anyhow!("the tin frame's mesh was already taken"))?;
-        Ok(DrawnSurface { mesh, triangles })
+        frame.take_built("tin")
     }
 
     fn draws_on(&self) -> DrawSource<'_> {
