@@ -8,7 +8,8 @@
 //! cargo run --release -p terrain-app --example selection_scaling -- \
 //!     [--sizes 1025,4097,16385] [--flight flights/pvps_884.json] [--frames 30] \
 //!     [--methods uniform,pvps-a,pvps-b,pvps-c,dss-1,dss-2,geomorph] [--reps 3] \
-//!     [--stores 1025=DIR,4097=DIR,32769=DIR] [--tau 2] [--ooc-refine eq7:32,cost:16]
+//!     [--stores 1025=DIR,4097=DIR,32769=DIR] [--tau 2] [--ooc-refine eq7:32,cost:16] \
+//!     [--poses relative|absolute]
 //! ```
 //! Grids: `FractalConfig::with_size(n, n, 10.0)` (seed 1, 10 m spacing, 1500 m relief), built
 //! once per size with every method's precomputation (`MethodScene::prepare`, timed apart).
@@ -25,6 +26,14 @@
 //! 4 GiB of f32) resolves the flight onto the store's level-4 overview, as `terrain render`
 //! does.
 //!
+//! `--poses absolute` flies every grid with the smallest size's cameras, unchanged: the seeded
+//! terrain does not depend on the grid's size and every grid starts at the same world origin,
+//! so the smaller grid is the south-west corner of the larger one, each camera sees the same
+//! near terrain, and the larger grid adds only what lies farther away: the case where
+//! "selection follows the view, not the grid" can hold for error-driven methods at equal
+//! `tau` (Eq. 7 bounds the same screen error on every grid). `--tau` also takes one value per
+//! size (`1025=2.4,16385=1.4`).
+//!
 //! Per method and size the table gives the median over frames of: selection ms, patches
 //! selected, nodes the traversal visited (`SelectionStats::visited`; `-` where the method does
 //! not count them), ns per selected patch, and the nominal triangles (each patch at its inner
@@ -38,6 +47,7 @@ use std::time::Instant;
 use anyhow::Context;
 use terrain_app::methods::{LodMethod, MethodConfig, MethodScene};
 use terrain_app::ooc::{OocConfig, OocScene};
+use terrain_core::Heightmap;
 use terrain_core::flight::{FlightConfig, FlightSpec};
 use terrain_core::geometry::Camera;
 use terrain_core::synth::FractalConfig;
@@ -98,6 +108,29 @@ fn frames_of(all: &[Camera], frames: usize) -> Vec<Camera> {
     all.iter().step_by(step).take(frames.max(1)).cloned().collect()
 }
 
+/// The cameras flown over `ground`: the flight resolved onto it (relative poses, or the first
+/// grid of an absolute run), or the first grid's cameras unchanged (`--poses absolute`: the
+/// seeded terrain does not depend on the grid's size and every grid starts at the same world
+/// origin, so the smaller grid is the south-west corner of the larger one).
+fn poses(
+    base: &mut Option<Vec<Camera>>,
+    absolute: bool,
+    ground: &Heightmap,
+    spec: &FlightSpec,
+    flight_cfg: &FlightConfig,
+    frames: usize,
+) -> Vec<Camera> {
+    if let (true, Some(cams)) = (absolute, base.as_ref()) {
+        return cams.clone();
+    }
+    let (resolved, _) = spec.resolve(ground, flight_cfg);
+    let cams = frames_of(resolved.frames(), frames);
+    if absolute {
+        *base = Some(cams.clone());
+    }
+    cams
+}
+
 fn main() -> anyhow::Result<()> {
     let mut args: Vec<String> = std::env::args().skip(1).collect();
     let mut take = |flag: &str, default: &str| -> String {
@@ -133,7 +166,24 @@ fn main() -> anyhow::Result<()> {
     let flight = take("--flight", "flights/pvps_884.json");
     let frames: usize = take("--frames", "30").parse().context("--frames")?;
     let reps: usize = take("--reps", "3").parse::<usize>().context("--reps")?.max(1);
-    let tau: f64 = take("--tau", "2").parse().context("--tau")?;
+    let taus = take("--tau", "2");
+    let tau_of = |n: u64| -> anyhow::Result<f64> {
+        if !taus.contains('=') {
+            return taus.parse().context("--tau: pixels, or SIZE=PX,...");
+        }
+        taus.split(',')
+            .filter_map(|t| t.split_once('='))
+            .find(|(m, _)| m.parse() == Ok(n))
+            .with_context(|| format!("--tau {taus}: no value for size {n}"))?
+            .1
+            .parse()
+            .context("--tau: SIZE=PX")
+    };
+    let absolute = match take("--poses", "relative").as_str() {
+        "relative" => false,
+        "absolute" => true,
+        other => anyhow::bail!("--poses {other}: relative or absolute"),
+    };
     let mut methods: Vec<LodMethod> =
         take("--methods", "uniform,pvps-a,pvps-b,pvps-c,dss-1,dss-2,geomorph")
             .split(',')
@@ -173,13 +223,15 @@ fn main() -> anyhow::Result<()> {
         })
         .collect::<anyhow::Result<_>>()?;
     if !stores.is_empty() {
-        names.extend(refines.iter().map(|(r, _)| format!("ooc {r} (tau {tau})")));
+        names.extend(refines.iter().map(|(r, _)| format!("ooc {r} (tau {taus})")));
     }
     let spec = FlightSpec::load(&flight).with_context(|| format!("flight {flight}"))?;
     let flight_cfg = FlightConfig::default();
 
     // Per method: per size, the row (None: not run at that size).
     let mut table: Vec<Vec<Option<Row>>> = vec![Vec::new(); names.len()];
+    // `--poses absolute`: the smallest size's cameras and the ground they were placed over.
+    let mut base: Option<Vec<Camera>> = None;
     for &n in &sizes {
         let store = stores.iter().find(|(m, _)| *m == n).map(|(_, d)| d);
         let mut cameras = None;
@@ -188,8 +240,7 @@ fn main() -> anyhow::Result<()> {
             let hm =
                 FractalConfig::with_size(n, n, 10.0).to_heightmap().map_err(anyhow::Error::msg)?;
             let gen_s = t.elapsed().as_secs_f64();
-            let (resolved, _) = spec.resolve(&hm, &flight_cfg);
-            let cams = frames_of(resolved.frames(), frames);
+            let cams = poses(&mut base, absolute, &hm, &spec, &flight_cfg, frames);
             let scene = MethodScene::new(hm, MethodConfig::default());
             let t = Instant::now();
             scene.prepare(&methods);
@@ -240,8 +291,7 @@ fn main() -> anyhow::Result<()> {
                 Some(c) => c,
                 None => {
                     let overview = scene.overview(4).context("the store's overview")?;
-                    let (resolved, _) = spec.resolve(&overview, &flight_cfg);
-                    frames_of(resolved.frames(), frames)
+                    poses(&mut base, absolute, &overview, &spec, &flight_cfg, frames)
                 }
             };
             let cams: Vec<Camera> = cams
@@ -253,6 +303,7 @@ fn main() -> anyhow::Result<()> {
                 .collect();
             let store: Arc<Store> = scene.store().clone();
             let k = store.header().k;
+            let tau = tau_of(n)?;
             for (r, (name, refine)) in refines.iter().enumerate() {
                 let tree = StoreTree::with_refinement(store.clone(), *refine);
                 let row = measure(&cams, reps, |c| {
