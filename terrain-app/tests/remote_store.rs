@@ -16,75 +16,17 @@ mod common;
 
 use std::net::TcpStream;
 use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Output, Stdio};
+use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
+use common::remote::{
+    Server, bake_args, baked, bench, free_ports_in, info, s, terrain_in, text, wait_for,
+};
 use common::scratch;
-use serde_json::{Value, json};
-
-fn s(p: &Path) -> &str {
-    p.to_str().unwrap()
-}
-
-fn text(out: &Output) -> String {
-    format!("{}\n{}", String::from_utf8_lossy(&out.stdout), String::from_utf8_lossy(&out.stderr))
-}
-
-/// Runs `terrain ARGS` in `cwd` with `env` and the disk cache in `cache`.
-fn terrain_in(cwd: &Path, cache: &Path, env: &[(&str, &str)], args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_terrain"))
-        .args(args)
-        .current_dir(cwd)
-        .env("TERRAIN_CACHE_DIR", cache)
-        .envs(env.iter().copied())
-        .output()
-        .expect("the terrain binary runs")
-}
+use serde_json::json;
 
 fn free_port() -> u16 {
     std::net::TcpListener::bind("127.0.0.1:0").unwrap().local_addr().unwrap().port()
-}
-
-/// Waits until `port` accepts connections (30 s at most), else fails naming `what` and `log`.
-fn wait_for(port: u16, what: &str, child: &mut Child, log: &Path) {
-    let start = Instant::now();
-    while start.elapsed() < Duration::from_secs(30) {
-        if TcpStream::connect(("127.0.0.1", port)).is_ok() {
-            return;
-        }
-        if let Ok(Some(status)) = child.try_wait() {
-            panic!(
-                "{what} exited ({status}) before answering on port {port}:\n{}",
-                std::fs::read_to_string(log).unwrap_or_default()
-            );
-        }
-        std::thread::sleep(Duration::from_millis(100));
-    }
-    panic!(
-        "{what} did not answer on 127.0.0.1:{port} within 30 s:\n{}",
-        std::fs::read_to_string(log).unwrap_or_default()
-    );
-}
-
-/// A server process stopped on drop: SIGTERM, then waited for (never left running).
-struct Server {
-    child: Child,
-    port: u16,
-}
-
-impl Drop for Server {
-    fn drop(&mut self) {
-        let _ = Command::new("kill").args(["-TERM", &self.child.id().to_string()]).status();
-        let start = Instant::now();
-        while start.elapsed() < Duration::from_secs(10) {
-            if let Ok(Some(_)) = self.child.try_wait() {
-                return;
-            }
-            std::thread::sleep(Duration::from_millis(50));
-        }
-        let _ = self.child.kill();
-        let _ = self.child.wait();
-    }
 }
 
 /// nginx serving `root` at `/` on a free port, with `location` added to its `location /`
@@ -116,118 +58,6 @@ fn nginx(dir: &Path, root: &Path, location: &str) -> Server {
         .expect("nginx runs (Debian package nginx; .ci/run installs it)");
     wait_for(port, "nginx", &mut child, &log);
     Server { child, port }
-}
-
-/// A 129 x 129 raw f32 grid and a store baked from it (4 x 4 blocks of 33 x 33 vertices, no
-/// tables), in `dir`; returns the DEM and the store.
-fn baked(dir: &Path) -> (PathBuf, PathBuf) {
-    let dem = dir.join("grid.raw");
-    let mut bytes = Vec::new();
-    for j in 0..129 {
-        for i in 0..129 {
-            let z = 200.0 + (i as f32 * 0.11).sin() * 60.0 + (j as f32 * 0.07).cos() * 45.0;
-            bytes.extend(z.to_le_bytes());
-        }
-    }
-    std::fs::write(&dem, bytes).unwrap();
-    let store = dir.join("www/g.scene");
-    std::fs::create_dir_all(dir.join("www")).unwrap();
-    let out = terrain_in(dir, &dir.join("cache"), &[], &bake_args(&dem, s(&store)));
-    assert!(out.status.success(), "bake failed: {}", text(&out));
-    (dem, store)
-}
-
-fn bake_args<'a>(dem: &'a Path, out: &'a str) -> Vec<&'a str> {
-    vec![
-        "bake",
-        s(dem),
-        "--raw",
-        "129x129:f32",
-        "--spacing",
-        "10",
-        "-o",
-        out,
-        "--block-k",
-        "5",
-        "--no-pvs",
-        "--no-dss",
-        "--no-roughness",
-        "--no-geomip",
-    ]
-}
-
-/// `terrain info --json LOCATION` without the location itself.
-fn info(dir: &Path, cache: &Path, env: &[(&str, &str)], location: &str) -> Value {
-    let out = terrain_in(dir, cache, env, &["info", "--json", location]);
-    assert!(out.status.success(), "info {location}: {}", text(&out));
-    let mut v: Value = serde_json::from_slice(&out.stdout).unwrap();
-    assert_eq!(v["store"], location);
-    v.as_object_mut().unwrap().remove("store");
-    v
-}
-
-/// A warm `terrain bench` of the ooc method from `location` (the DEM as reference): the ooc
-/// run's per-frame figures without the times, and the stderr.
-fn bench(
-    dir: &Path,
-    cache: &Path,
-    env: &[(&str, &str)],
-    dem: &Path,
-    location: &str,
-    name: &str,
-) -> (Vec<Value>, String) {
-    let flight = Path::new(env!("CARGO_MANIFEST_DIR")).join("../flights/pvps_884.json");
-    let out_dir = dir.join("bench");
-    let out = terrain_in(
-        dir,
-        cache,
-        env,
-        &[
-            "bench",
-            s(dem),
-            "--raw",
-            "129x129:f32",
-            "--spacing",
-            "10",
-            "--flight",
-            s(&flight),
-            "--methods",
-            "ooc",
-            "--ooc-store",
-            location,
-            "--wait",
-            "--frames",
-            "3",
-            "--sweep",
-            "1",
-            "--no-render",
-            "-o",
-            s(&out_dir),
-            "--name",
-            name,
-        ],
-    );
-    let all = text(&out);
-    assert!(out.status.success(), "bench {location}: {all}");
-    let report: Value = serde_json::from_str(
-        &std::fs::read_to_string(out_dir.join(format!("{name}.json"))).unwrap(),
-    )
-    .unwrap();
-    let ooc =
-        report["runs"].as_array().unwrap().iter().find(|r| r["method"] == "ooc").unwrap().clone();
-    let frames = ooc["frames"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .map(|f| {
-            let mut f = f.clone();
-            // What is drawn and measured (times, memory and I/O differ from run to run).
-            let keep = ["frame", "patches", "triangles", "missing_blocks", "errors"];
-            f.as_object_mut().unwrap().retain(|k, _| keep.contains(&k.as_str()));
-            f
-        })
-        .collect();
-    (frames, all)
 }
 
 #[test]
@@ -493,29 +323,10 @@ fn a_store_baked_to_azurite_reads_as_the_local_bake() {
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
-/// `n` distinct free ports on 127.0.0.1 in 20000..32000 (so also below 55536, see
-/// [`start_weed`]).
+/// `n` distinct free ports on 127.0.0.1 in 20000..32000 (below the ephemeral range, see
+/// [`free_ports_in`], and below 55536, see [`start_weed`]).
 fn free_ports(n: usize) -> Vec<u16> {
-    // Below Linux's ephemeral range (32768..): a port released here before the server binds it
-    // cannot be handed to another test's `bind(127.0.0.1:0)` (nginx's `free_port`, clients'
-    // local ports) in the meantime. Each port is checked free by binding it. The tests of this
-    // file share one cursor, so two servers started at once never get the same port; the start
-    // is spread by the process id so concurrent test processes rarely probe the same ports.
-    static NEXT: std::sync::Mutex<u16> = std::sync::Mutex::new(0);
-    let mut next = NEXT.lock().unwrap_or_else(|e| e.into_inner());
-    if *next == 0 {
-        *next = 20_000 + (std::process::id() % 400) as u16 * 25;
-    }
-    let mut ports: Vec<u16> = Vec::new();
-    while ports.len() < n && *next < 32_000 {
-        let p = *next;
-        *next += 1;
-        if std::net::TcpListener::bind(("127.0.0.1", p)).is_ok() {
-            ports.push(p);
-        }
-    }
-    assert_eq!(ports.len(), n, "no {n} free ports below 32000 on 127.0.0.1");
-    ports
+    free_ports_in(20_000..32_000, n)
 }
 
 /// The S3 client's environment for a SeaweedFS at `endpoint` (no identities: any key works).

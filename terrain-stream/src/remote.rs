@@ -160,9 +160,13 @@ fn client_for(
             Ok((Arc::new(b.build().map_err(bad)?), key_prefix()))
         }
         "gs" => {
+            // The endpoint is the credentials' `gcs_base_url` (Google's https one by default;
+            // an emulator's `http://127.0.0.1:PORT` in the tests). `with_client_options`
+            // replaces the builder's own options, whose default allows plain HTTP for such a
+            // base URL: allowed again here, else every request fails as a "builder error".
             let b = object_store::gcp::GoogleCloudStorageBuilder::from_env()
                 .with_url(url)
-                .with_client_options(client)
+                .with_client_options(client.with_allow_http(true))
                 .with_retry(retry);
             Ok((Arc::new(b.build().map_err(bad)?), key_prefix()))
         }

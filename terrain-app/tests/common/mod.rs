@@ -6,6 +6,9 @@
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
+/// The remote store tests' helpers (servers on 127.0.0.1, a small baked store).
+pub(crate) mod remote;
+
 /// A file of `../shared/data` (or `$TERRAIN_DATA`); panics with a clear message if missing,
 /// because the tests are defined over these files.
 pub(crate) fn data(rel: &str) -> PathBuf {
