@@ -504,40 +504,66 @@ fn step_reason(report: &Value, every: &Value, (method, who): (&str, &str)) -> St
     )
 }
 
+/// The 10th percentile (nearest rank) of `key` over `method`'s frames: of a wall time on a
+/// shared machine, the frames least disturbed by other processes (NaN without frames).
+fn low(report: &Value, method: &str, key: &str) -> f64 {
+    let mut v = column(run_of(report, method, None), key);
+    v.retain(|x| x.is_finite());
+    v.sort_by(f64::total_cmp);
+    let rank = (0.1 * v.len() as f64).ceil() as usize;
+    v.get(rank.max(1) - 1).copied().unwrap_or(f64::NAN)
+}
+
 fn table4(report: &Value, c: &Controls, setting: &str) -> Section {
     let mut s = Section::new("Table 4", "CPU usage of the three methods (the CPU column)");
     s.setup.push(setting.to_string());
     s.setup.push(
-        "Ours: mean CPU milliseconds per frame (selection, plus the renderer's upload and encode \
+        "Ours: CPU milliseconds per frame (selection, plus the renderer's upload and encode \
          with the strips' construction when rendered; selection plus the CPU tessellator \
-         otherwise). The paper's: average CPU usage in % of a 4097^2 map at 125 fps. Compared by \
-         ratio to Method I and II. Memory columns (object-space errors, MBD, vertex data, video \
-         memory): not produced (the bench does not break memory down by table)."
+         otherwise). They are wall times of the frame's CPU work, which grow by whole \
+         scheduler slices when other processes hold the shared cores (a run under load gives \
+         bimodal frames: about 0.5 ms, or 10-40 ms), so the verdicts compare the 10th \
+         percentile over the frames (the least disturbed), with the mean beside it. The \
+         paper's: average CPU usage in % of a 4097^2 map at 125 fps. Compared by ratio to \
+         Method I and II. Memory columns (object-space errors, MBD, vertex data, video memory): \
+         not produced (the bench does not break memory down by table)."
             .into(),
     );
-    let mut t = Table::new("", &["Method", "CPU ms per frame (mean)", "Selection ms (median)"]);
+    let mut t = Table::new(
+        "",
+        &[
+            "Method",
+            "CPU ms per frame (10th percentile)",
+            "CPU ms per frame (mean)",
+            "Selection ms (median)",
+        ],
+    );
     let mut cpu = Vec::new();
     for (m, name) in METHODS {
-        let r = runs(report, m, None);
-        let r = r.first();
-        let c = r.map_or(f64::NAN, |r| frame_mean(r, "cpu_ms"));
-        cpu.push(c);
+        cpu.push(low(report, m, "cpu_ms"));
         t.rows.push(vec![
             text(name),
-            num(c, 2),
-            num(r.map_or(f64::NAN, |r| f(r, "summary.median_selection_ms")), 3),
+            num(cpu[cpu.len() - 1], 2),
+            num(mean_of(report, m, "cpu_ms"), 2),
+            num(
+                run_of(report, m, None).map_or(f64::NAN, |r| f(r, "summary.median_selection_ms")),
+                3,
+            ),
         ]);
     }
     s.ours.push(t);
     let mut p = Table::new("", &["Method", "CPU usage (avg.)"]);
-    for ((_, name), c) in METHODS.iter().zip(PAPER_CPU) {
-        p.rows.push(vec![text(*name), text(format!("{c} %"))]);
+    for ((_, name), usage) in METHODS.iter().zip(PAPER_CPU) {
+        p.rows.push(vec![text(*name), text(format!("{usage} %"))]);
     }
     s.paper = Some(p);
     for (k, other) in [(0, "Method I"), (1, "Method II")] {
         s.verdicts.push(
             effect_towards(
-                format!("the strips cost more CPU than {other} (ratio - 1)"),
+                format!(
+                    "the strips cost more CPU than {other} (10th percentile of the frames' CPU \
+                     ms, ratio - 1)"
+                ),
                 1.0,
                 PAPER_CPU[2] / PAPER_CPU[k] - 1.0,
                 cpu[2] / cpu[k] - 1.0,
@@ -553,7 +579,7 @@ fn table4(report: &Value, c: &Controls, setting: &str) -> Section {
 /// the construction's growth with the blocks (control run `dss_rho_sweep`).
 fn cpu_reason(report: &Value, sweep: &Value, (other, name): (&str, &str)) -> String {
     let strips = METHODS[2].0;
-    let m = |method: &str, key: &str| mean_of(report, method, key);
+    let m = |method: &str, key: &str| low(report, method, key);
     let blocks = |method: &str| median(column(run_of(report, method, None), "patches"));
     let growth: Vec<String> = SWEEP_RHO
         .iter()
@@ -567,22 +593,23 @@ fn cpu_reason(report: &Value, sweep: &Value, (other, name): (&str, &str)) -> Str
         })
         .collect();
     format!(
-        "of the strips' {:.2} CPU ms a frame (mean), Algorithm 1's construction takes {:.3} ms \
-         ({:.1} %) and the multilevel update {:.3} ms; most is the renderer's encode and upload, \
-         which follow what is drawn: {:.2} ms for the strips' {:.0} blocks and their strips \
-         ({:.1} KB uploaded a frame) against {:.2} ms for {name}'s {:.0} blocks ({:.1} KB; its \
-         selection {:.3} ms); the construction grows with the blocks (control run \
-         `dss_rho_sweep`, medians at rho_thr {}): {}",
+        "of the strips' {:.2} CPU ms a frame, Algorithm 1's construction takes {:.3} ms ({:.1} \
+         %) and the multilevel update {:.3} ms; most is the renderer's encode and upload, which \
+         follow what is drawn: {:.2} ms for the strips' {:.0} blocks and their strips ({:.1} KB \
+         uploaded a frame) against {:.2} ms for {name}'s {:.0} blocks ({:.1} KB; its selection \
+         {:.3} ms) (times: 10th percentiles over the frames; blocks: medians; uploads: means); \
+         the construction grows with the blocks (control run `dss_rho_sweep`, medians at \
+         rho_thr {}): {}",
         m(strips, "cpu_ms"),
         m(strips, "strips_ms"),
         100.0 * m(strips, "strips_ms") / m(strips, "cpu_ms"),
         m(strips, "update_ms"),
         m(strips, "encode_ms"),
         blocks(strips),
-        m(strips, "upload_bytes") / 1e3,
+        mean_of(report, strips, "upload_bytes") / 1e3,
         m(other, "encode_ms"),
         blocks(other),
-        m(other, "upload_bytes") / 1e3,
+        mean_of(report, other, "upload_bytes") / 1e3,
         m(other, "selection_ms"),
         SWEEP_RHO.map(|v| v.to_string()).join(" / "),
         growth.join(", ")
@@ -1025,6 +1052,24 @@ mod tests {
         let hit = hits.next().unwrap_or_else(|| panic!("no verdict on `{claim}`"));
         assert!(hits.next().is_none(), "two verdicts on `{claim}`");
         hit
+    }
+
+    #[test]
+    fn the_cpu_figure_is_that_of_the_least_disturbed_frames() {
+        // 4 of 31 frames uncontended (0.5 ms), the rest slowed by other processes: the 10th
+        // percentile is the 4th smallest.
+        let frames: Vec<Value> = (0..31)
+            .map(
+                |k| json!({ "frame": k, "cpu_ms": if k % 8 == 3 { 0.5 } else { 20.0 + k as f64 } }),
+            )
+            .collect();
+        let r = json!({ "runs": [{ "method": "dss-1", "frames": frames }] });
+        assert_eq!(low(&r, "dss-1", "cpu_ms"), 0.5);
+        // One more slow frame in place of a fast one: the 4th smallest is a slow one.
+        let mut slower = r.clone();
+        slower["runs"][0]["frames"][3]["cpu_ms"] = json!(30.0);
+        assert_eq!(low(&slower, "dss-1", "cpu_ms"), 20.0);
+        assert!(low(&r, "dss-2", "cpu_ms").is_nan());
     }
 
     #[test]
