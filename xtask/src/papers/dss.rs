@@ -353,9 +353,11 @@ fn hypothesis(report: &Value, c: &Controls, setting: &str) -> Section {
          changes level. It predicts that the continuous methods (Method II, strips) move the \
          drawn surface on nearly every step (at least 90 %; moved = popping RMS above {MOVED_M} \
          m) and Method I on fewer (at most half). A step is a measured frame against the \
-         previous measured frame: {step:.0} flight frames in this run, {every_step:.0} in the \
+         previous measured frame: {} in this run, {} in the \
          control run `dss_every_frame` (the same flight, every flight frame measured, not \
-         rendered; Method I and the strips of both kinds). Not a table of the paper."
+         rendered; Method I and the strips of both kinds). Not a table of the paper.",
+        flight_frames(step),
+        flight_frames(every_step)
     ));
     s.setup.push(
         "The direct test: `dss-strips-pow2` is `dss-strips` with every block's factor rounded up \
@@ -367,7 +369,7 @@ fn hypothesis(report: &Value, c: &Controls, setting: &str) -> Section {
             .into(),
     );
     let mut t = Table::new(
-        format!("Steps of {step:.0} flight frames (this run)."),
+        format!("Steps of {} (this run).", flight_frames(step)),
         &[
             "Method",
             "Factors",
@@ -399,22 +401,22 @@ fn hypothesis(report: &Value, c: &Controls, setting: &str) -> Section {
         ]);
     }
     s.ours.push(t);
-    let mut c = Table::new(
-        format!("Control run `dss_every_frame`: steps of {every_step:.0} flight frames."),
+    let mut control = Table::new(
+        format!("Control run `dss_every_frame`: steps of {}.", flight_frames(every_step)),
         &["Method", "Steps moved / measured", "Share moved", "Median popping RMS (m)"],
     );
     let mut every_share = Vec::new();
     for (m, name) in EVERY_FRAME_METHODS {
         let (moved, steps) = moved_steps(every, m);
         every_share.push(share((moved, steps)));
-        c.rows.push(vec![
+        control.rows.push(vec![
             text(name),
             text(format!("{moved} / {steps}")),
             num(share((moved, steps)), 3),
             num(median(frame_pops(every, m)), 3),
         ]);
     }
-    s.ours.push(c);
+    s.ours.push(control);
     s.verdicts.push(
         prediction(
             "power-of-two factors remove most of the strips' popping (median popping RMS, \
