@@ -70,6 +70,23 @@ fn prev(e: u32) -> u32 {
     if e % 3 == 0 { e + 2 } else { e - 1 }
 }
 
+/// A heap entry: a triangle slot and its candidate's error and sample (`j << 32 | i`).
+#[derive(Debug, Clone, Copy)]
+struct Entry {
+    error: f64,
+    key: u64,
+    slot: u32,
+}
+
+impl Entry {
+    /// Heap order: larger error first, then the smaller sample (a total order, so ties
+    /// never depend on the heap's layout).
+    #[inline]
+    fn above(&self, other: &Self) -> bool {
+        self.error > other.error || (self.error == other.error && self.key < other.key)
+    }
+}
+
 /// The greedy mesher's state.
 struct Mesher<'a> {
     hm: &'a Heightmap,
@@ -84,13 +101,13 @@ struct Mesher<'a> {
     tris: Vec<u32>,
     /// Twin of each half-edge (`NONE` on the grid's border).
     twins: Vec<u32>,
-    /// Each slot's candidate sample and its error (only meaningful while in the heap).
+    /// Each slot's candidate sample (only meaningful while in the heap).
     cand: Vec<[u32; 2]>,
-    err: Vec<f64>,
     /// Position of each slot in `heap` (`NONE`: not there).
     heap_pos: Vec<u32>,
-    /// Indexed binary max-heap of slots with a candidate above the bound.
-    heap: Vec<u32>,
+    /// Indexed binary max-heap of the slots with a candidate above the bound; the keys live
+    /// in the entries, so sifting reads one contiguous array.
+    heap: Vec<Entry>,
     /// Slots (re)written by the current insertion, each once, scanned after it.
     pending: Vec<u32>,
     is_pending: Vec<bool>,
@@ -110,7 +127,6 @@ impl<'a> Mesher<'a> {
             tris: Vec::new(),
             twins: Vec::new(),
             cand: Vec::new(),
-            err: Vec::new(),
             heap_pos: Vec::new(),
             heap: Vec::new(),
             pending: Vec::new(),
@@ -140,7 +156,6 @@ impl<'a> Mesher<'a> {
         self.tris.extend([0; 3]);
         self.twins.extend([NONE; 3]);
         self.cand.push([0, 0]);
-        self.err.push(0.0);
         self.heap_pos.push(NONE);
         self.is_pending.push(false);
         t
@@ -285,29 +300,21 @@ impl<'a> Mesher<'a> {
         });
         if let (error, Some(sample)) = best {
             self.cand[t as usize] = sample;
-            self.err[t as usize] = error;
-            self.heap_push(t);
+            let key = u64::from(sample[1]) << 32 | u64::from(sample[0]);
+            self.heap_push(Entry { error, key, slot: t });
         }
-    }
-
-    /// Heap order: larger error first, then the smaller sample `[i, j]` (a total order, so
-    /// ties never depend on the heap's layout).
-    #[inline]
-    fn above(&self, a: u32, b: u32) -> bool {
-        let (ea, eb) = (self.err[a as usize], self.err[b as usize]);
-        ea > eb || (ea == eb && self.cand[a as usize] < self.cand[b as usize])
     }
 
     fn heap_swap(&mut self, i: usize, j: usize) {
         self.heap.swap(i, j);
-        self.heap_pos[self.heap[i] as usize] = i as u32;
-        self.heap_pos[self.heap[j] as usize] = j as u32;
+        self.heap_pos[self.heap[i].slot as usize] = i as u32;
+        self.heap_pos[self.heap[j].slot as usize] = j as u32;
     }
 
     fn sift_up(&mut self, mut i: usize) {
         while i > 0 {
             let parent = (i - 1) / 2;
-            if !self.above(self.heap[i], self.heap[parent]) {
+            if !self.heap[i].above(&self.heap[parent]) {
                 break;
             }
             self.heap_swap(i, parent);
@@ -320,10 +327,10 @@ impl<'a> Mesher<'a> {
         loop {
             let (l, r) = (2 * i + 1, 2 * i + 2);
             let mut top = i;
-            if l < n && self.above(self.heap[l], self.heap[top]) {
+            if l < n && self.heap[l].above(&self.heap[top]) {
                 top = l;
             }
-            if r < n && self.above(self.heap[r], self.heap[top]) {
+            if r < n && self.heap[r].above(&self.heap[top]) {
                 top = r;
             }
             if top == i {
@@ -334,9 +341,9 @@ impl<'a> Mesher<'a> {
         }
     }
 
-    fn heap_push(&mut self, t: u32) {
-        self.heap_pos[t as usize] = self.heap.len() as u32;
-        self.heap.push(t);
+    fn heap_push(&mut self, entry: Entry) {
+        self.heap_pos[entry.slot as usize] = self.heap.len() as u32;
+        self.heap.push(entry);
         self.sift_up(self.heap.len() - 1);
     }
 
@@ -400,7 +407,7 @@ impl<'a> Mesher<'a> {
     /// Inserts candidates until none is above the bound.
     fn run(&mut self) {
         self.flush();
-        while let Some(&t) = self.heap.first() {
+        while let Some(&Entry { slot: t, .. }) = self.heap.first() {
             let [i, j] = self.cand[t as usize];
             self.insert(t, [i64::from(i), i64::from(j)]);
             self.flush();
@@ -463,6 +470,113 @@ mod tests {
         let spike = build(&HardCase::Spike.build(), 0.0);
         assert!(spike.triangles.len() <= 24, "{} triangles", spike.triangles.len());
         assert!(spike.positions.iter().any(|p| p.z == f64::from(HardCase::SPIKE_HEIGHT)));
+    }
+
+    use crate::georef::Georef;
+    use crate::heightmap::VoidMask;
+    use crate::mesh::verify;
+
+    /// A rough deterministic surface (no library code in common with the mesher).
+    fn rough(i: usize, j: usize) -> f32 {
+        let (x, y) = (i as f64, j as f64);
+        ((x * 0.37).sin() * 20.0 + (y * 0.23).cos() * 15.0 + (x * y * 0.011).sin() * 9.0) as f32
+    }
+
+    /// Every interior edge is locally Delaunay: the apex across it is not strictly inside the
+    /// circumcircle (the exact determinant, evaluated here on the output mesh).
+    fn assert_delaunay(hm: &Heightmap, m: &TriMesh) {
+        let g: Vec<[i64; 2]> = m
+            .positions
+            .iter()
+            .map(|p| {
+                let q = hm.world_to_grid(p.truncate()).round();
+                [q.x as i64, q.y as i64]
+            })
+            .collect();
+        let mut apex = std::collections::HashMap::new();
+        for t in &m.triangles {
+            for k in 0..3 {
+                apex.insert((t[k], t[(k + 1) % 3]), t[(k + 2) % 3]);
+            }
+        }
+        for (&(u, v), &x) in &apex {
+            if let Some(&y) = apex.get(&(v, u)) {
+                let [a, b, c, d] = [u, v, x, y].map(|k| g[k as usize]);
+                assert!(!in_circle(a, b, c, d), "edge {a:?}-{b:?}: {d:?} inside");
+            }
+        }
+    }
+
+    #[test]
+    fn tiny_flat_and_constant_grids_need_two_triangles_exactly() {
+        let georef = Georef::local(10.0);
+        let tiny =
+            Heightmap::from_fn(2, 2, georef.clone(), |i, j| [3.0, -7.5, 12.25, 0.5][2 * j + i])
+                .unwrap();
+        let constant = Heightmap::from_fn(50, 37, georef, |_, _| 1000.5).unwrap();
+        for hm in [&tiny, &constant] {
+            for bound in [0.0, 1.0, f64::INFINITY] {
+                let m = build(hm, bound);
+                assert_eq!(m.triangles.len(), 2);
+                assert_eq!(verify::check(hm, &m, bound).unwrap().max_error, 0.0);
+            }
+        }
+    }
+
+    #[test]
+    fn voids_holding_nan_are_never_vertices_and_the_bound_holds_around_them() {
+        let (w, h) = (61, 47);
+        let mut voids = VoidMask::new(w, h);
+        let mut data = Vec::new();
+        for j in 0..h {
+            for i in 0..w {
+                // A void disc and a void stripe touching the south border, holding NaN.
+                let void =
+                    (i as i64 - 30).pow(2) + (j as i64 - 20).pow(2) < 64 || (i == 7 && j < 12);
+                voids.set(i, j, void);
+                data.push(if void { f32::NAN } else { rough(i, j) });
+            }
+        }
+        let hm = Heightmap::new(w, h, data, voids, Georef::local(5.0)).unwrap();
+        for bound in [0.0, 0.5, 4.0] {
+            let m = build(&hm, bound);
+            let stats = verify::check(&hm, &m, bound).unwrap();
+            assert!(stats.max_error <= bound, "{bound}: {}", stats.max_error);
+            assert!(m.positions.iter().all(|p| p.z.is_finite()), "a void sample became a vertex");
+            assert_delaunay(&hm, &m);
+        }
+        // Negative control: the same grid without the voids needs the disc's samples.
+        let filled = Heightmap::from_fn(w, h, Georef::local(5.0), rough).unwrap();
+        assert!(build(&filled, 0.5).triangles.len() > build(&hm, 0.5).triangles.len());
+    }
+
+    #[test]
+    fn meshes_are_deterministic_delaunay_and_seeds_lock_the_border() {
+        let hm = Heightmap::from_fn(97, 65, Georef::local(2.0), rough).unwrap();
+        let seeds = [[40, 0], [96, 30], [0, 20], [10, 64], [96, 30], [33, 33], [500, 3]];
+        for bound in [0.25, 2.0] {
+            let a = build_seeded(&hm, bound, &seeds, true);
+            assert_eq!(a, build_seeded(&hm, bound, &seeds, true), "not deterministic at {bound}");
+            assert_eq!(build(&hm, bound), build(&hm, bound));
+            assert_delaunay(&hm, &a);
+            assert_delaunay(&hm, &build(&hm, bound));
+            // The border's vertices are the corners and the in-grid border seeds, nothing else.
+            let mut border: Vec<[i64; 2]> = a
+                .positions
+                .iter()
+                .map(|p| [(p.x / 2.0).round() as i64, (p.y / 2.0).round() as i64])
+                .filter(|&[i, j]| i == 0 || j == 0 || i == 96 || j == 64)
+                .collect();
+            border.sort_unstable();
+            let want = [[0, 0], [0, 20], [0, 64], [10, 64], [40, 0], [96, 0], [96, 30], [96, 64]];
+            assert_eq!(border, want, "at {bound}");
+            assert!(a.positions.iter().any(|p| p.x == 66.0 && p.y == 66.0), "interior seed");
+            // The interior keeps the bound (the border is the seeds' business).
+            let stats = verify::measure(&hm, &a).unwrap();
+            let unlocked = verify::check(&hm, &build(&hm, bound), bound).unwrap();
+            assert!(unlocked.max_error <= bound);
+            assert!(stats.samples == unlocked.samples);
+        }
     }
 
     #[test]
