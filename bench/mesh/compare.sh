@@ -7,8 +7,10 @@
 #
 # Peers live in bench/mesh/peers (git-ignored; their code is never committed):
 # - hmm: its source in bench/mesh/peers/hmm (`git clone https://github.com/fogleman/hmm`
-#   there; needs Debian's libglm-dev), built here with its own Makefile (-O3 -flto
-#   -march=native). Without the source it is skipped with a message.
+#   there; needs Debian's libglm-dev), its triangulator compiled with hmm's own flags (-O3
+#   -flto -march=native) and our timing driver bench/mesh/hmm_time.cpp (thread CPU time
+#   around Run + Points + Triangles, as hmm's "triangulating" step). Without the source it
+#   is skipped with a message.
 # - delatin 0.2.0 and @mapbox/martini 0.2.0: installed here from the npm registry; if npm
 #   cannot reach it they are skipped with a message.
 set -euo pipefail
@@ -24,10 +26,13 @@ bounds=("$@")
 [ ${#bounds[@]} -gt 0 ] || bounds=(1 4 16)
 mkdir -p "$peers"
 
-if [ -f "$peers/hmm/Makefile" ]; then
-  if [ ! -x "$peers/hmm/hmm" ]; then
-    echo "building hmm in $peers/hmm" >&2
-    make -C "$peers/hmm" release >/dev/null || echo "hmm: build failed (libglm-dev installed?)" >&2
+if [ -f "$peers/hmm/src/triangulator.cpp" ]; then
+  if [ ! -x "$peers/hmm_time" ]; then
+    echo "building hmm's triangulator with bench/mesh/hmm_time.cpp into $peers/hmm_time" >&2
+    (cd "$peers/hmm" && g++ -std=c++11 -O3 -flto -march=native -DNDEBUG -Isrc -w \
+      -o "$peers/hmm_time" "$root/bench/mesh/hmm_time.cpp" src/heightmap.cpp \
+      src/triangulator.cpp src/base.cpp src/blur.cpp) \
+      || echo "hmm: build failed (libglm-dev installed?); skipped" >&2
   fi
 else
   echo "hmm: no source in $peers/hmm (git clone https://github.com/fogleman/hmm there); skipped" >&2

@@ -5,7 +5,8 @@
 //
 // HEIGHTS.f32: WIDTH x HEIGHT little-endian f32 metres, row-major (the caller's row order;
 // coordinates come back in the same frame). TOOL: delatin | martini. Prints one JSON line
-// {"ms": [...]} with each run's build time; writes the last run's mesh to OUT.bin as
+// {"ms": [...], "cpu": [...]} with each run's build time, wall and CPU (process.cpuUsage:
+// user + system, the garbage collector's threads included); writes the last run's mesh to OUT.bin as
 // u32 vertex count, u32 triangle count, then u32 (x, y) per vertex, then u32 x 3 per triangle.
 // Martini needs a square grid of 2^k + 1 samples; its time is createTile (the error pass)
 // plus getMesh, the constructor (index tables for the grid size) excluded.
@@ -54,11 +55,15 @@ if (tool === 'delatin') {
 }
 
 const ms = [];
+const cpu = [];
 let mesh;
 for (let r = 0; r < runs; r++) {
   const t = process.hrtime.bigint();
+  const c = process.cpuUsage();
   mesh = build();
+  const dc = process.cpuUsage(c);
   ms.push(Number(process.hrtime.bigint() - t) / 1e6);
+  cpu.push((dc.user + dc.system) / 1e3);
 }
 const nv = mesh.coords.length / 2;
 const nt = mesh.triangles.length / 3;
@@ -68,4 +73,4 @@ o[1] = nt;
 o.set(mesh.coords, 2);
 o.set(mesh.triangles, 2 + 2 * nv);
 writeFileSync(out, o);
-console.log(JSON.stringify({ ms }));
+console.log(JSON.stringify({ ms, cpu }));

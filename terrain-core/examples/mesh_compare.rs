@@ -7,8 +7,9 @@
 //! cargo run --release -p terrain-core --example mesh_compare -- DEM VERTICAL_SCALE SPACING_M PEERS_DIR RUNS [BOUNDS...]
 //! ```
 //!
-//! Every tool sees the same heights: hmm reads the DEM's own 16-bit PNG (its heights are
-//! `raw / 65535`, so its threshold is `bound / (65535 x VERTICAL_SCALE)`); the npm meshers
+//! Every tool sees the same heights: hmm (its triangulator, timed by bench/mesh/hmm_time.cpp,
+//! `PEERS_DIR/hmm_time`) reads the DEM's own 16-bit PNG (its heights are `raw / 65535`, so
+//! its threshold is `bound / (65535 x VERTICAL_SCALE)`); the npm meshers
 //! read `PEERS_DIR/heights.f32`, the loaded heightmap in metres written here. A peer whose
 //! binary or package is missing is skipped with a message. Peers' vertices are grid samples;
 //! each is given our sample's height before measuring, so only the triangulation counts.
@@ -27,13 +28,24 @@ struct Row {
     tool: &'static str,
     triangles: usize,
     max_error: Result<f64, String>,
-    ms: Vec<f64>,
+    /// Wall and CPU milliseconds of each run.
+    wall: Vec<f64>,
+    cpu: Vec<f64>,
 }
 
 fn median(v: &[f64]) -> f64 {
     let mut s = v.to_vec();
     s.sort_by(f64::total_cmp);
     s[s.len() / 2]
+}
+
+/// This thread's CPU time in milliseconds (Linux: /proc/thread-self/schedstat, nanoseconds
+/// on a CPU), which a loaded machine does not inflate as it does wall time.
+fn thread_cpu_ms() -> f64 {
+    std::fs::read_to_string("/proc/thread-self/schedstat")
+        .ok()
+        .and_then(|s| s.split_whitespace().next()?.parse::<f64>().ok())
+        .map_or(f64::NAN, |ns| ns / 1e6)
 }
 
 /// A mesh over grid samples `[x, y]` with our heights; triangles turned counter-clockwise.
@@ -62,7 +74,22 @@ fn measured(hm: &Heightmap, mesh: &TriMesh) -> Result<f64, String> {
     verify::measure(hm, mesh).map(|s| s.max_error).map_err(|e| e.to_string())
 }
 
-/// hmm on the 16-bit PNG: its own "triangulating... Xs" time, the mesh from its binary STL.
+/// Reads a peer's mesh file: u32 vertex and triangle counts, `(x, y)` per vertex, 3 indices
+/// per triangle.
+fn read_mesh(hm: &Heightmap, path: &Path) -> Result<(usize, TriMesh), String> {
+    let bytes = std::fs::read(path).map_err(|e| format!("{}: {e}", path.display()))?;
+    let w: Vec<u32> =
+        bytes.chunks_exact(4).map(|c| u32::from_le_bytes(c.try_into().unwrap())).collect();
+    let (nv, nt) = (*w.first().unwrap_or(&0) as usize, *w.get(1).unwrap_or(&0) as usize);
+    if w.len() != 2 + 2 * nv + 3 * nt {
+        return Err(format!("{}: truncated mesh", path.display()));
+    }
+    let xy: Vec<[u32; 2]> = w[2..2 + 2 * nv].chunks_exact(2).map(|c| [c[0], c[1]]).collect();
+    let tris: Vec<[u32; 3]> = w[2 + 2 * nv..].chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect();
+    Ok((nt, grid_mesh(hm, &xy, &tris)?))
+}
+
+/// hmm's triangulator through bench/mesh/hmm_time.cpp on the 16-bit PNG.
 fn run_hmm(
     hm: &Heightmap,
     hmm: &Path,
@@ -72,72 +99,48 @@ fn run_hmm(
     runs: usize,
     dir: &Path,
 ) -> Result<Row, String> {
-    let stl = dir.join("hmm_out.stl");
+    let out_path = dir.join("hmm_out.bin");
     let threshold = bound / (65535.0 * scale);
-    let mut ms = Vec::new();
-    for _ in 0..runs {
-        let out = Command::new(hmm)
-            .args(["-z", "1", "-e", &format!("{threshold:e}"), dem])
-            .arg(&stl)
-            .output()
-            .map_err(|e| format!("{}: {e}", hmm.display()))?;
-        let text = String::from_utf8_lossy(&out.stdout);
-        if !out.status.success() {
-            return Err(format!("hmm failed: {text} {}", String::from_utf8_lossy(&out.stderr)));
-        }
-        let secs = text
-            .lines()
-            .find_map(|l| l.strip_prefix("triangulating... "))
-            .and_then(|s| s.trim().trim_end_matches('s').parse::<f64>().ok())
-            .ok_or_else(|| format!("no triangulation time in hmm's output: {text}"))?;
-        ms.push(secs * 1e3);
+    let out = Command::new(hmm)
+        .args([dem, &format!("{threshold:e}"), &runs.to_string()])
+        .arg(&out_path)
+        .output()
+        .map_err(|e| format!("{}: {e}", hmm.display()))?;
+    let text = String::from_utf8_lossy(&out.stdout);
+    if !out.status.success() {
+        return Err(format!("hmm failed: {}", String::from_utf8_lossy(&out.stderr).trim()));
     }
-    let bytes = std::fs::read(&stl).map_err(|e| format!("{}: {e}", stl.display()))?;
-    let n = u32::from_le_bytes(bytes[80..84].try_into().unwrap()) as usize;
-    let mut index = std::collections::HashMap::new();
-    let (mut xy, mut tris) = (Vec::new(), Vec::with_capacity(n));
-    for f in 0..n {
-        let base = 84 + 50 * f + 12;
-        let mut t = [0u32; 3];
-        for (k, slot) in t.iter_mut().enumerate() {
-            let p = base + 12 * k;
-            let c = |o: usize| f32::from_le_bytes(bytes[p + o..p + o + 4].try_into().unwrap());
-            let v = [c(0).round() as u32, c(4).round() as u32];
-            *slot = *index.entry(v).or_insert_with(|| {
-                xy.push(v);
-                (xy.len() - 1) as u32
-            });
+    let (mut wall, mut cpu) = (Vec::new(), Vec::new());
+    for l in text.lines() {
+        let v: Vec<f64> = l.split_whitespace().filter_map(|x| x.parse().ok()).collect();
+        if let [w, c] = v[..] {
+            wall.push(w);
+            cpu.push(c);
         }
-        tris.push(t);
     }
-    let mesh = grid_mesh(hm, &xy, &tris)?;
-    Ok(Row { tool: "hmm (C++)", triangles: n, max_error: measured(hm, &mesh), ms })
+    if wall.is_empty() {
+        return Err(format!("no times in hmm_time's output: {text}"));
+    }
+    let (triangles, mesh) = read_mesh(hm, &out_path)?;
+    Ok(Row { tool: "hmm (C++)", triangles, max_error: measured(hm, &mesh), wall, cpu })
 }
 
 /// Delatin or Martini through node (bench/mesh/js_meshers.mjs).
-#[allow(clippy::too_many_arguments)]
 fn run_js(
     hm: &Heightmap,
     script: &Path,
     dir: &Path,
-    tool: &'static str,
-    label: &'static str,
+    (tool, label): (&str, &'static str),
     bound: f64,
     runs: usize,
 ) -> Result<Row, String> {
     let out_path = dir.join(format!("{tool}_out.bin"));
-    let heights = dir.join("heights.f32");
     let out = Command::new("node")
         .arg(script)
         .arg(dir)
-        .arg(&heights)
-        .args([
-            hm.width().to_string(),
-            hm.height().to_string(),
-            tool.into(),
-            bound.to_string(),
-            runs.to_string(),
-        ])
+        .arg(dir.join("heights.f32"))
+        .args([hm.width().to_string(), hm.height().to_string(), tool.into()])
+        .args([bound.to_string(), runs.to_string()])
         .arg(&out_path)
         .output()
         .map_err(|e| format!("node: {e}"))?;
@@ -145,21 +148,29 @@ fn run_js(
         return Err(format!("{tool}: {}", String::from_utf8_lossy(&out.stderr).trim()));
     }
     let text = String::from_utf8_lossy(&out.stdout);
-    let ms: Vec<f64> = text
-        .trim()
-        .strip_prefix("{\"ms\":[")
-        .and_then(|s| s.strip_suffix("]}"))
-        .map(|s| s.split(',').filter_map(|x| x.parse().ok()).collect())
-        .ok_or_else(|| format!("{tool}: unexpected output {text}"))?;
-    let bytes = std::fs::read(&out_path).map_err(|e| format!("{}: {e}", out_path.display()))?;
-    let w: Vec<u32> =
-        bytes.chunks_exact(4).map(|c| u32::from_le_bytes(c.try_into().unwrap())).collect();
-    let (nv, nt) = (w[0] as usize, w[1] as usize);
-    let xy: Vec<[u32; 2]> = w[2..2 + 2 * nv].chunks_exact(2).map(|c| [c[0], c[1]]).collect();
-    let tris: Vec<[u32; 3]> =
-        w[2 + 2 * nv..2 + 2 * nv + 3 * nt].chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect();
-    let mesh = grid_mesh(hm, &xy, &tris)?;
-    Ok(Row { tool: label, triangles: nt, max_error: measured(hm, &mesh), ms })
+    let list = |key: &str| -> Option<Vec<f64>> {
+        let rest = text.split(&format!("\"{key}\":[")).nth(1)?;
+        let body = rest.split(']').next()?;
+        Some(body.split(',').filter_map(|x| x.parse().ok()).collect())
+    };
+    let (Some(wall), Some(cpu)) = (list("ms"), list("cpu")) else {
+        return Err(format!("{tool}: unexpected output {text}"));
+    };
+    let (triangles, mesh) = read_mesh(hm, &out_path)?;
+    Ok(Row { tool: label, triangles, max_error: measured(hm, &mesh), wall, cpu })
+}
+
+/// Runs `f` `runs` times, timing each run (wall and this thread's CPU).
+fn timed<T>(runs: usize, mut f: impl FnMut() -> T) -> (T, Vec<f64>, Vec<f64>) {
+    let (mut wall, mut cpu) = (Vec::new(), Vec::new());
+    let mut out = None;
+    for _ in 0..runs {
+        let (t, c) = (Instant::now(), thread_cpu_ms());
+        out = Some(f());
+        cpu.push(thread_cpu_ms() - c);
+        wall.push(t.elapsed().as_secs_f64() * 1e3);
+    }
+    (out.expect("at least one run"), wall, cpu)
 }
 
 fn main() {
@@ -194,7 +205,7 @@ fn main() {
     std::fs::create_dir_all(&dir).expect("the peers folder");
     let raw: Vec<u8> = hm.data().iter().flat_map(|z| z.to_le_bytes()).collect();
     std::fs::write(dir.join("heights.f32"), raw).expect("heights.f32 in the peers folder");
-    let hmm = dir.join("hmm/hmm");
+    let hmm = dir.join("hmm_time");
     let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("../bench/mesh/js_meshers.mjs");
     let have_hmm = hmm.exists() && dem.ends_with(".png");
     if !have_hmm {
@@ -205,47 +216,40 @@ fn main() {
         eprintln!("delatin, martini: skipped ({} missing)", dir.join("node_modules").display());
     }
     println!(
-        "{dem}: {} x {} samples, spacing {spacing} m, vertical scale {scale}; build time: median of {runs}\n",
+        "{dem}: {} x {} samples, spacing {spacing} m, vertical scale {scale}; times: median of \
+         {runs} runs, CPU (the process's own) and wall\n",
         hm.width(),
         hm.height()
     );
     println!(
-        "| bound (m) | mesher | triangles | measured max error (m) | build (ms) | triangles / fewest | time / fastest |"
+        "| bound (m) | mesher | triangles | measured max error (m) | CPU (ms) | wall (ms) \
+         | triangles / fewest | CPU / fastest |"
     );
-    println!("|---:|---|---:|---:|---:|---:|---:|");
+    println!("|---:|---|---:|---:|---:|---:|---:|---:|");
     for &bound in &bounds {
         let mut rows = Vec::new();
-        let mut ms = Vec::new();
-        let mut mesh = TriMesh::default();
-        for _ in 0..runs {
-            let t = Instant::now();
-            mesh = delaunay::build(&hm, bound);
-            ms.push(t.elapsed().as_secs_f64() * 1e3);
-        }
+        let (mesh, wall, cpu) = timed(runs, || delaunay::build(&hm, bound));
         rows.push(Ok(Row {
             tool: "ours: greedy Delaunay",
             triangles: mesh.triangles.len(),
             max_error: measured(&hm, &mesh),
-            ms,
+            wall,
+            cpu,
         }));
-        let mut ms = Vec::new();
-        for _ in 0..runs {
-            let t = Instant::now();
-            mesh = RtinErrors::new(&hm).mesh(&hm, bound);
-            ms.push(t.elapsed().as_secs_f64() * 1e3);
-        }
+        let (mesh, wall, cpu) = timed(runs, || RtinErrors::new(&hm).mesh(&hm, bound));
         rows.push(Ok(Row {
             tool: "ours: RTIN (true error)",
             triangles: mesh.triangles.len(),
             max_error: measured(&hm, &mesh),
-            ms,
+            wall,
+            cpu,
         }));
         if have_hmm {
             rows.push(run_hmm(&hm, &hmm, dem, scale, bound, runs, &dir));
         }
         if have_npm {
-            rows.push(run_js(&hm, &script, &dir, "delatin", "delatin (JS)", bound, runs));
-            rows.push(run_js(&hm, &script, &dir, "martini", "martini (JS)", bound, runs));
+            rows.push(run_js(&hm, &script, &dir, ("delatin", "delatin (JS)"), bound, runs));
+            rows.push(run_js(&hm, &script, &dir, ("martini", "martini (JS)"), bound, runs));
         }
         // "Equal maximum error": the meshes that keep the bound (hmm thresholds in f32, so a
         // millimetre of slack) set the fewest triangles and the fastest time.
@@ -253,7 +257,7 @@ fn main() {
         let ok: Vec<&Row> =
             rows.iter().filter_map(|r| r.as_ref().ok()).filter(|r| keeps(r)).collect();
         let fewest = ok.iter().map(|r| r.triangles).min().unwrap_or(1) as f64;
-        let fastest = ok.iter().map(|r| median(&r.ms)).fold(f64::INFINITY, f64::min);
+        let fastest = ok.iter().map(|r| median(&r.cpu)).fold(f64::INFINITY, f64::min);
         for r in &rows {
             match r {
                 Ok(r) => {
@@ -263,15 +267,16 @@ fn main() {
                         Err(e) => format!("not measurable: {e}"),
                     };
                     println!(
-                        "| {bound} | {} | {} | {err} | {:.1} | {:.3} | {:.2} |",
+                        "| {bound} | {} | {} | {err} | {:.0} | {:.0} | {:.3} | {:.2} |",
                         r.tool,
                         r.triangles,
-                        median(&r.ms),
+                        median(&r.cpu),
+                        median(&r.wall),
                         r.triangles as f64 / fewest,
-                        median(&r.ms) / fastest
+                        median(&r.cpu) / fastest
                     );
                 }
-                Err(e) => println!("| {bound} | skipped | | {e} | | | |"),
+                Err(e) => println!("| {bound} | skipped | | {e} | | | | |"),
             }
         }
     }

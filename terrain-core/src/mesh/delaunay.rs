@@ -96,11 +96,10 @@ struct Mesher<'a> {
     coords: Vec<[i64; 2]>,
     /// Vertex heights (f64 of the sample).
     heights: Vec<f64>,
-    /// Three vertex indices per triangle slot, counter-clockwise; half-edge `e` runs from
-    /// `tris[e]` to `tris[next(e)]`.
-    tris: Vec<u32>,
-    /// Twin of each half-edge (`NONE` on the grid's border).
-    twins: Vec<u32>,
+    /// Three half-edges per triangle slot, counter-clockwise: `[vertex, twin]`, half-edge `e`
+    /// running from vertex `he[e][0]` to `he[next(e)][0]`, its twin `NONE` on the grid's
+    /// border (one array: a triangle's vertices and neighbours share a cache line).
+    he: Vec<[u32; 2]>,
     /// Each slot's candidate sample (only meaningful while in the heap).
     cand: Vec<[u32; 2]>,
     /// Position of each slot in `heap` (`NONE`: not there).
@@ -124,8 +123,7 @@ impl<'a> Mesher<'a> {
             lock_border,
             coords: Vec::new(),
             heights: Vec::new(),
-            tris: Vec::new(),
-            twins: Vec::new(),
+            he: Vec::new(),
             cand: Vec::new(),
             heap_pos: Vec::new(),
             heap: Vec::new(),
@@ -153,8 +151,7 @@ impl<'a> Mesher<'a> {
 
     fn new_slot(&mut self) -> u32 {
         let t = self.cand.len() as u32;
-        self.tris.extend([0; 3]);
-        self.twins.extend([NONE; 3]);
+        self.he.extend([[0, NONE]; 3]);
         self.cand.push([0, 0]);
         self.heap_pos.push(NONE);
         self.is_pending.push(false);
@@ -165,11 +162,10 @@ impl<'a> Mesher<'a> {
     /// own links are set too), takes it out of the heap and marks it for scanning.
     fn set_triangle(&mut self, t: u32, v: [u32; 3], tw: [u32; 3]) {
         let e = 3 * t as usize;
-        self.tris[e..e + 3].copy_from_slice(&v);
-        for (k, &twin) in tw.iter().enumerate() {
-            self.twins[e + k] = twin;
+        for (k, (&vk, &twin)) in v.iter().zip(&tw).enumerate() {
+            self.he[e + k] = [vk, twin];
             if twin != NONE {
-                self.twins[twin as usize] = (e + k) as u32;
+                self.he[twin as usize][1] = (e + k) as u32;
             }
         }
         self.heap_remove(t);
@@ -181,7 +177,7 @@ impl<'a> Mesher<'a> {
 
     #[inline]
     fn at(&self, e: u32) -> [i64; 2] {
-        self.coords[self.tris[e as usize] as usize]
+        self.coords[self.he[e as usize][0] as usize]
     }
 
     /// Inserts grid sample `p` inside (or on an edge of) triangle `t`, not at a vertex, and
@@ -197,8 +193,8 @@ impl<'a> Mesher<'a> {
         } else if raster::orient(c, a, p) == 0 {
             self.split_edge(pn, e + 2);
         } else {
-            let [va, vb, vc] = [e, e + 1, e + 2].map(|k| self.tris[k as usize]);
-            let [ha, hb, hc] = [e, e + 1, e + 2].map(|k| self.twins[k as usize]);
+            let [va, vb, vc] = [e, e + 1, e + 2].map(|k| self.he[k as usize][0]);
+            let [ha, hb, hc] = [e, e + 1, e + 2].map(|k| self.he[k as usize][1]);
             let t1 = self.new_slot();
             let t2 = self.new_slot();
             // (a, b, p), (b, c, p), (c, a, p): edge 0 of each is an old edge, opposite p.
@@ -215,9 +211,9 @@ impl<'a> Mesher<'a> {
     fn split_edge(&mut self, pn: u32, e: u32) {
         let t = e / 3;
         let (en, ep) = (next(e), prev(e));
-        let [u, v, x] = [e, en, ep].map(|k| self.tris[k as usize]);
-        let (h_vx, h_xu) = (self.twins[en as usize], self.twins[ep as usize]);
-        let b = self.twins[e as usize];
+        let [u, v, x] = [e, en, ep].map(|k| self.he[k as usize][0]);
+        let (h_vx, h_xu) = (self.he[en as usize][1], self.he[ep as usize][1]);
+        let b = self.he[e as usize][1];
         let t1 = self.new_slot();
         if b == NONE {
             // (x, u, p) and (v, x, p); u-p and p-v lie on the grid's border.
@@ -228,8 +224,8 @@ impl<'a> Mesher<'a> {
         }
         let s = b / 3;
         let (bn, bp) = (next(b), prev(b));
-        let y = self.tris[bp as usize];
-        let (h_uy, h_yv) = (self.twins[bn as usize], self.twins[bp as usize]);
+        let y = self.he[bp as usize][0];
+        let (h_uy, h_yv) = (self.he[bn as usize][1], self.he[bp as usize][1]);
         let t3 = self.new_slot();
         // (x, u, p), (v, x, p), (u, y, p), (y, v, p).
         self.set_triangle(t, [x, u, pn], [h_xu, NONE, NONE]);
@@ -243,17 +239,17 @@ impl<'a> Mesher<'a> {
     /// vertex is flipped when the apex y across it lies inside the circumcircle.
     fn run_legalize(&mut self) {
         while let Some(a) = self.legalize.pop() {
-            let b = self.twins[a as usize];
+            let b = self.he[a as usize][1];
             if b == NONE {
                 continue;
             }
             let (an, ap, bn, bp) = (next(a), prev(a), next(b), prev(b));
-            let [u, v, x, y] = [a, an, ap, bp].map(|k| self.tris[k as usize]);
+            let [u, v, x, y] = [a, an, ap, bp].map(|k| self.he[k as usize][0]);
             let c = |k: u32| self.coords[k as usize];
             if !in_circle(c(u), c(v), c(x), c(y)) {
                 continue;
             }
-            let [h_vx, h_xu, h_uy, h_yv] = [an, ap, bn, bp].map(|k| self.twins[k as usize]);
+            let [h_vx, h_xu, h_uy, h_yv] = [an, ap, bn, bp].map(|k| self.he[k as usize][1]);
             let (s, s2) = (a / 3, b / 3);
             // (x, u, y) and (y, v, x): the new diagonal x-y.
             self.set_triangle(s, [x, u, y], [h_xu, h_uy, NONE]);
@@ -276,7 +272,7 @@ impl<'a> Mesher<'a> {
     /// Finds triangle `t`'s worst sample and queues it when above the bound.
     fn scan(&mut self, t: u32) {
         let e = 3 * t as usize;
-        let vi = [self.tris[e], self.tris[e + 1], self.tris[e + 2]];
+        let vi = [self.he[e][0], self.he[e + 1][0], self.he[e + 2][0]];
         let g = vi.map(|k| self.coords[k as usize]);
         let z = vi.map(|k| self.heights[k as usize]);
         let hm = self.hm;
@@ -368,14 +364,14 @@ impl<'a> Mesher<'a> {
     /// Inserts a seed sample, located by a visibility walk; a sample that is already a
     /// vertex is skipped.
     fn insert_seed(&mut self, p: [i64; 2]) {
-        let triangles = (self.tris.len() / 3) as u32;
+        let triangles = (self.he.len() / 3) as u32;
         let mut t = triangles - 1;
         let mut steps = 0u32;
         'walk: loop {
             let e = 3 * t;
             for k in e..e + 3 {
                 if raster::orient(self.at(k), self.at(next(k)), p) < 0 {
-                    let twin = self.twins[k as usize];
+                    let twin = self.he[k as usize][1];
                     // Outside the hull (cannot happen for a sample of the grid) or a walk
                     // that does not end (cannot happen in a Delaunay triangulation): search.
                     if twin == NONE || steps > triangles {
@@ -417,7 +413,7 @@ impl<'a> Mesher<'a> {
     fn into_mesh(self) -> TriMesh {
         let vertices: Vec<[u32; 2]> =
             self.coords.iter().map(|p| [p[0] as u32, p[1] as u32]).collect();
-        let triangles = self.tris.chunks_exact(3).map(|t| [t[0], t[1], t[2]]).collect();
+        let triangles = self.he.chunks_exact(3).map(|t| [t[0][0], t[1][0], t[2][0]]).collect();
         TriMesh::from_grid(self.hm, &vertices, triangles)
     }
 }
