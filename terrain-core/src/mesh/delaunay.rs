@@ -70,11 +70,12 @@ fn prev(e: u32) -> u32 {
     if e % 3 == 0 { e + 2 } else { e - 1 }
 }
 
-/// A heap entry: a triangle slot and its candidate's error and sample (`j << 32 | i`).
+/// A heap entry (16 bytes): a triangle slot and its candidate's error and sample index
+/// `j * width + i` (below 2^32: [`crate::mesh::validate`] bounds the grid).
 #[derive(Debug, Clone, Copy)]
 struct Entry {
     error: f64,
-    key: u64,
+    key: u32,
     slot: u32,
 }
 
@@ -87,6 +88,23 @@ impl Entry {
     }
 }
 
+/// `Slot::cand` of a triangle waiting to be scanned.
+const PENDING: u32 = u32::MAX;
+
+/// A triangle (32 bytes: what an insertion touches of one triangle is one cache line).
+#[derive(Debug, Clone, Copy)]
+#[repr(C, align(32))]
+struct Slot {
+    /// Its half-edges `3t + k`, counter-clockwise, as `[vertex, twin]`: half-edge `e` runs
+    /// from its vertex to the next one's, its twin `NONE` on the grid's border.
+    he: [[u32; 2]; 3],
+    /// Position in the heap (`NONE`: not there).
+    heap_pos: u32,
+    /// Its candidate's sample index `j * width + i` while in the heap; `PENDING` while
+    /// waiting for a scan.
+    cand: u32,
+}
+
 /// The greedy mesher's state.
 struct Mesher<'a> {
     hm: &'a Heightmap,
@@ -96,20 +114,13 @@ struct Mesher<'a> {
     coords: Vec<[i64; 2]>,
     /// Vertex heights (f64 of the sample).
     heights: Vec<f64>,
-    /// Three half-edges per triangle slot, counter-clockwise: `[vertex, twin]`, half-edge `e`
-    /// running from vertex `he[e][0]` to `he[next(e)][0]`, its twin `NONE` on the grid's
-    /// border (one array: a triangle's vertices and neighbours share a cache line).
-    he: Vec<[u32; 2]>,
-    /// Each slot's candidate sample (only meaningful while in the heap).
-    cand: Vec<[u32; 2]>,
-    /// Position of each slot in `heap` (`NONE`: not there).
-    heap_pos: Vec<u32>,
+    /// The triangles.
+    slots: Vec<Slot>,
     /// Indexed binary max-heap of the slots with a candidate above the bound; the keys live
     /// in the entries, so sifting reads one contiguous array.
     heap: Vec<Entry>,
     /// Slots (re)written by the current insertion, each once, scanned after it.
     pending: Vec<u32>,
-    is_pending: Vec<bool>,
     /// Half-edges waiting for the Delaunay test (a stack: depth first, as recursion).
     legalize: Vec<u32>,
 }
@@ -123,12 +134,9 @@ impl<'a> Mesher<'a> {
             lock_border,
             coords: Vec::new(),
             heights: Vec::new(),
-            he: Vec::new(),
-            cand: Vec::new(),
-            heap_pos: Vec::new(),
+            slots: Vec::new(),
             heap: Vec::new(),
             pending: Vec::new(),
-            is_pending: Vec::new(),
             legalize: Vec::new(),
         };
         for p in [[0, 0], [w - 1, 0], [w - 1, h - 1], [0, h - 1]] {
@@ -150,11 +158,8 @@ impl<'a> Mesher<'a> {
     }
 
     fn new_slot(&mut self) -> u32 {
-        let t = self.cand.len() as u32;
-        self.he.extend([[0, NONE]; 3]);
-        self.cand.push([0, 0]);
-        self.heap_pos.push(NONE);
-        self.is_pending.push(false);
+        let t = self.slots.len() as u32;
+        self.slots.push(Slot { he: [[0, NONE]; 3], heap_pos: NONE, cand: 0 });
         t
     }
 
@@ -163,21 +168,28 @@ impl<'a> Mesher<'a> {
     fn set_triangle(&mut self, t: u32, v: [u32; 3], tw: [u32; 3]) {
         let e = 3 * t as usize;
         for (k, (&vk, &twin)) in v.iter().zip(&tw).enumerate() {
-            self.he[e + k] = [vk, twin];
+            self.slots[t as usize].he[k] = [vk, twin];
             if twin != NONE {
-                self.he[twin as usize][1] = (e + k) as u32;
+                let (s, j) = (twin as usize / 3, twin as usize % 3);
+                self.slots[s].he[j][1] = (e + k) as u32;
             }
         }
         self.heap_remove(t);
-        if !self.is_pending[t as usize] {
-            self.is_pending[t as usize] = true;
+        if self.slots[t as usize].cand != PENDING {
+            self.slots[t as usize].cand = PENDING;
             self.pending.push(t);
         }
     }
 
+    /// Half-edge `e`: `[vertex, twin]`.
+    #[inline]
+    fn he(&self, e: usize) -> [u32; 2] {
+        self.slots[e / 3].he[e % 3]
+    }
+
     #[inline]
     fn at(&self, e: u32) -> [i64; 2] {
-        self.coords[self.he[e as usize][0] as usize]
+        self.coords[self.he(e as usize)[0] as usize]
     }
 
     /// Inserts grid sample `p` inside (or on an edge of) triangle `t`, not at a vertex, and
@@ -193,8 +205,8 @@ impl<'a> Mesher<'a> {
         } else if raster::orient(c, a, p) == 0 {
             self.split_edge(pn, e + 2);
         } else {
-            let [va, vb, vc] = [e, e + 1, e + 2].map(|k| self.he[k as usize][0]);
-            let [ha, hb, hc] = [e, e + 1, e + 2].map(|k| self.he[k as usize][1]);
+            let [va, vb, vc] = [e, e + 1, e + 2].map(|k| self.he(k as usize)[0]);
+            let [ha, hb, hc] = [e, e + 1, e + 2].map(|k| self.he(k as usize)[1]);
             let t1 = self.new_slot();
             let t2 = self.new_slot();
             // (a, b, p), (b, c, p), (c, a, p): edge 0 of each is an old edge, opposite p.
@@ -211,9 +223,9 @@ impl<'a> Mesher<'a> {
     fn split_edge(&mut self, pn: u32, e: u32) {
         let t = e / 3;
         let (en, ep) = (next(e), prev(e));
-        let [u, v, x] = [e, en, ep].map(|k| self.he[k as usize][0]);
-        let (h_vx, h_xu) = (self.he[en as usize][1], self.he[ep as usize][1]);
-        let b = self.he[e as usize][1];
+        let [u, v, x] = [e, en, ep].map(|k| self.he(k as usize)[0]);
+        let (h_vx, h_xu) = (self.he(en as usize)[1], self.he(ep as usize)[1]);
+        let b = self.he(e as usize)[1];
         let t1 = self.new_slot();
         if b == NONE {
             // (x, u, p) and (v, x, p); u-p and p-v lie on the grid's border.
@@ -224,8 +236,8 @@ impl<'a> Mesher<'a> {
         }
         let s = b / 3;
         let (bn, bp) = (next(b), prev(b));
-        let y = self.he[bp as usize][0];
-        let (h_uy, h_yv) = (self.he[bn as usize][1], self.he[bp as usize][1]);
+        let y = self.he(bp as usize)[0];
+        let (h_uy, h_yv) = (self.he(bn as usize)[1], self.he(bp as usize)[1]);
         let t3 = self.new_slot();
         // (x, u, p), (v, x, p), (u, y, p), (y, v, p).
         self.set_triangle(t, [x, u, pn], [h_xu, NONE, NONE]);
@@ -239,17 +251,17 @@ impl<'a> Mesher<'a> {
     /// vertex is flipped when the apex y across it lies inside the circumcircle.
     fn run_legalize(&mut self) {
         while let Some(a) = self.legalize.pop() {
-            let b = self.he[a as usize][1];
+            let b = self.he(a as usize)[1];
             if b == NONE {
                 continue;
             }
             let (an, ap, bn, bp) = (next(a), prev(a), next(b), prev(b));
-            let [u, v, x, y] = [a, an, ap, bp].map(|k| self.he[k as usize][0]);
+            let [u, v, x, y] = [a, an, ap, bp].map(|k| self.he(k as usize)[0]);
             let c = |k: u32| self.coords[k as usize];
             if !in_circle(c(u), c(v), c(x), c(y)) {
                 continue;
             }
-            let [h_vx, h_xu, h_uy, h_yv] = [an, ap, bn, bp].map(|k| self.he[k as usize][1]);
+            let [h_vx, h_xu, h_uy, h_yv] = [an, ap, bn, bp].map(|k| self.he(k as usize)[1]);
             let (s, s2) = (a / 3, b / 3);
             // (x, u, y) and (y, v, x): the new diagonal x-y.
             self.set_triangle(s, [x, u, y], [h_xu, h_uy, NONE]);
@@ -262,7 +274,7 @@ impl<'a> Mesher<'a> {
     fn flush(&mut self) {
         let mut pending = std::mem::take(&mut self.pending);
         for &t in &pending {
-            self.is_pending[t as usize] = false;
+            self.slots[t as usize].cand = 0;
             self.scan(t);
         }
         pending.clear();
@@ -272,7 +284,7 @@ impl<'a> Mesher<'a> {
     /// Finds triangle `t`'s worst sample and queues it when above the bound.
     fn scan(&mut self, t: u32) {
         let e = 3 * t as usize;
-        let vi = [self.he[e][0], self.he[e + 1][0], self.he[e + 2][0]];
+        let vi = [self.he(e)[0], self.he(e + 1)[0], self.he(e + 2)[0]];
         let g = vi.map(|k| self.coords[k as usize]);
         let z = vi.map(|k| self.heights[k as usize]);
         let hm = self.hm;
@@ -280,7 +292,14 @@ impl<'a> Mesher<'a> {
         let voids = hm.voids().any().then(|| hm.voids());
         let lock = self.lock_border;
         let mut best = (self.max_error, None);
-        raster::for_each_sample(g, z, |i, j, zi| {
+        // The sample's error is |z - n / d| (n the interpolation's numerator, exactly as
+        // `verify` computes it). Most samples are far below the running best: they are
+        // dismissed on |z d - n| without a division, with a margin (1e-14 of the magnitudes,
+        // far above the products' rounding) that never dismisses a sample the exact test
+        // would keep; the survivors are decided on the exact value.
+        let df = raster::orient(g[0], g[1], g[2]) as f64;
+        let mut best_d = best.0 * df;
+        raster::for_each_numerator_in(g, z, [i64::MIN, i64::MIN, i64::MAX, i64::MAX], |i, j, n| {
             if lock && (i == 0 || j == 0 || i == w - 1 || j == h - 1) {
                 return;
             }
@@ -288,23 +307,29 @@ impl<'a> Mesher<'a> {
             if voids.is_some_and(|m| m.get(iu, ju)) {
                 return;
             }
-            let e = (f64::from(hm.get(iu, ju)) - zi).abs();
+            let zs = f64::from(hm.get(iu, ju));
+            let zd = zs * df;
+            if (zd - n).abs() + (zd.abs() + n.abs()) * 1e-14 <= best_d {
+                return;
+            }
+            let e = (zs - n / df).abs();
             // A vertex's own sample is never a candidate (its error is rounding alone).
             if e > best.0 && !g.contains(&[i, j]) {
                 best = (e, Some([i as u32, j as u32]));
+                best_d = e * df;
             }
         });
         if let (error, Some(sample)) = best {
-            self.cand[t as usize] = sample;
-            let key = u64::from(sample[1]) << 32 | u64::from(sample[0]);
+            let key = sample[1] * self.hm.width() as u32 + sample[0];
+            self.slots[t as usize].cand = key;
             self.heap_push(Entry { error, key, slot: t });
         }
     }
 
     fn heap_swap(&mut self, i: usize, j: usize) {
         self.heap.swap(i, j);
-        self.heap_pos[self.heap[i].slot as usize] = i as u32;
-        self.heap_pos[self.heap[j].slot as usize] = j as u32;
+        self.slots[self.heap[i].slot as usize].heap_pos = i as u32;
+        self.slots[self.heap[j].slot as usize].heap_pos = j as u32;
     }
 
     fn sift_up(&mut self, mut i: usize) {
@@ -338,13 +363,13 @@ impl<'a> Mesher<'a> {
     }
 
     fn heap_push(&mut self, entry: Entry) {
-        self.heap_pos[entry.slot as usize] = self.heap.len() as u32;
+        self.slots[entry.slot as usize].heap_pos = self.heap.len() as u32;
         self.heap.push(entry);
         self.sift_up(self.heap.len() - 1);
     }
 
     fn heap_remove(&mut self, t: u32) {
-        let i = self.heap_pos[t as usize];
+        let i = self.slots[t as usize].heap_pos;
         if i == NONE {
             return;
         }
@@ -354,7 +379,7 @@ impl<'a> Mesher<'a> {
             self.heap_swap(i, last);
         }
         self.heap.pop();
-        self.heap_pos[t as usize] = NONE;
+        self.slots[t as usize].heap_pos = NONE;
         if i < self.heap.len() {
             self.sift_down(i);
             self.sift_up(i);
@@ -364,14 +389,14 @@ impl<'a> Mesher<'a> {
     /// Inserts a seed sample, located by a visibility walk; a sample that is already a
     /// vertex is skipped.
     fn insert_seed(&mut self, p: [i64; 2]) {
-        let triangles = (self.he.len() / 3) as u32;
+        let triangles = self.slots.len() as u32;
         let mut t = triangles - 1;
         let mut steps = 0u32;
         'walk: loop {
             let e = 3 * t;
             for k in e..e + 3 {
                 if raster::orient(self.at(k), self.at(next(k)), p) < 0 {
-                    let twin = self.he[k as usize][1];
+                    let twin = self.he(k as usize)[1];
                     // Outside the hull (cannot happen for a sample of the grid) or a walk
                     // that does not end (cannot happen in a Delaunay triangulation): search.
                     if twin == NONE || steps > triangles {
@@ -403,8 +428,9 @@ impl<'a> Mesher<'a> {
     /// Inserts candidates until none is above the bound.
     fn run(&mut self) {
         self.flush();
-        while let Some(&Entry { slot: t, .. }) = self.heap.first() {
-            let [i, j] = self.cand[t as usize];
+        let w = self.hm.width() as u32;
+        while let Some(&Entry { slot: t, key, .. }) = self.heap.first() {
+            let (i, j) = (key % w, key / w);
             self.insert(t, [i64::from(i), i64::from(j)]);
             self.flush();
         }
@@ -413,7 +439,7 @@ impl<'a> Mesher<'a> {
     fn into_mesh(self) -> TriMesh {
         let vertices: Vec<[u32; 2]> =
             self.coords.iter().map(|p| [p[0] as u32, p[1] as u32]).collect();
-        let triangles = self.he.chunks_exact(3).map(|t| [t[0][0], t[1][0], t[2][0]]).collect();
+        let triangles = self.slots.iter().map(|t| t.he.map(|h| h[0])).collect();
         TriMesh::from_grid(self.hm, &vertices, triangles)
     }
 }
@@ -421,7 +447,8 @@ impl<'a> Mesher<'a> {
 /// Builds the greedy Delaunay mesh of `hm` within `max_error` of every non-void sample.
 ///
 /// # Panics
-/// On a grid smaller than 2 x 2 or a negative or NaN bound; [`crate::mesh::build`] checks both.
+/// On a grid smaller than 2 x 2 or too large for `u32` indices, or a negative or NaN bound;
+/// [`crate::mesh::build`] checks them.
 pub fn build(hm: &Heightmap, max_error: f64) -> TriMesh {
     build_seeded(hm, max_error, &[], false)
 }
@@ -443,6 +470,10 @@ pub fn build_seeded(
     assert!(max_error >= 0.0, "max_error must be >= 0, got {max_error}");
     let (w, h) = (hm.width(), hm.height());
     assert!(w >= 2 && h >= 2, "a mesh needs at least 2 x 2 samples");
+    assert!(
+        (w as u64) * (h as u64) <= u64::from(u32::MAX),
+        "the grid is too large for u32 indices"
+    );
     let mut m = Mesher::new(hm, max_error, lock_border);
     // Seeds first, without scanning: the scan after the last seed covers every triangle.
     for &[i, j] in seeds {
