@@ -67,7 +67,7 @@ fn next(e: u32) -> u32 {
 /// Previous half-edge of the same triangle.
 #[inline]
 fn prev(e: u32) -> u32 {
-    if e % 3 == 0 { e + 2 } else { e - 1 }
+    if e.is_multiple_of(3) { e + 2 } else { e - 1 }
 }
 
 /// A heap entry (16 bytes): a triangle slot and its candidate's error and sample index
