@@ -5,109 +5,450 @@
 //! with the grid's four corners (two triangles covering the rectangle), then repeatedly insert
 //! the sample with the largest vertical error until no sample's error exceeds the bound.
 //!
+//! - The triangulation is purpose-built for grid samples (the layout of Delatin and hmm): a
+//!   flat array of triangles, three half-edges each (`3t`, `3t + 1`, `3t + 2`) with their
+//!   twins, and slots reused in place when triangles are split or flipped. A candidate is
+//!   always inside the triangle it was found in, so an insertion needs no point location:
+//!   it splits that triangle in three (or the two triangles of an edge the sample lies on)
+//!   and restores the Delaunay property by Lawson flips (G&H §4.2). Predicates are exact on
+//!   the integer grid coordinates (`i64` orientation, `i128` in-circle).
 //! - Each triangle keeps its *candidate*: its worst non-void sample (scan-converted exactly,
-//!   see `raster`) and that sample's error against the triangle's plane.
-//! - Candidates wait in a max-heap. Inserting a point into a Delaunay triangulation (spade:
-//!   locate, split, Lawson flips) only creates triangles incident to the new vertex, so only
-//!   the new vertex's star is scanned again (G&H §5.2). Heap entries of destroyed triangles
-//!   are dropped lazily: an entry is live while its face index still holds the same three
-//!   vertices (a destroyed triangle's circumcircle contains the inserted point forever, so it
-//!   cannot reappear).
+//!   see `raster`, the same interpolation [`super::verify`] measures with) and that sample's
+//!   error against the triangle's plane. Triangles with a candidate above the bound wait in
+//!   an indexed max-heap; a split or flipped triangle leaves it at once, and only the
+//!   triangles an insertion (re)wrote are scanned again, once each (G&H §5.2).
 //! - Cost: each insertion rescans the triangles around the new vertex, whose area shrinks as
 //!   the mesh refines; the heap adds `O(log n)` per candidate. This is G&H's
 //!   `O((m + n) log m)` expected behaviour, not `O(n^2)`.
 //!
+//! spade (a general Delaunay triangulation with point location) was used here before and
+//! stays where input points are scattered (terrain-visibility's entropy quadtree); this path
+//! only ever inserts grid samples into a known triangle, and the purpose-built structure
+//! is several times faster at the same triangles (bench/mesh/README.md).
+//!
 //! [`build_seeded`] starts from given samples besides the corners and may lock the grid's
 //! border (its samples are never inserted by the greedy loop): the TIN pyramids
 //! ([`crate::tin::tile`]) fix each tile's border vertices that way, so neighbours agree.
-//!
-//! Points are inserted in grid coordinates (integers in f64, exact for spade's robust
-//! predicates); world positions are applied when the mesh is assembled.
-
-use std::cmp::Ordering;
-use std::collections::BinaryHeap;
-
-use spade::handles::{FixedFaceHandle, FixedVertexHandle, InnerTag};
-use spade::{DelaunayTriangulation, Point2, Triangulation};
+//! Seeds are located by a visibility walk.
 
 use crate::heightmap::Heightmap;
 use crate::mesh::{TriMesh, raster};
 
-/// A triangle's worst sample.
+/// No half-edge / not in the heap.
+const NONE: u32 = u32::MAX;
+
+/// `true` when `d` is strictly inside the circumcircle of the counter-clockwise triangle
+/// `(a, b, c)` (Guibas & Stolfi's in-circle determinant, exact in `i128`). A coordinate range
+/// too large for exact `i128` arithmetic (sides over about 2^30 samples) counts as "not
+/// inside": the triangulation is then not strictly Delaunay there, but it stays valid and
+/// the error bound, which never depends on the flips, still holds.
+fn in_circle(a: [i64; 2], b: [i64; 2], c: [i64; 2], d: [i64; 2]) -> bool {
+    let f = || -> Option<i128> {
+        let (adx, ady) = (i128::from(a[0] - d[0]), i128::from(a[1] - d[1]));
+        let (bdx, bdy) = (i128::from(b[0] - d[0]), i128::from(b[1] - d[1]));
+        let (cdx, cdy) = (i128::from(c[0] - d[0]), i128::from(c[1] - d[1]));
+        let al = adx.checked_mul(adx)?.checked_add(ady.checked_mul(ady)?)?;
+        let bl = bdx.checked_mul(bdx)?.checked_add(bdy.checked_mul(bdy)?)?;
+        let cl = cdx.checked_mul(cdx)?.checked_add(cdy.checked_mul(cdy)?)?;
+        let t0 = al.checked_mul(bdx.checked_mul(cdy)?.checked_sub(cdx.checked_mul(bdy)?)?)?;
+        let t1 = bl.checked_mul(cdx.checked_mul(ady)?.checked_sub(adx.checked_mul(cdy)?)?)?;
+        let t2 = cl.checked_mul(adx.checked_mul(bdy)?.checked_sub(bdx.checked_mul(ady)?)?)?;
+        t0.checked_add(t1)?.checked_add(t2)
+    };
+    f().is_some_and(|det| det > 0)
+}
+
+/// Next half-edge of the same triangle.
+#[inline]
+fn next(e: u32) -> u32 {
+    if e % 3 == 2 { e - 2 } else { e + 1 }
+}
+
+/// Previous half-edge of the same triangle.
+#[inline]
+fn prev(e: u32) -> u32 {
+    if e.is_multiple_of(3) { e + 2 } else { e - 1 }
+}
+
+/// A heap entry (16 bytes): a triangle slot and its candidate's error and sample index
+/// `j * width + i` (below 2^32: [`crate::mesh::validate`] bounds the grid).
 #[derive(Debug, Clone, Copy)]
-struct Candidate {
+struct Entry {
     error: f64,
-    sample: [u32; 2],
-    face: FixedFaceHandle<InnerTag>,
-    vertices: [usize; 3],
+    key: u32,
+    slot: u32,
 }
 
-impl PartialEq for Candidate {
-    fn eq(&self, other: &Self) -> bool {
-        self.cmp(other) == Ordering::Equal
-    }
-}
-impl Eq for Candidate {}
-impl PartialOrd for Candidate {
-    fn partial_cmp(&self, other: &Self) -> Option<Ordering> {
-        Some(self.cmp(other))
-    }
-}
-impl Ord for Candidate {
-    /// Largest error first; ties broken by position and face so the order is total
-    /// (deterministic meshes).
-    fn cmp(&self, other: &Self) -> Ordering {
-        self.error
-            .total_cmp(&other.error)
-            .then_with(|| other.sample.cmp(&self.sample))
-            .then_with(|| other.face.index().cmp(&self.face.index()))
+impl Entry {
+    /// Heap order: larger error first, then the smaller sample (a total order, so ties
+    /// never depend on the heap's layout).
+    #[inline]
+    fn above(&self, other: &Self) -> bool {
+        self.error > other.error || (self.error == other.error && self.key < other.key)
     }
 }
 
-type Tin = DelaunayTriangulation<Point2<f64>>;
+/// `Slot::cand` of a triangle waiting to be scanned.
+const PENDING: u32 = u32::MAX;
 
-/// Grid coordinates of a vertex (inserted as exact integers).
-fn grid_of(p: Point2<f64>) -> [i64; 2] {
-    [p.x as i64, p.y as i64]
+/// A triangle (32 bytes: what an insertion touches of one triangle is one cache line).
+#[derive(Debug, Clone, Copy)]
+#[repr(C, align(32))]
+struct Slot {
+    /// Its half-edges `3t + k`, counter-clockwise, as `[vertex, twin]`: half-edge `e` runs
+    /// from its vertex to the next one's, its twin `NONE` on the grid's border.
+    he: [[u32; 2]; 3],
+    /// Position in the heap (`NONE`: not there).
+    heap_pos: u32,
+    /// Its candidate's sample index `j * width + i` while in the heap; `PENDING` while
+    /// waiting for a scan.
+    cand: u32,
 }
 
-/// Scans face `face` and returns its candidate if its worst sample exceeds `max_error`
-/// (samples on the grid's border skipped when `lock_border`).
-fn candidate(
-    hm: &Heightmap,
-    tin: &Tin,
-    face: FixedFaceHandle<InnerTag>,
+/// The greedy mesher's state.
+struct Mesher<'a> {
+    hm: &'a Heightmap,
     max_error: f64,
     lock_border: bool,
-) -> Option<Candidate> {
-    let (w, h) = (hm.width() as i64, hm.height() as i64);
-    let f = tin.face(face);
-    let vs = f.vertices();
-    let g = vs.map(|v| grid_of(v.position()));
-    let z = g.map(|p| f64::from(hm.get(p[0] as usize, p[1] as usize)));
-    let voids = hm.voids().any().then(|| hm.voids());
-    let mut best = (max_error, None);
-    raster::for_each_sample(g, z, |i, j, zi| {
-        if lock_border && (i == 0 || j == 0 || i == w - 1 || j == h - 1) {
+    /// Vertex grid coordinates, in insertion order.
+    coords: Vec<[i64; 2]>,
+    /// Vertex heights (f64 of the sample).
+    heights: Vec<f64>,
+    /// The triangles.
+    slots: Vec<Slot>,
+    /// Indexed binary max-heap of the slots with a candidate above the bound; the keys live
+    /// in the entries, so sifting reads one contiguous array.
+    heap: Vec<Entry>,
+    /// Slots (re)written by the current insertion, each once, scanned after it.
+    pending: Vec<u32>,
+    /// Half-edges waiting for the Delaunay test (a stack: depth first, as recursion).
+    legalize: Vec<u32>,
+}
+
+impl<'a> Mesher<'a> {
+    fn new(hm: &'a Heightmap, max_error: f64, lock_border: bool) -> Self {
+        let (w, h) = (hm.width() as i64, hm.height() as i64);
+        let mut m = Self {
+            hm,
+            max_error,
+            lock_border,
+            coords: Vec::new(),
+            heights: Vec::new(),
+            slots: Vec::new(),
+            heap: Vec::new(),
+            pending: Vec::new(),
+            legalize: Vec::new(),
+        };
+        for p in [[0, 0], [w - 1, 0], [w - 1, h - 1], [0, h - 1]] {
+            m.add_vertex(p);
+        }
+        // Two counter-clockwise triangles sharing the diagonal 0-2 (as hmm and Delatin).
+        let t0 = m.new_slot();
+        let t1 = m.new_slot();
+        m.set_triangle(t0, [0, 1, 2], [NONE, NONE, NONE]);
+        m.set_triangle(t1, [0, 2, 3], [3 * t0 + 2, NONE, NONE]);
+        m
+    }
+
+    fn add_vertex(&mut self, p: [i64; 2]) -> u32 {
+        let k = self.coords.len() as u32;
+        self.coords.push(p);
+        self.heights.push(f64::from(self.hm.get(p[0] as usize, p[1] as usize)));
+        k
+    }
+
+    fn new_slot(&mut self) -> u32 {
+        let t = self.slots.len() as u32;
+        self.slots.push(Slot { he: [[0, NONE]; 3], heap_pos: NONE, cand: 0 });
+        t
+    }
+
+    /// Writes triangle `t` (counter-clockwise vertices `v`, half-edge twins `tw`; the twins'
+    /// own links are set too), takes it out of the heap and marks it for scanning.
+    fn set_triangle(&mut self, t: u32, v: [u32; 3], tw: [u32; 3]) {
+        let e = 3 * t as usize;
+        for (k, (&vk, &twin)) in v.iter().zip(&tw).enumerate() {
+            self.slots[t as usize].he[k] = [vk, twin];
+            if twin != NONE {
+                let (s, j) = (twin as usize / 3, twin as usize % 3);
+                self.slots[s].he[j][1] = (e + k) as u32;
+            }
+        }
+        self.heap_remove(t);
+        if self.slots[t as usize].cand != PENDING {
+            self.slots[t as usize].cand = PENDING;
+            self.pending.push(t);
+        }
+    }
+
+    /// Half-edge `e`: `[vertex, twin]`.
+    #[inline]
+    fn he(&self, e: usize) -> [u32; 2] {
+        self.slots[e / 3].he[e % 3]
+    }
+
+    #[inline]
+    fn at(&self, e: u32) -> [i64; 2] {
+        self.coords[self.he(e as usize)[0] as usize]
+    }
+
+    /// Inserts grid sample `p` inside (or on an edge of) triangle `t`, not at a vertex, and
+    /// legalizes; the triangles it wrote wait in `pending` for [`Self::flush`].
+    fn insert(&mut self, t: u32, p: [i64; 2]) {
+        let e = 3 * t;
+        let [a, b, c] = [self.at(e), self.at(e + 1), self.at(e + 2)];
+        let pn = self.add_vertex(p);
+        if raster::orient(a, b, p) == 0 {
+            self.split_edge(pn, e);
+        } else if raster::orient(b, c, p) == 0 {
+            self.split_edge(pn, e + 1);
+        } else if raster::orient(c, a, p) == 0 {
+            self.split_edge(pn, e + 2);
+        } else {
+            let [va, vb, vc] = [e, e + 1, e + 2].map(|k| self.he(k as usize)[0]);
+            let [ha, hb, hc] = [e, e + 1, e + 2].map(|k| self.he(k as usize)[1]);
+            let t1 = self.new_slot();
+            let t2 = self.new_slot();
+            // (a, b, p), (b, c, p), (c, a, p): edge 0 of each is an old edge, opposite p.
+            self.set_triangle(t, [va, vb, pn], [ha, NONE, NONE]);
+            self.set_triangle(t1, [vb, vc, pn], [hb, NONE, 3 * t + 1]);
+            self.set_triangle(t2, [vc, va, pn], [hc, 3 * t + 2, 3 * t1 + 1]);
+            self.legalize.extend([3 * t2, 3 * t1, 3 * t]);
+        }
+        self.run_legalize();
+    }
+
+    /// Splits half-edge `e` (from u to v in triangle (u, v, x)) at the new vertex `pn` on
+    /// it, and its twin's triangle (v, u, y) when there is one.
+    fn split_edge(&mut self, pn: u32, e: u32) {
+        let t = e / 3;
+        let (en, ep) = (next(e), prev(e));
+        let [u, v, x] = [e, en, ep].map(|k| self.he(k as usize)[0]);
+        let (h_vx, h_xu) = (self.he(en as usize)[1], self.he(ep as usize)[1]);
+        let b = self.he(e as usize)[1];
+        let t1 = self.new_slot();
+        if b == NONE {
+            // (x, u, p) and (v, x, p); u-p and p-v lie on the grid's border.
+            self.set_triangle(t, [x, u, pn], [h_xu, NONE, NONE]);
+            self.set_triangle(t1, [v, x, pn], [h_vx, 3 * t + 2, NONE]);
+            self.legalize.extend([3 * t1, 3 * t]);
             return;
         }
-        let (i, j) = (i as usize, j as usize);
-        if voids.is_some_and(|m| m.get(i, j)) {
+        let s = b / 3;
+        let (bn, bp) = (next(b), prev(b));
+        let y = self.he(bp as usize)[0];
+        let (h_uy, h_yv) = (self.he(bn as usize)[1], self.he(bp as usize)[1]);
+        let t3 = self.new_slot();
+        // (x, u, p), (v, x, p), (u, y, p), (y, v, p).
+        self.set_triangle(t, [x, u, pn], [h_xu, NONE, NONE]);
+        self.set_triangle(t1, [v, x, pn], [h_vx, 3 * t + 2, NONE]);
+        self.set_triangle(s, [u, y, pn], [h_uy, NONE, 3 * t + 1]);
+        self.set_triangle(t3, [y, v, pn], [h_yv, 3 * t1 + 2, 3 * s + 1]);
+        self.legalize.extend([3 * t3, 3 * s, 3 * t1, 3 * t]);
+    }
+
+    /// Lawson flips: half-edge `a` (u to v) of a triangle (u, v, p) whose apex p is the new
+    /// vertex is flipped when the apex y across it lies inside the circumcircle.
+    fn run_legalize(&mut self) {
+        while let Some(a) = self.legalize.pop() {
+            let b = self.he(a as usize)[1];
+            if b == NONE {
+                continue;
+            }
+            let (an, ap, bn, bp) = (next(a), prev(a), next(b), prev(b));
+            let [u, v, x, y] = [a, an, ap, bp].map(|k| self.he(k as usize)[0]);
+            let c = |k: u32| self.coords[k as usize];
+            if !in_circle(c(u), c(v), c(x), c(y)) {
+                continue;
+            }
+            let [h_vx, h_xu, h_uy, h_yv] = [an, ap, bn, bp].map(|k| self.he(k as usize)[1]);
+            let (s, s2) = (a / 3, b / 3);
+            // (x, u, y) and (y, v, x): the new diagonal x-y.
+            self.set_triangle(s, [x, u, y], [h_xu, h_uy, NONE]);
+            self.set_triangle(s2, [y, v, x], [h_yv, h_vx, 3 * s + 2]);
+            self.legalize.extend([3 * s2, 3 * s + 1]);
+        }
+    }
+
+    /// Scans every pending triangle and queues those with a sample above the bound.
+    fn flush(&mut self) {
+        let mut pending = std::mem::take(&mut self.pending);
+        for &t in &pending {
+            self.slots[t as usize].cand = 0;
+            self.scan(t);
+        }
+        pending.clear();
+        self.pending = pending;
+    }
+
+    /// Finds triangle `t`'s worst sample and queues it when above the bound.
+    fn scan(&mut self, t: u32) {
+        let e = 3 * t as usize;
+        let vi = [self.he(e)[0], self.he(e + 1)[0], self.he(e + 2)[0]];
+        let g = vi.map(|k| self.coords[k as usize]);
+        let z = vi.map(|k| self.heights[k as usize]);
+        let hm = self.hm;
+        let (w, h) = (hm.width() as i64, hm.height() as i64);
+        let voids = hm.voids().any().then(|| hm.voids());
+        let lock = self.lock_border;
+        let mut best = (self.max_error, None);
+        // The sample's error is |z - n / d| (n the interpolation's numerator, exactly as
+        // `verify` computes it). Most samples are far below the running best: they are
+        // dismissed on |z d - n| without a division, with a margin (1e-14 of the magnitudes,
+        // far above the products' rounding) that never dismisses a sample the exact test
+        // would keep; the survivors are decided on the exact value.
+        let df = raster::orient(g[0], g[1], g[2]) as f64;
+        let mut best_d = best.0 * df;
+        raster::for_each_numerator_in(g, z, [i64::MIN, i64::MIN, i64::MAX, i64::MAX], |i, j, n| {
+            if lock && (i == 0 || j == 0 || i == w - 1 || j == h - 1) {
+                return;
+            }
+            let (iu, ju) = (i as usize, j as usize);
+            if voids.is_some_and(|m| m.get(iu, ju)) {
+                return;
+            }
+            let zs = f64::from(hm.get(iu, ju));
+            let zd = zs * df;
+            if (zd - n).abs() + (zd.abs() + n.abs()) * 1e-14 <= best_d {
+                return;
+            }
+            let e = (zs - n / df).abs();
+            // A vertex's own sample is never a candidate (its error is rounding alone).
+            if e > best.0 && !g.contains(&[i, j]) {
+                best = (e, Some([i as u32, j as u32]));
+                best_d = e * df;
+            }
+        });
+        if let (error, Some(sample)) = best {
+            let key = sample[1] * self.hm.width() as u32 + sample[0];
+            self.slots[t as usize].cand = key;
+            self.heap_push(Entry { error, key, slot: t });
+        }
+    }
+
+    fn heap_swap(&mut self, i: usize, j: usize) {
+        self.heap.swap(i, j);
+        self.slots[self.heap[i].slot as usize].heap_pos = i as u32;
+        self.slots[self.heap[j].slot as usize].heap_pos = j as u32;
+    }
+
+    fn sift_up(&mut self, mut i: usize) {
+        while i > 0 {
+            let parent = (i - 1) / 2;
+            if !self.heap[i].above(&self.heap[parent]) {
+                break;
+            }
+            self.heap_swap(i, parent);
+            i = parent;
+        }
+    }
+
+    fn sift_down(&mut self, mut i: usize) {
+        let n = self.heap.len();
+        loop {
+            let (l, r) = (2 * i + 1, 2 * i + 2);
+            let mut top = i;
+            if l < n && self.heap[l].above(&self.heap[top]) {
+                top = l;
+            }
+            if r < n && self.heap[r].above(&self.heap[top]) {
+                top = r;
+            }
+            if top == i {
+                break;
+            }
+            self.heap_swap(i, top);
+            i = top;
+        }
+    }
+
+    fn heap_push(&mut self, entry: Entry) {
+        self.slots[entry.slot as usize].heap_pos = self.heap.len() as u32;
+        self.heap.push(entry);
+        self.sift_up(self.heap.len() - 1);
+    }
+
+    fn heap_remove(&mut self, t: u32) {
+        let i = self.slots[t as usize].heap_pos;
+        if i == NONE {
             return;
         }
-        let e = (f64::from(hm.get(i, j)) - zi).abs();
-        if e > best.0 {
-            best = (e, Some([i as u32, j as u32]));
+        let i = i as usize;
+        let last = self.heap.len() - 1;
+        if i != last {
+            self.heap_swap(i, last);
         }
-    });
-    let (error, sample) = (best.0, best.1?);
-    Some(Candidate { error, sample, face, vertices: vs.map(|v| v.fix().index()) })
+        self.heap.pop();
+        self.slots[t as usize].heap_pos = NONE;
+        if i < self.heap.len() {
+            self.sift_down(i);
+            self.sift_up(i);
+        }
+    }
+
+    /// Inserts a seed sample, located by a visibility walk; a sample that is already a
+    /// vertex is skipped.
+    fn insert_seed(&mut self, p: [i64; 2]) {
+        let triangles = self.slots.len() as u32;
+        let mut t = triangles - 1;
+        let mut steps = 0u32;
+        'walk: loop {
+            let e = 3 * t;
+            for k in e..e + 3 {
+                if raster::orient(self.at(k), self.at(next(k)), p) < 0 {
+                    let twin = self.he(k as usize)[1];
+                    // Outside the hull (cannot happen for a sample of the grid) or a walk
+                    // that does not end (cannot happen in a Delaunay triangulation): search.
+                    if twin == NONE || steps > triangles {
+                        break 'walk;
+                    }
+                    t = twin / 3;
+                    steps += 1;
+                    continue 'walk;
+                }
+            }
+            return self.insert_located(t, p);
+        }
+        for t in 0..triangles {
+            let e = 3 * t;
+            if (e..e + 3).all(|k| raster::orient(self.at(k), self.at(next(k)), p) >= 0) {
+                return self.insert_located(t, p);
+            }
+        }
+    }
+
+    fn insert_located(&mut self, t: u32, p: [i64; 2]) {
+        let e = 3 * t;
+        if (e..e + 3).any(|k| self.at(k) == p) {
+            return;
+        }
+        self.insert(t, p);
+    }
+
+    /// Inserts candidates until none is above the bound.
+    fn run(&mut self) {
+        self.flush();
+        let w = self.hm.width() as u32;
+        while let Some(&Entry { slot: t, key, .. }) = self.heap.first() {
+            let (i, j) = (key % w, key / w);
+            self.insert(t, [i64::from(i), i64::from(j)]);
+            self.flush();
+        }
+    }
+
+    fn into_mesh(self) -> TriMesh {
+        let vertices: Vec<[u32; 2]> =
+            self.coords.iter().map(|p| [p[0] as u32, p[1] as u32]).collect();
+        let triangles = self.slots.iter().map(|t| t.he.map(|h| h[0])).collect();
+        TriMesh::from_grid(self.hm, &vertices, triangles)
+    }
 }
 
 /// Builds the greedy Delaunay mesh of `hm` within `max_error` of every non-void sample.
 ///
 /// # Panics
-/// On a grid smaller than 2 x 2 or a negative or NaN bound; [`crate::mesh::build`] checks both.
+/// On a grid smaller than 2 x 2 or too large for `u32` indices, or a negative or NaN bound;
+/// [`crate::mesh::build`] checks them.
 pub fn build(hm: &Heightmap, max_error: f64) -> TriMesh {
     build_seeded(hm, max_error, &[], false)
 }
@@ -129,48 +470,19 @@ pub fn build_seeded(
     assert!(max_error >= 0.0, "max_error must be >= 0, got {max_error}");
     let (w, h) = (hm.width(), hm.height());
     assert!(w >= 2 && h >= 2, "a mesh needs at least 2 x 2 samples");
-    let mut tin = Tin::new();
-    let corners =
-        [[0, 0], [w - 1, 0], [w - 1, h - 1], [0, h - 1]].map(|[i, j]| [i as u32, j as u32]);
-    for [i, j] in corners.iter().chain(seeds) {
-        if (*i as usize) < w && (*j as usize) < h {
-            tin.insert(Point2::new(f64::from(*i), f64::from(*j)))
-                .expect("grid coordinates are finite");
+    assert!(
+        (w as u64) * (h as u64) <= u64::from(u32::MAX),
+        "the grid is too large for u32 indices"
+    );
+    let mut m = Mesher::new(hm, max_error, lock_border);
+    // Seeds first, without scanning: the scan after the last seed covers every triangle.
+    for &[i, j] in seeds {
+        if (i as usize) < w && (j as usize) < h {
+            m.insert_seed([i64::from(i), i64::from(j)]);
         }
     }
-    let mut heap = BinaryHeap::new();
-    let faces: Vec<_> = tin.fixed_inner_faces().collect();
-    for f in faces {
-        heap.extend(candidate(hm, &tin, f, max_error, lock_border));
-    }
-    while let Some(c) = heap.pop() {
-        // Entries only exist above the bound; a stale one belongs to a destroyed triangle.
-        if tin.face(c.face).vertices().map(|v| v.fix().index()) != c.vertices {
-            continue;
-        }
-        let p = Point2::new(f64::from(c.sample[0]), f64::from(c.sample[1]));
-        let hint = FixedVertexHandle::from_index(c.vertices[0]);
-        let v = tin.insert_with_hint(p, hint).expect("grid coordinates are finite");
-        let star: Vec<_> = tin
-            .vertex(v)
-            .out_edges()
-            .filter_map(|e| e.face().as_inner())
-            .map(|f| f.fix())
-            .collect();
-        for f in star {
-            heap.extend(candidate(hm, &tin, f, max_error, lock_border));
-        }
-    }
-    let vertices: Vec<[u32; 2]> = tin
-        .vertices()
-        .map(|v| {
-            let g = grid_of(v.position());
-            [g[0] as u32, g[1] as u32]
-        })
-        .collect();
-    let triangles =
-        tin.inner_faces().map(|f| f.vertices().map(|v| v.fix().index() as u32)).collect();
-    TriMesh::from_grid(hm, &vertices, triangles)
+    m.run();
+    m.into_mesh()
 }
 
 #[cfg(test)]
@@ -185,5 +497,120 @@ mod tests {
         let spike = build(&HardCase::Spike.build(), 0.0);
         assert!(spike.triangles.len() <= 24, "{} triangles", spike.triangles.len());
         assert!(spike.positions.iter().any(|p| p.z == f64::from(HardCase::SPIKE_HEIGHT)));
+    }
+
+    use crate::georef::Georef;
+    use crate::heightmap::VoidMask;
+    use crate::mesh::verify;
+
+    /// A rough deterministic surface (no library code in common with the mesher).
+    fn rough(i: usize, j: usize) -> f32 {
+        let (x, y) = (i as f64, j as f64);
+        ((x * 0.37).sin() * 20.0 + (y * 0.23).cos() * 15.0 + (x * y * 0.011).sin() * 9.0) as f32
+    }
+
+    /// Every interior edge is locally Delaunay: the apex across it is not strictly inside the
+    /// circumcircle (the exact determinant, evaluated here on the output mesh).
+    fn assert_delaunay(hm: &Heightmap, m: &TriMesh) {
+        let g: Vec<[i64; 2]> = m
+            .positions
+            .iter()
+            .map(|p| {
+                let q = hm.world_to_grid(p.truncate()).round();
+                [q.x as i64, q.y as i64]
+            })
+            .collect();
+        let mut apex = std::collections::HashMap::new();
+        for t in &m.triangles {
+            for k in 0..3 {
+                apex.insert((t[k], t[(k + 1) % 3]), t[(k + 2) % 3]);
+            }
+        }
+        for (&(u, v), &x) in &apex {
+            if let Some(&y) = apex.get(&(v, u)) {
+                let [a, b, c, d] = [u, v, x, y].map(|k| g[k as usize]);
+                assert!(!in_circle(a, b, c, d), "edge {a:?}-{b:?}: {d:?} inside");
+            }
+        }
+    }
+
+    #[test]
+    fn tiny_flat_and_constant_grids_need_two_triangles_exactly() {
+        let georef = Georef::local(10.0);
+        let tiny =
+            Heightmap::from_fn(2, 2, georef.clone(), |i, j| [3.0, -7.5, 12.25, 0.5][2 * j + i])
+                .unwrap();
+        let constant = Heightmap::from_fn(50, 37, georef, |_, _| 1000.5).unwrap();
+        for hm in [&tiny, &constant] {
+            for bound in [0.0, 1.0, f64::INFINITY] {
+                let m = build(hm, bound);
+                assert_eq!(m.triangles.len(), 2);
+                assert_eq!(verify::check(hm, &m, bound).unwrap().max_error, 0.0);
+            }
+        }
+    }
+
+    #[test]
+    fn voids_holding_nan_are_never_vertices_and_the_bound_holds_around_them() {
+        let (w, h) = (61, 47);
+        let mut voids = VoidMask::new(w, h);
+        let mut data = Vec::new();
+        for j in 0..h {
+            for i in 0..w {
+                // A void disc and a void stripe touching the south border, holding NaN.
+                let void =
+                    (i as i64 - 30).pow(2) + (j as i64 - 20).pow(2) < 64 || (i == 7 && j < 12);
+                voids.set(i, j, void);
+                data.push(if void { f32::NAN } else { rough(i, j) });
+            }
+        }
+        let hm = Heightmap::new(w, h, data, voids, Georef::local(5.0)).unwrap();
+        for bound in [0.0, 0.5, 4.0] {
+            let m = build(&hm, bound);
+            let stats = verify::check(&hm, &m, bound).unwrap();
+            assert!(stats.max_error <= bound, "{bound}: {}", stats.max_error);
+            assert!(m.positions.iter().all(|p| p.z.is_finite()), "a void sample became a vertex");
+            assert_delaunay(&hm, &m);
+        }
+        // Negative control: the same grid without the voids needs the disc's samples.
+        let filled = Heightmap::from_fn(w, h, Georef::local(5.0), rough).unwrap();
+        assert!(build(&filled, 0.5).triangles.len() > build(&hm, 0.5).triangles.len());
+    }
+
+    #[test]
+    fn meshes_are_deterministic_delaunay_and_seeds_lock_the_border() {
+        let hm = Heightmap::from_fn(97, 65, Georef::local(2.0), rough).unwrap();
+        let seeds = [[40, 0], [96, 30], [0, 20], [10, 64], [96, 30], [33, 33], [500, 3]];
+        for bound in [0.25, 2.0] {
+            let a = build_seeded(&hm, bound, &seeds, true);
+            assert_eq!(a, build_seeded(&hm, bound, &seeds, true), "not deterministic at {bound}");
+            assert_eq!(build(&hm, bound), build(&hm, bound));
+            assert_delaunay(&hm, &a);
+            assert_delaunay(&hm, &build(&hm, bound));
+            // The border's vertices are the corners and the in-grid border seeds, nothing else.
+            let mut border: Vec<[i64; 2]> = a
+                .positions
+                .iter()
+                .map(|p| [(p.x / 2.0).round() as i64, (p.y / 2.0).round() as i64])
+                .filter(|&[i, j]| i == 0 || j == 0 || i == 96 || j == 64)
+                .collect();
+            border.sort_unstable();
+            let want = [[0, 0], [0, 20], [0, 64], [10, 64], [40, 0], [96, 0], [96, 30], [96, 64]];
+            assert_eq!(border, want, "at {bound}");
+            assert!(a.positions.iter().any(|p| p.x == 66.0 && p.y == 66.0), "interior seed");
+            // The interior keeps the bound (the border is the seeds' business).
+            let stats = verify::measure(&hm, &a).unwrap();
+            let unlocked = verify::check(&hm, &build(&hm, bound), bound).unwrap();
+            assert!(unlocked.max_error <= bound);
+            assert!(stats.samples == unlocked.samples);
+        }
+    }
+
+    #[test]
+    fn in_circle_is_exact_on_cocircular_grid_points() {
+        // The unit square's corners are cocircular: neither inside.
+        assert!(!in_circle([0, 0], [1, 0], [1, 1], [0, 1]));
+        assert!(in_circle([0, 0], [2, 0], [2, 2], [1, 1]));
+        assert!(!in_circle([0, 0], [2, 0], [2, 2], [5, 5]));
     }
 }

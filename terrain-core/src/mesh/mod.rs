@@ -8,8 +8,8 @@
 //!   maximum error of each triangle made monotone, so the mesh is crack-free and the bound
 //!   holds. Fast; more triangles.
 //! - [`delaunay`]: greedy insertion into a Delaunay triangulation (Garland & Heckbert 1995,
-//!   "Fast polygonal approximation of terrains and height fields", as in hmm / Delatin) with
-//!   spade. Fewest triangles.
+//!   "Fast polygonal approximation of terrains and height fields", as in hmm / Delatin) into
+//!   a purpose-built half-edge triangulation. Fewest triangles.
 //!
 //! [`verify`] measures a mesh against every non-void sample (max and RMS error) and refuses a
 //! mesh that breaks the bound.

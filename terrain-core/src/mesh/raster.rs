@@ -42,11 +42,24 @@ pub(crate) fn for_each_sample_in(
     clip: [i64; 4],
     mut f: impl FnMut(i64, i64, f64),
 ) {
+    let df = orient(v[0], v[1], v[2]) as f64;
+    for_each_numerator_in(v, z, clip, |x, y, num| f(x, y, num / df));
+}
+
+/// [`for_each_sample_in`] without the final division: calls `f(i, j, n)` where the height
+/// there is `n / d` exactly as [`for_each_sample`] computes it, `d = orient(v) as f64`. A
+/// caller that only compares against a threshold can skip most divisions (the greedy
+/// mesher's scan) and still decide on the identical value.
+pub(crate) fn for_each_numerator_in(
+    v: [[i64; 2]; 3],
+    z: [f64; 3],
+    clip: [i64; 4],
+    mut f: impl FnMut(i64, i64, f64),
+) {
     let d = orient(v[0], v[1], v[2]);
     if d <= 0 {
         return;
     }
-    let df = d as f64;
     let y0 = v[0][1].min(v[1][1]).min(v[2][1]).max(clip[1]);
     let y1 = v[0][1].max(v[1][1]).max(v[2][1]).min(clip[3]);
     let x0 = v[0][0].min(v[1][0]).min(v[2][0]).max(clip[0]);
@@ -68,13 +81,22 @@ pub(crate) fn for_each_sample_in(
                 hi = lo - 1; // a horizontal edge with the row on its outer side
             }
         }
+        if lo > hi {
+            continue;
+        }
+        // Barycentric weights times d, exact: w0 for v[0] is the area opposite it. They are
+        // evaluated at the row's first sample and then stepped along the row by their exact
+        // integer x-derivatives (orient(p, q, s) changes by p.y - q.y per unit of s.x), so
+        // every weight equals the determinant evaluated at the sample, bit for bit.
+        let s = [lo, y];
+        let (mut w0, mut w1, mut w2) =
+            (orient(v[1], v[2], s), orient(v[2], v[0], s), orient(v[0], v[1], s));
+        let (d0, d1, d2) = (v[1][1] - v[2][1], v[2][1] - v[0][1], v[0][1] - v[1][1]);
         for x in lo..=hi {
-            let s = [x, y];
-            // Barycentric weights times d, exact: w0 for v[0] is the area opposite it.
-            let w0 = orient(v[1], v[2], s) as f64;
-            let w1 = orient(v[2], v[0], s) as f64;
-            let w2 = orient(v[0], v[1], s) as f64;
-            f(x, y, (w0 * z[0] + w1 * z[1] + w2 * z[2]) / df);
+            f(x, y, w0 as f64 * z[0] + w1 as f64 * z[1] + w2 as f64 * z[2]);
+            w0 += d0;
+            w1 += d1;
+            w2 += d2;
         }
     }
 }
