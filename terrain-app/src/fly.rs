@@ -278,11 +278,13 @@ pub(crate) fn run(args: &FlyArgs) -> anyhow::Result<()> {
     let input = match store {
         Some(dir) => Input::Store(
             dir,
+            // The flight's frames come at its own rate: Eq. 8's `f`.
             OocConfig {
                 vertical_scale: args.source.store_exaggeration()?,
                 calibration: method_config.ooc.calibration,
                 ..args.store.config(method_config.ooc.tau)?
-            },
+            }
+            .for_flight(spec.fps),
         ),
         None => Input::Dem(match args.source.load_surface()? {
             Some(dem) => dem.heightmap,

@@ -92,6 +92,11 @@ pub struct OocConfig {
     /// refinement; `None` (the default): the shared calibration. `tau` itself is not changed
     /// by it.
     pub calibration: Option<crate::ooc_calibration::Calibration>,
+    /// The frame rate `f` of Eq. 8 the streamer's preloading assumes
+    /// ([`ScheduleConfig::frame_rate_hz`]: the latency-aware look-ahead adds `latency x f`
+    /// frames). Default 60 (the interactive viewer); where a flight is played (`terrain
+    /// bench`, `render --flight`, `fly`) the flight's own rate ([`OocConfig::for_flight`]).
+    pub frame_rate_hz: f64,
 }
 
 /// Frames the streamer preloads ahead (Eq. 8's `S` times this). The paper's Eq. 8 looks one
@@ -103,6 +108,12 @@ pub struct OocConfig {
 pub const LOOKAHEAD_FRAMES: f64 = 2.0;
 
 impl OocConfig {
+    /// This configuration for playing a flight of `fps` frames a second: Eq. 8's frame rate
+    /// ([`OocConfig::frame_rate_hz`]) is the flight's.
+    pub fn for_flight(self, fps: f64) -> Self {
+        Self { frame_rate_hz: fps, ..self }
+    }
+
     /// The selection's refinement ([`OocConfig::patch_cells`], [`OocConfig::split`]), shared
     /// by the tree and the streamer's needed levels.
     pub fn refinement(&self) -> Refinement {
@@ -131,6 +142,7 @@ impl Default for OocConfig {
             cost_split_px: DEFAULT_COST_SPLIT_PX,
             view_angle_floor: terrain_core::metrics::screen::MIN_VIEW_SIN,
             calibration: None,
+            frame_rate_hz: 60.0,
         }
     }
 }
@@ -471,6 +483,7 @@ impl OocScene {
             max_in_flight: config.max_in_flight,
             schedule: ScheduleConfig {
                 lookahead_frames: LOOKAHEAD_FRAMES,
+                frame_rate_hz: config.frame_rate_hz,
                 ..ScheduleConfig::default()
             },
             ..StreamConfig::default()

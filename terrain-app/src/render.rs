@@ -523,20 +523,25 @@ fn run_store(
     }
     let tau = method_config.ooc.tau;
     let cache_mib = args.store.cache_mib();
-    let config = ooc::OocConfig {
+    let flight = args.flight.as_ref().map(terrain_core::flight::FlightSpec::load).transpose()?;
+    let mut config = ooc::OocConfig {
         vertical_scale: args.source.store_exaggeration()?,
         calibration: method_config.ooc.calibration,
         ..args.store.config(tau)?
     };
+    // A flight's frames come at its own rate: Eq. 8's `f`.
+    if let Some(flight) = &flight {
+        config = config.for_flight(flight.fps);
+    }
     let scene = open_store(dir, config)?;
-    let cameras: Vec<Camera> = match &args.flight {
+    let cameras: Vec<Camera> = match &flight {
         None => {
             let camera = store_camera(&scene, dir, spec, (width, height), args.eye.fov)?;
             vec![camera; args.frames.unwrap_or(1).max(1) as usize]
         }
-        Some(path) => {
-            let spec = terrain_core::flight::FlightSpec::load(path)?;
-            store_flight(&scene, dir, &spec, (width, height), args.max_frames.unwrap_or(0))?.cameras
+        Some(flight) => {
+            let size = (width, height);
+            store_flight(&scene, dir, flight, size, args.max_frames.unwrap_or(0))?.cameras
         }
     };
     let texture = args.texture.as_ref().map(load_texture).transpose()?;

@@ -723,3 +723,22 @@ fn patches_spanning_blocks_draw_no_cracks() {
     assert!(spanning > 0, "no patch spanned blocks");
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// Eq. 8's frame rate `f` reaches the streamer: 60 Hz by default (the interactive viewer),
+/// the flight's own rate where a flight is played (`OocConfig::for_flight`, as `terrain
+/// bench`, `render --flight` and `fly` configure it): `fast_pass` is recorded at 30 fps.
+#[test]
+fn eq8_frame_rate_is_the_flights() {
+    let hm = Heightmap::from_fn(65, 65, Georef::local(10.0), |i, j| (i * j % 17) as f32).unwrap();
+    let dir = scratch("ooc", "frame-rate");
+    let store = bake_f32(&hm, &dir.join("store"));
+    let rate = |config: OocConfig| {
+        OocScene::new(store.clone(), config).streamer().config().schedule.frame_rate_hz
+    };
+    assert_eq!(rate(OocConfig::default()), 60.0);
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../flights/fast_pass.json");
+    let flight = terrain_core::flight::FlightSpec::load(&path).unwrap();
+    assert_eq!(flight.fps, 30.0);
+    assert_eq!(rate(OocConfig::default().for_flight(flight.fps)), 30.0);
+    let _ = std::fs::remove_dir_all(dir);
+}

@@ -5,8 +5,9 @@
 //! worker thread, one block's samples, its static-error pyramid and its payloads. Nothing of
 //! the whole grid is allocated, so a 32769^2 float grid (4 GiB) bakes in a few hundred MiB.
 //! With [`BakeConfig::geomip_patch_cells`], geomorph's table is computed from each band beside
-//! its blocks (one more copy of the band, as a heightmap) and held until the end: 40 bytes per
-//! 16-cell patch (168 MB at 32769^2, 10.5 MB at 8193^2).
+//! its blocks (one more copy of the band, as a heightmap) and written into the store's
+//! [`GEOMIP_FILE`] as the pass goes (`GeomipOut`), so it is never held whole (it is 40 bytes
+//! per 16-cell patch: 168 MB at 32769^2): memory holds one band's table.
 
 use std::fs;
 use std::io::{Seek, SeekFrom, Write};
@@ -18,8 +19,8 @@ use rayon::prelude::*;
 use terrain_core::dem::{Format, LoadOptions, RawSampleType, RowReader, SourceInfo};
 use terrain_core::georef::Georef;
 use terrain_core::heightmap::{Heightmap, VoidMask};
-use terrain_core::lod::GeomipTable;
 use terrain_core::lod::dss_file::HeightsChecksum;
+use terrain_core::lod::{GeomipEncoder, GeomipTable};
 use terrain_core::metrics::Region;
 use terrain_core::metrics::dss::object_errors;
 use terrain_core::metrics::static_error::StaticErrorPyramid;
@@ -429,17 +430,17 @@ impl Plan {
 /// Blocks baked for some rows of the block grid: their entries (row-major) and what their
 /// encoding measured. The header's `bake_id` is 0 and its error fields are these rows' own:
 /// [`finish`] sets them for the whole store.
-#[derive(Debug, Clone)]
+#[derive(Debug)]
 pub(crate) struct BakedRows {
     pub header: Header,
     pub entries: Vec<BlockEntry>,
     pub lossless: bool,
     /// The error bound the encoding promised (`HeightEncoding::Bounded`), metres.
     pub bound: Option<f64>,
-    /// Geomorph's table of these rows ([`Plan::geomip`]): the tables of the rows' bands as
-    /// grids of their own (stacked by `GeomipTable::stack`) and the checksum of the rows'
-    /// source heights, each row once (a shared top row belongs to the rows above).
-    pub geomip: Option<(Vec<GeomipTable>, HeightsChecksum)>,
+    /// Geomorph's table of these rows ([`Plan::geomip`]): the file its bands' tables are
+    /// written into as they are computed, and the checksum of the rows' source heights, each
+    /// row once (a shared top row belongs to the rows above).
+    pub geomip: Option<(GeomipOut, HeightsChecksum)>,
 }
 
 /// Bakes block rows `rows` (a range of `0..plan.blocks_y`) of `source` into `dir/blocks`, their
@@ -463,7 +464,7 @@ pub(crate) fn bake_rows(
     let (mut max_err, mut max_void_err, mut lossless) = (0f64, 0f64, true);
     let mut prog =
         BakeProgress { blocks_done: 0, blocks_total: total, rows_read: 0, bytes_written: 0 };
-    let mut geomip = patch.map(|_| (Vec::new(), HeightsChecksum::new()));
+    let mut geomip = patch.map(|_| (GeomipOut::new(dir), HeightsChecksum::new()));
     for by in rows {
         let j0 = by * cells;
         let rows = (h - j0).min(side as u64) as usize;
@@ -497,13 +498,15 @@ pub(crate) fn bake_rows(
         // A band with no valid sample has no heightmap: then the table is left to the caller.
         let table = match table.transpose()? {
             Some(None) => {
-                geomip = None;
+                if let Some((out, _)) = geomip.take() {
+                    out.abandon()?;
+                }
                 None
             }
             t => t.flatten(),
         };
-        if let (Some((tables, sum)), Some(table)) = (geomip.as_mut(), table) {
-            tables.push(table);
+        if let (Some((out, sum)), Some(table)) = (geomip.as_mut(), table) {
+            out.push(&table)?;
             // Every row once: the band's top row is the next band's first.
             let own = if j0 + rows as u64 >= h { rows } else { rows - 1 };
             for j in 0..own {
@@ -577,14 +580,79 @@ fn band_geomip(
     Ok(Some(GeomipTable::new_with(&hm, patch_cells, map)))
 }
 
-/// Geomorph's table of the whole grid from the bands' tables, as the bytes of its file.
-pub(crate) fn stack_geomip(
-    tables: Vec<GeomipTable>,
-    heights: &HeightsChecksum,
-) -> Result<Vec<u8>, BakeError> {
-    let table = GeomipTable::stack(tables)
-        .map_err(|e| BakeError::Encoding(format!("geomorph's table: {e}")))?;
-    Ok(table.encode_for(heights.finish()))
+/// Geomorph's table written into `dir/`[`GEOMIP_FILE`] band by band as it is computed
+/// (terrain-core's `GeomipEncoder`): the file is created at the first band with its header's
+/// bytes reserved, each band's entries are appended, and [`GeomipOut::finish`] writes the
+/// header (which needs the checksum of every row's heights) and the CRC-32. Memory holds one
+/// band's entries, whatever the grid's size; the file is the bytes of `GeomipTable::encode_for`
+/// of the whole grid's table.
+#[derive(Debug)]
+pub(crate) struct GeomipOut {
+    path: PathBuf,
+    file: Option<fs::File>,
+    encoder: GeomipEncoder,
+    /// One band's entries, reused.
+    buf: Vec<u8>,
+}
+
+impl GeomipOut {
+    /// A table to be written into `dir` (nothing is written before the first band).
+    pub(crate) fn new(dir: &Path) -> Self {
+        Self {
+            path: dir.join(GEOMIP_FILE),
+            file: None,
+            encoder: GeomipEncoder::new(),
+            buf: Vec::new(),
+        }
+    }
+
+    /// Appends the next band's table (rows of the grid as a grid of their own, south first,
+    /// as `GeomipTable::stack` takes them).
+    pub(crate) fn push(&mut self, band: &GeomipTable) -> Result<(), BakeError> {
+        self.buf.clear();
+        self.encoder
+            .push(band, &mut self.buf)
+            .map_err(|e| BakeError::Encoding(format!("geomorph's table: {e}")))?;
+        let file = match &mut self.file {
+            Some(f) => f,
+            None => {
+                let mut f = fs::File::create(&self.path).map_err(io_err(&self.path))?;
+                f.write_all(&[0; GeomipEncoder::HEADER_LEN]).map_err(io_err(&self.path))?;
+                self.file.insert(f)
+            }
+        };
+        file.write_all(&self.buf).map_err(io_err(&self.path))
+    }
+
+    /// Completes the file, tied to heights whose checksum is `heights_crc`: its length, or
+    /// `None` (and no file) when no band was pushed.
+    pub(crate) fn finish(self, heights_crc: u32) -> Result<Option<u64>, BakeError> {
+        let Some(mut file) = self.file else {
+            return Ok(None);
+        };
+        let (header, crc) = self
+            .encoder
+            .finish(heights_crc)
+            .map_err(|e| BakeError::Encoding(format!("geomorph's table: {e}")))?;
+        let path = &self.path;
+        file.write_all(&crc).map_err(io_err(path))?;
+        let len = file.stream_position().map_err(io_err(path))?;
+        file.seek(SeekFrom::Start(0)).map_err(io_err(path))?;
+        file.write_all(&header).map_err(io_err(path))?;
+        Ok(Some(len))
+    }
+
+    /// Drops the table and removes what was written of it (a band without a valid sample has
+    /// no table: the table is then left to the caller).
+    pub(crate) fn abandon(self) -> Result<(), BakeError> {
+        match self.file {
+            Some(file) => {
+                drop(file);
+                fs::remove_file(&self.path).map_err(io_err(&self.path))
+            }
+            None => Ok(()),
+        }
+    }
 }
 
 /// Completes a store in `dir` whose block files (bake id 0) and entries, every row of the
@@ -615,12 +683,7 @@ pub(crate) fn finish(
     header.bake_id = id;
     header.error_bound_m = bound.unwrap_or(if lossless { 0.0 } else { header.max_error_m });
     let geomip_bytes = match geomip {
-        Some((tables, heights)) => {
-            let bytes = stack_geomip(tables, &heights)?;
-            let path = dir.join(GEOMIP_FILE);
-            fs::write(&path, &bytes).map_err(io_err(&path))?;
-            Some(bytes.len() as u64)
-        }
+        Some((out, heights)) => out.finish(heights.finish())?,
         None => None,
     };
     let index = write_index(&header, &entries);

@@ -30,7 +30,8 @@ use terrain_core::lod::dss_file::{HEIGHTS_CHECKSUM_BYTES, HeightsChecksum};
 use terrain_core::lod::geomip_file::GeomipFor;
 
 use crate::bake::{
-    BakeConfig, BakeProgress, BakeReport, BakedRows, GEOMIP_FILE, Plan, bake_rows, publish,
+    BakeConfig, BakeProgress, BakeReport, BakedRows, GEOMIP_FILE, GeomipOut, Plan, bake_rows,
+    publish,
 };
 use crate::error::BakeError;
 use crate::format::{
@@ -174,12 +175,8 @@ pub fn bake_shard(
         let blocks = baked.entries.len();
         // Geomorph's table of the shard's rows, as a grid of their own.
         let geomip = match (baked.geomip.take(), plan.geomip) {
-            (Some((tables, heights)), Some(p)) => {
-                if !tables.is_empty() {
-                    let bytes = crate::bake::stack_geomip(tables, &HeightsChecksum::new())?;
-                    let path = tmp.join(GEOMIP_FILE);
-                    fs::write(&path, bytes).map_err(|cause| BakeError::Io { path, cause })?;
-                }
+            (Some((out, heights)), Some(p)) => {
+                out.finish(HeightsChecksum::new().finish())?;
                 Some((p, heights))
             }
             _ => None,
@@ -386,7 +383,7 @@ pub fn merge(
             entries: Vec::with_capacity(total),
             lossless: true,
             bound: first.bound,
-            geomip: geomip_of(&infos)?,
+            geomip: geomip_of(&infos, tmp)?,
         };
         for part in &infos {
             copy_blocks(part, tmp)?;
@@ -406,16 +403,22 @@ pub fn merge(
     })
 }
 
-/// Geomorph's table of the whole grid from the parts (sorted by shard): each part's table of
-/// its rows and the checksum of its rows' heights, joined; `None` unless every part has them
-/// (a part whose rows had a band without a valid sample has none, and then neither has the
-/// single bake).
-fn geomip_of(infos: &[PartInfo]) -> Result<Option<(Vec<GeomipTable>, HeightsChecksum)>, BakeError> {
-    let mut tables = Vec::new();
+/// Geomorph's table of the whole grid from the parts (sorted by shard), written into `dir`
+/// part by part (one part's table in memory at a time): each part's table of its rows and
+/// the checksum of its rows' heights, joined; `None` unless every part has them (a part whose
+/// rows had a band without a valid sample has none, and then neither has the single bake).
+fn geomip_of(
+    infos: &[PartInfo],
+    dir: &Path,
+) -> Result<Option<(GeomipOut, HeightsChecksum)>, BakeError> {
+    if infos.iter().any(|part| part.geomip.is_none()) {
+        return Ok(None);
+    }
+    let mut out = GeomipOut::new(dir);
     let mut heights = HeightsChecksum::new();
     for part in infos {
         let Some((p, sum)) = &part.geomip else {
-            return Ok(None);
+            continue;
         };
         heights.append(sum);
         if part.rows.is_empty() {
@@ -435,9 +438,9 @@ fn geomip_of(infos: &[PartInfo]) -> Result<Option<(Vec<GeomipTable>, HeightsChec
         };
         let table = GeomipTable::decode(&bytes, &want)
             .map_err(|e| bad(format!("{GEOMIP_FILE}: {e}; bake shard {} again", part.shard)))?;
-        tables.push(table);
+        out.push(&table)?;
     }
-    Ok(Some((tables, heights)))
+    Ok(Some((out, heights)))
 }
 
 /// Checks that `infos` are every shard of one bake, once, and sorts them by shard.

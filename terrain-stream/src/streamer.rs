@@ -81,6 +81,8 @@ pub struct StreamConfig {
     /// and with 2 workers and 50 ms a request the stream moved at most 40 requests a second;
     /// 256 workers fetched 4.5-5x what 32 did on `fast_pass` over nginx + 50 ms
     /// (bench/remote/README.md). They wait, not compute: the decoding is the same work.
+    /// This is the most workers the runtime runs: they are started as the requests in flight
+    /// need them ([`Streamer::threads_started`]), so a few frames start a few threads.
     pub threads: usize,
     /// The scheduler's `L`, frame rate and look-ahead (Eq. 8).
     pub schedule: ScheduleConfig,
@@ -278,9 +280,16 @@ impl Streamer {
         self.regions.as_ref()
     }
 
-    /// Number of worker threads.
+    /// The most worker threads the runtime runs ([`StreamConfig::threads`] resolved).
     pub fn threads(&self) -> usize {
-        self.pool.threads()
+        self.pool.max_threads()
+    }
+
+    /// Worker threads started so far: one more whenever the requests in flight outnumber the
+    /// workers, up to [`Streamer::threads`] (at most the largest number of requests that were
+    /// in flight at once).
+    pub fn threads_started(&self) -> usize {
+        self.pool.threads_started()
     }
 
     /// Requests queued or being loaded.
@@ -290,7 +299,7 @@ impl Streamer {
 
     fn max_in_flight(&self) -> usize {
         if self.config.max_in_flight == 0 {
-            1024 * self.pool.threads()
+            1024 * self.pool.max_threads()
         } else {
             self.config.max_in_flight
         }

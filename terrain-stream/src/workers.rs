@@ -20,6 +20,13 @@
 //! frame does not do (measuring a frame's error, drawing it on a software renderer), so that
 //! work does not give the workers time the flight would not have ([`crate::Streamer::hold_io`]).
 //!
+//! **Threads started with the demand.** The pool is given the most workers it may run and
+//! starts them as requests arrive: one more whenever the requests in flight outnumber the
+//! workers started, up to that limit. A worker blocks on its request (a range request to a
+//! remote store takes one round trip), so the workers are the requests in the air; a flight
+//! that keeps a few requests in flight starts a few threads, not the limit (256 for a remote
+//! store). Workers started stay until the pool is dropped.
+//!
 //! **Shutdown:** dropping the [`WorkerPool`] closes the request channel; each worker finishes
 //! the level it is on (results are dropped if nobody receives them) and exits; the pool joins
 //! every thread before returning.
@@ -122,6 +129,11 @@ pub(crate) struct LoadResult {
 pub(crate) struct WorkerPool {
     requests: Option<Sender<LoadRequest>>,
     results: Receiver<LoadResult>,
+    /// What a worker started later is given: the request queue, the results' sender, the
+    /// reader.
+    spawn: Spawn,
+    /// The most workers the pool starts.
+    max_threads: usize,
     in_flight: usize,
     /// Per block with a request in flight (the streamer keeps at most one per block), the
     /// decoded bytes of its levels not received yet.
@@ -131,6 +143,14 @@ pub(crate) struct WorkerPool {
     threads: Vec<JoinHandle<()>>,
     /// The hold gate the workers pass before each read.
     gate: Arc<Gate>,
+}
+
+/// What each worker thread is started with.
+#[derive(Debug)]
+struct Spawn {
+    requests: Receiver<LoadRequest>,
+    results: Sender<LoadResult>,
+    reader: Arc<dyn LevelReader>,
 }
 
 /// The workers' hold gate: closed (held) or open.
@@ -164,35 +184,39 @@ fn level_bytes(level: u8) -> u64 {
 }
 
 impl WorkerPool {
-    /// Spawns `threads` workers (0 = one per available core, at least 1).
+    /// A pool of at most `threads` workers (0 = one per available core, at least 1), started
+    /// as the requests in flight need them (none before the first request).
     pub(crate) fn spawn(reader: Arc<dyn LevelReader>, threads: usize) -> Self {
-        let n = if threads == 0 {
+        let max_threads = if threads == 0 {
             std::thread::available_parallelism().map_or(1, |n| n.get())
         } else {
             threads
         };
         let (req_tx, req_rx) = unbounded::<LoadRequest>();
         let (res_tx, res_rx) = unbounded::<LoadResult>();
-        let gate = Arc::new(Gate::default());
-        let threads = (0..n)
-            .map(|t| {
-                let (rx, tx, reader) = (req_rx.clone(), res_tx.clone(), reader.clone());
-                let gate = gate.clone();
-                std::thread::Builder::new()
-                    .name(format!("terrain-stream-{t}"))
-                    .spawn(move || worker(&*reader, &gate, &rx, &tx))
-                    .expect("the OS can spawn a worker thread")
-            })
-            .collect();
         Self {
             requests: Some(req_tx),
             results: res_rx,
+            spawn: Spawn { requests: req_rx, results: res_tx, reader },
+            max_threads,
             in_flight: 0,
             pending: HashMap::new(),
             queued_bytes: 0,
-            threads,
-            gate,
+            threads: Vec::new(),
+            gate: Arc::new(Gate::default()),
         }
+    }
+
+    /// Starts one more worker.
+    fn start_worker(&mut self) {
+        let t = self.threads.len();
+        let (rx, tx) = (self.spawn.requests.clone(), self.spawn.results.clone());
+        let (reader, gate) = (self.spawn.reader.clone(), self.gate.clone());
+        let handle = std::thread::Builder::new()
+            .name(format!("terrain-stream-{t}"))
+            .spawn(move || worker(&*reader, &gate, &rx, &tx))
+            .expect("the OS can spawn a worker thread");
+        self.threads.push(handle);
     }
 
     /// Holds the workers (`true`: no read starts until released) or releases them.
@@ -205,8 +229,14 @@ impl WorkerPool {
         self.gate.is_held()
     }
 
-    /// Number of worker threads.
-    pub(crate) fn threads(&self) -> usize {
+    /// The most worker threads the pool starts.
+    pub(crate) fn max_threads(&self) -> usize {
+        self.max_threads
+    }
+
+    /// Worker threads started so far (at most the largest number of requests that were in
+    /// flight at once, and at most [`WorkerPool::max_threads`]).
+    pub(crate) fn threads_started(&self) -> usize {
         self.threads.len()
     }
 
@@ -230,6 +260,9 @@ impl WorkerPool {
             self.in_flight += 1;
             *self.pending.entry(block).or_default() += bytes;
             self.queued_bytes += bytes;
+            if self.in_flight > self.threads.len() && self.threads.len() < self.max_threads {
+                self.start_worker();
+            }
         }
     }
 

@@ -3,6 +3,8 @@
 //! read by bands of rows (heights and void flags in one read), with one thread or several, gives
 //! the same store, every file byte for byte (geomorph's table, computed from the same bands,
 //! included). A negative control (one sample changed) shows the comparison sees a difference.
+//! Geomorph's table, written into its file band by band as the pass computes it, has the bytes
+//! that the table held whole gave before it was streamed (a pinned checksum).
 //!
 //! A sharded bake (`bake_shard` K/N, then `merge`) is the same store too, for N = 1..5, on a
 //! generated grid and one with voids (a negative control: one shard of a changed grid shows),
@@ -110,6 +112,31 @@ fn a_bake_is_the_same_bytes_whatever_way_its_rows_arrive() {
     assert!(diff.contains("blocks") || diff.contains("index"), "{diff}");
 
     for d in [generated, in_memory, from_file, other, raw.parent().unwrap().to_path_buf()] {
+        let _ = std::fs::remove_dir_all(d);
+    }
+}
+
+#[test]
+fn the_geomorph_table_written_band_by_band_has_the_pinned_bytes() {
+    // The bytes of the table held whole and encoded at the end (main before the table was
+    // streamed: `terrain bake --synthetic 301 --no-dss --no-pvs --no-roughness
+    // --no-calibration`, 256-cell blocks: 2 bands); here 64-cell blocks: 5 bands.
+    let synth = FractalConfig::with_size(301, 301, 10.0);
+    let out = bake_dir(&synth, "geomip-pinned", 2);
+    let table = std::fs::read(out.join(terrain_stream::GEOMIP_FILE)).unwrap();
+    // The CRC-32 of the bytes before the file's own checksum (that of the whole file is
+    // CRC-32's residue, the same for every file that ends with its checksum).
+    let crc = |b: &[u8]| terrain_core::checksum::crc32(&b[..b.len() - 4]);
+    assert_eq!((table.len(), crc(&table)), (14480, 0x8601_6b9b), "geomip.bin's bytes changed");
+    // Negative control: one height changes the table's checksum.
+    let hm = synth.to_heightmap().unwrap();
+    let mut data = hm.data().to_vec();
+    data[150 * 301 + 77] += 5.0;
+    let changed = Heightmap::new(301, 301, data, hm.voids().clone(), hm.georef().clone()).unwrap();
+    let other = bake_dir(&changed, "geomip-pinned-changed", 2);
+    let changed = std::fs::read(other.join(terrain_stream::GEOMIP_FILE)).unwrap();
+    assert_ne!(crc(&changed), 0x8601_6b9b);
+    for d in [out, other] {
         let _ = std::fs::remove_dir_all(d);
     }
 }

@@ -219,7 +219,8 @@ pub fn run_bench(
                 config.leaf_cells = leaf_cells;
                 config.pvps.leaf_cells = leaf_cells;
                 config.dss.leaf_cells = leaf_cells;
-                config.ooc = ooc;
+                // The flight's frames come at its own rate: Eq. 8's `f`.
+                config.ooc = ooc.for_flight(flight.fps);
                 if cfg.error_px.is_some() {
                     registry::params_for_error_px(*method, value, error_view).apply(&mut config);
                 } else {

@@ -20,8 +20,8 @@
 //! like the DSS table. terrain-core does no file I/O here; the app reads and writes the bytes.
 
 use super::dss_file::heights_checksum;
-use super::geomipmap::GeomipTable;
-use crate::checksum::crc32;
+use super::geomipmap::{BandStack, GeomipTable};
+use crate::checksum::{crc32, crc32_combine, crc32_update};
 use crate::heightmap::Heightmap;
 
 /// The magic bytes.
@@ -52,6 +52,67 @@ pub struct GeomipFor {
     pub heights_crc: Option<u32>,
 }
 
+/// Geomorph's table file written band by band, for a grid whose table is computed from bands
+/// of its rows and never held whole (a bake's pass, a sharded bake's merge): the caller
+/// reserves [`GeomipEncoder::HEADER_LEN`] bytes at the file's start, appends each band's
+/// entries ([`GeomipEncoder::push`], south first, the bands as [`GeomipTable::stack`] takes
+/// them) and, when the heights' checksum is known, writes [`GeomipEncoder::finish`]'s header
+/// over the reserved bytes and its CRC-32 after the last entry. The file is byte for byte
+/// [`GeomipTable::encode_for`] of the stacked table (which is written by this encoder too).
+#[derive(Debug, Clone, Default)]
+pub struct GeomipEncoder {
+    bands: BandStack,
+    /// CRC-32 of the entries so far.
+    crc: u32,
+    /// Bytes of the entries so far.
+    len: u64,
+}
+
+impl GeomipEncoder {
+    /// Bytes of the file's header, before the first entry.
+    pub const HEADER_LEN: usize = HEADER_LEN;
+
+    /// An encoder with no band yet.
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    /// Appends the entries of the next band (rows of the grid as a grid of their own, see
+    /// [`GeomipTable::stack`]) to `out`. The error says which band does not fit the ones
+    /// before it; nothing is appended then.
+    pub fn push(&mut self, band: &GeomipTable, out: &mut Vec<u8>) -> Result<(), String> {
+        self.bands.add(band)?;
+        let start = out.len();
+        let (errors, heights, vertices) = band.parts();
+        out.reserve(errors.len() * ENTRY_LEN);
+        for ((e, z), v) in errors.iter().zip(heights).zip(vertices) {
+            out.extend_from_slice(&e.to_le_bytes());
+            out.extend_from_slice(&z.to_le_bytes());
+            out.extend_from_slice(&v.to_le_bytes());
+        }
+        self.crc = crc32_update(self.crc, &out[start..]);
+        self.len += (out.len() - start) as u64;
+        Ok(())
+    }
+
+    /// The file's header (for its first [`GeomipEncoder::HEADER_LEN`] bytes), tied to heights
+    /// whose [`heights_checksum`] is `heights_crc`, and its CRC-32 (its last 4 bytes, after
+    /// the entries). An error when no band was pushed.
+    pub fn finish(&self, heights_crc: u32) -> Result<([u8; HEADER_LEN], [u8; 4]), String> {
+        let (w, h, p) = self.bands.grid()?;
+        let count = |n: u32| (n.saturating_sub(1)).div_ceil(p).max(1);
+        let levels = p.trailing_zeros() + 1;
+        let mut header = [0u8; HEADER_LEN];
+        header[..4].copy_from_slice(&MAGIC);
+        for (k, v) in [VERSION, w, h, p, levels, count(w), count(h), heights_crc].iter().enumerate()
+        {
+            header[4 + 4 * k..8 + 4 * k].copy_from_slice(&v.to_le_bytes());
+        }
+        let crc = crc32_combine(crc32(&header), self.crc, self.len);
+        Ok((header, crc.to_le_bytes()))
+    }
+}
+
 impl GeomipTable {
     /// The table as bytes, tied to `hm` (the terrain it was computed from).
     ///
@@ -66,21 +127,13 @@ impl GeomipTable {
     /// The table as bytes, tied to heights whose [`heights_checksum`] is `heights_crc` (a
     /// table computed band by band, with the checksum accumulated over the bands' rows).
     pub fn encode_for(&self, heights_crc: u32) -> Vec<u8> {
-        let (w, h) = self.grid_size();
-        let (nx, ny) = self.patch_counts();
-        let (errors, heights, vertices) = self.parts();
-        let mut out = Vec::with_capacity(HEADER_LEN + errors.len() * ENTRY_LEN + 4);
-        out.extend_from_slice(&MAGIC);
-        for v in [VERSION, w, h, self.patch_cells(), self.levels() as u32, nx, ny, heights_crc] {
-            out.extend_from_slice(&v.to_le_bytes());
-        }
-        for ((e, z), v) in errors.iter().zip(heights).zip(vertices) {
-            out.extend_from_slice(&e.to_le_bytes());
-            out.extend_from_slice(&z.to_le_bytes());
-            out.extend_from_slice(&v.to_le_bytes());
-        }
-        let crc = crc32(&out);
-        out.extend_from_slice(&crc.to_le_bytes());
+        let mut encoder = GeomipEncoder::new();
+        let mut out = Vec::with_capacity(HEADER_LEN + self.parts().0.len() * ENTRY_LEN + 4);
+        out.resize(HEADER_LEN, 0);
+        encoder.push(self, &mut out).expect("a table is a band of itself");
+        let (header, crc) = encoder.finish(heights_crc).expect("one band");
+        out[..HEADER_LEN].copy_from_slice(&header);
+        out.extend_from_slice(&crc);
         out
     }
 
@@ -252,6 +305,41 @@ mod tests {
             |r, rows| rows.map(r).collect(),
         );
         assert_eq!(e.unwrap_err(), "no");
+    }
+
+    #[test]
+    fn a_file_written_band_by_band_is_the_stacked_tables_file() {
+        let hm = terrain(75, 150);
+        let crc = heights_checksum(&hm);
+        let whole = GeomipTable::new(&hm, 16).encode(&hm);
+        // Bands of 3, 1 and 2 rows of patches and the rest (not whole patch rows: the last).
+        let mut file = vec![0u8; GeomipEncoder::HEADER_LEN];
+        let mut encoder = GeomipEncoder::new();
+        let mut bands = Vec::new();
+        for (y0, rows) in [(0, 49), (48, 17), (64, 33), (96, 54)] {
+            let t = GeomipTable::new(&band(&hm, y0, rows), 16);
+            encoder.push(&t, &mut file).unwrap();
+            bands.push(t);
+        }
+        let (header, tail) = encoder.finish(crc).unwrap();
+        file[..GeomipEncoder::HEADER_LEN].copy_from_slice(&header);
+        file.extend_from_slice(&tail);
+        assert!(file == whole, "the file of the bands is the whole grid's");
+        let stacked = GeomipTable::stack(bands).unwrap();
+        assert!(stacked.encode_for(crc) == whole);
+        // Negative control: another heights checksum is another file.
+        assert_ne!(encoder.finish(crc ^ 1).unwrap(), (header, tail));
+        // A band after one that is not whole rows of patches, or of another width, is refused
+        // by name and appends nothing; no band, no file.
+        let len = file.len();
+        let e = encoder.push(&GeomipTable::new(&band(&hm, 149, 1), 16), &mut file).unwrap_err();
+        assert!(e.contains("band 3: 54 rows are not whole rows of 16-cell patches"), "{e}");
+        let mut other = GeomipEncoder::new();
+        other.push(&GeomipTable::new(&band(&hm, 0, 17), 16), &mut file).unwrap();
+        let e = other.push(&GeomipTable::new(&terrain(60, 17), 16), &mut file).unwrap_err();
+        assert!(e.contains("band 1: 60 samples wide"), "{e}");
+        assert_eq!(file.len(), len + 5 * 4 * 10, "one band of 5 patches appended");
+        assert_eq!(GeomipEncoder::new().finish(crc).unwrap_err(), "no band to stack");
     }
 
     #[test]

@@ -176,6 +176,62 @@ fn patch_row(hm: &Heightmap, y_off: usize, pj: u32, p: u32, nx: u32, levels: usi
     out
 }
 
+/// Tables of bands of a grid's rows, south first, joined into the grid's table
+/// ([`GeomipTable::stack`], or its file written band by band,
+/// [`super::geomip_file::GeomipEncoder`]): checks that each band fits the ones before it (the
+/// same width and patch size; every band but the last spans whole rows of patches and shares
+/// its top row with the next band) and adds up the grid's rows.
+#[derive(Debug, Clone, Default)]
+pub(super) struct BandStack {
+    /// The first band's width and patch cells.
+    first: Option<(u32, u32)>,
+    /// Cells (rows - 1) of the bands so far.
+    cells: u32,
+    bands: usize,
+    /// The rows of the last band when they are not whole rows of patches: it must be the last.
+    last_only: Option<u32>,
+}
+
+impl BandStack {
+    /// Adds the next band; the error names the band that does not fit.
+    pub(super) fn add(&mut self, t: &GeomipTable) -> Result<(), String> {
+        let b = self.bands;
+        let (width, p) = *self.first.get_or_insert((t.width, t.patch_cells));
+        if (t.width, t.patch_cells) != (width, p) {
+            return Err(format!(
+                "band {b}: {} samples wide in {}-cell patches, the first band {width} in {p}",
+                t.width, t.patch_cells
+            ));
+        }
+        let not_whole = |b: usize, rows: u32| {
+            format!("band {b}: {rows} rows are not whole rows of {p}-cell patches")
+        };
+        if let Some(rows) = self.last_only {
+            return Err(not_whole(b - 1, rows));
+        }
+        let cells = t.height.saturating_sub(1);
+        if cells == 0 && b > 0 {
+            return Err(not_whole(b, t.height));
+        }
+        if cells == 0 || !cells.is_multiple_of(p) {
+            self.last_only = Some(t.height);
+        }
+        self.cells = self
+            .cells
+            .checked_add(cells)
+            .filter(|&c| c < u32::MAX)
+            .ok_or_else(|| format!("band {b}: 2^32 rows or more in all"))?;
+        self.bands += 1;
+        Ok(())
+    }
+
+    /// The grid's width, height and patch cells.
+    pub(super) fn grid(&self) -> Result<(u32, u32, u32), String> {
+        let (width, p) = self.first.ok_or("no band to stack")?;
+        Ok((width, self.cells + 1, p))
+    }
+}
+
 impl GeomipTable {
     /// The max-error vertices of every patch of `hm` (one thread). `patch_cells` is rounded to
     /// a power of two in `2..=64`.
@@ -271,28 +327,11 @@ impl GeomipTable {
     /// the next band. Equal to the table of the whole grid (a bake's block rows, or a
     /// sharded bake's shards, computed apart). The error says which part does not fit.
     pub fn stack(parts: Vec<GeomipTable>) -> Result<Self, String> {
-        let Some(first) = parts.first() else {
-            return Err("no band to stack".into());
-        };
-        let (width, p) = (first.width, first.patch_cells);
-        let mut height = 1u32;
-        let last = parts.len() - 1;
-        for (b, t) in parts.iter().enumerate() {
-            if (t.width, t.patch_cells) != (width, p) {
-                return Err(format!(
-                    "band {b}: {} samples wide in {}-cell patches, the first band {width} in {p}",
-                    t.width, t.patch_cells
-                ));
-            }
-            let cells = t.height.saturating_sub(1);
-            if (cells == 0 && last > 0) || (b < last && !cells.is_multiple_of(p)) {
-                return Err(format!(
-                    "band {b}: {} rows are not whole rows of {p}-cell patches",
-                    t.height
-                ));
-            }
-            height += cells;
+        let mut bands = BandStack::default();
+        for t in &parts {
+            bands.add(t)?;
         }
+        let (width, height, p) = bands.grid()?;
         let (mut errors, mut heights, mut vertices) = (Vec::new(), Vec::new(), Vec::new());
         for t in parts {
             errors.extend(t.errors);

@@ -65,7 +65,7 @@ pub use edges::{
     EdgeMismatch, EdgeRule, WishEdges, check_shared_edges, outer_factors, outer_factors_all,
     wish_outer_factors,
 };
-pub use geomip_file::{GeomipFileError, GeomipFor};
+pub use geomip_file::{GeomipEncoder, GeomipFileError, GeomipFor};
 pub use geomipmap::{GeomipConfig, GeomipRow, GeomipScene, GeomipSelection, GeomipTable, PatchLod};
 pub use patch::{Edge, MAX_FACTOR, MIN_FACTOR, Patch, Selection, SelectionStats, clamp_factor};
 pub use pvps::{Method, NodeDistance, PvpsConfig, select_pvps, select_pvps_with_cull};

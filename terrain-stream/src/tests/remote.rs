@@ -346,9 +346,11 @@ fn a_hanging_server_never_stalls_a_frame() {
     flight_over_a_bad_server("hang", Action::Hang);
 }
 
-/// A remote store's streamer gets at least `REMOTE_THREADS` workers by default (each waits out
-/// its range request, so the workers are the requests in the air), a local store's one per
-/// core (the negative control); an explicit count is kept for both.
+/// A remote store's streamer may run at least `REMOTE_THREADS` workers by default (each waits
+/// out its range request, so the workers are the requests in the air), a local store's one per
+/// core (the negative control); an explicit count is kept for both. The workers are started as
+/// the requests in flight need them: a streamer that made N requests started at most N threads,
+/// and never more than its limit.
 #[test]
 fn a_remote_store_streams_with_many_workers() {
     let dir = temp("workers");
@@ -364,6 +366,25 @@ fn a_remote_store_streams_with_many_workers() {
     assert_eq!(threads(&local, 0), cores);
     assert_eq!(threads(&remote, 3), 3);
     assert_eq!(threads(&local, 3), 3);
+    // A few frames: the threads started follow the requests, far below the limit.
+    let flight = |store: &Arc<Store>, threads: usize| {
+        let mut s = Streamer::new(store.clone(), StreamConfig { threads, ..Default::default() });
+        assert_eq!(s.threads_started(), 0, "no request, no thread");
+        let mut requests = 0;
+        for f in 0..4 {
+            let st = s.update(&camera(-500.0 + f as f64 * 20.0));
+            assert!(st.faults.is_empty(), "{:?}", st.faults);
+            requests += st.requests + st.sync_loads;
+        }
+        (s.threads_started(), requests)
+    };
+    let (started, requests) = flight(&remote, 0);
+    assert!(requests > 0 && requests < StreamConfig::REMOTE_THREADS, "{requests} requests");
+    assert!((1..=requests).contains(&started), "{started} threads for {requests} requests");
+    // The limit holds: more requests than workers start the limit.
+    let (started, requests) = flight(&local, 3);
+    assert!(requests > 3, "{requests} requests");
+    assert_eq!(started, 3);
     drop(server);
     std::fs::remove_dir_all(&dir).unwrap();
 }
