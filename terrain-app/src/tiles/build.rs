@@ -115,7 +115,7 @@ pub(crate) fn build(
     // The seeds on this window's lattice, in its coordinates.
     let on_lattice = |v: u32, v0: usize, n: usize| {
         let v = v as usize;
-        (v >= v0 && (v - v0) % t == 0 && (v - v0) / t < n).then(|| ((v - v0) / t) as u32)
+        (v >= v0 && (v - v0).is_multiple_of(t) && (v - v0) / t < n).then(|| ((v - v0) / t) as u32)
     };
     let local: Vec<[u32; 2]> = seeds
         .iter()
