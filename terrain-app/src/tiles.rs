@@ -94,6 +94,10 @@ struct LevelStats {
     /// The largest decimation error a tile of this level was meshed under (0: every tile
     /// meshed from every sample), metres.
     decimation_error_m: f64,
+    /// Seconds the level's meshes took (built and checked), summed over the threads.
+    mesh_s: f64,
+    /// Seconds encoding and writing the level's tiles took, summed over the threads.
+    write_s: f64,
 }
 
 /// `tiles.json`.
@@ -279,33 +283,37 @@ pub(crate) fn run(args: &TilesArgs) -> anyhow::Result<()> {
             })
             .collect(),
     );
-    let write = |mesh: &TileMesh, measured: f64, decimation: f64| -> anyhow::Result<()> {
-        let tile = mesh.tile;
-        let children =
-            if tile.level < max_level { range(tile.level + 1).below(tile) } else { None };
-        let mut bytes = quantized_mesh::encode(mesh, children)
-            .with_context(|| format!("encoding tile {}/{}/{}", tile.level, tile.x, tile.y))?;
-        if args.gzip {
-            bytes = quantized_mesh::gzip(&bytes);
-        }
-        let dir = args.output.join(tile.level.to_string()).join(tile.x.to_string());
-        std::fs::create_dir_all(&dir).with_context(|| format!("creating {}", dir.display()))?;
-        let path = dir.join(format!("{}.terrain", tile.y));
-        std::fs::write(&path, &bytes).with_context(|| format!("writing {}", path.display()))?;
-        {
-            let mut s = stats.lock().unwrap_or_else(|e| e.into_inner());
-            let s = &mut s[(tile.level - args.min_level) as usize];
-            s.tiles += 1;
-            s.triangles += mesh.triangles.len();
-            s.vertices += mesh.vertices.len();
-            s.bytes += bytes.len() as u64;
-            s.max_measured_error_m = s.max_measured_error_m.max(measured);
-            s.decimation_error_m = s.decimation_error_m.max(decimation);
-        }
-        let n = done.fetch_add(1, Ordering::Relaxed) + 1;
-        bar.update(n as f64, total as f64);
-        Ok(())
-    };
+    let write =
+        |mesh: &TileMesh, measured: f64, decimation: f64, mesh_s: f64| -> anyhow::Result<()> {
+            let started = Instant::now();
+            let tile = mesh.tile;
+            let children =
+                if tile.level < max_level { range(tile.level + 1).below(tile) } else { None };
+            let mut bytes = quantized_mesh::encode(mesh, children)
+                .with_context(|| format!("encoding tile {}/{}/{}", tile.level, tile.x, tile.y))?;
+            if args.gzip {
+                bytes = quantized_mesh::gzip(&bytes);
+            }
+            let dir = args.output.join(tile.level.to_string()).join(tile.x.to_string());
+            std::fs::create_dir_all(&dir).with_context(|| format!("creating {}", dir.display()))?;
+            let path = dir.join(format!("{}.terrain", tile.y));
+            std::fs::write(&path, &bytes).with_context(|| format!("writing {}", path.display()))?;
+            {
+                let mut s = stats.lock().unwrap_or_else(|e| e.into_inner());
+                let s = &mut s[(tile.level - args.min_level) as usize];
+                s.tiles += 1;
+                s.triangles += mesh.triangles.len();
+                s.vertices += mesh.vertices.len();
+                s.bytes += bytes.len() as u64;
+                s.max_measured_error_m = s.max_measured_error_m.max(measured);
+                s.decimation_error_m = s.decimation_error_m.max(decimation);
+                s.mesh_s += mesh_s;
+                s.write_s += started.elapsed().as_secs_f64();
+            }
+            let n = done.fetch_add(1, Ordering::Relaxed) + 1;
+            bar.update(n as f64, total as f64);
+            Ok(())
+        };
     let bound_of = |tile: TileId| tin::level_error(tile.level, args.error_scale);
     let walk = walk::Walk {
         samples,
@@ -387,8 +395,9 @@ pub(crate) fn run(args: &TilesArgs) -> anyhow::Result<()> {
         .with_context(|| format!("writing {}", summary_path.display()))?;
     for l in &summary.levels {
         println!(
-            "level {:2}: {:5} tiles, {:8} triangles, bound {:9.3} m, measured max {:9.3} m",
-            l.level, l.tiles, l.triangles, l.bound_m, l.max_measured_error_m
+            "level {:2}: {:5} tiles, {:8} triangles, bound {:9.3} m, measured max {:9.3} m, \
+             {:7.2} s meshing, {:6.2} s writing",
+            l.level, l.tiles, l.triangles, l.bound_m, l.max_measured_error_m, l.mesh_s, l.write_s
         );
     }
     println!(

@@ -69,7 +69,9 @@ pub(crate) fn stride_log2(layout: &GridLayout, tile: TileId, config: &Resolution
 }
 
 /// Builds `tile` from every `2^s`-th sample within `budget` metres of them (see the module
-/// docs); the mesh's `bound` is set to `bound`, the tile's own.
+/// docs), seeded with the DEM samples `seeds` (`[i, j]`; those off the stride's lattice or
+/// outside the window are skipped): the mesh, its `bound` set to `bound` (the tile's own), and
+/// the DEM samples it took as vertices (its children's seeds).
 pub(crate) fn build(
     samples: &dyn Samples,
     layout: &GridLayout,
@@ -77,7 +79,8 @@ pub(crate) fn build(
     s: u32,
     budget: f64,
     bound: f64,
-) -> anyhow::Result<TileMesh> {
+    seeds: &[[u32; 2]],
+) -> anyhow::Result<(TileMesh, Vec<[u32; 2]>)> {
     let (a, b) = grid_rect(layout, tile);
     let (w, h) = (layout.width, layout.height);
     let t = 1usize << s;
@@ -109,9 +112,22 @@ pub(crate) fn build(
     let centre_lat = origin.y + 0.5 * (wh as f64 - 1.0) * spacing.y;
     let georef = Georef::geographic(Crs::Epsg(4326), origin, spacing, centre_lat);
     let sub = Heightmap::new(ww, wh, data, voids, georef)?;
-    let mut mesh = tin::build_tile(&GeoGrid::new(&sub)?, tile, budget)?;
+    // The seeds on this window's lattice, in its coordinates.
+    let on_lattice = |v: u32, v0: usize, n: usize| {
+        let v = v as usize;
+        (v >= v0 && (v - v0).is_multiple_of(t) && (v - v0) / t < n).then(|| ((v - v0) / t) as u32)
+    };
+    let local: Vec<[u32; 2]> = seeds
+        .iter()
+        .filter_map(|&[i, j]| Some([on_lattice(i, i0, ww)?, on_lattice(j, j0, wh)?]))
+        .collect();
+    let (mut mesh, used) = tin::build_tile_seeded(&GeoGrid::new(&sub)?, tile, budget, &local)?;
     mesh.bound = bound;
-    Ok(mesh)
+    let used =
+        used.into_iter().map(|[i, j]| [(i0 + i as usize * t) as u32, (j0 + j as usize * t) as u32]);
+    // The last row or column may stand past the DEM (read at its edge): not a DEM sample.
+    let used = used.filter(|&[i, j]| (i as usize) < w && (j as usize) < h).collect();
+    Ok((mesh, used))
 }
 
 /// The largest error of `mesh` against every non-void DEM sample under it, read by windows of

@@ -446,6 +446,18 @@ fn clip(poly: &[DVec3], axis: usize, at: f64, keep_above: bool) -> Vec<DVec3> {
 /// Builds the mesh of `tile` within `bound` metres of every non-void sample of `grid` inside it
 /// (see the module docs), verified before it is returned.
 pub fn build_tile(grid: &GeoGrid<'_>, tile: TileId, bound: f64) -> Result<TileMesh, TinError> {
+    build_tile_seeded(grid, tile, bound, &[]).map(|(mesh, _)| mesh)
+}
+
+/// [`build_tile`] seeded with samples `[i, j]` of `grid` ([`tile::mesh_window_seeded`]; those
+/// outside the tile's sub-grid are skipped), and the samples the mesh took as vertices before
+/// clipping (in `grid`'s coordinates: the seeds of the tile's children).
+pub fn build_tile_seeded(
+    grid: &GeoGrid<'_>,
+    tile: TileId,
+    bound: f64,
+    seeds: &[[u32; 2]],
+) -> Result<(TileMesh, Vec<[u32; 2]>), TinError> {
     let hm = grid.hm;
     let r = tile.rect();
     let a = grid.to_grid(dvec2(r.west, r.south));
@@ -456,14 +468,28 @@ pub fn build_tile(grid: &GeoGrid<'_>, tile: TileId, bound: f64) -> Result<TileMe
     let mut set = VertexSet::default();
     let mut triangles: Vec<[u32; 3]> = Vec::new();
     let mut measured = None;
+    let mut used = Vec::new();
     let has_dem = p.x0 < p.x1 && p.y0 < p.y1;
     if has_dem {
         let (i0, j0) = (p.x0.floor() as usize, p.y0.floor() as usize);
         let (i1, j1) = (p.x1.ceil() as usize, p.y1.ceil() as usize);
         let sub = crop(hm, i0, j0, i1, j1);
-        let (m, stats) = tile::mesh_window(&sub, bound, tile::Borders::Free)
+        let local: Vec<[u32; 2]> = seeds
+            .iter()
+            .filter(|&&[i, j]| {
+                (i0..=i1).contains(&(i as usize)) && (j0..=j1).contains(&(j as usize))
+            })
+            .map(|&[i, j]| [i - i0 as u32, j - j0 as u32])
+            .collect();
+        let (m, stats) = tile::mesh_window_seeded(&sub, bound, tile::Borders::Free, &local)
             .map_err(|e| TinError::from_tile(e, tile.level, tile.x, tile.y))?;
         measured = Some(stats);
+        // Vertices are samples: integer grid coordinates of the sub-grid.
+        used = m
+            .positions
+            .iter()
+            .map(|q| [q.x.round() as u32 + i0 as u32, q.y.round() as u32 + j0 as u32])
+            .collect();
         let off = DVec3::new(i0 as f64, j0 as f64, 0.0);
         for t in &m.triangles {
             let poly: Vec<DVec3> = t.iter().map(|&k| m.positions[k as usize] + off).collect();
@@ -505,7 +531,7 @@ pub fn build_tile(grid: &GeoGrid<'_>, tile: TileId, bound: f64) -> Result<TileMe
             DVec3::new(u.clamp(0.0, 1.0), v.clamp(0.0, 1.0), q.z)
         })
         .collect();
-    Ok(TileMesh { tile, vertices, triangles, bound, measured })
+    Ok((TileMesh { tile, vertices, triangles, bound, measured }, used))
 }
 
 /// Triangulates a convex counter-clockwise polygon as a fan, dropping slivers of zero area.

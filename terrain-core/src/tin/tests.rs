@@ -272,3 +272,59 @@ fn longitudes_past_180_are_shifted_and_a_grid_across_180_is_refused() {
     assert!(matches!(e, TinError::OutOfRange { .. }), "{e}");
     assert!(e.to_string().contains("split there"), "{e}");
 }
+
+/// A child seeded with its parent's vertices keeps them, stays within its bound at every DEM
+/// sample inside it, and costs about the triangles of the unseeded child (the seeds only change
+/// the order of insertion).
+#[test]
+fn a_child_seeded_with_its_parents_vertices_keeps_them_within_its_bound() {
+    let hm = bumpy(241, 181, false);
+    let grid = GeoGrid::new(&hm).unwrap();
+    let (mut seeded_tris, mut plain_tris, mut kept) = (0usize, 0usize, 0usize);
+    for parent in grid.tile_range(10).tiles(10) {
+        let (_, seeds) = build_tile_seeded(&grid, parent, level_error(10, 0.25), &[]).unwrap();
+        assert!(seeds.len() > 4, "{parent:?}: {} vertices", seeds.len());
+        let Some(below) = grid.tile_range(11).below(parent) else { continue };
+        for child in below.tiles(11) {
+            let bound = level_error(11, 0.25);
+            let (mesh, used) = build_tile_seeded(&grid, child, bound, &seeds).unwrap();
+            let plain = build_tile(&grid, child, bound).unwrap();
+            seeded_tris += mesh.triangles.len();
+            plain_tris += plain.triangles.len();
+            // Every seed inside the child's sub-grid became a vertex.
+            // (The sub-grid: the box of the child's vertices, which hold its corners.)
+            let lo = [0, 1].map(|k| used.iter().map(|v| v[k]).min().unwrap());
+            let hi = [0, 1].map(|k| used.iter().map(|v| v[k]).max().unwrap());
+            for s in &seeds {
+                if (0..2).all(|k| (lo[k]..=hi[k]).contains(&s[k])) {
+                    assert!(used.contains(s), "{child:?}: seed {s:?} is not a vertex");
+                    kept += 1;
+                }
+            }
+            // Within the bound at every DEM sample inside the tile.
+            let r = child.rect();
+            for j in 0..hm.height() {
+                for i in 0..hm.width() {
+                    let ll = grid.to_lonlat(dvec2(i as f64, j as f64));
+                    let p = dvec2(
+                        (ll.x - r.west) / (r.east - r.west),
+                        (ll.y - r.south) / (r.north - r.south),
+                    );
+                    if !(0.0..=1.0).contains(&p.x) || !(0.0..=1.0).contains(&p.y) {
+                        continue;
+                    }
+                    let (z, hits) = height_at(&mesh, p);
+                    assert!(hits > 0, "{child:?}: sample ({i}, {j}) uncovered");
+                    let e = (z - f64::from(hm.get(i, j))).abs();
+                    assert!(
+                        e <= bound + 1e-6,
+                        "{child:?}: sample ({i}, {j}) {e} m off, bound {bound}"
+                    );
+                }
+            }
+        }
+    }
+    assert!(kept > 20, "{kept} seeds checked");
+    let ratio = seeded_tris as f64 / plain_tris as f64;
+    assert!((0.9..1.05).contains(&ratio), "{seeded_tris} seeded against {plain_tris} triangles");
+}

@@ -139,11 +139,32 @@ pub fn mesh_window(
     bound: f64,
     borders: Borders,
 ) -> Result<(TriMesh, ErrorStats), TileError> {
+    mesh_window_seeded(sub, bound, borders, &[])
+}
+
+/// [`mesh_window`] starting from `seeds` (samples `[i, j]` of `sub` that become vertices
+/// before the greedy insertion; outside the window they are skipped). The TIN pyramid of
+/// `terrain tiles` seeds a tile with its parent's vertices: they are where the parent's
+/// greedy insertion found the worst errors at twice the bound, so the child's insertion starts
+/// from them instead of from the window's corners, and each sample is scanned for the few
+/// refinements from twice the bound to the bound only (the scans dominate the mesher's time).
+/// The bound and its verification are the same; only the order of insertion changes.
+pub fn mesh_window_seeded(
+    sub: &Heightmap,
+    bound: f64,
+    borders: Borders,
+    seeds: &[[u32; 2]],
+) -> Result<(TriMesh, ErrorStats), TileError> {
     mesh::validate(sub, bound)?;
     let m = match borders {
-        Borders::Free => mesh::delaunay::build(sub, bound),
+        Borders::Free if seeds.is_empty() => mesh::delaunay::build(sub, bound),
+        Borders::Free => mesh::delaunay::build_seeded(sub, bound, seeds, false),
         Borders::Simplified => {
-            mesh::delaunay::build_seeded(sub, bound, &border_seeds(sub, bound), true)
+            // Seeds on the border would break the side's lock: only interior ones.
+            let (w, h) = (sub.width() as u32, sub.height() as u32);
+            let mut all = border_seeds(sub, bound);
+            all.extend(seeds.iter().filter(|&&[i, j]| i > 0 && j > 0 && i + 1 < w && j + 1 < h));
+            mesh::delaunay::build_seeded(sub, bound, &all, true)
         }
     };
     let stats = verify::check(sub, &m, bound)?;
