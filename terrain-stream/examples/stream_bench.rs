@@ -7,8 +7,9 @@
 //! with `/usr/bin/time -v`). Data from `../shared/data`.
 //!
 //! `raw SIZE PATH` writes the synthetic terrain's rows to a headerless little-endian f32 file
-//! (north row first, as `--raw` reads files: the layout of `terrain bake --synthetic`), and `bakeraw PATH SIZE K NAME` bakes such a file read by bands of rows, for
-//! the bake's throughput from a file.
+//! (north row first, as `--raw` reads files: the terrain of `terrain bake --synthetic SIZE`),
+//! and `bakeraw PATH SIZE K NAME` bakes such a file read by bands of rows, for the bake's
+//! throughput from a file.
 //!
 //! `upload STORE_DIR URL` uploads a baked store folder to `s3://`, `gs://` or `az://` (the
 //! bake's own `upload_store`; credentials and endpoint from the environment), for streaming
