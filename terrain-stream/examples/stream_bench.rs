@@ -7,8 +7,9 @@
 //! with `/usr/bin/time -v`). Data from `../shared/data`.
 //!
 //! `raw SIZE PATH` writes the synthetic terrain's rows to a headerless little-endian f32 file
-//! (row 0 first), and `bakeraw PATH SIZE K NAME` bakes such a file read by bands of rows, for
-//! the bake's throughput from a file.
+//! (north row first, as `--raw` reads files: the terrain of `terrain bake --synthetic SIZE`),
+//! and `bakeraw PATH SIZE K NAME` bakes such a file read by bands of rows, for the bake's
+//! throughput from a file.
 //!
 //! `upload STORE_DIR URL` uploads a baked store folder to `s3://`, `gs://` or `az://` (the
 //! bake's own `upload_store`; credentials and endpoint from the environment), for streaming
@@ -546,17 +547,23 @@ fn write_raw(size: u64, path: &Path) {
     let band = 256usize;
     let w = size as usize;
     let mut buf = vec![0f32; w * band];
-    let mut j0 = 0u64;
-    while j0 < size {
-        let n = band.min((size - j0) as usize);
+    // `--raw` files are read north row first; the generator's row 0 is the south row (the
+    // one `terrain bake --synthetic` puts at j = 0), so bands are written from the north, each
+    // band's rows north first. Written south first, the file was the store's terrain mirrored
+    // north-south, and `terrain bench FILE --raw ... --ooc-store STORE` measured the store
+    // against that mirror (19 px p99 on fast_pass over big32k; bench/ooc/README.md).
+    let mut top = size;
+    while top > 0 {
+        let n = band.min(top as usize);
+        let j0 = top - n as u64;
         let rows = &mut buf[..w * n];
         rows.par_chunks_mut(w).enumerate().for_each(|(r, row)| {
-            src.read_rows(j0 + r as u64, 1, row).unwrap();
+            src.read_rows(j0 + (n - 1 - r) as u64, 1, row).unwrap();
         });
         for z in rows.iter() {
             f.write_all(&z.to_le_bytes()).unwrap();
         }
-        j0 += n as u64;
+        top = j0;
     }
     f.flush().unwrap();
 }

@@ -59,6 +59,7 @@ impl<'a> OocMethod<'a> {
                 reference.qt.root_cells()
             );
         }
+        super::store::check_same_heights(scene.store(), &reference.hm)?;
         Ok(Self { scene, reference: Some(reference), wait, frames: 0 })
     }
 

@@ -28,6 +28,7 @@
 use std::path::Path;
 
 use anyhow::Context;
+use terrain_core::Heightmap;
 use terrain_core::geometry::Camera;
 use terrain_core::lod::GeomipSelection;
 use terrain_core::lod::{
@@ -145,6 +146,59 @@ pub(super) fn not_the_reference(
     )
 }
 
+/// Checks that the store holds the heights of `hm`, the DEM it is measured against: each
+/// block's stored minimum and maximum equal the DEM's over the block's samples within the
+/// store's quantization bound (`Header::max_error_m`, plus a millimetre), blocks with void
+/// samples skipped. A size check alone ([`not_the_reference`]) passed a DEM mirrored
+/// north-south (a raw file written south row first and read north row first, as `--raw`
+/// reads files): every frame was then measured against another terrain (19 px p99 on
+/// `fast_pass` over the 32769^2 store, and false culls where the store's node boxes,
+/// used by the frustum cull, missed the mirror's heights; bench/ooc/README.md).
+pub(crate) fn check_same_heights(
+    store: &terrain_stream::Store,
+    hm: &Heightmap,
+) -> anyhow::Result<()> {
+    let h = store.header();
+    let c = h.block_cells() as usize;
+    // `max_error_m` is scaled with the heights when the store was opened exaggerated.
+    let tol = h.max_error_m.abs() + 1e-3;
+    let voids = hm.voids();
+    for id in store.block_ids() {
+        let Some(e) = store.entry(id) else { continue };
+        let (x0, y0) = (id.col as usize * c, id.row as usize * c);
+        let (x1, y1) = (x0 + e.valid_w.max(1) as usize, y0 + e.valid_h.max(1) as usize);
+        if x1 > hm.width() || y1 > hm.height() {
+            continue;
+        }
+        let (mut lo, mut hi, mut void) = (f32::INFINITY, f32::NEG_INFINITY, false);
+        for y in y0..y1 {
+            for x in x0..x1 {
+                void |= voids.any() && voids.get(x, y);
+                let z = hm.get(x, y);
+                lo = lo.min(z);
+                hi = hi.max(z);
+            }
+        }
+        if void {
+            continue;
+        }
+        let off =
+            (f64::from(lo) - f64::from(e.min)).abs().max((f64::from(hi) - f64::from(e.max)).abs());
+        if off > tol + 1e-6 * f64::from(hi.abs().max(lo.abs())) {
+            anyhow::bail!(
+                "the store {} does not hold the heights of the DEM it is measured against: block \
+                 {id} stores heights {:.3}..{:.3} m, the DEM has {lo:.3}..{hi:.3} m there (a DEM \
+                 mirrored or shifted against the store's? raw files are read north row first): \
+                 bake the store from that DEM",
+                store.dir().display(),
+                e.min,
+                e.max,
+            );
+        }
+    }
+    Ok(())
+}
+
 impl<'a> StoreMethod<'a> {
     fn new(
         kind: LodMethod,
@@ -168,6 +222,9 @@ impl<'a> StoreMethod<'a> {
             && r.qt.shape() != &shape
         {
             return Err(not_the_reference(&dir, "quadtree", &shape, r));
+        }
+        if let Some(r) = reference {
+            check_same_heights(&store, &r.hm)?;
         }
         let tables = match kind {
             LodMethod::Uniform => Tables::None,
@@ -402,5 +459,36 @@ impl Method for StoreMethod<'_> {
 
     fn hold_io(&mut self, held: bool) {
         self.scene.hold_io(held);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::check_same_heights;
+    use terrain_core::{Georef, Heightmap};
+    use terrain_stream::{BakeConfig, BakeProgress, Store, bake};
+
+    /// The store-vs-DEM height check accepts the DEM a store was baked from and refuses the
+    /// same DEM mirrored north-south (what a raw file written south row first gave: the
+    /// benchmark then measured the 32769^2 store against another terrain) or raised by 1 m.
+    #[test]
+    fn a_store_is_measured_only_against_its_own_heights() {
+        let f = |i: usize, j: usize| 100.0 + 3.0 * j as f32 + ((i * 7 + j * 13) % 11) as f32;
+        let hm = Heightmap::from_fn(129, 129, Georef::local(10.0), f).unwrap();
+        let dir =
+            std::env::temp_dir().join(format!("terrain-app-same-heights-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        let cfg = BakeConfig { k: 5, node_levels: 3, ..Default::default() };
+        bake(&hm, &dir, &cfg, &mut |_: &BakeProgress| std::ops::ControlFlow::Continue(())).unwrap();
+        let store = Store::open(&dir).unwrap();
+        check_same_heights(&store, &hm).unwrap();
+        let mirrored =
+            Heightmap::from_fn(129, 129, Georef::local(10.0), |i, j| f(i, 128 - j)).unwrap();
+        let err = check_same_heights(&store, &mirrored).unwrap_err().to_string();
+        assert!(err.contains("does not hold the heights"), "{err}");
+        let raised =
+            Heightmap::from_fn(129, 129, Georef::local(10.0), |i, j| f(i, j) + 1.0).unwrap();
+        assert!(check_same_heights(&store, &raised).is_err());
+        std::fs::remove_dir_all(&dir).unwrap();
     }
 }

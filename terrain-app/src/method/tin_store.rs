@@ -409,6 +409,9 @@ impl<'a> TinStoreMethod<'a> {
         {
             return Err(super::store::not_the_reference(store.dir(), "grid", &shape, r));
         }
+        if let Some(r) = reference {
+            super::store::check_same_heights(&store, &r.hm)?;
+        }
         let tiles = TinTiles::new((*store).clone(), shape, config);
         Ok(Self { scene, tree, tiles, config: *config, wait, frames: 0, reference })
     }
