@@ -317,29 +317,13 @@ fn a_store_baked_to_fake_gcs_server_reads_as_the_local_bake() {
     let files = common::files_under(&store).len();
     assert_eq!(relay.puts.load(Ordering::SeqCst), files, "uploads relayed, files of the store");
 
-    assert_eq!(info(&dir, &cache, &env, url), info(&dir, &cache, &env, s(&store)));
-    let (local, _) = bench(&dir, &cache, &env, &dem, s(&store), "local");
-    let (remote, err) = bench(&dir, &cache, &env, &dem, url, "remote");
-    assert!(!local.is_empty());
-    assert_eq!(local, remote);
-    assert!(!err.contains("store fault"), "{err}");
+    common::remote::assert_reads_as_local(&dir, &cache, &env, &dem, &store, url);
 
     // A second bake is refused before any work, as on S3 and on disk, and the store is as it
     // was; with --overwrite it is replaced (its objects listed and deleted on the server): now
     // 17^2 vertices a block, so 8 x 8 blocks (was 4 x 4).
-    let before = info(&dir, &cache, &env, url);
-    let mut k4 = bake_args(&dem, url);
-    let k = k4.iter().position(|a| *a == "--block-k").unwrap() + 1;
-    k4[k] = "4";
-    let out = terrain_in(&dir, &cache, &env, &k4);
-    let all = text(&out);
-    assert!(!out.status.success(), "{all}");
-    assert!(
-        all.contains(&format!("{url}: already exists (give --overwrite to replace it)")),
-        "{all}"
-    );
-    assert!(!all.contains("uploaded") && !all.contains("blocks:"), "{all}");
-    assert_eq!(info(&dir, &cache, &env, url), before);
+    let (mut k4, before) =
+        common::remote::assert_second_bake_refused(&dir, &cache, &env, &dem, url);
     k4.push("--overwrite");
     let out = terrain_in(&dir, &cache, &env, &k4);
     assert!(out.status.success(), "bake -o {url} --overwrite: {}", text(&out));

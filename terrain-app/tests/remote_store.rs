@@ -184,27 +184,12 @@ fn a_store_baked_to_seaweedfs_reads_as_the_local_bake() {
         let name = e.unwrap().file_name().to_string_lossy().into_owned();
         assert!(!name.starts_with("s3"), "a local folder {name} was written");
     }
-    assert_eq!(info(&dir, &cache, &env, url), info(&dir, &cache, &env, s(&store)));
-    let (local, _) = bench(&dir, &cache, &env, &dem, s(&store), "local");
-    let (remote, err) = bench(&dir, &cache, &env, &dem, url, "remote");
-    assert_eq!(local, remote);
-    assert!(!err.contains("store fault"), "{err}");
+    common::remote::assert_reads_as_local(&dir, &cache, &env, &dem, &store, url);
 
     // A second bake to the URL is refused before any work, as a local store folder is (the
     // same message, naming --overwrite), and the store is as it was.
-    let before = info(&dir, &cache, &env, url);
-    let mut k4 = bake_args(&dem, url);
-    let k = k4.iter().position(|a| *a == "--block-k").unwrap() + 1;
-    k4[k] = "4";
-    let out = terrain_in(&dir, &cache, &env, &k4);
-    let all = text(&out);
-    assert!(!out.status.success(), "{all}");
-    assert!(
-        all.contains(&format!("{url}: already exists (give --overwrite to replace it)")),
-        "{all}"
-    );
-    assert!(!all.contains("uploaded") && !all.contains("blocks:"), "{all}");
-    assert_eq!(info(&dir, &cache, &env, url), before);
+    let (mut k4, before) =
+        common::remote::assert_second_bake_refused(&dir, &cache, &env, &dem, url);
     // The local bake says the same of an existing store folder (negative control of the match).
     let local_again = terrain_in(&dir, &cache, &[], &bake_args(&dem, s(&store)));
     assert!(

@@ -211,3 +211,47 @@ pub(crate) fn bench(
         .collect();
     (frames, all)
 }
+
+/// The store at `url` reads as the local bake `store`: the same `info`, and a warm bench of
+/// it draws the same (non-empty) frames without a store fault.
+pub(crate) fn assert_reads_as_local(
+    dir: &Path,
+    cache: &Path,
+    env: &[(&str, &str)],
+    dem: &Path,
+    store: &Path,
+    url: &str,
+) {
+    assert_eq!(info(dir, cache, env, url), info(dir, cache, env, s(store)));
+    let (local, _) = bench(dir, cache, env, dem, s(store), "local");
+    let (remote, err) = bench(dir, cache, env, dem, url, "remote");
+    assert!(!local.is_empty());
+    assert_eq!(local, remote);
+    assert!(!err.contains("store fault"), "{err}");
+}
+
+/// A second bake to `url` (17^2 vertices a block this time) is refused before any work, as a
+/// local store folder is (the same message, naming --overwrite), and the store is as it was.
+/// Returns that bake's arguments and the store's `info`, for the caller's `--overwrite` run.
+pub(crate) fn assert_second_bake_refused<'a>(
+    dir: &Path,
+    cache: &Path,
+    env: &[(&str, &str)],
+    dem: &'a Path,
+    url: &'a str,
+) -> (Vec<&'a str>, Value) {
+    let before = info(dir, cache, env, url);
+    let mut k4 = bake_args(dem, url);
+    let k = k4.iter().position(|a| *a == "--block-k").unwrap() + 1;
+    k4[k] = "4";
+    let out = terrain_in(dir, cache, env, &k4);
+    let all = text(&out);
+    assert!(!out.status.success(), "{all}");
+    assert!(
+        all.contains(&format!("{url}: already exists (give --overwrite to replace it)")),
+        "{all}"
+    );
+    assert!(!all.contains("uploaded") && !all.contains("blocks:"), "{all}");
+    assert_eq!(info(dir, cache, env, url), before);
+    (k4, before)
+}

@@ -13,8 +13,10 @@
 //
 // Slack for quantization: heights are quantized to (max - min) / 32767 and positions to
 // 1/32767 of the tile, which moves the surface by at most |gradient| times half a quantum
-// diagonal; vertices off the DEM's samples (tile borders) are also allowed the relief of the
-// DEM cell they fall in, as the DEM between samples is bilinear and the mesh is planar there.
+// diagonal. A vertex off the DEM's samples (on a tile border, where the builder clips a mesh
+// edge) is bounded only through the four samples of the DEM cell it falls in: the DEM moves by
+// at most the cell's relief between them and the vertex, and the mesh by at most the steepest
+// triangle over the cell times the cell's diagonal, so both are added to its allowance.
 //
 // Usage: node check.mjs TILESET DEM.json ERROR_SCALE [BOUND_FACTOR]
 // DEM.json: {width, height, origin: [lon, lat] of sample (0, 0), spacing: [dlon, dlat],
@@ -70,7 +72,9 @@ function demAt(lon, lat) {
   const v = [[i0, j0], [i0 + 1, j0], [i0, j0 + 1], [i0 + 1, j0 + 1]];
   if (v.some(([i, j]) => void_[j * dem.width + i])) return null;
   const z = c[0] * (1 - fx) * (1 - fy) + c[1] * fx * (1 - fy) + c[2] * (1 - fx) * fy + c[3] * fx * fy;
-  return { z, relief: Math.max(...c) - Math.min(...c) };
+  const onSample = (fx === 0 || fx === 1) && (fy === 0 || fy === 1);
+  const cell = [dem.origin[0] + i0 * dem.spacing[0], dem.origin[1] + j0 * dem.spacing[1]];
+  return { z, relief: Math.max(...c) - Math.min(...c), onSample, cell };
 }
 
 const layer = JSON.parse(fs.readFileSync(path.join(dir, 'layer.json'), 'utf8'));
@@ -171,9 +175,26 @@ async function checkTile(level, x, y, ab, bound, size) {
     // Plane z = z0 + gx (lon - lon0) + gy (lat - lat0); gradient in metres per degree.
     const gx = ((p[1][2] - p[0][2]) * (p[2][1] - p[0][1]) - (p[2][2] - p[0][2]) * (p[1][1] - p[0][1])) / d;
     const gy = ((p[2][2] - p[0][2]) * (p[1][0] - p[0][0]) - (p[1][2] - p[0][2]) * (p[2][0] - p[0][0])) / d;
-    steepest = Math.max(steepest, Math.hypot(gx, gy));
-    T.push({ p, d });
+    const g = Math.hypot(gx, gy);
+    steepest = Math.max(steepest, g);
+    const lo = [Math.min(p[0][0], p[1][0], p[2][0]), Math.min(p[0][1], p[1][1], p[2][1])];
+    const hi = [Math.max(p[0][0], p[1][0], p[2][0]), Math.max(p[0][1], p[1][1], p[2][1])];
+    T.push({ p, d, g, lo, hi });
   }
+  // The steepest triangle over a DEM cell: a vertex off the DEM's samples (a border vertex the
+  // builder clipped onto a mesh edge) is bounded only through the cell's corner samples, each
+  // within the bound of the mesh where it lies, and the mesh between the vertex and a corner
+  // changes by at most this gradient times the cell's diagonal.
+  const cellDiagonal = Math.hypot(dem.spacing[0], dem.spacing[1]);
+  const steepestOver = ([lon0, lat0]) => {
+    let g = 0;
+    for (const t of T) {
+      const apart =
+        t.hi[0] < lon0 || t.lo[0] > lon0 + dem.spacing[0] || t.hi[1] < lat0 || t.lo[1] > lat0 + dem.spacing[1];
+      if (!apart) g = Math.max(g, t.g);
+    }
+    return g;
+  };
   const slack = hq + steepest * (Math.SQRT1_2 * size) / Q;
 
   // Every vertex against the DEM.
@@ -181,7 +202,8 @@ async function checkTile(level, x, y, ab, bound, size) {
     const at = demAt(lonOf(pos[3 * k]), latOf(pos[3 * k + 1]));
     if (!at) continue;
     const err = Math.abs(pos[3 * k + 2] - at.z);
-    if (err > bound + slack + at.relief + 1e-3) {
+    const between = at.onSample ? 0 : at.relief + steepestOver(at.cell) * cellDiagonal;
+    if (err > bound + slack + between + 1e-3) {
       fail(`${name}: vertex ${k} is ${err.toFixed(3)} m off the DEM (bound ${bound.toFixed(3)} m)`);
     }
   }
