@@ -29,7 +29,7 @@ use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 use std::thread::JoinHandle;
 
 use common::remote::{
-    Server, bake_args, baked, bench, free_ports_in, info, s, terrain_in, text, wait_for,
+    Server, bake_args, baked, free_ports_in, info, s, terrain_in, text, wait_for,
 };
 use common::scratch;
 use serde_json::json;
