@@ -10,6 +10,7 @@ mod common;
 use std::path::{Path, PathBuf};
 use std::process::Output;
 
+use common::remote::{GRID_RAW, baked_at};
 use common::{scratch, terrain};
 use serde_json::Value;
 
@@ -24,40 +25,12 @@ fn text(out: &Output) -> (String, String) {
     )
 }
 
-const SIDE: usize = 129;
-const RAW: &str = "129x129:f32";
+const RAW: &str = GRID_RAW;
 
-/// A 129 x 129 raw f32 grid (little-endian, north row first) and a store baked from it with
-/// blocks of 33 x 33 vertices (4 x 4 blocks), 10 m spacing.
+/// The remote tests' 129 x 129 grid and a store baked from it with blocks of 33 x 33 vertices
+/// (4 x 4 blocks), 10 m spacing, in `dir`.
 fn baked(dir: &Path) -> (PathBuf, PathBuf) {
-    let dem = dir.join("grid.raw");
-    let mut bytes = Vec::with_capacity(SIDE * SIDE * 4);
-    for j in 0..SIDE {
-        for i in 0..SIDE {
-            let z = 200.0 + (i as f32 * 0.11).sin() * 60.0 + (j as f32 * 0.07).cos() * 45.0;
-            bytes.extend(z.to_le_bytes());
-        }
-    }
-    std::fs::write(&dem, bytes).unwrap();
-    let store = dir.join("g.scene");
-    let out = terrain(&[
-        "bake",
-        s(&dem),
-        "--raw",
-        RAW,
-        "--spacing",
-        "10",
-        "-o",
-        s(&store),
-        "--block-k",
-        "5",
-        "--no-pvs",
-        "--no-dss",
-        "--no-roughness",
-        "--no-geomip",
-    ]);
-    assert!(out.status.success(), "bake failed: {:?}", text(&out));
-    (dem, store)
+    baked_at(dir, dir.join("g.scene"))
 }
 
 fn blocks(store: &Path) -> Vec<PathBuf> {

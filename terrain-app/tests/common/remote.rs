@@ -99,9 +99,19 @@ pub(crate) fn free_ports_in(range: Range<u16>, n: usize) -> Vec<u16> {
     ports
 }
 
+/// The `--raw` shape of [`baked_at`]'s grid.
+pub(crate) const GRID_RAW: &str = "129x129:f32";
+
 /// A 129 x 129 raw f32 grid and a store baked from it (4 x 4 blocks of 33 x 33 vertices, no
-/// tables), in `dir`; returns the DEM and the store.
+/// tables), in `dir`'s `www/` (what the HTTP tests serve); returns the DEM and the store.
 pub(crate) fn baked(dir: &Path) -> (PathBuf, PathBuf) {
+    std::fs::create_dir_all(dir.join("www")).unwrap();
+    baked_at(dir, dir.join("www/g.scene"))
+}
+
+/// A 129 x 129 raw f32 grid (little-endian, north row first, 10 m) written to `dir`, and
+/// `store` baked from it with [`bake_args`]; returns the DEM and the store.
+pub(crate) fn baked_at(dir: &Path, store: PathBuf) -> (PathBuf, PathBuf) {
     let dem = dir.join("grid.raw");
     let mut bytes = Vec::new();
     for j in 0..129 {
@@ -111,8 +121,6 @@ pub(crate) fn baked(dir: &Path) -> (PathBuf, PathBuf) {
         }
     }
     std::fs::write(&dem, bytes).unwrap();
-    let store = dir.join("www/g.scene");
-    std::fs::create_dir_all(dir.join("www")).unwrap();
     let out = terrain_in(dir, &dir.join("cache"), &[], &bake_args(&dem, s(&store)));
     assert!(out.status.success(), "bake failed: {}", text(&out));
     (dem, store)
@@ -124,7 +132,7 @@ pub(crate) fn bake_args<'a>(dem: &'a Path, out: &'a str) -> Vec<&'a str> {
         "bake",
         s(dem),
         "--raw",
-        "129x129:f32",
+        GRID_RAW,
         "--spacing",
         "10",
         "-o",
@@ -168,7 +176,7 @@ pub(crate) fn bench(
             "bench",
             s(dem),
             "--raw",
-            "129x129:f32",
+            GRID_RAW,
             "--spacing",
             "10",
             "--flight",
