@@ -523,6 +523,19 @@ fn fig(v: f64) -> String {
 mod tests {
     use super::*;
 
+    /// A quick run's document of `sections`, with no differences, commands or load.
+    fn quick_doc(sections: Vec<Section>) -> PaperDoc {
+        PaperDoc {
+            key: "k".into(),
+            title: "T".into(),
+            differences: vec![],
+            commands: vec![],
+            load: vec![],
+            quick: true,
+            sections,
+        }
+    }
+
     #[test]
     fn effects_are_judged_by_sign_and_size() {
         // The paper: 30 % fewer.
@@ -564,15 +577,7 @@ mod tests {
         t.rows.push(vec![text("x")]);
         s.ours.push(t);
         s.verdicts.push(effect("fewer", -0.3, 0.0).because(why));
-        let doc = PaperDoc {
-            key: "k".into(),
-            title: "T".into(),
-            differences: vec![],
-            commands: vec![],
-            load: vec![],
-            quick: true,
-            sections: vec![s],
-        };
+        let doc = quick_doc(vec![s]);
         assert!(doc.to_markdown().contains("ours 0.000)\n  - why: measured\n"));
     }
 
@@ -589,15 +594,7 @@ mod tests {
         assert!(s.problems().is_empty());
         let gap = Section::missing("Table 2", "u", "no path");
         assert!(gap.problems().is_empty());
-        let doc = PaperDoc {
-            key: "k".into(),
-            title: "T".into(),
-            differences: vec![],
-            commands: vec![],
-            load: vec![],
-            quick: true,
-            sections: vec![s, gap],
-        };
+        let doc = quick_doc(vec![s, gap]);
         let md = doc.to_markdown();
         assert!(md.contains("| x | 1,234,567.9 |"), "{md}");
         assert!(md.contains("**reproduced**: fewer (paper -0.300, ours -0.300)"), "{md}");
