@@ -43,6 +43,24 @@ const NONE: u32 = u32::MAX;
 /// inside": the triangulation is then not strictly Delaunay there, but it stays valid and
 /// the error bound, which never depends on the flips, still holds.
 fn in_circle(a: [i64; 2], b: [i64; 2], c: [i64; 2], d: [i64; 2]) -> bool {
+    // Sides up to 2^14 samples (every tile and the 16385^2 grids): the determinant is at
+    // most 12 x (2^14)^4 < 2^63 in magnitude, so plain i64 arithmetic is exact, and far
+    // cheaper than checked i128 products.
+    const SMALL: i64 = 1 << 14;
+    let diffs = [a[0] - d[0], a[1] - d[1], b[0] - d[0], b[1] - d[1], c[0] - d[0], c[1] - d[1]];
+    if diffs.iter().all(|k| k.abs() <= SMALL) {
+        let [adx, ady, bdx, bdy, cdx, cdy] = diffs;
+        let (al, bl, cl) = (adx * adx + ady * ady, bdx * bdx + bdy * bdy, cdx * cdx + cdy * cdy);
+        let det = al * (bdx * cdy - cdx * bdy)
+            + bl * (cdx * ady - adx * cdy)
+            + cl * (adx * bdy - bdx * ady);
+        return det > 0;
+    }
+    in_circle_wide(a, b, c, d)
+}
+
+/// [`in_circle`] in checked `i128` arithmetic, for any coordinates.
+fn in_circle_wide(a: [i64; 2], b: [i64; 2], c: [i64; 2], d: [i64; 2]) -> bool {
     let f = || -> Option<i128> {
         let (adx, ady) = (i128::from(a[0] - d[0]), i128::from(a[1] - d[1]));
         let (bdx, bdy) = (i128::from(b[0] - d[0]), i128::from(b[1] - d[1]));
@@ -296,27 +314,34 @@ impl<'a> Mesher<'a> {
         // `verify` computes it). Most samples are far below the running best: they are
         // dismissed on |z d - n| without a division, with a margin (1e-14 of the magnitudes,
         // far above the products' rounding) that never dismisses a sample the exact test
-        // would keep; the survivors are decided on the exact value.
+        // would keep; the survivors are decided on the exact value. Void samples are never
+        // candidates: they are dropped among the survivors only (a void's height may be
+        // NaN, which no dismissal test passes), the same outcome as before the test.
         let df = raster::orient(g[0], g[1], g[2]) as f64;
         let mut best_d = best.0 * df;
-        raster::for_each_numerator_in(g, z, [i64::MIN, i64::MIN, i64::MAX, i64::MAX], |i, j, n| {
-            if lock && (i == 0 || j == 0 || i == w - 1 || j == h - 1) {
-                return;
-            }
-            let (iu, ju) = (i as usize, j as usize);
-            if voids.is_some_and(|m| m.get(iu, ju)) {
-                return;
-            }
-            let zs = f64::from(hm.get(iu, ju));
-            let zd = zs * df;
-            if (zd - n).abs() + (zd.abs() + n.abs()) * 1e-14 <= best_d {
-                return;
-            }
-            let e = (zs - n / df).abs();
-            // A vertex's own sample is never a candidate (its error is rounding alone).
-            if e > best.0 && !g.contains(&[i, j]) {
-                best = (e, Some([i as u32, j as u32]));
-                best_d = e * df;
+        // A locked border leaves exactly the samples off the border: a clip, not a test.
+        let clip =
+            if lock { [1, 1, w - 2, h - 2] } else { [i64::MIN, i64::MIN, i64::MAX, i64::MAX] };
+        let (data, width) = (hm.data(), hm.width());
+        raster::for_each_row(g, clip, |j, lo, hi, mut wt, dw| {
+            let row = j as usize * width;
+            for (i, &zs) in (lo..).zip(&data[row + lo as usize..=row + hi as usize]) {
+                let n = raster::numerator(wt, z);
+                wt = raster::step(wt, dw);
+                let zs = f64::from(zs);
+                let zd = zs * df;
+                if (zd - n).abs() + (zd.abs() + n.abs()) * 1e-14 <= best_d {
+                    continue;
+                }
+                if voids.is_some_and(|m| m.get(i as usize, j as usize)) {
+                    continue;
+                }
+                let e = (zs - n / df).abs();
+                // A vertex's own sample is never a candidate (its error is rounding alone).
+                if e > best.0 && !g.contains(&[i, j]) {
+                    best = (e, Some([i as u32, j as u32]));
+                    best_d = e * df;
+                }
             }
         });
         if let (error, Some(sample)) = best {
@@ -606,11 +631,125 @@ mod tests {
         }
     }
 
+    /// A rough surface from integer hashing and exact f64 operations only (no `sin`, whose
+    /// last bits may differ between platforms' libm), so its meshes can be pinned.
+    fn hashed(i: usize, j: usize) -> f32 {
+        let lattice = |x: u64, y: u64| {
+            let mut k =
+                x.wrapping_mul(0x9e37_79b9_7f4a_7c15) ^ y.wrapping_mul(0xc2b2_ae3d_27d4_eb4f);
+            k ^= k >> 29;
+            k = k.wrapping_mul(0xbf58_476d_1ce4_e5b9);
+            (k >> 40) as f64 / (1u64 << 24) as f64
+        };
+        let mut z = 0.0;
+        for (cell, amp) in [(32usize, 40.0), (8, 8.0), (2, 1.5)] {
+            let (x0, y0) = ((i / cell) as u64, (j / cell) as u64);
+            let (fx, fy) = ((i % cell) as f64 / cell as f64, (j % cell) as f64 / cell as f64);
+            let top = lattice(x0, y0) * (1.0 - fx) + lattice(x0 + 1, y0) * fx;
+            let bottom = lattice(x0, y0 + 1) * (1.0 - fx) + lattice(x0 + 1, y0 + 1) * fx;
+            z += amp * (top * (1.0 - fy) + bottom * fy);
+        }
+        z as f32
+    }
+
+    /// FNV-1a over the vertices' positions and the triangles' indices.
+    fn fingerprint(m: &TriMesh) -> u64 {
+        let mut h = 0xcbf2_9ce4_8422_2325u64;
+        let mut eat = |bytes: &[u8]| {
+            for &b in bytes {
+                h = (h ^ u64::from(b)).wrapping_mul(0x0100_0000_01b3);
+            }
+        };
+        for p in &m.positions {
+            eat(&p.x.to_le_bytes());
+            eat(&p.y.to_le_bytes());
+            eat(&p.z.to_le_bytes());
+        }
+        for t in &m.triangles {
+            t.iter().for_each(|k| eat(&k.to_le_bytes()));
+        }
+        h
+    }
+
+    #[test]
+    fn output_is_pinned_triangle_for_triangle() {
+        // The mesher's speed work must not change a single vertex or triangle: these are
+        // the triangle counts and fingerprints of main before it (2026-12-03, a23565a).
+        let hm = Heightmap::from_fn(301, 217, Georef::local(3.0), hashed).unwrap();
+        let seeds = [[150, 0], [300, 100], [0, 77], [42, 216], [120, 130]];
+        // The same heights with a void disc (NaN) reaching the west border.
+        let (w, h) = (hm.width(), hm.height());
+        let mut voids = VoidMask::new(w, h);
+        let mut data = hm.data().to_vec();
+        for j in 0..h {
+            for i in 0..w {
+                if (i as i64 - 20).pow(2) + (j as i64 - 90).pow(2) < 900 {
+                    voids.set(i, j, true);
+                    data[j * w + i] = f32::NAN;
+                }
+            }
+        }
+        let holed = Heightmap::new(w, h, data, voids, Georef::local(3.0)).unwrap();
+        let got: Vec<(usize, u64)> = [0.05, 0.5, 4.0]
+            .into_iter()
+            .flat_map(|bound| {
+                [build(&hm, bound), build_seeded(&hm, bound, &seeds, true), build(&holed, bound)]
+            })
+            .map(|m| (m.triangles.len(), fingerprint(&m)))
+            .collect();
+        let want: [(usize, u64); 9] = [
+            (64791, 8858538936999255093),
+            (64426, 13063378151317722863),
+            (62394, 817308423241619984),
+            (19794, 16522847300232377025),
+            (19620, 397457956571778275),
+            (19121, 4432548633386860313),
+            (861, 545046945738958998),
+            (842, 17929625846236250871),
+            (854, 13269574065649745266),
+        ];
+        assert_eq!(got, want);
+        // Negative control: the fingerprint sees a single moved vertex.
+        let mut m = build(&hm, 4.0);
+        let before = fingerprint(&m);
+        m.positions[5].z += 1e-9;
+        assert_ne!(fingerprint(&m), before);
+    }
+
     #[test]
     fn in_circle_is_exact_on_cocircular_grid_points() {
         // The unit square's corners are cocircular: neither inside.
         assert!(!in_circle([0, 0], [1, 0], [1, 1], [0, 1]));
         assert!(in_circle([0, 0], [2, 0], [2, 2], [1, 1]));
         assert!(!in_circle([0, 0], [2, 0], [2, 2], [5, 5]));
+    }
+
+    #[test]
+    fn in_circles_i64_path_agrees_with_i128_up_to_its_largest_sides() {
+        // Points at up to 2^14 from d (the i64 path's limit), corners and a deterministic
+        // spread; both answers, and both signs, must occur (or the comparison is vacuous).
+        let n = 1i64 << 14;
+        let mut pts = vec![[0, 0], [n, 0], [0, n], [n, n], [n / 2, n / 2], [1, n - 1]];
+        let mut k = 12_345u64;
+        for _ in 0..60 {
+            k = k.wrapping_mul(6_364_136_223_846_793_005).wrapping_add(1_442_695_040_888_963_407);
+            pts.push([(k >> 33) as i64 % (n + 1), (k >> 13) as i64 % (n + 1)]);
+        }
+        let (mut inside, mut outside) = (0, 0);
+        for (x, &a) in pts.iter().enumerate() {
+            for &b in &pts[x + 1..] {
+                for &c in pts.iter().step_by(7) {
+                    if raster::orient(a, b, c) <= 0 {
+                        continue;
+                    }
+                    for &d in pts.iter().step_by(5) {
+                        let got = in_circle(a, b, c, d);
+                        assert_eq!(got, in_circle_wide(a, b, c, d), "{a:?} {b:?} {c:?} {d:?}");
+                        if got { inside += 1 } else { outside += 1 }
+                    }
+                }
+            }
+        }
+        assert!(inside > 100 && outside > 100, "{inside} inside, {outside} outside");
     }
 }

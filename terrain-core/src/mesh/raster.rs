@@ -13,16 +13,40 @@ pub(crate) fn orient(a: [i64; 2], b: [i64; 2], c: [i64; 2]) -> i64 {
     (b[0] - a[0]) * (c[1] - a[1]) - (b[1] - a[1]) * (c[0] - a[0])
 }
 
-/// `floor(n / d)` for `d > 0`.
-#[inline]
-fn div_floor(n: i64, d: i64) -> i64 {
-    n.div_euclid(d)
+/// `floor(b / a)` along a row-by-row walk, without a division per row: `b` grows by `step`
+/// each row, and the quotient and remainder are stepped exactly (`b = q * a + r`, `0 <= r < a`).
+#[derive(Clone, Copy)]
+struct FloorStep {
+    a: i64,
+    q: i64,
+    r: i64,
+    step_q: i64,
+    step_r: i64,
 }
 
-/// `ceil(n / d)` for `d > 0`.
-#[inline]
-fn div_ceil(n: i64, d: i64) -> i64 {
-    -(-n).div_euclid(d)
+impl FloorStep {
+    /// `floor(b / a)` now, `b + step` next row; `a > 0`.
+    #[inline]
+    fn new(b: i64, step: i64, a: i64) -> Self {
+        Self {
+            a,
+            q: b.div_euclid(a),
+            r: b.rem_euclid(a),
+            step_q: step.div_euclid(a),
+            step_r: step.rem_euclid(a),
+        }
+    }
+
+    /// Moves to the next row.
+    #[inline]
+    fn step(&mut self) {
+        self.q += self.step_q;
+        self.r += self.step_r;
+        if self.r >= self.a {
+            self.r -= self.a;
+            self.q += 1;
+        }
+    }
 }
 
 /// Calls `f(i, j, z)` for every integer sample of the closed counter-clockwise triangle
@@ -48,13 +72,47 @@ pub(crate) fn for_each_sample_in(
 
 /// [`for_each_sample_in`] without the final division: calls `f(i, j, n)` where the height
 /// there is `n / d` exactly as [`for_each_sample`] computes it, `d = orient(v) as f64`. A
-/// caller that only compares against a threshold can skip most divisions (the greedy
-/// mesher's scan) and still decide on the identical value.
+/// caller that only compares against a threshold can skip most divisions and still decide
+/// on the identical value.
 pub(crate) fn for_each_numerator_in(
     v: [[i64; 2]; 3],
     z: [f64; 3],
     clip: [i64; 4],
     mut f: impl FnMut(i64, i64, f64),
+) {
+    for_each_row(v, clip, |y, lo, hi, mut w, dw| {
+        for x in lo..=hi {
+            f(x, y, numerator(w, z));
+            w = step(w, dw);
+        }
+    });
+}
+
+/// The interpolation's numerator at a sample with barycentric weights `w` (times d): the
+/// height there is `numerator(w, z) / d`. The one expression every caller evaluates.
+#[inline]
+pub(crate) fn numerator(w: [f64; 3], z: [f64; 3]) -> f64 {
+    w[0] * z[0] + w[1] * z[1] + w[2] * z[2]
+}
+
+/// The weights one sample east: `w + dw`, exact (see [`for_each_row`]).
+#[inline]
+pub(crate) fn step(w: [f64; 3], dw: [f64; 3]) -> [f64; 3] {
+    [w[0] + dw[0], w[1] + dw[1], w[2] + dw[2]]
+}
+
+/// The rows of the scan conversion: calls `f(j, lo, hi, w, dw)` for every row `j` of the
+/// closed counter-clockwise triangle `v` (inside `clip`) that holds samples `lo..=hi`,
+/// south to north, with `w` the barycentric weights (times `d = orient(v)`) at `(lo, j)`
+/// and `dw` their change per sample east. Walking a row with [`step`] and evaluating
+/// [`numerator`] gives exactly [`for_each_numerator_in`]'s values; a caller with its own
+/// per-sample loop (the greedy mesher's scan, which reads its heights row by row) uses this.
+///
+/// Degenerate or clockwise triangles visit nothing.
+pub(crate) fn for_each_row(
+    v: [[i64; 2]; 3],
+    clip: [i64; 4],
+    mut f: impl FnMut(i64, i64, i64, [f64; 3], [f64; 3]),
 ) {
     let d = orient(v[0], v[1], v[2]);
     if d <= 0 {
@@ -64,39 +122,50 @@ pub(crate) fn for_each_numerator_in(
     let y1 = v[0][1].max(v[1][1]).max(v[2][1]).min(clip[3]);
     let x0 = v[0][0].min(v[1][0]).min(v[2][0]).max(clip[0]);
     let x1 = v[0][0].max(v[1][0]).max(v[2][0]).min(clip[2]);
+    if y0 > y1 || x0 > x1 {
+        return;
+    }
     // Edge k runs from v[k] to v[k + 1]; a sample s is inside (or on) it when
     // orient(p, q, s) = (qx - px)(sy - py) - (qy - py)(sx - px) >= 0. For a fixed row this is
-    // `a * sx <= b` with a = qy - py and b = (qx - px)(sy - py) + a * px.
-    let edges = [(v[0], v[1]), (v[1], v[2]), (v[2], v[0])];
+    // `a * sx <= b` with a = qy - py and b = (qx - px)(sy - py) + a * px: an edge with a > 0
+    // bounds the row's samples above by floor(b / a), one with a < 0 below by
+    // ceil(b / a) = -floor(b / -a). A horizontal edge (a = 0) never empties a row of the
+    // triangle's span: with r the third vertex, orient(p, q, r) = (qx - px)(ry - py) > 0,
+    // so b = (qx - px)(sy - py) >= 0 for every sy between py and ry. The non-horizontal
+    // edges' signs sum to zero, so each side has one or two edges; a side with one lists
+    // it twice (the min or max of a value with itself), so each row costs the same four
+    // exact steps and no division.
+    let (mut ups, mut lows) = ([None; 2], [None; 2]);
+    for k in 0..3 {
+        let (p, q) = (v[k], v[(k + 1) % 3]);
+        let a = q[1] - p[1];
+        let (step, b) = (q[0] - p[0], (q[0] - p[0]) * (y0 - p[1]) + a * p[0]);
+        if a > 0 {
+            ups[usize::from(ups[0].is_some())] = Some(FloorStep::new(b, step, a));
+        } else if a < 0 {
+            lows[usize::from(lows[0].is_some())] = Some(FloorStep::new(b, step, -a));
+        }
+    }
+    let (Some(u0), Some(l0)) = (ups[0], lows[0]) else {
+        return; // unreachable for a counter-clockwise triangle (d > 0)
+    };
+    let mut up = [u0, ups[1].unwrap_or(u0)];
+    let mut low = [l0, lows[1].unwrap_or(l0)];
+    // Barycentric weights times d, exact: w0 for v[0] is the area opposite it. Along a row
+    // they change by their exact integer x-derivatives (orient(p, q, s) changes by
+    // p.y - q.y per unit of s.x). They are stepped as f64: every value is an integer in
+    // [0, d], d at most twice the grid's area, far below 2^53 for any grid that fits in
+    // memory, so each f64 sum is exact and equals `w as f64` of the determinant evaluated
+    // at the sample, bit for bit (no int-to-float conversion per sample).
+    let dw = [v[1][1] - v[2][1], v[2][1] - v[0][1], v[0][1] - v[1][1]].map(|k| k as f64);
     for y in y0..=y1 {
-        let (mut lo, mut hi) = (x0, x1);
-        for &(p, q) in &edges {
-            let a = q[1] - p[1];
-            let b = (q[0] - p[0]) * (y - p[1]) + a * p[0];
-            if a > 0 {
-                hi = hi.min(div_floor(b, a));
-            } else if a < 0 {
-                lo = lo.max(div_ceil(-b, -a));
-            } else if b < 0 {
-                hi = lo - 1; // a horizontal edge with the row on its outer side
-            }
-        }
-        if lo > hi {
-            continue;
-        }
-        // Barycentric weights times d, exact: w0 for v[0] is the area opposite it. They are
-        // evaluated at the row's first sample and then stepped along the row by their exact
-        // integer x-derivatives (orient(p, q, s) changes by p.y - q.y per unit of s.x), so
-        // every weight equals the determinant evaluated at the sample, bit for bit.
-        let s = [lo, y];
-        let (mut w0, mut w1, mut w2) =
-            (orient(v[1], v[2], s), orient(v[2], v[0], s), orient(v[0], v[1], s));
-        let (d0, d1, d2) = (v[1][1] - v[2][1], v[2][1] - v[0][1], v[0][1] - v[1][1]);
-        for x in lo..=hi {
-            f(x, y, w0 as f64 * z[0] + w1 as f64 * z[1] + w2 as f64 * z[2]);
-            w0 += d0;
-            w1 += d1;
-            w2 += d2;
+        let hi = x1.min(up[0].q).min(up[1].q);
+        let lo = x0.max(-low[0].q).max(-low[1].q);
+        up.iter_mut().chain(low.iter_mut()).for_each(FloorStep::step);
+        if lo <= hi {
+            let s = [lo, y];
+            let w = [orient(v[1], v[2], s), orient(v[2], v[0], s), orient(v[0], v[1], s)];
+            f(y, lo, hi, w.map(|k| k as f64), dw);
         }
     }
 }
