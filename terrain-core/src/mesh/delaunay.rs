@@ -116,11 +116,25 @@ struct Slot {
     /// Its half-edges `3t + k`, counter-clockwise, as `[vertex, twin]`: half-edge `e` runs
     /// from its vertex to the next one's, its twin `NONE` on the grid's border.
     he: [[u32; 2]; 3],
-    /// Position in the heap (`NONE`: not there).
-    heap_pos: u32,
     /// Its candidate's sample index `j * width + i` while in the heap; `PENDING` while
     /// waiting for a scan.
     cand: u32,
+}
+
+/// A vertex (16 bytes: its grid sample and height share a cache line).
+#[derive(Debug, Clone, Copy)]
+struct Vertex {
+    /// Grid sample `[i, j]`.
+    at: [u32; 2],
+    /// The sample's height.
+    z: f64,
+}
+
+impl Vertex {
+    #[inline]
+    fn grid(&self) -> [i64; 2] {
+        self.at.map(i64::from)
+    }
 }
 
 /// The greedy mesher's state.
@@ -128,12 +142,13 @@ struct Mesher<'a> {
     hm: &'a Heightmap,
     max_error: f64,
     lock_border: bool,
-    /// Vertex grid coordinates, in insertion order.
-    coords: Vec<[i64; 2]>,
-    /// Vertex heights (f64 of the sample).
-    heights: Vec<f64>,
+    /// The vertices, in insertion order.
+    verts: Vec<Vertex>,
     /// The triangles.
     slots: Vec<Slot>,
+    /// Each slot's position in the heap (`NONE`: not there). Apart from the slots: heap
+    /// sifts write it for slots far apart, and 4 bytes a slot keep more of it in cache.
+    heap_pos: Vec<u32>,
     /// Indexed binary max-heap of the slots with a candidate above the bound; the keys live
     /// in the entries, so sifting reads one contiguous array.
     heap: Vec<Entry>,
@@ -150,9 +165,9 @@ impl<'a> Mesher<'a> {
             hm,
             max_error,
             lock_border,
-            coords: Vec::new(),
-            heights: Vec::new(),
+            verts: Vec::new(),
             slots: Vec::new(),
+            heap_pos: Vec::new(),
             heap: Vec::new(),
             pending: Vec::new(),
             legalize: Vec::new(),
@@ -169,15 +184,16 @@ impl<'a> Mesher<'a> {
     }
 
     fn add_vertex(&mut self, p: [i64; 2]) -> u32 {
-        let k = self.coords.len() as u32;
-        self.coords.push(p);
-        self.heights.push(f64::from(self.hm.get(p[0] as usize, p[1] as usize)));
+        let k = self.verts.len() as u32;
+        let z = f64::from(self.hm.get(p[0] as usize, p[1] as usize));
+        self.verts.push(Vertex { at: [p[0] as u32, p[1] as u32], z });
         k
     }
 
     fn new_slot(&mut self) -> u32 {
         let t = self.slots.len() as u32;
-        self.slots.push(Slot { he: [[0, NONE]; 3], heap_pos: NONE, cand: 0 });
+        self.slots.push(Slot { he: [[0, NONE]; 3], cand: 0 });
+        self.heap_pos.push(NONE);
         t
     }
 
@@ -207,7 +223,7 @@ impl<'a> Mesher<'a> {
 
     #[inline]
     fn at(&self, e: u32) -> [i64; 2] {
-        self.coords[self.he(e as usize)[0] as usize]
+        self.verts[self.he(e as usize)[0] as usize].grid()
     }
 
     /// Inserts grid sample `p` inside (or on an edge of) triangle `t`, not at a vertex, and
@@ -275,7 +291,7 @@ impl<'a> Mesher<'a> {
             }
             let (an, ap, bn, bp) = (next(a), prev(a), next(b), prev(b));
             let [u, v, x, y] = [a, an, ap, bp].map(|k| self.he(k as usize)[0]);
-            let c = |k: u32| self.coords[k as usize];
+            let c = |k: u32| self.verts[k as usize].grid();
             if !in_circle(c(u), c(v), c(x), c(y)) {
                 continue;
             }
@@ -303,8 +319,8 @@ impl<'a> Mesher<'a> {
     fn scan(&mut self, t: u32) {
         let e = 3 * t as usize;
         let vi = [self.he(e)[0], self.he(e + 1)[0], self.he(e + 2)[0]];
-        let g = vi.map(|k| self.coords[k as usize]);
-        let z = vi.map(|k| self.heights[k as usize]);
+        let v = vi.map(|k| self.verts[k as usize]);
+        let (g, z) = (v.map(|v| v.grid()), v.map(|v| v.z));
         let hm = self.hm;
         let (w, h) = (hm.width() as i64, hm.height() as i64);
         let voids = hm.voids().any().then(|| hm.voids());
@@ -351,61 +367,68 @@ impl<'a> Mesher<'a> {
         }
     }
 
-    fn heap_swap(&mut self, i: usize, j: usize) {
-        self.heap.swap(i, j);
-        self.slots[self.heap[i].slot as usize].heap_pos = i as u32;
-        self.slots[self.heap[j].slot as usize].heap_pos = j as u32;
+    /// Puts `entry` at heap position `i` and records it.
+    #[inline]
+    fn heap_set(&mut self, i: usize, entry: Entry) {
+        self.heap[i] = entry;
+        self.heap_pos[entry.slot as usize] = i as u32;
     }
 
+    /// Moves the entry at `i` up to its place. The entries it passes move down one level
+    /// each and it is written once, at the end: the layout a swap at each level gives.
     fn sift_up(&mut self, mut i: usize) {
+        let entry = self.heap[i];
         while i > 0 {
             let parent = (i - 1) / 2;
-            if !self.heap[i].above(&self.heap[parent]) {
+            if !entry.above(&self.heap[parent]) {
                 break;
             }
-            self.heap_swap(i, parent);
+            self.heap_set(i, self.heap[parent]);
             i = parent;
         }
+        self.heap_set(i, entry);
     }
 
+    /// Moves the entry at `i` down to its place (as [`Self::sift_up`], one write a level).
     fn sift_down(&mut self, mut i: usize) {
         let n = self.heap.len();
+        let entry = self.heap[i];
         loop {
             let (l, r) = (2 * i + 1, 2 * i + 2);
             let mut top = i;
-            if l < n && self.heap[l].above(&self.heap[top]) {
-                top = l;
+            let mut top_entry = entry;
+            if l < n && self.heap[l].above(&top_entry) {
+                (top, top_entry) = (l, self.heap[l]);
             }
-            if r < n && self.heap[r].above(&self.heap[top]) {
-                top = r;
+            if r < n && self.heap[r].above(&top_entry) {
+                (top, top_entry) = (r, self.heap[r]);
             }
             if top == i {
                 break;
             }
-            self.heap_swap(i, top);
+            self.heap_set(i, top_entry);
             i = top;
         }
+        self.heap_set(i, entry);
     }
 
     fn heap_push(&mut self, entry: Entry) {
-        self.slots[entry.slot as usize].heap_pos = self.heap.len() as u32;
+        self.heap_pos[entry.slot as usize] = self.heap.len() as u32;
         self.heap.push(entry);
         self.sift_up(self.heap.len() - 1);
     }
 
     fn heap_remove(&mut self, t: u32) {
-        let i = self.slots[t as usize].heap_pos;
+        let i = self.heap_pos[t as usize];
         if i == NONE {
             return;
         }
+        self.heap_pos[t as usize] = NONE;
+        // The last entry fills the hole (as swapping it there and popping).
+        let Some(last) = self.heap.pop() else { return };
         let i = i as usize;
-        let last = self.heap.len() - 1;
-        if i != last {
-            self.heap_swap(i, last);
-        }
-        self.heap.pop();
-        self.slots[t as usize].heap_pos = NONE;
         if i < self.heap.len() {
+            self.heap_set(i, last);
             self.sift_down(i);
             self.sift_up(i);
         }
@@ -462,8 +485,7 @@ impl<'a> Mesher<'a> {
     }
 
     fn into_mesh(self) -> TriMesh {
-        let vertices: Vec<[u32; 2]> =
-            self.coords.iter().map(|p| [p[0] as u32, p[1] as u32]).collect();
+        let vertices: Vec<[u32; 2]> = self.verts.iter().map(|v| v.at).collect();
         let triangles = self.slots.iter().map(|t| t.he.map(|h| h[0])).collect();
         TriMesh::from_grid(self.hm, &vertices, triangles)
     }
