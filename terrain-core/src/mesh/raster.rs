@@ -217,4 +217,46 @@ mod tests {
         for_each_sample([[0, 0], [0, 4], [4, 0]], [0.0; 3], |_, _, _| n += 1);
         assert_eq!(n, 0, "clockwise triangles visit nothing");
     }
+
+    #[test]
+    fn stepped_rows_and_weights_equal_the_determinants_at_every_sample_and_clip() {
+        // Deterministic triangles over the brute-force window: the samples visited, clipped
+        // or not, are the brute-force ones, and each height is bit for bit the weighted mean
+        // of the three determinants evaluated at that sample.
+        let mut k = 7u64;
+        let mut next = || {
+            k = k.wrapping_mul(6_364_136_223_846_793_005).wrapping_add(1_442_695_040_888_963_407);
+            (k >> 35) as i64 % 12
+        };
+        let (mut triangles, mut samples) = (0, 0);
+        for _ in 0..400 {
+            let mut v = [[next(), next()], [next(), next()], [next(), next()]];
+            if orient(v[0], v[1], v[2]) < 0 {
+                v.swap(1, 2);
+            }
+            let d = orient(v[0], v[1], v[2]);
+            if d == 0 {
+                continue;
+            }
+            let z = [1.1 + next() as f64 * 0.7, -3.3 * next() as f64, 0.123_456_789];
+            let clip = [next() - 1, next() - 1, next() + 2, next() + 2];
+            let mut got = Vec::new();
+            for_each_sample_in(v, z, clip, |x, y, h| {
+                let s = [x, y];
+                let w = [orient(v[1], v[2], s), orient(v[2], v[0], s), orient(v[0], v[1], s)];
+                let want =
+                    (w[0] as f64 * z[0] + w[1] as f64 * z[1] + w[2] as f64 * z[2]) / d as f64;
+                assert_eq!(h.to_bits(), want.to_bits(), "{v:?} at ({x}, {y})");
+                got.push((x, y));
+            });
+            let want: Vec<(i64, i64)> = brute(v)
+                .into_iter()
+                .filter(|&(x, y)| x >= clip[0] && y >= clip[1] && x <= clip[2] && y <= clip[3])
+                .collect();
+            assert_eq!(got, want, "{v:?} clipped to {clip:?}");
+            triangles += 1;
+            samples += got.len();
+        }
+        assert!(triangles > 300 && samples > 500, "{triangles} triangles, {samples} samples");
+    }
 }
