@@ -7,7 +7,10 @@
 //! With [`BakeConfig::geomip_patch_cells`], geomorph's table is computed from each band beside
 //! its blocks (one more copy of the band, as a heightmap) and written into the store's
 //! [`GEOMIP_FILE`] as the pass goes (`GeomipOut`), so it is never held whole (it is 40 bytes
-//! per 16-cell patch: 168 MB at 32769^2): memory holds one band's table.
+//! per 16-cell patch: 168 MB at 32769^2): memory holds one band's table. The index's block
+//! entries (7.3 KB a block with 5 node levels) go to disk as each band's blocks finish
+//! ([`crate::entries::EntryFile`]), the index's header last, so memory holds one band's entries,
+//! not the index (120 MB at 32769^2).
 
 use std::fs;
 use std::io::{Seek, SeekFrom, Write};
@@ -563,7 +566,8 @@ pub(crate) fn bake_rows(
             return Err(BakeError::Cancelled);
         }
     }
-    let header = Header { max_error_m: max_err, max_void_error_m: max_void_err, ..plan.header(source) };
+    let header =
+        Header { max_error_m: max_err, max_void_error_m: max_void_err, ..plan.header(source) };
     Ok(BakedRows { header, entries, lossless, bound: quant.bound, geomip })
 }
 

@@ -45,7 +45,8 @@ impl EntryFile {
     /// Creates `path` with `prefix_len` zero bytes, to be overwritten by [`EntryFile::finish`].
     pub(crate) fn create(path: PathBuf, prefix_len: usize) -> Result<Self, BakeError> {
         let err = |cause| BakeError::Io { path: path.clone(), cause };
-        let mut file = BufWriter::with_capacity(BUFFER_BYTES, fs::File::create(&path).map_err(err)?);
+        let mut file =
+            BufWriter::with_capacity(BUFFER_BYTES, fs::File::create(&path).map_err(err)?);
         file.write_all(&vec![0; prefix_len]).map_err(err)?;
         Ok(Self {
             path,
