@@ -148,7 +148,7 @@ mod tests {
         let dir = std::env::temp_dir().join(format!("terrain-entries-{}", std::process::id()));
         std::fs::create_dir_all(&dir).unwrap();
         let path = dir.join("f");
-        for (n, tail) in [(0u32, &b""[..]), (1, b"t"), (300, b"tail bytes")] {
+        for (n, tail) in [(0u32, &b""[..]), (1, &b"t"[..]), (300, &b"tail bytes"[..])] {
             let prefix = b"PREFIX-of-some-length";
             let mut f = EntryFile::create(path.clone(), prefix.len()).unwrap();
             let mut whole = Writer::default();
