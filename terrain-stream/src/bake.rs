@@ -7,7 +7,10 @@
 //! With [`BakeConfig::geomip_patch_cells`], geomorph's table is computed from each band beside
 //! its blocks (one more copy of the band, as a heightmap) and written into the store's
 //! [`GEOMIP_FILE`] as the pass goes (`GeomipOut`), so it is never held whole (it is 40 bytes
-//! per 16-cell patch: 168 MB at 32769^2): memory holds one band's table.
+//! per 16-cell patch: 168 MB at 32769^2): memory holds one band's table. The index's block
+//! entries (7.3 KB a block with 5 node levels) go to disk as each band's blocks finish
+//! ([`crate::entries::EntryFile`]), the index's header last, so memory holds one band's entries,
+//! not the index (120 MB at 32769^2).
 
 use std::fs;
 use std::io::{Seek, SeekFrom, Write};
@@ -26,11 +29,12 @@ use terrain_core::metrics::dss::object_errors;
 use terrain_core::metrics::static_error::StaticErrorPyramid;
 
 use crate::codec::encode_level;
+use crate::entries::EntryFile;
 use crate::error::BakeError;
 use crate::format::{
     BLOCK_HEADER_LEN, BlockEntry, BlockId, Codec, DSS_FACTORS, DssBlockErrors, Header, INDEX_FILE,
     K_RANGE, LevelEntry, NodeValues, SampleEncoding, block_file_name, block_header, crc32,
-    fine_count, node_count, write_index,
+    fine_count, index_prefix, node_count,
 };
 use crate::source::HeightSource;
 
@@ -195,7 +199,8 @@ pub fn bake(
     let start = Instant::now();
     let plan = Plan::new(source, config)?;
     publish(out, config.overwrite, config.threads, crate::store::is_store, |tmp| {
-        let rows = bake_rows(source, tmp, &plan, config, 0..plan.blocks_y, progress)?;
+        let index = index_file(tmp, &plan.header(source))?;
+        let rows = bake_rows(source, tmp, &plan, config, 0..plan.blocks_y, index, progress)?;
         finish(tmp, rows, start)
     })
 }
@@ -367,6 +372,7 @@ pub(crate) struct Plan {
     width: usize,
     node_levels: u8,
     quant: Quant,
+    codec: Codec,
     /// Geomorph's patch cells, when its table is computed in the pass (they divide a block).
     pub geomip: Option<u32>,
 }
@@ -423,17 +429,43 @@ impl Plan {
             .map(GeomipTable::patch_cells_for)
             .filter(|&p| u64::from(p) <= cells);
         let node_levels = config.node_levels.min(k);
-        Ok(Self { k, blocks_x, blocks_y, width, node_levels, quant, geomip })
+        Ok(Self { k, blocks_x, blocks_y, width, node_levels, quant, codec: config.codec, geomip })
+    }
+
+    /// The store's header before its blocks are baked: errors and bake id 0.
+    pub(crate) fn header(&self, source: &dyn HeightSource) -> Header {
+        Header {
+            width: source.width(),
+            height: source.height(),
+            k: self.k,
+            blocks_x: self.blocks_x as u32,
+            blocks_y: self.blocks_y as u32,
+            encoding: self.quant.encoding,
+            codec: self.codec,
+            max_error_m: 0.0,
+            max_void_error_m: 0.0,
+            error_bound_m: 0.0,
+            node_levels: self.node_levels,
+            georef: source.georef(),
+            bake_id: 0,
+            vertical_scale: 1.0,
+        }
     }
 }
 
-/// Blocks baked for some rows of the block grid: their entries (row-major) and what their
-/// encoding measured. The header's `bake_id` is 0 and its error fields are these rows' own:
-/// [`finish`] sets them for the whole store.
+/// The store's index in `dir`, to be written entry by entry as the blocks finish (its header,
+/// whose length `header` gives, is written last, by [`finish`]).
+pub(crate) fn index_file(dir: &Path, header: &Header) -> Result<EntryFile, BakeError> {
+    EntryFile::create(dir.join(INDEX_FILE), index_prefix(header).len())
+}
+
+/// Blocks baked for some rows of the block grid: their entries (row-major, written into a file
+/// as they were baked) and what their encoding measured. The header's `bake_id` is 0 and its
+/// error fields are these rows' own: [`finish`] sets them for the whole store.
 #[derive(Debug)]
 pub(crate) struct BakedRows {
     pub header: Header,
-    pub entries: Vec<BlockEntry>,
+    pub entries: EntryFile,
     pub lossless: bool,
     /// The error bound the encoding promised (`HeightEncoding::Bounded`), metres.
     pub bound: Option<f64>,
@@ -444,23 +476,24 @@ pub(crate) struct BakedRows {
 }
 
 /// Bakes block rows `rows` (a range of `0..plan.blocks_y`) of `source` into `dir/blocks`, their
-/// block files with a bake id of 0 (patched by [`finish`]).
+/// block files with a bake id of 0 (patched by [`finish`]), and their entries into `entries`
+/// band by band (memory holds one band's entries).
 pub(crate) fn bake_rows(
     source: &dyn HeightSource,
     dir: &Path,
     plan: &Plan,
     config: &BakeConfig,
     rows: std::ops::Range<u64>,
+    mut entries: EntryFile,
     progress: &mut (dyn FnMut(&BakeProgress) -> ControlFlow<()> + Send),
 ) -> Result<BakedRows, BakeError> {
-    let (w, h) = (source.width(), source.height());
+    let h = source.height();
     let Plan { k, blocks_x, width, node_levels, quant, geomip: patch, .. } = *plan;
     let cells = 1u64 << k;
     let side = cells as usize + 1;
     let total = (blocks_x * (rows.end - rows.start)) as usize;
     let mut band = vec![0f32; if total == 0 { 0 } else { width * side }];
     let mut voids = vec![false; band.len()];
-    let mut entries: Vec<BlockEntry> = Vec::with_capacity(total);
     let (mut max_err, mut max_void_err, mut lossless) = (0f64, 0f64, true);
     let mut prog =
         BakeProgress { blocks_done: 0, blocks_total: total, rows_read: 0, bytes_written: 0 };
@@ -519,7 +552,7 @@ pub(crate) fn bake_rows(
             max_void_err = max_void_err.max(b.max_void_err);
             lossless &= b.lossless;
             prog.bytes_written += b.entry.file_len;
-            entries.push(b.entry);
+            entries.push(&b.entry)?;
         }
         if let Some(bound) = quant.bound
             && max_err > bound
@@ -528,27 +561,13 @@ pub(crate) fn bake_rows(
                 "measured error {max_err} m exceeds the bound {bound} m"
             )));
         }
-        prog.blocks_done = entries.len();
+        prog.blocks_done = entries.count();
         if progress(&prog).is_break() {
             return Err(BakeError::Cancelled);
         }
     }
-    let header = Header {
-        width: w,
-        height: h,
-        k,
-        blocks_x: blocks_x as u32,
-        blocks_y: plan.blocks_y as u32,
-        encoding: quant.encoding,
-        codec: config.codec,
-        max_error_m: max_err,
-        max_void_error_m: max_void_err,
-        error_bound_m: 0.0,
-        node_levels,
-        georef: source.georef(),
-        bake_id: 0,
-        vertical_scale: 1.0,
-    };
+    let header =
+        Header { max_error_m: max_err, max_void_error_m: max_void_err, ..plan.header(source) };
     Ok(BakedRows { header, entries, lossless, bound: quant.bound, geomip })
 }
 
@@ -657,24 +676,24 @@ impl GeomipOut {
 
 /// Completes a store in `dir` whose block files (bake id 0) and entries, every row of the
 /// grid, are in `baked`: the bake id, an FNV-1a hash over every level's checksum, patched
-/// into every block file, then the index, written last.
+/// into every block file, then the index's header, written last (its entries are in the file
+/// already, after zeros where the header goes: not an index until then).
 pub(crate) fn finish(
     dir: &Path,
     baked: BakedRows,
     start: Instant,
 ) -> Result<BakeReport, BakeError> {
     let BakedRows { mut header, entries, lossless, bound, geomip } = baked;
-    debug_assert_eq!(entries.len(), header.block_count());
-    let mut id = 0xcbf2_9ce4_8422_2325u64;
-    for e in &entries {
-        for l in &e.levels {
-            for b in l.crc32.to_le_bytes() {
-                id = (id ^ b as u64).wrapping_mul(0x0100_0000_01b3);
-            }
-        }
+    if entries.count() != header.block_count() {
+        return Err(BakeError::Encoding(format!(
+            "{} block entries for {} blocks",
+            entries.count(),
+            header.block_count()
+        )));
     }
-    let bytes_written: u64 = entries.iter().map(|e| e.file_len).sum();
-    (0..entries.len()).into_par_iter().try_for_each(|pos| {
+    let id = entries.bake_id();
+    let bytes_written = entries.block_bytes();
+    (0..header.block_count()).into_par_iter().try_for_each(|pos| {
         let path = dir.join(block_file_name(header.block_at(pos)));
         let mut f = fs::OpenOptions::new().write(true).open(&path).map_err(io_err(&path))?;
         f.seek(SeekFrom::Start(12)).map_err(io_err(&path))?;
@@ -686,14 +705,12 @@ pub(crate) fn finish(
         Some((out, heights)) => out.finish(heights.finish())?,
         None => None,
     };
-    let index = write_index(&header, &entries);
-    let path = dir.join(INDEX_FILE);
-    fs::write(&path, &index).map_err(io_err(&path))?;
+    let index_bytes = entries.finish(&index_prefix(&header), &[])?;
     let source_samples = header.width * header.height;
     Ok(BakeReport {
         header,
-        store_bytes: bytes_written + index.len() as u64,
-        index_bytes: index.len() as u64,
+        store_bytes: bytes_written + index_bytes,
+        index_bytes,
         source_samples,
         elapsed: start.elapsed(),
         lossless,

@@ -612,21 +612,21 @@ pub(crate) fn write_entry(w: &mut Writer, b: &BlockEntry) {
     }
 }
 
-/// Serialises the index: magic, version, header, block entries, trailing CRC-32.
-pub(crate) fn write_index(header: &Header, blocks: &[BlockEntry]) -> Vec<u8> {
-    // Sized up front: the index of a big store is megabytes, and growing by doubling would
-    // hold two copies at once (the bake's peak memory).
-    let per_block = blocks.first().map_or(0, |b| {
-        24 + b.levels.len() * 16
-            + b.level_errors.len() * 4
-            + 2 * DSS_FACTORS * 4
-            + b.nodes.len() * 12
-            + b.fine_errors.len() * 4
-    });
-    let mut w = Writer { buf: Vec::with_capacity(512 + blocks.len() * per_block) };
+/// The index's bytes before its block entries: magic, version, header. Its length depends only
+/// on the header's CRS and encoding, not on the values a bake knows only at its end.
+pub(crate) fn index_prefix(header: &Header) -> Vec<u8> {
+    let mut w = Writer::default();
     w.bytes(&MAGIC);
     w.u32(INDEX_VERSION);
     write_header(&mut w, header);
+    w.buf
+}
+
+/// Serialises the index whole: [`index_prefix`], block entries, trailing CRC-32. (A bake writes
+/// the same bytes entry by entry, `crate::entries::EntryFile`.)
+#[cfg(test)]
+pub(crate) fn write_index(header: &Header, blocks: &[BlockEntry]) -> Vec<u8> {
+    let mut w = Writer { buf: index_prefix(header) };
     for b in blocks {
         write_entry(&mut w, b);
     }

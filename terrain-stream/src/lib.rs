@@ -87,6 +87,7 @@
 mod bake;
 mod cache;
 mod codec;
+mod entries;
 mod error;
 mod format;
 mod lod;

@@ -31,12 +31,13 @@ use terrain_core::lod::geomip_file::GeomipFor;
 
 use crate::bake::{
     BakeConfig, BakeProgress, BakeReport, BakedRows, GEOMIP_FILE, GeomipOut, Plan, bake_rows,
-    publish,
+    index_file, publish,
 };
+use crate::entries::EntryFile;
 use crate::error::BakeError;
 use crate::format::{
     BLOCK_HEADER_LEN, BlockEntry, Header, IndexError, Reader, Writer, block_file_name, crc32,
-    fine_count, read_entry, read_header, write_entry, write_header,
+    fine_count, read_entry, read_header, write_header,
 };
 use crate::source::HeightSource;
 
@@ -169,10 +170,14 @@ pub fn bake_shard(
     let shard = Shard::new(shard.index, shard.count)?;
     let plan = Plan::new(source, config)?;
     let rows = shard.rows(plan.blocks_y);
+    let options = bake_options(config);
     publish(part, config.overwrite, config.threads, is_part, |tmp| {
-        let mut baked = bake_rows(source, tmp, &plan, config, rows.clone(), progress)?;
-        let bytes = baked.entries.iter().map(|e| e.file_len).sum();
-        let blocks = baked.entries.len();
+        // The part file, its entries written as the blocks finish, its prefix last.
+        let header = plan.header(source);
+        let blocks = ((rows.end - rows.start) * plan.blocks_x) as usize;
+        let prefix = part_prefix(shard, &rows, source_id, &options, true, None, &header, blocks);
+        let entries = EntryFile::create(tmp.join(PART_FILE), prefix.len())?;
+        let mut baked = bake_rows(source, tmp, &plan, config, rows.clone(), entries, progress)?;
         // Geomorph's table of the shard's rows, as a grid of their own.
         let geomip = match (baked.geomip.take(), plan.geomip) {
             (Some((out, heights)), Some(p)) => {
@@ -181,9 +186,11 @@ pub fn bake_shard(
             }
             _ => None,
         };
-        let file = write_part(shard, &rows, source_id, &bake_options(config), &baked, &geomip);
-        let path = tmp.join(PART_FILE);
-        fs::write(&path, file).map_err(|cause| BakeError::Io { path, cause })?;
+        let BakedRows { header, entries, lossless, bound, .. } = baked;
+        let (blocks, bytes) = (entries.count(), entries.block_bytes());
+        let prefix =
+            part_prefix(shard, &rows, source_id, &options, lossless, bound, &header, blocks);
+        entries.finish(&prefix, &part_tail(&geomip))?;
         Ok(ShardReport { shard, rows: rows.clone(), blocks, bytes, elapsed: start.elapsed() })
     })
 }
@@ -222,13 +229,19 @@ pub fn find_parts(path: &Path) -> Result<Vec<PathBuf>, BakeError> {
     Ok(parts)
 }
 
-fn write_part(
+/// A part file's bytes before its block entries: magic, version, shard and rows, source id and
+/// options, the encoding's verdict, the header, the number of entries. Its length does not
+/// depend on the values known only at the end (`lossless`, `bound`, the header's errors).
+#[allow(clippy::too_many_arguments)]
+fn part_prefix(
     shard: Shard,
     rows: &Range<u64>,
     source_id: &str,
     options: &str,
-    baked: &BakedRows,
-    geomip: &Option<(u32, HeightsChecksum)>,
+    lossless: bool,
+    bound: Option<f64>,
+    header: &Header,
+    entries: usize,
 ) -> Vec<u8> {
     let mut w = Writer::default();
     w.bytes(&PART_MAGIC);
@@ -241,21 +254,23 @@ fn write_part(
         w.u32(s.len() as u32);
         w.bytes(s.as_bytes());
     }
-    w.u8(baked.lossless as u8);
-    w.u8(baked.bound.is_some() as u8);
-    w.f64(baked.bound.unwrap_or(0.0));
-    write_header(&mut w, &baked.header);
-    w.u64(baked.entries.len() as u64);
-    for e in &baked.entries {
-        write_entry(&mut w, e);
-    }
+    w.u8(lossless as u8);
+    w.u8(bound.is_some() as u8);
+    w.f64(bound.unwrap_or(0.0));
+    write_header(&mut w, header);
+    w.u64(entries as u64);
+    w.buf
+}
+
+/// A part file's bytes after its block entries (before its CRC-32): geomorph's table's patch
+/// cells and the rows' heights checksum, if computed.
+fn part_tail(geomip: &Option<(u32, HeightsChecksum)>) -> Vec<u8> {
+    let mut w = Writer::default();
     w.u8(geomip.is_some() as u8);
     if let Some((p, heights)) = geomip {
         w.u32(*p);
         w.bytes(&heights.to_bytes());
     }
-    let crc = crc32(&w.buf);
-    w.u32(crc);
     w.buf
 }
 
@@ -380,7 +395,7 @@ pub fn merge(
         let first = &infos[0];
         let mut all = BakedRows {
             header: first.header.clone(),
-            entries: Vec::with_capacity(total),
+            entries: index_file(tmp, &first.header)?,
             lossless: true,
             bound: first.bound,
             geomip: geomip_of(&infos, tmp)?,
@@ -391,8 +406,10 @@ pub fn merge(
             all.header.max_void_error_m =
                 all.header.max_void_error_m.max(part.header.max_void_error_m);
             all.lossless &= part.lossless;
-            all.entries.extend(part.entries.iter().cloned());
-            prog.blocks_done = all.entries.len();
+            for e in &part.entries {
+                all.entries.push(e)?;
+            }
+            prog.blocks_done = all.entries.count();
             prog.rows_read += part.rows.end - part.rows.start;
             prog.bytes_written += part.entries.iter().map(|e| e.file_len).sum::<u64>();
             if progress(&prog).is_break() {

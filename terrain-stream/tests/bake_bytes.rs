@@ -4,7 +4,8 @@
 //! the same store, every file byte for byte (geomorph's table, computed from the same bands,
 //! included). A negative control (one sample changed) shows the comparison sees a difference.
 //! Geomorph's table, written into its file band by band as the pass computes it, has the bytes
-//! that the table held whole gave before it was streamed (a pinned checksum).
+//! that the table held whole gave before it was streamed (a pinned checksum); so has the index,
+//! whose entries are written as the blocks finish.
 //!
 //! A sharded bake (`bake_shard` K/N, then `merge`) is the same store too, for N = 1..5, on a
 //! generated grid and one with voids (a negative control: one shard of a changed grid shows),
@@ -136,6 +137,30 @@ fn the_geomorph_table_written_band_by_band_has_the_pinned_bytes() {
     let other = bake_dir(&changed, "geomip-pinned-changed", 2);
     let changed = std::fs::read(other.join(terrain_stream::GEOMIP_FILE)).unwrap();
     assert_ne!(crc(&changed), 0x8601_6b9b);
+    for d in [out, other] {
+        let _ = std::fs::remove_dir_all(d);
+    }
+}
+
+#[test]
+fn the_index_written_entry_by_entry_has_the_pinned_bytes() {
+    // The bytes of the index built whole in memory and written at the end (main before the
+    // entries were streamed, `terrain bake --synthetic 301 --block-k 6 --no-pvs --no-roughness
+    // --no-calibration`: this config, its geomip.bin the pinned one above). The entries now go
+    // to disk as each band's blocks finish, the header last.
+    let synth = FractalConfig::with_size(301, 301, 10.0);
+    let out = bake_dir(&synth, "index-pinned", 2);
+    let index = std::fs::read(out.join(terrain_stream::INDEX_FILE)).unwrap();
+    let crc = |b: &[u8]| terrain_core::checksum::crc32(&b[..b.len() - 4]);
+    assert_eq!((index.len(), crc(&index)), (138458, 0x98b5_745c), "index.tsi's bytes changed");
+    // Negative control: one height changes the index (a block's levels' checksums and range).
+    let hm = synth.to_heightmap().unwrap();
+    let mut data = hm.data().to_vec();
+    data[150 * 301 + 77] += 5.0;
+    let changed = Heightmap::new(301, 301, data, hm.voids().clone(), hm.georef().clone()).unwrap();
+    let other = bake_dir(&changed, "index-pinned-changed", 2);
+    let changed = std::fs::read(other.join(terrain_stream::INDEX_FILE)).unwrap();
+    assert_ne!(crc(&changed), 0x98b5_745c);
     for d in [out, other] {
         let _ = std::fs::remove_dir_all(d);
     }
