@@ -100,7 +100,7 @@ fn mt_rainier_geotiff() {
     assert_eq!(dem.source.format, Format::GeoTiff);
     assert_eq!(dem.source.sample_type, "int16");
     assert_eq!(dem.source.nodata, Some(-32768.0));
-    // Filled voids stay within the non-void range (IDW is a convex combination).
+    // Filled voids stay within the non-void range (the membrane fill is a convex combination).
     assert!(hm.data().iter().all(|&z| z.is_finite() && z >= hm.min() && z <= hm.max()));
     // The SW sample centre is on whole degrees for these SRTM-derived tiles (PixelIsArea shift).
     let o = hm.georef().native_origin;

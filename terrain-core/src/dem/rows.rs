@@ -3,8 +3,8 @@
 //! bakes of grids larger than memory (terrain-stream's `HeightSource`).
 //!
 //! Rows are delivered south first, like [`Heightmap`](crate::heightmap::Heightmap). Voids
-//! (no-data, NaN) are marked and filled, but not as [`load`](super::load) fills them (IDW from
-//! each void region's whole rim needs the whole grid): here a void sample takes the
+//! (no-data, NaN) are marked and filled, but not as [`load`](super::load) fills them (the membrane
+//! fill of [`voids`](super::voids) needs the whole grid): here a void sample takes the
 //! inverse-distance-squared mean (distances in metres) of the nearest valid sample in each of
 //! the four axis directions: along its row (the whole row) and along its column within
 //! [`FILL_REACH_ROWS`] rows. That value is a pure function of the sample's row and the rows
