@@ -118,13 +118,9 @@ pub(crate) fn measure(
     }
     let hm = ooc::store_heightmap_exact(scene.store())?;
     let reference = MethodScene::new(hm, config.clone());
-    let method =
-        method::store_method(kind, scene, config, OocWait::EveryFrame, Some(&reference))?;
-    let mut run = FrameLoop::new(method).measured(
-        &reference.hm,
-        &reference.qt,
-        MeasureConfig::default(),
-    );
+    let method = method::store_method(kind, scene, config, OocWait::EveryFrame, Some(&reference))?;
+    let mut run =
+        FrameLoop::new(method).measured(&reference.hm, &reference.qt, MeasureConfig::default());
     let frame = run.frame(0, camera, None)?;
     Ok(Outcome::Measured(frame.record.errors))
 }
