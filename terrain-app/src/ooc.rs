@@ -881,6 +881,36 @@ pub fn store_heightmap(
     blocks: [std::ops::Range<u32>; 2],
     fill: f32,
 ) -> Result<Heightmap, StoreError> {
+    let (w, h, data, georef) = assemble(store, level, blocks, Some(fill))?;
+    Ok(Heightmap::from_fn(w, h, georef, |i, j| data[j * w + i]).expect("finite store heights"))
+}
+
+/// The whole grid of `store` at full resolution (its level `k`), exactly as stored: a
+/// measurement's reference (`terrain view`'s on-demand p99 over a store). Unlike
+/// [`store_heightmap`] nothing is made up: a block that cannot be read at full resolution is an
+/// error, and so is a sample no block covers. Heights as `store` reads them (its exaggeration,
+/// its quantization).
+pub fn store_heightmap_exact(store: &Store) -> anyhow::Result<Heightmap> {
+    let h = store.header();
+    let (w, hh, data, georef) = assemble(store, h.k, [0..h.blocks_x, 0..h.blocks_y], None)
+        .map_err(|e| anyhow::anyhow!("could not read the store at full resolution: {e}"))?;
+    Heightmap::new(w, hh, data, terrain_core::VoidMask::new(w, hh), georef).map_err(|e| {
+        anyhow::anyhow!(
+            "the store {} does not cover its grid at full resolution ({e}): bake it again",
+            store.dir().display()
+        )
+    })
+}
+
+/// The samples of [`store_heightmap`] (`fill: Some`) or [`store_heightmap_exact`] (`None`:
+/// only `level` itself is read, a failed read is an error, and uncovered samples are NaN):
+/// width, height, row-major heights and the window's georeference.
+fn assemble(
+    store: &Store,
+    level: u8,
+    blocks: [std::ops::Range<u32>; 2],
+    fill: Option<f32>,
+) -> Result<(usize, usize, Vec<f32>, Georef), StoreError> {
     let h = store.header();
     let level = level.min(h.k);
     let d = 1u64 << (h.k - level);
@@ -892,15 +922,21 @@ pub fn store_heightmap(
     let hh = full_h.saturating_sub(j0).min(rows.len() * per_block + 1);
     // A baked grid is at least 2 x 2 samples, and so is every block's share of it at `k`.
     let (w, hh) = (w.max(2), hh.max(2));
-    let mut data = vec![0f32; w * hh];
+    let mut data = vec![fill.unwrap_or(f32::NAN); w * hh];
     for id in store.block_ids().filter(|b| cols.contains(&b.col) && rows.contains(&b.row)) {
-        // The overview only places cameras and frames views: the renderer reports each
-        // fault itself when it streams the block, so nothing is said here.
-        let read = (0..=level).rev().find_map(|l| {
-            let b = store.read_block(id, l).ok()?;
-            Some((l, b.grid(l)?))
-        });
+        let read = match fill {
+            // Exact: this level or an error.
+            None => store.read_block(id, level)?.grid(level).map(|g| (level, g)),
+            // The overview only places cameras and frames views: the renderer reports each
+            // fault itself when it streams the block, so nothing is said here.
+            Some(_) => (0..=level).rev().find_map(|l| {
+                let b = store.read_block(id, l).ok()?;
+                Some((l, b.grid(l)?))
+            }),
+        };
+        let Some((l, grid)) = read else { continue };
         let side = per_block + 1;
+        let (ls, shift) = ((1usize << l) + 1, level - l);
         for bj in 0..side {
             let j = (id.row - rows.start) as usize * per_block + bj;
             if j >= hh {
@@ -909,13 +945,7 @@ pub fn store_heightmap(
             for bi in 0..side {
                 let i = (id.col - cols.start) as usize * per_block + bi;
                 if i < w {
-                    data[j * w + i] = match &read {
-                        Some((l, grid)) => {
-                            let (ls, shift) = ((1usize << l) + 1, level - l);
-                            grid[(bj >> shift) * ls + (bi >> shift)]
-                        }
-                        None => fill,
-                    };
+                    data[j * w + i] = grid[(bj >> shift) * ls + (bi >> shift)];
                 }
             }
         }
@@ -923,7 +953,7 @@ pub fn store_heightmap(
     let spacing = h.georef.spacing_m * d as f64;
     let origin = h.georef.world_origin + DVec2::new(i0 as f64, j0 as f64) * h.georef.spacing_m;
     let g = Georef::projected(Crs::Unknown, origin, spacing);
-    Ok(Heightmap::from_fn(w, hh, g, |i, j| data[j * w + i]).expect("finite store heights"))
+    Ok((w, hh, data, g))
 }
 
 /// Drops from `extra` every triangle with a vertex on a patch marked `off` (indexed by the
@@ -940,4 +970,51 @@ fn drop_triangles_of(extra: &mut ExtraTriangles, off: &[bool]) {
         .flatten()
         .copied()
         .collect();
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use terrain_stream::{BakeConfig, BakeProgress, HeightEncoding, bake};
+
+    /// A store's exact full-resolution grid is the DEM it was baked from: bit for bit from a
+    /// raw-f32 store, within the bake's bound (and not equal: the check can fail) from a
+    /// quantized one; a store whose block file is gone is an error, not made-up heights.
+    #[test]
+    fn the_exact_grid_is_the_baked_dem() {
+        let f = |i: usize, j: usize| 100.0 + 0.37 * j as f32 + ((i * 7 + j * 13) % 11) as f32 * 0.3;
+        let hm = Heightmap::from_fn(129, 97, Georef::local(10.0), f).unwrap();
+        let base = std::env::temp_dir().join(format!("terrain-app-exact-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&base);
+        for (name, encoding) in [
+            ("f32", HeightEncoding::F32),
+            ("bounded", HeightEncoding::Bounded { max_error_m: 0.05 }),
+        ] {
+            let dir = base.join(name);
+            let cfg = BakeConfig { k: 5, encoding, ..Default::default() };
+            bake(&hm, &dir, &cfg, &mut |_: &BakeProgress| std::ops::ControlFlow::Continue(()))
+                .unwrap();
+            let store = Store::open(&dir).unwrap();
+            let exact = store_heightmap_exact(&store).unwrap();
+            assert_eq!((exact.width(), exact.height()), (129, 97));
+            assert_eq!(exact.georef().world_origin, hm.georef().world_origin);
+            let off = exact
+                .data()
+                .iter()
+                .zip(hm.data())
+                .map(|(a, b)| f64::from((a - b).abs()))
+                .fold(0.0, f64::max);
+            match encoding {
+                HeightEncoding::F32 => assert_eq!(off, 0.0, "{name}"),
+                _ => assert!(off > 0.0 && off <= 0.05 + 1e-4, "{name}: {off}"),
+            }
+        }
+        // Negative control: the block files gone, the grid cannot be read.
+        let dir = base.join("f32");
+        let store = Store::open(&dir).unwrap();
+        std::fs::remove_dir_all(dir.join("blocks")).unwrap();
+        let err = store_heightmap_exact(&store).map(|_| ()).unwrap_err().to_string();
+        assert!(err.contains("could not read the store at full resolution"), "{err}");
+        std::fs::remove_dir_all(&base).unwrap();
+    }
 }

@@ -141,6 +141,8 @@ fn shared_drawing_options_are_checked_alike() {
         &["view", "--cache-mib", "8", "--page-mib", "4"],
         &["--cache-mib, --page-mib apply to a baked store"],
     );
+    // The measurement's reference budget is a store's (a DEM in memory is its own reference).
+    refused(&["view", "--measure-mib", "8"], &["--measure-mib apply to a baked store"]);
     refused(&["render", "--page-capacity", "8", "-o", png], &["--page-capacity applies"]);
     let _ = std::fs::remove_dir_all(&dir);
 }

@@ -450,3 +450,85 @@ fn a_store_is_exaggerated_and_a_paced_flight_keeps_its_clock() {
     println!("{} frames drawn showed flight frames 0..{last}", shown.len());
     assert!(last >= 240, "the flight played to near its end (frame {last} of 300)");
 }
+
+/// The `view: measured p99 P px, max M px (N samples...` lines of a run: (p99, max, samples).
+fn measured(out: &str) -> Vec<(f64, f64, usize)> {
+    out.lines()
+        .filter_map(|l| l.strip_prefix("view: measured p99 "))
+        .map(|l| {
+            let w: Vec<&str> = l.split_whitespace().collect();
+            let num =
+                |s: &str| s.trim_matches(|c: char| !c.is_ascii_digit() && c != '.').to_owned();
+            (num(w[0]).parse().unwrap(), num(w[3]).parse().unwrap(), num(w[5]).parse().unwrap())
+        })
+        .collect()
+}
+
+/// The on-demand measurement (the script's `measure`, the M key) over a store reads the
+/// store's full-resolution heights on a worker and runs the benchmark's measurement: over a
+/// lossless store (`--raw-f32`) of the embedded terrain it equals the measurement of the same
+/// camera and method over the terrain in memory: the same sample count, and the same p99 and
+/// max as printed (3 decimals; same heights and node bounds, so the same patches and the same
+/// drawn surface: no tolerance is needed); `ooc`, a store-only method, measures too. Negative
+/// control: with `--measure-mib 1` (the 1025^2 grid needs 5 MiB) the panel and stdout say
+/// so and which option to raise, and give no number.
+#[test]
+fn a_store_frame_is_measured_against_its_own_heights() {
+    let Some(x) = start_xvfb(29) else { return };
+    let dir = scratch("view", "measure");
+    let store = dir.join("s.scene");
+    let b = terrain(&[
+        "bake",
+        "--synthetic",
+        "1025",
+        "--raw-f32",
+        "-o",
+        store.to_str().unwrap(),
+        "--no-pvs",
+        "--no-dss",
+        "--no-roughness",
+        "--no-geomip",
+    ]);
+    assert!(b.status.success(), "{}", String::from_utf8_lossy(&b.stderr));
+    let script = dir.join("script.txt");
+    let run = |source: Option<&str>, text: &str, extra: &[&str]| {
+        std::fs::write(&script, text).unwrap();
+        let mut args: Vec<&str> = source.into_iter().collect();
+        args.extend(["--size", "320x180", "--method", "uniform", "--script"]);
+        args.push(script.to_str().unwrap());
+        args.extend(extra);
+        view(&x.display, &dir, &args, Duration::from_secs(240))
+    };
+    let measure = format!("camera {START}\nwait 3\nmeasure\n");
+    let (ok, mem, err) = run(None, &format!("{measure}quit\n"), &[]);
+    if !ok && no_adapter(&err) && !require() {
+        eprintln!("skipping: {err}");
+        return;
+    }
+    assert!(ok, "terrain view of the embedded terrain failed:\n{mem}\n{err}");
+    let (ok, out, err) =
+        run(Some(store.to_str().unwrap()), &format!("{measure}method ooc\n{measure}quit\n"), &[]);
+    assert!(ok, "terrain view of the store failed:\n{out}\n{err}");
+    let (m, s) = (measured(&mem), measured(&out));
+    assert_eq!(m.len(), 1, "{mem}");
+    assert_eq!(s.len(), 2, "{out}");
+    println!("in memory {:?}, store (uniform, ooc) {:?}", m[0], s);
+    assert!(out.contains("reference: the store's full-resolution heights"), "{out}");
+    let (mem, store_uniform, ooc) = (m[0], s[0], s[1]);
+    assert!(mem.2 > 10_000 && mem.0 > 0.0, "a vacuous measurement: {mem:?}");
+    assert_eq!(store_uniform.2, mem.2, "samples: store {store_uniform:?}, memory {mem:?}");
+    assert!((store_uniform.0 - mem.0).abs() < 1e-9, "p99: {store_uniform:?} vs {mem:?}");
+    assert!((store_uniform.1 - mem.1).abs() < 1e-9, "max: {store_uniform:?} vs {mem:?}");
+    assert!(ooc.2 > 10_000 && ooc.0.is_finite() && ooc.0 > 0.0, "ooc: {ooc:?}");
+    // Negative control: a budget too small refuses, with the figures and the option.
+    let (ok, out, err) =
+        run(Some(store.to_str().unwrap()), &format!("{measure}quit\n"), &["--measure-mib", "1"]);
+    assert!(ok, "terrain view of the store failed:\n{out}\n{err}");
+    assert!(measured(&out).is_empty(), "{out}");
+    assert!(
+        out.contains("view: measured n/a: the store's full-resolution reference is 1050625 samples (5 MiB), over --measure-mib 1: raise --measure-mib"),
+        "{out}"
+    );
+    drop(x);
+    let _ = std::fs::remove_dir_all(&dir);
+}

@@ -18,6 +18,7 @@
 //!   data, whether the frame waited) with the medians, p95, max and the slow frames' causes.
 
 mod camera;
+mod measure;
 mod panel;
 mod present;
 mod record;
@@ -94,6 +95,11 @@ pub(crate) struct ViewArgs {
     pub stats_json: Option<PathBuf>,
     #[command(flatten)]
     pub store: crate::draw_args::StoreArgs,
+    /// A store: MiB the on-demand measurement (M) may hold for its reference, the store's
+    /// full-resolution heights (4 bytes a sample of the whole grid); over it the panel says so
+    /// instead of measuring [default: 1024].
+    #[arg(long, alias = "measure-mb")]
+    pub measure_mib: Option<u64>,
 }
 
 /// Runs `terrain view`.
@@ -115,8 +121,15 @@ pub(crate) fn run(args: &ViewArgs) -> anyhow::Result<()> {
     };
     // Options the mode would ignore are refused before anything opens.
     if store.is_none() {
-        let given: Vec<&str> =
-            args.store.given().iter().filter(|(_, g)| *g).map(|(n, _)| *n).collect();
+        let measure_mib = ("--measure-mib", args.measure_mib.is_some());
+        let given: Vec<&str> = args
+            .store
+            .given()
+            .iter()
+            .chain([&measure_mib])
+            .filter(|(_, g)| *g)
+            .map(|(n, _)| *n)
+            .collect();
         if !given.is_empty() {
             bail!("{} apply to a baked store, not to a DEM file", given.join(", "));
         }
@@ -158,7 +171,11 @@ pub(crate) fn run(args: &ViewArgs) -> anyhow::Result<()> {
         ..Default::default()
     };
     let terrain = match &store {
-        Some(dir) => Terrain::Store(Box::new(StoreTerrain::open(dir, config)?)),
+        Some(dir) => Terrain::Store(Box::new(StoreTerrain::open(
+            dir,
+            config,
+            args.measure_mib.unwrap_or(self::measure::MEASURE_MIB),
+        )?)),
         None => {
             let hm = match args.source.load_surface()? {
                 Some(dem) => dem.heightmap,
@@ -339,6 +356,12 @@ pub(crate) fn run(args: &ViewArgs) -> anyhow::Result<()> {
         std::fs::write(path, serde_json::to_string_pretty(&json)?)
             .with_context(|| format!("could not write {}", path.display()))?;
         println!("view: wrote {}", path.display());
+    }
+    if let Terrain::Store(s) = &mut app.terrain
+        && let Some(m) = s.measure.take()
+    {
+        // A measurement in flight is waited for: its runtime's workers go with it.
+        let _ = m.join();
     }
     let threads_before = threads();
     let had_store = matches!(app.terrain, Terrain::Store(_));
@@ -630,6 +653,10 @@ struct StoreTerrain {
     job: Option<StoreJob>,
     /// The runtime opened at start, until the first method's worker takes it.
     scene: Option<ooc::OocScene>,
+    /// The on-demand measurement in flight on its worker ([`measure`]).
+    measure: Option<measure::StoreMeasure>,
+    /// `--measure-mib`: the measurement's reference budget.
+    measure_mib: u64,
 }
 
 /// A store's method (its new runtime) and renderer, built on a worker thread with its first
@@ -650,7 +677,7 @@ struct StoreJob {
 impl StoreTerrain {
     /// Opens the store (its index and level-4 overview, read before the window opens); no
     /// method yet: [`StoreTerrain::rebuild`] builds the first one on a worker.
-    fn open(dir: &Path, config: MethodConfig) -> anyhow::Result<Self> {
+    fn open(dir: &Path, config: MethodConfig, measure_mib: u64) -> anyhow::Result<Self> {
         let scene = crate::render::open_store(dir, config.ooc)?;
         let overview = scene
             .overview(4)
@@ -664,6 +691,8 @@ impl StoreTerrain {
             georef,
             job: None,
             scene: Some(scene),
+            measure: None,
+            measure_mib,
         })
     }
 
@@ -1183,8 +1212,9 @@ impl App {
         if !self.scripted {
             return Ok(None);
         }
-        if self.busy() {
-            return Ok(None); // a `method` or `exaggeration` waits until ready
+        let measuring = matches!(&self.terrain, Terrain::Store(s) if s.measure.is_some());
+        if self.busy() || measuring {
+            return Ok(None); // a `method`, `exaggeration` or `measure` waits until done
         }
         if self.script_wait > 0 {
             self.script_wait -= 1;
@@ -1232,6 +1262,10 @@ impl App {
                     self.camera.pitch = pitch;
                 }
                 Command::Record => self.try_apply(Action::Record)?,
+                Command::Measure => {
+                    self.apply(Action::Measure);
+                    return Ok(None);
+                }
                 Command::Screenshot(p) => return Ok(Some(p)),
                 Command::WaitFlight => {
                     self.wait_flight = true;
@@ -1300,9 +1334,23 @@ impl App {
         Ok(())
     }
 
+    /// Picks up a finished store measurement: its figures (or why there are none) in the
+    /// panel and on stdout.
+    fn poll_store_measure(&mut self) {
+        let Terrain::Store(s) = &mut self.terrain else { return };
+        let Some(done) = measure::StoreMeasure::poll(&mut s.measure) else { return };
+        let text = match done {
+            Ok(outcome) => outcome.text(),
+            Err(e) => format!("n/a: {e:#}"),
+        };
+        println!("view: measured {text}");
+        self.ui.measured_p99 = Some(text);
+    }
+
     /// Picks up a finished worker job.
     fn poll_job(&mut self) -> anyhow::Result<()> {
         self.poll_store_job()?;
+        self.poll_store_measure();
         let Terrain::Memory(m) = &mut self.terrain else { return Ok(()) };
         let finished = match &m.job {
             Some(Job::Prepare(_, h)) => h.is_finished(),
@@ -1444,9 +1492,17 @@ impl App {
                 let frames = s.frames.as_mut().context("the store's method was lost")?;
                 frames.set_options(options);
                 let f = frames.frame_drawn_from(index, &select, &eye, None);
-                if measure {
+                if measure && s.measure.is_none() {
+                    // Measured on a worker against the store's own full-resolution heights.
+                    s.measure = Some(self::measure::StoreMeasure::start(
+                        s.dir.clone(),
+                        self.kind,
+                        s.config.clone(),
+                        select,
+                        s.measure_mib,
+                    )?);
                     self.ui.measured_p99 =
-                        Some("n/a: a store has no full DEM in memory to measure against".into());
+                        Some("measuring against the store's full-resolution heights...".into());
                 }
                 (Some(f?), false, None)
             }

@@ -16,6 +16,7 @@
 //! exaggeration 2    # vertical exaggeration
 //! camera 1,2,3,90,-30   # set the pose (as --camera)
 //! record            # start / stop recording the flight (the R key)
+//! measure           # measure this frame's p99 px (the M key); the script waits for it
 //! screenshot out.png    # read this frame back from the window's surface into a PNG
 //! wait 10           # draw 10 frames
 //! quit              # close the window (workers joined) and exit 0
@@ -97,6 +98,8 @@ pub(crate) enum Command {
     Camera(String),
     /// Start / stop recording.
     Record,
+    /// Measure the frame (the M key); the script waits for the result.
+    Measure,
     /// Read this frame back into a PNG.
     Screenshot(PathBuf),
     /// Draw this many frames.
@@ -170,6 +173,7 @@ fn parse_line(line: &str) -> anyhow::Result<Command> {
             Command::Camera(spec.to_string())
         }
         ["record"] => Command::Record,
+        ["measure"] => Command::Measure,
         ["screenshot", path] => Command::Screenshot(PathBuf::from(path)),
         ["wait", n] => Command::Wait(n.parse().with_context(|| format!("`{n}` frames?"))?),
         ["wait-flight"] => Command::WaitFlight,
@@ -186,9 +190,9 @@ mod tests {
     fn every_command_parses() {
         let s = "# a test\nkey down W\nkey up shift\nmouse 40 -10.5\nwheel -2\norbit\n\
                  method dss-1\nquality 8\nwireframe on\nfreeze off\npanel off\n\
-                 exaggeration 2\ncamera 1,2,3,90,-30\nrecord\nscreenshot a b.png\n\nwait 10 # x\nquit\n";
+                 exaggeration 2\ncamera 1,2,3,90,-30\nrecord\nmeasure\nscreenshot a b.png\n\nwait 10 # x\nquit\n";
         let err = parse(s).unwrap_err().to_string();
-        assert!(err.contains("line 15"), "{err}");
+        assert!(err.contains("line 16"), "{err}");
         let s = s.replace("screenshot a b.png", "screenshot out.png");
         let c = parse(&s).unwrap();
         assert_eq!(
@@ -207,6 +211,7 @@ mod tests {
                 Command::Exaggeration(2.0),
                 Command::Camera("1,2,3,90,-30".into()),
                 Command::Record,
+                Command::Measure,
                 Command::Screenshot("out.png".into()),
                 Command::Wait(10),
                 Command::Quit,
