@@ -253,7 +253,9 @@ fn a_coarse_tile_reads_few_samples_and_finds_a_lone_spike() {
         }
     }
     let l = layout(w, h, 0.0, 0.0, (w - 1) as f64);
-    let m = lattice(8, &mut unit, |x, y| surface(x, y, 100.0));
+    // Coarse: 8 triangles over a 100 m relief, tens of metres off where a 16 x 16 box spans a
+    // few metres.
+    let m = lattice(2, &mut unit, |x, y| surface(x, y, 100.0));
     let range = SampleRange::measure(&g, 256).unwrap();
     let read = |g: &Grid| g.read.swap(0, Ordering::Relaxed);
     read(&g);
@@ -261,7 +263,7 @@ fn a_coarse_tile_reads_few_samples_and_finds_a_lone_spike() {
     let got = check(&g, &l, &m, &range).unwrap();
     assert!(same(got, Some(want)), "{got:?} vs {want}");
     let n = read(&g);
-    assert!(n < w * h / 10, "read {n} of {} samples", w * h);
+    assert!(n < w * h / 4, "read {n} of {} samples", w * h);
     // One sample 500 m up, in the middle of a triangle.
     g.z[517 * w + 389] += 500.0;
     let want2 = reference(&g, &l, &m).unwrap();
