@@ -20,6 +20,7 @@
 //! the tileset its DEM gives in memory.
 
 mod build;
+mod check;
 mod walk;
 
 use std::path::PathBuf;
@@ -127,6 +128,10 @@ struct Summary {
     /// error found at any stride, metres.
     decimation_s: f64,
     decimation_error_m: f64,
+    /// Measuring the samples' minima and maxima the checks prove most of a coarse tile's
+    /// bound with (once): seconds, and bytes held.
+    sample_range_s: f64,
+    sample_range_bytes: usize,
     /// Most tiles whose mesh was held at once by the depth-first walk.
     peak_pending_tiles: usize,
     /// For a store: the most bytes of decoded blocks resident at once, and block levels decoded.
@@ -271,6 +276,8 @@ pub(crate) fn run(args: &TilesArgs) -> anyhow::Result<()> {
     let decimation = Decimation::new(w, h, DECIMATION_REGION, max_s);
     decimation.measure_all(samples)?;
     let decimation_s = t0.elapsed().as_secs_f64();
+    let sample_range = check::SampleRange::measure(samples, region)?;
+    let range_s = t0.elapsed().as_secs_f64() - decimation_s;
     let bar = Progress::new("tiles", !args.quiet);
     let done = AtomicUsize::new(0);
     let stats: Mutex<Vec<LevelStats>> = Mutex::new(
@@ -320,9 +327,9 @@ pub(crate) fn run(args: &TilesArgs) -> anyhow::Result<()> {
         layout: &layout,
         resolution,
         decimation: &decimation,
-        check_region: region,
+        range: &sample_range,
         max_level,
-        range: &range,
+        tiles: &range,
         bound: &bound_of,
         write: &write,
     };
@@ -386,6 +393,8 @@ pub(crate) fn run(args: &TilesArgs) -> anyhow::Result<()> {
         retries: walked.retries,
         decimation_s,
         decimation_error_m: decimation.max(),
+        sample_range_s: range_s,
+        sample_range_bytes: sample_range.bytes(),
         peak_pending_tiles: walked.peak_pending_tiles,
         cache_peak_bytes: cache.map(|c| c.0),
         block_levels_decoded: cache.map(|c| c.1),

@@ -8,7 +8,7 @@
 //! stride ([`Decimation`]; the policy is [`build_within`], shared with the `tin` method): the largest difference between a DEM sample and the strided
 //! grid's interpolation. Where `bound - E` is under `min_budget_fraction x bound` the tile is
 //! meshed at the next finer stride instead (at `s = 0`, `E = 0`). Every decimated tile is then
-//! checked against every DEM sample under it ([`build::check`]); one that fails is built again
+//! checked against every DEM sample under it ([`check::check`]); one that fails is built again
 //! with its budget cut by the excess measured, at most `max_retries` times, then one stride
 //! finer (each rebuild counts as a retry). At `s = 0` the builder's own check covers every
 //! sample.
@@ -20,6 +20,7 @@ use rayon::prelude::*;
 use terrain_core::tin::{GridLayout, TileId, TileMesh, TileRange};
 
 use super::build::{self, ResolutionConfig};
+use super::check::{self, SampleRange};
 use terrain_app::decimation::{Decimation, build_within};
 use terrain_app::samples::Samples;
 
@@ -29,11 +30,11 @@ pub(crate) struct Walk<'a> {
     pub layout: &'a GridLayout,
     pub resolution: ResolutionConfig,
     pub decimation: &'a Decimation,
-    /// Cells per side of the windows a decimated tile is checked by.
-    pub check_region: usize,
+    /// The samples' minima and maxima a decimated tile is checked with.
+    pub range: &'a SampleRange,
     pub max_level: u32,
     /// The tiles of a level.
-    pub range: &'a (dyn Fn(u32) -> TileRange + Sync),
+    pub tiles: &'a (dyn Fn(u32) -> TileRange + Sync),
     /// A tile's bound, metres.
     pub bound: &'a (dyn Fn(TileId) -> f64 + Sync),
     /// Writes a checked tile with its measured error, decimation error and the seconds its
@@ -80,7 +81,7 @@ impl Walk<'_> {
         c.pending.fetch_sub(1, Ordering::SeqCst);
         let vertices = done?;
         if tile.level < self.max_level
-            && let Some(below) = (self.range)(tile.level + 1).below(tile)
+            && let Some(below) = (self.tiles)(tile.level + 1).below(tile)
         {
             // South row first, west to east: neighbours in the walk read neighbouring blocks.
             let children: Vec<TileId> = below.tiles(tile.level + 1).collect();
@@ -103,7 +104,7 @@ impl Walk<'_> {
             error,
             |s, budget| build::build(self.samples, self.layout, tile, s, budget, bound, seeds),
             |(mesh, _): &(TileMesh, _)| mesh.measured.map_or(0.0, |m| m.max_error),
-            |(mesh, _)| build::check(self.samples, self.layout, mesh, self.check_region),
+            |(mesh, _)| check::check(self.samples, self.layout, mesh, self.range),
         )?;
         if built.decimated {
             c.decimated.fetch_add(1, Ordering::Relaxed);

@@ -328,3 +328,47 @@ fn a_child_seeded_with_its_parents_vertices_keeps_them_within_its_bound() {
     let ratio = seeded_tris as f64 / plain_tris as f64;
     assert!((0.9..1.05).contains(&ratio), "{seeded_tris} seeded against {plain_tris} triangles");
 }
+
+/// A grid handed over whole gives the mesh its borrowed copy gives: meshed in place where the
+/// tile's sub-grid is the whole grid (a window read for the tile), cropped where it is not or
+/// where a void sample holds a non-finite height (which the crop makes 0).
+#[test]
+fn an_owned_grid_gives_the_mesh_of_a_borrowed_one() {
+    let mut in_place = 0;
+    for (voids, nan) in [(false, false), (true, false), (true, true)] {
+        let hm = bumpy(241, 181, voids);
+        let grid = GeoGrid::new(&hm).unwrap();
+        for level in [9, 10] {
+            for tile in grid.tile_range(level).tiles(level) {
+                let bound = level_error(level, 0.25);
+                // The tile's window, as `terrain tiles` reads it: the samples covering it.
+                let Some([i0, j0, i1, j1]) = Placed::new(&grid.layout, tile).crop else {
+                    continue;
+                };
+                let (ww, wh) = (i1 - i0 + 1, j1 - j0 + 1);
+                let mut data = Vec::with_capacity(ww * wh);
+                let mut mask = VoidMask::new(ww, wh);
+                for j in 0..wh {
+                    for i in 0..ww {
+                        let void = hm.voids().get(i0 + i, j0 + j);
+                        mask.set(i, j, void);
+                        data.push(if void && nan { f32::NAN } else { hm.get(i0 + i, j0 + j) });
+                    }
+                }
+                let origin = grid.to_lonlat(dvec2(i0 as f64, j0 as f64));
+                let spacing = hm.georef().native_spacing;
+                let g = Georef::geographic(Crs::Epsg(4326), origin, spacing, origin.y);
+                let window = Heightmap::new(ww, wh, data, mask, g).unwrap();
+                let borrowed = GeoGrid::new(&window).unwrap();
+                let want = build_tile_seeded(&borrowed, tile, bound, &[]).unwrap();
+                let whole =
+                    Placed::new(&borrowed.layout, tile).crop == Some([0, 0, ww - 1, wh - 1]);
+                let has_nan = window.data().iter().any(|z| !z.is_finite());
+                in_place += usize::from(whole && !has_nan);
+                let got = build_tile_owned(window, tile, bound, &[]).unwrap();
+                assert_eq!(got, want, "{tile:?}");
+            }
+        }
+    }
+    assert!(in_place >= 8, "{in_place} tiles meshed in place");
+}

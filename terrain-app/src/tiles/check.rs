@@ -1,0 +1,510 @@
+//! The check of a decimated tile against every DEM sample under it ([`check`]): the largest
+//! error of its mesh over the non-void samples, or `None` when a non-void sample lies in no
+//! triangle, exactly what a scan of every sample finds ([`max_error`], the reference), while
+//! visiting few of them.
+//!
+//! **Which samples a triangle holds** is decided row by row by one function ([`row_span`]: the
+//! samples of a row where the three edge functions are at least `-1e-7` cell, so the samples on
+//! a shared edge count for both triangles), used by the scan, the coverage sweep and the leaf
+//! scans alike, so the three agree sample for sample.
+//!
+//! **Coverage** from the triangles' rows alone: each triangle holds an interval of every row it
+//! meets, and the intervals of a row, swept in order, leave exactly the uncovered samples
+//! (work proportional to the triangles' heights, not their areas); only those gaps are read,
+//! to see whether they are void.
+//!
+//! **Error** by branch and bound (Land & Doig 1960) over a min/max pyramid of the samples
+//! ([`SampleRange`], measured once per run, 1/128 of the DEM's f32 bytes): over an aligned box
+//! of samples, a triangle's plane is off by at most `max(plane_max - z_min, z_max - plane_min)`
+//! (a plane's extremes over a box are at its corners), widened by a relative 1e-9 for
+//! rounding. (triangle, box) pairs are refined in decreasing order of that bound, boxes of
+//! 16 x 16 samples are scanned with the reference's arithmetic, and the search stops when the
+//! largest bound left is no more than the largest error scanned. So the result is the exact
+//! maximum, bit for bit the scan's (the same per-sample expression on the same samples; a
+//! maximum does not depend on order), and only pairs whose bound reaches the worst sample are
+//! refined: a coarse tile, whose bound is far above the terrain's relief in a box, proves
+//! most of its area from the pyramid's upper levels.
+
+use std::sync::atomic::{AtomicU64, Ordering as AtomicOrdering};
+
+use glam::{DVec2, dvec2};
+use rayon::prelude::*;
+use terrain_core::tin::{GridLayout, TileMesh};
+
+use super::build::{grid_rect, samples_inside};
+use terrain_app::samples::Samples;
+
+/// Tolerance of the edge functions, in cells (scaled by the edge's length).
+const EPS: f64 = 1e-7;
+
+/// log2 of the side of the pyramid's finest boxes (16 x 16 samples), the boxes scanned.
+const LEAF_LOG2: u32 = 4;
+
+/// Minimum and maximum of the non-void samples of a grid over aligned boxes: level `k` (from
+/// [`LEAF_LOG2`] up to one box over the grid) holds boxes of `2^k x 2^k` samples, box `(a, b)`
+/// the samples `[a 2^k, (a + 1) 2^k)` x `[b 2^k, (b + 1) 2^k)` within the grid. A box without a
+/// non-void finite-or-infinite sample (NaN and void samples are never measured) holds
+/// `[inf, -inf]`.
+#[derive(Debug)]
+pub(crate) struct SampleRange {
+    width: usize,
+    height: usize,
+    /// Per level from [`LEAF_LOG2`]: boxes per row, and `[min, max]` per box (row-major).
+    levels: Vec<(usize, Vec<[f32; 2]>)>,
+}
+
+const EMPTY: [f32; 2] = [f32::INFINITY, f32::NEG_INFINITY];
+
+fn merge(a: [f32; 2], b: [f32; 2]) -> [f32; 2] {
+    // f32::min and max ignore NaN, as the scan's f64::max ignores a NaN error.
+    [a[0].min(b[0]), a[1].max(b[1])]
+}
+
+impl SampleRange {
+    /// Reads every sample once, by windows of `region` x `region` samples (rounded up to a
+    /// multiple of the finest box) in parallel.
+    pub(crate) fn measure(samples: &dyn Samples, region: usize) -> anyhow::Result<Self> {
+        let (w, h) = samples.size();
+        let leaf = 1usize << LEAF_LOG2;
+        let region = region.max(1).next_multiple_of(leaf);
+        let (rx, ry) = (w.div_ceil(region), h.div_ceil(region));
+        let parts = (0..rx * ry)
+            .into_par_iter()
+            .map(|r| -> anyhow::Result<Vec<[f32; 2]>> {
+                let (i0, j0) = ((r % rx) * region, (r / rx) * region);
+                let (ww, wh) = (region.min(w - i0), region.min(h - j0));
+                let win = samples.window(i0, j0, ww, wh, 0)?;
+                let lx = ww.div_ceil(leaf);
+                let mut mm = vec![EMPTY; lx * wh.div_ceil(leaf)];
+                for b in 0..wh {
+                    let row = &win.data[b * ww..(b + 1) * ww];
+                    for (a, &z) in row.iter().enumerate() {
+                        if win.voids.as_ref().is_some_and(|v| v.get(a, b)) {
+                            continue;
+                        }
+                        let m = &mut mm[(b / leaf) * lx + a / leaf];
+                        *m = merge(*m, [z, z]);
+                    }
+                }
+                Ok(mm)
+            })
+            .collect::<anyhow::Result<Vec<_>>>()?;
+        let (nx, ny) = (w.div_ceil(leaf), h.div_ceil(leaf));
+        let mut boxes = vec![EMPTY; nx * ny];
+        let per = region / leaf;
+        for (r, mm) in parts.iter().enumerate() {
+            let (bx, by) = ((r % rx) * per, (r / rx) * per);
+            let lx = (nx - bx).min(per);
+            for (k, m) in mm.iter().enumerate() {
+                boxes[(by + k / lx) * nx + bx + k % lx] = *m;
+            }
+        }
+        let mut levels = vec![(nx, boxes)];
+        while let Some((nx, below)) = levels.last().filter(|(_, v)| v.len() > 1) {
+            let (nx, ny) = (*nx, below.len() / nx);
+            let (ux, uy) = (nx.div_ceil(2), ny.div_ceil(2));
+            let mut up = vec![EMPTY; ux * uy];
+            for (k, m) in below.iter().enumerate() {
+                let u = &mut up[(k / nx / 2) * ux + (k % nx) / 2];
+                *u = merge(*u, *m);
+            }
+            levels.push((ux, up));
+        }
+        Ok(Self { width: w, height: h, levels })
+    }
+
+    /// The coarsest level (one box over the grid).
+    fn top(&self) -> u32 {
+        LEAF_LOG2 + self.levels.len() as u32 - 1
+    }
+
+    /// `[min, max]` of box `(a, b)` at level `k`.
+    fn get(&self, k: u32, a: usize, b: usize) -> [f32; 2] {
+        let (nx, v) = &self.levels[(k - LEAF_LOG2) as usize];
+        v[b * nx + a]
+    }
+
+    /// Bytes held.
+    pub(crate) fn bytes(&self) -> usize {
+        self.levels.iter().map(|(_, v)| v.len() * size_of::<[f32; 2]>()).sum()
+    }
+}
+
+/// A triangle in grid coordinates with its plane.
+pub(super) struct Tri {
+    p: [DVec2; 3],
+    z0: f64,
+    /// Height gradient per grid unit.
+    g: DVec2,
+    lo: DVec2,
+    hi: DVec2,
+}
+
+impl Tri {
+    /// The mesh's height at sample `(i, j)`, off `z` by this (the one expression the scan and
+    /// the leaf scans use).
+    fn error(&self, i: usize, j: usize, z: f32) -> f64 {
+        let q = dvec2(i as f64, j as f64) - self.p[0];
+        let m = self.z0 + self.g.dot(q);
+        (m - f64::from(z)).abs()
+    }
+
+    /// The rows `ja..=jb` of samples in `[i0, j0, i1, j1]` the triangle may hold (`None`: its
+    /// box misses them; `ja > jb` possible).
+    fn rows(&self, [i0, j0, i1, j1]: [usize; 4]) -> Option<(usize, usize)> {
+        if self.hi.x < i0 as f64 - EPS
+            || self.lo.x > i1 as f64 + EPS
+            || self.hi.y < j0 as f64 - EPS
+            || self.lo.y > j1 as f64 + EPS
+        {
+            return None;
+        }
+        let ja = ((self.lo.y - EPS).ceil().max(j0 as f64)) as usize;
+        let jb = ((self.hi.y + EPS).floor().min(j1 as f64)) as usize;
+        Some((ja, jb))
+    }
+
+    /// The samples `i0..=i1` of row `j` inside the triangle: where all three edge functions
+    /// are `>= -EPS |e|` (counter-clockwise).
+    fn row_span(&self, j: usize, i0: usize, i1: usize) -> Option<(usize, usize)> {
+        let y = j as f64;
+        let (mut xa, mut xb) = (self.lo.x - EPS, self.hi.x + EPS);
+        for k in 0..3 {
+            let (p, q) = (self.p[k], self.p[(k + 1) % 3]);
+            let e = q - p;
+            // e x (x - p) = e.x (y - p.y) - e.y (x - p.x) >= -EPS |e|
+            let c = e.x * (y - p.y) + e.y * p.x + EPS * e.length();
+            // -e.y x + c >= 0
+            if e.y > 0.0 {
+                xb = xb.min(c / e.y);
+            } else if e.y < 0.0 {
+                xa = xa.max(c / e.y);
+            } else if c < 0.0 {
+                xa = f64::INFINITY;
+            }
+        }
+        let xa = xa.ceil().max(i0 as f64);
+        let xb = xb.floor().min(i1 as f64);
+        if xa > xb { None } else { Some((xa as usize, xb as usize)) }
+    }
+
+    /// Whether the triangle holds no sample of the box `[x0, y0, x1, y1]` for certain: every
+    /// corner is outside one edge by more than the tolerance and a margin of 1e-5 cell, far
+    /// over the rounding of either computation.
+    fn misses(&self, [x0, y0, x1, y1]: [f64; 4]) -> bool {
+        (0..3).any(|k| {
+            let (p, q) = (self.p[k], self.p[(k + 1) % 3]);
+            let e = q - p;
+            let f = |x: f64, y: f64| e.x * (y - p.y) - e.y * (x - p.x);
+            let most = f(x0, y0).max(f(x1, y0)).max(f(x0, y1)).max(f(x1, y1));
+            most < -(EPS + 1e-5) * e.length()
+        })
+    }
+}
+
+pub(super) fn grid_triangles(layout: &GridLayout, m: &TileMesh) -> Vec<Tri> {
+    let (a, b) = grid_rect(layout, m.tile);
+    let pos: Vec<(DVec2, f64)> = m
+        .vertices
+        .iter()
+        .map(|v| (dvec2(a.x + v.x * (b.x - a.x), a.y + v.y * (b.y - a.y)), v.z))
+        .collect();
+    m.triangles
+        .iter()
+        .filter_map(|t| {
+            let [(p0, z0), (p1, z1), (p2, z2)] = t.map(|k| pos[k as usize]);
+            let (e1, e2) = (p1 - p0, p2 - p0);
+            let d = e1.perp_dot(e2);
+            if d <= 0.0 {
+                return None;
+            }
+            // z = z0 + g . (q - p0), solved from the two edges.
+            let g = dvec2(
+                ((z1 - z0) * e2.y - (z2 - z0) * e1.y) / d,
+                ((z2 - z0) * e1.x - (z1 - z0) * e2.x) / d,
+            );
+            Some(Tri { p: [p0, p1, p2], z0, g, lo: p0.min(p1).min(p2), hi: p0.max(p1).max(p2) })
+        })
+        .collect()
+}
+
+/// The largest error of `mesh` against every non-void DEM sample under it, exactly as
+/// [`max_error`] over all of them would measure it (see the module docs); `None` if the mesh
+/// leaves a non-void sample uncovered (which the caller treats as a failure).
+pub(crate) fn check(
+    samples: &dyn Samples,
+    layout: &GridLayout,
+    mesh: &TileMesh,
+    range: &SampleRange,
+) -> anyhow::Result<Option<f64>> {
+    let Some(rect) = samples_inside(layout, mesh.tile) else {
+        return Ok(Some(0.0));
+    };
+    let tris = grid_triangles(layout, mesh);
+    if !covers(samples, &tris, rect)? {
+        return Ok(None);
+    }
+    Ok(Some(worst(samples, range, &tris, rect)?))
+}
+
+/// Whether every non-void sample of `rect` lies in a triangle ([`Tri::row_span`]).
+fn covers(samples: &dyn Samples, tris: &[Tri], rect: [usize; 4]) -> anyhow::Result<bool> {
+    let [i0, j0, i1, j1] = rect;
+    let rows = j1 - j0 + 1;
+    // Every triangle's interval on every row, bucketed by row (a counting sort).
+    let mut count = vec![0usize; rows + 1];
+    let each = |f: &mut dyn FnMut(usize, (usize, usize))| {
+        for t in tris {
+            if let Some((ja, jb)) = t.rows(rect) {
+                for j in ja..=jb {
+                    if let Some(s) = t.row_span(j, i0, i1) {
+                        f(j - j0, s);
+                    }
+                }
+            }
+        }
+    };
+    each(&mut |r, _| count[r + 1] += 1);
+    for r in 0..rows {
+        count[r + 1] += count[r];
+    }
+    let mut spans = vec![(0u32, 0u32); count[rows]];
+    let mut next = count.clone();
+    each(&mut |r, (a, b)| {
+        spans[next[r]] = (a as u32, b as u32);
+        next[r] += 1;
+    });
+    for r in 0..rows {
+        let row = &mut spans[count[r]..count[r + 1]];
+        row.sort_unstable();
+        // The first sample of the row not covered yet.
+        let mut from = i0;
+        for &(a, b) in row.iter() {
+            let (a, b) = (a as usize, b as usize);
+            if a > from && !void_between(samples, from, a - 1, j0 + r)? {
+                return Ok(false);
+            }
+            from = from.max(b + 1);
+        }
+        if from <= i1 && !void_between(samples, from, i1, j0 + r)? {
+            return Ok(false);
+        }
+    }
+    Ok(true)
+}
+
+/// Whether the samples `i0..=i1` of row `j` are all void.
+fn void_between(samples: &dyn Samples, i0: usize, i1: usize, j: usize) -> anyhow::Result<bool> {
+    let n = i1 - i0 + 1;
+    let win = samples.window(i0, j, n, 1, 0)?;
+    Ok(win.voids.is_some_and(|v| (0..n).all(|a| v.get(a, 0))))
+}
+
+/// Boxes of `2^REGION_LOG2` samples a side are searched in parallel, the largest bound first.
+const REGION_LOG2: u32 = 8;
+
+/// The search of one tile: its triangles, their boxes of samples and the largest error found
+/// so far (shared by the regions searched in parallel; an `f64 >= 0` as its bits, which order
+/// as the numbers do).
+struct Search<'a> {
+    samples: &'a dyn Samples,
+    range: &'a SampleRange,
+    tris: &'a [Tri],
+    /// Each triangle's samples lie in its box (with the tolerance) clipped to the tile's.
+    boxes: Vec<Option<[usize; 4]>>,
+    best: AtomicU64,
+}
+
+/// Triangles meeting a box, with their bounds there.
+type Meeting = Vec<(u32, f64)>;
+
+impl Search<'_> {
+    fn best(&self) -> f64 {
+        f64::from_bits(self.best.load(AtomicOrdering::Relaxed))
+    }
+
+    /// The bound of triangle `tri`'s error over the samples of box `(k, a, b)` it may hold
+    /// (`None`: it holds none there, or none is measured).
+    fn bound(&self, tri: u32, k: u32, a: usize, b: usize) -> Option<f64> {
+        let t = &self.tris[tri as usize];
+        let [ia, ja, ib, jb] = self.boxes[tri as usize]?;
+        let x0 = (a << k).max(ia);
+        let y0 = (b << k).max(ja);
+        let x1 = (((a + 1) << k) - 1).min(ib);
+        let y1 = (((b + 1) << k) - 1).min(jb);
+        if x0 > x1 || y0 > y1 {
+            return None;
+        }
+        let corners = [x0 as f64, y0 as f64, x1 as f64, y1 as f64];
+        if t.misses(corners) {
+            return None;
+        }
+        let [zmin, zmax] = self.range.get(k, a, b);
+        if zmin > zmax || zmin.is_nan() {
+            return None;
+        }
+        let (zmin, zmax) = (f64::from(zmin), f64::from(zmax));
+        let [cx0, cy0, cx1, cy1] = corners;
+        let m = |x: f64, y: f64| t.z0 + t.g.dot(dvec2(x, y) - t.p[0]);
+        let ms = [m(cx0, cy0), m(cx1, cy0), m(cx0, cy1), m(cx1, cy1)];
+        let lo = ms.iter().copied().fold(f64::INFINITY, f64::min);
+        let hi = ms.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+        let reach = (cx0 - t.p[0].x).abs().max((cx1 - t.p[0].x).abs()) * t.g.x.abs()
+            + (cy0 - t.p[0].y).abs().max((cy1 - t.p[0].y).abs()) * t.g.y.abs();
+        let slack = 1e-9 * (t.z0.abs() + reach + zmin.abs().max(zmax.abs()) + 1.0);
+        let bound = (hi - zmin).max(zmax - lo) + slack;
+        Some(if bound.is_nan() { f64::INFINITY } else { bound })
+    }
+
+    /// The triangles of `of` that may raise the largest error in box `(k, a, b)`, with their
+    /// bounds there, and the largest of those.
+    fn meeting(&self, of: impl Iterator<Item = u32>, k: u32, a: usize, b: usize) -> (f64, Meeting) {
+        let best = self.best();
+        let list: Meeting = of
+            .filter_map(|t| Some((t, self.bound(t, k, a, b)?)))
+            .filter(|&(_, e)| e > best)
+            .collect();
+        (list.iter().fold(f64::NEG_INFINITY, |m, &(_, e)| m.max(e)), list)
+    }
+
+    /// Searches box `(k, a, b)` with the triangles `list` meeting it: children in decreasing
+    /// order of their bounds (so the worst samples are found early and prune the rest), the
+    /// finest boxes scanned.
+    fn search(&self, k: u32, a: usize, b: usize, list: Meeting) -> anyhow::Result<()> {
+        let best = self.best();
+        if list.iter().all(|&(_, e)| e <= best) {
+            return Ok(());
+        }
+        if k > LEAF_LOG2 {
+            let mut children: Vec<(f64, usize, usize, Meeting)> = [(0, 0), (1, 0), (0, 1), (1, 1)]
+                .into_iter()
+                .map(|(da, db)| {
+                    let (ca, cb) = (2 * a + da, 2 * b + db);
+                    let (e, l) = self.meeting(list.iter().map(|&(t, _)| t), k - 1, ca, cb);
+                    (e, ca, cb, l)
+                })
+                .filter(|(_, _, _, l)| !l.is_empty())
+                .collect();
+            children.sort_by(|p, q| q.0.total_cmp(&p.0));
+            for (_, ca, cb, l) in children {
+                self.search(k - 1, ca, cb, l)?;
+            }
+            return Ok(());
+        }
+        let (w, h) = (self.range.width, self.range.height);
+        let (x0, y0) = (a << k, b << k);
+        let (x1, y1) = ((x0 + (1 << k)).min(w) - 1, (y0 + (1 << k)).min(h) - 1);
+        let win = self.samples.window(x0, y0, x1 - x0 + 1, y1 - y0 + 1, 0)?;
+        let mut worst = 0f64;
+        for &(tri, e) in &list {
+            if e <= best {
+                continue;
+            }
+            let t = &self.tris[tri as usize];
+            let Some((ja, jb)) = t.rows([x0, y0, x1, y1]) else { continue };
+            for j in ja..=jb {
+                let Some((xa, xb)) = t.row_span(j, x0, x1) else { continue };
+                let row = (j - y0) * win.width;
+                for i in xa..=xb {
+                    if !win.voids.as_ref().is_some_and(|v| v.get(i - x0, j - y0)) {
+                        worst = worst.max(t.error(i, j, win.data[row + i - x0]));
+                    }
+                }
+            }
+        }
+        self.best.fetch_max(worst.to_bits(), AtomicOrdering::Relaxed);
+        Ok(())
+    }
+}
+
+/// The largest error of the triangles over the non-void samples of `rect` they hold, by
+/// branch and bound (see the module docs).
+fn worst(
+    samples: &dyn Samples,
+    range: &SampleRange,
+    tris: &[Tri],
+    rect: [usize; 4],
+) -> anyhow::Result<f64> {
+    let boxes = tris
+        .iter()
+        .map(|t| {
+            let (ja, jb) = t.rows(rect)?;
+            let ia = ((t.lo.x - EPS).ceil().max(rect[0] as f64)) as usize;
+            let ib = ((t.hi.x + EPS).floor().min(rect[2] as f64)) as usize;
+            (ia <= ib && ja <= jb).then_some([ia, ja, ib, jb])
+        })
+        .collect();
+    let s = Search { samples, range, tris, boxes, best: AtomicU64::new(0f64.to_bits()) };
+    // The regions, each with the triangles whose boxes meet it.
+    let k = REGION_LOG2.clamp(LEAF_LOG2, range.top());
+    let [ra, rb] = [rect[0] >> k, rect[1] >> k];
+    let (nx, ny) = ((rect[2] >> k) - ra + 1, (rect[3] >> k) - rb + 1);
+    let mut bins: Vec<Vec<u32>> = vec![Vec::new(); nx * ny];
+    for (t, bx) in s.boxes.iter().enumerate() {
+        let Some([ia, ja, ib, jb]) = *bx else { continue };
+        for b in (ja >> k)..=(jb >> k) {
+            for a in (ia >> k)..=(ib >> k) {
+                bins[(b - rb) * nx + (a - ra)].push(t as u32);
+            }
+        }
+    }
+    let mut regions: Vec<(f64, usize, usize, Meeting)> = bins
+        .into_iter()
+        .enumerate()
+        .map(|(r, bin)| {
+            let (a, b) = (ra + r % nx, rb + r / nx);
+            let (e, l) = s.meeting(bin.into_iter(), k, a, b);
+            (e, a, b, l)
+        })
+        .filter(|(_, _, _, l)| !l.is_empty())
+        .collect();
+    regions.sort_by(|p, q| q.0.total_cmp(&p.0));
+    // The worst region first, alone (its samples set the bar the others are pruned by), then
+    // the rest on every core, dealt alternately into the two halves rayon splits first, so
+    // each thread starts from the largest bounds.
+    let mut rest = regions.into_iter();
+    if let Some((_, a, b, l)) = rest.next() {
+        s.search(k, a, b, l)?;
+    }
+    let (even, odd): (Vec<_>, Vec<_>) = rest.enumerate().partition(|(n, _)| n % 2 == 0);
+    let dealt: Vec<_> = even.into_iter().chain(odd).map(|(_, r)| r).collect();
+    dealt.into_par_iter().try_for_each(|(_, a, b, l)| s.search(k, a, b, l))?;
+    Ok(s.best())
+}
+
+/// The largest `|mesh - sample|` over the samples `[i0, j0]..=[i1, j1]` that `at` gives
+/// (`None`: void), `None` if a non-void one lies in no triangle: every sample of every
+/// triangle visited ([`Tri::row_span`]), the reference [`check`] is tested against.
+#[cfg(test)]
+fn max_error(
+    tris: &[&Tri],
+    [i0, j0, i1, j1]: [usize; 4],
+    at: impl Fn(usize, usize) -> Option<f32>,
+) -> Option<f64> {
+    let (nw, nh) = (i1 - i0 + 1, j1 - j0 + 1);
+    let mut covered = vec![false; nw * nh];
+    let mut worst = 0f64;
+    for t in tris {
+        let Some((ja, jb)) = t.rows([i0, j0, i1, j1]) else { continue };
+        for j in ja..=jb {
+            let Some((xa, xb)) = t.row_span(j, i0, i1) else { continue };
+            for i in xa..=xb {
+                covered[(j - j0) * nw + (i - i0)] = true;
+                if let Some(z) = at(i, j) {
+                    worst = worst.max(t.error(i, j, z));
+                }
+            }
+        }
+    }
+    for j in 0..nh {
+        for i in 0..nw {
+            if !covered[j * nw + i] && at(i0 + i, j0 + j).is_some() {
+                return None;
+            }
+        }
+    }
+    Some(worst)
+}
+
+#[cfg(test)]
+mod tests;
