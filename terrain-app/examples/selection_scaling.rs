@@ -21,8 +21,9 @@
 //! store of the same synthetic terrain (`stream_bench bake SIZE 8 NAME` or `terrain bake
 //! --synthetic SIZE`), warm: every level resident, `terrain_stream::select_patches` over the
 //! store's `StoreTree` (the runtime's selection once every level has arrived), with the
-//! runtime's clip range; one `ooc` column per `--ooc-refine RULE:CELLS` (split rule `eq7` or
-//! `cost`, smallest patch in cells; default `eq7:32`, the default `OocConfig`). A size with a store and no in-memory grid in `--sizes` (e.g. 32769,
+//! runtime's clip range; one `ooc` column per `--ooc-refine RULE:CELLS[:PX[:SEG]]` (split rule `eq7`
+//! or `cost`, smallest patch in cells, the cost split's pixel floor, the segment floor in cells;
+//! default `eq7:32`, the default `OocConfig`). A size with a store and no in-memory grid in `--sizes` (e.g. 32769,
 //! 4 GiB of f32) resolves the flight onto the store's level-4 overview, as `terrain render`
 //! does.
 //!
@@ -202,13 +203,19 @@ fn main() -> anyhow::Result<()> {
         .split(',')
         .filter(|s| !s.is_empty())
         .map(|r| {
-            // RULE:CELLS[:PX] (PX: the cost split's screen-size floor, default the library's).
+            // RULE:CELLS[:PX[:SEG]] (PX: the cost split's screen-size floor, SEG: the segment
+            // floor in cells, `Refinement::max_segment_cells`; default the library's).
             let mut parts = r.split(':');
             let (rule, cells) = (parts.next().unwrap_or(""), parts.next());
-            let cells = cells.with_context(|| format!("--ooc-refine {r}: RULE:CELLS[:PX]"))?;
+            let cells =
+                cells.with_context(|| format!("--ooc-refine {r}: RULE:CELLS[:PX[:SEG]]"))?;
             let cost_split_px = match parts.next() {
                 Some(px) => px.parse().with_context(|| format!("--ooc-refine {r}"))?,
                 None => Refinement::default().cost_split_px,
+            };
+            let max_segment_cells = match parts.next() {
+                Some(seg) => seg.parse().with_context(|| format!("--ooc-refine {r}"))?,
+                None => Refinement::default().max_segment_cells,
             };
             let split = match rule {
                 "eq7" => SplitRule::Eq7,
@@ -218,7 +225,13 @@ fn main() -> anyhow::Result<()> {
             let patch_cells = cells.parse().with_context(|| format!("--ooc-refine {r}"))?;
             Ok((
                 r.to_string(),
-                Refinement { patch_cells, split, cost_split_px, ..Refinement::default() },
+                Refinement {
+                    patch_cells,
+                    split,
+                    cost_split_px,
+                    max_segment_cells,
+                    ..Refinement::default()
+                },
             ))
         })
         .collect::<anyhow::Result<_>>()?;

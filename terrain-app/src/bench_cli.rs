@@ -82,6 +82,11 @@ pub(crate) struct BenchArgs {
     /// [default: 0].
     #[arg(long)]
     pub ooc_cost_px: Option<u32>,
+    /// The `ooc` method: the coarsest segment a drawn patch may have, cells (a power of two;
+    /// 0: none, Eq. 7's least factors; 16: geomorph's floor, see bench/ooc/README.md)
+    /// [default: 0].
+    #[arg(long)]
+    pub ooc_max_segment_cells: Option<u32>,
     /// The floor of the view-angle factor, in [0, 1]: DSS Eq. 3's `sin(theta)` (`dss-1`,
     /// `dss-2`, `dss-strips`, `dss-strips-pow2`) and the out-of-core Eq. 6-7's `cos(theta)`
     /// (`ooc`); not in the papers (0 is theirs: no error below a straight-down camera)
@@ -164,6 +169,14 @@ pub(crate) fn write_report(
     Ok(paths)
 }
 
+/// `--ooc-max-segment-cells`: 0 or a power of two.
+pub(crate) fn max_segment_cells(cells: u32) -> anyhow::Result<u32> {
+    if cells != 0 && !cells.is_power_of_two() {
+        bail!("--ooc-max-segment-cells must be 0 or a power of two, got {cells}");
+    }
+    Ok(cells)
+}
+
 /// Refuses the store options no run would use: they apply to the `ooc` method (in `--methods`,
 /// or by default) or to `--from-store`; `--ooc-k` only to the temporary store baked when
 /// neither `--ooc-store` nor `--scene` names one.
@@ -176,6 +189,7 @@ fn refuse_unused_store_options(args: &BenchArgs, cfg: &BenchConfig) -> anyhow::R
         ("--ooc-cache-mib", args.ooc_cache_mib.is_some()),
         ("--ooc-split", args.ooc_split.is_some()),
         ("--ooc-cost-px", args.ooc_cost_px.is_some()),
+        ("--ooc-max-segment-cells", args.ooc_max_segment_cells.is_some()),
         ("--ooc-patch-cells", args.ooc_patch_cells.is_some()),
         ("--ooc-calibration", args.ooc_calibration.is_some()),
         ("--wait", args.wait),
@@ -260,6 +274,9 @@ pub(crate) fn run(args: &BenchArgs) -> anyhow::Result<()> {
     }
     if let Some(px) = args.ooc_cost_px {
         cfg.ooc.cost_split_px = px;
+    }
+    if let Some(cells) = args.ooc_max_segment_cells {
+        cfg.ooc.max_segment_cells = max_segment_cells(cells)?;
     }
     if let Some(floor) = args.view_angle_floor {
         if !(0.0..=1.0).contains(&floor) {

@@ -48,6 +48,10 @@ pub(crate) struct RefineArgs {
     /// The cost split's screen-size floor, pixels [default: the ooc method's].
     #[arg(long)]
     pub ooc_cost_px: Option<u32>,
+    /// The coarsest segment a drawn patch may have, cells (0: none) [default: the ooc
+    /// method's].
+    #[arg(long)]
+    pub ooc_max_segment_cells: Option<u32>,
 }
 
 impl RefineArgs {
@@ -67,6 +71,9 @@ impl RefineArgs {
         if let Some(px) = self.ooc_cost_px {
             c.cost_split_px = px;
         }
+        if let Some(cells) = self.ooc_max_segment_cells {
+            c.max_segment_cells = crate::bench_cli::max_segment_cells(cells)?;
+        }
         Ok(c)
     }
 }
@@ -82,11 +89,13 @@ pub(crate) fn calibrate_and_write(
     let start = std::time::Instant::now();
     let r = config.refinement();
     eprintln!(
-        "calibrating ooc on {} ({} split, {}-cell patches, floor {} px): tau {:?}, {} frames each",
+        "calibrating ooc on {} ({} split, {}-cell patches, floor {} px, segment floor {} cells): \
+         tau {:?}, {} frames each",
         dir.display(),
         split_name(r.split),
         r.patch_cells,
         r.cost_split_px,
+        r.max_segment_cells,
         options.taus,
         options.frames
     );

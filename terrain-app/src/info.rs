@@ -326,11 +326,15 @@ fn ooc_calibration_text(dir: &std::path::Path) -> String {
             let points: Vec<String> =
                 c.points().iter().map(|[t, p]| format!("{t}: {p:.2} px")).collect();
             format!(
-                "{FILE_NAME}, measured under {} split, {}-cell patches, floor {} px; tau -> p99 \
-                 {}; 1 px -> tau {:.3}{applies}",
+                "{FILE_NAME}, measured under {} split, {}-cell patches, floor {} px{}; tau -> \
+                 p99 {}; 1 px -> tau {:.3}{applies}",
                 split_name(rr.split),
                 rr.patch_cells,
                 rr.cost_split_px,
+                match rr.max_segment_cells {
+                    0 => String::new(),
+                    cells => format!(", segments of at most {cells} cells"),
+                },
                 points.join(", "),
                 c.tau_for(1.0)
             )

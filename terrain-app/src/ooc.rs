@@ -86,6 +86,9 @@ pub struct OocConfig {
     /// The floor of Eq. 6-7's `cos(theta)` ([`Refinement::view_angle_floor`]). Default
     /// [`terrain_core::metrics::screen::MIN_VIEW_SIN`] (0.25).
     pub view_angle_floor: f64,
+    /// The coarsest segment a drawn patch may have, cells ([`Refinement::max_segment_cells`];
+    /// 0: none, Eq. 7's least factors). Default [`terrain_stream::DEFAULT_MAX_SEGMENT_CELLS`].
+    pub max_segment_cells: u32,
     /// The store's measured map from a pixel target to `tau`
     /// ([`crate::ooc_calibration`], its file beside the store's index), used by `--error-px`
     /// and `--quality` ([`OocConfig::tau_for_error_px`]) when measured under this
@@ -122,6 +125,7 @@ impl OocConfig {
             split: self.split,
             cost_split_px: self.cost_split_px,
             view_angle_floor: self.view_angle_floor,
+            max_segment_cells: self.max_segment_cells,
         }
     }
 }
@@ -141,6 +145,7 @@ impl Default for OocConfig {
             split: DEFAULT_SPLIT,
             cost_split_px: DEFAULT_COST_SPLIT_PX,
             view_angle_floor: terrain_core::metrics::screen::MIN_VIEW_SIN,
+            max_segment_cells: terrain_stream::DEFAULT_MAX_SEGMENT_CELLS,
             calibration: None,
             frame_rate_hz: 60.0,
         }

@@ -265,7 +265,7 @@ impl Calibration {
              # Eq. 7's tau -> measured p99 pixel error of `ooc` on this store (`terrain calibrate`);\n\
              # median over {} frames of {FLIGHT_NAME}, 1280 x 720, 60 degrees, every frame warm.\n\
              terrain {} {} {} {:016x}\n\
-             refinement {} {} {}\n\
+             refinement {} {} {}{}\n\
              frames {}\n",
             self.frames,
             t.width,
@@ -275,6 +275,11 @@ impl Calibration {
             split_name(r.split),
             r.patch_cells,
             r.cost_split_px,
+            // The segment floor only when set: files without it are measured without one.
+            match r.max_segment_cells {
+                0 => String::new(),
+                cells => format!(" {cells}"),
+            },
             self.frames
         );
         for [tau, p99] in self.points() {
@@ -339,7 +344,10 @@ impl Calibration {
                         Some(TerrainId { width: int(rest[0])?, height: int(rest[1])?, k, bake_id });
                 }
                 "refinement" => {
-                    want(3)?;
+                    // split, patch cells, cost split px [, segment floor cells (absent: 0)]
+                    if rest.len() != 4 {
+                        want(3)?;
+                    }
                     once(refinement.is_some())?;
                     let split = parse_split(rest[0])
                         .ok_or_else(|| bad(n, format!("split {:?} is not eq7 or cost", rest[0])))?;
@@ -350,6 +358,7 @@ impl Calibration {
                         split,
                         patch_cells: cells(rest[1])?,
                         cost_split_px: cells(rest[2])?,
+                        max_segment_cells: rest.get(3).map_or(Ok(0), |s| cells(s))?,
                         // `terrain calibrate` measures at the default view-angle floor.
                         ..Refinement::default()
                     });
@@ -686,6 +695,17 @@ mod tests {
             let e = Calibration::parse(&bad, path).expect_err(&bad).to_string();
             assert!(e.contains("store/ooc-calibration.txt") && e.contains(says), "{e}");
         }
+        // The segment floor: written only when set (a file without it was measured without
+        // one), read back either way; a fifth value is refused.
+        assert!(text.contains("refinement eq7 32 0\n"), "{text}");
+        let floored =
+            Calibration { refinement: Refinement { max_segment_cells: 16, ..c.refinement }, ..c };
+        let text = floored.to_text();
+        assert!(text.contains("refinement eq7 32 0 16\n"), "{text}");
+        assert_eq!(Calibration::parse(&text, path).expect("round trip"), floored);
+        let five = text.replacen("refinement eq7 32 0 16", "refinement eq7 32 0 16 1", 1);
+        let e = Calibration::parse(&five, path).expect_err("five values").to_string();
+        assert!(e.contains("refinement takes 3 values, got 5"), "{e}");
     }
 
     /// A calibration applies to its refinement only; otherwise the shared one is used.

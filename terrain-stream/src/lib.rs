@@ -112,8 +112,8 @@ pub use format::{
 };
 pub use glam;
 pub use lod::{
-    DEFAULT_COST_SPLIT_PX, DEFAULT_PATCH_CELLS, DEFAULT_SPLIT, Refinement, SplitRule, StoreTree,
-    select_patches, select_streamed,
+    DEFAULT_COST_SPLIT_PX, DEFAULT_MAX_SEGMENT_CELLS, DEFAULT_PATCH_CELLS, DEFAULT_SPLIT,
+    Refinement, SplitRule, StoreTree, select_patches, select_streamed,
 };
 pub use remote::{
     MULTIPART_ABOVE, RemoteOptions, UploadReport, check_remote_output, is_url, upload_store,

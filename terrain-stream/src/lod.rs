@@ -238,6 +238,14 @@ pub struct Refinement {
     /// which has none: a straight-down view would see no error). Default
     /// [`screen::MIN_VIEW_SIN`] (0.25).
     pub view_angle_floor: f64,
+    /// The coarsest segment a drawn patch may have, cells (not the paper's; 0: none, Eq. 7's
+    /// least factors exactly). With a value, every patch inside a block is drawn with at least
+    /// its block's vertices of segments of at most this many cells (clamped to what is
+    /// resident), and a node above the blocks is one patch only if it meets `tau` with such
+    /// segments, else it splits. Far patches may meet Eq. 7 with 32-cell or coarser segments,
+    /// whose samples then set a flight's p99 (bench/ooc/README.md, issue 13); 16 is
+    /// geomorph's own floor. Default [`DEFAULT_MAX_SEGMENT_CELLS`].
+    pub max_segment_cells: u32,
 }
 
 impl Default for Refinement {
@@ -247,9 +255,25 @@ impl Default for Refinement {
             split: DEFAULT_SPLIT,
             cost_split_px: DEFAULT_COST_SPLIT_PX,
             view_angle_floor: screen::MIN_VIEW_SIN,
+            max_segment_cells: DEFAULT_MAX_SEGMENT_CELLS,
         }
     }
 }
+
+impl Refinement {
+    /// The coarsest block-local vertex level a patch may be drawn with under
+    /// [`Refinement::max_segment_cells`] in blocks of `2^k` cells (segments of
+    /// `2^(k - level)` cells): 0 when there is no floor.
+    pub fn segment_floor_level(&self, k: u8) -> u8 {
+        match self.max_segment_cells {
+            0 => 0,
+            cells => k.saturating_sub(cells.ilog2() as u8),
+        }
+    }
+}
+
+/// Default [`Refinement::max_segment_cells`]: 0, no floor (Eq. 7's least factors).
+pub const DEFAULT_MAX_SEGMENT_CELLS: u32 = 0;
 
 /// Default [`Refinement::cost_split_px`].
 pub const DEFAULT_COST_SPLIT_PX: u32 = 0;
@@ -628,7 +652,8 @@ pub(crate) fn needed_level(
 /// The deepest vertex level the patches of block `b` need for `view` ([`needed_vertex_level`]
 /// of the patches terrain-core's [`traverse`] selects in the block with the selection's split
 /// ([`BlockNodes::splits`] under `refine`, the patches of `refine.patch_cells`) and the
-/// [`BoundingCircleCull`]), or `None` when no node of it meets `region`.
+/// [`BoundingCircleCull`]), at least [`Refinement::segment_floor_level`], or `None` when no
+/// node of it meets `region`.
 pub(crate) fn needed_geometry_level(
     h: &Header,
     e: &BlockEntry,
@@ -649,6 +674,8 @@ pub(crate) fn needed_geometry_level(
             Some(nodes.needed_level(n, || view.rho_per_metre(&info.aabb), view, h.k))
         })
         .max()
+        // The patches draw at least the segment floor's vertices.
+        .map(|l| l.max(refine.segment_floor_level(h.k)))
 }
 
 /// Local level of a patch of `cells` cells (clamped to a power of two within the block).
@@ -981,7 +1008,8 @@ impl StoreTree {
             return None;
         }
         let errs = self.upper_errors(n);
-        (0..=top).find(|&l| per_metre * f64::from(errs[l as usize]) <= view.tau)
+        let floor = self.refine.segment_floor_level(self.store.header().k);
+        (floor..=top).find(|&l| per_metre * f64::from(errs[l as usize]) <= view.tau)
     }
 
     /// The `k + 1` per-level bounds of node `n` above the blocks (`upper_err`).
@@ -1218,6 +1246,7 @@ pub fn select_patches(
     let start = Instant::now();
     let view = View::floored(camera, tau, tree.refine.view_angle_floor);
     let bl = tree.block_level;
+    let seg_floor = tree.refine.segment_floor_level(tree.store.header().k);
     let (boxed, mut stats) = traverse_store(tree, camera, &view, &resident);
     let traversed: Vec<NodeId> = boxed.iter().map(|&(n, ..)| n).collect();
     // Balanced leaves, sorted by `dfs_key` like the traversal's: a leaf the balance kept is
@@ -1245,6 +1274,8 @@ pub fn select_patches(
                     (None, None) => None,
                 }
                 .unwrap_or(n.level);
+                // The segment floor, at most what is resident.
+                let level = level.max(bl + seg_floor.min(max));
                 level.saturating_sub(bl + local.level).min(FACTOR_LEVELS)
             }
             // A patch spanning `2^s` blocks per side: `2^(s + l)` segments put the level-`l`

@@ -803,11 +803,8 @@ fn needed_level_fast(
     refine: Refinement,
 ) -> Option<u8> {
     let shade = shading_level(h, e, b, view);
-    if geometry_level_bound(h, e, b, view) <= shade {
-        Some(shade)
-    } else {
-        needed_level(h, e, b, view, region, refine)
-    }
+    let bound = geometry_level_bound(h, e, b, view).max(refine.segment_floor_level(h.k));
+    if bound <= shade { Some(shade) } else { needed_level(h, e, b, view, region, refine) }
 }
 
 /// The finer of `now` and what block `b` needs for `view` (the eye one frame ahead):
@@ -822,7 +819,8 @@ fn level_ahead(
     now: u8,
     refine: Refinement,
 ) -> u8 {
-    let (shade, bound) = (shading_level(h, e, b, view), geometry_level_bound(h, e, b, view));
+    let shade = shading_level(h, e, b, view);
+    let bound = geometry_level_bound(h, e, b, view).max(refine.segment_floor_level(h.k));
     if shade.max(bound) <= now {
         now
     } else if bound <= shade {
@@ -928,6 +926,8 @@ mod tests {
                             cost_split_px: 0,
                             ..Refinement::default()
                         },
+                        // The segment floor raises the fast path's answer too (k 5: level 2).
+                        Refinement { max_segment_cells: 8, ..Refinement::default() },
                     ]
                     .map(|r| (t, r))
                 }) {

@@ -160,7 +160,9 @@ fn check_spanning(
             *resident.get(b).unwrap_or_else(|| panic!("{:?}: block {b} not resident", p.node));
         assert!(res >= l, "{:?}: draws level {l} of block {b}, resident {res}", p.node);
     }
-    if sel.stats.balance_added > 0 {
+    // A segment floor makes far patches finer than Eq. 7 needs, by design: Eq. 7's least
+    // factors are checked only without one.
+    if sel.stats.balance_added > 0 || tree.refinement().max_segment_cells > 0 {
         return;
     }
     let root = NodeId { level: 0, i: 0, j: 0 };
@@ -224,7 +226,7 @@ fn check(
                 p.node
             );
         }
-        if f > 2.0 {
+        if f > 2.0 && tree.refinement().max_segment_cells == 0 {
             assert!(
                 per_metre * level_max(store, b, local, drawn - 1) > tau * (1.0 - 1e-6),
                 "{:?}: level {} would meet tau",
@@ -646,6 +648,70 @@ fn spanning_patches_meet_eq7_over_their_blocks() {
     assert!(blocks_spanned > 2 * spanning, "{blocks_spanned} blocks under {spanning} patches");
     assert!(parents > 20, "{parents} parents above the blocks checked");
     assert!(culled > 100, "{culled} cells culled by the frustum");
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// The segment floor ([`Refinement::max_segment_cells`]): with it, no drawn patch has segments
+/// coarser than the floor (all blocks resident), the selection still covers the view without
+/// overlap, shared edges agree and every patch meets Eq. 7 (`check`, less Eq. 7's minimality),
+/// and the streamer's needed level is at least what is drawn; without it, the same cameras
+/// draw coarser segments (the floor is not vacuous here).
+#[test]
+fn segment_floor_bounds_every_drawn_segment_and_stays_crack_free() {
+    // 513 x 513 at 10 m in blocks of 33^2 (16 x 16 blocks, 4 levels above them).
+    let hm = terrain(513, 513);
+    let (dir, store) = bake_store(&hm, "segfloor", 5, 3);
+    let h = store.header().clone();
+    let all: HashMap<BlockId, u8> = store.block_ids().map(|b| (b, h.k)).collect();
+    let cam = |x, y, z, yaw, pitch| Camera::from_yaw_pitch(dvec3(x, y, z), yaw, pitch);
+    let cams = [
+        cam(300.0, 400.0, 420.0, 45.0, -8.0).with_clip(1.0, 9000.0),
+        cam(2500.0, 300.0, 600.0, 0.0, -15.0).with_clip(1.0, 9000.0),
+        cam(2560.0, 2560.0, 6000.0, 30.0, -70.0).with_clip(1.0, 20000.0),
+    ];
+    let coarsest = |tree: &StoreTree, sel: &Selection| {
+        let root = tree.root_cells();
+        sel.patches.iter().map(|p| p.node.grid_rect(root).2 as f32 / p.inner[0]).fold(0.0, f32::max)
+    };
+    for floor in [8u32, 16] {
+        let (mut coarser_without, mut patches) = (0, 0);
+        for patch_cells in [4, 32] {
+            let off = Refinement { patch_cells, max_segment_cells: 0, ..Refinement::default() };
+            let on = Refinement { max_segment_cells: floor, ..off };
+            assert_eq!(on.segment_floor_level(h.k), h.k - floor.ilog2() as u8);
+            let tree_off = StoreTree::with_refinement(store.clone(), off);
+            let tree = StoreTree::with_refinement(store.clone(), on);
+            for c in &cams {
+                for tau in [0.5, 2.0, 8.0] {
+                    let sel = select_patches(&tree, c, tau, |b| all.get(&b).copied());
+                    check(&hm, &tree, c, tau, &all, &sel);
+                    patches += sel.patches.len();
+                    let worst = coarsest(&tree, &sel);
+                    assert!(worst <= floor as f32, "floor {floor}: a {worst}-cell segment");
+                    // Negative control: Eq. 7 alone draws coarser segments somewhere.
+                    let plain = select_patches(&tree_off, c, tau, |b| all.get(&b).copied());
+                    coarser_without += usize::from(coarsest(&tree_off, &plain) > floor as f32);
+                    // What the streamer loads covers what is drawn.
+                    let view = View::new(c, tau);
+                    let region = project_view_to_ground(c);
+                    for p in &sel.patches {
+                        let Some((b, local)) = tree.block_of(p.node) else { continue };
+                        let drawn = local.level + p.inner[0].log2() as u8;
+                        let e = store.entry(b).unwrap();
+                        if let Some(need) = needed_geometry_level(&h, e, b, &view, &region, on) {
+                            assert!(
+                                need + 1 >= drawn.min(h.k),
+                                "{b}: needed {need}, drawn {drawn}"
+                            );
+                            assert!(need >= on.segment_floor_level(h.k));
+                        }
+                    }
+                }
+            }
+        }
+        assert!(patches > 50, "{patches} patches");
+        assert!(coarser_without > 0, "floor {floor}: Eq. 7 alone never drew coarser segments");
+    }
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
