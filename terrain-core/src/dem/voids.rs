@@ -313,11 +313,10 @@ mod tests {
         let mut data = vec![0.0f32; w * h];
         for j in 0..h {
             for i in 0..w {
-                let (a, b) = (if i > 0 { data[j * w + i - 1] } else { 500.0 }, if j > 0 {
-                    data[(j - 1) * w + i]
-                } else {
-                    500.0
-                });
+                let (a, b) = (
+                    if i > 0 { data[j * w + i - 1] } else { 500.0 },
+                    if j > 0 { data[(j - 1) * w + i] } else { 500.0 },
+                );
                 data[j * w + i] = 0.5 * (a + b) + 30.0 * (rng() as f32 - 0.5) + 0.8 * i as f32;
             }
         }
