@@ -224,19 +224,17 @@ pub fn build_tile_at(
     let s = win.stride_log2;
     let col = |a: usize| (win.x0 as usize + (a << s)).min(w);
     let row = |b: usize| (win.y0 as usize + (b << s)).min(h);
+    // Voids are meshed as data: the reader's fill (the membrane of `dem::voids`) is what every
+    // other method draws over a void, and what a store holds (a store keeps no void mask), so
+    // the `tin` method draws the same surface there from memory and from a store, within its
+    // bound of the fill.
     let mut heights = Vec::with_capacity(win.width * win.height);
-    let mut voids = hm.voids().any().then(|| VoidMask::new(win.width, win.height));
     for b in 0..win.height {
         for a in 0..win.width {
             heights.push(hm.get(col(a), row(b)));
-            if let Some(v) = voids.as_mut()
-                && hm.voids().get(col(a), row(b))
-            {
-                v.set(a, b, true);
-            }
         }
     }
-    build_tile_from(node, &win, &heights, voids.as_ref(), bound)
+    build_tile_from(node, &win, &heights, None, bound)
 }
 
 /// The one tile builder from samples (in memory or read from a store): `heights` (row-major,
