@@ -49,6 +49,31 @@ fn strided(start: usize, stride_log2: u32, len: usize) -> impl Fn(usize) -> usiz
     move |a| (start + (a << stride_log2)).min(len - 1)
 }
 
+/// Any source with its voids read as data (the reader's fill): what the `tin` method meshes,
+/// so that over a void it draws what every other method draws and what a store holds (a store
+/// keeps no void mask).
+#[derive(Debug)]
+pub struct VoidsAsData<S>(pub S);
+
+impl<S: Samples> Samples for VoidsAsData<S> {
+    fn size(&self) -> (usize, usize) {
+        self.0.size()
+    }
+
+    fn window(
+        &self,
+        i0: usize,
+        j0: usize,
+        width: usize,
+        height: usize,
+        stride_log2: u32,
+    ) -> anyhow::Result<Window> {
+        let mut w = self.0.window(i0, j0, width, height, stride_log2)?;
+        w.voids = None;
+        Ok(w)
+    }
+}
+
 /// A DEM in memory.
 #[derive(Debug)]
 pub struct HeightmapSamples<'a>(pub &'a Heightmap);

@@ -23,7 +23,7 @@ use super::{Draw, DrawSource, DrawnSurface, Frame, Method, MethodStats, entropy_
 use crate::decimation::{BudgetPolicy, DECIMATION_REGION, Decimation, build_within};
 use crate::methods::{LodMethod, MethodScene};
 use crate::progress::{Progress, on_terminal};
-use crate::samples::{HeightmapSamples, Samples};
+use crate::samples::{HeightmapSamples, Samples, VoidsAsData};
 
 /// The `tin` method's settings.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -62,7 +62,7 @@ pub fn build_pyramid(hm: &Heightmap, config: &GridTinConfig) -> anyhow::Result<G
     let pyramid = GridTinPyramid::build_by(hm, config, |shape, errors, nodes| {
         let levels = nodes.iter().map(|n| n.level).max().map_or(1, |l| u64::from(l) + 1);
         let tiles = GridTileBuilder::new(
-            HeightmapSamples(hm),
+            VoidsAsData(HeightmapSamples(hm)),
             *shape,
             errors.to_vec(),
             config.max_tile_cells,

@@ -339,9 +339,9 @@ mod tests {
         };
         let terrain = steepest(&data, None);
         let mask = mask_where(w, h, |i, j| (40..130).contains(&i) && (30..90).contains(&j));
-        for k in 0..w * h {
+        for (k, z) in data.iter_mut().enumerate() {
             if mask.get(k % w, k / w) {
-                data[k] = f32::NAN;
+                *z = f32::NAN;
             }
         }
         fill_voids(w, h, &mut data, &mask).unwrap();
@@ -350,9 +350,9 @@ mod tests {
         // Negative control: a constant fill at the terrain's mean does leave a cliff here.
         let mean = data.iter().sum::<f32>() / data.len() as f32;
         let mut flat = data.clone();
-        for k in 0..w * h {
+        for (k, z) in flat.iter_mut().enumerate() {
             if mask.get(k % w, k / w) {
-                flat[k] = mean;
+                *z = mean;
             }
         }
         assert!(steepest(&flat, Some(&mask)) > terrain, "the check cannot fail");
