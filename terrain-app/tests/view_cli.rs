@@ -301,6 +301,19 @@ fn the_window_shows_what_render_draws_for_the_same_camera() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
+/// `dir/s.scene`: the synthetic terrain of `size`^2 samples baked with its blocks only (no
+/// PVS, DSS, roughness or geomorph tables), plus `extra` bake arguments.
+fn baked_blocks(dir: &Path, size: &str, extra: &[&str]) -> PathBuf {
+    let store = dir.join("s.scene");
+    let mut args = vec!["bake", "--synthetic", size];
+    args.extend(extra);
+    let out = store.to_str().unwrap();
+    args.extend(["-o", out, "--no-pvs", "--no-dss", "--no-roughness", "--no-geomip"]);
+    let b = terrain(&args);
+    assert!(b.status.success(), "{}", String::from_utf8_lossy(&b.stderr));
+    store
+}
+
 /// Over a small baked store the viewer streams in real time (the per-frame log shows no frame
 /// that waited for I/O); a `quit` mid-stream closes the window, exits 0 within a bounded
 /// time, and the store's worker threads are joined.
@@ -308,19 +321,7 @@ fn the_window_shows_what_render_draws_for_the_same_camera() {
 fn the_window_closes_cleanly_mid_stream() {
     let Some(x) = start_xvfb(25) else { return };
     let dir = scratch("view", "store");
-    let store = dir.join("s.scene");
-    let b = terrain(&[
-        "bake",
-        "--synthetic",
-        "1025",
-        "-o",
-        store.to_str().unwrap(),
-        "--no-pvs",
-        "--no-dss",
-        "--no-roughness",
-        "--no-geomip",
-    ]);
-    assert!(b.status.success(), "{}", String::from_utf8_lossy(&b.stderr));
+    let store = baked_blocks(&dir, "1025", &[]);
     let script = dir.join("script.txt");
     std::fs::write(
         &script,
@@ -392,21 +393,7 @@ fn the_window_closes_cleanly_mid_stream() {
 fn a_store_is_exaggerated_and_a_paced_flight_keeps_its_clock() {
     let Some(x) = start_xvfb(27) else { return };
     let dir = scratch("view", "paced");
-    let store = dir.join("s.scene");
-    let b = terrain(&[
-        "bake",
-        "--synthetic",
-        "257",
-        "--block-k",
-        "5",
-        "-o",
-        store.to_str().unwrap(),
-        "--no-pvs",
-        "--no-dss",
-        "--no-roughness",
-        "--no-geomip",
-    ]);
-    assert!(b.status.success(), "{}", String::from_utf8_lossy(&b.stderr));
+    let store = baked_blocks(&dir, "257", &["--block-k", "5"]);
     let script = dir.join("script.txt");
     std::fs::write(&script, "exaggeration 3\nwait-flight\nquit\n").unwrap();
     let flight = Path::new(env!("CARGO_MANIFEST_DIR")).join("../flights/fast_pass.json");
@@ -476,20 +463,7 @@ fn measured(out: &str) -> Vec<(f64, f64, usize)> {
 fn a_store_frame_is_measured_against_its_own_heights() {
     let Some(x) = start_xvfb(29) else { return };
     let dir = scratch("view", "measure");
-    let store = dir.join("s.scene");
-    let b = terrain(&[
-        "bake",
-        "--synthetic",
-        "1025",
-        "--raw-f32",
-        "-o",
-        store.to_str().unwrap(),
-        "--no-pvs",
-        "--no-dss",
-        "--no-roughness",
-        "--no-geomip",
-    ]);
-    assert!(b.status.success(), "{}", String::from_utf8_lossy(&b.stderr));
+    let store = baked_blocks(&dir, "1025", &["--raw-f32"]);
     let script = dir.join("script.txt");
     let run = |source: Option<&str>, text: &str, extra: &[&str]| {
         std::fs::write(&script, text).unwrap();
