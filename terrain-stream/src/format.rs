@@ -612,6 +612,16 @@ pub(crate) fn write_entry(w: &mut Writer, b: &BlockEntry) {
     }
 }
 
+/// The bytes [`write_entry`] writes for every entry of a grid with `header`'s block size and
+/// node levels (`fine` = [`fine_count`]): entries have one length per grid, so a reader can
+/// stream them in fixed-size batches.
+pub(crate) fn entry_len(header: &Header, fine: usize) -> usize {
+    let k = header.k as usize;
+    // Extent and file length, min and max; a level's offset, length and CRC; a level's error;
+    // the DSS errors; a node's min, max and static error; a fine maximum.
+    24 + (k + 1) * 16 + k * 4 + 2 * DSS_FACTORS * 4 + node_count(header.node_levels) * 12 + fine * 4
+}
+
 /// The index's bytes before its block entries: magic, version, header. Its length depends only
 /// on the header's CRS and encoding, not on the values a bake knows only at its end.
 pub(crate) fn index_prefix(header: &Header) -> Vec<u8> {

@@ -37,9 +37,10 @@ use crate::entries::EntryFile;
 use crate::error::BakeError;
 use crate::format::{
     BLOCK_HEADER_LEN, BlockEntry, Header, IndexError, Reader, Writer, block_file_name, crc32,
-    fine_count, read_entry, read_header, write_header,
+    entry_len, fine_count, read_entry, read_header, write_header,
 };
 use crate::source::HeightSource;
+use terrain_core::checksum::crc32_update;
 
 /// Name of the part file inside a part folder.
 pub const PART_FILE: &str = "part.tsp";
@@ -142,7 +143,13 @@ pub struct PartInfo {
     pub header: Header,
     lossless: bool,
     bound: Option<f64>,
-    entries: Vec<BlockEntry>,
+    /// Its block entries, never held whole (a 32769^2 grid's are 120 MB): their count, the
+    /// bytes of their block files, and where they start in the part file.
+    blocks: usize,
+    block_bytes: u64,
+    entries_at: u64,
+    /// The part file's CRC-32 as checked when it was read.
+    crc: u32,
     /// Geomorph's table of the part's rows: its patch cells and the rows' heights checksum
     /// (the table itself is the part's [`GEOMIP_FILE`], of the part's rows as a grid).
     geomip: Option<(u32, HeightsChecksum)>,
@@ -151,7 +158,7 @@ pub struct PartInfo {
 impl PartInfo {
     /// Blocks in the part.
     pub fn blocks(&self) -> usize {
-        self.entries.len()
+        self.blocks
     }
 }
 
@@ -277,52 +284,41 @@ fn part_tail(geomip: &Option<(u32, HeightsChecksum)>) -> Vec<u8> {
 /// Reads and checks the part folder `part`: its file's magic, version, checksum, and that its
 /// entries are its shard's rows of the grid.
 pub fn read_part(part: &Path) -> Result<PartInfo, BakeError> {
-    let file = part.join(PART_FILE);
-    let bytes = fs::read(&file).map_err(|cause| BakeError::Io { path: file.clone(), cause })?;
     let bad = |reason: String| BakeError::BadPart { path: part.to_path_buf(), reason };
-    if bytes.len() < 16 || bytes[..8] != PART_MAGIC {
-        return Err(bad(format!("{PART_FILE} is not a shard's part file (wrong magic bytes)")));
-    }
-    let (body, tail) = bytes.split_at(bytes.len() - 4);
-    if crc32(body).to_le_bytes() != tail {
-        return Err(bad(format!("{PART_FILE}: checksum mismatch (the file is corrupt)")));
-    }
-    let mut r = Reader::new(&body[8..]);
-    let parse = |r: &mut Reader<'_>| -> Result<PartInfo, String> {
-        let version = r.u32()?;
-        if version != PART_VERSION {
-            return Err(format!("part format version {version}, this reader reads {PART_VERSION}"));
+    let mut file = PartFile::open(part)?;
+    // The checksum first, so a damaged file is said to be damaged, whatever byte it hit.
+    let crc = file.checksum()?;
+    let body_len = file.body_len;
+    // The prefix, up to the entry count: a few hundred bytes plus the georeference's text.
+    let mut head = Vec::new();
+    let (mut info, n) = loop {
+        let want = (head.len().max(4096) * 2).min(body_len as usize);
+        head.resize(want, 0);
+        file.read_at(0, &mut head)?;
+        match parse_prefix(part, &head) {
+            Ok(parsed) => break parsed,
+            // Cut short by our read, not by the file: read more of it.
+            Err(PrefixError::Short) if want < body_len as usize => continue,
+            Err(PrefixError::Short) => {
+                return Err(bad(format!("{PART_FILE}: cut short before its block entries")));
+            }
+            Err(PrefixError::Bad(m)) => return Err(bad(format!("{PART_FILE}: {m}"))),
         }
-        let shard = Shard::new(r.u32()?, r.u32()?).map_err(|e| e.to_string())?;
-        let rows = r.u64()?..r.u64()?;
-        let mut text = || -> Result<String, String> {
-            let n = r.u32()? as usize;
-            String::from_utf8(r.take(n)?.to_vec()).map_err(|_| "text is not UTF-8".to_string())
-        };
-        let (source_id, options) = (text()?, text()?);
-        let lossless = r.u8()? != 0;
-        let has_bound = r.u8()? != 0;
-        let bound = r.f64()?;
-        let bound = has_bound.then_some(bound);
-        let header = read_header(r).map_err(|e| format!("header: {}", index_error(e)))?;
-        if rows != shard.rows(header.blocks_y as u64) {
-            return Err(format!(
-                "block rows {rows:?}, but shard {shard} of {} rows is {:?}",
-                header.blocks_y,
-                shard.rows(header.blocks_y as u64)
-            ));
-        }
-        let n = r.u64()?;
-        let expected = (rows.end - rows.start) * header.blocks_x as u64;
-        if n != expected {
-            return Err(format!("{n} block entries, expected {expected} for rows {rows:?}"));
-        }
-        let fine = fine_count(header.k, header.node_levels);
-        let first = rows.start as usize * header.blocks_x as usize;
-        let entries = (0..n as usize)
-            .map(|i| read_entry(r, &header, header.block_at(first + i), fine))
-            .collect::<Result<Vec<_>, _>>()
-            .map_err(index_error)?;
+    };
+    // The entries, a batch at a time: each is checked, then dropped.
+    let mut block_bytes = 0;
+    file.entries(&info, n, ENTRY_BATCH, &mut |batch| {
+        block_bytes += batch.iter().map(|e| e.file_len).sum::<u64>();
+        Ok(())
+    })?;
+    info.blocks = n as usize;
+    info.block_bytes = block_bytes;
+    // The tail: geomorph's table's patch cells and the rows' heights checksum, if any.
+    let tail_at = info.entries_at + n * entry_len(&info.header, info.fine()) as u64;
+    let mut tail = vec![0; (body_len - tail_at.min(body_len)) as usize];
+    file.read_at(tail_at, &mut tail)?;
+    let mut r = Reader::new(&tail);
+    let parse_tail = |r: &mut Reader<'_>| -> Result<Option<(u32, HeightsChecksum)>, String> {
         let geomip = match r.u8()? {
             0 => None,
             _ => {
@@ -335,20 +331,189 @@ pub fn read_part(part: &Path) -> Result<PartInfo, BakeError> {
         if r.remaining() != 0 {
             return Err(format!("{} bytes after the last entry", r.remaining()));
         }
-        Ok(PartInfo {
-            path: part.to_path_buf(),
-            shard,
-            rows,
-            source_id,
-            options,
-            header,
-            lossless,
-            bound,
-            entries,
-            geomip,
-        })
+        Ok(geomip)
     };
-    parse(&mut r).map_err(|m| bad(format!("{PART_FILE}: {m}")))
+    info.geomip = parse_tail(&mut r).map_err(|m| bad(format!("{PART_FILE}: {m}")))?;
+    info.crc = crc;
+    Ok(info)
+}
+
+/// Why a part file's prefix did not parse.
+enum PrefixError {
+    /// It needs more bytes than were read.
+    Short,
+    Bad(String),
+}
+
+/// A part file's prefix (through its entry count) from its first bytes `head`: the part's
+/// description with no entries yet, and the entry count, checked against its shard's rows.
+fn parse_prefix(part: &Path, head: &[u8]) -> Result<(PartInfo, u64), PrefixError> {
+    // A short read shows as "needs N bytes" from the reader; any other failure is the file's.
+    let short = |m: &String| m.starts_with("needs ");
+    let bad = |m: String| if short(&m) { PrefixError::Short } else { PrefixError::Bad(m) };
+    let mut r = Reader::new(&head[8..]);
+    let version = r.u32().map_err(bad)?;
+    if version != PART_VERSION {
+        return Err(PrefixError::Bad(format!(
+            "part format version {version}, this reader reads {PART_VERSION}"
+        )));
+    }
+    let shard = Shard::new(r.u32().map_err(bad)?, r.u32().map_err(bad)?)
+        .map_err(|e| PrefixError::Bad(e.to_string()))?;
+    let rows = r.u64().map_err(bad)?..r.u64().map_err(bad)?;
+    let mut text = || -> Result<String, PrefixError> {
+        let n = r.u32().map_err(bad)? as usize;
+        let bytes = r.take(n).map_err(bad)?;
+        String::from_utf8(bytes.to_vec()).map_err(|_| PrefixError::Bad("text is not UTF-8".into()))
+    };
+    let (source_id, options) = (text()?, text()?);
+    let lossless = r.u8().map_err(bad)? != 0;
+    let has_bound = r.u8().map_err(bad)? != 0;
+    let bound = r.f64().map_err(bad)?;
+    let bound = has_bound.then_some(bound);
+    let header = read_header(&mut r).map_err(|e| bad(format!("header: {}", index_error(e))))?;
+    if rows != shard.rows(header.blocks_y as u64) {
+        return Err(PrefixError::Bad(format!(
+            "block rows {rows:?}, but shard {shard} of {} rows is {:?}",
+            header.blocks_y,
+            shard.rows(header.blocks_y as u64)
+        )));
+    }
+    let n = r.u64().map_err(bad)?;
+    let expected = (rows.end - rows.start) * header.blocks_x as u64;
+    if n != expected {
+        return Err(PrefixError::Bad(format!(
+            "{n} block entries, expected {expected} for rows {rows:?}"
+        )));
+    }
+    let entries_at = 8 + (head.len() - 8 - r.remaining()) as u64;
+    let info = PartInfo {
+        path: part.to_path_buf(),
+        shard,
+        rows,
+        source_id,
+        options,
+        header,
+        lossless,
+        bound,
+        blocks: 0,
+        block_bytes: 0,
+        entries_at,
+        crc: 0,
+        geomip: None,
+    };
+    Ok((info, n))
+}
+
+/// Entries read from a part file per batch: 1,024 of about 7.3 KB at `k` = 8.
+const ENTRY_BATCH: usize = 1024;
+
+/// A part file read in pieces, its CRC-32 computed over the pieces in order.
+struct PartFile {
+    path: PathBuf,
+    part: PathBuf,
+    file: fs::File,
+    /// The bytes before the trailing CRC-32.
+    body_len: u64,
+}
+
+impl PartFile {
+    /// Opens `part`'s part file and checks its magic bytes.
+    fn open(part: &Path) -> Result<Self, BakeError> {
+        let path = part.join(PART_FILE);
+        let io = |cause| BakeError::Io { path: path.clone(), cause };
+        let file = fs::File::open(&path).map_err(io)?;
+        let len = file.metadata().map_err(io)?.len();
+        let mut this = Self {
+            path: path.clone(),
+            part: part.to_path_buf(),
+            file,
+            body_len: len.saturating_sub(4),
+        };
+        let mut magic = [0u8; 8];
+        if len < 16 || this.read_at(0, &mut magic).is_err() || magic != PART_MAGIC {
+            return Err(BakeError::BadPart {
+                path: part.to_path_buf(),
+                reason: format!("{PART_FILE} is not a shard's part file (wrong magic bytes)"),
+            });
+        }
+        Ok(this)
+    }
+
+    /// Fills `buf` from `offset`.
+    fn read_at(&mut self, offset: u64, buf: &mut [u8]) -> Result<(), BakeError> {
+        use std::os::unix::fs::FileExt;
+        self.file
+            .read_exact_at(buf, offset)
+            .map_err(|cause| BakeError::Io { path: self.path.clone(), cause })
+    }
+
+    /// Reads, checks and hands to `each` the part's `n` entries in batches of
+    /// `batch_len` ([`ENTRY_BATCH`] but in tests), in file order.
+    fn entries(
+        &mut self,
+        info: &PartInfo,
+        n: u64,
+        batch_len: usize,
+        each: &mut dyn FnMut(&[BlockEntry]) -> Result<(), BakeError>,
+    ) -> Result<(), BakeError> {
+        let (header, fine) = (&info.header, info.fine());
+        let len = entry_len(header, fine);
+        let first = info.rows.start as usize * header.blocks_x as usize;
+        let mut buf = Vec::new();
+        let mut batch = Vec::with_capacity(batch_len);
+        let mut done = 0u64;
+        while done < n {
+            let count = (n - done).min(batch_len.max(1) as u64) as usize;
+            let at = info.entries_at + done * len as u64;
+            if at + (count * len) as u64 > self.body_len {
+                return Err(self.bad(format!("cut short in its block entries ({n} expected)")));
+            }
+            buf.resize(count * len, 0);
+            self.read_at(at, &mut buf)?;
+            batch.clear();
+            for (i, bytes) in buf.chunks_exact(len).enumerate() {
+                let mut r = Reader::new(bytes);
+                let id = header.block_at(first + done as usize + i);
+                let e =
+                    read_entry(&mut r, header, id, fine).map_err(|e| self.bad(index_error(e)))?;
+                debug_assert_eq!(r.remaining(), 0, "entry_len disagrees with read_entry");
+                batch.push(e);
+            }
+            each(&batch)?;
+            done += count as u64;
+        }
+        Ok(())
+    }
+
+    /// The file's CRC-32, read through in pieces and checked against its trailing one.
+    fn checksum(&mut self) -> Result<u32, BakeError> {
+        let mut buf = vec![0u8; 1 << 20];
+        let (mut crc, mut at) = (0, 0);
+        while at < self.body_len {
+            let n = (self.body_len - at).min(buf.len() as u64) as usize;
+            self.read_at(at, &mut buf[..n])?;
+            crc = crc32_update(crc, &buf[..n]);
+            at += n as u64;
+        }
+        let mut tail = [0u8; 4];
+        self.read_at(self.body_len, &mut tail)?;
+        if crc.to_le_bytes() != tail {
+            return Err(self.bad("checksum mismatch (the file is corrupt)".into()));
+        }
+        Ok(crc)
+    }
+
+    fn bad(&self, reason: String) -> BakeError {
+        BakeError::BadPart { path: self.part.clone(), reason: format!("{PART_FILE}: {reason}") }
+    }
+}
+
+impl PartInfo {
+    /// Fine maxima per entry ([`fine_count`]).
+    fn fine(&self) -> usize {
+        fine_count(self.header.k, self.header.node_levels)
+    }
 }
 
 fn index_error(e: IndexError) -> String {
@@ -401,20 +566,31 @@ pub fn merge(
             geomip: geomip_of(&infos, tmp)?,
         };
         for part in &infos {
-            copy_blocks(part, tmp)?;
+            // The part's entries are read again, a batch at a time, and its checksum checked
+            // again at the end: a part changed since it was read is refused, not merged.
+            let mut file = PartFile::open(&part.path)?;
+            let mut first = part.rows.start as usize * part.header.blocks_x as usize;
+            file.entries(part, part.blocks as u64, ENTRY_BATCH, &mut |batch| {
+                copy_blocks(part, first, batch, tmp)?;
+                first += batch.len();
+                for e in batch {
+                    all.entries.push(e)?;
+                }
+                prog.blocks_done = all.entries.count();
+                prog.bytes_written += batch.iter().map(|e| e.file_len).sum::<u64>();
+                if progress(&prog).is_break() {
+                    return Err(BakeError::Cancelled);
+                }
+                Ok(())
+            })?;
+            if file.checksum()? != part.crc {
+                return Err(file.bad("changed while the merge read it; merge again".into()));
+            }
             all.header.max_error_m = all.header.max_error_m.max(part.header.max_error_m);
             all.header.max_void_error_m =
                 all.header.max_void_error_m.max(part.header.max_void_error_m);
             all.lossless &= part.lossless;
-            for e in &part.entries {
-                all.entries.push(e)?;
-            }
-            prog.blocks_done = all.entries.count();
             prog.rows_read += part.rows.end - part.rows.start;
-            prog.bytes_written += part.entries.iter().map(|e| e.file_len).sum::<u64>();
-            if progress(&prog).is_break() {
-                return Err(BakeError::Cancelled);
-            }
         }
         crate::bake::finish(tmp, all, start)
     })
@@ -542,11 +718,16 @@ fn check_parts(infos: &mut [PartInfo], config: &MergeConfig) -> Result<(), BakeE
     Ok(())
 }
 
-/// Copies a part's block files into the store folder `dir`, checking each against its entry:
+/// Copies a part's block files (`entries`, of blocks `first..` in row-major order) into the
+/// store folder `dir`, checking each against its entry:
 /// the block header (magic, bake id 0, row and column), the length, every level's CRC-32.
-fn copy_blocks(part: &PartInfo, dir: &Path) -> Result<(), BakeError> {
-    let first = part.rows.start as usize * part.header.blocks_x as usize;
-    part.entries.par_iter().enumerate().try_for_each(|(i, e)| {
+fn copy_blocks(
+    part: &PartInfo,
+    first: usize,
+    entries: &[BlockEntry],
+    dir: &Path,
+) -> Result<(), BakeError> {
+    entries.par_iter().enumerate().try_for_each(|(i, e)| {
         let id = part.header.block_at(first + i);
         let name = block_file_name(id);
         let from = part.path.join(&name);
@@ -575,4 +756,46 @@ fn copy_blocks(part: &PartInfo, dir: &Path) -> Result<(), BakeError> {
         let to = dir.join(&name);
         fs::write(&to, &bytes).map_err(|cause| BakeError::Io { path: to, cause })
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use terrain_core::synth::FractalConfig;
+
+    /// A part's entries read in batches of any length are the same entries, in the same order
+    /// (the merge reads 1,024 at a time; a test grid has fewer blocks than that).
+    #[test]
+    fn entries_read_in_batches_are_the_same_entries() {
+        let dir =
+            std::env::temp_dir().join(format!("terrain-shard-batches-{}", std::process::id()));
+        let _ = fs::remove_dir_all(&dir);
+        let part = dir.join("p0");
+        let config = BakeConfig { k: 6, threads: 2, ..BakeConfig::default() };
+        let source = FractalConfig::with_size(301, 203, 10.0);
+        let shard = Shard::new(0, 1).unwrap();
+        bake_shard(&source, &part, &config, shard, "batches", &mut |_| ControlFlow::Continue(()))
+            .unwrap();
+        let info = read_part(&part).unwrap();
+        assert_eq!(info.blocks(), 20);
+        let read = |batch_len: usize| {
+            let (mut all, mut sizes) = (Vec::new(), Vec::new());
+            let mut file = PartFile::open(&part).unwrap();
+            file.entries(&info, info.blocks as u64, batch_len, &mut |b| {
+                sizes.push(b.len());
+                all.extend(b.iter().cloned());
+                Ok(())
+            })
+            .unwrap();
+            (all, sizes)
+        };
+        let (whole, sizes) = read(ENTRY_BATCH);
+        assert_eq!(sizes, [20]);
+        for batch_len in [1, 3, 7, 19, 20] {
+            let (entries, sizes) = read(batch_len);
+            assert_eq!(entries, whole, "batches of {batch_len}");
+            assert_eq!(sizes.len(), 20usize.div_ceil(batch_len), "batches of {batch_len}");
+        }
+        let _ = fs::remove_dir_all(&dir);
+    }
 }

@@ -312,6 +312,17 @@ fn a_merge_refuses_missing_duplicated_and_foreign_parts_by_name() {
     std::fs::write(&block, bytes).unwrap();
     let e = err(&[parts[0].clone(), damaged, parts[2].clone()]);
     assert!(e.contains("damaged") && e.contains("checksum"), "{e}");
+    // A part whose part file was damaged in one of its block entries: its checksum says so
+    // before the entry is read.
+    let damaged_index = foreign.join("damaged-index");
+    bake_shard(&synth, &damaged_index, &cfg(), shard, SHARD_SOURCE, go).unwrap();
+    let file = damaged_index.join(terrain_stream::PART_FILE);
+    let mut bytes = std::fs::read(&file).unwrap();
+    let middle = bytes.len() / 2;
+    bytes[middle] ^= 0x55;
+    std::fs::write(&file, bytes).unwrap();
+    let e = err(&[parts[0].clone(), damaged_index, parts[2].clone()]);
+    assert!(e.contains("damaged-index") && e.contains("checksum mismatch"), "{e}");
     // Nothing was published by the refused merges, and a bad `K/N` is refused.
     assert!(!out.exists());
     assert!("3/3".parse::<Shard>().is_err() && "1-3".parse::<Shard>().is_err());
