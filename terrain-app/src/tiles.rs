@@ -188,10 +188,11 @@ enum Source {
 /// longitude/latitude): its layout, name, size as given and the CRS it was reprojected from.
 fn open(args: &TilesArgs) -> anyhow::Result<(Source, GridLayout, String, Option<String>)> {
     if let [one] = args.source.dem.as_slice()
-        && terrain_stream::is_store(one)
+        && terrain_app::ooc::is_store(one)
     {
         args.source.refuse_reading_options("a baked store (its heights are stored)")?;
-        let store = terrain_stream::Store::open(one)
+        // A folder, or a URL (`s3://`, `http(s)://`...) read through the disk cache.
+        let store = terrain_app::ooc::open_store(one)
             .with_context(|| format!("opening the store {}", one.display()))?;
         let h = store.header();
         let size = (h.width as usize, h.height as usize);

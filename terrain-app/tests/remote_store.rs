@@ -226,6 +226,8 @@ fn a_store_baked_to_seaweedfs_reads_as_the_local_bake() {
         "{all}"
     );
     assert_eq!(get_object(s3, "bucket/notes/readme.txt"), "not a store");
+    // A file above the multipart threshold goes up in parts and reads back whole.
+    common::remote::assert_multipart_upload(&dir, &cache, &env, "s3://bucket/multipart");
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
@@ -290,6 +292,7 @@ fn a_store_baked_to_azurite_reads_as_the_local_bake() {
     let (remote, err) = bench(&dir, &cache, &env, &dem, url, "remote");
     assert_eq!(local, remote);
     assert!(!err.contains("store fault"), "{err}");
+    common::remote::assert_multipart_upload(&dir, &cache, &env, "az://terrain/multipart");
     // A second bake is refused, as on S3 and on disk.
     let out = terrain_in(&dir, &cache, &env, &bake_args(&dem, url));
     assert!(

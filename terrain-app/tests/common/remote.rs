@@ -263,3 +263,47 @@ pub(crate) fn assert_second_bake_refused<'a>(
     assert_eq!(info(dir, cache, env, url), before);
     (k4, before)
 }
+
+/// A store with a block file above the 16 MiB multipart threshold (terrain_stream's
+/// `MULTIPART_ABOVE`: one 2049^2 block of raw f32 levels, 16.8 MB) baked to `url` and to a
+/// local folder: the bake says one file went as a multipart upload, and the store at the URL
+/// reads as the local one: the same `info`, and the same tiles from every sample (the finest
+/// level spans both parts; every level read is checked against its length and CRC-32, so a
+/// part lost or misordered fails the read).
+pub(crate) fn assert_multipart_upload(dir: &Path, cache: &Path, env: &[(&str, &str)], url: &str) {
+    let local = dir.join("multipart.scene");
+    let bake = |out: &str| {
+        let args = [
+            "bake",
+            "--synthetic",
+            "1537",
+            "--block-k",
+            "11",
+            "--raw-f32",
+            "--no-pvs",
+            "--no-dss",
+            "--no-roughness",
+            "--no-geomip",
+            "--no-calibration",
+            "-o",
+            out,
+        ];
+        let o = terrain_in(dir, cache, env, &args);
+        assert!(o.status.success(), "bake -o {out}: {}", text(&o));
+        text(&o)
+    };
+    bake(s(&local));
+    let all = bake(url);
+    assert!(all.contains("(1 as multipart uploads)"), "bake -o {url}: {all}");
+    assert_eq!(info(dir, cache, env, url), info(dir, cache, env, s(&local)));
+    // Every sample, strictly: a tileset's coarse tiles are checked against every sample at
+    // full resolution, read with the strict store reader (a short or damaged level is an error).
+    let tiles = |location: &str, name: &str| {
+        let out = dir.join(name);
+        let args = ["tiles", location, "--lonlat=-122.5,46.5", "--max-level", "0", "-o", s(&out)];
+        let o = terrain_in(dir, cache, env, &args);
+        assert!(o.status.success(), "tiles {location}: {}", text(&o));
+        ["0/0/0.terrain", "0/1/0.terrain"].map(|t| std::fs::read(out.join(t)).unwrap())
+    };
+    assert!(tiles(s(&local), "multipart-local.tiles") == tiles(url, "multipart-remote.tiles"));
+}
