@@ -185,16 +185,20 @@ impl Heightmap {
         }
         let mut min = f32::INFINITY;
         let mut max = f32::NEG_INFINITY;
-        for (k, &z) in data.iter().enumerate() {
-            let (i, j) = (k % width, k / width);
-            if voids.get(i, j) {
-                continue;
+        // By rows, the void flags looked up only when there are voids (a block of the bake
+        // is built as a heightmap: this loop ran a division per sample).
+        let any_void = voids.any();
+        for (j, row) in data.chunks_exact(width).enumerate() {
+            for (i, &z) in row.iter().enumerate() {
+                if any_void && voids.get(i, j) {
+                    continue;
+                }
+                if !z.is_finite() {
+                    return Err(HeightmapError::NonFinite { i, j });
+                }
+                min = min.min(z);
+                max = max.max(z);
             }
-            if !z.is_finite() {
-                return Err(HeightmapError::NonFinite { i, j });
-            }
-            min = min.min(z);
-            max = max.max(z);
         }
         Ok(Self { width, height, data, voids, georef, min, max })
     }

@@ -742,19 +742,23 @@ fn bake_block(
     let mut z = vec![0f32; side * side];
     let mut mask = VoidMask::new(side, side);
     let (mut max_err, mut max_void_err, mut lossless) = (0f64, 0f64, true);
-    for j in 0..side {
+    // By rows of the band's slice (no index arithmetic or bounds check per sample).
+    let encoding = quant.encoding;
+    for (j, (q_row, z_row)) in q.chunks_exact_mut(side).zip(z.chunks_exact_mut(side)).enumerate() {
         let sj = j.min(valid_h - 1);
+        let src_row = &band[sj * width + x0..][..valid_w];
+        let void_row = &voids[sj * width + x0..][..valid_w];
         for i in 0..side {
-            let si = x0 + i.min(valid_w - 1);
-            let src = band[sj * width + si];
-            let void = voids[sj * width + si];
+            let ii = i.min(valid_w - 1);
+            let (src, void) = (src_row[ii], void_row[ii]);
             let padding = i >= valid_w || j >= valid_h;
-            let v = match quant.encoding {
+            let v = match encoding {
                 SampleEncoding::Quantized { step_m, offset_m } => {
                     let t = ((src as f64 - offset_m) / step_m).round();
                     if !(i32::MIN as f64..=i32::MAX as f64).contains(&t) {
                         return Err(BakeError::Encoding(format!(
-                            "height {src} m at ({si}, {}) does not fit 32-bit steps of {step_m} m",
+                            "height {src} m at ({}, {}) does not fit 32-bit steps of {step_m} m",
+                            x0 + ii,
                             id.row as usize * cells + sj
                         )));
                     }
@@ -762,7 +766,7 @@ fn bake_block(
                 }
                 SampleEncoding::F32 => src.to_bits() as i32,
             };
-            let back = quant.encoding.height(v);
+            let back = encoding.height(v);
             if !padding {
                 let err = (back as f64 - src as f64).abs();
                 if void {
@@ -775,8 +779,8 @@ fn bake_block(
             if padding || void {
                 mask.set(i, j, true);
             }
-            q[j * side + i] = v;
-            z[j * side + i] = back;
+            q_row[i] = v;
+            z_row[i] = back;
         }
     }
     let dss = config.dss_errors.then(|| dss_errors(&z, &mask, side, valid_w, valid_h));

@@ -69,8 +69,11 @@ const MAX_VARINT: usize = 10;
 /// The prediction of vertex `(i, j)` of level `n` from coarser vertices given by `at(i, j)`.
 #[inline]
 fn predict(k: u8, n: u8, i: u32, j: u32, at: impl Fn(u32, u32) -> i64) -> i64 {
-    let d = 1u32 << (k - n);
-    let (a_odd, b_odd) = ((i / d) % 2 == 1, (j / d) % 2 == 1);
+    // The stride is a power of two: shifts, not divisions (this runs for every sample of
+    // every level encoded and decoded).
+    let s = u32::from(k - n);
+    let d = 1u32 << s;
+    let (a_odd, b_odd) = ((i >> s) & 1 == 1, (j >> s) & 1 == 1);
     match (a_odd, b_odd) {
         (true, false) => (at(i - d, j) + at(i + d, j)).div_euclid(2),
         (false, true) => (at(i, j - d) + at(i, j + d)).div_euclid(2),
@@ -106,16 +109,12 @@ pub(crate) fn encode_level(
 ) -> Vec<u8> {
     let side = (1usize << k) + 1;
     let at = |i: u32, j: u32| grid[j as usize * side + i as usize];
-    let mut values = Vec::with_capacity(level_len(n));
-    for_each_level_vertex(k, n, |i, j| values.push(at(i, j)));
     if matches!(codec, Codec::Predictive | Codec::PredictiveDeflate) && allow_predictive {
-        let mut out = Vec::with_capacity(values.len() + 1);
+        let mut out = Vec::with_capacity(level_len(n) + 1);
         out.push(TAG_PREDICTIVE);
         let mut prev = 0i64;
-        let mut idx = 0usize;
         for_each_level_vertex(k, n, |i, j| {
-            let v = values[idx] as i64;
-            idx += 1;
+            let v = at(i, j) as i64;
             let p = if n == 0 { prev } else { predict(k, n, i, j, |x, y| at(x, y) as i64) };
             prev = v;
             put_varint(&mut out, zigzag(v - p));
@@ -138,6 +137,8 @@ pub(crate) fn encode_level(
         }
         return out;
     }
+    let mut values = Vec::with_capacity(level_len(n));
+    for_each_level_vertex(k, n, |i, j| values.push(at(i, j)));
     let fits16 = allow_predictive && values.iter().all(|&v| i16::try_from(v).is_ok());
     let mut out = Vec::with_capacity(1 + values.len() * if fits16 { 2 } else { 4 });
     if fits16 {

@@ -126,60 +126,79 @@ pub fn max_error_vertices_with(
             Coverage::VoidOnly
         },
     });
+    // Powers of two, so the lattice tests and quad indices are masks and shifts (this runs
+    // for every sample of every level of every patch of a bake); the arithmetic of the
+    // heights is unchanged.
+    let (w, data) = (hm.width(), hm.data());
+    let voids = hm.voids().any().then(|| hm.voids());
+    let frac = |k: usize, k0: usize, k1: usize| {
+        if k1 > k0 { (k - k0) as f64 / (k1 - k0) as f64 } else { 0.0 }
+    };
     for level in 1..levels {
         let s = 1usize << level;
-        let on = |k: usize, step: usize| k.is_multiple_of(step);
-        let mut best: Option<MaxErrorVertex> = None;
+        let (mask, half_mask, quads) = (s - 1, (s >> 1) - 1, c >> level);
+        // The first vertex with the largest error, south row first, west first: (error, i,
+        // j, coarse height), `None` until a vertex is measured.
+        let mut best: Option<(f64, usize, usize, f64)> = None;
         let mut count = 0;
         for j in clip.y0..=clip.y1 {
             let dj = j - y0;
-            for i in clip.x0..=clip.x1 {
-                let di = i - x0;
-                let kept = on(di, s) && on(dj, s);
-                let candidate = match reference {
-                    Reference::FullResolution => !kept,
-                    Reference::PreviousLevel => !kept && on(di, s / 2) && on(dj, s / 2),
-                };
-                if !candidate || hm.voids().get(i, j) {
-                    continue;
+            let row_kept = dj & mask == 0;
+            let row_prev = dj & half_mask == 0;
+            // The row of level-L quads holding row j (clipped at the north border).
+            let b = (dj >> level).min(quads - 1);
+            let cj = y0 + b * s;
+            let cj1 = (cj + s).min(clip.y1);
+            let v = frac(j, cj, cj1);
+            let (r0, r1, rj) = (&data[cj * w..][..w], &data[cj1 * w..][..w], &data[j * w..][..w]);
+            // The row's samples quad by quad, west to east (the order of a plain scan): quad
+            // `a` holds columns `ci..ci + s`, the last one also its east edge (and at the east
+            // border, clipped to the grid).
+            for a in 0..quads {
+                let ci = x0 + a * s;
+                if ci > clip.x1 {
+                    break;
                 }
-                // The level-L quad holding (i, j), split NW-SE (article case B) or by the
-                // union-jack parity; at the east/north border, clipped to the grid.
-                let a = (di / s).min(c / s - 1);
-                let b = (dj / s).min(c / s - 1);
+                let last = if a + 1 == quads { clip.x1 } else { (ci + s - 1).min(clip.x1) };
+                // Split NW-SE (article case B) or by the union-jack parity.
                 let diagonal = match tri {
                     Triangulation::UnionJack if (a + b).is_multiple_of(2) => Diagonal::SwNe,
                     _ => Diagonal::SeNw,
                 };
-                let (ci, cj) = (x0 + a * s, y0 + b * s);
-                let (ci1, cj1) = ((ci + s).min(clip.x1), (cj + s).min(clip.y1));
-                let frac = |k: usize, k0: usize, k1: usize| {
-                    if k1 > k0 { (k - k0) as f64 / (k1 - k0) as f64 } else { 0.0 }
-                };
-                let zc = |ii: usize, jj: usize| f64::from(hm.get(ii, jj));
-                let coarse = tri_interp(
-                    zc(ci, cj),
-                    zc(ci1, cj),
-                    zc(ci, cj1),
-                    zc(ci1, cj1),
-                    frac(i, ci, ci1),
-                    frac(j, cj, cj1),
-                    diagonal,
-                );
-                let z = f64::from(hm.get(i, j));
-                let error = (z - coarse).abs();
-                count += 1;
-                if best.is_none_or(|bv| error > bv.error) {
-                    best = Some(MaxErrorVertex {
-                        i,
-                        j,
-                        offset: DVec3::new(di as f64 * spacing.x, dj as f64 * spacing.y, z),
-                        coarse_height: coarse,
-                        error,
-                    });
+                let ci1 = (ci + s).min(clip.x1);
+                let (z00, z10) = (f64::from(r0[ci]), f64::from(r0[ci1]));
+                let (z01, z11) = (f64::from(r1[ci]), f64::from(r1[ci1]));
+                for (i, &z) in rj.iter().enumerate().take(last + 1).skip(ci) {
+                    let di = i - x0;
+                    let kept = row_kept && di & mask == 0;
+                    let candidate = match reference {
+                        Reference::FullResolution => !kept,
+                        Reference::PreviousLevel => !kept && row_prev && di & half_mask == 0,
+                    };
+                    if !candidate || voids.is_some_and(|m| m.get(i, j)) {
+                        continue;
+                    }
+                    let coarse = tri_interp(z00, z10, z01, z11, frac(i, ci, ci1), v, diagonal);
+                    let z = f64::from(z);
+                    let error = (z - coarse).abs();
+                    count += 1;
+                    if best.is_none_or(|(e, ..)| error > e) {
+                        best = Some((error, i, j, coarse));
+                    }
                 }
             }
         }
+        let best = best.map(|(error, i, j, coarse_height)| {
+            let (di, dj) = (i - x0, j - y0);
+            let z = f64::from(data[j * w + i]);
+            MaxErrorVertex {
+                i,
+                j,
+                offset: DVec3::new(di as f64 * spacing.x, dj as f64 * spacing.y, z),
+                coarse_height,
+                error,
+            }
+        });
         out.push(LevelError {
             level,
             error: best.map_or(0.0, |b| b.error),

@@ -83,6 +83,50 @@ pub fn node_error(hm: &Heightmap, region: Region) -> NodeError {
     NodeError { error: h, coverage: Coverage::from_count(n) }
 }
 
+/// [`node_error`]'s `H` of the nodes `(0, y0)`, `(cells, y0)`, ... of `cells` cells (even),
+/// one per entry of `out`, every one inside the grid (`x0 + cells <= width - 1`,
+/// `y0 + cells <= height - 1`): the bake's hot loop (every node of every block), so without
+/// clipping, closures or per-point bounds checks. The same f64 arithmetic as `node_error`'s
+/// `tri_interp` at its coordinates `u, v` in `{0, 1/2, 1}`: its terms times 1 are the terms
+/// themselves and its terms times 0 are zeros, whose sign the absolute difference ignores, so
+/// the values are `node_error`'s bit for bit (`interior_errors_are_node_errors` checks it).
+fn interior_errors(hm: &Heightmap, y0: usize, cells: usize, out: &mut [f64]) {
+    if out.is_empty() {
+        return;
+    }
+    let (w, m) = (hm.width(), cells / 2);
+    let data = hm.data();
+    let len = out.len() * cells + 1;
+    let row = |j: usize| &data[j * w..j * w + len];
+    let (south, middle, north) = (row(y0), row(y0 + m), row(y0 + cells));
+    let voids = hm.voids().any().then(|| hm.voids());
+    for (n, e) in out.iter_mut().enumerate() {
+        let x0 = n * cells;
+        let z = |r: &[f32], i: usize| f64::from(r[i]);
+        let (z00, z10, z01, z11) =
+            (z(south, x0), z(south, x0 + cells), z(north, x0), z(north, x0 + cells));
+        let s_mid = z00 + 0.5 * (z10 - z00);
+        // The six points of Eq. 4 and their coarse heights f' (as in `node_error`).
+        let points = [
+            (x0 + m, y0, z(south, x0 + m), s_mid),
+            (x0 + m, y0 + cells, z(north, x0 + m), z00 + (z01 - z00) + 0.5 * (z11 - z01)),
+            (x0, y0 + m, z(middle, x0), z00 + 0.5 * (z01 - z00)),
+            (x0 + cells, y0 + m, z(middle, x0 + cells), z00 + (z10 - z00) + 0.5 * (z11 - z10)),
+            (x0 + m, y0 + m, z(middle, x0 + m), s_mid + 0.5 * (z11 - z10)),
+            (x0 + m, y0 + m, z(middle, x0 + m), s_mid + 0.5 * (z01 - z00)),
+        ];
+        let mut h = 0.0f64;
+        for (i, j, fine, coarse) in points {
+            if voids.is_some_and(|v| v.get(i, j)) {
+                continue;
+            }
+            // Eq. 5: delta_n = |f(v_n) - f'(v_n)|.
+            h = h.max((fine - coarse).abs());
+        }
+        *e = h;
+    }
+}
+
 /// `H` and the monotone `StaticE` (Eq. 3) for every node of a quadtree over a heightmap.
 ///
 /// Level 0 is the root, a square of `root_cells` cells (the smallest power of two covering the
@@ -115,9 +159,13 @@ impl StaticErrorPyramid {
             let n = 1usize << l;
             let cells = root_cells >> l;
             let mut row = vec![0.0; n * n];
-            for j in 0..n {
-                for i in 0..n {
-                    row[j * n + i] = node_error(hm, Region::new(i * cells, j * cells, cells)).error;
+            // Nodes inside the grid (every node of a `2^k + 1` block): `interior_errors`.
+            let (inside_x, inside_y) = ((hm.width() - 1) / cells, (hm.height() - 1) / cells);
+            for (j, row) in row.chunks_exact_mut(n).enumerate() {
+                let inside = if j < inside_y { inside_x.min(n) } else { 0 };
+                interior_errors(hm, j * cells, cells, &mut row[..inside]);
+                for (i, e) in row.iter_mut().enumerate().skip(inside) {
+                    *e = node_error(hm, Region::new(i * cells, j * cells, cells)).error;
                 }
             }
             h.push(row);
@@ -181,6 +229,7 @@ impl StaticErrorPyramid {
 mod tests {
     use super::*;
     use crate::georef::Georef;
+    use crate::heightmap::VoidMask;
 
     #[test]
     fn odd_cells_reduce_to_means_for_even() {
@@ -193,6 +242,61 @@ mod tests {
         // Edges: midpoints 0 vs mean of (4, -4) = 0; centre 0 vs mean of SW-NE (4 + 4) / 2 = 4.
         assert_eq!(e.error, 4.0);
         assert_eq!(e.coverage, Coverage::Measured { samples: 6 });
+    }
+
+    #[test]
+    fn interior_errors_are_node_errors() {
+        // Grids whose nodes are inside (the fast path) and clipped at the east/north border
+        // (`node_error`), with and without voids, heights of mixed signs, magnitudes and
+        // repeats (zeros of either sign): every `H` is `node_error`'s, bit for bit.
+        let mut seed = 0x2545_f491_4f6c_dd1du64;
+        let mut next = move || {
+            seed ^= seed << 13;
+            seed ^= seed >> 7;
+            seed ^= seed << 17;
+            seed
+        };
+        let mut interior = 0;
+        for (w, h, void_every) in [(33, 33, 0), (33, 33, 7), (40, 27, 0), (29, 65, 5), (9, 9, 3)] {
+            let data: Vec<f32> = (0..w * h)
+                .map(|_| match next() % 8 {
+                    0 => 0.0,
+                    1 => -0.0,
+                    2 => 1.0,
+                    r => (next() % 100_000) as f32 * 0.37 - 18_000.0 * (r as f32 - 3.0),
+                })
+                .collect();
+            let mut voids = VoidMask::new(w, h);
+            if void_every > 0 {
+                for p in (0..w * h).filter(|p| p % void_every == 0) {
+                    voids.set(p % w, p / w, true);
+                }
+            }
+            let hm = Heightmap::new(w, h, data, voids, Georef::local(1.0)).unwrap();
+            let pyr = StaticErrorPyramid::build(&hm, 10);
+            for l in 0..pyr.levels() {
+                let n = pyr.nodes_per_side(l);
+                for j in 0..n {
+                    for i in 0..n {
+                        let r = pyr.region(l, i, j);
+                        if r.x0 + r.cells < w && r.y0 + r.cells < h {
+                            interior += 1;
+                        }
+                        let want = node_error(&hm, r).error;
+                        assert_eq!(pyr.h(l, i, j).to_bits(), want.to_bits(), "{w}x{h} {l} {i} {j}");
+                    }
+                }
+            }
+        }
+        // Negative control: the fast path ran (nodes inside the grid), and the check sees a
+        // difference where there is one.
+        assert!(interior > 500, "{interior} interior nodes");
+        let hm = Heightmap::from_fn(9, 9, Georef::local(1.0), |i, j| (i * j) as f32).unwrap();
+        let mut other = hm.data().to_vec();
+        other[4 * 9 + 4] += 1.0;
+        let other = Heightmap::new(9, 9, other, VoidMask::new(9, 9), Georef::local(1.0)).unwrap();
+        let h = |hm: &Heightmap| StaticErrorPyramid::build(hm, 3).h(0, 0, 0);
+        assert_ne!(h(&hm).to_bits(), h(&other).to_bits());
     }
 
     #[test]
