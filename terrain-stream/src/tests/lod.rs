@@ -311,7 +311,11 @@ fn patches_meet_eq7_minimally_and_cover_the_view() {
     let mut factors = std::collections::BTreeSet::new();
     let refines =
         [(4, SplitRule::Eq7), (32, SplitRule::Eq7), (4, SplitRule::Cost), (16, SplitRule::Cost)]
-            .map(|(patch_cells, split)| Refinement { split, cost_split_px: 0, ..eq7_exact(patch_cells) });
+            .map(|(patch_cells, split)| Refinement {
+                split,
+                cost_split_px: 0,
+                ..eq7_exact(patch_cells)
+            });
     for refine in refines {
         let tree = StoreTree::with_refinement(store.clone(), refine);
         for (ci, cam) in cameras().iter().enumerate() {
@@ -490,8 +494,7 @@ fn cost_split_against_brute_force(
 ) -> usize {
     let h = store.header().clone();
     let tree_of = |split| {
-        let refine =
-            Refinement { split, cost_split_px: px, ..eq7_exact(16) };
+        let refine = Refinement { split, cost_split_px: px, ..eq7_exact(16) };
         StoreTree::with_refinement(store.clone(), refine)
     };
     let (eq7, cost) = (tree_of(SplitRule::Eq7), tree_of(SplitRule::Cost));
@@ -870,8 +873,7 @@ fn the_view_angle_floor_changes_only_views_steeper_than_it() {
     let (dir, store) = bake_store(&hm, "floor", 6, 6);
     let all: HashMap<BlockId, u8> = store.block_ids().map(|b| (b, 6)).collect();
     let tree = |floor: f64| {
-        let refine =
-            Refinement { view_angle_floor: floor, ..eq7_exact(4) };
+        let refine = Refinement { view_angle_floor: floor, ..eq7_exact(4) };
         StoreTree::with_refinement(store.clone(), refine)
     };
     let (low, high) = (tree(0.1), tree(0.25));
