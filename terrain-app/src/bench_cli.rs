@@ -84,7 +84,7 @@ pub(crate) struct BenchArgs {
     pub ooc_cost_px: Option<u32>,
     /// The `ooc` method: the coarsest segment a drawn patch may have, cells (a power of two;
     /// 0: none, Eq. 7's least factors; 16: geomorph's floor, see bench/ooc/README.md)
-    /// [default: 0].
+    /// [default: 16].
     #[arg(long)]
     pub ooc_max_segment_cells: Option<u32>,
     /// The floor of the view-angle factor, in [0, 1]: DSS Eq. 3's `sin(theta)` (`dss-1`,

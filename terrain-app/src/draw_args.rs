@@ -54,7 +54,8 @@ pub(crate) const PAGE_MIB: u64 = 256;
 pub(crate) struct StoreArgs {
     /// A store: the screen-error threshold tau of Eq. 7 (out-of-core paper), pixels
     /// [default: the balanced preset's 2 px through ooc's measured p99 per pixel of tau, i.e.
-    /// tau 2.47 under Eq. 7 alone; README: "One quality knob"].
+    /// tau 3.33 under the default refinement, Eq. 7 with segments of at most 16 cells; README:
+    /// "One quality knob"].
     #[arg(long)]
     pub tau: Option<f64>,
     /// A store: the stream cache's budget, MiB (2^20 bytes) [default: 256].

@@ -307,11 +307,15 @@ fn ooc_calibration_text(dir: &std::path::Path) -> String {
     use terrain_app::ooc_calibration::{self, FILE_NAME, split_name};
     let config = OocConfig::default();
     let split = split_name(config.split);
-    let (lo, hi) = ooc_p99_per_tau_spread(config.split);
-    let r = ooc_p99_per_tau(config.split);
+    let (lo, hi) = ooc_p99_per_tau_spread(config.split, config.max_segment_cells);
+    let r = ooc_p99_per_tau(config.split, config.max_segment_cells);
+    let floor = match config.max_segment_cells {
+        0 => String::new(),
+        cells => format!(", segments of at most {cells} cells"),
+    };
     let shared = format!(
-        "the shared calibration ({split}: tau = PX / {r}, the largest p99 per tau of four DEMs; \
-         expect a p99 of {:.0}-{:.0} % of the target)",
+        "the shared calibration ({split}{floor}: tau = PX / {r}, the largest p99 per tau of four \
+         DEMs; expect a p99 of {:.0}-{:.0} % of the target)",
         100.0 * lo / r,
         100.0 * hi / r
     );

@@ -1,7 +1,8 @@
 //! Per-store calibration of `--error-px` for the out-of-core method (`ooc`): Eq. 7's `tau`
 //! bounds each patch's `StaticE` (out-of-core Eq. 3-7), not the drawn error, and the measured
 //! p99 per pixel of `tau` varies by terrain (bench/ooc/README.md: 0.08-0.81 under Eq. 7 alone,
-//! 0.71-1.16 under the cost split, over four DEMs). The shared calibration
+//! 0.08-0.60 with 16-cell segments at most, 0.71-1.16 under the cost split, over four DEMs).
+//! The shared calibration
 //! ([`crate::method::registry::ooc_p99_per_tau`]) is the largest ratio measured, so smooth
 //! terrain is drawn finer than the target asks. A [`Calibration`] is the measured map of one
 //! store: a few `tau` values flown over a fixed set of poses ([`measure`]: the first shipped
@@ -12,9 +13,10 @@
 //!
 //! It is written beside the store's index as [`FILE_NAME`], a versioned text file naming the
 //! store it was measured on (grid size, block size `k` and the bake's checksum, `bake_id`) and
-//! the refinement (split rule, smallest patch, cost-split floor) it was measured under: a file
-//! of another store is refused ([`CalibrationError::Foreign`]), and one measured under another
-//! refinement is not used (the shared calibration is, [`OocConfig::tau_for_error_px`]).
+//! the refinement (split rule, smallest patch, cost-split floor, segment floor) it was measured
+//! under: a file of another store is refused ([`CalibrationError::Foreign`]), and one measured
+//! under another refinement is not used (the shared calibration is,
+//! [`OocConfig::tau_for_error_px`]).
 //!
 //! A store larger than [`CalibrateOptions::window`] samples per side is measured on a window of
 //! whole blocks at its centre, read at full resolution ([`crate::ooc::store_heightmap`]), with
@@ -475,12 +477,14 @@ pub enum TauSource {
 impl OocConfig {
     /// Eq. 7's `tau` for a p99 target of `error_px` pixels: the store's calibration
     /// ([`OocConfig::calibration`]) when it was measured under this refinement, else the
-    /// shared one (`error_px / ooc_p99_per_tau(split)`).
+    /// shared one (`error_px / ooc_p99_per_tau(split, max_segment_cells)`).
     pub fn tau_for_error_px(&self, error_px: f64) -> (f64, TauSource) {
         match &self.calibration {
             Some(c) if c.refinement == self.refinement() => (c.tau_for(error_px), TauSource::Store),
             _ => {
-                (error_px / crate::method::registry::ooc_p99_per_tau(self.split), TauSource::Shared)
+                let r =
+                    crate::method::registry::ooc_p99_per_tau(self.split, self.max_segment_cells);
+                (error_px / r, TauSource::Shared)
             }
         }
     }
@@ -697,7 +701,11 @@ mod tests {
         }
         // The segment floor: written only when set (a file without it was measured without
         // one), read back either way; a fifth value is refused.
+        let unfloored =
+            Calibration { refinement: Refinement { max_segment_cells: 0, ..c.refinement }, ..c };
+        let text = unfloored.to_text();
         assert!(text.contains("refinement eq7 32 0\n"), "{text}");
+        assert_eq!(Calibration::parse(&text, path).expect("round trip"), unfloored);
         let floored =
             Calibration { refinement: Refinement { max_segment_cells: 16, ..c.refinement }, ..c };
         let text = floored.to_text();
@@ -718,10 +726,11 @@ mod tests {
         assert!((tau - 2.0).abs() < 1e-12);
         let other = OocConfig { split: SplitRule::Cost, ..config };
         assert_eq!(other.tau_for_error_px(0.4).1, TauSource::Shared);
-        let none = OocConfig::default().tau_for_error_px(1.0);
+        let d = OocConfig::default();
+        let none = d.tau_for_error_px(1.0);
         assert_eq!(none.1, TauSource::Shared);
         assert!(
-            (none.0 - 1.0 / crate::method::registry::ooc_p99_per_tau(OocConfig::default().split))
+            (none.0 - 1.0 / crate::method::registry::ooc_p99_per_tau(d.split, d.max_segment_cells))
                 .abs()
                 < 1e-12
         );

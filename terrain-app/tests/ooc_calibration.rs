@@ -11,13 +11,14 @@ use std::ops::ControlFlow;
 use std::path::Path;
 use std::sync::Arc;
 
+use terrain_app::method::registry::ooc_p99_per_tau;
 use terrain_app::ooc::OocConfig;
 use terrain_app::ooc_calibration::{
     self, CalibrateOptions, Calibration, CalibrationError, FILE_NAME, TauSource, TerrainId,
 };
 use terrain_core::Heightmap;
 use terrain_core::synth::FractalConfig;
-use terrain_stream::{BakeConfig, BakeProgress, HeightEncoding, Store, bake};
+use terrain_stream::{BakeConfig, BakeProgress, HeightEncoding, Refinement, Store, bake};
 
 use common::{scratch, terrain};
 
@@ -47,7 +48,7 @@ fn p99_at(hm: &Heightmap, store: &Arc<Store>, tau: f64, frames: usize) -> f64 {
 /// Calibrates a 513^2 synthetic store, writes and reloads the file, and checks the measured
 /// p99 at the calibrated tau on other frames of the flight (5, not the fitted 3) against the
 /// target, and the shared calibration's, which on this smooth terrain draws far finer than
-/// asked (Eq. 7's p99 per tau here is well under the shared 0.81).
+/// asked (Eq. 7's p99 per tau here is well under the shared one's, `ooc_p99_per_tau`).
 #[test]
 fn the_store_calibration_lands_the_target_where_the_shared_one_does_not() {
     let dir = scratch("ooc-calibration", "synthetic").join("store");
@@ -101,7 +102,8 @@ fn a_large_store_is_measured_on_a_window() {
 }
 
 /// A calibration of another store is refused, naming the file and both stores; a garbled file
-/// names its line; a missing file is no calibration; `terrain info` says which is used.
+/// names its line; a missing file is no calibration; one measured under another refinement
+/// (without the default segment floor) is read but not used; `terrain info` says which is used.
 #[test]
 fn foreign_and_garbled_files_are_refused() {
     let root = scratch("ooc-calibration", "foreign");
@@ -123,6 +125,26 @@ fn foreign_and_garbled_files_are_refused() {
     let info = terrain(&["info", a.to_str().unwrap()]);
     let text = String::from_utf8_lossy(&info.stdout);
     assert!(text.contains("ooc-calibration.txt, measured under"), "{text}");
+    assert!(!text.contains("not the default refinement's"), "{text}");
+
+    // A file measured without the default segment floor (as every store's was before it was
+    // the default): read and named, but `--error-px` takes the default's shared calibration,
+    // which `terrain info` names with its floor.
+    let floor = refinement.max_segment_cells;
+    assert!(floor > 0, "the default refinement has a segment floor");
+    let unfloored = Refinement { max_segment_cells: 0, ..refinement };
+    let old =
+        Calibration::fit(TerrainId::of(&store_a), unfloored, 3, &[(1.0, 0.3), (4.0, 1.1)]).unwrap();
+    old.write(&a.join(FILE_NAME)).unwrap();
+    let read = ooc_calibration::of_store(&a).unwrap();
+    assert_eq!(read, Some(old));
+    let config = OocConfig { calibration: read, ..OocConfig::default() };
+    assert_eq!(config.tau_for_error_px(1.0).1, TauSource::Shared);
+    let info = terrain(&["info", a.to_str().unwrap()]);
+    let text = String::from_utf8_lossy(&info.stdout);
+    let r = ooc_p99_per_tau(refinement.split, floor);
+    let shared = format!("segments of at most {floor} cells: tau = PX / {r},");
+    assert!(text.contains("not the default refinement's") && text.contains(&shared), "{text}");
 
     c.write(&b.join(FILE_NAME)).unwrap();
     let e = ooc_calibration::of_store(&b).unwrap_err();

@@ -272,8 +272,11 @@ impl Refinement {
     }
 }
 
-/// Default [`Refinement::max_segment_cells`]: 0, no floor (Eq. 7's least factors).
-pub const DEFAULT_MAX_SEGMENT_CELLS: u32 = 0;
+/// Default [`Refinement::max_segment_cells`]: 16, geomorph's floor (0 is the paper's Eq. 7
+/// exactly). With it `ooc` draws 1.10x geomorph's triangles at p99 1 px on a 16385^2 grid
+/// instead of 1.50x, 1.32x instead of 1.84x on Puget Sound 1k (bench/ooc/README.md, "The
+/// segment floor as the default").
+pub const DEFAULT_MAX_SEGMENT_CELLS: u32 = 16;
 
 /// Default [`Refinement::cost_split_px`].
 pub const DEFAULT_COST_SPLIT_PX: u32 = 0;

@@ -919,11 +919,12 @@ mod tests {
                 let reg = regions(&h, &ScheduleConfig::default(), &cam, dvec2(0.0, 300.0));
                 for (tau, refine) in [0.5, 2.0, 8.0].into_iter().flat_map(|t| {
                     [
-                        Refinement::default(),
+                        Refinement { max_segment_cells: 0, ..Refinement::default() },
                         Refinement {
                             patch_cells: 4,
                             split: SplitRule::Cost,
                             cost_split_px: 0,
+                            max_segment_cells: 0,
                             ..Refinement::default()
                         },
                         // The segment floor raises the fast path's answer too (k 5: level 2).
@@ -993,6 +994,7 @@ mod tests {
                         patch_cells: 4,
                         split,
                         cost_split_px: 0,
+                        max_segment_cells: 0,
                         ..Refinement::default()
                     };
                     let walk =

@@ -12,7 +12,7 @@ use super::{
 };
 use crate::methods::{LodMethod, MethodConfig, MethodScene};
 use crate::ooc::OocScene;
-use terrain_stream::{DEFAULT_SPLIT, SplitRule};
+use terrain_stream::{DEFAULT_MAX_SEGMENT_CELLS, DEFAULT_SPLIT, SplitRule};
 
 /// What [`build`] needs besides the scene.
 #[derive(Debug, Clone)]
@@ -388,7 +388,7 @@ impl ErrorPxParams {
                 config.pvps.outer_constant = self.value * config.pvps.c4;
             }
             // The store's calibration when it has one for the configured refinement, else the
-            // shared one of the configured split rule (`ooc_p99_per_tau`).
+            // shared one of the configured split rule and segment floor (`ooc_p99_per_tau`).
             LodMethod::OutOfCore => config.ooc.tau = config.ooc.tau_for_error_px(self.error_px).0,
             m => apply_parameter(config, m, self.value),
         }
@@ -436,7 +436,7 @@ impl std::fmt::Display for ErrorPxParams {
 /// - `ooc` (`tau`): out-of-core Eq. 6-7 is a pixel threshold on each patch's `StaticE`
 ///   (Eq. 3-5, the largest midpoint deviation below it), not on the drawn error; `tau` is the
 ///   target over the largest measured p99 per pixel of `tau` ([`ooc_p99_per_tau`], by split
-///   rule: [`ErrorPxParams::apply`] uses the configured rule).
+///   rule and segment floor: [`ErrorPxParams::apply`] uses the configured ones).
 /// - `dss-1`, `dss-2`, `dss-strips` (`rho_thr`): DSS Eq. 3 projects a block's *mean*
 ///   object-space error (section 3.3.1), so `rho_thr` bounds the mean, not the p99 that is
 ///   measured. Measured on Puget Sound 1k (two shipped flights, `rho_thr` 0.25-8): p99 =
@@ -471,9 +471,11 @@ pub fn params_for_error_px(method: LodMethod, error_px: f64, view: ErrorView) ->
         | LodMethod::GeomorphStatic
         | LodMethod::GeomorphCpu
         | LodMethod::GeomorphPvs => ("tau_px", px, ErrorPxBasis::Direct),
-        LodMethod::OutOfCore => {
-            ("tau", px / ooc_p99_per_tau(DEFAULT_SPLIT), ErrorPxBasis::Calibrated)
-        }
+        LodMethod::OutOfCore => (
+            "tau",
+            px / ooc_p99_per_tau(DEFAULT_SPLIT, DEFAULT_MAX_SEGMENT_CELLS),
+            ErrorPxBasis::Calibrated,
+        ),
         LodMethod::Dss1 | LodMethod::Dss2 | LodMethod::DssStrips | LodMethod::DssStripsPow2 => {
             let rho = (reference_px / DSS_P99_AT_RHO_1).powf(1.0 / DSS_P99_EXPONENT);
             ("rho_thr", rho * scale, ErrorPxBasis::Model)
@@ -499,30 +501,33 @@ pub fn params_for_error_px(method: LodMethod, error_px: f64, view: ErrorView) ->
     ErrorPxParams { method, error_px: px, parameter, value, basis }
 }
 
-/// `ooc`: the measured p99 (pixels) per pixel of Eq. 7's `tau` under `split`: the largest
-/// ratio over `terrain bench --error-px 0.5,0.7,1,1.4,2,2.8,4 --wait` on
+/// `ooc`: the measured p99 (pixels) per pixel of Eq. 7's `tau` under `split` and the segment
+/// floor `max_segment_cells` (`Refinement::max_segment_cells`; 0: none): the largest ratio
+/// over `terrain bench --values 0.5,0.7,1,1.4,2,2.8,4 --wait` (`tau` swept) on
 /// `flights/pvps_884.json` (6 frames) on Puget Sound 1k, N42E001, the synthetic 1025^2 grid
-/// and Big Tujunga (bench/ooc/README.md, "The cost split as an option"). Eq. 7 bounds each
-/// patch's `StaticE`, not the drawn error; the ratio varies by DEM and `tau` (28 points each:
-/// Eq. 7 alone 0.08-0.81, median 0.50, lowest on the synthetic grid at small `tau`; the cost
-/// split 0.71-1.16, median 1.06). The largest, not the median: with the median the p99 of
-/// N42E001 at 2 px measured 3.27 px (1.6x the target); with the largest, every measured DEM
-/// stays at or under the target, and the smoother ones are drawn finer than they need.
-pub fn ooc_p99_per_tau(split: SplitRule) -> f64 {
-    match split {
-        SplitRule::Eq7 => OOC_P99_PER_TAU_EQ7,
-        SplitRule::Cost => OOC_P99_PER_TAU_COST,
-    }
+/// and Big Tujunga (bench/ooc/README.md, "The cost split as an option" and "The segment floor
+/// as the default"). Eq. 7 bounds each patch's `StaticE`, not the drawn error; the ratio
+/// varies by DEM and `tau` (28 points each: Eq. 7 alone 0.08-0.81, median 0.50, lowest on the
+/// synthetic grid at small `tau`; Eq. 7 with 16-cell segments at most 0.08-0.60, median 0.50:
+/// the floor draws the far patches that set the largest ratios finer; the cost split
+/// 0.71-1.16, median 1.06). The largest, not the median: with the median the p99 of N42E001
+/// at 2 px measured 3.27 px (1.6x the target); with the largest, every measured DEM stays at
+/// or under the target, and the smoother ones are drawn finer than they need. The cost split
+/// with a floor was not measured: it takes the cost split's ratio (a floor only draws
+/// patches finer, so the p99 stays at or under the target).
+pub fn ooc_p99_per_tau(split: SplitRule, max_segment_cells: u32) -> f64 {
+    ooc_p99_per_tau_spread(split, max_segment_cells).1
 }
 
-/// `ooc`: the smallest and largest measured p99 per pixel of `tau` under `split` over the
-/// four DEMs of [`ooc_p99_per_tau`] (bench/ooc/README.md): what a store without its own
-/// calibration ([`crate::ooc_calibration`]) can expect, the target times `low / largest` to
-/// the target.
-pub fn ooc_p99_per_tau_spread(split: SplitRule) -> (f64, f64) {
-    match split {
-        SplitRule::Eq7 => (0.08, OOC_P99_PER_TAU_EQ7),
-        SplitRule::Cost => (0.71, OOC_P99_PER_TAU_COST),
+/// `ooc`: the smallest and largest measured p99 per pixel of `tau` under `split` and the
+/// segment floor over the four DEMs of [`ooc_p99_per_tau`] (bench/ooc/README.md): what a
+/// store without its own calibration ([`crate::ooc_calibration`]) can expect, the target
+/// times `low / largest` to the target.
+pub fn ooc_p99_per_tau_spread(split: SplitRule, max_segment_cells: u32) -> (f64, f64) {
+    match (split, max_segment_cells > 0) {
+        (SplitRule::Eq7, false) => (0.08, OOC_P99_PER_TAU_EQ7),
+        (SplitRule::Eq7, true) => (0.08, OOC_P99_PER_TAU_EQ7_FLOOR),
+        (SplitRule::Cost, _) => (0.71, OOC_P99_PER_TAU_COST),
     }
 }
 
@@ -534,6 +539,9 @@ pub const TIN_P99_PER_TAU: f64 = 0.64;
 
 /// [`ooc_p99_per_tau`] under Eq. 7 alone.
 const OOC_P99_PER_TAU_EQ7: f64 = 0.81;
+
+/// [`ooc_p99_per_tau`] under Eq. 7 with a segment floor (measured with 16 cells).
+const OOC_P99_PER_TAU_EQ7_FLOOR: f64 = 0.60;
 
 /// [`ooc_p99_per_tau`] under the cost split.
 const OOC_P99_PER_TAU_COST: f64 = 1.16;
@@ -615,15 +623,24 @@ mod tests {
         let view = ErrorView::REFERENCE;
         for px in [0.5, 1.0, 3.0] {
             assert_eq!(params_for_error_px(LodMethod::Geomorph, px, view).value, px);
-            // ooc: the target over the measured p99 per pixel of tau, by split rule.
+            // ooc: the target over the measured p99 per pixel of tau, by split rule and
+            // segment floor (Eq. 7's differs with the floor: the key is not vacuous).
             let tau = params_for_error_px(LodMethod::OutOfCore, px, view).value;
-            assert!((tau * ooc_p99_per_tau(DEFAULT_SPLIT) - px).abs() < 1e-9, "{px} {tau}");
+            let shared = ooc_p99_per_tau(DEFAULT_SPLIT, DEFAULT_MAX_SEGMENT_CELLS);
+            assert!((tau * shared - px).abs() < 1e-9, "{px} {tau}");
+            let mut taus = Vec::new();
             for split in [SplitRule::Eq7, SplitRule::Cost] {
-                let mut c = MethodConfig::default();
-                c.ooc.split = split;
-                params_for_error_px(LodMethod::OutOfCore, px, view).apply(&mut c);
-                assert!((c.ooc.tau * ooc_p99_per_tau(split) - px).abs() < 1e-9, "{split:?}");
+                for floor in [0, 16] {
+                    let mut c = MethodConfig::default();
+                    c.ooc.split = split;
+                    c.ooc.max_segment_cells = floor;
+                    params_for_error_px(LodMethod::OutOfCore, px, view).apply(&mut c);
+                    let r = ooc_p99_per_tau(split, floor);
+                    assert!((c.ooc.tau * r - px).abs() < 1e-9, "{split:?} {floor}");
+                    taus.push(c.ooc.tau);
+                }
             }
+            assert!(taus[1] > taus[0] * 1.2, "Eq. 7's floor: {taus:?}");
             // With a store's calibration of the configured refinement: its map, not the
             // shared one (whose tau differs at these points).
             let mut c = MethodConfig::default();
@@ -634,7 +651,11 @@ mod tests {
             c.ooc.calibration = Some(cal);
             params_for_error_px(LodMethod::OutOfCore, px, view).apply(&mut c);
             assert!((c.ooc.tau - cal.tau_for(px)).abs() < 1e-12, "{px}");
-            assert!((c.ooc.tau - px / ooc_p99_per_tau(DEFAULT_SPLIT)).abs() > 0.1, "{px}");
+            assert!(
+                (c.ooc.tau - px / ooc_p99_per_tau(DEFAULT_SPLIT, DEFAULT_MAX_SEGMENT_CELLS)).abs()
+                    > 0.1,
+                "{px}"
+            );
             let rho = params_for_error_px(LodMethod::Dss1, px, view).value;
             let p99 = DSS_P99_AT_RHO_1 * rho.powf(DSS_P99_EXPONENT);
             assert!((p99 - px).abs() < 1e-9, "{px} {rho} {p99}");
@@ -678,6 +699,9 @@ mod tests {
         p.apply(&mut c);
         assert_eq!(c.uniform_factor, p.value as f32);
         let tau = default_config(LodMethod::OutOfCore, ErrorView::REFERENCE).ooc.tau;
-        assert_eq!(tau, Quality::DEFAULT.error_px() / ooc_p99_per_tau(DEFAULT_SPLIT));
+        assert_eq!(
+            tau,
+            Quality::DEFAULT.error_px() / ooc_p99_per_tau(DEFAULT_SPLIT, DEFAULT_MAX_SEGMENT_CELLS)
+        );
     }
 }

@@ -134,6 +134,17 @@ fn level_max(store: &Store, b: BlockId, n: NodeId, level: u8) -> f64 {
     m
 }
 
+/// Eq. 7 exactly (no segment floor, whatever the default): the refinement of the tests that
+/// pin Eq. 7's least factors.
+fn eq7_exact(patch_cells: u32) -> Refinement {
+    Refinement { patch_cells, max_segment_cells: 0, ..Refinement::default() }
+}
+
+/// [`eq7_exact`]'s tree over `store`.
+fn eq7_tree(store: &Arc<Store>, patch_cells: u32) -> StoreTree {
+    StoreTree::with_refinement(store.clone(), eq7_exact(patch_cells))
+}
+
 /// Checks a patch spanning several blocks: a power-of-two factor putting each block's
 /// level-`l` vertices (`2^(s + l)` segments for `2^s` blocks per side), every block under it
 /// resident at `l` or finer, and (unless the balance added patches) Eq. 7 at the patch's box
@@ -301,10 +312,9 @@ fn patches_meet_eq7_minimally_and_cover_the_view() {
     let refines =
         [(4, SplitRule::Eq7), (32, SplitRule::Eq7), (4, SplitRule::Cost), (16, SplitRule::Cost)]
             .map(|(patch_cells, split)| Refinement {
-                patch_cells,
                 split,
                 cost_split_px: 0,
-                ..Refinement::default()
+                ..eq7_exact(patch_cells)
             });
     for refine in refines {
         let tree = StoreTree::with_refinement(store.clone(), refine);
@@ -373,7 +383,7 @@ fn clamped_and_missing_blocks_stay_crack_free() {
     let hm = terrain(150, 120);
     let (dir, store) = bake_store(&hm, "clamped", 5, 3);
     assert_eq!((store.header().blocks_x, store.header().blocks_y), (5, 4));
-    let tree = StoreTree::new(store.clone(), 4);
+    let tree = eq7_tree(&store, 4);
     // Resident levels vary per block; one block has nothing resident (not drawn).
     let resident: HashMap<BlockId, u8> = store
         .block_ids()
@@ -403,7 +413,7 @@ fn patches_split_only_where_their_largest_factor_misses_tau() {
     let (dir, store) = bake_store(&hm, "split", 8, 4);
     let h = store.header().clone();
     let all: HashMap<BlockId, u8> = store.block_ids().map(|b| (b, 8)).collect();
-    let tree = StoreTree::new(store.clone(), 32);
+    let tree = eq7_tree(&store, 32);
     let (mut inside, mut total) = (0, 0);
     for cam in cameras() {
         for tau in [0.25, 0.5, 2.0, 8.0] {
@@ -484,8 +494,7 @@ fn cost_split_against_brute_force(
 ) -> usize {
     let h = store.header().clone();
     let tree_of = |split| {
-        let refine =
-            Refinement { patch_cells: 16, split, cost_split_px: px, ..Refinement::default() };
+        let refine = Refinement { split, cost_split_px: px, ..eq7_exact(16) };
         StoreTree::with_refinement(store.clone(), refine)
     };
     let (eq7, cost) = (tree_of(SplitRule::Eq7), tree_of(SplitRule::Cost));
@@ -591,7 +600,7 @@ fn spanning_patches_meet_eq7_over_their_blocks() {
     let (dir, store) = bake_store(&hm, "span", 5, 3);
     let h = store.header().clone();
     assert_eq!((h.blocks_x, h.blocks_y), (16, 16));
-    let tree = StoreTree::new(store.clone(), 32);
+    let tree = eq7_tree(&store, 32);
     let all: HashMap<BlockId, u8> = store.block_ids().map(|b| (b, h.k)).collect();
     let varied: HashMap<BlockId, u8> = store
         .block_ids()
@@ -676,7 +685,7 @@ fn segment_floor_bounds_every_drawn_segment_and_stays_crack_free() {
     for floor in [8u32, 16] {
         let (mut coarser_without, mut patches) = (0, 0);
         for patch_cells in [4, 32] {
-            let off = Refinement { patch_cells, max_segment_cells: 0, ..Refinement::default() };
+            let off = eq7_exact(patch_cells);
             let on = Refinement { max_segment_cells: floor, ..off };
             assert_eq!(on.segment_floor_level(h.k), h.k - floor.ilog2() as u8);
             let tree_off = StoreTree::with_refinement(store.clone(), off);
@@ -727,7 +736,7 @@ fn patch_factor_from_level_maxima_equals_the_walk() {
     for (name, k, node_levels, patch_cells) in [("walk6", 6, 4, 4), ("walk6b", 6, 6, 8)] {
         let (dir, store) = bake_store(&hm, name, k, node_levels);
         let h = store.header().clone();
-        let tree = StoreTree::new(store.clone(), patch_cells);
+        let tree = eq7_tree(&store, patch_cells);
         for cam in cameras() {
             for tau in [0.25, 1.0, 4.0] {
                 let view = View::new(&cam, tau);
@@ -786,12 +795,7 @@ fn fine_maxima_select_what_full_depth_node_values_select() {
     // The cost split compares a node with its children: exact where the children are stored
     // nodes (patches of at least 8 cells here: level 3 of the stored 0-3).
     let refines = [(4, SplitRule::Eq7), (32, SplitRule::Eq7), (8, SplitRule::Cost)].map(
-        |(patch_cells, split)| Refinement {
-            patch_cells,
-            split,
-            cost_split_px: 0,
-            ..Refinement::default()
-        },
+        |(patch_cells, split)| Refinement { split, cost_split_px: 0, ..eq7_exact(patch_cells) },
     );
     for refine in refines {
         let trees = [&full, &fine, &v2].map(|s| StoreTree::with_refinement(s.clone(), refine));
@@ -824,7 +828,7 @@ fn fine_maxima_select_what_full_depth_node_values_select() {
     // stored levels a node takes its stored ancestor's maxima, a bound, not its own); the
     // version-2 bounds make some nodes need finer levels.
     let (h, hf) = (full.header().clone(), fine.header().clone());
-    let tree = StoreTree::new(fine.clone(), 4);
+    let tree = eq7_tree(&fine, 4);
     let mut walk_differ = 0;
     for tau in [0.5, 2.0, 8.0] {
         let view = View::new(&cameras()[0], tau);
@@ -869,8 +873,7 @@ fn the_view_angle_floor_changes_only_views_steeper_than_it() {
     let (dir, store) = bake_store(&hm, "floor", 6, 6);
     let all: HashMap<BlockId, u8> = store.block_ids().map(|b| (b, 6)).collect();
     let tree = |floor: f64| {
-        let refine =
-            Refinement { patch_cells: 4, view_angle_floor: floor, ..Refinement::default() };
+        let refine = Refinement { view_angle_floor: floor, ..eq7_exact(4) };
         StoreTree::with_refinement(store.clone(), refine)
     };
     let (low, high) = (tree(0.1), tree(0.25));
