@@ -8,8 +8,9 @@
 //! and the bilinear interpolation of the strided samples (every `2^s`-th row and column from
 //! 0, the last row or column standing in past the grid's edge). Measured per region on first
 //! need ([`Decimation::error_in`]) or for every region at once on every core
-//! ([`Decimation::measure_all`]); either way a region is measured once and reads its samples
-//! at stride 1 once.
+//! ([`Decimation::measure_all`], which hands each region's samples at stride 1 to the caller
+//! too, so another measure of every sample rides on the same read); either way a region is
+//! measured once and reads its samples at stride 1 once.
 //!
 //! **Budget** ([`build_within`]): a tile of bound `e` whose own stride is `2^s` is meshed within
 //! `e - E_s` of its strided samples, `E_s` the decimation error under it, at the coarsest
@@ -24,7 +25,7 @@ use std::sync::OnceLock;
 
 use rayon::prelude::*;
 
-use crate::samples::Samples;
+use crate::samples::{Samples, Window};
 
 /// Cells per side of the regions the decimation error is measured in, for every source (so a
 /// store and its DEM in memory get the same budgets, and the same tiles).
@@ -56,11 +57,28 @@ impl Decimation {
         Self { width, height, region, regions_x: rx, regions_y: ry, max_s, errors }
     }
 
-    /// Measures every region not measured yet, on every core.
-    pub fn measure_all(&self, samples: &dyn Samples) -> anyhow::Result<()> {
+    /// Measures every region on every core (one measured before is read again and keeps its
+    /// numbers), handing each region's samples at stride 1 to `each` (its first column and
+    /// row, and the window: the region's `region + 1` columns and rows clipped to the grid,
+    /// so neighbouring windows share their border): what `each` returns, in region order.
+    pub fn measure_all<T: Send>(
+        &self,
+        samples: &dyn Samples,
+        each: impl Fn(usize, usize, &Window) -> T + Sync,
+    ) -> anyhow::Result<Vec<T>> {
         (0..self.errors.len())
             .into_par_iter()
-            .try_for_each(|r| self.region_errors(samples, r).map(|_| ()))
+            .map(|r| {
+                let (i0, j0, fine) = self.region_window(samples, r)?;
+                let seen = each(i0, j0, &fine);
+                if self.errors[r].get().is_none() {
+                    let e = self.measure_region(samples, i0, j0, &fine)?;
+                    // Another thread may have measured it meanwhile: the same numbers.
+                    self.errors[r].get_or_init(|| e);
+                }
+                Ok(seen)
+            })
+            .collect()
     }
 
     /// The largest decimation error at stride `2^s` over the regions meeting the samples
@@ -103,17 +121,34 @@ impl Decimation {
         if let Some(e) = self.errors[r].get() {
             return Ok(e);
         }
-        let e = self.measure_region(samples, r)?;
+        let (i0, j0, fine) = self.region_window(samples, r)?;
+        let e = self.measure_region(samples, i0, j0, &fine)?;
         // Another thread may have measured it meanwhile: the same numbers.
         Ok(self.errors[r].get_or_init(|| e))
     }
 
-    fn measure_region(&self, samples: &dyn Samples, r: usize) -> anyhow::Result<Vec<f32>> {
+    /// Region `r`'s first column and row, and its samples at stride 1.
+    fn region_window(
+        &self,
+        samples: &dyn Samples,
+        r: usize,
+    ) -> anyhow::Result<(usize, usize, Window)> {
         let (w, h, region) = (self.width, self.height, self.region);
         let (i0, j0) = ((r % self.regions_x) * region, (r / self.regions_x) * region);
         let (i1, j1) = ((i0 + region).min(w - 1), (j0 + region).min(h - 1));
-        let (nw, nh) = (i1 - i0 + 1, j1 - j0 + 1);
-        let fine = samples.window(i0, j0, nw, nh, 0)?;
+        Ok((i0, j0, samples.window(i0, j0, i1 - i0 + 1, j1 - j0 + 1, 0)?))
+    }
+
+    /// The errors per stride of the region from `(i0, j0)` whose samples are `fine`.
+    fn measure_region(
+        &self,
+        samples: &dyn Samples,
+        i0: usize,
+        j0: usize,
+        fine: &Window,
+    ) -> anyhow::Result<Vec<f32>> {
+        let nw = fine.width;
+        let (i1, j1) = (i0 + nw - 1, j0 + fine.data.len() / nw - 1);
         let finite = |z: f32| if z.is_finite() { f64::from(z) } else { 0.0 };
         (1..=self.max_s)
             .map(|s| -> anyhow::Result<f32> {

@@ -128,8 +128,9 @@ struct Summary {
     /// error found at any stride, metres.
     decimation_s: f64,
     decimation_error_m: f64,
-    /// Measuring the samples' minima and maxima the checks prove most of a coarse tile's
-    /// bound with (once): seconds, and bytes held.
+    /// The samples' minima and maxima the checks prove most of a coarse tile's bound with
+    /// (measured in the decimation pass's read, `decimation_s`): seconds merging them into
+    /// their pyramid, and bytes held.
     sample_range_s: f64,
     sample_range_bytes: usize,
     /// Most tiles whose mesh was held at once by the depth-first walk.
@@ -242,10 +243,6 @@ pub(crate) fn run(args: &TilesArgs) -> anyhow::Result<()> {
         Source::Memory(hm) => &HeightmapSamples(hm),
         Source::Store(s) => s.as_ref(),
     };
-    let region = match &source {
-        Source::Memory(_) => 256,
-        Source::Store(s) => s.block_cells(),
-    };
     let (width, height) = samples.size();
     let max_level = args.max_level.unwrap_or_else(|| layout.native_level(64.0));
     if max_level > MAX_LEVEL || args.min_level > max_level {
@@ -275,9 +272,12 @@ pub(crate) fn run(args: &TilesArgs) -> anyhow::Result<()> {
         .unwrap_or(0);
     let (w, h) = samples.size();
     let decimation = Decimation::new(w, h, DECIMATION_REGION, max_s);
-    decimation.measure_all(samples)?;
+    // One read of every sample for both: the decimation error per region and the samples'
+    // minima and maxima the checks prune with.
+    let leaves = decimation.measure_all(samples, check::LeafBoxes::of)?;
     let decimation_s = t0.elapsed().as_secs_f64();
-    let sample_range = check::SampleRange::measure(samples, region)?;
+    let sample_range = check::SampleRange::from_leaves(w, h, &leaves);
+    drop(leaves);
     let range_s = t0.elapsed().as_secs_f64() - decimation_s;
     let bar = Progress::new("tiles", !args.quiet);
     let done = AtomicUsize::new(0);

@@ -8,6 +8,7 @@ use terrain_core::heightmap::VoidMask;
 use terrain_core::tin::TileId;
 
 use super::*;
+use terrain_app::decimation::Decimation;
 
 /// Uniform numbers in `[0, 1)`: Marsaglia's xorshift64 (13, 7, 17), top 53 bits (the
 /// generator of terrain-core's unit tests, which is crate-private there).
@@ -36,13 +37,15 @@ impl Samples for Grid {
     }
 
     fn window(&self, i0: usize, j0: usize, w: usize, h: usize, s: u32) -> anyhow::Result<Window> {
-        assert_eq!(s, 0, "the check reads every sample");
-        self.read.fetch_add(w * h, Ordering::Relaxed);
+        // The check reads every sample; the decimation pass reads strided ones too.
+        if s == 0 {
+            self.read.fetch_add(w * h, Ordering::Relaxed);
+        }
         let mut data = Vec::with_capacity(w * h);
         let mut voids = VoidMask::new(w, h);
         for b in 0..h {
             for a in 0..w {
-                let (i, j) = ((i0 + a).min(self.w - 1), (j0 + b).min(self.h - 1));
+                let (i, j) = ((i0 + (a << s)).min(self.w - 1), (j0 + (b << s)).min(self.h - 1));
                 data.push(self.z[j * self.w + i]);
                 voids.set(a, b, self.void[j * self.w + i]);
             }
@@ -276,4 +279,38 @@ fn a_coarse_tile_reads_few_samples_and_finds_a_lone_spike() {
     let range = SampleRange::measure(&g, 256).unwrap();
     let got2 = check(&g, &l, &m, &range).unwrap();
     assert!(same(got2, Some(want2)), "{got2:?} vs {want2}");
+}
+
+/// The pyramid's boxes, as bits.
+fn bits(r: &SampleRange) -> Vec<Vec<[u32; 2]>> {
+    r.levels.iter().map(|(_, v)| v.iter().map(|m| m.map(f32::to_bits)).collect()).collect()
+}
+
+/// The pyramid merged from the decimation pass's windows (each region's `region + 1` samples
+/// a side, neighbours sharing a row or column) is the one measured by windows of its own,
+/// bit for bit, on grids with voids and NaN whose sides are no multiple of the regions; and
+/// the decimation errors measured in that pass are those measured region by region.
+#[test]
+fn the_decimation_pass_measures_the_same_pyramid() {
+    let mut unit = unit_rng(0xdec1);
+    for (w, h, region) in [(600, 530, 256), (97, 61, 16), (300, 17, 32), (1, 40, 16)] {
+        let g = grid(w, h, 200.0, true, &mut unit);
+        let pass = Decimation::new(w, h, region, 3);
+        let leaves = pass.measure_all(&g, LeafBoxes::of).unwrap();
+        let merged = SampleRange::from_leaves(w, h, &leaves);
+        let own = SampleRange::measure(&g, 64).unwrap();
+        assert!(bits(&merged) == bits(&own), "{w} x {h}, regions of {region}");
+        // Negative control: without one window's boxes the pyramid differs.
+        if leaves.len() > 1 {
+            let part = SampleRange::from_leaves(w, h, &leaves[1..]);
+            assert!(bits(&part) != bits(&own), "{w} x {h}: the first window changed nothing");
+        }
+        let lazy = Decimation::new(w, h, region, 3);
+        for s in 1..=3 {
+            let all = [0, 0, w - 1, h - 1];
+            let (a, b) = (pass.error_in(&g, all, s).unwrap(), lazy.error_in(&g, all, s).unwrap());
+            assert_eq!(a.to_bits(), b.to_bits(), "{w} x {h}, stride 2^{s}");
+        }
+        assert!(pass.max() > 0.0, "{w} x {h}: no decimation error measured");
+    }
 }
