@@ -8,10 +8,12 @@
 //! fake-gcs-server serves the XML API's reads (ranges too), listings and deletes that
 //! object_store uses, but not its object upload, `PUT /BUCKET/KEY` (answered `400 invalid
 //! uploadType`; upstream fsouza/fake-gcs-server#331, the XML upload PR #1164 unmerged, which is
-//! why object_store's CI runs a fork). So the client talks to a small relay in this test that
-//! forwards every request unchanged except that one, which it sends as the JSON API's media
-//! upload and answers as the XML API does ([`XmlPutRelay`]); a bake straight to the server is
-//! checked to still fail that way (when it stops failing, the relay can go).
+//! why object_store's CI runs a fork), nor the XML multipart upload of files above 16 MiB. So
+//! the client talks to a small relay in this test that forwards every request unchanged except
+//! those: an upload it sends as the JSON API's media upload, a multipart upload's parts it
+//! keeps and sends joined as one when the upload completes, answering as the XML API does
+//! ([`XmlPutRelay`]); a bake straight to the server is checked to still fail that way (when it
+//! stops failing, the relay can go).
 //!
 //! `terrain bake -o gs://bucket/x` uploads a store whose `info` and warm `bench --ooc-store`
 //! equal the local bake's; a second bake is refused unless `--overwrite`, which replaces it; a
@@ -155,8 +157,10 @@ impl Drop for FakeGcs {
 /// drop.
 struct XmlPutRelay {
     port: u16,
-    /// Uploads translated, and answered 200 by the server.
+    /// Uploads translated, and answered 200 by the server (a multipart upload counts once).
     puts: Arc<AtomicUsize>,
+    /// Multipart uploads completed.
+    multipart: Arc<AtomicUsize>,
     stop: Arc<AtomicBool>,
     thread: Option<JoinHandle<()>>,
 }
@@ -166,22 +170,24 @@ impl XmlPutRelay {
         let port = free_ports_in(32_000..32_700, 1)[0];
         let listener = TcpListener::bind(("127.0.0.1", port)).expect("the relay's port");
         let (puts, stop) = (Arc::new(AtomicUsize::new(0)), Arc::new(AtomicBool::new(false)));
-        let (p, st) = (puts.clone(), stop.clone());
+        let multipart = Arc::new(AtomicUsize::new(0));
+        let uploads: Uploads = Arc::default();
+        let (p, st, mp) = (puts.clone(), stop.clone(), multipart.clone());
         let thread = std::thread::spawn(move || {
             for conn in listener.incoming() {
                 if st.load(Ordering::SeqCst) {
                     return;
                 }
                 let Ok(conn) = conn else { continue };
-                let p = p.clone();
+                let (p, mp, up) = (p.clone(), mp.clone(), uploads.clone());
                 std::thread::spawn(move || {
-                    if let Err(e) = relay(conn, upstream, &p) {
+                    if let Err(e) = relay(conn, upstream, &p, &mp, &up) {
                         eprintln!("relay to fake-gcs-server: {e}");
                     }
                 });
             }
         });
-        XmlPutRelay { port, puts, stop, thread: Some(thread) }
+        XmlPutRelay { port, puts, multipart, stop, thread: Some(thread) }
     }
 }
 
@@ -196,8 +202,22 @@ impl Drop for XmlPutRelay {
     }
 }
 
-/// Relays one request of `client` to fake-gcs-server on `upstream` (see [`XmlPutRelay`]).
-fn relay(client: TcpStream, upstream: u16, puts: &AtomicUsize) -> std::io::Result<()> {
+/// The XML API's multipart uploads in progress (fake-gcs-server has none): upload id to the
+/// object's target and its parts by number.
+type Uploads = Arc<std::sync::Mutex<std::collections::HashMap<String, Vec<(u32, Vec<u8>)>>>>;
+
+/// Relays one request of `client` to fake-gcs-server on `upstream` (see [`XmlPutRelay`]). The
+/// XML API's multipart upload (`POST ?uploads`, `PUT ?partNumber=N&uploadId=ID`, `POST
+/// ?uploadId=ID` with the parts' list, `DELETE ?uploadId=ID`), which the server lacks too, is
+/// answered here as the XML API answers it, the parts kept until the completion sends the
+/// object, joined in the listed order, as one media upload.
+fn relay(
+    client: TcpStream,
+    upstream: u16,
+    puts: &AtomicUsize,
+    multipart: &AtomicUsize,
+    uploads: &Uploads,
+) -> std::io::Result<()> {
     let bad = |m: String| std::io::Error::new(std::io::ErrorKind::InvalidData, m);
     let mut reader = BufReader::new(client.try_clone()?);
     let mut lines = Vec::new();
@@ -229,6 +249,73 @@ fn relay(client: TcpStream, upstream: u16, puts: &AtomicUsize) -> std::io::Resul
     }
     let mut body = vec![0; len];
     reader.read_exact(&mut body)?;
+    let mut client = client;
+    let (path, query) = target.split_once('?').unwrap_or((target, ""));
+    let param = |name: &str| {
+        query.split('&').find_map(|kv| {
+            let (k, v) = kv.split_once('=').unwrap_or((kv, ""));
+            (k == name).then(|| v.to_string())
+        })
+    };
+    let empty_ok = |client: &mut TcpStream, extra: &str, body: &str| {
+        write!(
+            client,
+            "HTTP/1.1 200 OK\r\n{extra}Content-Length: {}\r\nConnection: close\r\n\r\n{body}",
+            body.len()
+        )
+    };
+    match (method, param("uploads"), param("uploadId"), param("partNumber")) {
+        ("POST", Some(_), None, None) => {
+            static NEXT: AtomicUsize = AtomicUsize::new(1);
+            let id = format!("relay-{}", NEXT.fetch_add(1, Ordering::SeqCst));
+            uploads.lock().unwrap().insert(id.clone(), Vec::new());
+            let xml = format!(
+                "<InitiateMultipartUploadResult><UploadId>{id}</UploadId>\
+                 </InitiateMultipartUploadResult>"
+            );
+            return empty_ok(&mut client, "", &xml);
+        }
+        ("PUT", None, Some(id), Some(n)) => {
+            let n: u32 = n.parse().map_err(|_| bad(format!("{request}: part number")))?;
+            let mut all = uploads.lock().unwrap();
+            let parts = all.get_mut(&id).ok_or_else(|| bad(format!("{request}: no upload")))?;
+            parts.push((n, body));
+            return empty_ok(&mut client, &format!("ETag: \"{id}-{n}\"\r\n"), "");
+        }
+        ("DELETE", None, Some(id), None) => {
+            uploads.lock().unwrap().remove(&id);
+            return write!(client, "HTTP/1.1 204 No Content\r\nConnection: close\r\n\r\n");
+        }
+        ("POST", None, Some(id), None) => {
+            // The parts in the order the completion lists them, each by its ETag.
+            let listed = String::from_utf8_lossy(&body).into_owned();
+            let mut parts = uploads
+                .lock()
+                .unwrap()
+                .remove(&id)
+                .ok_or_else(|| bad(format!("{request}: no upload")))?;
+            parts.sort_by_key(|(n, _)| *n);
+            let numbers: Vec<u32> = listed
+                .split("<PartNumber>")
+                .skip(1)
+                .map(|t| t.split('<').next().unwrap_or("").trim().parse().unwrap_or(0))
+                .collect();
+            let have: Vec<u32> = parts.iter().map(|(n, _)| *n).collect();
+            if numbers != have || (1..=have.len() as u32).ne(have.iter().copied()) {
+                return Err(bad(format!("{request}: parts {have:?}, listed {numbers:?}")));
+            }
+            let object: Vec<u8> = parts.into_iter().flat_map(|(_, b)| b).collect();
+            let (etag, generation) = media_upload(upstream, path, &object)?;
+            multipart.fetch_add(1, Ordering::SeqCst);
+            puts.fetch_add(1, Ordering::SeqCst);
+            let xml = format!(
+                "<CompleteMultipartUploadResult><ETag>\"{etag}\"</ETag>\
+                 </CompleteMultipartUploadResult>"
+            );
+            return empty_ok(&mut client, &format!("x-goog-generation: {generation}\r\n"), &xml);
+        }
+        _ => {}
+    }
     // The XML upload: `PUT /BUCKET/KEY`, KEY percent-encoded by the client (as a query value
     // it stays so).
     let upload = match target.strip_prefix('/').and_then(|t| t.split_once('/')) {
@@ -249,7 +336,6 @@ fn relay(client: TcpStream, upstream: u16, puts: &AtomicUsize) -> std::io::Resul
     up.write_all(&body)?;
     let mut reply = Vec::new();
     up.read_to_end(&mut reply)?;
-    let mut client = client;
     if upload.is_some() && reply.starts_with(b"HTTP/1.1 200") {
         let text = String::from_utf8_lossy(&reply);
         let json = text.split_once("\r\n\r\n").map(|(_, b)| b).unwrap_or("");
@@ -269,6 +355,38 @@ fn relay(client: TcpStream, upstream: u16, puts: &AtomicUsize) -> std::io::Resul
         client.write_all(&reply)?;
     }
     Ok(())
+}
+
+/// Sends `object` to fake-gcs-server on `upstream` as the JSON API's media upload of the XML
+/// API's object `path` (`/BUCKET/KEY`); returns its etag and generation.
+fn media_upload(upstream: u16, path: &str, object: &[u8]) -> std::io::Result<(String, String)> {
+    let bad = |m: String| std::io::Error::new(std::io::ErrorKind::InvalidData, m);
+    let (bucket, key) = path
+        .strip_prefix('/')
+        .and_then(|t| t.split_once('/'))
+        .ok_or_else(|| bad(format!("{path}: not /BUCKET/KEY")))?;
+    let mut up = TcpStream::connect(("127.0.0.1", upstream))?;
+    write!(
+        up,
+        "POST /upload/storage/v1/b/{bucket}/o?uploadType=media&name={key} HTTP/1.1\r\n\
+         Host: 127.0.0.1:{upstream}\r\nContent-Type: application/octet-stream\r\n\
+         Content-Length: {}\r\nConnection: close\r\n\r\n",
+        object.len()
+    )?;
+    up.write_all(object)?;
+    let mut reply = Vec::new();
+    up.read_to_end(&mut reply)?;
+    let text = String::from_utf8_lossy(&reply);
+    if !text.starts_with("HTTP/1.1 200") {
+        return Err(bad(format!("media upload of {path}: {text}")));
+    }
+    let json = text.split_once("\r\n\r\n").map(|(_, b)| b).unwrap_or("");
+    let object: serde_json::Value = serde_json::from_str(json)
+        .map_err(|e| bad(format!("media upload of {path}: {e}: {text}")))?;
+    match (object["etag"].as_str(), object["generation"].as_str()) {
+        (Some(e), Some(g)) => Ok((e.to_string(), g.to_string())),
+        _ => Err(bad(format!("media upload of {path}: no etag or generation in {text}"))),
+    }
 }
 
 /// A service-account file at `path` for object_store's GoogleCloudStorageBuilder::from_env:
@@ -338,6 +456,11 @@ fn a_store_baked_to_fake_gcs_server_reads_as_the_local_bake() {
         "{}",
         text(&missing)
     );
+    // A file above the multipart threshold goes up in parts (the XML API's multipart upload,
+    // through the relay) and every sample reads back.
+    let before = relay.multipart.load(Ordering::SeqCst);
+    common::remote::assert_multipart_upload(&dir, &cache, &env, "gs://bucket/multipart");
+    assert_eq!(relay.multipart.load(Ordering::SeqCst), before + 1, "multipart uploads relayed");
     drop(relay);
     drop(server);
     std::fs::remove_dir_all(&dir).unwrap();

@@ -303,10 +303,10 @@ impl Remote {
         self.mirror.join(format!("{}.L{level}", block_file_name(id)))
     }
 
-    /// Fetches levels `first..=last` of block `id` (those not in the disk cache) in one range
-    /// GET, checks the block header and object size on the block's first request, and keeps
-    /// the payloads for [`Remote::level`] (memory, and the disk cache). CRCs are checked when
-    /// the levels are taken.
+    /// Fetches levels `first..=last` of block `id` (from the first not in memory nor in the disk
+    /// cache) in one range GET ([`Remote::get_levels`]) and keeps the payloads for
+    /// [`Remote::level`] (memory, and the disk cache). CRCs are checked when the levels are
+    /// taken.
     pub(crate) fn fetch_levels(
         &self,
         id: BlockId,
@@ -322,6 +322,28 @@ impl Remote {
         }) else {
             return Ok(());
         };
+        let payloads = self.get_levels(id, entry, first, last, bake_id)?;
+        let mut fetched = self.fetched.lock().expect("fetched");
+        if fetched.len() > 4096 {
+            fetched.clear();
+        }
+        for (l, payload) in payloads {
+            self.disk.put(&self.cache_path(id, l), &payload);
+            fetched.insert((id, l), payload);
+        }
+        Ok(())
+    }
+
+    /// Levels `first..=last` of block `id` in one range GET (the block header and object size
+    /// checked on the block's first request): each level's payload, not yet CRC-checked.
+    fn get_levels(
+        &self,
+        id: BlockId,
+        entry: &BlockEntry,
+        first: u8,
+        last: u8,
+        bake_id: u64,
+    ) -> Result<Vec<(u8, Vec<u8>)>, StoreError> {
         let verified = self.verified.lock().expect("verified").contains(&id);
         let levels = &entry.levels[first as usize..=last as usize];
         let start = if verified { levels[0].offset } else { 0 };
@@ -373,17 +395,13 @@ impl Remote {
             )?;
             self.verified.lock().expect("verified").insert(id);
         }
-        let mut fetched = self.fetched.lock().expect("fetched");
-        if fetched.len() > 4096 {
-            fetched.clear();
-        }
-        for (l, le) in (first..=last).zip(levels) {
-            let a = (le.offset - start) as usize;
-            let payload = bytes[a..a + le.len as usize].to_vec();
-            self.disk.put(&self.cache_path(id, l), &payload);
-            fetched.insert((id, l), payload);
-        }
-        Ok(())
+        Ok((first..=last)
+            .zip(levels)
+            .map(|(l, le)| {
+                let a = (le.offset - start) as usize;
+                (l, bytes[a..a + le.len as usize].to_vec())
+            })
+            .collect())
     }
 
     /// The payload of `level` of block `id`: fetched by the last [`Remote::fetch_levels`], from
@@ -407,14 +425,15 @@ impl Remote {
             }
             self.disk.remove(&cached);
         }
-        self.fetch_levels(id, entry, level, level, bake_id)?;
-        let p = self.fetched.lock().expect("fetched").remove(&(id, level));
-        p.map(|p| (p, true)).ok_or_else(|| StoreError::RemoteBlock {
-            location: self.block_url(id).display().to_string(),
-            block: id,
-            level,
-            message: "the level was fetched but is not there".into(),
-        })
+        // Not at hand: never fetched, evicted, or fetched by this thread and taken by another
+        // reading the same level since (the disk cache then said it was there when this
+        // thread's fetch looked, so that fetch skipped it). Fetched now, for this call alone.
+        let (_, payload) = self
+            .get_levels(id, entry, level, level, bake_id)?
+            .pop()
+            .expect("one level asked, one level got");
+        self.disk.put(&cached, &payload);
+        Ok((payload, true))
     }
 }
 
