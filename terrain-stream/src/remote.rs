@@ -622,6 +622,21 @@ pub fn check_remote_output(
     Ok(())
 }
 
+/// Fills `buf` from `file` as far as the file goes: the bytes read (fewer only at its end).
+fn read_full(file: &mut std::fs::File, buf: &mut [u8]) -> std::io::Result<usize> {
+    use std::io::Read;
+    let mut n = 0;
+    while n < buf.len() {
+        match file.read(&mut buf[n..]) {
+            Ok(0) => break,
+            Ok(k) => n += k,
+            Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
+            Err(e) => return Err(e),
+        }
+    }
+    Ok(n)
+}
+
 /// What [`upload_store`] sent.
 #[derive(Debug, Clone, Default, PartialEq, Eq)]
 pub struct UploadReport {
@@ -636,7 +651,8 @@ pub struct UploadReport {
 /// Uploads the store folder `dir` (every file, recursively) to `url`: block files and tables
 /// first, the index **last**, so a reader never sees an index whose blocks are not all there
 /// (an index already at the URL is deleted before anything is uploaded).
-/// Files above [`MULTIPART_ABOVE`] go as multipart uploads. Retries and timeouts as
+/// Files above [`MULTIPART_ABOVE`] go as multipart uploads, read a part at a time (two parts
+/// in flight per file), so memory does not grow with a file's size. Retries and timeouts as
 /// `options` says.
 pub fn upload_store(
     dir: &Path,
@@ -678,28 +694,48 @@ pub fn upload_store(
                 let key = rel
                     .components()
                     .fold(prefix.clone(), |k, c| k.child(&*c.as_os_str().to_string_lossy()));
-                let bytes = std::fs::read(p).map_err(io_err(p))?;
+                let len = std::fs::metadata(p).map_err(io_err(p))?.len();
                 report.files += 1;
-                report.bytes += bytes.len() as u64;
-                let multipart = bytes.len() > MULTIPART_ABOVE;
+                report.bytes += len;
+                let multipart = len > MULTIPART_ABOVE as u64;
                 report.multipart += usize::from(multipart);
+                // A file up to the threshold is read whole; a larger one a part at a time, at
+                // most two parts in flight, so a table of any size costs a few parts of memory.
+                let whole =
+                    if multipart { None } else { Some(std::fs::read(p).map_err(io_err(p))?) };
                 let store = store.clone();
                 let name = rel.display().to_string();
+                let path = p.clone();
                 tasks.push(runtime.spawn(async move {
-                    let r: object_store::Result<()> = async {
-                        if multipart {
-                            let upload = store.put_multipart(&key).await?;
-                            let mut w =
-                                WriteMultipart::new_with_chunk_size(upload, MULTIPART_ABOVE);
-                            w.write(&bytes);
-                            w.finish().await?;
-                        } else {
-                            store.put(&key, PutPayload::from(bytes)).await?;
+                    let r: Result<(), String> = async {
+                        let e = |e: object_store::Error| e.to_string();
+                        match whole {
+                            Some(bytes) => {
+                                store.put(&key, PutPayload::from(bytes)).await.map_err(e)?;
+                            }
+                            None => {
+                                let upload = store.put_multipart(&key).await.map_err(e)?;
+                                let mut w =
+                                    WriteMultipart::new_with_chunk_size(upload, MULTIPART_ABOVE);
+                                let mut file = std::fs::File::open(&path)
+                                    .map_err(|e| format!("reading {}: {e}", path.display()))?;
+                                let mut part = vec![0u8; MULTIPART_ABOVE];
+                                loop {
+                                    let n = read_full(&mut file, &mut part)
+                                        .map_err(|e| format!("reading {}: {e}", path.display()))?;
+                                    if n == 0 {
+                                        break;
+                                    }
+                                    w.wait_for_capacity(2).await.map_err(e)?;
+                                    w.write(&part[..n]);
+                                }
+                                w.finish().await.map_err(e)?;
+                            }
                         }
                         Ok(())
                     }
                     .await;
-                    r.map_err(|e| format!("uploading {name}: {e}"))
+                    r.map_err(|m| format!("uploading {name}: {m}"))
                 }));
             }
             for t in tasks {
