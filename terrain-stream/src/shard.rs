@@ -477,7 +477,14 @@ impl PartFile {
                 let id = header.block_at(first + done as usize + i);
                 let e =
                     read_entry(&mut r, header, id, fine).map_err(|e| self.bad(index_error(e)))?;
-                debug_assert_eq!(r.remaining(), 0, "entry_len disagrees with read_entry");
+                if r.remaining() != 0 {
+                    // Entries have a fixed length given by the header; bytes left over mean the
+                    // part was written by a different format than the header says.
+                    return Err(self.bad(format!(
+                        "a block entry has {} bytes its fields do not account for",
+                        r.remaining()
+                    )));
+                }
                 batch.push(e);
             }
             each(&batch)?;
