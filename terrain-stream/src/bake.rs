@@ -33,7 +33,7 @@ use crate::entries::EntryFile;
 use crate::error::BakeError;
 use crate::format::{
     BLOCK_HEADER_LEN, BlockEntry, BlockId, Codec, DSS_FACTORS, DssBlockErrors, Header, INDEX_FILE,
-    K_RANGE, LevelEntry, NodeValues, SampleEncoding, block_file_name, block_header, crc32,
+    K_RANGE, LevelEntry, NodeValues, Quantizer, SampleEncoding, block_file_name, block_header, crc32,
     fine_count, index_prefix, node_count,
 };
 use crate::source::HeightSource;
@@ -744,6 +744,12 @@ fn bake_block(
     let (mut max_err, mut max_void_err, mut lossless) = (0f64, 0f64, true);
     // By rows of the band's slice (no index arithmetic or bounds check per sample).
     let encoding = quant.encoding;
+    let quantizer = match encoding {
+        SampleEncoding::Quantized { step_m, offset_m } => {
+            Some((Quantizer::new(step_m, offset_m), step_m))
+        }
+        SampleEncoding::F32 => None,
+    };
     for (j, (q_row, z_row)) in q.chunks_exact_mut(side).zip(z.chunks_exact_mut(side)).enumerate() {
         let sj = j.min(valid_h - 1);
         let src_row = &band[sj * width + x0..][..valid_w];
@@ -752,19 +758,15 @@ fn bake_block(
             let ii = i.min(valid_w - 1);
             let (src, void) = (src_row[ii], void_row[ii]);
             let padding = i >= valid_w || j >= valid_h;
-            let v = match encoding {
-                SampleEncoding::Quantized { step_m, offset_m } => {
-                    let t = ((src as f64 - offset_m) / step_m).round();
-                    if !(i32::MIN as f64..=i32::MAX as f64).contains(&t) {
-                        return Err(BakeError::Encoding(format!(
-                            "height {src} m at ({}, {}) does not fit 32-bit steps of {step_m} m",
-                            x0 + ii,
-                            id.row as usize * cells + sj
-                        )));
-                    }
-                    t as i32
-                }
-                SampleEncoding::F32 => src.to_bits() as i32,
+            let v = match quantizer {
+                Some((qz, step_m)) => qz.steps(src).ok_or_else(|| {
+                    BakeError::Encoding(format!(
+                        "height {src} m at ({}, {}) does not fit 32-bit steps of {step_m} m",
+                        x0 + ii,
+                        id.row as usize * cells + sj
+                    ))
+                })?,
+                None => src.to_bits() as i32,
             };
             let back = encoding.height(v);
             if !padding {

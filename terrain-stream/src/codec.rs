@@ -98,6 +98,55 @@ fn unzigzag(v: u64) -> i64 {
     (v >> 1) as i64 ^ -((v & 1) as i64)
 }
 
+/// The residuals of level `n` of a block (`grid` row-major `(2^k + 1)^2`), in the order of
+/// [`for_each_level_vertex`]: each vertex minus [`predict`]'s prediction (level 0: minus the
+/// previous corner, the first minus 0). The same values as [`predict`] at every vertex, by
+/// rows of the grid: a row of level-`n` vertices between two rows of coarser ones (every
+/// vertex predicted from the rows `d` below and above) or a row of coarser vertices whose odd
+/// ones are new (predicted from their west and east neighbours); `div_euclid` by 2 or 4 is an
+/// arithmetic shift. Test `the_row_walk_is_predict` checks it against [`predict`].
+fn for_each_residual(k: u8, n: u8, grid: &[i32], mut f: impl FnMut(i64)) {
+    let side = (1usize << k) + 1;
+    let row = |j: usize| &grid[j * side..][..side];
+    let d = 1usize << (k - n);
+    if n == 0 {
+        let mut prev = 0i64;
+        for j in [0, d] {
+            for i in [0, d] {
+                let v = i64::from(row(j)[i]);
+                f(v - prev);
+                prev = v;
+            }
+        }
+        return;
+    }
+    let cnt = (1usize << n) + 1;
+    for b in 0..cnt {
+        let r = row(b * d);
+        if b % 2 == 1 {
+            let (south, north) = (row((b - 1) * d), row((b + 1) * d));
+            for a in 0..cnt {
+                let i = a * d;
+                let p = if a % 2 == 0 {
+                    (i64::from(south[i]) + i64::from(north[i])) >> 1
+                } else {
+                    (i64::from(south[i - d])
+                        + i64::from(south[i + d])
+                        + i64::from(north[i - d])
+                        + i64::from(north[i + d]))
+                        >> 2
+                };
+                f(i64::from(r[i]) - p);
+            }
+        } else {
+            for i in (d..side).step_by(2 * d) {
+                let p = (i64::from(r[i - d]) + i64::from(r[i + d])) >> 1;
+                f(i64::from(r[i]) - p);
+            }
+        }
+    }
+}
+
 /// Encodes level `n` of a block whose samples `grid` are row-major `(2^k + 1)^2`.
 /// `allow_predictive` is false for raw f32 bits (prediction would not be meaningful).
 pub(crate) fn encode_level(
@@ -112,13 +161,7 @@ pub(crate) fn encode_level(
     if matches!(codec, Codec::Predictive | Codec::PredictiveDeflate) && allow_predictive {
         let mut out = Vec::with_capacity(level_len(n) + 1);
         out.push(TAG_PREDICTIVE);
-        let mut prev = 0i64;
-        for_each_level_vertex(k, n, |i, j| {
-            let v = at(i, j) as i64;
-            let p = if n == 0 { prev } else { predict(k, n, i, j, |x, y| at(x, y) as i64) };
-            prev = v;
-            put_varint(&mut out, zigzag(v - p));
-        });
+        for_each_residual(k, n, grid, |r| put_varint(&mut out, zigzag(r)));
         if codec == Codec::PredictiveDeflate {
             let varints = &out[1..];
             let mut packed = miniz_oxide::deflate::compress_to_vec(varints, DEFLATE_FAST);
@@ -347,6 +390,35 @@ mod tests {
                 }
             }
             levels.push(dec);
+        }
+    }
+
+    #[test]
+    fn the_row_walk_is_predict() {
+        // Every residual of every level against `predict` at the vertex, on a grid with
+        // negative values, odd sums (where `div_euclid` rounds down) and extremes.
+        for k in [1u8, 2, 4, 6] {
+            let side = (1usize << k) + 1;
+            let grid: Vec<i32> = (0..side * side)
+                .map(|p| match p % 11 {
+                    0 => i32::MIN,
+                    1 => i32::MAX,
+                    _ => ((p * 7919) % 4001) as i32 - 2000 - (p as i32 % 3),
+                })
+                .collect();
+            let at = |i: u32, j: u32| i64::from(grid[j as usize * side + i as usize]);
+            for n in 0..=k {
+                let (mut walk, mut want) = (Vec::new(), Vec::new());
+                for_each_residual(k, n, &grid, |r| walk.push(r));
+                let mut prev = 0i64;
+                for_each_level_vertex(k, n, |i, j| {
+                    let p = if n == 0 { prev } else { predict(k, n, i, j, at) };
+                    prev = at(i, j);
+                    want.push(at(i, j) - p);
+                });
+                assert_eq!(walk.len(), level_len(n), "k {k} level {n}");
+                assert_eq!(walk, want, "k {k} level {n}");
+            }
         }
     }
 }

@@ -208,6 +208,63 @@ impl SampleEncoding {
     }
 }
 
+/// Heights to integer steps, `round((height - offset_m) / step_m)` (f64, halves away from
+/// zero), the bake's quantization ([`SampleEncoding::Quantized`]), without a division or a
+/// libm `round` per sample where that gives the same integer.
+///
+/// With `inv = 1 / step_m` rounded once, `y = (height - offset_m) * inv` is within
+/// `3.01 * 2^-53 |y| < 2^-51 |y|` of the quotient the division rounds to (three roundings of
+/// relative error at most `2^-53` each: `inv`, the product, and the division's own; `inv`
+/// normal, and a subnormal `y` is within `2^-1075` of it, which is far from any half). So where
+/// `|y| < 2^30` and `y` is more than `2^-50 |y|` from the nearest half-integer, the quotient
+/// lies strictly between the same two half-integers as `y` and rounds to the same integer,
+/// which `y`'s truncation and fraction give exactly (`y - trunc(y)` is exact). Everywhere else
+/// (near a half, large, NaN, infinite) the division and `round` themselves decide: the result
+/// is the division's, bit for bit, always (test `quantize_is_the_division_rounded`).
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct Quantizer {
+    step_m: f64,
+    offset_m: f64,
+    /// `1 / step_m`, NaN where it is not normal (then every sample takes the division).
+    inv: f64,
+}
+
+impl Quantizer {
+    /// The quantizer of steps of `step_m` metres from `offset_m`.
+    pub(crate) fn new(step_m: f64, offset_m: f64) -> Self {
+        let inv = 1.0 / step_m;
+        Self { step_m, offset_m, inv: if inv.is_normal() { inv } else { f64::NAN } }
+    }
+
+    /// `round((height - offset_m) / step_m)` as f64 (`None` outside the `i32` range, or NaN).
+    #[inline]
+    pub(crate) fn steps(&self, height: f32) -> Option<i32> {
+        /// `|y|` below which the fast path runs (its integer fits an `i32` with room).
+        const FAST_LIMIT: f64 = 1_073_741_824.0; // 2^30
+        /// `2^-50`: twice the bound on `|y - quotient| / |y|`.
+        const MARGIN: f64 = 1.0 / 1_125_899_906_842_624.0;
+        let x = f64::from(height) - self.offset_m;
+        let y = x * self.inv;
+        if y.abs() < FAST_LIMIT {
+            let n = y as i64; // truncation toward zero, exact here
+            let f = y - n as f64; // exact: the fraction, sign of y
+            let fa = f.abs();
+            if (fa - 0.5).abs() > y.abs() * MARGIN {
+                let away = if fa > 0.5 { if y < 0.0 { -1 } else { 1 } } else { 0 };
+                return Some((n + away) as i32);
+            }
+        }
+        self.divided(x)
+    }
+
+    /// The definition: the division and `round`, checked against the `i32` range.
+    #[cold]
+    fn divided(&self, x: f64) -> Option<i32> {
+        let t = (x / self.step_m).round();
+        (i32::MIN as f64..=i32::MAX as f64).contains(&t).then_some(t as i32)
+    }
+}
+
 /// Payload codec of a level (the first byte of every payload says which was used).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Codec {
@@ -924,5 +981,64 @@ mod tests {
             }
             assert!(seen.iter().all(|&s| s));
         }
+    }
+
+    #[test]
+    fn quantize_is_the_division_rounded() {
+        // The definition, as the bake computed it per sample.
+        let divided = |h: f32, step: f64, offset: f64| {
+            let t = ((h as f64 - offset) / step).round();
+            (i32::MIN as f64..=i32::MAX as f64).contains(&t).then_some(t as i32)
+        };
+        let mut x = 0x9E37_79B9_7F4A_7C15u64;
+        let mut next = move || {
+            x ^= x << 13;
+            x ^= x >> 7;
+            x ^= x << 17;
+            x
+        };
+        let (mut checked, mut halves) = (0usize, 0usize);
+        let steps = [1.0, 0.5, 2.0, 0.1, 0.018, 1.8 * 0.01, 1.0 / 3.0, 0.3, 7.25, 1e-6, 1e-30, 1e30, 1e300, 5e-324];
+        for &step in &steps {
+            for &offset in &[0.0, -0.5, 12.75, -1234.567, 0.05] {
+                let qz = Quantizer::new(step, offset);
+                let mut check = |h: f32| {
+                    let want = divided(h, step, offset);
+                    assert_eq!(qz.steps(h), want, "height {h:e} ({:#x}) step {step:e} offset {offset}", h.to_bits());
+                    checked += 1;
+                };
+                // Halves (the quotient k + 1/2, exactly or within an f32 ulp), both signs, and
+                // their neighbours; whole steps; the extremes.
+                for k in -3000i64..3000 {
+                    for frac in [0.5, 0.0, 0.25, 0.4999999, 0.5000001] {
+                        let h = (offset + (k as f64 + frac) * step) as f32;
+                        for h in [h, h.next_up(), h.next_down()] {
+                            if h.is_finite() {
+                                check(h);
+                            }
+                        }
+                    }
+                    if ((k as f64 + 0.5) * step + offset) as f32 as f64 == (k as f64 + 0.5) * step + offset {
+                        halves += 1;
+                    }
+                }
+                for h in [0.0, -0.0, f32::MAX, f32::MIN, f32::MIN_POSITIVE, -f32::MIN_POSITIVE, 1e-45, 8848.86, -430.5, 2.1e9, -2.2e9, 1e20, f32::INFINITY, f32::NEG_INFINITY, f32::NAN] {
+                    check(h);
+                }
+                // Random heights of every magnitude and random bit patterns.
+                for _ in 0..20_000 {
+                    let r = next();
+                    check(f32::from_bits(r as u32));
+                    check(((r >> 32) as i32 as f32) * (1.0 / 65536.0));
+                }
+            }
+        }
+        assert!(checked > 1_000_000, "{checked} heights checked");
+        // Negative control: exact halves were among them (where `round` and a naive
+        // round-half-even differ), so the tie rule was exercised.
+        assert!(halves > 1000, "{halves} exact halves");
+        assert_eq!(Quantizer::new(1.0, 0.0).steps(2.5), Some(3));
+        assert_eq!(Quantizer::new(1.0, 0.0).steps(-2.5), Some(-3));
+        assert_eq!(Quantizer::new(2.0, 0.0).steps(-5.0), Some(-3));
     }
 }

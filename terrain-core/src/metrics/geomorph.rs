@@ -27,8 +27,8 @@
 
 use glam::DVec3;
 
-use crate::heightmap::Heightmap;
-use crate::metrics::{Coverage, Diagonal, Region, tri_interp};
+use crate::heightmap::{Heightmap, VoidMask};
+use crate::metrics::{ClippedRegion, Coverage, Diagonal, Region, tri_interp};
 
 /// Cells per patch side in the article (17 x 17 heights).
 pub const PATCH_CELLS: usize = 16;
@@ -126,68 +126,19 @@ pub fn max_error_vertices_with(
             Coverage::VoidOnly
         },
     });
-    // Powers of two, so the lattice tests and quad indices are masks and shifts (this runs
-    // for every sample of every level of every patch of a bake); the arithmetic of the
-    // heights is unchanged.
     let (w, data) = (hm.width(), hm.data());
     let voids = hm.voids().any().then(|| hm.voids());
-    let frac = |k: usize, k0: usize, k1: usize| {
-        if k1 > k0 { (k - k0) as f64 / (k1 - k0) as f64 } else { 0.0 }
-    };
+    // A whole patch (not clipped at the grid's border) measured against the full resolution,
+    // the bake's case, takes the row scan ([`scan_whole_level`]); the rest the general scan.
+    // Both give the same vertex and the same error bits (test
+    // `the_row_scan_is_the_general_scan_bit_for_bit`).
+    let whole = clip.x1 == x0 + c && clip.y1 == y0 + c && c <= ROW_SCAN_MAX_CELLS;
     for level in 1..levels {
-        let s = 1usize << level;
-        let (mask, half_mask, quads) = (s - 1, (s >> 1) - 1, c >> level);
-        // The first vertex with the largest error, south row first, west first: (error, i,
-        // j, coarse height), `None` until a vertex is measured.
-        let mut best: Option<(f64, usize, usize, f64)> = None;
-        let mut count = 0;
-        for j in clip.y0..=clip.y1 {
-            let dj = j - y0;
-            let row_kept = dj & mask == 0;
-            let row_prev = dj & half_mask == 0;
-            // The row of level-L quads holding row j (clipped at the north border).
-            let b = (dj >> level).min(quads - 1);
-            let cj = y0 + b * s;
-            let cj1 = (cj + s).min(clip.y1);
-            let v = frac(j, cj, cj1);
-            let (r0, r1, rj) = (&data[cj * w..][..w], &data[cj1 * w..][..w], &data[j * w..][..w]);
-            // The row's samples quad by quad, west to east (the order of a plain scan): quad
-            // `a` holds columns `ci..ci + s`, the last one also its east edge (and at the east
-            // border, clipped to the grid).
-            for a in 0..quads {
-                let ci = x0 + a * s;
-                if ci > clip.x1 {
-                    break;
-                }
-                let last = if a + 1 == quads { clip.x1 } else { (ci + s - 1).min(clip.x1) };
-                // Split NW-SE (article case B) or by the union-jack parity.
-                let diagonal = match tri {
-                    Triangulation::UnionJack if (a + b).is_multiple_of(2) => Diagonal::SwNe,
-                    _ => Diagonal::SeNw,
-                };
-                let ci1 = (ci + s).min(clip.x1);
-                let (z00, z10) = (f64::from(r0[ci]), f64::from(r0[ci1]));
-                let (z01, z11) = (f64::from(r1[ci]), f64::from(r1[ci1]));
-                for (i, &z) in rj.iter().enumerate().take(last + 1).skip(ci) {
-                    let di = i - x0;
-                    let kept = row_kept && di & mask == 0;
-                    let candidate = match reference {
-                        Reference::FullResolution => !kept,
-                        Reference::PreviousLevel => !kept && row_prev && di & half_mask == 0,
-                    };
-                    if !candidate || voids.is_some_and(|m| m.get(i, j)) {
-                        continue;
-                    }
-                    let coarse = tri_interp(z00, z10, z01, z11, frac(i, ci, ci1), v, diagonal);
-                    let z = f64::from(z);
-                    let error = (z - coarse).abs();
-                    count += 1;
-                    if best.is_none_or(|(e, ..)| error > e) {
-                        best = Some((error, i, j, coarse));
-                    }
-                }
-            }
-        }
+        let (best, count) = if whole && reference == Reference::FullResolution {
+            scan_whole_level(data, w, voids, (x0, y0, c), level, tri)
+        } else {
+            scan_level(data, w, voids, patch, clip, level, reference, tri)
+        };
         let best = best.map(|(error, i, j, coarse_height)| {
             let (di, dj) = (i - x0, j - y0);
             let z = f64::from(data[j * w + i]);
@@ -207,6 +158,213 @@ pub fn max_error_vertices_with(
         });
     }
     out
+}
+
+/// `(k - k0) / (k1 - k0)` in f64, 0 for an empty span: a vertex's place in its coarse quad.
+fn frac(k: usize, k0: usize, k1: usize) -> f64 {
+    if k1 > k0 { (k - k0) as f64 / (k1 - k0) as f64 } else { 0.0 }
+}
+
+/// The first vertex with the largest error of one level, south row first, west first:
+/// `(error, i, j, coarse height)` (`None` when no vertex is measured), and how many vertices
+/// were measured. Any patch, any reference: the definition [`scan_whole_level`] keeps.
+#[allow(clippy::too_many_arguments)]
+fn scan_level(
+    data: &[f32],
+    w: usize,
+    voids: Option<&VoidMask>,
+    patch: Region,
+    clip: ClippedRegion,
+    level: usize,
+    reference: Reference,
+    tri: Triangulation,
+) -> (Option<(f64, usize, usize, f64)>, usize) {
+    let (x0, y0, c) = (patch.x0, patch.y0, patch.cells);
+    // Powers of two, so the lattice tests and quad indices are masks and shifts.
+    let s = 1usize << level;
+    let (mask, half_mask, quads) = (s - 1, (s >> 1) - 1, c >> level);
+    let mut best: Option<(f64, usize, usize, f64)> = None;
+    let mut count = 0;
+    for j in clip.y0..=clip.y1 {
+        let dj = j - y0;
+        let row_kept = dj & mask == 0;
+        let row_prev = dj & half_mask == 0;
+        // The row of level-L quads holding row j (clipped at the north border).
+        let b = (dj >> level).min(quads - 1);
+        let cj = y0 + b * s;
+        let cj1 = (cj + s).min(clip.y1);
+        let v = frac(j, cj, cj1);
+        let (r0, r1, rj) = (&data[cj * w..][..w], &data[cj1 * w..][..w], &data[j * w..][..w]);
+        // The row's samples quad by quad, west to east (the order of a plain scan): quad
+        // `a` holds columns `ci..ci + s`, the last one also its east edge (and at the east
+        // border, clipped to the grid).
+        for a in 0..quads {
+            let ci = x0 + a * s;
+            if ci > clip.x1 {
+                break;
+            }
+            let last = if a + 1 == quads { clip.x1 } else { (ci + s - 1).min(clip.x1) };
+            let diagonal = quad_diagonal(tri, a, b);
+            let ci1 = (ci + s).min(clip.x1);
+            let (z00, z10) = (f64::from(r0[ci]), f64::from(r0[ci1]));
+            let (z01, z11) = (f64::from(r1[ci]), f64::from(r1[ci1]));
+            for (i, &z) in rj.iter().enumerate().take(last + 1).skip(ci) {
+                let di = i - x0;
+                let kept = row_kept && di & mask == 0;
+                let candidate = match reference {
+                    Reference::FullResolution => !kept,
+                    Reference::PreviousLevel => !kept && row_prev && di & half_mask == 0,
+                };
+                if !candidate || voids.is_some_and(|m| m.get(i, j)) {
+                    continue;
+                }
+                let coarse = tri_interp(z00, z10, z01, z11, frac(i, ci, ci1), v, diagonal);
+                let z = f64::from(z);
+                let error = (z - coarse).abs();
+                count += 1;
+                if best.is_none_or(|(e, ..)| error > e) {
+                    best = Some((error, i, j, coarse));
+                }
+            }
+        }
+    }
+    (best, count)
+}
+
+/// Quad `(a, b)`'s diagonal: NW-SE (article case B), or by the union-jack parity.
+fn quad_diagonal(tri: Triangulation, a: usize, b: usize) -> Diagonal {
+    match tri {
+        Triangulation::UnionJack if (a + b).is_multiple_of(2) => Diagonal::SwNe,
+        _ => Diagonal::SeNw,
+    }
+}
+
+/// Most cells per patch side the row scan takes (its rows live on the stack).
+const ROW_SCAN_MAX_CELLS: usize = 64;
+
+/// [`scan_level`] of a whole patch (`(x0, y0, c)`: no side clipped at the grid's border, `c`
+/// at most [`ROW_SCAN_MAX_CELLS`]) against the full resolution, by rows: the same
+/// vertex, error bits and count, at a fraction of the cost (this runs for every sample of
+/// every level of every patch of a bake).
+///
+/// Why the same bits: in a whole patch every coarse quad spans `s = 2^L` samples, so a
+/// vertex's place in it, `u = t / s` and `v = r / s` (`t`, `r` in `0..=s`), is exact, and the
+/// triangle test of [`tri_interp`] (`u >= v` for a SW-NE split, `u + v <= 1` for NW-SE) is
+/// `t >= r` or `t + r <= s` on integers: within a quad's row it splits the columns into two
+/// runs, each interpolated by one of [`tri_interp`]'s expressions with the same operations in
+/// the same order (the terms that do not depend on `t` computed once per run, which are the
+/// same values). The errors of a row go to an array, non-candidates (kept or void vertices)
+/// as -1; a row whose largest error beats the best so far strictly gives its first vertex
+/// with that error, which is the first such vertex of a plain scan (errors are never NaN:
+/// heights are finite).
+fn scan_whole_level(
+    data: &[f32],
+    w: usize,
+    voids: Option<&VoidMask>,
+    (x0, y0, c): (usize, usize, usize),
+    level: usize,
+    tri: Triangulation,
+) -> (Option<(f64, usize, usize, f64)>, usize) {
+    let s = 1usize << level;
+    let (mask, quads) = (s - 1, c >> level);
+    // `u = t / s` and `1 - u`, as [`frac`] and [`tri_interp`] compute them.
+    let mut ut = [0f64; ROW_SCAN_MAX_CELLS + 1];
+    let mut wt = [0f64; ROW_SCAN_MAX_CELLS + 1];
+    for t in 0..=s {
+        ut[t] = frac(t, 0, s);
+        wt[t] = 1.0 - ut[t];
+    }
+    let mut err = [0f64; ROW_SCAN_MAX_CELLS + 1];
+    let err = &mut err[..=c];
+    // The largest error so far (-1: none measured yet) and its vertex.
+    let (mut best_e, mut best_at) = (-1f64, (0usize, 0usize));
+    let mut count = 0;
+    for dj in 0..=c {
+        let j = y0 + dj;
+        let b = (dj >> level).min(quads - 1);
+        let r = dj - b * s;
+        let (v, one_v) = (ut[r], wt[r]);
+        let cj = y0 + b * s;
+        let r0 = &data[cj * w + x0..][..=c];
+        let r1 = &data[(cj + s) * w + x0..][..=c];
+        let rj = &data[j * w + x0..][..=c];
+        for a in 0..quads {
+            let ci = a * s;
+            // Columns of this quad: the last quad also holds the patch's east edge.
+            let n = if a + 1 == quads { s + 1 } else { s };
+            let (z, e) = (&rj[ci..ci + n], &mut err[ci..ci + n]);
+            let (z00, z10) = (f64::from(r0[ci]), f64::from(r0[ci + s]));
+            let (z01, z11) = (f64::from(r1[ci]), f64::from(r1[ci + s]));
+            match quad_diagonal(tri, a, b) {
+                Diagonal::SwNe => {
+                    // `u < v` (t < r): triangle SW, NW, NE; then SW, SE, NE.
+                    let split = r.min(n);
+                    let (p, d) = (z00 + v * (z01 - z00), z11 - z01);
+                    for t in 0..split {
+                        e[t] = (f64::from(z[t]) - (p + ut[t] * d)).abs();
+                    }
+                    let (d, k) = (z10 - z00, v * (z11 - z10));
+                    for t in split..n {
+                        e[t] = (f64::from(z[t]) - (z00 + ut[t] * d + k)).abs();
+                    }
+                }
+                Diagonal::SeNw => {
+                    // `u + v <= 1` (t <= s - r): triangle SW, SE, NW; then NE, NW, SE.
+                    let split = (s - r + 1).min(n);
+                    let (d, k) = (z10 - z00, v * (z01 - z00));
+                    for t in 0..split {
+                        e[t] = (f64::from(z[t]) - (z00 + ut[t] * d + k)).abs();
+                    }
+                    let (d, k) = (z01 - z11, one_v * (z10 - z11));
+                    for t in split..n {
+                        e[t] = (f64::from(z[t]) - (z11 + wt[t] * d + k)).abs();
+                    }
+                }
+            }
+        }
+        // Not measured: the level's own vertices (a kept row's every s-th column), voids.
+        if dj & mask == 0 {
+            for e in err.iter_mut().step_by(s) {
+                *e = -1.0;
+            }
+        }
+        if let Some(m) = voids {
+            for (di, e) in err.iter_mut().enumerate() {
+                if m.get(x0 + di, j) {
+                    *e = -1.0;
+                }
+            }
+        }
+        let mut row_max = -1f64;
+        for &e in err.iter() {
+            row_max = if e > row_max { e } else { row_max };
+            count += usize::from(e >= 0.0);
+        }
+        if row_max > best_e {
+            best_e = row_max;
+            let di = err.iter().position(|&e| e == row_max).unwrap_or(0);
+            best_at = (x0 + di, j);
+        }
+    }
+    if best_e < 0.0 {
+        return (None, count);
+    }
+    // The level mesh's height at the vertex, as the general scan computes it.
+    let (i, j) = best_at;
+    let (di, dj) = (i - x0, j - y0);
+    let (a, b) = ((di >> level).min(quads - 1), (dj >> level).min(quads - 1));
+    let (ci, cj) = (x0 + a * s, y0 + b * s);
+    let at = |i: usize, j: usize| f64::from(data[j * w + i]);
+    let coarse = tri_interp(
+        at(ci, cj),
+        at(ci + s, cj),
+        at(ci, cj + s),
+        at(ci + s, cj + s),
+        frac(i, ci, ci + s),
+        frac(j, cj, cj + s),
+        quad_diagonal(tri, a, b),
+    );
+    (Some((best_e, i, j, coarse)), count)
 }
 
 #[cfg(test)]
@@ -236,5 +394,108 @@ mod tests {
         );
         assert_eq!(u[1].error, 1.0);
         assert_eq!((u[1].vertex.unwrap().i, u[1].vertex.unwrap().j), (1, 1));
+    }
+
+    /// A small deterministic generator (xorshift64*), so the test needs no crate.
+    fn rng(seed: u64) -> impl FnMut() -> u64 {
+        let mut x = seed.max(1);
+        move || {
+            x ^= x >> 12;
+            x ^= x << 25;
+            x ^= x >> 27;
+            x.wrapping_mul(0x2545_F491_4F6C_DD1D)
+        }
+    }
+
+    #[test]
+    fn the_row_scan_is_the_general_scan_bit_for_bit() {
+        // Grids of few distinct heights (many ties: the first vertex must win), of wide-range
+        // values, and with voids; every patch size, both triangulations. Each whole patch's
+        // row scan against the general scan on the same patch.
+        let mut next = rng(0x5EED);
+        let (mut patches, mut tied) = (0usize, 0usize);
+        for case in 0..24 {
+            let c = 2usize << (case % 6);
+            let (w, h) = (2 * c + 3, c + 5);
+            let kind = case / 6;
+            let data: Vec<f32> = (0..w * h)
+                .map(|_| {
+                    let r = next();
+                    match kind {
+                        0 => (r % 3) as f32,
+                        1 => (r % 5) as f32 * 0.25 - 0.5,
+                        2 => f32::from_bits((r as u32 & 0x807F_FFFF) | 0x4B00_0000) * 37.0,
+                        _ => (r % 1000) as f32 * 0.1 - 50.0,
+                    }
+                })
+                .collect();
+            let mut voids = VoidMask::new(w, h);
+            if kind == 3 {
+                for k in 0..w * h / 5 {
+                    voids.set((k * 7919 + case) % w, (k * 104_729) % h, true);
+                }
+            }
+            let hm = Heightmap::new(w, h, data, voids, Georef::local(1.0)).unwrap();
+            let (data, voids) = (hm.data(), hm.voids().any().then(|| hm.voids()));
+            for tri in [Triangulation::UnionJack, Triangulation::NwSe] {
+                for (x0, y0) in [(0, 0), (1, 2), (c + 2, 4), (c, 1)] {
+                    let patch = Region::new(x0, y0, c);
+                    let clip = patch.clip(&hm).unwrap();
+                    assert_eq!((clip.x1, clip.y1), (x0 + c, y0 + c), "a whole patch");
+                    for level in 1..=c.trailing_zeros() as usize {
+                        let fast = scan_whole_level(data, w, voids, (x0, y0, c), level, tri);
+                        let general = scan_level(
+                            data,
+                            w,
+                            voids,
+                            patch,
+                            clip,
+                            level,
+                            Reference::FullResolution,
+                            tri,
+                        );
+                        let bits = |r: (Option<(f64, usize, usize, f64)>, usize)| {
+                            (r.0.map(|(e, i, j, z)| (e.to_bits(), i, j, z.to_bits())), r.1)
+                        };
+                        assert_eq!(bits(fast), bits(general), "case {case} {tri:?} {x0},{y0} L{level}");
+                        patches += 1;
+                        // Every measured vertex's error, plainly, in scan order: the winner is
+                        // the first with the largest error, and ties do occur (else the tie
+                        // order would go untested).
+                        let s = 1usize << level;
+                        let quads = c >> level;
+                        let mut errors = Vec::new();
+                        for dj in 0..=c {
+                            for di in 0..=c {
+                                let (i, j) = (x0 + di, y0 + dj);
+                                if (di % s == 0 && dj % s == 0) || voids.is_some_and(|m| m.get(i, j)) {
+                                    continue;
+                                }
+                                let (a, b) = ((di / s).min(quads - 1), (dj / s).min(quads - 1));
+                                let (ci, cj) = (x0 + a * s, y0 + b * s);
+                                let at = |i: usize, j: usize| f64::from(hm.get(i, j));
+                                let coarse = tri_interp(
+                                    at(ci, cj),
+                                    at(ci + s, cj),
+                                    at(ci, cj + s),
+                                    at(ci + s, cj + s),
+                                    (i - ci) as f64 / s as f64,
+                                    (j - cj) as f64 / s as f64,
+                                    quad_diagonal(tri, a, b),
+                                );
+                                errors.push(((at(i, j) - coarse).abs(), i, j));
+                            }
+                        }
+                        let max = errors.iter().fold(-1f64, |m, e| m.max(e.0));
+                        let first = errors.iter().find(|e| e.0 == max).map(|e| (e.0.to_bits(), e.1, e.2));
+                        assert_eq!(first, general.0.map(|(e, i, j, _)| (e.to_bits(), i, j)));
+                        assert_eq!(errors.len(), general.1);
+                        tied += usize::from(errors.iter().filter(|e| e.0 == max).count() > 1);
+                    }
+                }
+            }
+        }
+        assert!(patches > 300, "{patches} levels compared");
+        assert!(tied > 0, "no tie was exercised");
     }
 }
