@@ -257,6 +257,33 @@ impl Quantizer {
         self.divided(x)
     }
 
+    /// [`Quantizer::steps`] of a row of heights into `out` (as long), by lanes: the fast path
+    /// computed for every sample without a branch, and the row again sample by sample only
+    /// where some sample needs the division. The error is the first sample outside the `i32`
+    /// range.
+    pub(crate) fn steps_row(&self, heights: &[f32], out: &mut [i32]) -> Result<(), usize> {
+        const FAST_LIMIT: f64 = 1_073_741_824.0; // 2^30, as in `steps`
+        const MARGIN: f64 = 1.0 / 1_125_899_906_842_624.0; // 2^-50, as in `steps`
+        let mut fast = true;
+        for (q, &h) in out.iter_mut().zip(heights) {
+            let y = (f64::from(h) - self.offset_m) * self.inv;
+            let small = y.abs() < FAST_LIMIT;
+            let y = if small { y } else { 0.0 };
+            let n = y as i32;
+            let f = y - f64::from(n);
+            let fa = f.abs();
+            fast &= small & ((fa - 0.5).abs() > y.abs() * MARGIN);
+            let away = if fa > 0.5 { if y < 0.0 { -1 } else { 1 } } else { 0 };
+            *q = n + away;
+        }
+        if !fast {
+            for (i, (q, &h)) in out.iter_mut().zip(heights).enumerate() {
+                *q = self.steps(h).ok_or(i)?;
+            }
+        }
+        Ok(())
+    }
+
     /// The definition: the division and `round`, checked against the `i32` range.
     #[cold]
     fn divided(&self, x: f64) -> Option<i32> {
@@ -1030,6 +1057,33 @@ mod tests {
                     let r = next();
                     check(f32::from_bits(r as u32));
                     check(((r >> 32) as i32 as f32) * (1.0 / 65536.0));
+                }
+            }
+        }
+        // By rows (the bake's path): the same integers, and the first height out of range.
+        for &step in &steps {
+            let qz = Quantizer::new(step, 3.5);
+            for _ in 0..200 {
+                let row: Vec<f32> = (0..37)
+                    .map(|_| {
+                        let r = next();
+                        match r % 4 {
+                            0 => f32::from_bits(r as u32 >> 1),
+                            1 => ((r >> 40) as f32 + 0.5) * step as f32,
+                            _ => ((r >> 32) as i32 as f32) * (1.0 / 4096.0),
+                        }
+                    })
+                    .collect();
+                let mut got = vec![0i32; row.len()];
+                let want: Result<Vec<i32>, usize> = row
+                    .iter()
+                    .enumerate()
+                    .map(|(i, &h)| divided(h, step, 3.5).ok_or(i))
+                    .collect();
+                match (qz.steps_row(&row, &mut got), want) {
+                    (Ok(()), Ok(want)) => assert_eq!(got, want, "step {step:e}"),
+                    (Err(i), Err(j)) => assert_eq!(i, j, "step {step:e}"),
+                    (a, b) => panic!("step {step:e}: {a:?} against {b:?}"),
                 }
             }
         }
