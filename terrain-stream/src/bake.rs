@@ -33,8 +33,8 @@ use crate::entries::EntryFile;
 use crate::error::BakeError;
 use crate::format::{
     BLOCK_HEADER_LEN, BlockEntry, BlockId, Codec, DSS_FACTORS, DssBlockErrors, Header, INDEX_FILE,
-    K_RANGE, LevelEntry, NodeValues, Quantizer, SampleEncoding, block_file_name, block_header, crc32,
-    fine_count, index_prefix, node_count,
+    K_RANGE, LevelEntry, NodeValues, Quantizer, SampleEncoding, block_file_name, block_header,
+    crc32, fine_count, index_prefix, node_count,
 };
 use crate::source::HeightSource;
 

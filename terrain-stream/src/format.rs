@@ -1025,13 +1025,33 @@ mod tests {
             x
         };
         let (mut checked, mut halves) = (0usize, 0usize);
-        let steps = [1.0, 0.5, 2.0, 0.1, 0.018, 1.8 * 0.01, 1.0 / 3.0, 0.3, 7.25, 1e-6, 1e-30, 1e30, 1e300, 5e-324];
+        let steps = [
+            1.0,
+            0.5,
+            2.0,
+            0.1,
+            0.018,
+            1.8 * 0.01,
+            1.0 / 3.0,
+            0.3,
+            7.25,
+            1e-6,
+            1e-30,
+            1e30,
+            1e300,
+            5e-324,
+        ];
         for &step in &steps {
             for &offset in &[0.0, -0.5, 12.75, -1234.567, 0.05] {
                 let qz = Quantizer::new(step, offset);
                 let mut check = |h: f32| {
                     let want = divided(h, step, offset);
-                    assert_eq!(qz.steps(h), want, "height {h:e} ({:#x}) step {step:e} offset {offset}", h.to_bits());
+                    assert_eq!(
+                        qz.steps(h),
+                        want,
+                        "height {h:e} ({:#x}) step {step:e} offset {offset}",
+                        h.to_bits()
+                    );
                     checked += 1;
                 };
                 // Halves (the quotient k + 1/2, exactly or within an f32 ulp), both signs, and
@@ -1045,11 +1065,29 @@ mod tests {
                             }
                         }
                     }
-                    if ((k as f64 + 0.5) * step + offset) as f32 as f64 == (k as f64 + 0.5) * step + offset {
+                    if ((k as f64 + 0.5) * step + offset) as f32 as f64
+                        == (k as f64 + 0.5) * step + offset
+                    {
                         halves += 1;
                     }
                 }
-                for h in [0.0, -0.0, f32::MAX, f32::MIN, f32::MIN_POSITIVE, -f32::MIN_POSITIVE, 1e-45, 8848.86, -430.5, 2.1e9, -2.2e9, 1e20, f32::INFINITY, f32::NEG_INFINITY, f32::NAN] {
+                for h in [
+                    0.0,
+                    -0.0,
+                    f32::MAX,
+                    f32::MIN,
+                    f32::MIN_POSITIVE,
+                    -f32::MIN_POSITIVE,
+                    1e-45,
+                    8848.86,
+                    -430.5,
+                    2.1e9,
+                    -2.2e9,
+                    1e20,
+                    f32::INFINITY,
+                    f32::NEG_INFINITY,
+                    f32::NAN,
+                ] {
                     check(h);
                 }
                 // Random heights of every magnitude and random bit patterns.
@@ -1075,11 +1113,8 @@ mod tests {
                     })
                     .collect();
                 let mut got = vec![0i32; row.len()];
-                let want: Result<Vec<i32>, usize> = row
-                    .iter()
-                    .enumerate()
-                    .map(|(i, &h)| divided(h, step, 3.5).ok_or(i))
-                    .collect();
+                let want: Result<Vec<i32>, usize> =
+                    row.iter().enumerate().map(|(i, &h)| divided(h, step, 3.5).ok_or(i)).collect();
                 match (qz.steps_row(&row, &mut got), want) {
                     (Ok(()), Ok(want)) => assert_eq!(got, want, "step {step:e}"),
                     (Err(i), Err(j)) => assert_eq!(i, j, "step {step:e}"),

@@ -457,7 +457,11 @@ mod tests {
                         let bits = |r: (Option<(f64, usize, usize, f64)>, usize)| {
                             (r.0.map(|(e, i, j, z)| (e.to_bits(), i, j, z.to_bits())), r.1)
                         };
-                        assert_eq!(bits(fast), bits(general), "case {case} {tri:?} {x0},{y0} L{level}");
+                        assert_eq!(
+                            bits(fast),
+                            bits(general),
+                            "case {case} {tri:?} {x0},{y0} L{level}"
+                        );
                         patches += 1;
                         // Every measured vertex's error, plainly, in scan order: the winner is
                         // the first with the largest error, and ties do occur (else the tie
@@ -468,7 +472,9 @@ mod tests {
                         for dj in 0..=c {
                             for di in 0..=c {
                                 let (i, j) = (x0 + di, y0 + dj);
-                                if (di % s == 0 && dj % s == 0) || voids.is_some_and(|m| m.get(i, j)) {
+                                if (di % s == 0 && dj % s == 0)
+                                    || voids.is_some_and(|m| m.get(i, j))
+                                {
                                     continue;
                                 }
                                 let (a, b) = ((di / s).min(quads - 1), (dj / s).min(quads - 1));
@@ -487,7 +493,8 @@ mod tests {
                             }
                         }
                         let max = errors.iter().fold(-1f64, |m, e| m.max(e.0));
-                        let first = errors.iter().find(|e| e.0 == max).map(|e| (e.0.to_bits(), e.1, e.2));
+                        let first =
+                            errors.iter().find(|e| e.0 == max).map(|e| (e.0.to_bits(), e.1, e.2));
                         assert_eq!(first, general.0.map(|(e, i, j, _)| (e.to_bits(), i, j)));
                         assert_eq!(errors.len(), general.1);
                         tied += usize::from(errors.iter().filter(|e| e.0 == max).count() > 1);
