@@ -399,14 +399,15 @@ impl<'a> Mesher<'a> {
             for run in &mut chunks {
                 let mut n = [0.0; LANES];
                 let mut zd = [0.0; LANES];
-                let mut keep = [false; LANES];
+                let mut dismissed = [false; LANES];
                 for k in 0..LANES {
                     n[k] = raster::numerator([lane[0][k], lane[1][k], lane[2][k]], z);
                     zd[k] = f64::from(run[k]) * df;
-                    keep[k] =
-                        !((zd[k] - n[k]).abs() + (zd[k].abs() + n[k].abs()) * 1e-14 <= best.scaled);
+                    dismissed[k] =
+                        (zd[k] - n[k]).abs() + (zd[k].abs() + n[k].abs()) * 1e-14 <= best.scaled;
                 }
-                if keep.iter().any(|&k| k) {
+                // (A NaN height is never dismissed: its four are tested one by one.)
+                if !dismissed.iter().all(|&d| d) {
                     for k in 0..LANES {
                         exact(&mut best, i + k as i64, j, f64::from(run[k]), n[k], zd[k]);
                     }
