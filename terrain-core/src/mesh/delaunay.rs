@@ -106,6 +106,17 @@ impl Entry {
     }
 }
 
+/// Samples a scan dismisses together (see [`Mesher::scan`]).
+const LANES: usize = 4;
+
+/// A scan's worst sample so far: its error, where, and the error times the scanned
+/// triangle's `d` (the dismissal threshold).
+struct Best {
+    error: f64,
+    at: Option<[u32; 2]>,
+    scaled: f64,
+}
+
 /// `Slot::cand` of a triangle waiting to be scanned.
 const PENDING: u32 = u32::MAX;
 
@@ -325,7 +336,7 @@ impl<'a> Mesher<'a> {
         let (w, h) = (hm.width() as i64, hm.height() as i64);
         let voids = hm.voids().any().then(|| hm.voids());
         let lock = self.lock_border;
-        let mut best = (self.max_error, None);
+        let mut best = Best { error: self.max_error, at: None, scaled: 0.0 };
         // The sample's error is |z - n / d| (n the interpolation's numerator, exactly as
         // `verify` computes it). Most samples are far below the running best: they are
         // dismissed on |z d - n| without a division, with a margin (1e-14 of the magnitudes,
@@ -334,33 +345,88 @@ impl<'a> Mesher<'a> {
         // candidates: they are dropped among the survivors only (a void's height may be
         // NaN, which no dismissal test passes), the same outcome as before the test.
         let df = raster::orient(g[0], g[1], g[2]) as f64;
-        let mut best_d = best.0 * df;
+        best.scaled = best.error * df;
         // A locked border leaves exactly the samples off the border: a clip, not a test.
         let clip =
             if lock { [1, 1, w - 2, h - 2] } else { [i64::MIN, i64::MIN, i64::MAX, i64::MAX] };
         let (data, width) = (hm.data(), hm.width());
-        raster::for_each_row(g, clip, |j, lo, hi, mut wt, dw| {
+        // Touch the ends of each row's span of the bounding box first: these loads depend on
+        // nothing, so their cache misses overlap, where the scan's own first load of a row
+        // waits behind the (often mispredicted) end of the row before it. Reads only.
+        let [bx0, by0] = [0, 1].map(|a| g[0][a].min(g[1][a]).min(g[2][a]).max(clip[a]));
+        let [bx1, by1] = [0, 1].map(|a| g[0][a].max(g[1][a]).max(g[2][a]).min(clip[a + 2]));
+        if bx0 <= bx1 {
+            let mut touched = 0.0f32;
+            for j in by0..=by1 {
+                let row = j as usize * width;
+                touched += data[row + bx0 as usize] + data[row + bx1 as usize];
+            }
+            std::hint::black_box(touched);
+        }
+        // One sample's full test, in row order: the dismissal, then the void and the exact
+        // error (`n` its numerator, `zd` its height times d).
+        let exact = |best: &mut Best, i: i64, j: i64, zs: f64, n: f64, zd: f64| {
+            if (zd - n).abs() + (zd.abs() + n.abs()) * 1e-14 <= best.scaled {
+                return;
+            }
+            if voids.is_some_and(|m| m.get(i as usize, j as usize)) {
+                return;
+            }
+            let e = (zs - n / df).abs();
+            // A vertex's own sample is never a candidate (its error is rounding alone).
+            if e > best.error && !g.contains(&[i, j]) {
+                *best = Best { error: e, at: Some([i as u32, j as u32]), scaled: e * df };
+            }
+        };
+        raster::for_each_row(g, clip, |j, lo, hi, wt, dw| {
             let row = j as usize * width;
-            for (i, &zs) in (lo..).zip(&data[row + lo as usize..=row + hi as usize]) {
+            let heights = &data[row + lo as usize..=row + hi as usize];
+            // Runs of `LANES` samples are dismissed together on the same test and the same
+            // values (the weights `wt + k dw` are exact integers, so they equal the stepped
+            // ones bit for bit) against the running best at the run's start, which is at
+            // most the best at any of its samples: a run that cannot hold a candidate is
+            // skipped without a branch per sample (the loop vectorizes); any other run has
+            // every sample tested in order as before, so the outcome is the same.
+            let mut chunks = heights.chunks_exact(LANES);
+            let mut lane = [[0.0; LANES]; 3];
+            for (c, l) in lane.iter_mut().enumerate() {
+                for (k, w) in l.iter_mut().enumerate() {
+                    *w = wt[c] + k as f64 * dw[c];
+                }
+            }
+            let jump = dw.map(|d| d * LANES as f64);
+            let mut i = lo;
+            for run in &mut chunks {
+                let mut n = [0.0; LANES];
+                let mut zd = [0.0; LANES];
+                let mut dismissed = [false; LANES];
+                for k in 0..LANES {
+                    n[k] = raster::numerator([lane[0][k], lane[1][k], lane[2][k]], z);
+                    zd[k] = f64::from(run[k]) * df;
+                    dismissed[k] =
+                        (zd[k] - n[k]).abs() + (zd[k].abs() + n[k].abs()) * 1e-14 <= best.scaled;
+                }
+                // (A NaN height is never dismissed: its four are tested one by one.)
+                if !dismissed.iter().all(|&d| d) {
+                    for k in 0..LANES {
+                        exact(&mut best, i + k as i64, j, f64::from(run[k]), n[k], zd[k]);
+                    }
+                }
+                for (l, d) in lane.iter_mut().zip(jump) {
+                    l.iter_mut().for_each(|w| *w += d);
+                }
+                i += LANES as i64;
+            }
+            let mut wt = [lane[0][0], lane[1][0], lane[2][0]];
+            for &zs in chunks.remainder() {
                 let n = raster::numerator(wt, z);
                 wt = raster::step(wt, dw);
                 let zs = f64::from(zs);
-                let zd = zs * df;
-                if (zd - n).abs() + (zd.abs() + n.abs()) * 1e-14 <= best_d {
-                    continue;
-                }
-                if voids.is_some_and(|m| m.get(i as usize, j as usize)) {
-                    continue;
-                }
-                let e = (zs - n / df).abs();
-                // A vertex's own sample is never a candidate (its error is rounding alone).
-                if e > best.0 && !g.contains(&[i, j]) {
-                    best = (e, Some([i as u32, j as u32]));
-                    best_d = e * df;
-                }
+                exact(&mut best, i, j, zs, n, zs * df);
+                i += 1;
             }
         });
-        if let (error, Some(sample)) = best {
+        if let Best { error, at: Some(sample), .. } = best {
             let key = sample[1] * self.hm.width() as u32 + sample[0];
             self.slots[t as usize].cand = key;
             self.heap_push(Entry { error, key, slot: t });
