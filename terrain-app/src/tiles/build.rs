@@ -15,13 +15,28 @@
 
 use glam::{DVec2, dvec2};
 use terrain_core::heightmap::VoidMask;
+use terrain_core::mesh::Algorithm;
 use terrain_core::tin::{self, GridLayout, TileId, TileMesh};
 use terrain_core::{Crs, Georef, Heightmap};
 
 use terrain_app::decimation::{BudgetPolicy, Decimation};
 use terrain_app::samples::Samples;
 
-/// How tiles are sampled.
+/// Which mesher a tile gets (`terrain tiles --mesher`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, clap::ValueEnum, serde::Serialize)]
+#[serde(rename_all = "lowercase")]
+pub(crate) enum MesherChoice {
+    /// The greedy Delaunay mesher, or the RTIN where [`ResolutionConfig::rtin_density`]
+    /// says it wins (see [`choose`]).
+    #[default]
+    Auto,
+    /// The greedy Delaunay mesher for every tile (the fewest triangles).
+    Greedy,
+    /// The RTIN for every tile (for measurements: more triangles at the coarse levels).
+    Rtin,
+}
+
+/// How tiles are sampled and meshed.
 #[derive(Debug, Clone, Copy)]
 pub(crate) struct ResolutionConfig {
     /// Most cells across a tile's mesh input before it is decimated.
@@ -29,11 +44,52 @@ pub(crate) struct ResolutionConfig {
     /// The budget a decimated tile gets, its retries and strides (the one policy both
     /// pyramids use).
     pub policy: BudgetPolicy,
+    /// The mesher.
+    pub mesher: MesherChoice,
+    /// With [`MesherChoice::Auto`]: a tile meshed from every sample is an RTIN when its
+    /// parent's vertices (chosen from every sample at twice its bound) are at least this
+    /// fraction of the samples of its window (see [`choose`]).
+    pub rtin_density: f64,
 }
 
 impl Default for ResolutionConfig {
     fn default() -> Self {
-        Self { max_cells: 256, policy: BudgetPolicy::default() }
+        Self {
+            max_cells: 256,
+            policy: BudgetPolicy::default(),
+            mesher: MesherChoice::default(),
+            rtin_density: RTIN_DENSITY,
+        }
+    }
+}
+
+/// The parent's vertex density from which [`MesherChoice::Auto`] meshes a full-resolution
+/// tile as an RTIN (measured per level on the synthetic 4097^2 store: README, branch
+/// tiles16c).
+pub(crate) const RTIN_DENSITY: f64 = 0.25;
+
+/// The mesher of a tile at stride `2^s` whose window holds `window_samples` samples of which
+/// `seeds_inside` are its parent's vertices (its seeds). **The rule** (`Auto`): the greedy
+/// Delaunay mesher, except at full resolution (`s = 0`) where the parent, meshed from every
+/// sample at twice this tile's bound, kept at least `rtin_density` of this window's samples:
+/// there the bound is small against the terrain's relief, the child keeps even more samples
+/// (its bound is half the parent's), and the greedy insertion, which rescans each new
+/// vertex's neighbourhood, costs several times the RTIN's fixed `2 log2(side)` scans of every
+/// sample for a few tens of percent fewer triangles. A tile without such a parent (a root,
+/// or below a decimated tile) has no density to go by and is greedy.
+pub(crate) fn choose(
+    config: &ResolutionConfig,
+    s: u32,
+    seeds_inside: usize,
+    window_samples: usize,
+) -> Algorithm {
+    match config.mesher {
+        MesherChoice::Greedy => Algorithm::Delaunay,
+        MesherChoice::Rtin => Algorithm::Rtin,
+        MesherChoice::Auto => {
+            let dense = seeds_inside as f64 >= config.rtin_density * window_samples as f64;
+            if s == 0 && seeds_inside > 0 && dense { Algorithm::Rtin } else { Algorithm::Delaunay }
+        }
     }
 }
 
@@ -67,10 +123,20 @@ pub(crate) fn stride_log2(layout: &GridLayout, tile: TileId, config: &Resolution
     s
 }
 
+/// A tile built by [`build`].
+pub(crate) struct Built {
+    /// The mesh, its `bound` the tile's own.
+    pub mesh: TileMesh,
+    /// The DEM samples it took as vertices (its children's seeds).
+    pub vertices: Vec<[u32; 2]>,
+    /// The mesher ([`choose`]).
+    pub algorithm: Algorithm,
+}
+
 /// Builds `tile` from every `2^s`-th sample within `budget` metres of them (see the module
 /// docs), seeded with the DEM samples `seeds` (`[i, j]`; those off the stride's lattice or
-/// outside the window are skipped): the mesh, its `bound` set to `bound` (the tile's own), and
-/// the DEM samples it took as vertices (its children's seeds).
+/// outside the window are skipped), by the mesher [`choose`] picks.
+#[allow(clippy::too_many_arguments)]
 pub(crate) fn build(
     samples: &dyn Samples,
     layout: &GridLayout,
@@ -79,7 +145,8 @@ pub(crate) fn build(
     budget: f64,
     bound: f64,
     seeds: &[[u32; 2]],
-) -> anyhow::Result<(TileMesh, Vec<[u32; 2]>)> {
+    config: &ResolutionConfig,
+) -> anyhow::Result<Built> {
     let (a, b) = grid_rect(layout, tile);
     let (w, h) = (layout.width, layout.height);
     let t = 1usize << s;
@@ -120,14 +187,15 @@ pub(crate) fn build(
         .iter()
         .filter_map(|&[i, j]| Some([on_lattice(i, i0, ww)?, on_lattice(j, j0, wh)?]))
         .collect();
+    let algorithm = choose(config, s, local.len(), ww * wh);
     // Owned: a tile meshed from every sample is meshed in its window, not a copy of it.
-    let (mut mesh, used) = tin::build_tile_owned(sub, tile, budget, &local)?;
+    let (mut mesh, used) = tin::build_tile_owned(sub, tile, budget, &local, algorithm)?;
     mesh.bound = bound;
     let used =
         used.into_iter().map(|[i, j]| [(i0 + i as usize * t) as u32, (j0 + j as usize * t) as u32]);
     // The last row or column may stand past the DEM (read at its edge): not a DEM sample.
-    let used = used.filter(|&[i, j]| (i as usize) < w && (j as usize) < h).collect();
-    Ok((mesh, used))
+    let vertices = used.filter(|&[i, j]| (i as usize) < w && (j as usize) < h).collect();
+    Ok(Built { mesh, vertices, algorithm })
 }
 
 /// The decimation error at stride `2^s` over the regions under `tile` (0 for a tile without
@@ -142,5 +210,26 @@ pub(crate) fn decimation_error(
     match samples_inside(layout, tile) {
         Some(rect) => decimation.error_in(samples, rect, s),
         None => Ok(0.0),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The rule: RTIN at full resolution under a dense parent only, unless forced.
+    #[test]
+    fn auto_meshes_an_rtin_at_full_resolution_under_a_dense_parent_only() {
+        let auto = ResolutionConfig::default();
+        let n = 1000;
+        let dense = (auto.rtin_density * n as f64).ceil() as usize;
+        assert_eq!(choose(&auto, 0, dense, n), Algorithm::Rtin);
+        assert_eq!(choose(&auto, 0, dense - 1, n), Algorithm::Delaunay, "sparse parent");
+        assert_eq!(choose(&auto, 1, n, n), Algorithm::Delaunay, "decimated tile");
+        assert_eq!(choose(&auto, 0, 0, 0), Algorithm::Delaunay, "no parent");
+        let greedy = ResolutionConfig { mesher: MesherChoice::Greedy, ..auto };
+        assert_eq!(choose(&greedy, 0, n, n), Algorithm::Delaunay);
+        let rtin = ResolutionConfig { mesher: MesherChoice::Rtin, ..auto };
+        assert_eq!(choose(&rtin, 3, 0, n), Algorithm::Rtin);
     }
 }
