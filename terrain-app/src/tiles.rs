@@ -75,9 +75,9 @@ pub(crate) struct TilesArgs {
     /// KiB, MiB, GiB or TiB); the tiles' memory is bounded by it, not by the DEM.
     #[arg(long, default_value = "512MiB", value_parser = parse_memory)]
     pub cache: u64,
-    /// The mesher: `auto` (greedy Delaunay, or an RTIN at full resolution where the parent
-    /// tile kept most samples: the README's rule), `greedy` or `rtin` for every tile.
-    #[arg(long, value_enum, default_value_t = MesherChoice::Auto)]
+    /// The mesher of every tile: `greedy` (Delaunay insertion, the default: the fewest
+    /// triangles and, measured per level, never more CPU than the RTIN) or `rtin`.
+    #[arg(long, value_enum, default_value_t = MesherChoice::Greedy)]
     pub mesher: MesherChoice,
     /// No progress line.
     #[arg(long)]
@@ -129,10 +129,8 @@ struct Summary {
     /// their rebuilds after failing that check.
     min_budget_fraction: f64,
     decimated_tiles: usize,
-    /// The mesher chosen (`--mesher`) and, for `auto`, the parent vertex density from which a
-    /// full-resolution tile is an RTIN.
+    /// The mesher (`--mesher`).
     mesher: MesherChoice,
-    rtin_density: f64,
     retries: usize,
     /// Measuring the decimation error (once per region and stride): seconds, and the largest
     /// error found at any stride, metres.
@@ -301,38 +299,37 @@ pub(crate) fn run(args: &TilesArgs) -> anyhow::Result<()> {
             })
             .collect(),
     );
-    let write =
-        |mesh: &TileMesh, built: &walk::Done| -> anyhow::Result<()> {
-            let started = Instant::now();
-            let tile = mesh.tile;
-            let children =
-                if tile.level < max_level { range(tile.level + 1).below(tile) } else { None };
-            let mut bytes = quantized_mesh::encode(mesh, children)
-                .with_context(|| format!("encoding tile {}/{}/{}", tile.level, tile.x, tile.y))?;
-            if args.gzip {
-                bytes = quantized_mesh::gzip(&bytes);
-            }
-            let dir = args.output.join(tile.level.to_string()).join(tile.x.to_string());
-            std::fs::create_dir_all(&dir).with_context(|| format!("creating {}", dir.display()))?;
-            let path = dir.join(format!("{}.terrain", tile.y));
-            std::fs::write(&path, &bytes).with_context(|| format!("writing {}", path.display()))?;
-            {
-                let mut s = stats.lock().unwrap_or_else(|e| e.into_inner());
-                let s = &mut s[(tile.level - args.min_level) as usize];
-                s.tiles += 1;
-                s.triangles += mesh.triangles.len();
-                s.vertices += mesh.vertices.len();
-                s.bytes += bytes.len() as u64;
-                s.max_measured_error_m = s.max_measured_error_m.max(built.measured);
-                s.decimation_error_m = s.decimation_error_m.max(built.decimation);
-                s.mesh_s += built.mesh_s;
-                s.rtin_tiles += usize::from(built.rtin);
-                s.write_s += started.elapsed().as_secs_f64();
-            }
-            let n = done.fetch_add(1, Ordering::Relaxed) + 1;
-            bar.update(n as f64, total as f64);
-            Ok(())
-        };
+    let write = |mesh: &TileMesh, built: &walk::Done| -> anyhow::Result<()> {
+        let started = Instant::now();
+        let tile = mesh.tile;
+        let children =
+            if tile.level < max_level { range(tile.level + 1).below(tile) } else { None };
+        let mut bytes = quantized_mesh::encode(mesh, children)
+            .with_context(|| format!("encoding tile {}/{}/{}", tile.level, tile.x, tile.y))?;
+        if args.gzip {
+            bytes = quantized_mesh::gzip(&bytes);
+        }
+        let dir = args.output.join(tile.level.to_string()).join(tile.x.to_string());
+        std::fs::create_dir_all(&dir).with_context(|| format!("creating {}", dir.display()))?;
+        let path = dir.join(format!("{}.terrain", tile.y));
+        std::fs::write(&path, &bytes).with_context(|| format!("writing {}", path.display()))?;
+        {
+            let mut s = stats.lock().unwrap_or_else(|e| e.into_inner());
+            let s = &mut s[(tile.level - args.min_level) as usize];
+            s.tiles += 1;
+            s.triangles += mesh.triangles.len();
+            s.vertices += mesh.vertices.len();
+            s.bytes += bytes.len() as u64;
+            s.max_measured_error_m = s.max_measured_error_m.max(built.measured);
+            s.decimation_error_m = s.decimation_error_m.max(built.decimation);
+            s.mesh_s += built.mesh_s;
+            s.rtin_tiles += usize::from(built.rtin);
+            s.write_s += started.elapsed().as_secs_f64();
+        }
+        let n = done.fetch_add(1, Ordering::Relaxed) + 1;
+        bar.update(n as f64, total as f64);
+        Ok(())
+    };
     let bound_of = |tile: TileId| tin::level_error(tile.level, args.error_scale);
     let walk = walk::Walk {
         samples,
@@ -403,7 +400,6 @@ pub(crate) fn run(args: &TilesArgs) -> anyhow::Result<()> {
         min_budget_fraction: resolution.policy.min_budget_fraction,
         decimated_tiles: walked.decimated_tiles,
         mesher: resolution.mesher,
-        rtin_density: resolution.rtin_density,
         retries: walked.retries,
         decimation_s,
         decimation_error_m: decimation.max(),

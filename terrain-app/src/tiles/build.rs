@@ -22,18 +22,33 @@ use terrain_core::{Crs, Georef, Heightmap};
 use terrain_app::decimation::{BudgetPolicy, Decimation};
 use terrain_app::samples::Samples;
 
-/// Which mesher a tile gets (`terrain tiles --mesher`).
+/// Which mesher a tile gets (`terrain tiles --mesher`). **The rule: greedy Delaunay at
+/// every level.** Measured per level on the rough synthetic 4097^2 store (README, branch
+/// tiles16c), the RTIN never cost less CPU than the greedy mesher at any level, even at
+/// level 15 where the greedy mesh keeps about a third of the samples (RTIN: about the same
+/// meshing time, 35 % more triangles and bytes, so more writing), and at the coarse
+/// full-resolution levels (10-12: windows of 257^2 to 1025^2 samples in a power-of-two
+/// square) it cost several times the greedy mesher: its error pass scans every sample
+/// `2 log2(side)` times whatever the bound, and its vertices follow a fixed hierarchy.
+/// `rtin` stays for that measurement.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, clap::ValueEnum, serde::Serialize)]
 #[serde(rename_all = "lowercase")]
 pub(crate) enum MesherChoice {
-    /// The greedy Delaunay mesher, or the RTIN where [`ResolutionConfig::rtin_density`]
-    /// says it wins (see [`choose`]).
+    /// The greedy Delaunay mesher for every tile (the fewest triangles; the default).
     #[default]
-    Auto,
-    /// The greedy Delaunay mesher for every tile (the fewest triangles).
     Greedy,
-    /// The RTIN for every tile (for measurements: more triangles at the coarse levels).
+    /// The RTIN for every tile (for measurements).
     Rtin,
+}
+
+impl MesherChoice {
+    /// The core's builder.
+    pub(crate) fn algorithm(self) -> Algorithm {
+        match self {
+            MesherChoice::Greedy => Algorithm::Delaunay,
+            MesherChoice::Rtin => Algorithm::Rtin,
+        }
+    }
 }
 
 /// How tiles are sampled and meshed.
@@ -46,50 +61,11 @@ pub(crate) struct ResolutionConfig {
     pub policy: BudgetPolicy,
     /// The mesher.
     pub mesher: MesherChoice,
-    /// With [`MesherChoice::Auto`]: a tile meshed from every sample is an RTIN when its
-    /// parent's vertices (chosen from every sample at twice its bound) are at least this
-    /// fraction of the samples of its window (see [`choose`]).
-    pub rtin_density: f64,
 }
 
 impl Default for ResolutionConfig {
     fn default() -> Self {
-        Self {
-            max_cells: 256,
-            policy: BudgetPolicy::default(),
-            mesher: MesherChoice::default(),
-            rtin_density: RTIN_DENSITY,
-        }
-    }
-}
-
-/// The parent's vertex density from which [`MesherChoice::Auto`] meshes a full-resolution
-/// tile as an RTIN (measured per level on the synthetic 4097^2 store: README, branch
-/// tiles16c).
-pub(crate) const RTIN_DENSITY: f64 = 0.25;
-
-/// The mesher of a tile at stride `2^s` whose window holds `window_samples` samples of which
-/// `seeds_inside` are its parent's vertices (its seeds). **The rule** (`Auto`): the greedy
-/// Delaunay mesher, except at full resolution (`s = 0`) where the parent, meshed from every
-/// sample at twice this tile's bound, kept at least `rtin_density` of this window's samples:
-/// there the bound is small against the terrain's relief, the child keeps even more samples
-/// (its bound is half the parent's), and the greedy insertion, which rescans each new
-/// vertex's neighbourhood, costs several times the RTIN's fixed `2 log2(side)` scans of every
-/// sample for a few tens of percent fewer triangles. A tile without such a parent (a root,
-/// or below a decimated tile) has no density to go by and is greedy.
-pub(crate) fn choose(
-    config: &ResolutionConfig,
-    s: u32,
-    seeds_inside: usize,
-    window_samples: usize,
-) -> Algorithm {
-    match config.mesher {
-        MesherChoice::Greedy => Algorithm::Delaunay,
-        MesherChoice::Rtin => Algorithm::Rtin,
-        MesherChoice::Auto => {
-            let dense = seeds_inside as f64 >= config.rtin_density * window_samples as f64;
-            if s == 0 && seeds_inside > 0 && dense { Algorithm::Rtin } else { Algorithm::Delaunay }
-        }
+        Self { max_cells: 256, policy: BudgetPolicy::default(), mesher: MesherChoice::default() }
     }
 }
 
@@ -129,13 +105,13 @@ pub(crate) struct Built {
     pub mesh: TileMesh,
     /// The DEM samples it took as vertices (its children's seeds).
     pub vertices: Vec<[u32; 2]>,
-    /// The mesher ([`choose`]).
+    /// The mesher.
     pub algorithm: Algorithm,
 }
 
 /// Builds `tile` from every `2^s`-th sample within `budget` metres of them (see the module
 /// docs), seeded with the DEM samples `seeds` (`[i, j]`; those off the stride's lattice or
-/// outside the window are skipped), by the mesher [`choose`] picks.
+/// outside the window are skipped; an RTIN takes none), by `config.mesher`.
 #[allow(clippy::too_many_arguments)]
 pub(crate) fn build(
     samples: &dyn Samples,
@@ -187,7 +163,7 @@ pub(crate) fn build(
         .iter()
         .filter_map(|&[i, j]| Some([on_lattice(i, i0, ww)?, on_lattice(j, j0, wh)?]))
         .collect();
-    let algorithm = choose(config, s, local.len(), ww * wh);
+    let algorithm = config.mesher.algorithm();
     // Owned: a tile meshed from every sample is meshed in its window, not a copy of it.
     let (mut mesh, used) = tin::build_tile_owned(sub, tile, budget, &local, algorithm)?;
     mesh.bound = bound;
@@ -210,26 +186,5 @@ pub(crate) fn decimation_error(
     match samples_inside(layout, tile) {
         Some(rect) => decimation.error_in(samples, rect, s),
         None => Ok(0.0),
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    /// The rule: RTIN at full resolution under a dense parent only, unless forced.
-    #[test]
-    fn auto_meshes_an_rtin_at_full_resolution_under_a_dense_parent_only() {
-        let auto = ResolutionConfig::default();
-        let n = 1000;
-        let dense = (auto.rtin_density * n as f64).ceil() as usize;
-        assert_eq!(choose(&auto, 0, dense, n), Algorithm::Rtin);
-        assert_eq!(choose(&auto, 0, dense - 1, n), Algorithm::Delaunay, "sparse parent");
-        assert_eq!(choose(&auto, 1, n, n), Algorithm::Delaunay, "decimated tile");
-        assert_eq!(choose(&auto, 0, 0, 0), Algorithm::Delaunay, "no parent");
-        let greedy = ResolutionConfig { mesher: MesherChoice::Greedy, ..auto };
-        assert_eq!(choose(&greedy, 0, n, n), Algorithm::Delaunay);
-        let rtin = ResolutionConfig { mesher: MesherChoice::Rtin, ..auto };
-        assert_eq!(choose(&rtin, 3, 0, n), Algorithm::Rtin);
     }
 }

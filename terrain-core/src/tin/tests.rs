@@ -402,8 +402,10 @@ fn an_rtin_tile_is_within_its_bound_at_every_sample() {
         for j in 0..hm.height() {
             for i in 0..hm.width() {
                 let ll = grid.to_lonlat(dvec2(i as f64, j as f64));
-                let p =
-                    dvec2((ll.x - r.west) / (r.east - r.west), (ll.y - r.south) / (r.north - r.south));
+                let p = dvec2(
+                    (ll.x - r.west) / (r.east - r.west),
+                    (ll.y - r.south) / (r.north - r.south),
+                );
                 if !(0.0..=1.0).contains(&p.x) || !(0.0..=1.0).contains(&p.y) {
                     continue;
                 }
