@@ -38,7 +38,7 @@ use terrain_core::{Crs, Heightmap};
 use terrain_app::progress::Progress;
 
 use crate::source::{SourceArgs, parse_memory};
-use build::ResolutionConfig;
+use build::{MesherChoice, ResolutionConfig};
 use terrain_app::decimation::{DECIMATION_REGION, Decimation};
 use terrain_app::samples::{HeightmapSamples, Samples, StoreSamples};
 
@@ -75,6 +75,10 @@ pub(crate) struct TilesArgs {
     /// KiB, MiB, GiB or TiB); the tiles' memory is bounded by it, not by the DEM.
     #[arg(long, default_value = "512MiB", value_parser = parse_memory)]
     pub cache: u64,
+    /// The mesher of every tile: `greedy` (Delaunay insertion, the default: the fewest
+    /// triangles and, measured per level, never more CPU than the RTIN) or `rtin`.
+    #[arg(long, value_enum, default_value_t = MesherChoice::Greedy)]
+    pub mesher: MesherChoice,
     /// No progress line.
     #[arg(long)]
     pub quiet: bool,
@@ -99,6 +103,8 @@ struct LevelStats {
     mesh_s: f64,
     /// Seconds encoding and writing the level's tiles took, summed over the threads.
     write_s: f64,
+    /// Tiles meshed as an RTIN (the rest greedy Delaunay).
+    rtin_tiles: usize,
 }
 
 /// `tiles.json`.
@@ -123,6 +129,8 @@ struct Summary {
     /// their rebuilds after failing that check.
     min_budget_fraction: f64,
     decimated_tiles: usize,
+    /// The mesher (`--mesher`).
+    mesher: MesherChoice,
     retries: usize,
     /// Measuring the decimation error (once per region and stride): seconds, and the largest
     /// error found at any stride, metres.
@@ -259,7 +267,7 @@ pub(crate) fn run(args: &TilesArgs) -> anyhow::Result<()> {
             layout.tile_range(level)
         }
     };
-    let resolution = ResolutionConfig::default();
+    let resolution = ResolutionConfig { mesher: args.mesher, ..ResolutionConfig::default() };
     let total: usize = levels.clone().map(|l| range(l).len() as usize).sum();
     std::fs::create_dir_all(&args.output)
         .with_context(|| format!("creating {}", args.output.display()))?;
@@ -291,37 +299,37 @@ pub(crate) fn run(args: &TilesArgs) -> anyhow::Result<()> {
             })
             .collect(),
     );
-    let write =
-        |mesh: &TileMesh, measured: f64, decimation: f64, mesh_s: f64| -> anyhow::Result<()> {
-            let started = Instant::now();
-            let tile = mesh.tile;
-            let children =
-                if tile.level < max_level { range(tile.level + 1).below(tile) } else { None };
-            let mut bytes = quantized_mesh::encode(mesh, children)
-                .with_context(|| format!("encoding tile {}/{}/{}", tile.level, tile.x, tile.y))?;
-            if args.gzip {
-                bytes = quantized_mesh::gzip(&bytes);
-            }
-            let dir = args.output.join(tile.level.to_string()).join(tile.x.to_string());
-            std::fs::create_dir_all(&dir).with_context(|| format!("creating {}", dir.display()))?;
-            let path = dir.join(format!("{}.terrain", tile.y));
-            std::fs::write(&path, &bytes).with_context(|| format!("writing {}", path.display()))?;
-            {
-                let mut s = stats.lock().unwrap_or_else(|e| e.into_inner());
-                let s = &mut s[(tile.level - args.min_level) as usize];
-                s.tiles += 1;
-                s.triangles += mesh.triangles.len();
-                s.vertices += mesh.vertices.len();
-                s.bytes += bytes.len() as u64;
-                s.max_measured_error_m = s.max_measured_error_m.max(measured);
-                s.decimation_error_m = s.decimation_error_m.max(decimation);
-                s.mesh_s += mesh_s;
-                s.write_s += started.elapsed().as_secs_f64();
-            }
-            let n = done.fetch_add(1, Ordering::Relaxed) + 1;
-            bar.update(n as f64, total as f64);
-            Ok(())
-        };
+    let write = |mesh: &TileMesh, built: &walk::Done| -> anyhow::Result<()> {
+        let started = Instant::now();
+        let tile = mesh.tile;
+        let children =
+            if tile.level < max_level { range(tile.level + 1).below(tile) } else { None };
+        let mut bytes = quantized_mesh::encode(mesh, children)
+            .with_context(|| format!("encoding tile {}/{}/{}", tile.level, tile.x, tile.y))?;
+        if args.gzip {
+            bytes = quantized_mesh::gzip(&bytes);
+        }
+        let dir = args.output.join(tile.level.to_string()).join(tile.x.to_string());
+        std::fs::create_dir_all(&dir).with_context(|| format!("creating {}", dir.display()))?;
+        let path = dir.join(format!("{}.terrain", tile.y));
+        std::fs::write(&path, &bytes).with_context(|| format!("writing {}", path.display()))?;
+        {
+            let mut s = stats.lock().unwrap_or_else(|e| e.into_inner());
+            let s = &mut s[(tile.level - args.min_level) as usize];
+            s.tiles += 1;
+            s.triangles += mesh.triangles.len();
+            s.vertices += mesh.vertices.len();
+            s.bytes += bytes.len() as u64;
+            s.max_measured_error_m = s.max_measured_error_m.max(built.measured);
+            s.decimation_error_m = s.decimation_error_m.max(built.decimation);
+            s.mesh_s += built.mesh_s;
+            s.rtin_tiles += usize::from(built.rtin);
+            s.write_s += started.elapsed().as_secs_f64();
+        }
+        let n = done.fetch_add(1, Ordering::Relaxed) + 1;
+        bar.update(n as f64, total as f64);
+        Ok(())
+    };
     let bound_of = |tile: TileId| tin::level_error(tile.level, args.error_scale);
     let walk = walk::Walk {
         samples,
@@ -391,6 +399,7 @@ pub(crate) fn run(args: &TilesArgs) -> anyhow::Result<()> {
         levels,
         min_budget_fraction: resolution.policy.min_budget_fraction,
         decimated_tiles: walked.decimated_tiles,
+        mesher: resolution.mesher,
         retries: walked.retries,
         decimation_s,
         decimation_error_m: decimation.max(),
@@ -405,9 +414,17 @@ pub(crate) fn run(args: &TilesArgs) -> anyhow::Result<()> {
         .with_context(|| format!("writing {}", summary_path.display()))?;
     for l in &summary.levels {
         println!(
-            "level {:2}: {:5} tiles, {:8} triangles, bound {:9.3} m, measured max {:9.3} m, \
-             {:7.2} s meshing, {:6.2} s writing",
-            l.level, l.tiles, l.triangles, l.bound_m, l.max_measured_error_m, l.mesh_s, l.write_s
+            "level {:2}: {:5} tiles ({:5} RTIN), {:9} triangles, {:10} bytes, bound {:9.3} m, \
+             measured max {:9.3} m, {:7.2} s meshing, {:6.2} s writing",
+            l.level,
+            l.tiles,
+            l.rtin_tiles,
+            l.triangles,
+            l.bytes,
+            l.bound_m,
+            l.max_measured_error_m,
+            l.mesh_s,
+            l.write_s
         );
     }
     println!(

@@ -15,13 +15,43 @@
 
 use glam::{DVec2, dvec2};
 use terrain_core::heightmap::VoidMask;
+use terrain_core::mesh::Algorithm;
 use terrain_core::tin::{self, GridLayout, TileId, TileMesh};
 use terrain_core::{Crs, Georef, Heightmap};
 
 use terrain_app::decimation::{BudgetPolicy, Decimation};
 use terrain_app::samples::Samples;
 
-/// How tiles are sampled.
+/// Which mesher a tile gets (`terrain tiles --mesher`). **The rule: greedy Delaunay at
+/// every level.** Measured per level on the rough synthetic 4097^2 store (README, branch
+/// tiles16c), the RTIN never cost less CPU than the greedy mesher at any level, even at
+/// level 15 where the greedy mesh keeps about a third of the samples (RTIN: about the same
+/// meshing time, 35 % more triangles and bytes, so more writing), and at the coarse
+/// full-resolution levels (10-12: windows of 257^2 to 1025^2 samples in a power-of-two
+/// square) it cost several times the greedy mesher: its error pass scans every sample
+/// `2 log2(side)` times whatever the bound, and its vertices follow a fixed hierarchy.
+/// `rtin` stays for that measurement.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, clap::ValueEnum, serde::Serialize)]
+#[serde(rename_all = "lowercase")]
+pub(crate) enum MesherChoice {
+    /// The greedy Delaunay mesher for every tile (the fewest triangles; the default).
+    #[default]
+    Greedy,
+    /// The RTIN for every tile (for measurements).
+    Rtin,
+}
+
+impl MesherChoice {
+    /// The core's builder.
+    pub(crate) fn algorithm(self) -> Algorithm {
+        match self {
+            MesherChoice::Greedy => Algorithm::Delaunay,
+            MesherChoice::Rtin => Algorithm::Rtin,
+        }
+    }
+}
+
+/// How tiles are sampled and meshed.
 #[derive(Debug, Clone, Copy)]
 pub(crate) struct ResolutionConfig {
     /// Most cells across a tile's mesh input before it is decimated.
@@ -29,11 +59,13 @@ pub(crate) struct ResolutionConfig {
     /// The budget a decimated tile gets, its retries and strides (the one policy both
     /// pyramids use).
     pub policy: BudgetPolicy,
+    /// The mesher.
+    pub mesher: MesherChoice,
 }
 
 impl Default for ResolutionConfig {
     fn default() -> Self {
-        Self { max_cells: 256, policy: BudgetPolicy::default() }
+        Self { max_cells: 256, policy: BudgetPolicy::default(), mesher: MesherChoice::default() }
     }
 }
 
@@ -67,10 +99,20 @@ pub(crate) fn stride_log2(layout: &GridLayout, tile: TileId, config: &Resolution
     s
 }
 
+/// A tile built by [`build`].
+pub(crate) struct Built {
+    /// The mesh, its `bound` the tile's own.
+    pub mesh: TileMesh,
+    /// The DEM samples it took as vertices (its children's seeds).
+    pub vertices: Vec<[u32; 2]>,
+    /// The mesher.
+    pub algorithm: Algorithm,
+}
+
 /// Builds `tile` from every `2^s`-th sample within `budget` metres of them (see the module
 /// docs), seeded with the DEM samples `seeds` (`[i, j]`; those off the stride's lattice or
-/// outside the window are skipped): the mesh, its `bound` set to `bound` (the tile's own), and
-/// the DEM samples it took as vertices (its children's seeds).
+/// outside the window are skipped; an RTIN takes none), by `config.mesher`.
+#[allow(clippy::too_many_arguments)]
 pub(crate) fn build(
     samples: &dyn Samples,
     layout: &GridLayout,
@@ -79,7 +121,8 @@ pub(crate) fn build(
     budget: f64,
     bound: f64,
     seeds: &[[u32; 2]],
-) -> anyhow::Result<(TileMesh, Vec<[u32; 2]>)> {
+    config: &ResolutionConfig,
+) -> anyhow::Result<Built> {
     let (a, b) = grid_rect(layout, tile);
     let (w, h) = (layout.width, layout.height);
     let t = 1usize << s;
@@ -120,14 +163,15 @@ pub(crate) fn build(
         .iter()
         .filter_map(|&[i, j]| Some([on_lattice(i, i0, ww)?, on_lattice(j, j0, wh)?]))
         .collect();
+    let algorithm = config.mesher.algorithm();
     // Owned: a tile meshed from every sample is meshed in its window, not a copy of it.
-    let (mut mesh, used) = tin::build_tile_owned(sub, tile, budget, &local)?;
+    let (mut mesh, used) = tin::build_tile_owned(sub, tile, budget, &local, algorithm)?;
     mesh.bound = bound;
     let used =
         used.into_iter().map(|[i, j]| [(i0 + i as usize * t) as u32, (j0 + j as usize * t) as u32]);
     // The last row or column may stand past the DEM (read at its edge): not a DEM sample.
-    let used = used.filter(|&[i, j]| (i as usize) < w && (j as usize) < h).collect();
-    Ok((mesh, used))
+    let vertices = used.filter(|&[i, j]| (i as usize) < w && (j as usize) < h).collect();
+    Ok(Built { mesh, vertices, algorithm })
 }
 
 /// The decimation error at stride `2^s` over the regions under `tile` (0 for a tile without

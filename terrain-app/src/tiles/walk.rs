@@ -17,6 +17,7 @@ use std::sync::atomic::{AtomicUsize, Ordering};
 use std::time::Instant;
 
 use rayon::prelude::*;
+use terrain_core::mesh::Algorithm;
 use terrain_core::tin::{GridLayout, TileId, TileMesh, TileRange};
 
 use super::build::{self, ResolutionConfig};
@@ -37,9 +38,21 @@ pub(crate) struct Walk<'a> {
     pub tiles: &'a (dyn Fn(u32) -> TileRange + Sync),
     /// A tile's bound, metres.
     pub bound: &'a (dyn Fn(TileId) -> f64 + Sync),
-    /// Writes a checked tile with its measured error, decimation error and the seconds its
-    /// mesh took (built and checked, on its thread).
-    pub write: &'a (dyn Fn(&TileMesh, f64, f64, f64) -> anyhow::Result<()> + Sync),
+    /// Writes a checked tile ([`Done`]: how it was built).
+    pub write: &'a (dyn Fn(&TileMesh, &Done) -> anyhow::Result<()> + Sync),
+}
+
+/// How a checked tile was built, for its level's statistics.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct Done {
+    /// Its largest error against every DEM sample under it, metres.
+    pub measured: f64,
+    /// The decimation error it was meshed under, metres.
+    pub decimation: f64,
+    /// Seconds its mesh took (built and checked, on its thread).
+    pub mesh_s: f64,
+    /// Whether it is an RTIN (else greedy Delaunay).
+    pub rtin: bool,
 }
 
 /// What the walk did.
@@ -102,17 +115,34 @@ impl Walk<'_> {
             build::stride_log2(self.layout, tile, &self.resolution),
             &self.resolution.policy,
             error,
-            |s, budget| build::build(self.samples, self.layout, tile, s, budget, bound, seeds),
-            |(mesh, _): &(TileMesh, _)| mesh.measured.map_or(0.0, |m| m.max_error),
-            |(mesh, _)| check::check(self.samples, self.layout, mesh, self.range),
+            |s, budget| {
+                build::build(
+                    self.samples,
+                    self.layout,
+                    tile,
+                    s,
+                    budget,
+                    bound,
+                    seeds,
+                    &self.resolution,
+                )
+            },
+            |b: &build::Built| b.mesh.measured.map_or(0.0, |m| m.max_error),
+            |b| check::check(self.samples, self.layout, &b.mesh, self.range),
         )?;
         if built.decimated {
             c.decimated.fetch_add(1, Ordering::Relaxed);
         }
         c.retries.fetch_add(built.retries, Ordering::Relaxed);
-        let (mesh, mut vertices) = built.mesh;
+        let build::Built { mesh, mut vertices, algorithm } = built.mesh;
         let seconds = started.elapsed().as_secs_f64();
-        (self.write)(&mesh, built.measured, built.decimation, seconds)?;
+        let done = Done {
+            measured: built.measured,
+            decimation: built.decimation,
+            mesh_s: seconds,
+            rtin: algorithm == Algorithm::Rtin,
+        };
+        (self.write)(&mesh, &done)?;
         if built.stride_log2 > 0 {
             // Chosen against strided samples within a budget under the bound: too many, and
             // not where the full-resolution child needs them (seeding with them cost level 10

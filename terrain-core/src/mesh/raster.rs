@@ -53,7 +53,9 @@ impl FloorStep {
 /// `v` (grid coordinates) with heights `z`, where `z` is the barycentric interpolation of the
 /// vertex heights at `(i, j)`. Samples are visited row by row (south to north, west to east).
 ///
-/// Degenerate or clockwise triangles visit nothing.
+/// Degenerate or clockwise triangles visit nothing. (The tests' reference: the callers walk
+/// [`for_each_row`] over their own rows.)
+#[cfg(test)]
 pub(crate) fn for_each_sample(v: [[i64; 2]; 3], z: [f64; 3], f: impl FnMut(i64, i64, f64)) {
     for_each_sample_in(v, z, [i64::MIN, i64::MIN, i64::MAX, i64::MAX], f);
 }
