@@ -58,7 +58,7 @@ fn height_at(mesh: &TileMesh, p: DVec2) -> (f64, usize) {
 /// with the sample and the mesh's error there (metres). Returns how many samples `f` saw.
 fn for_each_sample_error(
     hm: &Heightmap,
-    grid: &GeoGrid,
+    grid: &GeoGrid<'_>,
     tile: TileId,
     mesh: &TileMesh,
     mut f: impl FnMut([usize; 2], f64),
