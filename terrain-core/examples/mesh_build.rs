@@ -9,6 +9,7 @@
 //! cargo run --release -p terrain-core --example mesh_build -- DEM VERTICAL_SCALE SPACING_M RUNS BOUNDS...
 //! ```
 
+use terrain_core::checksum::{FNV1A_START, fnv1a_update};
 use terrain_core::dem::{LoadOptions, load};
 use terrain_core::mesh::{TriMesh, delaunay};
 
@@ -22,12 +23,8 @@ fn thread_cpu_ms() -> f64 {
 
 /// FNV-1a over the vertices' positions and normals and the triangles' indices.
 fn fingerprint(m: &TriMesh) -> u64 {
-    let mut h = 0xcbf2_9ce4_8422_2325u64;
-    let mut eat = |bytes: &[u8]| {
-        for &b in bytes {
-            h = (h ^ u64::from(b)).wrapping_mul(0x0100_0000_01b3);
-        }
-    };
+    let mut h = FNV1A_START;
+    let mut eat = |bytes: &[u8]| h = fnv1a_update(h, bytes);
     for p in &m.positions {
         [p.x, p.y, p.z].iter().for_each(|c| eat(&c.to_le_bytes()));
     }

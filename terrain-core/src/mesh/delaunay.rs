@@ -742,12 +742,8 @@ mod tests {
 
     /// FNV-1a over the vertices' positions and the triangles' indices.
     fn fingerprint(m: &TriMesh) -> u64 {
-        let mut h = 0xcbf2_9ce4_8422_2325u64;
-        let mut eat = |bytes: &[u8]| {
-            for &b in bytes {
-                h = (h ^ u64::from(b)).wrapping_mul(0x0100_0000_01b3);
-            }
-        };
+        let mut h = crate::checksum::FNV1A_START;
+        let mut eat = |bytes: &[u8]| h = crate::checksum::fnv1a_update(h, bytes);
         for p in &m.positions {
             eat(&p.x.to_le_bytes());
             eat(&p.y.to_le_bytes());

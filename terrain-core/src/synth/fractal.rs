@@ -731,11 +731,9 @@ mod tests {
     #[test]
     fn pinned_block_checksums() {
         let fnv = |v: &[f32]| {
-            v.iter()
-                .flat_map(|z| z.to_bits().to_le_bytes())
-                .fold(0xcbf2_9ce4_8422_2325u64, |h, b| {
-                    (h ^ b as u64).wrapping_mul(0x0100_0000_01b3)
-                })
+            v.iter().fold(crate::checksum::FNV1A_START, |h, z| {
+                crate::checksum::fnv1a_update(h, &z.to_bits().to_le_bytes())
+            })
         };
         let rough = FractalConfig {
             seed: 7,
