@@ -14,7 +14,7 @@ use std::fs;
 use std::io::{BufWriter, Seek, SeekFrom, Write};
 use std::path::PathBuf;
 
-use terrain_core::checksum::{crc32, crc32_combine, crc32_update};
+use terrain_core::checksum::{FNV1A_START, crc32, crc32_combine, crc32_update, fnv1a_update};
 
 use crate::error::BakeError;
 use crate::format::{BlockEntry, Writer, write_entry};
@@ -56,7 +56,7 @@ impl EntryFile {
             len: 0,
             count: 0,
             block_bytes: 0,
-            bake_id: 0xcbf2_9ce4_8422_2325,
+            bake_id: FNV1A_START,
             buf: Writer::default(),
         })
     }
@@ -74,9 +74,7 @@ impl EntryFile {
         self.count += 1;
         self.block_bytes += entry.file_len;
         for l in &entry.levels {
-            for b in l.crc32.to_le_bytes() {
-                self.bake_id = (self.bake_id ^ b as u64).wrapping_mul(0x0100_0000_01b3);
-            }
+            self.bake_id = fnv1a_update(self.bake_id, &l.crc32.to_le_bytes());
         }
         Ok(())
     }

@@ -21,6 +21,7 @@
 //! URL) clears the store's mirror.
 
 use std::collections::HashMap;
+use std::io::Read;
 use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, SystemTime};
@@ -200,10 +201,8 @@ fn runtime(url: &str) -> Result<tokio::runtime::Runtime, StoreError> {
 
 /// A short stable name of a URL for its mirror folder (FNV-1a, 64 bits, and the URL's tail).
 fn mirror_name(url: &str) -> String {
-    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
-    for b in url.bytes() {
-        h = (h ^ u64::from(b)).wrapping_mul(0x0100_0000_01b3);
-    }
+    let h =
+        terrain_core::checksum::fnv1a_update(terrain_core::checksum::FNV1A_START, url.as_bytes());
     let tail: String = url
         .rsplit('/')
         .find(|s| !s.is_empty())
@@ -622,21 +621,6 @@ pub fn check_remote_output(
     Ok(())
 }
 
-/// Fills `buf` from `file` as far as the file goes: the bytes read (fewer only at its end).
-fn read_full(file: &mut std::fs::File, buf: &mut [u8]) -> std::io::Result<usize> {
-    use std::io::Read;
-    let mut n = 0;
-    while n < buf.len() {
-        match file.read(&mut buf[n..]) {
-            Ok(0) => break,
-            Ok(k) => n += k,
-            Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
-            Err(e) => return Err(e),
-        }
-    }
-    Ok(n)
-}
-
 /// What [`upload_store`] sent.
 #[derive(Debug, Clone, Default, PartialEq, Eq)]
 pub struct UploadReport {
@@ -719,15 +703,19 @@ pub fn upload_store(
                                     WriteMultipart::new_with_chunk_size(upload, MULTIPART_ABOVE);
                                 let mut file = std::fs::File::open(&path)
                                     .map_err(|e| format!("reading {}: {e}", path.display()))?;
-                                let mut part = vec![0u8; MULTIPART_ABOVE];
+                                let mut part = Vec::with_capacity(MULTIPART_ABOVE);
                                 loop {
-                                    let n = read_full(&mut file, &mut part)
+                                    // The next part: `MULTIPART_ABOVE` bytes, fewer at the end.
+                                    part.clear();
+                                    (&mut file)
+                                        .take(MULTIPART_ABOVE as u64)
+                                        .read_to_end(&mut part)
                                         .map_err(|e| format!("reading {}: {e}", path.display()))?;
-                                    if n == 0 {
+                                    if part.is_empty() {
                                         break;
                                     }
                                     w.wait_for_capacity(2).await.map_err(e)?;
-                                    w.write(&part[..n]);
+                                    w.write(&part);
                                 }
                                 w.finish().await.map_err(e)?;
                             }

@@ -13,6 +13,7 @@
 use std::path::PathBuf;
 use std::time::Instant;
 
+use terrain_core::checksum::{FNV1A_START, fnv1a_update};
 use terrain_core::dem::{LoadOptions, load};
 use terrain_core::synth::FractalConfig;
 use terrain_visibility::pvs::file::encode;
@@ -157,12 +158,9 @@ fn main() {
             bits == chained
         );
         // FNV-1a of the sample's bits: a bake change shows as a different hash.
-        let fnv = |h: u64, b: &u8| (h ^ u64::from(*b)).wrapping_mul(0x0100_0000_01b3);
-        let (hs, hk) = bits
-            .iter()
-            .fold((0xcbf2_9ce4_8422_2325u64, 0xcbf2_9ce4_8422_2325u64), |(a, c), (bs, bk)| {
-                (bs.iter().fold(a, fnv), bk.iter().fold(c, fnv))
-            });
+        let (hs, hk) = bits.iter().fold((FNV1A_START, FNV1A_START), |(a, c), (bs, bk)| {
+            (fnv1a_update(a, bs), fnv1a_update(c, bk))
+        });
         println!("bits hash: sampled {hs:016x}, conservative {hk:016x}");
         let ones = |v: &Vec<u8>| v.iter().map(|b| b.count_ones()).sum::<u32>();
         println!(

@@ -18,8 +18,7 @@ use terrain_visibility::pvs::mip::HeightMip;
 use terrain_visibility::pvs::{FloorRule, PvsConfig, bake_both, los};
 
 fn fnv(bits: &[u8]) -> u64 {
-    bits.iter()
-        .fold(0xcbf2_9ce4_8422_2325u64, |h, &b| (h ^ u64::from(b)).wrapping_mul(0x0100_0000_01b3))
+    terrain_core::checksum::fnv1a_update(terrain_core::checksum::FNV1A_START, bits)
 }
 
 /// A 257 x 257 crop of the Puget Sound 1k DEM (mountains and valleys).
