@@ -350,19 +350,6 @@ impl<'a> Mesher<'a> {
         let clip =
             if lock { [1, 1, w - 2, h - 2] } else { [i64::MIN, i64::MIN, i64::MAX, i64::MAX] };
         let (data, width) = (hm.data(), hm.width());
-        // Touch the ends of each row's span of the bounding box first: these loads depend on
-        // nothing, so their cache misses overlap, where the scan's own first load of a row
-        // waits behind the (often mispredicted) end of the row before it. Reads only.
-        let [bx0, by0] = [0, 1].map(|a| g[0][a].min(g[1][a]).min(g[2][a]).max(clip[a]));
-        let [bx1, by1] = [0, 1].map(|a| g[0][a].max(g[1][a]).max(g[2][a]).min(clip[a + 2]));
-        if bx0 <= bx1 {
-            let mut touched = 0.0f32;
-            for j in by0..=by1 {
-                let row = j as usize * width;
-                touched += data[row + bx0 as usize] + data[row + bx1 as usize];
-            }
-            std::hint::black_box(touched);
-        }
         // One sample's full test, in row order: the dismissal, then the void and the exact
         // error (`n` its numerator, `zd` its height times d).
         let exact = |best: &mut Best, i: i64, j: i64, zs: f64, n: f64, zd: f64| {
