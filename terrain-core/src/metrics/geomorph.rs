@@ -247,6 +247,42 @@ const ROW_SCAN_MAX_CELLS: usize = 64;
 /// Levels of a row-scanned patch at most (64 cells: levels 0 to 6).
 const ROW_SCAN_MAX_LEVELS: usize = ROW_SCAN_MAX_CELLS.trailing_zeros() as usize + 1;
 
+/// Where level `L`'s entries start in [`ROW_SCAN_U`]: `L - 1 + 2^L - 2` (levels `1..L` take
+/// `2^l + 1` entries each).
+const ROW_SCAN_U_FIRST: [usize; ROW_SCAN_MAX_LEVELS] = {
+    let mut first = [0; ROW_SCAN_MAX_LEVELS];
+    let mut level = 2;
+    while level < ROW_SCAN_MAX_LEVELS {
+        first[level] = first[level - 1] + (1 << (level - 1)) + 1;
+        level += 1;
+    }
+    first
+};
+
+/// Entries of [`ROW_SCAN_U`]: levels `1..ROW_SCAN_MAX_LEVELS`, `2^L + 1` each.
+const ROW_SCAN_U_LEN: usize =
+    ROW_SCAN_U_FIRST[ROW_SCAN_MAX_LEVELS - 1] + ROW_SCAN_MAX_CELLS + 1;
+
+/// Per level `L` of the row scan, from [`ROW_SCAN_U_FIRST`]`[L]` on: `u = t / 2^L` and `1 - u`
+/// for `t` in `0..=2^L`, as [`frac`] and [`tri_interp`] compute them at run time (IEEE
+/// division and subtraction, correctly rounded in constant evaluation as at run time; `t / 2^L`
+/// is exact anyway). Test `the_row_scan_tables_are_frac`.
+static ROW_SCAN_U: ([f64; ROW_SCAN_U_LEN], [f64; ROW_SCAN_U_LEN]) = {
+    let (mut u, mut w) = ([0.0; ROW_SCAN_U_LEN], [0.0; ROW_SCAN_U_LEN]);
+    let mut level = 1;
+    while level < ROW_SCAN_MAX_LEVELS {
+        let s = 1usize << level;
+        let mut t = 0;
+        while t <= s {
+            u[ROW_SCAN_U_FIRST[level] + t] = t as f64 / s as f64;
+            w[ROW_SCAN_U_FIRST[level] + t] = 1.0 - u[ROW_SCAN_U_FIRST[level] + t];
+            t += 1;
+        }
+        level += 1;
+    }
+    (u, w)
+};
+
 /// One level's result of a scan: `(error, i, j, coarse height)` of the first vertex with the
 /// largest error (`None` when no vertex is measured), and how many vertices were measured.
 type LevelScan = (Option<(f64, usize, usize, f64)>, usize);
@@ -280,36 +316,26 @@ fn scan_whole_patch(
 ) -> [LevelScan; ROW_SCAN_MAX_LEVELS] {
     let levels = c.trailing_zeros() as usize + 1;
     let side = c + 1;
-    // The patch's heights in f64, row-major (a 16-cell patch on the stack).
-    let mut small = [0f64; 17 * 17];
-    let mut large = Vec::new();
-    let z: &mut [f64] = if side * side <= small.len() {
-        &mut small[..side * side]
-    } else {
-        large.resize(side * side, 0.0);
-        &mut large
+    // The patch's heights in f64, converted once for all levels: a 16-cell patch (the
+    // bake's) on the stack, written once (no zeroing first), any other on the heap.
+    let row = |dj: usize| &data[(y0 + dj) * w + x0..][..side];
+    let small: Option<[[f64; 17]; 17]> = (side == 17).then(|| {
+        std::array::from_fn(|dj| {
+            let row: &[f32; 17] = row(dj).try_into().unwrap_or(&[0.0; 17]);
+            row.map(f64::from)
+        })
+    });
+    let large: Vec<f64> = match small {
+        Some(_) => Vec::new(),
+        None => (0..side).flat_map(|dj| row(dj).iter().map(|&h| f64::from(h))).collect(),
     };
-    for (dj, zr) in z.chunks_exact_mut(side).enumerate() {
-        for (o, &h) in zr.iter_mut().zip(&data[(y0 + dj) * w + x0..][..side]) {
-            *o = f64::from(h);
+    let z_row = |dj: usize| -> &[f64] {
+        match &small {
+            Some(rows) => &rows[dj][..side],
+            None => &large[dj * side..][..side],
         }
-    }
-    let z = &*z;
-    // Level `L`'s `u = t / s` and `1 - u` at `first[L] + t`, as [`frac`] and [`tri_interp`]
-    // compute them.
-    let mut ut = [0f64; 2 * ROW_SCAN_MAX_CELLS + ROW_SCAN_MAX_LEVELS];
-    let mut wt = [0f64; 2 * ROW_SCAN_MAX_CELLS + ROW_SCAN_MAX_LEVELS];
-    let mut first = [0usize; ROW_SCAN_MAX_LEVELS];
-    let mut at = 0;
-    for level in 1..levels {
-        let s = 1usize << level;
-        first[level] = at;
-        for t in 0..=s {
-            ut[at + t] = frac(t, 0, s);
-            wt[at + t] = 1.0 - ut[at + t];
-        }
-        at += s + 1;
-    }
+    };
+    let (ut, wt) = (&ROW_SCAN_U.0, &ROW_SCAN_U.1);
     let mut err = [0f64; ROW_SCAN_MAX_CELLS + 1];
     let err = &mut err[..side];
     let mut void_row = [false; ROW_SCAN_MAX_CELLS + 1];
@@ -320,7 +346,7 @@ fn scan_whole_patch(
     let mut count = [0usize; ROW_SCAN_MAX_LEVELS];
     for dj in 0..side {
         let j = y0 + dj;
-        let zj = &z[dj * side..][..side];
+        let zj = z_row(dj);
         if let Some(m) = voids {
             for (di, v) in void_row.iter_mut().enumerate() {
                 *v = m.get(x0 + di, j);
@@ -329,12 +355,12 @@ fn scan_whole_patch(
         for level in 1..levels {
             let s = 1usize << level;
             let quads = c >> level;
-            let (ut, wt) = (&ut[first[level]..][..=s], &wt[first[level]..][..=s]);
+            let first = ROW_SCAN_U_FIRST[level];
+            let (ut, wt) = (&ut[first..][..=s], &wt[first..][..=s]);
             let b = (dj >> level).min(quads - 1);
             let r = dj - b * s;
             let (v, one_v) = (ut[r], wt[r]);
-            let r0 = &z[b * s * side..][..side];
-            let r1 = &z[(b * s + s) * side..][..side];
+            let (r0, r1) = (z_row(b * s), z_row(b * s + s));
             for a in 0..quads {
                 let ci = a * s;
                 // Columns of this quad: the last quad also holds the patch's east edge.
@@ -476,6 +502,22 @@ mod tests {
             x ^= x >> 27;
             x.wrapping_mul(0x2545_F491_4F6C_DD1D)
         }
+    }
+
+    #[test]
+    fn the_row_scan_tables_are_frac() {
+        let mut entries = 0;
+        for level in 1..ROW_SCAN_MAX_LEVELS {
+            let s = 1usize << level;
+            for t in 0..=s {
+                let k = ROW_SCAN_U_FIRST[level] + t;
+                let u = frac(t, 0, s);
+                assert_eq!(ROW_SCAN_U.0[k].to_bits(), u.to_bits(), "L{level} t{t}");
+                assert_eq!(ROW_SCAN_U.1[k].to_bits(), (1.0 - u).to_bits(), "L{level} t{t}");
+                entries += 1;
+            }
+        }
+        assert_eq!(entries, ROW_SCAN_U_LEN);
     }
 
     #[test]
