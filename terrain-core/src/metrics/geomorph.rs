@@ -260,8 +260,7 @@ const ROW_SCAN_U_FIRST: [usize; ROW_SCAN_MAX_LEVELS] = {
 };
 
 /// Entries of [`ROW_SCAN_U`]: levels `1..ROW_SCAN_MAX_LEVELS`, `2^L + 1` each.
-const ROW_SCAN_U_LEN: usize =
-    ROW_SCAN_U_FIRST[ROW_SCAN_MAX_LEVELS - 1] + ROW_SCAN_MAX_CELLS + 1;
+const ROW_SCAN_U_LEN: usize = ROW_SCAN_U_FIRST[ROW_SCAN_MAX_LEVELS - 1] + ROW_SCAN_MAX_CELLS + 1;
 
 /// Per level `L` of the row scan, from [`ROW_SCAN_U_FIRST`]`[L]` on: `u = t / 2^L` and `1 - u`
 /// for `t` in `0..=2^L`, as [`frac`] and [`tri_interp`] compute them at run time (IEEE
