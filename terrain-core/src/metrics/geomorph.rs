@@ -506,10 +506,10 @@ mod tests {
     #[test]
     fn the_row_scan_tables_are_frac() {
         let mut entries = 0;
-        for level in 1..ROW_SCAN_MAX_LEVELS {
+        for (level, &first) in ROW_SCAN_U_FIRST.iter().enumerate().skip(1) {
             let s = 1usize << level;
             for t in 0..=s {
-                let k = ROW_SCAN_U_FIRST[level] + t;
+                let k = first + t;
                 let u = frac(t, 0, s);
                 assert_eq!(ROW_SCAN_U.0[k].to_bits(), u.to_bits(), "L{level} t{t}");
                 assert_eq!(ROW_SCAN_U.1[k].to_bits(), (1.0 - u).to_bits(), "L{level} t{t}");
@@ -556,8 +556,8 @@ mod tests {
                     let clip = patch.clip(&hm).unwrap();
                     assert_eq!((clip.x1, clip.y1), (x0 + c, y0 + c), "a whole patch");
                     let rows = scan_whole_patch(data, w, voids, (x0, y0, c), tri);
-                    for level in 1..=c.trailing_zeros() as usize {
-                        let fast = rows[level];
+                    let levels = c.trailing_zeros() as usize + 1;
+                    for (level, &fast) in rows.iter().enumerate().take(levels).skip(1) {
                         let general = scan_level(
                             data,
                             w,
