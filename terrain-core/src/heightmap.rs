@@ -357,13 +357,20 @@ fn finite_range(
     Ok((min, max))
 }
 
-/// [`finite_range`] of a grid without voids by eight interleaved running minima and maxima
-/// (the comparisons do not wait on each other), or `None` where it might differ: when some
-/// height is not finite (the error names the first, which the plain scan finds) or when the
-/// minimum or maximum is zero (-0 and +0 compare equal, so which one a scan keeps depends on
-/// the order). Anywhere else the extremes of a set of finite values are the same values
-/// whatever the order.
+/// [`finite_range`] of a grid without voids by [`range_by_lanes`], or `None` where it might
+/// differ: when some height is not finite (the error names the first, which the plain scan
+/// finds) or at a zero extreme.
 fn finite_range_by_lanes(data: &[f32]) -> Option<(f32, f32)> {
+    range_by_lanes(data).and_then(|(min, max, finite)| finite.then_some((min, max)))
+}
+
+/// The smallest and largest non-NaN value of `data` (infinite ones included; `(inf, -inf)`
+/// when there is none) and whether every value is finite, by eight interleaved running
+/// minima and maxima (the comparisons do not wait on each other), or `None` when the minimum
+/// or maximum is zero: -0 and +0 compare equal, so which one a scan left to right keeps
+/// (`f32::min`, `f32::max`) depends on the order. Anywhere else the extremes of a set are the
+/// same values whatever the order, so this is the plain scan's answer.
+pub(crate) fn range_by_lanes(data: &[f32]) -> Option<(f32, f32, bool)> {
     const L: usize = 8;
     let (mut lo, mut hi) = ([f32::INFINITY; L], [f32::NEG_INFINITY; L]);
     let mut finite = true;
@@ -383,7 +390,7 @@ fn finite_range_by_lanes(data: &[f32]) -> Option<(f32, f32)> {
     }
     let min = lo.iter().fold(f32::INFINITY, |m, &z| if z < m { z } else { m });
     let max = hi.iter().fold(f32::NEG_INFINITY, |m, &z| if z > m { z } else { m });
-    (finite && min != 0.0 && max != 0.0).then_some((min, max))
+    (min != 0.0 && max != 0.0).then_some((min, max, finite))
 }
 
 #[cfg(test)]
@@ -429,6 +436,27 @@ mod tests {
             }
         }
         assert!(answered > 200, "{answered} grids answered by lanes");
+        // The NaN-skipping range (the row reader's), on the same kinds of data.
+        let mut with_nan = 0;
+        for case in 0..400 {
+            let data: Vec<f32> = (0..case % 40)
+                .map(|_| match next() % 8 {
+                    0 if case % 3 == 0 => f32::NAN,
+                    1 if case % 5 == 0 => f32::NEG_INFINITY,
+                    _ => f32::from_bits(next() as u32 & 0xBF7F_FFFF) * 1e3,
+                })
+                .collect();
+            let (mut lo, mut hi) = (f32::INFINITY, f32::NEG_INFINITY);
+            for &z in data.iter().filter(|z| !z.is_nan()) {
+                lo = lo.min(z);
+                hi = hi.max(z);
+            }
+            let finite = data.iter().all(|z| z.is_finite());
+            with_nan += usize::from(data.iter().any(|z| z.is_nan()));
+            let (l, h, f) = range_by_lanes(&data).expect("no zero extremes here");
+            assert_eq!((l.to_bits(), h.to_bits(), f), (lo.to_bits(), hi.to_bits(), finite));
+        }
+        assert!(with_nan > 50, "{with_nan} rows with NaN");
         // Negative control: a non-finite height is found, and named, through `new`.
         let mut data = vec![1.0f32; 6 * 3];
         data[2 * 6 + 4] = f32::NAN;
