@@ -183,23 +183,13 @@ impl Heightmap {
         if voids.count() == width * height {
             return Err(HeightmapError::AllVoid);
         }
-        let mut min = f32::INFINITY;
-        let mut max = f32::NEG_INFINITY;
-        // By rows, the void flags looked up only when there are voids (a block of the bake
-        // is built as a heightmap: this loop ran a division per sample).
-        let any_void = voids.any();
-        for (j, row) in data.chunks_exact(width).enumerate() {
-            for (i, &z) in row.iter().enumerate() {
-                if any_void && voids.get(i, j) {
-                    continue;
-                }
-                if !z.is_finite() {
-                    return Err(HeightmapError::NonFinite { i, j });
-                }
-                min = min.min(z);
-                max = max.max(z);
-            }
-        }
+        // Without voids (most grids, and every block of a bake) by lanes; the same values as
+        // the sample-by-sample scan, which decides anywhere else.
+        let lanes = if voids.any() { None } else { finite_range_by_lanes(&data) };
+        let (min, max) = match lanes {
+            Some(range) => range,
+            None => finite_range(&data, width, &voids)?,
+        };
         Ok(Self { width, height, data, voids, georef, min, max })
     }
 
@@ -338,4 +328,139 @@ pub fn bilinear_clamped(
     let a = get(i0, j0) + (get(i1, j0) - get(i0, j0)) * fu;
     let b = get(i0, j1) + (get(i1, j1) - get(i0, j1)) * fu;
     a + (b - a) * fv
+}
+
+/// The smallest and largest non-void height of `data` (rows of `width`), sample by sample;
+/// the first non-finite one (south row first, west first) is an error.
+fn finite_range(
+    data: &[f32],
+    width: usize,
+    voids: &VoidMask,
+) -> Result<(f32, f32), HeightmapError> {
+    let mut min = f32::INFINITY;
+    let mut max = f32::NEG_INFINITY;
+    // By rows, the void flags looked up only when there are voids (a block of the bake
+    // is built as a heightmap: this loop ran a division per sample).
+    let any_void = voids.any();
+    for (j, row) in data.chunks_exact(width).enumerate() {
+        for (i, &z) in row.iter().enumerate() {
+            if any_void && voids.get(i, j) {
+                continue;
+            }
+            if !z.is_finite() {
+                return Err(HeightmapError::NonFinite { i, j });
+            }
+            min = min.min(z);
+            max = max.max(z);
+        }
+    }
+    Ok((min, max))
+}
+
+/// [`finite_range`] of a grid without voids by [`range_by_lanes`], or `None` where it might
+/// differ: when some height is not finite (the error names the first, which the plain scan
+/// finds) or at a zero extreme.
+fn finite_range_by_lanes(data: &[f32]) -> Option<(f32, f32)> {
+    range_by_lanes(data).and_then(|(min, max, finite)| finite.then_some((min, max)))
+}
+
+/// The smallest and largest non-NaN value of `data` (infinite ones included; `(inf, -inf)`
+/// when there is none) and whether every value is finite, by eight interleaved running
+/// minima and maxima (the comparisons do not wait on each other), or `None` when the minimum
+/// or maximum is zero: -0 and +0 compare equal, so which one a scan left to right keeps
+/// (`f32::min`, `f32::max`) depends on the order. Anywhere else the extremes of a set are the
+/// same values whatever the order, so this is the plain scan's answer.
+pub(crate) fn range_by_lanes(data: &[f32]) -> Option<(f32, f32, bool)> {
+    const L: usize = 8;
+    let (mut lo, mut hi) = ([f32::INFINITY; L], [f32::NEG_INFINITY; L]);
+    let mut finite = true;
+    let mut chunks = data.chunks_exact(L);
+    for ch in &mut chunks {
+        for l in 0..L {
+            let z = ch[l];
+            finite &= z.is_finite();
+            lo[l] = if z < lo[l] { z } else { lo[l] };
+            hi[l] = if z > hi[l] { z } else { hi[l] };
+        }
+    }
+    for &z in chunks.remainder() {
+        finite &= z.is_finite();
+        lo[0] = if z < lo[0] { z } else { lo[0] };
+        hi[0] = if z > hi[0] { z } else { hi[0] };
+    }
+    let min = lo.iter().fold(f32::INFINITY, |m, &z| if z < m { z } else { m });
+    let max = hi.iter().fold(f32::NEG_INFINITY, |m, &z| if z > m { z } else { m });
+    (min != 0.0 && max != 0.0).then_some((min, max, finite))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_range_by_lanes_is_the_plain_scan() {
+        // Random finite heights of every length 0..40 (remainders of the lanes included) and
+        // a few grids with ties, zeros of both signs, infinities and NaN: the lanes give the
+        // plain scan's bits wherever they answer, and they answer for the ordinary grids.
+        let mut x = 0x2545_F491_4F6C_DD1Du64;
+        let mut next = move || {
+            x ^= x >> 12;
+            x ^= x << 25;
+            x ^= x >> 27;
+            x.wrapping_mul(0x2545_F491_4F6C_DD1D)
+        };
+        let mut answered = 0;
+        for case in 0..400 {
+            let n = case % 40;
+            let data: Vec<f32> = (0..n)
+                .map(|k| match (case / 40, next() % 16) {
+                    (1, 0) => -0.0,
+                    (1, 1) => 0.0,
+                    (2, 0) if k > 3 => f32::NAN,
+                    (3, 0) if k > 5 => f32::INFINITY,
+                    (4, _) => (next() % 3) as f32 - 1.0,
+                    _ => f32::from_bits(next() as u32 & 0xBF7F_FFFF) * 1e3,
+                })
+                .collect();
+            let plain = finite_range(&data, n.max(1), &VoidMask::new(n.max(1), 1));
+            match finite_range_by_lanes(&data) {
+                Some((lo, hi)) => {
+                    answered += 1;
+                    let (plo, phi) = plain.expect("the lanes answer only for finite grids");
+                    assert_eq!((lo.to_bits(), hi.to_bits()), (plo.to_bits(), phi.to_bits()));
+                }
+                None => {
+                    let zero = plain.as_ref().is_ok_and(|&(lo, hi)| lo == 0.0 || hi == 0.0);
+                    assert!(plain.is_err() || zero, "case {case}: the lanes gave up on {data:?}");
+                }
+            }
+        }
+        assert!(answered > 200, "{answered} grids answered by lanes");
+        // The NaN-skipping range (the row reader's), on the same kinds of data.
+        let mut with_nan = 0;
+        for case in 0..400 {
+            let data: Vec<f32> = (0..case % 40)
+                .map(|_| match next() % 8 {
+                    0 if case % 3 == 0 => f32::NAN,
+                    1 if case % 5 == 0 => f32::NEG_INFINITY,
+                    _ => f32::from_bits(next() as u32 & 0xBF7F_FFFF) * 1e3,
+                })
+                .collect();
+            let (mut lo, mut hi) = (f32::INFINITY, f32::NEG_INFINITY);
+            for &z in data.iter().filter(|z| !z.is_nan()) {
+                lo = lo.min(z);
+                hi = hi.max(z);
+            }
+            let finite = data.iter().all(|z| z.is_finite());
+            with_nan += usize::from(data.iter().any(|z| z.is_nan()));
+            let (l, h, f) = range_by_lanes(&data).expect("no zero extremes here");
+            assert_eq!((l.to_bits(), h.to_bits(), f), (lo.to_bits(), hi.to_bits(), finite));
+        }
+        assert!(with_nan > 50, "{with_nan} rows with NaN");
+        // Negative control: a non-finite height is found, and named, through `new`.
+        let mut data = vec![1.0f32; 6 * 3];
+        data[2 * 6 + 4] = f32::NAN;
+        let e = Heightmap::new(6, 3, data, VoidMask::new(6, 3), Georef::local(1.0));
+        assert!(matches!(e, Err(HeightmapError::NonFinite { i: 4, j: 2 })), "{e:?}");
+    }
 }

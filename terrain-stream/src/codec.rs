@@ -82,12 +82,42 @@ fn predict(k: u8, n: u8, i: u32, j: u32, at: impl Fn(u32, u32) -> i64) -> i64 {
     }
 }
 
+/// Appends `v` as a LEB128 varint (7 bits a byte, low bits first, the high bit set on every
+/// byte but the last).
+#[cfg(test)]
 fn put_varint(out: &mut Vec<u8>, mut v: u64) {
     while v >= 0x80 {
         out.push((v as u8) | 0x80);
         v >>= 7;
     }
     out.push(v as u8);
+}
+
+/// [`put_varint`] at `buf[*pos..]` (grown as needed; the bytes past `*pos` are scratch): the
+/// same bytes. A value below `2^14` (most residuals) takes one or two bytes without a branch
+/// on which (both written, the position advanced by one or two), so the encoder does not
+/// mispredict on the mix of one- and two-byte residuals.
+#[inline]
+fn put_varint_at(buf: &mut Vec<u8>, pos: &mut usize, mut v: u64) {
+    if buf.len() < *pos + MAX_VARINT {
+        buf.resize((*pos + MAX_VARINT).max(2 * buf.len()), 0);
+    }
+    let out = &mut buf[*pos..*pos + MAX_VARINT];
+    if v < 1 << 14 {
+        let two = v >= 0x80;
+        out[0] = (v as u8 & 0x7F) | if two { 0x80 } else { 0 };
+        out[1] = (v >> 7) as u8;
+        *pos += 1 + usize::from(two);
+        return;
+    }
+    let mut k = 0;
+    while v >= 0x80 {
+        out[k] = (v as u8) | 0x80;
+        v >>= 7;
+        k += 1;
+    }
+    out[k] = v as u8;
+    *pos += k + 1;
 }
 
 fn zigzag(v: i64) -> u64 {
@@ -159,9 +189,12 @@ pub(crate) fn encode_level(
     let side = (1usize << k) + 1;
     let at = |i: u32, j: u32| grid[j as usize * side + i as usize];
     if matches!(codec, Codec::Predictive | Codec::PredictiveDeflate) && allow_predictive {
-        let mut out = Vec::with_capacity(level_len(n) + 1);
-        out.push(TAG_PREDICTIVE);
-        for_each_residual(k, n, grid, |r| put_varint(&mut out, zigzag(r)));
+        // One and a half bytes a residual to start with (grown as needed).
+        let mut out = vec![0u8; 1 + level_len(n) * 3 / 2 + MAX_VARINT];
+        out[0] = TAG_PREDICTIVE;
+        let mut pos = 1;
+        for_each_residual(k, n, grid, |r| put_varint_at(&mut out, &mut pos, zigzag(r)));
+        out.truncate(pos);
         if codec == Codec::PredictiveDeflate {
             let varints = &out[1..];
             let mut packed = miniz_oxide::deflate::compress_to_vec(varints, DEFLATE_FAST);
@@ -391,6 +424,31 @@ mod tests {
             }
             levels.push(dec);
         }
+    }
+
+    #[test]
+    fn the_varint_writer_is_leb128() {
+        // Every byte-count boundary, both sides, and random values of each size: the same
+        // bytes as the plain writer, written one after another into one buffer that starts
+        // too small (so it grows), with scratch bytes left past the end each time.
+        let mut values = vec![0u64, 1, 0x7F, 0x80, 0x81, 0x3FFF, 0x4000, 0x4001, u64::MAX];
+        for b in 1..64 {
+            values.extend([(1u64 << b) - 1, 1 << b, (1 << b) + 1]);
+        }
+        let mut x = 0x1234_5678_9ABC_DEF1u64;
+        for _ in 0..2000 {
+            x ^= x >> 12;
+            x ^= x << 25;
+            x ^= x >> 27;
+            values.push(x.wrapping_mul(0x2545_F491_4F6C_DD1D) >> (x % 64));
+        }
+        let (mut plain, mut buf, mut pos) = (Vec::new(), vec![0xFFu8; 3], 0);
+        for &v in &values {
+            put_varint(&mut plain, v);
+            put_varint_at(&mut buf, &mut pos, v);
+            assert_eq!(&buf[..pos], &plain[..], "after {v:#x}");
+        }
+        assert!(plain.len() > 2 * values.len(), "multi-byte values were written");
     }
 
     #[test]

@@ -486,14 +486,21 @@ impl RowReader {
         }
         let wu = w as usize;
         self.read_south_rows(j0, rows, heights)?;
-        let (mut lo_z, mut hi_z) = (f32::INFINITY, f32::NEG_INFINITY);
         for (v, &x) in voids.iter_mut().zip(heights.iter()) {
             *v = x.is_nan();
-            if !x.is_nan() {
-                lo_z = lo_z.min(x);
-                hi_z = hi_z.max(x);
-            }
         }
+        // The non-void range by lanes; sample by sample where they might differ (a zero).
+        let (lo_z, hi_z) = match crate::heightmap::range_by_lanes(heights) {
+            Some((lo, hi, _)) => (lo, hi),
+            None => {
+                let (mut lo_z, mut hi_z) = (f32::INFINITY, f32::NEG_INFINITY);
+                for &x in heights.iter().filter(|x| !x.is_nan()) {
+                    lo_z = lo_z.min(x);
+                    hi_z = hi_z.max(x);
+                }
+                (lo_z, hi_z)
+            }
+        };
         if let Ok(mut seen) = self.seen.lock() {
             *seen = (seen.0.min(lo_z), seen.1.max(hi_z));
         }

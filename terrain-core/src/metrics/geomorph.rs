@@ -129,15 +129,17 @@ pub fn max_error_vertices_with(
     let (w, data) = (hm.width(), hm.data());
     let voids = hm.voids().any().then(|| hm.voids());
     // A whole patch (not clipped at the grid's border) measured against the full resolution,
-    // the bake's case, takes the row scan ([`scan_whole_level`]); the rest the general scan.
+    // the bake's case, takes the row scan of all levels at once ([`scan_whole_patch`]); the
+    // rest the general scan, level by level.
     // Both give the same vertex and the same error bits (test
     // `the_row_scan_is_the_general_scan_bit_for_bit`).
     let whole = clip.x1 == x0 + c && clip.y1 == y0 + c && c <= ROW_SCAN_MAX_CELLS;
+    let rows = (whole && reference == Reference::FullResolution)
+        .then(|| scan_whole_patch(data, w, voids, (x0, y0, c), tri));
     for level in 1..levels {
-        let (best, count) = if whole && reference == Reference::FullResolution {
-            scan_whole_level(data, w, voids, (x0, y0, c), level, tri)
-        } else {
-            scan_level(data, w, voids, patch, clip, level, reference, tri)
+        let (best, count) = match &rows {
+            Some(rows) => rows[level],
+            None => scan_level(data, w, voids, patch, clip, level, reference, tri),
         };
         let best = best.map(|(error, i, j, coarse_height)| {
             let (di, dj) = (i - x0, j - y0);
@@ -167,7 +169,7 @@ fn frac(k: usize, k0: usize, k1: usize) -> f64 {
 
 /// The first vertex with the largest error of one level, south row first, west first:
 /// `(error, i, j, coarse height)` (`None` when no vertex is measured), and how many vertices
-/// were measured. Any patch, any reference: the definition [`scan_whole_level`] keeps.
+/// were measured. Any patch, any reference: the definition [`scan_whole_patch`] keeps.
 #[allow(clippy::too_many_arguments)]
 fn scan_level(
     data: &[f32],
@@ -242,129 +244,223 @@ fn quad_diagonal(tri: Triangulation, a: usize, b: usize) -> Diagonal {
 /// Most cells per patch side the row scan takes (its rows live on the stack).
 const ROW_SCAN_MAX_CELLS: usize = 64;
 
-/// [`scan_level`] of a whole patch (`(x0, y0, c)`: no side clipped at the grid's border, `c`
-/// at most [`ROW_SCAN_MAX_CELLS`]) against the full resolution, by rows: the same
-/// vertex, error bits and count, at a fraction of the cost (this runs for every sample of
-/// every level of every patch of a bake).
+/// Levels of a row-scanned patch at most (64 cells: levels 0 to 6).
+const ROW_SCAN_MAX_LEVELS: usize = ROW_SCAN_MAX_CELLS.trailing_zeros() as usize + 1;
+
+/// Where level `L`'s entries start in [`ROW_SCAN_U`]: `L - 1 + 2^L - 2` (levels `1..L` take
+/// `2^l + 1` entries each).
+const ROW_SCAN_U_FIRST: [usize; ROW_SCAN_MAX_LEVELS] = {
+    let mut first = [0; ROW_SCAN_MAX_LEVELS];
+    let mut level = 2;
+    while level < ROW_SCAN_MAX_LEVELS {
+        first[level] = first[level - 1] + (1 << (level - 1)) + 1;
+        level += 1;
+    }
+    first
+};
+
+/// Entries of [`ROW_SCAN_U`]: levels `1..ROW_SCAN_MAX_LEVELS`, `2^L + 1` each.
+const ROW_SCAN_U_LEN: usize = ROW_SCAN_U_FIRST[ROW_SCAN_MAX_LEVELS - 1] + ROW_SCAN_MAX_CELLS + 1;
+
+/// Per level `L` of the row scan, from [`ROW_SCAN_U_FIRST`]`[L]` on: `u = t / 2^L` and `1 - u`
+/// for `t` in `0..=2^L`, as [`frac`] and [`tri_interp`] compute them at run time (IEEE
+/// division and subtraction, correctly rounded in constant evaluation as at run time; `t / 2^L`
+/// is exact anyway). Test `the_row_scan_tables_are_frac`.
+static ROW_SCAN_U: ([f64; ROW_SCAN_U_LEN], [f64; ROW_SCAN_U_LEN]) = {
+    let (mut u, mut w) = ([0.0; ROW_SCAN_U_LEN], [0.0; ROW_SCAN_U_LEN]);
+    let mut level = 1;
+    while level < ROW_SCAN_MAX_LEVELS {
+        let s = 1usize << level;
+        let mut t = 0;
+        while t <= s {
+            u[ROW_SCAN_U_FIRST[level] + t] = t as f64 / s as f64;
+            w[ROW_SCAN_U_FIRST[level] + t] = 1.0 - u[ROW_SCAN_U_FIRST[level] + t];
+            t += 1;
+        }
+        level += 1;
+    }
+    (u, w)
+};
+
+/// One level's result of a scan: `(error, i, j, coarse height)` of the first vertex with the
+/// largest error (`None` when no vertex is measured), and how many vertices were measured.
+type LevelScan = (Option<(f64, usize, usize, f64)>, usize);
+
+/// [`scan_level`] of every level `1..` of a whole patch (`(x0, y0, c)`: no side clipped at the
+/// grid's border, `c` at most [`ROW_SCAN_MAX_CELLS`]) against the full resolution, in one pass
+/// over the patch's rows: the same vertex, error bits and count per level (index = level;
+/// index 0 and levels past the patch's are unused), at a fraction of the cost (this runs for
+/// every sample of every level of every patch of a bake).
 ///
-/// Why the same bits: in a whole patch every coarse quad spans `s = 2^L` samples, so a
-/// vertex's place in it, `u = t / s` and `v = r / s` (`t`, `r` in `0..=s`), is exact, and the
+/// The patch's heights are converted to f64 once for all levels, and each row's void flags
+/// read once. Why the same bits: in a whole patch every coarse quad spans `s = 2^L` samples, so
+/// a vertex's place in it, `u = t / s` and `v = r / s` (`t`, `r` in `0..=s`), is exact, and the
 /// triangle test of [`tri_interp`] (`u >= v` for a SW-NE split, `u + v <= 1` for NW-SE) is
 /// `t >= r` or `t + r <= s` on integers: within a quad's row it splits the columns into two
 /// runs, each interpolated by one of [`tri_interp`]'s expressions with the same operations in
 /// the same order (the terms that do not depend on `t` computed once per run, which are the
 /// same values). The errors of a row go to an array, non-candidates (kept or void vertices)
-/// as -1; a row whose largest error beats the best so far strictly gives its first vertex
-/// with that error, which is the first such vertex of a plain scan (errors are never NaN:
-/// heights are finite).
-fn scan_whole_level(
+/// as -1; the row's largest error is taken over four interleaved running maxima (the maximum
+/// of a set of non-NaN values, whatever the order: errors are never NaN, heights are finite,
+/// and never -0, they are absolute values), and a row whose largest error beats the level's
+/// best so far strictly gives its first vertex with that error, which is the first such vertex
+/// of a plain scan. Without voids a level measures every vertex but its own
+/// `(c / s + 1)^2`, so the count is that difference.
+fn scan_whole_patch(
     data: &[f32],
     w: usize,
     voids: Option<&VoidMask>,
     (x0, y0, c): (usize, usize, usize),
-    level: usize,
     tri: Triangulation,
-) -> (Option<(f64, usize, usize, f64)>, usize) {
-    let s = 1usize << level;
-    let (mask, quads) = (s - 1, c >> level);
-    // `u = t / s` and `1 - u`, as [`frac`] and [`tri_interp`] compute them.
-    let mut ut = [0f64; ROW_SCAN_MAX_CELLS + 1];
-    let mut wt = [0f64; ROW_SCAN_MAX_CELLS + 1];
-    for t in 0..=s {
-        ut[t] = frac(t, 0, s);
-        wt[t] = 1.0 - ut[t];
-    }
+) -> [LevelScan; ROW_SCAN_MAX_LEVELS] {
+    let levels = c.trailing_zeros() as usize + 1;
+    let side = c + 1;
+    // The patch's heights in f64, converted once for all levels: a 16-cell patch (the
+    // bake's) on the stack, written once (no zeroing first), any other on the heap.
+    let row = |dj: usize| &data[(y0 + dj) * w + x0..][..side];
+    let small: Option<[[f64; 17]; 17]> = (side == 17).then(|| {
+        std::array::from_fn(|dj| {
+            let row: &[f32; 17] = row(dj).try_into().unwrap_or(&[0.0; 17]);
+            row.map(f64::from)
+        })
+    });
+    let large: Vec<f64> = match small {
+        Some(_) => Vec::new(),
+        None => (0..side).flat_map(|dj| row(dj).iter().map(|&h| f64::from(h))).collect(),
+    };
+    let z_row = |dj: usize| -> &[f64] {
+        match &small {
+            Some(rows) => &rows[dj][..side],
+            None => &large[dj * side..][..side],
+        }
+    };
+    let (ut, wt) = (&ROW_SCAN_U.0, &ROW_SCAN_U.1);
     let mut err = [0f64; ROW_SCAN_MAX_CELLS + 1];
-    let err = &mut err[..=c];
-    // The largest error so far (-1: none measured yet) and its vertex.
-    let (mut best_e, mut best_at) = (-1f64, (0usize, 0usize));
-    let mut count = 0;
-    for dj in 0..=c {
+    let err = &mut err[..side];
+    let mut void_row = [false; ROW_SCAN_MAX_CELLS + 1];
+    let void_row = &mut void_row[..side];
+    // Per level: the largest error so far (-1: none measured yet), its vertex, the count.
+    let mut best_e = [-1f64; ROW_SCAN_MAX_LEVELS];
+    let mut best_at = [(0usize, 0usize); ROW_SCAN_MAX_LEVELS];
+    let mut count = [0usize; ROW_SCAN_MAX_LEVELS];
+    for dj in 0..side {
         let j = y0 + dj;
-        let b = (dj >> level).min(quads - 1);
-        let r = dj - b * s;
-        let (v, one_v) = (ut[r], wt[r]);
-        let cj = y0 + b * s;
-        let r0 = &data[cj * w + x0..][..=c];
-        let r1 = &data[(cj + s) * w + x0..][..=c];
-        let rj = &data[j * w + x0..][..=c];
-        for a in 0..quads {
-            let ci = a * s;
-            // Columns of this quad: the last quad also holds the patch's east edge.
-            let n = if a + 1 == quads { s + 1 } else { s };
-            let (z, e) = (&rj[ci..ci + n], &mut err[ci..ci + n]);
-            let (z00, z10) = (f64::from(r0[ci]), f64::from(r0[ci + s]));
-            let (z01, z11) = (f64::from(r1[ci]), f64::from(r1[ci + s]));
-            match quad_diagonal(tri, a, b) {
-                Diagonal::SwNe => {
-                    // `u < v` (t < r): triangle SW, NW, NE; then SW, SE, NE.
-                    let split = r.min(n);
-                    let (p, d) = (z00 + v * (z01 - z00), z11 - z01);
-                    for t in 0..split {
-                        e[t] = (f64::from(z[t]) - (p + ut[t] * d)).abs();
-                    }
-                    let (d, k) = (z10 - z00, v * (z11 - z10));
-                    for t in split..n {
-                        e[t] = (f64::from(z[t]) - (z00 + ut[t] * d + k)).abs();
-                    }
-                }
-                Diagonal::SeNw => {
-                    // `u + v <= 1` (t <= s - r): triangle SW, SE, NW; then NE, NW, SE.
-                    let split = (s - r + 1).min(n);
-                    let (d, k) = (z10 - z00, v * (z01 - z00));
-                    for t in 0..split {
-                        e[t] = (f64::from(z[t]) - (z00 + ut[t] * d + k)).abs();
-                    }
-                    let (d, k) = (z01 - z11, one_v * (z10 - z11));
-                    for t in split..n {
-                        e[t] = (f64::from(z[t]) - (z11 + wt[t] * d + k)).abs();
-                    }
-                }
-            }
-        }
-        // Not measured: the level's own vertices (a kept row's every s-th column), voids.
-        if dj & mask == 0 {
-            for e in err.iter_mut().step_by(s) {
-                *e = -1.0;
-            }
-        }
+        let zj = z_row(dj);
         if let Some(m) = voids {
-            for (di, e) in err.iter_mut().enumerate() {
-                if m.get(x0 + di, j) {
+            for (di, v) in void_row.iter_mut().enumerate() {
+                *v = m.get(x0 + di, j);
+            }
+        }
+        for level in 1..levels {
+            let s = 1usize << level;
+            let quads = c >> level;
+            let first = ROW_SCAN_U_FIRST[level];
+            let (ut, wt) = (&ut[first..][..=s], &wt[first..][..=s]);
+            let b = (dj >> level).min(quads - 1);
+            let r = dj - b * s;
+            let (v, one_v) = (ut[r], wt[r]);
+            let (r0, r1) = (z_row(b * s), z_row(b * s + s));
+            for a in 0..quads {
+                let ci = a * s;
+                // Columns of this quad: the last quad also holds the patch's east edge.
+                let n = if a + 1 == quads { s + 1 } else { s };
+                let (zr, e) = (&zj[ci..ci + n], &mut err[ci..ci + n]);
+                let (z00, z10, z01, z11) = (r0[ci], r0[ci + s], r1[ci], r1[ci + s]);
+                match quad_diagonal(tri, a, b) {
+                    Diagonal::SwNe => {
+                        // `u < v` (t < r): triangle SW, NW, NE; then SW, SE, NE.
+                        let split = r.min(n);
+                        let (p, d) = (z00 + v * (z01 - z00), z11 - z01);
+                        for t in 0..split {
+                            e[t] = (zr[t] - (p + ut[t] * d)).abs();
+                        }
+                        let (d, k) = (z10 - z00, v * (z11 - z10));
+                        for t in split..n {
+                            e[t] = (zr[t] - (z00 + ut[t] * d + k)).abs();
+                        }
+                    }
+                    Diagonal::SeNw => {
+                        // `u + v <= 1` (t <= s - r): triangle SW, SE, NW; then NE, NW, SE.
+                        let split = (s - r + 1).min(n);
+                        let (d, k) = (z10 - z00, v * (z01 - z00));
+                        for t in 0..split {
+                            e[t] = (zr[t] - (z00 + ut[t] * d + k)).abs();
+                        }
+                        let (d, k) = (z01 - z11, one_v * (z10 - z11));
+                        for t in split..n {
+                            e[t] = (zr[t] - (z11 + wt[t] * d + k)).abs();
+                        }
+                    }
+                }
+            }
+            // Not measured: the level's own vertices (a kept row's every s-th column), voids.
+            if dj & (s - 1) == 0 {
+                for e in err.iter_mut().step_by(s) {
                     *e = -1.0;
                 }
             }
-        }
-        let mut row_max = -1f64;
-        for &e in err.iter() {
-            row_max = if e > row_max { e } else { row_max };
-            count += usize::from(e >= 0.0);
-        }
-        if row_max > best_e {
-            best_e = row_max;
-            let di = err.iter().position(|&e| e == row_max).unwrap_or(0);
-            best_at = (x0 + di, j);
+            if voids.is_some() {
+                for (e, &void) in err.iter_mut().zip(void_row.iter()) {
+                    if void {
+                        *e = -1.0;
+                    }
+                }
+                count[level] += err.iter().filter(|&&e| e >= 0.0).count();
+            }
+            let row_max = max_of(err);
+            if row_max > best_e[level] {
+                best_e[level] = row_max;
+                let di = err.iter().position(|&e| e == row_max).unwrap_or(0);
+                best_at[level] = (x0 + di, j);
+            }
         }
     }
-    if best_e < 0.0 {
-        return (None, count);
+    let mut out = [(None, 0); ROW_SCAN_MAX_LEVELS];
+    for level in 1..levels {
+        let (s, quads) = (1usize << level, c >> level);
+        if voids.is_none() {
+            count[level] = side * side - (quads + 1) * (quads + 1);
+        }
+        if best_e[level] < 0.0 {
+            out[level] = (None, count[level]);
+            continue;
+        }
+        // The level mesh's height at the vertex, as the general scan computes it.
+        let (i, j) = best_at[level];
+        let (di, dj) = (i - x0, j - y0);
+        let (a, b) = ((di >> level).min(quads - 1), (dj >> level).min(quads - 1));
+        let (ci, cj) = (x0 + a * s, y0 + b * s);
+        let at = |i: usize, j: usize| f64::from(data[j * w + i]);
+        let coarse = tri_interp(
+            at(ci, cj),
+            at(ci + s, cj),
+            at(ci, cj + s),
+            at(ci + s, cj + s),
+            frac(i, ci, ci + s),
+            frac(j, cj, cj + s),
+            quad_diagonal(tri, a, b),
+        );
+        out[level] = (Some((best_e[level], i, j, coarse)), count[level]);
     }
-    // The level mesh's height at the vertex, as the general scan computes it.
-    let (i, j) = best_at;
-    let (di, dj) = (i - x0, j - y0);
-    let (a, b) = ((di >> level).min(quads - 1), (dj >> level).min(quads - 1));
-    let (ci, cj) = (x0 + a * s, y0 + b * s);
-    let at = |i: usize, j: usize| f64::from(data[j * w + i]);
-    let coarse = tri_interp(
-        at(ci, cj),
-        at(ci + s, cj),
-        at(ci, cj + s),
-        at(ci + s, cj + s),
-        frac(i, ci, ci + s),
-        frac(j, cj, cj + s),
-        quad_diagonal(tri, a, b),
-    );
-    (Some((best_e, i, j, coarse)), count)
+    out
+}
+
+/// The largest of `values` (never NaN, at least -1 where the caller marks none) by four
+/// interleaved running maxima, so the comparisons do not wait on each other: the same value
+/// as a plain left-to-right maximum.
+fn max_of(values: &[f64]) -> f64 {
+    let mut m = [-1f64; 4];
+    let mut chunks = values.chunks_exact(4);
+    for ch in &mut chunks {
+        for (m, &e) in m.iter_mut().zip(ch) {
+            *m = if e > *m { e } else { *m };
+        }
+    }
+    for &e in chunks.remainder() {
+        m[0] = if e > m[0] { e } else { m[0] };
+    }
+    let (a, b) = (if m[1] > m[0] { m[1] } else { m[0] }, if m[3] > m[2] { m[3] } else { m[2] });
+    if b > a { b } else { a }
 }
 
 #[cfg(test)]
@@ -408,10 +504,27 @@ mod tests {
     }
 
     #[test]
+    fn the_row_scan_tables_are_frac() {
+        let mut entries = 0;
+        for (level, &first) in ROW_SCAN_U_FIRST.iter().enumerate().skip(1) {
+            let s = 1usize << level;
+            for t in 0..=s {
+                let k = first + t;
+                let u = frac(t, 0, s);
+                assert_eq!(ROW_SCAN_U.0[k].to_bits(), u.to_bits(), "L{level} t{t}");
+                assert_eq!(ROW_SCAN_U.1[k].to_bits(), (1.0 - u).to_bits(), "L{level} t{t}");
+                entries += 1;
+            }
+        }
+        assert_eq!(entries, ROW_SCAN_U_LEN);
+    }
+
+    #[test]
     fn the_row_scan_is_the_general_scan_bit_for_bit() {
         // Grids of few distinct heights (many ties: the first vertex must win), of wide-range
         // values, and with voids; every patch size, both triangulations. Each whole patch's
-        // row scan against the general scan on the same patch.
+        // row scan (all levels in one pass) against the general scan on the same patch, level
+        // by level.
         let mut next = rng(0x5EED);
         let (mut patches, mut tied) = (0usize, 0usize);
         for case in 0..24 {
@@ -442,8 +555,9 @@ mod tests {
                     let patch = Region::new(x0, y0, c);
                     let clip = patch.clip(&hm).unwrap();
                     assert_eq!((clip.x1, clip.y1), (x0 + c, y0 + c), "a whole patch");
-                    for level in 1..=c.trailing_zeros() as usize {
-                        let fast = scan_whole_level(data, w, voids, (x0, y0, c), level, tri);
+                    let rows = scan_whole_patch(data, w, voids, (x0, y0, c), tri);
+                    let levels = c.trailing_zeros() as usize + 1;
+                    for (level, &fast) in rows.iter().enumerate().take(levels).skip(1) {
                         let general = scan_level(
                             data,
                             w,

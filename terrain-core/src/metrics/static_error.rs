@@ -200,6 +200,7 @@ impl StaticErrorPyramid {
     }
 
     /// Nodes per side at `level` (`2^level`).
+    #[inline]
     pub fn nodes_per_side(&self, level: usize) -> usize {
         1 << level
     }
@@ -211,6 +212,7 @@ impl StaticErrorPyramid {
     }
 
     /// `StaticE` (Eq. 3) of node `(i, j)` at `level`. Panics out of range.
+    #[inline]
     pub fn get(&self, level: usize, i: usize, j: usize) -> f64 {
         let n = self.nodes_per_side(level);
         assert!(level < self.levels && i < n && j < n, "StaticE index out of range");
