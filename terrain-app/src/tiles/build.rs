@@ -74,7 +74,7 @@ impl Default for ResolutionConfig {
             max_cells: 256,
             policy: BudgetPolicy::default(),
             mesher: MesherChoice::default(),
-            piece_cells: 1024,
+            piece_cells: 2048,
         }
     }
 }
