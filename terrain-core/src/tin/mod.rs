@@ -605,7 +605,9 @@ impl Placed {
         let Some([i0, j0, i1, j1]) = self.crop else { return Vec::new() };
         seeds
             .iter()
-            .filter(|&&[i, j]| (i0..=i1).contains(&(i as usize)) && (j0..=j1).contains(&(j as usize)))
+            .filter(|&&[i, j]| {
+                (i0..=i1).contains(&(i as usize)) && (j0..=j1).contains(&(j as usize))
+            })
             .map(|&[i, j]| [i - i0 as u32, j - j0 as u32])
             .collect()
     }

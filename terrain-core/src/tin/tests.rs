@@ -459,16 +459,31 @@ fn a_tile_read_in_pieces_is_within_its_bound_and_conforming() {
         let bound = level_error(level, 0.25);
         for tile in grid.tile_range(level).tiles(level) {
             let largest = std::cell::Cell::new(0);
-            let (whole, _) =
-                build_tile_read(&grid.layout, tile, bound, &[], Algorithm::Delaunay, 4096, reader(&hm, &largest))
-                    .unwrap();
-            let want = build_tile_owned(hm.clone(), tile, bound, &[], Algorithm::Delaunay).unwrap().0;
+            let (whole, _) = build_tile_read(
+                &grid.layout,
+                tile,
+                bound,
+                &[],
+                Algorithm::Delaunay,
+                4096,
+                reader(&hm, &largest),
+            )
+            .unwrap();
+            let want =
+                build_tile_owned(hm.clone(), tile, bound, &[], Algorithm::Delaunay).unwrap().0;
             assert_eq!(whole, want, "{tile:?}");
             let span = largest.get();
             let largest = std::cell::Cell::new(0);
-            let (mesh, used) =
-                build_tile_read(&grid.layout, tile, bound, &[[100, 90]], Algorithm::Delaunay, 24, reader(&hm, &largest))
-                    .unwrap();
+            let (mesh, used) = build_tile_read(
+                &grid.layout,
+                tile,
+                bound,
+                &[[100, 90]],
+                Algorithm::Delaunay,
+                24,
+                reader(&hm, &largest),
+            )
+            .unwrap();
             assert!(largest.get() <= 25, "{tile:?}: read {} samples across", largest.get());
             assert!(!used.is_empty());
             pieced += usize::from(span > 25);

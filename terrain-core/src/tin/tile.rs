@@ -294,7 +294,8 @@ pub fn mesh_in_pieces<E: From<TileError>>(
                 })
                 .map(|&[i, j]| [i - x0 as u32, j - y0 as u32])
                 .collect();
-            let (m, s) = mesh_window_with(&sub, bound, Borders::Simplified, &local, Algorithm::Delaunay)?;
+            let (m, s) =
+                mesh_window_with(&sub, bound, Borders::Simplified, &local, Algorithm::Delaunay)?;
             drop(sub);
             if s.max_error > stats.max_error || stats.worst.is_none() && s.worst.is_some() {
                 stats.max_error = s.max_error;
