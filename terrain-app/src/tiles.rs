@@ -79,6 +79,13 @@ pub(crate) struct TilesArgs {
     /// triangles and, measured per level, never more CPU than the RTIN) or `rtin`.
     #[arg(long, value_enum, default_value_t = MesherChoice::Greedy)]
     pub mesher: MesherChoice,
+    /// Most cells across a tile's samples meshed at once: a tile meshed from more samples
+    /// (a coarse tile whose decimation error leaves too little of its bound, on rough
+    /// terrain) is read and meshed in pieces of at most this many cells a side with locked
+    /// shared sides, so the memory of a tile does not grow with the DEM (about 4 bytes a
+    /// sample of a piece, per thread, plus the tile's mesh). Greedy mesher only.
+    #[arg(long, default_value_t = ResolutionConfig::default().piece_cells as u32, value_parser = clap::value_parser!(u32).range(16..))]
+    pub piece_cells: u32,
     /// No progress line.
     #[arg(long)]
     pub quiet: bool,
@@ -131,6 +138,8 @@ struct Summary {
     decimated_tiles: usize,
     /// The mesher (`--mesher`).
     mesher: MesherChoice,
+    /// Most cells across a tile's samples meshed at once (`--piece-cells`).
+    piece_cells: usize,
     retries: usize,
     /// Measuring the decimation error (once per region and stride): seconds, and the largest
     /// error found at any stride, metres.
@@ -267,7 +276,11 @@ pub(crate) fn run(args: &TilesArgs) -> anyhow::Result<()> {
             layout.tile_range(level)
         }
     };
-    let resolution = ResolutionConfig { mesher: args.mesher, ..ResolutionConfig::default() };
+    let resolution = ResolutionConfig {
+        mesher: args.mesher,
+        piece_cells: args.piece_cells as usize,
+        ..ResolutionConfig::default()
+    };
     let total: usize = levels.clone().map(|l| range(l).len() as usize).sum();
     std::fs::create_dir_all(&args.output)
         .with_context(|| format!("creating {}", args.output.display()))?;
@@ -400,6 +413,7 @@ pub(crate) fn run(args: &TilesArgs) -> anyhow::Result<()> {
         min_budget_fraction: resolution.policy.min_budget_fraction,
         decimated_tiles: walked.decimated_tiles,
         mesher: resolution.mesher,
+        piece_cells: resolution.piece_cells,
         retries: walked.retries,
         decimation_s,
         decimation_error_m: decimation.max(),

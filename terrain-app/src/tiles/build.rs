@@ -17,7 +17,7 @@ use glam::{DVec2, dvec2};
 use terrain_core::heightmap::VoidMask;
 use terrain_core::mesh::Algorithm;
 use terrain_core::tin::{self, GridLayout, TileId, TileMesh};
-use terrain_core::{Crs, Georef, Heightmap};
+use terrain_core::{Crs, Georef};
 
 use terrain_app::decimation::{BudgetPolicy, Decimation};
 use terrain_app::samples::Samples;
@@ -61,11 +61,21 @@ pub(crate) struct ResolutionConfig {
     pub policy: BudgetPolicy,
     /// The mesher.
     pub mesher: MesherChoice,
+    /// Most cells across a greedy tile's samples meshed at once: a larger tile (one meshed
+    /// from every sample where the decimation error leaves too little of its bound) is meshed
+    /// in pieces of at most this many cells a side with locked shared sides
+    /// ([`tin::tile::mesh_in_pieces`]), so its samples held at once do not grow with the DEM.
+    pub piece_cells: usize,
 }
 
 impl Default for ResolutionConfig {
     fn default() -> Self {
-        Self { max_cells: 256, policy: BudgetPolicy::default(), mesher: MesherChoice::default() }
+        Self {
+            max_cells: 256,
+            policy: BudgetPolicy::default(),
+            mesher: MesherChoice::default(),
+            piece_cells: 2048,
+        }
     }
 }
 
@@ -134,26 +144,11 @@ pub(crate) fn build(
     let (i0, j0) = (lo(a.x).min(w - 1), lo(a.y).min(h - 1));
     let (i1, j1) = (hi(b.x, w).max(i0 + t), hi(b.y, h).max(j0 + t));
     let (ww, wh) = ((i1 - i0) / t + 1, (j1 - j0) / t + 1);
-    let win = samples.window(i0, j0, ww, wh, s)?;
-    let mut data = win.data;
-    let voids = match win.voids {
-        Some(m) if m.count() < ww * wh => {
-            // A void may hold anything; the mesh's vertices need a finite height.
-            for (k, z) in data.iter_mut().enumerate() {
-                if m.get(k % ww, k / ww) && !z.is_finite() {
-                    *z = 0.0;
-                }
-            }
-            m
-        }
-        // Every sample void: they hold the readers' fill, taken as it is (as the builder does).
-        _ => VoidMask::new(ww, wh),
-    };
     let origin = layout.to_lonlat(dvec2(i0 as f64, j0 as f64));
     let spacing = layout.spacing * t as f64;
     let centre_lat = origin.y + 0.5 * (wh as f64 - 1.0) * spacing.y;
     let georef = Georef::geographic(Crs::Epsg(4326), origin, spacing, centre_lat);
-    let sub = Heightmap::new(ww, wh, data, voids, georef)?;
+    let window = GridLayout::new(ww, wh, &georef)?;
     // The seeds on this window's lattice, in its coordinates.
     let on_lattice = |v: u32, v0: usize, n: usize| {
         let v = v as usize;
@@ -164,8 +159,14 @@ pub(crate) fn build(
         .filter_map(|&[i, j]| Some([on_lattice(i, i0, ww)?, on_lattice(j, j0, wh)?]))
         .collect();
     let algorithm = config.mesher.algorithm();
-    // Owned: a tile meshed from every sample is meshed in its window, not a copy of it.
-    let (mut mesh, used) = tin::build_tile_owned(sub, tile, budget, &local, algorithm)?;
+    // The tile's samples are read by rectangles of the window: at once, or piece by piece
+    // where the tile spans more than `piece_cells` (then only a piece is held at a time).
+    let read = |[a, b, c, d]: [usize; 4]| -> anyhow::Result<(Vec<f32>, Option<VoidMask>)> {
+        let win = samples.window(i0 + a * t, j0 + b * t, c - a + 1, d - b + 1, s)?;
+        Ok((win.data, win.voids))
+    };
+    let (mut mesh, used) =
+        tin::build_tile_read(&window, tile, budget, &local, algorithm, config.piece_cells, read)?;
     mesh.bound = bound;
     let used =
         used.into_iter().map(|[i, j]| [(i0 + i as usize * t) as u32, (j0 + j as usize * t) as u32]);

@@ -38,9 +38,9 @@ pub mod warp;
 use glam::{DVec2, DVec3, dvec2};
 
 use crate::georef::AngularOrLinear;
-use crate::heightmap::Heightmap;
+use crate::heightmap::{Heightmap, VoidMask};
 use crate::mesh::verify::{ErrorStats, VerifyError};
-use crate::mesh::{Algorithm, MeshError};
+use crate::mesh::{Algorithm, MeshError, TriMesh};
 
 /// The geometric error CesiumJS assumes for a level-0 quantized-mesh tile, metres:
 /// `TerrainProvider.getEstimatedLevelZeroGeometricErrorForAHeightmap` with the WGS84 radius,
@@ -203,6 +203,18 @@ pub enum TinError {
         /// Row.
         y: u32,
     },
+    /// A piece of the tile's samples, as read, does not make a grid (a reader's bug).
+    #[error("tile {level}/{x}/{y}: a piece of its samples: {source}")]
+    Piece {
+        /// Level.
+        level: u32,
+        /// Column.
+        x: u32,
+        /// Row.
+        y: u32,
+        /// Why.
+        source: crate::heightmap::HeightmapError,
+    },
     /// The tile's mesh failed its check against the DEM (a bug: the mesher guarantees it).
     #[error("tile {level}/{x}/{y} failed its check against the DEM: {source}")]
     Verify {
@@ -224,6 +236,7 @@ impl TinError {
             tile::TileError::Mesh(source) => TinError::Mesh { level, x, y, source },
             tile::TileError::Verify(source) => TinError::Verify { level, x, y, source },
             tile::TileError::RtinLockedBorders => TinError::RtinLockedBorders { level, x, y },
+            tile::TileError::Piece(source) => TinError::Piece { level, x, y, source },
         }
     }
 }
@@ -507,6 +520,59 @@ pub fn build_tile_owned(
     placed.mesh(sub.as_ref(), tile, bound, seeds, algorithm)
 }
 
+/// A reader's error, or the tile mesher's ([`build_tile_read`]).
+enum ReadOr<E> {
+    Read(E),
+    Tile(tile::TileError),
+}
+
+impl<E> From<tile::TileError> for ReadOr<E> {
+    fn from(e: tile::TileError) -> Self {
+        ReadOr::Tile(e)
+    }
+}
+
+/// [`build_tile_owned`] of a grid read by rectangles: `layout` is the grid's (geographic, as
+/// [`GridLayout::new`] takes), `read([i0, j0, i1, j1])` returns the samples of that inclusive
+/// rectangle of it, row-major from its south-west sample, and their voids (`None`: none).
+/// Where the tile's sub-grid spans at most `piece` cells each way, or `algorithm` is the RTIN,
+/// it is read at once and meshed as [`build_tile_owned`] meshes it (the same samples, so the
+/// same mesh); a larger one under the greedy mesher is meshed by [`tile::mesh_in_pieces`]
+/// (each piece read, meshed with locked sides and verified on its own, then the next), so the
+/// samples held at once are one piece's whatever the tile's size.
+#[allow(clippy::too_many_arguments)]
+pub fn build_tile_read<E: From<TinError>>(
+    layout: &GridLayout,
+    tile: TileId,
+    bound: f64,
+    seeds: &[[u32; 2]],
+    algorithm: Algorithm,
+    piece: usize,
+    mut read: impl FnMut([usize; 4]) -> Result<(Vec<f32>, Option<VoidMask>), E>,
+) -> Result<(TileMesh, Vec<[u32; 2]>), E> {
+    let placed = Placed::new(layout, tile);
+    let tile_err = |e| E::from(TinError::from_tile(e, tile.level, tile.x, tile.y));
+    let Some([i0, j0, i1, j1]) = placed.crop else {
+        return Ok(placed.place(None, tile, bound));
+    };
+    let (w, h) = (i1 - i0 + 1, j1 - j0 + 1);
+    let local = placed.local_seeds(seeds);
+    let meshed = if algorithm == Algorithm::Delaunay && (w - 1 > piece || h - 1 > piece) {
+        let at = |[a, b, c, d]: [usize; 4]| [i0 + a, j0 + b, i0 + c, j0 + d];
+        tile::mesh_in_pieces(w, h, piece, bound, &local, |r| read(at(r)).map_err(ReadOr::Read))
+            .map_err(|e| match e {
+                ReadOr::Read(e) => e,
+                ReadOr::Tile(e) => tile_err(e),
+            })?
+    } else {
+        let (data, voids) = read([i0, j0, i1, j1])?;
+        let sub = tile::window_of(w, h, data, voids).map_err(tile_err)?;
+        tile::mesh_window_with(&sub, bound, tile::Borders::Free, &local, algorithm)
+            .map_err(tile_err)?
+    };
+    Ok(placed.place(Some(meshed), tile, bound))
+}
+
 /// Where a tile lies on a grid: its rectangle, the grid's part of it and the samples that
 /// cover that part.
 struct Placed {
@@ -534,6 +600,18 @@ impl Placed {
         Self { tr, p, crop }
     }
 
+    /// The seeds (samples `[i, j]` of the grid) inside `self.crop`, in its coordinates.
+    fn local_seeds(&self, seeds: &[[u32; 2]]) -> Vec<[u32; 2]> {
+        let Some([i0, j0, i1, j1]) = self.crop else { return Vec::new() };
+        seeds
+            .iter()
+            .filter(|&&[i, j]| {
+                (i0..=i1).contains(&(i as usize)) && (j0..=j1).contains(&(j as usize))
+            })
+            .map(|&[i, j]| [i - i0 as u32, j - j0 as u32])
+            .collect()
+    }
+
     /// Meshes `sub` (the samples `self.crop` as a [`tile::window`]), clips it to the tile and
     /// fills the rest of the tile.
     fn mesh(
@@ -544,23 +622,35 @@ impl Placed {
         seeds: &[[u32; 2]],
         algorithm: Algorithm,
     ) -> Result<(TileMesh, Vec<[u32; 2]>), TinError> {
+        let meshed = match (self.crop, sub) {
+            (Some(_), Some(sub)) => {
+                let local = self.local_seeds(seeds);
+                Some(
+                    tile::mesh_window_with(sub, bound, tile::Borders::Free, &local, algorithm)
+                        .map_err(|e| TinError::from_tile(e, tile.level, tile.x, tile.y))?,
+                )
+            }
+            _ => None,
+        };
+        Ok(self.place(meshed, tile, bound))
+    }
+
+    /// Clips the mesh of `self.crop` (in its grid coordinates, vertices at its samples, and
+    /// its measured error) to the tile and fills the rest of the tile; and the samples the
+    /// mesh took as vertices, in the grid's coordinates.
+    fn place(
+        &self,
+        meshed: Option<(TriMesh, ErrorStats)>,
+        tile: TileId,
+        bound: f64,
+    ) -> (TileMesh, Vec<[u32; 2]>) {
         let Placed { tr, p, crop } = *self;
         let mut set = VertexSet::default();
         let mut triangles: Vec<[u32; 3]> = Vec::new();
         let mut measured = None;
         let mut used = Vec::new();
         let has_dem = crop.is_some();
-        if let (Some([i0, j0, i1, j1]), Some(sub)) = (crop, sub) {
-            let local: Vec<[u32; 2]> = seeds
-                .iter()
-                .filter(|&&[i, j]| {
-                    (i0..=i1).contains(&(i as usize)) && (j0..=j1).contains(&(j as usize))
-                })
-                .map(|&[i, j]| [i - i0 as u32, j - j0 as u32])
-                .collect();
-            let (m, stats) =
-                tile::mesh_window_with(sub, bound, tile::Borders::Free, &local, algorithm)
-                    .map_err(|e| TinError::from_tile(e, tile.level, tile.x, tile.y))?;
+        if let (Some([i0, j0, _, _]), Some((m, stats))) = (crop, meshed) {
             measured = Some(stats);
             // Vertices are samples: integer grid coordinates of the sub-grid.
             used = m
@@ -625,7 +715,7 @@ impl Placed {
                 DVec3::new(u.clamp(0.0, 1.0), v.clamp(0.0, 1.0), q.z)
             })
             .collect();
-        Ok((TileMesh { tile, vertices, triangles, bound, measured }, used))
+        (TileMesh { tile, vertices, triangles, bound, measured }, used)
     }
 }
 

@@ -402,3 +402,102 @@ fn an_rtin_tile_is_within_its_bound_at_every_sample() {
     assert!(worst_over_tenth > 1.0, "a tenth of the bound holds too: the check proves nothing");
     assert!(rtin_tris > greedy_tris, "{rtin_tris} RTIN against {greedy_tris} greedy triangles");
 }
+
+/// Every edge of `mesh` used by one triangle only lies on the tile's border: no crack and no
+/// T-junction inside the tile. The number of edges checked.
+fn assert_conforming(mesh: &TileMesh) -> usize {
+    let mut uses: std::collections::HashMap<(u32, u32), usize> = Default::default();
+    for t in &mesh.triangles {
+        for k in 0..3 {
+            let (a, b) = (t[k], t[(k + 1) % 3]);
+            *uses.entry((a.min(b), a.max(b))).or_default() += 1;
+        }
+    }
+    let on_border = |a: DVec3, b: DVec3| {
+        (a.x == b.x && (a.x == 0.0 || a.x == 1.0)) || (a.y == b.y && (a.y == 0.0 || a.y == 1.0))
+    };
+    for (&(a, b), &n) in &uses {
+        let (pa, pb) = (mesh.vertices[a as usize], mesh.vertices[b as usize]);
+        assert!(n <= 2, "{:?}: edge {pa} - {pb} in {n} triangles", mesh.tile);
+        assert!(n == 2 || on_border(pa, pb), "{:?}: open edge {pa} - {pb}", mesh.tile);
+    }
+    uses.len()
+}
+
+/// Reads rectangles of `hm` for [`build_tile_read`], noting the most samples across one.
+fn reader<'a>(
+    hm: &'a Heightmap,
+    largest: &'a std::cell::Cell<usize>,
+) -> impl FnMut([usize; 4]) -> Result<(Vec<f32>, Option<VoidMask>), TinError> + 'a {
+    move |[i0, j0, i1, j1]| {
+        let (w, h) = (i1 - i0 + 1, j1 - j0 + 1);
+        largest.set(largest.get().max(w.max(h)));
+        let mut mask = VoidMask::new(w, h);
+        let mut data = Vec::with_capacity(w * h);
+        for j in 0..h {
+            for i in 0..w {
+                mask.set(i, j, hm.voids().get(i0 + i, j0 + j));
+                data.push(hm.get(i0 + i, j0 + j));
+            }
+        }
+        Ok((data, Some(mask)))
+    }
+}
+
+/// A tile read by rectangles ([`build_tile_read`], the path of `terrain tiles`): with pieces
+/// as large as the tile it is the mesh of the owned grid, exactly; in pieces of at most 24
+/// cells it never holds more than a piece's samples, is within its bound at every DEM sample
+/// inside it (brute force, voids skipped) and is conforming (pieces share their sides'
+/// vertices). Negative control: the conformity check finds the open edges of a mesh with a
+/// triangle removed.
+#[test]
+fn a_tile_read_in_pieces_is_within_its_bound_and_conforming() {
+    let hm = bumpy(241, 181, true);
+    let grid = GeoGrid::new(&hm).unwrap();
+    let (mut pieced, mut edges) = (0, 0);
+    for level in [10] {
+        let bound = level_error(level, 0.25);
+        for tile in grid.tile_range(level).tiles(level) {
+            let largest = std::cell::Cell::new(0);
+            let (whole, _) = build_tile_read(
+                &grid.layout,
+                tile,
+                bound,
+                &[],
+                Algorithm::Delaunay,
+                4096,
+                reader(&hm, &largest),
+            )
+            .unwrap();
+            let want =
+                build_tile_owned(hm.clone(), tile, bound, &[], Algorithm::Delaunay).unwrap().0;
+            assert_eq!(whole, want, "{tile:?}");
+            let span = largest.get();
+            let largest = std::cell::Cell::new(0);
+            let (mesh, used) = build_tile_read(
+                &grid.layout,
+                tile,
+                bound,
+                &[[100, 90]],
+                Algorithm::Delaunay,
+                24,
+                reader(&hm, &largest),
+            )
+            .unwrap();
+            assert!(largest.get() <= 25, "{tile:?}: read {} samples across", largest.get());
+            assert!(!used.is_empty());
+            pieced += usize::from(span > 25);
+            let seen = for_each_sample_error(&hm, &grid, tile, &mesh, |at, e| {
+                assert!(e <= bound + 1e-6, "{tile:?}: sample {at:?} {e} m off, bound {bound}");
+            });
+            assert!(seen > 0);
+            edges += assert_conforming(&mesh);
+            assert_conforming(&whole);
+            let mut holed = mesh.clone();
+            holed.triangles.remove(holed.triangles.len() / 2);
+            let caught = std::panic::catch_unwind(|| assert_conforming(&holed));
+            assert!(caught.is_err(), "{tile:?}: a removed triangle left no open edge");
+        }
+    }
+    assert!(pieced >= 2 && edges > 1000, "{pieced} tiles in pieces, {edges} edges");
+}

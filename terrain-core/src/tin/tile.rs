@@ -15,6 +15,13 @@
 //! greedy loop never inserts another border sample: two tiles of the same bound that share a
 //! side compute the same profile from the same samples, so they share their border vertices
 //! exactly (no crack between them).
+//!
+//! **Pieces** ([`mesh_in_pieces`]): a window too large to hold at once is meshed as pieces of
+//! at most `piece x piece` cells, each read on its own and meshed with [`Borders::Simplified`],
+//! so two pieces sharing a side share its vertices (the union is one conforming mesh, no crack
+//! and no T-junction), each verified against every non-void sample of its piece (so the union
+//! is within the bound of every sample of the window). The memory is one piece's samples and
+//! the mesh, whatever the window's size.
 
 use crate::Georef;
 use crate::heightmap::{Heightmap, VoidMask};
@@ -43,6 +50,9 @@ pub enum TileError {
     /// An RTIN's border vertices are its hierarchy's, so it cannot take locked sides.
     #[error("an RTIN tile cannot lock its borders (Borders::Simplified needs the greedy mesher)")]
     RtinLockedBorders,
+    /// A piece's samples as read do not make a grid (a reader's bug: wrong size).
+    #[error("a piece of the window: {0}")]
+    Piece(#[from] crate::heightmap::HeightmapError),
 }
 
 /// A window of `width x height` samples, sample `(i, j)` being `sample(i, j)` = `(height,
@@ -75,6 +85,26 @@ pub fn window(
     // Same sizes, finite heights.
     Heightmap::new(width, height, data, voids, Georef::local(1.0))
         .unwrap_or_else(|e| unreachable!("a window of finite samples: {e}"))
+}
+
+/// [`window`] of samples read as a block (`data` row-major, `voids` `None`: none): the same
+/// grid without a copy (non-finite heights made 0; a window of only void samples unmasked).
+pub fn window_of(
+    width: usize,
+    height: usize,
+    mut data: Vec<f32>,
+    voids: Option<VoidMask>,
+) -> Result<Heightmap, TileError> {
+    for z in data.iter_mut() {
+        if !z.is_finite() {
+            *z = 0.0;
+        }
+    }
+    let voids = match voids {
+        Some(v) if v.count() < width * height => v,
+        _ => VoidMask::new(width, height),
+    };
+    Ok(Heightmap::new(width, height, data, voids, Georef::local(1.0))?)
 }
 
 /// The samples of a height profile to keep so that linear interpolation between consecutive
@@ -199,6 +229,102 @@ pub fn mesh_window_with(
     Ok((m, stats))
 }
 
+/// The `n + 1` boundaries (from 0 to `cells`) of `n` nearly equal spans of at most `piece`
+/// cells each, `n` the fewest that fit.
+fn cuts(cells: usize, piece: usize) -> Vec<usize> {
+    let n = cells.div_ceil(piece.max(1)).max(1);
+    (0..=n).map(|k| k * cells / n).collect()
+}
+
+/// The samples of a piece as read, made a mesher's input: a void's non-finite height becomes
+/// 0 (a vertex needs a finite height); the voids stay masked even where every sample is void
+/// (then nothing is measured and the piece is its corners at their fill), so the two pieces
+/// sharing a side see the same voids on it and keep the same side vertices.
+fn piece_window(
+    width: usize,
+    height: usize,
+    mut data: Vec<f32>,
+    voids: Option<VoidMask>,
+) -> Result<Heightmap, TileError> {
+    let voids = voids.unwrap_or_else(|| VoidMask::new(width, height));
+    for (k, z) in data.iter_mut().enumerate() {
+        if !z.is_finite() && voids.get(k % width, k / width) {
+            *z = 0.0;
+        }
+    }
+    Ok(Heightmap::new(width, height, data, voids, Georef::local(1.0))?)
+}
+
+/// Meshes a `width x height` window (grid coordinates, one metre per sample, as a
+/// [`window`]) within `bound` of every non-void sample in pieces of at most `piece x piece`
+/// cells (see the module docs): `read([i0, j0, i1, j1])` returns the samples of that inclusive
+/// rectangle of the window, row-major from its south-west sample, and their voids (`None`:
+/// none). Pieces that share a side share its vertices ([`Borders::Simplified`]); `seeds`
+/// (window samples `[i, j]`) go to the pieces they are inside of (not on a piece's side).
+/// Returns the union in the window's grid coordinates (vertices shared by pieces merged) and
+/// the error measured over every piece: its maximum and where (window coordinates), and the
+/// samples and RMS over the pieces, a sample on a shared side counted in each of its pieces.
+pub fn mesh_in_pieces<E: From<TileError>>(
+    width: usize,
+    height: usize,
+    piece: usize,
+    bound: f64,
+    seeds: &[[u32; 2]],
+    mut read: impl FnMut([usize; 4]) -> Result<(Vec<f32>, Option<VoidMask>), E>,
+) -> Result<(TriMesh, ErrorStats), E> {
+    if width < 2 || height < 2 {
+        return Err(TileError::Mesh(MeshError::GridTooSmall { width, height }).into());
+    }
+    let (xs, ys) = (cuts(width - 1, piece), cuts(height - 1, piece));
+    let mut index: rustc_hash::FxHashMap<[u32; 2], u32> = Default::default();
+    let mut positions: Vec<glam::DVec3> = Vec::new();
+    let mut triangles: Vec<[u32; 3]> = Vec::new();
+    let mut stats = ErrorStats { max_error: 0.0, rms_error: 0.0, samples: 0, worst: None };
+    let mut sum_sq = 0.0;
+    for y in ys.windows(2) {
+        for x in xs.windows(2) {
+            let ([x0, x1], [y0, y1]) = ([x[0], x[1]], [y[0], y[1]]);
+            let (pw, ph) = (x1 - x0 + 1, y1 - y0 + 1);
+            let (data, voids) = read([x0, y0, x1, y1])?;
+            let sub = piece_window(pw, ph, data, voids)?;
+            let local: Vec<[u32; 2]> = seeds
+                .iter()
+                .filter(|&&[i, j]| {
+                    (x0..=x1).contains(&(i as usize)) && (y0..=y1).contains(&(j as usize))
+                })
+                .map(|&[i, j]| [i - x0 as u32, j - y0 as u32])
+                .collect();
+            let (m, s) =
+                mesh_window_with(&sub, bound, Borders::Simplified, &local, Algorithm::Delaunay)?;
+            drop(sub);
+            if s.max_error > stats.max_error || stats.worst.is_none() && s.worst.is_some() {
+                stats.max_error = s.max_error;
+                stats.worst = s.worst.map(|(i, j)| (i + x0, j + y0));
+            }
+            sum_sq += s.rms_error * s.rms_error * s.samples as f64;
+            stats.samples += s.samples;
+            // Vertices are samples of the piece: integer grid coordinates.
+            let ids: Vec<u32> = m
+                .positions
+                .iter()
+                .map(|q| {
+                    let g = [q.x.round() as u32 + x0 as u32, q.y.round() as u32 + y0 as u32];
+                    *index.entry(g).or_insert_with(|| {
+                        positions.push(glam::DVec3::new(f64::from(g[0]), f64::from(g[1]), q.z));
+                        (positions.len() - 1) as u32
+                    })
+                })
+                .collect();
+            triangles.extend(m.triangles.iter().map(|t| t.map(|k| ids[k as usize])));
+        }
+    }
+    if stats.samples > 0 {
+        stats.rms_error = (sum_sq / stats.samples as f64).sqrt();
+    }
+    let normals = crate::mesh::vertex_normals(&positions, &triangles);
+    Ok((TriMesh { positions, normals, triangles }, stats))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -217,6 +343,22 @@ mod tests {
         v[10] = true;
         let kept = simplify_profile(&z, &v, 0.5);
         assert!(!kept.contains(&10) && kept.len() == 4, "{kept:?}");
+    }
+
+    /// The pieces' boundaries: the fewest spans of at most `piece` cells, nearly equal,
+    /// covering every cell once (neighbours share their boundary sample).
+    #[test]
+    fn cuts_split_into_the_fewest_spans() {
+        assert_eq!(cuts(4096, 1024), vec![0, 1024, 2048, 3072, 4096]);
+        assert_eq!(cuts(1024, 1024), vec![0, 1024]);
+        assert_eq!(cuts(1025, 1024), vec![0, 512, 1025]);
+        assert_eq!(cuts(7, 3), vec![0, 2, 4, 7]);
+        for (cells, piece) in [(1, 1), (100, 7), (4097, 256), (5, 100)] {
+            let c = cuts(cells, piece);
+            assert_eq!((c[0], *c.last().unwrap()), (0, cells));
+            assert!(c.windows(2).all(|w| w[1] > w[0] && w[1] - w[0] <= piece), "{c:?}");
+            assert_eq!(c.len() - 1, cells.div_ceil(piece));
+        }
     }
 
     /// Two windows sharing a side get the same vertices on it, and the bound holds.
