@@ -37,8 +37,9 @@
 //!
 //! With `--stores` and `geomorph` among the methods, two more rows time geomorph from each
 //! store (its `geomip.bin` over the store's patch tree, the cameras of the `ooc` rows): the
-//! selection as runs (`GeomipTable::select_runs`) and one patch at a time
-//! (`GeomipTable::select_each`, the computation without runs).
+//! selection as runs (`GeomipTable::select_runs`), the runs expanded to one entry per patch
+//! (`GeomipTable::select`, what the store's frame loop takes) and one patch at a time
+//! (`GeomipTable::select_each`, the computation without runs, as main's `select`).
 //!
 //! Per method and size the table gives the median over frames of: selection ms, patches
 //! selected (geomorph: drawn, in runs or not), nodes the traversal visited
@@ -304,6 +305,7 @@ fn main() -> anyhow::Result<()> {
     let geo_store = !stores.is_empty() && methods.contains(&LodMethod::Geomorph);
     if geo_store {
         names.push("geomorph runs (store)".into());
+        names.push("geomorph runs expanded (store)".into());
         names.push("geomorph per patch (store)".into());
     }
     let spec = FlightSpec::load(&flight).with_context(|| format!("flight {flight}"))?;
@@ -427,6 +429,12 @@ fn main() -> anyhow::Result<()> {
                     let tris = geomorph_triangles(&r, cfg.patch_cells);
                     (r.drawn_patches() as usize, Some(r.runs.len()), tris)
                 });
+                let expanded = measure(&cams, reps, |c| {
+                    let s = geomip.select(&tree, c, &cfg);
+                    let n = cfg.patch_cells as usize;
+                    let tris = s.patches.iter().map(|p| 2 * (n >> p.level).pow(2)).sum();
+                    (s.patches.len(), None, tris)
+                });
                 let each = measure(&cams, reps, |c| {
                     let s = geomip.select_each(&tree, c, &cfg);
                     let n = cfg.patch_cells as usize;
@@ -437,7 +445,7 @@ fn main() -> anyhow::Result<()> {
                     "  geomorph runs: median {:.0} patches one by one (not in runs)",
                     median(single)
                 );
-                for (k, row) in [runs, each].into_iter().enumerate() {
+                for (k, row) in [runs, expanded, each].into_iter().enumerate() {
                     eprintln!(
                         "  {:<26} {:>9.3} ms {:>8.0} patches {:>8.0} runs {:>9.0} triangles",
                         names[col + k],

@@ -755,18 +755,52 @@ impl GeomipRuns {
     /// Every drawn patch one by one, row-major (costs the patches in view: for references
     /// and the renderers that take a patch list). A run's patches have `c' = L` exactly.
     pub fn expand(&self) -> GeomipSelection {
-        let mut all: Vec<(PatchLod, f32)> =
-            self.patches.iter().copied().zip(self.factors.iter().copied()).collect();
-        all.reserve(self.run_patches() as usize);
+        // Bucketed by row (counts, offsets, fill), each row then ordered by column: linear in
+        // the patches plus a sort of each row's few entries, no sort of the whole list.
+        let Some(rows) = self
+            .runs
+            .iter()
+            .map(|r| r.j + r.height)
+            .chain(self.patches.iter().map(|p| p.j + 1))
+            .max()
+        else {
+            return GeomipSelection {
+                culled: self.culled,
+                cpu_ms: self.cpu_ms,
+                ..Default::default()
+            };
+        };
+        let mut start = vec![0usize; rows as usize + 1];
+        for r in &self.runs {
+            for j in r.j..r.j + r.height {
+                start[j as usize + 1] += r.width as usize;
+            }
+        }
+        for p in &self.patches {
+            start[p.j as usize + 1] += 1;
+        }
+        for j in 0..rows as usize {
+            start[j + 1] += start[j];
+        }
+        let total = start[rows as usize];
         let l = f32::from(self.coarsest);
+        let mut all = vec![(self.run_patch(0, 0), l); total];
+        let mut fill = start.clone();
+        for (p, &f) in self.patches.iter().zip(&self.factors) {
+            all[fill[p.j as usize]] = (*p, f);
+            fill[p.j as usize] += 1;
+        }
         for r in &self.runs {
             for j in r.j..r.j + r.height {
                 for i in r.i..r.i + r.width {
-                    all.push((self.run_patch(i, j), l));
+                    all[fill[j as usize]] = (self.run_patch(i, j), l);
+                    fill[j as usize] += 1;
                 }
             }
         }
-        all.sort_unstable_by_key(|(p, _)| (p.j, p.i));
+        for j in 0..rows as usize {
+            all[start[j]..start[j + 1]].sort_unstable_by_key(|(p, _)| p.i);
+        }
         let (patches, factors) = all.into_iter().unzip();
         GeomipSelection { patches, factors, culled: self.culled, cpu_ms: self.cpu_ms }
     }
