@@ -422,10 +422,14 @@ fn main() -> anyhow::Result<()> {
                 let cfg =
                     GeomipConfig { patch_cells: geomip.patch_cells(), ..method_config().geomip };
                 let col = methods.len() + refines.len();
-                let mut single = Vec::new();
+                let (mut single, mut coarse) = (Vec::new(), Vec::new());
                 let runs = measure(&cams, reps, |c| {
                     let r = geomip.select_runs(&tree, c, &cfg);
                     single.push(r.patches.len() as f64);
+                    let l = r.coarsest;
+                    coarse
+                        .push(r.patches.iter().filter(|p| p.level == l && p.tween == 0.0).count()
+                            as f64);
                     let tris = geomorph_triangles(&r, cfg.patch_cells);
                     (r.drawn_patches() as usize, Some(r.runs.len()), tris)
                 });
@@ -442,8 +446,10 @@ fn main() -> anyhow::Result<()> {
                     (s.patches.len(), None, tris)
                 });
                 eprintln!(
-                    "  geomorph runs: median {:.0} patches one by one (not in runs)",
-                    median(single)
+                    "  geomorph runs: median {:.0} patches one by one (not in runs), {:.0} of them \
+                     at the coarsest level with tween 0",
+                    median(single),
+                    median(coarse)
                 );
                 for (k, row) in [runs, expanded, each].into_iter().enumerate() {
                     eprintln!(

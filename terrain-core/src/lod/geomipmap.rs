@@ -53,11 +53,12 @@
 //!
 //! **Runs: cost follows the view's detail.** Most patches in a far view are at the coarsest
 //! level `L` (one quad): patch `p` is there with tween 0, every edge at `L`, exactly when
-//! `c'_p = L`, which holds when every `q` with `|p - q|_1 < L` has `c_q = L` (all `a_l <= 1/2`,
-//! i.e. `d >= 2 lambda delta_l / tau` for each max-error vertex). A max pyramid over the patch
-//! grid, built with the table (`CoarsePyramid`: per node the largest error and the height
-//! range of the projected vertices over its patches dilated by `L - 1`), bounds that for a
-//! whole node of the patch tree from the eye's distance to its dilated box. So
+//! `c'_p = L`, which holds when every `q` with `|p - q|_1 = r < L` has `c_q >= L - r`, i.e.
+//! `a_l <= 1/2` for its levels `l <= L - r` (`d >= 2 lambda delta_l / tau` for each of those
+//! max-error vertices). A max pyramid over the patch grid, built with the table
+//! (`CoarsePyramid`: per node and radius `r` the largest error `m_{L-r}` over its patches
+//! dilated by `r`, and the projected vertices' height range), bounds that for a whole node of
+//! the patch tree from the eye's distances to its dilated boxes. So
 //! [`GeomipTable::select_runs`] walks the patch tree once (the frustum cull as before): a node
 //! wholly in view that the bound proves all-coarsest is one [`PatchRun`] (a rectangle of
 //! patches), a partly visible one goes down (runs hold exactly the patches the frustum keeps),
@@ -389,7 +390,7 @@ impl GeomipTable {
     }
 
     /// Bytes the table holds in memory: 10 per patch and level below the finest, and the
-    /// coarsest-level pyramid's 12 per node (about 16 per patch).
+    /// coarsest-level pyramid's `4 (L + 2)` per node (about 32 per 16-cell patch).
     pub fn memory_bytes(&self) -> usize {
         self.errors.len() * 10 + self.pyramid.memory_bytes()
     }
@@ -490,92 +491,101 @@ impl GeomipTable {
     }
 }
 
-/// One node's bound for [`CoarsePyramid`]: the largest error, and the height range of the
-/// vertices carrying a positive error, over the node's patches dilated by the pyramid's radius.
-#[derive(Debug, Clone, Copy, PartialEq)]
-struct CoarseBound {
-    error: f32,
-    z_lo: f32,
-    z_hi: f32,
-}
-
-impl CoarseBound {
-    const NONE: CoarseBound =
-        CoarseBound { error: 0.0, z_lo: f32::INFINITY, z_hi: f32::NEG_INFINITY };
-
-    fn merge(self, o: CoarseBound) -> CoarseBound {
-        CoarseBound {
-            error: self.error.max(o.error),
-            z_lo: self.z_lo.min(o.z_lo),
-            z_hi: self.z_hi.max(o.z_hi),
-        }
-    }
-}
-
-/// One level of a [`CoarsePyramid`]: `nx` by `ny` nodes, row-major.
+/// One level of a [`CoarsePyramid`]: `nx` by `ny` nodes, row-major; per node `L` errors
+/// (`errors[node * L + r]`, see [`CoarsePyramid`]) and the height range of the vertices.
 #[derive(Debug, Clone, PartialEq, Default)]
 struct PyramidLevel {
     nx: u32,
     ny: u32,
-    nodes: Vec<CoarseBound>,
+    errors: Vec<f32>,
+    /// Per node: lowest and highest height of a vertex carrying a positive error within
+    /// `L - 1` patches (`+inf, -inf` when none).
+    z: Vec<[f32; 2]>,
 }
 
 /// A max pyramid over the patch grid that proves whole nodes of the patch tree coarsest.
 ///
 /// Patch `p` is drawn at the coarsest level `L` with tween 0 (and every edge at `L`, tween
-/// 0) exactly when `c'_p = L`; since every factor is at most `L` and at least 0, that holds
-/// when every patch `q` with `|p - q|_1 < L` has `c_q = L`, i.e. `a_l <= 1/2` for all its
-/// levels: `d >= 2 lambda delta_l / tau` for each max-error vertex (the article's
-/// `a_L = lambda delta_L / (tau d_L)`). Level 0 holds, per patch, the largest monotone error
-/// (the coarsest level's) and the height range of the vertices the factor projects, dilated
-/// over the square of radius `L - 1` patches (which holds the city-block ball); level `m`
-/// merges 2 x 2 nodes of level `m - 1`, so a node of the patch tree at depth
-/// `max_level - m` reads one entry. With the node's patches' plan rectangle widened by the
-/// same radius and that height range, the eye's distance to the box bounds every `d` from
-/// below. 12 bytes per node, about 16 per patch.
+/// 0) exactly when `c'_p = min_q (c_q + |p - q|_1) >= L`. Every factor is at least 0, so
+/// only `q` with `|p - q|_1 = r < L` matter, and each needs `c_q >= L - r`, which holds when
+/// its levels `1..=L - r` all have `a_l <= 1/2` (then `w_1 = ... = w_{L-r} = 1`): with the
+/// monotone error `m_{L-r}` (the largest of those levels'), `d >= 2 lambda m_{L-r} / tau` for
+/// each of their max-error vertices (the article's `a_L = lambda delta_L / (tau d_L)`). So
+/// level 0 holds, per patch and `r` in `0..L`, the largest `m_{L-r}` over the square of
+/// radius `r` patches around it (which holds the city-block ball), and the height range of
+/// the projected vertices over radius `L - 1`; level `m` merges 2 x 2 nodes of level `m - 1`,
+/// so a node of the patch tree at depth `max_level - m` reads one entry. The eye's distance
+/// to the node's patches' plan rectangle widened by `r` patches, with that height range,
+/// bounds every `d` of radius `r` from below. `4 (L + 2)` bytes per node (24 for 16-cell
+/// patches, about 32 per patch).
 #[derive(Debug, Clone, PartialEq, Default)]
 struct CoarsePyramid {
-    /// The dilation in patches: `L - 1`.
-    radius: u32,
+    /// `L`, the coarsest level: errors per node.
+    coarsest: usize,
     /// Level 0: one node per patch; the last level has one node.
     levels: Vec<PyramidLevel>,
 }
 
+/// `out[k] = max(v[k - r ..= k + r])` along rows (`step` 1) or columns (`step` = `nx`) of an
+/// `nx` by `ny` grid, clipped to it.
+fn dilate<T: Copy>(
+    v: &[T],
+    (nx, ny): (usize, usize),
+    r: usize,
+    rows: bool,
+    merge: impl Fn(T, T) -> T,
+) -> Vec<T> {
+    let mut out = v.to_vec();
+    for j in 0..ny {
+        for i in 0..nx {
+            let (k, lo, hi) = if rows {
+                (j * nx + i, j * nx + i.saturating_sub(r), j * nx + (i + r).min(nx - 1))
+            } else {
+                (j * nx + i, j.saturating_sub(r) * nx + i, (j + r).min(ny - 1) * nx + i)
+            };
+            let step = if rows { 1 } else { nx };
+            let mut acc = v[lo];
+            let mut q = lo + step;
+            while q <= hi {
+                acc = merge(acc, v[q]);
+                q += step;
+            }
+            out[k] = acc;
+        }
+    }
+    out
+}
+
 impl CoarsePyramid {
     fn new(t: &GeomipTable) -> Self {
-        let stride = t.levels - 1;
+        let l = t.levels - 1;
         let (nx, ny) = (t.nx as usize, t.ny as usize);
-        let radius = stride.saturating_sub(1);
-        let own: Vec<CoarseBound> = (0..nx * ny)
+        let dims = (nx, ny);
+        let n = nx * ny;
+        // Per radius r: the largest m_{L-r} over the square of radius r.
+        let mut errors = vec![0.0f32; n * l];
+        for r in 0..l {
+            let own: Vec<f32> = (0..n).map(|k| t.errors[k * l + (l - r) - 1]).collect();
+            let d = dilate(&dilate(&own, dims, r, true, f32::max), dims, r, false, f32::max);
+            for k in 0..n {
+                errors[k * l + r] = d[k];
+            }
+        }
+        let own: Vec<[f32; 2]> = (0..n)
             .map(|k| {
-                let mut b = CoarseBound::NONE;
-                for e in k * stride..(k + 1) * stride {
+                let mut z = [f32::INFINITY, f32::NEG_INFINITY];
+                for e in k * l..(k + 1) * l {
                     if t.errors[e] > 0.0 {
-                        let z = t.heights[e];
-                        b = b.merge(CoarseBound { error: t.errors[e], z_lo: z, z_hi: z });
+                        z = [z[0].min(t.heights[e]), z[1].max(t.heights[e])];
                     }
                 }
-                b
+                z
             })
             .collect();
-        // Square dilation, separable: along rows, then along columns.
-        let mut rows = vec![CoarseBound::NONE; nx * ny];
-        for j in 0..ny {
-            for i in 0..nx {
-                let (a, b) = (i.saturating_sub(radius), (i + radius).min(nx - 1));
-                rows[j * nx + i] =
-                    own[j * nx + a..=j * nx + b].iter().fold(CoarseBound::NONE, |m, &o| m.merge(o));
-            }
-        }
-        let mut base = vec![CoarseBound::NONE; nx * ny];
-        for j in 0..ny {
-            let (a, b) = (j.saturating_sub(radius), (j + radius).min(ny - 1));
-            for i in 0..nx {
-                base[j * nx + i] =
-                    (a..=b).fold(CoarseBound::NONE, |m, jj| m.merge(rows[jj * nx + i]));
-            }
-        }
-        let mut levels = vec![PyramidLevel { nx: t.nx, ny: t.ny, nodes: base }];
+        let zm = |a: [f32; 2], b: [f32; 2]| [a[0].min(b[0]), a[1].max(b[1])];
+        let r = l.saturating_sub(1);
+        let z = dilate(&dilate(&own, dims, r, true, zm), dims, r, false, zm);
+        let mut levels = vec![PyramidLevel { nx: t.nx, ny: t.ny, errors, z }];
         loop {
             let prev = levels.last().expect("level 0");
             if prev.nx == 1 && prev.ny == 1 {
@@ -583,33 +593,38 @@ impl CoarsePyramid {
             }
             let (px, py) = (prev.nx as usize, prev.ny as usize);
             let (cx, cy) = (px.div_ceil(2), py.div_ceil(2));
-            let mut nodes = vec![CoarseBound::NONE; cx * cy];
+            let mut errors = vec![0.0f32; cx * cy * l];
+            let mut z = vec![[f32::INFINITY, f32::NEG_INFINITY]; cx * cy];
             for j in 0..cy {
                 for i in 0..cx {
-                    let mut b = CoarseBound::NONE;
+                    let k = j * cx + i;
                     for (di, dj) in [(0, 0), (1, 0), (0, 1), (1, 1)] {
                         let (ci, cj) = (2 * i + di, 2 * j + dj);
                         if ci < px && cj < py {
-                            b = b.merge(prev.nodes[cj * px + ci]);
+                            let c = cj * px + ci;
+                            for r in 0..l {
+                                errors[k * l + r] = errors[k * l + r].max(prev.errors[c * l + r]);
+                            }
+                            z[k] = zm(z[k], prev.z[c]);
                         }
                     }
-                    nodes[j * cx + i] = b;
                 }
             }
-            levels.push(PyramidLevel { nx: cx as u32, ny: cy as u32, nodes });
+            levels.push(PyramidLevel { nx: cx as u32, ny: cy as u32, errors, z });
         }
-        Self { radius: radius as u32, levels }
+        Self { coarsest: l, levels }
     }
 
     fn memory_bytes(&self) -> usize {
-        self.levels.iter().map(|l| l.nodes.len() * std::mem::size_of::<CoarseBound>()).sum()
+        self.levels.iter().map(|l| l.errors.len() * 4 + l.z.len() * 8).sum()
     }
 
     /// Whether every patch of the node `m` levels above the patches at `(i, j)` (patch tree
     /// level `max_level - m`) is provably at the coarsest level with tween 0 for an eye at
-    /// `eye`: `2 lambda delta_max / tau <= d` (with a relative margin of `1e-6` for rounding),
-    /// `d` the distance from the eye to the node's dilated box. `scale` multiplies the
-    /// bound's left side (1 in the selection; the tests' negative control lowers it).
+    /// `eye`: for each radius `r < L`, `2 lambda e_r / tau <= d_r` (with a relative margin of
+    /// `1e-6` for rounding), `d_r` the distance from the eye to the node's box widened by `r`
+    /// patches. `scale` multiplies the bound's left side (1 in the selection; the tests'
+    /// negative control lowers it).
     #[allow(clippy::too_many_arguments)]
     fn all_coarsest(
         &self,
@@ -622,35 +637,41 @@ impl CoarsePyramid {
         scale: f64,
     ) -> bool {
         let Some(top) = self.levels.last() else { return false };
-        let b = match self.levels.get(m) {
-            Some(l) if i < l.nx && j < l.ny => l.nodes[(j * l.nx + i) as usize],
+        let l = self.coarsest;
+        let node = match self.levels.get(m) {
+            Some(lv) if i < lv.nx && j < lv.ny => (lv, (j * lv.nx + i) as usize),
             Some(_) => return false,
             // Above the pyramid's top (a store's root covers more than the grid): the root.
-            None => top.nodes[0],
+            None => (top, 0),
         };
-        if b.error <= 0.0 {
+        let (lv, k) = node;
+        let errors = &lv.errors[k * l..(k + 1) * l];
+        if errors.iter().all(|&e| e <= 0.0) {
             return true;
         }
+        let [z_lo, z_hi] = lv.z[k];
         let base = &self.levels[0];
-        let (p, r) = (f64::from(patch_cells), f64::from(self.radius));
-        let span = |k: u32, n: u32| -> (f64, f64) {
-            let lo = (u64::from(k) << m).min(u64::from(n)) as f64;
-            let hi = ((u64::from(k) + 1) << m).min(u64::from(n)) as f64;
-            ((lo - r) * p, (hi + r) * p)
-        };
-        let (x0, x1) = span(i, base.nx);
-        let (y0, y1) = span(j, base.ny);
-        let lo = shape.grid_to_world(DVec2::new(x0, y0));
-        let hi = shape.grid_to_world(DVec2::new(x1, y1));
+        let p = f64::from(patch_cells);
         let gap = |v: f64, a: f64, b: f64| (a.min(b) - v).max(v - a.max(b)).max(0.0);
-        let d = DVec3::new(
-            gap(eye.x, lo.x, hi.x),
-            gap(eye.y, lo.y, hi.y),
-            gap(eye.z, f64::from(b.z_lo), f64::from(b.z_hi)),
-        )
-        .length();
-        let need = 2.0 * lambda * f64::from(b.error) * scale * (1.0 + 1e-6);
-        need.is_finite() && need <= tau * d
+        let dz = gap(eye.z, f64::from(z_lo), f64::from(z_hi));
+        errors.iter().enumerate().all(|(r, &e)| {
+            if e <= 0.0 {
+                return true;
+            }
+            let r = r as f64;
+            let span = |k: u32, n: u32| -> (f64, f64) {
+                let lo = (u64::from(k) << m).min(u64::from(n)) as f64;
+                let hi = ((u64::from(k) + 1) << m).min(u64::from(n)) as f64;
+                ((lo - r) * p, (hi + r) * p)
+            };
+            let (x0, x1) = span(i, base.nx);
+            let (y0, y1) = span(j, base.ny);
+            let lo = shape.grid_to_world(DVec2::new(x0, y0));
+            let hi = shape.grid_to_world(DVec2::new(x1, y1));
+            let d = DVec3::new(gap(eye.x, lo.x, hi.x), gap(eye.y, lo.y, hi.y), dz).length();
+            let need = 2.0 * lambda * f64::from(e) * scale * (1.0 + 1e-6);
+            need.is_finite() && need <= tau * d
+        })
     }
 }
 
@@ -930,8 +951,8 @@ impl GeomipTable {
     /// tree at that size), as runs of patches provably at the coarsest level and the other
     /// patches one by one. The one traversal ([`crate::quadtree::traverse`]) walks the tree
     /// with its frustum cull; a node wholly inside the frustum (or the leaf of a patch) that
-    /// the coarsest-level pyramid proves all-coarsest (every patch within `L - 1` of it has
-    /// `c = L`, see `CoarsePyramid`) is one run; a partly visible node goes down, so runs hold
+    /// the coarsest-level pyramid proves all-coarsest (every patch at distance `r < L` of it
+    /// has `c >= L - r`, see `CoarsePyramid`) is one run; a partly visible node goes down, so runs hold
     /// exactly the patches the frustum keeps (no extra triangles). The remaining patches get
     /// the exact computation (factor window within `L` of them, envelope). The cost follows
     /// the view's detail: the nodes along the frustum's sides and the patches near the eye.
