@@ -9,7 +9,7 @@
 //!     [--sizes 1025,4097,16385] [--flight flights/pvps_884.json] [--frames 30] \
 //!     [--methods uniform,pvps-a,pvps-b,pvps-c,dss-1,dss-2,geomorph] [--reps 3] \
 //!     [--stores 1025=DIR,4097=DIR,32769=DIR] [--tau 2] [--ooc-refine eq7:32,cost:16] \
-//!     [--poses relative|absolute]
+//!     [--poses relative|absolute] [--geomorph-px 7] [--clock wall|cpu]
 //! ```
 //! Grids: `FractalConfig::with_size(n, n, 10.0)` (seed 1, 10 m spacing, 1500 m relief), built
 //! once per size with every method's precomputation (`MethodScene::prepare`, timed apart).
@@ -35,8 +35,15 @@
 //! `tau` (Eq. 7 bounds the same screen error on every grid). `--tau` also takes one value per
 //! size (`1025=2.4,16385=1.4`).
 //!
+//! With `--stores` and `geomorph` among the methods, two more rows time geomorph from each
+//! store (its `geomip.bin` over the store's patch tree, the cameras of the `ooc` rows): the
+//! selection as runs (`GeomipTable::select_runs`), the runs expanded to one entry per patch
+//! (`GeomipTable::select`, what the store's frame loop takes) and one patch at a time
+//! (`GeomipTable::select_each`, the computation without runs, as main's `select`).
+//!
 //! Per method and size the table gives the median over frames of: selection ms, patches
-//! selected, nodes the traversal visited (`SelectionStats::visited`; `-` where the method does
+//! selected (geomorph: drawn, in runs or not), nodes the traversal visited
+//! (`SelectionStats::visited`; geomorph's runs: the number of runs; `-` where the method does
 //! not count them), ns per selected patch, and the nominal triangles (each patch at its inner
 //! factors, `2 f_u f_v`; geomorph's `2 (16 / 2^level)^2`); then the growth of the ms from the
 //! smallest size to the largest.
@@ -51,6 +58,8 @@ use terrain_app::ooc::{OocConfig, OocScene};
 use terrain_core::Heightmap;
 use terrain_core::flight::{FlightConfig, FlightSpec};
 use terrain_core::geometry::Camera;
+use terrain_core::lod::{GeomipConfig, GeomipRuns};
+use terrain_core::quadtree::NodeTree;
 use terrain_core::synth::FractalConfig;
 use terrain_stream::{Refinement, SplitRule, Store, StoreTree, select_patches};
 
@@ -75,6 +84,39 @@ fn nominal_triangles(sel: &terrain_core::lod::Selection) -> usize {
     sel.patches.iter().map(|p| (2.0 * p.inner[0].ceil() * p.inner[1].ceil()) as usize).sum()
 }
 
+/// Geomorph's nominal triangles: `2 (P / 2^level)^2` per patch, a run's patches at the
+/// coarsest level (2 each).
+fn geomorph_triangles(runs: &GeomipRuns, patch_cells: u32) -> usize {
+    let n = patch_cells as usize;
+    let coarse = 2 * (n >> runs.coarsest).pow(2);
+    runs.patches.iter().map(|p| 2 * (n >> p.level).pow(2)).sum::<usize>()
+        + coarse * runs.run_patches() as usize
+}
+
+/// This thread's CPU seconds (`clock_gettime(CLOCK_THREAD_CPUTIME_ID)`, up to date to the ns;
+/// `/proc/thread-self/schedstat` is only updated at scheduler ticks).
+#[allow(unsafe_code)] // The one FFI call; an example-only timer.
+fn thread_cpu_s() -> f64 {
+    let mut ts = libc::timespec { tv_sec: 0, tv_nsec: 0 };
+    // SAFETY: `ts` is a valid timespec to write; the clock id is a constant the kernel knows.
+    let rc = unsafe { libc::clock_gettime(libc::CLOCK_THREAD_CPUTIME_ID, &mut ts) };
+    if rc == 0 { ts.tv_sec as f64 + ts.tv_nsec as f64 * 1e-9 } else { f64::NAN }
+}
+
+/// What a selection's time is: wall time (default), or this thread's CPU time (`--clock cpu`:
+/// on a loaded machine wall time includes waiting for a core).
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum Clock {
+    Wall,
+    Cpu,
+}
+
+static CLOCK: std::sync::OnceLock<Clock> = std::sync::OnceLock::new();
+
+fn clock() -> Clock {
+    *CLOCK.get().unwrap_or(&Clock::Wall)
+}
+
 /// Times `select` on every camera (fastest of `reps` per camera) and takes the medians.
 fn measure(
     cameras: &[Camera],
@@ -87,9 +129,13 @@ fn measure(
         let mut best = f64::INFINITY;
         let mut counts = (0, None, 0);
         for _ in 0..reps {
-            let t = Instant::now();
+            let (t, cpu) = (Instant::now(), thread_cpu_s());
             counts = select(c);
-            best = best.min(t.elapsed().as_secs_f64() * 1e3);
+            let ms = match clock() {
+                Clock::Wall => t.elapsed().as_secs_f64() * 1e3,
+                Clock::Cpu => (thread_cpu_s() - cpu) * 1e3,
+            };
+            best = best.min(ms);
         }
         times.push(best);
         patches.push(counts.0 as f64);
@@ -168,6 +214,22 @@ fn main() -> anyhow::Result<()> {
     let frames: usize = take("--frames", "30").parse().context("--frames")?;
     let reps: usize = take("--reps", "3").parse::<usize>().context("--reps")?.max(1);
     let taus = take("--tau", "2");
+    let _ = CLOCK.set(match take("--clock", "wall").as_str() {
+        "wall" => Clock::Wall,
+        "cpu" => Clock::Cpu,
+        other => anyhow::bail!("--clock {other}: wall or cpu"),
+    });
+    // Geomorph's pixel threshold (its `terrain bench --values`; p99 1 px is near 7 on the big
+    // stores), default the method's.
+    let geomorph_px: f64 =
+        take("--geomorph-px", &MethodConfig::default().geomip.pixel_threshold.to_string())
+            .parse()
+            .context("--geomorph-px")?;
+    let method_config = || {
+        let mut c = MethodConfig::default();
+        c.geomip.pixel_threshold = geomorph_px;
+        c
+    };
     let tau_of = |n: u64| -> anyhow::Result<f64> {
         if !taus.contains('=') {
             return taus.parse().context("--tau: pixels, or SIZE=PX,...");
@@ -238,6 +300,14 @@ fn main() -> anyhow::Result<()> {
     if !stores.is_empty() {
         names.extend(refines.iter().map(|(r, _)| format!("ooc {r} (tau {taus})")));
     }
+    // Geomorph from a store: its table (`geomip.bin`) over the store's patch tree, as runs and
+    // one patch at a time (the computation without runs, as main's `select`).
+    let geo_store = !stores.is_empty() && methods.contains(&LodMethod::Geomorph);
+    if geo_store {
+        names.push("geomorph runs (store)".into());
+        names.push("geomorph runs expanded (store)".into());
+        names.push("geomorph per patch (store)".into());
+    }
     let spec = FlightSpec::load(&flight).with_context(|| format!("flight {flight}"))?;
     let flight_cfg = FlightConfig::default();
 
@@ -254,7 +324,7 @@ fn main() -> anyhow::Result<()> {
                 FractalConfig::with_size(n, n, 10.0).to_heightmap().map_err(anyhow::Error::msg)?;
             let gen_s = t.elapsed().as_secs_f64();
             let cams = poses(&mut base, absolute, &hm, &spec, &flight_cfg, frames);
-            let scene = MethodScene::new(hm, MethodConfig::default());
+            let scene = MethodScene::new(hm, method_config());
             let t = Instant::now();
             scene.prepare(&methods);
             eprintln!(
@@ -263,13 +333,19 @@ fn main() -> anyhow::Result<()> {
                 cams.len()
             );
             for (k, &m) in methods.iter().enumerate() {
+                let mut single = Vec::new();
                 let row = measure(&cams, reps, |c| {
                     if m == LodMethod::Geomorph {
-                        // Its own selection (levels, tween factors): what the morph draws.
-                        let lods = scene.select_geomorph(c);
-                        let n = scene.geomorph_patch_cells() as usize;
-                        let tris = lods.patches.iter().map(|p| 2 * (n >> p.level).pow(2)).sum();
-                        (lods.patches.len(), None, tris)
+                        // Its own selection (levels, tween factors): what the morph draws, as
+                        // runs of coarsest patches and the others one by one.
+                        let runs = scene.select_geomorph_runs(c, scene.config.geomip.morph);
+                        single.push(runs.patches.len() as f64);
+                        let n = scene.geomorph_patch_cells();
+                        (
+                            runs.drawn_patches() as usize,
+                            Some(runs.runs.len()),
+                            geomorph_triangles(&runs, n),
+                        )
                     } else {
                         let sel = scene.select(m, c);
                         // `uniform` does not count its visits (0).
@@ -289,6 +365,9 @@ fn main() -> anyhow::Result<()> {
                     row.visited,
                     row.triangles
                 );
+                if !single.is_empty() {
+                    eprintln!("  geomorph: median {:.0} patches not in runs", median(single));
+                }
                 table[k].push(Some(row));
             }
             cameras = Some(cams);
@@ -332,6 +411,57 @@ fn main() -> anyhow::Result<()> {
                     dir.display()
                 );
                 table[methods.len() + r].push(Some(row));
+            }
+            if geo_store {
+                let cells = method_config().leaf_cells.clamp(2, 64).next_power_of_two();
+                let tree = StoreTree::new(store.clone(), cells);
+                let t = Instant::now();
+                let geomip = terrain_app::geomip_scene::read_for_store(dir, tree.shape())?
+                    .exaggerated(store.header().vertical_scale);
+                eprintln!("  geomorph table read in {:.1} s", t.elapsed().as_secs_f64());
+                let cfg =
+                    GeomipConfig { patch_cells: geomip.patch_cells(), ..method_config().geomip };
+                let col = methods.len() + refines.len();
+                let (mut single, mut coarse) = (Vec::new(), Vec::new());
+                let runs = measure(&cams, reps, |c| {
+                    let r = geomip.select_runs(&tree, c, &cfg);
+                    single.push(r.patches.len() as f64);
+                    let l = r.coarsest;
+                    coarse
+                        .push(r.patches.iter().filter(|p| p.level == l && p.tween == 0.0).count()
+                            as f64);
+                    let tris = geomorph_triangles(&r, cfg.patch_cells);
+                    (r.drawn_patches() as usize, Some(r.runs.len()), tris)
+                });
+                let expanded = measure(&cams, reps, |c| {
+                    let s = geomip.select(&tree, c, &cfg);
+                    let n = cfg.patch_cells as usize;
+                    let tris = s.patches.iter().map(|p| 2 * (n >> p.level).pow(2)).sum();
+                    (s.patches.len(), None, tris)
+                });
+                let each = measure(&cams, reps, |c| {
+                    let s = geomip.select_each(&tree, c, &cfg);
+                    let n = cfg.patch_cells as usize;
+                    let tris = s.patches.iter().map(|p| 2 * (n >> p.level).pow(2)).sum();
+                    (s.patches.len(), None, tris)
+                });
+                eprintln!(
+                    "  geomorph runs: median {:.0} patches one by one (not in runs), {:.0} of them \
+                     at the coarsest level with tween 0",
+                    median(single),
+                    median(coarse)
+                );
+                for (k, row) in [runs, expanded, each].into_iter().enumerate() {
+                    eprintln!(
+                        "  {:<26} {:>9.3} ms {:>8.0} patches {:>8.0} runs {:>9.0} triangles",
+                        names[col + k],
+                        row.ms,
+                        row.patches,
+                        row.visited,
+                        row.triangles
+                    );
+                    table[col + k].push(Some(row));
+                }
             }
         } else if !stores.is_empty() {
             for column in table.iter_mut().skip(methods.len()) {

@@ -41,7 +41,7 @@
 use std::sync::OnceLock;
 
 use crate::entropy_method::{EntropyMethodConfig, EntropyScene, whole_terrain_selection};
-use terrain_core::lod::{GeomipConfig, GeomipScene, GeomipSelection};
+use terrain_core::lod::{GeomipConfig, GeomipRuns, GeomipScene, GeomipSelection};
 use terrain_core::quadtree::NodeId;
 use terrain_gpu::geomorph::{
     GpuMorphPatch, MeshLibrary, MorphGrid, build_surface as morph_surface,
@@ -559,6 +559,15 @@ impl MethodScene {
         let cfg =
             GeomipConfig { patch_cells: self.geomorph_patch_cells(), morph, ..self.config.geomip };
         self.geomip_scene().select(camera, &cfg)
+    }
+
+    /// The geomorph method's selection, compact: runs of patches at the coarsest level and
+    /// the others one by one ([`terrain_core::lod::GeomipTable::select_runs`]); its
+    /// expansion is [`MethodScene::select_geomorph_with`].
+    pub fn select_geomorph_runs(&self, camera: &Camera, morph: bool) -> GeomipRuns {
+        let cfg =
+            GeomipConfig { patch_cells: self.geomorph_patch_cells(), morph, ..self.config.geomip };
+        self.geomip_scene().select_runs(camera, &cfg)
     }
 
     /// `geomorph-pvs`: removes from `frame` the patches that the conservative PVS proves hidden

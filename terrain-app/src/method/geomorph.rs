@@ -71,8 +71,20 @@ impl Method for GeomorphMethod<'_> {
     fn frame(&mut self, camera: &Camera) -> Frame {
         let t = Instant::now();
         let morph = self.path != MorphPath::Static && self.scene.config.geomip.morph;
-        let lods = self.select(camera, morph);
-        let selection_ms = ms(t);
+        // The selection is compact (runs of coarsest patches, the others one by one); the
+        // renderer and the measurement take the patches one by one, so the runs are expanded
+        // as the frame's conversion (`convert_ms`). geomorph-pvs culls the expanded patches
+        // within its selection, as before.
+        let runs = self.scene.select_geomorph_runs(camera, morph);
+        let mut selection_ms = ms(t);
+        let t = Instant::now();
+        let mut lods = runs.expand();
+        let convert_ms = ms(t);
+        if self.pvs {
+            let t = Instant::now();
+            self.scene.cull_geomorph_pvs(&mut lods, camera);
+            selection_ms += ms(t);
+        }
         // Software morphing: every vertex of every patch morphed on the CPU (the shader's
         // tested reference), the frame's build stage; the renderer uploads the result.
         let (heights, build_ms) = match self.path {
@@ -95,6 +107,7 @@ impl Method for GeomorphMethod<'_> {
             stats: MethodStats {
                 selection_ms,
                 build_ms,
+                convert_ms,
                 patches: lods.patches.len(),
                 ..MethodStats::default()
             },

@@ -51,6 +51,22 @@
 //! value is `c_q` plus `|p - q|_1` additions of `1.0` in `f32`, whatever the order, so the
 //! output is bit-identical to the whole-grid transform (the tests keep it as a reference).
 //!
+//! **Runs: cost follows the view's detail.** Most patches in a far view are at the coarsest
+//! level `L` (one quad): patch `p` is there with tween 0, every edge at `L`, exactly when
+//! `c'_p = L`, which holds when every `q` with `|p - q|_1 = r < L` has `c_q >= L - r`, i.e.
+//! `a_l <= 1/2` for its levels `l <= L - r` (`d >= 2 lambda delta_l / tau` for each of those
+//! max-error vertices). A max pyramid over the patch grid, built with the table
+//! (`CoarsePyramid`: per node and radius `r` the largest error `m_{L-r}` over its patches
+//! dilated by `r`, and the projected vertices' height range), bounds that for a whole node of
+//! the patch tree from the eye's distances to its dilated boxes. So
+//! [`GeomipTable::select_runs`] walks the patch tree once (the frustum cull as before): a node
+//! wholly in view that the bound proves all-coarsest is one [`PatchRun`] (a rectangle of
+//! patches), a partly visible one goes down (runs hold exactly the patches the frustum keeps),
+//! and only the remaining patches get the factor window and envelope. The result expands
+//! ([`GeomipRuns::expand`]) to the per-patch selection bit for bit ([`GeomipTable::select_each`]
+//! computes that without runs; the tests compare both with the whole-grid reference, and a
+//! deliberately loose bound must fail them).
+//!
 //! **Borders.** Each shared edge is drawn at the coarser patch's level, and its vertices follow
 //! the coarser patch's tween factor ("the finer patch allows the coarser one to dictate the
 //! border vertices' position"); between two patches at the same level, the larger of the two
@@ -59,6 +75,7 @@
 //! [`PatchLod::edge_level`] and [`PatchLod::edge_tween`] carry this per edge; edges on the
 //! grid's border follow the patch itself.
 
+use std::cell::Cell;
 use std::time::Instant;
 
 use glam::{DVec2, DVec3};
@@ -69,7 +86,7 @@ use crate::geometry::Camera;
 use crate::heightmap::Heightmap;
 use crate::metrics::Region;
 use crate::metrics::geomorph::{Reference, Triangulation, max_error_vertices_with};
-use crate::quadtree::{AlwaysSplit, FrustumCull, NoCull, NodeTree, Quadtree, TreeShape, select};
+use crate::quadtree::{Cull, NodeId, NodeInfo, NodeTree, Quadtree, TreeShape, select};
 
 /// Settings of the geo-mipmapping selection.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -120,6 +137,9 @@ pub struct GeomipTable {
     heights: Vec<f32>,
     /// Parallel to `errors`: the vertex's sample within the patch, `dj (P + 1) + di`.
     vertices: Vec<u16>,
+    /// What decides whole nodes of the patch tree at the coarsest level at once (built from
+    /// the entries above whenever they change).
+    pyramid: CoarsePyramid,
 }
 
 /// One row of patches of a [`GeomipTable`] being computed ([`GeomipTable::new_with`]): opaque.
@@ -263,6 +283,7 @@ impl GeomipTable {
             errors: Vec::with_capacity((nx * ny) as usize * (levels - 1)),
             heights: Vec::new(),
             vertices: Vec::new(),
+            pyramid: CoarsePyramid::default(),
         };
         t.heights.reserve(t.errors.capacity());
         t.vertices.reserve(t.errors.capacity());
@@ -271,6 +292,7 @@ impl GeomipTable {
             t.heights.extend(r.heights);
             t.vertices.extend(r.vertices);
         }
+        t.pyramid = CoarsePyramid::new(&t);
         t
     }
 
@@ -367,9 +389,10 @@ impl GeomipTable {
         (self.width, self.height)
     }
 
-    /// Bytes the table holds in memory (10 per patch and level below the finest).
+    /// Bytes the table holds in memory: 10 per patch and level below the finest, and the
+    /// coarsest-level pyramid's `4 (L + 2)` per node (about 32 per 16-cell patch).
     pub fn memory_bytes(&self) -> usize {
-        self.errors.len() * 10
+        self.errors.len() * 10 + self.pyramid.memory_bytes()
     }
 
     /// The table of the heights times `scale` (a vertical exaggeration, positive): each level's
@@ -383,6 +406,7 @@ impl GeomipTable {
         for h in &mut self.heights {
             *h = (f64::from(*h) * scale) as f32;
         }
+        self.pyramid = CoarsePyramid::new(&self);
         self
     }
 
@@ -417,7 +441,20 @@ impl GeomipTable {
         let nx = (width.saturating_sub(1)).div_ceil(patch_cells).max(1);
         let ny = (height.saturating_sub(1)).div_ceil(patch_cells).max(1);
         debug_assert_eq!(errors.len(), (nx * ny) as usize * (levels - 1));
-        Self { patch_cells, levels, width, height, nx, ny, errors, heights, vertices }
+        let mut t = Self {
+            patch_cells,
+            levels,
+            width,
+            height,
+            nx,
+            ny,
+            errors,
+            heights,
+            vertices,
+            pyramid: CoarsePyramid::default(),
+        };
+        t.pyramid = CoarsePyramid::new(&t);
+        t
     }
 
     /// The continuous factor of patch `k` before the neighbour envelope (see the module docs),
@@ -451,6 +488,190 @@ impl GeomipTable {
             c += w;
         }
         c as f32
+    }
+}
+
+/// One level of a [`CoarsePyramid`]: `nx` by `ny` nodes, row-major; per node `L` errors
+/// (`errors[node * L + r]`, see [`CoarsePyramid`]) and the height range of the vertices.
+#[derive(Debug, Clone, PartialEq, Default)]
+struct PyramidLevel {
+    nx: u32,
+    ny: u32,
+    errors: Vec<f32>,
+    /// Per node: lowest and highest height of a vertex carrying a positive error within
+    /// `L - 1` patches (`+inf, -inf` when none).
+    z: Vec<[f32; 2]>,
+}
+
+/// A max pyramid over the patch grid that proves whole nodes of the patch tree coarsest.
+///
+/// Patch `p` is drawn at the coarsest level `L` with tween 0 (and every edge at `L`, tween
+/// 0) exactly when `c'_p = min_q (c_q + |p - q|_1) >= L`. Every factor is at least 0, so
+/// only `q` with `|p - q|_1 = r < L` matter, and each needs `c_q >= L - r`, which holds when
+/// its levels `1..=L - r` all have `a_l <= 1/2` (then `w_1 = ... = w_{L-r} = 1`): with the
+/// monotone error `m_{L-r}` (the largest of those levels'), `d >= 2 lambda m_{L-r} / tau` for
+/// each of their max-error vertices (the article's `a_L = lambda delta_L / (tau d_L)`). So
+/// level 0 holds, per patch and `r` in `0..L`, the largest `m_{L-r}` over the square of
+/// radius `r` patches around it (which holds the city-block ball), and the height range of
+/// the projected vertices over radius `L - 1`; level `m` merges 2 x 2 nodes of level `m - 1`,
+/// so a node of the patch tree at depth `max_level - m` reads one entry. The eye's distance
+/// to the node's patches' plan rectangle widened by `r` patches, with that height range,
+/// bounds every `d` of radius `r` from below. `4 (L + 2)` bytes per node (24 for 16-cell
+/// patches, about 32 per patch).
+#[derive(Debug, Clone, PartialEq, Default)]
+struct CoarsePyramid {
+    /// `L`, the coarsest level: errors per node.
+    coarsest: usize,
+    /// Level 0: one node per patch; the last level has one node.
+    levels: Vec<PyramidLevel>,
+}
+
+/// `out[k] = max(v[k - r ..= k + r])` along rows (`step` 1) or columns (`step` = `nx`) of an
+/// `nx` by `ny` grid, clipped to it.
+fn dilate<T: Copy>(
+    v: &[T],
+    (nx, ny): (usize, usize),
+    r: usize,
+    rows: bool,
+    merge: impl Fn(T, T) -> T,
+) -> Vec<T> {
+    let mut out = v.to_vec();
+    for j in 0..ny {
+        for i in 0..nx {
+            let (k, lo, hi) = if rows {
+                (j * nx + i, j * nx + i.saturating_sub(r), j * nx + (i + r).min(nx - 1))
+            } else {
+                (j * nx + i, j.saturating_sub(r) * nx + i, (j + r).min(ny - 1) * nx + i)
+            };
+            let step = if rows { 1 } else { nx };
+            let mut acc = v[lo];
+            let mut q = lo + step;
+            while q <= hi {
+                acc = merge(acc, v[q]);
+                q += step;
+            }
+            out[k] = acc;
+        }
+    }
+    out
+}
+
+impl CoarsePyramid {
+    fn new(t: &GeomipTable) -> Self {
+        let l = t.levels - 1;
+        let (nx, ny) = (t.nx as usize, t.ny as usize);
+        let dims = (nx, ny);
+        let n = nx * ny;
+        // Per radius r: the largest m_{L-r} over the square of radius r.
+        let mut errors = vec![0.0f32; n * l];
+        for r in 0..l {
+            let own: Vec<f32> = (0..n).map(|k| t.errors[k * l + (l - r) - 1]).collect();
+            let d = dilate(&dilate(&own, dims, r, true, f32::max), dims, r, false, f32::max);
+            for k in 0..n {
+                errors[k * l + r] = d[k];
+            }
+        }
+        let own: Vec<[f32; 2]> = (0..n)
+            .map(|k| {
+                let mut z = [f32::INFINITY, f32::NEG_INFINITY];
+                for e in k * l..(k + 1) * l {
+                    if t.errors[e] > 0.0 {
+                        z = [z[0].min(t.heights[e]), z[1].max(t.heights[e])];
+                    }
+                }
+                z
+            })
+            .collect();
+        let zm = |a: [f32; 2], b: [f32; 2]| [a[0].min(b[0]), a[1].max(b[1])];
+        let r = l.saturating_sub(1);
+        let z = dilate(&dilate(&own, dims, r, true, zm), dims, r, false, zm);
+        let mut levels = vec![PyramidLevel { nx: t.nx, ny: t.ny, errors, z }];
+        loop {
+            let prev = levels.last().expect("level 0");
+            if prev.nx == 1 && prev.ny == 1 {
+                break;
+            }
+            let (px, py) = (prev.nx as usize, prev.ny as usize);
+            let (cx, cy) = (px.div_ceil(2), py.div_ceil(2));
+            let mut errors = vec![0.0f32; cx * cy * l];
+            let mut z = vec![[f32::INFINITY, f32::NEG_INFINITY]; cx * cy];
+            for j in 0..cy {
+                for i in 0..cx {
+                    let k = j * cx + i;
+                    for (di, dj) in [(0, 0), (1, 0), (0, 1), (1, 1)] {
+                        let (ci, cj) = (2 * i + di, 2 * j + dj);
+                        if ci < px && cj < py {
+                            let c = cj * px + ci;
+                            for r in 0..l {
+                                errors[k * l + r] = errors[k * l + r].max(prev.errors[c * l + r]);
+                            }
+                            z[k] = zm(z[k], prev.z[c]);
+                        }
+                    }
+                }
+            }
+            levels.push(PyramidLevel { nx: cx as u32, ny: cy as u32, errors, z });
+        }
+        Self { coarsest: l, levels }
+    }
+
+    fn memory_bytes(&self) -> usize {
+        self.levels.iter().map(|l| l.errors.len() * 4 + l.z.len() * 8).sum()
+    }
+
+    /// Whether every patch of the node `m` levels above the patches at `(i, j)` (patch tree
+    /// level `max_level - m`) is provably at the coarsest level with tween 0 for an eye at
+    /// `eye`: for each radius `r < L`, `2 lambda e_r / tau <= d_r` (with a relative margin of
+    /// `1e-6` for rounding), `d_r` the distance from the eye to the node's box widened by `r`
+    /// patches. `scale` multiplies the bound's left side (1 in the selection; the tests'
+    /// negative control lowers it).
+    #[allow(clippy::too_many_arguments)]
+    fn all_coarsest(
+        &self,
+        shape: &TreeShape,
+        patch_cells: u32,
+        (m, i, j): (usize, u32, u32),
+        eye: DVec3,
+        lambda: f64,
+        tau: f64,
+        scale: f64,
+    ) -> bool {
+        let Some(top) = self.levels.last() else { return false };
+        let l = self.coarsest;
+        let node = match self.levels.get(m) {
+            Some(lv) if i < lv.nx && j < lv.ny => (lv, (j * lv.nx + i) as usize),
+            Some(_) => return false,
+            // Above the pyramid's top (a store's root covers more than the grid): the root.
+            None => (top, 0),
+        };
+        let (lv, k) = node;
+        let errors = &lv.errors[k * l..(k + 1) * l];
+        if errors.iter().all(|&e| e <= 0.0) {
+            return true;
+        }
+        let [z_lo, z_hi] = lv.z[k];
+        let base = &self.levels[0];
+        let p = f64::from(patch_cells);
+        let gap = |v: f64, a: f64, b: f64| (a.min(b) - v).max(v - a.max(b)).max(0.0);
+        let dz = gap(eye.z, f64::from(z_lo), f64::from(z_hi));
+        errors.iter().enumerate().all(|(r, &e)| {
+            if e <= 0.0 {
+                return true;
+            }
+            let r = r as f64;
+            let span = |k: u32, n: u32| -> (f64, f64) {
+                let lo = (u64::from(k) << m).min(u64::from(n)) as f64;
+                let hi = ((u64::from(k) + 1) << m).min(u64::from(n)) as f64;
+                ((lo - r) * p, (hi + r) * p)
+            };
+            let (x0, x1) = span(i, base.nx);
+            let (y0, y1) = span(j, base.ny);
+            let lo = shape.grid_to_world(DVec2::new(x0, y0));
+            let hi = shape.grid_to_world(DVec2::new(x1, y1));
+            let d = DVec3::new(gap(eye.x, lo.x, hi.x), gap(eye.y, lo.y, hi.y), dz).length();
+            let need = 2.0 * lambda * f64::from(e) * scale * (1.0 + 1e-6);
+            need.is_finite() && need <= tau * d
+        })
     }
 }
 
@@ -493,6 +714,117 @@ pub struct GeomipSelection {
     pub culled: usize,
     /// CPU time of the selection, milliseconds.
     pub cpu_ms: f64,
+}
+
+/// A rectangle of patches all drawn at the coarsest level with tween 0, every edge at that
+/// level (a node of the patch tree that the [`CoarsePyramid`] bound decided at once).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub struct PatchRun {
+    /// First patch column.
+    pub i: u32,
+    /// First patch row.
+    pub j: u32,
+    /// Patches along x (at least 1).
+    pub width: u32,
+    /// Patches along y (at least 1).
+    pub height: u32,
+}
+
+impl PatchRun {
+    /// Patches in the run.
+    pub fn patches(&self) -> u64 {
+        u64::from(self.width) * u64::from(self.height)
+    }
+}
+
+/// The selection of one frame, compact: rectangles of patches at the coarsest level
+/// ([`PatchRun`]) and every other drawn patch one by one. [`GeomipRuns::expand`] gives the
+/// per-patch [`GeomipSelection`], bit for bit what the per-patch computation gives.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct GeomipRuns {
+    /// Runs, in the patch tree's depth-first order.
+    pub runs: Vec<PatchRun>,
+    /// The other drawn patches, row-major, south first.
+    pub patches: Vec<PatchLod>,
+    /// `c'` of each of `patches` (parallel).
+    pub factors: Vec<f32>,
+    /// The coarsest level `L` (every run's patches are drawn at it).
+    pub coarsest: u8,
+    /// Patches culled by the frustum (none are when culling is off).
+    pub culled: usize,
+    /// CPU time of the selection, milliseconds.
+    pub cpu_ms: f64,
+}
+
+impl GeomipRuns {
+    /// Patches in runs.
+    pub fn run_patches(&self) -> u64 {
+        self.runs.iter().map(PatchRun::patches).sum()
+    }
+
+    /// Patches drawn: in runs and one by one.
+    pub fn drawn_patches(&self) -> u64 {
+        self.run_patches() + self.patches.len() as u64
+    }
+
+    /// What a run's patch `(i, j)` is drawn as.
+    pub fn run_patch(&self, i: u32, j: u32) -> PatchLod {
+        let l = self.coarsest;
+        PatchLod { i, j, level: l, tween: 0.0, edge_level: [l; 4], edge_tween: [0.0; 4] }
+    }
+
+    /// Every drawn patch one by one, row-major (costs the patches in view: for references
+    /// and the renderers that take a patch list). A run's patches have `c' = L` exactly.
+    pub fn expand(&self) -> GeomipSelection {
+        // Bucketed by row (counts, offsets, fill), each row then ordered by column: linear in
+        // the patches plus a sort of each row's few entries, no sort of the whole list.
+        let Some(rows) = self
+            .runs
+            .iter()
+            .map(|r| r.j + r.height)
+            .chain(self.patches.iter().map(|p| p.j + 1))
+            .max()
+        else {
+            return GeomipSelection {
+                culled: self.culled,
+                cpu_ms: self.cpu_ms,
+                ..Default::default()
+            };
+        };
+        let mut start = vec![0usize; rows as usize + 1];
+        for r in &self.runs {
+            for j in r.j..r.j + r.height {
+                start[j as usize + 1] += r.width as usize;
+            }
+        }
+        for p in &self.patches {
+            start[p.j as usize + 1] += 1;
+        }
+        for j in 0..rows as usize {
+            start[j + 1] += start[j];
+        }
+        let total = start[rows as usize];
+        let l = f32::from(self.coarsest);
+        let mut all = vec![(self.run_patch(0, 0), l); total];
+        let mut fill = start.clone();
+        for (p, &f) in self.patches.iter().zip(&self.factors) {
+            all[fill[p.j as usize]] = (*p, f);
+            fill[p.j as usize] += 1;
+        }
+        for r in &self.runs {
+            for j in r.j..r.j + r.height {
+                for i in r.i..r.i + r.width {
+                    all[fill[j as usize]] = (self.run_patch(i, j), l);
+                    fill[j as usize] += 1;
+                }
+            }
+        }
+        for j in 0..rows as usize {
+            all[start[j]..start[j + 1]].sort_unstable_by_key(|(p, _)| p.i);
+        }
+        let (patches, factors) = all.into_iter().unzip();
+        GeomipSelection { patches, factors, culled: self.culled, cpu_ms: self.cpu_ms }
+    }
 }
 
 /// The geo-mipmap of a heightmap in memory: its [`GeomipTable`] and the quadtree whose leaves
@@ -557,13 +889,30 @@ impl GeomipScene {
     pub fn select(&self, camera: &Camera, cfg: &GeomipConfig) -> GeomipSelection {
         self.table.select(&self.qt, camera, cfg)
     }
+
+    /// The compact selection ([`GeomipTable::select_runs`]) over the heightmap's patch tree.
+    pub fn select_runs(&self, camera: &Camera, cfg: &GeomipConfig) -> GeomipRuns {
+        self.table.select_runs(&self.qt, camera, cfg)
+    }
+}
+
+/// Which nodes the selection may decide at once (the tests' negative control loosens it).
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum RunBound {
+    /// The proved bound ([`CoarsePyramid::all_coarsest`]).
+    Proved,
+    /// No runs: every visible patch one by one (the per-patch selection).
+    Never,
+    /// The proved bound with its left side times this (below 1: too optimistic).
+    #[cfg(test)]
+    Scaled(f64),
 }
 
 impl GeomipTable {
     /// Levels, tween factors and border rules for `camera` (see the module docs), the visible
-    /// patches from `tree`: a patch tree of this grid whose leaves are the patches (the
-    /// heightmap's [`Quadtree`] with leaves of `patch_cells`, or a baked store's tree at that
-    /// size). The same table and tree boxes give the same selection whatever holds them.
+    /// patches from `tree`, one by one: [`GeomipTable::select_runs`] expanded
+    /// ([`GeomipRuns::expand`]), so its cost follows the patches in view. `cpu_ms` counts the
+    /// expansion.
     ///
     /// # Panics
     /// If `tree` does not fit the table ([`GeomipTable::fits`]).
@@ -573,6 +922,60 @@ impl GeomipTable {
         camera: &Camera,
         cfg: &GeomipConfig,
     ) -> GeomipSelection {
+        let start = Instant::now();
+        let mut s = self.select_runs(tree, camera, cfg).expand();
+        s.cpu_ms = start.elapsed().as_secs_f64() * 1e3;
+        s
+    }
+
+    /// [`GeomipTable::select`] computing every visible patch's factor window and envelope
+    /// (no runs): the per-patch computation, `O(patches in view)`; what the runs must equal.
+    ///
+    /// # Panics
+    /// If `tree` does not fit the table ([`GeomipTable::fits`]).
+    pub fn select_each(
+        &self,
+        tree: &dyn NodeTree,
+        camera: &Camera,
+        cfg: &GeomipConfig,
+    ) -> GeomipSelection {
+        let start = Instant::now();
+        let mut s = self.select_runs_with(tree, camera, cfg, RunBound::Never).expand();
+        s.cpu_ms = start.elapsed().as_secs_f64() * 1e3;
+        s
+    }
+
+    /// Levels, tween factors and border rules for `camera` (see the module docs), compact:
+    /// the visible patches from `tree` (a patch tree of this grid whose leaves are the
+    /// patches: the heightmap's [`Quadtree`] with leaves of `patch_cells`, or a baked store's
+    /// tree at that size), as runs of patches provably at the coarsest level and the other
+    /// patches one by one. The one traversal ([`crate::quadtree::traverse`]) walks the tree
+    /// with its frustum cull; a node wholly inside the frustum (or the leaf of a patch) that
+    /// the coarsest-level pyramid proves all-coarsest (every patch at distance `r < L` of it
+    /// has `c >= L - r`, see `CoarsePyramid`) is one run; a partly visible node goes down, so runs hold
+    /// exactly the patches the frustum keeps (no extra triangles). The remaining patches get
+    /// the exact computation (factor window within `L` of them, envelope). The cost follows
+    /// the view's detail: the nodes along the frustum's sides and the patches near the eye.
+    /// The same table and tree boxes give the same selection whatever holds them.
+    ///
+    /// # Panics
+    /// If `tree` does not fit the table ([`GeomipTable::fits`]).
+    pub fn select_runs(
+        &self,
+        tree: &dyn NodeTree,
+        camera: &Camera,
+        cfg: &GeomipConfig,
+    ) -> GeomipRuns {
+        self.select_runs_with(tree, camera, cfg, RunBound::Proved)
+    }
+
+    fn select_runs_with(
+        &self,
+        tree: &dyn NodeTree,
+        camera: &Camera,
+        cfg: &GeomipConfig,
+        bound: RunBound,
+    ) -> GeomipRuns {
         let start = Instant::now();
         let shape = tree.shape();
         assert!(
@@ -588,19 +991,97 @@ impl GeomipTable {
         );
         let tau = cfg.pixel_threshold.max(1e-9);
         let (nx, ny) = (self.nx as usize, self.ny as usize);
-        // The patches in view: the quadtree's leaves the frustum keeps, depth-first.
-        let visible = if cfg.frustum_cull {
-            select(tree, &mut AlwaysSplit, &mut FrustumCull::new(camera.frustum()))
-        } else {
-            select(tree, &mut AlwaysSplit, &mut NoCull)
+        let (eye, lambda) = (camera.position, camera.lambda());
+        let top = shape.max_level();
+        let coarse = |n: NodeId| -> bool {
+            let scale = match bound {
+                RunBound::Proved => 1.0,
+                RunBound::Never => return false,
+                #[cfg(test)]
+                RunBound::Scaled(s) => s,
+            };
+            let m = usize::from(top - n.level);
+            self.pyramid.all_coarsest(
+                shape,
+                self.patch_cells,
+                (m, n.i, n.j),
+                eye,
+                lambda,
+                tau,
+                scale,
+            )
         };
-        debug_assert!(visible.iter().all(|n| n.level == shape.max_level()), "leaves are patches");
-        let cells = visible.iter().map(|n| (n.i as usize, n.j as usize));
+        // The cull policy notes its verdict on the node the split policy is asked about next
+        // (a node below a wholly visible one is not classified: it is inside).
+        let verdict = Cell::new(None::<(NodeId, Cull)>);
+        let frustum = camera.frustum();
+        let mut cull = |n: NodeId, info: &NodeInfo| -> Cull {
+            let c = if cfg.frustum_cull {
+                Cull::from(frustum.classify(&info.aabb))
+            } else {
+                Cull::AcceptAll
+            };
+            verdict.set(Some((n, c)));
+            c
+        };
+        let mut split = |n: NodeId, _: &NodeInfo| -> bool {
+            let partly = matches!(verdict.get(), Some((v, c)) if v == n && c != Cull::AcceptAll);
+            partly || !coarse(n)
+        };
+        let nodes = select(tree, &mut split, &mut cull);
+        let mut runs = Vec::new();
+        let mut cells = Vec::new();
+        for n in nodes {
+            if n.level < top || coarse(n) {
+                let m = u32::from(top - n.level);
+                let clip = |k: u32, cnt: usize| {
+                    let lo = (u64::from(k) << m).min(cnt as u64);
+                    let hi = ((u64::from(k) + 1) << m).min(cnt as u64);
+                    (lo as u32, (hi - lo) as u32)
+                };
+                let ((i, width), (j, height)) = (clip(n.i, nx), clip(n.j, ny));
+                if width > 0 && height > 0 {
+                    runs.push(PatchRun { i, j, width, height });
+                }
+            } else {
+                cells.push((n.i as usize, n.j as usize));
+            }
+        }
+        let (patches, factors) = self.exact_patches(shape, &cells, eye, lambda, tau, cfg);
+        let mut out = GeomipRuns {
+            runs,
+            patches,
+            factors,
+            coarsest: (self.levels - 1) as u8,
+            culled: 0,
+            cpu_ms: 0.0,
+        };
+        if cfg.frustum_cull {
+            out.culled = nx * ny - out.drawn_patches() as usize;
+        }
+        out.cpu_ms = start.elapsed().as_secs_f64() * 1e3;
+        out
+    }
+
+    /// The exact computation for the patches `cells` (column, row): factors over the window
+    /// within `L` of them, the envelope there, levels, tweens and borders (module docs).
+    /// Returns them row-major with their `c'`.
+    fn exact_patches(
+        &self,
+        shape: &TreeShape,
+        cells: &[(usize, usize)],
+        eye: DVec3,
+        lambda: f64,
+        tau: f64,
+        cfg: &GeomipConfig,
+    ) -> (Vec<PatchLod>, Vec<f32>) {
+        let (nx, ny) = (self.nx as usize, self.ny as usize);
+        let cells_in = cells;
+        let cells = cells_in.iter().copied();
         // Every patch within `L` of a visible one (see the module docs), densely indexed.
         let max_level = self.levels - 1;
         let win = RowWindow::dilated(cells.clone(), max_level, nx, ny);
         let mut c = vec![0.0f32; win.len()];
-        let (eye, lambda) = (camera.position, camera.lambda());
         for (j, lo, hi, off) in win.rows() {
             for i in lo..=hi {
                 c[off + i - lo] = self.factor(shape, j * nx + i, eye, lambda, tau);
@@ -643,8 +1124,8 @@ impl GeomipTable {
                 shown[k] = true;
             }
         }
-        let mut patches = Vec::with_capacity(visible.len());
-        let mut factors = Vec::with_capacity(visible.len());
+        let mut patches = Vec::with_capacity(cells_in.len());
+        let mut factors = Vec::with_capacity(cells_in.len());
         for (j, lo, hi, off) in win.rows() {
             for i in lo..=hi {
                 let k = off + i - lo;
@@ -682,8 +1163,7 @@ impl GeomipTable {
                 factors.push(c[k]);
             }
         }
-        let culled = if cfg.frustum_cull { nx * ny - patches.len() } else { 0 };
-        GeomipSelection { patches, factors, culled, cpu_ms: start.elapsed().as_secs_f64() * 1e3 }
+        (patches, factors)
     }
 }
 
@@ -910,17 +1390,21 @@ mod tests {
     /// Asserts the fast selection equals the whole-grid reference for many cameras: inside,
     /// above and outside the grid, looking every way, near and far clip planes that leave
     /// holes and empty views, several thresholds, morph on and off, culling on and off.
-    fn assert_matches_reference(hm: &Heightmap, patch_cells: u32, cameras: usize) {
+    fn assert_matches_reference(hm: &Heightmap, patch_cells: u32, cameras: usize) -> u64 {
         let scene = GeomipScene::new(hm, patch_cells);
         let boxes = boxes(&scene, hm);
         let (w, h) = (hm.width() as f64, hm.height() as f64);
         let zmax = f64::from(hm.data().iter().copied().fold(f32::MIN, f32::max));
         let mut unit = crate::test_support::unit_rng(0x2545_f491_4f6c_dd1d);
         let (mut drawn, mut some_culled, mut some_empty) = (0, false, false);
+        let (mut in_runs, mut one_by_one) = (0u64, 0usize);
         for k in 0..cameras {
             let gx = -0.3 * w + 1.6 * w * unit();
             let gy = -0.3 * h + 1.6 * h * unit();
-            let z = zmax * (0.1 + 3.0 * unit() * unit()) + 5.0;
+            let mut z = zmax * (0.1 + 3.0 * unit() * unit()) + 5.0;
+            if k % 11 == 5 {
+                z *= 300.0; // far above: most of the grid at the coarsest level
+            }
             let p = hm.grid_to_world(gx, gy).extend(z);
             let mut cam = Camera::from_yaw_pitch(p, 360.0 * unit(), -85.0 * unit() + 5.0)
                 .with_viewport(1280.0, 720.0);
@@ -934,7 +1418,10 @@ mod tests {
                 morph: k % 5 != 3,
                 frustum_cull: k % 7 != 6,
             };
-            let fast = scene.select(&cam, &cfg);
+            let runs = scene.select_runs(&cam, &cfg);
+            in_runs += runs.run_patches();
+            one_by_one += runs.patches.len();
+            let fast = runs.expand();
             let slow = select_reference(&scene, &boxes, &cam, &cfg);
             assert_eq!(fast.culled, slow.culled, "camera {k}");
             assert_eq!(fast.patches.len(), slow.patches.len(), "camera {k}");
@@ -953,22 +1440,106 @@ mod tests {
             some_culled |= fast.culled > 0 && !fast.patches.is_empty();
             some_empty |= fast.patches.is_empty();
         }
-        // The cameras exercised partial views and empty ones.
+        // The cameras exercised partial views and empty ones, runs and single patches.
         assert!(drawn > 0 && some_culled && some_empty, "{drawn} {some_culled} {some_empty}");
+        assert!(one_by_one > 0, "no patch outside runs");
+        in_runs
+    }
+
+    /// A real DEM of the shared data folder (`$TERRAIN_DATA`, else `../shared/data` beside
+    /// the workspace).
+    fn real_dem(rel: &str) -> Heightmap {
+        let dir = std::env::var_os("TERRAIN_DATA").map_or_else(
+            || std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/data"),
+            std::path::PathBuf::from,
+        );
+        let path = dir.join(rel);
+        crate::dem::load(&path, &crate::dem::LoadOptions::default())
+            .unwrap_or_else(|e| panic!("{} (set TERRAIN_DATA): {e}", path.display()))
+            .heightmap
+    }
+
+    #[test]
+    fn runs_expand_to_the_per_patch_selection_on_real_dems_with_voids() {
+        // Non-square, projected, with voids; and a steep geographic grid with voids.
+        let a = assert_matches_reference(&real_dem("big_tujunga/bigtujunga.tif"), 16, 60);
+        let b = assert_matches_reference(&real_dem("srtm/mt_rainier_90m.tif"), 16, 40);
+        assert!(a > 0 && b > 0, "runs were exercised: {a} {b}");
+    }
+
+    #[test]
+    fn runs_expand_to_the_per_patch_selection_without_the_shortcut() {
+        // select_each (no runs) and select (runs expanded) agree on a large flat-ish grid.
+        let hm = FractalConfig::with_size(1025, 769, 10.0).to_heightmap().unwrap();
+        let scene = GeomipScene::new(&hm, 16);
+        let mut unit = crate::test_support::unit_rng(0x9e37_79b9_7f4a_7c15);
+        let mut in_runs = 0;
+        for k in 0..30 {
+            let z = [60.0, 600.0, 6000.0, 60000.0][k % 4];
+            let p = hm.grid_to_world(1100.0 * unit() - 40.0, 820.0 * unit() - 30.0).extend(z);
+            let cam = Camera::from_yaw_pitch(p, 360.0 * unit(), -60.0 * unit())
+                .with_viewport(1280.0, 720.0);
+            let cfg = GeomipConfig::default();
+            let tree = scene.patch_tree();
+            let runs = scene.table().select_runs(tree, &cam, &cfg);
+            in_runs += runs.run_patches();
+            let a = runs.expand();
+            let b = scene.table().select_each(tree, &cam, &cfg);
+            assert_eq!(
+                a.patches.iter().map(bits).collect::<Vec<_>>(),
+                b.patches.iter().map(bits).collect::<Vec<_>>(),
+                "camera {k}"
+            );
+            let fa: Vec<u32> = a.factors.iter().map(|f| f.to_bits()).collect();
+            let fb: Vec<u32> = b.factors.iter().map(|f| f.to_bits()).collect();
+            assert_eq!(fa, fb, "camera {k}: factors");
+            assert_eq!(a.culled, b.culled);
+        }
+        assert!(in_runs > 0);
+    }
+
+    #[test]
+    fn a_too_optimistic_bound_breaks_the_equality() {
+        // Negative control: claiming nodes coarsest at a fiftieth of the proved distance
+        // must give a selection that differs from the per-patch one for some camera.
+        let hm = FractalConfig::with_size(513, 513, 10.0).to_heightmap().unwrap();
+        let scene = GeomipScene::new(&hm, 16);
+        let tree = scene.patch_tree();
+        let cfg = GeomipConfig::default();
+        let mut differs = 0;
+        for (x, y, z) in [
+            (10.0, 10.0, 300.0),
+            (256.0, 256.0, 2000.0),
+            (-50.0, 100.0, 800.0),
+            (0.0, 0.0, 20000.0),
+        ] {
+            let p = hm.grid_to_world(x, y).extend(z);
+            let cam = Camera::from_yaw_pitch(p, 45.0, -20.0).with_viewport(1280.0, 720.0);
+            let each = scene.table().select_each(tree, &cam, &cfg);
+            let proved = scene.table().select_runs(tree, &cam, &cfg).expand();
+            assert_eq!(proved.patches, each.patches);
+            let loose =
+                scene.table().select_runs_with(tree, &cam, &cfg, RunBound::Scaled(0.02)).expand();
+            differs += usize::from(loose.patches != each.patches);
+        }
+        assert!(differs > 0, "a loose bound went unnoticed");
     }
 
     #[test]
     fn view_bounded_selection_equals_the_whole_grid_reference_on_a_fractal_grid() {
         let hm = FractalConfig::with_size(513, 513, 10.0).to_heightmap().unwrap();
-        assert_matches_reference(&hm, 16, 120);
-        assert_matches_reference(&hm, 8, 40);
+        let a = assert_matches_reference(&hm, 16, 120);
+        let b = assert_matches_reference(&hm, 8, 40);
+        assert!(a > 0 && b > 0, "runs were exercised: {a} {b}");
     }
 
     #[test]
     fn view_bounded_selection_equals_the_whole_grid_reference_on_an_odd_grid() {
         // Neither side a multiple of the patch: the last patches are clipped.
         let hm = FractalConfig::with_size(301, 203, 30.0).to_heightmap().unwrap();
-        assert_matches_reference(&hm, 16, 120);
+        // (32-cell patches: 5 levels over a grid of 10 x 7 patches, too small for runs.)
+        let a = assert_matches_reference(&hm, 16, 120);
         assert_matches_reference(&hm, 32, 40);
+        assert!(a > 0, "runs were exercised");
     }
 }

@@ -66,7 +66,10 @@ pub use edges::{
     wish_outer_factors,
 };
 pub use geomip_file::{GeomipEncoder, GeomipFileError, GeomipFor};
-pub use geomipmap::{GeomipConfig, GeomipRow, GeomipScene, GeomipSelection, GeomipTable, PatchLod};
+pub use geomipmap::{
+    GeomipConfig, GeomipRow, GeomipRuns, GeomipScene, GeomipSelection, GeomipTable, PatchLod,
+    PatchRun,
+};
 pub use patch::{Edge, MAX_FACTOR, MIN_FACTOR, Patch, Selection, SelectionStats, clamp_factor};
 pub use pvps::{Method, NodeDistance, PvpsConfig, select_pvps, select_pvps_with_cull};
 pub use source::{GridSource, TerrainSource};
