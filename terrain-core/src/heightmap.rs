@@ -402,13 +402,7 @@ mod tests {
         // Random finite heights of every length 0..40 (remainders of the lanes included) and
         // a few grids with ties, zeros of both signs, infinities and NaN: the lanes give the
         // plain scan's bits wherever they answer, and they answer for the ordinary grids.
-        let mut x = 0x2545_F491_4F6C_DD1Du64;
-        let mut next = move || {
-            x ^= x >> 12;
-            x ^= x << 25;
-            x ^= x >> 27;
-            x.wrapping_mul(0x2545_F491_4F6C_DD1D)
-        };
+        let mut next = crate::test_support::xorshift64_star(0x2545_F491_4F6C_DD1D);
         let mut answered = 0;
         for case in 0..400 {
             let n = case % 40;

@@ -15,6 +15,18 @@ pub(crate) fn unit_rng(seed: u64) -> impl FnMut() -> f64 {
     }
 }
 
+/// Raw 64-bit numbers from Vigna's xorshift64* (12, 25, 27, multiplier 0x2545F4914F6CDD1D):
+/// deterministic and platform-independent; a zero seed is taken as 1.
+pub(crate) fn xorshift64_star(seed: u64) -> impl FnMut() -> u64 {
+    let mut x = seed.max(1);
+    move || {
+        x ^= x >> 12;
+        x ^= x << 25;
+        x ^= x >> 27;
+        x.wrapping_mul(0x2545_F491_4F6C_DD1D)
+    }
+}
+
 /// A random disjoint leaf set, sorted by `dfs_key`: each node splits with a probability that
 /// falls with depth (sometimes deep, to force long ripples), some subtrees are culled (holes),
 /// and nodes past a `w x h`-cell grid's east or north border (root of `2^max` cells) are

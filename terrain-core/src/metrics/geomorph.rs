@@ -467,6 +467,7 @@ fn max_of(values: &[f64]) -> f64 {
 mod tests {
     use super::*;
     use crate::georef::Georef;
+    use crate::test_support::xorshift64_star as rng;
 
     #[test]
     fn case_b_diagonal_is_nw_se() {
@@ -490,17 +491,6 @@ mod tests {
         );
         assert_eq!(u[1].error, 1.0);
         assert_eq!((u[1].vertex.unwrap().i, u[1].vertex.unwrap().j), (1, 1));
-    }
-
-    /// A small deterministic generator (xorshift64*), so the test needs no crate.
-    fn rng(seed: u64) -> impl FnMut() -> u64 {
-        let mut x = seed.max(1);
-        move || {
-            x ^= x >> 12;
-            x ^= x << 25;
-            x ^= x >> 27;
-            x.wrapping_mul(0x2545_F491_4F6C_DD1D)
-        }
     }
 
     #[test]
