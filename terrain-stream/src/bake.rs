@@ -1016,13 +1016,7 @@ mod tests {
         // Rows of every length 0..30 (the lanes' remainder included), stored heights within a
         // few steps of the source's or equal to them, a NaN among them in some: the same
         // maximum bits and losslessness as a scan left to right, from several starting maxima.
-        let mut x = 0x9E37_79B9_7F4A_7C15u64;
-        let mut next = move || {
-            x ^= x >> 12;
-            x ^= x << 25;
-            x ^= x >> 27;
-            x.wrapping_mul(0x2545_F491_4F6C_DD1D)
-        };
+        let mut next = crate::tests::xorshift64_star(0x9E37_79B9_7F4A_7C15);
         let mut lossy = 0;
         for case in 0..600 {
             let n = case % 30;

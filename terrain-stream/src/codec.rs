@@ -435,12 +435,11 @@ mod tests {
         for b in 1..64 {
             values.extend([(1u64 << b) - 1, 1 << b, (1 << b) + 1]);
         }
-        let mut x = 0x1234_5678_9ABC_DEF1u64;
+        let mut next = crate::tests::xorshift64_star(0x1234_5678_9ABC_DEF1);
         for _ in 0..2000 {
-            x ^= x >> 12;
-            x ^= x << 25;
-            x ^= x >> 27;
-            values.push(x.wrapping_mul(0x2545_F491_4F6C_DD1D) >> (x % 64));
+            // Values of every magnitude: a random number shifted right by a random amount.
+            let (v, shift) = (next(), next() % 64);
+            values.push(v >> shift);
         }
         let (mut plain, mut buf, mut pos) = (Vec::new(), vec![0xFFu8; 3], 0);
         for &v in &values {

@@ -6,6 +6,19 @@ mod remote;
 mod runtime;
 mod store;
 
+/// Raw 64-bit numbers from Vigna's xorshift64* (12, 25, 27, multiplier 0x2545F4914F6CDD1D)
+/// for the crate's randomized tests: deterministic, platform-independent; a zero seed is
+/// taken as 1.
+pub(crate) fn xorshift64_star(seed: u64) -> impl FnMut() -> u64 {
+    let mut x = seed.max(1);
+    move || {
+        x ^= x >> 12;
+        x ^= x << 25;
+        x ^= x >> 27;
+        x.wrapping_mul(0x2545_F491_4F6C_DD1D)
+    }
+}
+
 /// The runtime and remote tests' 513^2 store (k = 6, 4 node levels): a smooth wave with a
 /// small integer ripple, baked into `dir`.
 fn bake_wave_513(dir: &std::path::Path) {
