@@ -761,7 +761,13 @@ pub fn patch_factors(p: &Patch) -> PatchFactors {
 /// patches (what the measurement's coverage and the tessellation and paged renderers read),
 /// from memory or from a store.
 pub fn geomorph_selection(frame: &GeomipSelection, patch_cells: u32, leaf_level: u8) -> Selection {
-    geomorph_leaves(frame.patches.iter().copied(), patch_cells, leaf_level, frame.culled, frame.cpu_ms)
+    geomorph_leaves(
+        frame.patches.iter().copied(),
+        patch_cells,
+        leaf_level,
+        frame.culled,
+        frame.cpu_ms,
+    )
 }
 
 /// [`geomorph_selection`] of a compact selection: the same [`Selection`] as of its expansion

@@ -724,12 +724,15 @@ fn run_views(hm: &Heightmap) -> (GeomipScene, GeomipConfig, Vec<Camera>) {
 /// without skirts; with skirts, the patches listed in the order the runs path draws them (the
 /// single patches, then each run's row by row), since the coincident skirts of neighbouring
 /// patches may tie in depth, where the first drawn wins. A run moved by one patch changes the
-/// image (the negative control).
+/// image (the negative control). The same in paged mode (`render_paged_runs` over pages of
+/// mixed strides against `render_paged` of the list).
 fn runs_draw_the_expanded_image(backend: BackendChoice) {
     let Some(ctx) = context(backend) else { return };
     let hm = fractal();
     let config = GeomorphConfig { width: 256, height: 144, ..Default::default() };
     let mut renderer = GeomorphRenderer::new(&ctx, &hm, &config).unwrap();
+    let (_, mut pages) = mixed_pages(&ctx, &hm, false);
+    let mut paged = GeomorphRenderer::new_paged(&ctx, &pages, &config).unwrap();
     let (scene, cfg, cameras) = run_views(&hm);
     let skirt = GeomorphOptions { skirt_depth_m: 50.0, ..Default::default() };
     let (mut in_runs, mut single, mut moved_off) = (0u64, 0usize, 0usize);
@@ -761,6 +764,14 @@ fn runs_draw_the_expanded_image(backend: BackendChoice) {
             let differ =
                 compact.pixels.iter().zip(&expanded.pixels).filter(|(a, b)| a != b).count();
             assert_eq!(differ, 0, "camera {k} ({options:?}): {differ} pixels differ");
+            let s = paged.render_paged_runs(&mut pages, camera, &runs, &options).unwrap();
+            let compact = paged.read_image().unwrap();
+            let e = paged.render_paged(&mut pages, camera, &in_order, &options).unwrap();
+            let expanded = paged.read_image().unwrap();
+            assert_eq!((s.patches, s.triangles), (e.patches, e.triangles), "camera {k}, paged");
+            let differ =
+                compact.pixels.iter().zip(&expanded.pixels).filter(|(a, b)| a != b).count();
+            assert_eq!(differ, 0, "camera {k} ({options:?}), paged: {differ} pixels differ");
         }
         // The negative control: the largest run one patch east (or west at the border).
         let mut shifted = runs.clone();
