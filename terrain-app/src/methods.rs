@@ -607,6 +607,11 @@ impl MethodScene {
         geomorph_selection(frame, self.geomorph_patch_cells(), self.qt.max_level())
     }
 
+    /// [`MethodScene::geomorph_selection`] of a compact selection ([`geomorph_selection_runs`]).
+    pub fn geomorph_selection_runs(&self, runs: &GeomipRuns) -> Selection {
+        geomorph_selection_runs(runs, self.geomorph_patch_cells(), self.qt.max_level())
+    }
+
     /// The surface the geomorph renderer draws for `frame` (the morph's CPU reference, the
     /// same numbers as the vertex stage) and its non-degenerate triangles.
     pub fn geomorph_surface(&self, frame: &GeomipSelection) -> (SurfaceMesh, u64) {
@@ -756,10 +761,35 @@ pub fn patch_factors(p: &Patch) -> PatchFactors {
 /// patches (what the measurement's coverage and the tessellation and paged renderers read),
 /// from memory or from a store.
 pub fn geomorph_selection(frame: &GeomipSelection, patch_cells: u32, leaf_level: u8) -> Selection {
+    geomorph_leaves(
+        frame.patches.iter().copied(),
+        patch_cells,
+        leaf_level,
+        frame.culled,
+        frame.cpu_ms,
+    )
+}
+
+/// [`geomorph_selection`] of a compact selection: the same [`Selection`] as of its expansion
+/// ([`GeomipRuns::expand`]), built from the runs' patches and the single ones without the
+/// expanded list (`cpu_time` the selection's own, `runs.cpu_ms`).
+pub fn geomorph_selection_runs(runs: &GeomipRuns, patch_cells: u32, leaf_level: u8) -> Selection {
+    let in_runs = runs.runs.iter().flat_map(|r| {
+        (r.j..r.j + r.height).flat_map(move |j| (r.i..r.i + r.width).map(move |i| (i, j)))
+    });
+    let all = runs.patches.iter().copied().chain(in_runs.map(|(i, j)| runs.run_patch(i, j)));
+    geomorph_leaves(all, patch_cells, leaf_level, runs.culled, runs.cpu_ms)
+}
+
+fn geomorph_leaves(
+    lods: impl Iterator<Item = terrain_core::lod::PatchLod>,
+    patch_cells: u32,
+    leaf_level: u8,
+    culled: usize,
+    cpu_ms: f64,
+) -> Selection {
     let n = patch_cells as f32;
-    let mut patches: Vec<Patch> = frame
-        .patches
-        .iter()
+    let mut patches: Vec<Patch> = lods
         .map(|p| {
             let f = |l: u8| (n / f32::from(1u8 << l)).clamp(MIN_FACTOR, MAX_FACTOR);
             Patch {
@@ -774,9 +804,9 @@ pub fn geomorph_selection(frame: &GeomipSelection, patch_cells: u32, leaf_level:
     let stats = SelectionStats {
         traversal_leaves: patches.len(),
         patches: patches.len(),
-        culled: frame.culled,
+        culled,
         max_level: leaf_level,
-        cpu_time: std::time::Duration::from_secs_f64(frame.cpu_ms / 1e3),
+        cpu_time: std::time::Duration::from_secs_f64(cpu_ms / 1e3),
         ..SelectionStats::default()
     };
     Selection { patches, stats }

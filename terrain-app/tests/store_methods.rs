@@ -103,6 +103,10 @@ fn check(name: &str, hm: Heightmap) {
             let stream = b.stats.stream.clone().unwrap();
             assert!(stream.at_needed_level, "{name} {kind:?}: a warm frame");
             if let (Draw::Morph(la, _), Draw::PagedMorph(_, lb)) = (&a.draw, &b.draw) {
+                // Both compact (runs of coarsest patches and single patches): the same runs, and
+                // the same patches expanded.
+                assert_eq!(la.runs, lb.runs, "{name} camera {c}: the same runs");
+                let (la, lb) = (la.expand(), lb.expand());
                 assert_eq!(la.patches, lb.patches, "{name} camera {c}: the same levels and tweens");
                 assert!(lb.patches.iter().any(|p| p.tween > 0.0), "{name} camera {c}: morphing");
             } else {
@@ -380,10 +384,11 @@ fn geomorph_from_a_store_morphs_on_the_gpu_without_cracks() {
                     None => assert!(mirror.remove(u.page)),
                 }
             }
+            // The frame's runs expanded: every patch it draws.
+            let lods = lods.expand();
             if lods.patches.is_empty() {
                 continue;
             }
-            let lods = lods.clone();
             coarse += usize::from(!frame.stats.stream.as_ref().unwrap().at_needed_level);
             let (morph, pages) = renderer.paged_morph_mut().expect("a paged geomorph renderer");
             let mut cracks = |lods: &[PatchLod]| {

@@ -5,10 +5,16 @@
 //! three paths over the same patches ([`MorphPath`]): the vertex-shader morph (`geomorph`),
 //! no morph (`geomorph-static`) and the morph computed on the CPU and uploaded every frame
 //! (`geomorph-cpu`).
+//!
+//! The frame hands the renderer geomorph's compact selection (`GeomipRuns`: runs of patches at
+//! the coarsest level and single patches), drawn without expanding the runs; the measurement
+//! expands them (`Method::surface`), as do geomorph-pvs (it culls patch by patch) and
+//! geomorph-cpu (it morphs every vertex on the CPU), as the frame's conversion.
 
 use std::time::Instant;
 
 use terrain_core::geometry::Camera;
+use terrain_core::lod::{GeomipRuns, GeomipSelection};
 use terrain_gpu::geomorph::{GpuMorphPatch, MorphGrid, max_vertex_jump};
 
 use super::memory::ms;
@@ -24,6 +30,18 @@ pub enum MorphPath {
     Static,
     /// Morphed on the CPU every frame and uploaded ("software morphing"): `geomorph-cpu`.
     Cpu,
+}
+
+/// A per-patch selection as a compact one without runs (every patch single).
+fn singles(lods: GeomipSelection, coarsest: u8) -> GeomipRuns {
+    GeomipRuns {
+        runs: Vec::new(),
+        patches: lods.patches,
+        factors: lods.factors,
+        coarsest,
+        culled: lods.culled,
+        cpu_ms: lods.cpu_ms,
+    }
 }
 
 /// `geomorph` (and its Table 1 variants, and `geomorph-pvs`) with the morph renderer, over a
@@ -49,7 +67,7 @@ impl<'a> GeomorphMethod<'a> {
     }
 
     /// The levels and tween factors this method draws from `camera`.
-    fn select(&self, camera: &Camera, morph: bool) -> terrain_core::lod::GeomipSelection {
+    fn select(&self, camera: &Camera, morph: bool) -> GeomipSelection {
         let mut lods = self.scene.select_geomorph_with(camera, morph);
         if self.pvs {
             self.scene.cull_geomorph_pvs(&mut lods, camera);
@@ -71,18 +89,21 @@ impl Method for GeomorphMethod<'_> {
     fn frame(&mut self, camera: &Camera) -> Frame {
         let t = Instant::now();
         let morph = self.path != MorphPath::Static && self.scene.config.geomip.morph;
-        // The selection is compact (runs of coarsest patches, the others one by one); the
-        // renderer and the measurement take the patches one by one, so the runs are expanded
-        // as the frame's conversion (`convert_ms`). geomorph-pvs culls the expanded patches
-        // within its selection, as before.
-        let runs = self.scene.select_geomorph_runs(camera, morph);
+        // The selection is compact (runs of coarsest patches, the others one by one) and the
+        // renderer draws it so (`GeomorphRenderer::render_runs`): nothing is expanded for
+        // `geomorph` and `geomorph-static`. geomorph-pvs culls patch by patch within its
+        // selection, as before, and geomorph-cpu morphs every vertex of every patch on the
+        // CPU: both expand the runs, as the frame's conversion (`convert_ms`).
+        let mut runs = self.scene.select_geomorph_runs(camera, morph);
         let mut selection_ms = ms(t);
-        let t = Instant::now();
-        let mut lods = runs.expand();
-        let convert_ms = ms(t);
+        let mut convert_ms = 0.0;
         if self.pvs {
             let t = Instant::now();
+            let mut lods = runs.expand();
+            convert_ms = ms(t);
+            let t = Instant::now();
             self.scene.cull_geomorph_pvs(&mut lods, camera);
+            runs = singles(lods, runs.coarsest);
             selection_ms += ms(t);
         }
         // Software morphing: every vertex of every patch morphed on the CPU (the shader's
@@ -92,27 +113,31 @@ impl Method for GeomorphMethod<'_> {
             MorphPath::Static => (MorphHeights::Static, 0.0),
             MorphPath::Cpu => {
                 let t = Instant::now();
+                runs = singles(runs.expand(), runs.coarsest);
+                convert_ms += ms(t);
+                let t = Instant::now();
                 let n = self.scene.geomorph_patch_cells();
                 let grid = MorphGrid::new(&self.scene.hm, n);
                 let patches: Vec<GpuMorphPatch> =
-                    lods.patches.iter().map(|p| GpuMorphPatch::from_lod(p, n)).collect();
+                    runs.patches.iter().map(|p| GpuMorphPatch::from_lod(p, n)).collect();
                 let mut h = Vec::new();
                 grid.patch_heights(&patches, &mut h);
                 (MorphHeights::Cpu(h), ms(t))
             }
         };
-        // The leaves as a quadtree selection: the measurement's coverage.
-        let selection = self.scene.geomorph_selection(&lods);
+        // The leaves as a quadtree selection: the measurement's coverage (per patch, untimed
+        // as before).
+        let selection = self.scene.geomorph_selection_runs(&runs);
         Frame {
             stats: MethodStats {
                 selection_ms,
                 build_ms,
                 convert_ms,
-                patches: lods.patches.len(),
+                patches: runs.drawn_patches() as usize,
                 ..MethodStats::default()
             },
             selection,
-            draw: Draw::Morph(lods, heights),
+            draw: Draw::Morph(runs, heights),
             built: None,
         }
     }
@@ -120,10 +145,12 @@ impl Method for GeomorphMethod<'_> {
     /// The morph's CPU reference over the frame's patches: the true heights where the tween
     /// factors are 0 (`geomorph-static`), the CPU-morphed heights `geomorph-cpu` uploads.
     fn surface(&self, frame: &mut Frame) -> anyhow::Result<DrawnSurface> {
-        let Draw::Morph(lods, _) = &frame.draw else {
+        let Draw::Morph(runs, _) = &frame.draw else {
             anyhow::bail!("a geomorph frame draws morphed patches");
         };
-        let (mesh, triangles) = self.scene.geomorph_surface(lods);
+        // The measurement takes the patches one by one: the runs expanded here (row-major, as
+        // the selection's own expansion), outside the frame's selection.
+        let (mesh, triangles) = self.scene.geomorph_surface(&runs.expand());
         Ok(DrawnSurface { mesh, triangles })
     }
 

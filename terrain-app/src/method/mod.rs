@@ -31,7 +31,7 @@ mod tin;
 mod tin_store;
 
 use terrain_core::geometry::Camera;
-use terrain_core::lod::{GeomipSelection, Selection, SurfaceMesh};
+use terrain_core::lod::{GeomipRuns, Selection, SurfaceMesh};
 use terrain_gpu::render::{DrawPatch, ExtraTriangles};
 
 pub use entropy::{EntropyMethod, entropy_extra};
@@ -62,17 +62,19 @@ pub enum Draw {
         /// Triangles between patch domain points, drawn in the same pass.
         extra: ExtraTriangles,
     },
-    /// Geo-mipmapped patches with their levels and tween factors, for the geomorph renderer,
-    /// and where the drawn heights come from (the geomorphing article's Table 1 paths).
-    Morph(GeomipSelection, MorphHeights),
+    /// Geo-mipmapped patches with their levels and tween factors, compact (runs of coarsest
+    /// patches and single patches, drawn without expanding the runs), for the geomorph
+    /// renderer, and where the drawn heights come from (the geomorphing article's Table 1
+    /// paths; `Cpu`'s heights are those of the single patches, in their order).
+    Morph(GeomipRuns, MorphHeights),
     /// Patches over a store's paged heights, for the paged renderer: the runtime's frame (its
     /// patches and the page changes to apply first; its selection moved to
     /// [`Frame::selection`]).
     Paged(Box<OocFrame>),
     /// Geomorph over a store's paged heights: the runtime's frame (its page changes; its
     /// tessellated patches are not drawn) and the geo-mipmapped patches with their levels and
-    /// tween factors, for the geomorph renderer reading the paged renderer's pages.
-    PagedMorph(Box<OocFrame>, GeomipSelection),
+    /// tween factors, compact, for the geomorph renderer reading the paged renderer's pages.
+    PagedMorph(Box<OocFrame>, GeomipRuns),
 }
 
 /// Where a [`Draw::Morph`] frame's heights come from (terrain-gpu's `MorphSource`).

@@ -333,15 +333,14 @@ impl FrameRenderer {
                     MorphHeights::Cpu(h) => MorphSource::Cpu(h),
                 };
                 let t = Instant::now();
-                let s = r.render_with(camera, &lods.patches, source, &morph_options(options))?;
+                let s = r.render_runs(camera, lods, source, &morph_options(options))?;
                 DrawStats::of_geomorph(s, ms(t), anchor_bytes)
             }
             (Inner::PagedMorph { pages, morph }, Draw::PagedMorph(f, lods)) => {
                 let t = Instant::now();
                 OocScene::apply(pages, f)?;
                 let pages_ms = ms(t);
-                let s =
-                    morph.render_paged(pages, camera, &lods.patches, &morph_options(options))?;
+                let s = morph.render_paged_runs(pages, camera, lods, &morph_options(options))?;
                 let uploaded = f.updates.iter().filter(|u| u.fill.is_some()).count() as u64;
                 let mut d =
                     DrawStats::of_geomorph(s, ms(t), uploaded * self.page_bytes + anchor_bytes);

@@ -7,9 +7,10 @@
 //! levels) and the per-node tables the bake wrote beside the blocks (`dss_errors.bin`,
 //! `roughness.bin`, `geomip.bin`, the PVS files). The store's runtime ([`OocScene::frame_for`])
 //! loads what the patches need (geomorph: each patch's level, as its un-morphed geo-mipmap
-//! `geomorph_selection` says; the morph only reads vertices of that level and coarser) and the
-//! paged renderer draws them, or, for geomorph, terrain-gpu's `GeomorphRenderer` in paged mode
-//! reads the paged renderer's pages through the same lookup; nothing of the full grid is in
+//! `geomorph_selection_runs` says, patch by patch from its compact selection; the morph only
+//! reads vertices of that level and coarser) and the paged renderer draws them, or, for
+//! geomorph, terrain-gpu's `GeomorphRenderer` in paged mode reads the paged renderer's pages
+//! through the same lookup and draws the runs without expanding them; nothing of the full grid is in
 //! memory. A warm frame (`--wait`, and the first frame) selects the patches the method selects
 //! from the heightmap in memory (tested patch for patch, and geomorph's morphed heights vertex
 //! for vertex).
@@ -30,7 +31,7 @@ use std::path::Path;
 use anyhow::Context;
 use terrain_core::Heightmap;
 use terrain_core::geometry::Camera;
-use terrain_core::lod::GeomipSelection;
+use terrain_core::lod::GeomipRuns;
 use terrain_core::lod::{
     DssErrorTable, GeomipConfig, GeomipTable, TerrainSource, select_dss_power_of_two,
     select_dss_uniform, select_pvps, select_pvps_with_cull,
@@ -46,7 +47,7 @@ use terrain_visibility::roughness::NodePyramid;
 use super::ooc::{OocWait, drawn_heights, mirrored, paged_frame, paged_surface};
 use super::{Draw, DrawSource, DrawnSurface, Frame, Method, OocMethod};
 use crate::methods::{
-    LodMethod, MethodConfig, MethodScene, geomorph_selection, select_uniform, strips_frame,
+    LodMethod, MethodConfig, MethodScene, geomorph_selection_runs, select_uniform, strips_frame,
 };
 use crate::ooc::{OocScene, StoreDraw};
 
@@ -348,8 +349,9 @@ impl Method for StoreMethod<'_> {
         // The PVS of the unexaggerated terrain, looked up where the eye is over it.
         let mut pvs_eye = camera.position;
         pvs_eye.z /= self.vertical_scale;
-        // Geomorph's patches with their levels and tween factors (the last selection's).
-        let mut morph: Option<GeomipSelection> = None;
+        // Geomorph's patches with their levels and tween factors, compact (the last
+        // selection's).
+        let mut morph: Option<GeomipRuns> = None;
         let mut select = |src: &dyn TerrainSource| -> StoreDraw {
             let selection = match tables {
                 Tables::None => select_uniform(src, camera, cfg.uniform_factor),
@@ -368,13 +370,16 @@ impl Method for StoreMethod<'_> {
                 }
                 Tables::Dss(table) => select_dss_uniform(src, camera, table, &cfg.dss),
                 Tables::Geomip(table, _) => {
-                    // The morph's levels and tween factors, as from memory
-                    // (`MethodScene::select_geomorph`); the streamer's demand and the
-                    // measurement's coverage are the patches at their levels.
+                    // The morph's levels and tween factors, compact, as from memory
+                    // (`MethodScene::select_geomorph_runs`; the selection's time is the runs',
+                    // drawn without expansion); the streamer's demand and the measurement's
+                    // coverage are the patches at their levels, one by one (built after the
+                    // selection, outside its time).
                     let geomip = GeomipConfig { patch_cells: table.patch_cells(), ..cfg.geomip };
-                    let lods = table.select(&src, camera, &geomip);
-                    let s = geomorph_selection(&lods, table.patch_cells(), src.shape().max_level());
-                    morph = Some(lods);
+                    let runs = table.select_runs(&src, camera, &geomip);
+                    let n = table.patch_cells();
+                    let s = geomorph_selection_runs(&runs, n, src.shape().max_level());
+                    morph = Some(runs);
                     s
                 }
             };
@@ -382,17 +387,36 @@ impl Method for StoreMethod<'_> {
         };
         let mut frame = paged_frame(self.scene.frame_for(camera, warm, &self.tree, &mut select));
         if let Some(mut lods) = morph {
-            // Only the patches over drawn blocks (those `frame_for` kept).
+            // Only the patches over drawn blocks (those `frame_for` kept): a run wholly kept
+            // stays one, the kept patches of another become single patches.
             let leaf = self.tree.shape().max_level();
             let kept: std::collections::HashSet<NodeId> =
                 frame.selection.patches.iter().map(|p| p.node).collect();
-            let keep: Vec<bool> =
-                lods.patches.iter().map(|p| kept.contains(&NodeId::new(leaf, p.i, p.j))).collect();
+            let on = |i: u32, j: u32| kept.contains(&NodeId::new(leaf, i, j));
+            let keep: Vec<bool> = lods.patches.iter().map(|p| on(p.i, p.j)).collect();
             let mut k = keep.iter();
             lods.patches.retain(|_| *k.next().expect("parallel"));
             if lods.factors.len() == keep.len() {
                 let mut k = keep.iter();
                 lods.factors.retain(|_| *k.next().expect("parallel"));
+            }
+            let mut split = Vec::new();
+            lods.runs.retain(|r| {
+                let cells = (r.j..r.j + r.height)
+                    .flat_map(|j| (r.i..r.i + r.width).map(move |i| (i, j)))
+                    .filter(|&(i, j)| on(i, j));
+                let before = split.len();
+                split.extend(cells);
+                let all = (split.len() - before) as u64 == r.patches();
+                if all {
+                    split.truncate(before);
+                }
+                all
+            });
+            let l = f32::from(lods.coarsest);
+            for (i, j) in split {
+                lods.patches.push(lods.run_patch(i, j));
+                lods.factors.push(l);
             }
             frame.draw = match frame.draw {
                 Draw::Paged(f) => Draw::PagedMorph(f, lods),
@@ -416,8 +440,10 @@ impl Method for StoreMethod<'_> {
         // patch is drawn there); the DEM's when every frame waits (`drawn_heights`).
         let drawn = drawn_heights(&self.scene, reference);
         let n = table.patch_cells();
+        // The runs expanded here, for the measurement only (row-major, as the selection's own
+        // expansion).
         let patches: Vec<GpuMorphPatch> =
-            lods.patches.iter().map(|p| GpuMorphPatch::from_lod(p, n)).collect();
+            lods.expand().patches.iter().map(|p| GpuMorphPatch::from_lod(p, n)).collect();
         let (mesh, triangles) = build_surface(&MorphGrid::new(drawn.as_ref(), n), lib, &patches);
         Ok(DrawnSurface { mesh, triangles })
     }

@@ -1,5 +1,6 @@
 // Geomorphing in the vertex shader (Wagner 2003; geomorph/mod.rs): geo-mipmapped patches
-// drawn by one indexed draw per material pass from a library of triangle lists (one per level and set of adapting borders), each
+// drawn by one indexed draw per material pass from a library of triangle lists (one per level and set of adapting borders), and the
+// runs of coarsest patches by one instanced draw per pass (no per-patch list), each
 // vertex morphed between its true height and the coarser level by the patch's tween factor and
 // the four edges' factors; a precomputed lightmap and alpha-blended material passes.
 //
@@ -32,6 +33,12 @@ struct Frame {
     // Paged mode: the material alphas' height range (lowest, highest - lowest).
     height_min: f32,
     height_range: f32,
+    // Runs this frame (`runs`), the patches in them (at least 1), and patches along x (the
+    // index of `pass_masks`).
+    run_count: u32,
+    run_patches: u32,
+    patches_x: u32,
+    pad: u32,
     // FLAG_LOD_COLOURS: the colour of each level (renderer.rs level_colours: the CPU reference
     // render::lod_colour of 2^level cells per triangle edge), the last for every coarser level.
     level_colours: array<vec4<f32>, 8>,
@@ -67,6 +74,25 @@ const PATCH_SHIFT: u32 = 14u;
 @group(0) @binding(6) var light_tex: texture_2d<f32>;
 @group(0) @binding(7) var alpha_tex: texture_2d<f32>;
 @group(0) @binding(8) var maps_sampler: sampler;
+
+// A run (terrain_core::lod::PatchRun): a rectangle of patches drawn at the coarsest level
+// (`frame.max_level`), tween 0, every edge at that level; `first` is its south-west patch and
+// `start` the patches of the runs before it (a prefix sum: the run of a run-patch index is a
+// binary search). Drawn by one instanced draw per pass over all runs (geomorph/renderer.rs).
+struct GmRun {
+    first: vec2<u32>,
+    width: u32,
+    start: u32,
+}
+@group(0) @binding(11) var<storage, read> runs: array<GmRun>;
+// Per patch (row-major, `frame.patches_x` along x), 8 bits packed four to a word: bit k set
+// when the patch draws material k (materials.rs MaterialMaps::masks; the run patches' pass
+// skipping). A placeholder in paged mode (one pass).
+@group(0) @binding(12) var<storage, read> pass_masks: array<u32>;
+
+// renderer.rs RUN_INSTANCES: an instance index from this on is a run patch's; below it, the
+// material of a pass over the single patches.
+const RUN_INSTANCES: u32 = 8u;
 
 fn sample_of(p: GmPatch, x: u32, y: u32) -> vec2<u32> {
     return min(p.origin + vec2<u32>(x, y), frame.grid_max);
@@ -184,13 +210,17 @@ struct Morphed {
 override MORPH_MODE: u32 = 0u;
 @group(0) @binding(10) var<storage, read> cpu_h: array<f32>;
 
+// `pi` is the patch's index in `patches`, or RUN_PATCH for a run's patch: the CPU's morph of a
+// patch at the coarsest level with tween 0 is its true heights (none are uploaded for it).
+const RUN_PATCH: u32 = 0xffffffffu;
+
 fn morphed_vertex(p: GmPatch, pi: u32, local: u32) -> Morphed {
     let n1 = frame.patch_cells + 1u;
     let x = local % n1;
     let y = local / n1;
     let g = sample_of(p, x, y);
     var h: f32;
-    if MORPH_MODE == 1u {
+    if MORPH_MODE == 1u || (MORPH_MODE == 2u && pi == RUN_PATCH) {
         h = true_h(p, x, y);
     } else if MORPH_MODE == 2u {
         h = cpu_h[pi * n1 * n1 + local];
@@ -212,21 +242,90 @@ struct VsOut {
     @location(4) @interpolate(flat) lod_colour: vec3<f32>,
 }
 
+// The patch `k` of the runs (0 <= k < frame.run_patches): the run is the last whose `start` is
+// at most k; the patch's place in it is row-major from its south-west patch. The patch as the
+// per-patch path would have it: terrain_core GeomipRuns::run_patch through
+// GpuMorphPatch::from_lod (origin = patch (i, j) times patch_cells).
+fn run_patch(k: u32) -> GmPatch {
+    var lo = 0u;
+    var hi = frame.run_count;
+    while hi - lo > 1u {
+        let mid = (lo + hi) / 2u;
+        if runs[mid].start <= k {
+            lo = mid;
+        } else {
+            hi = mid;
+        }
+    }
+    let r = runs[lo];
+    let o = k - r.start;
+    let ij = r.first + vec2<u32>(o % r.width, o / r.width);
+    let l = frame.max_level;
+    return GmPatch(ij * frame.patch_cells, l, 0.0, vec4<u32>(l), vec4<f32>(0.0));
+}
+
+// Whether a run patch at `origin` draws `material` (`pass_masks`).
+fn run_draws(origin: vec2<u32>, material: u32) -> bool {
+    if material == 0u {
+        return true;
+    }
+    let ij = origin / frame.patch_cells;
+    let k = ij.y * frame.patches_x + ij.x;
+    return ((pass_masks[k / 4u] >> (8u * (k % 4u))) & (1u << material)) != 0u;
+}
+
 @vertex
 fn vs(@builtin(vertex_index) vi: u32, @builtin(instance_index) ii: u32) -> VsOut {
-    // One indexed draw per material pass (the instance index is the material); the index
-    // holds the patch and the local lattice id (geomorph/renderer.rs).
-    let p = patches[vi >> PATCH_SHIFT];
+    // One indexed draw per material pass over the single patches (the instance index is the
+    // material; the index holds the patch and the local lattice id), and one instanced draw
+    // per pass over the runs' patches (instance RUN_INSTANCES + material * run_patches + k;
+    // the index holds the local id and, on a skirt's triangles, 1 + its edge): see
+    // geomorph/renderer.rs.
     let id = vi & ((1u << PATCH_SHIFT) - 1u);
-    let v = morphed_vertex(p, vi >> PATCH_SHIFT, id & (SKIRT_BIT - 1u));
+    var p: GmPatch;
+    var pi: u32;
+    var material = ii;
+    // A run patch's triangles it does not draw: its skirts below the grid's border (the
+    // per-patch path leaves them out of the index list) and the material passes it skips.
+    var hidden = false;
+    if ii < RUN_INSTANCES {
+        pi = vi >> PATCH_SHIFT;
+        p = patches[pi];
+    } else {
+        let r = ii - RUN_INSTANCES;
+        let count = max(frame.run_patches, 1u);
+        material = r / count;
+        p = run_patch(r % count);
+        pi = RUN_PATCH;
+        hidden = !run_draws(p.origin, material);
+        let tag = vi >> PATCH_SHIFT;
+        if tag > 0u {
+            // South, east, north, west: skirts only below shared edges (renderer.rs).
+            let far = p.origin + vec2<u32>(frame.patch_cells);
+            var interior = p.origin.x > 0u;
+            if tag == 1u + SOUTH {
+                interior = p.origin.y > 0u;
+            } else if tag == 1u + EAST {
+                interior = far.x < frame.grid_max.x;
+            } else if tag == 1u + NORTH {
+                interior = far.y < frame.grid_max.y;
+            }
+            hidden = hidden || !interior;
+        }
+    }
+    let v = morphed_vertex(p, pi, id & (SKIRT_BIT - 1u));
     var pos = v.pos;
     if (id & SKIRT_BIT) != 0u {
         pos.z -= frame.skirt_depth;
     }
     var out: VsOut;
     out.clip = frame.view_proj * vec4<f32>(pos, 1.0);
+    if hidden {
+        // Every vertex of the triangle here: outside the clip volume, nothing drawn.
+        out.clip = vec4<f32>(2.0, 2.0, 2.0, 1.0);
+    }
     out.grid = v.grid;
-    out.material = ii;
+    out.material = material;
     out.height = v.height;
     out.lod_colour = frame.level_colours[min(p.level, 7u)].rgb;
     // Paged mode's normal per vertex: gradient_at_sample at the vertex's own sample (5 lookups,

@@ -14,6 +14,12 @@
 //!   [`crate::TerrainRenderer`], magenta [`crate::BACKGROUND`], skirts for the crack test, and
 //!   a compute entry point (`debug_morph`) that evaluates the vertex stage's morph for the tests.
 //!
+//! A compact selection (`terrain_core::lod::GeomipRuns`: runs of patches at the coarsest level
+//! and single patches) is drawn without expanding it ([`GeomorphRenderer::render_runs`]): the
+//! single patches as a list, the runs' patches by one instanced draw per pass of the coarsest
+//! level's triangles over a small buffer of runs (the vertex stage finds a patch's run by a
+//! binary search over the runs' patch counts): the expanded list's image, pixel for pixel.
+//!
 //! **Boundary:** the renderer draws the patches it is given; choosing levels and tween factors
 //! is `terrain_core::lod::geomipmap`'s job.
 

@@ -60,7 +60,8 @@ const WEST: usize = 3;
 /// Set on a mesh id for the lower vertex of a skirt (local ids are below `65^2 < 2^13`).
 pub const SKIRT_BIT: u32 = 1 << 13;
 
-/// A drawn index is `patch << PATCH_SHIFT | id` (up to `2^18` patches per frame).
+/// A drawn index is `patch << PATCH_SHIFT | id` (up to `2^18` single patches per frame; the
+/// patches of runs are instances, not in the index, see `GeomorphRenderer::render_runs`).
 pub const PATCH_SHIFT: u32 = 14;
 
 /// `GmPatch` in `geomorph.wgsl`: one drawn patch.

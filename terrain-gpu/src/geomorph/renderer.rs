@@ -12,7 +12,7 @@ use glam::{DVec2, DVec3};
 use terrain_core::Heightmap;
 use terrain_core::geometry::Camera;
 use terrain_core::lightmap::{LightmapConfig, lightmap};
-use terrain_core::lod::PatchLod;
+use terrain_core::lod::{GeomipRuns, PatchLod, PatchRun};
 
 use super::materials::{MATERIALS, MaterialMaps};
 use super::morph::{GpuMorphPatch, MeshLibrary, PATCH_SHIFT};
@@ -42,12 +42,31 @@ struct GpuFrame {
     flags: u32,
     height_min: f32,
     height_range: f32,
+    run_count: u32,
+    run_patches: u32,
+    patches_x: u32,
+    pad: u32,
     /// The LOD colour of each level (`lod_colour(2^level)`, rgb and 1; the last one for every
     /// coarser level), read when `FLAG_LOD_COLOURS` is set.
     level_colours: [[f32; 4]; LEVEL_COLOURS],
 }
 
-const _: () = assert!(size_of::<GpuFrame>() == 256);
+const _: () = assert!(size_of::<GpuFrame>() == 272);
+
+/// `GmRun` in `geomorph.wgsl`: one [`PatchRun`] and the run patches before it.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
+struct GpuRun {
+    first: [u32; 2],
+    width: u32,
+    start: u32,
+}
+
+/// `RUN_INSTANCES` in `geomorph.wgsl`: instance indices from this on draw the runs' patches
+/// (`RUN_INSTANCES + material * run patches + k`); below it the instance is the material of a
+/// pass over the single patches.
+const RUN_INSTANCES: u32 = 8;
+const _: () = assert!(MATERIALS as u32 <= RUN_INSTANCES);
 
 /// `FLAG_PAGED` in `geomorph.wgsl`.
 const FLAG_PAGED: u32 = 1;
@@ -185,6 +204,7 @@ struct Bound {
     table: wgpu::Buffer,
     patches: wgpu::Buffer,
     cpu: wgpu::Buffer,
+    runs: wgpu::Buffer,
     group: wgpu::BindGroup,
 }
 
@@ -222,6 +242,11 @@ pub struct GeomorphRenderer {
     alpha: wgpu::TextureView,
     sampler: wgpu::Sampler,
     patches: Option<(wgpu::Buffer, u64)>,
+    /// The runs (`GmRun`, binding 11) and capacity.
+    runs: Option<(wgpu::Buffer, u64)>,
+    /// Per patch its material passes, four patches a word (binding 12; a placeholder in
+    /// paged mode), and the patches along x.
+    pass_masks: (wgpu::Buffer, u32),
     bound: Option<Bound>,
     indices: Option<wgpu::Buffer>,
     lib: MeshLibrary,
@@ -399,6 +424,8 @@ impl GeomorphRenderer {
                 entry(8, wgpu::BindingType::Sampler(wgpu::SamplerBindingType::Filtering)),
                 entry(9, storage(true)),
                 entry(10, storage(true)),
+                entry(11, storage(true)),
+                entry(12, storage(true)),
             ],
         });
         let debug_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
@@ -461,6 +488,21 @@ impl GeomorphRenderer {
         let col_x = buffer("geomorph columns", 4 * u64::from(width), U::STORAGE | U::COPY_DST);
         let row_y = buffer("geomorph rows", 4 * u64::from(height), U::STORAGE | U::COPY_DST);
         let cpu_heights = buffer("geomorph cpu heights", 4, U::STORAGE | U::COPY_DST);
+        // The pass masks of a whole heightmap's patches, four a word (little-endian bytes).
+        let (words, patches_x) = match &heights {
+            Heights::Whole { materials, .. } => {
+                let words: Vec<u32> = materials
+                    .masks
+                    .chunks(4)
+                    .map(|c| c.iter().rev().fold(0u32, |w, &m| (w << 8) | u32::from(m)))
+                    .collect();
+                (words, materials.patches.0)
+            }
+            Heights::Paged(..) => (vec![1], 1),
+        };
+        let masks =
+            buffer("geomorph pass masks", 4 * words.len().max(1) as u64, U::STORAGE | U::COPY_DST);
+        ctx.queue.write_buffer(&masks, 0, bytemuck::cast_slice(&words));
         let lib = MeshLibrary::new(p);
         Ok(Self {
             device: ctx.device.clone(),
@@ -482,6 +524,8 @@ impl GeomorphRenderer {
             alpha,
             sampler,
             patches: None,
+            runs: None,
+            pass_masks: (masks, patches_x),
             bound: None,
             indices: None,
             lib,
@@ -553,13 +597,14 @@ impl GeomorphRenderer {
         }
     }
 
-    /// Uploads `lods` (growing the patch buffer when needed) and the frame uniform, and binds
-    /// the heights of `pages` (see [`GeomorphRenderer::page_resources`]).
+    /// Uploads `lods` and `runs` (growing their buffers when needed) and the frame uniform,
+    /// and binds the heights of `pages` (see [`GeomorphRenderer::page_resources`]).
     fn upload(
         &mut self,
         pages: Option<&mut TerrainRenderer>,
         camera: &Camera,
         lods: &[GpuMorphPatch],
+        (runs, run_patches): (&[GpuRun], u32),
         cpu_heights: Option<&[f32]>,
         options: &GeomorphOptions,
     ) -> Result<(), RenderError> {
@@ -625,10 +670,29 @@ impl GeomorphRenderer {
                 self.queue.write_buffer(&self.cpu_heights.0, 0, bytemuck::cast_slice(hs));
             }
         }
+        let bytes = (runs.len().max(1) * size_of::<GpuRun>()) as u64;
+        if self.runs.as_ref().is_none_or(|(_, cap)| *cap < bytes) {
+            let cap = bytes.next_power_of_two();
+            let buf = self.device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some("geomorph runs"),
+                size: cap,
+                usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
+                mapped_at_creation: false,
+            });
+            self.runs = Some((buf, cap));
+        }
+        let (runs_buf, _) = self.runs.as_ref().expect("allocated above");
+        if !runs.is_empty() {
+            self.queue.write_buffer(runs_buf, 0, bytemuck::cast_slice(runs));
+        }
         let cpu = &self.cpu_heights.0;
         let (buf, _) = self.patches.as_ref().expect("allocated above");
         if self.bound.as_ref().is_none_or(|b| {
-            b.atlas != atlas || b.table != table || b.patches != *buf || b.cpu != *cpu
+            b.atlas != atlas
+                || b.table != table
+                || b.patches != *buf
+                || b.cpu != *cpu
+                || b.runs != *runs_buf
         }) {
             let bind = |binding, resource| wgpu::BindGroupEntry { binding, resource };
             let group = self.device.create_bind_group(&wgpu::BindGroupDescriptor {
@@ -645,10 +709,18 @@ impl GeomorphRenderer {
                     bind(8, wgpu::BindingResource::Sampler(&self.sampler)),
                     bind(9, table.as_entire_binding()),
                     bind(10, cpu.as_entire_binding()),
+                    bind(11, runs_buf.as_entire_binding()),
+                    bind(12, self.pass_masks.0.as_entire_binding()),
                 ],
             });
-            self.bound =
-                Some(Bound { atlas, table, patches: buf.clone(), cpu: cpu.clone(), group });
+            self.bound = Some(Bound {
+                atlas,
+                table,
+                patches: buf.clone(),
+                cpu: cpu.clone(),
+                runs: runs_buf.clone(),
+                group,
+            });
         }
         if !lods.is_empty() {
             self.queue.write_buffer(buf, 0, bytemuck::cast_slice(lods));
@@ -684,6 +756,10 @@ impl GeomorphRenderer {
             flags,
             height_min: lo,
             height_range: (hi - lo).max(0.0),
+            run_count: runs.len() as u32,
+            run_patches: run_patches.max(1),
+            patches_x: self.pass_masks.1,
+            pad: 0,
             level_colours: level_colours(),
         };
         self.queue.write_buffer(&self.frame, 0, bytemuck::bytes_of(&frame));
@@ -700,7 +776,51 @@ impl GeomorphRenderer {
         lods: &[PatchLod],
         options: &GeomorphOptions,
     ) -> Result<GeomorphFrameStats, RenderError> {
-        self.draw(None, camera, lods, MorphSource::Shader, options)
+        self.draw(None, camera, lods, &[], MorphSource::Shader, options)
+    }
+
+    /// Draws a compact selection (`terrain_core::lod::GeomipTable::select_runs`): its single
+    /// patches as [`GeomorphRenderer::render_with`] does, and the patches of its runs (each at
+    /// the coarsest level, tween 0, every edge at that level) by one instanced draw per pass
+    /// over all runs, without a per-patch list: the same image as the runs expanded
+    /// ([`GeomipRuns::expand`]) drawn one by one. `runs.coarsest` must be this renderer's
+    /// coarsest level (`log2(patch_cells)`). With [`MorphSource::Cpu`] the heights are those
+    /// of the single patches (the CPU's morph of a run's patch is its true heights, which the
+    /// vertex stage reads).
+    pub fn render_runs(
+        &mut self,
+        camera: &Camera,
+        runs: &GeomipRuns,
+        source: MorphSource<'_>,
+        options: &GeomorphOptions,
+    ) -> Result<GeomorphFrameStats, RenderError> {
+        self.check_coarsest(runs)?;
+        self.draw(None, camera, &runs.patches, &runs.runs, source, options)
+    }
+
+    /// [`GeomorphRenderer::render_runs`] from the pages of `pages`
+    /// ([`GeomorphRenderer::render_paged`]).
+    pub fn render_paged_runs(
+        &mut self,
+        pages: &mut TerrainRenderer,
+        camera: &Camera,
+        runs: &GeomipRuns,
+        options: &GeomorphOptions,
+    ) -> Result<GeomorphFrameStats, RenderError> {
+        self.check_coarsest(runs)?;
+        self.draw(Some(pages), camera, &runs.patches, &runs.runs, MorphSource::Shader, options)
+    }
+
+    /// Refuses runs of another coarsest level than the renderer's.
+    fn check_coarsest(&self, runs: &GeomipRuns) -> Result<(), RenderError> {
+        let coarsest = self.lib.patch_cells.trailing_zeros();
+        if !runs.runs.is_empty() && u32::from(runs.coarsest) != coarsest {
+            return Err(RenderError::InvalidConfig(format!(
+                "runs at level {}; patches of {} cells are coarsest at level {coarsest}",
+                runs.coarsest, self.lib.patch_cells
+            )));
+        }
+        Ok(())
     }
 
     /// [`GeomorphRenderer::render`] with the heights from `source`: the vertex stage's morph,
@@ -712,7 +832,7 @@ impl GeomorphRenderer {
         source: MorphSource<'_>,
         options: &GeomorphOptions,
     ) -> Result<GeomorphFrameStats, RenderError> {
-        self.draw(None, camera, lods, source, options)
+        self.draw(None, camera, lods, &[], source, options)
     }
 
     /// Draws `lods` as seen by `camera` from the resident pages of `pages` (the paged
@@ -726,7 +846,35 @@ impl GeomorphRenderer {
         lods: &[PatchLod],
         options: &GeomorphOptions,
     ) -> Result<GeomorphFrameStats, RenderError> {
-        self.draw(Some(pages), camera, lods, MorphSource::Shader, options)
+        self.draw(Some(pages), camera, lods, &[], MorphSource::Shader, options)
+    }
+
+    /// The runs as `GmRun`s (each with the run patches before it) and their patch count;
+    /// refuses a run that is empty or reaches past the grid, and more run patches than the
+    /// instance indices hold.
+    fn gpu_runs(&self, runs: &[PatchRun]) -> Result<(Vec<GpuRun>, u32), RenderError> {
+        let n = u64::from(self.lib.patch_cells);
+        let [w, h] = self.grid.map(u64::from);
+        let mut out = Vec::with_capacity(runs.len());
+        let mut total = 0u64;
+        let limit = (u64::from(u32::MAX) - u64::from(RUN_INSTANCES)) / MATERIALS as u64;
+        for (index, r) in runs.iter().enumerate() {
+            let x = (u64::from(r.i) + u64::from(r.width)).saturating_sub(1) * n;
+            let y = (u64::from(r.j) + u64::from(r.height)).saturating_sub(1) * n;
+            if r.width == 0 || r.height == 0 || x + 1 >= w || y + 1 >= h {
+                return Err(RenderError::InvalidConfig(format!(
+                    "run {index} ({r:?}) is empty or reaches past the {w} x {h} grid"
+                )));
+            }
+            out.push(GpuRun { first: [r.i, r.j], width: r.width, start: total as u32 });
+            total += r.patches();
+            if total > limit {
+                return Err(RenderError::InvalidConfig(format!(
+                    "more than {limit} patches in runs"
+                )));
+            }
+        }
+        Ok((out, total as u32))
     }
 
     fn draw(
@@ -734,6 +882,7 @@ impl GeomorphRenderer {
         pages: Option<&mut TerrainRenderer>,
         camera: &Camera,
         lods: &[PatchLod],
+        runs: &[PatchRun],
         source: MorphSource<'_>,
         options: &GeomorphOptions,
     ) -> Result<GeomorphFrameStats, RenderError> {
@@ -742,11 +891,12 @@ impl GeomorphRenderer {
         let camera = camera.with_viewport(f64::from(tw), f64::from(th));
         let n = self.lib.patch_cells;
         let gpu: Vec<GpuMorphPatch> = lods.iter().map(|p| GpuMorphPatch::from_lod(p, n)).collect();
+        let (gpu_runs, run_patches) = self.gpu_runs(runs)?;
         let cpu_heights = match source {
             MorphSource::Cpu(h) => Some(h),
             _ => None,
         };
-        self.upload(pages, &camera, &gpu, cpu_heights, options)?;
+        self.upload(pages, &camera, &gpu, (&gpu_runs, run_patches), cpu_heights, options)?;
         let mode = source.mode();
         if self.pipelines[mode].is_none() {
             let paged = matches!(self.heights, Heights::Paged(..));
@@ -762,7 +912,7 @@ impl GeomorphRenderer {
         let passes_of = if materials.is_some() && !options.lod_colours { MATERIALS } else { 1 };
         let [w, h] = self.grid;
         let mut stats = GeomorphFrameStats {
-            patches: lods.len(),
+            patches: lods.len() + run_patches as usize,
             triangles: 0,
             passes_drawn: 0,
             passes_skipped: 0,
@@ -802,8 +952,47 @@ impl GeomorphRenderer {
             }
             passes.push((material, first, indices.len() as u32 - first));
         }
+        // The runs' patches: one triangle list (the coarsest level's, every edge at it) and,
+        // in the base pass, its four skirts, each skirt's ids tagged with 1 + its edge (the
+        // vertex stage hides those below the grid's border), drawn per pass once per run patch
+        // (instances).
+        let coarse = GpuMorphPatch {
+            level: n.trailing_zeros(),
+            edge_level: [n.trailing_zeros(); 4],
+            ..GpuMorphPatch::default()
+        };
+        let run_first = indices.len() as u32;
+        let mesh = self.lib.triangles(&coarse);
+        indices.extend_from_slice(mesh);
+        if options.skirt_depth_m > 0.0 {
+            for (edge, &(s0, c)) in self.lib.skirts[MeshLibrary::config(&coarse)].iter().enumerate()
+            {
+                let tag = (edge as u32 + 1) << PATCH_SHIFT;
+                let ids = &self.lib.ids[s0 as usize..(s0 + c) as usize];
+                indices.extend(ids.iter().map(|&id| id | tag));
+            }
+        }
+        let run_ids = indices.len() as u32 - run_first;
+        if run_patches > 0 {
+            stats.triangles += u64::from(run_patches) * (mesh.len() / 3) as u64;
+            match materials.filter(|_| passes_of > 1) {
+                Some(m) => {
+                    for r in runs {
+                        for j in r.j..r.j + r.height {
+                            for i in r.i..r.i + r.width {
+                                let drawn = (0..passes_of).filter(|&k| m.draws(i, j, k)).count();
+                                stats.passes_drawn += drawn;
+                                stats.passes_skipped += passes_of - drawn;
+                            }
+                        }
+                    }
+                }
+                None => stats.passes_drawn += run_patches as usize,
+            }
+        }
         stats.upload_bytes = (size_of::<GpuFrame>()
             + gpu.len() * size_of::<GpuMorphPatch>()
+            + gpu_runs.len() * size_of::<GpuRun>()
             + indices.len() * 4
             + cpu_heights.map_or(0, |h| h.len() * 4)) as u64;
         let bytes = (indices.len().max(4) * 4) as u64;
@@ -827,10 +1016,22 @@ impl GeomorphRenderer {
             let mut pass = self.target.begin_pass(&mut encoder, wgpu::Color { r, g, b, a });
             pass.set_bind_group(0, group, &[]);
             pass.set_index_buffer(index_buffer.slice(..), wgpu::IndexFormat::Uint32);
-            for &(material, first, count) in passes.iter().filter(|p| p.2 > 0) {
+            for &(material, first, count) in &passes {
                 pass.set_pipeline(if material == 0 { &pipelines.base } else { &pipelines.overlay });
-                // The instance index is the material.
-                pass.draw_indexed(first..first + count, 0, material as u32..material as u32 + 1);
+                if count > 0 {
+                    // The instance index is the material.
+                    pass.draw_indexed(
+                        first..first + count,
+                        0,
+                        material as u32..material as u32 + 1,
+                    );
+                }
+                if run_patches > 0 {
+                    // Instance RUN_INSTANCES + material * run_patches + k: run patch k.
+                    let i0 = RUN_INSTANCES + material as u32 * run_patches;
+                    let ids = if material == 0 { run_ids } else { mesh.len() as u32 };
+                    pass.draw_indexed(run_first..run_first + ids, 0, i0..i0 + run_patches);
+                }
             }
         }
         self.queue.submit([encoder.finish()]);
@@ -877,7 +1078,7 @@ impl GeomorphRenderer {
         items: &[[u32; 2]],
     ) -> Result<Vec<[f32; 4]>, RenderError> {
         let camera = Camera::from_yaw_pitch(camera_position, 0.0, 0.0);
-        self.upload(pages, &camera, lods, None, &GeomorphOptions::default())?;
+        self.upload(pages, &camera, lods, (&[], 0), None, &GeomorphOptions::default())?;
         let group = &self.bound.as_ref().expect("uploaded").group;
         let n = items.len().max(1) as u64;
         let groups = (n as u32).div_ceil(64);

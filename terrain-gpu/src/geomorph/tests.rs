@@ -3,7 +3,8 @@
 //! against a skirted reference, naming the adapter), the GPU's morph against the CPU reference,
 //! the material passes, Puget Sound 1k, and the paged mode (heights from a paged renderer's
 //! pages of mixed strides, as a store's blocks at their resident levels: GPU = CPU reference
-//! over the pages' mirror, no cracks). GPU tests print why and pass where no adapter exists,
+//! over the pages' mirror, no cracks), and runs of coarsest patches drawn without expansion
+//! (the image of the expanded list). GPU tests print why and pass where no adapter exists,
 //! unless `TERRAIN_REQUIRE_GPU` is set.
 
 use std::path::PathBuf;
@@ -697,4 +698,120 @@ fn cpu_morph_draws_the_shaders_morph(backend: BackendChoice) {
 #[test]
 fn cpu_morph_draws_the_shaders_morph_vulkan() {
     cpu_morph_draws_the_shaders_morph(BackendChoice::Vulkan);
+}
+
+/// Views of a 257^2 fractal grid with runs of coarsest patches (`select_runs` at 8 px): the
+/// whole grid framed from afar (every patch one run, or a few) and three views from the
+/// grid's south-west corner over it (runs beside single patches, partly visible nodes along
+/// the frustum's sides); every camera has runs, and some has single patches.
+fn run_views(hm: &Heightmap) -> (GeomipScene, GeomipConfig, Vec<Camera>) {
+    let scene = GeomipScene::new(hm, 16);
+    let cfg = GeomipConfig { pixel_threshold: 8.0, ..Default::default() };
+    let framed = crate::render::default_camera(hm, 256, 144, 60.0);
+    let corner = hm.grid_to_world(0.0, 0.0);
+    let top = f64::from(hm.max());
+    let mut cameras = vec![framed];
+    for (yaw, pitch, above) in [(45.0, -20.0, 600.0), (60.0, -12.0, 300.0)] {
+        let eye = corner.extend(top + above);
+        cameras.push(Camera::from_yaw_pitch(eye, yaw, pitch).with_fov_y_deg(60.0));
+    }
+    (scene, cfg, cameras)
+}
+
+/// The runs drawn without expansion (`render_runs`: one instanced draw per pass over the
+/// runs) give the image of the same selection expanded and drawn patch by patch, pixel for
+/// pixel, with the material passes: the selection's own expansion (`expand`, row-major)
+/// without skirts; with skirts, the patches listed in the order the runs path draws them (the
+/// single patches, then each run's row by row), since the coincident skirts of neighbouring
+/// patches may tie in depth, where the first drawn wins. A run moved by one patch changes the
+/// image (the negative control). The same in paged mode (`render_paged_runs` over pages of
+/// mixed strides against `render_paged` of the list).
+fn runs_draw_the_expanded_image(backend: BackendChoice) {
+    let Some(ctx) = context(backend) else { return };
+    let hm = fractal();
+    let config = GeomorphConfig { width: 256, height: 144, ..Default::default() };
+    let mut renderer = GeomorphRenderer::new(&ctx, &hm, &config).unwrap();
+    let (_, mut pages) = mixed_pages(&ctx, &hm, false);
+    let mut paged = GeomorphRenderer::new_paged(&ctx, &pages, &config).unwrap();
+    let (scene, cfg, cameras) = run_views(&hm);
+    let skirt = GeomorphOptions { skirt_depth_m: 50.0, ..Default::default() };
+    let (mut in_runs, mut single, mut moved_off) = (0u64, 0usize, 0usize);
+    for (k, camera) in cameras.iter().enumerate() {
+        let runs = scene.select_runs(&camera.with_viewport(1280.0, 720.0), &cfg);
+        let all = runs.expand();
+        let mut in_order = runs.patches.clone();
+        for r in &runs.runs {
+            for j in r.j..r.j + r.height {
+                in_order.extend((r.i..r.i + r.width).map(|i| runs.run_patch(i, j)));
+            }
+        }
+        assert_eq!(in_order.len(), all.patches.len());
+        assert!(!runs.runs.is_empty(), "camera {k}: no runs");
+        in_runs += runs.run_patches();
+        single += runs.patches.len();
+        for (options, list) in [(GeomorphOptions::default(), &all.patches), (skirt, &in_order)] {
+            let s = renderer.render_runs(camera, &runs, MorphSource::Shader, &options).unwrap();
+            let compact = renderer.read_image().unwrap();
+            let e = renderer.render(camera, list, &options).unwrap();
+            let expanded = renderer.read_image().unwrap();
+            assert_eq!(
+                (s.patches, s.triangles, s.passes_drawn, s.passes_skipped),
+                (e.patches, e.triangles, e.passes_drawn, e.passes_skipped),
+                "camera {k}: the statistics"
+            );
+            let terrain = expanded.pixels.iter().filter(|&&p| p != BACKGROUND).count();
+            assert!(terrain > 1000, "camera {k} sees little terrain: {terrain} pixels");
+            let differ =
+                compact.pixels.iter().zip(&expanded.pixels).filter(|(a, b)| a != b).count();
+            assert_eq!(differ, 0, "camera {k} ({options:?}): {differ} pixels differ");
+            let s = paged.render_paged_runs(&mut pages, camera, &runs, &options).unwrap();
+            let compact = paged.read_image().unwrap();
+            let e = paged.render_paged(&mut pages, camera, &in_order, &options).unwrap();
+            let expanded = paged.read_image().unwrap();
+            assert_eq!((s.patches, s.triangles), (e.patches, e.triangles), "camera {k}, paged");
+            let differ =
+                compact.pixels.iter().zip(&expanded.pixels).filter(|(a, b)| a != b).count();
+            assert_eq!(differ, 0, "camera {k} ({options:?}), paged: {differ} pixels differ");
+        }
+        // The negative control: the largest run one patch east (or west at the border).
+        let mut shifted = runs.clone();
+        let (nx, _) = scene.patch_counts();
+        let r = shifted.runs.iter_mut().max_by_key(|r| r.patches()).expect("runs");
+        if r.i + r.width < nx {
+            r.i += 1
+        } else {
+            r.i -= 1
+        }
+        renderer.render_runs(camera, &shifted, MorphSource::Shader, &skirt).unwrap();
+        let wrong = renderer.read_image().unwrap();
+        renderer.render_runs(camera, &runs, MorphSource::Shader, &skirt).unwrap();
+        let right = renderer.read_image().unwrap();
+        moved_off += right.pixels.iter().zip(&wrong.pixels).filter(|(a, b)| a != b).count();
+    }
+    println!(
+        "{}: {in_runs} patches in runs, {single} single patches over {} cameras; a run moved \
+         by one patch changed {moved_off} pixels",
+        renderer.adapter(),
+        cameras.len()
+    );
+    assert!(single > 0, "no single patches beside the runs");
+    assert!(moved_off > 0, "the comparison cannot see a misplaced run");
+    // Runs of another coarsest level, or past the grid, are refused.
+    let c = &cameras[0];
+    let mut runs = scene.select_runs(&c.with_viewport(1280.0, 720.0), &cfg);
+    runs.coarsest -= 1;
+    assert!(renderer.render_runs(c, &runs, MorphSource::Shader, &skirt).is_err());
+    runs.coarsest += 1;
+    runs.runs[0].width += 32;
+    assert!(renderer.render_runs(c, &runs, MorphSource::Shader, &skirt).is_err());
+}
+
+#[test]
+fn runs_draw_the_expanded_image_vulkan() {
+    runs_draw_the_expanded_image(BackendChoice::Vulkan);
+}
+
+#[test]
+fn runs_draw_the_expanded_image_gl() {
+    runs_draw_the_expanded_image(BackendChoice::Gl);
 }
