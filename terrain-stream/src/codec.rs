@@ -54,7 +54,7 @@
 //! | varints of | miniz 1 (+3) | miniz Huffman-only | libdeflate 1 (+3) | libdeflate 1 alone |
 //! |---|---|---|---|---|
 //! | synthetic 8193^2 (105.8 MB) | 1, 91 MB/s | 0.995 | 0.997, 96-101 MB/s | 0.997 |
-//! | Puget 1k (1.6 MB) | 1, 100 MB/s | 1.0005 | 0.996, 107 MB/s | 0.996 |
+//! | Puget 1k (1.6 MB) | 1, 100 MB/s | 1.0005 | 0.996, 106 MB/s | 0.996 |
 //! | Puget 4k (16.9 MB) | 1, 38 MB/s | 0.999 | 0.971, 73 MB/s | 1.054 |
 //! | lidar f32 (0.26 MB) | 1, 44 MB/s | 1.168 | 0.953, 53 MB/s | 0.995 |
 //!
