@@ -300,7 +300,7 @@ mod tests {
         cases.push(fib);
         for _ in 0..20 {
             let len = (next() % 3000) as usize + 1;
-            let span = (next() % 256) as u64 + 1;
+            let span = next() % 256 + 1;
             cases.push((0..len).map(|_| (next() % span) as u8).collect());
         }
         for data in &cases {
@@ -319,7 +319,7 @@ mod tests {
     #[test]
     fn limited_code_lengths_are_complete_and_bounded() {
         // Kraft's sum is exactly 1 (a complete code) and no length exceeds the limit.
-        let mut next = crate::tests::xorshift64_star(0x0DDB_A11);
+        let mut next = crate::tests::xorshift64_star(0x00DD_BA11);
         let mut limited = 0;
         for max_bits in [7usize, 15] {
             for round in 0..200 {
