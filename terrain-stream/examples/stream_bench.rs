@@ -3,8 +3,14 @@
 //!
 //! `cargo run --release -p terrain-stream --example stream_bench -- [all|storage|codec|flight
 //! FRAMES [puget|big]|bake SIZE K [NAME]|raw SIZE PATH|bakeraw PATH SIZE K NAME|upload STORE_DIR URL|
-//! realtime STORE FLIGHT [CACHE_MIB [in_flight=N] [threads=N] [lookahead=F]]]` (peak RSS: prefix
-//! with `/usr/bin/time -v`). Data from `../shared/data`.
+//! realtime STORE FLIGHT [CACHE_MIB [in_flight=N] [threads=N] [lookahead=F]]|repack STORE...|compare STORE_A STORE_B]`
+//! (peak RSS: prefix with `/usr/bin/time -v`). Data from `../shared/data`.
+//!
+//! `repack STORE...` packs the varints of every level payload of baked stores again with
+//! miniz_oxide and libdeflate at several levels: bytes, packing and inflating speed (CPU
+//! seconds, one thread), for the codec's choice of compressor and level. `compare STORE_A
+//! STORE_B` checks that two stores decode to the same heights, block by block, and times each
+//! one's decoding (e.g. a store main's build baked against this build's).
 //!
 //! `raw SIZE PATH` writes the synthetic terrain's rows to a headerless little-endian f32 file
 //! (north row first, as `--raw` reads files: the terrain of `terrain bake --synthetic SIZE`),
@@ -593,11 +599,206 @@ fn bake_raw(path: &Path, size: u64, k: u8, name: &str) {
     );
 }
 
+/// One way to pack a payload's varints: `("miniz", 1, 3)` is miniz level 1, packed again at
+/// level 3 where level 1 left under half (the codec's rule); a second level of 0: none.
+type Packer = (&'static str, u8, u8);
+
+fn pack_with(p: Packer, varints: &[u8], ld: &mut [Option<libdeflater::Compressor>; 13]) -> Vec<u8> {
+    let one = |level: u8, ld: &mut [Option<libdeflater::Compressor>; 13]| -> Vec<u8> {
+        if p.0 == "miniz" {
+            return miniz_oxide::deflate::compress_to_vec(varints, level);
+        }
+        if let Some(strategy) = match p.0 {
+            "miniz-huffman-only" => {
+                Some(miniz_oxide::deflate::core::CompressionStrategy::HuffmanOnly)
+            }
+            "miniz-rle" => Some(miniz_oxide::deflate::core::CompressionStrategy::RLE),
+            _ => None,
+        } {
+            use miniz_oxide::deflate::core::*;
+            let flags = create_comp_flags_from_zip_params(i32::from(level), -15, strategy as i32);
+            let mut c = CompressorOxide::new(flags);
+            let mut out = vec![0u8; varints.len() * 2 + 64];
+            let (status, _, n) = compress(&mut c, varints, &mut out, TDEFLFlush::Finish);
+            assert_eq!(status, TDEFLStatus::Done);
+            out.truncate(n);
+            return out;
+        }
+        let c = ld[level as usize].get_or_insert_with(|| {
+            libdeflater::Compressor::new(
+                libdeflater::CompressionLvl::new(i32::from(level)).unwrap(),
+            )
+        });
+        let mut out = vec![0u8; c.deflate_compress_bound(varints.len())];
+        let n = c.deflate_compress(varints, &mut out).unwrap();
+        out.truncate(n);
+        out
+    };
+    let mut packed = one(p.1, ld);
+    if p.2 > 0 && (packed.len() as f64) < 0.5 * varints.len() as f64 {
+        let smooth = one(p.2, ld);
+        if smooth.len() < packed.len() {
+            packed = smooth;
+        }
+    }
+    packed
+}
+
+/// `repack STORE...`: every level payload of each store (a predictive store, deflated or not),
+/// its varints packed again by each packer: payload bytes against the store's, CPU seconds of
+/// packing (one thread, best of 3), and inflating the packed streams with miniz_oxide and with
+/// libdeflate.
+fn repack(stores: &[String]) {
+    let packers: [Packer; 12] = [
+        ("miniz-huffman-only", 1, 0),
+        ("miniz-rle", 1, 0),
+        ("miniz", 1, 3),
+        ("miniz", 1, 0),
+        ("libdeflate", 1, 0),
+        ("libdeflate", 1, 3),
+        ("libdeflate", 1, 6),
+        ("libdeflate", 2, 0),
+        ("libdeflate", 3, 0),
+        ("libdeflate", 4, 0),
+        ("libdeflate", 6, 0),
+        ("libdeflate", 9, 0),
+    ];
+    for dir in stores {
+        let store = Store::open(dir).unwrap();
+        let k = store.header().k;
+        let mut varints = Vec::new();
+        let mut stored = 0usize;
+        for id in store.block_ids().collect::<Vec<_>>() {
+            for l in 0..=k {
+                let p = store.read_level_bytes(id, l).unwrap();
+                stored += p.len();
+                match p[0] {
+                    2 => varints.push(p[1..].to_vec()),
+                    3 => varints.push(miniz_oxide::inflate::decompress_to_vec(&p[1..]).unwrap()),
+                    _ => {}
+                }
+            }
+        }
+        let vb: usize = varints.iter().map(Vec::len).sum();
+        println!(
+            "\n{dir}: {} payloads, {:.2} MB stored, {:.2} MB of varints in {} payloads\n",
+            store.block_ids().count() * (k as usize + 1),
+            stored as f64 / 1e6,
+            vb as f64 / 1e6,
+            varints.len()
+        );
+        println!(
+            "| packer | packed bytes | / miniz 1+3 | pack MB/s of varints | inflate miniz MB/s | inflate libdeflate MB/s |"
+        );
+        println!("|---|---|---|---|---|---|");
+        // Each timing repeats its loop over at least 50 MB of varints (the CPU clock ticks
+        // every 10 ms).
+        let reps = 50_000_000usize.div_ceil(vb.max(1));
+        let mut base = 0usize;
+        for p in packers {
+            let mut ld: [Option<libdeflater::Compressor>; 13] = Default::default();
+            let (mut best, mut packed) = (f64::MAX, Vec::new());
+            for _ in 0..3 {
+                let t = cpu_s();
+                for _ in 0..reps {
+                    packed = varints.iter().map(|v| pack_with(p, v, &mut ld)).collect::<Vec<_>>();
+                }
+                best = best.min((cpu_s() - t) / reps as f64);
+            }
+            // Each payload keeps the smaller of packed and plain varints (as the codec does).
+            let bytes: usize = packed.iter().zip(&varints).map(|(a, b)| a.len().min(b.len())).sum();
+            if base == 0 {
+                base = bytes;
+            }
+            let (mut inf_m, mut inf_l) = (f64::MAX, f64::MAX);
+            let mut d = libdeflater::Decompressor::new();
+            let mut out = vec![0u8; varints.iter().map(Vec::len).max().unwrap_or(0)];
+            for _ in 0..3 {
+                let t = cpu_s();
+                for _ in 0..reps {
+                    for (c, v) in packed.iter().zip(&varints) {
+                        let r = miniz_oxide::inflate::decompress_to_vec(c).unwrap();
+                        assert_eq!(r.len(), v.len());
+                    }
+                }
+                inf_m = inf_m.min((cpu_s() - t) / reps as f64);
+                let t = cpu_s();
+                for _ in 0..reps {
+                    for (c, v) in packed.iter().zip(&varints) {
+                        let n = d.deflate_decompress(c, &mut out).unwrap();
+                        assert_eq!(&out[..n], &v[..]);
+                    }
+                }
+                inf_l = inf_l.min((cpu_s() - t) / reps as f64);
+            }
+            println!(
+                "| {} {}{} | {bytes} | {:.4} | {:.1} | {:.0} | {:.0} |",
+                p.0,
+                p.1,
+                if p.2 > 0 { format!(" (+{} below half)", p.2) } else { String::new() },
+                bytes as f64 / base as f64,
+                vb as f64 / 1e6 / best,
+                vb as f64 / 1e6 / inf_m,
+                vb as f64 / 1e6 / inf_l,
+            );
+        }
+    }
+}
+
+/// This process's CPU seconds (user + system), from `/proc/self/stat`.
+fn cpu_s() -> f64 {
+    let s = std::fs::read_to_string("/proc/self/stat").unwrap();
+    let f: Vec<&str> = s.rsplit(')').next().unwrap().split_whitespace().collect();
+    (f[11].parse::<f64>().unwrap() + f[12].parse::<f64>().unwrap()) / 100.0
+}
+
+/// `compare STORE_A STORE_B`: both stores decode to the same heights (every level of every
+/// block, and the same blocks), and the CPU seconds each takes to decode (every block to its
+/// finest level, this build's reader, best of 3 rounds).
+fn compare(a: &Path, b: &Path) {
+    let (sa, sb) = (Store::open(a).unwrap(), Store::open(b).unwrap());
+    let ids: Vec<_> = sa.block_ids().collect();
+    assert_eq!(ids, sb.block_ids().collect::<Vec<_>>(), "other blocks");
+    let k = sa.header().k;
+    assert_eq!(k, sb.header().k, "other k");
+    for &id in &ids {
+        let (la, lb) = (sa.read_block(id, k).unwrap(), sb.read_block(id, k).unwrap());
+        assert!(la.levels() == lb.levels(), "block {id:?} decodes to other heights");
+    }
+    let decode = |s: &Store| {
+        let t = cpu_s();
+        for &id in &ids {
+            std::hint::black_box(s.read_block(id, k).unwrap());
+        }
+        cpu_s() - t
+    };
+    let (mut ta, mut tb) = (f64::MAX, f64::MAX);
+    for _ in 0..3 {
+        ta = ta.min(decode(&sa));
+        tb = tb.min(decode(&sb));
+    }
+    println!(
+        "{} blocks (k = {k}) decode to the same heights; blocks {:.2} MB / {:.2} MB; decode {:.3} / {:.3} CPU s ({:.1} / {:.1} ms a block)",
+        ids.len(),
+        sa.blocks_bytes() as f64 / 1e6,
+        sb.blocks_bytes() as f64 / 1e6,
+        ta,
+        tb,
+        ta * 1e3 / ids.len() as f64,
+        tb * 1e3 / ids.len() as f64
+    );
+}
+
 fn main() {
     let args: Vec<String> = std::env::args().skip(1).collect();
     match args.first().map(String::as_str) {
         Some("storage") => storage(),
         Some("codec") => codecs(),
+        Some("repack") => repack(&args[1..]),
+        Some("compare") => compare(
+            Path::new(args.get(1).expect("compare STORE_A STORE_B")),
+            Path::new(args.get(2).expect("compare STORE_A STORE_B")),
+        ),
         Some("flight") => flights(
             args.get(1).and_then(|s| s.parse().ok()).unwrap_or(10_000),
             args.get(2).map_or("all", String::as_str),

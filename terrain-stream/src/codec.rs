@@ -44,8 +44,35 @@
 //! is packed at level 1, and packed again at level 3 where level 1 left under half of the
 //! varints (smooth terrain: 1.07x level 6's bytes at a quarter of its time); the smaller is
 //! kept. Deterministic, like every choice of the codec.
+//!
+//! **The compressor: literals first, libdeflate where matches pay** (branch `deflate18`).
+//! miniz_oxide zeroed and rebuilt its 160 KB of hash tables and 64 KB LZ buffer for every
+//! payload, and its level 1 took about a fifth of a rough bake's CPU (`perf`). On rough
+//! terrain matches buy nothing: re-packing the varints of stores main baked (`stream_bench
+//! repack`, one thread, loaded machine; bytes against miniz's rule, MB/s of varints):
+//!
+//! | varints of | miniz 1 (+3) | miniz Huffman-only | libdeflate 1 (+3) | libdeflate 1 alone |
+//! |---|---|---|---|---|
+//! | synthetic 8193^2 (105.8 MB) | 1, 91 MB/s | 0.995 | 0.997, 96-101 MB/s | 0.997 |
+//! | Puget 1k (1.6 MB) | 1, 100 MB/s | 1.0005 | 0.996, 106 MB/s | 0.996 |
+//! | Puget 4k (16.9 MB) | 1, 38 MB/s | 0.999 | 0.971, 73 MB/s | 1.054 |
+//! | lidar f32 (0.26 MB) | 1, 44 MB/s | 1.168 | 0.953, 53 MB/s | 0.995 |
+//!
+//! So a payload is first written as one Huffman-coded block of literals
+//! ([`huffman::deflate_literals`]: a histogram, a length-limited code and one pass, no match
+//! finder); where that leaves under [`LITERALS_RATIO`] of the varints (smooth terrain, voids:
+//! runs that matches take), libdeflate (`libdeflater`, a compressor kept per thread) packs it
+//! at level 1, and at level 3 where level 1 left under half; the smallest is kept. Whole
+//! stores against main's (bench/ooc/README.md, "Block payloads by libdeflate"): 0.2-3.7 %
+//! smaller, Everest SRTM (voids) 0.3 % larger. Every compressor writes raw Deflate, which the
+//! inflater below reads: stores of either read alike (the payload format is unchanged).
+
+use std::cell::RefCell;
+
+use libdeflater::{CompressionLvl, Compressor};
 
 use crate::format::{Codec, for_each_level_vertex, level_len, vertex_index};
+use crate::huffman;
 
 /// Payload tag: little-endian i16 samples.
 const TAG_I16: u8 = 0;
@@ -55,14 +82,16 @@ const TAG_I32: u8 = 1;
 const TAG_PREDICTIVE: u8 = 2;
 /// Payload tag: predictive zig-zag varints, deflated (raw Deflate stream).
 const TAG_PREDICTIVE_DEFLATE: u8 = 3;
-/// Deflate effort first tried: miniz level 1 (its greedy one-probe compressor). See the module
-/// docs for the measurement behind the two levels.
-const DEFLATE_FAST: u8 = 1;
+/// Deflate effort first tried: libdeflate level 1 (its fastest, hash-table match finder). See
+/// the module docs for the measurement behind the two levels.
+const DEFLATE_FAST: i32 = 1;
 /// Deflate effort for varints that level 1 packs below [`SMOOTH_RATIO`] of their size (smooth
 /// terrain, long runs of zero residuals, where more effort still pays in disk bytes).
-const DEFLATE_SMOOTH: u8 = 3;
+const DEFLATE_SMOOTH: i32 = 3;
 /// Packed / varint size under which a payload is packed again at [`DEFLATE_SMOOTH`].
 const SMOOTH_RATIO: f64 = 0.5;
+/// Literals-only / varint size under which libdeflate's matches are tried too.
+const LITERALS_RATIO: f64 = 0.8;
 /// Bytes of one varint at most (a 64-bit zig-zag value).
 const MAX_VARINT: usize = 10;
 
@@ -195,21 +224,10 @@ pub(crate) fn encode_level(
         let mut pos = 1;
         for_each_residual(k, n, grid, |r| put_varint_at(&mut out, &mut pos, zigzag(r)));
         out.truncate(pos);
-        if codec == Codec::PredictiveDeflate {
-            let varints = &out[1..];
-            let mut packed = miniz_oxide::deflate::compress_to_vec(varints, DEFLATE_FAST);
-            if (packed.len() as f64) < SMOOTH_RATIO * varints.len() as f64 {
-                let smooth = miniz_oxide::deflate::compress_to_vec(varints, DEFLATE_SMOOTH);
-                if smooth.len() < packed.len() {
-                    packed = smooth;
-                }
-            }
-            if packed.len() + 1 < out.len() {
-                let mut d = Vec::with_capacity(packed.len() + 1);
-                d.push(TAG_PREDICTIVE_DEFLATE);
-                d.extend_from_slice(&packed);
-                return d;
-            }
+        if codec == Codec::PredictiveDeflate
+            && let Some(packed) = deflate_varints(&out[1..])
+        {
+            return packed;
         }
         return out;
     }
@@ -229,6 +247,65 @@ pub(crate) fn encode_level(
         }
     }
     out
+}
+
+thread_local! {
+    /// This thread's libdeflate compressors at [`DEFLATE_FAST`] and [`DEFLATE_SMOOTH`],
+    /// allocated on first use and kept: libdeflate carries nothing from one buffer to the next
+    /// (each call starts its match finder afresh), so reusing them changes no byte, and saves
+    /// allocating their hash tables for every payload.
+    static DEFLATERS: RefCell<[Option<Compressor>; 2]> = const { RefCell::new([None, None]) };
+}
+
+/// `varints` packed into a [`TAG_PREDICTIVE_DEFLATE`] payload (tag first): literals alone
+/// (one Huffman-coded block, [`huffman::deflate_literals`]); where those leave under
+/// [`LITERALS_RATIO`] of the varints (smooth terrain: runs of zero residuals, where matches
+/// pay), also libdeflate at [`DEFLATE_FAST`], and again at [`DEFLATE_SMOOTH`] where that
+/// left under [`SMOOTH_RATIO`]; the smallest kept. `None` where no stream is shorter than the
+/// varints (the plain predictive payload is then smaller or as small).
+fn deflate_varints(varints: &[u8]) -> Option<Vec<u8>> {
+    if varints.len() < 2 {
+        return None;
+    }
+    let lits = huffman::deflate_literals(varints, vec![TAG_PREDICTIVE_DEFLATE]);
+    let literals_len = lits.len() - 1;
+    // The payload to beat: tag + varints, then each one kept.
+    let mut best = (lits.len() < 1 + varints.len()).then_some(lits);
+    if (literals_len as f64) >= LITERALS_RATIO * varints.len() as f64 {
+        return best;
+    }
+    DEFLATERS.with_borrow_mut(|[fast, smooth]| {
+        let bound = best.as_ref().map_or(1 + varints.len(), Vec::len);
+        if let Some(d) = deflate_within(deflater(fast, DEFLATE_FAST), varints, bound) {
+            let fast_len = d.len() - 1;
+            best = Some(d);
+            if (fast_len as f64) < SMOOTH_RATIO * varints.len() as f64
+                && let Some(e) =
+                    deflate_within(deflater(smooth, DEFLATE_SMOOTH), varints, fast_len + 1)
+            {
+                best = Some(e);
+            }
+        }
+        best
+    })
+}
+
+/// A [`TAG_PREDICTIVE_DEFLATE`] payload of `varints` packed by `c`, if shorter than `bound`
+/// bytes (libdeflate fails, and nothing is kept, when its stream does not fit).
+fn deflate_within(c: &mut Compressor, varints: &[u8], bound: usize) -> Option<Vec<u8>> {
+    if bound < 2 {
+        return None;
+    }
+    let mut d = vec![0u8; bound - 1];
+    d[0] = TAG_PREDICTIVE_DEFLATE;
+    let n = c.deflate_compress(varints, &mut d[1..]).ok()?;
+    d.truncate(1 + n);
+    Some(d)
+}
+
+/// The compressor in `slot`, at `level`, made on first use.
+fn deflater(slot: &mut Option<Compressor>, level: i32) -> &mut Compressor {
+    slot.get_or_insert_with(|| Compressor::new(CompressionLvl::new(level).unwrap_or_default()))
 }
 
 /// Decodes level `n` given the decoded coarser levels `coarser[0..n]`. Errors describe what is

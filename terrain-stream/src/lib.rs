@@ -90,6 +90,7 @@ mod codec;
 mod entries;
 mod error;
 mod format;
+mod huffman;
 mod lod;
 mod remote;
 mod schedule;
