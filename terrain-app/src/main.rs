@@ -21,11 +21,6 @@ mod view;
 
 use clap::{CommandFactory, FromArgMatches, Parser, Subcommand};
 
-/// The binary's allocator (issue 16): see terrain-app/Cargo.toml. Set here only: the library
-/// crates leave the choice to whoever embeds them.
-#[global_allocator]
-static GLOBAL: mimalloc::MiMalloc = mimalloc::MiMalloc;
-
 /// Large-scale terrain: real DEMs in, measured level of detail out.
 #[derive(Debug, Parser)]
 #[command(name = "terrain", version, about)]
