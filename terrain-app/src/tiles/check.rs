@@ -169,7 +169,8 @@ impl SampleRange {
     }
 }
 
-/// A triangle in grid coordinates with its plane.
+/// A triangle in grid coordinates with its plane: made when needed from the tile's mesh
+/// ([`Tris::get`]), never held for every triangle at once.
 pub(super) struct Tri {
     p: [DVec2; 3],
     z0: f64,
@@ -177,12 +178,28 @@ pub(super) struct Tri {
     g: DVec2,
     lo: DVec2,
     hi: DVec2,
-    /// Edge `k` (from corner `k` to `k + 1`) and its length, computed once (the same numbers
-    /// every row recomputed before).
+    /// Edge `k` (from corner `k` to `k + 1`) and its length.
     edges: [(DVec2, f64); 3],
 }
 
 impl Tri {
+    /// The triangle of corners `p` (grid coordinates) and heights `z`; `None` unless it is
+    /// counter-clockwise with a positive area.
+    fn new([(p0, z0), (p1, z1), (p2, z2)]: [(DVec2, f64); 3]) -> Option<Self> {
+        let (e1, e2) = (p1 - p0, p2 - p0);
+        let d = e1.perp_dot(e2);
+        if d <= 0.0 {
+            return None;
+        }
+        // z = z0 + g . (q - p0), solved from the two edges.
+        let g = dvec2(
+            ((z1 - z0) * e2.y - (z2 - z0) * e1.y) / d,
+            ((z2 - z0) * e1.x - (z1 - z0) * e2.x) / d,
+        );
+        let edges = [p1 - p0, p2 - p1, p0 - p2].map(|e| (e, e.length()));
+        Some(Tri { p: [p0, p1, p2], z0, g, lo: p0.min(p1).min(p2), hi: p0.max(p1).max(p2), edges })
+    }
+
     /// The mesh's height at sample `(i, j)`, off `z` by this (the one expression the scan and
     /// the leaf scans use).
     fn error(&self, i: usize, j: usize, z: f32) -> f64 {
@@ -204,6 +221,15 @@ impl Tri {
         let ja = ((self.lo.y - EPS).ceil().max(j0 as f64)) as usize;
         let jb = ((self.hi.y + EPS).floor().min(j1 as f64)) as usize;
         Some((ja, jb))
+    }
+
+    /// The samples of `rect` in the triangle's box (with the tolerance), `[ia, ja, ib, jb]`;
+    /// `None` if there are none.
+    fn samples_box(&self, rect: [usize; 4]) -> Option<[usize; 4]> {
+        let (ja, jb) = self.rows(rect)?;
+        let ia = ((self.lo.x - EPS).ceil().max(rect[0] as f64)) as usize;
+        let ib = ((self.hi.x + EPS).floor().min(rect[2] as f64)) as usize;
+        (ia <= ib && ja <= jb).then_some([ia, ja, ib, jb])
     }
 
     /// The samples `i0..=i1` of row `j` inside the triangle: where all three edge functions
@@ -240,38 +266,45 @@ impl Tri {
     }
 }
 
-pub(super) fn grid_triangles(layout: &GridLayout, m: &TileMesh) -> Vec<Tri> {
-    let (a, b) = grid_rect(layout, m.tile);
-    let pos: Vec<(DVec2, f64)> = m
-        .vertices
-        .iter()
-        .map(|v| (dvec2(a.x + v.x * (b.x - a.x), a.y + v.y * (b.y - a.y)), v.z))
-        .collect();
-    m.triangles
-        .iter()
-        .filter_map(|t| {
-            let [(p0, z0), (p1, z1), (p2, z2)] = t.map(|k| pos[k as usize]);
-            let (e1, e2) = (p1 - p0, p2 - p0);
-            let d = e1.perp_dot(e2);
-            if d <= 0.0 {
-                return None;
-            }
-            // z = z0 + g . (q - p0), solved from the two edges.
-            let g = dvec2(
-                ((z1 - z0) * e2.y - (z2 - z0) * e1.y) / d,
-                ((z2 - z0) * e1.x - (z1 - z0) * e2.x) / d,
-            );
-            let edges = [p1 - p0, p2 - p1, p0 - p2].map(|e| (e, e.length()));
-            Some(Tri {
-                p: [p0, p1, p2],
-                z0,
-                g,
-                lo: p0.min(p1).min(p2),
-                hi: p0.max(p1).max(p2),
-                edges,
-            })
-        })
-        .collect()
+/// A tile's triangles in grid coordinates, each made from the mesh when it is needed
+/// ([`Tris::get`]) rather than held: a table of [`Tri`]s (176 bytes a triangle) was the
+/// largest thing `terrain tiles` held besides its cache (92 MB at the peak over a 16385^2
+/// store, about 260 k triangles a decimated tile, one tile a thread; bench/mesh/README.md).
+/// Every use makes the triangle with the same f64 expressions from the same mesh vertices, so
+/// its corners, plane, box and edges are bit for bit those of the table, and the check
+/// measures exactly what it did with the table.
+pub(super) struct Tris<'a> {
+    mesh: &'a TileMesh,
+    /// The tile's south-west corner in grid coordinates, and its extent.
+    a: DVec2,
+    size: DVec2,
+}
+
+impl<'a> Tris<'a> {
+    pub(super) fn new(layout: &GridLayout, mesh: &'a TileMesh) -> Self {
+        let (a, b) = grid_rect(layout, mesh.tile);
+        Self { mesh, a, size: b - a }
+    }
+
+    /// The mesh's triangles, counter-clockwise or not (ids `0..len`).
+    fn len(&self) -> u32 {
+        self.mesh.triangles.len() as u32
+    }
+
+    /// Triangle `k` of the mesh in grid coordinates; `None` for one that is not
+    /// counter-clockwise with a positive area (it holds no sample).
+    fn get(&self, k: u32) -> Option<Tri> {
+        let corner = |v: u32| {
+            let v = self.mesh.vertices[v as usize];
+            (dvec2(self.a.x + v.x * self.size.x, self.a.y + v.y * self.size.y), v.z)
+        };
+        Tri::new(self.mesh.triangles[k as usize].map(corner))
+    }
+
+    /// The ids of the triangles `get` makes, in order.
+    fn ids(&self) -> impl Iterator<Item = (u32, Tri)> + '_ {
+        (0..self.len()).filter_map(|k| Some((k, self.get(k)?)))
+    }
 }
 
 /// The largest error of `mesh` against every non-void DEM sample under it, exactly as
@@ -286,54 +319,79 @@ pub(crate) fn check(
     let Some(rect) = samples_inside(layout, mesh.tile) else {
         return Ok(Some(0.0));
     };
-    let tris = grid_triangles(layout, mesh);
+    let tris = Tris::new(layout, mesh);
     if !covers(samples, &tris, rect)? {
         return Ok(None);
     }
     Ok(Some(worst(samples, range, &tris, rect)?))
 }
 
-/// Whether every non-void sample of `rect` lies in a triangle ([`Tri::row_span`]).
-fn covers(samples: &dyn Samples, tris: &[Tri], rect: [usize; 4]) -> anyhow::Result<bool> {
+/// Rows a band of the coverage sweep holds the triangles' intervals of at once.
+const BAND_ROWS: usize = 64;
+
+/// Whether every non-void sample of `rect` lies in a triangle ([`Tri::row_span`]), swept by
+/// bands of [`BAND_ROWS`] rows: each band holds its triangles' intervals on its own rows only
+/// (the intervals of every row at once were 8 bytes a triangle and row, 31 MB at the peak over
+/// a 16385^2 store), and the triangles meeting a band are listed by a counting sort (4 bytes a
+/// triangle and band it meets).
+fn covers(samples: &dyn Samples, tris: &Tris<'_>, rect: [usize; 4]) -> anyhow::Result<bool> {
     let [i0, j0, i1, j1] = rect;
     let rows = j1 - j0 + 1;
-    // Every triangle's interval on every row, bucketed by row (a counting sort).
-    let mut count = vec![0usize; rows + 1];
-    let each = |f: &mut dyn FnMut(usize, (usize, usize))| {
-        for t in tris {
-            if let Some((ja, jb)) = t.rows(rect) {
-                for j in ja..=jb {
-                    if let Some(s) = t.row_span(j, i0, i1) {
-                        f(j - j0, s);
-                    }
+    let bands = rows.div_ceil(BAND_ROWS);
+    // The bands of rows (relative to j0) each triangle meets.
+    let meets = |t: &Tri| {
+        let (ja, jb) = t.rows(rect).filter(|(ja, jb)| ja <= jb)?;
+        Some((ja - j0) / BAND_ROWS..=(jb - j0) / BAND_ROWS)
+    };
+    let mut start = vec![0usize; bands + 1];
+    for (_, t) in tris.ids() {
+        for band in meets(&t).into_iter().flatten() {
+            start[band + 1] += 1;
+        }
+    }
+    for band in 0..bands {
+        start[band + 1] += start[band];
+    }
+    let mut in_band = vec![0u32; start[bands]];
+    let mut next = start.clone();
+    for (k, t) in tris.ids() {
+        for band in meets(&t).into_iter().flatten() {
+            in_band[next[band]] = k;
+            next[band] += 1;
+        }
+    }
+    drop(next);
+    // Per band: (row, first, last) of every triangle's interval on its rows, sorted, swept.
+    let mut spans: Vec<(u32, u32, u32)> = Vec::new();
+    for band in 0..bands {
+        let (ra, rb) = (j0 + band * BAND_ROWS, (j0 + (band + 1) * BAND_ROWS - 1).min(j1));
+        spans.clear();
+        for &k in &in_band[start[band]..start[band + 1]] {
+            let Some(t) = tris.get(k) else { continue };
+            let Some((ja, jb)) = t.rows(rect) else { continue };
+            for j in ja.max(ra)..=jb.min(rb) {
+                if let Some((a, b)) = t.row_span(j, i0, i1) {
+                    spans.push(((j - ra) as u32, a as u32, b as u32));
                 }
             }
         }
-    };
-    each(&mut |r, _| count[r + 1] += 1);
-    for r in 0..rows {
-        count[r + 1] += count[r];
-    }
-    let mut spans = vec![(0u32, 0u32); count[rows]];
-    let mut next = count.clone();
-    each(&mut |r, (a, b)| {
-        spans[next[r]] = (a as u32, b as u32);
-        next[r] += 1;
-    });
-    for r in 0..rows {
-        let row = &mut spans[count[r]..count[r + 1]];
-        row.sort_unstable();
-        // The first sample of the row not covered yet.
-        let mut from = i0;
-        for &(a, b) in row.iter() {
-            let (a, b) = (a as usize, b as usize);
-            if a > from && !void_between(samples, from, a - 1, j0 + r)? {
+        spans.sort_unstable();
+        let mut at = 0;
+        for j in ra..=rb {
+            let r = (j - ra) as u32;
+            // The first sample of the row not covered yet.
+            let mut from = i0;
+            while let Some(&(_, a, b)) = spans.get(at).filter(|s| s.0 == r) {
+                let (a, b) = (a as usize, b as usize);
+                if a > from && !void_between(samples, from, a - 1, j)? {
+                    return Ok(false);
+                }
+                from = from.max(b + 1);
+                at += 1;
+            }
+            if from <= i1 && !void_between(samples, from, i1, j)? {
                 return Ok(false);
             }
-            from = from.max(b + 1);
-        }
-        if from <= i1 && !void_between(samples, from, i1, j0 + r)? {
-            return Ok(false);
         }
     }
     Ok(true)
@@ -353,17 +411,14 @@ const SCAN_LOG2: u32 = 6;
 /// Boxes of `2^REGION_LOG2` samples a side are searched in parallel, the largest bound first.
 const REGION_LOG2: u32 = 8;
 
-/// The search of one tile: its triangles, their boxes of samples and the largest error found
-/// so far (shared by the regions searched in parallel; an `f64 >= 0` as its bits, which order
-/// as the numbers do).
+/// The search of one tile: its triangles and the largest error found so far (shared by the
+/// regions searched in parallel; an `f64 >= 0` as its bits, which order as the numbers do).
 struct Search<'a> {
     samples: &'a dyn Samples,
     range: &'a SampleRange,
-    tris: &'a [Tri],
+    tris: &'a Tris<'a>,
     /// The tile's samples.
     rect: [usize; 4],
-    /// Each triangle's samples lie in its box (with the tolerance) clipped to the tile's.
-    boxes: Vec<Option<[usize; 4]>>,
     best: AtomicU64,
 }
 
@@ -375,11 +430,11 @@ impl Search<'_> {
         f64::from_bits(self.best.load(AtomicOrdering::Relaxed))
     }
 
-    /// The bound of triangle `tri`'s error over the samples of box `(k, a, b)` it may hold
+    /// The bound of triangle `t`'s error over the samples of box `(k, a, b)` it may hold
     /// (`None`: it holds none there, or none is measured).
-    fn bound(&self, tri: u32, k: u32, a: usize, b: usize) -> Option<f64> {
-        let t = &self.tris[tri as usize];
-        let [ia, ja, ib, jb] = self.boxes[tri as usize]?;
+    fn bound(&self, t: &Tri, k: u32, a: usize, b: usize) -> Option<f64> {
+        // Each triangle's samples lie in its box (with the tolerance) clipped to the tile's.
+        let [ia, ja, ib, jb] = t.samples_box(self.rect)?;
         let x0 = (a << k).max(ia);
         let y0 = (b << k).max(ja);
         let x1 = (((a + 1) << k) - 1).min(ib);
@@ -408,15 +463,27 @@ impl Search<'_> {
         Some(if bound.is_nan() { f64::INFINITY } else { bound })
     }
 
-    /// The triangles of `of` that may raise the largest error in box `(k, a, b)`, with their
-    /// bounds there, and the largest of those.
-    fn meeting(&self, of: impl Iterator<Item = u32>, k: u32, a: usize, b: usize) -> (f64, Meeting) {
+    /// The triangles of `of` that may raise the largest error in each of the boxes `at` (at
+    /// level `k`), with their bounds there, and the largest of those per box: each triangle
+    /// made once for all the boxes.
+    fn meeting<const N: usize>(
+        &self,
+        of: impl Iterator<Item = u32>,
+        k: u32,
+        at: [(usize, usize); N],
+    ) -> [(f64, Meeting); N] {
         let best = self.best();
-        let list: Meeting = of
-            .filter_map(|t| Some((t, self.bound(t, k, a, b)?)))
-            .filter(|&(_, e)| e > best)
-            .collect();
-        (list.iter().fold(f64::NEG_INFINITY, |m, &(_, e)| m.max(e)), list)
+        let mut out: [(f64, Meeting); N] = std::array::from_fn(|_| (f64::NEG_INFINITY, Vec::new()));
+        for id in of {
+            let Some(t) = self.tris.get(id) else { continue };
+            for ((most, list), &(a, b)) in out.iter_mut().zip(&at) {
+                if let Some(e) = self.bound(&t, k, a, b).filter(|&e| e > best) {
+                    list.push((id, e));
+                    *most = most.max(e);
+                }
+            }
+        }
+        out
     }
 
     /// Searches box `(k, a, b)` with the triangles `list` meeting it: children in decreasing
@@ -428,13 +495,13 @@ impl Search<'_> {
             return Ok(());
         }
         if k > LEAF_LOG2 {
-            let mut children: Vec<(f64, usize, usize, Meeting)> = [(0, 0), (1, 0), (0, 1), (1, 1)]
+            let quarters =
+                [(0, 0), (1, 0), (0, 1), (1, 1)].map(|(da, db)| (2 * a + da, 2 * b + db));
+            let found = self.meeting(list.iter().map(|&(t, _)| t), k - 1, quarters);
+            let mut children: Vec<(f64, usize, usize, Meeting)> = found
                 .into_iter()
-                .map(|(da, db)| {
-                    let (ca, cb) = (2 * a + da, 2 * b + db);
-                    let (e, l) = self.meeting(list.iter().map(|&(t, _)| t), k - 1, ca, cb);
-                    (e, ca, cb, l)
-                })
+                .zip(quarters)
+                .map(|((e, l), (ca, cb))| (e, ca, cb, l))
                 .filter(|(_, _, _, l)| !l.is_empty())
                 .collect();
             // Every quarter of a small box left to search: its samples are as good as all
@@ -473,7 +540,7 @@ impl Search<'_> {
             if e <= best {
                 continue;
             }
-            let t = &self.tris[tri as usize];
+            let Some(t) = self.tris.get(tri) else { continue };
             let Some((ja, jb)) = t.rows([x0, y0, x1, y1]) else { continue };
             for j in ja..=jb {
                 let Some((xa, xb)) = t.row_span(j, x0, x1) else { continue };
@@ -495,29 +562,20 @@ impl Search<'_> {
 fn worst(
     samples: &dyn Samples,
     range: &SampleRange,
-    tris: &[Tri],
+    tris: &Tris<'_>,
     rect: [usize; 4],
 ) -> anyhow::Result<f64> {
-    let boxes = tris
-        .iter()
-        .map(|t| {
-            let (ja, jb) = t.rows(rect)?;
-            let ia = ((t.lo.x - EPS).ceil().max(rect[0] as f64)) as usize;
-            let ib = ((t.hi.x + EPS).floor().min(rect[2] as f64)) as usize;
-            (ia <= ib && ja <= jb).then_some([ia, ja, ib, jb])
-        })
-        .collect();
-    let s = Search { samples, range, tris, rect, boxes, best: AtomicU64::new(0f64.to_bits()) };
+    let s = Search { samples, range, tris, rect, best: AtomicU64::new(0f64.to_bits()) };
     // The regions, each with the triangles whose boxes meet it.
     let k = REGION_LOG2.clamp(LEAF_LOG2, range.top());
     let [ra, rb] = [rect[0] >> k, rect[1] >> k];
     let (nx, ny) = ((rect[2] >> k) - ra + 1, (rect[3] >> k) - rb + 1);
     let mut bins: Vec<Vec<u32>> = vec![Vec::new(); nx * ny];
-    for (t, bx) in s.boxes.iter().enumerate() {
-        let Some([ia, ja, ib, jb]) = *bx else { continue };
+    for (id, t) in tris.ids() {
+        let Some([ia, ja, ib, jb]) = t.samples_box(rect) else { continue };
         for b in (ja >> k)..=(jb >> k) {
             for a in (ia >> k)..=(ib >> k) {
-                bins[(b - rb) * nx + (a - ra)].push(t as u32);
+                bins[(b - rb) * nx + (a - ra)].push(id);
             }
         }
     }
@@ -526,7 +584,7 @@ fn worst(
         .enumerate()
         .map(|(r, bin)| {
             let (a, b) = (ra + r % nx, rb + r / nx);
-            let (e, l) = s.meeting(bin.into_iter(), k, a, b);
+            let [(e, l)] = s.meeting(bin.into_iter(), k, [(a, b)]);
             (e, a, b, l)
         })
         .filter(|(_, _, _, l)| !l.is_empty())
@@ -543,6 +601,12 @@ fn worst(
     let dealt: Vec<_> = even.into_iter().chain(odd).map(|(_, r)| r).collect();
     dealt.into_par_iter().try_for_each(|(_, a, b, l)| s.search(k, a, b, l))?;
     Ok(s.best())
+}
+
+/// Every triangle of `m` the check measures, made at once (the reference's table).
+#[cfg(test)]
+fn grid_triangles(layout: &GridLayout, m: &TileMesh) -> Vec<Tri> {
+    Tris::new(layout, m).ids().map(|(_, t)| t).collect()
 }
 
 /// The largest `|mesh - sample|` over the samples `[i0, j0]..=[i1, j1]` that `at` gives

@@ -170,6 +170,77 @@ fn the_scan_measures_every_sample_and_finds_gaps() {
     assert_eq!(max_error(&t[..1], [0, 0, 10, 10], void_above), Some(0.0));
 }
 
+/// The check measures a known error over the plane `z = x` (one sample 2.5 or 1.5 m off,
+/// the 1,000 rows in 16 bands of the coverage sweep, the sample in the last), and the
+/// decimated tile whose check exceeds its bound is rejected by the budget policy (rebuilt,
+/// then meshed from every sample) while the one within it is kept: the check accepts and
+/// rejects, not only measures.
+#[test]
+fn the_check_measures_a_known_error_and_a_mesh_over_its_bound_is_rejected() {
+    let (w, h) = (11, 1001);
+    let l = layout(w, h, 0.0, 0.0, 1000.0);
+    // Grid units are equal along both axes: the tile spans 1000 cells; the plane rises 1 m a
+    // column over the first 11 columns (z = 100 u over the tile's 1000 columns, 10 of them
+    // in the grid: u = 0.01 at column 10).
+    let m = mesh(
+        vec![
+            DVec3::new(0.0, 0.0, 0.0),
+            DVec3::new(0.01, 0.0, 10.0),
+            DVec3::new(0.01, 1.0, 10.0),
+            DVec3::new(0.0, 1.0, 0.0),
+        ],
+        vec![[0, 1, 2], [0, 2, 3]],
+    );
+    let Some(rect) = samples_inside(&l, m.tile) else { panic!("no sample inside") };
+    assert_eq!(rect, [0, 0, 10, 1000]);
+    let spiked = |off: f32| {
+        let mut g = grid(w, h, 0.0, false, &mut unit_rng(3));
+        for j in 0..h {
+            for i in 0..w {
+                g.z[j * w + i] = i as f32 + if (i, j) == (3, 990) { off } else { 0.0 };
+            }
+        }
+        g
+    };
+    let policy = terrain_app::decimation::BudgetPolicy::default();
+    for (off, kept) in [(2.5, false), (1.5, true)] {
+        let g = spiked(off);
+        let range = SampleRange::measure(&g, 64).unwrap();
+        let e = check(&g, &l, &m, &range).unwrap().unwrap();
+        assert!((e - f64::from(off)).abs() < 1e-9, "{off}: measured {e}");
+        assert!(same(Some(e), reference(&g, &l, &m)), "{off}: check {e} differs from the scan");
+        // Bound 2 m, no decimation error: the decimated mesh (stride 2^1) is this one; a
+        // rebuild from every sample (stride 0) is a mesh of its own, told apart by its bound.
+        let built = terrain_app::decimation::build_within(
+            2.0,
+            1,
+            &policy,
+            |_| Ok(0.0),
+            |s, _| {
+                let mut m = mesh(m.vertices.clone(), m.triangles.clone());
+                m.bound = f64::from(s);
+                Ok(m)
+            },
+            |_| 0.0,
+            |m| check(&g, &l, m, &range),
+        )
+        .unwrap();
+        if kept {
+            assert_eq!((built.retries, built.stride_log2, built.mesh.bound), (0, 1, 1.0));
+            assert_eq!(built.measured.to_bits(), e.to_bits());
+        } else {
+            assert!(built.retries > 0, "{off}: a mesh 2.5 m off passed a 2 m bound");
+            assert_eq!((built.stride_log2, built.mesh.bound), (0, 0.0));
+        }
+    }
+    // A triangle missing leaves the samples above the diagonal uncovered.
+    let g = spiked(0.0);
+    let range = SampleRange::measure(&g, 64).unwrap();
+    let half = mesh(m.vertices.clone(), vec![m.triangles[0]]);
+    assert_eq!(check(&g, &l, &half, &range).unwrap(), None);
+    assert_eq!(check(&g, &l, &m, &range).unwrap().map(f64::to_bits), Some(0f64.to_bits()));
+}
+
 /// On random grids (voids, NaN, spikes) and random meshes (valid lattices, lattices with a
 /// triangle missing, overlapping random triangles), over the whole grid or part of it, the
 /// hierarchical check gives what the scan of every sample gives, bit for bit.
