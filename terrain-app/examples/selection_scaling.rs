@@ -9,7 +9,7 @@
 //!     [--sizes 1025,4097,16385] [--flight flights/pvps_884.json] [--frames 30] \
 //!     [--methods uniform,pvps-a,pvps-b,pvps-c,dss-1,dss-2,geomorph] [--reps 3] \
 //!     [--stores 1025=DIR,4097=DIR,32769=DIR] [--tau 2] [--ooc-refine eq7:32,cost:16] \
-//!     [--poses relative|absolute] [--geomorph-px 7] [--clock wall|cpu]
+//!     [--poses relative|absolute] [--geomorph-px 7] [--geomorph-partial 8] [--clock wall|cpu]
 //! ```
 //! Grids: `FractalConfig::with_size(n, n, 10.0)` (seed 1, 10 m spacing, 1500 m relief), built
 //! once per size with every method's precomputation (`MethodScene::prepare`, timed apart).
@@ -41,6 +41,9 @@
 //! (`GeomipTable::select`, what the store's frame loop takes) and one patch at a time
 //! (`GeomipTable::select_each`, the computation without runs, as main's `select`).
 //!
+//! `--geomorph-partial W` sets geomorph's `GeomipConfig::partial_run_patches` (partly visible
+//! nodes up to `W` patches wide drawn whole as runs; 0: never, the selection before it).
+//!
 //! Per method and size the table gives the median over frames of: selection ms, patches
 //! selected (geomorph: drawn, in runs or not), nodes the traversal visited
 //! (`SelectionStats::visited`; geomorph's runs: the number of runs; `-` where the method does
@@ -58,7 +61,7 @@ use terrain_app::ooc::{OocConfig, OocScene};
 use terrain_core::Heightmap;
 use terrain_core::flight::{FlightConfig, FlightSpec};
 use terrain_core::geometry::Camera;
-use terrain_core::lod::{GeomipConfig, GeomipRuns};
+use terrain_core::lod::{GeomipConfig, GeomipRuns, PatchLod};
 use terrain_core::quadtree::NodeTree;
 use terrain_core::synth::FractalConfig;
 use terrain_stream::{Refinement, SplitRule, Store, StoreTree, select_patches};
@@ -225,9 +228,16 @@ fn main() -> anyhow::Result<()> {
         take("--geomorph-px", &MethodConfig::default().geomip.pixel_threshold.to_string())
             .parse()
             .context("--geomorph-px")?;
+    // Geomorph's partly visible nodes drawn whole as runs up to this many patches wide
+    // (`GeomipConfig::partial_run_patches`; 0: never, main's selection before).
+    let partial: u32 =
+        take("--geomorph-partial", &MethodConfig::default().geomip.partial_run_patches.to_string())
+            .parse()
+            .context("--geomorph-partial")?;
     let method_config = || {
         let mut c = MethodConfig::default();
         c.geomip.pixel_threshold = geomorph_px;
+        c.geomip.partial_run_patches = partial;
         c
     };
     let tau_of = |n: u64| -> anyhow::Result<f64> {
@@ -422,7 +432,7 @@ fn main() -> anyhow::Result<()> {
                 let cfg =
                     GeomipConfig { patch_cells: geomip.patch_cells(), ..method_config().geomip };
                 let col = methods.len() + refines.len();
-                let (mut single, mut coarse) = (Vec::new(), Vec::new());
+                let (mut single, mut coarse, mut flat) = (Vec::new(), Vec::new(), Vec::new());
                 let runs = measure(&cams, reps, |c| {
                     let r = geomip.select_runs(&tree, c, &cfg);
                     single.push(r.patches.len() as f64);
@@ -430,6 +440,15 @@ fn main() -> anyhow::Result<()> {
                     coarse
                         .push(r.patches.iter().filter(|p| p.level == l && p.tween == 0.0).count()
                             as f64);
+                    // Finer single patches drawn at their level exactly (tween 0, every edge
+                    // at it): what runs of a finer level could hold.
+                    let exact = |p: &&PatchLod| {
+                        p.level < l
+                            && p.tween == 0.0
+                            && p.edge_level == [p.level; 4]
+                            && p.edge_tween == [0.0; 4]
+                    };
+                    flat.push(r.patches.iter().filter(exact).count() as f64);
                     let tris = geomorph_triangles(&r, cfg.patch_cells);
                     (r.drawn_patches() as usize, Some(r.runs.len()), tris)
                 });
@@ -447,9 +466,11 @@ fn main() -> anyhow::Result<()> {
                 });
                 eprintln!(
                     "  geomorph runs: median {:.0} patches one by one (not in runs), {:.0} of them \
-                     at the coarsest level with tween 0",
+                     at the coarsest level with tween 0, {:.0} at a finer level with tween 0 and \
+                     every edge at it",
                     median(single),
-                    median(coarse)
+                    median(coarse),
+                    median(flat)
                 );
                 for (k, row) in [runs, expanded, each].into_iter().enumerate() {
                     eprintln!(
