@@ -703,10 +703,10 @@ fn upper_bounds(store: &Store, block_level: u8) -> (Vec<[f32; 2]>, Vec<f32>) {
     // A version-4 index holds them in its head when the grid has at most `HEAD_LEVELS` levels
     // above its blocks (the same values: min/max and max are exact in any order), so no page
     // is read.
-    if let Some((levels, upper, err)) = store.block_pyramid()
-        && levels == block_level
+    if let Some(head) = store.block_pyramid()
+        && head.levels == block_level
     {
-        return (upper.to_vec(), err.to_vec());
+        return (head.upper.clone(), head.upper_err.clone());
     }
     let h = store.header();
     let per = h.k as usize + 1;

@@ -259,14 +259,15 @@ impl HeadBuilder {
         self.count += 1;
         self.page_crc = terrain_core::checksum::crc32_update(self.page_crc, bytes);
         let per = self.head.page_entries as usize;
-        let full = self.count % per == 0;
+        let full = self.count.is_multiple_of(per);
         full.then(|| std::mem::replace(&mut self.page_crc, page_seed(self.count / per)))
     }
 
     /// The last page's CRC-32 if it is short, and the head: every coarser level of the
     /// pyramid as the least, greatest and largest of its four children.
     pub(crate) fn finish(mut self) -> (Option<u32>, IndexHead) {
-        let tail = (self.count % self.head.page_entries as usize != 0).then_some(self.page_crc);
+        let tail =
+            (!self.count.is_multiple_of(self.head.page_entries as usize)).then_some(self.page_crc);
         let per = self.header.k as usize + 1;
         for level in (0..self.head.levels.saturating_sub(1)).rev() {
             let (m, base, child) =

@@ -37,7 +37,7 @@ pub struct Store {
 enum Index {
     Whole(Vec<Arc<BlockEntry>>),
     Paged {
-        pages: PagedIndex,
+        pages: Box<PagedIndex>,
         /// The first page that could not be read through [`Store::entry`] (which says `None`).
         fault: Mutex<Option<String>>,
     },
@@ -45,7 +45,7 @@ enum Index {
 
 impl Index {
     fn paged(pages: PagedIndex) -> Self {
-        Index::Paged { pages, fault: Mutex::default() }
+        Index::Paged { pages: Box::new(pages), fault: Mutex::default() }
     }
 }
 
@@ -310,12 +310,9 @@ impl Store {
     /// The block pyramid of a version-4 index's head: its levels, and per node (level-major,
     /// row-major) the blocks' min/max and `k + 1` per-level error bounds; `None` for an older
     /// index.
-    pub(crate) fn block_pyramid(&self) -> Option<(u8, &[[f32; 2]], &[f32])> {
+    pub(crate) fn block_pyramid(&self) -> Option<&crate::pages::IndexHead> {
         match &*self.index {
-            Index::Paged { pages, .. } => {
-                let h = pages.head();
-                Some((h.levels, &h.upper, &h.upper_err))
-            }
+            Index::Paged { pages, .. } => Some(pages.head()),
             Index::Whole(_) => None,
         }
     }
