@@ -34,7 +34,7 @@ use crate::error::BakeError;
 use crate::format::{
     BLOCK_HEADER_LEN, BlockEntry, BlockId, Codec, DSS_FACTORS, DssBlockErrors, Header, INDEX_FILE,
     K_RANGE, LevelEntry, NodeValues, Quantizer, SampleEncoding, block_file_name, block_header,
-    crc32, fine_count, index_prefix, node_count,
+    crc32, fine_count, node_count,
 };
 use crate::source::HeightSource;
 
@@ -456,7 +456,7 @@ impl Plan {
 /// The store's index in `dir`, to be written entry by entry as the blocks finish (its header,
 /// whose length `header` gives, is written last, by [`finish`]).
 pub(crate) fn index_file(dir: &Path, header: &Header) -> Result<EntryFile, BakeError> {
-    EntryFile::create(dir.join(INDEX_FILE), index_prefix(header).len())
+    EntryFile::create_index(dir.join(INDEX_FILE), header)
 }
 
 /// Blocks baked for some rows of the block grid: their entries (row-major, written into a file
@@ -705,7 +705,7 @@ pub(crate) fn finish(
         Some((out, heights)) => out.finish(heights.finish())?,
         None => None,
     };
-    let index_bytes = entries.finish(&index_prefix(&header), &[])?;
+    let index_bytes = entries.finish_index(&header)?;
     let source_samples = header.width * header.height;
     Ok(BakeReport {
         header,

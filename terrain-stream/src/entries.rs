@@ -17,7 +17,8 @@ use std::path::PathBuf;
 use terrain_core::checksum::{FNV1A_START, crc32, crc32_combine, crc32_update, fnv1a_update};
 
 use crate::error::BakeError;
-use crate::format::{BlockEntry, Writer, write_entry};
+use crate::format::{BlockEntry, Header, Writer, fine_count, write_entry};
+use crate::pages::{HeadBuilder, paged_prefix, paged_prefix_len};
 
 /// Bytes of entries buffered before they go to the file.
 const BUFFER_BYTES: usize = 64 << 10;
@@ -39,6 +40,9 @@ pub(crate) struct EntryFile {
     bake_id: u64,
     /// One entry's bytes, reused.
     buf: Writer,
+    /// For a store's index (version 4): the head being built and the pages' CRC-32s, written
+    /// after each page's entries.
+    head: Option<HeadBuilder>,
 }
 
 impl EntryFile {
@@ -58,13 +62,26 @@ impl EntryFile {
             block_bytes: 0,
             bake_id: FNV1A_START,
             buf: Writer::default(),
+            head: None,
         })
+    }
+
+    /// Creates the index of a store of `header`'s grid at `path`, paged (index version 4,
+    /// `crate::pages`): each page's CRC-32 after its entries, and the head, built from the
+    /// entries, written with the header by [`EntryFile::finish_index`].
+    pub(crate) fn create_index(path: PathBuf, header: &Header) -> Result<Self, BakeError> {
+        let mut f = Self::create(path, paged_prefix_len(header))?;
+        f.head = Some(HeadBuilder::new(header, fine_count(header.k, header.node_levels)));
+        Ok(f)
     }
 
     /// Appends the next entry (entries come in the order the file stores them).
     pub(crate) fn push(&mut self, entry: &BlockEntry) -> Result<(), BakeError> {
         self.buf.buf.clear();
         write_entry(&mut self.buf, entry);
+        if let Some(crc) = self.head.as_mut().and_then(|h| h.push(entry, &self.buf.buf)) {
+            self.buf.u32(crc);
+        }
         let bytes = &self.buf.buf;
         self.file
             .write_all(bytes)
@@ -92,6 +109,19 @@ impl EntryFile {
     /// The bake id of the pushed entries: FNV-1a over every level's checksum, in order.
     pub(crate) fn bake_id(&self) -> u64 {
         self.bake_id
+    }
+
+    /// Completes a store's index ([`EntryFile::create_index`]): the last page's CRC-32, then
+    /// the prefix with `header` (its final bake id and errors) and the head. Returns the
+    /// file's length.
+    pub(crate) fn finish_index(mut self, header: &Header) -> Result<u64, BakeError> {
+        let builder = self.head.take().ok_or_else(|| {
+            BakeError::Encoding(format!("{}: not an index file", self.path.display()))
+        })?;
+        let (tail, head) = builder.finish();
+        let tail = tail.map(u32::to_le_bytes);
+        let prefix = paged_prefix(header, &head);
+        self.finish(&prefix, tail.as_ref().map_or(&[][..], |t| &t[..]))
     }
 
     /// Completes the file: `tail` after the entries, the CRC-32 of `prefix`, the entries and

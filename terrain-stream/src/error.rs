@@ -61,6 +61,21 @@ pub enum StoreError {
         /// What is wrong.
         message: String,
     },
+    /// A page of a paged index (version 4) is truncated or fails its checksum or checks.
+    #[error(
+        "{}: corrupt index page {page} (blocks {}..{} in row-major order): {message}",
+        path.display(), blocks.0, blocks.1
+    )]
+    IndexPage {
+        /// The index file (a remote store's: its local mirror).
+        path: PathBuf,
+        /// The page.
+        page: usize,
+        /// The row-major positions of its blocks.
+        blocks: (usize, usize),
+        /// What is wrong.
+        message: String,
+    },
     /// A file is shorter than the index says.
     #[error(
         "{}: block {block} level {level}: truncated at byte {got} (the index says the file has {expected} bytes)",

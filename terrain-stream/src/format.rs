@@ -14,7 +14,13 @@
 //!   without them, `BakeConfig::dss_errors` false), per-node min/max/`StaticE`, and (index
 //!   version 3, [`INDEX_VERSION`]) the fine maxima: per deepest stored node, its descendants'
 //!   largest `StaticE` at each finer level), then the CRC-32 of everything before it. A
-//!   version-2 index (no fine maxima) still opens.
+//!   version-2 index (no fine maxima) still opens. Version 4 ([`INDEX_VERSION`], the one a
+//!   bake writes) keeps the same entries but pages them (`crate::pages`): after the header, a
+//!   *head* (entries per page, bytes per entry, flags, total block bytes, a pyramid of the
+//!   blocks' min/max and per-level error bounds over at most 8 levels of the quadtree above
+//!   the blocks, and the head's CRC-32), then pages of at most 64 KiB of entries each followed
+//!   by its CRC-32, then the CRC-32 of the whole file; a reader reads the head at open and a
+//!   page when one of its blocks is asked for.
 //! - `blocks/r{row}_c{col}.tsb`, one file per block: [`BLOCK_MAGIC`], [`VERSION`], the bake id
 //!   (which ties the file to its index), row and column, then the levels' payloads in level
 //!   order (level 0 first), each located by the index's `(offset, length, crc32)`.
@@ -47,8 +53,12 @@ pub(crate) const VERSION: u32 = 2;
 /// The index version this crate writes. Version 3 added, per block, the fine maxima
 /// ([`BlockEntry::fine_errors`]); a version-2 index (block files unchanged) still opens,
 /// without them (the factor walk then bounds nodes below the stored levels by the block's
-/// per-level maximum, as before).
-pub(crate) const INDEX_VERSION: u32 = 3;
+/// per-level maximum, as before). Version 4 pages the entries (`crate::pages`): a head with
+/// totals and the block pyramid, then pages of entries each with a CRC-32, read on demand;
+/// version-2 and 3 indexes are read whole, as before.
+pub(crate) const INDEX_VERSION: u32 = 4;
+/// The first index version whose entries are paged.
+pub(crate) const PAGED_INDEX_VERSION: u32 = 4;
 /// Name of the grid index file inside a store folder.
 pub const INDEX_FILE: &str = "index.tsi";
 /// Bytes of a block file's header: magic, version, bake id, row, column.
@@ -716,13 +726,48 @@ pub(crate) fn index_prefix(header: &Header) -> Vec<u8> {
     w.buf
 }
 
-/// Serialises the index whole: [`index_prefix`], block entries, trailing CRC-32. (A bake writes
-/// the same bytes entry by entry, `crate::entries::EntryFile`.)
+/// Serialises the index whole, as the version this crate writes (4, paged): the bytes a bake
+/// writes entry by entry (`crate::entries::EntryFile`).
 #[cfg(test)]
 pub(crate) fn write_index(header: &Header, blocks: &[BlockEntry]) -> Vec<u8> {
-    let mut w = Writer { buf: index_prefix(header) };
+    let fine = blocks.first().map_or(0, |b| b.fine_errors.len());
+    let mut head = crate::pages::HeadBuilder::new(header, fine);
+    let mut body = Writer::default();
     for b in blocks {
-        write_entry(&mut w, b);
+        let at = body.buf.len();
+        write_entry(&mut body, b);
+        let bytes = body.buf[at..].to_vec();
+        if let Some(crc) = head.push(b, &bytes) {
+            body.u32(crc);
+        }
+    }
+    let (tail, head) = head.finish();
+    if let Some(crc) = tail {
+        body.u32(crc);
+    }
+    let mut w = Writer { buf: crate::pages::paged_prefix(header, &head) };
+    w.bytes(&body.buf);
+    let crc = crc32(&w.buf);
+    w.u32(crc);
+    w.buf
+}
+
+/// Serialises the index whole as version 2 or 3 wrote it (entries unpaged after the header,
+/// the CRC-32 of everything before it), version 2 without the fine maxima: the old writer, for
+/// tests that older indexes still open.
+#[cfg(test)]
+pub(crate) fn write_index_unpaged(header: &Header, blocks: &[BlockEntry], version: u32) -> Vec<u8> {
+    assert!(version == 2 || version == 3);
+    let mut w = Writer { buf: index_prefix(header) };
+    w.buf[8..12].copy_from_slice(&version.to_le_bytes());
+    for b in blocks {
+        if version == 2 {
+            let mut b = b.clone();
+            b.fine_errors.clear();
+            write_entry(&mut w, &b);
+        } else {
+            write_entry(&mut w, b);
+        }
     }
     let crc = crc32(&w.buf);
     w.u32(crc);
@@ -883,7 +928,7 @@ pub(crate) fn read_entry(
     })
 }
 
-/// Parses and checks an index.
+/// Parses and checks an index whole, any version (a version-4 index page by page).
 pub(crate) fn read_index(bytes: &[u8]) -> Result<(Header, Vec<BlockEntry>), IndexError> {
     if bytes.len() < 12 || bytes[..8] != MAGIC {
         return Err(IndexError::BadMagic);
@@ -891,6 +936,9 @@ pub(crate) fn read_index(bytes: &[u8]) -> Result<(Header, Vec<BlockEntry>), Inde
     let version = u32::from_le_bytes([bytes[8], bytes[9], bytes[10], bytes[11]]);
     if !(VERSION..=INDEX_VERSION).contains(&version) {
         return Err(IndexError::Version(version));
+    }
+    if version >= PAGED_INDEX_VERSION {
+        return crate::pages::read_paged_whole(bytes);
     }
     if bytes.len() < 16 {
         return Err(IndexError::Corrupt("shorter than its checksum".into()));

@@ -92,6 +92,7 @@ mod error;
 mod format;
 mod huffman;
 mod lod;
+mod pages;
 mod remote;
 mod schedule;
 mod shard;

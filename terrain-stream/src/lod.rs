@@ -73,7 +73,7 @@
 
 use std::cell::Cell;
 use std::collections::HashMap;
-use std::sync::Arc;
+use std::sync::{Arc, Mutex};
 use std::time::Instant;
 
 use glam::{DVec2, DVec3};
@@ -700,6 +700,14 @@ fn upper_index(n: NodeId) -> usize {
 /// from the index when the tree is built (no store format change): the blocks' values at the
 /// block level, then each coarser level as the min/max and max of its four children.
 fn upper_bounds(store: &Store, block_level: u8) -> (Vec<[f32; 2]>, Vec<f32>) {
+    // A version-4 index holds them in its head when the grid has at most `HEAD_LEVELS` levels
+    // above its blocks (the same values: min/max and max are exact in any order), so no page
+    // is read.
+    if let Some(head) = store.block_pyramid()
+        && head.levels == block_level
+    {
+        return (head.upper.clone(), head.upper_err.clone());
+    }
     let h = store.header();
     let per = h.k as usize + 1;
     let nodes = upper_index(NodeId { level: block_level, i: 0, j: 0 });
@@ -742,55 +750,62 @@ fn upper_bounds(store: &Store, block_level: u8) -> (Vec<[f32; 2]>, Vec<f32>) {
     (mm, err)
 }
 
-/// The per-level maxima of `StaticE` under every stored node of local level at most
-/// `patch_level` of every block of `store` (see `StoreTree::sub_max`), and the nodes per block.
-/// Computed once when the tree is built: for each such node and each deeper stored level, the
-/// maximum over its descendants there (each level's nodes read once per ancestor level).
-fn subtree_maxima(store: &Store, patch_level: u8) -> (Vec<f32>, usize, usize) {
+/// How [`block_sub_max`] lays out one block's values: the deepest local level of the nodes
+/// kept, the nodes per block and the values per node (0 nodes: none kept).
+fn sub_layout(store: &Store, patch_level: u8) -> (u8, usize, usize) {
     let h = store.header();
     let levels = h.node_levels;
     if levels == 0 {
-        return (Vec::new(), 0, 0);
+        return (0, 0, 0);
     }
     let top = patch_level.min(levels - 1);
     // With the fine maxima, every level below `k` (levels `node_levels..k` from them).
     let fine = store.has_fine_errors() && levels < h.k;
     let per = if fine { h.k as usize } else { levels as usize };
-    let nodes = upper_index(NodeId { level: top + 1, i: 0, j: 0 });
-    let mut out = vec![0f32; h.block_count() * nodes * per];
-    for (p, id) in store.block_ids().enumerate() {
-        let Some(e) = store.entry(id) else { continue };
-        let block = &mut out[p * nodes * per..(p + 1) * nodes * per];
-        for level in 0..=top {
-            let side = 1u32 << level;
-            for j in 0..side {
-                for i in 0..side {
-                    let n = NodeId { level, i, j };
-                    let o = upper_index(n) * per;
-                    for l in level..levels {
-                        let s = l - level;
-                        let mut m = 0f32;
-                        for dj in 0..1u32 << s {
-                            for di in 0..1u32 << s {
-                                let (ci, cj) = ((i << s) + di, (j << s) + dj);
-                                if let Some(v) = e.node(l, ci, cj) {
-                                    m = m.max(v.static_error);
-                                }
+    (top, upper_index(NodeId { level: top + 1, i: 0, j: 0 }), per)
+}
+
+/// The per-level maxima of `StaticE` under every stored node of local level at most `top`
+/// of the block whose entry is `e` (see `StoreTree::sub_max`; `nodes` and `per` from
+/// [`sub_layout`]): for each such node and each deeper stored level, the maximum over its
+/// descendants there, and below the stored levels the fine maxima's bound.
+fn block_sub_max(h: &Header, e: &BlockEntry, top: u8, nodes: usize, per: usize) -> Vec<f32> {
+    let levels = h.node_levels;
+    let fine = per == h.k as usize && levels < h.k;
+    let mut block = vec![0f32; nodes * per];
+    for level in 0..=top {
+        let side = 1u32 << level;
+        for j in 0..side {
+            for i in 0..side {
+                let n = NodeId { level, i, j };
+                let o = upper_index(n) * per;
+                for l in level..levels {
+                    let s = l - level;
+                    let mut m = 0f32;
+                    for dj in 0..1u32 << s {
+                        for di in 0..1u32 << s {
+                            let (ci, cj) = ((i << s) + di, (j << s) + dj);
+                            if let Some(v) = e.node(l, ci, cj) {
+                                m = m.max(v.static_error);
                             }
                         }
-                        block[o + l as usize] = m;
                     }
-                    if fine {
-                        for l in levels..h.k {
-                            block[o + l as usize] = below_bound(h, e, n, l);
-                        }
+                    block[o + l as usize] = m;
+                }
+                if fine {
+                    for l in levels..h.k {
+                        block[o + l as usize] = below_bound(h, e, n, l);
                     }
                 }
             }
         }
     }
-    (out, nodes, per)
+    block
 }
+
+/// Blocks whose `sub_max` a [`StoreTree`] keeps at most (then it starts over): computed when a
+/// block is first visited, so a tree's memory and build time do not grow with the store.
+const SUB_MAX_BLOCKS: usize = 4096;
 
 /// The quadtree of a whole store's grid as a [`NodeSource`]: the root covers the blocks
 /// rounded up to a power of two per side (block `(row, col)` is node `(block_level, col,
@@ -816,7 +831,11 @@ pub struct StoreTree {
     /// level (`BlockEntry::nodes` order), `sub_per` values: at index `l`, the largest
     /// `StaticE` of the node's descendants at level `l` (its own at its level; unused above
     /// it), stored levels and, with the fine maxima, every level below `k`. The leaves' factor walk (`needed_level_below`) reads one value per level.
-    sub_max: Vec<f32>,
+    /// Computed per block when first visited (at most [`SUB_MAX_BLOCKS`] kept), shared by the
+    /// tree's clones.
+    sub_max: Arc<Mutex<HashMap<usize, Arc<[f32]>>>>,
+    /// Deepest local level of the nodes in `sub_max`.
+    sub_top: u8,
     /// Nodes per block in `sub_max`.
     sub_nodes: usize,
     /// Values per node in `sub_max`: `node_levels`, or `k` with the fine maxima.
@@ -850,7 +869,7 @@ impl StoreTree {
             h.georef.world_origin,
             h.georef.spacing_m,
         );
-        let (sub_max, sub_nodes, sub_per) = subtree_maxima(&store, patch_level);
+        let (sub_top, sub_nodes, sub_per) = sub_layout(&store, patch_level);
         Self {
             store,
             shape,
@@ -859,7 +878,8 @@ impl StoreTree {
             patch_level,
             upper,
             upper_err,
-            sub_max,
+            sub_max: Arc::default(),
+            sub_top,
             sub_nodes,
             sub_per,
             refine,
@@ -932,31 +952,46 @@ impl StoreTree {
         x0 < (h.width as u32).max(2) - 1 && y0 < (h.height as u32).max(2) - 1
     }
 
-    fn block_nodes(&self, b: BlockId) -> Option<BlockNodes<'_>> {
+    /// `f` of block `b`'s nodes (its index entry, read once, and its part of `sub_max`).
+    fn with_block_nodes<R>(&self, b: BlockId, f: impl FnOnce(BlockNodes<'_>) -> R) -> Option<R> {
         let header = self.store.header();
         let entry = self.store.entry(b)?;
-        let per_block = self.sub_nodes * self.sub_per;
-        let sub = header
-            .block_position(b)
-            .and_then(|p| self.sub_max.get(p * per_block..(p + 1) * per_block))
-            .filter(|v| !v.is_empty())
-            .map(|v| (v, self.sub_per));
-        Some(BlockNodes { header, entry, id: b, patch_level: self.patch_level, sub })
+        let entry = &*entry;
+        let values = match header.block_position(b) {
+            Some(p) if self.sub_nodes > 0 => {
+                let cached = self.sub_max.lock().expect("sub_max").get(&p).cloned();
+                Some(cached.unwrap_or_else(|| {
+                    let v: Arc<[f32]> =
+                        block_sub_max(header, entry, self.sub_top, self.sub_nodes, self.sub_per)
+                            .into();
+                    let mut m = self.sub_max.lock().expect("sub_max");
+                    if m.len() >= SUB_MAX_BLOCKS {
+                        m.clear();
+                    }
+                    m.insert(p, v.clone());
+                    v
+                }))
+            }
+            _ => None,
+        };
+        let sub = values.as_deref().map(|v| (v, self.sub_per));
+        Some(f(BlockNodes { header, entry, id: b, patch_level: self.patch_level, sub }))
     }
 
     /// `StaticE` of global node `n` (metres), or `None` above the blocks or outside the grid.
     pub fn static_error(&self, n: NodeId) -> Option<f32> {
         let (b, local) = self.block_of(n)?;
         let e = self.store.entry(b)?;
-        Some(local_values(self.store.header(), e, local).2)
+        Some(local_values(self.store.header(), &e, local).2)
     }
 
     /// [`BlockNodes::patch_error`] of global node `n` (metres), or `None` above the blocks or outside the
     /// grid.
     fn patch_error(&self, n: NodeId) -> Option<f32> {
         let (b, local) = self.block_of(n)?;
-        let nodes = self.block_nodes(b)?;
-        Some(nodes.patch_error(local, local_values(nodes.header, nodes.entry, local).2))
+        self.with_block_nodes(b, |nodes| {
+            nodes.patch_error(local, local_values(nodes.header, nodes.entry, local).2)
+        })
     }
 
     /// [`NodeSource::node_info`] of global node `n` with its [`BlockNodes::patch_error`] (`None` above
@@ -966,11 +1001,10 @@ impl StoreTree {
             return None;
         }
         match self.block_of(n) {
-            Some((b, local)) => {
-                let nodes = self.block_nodes(b)?;
+            Some((b, local)) => self.with_block_nodes(b, |nodes| {
                 let (info, err) = nodes.info(local)?;
                 Some((info, Some(nodes.patch_error(local, err))))
-            }
+            })?,
             None => Some((self.upper_info(n), None)),
         }
     }
@@ -1071,8 +1105,9 @@ impl StoreTree {
         max_level: u8,
     ) -> Option<u8> {
         let (b, local) = self.block_of(n)?;
-        let nodes = self.block_nodes(b)?;
-        Some(self.block_level + nodes.needed_level(local, per_metre, view, max_level))
+        self.with_block_nodes(b, |nodes| {
+            self.block_level + nodes.needed_level(local, per_metre, view, max_level)
+        })
     }
 }
 
@@ -1088,7 +1123,7 @@ impl NodeSource for StoreTree {
             return None;
         }
         if let Some((b, local)) = self.block_of(n) {
-            return self.block_nodes(b)?.node_info(local);
+            return self.with_block_nodes(b, |nodes| nodes.node_info(local))?;
         }
         Some(self.upper_info(n))
     }
@@ -1171,14 +1206,13 @@ fn traverse_store(
                 if local.level >= resident(b).unwrap_or(0) {
                     return false;
                 }
-                match (nodes.patch_error(n), tree.block_nodes(b)) {
-                    (Some(err), Some(block)) => {
-                        let per_metre = view.rho_per_metre(&info.aabb);
-                        last_rho.set(Some((n, per_metre)));
-                        block.splits(tree.refine, &view, local, &info.aabb, err, per_metre)
-                    }
-                    _ => true,
-                }
+                let Some(err) = nodes.patch_error(n) else { return true };
+                tree.with_block_nodes(b, |block| {
+                    let per_metre = view.rho_per_metre(&info.aabb);
+                    last_rho.set(Some((n, per_metre)));
+                    block.splits(tree.refine, &view, local, &info.aabb, err, per_metre)
+                })
+                .unwrap_or(true)
             }
             None => match tree.spanning_level(n, &info.aabb, &view) {
                 Some(l) => tree.least_resident(n, l, &resident).is_none_or(|r| r < l),

@@ -4,29 +4,49 @@
 
 use std::fs::File;
 use std::path::{Path, PathBuf};
-use std::sync::Arc;
+use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use crate::codec::decode_level;
 use crate::error::StoreError;
 use crate::format::{
-    BLOCK_HEADER_LEN, BLOCK_MAGIC, BlockEntry, BlockId, Header, INDEX_FILE, INDEX_VERSION,
-    IndexError, MAGIC, SampleEncoding, VERSION, block_file_name, crc32, level_len, read_index,
+    BLOCK_HEADER_LEN, BLOCK_MAGIC, BlockEntry, BlockId, Header, INDEX_FILE, INDEX_VERSION, MAGIC,
+    PAGED_INDEX_VERSION, SampleEncoding, VERSION, block_file_name, crc32, level_len, read_index,
     vertex_index,
 };
+use crate::pages::{PagedIndex, index_err, scale_entry};
 use crate::remote::{Remote, RemoteOptions, is_url};
 
-/// An open store: the header and every block's index entry in memory, block files on disk
-/// or, for a store opened from a URL ([`Store::open_location`]), on object storage or HTTP
-/// (read by range requests through a local disk cache). `Sync`: worker threads share it
-/// behind an `Arc`.
+/// An open store: the header and its grid index, block files on disk or, for a store opened
+/// from a URL ([`Store::open_location`]), on object storage or HTTP (read by range requests
+/// through a local disk cache). A version-4 index is read page by page as blocks are asked
+/// for, through a bounded cache of decoded pages ([`Store::with_page_cache_bytes`]); older
+/// indexes are read whole. `Sync` and cheap to clone (clones share the index and its cache):
+/// worker threads share it behind an `Arc`.
 #[derive(Debug, Clone)]
 pub struct Store {
     /// The store folder; for a remote store, its local mirror (index and side tables).
     dir: PathBuf,
     header: Header,
-    blocks: Vec<BlockEntry>,
+    index: Arc<Index>,
     remote: Option<Arc<Remote>>,
+}
+
+/// A store's block entries: every one in memory (index versions 2 and 3) or paged (4).
+#[derive(Debug)]
+enum Index {
+    Whole(Vec<Arc<BlockEntry>>),
+    Paged {
+        pages: Box<PagedIndex>,
+        /// The first page that could not be read through [`Store::entry`] (which says `None`).
+        fault: Mutex<Option<String>>,
+    },
+}
+
+impl Index {
+    fn paged(pages: PagedIndex) -> Self {
+        Index::Paged { pages: Box::new(pages), fault: Mutex::default() }
+    }
 }
 
 /// One level read and decoded, with what it cost.
@@ -40,15 +60,32 @@ pub struct LoadedLevel {
     pub io_time: Duration,
 }
 
+/// Opens the index file at `path`: a version-4 index by its head alone, an older one whole.
+fn open_index(path: &Path) -> Result<(Header, Index), StoreError> {
+    let io = |cause| StoreError::Io { path: path.to_path_buf(), cause };
+    let file = File::open(path).map_err(io)?;
+    let len = file.metadata().map_err(io)?.len();
+    let mut magic = [0u8; 12];
+    if len >= 12 {
+        crate::pages::read_exact_at(&file, 0, &mut magic).map_err(io)?;
+        let version = u32::from_le_bytes([magic[8], magic[9], magic[10], magic[11]]);
+        if magic[..8] == MAGIC && version >= PAGED_INDEX_VERSION && version <= INDEX_VERSION {
+            let pages = PagedIndex::open(path.to_path_buf(), file, len)?;
+            return Ok((pages.header().clone(), Index::paged(pages)));
+        }
+    }
+    let bytes = std::fs::read(path).map_err(io)?;
+    let (header, blocks) = parse_index(&bytes, path.to_path_buf())?;
+    Ok((header, Index::Whole(blocks.into_iter().map(Arc::new).collect())))
+}
+
 impl Store {
-    /// Opens the store in folder `dir`, reading and checking its index.
+    /// Opens the store in folder `dir`, reading and checking its index's header (a version-4
+    /// index: its head; an older one: every entry).
     pub fn open(dir: impl AsRef<Path>) -> Result<Self, StoreError> {
         let dir = dir.as_ref().to_path_buf();
-        let path = dir.join(INDEX_FILE);
-        let bytes =
-            std::fs::read(&path).map_err(|cause| StoreError::Io { path: path.clone(), cause })?;
-        let (header, blocks) = parse_index(&bytes, path)?;
-        Ok(Self { dir, header, blocks, remote: None })
+        let (header, index) = open_index(&dir.join(INDEX_FILE))?;
+        Ok(Self { dir, header, index: Arc::new(index), remote: None })
     }
 
     /// Opens the store at `location`: a local folder ([`Store::open`]) or a URL (`s3://`,
@@ -59,17 +96,58 @@ impl Store {
     }
 
     /// [`Store::open_location`] with the remote options given (disk cache, timeouts,
-    /// retries, side tables to mirror). A URL's index is fetched once, here; its blocks are
-    /// read by range requests when loaded, through the disk cache.
+    /// retries, side tables to mirror). A URL's index is fetched once, here, into the local
+    /// mirror, and read from there as a local index is; its blocks are read by range requests
+    /// when loaded, through the disk cache.
     pub fn open_location_with(location: &str, options: &RemoteOptions) -> Result<Self, StoreError> {
         if !is_url(location) {
             return Self::open(location);
         }
         let (remote, bytes) = Remote::open(location, options)?;
-        let path = PathBuf::from(format!("{}/{INDEX_FILE}", remote.url()));
-        let (header, blocks) = parse_index(&bytes, path)?;
         let dir = remote.mirror().to_path_buf();
-        Ok(Self { dir, header, blocks, remote: Some(Arc::new(remote)) })
+        let paged = bytes.len() >= 12
+            && bytes[..8] == MAGIC
+            && u32::from_le_bytes([bytes[8], bytes[9], bytes[10], bytes[11]])
+                >= PAGED_INDEX_VERSION;
+        let (header, index) = if paged {
+            drop(bytes);
+            open_index(&dir.join(INDEX_FILE))?
+        } else {
+            let path = PathBuf::from(format!("{}/{INDEX_FILE}", remote.url()));
+            let (header, blocks) = parse_index(&bytes, path)?;
+            (header, Index::Whole(blocks.into_iter().map(Arc::new).collect()))
+        };
+        Ok(Self { dir, header, index: Arc::new(index), remote: Some(Arc::new(remote)) })
+    }
+
+    /// This store with a cache of decoded index pages of at most `bytes` (default 8 MiB; at
+    /// least one page is kept), its own and empty. Nothing changes for an index read whole
+    /// (versions 2 and 3).
+    pub fn with_page_cache_bytes(mut self, bytes: u64) -> Result<Self, StoreError> {
+        if let Index::Paged { pages, .. } = &*self.index {
+            let mut p = pages.exaggerated(1.0)?;
+            p.set_budget(bytes);
+            self.index = Arc::new(Index::paged(p));
+        }
+        Ok(self)
+    }
+
+    /// Index pages read and decoded so far by this store and its clones (cache misses);
+    /// `None` for an index read whole. For tests and measurements.
+    pub fn index_pages_decoded(&self) -> Option<u64> {
+        match &*self.index {
+            Index::Paged { pages, .. } => Some(pages.pages_decoded()),
+            Index::Whole(_) => None,
+        }
+    }
+
+    /// The first index page [`Store::entry`] could not read (it then says `None`), with why;
+    /// `None` while every page read was good. [`Store::try_entry`] returns the error itself.
+    pub fn index_fault(&self) -> Option<String> {
+        match &*self.index {
+            Index::Paged { fault, .. } => fault.lock().expect("index fault").clone(),
+            Index::Whole(_) => None,
+        }
     }
 
     /// Where the store was opened from: its URL for a remote store, else its folder.
@@ -89,8 +167,8 @@ impl Store {
     /// (those not in the disk cache), so the [`Store::load_level`] calls that follow read
     /// them without a request each. Nothing for a local store.
     pub fn prefetch_levels(&self, id: BlockId, first: u8, last: u8) -> Result<(), StoreError> {
-        match (&self.remote, self.entry(id)) {
-            (Some(r), Some(e)) => r.fetch_levels(id, e, first, last, self.header.bake_id),
+        match (&self.remote, self.try_entry(id)?) {
+            (Some(r), Some(e)) => r.fetch_levels(id, &e, first, last, self.header.bake_id),
             _ => Ok(()),
         }
     }
@@ -98,11 +176,7 @@ impl Store {
 
 /// The header and block entries of index bytes read from `path` (a file or a URL).
 fn parse_index(bytes: &[u8], path: PathBuf) -> Result<(Header, Vec<BlockEntry>), StoreError> {
-    read_index(bytes).map_err(|e| match e {
-        IndexError::BadMagic => StoreError::BadMagic { path, what: "index" },
-        IndexError::Version(found) => StoreError::Version { path, found, expected: INDEX_VERSION },
-        IndexError::Corrupt(message) => StoreError::CorruptIndex { path, message },
-    })
+    read_index(bytes).map_err(|e| index_err(e, &path))
 }
 
 /// Checks a block file's header (magic, version, bake id, block position).
@@ -155,26 +229,24 @@ impl Store {
             return Err(StoreError::Exaggeration { path: self.dir.clone(), scale });
         }
         let mut s = self.clone();
-        let f = |v: &mut f32| *v = (f64::from(*v) * scale) as f32;
         let h = &mut s.header;
         h.vertical_scale *= scale;
         h.max_error_m *= scale;
         h.max_void_error_m *= scale;
         h.error_bound_m *= scale;
-        for b in &mut s.blocks {
-            f(&mut b.min);
-            f(&mut b.max);
-            for n in &mut b.nodes {
-                f(&mut n.min);
-                f(&mut n.max);
-                f(&mut n.static_error);
-            }
-            b.level_errors.iter_mut().for_each(f);
-            b.fine_errors.iter_mut().for_each(f);
-            if let Some(d) = &mut b.dss {
-                d.avg.iter_mut().chain(d.max.iter_mut()).for_each(f);
-            }
-        }
+        s.index = Arc::new(match &*self.index {
+            Index::Whole(blocks) => Index::Whole(
+                blocks
+                    .iter()
+                    .map(|b| {
+                        let mut b = BlockEntry::clone(b);
+                        scale_entry(&mut b, scale);
+                        Arc::new(b)
+                    })
+                    .collect(),
+            ),
+            Index::Paged { pages, .. } => Index::paged(pages.exaggerated(scale)?),
+        });
         Ok(s)
     }
 
@@ -191,28 +263,65 @@ impl Store {
     /// Whether the bake wrote the DSS paper's per-block object-space errors into the index
     /// (`BakeConfig::dss_errors`; every block has them or none does).
     pub fn has_dss_errors(&self) -> bool {
-        self.blocks.first().is_some_and(|b| b.dss.is_some())
+        match &*self.index {
+            Index::Whole(blocks) => blocks.first().is_some_and(|b| b.dss.is_some()),
+            Index::Paged { pages, .. } => pages.head().has_dss,
+        }
     }
 
-    /// Whether the index holds the fine maxima ([`BlockEntry::fine_errors`], index version 3),
-    /// or needs none (node values stored down to the finest level). Without them (a version-2
-    /// index) nodes below the stored levels are bounded by the block's per-level maximum.
+    /// Whether the index holds the fine maxima ([`BlockEntry::fine_errors`], index version 3
+    /// and later), or needs none (node values stored down to the finest level). Without them
+    /// (a version-2 index) nodes below the stored levels are bounded by the block's per-level
+    /// maximum.
     pub fn has_fine_errors(&self) -> bool {
         let h = &self.header;
         h.node_levels == 0
             || h.node_levels >= h.k
-            || self.blocks.first().is_some_and(|b| !b.fine_errors.is_empty())
+            || match &*self.index {
+                Index::Whole(blocks) => blocks.first().is_some_and(|b| !b.fine_errors.is_empty()),
+                Index::Paged { pages, .. } => pages.head().has_fine,
+            }
     }
 
-    /// A block's index entry, or `None` outside the grid.
-    pub fn entry(&self, id: BlockId) -> Option<&BlockEntry> {
-        self.header.block_position(id).map(|p| &self.blocks[p])
+    /// A block's index entry, or `None` outside the grid, or when its index page cannot be
+    /// read (a version-4 index; [`Store::index_fault`] then says why, and
+    /// [`Store::try_entry`] returns the error).
+    pub fn entry(&self, id: BlockId) -> Option<Arc<BlockEntry>> {
+        match self.try_entry(id) {
+            Ok(e) => e,
+            Err(e) => {
+                if let Index::Paged { fault, .. } = &*self.index {
+                    fault.lock().expect("index fault").get_or_insert_with(|| e.to_string());
+                }
+                None
+            }
+        }
+    }
+
+    /// A block's index entry (`None` outside the grid), or why its index page cannot be read.
+    pub fn try_entry(&self, id: BlockId) -> Result<Option<Arc<BlockEntry>>, StoreError> {
+        let Some(p) = self.header.block_position(id) else { return Ok(None) };
+        match &*self.index {
+            Index::Whole(blocks) => Ok(Some(blocks[p].clone())),
+            Index::Paged { pages, .. } => pages.entry(p).map(Some),
+        }
+    }
+
+    /// The block pyramid of a version-4 index's head: its levels, and per node (level-major,
+    /// row-major) the blocks' min/max and `k + 1` per-level error bounds; `None` for an older
+    /// index.
+    pub(crate) fn block_pyramid(&self) -> Option<&crate::pages::IndexHead> {
+        match &*self.index {
+            Index::Paged { pages, .. } => Some(pages.head()),
+            Index::Whole(_) => None,
+        }
     }
 
     /// The plan rectangle (world metres, south-west and north-east corners) of block `id`'s
     /// valid (non-padding) vertices, or `None` outside the grid.
     pub fn block_rect(&self, id: BlockId) -> Option<(glam::DVec2, glam::DVec2)> {
-        Some(crate::schedule::block_rect(&self.header, self.entry(id)?, id))
+        let e = self.entry(id)?;
+        Some(crate::schedule::block_rect(&self.header, &e, id))
     }
 
     /// Every block, row-major from the south-west.
@@ -222,19 +331,23 @@ impl Store {
 
     /// Total bytes of the block files.
     pub fn blocks_bytes(&self) -> u64 {
-        self.blocks.iter().map(|b| b.file_len).sum()
+        match &*self.index {
+            Index::Whole(blocks) => blocks.iter().map(|b| b.file_len).sum(),
+            Index::Paged { pages, .. } => pages.head().blocks_bytes,
+        }
     }
 
     /// Reads and checks the payload of `level` of block `id` (positioned read, CRC-32 verified).
     pub fn read_level_bytes(&self, id: BlockId, level: u8) -> Result<Vec<u8>, StoreError> {
         let bad = |message: String| StoreError::BadRequest { block: id, level, message };
-        let entry = self.entry(id).ok_or_else(|| bad("block outside the store's grid".into()))?;
+        let entry =
+            self.try_entry(id)?.ok_or_else(|| bad("block outside the store's grid".into()))?;
         let le = *entry
             .levels
             .get(level as usize)
             .ok_or_else(|| bad(format!("the finest level is {}", self.header.k)))?;
         if let Some(remote) = &self.remote {
-            let (payload, _) = remote.level(id, entry, level, self.header.bake_id)?;
+            let (payload, _) = remote.level(id, &entry, level, self.header.bake_id)?;
             let computed = crc32(&payload);
             if computed != le.crc32 {
                 return Err(StoreError::Checksum {

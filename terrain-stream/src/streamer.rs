@@ -523,6 +523,7 @@ impl Streamer {
         if let Some(demand) = &self.demand {
             for &(id, level) in demand {
                 let Some(e) = store.entry(id) else { continue };
+                let e = &*e;
                 if !in_m.insert(id) {
                     continue;
                 }
@@ -541,6 +542,7 @@ impl Streamer {
             if self.demand.is_some() { Vec::new() } else { blocks_under_bbox(header, &reg.view) };
         for id in eq7 {
             let Some(e) = store.entry(id) else { continue };
+            let e = &*e;
             let (lo, hi) = block_rect(header, e, id);
             if !polygon_meets_rect(reg.view.vertices(), lo, hi)
                 || frustum.classify(&block_box(e, lo, hi)) == Classification::Outside
@@ -563,6 +565,7 @@ impl Streamer {
                 continue;
             }
             let Some(e) = store.entry(id) else { continue };
+            let e = &*e;
             let (lo, hi) = block_rect(header, e, id);
             if !polygon_meets_rect(reg.extension.vertices(), lo, hi)
                 || behind(lo, hi, &block_box(e, lo, hi))
@@ -690,7 +693,7 @@ impl Streamer {
             .filter(|(id, b)| b.levels.count() > self.pinned && !wanted.contains_key(id))
             .map(|(id, _)| {
                 let d = store.entry(*id).map_or(f64::MAX, |e| {
-                    let (lo, hi) = block_rect(header, e, *id);
+                    let (lo, hi) = block_rect(header, &e, *id);
                     rect_distance(eye, lo, hi)
                 });
                 (*id, d)
@@ -936,6 +939,7 @@ mod tests {
                     for region in [&reg.view, &reg.extension] {
                         for id in blocks_under_bbox(&h, region) {
                             let Some(e) = store.entry(id) else { continue };
+                            let e = &*e;
                             let (lo, hi) = block_rect(&h, e, id);
                             if !polygon_meets_rect(region.vertices(), lo, hi) {
                                 continue;
@@ -981,14 +985,14 @@ mod tests {
             let view = View::new(&cam, 1.0);
             for id in store.block_ids() {
                 let e = store.entry(id).unwrap();
-                let (lo, hi) = block_rect(&h, e, id);
+                let (lo, hi) = block_rect(&h, &e, id);
                 let all = GroundRegion::Polygon(vec![
                     lo - 1.0,
                     dvec2(hi.x + 1.0, lo.y - 1.0),
                     hi + 1.0,
                     dvec2(lo.x - 1.0, hi.y + 1.0),
                 ]);
-                let bound = geometry_level_bound(&h, e, id, &view);
+                let bound = geometry_level_bound(&h, &e, id, &view);
                 for split in [SplitRule::Eq7, SplitRule::Cost] {
                     let refine = Refinement {
                         patch_cells: 4,
@@ -998,7 +1002,7 @@ mod tests {
                         ..Refinement::default()
                     };
                     let walk =
-                        crate::lod::needed_geometry_level(&h, e, id, &view, &all, refine).unwrap();
+                        crate::lod::needed_geometry_level(&h, &e, id, &view, &all, refine).unwrap();
                     assert!(bound >= walk, "{id}: bound {bound} < walk {walk} ({split:?})");
                     tight += usize::from(bound == walk);
                 }

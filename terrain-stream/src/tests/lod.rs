@@ -98,16 +98,9 @@ fn as_version_2(from: &std::path::Path, to: &std::path::Path) -> Arc<Store> {
         let p = f.unwrap().path();
         std::fs::copy(&p, to.join("blocks").join(p.file_name().unwrap())).unwrap();
     }
-    let (h, mut blocks) =
+    let (h, blocks) =
         crate::format::read_index(&std::fs::read(from.join("index.tsi")).unwrap()).unwrap();
-    for e in &mut blocks {
-        e.fine_errors.clear();
-    }
-    let mut bytes = crate::format::write_index(&h, &blocks);
-    bytes[8..12].copy_from_slice(&2u32.to_le_bytes());
-    let body = bytes.len() - 4;
-    let crc = crate::format::crc32(&bytes[..body]);
-    bytes[body..].copy_from_slice(&crc.to_le_bytes());
+    let bytes = crate::format::write_index_unpaged(&h, &blocks, 2);
     std::fs::write(to.join("index.tsi"), bytes).unwrap();
     Arc::new(Store::open(to).unwrap())
 }
@@ -343,11 +336,11 @@ fn patches_meet_eq7_minimally_and_cover_the_view() {
                             })
                             .max();
                         let (h, e) = (store.header(), store.entry(b).unwrap());
-                        let need = needed_geometry_level(h, e, b, &view, &region, refine);
+                        let need = needed_geometry_level(h, &e, b, &view, &region, refine);
                         // What the streamer loads: that, and at least the shading level.
                         assert_eq!(
-                            needed_level(h, e, b, &view, &region, refine),
-                            need.map(|n| n.max(shading_level(h, e, b, &view)))
+                            needed_level(h, &e, b, &view, &region, refine),
+                            need.map(|n| n.max(shading_level(h, &e, b, &view)))
                         );
                         // Factor 2 is the least: a patch needing only its corners draws its
                         // next level's vertices by interpolation. (Balancing across blocks
@@ -707,7 +700,7 @@ fn segment_floor_bounds_every_drawn_segment_and_stays_crack_free() {
                         let Some((b, local)) = tree.block_of(p.node) else { continue };
                         let drawn = local.level + p.inner[0].log2() as u8;
                         let e = store.entry(b).unwrap();
-                        if let Some(need) = needed_geometry_level(&h, e, b, &view, &region, on) {
+                        if let Some(need) = needed_geometry_level(&h, &e, b, &view, &region, on) {
                             assert!(
                                 need + 1 >= drawn.min(h.k),
                                 "{b}: needed {need}, drawn {drawn}"
@@ -750,7 +743,7 @@ fn patch_factor_from_level_maxima_equals_the_walk() {
                                 let Some(info) = tree.node_info(global) else { continue };
                                 for max in [2, h.k] {
                                     let walk =
-                                        needed_vertex_level(&h, e, local, &info.aabb, &view, max);
+                                        needed_vertex_level(&h, &e, local, &info.aabb, &view, max);
                                     let fast = tree
                                         .needed_vertex_level(global, &info.aabb, &view, max)
                                         .unwrap();
@@ -840,13 +833,13 @@ fn fine_maxima_select_what_full_depth_node_values_select() {
                     for i in 0..1u32 << level {
                         let n = NodeId { level, i, j };
                         let Some(info) = tree.node_info(tree.global(b, n)) else { continue };
-                        let exact = needed_vertex_level(&h, ef, n, &info.aabb, &view, 6);
+                        let exact = needed_vertex_level(&h, &ef, n, &info.aabb, &view, 6);
                         assert_eq!(
                             exact,
-                            needed_vertex_level(&hf, ee, n, &info.aabb, &view, 6),
+                            needed_vertex_level(&hf, &ee, n, &info.aabb, &view, 6),
                             "{b} {n:?}"
                         );
-                        let old = needed_vertex_level(&hf, e2, n, &info.aabb, &view, 6);
+                        let old = needed_vertex_level(&hf, &e2, n, &info.aabb, &view, 6);
                         assert!(old >= exact, "{b} {n:?}: version 2 {old} < {exact}");
                         walk_differ += usize::from(old > exact);
                     }

@@ -2,6 +2,7 @@
 //! regions, the selection's metrics): unit tests of the whole crate, kept in one folder.
 
 mod lod;
+mod pages;
 mod remote;
 mod runtime;
 mod store;

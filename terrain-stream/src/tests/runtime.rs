@@ -450,7 +450,7 @@ fn the_needed_set_follows_the_frustum_and_nothing_behind_the_eye_is_loaded() {
         let frustum = Frustum::from_camera(&cam);
         let boxed = |id: BlockId| {
             let e = store.entry(id).unwrap();
-            let (lo, hi) = block_rect(&h, e, id);
+            let (lo, hi) = block_rect(&h, &e, id);
             (lo, hi, Aabb { min: lo.extend(e.min.into()), max: hi.extend(e.max.into()) })
         };
         // Wholly behind the vertical plane through the eye across the plan view direction.

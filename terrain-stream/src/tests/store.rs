@@ -31,6 +31,15 @@ fn float_grid() -> Heightmap {
     .unwrap()
 }
 
+/// Opens the store in `dir` and reads every block's index entry (every page of a paged index).
+fn open_every_entry(dir: &std::path::Path) -> Result<Store, StoreError> {
+    let store = Store::open(dir)?;
+    for id in store.block_ids() {
+        store.try_entry(id)?;
+    }
+    Ok(store)
+}
+
 fn check_heights(store: &Store, hm: &Heightmap, tol: f32) {
     let h = store.header();
     let cells = h.block_cells() as usize;
@@ -238,7 +247,10 @@ fn corrupt_truncated_changed_and_missing_files_are_typed_errors() {
     b[8..12].copy_from_slice(&1u32.to_le_bytes());
     std::fs::write(&ip, &b).unwrap();
     let err = Store::open(&out).unwrap_err();
-    assert!(matches!(err, StoreError::Version { found: 1, expected: 3, .. }), "{err:?}");
+    assert!(
+        matches!(err, StoreError::Version { found: 1, expected: INDEX_VERSION, .. }),
+        "{err:?}"
+    );
     let msg = err.to_string();
     assert!(
         msg.contains("index.tsi") && msg.contains("version 1") && msg.contains("bake"),
@@ -248,13 +260,21 @@ fn corrupt_truncated_changed_and_missing_files_are_typed_errors() {
     let mid = b.len() / 2;
     b[mid] ^= 1;
     std::fs::write(&ip, &b).unwrap();
-    assert!(matches!(Store::open(&out), Err(StoreError::CorruptIndex { .. })));
+    // A paged index opens by its head; the damaged page is refused when read.
+    assert!(matches!(open_every_entry(&out), Err(StoreError::IndexPage { .. })));
     std::fs::write(&ip, &index[..index.len() / 3]).unwrap();
     assert!(matches!(Store::open(&out), Err(StoreError::CorruptIndex { .. })));
-    // Every truncation and every single-byte corruption of the index is refused, never a panic.
+    // Every truncation and every single-byte corruption of the index is refused (by the
+    // opener, or by the page holding the byte), never a panic.
     for cut in (0..index.len()).step_by(97) {
         std::fs::write(&ip, &index[..cut]).unwrap();
         assert!(Store::open(&out).is_err());
+    }
+    for at in (0..index.len() - 4).step_by(31) {
+        let mut b = index.clone();
+        b[at] ^= 0x10;
+        std::fs::write(&ip, &b).unwrap();
+        assert!(open_every_entry(&out).is_err(), "byte {at} flipped");
     }
     std::fs::write(&ip, &index).unwrap();
     assert!(Store::open(&out).is_ok());
@@ -357,7 +377,7 @@ fn a_bake_without_dss_errors_says_so_and_keeps_everything_else() {
         let (ea, eb) = (a.entry(id).unwrap(), b.entry(id).unwrap());
         assert!(ea.dss.is_some() && eb.dss.is_none(), "{id}");
         // Everything but the DSS errors is the same bake.
-        assert_eq!(&BlockEntry { dss: None, ..ea.clone() }, eb, "{id}");
+        assert_eq!(&BlockEntry { dss: None, ..BlockEntry::clone(&ea) }, &*eb, "{id}");
         for level in 0..a.header().levels() {
             assert_eq!(
                 a.read_level_bytes(id, level).unwrap(),

@@ -1,0 +1,219 @@
+//! The paged index (version 4): the baked file is the whole-index writer's bytes, every entry
+//! read page by page equals the entry read whole, older indexes (version 3, 2) still open
+//! read whole, a damaged page is named, and a cache smaller than the index serves the same
+//! selections as a cache that holds it all.
+
+use std::collections::HashMap;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+use glam::dvec3;
+use terrain_core::Georef;
+use terrain_core::geometry::Camera;
+use terrain_core::heightmap::Heightmap;
+
+use crate::format::{INDEX_FILE, read_index, write_index, write_index_unpaged};
+use crate::pages::{IndexHead, decode_page, paged_prefix_len};
+use crate::{
+    BakeConfig, BakeProgress, BlockId, Store, StoreError, StoreTree, bake, select_patches,
+};
+
+/// A 513^2 store (k = 6, 8 x 8 blocks) with 5 node levels, so that an entry is about 5.6 KB
+/// and the index has several pages.
+fn paged_store(name: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("terrain-pages-{}-{name}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    let hm = Heightmap::from_fn(513, 513, Georef::local(10.0), |i, j| {
+        300.0
+            + 250.0 * ((i as f32) * 0.013).sin() * ((j as f32) * 0.021).cos()
+            + ((i * 7 + j * 13) % 23) as f32
+    })
+    .unwrap();
+    let cfg = BakeConfig { k: 6, node_levels: 5, ..Default::default() };
+    bake(&hm, &dir, &cfg, &mut |_: &BakeProgress| std::ops::ControlFlow::Continue(())).unwrap();
+    dir
+}
+
+/// The folder `to` with `from`'s blocks and `index` as its index.
+fn with_index(from: &Path, to: &Path, index: &[u8]) {
+    let _ = std::fs::remove_dir_all(to);
+    std::fs::create_dir_all(to.join("blocks")).unwrap();
+    for f in std::fs::read_dir(from.join("blocks")).unwrap() {
+        let p = f.unwrap().path();
+        std::fs::copy(&p, to.join("blocks").join(p.file_name().unwrap())).unwrap();
+    }
+    std::fs::write(to.join(INDEX_FILE), index).unwrap();
+}
+
+fn head_of(dir: &Path) -> (crate::Header, IndexHead, Vec<u8>) {
+    let bytes = std::fs::read(dir.join(INDEX_FILE)).unwrap();
+    let mut r = crate::format::Reader::new(&bytes[12..]);
+    let header = crate::format::read_header(&mut r).unwrap();
+    let prefix = &bytes[..paged_prefix_len(&header)];
+    let mut r = crate::format::Reader::new(&prefix[12..]);
+    crate::format::read_header(&mut r).unwrap();
+    let head = crate::pages::read_head(&mut r, prefix, &header).unwrap();
+    (header, head, bytes)
+}
+
+#[test]
+fn a_paged_index_reads_every_entry_as_the_whole_index_does() {
+    let dir = paged_store("round");
+    let (header, head, bytes) = head_of(&dir);
+    let n = header.block_count();
+    assert!(head.page_count(n) >= 4, "{} pages: the test needs several", head.page_count(n));
+    // The bake's streamed writer wrote the whole-index writer's bytes.
+    let (h, whole) = read_index(&bytes).unwrap();
+    assert!(write_index(&h, &whole) == bytes, "the streamed index differs from the whole one");
+
+    // Opening reads no page; each entry then equals the whole read's, and the version-3 index
+    // of the same entries (read whole, the old path) gives the same entries and totals.
+    let store = Store::open(&dir).unwrap();
+    assert_eq!(store.index_pages_decoded(), Some(0));
+    let v3 = dir.with_extension("v3");
+    with_index(&dir, &v3, &write_index_unpaged(&h, &whole, 3));
+    let old = Store::open(&v3).unwrap();
+    assert_eq!(old.index_pages_decoded(), None);
+    assert_eq!(old.header(), store.header());
+    for (pos, id) in store.block_ids().enumerate() {
+        assert_eq!(*store.entry(id).unwrap(), whole[pos], "{id}");
+        assert_eq!(*old.entry(id).unwrap(), whole[pos], "{id}");
+    }
+    assert_eq!(store.index_pages_decoded(), Some(head.page_count(n) as u64));
+    assert_eq!(store.blocks_bytes(), old.blocks_bytes());
+    assert_eq!(store.has_dss_errors(), old.has_dss_errors());
+    assert_eq!(store.has_fine_errors(), old.has_fine_errors());
+    assert!(store.has_fine_errors());
+    let id = BlockId::new(3, 5);
+    assert_eq!(old.read_block(id, 6).unwrap().grid(6), store.read_block(id, 6).unwrap().grid(6));
+    // An exaggerated paged store scales what it decodes as the whole one does.
+    let (a, b) = (store.exaggerated(2.5).unwrap(), old.exaggerated(2.5).unwrap());
+    for id in store.block_ids() {
+        assert_eq!(a.entry(id), b.entry(id), "{id}");
+    }
+    // Version 2 (no fine maxima) still opens, read whole.
+    let v2 = dir.with_extension("v2");
+    with_index(&dir, &v2, &write_index_unpaged(&h, &whole, 2));
+    let older = Store::open(&v2).unwrap();
+    assert!(!older.has_fine_errors());
+    assert_eq!(older.entry(id).unwrap().nodes, whole[header.block_position(id).unwrap()].nodes);
+    for d in [dir, v3, v2] {
+        std::fs::remove_dir_all(d).unwrap();
+    }
+}
+
+#[test]
+fn a_damaged_page_is_named_and_the_others_still_read() {
+    let dir = paged_store("damaged");
+    let (header, head, bytes) = head_of(&dir);
+    let n = header.block_count();
+    let prefix = paged_prefix_len(&header) as u64;
+    let (first, count, at, len) = head.page_span(2, prefix, n);
+    let mut b = bytes.clone();
+    b[(at + len / 2) as usize] ^= 0x04;
+    std::fs::write(dir.join(INDEX_FILE), &b).unwrap();
+    let store = Store::open(&dir).unwrap();
+    let hit = header.block_at(first + count / 2);
+    match store.try_entry(hit) {
+        Err(StoreError::IndexPage { page: 2, blocks, ref message, .. }) => {
+            assert_eq!(blocks, (first, first + count));
+            assert!(message.contains("checksum"), "{message}");
+        }
+        other => panic!("expected page 2 refused, got {other:?}"),
+    }
+    let msg = store.try_entry(hit).unwrap_err().to_string();
+    assert!(msg.contains("index.tsi") && msg.contains("page 2"), "{msg}");
+    // `entry` says `None` and the store remembers why; reading the block's levels says why.
+    assert!(store.index_fault().is_none());
+    assert!(store.entry(hit).is_none());
+    assert!(store.index_fault().unwrap().contains("page 2"));
+    assert!(matches!(store.read_level_bytes(hit, 0), Err(StoreError::IndexPage { page: 2, .. })));
+    // Other pages read.
+    assert!(store.entry(header.block_at(0)).is_some());
+    assert!(store.entry(header.block_at(n - 1)).is_some());
+
+    // A page read from another page's place fails its checksum (each page's CRC-32 starts
+    // from its number): two pages of the same length swapped.
+    let (_, _, at1, len1) = head.page_span(1, prefix, n);
+    let (_, _, at3, len3) = head.page_span(3, prefix, n);
+    assert_eq!(len1, len3);
+    let mut b = bytes.clone();
+    let p1 = bytes[at1 as usize..(at1 + len1) as usize].to_vec();
+    b.copy_within(at3 as usize..(at3 + len3) as usize, at1 as usize);
+    b[at3 as usize..(at3 + len3) as usize].copy_from_slice(&p1);
+    std::fs::write(dir.join(INDEX_FILE), &b).unwrap();
+    let store = Store::open(&dir).unwrap();
+    assert!(matches!(store.try_entry(header.block_at(first)), Ok(Some(_))));
+    let (f1, ..) = head.page_span(1, prefix, n);
+    assert!(matches!(
+        store.try_entry(header.block_at(f1)),
+        Err(StoreError::IndexPage { page: 1, .. })
+    ));
+    // Negative control of the framing: page 1's bytes checked as page 1 pass, as page 3 fail,
+    // and read one entry off their place fail.
+    let page1 = &bytes[at1 as usize..(at1 + len1) as usize];
+    assert!(decode_page(page1, &header, &head, 1).is_ok());
+    assert!(decode_page(page1, &header, &head, 3).is_err());
+    let shifted = &bytes[(at1 + u64::from(head.entry_len)) as usize..][..len1 as usize];
+    assert!(decode_page(shifted, &header, &head, 1).is_err());
+
+    // Truncated or grown by a byte: refused at open, naming the file.
+    std::fs::write(dir.join(INDEX_FILE), &bytes[..bytes.len() - 1]).unwrap();
+    let err = Store::open(&dir).unwrap_err();
+    assert!(
+        matches!(err, StoreError::CorruptIndex { .. }) && err.to_string().contains("index.tsi")
+    );
+    let mut b = bytes.clone();
+    b.push(0);
+    std::fs::write(dir.join(INDEX_FILE), &b).unwrap();
+    assert!(matches!(Store::open(&dir), Err(StoreError::CorruptIndex { .. })));
+    std::fs::remove_dir_all(dir).unwrap();
+}
+
+#[test]
+fn a_cache_smaller_than_the_index_serves_the_same_selections() {
+    let dir = paged_store("small-cache");
+    let (header, head, _) = head_of(&dir);
+    let pages = head.page_count(header.block_count()) as u64;
+    let big = Arc::new(Store::open(&dir).unwrap().with_page_cache_bytes(1 << 30).unwrap());
+    // One page's worth: every other page evicts it.
+    let small = Arc::new(Store::open(&dir).unwrap().with_page_cache_bytes(1).unwrap());
+    let all: HashMap<BlockId, u8> = big.block_ids().map(|b| (b, header.k)).collect();
+    let cam = |x, y, z, yaw, pitch, far| {
+        Camera::from_yaw_pitch(dvec3(x, y, z), yaw, pitch).with_clip(1.0, far)
+    };
+    let cameras = [
+        cam(100.0, 150.0, 420.0, 45.0, -12.0, 6000.0),
+        cam(2500.0, 2500.0, 6000.0, 10.0, -89.0, 9000.0),
+        cam(2600.0, 4800.0, 600.0, 180.0, -20.0, 4000.0),
+    ];
+    let (tb, ts) = (StoreTree::new(big.clone(), 8), StoreTree::new(small.clone(), 8));
+    let mut patches = 0;
+    for c in &cameras {
+        for tau in [0.5, 2.0] {
+            let a = select_patches(&tb, c, tau, |b| all.get(&b).copied());
+            let b = select_patches(&ts, c, tau, |b| all.get(&b).copied());
+            assert_eq!(format!("{:?}", a.patches), format!("{:?}", b.patches), "tau {tau}");
+            patches += a.patches.len();
+        }
+    }
+    assert!(patches > 100, "{patches} patches: the views must see the terrain");
+    // The big cache decoded each page at most once; the small one evicted and read again.
+    let (db, ds) = (big.index_pages_decoded().unwrap(), small.index_pages_decoded().unwrap());
+    assert!(db <= pages, "{db} of {pages}");
+    assert!(ds > pages, "{ds} decodes of {pages} pages: the small cache must evict");
+    // The tree above the blocks came from the head's pyramid: it equals the pyramid computed
+    // from every entry (the version-3 path).
+    let (h, whole) = read_index(&std::fs::read(dir.join(INDEX_FILE)).unwrap()).unwrap();
+    let v3 = dir.with_extension("v3");
+    with_index(&dir, &v3, &write_index_unpaged(&h, &whole, 3));
+    let old = Arc::new(Store::open(&v3).unwrap());
+    let to = StoreTree::new(old, 8);
+    for c in &cameras {
+        let a = select_patches(&to, c, 2.0, |b| all.get(&b).copied());
+        let b = select_patches(&ts, c, 2.0, |b| all.get(&b).copied());
+        assert_eq!(format!("{:?}", a.patches), format!("{:?}", b.patches));
+    }
+    std::fs::remove_dir_all(dir).unwrap();
+    std::fs::remove_dir_all(v3).unwrap();
+}
