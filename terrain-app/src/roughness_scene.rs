@@ -9,7 +9,7 @@
 //!   CRC-32. A missing, damaged or foreign file is a warning and the pyramids are computed in
 //!   memory (the same values either way).
 //! * [`load_from_store`]: a store folder and no heightmap (a store-backed method); the file is
-//!   checked against the store's `bake_id` and its index file's CRC-32, which the bake records
+//!   checked against the store's `bake_id` and a 32-bit hash of its index file, which the bake records
 //!   in it ([`store_tie`]).
 
 use std::path::{Path, PathBuf};
@@ -37,7 +37,7 @@ const BAND_SAMPLES: usize = 1 << 22;
 const KEEP_SAMPLES: usize = 1 << 25;
 
 /// What ties a roughness file to the store in folder `dir`: the index header's `bake_id` and
-/// the CRC-32 of the index file's content (see [`terrain_visibility::roughness::file`] for why
+/// a 32-bit hash of the index file's content (see [`terrain_visibility::roughness::file`] for why
 /// both). Reads the index only.
 pub fn store_tie(dir: &Path) -> anyhow::Result<(u64, u32)> {
     let store = terrain_stream::Store::open(dir)
@@ -46,10 +46,21 @@ pub fn store_tie(dir: &Path) -> anyhow::Result<(u64, u32)> {
     let bytes = std::fs::read(&index).with_context(|| format!("reading {}", index.display()))?;
     // The index ends with its own CRC-32 of everything before it; a CRC-32 over a message and
     // its CRC is the same constant for every message (and, CRCs being linear, so is any salted
-    // one of a given length), so the tie is the CRC of the index's content, without those
-    // four bytes: the index's own checksum, which `Store::open` has just verified.
+    // one of a given length), so the tie hashes the index's content, without those four bytes.
+    // Up to version 3 that content is one message and its CRC-32 is the tie. From version 4 the
+    // content is itself a chain of pages each followed by its own CRC-32, and a CRC over such a
+    // chain is blind to every page but the last, so the tie is the 64-bit FNV-1a of the content
+    // folded to 32 bits (not linear, sees every byte). Stores baked before version 4 keep
+    // their CRC tie, so their roughness files still open.
     let content = &bytes[..bytes.len().saturating_sub(4)];
-    Ok((store.header().bake_id, terrain_core::checksum::crc32(content)))
+    let version = bytes.get(8..12).map_or(0, |v| u32::from_le_bytes([v[0], v[1], v[2], v[3]]));
+    let tie = if version >= 4 {
+        let h = terrain_core::checksum::fnv1a_update(terrain_core::checksum::FNV1A_START, content);
+        (h ^ (h >> 32)) as u32
+    } else {
+        terrain_core::checksum::crc32(content)
+    };
+    Ok((store.header().bake_id, tie))
 }
 
 /// The roughness file's path in scene folder `dir`.

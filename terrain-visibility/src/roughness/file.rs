@@ -57,11 +57,12 @@ const TABLE: &str = "roughness table";
 pub enum TerrainTie {
     /// The heights' checksum ([`terrain_core::lod::dss_file::heights_checksum`]).
     Heights(u32),
-    /// A baked store's `bake_id` and the CRC-32 of its index content.
+    /// A baked store's `bake_id` and a 32-bit hash of its index content.
     Store {
         /// The store header's `bake_id`.
         bake_id: u64,
-        /// CRC-32 of the index file's bytes before its own trailing CRC-32.
+        /// A 32-bit hash of the index file's bytes before its own trailing CRC-32 (the store
+        /// reader's choice: terrain-app's `roughness_scene::store_tie`).
         index_crc: u32,
     },
 }
@@ -79,7 +80,7 @@ pub struct RoughnessHeader {
     pub levels: u32,
     /// The heights' checksum.
     pub heights_checksum: u32,
-    /// CRC-32 of the store's index content, 0 when written into no store.
+    /// A 32-bit hash of the store's index content, 0 when written into no store.
     pub index_crc: u32,
     /// The store's `bake_id`, 0 when written into no store.
     pub bake_id: u64,
@@ -258,7 +259,7 @@ pub fn decode_for(
                 || (bake_id, index_crc) == (0, 0) =>
         {
             Err(RoughnessFileError::Mismatch(format!(
-                "baked for store {:016x} (index CRC {:08x}), this store is {bake_id:016x} (index CRC {index_crc:08x}): another store, or baked again since",
+                "baked for store {:016x} (index hash {:08x}), this store is {bake_id:016x} (index hash {index_crc:08x}): another store, or baked again since",
                 header.bake_id, header.index_crc
             )))
         }
