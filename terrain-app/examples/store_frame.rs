@@ -1,0 +1,104 @@
+//! The whole per-frame CPU cost of a LOD method drawn from a baked store (issue 13): the
+//! store method's `frame` (selection, the streamer's demand and update, page assignment, the
+//! drawn-block filter, the frame's draw lists) timed per frame with this thread's CPU clock,
+//! no rendering and no measurement, split into the selection (the frame's `selection_ms`), the
+//! streaming step (`stream_ms`: the demand, `Streamer::update`) and the rest.
+//!
+//! ```sh
+//! cargo build --release -p terrain-app --example store_frame
+//! target/release/examples/store_frame STORE [--method geomorph] [--px 7] \
+//!     [--flight flights/pvps_884.json] [--frames 10]
+//! ```
+//! Cameras: the flight resolved onto the store's overview (as `selection_scaling`'s store
+//! rows), `--frames` frames evenly spaced, 1280 x 720. The first frame waits until its levels
+//! are resident (not timed); the others draw what is resident (real time), each timed. The
+//! figures are medians over the timed frames (each column its own median).
+
+use std::path::PathBuf;
+
+use anyhow::Context;
+use terrain_app::method::{OocWait, store_method};
+use terrain_app::methods::{LodMethod, MethodConfig};
+use terrain_app::ooc::{OocConfig, OocScene};
+use terrain_core::flight::{FlightConfig, FlightSpec};
+
+fn median(mut v: Vec<f64>) -> f64 {
+    v.sort_by(f64::total_cmp);
+    if v.is_empty() { f64::NAN } else { v[v.len() / 2] }
+}
+
+/// This thread's CPU seconds (`clock_gettime(CLOCK_THREAD_CPUTIME_ID)`).
+#[allow(unsafe_code)] // The one FFI call; an example-only timer.
+fn thread_cpu_s() -> f64 {
+    let mut ts = libc::timespec { tv_sec: 0, tv_nsec: 0 };
+    // SAFETY: `ts` is a valid timespec to write; the clock id is a constant the kernel knows.
+    let rc = unsafe { libc::clock_gettime(libc::CLOCK_THREAD_CPUTIME_ID, &mut ts) };
+    if rc == 0 { ts.tv_sec as f64 + ts.tv_nsec as f64 * 1e-9 } else { f64::NAN }
+}
+
+fn main() -> anyhow::Result<()> {
+    let mut args: Vec<String> = std::env::args().skip(1).collect();
+    let mut take = |flag: &str| -> Option<String> {
+        let k = args.iter().position(|a| a == flag)?;
+        (k + 1 < args.len()).then(|| {
+            let v = args.remove(k + 1);
+            args.remove(k);
+            v
+        })
+    };
+    let method = take("--method").unwrap_or_else(|| "geomorph".into());
+    let px: Option<f64> = take("--px").map(|v| v.parse()).transpose().context("--px")?;
+    let flight = take("--flight").unwrap_or_else(|| "flights/pvps_884.json".into());
+    let frames: usize = take("--frames").map_or(Ok(10), |v| v.parse()).context("--frames")?;
+    let dir = PathBuf::from(args.first().context("usage: store_frame STORE [options]")?);
+    let kind = <LodMethod as clap::ValueEnum>::from_str(&method, true)
+        .map_err(|e| anyhow::anyhow!("--method {method}: {e}"))?;
+    let mut config = MethodConfig::default();
+    if let Some(px) = px {
+        config.geomip.pixel_threshold = px;
+    }
+    let scene = OocScene::open(&dir, OocConfig::default())
+        .with_context(|| format!("store {}", dir.display()))?;
+    let overview = scene.overview(4).context("the store's overview")?;
+    let spec = FlightSpec::load(&flight).with_context(|| format!("flight {flight}"))?;
+    let (resolved, _) = spec.resolve(&overview, &FlightConfig::default());
+    let all = resolved.frames();
+    let step = (all.len() / frames.max(1)).max(1);
+    let cameras: Vec<_> = all
+        .iter()
+        .step_by(step)
+        .take(frames.max(1))
+        .map(|c| {
+            let (near, far) = scene.clip_range(c.position);
+            c.with_clip(near, far)
+        })
+        .collect();
+    let mut m = store_method(kind, scene, &config, OocWait::FirstFrame, None)?;
+    let (mut total, mut select, mut stream, mut rest) =
+        (Vec::new(), Vec::new(), Vec::new(), Vec::new());
+    for (k, c) in cameras.iter().enumerate() {
+        let t = thread_cpu_s();
+        let f = m.frame(c);
+        let ms = (thread_cpu_s() - t) * 1e3;
+        let s = f.stats.stream.as_ref().map_or(0.0, |s| s.stream_ms);
+        eprintln!(
+            "frame {k}: {ms:.2} ms CPU, selection {:.2} ms, stream {s:.2} ms, {} patches",
+            f.stats.selection_ms, f.stats.patches
+        );
+        if k > 0 {
+            total.push(ms);
+            select.push(f.stats.selection_ms);
+            stream.push(s);
+            rest.push(ms - f.stats.selection_ms - s);
+        }
+    }
+    let (t, s, st, r) = (median(total), median(select), median(stream), median(rest));
+    println!(
+        "{} {method}: frame {t:.2} ms CPU (median of {}), selection {s:.2}, stream {st:.2}, \
+         rest {:.2}",
+        dir.display(),
+        cameras.len().saturating_sub(1),
+        r
+    );
+    Ok(())
+}
