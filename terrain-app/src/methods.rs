@@ -781,6 +781,19 @@ pub fn geomorph_selection_runs(runs: &GeomipRuns, patch_cells: u32, leaf_level: 
     geomorph_leaves(all, patch_cells, leaf_level, runs.culled, runs.cpu_ms)
 }
 
+/// Geomorph's patch `p` (of `patch_cells` cells) as a leaf of the patch tree (level
+/// `leaf_level`) with the factors of its un-morphed geo-mipmap: its level's inside, its edge
+/// levels' edges (what the coverage counts and what the streamer's demand reads).
+pub fn geomorph_patch(p: &terrain_core::lod::PatchLod, patch_cells: u32, leaf_level: u8) -> Patch {
+    let n = patch_cells as f32;
+    let f = |l: u8| (n / f32::from(1u8 << l)).clamp(MIN_FACTOR, MAX_FACTOR);
+    Patch {
+        node: NodeId::new(leaf_level, p.i, p.j),
+        outer: p.edge_level.map(f),
+        inner: [f(p.level); 2],
+    }
+}
+
 fn geomorph_leaves(
     lods: impl Iterator<Item = terrain_core::lod::PatchLod>,
     patch_cells: u32,
@@ -788,17 +801,8 @@ fn geomorph_leaves(
     culled: usize,
     cpu_ms: f64,
 ) -> Selection {
-    let n = patch_cells as f32;
-    let mut patches: Vec<Patch> = lods
-        .map(|p| {
-            let f = |l: u8| (n / f32::from(1u8 << l)).clamp(MIN_FACTOR, MAX_FACTOR);
-            Patch {
-                node: NodeId::new(leaf_level, p.i, p.j),
-                outer: p.edge_level.map(f),
-                inner: [f(p.level); 2],
-            }
-        })
-        .collect();
+    let mut patches: Vec<Patch> =
+        lods.map(|p| geomorph_patch(&p, patch_cells, leaf_level)).collect();
     // Keys are distinct: one key computation per patch, same order as a stable sort.
     patches.sort_by_cached_key(|p| p.node.dfs_key());
     let stats = SelectionStats {

@@ -29,9 +29,9 @@ use std::time::{Duration, Instant};
 
 use glam::{DVec2, DVec3, dvec3};
 use terrain_core::geometry::Camera;
-use terrain_core::lod::TerrainSource;
+use terrain_core::lod::{GeomipRuns, PatchRun, TerrainSource};
 use terrain_core::lod::{Selection, check_shared_edges};
-use terrain_core::quadtree::NodeId;
+use terrain_core::quadtree::{NodeId, NodeTree};
 use terrain_core::{Crs, Georef, Heightmap};
 use terrain_gpu::paged::{Page, PageClass, PageLayout, PagedHeights, classes_for_budget};
 use terrain_gpu::render::{DrawPatch, ExtraTriangles};
@@ -44,7 +44,7 @@ use terrain_stream::{
 };
 
 use crate::MIB;
-use crate::methods::{StripFrame, patch_factors};
+use crate::methods::{StripFrame, geomorph_patch, patch_factors};
 
 /// Settings of the out-of-core method.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -386,6 +386,11 @@ pub struct OocFrame {
     pub updates: Vec<PageUpdate>,
     /// Streaming statistics.
     pub stream: StreamRecord,
+    /// Geomorph ([`StoreDraw::morph`]): its runs and single patches over the drawn blocks
+    /// ([`morph_on_pages`]), drawn instead of [`OocFrame::patches`] (then empty).
+    pub morph: Option<GeomipRuns>,
+    /// The blocks drawn, each with the level its page holds.
+    pub drawn: Vec<(BlockId, u8)>,
     /// Blocks drawn.
     pub blocks_drawn: usize,
     /// Blocks of M not drawn: nothing resident (a fault), or no slot left in the class of any
@@ -398,6 +403,9 @@ pub struct OocFrame {
 /// the strips, so their vertices fall between lattice samples; strips also reach blocks that
 /// are hidden themselves).
 fn store_demand(tree: &StoreTree, draw: &StoreDraw) -> Vec<(BlockId, u8)> {
+    if let Some(m) = &draw.morph {
+        return morph_demand(tree, m);
+    }
     // A mesh's vertices lie on the lattices its selection's factors say (`tin`).
     let Some(strips) = &draw.strips else { return demand_of(tree, &draw.selection, true) };
     let mut used = vec![false; strips.nodes.len()];
@@ -431,9 +439,107 @@ pub struct StoreDraw {
     /// point on the hidden carrier patch (factors 0) of its selection patch (same index). The
     /// selection's factors say which lattice each patch's points lie on (its demand).
     pub mesh: Option<ExtraTriangles>,
+    /// Geomorph: its compact selection (runs and single patches), drawn instead of the
+    /// selection's patches; the selection then holds no patches (its statistics only): the
+    /// demand ([`morph_demand`]) and the drawn-block filter ([`morph_on_pages`]) work on the
+    /// runs, and the coverage is built from them only when measured
+    /// ([`crate::methods::geomorph_selection_runs`]).
+    pub morph: Option<MorphDraw>,
 }
 
-/// The out-of-core method over one store.
+/// Geomorph's compact selection over a store's patch tree ([`StoreDraw::morph`]).
+#[derive(Debug, Clone)]
+pub struct MorphDraw {
+    /// The runs and single patches.
+    pub runs: GeomipRuns,
+    /// Cells per patch side (the patch tree's leaves).
+    pub patch_cells: u32,
+}
+
+/// The streamer's demand of geomorph's compact selection: the same as [`demand_of`] over its
+/// patches one by one (`geomorph_selection_runs`), computed in O(runs + single patches +
+/// blocks the runs touch): every patch of a run asks the same level (its coarsest, every edge
+/// at it), so one patch of each run in each block it touches stands for the others.
+pub fn morph_demand(tree: &StoreTree, morph: &MorphDraw) -> Vec<(BlockId, u8)> {
+    let (runs, n) = (&morph.runs, morph.patch_cells);
+    let leaf = tree.shape().max_level();
+    let mut standing = Selection::default();
+    standing.patches.extend(runs.patches.iter().map(|p| geomorph_patch(p, n, leaf)));
+    for r in &runs.runs {
+        for_run_blocks(tree, r, |_, i, j| {
+            standing.patches.push(geomorph_patch(&runs.run_patch(i, j), n, leaf));
+        });
+    }
+    demand_of(tree, &standing, true)
+}
+
+/// `f(block, i, j)` for every block run `r` touches, `(i, j)` one of the run's patches in it
+/// (its south-west one there); with patches larger than blocks, every patch of the run
+/// (`block` its first block).
+fn for_run_blocks(tree: &StoreTree, r: &PatchRun, mut f: impl FnMut(BlockId, u32, u32)) {
+    let leaf = tree.shape().max_level();
+    let (i1, j1) = (r.i + r.width, r.j + r.height);
+    let Some(s) = leaf.checked_sub(tree.block_level()) else {
+        for j in r.j..j1 {
+            for i in r.i..i1 {
+                let b = tree.blocks_under(NodeId::new(leaf, i, j));
+                f(b[0], i, j);
+            }
+        }
+        return;
+    };
+    for row in (r.j >> s)..=((j1 - 1) >> s) {
+        for col in (r.i >> s)..=((i1 - 1) >> s) {
+            f(BlockId::new(row, col), r.i.max(col << s), r.j.max(row << s));
+        }
+    }
+}
+
+/// Geomorph's compact selection kept to the patches over `drawn` blocks (every block under a
+/// patch drawn), as the per-patch filter keeps them: a run whose blocks are all drawn stays
+/// one (checked per block it touches); the kept patches of another run become single patches
+/// (row by row, after the single patches kept, factor `L`). Empty runs are never produced.
+pub fn morph_on_pages(
+    tree: &StoreTree,
+    mut runs: GeomipRuns,
+    drawn: &HashMap<BlockId, u8>,
+) -> GeomipRuns {
+    let leaf = tree.shape().max_level();
+    let on = |i: u32, j: u32| {
+        tree.blocks_under(NodeId::new(leaf, i, j)).iter().all(|b| drawn.contains_key(b))
+    };
+    let keep: Vec<bool> = runs.patches.iter().map(|p| on(p.i, p.j)).collect();
+    let mut k = keep.iter();
+    runs.patches.retain(|_| *k.next().expect("parallel"));
+    if runs.factors.len() == keep.len() {
+        let mut k = keep.iter();
+        runs.factors.retain(|_| *k.next().expect("parallel"));
+    }
+    let mut split = Vec::new();
+    runs.runs.retain(|r| {
+        let mut whole = true;
+        for_run_blocks(tree, r, |b, _, _| whole &= drawn.contains_key(&b));
+        // With patches larger than blocks, the per-block check above saw only each patch's
+        // first block: check the patches themselves.
+        if whole && tree.shape().max_level() < tree.block_level() {
+            whole = (r.j..r.j + r.height).all(|j| (r.i..r.i + r.width).all(|i| on(i, j)));
+        }
+        if !whole {
+            for j in r.j..r.j + r.height {
+                split.extend((r.i..r.i + r.width).filter(|&i| on(i, j)).map(|i| (i, j)));
+            }
+        }
+        whole
+    });
+    let l = f32::from(runs.coarsest);
+    for (i, j) in split {
+        let p = runs.run_patch(i, j);
+        runs.patches.push(p);
+        runs.factors.push(l);
+    }
+    runs
+}
+
 #[derive(Debug)]
 pub struct OocScene {
     store: Arc<Store>,
@@ -646,7 +752,14 @@ impl OocScene {
         let (drawn, dropped) = self.assign_pages();
         let paged: HashMap<BlockId, u8> = drawn.iter().copied().collect();
         let on_pages = |n: NodeId| tree.blocks_under(n).iter().all(|b| paged.contains_key(b));
-        let StoreDraw { mut selection, strips, mesh } = draw;
+        let StoreDraw { mut selection, strips, mesh, morph } = draw;
+        if let Some(m) = morph {
+            let runs = morph_on_pages(tree, m.runs, &paged);
+            selection.stats.patches = runs.drawn_patches() as usize;
+            let mut frame = self.finish_frame(selection, None, &drawn, dropped, stream);
+            frame.morph = Some(runs);
+            return frame;
+        }
         if let Some(mut extra) = mesh {
             let root = tree.root_cells();
             let off: Vec<bool> = selection.patches.iter().map(|p| !on_pages(p.node)).collect();
@@ -766,6 +879,8 @@ impl OocScene {
             extra,
             updates,
             stream,
+            morph: None,
+            drawn: drawn.to_vec(),
             blocks_drawn: drawn.len(),
             blocks_dropped: dropped,
         }

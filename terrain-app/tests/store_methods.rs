@@ -586,3 +586,128 @@ fn an_exaggerated_store_draws_as_the_exaggerated_dem() {
 fn largest_height_difference(a: &[glam::DVec3], b: &[glam::DVec3]) -> f64 {
     a.iter().zip(b).map(|(p, q)| (p.z - q.z).abs()).fold(0.0, f64::max)
 }
+
+/// Geomorph's store frame works on its runs (issue 13): the streamer's demand from the runs
+/// (`morph_demand`) equals `demand_of` over the patches one by one, and the drawn-block filter
+/// on the runs (`morph_on_pages`) keeps exactly the patches the per-patch filter kept (a run
+/// wholly over drawn blocks stays one, the kept patches of another become single patches, in
+/// the same order), bit for bit, on a non-square DEM with voids and a synthetic grid, with a
+/// page budget that leaves blocks undrawn so runs are split. Negative control: a demand one
+/// level too coarse for one block fails the comparison.
+#[test]
+fn geomorph_store_frames_work_on_runs_as_on_patches() {
+    use std::collections::{HashMap, HashSet};
+    use terrain_app::methods::geomorph_selection_runs;
+    use terrain_app::ooc::{MorphDraw, StoreDraw, morph_demand, morph_on_pages};
+    use terrain_core::lod::{GeomipConfig, GeomipRuns, Selection, TerrainSource};
+    use terrain_core::quadtree::{NodeId, NodeTree};
+    use terrain_core::synth::FractalConfig;
+    use terrain_stream::{StoreTree, demand_of};
+
+    // The per-patch filter `frame_for` applied before (the reference).
+    fn per_patch_filter(
+        tree: &StoreTree,
+        runs: &GeomipRuns,
+        drawn: &HashMap<terrain_stream::BlockId, u8>,
+    ) -> GeomipRuns {
+        let (n, leaf) = (tree.shape().leaf_cells(), tree.shape().max_level());
+        let on_pages = |node: NodeId| tree.blocks_under(node).iter().all(|b| drawn.contains_key(b));
+        let mut selection = geomorph_selection_runs(runs, n, leaf);
+        selection.patches.retain(|p| on_pages(p.node));
+        let kept: HashSet<NodeId> = selection.patches.iter().map(|p| p.node).collect();
+        let on = |i: u32, j: u32| kept.contains(&NodeId::new(leaf, i, j));
+        let mut lods = runs.clone();
+        let keep: Vec<bool> = lods.patches.iter().map(|p| on(p.i, p.j)).collect();
+        let mut k = keep.iter();
+        lods.patches.retain(|_| *k.next().unwrap());
+        let mut k = keep.iter();
+        lods.factors.retain(|_| *k.next().unwrap());
+        let mut split = Vec::new();
+        lods.runs.retain(|r| {
+            let cells: Vec<(u32, u32)> = (r.j..r.j + r.height)
+                .flat_map(|j| (r.i..r.i + r.width).map(move |i| (i, j)))
+                .filter(|&(i, j)| on(i, j))
+                .collect();
+            let all = cells.len() as u64 == r.patches();
+            if !all {
+                split.extend(cells);
+            }
+            all
+        });
+        for (i, j) in split {
+            let p = lods.run_patch(i, j);
+            lods.patches.push(p);
+            lods.factors.push(f32::from(lods.coarsest));
+        }
+        lods
+    }
+
+    let synthetic = FractalConfig::with_size(769, 513, 10.0).to_heightmap().unwrap();
+    // The synthetic grid at a coarser threshold (its fractal detail keeps most patches finer
+    // than the coarsest level at the default).
+    for (name, hm, px) in [("crater", crater_lake(), None), ("synthetic", synthetic, Some(8.0))] {
+        let scene = MethodScene::new(hm, MethodConfig::default());
+        let dir = scratch("store-methods", &format!("morph-runs-{name}")).join("store");
+        let config =
+            BakeConfig { k: 5, encoding: HeightEncoding::F32, threads: 1, ..Default::default() };
+        bake(&scene.hm, &dir, &config, &mut |_: &BakeProgress| ControlFlow::Continue(())).unwrap();
+        terrain_app::geomip_scene::bake_into_scene(&scene.hm, 16, &dir).unwrap();
+        let store = Arc::new(Store::open(&dir).unwrap());
+        let tree = StoreTree::new(store.clone(), 16);
+        let table = terrain_app::geomip_scene::read_for_store(&dir, tree.shape()).unwrap();
+        let mut cfg = GeomipConfig { patch_cells: 16, ..scene.config.geomip };
+        cfg.pixel_threshold = px.unwrap_or(cfg.pixel_threshold);
+        // Few full-resolution slots: the nearest blocks take them, farther ones fall to coarser
+        // classes until those are full too, and the rest are not drawn.
+        let ooc = OocConfig {
+            threads: 1,
+            page_capacity: 4,
+            page_budget_bytes: 4 << 10,
+            ..OocConfig::default()
+        };
+        let mut runtime = OocScene::new(store.clone(), ooc);
+        let (mut dropped, mut split_runs, mut whole_runs) = (0, 0, 0);
+        let mut cams = cameras(&scene.hm);
+        cams.extend(
+            terrain_gpu::render::crack::crack_cameras(&scene.hm, 17).into_iter().step_by(4),
+        );
+        for (c, camera) in cams.iter().enumerate() {
+            let mut all: Option<GeomipRuns> = None;
+            let mut select = |src: &dyn TerrainSource| -> StoreDraw {
+                let runs = table.select_runs(&src, camera, &cfg);
+                all = Some(runs.clone());
+                StoreDraw {
+                    selection: Selection::default(),
+                    morph: Some(MorphDraw { runs, patch_cells: 16 }),
+                    ..Default::default()
+                }
+            };
+            let frame = runtime.frame_for(camera, true, &tree, &mut select);
+            let all = all.unwrap();
+            // The demand from the runs, against the patches one by one.
+            let morph = MorphDraw { runs: all.clone(), patch_cells: 16 };
+            let fast = morph_demand(&tree, &morph);
+            let patches = geomorph_selection_runs(&all, 16, tree.shape().max_level());
+            let reference = demand_of(&tree, &patches, true);
+            assert!(!reference.is_empty(), "{name} camera {c}");
+            assert_eq!(fast, reference, "{name} camera {c}: the demand");
+            // Negative control: one block asked one level coarser fails the comparison.
+            let mut coarser = reference.clone();
+            let b = coarser.iter_mut().find(|(_, l)| *l > 0).expect("a block above level 0");
+            b.1 -= 1;
+            assert_ne!(fast, coarser, "{name} camera {c}: the control");
+            // The drawn-block filter, against the per-patch one.
+            let drawn: HashMap<_, _> = frame.drawn.iter().copied().collect();
+            let kept = frame.morph.clone().expect("a morphed frame");
+            assert_eq!(kept, per_patch_filter(&tree, &all, &drawn), "{name} camera {c}");
+            assert_eq!(kept, morph_on_pages(&tree, all.clone(), &drawn));
+            assert!(frame.patches.is_empty(), "no per-patch draw list");
+            dropped += frame.blocks_dropped;
+            whole_runs += kept.runs.len();
+            split_runs += all.runs.len() - kept.runs.len();
+        }
+        println!("{name}: {dropped} blocks dropped, {whole_runs} runs kept, {split_runs} split");
+        assert!(dropped > 0 && split_runs > 0 && whole_runs > 0, "{name}: the split path ran");
+        let _ = std::fs::remove_dir_all(dir.parent().unwrap());
+    }
+}

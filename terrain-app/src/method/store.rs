@@ -31,12 +31,12 @@ use std::path::Path;
 use anyhow::Context;
 use terrain_core::Heightmap;
 use terrain_core::geometry::Camera;
-use terrain_core::lod::GeomipRuns;
 use terrain_core::lod::{
     DssErrorTable, GeomipConfig, GeomipTable, TerrainSource, select_dss_power_of_two,
     select_dss_uniform, select_pvps, select_pvps_with_cull,
 };
-use terrain_core::quadtree::{NodeId, NodeTree};
+use terrain_core::lod::{Selection, SelectionStats};
+use terrain_core::quadtree::NodeTree;
 use terrain_gpu::geomorph::{
     GpuMorphPatch, MeshLibrary, MorphGrid, build_surface, max_vertex_jump,
 };
@@ -49,7 +49,7 @@ use super::{Draw, DrawSource, DrawnSurface, Frame, Method, OocMethod};
 use crate::methods::{
     LodMethod, MethodConfig, MethodScene, geomorph_selection_runs, select_uniform, strips_frame,
 };
-use crate::ooc::{OocScene, StoreDraw};
+use crate::ooc::{MorphDraw, OocScene, StoreDraw};
 
 /// Which methods draw from a store.
 pub fn draws_from_store(kind: LodMethod) -> bool {
@@ -349,9 +349,6 @@ impl Method for StoreMethod<'_> {
         // The PVS of the unexaggerated terrain, looked up where the eye is over it.
         let mut pvs_eye = camera.position;
         pvs_eye.z /= self.vertical_scale;
-        // Geomorph's patches with their levels and tween factors, compact (the last
-        // selection's).
-        let mut morph: Option<GeomipRuns> = None;
         let mut select = |src: &dyn TerrainSource| -> StoreDraw {
             let selection = match tables {
                 Tables::None => select_uniform(src, camera, cfg.uniform_factor),
@@ -363,7 +360,11 @@ impl Method for StoreMethod<'_> {
                 Tables::Dss(table) if kind.has_strips() => {
                     let factors = kind.strip_factors().unwrap_or_default();
                     let f = strips_frame(src, camera, table, cfg, factors);
-                    return StoreDraw { selection: f.selection, strips: f.strips, mesh: None };
+                    return StoreDraw {
+                        selection: f.selection,
+                        strips: f.strips,
+                        ..Default::default()
+                    };
                 }
                 Tables::Dss(table) if kind == LodMethod::Dss1 => {
                     select_dss_power_of_two(src, camera, table, &cfg.dss)
@@ -372,57 +373,41 @@ impl Method for StoreMethod<'_> {
                 Tables::Geomip(table, _) => {
                     // The morph's levels and tween factors, compact, as from memory
                     // (`MethodScene::select_geomorph_runs`; the selection's time is the runs',
-                    // drawn without expansion); the streamer's demand and the measurement's
-                    // coverage are the patches at their levels, one by one (built after the
-                    // selection, outside its time).
+                    // drawn without expansion). The streamer's demand and the drawn-block
+                    // filter work on the runs (`morph_demand`, `morph_on_pages`); the
+                    // coverage's patches are built only when the frame is measured
+                    // (`surface`).
                     let geomip = GeomipConfig { patch_cells: table.patch_cells(), ..cfg.geomip };
                     let runs = table.select_runs(&src, camera, &geomip);
-                    let n = table.patch_cells();
-                    let s = geomorph_selection_runs(&runs, n, src.shape().max_level());
-                    morph = Some(runs);
-                    s
+                    let stats = SelectionStats {
+                        culled: runs.culled,
+                        max_level: src.shape().max_level(),
+                        cpu_time: std::time::Duration::from_secs_f64(runs.cpu_ms / 1e3),
+                        ..SelectionStats::default()
+                    };
+                    let patch_cells = table.patch_cells();
+                    return StoreDraw {
+                        selection: Selection { patches: Vec::new(), stats },
+                        morph: Some(MorphDraw { runs, patch_cells }),
+                        ..Default::default()
+                    };
                 }
             };
-            StoreDraw { selection, strips: None, mesh: None }
+            StoreDraw { selection, ..Default::default() }
         };
         let mut frame = paged_frame(self.scene.frame_for(camera, warm, &self.tree, &mut select));
-        if let Some(mut lods) = morph {
-            // Only the patches over drawn blocks (those `frame_for` kept): a run wholly kept
-            // stays one, the kept patches of another become single patches.
-            let leaf = self.tree.shape().max_level();
-            let kept: std::collections::HashSet<NodeId> =
-                frame.selection.patches.iter().map(|p| p.node).collect();
-            let on = |i: u32, j: u32| kept.contains(&NodeId::new(leaf, i, j));
-            let keep: Vec<bool> = lods.patches.iter().map(|p| on(p.i, p.j)).collect();
-            let mut k = keep.iter();
-            lods.patches.retain(|_| *k.next().expect("parallel"));
-            if lods.factors.len() == keep.len() {
-                let mut k = keep.iter();
-                lods.factors.retain(|_| *k.next().expect("parallel"));
-            }
-            let mut split = Vec::new();
-            lods.runs.retain(|r| {
-                let cells = (r.j..r.j + r.height)
-                    .flat_map(|j| (r.i..r.i + r.width).map(move |i| (i, j)))
-                    .filter(|&(i, j)| on(i, j));
-                let before = split.len();
-                split.extend(cells);
-                let all = (split.len() - before) as u64 == r.patches();
-                if all {
-                    split.truncate(before);
+        frame.draw = match frame.draw {
+            Draw::Paged(mut f) => match f.morph.take() {
+                // Only the patches over drawn blocks (`frame_for` kept them: a run wholly over
+                // drawn blocks stays one).
+                Some(lods) => {
+                    frame.stats.patches = lods.drawn_patches() as usize;
+                    Draw::PagedMorph(f, lods)
                 }
-                all
-            });
-            let l = f32::from(lods.coarsest);
-            for (i, j) in split {
-                lods.patches.push(lods.run_patch(i, j));
-                lods.factors.push(l);
-            }
-            frame.draw = match frame.draw {
-                Draw::Paged(f) => Draw::PagedMorph(f, lods),
-                other => other,
-            };
-        }
+                None => Draw::Paged(f),
+            },
+            other => other,
+        };
         frame
     }
 
@@ -436,10 +421,21 @@ impl Method for StoreMethod<'_> {
         let Some(reference) = self.reference else {
             anyhow::bail!("a method drawn from a store is measured only against a DEM in memory");
         };
+        // The coverage the measurement reads, patch by patch, built here only (the frame
+        // itself works on the runs): the same `Selection` as of the expansion.
+        let n = table.patch_cells();
+        if frame.selection.patches.is_empty() {
+            let stats = frame.selection.stats.clone();
+            frame.selection = geomorph_selection_runs(lods, n, self.tree.shape().max_level());
+            frame.selection.stats = SelectionStats {
+                traversal_leaves: frame.selection.patches.len(),
+                patches: frame.selection.patches.len(),
+                ..stats
+            };
+        }
         // The pages' heights where resident (the mirror's lookup), the DEM's elsewhere (no
         // patch is drawn there); the DEM's when every frame waits (`drawn_heights`).
         let drawn = drawn_heights(&self.scene, reference);
-        let n = table.patch_cells();
         // The runs expanded here, for the measurement only (row-major, as the selection's own
         // expansion).
         let patches: Vec<GpuMorphPatch> =

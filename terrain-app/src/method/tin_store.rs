@@ -495,8 +495,11 @@ impl Method for TinStoreMethod<'_> {
             cpu_time: selection_time,
             ..SelectionStats::default()
         };
-        let draw =
-            StoreDraw { selection: Selection { patches, stats }, strips: None, mesh: Some(extra) };
+        let draw = StoreDraw {
+            selection: Selection { patches, stats },
+            mesh: Some(extra),
+            ..Default::default()
+        };
         // A waiting frame selects again once its levels are resident: the same tiles.
         let mut select = |_: &dyn terrain_core::lod::TerrainSource| -> StoreDraw { draw.clone() };
         let f = self.scene.frame_for(camera, warm, &self.tree, &mut select);
