@@ -717,7 +717,9 @@ impl OocScene {
     /// factors), until the demand holds still (at most three rounds), so a warm frame draws
     /// the patches the method selects from the heightmap in memory. Patches over a block with
     /// no page (no slot left) are not drawn; the block is counted in
-    /// [`OocFrame::blocks_dropped`].
+    /// [`OocFrame::blocks_dropped`]. Geomorph's compact selection ([`StoreDraw::morph`]) is
+    /// never expanded here: its demand is [`morph_demand`], its filter [`morph_on_pages`], and
+    /// it comes back as [`OocFrame::morph`].
     pub fn frame_for(
         &mut self,
         camera: &Camera,

@@ -90,6 +90,12 @@ fn check(name: &str, hm: Heightmap) {
         for (c, camera) in cameras(&scene.hm).iter().enumerate() {
             let mut a = memory.frame(camera);
             let mut b = stored.frame(camera);
+            // The drawn surfaces, rebuilt with the renderers' CPU references (the tessellator
+            // over the whole heightmap; over the store's pages): the measurement, which also
+            // builds the coverage of a store's geomorph frame (its frame works on the runs).
+            let sa = memory.surface(&mut a).unwrap();
+            let sb = stored.surface(&mut b).unwrap();
+            assert_eq!(a.stats.patches, b.stats.patches, "{name} {kind:?} camera {c}");
             assert!(!a.selection.patches.is_empty(), "{name} {kind:?} camera {c}: draws");
             assert_eq!(
                 a.selection.patches, b.selection.patches,
@@ -112,10 +118,7 @@ fn check(name: &str, hm: Heightmap) {
             } else {
                 assert!(kind != LodMethod::Geomorph, "{name} camera {c}: geomorph morphs");
             }
-            // The same heights: the drawn surfaces, rebuilt with the renderers' CPU references
-            // (the tessellator over the whole heightmap; over the store's pages).
-            let sa = memory.surface(&mut a).unwrap();
-            let sb = stored.surface(&mut b).unwrap();
+            // The same heights.
             assert_eq!(sa.triangles, sb.triangles, "{name} {kind:?} camera {c}");
             assert_eq!(sa.mesh.positions.len(), sb.mesh.positions.len());
             let worst = largest_height_difference(&sa.mesh.positions, &sb.mesh.positions);
@@ -504,6 +507,8 @@ fn an_exaggerated_store_draws_as_the_exaggerated_dem() {
                 .unwrap();
         let mut a = memory.frame(&camera);
         let mut b = stored.frame(&camera);
+        // Measured first: a store's geomorph frame builds its coverage there.
+        let (sa, sb) = (memory.surface(&mut a).unwrap(), stored.surface(&mut b).unwrap());
         assert!(!a.selection.patches.is_empty());
         // The same nodes; the factors of DSS (interpolated in its errors) equal up to f32
         // rounding (errors of heights times 3 against errors times 3).
@@ -515,7 +520,6 @@ fn an_exaggerated_store_draws_as_the_exaggerated_dem() {
             let factors = p.outer.iter().chain(&p.inner).zip(q.outer.iter().chain(&q.inner));
             assert!(factors.into_iter().all(|(x, y)| close(*x, *y)), "{kind:?}: {p:?} {q:?}");
         }
-        let (sa, sb) = (memory.surface(&mut a).unwrap(), stored.surface(&mut b).unwrap());
         assert_eq!(sa.triangles, sb.triangles, "{kind:?}");
         let worst = largest_height_difference(&sa.mesh.positions, &sb.mesh.positions);
         println!(

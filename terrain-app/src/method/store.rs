@@ -7,8 +7,8 @@
 //! levels) and the per-node tables the bake wrote beside the blocks (`dss_errors.bin`,
 //! `roughness.bin`, `geomip.bin`, the PVS files). The store's runtime ([`OocScene::frame_for`])
 //! loads what the patches need (geomorph: each patch's level, as its un-morphed geo-mipmap
-//! `geomorph_selection_runs` says, patch by patch from its compact selection; the morph only
-//! reads vertices of that level and coarser) and the paged renderer draws them, or, for
+//! says, computed from the runs' rectangles and the single patches without expanding them,
+//! [`crate::ooc::morph_demand`]; the morph only reads vertices of that level and coarser) and the paged renderer draws them, or, for
 //! geomorph, terrain-gpu's `GeomorphRenderer` in paged mode reads the paged renderer's pages
 //! through the same lookup and draws the runs without expanding them; nothing of the full grid is in
 //! memory. A warm frame (`--wait`, and the first frame) selects the patches the method selects
