@@ -425,7 +425,7 @@ impl Method for StoreMethod<'_> {
         // itself works on the runs): the same `Selection` as of the expansion.
         let n = table.patch_cells();
         if frame.selection.patches.is_empty() {
-            let stats = frame.selection.stats.clone();
+            let stats = frame.selection.stats;
             frame.selection = geomorph_selection_runs(lods, n, self.tree.shape().max_level());
             frame.selection.stats = SelectionStats {
                 traversal_leaves: frame.selection.patches.len(),
