@@ -14,12 +14,13 @@
 //! are resident (not timed); the others draw what is resident (real time), each timed. The
 //! figures are medians over the timed frames (each column its own median).
 
+use std::collections::HashMap;
 use std::path::PathBuf;
 
 use anyhow::Context;
-use terrain_app::method::{OocWait, store_method};
+use terrain_app::method::{Draw, OocWait, store_method};
 use terrain_app::methods::{LodMethod, MethodConfig};
-use terrain_app::ooc::{OocConfig, OocScene};
+use terrain_app::ooc::{MorphDraw, OocConfig, OocScene, morph_demand, morph_on_pages};
 use terrain_core::flight::{FlightConfig, FlightSpec};
 use terrain_core::lod::GeomipConfig;
 use terrain_core::quadtree::NodeTree;
@@ -92,28 +93,40 @@ fn main() -> anyhow::Result<()> {
     let mut m = store_method(kind, scene, &config, OocWait::FirstFrame, None)?;
     let (mut total, mut select, mut stream, mut rest) =
         (Vec::new(), Vec::new(), Vec::new(), Vec::new());
+    let mut on_runs = Vec::new();
     for (k, c) in cameras.iter().enumerate() {
         let t = thread_cpu_s();
         let f = m.frame(c);
         let ms = (thread_cpu_s() - t) * 1e3;
         let s = f.stats.stream.as_ref().map_or(0.0, |s| s.stream_ms);
-        let sel = match &geo {
+        let (sel, runs_ms) = match &geo {
             Some((tree, table, cfg)) => {
                 let t = thread_cpu_s();
                 let runs = table.select_runs(tree, c, cfg);
-                std::hint::black_box(runs.runs.len());
-                (thread_cpu_s() - t) * 1e3
+                let sel = (thread_cpu_s() - t) * 1e3;
+                // The frame's run-based demand and drawn-block filter, timed apart on the same
+                // runs and the frame's drawn blocks.
+                let drawn = match &f.draw {
+                    Draw::PagedMorph(p, _) => p.drawn.iter().copied().collect(),
+                    _ => HashMap::new(),
+                };
+                let t = thread_cpu_s();
+                let morph = MorphDraw { runs, patch_cells: cfg.patch_cells };
+                std::hint::black_box(morph_demand(tree, &morph).len());
+                std::hint::black_box(morph_on_pages(tree, morph.runs, &drawn).runs.len());
+                (sel, (thread_cpu_s() - t) * 1e3)
             }
-            None => f.stats.selection_ms,
+            None => (f.stats.selection_ms, f64::NAN),
         };
         eprintln!(
             "frame {k}: {ms:.2} ms CPU, selection {sel:.2} ms CPU ({:.2} wall), stream {s:.2} \
-             ms, {} patches",
+             ms, demand + filter from runs {runs_ms:.2} ms CPU, {} patches",
             f.stats.selection_ms, f.stats.patches
         );
         if k > 0 {
             total.push(ms);
             select.push(sel);
+            on_runs.push(runs_ms);
             stream.push(s);
             rest.push(ms - sel - s);
         }
@@ -121,10 +134,11 @@ fn main() -> anyhow::Result<()> {
     let (t, s, st, r) = (median(total), median(select), median(stream), median(rest));
     println!(
         "{} {method}: frame {t:.2} ms CPU (median of {}), selection {s:.2}, stream {st:.2}, \
-         rest {:.2}",
+         rest {:.2}; demand + filter from runs {:.2} ms CPU",
         dir.display(),
         cameras.len().saturating_sub(1),
-        r
+        r,
+        median(on_runs)
     );
     Ok(())
 }

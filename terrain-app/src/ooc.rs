@@ -505,8 +505,13 @@ pub fn morph_on_pages(
     drawn: &HashMap<BlockId, u8>,
 ) -> GeomipRuns {
     let leaf = tree.shape().max_level();
+    // A patch no larger than a block lies in one block (no list of blocks to build).
     let on = |i: u32, j: u32| {
-        tree.blocks_under(NodeId::new(leaf, i, j)).iter().all(|b| drawn.contains_key(b))
+        let n = NodeId::new(leaf, i, j);
+        match tree.block_of(n) {
+            Some((b, _)) => drawn.contains_key(&b),
+            None => tree.blocks_under(n).iter().all(|b| drawn.contains_key(b)),
+        }
     };
     let keep: Vec<bool> = runs.patches.iter().map(|p| on(p.i, p.j)).collect();
     let mut k = keep.iter();
