@@ -23,7 +23,7 @@ use terrain_app::decimation::{BudgetPolicy, Decimation};
 use terrain_app::samples::Samples;
 
 /// Which mesher a tile gets (`terrain tiles --mesher`). **The rule (`auto`, the default): the
-/// RTIN for a tile meshed from every sample (stride 1, no larger than `--piece-cells`) whose
+/// RTIN for a tile meshed from every sample (stride 1) of at most `max_cells` (256) cells across whose
 /// parent kept at least `--rtin-density` of the DEM samples inside it as vertices; the greedy
 /// Delaunay insertion for every other tile.** The parent's density predicts the tile's: the
 /// tile's bound is half its parent's, so it keeps at least about as many. Where the greedy
@@ -70,7 +70,7 @@ impl MesherChoice {
             MesherChoice::Greedy => Algorithm::Delaunay,
             MesherChoice::Rtin => Algorithm::Rtin,
             MesherChoice::Auto
-                if s == 0 && cells <= config.piece_cells && density >= config.rtin_density =>
+                if s == 0 && cells <= config.max_cells && density >= config.rtin_density =>
             {
                 Algorithm::Rtin
             }
@@ -278,13 +278,15 @@ mod tests {
 
         let config = ResolutionConfig { rtin_density: 0.4, ..ResolutionConfig::default() };
         let cells = cells_across(&layout, tile);
-        assert!(cells >= 16 && cells <= config.piece_cells, "{cells}");
+        assert!(cells >= 16 && cells <= config.max_cells, "{cells}");
         let auto = |s, cells, density| MesherChoice::Auto.algorithm(&config, s, cells, density);
         assert_eq!(auto(0, cells, d), Algorithm::Rtin);
         assert_eq!(auto(0, cells, 0.4), Algorithm::Rtin, "at the threshold");
         assert_eq!(auto(0, cells, 0.39), Algorithm::Delaunay, "under the threshold");
         assert_eq!(auto(1, cells, 1.0), Algorithm::Delaunay, "a decimated tile");
-        assert_eq!(auto(0, config.piece_cells + 1, 1.0), Algorithm::Delaunay, "over a piece");
+        // A tile at full resolution only because its decimation error left too little of its
+        // bound: its window is larger than a full-resolution level's.
+        assert_eq!(auto(0, config.max_cells + 1, 1.0), Algorithm::Delaunay, "a large window");
         let greedy = MesherChoice::Greedy.algorithm(&config, 0, cells, 1.0);
         assert_eq!(greedy, Algorithm::Delaunay);
         assert_eq!(MesherChoice::Rtin.algorithm(&config, 3, cells, 0.0), Algorithm::Rtin);
