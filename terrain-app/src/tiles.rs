@@ -75,11 +75,16 @@ pub(crate) struct TilesArgs {
     /// KiB, MiB, GiB or TiB); the tiles' memory is bounded by it, not by the DEM.
     #[arg(long, default_value = "512MiB", value_parser = parse_memory)]
     pub cache: u64,
-    /// The mesher: `auto` (the default) meshes a tile from every sample as an RTIN where its
-    /// parent kept at least --rtin-density of the samples inside it (there the greedy mesh
-    /// would keep most samples too, and the RTIN's fixed scans cost less than the greedy
-    /// insertion's for nearly the same triangles), every other tile by the greedy Delaunay
-    /// insertion (the fewest triangles); `greedy` or `rtin` for every tile (measurements).
+    /// The mesher: `auto` (the default) meshes a tile from every sample (at most 256 cells
+    /// across) as an RTIN where its parent kept at least --rtin-density of the DEM samples
+    /// inside it, every other tile by the greedy Delaunay insertion (the fewest triangles).
+    /// Why, measured on a rough synthetic 4097^2 store (bench/mesh/README.md, tiles16e): where
+    /// the greedy mesh keeps most samples the RTIN draws a few % more triangles (1.03-1.10x at
+    /// 76-98 % kept) for much less CPU (a whole tileset at a twentieth of the bounds: 0.65x);
+    /// where it keeps few, the RTIN draws 1.3-1.8x the triangles for more CPU (at the default
+    /// bounds, RTIN at the finest three levels: 1.2x the CPU, 1.44x the triangles), so there
+    /// `auto` is the greedy mesher. `greedy` or `rtin` force one mesher everywhere
+    /// (measurements).
     #[arg(long, value_enum, default_value_t = MesherChoice::Auto)]
     pub mesher: MesherChoice,
     /// `--mesher auto`'s threshold: the fraction of a tile's DEM samples its parent kept as
