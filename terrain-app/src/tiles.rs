@@ -75,10 +75,22 @@ pub(crate) struct TilesArgs {
     /// KiB, MiB, GiB or TiB); the tiles' memory is bounded by it, not by the DEM.
     #[arg(long, default_value = "512MiB", value_parser = parse_memory)]
     pub cache: u64,
-    /// The mesher of every tile: `greedy` (Delaunay insertion, the default: the fewest
-    /// triangles and, measured per level, never more CPU than the RTIN) or `rtin`.
-    #[arg(long, value_enum, default_value_t = MesherChoice::Greedy)]
+    /// The mesher: `auto` (the default) meshes a tile from every sample (at most 256 cells
+    /// across) as an RTIN where its parent kept at least --rtin-density of the DEM samples
+    /// inside it, every other tile by the greedy Delaunay insertion (the fewest triangles).
+    /// Why, measured on a rough synthetic 4097^2 store (bench/mesh/README.md, tiles16e): where
+    /// the greedy mesh keeps most samples the RTIN draws a few % more triangles (1.03-1.10x at
+    /// 76-98 % kept) for much less CPU (a whole tileset at a twentieth of the bounds: 0.65x);
+    /// where it keeps few, the RTIN draws 1.3-1.8x the triangles for more CPU (at the default
+    /// bounds, RTIN at the finest three levels: 1.2x the CPU, 1.44x the triangles), so there
+    /// `auto` is the greedy mesher. `greedy` or `rtin` force one mesher everywhere
+    /// (measurements).
+    #[arg(long, value_enum, default_value_t = MesherChoice::Auto)]
     pub mesher: MesherChoice,
+    /// `--mesher auto`'s threshold: the fraction of a tile's DEM samples its parent kept as
+    /// vertices from which the tile is meshed as an RTIN (above 1: never).
+    #[arg(long, default_value_t = build::RTIN_DENSITY)]
+    pub rtin_density: f64,
     /// Most cells across a tile's samples meshed at once: a tile meshed from more samples
     /// (a coarse tile whose decimation error leaves too little of its bound, on rough
     /// terrain) is read and meshed in pieces of at most this many cells a side with locked
@@ -100,6 +112,9 @@ struct LevelStats {
     tiles: usize,
     triangles: usize,
     vertices: usize,
+    /// DEM samples the level's tiles were meshed from (at their strides): the full grid
+    /// would draw about two triangles a sample.
+    samples: usize,
     bytes: u64,
     /// The largest error measured against the DEM samples of a tile of this level, metres.
     max_measured_error_m: f64,
@@ -138,6 +153,8 @@ struct Summary {
     decimated_tiles: usize,
     /// The mesher (`--mesher`).
     mesher: MesherChoice,
+    /// `--mesher auto`'s threshold (`--rtin-density`).
+    rtin_density: f64,
     /// Most cells across a tile's samples meshed at once (`--piece-cells`).
     piece_cells: usize,
     retries: usize,
@@ -276,8 +293,15 @@ pub(crate) fn run(args: &TilesArgs) -> anyhow::Result<()> {
             layout.tile_range(level)
         }
     };
+    if !(args.rtin_density.is_finite() && args.rtin_density >= 0.0) {
+        bail!(
+            "--rtin-density must be a fraction >= 0 (above 1: never RTIN), got {}",
+            args.rtin_density
+        );
+    }
     let resolution = ResolutionConfig {
         mesher: args.mesher,
+        rtin_density: args.rtin_density,
         piece_cells: args.piece_cells as usize,
         ..ResolutionConfig::default()
     };
@@ -332,6 +356,7 @@ pub(crate) fn run(args: &TilesArgs) -> anyhow::Result<()> {
             s.tiles += 1;
             s.triangles += mesh.triangles.len();
             s.vertices += mesh.vertices.len();
+            s.samples += built.samples;
             s.bytes += bytes.len() as u64;
             s.max_measured_error_m = s.max_measured_error_m.max(built.measured);
             s.decimation_error_m = s.decimation_error_m.max(built.decimation);
@@ -413,6 +438,7 @@ pub(crate) fn run(args: &TilesArgs) -> anyhow::Result<()> {
         min_budget_fraction: resolution.policy.min_budget_fraction,
         decimated_tiles: walked.decimated_tiles,
         mesher: resolution.mesher,
+        rtin_density: resolution.rtin_density,
         piece_cells: resolution.piece_cells,
         retries: walked.retries,
         decimation_s,

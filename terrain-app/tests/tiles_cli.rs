@@ -139,6 +139,77 @@ fn crater_lake_tiles_decode_with_loaders_gl_within_their_bounds() {
     assert!(!bad.status.success(), "a corrupted tile passed: {}", victim.display());
 }
 
+/// `--mesher auto` (the default) meshes a full-resolution tile as an RTIN where its parent kept
+/// at least `--rtin-density` (0.5) of its samples: on Crater Lake at a tenth of Cesium's bounds
+/// that is some of the finest level's tiles and none of the coarse levels' (whose tiles are
+/// decimated or whose parents kept few samples), and every tile, of either mesher, is within
+/// its bound of every DEM sample by the independent decoder, its edge indices on its borders
+/// (where skirts hang: neighbours of different meshers are closed as any two neighbours are).
+/// Negative controls: a threshold above 1 gives no RTIN tile (and the fewest triangles), and a
+/// quarter of the bound fails.
+#[test]
+fn auto_meshes_the_dense_fine_tiles_as_rtins_within_their_bounds() {
+    let src = data("crater_lake/craterlake-elev-16bit-30m.tif");
+    let dir = common::scratch("tiles-cli", "auto");
+    let run = |name: &str, extra: &[&str]| {
+        let tiles = dir.join(name);
+        let mut a = vec![
+            "tiles",
+            src.to_str().unwrap(),
+            "--nodata",
+            "-32767",
+            "--error-scale",
+            "0.1",
+            "--quiet",
+            "-o",
+            tiles.to_str().unwrap(),
+        ];
+        a.extend_from_slice(extra);
+        let out = terrain(&a);
+        assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+        let summary: serde_json::Value =
+            serde_json::from_slice(&std::fs::read(tiles.join("tiles.json")).unwrap()).unwrap();
+        (tiles, summary)
+    };
+    let rtin_per_level = |s: &serde_json::Value| -> Vec<(u64, u64)> {
+        let levels = s["levels"].as_array().unwrap();
+        levels
+            .iter()
+            .map(|l| (l["rtin_tiles"].as_u64().unwrap(), l["tiles"].as_u64().unwrap()))
+            .collect()
+    };
+    let (tiles, auto) = run("auto", &[]);
+    assert_eq!(auto["mesher"], "auto");
+    assert_eq!(auto["rtin_density"], 0.5);
+    let per_level = rtin_per_level(&auto);
+    let &(finest_rtin, finest_tiles) = per_level.last().unwrap();
+    assert!(finest_rtin > 0 && finest_rtin < finest_tiles, "{per_level:?}");
+    assert!(per_level[..10].iter().all(|&(r, _)| r == 0), "{per_level:?}");
+    // The rule's figure: where a level has RTIN tiles, its parent level kept many samples.
+    let levels = auto["levels"].as_array().unwrap();
+    for w in levels.windows(2) {
+        let density = w[0]["vertices"].as_f64().unwrap() / w[0]["samples"].as_f64().unwrap();
+        if w[1]["rtin_tiles"].as_u64().unwrap() > 0 {
+            assert!(density > 0.3, "level {} kept {density} of its samples", w[0]["level"]);
+        }
+    }
+
+    let options = LoadOptions { nodata: Some(-32767.0), ..LoadOptions::default() };
+    let hm = dem::load(&src, &options).unwrap().heightmap;
+    let dem_json = dir.join("dem.json");
+    write_dem(&hm, &dem_json);
+    let ok = check(&tiles, &dem_json, "0.1", "1");
+    assert!(ok.status.success(), "{}", String::from_utf8_lossy(&ok.stderr));
+    let tight = check(&tiles, &dem_json, "0.1", "0.25");
+    assert!(!tight.status.success(), "a quarter of the bound passed");
+
+    let (_, greedy) = run("never", &["--rtin-density", "2"]);
+    assert!(rtin_per_level(&greedy).iter().all(|&(r, _)| r == 0), "{greedy}");
+    let tris = |s: &serde_json::Value| s["triangles"].as_u64().unwrap();
+    assert!(tris(&greedy) < tris(&auto), "{} >= {}", tris(&greedy), tris(&auto));
+    assert_eq!(greedy["tiles"], auto["tiles"]);
+}
+
 #[test]
 fn a_utm_dem_is_reprojected_and_a_dem_without_georeference_needs_lonlat() {
     let src = data("lidar_prairie/dem.tif");

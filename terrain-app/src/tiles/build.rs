@@ -22,34 +22,70 @@ use terrain_core::{Crs, Georef};
 use terrain_app::decimation::{BudgetPolicy, Decimation};
 use terrain_app::samples::Samples;
 
-/// Which mesher a tile gets (`terrain tiles --mesher`). **The rule: greedy Delaunay at
-/// every level.** Measured per level on the rough synthetic 4097^2 store (README, branch
-/// tiles16c), the RTIN never cost less CPU than the greedy mesher at any level, even at
-/// level 15 where the greedy mesh keeps about a third of the samples (RTIN: about the same
-/// meshing time, 35 % more triangles and bytes, so more writing), and at the coarse
-/// full-resolution levels (10-12: windows of 257^2 to 1025^2 samples in a power-of-two
-/// square) it cost several times the greedy mesher: its error pass scans every sample
-/// `2 log2(side)` times whatever the bound, and its vertices follow a fixed hierarchy.
-/// `rtin` stays for that measurement.
+/// Which mesher a tile gets (`terrain tiles --mesher`). **The rule (`auto`, the default): the
+/// RTIN for a tile meshed from every sample (stride 1) of at most `max_cells` (256) cells across whose
+/// parent kept at least `--rtin-density` of the DEM samples inside it as vertices; the greedy
+/// Delaunay insertion for every other tile.** The parent's density predicts the tile's: the
+/// tile's bound is half its parent's, so it keeps at least about as many. Where the greedy
+/// mesh keeps most samples the RTIN (nearly the full grid there) draws nearly as many
+/// triangles and costs a fixed `2 log2(side)` scans of the samples, while the greedy insertion
+/// pays a scan of each new vertex's neighbourhood; where it keeps few, the RTIN draws 1.3-1.8x
+/// the triangles and its error pass costs as much or more (measured per level: README,
+/// branches tiles16c and tiles16e). `greedy` and `rtin` force one mesher everywhere, for
+/// measurements.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, clap::ValueEnum, serde::Serialize)]
 #[serde(rename_all = "lowercase")]
 pub(crate) enum MesherChoice {
-    /// The greedy Delaunay mesher for every tile (the fewest triangles; the default).
+    /// Per tile: RTIN where the parent's density says the greedy mesh would keep most
+    /// samples, else greedy (the default).
     #[default]
+    Auto,
+    /// The greedy Delaunay mesher for every tile (the fewest triangles).
     Greedy,
     /// The RTIN for every tile (for measurements).
     Rtin,
 }
 
+/// The fraction of a tile's DEM samples its parent kept as vertices, the figure
+/// [`MesherChoice::Auto`] decides by: the `seeds` (the parent's vertices, DEM samples) inside
+/// the tile's samples over those samples (0 for a tile without samples or seeds).
+pub(crate) fn seed_density(layout: &GridLayout, tile: TileId, seeds: &[[u32; 2]]) -> f64 {
+    let Some([i0, j0, i1, j1]) = samples_inside(layout, tile) else { return 0.0 };
+    let inside = |v: u32, a: usize, b: usize| (a..=b).contains(&(v as usize));
+    let kept = seeds.iter().filter(|&&[i, j]| inside(i, i0, i1) && inside(j, j0, j1)).count();
+    kept as f64 / ((i1 - i0 + 1) * (j1 - j0 + 1)) as f64
+}
+
 impl MesherChoice {
-    /// The core's builder.
-    pub(crate) fn algorithm(self) -> Algorithm {
+    /// The builder of a tile meshed at stride `2^s` over `cells` cells across, its parent
+    /// having kept `density` of its samples ([`seed_density`]).
+    pub(crate) fn algorithm(
+        self,
+        config: &ResolutionConfig,
+        s: u32,
+        cells: usize,
+        density: f64,
+    ) -> Algorithm {
         match self {
             MesherChoice::Greedy => Algorithm::Delaunay,
             MesherChoice::Rtin => Algorithm::Rtin,
+            MesherChoice::Auto
+                if s == 0 && cells <= config.max_cells && density >= config.rtin_density =>
+            {
+                Algorithm::Rtin
+            }
+            MesherChoice::Auto => Algorithm::Delaunay,
         }
     }
 }
+
+/// [`ResolutionConfig::rtin_density`]'s default (`--rtin-density`). Measured on the rough
+/// synthetic 4097^2 store, levels 12-15 (README, branch tiles16e): at a twentieth of the
+/// bounds 0.5 took 0.65x the greedy mesher's CPU for 1.037x its triangles, 0.7 took 0.75x for
+/// 1.017x; at a quarter of the bounds both were within the noise of greedy's CPU (1.03x and
+/// 1.008x the triangles); at the default bounds 0.5 switches 35 of 9,132 tiles (0.2 switched
+/// 3,148 for 1.09x the triangles and no CPU saved).
+pub(crate) const RTIN_DENSITY: f64 = 0.5;
 
 /// How tiles are sampled and meshed.
 #[derive(Debug, Clone, Copy)]
@@ -61,6 +97,9 @@ pub(crate) struct ResolutionConfig {
     pub policy: BudgetPolicy,
     /// The mesher.
     pub mesher: MesherChoice,
+    /// [`MesherChoice::Auto`]'s threshold: the RTIN where the parent kept at least this
+    /// fraction of a full-resolution tile's samples.
+    pub rtin_density: f64,
     /// Most cells across a greedy tile's samples meshed at once: a larger tile (one meshed
     /// from every sample where the decimation error leaves too little of its bound) is meshed
     /// in pieces of at most this many cells a side with locked shared sides
@@ -74,6 +113,7 @@ impl Default for ResolutionConfig {
             max_cells: 256,
             policy: BudgetPolicy::default(),
             mesher: MesherChoice::default(),
+            rtin_density: RTIN_DENSITY,
             piece_cells: 2048,
         }
     }
@@ -96,12 +136,22 @@ pub(super) fn samples_inside(layout: &GridLayout, tile: TileId) -> Option<[usize
     (i0 <= i1 && j0 <= j1).then_some([i0 as usize, j0 as usize, i1 as usize, j1 as usize])
 }
 
+/// The most DEM cells across the tile's part of the DEM (fractional).
+fn span(layout: &GridLayout, tile: TileId) -> f64 {
+    let (a, b) = grid_rect(layout, tile);
+    let (w, h) = (layout.width as f64 - 1.0, layout.height as f64 - 1.0);
+    (b.x.min(w) - a.x.max(0.0)).max(b.y.min(h) - a.y.max(0.0)).max(0.0)
+}
+
+/// The most whole DEM cells across the tile's part of the DEM, at stride 1 (rounded up).
+pub(crate) fn cells_across(layout: &GridLayout, tile: TileId) -> usize {
+    span(layout, tile).ceil() as usize
+}
+
 /// The stride (log2) a tile is meshed at: the smallest `s` with at most `max_cells` cells
 /// across at stride `2^s`.
 pub(crate) fn stride_log2(layout: &GridLayout, tile: TileId, config: &ResolutionConfig) -> u32 {
-    let (a, b) = grid_rect(layout, tile);
-    let (w, h) = (layout.width as f64 - 1.0, layout.height as f64 - 1.0);
-    let span = (b.x.min(w) - a.x.max(0.0)).max(b.y.min(h) - a.y.max(0.0)).max(0.0);
+    let span = span(layout, tile);
     let mut s = 0;
     while span / f64::from(1u32 << s) > config.max_cells as f64 && s < 30 {
         s += 1;
@@ -121,7 +171,7 @@ pub(crate) struct Built {
 
 /// Builds `tile` from every `2^s`-th sample within `budget` metres of them (see the module
 /// docs), seeded with the DEM samples `seeds` (`[i, j]`; those off the stride's lattice or
-/// outside the window are skipped; an RTIN takes none), by `config.mesher`.
+/// outside the window are skipped; an RTIN takes none), by `algorithm`.
 #[allow(clippy::too_many_arguments)]
 pub(crate) fn build(
     samples: &dyn Samples,
@@ -131,6 +181,7 @@ pub(crate) fn build(
     budget: f64,
     bound: f64,
     seeds: &[[u32; 2]],
+    algorithm: Algorithm,
     config: &ResolutionConfig,
 ) -> anyhow::Result<Built> {
     let (a, b) = grid_rect(layout, tile);
@@ -158,7 +209,6 @@ pub(crate) fn build(
         .iter()
         .filter_map(|&[i, j]| Some([on_lattice(i, i0, ww)?, on_lattice(j, j0, wh)?]))
         .collect();
-    let algorithm = config.mesher.algorithm();
     // The tile's samples are read by rectangles of the window: at once, or piece by piece
     // where the tile spans more than `piece_cells` (then only a piece is held at a time).
     let read = |[a, b, c, d]: [usize; 4]| -> anyhow::Result<(Vec<f32>, Option<VoidMask>)> {
@@ -187,5 +237,62 @@ pub(crate) fn decimation_error(
     match samples_inside(layout, tile) {
         Some(rect) => decimation.error_in(samples, rect, s),
         None => Ok(0.0),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A 257^2 geographic grid and a tile of it that lies inside, with at least 16^2 samples.
+    fn grid_and_tile() -> (GridLayout, TileId, [usize; 4]) {
+        let georef =
+            Georef::geographic(Crs::Epsg(4326), dvec2(-122.5, 46.5), dvec2(1e-4, 1e-4), 46.5128);
+        let layout = GridLayout::new(257, 257, &georef).unwrap();
+        let level = layout.native_level(64.0);
+        let (tile, rect) = layout
+            .tile_range(level)
+            .tiles(level)
+            .filter_map(|t| Some((t, samples_inside(&layout, t)?)))
+            .find(|(_, [i0, j0, i1, j1])| *i0 > 0 && *j0 > 0 && i1 - i0 >= 16 && j1 - j0 >= 16)
+            .expect("a tile inside the grid");
+        (layout, tile, rect)
+    }
+
+    /// The parent's density is counted over the tile's own samples only, and `auto` takes the
+    /// RTIN exactly where the rule says: a full-resolution tile no larger than a piece whose
+    /// parent kept at least the threshold; the greedy mesher at a coarser stride, in a larger
+    /// tile, under the threshold, and always for `greedy` (the negative controls).
+    #[test]
+    fn auto_takes_the_rtin_where_the_parent_kept_most_samples() {
+        let (layout, tile, [i0, j0, i1, j1]) = grid_and_tile();
+        let n = (i1 - i0 + 1) * (j1 - j0 + 1);
+        let inside: Vec<[u32; 2]> =
+            (j0..=j1).flat_map(|j| (i0..=i1).map(move |i| [i as u32, j as u32])).collect();
+        // Seeds outside the tile (the parent's other quarters) do not count.
+        let outside = [[i0 as u32 - 1, j0 as u32], [i1 as u32 + 1, j1 as u32], [0, 0]];
+        let mut all = inside.clone();
+        all.extend(outside);
+        assert_eq!(seed_density(&layout, tile, &all), 1.0);
+        assert_eq!(seed_density(&layout, tile, &outside), 0.0);
+        let half: Vec<[u32; 2]> = inside.iter().copied().step_by(2).collect();
+        let d = seed_density(&layout, tile, &half);
+        assert_eq!(d, half.len() as f64 / n as f64);
+        assert!((d - 0.5).abs() < 0.01, "{d}");
+
+        let config = ResolutionConfig { rtin_density: 0.4, ..ResolutionConfig::default() };
+        let cells = cells_across(&layout, tile);
+        assert!(cells >= 16 && cells <= config.max_cells, "{cells}");
+        let auto = |s, cells, density| MesherChoice::Auto.algorithm(&config, s, cells, density);
+        assert_eq!(auto(0, cells, d), Algorithm::Rtin);
+        assert_eq!(auto(0, cells, 0.4), Algorithm::Rtin, "at the threshold");
+        assert_eq!(auto(0, cells, 0.39), Algorithm::Delaunay, "under the threshold");
+        assert_eq!(auto(1, cells, 1.0), Algorithm::Delaunay, "a decimated tile");
+        // A tile at full resolution only because its decimation error left too little of its
+        // bound: its window is larger than a full-resolution level's.
+        assert_eq!(auto(0, config.max_cells + 1, 1.0), Algorithm::Delaunay, "a large window");
+        let greedy = MesherChoice::Greedy.algorithm(&config, 0, cells, 1.0);
+        assert_eq!(greedy, Algorithm::Delaunay);
+        assert_eq!(MesherChoice::Rtin.algorithm(&config, 3, cells, 0.0), Algorithm::Rtin);
     }
 }

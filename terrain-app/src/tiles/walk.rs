@@ -53,6 +53,8 @@ pub(crate) struct Done {
     pub mesh_s: f64,
     /// Whether it is an RTIN (else greedy Delaunay).
     pub rtin: bool,
+    /// The samples it was meshed from and verified against (at its stride).
+    pub samples: usize,
 }
 
 /// What the walk did.
@@ -110,6 +112,9 @@ impl Walk<'_> {
         let bound = (self.bound)(tile);
         let error =
             |s: u32| build::decimation_error(self.decimation, self.samples, self.layout, tile, s);
+        let density = build::seed_density(self.layout, tile, seeds);
+        let cells = build::cells_across(self.layout, tile);
+        let r = &self.resolution;
         let built = build_within(
             bound,
             build::stride_log2(self.layout, tile, &self.resolution),
@@ -124,7 +129,8 @@ impl Walk<'_> {
                     budget,
                     bound,
                     seeds,
-                    &self.resolution,
+                    r.mesher.algorithm(r, s, cells >> s, density),
+                    r,
                 )
             },
             |b: &build::Built| b.mesh.measured.map_or(0.0, |m| m.max_error),
@@ -141,6 +147,7 @@ impl Walk<'_> {
             decimation: built.decimation,
             mesh_s: seconds,
             rtin: algorithm == Algorithm::Rtin,
+            samples: mesh.measured.as_ref().map_or(0, |m| m.samples),
         };
         (self.write)(&mesh, &done)?;
         if built.stride_log2 > 0 {

@@ -427,6 +427,14 @@ struct VertexSet {
 }
 
 impl VertexSet {
+    /// Room for `n` vertices without growing.
+    fn with_capacity(n: usize) -> Self {
+        Self {
+            index: rustc_hash::FxHashMap::with_capacity_and_hasher(n, Default::default()),
+            points: Vec::with_capacity(n),
+        }
+    }
+
     fn add(&mut self, p: DVec3) -> u32 {
         let key = (p.x.to_bits(), p.y.to_bits());
         *self.index.entry(key).or_insert_with(|| {
@@ -645,7 +653,11 @@ impl Placed {
         bound: f64,
     ) -> (TileMesh, Vec<[u32; 2]>) {
         let Placed { tr, p, crop } = *self;
-        let mut set = VertexSet::default();
+        // Sized for the mesh's vertices plus the clipped border's and the fill's: the map grown
+        // from empty rehashed its way up (`reserve_rehash`, with the encoder's map below, 1.8 %
+        // of `terrain tiles`' CPU samples on the 4097^2 store).
+        let expect = meshed.as_ref().map_or(0, |(m, _)| m.positions.len()) + 64;
+        let mut set = VertexSet::with_capacity(expect);
         let mut triangles: Vec<[u32; 3]> = Vec::new();
         let mut measured = None;
         let mut used = Vec::new();

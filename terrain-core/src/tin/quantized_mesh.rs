@@ -202,7 +202,8 @@ pub fn encode(mesh: &TileMesh, children: Option<TileRange>) -> Result<Vec<u8>, Q
     // Vertices merged where quantization puts two at one (u, v); triangles that collapse are
     // dropped; the rest renumbered in order of first use (for the high-water mark). The map is
     // only looked up (FxHash: SipHash's time showed in `terrain tiles`).
-    let mut at_uv = rustc_hash::FxHashMap::default();
+    let mut at_uv =
+        rustc_hash::FxHashMap::with_capacity_and_hasher(mesh.vertices.len(), Default::default());
     let mut merged: Vec<u32> = Vec::with_capacity(mesh.vertices.len());
     let qv: Vec<[u16; 3]> = mesh.vertices.iter().map(|&v| quant(v)).collect();
     for (k, v) in qv.iter().enumerate() {
