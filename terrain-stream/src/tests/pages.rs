@@ -217,3 +217,45 @@ fn a_cache_smaller_than_the_index_serves_the_same_selections() {
     std::fs::remove_dir_all(dir).unwrap();
     std::fs::remove_dir_all(v3).unwrap();
 }
+
+#[test]
+fn the_blocks_box_and_nearest_block_equal_the_brute_force_over_every_entry() {
+    let dir = paged_store("nearest");
+    let (header, head, _) = head_of(&dir);
+    let pages = head.page_count(header.block_count()) as u64;
+    let store = Arc::new(Store::open(&dir).unwrap());
+    let tree = StoreTree::new(store.clone(), 8);
+    let (lo, hi) = tree.blocks_box().unwrap();
+    // Read from the corner blocks and the pyramid: not every page.
+    let read = store.index_pages_decoded().unwrap();
+    assert!(read < pages, "{read} of {pages} pages read for the box");
+    let boxes: Vec<_> = store
+        .block_ids()
+        .map(|b| {
+            let e = store.entry(b).unwrap();
+            let (a, c) = store.block_rect(b).unwrap();
+            (a.extend(e.min.into()), c.extend(e.max.into()))
+        })
+        .collect();
+    let (blo, bhi) = boxes.iter().fold(
+        (glam::DVec3::splat(f64::INFINITY), glam::DVec3::splat(f64::NEG_INFINITY)),
+        |(l, h), (a, c)| (l.min(*a), h.max(*c)),
+    );
+    assert_eq!((lo, hi), (blo, bhi));
+    let mut far = 0;
+    for p in [
+        dvec3(100.0, 150.0, 420.0),
+        dvec3(2500.0, 2500.0, 6000.0),
+        dvec3(2600.0, 4800.0, 300.0),
+        dvec3(-3000.0, 9000.0, 50.0),
+        dvec3(5119.0, 3.0, 0.0),
+        dvec3(641.0, 1919.0, 320.0),
+    ] {
+        let brute =
+            boxes.iter().map(|(a, c)| (p.clamp(*a, *c) - p).length()).fold(f64::INFINITY, f64::min);
+        assert_eq!(tree.nearest_block_distance(p), brute, "at {p}");
+        far += usize::from(brute > 100.0);
+    }
+    assert!(far >= 2, "the points must include some away from the blocks");
+    std::fs::remove_dir_all(dir).unwrap();
+}
