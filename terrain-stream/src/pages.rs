@@ -29,6 +29,7 @@ use crate::format::{
     BlockEntry, Header, IndexError, Reader, Writer, crc32, entry_len, fine_count, index_prefix,
     read_entry, read_header,
 };
+use crate::remote::Remote;
 
 /// Bytes of entries a page holds at most (a page has at least one entry).
 pub(crate) const PAGE_BYTES: usize = 64 << 10;
@@ -313,13 +314,8 @@ pub(crate) fn decode_page(
     p: usize,
 ) -> Result<Vec<BlockEntry>, String> {
     let first = p * head.page_entries as usize;
-    let body = bytes.len().checked_sub(4).ok_or("shorter than its checksum")?;
-    let (entries, tail) = bytes.split_at(body);
-    let stored = u32::from_le_bytes([tail[0], tail[1], tail[2], tail[3]]);
-    let computed = terrain_core::checksum::crc32_update(page_seed(p), entries);
-    if stored != computed {
-        return Err(format!("checksum mismatch (stored {stored:08x}, computed {computed:08x})"));
-    }
+    check_page_crc(bytes, p)?;
+    let entries = &bytes[..bytes.len() - 4];
     let n = entries.len() / head.entry_len as usize;
     if n * head.entry_len as usize != entries.len() {
         return Err(format!("{} bytes are not whole entries", entries.len()));
@@ -394,21 +390,35 @@ pub(crate) fn scale_entry(b: &mut BlockEntry, scale: f64) {
 /// Where a paged index's bytes come from: the file, or a remote store's ranged reads.
 #[derive(Debug)]
 pub(crate) enum PageSource {
-    /// A local index file (a remote store's mirror too).
+    /// A local index file.
     File(File),
+    /// A remote store's index: each page by a range request, through the mirror
+    /// ([`Remote::index_page`]).
+    Remote(Arc<Remote>),
 }
 
 impl PageSource {
-    fn read(&self, offset: u64, len: u64, path: &Path) -> Result<Vec<u8>, StoreError> {
-        match self {
-            PageSource::File(f) => {
-                let mut buf = vec![0u8; len as usize];
-                read_exact_at(f, offset, &mut buf)
-                    .map_err(|cause| StoreError::Io { path: path.to_path_buf(), cause })?;
-                Ok(buf)
-            }
-        }
+    fn try_clone(&self, path: &Path) -> Result<Self, StoreError> {
+        Ok(match self {
+            PageSource::File(f) => PageSource::File(
+                f.try_clone()
+                    .map_err(|cause| StoreError::Io { path: path.to_path_buf(), cause })?,
+            ),
+            PageSource::Remote(r) => PageSource::Remote(r.clone()),
+        })
     }
+}
+
+/// Whether `bytes` (entries and their CRC-32) pass page `p`'s checksum.
+fn check_page_crc(bytes: &[u8], p: usize) -> Result<(), String> {
+    let body = bytes.len().checked_sub(4).ok_or("shorter than its checksum")?;
+    let (entries, tail) = bytes.split_at(body);
+    let stored = u32::from_le_bytes([tail[0], tail[1], tail[2], tail[3]]);
+    let computed = terrain_core::checksum::crc32_update(page_seed(p), entries);
+    if stored != computed {
+        return Err(format!("checksum mismatch (stored {stored:08x}, computed {computed:08x})"));
+    }
+    Ok(())
 }
 
 /// Positioned read of a shared file.
@@ -479,9 +489,39 @@ impl PagedIndex {
             read_exact_at(&file, 0, &mut prefix).map_err(io)?;
         }
         prefix.truncate(prefix_len as usize);
-        let mut r = Reader::new(&prefix[12..]);
-        read_header(&mut r).map_err(|e| index_err(e, &path))?;
-        let head = read_head(&mut r, &prefix, &header).map_err(|e| index_err(e, &path))?;
+        Self::from_prefix(path, PageSource::File(file), &prefix, len)
+    }
+
+    /// Opens a remote store's version-4 index from its `prefix` (header and head, fetched at
+    /// open), its object `len` bytes long; pages come through `remote`.
+    pub(crate) fn open_remote(
+        remote: Arc<Remote>,
+        prefix: &[u8],
+        len: u64,
+    ) -> Result<Self, StoreError> {
+        let path = PathBuf::from(format!("{}/{}", remote.url(), crate::format::INDEX_FILE));
+        Self::from_prefix(path, PageSource::Remote(remote), prefix, len)
+    }
+
+    /// The index whose bytes up to its first page are `prefix` (checked: header, head and its
+    /// CRC-32) and whose whole length is `len`.
+    fn from_prefix(
+        path: PathBuf,
+        source: PageSource,
+        prefix: &[u8],
+        len: u64,
+    ) -> Result<Self, StoreError> {
+        let corrupt = |message: String| StoreError::CorruptIndex { path: path.clone(), message };
+        let mut r = Reader::new(prefix.get(12..).ok_or_else(|| corrupt("no header".into()))?);
+        let header = read_header(&mut r).map_err(|e| index_err(e, &path))?;
+        let prefix_len = paged_prefix_len(&header) as u64;
+        if prefix.len() as u64 != prefix_len {
+            return Err(corrupt(format!(
+                "a head of {} bytes, expected {prefix_len}",
+                prefix.len()
+            )));
+        }
+        let head = read_head(&mut r, prefix, &header).map_err(|e| index_err(e, &path))?;
         let expected = head.file_len(prefix_len, header.block_count());
         if expected != len {
             return Err(corrupt(format!(
@@ -492,7 +532,7 @@ impl PagedIndex {
         }
         Ok(Self {
             path,
-            source: PageSource::File(file),
+            source,
             header,
             head,
             prefix_len,
@@ -500,6 +540,11 @@ impl PagedIndex {
             budget: DEFAULT_PAGE_CACHE_BYTES,
             lru: Mutex::default(),
         })
+    }
+
+    /// Bytes of the whole index.
+    pub(crate) fn file_len(&self) -> u64 {
+        self.head.file_len(self.prefix_len, self.header.block_count())
     }
 
     /// The header as stored.
@@ -514,10 +559,7 @@ impl PagedIndex {
 
     /// This index read with every height times `scale` more, with its own empty cache.
     pub(crate) fn exaggerated(&self, scale: f64) -> Result<Self, StoreError> {
-        let io = |cause| StoreError::Io { path: self.path.clone(), cause };
-        let source = match &self.source {
-            PageSource::File(f) => PageSource::File(f.try_clone().map_err(io)?),
-        };
+        let source = self.source.try_clone(&self.path)?;
         let mut head = self.head.clone();
         let f = |v: &mut f32| *v = (f64::from(*v) * scale) as f32;
         head.upper.iter_mut().flatten().for_each(f);
@@ -594,12 +636,22 @@ impl PagedIndex {
             blocks: (first, first + count),
             message,
         };
-        let bytes = self.source.read(at, len, &self.path).map_err(|e| match e {
-            StoreError::Io { cause, .. } if cause.kind() == std::io::ErrorKind::UnexpectedEof => {
-                page_err(format!("truncated: bytes {at}..{} are not all there", at + len))
+        let bytes = match &self.source {
+            PageSource::File(f) => {
+                let mut buf = vec![0u8; len as usize];
+                read_exact_at(f, at, &mut buf).map_err(|cause| {
+                    if cause.kind() == std::io::ErrorKind::UnexpectedEof {
+                        page_err(format!("truncated: bytes {at}..{} are not all there", at + len))
+                    } else {
+                        StoreError::Io { path: self.path.clone(), cause }
+                    }
+                })?;
+                buf
             }
-            e => e,
-        })?;
+            PageSource::Remote(r) => {
+                r.index_page(p, (at, len), (first, first + count), |b| check_page_crc(b, p))?
+            }
+        };
         let mut entries = decode_page(&bytes, &self.header, &self.head, p).map_err(page_err)?;
         if self.scale != 1.0 {
             entries.iter_mut().for_each(|e| scale_entry(e, self.scale));
