@@ -37,7 +37,9 @@
 //!
 //! # Far terrain: patches spanning several blocks
 //! A node above the blocks (spanning `2^s x 2^s` of them) has no per-node values in the
-//! index; [`StoreTree::new`] computes once, from the index, a flat array per node above the
+//! index; [`StoreTree::new`] takes from the index (a version-4 index: its head's pyramid;
+//! below the head's levels, for grids beyond `2^8` blocks a side, per node when first visited;
+//! older indexes: computed once from every entry) a flat array per node above the
 //! blocks of the largest per-level error of its blocks (`level_errors[l]`, the bound of every
 //! block drawn with its level-`l` vertices) beside their min/max. Such a node stays one patch
 //! when some factor of at most 64 (`2^(s + l)` segments across it: each block's level-`l`
@@ -699,14 +701,14 @@ fn upper_index(n: NodeId) -> usize {
 /// blocks' `level_errors` (`k + 1` per node), both in [`upper_index`] order. Computed once
 /// from the index when the tree is built (no store format change): the blocks' values at the
 /// block level, then each coarser level as the min/max and max of its four children.
-fn upper_bounds(store: &Store, block_level: u8) -> (Vec<[f32; 2]>, Vec<f32>) {
-    // A version-4 index holds them in its head when the grid has at most `HEAD_LEVELS` levels
-    // above its blocks (the same values: min/max and max are exact in any order), so no page
-    // is read.
-    if let Some(head) = store.block_pyramid()
-        && head.levels == block_level
-    {
-        return (head.upper.clone(), head.upper_err.clone());
+/// A version-4 index holds the levels `0..levels` of its head's pyramid (every level above
+/// the blocks when the grid has at most `2^HEAD_LEVELS` blocks a side; the same values: min/max
+/// and max are exact in any order): they are taken as they are, no page read, and the levels
+/// below them, if any, are computed per node when first visited ([`StoreTree`]'s `lower`).
+/// Returns the arrays and the levels they hold.
+fn upper_bounds(store: &Store, block_level: u8) -> (Vec<[f32; 2]>, Vec<f32>, u8) {
+    if let Some(head) = store.block_pyramid() {
+        return (head.upper.clone(), head.upper_err.clone(), head.levels);
     }
     let h = store.header();
     let per = h.k as usize + 1;
@@ -747,8 +749,14 @@ fn upper_bounds(store: &Store, block_level: u8) -> (Vec<[f32; 2]>, Vec<f32>) {
         level_mm = mm[base..base + m * m].to_vec();
         level_err = err[base * per..(base + m * m) * per].to_vec();
     }
-    (mm, err)
+    (mm, err, block_level)
 }
+
+/// Nodes below the head's pyramid a [`StoreTree`] keeps at most (then it starts over).
+const LOWER_NODES: usize = 1 << 16;
+
+/// A node's min/max over its blocks and its `k + 1` per-level bounds.
+type UpperNode = ([f32; 2], Arc<[f32]>);
 
 /// How [`block_sub_max`] lays out one block's values: the deepest local level of the nodes
 /// kept, the nodes per block and the values per node (0 nodes: none kept).
@@ -833,6 +841,13 @@ pub struct StoreTree {
     /// level `l`, the largest `BlockEntry::level_errors[l]` of its blocks (0 at `l = k`), the
     /// bound on the error of every block under it drawn with its level-`l` vertices.
     upper_err: Vec<f32>,
+    /// Levels `upper` and `upper_err` hold (`0..upper_levels`): every level above the blocks,
+    /// or a version-4 head's when the grid has more than `2^HEAD_LEVELS` blocks a side.
+    upper_levels: u8,
+    /// The nodes above the blocks below `upper_levels`, computed when first visited from
+    /// their children down to the blocks' entries (at most [`LOWER_NODES`] kept), shared by
+    /// the tree's clones: the tree never reads every entry to build itself.
+    lower: Arc<Mutex<HashMap<NodeId, UpperNode>>>,
     /// Per block (row-major position) and per stored node of local level at most the patch
     /// level (`BlockEntry::nodes` order), `sub_per` values: at index `l`, the largest
     /// `StaticE` of the node's descendants at level `l` (its own at its level; unused above
@@ -871,7 +886,7 @@ impl StoreTree {
         let block_level = blocks.trailing_zeros() as u8;
         let root_cells = blocks * h.block_cells();
         let patch_level = patch_level(h, patch_cells);
-        let (upper, upper_err) = upper_bounds(&store, block_level);
+        let (upper, upper_err, upper_levels) = upper_bounds(&store, block_level);
         let shape = TreeShape::with_root(
             (h.width as u32).max(1),
             (h.height as u32).max(1),
@@ -892,6 +907,8 @@ impl StoreTree {
             patch_level,
             upper,
             upper_err,
+            upper_levels,
+            lower: Arc::default(),
             sub_max: Arc::default(),
             sub_blocks,
             sub_top,
@@ -1026,7 +1043,7 @@ impl StoreTree {
             let e = self.store.entry(BlockId::new(0, 0))?;
             [e.min, e.max]
         } else {
-            self.upper[0]
+            self.with_upper(NodeId { level: 0, i: 0, j: 0 }, |mm, _| mm)
         };
         Some((lo.extend(zlo.into()), hi.extend(zhi.into())))
     }
@@ -1065,7 +1082,7 @@ impl StoreTree {
                     }
                     f64::from_bits(d)
                 } else {
-                    let [lo, hi] = self.upper[upper_index(c)];
+                    let [lo, hi] = self.with_upper(c, |mm, _| mm);
                     if lo > hi || !self.contains(c) {
                         continue;
                     }
@@ -1115,7 +1132,7 @@ impl StoreTree {
         let (x0, y0, c) = n.grid_rect(self.root_cells);
         let (w, hh) = ((h.width as u32).max(2) - 1, (h.height as u32).max(2) - 1);
         let rect = GridRect { x0, y0, x1: (x0 + c).min(w), y1: (y0 + c).min(hh) };
-        let [min, max] = self.upper[upper_index(n)];
+        let [min, max] = self.with_upper(n, |mm, _| mm);
         let (min, max) = if min <= max { (min, max) } else { (0.0, 0.0) };
         let g = &h.georef;
         let lo = g.grid_to_world(DVec2::new(rect.x0 as f64, rect.y0 as f64));
@@ -1144,16 +1161,63 @@ impl StoreTree {
         if !per_metre.is_finite() {
             return None;
         }
-        let errs = self.upper_errors(n);
         let floor = self.refine.segment_floor_level(self.store.header().k);
-        (floor..=top).find(|&l| per_metre * f64::from(errs[l as usize]) <= view.tau)
+        self.with_upper(n, |_, errs| {
+            (floor..=top).find(|&l| per_metre * f64::from(errs[l as usize]) <= view.tau)
+        })
     }
 
-    /// The `k + 1` per-level bounds of node `n` above the blocks (`upper_err`).
-    fn upper_errors(&self, n: NodeId) -> &[f32] {
-        let per = self.store.header().k as usize + 1;
-        let o = upper_index(n) * per;
-        &self.upper_err[o..o + per]
+    /// `f` of node `n`'s (above the blocks) min/max over its blocks and its `k + 1` per-level
+    /// bounds (the largest `level_errors[l]` of its blocks).
+    fn with_upper<R>(&self, n: NodeId, f: impl FnOnce([f32; 2], &[f32]) -> R) -> R {
+        if n.level < self.upper_levels {
+            let per = self.store.header().k as usize + 1;
+            let o = upper_index(n);
+            return f(self.upper[o], &self.upper_err[o * per..(o + 1) * per]);
+        }
+        let (mm, errs) = self.lower_node(n);
+        f(mm, &errs)
+    }
+
+    /// Node `n` below `upper_levels` (above the blocks): from its four children, down to the
+    /// blocks' entries, as [`upper_bounds`] computes every level (empty nodes `+inf, -inf`,
+    /// 0), kept in `lower`.
+    fn lower_node(&self, n: NodeId) -> UpperNode {
+        if let Some(v) = self.lower.lock().expect("lower").get(&n) {
+            return v.clone();
+        }
+        let h = self.store.header();
+        let per = h.k as usize + 1;
+        let (mut mm, mut errs) = ([f32::INFINITY, f32::NEG_INFINITY], vec![0f32; per]);
+        for (di, dj) in [(0, 0), (1, 0), (0, 1), (1, 1)] {
+            let c = NodeId { level: n.level + 1, i: 2 * n.i + di, j: 2 * n.j + dj };
+            // Outside the grid: no block under it.
+            let s = self.block_level - c.level;
+            if c.i << s >= h.blocks_x || c.j << s >= h.blocks_y {
+                continue;
+            }
+            if s == 0 {
+                if let Some(e) = self.store.entry(BlockId::new(c.j, c.i)) {
+                    mm = [mm[0].min(e.min), mm[1].max(e.max)];
+                    for (o, v) in errs.iter_mut().zip(e.level_errors.iter().take(h.k as usize)) {
+                        *o = o.max(*v);
+                    }
+                }
+            } else {
+                let (cm, ce) = self.lower_node(c);
+                mm = [mm[0].min(cm[0]), mm[1].max(cm[1])];
+                for (o, v) in errs.iter_mut().zip(ce.iter()) {
+                    *o = o.max(*v);
+                }
+            }
+        }
+        let v: UpperNode = (mm, errs.into());
+        let mut m = self.lower.lock().expect("lower");
+        if m.len() >= LOWER_NODES {
+            m.clear();
+        }
+        m.insert(n, v.clone());
+        v
     }
 
     /// The least of `resident` over the blocks under node `n` (its block at or below the

@@ -1,7 +1,9 @@
 //! The paged grid index (index version 4): block entries in fixed-size pages, each with its
 //! own CRC-32, read on demand through a bounded least-recently-used cache of decoded pages, so
 //! opening a store reads its header and head (a few hundred KB at most) whatever the number
-//! of blocks, and memory holds the pages in use.
+//! of blocks, and memory holds the pages in use. A remote store's index is read the same
+//! way: its header and head fetched at open, each page by a range request when first needed,
+//! through the mirror folder ([`PageSource::Remote`], `remote`'s module docs).
 //!
 //! # Layout after the header (see `format`'s module docs for the whole file)
 //!
