@@ -185,6 +185,9 @@ fn a_paged_index_over_http_is_read_by_page_and_selects_as_the_local_store() {
         assert_eq!(local.entry(b), remote.entry(b), "block {b}");
     }
     assert!(remote.index_fault().is_none());
+    // The index's content (what a roughness file's tie hashes) is the file's, from the pages.
+    let file = std::fs::read(store.join("index.tsi")).unwrap();
+    assert_eq!(remote.index_content().unwrap(), file[..file.len() - 4]);
     // Every page came by a range request (control: the bytes counted are the index's).
     assert!(
         remote.remote_bytes_received() > index_len - 5000,

@@ -996,10 +996,10 @@ impl StoreTree {
         let hit = matches!(&*memo.last.borrow(), Some((m, ..)) if *m == b);
         if !hit {
             let (entry, values) = self.visited_block(b)?;
-            *memo.last.borrow_mut() = Some((b, entry, values));
+            *memo.last.borrow_mut() = Some((b, (entry, values)));
         }
         let last = memo.last.borrow();
-        let (_, entry, values) = last.as_ref()?;
+        let (_, (entry, values)) = last.as_ref()?;
         let sub = values.as_deref().map(|v| (v, self.sub_per));
         Some(f(BlockNodes { header, entry, id: b, patch_level: self.patch_level, sub }))
     }
@@ -1309,7 +1309,7 @@ impl NodeSource for StoreTree {
 /// per node.
 #[derive(Default)]
 struct BlockMemo {
-    last: RefCell<Option<(BlockId, Arc<BlockEntry>, Option<Arc<[f32]>>)>>,
+    last: RefCell<Option<(BlockId, VisitedBlock)>>,
 }
 
 /// The traversal's node space for one selection: the [`StoreTree`], remembering the node it

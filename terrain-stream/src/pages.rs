@@ -465,6 +465,8 @@ pub(crate) struct PagedIndex {
     header: Header,
     head: IndexHead,
     prefix_len: u64,
+    /// The file's bytes before the first page (header and head).
+    prefix: Arc<[u8]>,
     /// Vertical exaggeration applied to every decoded entry ([`scale_entry`]).
     scale: f64,
     budget: u64,
@@ -538,6 +540,7 @@ impl PagedIndex {
             header,
             head,
             prefix_len,
+            prefix: prefix.into(),
             scale: 1.0,
             budget: DEFAULT_PAGE_CACHE_BYTES,
             lru: Mutex::default(),
@@ -572,6 +575,7 @@ impl PagedIndex {
             header: self.header.clone(),
             head,
             prefix_len: self.prefix_len,
+            prefix: self.prefix.clone(),
             scale: self.scale * scale,
             budget: self.budget,
             lru: Mutex::default(),
@@ -628,8 +632,35 @@ impl PagedIndex {
         Ok(e)
     }
 
+    /// The file's bytes before its final CRC-32: the prefix and every page as stored.
+    pub(crate) fn content(&self) -> Result<Vec<u8>, StoreError> {
+        let mut out = self.prefix.to_vec();
+        for p in 0..self.head.page_count(self.header.block_count()) {
+            out.extend(self.page_bytes(p)?);
+        }
+        Ok(out)
+    }
+
     /// Reads, checks and decodes page `p`.
     fn read_page(&self, p: usize) -> Result<Arc<[Arc<BlockEntry>]>, StoreError> {
+        let n = self.header.block_count();
+        let (first, count, ..) = self.head.page_span(p, self.prefix_len, n);
+        let bytes = self.page_bytes(p)?;
+        let page_err = |message: String| StoreError::IndexPage {
+            path: self.path.clone(),
+            page: p,
+            blocks: (first, first + count),
+            message,
+        };
+        let mut entries = decode_page(&bytes, &self.header, &self.head, p).map_err(page_err)?;
+        if self.scale != 1.0 {
+            entries.iter_mut().for_each(|e| scale_entry(e, self.scale));
+        }
+        Ok(entries.into_iter().map(Arc::new).collect())
+    }
+
+    /// Page `p`'s bytes as stored (a remote store's checked by their CRC-32).
+    fn page_bytes(&self, p: usize) -> Result<Vec<u8>, StoreError> {
         let n = self.header.block_count();
         let (first, count, at, len) = self.head.page_span(p, self.prefix_len, n);
         let page_err = |message: String| StoreError::IndexPage {
@@ -654,11 +685,7 @@ impl PagedIndex {
                 r.index_page(p, (at, len), (first, first + count), |b| check_page_crc(b, p))?
             }
         };
-        let mut entries = decode_page(&bytes, &self.header, &self.head, p).map_err(page_err)?;
-        if self.scale != 1.0 {
-            entries.iter_mut().for_each(|e| scale_entry(e, self.scale));
-        }
-        Ok(entries.into_iter().map(Arc::new).collect())
+        Ok(bytes)
     }
 }
 

@@ -128,6 +128,21 @@ impl Store {
         self.remote.as_ref().map_or(0, |r| r.bytes_received())
     }
 
+    /// The index's bytes before its final CRC-32 (what a table tied to the store hashes):
+    /// the file's; a paged index's head and every page (a remote store's fetched as needed,
+    /// each checked by its CRC-32).
+    pub fn index_content(&self) -> Result<Vec<u8>, StoreError> {
+        match &*self.index {
+            Index::Paged { pages, .. } => pages.content(),
+            Index::Whole(_) => {
+                let path = self.dir.join(INDEX_FILE);
+                let mut b = std::fs::read(&path).map_err(|cause| StoreError::Io { path, cause })?;
+                b.truncate(b.len().saturating_sub(4));
+                Ok(b)
+            }
+        }
+    }
+
     /// Bytes of the index (the file, or a remote store's object), when the index is paged
     /// (version 4); `None` for an index read whole.
     pub fn index_bytes(&self) -> Option<u64> {
