@@ -222,8 +222,10 @@ impl StoreReport {
                 .filter(|f| local.join(f).is_file())
                 .map(|f| f.to_string())
                 .collect();
-        let index =
-            std::fs::metadata(local.join(terrain_stream::INDEX_FILE)).map_or(0, |m| m.len());
+        // A remote paged index is not all in the mirror: its length from its head.
+        let index = store.index_bytes().unwrap_or_else(|| {
+            std::fs::metadata(local.join(terrain_stream::INDEX_FILE)).map_or(0, |m| m.len())
+        });
         Ok(Self {
             store: dir.display().to_string(),
             width: h.width,

@@ -27,7 +27,7 @@ use std::path::Path;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
-use glam::{DVec2, DVec3, dvec3};
+use glam::{DVec2, DVec3};
 use terrain_core::geometry::Camera;
 use terrain_core::lod::{GeomipRuns, PatchRun, TerrainSource};
 use terrain_core::lod::{Selection, check_shared_edges};
@@ -576,21 +576,18 @@ impl OocScene {
     /// [`OocConfig::vertical_scale`] is not read here).
     pub fn new(store: Arc<Store>, config: OocConfig) -> Self {
         let h = store.header().clone();
+        let refinement = config.refinement();
         let cells = h.block_cells();
-        let (mut lo, mut hi) = (f32::INFINITY, f32::NEG_INFINITY);
-        for id in store.block_ids() {
-            if let Some(e) = store.entry(id) {
-                lo = lo.min(e.min);
-                hi = hi.max(e.max);
-            }
-        }
+        let tree = StoreTree::with_refinement(store.clone(), refinement);
+        let [lo, hi] = tree
+            .blocks_box()
+            .map_or([f32::INFINITY, f32::NEG_INFINITY], |(lo, hi)| [lo.z as f32, hi.z as f32]);
         let layout = PageLayout {
             grid: [h.width as u32, h.height as u32],
             page_cells: [cells; 2],
             origin: h.georef.world_origin,
             spacing: h.georef.spacing_m,
         };
-        let refinement = config.refinement();
         let stream = StreamConfig {
             refinement,
             budget_bytes: config.budget_bytes,
@@ -608,7 +605,7 @@ impl OocScene {
         let mut classes = classes_for_budget(&layout, config.page_budget_bytes);
         classes[0].capacity = classes[0].capacity.min(config.page_capacity.max(1));
         Self {
-            tree: StoreTree::with_refinement(store.clone(), refinement),
+            tree,
             store,
             streamer,
             config,
@@ -959,19 +956,13 @@ impl OocScene {
     /// the store's box, near is half the distance to the nearest block's box (at least
     /// `far / 1e6` and 0.05 m).
     pub fn clip_range(&self, position: DVec3) -> (f64, f64) {
-        let mut nearest = f64::INFINITY;
-        let mut lo = DVec3::splat(f64::INFINITY);
-        let mut hi = DVec3::splat(f64::NEG_INFINITY);
-        for id in self.store.block_ids() {
-            let (Some(e), Some((a, b))) = (self.store.entry(id), self.store.block_rect(id)) else {
-                continue;
-            };
-            let a = dvec3(a.x, a.y, f64::from(e.min));
-            let b = dvec3(b.x, b.y, f64::from(e.max));
-            lo = lo.min(a);
-            hi = hi.max(b);
-            nearest = nearest.min((position.clamp(a, b) - position).length());
-        }
+        // The blocks' boxes through the tree (the head's pyramid of a version-4 index): only
+        // the corner blocks and those near the eye read their entries.
+        let (lo, hi) = self
+            .tree
+            .blocks_box()
+            .unwrap_or((DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY)));
+        let nearest = self.tree.nearest_block_distance(position);
         terrain_gpu::render::near_far(lo, hi, nearest, position)
     }
 }

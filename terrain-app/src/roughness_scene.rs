@@ -42,8 +42,14 @@ const KEEP_SAMPLES: usize = 1 << 25;
 pub fn store_tie(dir: &Path) -> anyhow::Result<(u64, u32)> {
     let store = terrain_stream::Store::open(dir)
         .with_context(|| format!("opening the store {}", dir.display()))?;
-    let index = dir.join(terrain_stream::INDEX_FILE);
-    let bytes = std::fs::read(&index).with_context(|| format!("reading {}", index.display()))?;
+    store_tie_of(&store)
+}
+
+/// [`store_tie`] of an opened store (a remote one too: its index's pages are fetched).
+pub fn store_tie_of(store: &terrain_stream::Store) -> anyhow::Result<(u64, u32)> {
+    let content = store
+        .index_content()
+        .with_context(|| format!("reading the index of the store {}", store.location()))?;
     // The index ends with its own CRC-32 of everything before it; a CRC-32 over a message and
     // its CRC is the same constant for every message (and, CRCs being linear, so is any salted
     // one of a given length), so the tie hashes the index's content, without those four bytes.
@@ -52,8 +58,8 @@ pub fn store_tie(dir: &Path) -> anyhow::Result<(u64, u32)> {
     // chain is blind to every page but the last, so the tie is the 64-bit FNV-1a of the content
     // folded to 32 bits (not linear, sees every byte). Stores baked before version 4 keep
     // their CRC tie, so their roughness files still open.
-    let content = &bytes[..bytes.len().saturating_sub(4)];
-    let version = bytes.get(8..12).map_or(0, |v| u32::from_le_bytes([v[0], v[1], v[2], v[3]]));
+    let content = &content[..];
+    let version = content.get(8..12).map_or(0, |v| u32::from_le_bytes([v[0], v[1], v[2], v[3]]));
     let tie = if version >= 4 {
         let h = terrain_core::checksum::fnv1a_update(terrain_core::checksum::FNV1A_START, content);
         (h ^ (h >> 32)) as u32
@@ -161,9 +167,18 @@ pub fn load_into(scene: &MethodScene, dir: &Path) -> Result<PathBuf, String> {
 pub fn load_from_store(dir: &Path, leaf_cells: u32) -> anyhow::Result<RoughnessTables> {
     let store = terrain_stream::Store::open(dir)
         .with_context(|| format!("opening the store {}", dir.display()))?;
+    load_from_opened(&store, leaf_cells)
+}
+
+/// [`load_from_store`] of an opened store (a remote one: the file from its mirror folder).
+pub fn load_from_opened(
+    store: &terrain_stream::Store,
+    leaf_cells: u32,
+) -> anyhow::Result<RoughnessTables> {
+    let dir = store.dir();
     let h = store.header();
     let (width, height) = (h.width as usize, h.height as usize);
-    let (bake_id, index_crc) = store_tie(dir)?;
+    let (bake_id, index_crc) = store_tie_of(store)?;
     let path = roughness_path(dir);
     let bytes = std::fs::read(&path).with_context(|| format!("reading {}", path.display()))?;
     let expected = Expected {

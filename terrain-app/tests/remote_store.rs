@@ -105,7 +105,8 @@ fn a_store_served_by_nginx_reads_as_the_local_one_and_a_failing_nginx_gives_name
     let server = nginx(
         &dir,
         &dir.join("www"),
-        r#"if ($http_range ~ "^bytes=[0-9]+-[0-9]{3,}") { return 500; }"#,
+        // Block files only: the index's header, head and pages are fetched by ranges too.
+        r#"location ~ \.tsb$ { if ($http_range ~ "^bytes=[0-9]+-[0-9]{3,}") { return 500; } }"#,
     );
     let url = format!("http://127.0.0.1:{}/g.scene", server.port);
     let cold = dir.join("cold-cache");
@@ -117,6 +118,121 @@ fn a_store_served_by_nginx_reads_as_the_local_one_and_a_failing_nginx_gives_name
         assert!(f.contains("drawn from"), "what is drawn instead: {f}");
     }
     assert!(!frames.is_empty());
+    drop(server);
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// A paged index (version 4) over HTTP: opening reads its header and head only (the bytes
+/// received at open are those of the head, far fewer than the index's), each page comes by a
+/// range request when one of its blocks is first needed, and a full traversal through a page
+/// cache of one page selects what the local store selects. A page damaged on the server is
+/// named (URL and page) by the remote reader; a damaged page in the mirror is fetched again.
+#[test]
+fn a_paged_index_over_http_is_read_by_page_and_selects_as_the_local_store() {
+    use std::sync::Arc;
+    use terrain_stream::glam::dvec3;
+    use terrain_stream::{BakeConfig, BakeProgress, Camera, RemoteOptions, Store, StoreTree};
+    let dir = scratch("remote-store", "paged");
+    let store = dir.join("www/p.scene");
+    // 513^2 in blocks of 64 cells (8 x 8 blocks) with 5 node levels: entries of ~5.6 KB, 11
+    // a page, 6 pages.
+    let hm =
+        terrain_core::Heightmap::from_fn(513, 513, terrain_core::Georef::local(10.0), |i, j| {
+            300.0
+                + 250.0 * ((i as f32) * 0.013).sin() * ((j as f32) * 0.021).cos()
+                + ((i * 7 + j * 13) % 23) as f32
+        })
+        .unwrap();
+    let cfg = BakeConfig { k: 6, node_levels: 5, ..Default::default() };
+    terrain_stream::bake(&hm, &store, &cfg, &mut |_: &BakeProgress| {
+        std::ops::ControlFlow::Continue(())
+    })
+    .unwrap();
+    let index_len = std::fs::metadata(store.join("index.tsi")).unwrap().len();
+    let local = Arc::new(Store::open(&store).unwrap());
+    assert_eq!(local.index_bytes(), Some(index_len), "a version-4 index");
+    let server = nginx(&dir, &dir.join("www"), "");
+    let url = format!("http://127.0.0.1:{}/p.scene", server.port);
+    let options =
+        |cache: &str| RemoteOptions { cache_dir: Some(dir.join(cache)), ..Default::default() };
+    let remote = Store::open_location_with(&url, &options("cache")).unwrap();
+    let at_open = remote.remote_bytes_received();
+    // One probe of 4 KiB covers this header and head (21 pyramid nodes): the index is ~90
+    // times more.
+    assert!(at_open > 0 && at_open <= 4096, "{at_open} bytes at open of {index_len}");
+    assert!(index_len > 50 * at_open, "{index_len} bytes of index");
+    assert_eq!(remote.index_bytes(), Some(index_len));
+    let remote = Arc::new(remote.with_page_cache_bytes(1).unwrap());
+    let all: std::collections::HashMap<_, _> =
+        local.block_ids().map(|b| (b, local.header().k)).collect();
+    let cam = |x, y, z, yaw, pitch, far| {
+        Camera::from_yaw_pitch(dvec3(x, y, z), yaw, pitch).with_clip(1.0, far)
+    };
+    let (tl, tr) = (StoreTree::new(local.clone(), 8), StoreTree::new(remote.clone(), 8));
+    let mut patches = 0;
+    for c in [
+        cam(100.0, 150.0, 420.0, 45.0, -12.0, 6000.0),
+        cam(2500.0, 2500.0, 6000.0, 10.0, -89.0, 9000.0),
+        cam(2600.0, 4800.0, 600.0, 180.0, -20.0, 4000.0),
+    ] {
+        let a = terrain_stream::select_patches(&tl, &c, 1.0, |b| all.get(&b).copied());
+        let b = terrain_stream::select_patches(&tr, &c, 1.0, |b| all.get(&b).copied());
+        assert_eq!(format!("{:?}", a.patches), format!("{:?}", b.patches));
+        patches += a.patches.len();
+    }
+    assert!(patches > 100, "{patches} patches: the views must see the terrain");
+    for b in local.block_ids() {
+        assert_eq!(local.entry(b), remote.entry(b), "block {b}");
+    }
+    assert!(remote.index_fault().is_none());
+    // The index's content (what a roughness file's tie hashes) is the file's, from the pages.
+    let file = std::fs::read(store.join("index.tsi")).unwrap();
+    assert_eq!(remote.index_content().unwrap(), file[..file.len() - 4]);
+    // Every page came by a range request (control: the bytes counted are the index's).
+    assert!(
+        remote.remote_bytes_received() > index_len - 5000,
+        "{}",
+        remote.remote_bytes_received()
+    );
+    // Every page is in the mirror now; damage one there: it is fetched again.
+    let pages =
+        dir.join("cache").read_dir().unwrap().next().unwrap().unwrap().path().join("index.pages");
+    let p2 = pages.join("p00000002");
+    let mut bytes = std::fs::read(&p2).unwrap();
+    bytes[10] ^= 0x40;
+    std::fs::write(&p2, &bytes).unwrap();
+    let again = Store::open_location_with(&url, &options("cache")).unwrap();
+    let before = again.remote_bytes_received();
+    for b in local.block_ids() {
+        assert_eq!(again.try_entry(b).unwrap(), local.entry(b), "block {b}");
+    }
+    let refetched = again.remote_bytes_received() - before;
+    let p2_len = bytes.len() as u64;
+    assert_eq!(refetched, p2_len, "only the damaged page was fetched again");
+    // Damage the same page on the server (pages follow the head back to back, the file ends
+    // with its CRC-32): a cold cache names the URL and the page, the other pages still read.
+    let count = std::fs::read_dir(&pages).unwrap().count() as u64;
+    assert!(count >= 4, "{count} pages");
+    let last = std::fs::metadata(pages.join(format!("p{:08}", count - 1))).unwrap().len();
+    let pages_start = index_len - 4 - last - (count - 1) * p2_len;
+    let index = store.join("index.tsi");
+    let mut served = std::fs::read(&index).unwrap();
+    served[(pages_start + 2 * p2_len + 10) as usize] ^= 0x40;
+    std::fs::write(&index, &served).unwrap();
+    let cold = Store::open_location_with(&url, &options("cold")).unwrap();
+    let mut failed = Vec::new();
+    for b in local.block_ids() {
+        match cold.try_entry(b) {
+            Ok(e) => assert_eq!(e, local.entry(b), "block {b}"),
+            Err(e) => {
+                let e = e.to_string();
+                assert!(e.contains(&format!("{url}/index.tsi")) && e.contains("page 2"), "{e}");
+                failed.push(b);
+            }
+        }
+    }
+    let per = (local.block_ids().count() as u64).div_ceil(count) as usize;
+    assert!(!failed.is_empty() && failed.len() <= per, "{} blocks failed", failed.len());
     drop(server);
     std::fs::remove_dir_all(&dir).unwrap();
 }

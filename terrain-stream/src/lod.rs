@@ -37,7 +37,9 @@
 //!
 //! # Far terrain: patches spanning several blocks
 //! A node above the blocks (spanning `2^s x 2^s` of them) has no per-node values in the
-//! index; [`StoreTree::new`] computes once, from the index, a flat array per node above the
+//! index; [`StoreTree::new`] takes from the index (a version-4 index: its head's pyramid;
+//! below the head's levels, for grids beyond `2^8` blocks a side, per node when first visited;
+//! older indexes: computed once from every entry) a flat array per node above the
 //! blocks of the largest per-level error of its blocks (`level_errors[l]`, the bound of every
 //! block drawn with its level-`l` vertices) beside their min/max. Such a node stays one patch
 //! when some factor of at most 64 (`2^(s + l)` segments across it: each block's level-`l`
@@ -71,7 +73,7 @@
 //! one over node values stored to full depth (`StaticE` is monotone, so a level's largest
 //! value decides whether any node there is over the threshold).
 
-use std::cell::Cell;
+use std::cell::{Cell, RefCell};
 use std::collections::HashMap;
 use std::sync::{Arc, Mutex};
 use std::time::Instant;
@@ -699,14 +701,14 @@ fn upper_index(n: NodeId) -> usize {
 /// blocks' `level_errors` (`k + 1` per node), both in [`upper_index`] order. Computed once
 /// from the index when the tree is built (no store format change): the blocks' values at the
 /// block level, then each coarser level as the min/max and max of its four children.
-fn upper_bounds(store: &Store, block_level: u8) -> (Vec<[f32; 2]>, Vec<f32>) {
-    // A version-4 index holds them in its head when the grid has at most `HEAD_LEVELS` levels
-    // above its blocks (the same values: min/max and max are exact in any order), so no page
-    // is read.
-    if let Some(head) = store.block_pyramid()
-        && head.levels == block_level
-    {
-        return (head.upper.clone(), head.upper_err.clone());
+/// A version-4 index holds the levels `0..levels` of its head's pyramid (every level above
+/// the blocks when the grid has at most `2^HEAD_LEVELS` blocks a side; the same values: min/max
+/// and max are exact in any order): they are taken as they are, no page read, and the levels
+/// below them, if any, are computed per node when first visited ([`StoreTree`]'s `lower`).
+/// Returns the arrays and the levels they hold.
+fn upper_bounds(store: &Store, block_level: u8) -> (Vec<[f32; 2]>, Vec<f32>, u8) {
+    if let Some(head) = store.block_pyramid() {
+        return (head.upper.clone(), head.upper_err.clone(), head.levels);
     }
     let h = store.header();
     let per = h.k as usize + 1;
@@ -747,8 +749,14 @@ fn upper_bounds(store: &Store, block_level: u8) -> (Vec<[f32; 2]>, Vec<f32>) {
         level_mm = mm[base..base + m * m].to_vec();
         level_err = err[base * per..(base + m * m) * per].to_vec();
     }
-    (mm, err)
+    (mm, err, block_level)
 }
+
+/// Nodes below the head's pyramid a [`StoreTree`] keeps at most (then it starts over).
+const LOWER_NODES: usize = 1 << 16;
+
+/// A node's min/max over its blocks and its `k + 1` per-level bounds.
+type UpperNode = ([f32; 2], Arc<[f32]>);
 
 /// How [`block_sub_max`] lays out one block's values: the deepest local level of the nodes
 /// kept, the nodes per block and the values per node (0 nodes: none kept).
@@ -806,6 +814,12 @@ fn block_sub_max(h: &Header, e: &BlockEntry, top: u8, nodes: usize, per: usize) 
 /// Blocks whose `sub_max` a [`StoreTree`] keeps at most (then it starts over): computed when a
 /// block is first visited, so a tree's memory and build time do not grow with the store.
 const SUB_MAX_BLOCKS: usize = 4096;
+/// Bytes of index entries a [`StoreTree`]'s `sub_max` keeps alive at most (estimated from the
+/// header; fewer blocks than [`SUB_MAX_BLOCKS`] when the entries are large, at least 256).
+const SUB_MAX_BYTES: usize = 16 << 20;
+
+/// A visited block in [`StoreTree`]'s `sub_max`: its index entry and its values.
+type VisitedBlock = (Arc<BlockEntry>, Option<Arc<[f32]>>);
 
 /// The quadtree of a whole store's grid as a [`NodeSource`]: the root covers the blocks
 /// rounded up to a power of two per side (block `(row, col)` is node `(block_level, col,
@@ -827,13 +841,25 @@ pub struct StoreTree {
     /// level `l`, the largest `BlockEntry::level_errors[l]` of its blocks (0 at `l = k`), the
     /// bound on the error of every block under it drawn with its level-`l` vertices.
     upper_err: Vec<f32>,
+    /// Levels `upper` and `upper_err` hold (`0..upper_levels`): every level above the blocks,
+    /// or a version-4 head's when the grid has more than `2^HEAD_LEVELS` blocks a side.
+    upper_levels: u8,
+    /// The nodes above the blocks below `upper_levels`, computed when first visited from
+    /// their children down to the blocks' entries (at most [`LOWER_NODES`] kept), shared by
+    /// the tree's clones: the tree never reads every entry to build itself.
+    lower: Arc<Mutex<HashMap<NodeId, UpperNode>>>,
     /// Per block (row-major position) and per stored node of local level at most the patch
     /// level (`BlockEntry::nodes` order), `sub_per` values: at index `l`, the largest
     /// `StaticE` of the node's descendants at level `l` (its own at its level; unused above
     /// it), stored levels and, with the fine maxima, every level below `k`. The leaves' factor walk (`needed_level_below`) reads one value per level.
-    /// Computed per block when first visited (at most [`SUB_MAX_BLOCKS`] kept), shared by the
+    /// Computed per block when first visited (at most `sub_blocks` kept), shared by the
     /// tree's clones.
-    sub_max: Arc<Mutex<HashMap<usize, Arc<[f32]>>>>,
+    /// Beside each block's values, its index entry: a block visited again (the next frame)
+    /// is found here, in one lookup, without asking the store (a version-4 index's page
+    /// cache and its lock).
+    sub_max: Arc<Mutex<HashMap<usize, VisitedBlock>>>,
+    /// Blocks `sub_max` keeps at most (then it starts over).
+    sub_blocks: usize,
     /// Deepest local level of the nodes in `sub_max`.
     sub_top: u8,
     /// Nodes per block in `sub_max`.
@@ -860,7 +886,7 @@ impl StoreTree {
         let block_level = blocks.trailing_zeros() as u8;
         let root_cells = blocks * h.block_cells();
         let patch_level = patch_level(h, patch_cells);
-        let (upper, upper_err) = upper_bounds(&store, block_level);
+        let (upper, upper_err, upper_levels) = upper_bounds(&store, block_level);
         let shape = TreeShape::with_root(
             (h.width as u32).max(1),
             (h.height as u32).max(1),
@@ -870,6 +896,9 @@ impl StoreTree {
             h.georef.spacing_m,
         );
         let (sub_top, sub_nodes, sub_per) = sub_layout(&store, patch_level);
+        // An entry's bytes are mostly its nodes (four `f32` each).
+        let entry_nodes = ((1usize << (2 * h.node_levels as usize)) - 1) / 3;
+        let sub_blocks = (SUB_MAX_BYTES / (16 * entry_nodes + 256)).clamp(256, SUB_MAX_BLOCKS);
         Self {
             store,
             shape,
@@ -878,7 +907,10 @@ impl StoreTree {
             patch_level,
             upper,
             upper_err,
+            upper_levels,
+            lower: Arc::default(),
             sub_max: Arc::default(),
+            sub_blocks,
             sub_top,
             sub_nodes,
             sub_per,
@@ -952,30 +984,115 @@ impl StoreTree {
         x0 < (h.width as u32).max(2) - 1 && y0 < (h.height as u32).max(2) - 1
     }
 
-    /// `f` of block `b`'s nodes (its index entry, read once, and its part of `sub_max`).
-    fn with_block_nodes<R>(&self, b: BlockId, f: impl FnOnce(BlockNodes<'_>) -> R) -> Option<R> {
+    /// `f` of block `b`'s nodes (its index entry and its part of `sub_max`), through `memo`:
+    /// the block looked up once while the caller stays in it.
+    fn with_block_nodes<R>(
+        &self,
+        memo: &BlockMemo,
+        b: BlockId,
+        f: impl FnOnce(BlockNodes<'_>) -> R,
+    ) -> Option<R> {
         let header = self.store.header();
-        let entry = self.store.entry(b)?;
-        let entry = &*entry;
-        let values = match header.block_position(b) {
-            Some(p) if self.sub_nodes > 0 => {
-                let cached = self.sub_max.lock().expect("sub_max").get(&p).cloned();
-                Some(cached.unwrap_or_else(|| {
-                    let v: Arc<[f32]> =
-                        block_sub_max(header, entry, self.sub_top, self.sub_nodes, self.sub_per)
-                            .into();
-                    let mut m = self.sub_max.lock().expect("sub_max");
-                    if m.len() >= SUB_MAX_BLOCKS {
-                        m.clear();
-                    }
-                    m.insert(p, v.clone());
-                    v
-                }))
-            }
-            _ => None,
-        };
+        let hit = matches!(&*memo.last.borrow(), Some((m, ..)) if *m == b);
+        if !hit {
+            let (entry, values) = self.visited_block(b)?;
+            *memo.last.borrow_mut() = Some((b, (entry, values)));
+        }
+        let last = memo.last.borrow();
+        let (_, (entry, values)) = last.as_ref()?;
         let sub = values.as_deref().map(|v| (v, self.sub_per));
         Some(f(BlockNodes { header, entry, id: b, patch_level: self.patch_level, sub }))
+    }
+
+    /// Block `b`'s index entry and part of `sub_max`: from the tree's shared cache, else read,
+    /// computed and kept; `None` outside the grid or when the entry cannot be read.
+    fn visited_block(&self, b: BlockId) -> Option<VisitedBlock> {
+        let header = self.store.header();
+        let p = header.block_position(b)?;
+        if let Some(v) = self.sub_max.lock().expect("sub_max").get(&p) {
+            return Some(v.clone());
+        }
+        let entry = self.store.entry(b)?;
+        let values = (self.sub_nodes > 0).then(|| -> Arc<[f32]> {
+            block_sub_max(header, &entry, self.sub_top, self.sub_nodes, self.sub_per).into()
+        });
+        let mut m = self.sub_max.lock().expect("sub_max");
+        if m.len() >= self.sub_blocks {
+            m.clear();
+        }
+        m.insert(p, (entry.clone(), values.clone()));
+        Some((entry, values))
+    }
+
+    /// The box of every block's valid vertices (world metres: their plan rectangles and
+    /// least and greatest heights), from the four corner blocks' entries and the root's
+    /// min/max (no other entry read); `None` for a store without blocks.
+    pub fn blocks_box(&self) -> Option<(DVec3, DVec3)> {
+        let h = self.store.header();
+        let (bx, by) = (h.blocks_x.checked_sub(1)?, h.blocks_y.checked_sub(1)?);
+        let (mut lo, mut hi) = (DVec2::splat(f64::INFINITY), DVec2::splat(f64::NEG_INFINITY));
+        // The grid maps to the world axis by axis, so the extremes lie in the corner blocks.
+        for id in
+            [BlockId::new(0, 0), BlockId::new(0, bx), BlockId::new(by, 0), BlockId::new(by, bx)]
+        {
+            let (a, b) = self.store.block_rect(id)?;
+            lo = lo.min(a);
+            hi = hi.max(b);
+        }
+        let [zlo, zhi] = if self.block_level == 0 {
+            let e = self.store.entry(BlockId::new(0, 0))?;
+            [e.min, e.max]
+        } else {
+            self.with_upper(NodeId { level: 0, i: 0, j: 0 }, |mm, _| mm)
+        };
+        Some((lo.extend(zlo.into()), hi.extend(zhi.into())))
+    }
+
+    /// The distance from `p` to the nearest block's box (its valid plan rectangle, its least
+    /// and greatest heights: [`Store::block_rect`] and the entry's min/max), infinite for a
+    /// store without blocks. Descends from the root nearest node first and skips every node
+    /// whose box (which holds its blocks' boxes) is farther than the best block so far, so only
+    /// the blocks near `p` read their index entries.
+    pub fn nearest_block_distance(&self, p: DVec3) -> f64 {
+        use std::cmp::Reverse;
+        use std::collections::BinaryHeap;
+        let dist = |lo: DVec3, hi: DVec3| (p.clamp(lo, hi) - p).length();
+        let mut best = f64::INFINITY;
+        // Non-negative distances order as their bits.
+        let mut heap = BinaryHeap::from([Reverse((0u64, NodeId { level: 0, i: 0, j: 0 }))]);
+        while let Some(Reverse((d, n))) = heap.pop() {
+            // A node's box is computed in other arithmetic than its blocks' rectangles: a
+            // margin keeps the skip exact.
+            if f64::from_bits(d) > best + 1e-6 * (1.0 + best) {
+                break;
+            }
+            if n.level == self.block_level {
+                let b = BlockId::new(n.j, n.i);
+                if let (Some(e), Some((a, c))) = (self.store.entry(b), self.store.block_rect(b)) {
+                    best = best.min(dist(a.extend(e.min.into()), c.extend(e.max.into())));
+                }
+                continue;
+            }
+            for (di, dj) in [(0, 0), (1, 0), (0, 1), (1, 1)] {
+                let c = NodeId { level: n.level + 1, i: 2 * n.i + di, j: 2 * n.j + dj };
+                let d = if c.level == self.block_level {
+                    let h = self.store.header();
+                    if c.i >= h.blocks_x || c.j >= h.blocks_y {
+                        continue;
+                    }
+                    f64::from_bits(d)
+                } else {
+                    let [lo, hi] = self.with_upper(c, |mm, _| mm);
+                    if lo > hi || !self.contains(c) {
+                        continue;
+                    }
+                    let a = self.upper_info(c).aabb;
+                    dist(a.min, a.max)
+                };
+                heap.push(Reverse((d.to_bits(), c)));
+            }
+        }
+        best
     }
 
     /// `StaticE` of global node `n` (metres), or `None` above the blocks or outside the grid.
@@ -987,21 +1104,21 @@ impl StoreTree {
 
     /// [`BlockNodes::patch_error`] of global node `n` (metres), or `None` above the blocks or outside the
     /// grid.
-    fn patch_error(&self, n: NodeId) -> Option<f32> {
+    fn patch_error(&self, memo: &BlockMemo, n: NodeId) -> Option<f32> {
         let (b, local) = self.block_of(n)?;
-        self.with_block_nodes(b, |nodes| {
+        self.with_block_nodes(memo, b, |nodes| {
             nodes.patch_error(local, local_values(nodes.header, nodes.entry, local).2)
         })
     }
 
     /// [`NodeSource::node_info`] of global node `n` with its [`BlockNodes::patch_error`] (`None` above
     /// the blocks), from one read of the block's index entry.
-    fn info_and_patch_error(&self, n: NodeId) -> Option<(NodeInfo, Option<f32>)> {
+    fn info_and_patch_error(&self, memo: &BlockMemo, n: NodeId) -> Option<(NodeInfo, Option<f32>)> {
         if !self.contains(n) {
             return None;
         }
         match self.block_of(n) {
-            Some((b, local)) => self.with_block_nodes(b, |nodes| {
+            Some((b, local)) => self.with_block_nodes(memo, b, |nodes| {
                 let (info, err) = nodes.info(local)?;
                 Some((info, Some(nodes.patch_error(local, err))))
             })?,
@@ -1015,7 +1132,7 @@ impl StoreTree {
         let (x0, y0, c) = n.grid_rect(self.root_cells);
         let (w, hh) = ((h.width as u32).max(2) - 1, (h.height as u32).max(2) - 1);
         let rect = GridRect { x0, y0, x1: (x0 + c).min(w), y1: (y0 + c).min(hh) };
-        let [min, max] = self.upper[upper_index(n)];
+        let [min, max] = self.with_upper(n, |mm, _| mm);
         let (min, max) = if min <= max { (min, max) } else { (0.0, 0.0) };
         let g = &h.georef;
         let lo = g.grid_to_world(DVec2::new(rect.x0 as f64, rect.y0 as f64));
@@ -1044,16 +1161,63 @@ impl StoreTree {
         if !per_metre.is_finite() {
             return None;
         }
-        let errs = self.upper_errors(n);
         let floor = self.refine.segment_floor_level(self.store.header().k);
-        (floor..=top).find(|&l| per_metre * f64::from(errs[l as usize]) <= view.tau)
+        self.with_upper(n, |_, errs| {
+            (floor..=top).find(|&l| per_metre * f64::from(errs[l as usize]) <= view.tau)
+        })
     }
 
-    /// The `k + 1` per-level bounds of node `n` above the blocks (`upper_err`).
-    fn upper_errors(&self, n: NodeId) -> &[f32] {
-        let per = self.store.header().k as usize + 1;
-        let o = upper_index(n) * per;
-        &self.upper_err[o..o + per]
+    /// `f` of node `n`'s (above the blocks) min/max over its blocks and its `k + 1` per-level
+    /// bounds (the largest `level_errors[l]` of its blocks).
+    fn with_upper<R>(&self, n: NodeId, f: impl FnOnce([f32; 2], &[f32]) -> R) -> R {
+        if n.level < self.upper_levels {
+            let per = self.store.header().k as usize + 1;
+            let o = upper_index(n);
+            return f(self.upper[o], &self.upper_err[o * per..(o + 1) * per]);
+        }
+        let (mm, errs) = self.lower_node(n);
+        f(mm, &errs)
+    }
+
+    /// Node `n` below `upper_levels` (above the blocks): from its four children, down to the
+    /// blocks' entries, as [`upper_bounds`] computes every level (empty nodes `+inf, -inf`,
+    /// 0), kept in `lower`.
+    fn lower_node(&self, n: NodeId) -> UpperNode {
+        if let Some(v) = self.lower.lock().expect("lower").get(&n) {
+            return v.clone();
+        }
+        let h = self.store.header();
+        let per = h.k as usize + 1;
+        let (mut mm, mut errs) = ([f32::INFINITY, f32::NEG_INFINITY], vec![0f32; per]);
+        for (di, dj) in [(0, 0), (1, 0), (0, 1), (1, 1)] {
+            let c = NodeId { level: n.level + 1, i: 2 * n.i + di, j: 2 * n.j + dj };
+            // Outside the grid: no block under it.
+            let s = self.block_level - c.level;
+            if c.i << s >= h.blocks_x || c.j << s >= h.blocks_y {
+                continue;
+            }
+            if s == 0 {
+                if let Some(e) = self.store.entry(BlockId::new(c.j, c.i)) {
+                    mm = [mm[0].min(e.min), mm[1].max(e.max)];
+                    for (o, v) in errs.iter_mut().zip(e.level_errors.iter().take(h.k as usize)) {
+                        *o = o.max(*v);
+                    }
+                }
+            } else {
+                let (cm, ce) = self.lower_node(c);
+                mm = [mm[0].min(cm[0]), mm[1].max(cm[1])];
+                for (o, v) in errs.iter_mut().zip(ce.iter()) {
+                    *o = o.max(*v);
+                }
+            }
+        }
+        let v: UpperNode = (mm, errs.into());
+        let mut m = self.lower.lock().expect("lower");
+        if m.len() >= LOWER_NODES {
+            m.clear();
+        }
+        m.insert(n, v.clone());
+        v
     }
 
     /// The least of `resident` over the blocks under node `n` (its block at or below the
@@ -1092,20 +1256,22 @@ impl StoreTree {
         view: &View,
         max_level: u8,
     ) -> Option<u8> {
-        self.needed_vertex_level_at(n, || view.rho_per_metre(aabb), view, max_level)
+        let memo = BlockMemo::default();
+        self.needed_vertex_level_at(&memo, n, || view.rho_per_metre(aabb), view, max_level)
     }
 
     /// [`StoreTree::needed_vertex_level`] with Eq. 7's `rho` per metre at the node's box from
     /// `per_metre` (the split test's when it computed it), asked only when the walk needs it.
     fn needed_vertex_level_at(
         &self,
+        memo: &BlockMemo,
         n: NodeId,
         per_metre: impl FnOnce() -> f64,
         view: &View,
         max_level: u8,
     ) -> Option<u8> {
         let (b, local) = self.block_of(n)?;
-        self.with_block_nodes(b, |nodes| {
+        self.with_block_nodes(memo, b, |nodes| {
             self.block_level + nodes.needed_level(local, per_metre, view, max_level)
         })
     }
@@ -1117,16 +1283,33 @@ impl NodeTree for StoreTree {
     }
 }
 
-impl NodeSource for StoreTree {
-    fn node_info(&self, n: NodeId) -> Option<NodeInfo> {
+impl StoreTree {
+    /// [`NodeSource::node_info`] through `memo`.
+    fn node_info_in(&self, memo: &BlockMemo, n: NodeId) -> Option<NodeInfo> {
         if !self.contains(n) {
             return None;
         }
         if let Some((b, local)) = self.block_of(n) {
-            return self.with_block_nodes(b, |nodes| nodes.node_info(local))?;
+            return self.with_block_nodes(memo, b, |nodes| nodes.node_info(local))?;
         }
         Some(self.upper_info(n))
     }
+}
+
+impl NodeSource for StoreTree {
+    fn node_info(&self, n: NodeId) -> Option<NodeInfo> {
+        self.node_info_in(&BlockMemo::default(), n)
+    }
+}
+
+/// The block a selection last asked [`StoreTree`] about, with its index entry and its part of
+/// `sub_max`: the traversal visits one block's nodes one after another (depth first), and the
+/// leaves come in the same order, so each block's entry is looked up (a page of a version-4
+/// index: the page cache's lock) and its `sub_max` found once per run of its nodes, not once
+/// per node.
+#[derive(Default)]
+struct BlockMemo {
+    last: RefCell<Option<(BlockId, VisitedBlock)>>,
 }
 
 /// The traversal's node space for one selection: the [`StoreTree`], remembering the node it
@@ -1136,6 +1319,8 @@ impl NodeSource for StoreTree {
 struct FrameNodes<'a> {
     tree: &'a StoreTree,
     last: Cell<Option<(NodeId, NodeInfo, Option<f32>)>>,
+    /// The block of the nodes last asked about.
+    memo: BlockMemo,
 }
 
 impl FrameNodes<'_> {
@@ -1151,14 +1336,14 @@ impl FrameNodes<'_> {
     fn patch_error(&self, n: NodeId) -> Option<f32> {
         match self.cached(n) {
             Some((_, err)) => err,
-            None => self.tree.patch_error(n),
+            None => self.tree.patch_error(&self.memo, n),
         }
     }
 }
 
 impl NodeSource for FrameNodes<'_> {
     fn node_info(&self, n: NodeId) -> Option<NodeInfo> {
-        let (info, err) = self.tree.info_and_patch_error(n)?;
+        let (info, err) = self.tree.info_and_patch_error(&self.memo, n)?;
         self.last.set(Some((n, info, err)));
         Some(info)
     }
@@ -1192,7 +1377,7 @@ fn traverse_store(
             _ => Cull::Accept,
         }
     };
-    let nodes = FrameNodes { tree, last: Cell::new(None) };
+    let nodes = FrameNodes { tree, last: Cell::new(None), memo: BlockMemo::default() };
     // Eq. 7 (the paper's step 4: split while `rho > tau`) on each node's patch error, stopped
     // at its block's resident level. A node above the blocks stays one patch spanning its
     // blocks when some factor of at most 64 meets `tau` (`spanning_level`, from the largest
@@ -1207,7 +1392,7 @@ fn traverse_store(
                     return false;
                 }
                 let Some(err) = nodes.patch_error(n) else { return true };
-                tree.with_block_nodes(b, |block| {
+                tree.with_block_nodes(&nodes.memo, b, |block| {
                     let per_metre = view.rho_per_metre(&info.aabb);
                     last_rho.set(Some((n, per_metre)));
                     block.splits(tree.refine, &view, local, &info.aabb, err, per_metre)
@@ -1292,6 +1477,7 @@ pub fn select_patches(
     let leaves = set.leaves();
     // Each leaf's wished factor, beside it (index-aligned with `leaves`).
     let mut want = Vec::with_capacity(leaves.len());
+    let memo = BlockMemo::default();
     let mut k = 0;
     for &n in leaves {
         let key = n.dfs_key();
@@ -1300,14 +1486,20 @@ pub fn select_patches(
         }
         let (aabb, rho) = match boxed.get(k) {
             Some(&(m, aabb, rho)) if m == n => (Some(aabb), rho),
-            _ => (tree.node_info(n).map(|i| i.aabb), None),
+            _ => (tree.node_info_in(&memo, n).map(|i| i.aabb), None),
         };
         let m = match tree.block_of(n) {
             Some((b, local)) => {
                 let max = resident(b).unwrap_or(0);
                 let level = match (rho, aabb) {
-                    (Some(rho), _) => tree.needed_vertex_level_at(n, || rho, &view, max),
-                    (None, Some(aabb)) => tree.needed_vertex_level(n, &aabb, &view, max),
+                    (Some(rho), _) => tree.needed_vertex_level_at(&memo, n, || rho, &view, max),
+                    (None, Some(aabb)) => tree.needed_vertex_level_at(
+                        &memo,
+                        n,
+                        || view.rho_per_metre(&aabb),
+                        &view,
+                        max,
+                    ),
                     (None, None) => None,
                 }
                 .unwrap_or(n.level);

@@ -1,7 +1,9 @@
 //! The paged grid index (index version 4): block entries in fixed-size pages, each with its
 //! own CRC-32, read on demand through a bounded least-recently-used cache of decoded pages, so
 //! opening a store reads its header and head (a few hundred KB at most) whatever the number
-//! of blocks, and memory holds the pages in use.
+//! of blocks, and memory holds the pages in use. A remote store's index is read the same
+//! way: its header and head fetched at open, each page by a range request when first needed,
+//! through the mirror folder ([`PageSource::Remote`], `remote`'s module docs).
 //!
 //! # Layout after the header (see `format`'s module docs for the whole file)
 //!
@@ -29,6 +31,7 @@ use crate::format::{
     BlockEntry, Header, IndexError, Reader, Writer, crc32, entry_len, fine_count, index_prefix,
     read_entry, read_header,
 };
+use crate::remote::Remote;
 
 /// Bytes of entries a page holds at most (a page has at least one entry).
 pub(crate) const PAGE_BYTES: usize = 64 << 10;
@@ -313,13 +316,8 @@ pub(crate) fn decode_page(
     p: usize,
 ) -> Result<Vec<BlockEntry>, String> {
     let first = p * head.page_entries as usize;
-    let body = bytes.len().checked_sub(4).ok_or("shorter than its checksum")?;
-    let (entries, tail) = bytes.split_at(body);
-    let stored = u32::from_le_bytes([tail[0], tail[1], tail[2], tail[3]]);
-    let computed = terrain_core::checksum::crc32_update(page_seed(p), entries);
-    if stored != computed {
-        return Err(format!("checksum mismatch (stored {stored:08x}, computed {computed:08x})"));
-    }
+    check_page_crc(bytes, p)?;
+    let entries = &bytes[..bytes.len() - 4];
     let n = entries.len() / head.entry_len as usize;
     if n * head.entry_len as usize != entries.len() {
         return Err(format!("{} bytes are not whole entries", entries.len()));
@@ -394,21 +392,35 @@ pub(crate) fn scale_entry(b: &mut BlockEntry, scale: f64) {
 /// Where a paged index's bytes come from: the file, or a remote store's ranged reads.
 #[derive(Debug)]
 pub(crate) enum PageSource {
-    /// A local index file (a remote store's mirror too).
+    /// A local index file.
     File(File),
+    /// A remote store's index: each page by a range request, through the mirror
+    /// ([`Remote::index_page`]).
+    Remote(Arc<Remote>),
 }
 
 impl PageSource {
-    fn read(&self, offset: u64, len: u64, path: &Path) -> Result<Vec<u8>, StoreError> {
-        match self {
-            PageSource::File(f) => {
-                let mut buf = vec![0u8; len as usize];
-                read_exact_at(f, offset, &mut buf)
-                    .map_err(|cause| StoreError::Io { path: path.to_path_buf(), cause })?;
-                Ok(buf)
-            }
-        }
+    fn try_clone(&self, path: &Path) -> Result<Self, StoreError> {
+        Ok(match self {
+            PageSource::File(f) => PageSource::File(
+                f.try_clone()
+                    .map_err(|cause| StoreError::Io { path: path.to_path_buf(), cause })?,
+            ),
+            PageSource::Remote(r) => PageSource::Remote(r.clone()),
+        })
     }
+}
+
+/// Whether `bytes` (entries and their CRC-32) pass page `p`'s checksum.
+fn check_page_crc(bytes: &[u8], p: usize) -> Result<(), String> {
+    let body = bytes.len().checked_sub(4).ok_or("shorter than its checksum")?;
+    let (entries, tail) = bytes.split_at(body);
+    let stored = u32::from_le_bytes([tail[0], tail[1], tail[2], tail[3]]);
+    let computed = terrain_core::checksum::crc32_update(page_seed(p), entries);
+    if stored != computed {
+        return Err(format!("checksum mismatch (stored {stored:08x}, computed {computed:08x})"));
+    }
+    Ok(())
 }
 
 /// Positioned read of a shared file.
@@ -453,6 +465,8 @@ pub(crate) struct PagedIndex {
     header: Header,
     head: IndexHead,
     prefix_len: u64,
+    /// The file's bytes before the first page (header and head).
+    prefix: Arc<[u8]>,
     /// Vertical exaggeration applied to every decoded entry ([`scale_entry`]).
     scale: f64,
     budget: u64,
@@ -479,9 +493,39 @@ impl PagedIndex {
             read_exact_at(&file, 0, &mut prefix).map_err(io)?;
         }
         prefix.truncate(prefix_len as usize);
-        let mut r = Reader::new(&prefix[12..]);
-        read_header(&mut r).map_err(|e| index_err(e, &path))?;
-        let head = read_head(&mut r, &prefix, &header).map_err(|e| index_err(e, &path))?;
+        Self::from_prefix(path, PageSource::File(file), &prefix, len)
+    }
+
+    /// Opens a remote store's version-4 index from its `prefix` (header and head, fetched at
+    /// open), its object `len` bytes long; pages come through `remote`.
+    pub(crate) fn open_remote(
+        remote: Arc<Remote>,
+        prefix: &[u8],
+        len: u64,
+    ) -> Result<Self, StoreError> {
+        let path = PathBuf::from(format!("{}/{}", remote.url(), crate::format::INDEX_FILE));
+        Self::from_prefix(path, PageSource::Remote(remote), prefix, len)
+    }
+
+    /// The index whose bytes up to its first page are `prefix` (checked: header, head and its
+    /// CRC-32) and whose whole length is `len`.
+    fn from_prefix(
+        path: PathBuf,
+        source: PageSource,
+        prefix: &[u8],
+        len: u64,
+    ) -> Result<Self, StoreError> {
+        let corrupt = |message: String| StoreError::CorruptIndex { path: path.clone(), message };
+        let mut r = Reader::new(prefix.get(12..).ok_or_else(|| corrupt("no header".into()))?);
+        let header = read_header(&mut r).map_err(|e| index_err(e, &path))?;
+        let prefix_len = paged_prefix_len(&header) as u64;
+        if prefix.len() as u64 != prefix_len {
+            return Err(corrupt(format!(
+                "a head of {} bytes, expected {prefix_len}",
+                prefix.len()
+            )));
+        }
+        let head = read_head(&mut r, prefix, &header).map_err(|e| index_err(e, &path))?;
         let expected = head.file_len(prefix_len, header.block_count());
         if expected != len {
             return Err(corrupt(format!(
@@ -492,14 +536,20 @@ impl PagedIndex {
         }
         Ok(Self {
             path,
-            source: PageSource::File(file),
+            source,
             header,
             head,
             prefix_len,
+            prefix: prefix.into(),
             scale: 1.0,
             budget: DEFAULT_PAGE_CACHE_BYTES,
             lru: Mutex::default(),
         })
+    }
+
+    /// Bytes of the whole index.
+    pub(crate) fn file_len(&self) -> u64 {
+        self.head.file_len(self.prefix_len, self.header.block_count())
     }
 
     /// The header as stored.
@@ -514,10 +564,7 @@ impl PagedIndex {
 
     /// This index read with every height times `scale` more, with its own empty cache.
     pub(crate) fn exaggerated(&self, scale: f64) -> Result<Self, StoreError> {
-        let io = |cause| StoreError::Io { path: self.path.clone(), cause };
-        let source = match &self.source {
-            PageSource::File(f) => PageSource::File(f.try_clone().map_err(io)?),
-        };
+        let source = self.source.try_clone(&self.path)?;
         let mut head = self.head.clone();
         let f = |v: &mut f32| *v = (f64::from(*v) * scale) as f32;
         head.upper.iter_mut().flatten().for_each(f);
@@ -528,6 +575,7 @@ impl PagedIndex {
             header: self.header.clone(),
             head,
             prefix_len: self.prefix_len,
+            prefix: self.prefix.clone(),
             scale: self.scale * scale,
             budget: self.budget,
             lru: Mutex::default(),
@@ -584,8 +632,35 @@ impl PagedIndex {
         Ok(e)
     }
 
+    /// The file's bytes before its final CRC-32: the prefix and every page as stored.
+    pub(crate) fn content(&self) -> Result<Vec<u8>, StoreError> {
+        let mut out = self.prefix.to_vec();
+        for p in 0..self.head.page_count(self.header.block_count()) {
+            out.extend(self.page_bytes(p)?);
+        }
+        Ok(out)
+    }
+
     /// Reads, checks and decodes page `p`.
     fn read_page(&self, p: usize) -> Result<Arc<[Arc<BlockEntry>]>, StoreError> {
+        let n = self.header.block_count();
+        let (first, count, ..) = self.head.page_span(p, self.prefix_len, n);
+        let bytes = self.page_bytes(p)?;
+        let page_err = |message: String| StoreError::IndexPage {
+            path: self.path.clone(),
+            page: p,
+            blocks: (first, first + count),
+            message,
+        };
+        let mut entries = decode_page(&bytes, &self.header, &self.head, p).map_err(page_err)?;
+        if self.scale != 1.0 {
+            entries.iter_mut().for_each(|e| scale_entry(e, self.scale));
+        }
+        Ok(entries.into_iter().map(Arc::new).collect())
+    }
+
+    /// Page `p`'s bytes as stored (a remote store's checked by their CRC-32).
+    fn page_bytes(&self, p: usize) -> Result<Vec<u8>, StoreError> {
         let n = self.header.block_count();
         let (first, count, at, len) = self.head.page_span(p, self.prefix_len, n);
         let page_err = |message: String| StoreError::IndexPage {
@@ -594,17 +669,23 @@ impl PagedIndex {
             blocks: (first, first + count),
             message,
         };
-        let bytes = self.source.read(at, len, &self.path).map_err(|e| match e {
-            StoreError::Io { cause, .. } if cause.kind() == std::io::ErrorKind::UnexpectedEof => {
-                page_err(format!("truncated: bytes {at}..{} are not all there", at + len))
+        let bytes = match &self.source {
+            PageSource::File(f) => {
+                let mut buf = vec![0u8; len as usize];
+                read_exact_at(f, at, &mut buf).map_err(|cause| {
+                    if cause.kind() == std::io::ErrorKind::UnexpectedEof {
+                        page_err(format!("truncated: bytes {at}..{} are not all there", at + len))
+                    } else {
+                        StoreError::Io { path: self.path.clone(), cause }
+                    }
+                })?;
+                buf
             }
-            e => e,
-        })?;
-        let mut entries = decode_page(&bytes, &self.header, &self.head, p).map_err(page_err)?;
-        if self.scale != 1.0 {
-            entries.iter_mut().for_each(|e| scale_entry(e, self.scale));
-        }
-        Ok(entries.into_iter().map(Arc::new).collect())
+            PageSource::Remote(r) => {
+                r.index_page(p, (at, len), (first, first + count), |b| check_page_crc(b, p))?
+            }
+        };
+        Ok(bytes)
     }
 }
 

@@ -7,7 +7,13 @@
 //! session's first frame, because it never reads a block (the real-time contract of
 //! [`crate::Streamer`]).
 //!
-//! **What is fetched.** At open: the index (once), and the side tables the caller names
+//! **What is fetched.** At open: a version-4 (paged) index's header and head by range GETs
+//! (a first GET of at most [`INDEX_PROBE`] bytes, a second for the rest of the head when it is
+//! longer), kept in the mirror as `index.head`; each index page by a range GET when one of its
+//! blocks is first asked for, kept as `index.pages/pNNNNNNNN` and checked by its page CRC-32
+//! (a cached page that fails it is fetched again; a fetched one that fails is a
+//! [`StoreError::IndexPage`] naming the URL and the page). An older index (versions 2-3) is
+//! fetched whole once. And the side tables the caller names
 //! ([`RemoteOptions::side_files`], those present) into a local mirror folder, which is the
 //! store's [`crate::Store::dir`], so code reading tables beside the index works unchanged.
 //! Blocks: by range GETs, one request per load request covering the levels asked for
@@ -18,11 +24,13 @@
 //! (`blocks/rRRRRR_cCCCCC.tsb.L<level>`), checked by its index CRC-32 when read back, evicted
 //! least recently used first above [`RemoteOptions::disk_cache_bytes`] (over every store of
 //! the cache folder). A second run reads from disk. A changed index (another bake at the same
-//! URL) clears the store's mirror.
+//! URL: its header and head, which hold the bake id and the head's CRC-32, or the whole older
+//! index, differ from the mirror's) clears the store's mirror.
 
 use std::collections::HashMap;
 use std::io::Read;
 use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, SystemTime};
 
@@ -33,7 +41,27 @@ use object_store::{
 };
 
 use crate::error::{BakeError, StoreError};
-use crate::format::{BLOCK_HEADER_LEN, BlockEntry, BlockId, INDEX_FILE, MAGIC, block_file_name};
+use crate::format::{
+    BLOCK_HEADER_LEN, BlockEntry, BlockId, INDEX_FILE, MAGIC, PAGED_INDEX_VERSION, Reader,
+    block_file_name, read_header,
+};
+
+/// Bytes of an index the first request at open asks for: the whole of a small index, the
+/// header of a paged one (more are asked for, doubling, while the header is longer) and the
+/// head of a small grid.
+pub(crate) const INDEX_PROBE: u64 = 4 << 10;
+/// The mirror's copy of a paged index's header and head.
+const HEAD_FILE: &str = "index.head";
+/// The mirror's folder of a paged index's pages.
+const PAGES_DIR: &str = "index.pages";
+
+/// A remote store's index as [`Remote::open`] fetched it.
+pub(crate) enum RemoteIndex {
+    /// A version 2-3 index, whole.
+    Whole(Vec<u8>),
+    /// A paged index (version 4): its bytes up to the first page, and the object's size.
+    Paged { prefix: Vec<u8>, size: u64 },
+}
 
 /// Objects above this size are uploaded in parts (multipart upload), 16 MiB each.
 pub const MULTIPART_ABOVE: usize = 16 << 20;
@@ -112,6 +140,8 @@ pub(crate) struct Remote {
     verified: Mutex<std::collections::HashSet<BlockId>>,
     /// Levels fetched by [`Remote::fetch_levels`] not yet taken by [`Remote::level`].
     fetched: Mutex<HashMap<(BlockId, u8), Vec<u8>>>,
+    /// Bytes received from the location so far (index, side tables, blocks).
+    received: AtomicU64,
 }
 
 impl std::fmt::Debug for Remote {
@@ -229,48 +259,20 @@ fn write_atomic(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
 }
 
 impl Remote {
-    /// Opens the store at `url`: fetches its index (returned) and the side tables into the
-    /// mirror folder.
-    pub(crate) fn open(url: &str, options: &RemoteOptions) -> Result<(Self, Vec<u8>), StoreError> {
+    /// Opens the store at `url`: fetches its index (a paged one: its header and head only;
+    /// returned) and, when the mirror's copy differs, the side tables into the mirror folder.
+    pub(crate) fn open(
+        url: &str,
+        options: &RemoteOptions,
+    ) -> Result<(Self, RemoteIndex), StoreError> {
         let url = url.trim_end_matches('/').to_string();
         let (store, prefix) = client_for(&url, options)?;
         let runtime = runtime(&url)?;
         let cache = options.cache_folder();
         let mirror = cache.join(mirror_name(&url));
-        let index_key = prefix.child(INDEX_FILE);
-        let index = runtime
-            .block_on(async { store.get(&index_key).await?.bytes().await })
-            .map_err(|e| match e {
-                object_store::Error::NotFound { .. } => remote_err(
-                    &url,
-                    format!("{INDEX_FILE} is not there: not a terrain store (bake one with `terrain bake -o URL`)"),
-                ),
-                e => remote_err(&url, format!("reading {INDEX_FILE}: {e}")),
-            })?
-            .to_vec();
-        let index_path = mirror.join(INDEX_FILE);
-        if std::fs::read(&index_path).ok().as_deref() != Some(&index[..]) {
-            // Another store at this URL (or the first open): nothing cached is valid.
-            let _ = std::fs::remove_dir_all(&mirror);
-            std::fs::create_dir_all(&mirror).map_err(io_err(&mirror))?;
-            let _ = std::fs::write(mirror.join("url.txt"), format!("{url}\n"));
-            for name in &options.side_files {
-                let key = prefix.child(name.as_str());
-                let got = runtime.block_on(async { store.get(&key).await?.bytes().await });
-                match got {
-                    Ok(bytes) => {
-                        let p = mirror.join(name);
-                        write_atomic(&p, &bytes).map_err(io_err(&p))?;
-                    }
-                    Err(object_store::Error::NotFound { .. }) => {}
-                    Err(e) => return Err(remote_err(&url, format!("reading {name}: {e}"))),
-                }
-            }
-            // The index last: a mirror with an index has its side tables.
-            write_atomic(&index_path, &index).map_err(io_err(&index_path))?;
-        }
-        let disk = DiskCache::open(&cache, options.disk_cache_bytes);
-        let remote = Self {
+        // The disk cache is scanned once the mirror is settled (below).
+        let disk = DiskCache::open(&cache, 0);
+        let mut remote = Self {
             url,
             store,
             prefix,
@@ -279,8 +281,146 @@ impl Remote {
             disk,
             verified: Mutex::default(),
             fetched: Mutex::default(),
+            received: AtomicU64::new(0),
         };
+        let index = remote.fetch_index()?;
+        let (mirrored, copy) = match &index {
+            RemoteIndex::Whole(bytes) => (remote.mirror.join(INDEX_FILE), &bytes[..]),
+            RemoteIndex::Paged { prefix, .. } => (remote.mirror.join(HEAD_FILE), &prefix[..]),
+        };
+        if std::fs::read(&mirrored).ok().as_deref() != Some(copy) {
+            // Another store at this URL (or the first open): nothing cached is valid.
+            let mirror = &remote.mirror;
+            let _ = std::fs::remove_dir_all(mirror);
+            std::fs::create_dir_all(mirror).map_err(io_err(mirror))?;
+            let _ = std::fs::write(mirror.join("url.txt"), format!("{}\n", remote.url));
+            for name in &options.side_files {
+                let key = remote.prefix.child(name.as_str());
+                match remote.get(&key, None) {
+                    Ok((bytes, _)) => {
+                        let p = mirror.join(name);
+                        write_atomic(&p, &bytes).map_err(io_err(&p))?;
+                    }
+                    Err(object_store::Error::NotFound { .. }) => {}
+                    Err(e) => return Err(remote_err(&remote.url, format!("reading {name}: {e}"))),
+                }
+            }
+            // The index last: a mirror with an index has its side tables.
+            write_atomic(&mirrored, copy).map_err(io_err(&mirrored))?;
+        }
+        remote.disk = DiskCache::open(&cache, options.disk_cache_bytes);
         Ok((remote, index))
+    }
+
+    /// One GET of `key` (`range`: those bytes only): the bytes and the object's size, counted
+    /// in [`Remote::bytes_received`].
+    fn get(
+        &self,
+        key: &ObjectPath,
+        range: Option<std::ops::Range<u64>>,
+    ) -> Result<(Vec<u8>, u64), object_store::Error> {
+        let opts = GetOptions { range: range.map(GetRange::Bounded), ..Default::default() };
+        let (bytes, size) = self.runtime.block_on(async {
+            let r = self.store.get_opts(key, opts).await?;
+            let size = r.meta.size;
+            Ok::<_, object_store::Error>((r.bytes().await?, size))
+        })?;
+        self.received.fetch_add(bytes.len() as u64, Ordering::Relaxed);
+        Ok((bytes.to_vec(), size))
+    }
+
+    /// The index: its first [`INDEX_PROBE`] bytes, then a paged index's rest of the head or an
+    /// older index's rest.
+    fn fetch_index(&self) -> Result<RemoteIndex, StoreError> {
+        let key = self.prefix.child(INDEX_FILE);
+        let failed = |e: object_store::Error| match e {
+            object_store::Error::NotFound { .. } => remote_err(
+                &self.url,
+                format!(
+                    "{INDEX_FILE} is not there: not a terrain store (bake one with `terrain bake -o URL`)"
+                ),
+            ),
+            e => remote_err(&self.url, format!("reading {INDEX_FILE}: {e}")),
+        };
+        let (mut bytes, size) = self.get(&key, Some(0..INDEX_PROBE)).map_err(failed)?;
+        let version = bytes.get(8..12).map(|v| u32::from_le_bytes([v[0], v[1], v[2], v[3]]));
+        if bytes.len() >= 12
+            && bytes[..8] == MAGIC
+            && version.is_some_and(|v| v >= PAGED_INDEX_VERSION)
+        {
+            // The header's length is known once read; the head's from the header.
+            let header = loop {
+                match read_header(&mut Reader::new(&bytes[12..])) {
+                    Ok(h) => break h,
+                    Err(_) if (bytes.len() as u64) < size => {
+                        let have = bytes.len() as u64;
+                        let more = (2 * have).min(size);
+                        bytes.extend(self.get(&key, Some(have..more)).map_err(failed)?.0);
+                    }
+                    Err(e) => {
+                        let path = PathBuf::from(format!("{}/{INDEX_FILE}", self.url));
+                        return Err(crate::pages::index_err(e, &path));
+                    }
+                }
+            };
+            let want = crate::pages::paged_prefix_len(&header) as u64;
+            if want > size {
+                return Err(StoreError::CorruptIndex {
+                    path: PathBuf::from(format!("{}/{INDEX_FILE}", self.url)),
+                    message: format!("{size} bytes, shorter than its head ({want})"),
+                });
+            }
+            let have = bytes.len() as u64;
+            if want > have {
+                bytes.extend(self.get(&key, Some(have..want)).map_err(failed)?.0);
+            }
+            bytes.truncate(want as usize);
+            return Ok(RemoteIndex::Paged { prefix: bytes, size });
+        }
+        let have = bytes.len() as u64;
+        if size > have {
+            bytes.extend(self.get(&key, Some(have..size)).map_err(failed)?.0);
+        }
+        Ok(RemoteIndex::Whole(bytes))
+    }
+
+    /// Page `page` of a paged index (`at..at + len` of the object): the mirror's copy if
+    /// `check` (its CRC-32) accepts it, else fetched by a range GET, checked and kept. A fetched
+    /// page that fails `check` is a [`StoreError::IndexPage`] naming the URL (`blocks`: its
+    /// blocks' positions, for the message).
+    pub(crate) fn index_page(
+        &self,
+        page: usize,
+        (at, len): (u64, u64),
+        blocks: (usize, usize),
+        check: impl Fn(&[u8]) -> Result<(), String>,
+    ) -> Result<Vec<u8>, StoreError> {
+        let cached = self.mirror.join(PAGES_DIR).join(format!("p{page:08}"));
+        if let Ok(b) = std::fs::read(&cached)
+            && b.len() as u64 == len
+            && check(&b).is_ok()
+        {
+            return Ok(b);
+        }
+        let path = PathBuf::from(format!("{}/{INDEX_FILE}", self.url));
+        let bad =
+            |message: String| StoreError::IndexPage { path: path.clone(), page, blocks, message };
+        let key = self.prefix.child(INDEX_FILE);
+        let (bytes, _) = self
+            .get(&key, Some(at..at + len))
+            .map_err(|e| bad(format!("fetching bytes {at}..{}: {e}", at + len)))?;
+        if bytes.len() as u64 != len {
+            return Err(bad(format!("{} bytes fetched of {len}", bytes.len())));
+        }
+        check(&bytes).map_err(bad)?;
+        // A cache that cannot be written is only slower.
+        let _ = write_atomic(&cached, &bytes);
+        Ok(bytes)
+    }
+
+    /// Bytes received from the location so far (index, side tables, blocks).
+    pub(crate) fn bytes_received(&self) -> u64 {
+        self.received.load(Ordering::Relaxed)
     }
 
     /// The location, without a trailing `/`.
@@ -356,6 +496,9 @@ impl Remote {
             let size = r.meta.size;
             Ok::<_, object_store::Error>((size, r.bytes().await?))
         });
+        if let Ok((_, b)) = &got {
+            self.received.fetch_add(b.len() as u64, Ordering::Relaxed);
+        }
         let (size, bytes) = got.map_err(|e| match e {
             object_store::Error::NotFound { .. } => {
                 StoreError::MissingBlock { path: path.clone(), block: id, level: first }

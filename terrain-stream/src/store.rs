@@ -15,7 +15,7 @@ use crate::format::{
     vertex_index,
 };
 use crate::pages::{PagedIndex, index_err, scale_entry};
-use crate::remote::{Remote, RemoteOptions, is_url};
+use crate::remote::{Remote, RemoteIndex, RemoteOptions, is_url};
 
 /// An open store: the header and its grid index, block files on disk or, for a store opened
 /// from a URL ([`Store::open_location`]), on object storage or HTTP (read by range requests
@@ -96,28 +96,60 @@ impl Store {
     }
 
     /// [`Store::open_location`] with the remote options given (disk cache, timeouts,
-    /// retries, side tables to mirror). A URL's index is fetched once, here, into the local
-    /// mirror, and read from there as a local index is; its blocks are read by range requests
-    /// when loaded, through the disk cache.
+    /// retries, side tables to mirror). A URL's paged index (version 4) is read as a local
+    /// one is, its header and head fetched here and each page by a range request when one of
+    /// its blocks is first asked for, kept in the local mirror; an older index is fetched
+    /// whole, here. Its blocks are read by range requests when loaded, through the disk cache.
     pub fn open_location_with(location: &str, options: &RemoteOptions) -> Result<Self, StoreError> {
         if !is_url(location) {
             return Self::open(location);
         }
-        let (remote, bytes) = Remote::open(location, options)?;
+        let (remote, index) = Remote::open(location, options)?;
+        let remote = Arc::new(remote);
         let dir = remote.mirror().to_path_buf();
-        let paged = bytes.len() >= 12
-            && bytes[..8] == MAGIC
-            && u32::from_le_bytes([bytes[8], bytes[9], bytes[10], bytes[11]])
-                >= PAGED_INDEX_VERSION;
-        let (header, index) = if paged {
-            drop(bytes);
-            open_index(&dir.join(INDEX_FILE))?
-        } else {
-            let path = PathBuf::from(format!("{}/{INDEX_FILE}", remote.url()));
-            let (header, blocks) = parse_index(&bytes, path)?;
-            (header, Index::Whole(blocks.into_iter().map(Arc::new).collect()))
+        let (header, index) = match index {
+            RemoteIndex::Paged { prefix, size } => {
+                let pages = PagedIndex::open_remote(remote.clone(), &prefix, size)?;
+                (pages.header().clone(), Index::paged(pages))
+            }
+            RemoteIndex::Whole(bytes) => {
+                let path = PathBuf::from(format!("{}/{INDEX_FILE}", remote.url()));
+                let (header, blocks) = parse_index(&bytes, path)?;
+                (header, Index::Whole(blocks.into_iter().map(Arc::new).collect()))
+            }
         };
-        Ok(Self { dir, header, index: Arc::new(index), remote: Some(Arc::new(remote)) })
+        Ok(Self { dir, header, index: Arc::new(index), remote: Some(remote) })
+    }
+
+    /// Bytes received from a remote store's location so far (its index and side tables at
+    /// open, then index pages and block levels), by this store and its clones; 0 for a local
+    /// store. For tests and measurements.
+    pub fn remote_bytes_received(&self) -> u64 {
+        self.remote.as_ref().map_or(0, |r| r.bytes_received())
+    }
+
+    /// The index's bytes before its final CRC-32 (what a table tied to the store hashes):
+    /// the file's; a paged index's head and every page (a remote store's fetched as needed,
+    /// each checked by its CRC-32).
+    pub fn index_content(&self) -> Result<Vec<u8>, StoreError> {
+        match &*self.index {
+            Index::Paged { pages, .. } => pages.content(),
+            Index::Whole(_) => {
+                let path = self.dir.join(INDEX_FILE);
+                let mut b = std::fs::read(&path).map_err(|cause| StoreError::Io { path, cause })?;
+                b.truncate(b.len().saturating_sub(4));
+                Ok(b)
+            }
+        }
+    }
+
+    /// Bytes of the index (the file, or a remote store's object), when the index is paged
+    /// (version 4); `None` for an index read whole.
+    pub fn index_bytes(&self) -> Option<u64> {
+        match &*self.index {
+            Index::Paged { pages, .. } => Some(pages.file_len()),
+            Index::Whole(_) => None,
+        }
     }
 
     /// This store with a cache of decoded index pages of at most `bytes` (default 8 MiB; at

@@ -230,7 +230,7 @@ impl<'a> StoreMethod<'a> {
         let tables = match kind {
             LodMethod::Uniform => Tables::None,
             LodMethod::PvpsA | LodMethod::PvpsB | LodMethod::PvpsC => {
-                Tables::Roughness(read_roughness(&dir, kind, &shape)?)
+                Tables::Roughness(read_roughness(&store, kind, &shape)?)
             }
             LodMethod::PvpsCPvs | LodMethod::PvpsCConservative => {
                 let mode = if kind == LodMethod::PvpsCPvs {
@@ -257,7 +257,7 @@ impl<'a> StoreMethod<'a> {
                         None
                     }
                 };
-                Tables::RoughnessPvs(read_roughness(&dir, LodMethod::PvpsC, &shape)?, pvs)
+                Tables::RoughnessPvs(read_roughness(&store, LodMethod::PvpsC, &shape)?, pvs)
             }
             LodMethod::Geomorph => {
                 let table =
@@ -313,15 +313,15 @@ impl<'a> StoreMethod<'a> {
     }
 }
 
-/// The roughness pyramid of PVPS method `kind` from the store folder `dir` (`roughness.bin`,
-/// tied to the store; [`crate::roughness_scene::load_from_store`]).
+/// The roughness pyramid of PVPS method `kind` from `store`'s folder (`roughness.bin`, tied
+/// to the store; [`crate::roughness_scene::load_from_opened`]).
 fn read_roughness(
-    dir: &Path,
+    store: &terrain_stream::Store,
     kind: LodMethod,
     shape: &terrain_core::quadtree::TreeShape,
 ) -> anyhow::Result<NodePyramid> {
     let tables =
-        crate::roughness_scene::load_from_store(dir, shape.leaf_cells()).with_context(|| {
+        crate::roughness_scene::load_from_opened(store, shape.leaf_cells()).with_context(|| {
             format!(
                 "--method {} from a store reads the roughness pyramids the bake writes for \
              quadtrees of 16-cell leaves (this run asks for {}-cell leaves): bake the store \

@@ -217,3 +217,103 @@ fn a_cache_smaller_than_the_index_serves_the_same_selections() {
     std::fs::remove_dir_all(dir).unwrap();
     std::fs::remove_dir_all(v3).unwrap();
 }
+
+#[test]
+fn the_blocks_box_and_nearest_block_equal_the_brute_force_over_every_entry() {
+    let dir = paged_store("nearest");
+    let (header, head, _) = head_of(&dir);
+    let pages = head.page_count(header.block_count()) as u64;
+    let store = Arc::new(Store::open(&dir).unwrap());
+    let tree = StoreTree::new(store.clone(), 8);
+    let (lo, hi) = tree.blocks_box().unwrap();
+    // Read from the corner blocks and the pyramid: not every page.
+    let read = store.index_pages_decoded().unwrap();
+    assert!(read < pages, "{read} of {pages} pages read for the box");
+    let boxes: Vec<_> = store
+        .block_ids()
+        .map(|b| {
+            let e = store.entry(b).unwrap();
+            let (a, c) = store.block_rect(b).unwrap();
+            (a.extend(e.min.into()), c.extend(e.max.into()))
+        })
+        .collect();
+    let (blo, bhi) = boxes.iter().fold(
+        (glam::DVec3::splat(f64::INFINITY), glam::DVec3::splat(f64::NEG_INFINITY)),
+        |(l, h), (a, c)| (l.min(*a), h.max(*c)),
+    );
+    assert_eq!((lo, hi), (blo, bhi));
+    let mut far = 0;
+    for p in [
+        dvec3(100.0, 150.0, 420.0),
+        dvec3(2500.0, 2500.0, 6000.0),
+        dvec3(2600.0, 4800.0, 300.0),
+        dvec3(-3000.0, 9000.0, 50.0),
+        dvec3(5119.0, 3.0, 0.0),
+        dvec3(641.0, 1919.0, 320.0),
+    ] {
+        let brute =
+            boxes.iter().map(|(a, c)| (p.clamp(*a, *c) - p).length()).fold(f64::INFINITY, f64::min);
+        assert_eq!(tree.nearest_block_distance(p), brute, "at {p}");
+        far += usize::from(brute > 100.0);
+    }
+    assert!(far >= 2, "the points must include some away from the blocks");
+    std::fs::remove_dir_all(dir).unwrap();
+}
+
+#[test]
+fn a_grid_beyond_the_head_pyramid_selects_as_the_whole_read_tree_without_reading_every_entry() {
+    // 4097 x 17 samples in blocks of 8 cells: 512 x 2 blocks, 9 levels above the blocks, one
+    // more than the head's pyramid holds (`HEAD_LEVELS`).
+    let dir = std::env::temp_dir().join(format!("terrain-pages-{}-deep", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    let hm = Heightmap::from_fn(4097, 17, Georef::local(10.0), |i, j| {
+        300.0 + 250.0 * ((i as f32) * 0.0031).sin() + ((i * 7 + j * 13) % 23) as f32
+    })
+    .unwrap();
+    let cfg = BakeConfig { k: 3, node_levels: 2, ..Default::default() };
+    bake(&hm, &dir, &cfg, &mut |_: &BakeProgress| std::ops::ControlFlow::Continue(())).unwrap();
+    let (header, head, _) = head_of(&dir);
+    assert_eq!((header.blocks_x, header.blocks_y), (512, 2));
+    assert_eq!(head.levels, crate::pages::HEAD_LEVELS);
+    let pages = head.page_count(header.block_count()) as u64;
+    assert!(pages > 4, "{pages} pages");
+    let store = Arc::new(Store::open(&dir).unwrap());
+    let tree = StoreTree::new(store.clone(), 8);
+    assert_eq!(tree.block_level(), 9);
+    assert_eq!(store.index_pages_decoded(), Some(0), "building the tree read no page");
+    // The whole-read tree: the same entries in a version-3 index (every level computed from
+    // every entry at build).
+    let (h, whole) = read_index(&std::fs::read(dir.join(INDEX_FILE)).unwrap()).unwrap();
+    let v3 = dir.with_extension("v3");
+    with_index(&dir, &v3, &write_index_unpaged(&h, &whole, 3));
+    let old = StoreTree::new(Arc::new(Store::open(&v3).unwrap()), 8);
+    let all: HashMap<BlockId, u8> = store.block_ids().map(|b| (b, header.k)).collect();
+    let cam = |x, y, z, yaw, pitch, far| {
+        Camera::from_yaw_pitch(dvec3(x, y, z), yaw, pitch).with_clip(1.0, far)
+    };
+    let mut patches = 0;
+    // Along the strip from its west end, and down on its east end.
+    for c in [
+        cam(50.0, 80.0, 600.0, 90.0, -8.0, 50000.0),
+        cam(39000.0, 80.0, 900.0, 270.0, -30.0, 50000.0),
+    ] {
+        for tau in [0.5, 3.0] {
+            let a = select_patches(&old, &c, tau, |b| all.get(&b).copied());
+            let b = select_patches(&tree, &c, tau, |b| all.get(&b).copied());
+            assert_eq!(format!("{:?}", a.patches), format!("{:?}", b.patches), "tau {tau}");
+            patches += a.patches.len();
+        }
+    }
+    assert!(patches > 20, "{patches} patches: the views must see the terrain");
+    // Every node's values equal the whole-read tree's, down to the level above the blocks.
+    for level in 0..9u8 {
+        for i in (0..1u32 << level).step_by(((1usize << level) / 8).max(1)) {
+            let n = terrain_core::quadtree::NodeId { level, i, j: 0 };
+            use terrain_core::quadtree::NodeSource;
+            let (a, b) = (old.node_info(n).map(|x| x.aabb), tree.node_info(n).map(|x| x.aabb));
+            assert_eq!(format!("{a:?}"), format!("{b:?}"), "node {n:?}");
+        }
+    }
+    std::fs::remove_dir_all(dir).unwrap();
+    std::fs::remove_dir_all(v3).unwrap();
+}
