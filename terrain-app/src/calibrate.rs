@@ -119,6 +119,15 @@ pub(crate) fn calibrate_and_write(
 
 /// Runs `terrain calibrate`.
 pub(crate) fn run(args: &CalibrateArgs) -> anyhow::Result<()> {
+    if let Some(url) = terrain_app::ooc::store_url(&args.store) {
+        // The calibration is written beside the store's index, and a window of the store may
+        // be baked again into a temporary folder: both need the store on this machine.
+        bail!(
+            "{url} is a store at a URL: `terrain calibrate` measures a store folder on this \
+             machine and writes {FILE_NAME} into it; calibrate the local bake before uploading \
+             it (or copy the store here), then upload {FILE_NAME} beside its index"
+        );
+    }
     if !terrain_stream::is_store(&args.store) {
         bail!(
             "{} is not a baked store (bake a DEM with `terrain bake DEM -o STORE` first)",

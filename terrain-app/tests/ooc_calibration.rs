@@ -189,6 +189,11 @@ fn the_commands_write_and_refuse() {
     let out = terrain(&["calibrate", root.to_str().unwrap()]);
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(!out.status.success() && err.contains("is not a baked store"), "{err}");
+    // A store at a URL is named as one (the calibration is written into a local folder); no
+    // server is needed to refuse it.
+    let out = terrain(&["calibrate", "http://127.0.0.1:9/store"]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success() && err.contains("is a store at a URL"), "{err}");
     let out = terrain(&["calibrate", d, "--ooc-split", "roam"]);
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(!out.status.success() && err.contains("--ooc-split must be eq7 or cost"), "{err}");
