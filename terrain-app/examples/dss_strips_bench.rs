@@ -11,40 +11,29 @@
 //! Default DEM: `../shared/data/puget_sound/ps_height_4k.jpg` (4096 x 4096, scale 25.6,
 //! spacing 40 m, as terrain-stream's `stream_bench`). Threads: rayon's default (`RAYON_NUM_THREADS`).
 
+mod common;
+
 use std::time::Instant;
 
 use anyhow::Context;
 use glam::dvec2;
+use terrain_app::bench::median;
 use terrain_app::methods::{LodMethod, MethodConfig, MethodScene};
 use terrain_core::dem::{LoadOptions, load};
 use terrain_core::flight::{FlightConfig, FlightSpec};
 use terrain_core::lod::{DssStripsConfig, StripFactors, select_dss_strips};
 use terrain_gpu::strips::build_strips_with;
 
-fn median(mut v: Vec<f64>) -> f64 {
-    v.sort_by(f64::total_cmp);
-    if v.is_empty() { 0.0 } else { v[v.len() / 2] }
-}
-
 fn main() -> anyhow::Result<()> {
-    let mut args: Vec<String> = std::env::args().skip(1).collect();
-    let mut take = |flag: &str, default: &str| -> String {
-        match args.iter().position(|a| a == flag) {
-            Some(k) if k + 1 < args.len() => {
-                let v = args.remove(k + 1);
-                args.remove(k);
-                v
-            }
-            _ => default.to_string(),
-        }
-    };
-    let flight = take("--flight", "flights/dss_approach.json");
-    let rhos: Vec<f64> = take("--rho", "0.25,1,4")
+    let mut args = common::Args::from_env();
+    let flight = args.take_or("--flight", "flights/dss_approach.json");
+    let rhos: Vec<f64> = args
+        .take_or("--rho", "0.25,1,4")
         .split(',')
         .map(|r| r.parse().context("--rho: comma-separated numbers"))
         .collect::<anyhow::Result<_>>()?;
-    let frames: usize = take("--frames", "60").parse().context("--frames")?;
-    let (path, opts) = match args.as_slice() {
+    let frames: usize = args.take_or("--frames", "60").parse().context("--frames")?;
+    let (path, opts) = match args.rest() {
         [] => (
             "../shared/data/puget_sound/ps_height_4k.jpg".to_string(),
             LoadOptions { vertical_scale: 25.6, spacing_m: 40.0, ..Default::default() },

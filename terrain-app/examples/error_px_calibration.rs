@@ -15,8 +15,11 @@
 //! Without `--values`, each method's own sweep ([`sweep_values`]); `--parameter c3` sweeps the
 //! PVPS methods' Eq. 12 `C3` instead of Eq. 8's `C1`, with `outer_constant = C3 C4`.
 
+mod common;
+
 use anyhow::Context;
 use glam::dvec2;
+use terrain_app::bench::median;
 use terrain_app::bench::{apply_parameter, frame_indices, sweep_values};
 use terrain_app::method::{FrameLoop, MethodOptions, build};
 use terrain_app::methods::{LodMethod, MethodConfig, MethodScene};
@@ -24,32 +27,23 @@ use terrain_core::dem::{LoadOptions, load};
 use terrain_core::flight::{FlightConfig, FlightSpec};
 use terrain_core::measure::MeasureConfig;
 
-fn median(mut v: Vec<f64>) -> f64 {
-    v.sort_by(f64::total_cmp);
-    if v.is_empty() { 0.0 } else { v[v.len() / 2] }
-}
-
 fn main() -> anyhow::Result<()> {
-    let mut args: Vec<String> = std::env::args().skip(1).collect();
-    let mut take = |flag: &str| -> Option<String> {
-        let k = args.iter().position(|a| a == flag)?;
-        let v = args.remove(k + 1);
-        args.remove(k);
-        Some(v)
-    };
-    let scale: Option<f64> = take("--vertical-scale").map(|s| s.parse()).transpose()?;
-    let spacing: Option<f64> = take("--spacing").map(|s| s.parse()).transpose()?;
-    let frames: usize = take("--frames").unwrap_or("6".into()).parse().context("--frames")?;
-    let parameter = take("--parameter");
-    let values: Option<Vec<f64>> = take("--values")
+    let mut args = common::Args::from_env();
+    let scale: Option<f64> = args.take("--vertical-scale").map(|s| s.parse()).transpose()?;
+    let spacing: Option<f64> = args.take("--spacing").map(|s| s.parse()).transpose()?;
+    let frames: usize = args.take("--frames").unwrap_or("6".into()).parse().context("--frames")?;
+    let parameter = args.take("--parameter");
+    let values: Option<Vec<f64>> = args
+        .take("--values")
         .map(|v| v.split(',').map(|x| x.parse().context("--values")).collect())
         .transpose()?;
-    let methods: Vec<LodMethod> = take("--methods")
+    let methods: Vec<LodMethod> = args
+        .take("--methods")
         .unwrap_or("uniform,pvps-a,pvps-b,pvps-c,dss-1,dss-2,dss-strips,entropy,geomorph".into())
         .split(',')
         .map(|m| LodMethod::ALL.into_iter().find(|x| x.name() == m).context("unknown method"))
         .collect::<anyhow::Result<_>>()?;
-    let dem = args.first().context("give a DEM")?;
+    let dem = args.rest().first().context("give a DEM")?;
     let options = LoadOptions {
         vertical_scale: scale.unwrap_or(1.0),
         spacing_m: spacing.unwrap_or(1.0),

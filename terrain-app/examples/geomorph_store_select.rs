@@ -14,11 +14,14 @@
 //! onto the grid, `--frames` frames evenly spaced, 1280 x 720; each frame is selected `--reps`
 //! times by each path, alternating, and the fastest time of each kept.
 
+mod common;
+
 use std::ops::ControlFlow;
 use std::sync::Arc;
 use std::time::Instant;
 
 use anyhow::Context;
+use terrain_app::bench::median;
 use terrain_app::methods::{LodMethod, MethodConfig, MethodScene};
 use terrain_core::dem::{LoadOptions, load};
 use terrain_core::flight::{FlightConfig, FlightSpec};
@@ -27,28 +30,15 @@ use terrain_core::quadtree::NodeTree;
 use terrain_core::synth::FractalConfig;
 use terrain_stream::{BakeConfig, BakeProgress, HeightEncoding, Store, StoreTree, bake};
 
-fn median(mut v: Vec<f64>) -> f64 {
-    v.sort_by(f64::total_cmp);
-    if v.is_empty() { 0.0 } else { v[v.len() / 2] }
-}
-
 fn main() -> anyhow::Result<()> {
-    let mut args: Vec<String> = std::env::args().skip(1).collect();
-    let mut take = |flag: &str| -> Option<String> {
-        let k = args.iter().position(|a| a == flag)?;
-        (k + 1 < args.len()).then(|| {
-            let v = args.remove(k + 1);
-            args.remove(k);
-            v
-        })
-    };
-    let synthetic = take("--synthetic");
-    let dem = take("--dem");
-    let vscale: f64 = take("--vertical-scale").map_or(Ok(1.0), |v| v.parse())?;
-    let spacing: Option<f64> = take("--spacing").map(|v| v.parse()).transpose()?;
-    let flight = take("--flight").unwrap_or_else(|| "flights/pvps_884.json".into());
-    let frames: usize = take("--frames").map_or(Ok(30), |v| v.parse())?;
-    let reps: usize = take("--reps").map_or(Ok(5), |v| v.parse::<usize>())?.max(1);
+    let mut args = common::Args::from_env();
+    let synthetic = args.take("--synthetic");
+    let dem = args.take("--dem");
+    let vscale: f64 = args.take("--vertical-scale").map_or(Ok(1.0), |v| v.parse())?;
+    let spacing: Option<f64> = args.take("--spacing").map(|v| v.parse()).transpose()?;
+    let flight = args.take("--flight").unwrap_or_else(|| "flights/pvps_884.json".into());
+    let frames: usize = args.take("--frames").map_or(Ok(30), |v| v.parse())?;
+    let reps: usize = args.take("--reps").map_or(Ok(5), |v| v.parse::<usize>())?.max(1);
 
     let (name, hm) = match (dem, synthetic) {
         (Some(path), _) => {

@@ -51,11 +51,14 @@
 //! factors, `2 f_u f_v`; geomorph's `2 (16 / 2^level)^2`); then the growth of the ms from the
 //! smallest size to the largest.
 
+mod common;
+
 use std::path::PathBuf;
 use std::sync::Arc;
 use std::time::Instant;
 
 use anyhow::Context;
+use terrain_app::bench::{median, thread_cpu_s};
 use terrain_app::methods::{LodMethod, MethodConfig, MethodScene};
 use terrain_app::ooc::{OocConfig, OocScene};
 use terrain_core::Heightmap;
@@ -65,11 +68,6 @@ use terrain_core::lod::{GeomipConfig, GeomipRuns, PatchLod};
 use terrain_core::quadtree::NodeTree;
 use terrain_core::synth::FractalConfig;
 use terrain_stream::{Refinement, SplitRule, Store, StoreTree, select_patches};
-
-fn median(mut v: Vec<f64>) -> f64 {
-    v.sort_by(f64::total_cmp);
-    if v.is_empty() { 0.0 } else { v[v.len() / 2] }
-}
 
 /// One method at one size: medians of ms, patches, visited (NaN: not counted), nominal
 /// triangles.
@@ -94,16 +92,6 @@ fn geomorph_triangles(runs: &GeomipRuns, patch_cells: u32) -> usize {
     let coarse = 2 * (n >> runs.coarsest).pow(2);
     runs.patches.iter().map(|p| 2 * (n >> p.level).pow(2)).sum::<usize>()
         + coarse * runs.run_patches() as usize
-}
-
-/// This thread's CPU seconds (`clock_gettime(CLOCK_THREAD_CPUTIME_ID)`, up to date to the ns;
-/// `/proc/thread-self/schedstat` is only updated at scheduler ticks).
-#[allow(unsafe_code)] // The one FFI call; an example-only timer.
-fn thread_cpu_s() -> f64 {
-    let mut ts = libc::timespec { tv_sec: 0, tv_nsec: 0 };
-    // SAFETY: `ts` is a valid timespec to write; the clock id is a constant the kernel knows.
-    let rc = unsafe { libc::clock_gettime(libc::CLOCK_THREAD_CPUTIME_ID, &mut ts) };
-    if rc == 0 { ts.tv_sec as f64 + ts.tv_nsec as f64 * 1e-9 } else { f64::NAN }
 }
 
 /// What a selection's time is: wall time (default), or this thread's CPU time (`--clock cpu`:
@@ -182,24 +170,16 @@ fn poses(
 }
 
 fn main() -> anyhow::Result<()> {
-    let mut args: Vec<String> = std::env::args().skip(1).collect();
-    let mut take = |flag: &str, default: &str| -> String {
-        match args.iter().position(|a| a == flag) {
-            Some(k) if k + 1 < args.len() => {
-                let v = args.remove(k + 1);
-                args.remove(k);
-                v
-            }
-            _ => default.to_string(),
-        }
-    };
-    let mut sizes: Vec<u64> = take("--sizes", "1025,4097,16385")
+    let mut args = common::Args::from_env();
+    let mut sizes: Vec<u64> = args
+        .take_or("--sizes", "1025,4097,16385")
         .split(',')
         .filter(|s| !s.is_empty())
         .map(|s| s.parse().context("--sizes: comma-separated sample counts"))
         .collect::<anyhow::Result<_>>()?;
     let in_memory = sizes.clone();
-    let stores: Vec<(u64, PathBuf)> = take("--stores", "")
+    let stores: Vec<(u64, PathBuf)> = args
+        .take_or("--stores", "")
         .split(',')
         .filter(|s| !s.is_empty())
         .map(|s| {
@@ -213,27 +193,30 @@ fn main() -> anyhow::Result<()> {
         }
     }
     sizes.sort_unstable();
-    let flight = take("--flight", "flights/pvps_884.json");
-    let frames: usize = take("--frames", "30").parse().context("--frames")?;
-    let reps: usize = take("--reps", "3").parse::<usize>().context("--reps")?.max(1);
-    let taus = take("--tau", "2");
-    let _ = CLOCK.set(match take("--clock", "wall").as_str() {
+    let flight = args.take_or("--flight", "flights/pvps_884.json");
+    let frames: usize = args.take_or("--frames", "30").parse().context("--frames")?;
+    let reps: usize = args.take_or("--reps", "3").parse::<usize>().context("--reps")?.max(1);
+    let taus = args.take_or("--tau", "2");
+    let _ = CLOCK.set(match args.take_or("--clock", "wall").as_str() {
         "wall" => Clock::Wall,
         "cpu" => Clock::Cpu,
         other => anyhow::bail!("--clock {other}: wall or cpu"),
     });
     // Geomorph's pixel threshold (its `terrain bench --values`; p99 1 px is near 7 on the big
     // stores), default the method's.
-    let geomorph_px: f64 =
-        take("--geomorph-px", &MethodConfig::default().geomip.pixel_threshold.to_string())
-            .parse()
-            .context("--geomorph-px")?;
+    let geomorph_px: f64 = args
+        .take_or("--geomorph-px", &MethodConfig::default().geomip.pixel_threshold.to_string())
+        .parse()
+        .context("--geomorph-px")?;
     // Geomorph's partly visible nodes drawn whole as runs up to this many patches wide
     // (`GeomipConfig::partial_run_patches`; 0: never, main's selection before).
-    let partial: u32 =
-        take("--geomorph-partial", &MethodConfig::default().geomip.partial_run_patches.to_string())
-            .parse()
-            .context("--geomorph-partial")?;
+    let partial: u32 = args
+        .take_or(
+            "--geomorph-partial",
+            &MethodConfig::default().geomip.partial_run_patches.to_string(),
+        )
+        .parse()
+        .context("--geomorph-partial")?;
     let method_config = || {
         let mut c = MethodConfig::default();
         c.geomip.pixel_threshold = geomorph_px;
@@ -252,26 +235,27 @@ fn main() -> anyhow::Result<()> {
             .parse()
             .context("--tau: SIZE=PX")
     };
-    let absolute = match take("--poses", "relative").as_str() {
+    let absolute = match args.take_or("--poses", "relative").as_str() {
         "relative" => false,
         "absolute" => true,
         other => anyhow::bail!("--poses {other}: relative or absolute"),
     };
-    let mut methods: Vec<LodMethod> =
-        take("--methods", "uniform,pvps-a,pvps-b,pvps-c,dss-1,dss-2,geomorph")
-            .split(',')
-            .filter(|s| !s.is_empty())
-            .map(|m| {
-                LodMethod::ALL
-                    .iter()
-                    .copied()
-                    .find(|x| x.name() == m)
-                    .with_context(|| format!("unknown method {m}"))
-            })
-            .collect::<anyhow::Result<_>>()?;
+    let mut methods: Vec<LodMethod> = args
+        .take_or("--methods", "uniform,pvps-a,pvps-b,pvps-c,dss-1,dss-2,geomorph")
+        .split(',')
+        .filter(|s| !s.is_empty())
+        .map(|m| {
+            LodMethod::ALL
+                .iter()
+                .copied()
+                .find(|x| x.name() == m)
+                .with_context(|| format!("unknown method {m}"))
+        })
+        .collect::<anyhow::Result<_>>()?;
     methods.retain(|&m| m != LodMethod::OutOfCore);
     let mut names: Vec<String> = methods.iter().map(|m| m.name().to_string()).collect();
-    let refines: Vec<(String, Refinement)> = take("--ooc-refine", "eq7:32")
+    let refines: Vec<(String, Refinement)> = args
+        .take_or("--ooc-refine", "eq7:32")
         .split(',')
         .filter(|s| !s.is_empty())
         .map(|r| {

@@ -14,10 +14,13 @@
 //! are resident (not timed); the others draw what is resident (real time), each timed. The
 //! figures are medians over the timed frames (each column its own median).
 
+mod common;
+
 use std::collections::HashMap;
 use std::path::PathBuf;
 
 use anyhow::Context;
+use terrain_app::bench::{median, thread_cpu_s};
 use terrain_app::method::{Draw, OocWait, store_method};
 use terrain_app::methods::{LodMethod, MethodConfig};
 use terrain_app::ooc::{MorphDraw, OocConfig, OocScene, morph_demand, morph_on_pages};
@@ -26,35 +29,13 @@ use terrain_core::lod::GeomipConfig;
 use terrain_core::quadtree::NodeTree;
 use terrain_stream::StoreTree;
 
-fn median(mut v: Vec<f64>) -> f64 {
-    v.sort_by(f64::total_cmp);
-    if v.is_empty() { f64::NAN } else { v[v.len() / 2] }
-}
-
-/// This thread's CPU seconds (`clock_gettime(CLOCK_THREAD_CPUTIME_ID)`).
-#[allow(unsafe_code)] // The one FFI call; an example-only timer.
-fn thread_cpu_s() -> f64 {
-    let mut ts = libc::timespec { tv_sec: 0, tv_nsec: 0 };
-    // SAFETY: `ts` is a valid timespec to write; the clock id is a constant the kernel knows.
-    let rc = unsafe { libc::clock_gettime(libc::CLOCK_THREAD_CPUTIME_ID, &mut ts) };
-    if rc == 0 { ts.tv_sec as f64 + ts.tv_nsec as f64 * 1e-9 } else { f64::NAN }
-}
-
 fn main() -> anyhow::Result<()> {
-    let mut args: Vec<String> = std::env::args().skip(1).collect();
-    let mut take = |flag: &str| -> Option<String> {
-        let k = args.iter().position(|a| a == flag)?;
-        (k + 1 < args.len()).then(|| {
-            let v = args.remove(k + 1);
-            args.remove(k);
-            v
-        })
-    };
-    let method = take("--method").unwrap_or_else(|| "geomorph".into());
-    let px: Option<f64> = take("--px").map(|v| v.parse()).transpose().context("--px")?;
-    let flight = take("--flight").unwrap_or_else(|| "flights/pvps_884.json".into());
-    let frames: usize = take("--frames").map_or(Ok(10), |v| v.parse()).context("--frames")?;
-    let dir = PathBuf::from(args.first().context("usage: store_frame STORE [options]")?);
+    let mut args = common::Args::from_env();
+    let method = args.take("--method").unwrap_or_else(|| "geomorph".into());
+    let px: Option<f64> = args.take("--px").map(|v| v.parse()).transpose().context("--px")?;
+    let flight = args.take("--flight").unwrap_or_else(|| "flights/pvps_884.json".into());
+    let frames: usize = args.take("--frames").map_or(Ok(10), |v| v.parse()).context("--frames")?;
+    let dir = PathBuf::from(args.rest().first().context("usage: store_frame STORE [options]")?);
     let kind = <LodMethod as clap::ValueEnum>::from_str(&method, true)
         .map_err(|e| anyhow::anyhow!("--method {method}: {e}"))?;
     let mut config = MethodConfig::default();

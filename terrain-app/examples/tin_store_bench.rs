@@ -14,6 +14,8 @@
 //! `terrain bench --wait`); `--real-time` plays every frame of the flight at its frame rate
 //! and only the first waits.
 
+mod common;
+
 use std::path::PathBuf;
 
 use anyhow::Context;
@@ -23,20 +25,13 @@ use terrain_core::flight::FlightSpec;
 use terrain_core::synth::FractalConfig;
 
 fn main() -> anyhow::Result<()> {
-    let mut args: Vec<String> = std::env::args().skip(1).collect();
-    let mut take = |flag: &str| -> Option<String> {
-        let k = args.iter().position(|a| a == flag)?;
-        (k + 1 < args.len()).then(|| {
-            let v = args.remove(k + 1);
-            args.remove(k);
-            v
-        })
-    };
-    let store = take("--store").context("--store DIR: a store baked with --synthetic N")?;
-    let n: u64 = take("--synthetic").map_or(Ok(16385), |v| v.parse())?;
-    let flight = take("--flight").unwrap_or_else(|| "flights/fast_pass.json".into());
-    let frames: usize = take("--frames").map_or(Ok(8), |v| v.parse())?;
-    let methods: Vec<LodMethod> = take("--methods")
+    let mut args = common::Args::from_env();
+    let store = args.take("--store").context("--store DIR: a store baked with --synthetic N")?;
+    let n: u64 = args.take("--synthetic").map_or(Ok(16385), |v| v.parse())?;
+    let flight = args.take("--flight").unwrap_or_else(|| "flights/fast_pass.json".into());
+    let frames: usize = args.take("--frames").map_or(Ok(8), |v| v.parse())?;
+    let methods: Vec<LodMethod> = args
+        .take("--methods")
         .unwrap_or_else(|| "tin,geomorph".into())
         .split(',')
         .map(|m| {
@@ -47,12 +42,13 @@ fn main() -> anyhow::Result<()> {
                 .with_context(|| format!("--methods: no method {m}"))
         })
         .collect::<anyhow::Result<_>>()?;
-    let error_px: Vec<f64> = take("--error-px")
+    let error_px: Vec<f64> = args
+        .take("--error-px")
         .unwrap_or_else(|| "1,2".into())
         .split(',')
         .map(|v| v.parse().with_context(|| format!("--error-px: {v}")))
         .collect::<anyhow::Result<_>>()?;
-    let real_time = args.iter().any(|a| a == "--real-time");
+    let real_time = args.rest().iter().any(|a| a == "--real-time");
 
     let hm = FractalConfig::with_size(n, n, 10.0).to_heightmap().map_err(anyhow::Error::msg)?;
     let spec = FlightSpec::load(&flight).with_context(|| format!("flight {flight}"))?;

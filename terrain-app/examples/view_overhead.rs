@@ -24,15 +24,13 @@
 //! under `xvfb-run`; `-noreset` keeps the server up between the runs, or a viewer started as
 //! the previous one closes may find it resetting) and runs on Vulkan (lavapipe without a GPU).
 
+mod common;
+
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
 use anyhow::{Context, bail};
-
-fn median(mut v: Vec<f64>) -> f64 {
-    v.sort_by(f64::total_cmp);
-    if v.is_empty() { f64::NAN } else { v[v.len() / 2] }
-}
+use terrain_app::bench::median;
 
 /// `key` of every frame after the first in a `--stats-json` file.
 fn column(json: &serde_json::Value, key: &str) -> anyhow::Result<Vec<f64>> {

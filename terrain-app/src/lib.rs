@@ -9,6 +9,7 @@ pub const MIB: f64 = (1u64 << 20) as f64;
 
 pub mod bench;
 pub mod camera;
+pub mod clock;
 pub mod decimation;
 pub mod dss_scene;
 pub mod entropy_method;

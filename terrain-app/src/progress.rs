@@ -68,17 +68,10 @@ impl Progress {
     }
 }
 
-/// CPU seconds (user + system, every thread) this process has used so far, from
-/// `/proc/self/stat` (Linux; its clock ticks are USER_HZ, 100 a second on every Linux
-/// architecture); `None` elsewhere.
-pub fn process_cpu_seconds() -> Option<f64> {
-    let stat = std::fs::read_to_string("/proc/self/stat").ok()?;
-    // Fields after the command name (which may hold spaces) in parentheses.
-    let rest = &stat[stat.rfind(')')? + 1..];
-    let fields: Vec<&str> = rest.split_whitespace().collect();
-    // utime and stime are fields 14 and 15 of the line, 12 and 13 after the name.
-    let ticks = fields.get(11)?.parse::<u64>().ok()? + fields.get(12)?.parse::<u64>().ok()?;
-    Some(ticks as f64 / 100.0)
+/// CPU seconds (user + system, every thread) this process has used so far
+/// ([`crate::clock::process_cpu_s`]); `None` where the platform has no such clock.
+fn process_cpu_seconds() -> Option<f64> {
+    Some(crate::clock::process_cpu_s()).filter(|s| s.is_finite())
 }
 
 /// The stages of a long command (`terrain bake`'s blocks and tables) with their wall and CPU

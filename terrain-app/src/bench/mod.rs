@@ -21,13 +21,11 @@ mod record;
 mod run;
 mod svg;
 
+pub use crate::clock::{process_cpu_s, thread_cpu_s};
 pub use crate::method::entropy_extra;
 pub use crate::method::registry::{apply_parameter, sweep_values};
 pub use config::{BenchConfig, OocCalibration, frame_indices, pick_evenly};
-pub use record::{
-    BenchReport, FlightInfo, FrameRecord, RunRecord, RunSummary, process_cpu_s, rss_bytes,
-    thread_cpu_s,
-};
+pub use record::{BenchReport, FlightInfo, FrameRecord, RunRecord, RunSummary, median, rss_bytes};
 pub use run::{BenchProgress, print_progress, run_bench};
 
 #[cfg(test)]

@@ -152,29 +152,6 @@ pub fn rss_bytes() -> Option<u64> {
     Some(pages * 4096)
 }
 
-/// CPU seconds of this thread (`/proc/thread-self/schedstat`, ns), for timings on a shared
-/// machine where wall time includes waiting for a core; `NaN` where unavailable.
-pub fn thread_cpu_s() -> f64 {
-    std::fs::read_to_string("/proc/thread-self/schedstat")
-        .ok()
-        .and_then(|s| s.split_whitespace().next()?.parse::<f64>().ok())
-        .map_or(f64::NAN, |ns| ns * 1e-9)
-}
-
-/// CPU seconds of the whole process, all threads (`/proc/self/stat` utime + stime, 10 ms
-/// ticks); `NaN` where unavailable.
-pub fn process_cpu_s() -> f64 {
-    let Ok(s) = std::fs::read_to_string("/proc/self/stat") else { return f64::NAN };
-    let after = s.rsplit_once(')').map_or("", |x| x.1);
-    let f: Vec<&str> = after.split_whitespace().collect();
-    match (
-        f.get(11).and_then(|v| v.parse::<f64>().ok()),
-        f.get(12).and_then(|v| v.parse::<f64>().ok()),
-    ) {
-        (Some(u), Some(k)) => (u + k) / 100.0,
-        _ => f64::NAN,
-    }
-}
 /// Medians and extremes of one run's frames. The error figures (pixel errors, RMSE, popping,
 /// false culls) are over the frames with all their data ([`FrameRecord::missing_blocks`] 0):
 /// a frame with holes is not scored as if its picture were right; with no such frame they are
@@ -238,7 +215,7 @@ pub struct RunSummary {
 }
 
 /// The median of `v` (0 for none).
-pub(super) fn median(mut v: Vec<f64>) -> f64 {
+pub fn median(mut v: Vec<f64>) -> f64 {
     if v.is_empty() {
         return 0.0;
     }
