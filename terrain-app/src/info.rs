@@ -147,6 +147,10 @@ pub(crate) struct StoreReport {
     /// descendants' largest `StaticE` at each finer level), which `ooc`'s factor walk reads;
     /// a version-2 index has none and the walk bounds those levels by the block's maximum.
     pub fine_maxima: bool,
+    /// The finest level of the store's overview (`overview.bin`: every block's coarsest
+    /// levels in one file, which a render's first frame and a store at a URL read instead of
+    /// every block's file); `None` for a store baked before it.
+    pub overview_levels: Option<u8>,
     /// Storage per block level (the out-of-core paper's non-redundant levels, Eq. 1-2), over
     /// every block of the store.
     pub levels: Vec<LevelStorage>,
@@ -242,6 +246,7 @@ impl StoreReport {
             tables,
             dss_block_errors: store.has_dss_errors(),
             fine_maxima: store.has_fine_errors(),
+            overview_levels: store.overview_levels(),
             levels: level_storage(&store),
             ooc_calibration: ooc_calibration_text(dir),
         })
@@ -285,6 +290,13 @@ impl StoreReport {
              block's per-level maximum and draws more triangles; bake again to add them)"
         };
         s += &format!("fine maxima  {fine}\n");
+        let overview = match self.overview_levels {
+            Some(top) => format!("levels 0-{top} of every block in one file (overview.bin)"),
+            None => "none (baked before it: the coarse levels are read from every block's \
+                     file; bake again for faster first frames)"
+                .to_string(),
+        };
+        s += &format!("overview     {overview}\n");
         s += &format!("ooc --error-px {}\n", self.ooc_calibration);
         s += "levels       level: new vertices, stored MiB (decoded MiB)\n";
         for l in &self.levels {

@@ -160,6 +160,11 @@ fn a_paged_index_over_http_is_read_by_page_and_selects_as_the_local_store() {
     // One probe of 4 KiB covers this header and head (21 pyramid nodes): the index is ~90
     // times more.
     assert!(at_open > 0 && at_open <= 4096, "{at_open} bytes at open of {index_len}");
+    // The overview (every block's levels 0-4 in one file) comes whole, in one request, when
+    // first needed.
+    let overview = std::fs::metadata(store.join("overview.bin")).unwrap().len();
+    assert_eq!(remote.overview_levels(), Some(4));
+    assert_eq!(remote.remote_bytes_received(), at_open + overview);
     assert!(index_len > 50 * at_open, "{index_len} bytes of index");
     assert_eq!(remote.index_bytes(), Some(index_len));
     let remote = Arc::new(remote.with_page_cache_bytes(1).unwrap());

@@ -28,9 +28,33 @@ fn text(out: &Output) -> (String, String) {
 const RAW: &str = GRID_RAW;
 
 /// The remote tests' 129 x 129 grid and a store baked from it with blocks of 33 x 33 vertices
-/// (4 x 4 blocks), 10 m spacing, in `dir`.
+/// (4 x 4 blocks), 10 m spacing, in `dir`; without its overview (`overview.bin`, which would
+/// serve every block's levels 0-4 from one file): these tests damage the block files.
 fn baked(dir: &Path) -> (PathBuf, PathBuf) {
-    baked_at(dir, dir.join("g.scene"))
+    let (dem, store) = baked_at(dir, dir.join("g.scene"));
+    std::fs::remove_file(store.join("overview.bin")).unwrap();
+    (dem, store)
+}
+
+/// A damaged overview refuses the store in the user's words (the file, what to do); removed,
+/// the store reads its block files.
+#[test]
+fn a_damaged_overview_is_named_with_what_to_do() {
+    let dir = scratch("store-faults", "overview");
+    let (_, store) = baked_at(&dir, dir.join("g.scene"));
+    let ov = store.join("overview.bin");
+    let mut bytes = std::fs::read(&ov).unwrap();
+    bytes[20] ^= 0x10;
+    std::fs::write(&ov, &bytes).unwrap();
+    let out = terrain(&["info", s(&store)]);
+    let (_, err) = text(&out);
+    assert!(!out.status.success(), "{err}");
+    assert!(err.contains("overview.bin") && err.contains("remove it"), "{err}");
+    assert!(!err.contains("panicked"), "{err}");
+    std::fs::remove_file(&ov).unwrap();
+    let out = terrain(&["info", s(&store)]);
+    assert!(out.status.success(), "{}", text(&out).1);
+    std::fs::remove_dir_all(&dir).unwrap();
 }
 
 fn blocks(store: &Path) -> Vec<PathBuf> {

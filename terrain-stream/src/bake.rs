@@ -706,10 +706,13 @@ pub(crate) fn finish(
         None => None,
     };
     let index_bytes = entries.finish_index(&header)?;
+    // The coarsest levels of every block again in one file, after the index it is checked
+    // against (`overview.rs`): a reader of the whole grid's coarse levels opens one file.
+    let overview_bytes = crate::overview::write(dir)?;
     let source_samples = header.width * header.height;
     Ok(BakeReport {
         header,
-        store_bytes: bytes_written + index_bytes,
+        store_bytes: bytes_written + index_bytes + overview_bytes,
         index_bytes,
         source_samples,
         elapsed: start.elapsed(),

@@ -110,6 +110,14 @@ pub enum StoreError {
         /// CRC-32 of the bytes read.
         computed: u32,
     },
+    /// The store's overview file (`overview.bin`) is damaged or from another bake.
+    #[error("{}: {message}", path.display())]
+    Overview {
+        /// The overview file.
+        path: PathBuf,
+        /// What is wrong, and what to do.
+        message: String,
+    },
     /// A block's file is missing.
     #[error("{}: block {block} level {level}: missing file (the block file is not there)", path.display())]
     MissingBlock {

@@ -92,6 +92,7 @@ mod error;
 mod format;
 mod huffman;
 mod lod;
+mod overview;
 mod pages;
 mod remote;
 mod schedule;

@@ -312,6 +312,23 @@ impl Remote {
         Ok((remote, index))
     }
 
+    /// Fetches the store's file `name` whole into the mirror (one GET), unless the mirror has
+    /// it: whether the store has one.
+    pub(crate) fn mirror_file(&self, name: &str) -> Result<bool, StoreError> {
+        let path = self.mirror.join(name);
+        if path.is_file() {
+            return Ok(true);
+        }
+        match self.get(&self.prefix.child(name), None) {
+            Ok((bytes, _)) => {
+                write_atomic(&path, &bytes).map_err(io_err(&path))?;
+                Ok(true)
+            }
+            Err(object_store::Error::NotFound { .. }) => Ok(false),
+            Err(e) => Err(remote_err(&self.url, format!("reading {name}: {e}"))),
+        }
+    }
+
     /// One GET of `key` (`range`: those bytes only): the bytes and the object's size, counted
     /// in [`Remote::bytes_received`].
     fn get(

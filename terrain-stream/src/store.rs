@@ -14,6 +14,7 @@ use crate::format::{
     PAGED_INDEX_VERSION, SampleEncoding, VERSION, block_file_name, crc32, level_len, read_index,
     vertex_index,
 };
+use crate::overview::Overview;
 use crate::pages::{PagedIndex, index_err, scale_entry};
 use crate::remote::{Remote, RemoteIndex, RemoteOptions, is_url};
 
@@ -30,6 +31,10 @@ pub struct Store {
     header: Header,
     index: Arc<Index>,
     remote: Option<Arc<Remote>>,
+    /// The blocks' coarsest levels in one file (`None` inside: the store has none): opened
+    /// with a local store; a remote store's is fetched into the mirror when first needed
+    /// (unset until then, and after a failed fetch, which the next read tries again).
+    overview: Arc<Mutex<Option<Option<Arc<Overview>>>>>,
 }
 
 /// A store's block entries: every one in memory (index versions 2 and 3) or paged (4).
@@ -85,7 +90,9 @@ impl Store {
     pub fn open(dir: impl AsRef<Path>) -> Result<Self, StoreError> {
         let dir = dir.as_ref().to_path_buf();
         let (header, index) = open_index(&dir.join(INDEX_FILE))?;
-        Ok(Self { dir, header, index: Arc::new(index), remote: None })
+        let overview = Overview::open(&dir, &header)?.map(Arc::new);
+        let overview = Arc::new(Mutex::new(Some(overview)));
+        Ok(Self { dir, header, index: Arc::new(index), remote: None, overview })
     }
 
     /// Opens the store at `location`: a local folder ([`Store::open`]) or a URL (`s3://`,
@@ -118,7 +125,33 @@ impl Store {
                 (header, Index::Whole(blocks.into_iter().map(Arc::new).collect()))
             }
         };
-        Ok(Self { dir, header, index: Arc::new(index), remote: Some(remote) })
+        // The overview is fetched when a coarse level is first read (`Store::overview`).
+        let overview = Arc::default();
+        Ok(Self { dir, header, index: Arc::new(index), remote: Some(remote), overview })
+    }
+
+    /// The finest level the store's overview (`overview.bin`: every block's coarsest levels
+    /// in one file) holds, read from it instead of the blocks' files; `None` for a store
+    /// baked without one.
+    /// A store at a URL fetches its overview here if it has not yet (`None` when that fails).
+    pub fn overview_levels(&self) -> Option<u8> {
+        self.overview().ok().flatten().map(|o| o.top())
+    }
+
+    /// The store's overview, fetched into a remote store's mirror on first use (one GET).
+    fn overview(&self) -> Result<Option<Arc<Overview>>, StoreError> {
+        let mut slot = self.overview.lock().unwrap_or_else(|e| e.into_inner());
+        if let Some(known) = &*slot {
+            return Ok(known.clone());
+        }
+        let remote = self.remote.as_ref().expect("a local store's overview is opened with it");
+        let found = if remote.mirror_file(crate::overview::OVERVIEW_FILE)? {
+            Overview::open(&self.dir, &self.header)?.map(Arc::new)
+        } else {
+            None
+        };
+        *slot = Some(found.clone());
+        Ok(found)
     }
 
     /// Bytes received from a remote store's location so far (its index and side tables at
@@ -197,8 +230,14 @@ impl Store {
 
     /// For a remote store, fetches levels `first..=last` of block `id` in one range request
     /// (those not in the disk cache), so the [`Store::load_level`] calls that follow read
-    /// them without a request each. Nothing for a local store.
+    /// them without a request each. Nothing for a local store, nor for the levels the store's
+    /// overview holds (read from the mirrored overview, [`Store::overview_levels`]).
     pub fn prefetch_levels(&self, id: BlockId, first: u8, last: u8) -> Result<(), StoreError> {
+        let first = match self.overview_levels() {
+            Some(top) if top >= last => return Ok(()),
+            Some(top) => first.max(top + 1),
+            None => first,
+        };
         match (&self.remote, self.try_entry(id)?) {
             (Some(r), Some(e)) => r.fetch_levels(id, &e, first, last, self.header.bake_id),
             _ => Ok(()),
@@ -378,6 +417,21 @@ impl Store {
             .levels
             .get(level as usize)
             .ok_or_else(|| bad(format!("the finest level is {}", self.header.k)))?;
+        if let Some(overview) = self.overview()?.filter(|o| level <= o.top()) {
+            let pos = self.header.block_position(id).expect("an entry's block is in the grid");
+            let payload = overview.level_bytes(pos, &entry, level)?;
+            let computed = crc32(&payload);
+            if computed != le.crc32 {
+                return Err(StoreError::Checksum {
+                    path: overview.path().to_path_buf(),
+                    block: id,
+                    level,
+                    stored: le.crc32,
+                    computed,
+                });
+            }
+            return Ok(payload);
+        }
         if let Some(remote) = &self.remote {
             let (payload, _) = remote.level(id, &entry, level, self.header.bake_id)?;
             let computed = crc32(&payload);
@@ -393,7 +447,7 @@ impl Store {
             return Ok(payload);
         }
         let path = self.dir.join(block_file_name(id));
-        let mut file = File::open(&path).map_err(|cause| {
+        let file = File::open(&path).map_err(|cause| {
             if cause.kind() == std::io::ErrorKind::NotFound {
                 StoreError::MissingBlock { path: path.clone(), block: id, level }
             } else {
@@ -420,10 +474,10 @@ impl Store {
             });
         }
         let mut head = [0u8; BLOCK_HEADER_LEN as usize];
-        read_at(&mut file, 0, &mut head).map_err(io)?;
+        read_at(&file, 0, &mut head).map_err(io)?;
         check_block_header(&head, &path, id, level, self.header.bake_id)?;
         let mut payload = vec![0u8; le.len as usize];
-        read_at(&mut file, le.offset, &mut payload).map_err(io)?;
+        read_at(&file, le.offset, &mut payload).map_err(io)?;
         let computed = crc32(&payload);
         if computed != le.crc32 {
             return Err(StoreError::Checksum {
@@ -475,7 +529,7 @@ impl Store {
 }
 
 /// Positioned read (`pread` where the platform has it).
-fn read_at(file: &mut File, offset: u64, buf: &mut [u8]) -> std::io::Result<()> {
+pub(crate) fn read_at(file: &File, offset: u64, buf: &mut [u8]) -> std::io::Result<()> {
     #[cfg(unix)]
     {
         use std::os::unix::fs::FileExt;
@@ -484,6 +538,7 @@ fn read_at(file: &mut File, offset: u64, buf: &mut [u8]) -> std::io::Result<()> 
     #[cfg(not(unix))]
     {
         use std::io::{Read, Seek, SeekFrom};
+        let mut file = file;
         file.seek(SeekFrom::Start(offset))?;
         file.read_exact(buf)
     }

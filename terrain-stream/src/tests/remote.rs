@@ -208,7 +208,22 @@ fn a_store_over_http_reads_as_the_local_one_and_a_second_open_reads_the_disk_cac
     assert!(remote.dir().starts_with(&cache), "the mirror is in the cache folder");
     let k = local.header().k;
     let ids: Vec<BlockId> = local.block_ids().collect();
-    // One range request per block covering every level asked for.
+    // The overview (levels 0-4 of every block) came with the index, in one request; those
+    // levels read without a block request.
+    assert_eq!(remote.overview_levels(), Some(4));
+    let overview_gets =
+        |log: &RequestLog| log.lock().unwrap().iter().filter(|(p, _)| p == "overview.bin").count();
+    assert_eq!(overview_gets(&server.log), 1);
+    for &id in &ids {
+        for level in 0..=4 {
+            assert_eq!(
+                remote.read_level_bytes(id, level).unwrap(),
+                local.read_level_bytes(id, level).unwrap()
+            );
+        }
+    }
+    assert_eq!(server.block_requests.load(Ordering::SeqCst), 0);
+    // One range request per block covering every finer level asked for.
     for &id in &ids {
         remote.prefetch_levels(id, 0, k).unwrap();
         let (a, b) = (remote.read_block(id, k).unwrap(), local.read_block(id, k).unwrap());
@@ -220,14 +235,17 @@ fn a_store_over_http_reads_as_the_local_one_and_a_second_open_reads_the_disk_cac
     let id = ids[0];
     let entry = local.entry(id).unwrap();
     let third = Store::open_location_with(&server.url(), &options(&dir.join("cache2"))).unwrap();
-    third.prefetch_levels(id, 0, 2).unwrap();
-    third.prefetch_levels(id, 3, 4).unwrap();
+    let before = server.block_requests.load(Ordering::SeqCst);
+    third.prefetch_levels(id, 0, 4).unwrap();
+    assert_eq!(server.block_requests.load(Ordering::SeqCst), before, "levels 0-4: the overview's");
+    third.prefetch_levels(id, 0, 5).unwrap();
+    third.prefetch_levels(id, 6, 6).unwrap();
     let log = server.log.lock().unwrap().clone();
     let name = block_file_name(id);
     let ranges: Vec<(u64, u64)> =
         log.iter().filter(|(p, _)| *p == name).filter_map(|(_, r)| *r).rev().take(2).collect();
-    let (l3, l4) = (entry.levels[3], entry.levels[4]);
-    assert_eq!(ranges[0], (l3.offset, l4.offset + u64::from(l4.len) - 1), "{log:?}");
+    let l6 = entry.levels[6];
+    assert_eq!(ranges[0], (l6.offset, l6.offset + u64::from(l6.len) - 1), "{log:?}");
     assert_eq!(ranges[1].0, 0);
     // A second open with the same cache: no block request, the same heights.
     drop(remote);
@@ -279,6 +297,9 @@ fn level_end(store: &Store, id: BlockId, level: u8) -> u64 {
 fn flight_over_a_bad_server(name: &str, action: Action) {
     let dir = temp(name);
     let local = Arc::new(local_store(&dir));
+    // The blocks' own requests are what fails here: served without the overview, which would
+    // give levels 0-4 in one request (`the_overview_is_one_request_...`).
+    std::fs::remove_file(dir.join("store/overview.bin")).unwrap();
     let ends: std::collections::HashMap<String, u64> =
         local.block_ids().map(|id| (block_file_name(id), level_end(&local, id, 2))).collect();
     let rule: Rule = Arc::new(move |path: &str, _a, b| match ends.get(path) {

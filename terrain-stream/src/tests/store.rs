@@ -177,7 +177,11 @@ fn corrupt_truncated_changed_and_missing_files_are_typed_errors() {
     let dir = scratch("faults");
     let out = dir.join("scene");
     bake(&hm, &out, &BakeConfig { k: 5, ..Default::default() }, &mut go).unwrap();
+    // The block files' own faults: without the overview, which would serve levels 0-4
+    // (its faults: `the_overview_serves_the_coarse_levels_and_names_its_faults`).
+    std::fs::remove_file(out.join("overview.bin")).unwrap();
     let store = Store::open(&out).unwrap();
+    assert_eq!(store.overview_levels(), None);
     let id = BlockId::new(2, 3);
     let path = out.join(block_file_name(id));
     let e = store.entry(id).unwrap().clone();
@@ -457,5 +461,81 @@ fn an_exaggerated_store_reads_as_the_store_of_scaled_heights() {
         let e = plain.exaggerated(bad).unwrap_err();
         assert!(matches!(e, StoreError::Exaggeration { .. }), "{bad}: {e}");
     }
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// Every bake writes `overview.bin`: levels 0-4 of every block in one file, read instead of
+/// the block files (the same bytes, checked by the same CRC), so they read with the block
+/// files gone; a finer level still needs its block file. A damaged payload is a checksum
+/// error naming the overview; a damaged table or an overview of another bake refuses the
+/// store at open, saying to remove it; without it the store reads the block files.
+#[test]
+fn the_overview_serves_the_coarse_levels_and_names_its_faults() {
+    let hm = float_grid();
+    let dir = scratch("overview");
+    let out = dir.join("scene");
+    bake(&hm, &out, &BakeConfig { k: 5, ..Default::default() }, &mut go).unwrap();
+    let ov = out.join("overview.bin");
+    let store = Store::open(&out).unwrap();
+    assert_eq!(store.overview_levels(), Some(4));
+    let ids = store.block_ids().collect::<Vec<_>>();
+    let every = |s: &Store, levels: std::ops::RangeInclusive<u8>| -> Vec<Vec<u8>> {
+        ids.iter()
+            .flat_map(|&id| levels.clone().map(move |l| s.read_level_bytes(id, l).unwrap()))
+            .collect()
+    };
+    let with = every(&store, 0..=4);
+    // Without the block files: levels 0-4 from the overview, level 5 missing.
+    let hidden = dir.join("blocks-away");
+    std::fs::rename(out.join("blocks"), &hidden).unwrap();
+    assert_eq!(every(&Store::open(&out).unwrap(), 0..=4), with);
+    assert!(matches!(store.read_level_bytes(ids[0], 5), Err(StoreError::MissingBlock { .. })));
+    std::fs::rename(&hidden, out.join("blocks")).unwrap();
+    // Without the overview: the block files give the same bytes.
+    let bytes = std::fs::read(&ov).unwrap();
+    std::fs::remove_file(&ov).unwrap();
+    let plain = Store::open(&out).unwrap();
+    assert_eq!(plain.overview_levels(), None);
+    assert_eq!(every(&plain, 0..=4), with);
+    // A flipped payload byte (the last block's level 4 ends the file): a checksum error
+    // naming the overview, for that level only.
+    let last = *ids.last().unwrap();
+    let mut bad = bytes.clone();
+    let n = bad.len();
+    bad[n - 2] ^= 0x40;
+    std::fs::write(&ov, &bad).unwrap();
+    let s = Store::open(&out).unwrap();
+    match s.read_level_bytes(last, 4) {
+        Err(StoreError::Checksum { path, block, level: 4, .. }) => {
+            assert_eq!((path, block), (ov.clone(), last));
+        }
+        other => panic!("expected the overview's checksum error, got {other:?}"),
+    }
+    assert!(s.read_level_bytes(last, 3).is_ok() && s.read_level_bytes(ids[0], 4).is_ok());
+    // A damaged table: the store is refused at open, naming the file and what to do.
+    let mut bad = bytes.clone();
+    bad[30] ^= 0x01;
+    std::fs::write(&ov, &bad).unwrap();
+    let err = Store::open(&out).unwrap_err();
+    assert!(matches!(err, StoreError::Overview { .. }), "{err}");
+    let msg = err.to_string();
+    assert!(
+        msg.contains("overview.bin") && msg.contains("checksum") && msg.contains("remove it"),
+        "{msg}"
+    );
+    // Another bake's overview (the same grid baked with another step): refused too.
+    let other = dir.join("other");
+    let cfg = BakeConfig {
+        k: 5,
+        encoding: HeightEncoding::Quantized { step_m: 0.5, offset_m: 0.0 },
+        ..Default::default()
+    };
+    bake(&hm, &other, &cfg, &mut go).unwrap();
+    std::fs::copy(other.join("overview.bin"), &ov).unwrap();
+    let msg = Store::open(&out).unwrap_err().to_string();
+    assert!(msg.contains("another bake"), "{msg}");
+    // The bake's own overview back: the store reads.
+    std::fs::write(&ov, &bytes).unwrap();
+    assert_eq!(every(&Store::open(&out).unwrap(), 0..=4), with);
     std::fs::remove_dir_all(&dir).unwrap();
 }
