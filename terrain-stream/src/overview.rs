@@ -163,8 +163,8 @@ impl Overview {
 /// Writes the overview of the finished store in `dir` (its index and block files complete):
 /// every block's levels `0..=min(OVERVIEW_TOP, k)` read back from its file (each checked
 /// against the index), in row-major order, blocks read in parallel chunks so memory stays at
-/// a chunk's levels. Written under a temporary name and renamed: a reader never sees half of
-/// one. Returns its length in bytes.
+/// a chunk's levels and a few pages of the index. Written under a temporary name and
+/// renamed: a reader never sees half of one. Returns its length in bytes.
 pub(crate) fn write(dir: &Path) -> Result<u64, BakeError> {
     let store_err = |e: StoreError| BakeError::Encoding(format!("writing the overview: {e}"));
     let path = dir.join(OVERVIEW_FILE);
@@ -174,7 +174,10 @@ pub(crate) fn write(dir: &Path) -> Result<u64, BakeError> {
         Err(e) if e.kind() == std::io::ErrorKind::NotFound => {}
         Err(cause) => return Err(BakeError::Io { path, cause }),
     }
-    let store = Store::open(dir).map_err(store_err)?;
+    // Read in row-major order, a page of entries at a time: a few pages of cache, so the
+    // bake's memory does not grow with the index.
+    let store =
+        Store::open(dir).and_then(|s| s.with_page_cache_bytes(256 << 10)).map_err(store_err)?;
     let header = store.header().clone();
     let top = OVERVIEW_TOP.min(header.k);
     let blocks = header.block_count();
@@ -203,7 +206,7 @@ pub(crate) fn write(dir: &Path) -> Result<u64, BakeError> {
     }
     let mut out = BufWriter::new(File::create(&tmp).map_err(io(&tmp))?);
     out.write_all(&table).map_err(io(&tmp))?;
-    const CHUNK: usize = 1024;
+    const CHUNK: usize = 256;
     for start in (0..blocks).step_by(CHUNK) {
         let chunk: Vec<Vec<u8>> = (start..(start + CHUNK).min(blocks))
             .into_par_iter()
