@@ -5,12 +5,14 @@
 //!
 //! Layout, little-endian: magic `TSOVERV1`, the bake id (u64, the index header's), the top
 //! level `T` (u8) and 7 zero bytes, the block count (u64), a CRC-32 (u32) of those 32 bytes;
-//! per block in the index's row-major order the offset (u64) of its levels' bytes; then per
-//! block its levels `0..=T`, each level's payload exactly as in its block file, so the index
-//! entry's CRC-32 checks it when it is read ([`Overview::level_bytes`]: a damaged offset reads
-//! bytes that fail it). Opening reads the 36 bytes of the head alone (the store's invariant:
-//! opening does not grow with the blocks); a read is two positioned reads, the block's offset
-//! and the level. Written by every bake (and shard merge) after the index ([`write`]); a store
+//! per block in the index's row-major order a record of [`RECORD_LEN`] bytes: the offset (u64)
+//! of its levels' bytes, then per level `0..=OVERVIEW_TOP` its length and CRC-32 (u32 each,
+//! the index entry's; zeros above `T`); then per block its levels `0..=T`, each level's
+//! payload exactly as in its block file. A read needs no index entry, so the coarse levels of
+//! the whole grid are read without a page of the index ([`Overview::level_bytes`]: each level
+//! checked by its CRC-32; a damaged record reads bytes that fail it). Opening reads the 36
+//! bytes of the head alone (the store's invariant: opening does not grow with the blocks); a
+//! read is the block's record (once per block, memoized) and the level. Written by every bake (and shard merge) after the index ([`write`]); a store
 //! without one (baked before it existed) reads its blocks' own files. Not in the index's
 //! format version: an optional file. A store at a URL fetches it whole, in one request, when a
 //! coarse level is first read (`Store::read_level_bytes`).
@@ -23,7 +25,7 @@ use std::sync::Mutex;
 use rayon::prelude::*;
 
 use crate::error::{BakeError, StoreError};
-use crate::format::{BlockEntry, Header, crc32};
+use crate::format::{BlockId, Header, crc32};
 use crate::store::{Store, read_at};
 
 /// The overview's file name in a store folder.
@@ -41,8 +43,20 @@ const FIXED_LEN: usize = 8 + 8 + 8 + 8;
 /// Bytes before the offsets.
 const HEAD_LEN: usize = FIXED_LEN + 4;
 
-/// Slots of an overview's offset memo (16 KiB, whatever the blocks).
+/// Bytes of a block's record: its offset, then length and CRC-32 of levels `0..=OVERVIEW_TOP`.
+const RECORD_LEN: usize = 8 + 8 * (OVERVIEW_TOP as usize + 1);
+
+/// Slots of an overview's record memo (64 KiB, whatever the blocks).
 const MEMO_SLOTS: usize = 1024;
+
+/// A block's record, decoded: `pos + 1` (0: an empty memo slot), its offset, and per level
+/// its length and CRC-32.
+#[derive(Debug, Clone, Copy, Default)]
+struct Record {
+    tag: u64,
+    offset: u64,
+    levels: [(u32, u32); OVERVIEW_TOP as usize + 1],
+}
 
 /// An open overview: its file and its top level.
 #[derive(Debug)]
@@ -51,9 +65,9 @@ pub(crate) struct Overview {
     file: File,
     top: u8,
     len: u64,
-    /// The offsets read last, direct-mapped by block position (`(pos + 1, offset)`, 0: none):
-    /// a block's levels are read one after the other, so its offset is read once.
-    memo: Mutex<Box<[(u64, u64)]>>,
+    /// The records read last, direct-mapped by block position: a block's levels are read one
+    /// after the other, so its record is read once.
+    memo: Mutex<Box<[Record]>>,
 }
 
 impl Overview {
@@ -76,7 +90,7 @@ impl Overview {
         let len = file.metadata().map_err(|cause| StoreError::Io { path: path.clone(), cause })?;
         let len = len.len();
         let blocks = header.block_count();
-        let data_start = (HEAD_LEN + blocks * 8) as u64;
+        let data_start = (HEAD_LEN + blocks * RECORD_LEN) as u64;
         if len < data_start {
             return Err(bad(format!("{len} bytes, shorter than its table of {blocks} blocks")));
         }
@@ -106,7 +120,7 @@ impl Overview {
                 header.k
             )));
         }
-        let memo = Mutex::new(vec![(0, 0); MEMO_SLOTS].into_boxed_slice());
+        let memo = Mutex::new(vec![Record::default(); MEMO_SLOTS].into_boxed_slice());
         Ok(Some(Self { path, file, top, len, memo }))
     }
 
@@ -115,36 +129,39 @@ impl Overview {
         self.top
     }
 
-    /// The file.
-    pub(crate) fn path(&self) -> &Path {
-        &self.path
-    }
-
-    /// The payload of `level` (at most [`Overview::top`]) of the block at row-major position
-    /// `pos`, whose index entry is `entry`: one positioned read, unchecked (the caller checks
-    /// the entry's CRC-32, as for a block file).
+    /// The payload of `level` (at most [`Overview::top`]) of block `id` at row-major position
+    /// `pos`, checked by its CRC-32 (a mismatch is [`StoreError::Checksum`] naming the
+    /// overview): the block's record (once per block) and one positioned read.
     pub(crate) fn level_bytes(
         &self,
         pos: usize,
-        entry: &BlockEntry,
+        id: BlockId,
         level: u8,
     ) -> Result<Vec<u8>, StoreError> {
         debug_assert!(level <= self.top);
         let io = |cause| StoreError::Io { path: self.path.clone(), cause };
         let slot = pos % MEMO_SLOTS;
         let memo = self.memo.lock().unwrap_or_else(|e| e.into_inner())[slot];
-        let offset = if memo.0 == pos as u64 + 1 {
-            memo.1
+        let record = if memo.tag == pos as u64 + 1 {
+            memo
         } else {
-            let mut at = [0u8; 8];
-            read_at(&self.file, (HEAD_LEN + 8 * pos) as u64, &mut at).map_err(io)?;
-            let offset = u64::from_le_bytes(at);
-            self.memo.lock().unwrap_or_else(|e| e.into_inner())[slot] = (pos as u64 + 1, offset);
-            offset
+            let mut raw = [0u8; RECORD_LEN];
+            read_at(&self.file, (HEAD_LEN + RECORD_LEN * pos) as u64, &mut raw).map_err(io)?;
+            let u32_at = |at: usize| u32::from_le_bytes(raw[at..at + 4].try_into().expect("4"));
+            let mut r = Record {
+                tag: pos as u64 + 1,
+                offset: u64::from_le_bytes(raw[..8].try_into().expect("8 bytes")),
+                ..Record::default()
+            };
+            for (l, v) in r.levels.iter_mut().enumerate() {
+                *v = (u32_at(8 + 8 * l), u32_at(12 + 8 * l));
+            }
+            self.memo.lock().unwrap_or_else(|e| e.into_inner())[slot] = r;
+            r
         };
-        let before: u64 = entry.levels[..level as usize].iter().map(|l| u64::from(l.len)).sum();
-        let len = entry.levels[level as usize].len;
-        let start = offset.saturating_add(before);
+        let before: u64 = record.levels[..level as usize].iter().map(|l| u64::from(l.0)).sum();
+        let (len, stored) = record.levels[level as usize];
+        let start = record.offset.saturating_add(before);
         if start.saturating_add(u64::from(len)) > self.len {
             return Err(StoreError::Overview {
                 path: self.path.clone(),
@@ -156,6 +173,16 @@ impl Overview {
         }
         let mut bytes = vec![0u8; len as usize];
         read_at(&self.file, start, &mut bytes).map_err(io)?;
+        let computed = crc32(&bytes);
+        if computed != stored {
+            return Err(StoreError::Checksum {
+                path: self.path.clone(),
+                block: id,
+                level,
+                stored,
+                computed,
+            });
+        }
         Ok(bytes)
     }
 }
@@ -186,8 +213,8 @@ pub(crate) fn write(dir: &Path) -> Result<u64, BakeError> {
         let p = p.to_path_buf();
         move |cause: std::io::Error| BakeError::Io { path: p.clone(), cause }
     };
-    // The head and table first: offsets from the entries' level lengths.
-    let table_len = HEAD_LEN + blocks * 8;
+    // The head and table first: each block's offset and levels from its entry.
+    let table_len = HEAD_LEN + blocks * RECORD_LEN;
     let mut table = Vec::with_capacity(table_len);
     table.extend_from_slice(&OVERVIEW_MAGIC);
     table.extend_from_slice(&header.bake_id.to_le_bytes());
@@ -202,6 +229,15 @@ pub(crate) fn write(dir: &Path) -> Result<u64, BakeError> {
         let entry = store.try_entry(header.block_at(pos)).map_err(store_err)?.ok_or_else(|| {
             BakeError::Encoding(format!("writing the overview: no entry for block {pos}"))
         })?;
+        for level in 0..=OVERVIEW_TOP as usize {
+            let (len, crc) = entry
+                .levels
+                .get(level)
+                .filter(|_| level <= top as usize)
+                .map_or((0, 0), |l| (l.len, l.crc32));
+            table.extend_from_slice(&len.to_le_bytes());
+            table.extend_from_slice(&crc.to_le_bytes());
+        }
         offset += entry.levels[..=top as usize].iter().map(|l| u64::from(l.len)).sum::<u64>();
     }
     let mut out = BufWriter::new(File::create(&tmp).map_err(io(&tmp))?);
