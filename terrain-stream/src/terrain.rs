@@ -95,6 +95,10 @@ impl NodeTree for StoreSource<'_> {
     fn shape(&self) -> &TreeShape {
         self.tree.shape()
     }
+
+    fn with_traversal_source(&self, f: &mut dyn FnMut(&dyn NodeSource)) {
+        self.tree.with_traversal_source(f)
+    }
 }
 
 impl TerrainSource for StoreSource<'_> {

@@ -88,7 +88,7 @@ use std::time::Instant;
 use glam::{DVec2, DVec3};
 
 use super::patch::Edge;
-use super::window::RowWindow;
+use super::window::SpanWindow;
 use crate::geometry::Camera;
 use crate::heightmap::Heightmap;
 use crate::metrics::Region;
@@ -505,6 +505,11 @@ impl GeomipTable {
                 if d <= 1e-9 { f64::INFINITY } else { lambda * delta / (tau * d) }
             };
             let w = (2.0 - 2.0 * a).clamp(0.0, 1.0).min(prev);
+            // `w` only falls (`min(prev)`): once a level contributes 0 every coarser one
+            // does, and adding 0.0 leaves `c` as it is.
+            if w <= 0.0 {
+                break;
+            }
             prev = w;
             c += w;
         }
@@ -917,6 +922,8 @@ impl GeomipScene {
     }
 }
 
+fn nodes_len_dbg(r: &[PatchRun], c: &[(usize, usize)]) -> usize { r.len() + c.len() }
+
 /// Which nodes the selection may decide at once (the tests' negative control loosens it).
 #[derive(Debug, Clone, Copy, PartialEq)]
 enum RunBound {
@@ -1058,7 +1065,10 @@ impl GeomipTable {
             }
             !coarse(n)
         };
-        let nodes = select(tree, &mut split, &mut cull);
+        let mut nodes = Vec::new();
+        let t0 = Instant::now();
+        tree.with_traversal_source(&mut |src| nodes = select(src, &mut split, &mut cull));
+        let t1 = Instant::now();
         let mut runs = Vec::new();
         let mut cells = Vec::new();
         for n in nodes {
@@ -1077,7 +1087,11 @@ impl GeomipTable {
                 cells.push((n.i as usize, n.j as usize));
             }
         }
-        let (patches, factors) = self.exact_patches(shape, &cells, eye, lambda, tau, cfg);
+        let t2 = Instant::now();
+        let (patches, factors) = self.exact_patches(shape, &cells, &runs, eye, lambda, tau, cfg);
+        if std::env::var_os("SEL13B_STATS").is_some() {
+            eprintln!("SEL13B nodes {} traverse {:.3} ms post {:.3} ms exact {:.3} ms", nodes_len_dbg(&runs, &cells), (t1 - t0).as_secs_f64() * 1e3, (t2 - t1).as_secs_f64() * 1e3, t2.elapsed().as_secs_f64() * 1e3);
+        }
         let mut out = GeomipRuns {
             runs,
             patches,
@@ -1095,103 +1109,131 @@ impl GeomipTable {
 
     /// The exact computation for the patches `cells` (column, row): factors over the window
     /// within `L` of them, the envelope there, levels, tweens and borders (module docs).
-    /// Returns them row-major with their `c'`.
+    /// Returns them row-major with their `c'`. `runs` are the frame's runs: their patches
+    /// have `c = L` (the bound that made them runs proves every level's `w = 1`), so the
+    /// window's patches in them take `L` without the projection.
+    #[allow(clippy::too_many_arguments)]
     fn exact_patches(
         &self,
         shape: &TreeShape,
         cells: &[(usize, usize)],
+        runs: &[PatchRun],
         eye: DVec3,
         lambda: f64,
         tau: f64,
         cfg: &GeomipConfig,
     ) -> (Vec<PatchLod>, Vec<f32>) {
         let (nx, ny) = (self.nx as usize, self.ny as usize);
-        let cells_in = cells;
-        let cells = cells_in.iter().copied();
-        // Every patch within `L` of a visible one (see the module docs), densely indexed.
+        // Every patch within `L` of a visible one (see the module docs), densely indexed: the
+        // union of their city-block balls, per row as spans (a row's hull would hold, between
+        // visible patches on both sides of the view, every run patch between them).
         let max_level = self.levels - 1;
-        let win = RowWindow::dilated(cells.clone(), max_level, nx, ny);
-        let mut c = vec![0.0f32; win.len()];
-        for (j, lo, hi, off) in win.rows() {
-            for i in lo..=hi {
-                c[off + i - lo] = self.factor(shape, j * nx + i, eye, lambda, tau);
-            }
-        }
-        // Lower envelope c'_p = min_q (c_q + |p - q|_1): forward then backward pass.
-        for (j, lo, hi, off) in win.rows() {
-            for i in lo..=hi {
-                let k = off + i - lo;
-                if i > lo {
-                    c[k] = c[k].min(c[k - 1] + 1.0);
-                }
-                if let Some(b) = j.checked_sub(1).and_then(|jb| win.index(i, jb)) {
-                    c[k] = c[k].min(c[b] + 1.0);
+        let (win, cells) = SpanWindow::dilated(cells, max_level, nx, ny);
+        let coarsest = max_level as f32;
+        // NaN: not known yet (a factor is never NaN: each `w` is clamped, then `min(prev)`).
+        let mut c = vec![f32::NAN; win.len()];
+        for r in runs {
+            let (i0, i1) = (r.i as usize, (r.i + r.width) as usize - 1);
+            for j in r.j as usize..(r.j + r.height) as usize {
+                let row = win.row(j);
+                let first = row.partition_point(|&(_, hi, _)| hi < i0);
+                for &(lo, hi, off) in row[first..].iter().take_while(|&&(lo, _, _)| lo <= i1) {
+                    let (a, b) = (lo.max(i0), hi.min(i1));
+                    c[off + a - lo..=off + b - lo].fill(coarsest);
                 }
             }
         }
-        for (j, lo, hi, off) in win.rows().rev() {
-            for i in (lo..=hi).rev() {
-                let k = off + i - lo;
-                if i < hi {
-                    c[k] = c[k].min(c[k + 1] + 1.0);
-                }
-                if let Some(a) = win.index(i, j + 1) {
-                    c[k] = c[k].min(c[a] + 1.0);
+        for (j, row) in win.rows() {
+            for &(lo, hi, off) in row {
+                for i in lo..=hi {
+                    let k = off + i - lo;
+                    if c[k].is_nan() {
+                        c[k] = self.factor(shape, j * nx + i, eye, lambda, tau);
+                    }
                 }
             }
         }
-        let max_level = max_level as f32;
+        // Lower envelope c'_p = min_q (c_q + |p - q|_1): forward then backward pass. Spans are
+        // maximal, so a slot's west (east) neighbour in the window is the slot before (after).
+        for (j, row) in win.rows() {
+            let mut below = 0;
+            for &(lo, hi, off) in row {
+                for i in lo..=hi {
+                    let k = off + i - lo;
+                    if i > lo {
+                        c[k] = c[k].min(c[k - 1] + 1.0);
+                    }
+                    if let Some(b) = j.checked_sub(1).and_then(|jb| win.index_up(i, jb, &mut below))
+                    {
+                        c[k] = c[k].min(c[b] + 1.0);
+                    }
+                }
+            }
+        }
+        for (j, row) in win.rows().rev() {
+            let mut above = usize::MAX;
+            for &(lo, hi, off) in row.iter().rev() {
+                for i in (lo..=hi).rev() {
+                    let k = off + i - lo;
+                    if i < hi {
+                        c[k] = c[k].min(c[k + 1] + 1.0);
+                    }
+                    if let Some(a) = win.index_down(i, j + 1, &mut above) {
+                        c[k] = c[k].min(c[a] + 1.0);
+                    }
+                }
+            }
+        }
+        let max_level = coarsest;
         let level_tween = |k: usize| -> (u8, f32) {
             let ck = c[k].clamp(0.0, max_level);
-            let l = ck.floor();
+            // `ck >= 0`: truncation is `floor` (without the libm call `floor` is here).
+            let l = f32::from(ck as u8);
             let t = if cfg.morph && l < max_level { ck - l } else { 0.0 };
             (l as u8, t)
         };
-        // Row-major output: mark the visible patches in the window, then walk it in order.
-        let mut shown = vec![false; win.len()];
-        for (i, j) in cells {
-            if let Some(k) = win.index(i, j) {
-                shown[k] = true;
+        // Row-major output: the visible patches sorted, their rows and the two beside them
+        // looked up through cursors (columns ascending within a row).
+        let mut patches = Vec::with_capacity(cells.len());
+        let mut factors = Vec::with_capacity(cells.len());
+        let mut row_j = usize::MAX;
+        let mut cursors = [0usize; 3];
+        let mut last = None;
+        for &(i, j) in &cells {
+            if last == Some((i, j)) {
+                continue;
             }
-        }
-        let mut patches = Vec::with_capacity(cells_in.len());
-        let mut factors = Vec::with_capacity(cells_in.len());
-        for (j, lo, hi, off) in win.rows() {
-            for i in lo..=hi {
-                let k = off + i - lo;
-                if !shown[k] {
+            last = Some((i, j));
+            if j != row_j {
+                (row_j, cursors) = (j, [0; 3]);
+            }
+            let k = win.index_up(i, j, &mut cursors[1]).expect("a visible patch is in the window");
+            let (level, tween) = level_tween(k);
+            let mut edge_level = [level; 4];
+            let mut edge_tween = [tween; 4];
+            for e in Edge::ALL {
+                let (di, dj) = e.direction().step();
+                let (qi, qj) = (i as i64 + di, j as i64 + dj);
+                if qi < 0 || qj < 0 || qi >= nx as i64 || qj >= ny as i64 {
                     continue;
                 }
-                let (level, tween) = level_tween(k);
-                let mut edge_level = [level; 4];
-                let mut edge_tween = [tween; 4];
-                for e in Edge::ALL {
-                    let (di, dj) = e.direction().step();
-                    let (qi, qj) = (i as i64 + di, j as i64 + dj);
-                    if qi < 0 || qj < 0 || qi >= nx as i64 || qj >= ny as i64 {
-                        continue;
-                    }
-                    let q =
-                        win.index(qi as usize, qj as usize).expect("neighbours are in the window");
-                    let (ql, qt) = level_tween(q);
-                    let k = e as usize;
-                    edge_level[k] = level.max(ql);
-                    edge_tween[k] = match ql.cmp(&level) {
-                        std::cmp::Ordering::Greater => qt,
-                        std::cmp::Ordering::Less => tween,
-                        std::cmp::Ordering::Equal => tween.max(qt),
-                    };
-                }
-                patches.push(PatchLod {
-                    i: i as u32,
-                    j: j as u32,
-                    level,
-                    tween,
-                    edge_level,
-                    edge_tween,
-                });
-                factors.push(c[k]);
+                let q = match dj {
+                    0 => Some((k as i64 + di) as usize),
+                    -1 => win.index_up(i, j - 1, &mut cursors[0]),
+                    _ => win.index_up(i, j + 1, &mut cursors[2]),
+                };
+                let q = q.expect("neighbours are in the window");
+                let (ql, qt) = level_tween(q);
+                let k = e as usize;
+                edge_level[k] = level.max(ql);
+                edge_tween[k] = match ql.cmp(&level) {
+                    std::cmp::Ordering::Greater => qt,
+                    std::cmp::Ordering::Less => tween,
+                    std::cmp::Ordering::Equal => tween.max(qt),
+                };
             }
+            patches.push(PatchLod { i: i as u32, j: j as u32, level, tween, edge_level, edge_tween });
+            factors.push(c[k]);
         }
         (patches, factors)
     }
