@@ -517,8 +517,9 @@ impl GeomipTable {
     }
 }
 
-/// One level of a [`CoarsePyramid`]: `nx` by `ny` nodes, row-major; per node `L` errors
-/// (`errors[node * L + r]`, see [`CoarsePyramid`]) and the height range of the vertices.
+/// One level of a [`CoarsePyramid`]: `nx` by `ny` nodes in tiles of [`PYRAMID_TILE`] squared
+/// ([`PyramidLevel::index`]); per node `L` errors (`errors[node * L + r]`, see
+/// [`CoarsePyramid`]) and the height range of the vertices.
 #[derive(Debug, Clone, PartialEq, Default)]
 struct PyramidLevel {
     nx: u32,
@@ -527,6 +528,47 @@ struct PyramidLevel {
     /// Per node: lowest and highest height of a vertex carrying a positive error within
     /// `L - 1` patches (`+inf, -inf` when none).
     z: Vec<[f32; 2]>,
+}
+
+/// Nodes per side of a [`PyramidLevel`]'s tiles. The selection walks the patch tree depth
+/// first: in a row-major level the four children of a node lie a row of the grid apart (on
+/// `big32k`, 2048 patches of 16 bytes), in a tile (Z order inside) side by side, and a node
+/// `PYRAMID_TILE` patches wide in one tile.
+const PYRAMID_TILE: usize = 8;
+
+impl PyramidLevel {
+    /// The slot of node `(i, j)`: tiles row-major, nodes in Z order in each (the four
+    /// children of a node side by side, as the walk visits them).
+    #[inline]
+    fn index(&self, i: u32, j: u32) -> usize {
+        let (i, j) = (i as usize, j as usize);
+        let tiles_x = (self.nx as usize).div_ceil(PYRAMID_TILE);
+        let tile = (j / PYRAMID_TILE) * tiles_x + i / PYRAMID_TILE;
+        // Bits 0-2 of x spread to 0, 2, 4.
+        let spread = |x: usize| (x & 1) | ((x & 2) << 1) | ((x & 4) << 2);
+        let (x, y) = (i % PYRAMID_TILE, j % PYRAMID_TILE);
+        tile * PYRAMID_TILE * PYRAMID_TILE + (spread(x) | (spread(y) << 1))
+    }
+
+    /// The level of row-major `errors` (`l` per node) and `z`, tiled.
+    fn tiled(nx: u32, ny: u32, l: usize, errors: &[f32], z: &[[f32; 2]]) -> Self {
+        let t = PYRAMID_TILE;
+        let slots = (nx as usize).div_ceil(t) * (ny as usize).div_ceil(t) * t * t;
+        let mut lv = Self {
+            nx,
+            ny,
+            errors: vec![0.0; slots * l],
+            z: vec![[f32::INFINITY, f32::NEG_INFINITY]; slots],
+        };
+        for j in 0..ny {
+            for i in 0..nx {
+                let (from, to) = ((j * nx + i) as usize, lv.index(i, j));
+                lv.errors[to * l..(to + 1) * l].copy_from_slice(&errors[from * l..(from + 1) * l]);
+                lv.z[to] = z[from];
+            }
+        }
+        lv
+    }
 }
 
 /// A max pyramid over the patch grid that proves whole nodes of the patch tree coarsest.
@@ -611,6 +653,7 @@ impl CoarsePyramid {
         let zm = |a: [f32; 2], b: [f32; 2]| [a[0].min(b[0]), a[1].max(b[1])];
         let r = l.saturating_sub(1);
         let z = dilate(&dilate(&own, dims, r, true, zm), dims, r, false, zm);
+        // Built row-major, then tiled.
         let mut levels = vec![PyramidLevel { nx: t.nx, ny: t.ny, errors, z }];
         loop {
             let prev = levels.last().expect("level 0");
@@ -638,6 +681,10 @@ impl CoarsePyramid {
             }
             levels.push(PyramidLevel { nx: cx as u32, ny: cy as u32, errors, z });
         }
+        let levels = levels
+            .iter()
+            .map(|lv| PyramidLevel::tiled(lv.nx, lv.ny, l, &lv.errors, &lv.z))
+            .collect();
         Self { coarsest: l, levels }
     }
 
@@ -665,7 +712,7 @@ impl CoarsePyramid {
         let Some(top) = self.levels.last() else { return false };
         let l = self.coarsest;
         let node = match self.levels.get(m) {
-            Some(lv) if i < lv.nx && j < lv.ny => (lv, (j * lv.nx + i) as usize),
+            Some(lv) if i < lv.nx && j < lv.ny => (lv, lv.index(i, j)),
             Some(_) => return false,
             // Above the pyramid's top (a store's root covers more than the grid): the root.
             None => (top, 0),
@@ -922,8 +969,6 @@ impl GeomipScene {
     }
 }
 
-fn nodes_len_dbg(r: &[PatchRun], c: &[(usize, usize)]) -> usize { r.len() + c.len() }
-
 /// Which nodes the selection may decide at once (the tests' negative control loosens it).
 #[derive(Debug, Clone, Copy, PartialEq)]
 enum RunBound {
@@ -1066,9 +1111,7 @@ impl GeomipTable {
             !coarse(n)
         };
         let mut nodes = Vec::new();
-        let t0 = Instant::now();
         tree.with_traversal_source(&mut |src| nodes = select(src, &mut split, &mut cull));
-        let t1 = Instant::now();
         let mut runs = Vec::new();
         let mut cells = Vec::new();
         for n in nodes {
@@ -1087,11 +1130,7 @@ impl GeomipTable {
                 cells.push((n.i as usize, n.j as usize));
             }
         }
-        let t2 = Instant::now();
         let (patches, factors) = self.exact_patches(shape, &cells, &runs, eye, lambda, tau, cfg);
-        if std::env::var_os("SEL13B_STATS").is_some() {
-            eprintln!("SEL13B nodes {} traverse {:.3} ms post {:.3} ms exact {:.3} ms", nodes_len_dbg(&runs, &cells), (t1 - t0).as_secs_f64() * 1e3, (t2 - t1).as_secs_f64() * 1e3, t2.elapsed().as_secs_f64() * 1e3);
-        }
         let mut out = GeomipRuns {
             runs,
             patches,
@@ -1232,7 +1271,14 @@ impl GeomipTable {
                     std::cmp::Ordering::Equal => tween.max(qt),
                 };
             }
-            patches.push(PatchLod { i: i as u32, j: j as u32, level, tween, edge_level, edge_tween });
+            patches.push(PatchLod {
+                i: i as u32,
+                j: j as u32,
+                level,
+                tween,
+                edge_level,
+                edge_tween,
+            });
             factors.push(c[k]);
         }
         (patches, factors)

@@ -164,9 +164,11 @@ impl SpanWindow {
             for src in a..=b {
                 let w = radius - src.abs_diff(j);
                 let r = src - jmin;
-                widened.extend(runs[runs_at[r]..runs_at[r + 1]].iter().map(|&(lo, hi)| {
-                    (lo.saturating_sub(w), (hi + w).min(nx.saturating_sub(1)))
-                }));
+                widened.extend(
+                    runs[runs_at[r]..runs_at[r + 1]].iter().map(|&(lo, hi)| {
+                        (lo.saturating_sub(w), (hi + w).min(nx.saturating_sub(1)))
+                    }),
+                );
             }
             widened.sort_unstable();
             let first = spans.len();
@@ -313,6 +315,9 @@ mod tests {
             assert_eq!(w.index(20, 5), None, "radius {radius}");
         }
         let (empty, sorted) = SpanWindow::dilated(&[], 3, nx, ny);
-        assert_eq!((empty.len(), empty.index(0, 0), empty.rows().count(), sorted.len()), (0, None, 0, 0));
+        assert_eq!(
+            (empty.len(), empty.index(0, 0), empty.rows().count(), sorted.len()),
+            (0, None, 0, 0)
+        );
     }
 }
