@@ -44,7 +44,9 @@
 //! = the coarsest level) and a source `q` can only lower `c'_p` when `|p - q|_1 < c_p <= L`,
 //! the envelope of the drawn patches and their neighbours needs only the factors of patches
 //! within `L` of a visible one: the factors and the two passes run over that window
-//! (per-row spans, a dense index), so a frame costs `O(visible patches x L)`, not the grid.
+//! (exactly the union of their city-block balls of radius `L`, as per-row spans densely
+//! indexed; patches of the frame's runs there have `c = L`, see below, and are not
+//! projected), so a frame costs `O(visible patches x L)`, not the grid.
 //! The two-pass city-block transform (Rosenfeld & Pfaltz 1966, "Sequential operations in
 //! digital picture processing"; for sampled functions, Felzenszwalb & Huttenlocher 2012) is
 //! exact on the window because it holds every L-shaped path from such a source to `p`. Every

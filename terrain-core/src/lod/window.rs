@@ -1,7 +1,9 @@
-//! A dense index over the part of a grid of patches that one frame considers: per row, the
-//! span of columns it holds, stored back to back. Lookup is O(1) and storage is linear in the
-//! spans, so a selection that touches only the patches in view (and a margin around them)
-//! costs what it touches, not the grid's size (no per-frame hash map, no grid-sized buffer).
+//! Dense indexes over the part of a grid of patches that one frame considers: per row, the
+//! span of columns it holds ([`RowWindow`], O(1) lookup) or its maximal spans ([`SpanWindow`],
+//! exactly the cells within a radius of given ones), stored back to back. Storage is linear
+//! in the spans, so a selection that touches only the patches in view (and a margin around
+//! them) costs what it touches, not the grid's size (no per-frame hash map, no grid-sized
+//! buffer).
 
 /// Per-row column spans over rows `j0..j0 + rows.len()`.
 #[derive(Debug, Clone, Default)]
