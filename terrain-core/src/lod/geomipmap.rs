@@ -538,38 +538,35 @@ struct PyramidLevel {
 /// `PYRAMID_TILE` patches wide in one tile.
 const PYRAMID_TILE: usize = 8;
 
-impl PyramidLevel {
-    /// The slot of node `(i, j)`: tiles row-major, nodes in Z order in each (the four
-    /// children of a node side by side, as the walk visits them).
-    #[inline]
-    fn index(&self, i: u32, j: u32) -> usize {
-        let (i, j) = (i as usize, j as usize);
-        let tiles_x = (self.nx as usize).div_ceil(PYRAMID_TILE);
-        let tile = (j / PYRAMID_TILE) * tiles_x + i / PYRAMID_TILE;
-        // Bits 0-2 of x spread to 0, 2, 4.
-        let spread = |x: usize| (x & 1) | ((x & 2) << 1) | ((x & 4) << 2);
-        let (x, y) = (i % PYRAMID_TILE, j % PYRAMID_TILE);
-        tile * PYRAMID_TILE * PYRAMID_TILE + (spread(x) | (spread(y) << 1))
-    }
+/// The slot of node `(i, j)` of a level `nx` nodes wide: tiles row-major, nodes in Z order in
+/// each (the four children of a node side by side, as the walk visits them).
+#[inline]
+fn tile_index(nx: u32, i: u32, j: u32) -> usize {
+    let (nx, i, j) = (nx as usize, i as usize, j as usize);
+    let tile = (j / PYRAMID_TILE) * nx.div_ceil(PYRAMID_TILE) + i / PYRAMID_TILE;
+    // Bits 0-2 of x spread to 0, 2, 4.
+    let spread = |x: usize| (x & 1) | ((x & 2) << 1) | ((x & 4) << 2);
+    tile * PYRAMID_TILE * PYRAMID_TILE
+        + (spread(i % PYRAMID_TILE) | (spread(j % PYRAMID_TILE) << 1))
+}
 
-    /// The level of row-major `errors` (`l` per node) and `z`, tiled.
-    fn tiled(nx: u32, ny: u32, l: usize, errors: &[f32], z: &[[f32; 2]]) -> Self {
+impl PyramidLevel {
+    /// A level of `nx` by `ny` nodes, `l` errors each, all 0, height ranges empty.
+    fn empty(nx: u32, ny: u32, l: usize) -> Self {
         let t = PYRAMID_TILE;
         let slots = (nx as usize).div_ceil(t) * (ny as usize).div_ceil(t) * t * t;
-        let mut lv = Self {
+        Self {
             nx,
             ny,
             errors: vec![0.0; slots * l],
             z: vec![[f32::INFINITY, f32::NEG_INFINITY]; slots],
-        };
-        for j in 0..ny {
-            for i in 0..nx {
-                let (from, to) = ((j * nx + i) as usize, lv.index(i, j));
-                lv.errors[to * l..(to + 1) * l].copy_from_slice(&errors[from * l..(from + 1) * l]);
-                lv.z[to] = z[from];
-            }
         }
-        lv
+    }
+
+    /// The slot of node `(i, j)` ([`tile_index`]).
+    #[inline]
+    fn index(&self, i: u32, j: u32) -> usize {
+        tile_index(self.nx, i, j)
     }
 }
 
@@ -632,13 +629,14 @@ impl CoarsePyramid {
         let (nx, ny) = (t.nx as usize, t.ny as usize);
         let dims = (nx, ny);
         let n = nx * ny;
-        // Per radius r: the largest m_{L-r} over the square of radius r.
-        let mut errors = vec![0.0f32; n * l];
+        // Per radius r: the largest m_{L-r} over the square of radius r, written tiled.
+        let mut base = PyramidLevel::empty(t.nx, t.ny, l);
+        let slot = |k: usize| tile_index(t.nx, (k % nx) as u32, (k / nx) as u32);
         for r in 0..l {
             let own: Vec<f32> = (0..n).map(|k| t.errors[k * l + (l - r) - 1]).collect();
             let d = dilate(&dilate(&own, dims, r, true, f32::max), dims, r, false, f32::max);
             for k in 0..n {
-                errors[k * l + r] = d[k];
+                base.errors[slot(k) * l + r] = d[k];
             }
         }
         let own: Vec<[f32; 2]> = (0..n)
@@ -655,38 +653,37 @@ impl CoarsePyramid {
         let zm = |a: [f32; 2], b: [f32; 2]| [a[0].min(b[0]), a[1].max(b[1])];
         let r = l.saturating_sub(1);
         let z = dilate(&dilate(&own, dims, r, true, zm), dims, r, false, zm);
-        // Built row-major, then tiled.
-        let mut levels = vec![PyramidLevel { nx: t.nx, ny: t.ny, errors, z }];
+        drop(own);
+        for (k, &v) in z.iter().enumerate() {
+            base.z[slot(k)] = v;
+        }
+        drop(z);
+        let mut levels = vec![base];
         loop {
             let prev = levels.last().expect("level 0");
             if prev.nx == 1 && prev.ny == 1 {
                 break;
             }
-            let (px, py) = (prev.nx as usize, prev.ny as usize);
-            let (cx, cy) = (px.div_ceil(2), py.div_ceil(2));
-            let mut errors = vec![0.0f32; cx * cy * l];
-            let mut z = vec![[f32::INFINITY, f32::NEG_INFINITY]; cx * cy];
-            for j in 0..cy {
-                for i in 0..cx {
-                    let k = j * cx + i;
+            let (px, py) = (prev.nx, prev.ny);
+            let mut next = PyramidLevel::empty(px.div_ceil(2), py.div_ceil(2), l);
+            for j in 0..next.ny {
+                for i in 0..next.nx {
+                    let k = next.index(i, j);
                     for (di, dj) in [(0, 0), (1, 0), (0, 1), (1, 1)] {
                         let (ci, cj) = (2 * i + di, 2 * j + dj);
                         if ci < px && cj < py {
-                            let c = cj * px + ci;
+                            let c = prev.index(ci, cj);
                             for r in 0..l {
-                                errors[k * l + r] = errors[k * l + r].max(prev.errors[c * l + r]);
+                                next.errors[k * l + r] =
+                                    next.errors[k * l + r].max(prev.errors[c * l + r]);
                             }
-                            z[k] = zm(z[k], prev.z[c]);
+                            next.z[k] = zm(next.z[k], prev.z[c]);
                         }
                     }
                 }
             }
-            levels.push(PyramidLevel { nx: cx as u32, ny: cy as u32, errors, z });
+            levels.push(next);
         }
-        let levels = levels
-            .iter()
-            .map(|lv| PyramidLevel::tiled(lv.nx, lv.ny, l, &lv.errors, &lv.z))
-            .collect();
         Self { coarsest: l, levels }
     }
 
