@@ -635,8 +635,8 @@ impl CoarsePyramid {
         for r in 0..l {
             let own: Vec<f32> = (0..n).map(|k| t.errors[k * l + (l - r) - 1]).collect();
             let d = dilate(&dilate(&own, dims, r, true, f32::max), dims, r, false, f32::max);
-            for k in 0..n {
-                base.errors[slot(k) * l + r] = d[k];
+            for (k, &v) in d.iter().enumerate() {
+                base.errors[slot(k) * l + r] = v;
             }
         }
         let own: Vec<[f32; 2]> = (0..n)
