@@ -631,6 +631,8 @@ impl CoarsePyramid {
         let n = nx * ny;
         // Per radius r: the largest m_{L-r} over the square of radius r, written tiled.
         let mut base = PyramidLevel::empty(t.nx, t.ny, l);
+        // Allocated again once the row-major ranges below are built (peak memory).
+        let z_slots = std::mem::take(&mut base.z).len();
         let slot = |k: usize| tile_index(t.nx, (k % nx) as u32, (k / nx) as u32);
         for r in 0..l {
             let own: Vec<f32> = (0..n).map(|k| t.errors[k * l + (l - r) - 1]).collect();
@@ -654,6 +656,7 @@ impl CoarsePyramid {
         let r = l.saturating_sub(1);
         let z = dilate(&dilate(&own, dims, r, true, zm), dims, r, false, zm);
         drop(own);
+        base.z = vec![[f32::INFINITY, f32::NEG_INFINITY]; z_slots];
         for (k, &v) in z.iter().enumerate() {
             base.z[slot(k)] = v;
         }
