@@ -9,7 +9,8 @@
 //!     [--sizes 1025,4097,16385] [--flight flights/pvps_884.json] [--frames 30] \
 //!     [--methods uniform,pvps-a,pvps-b,pvps-c,dss-1,dss-2,geomorph] [--reps 3] \
 //!     [--stores 1025=DIR,4097=DIR,32769=DIR] [--tau 2] [--ooc-refine eq7:32,cost:16] \
-//!     [--poses relative|absolute] [--geomorph-px 7] [--geomorph-partial 8] [--clock wall|cpu]
+//!     [--poses relative|absolute] [--geomorph-px 7] [--geomorph-partial 8] [--clock wall|cpu] \
+//!     [--geomorph-rows all|runs]
 //! ```
 //! Grids: `FractalConfig::with_size(n, n, 10.0)` (seed 1, 10 m spacing, 1500 m relief), built
 //! once per size with every method's precomputation (`MethodScene::prepare`, timed apart).
@@ -40,6 +41,8 @@
 //! selection as runs (`GeomipTable::select_runs`), the runs expanded to one entry per patch
 //! (`GeomipTable::select`, what the store's frame loop takes) and one patch at a time
 //! (`GeomipTable::select_each`, the computation without runs, as main's `select`).
+//!
+//! `--geomorph-rows runs` times only the runs row (the other two are left empty).
 //!
 //! `--geomorph-partial W` sets geomorph's `GeomipConfig::partial_run_patches` (partly visible
 //! nodes up to `W` patches wide drawn whole as runs; 0: never, the selection before it).
@@ -217,6 +220,13 @@ fn main() -> anyhow::Result<()> {
         )
         .parse()
         .context("--geomorph-partial")?;
+    // `runs`: geomorph's store rows time only `select_runs` (the expanded and per-patch rows
+    // are left empty: quicker, and a profile of the runs alone).
+    let geomorph_rows = args.take_or("--geomorph-rows", "all");
+    anyhow::ensure!(
+        matches!(geomorph_rows.as_str(), "all" | "runs"),
+        "--geomorph-rows {geomorph_rows}: all or runs"
+    );
     let method_config = || {
         let mut c = MethodConfig::default();
         c.geomip.pixel_threshold = geomorph_px;
@@ -436,13 +446,14 @@ fn main() -> anyhow::Result<()> {
                     let tris = geomorph_triangles(&r, cfg.patch_cells);
                     (r.drawn_patches() as usize, Some(r.runs.len()), tris)
                 });
-                let expanded = measure(&cams, reps, |c| {
+                let others = if geomorph_rows == "runs" { &cams[..0] } else { &cams[..] };
+                let expanded = measure(others, reps, |c| {
                     let s = geomip.select(&tree, c, &cfg);
                     let n = cfg.patch_cells as usize;
                     let tris = s.patches.iter().map(|p| 2 * (n >> p.level).pow(2)).sum();
                     (s.patches.len(), None, tris)
                 });
-                let each = measure(&cams, reps, |c| {
+                let each = measure(others, reps, |c| {
                     let s = geomip.select_each(&tree, c, &cfg);
                     let n = cfg.patch_cells as usize;
                     let tris = s.patches.iter().map(|p| 2 * (n >> p.level).pow(2)).sum();

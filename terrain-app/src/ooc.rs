@@ -505,11 +505,21 @@ pub fn morph_on_pages(
     drawn: &HashMap<BlockId, u8>,
 ) -> GeomipRuns {
     let leaf = tree.shape().max_level();
-    // A patch no larger than a block lies in one block (no list of blocks to build).
+    // A patch no larger than a block lies in one block (no list of blocks to build); the
+    // single patches come row by row, so most lie in the block of the one before (its
+    // verdict kept, no hash per patch).
+    let last = std::cell::Cell::new(None::<(BlockId, bool)>);
     let on = |i: u32, j: u32| {
         let n = NodeId::new(leaf, i, j);
         match tree.block_of(n) {
-            Some((b, _)) => drawn.contains_key(&b),
+            Some((b, _)) => match last.get() {
+                Some((m, v)) if m == b => v,
+                _ => {
+                    let v = drawn.contains_key(&b);
+                    last.set(Some((b, v)));
+                    v
+                }
+            },
             None => tree.blocks_under(n).iter().all(|b| drawn.contains_key(b)),
         }
     };

@@ -1281,6 +1281,26 @@ impl NodeTree for StoreTree {
     fn shape(&self) -> &TreeShape {
         &self.shape
     }
+
+    /// The tree through a [`BlockMemo`] for the length of `f`: a traversal's nodes of one
+    /// block find its entry and `sub_max` once, not through `sub_max`'s lock, hash and
+    /// reference counts per node (what [`NodeSource::node_info`] alone does).
+    fn with_traversal_source(&self, f: &mut dyn FnMut(&dyn NodeSource)) {
+        f(&MemoNodes { tree: self, memo: BlockMemo::default() })
+    }
+}
+
+/// [`StoreTree`]'s nodes through one traversal's [`BlockMemo`]
+/// ([`NodeTree::with_traversal_source`]).
+struct MemoNodes<'a> {
+    tree: &'a StoreTree,
+    memo: BlockMemo,
+}
+
+impl NodeSource for MemoNodes<'_> {
+    fn node_info(&self, n: NodeId) -> Option<NodeInfo> {
+        self.tree.node_info_in(&self.memo, n)
+    }
 }
 
 impl StoreTree {

@@ -95,6 +95,10 @@ impl NodeTree for StoreSource<'_> {
     fn shape(&self) -> &TreeShape {
         self.tree.shape()
     }
+
+    fn with_traversal_source(&self, f: &mut dyn FnMut(&dyn NodeSource)) {
+        self.tree.with_traversal_source(f)
+    }
 }
 
 impl TerrainSource for StoreSource<'_> {
@@ -122,7 +126,14 @@ pub fn demand_of(tree: &StoreTree, selection: &Selection, on_squares: bool) -> V
     let h = tree.store().header();
     let bl = i32::from(tree.block_level());
     let root = tree.root_cells();
-    let mut need: std::collections::BTreeMap<BlockId, u8> = std::collections::BTreeMap::new();
+    // Per patch its block (or blocks) and level, the same block's patches in a row folded as
+    // they come (a selection lists a block's patches together), then sorted by block with
+    // each block's largest level: the map this replaced, without a tree insert per patch.
+    let mut need: Vec<(BlockId, u8)> = Vec::new();
+    let mut add = |b: BlockId, level: u8| match need.last_mut() {
+        Some((last, l)) if *last == b => *l = (*l).max(level),
+        _ => need.push((b, level)),
+    };
     for p in &selection.patches {
         let n = p.node;
         let cells = root >> n.level;
@@ -139,10 +150,18 @@ pub fn demand_of(tree: &StoreTree, selection: &Selection, on_squares: bool) -> V
         };
         let local = i32::from(n.level) - bl;
         let level = (local + steps).clamp(0, i32::from(h.k)) as u8;
-        for b in tree.blocks_under(n) {
-            let e = need.entry(b).or_insert(0);
-            *e = (*e).max(level);
+        match tree.block_of(n) {
+            Some((b, _)) => add(b, level),
+            None => tree.blocks_under(n).into_iter().for_each(|b| add(b, level)),
         }
     }
-    need.into_iter().collect()
+    need.sort_unstable_by_key(|&(b, _)| b);
+    need.dedup_by(|later, kept| {
+        let same = later.0 == kept.0;
+        if same {
+            kept.1 = kept.1.max(later.1);
+        }
+        same
+    });
+    need
 }

@@ -44,7 +44,9 @@
 //! = the coarsest level) and a source `q` can only lower `c'_p` when `|p - q|_1 < c_p <= L`,
 //! the envelope of the drawn patches and their neighbours needs only the factors of patches
 //! within `L` of a visible one: the factors and the two passes run over that window
-//! (per-row spans, a dense index), so a frame costs `O(visible patches x L)`, not the grid.
+//! (exactly the union of their city-block balls of radius `L`, as per-row spans densely
+//! indexed; patches of the frame's runs there have `c = L`, see below, and are not
+//! projected), so a frame costs `O(visible patches x L)`, not the grid.
 //! The two-pass city-block transform (Rosenfeld & Pfaltz 1966, "Sequential operations in
 //! digital picture processing"; for sampled functions, Felzenszwalb & Huttenlocher 2012) is
 //! exact on the window because it holds every L-shaped path from such a source to `p`. Every
@@ -88,7 +90,7 @@ use std::time::Instant;
 use glam::{DVec2, DVec3};
 
 use super::patch::Edge;
-use super::window::RowWindow;
+use super::window::SpanWindow;
 use crate::geometry::Camera;
 use crate::heightmap::Heightmap;
 use crate::metrics::Region;
@@ -505,6 +507,11 @@ impl GeomipTable {
                 if d <= 1e-9 { f64::INFINITY } else { lambda * delta / (tau * d) }
             };
             let w = (2.0 - 2.0 * a).clamp(0.0, 1.0).min(prev);
+            // `w` only falls (`min(prev)`): once a level contributes 0 every coarser one
+            // does, and adding 0.0 leaves `c` as it is.
+            if w <= 0.0 {
+                break;
+            }
             prev = w;
             c += w;
         }
@@ -512,8 +519,9 @@ impl GeomipTable {
     }
 }
 
-/// One level of a [`CoarsePyramid`]: `nx` by `ny` nodes, row-major; per node `L` errors
-/// (`errors[node * L + r]`, see [`CoarsePyramid`]) and the height range of the vertices.
+/// One level of a [`CoarsePyramid`]: `nx` by `ny` nodes in tiles of [`PYRAMID_TILE`] squared
+/// ([`PyramidLevel::index`]); per node `L` errors (`errors[node * L + r]`, see
+/// [`CoarsePyramid`]) and the height range of the vertices.
 #[derive(Debug, Clone, PartialEq, Default)]
 struct PyramidLevel {
     nx: u32,
@@ -522,6 +530,44 @@ struct PyramidLevel {
     /// Per node: lowest and highest height of a vertex carrying a positive error within
     /// `L - 1` patches (`+inf, -inf` when none).
     z: Vec<[f32; 2]>,
+}
+
+/// Nodes per side of a [`PyramidLevel`]'s tiles. The selection walks the patch tree depth
+/// first: in a row-major level the four children of a node lie a row of the grid apart (on
+/// `big32k`, 2048 patches of 16 bytes), in a tile (Z order inside) side by side, and a node
+/// `PYRAMID_TILE` patches wide in one tile.
+const PYRAMID_TILE: usize = 8;
+
+/// The slot of node `(i, j)` of a level `nx` nodes wide: tiles row-major, nodes in Z order in
+/// each (the four children of a node side by side, as the walk visits them).
+#[inline]
+fn tile_index(nx: u32, i: u32, j: u32) -> usize {
+    let (nx, i, j) = (nx as usize, i as usize, j as usize);
+    let tile = (j / PYRAMID_TILE) * nx.div_ceil(PYRAMID_TILE) + i / PYRAMID_TILE;
+    // Bits 0-2 of x spread to 0, 2, 4.
+    let spread = |x: usize| (x & 1) | ((x & 2) << 1) | ((x & 4) << 2);
+    tile * PYRAMID_TILE * PYRAMID_TILE
+        + (spread(i % PYRAMID_TILE) | (spread(j % PYRAMID_TILE) << 1))
+}
+
+impl PyramidLevel {
+    /// A level of `nx` by `ny` nodes, `l` errors each, all 0, height ranges empty.
+    fn empty(nx: u32, ny: u32, l: usize) -> Self {
+        let t = PYRAMID_TILE;
+        let slots = (nx as usize).div_ceil(t) * (ny as usize).div_ceil(t) * t * t;
+        Self {
+            nx,
+            ny,
+            errors: vec![0.0; slots * l],
+            z: vec![[f32::INFINITY, f32::NEG_INFINITY]; slots],
+        }
+    }
+
+    /// The slot of node `(i, j)` ([`tile_index`]).
+    #[inline]
+    fn index(&self, i: u32, j: u32) -> usize {
+        tile_index(self.nx, i, j)
+    }
 }
 
 /// A max pyramid over the patch grid that proves whole nodes of the patch tree coarsest.
@@ -583,13 +629,16 @@ impl CoarsePyramid {
         let (nx, ny) = (t.nx as usize, t.ny as usize);
         let dims = (nx, ny);
         let n = nx * ny;
-        // Per radius r: the largest m_{L-r} over the square of radius r.
-        let mut errors = vec![0.0f32; n * l];
+        // Per radius r: the largest m_{L-r} over the square of radius r, written tiled.
+        let mut base = PyramidLevel::empty(t.nx, t.ny, l);
+        // Allocated again once the row-major ranges below are built (peak memory).
+        let z_slots = std::mem::take(&mut base.z).len();
+        let slot = |k: usize| tile_index(t.nx, (k % nx) as u32, (k / nx) as u32);
         for r in 0..l {
             let own: Vec<f32> = (0..n).map(|k| t.errors[k * l + (l - r) - 1]).collect();
             let d = dilate(&dilate(&own, dims, r, true, f32::max), dims, r, false, f32::max);
-            for k in 0..n {
-                errors[k * l + r] = d[k];
+            for (k, &v) in d.iter().enumerate() {
+                base.errors[slot(k) * l + r] = v;
             }
         }
         let own: Vec<[f32; 2]> = (0..n)
@@ -606,32 +655,37 @@ impl CoarsePyramid {
         let zm = |a: [f32; 2], b: [f32; 2]| [a[0].min(b[0]), a[1].max(b[1])];
         let r = l.saturating_sub(1);
         let z = dilate(&dilate(&own, dims, r, true, zm), dims, r, false, zm);
-        let mut levels = vec![PyramidLevel { nx: t.nx, ny: t.ny, errors, z }];
+        drop(own);
+        base.z = vec![[f32::INFINITY, f32::NEG_INFINITY]; z_slots];
+        for (k, &v) in z.iter().enumerate() {
+            base.z[slot(k)] = v;
+        }
+        drop(z);
+        let mut levels = vec![base];
         loop {
             let prev = levels.last().expect("level 0");
             if prev.nx == 1 && prev.ny == 1 {
                 break;
             }
-            let (px, py) = (prev.nx as usize, prev.ny as usize);
-            let (cx, cy) = (px.div_ceil(2), py.div_ceil(2));
-            let mut errors = vec![0.0f32; cx * cy * l];
-            let mut z = vec![[f32::INFINITY, f32::NEG_INFINITY]; cx * cy];
-            for j in 0..cy {
-                for i in 0..cx {
-                    let k = j * cx + i;
+            let (px, py) = (prev.nx, prev.ny);
+            let mut next = PyramidLevel::empty(px.div_ceil(2), py.div_ceil(2), l);
+            for j in 0..next.ny {
+                for i in 0..next.nx {
+                    let k = next.index(i, j);
                     for (di, dj) in [(0, 0), (1, 0), (0, 1), (1, 1)] {
                         let (ci, cj) = (2 * i + di, 2 * j + dj);
                         if ci < px && cj < py {
-                            let c = cj * px + ci;
+                            let c = prev.index(ci, cj);
                             for r in 0..l {
-                                errors[k * l + r] = errors[k * l + r].max(prev.errors[c * l + r]);
+                                next.errors[k * l + r] =
+                                    next.errors[k * l + r].max(prev.errors[c * l + r]);
                             }
-                            z[k] = zm(z[k], prev.z[c]);
+                            next.z[k] = zm(next.z[k], prev.z[c]);
                         }
                     }
                 }
             }
-            levels.push(PyramidLevel { nx: cx as u32, ny: cy as u32, errors, z });
+            levels.push(next);
         }
         Self { coarsest: l, levels }
     }
@@ -660,7 +714,7 @@ impl CoarsePyramid {
         let Some(top) = self.levels.last() else { return false };
         let l = self.coarsest;
         let node = match self.levels.get(m) {
-            Some(lv) if i < lv.nx && j < lv.ny => (lv, (j * lv.nx + i) as usize),
+            Some(lv) if i < lv.nx && j < lv.ny => (lv, lv.index(i, j)),
             Some(_) => return false,
             // Above the pyramid's top (a store's root covers more than the grid): the root.
             None => (top, 0),
@@ -1058,7 +1112,8 @@ impl GeomipTable {
             }
             !coarse(n)
         };
-        let nodes = select(tree, &mut split, &mut cull);
+        let mut nodes = Vec::new();
+        tree.with_traversal_source(&mut |src| nodes = select(src, &mut split, &mut cull));
         let mut runs = Vec::new();
         let mut cells = Vec::new();
         for n in nodes {
@@ -1077,7 +1132,7 @@ impl GeomipTable {
                 cells.push((n.i as usize, n.j as usize));
             }
         }
-        let (patches, factors) = self.exact_patches(shape, &cells, eye, lambda, tau, cfg);
+        let (patches, factors) = self.exact_patches(shape, &cells, &runs, eye, lambda, tau, cfg);
         let mut out = GeomipRuns {
             runs,
             patches,
@@ -1095,103 +1150,138 @@ impl GeomipTable {
 
     /// The exact computation for the patches `cells` (column, row): factors over the window
     /// within `L` of them, the envelope there, levels, tweens and borders (module docs).
-    /// Returns them row-major with their `c'`.
+    /// Returns them row-major with their `c'`. `runs` are the frame's runs: their patches
+    /// have `c = L` (the bound that made them runs proves every level's `w = 1`), so the
+    /// window's patches in them take `L` without the projection.
+    #[allow(clippy::too_many_arguments)]
     fn exact_patches(
         &self,
         shape: &TreeShape,
         cells: &[(usize, usize)],
+        runs: &[PatchRun],
         eye: DVec3,
         lambda: f64,
         tau: f64,
         cfg: &GeomipConfig,
     ) -> (Vec<PatchLod>, Vec<f32>) {
         let (nx, ny) = (self.nx as usize, self.ny as usize);
-        let cells_in = cells;
-        let cells = cells_in.iter().copied();
-        // Every patch within `L` of a visible one (see the module docs), densely indexed.
+        // Every patch within `L` of a visible one (see the module docs), densely indexed: the
+        // union of their city-block balls, per row as spans (a row's hull would hold, between
+        // visible patches on both sides of the view, every run patch between them).
         let max_level = self.levels - 1;
-        let win = RowWindow::dilated(cells.clone(), max_level, nx, ny);
-        let mut c = vec![0.0f32; win.len()];
-        for (j, lo, hi, off) in win.rows() {
-            for i in lo..=hi {
-                c[off + i - lo] = self.factor(shape, j * nx + i, eye, lambda, tau);
-            }
-        }
-        // Lower envelope c'_p = min_q (c_q + |p - q|_1): forward then backward pass.
-        for (j, lo, hi, off) in win.rows() {
-            for i in lo..=hi {
-                let k = off + i - lo;
-                if i > lo {
-                    c[k] = c[k].min(c[k - 1] + 1.0);
-                }
-                if let Some(b) = j.checked_sub(1).and_then(|jb| win.index(i, jb)) {
-                    c[k] = c[k].min(c[b] + 1.0);
+        let (win, cells) = SpanWindow::dilated(cells, max_level, nx, ny);
+        let coarsest = max_level as f32;
+        // NaN: not known yet (a factor is never NaN: each `w` is clamped, then `min(prev)`).
+        let mut c = vec![f32::NAN; win.len()];
+        for r in runs {
+            let (i0, i1) = (r.i as usize, (r.i + r.width) as usize - 1);
+            for j in r.j as usize..(r.j + r.height) as usize {
+                let row = win.row(j);
+                let first = row.partition_point(|&(_, hi, _)| hi < i0);
+                for &(lo, hi, off) in row[first..].iter().take_while(|&&(lo, _, _)| lo <= i1) {
+                    let (a, b) = (lo.max(i0), hi.min(i1));
+                    c[off + a - lo..=off + b - lo].fill(coarsest);
                 }
             }
         }
-        for (j, lo, hi, off) in win.rows().rev() {
-            for i in (lo..=hi).rev() {
-                let k = off + i - lo;
-                if i < hi {
-                    c[k] = c[k].min(c[k + 1] + 1.0);
-                }
-                if let Some(a) = win.index(i, j + 1) {
-                    c[k] = c[k].min(c[a] + 1.0);
+        for (j, row) in win.rows() {
+            for &(lo, hi, off) in row {
+                for i in lo..=hi {
+                    let k = off + i - lo;
+                    if c[k].is_nan() {
+                        c[k] = self.factor(shape, j * nx + i, eye, lambda, tau);
+                    }
                 }
             }
         }
-        let max_level = max_level as f32;
+        // Lower envelope c'_p = min_q (c_q + |p - q|_1): forward then backward pass. Spans are
+        // maximal, so a slot's west (east) neighbour in the window is the slot before (after).
+        for (j, row) in win.rows() {
+            let mut below = 0;
+            for &(lo, hi, off) in row {
+                for i in lo..=hi {
+                    let k = off + i - lo;
+                    if i > lo {
+                        c[k] = c[k].min(c[k - 1] + 1.0);
+                    }
+                    if let Some(b) = j.checked_sub(1).and_then(|jb| win.index_up(i, jb, &mut below))
+                    {
+                        c[k] = c[k].min(c[b] + 1.0);
+                    }
+                }
+            }
+        }
+        for (j, row) in win.rows().rev() {
+            let mut above = usize::MAX;
+            for &(lo, hi, off) in row.iter().rev() {
+                for i in (lo..=hi).rev() {
+                    let k = off + i - lo;
+                    if i < hi {
+                        c[k] = c[k].min(c[k + 1] + 1.0);
+                    }
+                    if let Some(a) = win.index_down(i, j + 1, &mut above) {
+                        c[k] = c[k].min(c[a] + 1.0);
+                    }
+                }
+            }
+        }
+        let max_level = coarsest;
         let level_tween = |k: usize| -> (u8, f32) {
             let ck = c[k].clamp(0.0, max_level);
-            let l = ck.floor();
+            // `ck >= 0`: truncation is `floor` (without the libm call `floor` is here).
+            let l = f32::from(ck as u8);
             let t = if cfg.morph && l < max_level { ck - l } else { 0.0 };
             (l as u8, t)
         };
-        // Row-major output: mark the visible patches in the window, then walk it in order.
-        let mut shown = vec![false; win.len()];
-        for (i, j) in cells {
-            if let Some(k) = win.index(i, j) {
-                shown[k] = true;
+        // Row-major output: the visible patches sorted, their rows and the two beside them
+        // looked up through cursors (columns ascending within a row).
+        let mut patches = Vec::with_capacity(cells.len());
+        let mut factors = Vec::with_capacity(cells.len());
+        let mut row_j = usize::MAX;
+        let mut cursors = [0usize; 3];
+        let mut last = None;
+        for &(i, j) in &cells {
+            if last == Some((i, j)) {
+                continue;
             }
-        }
-        let mut patches = Vec::with_capacity(cells_in.len());
-        let mut factors = Vec::with_capacity(cells_in.len());
-        for (j, lo, hi, off) in win.rows() {
-            for i in lo..=hi {
-                let k = off + i - lo;
-                if !shown[k] {
+            last = Some((i, j));
+            if j != row_j {
+                (row_j, cursors) = (j, [0; 3]);
+            }
+            let k = win.index_up(i, j, &mut cursors[1]).expect("a visible patch is in the window");
+            let (level, tween) = level_tween(k);
+            let mut edge_level = [level; 4];
+            let mut edge_tween = [tween; 4];
+            for e in Edge::ALL {
+                let (di, dj) = e.direction().step();
+                let (qi, qj) = (i as i64 + di, j as i64 + dj);
+                if qi < 0 || qj < 0 || qi >= nx as i64 || qj >= ny as i64 {
                     continue;
                 }
-                let (level, tween) = level_tween(k);
-                let mut edge_level = [level; 4];
-                let mut edge_tween = [tween; 4];
-                for e in Edge::ALL {
-                    let (di, dj) = e.direction().step();
-                    let (qi, qj) = (i as i64 + di, j as i64 + dj);
-                    if qi < 0 || qj < 0 || qi >= nx as i64 || qj >= ny as i64 {
-                        continue;
-                    }
-                    let q =
-                        win.index(qi as usize, qj as usize).expect("neighbours are in the window");
-                    let (ql, qt) = level_tween(q);
-                    let k = e as usize;
-                    edge_level[k] = level.max(ql);
-                    edge_tween[k] = match ql.cmp(&level) {
-                        std::cmp::Ordering::Greater => qt,
-                        std::cmp::Ordering::Less => tween,
-                        std::cmp::Ordering::Equal => tween.max(qt),
-                    };
-                }
-                patches.push(PatchLod {
-                    i: i as u32,
-                    j: j as u32,
-                    level,
-                    tween,
-                    edge_level,
-                    edge_tween,
-                });
-                factors.push(c[k]);
+                let q = match dj {
+                    0 => Some((k as i64 + di) as usize),
+                    -1 => win.index_up(i, j - 1, &mut cursors[0]),
+                    _ => win.index_up(i, j + 1, &mut cursors[2]),
+                };
+                let q = q.expect("neighbours are in the window");
+                let (ql, qt) = level_tween(q);
+                let k = e as usize;
+                edge_level[k] = level.max(ql);
+                edge_tween[k] = match ql.cmp(&level) {
+                    std::cmp::Ordering::Greater => qt,
+                    std::cmp::Ordering::Less => tween,
+                    std::cmp::Ordering::Equal => tween.max(qt),
+                };
             }
+            patches.push(PatchLod {
+                i: i as u32,
+                j: j as u32,
+                level,
+                tween,
+                edge_level,
+                edge_tween,
+            });
+            factors.push(c[k]);
         }
         (patches, factors)
     }

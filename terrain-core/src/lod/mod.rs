@@ -157,7 +157,8 @@ pub(crate) mod run {
         let first = |n: NodeId, i: &NodeInfo| cull.classify(n, i);
         let second = |n: NodeId, i: &NodeInfo| extra.classify(n, i);
         let mut both = (first, second);
-        let mut out = traverse(qt, split, &mut both, &mut visit);
+        let mut out = Vec::new();
+        qt.with_traversal_source(&mut |src| out = traverse(src, split, &mut both, &mut visit));
         if balanced {
             // Balancing adds only children of selected leaves that exist in the tree.
             let shape = qt.shape();

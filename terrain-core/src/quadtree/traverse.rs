@@ -45,6 +45,15 @@ impl<T: NodeSource + ?Sized> NodeSource for &T {
 pub trait NodeTree: NodeSource {
     /// The quadtree's geometry: every node the source answers for exists in it.
     fn shape(&self) -> &TreeShape;
+
+    /// Calls `f` with this tree as the node source of one traversal. A source whose lookups
+    /// share work between consecutive nodes (a baked store: the block entry of the node asked
+    /// about last, which a depth-first walk asks about again and again) keeps it there for the
+    /// length of `f`, which `&self` alone cannot; the answers are the same as
+    /// [`NodeSource::node_info`]'s. The default passes the tree itself.
+    fn with_traversal_source(&self, f: &mut dyn FnMut(&dyn NodeSource)) {
+        f(&self)
+    }
 }
 
 impl NodeTree for Quadtree {
@@ -56,6 +65,10 @@ impl NodeTree for Quadtree {
 impl<T: NodeTree + ?Sized> NodeTree for &T {
     fn shape(&self) -> &TreeShape {
         (**self).shape()
+    }
+
+    fn with_traversal_source(&self, f: &mut dyn FnMut(&dyn NodeSource)) {
+        (**self).with_traversal_source(f)
     }
 }
 

@@ -889,3 +889,68 @@ fn the_view_angle_floor_changes_only_views_steeper_than_it() {
     assert!(a.patches.len() < b.patches.len(), "{} vs {}", a.patches.len(), b.patches.len());
     let _ = std::fs::remove_dir_all(dir);
 }
+
+/// `demand_of` (blocks and levels folded as the patches come, then sorted) equals the
+/// per-patch map it replaced (a `BTreeMap` of each block's largest level), for patches in
+/// traversal order, shuffled, spanning several blocks and with non-square factors; the
+/// traversal through `with_traversal_source` (the tree's block memo) visits the same leaves
+/// as through the tree itself.
+#[test]
+fn demand_and_memoised_traversal_equal_their_references() {
+    use std::collections::BTreeMap;
+    use terrain_core::lod::Patch;
+    use terrain_core::quadtree::{FrustumCull, NodeInfo, NodeTree, SplitPolicy, select};
+
+    let hm = terrain(300, 220);
+    let (_dir, store) = bake_store(&hm, "demand", 5, 3);
+    let tree = eq7_tree(&store, 4);
+    let reference = |patches: &[Patch], on_squares: bool| -> Vec<(BlockId, u8)> {
+        let mut need = BTreeMap::new();
+        for p in patches {
+            // One patch's demand: its block's (or blocks') level.
+            let one = Selection { patches: vec![*p], ..Selection::default() };
+            for (b, l) in crate::demand_of(&tree, &one, on_squares) {
+                let e = need.entry(b).or_insert(0u8);
+                *e = (*e).max(l);
+            }
+        }
+        need.into_iter().collect()
+    };
+    struct Depth(u8);
+    impl SplitPolicy for Depth {
+        fn should_split(&mut self, n: NodeId, _: &NodeInfo) -> bool {
+            n.level < self.0
+        }
+    }
+    let mut checked = 0;
+    for (k, cam) in cameras().iter().enumerate() {
+        for depth in [1, 3, 5, 7] {
+            let frustum = Frustum::from_camera(cam);
+            let mut memo = Vec::new();
+            tree.with_traversal_source(&mut |src| {
+                memo = select(src, &mut Depth(depth), &mut FrustumCull::new(frustum));
+            });
+            let direct = select(&tree, &mut Depth(depth), &mut FrustumCull::new(frustum));
+            assert_eq!(memo, direct, "camera {k}, depth {depth}: leaves");
+            let factor = |i: usize| [1.0, 2.0, 4.0, 3.0][i % 4];
+            let mut patches: Vec<Patch> = memo
+                .iter()
+                .enumerate()
+                .map(|(i, &node)| Patch { node, outer: [factor(i); 4], inner: [factor(i + 1); 2] })
+                .collect();
+            let sel =
+                |patches: &[Patch]| Selection { patches: patches.to_vec(), ..Default::default() };
+            for on_squares in [true, false] {
+                let demand = crate::demand_of(&tree, &sel(&patches), on_squares);
+                assert_eq!(demand, reference(&patches, on_squares), "camera {k}, depth {depth}");
+            }
+            patches.reverse();
+            let third = patches.len() / 3;
+            patches.rotate_left(third);
+            let demand = crate::demand_of(&tree, &sel(&patches), true);
+            assert_eq!(demand, reference(&patches, true), "camera {k}, depth {depth}, shuffled");
+            checked += demand.len();
+        }
+    }
+    assert!(checked > 50, "{checked} block demands compared");
+}
