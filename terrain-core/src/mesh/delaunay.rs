@@ -148,6 +148,45 @@ impl Vertex {
     }
 }
 
+/// Where seed walks start: per square of `HINT_CELL` x `HINT_CELL` samples, a triangle slot
+/// made by the last seed inserted there (`NONE`: none yet). Slots are reused in place, never
+/// freed, so any recorded slot is some triangle of the mesh, usually one near the square:
+/// a good start, and only a start (the walk decides where a seed goes).
+#[derive(Default)]
+struct Hints {
+    columns: usize,
+    cells: Vec<u32>,
+}
+
+/// Samples on a side of a [`Hints`] square.
+const HINT_CELL: i64 = 8;
+
+impl Hints {
+    /// Hints over a `width x height` grid.
+    fn new(width: usize, height: usize) -> Self {
+        let cell = HINT_CELL as usize;
+        let columns = width.div_ceil(cell);
+        Self { columns, cells: vec![NONE; columns * height.div_ceil(cell)] }
+    }
+
+    #[inline]
+    fn index(&self, p: [i64; 2]) -> usize {
+        (p[1] / HINT_CELL) as usize * self.columns + (p[0] / HINT_CELL) as usize
+    }
+
+    /// The slot recorded for `p`'s square (`NONE`: none, or no hints).
+    fn get(&self, p: [i64; 2]) -> u32 {
+        self.cells.get(self.index(p)).copied().unwrap_or(NONE)
+    }
+
+    fn set(&mut self, p: [i64; 2], t: u32) {
+        let k = self.index(p);
+        if let Some(c) = self.cells.get_mut(k) {
+            *c = t;
+        }
+    }
+}
+
 /// The greedy mesher's state.
 struct Mesher<'a> {
     hm: &'a Heightmap,
@@ -167,6 +206,8 @@ struct Mesher<'a> {
     pending: Vec<u32>,
     /// Half-edges waiting for the Delaunay test (a stack: depth first, as recursion).
     legalize: Vec<u32>,
+    /// Where seed walks start (empty without seeds).
+    hints: Hints,
 }
 
 impl<'a> Mesher<'a> {
@@ -182,6 +223,7 @@ impl<'a> Mesher<'a> {
             heap: Vec::new(),
             pending: Vec::new(),
             legalize: Vec::new(),
+            hints: Hints::default(),
         };
         for p in [[0, 0], [w - 1, 0], [w - 1, h - 1], [0, h - 1]] {
             m.add_vertex(p);
@@ -489,33 +531,75 @@ impl<'a> Mesher<'a> {
 
     /// Inserts a seed sample, located by a visibility walk; a sample that is already a
     /// vertex is skipped.
+    ///
+    /// The walk starts from a triangle made by an earlier seed near `p` ([`Hints`]), a few
+    /// steps away, where the first walk (from the newest triangle) crossed the whole mesh.
+    /// Where `p` is strictly inside the triangle found, on the grid's border or at a vertex,
+    /// that triangle is the only one the walk from any start could end in (the only closed
+    /// triangle holding `p`, or an insertion that does nothing), so the mesh is the same;
+    /// on an edge between two triangles the walk from the newest triangle decides which, as
+    /// it did before.
     fn insert_seed(&mut self, p: [i64; 2]) {
         let triangles = self.slots.len() as u32;
-        let mut t = triangles - 1;
+        let hint = self.hints.get(p);
+        if hint != NONE
+            && let Some(t) = self.walk(hint, p)
+            && self.only_holder(t, p)
+        {
+            self.insert_located(t, p);
+            self.hints.set(p, t);
+            return;
+        }
+        if let Some(t) = self.walk(triangles - 1, p) {
+            self.insert_located(t, p);
+            self.hints.set(p, t);
+            return;
+        }
+        // Outside the hull (cannot happen for a sample of the grid) or a walk that does not
+        // end (cannot happen in a Delaunay triangulation): search.
+        for t in 0..triangles {
+            let e = 3 * t;
+            if (e..e + 3).all(|k| raster::orient(self.at(k), self.at(next(k)), p) >= 0) {
+                self.insert_located(t, p);
+                self.hints.set(p, t);
+                return;
+            }
+        }
+    }
+
+    /// The visibility walk from triangle `t` to a triangle whose closure holds `p` (it leaves
+    /// by the first edge, in order, that has `p` strictly on its outside); `None` where it
+    /// would leave the hull or takes more steps than there are triangles.
+    fn walk(&self, mut t: u32, p: [i64; 2]) -> Option<u32> {
+        let triangles = self.slots.len() as u32;
         let mut steps = 0u32;
         'walk: loop {
             let e = 3 * t;
             for k in e..e + 3 {
                 if raster::orient(self.at(k), self.at(next(k)), p) < 0 {
                     let twin = self.he(k as usize)[1];
-                    // Outside the hull (cannot happen for a sample of the grid) or a walk
-                    // that does not end (cannot happen in a Delaunay triangulation): search.
                     if twin == NONE || steps > triangles {
-                        break 'walk;
+                        return None;
                     }
                     t = twin / 3;
                     steps += 1;
                     continue 'walk;
                 }
             }
-            return self.insert_located(t, p);
+            return Some(t);
         }
-        for t in 0..triangles {
-            let e = 3 * t;
-            if (e..e + 3).all(|k| raster::orient(self.at(k), self.at(next(k)), p) >= 0) {
-                return self.insert_located(t, p);
-            }
-        }
+    }
+
+    /// Whether `p`, in the closed triangle `t`, is in no other triangle's interior or
+    /// interior edge: strictly inside `t`, at one of its vertices, or on a border edge.
+    fn only_holder(&self, t: u32, p: [i64; 2]) -> bool {
+        let e = 3 * t;
+        (e..e + 3).all(|k| {
+            self.at(k) == p
+                || self.at(next(k)) == p
+                || raster::orient(self.at(k), self.at(next(k)), p) > 0
+                || self.he(k as usize)[1] == NONE
+        })
     }
 
     fn insert_located(&mut self, t: u32, p: [i64; 2]) {
@@ -575,6 +659,9 @@ pub fn build_seeded(
         "the grid is too large for u32 indices"
     );
     let mut m = Mesher::new(hm, max_error, lock_border);
+    if !seeds.is_empty() {
+        m.hints = Hints::new(w, h);
+    }
     // Seeds first, without scanning: the scan after the last seed covers every triangle.
     for &[i, j] in seeds {
         if (i as usize) < w && (j as usize) < h {
