@@ -833,11 +833,8 @@ mod tests {
         // hints, and the hints must shorten the walks (or they were not used).
         let hm = Heightmap::from_fn(129, 97, Georef::local(1.0), rough).unwrap();
         let coarse = build(&hm, 6.0);
-        let mut seeds: Vec<[u32; 2]> = coarse
-            .positions
-            .iter()
-            .map(|p| [p.x.round() as u32, p.y.round() as u32])
-            .collect();
+        let mut seeds: Vec<[u32; 2]> =
+            coarse.positions.iter().map(|p| [p.x.round() as u32, p.y.round() as u32]).collect();
         seeds.extend((0..33).map(|k| [4 * k, 3 * k]));
         seeds.extend((0..129).step_by(5).map(|i| [i, 40]));
         assert!(seeds.len() > 200, "{} seeds", seeds.len());
