@@ -29,7 +29,9 @@
 //! [`build_seeded`] starts from given samples besides the corners and may lock the grid's
 //! border (its samples are never inserted by the greedy loop): the TIN pyramids
 //! ([`crate::tin::tile`]) fix each tile's border vertices that way, so neighbours agree.
-//! Seeds are located by a visibility walk.
+//! Seeds are located by a visibility walk, started from a triangle an earlier seed nearby made
+//! (the same triangle as a walk from anywhere, except on an edge between two triangles, where
+//! the walk from the newest triangle decides, as it always did).
 
 use crate::heightmap::Heightmap;
 use crate::mesh::{TriMesh, raster};
