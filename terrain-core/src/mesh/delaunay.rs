@@ -29,7 +29,9 @@
 //! [`build_seeded`] starts from given samples besides the corners and may lock the grid's
 //! border (its samples are never inserted by the greedy loop): the TIN pyramids
 //! ([`crate::tin::tile`]) fix each tile's border vertices that way, so neighbours agree.
-//! Seeds are located by a visibility walk.
+//! Seeds are located by a visibility walk, started from a triangle an earlier seed nearby made
+//! (the same triangle as a walk from anywhere, except on an edge between two triangles, where
+//! the walk from the newest triangle decides, as it always did).
 
 use crate::heightmap::Heightmap;
 use crate::mesh::{TriMesh, raster};
@@ -148,6 +150,60 @@ impl Vertex {
     }
 }
 
+/// Where seed walks start: per square of `HINT_CELL` x `HINT_CELL` samples, and of 4 and 16
+/// times that, a triangle slot made by the last seed inserted there (`NONE`: none yet); a
+/// seed starts from its finest square's that has one. Slots are reused in place, never
+/// freed, so any recorded slot is some triangle of the mesh, usually one near the square:
+/// a good start, and only a start (the walk decides where a seed goes).
+#[derive(Default)]
+struct Hints {
+    /// Per level (squares of `HINT_CELL << 2k` samples): its columns and its squares.
+    levels: Vec<(usize, Vec<u32>)>,
+}
+
+/// Samples on a side of a finest [`Hints`] square.
+const HINT_CELL: usize = 8;
+
+impl Hints {
+    /// Hints over a `width x height` grid.
+    fn new(width: usize, height: usize) -> Self {
+        let levels = (0..3)
+            .map(|k| {
+                let cell = HINT_CELL << (2 * k);
+                let columns = width.div_ceil(cell);
+                (columns, vec![NONE; columns * height.div_ceil(cell)])
+            })
+            .collect();
+        Self { levels }
+    }
+
+    /// `p`'s square at level `k`.
+    #[inline]
+    fn index(columns: usize, k: usize, p: [i64; 2]) -> usize {
+        let cell = HINT_CELL << (2 * k);
+        p[1] as usize / cell * columns + p[0] as usize / cell
+    }
+
+    /// The slot recorded for `p`'s finest square that has one (`NONE`: none, or no hints).
+    fn get(&self, p: [i64; 2]) -> u32 {
+        for (k, (columns, cells)) in self.levels.iter().enumerate() {
+            let t = cells.get(Self::index(*columns, k, p)).copied().unwrap_or(NONE);
+            if t != NONE {
+                return t;
+            }
+        }
+        NONE
+    }
+
+    fn set(&mut self, p: [i64; 2], t: u32) {
+        for (k, (columns, cells)) in self.levels.iter_mut().enumerate() {
+            if let Some(c) = cells.get_mut(Self::index(*columns, k, p)) {
+                *c = t;
+            }
+        }
+    }
+}
+
 /// The greedy mesher's state.
 struct Mesher<'a> {
     hm: &'a Heightmap,
@@ -167,6 +223,10 @@ struct Mesher<'a> {
     pending: Vec<u32>,
     /// Half-edges waiting for the Delaunay test (a stack: depth first, as recursion).
     legalize: Vec<u32>,
+    /// Where seed walks start (empty without seeds).
+    hints: Hints,
+    /// Steps the seeds' walks took (the tests read it).
+    walk_steps: u64,
 }
 
 impl<'a> Mesher<'a> {
@@ -182,6 +242,8 @@ impl<'a> Mesher<'a> {
             heap: Vec::new(),
             pending: Vec::new(),
             legalize: Vec::new(),
+            hints: Hints::default(),
+            walk_steps: 0,
         };
         for p in [[0, 0], [w - 1, 0], [w - 1, h - 1], [0, h - 1]] {
             m.add_vertex(p);
@@ -489,33 +551,76 @@ impl<'a> Mesher<'a> {
 
     /// Inserts a seed sample, located by a visibility walk; a sample that is already a
     /// vertex is skipped.
+    ///
+    /// The walk starts from a triangle made by an earlier seed near `p` ([`Hints`]), a few
+    /// steps away, where the first walk (from the newest triangle) crossed the whole mesh.
+    /// Where `p` is strictly inside the triangle found, on the grid's border or at a vertex,
+    /// that triangle is the only one the walk from any start could end in (the only closed
+    /// triangle holding `p`, or an insertion that does nothing), so the mesh is the same;
+    /// on an edge between two triangles the walk from the newest triangle decides which, as
+    /// it did before.
     fn insert_seed(&mut self, p: [i64; 2]) {
         let triangles = self.slots.len() as u32;
-        let mut t = triangles - 1;
+        let hint = self.hints.get(p);
+        if hint != NONE
+            && let Some(t) = self.walk(hint, p)
+            && self.only_holder(t, p)
+        {
+            self.insert_located(t, p);
+            self.hints.set(p, t);
+            return;
+        }
+        if let Some(t) = self.walk(triangles - 1, p) {
+            self.insert_located(t, p);
+            self.hints.set(p, t);
+            return;
+        }
+        // Outside the hull (cannot happen for a sample of the grid) or a walk that does not
+        // end (cannot happen in a Delaunay triangulation): search.
+        for t in 0..triangles {
+            let e = 3 * t;
+            if (e..e + 3).all(|k| raster::orient(self.at(k), self.at(next(k)), p) >= 0) {
+                self.insert_located(t, p);
+                self.hints.set(p, t);
+                return;
+            }
+        }
+    }
+
+    /// The visibility walk from triangle `t` to a triangle whose closure holds `p` (it leaves
+    /// by the first edge, in order, that has `p` strictly on its outside); `None` where it
+    /// would leave the hull or takes more steps than there are triangles.
+    fn walk(&mut self, mut t: u32, p: [i64; 2]) -> Option<u32> {
+        let triangles = self.slots.len() as u32;
         let mut steps = 0u32;
         'walk: loop {
             let e = 3 * t;
             for k in e..e + 3 {
                 if raster::orient(self.at(k), self.at(next(k)), p) < 0 {
                     let twin = self.he(k as usize)[1];
-                    // Outside the hull (cannot happen for a sample of the grid) or a walk
-                    // that does not end (cannot happen in a Delaunay triangulation): search.
                     if twin == NONE || steps > triangles {
-                        break 'walk;
+                        return None;
                     }
                     t = twin / 3;
                     steps += 1;
+                    self.walk_steps += 1;
                     continue 'walk;
                 }
             }
-            return self.insert_located(t, p);
+            return Some(t);
         }
-        for t in 0..triangles {
-            let e = 3 * t;
-            if (e..e + 3).all(|k| raster::orient(self.at(k), self.at(next(k)), p) >= 0) {
-                return self.insert_located(t, p);
-            }
-        }
+    }
+
+    /// Whether `p`, in the closed triangle `t`, is in no other triangle's interior or
+    /// interior edge: strictly inside `t`, at one of its vertices, or on a border edge.
+    fn only_holder(&self, t: u32, p: [i64; 2]) -> bool {
+        let e = 3 * t;
+        (e..e + 3).all(|k| {
+            self.at(k) == p
+                || self.at(next(k)) == p
+                || raster::orient(self.at(k), self.at(next(k)), p) > 0
+                || self.he(k as usize)[1] == NONE
+        })
     }
 
     fn insert_located(&mut self, t: u32, p: [i64; 2]) {
@@ -574,7 +679,23 @@ pub fn build_seeded(
         (w as u64) * (h as u64) <= u64::from(u32::MAX),
         "the grid is too large for u32 indices"
     );
+    seeded_mesher(hm, max_error, seeds, lock_border, true).into_mesh()
+}
+
+/// [`build_seeded`]'s mesher after its run; `hinted: false` starts every seed's walk from the
+/// newest triangle (the tests compare the two).
+fn seeded_mesher<'a>(
+    hm: &'a Heightmap,
+    max_error: f64,
+    seeds: &[[u32; 2]],
+    lock_border: bool,
+    hinted: bool,
+) -> Mesher<'a> {
+    let (w, h) = (hm.width(), hm.height());
     let mut m = Mesher::new(hm, max_error, lock_border);
+    if hinted && !seeds.is_empty() {
+        m.hints = Hints::new(w, h);
+    }
     // Seeds first, without scanning: the scan after the last seed covers every triangle.
     for &[i, j] in seeds {
         if (i as usize) < w && (j as usize) < h {
@@ -582,7 +703,7 @@ pub fn build_seeded(
         }
     }
     m.run();
-    m.into_mesh()
+    m
 }
 
 #[cfg(test)]
@@ -703,6 +824,32 @@ mod tests {
             let unlocked = verify::check(&hm, &build(&hm, bound), bound).unwrap();
             assert!(unlocked.max_error <= bound);
             assert!(stats.samples == unlocked.samples);
+        }
+    }
+
+    #[test]
+    fn seed_walks_from_hints_build_the_same_meshes_in_fewer_steps() {
+        // Seeds as the tiles give them (a coarser mesh's vertices, in its insertion order),
+        // plus samples on the first diagonal and on a grid line, which fall on interior edges
+        // (where the walk from the newest triangle decides): the same mesh with and without
+        // hints, and the hints must shorten the walks (or they were not used).
+        let hm = Heightmap::from_fn(129, 97, Georef::local(1.0), rough).unwrap();
+        let coarse = build(&hm, 6.0);
+        let mut seeds: Vec<[u32; 2]> =
+            coarse.positions.iter().map(|p| [p.x.round() as u32, p.y.round() as u32]).collect();
+        seeds.extend((0..33).map(|k| [4 * k, 3 * k]));
+        seeds.extend((0..129).step_by(5).map(|i| [i, 40]));
+        assert!(seeds.len() > 200, "{} seeds", seeds.len());
+        for (bound, lock) in [(0.5, false), (2.0, true), (f64::INFINITY, false)] {
+            let hinted = seeded_mesher(&hm, bound, &seeds, lock, true);
+            let plain = seeded_mesher(&hm, bound, &seeds, lock, false);
+            assert!(
+                2 * hinted.walk_steps < plain.walk_steps,
+                "{} steps with hints, {} without",
+                hinted.walk_steps,
+                plain.walk_steps
+            );
+            assert_eq!(hinted.into_mesh(), plain.into_mesh(), "at {bound}, locked {lock}");
         }
     }
 
