@@ -132,8 +132,8 @@ impl Store {
 
     /// The finest level the store's overview (`overview.bin`: every block's coarsest levels
     /// in one file) holds, read from it instead of the blocks' files; `None` for a store
-    /// baked without one.
-    /// A store at a URL fetches its overview here if it has not yet (`None` when that fails).
+    /// baked without one. A store at a URL fetches its overview here if it has not yet
+    /// (`None` when that fails).
     pub fn overview_levels(&self) -> Option<u8> {
         self.overview().ok().flatten().map(|o| o.top())
     }
@@ -411,9 +411,12 @@ impl Store {
     /// Reads and checks the payload of `level` of block `id` (positioned read, CRC-32 verified).
     pub fn read_level_bytes(&self, id: BlockId, level: u8) -> Result<Vec<u8>, StoreError> {
         let bad = |message: String| StoreError::BadRequest { block: id, level, message };
-        // The overview's levels need no index entry (its records carry lengths and CRCs).
-        if let Some(pos) = self.header.block_position(id)
-            && let Some(overview) = self.overview()?.filter(|o| level <= o.top())
+        // The overview's levels need no index entry (its records carry lengths and CRCs). A
+        // remote store whose overview cannot be fetched reads the block files (the same
+        // bytes, checked the same way); a local one's was opened, or refused, with the store.
+        if level <= crate::overview::OVERVIEW_TOP
+            && let Some(pos) = self.header.block_position(id)
+            && let Some(overview) = self.overview().ok().flatten().filter(|o| level <= o.top())
         {
             return overview.level_bytes(pos, id, level);
         }
