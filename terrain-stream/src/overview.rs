@@ -12,9 +12,9 @@
 //! the whole grid are read without a page of the index ([`Overview::level_bytes`]: each level
 //! checked by its CRC-32; a damaged record reads bytes that fail it). Opening reads the 36
 //! bytes of the head alone (the store's invariant: opening does not grow with the blocks); a
-//! read is the block's record (once per block, memoized) and the level. Written by every bake (and shard merge) after the index ([`write`]); a store
-//! without one (baked before it existed) reads its blocks' own files. Not in the index's
-//! format version: an optional file. A store at a URL fetches it whole, in one request, when a
+//! read is the block's record (once per block, memoized) and the level. Written by every bake
+//! (and shard merge) after the index ([`write`]); a store without one (baked before it
+//! existed) reads its blocks' own files. Not in the index's format version: an optional file. A store at a URL fetches it whole, in one request, when a
 //! coarse level is first read (`Store::read_level_bytes`).
 
 use std::fs::File;
@@ -58,6 +58,17 @@ struct Record {
     levels: [(u32, u32); OVERVIEW_TOP as usize + 1],
 }
 
+/// The error of a damaged overview (or another bake's): what is wrong, and what to do.
+fn damaged(path: &Path, message: &str) -> StoreError {
+    StoreError::Overview {
+        path: path.to_path_buf(),
+        message: format!(
+            "{message}; remove it (the store then reads every block's own file) or bake the \
+             store again"
+        ),
+    }
+}
+
 /// An open overview: its file and its top level.
 #[derive(Debug)]
 pub(crate) struct Overview {
@@ -80,13 +91,7 @@ impl Overview {
             Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(None),
             Err(cause) => return Err(StoreError::Io { path, cause }),
         };
-        let bad = |message: String| StoreError::Overview {
-            path: path.clone(),
-            message: format!(
-                "{message}; remove it (the store then reads every block's own file) or bake \
-                 the store again"
-            ),
-        };
+        let bad = |message: String| damaged(&path, &message);
         let len = file.metadata().map_err(|cause| StoreError::Io { path: path.clone(), cause })?;
         let len = len.len();
         let blocks = header.block_count();
@@ -163,13 +168,10 @@ impl Overview {
         let (len, stored) = record.levels[level as usize];
         let start = record.offset.saturating_add(before);
         if start.saturating_add(u64::from(len)) > self.len {
-            return Err(StoreError::Overview {
-                path: self.path.clone(),
-                message: format!(
-                    "block {pos}'s level {level} lies past the end of the file; remove it (the \
-                     store then reads every block's own file) or bake the store again"
-                ),
-            });
+            return Err(damaged(
+                &self.path,
+                &format!("block {pos}'s level {level} lies past the end of the file"),
+            ));
         }
         let mut bytes = vec![0u8; len as usize];
         read_at(&self.file, start, &mut bytes).map_err(io)?;
@@ -213,35 +215,32 @@ pub(crate) fn write(dir: &Path) -> Result<u64, BakeError> {
         let p = p.to_path_buf();
         move |cause: std::io::Error| BakeError::Io { path: p.clone(), cause }
     };
-    // The head and table first: each block's offset and levels from its entry.
-    let table_len = HEAD_LEN + blocks * RECORD_LEN;
-    let mut table = Vec::with_capacity(table_len);
-    table.extend_from_slice(&OVERVIEW_MAGIC);
-    table.extend_from_slice(&header.bake_id.to_le_bytes());
-    table.push(top);
-    table.extend_from_slice(&[0u8; 7]);
-    table.extend_from_slice(&(blocks as u64).to_le_bytes());
-    let crc = crc32(&table);
-    table.extend_from_slice(&crc.to_le_bytes());
-    let mut offset = table_len as u64;
+    // The head, then each block's record from its entry, written as they come (the table is
+    // never held: the bake's memory does not grow with the blocks).
+    let mut out = BufWriter::new(File::create(&tmp).map_err(io(&tmp))?);
+    let mut head = Vec::with_capacity(HEAD_LEN);
+    head.extend_from_slice(&OVERVIEW_MAGIC);
+    head.extend_from_slice(&header.bake_id.to_le_bytes());
+    head.push(top);
+    head.extend_from_slice(&[0u8; 7]);
+    head.extend_from_slice(&(blocks as u64).to_le_bytes());
+    let crc = crc32(&head);
+    head.extend_from_slice(&crc.to_le_bytes());
+    out.write_all(&head).map_err(io(&tmp))?;
+    let mut offset = (HEAD_LEN + blocks * RECORD_LEN) as u64;
     for pos in 0..blocks {
-        table.extend_from_slice(&offset.to_le_bytes());
         let entry = store.try_entry(header.block_at(pos)).map_err(store_err)?.ok_or_else(|| {
             BakeError::Encoding(format!("writing the overview: no entry for block {pos}"))
         })?;
-        for level in 0..=OVERVIEW_TOP as usize {
-            let (len, crc) = entry
-                .levels
-                .get(level)
-                .filter(|_| level <= top as usize)
-                .map_or((0, 0), |l| (l.len, l.crc32));
-            table.extend_from_slice(&len.to_le_bytes());
-            table.extend_from_slice(&crc.to_le_bytes());
+        let mut record = [0u8; RECORD_LEN];
+        record[..8].copy_from_slice(&offset.to_le_bytes());
+        for (l, e) in entry.levels[..=top as usize].iter().enumerate() {
+            record[8 + 8 * l..12 + 8 * l].copy_from_slice(&e.len.to_le_bytes());
+            record[12 + 8 * l..16 + 8 * l].copy_from_slice(&e.crc32.to_le_bytes());
         }
+        out.write_all(&record).map_err(io(&tmp))?;
         offset += entry.levels[..=top as usize].iter().map(|l| u64::from(l.len)).sum::<u64>();
     }
-    let mut out = BufWriter::new(File::create(&tmp).map_err(io(&tmp))?);
-    out.write_all(&table).map_err(io(&tmp))?;
     const CHUNK: usize = 256;
     for start in (0..blocks).step_by(CHUNK) {
         let chunk: Vec<Vec<u8>> = (start..(start + CHUNK).min(blocks))

@@ -295,15 +295,7 @@ impl Remote {
             std::fs::create_dir_all(mirror).map_err(io_err(mirror))?;
             let _ = std::fs::write(mirror.join("url.txt"), format!("{}\n", remote.url));
             for name in &options.side_files {
-                let key = remote.prefix.child(name.as_str());
-                match remote.get(&key, None) {
-                    Ok((bytes, _)) => {
-                        let p = mirror.join(name);
-                        write_atomic(&p, &bytes).map_err(io_err(&p))?;
-                    }
-                    Err(object_store::Error::NotFound { .. }) => {}
-                    Err(e) => return Err(remote_err(&remote.url, format!("reading {name}: {e}"))),
-                }
+                remote.mirror_file(name)?;
             }
             // The index last: a mirror with an index has its side tables.
             write_atomic(&mirrored, copy).map_err(io_err(&mirrored))?;

@@ -1225,12 +1225,11 @@ impl GeomipTable {
                 }
             }
         }
-        let max_level = coarsest;
         let level_tween = |k: usize| -> (u8, f32) {
-            let ck = c[k].clamp(0.0, max_level);
+            let ck = c[k].clamp(0.0, coarsest);
             // `ck >= 0`: truncation is `floor` (without the libm call `floor` is here).
             let l = f32::from(ck as u8);
-            let t = if cfg.morph && l < max_level { ck - l } else { 0.0 };
+            let t = if cfg.morph && l < coarsest { ck - l } else { 0.0 };
             (l as u8, t)
         };
         // Row-major output: the visible patches sorted, their rows and the two beside them
