@@ -27,6 +27,7 @@
 //! ```
 
 pub mod delaunay;
+pub(crate) mod pretest;
 pub(crate) mod raster;
 pub mod rtin;
 pub mod verify;
