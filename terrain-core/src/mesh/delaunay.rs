@@ -34,7 +34,7 @@
 //! the walk from the newest triangle decides, as it always did).
 
 use crate::heightmap::Heightmap;
-use crate::mesh::{TriMesh, pretest, raster};
+use crate::mesh::{TriMesh, raster};
 
 /// No half-edge / not in the heap.
 const NONE: u32 = u32::MAX;
@@ -108,13 +108,15 @@ impl Entry {
     }
 }
 
-/// A scan's worst sample so far: its error, where, the error times the scanned triangle's
-/// `d` (the f64 dismissal threshold) and that as the f32 pre-test's threshold.
+/// Samples a scan dismisses together (see [`Mesher::scan`]).
+const LANES: usize = 4;
+
+/// A scan's worst sample so far: its error, where, and the error times the scanned
+/// triangle's `d` (the dismissal threshold).
 struct Best {
     error: f64,
     at: Option<[u32; 2]>,
     scaled: f64,
-    scaled32: f32,
 }
 
 /// `Slot::cand` of a triangle waiting to be scanned.
@@ -396,29 +398,16 @@ impl<'a> Mesher<'a> {
         let (w, h) = (hm.width() as i64, hm.height() as i64);
         let voids = hm.voids().any().then(|| hm.voids());
         let lock = self.lock_border;
-        let mut best = Best { error: self.max_error, at: None, scaled: 0.0, scaled32: 0.0 };
+        let mut best = Best { error: self.max_error, at: None, scaled: 0.0 };
         // The sample's error is |z - n / d| (n the interpolation's numerator, exactly as
         // `verify` computes it). Most samples are far below the running best: they are
-        // dismissed eight at a time by the f32 pre-test (`pretest`: a proven margin, so it
-        // never dismisses a sample the f64 test below keeps), then one by one on |z d - n|
-        // without a division, with a margin (1e-14 of the magnitudes, far above the products'
-        // rounding) that never dismisses a sample the exact test would keep; the survivors
-        // are decided on the exact value. Void samples are never candidates: they are dropped
-        // among the survivors only (a void's height may be NaN, which no dismissal test
-        // passes), the same outcome as before the tests.
+        // dismissed on |z d - n| without a division, with a margin (1e-14 of the magnitudes,
+        // far above the products' rounding) that never dismisses a sample the exact test
+        // would keep; the survivors are decided on the exact value. Void samples are never
+        // candidates: they are dropped among the survivors only (a void's height may be
+        // NaN, which no dismissal test passes), the same outcome as before the test.
         let df = raster::orient(g[0], g[1], g[2]) as f64;
         best.scaled = best.error * df;
-        // The pre-test needs its heights in f32 exactly (grid samples are); otherwise its
-        // threshold is -inf and it dismisses nothing.
-        let z32 = z.map(|z| z as f32);
-        let usable = z32.iter().zip(&z).all(|(&a, &b)| f64::from(a) == b);
-        let thresh =
-            |scaled: f64| if usable { pretest::threshold(scaled) } else { f32::NEG_INFINITY };
-        best.scaled32 = thresh(best.scaled);
-        // Weights up to 2^24 step exactly in f32; larger ones are rounded once from the
-        // exact f64 values (the pre-test's derivation allows either).
-        let small = df <= pretest::EXACT_WEIGHTS;
-        let d32 = df as f32;
         // A locked border leaves exactly the samples off the border: a clip, not a test.
         let clip =
             if lock { [1, 1, w - 2, h - 2] } else { [i64::MIN, i64::MIN, i64::MAX, i64::MAX] };
@@ -435,86 +424,55 @@ impl<'a> Mesher<'a> {
             let e = (zs - n / df).abs();
             // A vertex's own sample is never a candidate (its error is rounding alone).
             if e > best.error && !g.contains(&[i, j]) {
-                let scaled = e * df;
-                *best = Best {
-                    error: e,
-                    at: Some([i as u32, j as u32]),
-                    scaled,
-                    scaled32: thresh(scaled),
-                };
+                *best = Best { error: e, at: Some([i as u32, j as u32]), scaled: e * df };
             }
         };
-        const LANES: usize = pretest::LANES;
         raster::for_each_row(g, clip, |j, lo, hi, wt, dw| {
             let row = j as usize * width;
             let heights = &data[row + lo as usize..=row + hi as usize];
-            // Runs of `LANES` samples are pre-tested together against the running best at
-            // the run's start, which is at most the best at any of its samples: a run the
-            // pre-test dismisses whole is skipped without a branch per sample (the test
-            // vectorizes); in any other run the samples it did not dismiss are tested in
-            // order as before, on the exact f64 weights `wt + k dw` (exact integers, equal
-            // bit for bit to the stepped ones), as are the samples after the last run, so
-            // the outcome is the same.
+            // Runs of `LANES` samples are dismissed together on the same test and the same
+            // values (the weights `wt + k dw` are exact integers, so they equal the stepped
+            // ones bit for bit) against the running best at the run's start, which is at
+            // most the best at any of its samples: a run that cannot hold a candidate is
+            // skipped without a branch per sample (the loop vectorizes); any other run has
+            // every sample tested in order as before, so the outcome is the same.
             let mut chunks = heights.chunks_exact(LANES);
-            let dw32 = dw.map(|d| d as f32);
-            let mut lane = [[0.0f32; LANES]; 3];
-            if small {
-                for ((l, &w0), &d) in lane.iter_mut().zip(&wt).zip(&dw32) {
-                    let w0 = w0 as f32;
-                    for (k, w) in l.iter_mut().enumerate() {
-                        *w = w0 + k as f32 * d;
-                    }
+            let mut lane = [[0.0; LANES]; 3];
+            for (c, l) in lane.iter_mut().enumerate() {
+                for (k, w) in l.iter_mut().enumerate() {
+                    *w = wt[c] + k as f64 * dw[c];
                 }
             }
-            let jump = dw32.map(|d| d * LANES as f32);
-            let mut at = 0;
+            let jump = dw.map(|d| d * LANES as f64);
+            let mut i = lo;
             for run in &mut chunks {
-                let Ok(run) = <&[f32; LANES]>::try_from(run) else { break };
-                if !small {
-                    for (c, l) in lane.iter_mut().enumerate() {
-                        for (k, w) in l.iter_mut().enumerate() {
-                            *w = (wt[c] + (at + k) as f64 * dw[c]) as f32;
-                        }
+                let mut n = [0.0; LANES];
+                let mut zd = [0.0; LANES];
+                let mut dismissed = [false; LANES];
+                for k in 0..LANES {
+                    n[k] = raster::numerator([lane[0][k], lane[1][k], lane[2][k]], z);
+                    zd[k] = f64::from(run[k]) * df;
+                    dismissed[k] =
+                        (zd[k] - n[k]).abs() + (zd[k].abs() + n[k].abs()) * 1e-14 <= best.scaled;
+                }
+                // (A NaN height is never dismissed: its four are tested one by one.)
+                if !dismissed.iter().all(|&d| d) {
+                    for k in 0..LANES {
+                        exact(&mut best, i + k as i64, j, f64::from(run[k]), n[k], zd[k]);
                     }
                 }
-                let out = pretest::dismissed(
-                    &lane,
-                    z32,
-                    run,
-                    d32,
-                    best.scaled32,
-                    pretest::MARGIN,
-                    pretest::FLOOR,
-                );
-                // A sample the pre-test dismissed stays dismissed as the best grows within
-                // the run (its threshold only rises).
-                if !out.iter().all(|&o| o) {
-                    for (k, (&zs, &o)) in run.iter().zip(&out).enumerate() {
-                        if o {
-                            continue;
-                        }
-                        let x = (at + k) as f64;
-                        let wk = [wt[0] + x * dw[0], wt[1] + x * dw[1], wt[2] + x * dw[2]];
-                        let zs = f64::from(zs);
-                        let n = raster::numerator(wk, z);
-                        exact(&mut best, lo + (at + k) as i64, j, zs, n, zs * df);
-                    }
+                for (l, d) in lane.iter_mut().zip(jump) {
+                    l.iter_mut().for_each(|w| *w += d);
                 }
-                if small {
-                    for (l, d) in lane.iter_mut().zip(jump) {
-                        l.iter_mut().for_each(|w| *w += d);
-                    }
-                }
-                at += LANES;
+                i += LANES as i64;
             }
-            let x = at as f64;
-            let mut wk = [wt[0] + x * dw[0], wt[1] + x * dw[1], wt[2] + x * dw[2]];
+            let mut wt = [lane[0][0], lane[1][0], lane[2][0]];
             for &zs in chunks.remainder() {
-                let n = raster::numerator(wk, z);
-                wk = raster::step(wk, dw);
+                let n = raster::numerator(wt, z);
+                wt = raster::step(wt, dw);
                 let zs = f64::from(zs);
-                exact(&mut best, lo + at as i64, j, zs, n, zs * df);
-                at += 1;
+                exact(&mut best, i, j, zs, n, zs * df);
+                i += 1;
             }
         });
         if let Best { error, at: Some(sample), .. } = best {

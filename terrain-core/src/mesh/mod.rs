@@ -27,7 +27,6 @@
 //! ```
 
 pub mod delaunay;
-pub(crate) mod pretest;
 pub(crate) mod raster;
 pub mod rtin;
 pub mod verify;
