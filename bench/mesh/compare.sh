@@ -10,7 +10,8 @@
 #   there; needs Debian's libglm-dev), its triangulator compiled with hmm's own flags (-O3
 #   -flto -march=native) and our timing driver bench/mesh/hmm_time.cpp (thread CPU time
 #   around Run + Points + Triangles, as hmm's "triangulating" step). Without the source it
-#   is skipped with a message.
+#   is skipped with a message. Ours is built with `-C target-cpu=native` to match (in
+#   target/native).
 # - delatin 0.2.0 and @mapbox/martini 0.2.0: installed here from the npm registry; if npm
 #   cannot reach it they are skipped with a message.
 set -euo pipefail
@@ -48,5 +49,8 @@ if [ ! -d "$peers/node_modules/delatin" ] || [ ! -d "$peers/node_modules/@mapbox
 fi
 
 cd "$root"
-cargo build --release -p terrain-core --example mesh_compare >&2
-"$root/target/release/examples/mesh_compare" "$dem" "$scale" "$spacing" "$peers" "$runs" "${bounds[@]}"
+# Ours compiled for this CPU too, as hmm is (`-march=native`): like for like. Its own target
+# folder, so the portable release build in target/release is left as it is.
+RUSTFLAGS="${RUSTFLAGS:-} -C target-cpu=native" CARGO_TARGET_DIR="$root/target/native" \
+  cargo build --release -p terrain-core --example mesh_compare >&2
+"$root/target/native/release/examples/mesh_compare" "$dem" "$scale" "$spacing" "$peers" "$runs" "${bounds[@]}"
