@@ -603,7 +603,7 @@ fn band_geomip(
 /// (terrain-core's `GeomipEncoder`): the file is created at the first band with its header's
 /// bytes reserved, each band's entries are appended, and [`GeomipOut::finish`] writes the
 /// header (which needs the checksum of every row's heights) and the tail. Memory holds one
-/// band's entries (and the encoder's page checksums and pyramid summary, 0.6 MB at 32769^2),
+/// band's entries (and the encoder's page checksums and pyramid summary, 1.7 MB at 32769^2),
 /// whatever the grid's size; the file is the bytes of `GeomipTable::encode_for` of the whole
 /// grid's table.
 #[derive(Debug)]

@@ -18,7 +18,7 @@
 //! ```
 //!
 //! 10 bytes per patch and level (40 per 16-cell patch), plus a page checksum per 128 patches
-//! and 24 bytes per 256 patches. Opening reads the header and the tail (0.6 MB for a
+//! and 24 bytes per 64 patches. Opening reads the header and the tail (1.7 MB for a
 //! 32769^2 grid, whose entries are 168 MB); the entries are read a page at a time when a
 //! frame needs them, each checked by its CRC-32. Version 1 (the same entries after a 36-byte
 //! header without the last two fields, then one CRC-32 of every byte) is still read whole
@@ -55,8 +55,10 @@ const V1_HEADER_LEN: usize = 4 + 4 * 8;
 const ENTRY_LEN: usize = 10;
 /// Patches per page of entries (5 KiB at 16 cells).
 const PAGE_PATCHES: u32 = 128;
-/// The pyramid level the tail holds: nodes of 16 x 16 patches.
-const SUMMARY_LEVEL: u32 = 4;
+/// The pyramid level the tail holds: nodes of 8 x 8 patches, the width up to which a partly
+/// visible node is a run (`GeomipConfig::partial_run_patches`' default), so the walk along
+/// the frustum's sides is decided from the tail and reads no page.
+const SUMMARY_LEVEL: u32 = 3;
 
 /// Why a geo-mipmap table's bytes cannot be used: the table files' one error.
 pub type GeomipFileError = crate::checksum::TableFileError;
@@ -170,7 +172,7 @@ impl SummaryRows {
 /// over the reserved bytes and its tail (page checksums, the pyramid's summary level,
 /// CRC-32) after the last entry. The file is byte for byte [`GeomipTable::encode_for`] of the
 /// stacked table (which is written by this encoder too). Memory: the summary level (24 bytes
-/// per 256 patches) and a CRC-32 per page.
+/// per 64 patches) and a CRC-32 per page.
 #[derive(Debug, Clone, Default)]
 pub struct GeomipEncoder {
     bands: BandStack,
@@ -473,7 +475,7 @@ impl GeomipTable {
 
     /// Opens a version 2 table of `len` bytes for reading by pages through `reader` (`file`
     /// names it in errors): reads and checks the header and the tail only (the page
-    /// checksums and the pyramid's summary level; for a 32769^2 grid 0.6 MB of its 168 MB),
+    /// checksums and the pyramid's summary level; for a 32769^2 grid 1.7 MB of its 168 MB),
     /// then each page of entries when a frame first needs it, through a cache of
     /// `paging.cache_bytes`. The selection is bit for bit that of the table read whole. A
     /// version 1 file is refused ([`GeomipFileError::Version`]): [`GeomipTable::decode`]
@@ -821,7 +823,7 @@ mod tests {
             let opened = reader.read.load(std::sync::atomic::Ordering::Relaxed);
             let (nx, ny) = whole.patch_counts();
             let (pages, nodes) =
-                (u64::from(nx * ny).div_ceil(128), u64::from(nx.div_ceil(16) * ny.div_ceil(16)));
+                (u64::from(nx * ny).div_ceil(128), u64::from(nx.div_ceil(8) * ny.div_ceil(8)));
             let levels = u64::from(p.trailing_zeros());
             assert_eq!(opened, 44 + pages * 4 + nodes * (levels + 2) * 4 + 4, "{w:?}");
             assert_eq!(paged.paging_stats().unwrap().bytes_read, opened);

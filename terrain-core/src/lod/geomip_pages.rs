@@ -5,7 +5,7 @@
 //!
 //! What is read when: at open the header and the file's tail (a CRC-32 per page of entries,
 //! and the coarsest-level pyramid's nodes `2^SUMMARY_LEVEL` patches wide, written by the
-//! bake: 24 bytes per 256 patches); during a frame, the pages of entries that hold the
+//! bake: 24 bytes per 64 patches); during a frame, the pages of entries that hold the
 //! patches whose factors it computes, and the pyramid's lower levels for the regions it
 //! walks down into, each computed from the entries of its region (a tile of
 //! `2^SUMMARY_LEVEL` squared patches and the `L - 1` around it, the dilation's reach) exactly
@@ -335,42 +335,54 @@ impl PagedEntries {
         Ok(page)
     }
 
-    /// Patch `k`'s entries (see [`super::GeomipTable::patch`]).
-    pub(super) fn patch(&self, k: usize) -> PatchEntries {
-        let l = self.layout.l;
-        let p = k / self.layout.page_patches;
+    /// Page `p`, from the cache or read (`None`, and the error kept, when it cannot be).
+    fn page(&self, p: usize) -> Option<Arc<Page>> {
         let mut cache = self.lock();
         cache.tick += 1;
         let tick = cache.tick;
-        let page = match cache.pages.get_mut(&p) {
-            Some(slot) => {
-                slot.1 = tick;
-                slot.0.clone()
+        if let Some(slot) = cache.pages.get_mut(&p) {
+            slot.1 = tick;
+            return Some(slot.0.clone());
+        }
+        match self.read_page(p) {
+            Ok(page) => {
+                let page = Arc::new(page);
+                cache.bytes += page_bytes(&page);
+                cache.pages.insert(p, (page.clone(), tick));
+                cache.trim(self.budget, self.layout.l);
+                Some(page)
             }
-            None => match self.read_page(p) {
-                Ok(page) => {
-                    let page = Arc::new(page);
-                    cache.bytes += page_bytes(&page);
-                    cache.pages.insert(p, (page.clone(), tick));
-                    cache.trim(self.budget, l);
-                    page
-                }
-                Err(e) => {
-                    drop(cache);
-                    self.fail(e);
-                    let mut out = PatchEntries { n: l, ..PatchEntries::default() };
-                    out.errors[..l].fill(f32::INFINITY);
-                    return out;
-                }
-            },
-        };
-        drop(cache);
-        let at = (k - p * self.layout.page_patches) * l;
+            Err(e) => {
+                drop(cache);
+                self.fail(e);
+                None
+            }
+        }
+    }
+
+    /// Patch `k`'s entries (see [`super::GeomipTable::patch`]); `last` keeps the page read
+    /// last for the next call (a run of patches in one page locks the cache once).
+    fn patch_in(&self, k: usize, last: &mut Option<(usize, Arc<Page>)>) -> PatchEntries {
+        let l = self.layout.l;
+        let p = k / self.layout.page_patches;
         let mut out = PatchEntries { n: l, ..PatchEntries::default() };
+        if last.as_ref().is_none_or(|(q, _)| *q != p) {
+            *last = self.page(p).map(|page| (p, page));
+        }
+        let Some((_, page)) = last.as_ref() else {
+            out.errors[..l].fill(f32::INFINITY);
+            return out;
+        };
+        let at = (k - p * self.layout.page_patches) * l;
         out.errors[..l].copy_from_slice(&page.errors[at..at + l]);
         out.heights[..l].copy_from_slice(&page.heights[at..at + l]);
         out.vertices[..l].copy_from_slice(&page.vertices[at..at + l]);
         out
+    }
+
+    /// Patch `k`'s entries (see [`super::GeomipTable::patch`]).
+    pub(super) fn patch(&self, k: usize) -> PatchEntries {
+        self.patch_in(k, &mut None)
     }
 
     /// The pyramid's node `m` levels above the patches at `(i, j)` (see
@@ -444,9 +456,10 @@ impl PagedEntries {
         let (ww, wh) = (wx1 - wx0, wy1 - wy0);
         let mut own = vec![vec![0f32; ww * wh]; l];
         let mut own_z = vec![[f32::INFINITY, f32::NEG_INFINITY]; ww * wh];
+        let mut last = None;
         for j in wy0..wy1 {
             for i in wx0..wx1 {
-                let e = self.patch(j * nx + i);
+                let e = self.patch_in(j * nx + i, &mut last);
                 let w = (j - wy0) * ww + i - wx0;
                 for (r, o) in own.iter_mut().enumerate() {
                     o[w] = e.errors[(l - r) - 1];
