@@ -286,8 +286,19 @@ fn u32_at(b: &[u8], o: usize) -> u32 {
     u32::from_le_bytes(b[o..o + 4].try_into().expect("4 bytes"))
 }
 
+/// A header's first fields (both versions).
+struct Grid {
+    width: u32,
+    height: u32,
+    p: u32,
+    levels: u32,
+    nx: u32,
+    ny: u32,
+    heights_crc: u32,
+}
+
 /// The grid's shape from a header's first fields (both versions), checked.
-fn check_grid(head: &[u8]) -> Result<(u32, u32, u32, u32, u32, u32, u32), GeomipFileError> {
+fn check_grid(head: &[u8]) -> Result<Grid, GeomipFileError> {
     let (width, height, p, levels) =
         (u32_at(head, 8), u32_at(head, 12), u32_at(head, 16), u32_at(head, 20));
     let (nx, ny, heights_crc) = (u32_at(head, 24), u32_at(head, 28), u32_at(head, 32));
@@ -300,7 +311,7 @@ fn check_grid(head: &[u8]) -> Result<(u32, u32, u32, u32, u32, u32, u32), Geomip
             "{nx} x {ny} patches for {width} x {height} samples"
         )));
     }
-    Ok((width, height, p, levels, nx, ny, heights_crc))
+    Ok(Grid { width, height, p, levels, nx, ny, heights_crc })
 }
 
 /// Magic and version, before anything else is read.
@@ -321,7 +332,7 @@ fn layout2(head: &[u8]) -> Result<Layout2, GeomipFileError> {
     if head.len() < HEADER_LEN {
         return Err(GeomipFileError::Truncated { len: head.len(), needed: HEADER_LEN });
     }
-    let (width, height, p, levels, nx, ny, heights_crc) = check_grid(head)?;
+    let Grid { width, height, p, levels, nx, ny, heights_crc } = check_grid(head)?;
     let (page_patches, summary_level) = (u32_at(head, 36), u32_at(head, 40));
     if !(1..=1 << 20).contains(&page_patches) || summary_level > 16 {
         return Err(GeomipFileError::Layout(format!(
@@ -374,8 +385,11 @@ fn check_want(
     Ok(())
 }
 
+/// A table's entries as its three parts (errors, heights, vertices).
+type Parts = (Vec<f32>, Vec<f32>, Vec<u16>);
+
 /// Decodes `bytes` of entries (`p`-cell patches) into the three parts.
-fn decode_entries(bytes: &[u8], p: u32) -> Result<(Vec<f32>, Vec<f32>, Vec<u16>), GeomipFileError> {
+fn decode_entries(bytes: &[u8], p: u32) -> Result<Parts, GeomipFileError> {
     let entries = bytes.len() / ENTRY_LEN;
     let (mut errors, mut heights, mut vertices) =
         (Vec::with_capacity(entries), Vec::with_capacity(entries), Vec::with_capacity(entries));
@@ -457,7 +471,7 @@ impl GeomipTable {
         if bytes.len() < V1_HEADER_LEN {
             return Err(GeomipFileError::Truncated { len: bytes.len(), needed: V1_HEADER_LEN });
         }
-        let (width, height, p, levels, nx, ny, heights_crc) = check_grid(bytes)?;
+        let Grid { width, height, p, levels, nx, ny, heights_crc } = check_grid(bytes)?;
         let entries = (nx as usize).saturating_mul(ny as usize).saturating_mul(levels as usize - 1);
         let needed = entries.saturating_mul(ENTRY_LEN).saturating_add(V1_HEADER_LEN + 4);
         if bytes.len() != needed {
