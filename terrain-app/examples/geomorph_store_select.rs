@@ -73,8 +73,8 @@ fn main() -> anyhow::Result<()> {
     let store = Arc::new(Store::open(&dir)?);
     let tree = StoreTree::new(store, cells);
     let table = terrain_app::geomip_scene::read_for_store(&dir, tree.shape())?;
+    // Read by pages: compared below by what it selects, frame by frame.
     let memory = scene.geomip_scene();
-    anyhow::ensure!(memory.table() == &table, "the table read back differs");
 
     let spec = FlightSpec::load(&flight).with_context(|| format!("flight {flight}"))?;
     let (resolved, _) = spec.resolve(&scene.hm, &FlightConfig::default());

@@ -71,7 +71,14 @@ fn main() -> anyhow::Result<()> {
     } else {
         None
     };
+    // Opening the method (its tables: for geomorph `geomip.bin`, by pages or whole).
+    let (t, wall) = (thread_cpu_s(), std::time::Instant::now());
     let mut m = store_method(kind, scene, &config, OocWait::FirstFrame, None)?;
+    eprintln!(
+        "method opened: {:.3} s CPU, {:.3} s wall",
+        thread_cpu_s() - t,
+        wall.elapsed().as_secs_f64()
+    );
     let (mut total, mut select, mut stream, mut rest) =
         (Vec::new(), Vec::new(), Vec::new(), Vec::new());
     let mut on_runs = Vec::new();
@@ -111,6 +118,15 @@ fn main() -> anyhow::Result<()> {
             stream.push(s);
             rest.push(ms - sel - s);
         }
+    }
+    if let Some(p) = geo.as_ref().and_then(|g| g.1.paging_stats()) {
+        eprintln!(
+            "geomip.bin read by pages: {:.2} MB read, {} pages, {} pyramid tiles, {:.2} MB cached",
+            p.bytes_read as f64 / 1e6,
+            p.pages_read,
+            p.tiles_built,
+            p.cached_bytes as f64 / 1e6
+        );
     }
     let (t, s, st, r) = (median(total), median(select), median(stream), median(rest));
     println!(

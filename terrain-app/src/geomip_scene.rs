@@ -1,12 +1,14 @@
 //! The geomorph method's per-patch table (the article's max-error vertices, terrain-core's
 //! `GeomipTable`) in a store folder: `terrain bake` computes it on every core and writes
 //! `geomip.bin` (unless `--no-geomip`); `geomorph` drawn from a store reads it instead of the
-//! heightmap (see [`crate::method::store_method`]). From the heightmap when the bake holds it
+//! heightmap (see [`crate::method::store_method`]), by pages ([`read_for_store`]). From the
+//! heightmap when the bake holds it
 //! in memory ([`bake_into_scene`]), else from the store's blocks one block row at a time
 //! ([`bake_from_store`]: a DEM read by rows, a synthetic grid above what fits in memory; the
 //! store keeps no void mask, so every sample is measured there).
 
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::Instant;
 
@@ -15,7 +17,7 @@ use rayon::prelude::*;
 use terrain_core::Heightmap;
 use terrain_core::checksum::crc32_update;
 use terrain_core::heightmap::VoidMask;
-use terrain_core::lod::{GeomipFor, GeomipTable};
+use terrain_core::lod::{GeomipFileError, GeomipFor, GeomipPaging, GeomipTable, TableReader};
 use terrain_core::quadtree::TreeShape;
 use terrain_stream::{BlockId, Store};
 
@@ -157,28 +159,76 @@ fn write_table(
 }
 
 /// Reads store folder `dir`'s table for the patch tree `shape` (its grid, leaves = patches),
-/// or fails saying what to bake.
+/// or fails saying what to bake: opened for reading by pages ([`GeomipTable::open_paged`]:
+/// the header and tail at open, each page of entries when a frame first needs it, through a
+/// cache of `paging.cache_bytes`), or read whole, with a warning, when the store was baked
+/// before `geomip.bin` version 2.
 pub fn read_for_store(dir: &Path, shape: &TreeShape) -> anyhow::Result<GeomipTable> {
+    read_for_store_with(dir, shape, &GeomipPaging::default())
+}
+
+/// [`read_for_store`] with its page cache's settings.
+pub fn read_for_store_with(
+    dir: &Path,
+    shape: &TreeShape,
+    paging: &GeomipPaging,
+) -> anyhow::Result<GeomipTable> {
     let path = geomip_path(dir);
-    let bytes = std::fs::read(&path).with_context(|| {
+    let missing = || {
         format!(
             "--method geomorph from a store reads the max-error vertices the bake writes ({}); \
              bake the store again without --no-geomip",
             path.display()
         )
-    })?;
+    };
+    let file = std::fs::File::open(&path).with_context(missing)?;
+    let len = file.metadata().with_context(missing)?.len();
     let want = GeomipFor {
         width: shape.width(),
         height: shape.height(),
         patch_cells: shape.leaf_cells(),
         heights_crc: None,
     };
-    GeomipTable::decode(&bytes, &want).with_context(|| {
+    let unusable = || {
         format!(
             "{} cannot be used (the bake writes it for {}-cell patches, the default \
              --leaf-cells)",
             path.display(),
             crate::methods::MethodConfig::default().leaf_cells
         )
-    })
+    };
+    let name = path.display().to_string();
+    match GeomipTable::open_paged(&name, Arc::new(FileReader(file)), len, &want, paging) {
+        Err(GeomipFileError::Version { found: 1, .. }) => {
+            eprintln!(
+                "warning: {} is version 1, read whole ({:.0} MiB); bake the store again to \
+                 read it by pages",
+                path.display(),
+                len as f64 / crate::MIB
+            );
+            let bytes = std::fs::read(&path).with_context(missing)?;
+            GeomipTable::decode(&bytes, &want).with_context(unusable)
+        }
+        other => other.with_context(unusable),
+    }
+}
+
+/// A table file read at offsets (positioned reads: the selection may run on any thread).
+struct FileReader(std::fs::File);
+
+impl TableReader for FileReader {
+    fn read_at(&self, offset: u64, buf: &mut [u8]) -> std::io::Result<()> {
+        #[cfg(unix)]
+        {
+            use std::os::unix::fs::FileExt;
+            self.0.read_exact_at(buf, offset)
+        }
+        #[cfg(not(unix))]
+        {
+            use std::io::{Read, Seek, SeekFrom};
+            let mut f = self.0.try_clone()?;
+            f.seek(SeekFrom::Start(offset))?;
+            f.read_exact(buf)
+        }
+    }
 }

@@ -143,7 +143,8 @@ fn a_paged_index_over_http_is_read_by_page_and_selects_as_the_local_store() {
                 + ((i * 7 + j * 13) % 23) as f32
         })
         .unwrap();
-    let cfg = BakeConfig { k: 6, node_levels: 5, ..Default::default() };
+    let cfg =
+        BakeConfig { k: 6, node_levels: 5, geomip_patch_cells: Some(16), ..Default::default() };
     terrain_stream::bake(&hm, &store, &cfg, &mut |_: &BakeProgress| {
         std::ops::ControlFlow::Continue(())
     })
@@ -186,6 +187,29 @@ fn a_paged_index_over_http_is_read_by_page_and_selects_as_the_local_store() {
         patches += a.patches.len();
     }
     assert!(patches > 100, "{patches} patches: the views must see the terrain");
+    // Geomorph's table comes into the mirror with the store's side files (one GET) and is
+    // read from there by pages: the same runs as the local store's.
+    let geo_options = RemoteOptions {
+        cache_dir: Some(dir.join("geo")),
+        side_files: vec![terrain_stream::GEOMIP_FILE.to_string()],
+        ..Default::default()
+    };
+    let geo_remote = Arc::new(Store::open_location_with(&url, &geo_options).unwrap());
+    let (gl, gr) = (StoreTree::new(local.clone(), 16), StoreTree::new(geo_remote.clone(), 16));
+    let read = |s: &Store, t: &StoreTree| {
+        use terrain_core::quadtree::NodeTree;
+        terrain_app::geomip_scene::read_for_store(s.dir(), t.shape()).unwrap()
+    };
+    let (ta, tb) = (read(&local, &gl), read(&geo_remote, &gr));
+    assert!(tb.paging_stats().is_some(), "read by pages from the mirror");
+    let geomip = terrain_core::lod::GeomipConfig { patch_cells: 16, ..Default::default() };
+    let c = cam(100.0, 150.0, 420.0, 45.0, -12.0, 6000.0);
+    let (a, b) = (
+        ta.try_select_runs(&gl, &c, &geomip).unwrap(),
+        tb.try_select_runs(&gr, &c, &geomip).unwrap(),
+    );
+    assert!(!a.patches.is_empty() || !a.runs.is_empty());
+    assert_eq!((a.runs, a.patches, a.factors), (b.runs, b.patches, b.factors));
     for b in local.block_ids() {
         assert_eq!(local.entry(b), remote.entry(b), "block {b}");
     }

@@ -450,6 +450,59 @@ fn geomorph_from_a_store_morphs_on_the_gpu_without_cracks() {
 /// time: equal to the one computed from the heightmap (exact f32 store, no voids), and so is
 /// the heights' checksum; on Puget Sound 1k and on an odd-sized grid whose last blocks and
 /// patches are clipped.
+/// A store's `geomip.bin` is read by pages: its open reads the header and the tail only, and
+/// a damaged page fails the frames that need it (naming the file), not the open nor the
+/// frames that do not.
+#[test]
+fn a_store_geomip_table_opens_by_pages_and_a_damaged_page_fails_only_where_needed() {
+    use terrain_core::lod::{GeomipConfig, GeomipScene};
+    use terrain_core::quadtree::NodeTree;
+    use terrain_stream::StoreTree;
+    let hm = terrain_core::synth::FractalConfig::with_size(513, 513, 10.0).to_heightmap().unwrap();
+    let dir = scratch("store-methods", "geomip-pages").join("store");
+    let config =
+        BakeConfig { k: 6, encoding: HeightEncoding::F32, threads: 1, ..Default::default() };
+    bake(&hm, &dir, &config, &mut |_: &BakeProgress| ControlFlow::Continue(())).unwrap();
+    terrain_app::geomip_scene::bake_into_scene(&hm, 16, &dir).unwrap();
+    let path = dir.join("geomip.bin");
+    let len = std::fs::metadata(&path).unwrap().len();
+    // 32 x 32 patches of 40 bytes: 40960 bytes of entries in 8 pages of 128 patches.
+    let entries = 32 * 32 * 40;
+    let store = Arc::new(Store::open(&dir).unwrap());
+    let tree = StoreTree::new(store, 16);
+    let cfg = GeomipConfig { patch_cells: 16, ..GeomipConfig::default() };
+    let memory = GeomipScene::new(&hm, 16);
+    let cam = |x: f64, y: f64, yaw: f64| {
+        Camera::from_yaw_pitch(hm.grid_to_world(x, y).extend(60.0), yaw, -25.0)
+            .with_viewport(1280.0, 720.0)
+    };
+    let (south, north) = (cam(256.0, 20.0, 180.0), cam(256.0, 500.0, 0.0));
+    let open = || terrain_app::geomip_scene::read_for_store(&dir, tree.shape()).unwrap();
+    let same = |a: &terrain_core::lod::GeomipRuns, b: &terrain_core::lod::GeomipRuns| {
+        (&a.runs, &a.patches, &a.factors) == (&b.runs, &b.patches, &b.factors)
+    };
+    // Undamaged (the negative control below): both views select as from memory.
+    let table = open();
+    let read = table.paging_stats().unwrap().bytes_read;
+    assert_eq!(read, len - entries, "the open reads all but the entries");
+    assert!(read * 50 < len, "{read} of {len} bytes");
+    for c in [&south, &north] {
+        let runs = table.try_select_runs(&tree, c, &cfg).unwrap();
+        assert!(same(&runs, &memory.select_runs(c, &cfg)));
+        assert!(!runs.patches.is_empty());
+    }
+    // The last page (the northernmost patches) damaged.
+    let mut bytes = std::fs::read(&path).unwrap();
+    bytes[44 + entries as usize - 30] ^= 0x10;
+    std::fs::write(&path, &bytes).unwrap();
+    let table = open();
+    let runs = table.try_select_runs(&tree, &south, &cfg).unwrap();
+    assert!(same(&runs, &memory.select_runs(&south, &cfg)), "the south view as before");
+    let e = table.try_select_runs(&tree, &north, &cfg).unwrap_err().to_string();
+    assert!(e.contains("geomip.bin, page 7") && e.contains("checksum mismatch"), "{e}");
+    let _ = std::fs::remove_dir_all(dir.parent().unwrap());
+}
+
 #[test]
 fn the_geomip_table_from_a_store_equals_the_one_from_memory() {
     let odd = terrain_core::synth::FractalConfig::with_size(301, 203, 30.0).to_heightmap().unwrap();

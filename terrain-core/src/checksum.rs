@@ -171,4 +171,19 @@ pub enum TableFileError {
     /// Made for another terrain, store, grid, leaf or patch size.
     #[error("made for another terrain: {0}")]
     Mismatch(String),
+    /// A page of a table read by pages cannot be used (found when a frame first needs it).
+    #[error("{file}, page {page} (at byte {offset}): {cause}")]
+    Page {
+        /// The file's name.
+        file: String,
+        /// The page.
+        page: usize,
+        /// Where it starts in the file.
+        offset: u64,
+        /// What is wrong with it.
+        cause: Box<TableFileError>,
+    },
+    /// The file could not be read.
+    #[error("read failed: {0}")]
+    Read(String),
 }

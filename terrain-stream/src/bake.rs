@@ -602,9 +602,10 @@ fn band_geomip(
 /// Geomorph's table written into `dir/`[`GEOMIP_FILE`] band by band as it is computed
 /// (terrain-core's `GeomipEncoder`): the file is created at the first band with its header's
 /// bytes reserved, each band's entries are appended, and [`GeomipOut::finish`] writes the
-/// header (which needs the checksum of every row's heights) and the CRC-32. Memory holds one
-/// band's entries, whatever the grid's size; the file is the bytes of `GeomipTable::encode_for`
-/// of the whole grid's table.
+/// header (which needs the checksum of every row's heights) and the tail. Memory holds one
+/// band's entries (and the encoder's page checksums and pyramid summary, 1.7 MB at 32769^2),
+/// whatever the grid's size; the file is the bytes of `GeomipTable::encode_for` of the whole
+/// grid's table.
 #[derive(Debug)]
 pub(crate) struct GeomipOut {
     path: PathBuf,
@@ -649,12 +650,12 @@ impl GeomipOut {
         let Some(mut file) = self.file else {
             return Ok(None);
         };
-        let (header, crc) = self
+        let (header, tail) = self
             .encoder
             .finish(heights_crc)
             .map_err(|e| BakeError::Encoding(format!("geomorph's table: {e}")))?;
         let path = &self.path;
-        file.write_all(&crc).map_err(io_err(path))?;
+        file.write_all(&tail).map_err(io_err(path))?;
         let len = file.stream_position().map_err(io_err(path))?;
         file.seek(SeekFrom::Start(0)).map_err(io_err(path))?;
         file.write_all(&header).map_err(io_err(path))?;

@@ -776,8 +776,67 @@ fn sub_layout(store: &Store, patch_level: u8) -> (u8, usize, usize) {
 /// The per-level maxima of `StaticE` under every stored node of local level at most `top`
 /// of the block whose entry is `e` (see `StoreTree::sub_max`; `nodes` and `per` from
 /// [`sub_layout`]): for each such node and each deeper stored level, the maximum over its
-/// descendants there, and below the stored levels the fine maxima's bound.
+/// descendants there, and below the stored levels the fine maxima's bound. Computed bottom
+/// up (a node's maximum at a deeper level is its four children's largest there: one read of
+/// each stored node and `O(nodes x levels)` maxima, where sweeping each node's descendants
+/// per level read the deepest levels once per ancestor); the same maxima of the same values
+/// (`block_sub_max_sweep`, the tests' reference). It is the cold part of a block's first
+/// visit (`StoreTree::visited_block`).
 fn block_sub_max(h: &Header, e: &BlockEntry, top: u8, nodes: usize, per: usize) -> Vec<f32> {
+    let levels = h.node_levels;
+    let fine = per == h.k as usize && levels < h.k;
+    let lv = usize::from(levels);
+    // Every stored node (levels `0..levels`), `lv` values each: at index `l`, the maximum at
+    // level `l` under it (its own `StaticE` at its level, 0 without a node).
+    let mut all = vec![0f32; upper_index(NodeId { level: levels, i: 0, j: 0 }) * lv];
+    for level in (0..levels).rev() {
+        let side = 1u32 << level;
+        for j in 0..side {
+            for i in 0..side {
+                let o = upper_index(NodeId { level, i, j }) * lv;
+                all[o + usize::from(level)] =
+                    e.node(level, i, j).map_or(0.0, |v| 0f32.max(v.static_error));
+                if level + 1 < levels {
+                    for (di, dj) in [(0, 0), (1, 0), (0, 1), (1, 1)] {
+                        let c = NodeId { level: level + 1, i: 2 * i + di, j: 2 * j + dj };
+                        let c = upper_index(c) * lv;
+                        for l in usize::from(level) + 1..lv {
+                            all[o + l] = all[o + l].max(all[c + l]);
+                        }
+                    }
+                }
+            }
+        }
+    }
+    let mut block = vec![0f32; nodes * per];
+    for level in 0..=top {
+        let side = 1u32 << level;
+        for j in 0..side {
+            for i in 0..side {
+                let n = NodeId { level, i, j };
+                let (o, a) = (upper_index(n) * per, upper_index(n) * lv);
+                let from = usize::from(level);
+                block[o + from..o + lv].copy_from_slice(&all[a + from..a + lv]);
+                if fine {
+                    for l in levels..h.k {
+                        block[o + l as usize] = below_bound(h, e, n, l);
+                    }
+                }
+            }
+        }
+    }
+    block
+}
+
+/// [`block_sub_max`] by sweeping each node's descendants per level (the tests' reference).
+#[cfg(test)]
+pub(crate) fn block_sub_max_sweep(
+    h: &Header,
+    e: &BlockEntry,
+    top: u8,
+    nodes: usize,
+    per: usize,
+) -> Vec<f32> {
     let levels = h.node_levels;
     let fine = per == h.k as usize && levels < h.k;
     let mut block = vec![0f32; nodes * per];
@@ -809,6 +868,20 @@ fn block_sub_max(h: &Header, e: &BlockEntry, top: u8, nodes: usize, per: usize) 
         }
     }
     block
+}
+
+/// [`block_sub_max`] and [`block_sub_max_sweep`] of block `b` of `store` at the layout a
+/// tree of patch level `patch_level` uses (the tests' comparison).
+#[cfg(test)]
+pub(crate) fn block_sub_max_both(
+    store: &Store,
+    b: BlockId,
+    patch_level: u8,
+) -> Option<(Vec<f32>, Vec<f32>)> {
+    let (top, nodes, per) = sub_layout(store, patch_level);
+    let e = store.entry(b)?;
+    let h = store.header();
+    Some((block_sub_max(h, &e, top, nodes, per), block_sub_max_sweep(h, &e, top, nodes, per)))
 }
 
 /// Blocks whose `sub_max` a [`StoreTree`] keeps at most (then it starts over): computed when a

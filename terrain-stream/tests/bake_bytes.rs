@@ -125,10 +125,21 @@ fn the_geomorph_table_written_band_by_band_has_the_pinned_bytes() {
     let synth = FractalConfig::with_size(301, 301, 10.0);
     let out = bake_dir(&synth, "geomip-pinned", 2);
     let table = std::fs::read(out.join(terrain_stream::GEOMIP_FILE)).unwrap();
-    // The CRC-32 of the bytes before the file's own checksum (that of the whole file is
-    // CRC-32's residue, the same for every file that ends with its checksum).
-    let crc = |b: &[u8]| terrain_core::checksum::crc32(&b[..b.len() - 4]);
-    assert_eq!((table.len(), crc(&table)), (14480, 0x8601_6b9b), "geomip.bin's bytes changed");
+    // Re-pinned on branch `geo13c` (was `(14480, 0x8601_6b9b)`, the CRC-32 of a version-1
+    // file before its checksum): version 2 adds two header fields and a tail (a CRC-32 per
+    // page of entries, the pyramid's summary level, the CRC-32 of header and tail) so that it
+    // is read by pages; its entries are the version-1 file's, byte for byte (the version-1
+    // header rebuilt around them has the old pinned CRC-32, below). FNV-1a, as the index.
+    const PINNED: u64 = 0x13f9_0596_ef9d_9e40;
+    let crc =
+        |b: &[u8]| terrain_core::checksum::fnv1a_update(terrain_core::checksum::FNV1A_START, b);
+    assert_eq!((table.len(), crc(&table)), (14716, PINNED), "geomip.bin's bytes changed");
+    let mut v1 = b"TGMP".to_vec();
+    v1.extend_from_slice(&1u32.to_le_bytes());
+    v1.extend_from_slice(&table[8..36]);
+    let entries = &table[44..44 + 19 * 19 * 40];
+    let v1_crc = terrain_core::checksum::crc32_update(terrain_core::checksum::crc32(&v1), entries);
+    assert_eq!(v1_crc, 0x8601_6b9b, "the entries are version 1's");
     // Negative control: one height changes the table's checksum.
     let hm = synth.to_heightmap().unwrap();
     let mut data = hm.data().to_vec();
@@ -136,7 +147,7 @@ fn the_geomorph_table_written_band_by_band_has_the_pinned_bytes() {
     let changed = Heightmap::new(301, 301, data, hm.voids().clone(), hm.georef().clone()).unwrap();
     let other = bake_dir(&changed, "geomip-pinned-changed", 2);
     let changed = std::fs::read(other.join(terrain_stream::GEOMIP_FILE)).unwrap();
-    assert_ne!(crc(&changed), 0x8601_6b9b);
+    assert_ne!(crc(&changed), PINNED);
     for d in [out, other] {
         let _ = std::fs::remove_dir_all(d);
     }

@@ -378,7 +378,12 @@ impl Method for StoreMethod<'_> {
                     // coverage's patches are built only when the frame is measured
                     // (`surface`).
                     let geomip = GeomipConfig { patch_cells: table.patch_cells(), ..cfg.geomip };
-                    let runs = table.select_runs(&src, camera, &geomip);
+                    // A page of `geomip.bin` that cannot be read is reported (once per
+                    // frame that needs it) and its patches drawn at the finest level.
+                    let runs = table.try_select_runs(&src, camera, &geomip).unwrap_or_else(|e| {
+                        eprintln!("error: geomorph's table: {e}");
+                        table.select_runs(&src, camera, &geomip)
+                    });
                     let stats = SelectionStats {
                         culled: runs.culled,
                         max_level: src.shape().max_level(),

@@ -85,10 +85,12 @@
 //! grid's border follow the patch itself.
 
 use std::cell::Cell;
+use std::sync::Arc;
 use std::time::Instant;
 
 use glam::{DVec2, DVec3};
 
+use super::geomip_pages::PagedEntries;
 use super::patch::Edge;
 use super::window::SpanWindow;
 use crate::geometry::Camera;
@@ -163,6 +165,30 @@ pub struct GeomipTable {
     /// What decides whole nodes of the patch tree at the coarsest level at once (built from
     /// the entries above whenever they change).
     pyramid: CoarsePyramid,
+    /// A table read by pages from its file ([`GeomipTable::open_paged`]): the entries and
+    /// the pyramid's lower levels come from there on demand, and the vectors above are empty.
+    paged: Option<Arc<PagedEntries>>,
+}
+
+/// Most levels below the finest a patch has (64-cell patches: levels 1..=6).
+pub(super) const MAX_LEVELS: usize = 6;
+
+/// One patch's entries (levels `1..levels`, the first `n` slots), copied out of the table
+/// whether it is held whole or read by pages.
+#[derive(Debug, Clone, Copy, Default)]
+pub(super) struct PatchEntries {
+    pub(super) n: usize,
+    pub(super) errors: [f32; MAX_LEVELS],
+    pub(super) heights: [f32; MAX_LEVELS],
+    pub(super) vertices: [u16; MAX_LEVELS],
+}
+
+/// One node of the [`CoarsePyramid`] (its first `L` errors and its vertices' height range),
+/// copied out of the table whether it is held whole or read by pages.
+#[derive(Debug, Clone, Copy)]
+pub(super) struct NodeBound {
+    pub(super) errors: [f32; MAX_LEVELS],
+    pub(super) z: [f32; 2],
 }
 
 /// One row of patches of a [`GeomipTable`] being computed ([`GeomipTable::new_with`]): opaque.
@@ -174,7 +200,7 @@ pub struct GeomipRow {
 }
 
 /// The smallest `f32` at or above `e` (a conservative error bound in single precision).
-fn f32_at_or_above(e: f64) -> f32 {
+pub(super) fn f32_at_or_above(e: f64) -> f32 {
     let f = e as f32;
     if f64::from(f) < e { f.next_up() } else { f }
 }
@@ -307,6 +333,7 @@ impl GeomipTable {
             heights: Vec::new(),
             vertices: Vec::new(),
             pyramid: CoarsePyramid::default(),
+            paged: None,
         };
         t.heights.reserve(t.errors.capacity());
         t.vertices.reserve(t.errors.capacity());
@@ -413,9 +440,11 @@ impl GeomipTable {
     }
 
     /// Bytes the table holds in memory: 10 per patch and level below the finest, and the
-    /// coarsest-level pyramid's `4 (L + 2)` per node (about 32 per 16-cell patch).
+    /// coarsest-level pyramid's `4 (L + 2)` per node (about 32 per 16-cell patch); a table
+    /// read by pages, its pyramid's upper levels and what its caches hold now.
     pub fn memory_bytes(&self) -> usize {
-        self.errors.len() * 10 + self.pyramid.memory_bytes()
+        let paged = self.paged.as_ref().map_or(0, |p| p.memory_bytes());
+        self.errors.len() * 10 + self.pyramid.memory_bytes() + paged
     }
 
     /// The table of the heights times `scale` (a vertical exaggeration, positive): each level's
@@ -423,6 +452,12 @@ impl GeomipTable {
     /// errors and the vertices' heights are multiplied by `scale` (rounded up to `f32` as the
     /// computed errors are).
     pub fn exaggerated(mut self, scale: f64) -> Self {
+        if let Some(p) = &self.paged {
+            // The same values, scaled as each page is decoded (the pyramid's maxima and height
+            // ranges commute with these monotone roundings).
+            self.paged = Some(Arc::new(p.exaggerated(scale)));
+            return self;
+        }
         for e in &mut self.errors {
             *e = f32_at_or_above(f64::from(*e) * scale);
         }
@@ -445,7 +480,7 @@ impl GeomipTable {
         if level == 0 {
             return 0.0;
         }
-        f64::from(self.errors[(j * self.nx + i) as usize * (self.levels - 1) + level - 1])
+        f64::from(self.patch((j * self.nx + i) as usize).errors[level - 1])
     }
 
     /// The entries as raw parts (file encoding).
@@ -475,9 +510,64 @@ impl GeomipTable {
             heights,
             vertices,
             pyramid: CoarsePyramid::default(),
+            paged: None,
         };
         t.pyramid = CoarsePyramid::new(&t);
         t
+    }
+
+    /// A table whose entries and lower pyramid levels `paged` reads on demand.
+    pub(super) fn from_paged(
+        (width, height, patch_cells): (u32, u32, u32),
+        paged: PagedEntries,
+    ) -> Self {
+        let levels = patch_cells.trailing_zeros() as usize + 1;
+        let nx = (width.saturating_sub(1)).div_ceil(patch_cells).max(1);
+        let ny = (height.saturating_sub(1)).div_ceil(patch_cells).max(1);
+        Self {
+            patch_cells,
+            levels,
+            width,
+            height,
+            nx,
+            ny,
+            errors: Vec::new(),
+            heights: Vec::new(),
+            vertices: Vec::new(),
+            pyramid: CoarsePyramid::default(),
+            paged: Some(Arc::new(paged)),
+        }
+    }
+
+    /// The table read by pages, when it is ([`GeomipTable::open_paged`]).
+    pub(super) fn paged(&self) -> Option<&PagedEntries> {
+        self.paged.as_deref()
+    }
+
+    /// Patch `k`'s entries (row-major index), from memory or through the page cache (a page
+    /// that cannot be read gives infinite errors, the finest level everywhere it is needed,
+    /// and the error is kept for [`GeomipTable::try_select_runs`]).
+    #[inline]
+    pub(super) fn patch(&self, k: usize) -> PatchEntries {
+        if let Some(p) = &self.paged {
+            return p.patch(k);
+        }
+        let l = self.levels - 1;
+        let mut out = PatchEntries { n: l, ..PatchEntries::default() };
+        out.errors[..l].copy_from_slice(&self.errors[k * l..(k + 1) * l]);
+        out.heights[..l].copy_from_slice(&self.heights[k * l..(k + 1) * l]);
+        out.vertices[..l].copy_from_slice(&self.vertices[k * l..(k + 1) * l]);
+        out
+    }
+
+    /// The pyramid's node `m` levels above the patches at `(i, j)`: `None` outside the grid
+    /// (never all-coarsest); above the pyramid's top (a store's root covers more than the
+    /// grid), the top.
+    pub(super) fn node_bound(&self, m: usize, i: u32, j: u32) -> Option<NodeBound> {
+        match &self.paged {
+            Some(p) => p.node(m, i, j),
+            None => self.pyramid.node(m, i, j),
+        }
     }
 
     /// The continuous factor of patch `k` before the neighbour envelope (see the module docs),
@@ -488,20 +578,20 @@ impl GeomipTable {
         let origin =
             shape.grid_to_world(DVec2::new(f64::from(pi * p), f64::from(pj * p))).extend(0.0);
         let spacing = shape.spacing();
-        let stride = self.levels - 1;
+        let entries = self.patch(k);
         let mut c = 0.0;
         let mut prev = 1.0f64;
-        for e in k * stride..(k + 1) * stride {
-            let delta = f64::from(self.errors[e]);
+        for e in 0..entries.n {
+            let delta = f64::from(entries.errors[e]);
             let a = if delta <= 0.0 {
                 0.0
             } else {
-                let v = u32::from(self.vertices[e]);
+                let v = u32::from(entries.vertices[e]);
                 let (di, dj) = (v % (p + 1), v / (p + 1));
                 let offset = DVec3::new(
                     f64::from(di) * spacing.x,
                     f64::from(dj) * spacing.y,
-                    f64::from(self.heights[e]),
+                    f64::from(entries.heights[e]),
                 );
                 let d = (origin + offset - eye).length();
                 if d <= 1e-9 { f64::INFINITY } else { lambda * delta / (tau * d) }
@@ -523,13 +613,13 @@ impl GeomipTable {
 /// ([`PyramidLevel::index`]); per node `L` errors (`errors[node * L + r]`, see
 /// [`CoarsePyramid`]) and the height range of the vertices.
 #[derive(Debug, Clone, PartialEq, Default)]
-struct PyramidLevel {
-    nx: u32,
-    ny: u32,
-    errors: Vec<f32>,
+pub(super) struct PyramidLevel {
+    pub(super) nx: u32,
+    pub(super) ny: u32,
+    pub(super) errors: Vec<f32>,
     /// Per node: lowest and highest height of a vertex carrying a positive error within
     /// `L - 1` patches (`+inf, -inf` when none).
-    z: Vec<[f32; 2]>,
+    pub(super) z: Vec<[f32; 2]>,
 }
 
 /// Nodes per side of a [`PyramidLevel`]'s tiles. The selection walks the patch tree depth
@@ -552,7 +642,7 @@ fn tile_index(nx: u32, i: u32, j: u32) -> usize {
 
 impl PyramidLevel {
     /// A level of `nx` by `ny` nodes, `l` errors each, all 0, height ranges empty.
-    fn empty(nx: u32, ny: u32, l: usize) -> Self {
+    pub(super) fn empty(nx: u32, ny: u32, l: usize) -> Self {
         let t = PYRAMID_TILE;
         let slots = (nx as usize).div_ceil(t) * (ny as usize).div_ceil(t) * t * t;
         Self {
@@ -565,7 +655,7 @@ impl PyramidLevel {
 
     /// The slot of node `(i, j)` ([`tile_index`]).
     #[inline]
-    fn index(&self, i: u32, j: u32) -> usize {
+    pub(super) fn index(&self, i: u32, j: u32) -> usize {
         tile_index(self.nx, i, j)
     }
 }
@@ -595,7 +685,7 @@ struct CoarsePyramid {
 
 /// `out[k] = max(v[k - r ..= k + r])` along rows (`step` 1) or columns (`step` = `nx`) of an
 /// `nx` by `ny` grid, clipped to it.
-fn dilate<T: Copy>(
+pub(super) fn dilate<T: Copy>(
     v: &[T],
     (nx, ny): (usize, usize),
     r: usize,
@@ -661,72 +751,95 @@ impl CoarsePyramid {
             base.z[slot(k)] = v;
         }
         drop(z);
-        let mut levels = vec![base];
-        loop {
-            let prev = levels.last().expect("level 0");
-            if prev.nx == 1 && prev.ny == 1 {
-                break;
-            }
-            let (px, py) = (prev.nx, prev.ny);
-            let mut next = PyramidLevel::empty(px.div_ceil(2), py.div_ceil(2), l);
-            for j in 0..next.ny {
-                for i in 0..next.nx {
-                    let k = next.index(i, j);
-                    for (di, dj) in [(0, 0), (1, 0), (0, 1), (1, 1)] {
-                        let (ci, cj) = (2 * i + di, 2 * j + dj);
-                        if ci < px && cj < py {
-                            let c = prev.index(ci, cj);
-                            for r in 0..l {
-                                next.errors[k * l + r] =
-                                    next.errors[k * l + r].max(prev.errors[c * l + r]);
-                            }
-                            next.z[k] = zm(next.z[k], prev.z[c]);
-                        }
-                    }
-                }
-            }
-            levels.push(next);
-        }
-        Self { coarsest: l, levels }
+        Self { coarsest: l, levels: merge_up(base, l) }
     }
 
     fn memory_bytes(&self) -> usize {
-        self.levels.iter().map(|l| l.errors.len() * 4 + l.z.len() * 8).sum()
+        levels_bytes(&self.levels)
     }
 
+    /// The node `m` levels above the patches at `(i, j)`: `None` outside the grid (or no
+    /// pyramid); above the pyramid's top (a store's root covers more than the grid), the top.
+    fn node(&self, m: usize, i: u32, j: u32) -> Option<NodeBound> {
+        let top = self.levels.last()?;
+        let (lv, k) = match self.levels.get(m) {
+            Some(lv) if i < lv.nx && j < lv.ny => (lv, lv.index(i, j)),
+            Some(_) => return None,
+            None => (top, 0),
+        };
+        Some(lv.bound(k, self.coarsest))
+    }
+}
+
+/// The pyramid's levels from `base` up to one node, each merging 2 x 2 nodes of the one
+/// below (`l` errors per node: their maxima; the height ranges' union).
+pub(super) fn merge_up(base: PyramidLevel, l: usize) -> Vec<PyramidLevel> {
+    let zm = |a: [f32; 2], b: [f32; 2]| [a[0].min(b[0]), a[1].max(b[1])];
+    let mut levels = vec![base];
+    loop {
+        let prev = levels.last().expect("level 0");
+        if prev.nx == 1 && prev.ny == 1 {
+            break;
+        }
+        let (px, py) = (prev.nx, prev.ny);
+        let mut next = PyramidLevel::empty(px.div_ceil(2), py.div_ceil(2), l);
+        for j in 0..next.ny {
+            for i in 0..next.nx {
+                let k = next.index(i, j);
+                for (di, dj) in [(0, 0), (1, 0), (0, 1), (1, 1)] {
+                    let (ci, cj) = (2 * i + di, 2 * j + dj);
+                    if ci < px && cj < py {
+                        let c = prev.index(ci, cj);
+                        for r in 0..l {
+                            next.errors[k * l + r] =
+                                next.errors[k * l + r].max(prev.errors[c * l + r]);
+                        }
+                        next.z[k] = zm(next.z[k], prev.z[c]);
+                    }
+                }
+            }
+        }
+        levels.push(next);
+    }
+    levels
+}
+
+/// Bytes the pyramid levels hold.
+pub(super) fn levels_bytes(levels: &[PyramidLevel]) -> usize {
+    levels.iter().map(|l| l.errors.len() * 4 + l.z.len() * 8).sum()
+}
+
+impl PyramidLevel {
+    /// Node slot `k`'s bound (`l` errors).
+    pub(super) fn bound(&self, k: usize, l: usize) -> NodeBound {
+        let mut errors = [0.0; MAX_LEVELS];
+        errors[..l].copy_from_slice(&self.errors[k * l..(k + 1) * l]);
+        NodeBound { errors, z: self.z[k] }
+    }
+}
+
+impl GeomipTable {
     /// Whether every patch of the node `m` levels above the patches at `(i, j)` (patch tree
     /// level `max_level - m`) is provably at the coarsest level with tween 0 for an eye at
-    /// `eye`: for each radius `r < L`, `2 lambda e_r / tau <= d_r` (with a relative margin of
-    /// `1e-6` for rounding), `d_r` the distance from the eye to the node's box widened by `r`
-    /// patches. `scale` multiplies the bound's left side (1 in the selection; the tests'
-    /// negative control lowers it).
-    #[allow(clippy::too_many_arguments)]
+    /// `eye` (see [`CoarsePyramid`]): for each radius `r < L`, `2 lambda e_r / tau <= d_r`
+    /// (with a relative margin of `1e-6` for rounding), `d_r` the distance from the eye to the
+    /// node's box widened by `r` patches. `scale` multiplies the bound's left side (1 in the
+    /// selection; the tests' negative control lowers it).
     fn all_coarsest(
         &self,
         shape: &TreeShape,
-        patch_cells: u32,
         (m, i, j): (usize, u32, u32),
         eye: DVec3,
-        lambda: f64,
-        tau: f64,
+        (lambda, tau): (f64, f64),
         scale: f64,
     ) -> bool {
-        let Some(top) = self.levels.last() else { return false };
-        let l = self.coarsest;
-        let node = match self.levels.get(m) {
-            Some(lv) if i < lv.nx && j < lv.ny => (lv, lv.index(i, j)),
-            Some(_) => return false,
-            // Above the pyramid's top (a store's root covers more than the grid): the root.
-            None => (top, 0),
-        };
-        let (lv, k) = node;
-        let errors = &lv.errors[k * l..(k + 1) * l];
+        let Some(node) = self.node_bound(m, i, j) else { return false };
+        let errors = &node.errors[..self.levels - 1];
         if errors.iter().all(|&e| e <= 0.0) {
             return true;
         }
-        let [z_lo, z_hi] = lv.z[k];
-        let base = &self.levels[0];
-        let p = f64::from(patch_cells);
+        let [z_lo, z_hi] = node.z;
+        let p = f64::from(self.patch_cells);
         let gap = |v: f64, a: f64, b: f64| (a.min(b) - v).max(v - a.max(b)).max(0.0);
         let dz = gap(eye.z, f64::from(z_lo), f64::from(z_hi));
         errors.iter().enumerate().all(|(r, &e)| {
@@ -739,8 +852,8 @@ impl CoarsePyramid {
                 let hi = ((u64::from(k) + 1) << m).min(u64::from(n)) as f64;
                 ((lo - r) * p, (hi + r) * p)
             };
-            let (x0, x1) = span(i, base.nx);
-            let (y0, y1) = span(j, base.ny);
+            let (x0, x1) = span(i, self.nx);
+            let (y0, y1) = span(j, self.ny);
             let lo = shape.grid_to_world(DVec2::new(x0, y0));
             let hi = shape.grid_to_world(DVec2::new(x1, y1));
             let d = DVec3::new(gap(eye.x, lo.x, hi.x), gap(eye.y, lo.y, hi.y), dz).length();
@@ -1080,15 +1193,7 @@ impl GeomipTable {
                 RunBound::Scaled(s) => s,
             };
             let m = usize::from(top - n.level);
-            self.pyramid.all_coarsest(
-                shape,
-                self.patch_cells,
-                (m, n.i, n.j),
-                eye,
-                lambda,
-                tau,
-                scale,
-            )
+            self.all_coarsest(shape, (m, n.i, n.j), eye, (lambda, tau), scale)
         };
         // The cull policy notes its verdict on the node the split policy is asked about next
         // (a node below a wholly visible one is not classified: it is inside).

@@ -21,6 +21,8 @@
 //!   a continuous tween factor per patch, neighbours within one level, border rules; its
 //!   per-patch [`GeomipTable`] selects over any patch tree (a heightmap's or a store's).
 //! - [`geomip_file`]: that table's file (`geomip.bin`, written by `terrain bake` into a store).
+//! - `geomip_pages` (private): that file read by pages through a bounded cache
+//!   ([`GeomipTable::open_paged`]), so a store's open and memory follow the view.
 //! - [`surface`]: rebuilds the drawn surface on the CPU from a selection and a tessellator.
 //! - `window` (private): a dense per-row index over the patches a frame considers, so
 //!   selections cost what is in view, not the grid's size.
@@ -45,6 +47,7 @@ pub mod dss_methods;
 pub mod dss_strips;
 pub mod edges;
 pub mod geomip_file;
+mod geomip_pages;
 pub mod geomipmap;
 pub mod patch;
 pub mod pvps;
@@ -66,6 +69,7 @@ pub use edges::{
     wish_outer_factors,
 };
 pub use geomip_file::{GeomipEncoder, GeomipFileError, GeomipFor};
+pub use geomip_pages::{GeomipPaging, GeomipPagingStats, TableReader};
 pub use geomipmap::{
     GeomipConfig, GeomipRow, GeomipRuns, GeomipScene, GeomipSelection, GeomipTable, PatchLod,
     PatchRun,

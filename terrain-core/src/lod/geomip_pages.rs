@@ -1,0 +1,529 @@
+//! Geomorph's table read by pages ([`GeomipTable::open_paged`]): a store's `geomip.bin` is
+//! not decoded whole at open (40 bytes per 16-cell patch, 168 MB at 32769^2) but read where a
+//! frame needs it, through a bounded cache, so memory and open time follow the view, not the
+//! grid.
+//!
+//! What is read when: at open the header and the file's tail (a CRC-32 per page of entries,
+//! and the coarsest-level pyramid's nodes `2^SUMMARY_LEVEL` patches wide, written by the
+//! bake: 24 bytes per 64 patches); during a frame, the pages of entries that hold the
+//! patches whose factors it computes, and the pyramid's lower levels for the regions it
+//! walks down into, each computed from the entries of its region (a tile of
+//! `2^SUMMARY_LEVEL` squared patches and the `L - 1` around it, the dilation's reach) exactly
+//! as the whole table's pyramid computes them: the same maxima of the same values, so the
+//! selection is bit for bit the whole table's. A page whose checksum fails is an error that
+//! names the file and the page (kept for [`GeomipTable::try_select_runs`]); until then the
+//! frame treats its patches as infinitely rough (the finest level, never a wrong coarse one).
+//! terrain-core does no file I/O: the caller reads the bytes ([`TableReader`]).
+
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::{Arc, Mutex};
+
+use rustc_hash::FxHashMap;
+
+use super::geomip_file::GeomipFileError;
+use super::geomipmap::{
+    MAX_LEVELS, NodeBound, PatchEntries, PyramidLevel, dilate, f32_at_or_above, merge_up,
+};
+use crate::checksum::crc32;
+
+/// Reads a table file's bytes at an offset: the caller's file, a remote store's mirror, or
+/// bytes in memory (terrain-core does no file I/O of its own).
+pub trait TableReader: Send + Sync {
+    /// Fills `buf` with the bytes at `offset` (an error when fewer are there).
+    fn read_at(&self, offset: u64, buf: &mut [u8]) -> std::io::Result<()>;
+}
+
+impl TableReader for Vec<u8> {
+    fn read_at(&self, offset: u64, buf: &mut [u8]) -> std::io::Result<()> {
+        let start = usize::try_from(offset).unwrap_or(usize::MAX);
+        match start.checked_add(buf.len()).and_then(|end| self.get(start..end)) {
+            Some(b) => {
+                buf.copy_from_slice(b);
+                Ok(())
+            }
+            None => Err(std::io::Error::from(std::io::ErrorKind::UnexpectedEof)),
+        }
+    }
+}
+
+/// How a table read by pages caches what it read.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct GeomipPaging {
+    /// Bytes of decoded pages and pyramid tiles kept (default 32 MiB: about 800 k 16-cell
+    /// patches, a few frames' worth of views near the ground); the least recently used go
+    /// first when it is exceeded.
+    pub cache_bytes: u64,
+}
+
+impl Default for GeomipPaging {
+    fn default() -> Self {
+        Self { cache_bytes: 32 << 20 }
+    }
+}
+
+/// What a table read by pages has read so far (for tests and measurements).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct GeomipPagingStats {
+    /// Bytes read from the file, the open's included.
+    pub bytes_read: u64,
+    /// Pages of entries read (again after an eviction).
+    pub pages_read: u64,
+    /// Pyramid tiles computed from their region's entries.
+    pub tiles_built: u64,
+    /// Bytes the caches hold now.
+    pub cached_bytes: u64,
+}
+
+/// The layout of a table file read by pages, from its header and tail
+/// ([`super::geomip_file`]).
+#[derive(Debug, Clone)]
+pub(super) struct PagedLayout {
+    /// The file's name in errors.
+    pub(super) file: String,
+    /// Cells per patch side.
+    pub(super) p: u32,
+    /// Levels below the finest per patch (`L`).
+    pub(super) l: usize,
+    /// Patches along x and y.
+    pub(super) nx: u32,
+    pub(super) ny: u32,
+    /// Patches per page of entries.
+    pub(super) page_patches: usize,
+    /// Where the entries start.
+    pub(super) entries_at: u64,
+    /// Per page: the CRC-32 of its bytes.
+    pub(super) page_crcs: Arc<[u32]>,
+    /// The pyramid level the file holds (nodes `2^summary_level` patches wide).
+    pub(super) summary_level: usize,
+}
+
+/// One page of entries, decoded (and scaled).
+#[derive(Debug)]
+struct Page {
+    errors: Vec<f32>,
+    heights: Vec<f32>,
+    vertices: Vec<u16>,
+}
+
+/// The pyramid's levels `0..summary_level` over one node of the summary level: level `m` is
+/// `side >> m` squared nodes, row-major.
+#[derive(Debug)]
+struct Tile {
+    levels: Vec<PyramidLevel>,
+}
+
+/// The least recently used go first.
+#[derive(Debug, Default)]
+struct Caches {
+    pages: FxHashMap<usize, (Arc<Page>, u64)>,
+    tiles: FxHashMap<(u32, u32), (Arc<Tile>, u64)>,
+    tick: u64,
+    bytes: u64,
+}
+
+impl Caches {
+    /// Drops the least recently used until at most 3/4 of `budget` is held.
+    fn trim(&mut self, budget: u64, l: usize) {
+        if self.bytes <= budget {
+            return;
+        }
+        let mut items: Vec<(u64, u64)> =
+            self.pages.values().map(|v| (v.1, page_bytes(&v.0))).collect();
+        items.extend(self.tiles.values().map(|v| (v.1, tile_bytes(&v.0, l))));
+        items.sort_unstable();
+        let target = budget / 4 * 3;
+        let (mut bytes, mut cut) = (self.bytes, 0);
+        for (tick, size) in items {
+            if bytes <= target {
+                break;
+            }
+            (cut, bytes) = (tick + 1, bytes.saturating_sub(size));
+        }
+        self.pages.retain(|_, v| v.1 >= cut);
+        self.tiles.retain(|_, v| v.1 >= cut);
+        self.bytes = bytes;
+    }
+}
+
+fn page_bytes(p: &Page) -> u64 {
+    (p.errors.len() * 10) as u64
+}
+
+fn tile_bytes(t: &Tile, l: usize) -> u64 {
+    t.levels.iter().map(|lv| (lv.z.len() * (8 + 4 * l)) as u64).sum()
+}
+
+/// A table's entries and lower pyramid levels read on demand (see the module docs).
+pub(super) struct PagedEntries {
+    layout: PagedLayout,
+    reader: Arc<dyn TableReader>,
+    /// The grid's pyramid levels from `summary_level` up (scaled).
+    summary: Arc<Vec<PyramidLevel>>,
+    /// The level of the pyramid's one-node top (`0` for one patch).
+    top_level: usize,
+    /// Vertical exaggerations applied, in order ([`super::GeomipTable::exaggerated`]).
+    scales: Vec<f64>,
+    budget: u64,
+    cache: Mutex<Caches>,
+    /// The first page that could not be read since [`PagedEntries::take_error`].
+    failed: Mutex<Option<GeomipFileError>>,
+    failures: AtomicU64,
+    bytes_read: AtomicU64,
+    pages_read: AtomicU64,
+    tiles_built: AtomicU64,
+}
+
+impl std::fmt::Debug for PagedEntries {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("PagedEntries")
+            .field("layout", &self.layout)
+            .field("scales", &self.scales)
+            .field("stats", &self.stats())
+            .finish_non_exhaustive()
+    }
+}
+
+/// Two tables read by pages are equal when they are the same one.
+impl PartialEq for PagedEntries {
+    fn eq(&self, other: &Self) -> bool {
+        std::ptr::eq(self, other)
+    }
+}
+
+impl PagedEntries {
+    /// The entries of `layout` read through `reader`, the pyramid's summary level `base`
+    /// (unscaled), `open_bytes` read so far.
+    pub(super) fn new(
+        layout: PagedLayout,
+        reader: Arc<dyn TableReader>,
+        base: PyramidLevel,
+        paging: &GeomipPaging,
+        open_bytes: u64,
+    ) -> Self {
+        let (mut a, mut b, mut top_level) = (layout.nx, layout.ny, 0);
+        while a > 1 || b > 1 {
+            (a, b, top_level) = (a.div_ceil(2), b.div_ceil(2), top_level + 1);
+        }
+        let summary = Arc::new(merge_up(base, layout.l));
+        Self {
+            layout,
+            reader,
+            summary,
+            top_level,
+            scales: Vec::new(),
+            budget: paging.cache_bytes,
+            cache: Mutex::default(),
+            failed: Mutex::default(),
+            failures: AtomicU64::new(0),
+            bytes_read: AtomicU64::new(open_bytes),
+            pages_read: AtomicU64::new(0),
+            tiles_built: AtomicU64::new(0),
+        }
+    }
+
+    /// The same file with its errors and heights times `scale` (after those applied before),
+    /// empty caches.
+    pub(super) fn exaggerated(&self, scale: f64) -> Self {
+        let l = self.layout.l;
+        let summary = self
+            .summary
+            .iter()
+            .map(|lv| PyramidLevel {
+                nx: lv.nx,
+                ny: lv.ny,
+                errors: lv.errors.iter().map(|&e| f32_at_or_above(f64::from(e) * scale)).collect(),
+                z: lv.z.iter().map(|z| z.map(|v| (f64::from(v) * scale) as f32)).collect(),
+            })
+            .collect::<Vec<_>>();
+        debug_assert!(summary.iter().all(|lv| lv.errors.len() == lv.z.len() * l));
+        let mut scales = self.scales.clone();
+        scales.push(scale);
+        Self {
+            layout: self.layout.clone(),
+            reader: self.reader.clone(),
+            summary: Arc::new(summary),
+            top_level: self.top_level,
+            scales,
+            budget: self.budget,
+            cache: Mutex::default(),
+            failed: Mutex::default(),
+            failures: AtomicU64::new(0),
+            bytes_read: AtomicU64::new(self.bytes_read.load(Ordering::Relaxed)),
+            pages_read: AtomicU64::new(0),
+            tiles_built: AtomicU64::new(0),
+        }
+    }
+
+    /// What was read so far.
+    pub(super) fn stats(&self) -> GeomipPagingStats {
+        GeomipPagingStats {
+            bytes_read: self.bytes_read.load(Ordering::Relaxed),
+            pages_read: self.pages_read.load(Ordering::Relaxed),
+            tiles_built: self.tiles_built.load(Ordering::Relaxed),
+            cached_bytes: self.lock().bytes,
+        }
+    }
+
+    /// Bytes held: the summary levels and the caches.
+    pub(super) fn memory_bytes(&self) -> usize {
+        super::geomipmap::levels_bytes(&self.summary) + self.lock().bytes as usize
+    }
+
+    /// The first page that could not be read since the last call, if any.
+    pub(super) fn take_error(&self) -> Option<GeomipFileError> {
+        self.failed.lock().unwrap_or_else(|e| e.into_inner()).take()
+    }
+
+    fn lock(&self) -> std::sync::MutexGuard<'_, Caches> {
+        self.cache.lock().unwrap_or_else(|e| e.into_inner())
+    }
+
+    fn fail(&self, e: GeomipFileError) {
+        self.failures.fetch_add(1, Ordering::Relaxed);
+        let mut slot = self.failed.lock().unwrap_or_else(|e| e.into_inner());
+        slot.get_or_insert(e);
+    }
+
+    /// Reads and checks page `p`.
+    fn read_page(&self, p: usize) -> Result<Page, GeomipFileError> {
+        let lay = &self.layout;
+        let l = lay.l;
+        let total = lay.nx as usize * lay.ny as usize;
+        let first = p * lay.page_patches;
+        let patches = lay.page_patches.min(total - first);
+        let offset = lay.entries_at + (first * l * 10) as u64;
+        let mut buf = vec![0u8; patches * l * 10];
+        let page_err = |cause: GeomipFileError| GeomipFileError::Page {
+            file: lay.file.clone(),
+            page: p,
+            offset,
+            cause: Box::new(cause),
+        };
+        self.reader
+            .read_at(offset, &mut buf)
+            .map_err(|e| page_err(GeomipFileError::Read(e.to_string())))?;
+        self.bytes_read.fetch_add(buf.len() as u64, Ordering::Relaxed);
+        self.pages_read.fetch_add(1, Ordering::Relaxed);
+        let (stored, computed) = (lay.page_crcs[p], crc32(&buf));
+        if stored != computed {
+            return Err(page_err(GeomipFileError::Checksum { stored, computed }));
+        }
+        let n = patches * l;
+        let mut page = Page {
+            errors: Vec::with_capacity(n),
+            heights: Vec::with_capacity(n),
+            vertices: Vec::with_capacity(n),
+        };
+        let last = (lay.p + 1) * (lay.p + 1);
+        for (k, b) in buf.chunks_exact(10).enumerate() {
+            let (e, z, v) = super::geomip_file::decode_entry(b);
+            if !super::geomip_file::entry_ok(e, z, v, last) {
+                return Err(page_err(GeomipFileError::Layout(format!(
+                    "entry {}: error {e}, height {z}, vertex {v}",
+                    first * l + k
+                ))));
+            }
+            let (mut e, mut z) = (e, z);
+            for &s in &self.scales {
+                e = f32_at_or_above(f64::from(e) * s);
+                z = (f64::from(z) * s) as f32;
+            }
+            page.errors.push(e);
+            page.heights.push(z);
+            page.vertices.push(v);
+        }
+        Ok(page)
+    }
+
+    /// Page `p`, from the cache or read (`None`, and the error kept, when it cannot be).
+    fn page(&self, p: usize) -> Option<Arc<Page>> {
+        let mut cache = self.lock();
+        cache.tick += 1;
+        let tick = cache.tick;
+        if let Some(slot) = cache.pages.get_mut(&p) {
+            slot.1 = tick;
+            return Some(slot.0.clone());
+        }
+        match self.read_page(p) {
+            Ok(page) => {
+                let page = Arc::new(page);
+                cache.bytes += page_bytes(&page);
+                cache.pages.insert(p, (page.clone(), tick));
+                cache.trim(self.budget, self.layout.l);
+                Some(page)
+            }
+            Err(e) => {
+                drop(cache);
+                self.fail(e);
+                None
+            }
+        }
+    }
+
+    /// Patch `k`'s entries (see [`super::GeomipTable::patch`]); `last` keeps the page read
+    /// last for the next call (a run of patches in one page locks the cache once).
+    fn patch_in(&self, k: usize, last: &mut Option<(usize, Arc<Page>)>) -> PatchEntries {
+        let l = self.layout.l;
+        let p = k / self.layout.page_patches;
+        let mut out = PatchEntries { n: l, ..PatchEntries::default() };
+        if last.as_ref().is_none_or(|(q, _)| *q != p) {
+            *last = self.page(p).map(|page| (p, page));
+        }
+        let Some((_, page)) = last.as_ref() else {
+            out.errors[..l].fill(f32::INFINITY);
+            return out;
+        };
+        let at = (k - p * self.layout.page_patches) * l;
+        out.errors[..l].copy_from_slice(&page.errors[at..at + l]);
+        out.heights[..l].copy_from_slice(&page.heights[at..at + l]);
+        out.vertices[..l].copy_from_slice(&page.vertices[at..at + l]);
+        out
+    }
+
+    /// Patch `k`'s entries (see [`super::GeomipTable::patch`]).
+    pub(super) fn patch(&self, k: usize) -> PatchEntries {
+        self.patch_in(k, &mut None)
+    }
+
+    /// The pyramid's node `m` levels above the patches at `(i, j)` (see
+    /// `GeomipTable::node_bound`): from the summary at or above its level, else from the
+    /// tile of the summary node holding it.
+    pub(super) fn node(&self, m: usize, i: u32, j: u32) -> Option<NodeBound> {
+        let l = self.layout.l;
+        let m0 = self.layout.summary_level;
+        if m > self.top_level {
+            let top = self.summary.last()?;
+            return Some(top.bound(0, l));
+        }
+        if m >= m0 {
+            let lv = self.summary.get(m - m0)?;
+            return (i < lv.nx && j < lv.ny).then(|| lv.bound(lv.index(i, j), l));
+        }
+        let (nxm, nym) = (self.layout.nx.div_ceil(1 << m), self.layout.ny.div_ceil(1 << m));
+        if i >= nxm || j >= nym {
+            return None;
+        }
+        let shift = m0 - m;
+        let tile = self.tile(i >> shift, j >> shift);
+        let lv = &tile.levels[m];
+        let side = lv.nx;
+        let k = ((j - ((j >> shift) << shift)) * side + (i - ((i >> shift) << shift))) as usize;
+        Some(lv.bound(k, l))
+    }
+
+    /// The tile of summary node `(ti, tj)`, from the cache or computed.
+    fn tile(&self, ti: u32, tj: u32) -> Arc<Tile> {
+        {
+            let mut cache = self.lock();
+            cache.tick += 1;
+            let tick = cache.tick;
+            if let Some(slot) = cache.tiles.get_mut(&(ti, tj)) {
+                slot.1 = tick;
+                return slot.0.clone();
+            }
+        }
+        let failures = self.failures.load(Ordering::Relaxed);
+        let tile = Arc::new(self.build_tile(ti, tj));
+        self.tiles_built.fetch_add(1, Ordering::Relaxed);
+        // A tile built over a page that could not be read is not kept: the next frame that
+        // needs it reads the page again (and reports it again).
+        if self.failures.load(Ordering::Relaxed) == failures {
+            let l = self.layout.l;
+            let mut cache = self.lock();
+            cache.tick += 1;
+            let tick = cache.tick;
+            cache.bytes += tile_bytes(&tile, l);
+            cache.tiles.insert((ti, tj), (tile.clone(), tick));
+            cache.trim(self.budget, l);
+        }
+        tile
+    }
+
+    /// Levels `0..summary_level` over summary node `(ti, tj)`, as `CoarsePyramid::new`
+    /// computes them for the whole grid: per patch and radius `r < L` the largest `m_{L-r}`
+    /// over the square of radius `r` (clipped to the grid), the height range over radius
+    /// `L - 1`, then 2 x 2 maxima. The window holds every patch within `L - 1` of the tile's,
+    /// so clipping the dilation to it is clipping it to the grid.
+    fn build_tile(&self, ti: u32, tj: u32) -> Tile {
+        let (l, nx, ny) = (self.layout.l, self.layout.nx as usize, self.layout.ny as usize);
+        let m0 = self.layout.summary_level;
+        let side = 1usize << m0;
+        let reach = l.saturating_sub(1);
+        let (px0, py0) = (ti as usize * side, tj as usize * side);
+        let (px1, py1) = ((px0 + side).min(nx), (py0 + side).min(ny));
+        let (wx0, wy0) = (px0.saturating_sub(reach), py0.saturating_sub(reach));
+        let (wx1, wy1) = ((px1 + reach).min(nx), (py1 + reach).min(ny));
+        let (ww, wh) = (wx1 - wx0, wy1 - wy0);
+        let mut own = vec![vec![0f32; ww * wh]; l];
+        let mut own_z = vec![[f32::INFINITY, f32::NEG_INFINITY]; ww * wh];
+        let mut last = None;
+        for j in wy0..wy1 {
+            for i in wx0..wx1 {
+                let e = self.patch_in(j * nx + i, &mut last);
+                let w = (j - wy0) * ww + i - wx0;
+                for (r, o) in own.iter_mut().enumerate() {
+                    o[w] = e.errors[(l - r) - 1];
+                }
+                let mut z = [f32::INFINITY, f32::NEG_INFINITY];
+                for k in 0..l {
+                    if e.errors[k] > 0.0 {
+                        z = [z[0].min(e.heights[k]), z[1].max(e.heights[k])];
+                    }
+                }
+                own_z[w] = z;
+            }
+        }
+        let dims = (ww, wh);
+        let mut base = PyramidLevel {
+            nx: side as u32,
+            ny: side as u32,
+            errors: vec![0.0; side * side * l],
+            z: vec![[f32::INFINITY, f32::NEG_INFINITY]; side * side],
+        };
+        let at = |i: usize, j: usize| (j - wy0) * ww + i - wx0;
+        for (r, o) in own.iter().enumerate() {
+            let d = dilate(&dilate(o, dims, r, true, f32::max), dims, r, false, f32::max);
+            for j in py0..py1 {
+                for i in px0..px1 {
+                    base.errors[((j - py0) * side + i - px0) * l + r] = d[at(i, j)];
+                }
+            }
+        }
+        let zm = |a: [f32; 2], b: [f32; 2]| [a[0].min(b[0]), a[1].max(b[1])];
+        let z = dilate(&dilate(&own_z, dims, reach, true, zm), dims, reach, false, zm);
+        for j in py0..py1 {
+            for i in px0..px1 {
+                base.z[(j - py0) * side + i - px0] = z[at(i, j)];
+            }
+        }
+        // Nodes past the grid keep 0 and an empty range, as the whole pyramid's do, so the
+        // 2 x 2 maxima are its.
+        let mut levels = vec![base];
+        for _ in 1..m0 {
+            let prev = levels.last().expect("level 0");
+            let s = prev.nx as usize / 2;
+            let mut next = PyramidLevel {
+                nx: s as u32,
+                ny: s as u32,
+                errors: vec![0.0; s * s * l],
+                z: vec![[f32::INFINITY, f32::NEG_INFINITY]; s * s],
+            };
+            for b in 0..s {
+                for a in 0..s {
+                    let k = b * s + a;
+                    for (da, db) in [(0, 0), (1, 0), (0, 1), (1, 1)] {
+                        let c = (2 * b + db) * prev.nx as usize + 2 * a + da;
+                        for r in 0..l {
+                            next.errors[k * l + r] =
+                                next.errors[k * l + r].max(prev.errors[c * l + r]);
+                        }
+                        next.z[k] = zm(next.z[k], prev.z[c]);
+                    }
+                }
+            }
+            levels.push(next);
+        }
+        debug_assert!(l <= MAX_LEVELS);
+        Tile { levels }
+    }
+}
