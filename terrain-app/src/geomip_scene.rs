@@ -158,20 +158,32 @@ fn write_table(
     Ok(bytes.len() as u64)
 }
 
+/// The largest `geomip.bin` [`read_for_store`] reads whole at open; a larger one is read by
+/// pages. Whole, a table costs its size in memory and its read at open (41 MB and 0.3 s on the
+/// 16385^2 store) but selects fastest; by pages, open reads the header and tail only and the
+/// memory follows the view, but each view's pages and pyramid tiles are read and built on
+/// first use (the 16385^2 store's selection 2.1x slower cold and 1.3x over consecutive
+/// frames, the 32769^2 store's 2.3x cold for 455 MB less; bench/ooc/README.md, "`geomip.bin`
+/// read by pages"). 64 MiB: a grid up to about 20,000^2 samples at 16-cell patches.
+pub const READ_WHOLE_MAX_BYTES: u64 = 64 << 20;
+
 /// Reads store folder `dir`'s table for the patch tree `shape` (its grid, leaves = patches),
-/// or fails saying what to bake: opened for reading by pages ([`GeomipTable::open_paged`]:
-/// the header and tail at open, each page of entries when a frame first needs it, through a
-/// cache of `paging.cache_bytes`), or read whole, with a warning, when the store was baked
-/// before `geomip.bin` version 2.
+/// or fails saying what to bake: read whole when it is at most [`READ_WHOLE_MAX_BYTES`],
+/// else opened for reading by pages ([`GeomipTable::open_paged`]: the header and tail at
+/// open, each page of entries when a frame first needs it, through a cache of
+/// [`GeomipPaging::default`]'s bytes), or read whole, with a warning, when the store was
+/// baked before `geomip.bin` version 2.
 pub fn read_for_store(dir: &Path, shape: &TreeShape) -> anyhow::Result<GeomipTable> {
-    read_for_store_with(dir, shape, &GeomipPaging::default())
+    read_for_store_with(dir, shape, &GeomipPaging::default(), READ_WHOLE_MAX_BYTES)
 }
 
-/// [`read_for_store`] with its page cache's settings.
+/// [`read_for_store`] with its page cache's settings, reading a table of at most
+/// `read_whole_max` bytes whole (0: every version-2 table by pages).
 pub fn read_for_store_with(
     dir: &Path,
     shape: &TreeShape,
     paging: &GeomipPaging,
+    read_whole_max: u64,
 ) -> anyhow::Result<GeomipTable> {
     let path = geomip_path(dir);
     let missing = || {
@@ -197,6 +209,10 @@ pub fn read_for_store_with(
             crate::methods::MethodConfig::default().leaf_cells
         )
     };
+    if len <= read_whole_max {
+        let bytes = std::fs::read(&path).with_context(missing)?;
+        return GeomipTable::decode(&bytes, &want).with_context(unusable);
+    }
     let name = path.display().to_string();
     match GeomipTable::open_paged(&name, Arc::new(FileReader(file)), len, &want, paging) {
         Err(GeomipFileError::Version { found: 1, .. }) => {

@@ -198,7 +198,8 @@ fn a_paged_index_over_http_is_read_by_page_and_selects_as_the_local_store() {
     let (gl, gr) = (StoreTree::new(local.clone(), 16), StoreTree::new(geo_remote.clone(), 16));
     let read = |s: &Store, t: &StoreTree| {
         use terrain_core::quadtree::NodeTree;
-        terrain_app::geomip_scene::read_for_store(s.dir(), t.shape()).unwrap()
+        let paging = terrain_core::lod::GeomipPaging::default();
+        terrain_app::geomip_scene::read_for_store_with(s.dir(), t.shape(), &paging, 0).unwrap()
     };
     let (ta, tb) = (read(&local, &gl), read(&geo_remote, &gr));
     assert!(tb.paging_stats().is_some(), "read by pages from the mirror");

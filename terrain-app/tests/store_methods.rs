@@ -446,13 +446,10 @@ fn geomorph_from_a_store_morphs_on_the_gpu_without_cracks() {
     }
 }
 
-/// A grid not held in memory gets geomorph's table from its store's blocks, a block row at a
-/// time: equal to the one computed from the heightmap (exact f32 store, no voids), and so is
-/// the heights' checksum; on Puget Sound 1k and on an odd-sized grid whose last blocks and
-/// patches are clipped.
 /// A store's `geomip.bin` is read by pages: its open reads the header and the tail only, and
 /// a damaged page fails the frames that need it (naming the file), not the open nor the
-/// frames that do not.
+/// frames that do not. A table this small is read whole by default
+/// ([`terrain_app::geomip_scene::READ_WHOLE_MAX_BYTES`]), and selects the same.
 #[test]
 fn a_store_geomip_table_opens_by_pages_and_a_damaged_page_fails_only_where_needed() {
     use terrain_core::lod::{GeomipConfig, GeomipScene};
@@ -477,10 +474,17 @@ fn a_store_geomip_table_opens_by_pages_and_a_damaged_page_fails_only_where_neede
             .with_viewport(1280.0, 720.0)
     };
     let (south, north) = (cam(256.0, 20.0, 180.0), cam(256.0, 500.0, 0.0));
-    let open = || terrain_app::geomip_scene::read_for_store(&dir, tree.shape()).unwrap();
+    let open = || {
+        let paging = terrain_core::lod::GeomipPaging::default();
+        terrain_app::geomip_scene::read_for_store_with(&dir, tree.shape(), &paging, 0).unwrap()
+    };
     let same = |a: &terrain_core::lod::GeomipRuns, b: &terrain_core::lod::GeomipRuns| {
         (&a.runs, &a.patches, &a.factors) == (&b.runs, &b.patches, &b.factors)
     };
+    // Below the size read whole, the default reads it whole: no pages, the same selection.
+    let whole = terrain_app::geomip_scene::read_for_store(&dir, tree.shape()).unwrap();
+    assert!(whole.paging_stats().is_none(), "a {len}-byte table is read whole by default");
+    assert!(same(&whole.select_runs(&tree, &south, &cfg), &memory.select_runs(&south, &cfg)));
     // Undamaged (the negative control below): both views select as from memory.
     let table = open();
     let read = table.paging_stats().unwrap().bytes_read;
@@ -503,6 +507,10 @@ fn a_store_geomip_table_opens_by_pages_and_a_damaged_page_fails_only_where_neede
     let _ = std::fs::remove_dir_all(dir.parent().unwrap());
 }
 
+/// A grid not held in memory gets geomorph's table from its store's blocks, a block row at a
+/// time: equal to the one computed from the heightmap (exact f32 store, no voids), and so is
+/// the heights' checksum; on Puget Sound 1k and on an odd-sized grid whose last blocks and
+/// patches are clipped.
 #[test]
 fn the_geomip_table_from_a_store_equals_the_one_from_memory() {
     let odd = terrain_core::synth::FractalConfig::with_size(301, 203, 30.0).to_heightmap().unwrap();
