@@ -199,6 +199,15 @@ pub struct GeomipRow {
     vertices: Vec<u16>,
 }
 
+/// A table's levels (the patch's finest included) and patches per row and column, for a
+/// `width` x `height` grid of samples in patches of `patch_cells` (a power of two) cells.
+fn patch_grid(width: u32, height: u32, patch_cells: u32) -> (usize, u32, u32) {
+    let levels = patch_cells.trailing_zeros() as usize + 1;
+    let nx = (width.saturating_sub(1)).div_ceil(patch_cells).max(1);
+    let ny = (height.saturating_sub(1)).div_ceil(patch_cells).max(1);
+    (levels, nx, ny)
+}
+
 /// The smallest `f32` at or above `e` (a conservative error bound in single precision).
 pub(super) fn f32_at_or_above(e: f64) -> f32 {
     let f = e as f32;
@@ -315,10 +324,8 @@ impl GeomipTable {
         M: FnOnce(&(dyn Fn(u32) -> GeomipRow + Sync), u32) -> Vec<GeomipRow>,
     {
         let p = clamp_patch_cells(patch_cells);
-        let levels = p.trailing_zeros() as usize + 1;
         let (w, h) = (hm.width() as u32, hm.height() as u32);
-        let nx = (w.saturating_sub(1)).div_ceil(p).max(1);
-        let ny = (h.saturating_sub(1)).div_ceil(p).max(1);
+        let (levels, nx, ny) = patch_grid(w, h, p);
         let row = |pj: u32| patch_row(hm, 0, pj, p, nx, levels);
         let rows = map(&row, ny);
         assert_eq!(rows.len(), ny as usize, "the map returns every row");
@@ -368,9 +375,7 @@ impl GeomipTable {
         M: FnMut(&(dyn Fn(u32) -> GeomipRow + Sync), std::ops::Range<u32>) -> Vec<GeomipRow>,
     {
         let p = clamp_patch_cells(patch_cells);
-        let levels = p.trailing_zeros() as usize + 1;
-        let nx = (width.saturating_sub(1)).div_ceil(p).max(1);
-        let ny = (height.saturating_sub(1)).div_ceil(p).max(1);
+        let (levels, nx, ny) = patch_grid(width, height, p);
         let per_band = band_patch_rows.max(1);
         let (mut errors, mut heights, mut vertices) = (Vec::new(), Vec::new(), Vec::new());
         let mut pj0 = 0;
@@ -495,9 +500,7 @@ impl GeomipTable {
         heights: Vec<f32>,
         vertices: Vec<u16>,
     ) -> Self {
-        let levels = patch_cells.trailing_zeros() as usize + 1;
-        let nx = (width.saturating_sub(1)).div_ceil(patch_cells).max(1);
-        let ny = (height.saturating_sub(1)).div_ceil(patch_cells).max(1);
+        let (levels, nx, ny) = patch_grid(width, height, patch_cells);
         debug_assert_eq!(errors.len(), (nx * ny) as usize * (levels - 1));
         let mut t = Self {
             patch_cells,
@@ -521,9 +524,7 @@ impl GeomipTable {
         (width, height, patch_cells): (u32, u32, u32),
         paged: PagedEntries,
     ) -> Self {
-        let levels = patch_cells.trailing_zeros() as usize + 1;
-        let nx = (width.saturating_sub(1)).div_ceil(patch_cells).max(1);
-        let ny = (height.saturating_sub(1)).div_ceil(patch_cells).max(1);
+        let (levels, nx, ny) = patch_grid(width, height, patch_cells);
         Self {
             patch_cells,
             levels,
