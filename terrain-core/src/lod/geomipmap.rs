@@ -500,9 +500,21 @@ impl GeomipTable {
         heights: Vec<f32>,
         vertices: Vec<u16>,
     ) -> Self {
+        let mut t = Self::assemble((width, height, patch_cells), (errors, heights, vertices), None);
+        debug_assert_eq!(t.errors.len(), (t.nx * t.ny) as usize * (t.levels - 1));
+        t.pyramid = CoarsePyramid::new(&t);
+        t
+    }
+
+    /// A table of a `width` x `height` grid in patches of `patch_cells` cells from its entries
+    /// (empty when `paged` reads them), its pyramid not built yet.
+    fn assemble(
+        (width, height, patch_cells): (u32, u32, u32),
+        (errors, heights, vertices): (Vec<f32>, Vec<f32>, Vec<u16>),
+        paged: Option<Arc<PagedEntries>>,
+    ) -> Self {
         let (levels, nx, ny) = patch_grid(width, height, patch_cells);
-        debug_assert_eq!(errors.len(), (nx * ny) as usize * (levels - 1));
-        let mut t = Self {
+        Self {
             patch_cells,
             levels,
             width,
@@ -513,10 +525,8 @@ impl GeomipTable {
             heights,
             vertices,
             pyramid: CoarsePyramid::default(),
-            paged: None,
-        };
-        t.pyramid = CoarsePyramid::new(&t);
-        t
+            paged,
+        }
     }
 
     /// A table whose entries and lower pyramid levels `paged` reads on demand.
@@ -524,20 +534,8 @@ impl GeomipTable {
         (width, height, patch_cells): (u32, u32, u32),
         paged: PagedEntries,
     ) -> Self {
-        let (levels, nx, ny) = patch_grid(width, height, patch_cells);
-        Self {
-            patch_cells,
-            levels,
-            width,
-            height,
-            nx,
-            ny,
-            errors: Vec::new(),
-            heights: Vec::new(),
-            vertices: Vec::new(),
-            pyramid: CoarsePyramid::default(),
-            paged: Some(Arc::new(paged)),
-        }
+        let none = (Vec::new(), Vec::new(), Vec::new());
+        Self::assemble((width, height, patch_cells), none, Some(Arc::new(paged)))
     }
 
     /// The table read by pages, when it is ([`GeomipTable::open_paged`]).
