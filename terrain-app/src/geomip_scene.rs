@@ -1,9 +1,9 @@
 //! The geomorph method's per-patch table (the article's max-error vertices, terrain-core's
 //! `GeomipTable`) in a store folder: `terrain bake` computes it on every core and writes
 //! `geomip.bin` (unless `--no-geomip`); `geomorph` drawn from a store reads it instead of the
-//! heightmap (see [`crate::method::store_method`]), by pages ([`read_for_store`]). From the
-//! heightmap when the bake holds it
-//! in memory ([`bake_into_scene`]), else from the store's blocks one block row at a time
+//! heightmap (see [`crate::method::store_method`]): whole up to 64 MiB, by pages above
+//! ([`read_for_store`]). From the heightmap when the bake holds it in memory
+//! ([`bake_into_scene`]), else from the store's blocks one block row at a time
 //! ([`bake_from_store`]: a DEM read by rows, a synthetic grid above what fits in memory; the
 //! store keeps no void mask, so every sample is measured there).
 
