@@ -37,7 +37,7 @@ use super::dss_file::heights_checksum;
 use super::geomip_pages::{
     GeomipPaging, GeomipPagingStats, PagedEntries, PagedLayout, TableReader,
 };
-use super::geomipmap::{BandStack, GeomipRuns, GeomipTable, PyramidLevel};
+use super::geomipmap::{BandStack, GeomipRuns, GeomipTable, PyramidLevel, vertex_range, z_union};
 use crate::checksum::{crc32, crc32_update};
 use crate::geometry::Camera;
 use crate::heightmap::Heightmap;
@@ -137,14 +137,11 @@ impl SummaryRows {
         for n in 0..nodes {
             let mut z = [f32::INFINITY, f32::NEG_INFINITY];
             for i in cols(n, reach) {
-                for e in i * l..(i + 1) * l {
-                    if errors[e] > 0.0 {
-                        z = [z[0].min(heights[e]), z[1].max(heights[e])];
-                    }
-                }
+                let e = i * l..(i + 1) * l;
+                z = z_union(z, vertex_range(&errors[e.clone()], &heights[e]));
             }
             for row in &mut self.z[j.saturating_sub(reach) / side..=(j + reach) / side] {
-                row[n] = [row[n][0].min(z[0]), row[n][1].max(z[1])];
+                row[n] = z_union(row[n], z);
             }
         }
     }

@@ -23,6 +23,7 @@ use rustc_hash::FxHashMap;
 use super::geomip_file::GeomipFileError;
 use super::geomipmap::{
     MAX_LEVELS, NodeBound, PatchEntries, PyramidLevel, dilate, f32_at_or_above, merge_up,
+    vertex_range, z_union,
 };
 use crate::checksum::crc32;
 
@@ -464,22 +465,19 @@ impl PagedEntries {
                 for (r, o) in own.iter_mut().enumerate() {
                     o[w] = e.errors[(l - r) - 1];
                 }
-                let mut z = [f32::INFINITY, f32::NEG_INFINITY];
-                for k in 0..l {
-                    if e.errors[k] > 0.0 {
-                        z = [z[0].min(e.heights[k]), z[1].max(e.heights[k])];
-                    }
-                }
-                own_z[w] = z;
+                own_z[w] = vertex_range(&e.errors[..l], &e.heights[..l]);
             }
         }
         let dims = (ww, wh);
-        let mut base = PyramidLevel {
-            nx: side as u32,
-            ny: side as u32,
-            errors: vec![0.0; side * side * l],
-            z: vec![[f32::INFINITY, f32::NEG_INFINITY]; side * side],
+        // A tile's levels are row-major (`side >> m` nodes a side), not in the whole
+        // pyramid's 8 x 8 slots: all 0, height ranges empty.
+        let dense = |s: usize| PyramidLevel {
+            nx: s as u32,
+            ny: s as u32,
+            errors: vec![0.0; s * s * l],
+            z: vec![[f32::INFINITY, f32::NEG_INFINITY]; s * s],
         };
+        let mut base = dense(side);
         let at = |i: usize, j: usize| (j - wy0) * ww + i - wx0;
         for (r, o) in own.iter().enumerate() {
             let d = dilate(&dilate(o, dims, r, true, f32::max), dims, r, false, f32::max);
@@ -489,8 +487,7 @@ impl PagedEntries {
                 }
             }
         }
-        let zm = |a: [f32; 2], b: [f32; 2]| [a[0].min(b[0]), a[1].max(b[1])];
-        let z = dilate(&dilate(&own_z, dims, reach, true, zm), dims, reach, false, zm);
+        let z = dilate(&dilate(&own_z, dims, reach, true, z_union), dims, reach, false, z_union);
         for j in py0..py1 {
             for i in px0..px1 {
                 base.z[(j - py0) * side + i - px0] = z[at(i, j)];
@@ -502,22 +499,12 @@ impl PagedEntries {
         for _ in 1..m0 {
             let prev = levels.last().expect("level 0");
             let s = prev.nx as usize / 2;
-            let mut next = PyramidLevel {
-                nx: s as u32,
-                ny: s as u32,
-                errors: vec![0.0; s * s * l],
-                z: vec![[f32::INFINITY, f32::NEG_INFINITY]; s * s],
-            };
+            let mut next = dense(s);
             for b in 0..s {
                 for a in 0..s {
-                    let k = b * s + a;
                     for (da, db) in [(0, 0), (1, 0), (0, 1), (1, 1)] {
                         let c = (2 * b + db) * prev.nx as usize + 2 * a + da;
-                        for r in 0..l {
-                            next.errors[k * l + r] =
-                                next.errors[k * l + r].max(prev.errors[c * l + r]);
-                        }
-                        next.z[k] = zm(next.z[k], prev.z[c]);
+                        next.absorb(b * s + a, prev, c, l);
                     }
                 }
             }

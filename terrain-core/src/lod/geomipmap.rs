@@ -732,18 +732,12 @@ impl CoarsePyramid {
         }
         let own: Vec<[f32; 2]> = (0..n)
             .map(|k| {
-                let mut z = [f32::INFINITY, f32::NEG_INFINITY];
-                for e in k * l..(k + 1) * l {
-                    if t.errors[e] > 0.0 {
-                        z = [z[0].min(t.heights[e]), z[1].max(t.heights[e])];
-                    }
-                }
-                z
+                let e = k * l..(k + 1) * l;
+                vertex_range(&t.errors[e.clone()], &t.heights[e])
             })
             .collect();
-        let zm = |a: [f32; 2], b: [f32; 2]| [a[0].min(b[0]), a[1].max(b[1])];
         let r = l.saturating_sub(1);
-        let z = dilate(&dilate(&own, dims, r, true, zm), dims, r, false, zm);
+        let z = dilate(&dilate(&own, dims, r, true, z_union), dims, r, false, z_union);
         drop(own);
         base.z = vec![[f32::INFINITY, f32::NEG_INFINITY]; z_slots];
         for (k, &v) in z.iter().enumerate() {
@@ -773,7 +767,6 @@ impl CoarsePyramid {
 /// The pyramid's levels from `base` up to one node, each merging 2 x 2 nodes of the one
 /// below (`l` errors per node: their maxima; the height ranges' union).
 pub(super) fn merge_up(base: PyramidLevel, l: usize) -> Vec<PyramidLevel> {
-    let zm = |a: [f32; 2], b: [f32; 2]| [a[0].min(b[0]), a[1].max(b[1])];
     let mut levels = vec![base];
     loop {
         let prev = levels.last().expect("level 0");
@@ -788,12 +781,7 @@ pub(super) fn merge_up(base: PyramidLevel, l: usize) -> Vec<PyramidLevel> {
                 for (di, dj) in [(0, 0), (1, 0), (0, 1), (1, 1)] {
                     let (ci, cj) = (2 * i + di, 2 * j + dj);
                     if ci < px && cj < py {
-                        let c = prev.index(ci, cj);
-                        for r in 0..l {
-                            next.errors[k * l + r] =
-                                next.errors[k * l + r].max(prev.errors[c * l + r]);
-                        }
-                        next.z[k] = zm(next.z[k], prev.z[c]);
+                        next.absorb(k, prev, prev.index(ci, cj), l);
                     }
                 }
             }
@@ -808,7 +796,33 @@ pub(super) fn levels_bytes(levels: &[PyramidLevel]) -> usize {
     levels.iter().map(|l| l.errors.len() * 4 + l.z.len() * 8).sum()
 }
 
+/// The height range (`[lowest, highest]`, `[+inf, -inf]` when none) of a patch's max-error
+/// vertices that carry a positive error (`errors[k]` and `heights[k]` of one vertex each).
+pub(super) fn vertex_range(errors: &[f32], heights: &[f32]) -> [f32; 2] {
+    let mut z = [f32::INFINITY, f32::NEG_INFINITY];
+    for (&e, &h) in errors.iter().zip(heights) {
+        if e > 0.0 {
+            z = [z[0].min(h), z[1].max(h)];
+        }
+    }
+    z
+}
+
+/// The union of two height ranges (`[lowest, highest]`; `[+inf, -inf]` is empty).
+pub(super) fn z_union(a: [f32; 2], b: [f32; 2]) -> [f32; 2] {
+    [a[0].min(b[0]), a[1].max(b[1])]
+}
+
 impl PyramidLevel {
+    /// Merges node slot `c` of `child` (the level below, `l` errors per node) into slot `k`:
+    /// the errors' maxima and the height ranges' union.
+    pub(super) fn absorb(&mut self, k: usize, child: &PyramidLevel, c: usize, l: usize) {
+        for r in 0..l {
+            self.errors[k * l + r] = self.errors[k * l + r].max(child.errors[c * l + r]);
+        }
+        self.z[k] = z_union(self.z[k], child.z[c]);
+    }
+
     /// Node slot `k`'s bound (`l` errors).
     pub(super) fn bound(&self, k: usize, l: usize) -> NodeBound {
         let mut errors = [0.0; MAX_LEVELS];
