@@ -22,8 +22,8 @@ use rustc_hash::FxHashMap;
 
 use super::geomip_file::GeomipFileError;
 use super::geomipmap::{
-    MAX_LEVELS, NodeBound, PatchEntries, PyramidLevel, dilate, f32_at_or_above, merge_up,
-    vertex_range, z_union,
+    MAX_LEVELS, NodeBound, PatchEntries, PyramidLevel, dilate, merge_up, scaled_error,
+    scaled_height, vertex_range, z_union,
 };
 use crate::checksum::crc32;
 
@@ -232,8 +232,8 @@ impl PagedEntries {
             .map(|lv| PyramidLevel {
                 nx: lv.nx,
                 ny: lv.ny,
-                errors: lv.errors.iter().map(|&e| f32_at_or_above(f64::from(e) * scale)).collect(),
-                z: lv.z.iter().map(|z| z.map(|v| (f64::from(v) * scale) as f32)).collect(),
+                errors: lv.errors.iter().map(|&e| scaled_error(e, scale)).collect(),
+                z: lv.z.iter().map(|z| z.map(|v| scaled_height(v, scale))).collect(),
             })
             .collect::<Vec<_>>();
         debug_assert!(summary.iter().all(|lv| lv.errors.len() == lv.z.len() * l));
@@ -326,8 +326,7 @@ impl PagedEntries {
             }
             let (mut e, mut z) = (e, z);
             for &s in &self.scales {
-                e = f32_at_or_above(f64::from(e) * s);
-                z = (f64::from(z) * s) as f32;
+                (e, z) = (scaled_error(e, s), scaled_height(z, s));
             }
             page.errors.push(e);
             page.heights.push(z);

@@ -208,8 +208,20 @@ fn patch_grid(width: u32, height: u32, patch_cells: u32) -> (usize, u32, u32) {
     (levels, nx, ny)
 }
 
+/// An error times a vertical exaggeration `scale`, rounded up to `f32` (still a bound): the
+/// one scaling of a table's errors, whole or read by pages, so both give the same bits.
+pub(super) fn scaled_error(e: f32, scale: f64) -> f32 {
+    f32_at_or_above(f64::from(e) * scale)
+}
+
+/// A height times a vertical exaggeration `scale`, to the nearest `f32` (see
+/// [`scaled_error`]).
+pub(super) fn scaled_height(z: f32, scale: f64) -> f32 {
+    (f64::from(z) * scale) as f32
+}
+
 /// The smallest `f32` at or above `e` (a conservative error bound in single precision).
-pub(super) fn f32_at_or_above(e: f64) -> f32 {
+fn f32_at_or_above(e: f64) -> f32 {
     let f = e as f32;
     if f64::from(f) < e { f.next_up() } else { f }
 }
@@ -464,10 +476,10 @@ impl GeomipTable {
             return self;
         }
         for e in &mut self.errors {
-            *e = f32_at_or_above(f64::from(*e) * scale);
+            *e = scaled_error(*e, scale);
         }
         for h in &mut self.heights {
-            *h = (f64::from(*h) * scale) as f32;
+            *h = scaled_height(*h, scale);
         }
         self.pyramid = CoarsePyramid::new(&self);
         self
