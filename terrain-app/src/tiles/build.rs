@@ -28,10 +28,11 @@ use terrain_app::samples::Samples;
 /// Delaunay insertion for every other tile.** The parent's density predicts the tile's: the
 /// tile's bound is half its parent's, so it keeps at least about as many. Where the greedy
 /// mesh keeps most samples the RTIN (nearly the full grid there) draws nearly as many
-/// triangles and costs a fixed `2 log2(side)` scans of the samples, while the greedy insertion
-/// pays a scan of each new vertex's neighbourhood; where it keeps few, the RTIN draws 1.3-1.8x
-/// the triangles and its error pass costs as much or more (measured per level: README,
-/// branches tiles16c and tiles16e). `greedy` and `rtin` force one mesher everywhere, for
+/// triangles and costs about two passes over the samples (its error pass and its check),
+/// while the greedy insertion pays a scan of each new vertex's neighbourhood; where it keeps
+/// few, the RTIN draws 1.3-1.8x the triangles, whose clipping, encoding and writing cost more
+/// than its build saves (measured per level: bench/mesh/README.md, branches tiles16c,
+/// tiles16e and rtin16). `greedy` and `rtin` force one mesher everywhere, for
 /// measurements.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, clap::ValueEnum, serde::Serialize)]
 #[serde(rename_all = "lowercase")]

@@ -192,9 +192,9 @@ pub fn mesh_window_seeded(
 }
 
 /// [`mesh_window_seeded`] by the builder `algorithm`: [`Algorithm::Delaunay`] (greedy
-/// insertion, the fewest triangles) or [`Algorithm::Rtin`] ([`crate::mesh::rtin`]: its error
-/// pass costs a fixed number of scans of every sample, about `2 log2(side)`, whatever the
-/// bound, where the greedy insertion rescans a vertex's neighbourhood per vertex, so on a
+/// insertion, the fewest triangles) or [`Algorithm::Rtin`] ([`crate::mesh::rtin`]: one visit
+/// per sample for its error pass and about one scan of every sample for its check, whatever
+/// the bound, where the greedy insertion rescans a vertex's neighbourhood per vertex, so on a
 /// window whose bound keeps most samples the RTIN is cheaper for somewhat more triangles).
 /// An RTIN takes no seeds (its vertices are its hierarchy's) and only [`Borders::Free`].
 /// Either mesh is verified against every non-void sample the same way.
