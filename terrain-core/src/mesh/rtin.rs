@@ -41,6 +41,8 @@
 //! Because edges of this hierarchy are axis-aligned or diagonal and the border is at an
 //! integer sample, a crossing triangle always has children, and leaves never cross.
 
+use std::borrow::Cow;
+
 use crate::heightmap::Heightmap;
 use crate::mesh::{TriMesh, raster};
 
@@ -298,17 +300,23 @@ impl RtinErrors {
     /// triangles whose true error exceeds the bound forced to split (module docs): every
     /// non-void sample is within `max_error` of the mesh.
     pub fn mesh(&self, hm: &Heightmap, max_error: f64) -> TriMesh {
-        self.mesh_checked(hm, max_error, true).0
+        self.mesh_checked(hm, max_error, true, Cow::Borrowed(&self.errors)).0
     }
 
-    /// [`Self::mesh`], or without the check (the tests' negative control), and how many
-    /// extractions it took.
-    fn mesh_checked(&self, hm: &Heightmap, max_error: f64, check: bool) -> (TriMesh, usize) {
+    /// [`Self::mesh`] with these stored values (this table's; owned where they may be
+    /// changed in place, borrowed and copied on the first forced split otherwise), or without
+    /// the check (the tests' negative control), and how many extractions it took.
+    fn mesh_checked(
+        &self,
+        hm: &Heightmap,
+        max_error: f64,
+        check: bool,
+        mut errors: Cow<'_, [f64]>,
+    ) -> (TriMesh, usize) {
         assert_eq!((hm.width(), hm.height()), (self.width, self.height), "another grid");
         let t = self.tile;
-        let mut forced: Option<Vec<f64>> = None;
         let mut leaves = Vec::new();
-        let first = Extract { rtin: self, errors: &self.errors, max_error };
+        let first = Extract { rtin: self, errors: &errors, max_error };
         first.process([[0, 0], [t, t], [t, 0]], &mut leaves);
         first.process([[t, t], [0, 0], [0, t]], &mut leaves);
         // Every leaf is measured once: `checked` leaves are within the bound (a leaf over it
@@ -331,13 +339,13 @@ impl RtinErrors {
             if over.is_empty() {
                 return (self.assemble(hm, &leaves), round);
             }
-            let errors = forced.get_or_insert_with(|| self.errors.clone());
+            let forced = errors.to_mut();
             for m in over {
-                force(errors, t, m);
+                force(forced, t, m);
             }
             // The values only grew, so the new mesh refines the old one: each leaf either
             // stays or is extracted again from itself. The kept ones are checked already.
-            let extract = Extract { rtin: self, errors, max_error };
+            let extract = Extract { rtin: self, errors: &errors, max_error };
             let mut split = Vec::new();
             leaves.retain(|&leaf| {
                 let leaf = widen(leaf);
@@ -428,7 +436,10 @@ fn widen(leaf: Leaf) -> [[usize; 2]; 3] {
 /// On a grid smaller than 2 x 2 or a negative or NaN bound; [`crate::mesh::build`] checks both.
 pub fn build(hm: &Heightmap, max_error: f64) -> TriMesh {
     assert!(max_error >= 0.0, "max_error must be >= 0, got {max_error}");
-    RtinErrors::new(hm).mesh(hm, max_error)
+    let mut rtin = RtinErrors::new(hm);
+    // One bound: the forced splits change the stored values in place.
+    let errors = std::mem::take(&mut rtin.errors);
+    rtin.mesh_checked(hm, max_error, true, Cow::Owned(errors)).0
 }
 
 #[cfg(test)]
@@ -532,12 +543,15 @@ mod tests {
         for (name, hm) in grids() {
             let rtin = RtinErrors::new(&hm);
             for bound in [0.0, 0.5, 2.0, 8.0, 30.0, 200.0] {
-                let (mesh, rounds) = rtin.mesh_checked(&hm, bound, true);
+                let (mesh, rounds) =
+                    rtin.mesh_checked(&hm, bound, true, Cow::Borrowed(&rtin.errors));
                 let stats = crate::mesh::verify::check(&hm, &mesh, bound)
                     .unwrap_or_else(|e| panic!("{name} at {bound} m: {e}"));
                 assert!(stats.max_error <= bound, "{name} at {bound} m");
                 forced += rounds - 1;
-                let (unchecked, _) = rtin.mesh_checked(&hm, bound, false);
+                let (unchecked, _) =
+                    rtin.mesh_checked(&hm, bound, false, Cow::Borrowed(&rtin.errors));
+                assert_eq!(build(&hm, bound).triangles, mesh.triangles, "{name} at {bound} m");
                 let e = crate::mesh::verify::measure(&hm, &unchecked).unwrap().max_error;
                 over_unchecked += usize::from(e > bound);
                 assert!(unchecked.triangles.len() <= mesh.triangles.len(), "{name} at {bound} m");
