@@ -229,8 +229,14 @@ impl RtinErrors {
         // midpoint's error against the hypotenuse's mean (0 at a void; `e` keeps it for the
         // diamond's other triangle) and, if it has children (legs over one cell), their
         // stored values.
-        let value = |errors: &[f64], [a, b, c]: [[usize; 2]; 3], e: &mut Option<f64>, children| {
-            match place([a, b, c], width, height) {
+        // `inside`: the whole diamond is known to be inside the grid (the common case; its
+        // triangles' boxes lie within `m` +- `half`), so no triangle needs placing.
+        let value = |errors: &[f64],
+                     [a, b, c]: [[usize; 2]; 3],
+                     e: &mut Option<f64>,
+                     children: bool,
+                     inside: bool| {
+            match if inside { Place::Inside } else { place([a, b, c], width, height) } {
                 Place::Outside => None,
                 Place::Crossing => Some(MUST_SPLIT),
                 Place::Inside => {
@@ -258,17 +264,23 @@ impl RtinErrors {
                 for v in (half..tile).step_by(s) {
                     for (a, b) in [([v - half, u], [v + half, u]), ([u, v - half], [u, v + half])] {
                         let m = mid(a, b);
+                        // Beyond the grid by `half` or more: every triangle outside, nothing
+                        // stored (the enclosing square can be four times the grid).
+                        if m[0] >= width - 1 + half || m[1] >= height - 1 + half {
+                            continue;
+                        }
                         let d = [(b[0] - a[0]) / 2, (b[1] - a[1]) / 2];
                         let sides = [
                             Some([m[0] + d[1], m[1] + d[0]]),
                             m[0].checked_sub(d[1]).zip(m[1].checked_sub(d[0])).map(|(x, y)| [x, y]),
                         ];
+                        let inside = m[0] + half < width && m[1] + half < height;
                         let mut e = None;
                         let mut stored = 0.0f64;
                         for c in
                             sides.into_iter().flatten().filter(|c| c[0] <= tile && c[1] <= tile)
                         {
-                            if let Some(v) = value(&errors, [a, b, c], &mut e, half >= 2) {
+                            if let Some(v) = value(&errors, [a, b, c], &mut e, half >= 2, inside) {
                                 stored = stored.max(v);
                             }
                         }
@@ -277,13 +289,14 @@ impl RtinErrors {
                 }
             }
             // The centres of the squares of side s (children: their edges' midpoints).
-            for y in (half..tile).step_by(s) {
-                for x in (half..tile).step_by(s) {
+            for y in (half..tile.min(height - 1 + half)).step_by(s) {
+                for x in (half..tile.min(width - 1 + half)).step_by(s) {
                     let (a, b) = diagonal([x, y], half);
+                    let inside = x + half < width && y + half < height;
                     let mut e = None;
                     let mut stored = 0.0f64;
                     for c in [[a[0], b[1]], [b[0], a[1]]] {
-                        if let Some(v) = value(&errors, [a, b, c], &mut e, true) {
+                        if let Some(v) = value(&errors, [a, b, c], &mut e, true, inside) {
                             stored = stored.max(v);
                         }
                     }
