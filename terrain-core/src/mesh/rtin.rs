@@ -187,24 +187,17 @@ fn force(errors: &mut [f64], tile: usize, m: [usize; 2]) {
                 stack.push([k[0], 2 * p[1] - k[1]]);
             }
             Diamond::Centre { .. } => {}
-            // An edge's triangles are children of the squares' on both sides.
-            Diamond::Horizontal { half } => {
-                stack.extend(
-                    [p[1].checked_sub(half), Some(p[1] + half)]
-                        .into_iter()
-                        .flatten()
-                        .filter(|&y| y <= tile)
-                        .map(|y| [p[0], y]),
-                );
-            }
-            Diamond::Vertical { half } => {
-                stack.extend(
-                    [p[0].checked_sub(half), Some(p[0] + half)]
-                        .into_iter()
-                        .flatten()
-                        .filter(|&x| x <= tile)
-                        .map(|x| [x, p[1]]),
-                );
+            // An edge's triangles are children of the squares' on both sides: across the
+            // edge, `y` for a horizontal one, `x` for a vertical one.
+            kind @ (Diamond::Horizontal { half } | Diamond::Vertical { half }) => {
+                let k = usize::from(matches!(kind, Diamond::Horizontal { .. }));
+                for c in [p[k].checked_sub(half), Some(p[k] + half)].into_iter().flatten() {
+                    if c <= tile {
+                        let mut q = p;
+                        q[k] = c;
+                        stack.push(q);
+                    }
+                }
             }
         }
     }
@@ -550,6 +543,37 @@ mod tests {
         }
     }
 
+    /// No T-junction: no vertex lies strictly inside a triangle's edge (the edges are
+    /// axis-aligned or diagonal, so the samples along one are its integer steps).
+    fn assert_conforming(hm: &Heightmap, mesh: &TriMesh, label: &str) {
+        let grid: Vec<[i64; 2]> = mesh
+            .positions
+            .iter()
+            .map(|p| {
+                let g = hm.world_to_grid(p.truncate()).round();
+                [g.x as i64, g.y as i64]
+            })
+            .collect();
+        let mut is_vertex = vec![false; hm.width() * hm.height()];
+        for g in &grid {
+            is_vertex[g[1] as usize * hm.width() + g[0] as usize] = true;
+        }
+        for t in &mesh.triangles {
+            for k in 0..3 {
+                let (a, b) = (grid[t[k] as usize], grid[t[(k + 1) % 3] as usize]);
+                let n = (b[0] - a[0]).abs().max((b[1] - a[1]).abs());
+                let step = [(b[0] - a[0]) / n, (b[1] - a[1]) / n];
+                for i in 1..n {
+                    let q = [a[0] + i * step[0], a[1] + i * step[1]];
+                    assert!(
+                        !is_vertex[q[1] as usize * hm.width() + q[0] as usize],
+                        "{label}: vertex {q:?} inside the edge {a:?}-{b:?}"
+                    );
+                }
+            }
+        }
+    }
+
     #[test]
     fn every_sample_is_within_the_bound_and_the_check_is_what_keeps_it() {
         let (mut forced, mut over_unchecked) = (0, 0);
@@ -561,6 +585,7 @@ mod tests {
                 let stats = crate::mesh::verify::check(&hm, &mesh, bound)
                     .unwrap_or_else(|e| panic!("{name} at {bound} m: {e}"));
                 assert!(stats.max_error <= bound, "{name} at {bound} m");
+                assert_conforming(&hm, &mesh, &format!("{name} at {bound} m"));
                 forced += rounds - 1;
                 let (unchecked, _) =
                     rtin.mesh_checked(&hm, bound, false, Cow::Borrowed(&rtin.errors));
