@@ -220,12 +220,15 @@ impl StoreReport {
             }
             terrain_stream::SampleEncoding::F32 => "f32".to_string(),
         };
-        let tables =
+        // A remote store's are asked for (HEAD), not fetched.
+        let mut tables = Vec::new();
+        for f in
             ["dss_errors.bin", "roughness.bin", "geomip.bin", "pvs.bin", "pvs_conservative.bin"]
-                .iter()
-                .filter(|f| local.join(f).is_file())
-                .map(|f| f.to_string())
-                .collect();
+        {
+            if store.has_side_file(f).with_context(|| format!("asking the store for {f}"))? {
+                tables.push(f.to_string());
+            }
+        }
         // A remote paged index is not all in the mirror: its length from its head.
         let index = store.index_bytes().unwrap_or_else(|| {
             std::fs::metadata(local.join(terrain_stream::INDEX_FILE)).map_or(0, |m| m.len())

@@ -163,17 +163,6 @@ pub fn store_url(path: &Path) -> Option<&str> {
     path.to_str().filter(|s| terrain_stream::is_url(s))
 }
 
-/// The tables the commands read beside a store's index (from [`Store::dir`]): a remote
-/// store's are fetched into its local mirror when it is opened.
-pub const STORE_TABLES: &[&str] = &[
-    terrain_stream::GEOMIP_FILE,
-    crate::dss_scene::DSS_FILE,
-    crate::pvs_scene::SAMPLED_FILE,
-    crate::pvs_scene::CONSERVATIVE_FILE,
-    crate::roughness_scene::ROUGHNESS_FILE,
-    crate::ooc_calibration::FILE_NAME,
-];
-
 static DISK_CACHE: std::sync::OnceLock<(Option<std::path::PathBuf>, Option<u64>)> =
     std::sync::OnceLock::new();
 
@@ -184,14 +173,12 @@ pub fn set_disk_cache(cache_dir: Option<std::path::PathBuf>, disk_cache_mib: Opt
 }
 
 /// How remote stores are read: [`RemoteOptions`]' defaults (2 GiB disk cache, 30 s request
-/// timeout, 3 retries), the disk cache as [`set_disk_cache`] set it, and [`STORE_TABLES`].
+/// timeout, 3 retries) and the disk cache as [`set_disk_cache`] set it. No side table is
+/// fetched at open: each reader asks [`Store::side_file`] for the table it reads (a method's
+/// table, e.g. geomorph's `geomip.bin`, comes only with that method).
 pub fn remote_options() -> RemoteOptions {
     let (dir, mib) = DISK_CACHE.get().cloned().unwrap_or_default();
-    let mut o = RemoteOptions {
-        cache_dir: dir,
-        side_files: STORE_TABLES.iter().map(|s| s.to_string()).collect(),
-        ..RemoteOptions::default()
-    };
+    let mut o = RemoteOptions { cache_dir: dir, ..RemoteOptions::default() };
     if let Some(m) = mib {
         o.disk_cache_bytes = m.saturating_mul(1 << 20);
     }

@@ -393,6 +393,17 @@ impl Calibration {
         Ok(fitted)
     }
 
+    /// The calibration of the opened `store` ([`FILE_NAME`] beside its index; a remote
+    /// store's fetched into its mirror on first use), if there is one.
+    pub fn of_opened(store: &terrain_stream::Store) -> Result<Option<Self>, CalibrationError> {
+        store.side_file(FILE_NAME).map_err(|e| {
+            CalibrationError::Measure(
+                anyhow::Error::new(e).context(format!("could not read {FILE_NAME} of the store")),
+            )
+        })?;
+        Self::load(store.dir(), TerrainId::of(store))
+    }
+
     /// The calibration in `dir` ([`FILE_NAME`]) if there is one, checked to be of the store
     /// `expected` (else [`CalibrationError::Foreign`]).
     pub fn load(dir: &Path, expected: TerrainId) -> Result<Option<Self>, CalibrationError> {
@@ -444,7 +455,7 @@ pub fn of_store(dir: &Path) -> Result<Option<Calibration>, CalibrationError> {
             anyhow::Error::new(e).context(format!("could not open the store {}", dir.display())),
         )
     })?;
-    Calibration::load(store.dir(), TerrainId::of(&store))
+    Calibration::of_opened(&store)
 }
 
 /// The split rule's name in the file and on the command line (`--ooc-split`).

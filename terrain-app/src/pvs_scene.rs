@@ -13,12 +13,17 @@ pub const SAMPLED_FILE: &str = "pvs.bin";
 /// The conservative PVS in a scene folder.
 pub const CONSERVATIVE_FILE: &str = "pvs_conservative.bin";
 
-/// The file of `mode` in scene folder `dir`.
-pub fn pvs_path(dir: &Path, mode: PvsMode) -> PathBuf {
-    dir.join(match mode {
+/// The file name of `mode`'s PVS.
+pub fn pvs_file(mode: PvsMode) -> &'static str {
+    match mode {
         PvsMode::Sampled => SAMPLED_FILE,
         PvsMode::Conservative => CONSERVATIVE_FILE,
-    })
+    }
+}
+
+/// The file of `mode` in scene folder `dir`.
+pub fn pvs_path(dir: &Path, mode: PvsMode) -> PathBuf {
+    dir.join(pvs_file(mode))
 }
 
 /// Loads both PVS files of scene folder `dir` into `scene`. Returns one warning per file that

@@ -179,7 +179,8 @@ pub fn load_from_opened(
     let h = store.header();
     let (width, height) = (h.width as usize, h.height as usize);
     let (bake_id, index_crc) = store_tie_of(store)?;
-    let path = roughness_path(dir);
+    // A remote store's table is fetched into its mirror now (only a pvps method reads it).
+    let path = store.side_file(ROUGHNESS_FILE)?.unwrap_or_else(|| roughness_path(dir));
     let bytes = std::fs::read(&path).with_context(|| format!("reading {}", path.display()))?;
     let expected = Expected {
         width,

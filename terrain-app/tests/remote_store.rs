@@ -20,7 +20,7 @@ use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
 use common::remote::{
-    Server, bake_args, baked, bench, free_ports_in, info, s, terrain_in, text, wait_for,
+    Server, bake_args, baked, baked_at, bench, free_ports_in, info, s, terrain_in, text, wait_for,
 };
 use common::scratch;
 use serde_json::json;
@@ -122,6 +122,53 @@ fn a_store_served_by_nginx_reads_as_the_local_one_and_a_failing_nginx_gives_name
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
+/// A method's table comes with the method: `terrain info` names a remote store's tables
+/// without fetching them, a session drawing `ooc` leaves geomorph's `geomip.bin` on the server,
+/// and `terrain render --method geomorph` fetches it into the mirror and draws what the local
+/// store draws.
+#[test]
+fn a_remote_stores_method_table_is_fetched_only_by_that_method() {
+    let dir = scratch("remote-store", "lazy-tables");
+    std::fs::create_dir_all(dir.join("www")).unwrap();
+    let (dem, _) = baked_at(&dir, dir.join("plain.scene"));
+    let store = dir.join("www/g.scene");
+    let args: Vec<&str> =
+        bake_args(&dem, s(&store)).into_iter().filter(|a| *a != "--no-geomip").collect();
+    let out = terrain_in(&dir, &dir.join("cache"), &[], &args);
+    assert!(out.status.success(), "bake failed: {}", text(&out));
+    assert!(store.join(terrain_stream::GEOMIP_FILE).is_file());
+    let cache = dir.join("lazy-cache");
+    let server = nginx(&dir, &dir.join("www"), "");
+    let url = format!("http://127.0.0.1:{}/g.scene", server.port);
+    let v = info(&dir, &cache, &[], &url);
+    assert_eq!(v, info(&dir, &cache, &[], s(&store)), "the local store's report");
+    assert!(v["tables"].as_array().unwrap().iter().any(|t| t == "geomip.bin"), "{v}");
+    let mirror = || {
+        let found: Vec<_> = std::fs::read_dir(&cache).unwrap().map(|e| e.unwrap().path()).collect();
+        assert_eq!(found.len(), 1, "one mirror folder: {found:?}");
+        found[0].join(terrain_stream::GEOMIP_FILE)
+    };
+    assert!(!mirror().exists(), "info fetched geomip.bin");
+    let (frames, err) = bench(&dir, &cache, &[], &dem, &url, "ooc");
+    assert!(!frames.is_empty(), "{err}");
+    assert!(!mirror().exists(), "an ooc session fetched geomip.bin");
+    let render = |location: &str, png: &str| {
+        let out = terrain_in(
+            &dir,
+            &cache,
+            &[],
+            &["render", location, "--method", "geomorph", "--size", "96x64", "-o", png],
+        );
+        assert!(out.status.success(), "render {location}: {}", text(&out));
+        std::fs::read(dir.join(png)).unwrap()
+    };
+    let remote = render(&url, "remote.png");
+    assert!(mirror().is_file(), "geomorph drew without its table");
+    assert_eq!(remote, render(s(&store), "local.png"), "the local store's image");
+    drop(server);
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
 /// A paged index (version 4) over HTTP: opening reads its header and head only (the bytes
 /// received at open are those of the head, far fewer than the index's), each page comes by a
 /// range request when one of its blocks is first needed, and a full traversal through a page
@@ -187,14 +234,26 @@ fn a_paged_index_over_http_is_read_by_page_and_selects_as_the_local_store() {
         patches += a.patches.len();
     }
     assert!(patches > 100, "{patches} patches: the views must see the terrain");
-    // Geomorph's table comes into the mirror with the store's side files (one GET) and is
-    // read from there by pages: the same runs as the local store's.
-    let geo_options = RemoteOptions {
-        cache_dir: Some(dir.join("geo")),
-        side_files: vec![terrain_stream::GEOMIP_FILE.to_string()],
-        ..Default::default()
-    };
+    // Geomorph's table is not fetched at open (a session drawing another method never reads
+    // it), only when asked for (one GET), and is read from the mirror by pages: the same runs
+    // as the local store's.
+    let geo_options = RemoteOptions { cache_dir: Some(dir.join("geo")), ..Default::default() };
     let geo_remote = Arc::new(Store::open_location_with(&url, &geo_options).unwrap());
+    let geomip = terrain_stream::GEOMIP_FILE;
+    let geomip_len = std::fs::metadata(store.join(geomip)).unwrap().len();
+    let mirrored = geo_remote.dir().join(geomip);
+    let at_open = geo_remote.remote_bytes_received();
+    assert!(!mirrored.exists() && at_open < geomip_len, "{at_open} bytes at open");
+    assert!(geo_remote.has_side_file(geomip).unwrap(), "asked by HEAD");
+    assert!(!geo_remote.has_side_file("no_such_table.bin").unwrap());
+    assert!(geo_remote.side_file("no_such_table.bin").unwrap().is_none());
+    assert!(!mirrored.exists(), "asking fetched nothing");
+    assert_eq!(geo_remote.remote_bytes_received(), at_open);
+    assert_eq!(geo_remote.side_file(geomip).unwrap(), Some(mirrored.clone()));
+    assert_eq!(std::fs::read(&mirrored).unwrap(), std::fs::read(store.join(geomip)).unwrap());
+    assert_eq!(geo_remote.remote_bytes_received(), at_open + geomip_len, "one GET of the file");
+    geo_remote.side_file(geomip).unwrap();
+    assert_eq!(geo_remote.remote_bytes_received(), at_open + geomip_len, "then the mirror's");
     let (gl, gr) = (StoreTree::new(local.clone(), 16), StoreTree::new(geo_remote.clone(), 16));
     let read = |s: &Store, t: &StoreTree| {
         use terrain_core::quadtree::NodeTree;

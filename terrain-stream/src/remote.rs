@@ -15,7 +15,10 @@
 //! [`StoreError::IndexPage`] naming the URL and the page). An older index (versions 2-3) is
 //! fetched whole once. And the side tables the caller names
 //! ([`RemoteOptions::side_files`], those present) into a local mirror folder, which is the
-//! store's [`crate::Store::dir`], so code reading tables beside the index works unchanged.
+//! store's [`crate::Store::dir`], so code reading tables beside the index works unchanged;
+//! any other table when it is first asked for ([`crate::Store::side_file`]: one GET, so a
+//! method's table, e.g. geomorph's `geomip.bin`, 168 MB on a 32769^2 store, is fetched only
+//! by a session that draws with that method).
 //! Blocks: by range GETs, one request per load request covering the levels asked for
 //! ([`Remote::fetch_levels`]); the first request of a block in a session starts at byte 0 so the
 //! block header and the object's size are checked as the local reader checks them.
@@ -95,7 +98,8 @@ pub struct RemoteOptions {
     /// exponential backoff. Default 3.
     pub retries: usize,
     /// Files beside the index fetched at open into the mirror folder when present (tables the
-    /// caller reads from [`crate::Store::dir`]); a missing one is skipped.
+    /// caller reads from [`crate::Store::dir`] without asking [`crate::Store::side_file`]
+    /// first); a missing one is skipped.
     pub side_files: Vec<String>,
 }
 
@@ -297,7 +301,8 @@ impl Remote {
             for name in &options.side_files {
                 remote.mirror_file(name)?;
             }
-            // The index last: a mirror with an index has its side tables.
+            // The index last: a mirror with an index has its eager side tables (the others
+            // come when first asked for).
             write_atomic(&mirrored, copy).map_err(io_err(&mirrored))?;
         }
         remote.disk = DiskCache::open(&cache, options.disk_cache_bytes);
@@ -318,6 +323,20 @@ impl Remote {
             }
             Err(object_store::Error::NotFound { .. }) => Ok(false),
             Err(e) => Err(remote_err(&self.url, format!("reading {name}: {e}"))),
+        }
+    }
+
+    /// Whether the store has the file `name` beside its index: the mirror's copy, else one
+    /// HEAD request (nothing is fetched).
+    pub(crate) fn has_file(&self, name: &str) -> Result<bool, StoreError> {
+        if self.mirror.join(name).is_file() {
+            return Ok(true);
+        }
+        let key = self.prefix.child(name);
+        match self.runtime.block_on(self.store.head(&key)) {
+            Ok(_) => Ok(true),
+            Err(object_store::Error::NotFound { .. }) => Ok(false),
+            Err(e) => Err(remote_err(&self.url, format!("asking for {name}: {e}"))),
         }
     }
 

@@ -154,6 +154,27 @@ impl Store {
         Ok(found)
     }
 
+    /// The store's side table `name` (a file beside its index, e.g. [`crate::GEOMIP_FILE`])
+    /// as a local path, if the store has one: a local store's in its folder; a remote store's
+    /// fetched whole into its mirror on the first call (one GET), so a session fetches only
+    /// the tables it reads.
+    pub fn side_file(&self, name: &str) -> Result<Option<PathBuf>, StoreError> {
+        let found = match &self.remote {
+            Some(remote) => remote.mirror_file(name)?,
+            None => self.dir.join(name).is_file(),
+        };
+        Ok(found.then(|| self.dir.join(name)))
+    }
+
+    /// Whether the store has the side table `name`, without fetching it (a remote store:
+    /// its mirror's copy or one HEAD request).
+    pub fn has_side_file(&self, name: &str) -> Result<bool, StoreError> {
+        match &self.remote {
+            Some(remote) => remote.has_file(name),
+            None => Ok(self.dir.join(name).is_file()),
+        }
+    }
+
     /// Bytes received from a remote store's location so far (its index and side tables at
     /// open, then index pages and block levels), by this store and its clones; 0 for a local
     /// store. For tests and measurements.

@@ -190,7 +190,7 @@ impl OocCalibration {
     {
         use crate::ooc_calibration::{Calibration, TerrainId};
         match self {
-            Self::Auto => Calibration::load(store.dir(), TerrainId::of(store)),
+            Self::Auto => Calibration::of_opened(store),
             Self::Shared => Ok(None),
             Self::File(path) => Calibration::load_file(path, TerrainId::of(store)).map(Some),
         }

@@ -239,6 +239,8 @@ impl<'a> StoreMethod<'a> {
                     PvsMode::Conservative
                 };
                 let path = crate::pvs_scene::pvs_path(&dir, mode);
+                // A remote store's PVS comes into its mirror now (only this method reads it).
+                store.side_file(crate::pvs_scene::pvs_file(mode))?;
                 let pvs = match read_pvs(&path) {
                     Ok(p) if p.mode == mode && p.matches(&shape) => Some(p),
                     Ok(_) => {
@@ -260,6 +262,7 @@ impl<'a> StoreMethod<'a> {
                 Tables::RoughnessPvs(read_roughness(&store, LodMethod::PvpsC, &shape)?, pvs)
             }
             LodMethod::Geomorph => {
+                store.side_file(terrain_stream::GEOMIP_FILE)?;
                 let table =
                     crate::geomip_scene::read_for_store(&dir, &shape)?.exaggerated(vertical_scale);
                 let lib = MeshLibrary::new(table.patch_cells());
@@ -269,6 +272,7 @@ impl<'a> StoreMethod<'a> {
                 // A store baked without the DSS errors (`--no-dss`, `terrain demo`) has neither
                 // the per-block errors in its index nor the per-node table beside it.
                 let path = crate::dss_scene::dss_path(&dir);
+                store.side_file(crate::dss_scene::DSS_FILE)?;
                 if !store.has_dss_errors() && !path.is_file() {
                     anyhow::bail!(
                         "--method {} needs the DSS paper's object-space errors, and the store {} \
