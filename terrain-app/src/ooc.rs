@@ -186,11 +186,38 @@ pub fn remote_options() -> RemoteOptions {
 }
 
 /// Opens the store at `path`: a folder, or a URL ([`store_url`]) read through the disk cache.
+///
+/// The last store opened is kept (a clone shares its index), and opening the same one again
+/// returns it: `render`, `fly` and `view` read the store's calibration before they open it to
+/// draw, and each open reads the index (a version-3 index whole: 125 MB for a 32769^2 grid,
+/// fetched again from a URL). A folder is the same store while its index file has the same
+/// length and modification time (a bake in between opens it anew); a URL for the rest of the
+/// process.
 pub fn open_store(path: &Path) -> Result<Store, StoreError> {
-    match store_url(path) {
-        Some(url) => Store::open_location_with(url, &remote_options()),
-        None => Store::open(path),
+    type Key = (std::path::PathBuf, Option<(u64, std::time::SystemTime)>);
+    static LAST: std::sync::Mutex<Option<(Key, Store)>> = std::sync::Mutex::new(None);
+    let url = store_url(path);
+    let stamp = match url {
+        Some(_) => None,
+        None => {
+            let meta = std::fs::metadata(path.join(terrain_stream::INDEX_FILE)).ok();
+            meta.and_then(|m| Some((m.len(), m.modified().ok()?)))
+        }
+    };
+    let key: Key = (path.to_path_buf(), stamp);
+    let mut last = LAST.lock().unwrap_or_else(|e| e.into_inner());
+    if let Some((k, store)) = &*last
+        && *k == key
+        && (url.is_some() || stamp.is_some())
+    {
+        return Ok(store.clone());
     }
+    let store = match url {
+        Some(url) => Store::open_location_with(url, &remote_options())?,
+        None => Store::open(path)?,
+    };
+    *last = Some((key, store.clone()));
+    Ok(store)
 }
 
 /// The streaming columns of one frame: the paper's Table 3 (needed, real-time loaded and
