@@ -1119,6 +1119,35 @@ mod tests {
     use super::*;
     use terrain_stream::{BakeConfig, BakeProgress, HeightEncoding, bake};
 
+    /// `open_store` returns the store it opened last only while that folder holds the same
+    /// bake: a store baked again into the folder (another grid, another index) is opened anew.
+    #[test]
+    fn open_store_reopens_a_folder_baked_again() {
+        let dir = std::env::temp_dir().join(format!("terrain-app-reopen-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        let cfg = BakeConfig { k: 5, ..Default::default() };
+        let mut sizes = Vec::new();
+        for (w, h) in [(65, 33), (97, 65), (97, 65)] {
+            let hm =
+                Heightmap::from_fn(w, h, Georef::local(10.0), |i, j| (i * 3 + j) as f32).unwrap();
+            let _ = std::fs::remove_dir_all(&dir);
+            bake(&hm, &dir, &cfg, &mut |_: &BakeProgress| std::ops::ControlFlow::Continue(()))
+                .unwrap();
+            for _ in 0..2 {
+                let h = open_store(&dir).unwrap().header().clone();
+                sizes.push((h.width, h.height, h.bake_id));
+            }
+        }
+        let dims: Vec<_> = sizes.iter().map(|&(w, h, _)| (w, h)).collect();
+        assert_eq!(dims, [(65, 33), (65, 33), (97, 65), (97, 65), (97, 65), (97, 65)]);
+        // The same grid baked again is another bake: its id, not the kept store's.
+        assert_eq!(sizes[2].2, sizes[3].2);
+        assert_eq!(sizes[4].2, sizes[5].2);
+        let again = Store::open(&dir).unwrap().header().bake_id;
+        assert_eq!(sizes[5].2, again, "the folder's bake");
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
     /// A store's exact full-resolution grid is the DEM it was baked from: bit for bit from a
     /// raw-f32 store, within the bake's bound (and not equal: the check can fail) from a
     /// quantized one; a store whose block file is gone is an error, not made-up heights.
