@@ -319,9 +319,11 @@ pub(crate) fn run(args: &TilesArgs) -> anyhow::Result<()> {
     let decimation = Decimation::new(w, h, DECIMATION_REGION, max_s);
     // One read of every sample for both: the decimation error per region and the samples'
     // minima and maxima the checks prune with.
-    let leaves = decimation.measure_all(samples, check::LeafBoxes::of)?;
+    let leaf_log2 = check::leaf_log2_for(w, h);
+    let leaves = decimation
+        .measure_all(samples, |i0, j0, win| check::LeafBoxes::of(leaf_log2, i0, j0, win))?;
     let decimation_s = t0.elapsed().as_secs_f64();
-    let sample_range = check::SampleRange::from_leaves(w, h, &leaves);
+    let sample_range = check::SampleRange::from_leaves(w, h, leaf_log2, &leaves);
     drop(leaves);
     let range_s = t0.elapsed().as_secs_f64() - decimation_s;
     let bar = Progress::new("tiles", !args.quiet);

@@ -14,12 +14,13 @@
 //! to see whether they are void.
 //!
 //! **Error** by branch and bound (Land & Doig 1960) over a min/max pyramid of the samples
-//! ([`SampleRange`], measured once per run in the decimation pass's read of every sample,
-//! 1/128 of the DEM's f32 bytes): over an aligned box
+//! ([`SampleRange`], measured once per run in the decimation pass's read of every sample:
+//! 1/128 of the DEM's f32 bytes up to about a 23,000^2 grid, at most 21 MiB beyond, where its finest
+//! boxes grow instead, [`leaf_log2_for`]): over an aligned box
 //! of samples, a triangle's plane is off by at most `max(plane_max - z_min, z_max - plane_min)`
 //! (a plane's extremes over a box are at its corners), widened by a relative 1e-9 for
-//! rounding. (triangle, box) pairs are refined in decreasing order of that bound, boxes of
-//! 16 x 16 samples are scanned with the reference's arithmetic (a box of up to 64 x 64 whole,
+//! rounding. (triangle, box) pairs are refined in decreasing order of that bound, the finest
+//! boxes (16 x 16 samples, larger on larger grids) are scanned with the reference's arithmetic (a box of up to 64 x 64 whole,
 //! in one window, when none of its quarters is proven: the plain scan's cost where little is
 //! pruned), and the search stops when the largest bound left is no more than the largest
 //! error scanned. So the result is the exact
@@ -40,17 +41,42 @@ use terrain_app::samples::{Samples, Window};
 /// Tolerance of the edge functions, in cells (scaled by the edge's length).
 const EPS: f64 = 1e-7;
 
-/// log2 of the side of the pyramid's finest boxes (16 x 16 samples), the boxes scanned.
-const LEAF_LOG2: u32 = 4;
+/// log2 of the side of the pyramid's finest boxes (16 x 16 samples), the boxes scanned, on a
+/// grid of at most [`MAX_LEAF_BOXES`] of them.
+const MIN_LEAF_LOG2: u32 = 4;
+
+/// The most finest boxes a pyramid holds (16 MiB of them, 21 MiB with the levels above): on a
+/// grid with more 16 x 16 boxes (over about 23,000^2 samples) the finest boxes are 32 x 32 or
+/// larger,
+/// so the pyramid's memory stays bounded whatever the DEM's size (the issue's "memory bounded
+/// by the store's cache, not the DEM"), at the price of larger leaf scans.
+const MAX_LEAF_BOXES: usize = 1 << 21;
+
+/// log2 of the finest boxes' side on a `w x h` grid: the smallest from [`MIN_LEAF_LOG2`] with
+/// at most [`MAX_LEAF_BOXES`] boxes.
+pub(crate) fn leaf_log2_for(w: usize, h: usize) -> u32 {
+    leaf_log2_within(w, h, MAX_LEAF_BOXES)
+}
+
+fn leaf_log2_within(w: usize, h: usize, max_boxes: usize) -> u32 {
+    let mut k = MIN_LEAF_LOG2;
+    while k < usize::BITS - 1 && w.div_ceil(1 << k).saturating_mul(h.div_ceil(1 << k)) > max_boxes {
+        k += 1;
+    }
+    k
+}
 
 /// Minimum and maximum of the non-void samples of a grid over aligned boxes: level `k` (from
-/// [`LEAF_LOG2`] up to one box over the grid) holds boxes of `2^k x 2^k` samples, box `(a, b)`
+/// the finest boxes' `leaf_log2` up to one box over the grid) holds boxes of `2^k x 2^k`
+/// samples, box `(a, b)`
 /// the samples `[a 2^k, (a + 1) 2^k)` x `[b 2^k, (b + 1) 2^k)` within the grid. A box without a
 /// non-void finite-or-infinite sample (NaN and void samples are never measured) holds
 /// `[inf, -inf]`.
 #[derive(Debug)]
 pub(crate) struct SampleRange {
-    /// Per level from [`LEAF_LOG2`]: boxes per row, and `[min, max]` per box (row-major).
+    /// log2 of the finest boxes' side ([`leaf_log2_for`]).
+    leaf_log2: u32,
+    /// Per level from `leaf_log2`: boxes per row, and `[min, max]` per box (row-major).
     levels: Vec<(usize, Vec<[f32; 2]>)>,
 }
 
@@ -66,6 +92,8 @@ fn merge(a: [f32; 2], b: [f32; 2]) -> [f32; 2] {
 /// merge into the same pyramid).
 #[derive(Debug)]
 pub(crate) struct LeafBoxes {
+    /// log2 of the boxes' side.
+    leaf_log2: u32,
     /// The first box's column and row, and boxes per row.
     a0: usize,
     b0: usize,
@@ -74,29 +102,30 @@ pub(crate) struct LeafBoxes {
 }
 
 impl LeafBoxes {
-    /// The boxes of `win`, whose first sample is `(i0, j0)` (its non-void samples merged).
-    pub(crate) fn of(i0: usize, j0: usize, win: &Window) -> Self {
+    /// The boxes of `2^leaf_log2` samples a side of `win`, whose first sample is `(i0, j0)`
+    /// (its non-void samples merged).
+    pub(crate) fn of(leaf_log2: u32, i0: usize, j0: usize, win: &Window) -> Self {
         let ww = win.width;
         let wh = win.data.len() / ww.max(1);
         if ww == 0 || wh == 0 {
-            return Self { a0: 0, b0: 0, nx: 0, boxes: Vec::new() };
+            return Self { leaf_log2, a0: 0, b0: 0, nx: 0, boxes: Vec::new() };
         }
-        let (a0, b0) = (i0 >> LEAF_LOG2, j0 >> LEAF_LOG2);
-        let nx = ((i0 + ww - 1) >> LEAF_LOG2) - a0 + 1;
-        let ny = ((j0 + wh - 1) >> LEAF_LOG2) - b0 + 1;
+        let (a0, b0) = (i0 >> leaf_log2, j0 >> leaf_log2);
+        let nx = ((i0 + ww - 1) >> leaf_log2) - a0 + 1;
+        let ny = ((j0 + wh - 1) >> leaf_log2) - b0 + 1;
         let mut boxes = vec![EMPTY; nx * ny];
         for b in 0..wh {
             let row = &win.data[b * ww..(b + 1) * ww];
-            let by = ((j0 + b) >> LEAF_LOG2) - b0;
+            let by = ((j0 + b) >> leaf_log2) - b0;
             for (a, &z) in row.iter().enumerate() {
                 if win.voids.as_ref().is_some_and(|v| v.get(a, b)) {
                     continue;
                 }
-                let m = &mut boxes[by * nx + ((i0 + a) >> LEAF_LOG2) - a0];
+                let m = &mut boxes[by * nx + ((i0 + a) >> leaf_log2) - a0];
                 *m = merge(*m, [z, z]);
             }
         }
-        Self { a0, b0, nx, boxes }
+        Self { leaf_log2, a0, b0, nx, boxes }
     }
 }
 
@@ -107,7 +136,18 @@ impl SampleRange {
     #[cfg(test)]
     pub(crate) fn measure(samples: &dyn Samples, region: usize) -> anyhow::Result<Self> {
         let (w, h) = samples.size();
-        let leaf = 1usize << LEAF_LOG2;
+        Self::measure_with(samples, region, leaf_log2_for(w, h))
+    }
+
+    /// [`SampleRange::measure`] with finest boxes of `2^leaf_log2` samples a side.
+    #[cfg(test)]
+    pub(crate) fn measure_with(
+        samples: &dyn Samples,
+        region: usize,
+        leaf_log2: u32,
+    ) -> anyhow::Result<Self> {
+        let (w, h) = samples.size();
+        let leaf = 1usize << leaf_log2;
         let region = region.max(1).next_multiple_of(leaf);
         let (rx, ry) = (w.div_ceil(region), h.div_ceil(region));
         let parts = (0..rx * ry)
@@ -115,17 +155,18 @@ impl SampleRange {
             .map(|r| -> anyhow::Result<LeafBoxes> {
                 let (i0, j0) = ((r % rx) * region, (r / rx) * region);
                 let (ww, wh) = (region.min(w - i0), region.min(h - j0));
-                Ok(LeafBoxes::of(i0, j0, &samples.window(i0, j0, ww, wh, 0)?))
+                Ok(LeafBoxes::of(leaf_log2, i0, j0, &samples.window(i0, j0, ww, wh, 0)?))
             })
             .collect::<anyhow::Result<Vec<_>>>()?;
-        Ok(Self::from_leaves(w, h, &parts))
+        Ok(Self::from_leaves(w, h, leaf_log2, &parts))
     }
 
     /// The pyramid of a `w x h` grid from the finest boxes of windows that together hold
     /// every sample (the caller's to ensure: a sample in no window is never measured, and a
     /// box without one reads as holding none, which the search prunes).
-    pub(crate) fn from_leaves(w: usize, h: usize, parts: &[LeafBoxes]) -> Self {
-        let leaf = 1usize << LEAF_LOG2;
+    pub(crate) fn from_leaves(w: usize, h: usize, leaf_log2: u32, parts: &[LeafBoxes]) -> Self {
+        assert!(parts.iter().all(|p| p.leaf_log2 == leaf_log2), "boxes of another size");
+        let leaf = 1usize << leaf_log2;
         let (nx, ny) = (w.div_ceil(leaf), h.div_ceil(leaf));
         let mut boxes = vec![EMPTY; nx * ny];
         for p in parts {
@@ -149,17 +190,17 @@ impl SampleRange {
             }
             levels.push((ux, up));
         }
-        Self { levels }
+        Self { leaf_log2, levels }
     }
 
     /// The coarsest level (one box over the grid).
     fn top(&self) -> u32 {
-        LEAF_LOG2 + self.levels.len() as u32 - 1
+        self.leaf_log2 + self.levels.len() as u32 - 1
     }
 
     /// `[min, max]` of box `(a, b)` at level `k`.
     fn get(&self, k: u32, a: usize, b: usize) -> [f32; 2] {
-        let (nx, v) = &self.levels[(k - LEAF_LOG2) as usize];
+        let (nx, v) = &self.levels[(k - self.leaf_log2) as usize];
         v[b * nx + a]
     }
 
@@ -494,7 +535,7 @@ impl Search<'_> {
         if list.iter().all(|&(_, e)| e <= best) {
             return Ok(());
         }
-        if k > LEAF_LOG2 {
+        if k > self.range.leaf_log2 {
             let quarters =
                 [(0, 0), (1, 0), (0, 1), (1, 1)].map(|(da, db)| (2 * a + da, 2 * b + db));
             let found = self.meeting(list.iter().map(|&(t, _)| t), k - 1, quarters);
@@ -567,7 +608,7 @@ fn worst(
 ) -> anyhow::Result<f64> {
     let s = Search { samples, range, tris, rect, best: AtomicU64::new(0f64.to_bits()) };
     // The regions, each with the triangles whose boxes meet it.
-    let k = REGION_LOG2.clamp(LEAF_LOG2, range.top());
+    let k = REGION_LOG2.clamp(range.leaf_log2, range.top());
     let [ra, rb] = [rect[0] >> k, rect[1] >> k];
     let (nx, ny) = ((rect[2] >> k) - ra + 1, (rect[3] >> k) - rb + 1);
     let mut bins: Vec<Vec<u32>> = vec![Vec::new(); nx * ny];

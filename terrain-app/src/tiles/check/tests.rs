@@ -297,6 +297,12 @@ fn the_check_is_the_scan_on_random_grids_and_meshes() {
         let want = reference(&g, &l, &m);
         let got = check(&g, &l, &m, &range).unwrap();
         assert!(same(got, want), "case {case}: {w} x {h}, check {got:?}, scan {want:?}");
+        // Larger finest boxes (a grid beyond the pyramid's box budget): the same, bit for bit.
+        for leaf in [5, 6] {
+            let coarse = SampleRange::measure_with(&g, 64, leaf).unwrap();
+            let got = check(&g, &l, &m, &coarse).unwrap();
+            assert!(same(got, want), "case {case}, boxes of 2^{leaf}: {got:?}, scan {want:?}");
+        }
         match want {
             None => none += 1,
             Some(e) if e > 0.0 => some += 1,
@@ -367,13 +373,14 @@ fn the_decimation_pass_measures_the_same_pyramid() {
     for (w, h, region) in [(600, 530, 256), (97, 61, 16), (300, 17, 32), (1, 40, 16)] {
         let g = grid(w, h, 200.0, true, &mut unit);
         let pass = Decimation::new(w, h, region, 3);
-        let leaves = pass.measure_all(&g, LeafBoxes::of).unwrap();
-        let merged = SampleRange::from_leaves(w, h, &leaves);
+        let leaf = leaf_log2_for(w, h);
+        let leaves = pass.measure_all(&g, |i, j, win| LeafBoxes::of(leaf, i, j, win)).unwrap();
+        let merged = SampleRange::from_leaves(w, h, leaf, &leaves);
         let own = SampleRange::measure(&g, 64).unwrap();
         assert!(bits(&merged) == bits(&own), "{w} x {h}, regions of {region}");
         // Negative control: without one window's boxes the pyramid differs.
         if leaves.len() > 1 {
-            let part = SampleRange::from_leaves(w, h, &leaves[1..]);
+            let part = SampleRange::from_leaves(w, h, leaf, &leaves[1..]);
             assert!(bits(&part) != bits(&own), "{w} x {h}: the first window changed nothing");
         }
         let lazy = Decimation::new(w, h, region, 3);
@@ -384,4 +391,25 @@ fn the_decimation_pass_measures_the_same_pyramid() {
         }
         assert!(pass.max() > 0.0, "{w} x {h}: no decimation error measured");
     }
+}
+
+/// The pyramid's finest boxes grow with the grid beyond the box budget, so its memory is
+/// bounded whatever the DEM's size: 16 x 16 up to the budget (the 16385^2 store's as before),
+/// then the smallest power of two that fits.
+#[test]
+fn the_pyramid_stays_within_its_box_budget_on_any_grid() {
+    assert_eq!(leaf_log2_for(1, 1), 4);
+    assert_eq!(leaf_log2_for(16385, 16385), 4);
+    assert_eq!(leaf_log2_for(32769, 32769), 5);
+    assert_eq!(leaf_log2_for(1 << 20, 3), 4);
+    for (w, h) in [(23_000, 23_000), (23_300, 23_300), (65_537, 65_537), (400_000, 250_000)] {
+        let k = leaf_log2_for(w, h);
+        let boxes = |k: u32| w.div_ceil(1 << k) * h.div_ceil(1 << k);
+        assert!(boxes(k) <= MAX_LEAF_BOXES, "{w} x {h}: {} boxes", boxes(k));
+        assert!(
+            k == MIN_LEAF_LOG2 || boxes(k - 1) > MAX_LEAF_BOXES,
+            "{w} x {h}: 2^{k} not the least"
+        );
+    }
+    assert_eq!(leaf_log2_within(100, 100, 16), 5);
 }
