@@ -13,7 +13,8 @@
 //! blocks is first asked for, kept as `index.pages/pNNNNNNNN` and checked by its page CRC-32
 //! (a cached page that fails it is fetched again; a fetched one that fails is a
 //! [`StoreError::IndexPage`] naming the URL and the page). An older index (versions 2-3) is
-//! fetched whole once. And the side tables the caller names
+//! fetched whole once (a later open checks the mirror's copy against the object's length and
+//! first bytes, one range GET, and its own CRC-32, instead of fetching it again). And the side tables the caller names
 //! ([`RemoteOptions::side_files`], those present) into a local mirror folder, which is the
 //! store's [`crate::Store::dir`], so code reading tables beside the index works unchanged;
 //! any other table when it is first asked for ([`crate::Store::side_file`]: one GET, so a
@@ -407,9 +408,30 @@ impl Remote {
         }
         let have = bytes.len() as u64;
         if size > have {
+            // An older index is fetched whole; the mirror's copy of it serves when it is the
+            // object's: the same length, the same first bytes (the header, whose bake id
+            // hashes every block level's CRC-32) and its own CRC-32 intact.
+            if let Some(copy) = self.mirrored_index(&bytes, size) {
+                return Ok(RemoteIndex::Whole(copy));
+            }
             bytes.extend(self.get(&key, Some(have..size)).map_err(failed)?.0);
         }
         Ok(RemoteIndex::Whole(bytes))
+    }
+
+    /// The mirror's copy of a whole (version 2-3) index whose object is `size` bytes and
+    /// starts with `probe`, if it is that object's (see [`Remote::fetch_index`]).
+    fn mirrored_index(&self, probe: &[u8], size: u64) -> Option<Vec<u8>> {
+        // The whole header (with its bake id) must be in what the first GET brought.
+        read_header(&mut Reader::new(probe.get(12..)?)).ok()?;
+        let path = self.mirror.join(INDEX_FILE);
+        if std::fs::metadata(&path).ok()?.len() != size {
+            return None;
+        }
+        let copy = std::fs::read(&path).ok()?;
+        let (body, tail) = copy.split_at_checked(copy.len().checked_sub(4)?)?;
+        let stored = u32::from_le_bytes(tail.try_into().ok()?);
+        (copy.starts_with(probe) && crate::format::crc32(body) == stored).then_some(copy)
     }
 
     /// Page `page` of a paged index (`at..at + len` of the object): the mirror's copy if

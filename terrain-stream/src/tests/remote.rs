@@ -285,6 +285,64 @@ fn a_store_over_http_reads_as_the_local_one_and_a_second_open_reads_the_disk_cac
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
+/// An older (version-3) index at a URL is fetched whole once: a later open with the same
+/// cache takes the mirror's copy after one range request (the object's length and first
+/// bytes), a damaged copy is fetched again, and another bake's index of the same length (its
+/// header differs) is fetched and replaces the mirror.
+#[test]
+fn an_older_index_is_fetched_whole_once_and_checked_against_the_mirror() {
+    use crate::format::{INDEX_FILE, read_index, write_index_unpaged};
+    let dir = temp("v3");
+    local_store(&dir);
+    let store = dir.join("store");
+    let (h, entries) = read_index(&std::fs::read(store.join(INDEX_FILE)).unwrap()).unwrap();
+    let v3 = write_index_unpaged(&h, &entries, 3);
+    std::fs::write(store.join(INDEX_FILE), &v3).unwrap();
+    let server = Server::start(store.clone(), Arc::new(|_: &str, _, _| Action::Serve));
+    let cache = dir.join("cache");
+    let index_gets = |log: &RequestLog| {
+        let log = log.lock().unwrap();
+        log.iter().filter(|(p, _)| p == INDEX_FILE).map(|(_, r)| *r).collect::<Vec<_>>()
+    };
+    let open = || Store::open_location_with(&server.url(), &options(&cache)).unwrap();
+    let first = open();
+    assert_eq!(first.header(), &h);
+    assert_eq!(index_gets(&server.log).len(), 2, "the first bytes, then the rest");
+    let received = first.remote_bytes_received();
+    assert!(received >= v3.len() as u64, "{received}");
+    server.log.lock().unwrap().clear();
+    let second = open();
+    assert_eq!(second.header(), &h);
+    assert_eq!(
+        second.entry(first.block_ids().next().unwrap()),
+        first.entry(first.block_ids().next().unwrap())
+    );
+    assert_eq!(index_gets(&server.log).len(), 1, "the first bytes only");
+    assert!(second.remote_bytes_received() < 8192, "{}", second.remote_bytes_received());
+    // A damaged copy in the mirror (its CRC-32 fails): fetched again, and the store reads.
+    let mirrored = second.dir().join(INDEX_FILE);
+    let mut bytes = std::fs::read(&mirrored).unwrap();
+    let mid = bytes.len() / 2;
+    bytes[mid] ^= 0x10;
+    std::fs::write(&mirrored, &bytes).unwrap();
+    server.log.lock().unwrap().clear();
+    let third = open();
+    assert_eq!(index_gets(&server.log).len(), 2, "fetched whole again");
+    assert_eq!(std::fs::read(&mirrored).unwrap(), v3, "the mirror's copy mended");
+    assert_eq!(third.header(), &h);
+    // Another bake's index, the same length: its header (bake id) differs, so it is fetched.
+    let other = crate::Header { bake_id: h.bake_id ^ 1, ..h.clone() };
+    let v3b = write_index_unpaged(&other, &entries, 3);
+    assert_eq!(v3b.len(), v3.len());
+    std::fs::write(store.join(INDEX_FILE), &v3b).unwrap();
+    server.log.lock().unwrap().clear();
+    let fourth = open();
+    assert_eq!(fourth.header().bake_id, h.bake_id ^ 1);
+    assert_eq!(index_gets(&server.log).len(), 2, "another bake's index fetched whole");
+    drop(server);
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
 /// Byte offset where level `level` of each block ends (exclusive), from the index.
 fn level_end(store: &Store, id: BlockId, level: u8) -> u64 {
     let le = store.entry(id).unwrap().levels[level as usize];
