@@ -733,14 +733,7 @@ mod tests {
     /// Every interior edge is locally Delaunay: the apex across it is not strictly inside the
     /// circumcircle (the exact determinant, evaluated here on the output mesh).
     fn assert_delaunay(hm: &Heightmap, m: &TriMesh) {
-        let g: Vec<[i64; 2]> = m
-            .positions
-            .iter()
-            .map(|p| {
-                let q = hm.world_to_grid(p.truncate()).round();
-                [q.x as i64, q.y as i64]
-            })
-            .collect();
+        let g = crate::mesh::grid_vertices(hm, m);
         let mut apex = std::collections::HashMap::new();
         for t in &m.triangles {
             for k in 0..3 {

@@ -155,3 +155,16 @@ pub fn build(hm: &Heightmap, config: &MeshConfig) -> Result<TriMesh, MeshError> 
         Algorithm::Delaunay => delaunay::build(hm, config.max_error),
     })
 }
+
+/// The vertices of a mesh built on `hm`'s grid as its samples `[i, j]` (rounded): the tests'
+/// integer view of a mesh, for exact predicates on its output.
+#[cfg(test)]
+pub(crate) fn grid_vertices(hm: &Heightmap, mesh: &TriMesh) -> Vec<[i64; 2]> {
+    mesh.positions
+        .iter()
+        .map(|p| {
+            let q = hm.world_to_grid(p.truncate()).round();
+            [q.x as i64, q.y as i64]
+        })
+        .collect()
+}

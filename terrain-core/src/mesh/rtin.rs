@@ -546,14 +546,7 @@ mod tests {
     /// No T-junction: no vertex lies strictly inside a triangle's edge (the edges are
     /// axis-aligned or diagonal, so the samples along one are its integer steps).
     fn assert_conforming(hm: &Heightmap, mesh: &TriMesh, label: &str) {
-        let grid: Vec<[i64; 2]> = mesh
-            .positions
-            .iter()
-            .map(|p| {
-                let g = hm.world_to_grid(p.truncate()).round();
-                [g.x as i64, g.y as i64]
-            })
-            .collect();
+        let grid = crate::mesh::grid_vertices(hm, mesh);
         let mut is_vertex = vec![false; hm.width() * hm.height()];
         for g in &grid {
             is_vertex[g[1] as usize * hm.width() + g[0] as usize] = true;
