@@ -14,12 +14,13 @@
 //! (a cached page that fails it is fetched again; a fetched one that fails is a
 //! [`StoreError::IndexPage`] naming the URL and the page). An older index (versions 2-3) is
 //! fetched whole once (a later open checks the mirror's copy against the object's length and
-//! first bytes, one range GET, and its own CRC-32, instead of fetching it again). And the side tables the caller names
-//! ([`RemoteOptions::side_files`], those present) into a local mirror folder, which is the
-//! store's [`crate::Store::dir`], so code reading tables beside the index works unchanged;
-//! any other table when it is first asked for ([`crate::Store::side_file`]: one GET, so a
-//! method's table, e.g. geomorph's `geomip.bin`, 168 MB on a 32769^2 store, is fetched only
-//! by a session that draws with that method).
+//! first bytes, one range GET, and its own CRC-32, instead of fetching it again). Side tables
+//! (files beside the index) come into a local mirror folder, which is the store's
+//! [`crate::Store::dir`], so code reading tables beside the index works unchanged: those the
+//! caller names in [`RemoteOptions::side_files`] at open (the ones present), any other when it
+//! is first asked for ([`crate::Store::side_file`]: one GET, so a method's table, e.g.
+//! geomorph's `geomip.bin`, 168 MB on a 32769^2 store, is fetched only by a session that draws
+//! with that method).
 //! Blocks: by range GETs, one request per load request covering the levels asked for
 //! ([`Remote::fetch_levels`]); the first request of a block in a session starts at byte 0 so the
 //! block header and the object's size are checked as the local reader checks them.

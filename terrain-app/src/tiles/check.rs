@@ -15,17 +15,17 @@
 //!
 //! **Error** by branch and bound (Land & Doig 1960) over a min/max pyramid of the samples
 //! ([`SampleRange`], measured once per run in the decimation pass's read of every sample:
-//! 1/128 of the DEM's f32 bytes up to about a 23,000^2 grid, at most 21 MiB beyond, where its finest
-//! boxes grow instead, [`leaf_log2_for`]): over an aligned box
-//! of samples, a triangle's plane is off by at most `max(plane_max - z_min, z_max - plane_min)`
-//! (a plane's extremes over a box are at its corners), widened by a relative 1e-9 for
-//! rounding. (triangle, box) pairs are refined in decreasing order of that bound, the finest
-//! boxes (16 x 16 samples, larger on larger grids) are scanned with the reference's arithmetic (a box of up to 64 x 64 whole,
-//! in one window, when none of its quarters is proven: the plain scan's cost where little is
-//! pruned), and the search stops when the largest bound left is no more than the largest
-//! error scanned. So the result is the exact
-//! maximum, bit for bit the scan's (the same per-sample expression on the same samples; a
-//! maximum does not depend on order), and only pairs whose bound reaches the worst sample are
+//! 1/128 of the DEM's f32 bytes up to about a 23,000^2 grid, at most 21 MiB beyond, where its
+//! finest boxes grow instead, [`leaf_log2_for`]): over an aligned box of samples, a
+//! triangle's plane is off by at most `max(plane_max - z_min, z_max - plane_min)` (a plane's
+//! extremes over a box are at its corners), widened by a relative 1e-9 for rounding.
+//! (triangle, box) pairs are refined in decreasing order of that bound, the finest boxes
+//! (16 x 16 samples, larger on larger grids) are scanned with the reference's arithmetic (a
+//! box of up to 64 x 64 whole, in one window, when none of its quarters is proven: the plain
+//! scan's cost where little is pruned), and the search stops when the largest bound left is
+//! no more than the largest error scanned. So the result is the exact maximum, bit for bit
+//! the scan's (the same per-sample expression on the same samples; a maximum does not depend
+//! on order), and only pairs whose bound reaches the worst sample are
 //! refined: a coarse tile, whose bound is far above the terrain's relief in a box, proves
 //! most of its area from the pyramid's upper levels.
 
@@ -47,9 +47,8 @@ const MIN_LEAF_LOG2: u32 = 4;
 
 /// The most finest boxes a pyramid holds (16 MiB of them, 21 MiB with the levels above): on a
 /// grid with more 16 x 16 boxes (over about 23,000^2 samples) the finest boxes are 32 x 32 or
-/// larger,
-/// so the pyramid's memory stays bounded whatever the DEM's size (the issue's "memory bounded
-/// by the store's cache, not the DEM"), at the price of larger leaf scans.
+/// larger, so the pyramid's memory stays bounded whatever the DEM's size (issue 16: "memory
+/// bounded by the store's cache, not the DEM"), at the price of larger leaf scans.
 const MAX_LEAF_BOXES: usize = 1 << 21;
 
 /// log2 of the finest boxes' side on a `w x h` grid: the smallest from [`MIN_LEAF_LOG2`] with
@@ -68,10 +67,9 @@ fn leaf_log2_within(w: usize, h: usize, max_boxes: usize) -> u32 {
 
 /// Minimum and maximum of the non-void samples of a grid over aligned boxes: level `k` (from
 /// the finest boxes' `leaf_log2` up to one box over the grid) holds boxes of `2^k x 2^k`
-/// samples, box `(a, b)`
-/// the samples `[a 2^k, (a + 1) 2^k)` x `[b 2^k, (b + 1) 2^k)` within the grid. A box without a
-/// non-void finite-or-infinite sample (NaN and void samples are never measured) holds
-/// `[inf, -inf]`.
+/// samples, box `(a, b)` the samples `[a 2^k, (a + 1) 2^k)` x `[b 2^k, (b + 1) 2^k)` within
+/// the grid. A box without a non-void finite-or-infinite sample (NaN and void samples are
+/// never measured) holds `[inf, -inf]`.
 #[derive(Debug)]
 pub(crate) struct SampleRange {
     /// log2 of the finest boxes' side ([`leaf_log2_for`]).
