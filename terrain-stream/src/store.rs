@@ -175,9 +175,9 @@ impl Store {
         }
     }
 
-    /// Bytes received from a remote store's location so far (its index and side tables at
-    /// open, then index pages and block levels), by this store and its clones; 0 for a local
-    /// store. For tests and measurements.
+    /// Bytes received from a remote store's location so far (its index at open, then index
+    /// pages, the side tables asked for and block levels), by this store and its clones; 0 for
+    /// a local store. For tests and measurements.
     pub fn remote_bytes_received(&self) -> u64 {
         self.remote.as_ref().map_or(0, |r| r.bytes_received())
     }
