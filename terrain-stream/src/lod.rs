@@ -809,23 +809,31 @@ fn block_sub_max(h: &Header, e: &BlockEntry, top: u8, nodes: usize, per: usize) 
         }
     }
     let mut block = vec![0f32; nodes * per];
-    for level in 0..=top {
-        let side = 1u32 << level;
-        for j in 0..side {
-            for i in 0..side {
-                let n = NodeId { level, i, j };
-                let (o, a) = (upper_index(n) * per, upper_index(n) * lv);
-                let from = usize::from(level);
-                block[o + from..o + lv].copy_from_slice(&all[a + from..a + lv]);
-                if fine {
-                    for l in levels..h.k {
-                        block[o + l as usize] = below_bound(h, e, n, l);
-                    }
-                }
-            }
+    for n in nodes_to(top) {
+        let (o, a) = (upper_index(n) * per, upper_index(n) * lv);
+        let from = usize::from(n.level);
+        block[o + from..o + lv].copy_from_slice(&all[a + from..a + lv]);
+        if fine {
+            fill_below(h, e, n, &mut block[o..o + per]);
         }
     }
     block
+}
+
+/// Every node of block-local levels `0..=top`, level by level, row by row.
+fn nodes_to(top: u8) -> impl Iterator<Item = NodeId> {
+    (0..=top).flat_map(|level| {
+        let side = 1u32 << level;
+        (0..side).flat_map(move |j| (0..side).map(move |i| NodeId { level, i, j }))
+    })
+}
+
+/// Node `n`'s values below the stored node levels (`node_levels..k`, indexed by level in
+/// `out`), from the fine maxima ([`below_bound`]).
+fn fill_below(h: &Header, e: &BlockEntry, n: NodeId, out: &mut [f32]) {
+    for l in h.node_levels..h.k {
+        out[l as usize] = below_bound(h, e, n, l);
+    }
 }
 
 /// [`block_sub_max`] by sweeping each node's descendants per level (the tests' reference).
@@ -840,31 +848,23 @@ pub(crate) fn block_sub_max_sweep(
     let levels = h.node_levels;
     let fine = per == h.k as usize && levels < h.k;
     let mut block = vec![0f32; nodes * per];
-    for level in 0..=top {
-        let side = 1u32 << level;
-        for j in 0..side {
-            for i in 0..side {
-                let n = NodeId { level, i, j };
-                let o = upper_index(n) * per;
-                for l in level..levels {
-                    let s = l - level;
-                    let mut m = 0f32;
-                    for dj in 0..1u32 << s {
-                        for di in 0..1u32 << s {
-                            let (ci, cj) = ((i << s) + di, (j << s) + dj);
-                            if let Some(v) = e.node(l, ci, cj) {
-                                m = m.max(v.static_error);
-                            }
-                        }
-                    }
-                    block[o + l as usize] = m;
-                }
-                if fine {
-                    for l in levels..h.k {
-                        block[o + l as usize] = below_bound(h, e, n, l);
+    for n in nodes_to(top) {
+        let o = upper_index(n) * per;
+        for l in n.level..levels {
+            let s = l - n.level;
+            let mut m = 0f32;
+            for dj in 0..1u32 << s {
+                for di in 0..1u32 << s {
+                    let (ci, cj) = ((n.i << s) + di, (n.j << s) + dj);
+                    if let Some(v) = e.node(l, ci, cj) {
+                        m = m.max(v.static_error);
                     }
                 }
             }
+            block[o + l as usize] = m;
+        }
+        if fine {
+            fill_below(h, e, n, &mut block[o..o + per]);
         }
     }
     block
