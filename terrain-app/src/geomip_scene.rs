@@ -209,9 +209,12 @@ pub fn read_for_store_with(
             crate::methods::MethodConfig::default().leaf_cells
         )
     };
-    if len <= read_whole_max {
+    let whole = || -> anyhow::Result<GeomipTable> {
         let bytes = std::fs::read(&path).with_context(missing)?;
-        return GeomipTable::decode(&bytes, &want).with_context(unusable);
+        GeomipTable::decode(&bytes, &want).with_context(unusable)
+    };
+    if len <= read_whole_max {
+        return whole();
     }
     let name = path.display().to_string();
     match GeomipTable::open_paged(&name, Arc::new(FileReader(file)), len, &want, paging) {
@@ -222,8 +225,7 @@ pub fn read_for_store_with(
                 path.display(),
                 len as f64 / crate::MIB
             );
-            let bytes = std::fs::read(&path).with_context(missing)?;
-            GeomipTable::decode(&bytes, &want).with_context(unusable)
+            whole()
         }
         other => other.with_context(unusable),
     }
