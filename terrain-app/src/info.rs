@@ -222,9 +222,13 @@ impl StoreReport {
         };
         // A remote store's are asked for (HEAD), not fetched.
         let mut tables = Vec::new();
-        for f in
-            ["dss_errors.bin", "roughness.bin", "geomip.bin", "pvs.bin", "pvs_conservative.bin"]
-        {
+        for f in [
+            terrain_app::dss_scene::DSS_FILE,
+            terrain_app::roughness_scene::ROUGHNESS_FILE,
+            terrain_app::geomip_scene::GEOMIP_FILE,
+            terrain_app::pvs_scene::SAMPLED_FILE,
+            terrain_app::pvs_scene::CONSERVATIVE_FILE,
+        ] {
             if store.has_side_file(f).with_context(|| format!("asking the store for {f}"))? {
                 tables.push(f.to_string());
             }
