@@ -122,13 +122,35 @@ pub struct StoreSamples {
     cache: Mutex<BlockCache>,
 }
 
+/// A decoded block in the cache.
+#[derive(Debug, Clone)]
+enum Cached {
+    /// Levels `0..n`, `n <= k` (a strided window needs no finer one): read vertex by vertex,
+    /// and a finer level is decoded on top of them.
+    Levels(Arc<BlockLevels>),
+    /// Every level: the block's `(2^k + 1)^2` heights, row-major from its south-west vertex
+    /// (`BlockLevels::grid(k)`, the same bytes as the levels it replaces). Nothing finer can be
+    /// asked for, so the levels are dropped and a window copies rows instead of finding each
+    /// vertex's level and order (most of the samples of a tileset are read at stride 1).
+    Grid(Arc<[f32]>),
+}
+
+impl Cached {
+    fn bytes(&self) -> u64 {
+        match self {
+            Cached::Levels(b) => b.bytes(),
+            Cached::Grid(g) => std::mem::size_of_val::<[f32]>(g) as u64,
+        }
+    }
+}
+
 /// Decoded blocks (levels `0..n`), least recently used dropped first while over the budget.
 #[derive(Debug)]
 struct BlockCache {
     budget: u64,
     resident: u64,
     clock: u64,
-    blocks: HashMap<BlockId, (Arc<BlockLevels>, u64)>,
+    blocks: HashMap<BlockId, (Cached, u64)>,
     /// Most bytes resident at once.
     peak: u64,
     /// Block levels decoded.
@@ -162,7 +184,7 @@ impl StoreSamples {
     }
 
     /// Block `id` with levels `0..=level` decoded.
-    fn block(&self, id: BlockId, level: u8) -> anyhow::Result<Arc<BlockLevels>> {
+    fn block(&self, id: BlockId, level: u8) -> anyhow::Result<Cached> {
         let have = {
             let mut c = self.cache.lock().unwrap_or_else(|e| e.into_inner());
             c.clock += 1;
@@ -170,15 +192,17 @@ impl StoreSamples {
             match c.blocks.get_mut(&id) {
                 Some((b, used)) => {
                     *used = now;
-                    if b.count() > level as usize {
-                        return Ok(b.clone());
+                    match b {
+                        Cached::Grid(_) => return Ok(b.clone()),
+                        Cached::Levels(l) if l.count() > level as usize => return Ok(b.clone()),
+                        Cached::Levels(l) => Some(l.clone()),
                     }
-                    Some(b.clone())
                 }
                 None => None,
             }
         };
         // Decode outside the lock, on top of the coarser levels already decoded.
+        let k = self.store.header().k;
         let mut b = match have {
             Some(b) => (*b).clone(),
             None => BlockLevels::new(self.store.header()),
@@ -188,7 +212,10 @@ impl StoreSamples {
             let loaded = self.store.load_level(id, l, b.levels())?;
             b.push(loaded.samples);
         }
-        let b = Arc::new(b);
+        let b = match b.grid(k) {
+            Some(g) => Cached::Grid(g.into()),
+            None => Cached::Levels(Arc::new(b)),
+        };
         let mut c = self.cache.lock().unwrap_or_else(|e| e.into_inner());
         c.decoded += u64::from(level + 1 - from);
         c.clock += 1;
@@ -260,18 +287,83 @@ impl Samples for StoreSamples {
                 let ly = bs.iter().map(|&b| vertex_level(k, 0, local(row(b), oy))).max();
                 let level = lx.unwrap_or(0).max(ly.unwrap_or(0));
                 let id = BlockId::new(*brow, *bcol);
-                let blk = self.block(id, level)?;
-                for &b in bs {
-                    let lj = local(row(b), oy);
-                    for &a in as_ {
-                        let li = local(col(a), ox);
-                        data[b * width + a] = blk.height(li, lj).ok_or_else(|| {
-                            anyhow::anyhow!("store block {id}: vertex ({li}, {lj}) not decoded")
-                        })?;
+                match self.block(id, level)? {
+                    Cached::Grid(g) => {
+                        let n = cells + 1;
+                        let lis: Vec<usize> = as_.iter().map(|&a| col(a) - ox).collect();
+                        for &b in bs {
+                            let src = &g[(row(b) - oy) * n..][..n];
+                            let out = &mut data[b * width..][..width];
+                            for (&a, &li) in as_.iter().zip(&lis) {
+                                out[a] = src[li];
+                            }
+                        }
+                    }
+                    Cached::Levels(blk) => {
+                        for &b in bs {
+                            let lj = local(row(b), oy);
+                            for &a in as_ {
+                                let li = local(col(a), ox);
+                                data[b * width + a] = blk.height(li, lj).ok_or_else(|| {
+                                    anyhow::anyhow!(
+                                        "store block {id}: vertex ({li}, {lj}) not decoded"
+                                    )
+                                })?;
+                            }
+                        }
                     }
                 }
             }
         }
         Ok(Window { width, data, voids: None })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::ops::ControlFlow;
+    use terrain_core::Georef;
+    use terrain_stream::{BakeConfig, HeightEncoding};
+
+    /// A losslessly baked store reads every window as the DEM in memory does, bit for bit: at
+    /// every stride, over block borders and past the grid's last row and column, through a
+    /// cache so small that blocks are dropped and read again, and whether a block is held as
+    /// its coarse levels (strided windows first) or as its whole grid (stride 1).
+    #[test]
+    fn a_store_reads_every_window_as_its_dem_in_memory() {
+        let hm = Heightmap::from_fn(75, 53, Georef::local(10.0), |i, j| {
+            let (x, y) = (i as f32 * 0.11, j as f32 * 0.07);
+            900.0 + 80.0 * x.sin() * y.cos() + 2.7 * (i as f32 * 1.9).sin() + j as f32 * 0.37
+        })
+        .unwrap();
+        let dir = std::env::temp_dir().join(format!("terrain-app-samples-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        let cfg = BakeConfig { k: 4, encoding: HeightEncoding::F32, ..Default::default() };
+        terrain_stream::bake(&hm, &dir, &cfg, &mut |_| ControlFlow::Continue(())).unwrap();
+        let memory = HeightmapSamples(&hm);
+        // About three decoded 17^2 blocks resident.
+        let store = StoreSamples::new(Store::open(&dir).unwrap(), 3 * 17 * 17 * 4);
+        assert_eq!(store.size(), memory.size());
+        let mut windows = 0;
+        for stride in [3u32, 2, 1, 0] {
+            for (i0, j0) in [(0, 0), (5, 9), (16, 16), (31, 2), (60, 40), (74, 52)] {
+                for (w, h) in [(1, 1), (9, 4), (17, 17), (40, 23), (80, 60)] {
+                    let a = memory.window(i0, j0, w, h, stride).unwrap();
+                    let b = store.window(i0, j0, w, h, stride).unwrap();
+                    assert_eq!(a.width, b.width);
+                    let bits = |d: &[f32]| d.iter().map(|z| z.to_bits()).collect::<Vec<_>>();
+                    assert_eq!(bits(&a.data), bits(&b.data), "({i0}, {j0}) {w}x{h} 2^{stride}");
+                    windows += 1;
+                }
+            }
+        }
+        assert_eq!(windows, 120);
+        let (peak, decoded) = store.cache_stats();
+        assert!(peak <= 4 * 17 * 17 * 4, "the budget and one block more: {peak}");
+        // 5 x 4 blocks: more block levels decoded than the store holds (blocks dropped and read
+        // again), so both the levels and the grids were read.
+        assert!(decoded > 20 * 5, "{decoded} block levels decoded");
+        std::fs::remove_dir_all(&dir).unwrap();
     }
 }

@@ -11,8 +11,8 @@ use crate::codec::decode_level;
 use crate::error::StoreError;
 use crate::format::{
     BLOCK_HEADER_LEN, BLOCK_MAGIC, BlockEntry, BlockId, Header, INDEX_FILE, INDEX_VERSION, MAGIC,
-    PAGED_INDEX_VERSION, SampleEncoding, VERSION, block_file_name, crc32, level_len, read_index,
-    vertex_index,
+    PAGED_INDEX_VERSION, SampleEncoding, VERSION, block_file_name, crc32, for_each_level_vertex,
+    level_len, read_index, vertex_index,
 };
 use crate::overview::Overview;
 use crate::pages::{PagedIndex, index_err, scale_entry};
@@ -641,12 +641,27 @@ impl BlockLevels {
         if level as usize >= self.levels.len() {
             return None;
         }
-        let n = (1u32 << level) + 1;
-        let d = 1u32 << (self.k - level);
-        let mut out = Vec::with_capacity((n * n) as usize);
-        for b in 0..n {
-            for a in 0..n {
-                out.push(self.height(a * d, b * d)?);
+        // Each resident level scattered in its stored order (no per-vertex index search):
+        // the same values as `height` at every vertex (`grid_equals_height_per_vertex`).
+        let n = (1usize << level) + 1;
+        let shift = self.k - level;
+        let mut out = vec![0f32; n * n];
+        for (l, samples) in self.levels.iter().take(level as usize + 1).enumerate() {
+            let mut q = samples.iter();
+            let mut bad = false;
+            for_each_level_vertex(self.k, l as u8, |i, j| {
+                let Some(&q) = q.next() else {
+                    bad = true;
+                    return;
+                };
+                out[(j >> shift) as usize * n + (i >> shift) as usize] = if self.scale == 1.0 {
+                    self.encoding.height(q)
+                } else {
+                    self.encoding.height_scaled(q, self.scale)
+                };
+            });
+            if bad {
+                return None;
             }
         }
         Some(out)

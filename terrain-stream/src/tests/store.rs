@@ -59,10 +59,24 @@ fn check_heights(store: &Store, hm: &Heightmap, tol: f32) {
                 }
             }
         }
-        // Coarser grids are the finest grid's subsamples.
+        // Every level's grid holds `height` at each of its vertices, bit for bit (the grid is
+        // scattered level by level in stored order, `height` searches each vertex's index).
+        for l in 0..=h.k {
+            let g = b.grid(l).unwrap();
+            let (n, d) = ((1u32 << l) + 1, 1u32 << (h.k - l));
+            assert_eq!(g.len(), (n * n) as usize);
+            for (v, z) in g.iter().enumerate() {
+                let (a, c) = (v as u32 % n, v as u32 / n);
+                assert_eq!(z.to_bits(), b.height(a * d, c * d).unwrap().to_bits(), "{id} {l}");
+            }
+        }
         let g2 = b.grid(2).unwrap();
         let d = 1u32 << (h.k - 2);
         assert_eq!(g2[5 + 1], b.height(d, d).unwrap()); // row 1, column 1 of the 5 x 5 grid
+        // A block read to level 1 has no finer grid.
+        let coarse = store.read_block(id, 1).unwrap();
+        assert_eq!(coarse.grid(1), b.grid(1));
+        assert_eq!(coarse.grid(2), None);
     }
 }
 
