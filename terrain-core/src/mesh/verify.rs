@@ -206,8 +206,10 @@ mod tests {
                         raster::for_each_sample(v, z, |i, j, zi| {
                             let (i, j) = (i as usize, j as usize);
                             let e = (f64::from(hm.get(i, j)) - zi).abs();
-                            if !(per[j * w + i] >= e) {
-                                per[j * w + i] = e;
+                            let slot = &mut per[j * w + i];
+                            // NaN: not yet covered.
+                            if slot.is_nan() || e > *slot {
+                                *slot = e;
                             }
                         });
                     }
