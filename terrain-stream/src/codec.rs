@@ -474,29 +474,36 @@ fn decode_predictive<L: AsRef<[i32]>>(
 mod tests {
     use super::*;
 
+    /// Encodes and decodes every level of `grid` (a `(2^k + 1)^2` block) with `codec`: each
+    /// level decodes to the grid's vertices of that level, and its payload cut short or
+    /// extended by a byte is an error. Returns the decoded levels.
+    fn round_trip(k: u8, grid: &[i32], codec: Codec) -> Vec<Vec<i32>> {
+        let side = (1usize << k) + 1;
+        let mut levels: Vec<Vec<i32>> = Vec::new();
+        for n in 0..=k {
+            let bytes = encode_level(k, n, grid, codec, true);
+            let dec = decode_level(k, n, &bytes, &levels).unwrap();
+            let mut expect = Vec::new();
+            for_each_level_vertex(k, n, |i, j| expect.push(grid[j as usize * side + i as usize]));
+            assert_eq!(dec, expect, "k {k} {codec:?} level {n}");
+            assert!(decode_level(k, n, &bytes[..bytes.len() - 1], &levels).is_err());
+            let mut longer = bytes.clone();
+            longer.push(0);
+            assert!(decode_level(k, n, &longer, &levels).is_err());
+            levels.push(dec);
+        }
+        levels
+    }
+
     #[test]
     fn both_codecs_round_trip_and_reject_garbage() {
         let k = 4u8;
         let side = 17usize;
         let grid: Vec<i32> =
             (0..side * side).map(|p| ((p * 7919) % 4001) as i32 - 2000 + (p as i32) * 3).collect();
+        assert_eq!(grid.len(), side * side);
         for codec in [Codec::Plain, Codec::Predictive, Codec::PredictiveDeflate] {
-            let mut levels: Vec<Vec<i32>> = Vec::new();
-            for n in 0..=k {
-                let bytes = encode_level(k, n, &grid, codec, true);
-                let dec = decode_level(k, n, &bytes, &levels).unwrap();
-                let mut expect = Vec::new();
-                for_each_level_vertex(k, n, |i, j| {
-                    expect.push(grid[j as usize * side + i as usize])
-                });
-                assert_eq!(dec, expect, "{codec:?} level {n}");
-                // Truncated or extended payloads are errors.
-                assert!(decode_level(k, n, &bytes[..bytes.len() - 1], &levels).is_err());
-                let mut longer = bytes.clone();
-                longer.push(0);
-                assert!(decode_level(k, n, &longer, &levels).is_err());
-                levels.push(dec);
-            }
+            round_trip(k, &grid, codec);
         }
         assert!(decode_level::<Vec<i32>>(k, 0, &[], &[]).is_err());
         assert!(decode_level::<Vec<i32>>(k, 0, &[9, 1, 2], &[]).is_err());
@@ -569,31 +576,27 @@ mod tests {
         assert!(plain.len() > 2 * values.len(), "multi-byte values were written");
     }
 
+    /// A `(2^k + 1)^2` block with negative values, odd sums (where `div_euclid` rounds down)
+    /// and the extremes of i32 (residuals beyond 32 bits).
+    fn extreme_grid(k: u8) -> Vec<i32> {
+        let side = (1usize << k) + 1;
+        (0..side * side)
+            .map(|p| match p % 11 {
+                0 => i32::MIN,
+                1 => i32::MAX,
+                _ => ((p * 7919) % 4001) as i32 - 2000 - (p as i32 % 3),
+            })
+            .collect()
+    }
+
     /// The decoder inverts the encoder at every level of blocks of 2^1 to 2^8 cells, on grids
     /// with negative values, odd sums and the extremes of i32 (residuals beyond 32 bits).
     #[test]
     fn every_level_decodes_to_the_grid_it_was_encoded_from() {
         for k in [1u8, 2, 4, 6, 8] {
-            let side = (1usize << k) + 1;
-            let grid: Vec<i32> = (0..side * side)
-                .map(|p| match p % 13 {
-                    0 => i32::MIN,
-                    1 => i32::MAX,
-                    _ => ((p * 7919) % 4001) as i32 - 2000 - (p as i32 % 3),
-                })
-                .collect();
+            let grid = extreme_grid(k);
             for codec in [Codec::Predictive, Codec::PredictiveDeflate] {
-                let mut levels: Vec<Vec<i32>> = Vec::new();
-                for n in 0..=k {
-                    let bytes = encode_level(k, n, &grid, codec, true);
-                    let dec = decode_level(k, n, &bytes, &levels).unwrap();
-                    let mut expect = Vec::new();
-                    for_each_level_vertex(k, n, |i, j| {
-                        expect.push(grid[j as usize * side + i as usize])
-                    });
-                    assert_eq!(dec, expect, "k {k} {codec:?} level {n}");
-                    levels.push(dec);
-                }
+                let levels = round_trip(k, &grid, codec);
                 // A coarser level of the wrong length is refused.
                 let bytes = encode_level(k, k, &grid, codec, true);
                 let mut short = levels[..k as usize].to_vec();
@@ -609,13 +612,7 @@ mod tests {
         // negative values, odd sums (where `div_euclid` rounds down) and extremes.
         for k in [1u8, 2, 4, 6] {
             let side = (1usize << k) + 1;
-            let grid: Vec<i32> = (0..side * side)
-                .map(|p| match p % 11 {
-                    0 => i32::MIN,
-                    1 => i32::MAX,
-                    _ => ((p * 7919) % 4001) as i32 - 2000 - (p as i32 % 3),
-                })
-                .collect();
+            let grid = extreme_grid(k);
             let at = |i: u32, j: u32| i64::from(grid[j as usize * side + i as usize]);
             for n in 0..=k {
                 let (mut walk, mut want) = (Vec::new(), Vec::new());
