@@ -628,11 +628,17 @@ impl BlockLevels {
     pub fn height(&self, i: u32, j: u32) -> Option<f32> {
         let v = vertex_index(self.k, i, j)?;
         let q = *self.levels.get(v.level as usize)?.get(v.order as usize)?;
-        Some(if self.scale == 1.0 {
+        Some(self.decode(q))
+    }
+
+    /// The height of stored sample `q`, exaggerated as the store is read.
+    #[inline]
+    fn decode(&self, q: i32) -> f32 {
+        if self.scale == 1.0 {
             self.encoding.height(q)
         } else {
             self.encoding.height_scaled(q, self.scale)
-        })
+        }
     }
 
     /// The `(2^level + 1)^2` grid of heights at `level` (row-major, south row first), if
@@ -642,27 +648,18 @@ impl BlockLevels {
             return None;
         }
         // Each resident level scattered in its stored order (no per-vertex index search):
-        // the same values as `height` at every vertex (`grid_equals_height_per_vertex`).
+        // the same values as `height` at every vertex (the store tests' `check_heights`).
+        // `push` keeps every level at its length, so the walk and the samples end together.
         let n = (1usize << level) + 1;
         let shift = self.k - level;
         let mut out = vec![0f32; n * n];
         for (l, samples) in self.levels.iter().take(level as usize + 1).enumerate() {
             let mut q = samples.iter();
-            let mut bad = false;
             for_each_level_vertex(self.k, l as u8, |i, j| {
-                let Some(&q) = q.next() else {
-                    bad = true;
-                    return;
-                };
-                out[(j >> shift) as usize * n + (i >> shift) as usize] = if self.scale == 1.0 {
-                    self.encoding.height(q)
-                } else {
-                    self.encoding.height_scaled(q, self.scale)
-                };
+                if let Some(&q) = q.next() {
+                    out[(j >> shift) as usize * n + (i >> shift) as usize] = self.decode(q);
+                }
             });
-            if bad {
-                return None;
-            }
         }
         Some(out)
     }
