@@ -227,6 +227,67 @@ struct Mesher<'a> {
     hints: Hints,
     /// Steps the seeds' walks took (the tests read it).
     walk_steps: u64,
+    /// The scan's line test margin per unit of `d` ([`line_margin`]).
+    line_margin: f64,
+}
+
+/// The margin, per unit of a triangle's `d`, by which [`Mesher::scan`]'s line test must leave
+/// a sample below the threshold for the exact test to dismiss it too, on a grid whose finite
+/// heights are at most `h` in magnitude.
+///
+/// Inside a triangle every weight lies in `[0, d]`, so the exact numerator's three products
+/// and two sums round by at most about `3u d h` (`u = 2^-53`); the line `n(lo) + k dn`
+/// carries that at `lo`, `dn`'s rounding times `k` (each `|k dw_c| <= d`, as the weights at
+/// `lo` and `lo + k` both lie in `[0, d]`: at most `6u d h`) and two more roundings; the
+/// product `zs d`, the division `n / d` and the comparison with `error d` of the exact test
+/// add a few `u d h` more. Together under `30u d h < 4e-15 d h`: 1e-12 leaves a factor of
+/// 250, and still dismisses every sample more than a micrometre per kilometre of relief
+/// below the bound (bounds are centimetres and up).
+fn line_margin(h: f64) -> f64 {
+    1e-12 * (h + 1.0)
+}
+
+/// The largest `|z|` of `data`, NaN ignored (infinite when some height is: then the line
+/// test dismisses nothing), by eight interleaved running maxima (the comparisons do not wait
+/// on each other; a NaN compares false and never enters).
+fn largest_magnitude(data: &[f32]) -> f64 {
+    const L: usize = 8;
+    let mut top = [0.0f32; L];
+    let mut chunks = data.chunks_exact(L);
+    for ch in &mut chunks {
+        for l in 0..L {
+            let z = ch[l].abs();
+            top[l] = if z > top[l] { z } else { top[l] };
+        }
+    }
+    for &z in chunks.remainder() {
+        top[0] = if z.abs() > top[0] { z.abs() } else { top[0] };
+    }
+    f64::from(top.iter().fold(0.0f32, |m, &z| if z > m { z } else { m }))
+}
+
+/// A scan row's interpolation numerator as a line: `n(lo + k) = n(lo) + k dn`.
+#[derive(Clone, Copy)]
+struct Line {
+    at_lo: f64,
+    slope: f64,
+}
+
+impl Line {
+    /// The row whose first sample has weights `wt`, stepping by `dw`, vertex heights `z`
+    /// (the scan computes the slope once per triangle, the same value).
+    #[cfg(test)]
+    fn new(wt: [f64; 3], dw: [f64; 3], z: [f64; 3]) -> Self {
+        Self { at_lo: raster::numerator(wt, z), slope: raster::numerator(dw, z) }
+    }
+
+    /// Whether the sample `k` east of the row's first, height `zs`, is at most `cut` from
+    /// the line (times `d`): `cut` is the threshold times `d` less the margin, so the exact
+    /// test would dismiss it too ([`line_margin`]). A NaN height is never dismissed.
+    #[inline]
+    fn dismisses(&self, zs: f32, k: f64, df: f64, cut: f64) -> bool {
+        (f64::from(zs) * df - (self.at_lo + k * self.slope)).abs() <= cut
+    }
 }
 
 impl<'a> Mesher<'a> {
@@ -244,6 +305,7 @@ impl<'a> Mesher<'a> {
             legalize: Vec::new(),
             hints: Hints::default(),
             walk_steps: 0,
+            line_margin: line_margin(largest_magnitude(hm.data())),
         };
         for p in [[0, 0], [w - 1, 0], [w - 1, h - 1], [0, h - 1]] {
             m.add_vertex(p);
@@ -427,52 +489,56 @@ impl<'a> Mesher<'a> {
                 *best = Best { error: e, at: Some([i as u32, j as u32]), scaled: e * df };
             }
         };
+        // The first test of every sample is cheaper still: along a row the numerator is
+        // linear, `n(lo + k) = n(lo) + k dn`, so it is taken as that line (one product and
+        // one sum a sample, where the weights' three products and their stepping cost
+        // five). The line differs from the exact numerator by rounding only, at most
+        // `LINE_MARGIN x d x H` with `H` the largest height magnitude of the grid (see
+        // [`line_margin`]), so a sample the line leaves that much below the threshold is one
+        // the exact test would dismiss too: only those are dismissed on it, and every other
+        // sample takes the exact test as before, in order. The outcome is the same.
+        let line_margin = self.line_margin * df;
+        // The change per sample east is the triangle's: `dw` is the same on every row.
+        let slope = raster::numerator(raster::weights_east(g), z);
         raster::for_each_row(g, clip, |j, lo, hi, wt, dw| {
             let row = j as usize * width;
             let heights = &data[row + lo as usize..=row + hi as usize];
-            // Runs of `LANES` samples are dismissed together on the same test and the same
-            // values (the weights `wt + k dw` are exact integers, so they equal the stepped
-            // ones bit for bit) against the running best at the run's start, which is at
-            // most the best at any of its samples: a run that cannot hold a candidate is
-            // skipped without a branch per sample (the loop vectorizes); any other run has
-            // every sample tested in order as before, so the outcome is the same.
+            let line = Line { at_lo: raster::numerator(wt, z), slope };
+            // The weights `lo + k` samples east: exact integers, so `wt + k dw` equals the
+            // weights stepped `k` times bit for bit.
+            let weights = |k: f64| [wt[0] + k * dw[0], wt[1] + k * dw[1], wt[2] + k * dw[2]];
+            let mut cut = best.scaled - line_margin;
+            // Runs of `LANES` samples are dismissed together on the line against the running
+            // best at the run's start, which is at most the best at any of its samples: a run
+            // that cannot hold a candidate is skipped without a branch per sample (the loop
+            // vectorizes); any other run has every sample tested exactly, in order.
             let mut chunks = heights.chunks_exact(LANES);
-            let mut lane = [[0.0; LANES]; 3];
-            for (c, l) in lane.iter_mut().enumerate() {
-                for (k, w) in l.iter_mut().enumerate() {
-                    *w = wt[c] + k as f64 * dw[c];
-                }
-            }
-            let jump = dw.map(|d| d * LANES as f64);
-            let mut i = lo;
+            let mut k0 = 0.0;
             for run in &mut chunks {
-                let mut n = [0.0; LANES];
-                let mut zd = [0.0; LANES];
                 let mut dismissed = [false; LANES];
                 for k in 0..LANES {
-                    n[k] = raster::numerator([lane[0][k], lane[1][k], lane[2][k]], z);
-                    zd[k] = f64::from(run[k]) * df;
-                    dismissed[k] =
-                        (zd[k] - n[k]).abs() + (zd[k].abs() + n[k].abs()) * 1e-14 <= best.scaled;
+                    // (A NaN height is never dismissed: its run is tested one by one.)
+                    dismissed[k] = line.dismisses(run[k], k0 + k as f64, df, cut);
                 }
-                // (A NaN height is never dismissed: its four are tested one by one.)
                 if !dismissed.iter().all(|&d| d) {
-                    for k in 0..LANES {
-                        exact(&mut best, i + k as i64, j, f64::from(run[k]), n[k], zd[k]);
+                    for (k, &zs) in run.iter().enumerate() {
+                        let at = k0 + k as f64;
+                        let n = raster::numerator(weights(at), z);
+                        let zs = f64::from(zs);
+                        exact(&mut best, lo + at as i64, j, zs, n, zs * df);
                     }
+                    cut = best.scaled - line_margin;
                 }
-                for (l, d) in lane.iter_mut().zip(jump) {
-                    l.iter_mut().for_each(|w| *w += d);
-                }
-                i += LANES as i64;
+                k0 += LANES as f64;
             }
-            let mut wt = [lane[0][0], lane[1][0], lane[2][0]];
             for &zs in chunks.remainder() {
-                let n = raster::numerator(wt, z);
-                wt = raster::step(wt, dw);
-                let zs = f64::from(zs);
-                exact(&mut best, i, j, zs, n, zs * df);
-                i += 1;
+                if !line.dismisses(zs, k0, df, cut) {
+                    let zs = f64::from(zs);
+                    let n = raster::numerator(weights(k0), z);
+                    exact(&mut best, lo + k0 as i64, j, zs, n, zs * df);
+                    cut = best.scaled - line_margin;
+                }
+                k0 += 1.0;
             }
         });
         if let Best { error, at: Some(sample), .. } = best {
@@ -962,5 +1028,92 @@ mod tests {
             }
         }
         assert!(inside > 100 && outside > 100, "{inside} inside, {outside} outside");
+    }
+
+    /// The scan's line test never dismisses a sample the exact test keeps: at every sample
+    /// of triangles up to 2^14 samples across, with heights of up to Everest's magnitude near
+    /// the plane, the threshold just under the sample's exact error (the hardest case) leaves
+    /// the sample to the exact test. With no margin the line dismisses such samples (a
+    /// negative control, checked in the test), so the margin is what keeps the outcome.
+    #[test]
+    fn the_line_test_never_dismisses_a_sample_the_exact_test_keeps() {
+        let mut k = 0x2545_f491_4f6c_dd1du64;
+        let mut rand = move || {
+            k ^= k << 13;
+            k ^= k >> 7;
+            k ^= k << 17;
+            (k >> 11) as f64 / (1u64 << 53) as f64
+        };
+        let (mut tested, mut unguarded) = (0usize, 0usize);
+        for case in 0..400 {
+            let side = [8.0, 64.0, 900.0, 16384.0][case % 4];
+            let g: [[i64; 2]; 3] =
+                std::array::from_fn(|_| [(rand() * side) as i64, (rand() * side) as i64]);
+            if raster::orient(g[0], g[1], g[2]) <= 0 {
+                continue;
+            }
+            let base = [0.0, 412.0, -430.5, 8848.0][case % 4 / 2 * 2 + usize::from(case % 3 == 0)];
+            let z: [f64; 3] = std::array::from_fn(|_| f64::from((base + rand() * 3000.0) as f32));
+            let df = raster::orient(g[0], g[1], g[2]) as f64;
+            let mut rows = 0;
+            raster::for_each_row(
+                g,
+                [i64::MIN, i64::MIN, i64::MAX, i64::MAX],
+                |_, lo, hi, wt, dw| {
+                    rows += 1;
+                    if rows > 40 {
+                        return;
+                    }
+                    let line = Line::new(wt, dw, z);
+                    let mut w = wt;
+                    for i in lo..=hi.min(lo + 300) {
+                        let at = (i - lo) as f64;
+                        let n = raster::numerator(w, z);
+                        w = raster::step(w, dw);
+                        // A sample near the plane: errors from micrometres to metres.
+                        let off = (rand() - 0.5) * 10f64.powf(rand() * 7.0 - 6.0);
+                        let zs = (n / df + off) as f32;
+                        let e = (f64::from(zs) - n / df).abs();
+                        if e == 0.0 {
+                            continue;
+                        }
+                        // The largest threshold the exact test still keeps the sample at.
+                        let error = f64::from_bits(e.to_bits() - 1);
+                        let h = z.iter().fold(f64::from(zs.abs()), |a, v| a.max(v.abs()));
+                        let cut = error * df - line_margin(h) * df;
+                        assert!(
+                            !line.dismisses(zs, at, df, cut),
+                            "{g:?} {z:?}: sample {at} of a row, error {e}, dismissed"
+                        );
+                        unguarded += usize::from(line.dismisses(zs, at, df, error * df));
+                        tested += 1;
+                    }
+                },
+            );
+        }
+        assert!(tested > 20_000, "{tested} samples");
+        assert!(unguarded > 0, "the margin was never needed: the test tests nothing");
+    }
+
+    #[test]
+    fn the_largest_magnitude_ignores_nan_and_keeps_infinity() {
+        // Lengths around the eight lanes, the extreme in every position, negative or not.
+        for n in 1..20 {
+            for at in 0..n {
+                for sign in [1.0f32, -1.0] {
+                    let mut v: Vec<f32> = (0..n).map(|k| (k % 5) as f32 - 2.0).collect();
+                    v[at] = 9.5 * sign;
+                    if at > 0 {
+                        v[at - 1] = f32::NAN;
+                    }
+                    assert_eq!(largest_magnitude(&v), 9.5, "{v:?}");
+                }
+            }
+        }
+        assert_eq!(largest_magnitude(&[f32::NAN; 11]), 0.0);
+        assert_eq!(largest_magnitude(&[]), 0.0);
+        assert_eq!(largest_magnitude(&[1.0, f32::NEG_INFINITY, 3.0]), f64::INFINITY);
+        // An infinite height: the line test dismisses nothing (the exact test decides all).
+        assert_eq!(line_margin(f64::INFINITY), f64::INFINITY);
     }
 }

@@ -103,6 +103,13 @@ pub(crate) fn step(w: [f64; 3], dw: [f64; 3]) -> [f64; 3] {
     [w[0] + dw[0], w[1] + dw[1], w[2] + dw[2]]
 }
 
+/// The change of the barycentric weights (times `d`) of triangle `v` per sample east, the
+/// `dw` that [`for_each_row`] passes with every row: exact integers.
+#[inline]
+pub(crate) fn weights_east(v: [[i64; 2]; 3]) -> [f64; 3] {
+    [v[1][1] - v[2][1], v[2][1] - v[0][1], v[0][1] - v[1][1]].map(|k| k as f64)
+}
+
 /// The rows of the scan conversion: calls `f(j, lo, hi, w, dw)` for every row `j` of the
 /// closed counter-clockwise triangle `v` (inside `clip`) that holds samples `lo..=hi`,
 /// south to north, with `w` the barycentric weights (times `d = orient(v)`) at `(lo, j)`
@@ -159,7 +166,7 @@ pub(crate) fn for_each_row(
     // [0, d], d at most twice the grid's area, far below 2^53 for any grid that fits in
     // memory, so each f64 sum is exact and equals `w as f64` of the determinant evaluated
     // at the sample, bit for bit (no int-to-float conversion per sample).
-    let dw = [v[1][1] - v[2][1], v[2][1] - v[0][1], v[0][1] - v[1][1]].map(|k| k as f64);
+    let dw = weights_east(v);
     for y in y0..=y1 {
         let hi = x1.min(up[0].q).min(up[1].q);
         let lo = x0.max(-low[0].q).max(-low[1].q);
