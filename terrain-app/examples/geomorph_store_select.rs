@@ -72,7 +72,7 @@ fn main() -> anyhow::Result<()> {
     let bytes = terrain_app::geomip_scene::bake_into_scene(&scene.hm, cells, &dir)?;
     let store = Arc::new(Store::open(&dir)?);
     let tree = StoreTree::new(store, cells);
-    let table = terrain_app::geomip_scene::read_for_store(&dir, tree.shape())?;
+    let table = terrain_app::geomip_scene::read_for_store(tree.store(), tree.shape())?;
     // Read by pages: compared below by what it selects, frame by frame.
     let memory = scene.geomip_scene();
 

@@ -420,7 +420,7 @@ fn main() -> anyhow::Result<()> {
                 let cells = method_config().leaf_cells.clamp(2, 64).next_power_of_two();
                 let tree = StoreTree::new(store.clone(), cells);
                 let t = Instant::now();
-                let geomip = terrain_app::geomip_scene::read_for_store(dir, tree.shape())?
+                let geomip = terrain_app::geomip_scene::read_for_store(tree.store(), tree.shape())?
                     .exaggerated(store.header().vertical_scale);
                 eprintln!("  geomorph table read in {:.1} s", t.elapsed().as_secs_f64());
                 let cfg =

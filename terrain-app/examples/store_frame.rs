@@ -64,7 +64,7 @@ fn main() -> anyhow::Result<()> {
         let store = scene.store().clone();
         let cells = config.leaf_cells.clamp(2, 64).next_power_of_two();
         let tree = StoreTree::new(store.clone(), cells);
-        let table = terrain_app::geomip_scene::read_for_store(&dir, tree.shape())?
+        let table = terrain_app::geomip_scene::read_for_store(tree.store(), tree.shape())?
             .exaggerated(store.header().vertical_scale);
         let cfg = GeomipConfig { patch_cells: table.patch_cells(), ..config.geomip };
         Some((tree, table, cfg))

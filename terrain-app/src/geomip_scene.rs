@@ -17,7 +17,7 @@ use rayon::prelude::*;
 use terrain_core::Heightmap;
 use terrain_core::checksum::crc32_update;
 use terrain_core::heightmap::VoidMask;
-use terrain_core::lod::{GeomipFileError, GeomipFor, GeomipPaging, GeomipTable, TableReader};
+use terrain_core::lod::{GeomipFileError, GeomipFor, GeomipPaging, GeomipTable};
 use terrain_core::quadtree::TreeShape;
 use terrain_stream::{BlockId, Store};
 
@@ -167,34 +167,39 @@ fn write_table(
 /// read by pages"). 64 MiB: a grid up to about 20,000^2 samples at 16-cell patches.
 pub const READ_WHOLE_MAX_BYTES: u64 = 64 << 20;
 
-/// Reads store folder `dir`'s table for the patch tree `shape` (its grid, leaves = patches),
-/// or fails saying what to bake: read whole when it is at most [`READ_WHOLE_MAX_BYTES`],
-/// else opened for reading by pages ([`GeomipTable::open_paged`]: the header and tail at
-/// open, each page of entries when a frame first needs it, through a cache of
-/// [`GeomipPaging::default`]'s bytes), or read whole, with a warning, when the store was
-/// baked before `geomip.bin` version 2.
-pub fn read_for_store(dir: &Path, shape: &TreeShape) -> anyhow::Result<GeomipTable> {
-    read_for_store_with(dir, shape, &GeomipPaging::default(), READ_WHOLE_MAX_BYTES)
+/// Reads `store`'s table for the patch tree `shape` (its grid, leaves = patches), or fails
+/// saying what to bake: read whole when it is at most [`READ_WHOLE_MAX_BYTES`] (a remote
+/// store's fetched into its mirror first, one GET), else opened for reading by pages
+/// ([`GeomipTable::open_paged`]: the header and tail at open, each page of entries when a
+/// frame first needs it, through a cache of [`GeomipPaging::default`]'s bytes; a remote
+/// store's by range requests, so a session fetches the pages its views need, not the
+/// table), or read whole, with a warning, when the store was baked before `geomip.bin`
+/// version 2.
+pub fn read_for_store(store: &Store, shape: &TreeShape) -> anyhow::Result<GeomipTable> {
+    read_for_store_with(store, shape, &GeomipPaging::default(), READ_WHOLE_MAX_BYTES)
 }
 
 /// [`read_for_store`] with its page cache's settings, reading a table of at most
 /// `read_whole_max` bytes whole (0: every version-2 table by pages).
 pub fn read_for_store_with(
-    dir: &Path,
+    store: &Store,
     shape: &TreeShape,
     paging: &GeomipPaging,
     read_whole_max: u64,
 ) -> anyhow::Result<GeomipTable> {
-    let path = geomip_path(dir);
+    let location = if store.is_remote() {
+        format!("{}/{GEOMIP_FILE}", store.location())
+    } else {
+        geomip_path(store.dir()).display().to_string()
+    };
     let missing = || {
         format!(
-            "--method geomorph from a store reads the max-error vertices the bake writes ({}); \
-             bake the store again without --no-geomip",
-            path.display()
+            "--method geomorph from a store reads the max-error vertices the bake writes \
+             ({location}); bake the store again without --no-geomip"
         )
     };
-    let file = std::fs::File::open(&path).with_context(missing)?;
-    let len = file.metadata().with_context(missing)?.len();
+    let table = store.side_table(GEOMIP_FILE).with_context(missing)?.with_context(missing)?;
+    let len = table.len();
     let want = GeomipFor {
         width: shape.width(),
         height: shape.height(),
@@ -203,50 +208,28 @@ pub fn read_for_store_with(
     };
     let unusable = || {
         format!(
-            "{} cannot be used (the bake writes it for {}-cell patches, the default \
+            "{location} cannot be used (the bake writes it for {}-cell patches, the default \
              --leaf-cells)",
-            path.display(),
             crate::methods::MethodConfig::default().leaf_cells
         )
     };
     let whole = || -> anyhow::Result<GeomipTable> {
+        let path = store.side_file(GEOMIP_FILE).with_context(missing)?.with_context(missing)?;
         let bytes = std::fs::read(&path).with_context(missing)?;
         GeomipTable::decode(&bytes, &want).with_context(unusable)
     };
     if len <= read_whole_max {
         return whole();
     }
-    let name = path.display().to_string();
-    match GeomipTable::open_paged(&name, Arc::new(FileReader(file)), len, &want, paging) {
+    match GeomipTable::open_paged(&location, Arc::new(table), len, &want, paging) {
         Err(GeomipFileError::Version { found: 1, .. }) => {
             eprintln!(
-                "warning: {} is version 1, read whole ({:.0} MiB); bake the store again to \
-                 read it by pages",
-                path.display(),
+                "warning: {location} is version 1, read whole ({:.0} MiB); bake the store again \
+                 to read it by pages",
                 len as f64 / crate::MIB
             );
             whole()
         }
         other => other.with_context(unusable),
-    }
-}
-
-/// A table file read at offsets (positioned reads: the selection may run on any thread).
-struct FileReader(std::fs::File);
-
-impl TableReader for FileReader {
-    fn read_at(&self, offset: u64, buf: &mut [u8]) -> std::io::Result<()> {
-        #[cfg(unix)]
-        {
-            use std::os::unix::fs::FileExt;
-            self.0.read_exact_at(buf, offset)
-        }
-        #[cfg(not(unix))]
-        {
-            use std::io::{Read, Seek, SeekFrom};
-            let mut f = self.0.try_clone()?;
-            f.seek(SeekFrom::Start(offset))?;
-            f.read_exact(buf)
-        }
     }
 }

@@ -174,6 +174,8 @@ fn a_remote_stores_method_table_is_fetched_only_by_that_method() {
 /// range request when one of its blocks is first needed, and a full traversal through a page
 /// cache of one page selects what the local store selects. A page damaged on the server is
 /// named (URL and page) by the remote reader; a damaged page in the mirror is fetched again.
+/// Geomorph's `geomip.bin` is read by pages from the server too: the bytes received are those
+/// its open and a view's pages read, fewer than the table's, and it selects as the local one.
 #[test]
 fn a_paged_index_over_http_is_read_by_page_and_selects_as_the_local_store() {
     use std::sync::Arc;
@@ -235,8 +237,8 @@ fn a_paged_index_over_http_is_read_by_page_and_selects_as_the_local_store() {
     }
     assert!(patches > 100, "{patches} patches: the views must see the terrain");
     // Geomorph's table is not fetched at open (a session drawing another method never reads
-    // it), only when asked for (one GET), and is read from the mirror by pages: the same runs
-    // as the local store's.
+    // it): a large one is read by pages from the server (range requests), a small one fetched
+    // whole when asked for (one GET) and read from the mirror; both select the local runs.
     let geo_options = RemoteOptions { cache_dir: Some(dir.join("geo")), ..Default::default() };
     let geo_remote = Arc::new(Store::open_location_with(&url, &geo_options).unwrap());
     let geomip = terrain_stream::GEOMIP_FILE;
@@ -249,24 +251,52 @@ fn a_paged_index_over_http_is_read_by_page_and_selects_as_the_local_store() {
     assert!(geo_remote.side_file("no_such_table.bin").unwrap().is_none());
     assert!(!mirrored.exists(), "asking fetched nothing");
     assert_eq!(geo_remote.remote_bytes_received(), at_open);
+    let (gl, gr) = (StoreTree::new(local.clone(), 16), StoreTree::new(geo_remote.clone(), 16));
+    let read = |s: &Store, t: &StoreTree| {
+        use terrain_core::quadtree::NodeTree;
+        let paging = terrain_core::lod::GeomipPaging::default();
+        terrain_app::geomip_scene::read_for_store_with(s, t.shape(), &paging, 0).unwrap()
+    };
+    let geomip_cfg = terrain_core::lod::GeomipConfig { patch_cells: 16, ..Default::default() };
+    let near = cam(100.0, 150.0, 420.0, 45.0, -12.0, 1500.0);
+    // Read by pages from the server itself: its header and tail by range requests at open,
+    // then the pages a view needs, each one range request; nothing is mirrored, and every
+    // byte received is one the table read (no whole GET). The same runs as the local store's.
+    let from_server = read(&geo_remote, &gr);
+    let stats = || from_server.paging_stats().expect("read by pages");
+    assert_eq!(geo_remote.remote_bytes_received() - at_open, stats().bytes_read, "the open");
+    let open_bytes = stats().bytes_read;
+    assert!(open_bytes < geomip_len / 4, "{open_bytes} bytes at open of {geomip_len}");
+    let local_table = read(&local, &gl);
+    let a = local_table.try_select_runs(&gl, &near, &geomip_cfg).unwrap();
+    // The remote tree reads its node bounds through the store's index pages: read them first
+    // (the local table over the remote tree selects the same), so what comes next is the
+    // table's.
+    let warm = local_table.try_select_runs(&gr, &near, &geomip_cfg).unwrap();
+    assert_eq!((&a.runs, &a.patches), (&warm.runs, &warm.patches));
+    let before = geo_remote.remote_bytes_received();
+    let b = from_server.try_select_runs(&gr, &near, &geomip_cfg).unwrap();
+    assert!(!a.patches.is_empty() || !a.runs.is_empty());
+    assert_eq!((a.runs, a.patches, a.factors), (b.runs, b.patches, b.factors));
+    assert!(stats().pages_read > 0, "the view read no page");
+    let pages = geo_remote.remote_bytes_received() - before;
+    assert_eq!(pages, stats().bytes_read - open_bytes, "the pages, one range GET each");
+    assert!(stats().bytes_read < geomip_len, "{} bytes of {geomip_len}", stats().bytes_read);
+    assert!(!mirrored.exists(), "reading by pages mirrored the table");
+    let at_open = geo_remote.remote_bytes_received();
     assert_eq!(geo_remote.side_file(geomip).unwrap(), Some(mirrored.clone()));
     assert_eq!(std::fs::read(&mirrored).unwrap(), std::fs::read(store.join(geomip)).unwrap());
     assert_eq!(geo_remote.remote_bytes_received(), at_open + geomip_len, "one GET of the file");
     geo_remote.side_file(geomip).unwrap();
     assert_eq!(geo_remote.remote_bytes_received(), at_open + geomip_len, "then the mirror's");
-    let (gl, gr) = (StoreTree::new(local.clone(), 16), StoreTree::new(geo_remote.clone(), 16));
-    let read = |s: &Store, t: &StoreTree| {
-        use terrain_core::quadtree::NodeTree;
-        let paging = terrain_core::lod::GeomipPaging::default();
-        terrain_app::geomip_scene::read_for_store_with(s.dir(), t.shape(), &paging, 0).unwrap()
-    };
-    let (ta, tb) = (read(&local, &gl), read(&geo_remote, &gr));
+    // Once mirrored, the table is read by pages from the mirror's copy: no more requests.
+    let (ta, tb) = (local_table, read(&geo_remote, &gr));
     assert!(tb.paging_stats().is_some(), "read by pages from the mirror");
-    let geomip = terrain_core::lod::GeomipConfig { patch_cells: 16, ..Default::default() };
+    assert_eq!(geo_remote.remote_bytes_received(), at_open + geomip_len, "its open, the mirror's");
     let c = cam(100.0, 150.0, 420.0, 45.0, -12.0, 6000.0);
     let (a, b) = (
-        ta.try_select_runs(&gl, &c, &geomip).unwrap(),
-        tb.try_select_runs(&gr, &c, &geomip).unwrap(),
+        ta.try_select_runs(&gl, &c, &geomip_cfg).unwrap(),
+        tb.try_select_runs(&gr, &c, &geomip_cfg).unwrap(),
     );
     assert!(!a.patches.is_empty() || !a.runs.is_empty());
     assert_eq!((a.runs, a.patches, a.factors), (b.runs, b.patches, b.factors));

@@ -476,13 +476,14 @@ fn a_store_geomip_table_opens_by_pages_and_a_damaged_page_fails_only_where_neede
     let (south, north) = (cam(256.0, 20.0, 180.0), cam(256.0, 500.0, 0.0));
     let open = || {
         let paging = terrain_core::lod::GeomipPaging::default();
-        terrain_app::geomip_scene::read_for_store_with(&dir, tree.shape(), &paging, 0).unwrap()
+        terrain_app::geomip_scene::read_for_store_with(tree.store(), tree.shape(), &paging, 0)
+            .unwrap()
     };
     let same = |a: &terrain_core::lod::GeomipRuns, b: &terrain_core::lod::GeomipRuns| {
         (&a.runs, &a.patches, &a.factors) == (&b.runs, &b.patches, &b.factors)
     };
     // Below the size read whole, the default reads it whole: no pages, the same selection.
-    let whole = terrain_app::geomip_scene::read_for_store(&dir, tree.shape()).unwrap();
+    let whole = terrain_app::geomip_scene::read_for_store(tree.store(), tree.shape()).unwrap();
     assert!(whole.paging_stats().is_none(), "a {len}-byte table is read whole by default");
     assert!(same(&whole.select_runs(&tree, &south, &cfg), &memory.select_runs(&south, &cfg)));
     // Undamaged (the negative control below): both views select as from memory.
@@ -719,7 +720,7 @@ fn geomorph_store_frames_work_on_runs_as_on_patches() {
         terrain_app::geomip_scene::bake_into_scene(&scene.hm, 16, &dir).unwrap();
         let store = Arc::new(Store::open(&dir).unwrap());
         let tree = StoreTree::new(store.clone(), 16);
-        let table = terrain_app::geomip_scene::read_for_store(&dir, tree.shape()).unwrap();
+        let table = terrain_app::geomip_scene::read_for_store(tree.store(), tree.shape()).unwrap();
         let mut cfg = GeomipConfig { patch_cells: 16, ..scene.config.geomip };
         cfg.pixel_threshold = px.unwrap_or(cfg.pixel_threshold);
         // Few full-resolution slots: the nearest blocks take them, farther ones fall to coarser

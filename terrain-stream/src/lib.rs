@@ -128,7 +128,7 @@ pub use shard::{
 };
 pub use source::{HeightSource, read_rows_parallel};
 pub use stats::{Fault, FrameStats, StatsSummary};
-pub use store::{BlockLevels, LoadedLevel, Store, is_store};
+pub use store::{BlockLevels, LoadedLevel, SideTable, Store, is_store};
 pub use streamer::{ScheduledBlock, StreamConfig, Streamer, WaitReport};
 pub use terrain::{StoreSource, demand_of};
 pub use terrain_core::geometry::Camera;

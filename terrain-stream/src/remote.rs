@@ -342,6 +342,35 @@ impl Remote {
         }
     }
 
+    /// The size of the store's file `name` by one HEAD request (nothing fetched; counted as
+    /// no bytes), `None` when there is none.
+    pub(crate) fn file_size(&self, name: &str) -> Result<Option<u64>, StoreError> {
+        let key = self.prefix.child(name);
+        match self.runtime.block_on(self.store.head(&key)) {
+            Ok(meta) => Ok(Some(meta.size)),
+            Err(object_store::Error::NotFound { .. }) => Ok(None),
+            Err(e) => Err(remote_err(&self.url, format!("asking for {name}: {e}"))),
+        }
+    }
+
+    /// Bytes `range` of the store's file `name`, by one range GET (counted in
+    /// [`Remote::bytes_received`]); fewer bytes than asked for is an error.
+    pub(crate) fn read_range(
+        &self,
+        name: &str,
+        range: std::ops::Range<u64>,
+    ) -> Result<Vec<u8>, StoreError> {
+        let (at, end) = (range.start, range.end);
+        let failed =
+            |e: String| remote_err(&self.url, format!("reading bytes {at}..{end} of {name}: {e}"));
+        let (bytes, _) =
+            self.get(&self.prefix.child(name), Some(range)).map_err(|e| failed(e.to_string()))?;
+        if bytes.len() as u64 != end - at {
+            return Err(failed(format!("{} bytes came", bytes.len())));
+        }
+        Ok(bytes)
+    }
+
     /// One GET of `key` (`range`: those bytes only): the bytes and the object's size, counted
     /// in [`Remote::bytes_received`].
     fn get(

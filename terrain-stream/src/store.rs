@@ -54,6 +54,72 @@ impl Index {
     }
 }
 
+/// A store's side table read at offsets ([`Store::side_table`]): a file, or a remote store's
+/// object read by range requests. Its reads are positioned (any thread may read).
+#[derive(Debug)]
+pub struct SideTable {
+    len: u64,
+    /// Its path, or its URL for a remote object (for messages).
+    location: String,
+    source: SideSource,
+}
+
+#[derive(Debug)]
+enum SideSource {
+    File(std::fs::File),
+    /// The remote store and the object's name beside its index.
+    Remote(Arc<Remote>, String),
+}
+
+impl SideTable {
+    /// Its length in bytes.
+    pub fn len(&self) -> u64 {
+        self.len
+    }
+
+    /// Whether it has no bytes.
+    pub fn is_empty(&self) -> bool {
+        self.len == 0
+    }
+
+    /// Its path, or its URL when it is read from a remote store by range requests.
+    pub fn location(&self) -> &str {
+        &self.location
+    }
+
+    /// Whether its reads are range requests to a remote store.
+    pub fn is_remote(&self) -> bool {
+        matches!(self.source, SideSource::Remote(..))
+    }
+}
+
+impl terrain_core::lod::TableReader for SideTable {
+    fn read_at(&self, offset: u64, buf: &mut [u8]) -> std::io::Result<()> {
+        match &self.source {
+            SideSource::File(file) => {
+                #[cfg(unix)]
+                {
+                    use std::os::unix::fs::FileExt;
+                    file.read_exact_at(buf, offset)
+                }
+                #[cfg(not(unix))]
+                {
+                    use std::io::{Read, Seek, SeekFrom};
+                    let mut f = file.try_clone()?;
+                    f.seek(SeekFrom::Start(offset))?;
+                    f.read_exact(buf)
+                }
+            }
+            SideSource::Remote(remote, name) => {
+                let end = offset.saturating_add(buf.len() as u64);
+                let bytes = remote.read_range(name, offset..end).map_err(std::io::Error::other)?;
+                buf.copy_from_slice(&bytes);
+                Ok(())
+            }
+        }
+    }
+}
+
 /// One level read and decoded, with what it cost.
 #[derive(Debug, Clone)]
 pub struct LoadedLevel {
@@ -164,6 +230,33 @@ impl Store {
             None => self.dir.join(name).is_file(),
         };
         Ok(found.then(|| self.dir.join(name)))
+    }
+
+    /// The store's side table `name` for reading at offsets ([`SideTable`]), if the store has
+    /// one: a local store's file; a remote store's copy in its mirror when [`Store::side_file`]
+    /// fetched it, else the object itself, its size asked by one HEAD and each read one range
+    /// GET. Nothing is fetched here: a reader that needs a few pages of a large table
+    /// (geomorph's `geomip.bin` read by pages) fetches those pages only.
+    pub fn side_table(&self, name: &str) -> Result<Option<SideTable>, StoreError> {
+        let local = self.dir.join(name);
+        let remote = match &self.remote {
+            Some(remote) if !local.is_file() => remote,
+            _ => {
+                let file = match std::fs::File::open(&local) {
+                    Ok(f) => f,
+                    Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(None),
+                    Err(cause) => return Err(StoreError::Io { path: local, cause }),
+                };
+                let io = |cause| StoreError::Io { path: local.clone(), cause };
+                let len = file.metadata().map_err(io)?.len();
+                let location = local.display().to_string();
+                return Ok(Some(SideTable { len, location, source: SideSource::File(file) }));
+            }
+        };
+        let Some(len) = remote.file_size(name)? else { return Ok(None) };
+        let location = format!("{}/{name}", remote.url());
+        let source = SideSource::Remote(remote.clone(), name.to_string());
+        Ok(Some(SideTable { len, location, source }))
     }
 
     /// Whether the store has the side table `name`, without fetching it (a remote store:

@@ -262,9 +262,8 @@ impl<'a> StoreMethod<'a> {
                 Tables::RoughnessPvs(read_roughness(&store, LodMethod::PvpsC, &shape)?, pvs)
             }
             LodMethod::Geomorph => {
-                store.side_file(terrain_stream::GEOMIP_FILE)?;
-                let table =
-                    crate::geomip_scene::read_for_store(&dir, &shape)?.exaggerated(vertical_scale);
+                let table = crate::geomip_scene::read_for_store(&store, &shape)?
+                    .exaggerated(vertical_scale);
                 let lib = MeshLibrary::new(table.patch_cells());
                 Tables::Geomip(table, lib)
             }
