@@ -174,8 +174,9 @@ fn a_remote_stores_method_table_is_fetched_only_by_that_method() {
 /// range request when one of its blocks is first needed, and a full traversal through a page
 /// cache of one page selects what the local store selects. A page damaged on the server is
 /// named (URL and page) by the remote reader; a damaged page in the mirror is fetched again.
-/// Geomorph's `geomip.bin` is read by pages from the server too: the bytes received are those
-/// its open and a view's pages read, fewer than the table's, and it selects as the local one.
+/// Geomorph's `geomip.bin` is read where it lies too, by chunks: a view's open and pages fetch
+/// fewer bytes than the table's, each byte at most once; complete, it is the mirror's copy. It
+/// selects as the local one.
 #[test]
 fn a_paged_index_over_http_is_read_by_page_and_selects_as_the_local_store() {
     use std::sync::Arc;
@@ -237,9 +238,14 @@ fn a_paged_index_over_http_is_read_by_page_and_selects_as_the_local_store() {
     }
     assert!(patches > 100, "{patches} patches: the views must see the terrain");
     // Geomorph's table is not fetched at open (a session drawing another method never reads
-    // it): a large one is read by pages from the server (range requests), a small one fetched
-    // whole when asked for (one GET) and read from the mirror; both select the local runs.
-    let geo_options = RemoteOptions { cache_dir: Some(dir.join("geo")), ..Default::default() };
+    // it). Read where it lies, a read fetches the chunks it covers (4 KiB here, 1 MiB by
+    // default), each once; a table read whole this way, or asked for whole (`side_file`, one
+    // GET), becomes the mirror's copy, read from there. Each selects the local runs.
+    let geo_options = RemoteOptions {
+        cache_dir: Some(dir.join("geo")),
+        side_chunk_bytes: 4096,
+        ..Default::default()
+    };
     let geo_remote = Arc::new(Store::open_location_with(&url, &geo_options).unwrap());
     let geomip = terrain_stream::GEOMIP_FILE;
     let geomip_len = std::fs::metadata(store.join(geomip)).unwrap().len();
@@ -249,6 +255,7 @@ fn a_paged_index_over_http_is_read_by_page_and_selects_as_the_local_store() {
     assert!(geo_remote.has_side_file(geomip).unwrap(), "asked by HEAD");
     assert!(!geo_remote.has_side_file("no_such_table.bin").unwrap());
     assert!(geo_remote.side_file("no_such_table.bin").unwrap().is_none());
+    assert!(geo_remote.side_table("no_such_table.bin").unwrap().is_none());
     assert!(!mirrored.exists(), "asking fetched nothing");
     assert_eq!(geo_remote.remote_bytes_received(), at_open);
     let (gl, gr) = (StoreTree::new(local.clone(), 16), StoreTree::new(geo_remote.clone(), 16));
@@ -259,14 +266,11 @@ fn a_paged_index_over_http_is_read_by_page_and_selects_as_the_local_store() {
     };
     let geomip_cfg = terrain_core::lod::GeomipConfig { patch_cells: 16, ..Default::default() };
     let near = cam(100.0, 150.0, 420.0, 45.0, -12.0, 1500.0);
-    // Read by pages from the server itself: its header and tail by range requests at open,
-    // then the pages a view needs, each one range request; nothing is mirrored, and every
-    // byte received is one the table read (no whole GET). The same runs as the local store's.
+    // By pages from the server: the open reads the header and tail, a chunk or two.
     let from_server = read(&geo_remote, &gr);
     let stats = || from_server.paging_stats().expect("read by pages");
-    assert_eq!(geo_remote.remote_bytes_received() - at_open, stats().bytes_read, "the open");
-    let open_bytes = stats().bytes_read;
-    assert!(open_bytes < geomip_len / 4, "{open_bytes} bytes at open of {geomip_len}");
+    let opened = geo_remote.remote_bytes_received() - at_open;
+    assert!(opened >= stats().bytes_read && opened <= 3 * 4096, "{opened} bytes at open");
     let local_table = read(&local, &gl);
     let a = local_table.try_select_runs(&gl, &near, &geomip_cfg).unwrap();
     // The remote tree reads its node bounds through the store's index pages: read them first
@@ -279,20 +283,38 @@ fn a_paged_index_over_http_is_read_by_page_and_selects_as_the_local_store() {
     assert!(!a.patches.is_empty() || !a.runs.is_empty());
     assert_eq!((a.runs, a.patches, a.factors), (b.runs, b.patches, b.factors));
     assert!(stats().pages_read > 0, "the view read no page");
-    let pages = geo_remote.remote_bytes_received() - before;
-    assert_eq!(pages, stats().bytes_read - open_bytes, "the pages, one range GET each");
-    assert!(stats().bytes_read < geomip_len, "{} bytes of {geomip_len}", stats().bytes_read);
-    assert!(!mirrored.exists(), "reading by pages mirrored the table");
+    let fetched = opened + geo_remote.remote_bytes_received() - before;
+    assert!(fetched < geomip_len, "{fetched} bytes of the table's {geomip_len} for one view");
+    assert!(!mirrored.exists(), "a part of the table was mirrored as the table");
+    // Read whole where it lies: every chunk, in one range GET, then it is the mirror's copy.
+    let before = geo_remote.remote_bytes_received();
+    let table = geo_remote.side_table(geomip).unwrap().unwrap();
+    assert!(table.is_remote() && table.len() == geomip_len, "{table:?}");
+    let mut bytes = vec![0u8; geomip_len as usize];
+    terrain_core::lod::TableReader::read_at(&table, 0, &mut bytes).unwrap();
+    assert_eq!(bytes, std::fs::read(store.join(geomip)).unwrap());
+    assert_eq!(geo_remote.remote_bytes_received(), before + geomip_len, "each byte once");
+    assert_eq!(std::fs::read(&mirrored).unwrap(), bytes, "the mirror's copy");
+    let past = terrain_core::lod::TableReader::read_at(&table, geomip_len - 2, &mut [0u8; 4]);
+    assert!(past.is_err_and(|e| e.to_string().contains(geomip)), "read past the end");
+    drop(table);
+    assert!(mirrored.is_file(), "the completed copy stays");
     let at_open = geo_remote.remote_bytes_received();
     assert_eq!(geo_remote.side_file(geomip).unwrap(), Some(mirrored.clone()));
-    assert_eq!(std::fs::read(&mirrored).unwrap(), std::fs::read(store.join(geomip)).unwrap());
-    assert_eq!(geo_remote.remote_bytes_received(), at_open + geomip_len, "one GET of the file");
-    geo_remote.side_file(geomip).unwrap();
-    assert_eq!(geo_remote.remote_bytes_received(), at_open + geomip_len, "then the mirror's");
+    assert!(!geo_remote.side_table(geomip).unwrap().unwrap().is_remote(), "the mirror's");
     // Once mirrored, the table is read by pages from the mirror's copy: no more requests.
     let (ta, tb) = (local_table, read(&geo_remote, &gr));
     assert!(tb.paging_stats().is_some(), "read by pages from the mirror");
-    assert_eq!(geo_remote.remote_bytes_received(), at_open + geomip_len, "its open, the mirror's");
+    assert_eq!(geo_remote.remote_bytes_received(), at_open, "its open, the mirror's");
+    // Asked for whole on a store whose mirror lacks it: one GET of the file.
+    let whole_options = RemoteOptions { cache_dir: Some(dir.join("whole")), ..Default::default() };
+    let whole = Store::open_location_with(&url, &whole_options).unwrap();
+    let before = whole.remote_bytes_received();
+    let copy = whole.side_file(geomip).unwrap().unwrap();
+    assert_eq!(std::fs::read(&copy).unwrap(), bytes);
+    assert_eq!(whole.remote_bytes_received(), before + geomip_len, "one GET of the file");
+    whole.side_file(geomip).unwrap();
+    assert_eq!(whole.remote_bytes_received(), before + geomip_len, "then the mirror's");
     let c = cam(100.0, 150.0, 420.0, 45.0, -12.0, 6000.0);
     let (a, b) = (
         ta.try_select_runs(&gl, &c, &geomip_cfg).unwrap(),

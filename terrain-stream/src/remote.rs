@@ -103,6 +103,10 @@ pub struct RemoteOptions {
     /// caller reads from [`crate::Store::dir`] without asking [`crate::Store::side_file`]
     /// first); a missing one is skipped.
     pub side_files: Vec<String>,
+    /// Bytes a side table read where it lies ([`crate::Store::side_table`]) is fetched in: the
+    /// chunks a read covers that are not there yet, one range GET per run of them. Default
+    /// 1 MiB (`geomip.bin` of a 32769^2 grid is 162 of them); at least 4 KiB.
+    pub side_chunk_bytes: u64,
 }
 
 impl Default for RemoteOptions {
@@ -114,6 +118,7 @@ impl Default for RemoteOptions {
             connect_timeout: Duration::from_secs(5),
             retries: 3,
             side_files: Vec::new(),
+            side_chunk_bytes: 1 << 20,
         }
     }
 }
@@ -148,6 +153,8 @@ pub(crate) struct Remote {
     fetched: Mutex<HashMap<(BlockId, u8), Vec<u8>>>,
     /// Bytes received from the location so far (index, side tables, blocks).
     received: AtomicU64,
+    /// [`RemoteOptions::side_chunk_bytes`].
+    side_chunk: u64,
 }
 
 impl std::fmt::Debug for Remote {
@@ -288,6 +295,7 @@ impl Remote {
             verified: Mutex::default(),
             fetched: Mutex::default(),
             received: AtomicU64::new(0),
+            side_chunk: options.side_chunk_bytes.max(4096),
         };
         let index = remote.fetch_index()?;
         let (mirrored, copy) = match &index {
@@ -496,6 +504,11 @@ impl Remote {
         // A cache that cannot be written is only slower.
         let _ = write_atomic(&cached, &bytes);
         Ok(bytes)
+    }
+
+    /// The chunk a side table read where it lies is fetched in ([`RemoteOptions`]).
+    pub(crate) fn side_chunk(&self) -> u64 {
+        self.side_chunk
     }
 
     /// Bytes received from the location so far (index, side tables, blocks).

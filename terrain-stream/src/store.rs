@@ -67,8 +67,116 @@ pub struct SideTable {
 #[derive(Debug)]
 enum SideSource {
     File(std::fs::File),
-    /// The remote store and the object's name beside its index.
-    Remote(Arc<Remote>, String),
+    Remote(RemotePart),
+}
+
+/// The bytes of a remote side table fetched so far, in a sparse file in the store's mirror:
+/// each read fetches the chunks it covers ([`RemoteOptions::side_chunk_bytes`]) that are not there yet (one range
+/// GET per run of them) and reads the file. So a byte is fetched at most once a session, and
+/// the memory held is none. Once every chunk is there the file is the table: it is renamed to
+/// the mirror's copy ([`Store::side_file`] then finds it); a part left incomplete is removed
+/// when the table is dropped.
+#[derive(Debug)]
+struct RemotePart {
+    remote: Arc<Remote>,
+    /// The object's name beside the index.
+    name: String,
+    /// The sparse file, and which chunks it holds.
+    file: std::fs::File,
+    path: PathBuf,
+    have: Mutex<Chunks>,
+    len: u64,
+    chunk: u64,
+}
+
+/// Which chunks a [`RemotePart`] holds, and how many it lacks.
+#[derive(Debug)]
+struct Chunks {
+    have: Vec<bool>,
+    missing: usize,
+}
+
+impl RemotePart {
+    fn open(remote: &Arc<Remote>, name: &str, len: u64) -> Result<Self, StoreError> {
+        use std::sync::atomic::{AtomicU64, Ordering};
+        static PARTS: AtomicU64 = AtomicU64::new(0);
+        let k = PARTS.fetch_add(1, Ordering::Relaxed);
+        let path = remote.mirror().join(format!("{name}.part{}-{k}", std::process::id()));
+        let file = std::fs::OpenOptions::new()
+            .read(true)
+            .write(true)
+            .create(true)
+            .truncate(true)
+            .open(&path)
+            .map_err(|cause| StoreError::Io { path: path.clone(), cause })?;
+        let chunk = remote.side_chunk();
+        let chunks = len.div_ceil(chunk) as usize;
+        Ok(Self {
+            remote: remote.clone(),
+            name: name.to_string(),
+            file,
+            path,
+            have: Mutex::new(Chunks { have: vec![false; chunks], missing: chunks }),
+            len,
+            chunk,
+        })
+    }
+
+    /// Fetches the chunks under `offset..end` that are not there yet, then reads them.
+    fn read_at(&self, offset: u64, buf: &mut [u8]) -> std::io::Result<()> {
+        let end = offset.saturating_add(buf.len() as u64);
+        if end > self.len {
+            return Err(std::io::Error::new(
+                std::io::ErrorKind::UnexpectedEof,
+                format!("bytes {offset}..{end} of {} ({} bytes)", self.name, self.len),
+            ));
+        }
+        if buf.is_empty() {
+            return Ok(());
+        }
+        let c = self.chunk;
+        let (first, last) = ((offset / c) as usize, ((end - 1) / c) as usize);
+        let mut chunks = self.have.lock().unwrap_or_else(|e| e.into_inner());
+        if chunks.missing == 0 {
+            drop(chunks);
+            return read_at(&self.file, offset, buf);
+        }
+        let have = &mut chunks.have;
+        let mut k = first;
+        let mut fetched = 0;
+        while k <= last {
+            if have[k] {
+                k += 1;
+                continue;
+            }
+            // A run of missing chunks, one range GET.
+            let mut e = k;
+            while e < last && !have[e + 1] {
+                e += 1;
+            }
+            let (at, to) = (k as u64 * c, ((e as u64 + 1) * c).min(self.len));
+            let bytes =
+                self.remote.read_range(&self.name, at..to).map_err(std::io::Error::other)?;
+            write_at(&self.file, at, &bytes)?;
+            have[k..=e].iter_mut().for_each(|h| *h = true);
+            fetched += e + 1 - k;
+            k = e + 1;
+        }
+        chunks.missing -= fetched;
+        if fetched > 0 && chunks.missing == 0 {
+            // Complete: the mirror's copy (a rename, so a reader sees it whole or not at all).
+            let _ = std::fs::rename(&self.path, self.remote.mirror().join(&self.name));
+        }
+        drop(chunks);
+        read_at(&self.file, offset, buf)
+    }
+}
+
+impl Drop for RemotePart {
+    fn drop(&mut self) {
+        // Gone already when it was completed and renamed.
+        let _ = std::fs::remove_file(&self.path);
+    }
 }
 
 impl SideTable {
@@ -96,26 +204,8 @@ impl SideTable {
 impl terrain_core::lod::TableReader for SideTable {
     fn read_at(&self, offset: u64, buf: &mut [u8]) -> std::io::Result<()> {
         match &self.source {
-            SideSource::File(file) => {
-                #[cfg(unix)]
-                {
-                    use std::os::unix::fs::FileExt;
-                    file.read_exact_at(buf, offset)
-                }
-                #[cfg(not(unix))]
-                {
-                    use std::io::{Read, Seek, SeekFrom};
-                    let mut f = file.try_clone()?;
-                    f.seek(SeekFrom::Start(offset))?;
-                    f.read_exact(buf)
-                }
-            }
-            SideSource::Remote(remote, name) => {
-                let end = offset.saturating_add(buf.len() as u64);
-                let bytes = remote.read_range(name, offset..end).map_err(std::io::Error::other)?;
-                buf.copy_from_slice(&bytes);
-                Ok(())
-            }
+            SideSource::File(file) => read_at(file, offset, buf),
+            SideSource::Remote(part) => part.read_at(offset, buf),
         }
     }
 }
@@ -255,7 +345,7 @@ impl Store {
         };
         let Some(len) = remote.file_size(name)? else { return Ok(None) };
         let location = format!("{}/{name}", remote.url());
-        let source = SideSource::Remote(remote.clone(), name.to_string());
+        let source = SideSource::Remote(RemotePart::open(remote, name, len)?);
         Ok(Some(SideTable { len, location, source }))
     }
 
@@ -649,6 +739,22 @@ pub(crate) fn read_at(file: &File, offset: u64, buf: &mut [u8]) -> std::io::Resu
         let mut file = file;
         file.seek(SeekFrom::Start(offset))?;
         file.read_exact(buf)
+    }
+}
+
+/// Positioned write (`pwrite` where the platform has it).
+fn write_at(file: &File, offset: u64, buf: &[u8]) -> std::io::Result<()> {
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::FileExt;
+        file.write_all_at(buf, offset)
+    }
+    #[cfg(not(unix))]
+    {
+        use std::io::{Seek, SeekFrom, Write};
+        let mut file = file;
+        file.seek(SeekFrom::Start(offset))?;
+        file.write_all(buf)
     }
 }
 
