@@ -172,9 +172,9 @@ pub const READ_WHOLE_MAX_BYTES: u64 = 64 << 20;
 /// store's fetched into its mirror first, one GET), else opened for reading by pages
 /// ([`GeomipTable::open_paged`]: the header and tail at open, each page of entries when a
 /// frame first needs it, through a cache of [`GeomipPaging::default`]'s bytes; a remote
-/// store's by range requests, so a session fetches the pages its views need, not the
-/// table), or read whole, with a warning, when the store was baked before `geomip.bin`
-/// version 2.
+/// store's where it lies, by the chunks those pages lie in ([`Store::side_table`]), so a
+/// session fetches what its views need, not the table), or read whole, with a warning, when
+/// the store was baked before `geomip.bin` version 2.
 pub fn read_for_store(store: &Store, shape: &TreeShape) -> anyhow::Result<GeomipTable> {
     read_for_store_with(store, shape, &GeomipPaging::default(), READ_WHOLE_MAX_BYTES)
 }

@@ -71,11 +71,11 @@ enum SideSource {
 }
 
 /// The bytes of a remote side table fetched so far, in a sparse file in the store's mirror:
-/// each read fetches the chunks it covers ([`RemoteOptions::side_chunk_bytes`]) that are not there yet (one range
-/// GET per run of them) and reads the file. So a byte is fetched at most once a session, and
-/// the memory held is none. Once every chunk is there the file is the table: it is renamed to
-/// the mirror's copy ([`Store::side_file`] then finds it); a part left incomplete is removed
-/// when the table is dropped.
+/// each read fetches the chunks it covers that are not there yet
+/// ([`RemoteOptions::side_chunk_bytes`], one range GET per run of them) and reads the file.
+/// So a byte is fetched at most once a session, and no memory holds them. Once every chunk is
+/// there the file is the table: it is renamed to the mirror's copy ([`Store::side_file`] then
+/// finds it); a part left incomplete is removed when the table is dropped.
 #[derive(Debug)]
 struct RemotePart {
     remote: Arc<Remote>,
@@ -323,10 +323,11 @@ impl Store {
     }
 
     /// The store's side table `name` for reading at offsets ([`SideTable`]), if the store has
-    /// one: a local store's file; a remote store's copy in its mirror when [`Store::side_file`]
-    /// fetched it, else the object itself, its size asked by one HEAD and each read one range
-    /// GET. Nothing is fetched here: a reader that needs a few pages of a large table
-    /// (geomorph's `geomip.bin` read by pages) fetches those pages only.
+    /// one: a local store's file; a remote store's copy in its mirror when there is one, else
+    /// the object itself, its size asked by one HEAD and each read fetching the chunks it
+    /// covers that are not there yet (`RemotePart`). Nothing is fetched here: a reader that
+    /// needs a few pages of a large table (geomorph's `geomip.bin` read by pages) fetches their
+    /// chunks only.
     pub fn side_table(&self, name: &str) -> Result<Option<SideTable>, StoreError> {
         let local = self.dir.join(name);
         let remote = match &self.remote {

@@ -493,7 +493,7 @@ impl<'a> Mesher<'a> {
         // linear, `n(lo + k) = n(lo) + k dn`, so it is taken as that line (one product and
         // one sum a sample, where the weights' three products and their stepping cost
         // five). The line differs from the exact numerator by rounding only, at most
-        // `LINE_MARGIN x d x H` with `H` the largest height magnitude of the grid (see
+        // `line_margin(H) x d` with `H` the largest height magnitude of the grid (see
         // [`line_margin`]), so a sample the line leaves that much below the threshold is one
         // the exact test would dismiss too: only those are dismissed on it, and every other
         // sample takes the exact test as before, in order. The outcome is the same.
@@ -510,8 +510,8 @@ impl<'a> Mesher<'a> {
             let mut cut = best.scaled - line_margin;
             // Runs of `LANES` samples are dismissed together on the line against the running
             // best at the run's start, which is at most the best at any of its samples: a run
-            // that cannot hold a candidate is skipped without a branch per sample (the loop
-            // vectorizes); any other run has every sample tested exactly, in order.
+            // that cannot hold a candidate is skipped whole; any other run has every sample
+            // tested exactly, in order.
             let mut chunks = heights.chunks_exact(LANES);
             let mut k0 = 0.0;
             for run in &mut chunks {
