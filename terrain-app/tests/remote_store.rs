@@ -238,11 +238,13 @@ fn a_paged_index_over_http_is_read_by_page_and_selects_as_the_local_store() {
     }
     assert!(patches > 100, "{patches} patches: the views must see the terrain");
     // Geomorph's table is not fetched at open (a session drawing another method never reads
-    // it). Read where it lies, a read fetches the chunks it covers (4 KiB here, 1 MiB by
-    // default), each once; a table read whole this way, or asked for whole (`side_file`, one
-    // GET), becomes the mirror's copy, read from there. Each selects the local runs.
+    // it). Read where it lies (`side_tables_in_chunks`, which `terrain render` with one camera
+    // sets), a read fetches the chunks it covers (4 KiB here, 1 MiB by default), each once; a
+    // table read whole this way, or fetched whole (`side_file`, one GET; the default), becomes
+    // the mirror's copy, read from there. Each selects the local runs.
     let geo_options = RemoteOptions {
         cache_dir: Some(dir.join("geo")),
+        side_tables_in_chunks: true,
         side_chunk_bytes: 4096,
         ..Default::default()
     };
@@ -306,15 +308,18 @@ fn a_paged_index_over_http_is_read_by_page_and_selects_as_the_local_store() {
     let (ta, tb) = (local_table, read(&geo_remote, &gr));
     assert!(tb.paging_stats().is_some(), "read by pages from the mirror");
     assert_eq!(geo_remote.remote_bytes_received(), at_open, "its open, the mirror's");
-    // Asked for whole on a store whose mirror lacks it: one GET of the file.
+    // By default (no chunks: a flight must not wait for them) the table is fetched whole
+    // into the mirror, one GET, and read there.
     let whole_options = RemoteOptions { cache_dir: Some(dir.join("whole")), ..Default::default() };
     let whole = Store::open_location_with(&url, &whole_options).unwrap();
     let before = whole.remote_bytes_received();
+    let table = whole.side_table(geomip).unwrap().unwrap();
+    assert!(!table.is_remote() && table.len() == geomip_len, "{table:?}");
+    assert_eq!(whole.remote_bytes_received(), before + geomip_len, "one GET of the file");
     let copy = whole.side_file(geomip).unwrap().unwrap();
     assert_eq!(std::fs::read(&copy).unwrap(), bytes);
-    assert_eq!(whole.remote_bytes_received(), before + geomip_len, "one GET of the file");
-    whole.side_file(geomip).unwrap();
     assert_eq!(whole.remote_bytes_received(), before + geomip_len, "then the mirror's");
+    assert!(whole.side_table("no_such_table.bin").unwrap().is_none());
     let c = cam(100.0, 150.0, 420.0, 45.0, -12.0, 6000.0);
     let (a, b) = (
         ta.try_select_runs(&gl, &c, &geomip_cfg).unwrap(),

@@ -103,9 +103,16 @@ pub struct RemoteOptions {
     /// caller reads from [`crate::Store::dir`] without asking [`crate::Store::side_file`]
     /// first); a missing one is skipped.
     pub side_files: Vec<String>,
-    /// Bytes a side table read where it lies ([`crate::Store::side_table`]) is fetched in: the
-    /// chunks a read covers that are not there yet, one range GET per run of them. Default
-    /// 1 MiB (`geomip.bin` of a 32769^2 grid is 162 of them); at least 4 KiB.
+    /// Whether [`crate::Store::side_table`] reads a table where it lies, by chunks, instead of
+    /// fetching it whole into the mirror first. Off by default: a chunk is fetched on the
+    /// reading thread when a read first reaches it, so a session flying over the terrain would
+    /// wait for chunks mid-flight (geomorph reads its table during the frame's selection);
+    /// whole, the table is fetched once, before the first frame. A command drawing one view
+    /// (`terrain render` with one camera) fetches fewer bytes with it.
+    pub side_tables_in_chunks: bool,
+    /// Bytes a side table read where it lies is fetched in: the chunks a read covers that are
+    /// not there yet, one range GET per run of them. Default 1 MiB (`geomip.bin` of a 32769^2
+    /// grid is 162 of them); at least 4 KiB.
     pub side_chunk_bytes: u64,
 }
 
@@ -118,6 +125,7 @@ impl Default for RemoteOptions {
             connect_timeout: Duration::from_secs(5),
             retries: 3,
             side_files: Vec::new(),
+            side_tables_in_chunks: false,
             side_chunk_bytes: 1 << 20,
         }
     }
@@ -153,8 +161,8 @@ pub(crate) struct Remote {
     fetched: Mutex<HashMap<(BlockId, u8), Vec<u8>>>,
     /// Bytes received from the location so far (index, side tables, blocks).
     received: AtomicU64,
-    /// [`RemoteOptions::side_chunk_bytes`].
-    side_chunk: u64,
+    /// [`RemoteOptions::side_chunk_bytes`], when [`RemoteOptions::side_tables_in_chunks`].
+    side_chunk: Option<u64>,
 }
 
 impl std::fmt::Debug for Remote {
@@ -295,7 +303,7 @@ impl Remote {
             verified: Mutex::default(),
             fetched: Mutex::default(),
             received: AtomicU64::new(0),
-            side_chunk: options.side_chunk_bytes.max(4096),
+            side_chunk: options.side_tables_in_chunks.then(|| options.side_chunk_bytes.max(4096)),
         };
         let index = remote.fetch_index()?;
         let (mirrored, copy) = match &index {
@@ -506,8 +514,9 @@ impl Remote {
         Ok(bytes)
     }
 
-    /// The chunk a side table read where it lies is fetched in ([`RemoteOptions`]).
-    pub(crate) fn side_chunk(&self) -> u64 {
+    /// The chunk a side table read where it lies is fetched in; `None`: side tables are
+    /// fetched whole ([`RemoteOptions`]).
+    pub(crate) fn side_chunk(&self) -> Option<u64> {
         self.side_chunk
     }
 

@@ -97,7 +97,7 @@ struct Chunks {
 }
 
 impl RemotePart {
-    fn open(remote: &Arc<Remote>, name: &str, len: u64) -> Result<Self, StoreError> {
+    fn open(remote: &Arc<Remote>, name: &str, len: u64, chunk: u64) -> Result<Self, StoreError> {
         use std::sync::atomic::{AtomicU64, Ordering};
         static PARTS: AtomicU64 = AtomicU64::new(0);
         let k = PARTS.fetch_add(1, Ordering::Relaxed);
@@ -109,7 +109,6 @@ impl RemotePart {
             .truncate(true)
             .open(&path)
             .map_err(|cause| StoreError::Io { path: path.clone(), cause })?;
-        let chunk = remote.side_chunk();
         let chunks = len.div_ceil(chunk) as usize;
         Ok(Self {
             remote: remote.clone(),
@@ -323,15 +322,18 @@ impl Store {
     }
 
     /// The store's side table `name` for reading at offsets ([`SideTable`]), if the store has
-    /// one: a local store's file; a remote store's copy in its mirror when there is one, else
-    /// the object itself, its size asked by one HEAD and each read fetching the chunks it
-    /// covers that are not there yet (`RemotePart`). Nothing is fetched here: a reader that
-    /// needs a few pages of a large table (geomorph's `geomip.bin` read by pages) fetches their
-    /// chunks only.
+    /// one: a local store's file; a remote store's copy in its mirror, fetched whole first
+    /// ([`Store::side_file`]) unless the store was opened with
+    /// [`RemoteOptions::side_tables_in_chunks`]: then the object itself, its size asked by one
+    /// HEAD and each read fetching the chunks it covers that are not there yet (`RemotePart`),
+    /// so a reader that needs a few pages of a large table (geomorph's `geomip.bin` read by
+    /// pages) fetches their chunks only.
     pub fn side_table(&self, name: &str) -> Result<Option<SideTable>, StoreError> {
         let local = self.dir.join(name);
-        let remote = match &self.remote {
-            Some(remote) if !local.is_file() => remote,
+        let chunked = self.remote.as_ref().and_then(|r| Some((r, r.side_chunk()?)));
+        let (remote, chunk) = match chunked {
+            Some(rc) if !local.is_file() => rc,
+            _ if self.side_file(name)?.is_none() => return Ok(None),
             _ => {
                 let file = match std::fs::File::open(&local) {
                     Ok(f) => f,
@@ -346,7 +348,7 @@ impl Store {
         };
         let Some(len) = remote.file_size(name)? else { return Ok(None) };
         let location = format!("{}/{name}", remote.url());
-        let source = SideSource::Remote(RemotePart::open(remote, name, len)?);
+        let source = SideSource::Remote(RemotePart::open(remote, name, len, chunk)?);
         Ok(Some(SideTable { len, location, source }))
     }
 
