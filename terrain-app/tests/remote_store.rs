@@ -268,8 +268,15 @@ fn a_paged_index_over_http_is_read_by_page_and_selects_as_the_local_store() {
     };
     let geomip_cfg = terrain_core::lod::GeomipConfig { patch_cells: 16, ..Default::default() };
     let near = cam(100.0, 150.0, 420.0, 45.0, -12.0, 1500.0);
+    // A part a killed process left (no such PID) is removed; a live process's is kept.
+    let stale = geo_remote.dir().join(format!("{geomip}.part4294967295-0"));
+    let live = geo_remote.dir().join(format!("{geomip}.part1-0"));
+    std::fs::write(&stale, b"left over").unwrap();
+    std::fs::write(&live, b"in use").unwrap();
     // By pages from the server: the open reads the header and tail, a chunk or two.
     let from_server = read(&geo_remote, &gr);
+    assert!(!stale.exists() && live.exists(), "only the dead process's part is removed");
+    std::fs::remove_file(&live).unwrap();
     let stats = || from_server.paging_stats().expect("read by pages");
     let opened = geo_remote.remote_bytes_received() - at_open;
     assert!(opened >= stats().bytes_read && opened <= 3 * 4096, "{opened} bytes at open");

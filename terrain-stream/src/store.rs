@@ -75,7 +75,8 @@ enum SideSource {
 /// ([`RemoteOptions::side_chunk_bytes`], one range GET per run of them) and reads the file.
 /// So a byte is fetched at most once a session, and no memory holds them. Once every chunk is
 /// there the file is the table: it is renamed to the mirror's copy ([`Store::side_file`] then
-/// finds it); a part left incomplete is removed when the table is dropped.
+/// finds it); a part left incomplete is removed when the table is dropped, and one a killed
+/// process left when the table is next read by chunks ([`remove_stale_parts`]).
 #[derive(Debug)]
 struct RemotePart {
     remote: Arc<Remote>,
@@ -101,6 +102,7 @@ impl RemotePart {
         use std::sync::atomic::{AtomicU64, Ordering};
         static PARTS: AtomicU64 = AtomicU64::new(0);
         let k = PARTS.fetch_add(1, Ordering::Relaxed);
+        remove_stale_parts(remote.mirror(), name);
         let path = remote.mirror().join(format!("{name}.part{}-{k}", std::process::id()));
         let file = std::fs::OpenOptions::new()
             .read(true)
@@ -168,6 +170,31 @@ impl RemotePart {
         }
         drop(chunks);
         read_at(&self.file, offset, buf)
+    }
+}
+
+/// Removes the part files of table `name` in `mirror` that a process no longer running left
+/// (killed before it could remove them): `NAME.partPID-K` whose `PID` is not a live process.
+/// Where the platform cannot tell (no `/proc`), none is removed.
+fn remove_stale_parts(mirror: &Path, name: &str) {
+    if !Path::new("/proc/self").exists() {
+        return;
+    }
+    let Ok(entries) = std::fs::read_dir(mirror) else { return };
+    let prefix = format!("{name}.part");
+    for e in entries.flatten() {
+        let file = e.file_name();
+        let Some(pid) = file
+            .to_str()
+            .and_then(|f| f.strip_prefix(&prefix))
+            .and_then(|rest| rest.split_once('-'))
+            .and_then(|(pid, _)| pid.parse::<u32>().ok())
+        else {
+            continue;
+        };
+        if !Path::new("/proc").join(pid.to_string()).exists() {
+            let _ = std::fs::remove_file(e.path());
+        }
     }
 }
 
