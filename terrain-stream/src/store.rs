@@ -175,7 +175,9 @@ impl RemotePart {
 
 /// Removes the part files of table `name` in `mirror` that a process no longer running left
 /// (killed before it could remove them): `NAME.partPID-K` whose `PID` is not a live process.
-/// Where the platform cannot tell (no `/proc`), none is removed.
+/// Where the platform cannot tell (no `/proc`), none is removed. A part removed under a process
+/// that still reads it (another PID namespace sharing the cache) costs it nothing on unix: its
+/// open file stays; only its rename to the mirror's copy fails, which is only a cache miss.
 fn remove_stale_parts(mirror: &Path, name: &str) {
     if !Path::new("/proc/self").exists() {
         return;
