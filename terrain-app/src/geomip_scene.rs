@@ -172,9 +172,10 @@ pub const READ_WHOLE_MAX_BYTES: u64 = 64 << 20;
 /// store's fetched into its mirror first, one GET), else opened for reading by pages
 /// ([`GeomipTable::open_paged`]: the header and tail at open, each page of entries when a
 /// frame first needs it, through a cache of [`GeomipPaging::default`]'s bytes; a remote
-/// store's where it lies, by the chunks those pages lie in ([`Store::side_table`]), so a
-/// session fetches what its views need, not the table), or read whole, with a warning, when
-/// the store was baked before `geomip.bin` version 2.
+/// store's from its mirror's copy, fetched whole first, or, when the store reads its tables by
+/// chunks (`terrain render` with one camera), where it lies, by the chunks those pages lie in
+/// ([`Store::side_table`])), or read whole, with a warning, when the store was baked before
+/// `geomip.bin` version 2.
 pub fn read_for_store(store: &Store, shape: &TreeShape) -> anyhow::Result<GeomipTable> {
     read_for_store_with(store, shape, &GeomipPaging::default(), READ_WHOLE_MAX_BYTES)
 }
@@ -187,7 +188,7 @@ pub fn read_for_store_with(
     paging: &GeomipPaging,
     read_whole_max: u64,
 ) -> anyhow::Result<GeomipTable> {
-    let location = if store.is_remote() {
+    let expected = if store.is_remote() {
         format!("{}/{GEOMIP_FILE}", store.location())
     } else {
         geomip_path(store.dir()).display().to_string()
@@ -195,11 +196,13 @@ pub fn read_for_store_with(
     let missing = || {
         format!(
             "--method geomorph from a store reads the max-error vertices the bake writes \
-             ({location}); bake the store again without --no-geomip"
+             ({expected}); bake the store again without --no-geomip"
         )
     };
     let table = store.side_table(GEOMIP_FILE).with_context(missing)?.with_context(missing)?;
     let len = table.len();
+    // What is read: the file (a remote store's mirror copy), or the remote object.
+    let location = table.location().to_string();
     let want = GeomipFor {
         width: shape.width(),
         height: shape.height(),
