@@ -347,15 +347,7 @@ impl Remote {
     /// Whether the store has the file `name` beside its index: the mirror's copy, else one
     /// HEAD request (nothing is fetched).
     pub(crate) fn has_file(&self, name: &str) -> Result<bool, StoreError> {
-        if self.mirror.join(name).is_file() {
-            return Ok(true);
-        }
-        let key = self.prefix.child(name);
-        match self.runtime.block_on(self.store.head(&key)) {
-            Ok(_) => Ok(true),
-            Err(object_store::Error::NotFound { .. }) => Ok(false),
-            Err(e) => Err(remote_err(&self.url, format!("asking for {name}: {e}"))),
-        }
+        Ok(self.mirror.join(name).is_file() || self.file_size(name)?.is_some())
     }
 
     /// The size of the store's file `name` by one HEAD request (nothing fetched; counted as

@@ -1037,13 +1037,7 @@ mod tests {
     /// negative control, checked in the test), so the margin is what keeps the outcome.
     #[test]
     fn the_line_test_never_dismisses_a_sample_the_exact_test_keeps() {
-        let mut k = 0x2545_f491_4f6c_dd1du64;
-        let mut rand = move || {
-            k ^= k << 13;
-            k ^= k >> 7;
-            k ^= k << 17;
-            (k >> 11) as f64 / (1u64 << 53) as f64
-        };
+        let mut rand = crate::test_support::unit_rng(0x2545_f491_4f6c_dd1d);
         let (mut tested, mut unguarded) = (0usize, 0usize);
         for case in 0..400 {
             let side = [8.0, 64.0, 900.0, 16384.0][case % 4];
