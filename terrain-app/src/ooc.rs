@@ -172,27 +172,18 @@ pub fn set_disk_cache(cache_dir: Option<std::path::PathBuf>, disk_cache_mib: Opt
     let _ = DISK_CACHE.set((cache_dir, disk_cache_mib));
 }
 
-static TABLES_IN_CHUNKS: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool::new(false);
-
-/// Whether remote stores opened from now on read a large side table where it lies, by chunks
-/// ([`RemoteOptions::side_tables_in_chunks`]): `terrain render` with one camera, which draws
-/// one view and so needs no table fetched whole before it.
-pub fn set_remote_tables_in_chunks(on: bool) {
-    TABLES_IN_CHUNKS.store(on, std::sync::atomic::Ordering::Relaxed);
-}
-
 /// How remote stores are read: [`RemoteOptions`]' defaults (2 GiB disk cache, 30 s request
-/// timeout, 3 retries), the disk cache as [`set_disk_cache`] set it and the side tables as
-/// [`set_remote_tables_in_chunks`] did. No side table is
-/// fetched at open: each reader asks [`Store::side_file`] for the table it reads (a method's
-/// table, e.g. geomorph's `geomip.bin`, comes only with that method).
+/// timeout, 3 retries), the disk cache as [`set_disk_cache`] set it, and a large side table
+/// read where it lies, by chunks ([`RemoteOptions::side_tables_in_chunks`]): a session's first
+/// frame fetches the chunks it reads, and a flight's later frames do not wait for the others,
+/// which a background fill fetches (geomorph's store frames, `method::store`). No side table is
+/// fetched at open: each reader asks [`Store::side_file`] or [`Store::side_table`] for the
+/// table it reads (a method's table, e.g. geomorph's `geomip.bin`, comes only with that
+/// method).
 pub fn remote_options() -> RemoteOptions {
     let (dir, mib) = DISK_CACHE.get().cloned().unwrap_or_default();
-    let mut o = RemoteOptions {
-        cache_dir: dir,
-        side_tables_in_chunks: TABLES_IN_CHUNKS.load(std::sync::atomic::Ordering::Relaxed),
-        ..RemoteOptions::default()
-    };
+    let mut o =
+        RemoteOptions { cache_dir: dir, side_tables_in_chunks: true, ..RemoteOptions::default() };
     if let Some(m) = mib {
         o.disk_cache_bytes = m.saturating_mul(1 << 20);
     }

@@ -290,8 +290,6 @@ pub(crate) fn run(args: &RenderArgs) -> anyhow::Result<()> {
         bail!("--factor must be a positive number, got {factor}");
     }
     let spec = args.eye.spec()?;
-    // One view: a remote store's large tables are read by the chunks that view needs.
-    ooc::set_remote_tables_in_chunks(args.flight.is_none());
     let store = match args.source.dem.as_slice() {
         [one] if ooc::is_store(one) => Some(one),
         _ => None,

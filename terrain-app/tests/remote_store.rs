@@ -177,15 +177,12 @@ fn a_remote_stores_method_table_is_fetched_only_by_that_method() {
 /// Geomorph's `geomip.bin` is read where it lies too, by chunks: a view's open and pages fetch
 /// fewer bytes than the table's, each byte at most once; complete, it is the mirror's copy. It
 /// selects as the local one.
-#[test]
-fn a_paged_index_over_http_is_read_by_page_and_selects_as_the_local_store() {
-    use std::sync::Arc;
-    use terrain_stream::glam::dvec3;
-    use terrain_stream::{BakeConfig, BakeProgress, Camera, RemoteOptions, Store, StoreTree};
-    let dir = scratch("remote-store", "paged");
+/// A store of 513^2 in blocks of 64 cells (8 x 8 blocks) with 5 node levels (entries of ~5.6
+/// KB, 11 a page, 6 pages of index) and geomorph's table (1,024 16-cell patches in 8 pages),
+/// baked under `dir/www/p.scene`.
+fn paged_store(dir: &Path) -> PathBuf {
+    use terrain_stream::{BakeConfig, BakeProgress};
     let store = dir.join("www/p.scene");
-    // 513^2 in blocks of 64 cells (8 x 8 blocks) with 5 node levels: entries of ~5.6 KB, 11
-    // a page, 6 pages.
     let hm =
         terrain_core::Heightmap::from_fn(513, 513, terrain_core::Georef::local(10.0), |i, j| {
             300.0
@@ -199,6 +196,111 @@ fn a_paged_index_over_http_is_read_by_page_and_selects_as_the_local_store() {
         std::ops::ControlFlow::Continue(())
     })
     .unwrap();
+    store
+}
+
+/// A flight's frames after the first do not wait for a remote table read where it lies: a
+/// read that reaches a chunk not fetched yet fails at once (`WouldBlock`) and the chunk is
+/// fetched first by the background fill, which fetches the rest of the table in order and
+/// leaves it whole in the mirror, each byte once. Geomorph's selection bounds the patches of
+/// such a page by the coarse pyramid meanwhile (counted late) and selects the local store's
+/// runs once the table is whole. nginx sends 64 KiB a second here, so the fill takes about a
+/// second and the reads right after it starts find their chunks missing.
+#[test]
+fn a_remote_table_is_not_waited_for_after_the_first_frame_and_fills_in_the_background() {
+    use std::sync::Arc;
+    use terrain_core::lod::TableReader;
+    use terrain_stream::glam::dvec3;
+    use terrain_stream::{Camera, RemoteOptions, Store, StoreTree};
+    let dir = scratch("remote-store", "fill");
+    let store = paged_store(&dir);
+    let server = nginx(&dir, &dir.join("www"), "limit_rate 64k;");
+    let url = format!("http://127.0.0.1:{}/p.scene", server.port);
+    let options = |cache: &str| RemoteOptions {
+        cache_dir: Some(dir.join(cache)),
+        side_tables_in_chunks: true,
+        side_chunk_bytes: 4096,
+        ..Default::default()
+    };
+    let geomip = terrain_stream::GEOMIP_FILE;
+    let file = std::fs::read(store.join(geomip)).unwrap();
+    let len = file.len() as u64;
+    assert!(len > 8 * 4096, "{len} bytes: the fill needs several runs of chunks");
+
+    // The table alone.
+    let remote = Store::open_location_with(&url, &options("table")).unwrap();
+    let table = remote.side_table(geomip).unwrap().unwrap();
+    let mirrored = remote.dir().join(geomip);
+    let before = remote.remote_bytes_received();
+    let mut head = vec![0u8; 100];
+    table.read_at(10, &mut head).unwrap();
+    assert_eq!(head, file[10..110], "a waiting read fetches its chunk");
+    assert_eq!(remote.remote_bytes_received(), before + 4096);
+    table.set_waiting(false);
+    let mut tail = vec![0u8; 100];
+    let late = table.read_at(len - 100, &mut tail).unwrap_err();
+    assert_eq!(late.kind(), std::io::ErrorKind::WouldBlock, "{late}");
+    let started = Instant::now();
+    while !table.is_complete() {
+        assert!(started.elapsed() < Duration::from_secs(60), "the fill did not finish");
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    let mut all = vec![0u8; len as usize];
+    table.read_at(0, &mut all).unwrap();
+    assert_eq!(all, file);
+    assert_eq!(remote.remote_bytes_received(), before + len, "each byte once");
+    assert_eq!(std::fs::read(&mirrored).unwrap(), file, "the mirror's copy");
+    drop(table);
+    assert!(mirrored.is_file());
+
+    // Geomorph's selection over it, as a flight's frames.
+    let local = Arc::new(Store::open(&store).unwrap());
+    let remote = Arc::new(Store::open_location_with(&url, &options("geomorph")).unwrap());
+    let (gl, gr) = (StoreTree::new(local.clone(), 16), StoreTree::new(remote.clone(), 16));
+    let read = |s: &Store, t: &StoreTree| {
+        use terrain_core::quadtree::NodeTree;
+        let paging = terrain_core::lod::GeomipPaging::default();
+        terrain_app::geomip_scene::read_for_store_with(s, t.shape(), &paging, 0).unwrap()
+    };
+    let (lt, rt) = (read(&local, &gl), read(&remote, &gr));
+    let cfg = terrain_core::lod::GeomipConfig { patch_cells: 16, ..Default::default() };
+    let cam =
+        |x, y, yaw| Camera::from_yaw_pitch(dvec3(x, y, 420.0), yaw, -12.0).with_clip(1.0, 1500.0);
+    // Opposite corners of the 5 km grid, each seeing 1.5 km.
+    let (first, later) = (cam(100.0, 150.0, 45.0), cam(5000.0, 5000.0, 225.0));
+    // The remote tree's node bounds come through the index pages: read them first.
+    for c in [&first, &later] {
+        lt.try_select_runs(&gr, c, &cfg).unwrap();
+    }
+    let same = |a: &terrain_core::lod::GeomipRuns, b: &terrain_core::lod::GeomipRuns| {
+        (&a.runs, &a.patches, &a.factors) == (&b.runs, &b.patches, &b.factors)
+    };
+    // The first frame waits: the local runs.
+    let a = lt.try_select_runs(&gl, &first, &cfg).unwrap();
+    assert!(same(&a, &rt.try_select_runs(&gr, &first, &cfg).unwrap()));
+    // Later frames do not: the far corner's pages are not here yet.
+    rt.set_waiting(false);
+    let late = rt.try_select_runs(&gr, &later, &cfg).unwrap();
+    assert!(late.drawn_patches() > 0);
+    assert!(rt.paging_stats().unwrap().pages_late > 0, "{:?}", rt.paging_stats());
+    let started = Instant::now();
+    while !remote.dir().join(geomip).is_file() {
+        assert!(started.elapsed() < Duration::from_secs(60), "the fill did not finish");
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    let pages_late = rt.paging_stats().unwrap().pages_late;
+    let a = lt.try_select_runs(&gl, &later, &cfg).unwrap();
+    assert!(same(&a, &rt.try_select_runs(&gr, &later, &cfg).unwrap()), "once whole, exact");
+    assert_eq!(rt.paging_stats().unwrap().pages_late, pages_late);
+}
+
+#[test]
+fn a_paged_index_over_http_is_read_by_page_and_selects_as_the_local_store() {
+    use std::sync::Arc;
+    use terrain_stream::glam::dvec3;
+    use terrain_stream::{Camera, RemoteOptions, Store, StoreTree};
+    let dir = scratch("remote-store", "paged");
+    let store = paged_store(&dir);
     let index_len = std::fs::metadata(store.join("index.tsi")).unwrap().len();
     let local = Arc::new(Store::open(&store).unwrap());
     assert_eq!(local.index_bytes(), Some(index_len), "a version-4 index");

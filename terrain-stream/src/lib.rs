@@ -97,6 +97,7 @@ mod pages;
 mod remote;
 mod schedule;
 mod shard;
+mod side_table;
 mod source;
 mod stats;
 mod store;
@@ -126,9 +127,10 @@ pub use shard::{
     MergeConfig, PART_FILE, PartInfo, Shard, ShardReport, bake_options, bake_shard, find_parts,
     is_part, merge, read_part,
 };
+pub use side_table::SideTable;
 pub use source::{HeightSource, read_rows_parallel};
 pub use stats::{Fault, FrameStats, StatsSummary};
-pub use store::{BlockLevels, LoadedLevel, SideTable, Store, is_store};
+pub use store::{BlockLevels, LoadedLevel, Store, is_store};
 pub use streamer::{ScheduledBlock, StreamConfig, Streamer, WaitReport};
 pub use terrain::{StoreSource, demand_of};
 pub use terrain_core::geometry::Camera;

@@ -104,11 +104,13 @@ pub struct RemoteOptions {
     /// first); a missing one is skipped.
     pub side_files: Vec<String>,
     /// Whether [`crate::Store::side_table`] reads a table where it lies, by chunks, instead of
-    /// fetching it whole into the mirror first. Off by default: a chunk is fetched on the
-    /// reading thread when a read first reaches it, so a session flying over the terrain would
-    /// wait for chunks mid-flight (geomorph reads its table during the frame's selection);
-    /// whole, the table is fetched once, before the first frame. A command drawing one view
-    /// (`terrain render` with one camera) fetches fewer bytes with it.
+    /// fetching it whole into the mirror first. A chunk is fetched on the reading thread when
+    /// a read first reaches it, unless the reader said not to wait
+    /// ([`crate::SideTable::set_waiting`]): then the read fails at once (`WouldBlock`) and a
+    /// background fill fetches the chunk, and the rest of the table after it. Off by default
+    /// (the table fetched whole, once, before it is first read); the `terrain` app turns it on:
+    /// one view fetches only the chunks it reads, a flight's first frame too, and its later
+    /// frames do not wait.
     pub side_tables_in_chunks: bool,
     /// Bytes a side table read where it lies is fetched in: the chunks a read covers that are
     /// not there yet, one range GET per run of them. Default 1 MiB (`geomip.bin` of a 32769^2

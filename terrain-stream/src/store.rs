@@ -17,6 +17,7 @@ use crate::format::{
 use crate::overview::Overview;
 use crate::pages::{PagedIndex, index_err, scale_entry};
 use crate::remote::{Remote, RemoteIndex, RemoteOptions, is_url};
+use crate::side_table::SideTable;
 
 /// An open store: the header and its grid index, block files on disk or, for a store opened
 /// from a URL ([`Store::open_location`]), on object storage or HTTP (read by range requests
@@ -51,190 +52,6 @@ enum Index {
 impl Index {
     fn paged(pages: PagedIndex) -> Self {
         Index::Paged { pages: Box::new(pages), fault: Mutex::default() }
-    }
-}
-
-/// A store's side table read at offsets ([`Store::side_table`]): a file, or a remote store's
-/// object read by range requests. Its reads are positioned (any thread may read).
-#[derive(Debug)]
-pub struct SideTable {
-    len: u64,
-    /// Its path, or its URL for a remote object (for messages).
-    location: String,
-    source: SideSource,
-}
-
-#[derive(Debug)]
-enum SideSource {
-    File(std::fs::File),
-    Remote(RemotePart),
-}
-
-/// The bytes of a remote side table fetched so far, in a sparse file in the store's mirror:
-/// each read fetches the chunks it covers that are not there yet
-/// ([`RemoteOptions::side_chunk_bytes`], one range GET per run of them) and reads the file.
-/// So a byte is fetched at most once a session, and no memory holds them. Once every chunk is
-/// there the file is the table: it is renamed to the mirror's copy ([`Store::side_file`] then
-/// finds it); a part left incomplete is removed when the table is dropped, and one a killed
-/// process left when the table is next read by chunks ([`remove_stale_parts`]).
-#[derive(Debug)]
-struct RemotePart {
-    remote: Arc<Remote>,
-    /// The object's name beside the index.
-    name: String,
-    /// The sparse file, and which chunks it holds.
-    file: std::fs::File,
-    path: PathBuf,
-    have: Mutex<Chunks>,
-    len: u64,
-    chunk: u64,
-}
-
-/// Which chunks a [`RemotePart`] holds, and how many it lacks.
-#[derive(Debug)]
-struct Chunks {
-    have: Vec<bool>,
-    missing: usize,
-}
-
-impl RemotePart {
-    fn open(remote: &Arc<Remote>, name: &str, len: u64, chunk: u64) -> Result<Self, StoreError> {
-        use std::sync::atomic::{AtomicU64, Ordering};
-        static PARTS: AtomicU64 = AtomicU64::new(0);
-        let k = PARTS.fetch_add(1, Ordering::Relaxed);
-        remove_stale_parts(remote.mirror(), name);
-        let path = remote.mirror().join(format!("{name}.part{}-{k}", std::process::id()));
-        let file = std::fs::OpenOptions::new()
-            .read(true)
-            .write(true)
-            .create(true)
-            .truncate(true)
-            .open(&path)
-            .map_err(|cause| StoreError::Io { path: path.clone(), cause })?;
-        let chunks = len.div_ceil(chunk) as usize;
-        Ok(Self {
-            remote: remote.clone(),
-            name: name.to_string(),
-            file,
-            path,
-            have: Mutex::new(Chunks { have: vec![false; chunks], missing: chunks }),
-            len,
-            chunk,
-        })
-    }
-
-    /// Fetches the chunks under `offset..end` that are not there yet, then reads them.
-    fn read_at(&self, offset: u64, buf: &mut [u8]) -> std::io::Result<()> {
-        let end = offset.saturating_add(buf.len() as u64);
-        if end > self.len {
-            return Err(std::io::Error::new(
-                std::io::ErrorKind::UnexpectedEof,
-                format!("bytes {offset}..{end} of {} ({} bytes)", self.name, self.len),
-            ));
-        }
-        if buf.is_empty() {
-            return Ok(());
-        }
-        let c = self.chunk;
-        let (first, last) = ((offset / c) as usize, ((end - 1) / c) as usize);
-        let mut chunks = self.have.lock().unwrap_or_else(|e| e.into_inner());
-        if chunks.missing == 0 {
-            drop(chunks);
-            return read_at(&self.file, offset, buf);
-        }
-        let have = &mut chunks.have;
-        let mut k = first;
-        let mut fetched = 0;
-        while k <= last {
-            if have[k] {
-                k += 1;
-                continue;
-            }
-            // A run of missing chunks, one range GET.
-            let mut e = k;
-            while e < last && !have[e + 1] {
-                e += 1;
-            }
-            let (at, to) = (k as u64 * c, ((e as u64 + 1) * c).min(self.len));
-            let bytes =
-                self.remote.read_range(&self.name, at..to).map_err(std::io::Error::other)?;
-            write_at(&self.file, at, &bytes)?;
-            have[k..=e].iter_mut().for_each(|h| *h = true);
-            fetched += e + 1 - k;
-            k = e + 1;
-        }
-        chunks.missing -= fetched;
-        if fetched > 0 && chunks.missing == 0 {
-            // Complete: the mirror's copy (a rename, so a reader sees it whole or not at all).
-            let _ = std::fs::rename(&self.path, self.remote.mirror().join(&self.name));
-        }
-        drop(chunks);
-        read_at(&self.file, offset, buf)
-    }
-}
-
-/// Removes the part files of table `name` in `mirror` that a process no longer running left
-/// (killed before it could remove them): `NAME.partPID-K` whose `PID` is not a live process.
-/// Where the platform cannot tell (no `/proc`), none is removed. A part removed under a process
-/// that still reads it (another PID namespace sharing the cache) costs it nothing on unix: its
-/// open file stays; only its rename to the mirror's copy fails, which is only a cache miss.
-fn remove_stale_parts(mirror: &Path, name: &str) {
-    if !Path::new("/proc/self").exists() {
-        return;
-    }
-    let Ok(entries) = std::fs::read_dir(mirror) else { return };
-    let prefix = format!("{name}.part");
-    for e in entries.flatten() {
-        let file = e.file_name();
-        let Some(pid) = file
-            .to_str()
-            .and_then(|f| f.strip_prefix(&prefix))
-            .and_then(|rest| rest.split_once('-'))
-            .and_then(|(pid, _)| pid.parse::<u32>().ok())
-        else {
-            continue;
-        };
-        if !Path::new("/proc").join(pid.to_string()).exists() {
-            let _ = std::fs::remove_file(e.path());
-        }
-    }
-}
-
-impl Drop for RemotePart {
-    fn drop(&mut self) {
-        // Gone already when it was completed and renamed.
-        let _ = std::fs::remove_file(&self.path);
-    }
-}
-
-impl SideTable {
-    /// Its length in bytes.
-    pub fn len(&self) -> u64 {
-        self.len
-    }
-
-    /// Whether it has no bytes.
-    pub fn is_empty(&self) -> bool {
-        self.len == 0
-    }
-
-    /// Its path, or its URL when it is read from a remote store by range requests.
-    pub fn location(&self) -> &str {
-        &self.location
-    }
-
-    /// Whether its reads are range requests to a remote store.
-    pub fn is_remote(&self) -> bool {
-        matches!(self.source, SideSource::Remote(..))
-    }
-}
-
-impl terrain_core::lod::TableReader for SideTable {
-    fn read_at(&self, offset: u64, buf: &mut [u8]) -> std::io::Result<()> {
-        match &self.source {
-            SideSource::File(file) => read_at(file, offset, buf),
-            SideSource::Remote(part) => part.read_at(offset, buf),
-        }
     }
 }
 
@@ -354,9 +171,10 @@ impl Store {
     /// one: a local store's file; a remote store's copy in its mirror, fetched whole first
     /// ([`Store::side_file`]) unless the store was opened with
     /// [`RemoteOptions::side_tables_in_chunks`]: then the object itself, its size asked by one
-    /// HEAD and each read fetching the chunks it covers that are not there yet (`RemotePart`),
-    /// so a reader that needs a few pages of a large table (geomorph's `geomip.bin` read by
-    /// pages) fetches their chunks only.
+    /// HEAD and each read fetching the chunks it covers that are not there yet (or, not
+    /// waiting, leaving them to a background fill: [`SideTable::set_waiting`]), so a reader
+    /// that needs a few pages of a large table (geomorph's `geomip.bin` read by pages) fetches
+    /// their chunks only.
     pub fn side_table(&self, name: &str) -> Result<Option<SideTable>, StoreError> {
         let local = self.dir.join(name);
         let chunked = self.remote.as_ref().and_then(|r| Some((r, r.side_chunk()?)));
@@ -371,14 +189,11 @@ impl Store {
                 };
                 let io = |cause| StoreError::Io { path: local.clone(), cause };
                 let len = file.metadata().map_err(io)?.len();
-                let location = local.display().to_string();
-                return Ok(Some(SideTable { len, location, source: SideSource::File(file) }));
+                return Ok(Some(SideTable::file(file, len, local.display().to_string())));
             }
         };
         let Some(len) = remote.file_size(name)? else { return Ok(None) };
-        let location = format!("{}/{name}", remote.url());
-        let source = SideSource::Remote(RemotePart::open(remote, name, len, chunk)?);
-        Ok(Some(SideTable { len, location, source }))
+        Ok(Some(SideTable::remote(remote, name, len, chunk)?))
     }
 
     /// Whether the store has the side table `name`, without fetching it (a remote store:
@@ -771,22 +586,6 @@ pub(crate) fn read_at(file: &File, offset: u64, buf: &mut [u8]) -> std::io::Resu
         let mut file = file;
         file.seek(SeekFrom::Start(offset))?;
         file.read_exact(buf)
-    }
-}
-
-/// Positioned write (`pwrite` where the platform has it).
-fn write_at(file: &File, offset: u64, buf: &[u8]) -> std::io::Result<()> {
-    #[cfg(unix)]
-    {
-        use std::os::unix::fs::FileExt;
-        file.write_all_at(buf, offset)
-    }
-    #[cfg(not(unix))]
-    {
-        use std::io::{Seek, SeekFrom, Write};
-        let mut file = file;
-        file.seek(SeekFrom::Start(offset))?;
-        file.write_all(buf)
     }
 }
 

@@ -347,6 +347,7 @@ impl Method for StoreMethod<'_> {
 
     fn frame(&mut self, camera: &Camera) -> Frame {
         let warm = self.wait.next_is_warm(&mut self.frames);
+        let later = self.frames > 1;
         let (cfg, tables) = (&self.config, &self.tables);
         let kind = self.kind;
         // The PVS of the unexaggerated terrain, looked up where the eye is over it.
@@ -381,6 +382,14 @@ impl Method for StoreMethod<'_> {
                     // coverage's patches are built only when the frame is measured
                     // (`surface`).
                     let geomip = GeomipConfig { patch_cells: table.patch_cells(), ..cfg.geomip };
+                    // A remote table read by pages: a warm frame waits for the pages it reads,
+                    // any other bounds the patches of a page not here yet by the coarse
+                    // pyramid (finer, never coarser). From the second frame on the rest of the
+                    // table is fetched in the background (one view fetches only its pages).
+                    if later {
+                        table.fetch_all_in_background();
+                    }
+                    table.set_waiting(warm);
                     // A page of `geomip.bin` that cannot be read is reported (once per
                     // frame that needs it) and its patches drawn at the finest level.
                     let runs = table.try_select_runs(&src, camera, &geomip).unwrap_or_else(|e| {

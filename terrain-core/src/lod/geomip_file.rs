@@ -557,6 +557,24 @@ impl GeomipTable {
         self.paged().map(|p| p.stats())
     }
 
+    /// Whether a table read by pages waits for a page its reader has not got yet (the
+    /// default), or bounds that page's patches by the coarse pyramid and counts it late
+    /// ([`GeomipPagingStats::pages_late`]; see [`TableReader::set_waiting`]). A table held
+    /// whole never waits.
+    pub fn set_waiting(&self, wait: bool) {
+        if let Some(p) = self.paged() {
+            p.set_waiting(wait);
+        }
+    }
+
+    /// Starts fetching the rest of a table read by pages in the background, where its reader
+    /// fetches ([`TableReader::fetch_all_in_background`]).
+    pub fn fetch_all_in_background(&self) {
+        if let Some(p) = self.paged() {
+            p.fetch_all_in_background();
+        }
+    }
+
     /// [`GeomipTable::select_runs`], failing when a page of a table read by pages that the
     /// frame needed could not be read or is damaged (the error names the file and the page).
     /// A table held whole never fails.
@@ -585,7 +603,7 @@ impl GeomipTable {
 mod tests {
     use super::*;
     use crate::geometry::Camera;
-    use crate::lod::{GeomipConfig, GeomipScene};
+    use crate::lod::{GeomipConfig, GeomipScene, PatchLod};
     use crate::quadtree::Quadtree;
     use crate::synth::FractalConfig;
 
@@ -816,6 +834,105 @@ mod tests {
             }
         }
         None
+    }
+
+    /// `bytes` whose entries past `from` are not here yet while `missing` holds, answering
+    /// `WouldBlock` for them when told not to wait (as a remote table being fetched).
+    struct Arriving {
+        bytes: Vec<u8>,
+        from: u64,
+        missing: std::sync::atomic::AtomicBool,
+        waiting: std::sync::atomic::AtomicBool,
+    }
+
+    impl TableReader for Arriving {
+        fn read_at(&self, offset: u64, buf: &mut [u8]) -> std::io::Result<()> {
+            use std::sync::atomic::Ordering::Relaxed;
+            let late = self.missing.load(Relaxed) && offset + buf.len() as u64 > self.from;
+            if late && !self.waiting.load(Relaxed) {
+                return Err(std::io::ErrorKind::WouldBlock.into());
+            }
+            self.bytes.read_at(offset, buf)
+        }
+
+        fn set_waiting(&self, wait: bool) {
+            self.waiting.store(wait, std::sync::atomic::Ordering::Relaxed);
+        }
+    }
+
+    /// A page not here yet, not waited for, is counted late and its patches bounded by the
+    /// coarse pyramid: every patch drawn as fine as, or finer than, its own entries draw it
+    /// (some finer), never coarser; once the pages arrive the selection is the whole table's,
+    /// bit for bit (nothing bounded was kept). Waiting, the same table reads them at once.
+    #[test]
+    fn a_page_not_here_yet_is_drawn_finer_never_coarser_and_exactly_once_it_arrives() {
+        use std::sync::atomic::{AtomicBool, Ordering::Relaxed};
+        let hm = terrain(1025, 707);
+        let whole = GeomipTable::new(&hm, 16);
+        let bytes = whole.encode(&hm);
+        let len = bytes.len() as u64;
+        // Entries of the northern half (pages past the middle) not here yet.
+        let from = HEADER_LEN as u64 + (len - HEADER_LEN as u64) / 2;
+        let reader = Arc::new(Arriving {
+            bytes,
+            from,
+            missing: AtomicBool::new(true),
+            waiting: AtomicBool::new(true),
+        });
+        let w = want(&hm, 16);
+        let paging = GeomipPaging::default();
+        let paged = GeomipTable::open_paged("geomip.bin", reader.clone(), len, &w, &paging)
+            .unwrap()
+            .exaggerated(1.5);
+        let whole = whole.exaggerated(1.5);
+        let tree = Quadtree::new(&hm, 16);
+        let cfg = GeomipConfig::default();
+        let cams: Vec<Camera> = [
+            (0.5, 0.9, 200.0, 270.0),
+            (0.2, 0.6, 60.0, 0.0),
+            (0.8, 0.95, 900.0, 200.0),
+            (0.5, 0.1, 400.0, 90.0),
+        ]
+        .iter()
+        .map(|&(x, y, z, yaw)| {
+            let pos = hm.grid_to_world(x * 1025.0, y * 707.0).extend(z);
+            Camera::from_yaw_pitch(pos, yaw, -20.0).with_viewport(1280.0, 720.0)
+        })
+        .collect();
+        paged.set_waiting(false);
+        let (mut finer, mut late_frames) = (0, 0);
+        for (k, cam) in cams.iter().enumerate() {
+            let late = paged.paging_stats().unwrap().pages_late;
+            let a = whole.select_runs(&tree, cam, &cfg).expand();
+            let b = paged.try_select_runs(&tree, cam, &cfg).unwrap().expand();
+            late_frames += usize::from(paged.paging_stats().unwrap().pages_late > late);
+            let level = |p: &PatchLod| f32::from(p.level) + p.tween;
+            let of_b: std::collections::HashMap<(u32, u32), f32> =
+                b.patches.iter().map(|p| ((p.i, p.j), level(p))).collect();
+            assert_eq!(a.patches.len(), b.patches.len(), "camera {k}");
+            for p in &a.patches {
+                let lb = of_b[&(p.i, p.j)];
+                assert!(lb <= level(p) + 1e-6, "camera {k}, patch ({}, {}) coarser", p.i, p.j);
+                finer += usize::from(lb < level(p) - 1e-6);
+            }
+        }
+        assert!(late_frames >= 2 && finer > 0, "{late_frames} frames late, {finer} finer");
+        // Waiting, the same table reads the pages at once: the whole table's selection.
+        paged.set_waiting(true);
+        let late = paged.paging_stats().unwrap().pages_late;
+        for cam in &cams {
+            let (a, b) = (whole.select_runs(&tree, cam, &cfg), paged.select_runs(&tree, cam, &cfg));
+            assert!(same_runs(&a, &b));
+        }
+        assert_eq!(paged.paging_stats().unwrap().pages_late, late);
+        // Arrived, not waiting: the same, nothing late.
+        reader.missing.store(false, Relaxed);
+        paged.set_waiting(false);
+        for cam in &cams {
+            let (a, b) = (whole.select_runs(&tree, cam, &cfg), paged.select_runs(&tree, cam, &cfg));
+            assert!(same_runs(&a, &b));
+        }
+        assert_eq!(paged.paging_stats().unwrap().pages_late, late);
     }
 
     #[test]

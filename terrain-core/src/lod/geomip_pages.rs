@@ -13,6 +13,11 @@
 //! selection is bit for bit the whole table's. A page whose checksum fails is an error that
 //! names the file and the page (kept for [`GeomipTable::try_select_runs`]); until then the
 //! frame treats its patches as infinitely rough (the finest level, never a wrong coarse one).
+//! A page the reader has not got yet and does not wait for (`WouldBlock`: a remote table
+//! fetched in the background, `terrain_stream::SideTable::set_waiting`) is counted late
+//! (`pages_late`) and its patches bounded by the summary node holding them (upper bounds of
+//! their errors, their box for the distance): finer or as fine as their own entries give,
+//! never coarser; it is read again by the next frame that needs it.
 //! terrain-core does no file I/O: the caller reads the bytes ([`TableReader`]).
 
 use std::sync::atomic::{AtomicU64, Ordering};
@@ -30,8 +35,19 @@ use crate::checksum::crc32;
 /// Reads a table file's bytes at an offset: the caller's file, a remote store's mirror, or
 /// bytes in memory (terrain-core does no file I/O of its own).
 pub trait TableReader: Send + Sync {
-    /// Fills `buf` with the bytes at `offset` (an error when fewer are there).
+    /// Fills `buf` with the bytes at `offset` (an error when fewer are there; of kind
+    /// [`std::io::ErrorKind::WouldBlock`] when they are not here yet and the reader was told
+    /// not to wait: [`TableReader::set_waiting`]).
     fn read_at(&self, offset: u64, buf: &mut [u8]) -> std::io::Result<()>;
+
+    /// Whether reads may wait for bytes not here yet (the default, and all a reader whose bytes
+    /// are always here does); not waiting, such a read answers `WouldBlock` at once and the
+    /// reader fetches the bytes in the background.
+    fn set_waiting(&self, _wait: bool) {}
+
+    /// Starts fetching every byte not here yet in the background (a reader whose bytes are
+    /// always here does nothing).
+    fn fetch_all_in_background(&self) {}
 }
 
 impl TableReader for Vec<u8> {
@@ -73,6 +89,18 @@ pub struct GeomipPagingStats {
     pub tiles_built: u64,
     /// Bytes the caches hold now.
     pub cached_bytes: u64,
+    /// Reads of a page that was not here yet and not waited for (the reader said
+    /// `WouldBlock`): its patches bounded by the coarse pyramid that frame.
+    pub pages_late: u64,
+}
+
+/// A page asked of [`PagedEntries::page`].
+enum PageRead {
+    Here(Arc<Page>),
+    /// Not here yet, not waited for: bound its patches by the coarse pyramid.
+    Late,
+    /// Unreadable (the error is kept): its patches are infinitely rough.
+    Failed,
 }
 
 /// The layout of a table file read by pages, from its header and tail
@@ -172,6 +200,7 @@ pub(super) struct PagedEntries {
     bytes_read: AtomicU64,
     pages_read: AtomicU64,
     tiles_built: AtomicU64,
+    pages_late: AtomicU64,
 }
 
 impl std::fmt::Debug for PagedEntries {
@@ -219,6 +248,7 @@ impl PagedEntries {
             bytes_read: AtomicU64::new(open_bytes),
             pages_read: AtomicU64::new(0),
             tiles_built: AtomicU64::new(0),
+            pages_late: AtomicU64::new(0),
         }
     }
 
@@ -252,7 +282,18 @@ impl PagedEntries {
             bytes_read: AtomicU64::new(self.bytes_read.load(Ordering::Relaxed)),
             pages_read: AtomicU64::new(0),
             tiles_built: AtomicU64::new(0),
+            pages_late: AtomicU64::new(0),
         }
+    }
+
+    /// [`TableReader::set_waiting`] of the reader.
+    pub(super) fn set_waiting(&self, wait: bool) {
+        self.reader.set_waiting(wait);
+    }
+
+    /// [`TableReader::fetch_all_in_background`] of the reader.
+    pub(super) fn fetch_all_in_background(&self) {
+        self.reader.fetch_all_in_background();
     }
 
     /// What was read so far.
@@ -262,6 +303,7 @@ impl PagedEntries {
             pages_read: self.pages_read.load(Ordering::Relaxed),
             tiles_built: self.tiles_built.load(Ordering::Relaxed),
             cached_bytes: self.lock().bytes,
+            pages_late: self.pages_late.load(Ordering::Relaxed),
         }
     }
 
@@ -285,8 +327,8 @@ impl PagedEntries {
         slot.get_or_insert(e);
     }
 
-    /// Reads and checks page `p`.
-    fn read_page(&self, p: usize) -> Result<Page, GeomipFileError> {
+    /// Reads and checks page `p` (`Ok(None)`: not here yet, the reader does not wait).
+    fn read_page(&self, p: usize) -> Result<Option<Page>, GeomipFileError> {
         let lay = &self.layout;
         let l = lay.l;
         let total = lay.nx as usize * lay.ny as usize;
@@ -300,9 +342,11 @@ impl PagedEntries {
             offset,
             cause: Box::new(cause),
         };
-        self.reader
-            .read_at(offset, &mut buf)
-            .map_err(|e| page_err(GeomipFileError::Read(e.to_string())))?;
+        match self.reader.read_at(offset, &mut buf) {
+            Ok(()) => {}
+            Err(e) if e.kind() == std::io::ErrorKind::WouldBlock => return Ok(None),
+            Err(e) => return Err(page_err(GeomipFileError::Read(e.to_string()))),
+        }
         self.bytes_read.fetch_add(buf.len() as u64, Ordering::Relaxed);
         self.pages_read.fetch_add(1, Ordering::Relaxed);
         let (stored, computed) = (lay.page_crcs[p], crc32(&buf));
@@ -332,46 +376,69 @@ impl PagedEntries {
             page.heights.push(z);
             page.vertices.push(v);
         }
-        Ok(page)
+        Ok(Some(page))
     }
 
-    /// Page `p`, from the cache or read (`None`, and the error kept, when it cannot be).
-    fn page(&self, p: usize) -> Option<Arc<Page>> {
+    /// Page `p`, from the cache or read (not here yet: counted late; unreadable: the error
+    /// kept).
+    fn page(&self, p: usize) -> PageRead {
         let mut cache = self.lock();
         cache.tick += 1;
         let tick = cache.tick;
         if let Some(slot) = cache.pages.get_mut(&p) {
             slot.1 = tick;
-            return Some(slot.0.clone());
+            return PageRead::Here(slot.0.clone());
         }
         match self.read_page(p) {
-            Ok(page) => {
+            Ok(Some(page)) => {
                 let page = Arc::new(page);
                 cache.bytes += page_bytes(&page);
                 cache.pages.insert(p, (page.clone(), tick));
                 cache.trim(self.budget, self.layout.l);
-                Some(page)
+                PageRead::Here(page)
+            }
+            Ok(None) => {
+                self.pages_late.fetch_add(1, Ordering::Relaxed);
+                PageRead::Late
             }
             Err(e) => {
                 drop(cache);
                 self.fail(e);
-                None
+                PageRead::Failed
             }
         }
     }
 
-    /// Patch `k`'s entries (see [`super::GeomipTable::patch`]); `last` keeps the page read
-    /// last for the next call (a run of patches in one page locks the cache once).
-    fn patch_in(&self, k: usize, last: &mut Option<(usize, Arc<Page>)>) -> PatchEntries {
+    /// Patch `k`'s entries (see [`super::GeomipTable::patch`]); `last` keeps the page asked
+    /// last for the next call (a run of patches in one page locks the cache once). A page not
+    /// here yet gives the patch the coarse pyramid's bound: per level the summary node's
+    /// largest monotone error (`m_l`, at radius `L - l`, over a region holding the patch) and
+    /// its vertices' height range, so its factor is never coarser than its own entries'.
+    fn patch_in(&self, k: usize, last: &mut Option<(usize, PageRead)>) -> PatchEntries {
         let l = self.layout.l;
         let p = k / self.layout.page_patches;
         let mut out = PatchEntries { n: l, ..PatchEntries::default() };
         if last.as_ref().is_none_or(|(q, _)| *q != p) {
-            *last = self.page(p).map(|page| (p, page));
+            *last = Some((p, self.page(p)));
         }
-        let Some((_, page)) = last.as_ref() else {
-            out.errors[..l].fill(f32::INFINITY);
-            return out;
+        let page = match last.as_ref().map(|(_, read)| read) {
+            Some(PageRead::Here(page)) => page,
+            Some(PageRead::Late) => {
+                let nx = self.layout.nx as usize;
+                let m0 = self.layout.summary_level;
+                let (i, j) = ((k % nx) as u32 >> m0, (k / nx) as u32 >> m0);
+                let lv = &self.summary[0];
+                let bound = lv.bound(lv.index(i, j), l);
+                for e in 0..l {
+                    out.errors[e] = bound.errors[l - 1 - e];
+                }
+                out.bounded = Some(bound.z);
+                return out;
+            }
+            _ => {
+                out.errors[..l].fill(f32::INFINITY);
+                return out;
+            }
         };
         let at = (k - p * self.layout.page_patches) * l;
         out.errors[..l].copy_from_slice(&page.errors[at..at + l]);
@@ -404,7 +471,12 @@ impl PagedEntries {
             return None;
         }
         let shift = m0 - m;
-        let tile = self.tile(i >> shift, j >> shift);
+        let Some(tile) = self.tile(i >> shift, j >> shift) else {
+            // A page under it not here yet: the summary node holding it bounds it (its region,
+            // dilated, holds the node's).
+            let lv = &self.summary[0];
+            return Some(lv.bound(lv.index(i >> shift, j >> shift), l));
+        };
         let lv = &tile.levels[m];
         let side = lv.nx;
         let k = ((j - ((j >> shift) << shift)) * side + (i - ((i >> shift) << shift))) as usize;
@@ -412,18 +484,23 @@ impl PagedEntries {
     }
 
     /// The tile of summary node `(ti, tj)`, from the cache or computed.
-    fn tile(&self, ti: u32, tj: u32) -> Arc<Tile> {
+    /// (`None`: a page under it is not here yet.)
+    fn tile(&self, ti: u32, tj: u32) -> Option<Arc<Tile>> {
         {
             let mut cache = self.lock();
             cache.tick += 1;
             let tick = cache.tick;
             if let Some(slot) = cache.tiles.get_mut(&(ti, tj)) {
                 slot.1 = tick;
-                return slot.0.clone();
+                return Some(slot.0.clone());
             }
         }
         let failures = self.failures.load(Ordering::Relaxed);
+        let late = self.pages_late.load(Ordering::Relaxed);
         let tile = Arc::new(self.build_tile(ti, tj));
+        if self.pages_late.load(Ordering::Relaxed) != late {
+            return None;
+        }
         self.tiles_built.fetch_add(1, Ordering::Relaxed);
         // A tile built over a page that could not be read is not kept: the next frame that
         // needs it reads the page again (and reports it again).
@@ -436,7 +513,7 @@ impl PagedEntries {
             cache.tiles.insert((ti, tj), (tile.clone(), tick));
             cache.trim(self.budget, l);
         }
-        tile
+        Some(tile)
     }
 
     /// Levels `0..summary_level` over summary node `(ti, tj)`, as `CoarsePyramid::new`

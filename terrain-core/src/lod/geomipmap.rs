@@ -181,6 +181,11 @@ pub(super) struct PatchEntries {
     pub(super) errors: [f32; MAX_LEVELS],
     pub(super) heights: [f32; MAX_LEVELS],
     pub(super) vertices: [u16; MAX_LEVELS],
+    /// For a patch whose page is not here yet (a table read by pages from a remote store that
+    /// does not wait): its errors are upper bounds (the coarse pyramid's) and its max-error
+    /// vertices lie somewhere in the patch between these heights, so its factor is taken at
+    /// the patch's box, never coarser than the entries' own factor.
+    pub(super) bounded: Option<[f32; 2]>,
 }
 
 /// One node of the [`CoarsePyramid`] (its first `L` errors and its vertices' height range),
@@ -590,12 +595,23 @@ impl GeomipTable {
             shape.grid_to_world(DVec2::new(f64::from(pi * p), f64::from(pj * p))).extend(0.0);
         let spacing = shape.spacing();
         let entries = self.patch(k);
+        // A patch bounded by the pyramid (its page not here yet): every level's distance the
+        // box's, the nearest its vertex could be.
+        let boxed = entries.bounded.map(|[z0, z1]| {
+            let far = origin + DVec3::new(f64::from(p) * spacing.x, f64::from(p) * spacing.y, 0.0);
+            let (lo, hi) = (origin.min(far), origin.max(far));
+            let (lo, hi) =
+                (DVec3::new(lo.x, lo.y, f64::from(z0)), DVec3::new(hi.x, hi.y, f64::from(z1)));
+            (eye.clamp(lo, hi) - eye).length()
+        });
         let mut c = 0.0;
         let mut prev = 1.0f64;
         for e in 0..entries.n {
             let delta = f64::from(entries.errors[e]);
             let a = if delta <= 0.0 {
                 0.0
+            } else if let Some(d) = boxed {
+                if d <= 1e-9 { f64::INFINITY } else { lambda * delta / (tau * d) }
             } else {
                 let v = u32::from(entries.vertices[e]);
                 let (di, dj) = (v % (p + 1), v / (p + 1));
