@@ -246,6 +246,10 @@ pub struct StreamRecord {
     pub at_needed_level: bool,
     /// `tin` from a store: selected tiles not built yet, drawn by a coarser ancestor.
     pub late_tiles: usize,
+    /// `geomorph` from a remote store whose table is read where it lies: pages of the table
+    /// the frame did not wait for (not fetched yet), their patches drawn by the coarse bounds
+    /// (finer, never coarser).
+    pub late_table_pages: u64,
     /// Loaded on the frame thread (the paper's real-time loaded data; only the first frame of
     /// a real-time session), MiB.
     pub sync_mib: f64,
@@ -303,6 +307,7 @@ impl StreamRecord {
             late_levels: s.late_levels,
             at_needed_level: s.at_needed_level(),
             late_tiles: 0,
+            late_table_pages: 0,
             sync_mib: s.sync_bytes as f64 / MIB,
             prefetched_mib: s.prefetched_bytes as f64 / MIB,
             disk_mib: s.disk_bytes as f64 / MIB,

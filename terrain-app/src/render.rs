@@ -236,7 +236,7 @@ fn draw_frames(
                     "  stream: needed {:.3} MiB ({:.3} resident, late {:.3} MiB in {} blocks), \
                      synchronous {:.3} MiB ({} loads), \
                      prefetched {:.3} MiB, I/O {:.2} ms, cache hits {} misses {}, evictions {}, \
-                     resident {:.3} / {:.0} MiB, queue {} ({:.3} MiB), waited {:.1} ms, faults {}",
+                     resident {:.3} / {:.0} MiB, queue {} ({:.3} MiB), waited {:.1} ms, faults {}{}",
                     st.needed_mib,
                     st.needed_resident_mib,
                     st.late_mib,
@@ -253,7 +253,12 @@ fn draw_frames(
                     st.queue_depth,
                     st.queued_mib,
                     st.wait_ms,
-                    st.faults
+                    st.faults,
+                    if st.late_table_pages > 0 {
+                        format!(", table pages late {}", st.late_table_pages)
+                    } else {
+                        String::new()
+                    }
                 );
             }
         }
@@ -732,7 +737,7 @@ pub(crate) fn print_stream_summary(
         "summary: {} frames ({}), frames that waited for I/O after frame 1: {}, \
          drawn at their needed level: {:.1} %, late {:.3} MiB per frame (median), \
          synchronous loads after frame 1: {}, synchronous {:.2} MiB, \
-         prefetched {:.2} MiB, I/O {:.1} ms, peak resident {:.1} MiB (budget {} MiB), max triangles {}",
+         prefetched {:.2} MiB, I/O {:.1} ms, peak resident {:.1} MiB (budget {} MiB), max triangles {}{}",
         streams.len(),
         if wait { "warm: every frame waits" } else { "real time" },
         summary.waited_after_first,
@@ -744,7 +749,14 @@ pub(crate) fn print_stream_summary(
         total(&|s| s.io_ms),
         streams.iter().map(|s| s.resident_mib).fold(0.0, f64::max),
         cache_mib,
-        max_triangles
+        max_triangles,
+        match streams.iter().filter(|s| s.late_table_pages > 0).count() {
+            0 => String::new(),
+            n => format!(
+                ", frames drawing table pages not fetched yet: {n} ({} pages)",
+                streams.iter().map(|s| s.late_table_pages).sum::<u64>()
+            ),
+        }
     );
 }
 

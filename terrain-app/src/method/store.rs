@@ -412,7 +412,15 @@ impl Method for StoreMethod<'_> {
             };
             StoreDraw { selection, ..Default::default() }
         };
+        let late_pages = || match &self.tables {
+            Tables::Geomip(t, _) => t.paging_stats().map_or(0, |s| s.pages_late),
+            _ => 0,
+        };
+        let late_before = late_pages();
         let mut frame = paged_frame(self.scene.frame_for(camera, warm, &self.tree, &mut select));
+        if let Some(s) = frame.stats.stream.as_mut() {
+            s.late_table_pages = late_pages() - late_before;
+        }
         frame.draw = match frame.draw {
             Draw::Paged(mut f) => match f.morph.take() {
                 // Only the patches over drawn blocks (`frame_for` kept them: a run wholly over

@@ -148,6 +148,11 @@ struct Caches {
     tiles: FxHashMap<(u32, u32), (Arc<Tile>, u64)>,
     tick: u64,
     bytes: u64,
+    /// Pages found not here this frame, and tiles over them: not asked again until the next
+    /// frame ([`PagedEntries::new_frame`]), so a frame counts a late page once and bounds its
+    /// patches without reading again (a frame asks a tile for every node it walks under it).
+    late_pages: rustc_hash::FxHashSet<usize>,
+    late_tiles: rustc_hash::FxHashSet<(u32, u32)>,
 }
 
 impl Caches {
@@ -286,6 +291,13 @@ impl PagedEntries {
         }
     }
 
+    /// A frame starts: the pages found not here in the last one are asked again.
+    pub(super) fn new_frame(&self) {
+        let mut cache = self.lock();
+        cache.late_pages.clear();
+        cache.late_tiles.clear();
+    }
+
     /// [`TableReader::set_waiting`] of the reader.
     pub(super) fn set_waiting(&self, wait: bool) {
         self.reader.set_waiting(wait);
@@ -389,6 +401,9 @@ impl PagedEntries {
             slot.1 = tick;
             return PageRead::Here(slot.0.clone());
         }
+        if cache.late_pages.contains(&p) {
+            return PageRead::Late;
+        }
         match self.read_page(p) {
             Ok(Some(page)) => {
                 let page = Arc::new(page);
@@ -399,6 +414,7 @@ impl PagedEntries {
             }
             Ok(None) => {
                 self.pages_late.fetch_add(1, Ordering::Relaxed);
+                cache.late_pages.insert(p);
                 PageRead::Late
             }
             Err(e) => {
@@ -494,13 +510,16 @@ impl PagedEntries {
                 slot.1 = tick;
                 return Some(slot.0.clone());
             }
+            if cache.late_tiles.contains(&(ti, tj)) {
+                return None;
+            }
         }
         let failures = self.failures.load(Ordering::Relaxed);
-        let late = self.pages_late.load(Ordering::Relaxed);
-        let tile = Arc::new(self.build_tile(ti, tj));
-        if self.pages_late.load(Ordering::Relaxed) != late {
+        let Some(tile) = self.build_tile(ti, tj) else {
+            self.lock().late_tiles.insert((ti, tj));
             return None;
-        }
+        };
+        let tile = Arc::new(tile);
         self.tiles_built.fetch_add(1, Ordering::Relaxed);
         // A tile built over a page that could not be read is not kept: the next frame that
         // needs it reads the page again (and reports it again).
@@ -521,7 +540,8 @@ impl PagedEntries {
     /// over the square of radius `r` (clipped to the grid), the height range over radius
     /// `L - 1`, then 2 x 2 maxima. The window holds every patch within `L - 1` of the tile's,
     /// so clipping the dilation to it is clipping it to the grid.
-    fn build_tile(&self, ti: u32, tj: u32) -> Tile {
+    /// `None` when a page under it is not here yet.
+    fn build_tile(&self, ti: u32, tj: u32) -> Option<Tile> {
         let (l, nx, ny) = (self.layout.l, self.layout.nx as usize, self.layout.ny as usize);
         let m0 = self.layout.summary_level;
         let side = 1usize << m0;
@@ -537,6 +557,9 @@ impl PagedEntries {
         for j in wy0..wy1 {
             for i in wx0..wx1 {
                 let e = self.patch_in(j * nx + i, &mut last);
+                if matches!(last, Some((_, PageRead::Late))) {
+                    return None;
+                }
                 let w = (j - wy0) * ww + i - wx0;
                 for (r, o) in own.iter_mut().enumerate() {
                     o[w] = e.errors[(l - r) - 1];
@@ -587,6 +610,6 @@ impl PagedEntries {
             levels.push(next);
         }
         debug_assert!(l <= MAX_LEVELS);
-        Tile { levels }
+        Some(Tile { levels })
     }
 }

@@ -1210,6 +1210,9 @@ impl GeomipTable {
         bound: RunBound,
     ) -> GeomipRuns {
         let start = Instant::now();
+        if let Some(p) = &self.paged {
+            p.new_frame();
+        }
         let shape = tree.shape();
         assert!(
             self.fits(shape),
