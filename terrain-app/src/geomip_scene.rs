@@ -173,9 +173,10 @@ pub const READ_WHOLE_MAX_BYTES: u64 = 64 << 20;
 /// ([`GeomipTable::open_paged`]: the header and tail at open, each page of entries when a
 /// frame first needs it, through a cache of [`GeomipPaging::default`]'s bytes; a remote
 /// store's from its mirror's copy, fetched whole first, or, when the store reads its tables by
-/// chunks (`terrain render` with one camera), where it lies, by the chunks those pages lie in
-/// ([`Store::side_table`])), or read whole, with a warning, when the store was baked before
-/// `geomip.bin` version 2.
+/// chunks (the app's stores: `ooc::remote_options`), where it lies, by the chunks those pages
+/// lie in ([`Store::side_table`]; a frame that does not wait, [`GeomipTable::set_waiting`],
+/// leaves the missing ones to the background fill)), or read whole, with a warning, when the
+/// store was baked before `geomip.bin` version 2.
 pub fn read_for_store(store: &Store, shape: &TreeShape) -> anyhow::Result<GeomipTable> {
     read_for_store_with(store, shape, &GeomipPaging::default(), READ_WHOLE_MAX_BYTES)
 }
