@@ -292,6 +292,25 @@ fn a_remote_table_is_not_waited_for_after_the_first_frame_and_fills_in_the_backg
     let a = lt.try_select_runs(&gl, &later, &cfg).unwrap();
     assert!(same(&a, &rt.try_select_runs(&gr, &later, &cfg).unwrap()), "once whole, exact");
     assert_eq!(rt.paging_stats().unwrap().pages_late, pages_late);
+
+    // The server gone mid-fill: a read that does not wait says so, naming the table, once
+    // the fill's requests have had their retries (not `WouldBlock` for ever).
+    let gone = Store::open_location_with(&url, &options("gone")).unwrap();
+    let table = gone.side_table(geomip).unwrap().unwrap();
+    table.read_at(10, &mut head).unwrap();
+    drop(server);
+    table.set_waiting(false);
+    let started = Instant::now();
+    let err = loop {
+        match table.read_at(len - 100, &mut tail) {
+            Err(e) if e.kind() == std::io::ErrorKind::WouldBlock => {}
+            Err(e) => break e,
+            Ok(()) => panic!("read the tail from a stopped server"),
+        }
+        assert!(started.elapsed() < Duration::from_secs(120), "no error from the fill");
+        std::thread::sleep(Duration::from_millis(50));
+    };
+    assert!(err.to_string().contains(geomip), "{err}");
 }
 
 #[test]

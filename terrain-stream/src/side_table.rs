@@ -299,11 +299,18 @@ impl RemotePart {
         self.inner.waiting.store(wait, Ordering::Relaxed);
     }
 
-    /// Starts the background fill, unless it was started or every chunk is here.
+    /// Starts the background fill, unless it runs or every chunk is here (a fill that stopped
+    /// on an error starts again: its requests had their retries).
     fn start_fill(&self) {
         let mut fill = self.fill.lock().unwrap_or_else(|e| e.into_inner());
+        if fill.as_ref().is_some_and(|h| !h.is_finished()) {
+            return;
+        }
+        if let Some(done) = fill.take() {
+            let _ = done.join();
+        }
         let mut s = self.inner.lock();
-        if fill.is_some() || s.missing == 0 {
+        if s.missing == 0 || s.stop {
             return;
         }
         s.fill_running = true;
@@ -348,7 +355,11 @@ impl RemotePart {
             }
             if !inner.waiting.load(Ordering::Relaxed) {
                 if !s.fill_running {
-                    let why = s.failed.clone().unwrap_or_else(|| "the fill stopped".into());
+                    // The fill stopped on an error: this read reports it, the fill starts
+                    // again for the next.
+                    let why = s.failed.take().unwrap_or_else(|| "the fill stopped".into());
+                    drop(s);
+                    self.start_fill();
                     return Err(std::io::Error::other(format!(
                         "fetching {} in the background: {why}",
                         inner.name
