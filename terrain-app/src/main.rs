@@ -128,6 +128,9 @@ fn main() -> std::process::ExitCode {
         Command::Demo(args) => demo::run(&args),
         Command::View(args) => view::run(&args),
     };
+    // The store kept open for the session goes: a remote store's side tables read by chunks
+    // stop their background fill and remove their incomplete part files.
+    terrain_app::ooc::close_store();
     match result {
         Ok(()) => std::process::ExitCode::SUCCESS,
         Err(e) if e.downcast_ref::<interrupt::Interrupted>().is_some() => {

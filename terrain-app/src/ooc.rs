@@ -190,6 +190,19 @@ pub fn remote_options() -> RemoteOptions {
     o
 }
 
+type StoreKey = (std::path::PathBuf, Option<(u64, std::time::SystemTime)>);
+
+/// The last store [`open_store`] opened (see there).
+static LAST: std::sync::Mutex<Option<(StoreKey, Store)>> = std::sync::Mutex::new(None);
+
+/// Drops the store [`open_store`] keeps (the process's end: a static is not dropped), so a
+/// remote store's side tables read by chunks stop their background fill and remove an
+/// incomplete part file, once their readers are gone too.
+pub fn close_store() {
+    let last = LAST.lock().unwrap_or_else(|e| e.into_inner()).take();
+    drop(last);
+}
+
 /// Opens the store at `path`: a folder, or a URL ([`store_url`]) read through the disk cache.
 ///
 /// The last store opened is kept (a clone shares its index), and opening the same one again
@@ -199,8 +212,6 @@ pub fn remote_options() -> RemoteOptions {
 /// length and modification time (a bake in between opens it anew); a URL for the rest of the
 /// process.
 pub fn open_store(path: &Path) -> Result<Store, StoreError> {
-    type Key = (std::path::PathBuf, Option<(u64, std::time::SystemTime)>);
-    static LAST: std::sync::Mutex<Option<(Key, Store)>> = std::sync::Mutex::new(None);
     let url = store_url(path);
     let stamp = match url {
         Some(_) => None,
@@ -209,7 +220,7 @@ pub fn open_store(path: &Path) -> Result<Store, StoreError> {
             meta.and_then(|m| Some((m.len(), m.modified().ok()?)))
         }
     };
-    let key: Key = (path.to_path_buf(), stamp);
+    let key: StoreKey = (path.to_path_buf(), stamp);
     let mut last = LAST.lock().unwrap_or_else(|e| e.into_inner());
     if let Some((k, store)) = &*last
         && *k == key

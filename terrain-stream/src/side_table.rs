@@ -38,8 +38,11 @@ pub struct SideTable {
 #[derive(Debug)]
 enum SideSource {
     File(File),
-    Remote(RemotePart),
+    Remote(Arc<RemotePart>),
 }
+
+/// The remote side tables a store (and its clones) reads where they lie, by name.
+pub(crate) type SideParts = Arc<Mutex<std::collections::HashMap<String, Arc<RemotePart>>>>;
 
 impl SideTable {
     /// A local file of `len` bytes at `location`.
@@ -47,16 +50,26 @@ impl SideTable {
         Self { len, location, source: SideSource::File(file) }
     }
 
-    /// Remote table `name` of `len` bytes, read by chunks of `chunk` bytes.
+    /// Remote table `name` of `len` bytes, read by chunks of `chunk` bytes: the store's part
+    /// of it in `parts` (what earlier readers fetched, its fill if it runs), else a new one.
     pub(crate) fn remote(
         remote: &Arc<Remote>,
         name: &str,
         len: u64,
         chunk: u64,
+        parts: &SideParts,
     ) -> Result<Self, StoreError> {
         let location = format!("{}/{name}", remote.url());
-        let source = SideSource::Remote(RemotePart::open(remote, name, len, chunk)?);
-        Ok(Self { len, location, source })
+        let mut parts = parts.lock().unwrap_or_else(|e| e.into_inner());
+        let part = match parts.get(name) {
+            Some(p) if p.inner.len == len && p.inner.chunk == chunk => p.clone(),
+            _ => {
+                let p = Arc::new(RemotePart::open(remote, name, len, chunk)?);
+                parts.insert(name.to_string(), p.clone());
+                p
+            }
+        };
+        Ok(Self { len, location, source: SideSource::Remote(part) })
     }
 
     /// Its length in bytes.
@@ -137,10 +150,11 @@ enum Chunk {
 /// waiting read (one range GET per run of missing chunks it covers) or by the background fill;
 /// no memory holds them. Once every chunk is there the file is the table: it is renamed to the
 /// mirror's copy ([`crate::Store::side_file`] then finds it); a part left incomplete is
-/// removed when the last reader drops it, and one a killed process left when the table is next
-/// read by chunks ([`remove_stale_parts`]).
+/// removed when the store and its readers drop it, and one a killed process left (or one a
+/// store kept open to the end of its process) when the table is next read by chunks
+/// ([`remove_stale_parts`]).
 #[derive(Debug)]
-struct RemotePart {
+pub(crate) struct RemotePart {
     inner: Arc<PartInner>,
     /// The background fill, once started; stopped and joined on drop.
     fill: Mutex<Option<std::thread::JoinHandle<()>>>,

@@ -17,7 +17,7 @@ use crate::format::{
 use crate::overview::Overview;
 use crate::pages::{PagedIndex, index_err, scale_entry};
 use crate::remote::{Remote, RemoteIndex, RemoteOptions, is_url};
-use crate::side_table::SideTable;
+use crate::side_table::{SideParts, SideTable};
 
 /// An open store: the header and its grid index, block files on disk or, for a store opened
 /// from a URL ([`Store::open_location`]), on object storage or HTTP (read by range requests
@@ -36,6 +36,10 @@ pub struct Store {
     /// with a local store; a remote store's is fetched into the mirror when first needed
     /// (unset until then, and after a failed fetch, which the next read tries again).
     overview: Arc<Mutex<Option<Option<Arc<Overview>>>>>,
+    /// A remote store's side tables being read where they lie, by name: one part per table
+    /// for the store and its clones, so each byte is fetched once a session however many
+    /// readers open the table, one after another or at once.
+    parts: SideParts,
 }
 
 /// A store's block entries: every one in memory (index versions 2 and 3) or paged (4).
@@ -93,7 +97,14 @@ impl Store {
         let (header, index) = open_index(&dir.join(INDEX_FILE))?;
         let overview = Overview::open(&dir, &header)?.map(Arc::new);
         let overview = Arc::new(Mutex::new(Some(overview)));
-        Ok(Self { dir, header, index: Arc::new(index), remote: None, overview })
+        Ok(Self {
+            dir,
+            header,
+            index: Arc::new(index),
+            remote: None,
+            overview,
+            parts: SideParts::default(),
+        })
     }
 
     /// Opens the store at `location`: a local folder ([`Store::open`]) or a URL (`s3://`,
@@ -128,7 +139,14 @@ impl Store {
         };
         // The overview is fetched when a coarse level is first read (`Store::overview`).
         let overview = Arc::default();
-        Ok(Self { dir, header, index: Arc::new(index), remote: Some(remote), overview })
+        Ok(Self {
+            dir,
+            header,
+            index: Arc::new(index),
+            remote: Some(remote),
+            overview,
+            parts: SideParts::default(),
+        })
     }
 
     /// The finest level the store's overview (`overview.bin`: every block's coarsest levels
@@ -193,7 +211,7 @@ impl Store {
             }
         };
         let Some(len) = remote.file_size(name)? else { return Ok(None) };
-        Ok(Some(SideTable::remote(remote, name, len, chunk)?))
+        Ok(Some(SideTable::remote(remote, name, len, chunk, &self.parts)?))
     }
 
     /// Whether the store has the side table `name`, without fetching it (a remote store:
