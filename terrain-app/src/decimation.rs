@@ -215,8 +215,8 @@ impl Default for BudgetPolicy {
     /// against level 6's 119,646 in 36, and `pyr16k`'s level 8 1.45 M against 0.88 M at a
     /// half. At three quarters a tile has at most about 4/3 of the triangles it would have
     /// from every sample: `ev16k`'s level 5 9,532, `pyr16k`'s levels 7-8 151 k / 669 k (were
-    /// 414 k / 1.45 M), for 0.5 % (`pyr16k`) and 2 % (`ev16k`) more CPU over the whole
-    /// tileset (bench/mesh/README, "The budget floor").
+    /// 414 k / 1.45 M), for 0-1.5 % (`pyr16k`, two rounds) and 1.4 % (`ev16k`, one run) more
+    /// user CPU over the whole tileset (bench/mesh/README, "The budget floor").
     fn default() -> Self {
         Self { min_budget_fraction: 0.75, max_retries: 2 }
     }
