@@ -371,6 +371,13 @@ fn finite_range_by_lanes(data: &[f32]) -> Option<(f32, f32)> {
 /// (`f32::min`, `f32::max`) depends on the order. Anywhere else the extremes of a set are the
 /// same values whatever the order, so this is the plain scan's answer.
 pub(crate) fn range_by_lanes(data: &[f32]) -> Option<(f32, f32, bool)> {
+    let (min, max, finite) = extremes_by_lanes(data);
+    (min != 0.0 && max != 0.0).then_some((min, max, finite))
+}
+
+/// [`range_by_lanes`] whatever the extremes: a zero extreme's sign is the one a lane kept
+/// (for callers that ask its magnitude only).
+pub(crate) fn extremes_by_lanes(data: &[f32]) -> (f32, f32, bool) {
     const L: usize = 8;
     let (mut lo, mut hi) = ([f32::INFINITY; L], [f32::NEG_INFINITY; L]);
     let mut finite = true;
@@ -390,7 +397,7 @@ pub(crate) fn range_by_lanes(data: &[f32]) -> Option<(f32, f32, bool)> {
     }
     let min = lo.iter().fold(f32::INFINITY, |m, &z| if z < m { z } else { m });
     let max = hi.iter().fold(f32::NEG_INFINITY, |m, &z| if z > m { z } else { m });
-    (min != 0.0 && max != 0.0).then_some((min, max, finite))
+    (min, max, finite)
 }
 
 #[cfg(test)]

@@ -442,9 +442,7 @@ impl PagedEntries {
             Some(PageRead::Late) => {
                 let nx = self.layout.nx as usize;
                 let m0 = self.layout.summary_level;
-                let (i, j) = ((k % nx) as u32 >> m0, (k / nx) as u32 >> m0);
-                let lv = &self.summary[0];
-                let bound = lv.bound(lv.index(i, j), l);
+                let bound = self.summary_node((k % nx) as u32 >> m0, (k / nx) as u32 >> m0);
                 for e in 0..l {
                     out.errors[e] = bound.errors[l - 1 - e];
                 }
@@ -490,13 +488,18 @@ impl PagedEntries {
         let Some(tile) = self.tile(i >> shift, j >> shift) else {
             // A page under it not here yet: the summary node holding it bounds it (its region,
             // dilated, holds the node's).
-            let lv = &self.summary[0];
-            return Some(lv.bound(lv.index(i >> shift, j >> shift), l));
+            return Some(self.summary_node(i >> shift, j >> shift));
         };
         let lv = &tile.levels[m];
         let side = lv.nx;
         let k = ((j - ((j >> shift) << shift)) * side + (i - ((i >> shift) << shift))) as usize;
         Some(lv.bound(k, l))
+    }
+
+    /// Node `(i, j)` of the summary level (nodes `2^summary_level` patches wide).
+    fn summary_node(&self, i: u32, j: u32) -> NodeBound {
+        let lv = &self.summary[0];
+        lv.bound(lv.index(i, j), self.layout.l)
     }
 
     /// The tile of summary node `(ti, tj)`, from the cache or computed.

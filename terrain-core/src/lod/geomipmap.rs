@@ -599,10 +599,9 @@ impl GeomipTable {
         // box's, the nearest its vertex could be.
         let boxed = entries.bounded.map(|[z0, z1]| {
             let far = origin + DVec3::new(f64::from(p) * spacing.x, f64::from(p) * spacing.y, 0.0);
-            let (lo, hi) = (origin.min(far), origin.max(far));
-            let (lo, hi) =
-                (DVec3::new(lo.x, lo.y, f64::from(z0)), DVec3::new(hi.x, hi.y, f64::from(z1)));
-            (eye.clamp(lo, hi) - eye).length()
+            let patch =
+                crate::geometry::Aabb::new(origin.with_z(f64::from(z0)), far.with_z(f64::from(z1)));
+            patch.distance(eye)
         });
         let mut c = 0.0;
         let mut prev = 1.0f64;

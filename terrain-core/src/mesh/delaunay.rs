@@ -247,23 +247,12 @@ fn line_margin(h: f64) -> f64 {
     1e-12 * (h + 1.0)
 }
 
-/// The largest `|z|` of `data`, NaN ignored (infinite when some height is: then the line
-/// test dismisses nothing), by eight interleaved running maxima (the comparisons do not wait
-/// on each other; a NaN compares false and never enters).
+/// The largest `|z|` of `data`, void samples included (a corner vertex may be one), NaN
+/// ignored (infinite when some height is: then the line test dismisses nothing; 0 when there
+/// is none), from the grid's extremes by lanes.
 fn largest_magnitude(data: &[f32]) -> f64 {
-    const L: usize = 8;
-    let mut top = [0.0f32; L];
-    let mut chunks = data.chunks_exact(L);
-    for ch in &mut chunks {
-        for l in 0..L {
-            let z = ch[l].abs();
-            top[l] = if z > top[l] { z } else { top[l] };
-        }
-    }
-    for &z in chunks.remainder() {
-        top[0] = if z.abs() > top[0] { z.abs() } else { top[0] };
-    }
-    f64::from(top.iter().fold(0.0f32, |m, &z| if z > m { z } else { m }))
+    let (min, max, _) = crate::heightmap::extremes_by_lanes(data);
+    if min > max { 0.0 } else { f64::from(min.abs().max(max.abs())) }
 }
 
 /// A scan row's interpolation numerator as a line: `n(lo + k) = n(lo) + k dn`.
