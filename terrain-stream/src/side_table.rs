@@ -5,11 +5,11 @@
 //! flight's frames after the first never wait for the table and the table is whole in the
 //! mirror soon after.
 
-use std::collections::VecDeque;
+use std::collections::{HashMap, VecDeque};
 use std::fs::File;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
-use std::sync::{Arc, Condvar, Mutex, MutexGuard};
+use std::sync::{Arc, Condvar, Mutex, MutexGuard, OnceLock, Weak};
 
 use crate::error::StoreError;
 use crate::remote::Remote;
@@ -41,8 +41,20 @@ enum SideSource {
     Remote(Arc<RemotePart>),
 }
 
-/// The remote side tables a store (and its clones) reads where they lie, by name.
-pub(crate) type SideParts = Arc<Mutex<std::collections::HashMap<String, Arc<RemotePart>>>>;
+/// The remote side tables a store (and its clones) reads where they lie, by name: the store
+/// keeps them alive.
+pub(crate) type SideParts = Arc<Mutex<HashMap<String, Arc<RemotePart>>>>;
+
+/// A part of this process by its mirror folder and table name.
+type LiveParts = HashMap<(PathBuf, String), Weak<RemotePart>>;
+
+/// Every live [`RemotePart`] of this process by its mirror folder and table name, so stores
+/// opened separately on one location (and cache) read one part: each chunk fetched once a
+/// process. Weak: a part lives while a store or a reader holds it.
+fn live_parts() -> MutexGuard<'static, LiveParts> {
+    static LIVE: OnceLock<Mutex<LiveParts>> = OnceLock::new();
+    LIVE.get_or_init(Default::default).lock().unwrap_or_else(|e| e.into_inner())
+}
 
 impl SideTable {
     /// A local file of `len` bytes at `location`.
@@ -51,7 +63,10 @@ impl SideTable {
     }
 
     /// Remote table `name` of `len` bytes, read by chunks of `chunk` bytes: the store's part
-    /// of it in `parts` (what earlier readers fetched, its fill if it runs), else a new one.
+    /// of it in `parts` (what earlier readers fetched, its fill if it runs), else the part
+    /// another store of this process reads from the same mirror ([`live_parts`]), else a new
+    /// one. A shared part counts its bytes in the store that opened it
+    /// ([`crate::Store::remote_bytes_received`]).
     pub(crate) fn remote(
         remote: &Arc<Remote>,
         name: &str,
@@ -60,11 +75,22 @@ impl SideTable {
         parts: &SideParts,
     ) -> Result<Self, StoreError> {
         let location = format!("{}/{name}", remote.url());
+        let fits = |p: &RemotePart| p.inner.len == len && p.inner.chunk == chunk;
         let mut parts = parts.lock().unwrap_or_else(|e| e.into_inner());
         let part = match parts.get(name) {
-            Some(p) if p.inner.len == len && p.inner.chunk == chunk => p.clone(),
+            Some(p) if fits(p) => p.clone(),
             _ => {
-                let p = Arc::new(RemotePart::open(remote, name, len, chunk)?);
+                let key = (remote.mirror().to_path_buf(), name.to_string());
+                let mut live = live_parts();
+                let p = match live.get(&key).and_then(Weak::upgrade) {
+                    Some(p) if fits(&p) => p,
+                    _ => {
+                        let p = Arc::new(RemotePart::open(remote, name, len, chunk));
+                        live.retain(|_, w| w.strong_count() > 0);
+                        live.insert(key, Arc::downgrade(&p));
+                        p
+                    }
+                };
                 parts.insert(name.to_string(), p.clone());
                 p
             }
@@ -151,8 +177,8 @@ enum Chunk {
 /// no memory holds them. Once every chunk is there the file is the table: it is renamed to the
 /// mirror's copy ([`crate::Store::side_file`] then finds it); a part left incomplete is
 /// removed when the store and its readers drop it, and one a killed process left (or one a
-/// store kept open to the end of its process) when the table is next read by chunks
-/// ([`remove_stale_parts`]).
+/// store kept open to the end of its process) when a later process makes its part of the
+/// table ([`remove_stale_parts`]). The file is made by the first fetch.
 #[derive(Debug)]
 pub(crate) struct RemotePart {
     inner: Arc<PartInner>,
@@ -165,7 +191,11 @@ struct PartInner {
     remote: Arc<Remote>,
     /// The object's name beside the index.
     name: String,
-    file: File,
+    /// The sparse file at `path`, created by the first fetch (a table opened only to learn
+    /// its length leaves no file behind).
+    file: OnceLock<File>,
+    /// Serialises the file's creation.
+    creating: Mutex<()>,
     path: PathBuf,
     len: u64,
     chunk: u64,
@@ -195,6 +225,27 @@ impl PartInner {
         self.state.lock().unwrap_or_else(|e| e.into_inner())
     }
 
+    /// The part's file, created on first use (after removing the parts of this table that
+    /// dead processes left: [`remove_stale_parts`]).
+    fn file(&self) -> std::io::Result<&File> {
+        if let Some(f) = self.file.get() {
+            return Ok(f);
+        }
+        let _one = self.creating.lock().unwrap_or_else(|e| e.into_inner());
+        if let Some(f) = self.file.get() {
+            return Ok(f);
+        }
+        remove_stale_parts(self.remote.mirror(), &self.name);
+        let file = std::fs::OpenOptions::new()
+            .read(true)
+            .write(true)
+            .create(true)
+            .truncate(true)
+            .open(&self.path)
+            .map_err(|e| std::io::Error::new(e.kind(), format!("{}: {e}", self.path.display())))?;
+        Ok(self.file.get_or_init(|| file))
+    }
+
     /// Fetches chunks `k..=e` (marked in flight by the caller) and marks them here, or missing
     /// again on failure; wakes the waiting readers either way.
     fn fetch(&self, k: usize, e: usize) -> std::io::Result<()> {
@@ -204,7 +255,7 @@ impl PartInner {
             .remote
             .read_range(&self.name, at..to)
             .map_err(std::io::Error::other)
-            .and_then(|bytes| write_at(&self.file, at, &bytes));
+            .and_then(|bytes| write_at(self.file()?, at, &bytes));
         let mut s = self.lock();
         let mark = if got.is_ok() { Chunk::Here } else { Chunk::Missing };
         s.chunks[k..=e].iter_mut().for_each(|h| *h = mark);
@@ -267,19 +318,11 @@ impl PartInner {
 }
 
 impl RemotePart {
-    fn open(remote: &Arc<Remote>, name: &str, len: u64, chunk: u64) -> Result<Self, StoreError> {
+    fn open(remote: &Arc<Remote>, name: &str, len: u64, chunk: u64) -> Self {
         use std::sync::atomic::AtomicU64;
         static PARTS: AtomicU64 = AtomicU64::new(0);
         let k = PARTS.fetch_add(1, Ordering::Relaxed);
-        remove_stale_parts(remote.mirror(), name);
         let path = remote.mirror().join(format!("{name}.part{}-{k}", std::process::id()));
-        let file = std::fs::OpenOptions::new()
-            .read(true)
-            .write(true)
-            .create(true)
-            .truncate(true)
-            .open(&path)
-            .map_err(|cause| StoreError::Io { path: path.clone(), cause })?;
         let n = len.div_ceil(chunk) as usize;
         let state = Chunks {
             chunks: vec![Chunk::Missing; n],
@@ -293,7 +336,8 @@ impl RemotePart {
         let inner = PartInner {
             remote: remote.clone(),
             name: name.to_string(),
-            file,
+            file: OnceLock::new(),
+            creating: Mutex::new(()),
             path,
             len,
             chunk,
@@ -301,7 +345,7 @@ impl RemotePart {
             state: Mutex::new(state),
             arrived: Condvar::new(),
         };
-        Ok(Self { inner: Arc::new(inner), fill: Mutex::new(None) })
+        Self { inner: Arc::new(inner), fill: Mutex::new(None) }
     }
 
     fn set_waiting(&self, wait: bool) {
@@ -365,7 +409,7 @@ impl RemotePart {
         loop {
             if s.missing == 0 || s.chunks[first..=last].iter().all(|&h| h == Chunk::Here) {
                 drop(s);
-                return read_at(&inner.file, offset, buf);
+                return read_at(inner.file()?, offset, buf);
             }
             if !inner.waiting.load(Ordering::Relaxed) {
                 if !s.fill_running {
@@ -420,8 +464,10 @@ impl Drop for RemotePart {
 
 impl Drop for PartInner {
     fn drop(&mut self) {
-        // Gone already when it was completed and renamed.
-        let _ = std::fs::remove_file(&self.path);
+        // Gone already when it was completed and renamed; never made when nothing was fetched.
+        if self.file.get().is_some() {
+            let _ = std::fs::remove_file(&self.path);
+        }
     }
 }
 

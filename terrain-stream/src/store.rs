@@ -36,9 +36,10 @@ pub struct Store {
     /// with a local store; a remote store's is fetched into the mirror when first needed
     /// (unset until then, and after a failed fetch, which the next read tries again).
     overview: Arc<Mutex<Option<Option<Arc<Overview>>>>>,
-    /// A remote store's side tables being read where they lie, by name: one part per table
-    /// for the store and its clones, so each byte is fetched once a session however many
-    /// readers open the table, one after another or at once.
+    /// A remote store's side tables being read where they lie, by name, kept alive by the
+    /// store and its clones: one part per table and mirror in the process (shared with stores
+    /// opened apart on the same location and cache), so each byte is fetched once a session
+    /// however many readers open the table, one after another or at once.
     parts: SideParts,
 }
 

@@ -467,3 +467,78 @@ fn a_remote_store_streams_with_many_workers() {
     drop(server);
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+/// Part files (`NAME.partPID-K`) of side table `name` anywhere under `cache`.
+fn part_files(cache: &Path, name: &str) -> Vec<PathBuf> {
+    let mut out = Vec::new();
+    let mut dirs = vec![cache.to_path_buf()];
+    while let Some(d) = dirs.pop() {
+        for e in std::fs::read_dir(&d).into_iter().flatten().flatten() {
+            let p = e.path();
+            if p.is_dir() {
+                dirs.push(p);
+            } else if e.file_name().to_string_lossy().starts_with(&format!("{name}.part")) {
+                out.push(p);
+            }
+        }
+    }
+    out
+}
+
+#[test]
+fn a_remote_table_leaves_no_part_until_read_and_stores_opened_apart_share_its_chunks() {
+    use terrain_core::lod::TableReader;
+    let dir = temp("parts");
+    let _local = local_store(&dir);
+    // A side table of 40 chunks of 4 KiB, its bytes a function of the offset.
+    let bytes: Vec<u8> =
+        (0..40 * 4096u32).map(|i| (i.wrapping_mul(2_654_435_761) >> 24) as u8).collect();
+    std::fs::write(dir.join("store/side.bin"), &bytes).unwrap();
+    let server = Server::start(dir.join("store"), Arc::new(|_: &str, _, _| Action::Serve));
+    let cache = dir.join("cache");
+    let chunked =
+        RemoteOptions { side_tables_in_chunks: true, side_chunk_bytes: 4096, ..options(&cache) };
+    let gets = |log: &RequestLog| {
+        log.lock().unwrap().iter().filter(|(p, r)| p == "side.bin" && r.is_some()).count()
+    };
+    let a = Store::open_location_with(&server.url(), &chunked).unwrap();
+    let table = a.side_table("side.bin").unwrap().unwrap();
+    assert_eq!(table.len(), bytes.len() as u64);
+    // Opened to learn its length: no part file, no range request.
+    assert!(part_files(&cache, "side.bin").is_empty(), "{:?}", part_files(&cache, "side.bin"));
+    assert_eq!(gets(&server.log), 0);
+    let mut buf = vec![0u8; 100];
+    table.read_at(5 * 4096 + 10, &mut buf).unwrap();
+    assert_eq!(buf, bytes[5 * 4096 + 10..5 * 4096 + 110]);
+    assert_eq!(part_files(&cache, "side.bin").len(), 1, "the first fetch makes the part");
+    assert_eq!(gets(&server.log), 1);
+    // A store opened apart on the same location and cache reads the same part: the chunk
+    // already fetched is not fetched again; another one is, once.
+    let b = Store::open_location_with(&server.url(), &chunked).unwrap();
+    let other = b.side_table("side.bin").unwrap().unwrap();
+    other.read_at(5 * 4096, &mut buf).unwrap();
+    assert_eq!(buf, bytes[5 * 4096..5 * 4096 + 100]);
+    assert_eq!(gets(&server.log), 1, "the chunk store a fetched");
+    other.read_at(9 * 4096, &mut buf).unwrap();
+    table.read_at(9 * 4096 + 50, &mut buf).unwrap();
+    assert_eq!(buf, bytes[9 * 4096 + 50..9 * 4096 + 150]);
+    assert_eq!(gets(&server.log), 2);
+    assert_eq!(part_files(&cache, "side.bin").len(), 1);
+    // With both stores and their tables gone the part goes; a store opened after them reads
+    // anew (the control: the requests above would count here if parts were never shared).
+    drop((table, other, a, b));
+    assert!(part_files(&cache, "side.bin").is_empty());
+    let c = Store::open_location_with(&server.url(), &chunked).unwrap();
+    c.side_table("side.bin").unwrap().unwrap().read_at(5 * 4096, &mut buf).unwrap();
+    assert_eq!(gets(&server.log), 3);
+    // Another cache is another mirror: its own part.
+    let d = Store::open_location_with(
+        &server.url(),
+        &RemoteOptions { cache_dir: Some(dir.join("cache2")), ..chunked.clone() },
+    )
+    .unwrap();
+    d.side_table("side.bin").unwrap().unwrap().read_at(5 * 4096, &mut buf).unwrap();
+    assert_eq!(gets(&server.log), 4);
+    drop((c, d));
+    let _ = std::fs::remove_dir_all(&dir);
+}
