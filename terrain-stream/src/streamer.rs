@@ -50,9 +50,9 @@
 //! benchmark does what a real-time frame does not (measuring, software drawing), so a flight
 //! paced at its frame rate gives the workers the flight's time only.
 
-use std::collections::{BTreeMap, BTreeSet};
-use std::sync::Arc;
+use std::collections::{BTreeMap, BTreeSet, HashMap};
 use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use glam::{DVec2, DVec3};
@@ -61,7 +61,7 @@ use terrain_core::metrics::screen::{MIN_DISTANCE_M, view_sin_floored};
 
 use crate::cache::Cache;
 use crate::format::{BlockEntry, BlockId, Header};
-use crate::lod::{Refinement, View, needed_level, shading_level};
+use crate::lod::{Refinement, View, needed_level, shading_box, shading_level_in};
 use crate::schedule::{
     Regions, ScheduleConfig, block_rect, blocks_under_bbox, polygon_meets_rect, regions,
 };
@@ -190,6 +190,77 @@ pub struct Streamer {
     faulted: BTreeSet<(BlockId, u8)>,
     /// Moving average of the workers' request latency, seconds (latency-aware Eq. 8).
     latency_s: Option<f64>,
+    /// What the schedule reads of each block's index entry every frame, kept once read.
+    summaries: Summaries,
+}
+
+/// What the schedule reads of a block's index entry every frame ([`BlockSummary`]), kept per
+/// block visited, so a frame's schedule does not read the index again: a version-4 store's
+/// entries come through a bounded cache of decoded pages (8 MiB, about 1,400 entries of a
+/// 32769^2 store), which a view of thousands of blocks would decode again every frame. Its
+/// entries are about 100 bytes, at most [`MAX_SUMMARIES`] (then it starts over).
+#[derive(Debug, Default)]
+struct Summaries(Mutex<HashMap<BlockId, Arc<BlockSummary>>>);
+
+/// Blocks whose [`BlockSummary`] a streamer keeps at most (about 25 MB).
+const MAX_SUMMARIES: usize = 1 << 18;
+
+impl Summaries {
+    /// Block `id`'s summary: kept, or read from its entry (`None` when it cannot be read).
+    fn get(&self, store: &Store, id: BlockId) -> Option<Arc<BlockSummary>> {
+        let mut map = self.0.lock().unwrap_or_else(|e| e.into_inner());
+        if let Some(s) = map.get(&id) {
+            return Some(s.clone());
+        }
+        let s = Arc::new(BlockSummary::of(store.header(), &*store.entry(id)?, id));
+        if map.len() >= MAX_SUMMARIES {
+            map.clear();
+        }
+        map.insert(id, s.clone());
+        Some(s)
+    }
+}
+
+/// What the schedule needs of block `id`'s entry every frame: its rectangle, boxes and
+/// per-level maxima of `StaticE`. The walk of [`needed_level`] (where these bounds do not
+/// decide a level) reads the entry itself.
+#[derive(Debug, Clone, PartialEq)]
+struct BlockSummary {
+    /// Its valid vertices' plan rectangle ([`block_rect`]).
+    lo: DVec2,
+    hi: DVec2,
+    /// Its valid heights' range ([`BlockEntry::min`], `max`).
+    z: [f32; 2],
+    /// The range with the root node's (every node's box lies in it).
+    z_nodes: [f32; 2],
+    /// [`shading_box`].
+    shading: (DVec3, DVec3),
+    /// [`BlockEntry::level_errors`].
+    level_errors: Box<[f32]>,
+}
+
+impl BlockSummary {
+    fn of(h: &Header, e: &BlockEntry, id: BlockId) -> Self {
+        let (lo, hi) = block_rect(h, e, id);
+        let (mut zmin, mut zmax) = (e.min, e.max);
+        if let Some(root) = e.node(0, 0, 0) {
+            zmin = zmin.min(root.min);
+            zmax = zmax.max(root.max);
+        }
+        Self {
+            lo,
+            hi,
+            z: [e.min, e.max],
+            z_nodes: [zmin, zmax],
+            shading: shading_box(h, e, id),
+            level_errors: e.level_errors.clone().into(),
+        }
+    }
+
+    /// Its box (the rectangle and the valid heights' range).
+    fn aabb(&self) -> Aabb {
+        Aabb { min: self.lo.extend(self.z[0].into()), max: self.hi.extend(self.z[1].into()) }
+    }
 }
 
 impl Streamer {
@@ -230,6 +301,7 @@ impl Streamer {
             demand: None,
             faulted: BTreeSet::new(),
             latency_s: None,
+            summaries: Summaries::default(),
         }
     }
 
@@ -492,12 +564,12 @@ impl Streamer {
         let view = View::floored(camera, self.config.tau, refine.view_angle_floor);
         let next = (ahead != DVec3::ZERO).then(|| View { eye: view.eye + ahead, ..view });
         let eye = camera.position.truncate();
-        let predicted = |id: BlockId, e: &BlockEntry, now: u8| {
+        let predicted = |id: BlockId, e: &BlockSummary, now: u8| {
             next.as_ref()
-                .map_or(now, |v| level_ahead(header, e, id, v, &reg.extension, now, refine))
+                .map_or(now, |v| level_ahead(store, (id, e), v, &reg.extension, now, refine))
         };
-        let needed = |id: BlockId, e: &BlockEntry, region: &GroundRegion| {
-            needed_level_fast(header, e, id, &view, region, refine)
+        let needed = |id: BlockId, e: &BlockSummary, region: &GroundRegion| {
+            needed_level_fast(store, (id, e), &view, region, refine)
         };
         // M is the blocks of the view region whose box meets the view frustum (the paper's
         // projected triangle alone keeps blocks below and beside a pitched view); N - M, the
@@ -505,10 +577,6 @@ impl Streamer {
         // the eye (behind the vertical plane through it across the plan view direction).
         let frustum = Frustum::from_camera(camera);
         let plan_dir = camera.forward().truncate().normalize_or_zero();
-        let block_box = |e: &BlockEntry, lo: DVec2, hi: DVec2| Aabb {
-            min: lo.extend(e.min.into()),
-            max: hi.extend(e.max.into()),
-        };
         let behind = |lo: DVec2, hi: DVec2, b: &Aabb| {
             let far_corner = DVec2::new(
                 if plan_dir.x >= 0.0 { hi.x } else { lo.x },
@@ -522,13 +590,13 @@ impl Streamer {
         let mut in_m = BTreeSet::new();
         if let Some(demand) = &self.demand {
             for &(id, level) in demand {
-                let Some(e) = store.entry(id) else { continue };
+                let Some(e) = self.summaries.get(store, id) else { continue };
                 let e = &*e;
                 if !in_m.insert(id) {
                     continue;
                 }
-                let (lo, hi) = block_rect(header, e, id);
-                let needed = level.max(shading_level(header, e, id, &view)).min(header.k);
+                let (lo, hi) = (e.lo, e.hi);
+                let needed = level.max(shading_level_in(header, e.shading, &view)).min(header.k);
                 scheduled.push(ScheduledBlock {
                     block: id,
                     needed,
@@ -541,11 +609,11 @@ impl Streamer {
         let eq7 =
             if self.demand.is_some() { Vec::new() } else { blocks_under_bbox(header, &reg.view) };
         for id in eq7 {
-            let Some(e) = store.entry(id) else { continue };
+            let Some(e) = self.summaries.get(store, id) else { continue };
             let e = &*e;
-            let (lo, hi) = block_rect(header, e, id);
+            let (lo, hi) = (e.lo, e.hi);
             if !polygon_meets_rect(reg.view.vertices(), lo, hi)
-                || frustum.classify(&block_box(e, lo, hi)) == Classification::Outside
+                || frustum.classify(&e.aabb()) == Classification::Outside
             {
                 continue;
             }
@@ -564,12 +632,10 @@ impl Streamer {
             if in_m.contains(&id) {
                 continue;
             }
-            let Some(e) = store.entry(id) else { continue };
+            let Some(e) = self.summaries.get(store, id) else { continue };
             let e = &*e;
-            let (lo, hi) = block_rect(header, e, id);
-            if !polygon_meets_rect(reg.extension.vertices(), lo, hi)
-                || behind(lo, hi, &block_box(e, lo, hi))
-            {
+            let (lo, hi) = (e.lo, e.hi);
+            if !polygon_meets_rect(reg.extension.vertices(), lo, hi) || behind(lo, hi, &e.aabb()) {
                 continue;
             }
             let needed = needed(id, e, &reg.extension).unwrap_or(0);
@@ -684,7 +750,6 @@ impl Streamer {
     /// beyond what it needs now; never what M needs, nor a pinned level 0.
     fn evict(&mut self, scheduled: &[ScheduledBlock], eye: DVec2) -> usize {
         let store = &self.store;
-        let header = store.header();
         let wanted: BTreeMap<BlockId, ()> = scheduled.iter().map(|s| (s.block, ())).collect();
         let mut outside: Vec<(BlockId, f64)> = self
             .cache
@@ -692,10 +757,10 @@ impl Streamer {
             // The cheap test first: with level 0 pinned, most cached blocks hold only it.
             .filter(|(id, b)| b.levels.count() > self.pinned && !wanted.contains_key(id))
             .map(|(id, _)| {
-                let d = store.entry(*id).map_or(f64::MAX, |e| {
-                    let (lo, hi) = block_rect(header, &e, *id);
-                    rect_distance(eye, lo, hi)
-                });
+                let d = self
+                    .summaries
+                    .get(store, *id)
+                    .map_or(f64::MAX, |e| rect_distance(eye, e.lo, e.hi));
                 (*id, d)
             })
             .collect();
@@ -798,38 +863,45 @@ impl Streamer {
 /// has a leaf: the bounding circles of its nodes contain their rectangles). The same answer
 /// as [`needed_level`] for such blocks (`needed_level_fast_is_needed_level`).
 fn needed_level_fast(
-    h: &Header,
-    e: &BlockEntry,
-    b: BlockId,
+    store: &Store,
+    (b, e): (BlockId, &BlockSummary),
     view: &View,
     region: &GroundRegion,
     refine: Refinement,
 ) -> Option<u8> {
-    let shade = shading_level(h, e, b, view);
-    let bound = geometry_level_bound(h, e, b, view).max(refine.segment_floor_level(h.k));
-    if bound <= shade { Some(shade) } else { needed_level(h, e, b, view, region, refine) }
+    let h = store.header();
+    let shade = shading_level_in(h, e.shading, view);
+    let bound = geometry_level_bound(h, e, view).max(refine.segment_floor_level(h.k));
+    if bound <= shade {
+        Some(shade)
+    } else {
+        needed_level(h, &*store.entry(b)?, b, view, region, refine)
+    }
 }
 
 /// The finer of `now` and what block `b` needs for `view` (the eye one frame ahead):
 /// `max(now, needed_level)` (`now` when that is `None`), without the walk where the bound
 /// decides it.
 fn level_ahead(
-    h: &Header,
-    e: &BlockEntry,
-    b: BlockId,
+    store: &Store,
+    (b, e): (BlockId, &BlockSummary),
     view: &View,
     region: &GroundRegion,
     now: u8,
     refine: Refinement,
 ) -> u8 {
-    let shade = shading_level(h, e, b, view);
-    let bound = geometry_level_bound(h, e, b, view).max(refine.segment_floor_level(h.k));
+    let h = store.header();
+    let shade = shading_level_in(h, e.shading, view);
+    let bound = geometry_level_bound(h, e, view).max(refine.segment_floor_level(h.k));
     if shade.max(bound) <= now {
         now
     } else if bound <= shade {
         shade.max(now)
     } else {
-        needed_level(h, e, b, view, region, refine).map_or(now, |l| l.max(now))
+        store
+            .entry(b)
+            .and_then(|e| needed_level(h, &e, b, view, region, refine))
+            .map_or(now, |l| l.max(now))
     }
 }
 
@@ -840,14 +912,9 @@ fn level_ahead(
 /// divides Eq. 6 by `1 + sin(beta) >= 1`); a node of level `l` has `StaticE` at most
 /// `level_errors[l]`, so no node of a level whose maximum is within the threshold splits,
 /// and no leaf asks for vertices below it. A relative margin of 1e-9 covers rounding.
-fn geometry_level_bound(h: &Header, e: &BlockEntry, b: BlockId, view: &View) -> u8 {
-    let (mut zmin, mut zmax) = (e.min, e.max);
-    if let Some(root) = e.node(0, 0, 0) {
-        zmin = zmin.min(root.min);
-        zmax = zmax.max(root.max);
-    }
-    let (lo, hi) = block_rect(h, e, b);
-    let (lo, hi) = (lo.extend(zmin.into()), hi.extend(zmax.into()));
+fn geometry_level_bound(h: &Header, e: &BlockSummary, view: &View) -> u8 {
+    let [zmin, zmax] = e.z_nodes;
+    let (lo, hi) = (e.lo.extend(zmin.into()), e.hi.extend(zmax.into()));
     let d = (lo - view.eye).max(view.eye - hi).max(DVec3::ZERO).length();
     if !(d.is_finite() && d > 2.0 * MIN_DISTANCE_M) {
         return h.k;
@@ -946,20 +1013,22 @@ mod tests {
                             }
                             let slow = needed_level(&h, e, id, &view, region, refine);
                             assert!(slow.is_some(), "{id} meets the region but has no leaf");
-                            let shade = shading_level(&h, e, id, &view);
-                            if geometry_level_bound(&h, e, id, &view) <= shade {
+                            let shade = crate::lod::shading_level(&h, e, id, &view);
+                            let sum = BlockSummary::of(&h, e, id);
+                            assert_eq!(shading_level_in(&h, sum.shading, &view), shade);
+                            if geometry_level_bound(&h, &sum, &view) <= shade {
                                 fast += 1;
                             } else {
                                 walked += 1;
                             }
                             assert_eq!(
-                                needed_level_fast(&h, e, id, &view, region, refine),
+                                needed_level_fast(&store, (id, &sum), &view, region, refine),
                                 slow,
                                 "{id}"
                             );
                             for now in 0..=h.k {
                                 assert_eq!(
-                                    level_ahead(&h, e, id, &view, region, now, refine),
+                                    level_ahead(&store, (id, &sum), &view, region, now, refine),
                                     slow.map_or(now, |l| l.max(now)),
                                     "{id} now {now}"
                                 );
@@ -992,7 +1061,7 @@ mod tests {
                     hi + 1.0,
                     dvec2(lo.x - 1.0, hi.y + 1.0),
                 ]);
-                let bound = geometry_level_bound(&h, &e, id, &view);
+                let bound = geometry_level_bound(&h, &BlockSummary::of(&h, &e, id), &view);
                 for split in [SplitRule::Eq7, SplitRule::Cost] {
                     let refine = Refinement {
                         patch_cells: 4,

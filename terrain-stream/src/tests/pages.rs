@@ -320,3 +320,54 @@ fn a_grid_beyond_the_head_pyramid_selects_as_the_whole_read_tree_without_reading
     std::fs::remove_dir_all(dir).unwrap();
     std::fs::remove_dir_all(v3).unwrap();
 }
+
+#[test]
+fn a_streamers_frames_read_the_index_once_not_every_frame() {
+    use crate::{StreamConfig, Streamer};
+    let dir = paged_store("streamer");
+    let (header, head, _) = head_of(&dir);
+    let pages = head.page_count(header.block_count()) as u64;
+    let cam = |x, y| {
+        Camera::from_yaw_pitch(dvec3(x, y, 900.0), 30.0, -25.0)
+            .with_viewport(320.0, 180.0)
+            .with_clip(1.0, 9000.0)
+    };
+    let cameras = [cam(100.0, 150.0), cam(1500.0, 300.0), cam(2600.0, 900.0)];
+    let stats_of = |store: Arc<Store>, demand: bool| {
+        let mut s = Streamer::new(store.clone(), StreamConfig { threads: 1, ..Default::default() });
+        if demand {
+            let all: Vec<(BlockId, u8)> = store.block_ids().map(|b| (b, 3)).collect();
+            s.set_demand(Some(all));
+        }
+        let mut out = Vec::new();
+        let mut decoded = Vec::new();
+        // Each camera waited for until its levels are resident (the workers' loads read
+        // entries), then held for three frames (no motion ahead: no block walked for the next
+        // frame's level in the demand's mode, and nothing left to load).
+        for c in &cameras {
+            assert!(s.wait_until_resident(c, std::time::Duration::from_secs(60)).resident);
+            let before = store.index_pages_decoded().unwrap();
+            for _ in 0..3 {
+                let f = s.update(c);
+                out.push((f.blocks_visible, f.blocks_scheduled, f.cache_hits + f.cache_misses));
+            }
+            decoded.push((before, store.index_pages_decoded().unwrap()));
+        }
+        (out, decoded)
+    };
+    for demand in [true, false] {
+        let big = Arc::new(Store::open(&dir).unwrap().with_page_cache_bytes(1 << 30).unwrap());
+        let small = Arc::new(Store::open(&dir).unwrap().with_page_cache_bytes(1).unwrap());
+        let (a, _) = stats_of(big, demand);
+        let (b, decoded) = stats_of(small, demand);
+        // The same schedules whatever the page cache holds.
+        assert_eq!(a, b, "demand {demand}");
+        assert!(a.iter().all(|s| s.1 > 0), "the views must schedule blocks: {a:?}");
+        if demand {
+            // A block's entry is read once: held frames read no page (with a one-page cache,
+            // reading entries again would decode pages every frame).
+            assert!(decoded.iter().all(|(a, b)| a == b), "{decoded:?} of {pages} pages");
+        }
+    }
+    std::fs::remove_dir_all(dir).unwrap();
+}
