@@ -198,17 +198,25 @@ pub struct Streamer {
 /// block visited, so a frame's schedule does not read the index again: a version-4 store's
 /// entries come through a bounded cache of decoded pages (8 MiB, about 1,400 entries of a
 /// 32769^2 store), which a view of thousands of blocks would decode again every frame. Its
-/// entries are about 100 bytes, at most [`MAX_SUMMARIES`] (then it starts over).
+/// entries are about 100 bytes, at most [`MAX_SUMMARIES`] (then it starts over). The whole
+/// entries of the blocks whose level needs the Eq. 7 walk (those near the eye) are kept too,
+/// at most [`MAX_WALKED_BYTES`] of them (then that map starts over).
 #[derive(Debug, Default)]
-struct Summaries(Mutex<HashMap<BlockId, Arc<BlockSummary>>>);
+struct Summaries {
+    summaries: Mutex<HashMap<BlockId, Arc<BlockSummary>>>,
+    walked: Mutex<(HashMap<BlockId, Arc<BlockEntry>>, usize)>,
+}
 
 /// Blocks whose [`BlockSummary`] a streamer keeps at most (about 25 MB).
 const MAX_SUMMARIES: usize = 1 << 18;
 
+/// Bytes of whole entries (estimated by their nodes) a streamer keeps for the walk.
+const MAX_WALKED_BYTES: usize = 32 << 20;
+
 impl Summaries {
     /// Block `id`'s summary: kept, or read from its entry (`None` when it cannot be read).
     fn get(&self, store: &Store, id: BlockId) -> Option<Arc<BlockSummary>> {
-        let mut map = self.0.lock().unwrap_or_else(|e| e.into_inner());
+        let mut map = self.summaries.lock().unwrap_or_else(|e| e.into_inner());
         if let Some(s) = map.get(&id) {
             return Some(s.clone());
         }
@@ -218,6 +226,22 @@ impl Summaries {
         }
         map.insert(id, s.clone());
         Some(s)
+    }
+
+    /// Block `id`'s whole entry for the walk: kept, or read and kept.
+    fn entry(&self, store: &Store, id: BlockId) -> Option<Arc<BlockEntry>> {
+        let mut walked = self.walked.lock().unwrap_or_else(|e| e.into_inner());
+        if let Some(e) = walked.0.get(&id) {
+            return Some(e.clone());
+        }
+        let e = store.entry(id)?;
+        let bytes = 16 * e.nodes.len() + 4 * (e.fine_errors.len() + e.level_errors.len()) + 256;
+        if walked.1 + bytes > MAX_WALKED_BYTES {
+            *walked = Default::default();
+        }
+        walked.0.insert(id, e.clone());
+        walked.1 += bytes;
+        Some(e)
     }
 }
 
@@ -565,11 +589,12 @@ impl Streamer {
         let next = (ahead != DVec3::ZERO).then(|| View { eye: view.eye + ahead, ..view });
         let eye = camera.position.truncate();
         let predicted = |id: BlockId, e: &BlockSummary, now: u8| {
-            next.as_ref()
-                .map_or(now, |v| level_ahead(store, (id, e), v, &reg.extension, now, refine))
+            next.as_ref().map_or(now, |v| {
+                level_ahead((store, &self.summaries), (id, e), v, &reg.extension, now, refine)
+            })
         };
         let needed = |id: BlockId, e: &BlockSummary, region: &GroundRegion| {
-            needed_level_fast(store, (id, e), &view, region, refine)
+            needed_level_fast((store, &self.summaries), (id, e), &view, region, refine)
         };
         // M is the blocks of the view region whose box meets the view frustum (the paper's
         // projected triangle alone keeps blocks below and beside a pitched view); N - M, the
@@ -863,7 +888,7 @@ impl Streamer {
 /// has a leaf: the bounding circles of its nodes contain their rectangles). The same answer
 /// as [`needed_level`] for such blocks (`needed_level_fast_is_needed_level`).
 fn needed_level_fast(
-    store: &Store,
+    (store, kept): (&Store, &Summaries),
     (b, e): (BlockId, &BlockSummary),
     view: &View,
     region: &GroundRegion,
@@ -875,7 +900,7 @@ fn needed_level_fast(
     if bound <= shade {
         Some(shade)
     } else {
-        needed_level(h, &*store.entry(b)?, b, view, region, refine)
+        needed_level(h, &*kept.entry(store, b)?, b, view, region, refine)
     }
 }
 
@@ -883,7 +908,7 @@ fn needed_level_fast(
 /// `max(now, needed_level)` (`now` when that is `None`), without the walk where the bound
 /// decides it.
 fn level_ahead(
-    store: &Store,
+    (store, kept): (&Store, &Summaries),
     (b, e): (BlockId, &BlockSummary),
     view: &View,
     region: &GroundRegion,
@@ -898,8 +923,7 @@ fn level_ahead(
     } else if bound <= shade {
         shade.max(now)
     } else {
-        store
-            .entry(b)
+        kept.entry(store, b)
             .and_then(|e| needed_level(h, &e, b, view, region, refine))
             .map_or(now, |l| l.max(now))
     }
@@ -1015,6 +1039,7 @@ mod tests {
                             assert!(slow.is_some(), "{id} meets the region but has no leaf");
                             let shade = crate::lod::shading_level(&h, e, id, &view);
                             let sum = BlockSummary::of(&h, e, id);
+                            let kept = Summaries::default();
                             assert_eq!(shading_level_in(&h, sum.shading, &view), shade);
                             if geometry_level_bound(&h, &sum, &view) <= shade {
                                 fast += 1;
@@ -1022,13 +1047,26 @@ mod tests {
                                 walked += 1;
                             }
                             assert_eq!(
-                                needed_level_fast(&store, (id, &sum), &view, region, refine),
+                                needed_level_fast(
+                                    (&store, &kept),
+                                    (id, &sum),
+                                    &view,
+                                    region,
+                                    refine
+                                ),
                                 slow,
                                 "{id}"
                             );
                             for now in 0..=h.k {
                                 assert_eq!(
-                                    level_ahead(&store, (id, &sum), &view, region, now, refine),
+                                    level_ahead(
+                                        (&store, &kept),
+                                        (id, &sum),
+                                        &view,
+                                        region,
+                                        now,
+                                        refine
+                                    ),
                                     slow.map_or(now, |l| l.max(now)),
                                     "{id} now {now}"
                                 );
