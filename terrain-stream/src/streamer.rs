@@ -199,49 +199,63 @@ pub struct Streamer {
 /// entries come through a bounded cache of decoded pages (8 MiB, about 1,400 entries of a
 /// 32769^2 store), which a view of thousands of blocks would decode again every frame. Its
 /// entries are about 100 bytes, at most [`MAX_SUMMARIES`] (then it starts over). The whole
-/// entries of the blocks whose level needs the Eq. 7 walk (those near the eye) are kept too,
-/// at most [`MAX_WALKED_BYTES`] of them (then that map starts over).
+/// entries of the blocks whose level needs the Eq. 7 walk (those near the eye, thousands in a
+/// wide view of a 32769^2 store) are kept for the frame that walked them and the next: what a
+/// view walks, not what the store has.
 #[derive(Debug, Default)]
 struct Summaries {
-    summaries: Mutex<HashMap<BlockId, Arc<BlockSummary>>>,
-    walked: Mutex<(HashMap<BlockId, Arc<BlockEntry>>, usize)>,
+    /// By row-major block position (allocated when first asked), and how many are kept.
+    summaries: Mutex<(Vec<Option<Arc<BlockSummary>>>, usize)>,
+    /// The entries walked this frame and in the last one.
+    walked: Mutex<[HashMap<BlockId, Arc<BlockEntry>>; 2]>,
 }
 
-/// Blocks whose [`BlockSummary`] a streamer keeps at most (about 25 MB).
+/// Blocks whose [`BlockSummary`] a streamer keeps at most (about 25 MB; and a pointer per
+/// block of the store).
 const MAX_SUMMARIES: usize = 1 << 18;
-
-/// Bytes of whole entries (estimated by their nodes) a streamer keeps for the walk.
-const MAX_WALKED_BYTES: usize = 32 << 20;
 
 impl Summaries {
     /// Block `id`'s summary: kept, or read from its entry (`None` when it cannot be read).
     fn get(&self, store: &Store, id: BlockId) -> Option<Arc<BlockSummary>> {
-        let mut map = self.summaries.lock().unwrap_or_else(|e| e.into_inner());
-        if let Some(s) = map.get(&id) {
+        let h = store.header();
+        let pos = h.block_position(id)?;
+        let mut kept = self.summaries.lock().unwrap_or_else(|e| e.into_inner());
+        if kept.0.is_empty() {
+            kept.0 = vec![None; h.block_count()];
+        }
+        if let Some(s) = &kept.0[pos] {
             return Some(s.clone());
         }
-        let s = Arc::new(BlockSummary::of(store.header(), &*store.entry(id)?, id));
-        if map.len() >= MAX_SUMMARIES {
-            map.clear();
+        let s = Arc::new(BlockSummary::of(h, &*store.entry(id)?, id));
+        if kept.1 >= MAX_SUMMARIES {
+            kept.0.iter_mut().for_each(|k| *k = None);
+            kept.1 = 0;
         }
-        map.insert(id, s.clone());
+        kept.0[pos] = Some(s.clone());
+        kept.1 += 1;
         Some(s)
     }
 
-    /// Block `id`'s whole entry for the walk: kept, or read and kept.
+    /// Block `id`'s whole entry for the walk: walked this frame or the last, else read.
     fn entry(&self, store: &Store, id: BlockId) -> Option<Arc<BlockEntry>> {
         let mut walked = self.walked.lock().unwrap_or_else(|e| e.into_inner());
-        if let Some(e) = walked.0.get(&id) {
+        if let Some(e) = walked[0].get(&id) {
             return Some(e.clone());
         }
-        let e = store.entry(id)?;
-        let bytes = 16 * e.nodes.len() + 4 * (e.fine_errors.len() + e.level_errors.len()) + 256;
-        if walked.1 + bytes > MAX_WALKED_BYTES {
-            *walked = Default::default();
-        }
-        walked.0.insert(id, e.clone());
-        walked.1 += bytes;
+        let e = match walked[1].remove(&id) {
+            Some(e) => e,
+            None => store.entry(id)?,
+        };
+        walked[0].insert(id, e.clone());
         Some(e)
+    }
+
+    /// Starts a frame: the entries walked in the frame before the last are dropped.
+    fn new_frame(&self) {
+        let mut walked = self.walked.lock().unwrap_or_else(|e| e.into_inner());
+        let [now, last] = &mut *walked;
+        std::mem::swap(now, last);
+        now.clear();
     }
 }
 
@@ -582,6 +596,7 @@ impl Streamer {
     /// The blocks of M and N - M for `camera`, sorted (M first, each by distance, then id),
     /// with the level each needs now and one frame ahead (`ahead`: the eye's motion).
     fn schedule(&self, camera: &Camera, reg: &Regions, ahead: DVec3) -> Vec<ScheduledBlock> {
+        self.summaries.new_frame();
         let store = &self.store;
         let header = store.header();
         let refine = self.config.refinement;
