@@ -626,20 +626,16 @@ pub(crate) const SHADING_CELL_PX: f64 = 1.0;
 /// normals need from the block's page, whatever its geometry needs (the criterion of texture
 /// mip-level selection, applied to the height samples the normals are computed from).
 pub(crate) fn shading_level(h: &Header, e: &BlockEntry, b: BlockId, view: &View) -> u8 {
-    shading_level_in(h, shading_box(h, e, b), view)
-}
-
-/// The box [`shading_level`] measures the distance to: block `b`'s valid vertices' plan
-/// rectangle and its heights' range.
-pub(crate) fn shading_box(h: &Header, e: &BlockEntry, b: BlockId) -> (DVec3, DVec3) {
     let lo = h.vertex_world(b, 0.0, 0.0);
     let hi = h.vertex_world(b, (e.valid_w.max(1) - 1) as f64, (e.valid_h.max(1) - 1) as f64);
-    (lo.min(hi).extend(e.min.into()), lo.max(hi).extend(e.max.into()))
+    let b = Aabb { min: lo.min(hi).extend(e.min.into()), max: lo.max(hi).extend(e.max.into()) };
+    shading_level_in(h, &b, view)
 }
 
-/// [`shading_level`] of a block whose [`shading_box`] is `(lo, hi)`.
-pub(crate) fn shading_level_in(h: &Header, (lo, hi): (DVec3, DVec3), view: &View) -> u8 {
-    let d = (lo - view.eye).max(view.eye - hi).max(DVec3::ZERO).length();
+/// [`shading_level`] of a block whose box (its valid vertices' plan rectangle and its heights'
+/// range) is `b`.
+pub(crate) fn shading_level_in(h: &Header, b: &Aabb, view: &View) -> u8 {
+    let d = (b.min - view.eye).max(view.eye - b.max).max(DVec3::ZERO).length();
     let spacing = h.georef.spacing_m.abs().max_element();
     // A level-L cell is 2^(k - L) samples: 2^(k - L) spacing lambda / d <= px.
     let room = d * SHADING_CELL_PX / (spacing * view.lambda);

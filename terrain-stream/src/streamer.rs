@@ -61,7 +61,7 @@ use terrain_core::metrics::screen::{MIN_DISTANCE_M, view_sin_floored};
 
 use crate::cache::Cache;
 use crate::format::{BlockEntry, BlockId, Header};
-use crate::lod::{Refinement, View, needed_level, shading_box, shading_level_in};
+use crate::lod::{Refinement, View, needed_level, shading_level_in};
 use crate::schedule::{
     Regions, ScheduleConfig, block_rect, blocks_under_bbox, polygon_meets_rect, regions,
 };
@@ -271,8 +271,6 @@ struct BlockSummary {
     z: [f32; 2],
     /// The range with the root node's (every node's box lies in it).
     z_nodes: [f32; 2],
-    /// [`shading_box`].
-    shading: (DVec3, DVec3),
     /// [`BlockEntry::level_errors`].
     level_errors: Box<[f32]>,
 }
@@ -290,12 +288,13 @@ impl BlockSummary {
             hi,
             z: [e.min, e.max],
             z_nodes: [zmin, zmax],
-            shading: shading_box(h, e, id),
             level_errors: e.level_errors.clone().into(),
         }
     }
 
-    /// Its box (the rectangle and the valid heights' range).
+    /// Its box (the rectangle and the valid heights' range): the frustum's and Eq. 8's test,
+    /// and the box [`shading_level_in`] measures (an entry's `valid_w`, `valid_h` are at
+    /// least 1, so it is `lod::shading_level`'s).
     fn aabb(&self) -> Aabb {
         Aabb { min: self.lo.extend(self.z[0].into()), max: self.hi.extend(self.z[1].into()) }
     }
@@ -636,7 +635,7 @@ impl Streamer {
                     continue;
                 }
                 let (lo, hi) = (e.lo, e.hi);
-                let needed = level.max(shading_level_in(header, e.shading, &view)).min(header.k);
+                let needed = level.max(shading_level_in(header, &e.aabb(), &view)).min(header.k);
                 scheduled.push(ScheduledBlock {
                     block: id,
                     needed,
@@ -898,10 +897,11 @@ impl Streamer {
 }
 
 /// [`needed_level`] without its Eq. 7 walk where the walk cannot change the answer: the walk's
-/// level is at most [`geometry_level_bound`], so when that is at most the [`shading_level`]
-/// the answer is the shading level (for a block whose rectangle meets `region`, which always
-/// has a leaf: the bounding circles of its nodes contain their rectangles). The same answer
-/// as [`needed_level`] for such blocks (`needed_level_fast_is_needed_level`).
+/// level is at most [`geometry_level_bound`], so when that is at most the
+/// [`crate::lod::shading_level`] the answer is the shading level (for a block whose rectangle
+/// meets `region`, which always has a leaf: the bounding circles of its nodes contain their
+/// rectangles). The same answer as [`needed_level`] for such blocks
+/// (`needed_level_fast_is_needed_level`).
 fn needed_level_fast(
     (store, kept): (&Store, &Summaries),
     (b, e): (BlockId, &BlockSummary),
@@ -910,7 +910,7 @@ fn needed_level_fast(
     refine: Refinement,
 ) -> Option<u8> {
     let h = store.header();
-    let shade = shading_level_in(h, e.shading, view);
+    let shade = shading_level_in(h, &e.aabb(), view);
     let bound = geometry_level_bound(h, e, view).max(refine.segment_floor_level(h.k));
     if bound <= shade {
         Some(shade)
@@ -931,7 +931,7 @@ fn level_ahead(
     refine: Refinement,
 ) -> u8 {
     let h = store.header();
-    let shade = shading_level_in(h, e.shading, view);
+    let shade = shading_level_in(h, &e.aabb(), view);
     let bound = geometry_level_bound(h, e, view).max(refine.segment_floor_level(h.k));
     if shade.max(bound) <= now {
         now
@@ -1055,7 +1055,7 @@ mod tests {
                             let shade = crate::lod::shading_level(&h, e, id, &view);
                             let sum = BlockSummary::of(&h, e, id);
                             let kept = Summaries::default();
-                            assert_eq!(shading_level_in(&h, sum.shading, &view), shade);
+                            assert_eq!(shading_level_in(&h, &sum.aabb(), &view), shade);
                             if geometry_level_bound(&h, &sum, &view) <= shade {
                                 fast += 1;
                             } else {
