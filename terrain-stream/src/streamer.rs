@@ -26,8 +26,13 @@
 //! **Priorities.** Requests go to the workers in this order, at most `max_in_flight` at a
 //! time: (0) the coarse levels of visible blocks with nothing resident, nearest first (every
 //! visible block soon has something to draw); (1) the missing levels of visible blocks, nearest
-//! first; (2) the pre-loading region N - M, nearest first, within the budget. A request whose
-//! block has left N is cancelled (the worker drops it before its next level).
+//! first; (2) the pre-loading region N - M, nearest first, within the budget, filling the
+//! queue to half the in-flight cap at most. The workers take requests in order, so a level
+//! that M needs next frame waits behind everything queued before it: N - M's blocks are
+//! needed only once they enter the view, and keeping half the queue for M made `fast_pass`
+//! on the 32769^2 store reach its needed level in more frames (bench/ooc/README.md, "Half
+//! the queue for the view"). A request whose block has left N is cancelled (the worker drops
+//! it before its next level).
 //!
 //! **Eq. 8 preloading, one frame ahead.** N comes from the view frustum extension (Eq. 8's `S`
 //! times [`ScheduleConfig::lookahead_frames`], default 1: the paper's one frame). Besides the
@@ -50,7 +55,7 @@
 //! benchmark does what a real-time frame does not (measuring, software drawing), so a flight
 //! paced at its frame rate gives the workers the flight's time only.
 
-use std::collections::{BTreeMap, BTreeSet, HashMap};
+use std::collections::{BTreeSet, HashMap};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
@@ -697,14 +702,14 @@ impl Streamer {
 
     /// Cancels the requests of blocks no longer in N (each counted once).
     fn cancel_stale(&mut self, scheduled: &[ScheduledBlock], stats: &mut FrameStats) {
-        let wanted: BTreeSet<BlockId> = scheduled.iter().map(|s| s.block).collect();
+        let header = self.store.header().clone();
+        let wanted = BlockSet::of(&header, scheduled);
         let stale: Vec<BlockId> = self
             .cache
             .blocks()
-            .filter(|(id, b)| b.cancel.is_some() && !wanted.contains(id))
+            .filter(|(id, b)| b.cancel.is_some() && !wanted.contains(&header, **id))
             .map(|(id, _)| *id)
             .collect();
-        let header = self.store.header().clone();
         for id in stale {
             if let Some(c) = self.cache.entry(id, &header).cancel.take() {
                 c.store(true, Ordering::Relaxed);
@@ -720,18 +725,36 @@ impl Streamer {
         let store = self.store.clone();
         let header = store.header();
         let coarse = self.config.coarse_level;
+        let frame = self.frame;
+        // One pass puts the blocks that may get a request in their tier, in the schedule's
+        // order: a block is in one tier at most (by whether it is visible and holds a level),
+        // and one with a request in flight, waiting for a retry, or holding its target
+        // already gets none.
+        let mut tiers: [Vec<&ScheduledBlock>; 3] = Default::default();
+        for s in scheduled {
+            let (have, free) = self.cache.get(s.block).map_or((0, true), |b| {
+                (b.levels.count(), b.requested_to.is_none() && b.retry_at_frame <= frame)
+            });
+            let tier = match (s.visible, have) {
+                _ if !free || have > s.target as usize => continue,
+                (true, 0) => 0,
+                (true, _) => 1,
+                (false, _) if !visible_only => 2,
+                (false, _) => continue,
+            };
+            tiers[tier].push(s);
+        }
         let mut pending: u64 = 0;
-        for tier in 0..3 {
-            for s in scheduled {
+        for (tier, blocks) in tiers.into_iter().enumerate() {
+            // The pre-loading region fills the queue to half the cap at most (see the module
+            // docs): the workers take requests in order, so the rest is kept for M.
+            let cap = if tier == 2 { cap.div_ceil(2) } else { cap };
+            for s in blocks {
                 if self.pool.in_flight() >= cap {
                     return;
                 }
                 let (resident, budget) = (self.cache.resident_bytes(), self.cache.budget());
-                let frame = self.frame;
                 let b = self.cache.entry(s.block, header);
-                if b.requested_to.is_some() || b.retry_at_frame > frame {
-                    continue;
-                }
                 let have = b.levels.count();
                 let over = |last: u8| {
                     let add = BlockEntry::resident_bytes(last).saturating_sub(b.levels.bytes());
@@ -739,10 +762,10 @@ impl Streamer {
                 };
                 let last = match tier {
                     // Coarse levels of visible blocks with nothing resident.
-                    0 if s.visible && have == 0 => s.needed.min(coarse),
+                    0 => s.needed.min(coarse),
                     // Missing levels of visible blocks: needed now, and one frame ahead
                     // within the budget.
-                    1 if s.visible && have > 0 => {
+                    1 => {
                         let want = if visible_only || over(s.target) { s.needed } else { s.target };
                         if have > want as usize {
                             continue;
@@ -752,10 +775,7 @@ impl Streamer {
                     // The pre-loading region N - M, within the budget (blocks with nothing
                     // resident get their coarse levels even over it: they are small, and they
                     // are what the block is first drawn from when it enters M).
-                    2 if !s.visible && !visible_only => {
-                        if have > s.target as usize {
-                            continue;
-                        }
+                    _ => {
                         if !over(s.target) {
                             s.target
                         } else if have == 0 {
@@ -764,7 +784,6 @@ impl Streamer {
                             continue;
                         }
                     }
-                    _ => continue,
                 };
                 let add = BlockEntry::resident_bytes(last).saturating_sub(b.levels.bytes());
                 let cancel = Arc::new(AtomicBool::new(false));
@@ -788,13 +807,18 @@ impl Streamer {
     /// target, then what N - M holds above its coarse levels, then those, then M's levels
     /// beyond what it needs now; never what M needs, nor a pinned level 0.
     fn evict(&mut self, scheduled: &[ScheduledBlock], eye: DVec2) -> usize {
+        // Within the budget nothing is evicted (`Cache::evict` stops there): no order needed.
+        if self.cache.resident_bytes() <= self.cache.budget() {
+            return 0;
+        }
         let store = &self.store;
-        let wanted: BTreeMap<BlockId, ()> = scheduled.iter().map(|s| (s.block, ())).collect();
+        let header = store.header();
+        let wanted = BlockSet::of(header, scheduled);
         let mut outside: Vec<(BlockId, f64)> = self
             .cache
             .blocks()
             // The cheap test first: with level 0 pinned, most cached blocks hold only it.
-            .filter(|(id, b)| b.levels.count() > self.pinned && !wanted.contains_key(id))
+            .filter(|(id, b)| b.levels.count() > self.pinned && !wanted.contains(header, **id))
             .map(|(id, _)| {
                 let d = self
                     .summaries
@@ -969,6 +993,24 @@ fn geometry_level_bound(h: &Header, e: &BlockSummary, view: &View) -> u8 {
                 <= limit * (1.0 - 1e-9)
         })
         .unwrap_or(h.k)
+}
+
+/// The blocks of a schedule, by row-major block position (one bit each): membership without
+/// a tree or hash of the thousands of blocks a wide view schedules.
+struct BlockSet(Vec<u64>);
+
+impl BlockSet {
+    fn of(h: &Header, scheduled: &[ScheduledBlock]) -> Self {
+        let mut bits = vec![0u64; h.block_count().div_ceil(64)];
+        for p in scheduled.iter().filter_map(|s| h.block_position(s.block)) {
+            bits[p / 64] |= 1 << (p % 64);
+        }
+        Self(bits)
+    }
+
+    fn contains(&self, h: &Header, id: BlockId) -> bool {
+        h.block_position(id).is_some_and(|p| self.0[p / 64] & (1 << (p % 64)) != 0)
+    }
 }
 
 /// Plan distance from `p` to the rectangle `[lo, hi]` (0 inside).

@@ -215,6 +215,50 @@ fn frames_never_block_on_a_slow_reader_and_stale_requests_are_dropped() {
 }
 
 #[test]
+fn the_preloading_region_takes_half_the_in_flight_cap_and_the_view_all_of_it() {
+    let (dir, store) = store("half");
+    let cap = 4;
+    let config = |coarse_level| StreamConfig {
+        threads: 1,
+        tau: 3.0,
+        coarse_level,
+        max_in_flight: cap,
+        ..Default::default()
+    };
+    let lacking = |s: &Streamer, visible: bool| {
+        s.scheduled()
+            .iter()
+            .filter(|b| {
+                b.visible == visible
+                    && s.block(b.block).map_or(0, |l| l.count()) <= b.target as usize
+            })
+            .count()
+    };
+    // The I/O held: the first frame reads what it waits for, then nothing is read, so what is
+    // in flight is what the frame submitted. The first frame waits for level 0 only: the view's
+    // missing levels (M) take the whole cap.
+    let mut s = Streamer::new(store.clone(), config(0));
+    s.hold_io(true);
+    let st = s.update(&camera(-500.0));
+    assert!(lacking(&s, true) > cap, "the view lacks more than the cap: {st:?}");
+    assert_eq!(st.queue_depth, cap, "{st:?}");
+    drop(s);
+    // The first frame waits for every level the view needs (no motion yet: every target is
+    // the level needed now), so M lacks nothing, and N - M, which lacks more than half the
+    // cap, fills that half.
+    let mut s = Streamer::new(store.clone(), config(u8::MAX));
+    s.hold_io(true);
+    let st = s.update(&camera(-500.0));
+    assert!(st.at_needed_level() && lacking(&s, true) == 0, "{st:?}");
+    assert!(lacking(&s, false) > cap / 2, "N - M lacks {} blocks' levels", lacking(&s, false));
+    assert_eq!(st.queue_depth, cap / 2, "{st:?}");
+    // The next frame adds nothing: the half is full.
+    assert_eq!(s.update(&camera(-500.0)).queue_depth, cap / 2);
+    drop(s);
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
 fn held_io_delivers_nothing_until_released() {
     let (dir, store) = store("hold");
     let config = StreamConfig { threads: 2, tau: 3.0, coarse_level: 0, ..Default::default() };
