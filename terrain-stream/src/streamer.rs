@@ -30,9 +30,9 @@
 //! queue to half the in-flight cap at most. The workers take requests in order, so a level
 //! that M needs next frame waits behind everything queued before it: N - M's blocks are
 //! needed only once they enter the view, and keeping half the queue for M made `fast_pass`
-//! on the 32769^2 store reach its needed level in more frames (bench/ooc/README.md, "Half
-//! the queue for the view"). A request whose block has left N is cancelled (the worker drops
-//! it before its next level).
+//! on the 32769^2 store reach its needed level in more frames (bench/ooc/README.md, "The
+//! streamer's update: half the queue for the view"). A request whose block has left N is
+//! cancelled (the worker drops it before its next level).
 //!
 //! **Eq. 8 preloading, one frame ahead.** N comes from the view frustum extension (Eq. 8's `S`
 //! times [`ScheduleConfig::lookahead_frames`], default 1: the paper's one frame). Besides the
