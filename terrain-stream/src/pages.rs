@@ -37,8 +37,14 @@ use crate::remote::Remote;
 pub(crate) const PAGE_BYTES: usize = 64 << 10;
 /// Levels of the block pyramid kept in the head at most (`4^7` nodes at its finest level).
 pub(crate) const HEAD_LEVELS: u8 = 8;
-/// Default bytes of decoded pages a store keeps ([`crate::Store::set_page_cache_bytes`]).
-pub(crate) const DEFAULT_PAGE_CACHE_BYTES: u64 = 8 << 20;
+/// Default bytes of decoded pages a store keeps ([`crate::Store::with_page_cache_bytes`]):
+/// about 5,800 entries of the 32769^2 store's index (5.5 KB each). A flight's selection and
+/// the streamer's Eq. 7 walk read the entries of the blocks near the eye, a few thousand, and
+/// their pages hold their rows' neighbours too: at 8 MiB (until 2026-12-05) `store_frame` on
+/// that store decoded a page for most of its 200 entry reads a frame, and the `ooc` frame took
+/// 19-20 ms of frame-thread CPU (selection 6-7 ms) against 15-16 ms (2.5 ms) at 32 MiB and
+/// 15.1 ms at 64 (bench/ooc/README.md, "The index's page cache at 32 MiB").
+pub(crate) const DEFAULT_PAGE_CACHE_BYTES: u64 = 32 << 20;
 /// Bytes a decoded entry takes beyond its stored bytes (its `Vec`s and `Arc`), for the
 /// cache's accounting.
 const ENTRY_OVERHEAD: u64 = 160;

@@ -255,7 +255,7 @@ impl Store {
         }
     }
 
-    /// This store with a cache of decoded index pages of at most `bytes` (default 8 MiB; at
+    /// This store with a cache of decoded index pages of at most `bytes` (default 32 MiB; at
     /// least one page is kept), its own and empty. Nothing changes for an index read whole
     /// (versions 2 and 3).
     pub fn with_page_cache_bytes(mut self, bytes: u64) -> Result<Self, StoreError> {

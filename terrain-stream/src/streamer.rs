@@ -201,8 +201,8 @@ pub struct Streamer {
 
 /// What the schedule reads of a block's index entry every frame ([`BlockSummary`]), kept per
 /// block visited, so a frame's schedule does not read the index again: a version-4 store's
-/// entries come through a bounded cache of decoded pages (8 MiB, about 1,400 entries of a
-/// 32769^2 store), which a view of thousands of blocks would decode again every frame. Its
+/// entries come through a bounded cache of decoded pages (32 MiB, about 5,800 entries of a
+/// 32769^2 store), which a view of more blocks would decode again every frame. Its
 /// entries are about 100 bytes, at most [`MAX_SUMMARIES`] (then it starts over). The whole
 /// entries of the blocks whose level needs the Eq. 7 walk (those near the eye, thousands in a
 /// wide view of a 32769^2 store) are kept for the frame that walked them and the next: what a
