@@ -41,9 +41,10 @@ pub(crate) const HEAD_LEVELS: u8 = 8;
 /// about 5,800 entries of the 32769^2 store's index (5.5 KB each). A flight's selection and
 /// the streamer's Eq. 7 walk read the entries of the blocks near the eye, a few thousand, and
 /// their pages hold their rows' neighbours too: at 8 MiB (until 2026-12-05) `store_frame` on
-/// that store decoded a page for most of its 200 entry reads a frame, and the `ooc` frame took
-/// 19-20 ms of frame-thread CPU (selection 6-7 ms) against 15-16 ms (2.5 ms) at 32 MiB and
-/// 15.1 ms at 64 (bench/ooc/README.md, "The index's page cache at 32 MiB").
+/// that store read about 200 entries a frame that the selection's and the streamer's own
+/// caches did not hold, decoding pages and entries took 15 % of its samples, and the `ooc`
+/// frame took 19-20 ms of frame-thread CPU (selection 6-7 ms) against 15-16 ms (2.5 ms) at
+/// 32 MiB and 15.1 ms at 64 (bench/ooc/README.md, "The index's page cache at 32 MiB").
 pub(crate) const DEFAULT_PAGE_CACHE_BYTES: u64 = 32 << 20;
 /// Bytes a decoded entry takes beyond its stored bytes (its `Vec`s and `Arc`), for the
 /// cache's accounting.

@@ -4,7 +4,8 @@
 //! dropped; `wait_until_resident` leaves every needed level resident; and the runtime survives
 //! a block file deleted and a level corrupted mid-flight: typed faults naming block and level,
 //! coarser levels still served, no panic, no worker lost. Held I/O (`Streamer::hold_io`)
-//! delivers nothing until released.
+//! delivers nothing until released. The view's missing levels may fill the in-flight cap, the
+//! pre-loading region half of it.
 
 use std::ops::ControlFlow;
 use std::sync::atomic::{AtomicUsize, Ordering};
