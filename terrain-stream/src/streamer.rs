@@ -631,12 +631,12 @@ impl Streamer {
                 && frustum.classify(b) == Classification::Outside
         };
         let mut scheduled = Vec::new();
-        let mut in_m = BTreeSet::new();
+        let mut in_m = BlockSet::empty(header);
         if let Some(demand) = &self.demand {
             for &(id, level) in demand {
                 let Some(e) = self.summaries.get(store, id) else { continue };
                 let e = &*e;
-                if !in_m.insert(id) {
+                if !in_m.insert(header, id) {
                     continue;
                 }
                 let (lo, hi) = (e.lo, e.hi);
@@ -662,7 +662,7 @@ impl Streamer {
                 continue;
             }
             if let Some(needed) = needed(id, e, &reg.view) {
-                in_m.insert(id);
+                in_m.insert(header, id);
                 scheduled.push(ScheduledBlock {
                     block: id,
                     needed,
@@ -673,7 +673,7 @@ impl Streamer {
             }
         }
         for id in blocks_under_bbox(header, &reg.extension) {
-            if in_m.contains(&id) {
+            if in_m.contains(header, id) {
                 continue;
             }
             let Some(e) = self.summaries.get(store, id) else { continue };
@@ -995,17 +995,32 @@ fn geometry_level_bound(h: &Header, e: &BlockSummary, view: &View) -> u8 {
         .unwrap_or(h.k)
 }
 
-/// The blocks of a schedule, by row-major block position (one bit each): membership without
+/// A set of the store's blocks by row-major block position (one bit each): membership without
 /// a tree or hash of the thousands of blocks a wide view schedules.
 struct BlockSet(Vec<u64>);
 
 impl BlockSet {
+    /// No block of the store with header `h`.
+    fn empty(h: &Header) -> Self {
+        Self(vec![0u64; h.block_count().div_ceil(64)])
+    }
+
+    /// The blocks of a schedule.
     fn of(h: &Header, scheduled: &[ScheduledBlock]) -> Self {
-        let mut bits = vec![0u64; h.block_count().div_ceil(64)];
-        for p in scheduled.iter().filter_map(|s| h.block_position(s.block)) {
-            bits[p / 64] |= 1 << (p % 64);
+        let mut set = Self::empty(h);
+        for s in scheduled {
+            set.insert(h, s.block);
         }
-        Self(bits)
+        set
+    }
+
+    /// Adds `id`; whether it was not there (a block outside the grid is never held).
+    fn insert(&mut self, h: &Header, id: BlockId) -> bool {
+        let Some(p) = h.block_position(id) else { return true };
+        let (word, bit) = (&mut self.0[p / 64], 1u64 << (p % 64));
+        let new = *word & bit == 0;
+        *word |= bit;
+        new
     }
 
     fn contains(&self, h: &Header, id: BlockId) -> bool {
