@@ -34,7 +34,8 @@
 //! the walk from the newest triangle decides, as it always did).
 
 use crate::heightmap::Heightmap;
-use crate::mesh::{TriMesh, raster};
+use crate::mesh::TriMesh;
+use crate::mesh::raster::{self, Line, largest_magnitude, line_margin};
 
 /// No half-edge / not in the heap.
 const NONE: u32 = u32::MAX;
@@ -227,56 +228,8 @@ struct Mesher<'a> {
     hints: Hints,
     /// Steps the seeds' walks took (the tests read it).
     walk_steps: u64,
-    /// The scan's line test margin per unit of `d` ([`line_margin`]).
+    /// The scan's line test margin per unit of `d` ([`raster::line_margin`]).
     line_margin: f64,
-}
-
-/// The margin, per unit of a triangle's `d`, by which [`Mesher::scan`]'s line test must leave
-/// a sample below the threshold for the exact test to dismiss it too, on a grid whose finite
-/// heights are at most `h` in magnitude.
-///
-/// Inside a triangle every weight lies in `[0, d]`, so the exact numerator's three products
-/// and two sums round by at most about `3u d h` (`u = 2^-53`); the line `n(lo) + k dn`
-/// carries that at `lo`, `dn`'s rounding times `k` (each `|k dw_c| <= d`, as the weights at
-/// `lo` and `lo + k` both lie in `[0, d]`: at most `6u d h`) and two more roundings; the
-/// product `zs d`, the division `n / d` and the comparison with `error d` of the exact test
-/// add a few `u d h` more. Together under `30u d h < 4e-15 d h`: 1e-12 leaves a factor of
-/// 250, and still dismisses every sample more than a micrometre per kilometre of relief
-/// below the bound (bounds are centimetres and up).
-fn line_margin(h: f64) -> f64 {
-    1e-12 * (h + 1.0)
-}
-
-/// The largest `|z|` of `data`, void samples included (a corner vertex may be one), NaN
-/// ignored (infinite when some height is: then the line test dismisses nothing; 0 when there
-/// is none), from the grid's extremes by lanes.
-fn largest_magnitude(data: &[f32]) -> f64 {
-    let (min, max, _) = crate::heightmap::extremes_by_lanes(data);
-    if min > max { 0.0 } else { f64::from(min.abs().max(max.abs())) }
-}
-
-/// A scan row's interpolation numerator as a line: `n(lo + k) = n(lo) + k dn`.
-#[derive(Clone, Copy)]
-struct Line {
-    at_lo: f64,
-    slope: f64,
-}
-
-impl Line {
-    /// The row whose first sample has weights `wt`, stepping by `dw`, vertex heights `z`
-    /// (the scan computes the slope once per triangle, the same value).
-    #[cfg(test)]
-    fn new(wt: [f64; 3], dw: [f64; 3], z: [f64; 3]) -> Self {
-        Self { at_lo: raster::numerator(wt, z), slope: raster::numerator(dw, z) }
-    }
-
-    /// Whether the sample `k` east of the row's first, height `zs`, is at most `cut` from
-    /// the line (times `d`): `cut` is the threshold times `d` less the margin, so the exact
-    /// test would dismiss it too ([`line_margin`]). A NaN height is never dismissed.
-    #[inline]
-    fn dismisses(&self, zs: f32, k: f64, df: f64, cut: f64) -> bool {
-        (f64::from(zs) * df - (self.at_lo + k * self.slope)).abs() <= cut
-    }
 }
 
 impl<'a> Mesher<'a> {
@@ -1017,86 +970,5 @@ mod tests {
             }
         }
         assert!(inside > 100 && outside > 100, "{inside} inside, {outside} outside");
-    }
-
-    /// The scan's line test never dismisses a sample the exact test keeps: at every sample
-    /// of triangles up to 2^14 samples across, with heights of up to Everest's magnitude near
-    /// the plane, the threshold just under the sample's exact error (the hardest case) leaves
-    /// the sample to the exact test. With no margin the line dismisses such samples (a
-    /// negative control, checked in the test), so the margin is what keeps the outcome.
-    #[test]
-    fn the_line_test_never_dismisses_a_sample_the_exact_test_keeps() {
-        let mut rand = crate::test_support::unit_rng(0x2545_f491_4f6c_dd1d);
-        let (mut tested, mut unguarded) = (0usize, 0usize);
-        for case in 0..400 {
-            let side = [8.0, 64.0, 900.0, 16384.0][case % 4];
-            let g: [[i64; 2]; 3] =
-                std::array::from_fn(|_| [(rand() * side) as i64, (rand() * side) as i64]);
-            if raster::orient(g[0], g[1], g[2]) <= 0 {
-                continue;
-            }
-            let base = [0.0, 412.0, -430.5, 8848.0][case % 4 / 2 * 2 + usize::from(case % 3 == 0)];
-            let z: [f64; 3] = std::array::from_fn(|_| f64::from((base + rand() * 3000.0) as f32));
-            let df = raster::orient(g[0], g[1], g[2]) as f64;
-            let mut rows = 0;
-            raster::for_each_row(
-                g,
-                [i64::MIN, i64::MIN, i64::MAX, i64::MAX],
-                |_, lo, hi, wt, dw| {
-                    rows += 1;
-                    if rows > 40 {
-                        return;
-                    }
-                    let line = Line::new(wt, dw, z);
-                    let mut w = wt;
-                    for i in lo..=hi.min(lo + 300) {
-                        let at = (i - lo) as f64;
-                        let n = raster::numerator(w, z);
-                        w = raster::step(w, dw);
-                        // A sample near the plane: errors from micrometres to metres.
-                        let off = (rand() - 0.5) * 10f64.powf(rand() * 7.0 - 6.0);
-                        let zs = (n / df + off) as f32;
-                        let e = (f64::from(zs) - n / df).abs();
-                        if e == 0.0 {
-                            continue;
-                        }
-                        // The largest threshold the exact test still keeps the sample at.
-                        let error = f64::from_bits(e.to_bits() - 1);
-                        let h = z.iter().fold(f64::from(zs.abs()), |a, v| a.max(v.abs()));
-                        let cut = error * df - line_margin(h) * df;
-                        assert!(
-                            !line.dismisses(zs, at, df, cut),
-                            "{g:?} {z:?}: sample {at} of a row, error {e}, dismissed"
-                        );
-                        unguarded += usize::from(line.dismisses(zs, at, df, error * df));
-                        tested += 1;
-                    }
-                },
-            );
-        }
-        assert!(tested > 20_000, "{tested} samples");
-        assert!(unguarded > 0, "the margin was never needed: the test tests nothing");
-    }
-
-    #[test]
-    fn the_largest_magnitude_ignores_nan_and_keeps_infinity() {
-        // Lengths around the eight lanes, the extreme in every position, negative or not.
-        for n in 1..20 {
-            for at in 0..n {
-                for sign in [1.0f32, -1.0] {
-                    let mut v: Vec<f32> = (0..n).map(|k| (k % 5) as f32 - 2.0).collect();
-                    v[at] = 9.5 * sign;
-                    if at > 0 {
-                        v[at - 1] = f32::NAN;
-                    }
-                    assert_eq!(largest_magnitude(&v), 9.5, "{v:?}");
-                }
-            }
-        }
-        assert_eq!(largest_magnitude(&[f32::NAN; 11]), 0.0);
-        assert_eq!(largest_magnitude(&[]), 0.0);
-        assert_eq!(largest_magnitude(&[1.0, f32::NEG_INFINITY, 3.0]), f64::INFINITY);
-        // An infinite height: the line test dismisses nothing (the exact test decides all).
-        assert_eq!(line_margin(f64::INFINITY), f64::INFINITY);
     }
 }

@@ -70,8 +70,20 @@ pub enum VerifyError {
     },
 }
 
-/// Measures `mesh` against every non-void sample of `hm`.
-pub fn measure(hm: &Heightmap, mesh: &TriMesh) -> Result<ErrorStats, VerifyError> {
+/// The largest vertical error of a mesh over the non-void samples, and where: what
+/// [`check_max`] proves (the same figures as [`ErrorStats`]' without the RMS).
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+pub struct MaxError {
+    /// Largest `|mesh - sample|`, metres.
+    pub max_error: f64,
+    /// Number of non-void samples measured.
+    pub samples: usize,
+    /// A sample `(i, j)` where the maximum is reached (`None` on a mesh with no error).
+    pub worst: Option<(usize, usize)>,
+}
+
+/// The vertices' grid samples, or the first that is not one.
+fn grid_vertices(hm: &Heightmap, mesh: &TriMesh) -> Result<Vec<[i64; 2]>, VerifyError> {
     let (w, h) = (hm.width(), hm.height());
     let mut grid = Vec::with_capacity(mesh.positions.len());
     for (vertex, p) in mesh.positions.iter().enumerate() {
@@ -87,18 +99,35 @@ pub fn measure(hm: &Heightmap, mesh: &TriMesh) -> Result<ErrorStats, VerifyError
         }
         grid.push([r.x as i64, r.y as i64]);
     }
+    Ok(grid)
+}
+
+/// Triangle `triangle`'s grid vertices, or why it is not one of a height field's.
+fn grid_triangle(
+    grid: &[[i64; 2]],
+    t: [u32; 3],
+    triangle: usize,
+) -> Result<[[i64; 2]; 3], VerifyError> {
+    if t.iter().any(|&k| k as usize >= grid.len()) {
+        return Err(VerifyError::BadTriangle { triangle });
+    }
+    let g = t.map(|k| grid[k as usize]);
+    if raster::orient(g[0], g[1], g[2]) <= 0 {
+        return Err(VerifyError::BadTriangle { triangle });
+    }
+    Ok(g)
+}
+
+/// Measures `mesh` against every non-void sample of `hm`.
+pub fn measure(hm: &Heightmap, mesh: &TriMesh) -> Result<ErrorStats, VerifyError> {
+    let (w, h) = (hm.width(), hm.height());
+    let grid = grid_vertices(hm, mesh)?;
     // Per-sample worst error (NaN: not yet covered). f32 suffices for the RMS; the maximum
     // and its sample are tracked exactly in f64.
     let mut err = vec![f32::NAN; w * h];
     let (mut max_error, mut worst) = (0.0f64, None);
     for (triangle, t) in mesh.triangles.iter().enumerate() {
-        if t.iter().any(|&k| k as usize >= grid.len()) {
-            return Err(VerifyError::BadTriangle { triangle });
-        }
-        let g = t.map(|k| grid[k as usize]);
-        if raster::orient(g[0], g[1], g[2]) <= 0 {
-            return Err(VerifyError::BadTriangle { triangle });
-        }
+        let g = grid_triangle(&grid, *t, triangle)?;
         let z = t.map(|k| mesh.positions[k as usize].z);
         // Row by row over the heights and errors (the interpolation `for_each_sample` gives,
         // `n / d`, bit for bit).
@@ -144,12 +173,85 @@ pub fn measure(hm: &Heightmap, mesh: &TriMesh) -> Result<ErrorStats, VerifyError
 /// Measures `mesh` and refuses it when any non-void sample is more than `bound` metres off.
 pub fn check(hm: &Heightmap, mesh: &TriMesh, bound: f64) -> Result<ErrorStats, VerifyError> {
     let stats = measure(hm, mesh)?;
-    // A NaN bound is refused too.
-    if bound.is_nan() || stats.max_error > bound {
-        let at = stats.worst.unwrap_or((0, 0));
-        return Err(VerifyError::BoundExceeded { max_error: stats.max_error, bound, at });
-    }
+    refuse_above(bound, stats.max_error, stats.worst)?;
     Ok(stats)
+}
+
+/// The bound check both [`check`] and [`check_max`] make (a NaN bound is refused too).
+fn refuse_above(
+    bound: f64,
+    max_error: f64,
+    worst: Option<(usize, usize)>,
+) -> Result<(), VerifyError> {
+    if bound.is_nan() || max_error > bound {
+        let at = worst.unwrap_or((0, 0));
+        return Err(VerifyError::BoundExceeded { max_error, bound, at });
+    }
+    Ok(())
+}
+
+/// [`check`] without the RMS: the largest error and where, the samples counted and the same
+/// refusals, equal to [`measure`]'s bit for bit (the tests compare them), in a fraction of its
+/// time. The tile pyramids verify every tile with it.
+///
+/// [`measure`] divides at every sample and keeps every sample's error for the RMS; here a
+/// sample is first tested on its row's interpolation numerator as a line, without a division
+/// ([`raster::Line`], the greedy mesher's own first test), against the largest error so far
+/// less the line's rounding margin ([`raster::line_margin`]): a sample it dismisses has an
+/// exact error at most that largest, so it could not have raised it, and every other sample
+/// takes [`measure`]'s exact test in the same order. Coverage is a byte per sample, set
+/// row span by row span.
+pub fn check_max(hm: &Heightmap, mesh: &TriMesh, bound: f64) -> Result<MaxError, VerifyError> {
+    let (w, h) = (hm.width(), hm.height());
+    let grid = grid_vertices(hm, mesh)?;
+    let (data, voids) = (hm.data(), hm.voids());
+    // The margin covers the vertices' heights too: they need not be the samples'.
+    let magnitude =
+        mesh.positions.iter().fold(raster::largest_magnitude(data), |m, p| m.max(p.z.abs()));
+    let margin = raster::line_margin(magnitude);
+    let mut covered = vec![false; w * h];
+    let (mut max_error, mut worst) = (0.0f64, None);
+    for (triangle, t) in mesh.triangles.iter().enumerate() {
+        let g = grid_triangle(&grid, *t, triangle)?;
+        let z = t.map(|k| mesh.positions[k as usize].z);
+        let df = raster::orient(g[0], g[1], g[2]) as f64;
+        let (slope, margin) = (raster::numerator(raster::weights_east(g), z), margin * df);
+        let all = [i64::MIN, i64::MIN, i64::MAX, i64::MAX];
+        raster::for_each_row(g, all, |j, lo, hi, wt, dw| {
+            let (row, j) = (j as usize * w, j as usize);
+            let (lo, hi) = (lo as usize, hi as usize);
+            covered[row + lo..=row + hi].fill(true);
+            let line = raster::Line { at_lo: raster::numerator(wt, z), slope };
+            let mut cut = max_error * df - margin;
+            for (k, &zs) in data[row + lo..=row + hi].iter().enumerate() {
+                let at = k as f64;
+                if line.dismisses(zs, at, df, cut) {
+                    continue;
+                }
+                // `measure`'s test: the weights `k` samples east are exact integers, so
+                // `wt + k dw` is `wt` stepped `k` times bit for bit.
+                let wk = [wt[0] + at * dw[0], wt[1] + at * dw[1], wt[2] + at * dw[2]];
+                let e = (f64::from(zs) - raster::numerator(wk, z) / df).abs();
+                if e > max_error && !voids.get(lo + k, j) {
+                    max_error = e;
+                    worst = Some((lo + k, j));
+                    cut = max_error * df - margin;
+                }
+            }
+        });
+    }
+    // The first non-void sample no triangle covered, in row order (as `measure` reports).
+    let uncovered = if voids.any() {
+        (0..w * h).find(|&k| !covered[k] && !voids.get(k % w, k / w))
+    } else {
+        covered.iter().position(|&c| !c)
+    };
+    if let Some(k) = uncovered {
+        return Err(VerifyError::NotCovered { i: k % w, j: k / w });
+    }
+    let samples = w * h - voids.count();
+    refuse_above(bound, max_error, worst)?;
+    Ok(MaxError { max_error, samples, worst })
 }
 
 #[cfg(test)]
@@ -235,6 +337,97 @@ mod tests {
                 }
             }
         }
+    }
+
+    /// [`check_max`] is [`measure`] without the RMS, bit for bit: the maximum, its sample and
+    /// the samples counted, on rough grids with scattered and blocky voids (NaN heights in
+    /// some), lifted by 0, -430 m and 1e6 m, meshed by both builders at bounds from exact to
+    /// loose, and with the vertices' heights moved off their samples by micrometres (errors
+    /// at the line test's margin) or metres; the refusals are the same errors.
+    #[test]
+    fn check_max_is_measure_without_the_rms() {
+        use crate::georef::Georef;
+        use crate::heightmap::VoidMask;
+        let mut compared = 0;
+        for (w, h, lift, nan) in
+            [(61usize, 47usize, 0.0f32, false), (33, 90, 1.0e6, false), (80, 80, -430.0, true)]
+        {
+            let mut voids = VoidMask::new(w, h);
+            for k in (0..w * h).step_by(37) {
+                voids.set(k % w, k / w, true);
+            }
+            for j in 10..20 {
+                for i in 5..25 {
+                    voids.set(i, j, true);
+                }
+            }
+            let hm = Heightmap::from_fn(w, h, Georef::local(5.0), |i, j| {
+                let (x, y) = (i as f32, j as f32);
+                lift + 90.0 * (x * 0.31).sin() * (y * 0.17).cos() + 7.0 * (x * y * 0.05).sin()
+            })
+            .unwrap();
+            let mut data = hm.data().to_vec();
+            if nan {
+                for j in 12..18 {
+                    data[j * w + 10] = f32::NAN;
+                }
+            }
+            let hm = Heightmap::new(w, h, data, voids, hm.georef().clone()).unwrap();
+            for algorithm in [Algorithm::Rtin, Algorithm::Delaunay] {
+                for bound in [0.0, 0.5, 4.0, 30.0] {
+                    let base = build(&hm, &MeshConfig { max_error: bound, algorithm }).unwrap();
+                    for offset in [0.0, 3e-6, 2.5] {
+                        let mut m = base.clone();
+                        for (k, p) in m.positions.iter_mut().enumerate() {
+                            p.z += offset * [1.0, -1.0, 0.5][k % 3];
+                        }
+                        let what =
+                            format!("{w} x {h} + {lift}, {algorithm:?} at {bound} m, {offset}");
+                        let full = measure(&hm, &m).unwrap();
+                        let max = check_max(&hm, &m, f64::INFINITY).unwrap();
+                        assert_eq!(max.max_error.to_bits(), full.max_error.to_bits(), "{what}");
+                        assert_eq!(max.worst, full.worst, "{what}");
+                        assert_eq!(max.samples, full.samples, "{what}");
+                        assert_eq!(
+                            check(&hm, &m, full.max_error).unwrap().max_error,
+                            max.max_error
+                        );
+                        assert_eq!(check_max(&hm, &m, full.max_error).unwrap(), max, "{what}");
+                        if full.max_error > 0.0 {
+                            let under = f64::from_bits(full.max_error.to_bits() - 1);
+                            assert_eq!(
+                                check_max(&hm, &m, under).unwrap_err(),
+                                check(&hm, &m, under).unwrap_err(),
+                                "{what}"
+                            );
+                        }
+                        compared += 1;
+                    }
+                }
+            }
+        }
+        assert_eq!(compared, 72);
+        let hm = HardCase::Spike.build();
+        let coarse =
+            build(&hm, &MeshConfig { max_error: f64::INFINITY, algorithm: Algorithm::Rtin })
+                .unwrap();
+        let e = check_max(&hm, &coarse, f64::NAN).unwrap_err();
+        assert!(matches!(e, VerifyError::BoundExceeded { at: (32, 32), .. }), "{e}");
+        let mut holed = coarse.clone();
+        holed.triangles.pop();
+        assert_eq!(check_max(&hm, &holed, 1e9).unwrap_err(), measure(&hm, &holed).unwrap_err());
+        let mut flipped = coarse.clone();
+        flipped.triangles[1].swap(1, 2);
+        assert_eq!(
+            check_max(&hm, &flipped, 1e9).unwrap_err(),
+            VerifyError::BadTriangle { triangle: 1 }
+        );
+        let mut off = coarse;
+        off.positions[2].y += 0.5 * HardCase::SPACING_M;
+        assert!(matches!(
+            check_max(&hm, &off, 1e9),
+            Err(VerifyError::VertexOffGrid { vertex: 2, .. })
+        ));
     }
 
     #[test]

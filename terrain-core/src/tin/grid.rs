@@ -50,7 +50,7 @@ use super::tile::{self, Borders};
 use crate::geometry::Camera;
 use crate::heightmap::{Heightmap, VoidMask};
 use crate::lod::SurfaceMesh;
-use crate::mesh::verify::ErrorStats;
+use crate::mesh::verify::MaxError;
 use crate::quadtree::{
     Direction, FrustumCull, LeafSet, NodeId, NodeInfo, NodeSource, Quadtree, TreeShape, Visit,
     traverse,
@@ -160,7 +160,7 @@ pub struct GridTile {
     /// The tile's bound, metres.
     pub bound: f64,
     /// The error measured against the tile's samples.
-    pub measured: ErrorStats,
+    pub measured: MaxError,
 }
 
 impl GridTile {

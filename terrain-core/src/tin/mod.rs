@@ -39,7 +39,7 @@ use glam::{DVec2, DVec3, dvec2};
 
 use crate::georef::AngularOrLinear;
 use crate::heightmap::{Heightmap, VoidMask};
-use crate::mesh::verify::{ErrorStats, VerifyError};
+use crate::mesh::verify::{MaxError, VerifyError};
 use crate::mesh::{Algorithm, MeshError, TriMesh};
 
 /// The geometric error CesiumJS assumes for a level-0 quantized-mesh tile, metres:
@@ -389,7 +389,7 @@ pub struct TileMesh {
     pub bound: f64,
     /// The error measured against the DEM samples the tile was meshed from; `None` for a tile
     /// without DEM samples (flat at height 0).
-    pub measured: Option<ErrorStats>,
+    pub measured: Option<MaxError>,
 }
 
 impl TileMesh {
@@ -648,7 +648,7 @@ impl Placed {
     /// mesh took as vertices, in the grid's coordinates.
     fn place(
         &self,
-        meshed: Option<(TriMesh, ErrorStats)>,
+        meshed: Option<(TriMesh, MaxError)>,
         tile: TileId,
         bound: f64,
     ) -> (TileMesh, Vec<[u32; 2]>) {

@@ -4,7 +4,7 @@
 //! A tile is a window of DEM samples ([`window`]: any source fills it through a closure, a
 //! heightmap in memory or a store's blocks), meshed by greedy Delaunay insertion
 //! ([`crate::mesh::delaunay`], Garland & Heckbert 1995) within the tile's bound and verified
-//! against every non-void sample of the window ([`crate::mesh::verify::check`]) before it is
+//! against every non-void sample of the window ([`crate::mesh::verify::check_max`]) before it is
 //! returned ([`mesh_window`]).
 //!
 //! **Borders.** With [`Borders::Free`] the greedy insertion picks border samples like any
@@ -25,7 +25,7 @@
 
 use crate::Georef;
 use crate::heightmap::{Heightmap, VoidMask};
-use crate::mesh::verify::{self, ErrorStats, VerifyError};
+use crate::mesh::verify::{self, MaxError, VerifyError};
 use crate::mesh::{self, Algorithm, MeshError, TriMesh};
 
 /// How a tile's border vertices are chosen.
@@ -171,7 +171,7 @@ pub fn mesh_window(
     sub: &Heightmap,
     bound: f64,
     borders: Borders,
-) -> Result<(TriMesh, ErrorStats), TileError> {
+) -> Result<(TriMesh, MaxError), TileError> {
     mesh_window_seeded(sub, bound, borders, &[])
 }
 
@@ -187,7 +187,7 @@ pub fn mesh_window_seeded(
     bound: f64,
     borders: Borders,
     seeds: &[[u32; 2]],
-) -> Result<(TriMesh, ErrorStats), TileError> {
+) -> Result<(TriMesh, MaxError), TileError> {
     mesh_window_with(sub, bound, borders, seeds, Algorithm::Delaunay)
 }
 
@@ -204,14 +204,14 @@ pub fn mesh_window_with(
     borders: Borders,
     seeds: &[[u32; 2]],
     algorithm: Algorithm,
-) -> Result<(TriMesh, ErrorStats), TileError> {
+) -> Result<(TriMesh, MaxError), TileError> {
     mesh::validate(sub, bound)?;
     if algorithm == Algorithm::Rtin {
         if borders != Borders::Free {
             return Err(TileError::RtinLockedBorders);
         }
         let m = mesh::rtin::build(sub, bound);
-        let stats = verify::check(sub, &m, bound)?;
+        let stats = verify::check_max(sub, &m, bound)?;
         return Ok((m, stats));
     }
     let m = match borders {
@@ -225,7 +225,7 @@ pub fn mesh_window_with(
             mesh::delaunay::build_seeded(sub, bound, &all, true)
         }
     };
-    let stats = verify::check(sub, &m, bound)?;
+    let stats = verify::check_max(sub, &m, bound)?;
     Ok((m, stats))
 }
 
@@ -263,7 +263,7 @@ fn piece_window(
 /// (window samples `[i, j]`) go to the pieces they are inside of (not on a piece's side).
 /// Returns the union in the window's grid coordinates (vertices shared by pieces merged) and
 /// the error measured over every piece: its maximum and where (window coordinates), and the
-/// samples and RMS over the pieces, a sample on a shared side counted in each of its pieces.
+/// samples over the pieces, a sample on a shared side counted in each of its pieces.
 pub fn mesh_in_pieces<E: From<TileError>>(
     width: usize,
     height: usize,
@@ -271,7 +271,7 @@ pub fn mesh_in_pieces<E: From<TileError>>(
     bound: f64,
     seeds: &[[u32; 2]],
     mut read: impl FnMut([usize; 4]) -> Result<(Vec<f32>, Option<VoidMask>), E>,
-) -> Result<(TriMesh, ErrorStats), E> {
+) -> Result<(TriMesh, MaxError), E> {
     if width < 2 || height < 2 {
         return Err(TileError::Mesh(MeshError::GridTooSmall { width, height }).into());
     }
@@ -279,8 +279,7 @@ pub fn mesh_in_pieces<E: From<TileError>>(
     let mut index: rustc_hash::FxHashMap<[u32; 2], u32> = Default::default();
     let mut positions: Vec<glam::DVec3> = Vec::new();
     let mut triangles: Vec<[u32; 3]> = Vec::new();
-    let mut stats = ErrorStats { max_error: 0.0, rms_error: 0.0, samples: 0, worst: None };
-    let mut sum_sq = 0.0;
+    let mut stats = MaxError { max_error: 0.0, samples: 0, worst: None };
     for y in ys.windows(2) {
         for x in xs.windows(2) {
             let ([x0, x1], [y0, y1]) = ([x[0], x[1]], [y[0], y[1]]);
@@ -301,7 +300,6 @@ pub fn mesh_in_pieces<E: From<TileError>>(
                 stats.max_error = s.max_error;
                 stats.worst = s.worst.map(|(i, j)| (i + x0, j + y0));
             }
-            sum_sq += s.rms_error * s.rms_error * s.samples as f64;
             stats.samples += s.samples;
             // Vertices are samples of the piece: integer grid coordinates.
             let ids: Vec<u32> = m
@@ -317,9 +315,6 @@ pub fn mesh_in_pieces<E: From<TileError>>(
                 .collect();
             triangles.extend(m.triangles.iter().map(|t| t.map(|k| ids[k as usize])));
         }
-    }
-    if stats.samples > 0 {
-        stats.rms_error = (sum_sq / stats.samples as f64).sqrt();
     }
     let normals = crate::mesh::vertex_normals(&positions, &triangles);
     Ok((TriMesh { positions, normals, triangles }, stats))
