@@ -398,6 +398,13 @@ impl<'a> Mesher<'a> {
         let vi = [self.he(e)[0], self.he(e + 1)[0], self.he(e + 2)[0]];
         let v = vi.map(|k| self.verts[k as usize]);
         let (g, z) = (v.map(|v| v.grid()), v.map(|v| v.z));
+        // A triangle of doubled area 1 holds no sample but its vertices (Pick's theorem:
+        // area = interior + boundary / 2 - 1 with at least its 3 vertices on the boundary, so
+        // 1/2 leaves no other), and a vertex is never a candidate: nothing to scan. Nearly a
+        // fifth of a finely meshed tile's triangles (a quarter of the samples kept) are such.
+        if raster::orient(g[0], g[1], g[2]) == 1 {
+            return;
+        }
         let hm = self.hm;
         let (w, h) = (hm.width() as i64, hm.height() as i64);
         let voids = hm.voids().any().then(|| hm.voids());

@@ -215,6 +215,23 @@ pub fn check_max(hm: &Heightmap, mesh: &TriMesh, bound: f64) -> Result<MaxError,
         let g = grid_triangle(&grid, *t, triangle)?;
         let z = t.map(|k| mesh.positions[k as usize].z);
         let df = raster::orient(g[0], g[1], g[2]) as f64;
+        if df == 1.0 {
+            // Doubled area 1: the vertices are the only samples (Pick's theorem; see the
+            // mesher's scan), each weighted 1 and the others 0, taken in row order.
+            let mut corners = [0, 1, 2];
+            corners.sort_unstable_by_key(|&c| (g[c][1], g[c][0]));
+            for c in corners {
+                let (i, j) = (g[c][0] as usize, g[c][1] as usize);
+                covered[j * w + i] = true;
+                let wt = std::array::from_fn(|k| if k == c { 1.0 } else { 0.0 });
+                let e = (f64::from(data[j * w + i]) - raster::numerator(wt, z) / df).abs();
+                if e > max_error && !voids.get(i, j) {
+                    max_error = e;
+                    worst = Some((i, j));
+                }
+            }
+            continue;
+        }
         let (slope, margin) = (raster::numerator(raster::weights_east(g), z), margin * df);
         let all = [i64::MIN, i64::MIN, i64::MAX, i64::MAX];
         raster::for_each_row(g, all, |j, lo, hi, wt, dw| {
