@@ -325,8 +325,10 @@ pub fn bilinear_clamped(
     let j1 = (j0 + 1).min(height - 1);
     let fu = (u - i0 as f64) as f32;
     let fv = (v - j0 as f64) as f32;
-    let a = get(i0, j0) + (get(i1, j0) - get(i0, j0)) * fu;
-    let b = get(i0, j1) + (get(i1, j1) - get(i0, j1)) * fu;
+    // Each corner read once (a store's `get` looks its block up).
+    let (z00, z10, z01, z11) = (get(i0, j0), get(i1, j0), get(i0, j1), get(i1, j1));
+    let a = z00 + (z10 - z00) * fu;
+    let b = z01 + (z11 - z01) * fu;
     a + (b - a) * fv
 }
 

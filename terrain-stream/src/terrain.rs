@@ -104,9 +104,19 @@ impl NodeTree for StoreSource<'_> {
 impl TerrainSource for StoreSource<'_> {
     fn height(&self, g: DVec2) -> f32 {
         let s = self.tree.shape();
-        bilinear_clamped(s.width() as usize, s.height() as usize, g.x, g.y, |i, j| {
-            self.sample(i as u32, j as u32)
-        })
+        let (w, h) = (s.width(), s.height());
+        // A sample of the grid off its last row and column (patch corners, edge ends: most of
+        // what the selections ask) is its own height: the bilinear mean takes it as its first
+        // corner with both fractions 0, `z + (z' - z) 0` is `z` exactly for finite heights,
+        // and a store's are finite. One sample instead of four. (On the last row or column
+        // the mean takes it as the far corner, `z + (z' - z) 1`, which may round: left to it.)
+        if g.x == g.x.floor() && g.y == g.y.floor() && g.x >= 0.0 && g.y >= 0.0 {
+            let (x, y) = (g.x as u32, g.y as u32);
+            if x + 1 < w && y + 1 < h {
+                return self.sample(x, y);
+            }
+        }
+        bilinear_clamped(w as usize, h as usize, g.x, g.y, |i, j| self.sample(i as u32, j as u32))
     }
 }
 

@@ -12,7 +12,7 @@ use std::time::Duration;
 
 use glam::{DVec2, dvec3};
 use terrain_core::geometry::Camera;
-use terrain_core::heightmap::{Heightmap, VoidMask};
+use terrain_core::heightmap::{Heightmap, VoidMask, bilinear_clamped};
 use terrain_core::lod::{
     ConstantField, DssConfig, DssErrorTable, GridSource, PvpsConfig, Selection, TerrainSource,
     select_dss_power_of_two, select_dss_uniform, select_pvps,
@@ -125,6 +125,21 @@ fn selections(src: &dyn TerrainSource, table: &DssErrorTable, camera: &Camera) -
     ]
 }
 
+/// Grid points every few samples, the last row and column included, on samples, halfway
+/// and at a quarter between them, and off the grid.
+fn heights_probe(w: usize, h: usize) -> Vec<DVec2> {
+    let mut points = Vec::new();
+    for y in (0..h).step_by(5).chain([h - 1]) {
+        for x in (0..w).step_by(3).chain([w - 1]) {
+            for (dx, dy) in [(0.0, 0.0), (0.5, 0.0), (0.0, 0.25), (0.25, 0.75)] {
+                points.push(DVec2::new(x as f64 + dx, y as f64 + dy));
+            }
+        }
+    }
+    points.extend([DVec2::new(-1.0, 2.0), DVec2::new(w as f64 + 3.0, h as f64)]);
+    points
+}
+
 fn check_grid(w: usize, h: usize, voids: bool, k: u8, name: &str) {
     let hm = terrain(w, h, voids);
     let qt = Quadtree::new(&hm, 16);
@@ -144,6 +159,14 @@ fn check_grid(w: usize, h: usize, voids: bool, k: u8, name: &str) {
     let sel = selections(&cold, &table, &cams[0]);
     assert!(sel.iter().all(|s| !s.patches.is_empty()), "{name}: cold selections draw");
     assert!(!demand_of(&tree, &sel[0], true).is_empty());
+    // Heights on and between grid samples are the bilinear mean of `sample` (a sample off
+    // the last row and column is read alone: the same value), bit for bit, also while the
+    // blocks are coarse.
+    let points = heights_probe(w, h);
+    for &g in &points {
+        let want = bilinear_clamped(w, h, g.x, g.y, |i, j| cold.sample(i as u32, j as u32));
+        assert_eq!(cold.height(g).to_bits(), want.to_bits(), "{name}: cold height at {g}");
+    }
 
     warm_all(&mut streamer, &store, &cams[0]);
     let warm = StoreSource::new(&tree, &streamer);
@@ -155,6 +178,9 @@ fn check_grid(w: usize, h: usize, voids: bool, k: u8, name: &str) {
     }
     let g = DVec2::new(w as f64 * 0.37, h as f64 * 0.61);
     assert_eq!(warm.height(g), memory.height(g), "{name}: bilinear heights agree");
+    for &g in &points {
+        assert_eq!(warm.height(g).to_bits(), memory.height(g).to_bits(), "{name}: height at {g}");
+    }
     for camera in &cams {
         let a = selections(&memory, &table, camera);
         let b = selections(&warm, &table, camera);
