@@ -651,7 +651,12 @@ pub fn select_uniform(src: &dyn NodeTree, camera: &Camera, factor: f32) -> Selec
     let start = std::time::Instant::now();
     let mut cull = FrustumCull::new(camera.frustum());
     let max = src.shape().max_level();
-    let leaves = select(src, &mut SplitToLevel(max), &mut cull);
+    // Through the traversal's node source: a store's looks each block up once per run of its
+    // nodes, not once per node.
+    let mut leaves = Vec::new();
+    src.with_traversal_source(&mut |nodes| {
+        leaves = select(nodes, &mut SplitToLevel(max), &mut cull);
+    });
     let f = factor.clamp(MIN_FACTOR, MAX_FACTOR);
     let patches: Vec<Patch> =
         leaves.iter().map(|&node| Patch { node, outer: [f; 4], inner: [f; 2] }).collect();

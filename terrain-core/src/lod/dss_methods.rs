@@ -431,13 +431,18 @@ fn select_dss(
     if uniform.is_some() {
         return assemble_uniform(src, &metric, leaves, stats, start);
     }
-    let want = leaves
-        .iter()
-        .map(|&n| {
-            let info = src.node_info(n).expect("selected nodes exist");
-            (n, pow2_up(metric.factor(n, &info)))
-        })
-        .collect();
+    // Through the traversal's node source: a store's looks each block up once per run of
+    // its leaves (they come depth first), not once per leaf.
+    let mut want = Default::default();
+    src.with_traversal_source(&mut |nodes| {
+        want = leaves
+            .iter()
+            .map(|&n| {
+                let info = nodes.node_info(n).expect("selected nodes exist");
+                (n, pow2_up(metric.factor(n, &info)))
+            })
+            .collect();
+    });
     let rule: WishEdges = WishEdges { want };
     let inner = |n: NodeId, _: &[f32; 4]| [rule.want(n); 2];
     run::assemble(leaves, stats, &rule, inner, start)
@@ -513,10 +518,14 @@ fn assemble_uniform(
     mut stats: SelectionStats,
     start: Instant,
 ) -> Selection {
-    let want: Vec<f32> = leaves
-        .iter()
-        .map(|&n| metric.factor(n, &src.node_info(n).expect("selected nodes exist")))
-        .collect();
+    // Through the traversal's node source (see `select_dss`).
+    let mut want: Vec<f32> = Vec::new();
+    src.with_traversal_source(&mut |nodes| {
+        want = leaves
+            .iter()
+            .map(|&n| metric.factor(n, &nodes.node_info(n).expect("selected nodes exist")))
+            .collect();
+    });
     let side = leaves.first().map_or(1, |n| n.nodes_per_side() as usize);
     let win =
         RowWindow::dilated(leaves.iter().map(|n| (n.i as usize, n.j as usize)), 0, side, side);
