@@ -110,11 +110,9 @@ impl TerrainSource for StoreSource<'_> {
         // corner with both fractions 0, `z + (z' - z) 0` is `z` exactly for finite heights,
         // and a store's are finite. One sample instead of four. (On the last row or column
         // the mean takes it as the far corner, `z + (z' - z) 1`, which may round: left to it.)
-        if g.x == g.x.floor() && g.y == g.y.floor() && g.x >= 0.0 && g.y >= 0.0 {
-            let (x, y) = (g.x as u32, g.y as u32);
-            if x + 1 < w && y + 1 < h {
-                return self.sample(x, y);
-            }
+        let inside = |v: f64, n: u32| v >= 0.0 && v + 1.0 < f64::from(n) && v == v.floor();
+        if inside(g.x, w) && inside(g.y, h) {
+            return self.sample(g.x as u32, g.y as u32);
         }
         bilinear_clamped(w as usize, h as usize, g.x, g.y, |i, j| self.sample(i as u32, j as u32))
     }

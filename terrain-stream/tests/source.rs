@@ -136,7 +136,12 @@ fn heights_probe(w: usize, h: usize) -> Vec<DVec2> {
             }
         }
     }
-    points.extend([DVec2::new(-1.0, 2.0), DVec2::new(w as f64 + 3.0, h as f64)]);
+    points.extend([
+        DVec2::new(-1.0, 2.0),
+        DVec2::new(w as f64 + 3.0, h as f64),
+        DVec2::new(1e12, 5.0),
+        DVec2::new(3.0, f64::from(u32::MAX)),
+    ]);
     points
 }
 
