@@ -431,18 +431,7 @@ fn select_dss(
     if uniform.is_some() {
         return assemble_uniform(src, &metric, leaves, stats, start);
     }
-    // Through the traversal's node source: a store's looks each block up once per run of
-    // its leaves (they come depth first), not once per leaf.
-    let mut want = Default::default();
-    src.with_traversal_source(&mut |nodes| {
-        want = leaves
-            .iter()
-            .map(|&n| {
-                let info = nodes.node_info(n).expect("selected nodes exist");
-                (n, pow2_up(metric.factor(n, &info)))
-            })
-            .collect();
-    });
+    let want = per_leaf(src, &leaves, |n, info| (n, pow2_up(metric.factor(n, info))));
     let rule: WishEdges = WishEdges { want };
     let inner = |n: NodeId, _: &[f32; 4]| [rule.want(n); 2];
     run::assemble(leaves, stats, &rule, inner, start)
@@ -505,6 +494,26 @@ impl DssParallel for Sequential {
     }
 }
 
+/// `f` of every selected leaf and its box, collected, the boxes read through the traversal's
+/// node source: a store's looks each block up once per run of its leaves (they come depth
+/// first), not once per leaf.
+fn per_leaf<T, C: FromIterator<T>>(
+    src: &dyn NodeTree,
+    leaves: &[NodeId],
+    f: impl Fn(NodeId, &NodeInfo) -> T,
+) -> C {
+    let mut out = None;
+    src.with_traversal_source(&mut |nodes| {
+        out = Some(
+            leaves
+                .iter()
+                .map(|&n| f(n, &nodes.node_info(n).expect("selected nodes exist")))
+                .collect(),
+        );
+    });
+    out.expect("`with_traversal_source` calls `f`")
+}
+
 /// Method II's patches: [`run::assemble`] with [`WishEdges`], without its per-frame hash maps.
 /// Every leaf is at the one uniform level, so the leaf across an edge is the same-level
 /// neighbour when it is selected (edge at the max of both factors) and none otherwise (the
@@ -518,14 +527,7 @@ fn assemble_uniform(
     mut stats: SelectionStats,
     start: Instant,
 ) -> Selection {
-    // Through the traversal's node source (see `select_dss`).
-    let mut want: Vec<f32> = Vec::new();
-    src.with_traversal_source(&mut |nodes| {
-        want = leaves
-            .iter()
-            .map(|&n| metric.factor(n, &nodes.node_info(n).expect("selected nodes exist")))
-            .collect();
-    });
+    let want: Vec<f32> = per_leaf(src, &leaves, |n, info| metric.factor(n, info));
     let side = leaves.first().map_or(1, |n| n.nodes_per_side() as usize);
     let win =
         RowWindow::dilated(leaves.iter().map(|n| (n.i as usize, n.j as usize)), 0, side, side);
