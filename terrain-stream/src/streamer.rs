@@ -1023,6 +1023,7 @@ impl BlockSet {
         new
     }
 
+    /// Whether `id` is in the set.
     fn contains(&self, h: &Header, id: BlockId) -> bool {
         h.block_position(id).is_some_and(|p| self.0[p / 64] & (1 << (p % 64)) != 0)
     }

@@ -402,7 +402,8 @@ impl<'a> Mesher<'a> {
         // area = interior + boundary / 2 - 1 with at least its 3 vertices on the boundary, so
         // 1/2 leaves no other), and a vertex is never a candidate: nothing to scan. Nearly a
         // fifth of a finely meshed tile's triangles (a quarter of the samples kept) are such.
-        if raster::orient(g[0], g[1], g[2]) == 1 {
+        let d = raster::orient(g[0], g[1], g[2]);
+        if d == 1 {
             return;
         }
         let hm = self.hm;
@@ -417,7 +418,7 @@ impl<'a> Mesher<'a> {
         // would keep; the survivors are decided on the exact value. Void samples are never
         // candidates: they are dropped among the survivors only (a void's height may be
         // NaN, which no dismissal test passes), the same outcome as before the test.
-        let df = raster::orient(g[0], g[1], g[2]) as f64;
+        let df = d as f64;
         best.scaled = best.error * df;
         // A locked border leaves exactly the samples off the border: a clip, not a test.
         let clip =

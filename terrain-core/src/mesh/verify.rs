@@ -102,20 +102,22 @@ fn grid_vertices(hm: &Heightmap, mesh: &TriMesh) -> Result<Vec<[i64; 2]>, Verify
     Ok(grid)
 }
 
-/// Triangle `triangle`'s grid vertices, or why it is not one of a height field's.
+/// Triangle `triangle`'s grid vertices and their `d` (twice its area, as `f64`), or why it is
+/// not one of a height field's.
 fn grid_triangle(
     grid: &[[i64; 2]],
     t: [u32; 3],
     triangle: usize,
-) -> Result<[[i64; 2]; 3], VerifyError> {
+) -> Result<([[i64; 2]; 3], f64), VerifyError> {
     if t.iter().any(|&k| k as usize >= grid.len()) {
         return Err(VerifyError::BadTriangle { triangle });
     }
     let g = t.map(|k| grid[k as usize]);
-    if raster::orient(g[0], g[1], g[2]) <= 0 {
+    let d = raster::orient(g[0], g[1], g[2]);
+    if d <= 0 {
         return Err(VerifyError::BadTriangle { triangle });
     }
-    Ok(g)
+    Ok((g, d as f64))
 }
 
 /// Measures `mesh` against every non-void sample of `hm`.
@@ -127,11 +129,10 @@ pub fn measure(hm: &Heightmap, mesh: &TriMesh) -> Result<ErrorStats, VerifyError
     let mut err = vec![f32::NAN; w * h];
     let (mut max_error, mut worst) = (0.0f64, None);
     for (triangle, t) in mesh.triangles.iter().enumerate() {
-        let g = grid_triangle(&grid, *t, triangle)?;
+        let (g, df) = grid_triangle(&grid, *t, triangle)?;
         let z = t.map(|k| mesh.positions[k as usize].z);
         // Row by row over the heights and errors (the interpolation `for_each_sample` gives,
         // `n / d`, bit for bit).
-        let df = raster::orient(g[0], g[1], g[2]) as f64;
         let data = hm.data();
         let all = [i64::MIN, i64::MIN, i64::MAX, i64::MAX];
         raster::for_each_row(g, all, |j, lo, hi, mut wt, dw| {
@@ -212,9 +213,8 @@ pub fn check_max(hm: &Heightmap, mesh: &TriMesh, bound: f64) -> Result<MaxError,
     let mut covered = vec![false; w * h];
     let (mut max_error, mut worst) = (0.0f64, None);
     for (triangle, t) in mesh.triangles.iter().enumerate() {
-        let g = grid_triangle(&grid, *t, triangle)?;
+        let (g, df) = grid_triangle(&grid, *t, triangle)?;
         let z = t.map(|k| mesh.positions[k as usize].z);
-        let df = raster::orient(g[0], g[1], g[2]) as f64;
         if df == 1.0 {
             // Doubled area 1: the vertices are the only samples (Pick's theorem; see the
             // mesher's scan), each weighted 1 and the others 0, taken in row order.
