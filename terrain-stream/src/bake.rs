@@ -947,6 +947,7 @@ fn bake_block(
             level_errors,
             fine_errors,
             dss,
+            fine_max: Default::default(),
         },
         max_err,
         max_void_err,

@@ -166,6 +166,7 @@ mod tests {
             level_errors: vec![0.5],
             fine_errors: vec![0.25; seed as usize],
             dss: None,
+            fine_max: Default::default(),
         }
     }
 

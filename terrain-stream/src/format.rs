@@ -37,6 +37,7 @@
 //! order index files: the computation is a few bit operations.
 
 use std::fmt;
+use std::sync::OnceLock;
 
 use glam::DVec2;
 use terrain_core::georef::{AngularOrLinear, Crs, Georef};
@@ -447,6 +448,67 @@ pub struct BlockEntry {
     /// `terrain_core::metrics::dss::object_errors` from the stored heights; `None` in every
     /// block of a store baked without them (`BakeConfig::dss_errors` false; stored as NaN).
     pub dss: Option<DssBlockErrors>,
+    /// The fine maxima's pyramid above the deepest stored level, built on first need
+    /// ([`BlockEntry::fine_max_above`]).
+    pub(crate) fine_max: FineMaxima,
+}
+
+/// [`BlockEntry::fine_errors`] reduced up the stored node levels: per node of levels
+/// `0..node_levels - 1` (level-major, row-major, like [`BlockEntry::nodes`]), `k - node_levels`
+/// values, the largest fine maximum per level over its descendants of the deepest stored
+/// level. Derived from the entry's own values once, on first need (the walks ask for the
+/// maxima of a block's shallow nodes every frame, which otherwise read up to `4^(node_levels -
+/// 1)` fine maxima each); never part of an entry's identity (equal whether built or not), and
+/// dropped whenever the fine maxima change ([`crate::pages::scale_entry`]).
+#[derive(Clone, Default)]
+pub(crate) struct FineMaxima(OnceLock<Box<[f32]>>);
+
+impl FineMaxima {
+    /// Forgets the pyramid (the fine maxima changed).
+    pub(crate) fn reset(&mut self) {
+        self.0 = OnceLock::new();
+    }
+}
+
+impl PartialEq for FineMaxima {
+    fn eq(&self, _: &Self) -> bool {
+        true
+    }
+}
+
+impl fmt::Debug for FineMaxima {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(if self.0.get().is_some() { "FineMaxima(built)" } else { "FineMaxima" })
+    }
+}
+
+/// The first node of level `t` in a level-major, row-major pyramid (`(4^t - 1) / 3`).
+fn pyramid_base(t: u8) -> usize {
+    ((1usize << (2 * usize::from(t))) - 1) / 3
+}
+
+/// The pyramid of [`FineMaxima`] from `fine` (the deepest stored level `top`, `per` values a
+/// node): each node's values the largest of its four children's, level by level up.
+fn fine_pyramid(fine: &[f32], top: u8, per: usize) -> Box<[f32]> {
+    let mut out = vec![0f32; pyramid_base(top) * per];
+    for t in (0..top).rev() {
+        let side = 1usize << t;
+        let (parents, below) = out.split_at_mut(pyramid_base(t + 1) * per);
+        let children: &[f32] = if t + 1 == top { fine } else { below };
+        let parents = &mut parents[pyramid_base(t) * per..];
+        for j in 0..side {
+            for i in 0..side {
+                let o = (j * side + i) * per;
+                for (di, dj) in [(0, 0), (1, 0), (0, 1), (1, 1)] {
+                    let c = ((2 * j + dj) * 2 * side + 2 * i + di) * per;
+                    for (p, &v) in parents[o..o + per].iter_mut().zip(&children[c..c + per]) {
+                        *p = p.max(v);
+                    }
+                }
+            }
+        }
+    }
+    out.into_boxed_slice()
 }
 
 /// The DSS paper's 32 object-space errors of a block, index `i` for the tessellation factor
@@ -484,6 +546,35 @@ impl BlockEntry {
         let per = (k - node_levels) as usize;
         let o = (j as usize * side + i as usize) * per + (l - node_levels) as usize;
         self.fine_errors.get(o).copied()
+    }
+
+    /// The largest fine maximum at level `l` (`node_levels <= l < k`) over the descendants of
+    /// node `(i, j)` of node level `level` (above the deepest stored level `node_levels - 1`)
+    /// at that deepest level: the largest [`BlockEntry::fine_error`] of those descendants,
+    /// from the entry's pyramid ([`FineMaxima`], built on the first call). `None` where
+    /// `fine_error` has no value for some descendant (no fine maxima, or not a node above the
+    /// deepest stored level).
+    pub(crate) fn fine_max_above(
+        &self,
+        node_levels: u8,
+        k: u8,
+        n: [u32; 2],
+        level: u8,
+        l: u8,
+    ) -> Option<f32> {
+        let top = node_levels.checked_sub(1)?;
+        let side = 1usize << level;
+        let [i, j] = n.map(|v| v as usize);
+        if level >= top || l < node_levels || l >= k || i >= side || j >= side {
+            return None;
+        }
+        let per = usize::from(k - node_levels);
+        if self.fine_errors.len() != (1usize << (2 * usize::from(top))) * per {
+            return None;
+        }
+        let pyramid = self.fine_max.0.get_or_init(|| fine_pyramid(&self.fine_errors, top, per));
+        let o = (pyramid_base(level) + j * side + i) * per + usize::from(l - node_levels);
+        pyramid.get(o).copied()
     }
 
     /// Decoded bytes of levels `0..=level` in memory.
@@ -925,6 +1016,7 @@ pub(crate) fn read_entry(
         level_errors,
         fine_errors,
         dss,
+        fine_max: FineMaxima::default(),
     })
 }
 

@@ -184,6 +184,17 @@ fn below_bound(h: &Header, e: &BlockEntry, n: NodeId, l: u8) -> f32 {
     if n.level >= top {
         return fine(n.ancestor(top)).unwrap_or_else(block_wide);
     }
+    e.fine_max_above(h.node_levels, h.k, [n.i, n.j], n.level, l)
+        .unwrap_or_else(|| below_bound_sweep(h, e, n, l))
+}
+
+/// [`below_bound`] of a node `n` above the deepest stored level, sweeping its descendants'
+/// fine maxima there (the entry's pyramid's reference, and what an entry without a whole
+/// set of fine maxima takes).
+fn below_bound_sweep(h: &Header, e: &BlockEntry, n: NodeId, l: u8) -> f32 {
+    let block_wide = || e.level_errors.get(l as usize).copied().unwrap_or(0.0);
+    let top = h.node_levels - 1;
+    let fine = |a: NodeId| e.fine_error(h.node_levels, h.k, a.i, a.j, l);
     let s = top - n.level;
     let mut m = 0f32;
     for j in n.j << s..(n.j + 1) << s {
@@ -874,6 +885,22 @@ pub(crate) fn block_sub_max_sweep(
         }
     }
     block
+}
+
+/// Per node above the deepest stored level of block `b` of `store` and per fine level:
+/// [`below_bound`] (the entry's pyramid) and [`below_bound_sweep`] (the tests' comparison).
+#[cfg(test)]
+pub(crate) fn below_bound_both(store: &Store, b: BlockId) -> Option<Vec<(f32, f32)>> {
+    let (h, e) = (store.header(), store.entry(b)?);
+    let mut out = Vec::new();
+    for level in 0..h.node_levels.saturating_sub(1) {
+        for n in nodes_to(level).filter(|n| n.level == level) {
+            for l in h.node_levels..h.k {
+                out.push((below_bound(h, &e, n, l), below_bound_sweep(h, &e, n, l)));
+            }
+        }
+    }
+    Some(out)
 }
 
 /// [`block_sub_max`] and [`block_sub_max_sweep`] of block `b` of `store` at the layout a

@@ -391,6 +391,7 @@ pub(crate) fn scale_entry(b: &mut BlockEntry, scale: f64) {
     }
     b.level_errors.iter_mut().for_each(f);
     b.fine_errors.iter_mut().for_each(f);
+    b.fine_max.reset();
     if let Some(d) = &mut b.dss {
         d.avg.iter_mut().chain(d.max.iter_mut()).for_each(f);
     }

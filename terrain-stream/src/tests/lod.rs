@@ -977,3 +977,30 @@ fn block_sub_max_bottom_up_equals_the_sweep_of_descendants() {
     }
     assert!(compared > 100, "{compared} blocks with positive maxima compared");
 }
+
+#[test]
+fn the_fine_maxima_pyramid_equals_the_sweep_of_descendants() {
+    // Every node above the deepest stored level of every block, every level below the stored
+    // ones: the maximum read from the entry's pyramid is the sweep's, bit for bit; a version-2
+    // store (no fine maxima) gives the block-wide bound both ways.
+    let hm = terrain(257, 193);
+    let (mut compared, mut positive) = (0, 0);
+    for (k, node_levels) in [(6u8, 5u8), (5, 3), (6, 4)] {
+        let (dir, store) = bake_store(&hm, &format!("fine-pyr-{k}-{node_levels}"), k, node_levels);
+        let v2 = as_version_2(&dir, &scratch(&format!("fine-pyr-v2-{k}-{node_levels}")));
+        for s in [&store, &v2] {
+            for b in s.block_ids() {
+                for (fast, sweep) in crate::lod::below_bound_both(s, b).unwrap() {
+                    assert_eq!(
+                        fast.to_bits(),
+                        sweep.to_bits(),
+                        "k {k}, {node_levels} levels, block {b}"
+                    );
+                    compared += 1;
+                    positive += usize::from(fast > 0.0);
+                }
+            }
+        }
+    }
+    assert!(compared > 1000 && positive > 500, "{compared} maxima compared, {positive} positive");
+}
