@@ -96,13 +96,23 @@ impl Samples for HeightmapSamples<'_> {
         let col = strided(i0, stride_log2, w);
         let row = strided(j0, stride_log2, hm.height());
         let mut data = Vec::with_capacity(width * height);
+        // At stride 1 a row is one slice unless it runs past the grid's last column.
+        let contiguous = stride_log2 == 0 && i0 + width <= w;
         for b in 0..height {
             let r = row(b) * w;
-            data.extend((0..width).map(|a| hm.data()[r + col(a)]));
+            if contiguous {
+                data.extend_from_slice(&hm.data()[r + i0..r + i0 + width]);
+            } else {
+                data.extend((0..width).map(|a| hm.data()[r + col(a)]));
+            }
         }
         let voids = hm.voids().any().then(|| {
             let mut m = VoidMask::new(width, height);
             for b in 0..height {
+                // Rows with no void between the window's first and last column are skipped.
+                if !hm.voids().any_in_row(row(b), col(0), col(width.saturating_sub(1))) {
+                    continue;
+                }
                 for a in 0..width {
                     if hm.voids().get(col(a), row(b)) {
                         m.set(a, b, true);

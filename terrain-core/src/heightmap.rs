@@ -71,6 +71,26 @@ impl VoidMask {
         self.count > 0
     }
 
+    /// Whether any of the samples `i0..=i1` of row `j` is void (columns past the grid are
+    /// not; an empty range or a row past the grid has none). Word by word, so a reader copying
+    /// a window skips the rows without voids whole.
+    pub fn any_in_row(&self, j: usize, i0: usize, i1: usize) -> bool {
+        let i1 = i1.min(self.width.saturating_sub(1));
+        if self.count == 0 || j >= self.height || i0 > i1 {
+            return false;
+        }
+        let (a, b) = (j * self.width + i0, j * self.width + i1);
+        let (wa, wb) = (a / 64, b / 64);
+        let low = u64::MAX << (a % 64);
+        let high = u64::MAX >> (63 - b % 64);
+        if wa == wb {
+            return self.bits[wa] & low & high != 0;
+        }
+        self.bits[wa] & low != 0
+            || self.bits[wa + 1..wb].iter().any(|&w| w != 0)
+            || self.bits[wb] & high != 0
+    }
+
     /// Grid width in samples.
     pub fn width(&self) -> usize {
         self.width
@@ -405,6 +425,45 @@ pub(crate) fn extremes_by_lanes(data: &[f32]) -> (f32, f32, bool) {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn any_in_row_is_the_sample_by_sample_answer() {
+        // Masks of widths around the 64-bit words (rows starting mid-word), sparse and dense,
+        // every range of every row, columns past the grid included.
+        let mut next = crate::test_support::xorshift64_star(0x9E37_79B9_7F4A_7C15);
+        let (mut ranges, mut voids_seen) = (0usize, 0usize);
+        for (width, height, density) in
+            [(5, 3, 3), (63, 4, 40), (64, 3, 90), (97, 5, 150), (130, 3, 400)]
+        {
+            let mut m = VoidMask::new(width, height);
+            for j in 0..height {
+                for i in 0..width {
+                    if next() % 1000 < density {
+                        m.set(i, j, true);
+                    }
+                }
+            }
+            for j in 0..height + 1 {
+                for i0 in 0..width + 2 {
+                    for i1 in i0.saturating_sub(1)..width + 3 {
+                        let want = (i0..=i1).any(|i| m.get(i, j));
+                        assert_eq!(
+                            m.any_in_row(j, i0, i1),
+                            want,
+                            "{width} x {height}, row {j}, {i0}..={i1}"
+                        );
+                        ranges += 1;
+                        voids_seen += usize::from(want);
+                    }
+                }
+            }
+        }
+        assert!(
+            ranges > 10_000 && voids_seen > ranges / 4,
+            "{ranges} ranges, {voids_seen} with voids"
+        );
+        assert!(!VoidMask::new(70, 2).any_in_row(1, 0, 69));
+    }
 
     #[test]
     fn the_range_by_lanes_is_the_plain_scan() {

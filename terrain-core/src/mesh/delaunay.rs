@@ -35,7 +35,7 @@
 
 use crate::heightmap::Heightmap;
 use crate::mesh::TriMesh;
-use crate::mesh::raster::{self, Line, largest_magnitude, line_margin};
+use crate::mesh::raster::{self, Line, line_margin};
 
 /// No half-edge / not in the heap.
 const NONE: u32 = u32::MAX;
@@ -247,7 +247,7 @@ impl<'a> Mesher<'a> {
             legalize: Vec::new(),
             hints: Hints::default(),
             walk_steps: 0,
-            line_margin: line_margin(largest_magnitude(hm.data())),
+            line_margin: line_margin(raster::largest_magnitude_of(hm)),
         };
         for p in [[0, 0], [w - 1, 0], [w - 1, h - 1], [0, h - 1]] {
             m.add_vertex(p);

@@ -208,7 +208,7 @@ pub fn check_max(hm: &Heightmap, mesh: &TriMesh, bound: f64) -> Result<MaxError,
     let (data, voids) = (hm.data(), hm.voids());
     // The margin covers the vertices' heights too: they need not be the samples'.
     let magnitude =
-        mesh.positions.iter().fold(raster::largest_magnitude(data), |m, p| m.max(p.z.abs()));
+        mesh.positions.iter().fold(raster::largest_magnitude_of(hm), |m, p| m.max(p.z.abs()));
     let margin = raster::line_margin(magnitude);
     let mut covered = vec![false; w * h];
     let (mut max_error, mut worst) = (0.0f64, None);
