@@ -459,7 +459,9 @@ pub struct BlockEntry {
 /// level. Derived from the entry's own values once, on first need (the walks ask for the
 /// maxima of a block's shallow nodes every frame, which otherwise read up to `4^(node_levels -
 /// 1)` fine maxima each); never part of an entry's identity (equal whether built or not), and
-/// dropped whenever the fine maxima change ([`crate::pages::scale_entry`]).
+/// dropped whenever the fine maxima change ([`crate::pages::scale_entry`]). Its bytes are
+/// under a third of the entry's fine maxima, and the index's page cache does not count them
+/// (its budget counts an entry's stored bytes and a fixed overhead).
 #[derive(Clone, Default)]
 pub(crate) struct FineMaxima(OnceLock<Box<[f32]>>);
 

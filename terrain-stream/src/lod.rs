@@ -923,8 +923,8 @@ pub(crate) fn block_sub_max_both(
 /// and visits every block cold again. `dss-2` and `uniform` over the 32769^2 store see 3,500 to
 /// 10,000 blocks a frame; at 4,096 blocks and 16 MiB (about 2,900 of its 5.7 KB entries, until
 /// 2026-12-05) their selections took 284 and 223 ms a frame (`store_frame`, 30 cameras over
-/// `pvps_884`), at 16,384 and 64 MiB 57 and 118 ms (bench/ooc/README.md, "The tree's visited
-/// blocks sized for a frame's view").
+/// `pvps_884`), at 16,384 and 64 MiB 57 and 118 ms (bench/ooc/README.md, "Every method from a
+/// 32769^2 store with every table, and the tree's visited blocks sized for a frame's view").
 const SUB_MAX_BLOCKS: usize = 16384;
 /// Bytes of index entries a [`StoreTree`]'s `sub_max` keeps alive at most (estimated from the
 /// header; fewer blocks than [`SUB_MAX_BLOCKS`] when the entries are large, at least 256).
