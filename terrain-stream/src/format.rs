@@ -484,33 +484,35 @@ impl fmt::Debug for FineMaxima {
     }
 }
 
-/// The first node of level `t` in a level-major, row-major pyramid (`(4^t - 1) / 3`).
-fn pyramid_base(t: u8) -> usize {
-    ((1usize << (2 * usize::from(t))) - 1) / 3
-}
-
 /// The pyramid of [`FineMaxima`] from `fine` (the deepest stored level `top`, `per` values a
 /// node): each node's values the largest of its four children's, level by level up.
 fn fine_pyramid(fine: &[f32], top: u8, per: usize) -> Box<[f32]> {
-    let mut out = vec![0f32; pyramid_base(top) * per];
+    let mut out = vec![0f32; node_count(top) * per];
     for t in (0..top).rev() {
-        let side = 1usize << t;
-        let (parents, below) = out.split_at_mut(pyramid_base(t + 1) * per);
+        let (parents, below) = out.split_at_mut(node_count(t + 1) * per);
         let children: &[f32] = if t + 1 == top { fine } else { below };
-        let parents = &mut parents[pyramid_base(t) * per..];
-        for j in 0..side {
-            for i in 0..side {
-                let o = (j * side + i) * per;
-                for (di, dj) in [(0, 0), (1, 0), (0, 1), (1, 1)] {
-                    let c = ((2 * j + dj) * 2 * side + 2 * i + di) * per;
-                    for (p, &v) in parents[o..o + per].iter_mut().zip(&children[c..c + per]) {
-                        *p = p.max(v);
-                    }
+        max_up(&mut parents[node_count(t) * per..], children, t, per);
+    }
+    out.into_boxed_slice()
+}
+
+/// One level up a max pyramid (level-major, row-major, `per` values a node): each of the
+/// `4^t` nodes of level `t` in `parents` (from its first) takes, value by value, the largest
+/// of its own and its four children's in `children` (level `t + 1`, from its first). The one
+/// reduction of [`fine_pyramid`] and of `lod`'s per-block maxima (`block_sub_max`).
+pub(crate) fn max_up(parents: &mut [f32], children: &[f32], t: u8, per: usize) {
+    let side = 1usize << t;
+    for j in 0..side {
+        for i in 0..side {
+            let o = (j * side + i) * per;
+            for (di, dj) in [(0, 0), (1, 0), (0, 1), (1, 1)] {
+                let c = ((2 * j + dj) * 2 * side + 2 * i + di) * per;
+                for (p, &v) in parents[o..o + per].iter_mut().zip(&children[c..c + per]) {
+                    *p = p.max(v);
                 }
             }
         }
     }
-    out.into_boxed_slice()
 }
 
 /// The DSS paper's 32 object-space errors of a block, index `i` for the tessellation factor
@@ -575,7 +577,7 @@ impl BlockEntry {
             return None;
         }
         let pyramid = self.fine_max.0.get_or_init(|| fine_pyramid(&self.fine_errors, top, per));
-        let o = (pyramid_base(level) + j * side + i) * per + usize::from(l - node_levels);
+        let o = (node_count(level) + j * side + i) * per + usize::from(l - node_levels);
         pyramid.get(o).copied()
     }
 

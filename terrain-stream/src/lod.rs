@@ -87,7 +87,7 @@ use terrain_core::quadtree::{
     NodeSource, NodeTree, SplitPolicy, TreeShape, Visit, traverse,
 };
 
-use crate::format::{BlockEntry, BlockId, Header};
+use crate::format::{BlockEntry, BlockId, Header, max_up, node_count};
 use crate::store::Store;
 use crate::streamer::Streamer;
 
@@ -804,8 +804,10 @@ fn block_sub_max(h: &Header, e: &BlockEntry, top: u8, nodes: usize, per: usize) 
     let fine = per == h.k as usize && levels < h.k;
     let lv = usize::from(levels);
     // Every stored node (levels `0..levels`), `lv` values each: at index `l`, the maximum at
-    // level `l` under it (its own `StaticE` at its level, 0 without a node).
-    let mut all = vec![0f32; upper_index(NodeId { level: levels, i: 0, j: 0 }) * lv];
+    // level `l` under it (its own `StaticE` at its level, 0 without a node). A node's values
+    // at its own level and coarser ones are 0 in its children (set at theirs and finer only),
+    // and its own is at least 0, so the elementwise maximum with them leaves those as they are.
+    let mut all = vec![0f32; node_count(levels) * lv];
     for level in (0..levels).rev() {
         let side = 1u32 << level;
         for j in 0..side {
@@ -813,16 +815,11 @@ fn block_sub_max(h: &Header, e: &BlockEntry, top: u8, nodes: usize, per: usize) 
                 let o = upper_index(NodeId { level, i, j }) * lv;
                 all[o + usize::from(level)] =
                     e.node(level, i, j).map_or(0.0, |v| 0f32.max(v.static_error));
-                if level + 1 < levels {
-                    for (di, dj) in [(0, 0), (1, 0), (0, 1), (1, 1)] {
-                        let c = NodeId { level: level + 1, i: 2 * i + di, j: 2 * j + dj };
-                        let c = upper_index(c) * lv;
-                        for l in usize::from(level) + 1..lv {
-                            all[o + l] = all[o + l].max(all[c + l]);
-                        }
-                    }
-                }
             }
+        }
+        if level + 1 < levels {
+            let (parents, children) = all.split_at_mut(node_count(level + 1) * lv);
+            max_up(&mut parents[node_count(level) * lv..], children, level, lv);
         }
     }
     let mut block = vec![0f32; nodes * per];
