@@ -211,7 +211,7 @@ pub fn check_max(hm: &Heightmap, mesh: &TriMesh, bound: f64) -> Result<MaxError,
         mesh.positions.iter().fold(raster::largest_magnitude_of(hm), |m, p| m.max(p.z.abs()));
     let margin = raster::line_margin(magnitude);
     let mut covered = vec![false; w * h];
-    let (mut max_error, mut worst) = (0.0f64, None);
+    let mut best = Worst { error: 0.0, at: None };
     for (triangle, t) in mesh.triangles.iter().enumerate() {
         let (g, df) = grid_triangle(&grid, *t, triangle)?;
         let z = t.map(|k| mesh.positions[k as usize].z);
@@ -224,11 +224,7 @@ pub fn check_max(hm: &Heightmap, mesh: &TriMesh, bound: f64) -> Result<MaxError,
                 let (i, j) = (g[c][0] as usize, g[c][1] as usize);
                 covered[j * w + i] = true;
                 let wt = std::array::from_fn(|k| if k == c { 1.0 } else { 0.0 });
-                let e = (f64::from(data[j * w + i]) - raster::numerator(wt, z) / df).abs();
-                if e > max_error && !voids.get(i, j) {
-                    max_error = e;
-                    worst = Some((i, j));
-                }
+                best.take(data[j * w + i], wt, z, df, (i, j), voids);
             }
             continue;
         }
@@ -239,7 +235,7 @@ pub fn check_max(hm: &Heightmap, mesh: &TriMesh, bound: f64) -> Result<MaxError,
             let (lo, hi) = (lo as usize, hi as usize);
             covered[row + lo..=row + hi].fill(true);
             let line = raster::Line { at_lo: raster::numerator(wt, z), slope };
-            let mut cut = max_error * df - margin;
+            let mut cut = best.error * df - margin;
             for (k, &zs) in data[row + lo..=row + hi].iter().enumerate() {
                 let at = k as f64;
                 if line.dismisses(zs, at, df, cut) {
@@ -248,11 +244,8 @@ pub fn check_max(hm: &Heightmap, mesh: &TriMesh, bound: f64) -> Result<MaxError,
                 // `measure`'s test: the weights `k` samples east are exact integers, so
                 // `wt + k dw` is `wt` stepped `k` times bit for bit.
                 let wk = [wt[0] + at * dw[0], wt[1] + at * dw[1], wt[2] + at * dw[2]];
-                let e = (f64::from(zs) - raster::numerator(wk, z) / df).abs();
-                if e > max_error && !voids.get(lo + k, j) {
-                    max_error = e;
-                    worst = Some((lo + k, j));
-                    cut = max_error * df - margin;
+                if best.take(zs, wk, z, df, (lo + k, j), voids) {
+                    cut = best.error * df - margin;
                 }
             }
         });
@@ -267,8 +260,38 @@ pub fn check_max(hm: &Heightmap, mesh: &TriMesh, bound: f64) -> Result<MaxError,
         return Err(VerifyError::NotCovered { i: k % w, j: k / w });
     }
     let samples = w * h - voids.count();
-    refuse_above(bound, max_error, worst)?;
-    Ok(MaxError { max_error, samples, worst })
+    refuse_above(bound, best.error, best.at)?;
+    Ok(MaxError { max_error: best.error, samples, worst: best.at })
+}
+
+/// [`check_max`]'s largest error so far and its sample.
+struct Worst {
+    error: f64,
+    at: Option<(usize, usize)>,
+}
+
+impl Worst {
+    /// [`measure`]'s exact test of sample `(i, j)` (height `zs`, barycentric weights `wt` times
+    /// `df`, vertex heights `z`): takes its error when it is larger and the sample is not
+    /// void, and says whether it did. The one test of both the row walk and the triangles of
+    /// doubled area 1.
+    fn take(
+        &mut self,
+        zs: f32,
+        wt: [f64; 3],
+        z: [f64; 3],
+        df: f64,
+        (i, j): (usize, usize),
+        voids: &crate::heightmap::VoidMask,
+    ) -> bool {
+        let e = (f64::from(zs) - raster::numerator(wt, z) / df).abs();
+        let raised = e > self.error && !voids.get(i, j);
+        if raised {
+            self.error = e;
+            self.at = Some((i, j));
+        }
+        raised
+    }
 }
 
 #[cfg(test)]
