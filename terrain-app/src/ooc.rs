@@ -40,7 +40,7 @@ use terrain_gpu::{RenderError, TerrainRenderer};
 use terrain_stream::{
     BlockId, DEFAULT_COST_SPLIT_PX, DEFAULT_PATCH_CELLS, DEFAULT_SPLIT, Refinement, RemoteOptions,
     ScheduleConfig, SplitRule, Store, StoreError, StoreSource, StoreTree, StreamConfig, Streamer,
-    demand_of, select_patches,
+    demand_of, demand_within, select_patches,
 };
 
 use crate::MIB;
@@ -257,6 +257,10 @@ pub struct StreamRecord {
     pub at_needed_level: bool,
     /// `tin` from a store: selected tiles not built yet, drawn by a coarser ancestor.
     pub late_tiles: usize,
+    /// The exact demand held more than the cache budget, so patches with continuous factors
+    /// asked the power-of-two lattice covering their vertices, not their full resolution
+    /// ([`terrain_stream::demand_within`]): heights within that level's error of memory's.
+    pub demand_on_lattice: bool,
     /// `geomorph` from a remote store whose table is read where it lies: pages of the table
     /// the frame did not wait for (not fetched yet), their patches drawn by the coarse bounds
     /// (finer, never coarser).
@@ -319,6 +323,7 @@ impl StreamRecord {
             at_needed_level: s.at_needed_level(),
             late_tiles: 0,
             late_table_pages: 0,
+            demand_on_lattice: false,
             sync_mib: s.sync_bytes as f64 / MIB,
             prefetched_mib: s.prefetched_bytes as f64 / MIB,
             disk_mib: s.disk_bytes as f64 / MIB,
@@ -433,16 +438,24 @@ pub struct OocFrame {
     pub blocks_dropped: usize,
 }
 
-/// What `draw` needs from the store ([`demand_of`]): its patches' levels; with strips, the full
-/// resolution of every block a strip or P-block vertex lies on (the M-blocks are shrunk for
-/// the strips, so their vertices fall between lattice samples; strips also reach blocks that
-/// are hidden themselves).
-fn store_demand(tree: &StoreTree, draw: &StoreDraw) -> Vec<(BlockId, u8)> {
+/// What `draw` needs from the store ([`demand_of`]): its patches' levels, held to
+/// `budget_bytes` where the patches' continuous factors allow ([`demand_within`]: the second
+/// value says the exact demand did not fit); with strips, the full resolution of every block
+/// a strip or P-block vertex lies on (the M-blocks are shrunk for the strips, so their
+/// vertices fall between lattice samples; strips also reach blocks that are hidden
+/// themselves).
+fn store_demand(
+    tree: &StoreTree,
+    draw: &StoreDraw,
+    budget_bytes: u64,
+) -> (Vec<(BlockId, u8)>, bool) {
     if let Some(m) = &draw.morph {
-        return morph_demand(tree, m);
+        return (morph_demand(tree, m), false);
     }
     // A mesh's vertices lie on the lattices its selection's factors say (`tin`).
-    let Some(strips) = &draw.strips else { return demand_of(tree, &draw.selection, true) };
+    let Some(strips) = &draw.strips else {
+        return demand_within(tree, &draw.selection, true, budget_bytes);
+    };
     let mut used = vec![false; strips.nodes.len()];
     for p in &strips.mesh.triangles.points {
         if let Some(u) = used.get_mut(p.patch_index as usize) {
@@ -458,7 +471,7 @@ fn store_demand(tree: &StoreTree, draw: &StoreDraw) -> Vec<(BlockId, u8)> {
             .filter(|(_, u)| **u)
             .map(|(&node, _)| terrain_core::lod::Patch { node, outer: [1.0; 4], inner: [1.0; 2] }),
     );
-    demand_of(tree, &all, false)
+    (demand_of(tree, &all, false), false)
 }
 
 /// What a LOD method drawn from a store selected ([`OocScene::frame_for`]).
@@ -604,6 +617,11 @@ pub struct OocScene {
     /// The renderer's slot classes, finest (stride 1) first: class `c` holds level `k - c`.
     classes: Vec<PageClass>,
     mirror: Option<PagedHeights>,
+    /// Whether the note that the demand was held to the budget was printed.
+    warned_lattice: bool,
+    /// Whether the demand of [`OocScene::frame_for`] is always exact ([`demand_of`]), never
+    /// held to the budget ([`demand_within`]): see [`OocScene::with_exact_demand`].
+    exact_demand: bool,
 }
 
 impl OocScene {
@@ -659,6 +677,8 @@ impl OocScene {
             pages: BTreeMap::new(),
             classes,
             mirror: None,
+            warned_lattice: false,
+            exact_demand: false,
         }
     }
 
@@ -666,6 +686,15 @@ impl OocScene {
     /// renderer draws (tests, the benchmark's error measurement).
     pub fn with_mirror(mut self) -> Self {
         self.mirror = Some(PagedHeights::new(self.layout));
+        self
+    }
+
+    /// Makes every demand of [`OocScene::frame_for`] exact, above the budget if need be: for a
+    /// measurement that takes a warm frame's heights to be the DEM's (no mirror: each patch on
+    /// pages of its level or finer), which a demand held to the budget breaks (its patches'
+    /// continuous factors drawn from coarser lattices).
+    pub fn with_exact_demand(mut self) -> Self {
+        self.exact_demand = true;
         self
     }
 
@@ -777,18 +806,19 @@ impl OocScene {
         let t0 = Instant::now();
         let mut draw = select(&StoreSource::new(tree, &self.streamer));
         let mut select_time = draw.selection.stats.cpu_time;
-        let mut demand = store_demand(tree, &draw);
+        let budget = if self.exact_demand { u64::MAX } else { self.config.budget_bytes };
+        let (mut demand, mut on_lattice) = store_demand(tree, &draw, budget);
         self.streamer.set_demand(Some(demand.clone()));
         let s = if warm {
             let mut s = self.streamer.wait_until_resident(camera, self.config.warm_timeout).stats;
             for _ in 0..3 {
                 draw = select(&StoreSource::new(tree, &self.streamer));
                 select_time += draw.selection.stats.cpu_time;
-                let again = store_demand(tree, &draw);
+                let (again, lattice) = store_demand(tree, &draw, budget);
                 if again == demand {
                     break;
                 }
-                demand = again;
+                (demand, on_lattice) = (again, lattice);
                 self.streamer.set_demand(Some(demand.clone()));
                 s = self.streamer.wait_until_resident(camera, self.config.warm_timeout).stats;
             }
@@ -798,6 +828,18 @@ impl OocScene {
         };
         let mut stream = StreamRecord::new(&s);
         stream.stream_ms = t0.elapsed().saturating_sub(select_time).as_secs_f64() * 1e3;
+        stream.demand_on_lattice = on_lattice;
+        if on_lattice && !self.warned_lattice {
+            self.warned_lattice = true;
+            eprintln!(
+                "note: this view's patches need {:.1} MiB of the store at full resolution, more \
+                 than the cache's {:.1} MiB (--cache-mib, the benchmark's --ooc-cache-mib): patches with continuous factors are \
+                 drawn from the power-of-two level that covers their vertices (heights within \
+                 that level's error); the frames are counted in the streaming summary",
+                terrain_stream::demand_bytes(&store_demand(tree, &draw, u64::MAX).0) as f64 / MIB,
+                budget as f64 / MIB
+            );
+        }
         let (drawn, dropped) = self.assign_pages();
         let paged: HashMap<BlockId, u8> = drawn.iter().copied().collect();
         let on_pages = |n: NodeId| tree.blocks_under(n).iter().all(|b| paged.contains_key(b));

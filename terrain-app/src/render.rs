@@ -254,10 +254,13 @@ fn draw_frames(
                     st.queued_mib,
                     st.wait_ms,
                     st.faults,
-                    if st.late_table_pages > 0 {
-                        format!(", table pages late {}", st.late_table_pages)
-                    } else {
-                        String::new()
+                    match (st.late_table_pages, st.demand_on_lattice) {
+                        (0, false) => String::new(),
+                        (0, true) => ", demand held to the budget".to_string(),
+                        (n, held) => format!(
+                            ", table pages late {n}{}",
+                            if held { ", demand held to the budget" } else { "" }
+                        ),
                     }
                 );
             }
@@ -737,7 +740,7 @@ pub(crate) fn print_stream_summary(
         "summary: {} frames ({}), frames that waited for I/O after frame 1: {}, \
          drawn at their needed level: {:.1} %, late {:.3} MiB per frame (median), \
          synchronous loads after frame 1: {}, synchronous {:.2} MiB, \
-         prefetched {:.2} MiB, I/O {:.1} ms, peak resident {:.1} MiB (budget {} MiB), max triangles {}{}",
+         prefetched {:.2} MiB, I/O {:.1} ms, peak resident {:.1} MiB (budget {} MiB), max triangles {}{}{}",
         streams.len(),
         if wait { "warm: every frame waits" } else { "real time" },
         summary.waited_after_first,
@@ -755,6 +758,13 @@ pub(crate) fn print_stream_summary(
             n => format!(
                 ", frames drawing table pages not fetched yet: {n} ({} pages)",
                 streams.iter().map(|s| s.late_table_pages).sum::<u64>()
+            ),
+        },
+        match streams.iter().filter(|s| s.demand_on_lattice).count() {
+            0 => String::new(),
+            n => format!(
+                ", frames whose demand was held to the budget (continuous factors drawn from \
+                 the power-of-two lattice above them): {n}"
             ),
         }
     );

@@ -18,7 +18,7 @@ use terrain_core::bilinear_clamped;
 use terrain_core::lod::{Selection, TerrainSource};
 use terrain_core::quadtree::{NodeId, NodeInfo, NodeSource, NodeTree, TreeShape};
 
-use crate::format::BlockId;
+use crate::format::{BlockEntry, BlockId};
 use crate::lod::StoreTree;
 use crate::store::BlockLevels;
 use crate::streamer::Streamer;
@@ -131,6 +131,52 @@ impl TerrainSource for StoreSource<'_> {
 /// DSS paper's M-blocks shrunk for their strips) every vertex may fall between lattice samples:
 /// every patch needs its full resolution.
 pub fn demand_of(tree: &StoreTree, selection: &Selection, on_squares: bool) -> Vec<(BlockId, u8)> {
+    demand_with(tree, selection, on_squares, false)
+}
+
+/// The bytes a demand holds resident (levels `0..=level` of each block, decoded): what the
+/// streamer keeps for it even above its budget.
+pub fn demand_bytes(demand: &[(BlockId, u8)]) -> u64 {
+    demand.iter().map(|&(_, level)| BlockEntry::resident_bytes(level)).sum()
+}
+
+/// [`demand_of`] held to `budget_bytes` where it can be: when the exact demand holds more
+/// than the budget ([`demand_bytes`]) and the selection is drawn on its nodes' squares, a
+/// patch whose factors are not all powers of two asks the lattice of its largest factor
+/// rounded up to a power of two (`l + ceil(log2(f))`, capped at `l + log2(c)`) instead of its
+/// full resolution, and the second value says whether that changed the demand. Its vertices then lie between that lattice's
+/// samples and are drawn bilinear over it (the paged renderer's lookup, [`StoreSource`]): each
+/// height within that level's static error of the full-resolution one, where memory would
+/// draw the exact bilinear value (and the renderer's normals, central differences of the
+/// drawn heights, come from that lattice too: smoother shading than the samples give). The lattice has at least as many samples per side as the
+/// patch has vertices, the standard choice of a height mip for a vertex density (e.g.
+/// Strugar's CDLOD samples the level of its morph range, Losasso & Hoppe's geometry
+/// clipmaps one level per ring). Power-of-two patches need what they need either way.
+/// Without `on_squares` (vertices anywhere: the DSS paper's strips) the exact demand is
+/// returned: the strips' carriers have no lattice of their own.
+pub fn demand_within(
+    tree: &StoreTree,
+    selection: &Selection,
+    on_squares: bool,
+    budget_bytes: u64,
+) -> (Vec<(BlockId, u8)>, bool) {
+    let exact = demand_with(tree, selection, on_squares, false);
+    if !on_squares || demand_bytes(&exact) <= budget_bytes {
+        return (exact, false);
+    }
+    let held = demand_with(tree, selection, on_squares, true);
+    let changed = held != exact;
+    (held, changed)
+}
+
+/// [`demand_of`]; with `lattice`, continuous factors ask the power-of-two lattice at or above
+/// their largest factor ([`demand_within`]).
+fn demand_with(
+    tree: &StoreTree,
+    selection: &Selection,
+    on_squares: bool,
+    lattice: bool,
+) -> Vec<(BlockId, u8)> {
     let h = tree.store().header();
     let bl = i32::from(tree.block_level());
     let root = tree.root_cells();
@@ -153,6 +199,10 @@ pub fn demand_of(tree: &StoreTree, selection: &Selection, on_squares: bool) -> V
         let steps = if nested {
             let f = factors.fold(1f32, |m, &f| m.max(f)) as u32;
             f.min(cells).trailing_zeros() as i32
+        } else if lattice && on_squares {
+            let f = p.outer.iter().chain(&p.inner).fold(1f32, |m, &f| m.max(f));
+            let f = (f.ceil() as u32).max(1).next_power_of_two();
+            f.min(cells.max(1)).trailing_zeros() as i32
         } else {
             cells.max(1).trailing_zeros() as i32
         };

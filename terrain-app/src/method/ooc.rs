@@ -117,11 +117,13 @@ pub(super) fn paged_frame(mut f: crate::ooc::OocFrame) -> Frame {
 /// patch from pages of its level or finer, whose lattice samples are the DEM's up to the
 /// store's quantization (its encoding's bound, 5 cm for the demo's 10 cm steps), so the
 /// drawn surface is rebuilt from the DEM in memory instead of copying the pages into a
-/// whole grid each frame (268 MB a frame on 8193^2).
+/// whole grid each frame (268 MB a frame on 8193^2). That holds only if the demand is exact,
+/// so it is made so ([`OocScene::with_exact_demand`]; the demand held to the cache budget
+/// draws continuous factors from coarser lattices).
 pub(super) fn mirrored(scene: OocScene, wait: OocWait) -> OocScene {
     match wait {
         OocWait::FirstFrame => scene.with_mirror(),
-        OocWait::EveryFrame => scene,
+        OocWait::EveryFrame => scene.with_exact_demand(),
     }
 }
 

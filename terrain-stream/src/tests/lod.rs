@@ -955,6 +955,85 @@ fn demand_and_memoised_traversal_equal_their_references() {
     assert!(checked > 50, "{checked} block demands compared");
 }
 
+/// `demand_within`: the exact demand while it fits the budget; above it, patches of
+/// continuous factors ask the power-of-two lattice at or above their largest factor (never
+/// coarser than it, never finer than exact), power-of-two patches ask the same as exactly,
+/// and the strips' demand (`on_squares` false) is never held. Each case fails if the rule
+/// changes: a lattice a level too coarse, a power-of-two patch held, or a fitting demand held.
+#[test]
+fn the_demand_held_to_the_budget_asks_the_lattice_of_each_continuous_factor() {
+    use terrain_core::lod::Patch;
+    use terrain_core::quadtree::{FrustumCull, NodeInfo, SplitPolicy, select};
+
+    let hm = terrain(300, 220);
+    let (_dir, store) = bake_store(&hm, "demand-within", 5, 3);
+    let tree = eq7_tree(&store, 4);
+    let k = store.header().k;
+    struct Depth(u8);
+    impl SplitPolicy for Depth {
+        fn should_split(&mut self, n: NodeId, _: &NodeInfo) -> bool {
+            n.level < self.0
+        }
+    }
+    let cam = &cameras()[0];
+    let leaves = select(&tree, &mut Depth(3), &mut FrustumCull::new(Frustum::from_camera(cam)));
+    assert!(leaves.len() > 4, "{} leaves", leaves.len());
+    let root = tree.root_cells();
+    let bl = i32::from(tree.block_level());
+    let mut held_somewhere = false;
+    for f in [1.0f32, 2.0, 3.0, 4.5, 7.9, 8.0, 11.0, 40.0] {
+        let sel = Selection {
+            patches: leaves
+                .iter()
+                .map(|&node| Patch { node, outer: [f; 4], inner: [f; 2] })
+                .collect(),
+            ..Selection::default()
+        };
+        let exact = crate::demand_of(&tree, &sel, true);
+        let bytes = crate::demand_bytes(&exact);
+        assert!(bytes > 0);
+        // Within the budget: the exact demand, not held.
+        assert_eq!(crate::demand_within(&tree, &sel, true, bytes), (exact.clone(), false), "f {f}");
+        // Above it: each patch's lattice, `l + ceil(log2 f)` capped at its full resolution.
+        let (held, on_lattice) = crate::demand_within(&tree, &sel, true, bytes - 1);
+        assert_eq!(on_lattice, held != exact, "f {f}");
+        let pow2 = f.fract() == 0.0 && (f as u32).is_power_of_two();
+        let mut want = Vec::new();
+        for &node in &leaves {
+            let cells = root >> node.level;
+            let steps = ((f.ceil() as u32).next_power_of_two().min(cells)).trailing_zeros() as i32;
+            let level = (i32::from(node.level) - bl + steps).clamp(0, i32::from(k)) as u8;
+            for b in tree.blocks_under(node) {
+                want.push((b, level));
+            }
+        }
+        want.sort_unstable();
+        want.dedup_by(|later, kept| {
+            let same = later.0 == kept.0;
+            if same {
+                kept.1 = kept.1.max(later.1);
+            }
+            same
+        });
+        assert_eq!(held, want, "f {f}");
+        if pow2 {
+            assert_eq!(held, exact, "f {f}: a power-of-two factor asks the same held or not");
+        } else if held != exact {
+            held_somewhere = true;
+            assert!(crate::demand_bytes(&held) < bytes, "f {f}");
+            for ((b, l), (eb, el)) in held.iter().zip(&exact) {
+                assert_eq!(b, eb);
+                assert!(l <= el, "f {f}: held finer than exact");
+            }
+        }
+        // The strips' demand is never held.
+        let strips = crate::demand_of(&tree, &sel, false);
+        let budget = crate::demand_bytes(&strips) - 1;
+        assert_eq!(crate::demand_within(&tree, &sel, false, budget), (strips, false), "f {f}");
+    }
+    assert!(held_somewhere, "no continuous factor was held below its full resolution");
+}
+
 #[test]
 fn block_sub_max_bottom_up_equals_the_sweep_of_descendants() {
     // Node levels below, at and (clamped) above the patch level; with the fine maxima (index
