@@ -833,9 +833,10 @@ impl OocScene {
             self.warned_lattice = true;
             eprintln!(
                 "note: this view's patches need {:.1} MiB of the store at full resolution, more \
-                 than the cache's {:.1} MiB (--cache-mib, the benchmark's --ooc-cache-mib): patches with continuous factors are \
-                 drawn from the power-of-two level that covers their vertices (heights within \
-                 that level's error); the frames are counted in the streaming summary",
+                 than the cache's {:.1} MiB (--cache-mib, the benchmark's --ooc-cache-mib): \
+                 patches with continuous factors are drawn from the power-of-two level that \
+                 covers their vertices (heights within that level's error); the frames are \
+                 counted in the streaming summary",
                 terrain_stream::demand_bytes(&store_demand(tree, &draw, u64::MAX).0) as f64 / MIB,
                 budget as f64 / MIB
             );
