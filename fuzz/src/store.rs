@@ -256,6 +256,24 @@ pub(crate) fn run(dir: &Path) -> Result<String, String> {
         DssErrorTable::decode_for(&b, &shape, None).map(|_| ()).map_err(|e| e.to_string())
     });
     parts.push(outcome(DSS_FILE, dss));
+    // Read by pages (what a large store's table gets): opened from the header and tail, then
+    // every node of every level asked (each page read and checked once, in order).
+    let paged = read(DSS_FILE).and_then(|b| {
+        let len = b.len() as u64;
+        let paging = terrain_core::lod::DssPaging::default();
+        let t = DssErrorTable::open_paged(DSS_FILE, Arc::new(b), len, &shape, None, &paging)
+            .map_err(|e| e.to_string())?;
+        for level in 0..=shape.max_level() {
+            let (nx, ny) = shape.level_dims(level);
+            for j in 0..ny {
+                for i in 0..nx {
+                    std::hint::black_box(t.get(terrain_core::quadtree::NodeId { level, i, j }));
+                }
+            }
+        }
+        t.take_error().map_or(Ok(()), |e| Err(e.to_string()))
+    });
+    parts.push(outcome("dss_errors.bin by pages", paged));
     let want = GeomipFor {
         width: shape.width(),
         height: shape.height(),

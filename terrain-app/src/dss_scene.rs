@@ -6,6 +6,7 @@
 //! rows, a large synthetic terrain) gets the same table by bands of rows ([`bake_by_rows`]).
 
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::Instant;
 
@@ -13,7 +14,7 @@ use anyhow::Context;
 use glam::DVec2;
 use rayon::prelude::*;
 use terrain_core::Heightmap;
-use terrain_core::lod::{DssErrorTable, DssParallel, RowsBudget};
+use terrain_core::lod::{DssErrorTable, DssPaging, DssParallel, RowsBudget};
 use terrain_core::metrics::Region;
 use terrain_core::metrics::dss::{FACTORS, ObjectErrorsAcc};
 use terrain_core::quadtree::{Quadtree, TreeShape};
@@ -148,6 +149,59 @@ fn write(dir: &Path, bytes: &[u8], max_level: u8, start: Instant, how: &str) -> 
         start.elapsed().as_secs_f64()
     );
     Ok(())
+}
+
+/// Reads `store`'s table for the quadtree `shape` (a store's: no heights checked, see
+/// [`DssErrorTable::decode_for`]), or fails saying what to bake (`method` names the method in
+/// the message): read whole when it is at most `read_whole_max` bytes (a remote store's
+/// fetched into its mirror first), else opened for reading by pages
+/// ([`DssErrorTable::open_paged`]: the header and the page checksums at open, each page when a
+/// selection first asks one of its nodes, through a cache of [`DssPaging::default`]'s bytes;
+/// a remote store's from its mirror's copy, or where it lies by chunks when the store reads
+/// its tables so), or whole with a warning when it was baked before `dss_errors.bin` version 2.
+/// [`crate::geomip_scene::READ_WHOLE_MAX_BYTES`] is the store methods' threshold: 64 MiB, a
+/// grid up to about 8,000^2 samples at 16-cell leaves (the 32769^2 store's table is 1.43 GB).
+pub fn read_for_store(
+    store: &terrain_stream::Store,
+    shape: &TreeShape,
+    method: &str,
+    read_whole_max: u64,
+) -> anyhow::Result<DssErrorTable> {
+    let expected = if store.is_remote() {
+        format!("{}/{DSS_FILE}", store.location())
+    } else {
+        dss_path(store.dir()).display().to_string()
+    };
+    let missing = || {
+        format!(
+            "--method {method} from a store reads the DSS errors the bake writes ({expected}); \
+             bake the store again without --no-dss (a grid read by rows gets them too, computed \
+             by bands of rows), or use ooc or uniform on the store"
+        )
+    };
+    let table = store.side_table(DSS_FILE).with_context(missing)?.with_context(missing)?;
+    let (len, location) = (table.len(), table.location().to_string());
+    let unusable = || format!("{location} cannot be used");
+    let whole = || -> anyhow::Result<DssErrorTable> {
+        let path = store.side_file(DSS_FILE).with_context(missing)?.with_context(missing)?;
+        let bytes = std::fs::read(&path).with_context(missing)?;
+        DssErrorTable::decode_for(&bytes, shape, None).with_context(unusable)
+    };
+    if len <= read_whole_max {
+        return whole();
+    }
+    let paging = DssPaging::default();
+    match DssErrorTable::open_paged(&location, Arc::new(table), len, shape, None, &paging) {
+        Err(terrain_core::lod::DssFileError::Version { found: 1, .. }) => {
+            eprintln!(
+                "warning: {location} is version 1, read whole ({:.0} MiB); bake the store again \
+                 to read it by pages",
+                len as f64 / crate::MIB
+            );
+            whole()
+        }
+        other => other.with_context(unusable),
+    }
 }
 
 /// Reads scene folder `dir`'s table into `scene`: `Ok(path)` when used, or `Err(warning)` when

@@ -70,9 +70,11 @@ fn bake_stores_the_dss_errors_and_bench_reads_them() {
     assert!(err.contains("DSS errors: 100 %"), "no progress shown: {err}");
     let file = scene.join("dss_errors.bin");
     let flight = Path::new(env!("CARGO_MANIFEST_DIR")).join("../flights/pvps_884.json");
-    // 1 + 4 + ... + 4^6 nodes of 32 f64, a 28-byte header, 8 bytes per level and the CRC.
+    // 1 + 4 + ... + 4^6 nodes of 32 f64, a 32-byte header, 8 bytes per level, a CRC per page
+    // of 256 nodes and the header's CRC (version 2).
     let nodes: u64 = (0..7).map(|l| 4u64.pow(l)).sum();
-    assert_eq!(std::fs::metadata(&file).unwrap().len(), 28 + 7 * 8 + nodes * 256 + 4);
+    let pages = nodes.div_ceil(256);
+    assert_eq!(std::fs::metadata(&file).unwrap().len(), 32 + 7 * 8 + nodes * 256 + 4 * pages + 4);
 
     let (computed, err) = bench(&dir, "computed", None);
     assert!(!err.contains("warning") && !err.contains("read from"), "{err}");

@@ -577,6 +577,77 @@ fn a_store_geomip_table_opens_by_pages_and_a_damaged_page_fails_only_where_neede
     let _ = std::fs::remove_dir_all(dir.parent().unwrap());
 }
 
+/// A store's DSS table read by pages (above the size read whole; here forced with a
+/// threshold of 0): the open reads the header and the page checksums only, and the DSS
+/// selections over the store's tree are memory's; a damaged page (the northernmost nodes)
+/// leaves a view that does not ask it as before and is reported, naming the file and page,
+/// by a view that does (its nodes split to the finest factor, so that view differs).
+#[test]
+fn a_store_dss_table_opens_by_pages_and_a_damaged_page_fails_only_where_needed() {
+    use terrain_core::lod::{DssConfig, select_dss_power_of_two};
+    use terrain_core::quadtree::NodeTree;
+    use terrain_stream::StoreTree;
+    let hm =
+        terrain_core::synth::FractalConfig::with_size(2049, 2049, 10.0).to_heightmap().unwrap();
+    let dir = scratch("store-methods", "dss-pages").join("store");
+    let config =
+        BakeConfig { k: 6, encoding: HeightEncoding::F32, threads: 1, ..Default::default() };
+    bake(&hm, &dir, &config, &mut |_: &BakeProgress| ControlFlow::Continue(())).unwrap();
+    let qt = terrain_core::quadtree::Quadtree::new(&hm, 16);
+    terrain_app::dss_scene::bake_into_scene(&hm, &qt, &dir).unwrap();
+    let path = dir.join("dss_errors.bin");
+    let len = std::fs::metadata(&path).unwrap().len();
+    // 1 + 4 + ... + 128^2 = 21845 nodes of 256 bytes, in 86 pages of 256 nodes. The
+    // selection stops at 64-cell nodes (factor 64 is their full resolution): level 5, nodes
+    // 341..1365, pages 1 (the south rows) to 5 (the north rows).
+    let entries = 21845 * 256;
+    let memory = terrain_core::lod::DssErrorTable::new(&hm, &qt);
+    let store = Arc::new(Store::open(&dir).unwrap());
+    let tree = StoreTree::new(store, 16);
+    let cfg = DssConfig { leaf_cells: 16, rho_thr: 0.5, ..DssConfig::default() };
+    // Low over the ground, looking down: the selection reaches the leaves under the camera.
+    let cam = |x: f64, y: f64, yaw: f64| {
+        let z = f64::from(hm.get(x as usize, y as usize)) + 30.0;
+        Camera::from_yaw_pitch(hm.grid_to_world(x, y).extend(z), yaw, -40.0)
+            .with_viewport(1280.0, 720.0)
+    };
+    let (south, north) = (cam(1024.0, 20.0, 180.0), cam(1024.0, 2040.0, 180.0));
+    let read = |max| {
+        terrain_app::dss_scene::read_for_store(tree.store(), tree.shape(), "dss-1", max).unwrap()
+    };
+    let select = |t: &terrain_core::lod::DssErrorTable, c: &Camera| {
+        select_dss_power_of_two(&tree, c, t, &cfg).patches
+    };
+    let from_memory = |c: &Camera| select_dss_power_of_two(&qt, c, &memory, &cfg).patches;
+    // Below the size read whole, the store methods' default reads it whole.
+    let whole = read(terrain_app::geomip_scene::READ_WHOLE_MAX_BYTES);
+    assert!(!whole.is_paged(), "a {len}-byte table is read whole by default");
+    assert_eq!(select(&whole, &south), from_memory(&south));
+    // Undamaged (the negative control below): both views select as from memory.
+    let table = read(0);
+    let opened = table.paging_stats().unwrap().bytes_read;
+    assert_eq!(opened, len - entries, "the open reads all but the entries");
+    assert!(opened * 50 < len, "{opened} of {len} bytes");
+    for c in [&south, &north] {
+        let patches = select(&table, c);
+        assert!(!patches.is_empty());
+        assert_eq!(patches, from_memory(c));
+    }
+    assert!(table.take_error().is_none());
+    // Page 5 (level 5's northernmost rows, under the north camera) damaged.
+    let mut bytes = std::fs::read(&path).unwrap();
+    let entries_at = 32 + 8 * 8;
+    bytes[entries_at + 5 * 256 * 256 + 100] ^= 0x10;
+    std::fs::write(&path, &bytes).unwrap();
+    let table = read(0);
+    assert_eq!(select(&table, &south), from_memory(&south), "the south view as before");
+    assert!(table.take_error().is_none(), "the south view does not ask the damaged page");
+    assert_ne!(select(&table, &north), from_memory(&north), "split finest where damaged");
+    let e = table.take_error().expect("the damaged page is reported").to_string();
+    assert!(e.contains("dss_errors.bin, page 5") && e.contains("checksum mismatch"), "{e}");
+    let _ = std::fs::remove_dir_all(dir.parent().unwrap());
+}
+
 /// A grid not held in memory gets geomorph's table from its store's blocks, a block row at a
 /// time: equal to the one computed from the heightmap (exact f32 store, no voids), and so is
 /// the heights' checksum; on Puget Sound 1k and on an odd-sized grid whose last blocks and

@@ -270,9 +270,8 @@ impl<'a> StoreMethod<'a> {
             _ => {
                 // A store baked without the DSS errors (`--no-dss`, `terrain demo`) has neither
                 // the per-block errors in its index nor the per-node table beside it.
-                let path = crate::dss_scene::dss_path(&dir);
-                store.side_file(crate::dss_scene::DSS_FILE)?;
-                if !store.has_dss_errors() && !path.is_file() {
+                // (A remote store's table is not fetched to know: it may be read by pages.)
+                if !store.has_dss_errors() && !store.has_side_file(crate::dss_scene::DSS_FILE)? {
                     anyhow::bail!(
                         "--method {} needs the DSS paper's object-space errors, and the store {} \
                          was baked without them (no per-block errors in its index, no {} beside \
@@ -283,18 +282,13 @@ impl<'a> StoreMethod<'a> {
                         crate::dss_scene::DSS_FILE
                     );
                 }
-                let bytes = std::fs::read(&path).with_context(|| {
-                    format!(
-                        "--method {} from a store reads the DSS errors the bake writes ({}); \
-                         bake the store again without --no-dss (a grid read by rows gets them \
-                         too, computed by bands of rows), or use ooc or uniform on the store",
-                        kind.name(),
-                        path.display()
-                    )
-                })?;
-                let table = DssErrorTable::decode_for(&bytes, &shape, None)
-                    .with_context(|| format!("{} cannot be used", path.display()))?
-                    .exaggerated(vertical_scale);
+                let table = crate::dss_scene::read_for_store(
+                    &store,
+                    &shape,
+                    kind.name(),
+                    crate::geomip_scene::READ_WHOLE_MAX_BYTES,
+                )?
+                .exaggerated(vertical_scale);
                 Tables::Dss(table)
             }
         };
@@ -414,12 +408,20 @@ impl Method for StoreMethod<'_> {
         };
         let late_pages = || match &self.tables {
             Tables::Geomip(t, _) => t.paging_stats().map_or(0, |s| s.pages_late),
+            Tables::Dss(t) => t.paging_stats().map_or(0, |s| s.pages_late),
             _ => 0,
         };
         let late_before = late_pages();
         let mut frame = paged_frame(self.scene.frame_for(camera, warm, &self.tree, &mut select));
         if let Some(s) = frame.stats.stream.as_mut() {
             s.late_table_pages = late_pages() - late_before;
+        }
+        // A page of `dss_errors.bin` read by pages that cannot be used is reported once; its
+        // nodes were split to the finest factor.
+        if let Tables::Dss(t) = &self.tables
+            && let Some(e) = t.take_error()
+        {
+            eprintln!("error: the DSS errors' table: {e} (its nodes drawn at the finest factor)");
         }
         frame.draw = match frame.draw {
             Draw::Paged(mut f) => match f.morph.take() {

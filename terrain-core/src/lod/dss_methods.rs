@@ -30,8 +30,11 @@
 //! [`crate::metrics::screen::MIN_VIEW_SIN`].
 
 use crate::quadtree::{NodeTree, TreeShape};
+use std::cell::RefCell;
+use std::sync::Arc;
 use std::time::Instant;
 
+use super::dss_pages::{DssPages, DssPagingStats, Page};
 use super::edges::WishEdges;
 use super::edges::pow2_up;
 use super::patch::{Edge, MAX_FACTOR, Patch, Selection, SelectionStats};
@@ -89,8 +92,11 @@ impl DssConfig {
 #[derive(Debug, Clone, PartialEq)]
 pub struct DssErrorTable {
     pub(super) root_cells: u32,
-    /// Per level: nodes per row, and the errors row-major (row 0 south).
+    /// Per level: nodes per row, and the errors row-major (row 0 south). Empty when read by
+    /// pages.
     pub(super) levels: Vec<(u32, Vec<[f64; FACTORS]>)>,
+    /// A store's table read by pages ([`DssErrorTable::open_paged`]) instead of `levels`.
+    pub(super) paged: Option<Arc<DssPages>>,
 }
 
 impl DssErrorTable {
@@ -98,6 +104,9 @@ impl DssErrorTable {
     /// error is a vertical distance (section 3.3.1's mean vertical deviation), linear in the
     /// heights, so each is multiplied by `scale`.
     pub fn exaggerated(mut self, scale: f64) -> Self {
+        if let Some(p) = &self.paged {
+            self.paged = Some(Arc::new(p.exaggerated(scale)));
+        }
         for (_, nodes) in &mut self.levels {
             for e in nodes.iter_mut().flatten() {
                 *e *= scale;
@@ -147,7 +156,7 @@ impl DssErrorTable {
         for (&(level, _), v) in rows.iter().zip(computed) {
             levels[level as usize].1.extend(v);
         }
-        Self { root_cells: qt.root_cells(), levels }
+        Self { root_cells: qt.root_cells(), levels, paged: None }
     }
 
     /// [`DssErrorTable::new`] for a grid that is not in memory: its rows are read through
@@ -323,7 +332,7 @@ impl DssErrorTable {
             debug_assert!(live.is_empty(), "every coarse node row was completed");
         }
         assert_eq!(summed, h, "every row enters the heights' checksum once");
-        Ok((Self { root_cells: shape.root_cells(), levels: table }, checksum.finish()))
+        Ok((Self { root_cells: shape.root_cells(), levels: table, paged: None }, checksum.finish()))
     }
 
     /// Cells per node side, nodes per row and rows of nodes at `level` of `qt`.
@@ -342,13 +351,49 @@ impl DssErrorTable {
             .collect()
     }
 
-    /// The errors of `node` (`delta_i` at index `i - 1`), or `None` outside the table.
-    pub fn get(&self, node: NodeId) -> Option<&[f64; FACTORS]> {
-        let (nx, v) = self.levels.get(node.level as usize)?;
-        if node.i >= *nx {
-            return None;
+    /// The errors of `node` (`delta_i` at index `i - 1`), or `None` outside the table. Read
+    /// by pages, a node whose page cannot be had has infinite errors ([`super::dss_pages`]).
+    pub fn get(&self, node: NodeId) -> Option<[f64; FACTORS]> {
+        self.get_with(node, &PageMemo::default())
+    }
+
+    /// [`DssErrorTable::get`] keeping the page read last in `memo` (node after node in one
+    /// page: one cache lookup).
+    pub(super) fn get_with(&self, node: NodeId, memo: &PageMemo) -> Option<[f64; FACTORS]> {
+        let Some(p) = &self.paged else {
+            let (nx, v) = self.levels.get(node.level as usize)?;
+            if node.i >= *nx {
+                return None;
+            }
+            return v.get((node.j * nx + node.i) as usize).copied();
+        };
+        let slot = p.slot(node)?;
+        let mut last = memo.0.borrow_mut();
+        if last.as_ref().is_none_or(|(q, _)| *q != slot.page) {
+            *last = p.page(slot.page).map(|page| (slot.page, page));
         }
-        v.get((node.j * nx + node.i) as usize)
+        Some(last.as_ref().map_or([f64::INFINITY; FACTORS], |(_, page)| page[slot.index]))
+    }
+
+    /// Levels the table holds (its quadtree's, or more: a finer leaf size at bake time).
+    pub fn level_count(&self) -> usize {
+        self.paged.as_ref().map_or(self.levels.len(), |p| p.levels())
+    }
+
+    /// Whether the table is read by pages ([`DssErrorTable::open_paged`]).
+    pub fn is_paged(&self) -> bool {
+        self.paged.is_some()
+    }
+
+    /// A table read by pages: what it read so far; `None` for a table in memory.
+    pub fn paging_stats(&self) -> Option<DssPagingStats> {
+        self.paged.as_ref().map(|p| p.stats())
+    }
+
+    /// A table read by pages: the first page that could not be used since the last call (its
+    /// nodes were given infinite errors: drawn finest), if any.
+    pub fn take_error(&self) -> Option<super::dss_file::DssFileError> {
+        self.paged.as_ref().and_then(|p| p.take_error())
     }
 
     /// Cells per side of the root it was built for.
@@ -357,9 +402,17 @@ impl DssErrorTable {
     }
 }
 
+/// The page of a table read by pages that was read last ([`DssErrorTable::get_with`]); one
+/// selection's, on its thread. (Eight pages kept in turn did not select `dss-2` faster on the
+/// 32769^2 store: its cost over the table read whole is the pages it reads, not the lookups.)
+#[derive(Default)]
+pub(super) struct PageMemo(RefCell<Option<(u64, Page)>>);
+
 /// The per-node screen errors of Eq. 3 for a camera (shared with [`super::dss_strips`]).
 pub(super) struct Metric<'a> {
     pub(super) table: &'a DssErrorTable,
+    /// The page of a paged table read last.
+    memo: PageMemo,
     pub(super) lambda: f64,
     pub(super) eye: glam::DVec3,
     pub(super) thr: f64,
@@ -372,6 +425,7 @@ impl<'a> Metric<'a> {
     pub(super) fn new(table: &'a DssErrorTable, camera: &Camera, cfg: &DssConfig) -> Self {
         Self {
             table,
+            memo: PageMemo::default(),
             lambda: screen::lambda(camera.viewport_px.y, camera.fov_y),
             eye: camera.position,
             thr: cfg.rho_thr,
@@ -380,7 +434,7 @@ impl<'a> Metric<'a> {
     }
 
     fn delta(&self, node: NodeId) -> [f64; FACTORS] {
-        self.table.get(node).copied().unwrap_or([0.0; FACTORS])
+        self.table.get_with(node, &self.memo).unwrap_or([0.0; FACTORS])
     }
 
     /// Eq. 3 for the finest factor: split when `rho_32 > rho_thr`.

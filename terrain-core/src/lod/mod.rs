@@ -12,6 +12,8 @@
 //! - [`dss_methods`]: the DSS paper's (Zhang 2019, section 4) comparison paths: Method I
 //!   (quadtree, power-of-two factors) and Method II (uniform blocks, continuous factors).
 //! - [`dss_file`]: the DSS errors' file (precomputed by `terrain bake`, stored with the scene).
+//! - `dss_pages` (private): that file read by pages through a bounded cache
+//!   ([`DssErrorTable::open_paged`]), so a large store's memory follows the view.
 //! - [`dss_strips`]: the DSS paper's own method (section 3): M-blocks with their own
 //!   continuous factors, P-blocks and stitching strips instead of matched edge factors (the
 //!   crack-freedom invariant below does not apply to it: its blocks share no edge).
@@ -44,6 +46,7 @@
 
 pub mod dss_file;
 pub mod dss_methods;
+mod dss_pages;
 pub mod dss_strips;
 pub mod edges;
 pub mod geomip_file;
@@ -60,6 +63,7 @@ pub use dss_methods::{
     DssConfig, DssErrorTable, DssParallel, RowsBudget, Sequential, select_dss_power_of_two,
     select_dss_uniform,
 };
+pub use dss_pages::{DssPaging, DssPagingStats};
 pub use dss_strips::{
     DssStripFrame, DssStripsConfig, MBlock, PBlock, Strip, StripFactors, frame_from_leaves,
     select_dss_strips,
