@@ -439,11 +439,11 @@ pub struct OocFrame {
 }
 
 /// What `draw` needs from the store ([`demand_of`]): its patches' levels, held to
-/// `budget_bytes` where the patches' continuous factors allow ([`demand_within`]: the second
-/// value says the exact demand did not fit); with strips, the full resolution of every block
-/// a strip or P-block vertex lies on (the M-blocks are shrunk for the strips, so their
-/// vertices fall between lattice samples; strips also reach blocks that are hidden
-/// themselves).
+/// `budget_bytes` where the patches' factors allow ([`demand_within`]: the second value says
+/// the exact demand did not fit and was held); with strips, exactly the full resolution of
+/// every block a strip or P-block vertex lies on (the M-blocks are shrunk for the strips, so
+/// their vertices fall between lattice samples; strips also reach blocks that are hidden
+/// themselves), held to the lattice of each block's factor.
 fn store_demand(
     tree: &StoreTree,
     draw: &StoreDraw,
@@ -462,16 +462,19 @@ fn store_demand(
             *u = true;
         }
     }
+    // Each carrier with its block's factor (a hidden block's is 2, its draw factors 0): what
+    // the demand held to the budget asks of it (`demand_within`; the exact demand is its full
+    // resolution whatever the factor).
     let mut all = draw.selection.clone();
     all.patches.extend(
-        strips
-            .nodes
-            .iter()
-            .zip(&used)
-            .filter(|(_, u)| **u)
-            .map(|(&node, _)| terrain_core::lod::Patch { node, outer: [1.0; 4], inner: [1.0; 2] }),
+        strips.nodes.iter().zip(&strips.patches).zip(&used).filter(|(_, u)| **u).map(
+            |((&node, p), _)| {
+                let f = p.factors.outer.iter().chain(&p.factors.inner).fold(2f32, |m, &f| m.max(f));
+                terrain_core::lod::Patch { node, outer: [f; 4], inner: [f; 2] }
+            },
+        ),
     );
-    (demand_of(tree, &all, false), false)
+    demand_within(tree, &all, false, budget_bytes)
 }
 
 /// What a LOD method drawn from a store selected ([`OocScene::frame_for`]).
@@ -834,9 +837,9 @@ impl OocScene {
             eprintln!(
                 "note: this view's patches need {:.1} MiB of the store at full resolution, more \
                  than the cache's {:.1} MiB (--cache-mib, the benchmark's --ooc-cache-mib): \
-                 patches with continuous factors are drawn from the power-of-two level that \
-                 covers their vertices (heights within that level's error); the frames are \
-                 counted in the streaming summary",
+                 patches whose vertices lie between the samples are drawn from the \
+                 power-of-two level that covers them (heights within that level's error); the \
+                 frames are counted in the streaming summary",
                 terrain_stream::demand_bytes(&store_demand(tree, &draw, u64::MAX).0) as f64 / MIB,
                 budget as f64 / MIB
             );

@@ -189,10 +189,11 @@ fn real_time_frames_draw_every_patch_while_levels_load() {
 }
 
 /// A view whose exact demand is larger than the cache budget: real-time frames hold it to the
-/// budget (PVPS's continuous factors ask the power-of-two lattice above them, not full
-/// resolution), so they need fewer bytes than exactly, and draw every patch; a warm
-/// measurement (every frame waits, heights taken to be the DEM's) keeps the exact demand,
-/// above the budget, and draws memory's heights. Without `OocScene::with_exact_demand` the
+/// budget (PVPS's continuous factors, and the DSS strips' blocks, ask the power-of-two lattice
+/// above their factors, not full resolution), so they need fewer bytes than exactly, and draw
+/// every patch within the drawn levels' static error; a warm measurement (every frame waits,
+/// heights taken to be the DEM's) keeps the exact demand, above the budget, and draws
+/// memory's heights. Without `OocScene::with_exact_demand` the
 /// warm frame would be held too and this fails.
 #[test]
 fn a_demand_above_the_budget_is_held_to_lattices_but_not_when_measured_warm() {
@@ -203,57 +204,60 @@ fn a_demand_above_the_budget_is_held_to_lattices_but_not_when_measured_warm() {
     let scene = MethodScene::new(hm, MethodConfig::default());
     let dir = scratch("store-methods", "held").join("store");
     let store = bake_scene(&scene, &dir);
-    let kind = LodMethod::PvpsC;
-    scene.prepare(&[kind]);
     let ooc = OocConfig { threads: 1, budget_bytes: 64 << 10, ..OocConfig::default() };
     let budget_mib = (64 << 10) as f64 / (1 << 20) as f64;
-    let open = |wait| {
-        let runtime = OocScene::new(store.clone(), ooc);
-        method::store_method(kind, runtime, &scene.config, wait, Some(&scene)).unwrap()
-    };
-    let mut memory = method::build(kind, &scene, &MethodOptions::default()).unwrap();
-    let (mut held, mut warm) = (open(OocWait::FirstFrame), open(OocWait::EveryFrame));
     let camera = default_camera(&scene.hm, 256, 144, 60.0);
-    let mut a = memory.frame(&camera);
-    let sa = memory.surface(&mut a).unwrap();
-    let mut w = warm.frame(&camera);
-    let ws = w.stats.stream.clone().unwrap();
-    assert!(!ws.demand_on_lattice, "a warm measurement's demand is exact");
-    assert!(ws.needed_mib > budget_mib, "{} MiB fit the budget", ws.needed_mib);
-    let sw = warm.surface(&mut w).unwrap();
-    assert_eq!(largest_height_difference(&sa.mesh.positions, &sw.mesh.positions), 0.0);
-    let mut h = held.frame(&camera);
-    let hs = h.stats.stream.clone().unwrap();
-    assert!(hs.demand_on_lattice, "real time holds the demand");
-    assert!(
-        hs.needed_mib < ws.needed_mib,
-        "held {} MiB, exact {} MiB",
-        hs.needed_mib,
-        ws.needed_mib
-    );
-    assert_eq!(a.selection.patches, h.selection.patches);
-    // Each drawn height within the static error of its block's drawn level (the largest of
-    // the blocks drawn: the drawn surface is bilinear over that level's lattice, memory's over
-    // the samples, and their difference is largest at a sample).
-    let Draw::Paged(pf) = &h.draw else { panic!("a paged frame") };
-    let k = store.header().k;
-    let bound = pf
-        .drawn
-        .iter()
-        .map(|&(b, level)| {
-            let e = store.entry(b).unwrap();
-            if level >= k { 0.0 } else { f64::from(e.level_errors[level as usize]) }
-        })
-        .fold(0.0, f64::max);
-    let sh = held.surface(&mut h).unwrap();
-    let worst = largest_height_difference(&sa.mesh.positions, &sh.mesh.positions);
-    println!(
-        "needed {:.3} MiB held, {:.3} MiB exact; largest height difference {worst:.2} m, \
-         bound {bound:.2} m",
-        hs.needed_mib, ws.needed_mib
-    );
-    assert!(sh.triangles == sa.triangles);
-    assert!(worst > 0.0 && worst <= bound * (1.0 + 1e-6), "{worst} m, bound {bound} m");
+    // PVPS's continuous factors on the patches' squares; the DSS paper's shrunk M-blocks and
+    // strips, whose exact demand is every carrier's full resolution.
+    for kind in [LodMethod::PvpsC, LodMethod::DssStrips] {
+        scene.prepare(&[kind]);
+        let open = |wait| {
+            let runtime = OocScene::new(store.clone(), ooc);
+            method::store_method(kind, runtime, &scene.config, wait, Some(&scene)).unwrap()
+        };
+        let mut memory = method::build(kind, &scene, &MethodOptions::default()).unwrap();
+        let (mut held, mut warm) = (open(OocWait::FirstFrame), open(OocWait::EveryFrame));
+        let mut a = memory.frame(&camera);
+        let sa = memory.surface(&mut a).unwrap();
+        let mut w = warm.frame(&camera);
+        let ws = w.stats.stream.clone().unwrap();
+        assert!(!ws.demand_on_lattice, "{kind:?}: a warm measurement's demand is exact");
+        assert!(ws.needed_mib > budget_mib, "{kind:?}: {} MiB fit the budget", ws.needed_mib);
+        let sw = warm.surface(&mut w).unwrap();
+        assert_eq!(largest_height_difference(&sa.mesh.positions, &sw.mesh.positions), 0.0);
+        let mut h = held.frame(&camera);
+        let hs = h.stats.stream.clone().unwrap();
+        assert!(hs.demand_on_lattice, "{kind:?}: real time holds the demand");
+        assert!(
+            hs.needed_mib < ws.needed_mib,
+            "{kind:?}: held {} MiB, exact {} MiB",
+            hs.needed_mib,
+            ws.needed_mib
+        );
+        assert_eq!(a.selection.patches, h.selection.patches, "{kind:?}");
+        // Each drawn height within the static error of its block's drawn level (the largest
+        // of the blocks drawn: the drawn surface is bilinear over that level's lattice,
+        // memory's over the samples, and their difference is largest at a sample).
+        let Draw::Paged(pf) = &h.draw else { panic!("a paged frame") };
+        let k = store.header().k;
+        let bound = pf
+            .drawn
+            .iter()
+            .map(|&(b, level)| {
+                let e = store.entry(b).unwrap();
+                if level >= k { 0.0 } else { f64::from(e.level_errors[level as usize]) }
+            })
+            .fold(0.0, f64::max);
+        let sh = held.surface(&mut h).unwrap();
+        let worst = largest_height_difference(&sa.mesh.positions, &sh.mesh.positions);
+        println!(
+            "{kind:?}: needed {:.3} MiB held, {:.3} MiB exact; largest height difference \
+             {worst:.2} m, bound {bound:.2} m",
+            hs.needed_mib, ws.needed_mib
+        );
+        assert_eq!(sh.triangles, sa.triangles, "{kind:?}");
+        assert!(worst > 0.0 && worst <= bound * (1.0 + 1e-6), "{kind:?}: {worst} m, {bound} m");
+    }
     let _ = std::fs::remove_dir_all(dir.parent().unwrap());
 }
 

@@ -141,19 +141,22 @@ pub fn demand_bytes(demand: &[(BlockId, u8)]) -> u64 {
 }
 
 /// [`demand_of`] held to `budget_bytes` where it can be: when the exact demand holds more
-/// than the budget ([`demand_bytes`]) and the selection is drawn on its nodes' squares, a
-/// patch whose factors are not all powers of two asks the lattice of its largest factor
-/// rounded up to a power of two (`l + ceil(log2(f))`, capped at `l + log2(c)`) instead of its
-/// full resolution, and the second value says whether that changed the demand. Its vertices then lie between that lattice's
-/// samples and are drawn bilinear over it (the paged renderer's lookup, [`StoreSource`]): each
-/// height within that level's static error of the full-resolution one, where memory would
-/// draw the exact bilinear value (and the renderer's normals, central differences of the
-/// drawn heights, come from that lattice too: smoother shading than the samples give). The lattice has at least as many samples per side as the
+/// than the budget ([`demand_bytes`]), a patch whose factors are not all powers of two (or
+/// any patch, without `on_squares`) asks the lattice of its largest factor rounded up to a
+/// power of two (`l + ceil(log2(f))`, capped at `l + log2(c)`) instead of its full
+/// resolution, and the second value says whether that changed the demand. Its vertices then
+/// lie between that lattice's samples and are drawn bilinear over it (the paged renderer's
+/// lookup, [`StoreSource`]): each height within that level's static error of the
+/// full-resolution one, where memory would draw the exact bilinear value (and the renderer's
+/// normals, central differences of the drawn heights, come from that lattice too: smoother
+/// shading than the samples give). The lattice has at least as many samples per side as the
 /// patch has vertices, the standard choice of a height mip for a vertex density (e.g.
-/// Strugar's CDLOD samples the level of its morph range, Losasso & Hoppe's geometry
-/// clipmaps one level per ring). Power-of-two patches need what they need either way.
-/// Without `on_squares` (vertices anywhere: the DSS paper's strips) the exact demand is
-/// returned: the strips' carriers have no lattice of their own.
+/// Strugar's CDLOD samples the level of its morph range, Losasso & Hoppe's geometry clipmaps
+/// one level per ring). Power-of-two patches on their squares need what they need either way.
+/// Without `on_squares` (vertices anywhere in the patch, e.g. the DSS paper's shrunk M-blocks
+/// and their strips, each patch given its block's factor) the exact demand is every patch's
+/// full resolution, and the held one the same lattice of every patch's largest factor, power
+/// of two or not.
 pub fn demand_within(
     tree: &StoreTree,
     selection: &Selection,
@@ -161,7 +164,7 @@ pub fn demand_within(
     budget_bytes: u64,
 ) -> (Vec<(BlockId, u8)>, bool) {
     let exact = demand_with(tree, selection, on_squares, false);
-    if !on_squares || demand_bytes(&exact) <= budget_bytes {
+    if demand_bytes(&exact) <= budget_bytes {
         return (exact, false);
     }
     let held = demand_with(tree, selection, on_squares, true);
@@ -199,7 +202,7 @@ fn demand_with(
         let steps = if nested {
             let f = factors.fold(1f32, |m, &f| m.max(f)) as u32;
             f.min(cells).trailing_zeros() as i32
-        } else if lattice && on_squares {
+        } else if lattice {
             let f = p.outer.iter().chain(&p.inner).fold(1f32, |m, &f| m.max(f));
             let f = (f.ceil() as u32).max(1).next_power_of_two();
             f.min(cells.max(1)).trailing_zeros() as i32

@@ -958,7 +958,7 @@ fn demand_and_memoised_traversal_equal_their_references() {
 /// `demand_within`: the exact demand while it fits the budget; above it, patches of
 /// continuous factors ask the power-of-two lattice at or above their largest factor (never
 /// coarser than it, never finer than exact), power-of-two patches ask the same as exactly,
-/// and the strips' demand (`on_squares` false) is never held. Each case fails if the rule
+/// and off their squares (the strips' carriers) every patch asks its factor's lattice. Each case fails if the rule
 /// changes: a lattice a level too coarse, a power-of-two patch held, or a fitting demand held.
 #[test]
 fn the_demand_held_to_the_budget_asks_the_lattice_of_each_continuous_factor() {
@@ -1026,10 +1026,14 @@ fn the_demand_held_to_the_budget_asks_the_lattice_of_each_continuous_factor() {
                 assert!(l <= el, "f {f}: held finer than exact");
             }
         }
-        // The strips' demand is never held.
+        // Off their squares (the strips' carriers): exactly every patch's full resolution,
+        // held the same lattice as above, power of two or not.
         let strips = crate::demand_of(&tree, &sel, false);
-        let budget = crate::demand_bytes(&strips) - 1;
-        assert_eq!(crate::demand_within(&tree, &sel, false, budget), (strips, false), "f {f}");
+        let budget = crate::demand_bytes(&strips);
+        assert_eq!(crate::demand_within(&tree, &sel, false, budget), (strips.clone(), false));
+        let changed = want != strips;
+        assert!(changed || f >= 16.0, "f {f}: the lattice below 16-cell leaves' full resolution");
+        assert_eq!(crate::demand_within(&tree, &sel, false, budget - 1), (want, changed), "f {f}");
     }
     assert!(held_somewhere, "no continuous factor was held below its full resolution");
 }
