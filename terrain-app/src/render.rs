@@ -763,8 +763,8 @@ pub(crate) fn print_stream_summary(
         match streams.iter().filter(|s| s.demand_on_lattice).count() {
             0 => String::new(),
             n => format!(
-                ", frames whose demand was held to the budget (continuous factors drawn from \
-                 the power-of-two lattice above them): {n}"
+                ", frames whose demand was held to the budget (patches between lattice \
+                 samples drawn from the power-of-two lattice above their factors): {n}"
             ),
         }
     );
