@@ -6,7 +6,6 @@
 //! rows, a large synthetic terrain) gets the same table by bands of rows ([`bake_by_rows`]).
 
 use std::path::{Path, PathBuf};
-use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::Instant;
 
@@ -167,41 +166,27 @@ pub fn read_for_store(
     method: &str,
     read_whole_max: u64,
 ) -> anyhow::Result<DssErrorTable> {
-    let expected = if store.is_remote() {
-        format!("{}/{DSS_FILE}", store.location())
-    } else {
-        dss_path(store.dir()).display().to_string()
-    };
-    let missing = || {
-        format!(
-            "--method {method} from a store reads the DSS errors the bake writes ({expected}); \
-             bake the store again without --no-dss (a grid read by rows gets them too, computed \
-             by bands of rows), or use ooc or uniform on the store"
-        )
-    };
-    let table = store.side_table(DSS_FILE).with_context(missing)?.with_context(missing)?;
-    let (len, location) = (table.len(), table.location().to_string());
-    let unusable = || format!("{location} cannot be used");
-    let whole = || -> anyhow::Result<DssErrorTable> {
-        let path = store.side_file(DSS_FILE).with_context(missing)?.with_context(missing)?;
-        let bytes = std::fs::read(&path).with_context(missing)?;
-        DssErrorTable::decode_for(&bytes, shape, None).with_context(unusable)
-    };
-    if len <= read_whole_max {
-        return whole();
-    }
     let paging = DssPaging::default();
-    match DssErrorTable::open_paged(&location, Arc::new(table), len, shape, None, &paging) {
-        Err(terrain_core::lod::DssFileError::Version { found: 1, .. }) => {
-            eprintln!(
-                "warning: {location} is version 1, read whole ({:.0} MiB); bake the store again \
-                 to read it by pages",
-                len as f64 / crate::MIB
-            );
-            whole()
-        }
-        other => other.with_context(unusable),
-    }
+    crate::scene_files::read_store_table(
+        store,
+        &crate::scene_files::StoreTable {
+            file: DSS_FILE,
+            read_whole_max,
+            missing: &|expected| {
+                format!(
+                    "--method {method} from a store reads the DSS errors the bake writes \
+                     ({expected}); bake the store again without --no-dss (a grid read by rows \
+                     gets them too, computed by bands of rows), or use ooc or uniform on the \
+                     store"
+                )
+            },
+            unusable_hint: "",
+            decode: &|bytes| DssErrorTable::decode_for(bytes, shape, None),
+            open_paged: &|location, reader, len| {
+                DssErrorTable::open_paged(location, reader, len, shape, None, &paging)
+            },
+        },
+    )
 }
 
 /// Reads scene folder `dir`'s table into `scene`: `Ok(path)` when used, or `Err(warning)` when

@@ -8,7 +8,6 @@
 //! store keeps no void mask, so every sample is measured there).
 
 use std::path::{Path, PathBuf};
-use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::Instant;
 
@@ -17,7 +16,7 @@ use rayon::prelude::*;
 use terrain_core::Heightmap;
 use terrain_core::checksum::crc32_update;
 use terrain_core::heightmap::VoidMask;
-use terrain_core::lod::{GeomipFileError, GeomipFor, GeomipPaging, GeomipTable};
+use terrain_core::lod::{GeomipFor, GeomipPaging, GeomipTable};
 use terrain_core::quadtree::TreeShape;
 use terrain_stream::{BlockId, Store};
 
@@ -189,51 +188,32 @@ pub fn read_for_store_with(
     paging: &GeomipPaging,
     read_whole_max: u64,
 ) -> anyhow::Result<GeomipTable> {
-    let expected = if store.is_remote() {
-        format!("{}/{GEOMIP_FILE}", store.location())
-    } else {
-        geomip_path(store.dir()).display().to_string()
-    };
-    let missing = || {
-        format!(
-            "--method geomorph from a store reads the max-error vertices the bake writes \
-             ({expected}); bake the store again without --no-geomip"
-        )
-    };
-    let table = store.side_table(GEOMIP_FILE).with_context(missing)?.with_context(missing)?;
-    let len = table.len();
-    // What is read: the file (a remote store's mirror copy), or the remote object.
-    let location = table.location().to_string();
     let want = GeomipFor {
         width: shape.width(),
         height: shape.height(),
         patch_cells: shape.leaf_cells(),
         heights_crc: None,
     };
-    let unusable = || {
-        format!(
-            "{location} cannot be used (the bake writes it for {}-cell patches, the default \
-             --leaf-cells)",
-            crate::methods::MethodConfig::default().leaf_cells
-        )
-    };
-    let whole = || -> anyhow::Result<GeomipTable> {
-        let path = store.side_file(GEOMIP_FILE).with_context(missing)?.with_context(missing)?;
-        let bytes = std::fs::read(&path).with_context(missing)?;
-        GeomipTable::decode(&bytes, &want).with_context(unusable)
-    };
-    if len <= read_whole_max {
-        return whole();
-    }
-    match GeomipTable::open_paged(&location, Arc::new(table), len, &want, paging) {
-        Err(GeomipFileError::Version { found: 1, .. }) => {
-            eprintln!(
-                "warning: {location} is version 1, read whole ({:.0} MiB); bake the store again \
-                 to read it by pages",
-                len as f64 / crate::MIB
-            );
-            whole()
-        }
-        other => other.with_context(unusable),
-    }
+    let hint = format!(
+        " (the bake writes it for {}-cell patches, the default --leaf-cells)",
+        crate::methods::MethodConfig::default().leaf_cells
+    );
+    crate::scene_files::read_store_table(
+        store,
+        &crate::scene_files::StoreTable {
+            file: GEOMIP_FILE,
+            read_whole_max,
+            missing: &|expected| {
+                format!(
+                    "--method geomorph from a store reads the max-error vertices the bake \
+                     writes ({expected}); bake the store again without --no-geomip"
+                )
+            },
+            unusable_hint: &hint,
+            decode: &|bytes| GeomipTable::decode(bytes, &want),
+            open_paged: &|location, reader, len| {
+                GeomipTable::open_paged(location, reader, len, &want, paging)
+            },
+        },
+    )
 }

@@ -2,9 +2,16 @@
 //! PVS files ([`crate::pvs_scene`]) for `pvps-c-pvs` and `pvps-c-cons`, the DSS errors
 //! ([`crate::dss_scene`]) for `dss-1`, `dss-2` and `dss-strips`, the roughness pyramids
 //! ([`crate::roughness_scene`]) for the PVPS methods. `terrain bench`, `render` and
-//! `fly` take it as `--scene`.
+//! `fly` take it as `--scene`. A baked store's per-node tables are read for its methods by
+//! [`read_store_table`] (whole, or by pages when large).
 
 use std::path::Path;
+use std::sync::Arc;
+
+use anyhow::Context;
+use terrain_core::checksum::TableFileError;
+use terrain_core::lod::TableReader;
+use terrain_stream::Store;
 
 use crate::methods::{LodMethod, MethodScene};
 
@@ -64,4 +71,64 @@ pub fn load(scene: &MethodScene, dir: &Path, methods: &[LodMethod]) -> Vec<Strin
         }
     }
     warnings
+}
+
+/// What [`read_store_table`] reads.
+pub(crate) struct StoreTable<'a, T> {
+    /// The side table's file name in the store (`geomip.bin`, `dss_errors.bin`).
+    pub file: &'a str,
+    /// Read whole up to this many bytes, by pages above.
+    pub read_whole_max: u64,
+    /// What to do when the store has no such table, given where it was looked for.
+    pub missing: &'a dyn Fn(&str) -> String,
+    /// Added to "LOCATION cannot be used" when the table is refused.
+    pub unusable_hint: &'a str,
+    /// Decodes the whole file.
+    pub decode: &'a dyn Fn(&[u8]) -> Result<T, TableFileError>,
+    /// Opens it by pages: its location (in errors), the reader, its length.
+    pub open_paged: &'a OpenPaged<'a, T>,
+}
+
+/// [`StoreTable::open_paged`].
+pub(crate) type OpenPaged<'a, T> =
+    dyn Fn(&str, Arc<dyn TableReader>, u64) -> Result<T, TableFileError> + 'a;
+
+/// A store's per-node table read for a method (geomorph's `geomip.bin`, the DSS errors):
+/// whole when it is at most `read_whole_max` bytes (a remote store's fetched into its mirror
+/// first, one GET), else opened by pages through `open_paged` (the table where it lies: the
+/// file, a remote store's mirror copy, or the remote object by chunks when the store reads its
+/// tables so: [`Store::side_table`]; never fetched whole to open it), or read whole, with a
+/// warning, when it is a version-1 file (baked before the tables' page checksums). Fails
+/// saying what to bake when the store has none.
+pub(crate) fn read_store_table<T>(store: &Store, t: &StoreTable<'_, T>) -> anyhow::Result<T> {
+    let expected = if store.is_remote() {
+        format!("{}/{}", store.location(), t.file)
+    } else {
+        store.dir().join(t.file).display().to_string()
+    };
+    let missing = || (t.missing)(&expected);
+    let table = store.side_table(t.file).with_context(missing)?.with_context(missing)?;
+    let len = table.len();
+    // What is read: the file (a remote store's mirror copy), or the remote object.
+    let location = table.location().to_string();
+    let unusable = || format!("{location} cannot be used{}", t.unusable_hint);
+    let whole = || -> anyhow::Result<T> {
+        let path = store.side_file(t.file).with_context(missing)?.with_context(missing)?;
+        let bytes = std::fs::read(&path).with_context(missing)?;
+        (t.decode)(&bytes).with_context(unusable)
+    };
+    if len <= t.read_whole_max {
+        return whole();
+    }
+    match (t.open_paged)(&location, Arc::new(table), len) {
+        Err(TableFileError::Version { found: 1, .. }) => {
+            eprintln!(
+                "warning: {location} is version 1, read whole ({:.0} MiB); bake the store again \
+                 to read it by pages",
+                len as f64 / crate::MIB
+            );
+            whole()
+        }
+        other => other.with_context(unusable),
+    }
 }
