@@ -108,11 +108,13 @@ fn main() -> anyhow::Result<()> {
         };
         eprintln!(
             "frame {k}: {ms:.2} ms CPU, selection {sel:.2} ms CPU ({:.2} wall), stream {s:.2} \
-             ms, demand + filter from runs {runs_ms:.2} ms CPU, {} patches, needed {:.0} MiB, \
-             resident {:.0} MiB{}",
+             ms, demand + filter from runs {runs_ms:.2} ms CPU, {} patches, needed {:.0} MiB \
+             (late {:.3} MiB in {} blocks), resident {:.0} MiB{}",
             f.stats.selection_ms,
             f.stats.patches,
             f.stats.stream.as_ref().map_or(0.0, |s| s.needed_mib),
+            f.stats.stream.as_ref().map_or(0.0, |s| s.late_mib),
+            f.stats.stream.as_ref().map_or(0, |s| s.late_blocks),
             f.stats.stream.as_ref().map_or(0.0, |s| s.resident_mib),
             if f.stats.stream.as_ref().is_some_and(|s| s.demand_on_lattice) {
                 " (demand on lattices)"
