@@ -174,18 +174,6 @@ impl DssPages {
         self.layout.levels.len()
     }
 
-    /// Per level used: nodes per row and nodes.
-    pub(super) fn counts(&self) -> Vec<(u32, usize)> {
-        let lv = &self.layout.levels;
-        lv.iter()
-            .enumerate()
-            .map(|(l, &(nx, first))| {
-                let next = lv.get(l + 1).map_or(self.layout.used_nodes, |&(_, f)| f);
-                (nx, (next - first) as usize)
-            })
-            .collect()
-    }
-
     /// The page and index of `node`, or `None` outside the table.
     pub(super) fn slot(&self, node: NodeId) -> Option<Slot> {
         let &(nx, first) = self.layout.levels.get(node.level as usize)?;
