@@ -808,7 +808,7 @@ mod tests {
         // A damaged page: reported once, naming it; its nodes infinite, the others as whole.
         let bad_page = 2;
         let mut damaged = bytes.clone();
-        let entries_at = HEADER_LEN_V2 + 8 * whole.level_count();
+        let entries_at = HEADER_LEN_V2 + 8 * whole.levels.len();
         damaged[entries_at + bad_page * PAGE_NODES * ENTRY_BYTES + 17] ^= 4;
         let paged = open(Arc::new(damaged));
         let (a, b) = (bits(&whole), bits(&paged));

@@ -375,11 +375,6 @@ impl DssErrorTable {
         Some(last.as_ref().map_or([f64::INFINITY; FACTORS], |(_, page)| page[slot.index]))
     }
 
-    /// Levels the table holds (its quadtree's, or more: a finer leaf size at bake time).
-    pub fn level_count(&self) -> usize {
-        self.paged.as_ref().map_or(self.levels.len(), |p| p.levels())
-    }
-
     /// Whether the table is read by pages ([`DssErrorTable::open_paged`]).
     pub fn is_paged(&self) -> bool {
         self.paged.is_some()

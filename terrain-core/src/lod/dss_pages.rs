@@ -22,8 +22,7 @@ use std::sync::{Arc, Mutex};
 use rustc_hash::{FxHashMap, FxHashSet};
 
 use super::dss_file::DssFileError;
-use super::geomip_pages::TableReader;
-use crate::checksum::crc32;
+use super::geomip_pages::{TableReader, lru_cut, read_checked_page};
 use crate::metrics::dss::FACTORS;
 use crate::quadtree::NodeId;
 
@@ -169,11 +168,6 @@ impl DssPages {
         }
     }
 
-    /// Levels the table serves.
-    pub(super) fn levels(&self) -> usize {
-        self.layout.levels.len()
-    }
-
     /// The page and index of `node`, or `None` outside the table.
     pub(super) fn slot(&self, node: NodeId) -> Option<Slot> {
         let &(nx, first) = self.layout.levels.get(node.level as usize)?;
@@ -232,24 +226,13 @@ impl DssPages {
         let first = p * lay.page_nodes;
         let nodes = lay.page_nodes.min(lay.nodes - first) as usize;
         let offset = lay.entries_at + first * ENTRY_BYTES as u64;
-        let mut buf = vec![0u8; nodes * ENTRY_BYTES];
-        let page_err = |cause: DssFileError| DssFileError::Page {
-            file: lay.file.clone(),
-            page: p as usize,
-            offset,
-            cause: Box::new(cause),
+        let at = (lay.file.as_str(), p as usize, offset);
+        let crc = lay.page_crcs[p as usize];
+        let read = [&self.bytes_read, &self.pages_read];
+        let Some(buf) = read_checked_page(&*self.reader, at, nodes * ENTRY_BYTES, crc, read)?
+        else {
+            return Ok(None);
         };
-        match self.reader.read_at(offset, &mut buf) {
-            Ok(()) => {}
-            Err(e) if e.kind() == std::io::ErrorKind::WouldBlock => return Ok(None),
-            Err(e) => return Err(page_err(DssFileError::Read(e.to_string()))),
-        }
-        self.bytes_read.fetch_add(buf.len() as u64, Ordering::Relaxed);
-        self.pages_read.fetch_add(1, Ordering::Relaxed);
-        let (stored, computed) = (lay.page_crcs[p as usize], crc32(&buf));
-        if stored != computed {
-            return Err(page_err(DssFileError::Checksum { stored, computed }));
-        }
         Ok(Some(
             buf.chunks_exact(ENTRY_BYTES)
                 .map(|b| {
@@ -286,17 +269,9 @@ fn trim(cache: &mut Cache, budget: u64) {
     if cache.bytes <= budget {
         return;
     }
-    let mut items: Vec<(u64, u64)> =
+    let items: Vec<(u64, u64)> =
         cache.pages.values().map(|v| (v.1, (v.0.len() * ENTRY_BYTES) as u64)).collect();
-    items.sort_unstable();
-    let target = budget / 4 * 3;
-    let (mut bytes, mut cut) = (cache.bytes, 0);
-    for (tick, size) in items {
-        if bytes <= target {
-            break;
-        }
-        (cut, bytes) = (tick + 1, bytes.saturating_sub(size));
-    }
+    let (cut, bytes) = lru_cut(items, cache.bytes, budget);
     cache.pages.retain(|_, v| v.1 >= cut);
     cache.bytes = bytes;
 }

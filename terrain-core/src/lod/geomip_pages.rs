@@ -164,19 +164,64 @@ impl Caches {
         let mut items: Vec<(u64, u64)> =
             self.pages.values().map(|v| (v.1, page_bytes(&v.0))).collect();
         items.extend(self.tiles.values().map(|v| (v.1, tile_bytes(&v.0, l))));
-        items.sort_unstable();
-        let target = budget / 4 * 3;
-        let (mut bytes, mut cut) = (self.bytes, 0);
-        for (tick, size) in items {
-            if bytes <= target {
-                break;
-            }
-            (cut, bytes) = (tick + 1, bytes.saturating_sub(size));
-        }
+        let (cut, bytes) = lru_cut(items, self.bytes, budget);
         self.pages.retain(|_, v| v.1 >= cut);
         self.tiles.retain(|_, v| v.1 >= cut);
         self.bytes = bytes;
     }
+}
+
+/// The eviction of a table's page cache (this module's and [`super::dss_pages`]'): of the
+/// entries `items` (last use, bytes) holding `bytes` in all, the least recently used go until
+/// at most 3/4 of `budget` is held. Returns the last-use tick from which entries stay, and the
+/// bytes they hold.
+pub(super) fn lru_cut(mut items: Vec<(u64, u64)>, bytes: u64, budget: u64) -> (u64, u64) {
+    items.sort_unstable();
+    let target = budget / 4 * 3;
+    let (mut bytes, mut cut) = (bytes, 0);
+    for (tick, size) in items {
+        if bytes <= target {
+            break;
+        }
+        (cut, bytes) = (tick + 1, bytes.saturating_sub(size));
+    }
+    (cut, bytes)
+}
+
+/// Reads page `page` of a table file, `len` bytes at `offset` through `reader`, counted in
+/// `read` (bytes, pages) once read, and checks it against its CRC-32 `crc` (this module's
+/// pages and [`super::dss_pages`]'). `Ok(None)`: not here yet, the reader does not wait.
+pub(super) fn read_checked_page(
+    reader: &dyn TableReader,
+    (file, page, offset): (&str, usize, u64),
+    len: usize,
+    crc: u32,
+    read: [&AtomicU64; 2],
+) -> Result<Option<Vec<u8>>, GeomipFileError> {
+    let mut buf = vec![0u8; len];
+    match reader.read_at(offset, &mut buf) {
+        Ok(()) => {}
+        Err(e) if e.kind() == std::io::ErrorKind::WouldBlock => return Ok(None),
+        Err(e) => {
+            return Err(page_error((file, page, offset), GeomipFileError::Read(e.to_string())));
+        }
+    }
+    read[0].fetch_add(buf.len() as u64, Ordering::Relaxed);
+    read[1].fetch_add(1, Ordering::Relaxed);
+    let computed = crc32(&buf);
+    if crc != computed {
+        let cause = GeomipFileError::Checksum { stored: crc, computed };
+        return Err(page_error((file, page, offset), cause));
+    }
+    Ok(Some(buf))
+}
+
+/// `cause` as the error of page `page` of `file`, at byte `offset`.
+pub(super) fn page_error(
+    (file, page, offset): (&str, usize, u64),
+    cause: GeomipFileError,
+) -> GeomipFileError {
+    GeomipFileError::Page { file: file.to_string(), page, offset, cause: Box::new(cause) }
 }
 
 fn page_bytes(p: &Page) -> u64 {
@@ -347,24 +392,14 @@ impl PagedEntries {
         let first = p * lay.page_patches;
         let patches = lay.page_patches.min(total - first);
         let offset = lay.entries_at + (first * l * 10) as u64;
-        let mut buf = vec![0u8; patches * l * 10];
-        let page_err = |cause: GeomipFileError| GeomipFileError::Page {
-            file: lay.file.clone(),
-            page: p,
-            offset,
-            cause: Box::new(cause),
+        let at = (lay.file.as_str(), p, offset);
+        let page_err = |cause: GeomipFileError| page_error(at, cause);
+        let read = [&self.bytes_read, &self.pages_read];
+        let Some(buf) =
+            read_checked_page(&*self.reader, at, patches * l * 10, lay.page_crcs[p], read)?
+        else {
+            return Ok(None);
         };
-        match self.reader.read_at(offset, &mut buf) {
-            Ok(()) => {}
-            Err(e) if e.kind() == std::io::ErrorKind::WouldBlock => return Ok(None),
-            Err(e) => return Err(page_err(GeomipFileError::Read(e.to_string()))),
-        }
-        self.bytes_read.fetch_add(buf.len() as u64, Ordering::Relaxed);
-        self.pages_read.fetch_add(1, Ordering::Relaxed);
-        let (stored, computed) = (lay.page_crcs[p], crc32(&buf));
-        if stored != computed {
-            return Err(page_err(GeomipFileError::Checksum { stored, computed }));
-        }
         let n = patches * l;
         let mut page = Page {
             errors: Vec::with_capacity(n),
