@@ -485,6 +485,16 @@ fn store_demand(
 /// patch methods within the cache budget").
 pub const REAL_TIME_EXACT_SHARE: u64 = 4;
 
+/// A real-time frame whose selection took at most this share of the frame's period (the
+/// flight's or viewer's frame rate, [`OocConfig::frame_rate_hz`]) selects again at the eye one
+/// look-ahead ahead, so the streamer preloads the method's own levels
+/// ([`Streamer::set_demand_ahead`]); a dearer one leaves the prediction to Eq. 7. On `fast_pass`
+/// over the 32769^2 store, 30 fps: `pvps-c` (0.4-0.6 ms a selection) went from 78.3 % of its
+/// frames at their needed level to 93-98 %, while `dss-2` (48 ms a selection) would have
+/// spent 110 ms a frame instead of 65 (bench/ooc/README.md, "Eq. 8 with the method's own
+/// levels").
+pub const AHEAD_SELECTION_SHARE: f64 = 0.25;
+
 /// What a LOD method drawn from a store selected ([`OocScene::frame_for`]).
 #[derive(Debug, Clone, Default)]
 pub struct StoreDraw {
@@ -812,10 +822,10 @@ impl OocScene {
         camera: &Camera,
         warm: bool,
         tree: &StoreTree,
-        select: &mut dyn FnMut(&dyn TerrainSource) -> StoreDraw,
+        select: &mut dyn FnMut(&dyn TerrainSource, &Camera) -> StoreDraw,
     ) -> OocFrame {
         let t0 = Instant::now();
-        let mut draw = select(&StoreSource::new(tree, &self.streamer));
+        let mut draw = select(&StoreSource::new(tree, &self.streamer), camera);
         let mut select_time = draw.selection.stats.cpu_time;
         // The bytes the exact demand may hold (`demand_within`): a warm frame's the cache's
         // budget, a real-time frame's a quarter of it (the rest is the next frame's need and
@@ -828,10 +838,25 @@ impl OocScene {
         };
         let (mut demand, mut on_lattice) = store_demand(tree, &draw, budget);
         self.streamer.set_demand(Some(demand.clone()));
+        // Eq. 8 with the method's own levels: its selection at the eye one look-ahead ahead,
+        // over the same resident heights, says where its level boundaries will be (Eq. 7's
+        // prediction alone leaves every block crossing one a level late). Its time is the
+        // streamer's (`stream_ms`), not the frame's selection; a selection dearer than
+        // `AHEAD_SELECTION_SHARE` of the frame is not run twice.
+        let period_s = 1.0 / self.config.frame_rate_hz.max(1e-3);
+        let cheap = select_time.as_secs_f64() <= AHEAD_SELECTION_SHARE * period_s;
+        let ahead = match self.streamer.camera_ahead(camera) {
+            Some(next) if !warm && cheap => {
+                let next = select(&StoreSource::new(tree, &self.streamer), &next);
+                Some(store_demand(tree, &next, budget).0)
+            }
+            _ => None,
+        };
+        self.streamer.set_demand_ahead(ahead);
         let s = if warm {
             let mut s = self.streamer.wait_until_resident(camera, self.config.warm_timeout).stats;
             for _ in 0..3 {
-                draw = select(&StoreSource::new(tree, &self.streamer));
+                draw = select(&StoreSource::new(tree, &self.streamer), camera);
                 select_time += draw.selection.stats.cpu_time;
                 let (again, lattice) = store_demand(tree, &draw, budget);
                 if again == demand {

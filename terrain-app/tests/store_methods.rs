@@ -883,7 +883,7 @@ fn geomorph_store_frames_work_on_runs_as_on_patches() {
         );
         for (c, camera) in cams.iter().enumerate() {
             let mut all: Option<GeomipRuns> = None;
-            let mut select = |src: &dyn TerrainSource| -> StoreDraw {
+            let mut select = |src: &dyn TerrainSource, camera: &Camera| -> StoreDraw {
                 let runs = table.select_runs(&src, camera, &cfg);
                 all = Some(runs.clone());
                 StoreDraw {

@@ -191,6 +191,9 @@ pub struct Streamer {
     regions: Option<Regions>,
     /// The levels a LOD method other than Eq. 7 needs per block ([`Streamer::set_demand`]).
     demand: Option<Vec<(BlockId, u8)>>,
+    /// The levels the method needs at the eye one look-ahead ahead
+    /// ([`Streamer::set_demand_ahead`]).
+    demand_ahead: Option<Vec<(BlockId, u8)>>,
     /// Block levels that have failed this session ([`Fault::first`]).
     faulted: BTreeSet<(BlockId, u8)>,
     /// Moving average of the workers' request latency, seconds (latency-aware Eq. 8).
@@ -341,6 +344,7 @@ impl Streamer {
             scheduled: Vec::new(),
             regions: None,
             demand: None,
+            demand_ahead: None,
             faulted: BTreeSet::new(),
             latency_s: None,
             summaries: Summaries::default(),
@@ -357,6 +361,29 @@ impl Streamer {
     /// [`Streamer::wait_until_resident`].
     pub fn set_demand(&mut self, demand: Option<Vec<(BlockId, u8)>>) {
         self.demand = demand;
+    }
+
+    /// Eq. 8 for a LOD method other than the paper's: the levels its selection needs at the eye
+    /// one look-ahead ahead ([`Streamer::camera_ahead`]), in the form of
+    /// [`Streamer::set_demand`]'s. Each block of the demand is preloaded to the finer of that
+    /// level and Eq. 7's prediction; a block only here is preloaded as part of N - M. Without
+    /// it (`None`, the default) the prediction is Eq. 7's alone, which knows nothing of where
+    /// another method's level boundaries lie: the blocks crossing one are late by a level.
+    /// Takes effect with the demand.
+    pub fn set_demand_ahead(&mut self, ahead: Option<Vec<(BlockId, u8)>>) {
+        self.demand_ahead = ahead;
+    }
+
+    /// The eye Eq. 8 preloads for at the next [`Streamer::update`] with `camera`: moved by
+    /// its step since the last update times the look-ahead in frames (grown by the measured
+    /// request latency); `None` on the first frame or while the eye holds still.
+    pub fn camera_ahead(&self, camera: &Camera) -> Option<Camera> {
+        let step = camera.position - self.last_eye?;
+        if step == DVec3::ZERO {
+            return None;
+        }
+        let lookahead = self.config.schedule.effective_lookahead(self.latency_s.unwrap_or(0.0));
+        Some(Camera { position: camera.position + step * lookahead, ..*camera })
     }
 
     /// The store.
@@ -633,6 +660,17 @@ impl Streamer {
         let mut scheduled = Vec::new();
         let mut in_m = BlockSet::empty(header);
         if let Some(demand) = &self.demand {
+            // The method's own levels one look-ahead ahead, by block position (0: none).
+            let mut ahead =
+                vec![0u8; if self.demand_ahead.is_some() { header.block_count() } else { 0 }];
+            for &(id, level) in self.demand_ahead.iter().flatten() {
+                if let Some(a) = header.block_position(id).and_then(|p| ahead.get_mut(p)) {
+                    *a = (*a).max(level.min(header.k));
+                }
+            }
+            let ahead_of = |id: BlockId| {
+                header.block_position(id).and_then(|p| ahead.get(p)).copied().unwrap_or(0)
+            };
             for &(id, level) in demand {
                 let Some(e) = self.summaries.get(store, id) else { continue };
                 let e = &*e;
@@ -644,9 +682,25 @@ impl Streamer {
                 scheduled.push(ScheduledBlock {
                     block: id,
                     needed,
-                    target: predicted(id, e, needed),
+                    target: predicted(id, e, needed).max(ahead_of(id)),
                     visible: true,
                     distance_m: rect_distance(eye, lo, hi),
+                });
+            }
+            // Blocks the method draws only one look-ahead ahead: preloaded (N - M).
+            for &(id, _) in self.demand_ahead.iter().flatten() {
+                if in_m.contains(header, id) {
+                    continue;
+                }
+                let Some(e) = self.summaries.get(store, id) else { continue };
+                in_m.insert(header, id);
+                let level = ahead_of(id);
+                scheduled.push(ScheduledBlock {
+                    block: id,
+                    needed: level,
+                    target: level,
+                    visible: false,
+                    distance_m: rect_distance(eye, e.lo, e.hi),
                 });
             }
         }

@@ -344,10 +344,11 @@ impl Method for StoreMethod<'_> {
         let later = self.frames > 1;
         let (cfg, tables) = (&self.config, &self.tables);
         let kind = self.kind;
-        // The PVS of the unexaggerated terrain, looked up where the eye is over it.
-        let mut pvs_eye = camera.position;
-        pvs_eye.z /= self.vertical_scale;
-        let mut select = |src: &dyn TerrainSource| -> StoreDraw {
+        let vertical_scale = self.vertical_scale;
+        let select_at = |src: &dyn TerrainSource, camera: &Camera| -> StoreDraw {
+            // The PVS of the unexaggerated terrain, looked up where the eye is over it.
+            let mut pvs_eye = camera.position;
+            pvs_eye.z /= vertical_scale;
             let selection = match tables {
                 Tables::None => select_uniform(src, camera, cfg.uniform_factor),
                 Tables::Roughness(field) => select_pvps(src, camera, field, &cfg.pvps),
@@ -406,15 +407,27 @@ impl Method for StoreMethod<'_> {
             };
             StoreDraw { selection, ..Default::default() }
         };
-        let late_pages = || match &self.tables {
+        let late_pages = || match tables {
             Tables::Geomip(t, _) => t.paging_stats().map_or(0, |s| s.pages_late),
             Tables::Dss(t) => t.paging_stats().map_or(0, |s| s.pages_late),
             _ => 0,
         };
+        // The table pages the selection for the eye ahead (Eq. 8) found missing are fetched
+        // for the next frames, not late for this one's drawing.
+        let (frame_camera, mut ahead_late) = (*camera, 0);
+        let mut select = |src: &dyn TerrainSource, c: &Camera| -> StoreDraw {
+            if *c == frame_camera {
+                return select_at(src, c);
+            }
+            let before = late_pages();
+            let draw = select_at(src, c);
+            ahead_late += late_pages() - before;
+            draw
+        };
         let late_before = late_pages();
         let mut frame = paged_frame(self.scene.frame_for(camera, warm, &self.tree, &mut select));
         if let Some(s) = frame.stats.stream.as_mut() {
-            s.late_table_pages = late_pages() - late_before;
+            s.late_table_pages = late_pages() - late_before - ahead_late;
         }
         // A page of `dss_errors.bin` read by pages that cannot be used is reported once; its
         // nodes were split to the finest factor.

@@ -500,8 +500,12 @@ impl Method for TinStoreMethod<'_> {
             mesh: Some(extra),
             ..Default::default()
         };
-        // A waiting frame selects again once its levels are resident: the same tiles.
-        let mut select = |_: &dyn terrain_core::lod::TerrainSource| -> StoreDraw { draw.clone() };
+        // A waiting frame selects again once its levels are resident: the same tiles. The
+        // tiles were chosen above, for this camera only: for the eye ahead (Eq. 8) it gives
+        // none, and the streamer predicts with Eq. 7 alone.
+        let mut select = |_: &dyn terrain_core::lod::TerrainSource, c: &Camera| -> StoreDraw {
+            if c == camera { draw.clone() } else { StoreDraw::default() }
+        };
         let f = self.scene.frame_for(camera, warm, &self.tree, &mut select);
         let mut frame = paged_frame(f);
         frame.stats.selection_ms = selection_time.as_secs_f64() * 1e3;

@@ -341,6 +341,53 @@ fn wait_until_resident_leaves_every_needed_level_resident() {
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
+#[test]
+fn a_methods_levels_one_look_ahead_ahead_are_preloaded() {
+    let (dir, store) = store("ahead");
+    let k = store.header().k;
+    let config = StreamConfig { threads: 2, tau: 4.0, ..Default::default() };
+    // Two runs with the same method demand: level 1 of the view's blocks now. One is also told
+    // that the method needs the finest level of its farthest block one look-ahead ahead, and
+    // level 2 of a block it does not draw now.
+    let run = |ahead: bool| {
+        let mut s = Streamer::new(store.clone(), config);
+        assert!(s.camera_ahead(&camera(-500.0)).is_none(), "no step before the first frame");
+        s.update(&camera(-500.0));
+        s.finish_loads();
+        let next = camera(-480.0);
+        let moved = s.camera_ahead(&next).expect("the eye moved");
+        // Eq. 8: the step (20 m north) times the look-ahead (one frame, grown by the latency).
+        assert_eq!((moved.position.x, moved.position.z), (next.position.x, next.position.z));
+        assert!(moved.position.y >= -460.0, "{:?}", moved.position);
+        let mut view: Vec<ScheduledBlock> =
+            s.scheduled().iter().filter(|b| b.visible).copied().collect();
+        view.sort_by(|a, b| a.distance_m.total_cmp(&b.distance_m));
+        let far = view.last().expect("a visible block").block;
+        let other = store
+            .block_ids()
+            .find(|b| s.scheduled().iter().all(|v| v.block != *b))
+            .expect("a block outside N");
+        s.set_demand(Some(view.iter().map(|b| (b.block, 1)).collect()));
+        if ahead {
+            s.set_demand_ahead(Some(vec![(far, k), (other, 2)]));
+        }
+        s.update(&next);
+        s.finish_loads();
+        let at = |b: BlockId| *s.scheduled().iter().find(|s| s.block == b).unwrap();
+        let levels = |b: BlockId| s.block(b).map_or(0, |l| l.count());
+        (at(far), levels(far), s.scheduled().iter().any(|s| s.block == other), levels(other))
+    };
+    let (far, held, other_scheduled, _) = run(false);
+    assert!(far.target < k, "Eq. 7 alone does not ask the finest level of {far:?}");
+    assert!(held <= usize::from(far.target) + 1, "{held} levels");
+    assert!(!other_scheduled);
+    let (far, held, _, other_held) = run(true);
+    assert!(far.visible && far.target == k, "{far:?}");
+    assert_eq!(held, usize::from(k) + 1, "the finest level is preloaded");
+    assert!(other_held >= 3, "the block drawn only ahead is preloaded to level 2: {other_held}");
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
 /// The blocks of M and the level each needs for a camera sequence (a planning run: the
 /// schedule depends on the cameras only, never on what is resident).
 fn plan(store: &Arc<Store>, config: StreamConfig, cameras: &[Camera]) -> Vec<Vec<(BlockId, u8)>> {
