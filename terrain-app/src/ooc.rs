@@ -40,7 +40,7 @@ use terrain_gpu::{RenderError, TerrainRenderer};
 use terrain_stream::{
     BlockId, DEFAULT_COST_SPLIT_PX, DEFAULT_PATCH_CELLS, DEFAULT_SPLIT, Refinement, RemoteOptions,
     ScheduleConfig, SplitRule, Store, StoreError, StoreSource, StoreTree, StreamConfig, Streamer,
-    demand_of, demand_within, select_patches,
+    coarsen_to_budget, demand_of, demand_within, select_patches,
 };
 
 use crate::MIB;
@@ -478,6 +478,20 @@ fn store_demand(
     demand_within(tree, &all, false, budget_bytes)
 }
 
+/// [`store_demand`] held to `budget_bytes`, and where the lattices do not bring it under,
+/// coarsened from the blocks densest on screen from `eye` ([`coarsen_to_budget`]); the second
+/// value says whether it was held either way.
+fn held_demand(
+    tree: &StoreTree,
+    draw: &StoreDraw,
+    eye: DVec3,
+    budget_bytes: u64,
+) -> (Vec<(BlockId, u8)>, bool) {
+    let (mut demand, on_lattice) = store_demand(tree, draw, budget_bytes);
+    let coarsened = coarsen_to_budget(tree, &mut demand, eye, budget_bytes);
+    (demand, on_lattice || coarsened > 0)
+}
+
 /// A real-time frame's demand is exact while it holds at most this share (1 / n) of the cache's
 /// budget, else held to lattices ([`demand_within`]; a warm frame's at most all of it):
 /// `pvps-c` over the 32769^2 store on `fast_pass` drew 78.3 % of its frames at their needed
@@ -836,7 +850,7 @@ impl OocScene {
             (false, true) => self.config.budget_bytes,
             (false, false) => self.config.budget_bytes / REAL_TIME_EXACT_SHARE,
         };
-        let (mut demand, mut on_lattice) = store_demand(tree, &draw, budget);
+        let (mut demand, mut on_lattice) = held_demand(tree, &draw, camera.position, budget);
         self.streamer.set_demand(Some(demand.clone()));
         // Eq. 8 with the method's own levels: its selection at the eye one look-ahead ahead,
         // over the same resident heights, says where its level boundaries will be (Eq. 7's
@@ -847,8 +861,8 @@ impl OocScene {
         let cheap = select_time.as_secs_f64() <= AHEAD_SELECTION_SHARE * period_s;
         let ahead = match self.streamer.camera_ahead(camera) {
             Some(next) if !warm && cheap => {
-                let next = select(&StoreSource::new(tree, &self.streamer), &next);
-                Some(store_demand(tree, &next, budget).0)
+                let draw = select(&StoreSource::new(tree, &self.streamer), &next);
+                Some(held_demand(tree, &draw, next.position, budget).0)
             }
             _ => None,
         };
@@ -858,7 +872,7 @@ impl OocScene {
             for _ in 0..3 {
                 draw = select(&StoreSource::new(tree, &self.streamer), camera);
                 select_time += draw.selection.stats.cpu_time;
-                let (again, lattice) = store_demand(tree, &draw, budget);
+                let (again, lattice) = held_demand(tree, &draw, camera.position, budget);
                 if again == demand {
                     break;
                 }
@@ -879,8 +893,9 @@ impl OocScene {
                 "note: this view's patches need {:.1} MiB of the store at full resolution, more \
                  than {:.1} MiB ({}the cache's budget, --cache-mib; the benchmark's \
                  --ooc-cache-mib): patches whose vertices lie between the samples are drawn \
-                 from the power-of-two level that covers them (heights within that level's \
-                 error); the frames are counted in the streaming summary",
+                 from the power-of-two level that covers them, and where that is still more, \
+                 the blocks whose samples are densest on screen from coarser levels (heights \
+                 within that level's error); the frames are counted in the streaming summary",
                 terrain_stream::demand_bytes(&store_demand(tree, &draw, u64::MAX).0) as f64 / MIB,
                 budget as f64 / MIB,
                 if warm { "" } else { "a real-time frame's share of " }

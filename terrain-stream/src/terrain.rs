@@ -13,7 +13,10 @@
 //! scene files beside the store; what its patches need is handed to the streamer as its
 //! demand ([`Streamer::set_demand`], [`demand_of`]).
 
-use glam::DVec2;
+use std::cmp::Reverse;
+use std::collections::BinaryHeap;
+
+use glam::{DVec2, DVec3};
 use terrain_core::bilinear_clamped;
 use terrain_core::lod::{Selection, TerrainSource};
 use terrain_core::quadtree::{NodeId, NodeInfo, NodeSource, NodeTree, TreeShape};
@@ -170,6 +173,57 @@ pub fn demand_within(
     let held = demand_with(tree, selection, on_squares, true);
     let changed = held != exact;
     (held, changed)
+}
+
+/// A demand still above `budget_bytes` ([`demand_bytes`]) after [`demand_within`] held to it by
+/// coarsening blocks a level at a time, the block whose samples are densest on screen first:
+/// the largest `2^level x d`, `d` the distance from `eye` to the block's box (at least a
+/// metre), so the sample spacing over the distance, about the samples' size on screen, stays
+/// as even over the view as the budget allows (the mip bias of texture streaming, e.g.
+/// Unreal's and id Tech's virtual texturing, which drop the finest mips of the most
+/// oversampled textures first). A patch over a coarsened block is drawn bilinear over that
+/// block's level, each height within its static error, as when a level arrives late. Level 0
+/// is never asked for less. Returns the levels dropped (0: it fitted, nothing changed).
+/// Deterministic: ties go to the block listed first.
+pub fn coarsen_to_budget(
+    tree: &StoreTree,
+    demand: &mut [(BlockId, u8)],
+    eye: DVec3,
+    budget_bytes: u64,
+) -> usize {
+    let mut bytes = demand_bytes(demand);
+    if bytes <= budget_bytes {
+        return 0;
+    }
+    // Distances to the blocks' boxes (from the index: no block is read).
+    let distance: Vec<f64> = demand
+        .iter()
+        .map(|&(b, _)| {
+            let node = tree.global(b, NodeId { level: 0, i: 0, j: 0 });
+            tree.node_info(node).map_or(f64::MAX, |info| {
+                let (lo, hi) = (info.aabb.min, info.aabb.max);
+                (lo - eye).max(eye - hi).max(DVec3::ZERO).length().max(1.0)
+            })
+        })
+        .collect();
+    // Positive finite keys order as their bits; the index breaks ties towards the first.
+    let key = |i: usize, level: u8| {
+        ((distance[i] * f64::from(1u32 << level)).min(f64::MAX).to_bits(), Reverse(i))
+    };
+    let mut heap: BinaryHeap<(u64, Reverse<usize>)> =
+        demand.iter().enumerate().filter(|(_, d)| d.1 > 0).map(|(i, d)| key(i, d.1)).collect();
+    let mut dropped = 0;
+    while bytes > budget_bytes {
+        let Some((_, Reverse(i))) = heap.pop() else { break };
+        let level = demand[i].1;
+        bytes -= BlockEntry::resident_bytes(level) - BlockEntry::resident_bytes(level - 1);
+        demand[i].1 = level - 1;
+        dropped += 1;
+        if level > 1 {
+            heap.push(key(i, level - 1));
+        }
+    }
+    dropped
 }
 
 /// [`demand_of`]; with `lattice`, continuous factors ask the power-of-two lattice at or above

@@ -1038,6 +1038,56 @@ fn the_demand_held_to_the_budget_asks_the_lattice_of_each_continuous_factor() {
     assert!(held_somewhere, "no continuous factor was held below its full resolution");
 }
 
+/// A demand the lattices cannot hold is coarsened a level at a time from the block whose
+/// samples are densest on screen (largest `2^level x distance`): it ends within the budget,
+/// no block finer than asked, near blocks finer than far ones, and the screen density even
+/// to a factor of two (every coarsened block at least half the densest block left); a demand
+/// within the budget is left alone.
+#[test]
+fn a_demand_over_the_budget_is_coarsened_densest_on_screen_first() {
+    use terrain_core::quadtree::NodeSource;
+
+    let hm = terrain(300, 220);
+    let (_dir, store) = bake_store(&hm, "coarsen", 5, 3);
+    let tree = eq7_tree(&store, 4);
+    let k = store.header().k;
+    let asked: Vec<(BlockId, u8)> = store.block_ids().map(|b| (b, k)).collect();
+    assert!(asked.len() >= 12, "{} blocks", asked.len());
+    let bytes = crate::demand_bytes(&asked);
+    let eye = dvec3(-50.0, -50.0, 400.0);
+    let distance = |b: BlockId| {
+        let info = tree.node_info(tree.global(b, NodeId { level: 0, i: 0, j: 0 })).unwrap();
+        (info.aabb.min - eye).max(eye - info.aabb.max).max(DVec3::ZERO).length().max(1.0)
+    };
+    let mut same = asked.clone();
+    assert_eq!(crate::coarsen_to_budget(&tree, &mut same, eye, bytes), 0);
+    assert_eq!(same, asked, "a demand within the budget is not changed");
+    for share in [2, 5, 40] {
+        let budget = bytes / share;
+        let mut held = asked.clone();
+        let dropped = crate::coarsen_to_budget(&tree, &mut held, eye, budget);
+        assert!(crate::demand_bytes(&held) <= budget, "1/{share}");
+        let steps: usize = asked.iter().zip(&held).map(|(a, h)| usize::from(a.1 - h.1)).sum();
+        assert_eq!(dropped, steps, "1/{share}");
+        let key = |&(b, l): &(BlockId, u8)| distance(b) * f64::from(1u32 << l);
+        let densest_left = held.iter().filter(|h| h.1 > 0).map(key).fold(0.0, f64::max);
+        for (a, h) in asked.iter().zip(&held) {
+            assert_eq!(a.0, h.0);
+            assert!(h.1 <= a.1);
+            if h.1 < a.1 {
+                assert!(key(h) >= densest_left / 2.0, "1/{share}: {h:?} coarsened too far");
+            }
+        }
+        let (near, far) = held.iter().fold((held[0], held[0]), |(n, f), h| {
+            (
+                if distance(h.0) < distance(n.0) { *h } else { n },
+                if distance(h.0) > distance(f.0) { *h } else { f },
+            )
+        });
+        assert!(near.1 > far.1, "1/{share}: near {near:?}, far {far:?}");
+    }
+}
+
 #[test]
 fn block_sub_max_bottom_up_equals_the_sweep_of_descendants() {
     // Node levels below, at and (clamped) above the patch level; with the fine maxima (index
