@@ -48,14 +48,17 @@
 //! roughness image to 0..255 and gives no scale for A and B; put them on the same 0..255 scale
 //! (terrain-visibility's `NodePyramid::normalized_255`) so one `C1`, `C2` serves all three.
 
+use std::cell::Cell;
 use std::time::Instant;
+
+use glam::DVec3;
 
 use super::NodeField;
 use super::edges::EdgeRule;
 use super::patch::{Edge, MAX_FACTOR, Selection, clamp_factor};
 use super::run;
 use super::source::TerrainSource;
-use super::surface::edge_segment;
+use super::surface::patch_world_point;
 use crate::geometry::Camera;
 use crate::heightmap::Heightmap;
 use crate::metrics::pvps::{span, split_ratio};
@@ -167,6 +170,11 @@ struct PvpsEdges<'a> {
     finest: u8,
     /// `finest_transition_factor` as a power of two.
     scale: u32,
+    /// The last patch's corners in world space (south-west, south-east, north-west,
+    /// north-east): its edges' screen lengths are asked up to eight times (outer and inner
+    /// factors), each end a height lookup, which over a store's pages dominated `pvps-b`'s
+    /// selection.
+    corners: Cell<Option<(NodeId, [DVec3; 4])>>,
 }
 
 impl PvpsEdges<'_> {
@@ -176,8 +184,24 @@ impl PvpsEdges<'_> {
         (f64::from(self.scale) * f64::from(1u32 << shift)).min(f64::from(MAX_FACTOR)) as f32
     }
 
+    /// The screen length of `node`'s `edge`: the segment between its end corners, the same
+    /// points as [`edge_segment`](super::surface::edge_segment)'s (so two same-level patches sharing an edge agree).
     fn screen(&self, node: NodeId, edge: Edge) -> f64 {
-        let (a, b) = edge_segment(self.src, node, edge);
+        let c = match self.corners.get() {
+            Some((n, c)) if n == node => c,
+            _ => {
+                let at = |uv| patch_world_point(self.src, node, uv);
+                let c = [at([0.0, 0.0]), at([1.0, 0.0]), at([0.0, 1.0]), at([1.0, 1.0])];
+                self.corners.set(Some((node, c)));
+                c
+            }
+        };
+        let (a, b) = match edge {
+            Edge::South => (c[0], c[1]),
+            Edge::East => (c[1], c[3]),
+            Edge::North => (c[2], c[3]),
+            Edge::West => (c[0], c[2]),
+        };
         run::screen_length(self.camera, a, b)
     }
 }
@@ -249,6 +273,7 @@ pub fn select_pvps_with_cull(
         constant: cfg.outer_constant,
         finest,
         scale: cfg.finest_transition_factor.clamp(2, 64).next_power_of_two(),
+        corners: Cell::new(None),
     };
     let inner = |node: NodeId, _: &[f32; 4]| -> [f32; 2] {
         // Eq. 12: ScreenSpaceLength_1 runs along u (the south and north edges), _2 along v.
@@ -298,12 +323,49 @@ mod tests {
     }
 
     #[test]
+    fn edge_screen_lengths_from_the_remembered_corners_are_the_edge_segments() {
+        let hm = bumpy(129);
+        let qt = Quadtree::new(&hm, 8);
+        let src = GridSource::new(&qt, &hm);
+        let cam = Camera::from_yaw_pitch(dvec3(-50.0, -80.0, 300.0), 40.0, -25.0);
+        let rule = PvpsEdges {
+            src: &src,
+            camera: &cam,
+            constant: 10.0,
+            finest: 4,
+            scale: 2,
+            corners: Cell::new(None),
+        };
+        let nodes = [NodeId::new(0, 0, 0), NodeId::new(2, 1, 3), NodeId::new(4, 9, 2)];
+        // Each node's edges in turn and interleaved with another node's, so the remembered
+        // corners are both hit and replaced.
+        for (k, &n) in nodes.iter().enumerate() {
+            for e in Edge::ALL {
+                let other = nodes[(k + 1) % nodes.len()];
+                for node in [n, other, n] {
+                    let (a, b) = crate::lod::surface::edge_segment(&src, node, e);
+                    let want = run::screen_length(&cam, a, b);
+                    assert!(want > 0.0);
+                    assert_eq!(rule.screen(node, e).to_bits(), want.to_bits(), "{node:?} {e:?}");
+                }
+            }
+        }
+    }
+
+    #[test]
     fn transition_factors_are_the_papers_ratio_doubled() {
         let hm = bumpy(65);
         let qt = Quadtree::new(&hm, 4);
         let src = GridSource::new(&qt, &hm);
         let cam = Camera::from_yaw_pitch(dvec3(0.0, 0.0, 100.0), 0.0, -30.0);
-        let rule = PvpsEdges { src: &src, camera: &cam, constant: 10.0, finest: 4, scale: 2 };
+        let rule = PvpsEdges {
+            src: &src,
+            camera: &cam,
+            constant: 10.0,
+            finest: 4,
+            scale: 2,
+            corners: Cell::new(None),
+        };
         assert_eq!(rule.transition(4), 2.0);
         assert_eq!(rule.transition(3), 4.0);
         assert_eq!(rule.transition(0), 32.0);
