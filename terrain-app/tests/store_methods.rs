@@ -194,7 +194,9 @@ fn real_time_frames_draw_every_patch_while_levels_load() {
 /// every patch within the drawn levels' static error; a warm measurement (every frame waits,
 /// heights taken to be the DEM's) keeps the exact demand, above the budget, and draws
 /// memory's heights. Without `OocScene::with_exact_demand` the
-/// warm frame would be held too and this fails.
+/// warm frame would be held too and this fails. A real-time run's first frame, which waits,
+/// holds its demand to the real-time share as its later frames do (`OocScene::with_real_time`),
+/// where a waiting run's frame asks an exact demand that fits the whole budget.
 #[test]
 fn a_demand_above_the_budget_is_held_to_lattices_but_not_when_measured_warm() {
     // A grid seen whole, small on screen: the normals (the streamer's shading level) need less
@@ -228,6 +230,25 @@ fn a_demand_above_the_budget_is_held_to_lattices_but_not_when_measured_warm() {
         let mut h = held.frame(&camera);
         let hs = h.stats.stream.clone().unwrap();
         assert!(hs.demand_on_lattice, "{kind:?}: real time holds the demand");
+        // A real-time run's first frame waits, but holds its demand to the real-time share
+        // of the budget (a quarter), below what a waiting run's frame asks of the whole budget
+        // (here twice the exact demand: the waiting frame's is exact, the real-time one's
+        // held).
+        let twice = OocConfig { budget_bytes: (ws.needed_mib * f64::from(1 << 21)) as u64, ..ooc };
+        let first = |wait| {
+            let runtime = OocScene::new(store.clone(), twice);
+            let mut m = method::store_method(kind, runtime, &scene.config, wait, None).unwrap();
+            m.frame(&camera).stats.stream.unwrap()
+        };
+        let (rt, wt) = (first(OocWait::FirstFrame), first(OocWait::EveryFrame));
+        println!(
+            "{kind:?}: first frame needs {:.4} MiB real time, {:.4} MiB waiting, budget {:.4}",
+            rt.needed_mib,
+            wt.needed_mib,
+            twice.budget_bytes as f64 / f64::from(1 << 20)
+        );
+        assert!(rt.demand_on_lattice && !wt.demand_on_lattice, "{kind:?}");
+        assert!(rt.needed_mib < wt.needed_mib, "{kind:?}");
         assert!(
             hs.needed_mib < ws.needed_mib,
             "{kind:?}: held {} MiB, exact {} MiB",

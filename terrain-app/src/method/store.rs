@@ -86,6 +86,7 @@ pub fn store_method<'a>(
             Some(_) => mirrored(scene, wait),
             None => scene,
         };
+        let scene = if wait == OocWait::FirstFrame { scene.with_real_time() } else { scene };
         return Ok(Box::new(super::TinStoreMethod::new(scene, &config.tin, wait, reference)?));
     }
     if !draws_from_store(kind) {
@@ -296,6 +297,7 @@ impl<'a> StoreMethod<'a> {
             Some(_) => mirrored(scene, wait),
             None => scene,
         };
+        let scene = if wait == OocWait::FirstFrame { scene.with_real_time() } else { scene };
         Ok(Self {
             kind,
             scene,
