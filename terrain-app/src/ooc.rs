@@ -478,17 +478,22 @@ fn store_demand(
     demand_within(tree, &all, false, budget_bytes)
 }
 
-/// [`store_demand`] held to `budget_bytes`, and where the lattices do not bring it under,
-/// coarsened from the blocks densest on screen from `eye` ([`coarsen_to_budget`]); the second
-/// value says whether it was held either way.
+/// [`store_demand`] held to `[lattice, coarsen]` bytes: to the first by the lattices
+/// ([`demand_within`]), and where that leaves more than the second, coarsened from the blocks
+/// densest on screen from `eye` ([`coarsen_to_budget`]); the second value says whether it was
+/// held either way. The coarsening's bound is the cache's whole budget (what it cannot evict
+/// must fit), not a real-time frame's share: a coarsened demand moves with the eye, and a block
+/// moved to a finer level is late unless predicted (`uniform` on `fast_pass` over the 16385^2
+/// Everest store, whose exact demand fits the budget: 173 of 300 frames without late data
+/// coarsened to the quarter, 300 before).
 fn held_demand(
     tree: &StoreTree,
     draw: &StoreDraw,
     eye: DVec3,
-    budget_bytes: u64,
+    [lattice, coarsen]: [u64; 2],
 ) -> (Vec<(BlockId, u8)>, bool) {
-    let (mut demand, on_lattice) = store_demand(tree, draw, budget_bytes);
-    let coarsened = coarsen_to_budget(tree, &mut demand, eye, budget_bytes);
+    let (mut demand, on_lattice) = store_demand(tree, draw, lattice);
+    let coarsened = coarsen_to_budget(tree, &mut demand, eye, coarsen);
     (demand, on_lattice || coarsened > 0)
 }
 
@@ -865,7 +870,8 @@ impl OocScene {
             (false, true) => self.config.budget_bytes,
             (false, false) => self.config.budget_bytes / REAL_TIME_EXACT_SHARE,
         };
-        let (mut demand, mut on_lattice) = held_demand(tree, &draw, camera.position, budget);
+        let bounds = [budget, if self.exact_demand { u64::MAX } else { self.config.budget_bytes }];
+        let (mut demand, mut on_lattice) = held_demand(tree, &draw, camera.position, bounds);
         self.streamer.set_demand(Some(demand.clone()));
         // Eq. 8 with the method's own levels: its selection at the eye one look-ahead ahead,
         // over the same resident heights, says where its level boundaries will be (Eq. 7's
@@ -877,7 +883,7 @@ impl OocScene {
         let ahead = match self.streamer.camera_ahead(camera) {
             Some(next) if !warm && cheap => {
                 let draw = select(&StoreSource::new(tree, &self.streamer), &next);
-                Some(held_demand(tree, &draw, next.position, budget).0)
+                Some(held_demand(tree, &draw, next.position, bounds).0)
             }
             _ => None,
         };
@@ -887,7 +893,7 @@ impl OocScene {
             for _ in 0..3 {
                 draw = select(&StoreSource::new(tree, &self.streamer), camera);
                 select_time += draw.selection.stats.cpu_time;
-                let (again, lattice) = held_demand(tree, &draw, camera.position, budget);
+                let (again, lattice) = held_demand(tree, &draw, camera.position, bounds);
                 if again == demand {
                     break;
                 }
