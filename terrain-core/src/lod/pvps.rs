@@ -322,20 +322,18 @@ mod tests {
         assert!(sel.patches.windows(2).all(|w| w[0].node.dfs_key() < w[1].node.dfs_key()));
     }
 
+    /// Algorithm 1's rule with the defaults' constant, a finest level of 4 and scale 2.
+    fn rule_of<'a>(src: &'a dyn TerrainSource, camera: &'a Camera) -> PvpsEdges<'a> {
+        PvpsEdges { src, camera, constant: 10.0, finest: 4, scale: 2, corners: Cell::new(None) }
+    }
+
     #[test]
     fn edge_screen_lengths_from_the_remembered_corners_are_the_edge_segments() {
         let hm = bumpy(129);
         let qt = Quadtree::new(&hm, 8);
         let src = GridSource::new(&qt, &hm);
         let cam = Camera::from_yaw_pitch(dvec3(-50.0, -80.0, 300.0), 40.0, -25.0);
-        let rule = PvpsEdges {
-            src: &src,
-            camera: &cam,
-            constant: 10.0,
-            finest: 4,
-            scale: 2,
-            corners: Cell::new(None),
-        };
+        let rule = rule_of(&src, &cam);
         let nodes = [NodeId::new(0, 0, 0), NodeId::new(2, 1, 3), NodeId::new(4, 9, 2)];
         // Each node's edges in turn and interleaved with another node's, so the remembered
         // corners are both hit and replaced.
@@ -358,14 +356,7 @@ mod tests {
         let qt = Quadtree::new(&hm, 4);
         let src = GridSource::new(&qt, &hm);
         let cam = Camera::from_yaw_pitch(dvec3(0.0, 0.0, 100.0), 0.0, -30.0);
-        let rule = PvpsEdges {
-            src: &src,
-            camera: &cam,
-            constant: 10.0,
-            finest: 4,
-            scale: 2,
-            corners: Cell::new(None),
-        };
+        let rule = rule_of(&src, &cam);
         assert_eq!(rule.transition(4), 2.0);
         assert_eq!(rule.transition(3), 4.0);
         assert_eq!(rule.transition(0), 32.0);
