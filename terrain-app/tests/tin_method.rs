@@ -362,15 +362,22 @@ fn a_frame_before_its_tiles_arrive_draws_coarser_ones_without_waiting() {
     // Nothing built: nothing to draw, every tile late.
     let r = tiles.resolve(&sel.tiles);
     assert!(r.tiles.is_empty() && r.late == sel.tiles.len());
-    // The root only: it stands for every selected tile.
+    // The root only: it stands for every selected tile. A peek (Eq. 8's selection ahead)
+    // sees what a frame would draw, and starts no frame of the cache.
     tiles.wait_for(&[NodeId::ROOT], std::time::Duration::from_secs(60)).unwrap();
+    let peeked: Vec<NodeId> = tiles.peek(&sel.tiles).iter().map(|t| t.node).collect();
     let r = tiles.resolve(&sel.tiles);
     assert_eq!(r.tiles.iter().map(|t| t.node).collect::<Vec<_>>(), vec![NodeId::ROOT]);
+    assert_eq!(peeked, vec![NodeId::ROOT]);
     assert_eq!(r.late, sel.tiles.len());
     // Every tile built: drawn as selected, none late.
     tiles.wait_for(&sel.tiles, std::time::Duration::from_secs(120)).unwrap();
+    let before = tiles.stats();
+    let peeked: Vec<NodeId> = tiles.peek(&sel.tiles).iter().map(|t| t.node).collect();
+    assert_eq!(tiles.stats(), before, "a peek changes nothing");
     let r = tiles.resolve(&sel.tiles);
     assert_eq!(r.tiles.iter().map(|t| t.node).collect::<Vec<_>>(), sel.tiles);
+    assert_eq!(peeked, sel.tiles);
     assert_eq!(r.late, 0);
 
     // Through the method: the first frame waits, the next (a new view) does not; what it

@@ -86,11 +86,7 @@ pub fn store_method<'a>(
             Some(_) => mirrored(scene, wait),
             None => scene,
         };
-        // Not `with_real_time`: its tiles give no prediction one look-ahead ahead (they are
-        // chosen outside the frame), so the real-time frames' held demand, whose coarsened
-        // blocks move with the eye, is late wherever the first frame did not load finer
-        // (`fast_pass` over the 16385^2 Everest store: 42 % of the frames at their needed
-        // level with the first frame's whole budget, 17 % with a quarter).
+        let scene = if wait == OocWait::FirstFrame { scene.with_real_time() } else { scene };
         return Ok(Box::new(super::TinStoreMethod::new(scene, &config.tin, wait, reference)?));
     }
     if !draws_from_store(kind) {

@@ -12,7 +12,10 @@
 //! queued for the workers, and the frame draws
 //! what is built: a tile not built yet is drawn by its nearest built ancestor (coarser; the
 //! selected tiles under that ancestor go with it, so the drawn tiles stay disjoint), and
-//! counted late ([`crate::ooc::StreamRecord::late_tiles`]). Selection never waits, except on
+//! counted late ([`crate::ooc::StreamRecord::late_tiles`]). A real-time frame also selects
+//! the tiles of the eye one look-ahead ahead (Eq. 8, [`terrain_stream::Streamer::camera_ahead`]):
+//! they are queued after its own, and the lattices of the built tiles that would draw them
+//! ([`TinTiles::peek`]) are the streamer's demand ahead. Selection never waits, except on
 //! the first frame and with `--wait` ([`OocWait::EveryFrame`], the benchmark's warm mode), which
 //! waits until every selected tile is built. The drawn surface ([`tin_surface`]: tiles and
 //! stitches) takes every vertex's height from its tile; the paged renderer draws the same
@@ -308,37 +311,7 @@ impl TinTiles {
         let mut st = self.shared.lock();
         st.frame += 1;
         let frame = st.frame;
-        let mut late = 0;
-        let mut drawn: HashSet<NodeId> = HashSet::new();
-        for &n in nodes {
-            let mut c = Some(n);
-            while let Some(m) = c {
-                if st.tiles.contains_key(&m) {
-                    break;
-                }
-                c = m.parent();
-            }
-            late += usize::from(c != Some(n));
-            if let Some(m) = c {
-                drawn.insert(m);
-            }
-        }
-        // An ancestor drawn for a late tile covers the selected tiles under it.
-        let mut keep: Vec<NodeId> = drawn
-            .iter()
-            .copied()
-            .filter(|n| {
-                let mut p = n.parent();
-                while let Some(a) = p {
-                    if drawn.contains(&a) {
-                        return false;
-                    }
-                    p = a.parent();
-                }
-                true
-            })
-            .collect();
-        keep.sort_by_key(|n| n.dfs_key());
+        let (keep, late) = drawn_tiles(&st, nodes);
         let tiles = keep
             .iter()
             .filter_map(|n| {
@@ -350,6 +323,15 @@ impl TinTiles {
         // What the previous frames drew and this one does not may go now.
         self.shared.evict(&mut st);
         ResolvedTiles { tiles, late }
+    }
+
+    /// The tiles [`TinTiles::resolve`] would draw for `nodes` now, without starting a frame
+    /// of the cache (nothing is marked used, nothing evicted): what Eq. 8's selection one
+    /// look-ahead ahead would draw with the tiles built so far.
+    pub fn peek(&self, nodes: &[NodeId]) -> Vec<Arc<GridTile>> {
+        let st = self.shared.lock();
+        let (keep, _) = drawn_tiles(&st, nodes);
+        keep.iter().filter_map(|n| Some(st.tiles.get(n)?.tile.clone())).collect()
     }
 
     /// The cache's figures now.
@@ -364,6 +346,56 @@ impl TinTiles {
             tiles: st.tiles.len(),
         }
     }
+}
+
+/// The carrier patch of each tile, its factor putting the tile's points on the lattice of its
+/// stride (the streamer's demand), under a tree of `root` cells.
+fn tile_patches(tiles: &[&GridTile], root: u32) -> Vec<Patch> {
+    tiles
+        .iter()
+        .map(|t| {
+            let f = ((root >> t.node.level) >> t.stride_log2).max(1) as f32;
+            Patch { node: t.node, outer: [f; 4], inner: [f; 2] }
+        })
+        .collect()
+}
+
+/// The built tiles that draw `nodes` (each selected tile or its nearest built ancestor; an
+/// ancestor drawn for a late tile covers the selected tiles under it), disjoint, in traversal
+/// order, and how many selected tiles are late (drawn by an ancestor, or not at all).
+fn drawn_tiles(st: &State, nodes: &[NodeId]) -> (Vec<NodeId>, usize) {
+    let mut late = 0;
+    let mut drawn: HashSet<NodeId> = HashSet::new();
+    for &n in nodes {
+        let mut c = Some(n);
+        while let Some(m) = c {
+            if st.tiles.contains_key(&m) {
+                break;
+            }
+            c = m.parent();
+        }
+        late += usize::from(c != Some(n));
+        if let Some(m) = c {
+            drawn.insert(m);
+        }
+    }
+    // An ancestor drawn for a late tile covers the selected tiles under it.
+    let mut keep: Vec<NodeId> = drawn
+        .iter()
+        .copied()
+        .filter(|n| {
+            let mut p = n.parent();
+            while let Some(a) = p {
+                if drawn.contains(&a) {
+                    return false;
+                }
+                p = a.parent();
+            }
+            true
+        })
+        .collect();
+    keep.sort_by_key(|n| n.dfs_key());
+    (keep, late)
 }
 
 impl Drop for TinTiles {
@@ -461,13 +493,7 @@ impl Method for TinStoreMethod<'_> {
         let root = shape.root_cells();
         // Each tile's points on its node's carrier; its factor puts them on the lattice of the
         // tile's stride (the streamer's demand).
-        let patches: Vec<Patch> = drawn
-            .iter()
-            .map(|t| {
-                let f = ((root >> t.node.level) >> t.stride_log2).max(1) as f32;
-                Patch { node: t.node, outer: [f; 4], inner: [f; 2] }
-            })
-            .collect();
+        let patches = tile_patches(&drawn, root);
         let points = surface
             .mesh
             .grid
@@ -500,11 +526,28 @@ impl Method for TinStoreMethod<'_> {
             mesh: Some(extra),
             ..Default::default()
         };
-        // A waiting frame selects again once its levels are resident: the same tiles. The
-        // tiles were chosen above, for this camera only: for the eye ahead (Eq. 8) it gives
-        // none, and the streamer predicts with Eq. 7 alone.
+        // A waiting frame selects again once its levels are resident: the same tiles. For the
+        // eye one look-ahead ahead (Eq. 8) the tiles it selects are queued after this frame's
+        // (their builds start before they are drawn), and the lattices of the tiles built so
+        // far that would draw them are the streamer's demand ahead.
+        let (tree, tiles, tau_px) = (&self.tree, &self.tiles, self.config.tau_px);
         let mut select = |_: &dyn terrain_core::lod::TerrainSource, c: &Camera| -> StoreDraw {
-            if c == camera { draw.clone() } else { StoreDraw::default() }
+            if c == camera {
+                return draw.clone();
+            }
+            let ahead = select_tiles(tree, tiles.errors(), c, tau_px);
+            let now: HashSet<NodeId> = sel.tiles.iter().copied().collect();
+            let mut queued = sel.tiles.clone();
+            queued.extend(ahead.tiles.iter().filter(|n| !now.contains(n)));
+            tiles.request(&queued);
+            let built = tiles.peek(&ahead.tiles);
+            let drawn: Vec<&GridTile> = built.iter().map(|t| &**t).collect();
+            let patches = tile_patches(&drawn, root);
+            StoreDraw {
+                selection: Selection { patches, stats: SelectionStats::default() },
+                mesh: Some(ExtraTriangles::default()),
+                ..Default::default()
+            }
         };
         let f = self.scene.frame_for(camera, warm, &self.tree, &mut select);
         let mut frame = paged_frame(f);
