@@ -58,7 +58,7 @@ use super::edges::EdgeRule;
 use super::patch::{Edge, MAX_FACTOR, Selection, clamp_factor};
 use super::run;
 use super::source::TerrainSource;
-use super::surface::patch_world_point;
+use super::surface::{CORNERS_UV, edge_corners, patch_world_point};
 use crate::geometry::Camera;
 use crate::heightmap::Heightmap;
 use crate::metrics::pvps::{span, split_ratio};
@@ -170,8 +170,7 @@ struct PvpsEdges<'a> {
     finest: u8,
     /// `finest_transition_factor` as a power of two.
     scale: u32,
-    /// The last patch's corners in world space (south-west, south-east, north-west,
-    /// north-east): its edges' screen lengths are asked up to eight times (outer and inner
+    /// The last patch's corners in world space (`CORNERS_UV`'s order): its edges' screen lengths are asked up to eight times (outer and inner
     /// factors), each end a height lookup, which over a store's pages dominated `pvps-b`'s
     /// selection.
     corners: Cell<Option<(NodeId, [DVec3; 4])>>,
@@ -190,19 +189,13 @@ impl PvpsEdges<'_> {
         let c = match self.corners.get() {
             Some((n, c)) if n == node => c,
             _ => {
-                let at = |uv| patch_world_point(self.src, node, uv);
-                let c = [at([0.0, 0.0]), at([1.0, 0.0]), at([0.0, 1.0]), at([1.0, 1.0])];
+                let c = CORNERS_UV.map(|uv| patch_world_point(self.src, node, uv));
                 self.corners.set(Some((node, c)));
                 c
             }
         };
-        let (a, b) = match edge {
-            Edge::South => (c[0], c[1]),
-            Edge::East => (c[1], c[3]),
-            Edge::North => (c[2], c[3]),
-            Edge::West => (c[0], c[2]),
-        };
-        run::screen_length(self.camera, a, b)
+        let (a, b) = edge_corners(edge);
+        run::screen_length(self.camera, c[a], c[b])
     }
 }
 

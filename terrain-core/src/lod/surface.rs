@@ -38,16 +38,24 @@ pub fn patch_world_point(src: &dyn TerrainSource, node: NodeId, uv: [f32; 2]) ->
     shape.grid_to_world(g).extend(f64::from(src.height(g)))
 }
 
+/// A patch's corners in its domain: south-west, south-east, north-west, north-east.
+pub(crate) const CORNERS_UV: [[f32; 2]; 4] = [[0.0, 0.0], [1.0, 0.0], [0.0, 1.0], [1.0, 1.0]];
+
+/// The corners ([`CORNERS_UV`] indices) that end `edge`, its south or west end first.
+pub(crate) fn edge_corners(edge: Edge) -> (usize, usize) {
+    match edge {
+        Edge::South => (0, 1),
+        Edge::East => (1, 3),
+        Edge::North => (2, 3),
+        Edge::West => (0, 2),
+    }
+}
+
 /// The world segment of a patch edge (clamped like every domain point), from its south or
 /// west end: two same-level patches sharing an edge get the identical segment.
 pub fn edge_segment(src: &dyn TerrainSource, node: NodeId, edge: Edge) -> (DVec3, DVec3) {
-    let (a, b) = match edge {
-        Edge::South => ([0.0, 0.0], [1.0, 0.0]),
-        Edge::East => ([1.0, 0.0], [1.0, 1.0]),
-        Edge::North => ([0.0, 1.0], [1.0, 1.0]),
-        Edge::West => ([0.0, 0.0], [0.0, 1.0]),
-    };
-    (patch_world_point(src, node, a), patch_world_point(src, node, b))
+    let (a, b) = edge_corners(edge);
+    (patch_world_point(src, node, CORNERS_UV[a]), patch_world_point(src, node, CORNERS_UV[b]))
 }
 
 /// A triangle mesh in world coordinates, vertices welded where they coincide exactly.
