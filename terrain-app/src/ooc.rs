@@ -870,7 +870,9 @@ impl OocScene {
             (false, true) => self.config.budget_bytes,
             (false, false) => self.config.budget_bytes / REAL_TIME_EXACT_SHARE,
         };
-        let bounds = [budget, if self.exact_demand { u64::MAX } else { self.config.budget_bytes }];
+        // The lattices hold the demand to `budget`, the coarsening to the whole budget (none
+        // when exact).
+        let bounds = [budget, budget.max(self.config.budget_bytes)];
         let (mut demand, mut on_lattice) = held_demand(tree, &draw, camera.position, bounds);
         self.streamer.set_demand(Some(demand.clone()));
         // Eq. 8 with the method's own levels: its selection at the eye one look-ahead ahead,

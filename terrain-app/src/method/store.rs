@@ -82,11 +82,7 @@ pub fn store_method<'a>(
         });
     }
     if kind == LodMethod::Tin {
-        let scene = match reference {
-            Some(_) => mirrored(scene, wait),
-            None => scene,
-        };
-        let scene = if wait == OocWait::FirstFrame { scene.with_real_time() } else { scene };
+        let scene = runtime_for(scene, wait, reference.is_some());
         return Ok(Box::new(super::TinStoreMethod::new(scene, &config.tin, wait, reference)?));
     }
     if !draws_from_store(kind) {
@@ -293,11 +289,7 @@ impl<'a> StoreMethod<'a> {
                 Tables::Dss(table)
             }
         };
-        let scene = match reference {
-            Some(_) => mirrored(scene, wait),
-            None => scene,
-        };
-        let scene = if wait == OocWait::FirstFrame { scene.with_real_time() } else { scene };
+        let scene = runtime_for(scene, wait, reference.is_some());
         Ok(Self {
             kind,
             scene,
@@ -334,6 +326,13 @@ fn read_roughness(
         LodMethod::PvpsB => tables.b,
         _ => tables.c,
     })
+}
+
+/// The runtime a store method draws through: [`mirrored`] when `measured` against a DEM in
+/// memory, and [`OocScene::with_real_time`] when its frames after the first do not wait.
+fn runtime_for(scene: OocScene, wait: OocWait, measured: bool) -> OocScene {
+    let scene = if measured { mirrored(scene, wait) } else { scene };
+    if wait == OocWait::FirstFrame { scene.with_real_time() } else { scene }
 }
 
 impl Method for StoreMethod<'_> {
