@@ -39,7 +39,9 @@
 //! blocks of N - M, the level a block of N will need one frame ahead is prefetched: the
 //! block's `target` level is the finer of what it needs now and what it needs from the eye
 //! moved on by the last frame's motion times the look-ahead (the same extrapolation Eq. 8
-//! makes), so a block the camera approaches is refined before it is late.
+//! makes), so a block the camera approaches is refined before it is late. A step longer than
+//! the last view reached is a cut (a teleport, a new shot), not a motion: that frame preloads
+//! as if the eye held still.
 //!
 //! **Cost.** Both levels of a block come from [`needed_level`]'s Eq. 7 walk only where the walk
 //! can decide them: a bound from the block's box and its per-level `StaticE` maxima (no walk)
@@ -376,14 +378,34 @@ impl Streamer {
 
     /// The eye Eq. 8 preloads for at the next [`Streamer::update`] with `camera`: moved by
     /// its step since the last update times the look-ahead in frames (grown by the measured
-    /// request latency); `None` on the first frame or while the eye holds still.
+    /// request latency); `None` on the first frame, while the eye holds still and after a cut
+    /// (a step beyond the last view's reach: see `step_to`).
     pub fn camera_ahead(&self, camera: &Camera) -> Option<Camera> {
-        let step = camera.position - self.last_eye?;
+        let step = self.step_to(camera);
         if step == DVec3::ZERO {
             return None;
         }
         let lookahead = self.config.schedule.effective_lookahead(self.latency_s.unwrap_or(0.0));
         Some(Camera { position: camera.position + step * lookahead, ..*camera })
+    }
+
+    /// The eye's step since the last update, the one motion Eq. 8 extrapolates; zero on the
+    /// first frame and after a cut. A cut is a step longer than the last frame's view reached
+    /// (the farthest vertex of its projected view region from its eye, in plan): a teleport,
+    /// a new shot, a flight's restart. Its new view shares nothing with the old one, and the
+    /// step is not a velocity: extrapolated, it would preload the look-ahead times that jump
+    /// beyond the new view, the frame when every request is for the new view. After a cut the
+    /// frame preloads as if the eye held still, and the next step is measured from the new
+    /// eye (the cut detection of camera-driven streaming: a jump beyond the streaming radius
+    /// resets the motion prediction rather than extrapolating it).
+    fn step_to(&self, camera: &Camera) -> DVec3 {
+        let Some(last) = self.last_eye else { return DVec3::ZERO };
+        let step = camera.position - last;
+        let reach = self.regions.as_ref().map_or(f64::INFINITY, |r| {
+            let eye = last.truncate();
+            r.view.vertices().iter().map(|v| v.distance(eye)).fold(0.0, f64::max)
+        });
+        if step.length() > reach { DVec3::ZERO } else { step }
     }
 
     /// The store.
@@ -538,7 +560,7 @@ impl Streamer {
             ..Default::default()
         };
         self.drain(&mut stats);
-        let step = self.last_eye.map_or(DVec3::ZERO, |p| camera.position - p);
+        let step = self.step_to(camera);
         let velocity = step.truncate() * self.config.schedule.frame_rate_hz;
         self.last_eye = Some(camera.position);
         self.last_camera = Some(*camera);

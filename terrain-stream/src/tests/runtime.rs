@@ -388,6 +388,39 @@ fn a_methods_levels_one_look_ahead_ahead_are_preloaded() {
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
+#[test]
+fn a_cut_is_not_extrapolated_as_a_motion() {
+    let (dir, store) = store("cut");
+    // The look-ahead held at one frame (not grown by the measured latency).
+    let mut config = StreamConfig { threads: 1, tau: 4.0, ..Default::default() };
+    config.schedule.latency_aware = false;
+    let mut s = Streamer::new(store.clone(), config);
+    s.update(&camera(-500.0));
+    let reach = {
+        let r = s.regions().expect("the first frame's regions");
+        let eye = camera(-500.0).position.truncate();
+        r.view.vertices().iter().map(|v| v.distance(eye)).fold(0.0, f64::max)
+    };
+    assert!(reach.is_finite() && reach > 1000.0, "the view reaches {reach} m");
+    // A step within the view's reach is a motion: extrapolated one look-ahead on.
+    let near = camera(-500.0 + 0.9 * reach);
+    let ahead = s.camera_ahead(&near).expect("a motion");
+    assert!(ahead.position.y >= near.position.y + 0.9 * reach, "{:?}", ahead.position);
+    // A step beyond it is a cut: no eye ahead, and the frame's Eq. 8 extension is the view's
+    // (S = 0), where the same step read as a motion would stretch it by the jump.
+    let cut = camera(-500.0 + 1.1 * reach);
+    assert!(s.camera_ahead(&cut).is_none(), "a cut is not extrapolated");
+    s.update(&cut);
+    assert_eq!(s.regions().unwrap().s_m, 0.0);
+    // The next step is measured from the eye after the cut.
+    let on = camera(-500.0 + 1.1 * reach + 20.0);
+    let ahead = s.camera_ahead(&on).expect("a motion after the cut");
+    assert_eq!(ahead.position.y, on.position.y + 20.0);
+    s.update(&on);
+    assert!(s.regions().unwrap().s_m > 0.0);
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
 /// The blocks of M and the level each needs for a camera sequence (a planning run: the
 /// schedule depends on the cameras only, never on what is resident).
 fn plan(store: &Arc<Store>, config: StreamConfig, cameras: &[Camera]) -> Vec<Vec<(BlockId, u8)>> {
