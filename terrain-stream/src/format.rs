@@ -466,6 +466,11 @@ pub struct BlockEntry {
 pub(crate) struct FineMaxima(OnceLock<Box<[f32]>>);
 
 impl FineMaxima {
+    /// Bytes of the pyramid, once built.
+    fn heap_bytes(&self) -> usize {
+        self.0.get().map_or(0, |p| std::mem::size_of_val(&**p))
+    }
+
     /// Forgets the pyramid (the fine maxima changed).
     pub(crate) fn reset(&mut self) {
         self.0 = OnceLock::new();
@@ -529,6 +534,17 @@ pub struct DssBlockErrors {
 pub(crate) const DSS_FACTORS: usize = terrain_core::metrics::dss::FACTORS;
 
 impl BlockEntry {
+    /// Bytes the entry holds in memory: itself, its vectors' capacities and its fine maxima's
+    /// pyramid once built (what a cache of entries counts).
+    pub(crate) fn heap_bytes(&self) -> usize {
+        use std::mem::size_of;
+        size_of::<Self>()
+            + self.levels.capacity() * size_of::<LevelEntry>()
+            + self.nodes.capacity() * size_of::<NodeValues>()
+            + (self.level_errors.capacity() + self.fine_errors.capacity()) * size_of::<f32>()
+            + self.fine_max.heap_bytes()
+    }
+
     /// The values of node `(i, j)` at node level `l`, if stored.
     pub fn node(&self, l: u8, i: u32, j: u32) -> Option<&NodeValues> {
         let n = 1usize << l;
@@ -991,7 +1007,9 @@ pub(crate) fn read_entry(
             "block {id}: levels end at {end}, file length {file_len}"
         )));
     }
-    let level_errors = (0..k).map(|_| r.f32()).collect::<Result<Vec<_>, _>>()?;
+    // Collected at their exact lengths: a `Result` iterator's collect grows by doubling (its
+    // size hint's lower bound is 0), and a tree keeps thousands of entries alive.
+    let level_errors = read_f32s(r, k as usize)?;
     let mut d = DssBlockErrors { avg: [0.0; DSS_FACTORS], max: [0.0; DSS_FACTORS] };
     for v in d.avg.iter_mut().chain(d.max.iter_mut()) {
         *v = r.f32()?;
@@ -1005,7 +1023,7 @@ pub(crate) fn read_entry(
     for _ in 0..node_count(node_levels) {
         nodes.push(NodeValues { min: r.f32()?, max: r.f32()?, static_error: r.f32()? });
     }
-    let fine_errors = (0..fine).map(|_| r.f32()).collect::<Result<Vec<_>, _>>()?;
+    let fine_errors = read_f32s(r, fine)?;
     if !fine_errors.iter().all(|v| v.is_finite() && *v >= 0.0) {
         return Err(IndexError::Corrupt(format!("block {id}: bad fine maxima")));
     }
@@ -1022,6 +1040,15 @@ pub(crate) fn read_entry(
         dss,
         fine_max: FineMaxima::default(),
     })
+}
+
+/// `n` values read into a vector of exactly `n`.
+fn read_f32s(r: &mut Reader<'_>, n: usize) -> Result<Vec<f32>, String> {
+    let mut v = Vec::with_capacity(n);
+    for _ in 0..n {
+        v.push(r.f32()?);
+    }
+    Ok(v)
 }
 
 /// Parses and checks an index whole, any version (a version-4 index page by page).

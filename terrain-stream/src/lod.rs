@@ -75,7 +75,7 @@
 
 use std::cell::{Cell, RefCell};
 use std::collections::HashMap;
-use std::sync::{Arc, Mutex};
+use std::sync::{Arc, Mutex, OnceLock};
 use std::time::Instant;
 
 use glam::{DVec2, DVec3};
@@ -314,20 +314,23 @@ struct BlockNodes<'a> {
     id: BlockId,
     /// Local level of the smallest patch (`is_finest`).
     patch_level: u8,
-    /// This block's part of [`StoreTree`]'s `sub_max` and its values per node, when the nodes
-    /// come from a tree (the streamer's walk computes the same values from the index).
-    sub: Option<(&'a [f32], usize)>,
+    /// This block's part of [`StoreTree`]'s `sub_max`, when the nodes come from a tree (the
+    /// streamer's walk computes the same values from the index).
+    sub: Option<&'a SubMax>,
 }
 
 impl<'a> BlockNodes<'a> {
     /// The largest `StaticE` per level under `n` (`StoreTree::sub_max`), if the tree has it.
     fn sub(&self, n: NodeId) -> Option<&'a [f32]> {
-        let (values, per) = self.sub?;
+        let sub = self.sub?;
         if n.level > self.patch_level || n.level >= self.header.node_levels {
             return None;
         }
-        let o = upper_index(n) * per;
-        values.get(o..o + per)
+        let values = sub.values.get_or_init(|| {
+            block_sub_max(self.header, self.entry, sub.top, sub.nodes, sub.per).into()
+        });
+        let o = upper_index(n) * sub.per;
+        values.get(o..o + sub.per)
     }
 
     /// The largest `StaticE` of `n`'s descendants at level `l > n.level`: stored node values,
@@ -914,21 +917,93 @@ pub(crate) fn block_sub_max_both(
     Some((block_sub_max(h, &e, top, nodes, per), block_sub_max_sweep(h, &e, top, nodes, per)))
 }
 
-/// Blocks whose `sub_max` a [`StoreTree`] keeps at most (then it starts over): computed when a
-/// block is first visited, so a tree's memory and build time do not grow with the store. It
-/// must hold a frame's view: a selection visiting more blocks than this clears it every frame
-/// and visits every block cold again. `dss-2` and `uniform` over the 32769^2 store see 3,500 to
-/// 10,000 blocks a frame; at 4,096 blocks and 16 MiB (about 2,900 of its 5.7 KB entries, until
-/// 2026-12-05) their selections took 284 and 223 ms a frame (`store_frame`, 30 cameras over
-/// `pvps_884`), at 16,384 and 64 MiB 57 and 118 ms (bench/ooc/README.md, "Every method from a
-/// 32769^2 store with every table, and the tree's visited blocks sized for a frame's view").
-const SUB_MAX_BLOCKS: usize = 16384;
-/// Bytes of index entries a [`StoreTree`]'s `sub_max` keeps alive at most (estimated from the
-/// header; fewer blocks than [`SUB_MAX_BLOCKS`] when the entries are large, at least 256).
-const SUB_MAX_BYTES: usize = 64 << 20;
+/// Bytes of visited blocks (index entries and their `sub_max` values) a [`StoreTree`] keeps
+/// beyond the blocks of its current selection ([`VisitedBlocks`]): computed when a block is
+/// first visited, so a tree's memory and build time do not grow with the store. It must hold
+/// a frame's view: `dss-2` and `uniform` over the 32769^2 store see 3,500 to 10,000 blocks a
+/// frame; at 4,096 blocks and 16 MiB, cleared when full (until 2026-12-05), their selections took
+/// 284 and 223 ms a frame (`store_frame`, 30 cameras over `pvps_884`), at 16,384 blocks 57 and
+/// 118 ms (bench/ooc/README.md, "Every method from a 32769^2 store with every table, and the
+/// tree's visited blocks sized for a frame's view"). That count held every block of the
+/// 32769^2 store, about 200 MB with the entries' bytes it did not count; now the bytes are
+/// counted and the least recently visited blocks leave first (bench/ooc/README.md, "The
+/// tree's visited blocks counted in bytes").
+const VISITED_BYTES: usize = 48 << 20;
 
 /// A visited block in [`StoreTree`]'s `sub_max`: its index entry and its values.
-type VisitedBlock = (Arc<BlockEntry>, Option<Arc<[f32]>>);
+type VisitedBlock = (Arc<BlockEntry>, Option<Arc<SubMax>>);
+
+/// A block's part of [`StoreTree`]'s `sub_max` ([`block_sub_max`] with the tree's layout),
+/// computed when first read: only the factor walk of the paper's method (`needed_level_below`,
+/// the cost split) reads it, and the other methods' selections visit every block in view
+/// without (over the 32769^2 store, 11 KB a block, a third of a visited block's bytes).
+#[derive(Debug)]
+struct SubMax {
+    values: OnceLock<Box<[f32]>>,
+    top: u8,
+    nodes: usize,
+    per: usize,
+}
+
+impl SubMax {
+    /// Bytes once computed, counted whether computed yet or not (a bound that holds).
+    fn bytes(&self) -> usize {
+        std::mem::size_of::<Self>() + self.nodes * self.per * std::mem::size_of::<f32>()
+    }
+}
+
+/// The blocks a [`StoreTree`] has visited, by row-major position, each with the selection
+/// that last visited it (each [`NodeTree::with_traversal_source`] and each of the paper's
+/// selections is one), and their bytes.
+/// Beyond [`VISITED_BYTES`] the blocks the current selection has not visited leave, least
+/// recently visited first, down to three quarters of it; the current selection's own are
+/// kept, so a view larger than the bound is held whole while it is drawn (memory follows the
+/// view, not the store) and never visited cold twice in one selection.
+#[derive(Debug, Default)]
+struct VisitedBlocks {
+    blocks: HashMap<usize, (u64, VisitedBlock)>,
+    bytes: usize,
+    /// The current selection's number.
+    now: u64,
+}
+
+impl VisitedBlocks {
+    fn block_bytes(v: &VisitedBlock) -> usize {
+        // The map's slot and the two allocations' headers, roughly, besides the data.
+        64 + v.0.heap_bytes() + v.1.as_ref().map_or(0, |x| x.bytes())
+    }
+
+    fn get(&mut self, p: usize) -> Option<VisitedBlock> {
+        let now = self.now;
+        self.blocks.get_mut(&p).map(|(at, v)| {
+            *at = now;
+            v.clone()
+        })
+    }
+
+    fn insert(&mut self, p: usize, v: VisitedBlock, bound: usize) {
+        self.bytes += Self::block_bytes(&v);
+        if let Some((_, old)) = self.blocks.insert(p, (self.now, v)) {
+            self.bytes -= Self::block_bytes(&old);
+        }
+        if self.bytes > bound {
+            let mut old: Vec<(u64, usize)> = self
+                .blocks
+                .iter()
+                .filter(|(_, (at, _))| *at < self.now)
+                .map(|(&p, (at, _))| (*at, p))
+                .collect();
+            old.sort_unstable();
+            for (_, p) in old {
+                if self.bytes <= bound / 4 * 3 {
+                    break;
+                }
+                let (_, v) = self.blocks.remove(&p).expect("a visited block");
+                self.bytes -= Self::block_bytes(&v);
+            }
+        }
+    }
+}
 
 /// The quadtree of a whole store's grid as a [`NodeSource`]: the root covers the blocks
 /// rounded up to a power of two per side (block `(row, col)` is node `(block_level, col,
@@ -961,14 +1036,15 @@ pub struct StoreTree {
     /// level (`BlockEntry::nodes` order), `sub_per` values: at index `l`, the largest
     /// `StaticE` of the node's descendants at level `l` (its own at its level; unused above
     /// it), stored levels and, with the fine maxima, every level below `k`. The leaves' factor walk (`needed_level_below`) reads one value per level.
-    /// Computed per block when first visited (at most `sub_blocks` kept), shared by the
+    /// Computed per block when first visited (kept within `visited_bytes` beyond the current
+    /// selection's blocks, [`VisitedBlocks`]), shared by the
     /// tree's clones.
     /// Beside each block's values, its index entry: a block visited again (the next frame)
     /// is found here, in one lookup, without asking the store (a version-4 index's page
     /// cache and its lock).
-    sub_max: Arc<Mutex<HashMap<usize, VisitedBlock>>>,
-    /// Blocks `sub_max` keeps at most (then it starts over).
-    sub_blocks: usize,
+    sub_max: Arc<Mutex<VisitedBlocks>>,
+    /// Bytes `sub_max` keeps beyond the current selection's blocks ([`VISITED_BYTES`]).
+    visited_bytes: usize,
     /// Deepest local level of the nodes in `sub_max`.
     sub_top: u8,
     /// Nodes per block in `sub_max`.
@@ -1005,9 +1081,6 @@ impl StoreTree {
             h.georef.spacing_m,
         );
         let (sub_top, sub_nodes, sub_per) = sub_layout(&store, patch_level);
-        // An entry's bytes are mostly its nodes (four `f32` each).
-        let entry_nodes = ((1usize << (2 * h.node_levels as usize)) - 1) / 3;
-        let sub_blocks = (SUB_MAX_BYTES / (16 * entry_nodes + 256)).clamp(256, SUB_MAX_BLOCKS);
         Self {
             store,
             shape,
@@ -1019,7 +1092,7 @@ impl StoreTree {
             upper_levels,
             lower: Arc::default(),
             sub_max: Arc::default(),
-            sub_blocks,
+            visited_bytes: VISITED_BYTES,
             sub_top,
             sub_nodes,
             sub_per,
@@ -1109,8 +1182,26 @@ impl StoreTree {
         }
         let last = memo.last.borrow();
         let (_, (entry, values)) = last.as_ref()?;
-        let sub = values.as_deref().map(|v| (v, self.sub_per));
+        let sub = values.as_deref();
         Some(f(BlockNodes { header, entry, id: b, patch_level: self.patch_level, sub }))
+    }
+
+    /// A selection starts: the blocks it visits are its own in `sub_max` ([`VisitedBlocks`]).
+    fn next_visit(&self) {
+        self.sub_max.lock().expect("sub_max").now += 1;
+    }
+
+    /// The blocks `sub_max` holds and their bytes ([`VisitedBlocks`]).
+    #[cfg(test)]
+    pub(crate) fn visited(&self) -> (usize, usize) {
+        let m = self.sub_max.lock().expect("sub_max");
+        (m.blocks.len(), m.bytes)
+    }
+
+    /// This tree keeping `bytes` of visited blocks beyond the current selection's.
+    #[cfg(test)]
+    pub(crate) fn with_visited_bytes(self, bytes: usize) -> Self {
+        Self { visited_bytes: bytes, ..self }
     }
 
     /// Block `b`'s index entry and part of `sub_max`: from the tree's shared cache, else read,
@@ -1118,19 +1209,21 @@ impl StoreTree {
     fn visited_block(&self, b: BlockId) -> Option<VisitedBlock> {
         let header = self.store.header();
         let p = header.block_position(b)?;
-        if let Some(v) = self.sub_max.lock().expect("sub_max").get(&p) {
-            return Some(v.clone());
+        if let Some(v) = self.sub_max.lock().expect("sub_max").get(p) {
+            return Some(v);
         }
         let entry = self.store.entry(b)?;
-        let values = (self.sub_nodes > 0).then(|| -> Arc<[f32]> {
-            block_sub_max(header, &entry, self.sub_top, self.sub_nodes, self.sub_per).into()
+        let values = (self.sub_nodes > 0).then(|| {
+            Arc::new(SubMax {
+                values: OnceLock::new(),
+                top: self.sub_top,
+                nodes: self.sub_nodes,
+                per: self.sub_per,
+            })
         });
-        let mut m = self.sub_max.lock().expect("sub_max");
-        if m.len() >= self.sub_blocks {
-            m.clear();
-        }
-        m.insert(p, (entry.clone(), values.clone()));
-        Some((entry, values))
+        let v = (entry, values);
+        self.sub_max.lock().expect("sub_max").insert(p, v.clone(), self.visited_bytes);
+        Some(v)
     }
 
     /// The box of every block's valid vertices (world metres: their plan rectangles and
@@ -1395,6 +1488,7 @@ impl NodeTree for StoreTree {
     /// block find its entry and `sub_max` once, not through `sub_max`'s lock, hash and
     /// reference counts per node (what [`NodeSource::node_info`] alone does).
     fn with_traversal_source(&self, f: &mut dyn FnMut(&dyn NodeSource)) {
+        self.next_visit();
         f(&MemoNodes { tree: self, memo: BlockMemo::default() })
     }
 }
@@ -1506,6 +1600,7 @@ fn traverse_store(
             _ => Cull::Accept,
         }
     };
+    tree.next_visit();
     let nodes = FrameNodes { tree, last: Cell::new(None), memo: BlockMemo::default() };
     // Eq. 7 (the paper's step 4: split while `rho > tau`) on each node's patch error, stopped
     // at its block's resident level. A node above the blocks stays one patch spanning its

@@ -1089,6 +1089,49 @@ fn a_demand_over_the_budget_is_coarsened_densest_on_screen_first() {
 }
 
 #[test]
+fn the_tree_keeps_the_current_views_blocks_and_others_within_their_bytes() {
+    // 1025 x 1025 in blocks of 65^2: 256 blocks. A tree keeping no bytes beyond the current
+    // selection's blocks selects what a tree keeping every visited block selects, camera after
+    // camera, with its `sub_max` values computed when read; it then holds only the blocks the
+    // last selection visited, where the other holds every block any selection visited.
+    let hm = terrain(1025, 1025);
+    let (dir, store) = bake_store(&hm, "visited", 6, 4);
+    let all: HashMap<BlockId, u8> = store.block_ids().map(|b| (b, 6)).collect();
+    let free = eq7_tree(&store, 4);
+    let tight = eq7_tree(&store, 4).with_visited_bytes(0);
+    let mut seen = std::collections::BTreeSet::new();
+    let cams = cameras();
+    // A short view near the grid's far corner, as `cameras()[1]` is near the near one.
+    let corner =
+        Camera::from_yaw_pitch(dvec3(9500.0, 9000.0, 500.0), 0.0, -25.0).with_clip(1.0, 900.0);
+    // The short view, the long oblique one over it, the short one at the far corner: each
+    // visits blocks the ones before did not, which push out the blocks it does not visit (a
+    // tree reading no new block drops none).
+    for cam in [&cams[1], &cams[0], &corner] {
+        let a = select_patches(&free, cam, 1.0, |b| all.get(&b).copied());
+        let b = select_patches(&tight, cam, 1.0, |b| all.get(&b).copied());
+        assert_eq!(a.patches, b.patches);
+        let mut blocks = std::collections::BTreeSet::new();
+        for p in &b.patches {
+            if let Some((id, _)) = tight.block_of(p.node) {
+                blocks.insert(id);
+            }
+        }
+        seen.extend(blocks.iter().copied());
+        let (held, bytes) = tight.visited();
+        // At least the selection's drawn blocks, at most what the free tree holds.
+        assert!(held >= blocks.len() && bytes > 0, "{held} held, {} drawn", blocks.len());
+        assert!(held <= free.visited().0);
+    }
+    let (held, bytes) = free.visited();
+    assert!(held >= seen.len() && seen.len() > 16, "{held} held, {} seen", seen.len());
+    // The tight tree holds the last (short) view's blocks only.
+    let (tight_held, tight_bytes) = tight.visited();
+    assert!(tight_held * 2 < held && tight_bytes * 2 < bytes, "{tight_held} {tight_bytes} {bytes}");
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
 fn block_sub_max_bottom_up_equals_the_sweep_of_descendants() {
     // Node levels below, at and (clamped) above the patch level; with the fine maxima (index
     // version 3+) and without (version 2); every block, every value, bit for bit.
