@@ -961,7 +961,9 @@ impl SubMax {
 /// view, not the store) and never visited cold twice in one selection.
 #[derive(Debug, Default)]
 struct VisitedBlocks {
-    blocks: HashMap<usize, (u64, VisitedBlock)>,
+    /// Each block: the selection that last visited it, its bytes as counted when it came in
+    /// (its entry's fine maxima may be built later), the block.
+    blocks: HashMap<usize, (u64, usize, VisitedBlock)>,
     bytes: usize,
     /// The current selection's number.
     now: u64,
@@ -975,31 +977,32 @@ impl VisitedBlocks {
 
     fn get(&mut self, p: usize) -> Option<VisitedBlock> {
         let now = self.now;
-        self.blocks.get_mut(&p).map(|(at, v)| {
+        self.blocks.get_mut(&p).map(|(at, _, v)| {
             *at = now;
             v.clone()
         })
     }
 
     fn insert(&mut self, p: usize, v: VisitedBlock, bound: usize) {
-        self.bytes += Self::block_bytes(&v);
-        if let Some((_, old)) = self.blocks.insert(p, (self.now, v)) {
-            self.bytes -= Self::block_bytes(&old);
+        let bytes = Self::block_bytes(&v);
+        self.bytes += bytes;
+        if let Some((_, old, _)) = self.blocks.insert(p, (self.now, bytes, v)) {
+            self.bytes -= old;
         }
         if self.bytes > bound {
             let mut old: Vec<(u64, usize)> = self
                 .blocks
                 .iter()
-                .filter(|(_, (at, _))| *at < self.now)
-                .map(|(&p, (at, _))| (*at, p))
+                .filter(|(_, (at, ..))| *at < self.now)
+                .map(|(&p, (at, ..))| (*at, p))
                 .collect();
             old.sort_unstable();
             for (_, p) in old {
                 if self.bytes <= bound / 4 * 3 {
                     break;
                 }
-                let (_, v) = self.blocks.remove(&p).expect("a visited block");
-                self.bytes -= Self::block_bytes(&v);
+                let (_, bytes, _) = self.blocks.remove(&p).expect("a visited block");
+                self.bytes -= bytes;
             }
         }
     }
