@@ -58,7 +58,8 @@ pub(crate) struct StoreArgs {
     /// "One quality knob"].
     #[arg(long)]
     pub tau: Option<f64>,
-    /// A store: the stream cache's budget, MiB (2^20 bytes) [default: 256].
+    /// A store: the memory budget of the store's data, MiB (2^20 bytes): the stream cache's
+    /// blocks and the index entries the view needs [default: 1024].
     #[arg(long, alias = "cache-mb")]
     pub cache_mib: Option<u64>,
     /// A store: full-resolution pages the renderer holds at most (slots of (2^k + 1)^2 f32

@@ -51,7 +51,9 @@ use crate::methods::{StripFrame, geomorph_patch, patch_factors};
 pub struct OocConfig {
     /// Screen-error threshold `tau` of Eq. 7, pixels. Default 2 (the paper's figures).
     pub tau: f64,
-    /// The stream cache's budget, decoded bytes. Default 1 GiB ([`LOOKAHEAD_FRAMES`] says why).
+    /// The memory budget of the store's data, bytes: the stream cache's decoded blocks and the
+    /// index entries the trees keep for the view (the blocks get what the entries leave, at
+    /// least half of it). Default 1 GiB ([`LOOKAHEAD_FRAMES`] says why).
     pub budget_bytes: u64,
     /// Worker threads; 0 (the default) = one per core.
     pub threads: usize,
@@ -822,6 +824,7 @@ impl OocScene {
     pub fn frame(&mut self, camera: &Camera, warm: bool) -> OocFrame {
         let t0 = Instant::now();
         self.streamer.set_demand(None);
+        self.streamer.set_budget_bytes(self.blocks_budget(None));
         let s = if warm {
             self.streamer.wait_until_resident(camera, self.config.warm_timeout).stats
         } else {
@@ -861,18 +864,20 @@ impl OocScene {
         let t0 = Instant::now();
         let mut draw = select(&StoreSource::new(tree, &self.streamer), camera);
         let mut select_time = draw.selection.stats.cpu_time;
+        let blocks = self.blocks_budget(Some(tree));
+        self.streamer.set_budget_bytes(blocks);
         // The bytes the exact demand may hold (`demand_within`): a warm frame's the cache's
         // budget, a real-time frame's (and a real-time run's first, waiting one's) a quarter
         // of it (the rest is the next frame's need and Eq. 8's preloading, which a frame
         // asking most of the budget at full resolution leaves late), a measurement's no limit.
         let budget = match (self.exact_demand, warm && !self.real_time) {
             (true, _) => u64::MAX,
-            (false, true) => self.config.budget_bytes,
-            (false, false) => self.config.budget_bytes / REAL_TIME_EXACT_SHARE,
+            (false, true) => blocks,
+            (false, false) => blocks / REAL_TIME_EXACT_SHARE,
         };
         // The lattices hold the demand to `budget`, the coarsening to the whole budget (none
         // when exact).
-        let bounds = [budget, budget.max(self.config.budget_bytes)];
+        let bounds = [budget, budget.max(blocks)];
         let (mut demand, mut on_lattice) = held_demand(tree, &draw, camera.position, bounds);
         self.streamer.set_demand(Some(demand.clone()));
         // Eq. 8 with the method's own levels: its selection at the eye one look-ahead ahead,
@@ -921,11 +926,7 @@ impl OocScene {
                  within that level's error); the frames are counted in the streaming summary",
                 terrain_stream::demand_bytes(&store_demand(tree, &draw, u64::MAX).0) as f64 / MIB,
                 budget as f64 / MIB,
-                if budget == self.config.budget_bytes {
-                    ""
-                } else {
-                    "a real-time frame's share of "
-                }
+                if budget == blocks { "" } else { "a real-time frame's share of " }
             );
         }
         let (drawn, dropped) = self.assign_pages();
@@ -973,6 +974,21 @@ impl OocScene {
                 self.finish_frame(selection, Some((patches, extra)), &drawn, dropped, stream)
             }
         }
+    }
+
+    /// The stream cache's share of the one memory budget ([`OocConfig::budget_bytes`]): what
+    /// the index entries the trees keep for the view leave (this scene's tree and the method's
+    /// `tree`, unless one is the other's clone; [`StoreTree::visited_bytes`]), at least half of
+    /// it. A selection over a 32769^2 store keeps 139 MB of entries for its view (`dss-2` on
+    /// `fast_pass`), which a budget of blocks alone left above it (bench/ooc/README.md, "One
+    /// memory budget for the blocks and the view's index entries").
+    fn blocks_budget(&self, tree: Option<&StoreTree>) -> u64 {
+        let mut entries = self.tree.visited_bytes();
+        if let Some(t) = tree.filter(|t| !t.shares_visited_with(&self.tree)) {
+            entries += t.visited_bytes();
+        }
+        let all = self.config.budget_bytes;
+        all.saturating_sub(entries).max(all / 2)
     }
 
     /// The blocks of the last update's visual region M drawn this frame, nearest first, each at
@@ -1269,6 +1285,37 @@ fn drop_triangles_of(extra: &mut ExtraTriangles, off: &[bool]) {
 mod tests {
     use super::*;
     use terrain_stream::{BakeConfig, BakeProgress, HeightEncoding, bake};
+
+    /// One memory budget: the stream cache gets what the index entries the view keeps leave of
+    /// it, and at least half of it when they would take more.
+    #[test]
+    fn the_blocks_get_what_the_views_index_entries_leave_of_the_budget() {
+        let dir = std::env::temp_dir().join(format!("terrain-app-budget-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        let hm = Heightmap::from_fn(513, 513, Georef::local(10.0), |i, j| {
+            ((i * 7 + j * 13) % 97) as f32 + 0.3 * i as f32
+        })
+        .unwrap();
+        let cfg = BakeConfig { k: 5, ..Default::default() };
+        bake(&hm, &dir, &cfg, &mut |_: &BakeProgress| std::ops::ControlFlow::Continue(())).unwrap();
+        let store = Arc::new(Store::open(&dir).unwrap());
+        let camera = Camera::from_yaw_pitch(glam::dvec3(-300.0, -300.0, 900.0), 45.0, -25.0)
+            .with_viewport(320.0, 180.0);
+        let budget = |all: u64| {
+            let config = OocConfig { threads: 1, budget_bytes: all, ..OocConfig::default() };
+            let mut scene = OocScene::new(store.clone(), config);
+            scene.frame(&camera, false);
+            let entries = scene.tree.visited_bytes();
+            scene.frame(&camera, false);
+            (entries, scene.streamer().budget_bytes())
+        };
+        let (entries, blocks) = budget(64 << 20);
+        assert!(entries > 10_000, "the view's entries: {entries} bytes");
+        assert_eq!(blocks, (64 << 20) - entries);
+        let (entries, blocks) = budget(entries);
+        assert_eq!(blocks, entries / 2, "at least half for the blocks");
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
 
     /// `open_store` returns the store it opened last only while that folder holds the same
     /// bake: a store baked again into the folder (another grid, another index) is opened anew.

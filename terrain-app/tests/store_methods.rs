@@ -457,7 +457,8 @@ fn geomorph_from_a_store_morphs_on_the_gpu_without_cracks() {
         };
         let lib = MeshLibrary::new(16);
         let (mut coarse, mut control, mut checked) = (0usize, 0usize, 0usize);
-        let ooc = OocConfig { threads: 1, budget_bytes: 64 << 10, ..OocConfig::default() };
+        // 64 KiB for the blocks (the budget's other half holds the view's index entries).
+        let ooc = OocConfig { threads: 1, budget_bytes: 128 << 10, ..OocConfig::default() };
         let runtime = OocScene::new(store.clone(), ooc).with_mirror();
         let mut m = method::store_method(
             LodMethod::Geomorph,

@@ -40,6 +40,11 @@ impl Cache {
         self.budget
     }
 
+    /// A new budget in bytes: what is above it is unloaded at the next eviction.
+    pub(crate) fn set_budget(&mut self, budget: u64) {
+        self.budget = budget;
+    }
+
     /// Bytes resident.
     pub(crate) fn resident_bytes(&self) -> u64 {
         self.resident

@@ -75,6 +75,7 @@
 
 use std::cell::{Cell, RefCell};
 use std::collections::HashMap;
+use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex, OnceLock};
 use std::time::Instant;
 
@@ -326,9 +327,7 @@ impl<'a> BlockNodes<'a> {
         if n.level > self.patch_level || n.level >= self.header.node_levels {
             return None;
         }
-        let values = sub.values.get_or_init(|| {
-            block_sub_max(self.header, self.entry, sub.top, sub.nodes, sub.per).into()
-        });
+        let values = sub.values(self.header, self.entry);
         let o = upper_index(n) * sub.per;
         values.get(o..o + sub.per)
     }
@@ -943,12 +942,27 @@ struct SubMax {
     top: u8,
     nodes: usize,
     per: usize,
+    /// The tree's bytes of computed values ([`VisitedBlocks::values`]): these values' bytes
+    /// from when they are computed until they are dropped.
+    counter: Arc<AtomicUsize>,
 }
 
 impl SubMax {
-    /// Bytes once computed, counted whether computed yet or not (a bound that holds).
-    fn bytes(&self) -> usize {
-        std::mem::size_of::<Self>() + self.nodes * self.per * std::mem::size_of::<f32>()
+    /// The values, computed (and counted) at the first call.
+    fn values(&self, header: &Header, entry: &BlockEntry) -> &[f32] {
+        self.values.get_or_init(|| {
+            let v: Box<[f32]> = block_sub_max(header, entry, self.top, self.nodes, self.per).into();
+            self.counter.fetch_add(std::mem::size_of_val(&*v), Ordering::Relaxed);
+            v
+        })
+    }
+}
+
+impl Drop for SubMax {
+    fn drop(&mut self) {
+        if let Some(v) = self.values.get() {
+            self.counter.fetch_sub(std::mem::size_of_val(&**v), Ordering::Relaxed);
+        }
     }
 }
 
@@ -964,7 +978,10 @@ struct VisitedBlocks {
     /// Each block: the selection that last visited it, its bytes as counted when it came in
     /// (its entry's fine maxima may be built later), the block.
     blocks: HashMap<usize, (u64, usize, VisitedBlock)>,
+    /// The blocks' bytes as counted when they came in, their `sub_max` values aside.
     bytes: usize,
+    /// Bytes of the `sub_max` values computed so far and not dropped ([`SubMax`]).
+    values: Arc<AtomicUsize>,
     /// The current selection's number.
     now: u64,
 }
@@ -972,7 +989,12 @@ struct VisitedBlocks {
 impl VisitedBlocks {
     fn block_bytes(v: &VisitedBlock) -> usize {
         // The map's slot and the two allocations' headers, roughly, besides the data.
-        64 + v.0.heap_bytes() + v.1.as_ref().map_or(0, |x| x.bytes())
+        64 + v.0.heap_bytes() + v.1.as_ref().map_or(0, |_| std::mem::size_of::<SubMax>())
+    }
+
+    /// Every byte held: the blocks' and their computed values'.
+    fn all_bytes(&self) -> usize {
+        self.bytes + self.values.load(Ordering::Relaxed)
     }
 
     fn get(&mut self, p: usize) -> Option<VisitedBlock> {
@@ -989,7 +1011,7 @@ impl VisitedBlocks {
         if let Some((_, old, _)) = self.blocks.insert(p, (self.now, bytes, v)) {
             self.bytes -= old;
         }
-        if self.bytes > bound {
+        if self.all_bytes() > bound {
             let mut old: Vec<(u64, usize)> = self
                 .blocks
                 .iter()
@@ -998,7 +1020,7 @@ impl VisitedBlocks {
                 .collect();
             old.sort_unstable();
             for (_, p) in old {
-                if self.bytes <= bound / 4 * 3 {
+                if self.all_bytes() <= bound / 4 * 3 {
                     break;
                 }
                 let (_, bytes, _) = self.blocks.remove(&p).expect("a visited block");
@@ -1194,11 +1216,24 @@ impl StoreTree {
         self.sub_max.lock().expect("sub_max").now += 1;
     }
 
+    /// Bytes of the visited blocks the tree holds (their index entries and `sub_max` values,
+    /// shared by its clones): at most 48 MiB beyond its last selection's blocks. One memory
+    /// budget for a store's data counts these beside the stream cache's blocks
+    /// ([`crate::Streamer::set_budget_bytes`]).
+    pub fn visited_bytes(&self) -> u64 {
+        self.sub_max.lock().expect("sub_max").all_bytes() as u64
+    }
+
+    /// Whether `other` shares this tree's visited blocks (it is a clone of it).
+    pub fn shares_visited_with(&self, other: &StoreTree) -> bool {
+        Arc::ptr_eq(&self.sub_max, &other.sub_max)
+    }
+
     /// The blocks `sub_max` holds and their bytes ([`VisitedBlocks`]).
     #[cfg(test)]
     pub(crate) fn visited(&self) -> (usize, usize) {
         let m = self.sub_max.lock().expect("sub_max");
-        (m.blocks.len(), m.bytes)
+        (m.blocks.len(), m.all_bytes())
     }
 
     /// This tree keeping `bytes` of visited blocks beyond the current selection's.
@@ -1216,16 +1251,18 @@ impl StoreTree {
             return Some(v);
         }
         let entry = self.store.entry(b)?;
+        let mut m = self.sub_max.lock().expect("sub_max");
         let values = (self.sub_nodes > 0).then(|| {
             Arc::new(SubMax {
                 values: OnceLock::new(),
                 top: self.sub_top,
                 nodes: self.sub_nodes,
                 per: self.sub_per,
+                counter: m.values.clone(),
             })
         });
         let v = (entry, values);
-        self.sub_max.lock().expect("sub_max").insert(p, v.clone(), self.visited_bytes);
+        m.insert(p, v.clone(), self.visited_bytes);
         Some(v)
     }
 

@@ -428,6 +428,15 @@ impl Streamer {
         self.cache.budget()
     }
 
+    /// Sets the cache's budget ([`StreamConfig::budget_bytes`] at first), bytes, from the next
+    /// [`Streamer::update`] on: an embedder whose other caches of the store share one memory
+    /// budget with the blocks (a tree's visited index entries, [`crate::StoreTree::visited_bytes`])
+    /// gives the blocks what they leave. Blocks above it are unloaded by that update, within
+    /// what its frame needs.
+    pub fn set_budget_bytes(&mut self, bytes: u64) {
+        self.cache.set_budget(bytes);
+    }
+
     /// The resident levels of a block, if any.
     pub fn block(&self, id: BlockId) -> Option<&BlockLevels> {
         self.cache.get(id).map(|b| &b.levels).filter(|l| l.count() > 0)
