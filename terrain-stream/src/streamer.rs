@@ -829,7 +829,11 @@ impl Streamer {
             };
             tiers[tier].push(s);
         }
-        let mut pending: u64 = 0;
+        // What is requested and not received yet counts against the budget too (earlier
+        // frames' requests, then this frame's): arrivals are applied before the next eviction,
+        // so requests beyond it are bytes above the budget (`dss-2` over the 32769^2 store:
+        // the blocks' peak 1.01 GB against their 0.94 GB).
+        let mut pending: u64 = self.pool.queued_bytes();
         for (tier, blocks) in tiers.into_iter().enumerate() {
             // The pre-loading region fills the queue to half the cap at most (see the module
             // docs): the workers take requests in order, so the rest is kept for M.
