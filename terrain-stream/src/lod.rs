@@ -935,7 +935,7 @@ type VisitedBlock = (Arc<BlockEntry>, Option<Arc<SubMax>>);
 /// A block's part of [`StoreTree`]'s `sub_max` ([`block_sub_max`] with the tree's layout),
 /// computed when first read: only the factor walk of the paper's method (`needed_level_below`,
 /// the cost split) reads it, and the other methods' selections visit every block in view
-/// without (over the 32769^2 store, 11 KB a block, a third of a visited block's bytes).
+/// without (over the 32769^2 store, 11 KB a block, more than its index entry's 8.5 KB).
 #[derive(Debug)]
 struct SubMax {
     values: OnceLock<Box<[f32]>>,
@@ -1061,9 +1061,9 @@ pub struct StoreTree {
     /// level (`BlockEntry::nodes` order), `sub_per` values: at index `l`, the largest
     /// `StaticE` of the node's descendants at level `l` (its own at its level; unused above
     /// it), stored levels and, with the fine maxima, every level below `k`. The leaves' factor walk (`needed_level_below`) reads one value per level.
-    /// Computed per block when first visited (kept within `visited_bytes` beyond the current
-    /// selection's blocks, [`VisitedBlocks`]), shared by the
-    /// tree's clones.
+    /// Kept per block from its first visit (within `visited_bytes` beyond the current
+    /// selection's blocks, [`VisitedBlocks`]), the values computed when first read
+    /// ([`SubMax`]), shared by the tree's clones.
     /// Beside each block's values, its index entry: a block visited again (the next frame)
     /// is found here, in one lookup, without asking the store (a version-4 index's page
     /// cache and its lock).
