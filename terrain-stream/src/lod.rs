@@ -984,6 +984,9 @@ struct VisitedBlocks {
     values: Arc<AtomicUsize>,
     /// The current selection's number.
     now: u64,
+    /// The part of `bytes` the current selection has visited: while it is all of them there
+    /// is nothing to evict, and a view above the bound does not scan the map at every block.
+    current: usize,
 }
 
 impl VisitedBlocks {
@@ -997,9 +1000,18 @@ impl VisitedBlocks {
         self.bytes + self.values.load(Ordering::Relaxed)
     }
 
+    /// A new selection starts.
+    fn next(&mut self) {
+        self.now += 1;
+        self.current = 0;
+    }
+
     fn get(&mut self, p: usize) -> Option<VisitedBlock> {
-        let now = self.now;
-        self.blocks.get_mut(&p).map(|(at, _, v)| {
+        let (now, current) = (self.now, &mut self.current);
+        self.blocks.get_mut(&p).map(|(at, bytes, v)| {
+            if *at < now {
+                *current += *bytes;
+            }
             *at = now;
             v.clone()
         })
@@ -1008,10 +1020,14 @@ impl VisitedBlocks {
     fn insert(&mut self, p: usize, v: VisitedBlock, bound: usize) {
         let bytes = Self::block_bytes(&v);
         self.bytes += bytes;
-        if let Some((_, old, _)) = self.blocks.insert(p, (self.now, bytes, v)) {
+        self.current += bytes;
+        if let Some((at, old, _)) = self.blocks.insert(p, (self.now, bytes, v)) {
             self.bytes -= old;
+            if at == self.now {
+                self.current -= old;
+            }
         }
-        if self.all_bytes() > bound {
+        if self.all_bytes() > bound && self.bytes > self.current {
             let mut old: Vec<(u64, usize)> = self
                 .blocks
                 .iter()
@@ -1213,7 +1229,7 @@ impl StoreTree {
 
     /// A selection starts: the blocks it visits are its own in `sub_max` ([`VisitedBlocks`]).
     fn next_visit(&self) {
-        self.sub_max.lock().expect("sub_max").now += 1;
+        self.sub_max.lock().expect("sub_max").next();
     }
 
     /// Bytes of the visited blocks the tree holds (their index entries and `sub_max` values,
