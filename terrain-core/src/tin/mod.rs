@@ -30,6 +30,7 @@
 //! **Voids.** Void samples are not measured (the DEM readers fill them for the surface, and the
 //! builder and the check skip them); the tile's surface over a void is that fill's.
 
+pub mod decimation;
 pub mod grid;
 pub mod quantized_mesh;
 pub mod tile;
