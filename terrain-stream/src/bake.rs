@@ -29,6 +29,7 @@ use terrain_core::metrics::dss::object_errors;
 use terrain_core::metrics::static_error::StaticErrorPyramid;
 
 use crate::codec::encode_level;
+use crate::decimation::{DecimationOut, block_errors};
 use crate::entries::EntryFile;
 use crate::error::BakeError;
 use crate::format::{
@@ -318,6 +319,8 @@ struct BakedBlock {
     max_err: f64,
     max_void_err: f64,
     lossless: bool,
+    /// Its decimation errors (`decimation.bin`), stride `2^1` first.
+    decimation: Vec<f32>,
 }
 
 /// Samples above which [`bake_file`] reads a GeoTIFF or raw file by bands of rows: 2^28 (1 GiB
@@ -473,6 +476,9 @@ pub(crate) struct BakedRows {
     /// written into as they are computed, and the checksum of the rows' source heights, each
     /// row once (a shared top row belongs to the rows above).
     pub geomip: Option<(GeomipOut, HeightsChecksum)>,
+    /// The blocks' decimation errors, written as they were baked (`None`: a merge of parts
+    /// without them, and then no table).
+    pub decimation: Option<DecimationOut>,
 }
 
 /// Bakes block rows `rows` (a range of `0..plan.blocks_y`) of `source` into `dir/blocks`, their
@@ -498,6 +504,7 @@ pub(crate) fn bake_rows(
     let mut prog =
         BakeProgress { blocks_done: 0, blocks_total: total, rows_read: 0, bytes_written: 0 };
     let mut geomip = patch.map(|_| (GeomipOut::new(dir), HeightsChecksum::new()));
+    let mut decimation = DecimationOut::create(dir, k)?;
     for by in rows {
         let j0 = by * cells;
         let rows = (h - j0).min(side as u64) as usize;
@@ -553,6 +560,7 @@ pub(crate) fn bake_rows(
             lossless &= b.lossless;
             prog.bytes_written += b.entry.file_len;
             entries.push(&b.entry)?;
+            decimation.push(&b.decimation)?;
         }
         if let Some(bound) = quant.bound
             && max_err > bound
@@ -568,7 +576,14 @@ pub(crate) fn bake_rows(
     }
     let header =
         Header { max_error_m: max_err, max_void_error_m: max_void_err, ..plan.header(source) };
-    Ok(BakedRows { header, entries, lossless, bound: quant.bound, geomip })
+    Ok(BakedRows {
+        header,
+        entries,
+        lossless,
+        bound: quant.bound,
+        geomip,
+        decimation: Some(decimation),
+    })
 }
 
 /// Geomorph's table of one band of source rows (`rows` rows of `width` samples and their void
@@ -684,7 +699,7 @@ pub(crate) fn finish(
     baked: BakedRows,
     start: Instant,
 ) -> Result<BakeReport, BakeError> {
-    let BakedRows { mut header, entries, lossless, bound, geomip } = baked;
+    let BakedRows { mut header, entries, lossless, bound, geomip, decimation } = baked;
     if entries.count() != header.block_count() {
         return Err(BakeError::Encoding(format!(
             "{} block entries for {} blocks",
@@ -707,13 +722,18 @@ pub(crate) fn finish(
         None => None,
     };
     let index_bytes = entries.finish_index(&header)?;
+    // The blocks' decimation errors, tied to the index by its bake id.
+    let decimation_bytes = match decimation {
+        Some(table) => table.finish(id, 0)?,
+        None => 0,
+    };
     // The coarsest levels of every block again in one file, after the index it is checked
     // against (`overview.rs`): a reader of the whole grid's coarse levels opens one file.
     let overview_bytes = crate::overview::write(dir)?;
     let source_samples = header.width * header.height;
     Ok(BakeReport {
         header,
-        store_bytes: bytes_written + index_bytes + overview_bytes,
+        store_bytes: bytes_written + index_bytes + overview_bytes + decimation_bytes,
         index_bytes,
         source_samples,
         elapsed: start.elapsed(),
@@ -823,6 +843,9 @@ fn bake_block(
         }
     }
     let dss = config.dss_errors.then(|| dss_errors(&z, &mask, side, valid_w, valid_h));
+    // The decimation errors of the stored heights, padding and void flags aside.
+    let y0 = id.row as usize * cells;
+    let decimation = block_errors(&z, k, (x0, y0), valid_w, valid_h);
     // Node values from the stored heights (what the runtime draws).
     let all_void = mask.count() == side * side;
     let hm = Heightmap::new(
@@ -952,6 +975,7 @@ fn bake_block(
         max_err,
         max_void_err,
         lossless,
+        decimation,
     })
 }
 

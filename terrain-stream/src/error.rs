@@ -118,6 +118,15 @@ pub enum StoreError {
         /// What is wrong, and what to do.
         message: String,
     },
+    /// The store's table of decimation errors (`decimation.bin`) is damaged, from another
+    /// bake, or of another grid ([`crate::Store::decimation_errors`]).
+    #[error("{}: {message}", path.display())]
+    Decimation {
+        /// The table's file (a remote store's: its copy in the local mirror).
+        path: PathBuf,
+        /// What is wrong, and what to do.
+        message: String,
+    },
     /// A block's file is missing.
     #[error("{}: block {block} level {level}: missing file (the block file is not there)", path.display())]
     MissingBlock {

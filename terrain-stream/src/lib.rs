@@ -87,6 +87,7 @@
 mod bake;
 mod cache;
 mod codec;
+mod decimation;
 mod entries;
 mod error;
 mod format;
@@ -109,6 +110,7 @@ pub use bake::{
     BakeConfig, BakeProgress, BakeReport, GEOMIP_FILE, HeightEncoding, STREAM_ABOVE_SAMPLES, bake,
     bake_file, check_output,
 };
+pub use decimation::{DECIMATION_FILE, DecimationErrors};
 pub use error::{BakeError, StoreError};
 pub use format::{
     BlockEntry, BlockId, Codec, DssBlockErrors, Header, INDEX_FILE, LevelEntry, MAGIC, NodeValues,

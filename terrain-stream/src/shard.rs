@@ -33,6 +33,7 @@ use crate::bake::{
     BakeConfig, BakeProgress, BakeReport, BakedRows, GEOMIP_FILE, GeomipOut, Plan, bake_rows,
     index_file, publish,
 };
+use crate::decimation::DecimationOut;
 use crate::entries::EntryFile;
 use crate::error::BakeError;
 use crate::format::{
@@ -193,6 +194,10 @@ pub fn bake_shard(
             }
             _ => None,
         };
+        // The decimation errors of the shard's blocks, its first block's position recorded.
+        if let Some(table) = baked.decimation.take() {
+            table.finish(0, rows.start * plan.blocks_x)?;
+        }
         let BakedRows { header, entries, lossless, bound, .. } = baked;
         let (blocks, bytes) = (entries.count(), entries.block_bytes());
         let prefix =
@@ -571,6 +576,7 @@ pub fn merge(
             lossless: true,
             bound: first.bound,
             geomip: geomip_of(&infos, tmp)?,
+            decimation: decimation_of(&infos, tmp)?,
         };
         for part in &infos {
             // The part's entries are read again, a batch at a time, and its checksum checked
@@ -641,6 +647,21 @@ fn geomip_of(
         out.push(&table)?;
     }
     Ok(Some((out, heights)))
+}
+
+/// The blocks' decimation errors of the whole grid from the parts (sorted by shard), each
+/// part's table of its rows checked and appended in turn; `None` (and no table) unless every
+/// part has one (parts baked before the table existed have none).
+fn decimation_of(infos: &[PartInfo], dir: &Path) -> Result<Option<DecimationOut>, BakeError> {
+    let mut out = DecimationOut::create(dir, infos[0].header.k)?;
+    for part in infos {
+        let first = part.rows.start * u64::from(part.header.blocks_x);
+        if !out.push_part(&part.path, first, part.blocks as u64)? {
+            out.abandon()?;
+            return Ok(None);
+        }
+    }
+    Ok(Some(out))
 }
 
 /// Checks that `infos` are every shard of one bake, once, and sorts them by shard.

@@ -4,10 +4,11 @@
 
 use std::fs::File;
 use std::path::{Path, PathBuf};
-use std::sync::{Arc, Mutex};
+use std::sync::{Arc, Mutex, OnceLock};
 use std::time::{Duration, Instant};
 
 use crate::codec::decode_level;
+use crate::decimation::{DECIMATION_FILE, DecimationErrors};
 use crate::error::StoreError;
 use crate::format::{
     BLOCK_HEADER_LEN, BLOCK_MAGIC, BlockEntry, BlockId, Header, INDEX_FILE, INDEX_VERSION, MAGIC,
@@ -41,6 +42,10 @@ pub struct Store {
     /// opened apart on the same location and cache), so each byte is fetched once a session
     /// however many readers open the table, one after another or at once.
     parts: SideParts,
+    /// The blocks' decimation errors (`decimation.bin`), read on the first
+    /// [`Store::decimation_errors`] that finds the file good or absent (`None` inside: absent);
+    /// shared by clones, not by an exaggerated store (whose values are scaled).
+    decimation: Arc<OnceLock<Option<Arc<DecimationErrors>>>>,
 }
 
 /// A store's block entries: every one in memory (index versions 2 and 3) or paged (4).
@@ -105,6 +110,7 @@ impl Store {
             remote: None,
             overview,
             parts: SideParts::default(),
+            decimation: Arc::default(),
         })
     }
 
@@ -147,6 +153,7 @@ impl Store {
             remote: Some(remote),
             overview,
             parts: SideParts::default(),
+            decimation: Arc::default(),
         })
     }
 
@@ -172,6 +179,26 @@ impl Store {
         };
         *slot = Some(found.clone());
         Ok(found)
+    }
+
+    /// The blocks' decimation errors, the bake's table of them ([`crate::DECIMATION_FILE`]):
+    /// per block, its decimation error as one region of `2^k` cells at the strides
+    /// `2^1..=2^k` (with the default `k` = 8, the `tin` method's regions of 256 cells), times
+    /// the store's vertical exaggeration ([`Store::exaggerated`]). Read whole on the first call
+    /// (a remote store's fetched into its mirror, one GET) and kept by the store and its
+    /// clones. `None` for a store baked without one (before the table existed, or merged from
+    /// parts that lack it); a damaged table, another bake's or another grid's is
+    /// [`StoreError::Decimation`] naming the file (and read again at the next call).
+    pub fn decimation_errors(&self) -> Result<Option<Arc<DecimationErrors>>, StoreError> {
+        if let Some(known) = self.decimation.get() {
+            return Ok(known.clone());
+        }
+        let table = match self.side_file(DECIMATION_FILE)? {
+            Some(path) => crate::decimation::read(&path, &self.header)?.map(Arc::new),
+            None => None,
+        };
+        // Another thread may have read it meanwhile: the same table.
+        Ok(self.decimation.get_or_init(|| table).clone())
     }
 
     /// The store's side table `name` (a file beside its index, e.g. [`crate::GEOMIP_FILE`])
@@ -370,6 +397,8 @@ impl Store {
             return Err(StoreError::Exaggeration { path: self.dir.clone(), scale });
         }
         let mut s = self.clone();
+        // Its own decimation errors, read and scaled when first asked for.
+        s.decimation = Arc::default();
         let h = &mut s.header;
         h.vertical_scale *= scale;
         h.max_error_m *= scale;

@@ -214,6 +214,16 @@ fn a_store_over_http_reads_as_the_local_one_and_a_second_open_reads_the_disk_cac
     let overview_gets =
         |log: &RequestLog| log.lock().unwrap().iter().filter(|(p, _)| p == "overview.bin").count();
     assert_eq!(overview_gets(&server.log), 1);
+    // The decimation errors: fetched whole into the mirror on first need (one GET), the
+    // local store's values.
+    let gets = |log: &RequestLog, name: &str| {
+        log.lock().unwrap().iter().filter(|(p, _)| p == name).count()
+    };
+    assert_eq!(gets(&server.log, crate::DECIMATION_FILE), 0, "not fetched at open");
+    let table = remote.decimation_errors().unwrap().expect("a table");
+    assert_eq!(Some(&*table), local.decimation_errors().unwrap().as_deref());
+    remote.decimation_errors().unwrap();
+    assert_eq!(gets(&server.log, crate::DECIMATION_FILE), 1, "fetched once");
     for &id in &ids {
         for level in 0..=4 {
             assert_eq!(
