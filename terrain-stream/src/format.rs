@@ -24,6 +24,14 @@
 //! - `blocks/r{row}_c{col}.tsb`, one file per block: [`BLOCK_MAGIC`], [`VERSION`], the bake id
 //!   (which ties the file to its index), row and column, then the levels' payloads in level
 //!   order (level 0 first), each located by the index's `(offset, length, crc32)`.
+//! - `overview.bin` (optional, `crate::overview`): every block's levels 0-4 in one file.
+//! - `decimation.bin` (optional, [`crate::DECIMATION_FILE`], `crate::decimation`): per block
+//!   in row-major order, its decimation error as one region at the strides `2^1..=2^k` (`k`
+//!   f32 values, stride 2 first; the `tin` method's region errors when `2^k` = 256), computed
+//!   by the bake from the stored heights; magic `TSDECIMA`, version, `k`, the bake id (tying it
+//!   to the index), first block and block count, the values, a CRC-32 of it all. Read by
+//!   [`crate::Store::decimation_errors`]; a store baked before it existed has none.
+//! - `geomip.bin` (optional, [`crate::GEOMIP_FILE`]): geomorph's per-patch table.
 //!
 //! # Vertex order in a block (Eq. 1-2)
 //!

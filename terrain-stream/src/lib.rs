@@ -13,7 +13,8 @@
 //!   folder of its block rows) and [`merge`] the parts into the store a single bake writes,
 //!   byte for byte; a merge refuses missing, duplicated or foreign parts by name.
 //! - **Open** a store ([`Store::open`], [`is_store`]): its [`Header`], per-block
-//!   [`BlockEntry`]s, positioned reads of one level ([`Store::read_block`]); typed
+//!   [`BlockEntry`]s, positioned reads of one level ([`Store::read_block`]), the blocks'
+//!   decimation errors the bake measured ([`Store::decimation_errors`]); typed
 //!   [`StoreError`]s naming the file.
 //! - **Stream** ([`Streamer`]): per frame a camera goes in ([`Streamer::update`], real time:
 //!   never waits for I/O after the first frame; late data counted in its [`FrameStats`]), the
