@@ -23,6 +23,10 @@
 //! streamed as each band of blocks finishes; a shard writes its rows' table into its part and
 //! the merge joins them. Optional, like `overview.bin`: a store baked before it existed has
 //! none ([`crate::Store::decimation_errors`] says `None`).
+//!
+//! Cost: `k` passes over each block's samples, on the bake's block threads. `terrain bake
+//! --synthetic 4097 --no-pvs` (2 cores): the blocks stage 0.7-0.8 s wall, 1.4 CPU s before,
+//! 0.9-1.0 s wall, 1.7-1.9 CPU s with the table; about 1% of that command's 21 s wall, 31 CPU s.
 
 use std::fs::File;
 use std::io::{BufWriter, Write};
