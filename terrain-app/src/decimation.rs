@@ -25,6 +25,8 @@ use std::sync::OnceLock;
 
 use rayon::prelude::*;
 
+use terrain_core::tin::decimation::region_errors;
+
 use crate::samples::{Samples, Window};
 
 /// Cells per side of the regions the decimation error is measured in, for every source (so a
@@ -139,7 +141,9 @@ impl Decimation {
         Ok((i0, j0, samples.window(i0, j0, i1 - i0 + 1, j1 - j0 + 1, 0)?))
     }
 
-    /// The errors per stride of the region from `(i0, j0)` whose samples are `fine`.
+    /// The errors per stride of the region from `(i0, j0)` whose samples are `fine`
+    /// ([`terrain_core::tin::decimation::region_errors`], the one implementation, which the
+    /// bake of a store's table calls too).
     fn measure_region(
         &self,
         samples: &dyn Samples,
@@ -147,52 +151,36 @@ impl Decimation {
         j0: usize,
         fine: &Window,
     ) -> anyhow::Result<Vec<f32>> {
-        let nw = fine.width;
-        let (i1, j1) = (i0 + nw - 1, j0 + fine.data.len() / nw - 1);
-        let finite = |z: f32| if z.is_finite() { f64::from(z) } else { 0.0 };
-        (1..=self.max_s)
-            .map(|s| -> anyhow::Result<f32> {
-                let t = 1usize << s;
-                // The strided samples around the region: from the one at or before its first
-                // sample to the one at or after its last.
-                let (a0, b0) = ((i0 / t) * t, (j0 / t) * t);
-                let (na, nb) =
-                    ((i1.div_ceil(t) * t - a0) / t + 1, (j1.div_ceil(t) * t - b0) / t + 1);
-                let (na, nb) = (na.max(2), nb.max(2));
-                let lattice = samples.window(a0, b0, na, nb, s)?;
-                let lz = |a: usize, b: usize| finite(lattice.data[b * na + a]);
-                // The fractions `k / t` of a cell, each computed once (the same f64 values as
-                // dividing per sample).
-                let frac: Vec<f64> = (0..t).map(|k| k as f64 / t as f64).collect();
-                let mut worst = 0f64;
-                for j in j0..=j1 {
-                    let (b, fy) = ((j - b0) >> s, frac[(j - b0) & (t - 1)]);
-                    let b1 = (b + 1).min(nb - 1);
-                    let row = &fine.data[(j - j0) * nw..][..nw];
-                    // Cell by cell along the row: its four lattice heights read once.
-                    let mut i = i0;
-                    while i <= i1 {
-                        let a = (i - a0) >> s;
-                        let a1 = (a + 1).min(na - 1);
-                        let end = (a0 + (a + 1) * t - 1).min(i1);
-                        let (sw, se, nw_, ne) = (lz(a, b), lz(a1, b), lz(a, b1), lz(a1, b1));
-                        for i in i..=end {
-                            if fine.voids.as_ref().is_some_and(|v| v.get(i - i0, j - j0)) {
-                                continue;
-                            }
-                            let fx = frac[(i - a0) & (t - 1)];
-                            let south = sw + fx * (se - sw);
-                            let north = nw_ + fx * (ne - nw_);
-                            let z = south + fy * (north - south);
-                            let d = (finite(row[i - i0]) - z).abs();
-                            worst = worst.max(d);
-                        }
-                        i = end + 1;
-                    }
-                }
-                Ok(worst as f32)
-            })
-            .collect()
+        region_errors(
+            &fine.data,
+            fine.width,
+            (i0, j0),
+            fine.voids.as_ref(),
+            self.max_s,
+            |s, a0, b0, na, nb| samples.window(a0, b0, na, nb, s).map(|w| w.data),
+        )
+    }
+
+    /// Regions across and up.
+    pub fn regions(&self) -> (usize, usize) {
+        (self.regions_x, self.regions_y)
+    }
+
+    /// The strides measured: `2^1..=2^max_s`.
+    pub fn max_s(&self) -> u32 {
+        self.max_s
+    }
+
+    /// Takes region `(x, y)`'s errors from elsewhere (a store's table, which the bake measured
+    /// by the same function from the same heights): its first `max_s` values, per stride
+    /// `2^1` up. False (nothing taken) when `errors` has fewer values or the region is
+    /// measured already.
+    pub fn set_region(&self, x: usize, y: usize, errors: &[f32]) -> bool {
+        let n = self.max_s as usize;
+        if x >= self.regions_x || y >= self.regions_y || errors.len() < n {
+            return false;
+        }
+        self.errors[y * self.regions_x + x].set(errors[..n].to_vec()).is_ok()
     }
 }
 
@@ -243,10 +231,16 @@ pub struct Budgeted<M> {
 /// is the decimation error under it at stride `2^s`; `build(s, budget)` meshes it from every
 /// `2^s`-th sample within `budget` (at `s = 0`, within `bound`, verified against every sample
 /// by the builder, whose measured error `exact` reads); `check(mesh)` measures a decimated
-/// mesh against every sample under it (`None`: a sample left uncovered, a failure).
+/// mesh against every sample under it (`None`: a sample left uncovered, a failure), or bounds
+/// its error from above. At stride `2^min_s` (when `min_s > 0`: the finest stride the caller
+/// allows, whose decimation error leaves the floor by the choice of `bound`) a tile that fails
+/// its check is rebuilt with its budget cut further, below the floor if need be (to at most
+/// `2 max_retries + 2` tries), before it goes finer.
+#[allow(clippy::too_many_arguments)]
 pub fn build_within<M>(
     bound: f64,
     s: u32,
+    min_s: u32,
     policy: &BudgetPolicy,
     error: impl Fn(u32) -> anyhow::Result<f64>,
     mut build: impl FnMut(u32, f64) -> anyhow::Result<M>,
@@ -292,8 +286,10 @@ pub fn build_within<M>(
         tries += 1;
         // Cut the budget by the excess (and a hundredth of the bound more), or go finer.
         let cut = measured.map(|e| budget - (e - bound) - 0.01 * bound);
+        let last_try = 2 * policy.max_retries + 2;
         match cut {
             Some(b) if tries <= policy.max_retries && b >= floor => budget = b,
+            Some(b) if s <= min_s && tries <= last_try && b > 0.0 => budget = b,
             _ => {
                 s = coarsest(s - 1)?;
                 tries = 0;

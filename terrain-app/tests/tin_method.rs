@@ -355,9 +355,9 @@ fn a_frame_before_its_tiles_arrive_draws_coarser_ones_without_waiting() {
     let config = scene.config.tin;
     let tree = terrain_stream::StoreTree::new(store.clone(), config.pyramid.finest_cells);
     let shape = *terrain_core::quadtree::NodeTree::shape(&tree);
-    let tiles = TinTiles::new((*store).clone(), shape, &config);
+    let tiles = TinTiles::new((*store).clone(), shape, &config).unwrap();
     let camera = store_cameras(&scene.hm)[1];
-    let sel = terrain_core::tin::grid::select_tiles(&tree, tiles.errors(), &camera, 1.0);
+    let sel = terrain_core::tin::grid::select_tiles(&tree, |n| tiles.tile_bound(n), &camera, 1.0);
     assert!(sel.tiles.len() > 20 && sel.tiles.iter().all(|n| n.level > 1));
     // Nothing built: nothing to draw, every tile late.
     let r = tiles.resolve(&sel.tiles);
@@ -413,10 +413,10 @@ fn store_tiles_meet_their_bounds_against_every_sample() {
     let config = MethodConfig::default().tin;
     let tree = terrain_stream::StoreTree::new(store.clone(), config.pyramid.finest_cells);
     let shape = *terrain_core::quadtree::NodeTree::shape(&tree);
-    let tiles = TinTiles::new((*store).clone(), shape, &config);
+    let tiles = TinTiles::new((*store).clone(), shape, &config).unwrap();
     let full = HeightmapSamples(&hm);
     let max_cells = Some(config.store.max_tile_cells);
-    let mut old_worst = 0f64;
+    let (mut old_worst, mut raised) = (0f64, 0);
     for level in 0..=5u8 {
         let (nx, ny) = shape.level_dims(level);
         let nodes: Vec<NodeId> =
@@ -426,33 +426,50 @@ fn store_tiles_meet_their_bounds_against_every_sample() {
         tiles.wait_for(&nodes, std::time::Duration::from_secs(300)).unwrap();
         let built = tiles.resolve(&nodes);
         assert_eq!(built.tiles.len(), nodes.len());
-        let bound = tiles.errors()[level as usize];
+        let level_bound = tiles.errors()[level as usize];
         let (mut worst, mut old) = (0f64, 0f64);
-        let (mut stride, mut meshed) = (0, 0);
+        let (mut stride, mut meshed, mut finest) = (0, 0, u32::MAX);
         for t in &built.tiles {
+            // Each tile within its own bound (its level's, or raised where the stride cap
+            // leaves too little of it), which is what the selection uses.
+            let bound = tiles.tile_bound(t.node);
+            assert_eq!(t.bound, bound);
+            assert!(bound >= level_bound);
+            raised += usize::from(bound > level_bound);
             meshed = meshed.max(t.stride_log2);
             let r = shape.clipped_rect(t.node).unwrap();
             let rect = [r.x0, r.y0, r.x1, r.y1];
             let e = tile_error_full(&full, t, rect).unwrap();
             assert!(e <= bound, "level {level} tile {:?}: {e} m > bound {bound} m", t.node);
-            worst = worst.max(e);
+            worst = worst.max(e / bound);
             // The old builder: within the bound of the window's strided samples only.
             let win = tile_window(&shape, t.node, max_cells).unwrap();
             stride = stride.max(win.stride_log2);
+            // Never meshed more than FINER_STRIDES (2) strides finer than its own: a coarse
+            // tile reads a bounded window, not every sample under it.
+            assert!(
+                t.stride_log2 + 2 >= win.stride_log2,
+                "{:?}: stride 2^{}",
+                t.node,
+                t.stride_log2
+            );
+            finest = finest.min(t.stride_log2);
             let w = full
                 .window(win.x0 as usize, win.y0 as usize, win.width, win.height, win.stride_log2)
                 .unwrap();
             let o = build_tile_from(t.node, &win, &w.data, None, bound).unwrap();
-            old = old.max(tile_error_full(&full, &o, rect).unwrap());
+            old = old.max(tile_error_full(&full, &o, rect).unwrap() / bound);
         }
         println!(
-            "level {level}: stride {} (meshed at {}), bound {bound:.3} m, largest error \
-             {worst:.3} m (the old builder: {old:.3} m)",
+            "level {level}: stride {} (meshed at {} to {}), level bound {level_bound:.3} m, \
+             largest error {worst:.3} of the bound (the old builder: {old:.3})",
             1 << stride,
+            1 << finest,
             1 << meshed
         );
-        old_worst = old_worst.max(old / bound);
+        old_worst = old_worst.max(old);
     }
+    println!("tiles with a raised bound: {raised}");
     assert!(old_worst > 1.0, "the negative control: the old tiles miss their bound");
 }
 
@@ -468,10 +485,11 @@ fn the_tile_cache_stays_within_its_budget() {
     for budget in [256 << 10, 1 << 30] {
         let mut config = scene.config.tin;
         config.store.tile_cache_bytes = budget;
-        let tiles = TinTiles::new((*store).clone(), shape, &config);
+        let tiles = TinTiles::new((*store).clone(), shape, &config).unwrap();
         for camera in &cameras {
             let camera = camera.with_viewport(640.0, 360.0);
-            let sel = terrain_core::tin::grid::select_tiles(&tree, tiles.errors(), &camera, 1.0);
+            let sel =
+                terrain_core::tin::grid::select_tiles(&tree, |n| tiles.tile_bound(n), &camera, 1.0);
             tiles.wait_for(&sel.tiles, std::time::Duration::from_secs(120)).unwrap();
             let r = tiles.resolve(&sel.tiles);
             assert_eq!(r.late, 0);

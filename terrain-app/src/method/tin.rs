@@ -5,6 +5,7 @@
 //! entropy mesh) and measured on the CPU as built. The pyramid is built once per terrain
 //! ([`build_pyramid`]: every tile on rayon's threads, with a progress line on a terminal).
 
+use std::cell::RefCell;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::Instant;
 
@@ -13,6 +14,7 @@ use terrain_core::Heightmap;
 use terrain_core::geometry::Camera;
 use terrain_core::lod::{Patch, Selection, SelectionStats};
 use terrain_core::quadtree::{NodeId, TreeShape};
+use terrain_core::tin::decimation::lattice_deviation;
 use terrain_core::tin::grid::{
     GridTile, GridTinConfig, GridTinPyramid, TileWindow, TinSelection, build_tile_within,
     tile_error_in, tile_window,
@@ -67,6 +69,8 @@ pub fn build_pyramid(hm: &Heightmap, config: &GridTinConfig) -> anyhow::Result<G
             errors.to_vec(),
             config.max_tile_cells,
         );
+        // With decimated tiles, every region's decimation error now (their strides capped).
+        let tiles = if config.max_tile_cells.is_some() { tiles.measured_now()? } else { tiles };
         nodes
             .par_iter()
             .map(|&n| {
@@ -84,12 +88,31 @@ pub fn build_pyramid(hm: &Heightmap, config: &GridTinConfig) -> anyhow::Result<G
     Ok(pyramid)
 }
 
+/// How many strides finer than its own ([`tile_window`]) a tile of a builder whose decimation
+/// errors are known ([`GridTileBuilder::measured_now`], [`GridTileBuilder::with_table`]) is
+/// meshed at most: its window then spans at most `max_cells x 2^FINER_STRIDES` cells (256 at
+/// the store's 64), whatever its level. Where the decimation error at that stride leaves less
+/// than the budget floor of its level's bound, the tile's bound is raised to
+/// `E / (1 - min_budget_fraction)` ([`GridTileBuilder::tile_bound`]) and the selection refines
+/// it by that bound, instead of meshing it from every sample under it: on rough terrain
+/// (`big32k`: `E` at stride 2 is 43 % of level 3's bound) a coarse tile otherwise reads and
+/// meshes millions of samples, and level 0 of a 32769^2 store all of them.
+pub(crate) const FINER_STRIDES: u32 = 2;
+
+/// Samples under a tile up to which a decimated tile whose exact bound
+/// ([`lattice_deviation`]) misses its bound is measured against every one of them before it
+/// is rebuilt; above it the bound's excess cuts the budget directly.
+const EXACT_CHECK_SAMPLES: u64 = 1 << 22;
+
 /// The one builder of `tin`'s tiles from any sample source (a DEM in memory, a store): a
 /// tile is meshed from its [`tile_window`] (at the stride `max_cells` allows) within the
 /// budget [`build_within`] gives it against the decimation error under it
-/// ([`Decimation`], measured per region on first need), and a decimated tile is checked
-/// against every sample under it ([`tile_error_in`], window by window), so every tile is
-/// within its level's bound of every non-void sample, at any level.
+/// ([`Decimation`], measured per region on first need, all at once, or taken from a store's
+/// table), and a decimated tile is proven within its bound from its window
+/// ([`lattice_deviation`] plus the decimation error) or checked against every sample under it
+/// ([`tile_error_in`], window by window), so every tile is within its bound
+/// ([`GridTileBuilder::tile_bound`]: its level's, or more where [`FINER_STRIDES`] caps its
+/// stride) of every non-void sample, at any level.
 #[derive(Debug)]
 pub struct GridTileBuilder<S> {
     samples: S,
@@ -98,17 +121,106 @@ pub struct GridTileBuilder<S> {
     max_cells: Option<u32>,
     decimation: Decimation,
     policy: BudgetPolicy,
+    /// Per level (empty where its tiles' own stride is at most [`FINER_STRIDES`], or when the
+    /// decimation errors are not known): each node's bound, row-major.
+    bounds: Vec<Vec<f64>>,
 }
 
 impl<S: Samples> GridTileBuilder<S> {
-    /// Tiles of a tree of `shape` over `samples`, level bounds `errors`.
+    /// Tiles of a tree of `shape` over `samples`, level bounds `errors`, each meshed down to
+    /// every sample where its level's bound needs it (the decimation errors measured on first
+    /// need); see [`GridTileBuilder::measured_now`] and [`GridTileBuilder::with_table`].
     pub fn new(samples: S, shape: TreeShape, errors: Vec<f64>, max_cells: Option<u32>) -> Self {
         let (w, h) = samples.size();
-        // The strides the tiles may use: up to the root's.
-        let max_s =
-            tile_window(&shape, NodeId::new(0, 0, 0), max_cells).map_or(0, |w| w.stride_log2);
+        // The strides the tiles may use: up to the root's, and up to a region's side (so a
+        // store's per-block table covers them all).
+        let region_s = DECIMATION_REGION.trailing_zeros();
+        let max_s = tile_window(&shape, NodeId::new(0, 0, 0), max_cells)
+            .map_or(0, |w| w.stride_log2)
+            .min(region_s);
         let decimation = Decimation::new(w, h, DECIMATION_REGION, max_s);
-        Self { samples, shape, errors, max_cells, decimation, policy: BudgetPolicy::default() }
+        let policy = BudgetPolicy::default();
+        Self { samples, shape, errors, max_cells, decimation, policy, bounds: Vec::new() }
+    }
+
+    /// The builder with every region's decimation error measured now, on every core (a DEM in
+    /// memory), and its tiles' strides capped ([`FINER_STRIDES`]).
+    pub fn measured_now(mut self) -> anyhow::Result<Self> {
+        if self.decimation.max_s() > 0 {
+            self.decimation.measure_all(&self.samples, |_, _, _| ())?;
+        }
+        self.bounds = self.node_bounds()?;
+        Ok(self)
+    }
+
+    /// The builder with the decimation errors of region `(x, y)` taken from `table(x, y)` (a
+    /// store's, baked from the same heights by the same function), and its tiles' strides
+    /// capped ([`FINER_STRIDES`]); unchanged (errors measured on first need, no cap) when the
+    /// table lacks a region or has too few strides.
+    pub fn with_table(mut self, table: impl Fn(usize, usize) -> Option<Vec<f32>>) -> Self {
+        let (rx, ry) = self.decimation.regions();
+        let mut complete = true;
+        'all: for y in 0..ry {
+            for x in 0..rx {
+                match table(x, y) {
+                    Some(e) if self.decimation.set_region(x, y, &e) => {}
+                    _ => {
+                        complete = false;
+                        break 'all;
+                    }
+                }
+            }
+        }
+        if complete && let Ok(bounds) = self.node_bounds() {
+            self.bounds = bounds;
+        }
+        self
+    }
+
+    /// Each capped level's node bounds (see [`FINER_STRIDES`]).
+    fn node_bounds(&self) -> anyhow::Result<Vec<Vec<f64>>> {
+        let floor = self.policy.min_budget_fraction;
+        let samples = &self.samples as &dyn Samples;
+        let mut bounds = Vec::new();
+        for level in 0..=self.shape.max_level() {
+            let (nx, ny) = self.shape.level_dims(level);
+            let own = |i: u32, j: u32| {
+                tile_window(&self.shape, NodeId::new(level, i, j), self.max_cells)
+                    .map_or(0, |w| w.stride_log2)
+            };
+            if (0..ny).all(|j| (0..nx).all(|i| own(i, j) <= FINER_STRIDES)) {
+                break;
+            }
+            let bound = self.errors.get(level as usize).copied().unwrap_or(0.0);
+            let mut row = Vec::with_capacity((nx * ny) as usize);
+            for j in 0..ny {
+                for i in 0..nx {
+                    let s = own(i, j).saturating_sub(FINER_STRIDES);
+                    let Some(r) = self.shape.clipped_rect(NodeId::new(level, i, j)) else {
+                        row.push(bound);
+                        continue;
+                    };
+                    let rect = [r.x0, r.y0, r.x1, r.y1].map(|v| v as usize);
+                    let e = self.decimation.error_in(samples, rect, s)?;
+                    let e = e + e / f64::from(1u32 << 22);
+                    row.push(bound.max(e / (1.0 - floor)));
+                }
+            }
+            bounds.push(row);
+        }
+        Ok(bounds)
+    }
+
+    /// The bound tile `node` is built within (and selected by), metres: its level's, or, for
+    /// a builder whose decimation errors are known, more where even [`FINER_STRIDES`] strides
+    /// finer than its own the decimation error leaves less than the budget floor of it.
+    pub fn tile_bound(&self, node: NodeId) -> f64 {
+        let level = self.errors.get(node.level as usize).copied().unwrap_or(0.0);
+        let Some(row) = self.bounds.get(node.level as usize) else {
+            return level;
+        };
+        let (nx, _) = self.shape.level_dims(node.level);
+        row.get((node.j * nx + node.i) as usize).copied().unwrap_or(level)
     }
 
     /// The sample source.
@@ -126,7 +238,7 @@ impl<S: Samples> GridTileBuilder<S> {
         &self.shape
     }
 
-    /// Tile `node` (see the type's docs).
+    /// Tile `node`: see the type's docs.
     pub fn build(&self, node: NodeId) -> anyhow::Result<GridTile> {
         let own = tile_window(&self.shape, node, self.max_cells)
             .ok_or_else(|| anyhow::anyhow!("tile {node:?} lies outside the grid"))?;
@@ -135,9 +247,13 @@ impl<S: Samples> GridTileBuilder<S> {
             .clipped_rect(node)
             .map(|r| [r.x0, r.y0, r.x1, r.y1])
             .ok_or_else(|| anyhow::anyhow!("tile {node:?} lies outside the grid"))?;
-        let bound = self.errors.get(node.level as usize).copied().unwrap_or(0.0);
+        let bound = self.tile_bound(node);
+        let capped = !self.bounds.is_empty();
+        let min_s = if capped { own.stride_log2.saturating_sub(FINER_STRIDES) } else { 0 };
         let samples = &self.samples as &dyn Samples;
         let error = |s: u32| self.decimation.error_in(samples, rect.map(|v| v as usize), s);
+        // The last decimated window meshed, for its tile's exact bound.
+        let last: RefCell<Option<(TileWindow, Vec<f32>)>> = RefCell::new(None);
         let build = |s: u32, budget: f64| -> anyhow::Result<GridTile> {
             let (wc, hc) = (rect[2] - rect[0], rect[3] - rect[1]);
             let win = TileWindow {
@@ -147,14 +263,30 @@ impl<S: Samples> GridTileBuilder<S> {
                 ..own
             };
             let w = samples.window(win.x0 as usize, win.y0 as usize, win.width, win.height, s)?;
-            Ok(build_tile_within(node, &win, &w.data, w.voids.as_ref(), budget, bound)?)
+            let tile = build_tile_within(node, &win, &w.data, w.voids.as_ref(), budget, bound)?;
+            // A window with voids is checked against every sample (the lattice's bound
+            // interpolates the voids' heights, which the mesher does not measure).
+            *last.borrow_mut() = (s > 0 && w.voids.is_none()).then_some((win, w.data));
+            Ok(tile)
         };
         let check = |tile: &GridTile| -> anyhow::Result<Option<f64>> {
-            Ok(Some(tile_error_full(samples, tile, rect)?))
+            let proven = match last.borrow().as_ref() {
+                Some((win, data)) => {
+                    let e = error(win.stride_log2)?;
+                    Some(e + e / f64::from(1u32 << 22) + lattice_deviation(tile, win, data))
+                }
+                None => None,
+            };
+            let n = u64::from(rect[2] - rect[0] + 1) * u64::from(rect[3] - rect[1] + 1);
+            match proven {
+                Some(p) if p <= bound || n > EXACT_CHECK_SAMPLES => Ok(Some(p)),
+                _ => Ok(Some(tile_error_full(samples, tile, rect)?)),
+            }
         };
         let built = build_within(
             bound,
             own.stride_log2,
+            min_s,
             &self.policy,
             error,
             build,

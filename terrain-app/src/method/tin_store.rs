@@ -28,6 +28,7 @@ use std::sync::{Arc, Condvar, Mutex, MutexGuard};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
+use anyhow::Context;
 use terrain_core::geometry::Camera;
 use terrain_core::lod::{Patch, Selection, SelectionStats};
 use terrain_core::quadtree::{NodeId, TreeShape};
@@ -207,15 +208,33 @@ pub struct TinTiles {
 
 impl TinTiles {
     /// The tiles of `store` (its tree `shape`, leaves of the pyramid's finest tiles) under
-    /// `config`'s pyramid and store settings; starts the workers.
-    pub fn new(store: Store, shape: TreeShape, config: &TinConfig) -> Self {
+    /// `config`'s pyramid and store settings; starts the workers. A store's table of
+    /// decimation errors that cannot be read is an error.
+    pub fn new(store: Store, shape: TreeShape, config: &TinConfig) -> anyhow::Result<Self> {
         let s = &config.store;
+        // The bake's table of decimation errors, per block (one region of 256 cells each at
+        // the default block size): read once, it caps the tiles' strides without reading
+        // samples ([`GridTileBuilder::with_table`]). A store without one (baked before it
+        // existed), with blocks of another size, or whose table cannot be read builds as
+        // before, each region measured on first need.
+        let table = store
+            .decimation_errors()
+            .with_context(|| format!("the tin method's table of {}", store.dir().display()))?;
+        let cells = 1usize << store.header().k;
         let builder = GridTileBuilder::new(
             StoreSamples::new(store, s.block_cache_bytes),
             shape,
             level_errors(&shape, config.pyramid.error_scale),
             Some(s.max_tile_cells),
         );
+        let builder = match table {
+            Some(t) if cells == crate::decimation::DECIMATION_REGION => {
+                builder.with_table(|x, y| {
+                    t.errors(terrain_stream::BlockId::new(y as u32, x as u32)).map(<[f32]>::to_vec)
+                })
+            }
+            _ => builder,
+        };
         let shared = Arc::new(Shared {
             builder,
             budget: s.tile_cache_bytes,
@@ -232,12 +251,17 @@ impl TinTiles {
                     .expect("a tile builder thread")
             })
             .collect();
-        Self { shared, workers }
+        Ok(Self { shared, workers })
     }
 
     /// Every level's bound, metres.
     pub fn errors(&self) -> &[f64] {
         self.shared.builder.errors()
+    }
+
+    /// Tile `node`'s bound, metres ([`GridTileBuilder::tile_bound`]): what it is selected by.
+    pub fn tile_bound(&self, node: NodeId) -> f64 {
+        self.shared.builder.tile_bound(node)
     }
 
     /// Queues what `nodes` need that is not built: their missing ancestors (coarse first, the
@@ -444,7 +468,7 @@ impl<'a> TinStoreMethod<'a> {
         if let Some(r) = reference {
             super::store::check_same_heights(&store, &r.hm)?;
         }
-        let tiles = TinTiles::new((*store).clone(), shape, config);
+        let tiles = TinTiles::new((*store).clone(), shape, config)?;
         Ok(Self { scene, tree, tiles, config: *config, wait, frames: 0, reference })
     }
 
@@ -455,7 +479,7 @@ impl<'a> TinStoreMethod<'a> {
 
     /// The tiles `camera` selects over the store's index (no tile built).
     pub fn select(&self, camera: &Camera) -> TinSelection {
-        select_tiles(&self.tree, self.tiles.errors(), camera, self.config.tau_px)
+        select_tiles(&self.tree, |n| self.tiles.tile_bound(n), camera, self.config.tau_px)
     }
 }
 
@@ -535,7 +559,7 @@ impl Method for TinStoreMethod<'_> {
             if c == camera {
                 return draw.clone();
             }
-            let ahead = select_tiles(tree, tiles.errors(), c, tau_px);
+            let ahead = select_tiles(tree, |n| tiles.tile_bound(n), c, tau_px);
             let now: HashSet<NodeId> = sel.tiles.iter().copied().collect();
             let mut queued = sel.tiles.clone();
             queued.extend(ahead.tiles.iter().filter(|n| !now.contains(n)));

@@ -118,6 +118,7 @@ impl Walk<'_> {
         let built = build_within(
             bound,
             build::stride_log2(self.layout, tile, &self.resolution),
+            0,
             &self.resolution.policy,
             error,
             |s, budget| {

@@ -13,13 +13,17 @@
 //! Cesium's estimate of a heightmap tile's geometric error
 //! (`TerrainProvider.getEstimatedLevelZeroGeometricErrorForAHeightmap`: heightmap quality
 //! 0.25, 65 samples per tile), halving per level as the tiles do. [`GridTinPyramid::build_with`]
-//! takes the caller's map over the tiles (the app builds them on every core).
+//! takes the caller's map over the tiles (the app builds them on every core). A caller that
+//! meshes coarse tiles from decimated samples may give a tile a larger bound than its level's
+//! ([`GridTile::bound`]: where the samples at the finest stride it allows a coarse tile stray
+//! from the surface by more than the level's bound leaves room for; see the app's
+//! `GridTileBuilder`); the selection then refines that tile by its own bound.
 //!
 //! **Selection** ([`GridTinPyramid::select`]): Cesium's screen-space error of a tile,
-//! `sse = e_L x H / (d x 2 tan(fov_y / 2)) = e_L lambda / d` with `d` the distance from the
-//! eye to the tile's box (the min/max pyramid's; the mesh lies within it, its vertices being
+//! `sse = e x H / (d x 2 tan(fov_y / 2)) = e lambda / d` with `e` the tile's bound (`e_L` but
+//! where raised as above) and `d` the distance from the eye to the tile's box (the min/max pyramid's; the mesh lies within it, its vertices being
 //! samples), refined while `sse > tau` (pixels), frustum-culled: the one [`traverse`].
-//! `sse <= tau` bounds the projected error of every sample of a drawn tile (`delta <= e_L`
+//! `sse <= tau` bounds the projected error of every sample of a drawn tile (`delta <= e`
 //! at a distance `>= d`), so `tau` bounds the largest pixel error; the p99 lies below it.
 //!
 //! **Cracks: shared borders and stitches.** Each side of a tile is simplified on its own
@@ -439,6 +443,13 @@ impl GridTinPyramid {
         self.errors.get(level as usize).copied().unwrap_or(0.0)
     }
 
+    /// The bound of tile `node`, metres: the one it was built within ([`GridTile::bound`]),
+    /// its level's or more (a tile meshed from decimated samples coarser than its level's
+    /// bound allows); its level's for a node the pyramid lacks.
+    pub fn tile_error(&self, node: NodeId) -> f64 {
+        self.tile(node).map_or_else(|| self.level_error(node.level), |t| t.bound)
+    }
+
     /// Tile `node`, if the pyramid has it.
     pub fn tile(&self, node: NodeId) -> Option<&GridTile> {
         if !self.tree.contains_node(node) {
@@ -454,17 +465,17 @@ impl GridTinPyramid {
     }
 
     /// Cesium's screen-space error of tile `node` (box `info`) seen from `camera`, pixels:
-    /// `e_L lambda / d` (infinite with the eye in the box).
+    /// `e lambda / d` with `e` the tile's bound (infinite with the eye in the box).
     pub fn screen_error(&self, camera: &Camera, node: NodeId, info: &NodeInfo) -> f64 {
         let d = info.aabb.distance(camera.position);
-        let e = self.level_error(node.level) * camera.lambda();
+        let e = self.tile_error(node) * camera.lambda();
         if d > 0.0 { e / d } else { f64::INFINITY }
     }
 
     /// The tiles drawn from `camera` at a screen-space error of at most `tau_px` pixels
     /// (finest tiles excepted), frustum-culled ([`select_tiles`] over the pyramid's tree).
     pub fn select(&self, camera: &Camera, tau_px: f64) -> TinSelection {
-        select_tiles(&self.tree, &self.errors, camera, tau_px)
+        select_tiles(&self.tree, |n| self.tile_error(n), camera, tau_px)
     }
 
     /// The surface of `tiles` (the heights every vertex takes: its sample's, as `hm` holds
@@ -478,11 +489,12 @@ impl GridTinPyramid {
 
 /// The tiles of a tree (`tree`: the in-memory quadtree, or a store's index) drawn from
 /// `camera` at a screen-space error of at most `tau_px` pixels (finest tiles excepted),
-/// frustum-culled: Cesium's `sse = e_L lambda / d > tau` refines (`errors`: per level, from
-/// [`level_errors`]), through the one [`traverse`].
+/// frustum-culled: Cesium's `sse = e lambda / d > tau` refines (`error(node)`: the tile's
+/// bound, its level's from [`level_errors`] or more for a tile meshed from decimated samples
+/// coarser than the level's bound allows), through the one [`traverse`].
 pub fn select_tiles<Q: NodeSource + ?Sized>(
     tree: &Q,
-    errors: &[f64],
+    error: impl Fn(NodeId) -> f64,
     camera: &Camera,
     tau_px: f64,
 ) -> TinSelection {
@@ -490,10 +502,9 @@ pub fn select_tiles<Q: NodeSource + ?Sized>(
     let lambda = camera.lambda();
     let eye = camera.position;
     let tau = if tau_px > 0.0 { tau_px } else { f64::MIN_POSITIVE };
-    let error = |l: u8| errors.get(l as usize).copied().unwrap_or(0.0);
     let mut split = |node: NodeId, info: &NodeInfo| {
         // sse > tau, without dividing: e lambda > tau d (always with the eye in the box).
-        error(node.level) * lambda > tau * info.aabb.distance(eye)
+        error(node) * lambda > tau * info.aabb.distance(eye)
     };
     let mut cull = FrustumCull::new(camera.frustum());
     let mut culled = 0;

@@ -214,6 +214,7 @@ fn the_check_measures_a_known_error_and_a_mesh_over_its_bound_is_rejected() {
         let built = terrain_app::decimation::build_within(
             2.0,
             1,
+            0,
             &policy,
             |_| Ok(0.0),
             |s, _| {
