@@ -227,6 +227,24 @@ pub struct Budgeted<M> {
     pub retries: usize,
 }
 
+/// The stride `2^s'` [`build_within`] first meshes a tile of bound `bound` and own stride `2^s`
+/// at: the coarsest, up to `s`, whose decimation error (`error(s')`) leaves at least
+/// `min_budget_fraction` of the bound (0: every sample). What a tile will be built at, known
+/// before it is built where the decimation errors are (a rebuild after a failed check may go
+/// finer).
+pub fn planned_stride(
+    bound: f64,
+    mut s: u32,
+    policy: &BudgetPolicy,
+    error: impl Fn(u32) -> anyhow::Result<f64>,
+) -> anyhow::Result<u32> {
+    let floor = policy.min_budget_fraction * bound;
+    while s > 0 && bound - error(s)? < floor {
+        s -= 1;
+    }
+    Ok(s)
+}
+
 /// Builds a tile of bound `bound` whose own stride is `2^s` (see the module docs): `error(s)`
 /// is the decimation error under it at stride `2^s`; `build(s, budget)` meshes it from every
 /// `2^s`-th sample within `budget` (at `s = 0`, within `bound`, verified against every sample
@@ -249,12 +267,7 @@ pub fn build_within<M>(
 ) -> anyhow::Result<Budgeted<M>> {
     let floor = policy.min_budget_fraction * bound;
     // The coarsest stride, up to `s`, whose decimation error leaves the floor.
-    let coarsest = |mut s: u32| -> anyhow::Result<u32> {
-        while s > 0 && bound - error(s)? < floor {
-            s -= 1;
-        }
-        Ok(s)
-    };
+    let coarsest = |s: u32| planned_stride(bound, s, policy, &error);
     let full = |build: &mut dyn FnMut(u32, f64) -> anyhow::Result<M>, retries: usize, decimated| {
         let mesh = build(0, bound)?;
         let measured = exact(&mesh);

@@ -740,7 +740,7 @@ pub(crate) fn print_stream_summary(
         "summary: {} frames ({}), frames that waited for I/O after frame 1: {}, \
          drawn at their needed level: {:.1} %, late {:.3} MiB per frame (median), \
          synchronous loads after frame 1: {}, synchronous {:.2} MiB, \
-         prefetched {:.2} MiB, I/O {:.1} ms, peak resident {:.1} MiB (budget {} MiB), max triangles {}{}{}",
+         prefetched {:.2} MiB, I/O {:.1} ms, peak resident {:.1} MiB (budget {} MiB), max triangles {}{}{}{}",
         streams.len(),
         if wait { "warm: every frame waits" } else { "real time" },
         summary.waited_after_first,
@@ -758,6 +758,13 @@ pub(crate) fn print_stream_summary(
             n => format!(
                 ", frames drawing table pages not fetched yet: {n} ({} pages)",
                 streams.iter().map(|s| s.late_table_pages).sum::<u64>()
+            ),
+        },
+        match streams.iter().filter(|s| s.late_tiles > 0).count() {
+            0 => String::new(),
+            n => format!(
+                ", frames drawing tiles not built yet (by a coarser ancestor): {n} ({} tiles)",
+                streams.iter().map(|s| s.late_tiles).sum::<usize>()
             ),
         },
         match streams.iter().filter(|s| s.demand_on_lattice).count() {

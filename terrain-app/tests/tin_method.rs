@@ -423,8 +423,23 @@ fn store_tiles_meet_their_bounds_against_every_sample() {
             (0..ny).flat_map(|j| (0..nx).map(move |i| NodeId::new(level, i, j))).collect();
         let nodes: Vec<NodeId> =
             nodes.into_iter().filter(|&n| shape.clipped_rect(n).is_some()).collect();
+        // Where each tile will be meshed is known before it is built (the store's table of
+        // decimation errors): the streamer loads those lattices while the tiles are built.
+        let planned: std::collections::HashMap<NodeId, Option<u32>> =
+            nodes.iter().map(|&n| (n, tiles.planned_stride(n))).collect();
+        let root = shape.root_cells();
+        assert_eq!(tiles.planned_patches(&nodes, root).len(), nodes.len());
         tiles.wait_for(&nodes, std::time::Duration::from_secs(300)).unwrap();
+        assert!(tiles.planned_patches(&nodes, root).is_empty(), "built tiles are not planned");
         let built = tiles.resolve(&nodes);
+        for t in &built.tiles {
+            assert_eq!(
+                Some(t.stride_log2),
+                planned[&t.node],
+                "{:?} built at another stride",
+                t.node
+            );
+        }
         assert_eq!(built.tiles.len(), nodes.len());
         let level_bound = tiles.errors()[level as usize];
         let (mut worst, mut old) = (0f64, 0f64);

@@ -22,7 +22,9 @@ use terrain_core::tin::grid::{
 
 use super::memory::ms;
 use super::{Draw, DrawSource, DrawnSurface, Frame, Method, MethodStats, entropy_extra};
-use crate::decimation::{BudgetPolicy, DECIMATION_REGION, Decimation, build_within};
+use crate::decimation::{
+    BudgetPolicy, DECIMATION_REGION, Decimation, build_within, planned_stride,
+};
 use crate::methods::{LodMethod, MethodScene};
 use crate::progress::{Progress, on_terminal};
 use crate::samples::{HeightmapSamples, Samples, VoidsAsData};
@@ -221,6 +223,21 @@ impl<S: Samples> GridTileBuilder<S> {
         };
         let (nx, _) = self.shape.level_dims(node.level);
         row.get((node.j * nx + node.i) as usize).copied().unwrap_or(level)
+    }
+
+    /// The stride (log2) tile `node` will first be meshed at ([`planned_stride`]), known
+    /// without reading a sample where the builder's decimation errors are
+    /// ([`GridTileBuilder::measured_now`], [`GridTileBuilder::with_table`]); `None` otherwise.
+    pub fn planned_stride(&self, node: NodeId) -> Option<u32> {
+        if self.bounds.is_empty() {
+            return None;
+        }
+        let own = tile_window(&self.shape, node, self.max_cells)?;
+        let r = self.shape.clipped_rect(node)?;
+        let rect = [r.x0, r.y0, r.x1, r.y1].map(|v| v as usize);
+        let samples = &self.samples as &dyn Samples;
+        let error = |s: u32| self.decimation.error_in(samples, rect, s);
+        planned_stride(self.tile_bound(node), own.stride_log2, &self.policy, error).ok()
     }
 
     /// The sample source.

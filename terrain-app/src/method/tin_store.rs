@@ -358,6 +358,32 @@ impl TinTiles {
         keep.iter().filter_map(|n| Some(st.tiles.get(n)?.tile.clone())).collect()
     }
 
+    /// The stride (log2) tile `node` will be built at, where known before building
+    /// ([`GridTileBuilder::planned_stride`]: a store with its table of decimation errors).
+    pub fn planned_stride(&self, node: NodeId) -> Option<u32> {
+        self.shared.builder.planned_stride(node)
+    }
+
+    /// The carrier patches of those of `nodes` not built yet, at the strides they will be
+    /// built at where that is known before building ([`GridTileBuilder::planned_stride`]):
+    /// what they will ask of the streamer once built, so that it can load it while they are
+    /// built (a tile built between two frames otherwise finds its lattice not resident in the
+    /// frame that first draws it).
+    pub fn planned_patches(&self, nodes: &[NodeId], root: u32) -> Vec<Patch> {
+        let missing: Vec<NodeId> = {
+            let st = self.shared.lock();
+            nodes.iter().copied().filter(|n| !st.tiles.contains_key(n)).collect()
+        };
+        missing
+            .into_iter()
+            .filter_map(|node| {
+                let s = self.planned_stride(node)?;
+                let f = ((root >> node.level) >> s).max(1) as f32;
+                Some(Patch { node, outer: [f; 4], inner: [f; 2] })
+            })
+            .collect()
+    }
+
     /// The cache's figures now.
     pub fn stats(&self) -> TileCacheStats {
         let st = self.shared.lock();
@@ -566,7 +592,10 @@ impl Method for TinStoreMethod<'_> {
             tiles.request(&queued);
             let built = tiles.peek(&ahead.tiles);
             let drawn: Vec<&GridTile> = built.iter().map(|t| &**t).collect();
-            let patches = tile_patches(&drawn, root);
+            let mut patches = tile_patches(&drawn, root);
+            // And the lattices of the tiles being built for this frame and the next, which
+            // the frames after will draw.
+            patches.extend(tiles.planned_patches(&queued, root));
             StoreDraw {
                 selection: Selection { patches, stats: SelectionStats::default() },
                 mesh: Some(ExtraTriangles::default()),
