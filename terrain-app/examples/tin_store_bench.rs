@@ -8,7 +8,8 @@
 //! ```sh
 //! cargo run --release -p terrain-app --example tin_store_bench -- \
 //!     --store /work/stores/sf16k --synthetic 16385 [--flight flights/fast_pass.json] \
-//!     [--frames 8] [--methods tin,geomorph,ooc] [--error-px 1,2] [--real-time]
+//!     [--frames 8] [--methods tin,geomorph,ooc] [--error-px 1,2] [--real-time] \
+//!     [--finer-strides N]   # the tiles' stride cap (GridTinConfig::finer_strides; default 2)
 //! ```
 //! Warm by default (every measured frame waits until its tiles and levels are resident, as
 //! `terrain bench --wait`); `--real-time` plays every frame of the flight at its frame rate
@@ -48,11 +49,17 @@ fn main() -> anyhow::Result<()> {
         .split(',')
         .map(|v| v.parse().with_context(|| format!("--error-px: {v}")))
         .collect::<anyhow::Result<_>>()?;
+    let finer: Option<u32> = args.take("--finer-strides").map(|v| v.parse()).transpose()?;
     let real_time = args.rest().iter().any(|a| a == "--real-time");
 
     let hm = FractalConfig::with_size(n, n, 10.0).to_heightmap().map_err(anyhow::Error::msg)?;
     let spec = FlightSpec::load(&flight).with_context(|| format!("flight {flight}"))?;
+    let mut method = terrain_app::methods::MethodConfig::default();
+    if let Some(f) = finer {
+        method.tin.pyramid.finer_strides = f;
+    }
     let cfg = BenchConfig {
+        method,
         methods,
         max_frames: frames,
         render_size: None,

@@ -228,18 +228,19 @@ pub struct Budgeted<M> {
 }
 
 /// The stride `2^s'` [`build_within`] first meshes a tile of bound `bound` and own stride `2^s`
-/// at: the coarsest, up to `s`, whose decimation error (`error(s')`) leaves at least
-/// `min_budget_fraction` of the bound (0: every sample). What a tile will be built at, known
-/// before it is built where the decimation errors are (a rebuild after a failed check may go
-/// finer).
+/// at: the coarsest, up to `s` and down to `min_s`, whose decimation error (`error(s')`)
+/// leaves at least `min_budget_fraction` of the bound (0: every sample). What a tile will be
+/// built at, known before it is built where the decimation errors are (a rebuild after a
+/// failed check may go finer).
 pub fn planned_stride(
     bound: f64,
     mut s: u32,
+    min_s: u32,
     policy: &BudgetPolicy,
     error: impl Fn(u32) -> anyhow::Result<f64>,
 ) -> anyhow::Result<u32> {
     let floor = policy.min_budget_fraction * bound;
-    while s > 0 && bound - error(s)? < floor {
+    while s > min_s && bound - error(s)? < floor {
         s -= 1;
     }
     Ok(s)
@@ -250,10 +251,15 @@ pub fn planned_stride(
 /// `2^s`-th sample within `budget` (at `s = 0`, within `bound`, verified against every sample
 /// by the builder, whose measured error `exact` reads); `check(mesh)` measures a decimated
 /// mesh against every sample under it (`None`: a sample left uncovered, a failure), or bounds
-/// its error from above. At stride `2^min_s` (when `min_s > 0`: the finest stride the caller
-/// allows, whose decimation error leaves the floor by the choice of `bound`) a tile that fails
-/// its check is rebuilt with its budget cut further, below the floor if need be (to at most
-/// `2 max_retries + 2` tries), before it goes finer.
+/// its error from above. `2^min_s` is the finest stride the caller wants (0: any): a tile
+/// whose coarser strides all leave less than the floor is meshed there within what its
+/// decimation error leaves of the bound (the caller's bound leaves some). One that fails its
+/// check there goes finer as any other; finer than `2^min_s`, its budget is cut further, below
+/// the floor if need be (to at most `2 max_retries + 2` tries), before it goes finer again.
+/// (Cutting the budget at `2^min_s` itself does not pay: where the strided samples are rough,
+/// the bilinear surface between them strays from any mesh of them by more than the bound
+/// allows, so the cuts run the budget down to nothing and the mesh to every strided sample:
+/// 30-85 k triangles for a tile that one stride finer takes 1-4 k, on the mirrored Everest.)
 #[allow(clippy::too_many_arguments)]
 pub fn build_within<M>(
     bound: f64,
@@ -266,14 +272,15 @@ pub fn build_within<M>(
     mut check: impl FnMut(&M) -> anyhow::Result<Option<f64>>,
 ) -> anyhow::Result<Budgeted<M>> {
     let floor = policy.min_budget_fraction * bound;
-    // The coarsest stride, up to `s`, whose decimation error leaves the floor.
-    let coarsest = |s: u32| planned_stride(bound, s, policy, &error);
+    // The coarsest stride, up to `s` and down to `min`, whose decimation error leaves the
+    // floor.
+    let coarsest = |s: u32, min: u32| planned_stride(bound, s, min, policy, &error);
     let full = |build: &mut dyn FnMut(u32, f64) -> anyhow::Result<M>, retries: usize, decimated| {
         let mesh = build(0, bound)?;
         let measured = exact(&mesh);
         Ok(Budgeted { mesh, measured, decimation: 0.0, stride_log2: 0, decimated, retries })
     };
-    let mut s = coarsest(s)?;
+    let mut s = coarsest(s, min_s)?;
     if s == 0 {
         return full(&mut build, 0, false);
     }
@@ -302,9 +309,9 @@ pub fn build_within<M>(
         let last_try = 2 * policy.max_retries + 2;
         match cut {
             Some(b) if tries <= policy.max_retries && b >= floor => budget = b,
-            Some(b) if s <= min_s && tries <= last_try && b > 0.0 => budget = b,
+            Some(b) if s < min_s && tries <= last_try && b > 0.0 => budget = b,
             _ => {
-                s = coarsest(s - 1)?;
+                s = coarsest(s - 1, 0)?;
                 tries = 0;
                 if s == 0 {
                     return full(&mut build, retries, true);

@@ -72,7 +72,10 @@ pub fn build_pyramid(hm: &Heightmap, config: &GridTinConfig) -> anyhow::Result<G
             config.max_tile_cells,
         );
         // With decimated tiles, every region's decimation error now (their strides capped).
-        let tiles = if config.max_tile_cells.is_some() { tiles.measured_now()? } else { tiles };
+        let tiles = match config.max_tile_cells {
+            Some(_) => tiles.measured_now(config.finer_strides)?,
+            None => tiles,
+        };
         nodes
             .par_iter()
             .map(|&n| {
@@ -90,17 +93,6 @@ pub fn build_pyramid(hm: &Heightmap, config: &GridTinConfig) -> anyhow::Result<G
     Ok(pyramid)
 }
 
-/// How many strides finer than its own ([`tile_window`]) a tile of a builder whose decimation
-/// errors are known ([`GridTileBuilder::measured_now`], [`GridTileBuilder::with_table`]) is
-/// meshed at most: its window then spans at most `max_cells x 2^FINER_STRIDES` cells (256 at
-/// the store's 64), whatever its level. Where the decimation error at that stride leaves less
-/// than the budget floor of its level's bound, the tile's bound is raised to
-/// `E / (1 - min_budget_fraction)` ([`GridTileBuilder::tile_bound`]) and the selection refines
-/// it by that bound, instead of meshing it from every sample under it: on rough terrain
-/// (`big32k`: `E` at stride 2 is 43 % of level 3's bound) a coarse tile otherwise reads and
-/// meshes millions of samples, and level 0 of a 32769^2 store all of them.
-pub(crate) const FINER_STRIDES: u32 = 2;
-
 /// Samples under a tile up to which a decimated tile whose exact bound
 /// ([`lattice_deviation`]) misses its bound is measured against every one of them before it
 /// is rebuilt; above it the bound's excess cuts the budget directly.
@@ -113,7 +105,7 @@ const EXACT_CHECK_SAMPLES: u64 = 1 << 22;
 /// table), and a decimated tile is proven within its bound from its window
 /// ([`lattice_deviation`] plus the decimation error) or checked against every sample under it
 /// ([`tile_error_in`], window by window), so every tile is within its bound
-/// ([`GridTileBuilder::tile_bound`]: its level's, or more where [`FINER_STRIDES`] caps its
+/// ([`GridTileBuilder::tile_bound`]: its level's, or more where [`GridTinConfig::finer_strides`] caps its
 /// stride) of every non-void sample, at any level.
 #[derive(Debug)]
 pub struct GridTileBuilder<S> {
@@ -123,9 +115,11 @@ pub struct GridTileBuilder<S> {
     max_cells: Option<u32>,
     decimation: Decimation,
     policy: BudgetPolicy,
-    /// Per level (empty where its tiles' own stride is at most [`FINER_STRIDES`], or when the
+    /// Per level (empty where its tiles' own stride is at most [`GridTinConfig::finer_strides`], or when the
     /// decimation errors are not known): each node's bound, row-major.
     bounds: Vec<Vec<f64>>,
+    /// [`GridTinConfig::finer_strides`].
+    finer: u32,
 }
 
 impl<S: Samples> GridTileBuilder<S> {
@@ -142,12 +136,14 @@ impl<S: Samples> GridTileBuilder<S> {
             .min(region_s);
         let decimation = Decimation::new(w, h, DECIMATION_REGION, max_s);
         let policy = BudgetPolicy::default();
-        Self { samples, shape, errors, max_cells, decimation, policy, bounds: Vec::new() }
+        let finer = 0;
+        Self { samples, shape, errors, max_cells, decimation, policy, bounds: Vec::new(), finer }
     }
 
     /// The builder with every region's decimation error measured now, on every core (a DEM in
-    /// memory), and its tiles' strides capped ([`FINER_STRIDES`]).
-    pub fn measured_now(mut self) -> anyhow::Result<Self> {
+    /// memory), and its tiles' strides capped ([`GridTinConfig::finer_strides`]).
+    pub fn measured_now(mut self, finer: u32) -> anyhow::Result<Self> {
+        self.finer = finer;
         if self.decimation.max_s() > 0 {
             self.decimation.measure_all(&self.samples, |_, _, _| ())?;
         }
@@ -157,9 +153,14 @@ impl<S: Samples> GridTileBuilder<S> {
 
     /// The builder with the decimation errors of region `(x, y)` taken from `table(x, y)` (a
     /// store's, baked from the same heights by the same function), and its tiles' strides
-    /// capped ([`FINER_STRIDES`]); unchanged (errors measured on first need, no cap) when the
+    /// capped ([`GridTinConfig::finer_strides`]); unchanged (errors measured on first need, no cap) when the
     /// table lacks a region or has too few strides.
-    pub fn with_table(mut self, table: impl Fn(usize, usize) -> Option<Vec<f32>>) -> Self {
+    pub fn with_table(
+        mut self,
+        finer: u32,
+        table: impl Fn(usize, usize) -> Option<Vec<f32>>,
+    ) -> Self {
+        self.finer = finer;
         let (rx, ry) = self.decimation.regions();
         let mut complete = true;
         'all: for y in 0..ry {
@@ -179,7 +180,7 @@ impl<S: Samples> GridTileBuilder<S> {
         self
     }
 
-    /// Each capped level's node bounds (see [`FINER_STRIDES`]).
+    /// Each capped level's node bounds (see [`GridTinConfig::finer_strides`]).
     fn node_bounds(&self) -> anyhow::Result<Vec<Vec<f64>>> {
         let floor = self.policy.min_budget_fraction;
         let samples = &self.samples as &dyn Samples;
@@ -190,14 +191,14 @@ impl<S: Samples> GridTileBuilder<S> {
                 tile_window(&self.shape, NodeId::new(level, i, j), self.max_cells)
                     .map_or(0, |w| w.stride_log2)
             };
-            if (0..ny).all(|j| (0..nx).all(|i| own(i, j) <= FINER_STRIDES)) {
+            if (0..ny).all(|j| (0..nx).all(|i| own(i, j) <= self.finer)) {
                 break;
             }
             let bound = self.errors.get(level as usize).copied().unwrap_or(0.0);
             let mut row = Vec::with_capacity((nx * ny) as usize);
             for j in 0..ny {
                 for i in 0..nx {
-                    let s = own(i, j).saturating_sub(FINER_STRIDES);
+                    let s = own(i, j).saturating_sub(self.finer);
                     let Some(r) = self.shape.clipped_rect(NodeId::new(level, i, j)) else {
                         row.push(bound);
                         continue;
@@ -205,7 +206,7 @@ impl<S: Samples> GridTileBuilder<S> {
                     let rect = [r.x0, r.y0, r.x1, r.y1].map(|v| v as usize);
                     let e = self.decimation.error_in(samples, rect, s)?;
                     let e = e + e / f64::from(1u32 << 22);
-                    row.push(bound.max(e / (1.0 - floor)));
+                    row.push(bound.max(e + floor * bound));
                 }
             }
             bounds.push(row);
@@ -214,7 +215,7 @@ impl<S: Samples> GridTileBuilder<S> {
     }
 
     /// The bound tile `node` is built within (and selected by), metres: its level's, or, for
-    /// a builder whose decimation errors are known, more where even [`FINER_STRIDES`] strides
+    /// a builder whose decimation errors are known, more where even [`GridTinConfig::finer_strides`] strides
     /// finer than its own the decimation error leaves less than the budget floor of it.
     pub fn tile_bound(&self, node: NodeId) -> f64 {
         let level = self.errors.get(node.level as usize).copied().unwrap_or(0.0);
@@ -237,7 +238,8 @@ impl<S: Samples> GridTileBuilder<S> {
         let rect = [r.x0, r.y0, r.x1, r.y1].map(|v| v as usize);
         let samples = &self.samples as &dyn Samples;
         let error = |s: u32| self.decimation.error_in(samples, rect, s);
-        planned_stride(self.tile_bound(node), own.stride_log2, &self.policy, error).ok()
+        let min_s = own.stride_log2.saturating_sub(self.finer);
+        planned_stride(self.tile_bound(node), own.stride_log2, min_s, &self.policy, error).ok()
     }
 
     /// The sample source.
@@ -266,7 +268,7 @@ impl<S: Samples> GridTileBuilder<S> {
             .ok_or_else(|| anyhow::anyhow!("tile {node:?} lies outside the grid"))?;
         let bound = self.tile_bound(node);
         let capped = !self.bounds.is_empty();
-        let min_s = if capped { own.stride_log2.saturating_sub(FINER_STRIDES) } else { 0 };
+        let min_s = if capped { own.stride_log2.saturating_sub(self.finer) } else { 0 };
         let samples = &self.samples as &dyn Samples;
         let error = |s: u32| self.decimation.error_in(samples, rect.map(|v| v as usize), s);
         // The last decimated window meshed, for its tile's exact bound.

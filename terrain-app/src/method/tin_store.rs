@@ -229,7 +229,7 @@ impl TinTiles {
         );
         let builder = match table {
             Some(t) if cells == crate::decimation::DECIMATION_REGION => {
-                builder.with_table(|x, y| {
+                builder.with_table(config.pyramid.finer_strides, |x, y| {
                     t.errors(terrain_stream::BlockId::new(y as u32, x as u32)).map(<[f32]>::to_vec)
                 })
             }

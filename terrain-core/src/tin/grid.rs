@@ -80,11 +80,20 @@ pub struct GridTinConfig {
     /// against every sample; a store's tiles read a bounded number of samples
     /// (`Some(64)`), their bound holding against the samples they were built from.
     pub max_tile_cells: Option<u32>,
+    /// With `max_tile_cells`, where the decimation errors are known before the tiles are built
+    /// (a store's table, or measured at once in memory): how many strides finer than its own
+    /// a tile is meshed at most, so its window spans at most `max_tile_cells x
+    /// 2^finer_strides` cells; a tile that its level's bound would need finer gets a larger
+    /// bound, by which the selection refines it (the app's `GridTileBuilder`). Default 2:
+    /// bounded builds and reads for real time, at the cost of more triangles on rough terrain
+    /// (more finer tiles where a coarse one's bound was raised); 31 meshes every tile within
+    /// its level's bound, from every sample if it must.
+    pub finer_strides: u32,
 }
 
 impl Default for GridTinConfig {
     fn default() -> Self {
-        Self { error_scale: 1.0, finest_cells: 8, max_tile_cells: None }
+        Self { error_scale: 1.0, finest_cells: 8, max_tile_cells: None, finer_strides: 2 }
     }
 }
 
