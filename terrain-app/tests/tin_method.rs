@@ -410,7 +410,10 @@ fn a_frame_before_its_tiles_arrive_draws_coarser_ones_without_waiting() {
 fn store_tiles_meet_their_bounds_against_every_sample() {
     let hm = FractalConfig::with_size(1025, 769, 10.0).to_heightmap().unwrap();
     let store = baked("full-res", &hm);
-    let config = MethodConfig::default().tin;
+    // Tiles at most two strides finer than their own (the default, 5, caps no tile of a grid
+    // this small): coarse tiles get raised bounds here.
+    let mut config = MethodConfig::default().tin;
+    config.pyramid.finer_strides = 2;
     let tree = terrain_stream::StoreTree::new(store.clone(), config.pyramid.finest_cells);
     let shape = *terrain_core::quadtree::NodeTree::shape(&tree);
     let tiles = TinTiles::new((*store).clone(), shape, &config).unwrap();
@@ -485,6 +488,7 @@ fn store_tiles_meet_their_bounds_against_every_sample() {
         old_worst = old_worst.max(old);
     }
     println!("tiles with a raised bound: {raised}");
+    assert!(raised > 0, "no tile's bound was raised: the cap is not exercised");
     assert!(old_worst > 1.0, "the negative control: the old tiles miss their bound");
 }
 
