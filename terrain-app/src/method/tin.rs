@@ -14,7 +14,7 @@ use terrain_core::Heightmap;
 use terrain_core::geometry::Camera;
 use terrain_core::lod::{Patch, Selection, SelectionStats};
 use terrain_core::quadtree::{NodeId, TreeShape};
-use terrain_core::tin::decimation::lattice_deviation;
+use terrain_core::tin::decimation::{error_upper_bound, lattice_deviation};
 use terrain_core::tin::grid::{
     GridTile, GridTinConfig, GridTinPyramid, TileWindow, TinSelection, build_tile_within,
     tile_error_in, tile_window,
@@ -95,8 +95,15 @@ pub fn build_pyramid(hm: &Heightmap, config: &GridTinConfig) -> anyhow::Result<G
 
 /// Samples under a tile up to which a decimated tile whose exact bound
 /// ([`lattice_deviation`]) misses its bound is measured against every one of them before it
-/// is rebuilt; above it the bound's excess cuts the budget directly.
+/// is rebuilt; above it the proof's value is the check's (a rebuild with a smaller budget, or
+/// one stride finer).
 const EXACT_CHECK_SAMPLES: u64 = 1 << 22;
+
+/// A decimation error as [`Decimation`] gives it (an `f32`'s value) made an upper bound of
+/// the exact one ([`error_upper_bound`]).
+fn upper(e: f64) -> f64 {
+    error_upper_bound(e as f32)
+}
 
 /// The one builder of `tin`'s tiles from any sample source (a DEM in memory, a store): a
 /// tile is meshed from its [`tile_window`] (at the stride `max_cells` allows) within the
@@ -105,8 +112,8 @@ const EXACT_CHECK_SAMPLES: u64 = 1 << 22;
 /// table), and a decimated tile is proven within its bound from its window
 /// ([`lattice_deviation`] plus the decimation error) or checked against every sample under it
 /// ([`tile_error_in`], window by window), so every tile is within its bound
-/// ([`GridTileBuilder::tile_bound`]: its level's, or more where [`GridTinConfig::finer_strides`] caps its
-/// stride) of every non-void sample, at any level.
+/// ([`GridTileBuilder::tile_bound`]: its level's, or more where
+/// [`GridTinConfig::finer_strides`] caps its stride) of every non-void sample, at any level.
 #[derive(Debug)]
 pub struct GridTileBuilder<S> {
     samples: S,
@@ -115,10 +122,11 @@ pub struct GridTileBuilder<S> {
     max_cells: Option<u32>,
     decimation: Decimation,
     policy: BudgetPolicy,
-    /// Per level (empty where its tiles' own stride is at most [`GridTinConfig::finer_strides`], or when the
-    /// decimation errors are not known): each node's bound, row-major.
+    /// Per level (none from the first level whose tiles' own stride is at most `finer`, and
+    /// none when the decimation errors are not known): each node's bound, row-major.
     bounds: Vec<Vec<f64>>,
-    /// [`GridTinConfig::finer_strides`].
+    /// How many strides finer than its own a tile is meshed at most
+    /// ([`GridTinConfig::finer_strides`]; used only with `bounds`).
     finer: u32,
 }
 
@@ -152,9 +160,10 @@ impl<S: Samples> GridTileBuilder<S> {
     }
 
     /// The builder with the decimation errors of region `(x, y)` taken from `table(x, y)` (a
-    /// store's, baked from the same heights by the same function), and its tiles' strides
-    /// capped ([`GridTinConfig::finer_strides`]); unchanged (errors measured on first need, no cap) when the
-    /// table lacks a region or has too few strides.
+    /// store's, baked from the same heights by the same function), and its tiles meshed at
+    /// most `finer` strides finer than their own ([`GridTinConfig::finer_strides`]); unchanged
+    /// (errors measured on first need, no cap) when the table lacks a region or has too few
+    /// strides.
     pub fn with_table(
         mut self,
         finer: u32,
@@ -204,8 +213,7 @@ impl<S: Samples> GridTileBuilder<S> {
                         continue;
                     };
                     let rect = [r.x0, r.y0, r.x1, r.y1].map(|v| v as usize);
-                    let e = self.decimation.error_in(samples, rect, s)?;
-                    let e = e + e / f64::from(1u32 << 22);
+                    let e = upper(self.decimation.error_in(samples, rect, s)?);
                     row.push(bound.max(e + floor * bound));
                 }
             }
@@ -214,9 +222,10 @@ impl<S: Samples> GridTileBuilder<S> {
         Ok(bounds)
     }
 
-    /// The bound tile `node` is built within (and selected by), metres: its level's, or, for
-    /// a builder whose decimation errors are known, more where even [`GridTinConfig::finer_strides`] strides
-    /// finer than its own the decimation error leaves less than the budget floor of it.
+    /// The bound tile `node` is built within (and selected by), metres: its level's `e_L`, or,
+    /// for a builder whose decimation errors are known, `E + floor x e_L` where even `finer`
+    /// strides finer than its own the decimation error `E` leaves less than the budget floor
+    /// (`floor x e_L`, [`BudgetPolicy::min_budget_fraction`]) of it.
     pub fn tile_bound(&self, node: NodeId) -> f64 {
         let level = self.errors.get(node.level as usize).copied().unwrap_or(0.0);
         let Some(row) = self.bounds.get(node.level as usize) else {
@@ -291,8 +300,8 @@ impl<S: Samples> GridTileBuilder<S> {
         let check = |tile: &GridTile| -> anyhow::Result<Option<f64>> {
             let proven = match last.borrow().as_ref() {
                 Some((win, data)) => {
-                    let e = error(win.stride_log2)?;
-                    Some(e + e / f64::from(1u32 << 22) + lattice_deviation(tile, win, data))
+                    let e = upper(error(win.stride_log2)?);
+                    Some(e + lattice_deviation(tile, win, data))
                 }
                 None => None,
             };

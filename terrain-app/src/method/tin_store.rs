@@ -15,7 +15,12 @@
 //! counted late ([`crate::ooc::StreamRecord::late_tiles`]). A real-time frame also selects
 //! the tiles of the eye one look-ahead ahead (Eq. 8, [`terrain_stream::Streamer::camera_ahead`]):
 //! they are queued after its own, and the lattices of the built tiles that would draw them
-//! ([`TinTiles::peek`]) are the streamer's demand ahead. Selection never waits, except on
+//! ([`TinTiles::peek`]) and of the tiles being built, at the strides the store's table of
+//! decimation errors says they will be built at ([`TinTiles::planned_patches`]), are the
+//! streamer's demand ahead. With that table no coarse tile reads every sample under it: a tile
+//! is meshed at most [`terrain_core::tin::grid::GridTinConfig::finer_strides`] strides finer
+//! than its own, its bound raised where that needs it ([`GridTileBuilder::tile_bound`], which
+//! the selection uses). Selection never waits, except on
 //! the first frame and with `--wait` ([`OocWait::EveryFrame`], the benchmark's warm mode), which
 //! waits until every selected tile is built. The drawn surface ([`tin_surface`]: tiles and
 //! stitches) takes every vertex's height from its tile; the paged renderer draws the same
@@ -215,8 +220,8 @@ impl TinTiles {
         // The bake's table of decimation errors, per block (one region of 256 cells each at
         // the default block size): read once, it caps the tiles' strides without reading
         // samples ([`GridTileBuilder::with_table`]). A store without one (baked before it
-        // existed), with blocks of another size, or whose table cannot be read builds as
-        // before, each region measured on first need.
+        // existed) or with blocks of another size builds as before, each region measured on
+        // first need; a damaged table is an error (bake the store again).
         let table = store
             .decimation_errors()
             .with_context(|| format!("the tin method's table of {}", store.dir().display()))?;
@@ -376,11 +381,7 @@ impl TinTiles {
         };
         missing
             .into_iter()
-            .filter_map(|node| {
-                let s = self.planned_stride(node)?;
-                let f = ((root >> node.level) >> s).max(1) as f32;
-                Some(Patch { node, outer: [f; 4], inner: [f; 2] })
-            })
+            .filter_map(|node| Some(tile_patch(node, self.planned_stride(node)?, root)))
             .collect()
     }
 
@@ -401,13 +402,14 @@ impl TinTiles {
 /// The carrier patch of each tile, its factor putting the tile's points on the lattice of its
 /// stride (the streamer's demand), under a tree of `root` cells.
 fn tile_patches(tiles: &[&GridTile], root: u32) -> Vec<Patch> {
-    tiles
-        .iter()
-        .map(|t| {
-            let f = ((root >> t.node.level) >> t.stride_log2).max(1) as f32;
-            Patch { node: t.node, outer: [f; 4], inner: [f; 2] }
-        })
-        .collect()
+    tiles.iter().map(|t| tile_patch(t.node, t.stride_log2, root)).collect()
+}
+
+/// The carrier patch of tile `node` meshed at stride `2^stride_log2`, under a tree of `root`
+/// cells: its factor puts its points on that lattice.
+fn tile_patch(node: NodeId, stride_log2: u32, root: u32) -> Patch {
+    let f = ((root >> node.level) >> stride_log2).max(1) as f32;
+    Patch { node, outer: [f; 4], inner: [f; 2] }
 }
 
 /// The built tiles that draw `nodes` (each selected tile or its nearest built ancestor; an

@@ -21,8 +21,9 @@
 //!
 //! **Selection** ([`GridTinPyramid::select`]): Cesium's screen-space error of a tile,
 //! `sse = e x H / (d x 2 tan(fov_y / 2)) = e lambda / d` with `e` the tile's bound (`e_L` but
-//! where raised as above) and `d` the distance from the eye to the tile's box (the min/max pyramid's; the mesh lies within it, its vertices being
-//! samples), refined while `sse > tau` (pixels), frustum-culled: the one [`traverse`].
+//! where raised as above) and `d` the distance from the eye to the tile's box (the min/max
+//! pyramid's; the mesh lies within it, its vertices being samples), refined while
+//! `sse > tau` (pixels), frustum-culled: the one [`traverse`].
 //! `sse <= tau` bounds the projected error of every sample of a drawn tile (`delta <= e`
 //! at a distance `>= d`), so `tau` bounds the largest pixel error; the p99 lies below it.
 //!
