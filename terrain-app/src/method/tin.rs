@@ -56,9 +56,9 @@ impl Default for TinConfig {
 }
 
 /// Builds the pyramid of `hm` on rayon's threads (tiles weighted by their samples in the
-/// progress line, shown on a terminal only), every tile by [`build_grid_tile`] (from all of its
-/// samples, or with `max_tile_cells` from decimated samples within a budget and checked, as
-/// from a store).
+/// progress line, shown on a terminal only), every tile by [`GridTileBuilder::build`] (from
+/// all of its samples, or with `max_tile_cells` from decimated samples within a budget, proven
+/// or checked, as from a store).
 pub fn build_pyramid(hm: &Heightmap, config: &GridTinConfig) -> anyhow::Result<GridTinPyramid> {
     let bar = Progress::new("TIN pyramid", on_terminal());
     let total = (hm.width() * hm.height()) as f64;
