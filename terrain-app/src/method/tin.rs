@@ -164,10 +164,10 @@ impl<S: Samples> GridTileBuilder<S> {
     /// most `finer` strides finer than their own ([`GridTinConfig::finer_strides`]); unchanged
     /// (errors measured on first need, no cap) when the table lacks a region or has too few
     /// strides.
-    pub fn with_table(
+    pub fn with_table<'t>(
         mut self,
         finer: u32,
-        table: impl Fn(usize, usize) -> Option<Vec<f32>>,
+        table: impl Fn(usize, usize) -> Option<&'t [f32]>,
     ) -> Self {
         self.finer = finer;
         let (rx, ry) = self.decimation.regions();
@@ -175,7 +175,7 @@ impl<S: Samples> GridTileBuilder<S> {
         'all: for y in 0..ry {
             for x in 0..rx {
                 match table(x, y) {
-                    Some(e) if self.decimation.set_region(x, y, &e) => {}
+                    Some(e) if self.decimation.set_region(x, y, e) => {}
                     _ => {
                         complete = false;
                         break 'all;
@@ -207,6 +207,7 @@ impl<S: Samples> GridTileBuilder<S> {
             let mut row = Vec::with_capacity((nx * ny) as usize);
             for j in 0..ny {
                 for i in 0..nx {
+                    // (`bounds` is being made: the cap itself, not `finest_stride`.)
                     let s = own(i, j).saturating_sub(self.finer);
                     let Some(r) = self.shape.clipped_rect(NodeId::new(level, i, j)) else {
                         row.push(bound);
@@ -247,8 +248,15 @@ impl<S: Samples> GridTileBuilder<S> {
         let rect = [r.x0, r.y0, r.x1, r.y1].map(|v| v as usize);
         let samples = &self.samples as &dyn Samples;
         let error = |s: u32| self.decimation.error_in(samples, rect, s);
-        let min_s = own.stride_log2.saturating_sub(self.finer);
+        let min_s = self.finest_stride(own.stride_log2);
         planned_stride(self.tile_bound(node), own.stride_log2, min_s, &self.policy, error).ok()
+    }
+
+    /// The finest stride (log2) a tile of own stride `2^own` is meshed at before a failed
+    /// check sends it finer: `finer` strides finer with the decimation errors known
+    /// (`bounds`), else any (0).
+    fn finest_stride(&self, own: u32) -> u32 {
+        if self.bounds.is_empty() { 0 } else { own.saturating_sub(self.finer) }
     }
 
     /// The sample source.
@@ -276,8 +284,7 @@ impl<S: Samples> GridTileBuilder<S> {
             .map(|r| [r.x0, r.y0, r.x1, r.y1])
             .ok_or_else(|| anyhow::anyhow!("tile {node:?} lies outside the grid"))?;
         let bound = self.tile_bound(node);
-        let capped = !self.bounds.is_empty();
-        let min_s = if capped { own.stride_log2.saturating_sub(self.finer) } else { 0 };
+        let min_s = self.finest_stride(own.stride_log2);
         let samples = &self.samples as &dyn Samples;
         let error = |s: u32| self.decimation.error_in(samples, rect.map(|v| v as usize), s);
         // The last decimated window meshed, for its tile's exact bound.

@@ -233,11 +233,10 @@ impl TinTiles {
             Some(s.max_tile_cells),
         );
         let builder = match table {
-            Some(t) if cells == crate::decimation::DECIMATION_REGION => {
-                builder.with_table(config.pyramid.finer_strides, |x, y| {
-                    t.errors(terrain_stream::BlockId::new(y as u32, x as u32)).map(<[f32]>::to_vec)
-                })
-            }
+            Some(t) if cells == crate::decimation::DECIMATION_REGION => builder
+                .with_table(config.pyramid.finer_strides, |x, y| {
+                    t.errors(terrain_stream::BlockId::new(y as u32, x as u32))
+                }),
             _ => builder,
         };
         let shared = Arc::new(Shared {
