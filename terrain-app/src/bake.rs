@@ -3,7 +3,8 @@
 //! (`dss_errors.bin`, and per block in the index, unless `--no-dss`), the PVPS methods' roughness pyramids (`roughness.bin`,
 //! unless `--no-roughness`; by bands of rows when the bake streams), geomorph's max-error
 //! vertices per patch (`geomip.bin`, unless `--no-geomip`; computed by the bake with the
-//! blocks, from the same bands of rows) and the PVS files of the scene (`pvs.bin`,
+//! blocks, from the same bands of rows), the `tin` method's coarse tiles (`tin_tiles.bin`,
+//! unless `--no-tin`; from the store's blocks, [`terrain_app::tin_scene`]) and the PVS files of the scene (`pvs.bin`,
 //! `pvs_conservative.bin`, see `terrain pvs`): with `--pvs`, or where a spread sample of its
 //! view cells says it pays (`crate::pvs::PVS_MIN_CULLED`); never with `--no-pvs`; and the
 //! out-of-core method's calibration (`ooc-calibration.txt`, `terrain calibrate`) for grids of
@@ -90,6 +91,12 @@ pub(crate) struct BakeArgs {
     /// with the blocks from the same bands of rows, and by each shard for its rows).
     #[arg(long)]
     pub no_geomip: bool,
+    /// Do not build the tin method's coarse tiles (`tin_tiles.bin`: every tile spanning 512
+    /// cells or more, built once from the store's blocks so that `--method tin` from the store
+    /// reads them instead of meshing millions of samples while flying; they are then built
+    /// while flying, as for a store baked before this file existed).
+    #[arg(long)]
+    pub no_tin: bool,
     #[command(flatten)]
     pub pvs: crate::pvs::PvsArgs,
     /// Read the DEM by bands of rows instead of whole (GeoTIFF and raw only): bounded memory
@@ -451,6 +458,23 @@ fn run_into(args: &BakeArgs, out: &Path, shown: &str) -> anyhow::Result<()> {
             }
         }
         stages.end("geomorph");
+    }
+    if !args.no_tin {
+        stop_before("tin tiles")?;
+        // From the store's blocks and its table of decimation errors, as `tin` builds them
+        // while flying: every tile of 512 cells or more across.
+        let store = terrain_stream::Store::open(out).with_context(|| format!("opening {shown}"))?;
+        if let Some(r) = terrain_app::tin_scene::bake_from_store(&store, true)? {
+            println!(
+                "{}: the tin method's {} coarse tiles ({} triangles), {:.2} MiB, {:.1} s",
+                out.join(terrain_app::tin_scene::TIN_TILES_FILE).display(),
+                r.tiles,
+                r.triangles,
+                r.bytes as f64 / terrain_app::MIB,
+                r.secs
+            );
+        }
+        stages.end("tin tiles");
     }
     if !args.no_dss {
         stop_before("DSS errors")?;

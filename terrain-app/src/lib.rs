@@ -23,3 +23,4 @@ pub mod pvs_scene;
 pub mod roughness_scene;
 pub mod samples;
 pub mod scene_files;
+pub mod tin_scene;

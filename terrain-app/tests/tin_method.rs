@@ -582,3 +582,100 @@ fn tin_from_a_store_draws_no_crack() {
     assert_eq!(counts[0], 0, "cracks with stitches");
     assert!(counts[1] > 0, "the negative control shows no crack");
 }
+
+/// The bake's coarse tiles (`tin_tiles.bin`, every tile of 512 cells or more) are the tiles
+/// `tin` builds while flying, bit for bit, and it reads them instead of building them. A
+/// damaged tile or header is an error naming the file, a file of another bake of the store is
+/// refused, one for other settings is not used, and a missing one changes nothing.
+#[test]
+fn baked_coarse_tiles_are_the_tiles_built_while_flying() {
+    use terrain_app::tin_scene::{BakedTiles, TIN_TILES_FILE, bake_from_store, store_builder};
+    let hm = FractalConfig::with_size(1025, 769, 10.0).to_heightmap().unwrap();
+    let store = baked("baked-tiles", &hm);
+    let config = MethodConfig::default().tin;
+    let tree = terrain_app::tin_scene::store_tree(&store, &config);
+    let shape = *terrain_core::quadtree::NodeTree::shape(&tree);
+    let report = bake_from_store(&store, false).unwrap().expect("a 1025 x 769 store has tiles");
+    // Root tile 1024 cells across (stride 16 at 64 cells), level 1 512 (stride 8): 1 + 4.
+    assert_eq!(report.tiles, 5);
+    let path = store.dir().join(TIN_TILES_FILE);
+    assert!(path.is_file() && !store.dir().join(format!("{TIN_TILES_FILE}.tmp")).exists());
+    let baked = BakedTiles::open(&store, &shape, &config).unwrap().expect("the baked tiles");
+    assert_eq!(baked.len(), 5);
+    let builder = store_builder((*store).clone(), shape, &config).unwrap();
+    let nodes: Vec<NodeId> = [(0, 0, 0), (1, 0, 0), (1, 1, 0), (1, 0, 1), (1, 1, 1)]
+        .into_iter()
+        .map(|(l, i, j)| NodeId::new(l, i, j))
+        .collect();
+    let mut triangles = 0;
+    for &n in &nodes {
+        let read = baked.read(n).unwrap().expect("baked");
+        let built = builder.build(n).unwrap();
+        assert_eq!(read.vertices, built.vertices, "{n:?}");
+        assert_eq!(read.triangles, built.triangles, "{n:?}");
+        assert_eq!(read.sides, built.sides, "{n:?}");
+        let bits = |t: &terrain_core::tin::grid::GridTile| {
+            (t.heights.iter().map(|z| z.to_bits()).collect::<Vec<_>>(), t.range.map(f32::to_bits))
+        };
+        assert_eq!(bits(&read), bits(&built), "{n:?}");
+        assert_eq!(
+            (read.stride_log2, read.bound.to_bits(), read.measured),
+            (built.stride_log2, built.bound.to_bits(), built.measured)
+        );
+        assert_eq!(baked.stride(n), Some(built.stride_log2));
+        triangles += built.triangles.len() as u64;
+    }
+    assert_eq!(report.triangles, triangles);
+    // Level 2 (256 cells) is built while flying.
+    assert!(baked.read(NodeId::new(2, 0, 0)).unwrap().is_none());
+    // The method reads them: the five tiles come from the file, a level-2 one is built.
+    let tiles = TinTiles::new((*store).clone(), shape, &config).unwrap();
+    let mut want = nodes.clone();
+    want.push(NodeId::new(2, 0, 0));
+    tiles.wait_for(&want, std::time::Duration::from_secs(300)).unwrap();
+    let stats = tiles.stats();
+    assert_eq!((stats.built, stats.read), (6, 5));
+    drop(tiles);
+
+    let good = std::fs::read(&path).unwrap();
+    let with = |bytes: &[u8]| {
+        std::fs::write(&path, bytes).unwrap();
+        BakedTiles::open(&store, &shape, &config)
+    };
+    // A flipped byte in the last tile (before the index): its checksum fails, named.
+    let index_at = u64::from_le_bytes(good[56..64].try_into().unwrap()) as usize;
+    let mut bad = good.clone();
+    bad[index_at - 10] ^= 0x40;
+    let opened = with(&bad).unwrap().unwrap();
+    let errors: Vec<String> =
+        nodes.iter().filter_map(|&n| opened.read(n).err()).map(|e| format!("{e:#}")).collect();
+    assert_eq!(errors.len(), 1, "{errors:?}");
+    assert!(errors[0].contains(TIN_TILES_FILE) && errors[0].contains("checksum"), "{errors:?}");
+    // Through the method: the tile fails, with the file's name.
+    let tiles = TinTiles::new((*store).clone(), shape, &config).unwrap();
+    let e = tiles.wait_for(&nodes, std::time::Duration::from_secs(300)).unwrap_err();
+    assert!(format!("{e:#}").contains(TIN_TILES_FILE), "{e:#}");
+    drop(tiles);
+    // Not a table, a truncated one, another bake of the blocks.
+    let mut magic = good.clone();
+    magic[0] = b'X';
+    let truncated = &good[..good.len() - 7];
+    let mut other_bake = good.clone();
+    other_bake[44] ^= 1;
+    for (what, bytes) in [("magic", &magic[..]), ("truncated", truncated), ("bake", &other_bake)] {
+        let e = with(bytes).unwrap_err();
+        let e = format!("{e:#}");
+        assert!(e.contains(TIN_TILES_FILE) && e.contains("bake the store again"), "{what}: {e}");
+    }
+    // Other settings: not used (every tile built while flying).
+    std::fs::write(&path, &good).unwrap();
+    let mut finer = config;
+    finer.pyramid.error_scale = 0.5;
+    assert!(BakedTiles::open(&store, &shape, &finer).unwrap().is_none());
+    let mut capped = config;
+    capped.pyramid.finer_strides = 2;
+    assert!(BakedTiles::open(&store, &shape, &capped).unwrap().is_none());
+    assert!(BakedTiles::open(&store, &shape, &config).unwrap().is_some());
+    std::fs::remove_file(&path).unwrap();
+    assert!(BakedTiles::open(&store, &shape, &config).unwrap().is_none());
+}

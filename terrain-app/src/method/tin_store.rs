@@ -4,7 +4,9 @@
 //! the pyramid in memory ([`super::GridTileBuilder`]: the stride each tile's level allows,
 //! within its bound less the decimation error under it, checked against every sample under
 //! it), and kept in a byte-budgeted LRU cache of built tiles
-//! ([`TinTiles`]). Nothing of the full grid is in memory.
+//! ([`TinTiles`]). Nothing of the full grid is in memory. The coarse tiles (512 cells or more
+//! across) a store's bake built ([`crate::tin_scene`], `tin_tiles.bin`) are read instead of
+//! built: the same tiles, bit for bit.
 //!
 //! Per frame: the tiles are selected over the store's index ([`select_tiles`], the same
 //! function and bounds as from memory: the same tiles for the same camera), the missing ones
@@ -33,11 +35,10 @@ use std::sync::{Arc, Condvar, Mutex, MutexGuard};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
-use anyhow::Context;
 use terrain_core::geometry::Camera;
 use terrain_core::lod::{Patch, Selection, SelectionStats};
 use terrain_core::quadtree::{NodeId, TreeShape};
-use terrain_core::tin::grid::{GridTile, TinSelection, level_errors, select_tiles, tin_surface};
+use terrain_core::tin::grid::{GridTile, TinSelection, select_tiles, tin_surface};
 use terrain_gpu::render::ExtraTriangles;
 use terrain_gpu::tess::GpuDomainPoint;
 use terrain_stream::{Store, StoreTree};
@@ -48,6 +49,7 @@ use super::{DrawSource, DrawnSurface, Frame, GridTileBuilder, Method, OocWait, T
 use crate::methods::{LodMethod, MethodScene};
 use crate::ooc::{OocScene, StoreDraw};
 use crate::samples::StoreSamples;
+use crate::tin_scene::{BakedTiles, store_builder, store_tree};
 
 /// How `tin` reads a store.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -97,12 +99,16 @@ struct State {
     stop: bool,
     peak_bytes: u64,
     built: u64,
+    /// Of `built`, tiles read from the store's baked tiles.
+    read: u64,
     evicted: u64,
 }
 
 #[derive(Debug)]
 struct Shared {
     builder: GridTileBuilder<StoreSamples>,
+    /// The store's baked coarse tiles ([`crate::tin_scene`]), read instead of built.
+    baked: Option<BakedTiles>,
     budget: u64,
     state: Mutex<State>,
     work: Condvar,
@@ -117,8 +123,12 @@ impl Shared {
     /// Tile `node` from the store's samples: [`GridTileBuilder::build`], the builder of the
     /// pyramid in memory (its window's stride, the budget less the decimation error under it,
     /// checked against every sample under it).
-    fn build(&self, node: NodeId) -> anyhow::Result<GridTile> {
-        self.builder.build(node)
+    /// A baked tile is read instead ([`BakedTiles::read`]); the flag says so.
+    fn build(&self, node: NodeId) -> anyhow::Result<(GridTile, bool)> {
+        if let Some(tile) = self.baked.as_ref().map(|b| b.read(node)).transpose()?.flatten() {
+            return Ok((tile, true));
+        }
+        Ok((self.builder.build(node)?, false))
     }
 
     /// Drops least recently drawn tiles while over the budget: not the current frame's (the
@@ -159,7 +169,8 @@ impl Shared {
             let mut st = self.lock();
             st.building.remove(&node);
             match built {
-                Ok(tile) => {
+                Ok((tile, read)) => {
+                    st.read += u64::from(read);
                     let tile = Arc::new(tile);
                     st.bytes += tile.bytes();
                     let used = st.frame;
@@ -196,8 +207,10 @@ pub struct TileCacheStats {
     pub peak_bytes: u64,
     /// The budget.
     pub budget: u64,
-    /// Tiles built so far.
+    /// Tiles built so far (read from the store's baked tiles included).
     pub built: u64,
+    /// Of those, tiles read from the store's baked tiles ([`crate::tin_scene`]).
+    pub read: u64,
     /// Tiles dropped for the budget.
     pub evicted: u64,
     /// Tiles held now.
@@ -216,31 +229,12 @@ impl TinTiles {
     /// `config`'s pyramid and store settings; starts the workers. A store's table of
     /// decimation errors that cannot be read is an error.
     pub fn new(store: Store, shape: TreeShape, config: &TinConfig) -> anyhow::Result<Self> {
+        let baked = BakedTiles::open(&store, &shape, config)?;
+        let builder = store_builder(store, shape, config)?;
         let s = &config.store;
-        // The bake's table of decimation errors, per block (one region of 256 cells each at
-        // the default block size): read once, it caps the tiles' strides without reading
-        // samples ([`GridTileBuilder::with_table`]). A store without one (baked before it
-        // existed) or with blocks of another size builds as before, each region measured on
-        // first need; a damaged table is an error (bake the store again).
-        let table = store
-            .decimation_errors()
-            .with_context(|| format!("the tin method's table of {}", store.dir().display()))?;
-        let cells = 1usize << store.header().k;
-        let builder = GridTileBuilder::new(
-            StoreSamples::new(store, s.block_cache_bytes),
-            shape,
-            level_errors(&shape, config.pyramid.error_scale),
-            Some(s.max_tile_cells),
-        );
-        let builder = match table {
-            Some(t) if cells == crate::decimation::DECIMATION_REGION => builder
-                .with_table(config.pyramid.finer_strides, |x, y| {
-                    t.errors(terrain_stream::BlockId::new(y as u32, x as u32))
-                }),
-            _ => builder,
-        };
         let shared = Arc::new(Shared {
             builder,
+            baked,
             budget: s.tile_cache_bytes,
             state: Mutex::new(State::default()),
             work: Condvar::new(),
@@ -365,6 +359,9 @@ impl TinTiles {
     /// The stride (log2) tile `node` will be built at, where known before building
     /// ([`GridTileBuilder::planned_stride`]: a store with its table of decimation errors).
     pub fn planned_stride(&self, node: NodeId) -> Option<u32> {
+        if let Some(s) = self.shared.baked.as_ref().and_then(|b| b.stride(node)) {
+            return Some(s);
+        }
         self.shared.builder.planned_stride(node)
     }
 
@@ -392,6 +389,7 @@ impl TinTiles {
             peak_bytes: st.peak_bytes,
             budget: self.shared.budget,
             built: st.built,
+            read: st.read,
             evicted: st.evicted,
             tiles: st.tiles.len(),
         }
@@ -482,9 +480,7 @@ impl<'a> TinStoreMethod<'a> {
         reference: Option<&'a MethodScene>,
     ) -> anyhow::Result<Self> {
         let store = scene.store().clone();
-        let cells = config.pyramid.finest_cells.clamp(2, 1 << 15).next_power_of_two();
-        let cells = cells.min(store.header().block_cells());
-        let tree = StoreTree::new(store.clone(), cells);
+        let tree = store_tree(&store, config);
         let shape = *terrain_core::quadtree::NodeTree::shape(&tree);
         if let Some(r) = reference
             && (r.qt.root_cells(), r.qt.width(), r.qt.height())
