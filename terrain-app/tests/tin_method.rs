@@ -567,6 +567,7 @@ fn tin_from_a_store_draws_no_crack() {
             let mut extra = ExtraTriangles {
                 points: s.mesh.grid.iter().map(|&g| point(g)).collect(),
                 indices: s.mesh.triangles.iter().flatten().copied().collect(),
+                heights: Vec::new(),
             };
             // Skirts below the tiles' own sides: the pyramid's in memory at the same stride
             // has the same tiles (`tin_from_a_store_selects_and_draws_as_from_memory`).

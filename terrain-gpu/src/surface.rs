@@ -71,11 +71,18 @@ pub fn vertex_position<G: HeightGrid + ?Sized>(hm: &G, patch: &DrawPatch, uv: [f
 
 /// World position (metres, f64) of the surface at grid coordinates `g` (clamped to the grid).
 pub fn surface_position<G: HeightGrid + ?Sized>(hm: &G, g: Vec2) -> DVec3 {
+    position_at_height(hm, g, height_at(hm, g))
+}
+
+/// World position (metres, f64) of a vertex at grid coordinates `g` (clamped to the grid) drawn
+/// at height `h`: [`surface_position`]'s `x` and `y` (the shader's `plane_at`), with a given
+/// height (extra triangles with their own heights, the shader's `vs_explicit`).
+pub fn position_at_height<G: HeightGrid + ?Sized>(hm: &G, g: Vec2, h: f32) -> DVec3 {
     let (i0, _, f) = cell_of(hm, g);
     let (origin, spacing) = hm.frame();
     let x = origin.x + (f64::from(i0[0]) + f64::from(f.x)) * spacing.x;
     let y = origin.y + (f64::from(i0[1]) + f64::from(f.y)) * spacing.y;
-    DVec3::new(x, y, f64::from(height_at(hm, g)))
+    DVec3::new(x, y, f64::from(h))
 }
 
 /// A sample of the normals' stencil: `None` outside the grid (the differences turn one-sided

@@ -87,5 +87,5 @@ pub fn entropy_extra(hm: &Heightmap, mesh: &SurfaceMesh) -> (DrawPatch, ExtraTri
         })
         .collect();
     let indices = mesh.triangles.iter().flatten().copied().collect();
-    (carrier, ExtraTriangles { points, indices })
+    (carrier, ExtraTriangles { points, indices, heights: Vec::new() })
 }

@@ -252,6 +252,12 @@ impl<S: Samples> GridTileBuilder<S> {
         planned_stride(self.tile_bound(node), own.stride_log2, min_s, &self.policy, error).ok()
     }
 
+    /// Tile `node`'s own stride (log2): that of its window of at most `max_cells` cells
+    /// across ([`tile_window`]); `None` outside the grid.
+    pub fn own_stride(&self, node: NodeId) -> Option<u32> {
+        tile_window(&self.shape, node, self.max_cells).map(|w| w.stride_log2)
+    }
+
     /// The finest stride (log2) a tile of own stride `2^own` is meshed at before a failed
     /// check sends it finer: `finer` strides finer with the decimation errors known
     /// (`bounds`), else any (0).

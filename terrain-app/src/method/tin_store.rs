@@ -16,9 +16,8 @@
 //! selected tiles under that ancestor go with it, so the drawn tiles stay disjoint), and
 //! counted late ([`crate::ooc::StreamRecord::late_tiles`]). A real-time frame also selects
 //! the tiles of the eye one look-ahead ahead (Eq. 8, [`terrain_stream::Streamer::camera_ahead`]):
-//! they are queued after its own, and the lattices of the built tiles that would draw them
-//! ([`TinTiles::peek`]) and of the tiles being built, at the strides the store's table of
-//! decimation errors says they will be built at ([`TinTiles::planned_patches`]), are the
+//! they are queued after its own, and the carriers of the built tiles that would draw them
+//! ([`TinTiles::peek`]) and of the tiles being built ([`TinTiles::planned_patches`]) are the
 //! streamer's demand ahead. With that table no coarse tile reads every sample under it: a tile
 //! is meshed at most [`terrain_core::tin::grid::GridTinConfig::finer_strides`] strides finer
 //! than its own, its bound raised where that needs it ([`GridTileBuilder::tile_bound`], which
@@ -26,9 +25,12 @@
 //! the first frame and with `--wait` ([`OocWait::EveryFrame`], the benchmark's warm mode), which
 //! waits until every selected tile is built. The drawn surface ([`tin_surface`]: tiles and
 //! stitches) takes every vertex's height from its tile; the paged renderer draws the same
-//! triangles as extra triangles over each tile's hidden carrier patch, its heights from the
-//! store's pages at the lattice the tile was built on (the streamer's demand), which are those
-//! samples once resident.
+//! triangles, at the same heights ([`ExtraTriangles::heights`]), as extra triangles over each
+//! tile's hidden carrier patch, whose lattice at the tile's own stride (64 cells across) is
+//! the streamer's demand ([`TinTiles::carriers`]): the pages shade the tiles, at their level
+//! of detail, and never decide their geometry, so a coarse tile meshed from every sample under
+//! it does not demand every sample (the demand of the first `fast_pass` frame over the
+//! mirrored Everest was 1 GiB when it did).
 
 use std::collections::{HashMap, HashSet, VecDeque};
 use std::sync::{Arc, Condvar, Mutex, MutexGuard};
@@ -365,19 +367,27 @@ impl TinTiles {
         self.shared.builder.planned_stride(node)
     }
 
-    /// The carrier patches of those of `nodes` not built yet, at the strides they will be
-    /// built at where that is known before building ([`GridTileBuilder::planned_stride`]):
-    /// what they will ask of the streamer once built, so that it can load it while they are
-    /// built (a tile built between two frames otherwise finds its lattice not resident in the
-    /// frame that first draws it).
+    /// The carrier patches of those of `nodes` not built yet ([`TinTiles::carriers`]): what
+    /// they will ask of the streamer once built, so that it can load it while they are built
+    /// (a tile built between two frames otherwise finds its lattice not resident in the frame
+    /// that first draws it).
     pub fn planned_patches(&self, nodes: &[NodeId], root: u32) -> Vec<Patch> {
         let missing: Vec<NodeId> = {
             let st = self.shared.lock();
             nodes.iter().copied().filter(|n| !st.tiles.contains_key(n)).collect()
         };
-        missing
-            .into_iter()
-            .filter_map(|node| Some(tile_patch(node, self.planned_stride(node)?, root)))
+        self.carriers(&missing, root)
+    }
+
+    /// The carrier patch of each of `nodes` (one each, in order) under a tree of `root` cells, its factor putting
+    /// its points on the lattice of the tile's own stride (its 64 cells across): the streamer's
+    /// demand. The tiles' vertices are drawn at their own heights
+    /// ([`ExtraTriangles::heights`]), so the pages only shade them, at the tile's level of
+    /// detail: a coarse tile meshed from every sample under it does not demand them all.
+    pub fn carriers(&self, nodes: &[NodeId], root: u32) -> Vec<Patch> {
+        nodes
+            .iter()
+            .map(|&n| tile_patch(n, self.shared.builder.own_stride(n).unwrap_or(0), root))
             .collect()
     }
 
@@ -396,14 +406,8 @@ impl TinTiles {
     }
 }
 
-/// The carrier patch of each tile, its factor putting the tile's points on the lattice of its
-/// stride (the streamer's demand), under a tree of `root` cells.
-fn tile_patches(tiles: &[&GridTile], root: u32) -> Vec<Patch> {
-    tiles.iter().map(|t| tile_patch(t.node, t.stride_log2, root)).collect()
-}
-
-/// The carrier patch of tile `node` meshed at stride `2^stride_log2`, under a tree of `root`
-/// cells: its factor puts its points on that lattice.
+/// The carrier patch of tile `node` with its points on the lattice of stride `2^stride_log2`,
+/// under a tree of `root` cells.
 fn tile_patch(node: NodeId, stride_log2: u32, root: u32) -> Patch {
     let f = ((root >> node.level) >> stride_log2).max(1) as f32;
     Patch { node, outer: [f; 4], inner: [f; 2] }
@@ -538,9 +542,9 @@ impl Method for TinStoreMethod<'_> {
         let build_ms = ms(t);
         let t = Instant::now();
         let root = shape.root_cells();
-        // Each tile's points on its node's carrier; its factor puts them on the lattice of the
-        // tile's stride (the streamer's demand).
-        let patches = tile_patches(&drawn, root);
+        // Each tile's points on its node's carrier; its factor is the streamer's demand.
+        let drawn_nodes: Vec<NodeId> = drawn.iter().map(|t| t.node).collect();
+        let patches = self.tiles.carriers(&drawn_nodes, root);
         let points = surface
             .mesh
             .grid
@@ -557,7 +561,10 @@ impl Method for TinStoreMethod<'_> {
             })
             .collect();
         let indices = surface.mesh.triangles.iter().flatten().copied().collect();
-        let extra = ExtraTriangles { points, indices };
+        // Every vertex at its tile's height: the drawn geometry is the tiles', whatever the
+        // pages hold; the pages shade it.
+        let heights = surface.mesh.positions.iter().map(|p| p.z as f32).collect();
+        let extra = ExtraTriangles { points, indices, heights };
         let convert_ms = ms(t);
         let selection_time = sel.cpu_time + Duration::from_secs_f64(resolve_ms / 1e3);
         let stats = SelectionStats {
@@ -588,8 +595,8 @@ impl Method for TinStoreMethod<'_> {
             queued.extend(ahead.tiles.iter().filter(|n| !now.contains(n)));
             tiles.request(&queued);
             let built = tiles.peek(&ahead.tiles);
-            let drawn: Vec<&GridTile> = built.iter().map(|t| &**t).collect();
-            let mut patches = tile_patches(&drawn, root);
+            let built: Vec<NodeId> = built.iter().map(|t| t.node).collect();
+            let mut patches = tiles.carriers(&built, root);
             // And the lattices of the tiles being built for this frame and the next, which
             // the frames after will draw.
             patches.extend(tiles.planned_patches(&queued, root));

@@ -72,12 +72,20 @@ pub const BACKGROUND: [u8; 4] = [255, 0, 255, 255];
 /// tessellator's points, so an extra vertex on a patch's edge coincides bit for bit with the
 /// tessellated vertex there. The DSS paper's stitching strips use it (`crate::strips`).
 /// Drawn without the barycentric wireframe.
+///
+/// A mesh that carries its own heights (the `tin` method's tiles) gives them in `heights`, one
+/// per point: its vertices are then placed at those heights, at the same `x`, `y` as a
+/// sampled point's ([`crate::surface::position_at_height`], the shader's `vs_explicit`), so
+/// its geometry does not depend on what the heightmap's pages hold; they shade it only.
 #[derive(Clone, Debug, PartialEq, Default)]
 pub struct ExtraTriangles {
     /// Vertices.
     pub points: Vec<crate::tess::GpuDomainPoint>,
     /// Triangle list into `points`.
     pub indices: Vec<u32>,
+    /// Empty: every vertex's height is sampled at its point, like the tessellator's. Else one
+    /// height per point, metres: the vertex is drawn at it.
+    pub heights: Vec<f32>,
 }
 
 /// One patch to draw: a rect of grid samples and its tessellation factors.

@@ -251,6 +251,8 @@ struct Pipelines {
     indexed: wgpu::RenderPipeline,
     /// Vertices pulled from the index buffer by the vertex stage (wireframe's barycentrics).
     pulled: wgpu::RenderPipeline,
+    /// Extra triangles with their own heights: the points' buffer and a buffer of heights.
+    explicit: wgpu::RenderPipeline,
 }
 
 impl Pipelines {
@@ -297,9 +299,19 @@ impl Pipelines {
                 cache: None,
             })
         };
+        let height_attribute = wgpu::vertex_attr_array![3 => Float32];
+        let with_heights = [
+            vertex_buffers[0].clone(),
+            Some(wgpu::VertexBufferLayout {
+                array_stride: size_of::<f32>() as u64,
+                step_mode: wgpu::VertexStepMode::Vertex,
+                attributes: &height_attribute,
+            }),
+        ];
         Self {
             indexed: pipeline("vs_indexed", &vertex_buffers),
             pulled: pipeline("vs_pulled", &[]),
+            explicit: pipeline("vs_explicit", &with_heights),
         }
     }
 }
@@ -1099,6 +1111,13 @@ impl TerrainRenderer {
                 patches.len()
             )));
         }
+        if !extra.heights.is_empty() && extra.heights.len() != extra.points.len() {
+            return Err(RenderError::BadExtra(format!(
+                "{} heights for {} vertices (none, or one per vertex, expected)",
+                extra.heights.len(),
+                extra.points.len()
+            )));
+        }
         if !extra.indices.len().is_multiple_of(3)
             || extra.indices.iter().any(|&k| k as usize >= extra.points.len())
         {
@@ -1217,7 +1236,14 @@ impl TerrainRenderer {
                 bytemuck::cast_slice(&e.indices),
                 wgpu::BufferUsages::INDEX,
             );
-            (v, i, e.indices.len() as u32)
+            let heights = (!e.heights.is_empty()).then(|| {
+                buffer(
+                    "extra heights",
+                    bytemuck::cast_slice(&e.heights),
+                    wgpu::BufferUsages::VERTEX,
+                )
+            });
+            (v, i, e.indices.len() as u32, heights)
         });
         let tess = self.tess.as_ref().expect("prepared above");
         let mut encoder = self.device.create_command_encoder(&Default::default());
@@ -1275,8 +1301,14 @@ impl TerrainRenderer {
                 pass.set_index_buffer(s.indices.slice(..), wgpu::IndexFormat::Uint32);
                 pass.draw_indexed(0..s.index_count, 0, 0..1);
             }
-            if let Some((v, i, n)) = &extra_buffers {
-                pass.set_pipeline(&pipelines.indexed);
+            if let Some((v, i, n, heights)) = &extra_buffers {
+                match heights {
+                    Some(h) => {
+                        pass.set_pipeline(&pipelines.explicit);
+                        pass.set_vertex_buffer(1, h.slice(..));
+                    }
+                    None => pass.set_pipeline(&pipelines.indexed),
+                }
                 pass.set_vertex_buffer(0, v.slice(..));
                 pass.set_index_buffer(i.slice(..), wgpu::IndexFormat::Uint32);
                 pass.draw_indexed(0..*n, 0, 0..1);

@@ -87,6 +87,13 @@ struct Surface {
     height: f32,
 }
 
+// The camera-relative x and y of grid coordinates `g`'s cell `c` (surface::plane_position).
+fn plane_at(c: Cell) -> vec2<f32> {
+    let x = col_x[c.i0.x] + c.f.x * frame.spacing.x;
+    let y = row_y[c.i0.y] + c.f.y * frame.spacing.y;
+    return vec2<f32>(x, y);
+}
+
 // surface::surface_position (relative to the anchor) and surface::height_at.
 fn surface_at(g: vec2<f32>) -> Surface {
     let c = cell_of(g);
@@ -97,9 +104,7 @@ fn surface_at(g: vec2<f32>) -> Surface {
     let a = h00 + (h10 - h00) * c.f.x;
     let b = h01 + (h11 - h01) * c.f.x;
     let h = a + (b - a) * c.f.y;
-    let x = col_x[c.i0.x] + c.f.x * frame.spacing.x;
-    let y = row_y[c.i0.y] + c.f.y * frame.spacing.y;
-    return Surface(vec3<f32>(x, y, h + frame.height_offset), h);
+    return Surface(vec3<f32>(plane_at(c), h + frame.height_offset), h);
 }
 
 struct VsOut {
@@ -136,6 +141,22 @@ struct VertexIn {
 @vertex
 fn vs_indexed(v: VertexIn) -> VsOut {
     return vertex(DomainPoint(v.uv, v.patch_index, v.skirt), vec3<f32>(1.0));
+}
+
+// Extra triangles with their own heights (render::ExtraTriangles::heights): each vertex at
+// its point's x and y, as the sampled surface's, and at its given height
+// (surface::position_at_height).
+@vertex
+fn vs_explicit(v: VertexIn, @location(3) height: f32) -> VsOut {
+    let g = grid_of(v.uv, v.patch_index);
+    let pos = vec3<f32>(plane_at(cell_of(g)), height + frame.height_offset);
+    var out: VsOut;
+    out.clip = frame.view_proj * vec4<f32>(pos, 1.0);
+    out.grid = g;
+    out.height = height;
+    out.bary = vec3<f32>(1.0);
+    out.lod_colour = rects[v.patch_index].lod_colour.rgb;
+    return out;
 }
 
 // Non-indexed draw of the same triangles (wireframe): pulls the index and the point itself,

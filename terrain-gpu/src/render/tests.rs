@@ -305,6 +305,78 @@ fn golden_image_on_gl() {
 }
 
 // ---------------------------------------------------------------------------------------
+// Extra triangles with their own heights.
+
+/// A mesh on every 8th sample of the default terrain as extra triangles over a hidden carrier:
+/// drawn at heights equal to the samples at its points (`vs_explicit`) it is the sampled
+/// draw (`vs_indexed`), pixel for pixel, so its x and y are the sampled surface's (the CPU
+/// reference, `surface_matches_reference`); raised 60 m it is drawn elsewhere (the heights are
+/// used, not the samples); heights not one per vertex are refused.
+fn extra_triangles_at_their_own_heights(backend: BackendChoice) {
+    let Some(ctx) = context(backend) else { return };
+    let hm = default_terrain();
+    let (w, h) = (hm.width() as u32, hm.height() as u32);
+    // 1024 cells a side: every lattice point's uv times the size is its integer exactly.
+    assert_eq!((w, h), (1025, 1025));
+    let carrier = DrawPatch { rect: [0, 0, w - 1, h - 1], factors: PatchFactors::uniform(0.0) };
+    let (step, n) = (8u32, (w - 1) / 8 + 1);
+    let mut extra = ExtraTriangles::default();
+    for j in 0..n {
+        for i in 0..n {
+            let uv = [(i * step) as f32 / (w - 1) as f32, (j * step) as f32 / (h - 1) as f32];
+            extra.points.push(crate::tess::GpuDomainPoint { uv, patch_index: 0, pad: 0 });
+        }
+    }
+    for j in 0..n - 1 {
+        for i in 0..n - 1 {
+            let k = j * n + i;
+            extra.indices.extend([k, k + 1, k + n + 1, k, k + n + 1, k + n]);
+        }
+    }
+    let camera = default_camera(&hm, 160, 90, 50.0);
+    let mut renderer = TerrainRenderer::new(&ctx, &hm, &config(160, 90)).unwrap();
+    let mut draw = |extra: &ExtraTriangles| {
+        let options = RenderOptions::default();
+        renderer.render_with_extra(&camera, &[carrier], extra, &options).map(|stats| {
+            assert_eq!(stats.triangles, extra.indices.len() as u64 / 3);
+            renderer.read_image().unwrap()
+        })
+    };
+    let sampled = draw(&extra).unwrap();
+    let sample_at = |p: &crate::tess::GpuDomainPoint| {
+        let g = surface::grid_coords(&carrier, p.uv);
+        assert_eq!(g, g.round(), "a lattice point");
+        hm.get(g.x as usize, g.y as usize)
+    };
+    extra.heights = extra.points.iter().map(sample_at).collect();
+    let given = draw(&extra).unwrap();
+    let background = sampled.pixels.iter().filter(|p| **p == BACKGROUND).count();
+    // The whole terrain in view, from afar: about a sixth of the image.
+    let covered = sampled.pixels.len() - background;
+    assert!(covered > sampled.pixels.len() / 10, "{covered} pixels drawn");
+    assert_eq!(given.pixels, sampled.pixels, "heights equal to the samples draw the same image");
+    for z in &mut extra.heights {
+        *z += 60.0;
+    }
+    let raised = draw(&extra).unwrap();
+    let moved = raised.pixels.iter().zip(&sampled.pixels).filter(|(a, b)| a != b).count();
+    println!("{}: raised 60 m, {moved} of {} pixels change", ctx.describe(), raised.pixels.len());
+    assert!(moved > covered / 4, "{moved} pixels change: the heights are not used");
+    extra.heights.pop();
+    assert!(matches!(draw(&extra), Err(RenderError::BadExtra(_))));
+}
+
+#[test]
+fn extra_triangles_at_their_own_heights_on_vulkan() {
+    extra_triangles_at_their_own_heights(BackendChoice::Vulkan);
+}
+
+#[test]
+fn extra_triangles_at_their_own_heights_on_gl() {
+    extra_triangles_at_their_own_heights(BackendChoice::Gl);
+}
+
+// ---------------------------------------------------------------------------------------
 // Wireframe, texture, statistics.
 
 fn wireframe_covers_the_same_pixels(backend: BackendChoice) {
