@@ -229,6 +229,7 @@ impl StoreReport {
             terrain_app::pvs_scene::SAMPLED_FILE,
             terrain_app::pvs_scene::CONSERVATIVE_FILE,
             terrain_stream::DECIMATION_FILE,
+            terrain_app::tin_scene::TIN_TILES_FILE,
         ] {
             if store.has_side_file(f).with_context(|| format!("asking the store for {f}"))? {
                 tables.push(f.to_string());

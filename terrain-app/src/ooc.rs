@@ -667,6 +667,8 @@ pub struct OocScene {
     /// A real-time run ([`OocScene::with_real_time`]): its first, waiting frame holds the
     /// demand to the real-time share of the budget like every later frame.
     real_time: bool,
+    /// Bytes of the budget the method keeps in its own caches ([`OocScene::with_reserved`]).
+    reserved: u64,
 }
 
 impl OocScene {
@@ -725,6 +727,7 @@ impl OocScene {
             warned_lattice: false,
             exact_demand: false,
             real_time: false,
+            reserved: 0,
         }
     }
 
@@ -752,6 +755,15 @@ impl OocScene {
     /// first frame against at most a quarter of the 1 GiB budget asked afterwards).
     pub fn with_real_time(mut self) -> Self {
         self.real_time = true;
+        self
+    }
+
+    /// This runtime for a method that keeps `bytes` of the memory budget
+    /// ([`OocConfig::budget_bytes`]) in caches of its own (`tin`'s built tiles and its
+    /// builders' blocks): the stream cache gets what those and the view's index entries leave
+    /// ([`OocScene::blocks_budget`]), so the one budget bounds them all.
+    pub fn with_reserved(mut self, bytes: u64) -> Self {
+        self.reserved = bytes;
         self
     }
 
@@ -978,12 +990,12 @@ impl OocScene {
 
     /// The stream cache's share of the one memory budget ([`OocConfig::budget_bytes`]): what
     /// the index entries the trees keep for the view leave (this scene's tree and the method's
-    /// `tree`, unless one is the other's clone; [`StoreTree::visited_bytes`]), at least half of
-    /// it. A selection over a 32769^2 store keeps 139 MB of entries for its view (`dss-2` on
+    /// `tree`, unless one is the other's clone; [`StoreTree::visited_bytes`]) and the method's
+    /// own caches ([`OocScene::with_reserved`]), at least half of it. A selection over a 32769^2 store keeps 139 MB of entries for its view (`dss-2` on
     /// `fast_pass`), which a budget of blocks alone left above it (bench/ooc/README.md, "One
     /// memory budget for the blocks and the view's index entries").
     fn blocks_budget(&self, tree: Option<&StoreTree>) -> u64 {
-        let mut entries = self.tree.visited_bytes();
+        let mut entries = self.tree.visited_bytes() + self.reserved;
         if let Some(t) = tree.filter(|t| !t.shares_visited_with(&self.tree)) {
             entries += t.visited_bytes();
         }
@@ -1286,8 +1298,8 @@ mod tests {
     use super::*;
     use terrain_stream::{BakeConfig, BakeProgress, HeightEncoding, bake};
 
-    /// One memory budget: the stream cache gets what the index entries the view keeps leave of
-    /// it, and at least half of it when they would take more.
+    /// One memory budget: the stream cache gets what the index entries the view keeps and the
+    /// method's own caches leave of it, and at least half of it when they would take more.
     #[test]
     fn the_blocks_get_what_the_views_index_entries_leave_of_the_budget() {
         let dir = std::env::temp_dir().join(format!("terrain-app-budget-{}", std::process::id()));
@@ -1301,17 +1313,21 @@ mod tests {
         let store = Arc::new(Store::open(&dir).unwrap());
         let camera = Camera::from_yaw_pitch(glam::dvec3(-300.0, -300.0, 900.0), 45.0, -25.0)
             .with_viewport(320.0, 180.0);
-        let budget = |all: u64| {
+        let reserved = |all: u64, reserved: u64| {
             let config = OocConfig { threads: 1, budget_bytes: all, ..OocConfig::default() };
-            let mut scene = OocScene::new(store.clone(), config);
+            let mut scene = OocScene::new(store.clone(), config).with_reserved(reserved);
             scene.frame(&camera, false);
             let entries = scene.tree.visited_bytes();
             scene.frame(&camera, false);
             (entries, scene.streamer().budget_bytes())
         };
+        let budget = |all: u64| reserved(all, 0);
         let (entries, blocks) = budget(64 << 20);
         assert!(entries > 10_000, "the view's entries: {entries} bytes");
         assert_eq!(blocks, (64 << 20) - entries);
+        // A method's own caches (`tin`'s tiles) come off the blocks' share too.
+        let (_, blocks) = reserved(64 << 20, 8 << 20);
+        assert_eq!(blocks, (56 << 20) - entries);
         let (entries, blocks) = budget(entries);
         assert_eq!(blocks, entries / 2, "at least half for the blocks");
         std::fs::remove_dir_all(&dir).unwrap();

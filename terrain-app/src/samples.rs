@@ -187,6 +187,11 @@ impl StoreSamples {
         self.store.header().block_cells() as usize
     }
 
+    /// The most bytes of decoded blocks kept (one block more per thread reading).
+    pub fn budget(&self) -> u64 {
+        self.cache.lock().unwrap_or_else(|e| e.into_inner()).budget
+    }
+
     /// The most bytes of decoded blocks resident at once, and the block levels decoded.
     pub fn cache_stats(&self) -> (u64, u64) {
         let c = self.cache.lock().unwrap_or_else(|e| e.into_inner());

@@ -87,7 +87,7 @@ pub fn store_tree(store: &std::sync::Arc<Store>, config: &TinConfig) -> StoreTre
 }
 
 /// The builder of `store`'s tiles for tree `shape` under `config`: the store's samples through
-/// a block cache of `config.store.block_cache_bytes`, and the bake's table of decimation errors
+/// a block cache of `block_cache_bytes`, and the bake's table of decimation errors
 /// per block, read once, which caps the tiles' strides without reading samples
 /// ([`GridTileBuilder::with_table`]). A store without one (baked before it existed) or with
 /// blocks of another size builds as before, each region measured on first need; a damaged
@@ -96,13 +96,14 @@ pub fn store_builder(
     store: Store,
     shape: TreeShape,
     config: &TinConfig,
+    block_cache_bytes: u64,
 ) -> anyhow::Result<GridTileBuilder<StoreSamples>> {
     let table = store
         .decimation_errors()
         .with_context(|| format!("the tin method's table of {}", store.dir().display()))?;
     let cells = 1usize << store.header().k;
     let builder = GridTileBuilder::new(
-        StoreSamples::new(store, config.store.block_cache_bytes),
+        StoreSamples::new(store, block_cache_bytes),
         shape,
         level_errors(&shape, config.pyramid.error_scale),
         Some(config.store.max_tile_cells),
@@ -183,7 +184,7 @@ pub fn bake_from_store(store: &Store, progress: bool) -> anyhow::Result<Option<T
     if store.decimation_errors()?.is_none() {
         return Ok(None);
     }
-    let builder = store_builder(store.clone(), shape, &config)?;
+    let builder = store_builder(store.clone(), shape, &config, config.store.block_cache_bytes)?;
     let key = Key::new(store, &shape, &config);
     let nodes = baked_nodes(&shape, config.store.max_tile_cells);
     let dir = store.dir();

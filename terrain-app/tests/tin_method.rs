@@ -603,7 +603,8 @@ fn baked_coarse_tiles_are_the_tiles_built_while_flying() {
     assert!(path.is_file() && !store.dir().join(format!("{TIN_TILES_FILE}.tmp")).exists());
     let baked = BakedTiles::open(&store, &shape, &config).unwrap().expect("the baked tiles");
     assert_eq!(baked.len(), 5);
-    let builder = store_builder((*store).clone(), shape, &config).unwrap();
+    let builder =
+        store_builder((*store).clone(), shape, &config, config.store.block_cache_bytes).unwrap();
     let nodes: Vec<NodeId> = [(0, 0, 0), (1, 0, 0), (1, 1, 0), (1, 0, 1), (1, 1, 1)]
         .into_iter()
         .map(|(l, i, j)| NodeId::new(l, i, j))
@@ -679,4 +680,66 @@ fn baked_coarse_tiles_are_the_tiles_built_while_flying() {
     assert!(BakedTiles::open(&store, &shape, &config).unwrap().is_some());
     std::fs::remove_file(&path).unwrap();
     assert!(BakedTiles::open(&store, &shape, &config).unwrap().is_none());
+}
+
+/// As a user runs it: `terrain bake` writes the coarse tiles, and `terrain render STORE
+/// --method tin` (the paged renderer, each vertex at its tile's height, the pages shading it)
+/// draws the image `terrain render DEM --method tin` draws from memory, within the golden
+/// tolerance, every frame at its needed level.
+#[test]
+fn terrain_render_draws_tin_from_a_baked_store_as_from_memory() {
+    let dir = common::scratch("tin-store", "cli");
+    let store = dir.join("ps1k");
+    let png = common::data("puget_sound/ps_height_1k.png");
+    let s = |p: &std::path::Path| p.to_str().unwrap().to_string();
+    let read = ["--vertical-scale", "0.1", "--spacing", "160"];
+    let mut bake_args = vec!["bake".to_string(), s(&png), "-o".into(), s(&store)];
+    bake_args.extend(read.iter().map(|a| a.to_string()));
+    bake_args.extend(["--no-dss", "--no-pvs", "--no-roughness", "--no-geomip"].map(String::from));
+    let args: Vec<&str> = bake_args.iter().map(String::as_str).collect();
+    let out = common::terrain(&args);
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(out.status.success(), "{stdout}{}", String::from_utf8_lossy(&out.stderr));
+    assert!(stdout.contains("tin_tiles.bin: the tin method's 5 coarse tiles"), "{stdout}");
+    let info = common::terrain(&["info", &s(&store)]);
+    let info = String::from_utf8_lossy(&info.stdout);
+    assert!(info.contains("tin_tiles.bin"), "terrain info lists the tiles: {info}");
+    let render = |src: &str, extra: &[&str], png: &std::path::Path| {
+        let mut args = vec!["render", src, "--method", "tin", "--size", "320x180"];
+        args.extend(["--camera", "80000,20000,9000,10,-30", "-o", png.to_str().unwrap()]);
+        args.extend(extra);
+        let out = common::terrain(&args);
+        let text = format!(
+            "{}{}",
+            String::from_utf8_lossy(&out.stdout),
+            String::from_utf8_lossy(&out.stderr)
+        );
+        (out.status.success(), text)
+    };
+    let (from_store, from_dem) = (dir.join("store.png"), dir.join("dem.png"));
+    let (ok, text) = render(&s(&store), &[], &from_store);
+    if !ok && text.contains("no GPU adapter") && std::env::var_os("TERRAIN_REQUIRE_GPU").is_none() {
+        println!("SKIPPED: {text}");
+        return;
+    }
+    assert!(ok, "{text}");
+    println!("{text}");
+    assert!(text.contains("drawn at their needed level: 100.0 %"), "{text}");
+    let (ok, text) = render(&s(&png), &read, &from_dem);
+    assert!(ok, "{text}");
+    let image = |p: &std::path::Path| {
+        let i = image::open(p).unwrap().to_rgba8();
+        terrain_gpu::target::RgbaImage {
+            width: i.width(),
+            height: i.height(),
+            pixels: i.pixels().map(|p| p.0).collect(),
+        }
+    };
+    let (a, b) = (image(&from_store), image(&from_dem));
+    let background = a.pixels.iter().filter(|p| **p == terrain_gpu::render::BACKGROUND).count();
+    assert!(background < a.pixels.len() / 10, "the terrain fills the view");
+    let (mean, far) = common::golden_diff(&a, &b);
+    println!("store against memory: mean |diff| {mean:.3?}, {:.3} % far off", far * 100.0);
+    assert!(mean.iter().all(|&m| m < 2.0) && far < 0.01, "{mean:?} {far}");
+    let _ = std::fs::remove_dir_all(&dir);
 }

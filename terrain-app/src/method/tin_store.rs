@@ -57,10 +57,14 @@ use crate::tin_scene::{BakedTiles, store_builder, store_tree};
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct TinStoreConfig {
     /// Most bytes of built tiles kept (least recently drawn dropped first; the tiles of the
-    /// frame being drawn are kept even past it).
+    /// frame being drawn are kept even past it). Default 128 MiB (a `fast_pass` frame over the
+    /// 32769^2 synthetic store draws about 30 MB of them at 320 x 180).
     pub tile_cache_bytes: u64,
-    /// Most bytes of decoded store blocks the tile builders keep.
+    /// Most bytes of decoded store blocks the tile builders keep. Default 256 MiB.
     pub block_cache_bytes: u64,
+    /// The same where the store has its coarse tiles baked ([`crate::tin_scene`]): the tiles
+    /// built while flying then span at most 256 cells (a block or four). Default 32 MiB.
+    pub block_cache_bytes_baked: u64,
     /// Tile builder threads.
     pub threads: usize,
     /// Most cells across a tile's mesh input ([`terrain_core::tin::grid::tile_window`]).
@@ -72,8 +76,9 @@ pub struct TinStoreConfig {
 impl Default for TinStoreConfig {
     fn default() -> Self {
         Self {
-            tile_cache_bytes: 256 << 20,
+            tile_cache_bytes: 128 << 20,
             block_cache_bytes: 256 << 20,
+            block_cache_bytes_baked: 32 << 20,
             threads: 2,
             max_tile_cells: 64,
             wait_timeout: Duration::from_secs(600),
@@ -232,7 +237,8 @@ impl TinTiles {
     /// decimation errors that cannot be read is an error.
     pub fn new(store: Store, shape: TreeShape, config: &TinConfig) -> anyhow::Result<Self> {
         let baked = BakedTiles::open(&store, &shape, config)?;
-        let builder = store_builder(store, shape, config)?;
+        let blocks = Self::block_cache_bytes(config, baked.is_some());
+        let builder = store_builder(store, shape, config, blocks)?;
         let s = &config.store;
         let shared = Arc::new(Shared {
             builder,
@@ -252,6 +258,19 @@ impl TinTiles {
             })
             .collect();
         Ok(Self { shared, workers })
+    }
+
+    /// The block cache of the tile builders under `config`, for a store with its coarse tiles
+    /// `baked` or not.
+    fn block_cache_bytes(config: &TinConfig, baked: bool) -> u64 {
+        let s = &config.store;
+        if baked { s.block_cache_bytes_baked } else { s.block_cache_bytes }
+    }
+
+    /// The bytes the tile cache and the builders' block cache may hold: what they take of the
+    /// run's memory budget ([`OocScene::with_reserved`]).
+    pub fn cache_bytes(&self) -> u64 {
+        self.shared.budget + self.shared.builder.samples().budget()
     }
 
     /// Every level's bound, metres.
@@ -496,6 +515,8 @@ impl<'a> TinStoreMethod<'a> {
             super::store::check_same_heights(&store, &r.hm)?;
         }
         let tiles = TinTiles::new((*store).clone(), shape, config)?;
+        // One memory budget: the stream cache gets what the tiles' caches leave of it.
+        let scene = scene.with_reserved(tiles.cache_bytes());
         Ok(Self { scene, tree, tiles, config: *config, wait, frames: 0, reference })
     }
 
