@@ -91,7 +91,7 @@ pub(crate) struct BakeArgs {
     /// with the blocks from the same bands of rows, and by each shard for its rows).
     #[arg(long)]
     pub no_geomip: bool,
-    /// Do not build the tin method's coarse tiles (`tin_tiles.bin`: every tile spanning 512
+    /// Do not build the tin method's coarse tiles (`tin_tiles.bin`: every tile spanning 1024
     /// cells or more, built once from the store's blocks so that `--method tin` from the store
     /// reads them instead of meshing millions of samples while flying; they are then built
     /// while flying, as for a store baked before this file existed).
@@ -462,11 +462,11 @@ fn run_into(args: &BakeArgs, out: &Path, shown: &str) -> anyhow::Result<()> {
     if !args.no_tin {
         stop_before("tin tiles")?;
         // From the store's blocks and its table of decimation errors, as `tin` builds them
-        // while flying: every tile of 512 cells or more across.
+        // while flying: every tile of 1024 cells or more across.
         let store = terrain_stream::Store::open(out).with_context(|| format!("opening {shown}"))?;
         if let Some(r) = terrain_app::tin_scene::bake_from_store(&store, true)? {
             println!(
-                "{}: the tin method's {} coarse tiles ({} triangles), {:.2} MiB, {:.1} s",
+                "{}: {} of the tin method's coarse tiles ({} triangles), {:.2} MiB, {:.1} s",
                 out.join(terrain_app::tin_scene::TIN_TILES_FILE).display(),
                 r.tiles,
                 r.triangles,

@@ -1,10 +1,13 @@
 //! The `tin` method's coarse tiles baked into a store (`tin_tiles.bin`): every tile whose own
-//! stride is at least `2^BAKED_MIN_STRIDE_LOG2` (a tile spanning 512 cells or more at the
+//! stride is at least `2^BAKED_MIN_STRIDE_LOG2` (a tile spanning 1024 cells or more at the
 //! store's 64-cell tiles), built by the builder `tin` from a store builds with at run time
 //! ([`store_builder`]: the same function, the same bounds, the same samples), so a frame never
-//! waits for a tile meshed from millions of samples: those are read (a few kilobytes each),
-//! and only tiles of at most 256 cells across (66 k samples) are built while flying. The
-//! tiles are view-independent, so nothing is lost by building them once.
+//! waits for a tile meshed from millions of samples: those are read (tens of kilobytes each),
+//! and only tiles of at most 512 cells across (262 k samples) are built while flying. The
+//! tiles are view-independent, so nothing is lost by building them once. (Baking the 512-cell
+//! tiles too drew no more frames at their needed level over the 32769^2 synthetic store, for a
+//! file of 997 instead of 361 MiB and 85 s more bake; leaving the 1024-cell ones to the flight
+//! drew 94.7 % instead of 96.7 %: bench/ooc/README.md, "The tin method's coarse tiles baked".)
 //!
 //! `terrain bake` writes the file after the store's blocks (and after a sharded bake's merge),
 //! unless `--no-tin`, for the default `tin` settings; a store read with other settings
@@ -38,8 +41,8 @@ use crate::samples::StoreSamples;
 pub const TIN_TILES_FILE: &str = "tin_tiles.bin";
 
 /// Tiles whose own stride (their 64 cells across at it) is at least `2^this` are baked: at
-/// run time the rest are meshed from windows of at most 256 cells across.
-pub const BAKED_MIN_STRIDE_LOG2: u32 = 3;
+/// run time the rest are meshed from windows of at most 512 cells across.
+pub const BAKED_MIN_STRIDE_LOG2: u32 = 4;
 
 const MAGIC: &[u8; 4] = b"TINT";
 const VERSION: u32 = 1;
@@ -48,7 +51,8 @@ const ENTRY_BYTES: usize = 32;
 /// Tiles built between two writes of the bake (bounds the tiles held in memory).
 const CHUNK_TILES: usize = 128;
 
-/// What a file's tiles were built for: a reader uses them only where all of it matches.
+/// What a file's tiles were built for: a reader uses them only where all of it matches (but
+/// `min_stride_log2`, which only says which tiles the file holds).
 #[derive(Debug, Clone, Copy, PartialEq)]
 struct Key {
     width: u32,
@@ -118,8 +122,8 @@ pub fn store_builder(
 }
 
 /// The tiles of tree `shape` the bake builds: those whose own stride is at least
-/// `2^BAKED_MIN_STRIDE_LOG2`, coarse first.
-fn baked_nodes(shape: &TreeShape, max_cells: u32) -> Vec<NodeId> {
+/// `2^min_stride_log2`, coarse first.
+fn baked_nodes(shape: &TreeShape, max_cells: u32, min_stride_log2: u32) -> Vec<NodeId> {
     let mut nodes = Vec::new();
     for level in 0..=shape.max_level() {
         let (nx, ny) = shape.level_dims(level);
@@ -127,7 +131,7 @@ fn baked_nodes(shape: &TreeShape, max_cells: u32) -> Vec<NodeId> {
             for i in 0..nx {
                 let n = NodeId::new(level, i, j);
                 if tile_window(shape, n, Some(max_cells))
-                    .is_some_and(|w| w.stride_log2 >= BAKED_MIN_STRIDE_LOG2)
+                    .is_some_and(|w| w.stride_log2 >= min_stride_log2)
                 {
                     nodes.push(n);
                 }
@@ -150,43 +154,47 @@ pub struct TinBakeReport {
     pub secs: f64,
 }
 
-/// Why a store gets no baked tiles, or `None` when it can have them.
-fn not_bakeable(store: &Store, shape: &TreeShape, config: &TinConfig) -> Option<String> {
+/// Whether `store`'s tiles can be baked and read: read without a vertical exaggeration (the
+/// tiles' meshes depend on the heights' scale), with blocks of the decimation table's
+/// regions (the table caps the tiles' strides).
+fn bakeable(store: &Store) -> bool {
     let h = store.header();
-    if h.vertical_scale != 1.0 {
-        return Some("a store read with a vertical exaggeration".into());
-    }
-    if (1usize << h.k) != DECIMATION_REGION {
-        return Some(format!(
-            "blocks of {} cells (the decimation table's regions are {DECIMATION_REGION})",
-            h.block_cells()
-        ));
-    }
-    if baked_nodes(shape, config.store.max_tile_cells).is_empty() {
-        return Some("no tile spans 512 cells or more".into());
-    }
-    None
+    h.vertical_scale == 1.0 && (1usize << h.k) == DECIMATION_REGION
 }
 
-/// Builds `store`'s coarse `tin` tiles (the default settings, [`TinConfig::default`]) on every
-/// core and writes them into its folder (a temporary file renamed into place, so an
-/// interrupted bake leaves no damaged file), with a progress bar when `progress`. `Ok(None)`
-/// when the store gets none: no table of decimation errors (a store baked before it), blocks
-/// of another size, or a grid with no tile of 512 cells or more.
+/// Builds `store`'s coarse `tin` tiles (the default settings, [`TinConfig::default`]; those
+/// of `2^BAKED_MIN_STRIDE_LOG2` x 64 cells or more) on every core and writes them into its
+/// folder (a temporary file renamed into place, so an interrupted bake leaves no damaged
+/// file), with a progress bar when `progress`. `Ok(None)` when the store gets none: no table
+/// of decimation errors (a store baked before it), blocks of another size, or a grid with no
+/// tile that large.
 pub fn bake_from_store(store: &Store, progress: bool) -> anyhow::Result<Option<TinBakeReport>> {
+    bake_tiles(store, BAKED_MIN_STRIDE_LOG2, progress)
+}
+
+/// [`bake_from_store`] for the tiles whose own stride is at least `2^min_stride_log2` (a
+/// reader uses whichever tiles the file holds).
+pub fn bake_tiles(
+    store: &Store,
+    min_stride_log2: u32,
+    progress: bool,
+) -> anyhow::Result<Option<TinBakeReport>> {
     let start = Instant::now();
     let config = TinConfig::default();
     let arc = std::sync::Arc::new(store.clone());
     let shape = *NodeTree::shape(&store_tree(&arc, &config));
-    if not_bakeable(store, &shape, &config).is_some() {
+    if !bakeable(store) {
         return Ok(None);
     }
     if store.decimation_errors()?.is_none() {
         return Ok(None);
     }
     let builder = store_builder(store.clone(), shape, &config, config.store.block_cache_bytes)?;
-    let key = Key::new(store, &shape, &config);
-    let nodes = baked_nodes(&shape, config.store.max_tile_cells);
+    let key = Key { min_stride_log2, ..Key::new(store, &shape, &config) };
+    let nodes = baked_nodes(&shape, config.store.max_tile_cells, min_stride_log2);
+    if nodes.is_empty() {
+        return Ok(None);
+    }
     let dir = store.dir();
     let path = dir.join(TIN_TILES_FILE);
     let tmp = dir.join(format!("{TIN_TILES_FILE}.tmp"));
@@ -451,7 +459,7 @@ impl BakedTiles {
         shape: &TreeShape,
         config: &TinConfig,
     ) -> anyhow::Result<Option<Self>> {
-        if not_bakeable(store, shape, config).is_some() {
+        if !bakeable(store) {
             return Ok(None);
         }
         let Some(reader) = store.side_table(TIN_TILES_FILE)? else { return Ok(None) };
@@ -490,7 +498,7 @@ impl BakedTiles {
         if found.bake_id != want.bake_id {
             return Err(bad("written for another bake of the store's blocks".into()));
         }
-        if found != want {
+        if found != (Key { min_stride_log2: found.min_stride_log2, ..want }) {
             return Ok(None);
         }
         let (tiles, index_offset) = (u32_at(52) as u64, u64_at(56));

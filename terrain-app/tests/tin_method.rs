@@ -590,14 +590,19 @@ fn tin_from_a_store_draws_no_crack() {
 /// refused, one for other settings is not used, and a missing one changes nothing.
 #[test]
 fn baked_coarse_tiles_are_the_tiles_built_while_flying() {
-    use terrain_app::tin_scene::{BakedTiles, TIN_TILES_FILE, bake_from_store, store_builder};
+    use terrain_app::tin_scene::{
+        BakedTiles, TIN_TILES_FILE, bake_from_store, bake_tiles, store_builder,
+    };
     let hm = FractalConfig::with_size(1025, 769, 10.0).to_heightmap().unwrap();
     let store = baked("baked-tiles", &hm);
     let config = MethodConfig::default().tin;
     let tree = terrain_app::tin_scene::store_tree(&store, &config);
     let shape = *terrain_core::quadtree::NodeTree::shape(&tree);
+    // The bake's: tiles of 1024 cells or more, here the root (stride 16 at 64 cells).
     let report = bake_from_store(&store, false).unwrap().expect("a 1025 x 769 store has tiles");
-    // Root tile 1024 cells across (stride 16 at 64 cells), level 1 512 (stride 8): 1 + 4.
+    assert_eq!(report.tiles, 1);
+    // With level 1 too (512 cells, stride 8): 1 + 4; a reader takes whichever tiles are there.
+    let report = bake_tiles(&store, 3, false).unwrap().unwrap();
     assert_eq!(report.tiles, 5);
     let path = store.dir().join(TIN_TILES_FILE);
     assert!(path.is_file() && !store.dir().join(format!("{TIN_TILES_FILE}.tmp")).exists());
@@ -700,7 +705,7 @@ fn terrain_render_draws_tin_from_a_baked_store_as_from_memory() {
     let out = common::terrain(&args);
     let stdout = String::from_utf8_lossy(&out.stdout);
     assert!(out.status.success(), "{stdout}{}", String::from_utf8_lossy(&out.stderr));
-    assert!(stdout.contains("tin_tiles.bin: the tin method's 5 coarse tiles"), "{stdout}");
+    assert!(stdout.contains("tin_tiles.bin: 1 of the tin method's coarse tiles"), "{stdout}");
     let info = common::terrain(&["info", &s(&store)]);
     let info = String::from_utf8_lossy(&info.stdout);
     assert!(info.contains("tin_tiles.bin"), "terrain info lists the tiles: {info}");

@@ -4,7 +4,7 @@
 //! the pyramid in memory ([`super::GridTileBuilder`]: the stride each tile's level allows,
 //! within its bound less the decimation error under it, checked against every sample under
 //! it), and kept in a byte-budgeted LRU cache of built tiles
-//! ([`TinTiles`]). Nothing of the full grid is in memory. The coarse tiles (512 cells or more
+//! ([`TinTiles`]). Nothing of the full grid is in memory. The coarse tiles (1024 cells or more
 //! across) a store's bake built ([`crate::tin_scene`], `tin_tiles.bin`) are read instead of
 //! built: the same tiles, bit for bit.
 //!
@@ -63,7 +63,7 @@ pub struct TinStoreConfig {
     /// Most bytes of decoded store blocks the tile builders keep. Default 256 MiB.
     pub block_cache_bytes: u64,
     /// The same where the store has its coarse tiles baked ([`crate::tin_scene`]): the tiles
-    /// built while flying then span at most 256 cells (a block or four). Default 32 MiB.
+    /// built while flying then span at most 512 cells (four to nine blocks). Default 32 MiB.
     pub block_cache_bytes_baked: u64,
     /// Tile builder threads.
     pub threads: usize,
