@@ -205,14 +205,24 @@ pub fn bake_tiles(
     let bar = Progress::new("tin tiles", progress);
     let mut index: Vec<u8> = Vec::with_capacity(nodes.len() * ENTRY_BYTES);
     let (mut offset, mut triangles) = (HEADER_BYTES as u64, 0u64);
-    let done = std::sync::atomic::AtomicUsize::new(0);
+    // Progress in samples read: a coarse tile reads up to 4 M of them, a 1024-cell one 1 M.
+    let weight = |n: NodeId| -> u64 {
+        let own = builder.own_stride(n).unwrap_or(0);
+        let s = own.saturating_sub(config.pyramid.finer_strides);
+        shape.clipped_rect(n).map_or(0, |r| {
+            (u64::from((r.x1 - r.x0) >> s) + 1) * (u64::from((r.y1 - r.y0) >> s) + 1)
+        })
+    };
+    let total = nodes.iter().map(|&n| weight(n)).sum::<u64>() as f64;
+    let done = std::sync::atomic::AtomicU64::new(0);
     for chunk in nodes.chunks(CHUNK_TILES) {
         let built: Vec<(NodeId, u32, usize, Vec<u8>)> = chunk
             .par_iter()
             .map(|&n| {
                 let t = builder.build(n).with_context(|| format!("tin tile {n:?}"))?;
-                let d = done.fetch_add(1, std::sync::atomic::Ordering::Relaxed) + 1;
-                bar.update(d as f64, nodes.len() as f64);
+                let w = weight(n);
+                let d = done.fetch_add(w, std::sync::atomic::Ordering::Relaxed) + w;
+                bar.update(d as f64, total);
                 Ok((n, t.stride_log2, t.triangles.len(), encode_tile(&t, origin(&shape, n)?)))
             })
             .collect::<anyhow::Result<_>>()?;
