@@ -625,6 +625,32 @@ mod tests {
         same(&decode_tile(w.node, &bytes, [512, 0]).unwrap(), &w);
     }
 
+    /// Every byte of a tile set to each of a few values (its counts, flags and offsets among
+    /// them): decoding returns a tile or an error, never panics, and never allocates by a count
+    /// its bytes cannot hold.
+    #[test]
+    fn mutated_tiles_decode_or_fail_without_panicking() {
+        let t = tile();
+        let bytes = encode_tile(&t, [512, 0]);
+        let (mut ok, mut failed) = (0, 0);
+        for at in 0..bytes.len() {
+            for v in [0u8, 1, 0x7f, 0x80, 0xff] {
+                let mut m = bytes.clone();
+                m[at] = v;
+                match decode_tile(t.node, &m, [512, 0]) {
+                    Ok(d) => {
+                        ok += 1;
+                        assert_eq!(d.heights.len(), d.vertices.len());
+                    }
+                    Err(_) => failed += 1,
+                }
+            }
+        }
+        assert!(ok > 0 && failed > 0, "{ok} decoded, {failed} refused");
+        // Offsets past the grid's coordinates.
+        assert!(decode_tile(t.node, &bytes, [u32::MAX - 10, 0]).is_err());
+    }
+
     #[test]
     fn a_truncated_or_lengthened_tile_is_an_error_not_a_panic() {
         let t = tile();

@@ -129,8 +129,8 @@ impl Shared {
 
     /// Tile `node` from the store's samples: [`GridTileBuilder::build`], the builder of the
     /// pyramid in memory (its window's stride, the budget less the decimation error under it,
-    /// checked against every sample under it).
-    /// A baked tile is read instead ([`BakedTiles::read`]); the flag says so.
+    /// checked against every sample under it); a baked tile is read instead
+    /// ([`BakedTiles::read`]), and the flag says so.
     fn build(&self, node: NodeId) -> anyhow::Result<(GridTile, bool)> {
         if let Some(tile) = self.baked.as_ref().map(|b| b.read(node)).transpose()?.flatten() {
             return Ok((tile, true));
@@ -234,7 +234,8 @@ pub struct TinTiles {
 impl TinTiles {
     /// The tiles of `store` (its tree `shape`, leaves of the pyramid's finest tiles) under
     /// `config`'s pyramid and store settings; starts the workers. A store's table of
-    /// decimation errors that cannot be read is an error.
+    /// decimation errors that cannot be read, and a damaged `tin_tiles.bin` or one of another
+    /// bake, are errors.
     pub fn new(store: Store, shape: TreeShape, config: &TinConfig) -> anyhow::Result<Self> {
         let baked = BakedTiles::open(&store, &shape, config)?;
         let blocks = Self::block_cache_bytes(config, baked.is_some());
