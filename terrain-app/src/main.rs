@@ -17,6 +17,7 @@ mod roughness;
 mod shard;
 mod source;
 mod tiles;
+mod tin_tiles;
 mod view;
 
 use clap::{CommandFactory, FromArgMatches, Parser, Subcommand};
@@ -53,6 +54,9 @@ enum Command {
     /// Measure the out-of-core method's p99 pixel error against its tau on a baked store and
     /// write the map --error-px uses for it (STORE/ooc-calibration.txt).
     Calibrate(calibrate::CalibrateArgs),
+    /// Build the tin method's coarse tiles (STORE/tin_tiles.bin) into a store baked without
+    /// them (before they existed, or with `terrain bake --no-tin`).
+    TinTiles(tin_tiles::TinTilesArgs),
     /// Draw a DEM (or the embedded synthetic terrain) with the GPU tessellator into a PNG.
     Render(render::RenderArgs),
     /// A triangle mesh within --max-error metres of every sample (RTIN or greedy Delaunay),
@@ -119,6 +123,7 @@ fn main() -> std::process::ExitCode {
         Command::Roughness(args) => roughness::run(&args),
         Command::Bake(args) => bake::run(&args),
         Command::Calibrate(args) => calibrate::run(&args),
+        Command::TinTiles(args) => tin_tiles::run(&args),
         Command::Render(args) => render::run(&args),
         Command::Mesh(args) => mesh::run(&args),
         Command::Tiles(args) => tiles::run(&args),

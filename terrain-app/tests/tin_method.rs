@@ -709,6 +709,21 @@ fn terrain_render_draws_tin_from_a_baked_store_as_from_memory() {
     let info = common::terrain(&["info", &s(&store)]);
     let info = String::from_utf8_lossy(&info.stdout);
     assert!(info.contains("tin_tiles.bin"), "terrain info lists the tiles: {info}");
+    // `--no-tin` skips them; `terrain tin-tiles` adds the same file to a store without it.
+    let tiles = std::fs::read(store.join("tin_tiles.bin")).unwrap();
+    let bare = dir.join("ps1k-no-tin");
+    let mut no_tin: Vec<&str> = args.clone();
+    no_tin[3] = bare.to_str().unwrap();
+    no_tin.push("--no-tin");
+    let out = common::terrain(&no_tin);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(!bare.join("tin_tiles.bin").exists());
+    let out = common::terrain(&["tin-tiles", &s(&bare), "--quiet"]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert_eq!(std::fs::read(bare.join("tin_tiles.bin")).unwrap(), tiles, "the bake's file");
+    let out = common::terrain(&["tin-tiles", &s(&dir)]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success() && err.contains("is not a store folder"), "{err}");
     let render = |src: &str, extra: &[&str], png: &std::path::Path| {
         let mut args = vec!["render", src, "--method", "tin", "--size", "320x180"];
         args.extend(["--camera", "80000,20000,9000,10,-30", "-o", png.to_str().unwrap()]);
