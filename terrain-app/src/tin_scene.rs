@@ -198,8 +198,38 @@ pub fn bake_tiles(
     let dir = store.dir();
     let path = dir.join(TIN_TILES_FILE);
     let tmp = dir.join(format!("{TIN_TILES_FILE}.tmp"));
+    // A failed bake leaves the store as it was: no temporary file, any earlier file intact.
+    let written = write_tiles(&builder, &shape, &key, &nodes, &tmp, progress);
+    let (triangles, bytes) = match written {
+        Ok(w) => w,
+        Err(e) => {
+            let _ = std::fs::remove_file(&tmp);
+            return Err(e);
+        }
+    };
+    std::fs::rename(&tmp, &path)
+        .with_context(|| format!("renaming {} to {}", tmp.display(), path.display()))?;
+    Ok(Some(TinBakeReport {
+        tiles: nodes.len(),
+        triangles,
+        bytes,
+        secs: start.elapsed().as_secs_f64(),
+    }))
+}
+
+/// Builds `nodes` and writes them with their index and header `key` to `tmp`; returns their
+/// triangles and the file's bytes.
+fn write_tiles(
+    builder: &GridTileBuilder<StoreSamples>,
+    shape: &TreeShape,
+    key: &Key,
+    nodes: &[NodeId],
+    tmp: &std::path::Path,
+    progress: bool,
+) -> anyhow::Result<(u64, u64)> {
+    let shape = *shape;
     let io = |what: &str| format!("{what} {}", tmp.display());
-    let file = std::fs::File::create(&tmp).with_context(|| io("creating"))?;
+    let file = std::fs::File::create(tmp).with_context(|| io("creating"))?;
     let mut out = std::io::BufWriter::new(file);
     out.write_all(&[0u8; HEADER_BYTES]).with_context(|| io("writing"))?;
     let bar = Progress::new("tin tiles", progress);
@@ -208,7 +238,7 @@ pub fn bake_tiles(
     // Progress in samples read: a coarse tile reads up to 4 M of them, a 1024-cell one 1 M.
     let weight = |n: NodeId| -> u64 {
         let own = builder.own_stride(n).unwrap_or(0);
-        let s = own.saturating_sub(config.pyramid.finer_strides);
+        let s = own.saturating_sub(key.finer_strides);
         shape.clipped_rect(n).map_or(0, |r| {
             (u64::from((r.x1 - r.x0) >> s) + 1) * (u64::from((r.y1 - r.y0) >> s) + 1)
         })
@@ -235,20 +265,12 @@ pub fn bake_tiles(
     }
     bar.finish();
     out.write_all(&index).with_context(|| io("writing"))?;
-    let head = header(&key, nodes.len() as u32, offset);
+    let head = header(key, nodes.len() as u32, offset);
     let mut file = out.into_inner().map_err(|e| e.into_error()).with_context(|| io("writing"))?;
     file.seek(SeekFrom::Start(0)).with_context(|| io("writing"))?;
     file.write_all(&head).with_context(|| io("writing"))?;
     file.sync_all().with_context(|| io("writing"))?;
-    drop(file);
-    std::fs::rename(&tmp, &path)
-        .with_context(|| format!("renaming {} to {}", tmp.display(), path.display()))?;
-    Ok(Some(TinBakeReport {
-        tiles: nodes.len(),
-        triangles,
-        bytes: offset + index.len() as u64,
-        secs: start.elapsed().as_secs_f64(),
-    }))
+    Ok((triangles, offset + index.len() as u64))
 }
 
 /// The south-west sample of tile `n`'s clipped rectangle.

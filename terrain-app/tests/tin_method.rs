@@ -683,6 +683,22 @@ fn baked_coarse_tiles_are_the_tiles_built_while_flying() {
     capped.pyramid.finer_strides = 2;
     assert!(BakedTiles::open(&store, &shape, &capped).unwrap().is_none());
     assert!(BakedTiles::open(&store, &shape, &config).unwrap().is_some());
+    // A bake that fails (a damaged block file) leaves the store as it was: the earlier file
+    // intact, no temporary file.
+    let mut blocks: Vec<std::path::PathBuf> =
+        std::fs::read_dir(store.dir().join("blocks")).unwrap().map(|e| e.unwrap().path()).collect();
+    blocks.sort();
+    let block = &blocks[0];
+    let mut bytes = std::fs::read(block).unwrap();
+    let n = bytes.len();
+    for b in &mut bytes[n / 2..] {
+        *b ^= 0x5a;
+    }
+    std::fs::write(block, &bytes).unwrap();
+    let e = bake_tiles(&store, 3, false).expect_err("a damaged block");
+    println!("a damaged block: {e:#}");
+    assert_eq!(std::fs::read(&path).unwrap(), good, "the earlier file intact");
+    assert!(!store.dir().join(format!("{TIN_TILES_FILE}.tmp")).exists());
     std::fs::remove_file(&path).unwrap();
     assert!(BakedTiles::open(&store, &shape, &config).unwrap().is_none());
 }
