@@ -109,10 +109,10 @@ pub(crate) struct BakeArgs {
     /// part folder -o, with geomorph's table of its rows and no other scene table. `terrain
     /// bake` with the same DEM and options and `--merge` then joins the N parts into the store
     /// a single bake writes, byte for byte, and bakes the other tables. A part records the
-    /// DEM's checksum and the options. The table options (--no-pvs, --no-roughness, --pvs-*)
-    /// are accepted and apply to the merge, so shards and merge take one command line (--no-dss
-    /// also drops the per-block errors the shards write into the index, --no-geomip the
-    /// shards' geomorph tables).
+    /// DEM's checksum and the options. The table options (--no-pvs, --no-roughness, --no-tin,
+    /// --pvs-*) are accepted and apply to the merge, so shards and merge take one command line
+    /// (--no-dss also drops the per-block errors the shards write into the index, --no-geomip
+    /// the shards' geomorph tables).
     #[arg(long, value_name = "K/N", conflicts_with = "merge")]
     pub shard: Option<terrain_stream::Shard>,
     /// Join the parts of a sharded bake (part folders, or folders holding them) into the store
