@@ -87,7 +87,8 @@ struct Surface {
     height: f32,
 }
 
-// The camera-relative x and y of grid coordinates `g`'s cell `c` (surface::plane_position).
+// The camera-relative x and y of grid coordinates `g`'s cell `c` (the x and y of
+// surface::position_at_height).
 fn plane_at(c: Cell) -> vec2<f32> {
     let x = col_x[c.i0.x] + c.f.x * frame.spacing.x;
     let y = row_y[c.i0.y] + c.f.y * frame.spacing.y;
