@@ -12,8 +12,9 @@
 //! `terrain bake` writes the file after the store's blocks (and after a sharded bake's merge),
 //! unless `--no-tin`, for the default `tin` settings; a store read with other settings
 //! (`--error-scale`, another finest tile size, a vertical exaggeration) builds every tile as
-//! before. The file is tied to the store's blocks by their bake id: a file of another bake is
-//! not used, and a damaged tile is an error naming the file.
+//! before, and so does a store without its table of decimation errors (the tiles' bounds come
+//! from it). The file is tied to the store's blocks by their bake id: a file of another bake
+//! of them, or a damaged tile, is an error naming the file.
 //!
 //! Layout (little-endian): a 64-byte header (`TINT`, version, the grid and tree, the
 //! settings, the bake id, the tile count and the index's offset), the tiles one after the
@@ -491,7 +492,9 @@ impl BakedTiles {
         shape: &TreeShape,
         config: &TinConfig,
     ) -> anyhow::Result<Option<Self>> {
-        if !bakeable(store) {
+        // Without the decimation table the selection's bounds are the levels' own, not the
+        // raised ones the baked tiles were built within.
+        if !bakeable(store) || store.decimation_errors()?.is_none() {
             return Ok(None);
         }
         let Some(reader) = store.side_table(TIN_TILES_FILE)? else { return Ok(None) };

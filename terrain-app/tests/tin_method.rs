@@ -699,6 +699,11 @@ fn baked_coarse_tiles_are_the_tiles_built_while_flying() {
     println!("a damaged block: {e:#}");
     assert_eq!(std::fs::read(&path).unwrap(), good, "the earlier file intact");
     assert!(!store.dir().join(format!("{TIN_TILES_FILE}.tmp")).exists());
+    // Without the decimation table (the tiles' raised bounds) the file is not used.
+    std::fs::write(&path, &good).unwrap();
+    std::fs::remove_file(store.dir().join(terrain_stream::DECIMATION_FILE)).unwrap();
+    let reopened = Store::open(store.dir()).unwrap();
+    assert!(BakedTiles::open(&reopened, &shape, &config).unwrap().is_none());
     std::fs::remove_file(&path).unwrap();
     assert!(BakedTiles::open(&store, &shape, &config).unwrap().is_none());
 }
