@@ -465,14 +465,7 @@ fn run_into(args: &BakeArgs, out: &Path, shown: &str) -> anyhow::Result<()> {
         // while flying: every tile of 1024 cells or more across.
         let store = terrain_stream::Store::open(out).with_context(|| format!("opening {shown}"))?;
         if let Some(r) = terrain_app::tin_scene::bake_from_store(&store, true)? {
-            println!(
-                "{}: {} of the tin method's coarse tiles ({} triangles), {:.2} MiB, {:.1} s",
-                out.join(terrain_app::tin_scene::TIN_TILES_FILE).display(),
-                r.tiles,
-                r.triangles,
-                r.bytes as f64 / terrain_app::MIB,
-                r.secs
-            );
+            println!("{}", r.line(out));
         }
         stages.end("tin tiles");
     }

@@ -155,20 +155,52 @@ pub struct TinBakeReport {
     pub secs: f64,
 }
 
-/// Whether `store`'s tiles can be baked and read: read without a vertical exaggeration (the
-/// tiles' meshes depend on the heights' scale), with blocks of the decimation table's
-/// regions (the table caps the tiles' strides).
-fn bakeable(store: &Store) -> bool {
+impl TinBakeReport {
+    /// The line `terrain bake` and `terrain tin-tiles` print for the tiles written into store
+    /// folder `dir`.
+    pub fn line(&self, dir: &std::path::Path) -> String {
+        format!(
+            "{}: {} of the tin method's coarse tiles ({} triangles), {:.2} MiB, {:.1} s",
+            dir.join(TIN_TILES_FILE).display(),
+            self.tiles,
+            self.triangles,
+            self.bytes as f64 / crate::MIB,
+            self.secs
+        )
+    }
+}
+
+/// Why `store`'s tiles cannot be baked nor read, or `None` when they can: it must be read
+/// without a vertical exaggeration (the tiles' meshes depend on the heights' scale), have
+/// blocks of the decimation table's regions and that table (it caps the tiles' strides and
+/// raises their bounds; without it the selection would take the levels' own bounds).
+pub fn not_bakeable(store: &Store) -> anyhow::Result<Option<String>> {
     let h = store.header();
-    h.vertical_scale == 1.0 && (1usize << h.k) == DECIMATION_REGION
+    Ok(if h.vertical_scale != 1.0 {
+        Some(format!("it is read with a vertical exaggeration ({})", h.vertical_scale))
+    } else if (1usize << h.k) != DECIMATION_REGION {
+        Some(format!(
+            "it has blocks of {} cells; the tin method's baked tiles need {DECIMATION_REGION} \
+             (bake it with the default --block-k 8)",
+            h.block_cells()
+        ))
+    } else if store.decimation_errors()?.is_none() {
+        Some(format!(
+            "it has no table of decimation errors ({}: baked before it existed), which the \
+             tiles need: bake the store again (that writes the tiles too)",
+            terrain_stream::DECIMATION_FILE
+        ))
+    } else {
+        None
+    })
 }
 
 /// Builds `store`'s coarse `tin` tiles (the default settings, [`TinConfig::default`]; those
 /// of `2^BAKED_MIN_STRIDE_LOG2` x 64 cells or more) on every core and writes them into its
 /// folder (a temporary file renamed into place, so an interrupted bake leaves no damaged
 /// file), with a progress bar when `progress`. `Ok(None)` when the store gets none: no table
-/// of decimation errors (a store baked before it), blocks of another size, or a grid with no
-/// tile that large.
+/// of decimation errors (a store baked before it), blocks of another size, a vertical
+/// exaggeration ([`not_bakeable`]), or a grid with no tile that large.
 pub fn bake_from_store(store: &Store, progress: bool) -> anyhow::Result<Option<TinBakeReport>> {
     bake_tiles(store, BAKED_MIN_STRIDE_LOG2, progress)
 }
@@ -184,10 +216,7 @@ pub fn bake_tiles(
     let config = TinConfig::default();
     let arc = std::sync::Arc::new(store.clone());
     let shape = *NodeTree::shape(&store_tree(&arc, &config));
-    if !bakeable(store) {
-        return Ok(None);
-    }
-    if store.decimation_errors()?.is_none() {
+    if not_bakeable(store)?.is_some() {
         return Ok(None);
     }
     let builder = store_builder(store.clone(), shape, &config, config.store.block_cache_bytes)?;
@@ -238,8 +267,7 @@ fn write_tiles(
     let (mut offset, mut triangles) = (HEADER_BYTES as u64, 0u64);
     // Progress in samples read: a coarse tile reads up to 4 M of them, a 1024-cell one 1 M.
     let weight = |n: NodeId| -> u64 {
-        let own = builder.own_stride(n).unwrap_or(0);
-        let s = own.saturating_sub(key.finer_strides);
+        let s = builder.finest_stride(builder.own_stride(n).unwrap_or(0));
         shape.clipped_rect(n).map_or(0, |r| {
             (u64::from((r.x1 - r.x0) >> s) + 1) * (u64::from((r.y1 - r.y0) >> s) + 1)
         })
@@ -492,9 +520,9 @@ impl BakedTiles {
         shape: &TreeShape,
         config: &TinConfig,
     ) -> anyhow::Result<Option<Self>> {
-        // Without the decimation table the selection's bounds are the levels' own, not the
-        // raised ones the baked tiles were built within.
-        if !bakeable(store) || store.decimation_errors()?.is_none() {
+        // (Without the decimation table the selection's bounds are the levels' own, not the
+        // raised ones the baked tiles were built within.)
+        if not_bakeable(store)?.is_some() {
             return Ok(None);
         }
         let Some(reader) = store.side_table(TIN_TILES_FILE)? else { return Ok(None) };

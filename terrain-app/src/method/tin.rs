@@ -196,10 +196,7 @@ impl<S: Samples> GridTileBuilder<S> {
         let mut bounds = Vec::new();
         for level in 0..=self.shape.max_level() {
             let (nx, ny) = self.shape.level_dims(level);
-            let own = |i: u32, j: u32| {
-                tile_window(&self.shape, NodeId::new(level, i, j), self.max_cells)
-                    .map_or(0, |w| w.stride_log2)
-            };
+            let own = |i: u32, j: u32| self.own_stride(NodeId::new(level, i, j)).unwrap_or(0);
             if (0..ny).all(|j| (0..nx).all(|i| own(i, j) <= self.finer)) {
                 break;
             }
@@ -261,7 +258,7 @@ impl<S: Samples> GridTileBuilder<S> {
     /// The finest stride (log2) a tile of own stride `2^own` is meshed at before a failed
     /// check sends it finer: `finer` strides finer with the decimation errors known
     /// (`bounds`), else any (0).
-    fn finest_stride(&self, own: u32) -> u32 {
+    pub(crate) fn finest_stride(&self, own: u32) -> u32 {
         if self.bounds.is_empty() { 0 } else { own.saturating_sub(self.finer) }
     }
 
