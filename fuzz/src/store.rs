@@ -1,9 +1,10 @@
 //! The store target: two tiny stores baked once (Deflate-coded quantized levels, and plain
 //! float levels) with the per-node tables a `terrain bake` writes beside them (DSS errors,
 //! roughness pyramids, geo-mipmap table, both PVSs); each case replaces one of their files (or
-//! a block level and the index entry whose CRC covers it) and goes through the public API:
-//! `Store::open`, `read_block` of every block to its finest level, `select_patches`, and each
-//! table's decoder as the store-backed methods call it.
+//! a block level and the index entry whose CRC covers it, or a baked tin tile and its index
+//! entry's CRC) and goes through the public API: `Store::open`, `read_block` of every block to
+//! its finest level, `select_patches`, and each table's decoder as the store-backed methods
+//! call it (the tin tiles' through terrain-core's `tile_file`, as the app's reader does).
 
 use std::ops::ControlFlow;
 use std::path::{Path, PathBuf};
@@ -12,8 +13,10 @@ use std::sync::Arc;
 use terrain_core::checksum::crc32;
 use terrain_core::lod::dss_file::heights_checksum;
 use terrain_core::lod::{DssErrorTable, GeomipFor, GeomipTable};
-use terrain_core::quadtree::{NodeId, NodeTree, Quadtree};
+use terrain_core::quadtree::{NodeId, NodeTree, Quadtree, TreeShape};
 use terrain_core::synth::FractalConfig;
+use terrain_core::tin::grid::{build_tile_at, level_errors};
+use terrain_core::tin::tile_file;
 use terrain_stream::glam::dvec3;
 use terrain_stream::{
     BakeConfig, BakeProgress, Camera, Codec, HeightEncoding, INDEX_FILE, Store, StoreTree, bake,
@@ -33,6 +36,10 @@ const DSS_FILE: &str = "dss_errors.bin";
 const ROUGHNESS_FILE: &str = "roughness.bin";
 const GEOMIP_FILE: &str = "geomip.bin";
 const PVS_FILES: [&str; 2] = ["pvs.bin", "pvs_conservative.bin"];
+/// The `tin` method's baked tiles (terrain-app's `tin_scene`), here every tile of the tree
+/// meshed from at most 16 cells across by terrain-core's builder.
+const TIN_FILE: &str = "tin_tiles.bin";
+const TIN_MAX_CELLS: u32 = 16;
 
 /// One pristine store: its folder and its files (relative path, bytes), sorted.
 #[derive(Debug)]
@@ -95,6 +102,9 @@ pub(crate) fn fixture(work: &Path) -> Result<Vec<Pristine>, String> {
         for (p, name) in [(&sampled, PVS_FILES[0]), (&conservative, PVS_FILES[1])] {
             write_pvs(p, &dir.join(name)).map_err(|e| e.to_string())?;
         }
+        let shape = *StoreTree::new(Arc::new(store.clone()), LEAF_CELLS).shape();
+        std::fs::write(dir.join(TIN_FILE), tin_file(&hm, &shape, store.header().bake_id)?)
+            .map_err(|e| e.to_string())?;
         let summary = run(&dir)?;
         if summary.contains("refused") {
             return Err(format!(
@@ -108,6 +118,50 @@ pub(crate) fn fixture(work: &Path) -> Result<Vec<Pristine>, String> {
         out.push(Pristine { dir, files });
     }
     Ok(out)
+}
+
+/// A `tin_tiles.bin` of every tile of tree `shape` over `hm` (the file `terrain bake` writes
+/// holds the coarse ones of a larger tree; the format is the same).
+fn tin_file(
+    hm: &terrain_core::Heightmap,
+    shape: &TreeShape,
+    bake_id: u64,
+) -> Result<Vec<u8>, String> {
+    let errors = level_errors(shape, 1.0);
+    let mut file = vec![0u8; tile_file::HEADER_BYTES];
+    let mut index = Vec::new();
+    let mut tiles = 0u32;
+    for level in 0..=shape.max_level() {
+        let (nx, ny) = shape.level_dims(level);
+        for j in 0..ny {
+            for i in 0..nx {
+                let n = NodeId::new(level, i, j);
+                let t = build_tile_at(hm, shape, n, errors[level as usize], Some(TIN_MAX_CELLS))
+                    .map_err(|e| e.to_string())?;
+                let r = shape.clipped_rect(n).ok_or("a node outside the grid")?;
+                let bytes = tile_file::encode_tile(&t, [r.x0, r.y0]);
+                let entry = tile_file::encode_entry(n, t.stride_log2, file.len() as u64, &bytes);
+                index.extend_from_slice(&entry);
+                file.extend_from_slice(&bytes);
+                tiles += 1;
+            }
+        }
+    }
+    let key = tile_file::TileFileKey {
+        width: shape.width(),
+        height: shape.height(),
+        root_cells: shape.root_cells(),
+        max_level: shape.max_level().into(),
+        error_scale: 1.0,
+        max_tile_cells: TIN_MAX_CELLS,
+        finer_strides: 0,
+        min_stride_log2: 0,
+        bake_id,
+    };
+    let head = tile_file::encode_header(&key, tiles, file.len() as u64);
+    file[..tile_file::HEADER_BYTES].copy_from_slice(&head);
+    file.extend_from_slice(&index);
+    Ok(file)
 }
 
 fn list(root: &Path, dir: &Path, out: &mut Vec<(String, Vec<u8>)>) -> std::io::Result<()> {
@@ -159,7 +213,20 @@ pub(crate) fn make_case(stores: &[Pristine], rng: &mut Rng, seed: u64, iteration
             what: format!("store{n} {name}: {what}"),
         };
     }
-    let kind = if name.starts_with("blocks") { Kind::Bytes } else { Kind::Crc32Tail };
+    if name == TIN_FILE
+        && rng.chance(0.6)
+        && let Some(what) = deep_tin_tile(&mut bytes, rng)
+    {
+        return Case {
+            target: Target::Store(n),
+            files: vec![(name.clone(), bytes)],
+            seed,
+            iteration,
+            what: format!("store{n} {name}: {what}"),
+        };
+    }
+    let kind =
+        if name.starts_with("blocks") || name == TIN_FILE { Kind::Bytes } else { Kind::Crc32Tail };
     let what = mutate::mutate(&mut bytes, kind, rng, donor);
     Case {
         target: Target::Store(n),
@@ -206,6 +273,29 @@ fn deep_block(
     idx[at..at + 4].copy_from_slice(&new_crc.to_le_bytes());
     mutate::fix_crc_tail(&mut idx);
     Some((format!("level {l} of block {id} ({what}), its CRC updated in the index"), idx))
+}
+
+/// Mutates one tile's bytes inside a `tin_tiles.bin` (same length) and updates its index
+/// entry's CRC-32 to match, so the tile's decoder sees the damage.
+fn deep_tin_tile(file: &mut [u8], rng: &mut Rng) -> Option<String> {
+    let len = file.len() as u64;
+    let header = tile_file::parse_header(file.get(..tile_file::HEADER_BYTES)?, len).ok()?;
+    let tiles = header.tiles as usize;
+    if tiles == 0 {
+        return None;
+    }
+    let k = rng.below(tiles);
+    let e_at = header.index_offset as usize + k * tile_file::ENTRY_BYTES;
+    let entry = file.get(e_at..e_at + tile_file::ENTRY_BYTES)?;
+    let offset = u64::from_le_bytes(entry[16..24].try_into().ok()?) as usize;
+    let n = u32::from_le_bytes(entry[24..28].try_into().ok()?) as usize;
+    let mut payload = file.get(offset..offset + n)?.to_vec();
+    let what = mutate::generic(&mut payload, rng, &[]);
+    payload.resize(n, 0);
+    file[offset..offset + n].copy_from_slice(&payload);
+    let crc = crc32(&payload);
+    file[e_at + 28..e_at + 32].copy_from_slice(&crc.to_le_bytes());
+    Some(format!("tile {k} ({what}), its CRC updated in the index"))
 }
 
 /// Opens the store in `dir` and reads everything a store-backed method reads. `Ok` with a
@@ -294,6 +384,32 @@ pub(crate) fn run(dir: &Path) -> Result<String, String> {
         roughness_file::decode_for(&b, &expected).map(|_| ()).map_err(|e| e.to_string())
     });
     parts.push(outcome(ROUGHNESS_FILE, rough));
+    let tin = read(TIN_FILE).and_then(|b| {
+        let head = b.get(..tile_file::HEADER_BYTES).ok_or("shorter than its header")?;
+        let header = tile_file::parse_header(head, b.len() as u64).map_err(|e| e.to_string())?;
+        let index = &b[header.index_offset as usize..];
+        let slots = tile_file::parse_index(index, &header, &shape).map_err(|e| e.to_string())?;
+        let mut refused = 0;
+        for (node, slot) in &slots {
+            let bytes = &b[slot.offset as usize..][..slot.len as usize];
+            match tile_file::read_tile(*node, slot, bytes, &shape) {
+                Ok(t) => {
+                    // What the method does with a tile: its sides and heights by vertex.
+                    std::hint::black_box(t.side(terrain_core::quadtree::Direction::North).count());
+                    std::hint::black_box(
+                        t.triangles.iter().flatten().map(|&v| t.heights[v as usize]).sum::<f32>(),
+                    );
+                }
+                Err(_) => refused += 1,
+            }
+        }
+        if refused > 0 {
+            Err(format!("{refused} of {} tiles refused", slots.len()))
+        } else {
+            Ok(())
+        }
+    });
+    parts.push(outcome(TIN_FILE, tin));
     for name in PVS_FILES {
         let pvs = read_pvs(&dir.join(name)).map_err(|e| e.to_string()).and_then(|p| {
             if !p.matches(&shape) {
@@ -320,4 +436,33 @@ pub(crate) fn run(dir: &Path) -> Result<String, String> {
         parts.push(outcome(name, pvs));
     }
     Ok(parts.join(", "))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The fixture's tin tiles read whole, and a tile damaged behind a matching CRC (the deep
+    /// mutation) is refused by its decoder or read as a valid tile, never a panic; some of
+    /// the seeded cases are refused, so the decoder is reached.
+    #[test]
+    fn the_tin_tiles_read_and_their_deep_damage_reaches_the_decoder() {
+        let work = std::env::temp_dir().join(format!("terrain-fuzz-tin-{}", std::process::id()));
+        let stores = fixture(&work).unwrap();
+        let s = &stores[0];
+        assert!(run(&s.dir).unwrap().contains("tin_tiles.bin read"));
+        let orig = &s.files.iter().find(|(n, _)| n == TIN_FILE).expect("the tin tiles").1;
+        let case_dir = work.join("case");
+        let mut refused = 0;
+        for i in 0..40 {
+            let mut bytes = orig.clone();
+            let what = deep_tin_tile(&mut bytes, &mut Rng::for_case(7, i)).expect("a tile");
+            crate::materialise(s, &[(TIN_FILE.to_string(), bytes)], &case_dir).unwrap();
+            let summary = run(&case_dir).unwrap();
+            refused += usize::from(summary.contains("tin_tiles.bin refused"));
+            println!("{what}: {summary}");
+        }
+        assert!(refused > 0, "no deep mutation was refused");
+        std::fs::remove_dir_all(&work).unwrap();
+    }
 }

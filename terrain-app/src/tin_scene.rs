@@ -16,9 +16,8 @@
 //! from it). The file is tied to the store's blocks by their bake id: a file of another bake
 //! of them, or a damaged tile, is an error naming the file.
 //!
-//! Layout (little-endian): a 64-byte header (`TINT`, version, the grid and tree, the
-//! settings, the bake id, the tile count and the index's offset), the tiles one after the
-//! other, then the index (per tile: level, column, row, stride, offset, length, CRC-32).
+//! The file's layout and its checked decoders are terrain-core's
+//! ([`terrain_core::tin::tile_file`], which the fuzz harness runs on damaged files too).
 
 use std::collections::HashMap;
 use std::io::{Seek, SeekFrom, Write};
@@ -26,11 +25,12 @@ use std::time::Instant;
 
 use anyhow::Context;
 use rayon::prelude::*;
-use terrain_core::checksum::crc32;
 use terrain_core::lod::TableReader;
-use terrain_core::mesh::verify::MaxError;
 use terrain_core::quadtree::{NodeId, NodeTree, TreeShape};
 use terrain_core::tin::grid::{GridTile, level_errors, tile_window};
+use terrain_core::tin::tile_file::{
+    self, ENTRY_BYTES, HEADER_BYTES, Slot, TileFileKey, encode_entry, encode_header, encode_tile,
+};
 use terrain_stream::{BlockId, SideTable, Store, StoreTree};
 
 use crate::decimation::DECIMATION_REGION;
@@ -45,41 +45,22 @@ pub const TIN_TILES_FILE: &str = "tin_tiles.bin";
 /// run time the rest are meshed from windows of at most 512 cells across.
 pub const BAKED_MIN_STRIDE_LOG2: u32 = 4;
 
-const MAGIC: &[u8; 4] = b"TINT";
-const VERSION: u32 = 1;
-const HEADER_BYTES: usize = 64;
-const ENTRY_BYTES: usize = 32;
 /// Tiles built between two writes of the bake (bounds the tiles held in memory).
 const CHUNK_TILES: usize = 128;
 
-/// What a file's tiles were built for: a reader uses them only where all of it matches (but
-/// `min_stride_log2`, which only says which tiles the file holds).
-#[derive(Debug, Clone, Copy, PartialEq)]
-struct Key {
-    width: u32,
-    height: u32,
-    root_cells: u32,
-    max_level: u32,
-    error_scale: f64,
-    max_tile_cells: u32,
-    finer_strides: u32,
-    min_stride_log2: u32,
-    bake_id: u64,
-}
-
-impl Key {
-    fn new(store: &Store, shape: &TreeShape, config: &TinConfig) -> Self {
-        Self {
-            width: shape.width(),
-            height: shape.height(),
-            root_cells: shape.root_cells(),
-            max_level: u32::from(shape.max_level()),
-            error_scale: config.pyramid.error_scale,
-            max_tile_cells: config.store.max_tile_cells,
-            finer_strides: config.pyramid.finer_strides,
-            min_stride_log2: BAKED_MIN_STRIDE_LOG2,
-            bake_id: store.header().bake_id,
-        }
+/// What the tiles of `store`'s tree `shape` are built for under `config` (a file holding
+/// the tiles from `2^BAKED_MIN_STRIDE_LOG2` on).
+fn key_for(store: &Store, shape: &TreeShape, config: &TinConfig) -> TileFileKey {
+    TileFileKey {
+        width: shape.width(),
+        height: shape.height(),
+        root_cells: shape.root_cells(),
+        max_level: u32::from(shape.max_level()),
+        error_scale: config.pyramid.error_scale,
+        max_tile_cells: config.store.max_tile_cells,
+        finer_strides: config.pyramid.finer_strides,
+        min_stride_log2: BAKED_MIN_STRIDE_LOG2,
+        bake_id: store.header().bake_id,
     }
 }
 
@@ -220,7 +201,7 @@ pub fn bake_tiles(
         return Ok(None);
     }
     let builder = store_builder(store.clone(), shape, &config, config.store.block_cache_bytes)?;
-    let key = Key { min_stride_log2, ..Key::new(store, &shape, &config) };
+    let key = TileFileKey { min_stride_log2, ..key_for(store, &shape, &config) };
     let nodes = baked_nodes(&shape, config.store.max_tile_cells, min_stride_log2);
     if nodes.is_empty() {
         return Ok(None);
@@ -252,7 +233,7 @@ pub fn bake_tiles(
 fn write_tiles(
     builder: &GridTileBuilder<StoreSamples>,
     shape: &TreeShape,
-    key: &Key,
+    key: &TileFileKey,
     nodes: &[NodeId],
     tmp: &std::path::Path,
     progress: bool,
@@ -287,14 +268,14 @@ fn write_tiles(
             .collect::<anyhow::Result<_>>()?;
         for (n, stride, tris, bytes) in built {
             out.write_all(&bytes).with_context(|| io("writing"))?;
-            index.extend_from_slice(&entry(n, stride, offset, &bytes));
+            index.extend_from_slice(&encode_entry(n, stride, offset, &bytes));
             offset += bytes.len() as u64;
             triangles += tris as u64;
         }
     }
     bar.finish();
     out.write_all(&index).with_context(|| io("writing"))?;
-    let head = header(key, nodes.len() as u32, offset);
+    let head = encode_header(key, nodes.len() as u32, offset);
     let mut file = out.into_inner().map_err(|e| e.into_error()).with_context(|| io("writing"))?;
     file.seek(SeekFrom::Start(0)).with_context(|| io("writing"))?;
     file.write_all(&head).with_context(|| io("writing"))?;
@@ -306,200 +287,6 @@ fn write_tiles(
 fn origin(shape: &TreeShape, n: NodeId) -> anyhow::Result<[u32; 2]> {
     let r = shape.clipped_rect(n).with_context(|| format!("tile {n:?} lies outside the grid"))?;
     Ok([r.x0, r.y0])
-}
-
-fn header(key: &Key, tiles: u32, index_offset: u64) -> Vec<u8> {
-    let mut h = Vec::with_capacity(HEADER_BYTES);
-    h.extend_from_slice(MAGIC);
-    for v in [VERSION, key.width, key.height, key.root_cells, key.max_level] {
-        h.extend_from_slice(&v.to_le_bytes());
-    }
-    h.extend_from_slice(&key.error_scale.to_le_bytes());
-    for v in [key.max_tile_cells, key.finer_strides, key.min_stride_log2] {
-        h.extend_from_slice(&v.to_le_bytes());
-    }
-    h.extend_from_slice(&key.bake_id.to_le_bytes());
-    h.extend_from_slice(&tiles.to_le_bytes());
-    h.extend_from_slice(&index_offset.to_le_bytes());
-    h.resize(HEADER_BYTES, 0);
-    h
-}
-
-fn entry(n: NodeId, stride: u32, offset: u64, bytes: &[u8]) -> [u8; ENTRY_BYTES] {
-    let mut e = [0u8; ENTRY_BYTES];
-    e[0..4].copy_from_slice(&u32::from(n.level).to_le_bytes());
-    e[4..8].copy_from_slice(&n.i.to_le_bytes());
-    e[8..12].copy_from_slice(&n.j.to_le_bytes());
-    e[12..16].copy_from_slice(&stride.to_le_bytes());
-    e[16..24].copy_from_slice(&offset.to_le_bytes());
-    e[24..28].copy_from_slice(&(bytes.len() as u32).to_le_bytes());
-    e[28..32].copy_from_slice(&crc32(bytes).to_le_bytes());
-    e
-}
-
-/// Tile `t` in bytes, its vertices as offsets from `origin` (16 bits each where they fit)
-/// and its indices in 16 bits where it has at most 65,536 vertices.
-fn encode_tile(t: &GridTile, origin: [u32; 2]) -> Vec<u8> {
-    let span = t.vertices.iter().map(|v| (v[0] - origin[0]).max(v[1] - origin[1])).max();
-    let wide_xy = span.unwrap_or(0) > u32::from(u16::MAX);
-    let wide_idx = t.vertices.len() > 1 << 16;
-    let sides: usize = t.sides.iter().map(Vec::len).sum();
-    let mut b = Vec::with_capacity(64 + t.vertices.len() * 8 + t.triangles.len() * 6 + sides * 2);
-    let put32 = |b: &mut Vec<u8>, v: u32| b.extend_from_slice(&v.to_le_bytes());
-    let idx = |b: &mut Vec<u8>, v: u32| {
-        if wide_idx {
-            b.extend_from_slice(&v.to_le_bytes())
-        } else {
-            b.extend_from_slice(&(v as u16).to_le_bytes())
-        }
-    };
-    b.push(u8::from(wide_xy) | u8::from(wide_idx) << 1);
-    b.push(t.stride_log2 as u8);
-    put32(&mut b, t.vertices.len() as u32);
-    put32(&mut b, t.triangles.len() as u32);
-    for s in &t.sides {
-        put32(&mut b, s.len() as u32);
-    }
-    b.extend_from_slice(&t.bound.to_le_bytes());
-    b.extend_from_slice(&t.range[0].to_le_bytes());
-    b.extend_from_slice(&t.range[1].to_le_bytes());
-    b.extend_from_slice(&t.measured.max_error.to_le_bytes());
-    b.extend_from_slice(&(t.measured.samples as u64).to_le_bytes());
-    let worst = t.measured.worst.map_or([u64::MAX; 2], |(i, j)| [i as u64, j as u64]);
-    b.extend_from_slice(&worst[0].to_le_bytes());
-    b.extend_from_slice(&worst[1].to_le_bytes());
-    for v in &t.vertices {
-        for (c, o) in v.iter().zip(origin) {
-            if wide_xy {
-                put32(&mut b, c - o)
-            } else {
-                b.extend_from_slice(&((c - o) as u16).to_le_bytes())
-            }
-        }
-    }
-    for z in &t.heights {
-        b.extend_from_slice(&z.to_le_bytes());
-    }
-    for tri in &t.triangles {
-        for &v in tri {
-            idx(&mut b, v);
-        }
-    }
-    for s in &t.sides {
-        for &v in s {
-            idx(&mut b, v);
-        }
-    }
-    b
-}
-
-/// Reads values off a tile's bytes, failing on a short one.
-struct Cursor<'a> {
-    bytes: &'a [u8],
-    at: usize,
-}
-
-impl Cursor<'_> {
-    fn take(&mut self, n: usize) -> anyhow::Result<&[u8]> {
-        let end = self.at.checked_add(n).filter(|&e| e <= self.bytes.len());
-        let end = end.context("a tile shorter than its counts")?;
-        let s = &self.bytes[self.at..end];
-        self.at = end;
-        Ok(s)
-    }
-    fn u8(&mut self) -> anyhow::Result<u8> {
-        Ok(self.take(1)?[0])
-    }
-    fn u16(&mut self) -> anyhow::Result<u16> {
-        Ok(u16::from_le_bytes(self.take(2)?.try_into()?))
-    }
-    fn u32(&mut self) -> anyhow::Result<u32> {
-        Ok(u32::from_le_bytes(self.take(4)?.try_into()?))
-    }
-    fn u64(&mut self) -> anyhow::Result<u64> {
-        Ok(u64::from_le_bytes(self.take(8)?.try_into()?))
-    }
-    fn f32(&mut self) -> anyhow::Result<f32> {
-        Ok(f32::from_le_bytes(self.take(4)?.try_into()?))
-    }
-    fn f64(&mut self) -> anyhow::Result<f64> {
-        Ok(f64::from_le_bytes(self.take(8)?.try_into()?))
-    }
-}
-
-/// The tile [`encode_tile`] wrote for `node` at `origin`.
-fn decode_tile(node: NodeId, bytes: &[u8], origin: [u32; 2]) -> anyhow::Result<GridTile> {
-    let mut c = Cursor { bytes, at: 0 };
-    let flags = c.u8()?;
-    let (wide_xy, wide_idx) = (flags & 1 != 0, flags & 2 != 0);
-    let stride_log2 = u32::from(c.u8()?);
-    let (nv, nt) = (c.u32()? as usize, c.u32()? as usize);
-    let mut side_lens = [0usize; 4];
-    for s in &mut side_lens {
-        *s = c.u32()? as usize;
-    }
-    // Counts checked against the bytes before anything is allocated by them.
-    let (xy, ix) = (if wide_xy { 4 } else { 2 }, if wide_idx { 4 } else { 2 });
-    let need = nv
-        .checked_mul(2 * xy + 4)
-        .zip(nt.checked_mul(3 * ix))
-        .and_then(|(a, b)| a.checked_add(b)?.checked_add(side_lens.iter().sum::<usize>() * ix));
-    // (After the counts: the bound, the range, the measured error, its samples and worst.)
-    let left = bytes.len() - c.at;
-    anyhow::ensure!(
-        need.and_then(|n| n.checked_add(48)).is_some_and(|n| n <= left),
-        "a tile's counts exceed its bytes"
-    );
-    let bound = c.f64()?;
-    let range = [c.f32()?, c.f32()?];
-    let max_error = c.f64()?;
-    let samples = c.u64()? as usize;
-    let worst = [c.u64()?, c.u64()?];
-    let worst = (worst != [u64::MAX; 2]).then(|| (worst[0] as usize, worst[1] as usize));
-    let mut vertices = Vec::with_capacity(nv);
-    for _ in 0..nv {
-        let mut v = [0u32; 2];
-        for (k, o) in origin.iter().enumerate() {
-            let d = if wide_xy { c.u32()? } else { u32::from(c.u16()?) };
-            v[k] = o.checked_add(d).context("a vertex past the grid")?;
-        }
-        vertices.push(v);
-    }
-    let heights = (0..nv).map(|_| c.f32()).collect::<anyhow::Result<Vec<f32>>>()?;
-    let index = |c: &mut Cursor<'_>| -> anyhow::Result<u32> {
-        let v = if wide_idx { c.u32()? } else { u32::from(c.u16()?) };
-        anyhow::ensure!((v as usize) < nv, "a vertex index past the tile's vertices");
-        Ok(v)
-    };
-    let mut triangles = Vec::with_capacity(nt);
-    for _ in 0..nt {
-        triangles.push([index(&mut c)?, index(&mut c)?, index(&mut c)?]);
-    }
-    let mut sides: [Vec<u32>; 4] = Default::default();
-    for (s, &n) in sides.iter_mut().zip(&side_lens) {
-        *s = (0..n).map(|_| index(&mut c)).collect::<anyhow::Result<_>>()?;
-    }
-    anyhow::ensure!(c.at == bytes.len(), "a tile longer than its counts");
-    Ok(GridTile {
-        node,
-        vertices,
-        heights,
-        stride_log2,
-        range,
-        triangles,
-        sides,
-        bound,
-        measured: MaxError { max_error, samples, worst },
-    })
-}
-
-/// Where a baked tile lies in the file.
-#[derive(Debug, Clone, Copy)]
-struct Slot {
-    stride_log2: u32,
-    offset: u64,
-    len: u32,
-    crc: u32,
 }
 
 /// A store's baked tiles (see the module docs), for reading by tile.
@@ -538,61 +325,21 @@ impl BakedTiles {
             return Err(bad("shorter than its header".into()));
         }
         reader.read_at(0, &mut head).with_context(|| format!("reading {name}"))?;
-        if &head[0..4] != MAGIC {
-            return Err(bad("not a table of tin tiles".into()));
-        }
-        let u32_at = |o: usize| u32::from_le_bytes(head[o..o + 4].try_into().unwrap());
-        let u64_at = |o: usize| u64::from_le_bytes(head[o..o + 8].try_into().unwrap());
-        if u32_at(4) != VERSION {
-            return Err(bad(format!("version {}, this build reads {VERSION}", u32_at(4))));
-        }
-        let found = Key {
-            width: u32_at(8),
-            height: u32_at(12),
-            root_cells: u32_at(16),
-            max_level: u32_at(20),
-            error_scale: f64::from_le_bytes(head[24..32].try_into().unwrap()),
-            max_tile_cells: u32_at(32),
-            finer_strides: u32_at(36),
-            min_stride_log2: u32_at(40),
-            bake_id: u64_at(44),
-        };
-        let want = Key::new(store, shape, config);
+        let header =
+            tile_file::parse_header(&head, reader.len()).map_err(|e| bad(e.to_string()))?;
+        let (found, want) = (header.key, key_for(store, shape, config));
         if found.bake_id != want.bake_id {
             return Err(bad("written for another bake of the store's blocks".into()));
         }
-        if found != (Key { min_stride_log2: found.min_stride_log2, ..want }) {
+        if found != (TileFileKey { min_stride_log2: found.min_stride_log2, ..want }) {
             return Ok(None);
         }
-        let (tiles, index_offset) = (u32_at(52) as u64, u64_at(56));
-        let index_len = tiles * ENTRY_BYTES as u64;
-        if index_offset.checked_add(index_len) != Some(reader.len()) {
-            return Err(bad(format!(
-                "{} bytes, its index says {}",
-                reader.len(),
-                index_offset + index_len
-            )));
-        }
-        let mut index = vec![0u8; index_len as usize];
-        reader.read_at(index_offset, &mut index).with_context(|| format!("reading {name}"))?;
-        let mut slots = HashMap::with_capacity(tiles as usize);
-        for e in index.chunks_exact(ENTRY_BYTES) {
-            let u = |o: usize| u32::from_le_bytes(e[o..o + 4].try_into().unwrap());
-            let level = u8::try_from(u(0)).map_err(|_| bad("a tile of a level past 255".into()))?;
-            let node = NodeId::new(level, u(4), u(8));
-            let slot = Slot {
-                stride_log2: u(12),
-                offset: u64::from_le_bytes(e[16..24].try_into().unwrap()),
-                len: u(24),
-                crc: u(28),
-            };
-            if slot.offset.checked_add(u64::from(slot.len)).is_none_or(|end| end > index_offset)
-                || shape.clipped_rect(node).is_none()
-            {
-                return Err(bad(format!("tile {node:?} lies outside the file or the grid")));
-            }
-            slots.insert(node, slot);
-        }
+        let mut index = vec![0u8; header.tiles as usize * ENTRY_BYTES];
+        reader
+            .read_at(header.index_offset, &mut index)
+            .with_context(|| format!("reading {name}"))?;
+        let slots =
+            tile_file::parse_index(&index, &header, shape).map_err(|e| bad(e.to_string()))?;
         Ok(Some(Self { reader, shape: *shape, slots }))
     }
 
@@ -618,105 +365,26 @@ impl BakedTiles {
         let name = self.reader.location();
         let mut bytes = vec![0u8; slot.len as usize];
         self.reader.read_at(slot.offset, &mut bytes).with_context(|| format!("reading {name}"))?;
-        let damaged =
-            |why: String| anyhow::anyhow!("{name}: tile {node:?} {why}; bake the store again");
-        if crc32(&bytes) != slot.crc {
-            return Err(damaged("fails its checksum".into()));
-        }
-        let tile = decode_tile(node, &bytes, origin(&self.shape, node)?)
-            .map_err(|e| damaged(format!("is damaged ({e:#})")))?;
-        if tile.stride_log2 != slot.stride_log2 {
-            return Err(damaged("has another stride than its index says".into()));
-        }
-        Ok(Some(tile))
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    fn tile() -> GridTile {
-        GridTile {
-            node: NodeId::new(1, 1, 0),
-            vertices: vec![[512, 0], [1024, 0], [512, 512], [1024, 512]],
-            heights: vec![1.0, -2.5, 3.25, 8848.0],
-            stride_log2: 3,
-            range: [-2.5, 8848.0],
-            triangles: vec![[0, 1, 3], [0, 3, 2]],
-            sides: [vec![2, 3], vec![1, 3], vec![0, 1], vec![0, 2]],
-            bound: 12.5,
-            measured: MaxError { max_error: 3.0, samples: 4225, worst: Some((700, 3)) },
-        }
+        tile_file::read_tile(node, slot, &bytes, &self.shape)
+            .map(Some)
+            .map_err(|e| anyhow::anyhow!("{name}: {e}; bake the store again"))
     }
 
-    fn same(a: &GridTile, b: &GridTile) {
-        assert_eq!(a.node, b.node);
-        assert_eq!(a.vertices, b.vertices);
-        assert_eq!(
-            a.heights.iter().map(|z| z.to_bits()).collect::<Vec<_>>(),
-            b.heights.iter().map(|z| z.to_bits()).collect::<Vec<_>>()
-        );
-        assert_eq!(
-            (a.stride_log2, a.range, &a.triangles, &a.sides),
-            (b.stride_log2, b.range, &b.triangles, &b.sides)
-        );
-        assert_eq!((a.bound.to_bits(), a.measured), (b.bound.to_bits(), b.measured));
-    }
-
-    #[test]
-    fn a_tile_decodes_to_itself_narrow_and_wide() {
-        let t = tile();
-        let bytes = encode_tile(&t, [512, 0]);
-        same(&decode_tile(t.node, &bytes, [512, 0]).unwrap(), &t);
-        // Offsets past 16 bits and no worst sample.
-        let mut w = t.clone();
-        w.vertices[3] = [512 + 70_000, 70_000];
-        w.measured.worst = None;
-        let bytes = encode_tile(&w, [512, 0]);
-        assert_eq!(bytes[0] & 1, 1, "wide offsets");
-        same(&decode_tile(w.node, &bytes, [512, 0]).unwrap(), &w);
-    }
-
-    /// Every byte of a tile set to each of a few values (its counts, flags and offsets among
-    /// them): decoding returns a tile or an error, never panics, and never allocates by a count
-    /// its bytes cannot hold.
-    #[test]
-    fn mutated_tiles_decode_or_fail_without_panicking() {
-        let t = tile();
-        let bytes = encode_tile(&t, [512, 0]);
-        let (mut ok, mut failed) = (0, 0);
-        for at in 0..bytes.len() {
-            for v in [0u8, 1, 0x7f, 0x80, 0xff] {
-                let mut m = bytes.clone();
-                m[at] = v;
-                match decode_tile(t.node, &m, [512, 0]) {
-                    Ok(d) => {
-                        ok += 1;
-                        assert_eq!(d.heights.len(), d.vertices.len());
-                    }
-                    Err(_) => failed += 1,
-                }
-            }
+    /// [`BakedTiles::read`] for a tile the selection takes to lie within `bound` (the
+    /// builder's [`GridTileBuilder::tile_bound`]): a tile built within another bound (a
+    /// decimation table changed since the tiles were baked) is an error naming the file.
+    pub fn read_within(&self, node: NodeId, bound: f64) -> anyhow::Result<Option<GridTile>> {
+        let tile = self.read(node)?;
+        if let Some(t) = &tile
+            && t.bound.to_bits() != bound.to_bits()
+        {
+            anyhow::bail!(
+                "{}: tile {node:?} was built within {} m, but the store's decimation table \
+                 gives it {bound} m; bake the store again",
+                self.reader.location(),
+                t.bound
+            );
         }
-        assert!(ok > 0 && failed > 0, "{ok} decoded, {failed} refused");
-        // Offsets past the grid's coordinates.
-        assert!(decode_tile(t.node, &bytes, [u32::MAX - 10, 0]).is_err());
-    }
-
-    #[test]
-    fn a_truncated_or_lengthened_tile_is_an_error_not_a_panic() {
-        let t = tile();
-        let bytes = encode_tile(&t, [512, 0]);
-        for n in 0..bytes.len() {
-            assert!(decode_tile(t.node, &bytes[..n], [512, 0]).is_err(), "cut at {n}");
-        }
-        let mut long = bytes.clone();
-        long.push(0);
-        assert!(decode_tile(t.node, &long, [512, 0]).is_err());
-        // A count far past the bytes.
-        let mut huge = bytes;
-        huge[2..6].copy_from_slice(&u32::MAX.to_le_bytes());
-        assert!(decode_tile(t.node, &huge, [512, 0]).is_err());
+        Ok(tile)
     }
 }

@@ -683,6 +683,37 @@ fn baked_coarse_tiles_are_the_tiles_built_while_flying() {
     capped.pyramid.finer_strides = 2;
     assert!(BakedTiles::open(&store, &shape, &capped).unwrap().is_none());
     assert!(BakedTiles::open(&store, &shape, &config).unwrap().is_some());
+    // A tile built within another bound than the store's decimation table gives it (its bytes
+    // and checksum consistent, as after a table baked anew beside old tiles): the method
+    // refuses it, naming the file; read without a bound it decodes.
+    {
+        use terrain_core::tin::tile_file::{self, ENTRY_BYTES, HEADER_BYTES};
+        let header = tile_file::parse_header(&good[..HEADER_BYTES], good.len() as u64).unwrap();
+        let index = &good[header.index_offset as usize..];
+        let slots = tile_file::parse_index(index, &header, &shape).unwrap();
+        let root = NodeId::new(0, 0, 0);
+        let slot = slots[&root];
+        let mut other = good.clone();
+        let tile = &mut other[slot.offset as usize..][..slot.len as usize];
+        // The bound: after the flags, the stride and six counts.
+        let at = 2 + 6 * 4;
+        let doubled = f64::from_le_bytes(tile[at..at + 8].try_into().unwrap()) * 2.0;
+        tile[at..at + 8].copy_from_slice(&doubled.to_le_bytes());
+        let entry = tile_file::encode_entry(root, slot.stride_log2, slot.offset, tile);
+        let k = index.chunks_exact(ENTRY_BYTES).position(|e| e[..12] == [0; 12]).unwrap();
+        let e_at = header.index_offset as usize + k * ENTRY_BYTES;
+        other[e_at..e_at + ENTRY_BYTES].copy_from_slice(&entry);
+        let opened = with(&other).unwrap().unwrap();
+        assert_eq!(opened.read(root).unwrap().unwrap().bound, doubled);
+        let e = opened.read_within(root, builder.tile_bound(root)).unwrap_err();
+        assert!(format!("{e:#}").contains("bake the store again"), "{e:#}");
+        let tiles = TinTiles::new((*store).clone(), shape, &config).unwrap();
+        let e = tiles.wait_for(&[root], std::time::Duration::from_secs(300)).unwrap_err();
+        let e = format!("{e:#}");
+        assert!(e.contains(TIN_TILES_FILE) && e.contains("built within"), "{e}");
+        drop(tiles);
+        std::fs::write(&path, &good).unwrap();
+    }
     // A bake that fails (a damaged block file) leaves the store as it was: the earlier file
     // intact, no temporary file.
     let mut blocks: Vec<std::path::PathBuf> =

@@ -12,6 +12,7 @@
 
 #![deny(missing_docs)]
 
+pub mod bytes;
 pub mod checksum;
 pub mod dem;
 pub mod error;

@@ -633,83 +633,10 @@ pub(crate) fn node_count(levels: u8) -> usize {
 // ---------------------------------------------------------------------------------------------
 // Little-endian writer and bounds-checked reader.
 
-/// Appends little-endian values.
-#[derive(Debug, Default)]
-pub(crate) struct Writer {
-    pub buf: Vec<u8>,
-}
-
-impl Writer {
-    pub(crate) fn u8(&mut self, v: u8) {
-        self.buf.push(v);
-    }
-    pub(crate) fn u32(&mut self, v: u32) {
-        self.buf.extend_from_slice(&v.to_le_bytes());
-    }
-    pub(crate) fn u64(&mut self, v: u64) {
-        self.buf.extend_from_slice(&v.to_le_bytes());
-    }
-    pub(crate) fn f32(&mut self, v: f32) {
-        self.buf.extend_from_slice(&v.to_le_bytes());
-    }
-    pub(crate) fn f64(&mut self, v: f64) {
-        self.buf.extend_from_slice(&v.to_le_bytes());
-    }
-    pub(crate) fn dvec2(&mut self, v: DVec2) {
-        self.f64(v.x);
-        self.f64(v.y);
-    }
-    pub(crate) fn bytes(&mut self, b: &[u8]) {
-        self.buf.extend_from_slice(b);
-    }
-}
-
-/// Reads little-endian values; running past the end is an error message, never a panic.
-#[derive(Debug)]
-pub(crate) struct Reader<'a> {
-    buf: &'a [u8],
-    pos: usize,
-}
-
-impl<'a> Reader<'a> {
-    pub(crate) fn new(buf: &'a [u8]) -> Self {
-        Self { buf, pos: 0 }
-    }
-    pub(crate) fn take(&mut self, n: usize) -> Result<&'a [u8], String> {
-        let end = self.pos.checked_add(n).filter(|&e| e <= self.buf.len()).ok_or_else(|| {
-            format!("needs {n} bytes at offset {}, {} left", self.pos, self.buf.len() - self.pos)
-        })?;
-        let s = &self.buf[self.pos..end];
-        self.pos = end;
-        Ok(s)
-    }
-    fn arr<const N: usize>(&mut self) -> Result<[u8; N], String> {
-        let mut a = [0u8; N];
-        a.copy_from_slice(self.take(N)?);
-        Ok(a)
-    }
-    pub(crate) fn u8(&mut self) -> Result<u8, String> {
-        Ok(self.take(1)?[0])
-    }
-    pub(crate) fn u32(&mut self) -> Result<u32, String> {
-        Ok(u32::from_le_bytes(self.arr()?))
-    }
-    pub(crate) fn u64(&mut self) -> Result<u64, String> {
-        Ok(u64::from_le_bytes(self.arr()?))
-    }
-    pub(crate) fn f32(&mut self) -> Result<f32, String> {
-        Ok(f32::from_le_bytes(self.arr()?))
-    }
-    pub(crate) fn f64(&mut self) -> Result<f64, String> {
-        Ok(f64::from_le_bytes(self.arr()?))
-    }
-    pub(crate) fn dvec2(&mut self) -> Result<DVec2, String> {
-        Ok(DVec2::new(self.f64()?, self.f64()?))
-    }
-    pub(crate) fn remaining(&self) -> usize {
-        self.buf.len() - self.pos
-    }
-}
+/// The shared little-endian cursors ([`terrain_core::bytes`]): a short read is an error
+/// message (`String` from [`terrain_core::bytes::Short`]), never a panic.
+pub(crate) type Writer = terrain_core::bytes::LeWriter;
+pub(crate) type Reader<'a> = terrain_core::bytes::LeReader<'a>;
 
 fn write_georef(w: &mut Writer, g: &Georef) {
     match &g.crs {
@@ -904,6 +831,12 @@ pub(crate) enum IndexError {
 impl From<String> for IndexError {
     fn from(s: String) -> Self {
         IndexError::Corrupt(s)
+    }
+}
+
+impl From<terrain_core::bytes::Short> for IndexError {
+    fn from(s: terrain_core::bytes::Short) -> Self {
+        IndexError::Corrupt(s.to_string())
     }
 }
 

@@ -356,25 +356,27 @@ fn parse_prefix(part: &Path, head: &[u8]) -> Result<(PartInfo, u64), PrefixError
     // A short read shows as "needs N bytes" from the reader; any other failure is the file's.
     let short = |m: &String| m.starts_with("needs ");
     let bad = |m: String| if short(&m) { PrefixError::Short } else { PrefixError::Bad(m) };
+    // A short read of the prefix's own fields: more bytes are needed.
+    let sh = |_: terrain_core::bytes::Short| PrefixError::Short;
     let mut r = Reader::new(&head[8..]);
-    let version = r.u32().map_err(bad)?;
+    let version = r.u32().map_err(sh)?;
     if version != PART_VERSION {
         return Err(PrefixError::Bad(format!(
             "part format version {version}, this reader reads {PART_VERSION}"
         )));
     }
-    let shard = Shard::new(r.u32().map_err(bad)?, r.u32().map_err(bad)?)
+    let shard = Shard::new(r.u32().map_err(sh)?, r.u32().map_err(sh)?)
         .map_err(|e| PrefixError::Bad(e.to_string()))?;
-    let rows = r.u64().map_err(bad)?..r.u64().map_err(bad)?;
+    let rows = r.u64().map_err(sh)?..r.u64().map_err(sh)?;
     let mut text = || -> Result<String, PrefixError> {
-        let n = r.u32().map_err(bad)? as usize;
-        let bytes = r.take(n).map_err(bad)?;
+        let n = r.u32().map_err(sh)? as usize;
+        let bytes = r.take(n).map_err(sh)?;
         String::from_utf8(bytes.to_vec()).map_err(|_| PrefixError::Bad("text is not UTF-8".into()))
     };
     let (source_id, options) = (text()?, text()?);
-    let lossless = r.u8().map_err(bad)? != 0;
-    let has_bound = r.u8().map_err(bad)? != 0;
-    let bound = r.f64().map_err(bad)?;
+    let lossless = r.u8().map_err(sh)? != 0;
+    let has_bound = r.u8().map_err(sh)? != 0;
+    let bound = r.f64().map_err(sh)?;
     let bound = has_bound.then_some(bound);
     let header = read_header(&mut r).map_err(|e| bad(format!("header: {}", index_error(e))))?;
     if rows != shard.rows(header.blocks_y as u64) {
@@ -384,7 +386,7 @@ fn parse_prefix(part: &Path, head: &[u8]) -> Result<(PartInfo, u64), PrefixError
             shard.rows(header.blocks_y as u64)
         )));
     }
-    let n = r.u64().map_err(bad)?;
+    let n = r.u64().map_err(sh)?;
     let expected = (rows.end - rows.start) * header.blocks_x as u64;
     if n != expected {
         return Err(PrefixError::Bad(format!(

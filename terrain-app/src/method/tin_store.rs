@@ -130,9 +130,11 @@ impl Shared {
     /// Tile `node` from the store's samples: [`GridTileBuilder::build`], the builder of the
     /// pyramid in memory (its window's stride, the budget less the decimation error under it,
     /// checked against every sample under it); a baked tile is read instead
-    /// ([`BakedTiles::read`]), and the flag says so.
+    /// ([`BakedTiles::read_within`] the bound the selection took), and the flag says so.
     fn build(&self, node: NodeId) -> anyhow::Result<(GridTile, bool)> {
-        if let Some(tile) = self.baked.as_ref().map(|b| b.read(node)).transpose()?.flatten() {
+        let bound = || self.builder.tile_bound(node);
+        let baked = self.baked.as_ref().map(|b| b.read_within(node, bound()));
+        if let Some(tile) = baked.transpose()?.flatten() {
             return Ok((tile, true));
         }
         Ok((self.builder.build(node)?, false))

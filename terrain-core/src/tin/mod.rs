@@ -34,6 +34,7 @@ pub mod decimation;
 pub mod grid;
 pub mod quantized_mesh;
 pub mod tile;
+pub mod tile_file;
 pub mod warp;
 
 use glam::{DVec2, DVec3, dvec2};

@@ -21,6 +21,7 @@
 
 use glam::{DVec2, DVec3, Vec3, dvec2};
 
+use crate::bytes::{LeReader, Short};
 use crate::mesh::vertex_normals;
 use crate::tin::{TileMesh, TileRange};
 
@@ -351,47 +352,46 @@ impl Decoded {
     }
 }
 
-struct Reader<'a> {
-    b: &'a [u8],
-    at: usize,
-}
+/// The shared little-endian reader, each short read naming what was being read.
+struct Reader<'a>(LeReader<'a>);
 
 impl Reader<'_> {
+    fn named<T>(&mut self, v: Result<T, Short>, what: &'static str) -> Result<T, QmError> {
+        v.map_err(|s| QmError::Truncated { at: s.at, what })
+    }
     fn take(&mut self, n: usize, what: &'static str) -> Result<&[u8], QmError> {
-        let end = self.at.checked_add(n).filter(|&e| e <= self.b.len());
-        let end = end.ok_or(QmError::Truncated { at: self.at, what })?;
-        let s = &self.b[self.at..end];
-        self.at = end;
-        Ok(s)
+        self.0.take(n).map_err(|s| QmError::Truncated { at: s.at, what })
     }
     fn f64(&mut self, what: &'static str) -> Result<f64, QmError> {
-        Ok(f64::from_le_bytes(self.take(8, what)?.try_into().unwrap_or_default()))
+        let v = self.0.f64();
+        self.named(v, what)
     }
     fn f32(&mut self, what: &'static str) -> Result<f32, QmError> {
-        Ok(f32::from_le_bytes(self.take(4, what)?.try_into().unwrap_or_default()))
+        let v = self.0.f32();
+        self.named(v, what)
     }
     fn u32(&mut self, what: &'static str) -> Result<u32, QmError> {
-        Ok(u32::from_le_bytes(self.take(4, what)?.try_into().unwrap_or_default()))
+        let v = self.0.u32();
+        self.named(v, what)
     }
     fn u16(&mut self, what: &'static str) -> Result<u16, QmError> {
-        Ok(u16::from_le_bytes(self.take(2, what)?.try_into().unwrap_or_default()))
+        let v = self.0.u16();
+        self.named(v, what)
     }
     fn index(&mut self, wide: bool, what: &'static str) -> Result<u32, QmError> {
         if wide { self.u32(what) } else { self.u16(what).map(u32::from) }
     }
+    /// A count of items of `per_item` bytes, refused before allocating when the remaining
+    /// bytes cannot hold them.
     fn count(&mut self, per_item: usize, what: &'static str) -> Result<usize, QmError> {
-        let n = self.u32(what)? as usize;
-        // Refuse a count the remaining bytes cannot hold before allocating for it.
-        if n.saturating_mul(per_item) > self.b.len() - self.at {
-            return Err(QmError::Truncated { at: self.at, what });
-        }
-        Ok(n)
+        let v = self.0.count(per_item);
+        self.named(v, what)
     }
 }
 
 /// Decodes a tile (not gzipped: see [`gunzip`]).
 pub fn decode(bytes: &[u8]) -> Result<Decoded, QmError> {
-    let mut r = Reader { b: bytes, at: 0 };
+    let mut r = Reader(LeReader::new(bytes));
     let v3 = |r: &mut Reader<'_>, what| -> Result<DVec3, QmError> {
         Ok(DVec3::new(r.f64(what)?, r.f64(what)?, r.f64(what)?))
     };
@@ -411,7 +411,7 @@ pub fn decode(bytes: &[u8]) -> Result<Decoded, QmError> {
     let vertices: Vec<[u16; 3]> = (0..n).map(|k| [cols[0][k], cols[1][k], cols[2][k]]).collect();
     let wide = n > 65536;
     let size = if wide { 4 } else { 2 };
-    while !r.at.is_multiple_of(size) {
+    while !r.0.pos().is_multiple_of(size) {
         r.take(1, "padding")?;
     }
     let nt = r.count(3 * size, "triangle count")?;
@@ -436,7 +436,7 @@ pub fn decode(bytes: &[u8]) -> Result<Decoded, QmError> {
         }
     }
     let (mut normals, mut metadata) = (None, None);
-    while r.at < bytes.len() {
+    while r.0.pos() < bytes.len() {
         let id = r.take(1, "extension id")?[0];
         let len = r.u32("extension length")? as usize;
         let body = r.take(len, "extension")?;
