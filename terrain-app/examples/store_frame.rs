@@ -7,12 +7,14 @@
 //! ```sh
 //! cargo build --release -p terrain-app --example store_frame
 //! target/release/examples/store_frame STORE [--method geomorph] [--px 7] \
-//!     [--flight flights/pvps_884.json] [--frames 10]
+//!     [--flight flights/pvps_884.json] [--frames 10] [--paced]
 //! ```
 //! Cameras: the flight resolved onto the store's overview (as `selection_scaling`'s store
 //! rows), `--frames` frames evenly spaced, 1280 x 720. The first frame waits until its levels
 //! are resident (not timed); the others draw what is resident (real time), each timed. The
-//! figures are medians over the timed frames (each column its own median).
+//! figures are medians over the timed frames (each column its own median). `--paced` makes
+//! each frame last at least 1/30 s of wall time (the workers' time between frames in a
+//! paced flight; with `--frames` at the flight's frame count, consecutive frames).
 
 mod common;
 
@@ -35,12 +37,16 @@ fn main() -> anyhow::Result<()> {
     let px: Option<f64> = args.take("--px").map(|v| v.parse()).transpose().context("--px")?;
     let flight = args.take("--flight").unwrap_or_else(|| "flights/pvps_884.json".into());
     let frames: usize = args.take("--frames").map_or(Ok(10), |v| v.parse()).context("--frames")?;
+    // Each frame lasts at least one period of the flight's frame rate in wall time (the
+    // workers' time between frames, as in a paced render), with `--paced`.
+    let paced = args.flag("--paced");
     let dir = PathBuf::from(args.rest().first().context("usage: store_frame STORE [options]")?);
     let kind = <LodMethod as clap::ValueEnum>::from_str(&method, true)
         .map_err(|e| anyhow::anyhow!("--method {method}: {e}"))?;
     let mut config = MethodConfig::default();
     if let Some(px) = px {
         config.geomip.pixel_threshold = px;
+        config.tin.tau_px = px;
     }
     let scene = OocScene::open(&dir, OocConfig::default())
         .with_context(|| format!("store {}", dir.display()))?;
@@ -82,7 +88,9 @@ fn main() -> anyhow::Result<()> {
     let (mut total, mut select, mut stream, mut rest) =
         (Vec::new(), Vec::new(), Vec::new(), Vec::new());
     let mut on_runs = Vec::new();
+    let mut late_frames = 0;
     for (k, c) in cameras.iter().enumerate() {
+        let started = std::time::Instant::now();
         let t = thread_cpu_s();
         let f = m.frame(c);
         let ms = (thread_cpu_s() - t) * 1e3;
@@ -109,12 +117,13 @@ fn main() -> anyhow::Result<()> {
         eprintln!(
             "frame {k}: {ms:.2} ms CPU, selection {sel:.2} ms CPU ({:.2} wall), stream {s:.2} \
              ms, demand + filter from runs {runs_ms:.2} ms CPU, {} patches, needed {:.0} MiB \
-             (late {:.3} MiB in {} blocks), resident {:.0} MiB{}",
+             (late {:.3} MiB in {} blocks, {} tiles late), resident {:.0} MiB{}",
             f.stats.selection_ms,
             f.stats.patches,
             f.stats.stream.as_ref().map_or(0.0, |s| s.needed_mib),
             f.stats.stream.as_ref().map_or(0.0, |s| s.late_mib),
             f.stats.stream.as_ref().map_or(0, |s| s.late_blocks),
+            f.stats.stream.as_ref().map_or(0, |s| s.late_tiles),
             f.stats.stream.as_ref().map_or(0.0, |s| s.resident_mib),
             if f.stats.stream.as_ref().is_some_and(|s| s.demand_on_lattice) {
                 " (demand on lattices)"
@@ -122,6 +131,13 @@ fn main() -> anyhow::Result<()> {
                 ""
             }
         );
+        if k > 0 && f.stats.stream.as_ref().is_some_and(|s| !s.at_needed_level) {
+            late_frames += 1;
+        }
+        if paced {
+            let period = std::time::Duration::from_secs_f64(1.0 / 30.0);
+            std::thread::sleep(period.saturating_sub(started.elapsed()));
+        }
         if k > 0 {
             total.push(ms);
             select.push(sel);
@@ -142,7 +158,8 @@ fn main() -> anyhow::Result<()> {
     let (t, s, st, r) = (median(total), median(select), median(stream), median(rest));
     println!(
         "{} {method}: frame {t:.2} ms CPU (median of {}), selection {s:.2}, stream {st:.2}, \
-         rest {:.2}; demand + filter from runs {:.2} ms CPU",
+         rest {:.2}; demand + filter from runs {:.2} ms CPU; frames after the first not at \
+         their needed level: {late_frames}",
         dir.display(),
         cameras.len().saturating_sub(1),
         r,

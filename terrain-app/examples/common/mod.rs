@@ -25,6 +25,12 @@ impl Args {
         })
     }
 
+    /// Whether the bare `flag` was given (taken out).
+    pub(crate) fn flag(&mut self, flag: &str) -> bool {
+        let k = self.0.iter().position(|a| a == flag);
+        k.map(|k| self.0.remove(k)).is_some()
+    }
+
     /// The value after `flag`, or `default`.
     pub(crate) fn take_or(&mut self, flag: &str, default: &str) -> String {
         self.take(flag).unwrap_or_else(|| default.to_string())

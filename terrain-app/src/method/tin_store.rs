@@ -40,7 +40,9 @@ use std::time::{Duration, Instant};
 use terrain_core::geometry::Camera;
 use terrain_core::lod::{Patch, Selection, SelectionStats};
 use terrain_core::quadtree::{NodeId, TreeShape};
-use terrain_core::tin::grid::{GridTile, TinSelection, select_tiles, tin_surface};
+use terrain_core::tin::grid::{
+    GridTile, SurfaceSink, TinSelection, select_tiles, tin_surface, tin_surface_into,
+};
 use terrain_gpu::render::ExtraTriangles;
 use terrain_gpu::tess::GpuDomainPoint;
 use terrain_stream::{Store, StoreTree};
@@ -494,6 +496,33 @@ pub struct TinStoreMethod<'a> {
     wait: OocWait,
     frames: usize,
     reference: Option<&'a MethodScene>,
+    /// The tiles the last frame drew (its measured surface is joined from them on demand).
+    drawn: Vec<Arc<GridTile>>,
+}
+
+/// [`tin_surface_into`]'s sink writing the renderer's buffers: each vertex on its tile's
+/// carrier patch (`rects`: per drawn tile, its node's grid rectangle `x0, y0, cells`) at its
+/// tile's height.
+struct CarrierSink<'r> {
+    rects: &'r [[f64; 3]],
+    extra: ExtraTriangles,
+}
+
+impl SurfaceSink for CarrierSink<'_> {
+    fn reserve(&mut self, vertices: usize, triangles: usize) {
+        self.extra.points.reserve(vertices);
+        self.extra.heights.reserve(vertices);
+        self.extra.indices.reserve(3 * triangles);
+    }
+    fn vertex(&mut self, g: [u32; 2], z: f32, tile: u32) {
+        let [x0, y0, c] = self.rects[tile as usize];
+        let uv = [((f64::from(g[0]) - x0) / c) as f32, ((f64::from(g[1]) - y0) / c) as f32];
+        self.extra.points.push(GpuDomainPoint { uv, patch_index: tile, pad: 0 });
+        self.extra.heights.push(z);
+    }
+    fn triangle(&mut self, t: [u32; 3]) {
+        self.extra.indices.extend_from_slice(&t);
+    }
 }
 
 impl<'a> TinStoreMethod<'a> {
@@ -520,7 +549,16 @@ impl<'a> TinStoreMethod<'a> {
         let tiles = TinTiles::new((*store).clone(), shape, config)?;
         // One memory budget: the stream cache gets what the tiles' caches leave of it.
         let scene = scene.with_reserved(tiles.cache_bytes());
-        Ok(Self { scene, tree, tiles, config: *config, wait, frames: 0, reference })
+        Ok(Self {
+            scene,
+            tree,
+            tiles,
+            config: *config,
+            wait,
+            frames: 0,
+            reference,
+            drawn: Vec::new(),
+        })
     }
 
     /// The tile cache.
@@ -562,33 +600,25 @@ impl Method for TinStoreMethod<'_> {
         let t = Instant::now();
         let drawn: Vec<&GridTile> = resolved.tiles.iter().map(|t| &**t).collect();
         let shape = *terrain_core::quadtree::NodeTree::shape(&self.tree);
-        let surface = tin_surface(&drawn, |g| shape.grid_to_world(g), self.config.stitch);
-        let build_ms = ms(t);
-        let t = Instant::now();
         let root = shape.root_cells();
-        // Each tile's points on its node's carrier; its factor is the streamer's demand.
-        let drawn_nodes: Vec<NodeId> = drawn.iter().map(|t| t.node).collect();
-        let patches = self.tiles.carriers(&drawn_nodes, root);
-        let points = surface
-            .mesh
-            .grid
+        // Each tile's points on its node's carrier (its factor is the streamer's demand), at
+        // the tile's heights: the drawn geometry is the tiles', whatever the pages hold (they
+        // shade it). Joined straight into the renderer's buffers; the measured surface is
+        // built from the same tiles only when asked ([`Method::surface`]).
+        let rects: Vec<[f64; 3]> = drawn
             .iter()
-            .zip(&surface.owner)
-            .map(|(g, &k)| {
-                let (x0, y0, c) = drawn[k as usize].node.grid_rect(root);
-                let c = f64::from(c);
-                GpuDomainPoint {
-                    uv: [((g.x - f64::from(x0)) / c) as f32, ((g.y - f64::from(y0)) / c) as f32],
-                    patch_index: k,
-                    pad: 0,
-                }
+            .map(|t| {
+                let (x0, y0, c) = t.node.grid_rect(root);
+                [f64::from(x0), f64::from(y0), f64::from(c)]
             })
             .collect();
-        let indices = surface.mesh.triangles.iter().flatten().copied().collect();
-        // Every vertex at its tile's height: the drawn geometry is the tiles', whatever the
-        // pages hold; the pages shade it.
-        let heights = surface.mesh.positions.iter().map(|p| p.z as f32).collect();
-        let extra = ExtraTriangles { points, indices, heights };
+        let mut sink = CarrierSink { rects: &rects, extra: ExtraTriangles::default() };
+        tin_surface_into(&drawn, self.config.stitch, &mut sink);
+        let extra = sink.extra;
+        let build_ms = ms(t);
+        let t = Instant::now();
+        let drawn_nodes: Vec<NodeId> = drawn.iter().map(|t| t.node).collect();
+        let patches = self.tiles.carriers(&drawn_nodes, root);
         let convert_ms = ms(t);
         let selection_time = sel.cpu_time + Duration::from_secs_f64(resolve_ms / 1e3);
         let stats = SelectionStats {
@@ -609,9 +639,16 @@ impl Method for TinStoreMethod<'_> {
         // (their builds start before they are drawn), and the lattices of the tiles built so
         // far that would draw them are the streamer's demand ahead.
         let (tree, tiles, tau_px) = (&self.tree, &self.tiles, self.config.tau_px);
+        let mut own = Some(draw);
         let mut select = |_: &dyn terrain_core::lod::TerrainSource, c: &Camera| -> StoreDraw {
             if c == camera {
-                return draw.clone();
+                // A real-time frame selects for its camera once: its draw is moved, not
+                // copied (its mesh is the frame's triangles, tens of MB at 1280 x 720); a
+                // waiting frame selects again once its levels are resident (the same tiles).
+                return match warm {
+                    true => own.clone().unwrap_or_default(),
+                    false => own.take().unwrap_or_default(),
+                };
             }
             let ahead = select_tiles(tree, |n| tiles.tile_bound(n), c, tau_px);
             let now: HashSet<NodeId> = sel.tiles.iter().copied().collect();
@@ -644,14 +681,17 @@ impl Method for TinStoreMethod<'_> {
         for p in &mut frame.selection.patches {
             *p = Patch { node: p.node, outer: [1.0; 4], inner: [1.0; 2] };
         }
-        let triangles = surface.tile_triangles + surface.stitch_triangles;
-        frame.built = Some((surface.mesh, triangles));
+        self.drawn = resolved.tiles;
         frame
     }
 
-    fn surface(&self, frame: &mut Frame) -> anyhow::Result<DrawnSurface> {
+    /// The last frame's surface, joined from its tiles again (the CPU twin of what it drew).
+    fn surface(&self, _frame: &mut Frame) -> anyhow::Result<DrawnSurface> {
         let _ = self.reference;
-        frame.take_built("tin")
+        let shape = *terrain_core::quadtree::NodeTree::shape(&self.tree);
+        let drawn: Vec<&GridTile> = self.drawn.iter().map(|t| &**t).collect();
+        let s = tin_surface(&drawn, |g| shape.grid_to_world(g), self.config.stitch);
+        Ok(DrawnSurface { mesh: s.mesh, triangles: s.tile_triangles + s.stitch_triangles })
     }
 
     fn draws_on(&self) -> DrawSource<'_> {

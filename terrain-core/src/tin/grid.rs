@@ -528,27 +528,95 @@ pub fn select_tiles<Q: NodeSource + ?Sized>(
     TinSelection { tiles, culled, cpu_time: start.elapsed() }
 }
 
+/// Where [`tin_surface_into`] puts a surface: its vertices in order (the `n`-th call is
+/// vertex `n`) and its triangles over them.
+pub trait SurfaceSink {
+    /// Makes room for `vertices` more vertices and `triangles` more triangles.
+    fn reserve(&mut self, vertices: usize, triangles: usize);
+    /// The next vertex: grid sample `g` at height `z`, of drawn tile `tile` (its index in the
+    /// tiles; a stitch's vertices are its coarse tile's).
+    fn vertex(&mut self, g: [u32; 2], z: f32, tile: u32);
+    /// A triangle over the vertices so far (counter-clockwise from above).
+    fn triangle(&mut self, t: [u32; 3]);
+}
+
+/// What [`tin_surface_into`] put in its sink, by kind.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct SurfaceCounts {
+    /// Triangles of the tiles.
+    pub tile_triangles: u64,
+    /// Triangles of the stitches (no plan area).
+    pub stitch_triangles: u64,
+    /// Border segments of the drawn tiles (what skirts would hang from: two triangles each).
+    pub border_segments: u64,
+}
+
 /// The surface of the drawn `tiles` (disjoint nodes covering the view), vertices at their
 /// tiles' heights and placed in the plane by `plan` (grid to world): the tiles' meshes and,
 /// with `stitch`, the stitches where a tile meets finer ones (see the module docs). One
-/// function for the pyramid in memory and the tiles built from a store.
+/// function for the pyramid in memory and the tiles built from a store
+/// ([`tin_surface_into`] with a [`SurfaceMesh`] sink).
 pub fn tin_surface(tiles: &[&GridTile], plan: impl Fn(DVec2) -> DVec2, stitch: bool) -> TinSurface {
-    let mut out = TinSurface::default();
-    let m = &mut out.mesh;
-    let owner = &mut out.owner;
-    let mut push = |m: &mut SurfaceMesh, g: [u32; 2], z: f32, tile: usize| {
-        let p = DVec2::new(f64::from(g[0]), f64::from(g[1]));
-        m.grid.push(p);
-        m.positions.push(plan(p).extend(f64::from(z)));
-        owner.push(tile as u32);
-        (m.grid.len() - 1) as u32
-    };
-    for (k, t) in tiles.iter().enumerate() {
-        let base = m.grid.len() as u32;
-        for (&g, &z) in t.vertices.iter().zip(&t.heights) {
-            push(m, g, z, k);
+    struct Mesh<P> {
+        mesh: SurfaceMesh,
+        owner: Vec<u32>,
+        plan: P,
+    }
+    impl<P: Fn(DVec2) -> DVec2> SurfaceSink for Mesh<P> {
+        fn reserve(&mut self, vertices: usize, triangles: usize) {
+            self.mesh.grid.reserve(vertices);
+            self.mesh.positions.reserve(vertices);
+            self.owner.reserve(vertices);
+            self.mesh.triangles.reserve(triangles);
         }
-        m.triangles.extend(t.triangles.iter().map(|tr| tr.map(|k| k + base)));
+        fn vertex(&mut self, g: [u32; 2], z: f32, tile: u32) {
+            let p = DVec2::new(f64::from(g[0]), f64::from(g[1]));
+            self.mesh.grid.push(p);
+            self.mesh.positions.push((self.plan)(p).extend(f64::from(z)));
+            self.owner.push(tile);
+        }
+        fn triangle(&mut self, t: [u32; 3]) {
+            self.mesh.triangles.push(t);
+        }
+    }
+    let mut sink = Mesh { mesh: SurfaceMesh::default(), owner: Vec::new(), plan };
+    let c = tin_surface_into(tiles, stitch, &mut sink);
+    TinSurface {
+        mesh: sink.mesh,
+        tile_triangles: c.tile_triangles,
+        stitch_triangles: c.stitch_triangles,
+        border_segments: c.border_segments,
+        owner: sink.owner,
+    }
+}
+
+/// [`tin_surface`]'s vertices and triangles, in its order, into `sink` (the renderer's
+/// buffers directly: a frame's surface is millions of vertices at 1280 x 720).
+pub fn tin_surface_into(
+    tiles: &[&GridTile],
+    stitch: bool,
+    sink: &mut impl SurfaceSink,
+) -> SurfaceCounts {
+    let mut out = SurfaceCounts::default();
+    // The tiles' vertices and triangles and room for the stitches (each side vertex enters at
+    // most one stitch as its coarse side's and one as its fine side's), reserved at once.
+    let (mut nv, mut nt) = (0, 0);
+    for t in tiles {
+        let sides = if stitch { 2 * t.sides.iter().map(Vec::len).sum::<usize>() } else { 0 };
+        nv += t.vertices.len() + sides;
+        nt += t.triangles.len() + sides;
+    }
+    sink.reserve(nv, nt);
+    let mut count = 0u32;
+    for (k, t) in tiles.iter().enumerate() {
+        let base = count;
+        for (&g, &z) in t.vertices.iter().zip(&t.heights) {
+            sink.vertex(g, z, k as u32);
+        }
+        count += t.vertices.len() as u32;
+        for tr in &t.triangles {
+            sink.triangle(tr.map(|v| v + base));
+        }
         out.tile_triangles += t.triangles.len() as u64;
         out.border_segments +=
             t.sides.iter().map(|s| s.len().saturating_sub(1) as u64).sum::<u64>();
@@ -602,12 +670,13 @@ pub fn tin_surface(tiles: &[&GridTile], plan: impl Fn(DVec2) -> DVec2, stitch: b
             polygon.extend_from_slice(&fine);
             polygon.push(e);
             polygon.extend(inner.iter().rev());
-            let base = m.grid.len() as u32;
+            let base = count;
             for &(g, z) in &polygon {
-                push(m, g, z, k);
+                sink.vertex(g, z, k as u32);
             }
+            count += polygon.len() as u32;
             for k in 1..polygon.len() as u32 - 1 {
-                m.triangles.push([base, base + k, base + k + 1]);
+                sink.triangle([base, base + k, base + k + 1]);
             }
             out.stitch_triangles += polygon.len() as u64 - 2;
         }
