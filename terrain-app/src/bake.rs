@@ -462,7 +462,7 @@ fn run_into(args: &BakeArgs, out: &Path, shown: &str) -> anyhow::Result<()> {
     if !args.no_tin {
         stop_before("tin tiles")?;
         // From the store's blocks and its table of decimation errors, as `tin` builds them
-        // while flying: every tile of 1024 cells or more across.
+        // while flying: every tile of 512 cells or more across.
         let store = terrain_stream::Store::open(out).with_context(|| format!("opening {shown}"))?;
         if let Some(r) = terrain_app::tin_scene::bake_from_store(&store, true)? {
             println!("{}", r.line(out));

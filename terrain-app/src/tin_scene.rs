@@ -1,13 +1,16 @@
 //! The `tin` method's coarse tiles baked into a store (`tin_tiles.bin`): every tile whose own
-//! stride is at least `2^BAKED_MIN_STRIDE_LOG2` (a tile spanning 1024 cells or more at the
+//! stride is at least `2^BAKED_MIN_STRIDE_LOG2` (a tile spanning 512 cells or more at the
 //! store's 64-cell tiles), built by the builder `tin` from a store builds with at run time
-//! ([`store_builder`]: the same function, the same bounds, the same samples), so a frame never
-//! waits for a tile meshed from millions of samples: those are read (tens of kilobytes each),
-//! and only tiles of at most 512 cells across (262 k samples) are built while flying. The
-//! tiles are view-independent, so nothing is lost by building them once. (Baking the 512-cell
-//! tiles too drew no more frames at their needed level over the 32769^2 synthetic store, for a
-//! file of 997 instead of 361 MiB and 85 s more bake; leaving the 1024-cell ones to the flight
-//! drew 94.7 % instead of 96.7 %: bench/ooc/README.md, "The tin method's coarse tiles baked".)
+//! ([`store_builder`]: the same function, the same bounds, the same samples, each tile seeded
+//! by its parent's vertices), so a frame never waits for a tile meshed from hundreds of
+//! thousands or millions of samples: those are read (tens of kilobytes each), and only tiles of
+//! at most 256 cells across (66 k samples) are built while flying. The tiles are
+//! view-independent, so nothing is lost by building them once. The 512-cell tiles are what a
+//! 1280 x 720 view needs most of: `fast_pass` over the 32769^2 synthetic store at 2 px drew 27 %
+//! of its frames at their needed level with them built while flying and 93 % with them baked
+//! (1006 instead of 361 MiB, in 263 s of bake with the seeds, the time the 1024-cell ones took
+//! before them); at 320 x 180 either draws 96-97 % (bench/ooc/README.md, "The tin method at
+//! 1280 x 720").
 //!
 //! `terrain bake` writes the file after the store's blocks (and after a sharded bake's merge),
 //! unless `--no-tin`, for the default `tin` settings; a store read with other settings
@@ -42,8 +45,8 @@ use crate::samples::StoreSamples;
 pub const TIN_TILES_FILE: &str = "tin_tiles.bin";
 
 /// Tiles whose own stride (their 64 cells across at it) is at least `2^this` are baked: at
-/// run time the rest are meshed from windows of at most 512 cells across.
-pub const BAKED_MIN_STRIDE_LOG2: u32 = 4;
+/// run time the rest are meshed from windows of at most 256 cells across.
+pub const BAKED_MIN_STRIDE_LOG2: u32 = 3;
 
 /// Tiles built between two writes of the bake (bounds the tiles held in memory).
 const CHUNK_TILES: usize = 128;
@@ -246,7 +249,7 @@ fn write_tiles(
     let bar = Progress::new("tin tiles", progress);
     let mut index: Vec<u8> = Vec::with_capacity(nodes.len() * ENTRY_BYTES);
     let (mut offset, mut triangles) = (HEADER_BYTES as u64, 0u64);
-    // Progress in samples read: a coarse tile reads up to 4 M of them, a 1024-cell one 1 M.
+    // Progress in samples read: a coarse tile reads up to 4 M of them, a 512-cell one 263 k.
     let weight = |n: NodeId| -> u64 {
         let s = builder.finest_stride(builder.own_stride(n).unwrap_or(0));
         shape.clipped_rect(n).map_or(0, |r| {
@@ -255,23 +258,39 @@ fn write_tiles(
     };
     let total = nodes.iter().map(|&n| weight(n)).sum::<u64>() as f64;
     let done = std::sync::atomic::AtomicU64::new(0);
-    for chunk in nodes.chunks(CHUNK_TILES) {
-        let built: Vec<(NodeId, u32, usize, Vec<u8>)> = chunk
-            .par_iter()
-            .map(|&n| {
-                let t = builder.build(n).with_context(|| format!("tin tile {n:?}"))?;
-                let w = weight(n);
-                let d = done.fetch_add(w, std::sync::atomic::Ordering::Relaxed) + w;
-                bar.update(d as f64, total);
-                Ok((n, t.stride_log2, t.triangles.len(), encode_tile(&t, origin(&shape, n)?)))
-            })
-            .collect::<anyhow::Result<_>>()?;
-        for (n, stride, tris, bytes) in built {
-            out.write_all(&bytes).with_context(|| io("writing"))?;
-            index.extend_from_slice(&encode_entry(n, stride, offset, &bytes));
-            offset += bytes.len() as u64;
-            triangles += tris as u64;
+    // Each tile seeded by its parent's vertices (as at run time): the previous level's kept
+    // (vertices only) while a level is built, level by level (`nodes` come coarse first).
+    let mut parents: HashMap<NodeId, Vec<[u32; 2]>> = HashMap::new();
+    let mut at = 0;
+    while at < nodes.len() {
+        let level = nodes[at].level;
+        let end = at + nodes[at..].iter().take_while(|n| n.level == level).count();
+        let mut this: HashMap<NodeId, Vec<[u32; 2]>> = HashMap::new();
+        for chunk in nodes[at..end].chunks(CHUNK_TILES) {
+            let built: Vec<(GridTile, Vec<u8>)> = chunk
+                .par_iter()
+                .map(|&n| {
+                    let seeds = n.parent().and_then(|p| parents.get(&p));
+                    let t = builder
+                        .build(n, seeds.map_or(&[][..], |v| &v[..]))
+                        .with_context(|| format!("tin tile {n:?}"))?;
+                    let w = weight(n);
+                    let d = done.fetch_add(w, std::sync::atomic::Ordering::Relaxed) + w;
+                    bar.update(d as f64, total);
+                    let bytes = encode_tile(&t, origin(&shape, n)?);
+                    Ok((t, bytes))
+                })
+                .collect::<anyhow::Result<_>>()?;
+            for (t, bytes) in built {
+                out.write_all(&bytes).with_context(|| io("writing"))?;
+                index.extend_from_slice(&encode_entry(t.node, t.stride_log2, offset, &bytes));
+                offset += bytes.len() as u64;
+                triangles += t.triangles.len() as u64;
+                this.insert(t.node, t.vertices);
+            }
         }
+        parents = this;
+        at = end;
     }
     bar.finish();
     out.write_all(&index).with_context(|| io("writing"))?;

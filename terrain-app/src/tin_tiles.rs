@@ -37,7 +37,7 @@ pub(crate) fn run(args: &TinTilesArgs) -> anyhow::Result<()> {
     match bake_from_store(&store, !args.quiet)? {
         Some(r) => println!("{}", r.line(dir)),
         None => println!(
-            "{}: no tile of 1024 cells or more across: `--method tin` builds every tile of this \
+            "{}: no tile of 512 cells or more across: `--method tin` builds every tile of this \
              {} x {} store while flying",
             dir.display(),
             store.header().width,

@@ -598,11 +598,12 @@ fn baked_coarse_tiles_are_the_tiles_built_while_flying() {
     let config = MethodConfig::default().tin;
     let tree = terrain_app::tin_scene::store_tree(&store, &config);
     let shape = *terrain_core::quadtree::NodeTree::shape(&tree);
-    // The bake's: tiles of 1024 cells or more, here the root (stride 16 at 64 cells).
-    let report = bake_from_store(&store, false).unwrap().expect("a 1025 x 769 store has tiles");
+    // Tiles of 1024 cells or more only: the root (stride 16 at 64 cells).
+    let report = bake_tiles(&store, 4, false).unwrap().expect("a 1025 x 769 store has tiles");
     assert_eq!(report.tiles, 1);
-    // With level 1 too (512 cells, stride 8): 1 + 4; a reader takes whichever tiles are there.
-    let report = bake_tiles(&store, 3, false).unwrap().unwrap();
+    // The bake's: with level 1 (512 cells, stride 8), 1 + 4; a reader takes whichever tiles
+    // are there.
+    let report = bake_from_store(&store, false).unwrap().unwrap();
     assert_eq!(report.tiles, 5);
     let path = store.dir().join(TIN_TILES_FILE);
     assert!(path.is_file() && !store.dir().join(format!("{TIN_TILES_FILE}.tmp")).exists());
@@ -615,9 +616,13 @@ fn baked_coarse_tiles_are_the_tiles_built_while_flying() {
         .map(|(l, i, j)| NodeId::new(l, i, j))
         .collect();
     let mut triangles = 0;
+    // Each built from its parent's vertices, as the bake and the method build them.
+    let mut parents: std::collections::HashMap<NodeId, Vec<[u32; 2]>> = Default::default();
     for &n in &nodes {
         let read = baked.read(n).unwrap().expect("baked");
-        let built = builder.build(n).unwrap();
+        let seeds = n.parent().and_then(|p| parents.get(&p)).cloned().unwrap_or_default();
+        let built = builder.build(n, &seeds).unwrap();
+        parents.insert(n, built.vertices.clone());
         assert_eq!(read.vertices, built.vertices, "{n:?}");
         assert_eq!(read.triangles, built.triangles, "{n:?}");
         assert_eq!(read.sides, built.sides, "{n:?}");
@@ -757,7 +762,7 @@ fn terrain_render_draws_tin_from_a_baked_store_as_from_memory() {
     let out = common::terrain(&args);
     let stdout = String::from_utf8_lossy(&out.stdout);
     assert!(out.status.success(), "{stdout}{}", String::from_utf8_lossy(&out.stderr));
-    assert!(stdout.contains("tin_tiles.bin: 1 of the tin method's coarse tiles"), "{stdout}");
+    assert!(stdout.contains("tin_tiles.bin: 5 of the tin method's coarse tiles"), "{stdout}");
     let info = common::terrain(&["info", &s(&store)]);
     let info = String::from_utf8_lossy(&info.stdout);
     assert!(info.contains("tin_tiles.bin"), "terrain info lists the tiles: {info}");

@@ -6,6 +6,7 @@
 //! ([`build_pyramid`]: every tile on rayon's threads, with a progress line on a terminal).
 
 use std::cell::RefCell;
+use std::collections::HashMap;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::Instant;
 
@@ -76,18 +77,33 @@ pub fn build_pyramid(hm: &Heightmap, config: &GridTinConfig) -> anyhow::Result<G
             Some(_) => tiles.measured_now(config.finer_strides)?,
             None => tiles,
         };
-        nodes
-            .par_iter()
-            .map(|&n| {
-                let t = tiles.build(n);
-                if let Ok(t) = &t {
-                    let samples = t.measured.samples.max(1) as u64;
-                    let now = done.fetch_add(samples, Ordering::Relaxed) + samples;
-                    bar.update(now as f64, total * levels as f64);
-                }
-                t
-            })
-            .collect::<anyhow::Result<Vec<GridTile>>>()
+        // Level by level (the nodes come coarse first), each tile seeded by its parent's
+        // vertices, as every builder of `tin`'s tiles seeds them.
+        let mut built: Vec<GridTile> = Vec::with_capacity(nodes.len());
+        let mut parents: HashMap<NodeId, usize> = HashMap::new();
+        let mut at = 0;
+        while at < nodes.len() {
+            let level = nodes[at].level;
+            let end = at + nodes[at..].iter().take_while(|n| n.level == level).count();
+            let this: Vec<GridTile> = nodes[at..end]
+                .par_iter()
+                .map(|&n| {
+                    let parent = n.parent().and_then(|p| parents.get(&p));
+                    let seeds = parent.map_or(&[][..], |&k| &built[k].vertices[..]);
+                    let t = tiles.build(n, seeds);
+                    if let Ok(t) = &t {
+                        let samples = t.measured.samples.max(1) as u64;
+                        let now = done.fetch_add(samples, Ordering::Relaxed) + samples;
+                        bar.update(now as f64, total * levels as f64);
+                    }
+                    t
+                })
+                .collect::<anyhow::Result<_>>()?;
+            parents = (0..this.len()).map(|k| (this[k].node, built.len() + k)).collect();
+            built.extend(this);
+            at = end;
+        }
+        anyhow::Ok(built)
     })?;
     bar.finish();
     Ok(pyramid)
@@ -277,8 +293,11 @@ impl<S: Samples> GridTileBuilder<S> {
         &self.shape
     }
 
-    /// Tile `node`: see the type's docs.
-    pub fn build(&self, node: NodeId) -> anyhow::Result<GridTile> {
+    /// Tile `node`: see the type's docs. Meshed from every sample, its greedy insertion
+    /// starts from `seeds`, its parent tile's vertices ([`build_tile_within`]; empty for the
+    /// root): every caller passes them (the pyramid in memory level by level, the bake, the
+    /// run-time builders), so a tile is the same tile whoever builds it.
+    pub fn build(&self, node: NodeId, seeds: &[[u32; 2]]) -> anyhow::Result<GridTile> {
         let own = tile_window(&self.shape, node, self.max_cells)
             .ok_or_else(|| anyhow::anyhow!("tile {node:?} lies outside the grid"))?;
         let rect = self
@@ -301,7 +320,12 @@ impl<S: Samples> GridTileBuilder<S> {
                 ..own
             };
             let w = samples.window(win.x0 as usize, win.y0 as usize, win.width, win.height, s)?;
-            let tile = build_tile_within(node, &win, &w.data, w.voids.as_ref(), budget, bound)?;
+            // Seeded from every sample only: a decimated mesh is proven by its lattice
+            // deviation, which seeds move (a tile planned at one stride then fails its check
+            // there now and then and goes finer than the streamer was told).
+            let seeds = if s == 0 { seeds } else { &[] };
+            let tile =
+                build_tile_within(node, &win, &w.data, w.voids.as_ref(), budget, bound, seeds)?;
             // A window with voids is checked against every sample (the lattice's bound
             // interpolates the voids' heights, which the mesher does not measure).
             *last.borrow_mut() = (s > 0 && w.voids.is_none()).then_some((win, w.data));

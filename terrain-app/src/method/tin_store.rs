@@ -4,7 +4,7 @@
 //! the pyramid in memory ([`super::GridTileBuilder`]: the stride each tile's level allows,
 //! within its bound less the decimation error under it, checked against every sample under
 //! it), and kept in a byte-budgeted LRU cache of built tiles
-//! ([`TinTiles`]). Nothing of the full grid is in memory. The coarse tiles (1024 cells or more
+//! ([`TinTiles`]). Nothing of the full grid is in memory. The coarse tiles (512 cells or more
 //! across) a store's bake built ([`crate::tin_scene`], `tin_tiles.bin`) are read instead of
 //! built: the same tiles, bit for bit.
 //!
@@ -65,7 +65,7 @@ pub struct TinStoreConfig {
     /// Most bytes of decoded store blocks the tile builders keep. Default 256 MiB.
     pub block_cache_bytes: u64,
     /// The same where the store has its coarse tiles baked ([`crate::tin_scene`]): the tiles
-    /// built while flying then span at most 512 cells (four to nine blocks). Default 32 MiB.
+    /// built while flying then span at most 256 cells (one to four blocks). Default 32 MiB.
     pub block_cache_bytes_baked: u64,
     /// Tile builder threads.
     pub threads: usize,
@@ -133,13 +133,44 @@ impl Shared {
     /// pyramid in memory (its window's stride, the budget less the decimation error under it,
     /// checked against every sample under it); a baked tile is read instead
     /// ([`BakedTiles::read_within`] the bound the selection took), and the flag says so.
+    ///
+    /// A built tile is seeded by its parent's vertices ([`GridTileBuilder::build`], as the
+    /// bake and the pyramid in memory seed it): the parent comes from the cache, else is read
+    /// or built first (and kept).
     fn build(&self, node: NodeId) -> anyhow::Result<(GridTile, bool)> {
         let bound = || self.builder.tile_bound(node);
         let baked = self.baked.as_ref().map(|b| b.read_within(node, bound()));
         if let Some(tile) = baked.transpose()?.flatten() {
             return Ok((tile, true));
         }
-        Ok((self.builder.build(node)?, false))
+        let parent = node.parent().map(|p| self.tile(p)).transpose()?;
+        let seeds = parent.as_ref().map_or(&[][..], |t| &t.vertices[..]);
+        Ok((self.builder.build(node, seeds)?, false))
+    }
+
+    /// Tile `node` from the cache, else read or built and kept.
+    fn tile(&self, node: NodeId) -> anyhow::Result<Arc<GridTile>> {
+        if let Some(e) = self.lock().tiles.get(&node) {
+            return Ok(e.tile.clone());
+        }
+        let (tile, read) = self.build(node)?;
+        let tile = Arc::new(tile);
+        self.insert(&mut self.lock(), node, tile.clone(), read);
+        Ok(tile)
+    }
+
+    /// Keeps built tile `node` (read from the baked tiles when `read`), within the budget.
+    fn insert(&self, st: &mut State, node: NodeId, tile: Arc<GridTile>, read: bool) {
+        st.read += u64::from(read);
+        let used = st.frame;
+        if let Some(old) = st.tiles.insert(node, Entry { tile: tile.clone(), used }) {
+            st.bytes -= old.tile.bytes();
+        } else {
+            st.built += 1;
+        }
+        st.bytes += tile.bytes();
+        st.peak_bytes = st.peak_bytes.max(st.bytes);
+        self.evict(st);
     }
 
     /// Drops least recently drawn tiles while over the budget: not the current frame's (the
@@ -180,16 +211,7 @@ impl Shared {
             let mut st = self.lock();
             st.building.remove(&node);
             match built {
-                Ok((tile, read)) => {
-                    st.read += u64::from(read);
-                    let tile = Arc::new(tile);
-                    st.bytes += tile.bytes();
-                    let used = st.frame;
-                    st.tiles.insert(node, Entry { tile, used });
-                    st.built += 1;
-                    st.peak_bytes = st.peak_bytes.max(st.bytes);
-                    self.evict(&mut st);
-                }
+                Ok((tile, read)) => self.insert(&mut st, node, Arc::new(tile), read),
                 Err(e) => {
                     st.failed.insert(node, format!("{e:#}"));
                 }
@@ -291,29 +313,39 @@ impl TinTiles {
     /// Queues what `nodes` need that is not built: their missing ancestors (coarse first, the
     /// fallback of a frame that cannot wait) and themselves. Replaces the previous request.
     pub fn request(&self, nodes: &[NodeId]) {
-        self.queue(nodes, true);
+        self.request_in_turn(&[nodes]);
     }
 
-    /// Queues the missing `nodes`, with their missing ancestors when `ancestors` (a waiting
-    /// frame draws its own tiles only: their ancestors, coarse tiles meshed from many samples
-    /// once their decimation error is counted, would only delay it).
-    fn queue(&self, nodes: &[NodeId], ancestors: bool) {
+    /// [`TinTiles::request`] for several groups of tiles, built in turn: each group's missing
+    /// tiles and ancestors (coarse first) after the previous group's (a frame's own tiles,
+    /// then those of the eyes ahead).
+    pub fn request_in_turn(&self, groups: &[&[NodeId]]) {
+        self.queue(groups, true);
+    }
+
+    /// Queues the missing tiles of `groups` in turn, with their missing ancestors when
+    /// `ancestors` (a waiting frame draws its own tiles only: their ancestors, coarse tiles
+    /// meshed from many samples once their decimation error is counted, would only delay it).
+    fn queue(&self, groups: &[&[NodeId]], ancestors: bool) {
         let mut st = self.shared.lock();
         let mut queued: HashSet<NodeId> = HashSet::new();
         let mut queue: Vec<NodeId> = Vec::new();
-        for &n in nodes {
-            let mut c = Some(n);
-            while let Some(m) = c {
-                if st.tiles.contains_key(&m) || st.failed.contains_key(&m) {
-                    break;
+        for nodes in groups {
+            let from = queue.len();
+            for &n in *nodes {
+                let mut c = Some(n);
+                while let Some(m) = c {
+                    if st.tiles.contains_key(&m) || st.failed.contains_key(&m) {
+                        break;
+                    }
+                    if queued.insert(m) {
+                        queue.push(m);
+                    }
+                    c = if ancestors { m.parent() } else { None };
                 }
-                if queued.insert(m) {
-                    queue.push(m);
-                }
-                c = if ancestors { m.parent() } else { None };
             }
+            queue[from..].sort_by_key(|n| (n.level, n.dfs_key()));
         }
-        queue.sort_by_key(|n| (n.level, n.dfs_key()));
         st.queue = queue.into();
         drop(st);
         self.shared.work.notify_all();
@@ -322,7 +354,7 @@ impl TinTiles {
     /// Waits until every one of `nodes` is built (at most `timeout`); the first failure or
     /// the timeout is an error.
     pub fn wait_for(&self, nodes: &[NodeId], timeout: Duration) -> anyhow::Result<()> {
-        self.queue(nodes, false);
+        self.queue(&[nodes], false);
         let deadline = Instant::now() + timeout;
         let mut st = self.shared.lock();
         loop {
@@ -341,7 +373,7 @@ impl TinTiles {
             // Tiles evicted while waiting (a budget smaller than the frame) are asked again.
             if st.queue.is_empty() && st.building.is_empty() {
                 drop(st);
-                self.queue(&missing, false);
+                self.queue(&[&missing], false);
                 st = self.shared.lock();
                 continue;
             }
@@ -484,6 +516,10 @@ impl Drop for TinTiles {
         }
     }
 }
+
+/// How much further ahead than the streamer's look-ahead eye (Eq. 8) the tiles are queued for
+/// ([`TinTiles::request_in_turn`], after the frame's own and the look-ahead eye's).
+const TILES_AHEAD: f64 = 8.0;
 
 /// `tin` over a store's runtime (see the module docs).
 #[derive(Debug)]
@@ -651,10 +687,17 @@ impl Method for TinStoreMethod<'_> {
                 };
             }
             let ahead = select_tiles(tree, |n| tiles.tile_bound(n), c, tau_px);
-            let now: HashSet<NodeId> = sel.tiles.iter().copied().collect();
-            let mut queued = sel.tiles.clone();
-            queued.extend(ahead.tiles.iter().filter(|n| !now.contains(n)));
-            tiles.request(&queued);
+            // A tile takes longer to build than a frame lasts (10-25 ms from every sample of
+            // a 256-512 cell window), and a view's new tiles come in bursts: the tiles of the
+            // eye further ahead (`TILES_AHEAD` times the streamer's look-ahead) are queued
+            // last, so a burst starts building frames before it is drawn.
+            let far = Camera {
+                position: camera.position + (c.position - camera.position) * TILES_AHEAD,
+                ..*c
+            };
+            let further = select_tiles(tree, |n| tiles.tile_bound(n), &far, tau_px);
+            tiles.request_in_turn(&[&sel.tiles, &ahead.tiles, &further.tiles]);
+            let queued: Vec<NodeId> = sel.tiles.iter().chain(&ahead.tiles).copied().collect();
             let built = tiles.peek(&ahead.tiles);
             let built: Vec<NodeId> = built.iter().map(|t| t.node).collect();
             let mut patches = tiles.carriers(&built, root);

@@ -192,7 +192,7 @@ mod tests {
         {
             let z = heights(w, h, seed);
             let win = TileWindow { x0: 64, y0: 128, width: w, height: h, stride_log2: 2 };
-            let tile = build_tile_within(NodeId::new(0, 0, 0), &win, &z, None, budget, budget)
+            let tile = build_tile_within(NodeId::new(0, 0, 0), &win, &z, None, budget, budget, &[])
                 .expect("a tile");
             let bound = lattice_deviation(&tile, &win, &z);
             // Dense samples of B_s - M: every triangle at 1/64 of a lattice cell.
