@@ -117,7 +117,8 @@ fn main() -> anyhow::Result<()> {
         eprintln!(
             "frame {k}: {ms:.2} ms CPU, selection {sel:.2} ms CPU ({:.2} wall), stream {s:.2} \
              ms, demand + filter from runs {runs_ms:.2} ms CPU, {} patches, needed {:.0} MiB \
-             (late {:.3} MiB in {} blocks, {} tiles late), resident {:.0} MiB{}",
+             (late {:.3} MiB in {} blocks, {} tiles late), resident {:.0} MiB, queue {} \
+             ({:.1} MiB), prefetched {:.2} MiB, cancelled {}, evictions {}{}",
             f.stats.selection_ms,
             f.stats.patches,
             f.stats.stream.as_ref().map_or(0.0, |s| s.needed_mib),
@@ -125,6 +126,11 @@ fn main() -> anyhow::Result<()> {
             f.stats.stream.as_ref().map_or(0, |s| s.late_blocks),
             f.stats.stream.as_ref().map_or(0, |s| s.late_tiles),
             f.stats.stream.as_ref().map_or(0.0, |s| s.resident_mib),
+            f.stats.stream.as_ref().map_or(0, |s| s.queue_depth),
+            f.stats.stream.as_ref().map_or(0.0, |s| s.queued_mib),
+            f.stats.stream.as_ref().map_or(0.0, |s| s.prefetched_mib),
+            f.stats.stream.as_ref().map_or(0, |s| s.cancelled),
+            f.stats.stream.as_ref().map_or(0, |s| s.evictions),
             if f.stats.stream.as_ref().is_some_and(|s| s.demand_on_lattice) {
                 " (demand on lattices)"
             } else {

@@ -289,8 +289,13 @@ impl DecimationErrors {
 /// Reads the table at `path` of the store whose header is `header`: `None` when there is
 /// none; an error naming the file, saying to bake the store again, when it is damaged, of
 /// another bake or of another grid. Values are multiplied by the header's vertical
-/// exaggeration (in f64, rounded once, as the heights are).
-pub(crate) fn read(path: &Path, header: &Header) -> Result<Option<DecimationErrors>, StoreError> {
+/// exaggeration and raised by the heights' rounding (see [`exaggerate`]; `height_bound`: the
+/// largest magnitude of the exaggerated heights).
+pub(crate) fn read(
+    path: &Path,
+    header: &Header,
+    height_bound: f32,
+) -> Result<Option<DecimationErrors>, StoreError> {
     let bytes = match std::fs::read(path) {
         Ok(b) => b,
         Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(None),
@@ -317,17 +322,35 @@ pub(crate) fn read(path: &Path, header: &Header) -> Result<Option<DecimationErro
             header.k
         )));
     }
-    let scale = header.vertical_scale;
     let mut values = t.values;
-    if scale != 1.0 {
-        values.iter_mut().for_each(|v| *v = (f64::from(*v) * scale) as f32);
-    }
+    exaggerate(&mut values, header.vertical_scale, height_bound);
     Ok(Some(DecimationErrors {
         strides: t.strides,
         blocks_x: header.blocks_x,
         blocks_y: header.blocks_y,
         values,
     }))
+}
+
+/// Decimation errors `values` of the heights as baked made those of the heights times
+/// `scale` as an exaggerated store reads them (`height_bound`: their largest magnitude).
+/// Each height is scaled and rounded on its own, within half an ulp (`|h| 2^-24`) of its
+/// exact value, so the read heights' own error `|z - B_s|` can exceed the exactly scaled
+/// error by the rounding of the sample and of the bilinear surface of its strided
+/// neighbours: at most `2 x |h|max 2^-24`. Each value is scaled in f64, raised by twice that
+/// (`|h|max` is itself a rounded height) and rounded up to an f32: an upper bound of the read
+/// heights' error, which the `tin` method's proofs need (the scaled value alone can fall
+/// short by about a millimetre at a few kilometres).
+pub(crate) fn exaggerate(values: &mut [f32], scale: f64, height_bound: f32) {
+    if scale == 1.0 {
+        return;
+    }
+    let margin = 2.0 * f64::from(height_bound) * f64::from(f32::EPSILON);
+    for v in values.iter_mut() {
+        let x = f64::from(*v) * scale + margin;
+        let f = x as f32;
+        *v = if f64::from(f) < x { f.next_up() } else { f };
+    }
 }
 
 #[cfg(test)]

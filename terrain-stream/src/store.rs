@@ -194,11 +194,24 @@ impl Store {
             return Ok(known.clone());
         }
         let table = match self.side_file(DECIMATION_FILE)? {
-            Some(path) => crate::decimation::read(&path, &self.header)?.map(Arc::new),
+            Some(path) => {
+                crate::decimation::read(&path, &self.header, self.height_bound())?.map(Arc::new)
+            }
             None => None,
         };
         // Another thread may have read it meanwhile: the same table.
         Ok(self.decimation.get_or_init(|| table).clone())
+    }
+
+    /// The largest magnitude of the store's heights as read (its exaggeration applied), from
+    /// the index without reading a block: every entry's least and greatest of a whole index,
+    /// the root of a paged index's block pyramid.
+    fn height_bound(&self) -> f32 {
+        let m = |[lo, hi]: [f32; 2]| lo.abs().max(hi.abs());
+        match &*self.index {
+            Index::Whole(blocks) => blocks.iter().map(|b| m([b.min, b.max])).fold(0.0, f32::max),
+            Index::Paged { pages, .. } => pages.head().upper.first().copied().map_or(0.0, m),
+        }
     }
 
     /// The store's side table `name` (a file beside its index, e.g. [`crate::GEOMIP_FILE`])

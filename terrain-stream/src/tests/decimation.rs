@@ -198,8 +198,12 @@ fn a_missing_damaged_or_foreign_table_is_none_or_a_typed_error() {
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
-/// (d) An exaggerated store's values are the store's times the exaggeration (in f64, rounded
-/// once, as its heights); the plain store's stay as they were; scales compose.
+/// (d) An exaggerated store's values bound the errors of its heights as it reads them (each
+/// scaled and rounded on its own), recomputed from its decoded samples, at every stride of
+/// every block, and exceed the base values times the exaggeration by at most the rounding
+/// margin (`2 |h|max 2^-23`, a few millimetres here, and the rounding up to an f32), where
+/// the values scaled alone fall short of the read heights' own; the plain store's stay as
+/// they were; scales compose.
 #[test]
 fn an_exaggerated_store_scales_its_decimation_errors() {
     let dir = scratch("exaggerated");
@@ -210,14 +214,36 @@ fn an_exaggerated_store_scales_its_decimation_errors() {
     for (store, scale) in [
         (plain.exaggerated(3.0).unwrap(), 3.0),
         (plain.exaggerated(2.0).unwrap().exaggerated(0.25).unwrap(), 0.5),
+        (plain.exaggerated(7.3).unwrap(), 7.3),
     ] {
         let scaled = store.decimation_errors().unwrap().unwrap();
-        for id in plain.block_ids() {
-            let want: Vec<f32> =
-                base.errors(id).unwrap().iter().map(|&e| (f64::from(e) * scale) as f32).collect();
-            assert_eq!(scaled.errors(id).unwrap(), &want[..], "{id} x {scale}");
-            assert_ne!(scaled.errors(id).unwrap(), base.errors(id).unwrap(), "{id} x {scale}");
+        let own = recomputed(&store);
+        let mut short = 0;
+        // The grid's heights reach at most 760 m before the exaggeration.
+        let eps = f64::from(f32::EPSILON);
+        let margin = 2.0 * 760.0 * scale * eps;
+        for (id, own) in plain.block_ids().zip(&own) {
+            let got = scaled.errors(id).unwrap();
+            for (s, ((&g, &b), &o)) in got.iter().zip(base.errors(id).unwrap()).zip(own).enumerate()
+            {
+                assert!(
+                    g >= o,
+                    "{id} x {scale}, stride 2^{}: {g} below the read heights' {o}",
+                    s + 1
+                );
+                let exact = f64::from(b) * scale;
+                short += usize::from(((f64::from(b) * scale) as f32) < o);
+                assert!(
+                    f64::from(g) >= exact && f64::from(g) <= exact + margin + f64::from(g) * eps,
+                    "{id} x {scale}, stride 2^{}: {g} against {exact}",
+                    s + 1
+                );
+            }
         }
+        // The negative control: the values scaled alone (the rule before the margin) fall
+        // short of the read heights' own errors in some blocks (60 and 63 values here).
+        println!("x {scale}: {short} values scaled alone fall short of the read heights' own");
+        assert!(scale == 0.5 || short > 0, "x {scale}: the control finds no shortfall");
     }
     assert_eq!(plain.decimation_errors().unwrap().unwrap(), base, "the plain store's unchanged");
     std::fs::remove_dir_all(&dir).unwrap();
