@@ -7,7 +7,7 @@
 //! at most 256 cells across (66 k samples) are built while flying. The tiles are
 //! view-independent, so nothing is lost by building them once. The 512-cell tiles are what a
 //! 1280 x 720 view needs most of: `fast_pass` over the 32769^2 synthetic store at 2 px drew 27 %
-//! of its frames at their needed level with them built while flying and 93 % with them baked
+//! of its frames at their needed level with them built while flying, 92-94 % with them baked
 //! (1006 instead of 361 MiB, in 263 s of bake with the seeds, the time the 1024-cell ones took
 //! before them); at 320 x 180 either draws 96-97 % (bench/ooc/README.md, "The tin method at
 //! 1280 x 720").
