@@ -138,8 +138,8 @@ fn tin_file(
                 let n = NodeId::new(level, i, j);
                 let t = build_tile_at(hm, shape, n, errors[level as usize], Some(TIN_MAX_CELLS))
                     .map_err(|e| e.to_string())?;
-                let r = shape.clipped_rect(n).ok_or("a node outside the grid")?;
-                let bytes = tile_file::encode_tile(&t, [r.x0, r.y0]);
+                let origin = tile_file::tile_origin(shape, n).map_err(|e| e.to_string())?;
+                let bytes = tile_file::encode_tile(&t, origin);
                 let entry = tile_file::encode_entry(n, t.stride_log2, file.len() as u64, &bytes);
                 index.extend_from_slice(&entry);
                 file.extend_from_slice(&bytes);

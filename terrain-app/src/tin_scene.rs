@@ -33,6 +33,7 @@ use terrain_core::quadtree::{NodeId, NodeTree, TreeShape};
 use terrain_core::tin::grid::{GridTile, level_errors, tile_window};
 use terrain_core::tin::tile_file::{
     self, ENTRY_BYTES, HEADER_BYTES, Slot, TileFileKey, encode_entry, encode_header, encode_tile,
+    tile_origin,
 };
 use terrain_stream::{BlockId, SideTable, Store, StoreTree};
 
@@ -277,7 +278,7 @@ fn write_tiles(
                     let w = weight(n);
                     let d = done.fetch_add(w, std::sync::atomic::Ordering::Relaxed) + w;
                     bar.update(d as f64, total);
-                    let bytes = encode_tile(&t, origin(&shape, n)?);
+                    let bytes = encode_tile(&t, tile_origin(&shape, n)?);
                     Ok((t, bytes))
                 })
                 .collect::<anyhow::Result<_>>()?;
@@ -300,12 +301,6 @@ fn write_tiles(
     file.write_all(&head).with_context(|| io("writing"))?;
     file.sync_all().with_context(|| io("writing"))?;
     Ok((triangles, offset + index.len() as u64))
-}
-
-/// The south-west sample of tile `n`'s clipped rectangle.
-fn origin(shape: &TreeShape, n: NodeId) -> anyhow::Result<[u32; 2]> {
-    let r = shape.clipped_rect(n).with_context(|| format!("tile {n:?} lies outside the grid"))?;
-    Ok([r.x0, r.y0])
 }
 
 /// A store's baked tiles (see the module docs), for reading by tile.

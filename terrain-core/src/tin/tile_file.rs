@@ -230,7 +230,15 @@ pub fn parse_index(
     Ok(slots)
 }
 
-/// Tile `t` in bytes, its vertices as offsets from `origin`, its node's south-west sample.
+/// The origin a tile's vertices are stored from: its node's south-west sample in tree
+/// `shape` (the corner of its clipped rectangle), for [`encode_tile`] and [`decode_tile`].
+pub fn tile_origin(shape: &TreeShape, node: NodeId) -> Result<[u32; 2], TileFileError> {
+    let r = shape.clipped_rect(node).ok_or(TileFileError::Outside(node))?;
+    Ok([r.x0, r.y0])
+}
+
+/// Tile `t` in bytes, its vertices as offsets from `origin`, its node's south-west sample
+/// ([`tile_origin`]).
 pub fn encode_tile(t: &GridTile, origin: [u32; 2]) -> Vec<u8> {
     let span = t.vertices.iter().map(|v| (v[0] - origin[0]).max(v[1] - origin[1])).max();
     let wide_xy = span.unwrap_or(0) > u32::from(u16::MAX);
@@ -360,8 +368,7 @@ pub fn read_tile(
     if bytes.len() != slot.len as usize || crc32(bytes) != slot.crc {
         return Err(TileFileError::Checksum(node));
     }
-    let r = shape.clipped_rect(node).ok_or(TileFileError::Outside(node))?;
-    let tile = decode_tile(node, bytes, [r.x0, r.y0]).map_err(|e| match e {
+    let tile = decode_tile(node, bytes, tile_origin(shape, node)?).map_err(|e| match e {
         TileFileError::Short(s) => TileFileError::Damaged { node, why: s.to_string() },
         e => e,
     })?;
