@@ -262,12 +262,9 @@ fn write_tiles(
     // Each tile seeded by its parent's vertices (as at run time): the previous level's kept
     // (vertices only) while a level is built, level by level (`nodes` come coarse first).
     let mut parents: HashMap<NodeId, Vec<[u32; 2]>> = HashMap::new();
-    let mut at = 0;
-    while at < nodes.len() {
-        let level = nodes[at].level;
-        let end = at + nodes[at..].iter().take_while(|n| n.level == level).count();
+    for level in nodes.chunk_by(|a, b| a.level == b.level) {
         let mut this: HashMap<NodeId, Vec<[u32; 2]>> = HashMap::new();
-        for chunk in nodes[at..end].chunks(CHUNK_TILES) {
+        for chunk in level.chunks(CHUNK_TILES) {
             let built: Vec<(GridTile, Vec<u8>)> = chunk
                 .par_iter()
                 .map(|&n| {
@@ -291,7 +288,6 @@ fn write_tiles(
             }
         }
         parents = this;
-        at = end;
     }
     bar.finish();
     out.write_all(&index).with_context(|| io("writing"))?;

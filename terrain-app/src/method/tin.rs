@@ -81,11 +81,8 @@ pub fn build_pyramid(hm: &Heightmap, config: &GridTinConfig) -> anyhow::Result<G
         // vertices, as every builder of `tin`'s tiles seeds them.
         let mut built: Vec<GridTile> = Vec::with_capacity(nodes.len());
         let mut parents: HashMap<NodeId, usize> = HashMap::new();
-        let mut at = 0;
-        while at < nodes.len() {
-            let level = nodes[at].level;
-            let end = at + nodes[at..].iter().take_while(|n| n.level == level).count();
-            let this: Vec<GridTile> = nodes[at..end]
+        for level in nodes.chunk_by(|a, b| a.level == b.level) {
+            let this: Vec<GridTile> = level
                 .par_iter()
                 .map(|&n| {
                     let parent = n.parent().and_then(|p| parents.get(&p));
@@ -101,7 +98,6 @@ pub fn build_pyramid(hm: &Heightmap, config: &GridTinConfig) -> anyhow::Result<G
                 .collect::<anyhow::Result<_>>()?;
             parents = (0..this.len()).map(|k| (this[k].node, built.len() + k)).collect();
             built.extend(this);
-            at = end;
         }
         anyhow::Ok(built)
     })?;
