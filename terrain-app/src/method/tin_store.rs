@@ -697,7 +697,11 @@ impl Method for TinStoreMethod<'_> {
             };
             let further = select_tiles(tree, |n| tiles.tile_bound(n), &far, tau_px);
             tiles.request_in_turn(&[&sel.tiles, &ahead.tiles, &further.tiles]);
-            let queued: Vec<NodeId> = sel.tiles.iter().chain(&ahead.tiles).copied().collect();
+            // The frame's and the look-ahead eye's tiles, each once (their lattices are the
+            // demand ahead once built).
+            let now: HashSet<NodeId> = sel.tiles.iter().copied().collect();
+            let mut queued = sel.tiles.clone();
+            queued.extend(ahead.tiles.iter().filter(|n| !now.contains(n)));
             let built = tiles.peek(&ahead.tiles);
             let built: Vec<NodeId> = built.iter().map(|t| t.node).collect();
             let mut patches = tiles.carriers(&built, root);
