@@ -661,21 +661,22 @@ fn write_georef(w: &mut Writer, g: &Georef) {
     w.dvec2(g.world_origin);
 }
 
-fn read_georef(r: &mut Reader<'_>) -> Result<Georef, String> {
+fn read_georef(r: &mut Reader<'_>) -> Result<Georef, IndexError> {
     let crs = match r.u8()? {
         0 => Crs::Unknown,
         1 => Crs::Epsg(r.u32()?),
         2 => {
             let n = r.u32()? as usize;
             let b = r.take(n)?;
-            Crs::Text(String::from_utf8(b.to_vec()).map_err(|_| "CRS text is not UTF-8")?)
+            let text = String::from_utf8(b.to_vec());
+            Crs::Text(text.map_err(|_| IndexError::Corrupt("CRS text is not UTF-8".into()))?)
         }
-        t => return Err(format!("unknown CRS tag {t}")),
+        t => return Err(format!("unknown CRS tag {t}").into()),
     };
     let units = match r.u8()? {
         0 => AngularOrLinear::Metres,
         1 => AngularOrLinear::Degrees,
-        t => return Err(format!("unknown units tag {t}")),
+        t => return Err(format!("unknown units tag {t}").into()),
     };
     let g = Georef {
         crs,
@@ -689,7 +690,9 @@ fn read_georef(r: &mut Reader<'_>) -> Result<Georef, String> {
     let fine = ok(g.native_origin) && ok(g.world_origin) && ok(g.native_spacing);
     let positive = g.spacing_m.x > 0.0 && g.spacing_m.y > 0.0 && g.spacing_m.is_finite();
     if !(fine && positive) {
-        return Err("georeference is not finite or has non-positive spacing".into());
+        return Err(IndexError::Corrupt(
+            "georeference is not finite or has non-positive spacing".into(),
+        ));
     }
     Ok(g)
 }
@@ -825,6 +828,8 @@ pub(crate) fn write_index_unpaged(header: &Header, blocks: &[BlockEntry], versio
 pub(crate) enum IndexError {
     BadMagic,
     Version(u32),
+    /// The bytes end inside a field (a reader of a file's first bytes reads more then).
+    Short(terrain_core::bytes::Short),
     Corrupt(String),
 }
 
@@ -836,7 +841,7 @@ impl From<String> for IndexError {
 
 impl From<terrain_core::bytes::Short> for IndexError {
     fn from(s: terrain_core::bytes::Short) -> Self {
-        IndexError::Corrupt(s.to_string())
+        IndexError::Short(s)
     }
 }
 
@@ -984,7 +989,7 @@ pub(crate) fn read_entry(
 }
 
 /// `n` values read into a vector of exactly `n`.
-fn read_f32s(r: &mut Reader<'_>, n: usize) -> Result<Vec<f32>, String> {
+fn read_f32s(r: &mut Reader<'_>, n: usize) -> Result<Vec<f32>, IndexError> {
     let mut v = Vec::with_capacity(n);
     for _ in 0..n {
         v.push(r.f32()?);

@@ -336,6 +336,7 @@ pub(crate) fn decode_page(
         let id = header.block_at(pos);
         let e = read_entry(&mut r, header, id, fine).map_err(|e| match e {
             IndexError::Corrupt(m) => m,
+            IndexError::Short(s) => s.to_string(),
             other => format!("{other:?}"),
         })?;
         if e.dss.is_some() != head.has_dss {
@@ -706,5 +707,6 @@ pub(crate) fn index_err(e: IndexError, path: &Path) -> StoreError {
             StoreError::Version { path, found, expected: crate::format::INDEX_VERSION }
         }
         IndexError::Corrupt(message) => StoreError::CorruptIndex { path, message },
+        IndexError::Short(s) => StoreError::CorruptIndex { path, message: s.to_string() },
     }
 }

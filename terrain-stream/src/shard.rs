@@ -353,10 +353,8 @@ enum PrefixError {
 /// A part file's prefix (through its entry count) from its first bytes `head`: the part's
 /// description with no entries yet, and the entry count, checked against its shard's rows.
 fn parse_prefix(part: &Path, head: &[u8]) -> Result<(PartInfo, u64), PrefixError> {
-    // A short read shows as "needs N bytes" from the reader; any other failure is the file's.
-    let short = |m: &String| m.starts_with("needs ");
-    let bad = |m: String| if short(&m) { PrefixError::Short } else { PrefixError::Bad(m) };
-    // A short read of the prefix's own fields: more bytes are needed.
+    // A short read of the prefix's fields or of its header: more bytes are needed; any other
+    // failure is the file's.
     let sh = |_: terrain_core::bytes::Short| PrefixError::Short;
     let mut r = Reader::new(&head[8..]);
     let version = r.u32().map_err(sh)?;
@@ -378,7 +376,10 @@ fn parse_prefix(part: &Path, head: &[u8]) -> Result<(PartInfo, u64), PrefixError
     let has_bound = r.u8().map_err(sh)? != 0;
     let bound = r.f64().map_err(sh)?;
     let bound = has_bound.then_some(bound);
-    let header = read_header(&mut r).map_err(|e| bad(format!("header: {}", index_error(e))))?;
+    let header = read_header(&mut r).map_err(|e| match e {
+        IndexError::Short(_) => PrefixError::Short,
+        e => PrefixError::Bad(format!("header: {}", index_error(e))),
+    })?;
     if rows != shard.rows(header.blocks_y as u64) {
         return Err(PrefixError::Bad(format!(
             "block rows {rows:?}, but shard {shard} of {} rows is {:?}",
@@ -533,6 +534,7 @@ impl PartInfo {
 fn index_error(e: IndexError) -> String {
     match e {
         IndexError::Corrupt(m) => m,
+        IndexError::Short(s) => s.to_string(),
         IndexError::BadMagic => "bad magic bytes".into(),
         IndexError::Version(v) => format!("version {v}"),
     }
@@ -826,6 +828,50 @@ mod tests {
             assert_eq!(entries, whole, "batches of {batch_len}");
             assert_eq!(sizes.len(), 20usize.div_ceil(batch_len), "batches of {batch_len}");
         }
+        let _ = fs::remove_dir_all(&dir);
+    }
+
+    /// A part's prefix cut anywhere before its entry count, inside its own fields or inside
+    /// the grid header it holds, is short (the reader reads more), never damaged; the whole
+    /// prefix parses, and a damaged header field is damage.
+    #[test]
+    fn a_prefix_cut_anywhere_is_short_and_a_damaged_one_is_bad() {
+        let dir = std::env::temp_dir().join(format!("terrain-shard-prefix-{}", std::process::id()));
+        let _ = fs::remove_dir_all(&dir);
+        let part = dir.join("p0");
+        let config = BakeConfig { k: 6, threads: 2, ..BakeConfig::default() };
+        let source = FractalConfig::with_size(301, 203, 10.0);
+        let shard = Shard::new(0, 1).unwrap();
+        bake_shard(&source, &part, &config, shard, "prefix", &mut |_| ControlFlow::Continue(()))
+            .unwrap();
+        let bytes = fs::read(part.join(PART_FILE)).unwrap();
+        let (info, n) = match parse_prefix(&part, &bytes) {
+            Ok(parsed) => parsed,
+            Err(PrefixError::Short) => panic!("the whole file is short"),
+            Err(PrefixError::Bad(m)) => panic!("the whole file is bad: {m}"),
+        };
+        assert_eq!(n, 20);
+        let prefix_len = info.entries_at as usize;
+        for cut in 12..prefix_len {
+            match parse_prefix(&part, &bytes[..cut]) {
+                Err(PrefixError::Short) => {}
+                Err(PrefixError::Bad(m)) => panic!("cut at {cut} of {prefix_len}: bad: {m}"),
+                Ok(_) => panic!("cut at {cut} of {prefix_len} parsed"),
+            }
+        }
+        assert!(parse_prefix(&part, &bytes[..prefix_len]).is_ok());
+        // The header's block exponent (after version, shard, rows, the two texts, the flags and
+        // the bound, then width and height), out of range: damage, however many bytes follow.
+        let text =
+            |at: usize| 4 + u32::from_le_bytes(bytes[at..at + 4].try_into().unwrap()) as usize;
+        let at = 8 + 4 + 8 + 16;
+        let at = at + text(at);
+        let at = at + text(at) + 2 + 8 + 16;
+        let mut damaged = bytes.clone();
+        damaged[at] = 200;
+        assert!(
+            matches!(parse_prefix(&part, &damaged), Err(PrefixError::Bad(m)) if m.contains("out of range"))
+        );
         let _ = fs::remove_dir_all(&dir);
     }
 }
