@@ -41,7 +41,13 @@
 //! moved on by the last frame's motion times the look-ahead (the same extrapolation Eq. 8
 //! makes), so a block the camera approaches is refined before it is late. A step longer than
 //! the last view reached is a cut (a teleport, a new shot), not a motion: that frame preloads
-//! as if the eye held still.
+//! as if the eye held still. For a method with its own levels ahead
+//! ([`Streamer::set_demand_ahead`]) a block of its demand is preloaded to those and to the
+//! level its shading needs from the eye ahead, not to Eq. 7's: Eq. 7 is another method's
+//! prediction, finer than a coarse method asks near the eye (the `tin` method's tiles shade at
+//! their own stride), and its walk cost the frame thread (bench/ooc/README.md, "Eq. 8 without
+//! Eq. 7 for a method's own levels"). The region N - M around the view keeps Eq. 7's levels:
+//! a method selects its eye ahead with the current view direction, so only they cover a turn.
 //!
 //! **Cost.** Both levels of a block come from [`needed_level`]'s Eq. 7 walk only where the walk
 //! can decide them: a bound from the block's box and its per-level `StaticE` maxima (no walk)
@@ -368,10 +374,10 @@ impl Streamer {
     /// Eq. 8 for a LOD method other than the paper's: the levels its selection needs at the eye
     /// one look-ahead ahead ([`Streamer::camera_ahead`]), in the form of
     /// [`Streamer::set_demand`]'s. Each block of the demand is preloaded to the finer of that
-    /// level and Eq. 7's prediction; a block only here is preloaded as part of N - M. Without
-    /// it (`None`, the default) the prediction is Eq. 7's alone, which knows nothing of where
-    /// another method's level boundaries lie: the blocks crossing one are late by a level.
-    /// Takes effect with the demand.
+    /// level and the level its shading needs from that eye; a block only here is preloaded as
+    /// part of N - M. Without it (`None`, the default) the prediction is Eq. 7's, which knows
+    /// nothing of where another method's level boundaries lie: the blocks crossing one are late
+    /// by a level. Takes effect with the demand.
     pub fn set_demand_ahead(&mut self, ahead: Option<Vec<(BlockId, u8)>>) {
         self.demand_ahead = ahead;
     }
@@ -670,6 +676,10 @@ impl Streamer {
                 level_ahead((store, &self.summaries), (id, e), v, &reg.extension, now, refine)
             })
         };
+        // The level a block's shading needs from the eye one look-ahead ahead.
+        let shade_ahead = |e: &BlockSummary| {
+            next.as_ref().map_or(0, |v| shading_level_in(header, &e.aabb(), v)).min(header.k)
+        };
         let needed = |id: BlockId, e: &BlockSummary, region: &GroundRegion| {
             needed_level_fast((store, &self.summaries), (id, e), &view, region, refine)
         };
@@ -690,6 +700,7 @@ impl Streamer {
         };
         let mut scheduled = Vec::new();
         let mut in_m = BlockSet::empty(header);
+        let own_ahead = self.demand.is_some() && self.demand_ahead.is_some();
         if let Some(demand) = &self.demand {
             // The method's own levels one look-ahead ahead, by block position (0: none).
             let mut ahead =
@@ -713,7 +724,10 @@ impl Streamer {
                 scheduled.push(ScheduledBlock {
                     block: id,
                     needed,
-                    target: predicted(id, e, needed).max(ahead_of(id)),
+                    target: match own_ahead {
+                        true => needed.max(ahead_of(id)).max(shade_ahead(e)),
+                        false => predicted(id, e, needed).max(ahead_of(id)),
+                    },
                     visible: true,
                     distance_m: rect_distance(eye, lo, hi),
                 });

@@ -426,6 +426,41 @@ fn a_methods_levels_one_look_ahead_ahead_are_preloaded() {
 }
 
 #[test]
+fn a_methods_own_levels_ahead_replace_eq7s_prediction_and_keep_the_shading_ahead() {
+    let (dir, store) = store("own-ahead");
+    // A fine Eq. 7 threshold, so its prediction asks fine levels near the eye; a coarse method
+    // (level 0 of every block it draws, now and one look-ahead ahead).
+    let config = StreamConfig { threads: 1, tau: 0.05, ..Default::default() };
+    let targets = |own: bool| {
+        let mut s = Streamer::new(store.clone(), config);
+        s.update(&camera(-500.0));
+        s.finish_loads();
+        let view: Vec<(BlockId, u8)> =
+            s.scheduled().iter().filter(|b| b.visible).map(|b| (b.block, 0)).collect();
+        s.set_demand(Some(view.clone()));
+        if own {
+            s.set_demand_ahead(Some(view));
+        }
+        // A step well within the view's reach: a motion, not a cut.
+        s.update(&camera(-300.0));
+        let mut v: Vec<ScheduledBlock> =
+            s.scheduled().iter().filter(|b| b.visible).copied().collect();
+        v.sort_by_key(|b| b.block);
+        v
+    };
+    let (eq7, own) = (targets(false), targets(true));
+    assert_eq!(eq7.len(), own.len());
+    let finer = eq7.iter().zip(&own).filter(|(e, o)| e.target > o.target).count();
+    assert!(finer > 0, "Eq. 7 asks more than the method and its shading somewhere: {own:?}");
+    // Level 0 is all the method asks; a target above the level needed now is the shading's
+    // one look-ahead ahead (the eye approaches).
+    let shaded = own.iter().filter(|o| o.target > o.needed).count();
+    assert!(shaded > 0, "the shading ahead is preloaded: {own:?}");
+    assert!(own.iter().all(|o| o.target >= o.needed));
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
 fn a_cut_is_not_extrapolated_as_a_motion() {
     let (dir, store) = store("cut");
     // The look-ahead held at one frame (not grown by the measured latency).
