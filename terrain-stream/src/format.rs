@@ -833,6 +833,19 @@ pub(crate) enum IndexError {
     Corrupt(String),
 }
 
+/// What failed, in words (a caller that knows the file adds its path, or maps the variant to a
+/// [`crate::StoreError`] of its own: `pages::index_err`).
+impl fmt::Display for IndexError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            IndexError::BadMagic => f.write_str("bad magic bytes"),
+            IndexError::Version(v) => write!(f, "version {v}"),
+            IndexError::Short(s) => write!(f, "{s}"),
+            IndexError::Corrupt(m) => f.write_str(m),
+        }
+    }
+}
+
 impl From<String> for IndexError {
     fn from(s: String) -> Self {
         IndexError::Corrupt(s)

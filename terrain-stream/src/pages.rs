@@ -334,11 +334,7 @@ pub(crate) fn decode_page(
     let mut out = Vec::with_capacity(n);
     for pos in first..first + n {
         let id = header.block_at(pos);
-        let e = read_entry(&mut r, header, id, fine).map_err(|e| match e {
-            IndexError::Corrupt(m) => m,
-            IndexError::Short(s) => s.to_string(),
-            other => format!("{other:?}"),
-        })?;
+        let e = read_entry(&mut r, header, id, fine).map_err(|e| e.to_string())?;
         if e.dss.is_some() != head.has_dss {
             return Err(format!("block {id}: DSS errors where the head says otherwise"));
         }

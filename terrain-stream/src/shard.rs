@@ -378,7 +378,7 @@ fn parse_prefix(part: &Path, head: &[u8]) -> Result<(PartInfo, u64), PrefixError
     let bound = has_bound.then_some(bound);
     let header = read_header(&mut r).map_err(|e| match e {
         IndexError::Short(_) => PrefixError::Short,
-        e => PrefixError::Bad(format!("header: {}", index_error(e))),
+        e => PrefixError::Bad(format!("header: {e}")),
     })?;
     if rows != shard.rows(header.blocks_y as u64) {
         return Err(PrefixError::Bad(format!(
@@ -484,7 +484,7 @@ impl PartFile {
                 let mut r = Reader::new(bytes);
                 let id = header.block_at(first + done as usize + i);
                 let e =
-                    read_entry(&mut r, header, id, fine).map_err(|e| self.bad(index_error(e)))?;
+                    read_entry(&mut r, header, id, fine).map_err(|e| self.bad(e.to_string()))?;
                 if r.remaining() != 0 {
                     // Entries have a fixed length given by the header; bytes left over mean the
                     // part was written by a different format than the header says.
@@ -528,15 +528,6 @@ impl PartInfo {
     /// Fine maxima per entry ([`fine_count`]).
     fn fine(&self) -> usize {
         fine_count(self.header.k, self.header.node_levels)
-    }
-}
-
-fn index_error(e: IndexError) -> String {
-    match e {
-        IndexError::Corrupt(m) => m,
-        IndexError::Short(s) => s.to_string(),
-        IndexError::BadMagic => "bad magic bytes".into(),
-        IndexError::Version(v) => format!("version {v}"),
     }
 }
 
