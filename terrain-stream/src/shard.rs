@@ -786,19 +786,25 @@ mod tests {
     use super::*;
     use terrain_core::synth::FractalConfig;
 
-    /// A part's entries read in batches of any length are the same entries, in the same order
-    /// (the merge reads 1,024 at a time; a test grid has fewer blocks than that).
-    #[test]
-    fn entries_read_in_batches_are_the_same_entries() {
-        let dir =
-            std::env::temp_dir().join(format!("terrain-shard-batches-{}", std::process::id()));
+    /// A scratch folder named after `name`, and the part of a single-shard bake of a 301 x 203
+    /// synthetic grid (k = 6: 20 blocks) in it.
+    fn baked_part(name: &str) -> (PathBuf, PathBuf) {
+        let dir = std::env::temp_dir().join(format!("terrain-shard-{name}-{}", std::process::id()));
         let _ = fs::remove_dir_all(&dir);
         let part = dir.join("p0");
         let config = BakeConfig { k: 6, threads: 2, ..BakeConfig::default() };
         let source = FractalConfig::with_size(301, 203, 10.0);
         let shard = Shard::new(0, 1).unwrap();
-        bake_shard(&source, &part, &config, shard, "batches", &mut |_| ControlFlow::Continue(()))
+        bake_shard(&source, &part, &config, shard, name, &mut |_| ControlFlow::Continue(()))
             .unwrap();
+        (dir, part)
+    }
+
+    /// A part's entries read in batches of any length are the same entries, in the same order
+    /// (the merge reads 1,024 at a time; a test grid has fewer blocks than that).
+    #[test]
+    fn entries_read_in_batches_are_the_same_entries() {
+        let (dir, part) = baked_part("batches");
         let info = read_part(&part).unwrap();
         assert_eq!(info.blocks(), 20);
         let read = |batch_len: usize| {
@@ -827,14 +833,7 @@ mod tests {
     /// prefix parses, and a damaged header field is damage.
     #[test]
     fn a_prefix_cut_anywhere_is_short_and_a_damaged_one_is_bad() {
-        let dir = std::env::temp_dir().join(format!("terrain-shard-prefix-{}", std::process::id()));
-        let _ = fs::remove_dir_all(&dir);
-        let part = dir.join("p0");
-        let config = BakeConfig { k: 6, threads: 2, ..BakeConfig::default() };
-        let source = FractalConfig::with_size(301, 203, 10.0);
-        let shard = Shard::new(0, 1).unwrap();
-        bake_shard(&source, &part, &config, shard, "prefix", &mut |_| ControlFlow::Continue(()))
-            .unwrap();
+        let (dir, part) = baked_part("prefix");
         let bytes = fs::read(part.join(PART_FILE)).unwrap();
         let (info, n) = match parse_prefix(&part, &bytes) {
             Ok(parsed) => parsed,

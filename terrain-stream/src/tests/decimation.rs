@@ -232,7 +232,7 @@ fn an_exaggerated_store_scales_its_decimation_errors() {
                     s + 1
                 );
                 let exact = f64::from(b) * scale;
-                short += usize::from(((f64::from(b) * scale) as f32) < o);
+                short += usize::from((exact as f32) < o);
                 assert!(
                     f64::from(g) >= exact && f64::from(g) <= exact + margin + f64::from(g) * eps,
                     "{id} x {scale}, stride 2^{}: {g} against {exact}",
