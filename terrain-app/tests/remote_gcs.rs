@@ -99,7 +99,7 @@ impl FakeGcs {
             .stderr(std::fs::File::create(&log).unwrap())
             .spawn()
             .expect("fake-gcs-server runs");
-        wait_for(port, "fake-gcs-server", &mut child, &log);
+        wait_for(port, "fake-gcs-server", &mut child, &[&log]);
         FakeGcs { server: Server { child, port }, log }
     }
 

@@ -56,7 +56,7 @@ fn nginx(dir: &Path, root: &Path, location: &str) -> Server {
         .stderr(std::fs::File::create(prefix.join("stderr.log")).unwrap())
         .spawn()
         .expect("nginx runs (Debian package nginx; .ci/run installs it)");
-    wait_for(port, "nginx", &mut child, &log);
+    wait_for(port, "nginx", &mut child, &[&log]);
     Server { child, port }
 }
 
@@ -671,7 +671,7 @@ fn a_store_baked_to_azurite_reads_as_the_local_bake() {
         .stderr(std::fs::File::create(dir.join("azurite.err")).unwrap())
         .spawn()
         .expect("azurite-blob runs (node)");
-    wait_for(port, "Azurite (azurite-blob)", &mut child, &dir.join("azurite.err"));
+    wait_for(port, "Azurite (azurite-blob)", &mut child, &[&log, &dir.join("azurite.err")]);
     let server = Server { child, port };
     // The container, with a request signed by the emulator's well-known key.
     let made = Command::new("python3")
@@ -772,7 +772,7 @@ fn start_weed(dir: &Path, attempt: usize) -> Server {
         .stderr(std::fs::File::create(&err).unwrap())
         .spawn()
         .expect("weed runs");
-    wait_for(s3, "SeaweedFS (weed server -s3)", &mut child, &err);
+    wait_for(s3, "SeaweedFS (weed server -s3)", &mut child, &[&err]);
     Server { child, port: s3 }
 }
 

@@ -31,25 +31,32 @@ pub(crate) fn terrain_in(cwd: &Path, cache: &Path, env: &[(&str, &str)], args: &
         .expect("the terrain binary runs")
 }
 
-/// Waits until `port` accepts connections (30 s at most), else fails naming `what` and `log`.
-pub(crate) fn wait_for(port: u16, what: &str, child: &mut Child, log: &Path) {
+/// Waits until `port` accepts connections, else fails naming `what` and the text of `logs`.
+/// The wait is long (120 s) because it ends as soon as the server answers: a server that starts
+/// in 4 s on an idle machine took over 30 s once in CI, where the test binaries' other servers
+/// and builds share two cores (Azurite, a Node program, with an empty log).
+pub(crate) fn wait_for(port: u16, what: &str, child: &mut Child, logs: &[&Path]) {
+    const WAIT: Duration = Duration::from_secs(120);
+    let said = || {
+        logs.iter()
+            .map(|l| {
+                let t = std::fs::read_to_string(l).unwrap_or_default();
+                format!("{}:\n{t}", l.display())
+            })
+            .collect::<Vec<_>>()
+            .join("\n")
+    };
     let start = Instant::now();
-    while start.elapsed() < Duration::from_secs(30) {
+    while start.elapsed() < WAIT {
         if TcpStream::connect(("127.0.0.1", port)).is_ok() {
             return;
         }
         if let Ok(Some(status)) = child.try_wait() {
-            panic!(
-                "{what} exited ({status}) before answering on port {port}:\n{}",
-                std::fs::read_to_string(log).unwrap_or_default()
-            );
+            panic!("{what} exited ({status}) before answering on port {port}:\n{}", said());
         }
         std::thread::sleep(Duration::from_millis(100));
     }
-    panic!(
-        "{what} did not answer on 127.0.0.1:{port} within 30 s:\n{}",
-        std::fs::read_to_string(log).unwrap_or_default()
-    );
+    panic!("{what} did not answer on 127.0.0.1:{port} within {WAIT:?}:\n{}", said());
 }
 
 /// A server process stopped on drop: SIGTERM, then waited for (never left running).
