@@ -19,7 +19,7 @@ pub mod error;
 pub mod flight;
 pub mod geometry;
 pub mod georef;
-mod hash;
+pub mod hash;
 pub mod heightmap;
 pub mod lightmap;
 pub mod lod;

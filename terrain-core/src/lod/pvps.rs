@@ -48,7 +48,7 @@
 //! roughness image to 0..255 and gives no scale for A and B; put them on the same 0..255 scale
 //! (terrain-visibility's `NodePyramid::normalized_255`) so one `C1`, `C2` serves all three.
 
-use std::cell::Cell;
+use std::cell::RefCell;
 use std::time::Instant;
 
 use glam::DVec3;
@@ -60,6 +60,7 @@ use super::run;
 use super::source::TerrainSource;
 use super::surface::{CORNERS_UV, edge_corners, patch_world_point};
 use crate::geometry::Camera;
+use crate::hash::KeyMap;
 use crate::heightmap::Heightmap;
 use crate::metrics::pvps::{span, split_ratio};
 use crate::quadtree::{CullPolicy, NoCull, NodeId, NodeInfo, Quadtree};
@@ -170,10 +171,14 @@ struct PvpsEdges<'a> {
     finest: u8,
     /// `finest_transition_factor` as a power of two.
     scale: u32,
-    /// The last patch's corners in world space (`CORNERS_UV`'s order): its edges' screen lengths are asked up to eight times (outer and inner
-    /// factors), each end a height lookup, which over a store's pages dominated `pvps-b`'s
-    /// selection.
-    corners: Cell<Option<(NodeId, [DVec3; 4])>>,
+    /// Each patch's corners in world space (`CORNERS_UV`'s order), computed at its first
+    /// ask: its edges' screen lengths are asked up to eight times (outer and inner factors,
+    /// and by its same-level neighbours), each end a height lookup, which over a store's
+    /// pages dominated `pvps-b`'s selection. A map for the whole selection: remembering the
+    /// last patch's only (until 2026-12-06) missed whenever the outer factors' walk turned to
+    /// a neighbour's edge and at every patch's inner factors, which come after all the outer
+    /// ones (half of `pvps-b`'s selection over the 32769^2 store was still these lookups).
+    corners: RefCell<KeyMap<[DVec3; 4]>>,
 }
 
 impl PvpsEdges<'_> {
@@ -186,14 +191,11 @@ impl PvpsEdges<'_> {
     /// The screen length of `node`'s `edge`: the segment between its end corners, the same
     /// points as [`edge_segment`](super::surface::edge_segment)'s (so two same-level patches sharing an edge agree).
     fn screen(&self, node: NodeId, edge: Edge) -> f64 {
-        let c = match self.corners.get() {
-            Some((n, c)) if n == node => c,
-            _ => {
-                let c = CORNERS_UV.map(|uv| patch_world_point(self.src, node, uv));
-                self.corners.set(Some((node, c)));
-                c
-            }
-        };
+        let c = *self
+            .corners
+            .borrow_mut()
+            .entry(node.key())
+            .or_insert_with(|| CORNERS_UV.map(|uv| patch_world_point(self.src, node, uv)));
         let (a, b) = edge_corners(edge);
         run::screen_length(self.camera, c[a], c[b])
     }
@@ -266,7 +268,7 @@ pub fn select_pvps_with_cull(
         constant: cfg.outer_constant,
         finest,
         scale: cfg.finest_transition_factor.clamp(2, 64).next_power_of_two(),
-        corners: Cell::new(None),
+        corners: RefCell::new(KeyMap::with_capacity_and_hasher(leaves.len(), Default::default())),
     };
     let inner = |node: NodeId, _: &[f32; 4]| -> [f32; 2] {
         // Eq. 12: ScreenSpaceLength_1 runs along u (the south and north edges), _2 along v.
@@ -317,7 +319,7 @@ mod tests {
 
     /// Algorithm 1's rule with the defaults' constant, a finest level of 4 and scale 2.
     fn rule_of<'a>(src: &'a dyn TerrainSource, camera: &'a Camera) -> PvpsEdges<'a> {
-        PvpsEdges { src, camera, constant: 10.0, finest: 4, scale: 2, corners: Cell::new(None) }
+        PvpsEdges { src, camera, constant: 10.0, finest: 4, scale: 2, corners: RefCell::default() }
     }
 
     #[test]
@@ -329,7 +331,7 @@ mod tests {
         let rule = rule_of(&src, &cam);
         let nodes = [NodeId::new(0, 0, 0), NodeId::new(2, 1, 3), NodeId::new(4, 9, 2)];
         // Each node's edges in turn and interleaved with another node's, so the remembered
-        // corners are both hit and replaced.
+        // corners are both computed and read again.
         for (k, &n) in nodes.iter().enumerate() {
             for e in Edge::ALL {
                 let other = nodes[(k + 1) % nodes.len()];

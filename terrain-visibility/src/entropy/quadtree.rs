@@ -213,27 +213,8 @@ pub struct EntropyQuadtree {
     cracks_eliminated: bool,
 }
 
-/// A multiply-shift hasher for the lattice keys (integers packed into a `u64`): the default
-/// SipHash is a measurable share of the crack elimination.
-#[derive(Debug, Default, Clone, Copy)]
-struct KeyHasher(u64);
-
-impl std::hash::Hasher for KeyHasher {
-    fn finish(&self) -> u64 {
-        self.0
-    }
-    fn write(&mut self, bytes: &[u8]) {
-        for &b in bytes {
-            self.0 = (self.0 ^ u64::from(b)).wrapping_mul(0x100_0000_01B3);
-        }
-    }
-    fn write_u64(&mut self, k: u64) {
-        let z = (k ^ (k >> 29)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-        self.0 = z ^ (z >> 32);
-    }
-}
-
-type KeyMap = HashMap<u64, u32, std::hash::BuildHasherDefault<KeyHasher>>;
+/// The lattice keys' map (SipHash was a measurable share of the crack elimination).
+type KeyMap = terrain_core::hash::KeyMap<u32>;
 
 /// Lattice key of a point.
 #[inline]
