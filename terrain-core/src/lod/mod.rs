@@ -196,15 +196,10 @@ pub(crate) mod run {
         Selection { patches, stats }
     }
 
-    /// Screen-space length of the segment `a`-`b` in NDC units of the viewport's height (2 =
-    /// the full height): the segment's bounding sphere (diameter `|b - a|`, centred at the
-    /// midpoint) projected at its distance, `|b - a| / (max(d, near) tan(fov_y / 2))`.
-    ///
-    /// Why the sphere and not the projected endpoints: it is defined for segments behind the
-    /// eye or crossing the eye plane (projection is not), it does not collapse for segments
-    /// seen end-on at grazing angles, and it depends only on the segment and the eye, so both
-    /// patches sharing an edge compute the same value. It equals the projected length for a
-    /// segment square to the view at the screen centre.
+    /// [`ScreenScale::length`] of one segment, every term from the camera in place: the
+    /// tests' reference (the selections' form before 2026-12-06, which worked the camera's
+    /// terms out at every edge).
+    #[cfg(test)]
     pub(crate) fn screen_length(camera: &Camera, a: DVec3, b: DVec3) -> f64 {
         let len = (b - a).length();
         let mid = (a + b) * 0.5;
@@ -218,5 +213,47 @@ pub(crate) mod run {
         };
         let s = len / (d * (fov * 0.5).tan());
         if s.is_finite() { s } else { 0.0 }
+    }
+
+    /// The camera's terms of [`ScreenScale::length`], worked out once for a selection's many
+    /// edges.
+    #[derive(Debug, Clone, Copy)]
+    pub(crate) struct ScreenScale {
+        eye: DVec3,
+        near: f64,
+        tan_half_fov: f64,
+    }
+
+    impl ScreenScale {
+        pub(crate) fn new(camera: &Camera) -> Self {
+            let near = if camera.near.is_finite() && camera.near > 0.0 {
+                camera.near
+            } else {
+                MIN_DISTANCE_M
+            };
+            let fov = if camera.fov_y.is_nan() {
+                MAX_FOV_Y
+            } else {
+                camera.fov_y.clamp(MIN_FOV_Y, MAX_FOV_Y)
+            };
+            Self { eye: camera.position, near, tan_half_fov: (fov * 0.5).tan() }
+        }
+
+        /// Screen-space length of the segment `a`-`b` in NDC units of the viewport's height (2 =
+        /// the full height): the segment's bounding sphere (diameter `|b - a|`, centred at the
+        /// midpoint) projected at its distance, `|b - a| / (max(d, near) tan(fov_y / 2))`.
+        ///
+        /// Why the sphere and not the projected endpoints: it is defined for segments behind the
+        /// eye or crossing the eye plane (projection is not), it does not collapse for segments
+        /// seen end-on at grazing angles, and it depends only on the segment and the eye, so both
+        /// patches sharing an edge compute the same value. It equals the projected length for a
+        /// segment square to the view at the screen centre.
+        pub(crate) fn length(&self, a: DVec3, b: DVec3) -> f64 {
+            let len = (b - a).length();
+            let mid = (a + b) * 0.5;
+            let d = (mid - self.eye).length().max(self.near);
+            let s = len / (d * self.tan_half_fov);
+            if s.is_finite() { s } else { 0.0 }
+        }
     }
 }

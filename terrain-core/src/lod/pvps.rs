@@ -32,8 +32,8 @@
 //! - The coarse side's factor is clamped to 64, and the finer side uses half the *coarse*
 //!   side's (clamped) factor, which equals its own `EdgeLength / MinEdgeLength` unless the
 //!   clamp bit.
-//! - Screen-space lengths are the edge's bounding sphere projected (see `screen_length` in the
-//!   module `run`), in NDC units of the viewport height (2 = full height): the paper's GLSL
+//! - Screen-space lengths are the edge's bounding sphere projected (see `ScreenScale::length` in
+//!   the module `run`), in NDC units of the viewport height (2 = full height): the paper's GLSL
 //!   works in normalised coordinates, and with pixels its `C3 = 10` would pin every factor at
 //!   64. Heights are the heightmap's at the edge's endpoints. Measured (docs/papers.md, Eq. 12
 //!   units; Puget Sound 1k, `pvps_884`, viewport 1200x800): NDC 86 triangles per patch, p99
@@ -58,7 +58,7 @@ use super::edges::EdgeRule;
 use super::patch::{Edge, MAX_FACTOR, Selection, clamp_factor};
 use super::run;
 use super::source::TerrainSource;
-use super::surface::{CORNERS_UV, edge_corners, patch_world_point};
+use super::surface::{CORNERS_UV, edge_corners, patch_grid_point};
 use crate::geometry::Camera;
 use crate::hash::KeyMap;
 use crate::heightmap::Heightmap;
@@ -165,39 +165,79 @@ impl PvpsConfig {
 /// Algorithm 1's edge classification as an [`EdgeRule`].
 struct PvpsEdges<'a> {
     src: &'a dyn TerrainSource,
-    camera: &'a Camera,
+    /// The camera's terms of the screen lengths, worked out once.
+    screen_scale: run::ScreenScale,
     constant: f64,
     /// Deepest level (`MinEdgeLength`'s).
     finest: u8,
     /// `finest_transition_factor` as a power of two.
     scale: u32,
-    /// Each patch's corners in world space (`CORNERS_UV`'s order), computed at its first
-    /// ask: its edges' screen lengths are asked up to eight times (outer and inner factors,
-    /// and by its same-level neighbours), each end a height lookup, which over a store's
-    /// pages dominated `pvps-b`'s selection. A map for the whole selection: remembering the
-    /// last patch's only (until 2026-12-06) missed whenever the outer factors' walk turned to
-    /// a neighbour's edge and at every patch's inner factors, which come after all the outer
-    /// ones (half of `pvps-b`'s selection over the 32769^2 store was still these lookups).
-    corners: RefCell<KeyMap<[DVec3; 4]>>,
+    /// Each patch's four edges' screen lengths ([`Edge::ALL`]'s order, by [`NodeId::key`]),
+    /// worked out at the first ask: they are asked up to eight times a patch (outer and inner
+    /// factors, and by its same-level neighbours). Until 2026-12-06 only the last patch's
+    /// corners were remembered: the outer factors' walk turning to a neighbour's edge and
+    /// every inner factor (asked after all the outer ones) looked its corners' heights up
+    /// again, half of `pvps-b`'s selection over the 32769^2 store.
+    lengths: RefCell<KeyMap<[f64; 4]>>,
+    /// The heights of the patch corners looked up so far, by grid sample (`x << 32 | y`): a
+    /// corner is shared by up to four patches, and over a store each lookup finds the block
+    /// and its level.
+    heights: RefCell<KeyMap<f32>>,
 }
 
-impl PvpsEdges<'_> {
+impl<'a> PvpsEdges<'a> {
+    fn new(
+        src: &'a dyn TerrainSource,
+        camera: &Camera,
+        constant: f64,
+        finest: u8,
+        scale: u32,
+    ) -> Self {
+        Self {
+            src,
+            screen_scale: run::ScreenScale::new(camera),
+            constant,
+            finest,
+            scale,
+            lengths: RefCell::default(),
+            heights: RefCell::default(),
+        }
+    }
+
     /// `scale x EdgeLength / MinEdgeLength = scale x 2^(finest - level)`, clamped to 64.
     fn transition(&self, level: u8) -> f32 {
         let shift = self.finest.saturating_sub(level).min(12) as u32;
         (f64::from(self.scale) * f64::from(1u32 << shift)).min(f64::from(MAX_FACTOR)) as f32
     }
 
+    /// [`patch_world_point`](super::surface::patch_world_point) of `node`'s corner `uv`, its height looked up once per grid
+    /// sample (a corner off the samples, none in practice, is looked up every time).
+    fn corner(&self, node: NodeId, uv: [f32; 2]) -> DVec3 {
+        let shape = self.src.shape();
+        let g = patch_grid_point(shape, node, uv);
+        let z = if g.x.fract() == 0.0 && g.y.fract() == 0.0 {
+            let key = ((g.x as u64) << 32) | g.y as u64;
+            *self.heights.borrow_mut().entry(key).or_insert_with(|| self.src.height(g))
+        } else {
+            self.src.height(g)
+        };
+        shape.grid_to_world(g).extend(f64::from(z))
+    }
+
     /// The screen length of `node`'s `edge`: the segment between its end corners, the same
-    /// points as [`edge_segment`](super::surface::edge_segment)'s (so two same-level patches sharing an edge agree).
+    /// points as [`edge_segment`](super::surface::edge_segment)'s (so two same-level patches
+    /// sharing an edge agree).
     fn screen(&self, node: NodeId, edge: Edge) -> f64 {
-        let c = *self
-            .corners
-            .borrow_mut()
-            .entry(node.key())
-            .or_insert_with(|| CORNERS_UV.map(|uv| patch_world_point(self.src, node, uv)));
-        let (a, b) = edge_corners(edge);
-        run::screen_length(self.camera, c[a], c[b])
+        if let Some(l) = self.lengths.borrow().get(&node.key()) {
+            return l[edge as usize];
+        }
+        let c = CORNERS_UV.map(|uv| self.corner(node, uv));
+        let l = Edge::ALL.map(|e| {
+            let (a, b) = edge_corners(e);
+            self.screen_scale.length(c[a], c[b])
+        });
+        self.lengths.borrow_mut().insert(node.key(), l);
+        l[edge as usize]
     }
 }
 
@@ -262,14 +302,13 @@ pub fn select_pvps_with_cull(
     };
     let (leaves, stats) =
         run::leaves_with_cull(src, camera, &mut split, cfg.frustum_cull, occlusion, true);
-    let rule = PvpsEdges {
+    let rule = PvpsEdges::new(
         src,
         camera,
-        constant: cfg.outer_constant,
+        cfg.outer_constant,
         finest,
-        scale: cfg.finest_transition_factor.clamp(2, 64).next_power_of_two(),
-        corners: RefCell::new(KeyMap::with_capacity_and_hasher(leaves.len(), Default::default())),
-    };
+        cfg.finest_transition_factor.clamp(2, 64).next_power_of_two(),
+    );
     let inner = |node: NodeId, _: &[f32; 4]| -> [f32; 2] {
         // Eq. 12: ScreenSpaceLength_1 runs along u (the south and north edges), _2 along v.
         let r = f64::from(field.value(node)).max(0.0);
@@ -319,7 +358,7 @@ mod tests {
 
     /// Algorithm 1's rule with the defaults' constant, a finest level of 4 and scale 2.
     fn rule_of<'a>(src: &'a dyn TerrainSource, camera: &'a Camera) -> PvpsEdges<'a> {
-        PvpsEdges { src, camera, constant: 10.0, finest: 4, scale: 2, corners: RefCell::default() }
+        PvpsEdges::new(src, camera, 10.0, 4, 2)
     }
 
     #[test]
@@ -329,9 +368,16 @@ mod tests {
         let src = GridSource::new(&qt, &hm);
         let cam = Camera::from_yaw_pitch(dvec3(-50.0, -80.0, 300.0), 40.0, -25.0);
         let rule = rule_of(&src, &cam);
-        let nodes = [NodeId::new(0, 0, 0), NodeId::new(2, 1, 3), NodeId::new(4, 9, 2)];
+        // The last two share an edge (its corners' heights are looked up once).
+        let nodes = [
+            NodeId::new(0, 0, 0),
+            NodeId::new(2, 1, 3),
+            NodeId::new(4, 9, 2),
+            NodeId::new(4, 10, 2),
+        ];
         // Each node's edges in turn and interleaved with another node's, so the remembered
-        // corners are both computed and read again.
+        // lengths are both computed and read again, against the reference that works every
+        // term out from the camera at each edge.
         for (k, &n) in nodes.iter().enumerate() {
             for e in Edge::ALL {
                 let other = nodes[(k + 1) % nodes.len()];
