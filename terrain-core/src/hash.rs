@@ -13,9 +13,11 @@ pub(crate) fn mix64(mut z: u64) -> u64 {
 }
 
 /// A multiply-shift hasher for keys that are integers packed into a `u64` (lattice points,
-/// [`NodeId::key`](crate::quadtree::NodeId::key)), where the default SipHash is a measurable
-/// share of the work: the entropy method's crack elimination, and the PVPS selections' map of
-/// patch corners. Not for keys an adversary chooses (no flooding resistance).
+/// [`NodeId::key`](crate::quadtree::NodeId::key)) or a few `u32` (a store's block ids), where
+/// the default SipHash is a measurable share of the work: the entropy method's crack
+/// elimination, the PVPS selections' map of patch corners, a store's cache of blocks. Its
+/// output is fixed (no random state), so a map's iteration order is the same from run to
+/// run. Not for keys an adversary chooses (no flooding resistance).
 #[derive(Debug, Default, Clone, Copy)]
 pub struct KeyHasher(u64);
 
@@ -32,7 +34,43 @@ impl std::hash::Hasher for KeyHasher {
         let z = (k ^ (k >> 29)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
         self.0 = z ^ (z >> 32);
     }
+    /// A key of several `u32` fields (a derived `Hash`, e.g. a block's row and column): each
+    /// mixed in after the ones before, shifted out of its way.
+    fn write_u32(&mut self, k: u32) {
+        self.write_u64(self.0.rotate_left(32) ^ u64::from(k));
+    }
+    fn write_usize(&mut self, k: usize) {
+        self.write_u64(k as u64);
+    }
 }
 
 /// A map keyed by packed integers, hashed by [`KeyHasher`].
-pub type KeyMap<V> = std::collections::HashMap<u64, V, std::hash::BuildHasherDefault<KeyHasher>>;
+pub type KeyMap<V> = IdMap<u64, V>;
+
+/// A map keyed by a few integers (a `u64`, a `usize`, a derived `Hash` of `u32` fields such
+/// as a store's block ids), hashed by [`KeyHasher`].
+pub type IdMap<K, V> = std::collections::HashMap<K, V, std::hash::BuildHasherDefault<KeyHasher>>;
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::hash::{BuildHasher, BuildHasherDefault};
+
+    /// Keys of two `u32` fields (a derived `Hash`, as a store's block ids) and single `u64`
+    /// keys hash without a collision over a grid of small values (a hasher that kept only the
+    /// last field, or left the fields' order out, fails it).
+    #[test]
+    fn small_keys_of_u32_fields_and_u64_hash_apart() {
+        let b = BuildHasherDefault::<KeyHasher>::default();
+        let mut seen = std::collections::HashSet::new();
+        for row in 0..128u32 {
+            for col in 0..128u32 {
+                assert!(seen.insert(b.hash_one((row, col))), "({row}, {col})");
+            }
+        }
+        let mut seen = std::collections::HashSet::new();
+        for k in 0..16_384u64 {
+            assert!(seen.insert(b.hash_one(k)), "{k}");
+        }
+    }
+}

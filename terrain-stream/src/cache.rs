@@ -1,9 +1,10 @@
 //! The block cache: resident levels per block under a byte budget, unloaded level by level
 //! (finest first) in the priority order the scheduler gives, never below what it protects.
 
-use std::collections::BTreeMap;
 use std::sync::Arc;
 use std::sync::atomic::AtomicBool;
+
+use terrain_core::hash::IdMap;
 
 use crate::format::{BlockId, Header};
 use crate::store::BlockLevels;
@@ -26,13 +27,13 @@ pub(crate) struct CachedBlock {
 pub(crate) struct Cache {
     budget: u64,
     resident: u64,
-    blocks: BTreeMap<BlockId, CachedBlock>,
+    blocks: IdMap<BlockId, CachedBlock>,
 }
 
 impl Cache {
     /// An empty cache with a budget in bytes.
     pub(crate) fn new(budget: u64) -> Self {
-        Self { budget, resident: 0, blocks: BTreeMap::new() }
+        Self { budget, resident: 0, blocks: IdMap::default() }
     }
 
     /// The budget in bytes.
@@ -107,7 +108,8 @@ impl Cache {
         evicted
     }
 
-    /// Blocks known to the cache, in block order.
+    /// Blocks known to the cache, in the map's order (the same from run to run: its hasher
+    /// has no random state; the callers sort or collect into sets).
     pub(crate) fn blocks(&self) -> impl Iterator<Item = (&BlockId, &CachedBlock)> {
         self.blocks.iter()
     }

@@ -81,6 +81,7 @@ use std::time::Instant;
 
 use glam::{DVec2, DVec3};
 use terrain_core::geometry::{Aabb, Camera, Frustum, GroundRegion, project_view_to_ground};
+use terrain_core::hash::IdMap;
 use terrain_core::lod::{MAX_FACTOR, Patch, Selection, SelectionStats, wish_outer_factors};
 use terrain_core::metrics::screen::{self, SightLineEq7};
 use terrain_core::quadtree::{
@@ -977,7 +978,7 @@ impl Drop for SubMax {
 struct VisitedBlocks {
     /// Each block: the selection that last visited it, its bytes as counted when it came in
     /// (its entry's fine maxima may be built later), the block.
-    blocks: HashMap<usize, (u64, usize, VisitedBlock)>,
+    blocks: IdMap<usize, (u64, usize, VisitedBlock)>,
     /// The blocks' bytes as counted when they came in, their `sub_max` values aside.
     bytes: usize,
     /// Bytes of the `sub_max` values computed so far and not dropped ([`SubMax`]).

@@ -21,10 +21,11 @@
 //! CRC-32 of the whole file, which only a reader of every byte checks (the roughness file's tie
 //! to its store).
 
-use std::collections::HashMap;
 use std::fs::File;
 use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex};
+
+use terrain_core::hash::IdMap;
 
 use crate::error::StoreError;
 use crate::format::{
@@ -454,7 +455,7 @@ struct CachedPage {
 
 #[derive(Debug, Default)]
 struct Lru {
-    pages: HashMap<usize, CachedPage>,
+    pages: IdMap<usize, CachedPage>,
     bytes: u64,
     clock: u64,
     /// Pages decoded (misses), for tests and measurements.

@@ -63,13 +63,14 @@
 //! benchmark does what a real-time frame does not (measuring, software drawing), so a flight
 //! paced at its frame rate gives the workers the flight's time only.
 
-use std::collections::{BTreeSet, HashMap};
+use std::collections::BTreeSet;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use glam::{DVec2, DVec3};
 use terrain_core::geometry::{Aabb, Camera, Classification, Frustum, GroundRegion};
+use terrain_core::hash::IdMap;
 use terrain_core::metrics::screen::{MIN_DISTANCE_M, view_sin_floored};
 
 use crate::cache::Cache;
@@ -223,7 +224,7 @@ struct Summaries {
     /// By row-major block position (allocated when first asked), and how many are kept.
     summaries: Mutex<(Vec<Option<Arc<BlockSummary>>>, usize)>,
     /// The entries walked this frame and in the last one.
-    walked: Mutex<[HashMap<BlockId, Arc<BlockEntry>>; 2]>,
+    walked: Mutex<[IdMap<BlockId, Arc<BlockEntry>>; 2]>,
 }
 
 /// Blocks whose [`BlockSummary`] a streamer keeps at most (about 25 MB; and a pointer per
