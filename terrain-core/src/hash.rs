@@ -1,6 +1,7 @@
 //! Integer hashing: the SplitMix64 finaliser, for deterministic, platform-independent
 //! pseudo-random choices (noise lattices, stratified sample offsets), and [`KeyHasher`], the
-//! hasher of maps keyed by integers packed into a `u64` (lattice points, [`NodeId::key`]).
+//! hasher of maps keyed by integers ([`IdMap`], [`KeyMap`]: lattice points, [`NodeId::key`],
+//! a store's block ids), whose order is the same from run to run.
 //!
 //! [`NodeId::key`]: crate::quadtree::NodeId::key
 

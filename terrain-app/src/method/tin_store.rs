@@ -148,15 +148,35 @@ impl Shared {
         Ok((self.builder.build(node, seeds)?, false))
     }
 
-    /// Tile `node` from the cache, else read or built and kept.
+    /// Tile `node` from the cache, else read or built and kept. A tile another thread is
+    /// reading or building (a queued tile a worker took, or another child's parent) is waited
+    /// for, not built twice: each builder marks its tile in `building` as the workers do. (Until
+    /// 2026-12-06 a parent fetched here was not marked, and a worker could take it from the
+    /// queue meanwhile: read twice, which `baked_coarse_tiles_are_the_tiles_built_while_flying`
+    /// caught about once in six runs.) Waits only go to ancestors (a builder asks for its
+    /// tile's parent), so they cannot form a cycle.
     fn tile(&self, node: NodeId) -> anyhow::Result<Arc<GridTile>> {
-        if let Some(e) = self.lock().tiles.get(&node) {
-            return Ok(e.tile.clone());
+        let mut st = self.lock();
+        loop {
+            if let Some(e) = st.tiles.get(&node) {
+                return Ok(e.tile.clone());
+            }
+            if st.building.insert(node) {
+                break;
+            }
+            st = self.done.wait(st).unwrap_or_else(|e| e.into_inner());
         }
-        let (tile, read) = self.build(node)?;
-        let tile = Arc::new(tile);
-        self.insert(&mut self.lock(), node, tile.clone(), read);
-        Ok(tile)
+        drop(st);
+        let built = self.build(node);
+        let mut st = self.lock();
+        st.building.remove(&node);
+        let out = built.map(|(tile, read)| {
+            let tile = Arc::new(tile);
+            self.insert(&mut st, node, tile.clone(), read);
+            tile
+        });
+        self.done.notify_all();
+        out
     }
 
     /// Keeps built tile `node` (read from the baked tiles when `read`), within the budget.

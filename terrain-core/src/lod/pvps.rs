@@ -210,8 +210,9 @@ impl<'a> PvpsEdges<'a> {
         (f64::from(self.scale) * f64::from(1u32 << shift)).min(f64::from(MAX_FACTOR)) as f32
     }
 
-    /// [`patch_world_point`](super::surface::patch_world_point) of `node`'s corner `uv`, its height looked up once per grid
-    /// sample (a corner off the samples, none in practice, is looked up every time).
+    /// [`patch_world_point`](super::surface::patch_world_point) of `node`'s corner `uv`, its
+    /// height looked up once per grid sample (a corner off the samples, none in practice, is
+    /// looked up every time).
     fn corner(&self, node: NodeId, uv: [f32; 2]) -> DVec3 {
         let shape = self.src.shape();
         let g = patch_grid_point(shape, node, uv);
