@@ -168,11 +168,21 @@ impl Shared {
         }
         drop(st);
         let built = self.build(node);
-        let mut st = self.lock();
+        self.finish(&mut self.lock(), node, built)
+    }
+
+    /// Ends the build of `node` (marked in `building` by its builder, a worker or
+    /// [`Shared::tile`]): unmarked, kept when built, and every waiter woken.
+    fn finish(
+        &self,
+        st: &mut State,
+        node: NodeId,
+        built: anyhow::Result<(GridTile, bool)>,
+    ) -> anyhow::Result<Arc<GridTile>> {
         st.building.remove(&node);
         let out = built.map(|(tile, read)| {
             let tile = Arc::new(tile);
-            self.insert(&mut st, node, tile.clone(), read);
+            self.insert(st, node, tile.clone(), read);
             tile
         });
         self.done.notify_all();
@@ -229,14 +239,10 @@ impl Shared {
             };
             let built = self.build(node);
             let mut st = self.lock();
-            st.building.remove(&node);
-            match built {
-                Ok((tile, read)) => self.insert(&mut st, node, Arc::new(tile), read),
-                Err(e) => {
-                    st.failed.insert(node, format!("{e:#}"));
-                }
+            // (The waiters run once this thread lets go of the lock, the failure recorded.)
+            if let Err(e) = self.finish(&mut st, node, built) {
+                st.failed.insert(node, format!("{e:#}"));
             }
-            self.done.notify_all();
         }
     }
 }
