@@ -95,8 +95,8 @@ fn dss_approach_looks_at_the_peak_and_closes_in() {
 #[test]
 fn absurd_flights_are_refused_when_read() {
     use terrain_core::flight::{FlightError, MAX_FRAMES};
-    let dir = std::env::temp_dir().join(format!("terrain-core-flights-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
+    let tmp = common::temp_dir("terrain-core-flights-");
+    let dir = tmp.path();
     let flight = |fps: &str, end: &str| {
         format!(
             r#"{{"name":"x","fps":{fps},"keyframes":[

@@ -8,9 +8,10 @@
 // The counting allocator is the only unsafe code: it forwards to `System` unchanged.
 #![allow(unsafe_code)]
 
+mod common;
+
 use std::alloc::{GlobalAlloc, Layout, System};
 use std::io::Cursor;
-use std::path::PathBuf;
 use std::sync::atomic::{AtomicUsize, Ordering};
 
 use terrain_core::dem::{LoadOptions, RawSampleType, RawSpec, bytes_to_read, load};
@@ -54,17 +55,10 @@ fn assert_no_huge_allocation() {
     assert!(largest <= MAX_ALLOCATION, "an allocation of {largest} bytes was made");
 }
 
-fn write_temp(name: &str, bytes: &[u8]) -> PathBuf {
-    static N: AtomicUsize = AtomicUsize::new(0);
-    let d = std::env::temp_dir().join(format!(
-        "terrain-core-hostile-{}-{}",
-        std::process::id(),
-        N.fetch_add(1, Ordering::Relaxed)
-    ));
-    std::fs::create_dir_all(&d).unwrap();
-    let p = d.join(name);
-    std::fs::write(&p, bytes).unwrap();
-    p
+/// `bytes` written to `name` in a temporary folder of its own, removed with the returned guard
+/// (also when the test panics).
+fn write_temp(name: &str, bytes: &[u8]) -> common::TempFile {
+    common::write_temp("terrain-core-hostile-", name, bytes)
 }
 
 /// A small valid grey image of `w` x `h` in `format`.

@@ -4,31 +4,23 @@
 
 mod common;
 
-use common::data;
+use common::{TempFile, data};
 
-use std::path::{Path, PathBuf};
-use std::sync::atomic::{AtomicUsize, Ordering};
+use std::path::Path;
 
 use terrain_core::dem::{Format, LoadOptions, RawSampleType, RawSpec, load, load_mosaic};
 use terrain_core::georef::AngularOrLinear;
 use terrain_core::{Crs, DemErrorKind, Heightmap};
 
-/// A unique temporary directory for this test process and call.
-fn temp_dir() -> PathBuf {
-    static N: AtomicUsize = AtomicUsize::new(0);
-    let d = std::env::temp_dir().join(format!(
-        "terrain-core-readers-{}-{}",
-        std::process::id(),
-        N.fetch_add(1, Ordering::Relaxed)
-    ));
-    std::fs::create_dir_all(&d).expect("create temp dir");
-    d
+/// A temporary directory for one test, removed when dropped (also on a panic).
+fn temp_dir() -> tempfile::TempDir {
+    common::temp_dir("terrain-core-readers-")
 }
 
-fn write_temp(name: &str, bytes: &[u8]) -> PathBuf {
-    let p = temp_dir().join(name);
-    std::fs::write(&p, bytes).expect("write temp file");
-    p
+/// `bytes` written to `name` in a temporary directory of its own, removed with the returned
+/// guard.
+fn write_temp(name: &str, bytes: &[u8]) -> TempFile {
+    common::write_temp("terrain-core-readers-", name, bytes)
 }
 
 fn within_pct(got: f64, want: f64, pct: f64) -> bool {
@@ -341,7 +333,8 @@ fn terrain_rgb_formula() {
     // A 2 x 1 RGBA PNG: pixel 0 is 0 m in Terrain-RGB (100000 * 0.1 - 10000), pixel 1 transparent.
     let v = 100_000u32;
     let px = [(v >> 16) as u8, (v >> 8) as u8, v as u8, 255, 1, 2, 3, 0];
-    let p = temp_dir().join("trgb.png");
+    let tmp = temp_dir();
+    let p = tmp.path().join("trgb.png");
     image::save_buffer(&p, &px, 2, 1, image::ExtendedColorType::Rgba8).unwrap();
     let opts = LoadOptions { format: Some(Format::TerrainRgb), ..Default::default() };
     let dem = load(&p, &opts).unwrap();
@@ -452,7 +445,8 @@ fn wrong_magic_and_unsupported_formats() {
     let opts = LoadOptions { format: Some(Format::GeoTiff), ..Default::default() };
     assert_err(&data("puget_sound/ps_height_1k.png"), &opts, "GeoTIFF was asked for");
     // Missing file: I/O error naming it.
-    let missing = temp_dir().join("missing.tif");
+    let tmp = temp_dir();
+    let missing = tmp.path().join("missing.tif");
     assert!(matches!(assert_err(&missing, &LoadOptions::default(), "I/O"), DemErrorKind::Io(_)));
 }
 
@@ -750,7 +744,8 @@ fn mutated_files_never_panic() {
     let tif = std::fs::read(data("crater_lake/craterlake-elev-16bit-30m.tif")).unwrap();
     let png = std::fs::read(data("puget_sound/ps_height_1k.png")).unwrap();
     let mut rng = Rng(0x9e37_79b9_7f4a_7c15);
-    let dir = temp_dir();
+    let tmp = temp_dir();
+    let dir = tmp.path();
     // A small limit keeps a mutated width/height from asking for gigabytes.
     let opts = LoadOptions { max_samples: 1 << 22, ..Default::default() };
     let mut errors = 0;

@@ -5,15 +5,7 @@ mod common;
 
 use common::data;
 
-use std::path::PathBuf;
-
 use terrain_core::dem::{LoadOptions, RawSampleType, RawSpec, RowReader, load};
-
-fn temp(name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("terrain-rows-{}", std::process::id()));
-    std::fs::create_dir_all(&d).unwrap();
-    d.join(name)
-}
 
 /// Reads `rows` rows from `j0` through the reader.
 fn band(r: &RowReader, j0: u64, rows: usize) -> (Vec<f32>, Vec<bool>) {
@@ -102,7 +94,8 @@ fn filled_voids_are_convex_means_of_their_neighbours() {
     vals[..9].fill(-9999.0); // the whole north row is void
     vals[4 * 9 + 8] = 300.0;
     let bytes: Vec<u8> = vals.iter().flat_map(|v| v.to_le_bytes()).collect();
-    let p = temp("fill.f32");
+    let tmp = common::temp_dir("terrain-rows-");
+    let p = tmp.path().join("fill.f32");
     std::fs::write(&p, bytes).unwrap();
     let options = LoadOptions {
         raw: Some(RawSpec { width: w, height: h, sample: RawSampleType::F32 }),
@@ -132,7 +125,8 @@ fn raw_bands_and_errors() {
     let (w, h) = (37u64, 23u64);
     let vals: Vec<f32> = (0..w * h).map(|k| (k as f32 * 0.37).sin() * 50.0 + 200.0).collect();
     let bytes: Vec<u8> = vals.iter().flat_map(|v| v.to_le_bytes()).collect();
-    let p = temp("grid.f32");
+    let tmp = common::temp_dir("terrain-rows-");
+    let p = tmp.path().join("grid.f32");
     std::fs::write(&p, &bytes).unwrap();
     let options = LoadOptions {
         raw: Some(RawSpec { width: w, height: h, sample: RawSampleType::F32 }),

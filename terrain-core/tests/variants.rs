@@ -7,7 +7,6 @@
 mod common;
 
 use std::path::{Path, PathBuf};
-use std::sync::atomic::{AtomicUsize, Ordering};
 
 use common::data;
 use serde_json::Value;
@@ -36,15 +35,9 @@ fn f(v: &Value) -> f64 {
     v.as_f64().unwrap_or_else(|| panic!("{v} is not a number"))
 }
 
-fn temp_dir() -> PathBuf {
-    static N: AtomicUsize = AtomicUsize::new(0);
-    let d = std::env::temp_dir().join(format!(
-        "terrain-core-variants-{}-{}",
-        std::process::id(),
-        N.fetch_add(1, Ordering::Relaxed)
-    ));
-    std::fs::create_dir_all(&d).expect("create temp dir");
-    d
+/// A temporary folder for one test, removed when dropped (also when the test panics).
+fn temp_dir() -> tempfile::TempDir {
+    tempfile::Builder::new().prefix("terrain-core-variants-").tempdir().expect("create temp dir")
 }
 
 /// Void count, min, max and sum of the valid samples.
@@ -192,7 +185,7 @@ fn damaged_deflate_streams_are_refused_like_zlib_refuses_them() {
         .collect();
     let bytes = std::fs::read(&path).unwrap();
     let tmp = temp_dir();
-    let p = tmp.join("flipped.tif");
+    let p = tmp.path().join("flipped.tif");
     let (mut refused, mut checked) = (0, 0);
     for &bit in bits.iter().filter(|b| !zlib_ok.contains(b)) {
         let mut b = bytes.clone();
@@ -220,7 +213,6 @@ fn damaged_deflate_streams_are_refused_like_zlib_refuses_them() {
     }
     assert_eq!(refused, checked);
     assert!(checked > 4_000, "{checked} flips checked");
-    let _ = std::fs::remove_dir_all(&tmp);
 }
 
 #[test]
@@ -233,7 +225,7 @@ fn truncated_jpeg_heightmaps_are_refused() {
     let bytes = std::fs::read(&path).unwrap();
     let tmp = temp_dir();
     for keep in [bytes.len() / 10, bytes.len() / 2, bytes.len() * 9 / 10, bytes.len() - 2] {
-        let p = tmp.join(format!("cut_{keep}.jpg"));
+        let p = tmp.path().join(format!("cut_{keep}.jpg"));
         std::fs::write(&p, &bytes[..keep]).unwrap();
         let e = load(&p, &LoadOptions::default())
             .map(|_| ())
@@ -241,7 +233,6 @@ fn truncated_jpeg_heightmaps_are_refused() {
         let msg = e.to_string();
         assert!(msg.contains("cut_") && msg.contains("truncated"), "{msg}");
     }
-    let _ = std::fs::remove_dir_all(&tmp);
 }
 
 /// The sentinel warnings of `dem`: (value, count).
@@ -357,7 +348,7 @@ fn the_unit_of_an_epsg_crs_without_a_units_key_comes_from_its_name() {
     let name = "ftus_epsg2272.tif";
     let bytes = std::fs::read(dir().join(name)).unwrap();
     let tmp = temp_dir();
-    let p = tmp.join("no_units_key.tif");
+    let p = tmp.path().join("no_units_key.tif");
     std::fs::write(&p, patch_geokey(&bytes, [3076, 0, 1, 9003], [3999, 0, 1, 9003])).unwrap();
     let dem = load(&p, &LoadOptions::default()).unwrap();
     let g = gdal(name);
@@ -367,7 +358,6 @@ fn the_unit_of_an_epsg_crs_without_a_units_key_comes_from_its_name() {
         "{:?}",
         dem.heightmap.georef()
     );
-    let _ = std::fs::remove_dir_all(&tmp);
 }
 
 #[test]
@@ -380,18 +370,17 @@ fn unsupported_crs_kinds_are_refused_saying_what_is_not_read() {
         // GTModelTypeGeoKey: geographic (2) -> geocentric (3).
         ([1024, 0, 1, 2], [1024, 0, 1, 3], "geocentric"),
     ] {
-        let p = tmp.join("patched.tif");
+        let p = tmp.path().join("patched.tif");
         std::fs::write(&p, patch_geokey(&bytes, from, to)).unwrap();
         let e = load(&p, &LoadOptions::default()).map(|_| ()).unwrap_err().to_string();
         assert!(e.contains("patched.tif") && e.contains(said), "{e}");
     }
     // A projected CRS in an unknown linear unit is refused, never taken as metres.
     let bytes = std::fs::read(dir().join("ftus_epsg2272.tif")).unwrap();
-    let p = tmp.join("odd_unit.tif");
+    let p = tmp.path().join("odd_unit.tif");
     std::fs::write(&p, patch_geokey(&bytes, [3076, 0, 1, 9003], [3076, 0, 1, 9999])).unwrap();
     let e = load(&p, &LoadOptions::default()).map(|_| ()).unwrap_err().to_string();
     assert!(e.contains("EPSG:9999") && e.contains("linear unit"), "{e}");
-    let _ = std::fs::remove_dir_all(&tmp);
 }
 
 /// The row reader (bakes) reads `name` as the whole-file reader does: same voids, same heights.
@@ -465,7 +454,7 @@ fn damaged_zstd_chunks_are_refused_naming_the_file() {
     let bytes = std::fs::read(dir().join(name)).unwrap();
     let good = load(dir().join(name), &LoadOptions::default()).unwrap();
     let tmp = temp_dir();
-    let p = tmp.join("zstd_cut.tif");
+    let p = tmp.path().join("zstd_cut.tif");
     // Zero the last 200 bytes (tile data; the IFD comes first in GDAL's files).
     let mut b = bytes.clone();
     let n = b.len();
@@ -478,7 +467,6 @@ fn damaged_zstd_chunks_are_refused_naming_the_file() {
         }
         Ok(d) => assert_ne!(d.heightmap.data(), good.heightmap.data(), "damage unnoticed"),
     }
-    let _ = std::fs::remove_dir_all(&tmp);
 }
 
 #[test]
@@ -651,9 +639,8 @@ fn a_first_ifd_offset_of_zero_is_refused_as_such() {
     let mut bytes = std::fs::read(dir().join("wiz_int16.tif")).unwrap();
     bytes[4..8].fill(0);
     let tmp = temp_dir();
-    let p = tmp.join("no_ifd.tif");
+    let p = tmp.path().join("no_ifd.tif");
     std::fs::write(&p, &bytes).unwrap();
     let e = load(&p, &LoadOptions::default()).map(|_| ()).unwrap_err().to_string();
     assert!(e.contains("no_ifd.tif") && e.contains("first IFD offset is 0"), "{e}");
-    let _ = std::fs::remove_dir_all(&tmp);
 }
