@@ -74,7 +74,6 @@ fn grids_without_a_cell_are_refused_by_every_command() {
     );
     let single = raw(&dir, 1, 1);
     refused_everywhere(&single, &["--raw", "1x1:f32"], &["1 x 1 samples", "at least 2 x 2"], &out);
-    std::fs::remove_dir_all(&dir).unwrap();
 }
 
 #[test]
@@ -91,5 +90,4 @@ fn absurd_spacing_and_heights_are_refused_by_every_command() {
     refused_everywhere(&wide, &opts, &["span", "check the spacing (--spacing)"], &out);
     let opts = ["--raw", "3x3:f32", "--vertical-scale", "1e30"];
     refused_everywhere(&g, &opts, &["no terrain reaches", "--vertical-scale"], &out);
-    std::fs::remove_dir_all(&dir).unwrap();
 }

@@ -4,7 +4,7 @@
 
 mod common;
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::process::Output;
 
 use terrain_core::dem::{LoadOptions, load};
@@ -12,7 +12,7 @@ use terrain_stream::{BlockId, Store};
 
 use common::{data, terrain};
 
-fn scratch(name: &str) -> PathBuf {
+fn scratch(name: &str) -> common::Scratch {
     common::scratch("bake-cli", name)
 }
 
@@ -113,7 +113,6 @@ fn an_hgt_bakes_losslessly_and_reads_back_bit_exact() {
     // A block's coarse level is the finest grid subsampled.
     let b = store.read_block(BlockId::new(2, 3), 2).unwrap();
     assert_eq!(b.grid(2).unwrap()[6], hm.get(3 * 256 + 64, 2 * 256 + 64));
-    std::fs::remove_dir_all(&dir).unwrap();
 }
 
 #[test]
@@ -153,7 +152,6 @@ fn synthetic_bakes_and_an_existing_output_is_refused() {
     over.push("--overwrite");
     ok(&terrain(&over));
     assert_eq!(std::fs::read(out.join("index.tsi")).unwrap(), index);
-    std::fs::remove_dir_all(&dir).unwrap();
 }
 
 #[test]
@@ -170,7 +168,6 @@ fn a_bad_input_is_named_and_leaves_no_store() {
     assert!(!out.exists(), "a store was left behind");
     let left: Vec<_> = std::fs::read_dir(&dir).unwrap().map(|e| e.unwrap().file_name()).collect();
     assert_eq!(left, vec![std::ffi::OsString::from("notes.txt")], "debris: {left:?}");
-    std::fs::remove_dir_all(&dir).unwrap();
 }
 
 /// `--stream` reads a real GeoTIFF (tiled, with voids) by bands of rows: the store holds the
@@ -242,7 +239,6 @@ fn a_streamed_bake_equals_the_whole_file_bake_at_valid_samples() {
         "{err}"
     );
     assert!(!dir.join("png").exists());
-    std::fs::remove_dir_all(&dir).unwrap();
 }
 
 /// Runs a small synthetic bake into `out` with `extra` arguments.
@@ -291,7 +287,6 @@ fn overwrite_replaces_only_a_store_and_refuses_before_working() {
     std::fs::create_dir_all(&empty).unwrap();
     ok(&bake_synthetic(&empty, &[]));
     assert!(Store::open(&empty).is_ok());
-    std::fs::remove_dir_all(&dir).unwrap();
 }
 
 /// The `.NAME.part` folder a killed bake leaves is removed by the next bake of that output.
@@ -305,7 +300,6 @@ fn a_killed_bakes_part_folder_is_removed_by_the_next_bake() {
     ok(&bake_synthetic(&out, &[]));
     assert!(!part.exists(), "the stale .part folder is still there");
     assert!(Store::open(&out).is_ok());
-    std::fs::remove_dir_all(&dir).unwrap();
 }
 
 /// A DEM whose voids are -32767 with no nodata tag is baked as it is, with a warning naming
@@ -349,5 +343,4 @@ fn a_void_sentinel_without_nodata_is_warned_about_when_baking() {
     let err = ok(&r);
     let err = format!("{err}{}", String::from_utf8_lossy(&r.stderr));
     assert!(err.contains("read by bands of rows"), "{err}");
-    std::fs::remove_dir_all(&dir).unwrap();
 }

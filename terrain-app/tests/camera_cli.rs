@@ -66,7 +66,6 @@ fn render(name: &str, args: &[&str]) -> Option<Rendered> {
     }
     assert!(output.status.success(), "terrain render {args:?} failed:\n{stdout}\n{stderr}");
     let image = image::open(&out).unwrap_or_else(|e| panic!("{}: {e}", out.display())).to_rgba8();
-    let _ = std::fs::remove_dir_all(&dir);
     Some(Rendered { image, stdout, stderr })
 }
 
@@ -172,13 +171,13 @@ fn cameras_are_placed_on_a_store() {
     // The tile's heights are 379.7 to 410.8 m.
     assert!((379.7 + 50.0..=410.8 + 50.0).contains(&z), "{z}");
     assert!(r.coverage() > 0.5, "{:.3}", r.coverage());
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 #[test]
 fn lonlat_without_a_crs_is_refused_by_name() {
     let dem = data("puget_sound/ps_height_1k.png");
-    let out = scratch("camera-cli", "nocrs").join("never.png");
+    let scratch_dir = scratch("camera-cli", "nocrs");
+    let out = scratch_dir.join("never.png");
     let r = terrain(&[
         "render",
         dem.to_str().unwrap(),
@@ -260,7 +259,6 @@ fn a_flight_that_sees_no_terrain_is_warned_about() {
     assert!(r.status.success(), "{stderr}");
     assert!(stderr.contains("flight up: 2 of 2 drawn frames see no terrain"), "{stderr}");
     assert!(stderr.contains("misses the terrain") && stderr.contains("keyframes"), "{stderr}");
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 /// `info --json`'s height range with and without `--vertical-scale 3`.
@@ -366,5 +364,4 @@ fn vertical_scale_applies_to_every_reader() {
     let stderr = String::from_utf8_lossy(&r.stderr);
     assert!(!r.status.success() && stderr.contains("--vertical-offset"), "{stderr}");
     assert!(stderr.contains("bake it again") && stderr.contains("terrain bake"), "{stderr}");
-    let _ = std::fs::remove_dir_all(&dir);
 }

@@ -100,8 +100,7 @@ fn info_on_a_mosaic_of_two_hgt_tiles() {
 
 #[test]
 fn bad_input_names_the_file_and_the_problem() {
-    let dir = std::env::temp_dir().join(format!("terrain-cli-bad-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
+    let dir = common::scratch("cli", "bad");
     let empty = dir.join("empty.tif");
     std::fs::write(&empty, b"").unwrap();
     let text = dir.join("notes.txt");
@@ -121,12 +120,11 @@ fn bad_input_names_the_file_and_the_problem() {
     let out = terrain(&["info", "--raw", "10x10:f64", text.to_str().unwrap()]);
     assert!(!out.status.success());
     assert!(String::from_utf8_lossy(&out.stderr).contains("i16, u16 or f32"));
-    std::fs::remove_dir_all(&dir).ok();
 }
 
 #[test]
 fn roughness_pyramids_export_one_png_per_level() {
-    let dir = std::env::temp_dir().join(format!("terrain-cli-rough-{}", std::process::id()));
+    let dir = common::scratch("cli", "rough");
     let ps = data("puget_sound/ps_height_1k.png");
     for method in ["a", "b", "c"] {
         let out = terrain(&[
@@ -152,15 +150,13 @@ fn roughness_pyramids_export_one_png_per_level() {
         let (lo, hi) = fine.pixels().fold((255u8, 0u8), |(a, b), p| (a.min(p[0]), b.max(p[0])));
         assert!(hi > lo + 50, "method {method}: {lo}..{hi}");
     }
-    std::fs::remove_dir_all(&dir).ok();
 }
 
 /// A JPEG whose header declares 65535 x 40000 pixels is refused before the decoder allocates,
 /// naming the file, the bytes and `--max-memory`; a real file over a lowered limit too.
 #[test]
 fn max_memory_refuses_huge_declared_sizes() {
-    let dir = std::env::temp_dir().join(format!("terrain-cli-mem-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
+    let dir = common::scratch("cli", "mem");
     let mut bytes = std::fs::read(data("puget_sound/ps_height_4k.jpg")).unwrap();
     // Frame header (SOF0..SOF2): FF C0..C2, length, precision, height, width.
     let at = (0..bytes.len() - 1)
@@ -188,7 +184,6 @@ fn max_memory_refuses_huge_declared_sizes() {
     assert!(err.contains("ps_height_1k.png") && err.contains("1048576"), "{err}");
     let out = terrain(&["info", "--max-memory", "4GB", png.to_str().unwrap()]);
     assert!(String::from_utf8_lossy(&out.stderr).contains("GiB"));
-    std::fs::remove_dir_all(&dir).ok();
 }
 
 /// A variant of the GeoTIFF corpus (terrain-core/tests/data/geotiff) and GDAL's values of it.

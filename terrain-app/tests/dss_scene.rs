@@ -174,7 +174,6 @@ fn bake_stores_the_dss_errors_and_bench_reads_them() {
     // --no-geomip writes no geomorph table; the default bake does.
     assert!(!none.join("geomip.bin").exists());
     assert!(synthetic.join("geomip.bin").exists());
-    std::fs::remove_dir_all(&dir).unwrap();
 }
 
 /// Bakes `args` (blocks and DSS errors only) into `dir/name`; returns the table's bytes and
@@ -246,7 +245,6 @@ fn a_bake_by_rows_writes_the_dss_errors_of_the_in_memory_bake_byte_for_byte() {
     assert!(mask.count() > 30_000, "{} voids", mask.count());
     let hm = Heightmap::new(w, h, heights, mask, reader.georef().clone()).unwrap();
     assert!(got == DssErrorTable::new(&hm, &Quadtree::new(&hm, 16)).encode(&hm));
-    std::fs::remove_dir_all(&dir).unwrap();
 }
 
 fn load_whole(path: &Path, opts: terrain_core::dem::LoadOptions) -> terrain_core::Heightmap {

@@ -123,7 +123,8 @@ fn entropy_table_with_four_focuses() {
         assert_eq!(foci["focus_leaves_kept"], serde_json::json!(true), "{r}");
         assert_eq!(foci["focuses"].as_array().unwrap().len(), 4, "{r}");
     }
-    let png = scratch("entropy-cli", "foci").join("x.png");
+    let scratch_dir = scratch("entropy-cli", "foci");
+    let png = scratch_dir.join("x.png");
     let out = terrain(&["entropy", dem, "-o", png.to_str().unwrap(), "--foci"]);
     assert!(!out.status.success());
     assert!(String::from_utf8_lossy(&out.stderr).contains("--table"), "{out:?}");

@@ -6,14 +6,12 @@
 
 mod common;
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::process::{Command, Output};
 
-fn temp_dir(name: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("terrain-fly-cli-{}-{name}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).unwrap();
-    dir
+/// A scratch folder for one test, removed when dropped (also when the test panics).
+fn temp_dir(name: &str) -> common::Scratch {
+    common::scratch("fly-cli", name)
 }
 
 fn fly(flight: &Path, out: &Path) -> Output {
@@ -80,7 +78,6 @@ fn fly_writes_frames_csv_and_json() {
     assert_eq!(json["flight"], "tiny");
     assert!(json["adapter"].as_str().is_some_and(|a| !a.is_empty()));
     assert!(json["frames"][2]["rmse_m"].as_f64().is_some());
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 #[test]
@@ -110,7 +107,6 @@ fn bad_flights_give_clear_errors() {
     assert!(!output.status.success());
     assert!(stderr.contains("absurd.json") && stderr.contains("fps = 1000000000"), "{stderr}");
     assert!(stderr.contains("1000000"), "{stderr}");
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 #[test]
@@ -128,7 +124,6 @@ fn a_keyframe_under_the_terrain_is_clamped_with_a_warning() {
     let Some((_, stderr)) = succeeded(&fly(&flight, &out)) else { return };
     assert!(stderr.contains("warning") && stderr.contains("keyframe 0"), "{stderr}");
     assert!(out.join("frame_00000.png").exists());
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 #[test]
@@ -156,7 +151,6 @@ fn fly_draws_the_entropy_mesh() {
     let image = image::open(out.join("frame_00002.png")).unwrap().to_rgba8();
     let first = image.get_pixel(0, 0).0;
     assert!(image.pixels().any(|p| p.0 != first), "a uniform image: nothing drawn");
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 /// A DEM baked by rows (its DSS errors computed by bands) flown as a store: `ooc` (the
@@ -231,7 +225,6 @@ fn fly_over_a_store_writes_frames_and_stream_statistics() {
         .unwrap();
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(!out.status.success() && err.contains("--scene is for a DEM file"), "{err}");
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 /// The inputs are checked before the output folder is made: a bad flight, a bad DEM or a
@@ -274,5 +267,4 @@ fn bad_inputs_create_no_output_folder() {
     let stderr = String::from_utf8_lossy(&output.stderr);
     assert!(!output.status.success() && stderr.contains("--scene is read by"), "{stderr}");
     assert!(!out.exists(), "a refused fly created {}", out.display());
-    let _ = std::fs::remove_dir_all(&dir);
 }

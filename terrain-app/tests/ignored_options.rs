@@ -51,7 +51,6 @@ fn bench_refuses_options_no_run_uses() {
     args.push(scene);
     refused(&args, &["--scene is read by", "uniform, entropy reads nothing"]);
     assert!(!dir.join("out").exists(), "a refused bench wrote its report");
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 #[test]
@@ -66,7 +65,6 @@ fn mesh_refuses_options_of_another_mode() {
     refused(&["mesh", "--camera", camera, "--algorithm", "rtin", "-o", obj], &["--algorithm"]);
     refused(&["mesh", "--entropy", "30", "--algorithm", "rtin", "-o", obj], &["--algorithm"]);
     assert!(!Path::new(obj).exists());
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 #[test]
@@ -84,7 +82,6 @@ fn bake_refuses_options_it_would_ignore() {
     refused(&with(&["--no-pvs", "--pvs-cells", "8"]), &["--pvs-cells applies", "--no-pvs"]);
     refused(&with(&["--pvs-article", "--pvs-floors", "2"]), &["--pvs-article", "--pvs-floors"]);
     assert!(!Path::new(out).exists(), "a refused bake wrote {out}");
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 #[test]
@@ -115,7 +112,6 @@ fn reading_options_are_refused_for_a_store_or_a_scene() {
         &["--pvs-cells applies", "scene folder"],
     );
     assert!(!png.exists() && !Path::new("p.png").exists());
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 /// `render`, `fly` and `view` share one definition of their options (`draw_args`): the same
@@ -144,5 +140,4 @@ fn shared_drawing_options_are_checked_alike() {
     // The measurement's reference budget is a store's (a DEM in memory is its own reference).
     refused(&["view", "--measure-mib", "8"], &["--measure-mib apply to a baked store"]);
     refused(&["render", "--page-capacity", "8", "-o", png], &["--page-capacity applies"]);
-    let _ = std::fs::remove_dir_all(&dir);
 }

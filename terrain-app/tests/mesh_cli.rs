@@ -3,11 +3,9 @@
 
 mod common;
 
-use std::path::PathBuf;
-
 use common::{data, terrain};
 
-fn out_dir(name: &str) -> PathBuf {
+fn out_dir(name: &str) -> common::Scratch {
     common::scratch("mesh-cli", name)
 }
 
@@ -71,7 +69,6 @@ fn prairie_exports_glb_and_obj_within_half_a_metre() {
     assert!(v >= 4 && f >= 2, "{v} v, {f} f");
     assert!(text.lines().any(|l| l.starts_with("# origin ")), "origin comment");
     assert!(text.contains("EPSG:26915"));
-    std::fs::remove_dir_all(&dir).ok();
 }
 
 #[test]
@@ -91,7 +88,6 @@ fn bad_max_errors_and_outputs_are_clear_errors() {
     let out = terrain(&["mesh", "--max-error", "1", "-o", dir.join("x.ply").to_str().unwrap()]);
     assert!(String::from_utf8_lossy(&out.stderr).contains(".glb, .gltf or .obj"));
     assert!(!std::path::Path::new(glb).exists(), "nothing written on error");
-    std::fs::remove_dir_all(&dir).ok();
 }
 
 #[test]

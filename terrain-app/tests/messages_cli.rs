@@ -58,7 +58,6 @@ fn an_os_error_is_printed_once() {
     let err = stderr(&out);
     assert!(!out.status.success());
     assert_eq!(err.matches("(os error").count(), 1, "{err}");
-    std::fs::remove_dir_all(&dir).unwrap();
 }
 
 #[test]
@@ -91,7 +90,6 @@ fn errors_name_the_option_that_fixes_them() {
         stderr(&terrain(&["info", s(&data("srtm/N41E001.hgt")), s(&data("srtm/N52E008.hgt"))]));
     assert!(err.contains("is not adjacent to any other tile"), "{err}");
     assert!(!err.contains("max_samples") && !err.contains("exceeds"), "{err}");
-    std::fs::remove_dir_all(&dir).unwrap();
 }
 
 /// Every option, help text and message gives sizes in MiB (the code computes with 2^20).
@@ -116,5 +114,4 @@ fn sizes_are_in_mib_everywhere() {
     let info = terrain(&["info", s(&store)]);
     let text = String::from_utf8_lossy(&info.stdout);
     assert!(text.contains("MiB") && !is_mb(&text), "{text}");
-    std::fs::remove_dir_all(&dir).unwrap();
 }

@@ -51,7 +51,8 @@ fn p99_at(hm: &Heightmap, store: &Arc<Store>, tau: f64, frames: usize) -> f64 {
 /// asked (Eq. 7's p99 per tau here is well under the shared one's, `ooc_p99_per_tau`).
 #[test]
 fn the_store_calibration_lands_the_target_where_the_shared_one_does_not() {
-    let dir = scratch("ooc-calibration", "synthetic").join("store");
+    let scratch_dir = scratch("ooc-calibration", "synthetic");
+    let dir = scratch_dir.join("store");
     let hm = synthetic(513);
     let store = bake_store(&hm, 6, &dir);
     let config = OocConfig { threads: 1, ..OocConfig::default() };
@@ -85,7 +86,8 @@ fn the_store_calibration_lands_the_target_where_the_shared_one_does_not() {
 /// same points), and a smaller one differs.
 #[test]
 fn a_large_store_is_measured_on_a_window() {
-    let dir = scratch("ooc-calibration", "window").join("store");
+    let scratch_dir = scratch("ooc-calibration", "window");
+    let dir = scratch_dir.join("store");
     let hm = synthetic(513);
     let store = bake_store(&hm, 6, &dir);
     let config = OocConfig { threads: 1, ..OocConfig::default() };

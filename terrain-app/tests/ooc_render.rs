@@ -159,7 +159,6 @@ fn finest_levels_draw_exactly_the_heightmap() {
     assert!(terrain > 1000);
     // Shading near the drawn region's border differs (one-sided differences there).
     assert!(differ * 50 <= terrain, "{differ} of {terrain} pixels differ");
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 /// The regression (`terrain bake mt_rainier_90m.tif --no-pvs --no-dss`, then `terrain
@@ -229,7 +228,6 @@ fn baked_rainier_renders_like_the_heightmap() {
     assert!(far_off < 0.01, "{:.3} % of pixels off by more than 16 levels", far_off * 100.0);
     assert_eq!(seams, 0, "seam pixels");
     assert_eq!(holes, 0, "holes");
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 #[test]
@@ -295,7 +293,6 @@ fn a_tiny_cache_pages_coarse_levels_without_cracks() {
         cameras.len()
     );
     assert!(coarse_pages > 0 && strides.len() >= 2, "the budget forced coarse levels: {strides:?}");
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 #[test]
@@ -388,7 +385,6 @@ fn a_tiny_page_budget_draws_every_block_from_coarse_slots() {
         println!("negative control: {control_cracks} crack pixels with mismatched edge factors");
         assert!(control_cracks > 0, "the crack measure sees mismatched edges");
     }
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 fn s(p: &Path) -> &str {
@@ -530,7 +526,6 @@ fn terrain_render_draws_a_store_baked_from_puget_sound() {
     let img = image::open(&image).unwrap().to_rgba8();
     let terrain_px = img.pixels().filter(|p| p.0 != BACKGROUND).count();
     assert!(terrain_px * 4 > (128 * 72), "{terrain_px} terrain pixels");
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 #[test]
@@ -547,7 +542,6 @@ fn a_bad_store_is_an_error_naming_the_file() {
     assert!(!out.status.success());
     assert!(!stderr.contains("panicked"), "{stderr}");
     assert!(stderr.contains(s(&index)), "the error names the index file: {stderr}");
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 #[test]
@@ -721,7 +715,6 @@ fn patches_spanning_blocks_draw_no_cracks() {
     }
     println!("{spanning} patches spanning blocks over {frames} frames");
     assert!(spanning > 0, "no patch spanned blocks");
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 /// Eq. 8's frame rate `f` reaches the streamer: 60 Hz by default (the interactive viewer),
@@ -740,5 +733,4 @@ fn eq8_frame_rate_is_the_flights() {
     let flight = terrain_core::flight::FlightSpec::load(&path).unwrap();
     assert_eq!(flight.fps, 30.0);
     assert_eq!(rate(OocConfig::default().for_flight(flight.fps)), 30.0);
-    let _ = std::fs::remove_dir_all(dir);
 }

@@ -84,7 +84,6 @@ fn bake_writes_the_pvs_and_pvs_exports_a_cell() {
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(out.status.success(), "{err}");
     assert!(err.contains("warning") && err.contains("pvs.bin"), "{err}");
-    std::fs::remove_dir_all(&dir).unwrap();
 }
 
 #[test]
@@ -98,7 +97,6 @@ fn pvs_bakes_a_dem_on_the_fly() {
     let out = ok(&terrain(&args));
     assert!(out.contains("conservative") && out.contains("of 64 patches visible"), "{out}");
     assert_eq!(image::open(&png).unwrap().to_luma8().dimensions(), (8, 8));
-    std::fs::remove_dir_all(&dir).unwrap();
 }
 
 /// A PVS baked from one DEM is refused for another DEM of the same grid size (issue 15 item 7:
@@ -145,7 +143,6 @@ fn a_stale_pvs_is_refused_naming_the_file() {
         line.contains("stale") && line.contains("terrain bake") && line.contains("warning"),
         "{line}"
     );
-    std::fs::remove_dir_all(&dir).unwrap();
 }
 
 /// Issue 13: a DEM baked by bands of rows (`--stream`, a small `--max-memory`) gets both PVS
@@ -207,7 +204,6 @@ fn a_bake_by_rows_writes_a_pvs_that_render_uses() {
     ok(&without);
     let err = String::from_utf8_lossy(&without.stderr);
     assert!(err.contains("drawing without occlusion culling"), "{err}");
-    std::fs::remove_dir_all(&dir).unwrap();
 }
 
 /// Issue 18: by default the bake takes a spread sample of the PVS's view cells and bakes the
@@ -257,5 +253,4 @@ fn the_default_bake_skips_a_pvs_that_does_not_pay_and_pvs_forces_it() {
     assert!(store.join("pvs.bin").is_file() && store.join("pvs_conservative.bin").is_file());
     let both = bake("both", &["--pvs", "--no-pvs"]).0;
     assert!(!both.status.success());
-    std::fs::remove_dir_all(&dir).unwrap();
 }

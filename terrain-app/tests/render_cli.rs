@@ -16,8 +16,7 @@ const BACKGROUND: [u8; 4] = [255, 0, 255, 255];
 /// Runs `terrain render ARGS -o <tmp>/NAME.png` (with `TERRAIN_GPU_BACKEND=backend` when
 /// given) and returns the image and stdout, or `None` when no adapter exists and none is required.
 fn render(name: &str, backend: Option<&str>, args: &[&str]) -> Option<(image::RgbaImage, String)> {
-    let dir = std::env::temp_dir().join(format!("terrain-render-cli-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
+    let dir = common::scratch("render-cli", name);
     let out = dir.join(format!("{name}.png"));
     let _ = std::fs::remove_file(&out);
     let mut cmd = Command::new(env!("CARGO_BIN_EXE_terrain"));
@@ -118,9 +117,7 @@ fn bad_arguments_are_reported() {
 /// `--flight`, `--max-frames` without it, `--factor` without `--method uniform`.
 #[test]
 fn options_a_mode_ignores_are_refused() {
-    let dir = std::env::temp_dir().join(format!("terrain-render-ignored-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).unwrap();
+    let dir = common::scratch("render", "ignored");
     let store = dir.join("s");
     let baked = Command::new(env!("CARGO_BIN_EXE_terrain"))
         .args(["bake", "--synthetic", "65", "--block-k", "5", "--no-pvs", "--no-dss", "-o"])
@@ -162,13 +159,11 @@ fn options_a_mode_ignores_are_refused() {
         assert!(needles.iter().all(|n| stderr.contains(n)), "{args:?}: {stderr}");
         assert!(!image.exists());
     }
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 #[test]
 fn every_lod_method_renders_and_reports_json_stats() {
-    let dir = std::env::temp_dir().join(format!("terrain-render-methods-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
+    let dir = common::scratch("render", "methods");
     let mut triangles = Vec::new();
     for method in
         ["uniform", "pvps-a", "pvps-b", "pvps-c", "dss-1", "dss-2", "dss-strips", "entropy"]
@@ -206,7 +201,6 @@ fn every_lod_method_renders_and_reports_json_stats() {
     // The view-dependent methods do not all draw what the fixed-factor baseline draws.
     let uniform = triangles[0].1;
     assert!(triangles[1..].iter().any(|&(_, t)| t != uniform), "{triangles:?}");
-    std::fs::remove_dir_all(&dir).ok();
 }
 
 /// `-o` is checked before any rendering (an extension we cannot write, a folder that does not
@@ -214,8 +208,7 @@ fn every_lod_method_renders_and_reports_json_stats() {
 /// JPEG failed after the rendering).
 #[test]
 fn render_checks_its_output_first_and_writes_jpeg() {
-    let dir = std::env::temp_dir().join(format!("terrain-render-out-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
+    let dir = common::scratch("render", "out");
     let run = |out: &std::path::Path| {
         Command::new(env!("CARGO_BIN_EXE_terrain"))
             .args(["render", "--size", "48x27", "--method", "uniform", "--leaf-cells", "64"])
@@ -227,7 +220,7 @@ fn render_checks_its_output_first_and_writes_jpeg() {
     for (out, said) in [
         (dir.join("frame.bmp"), ".png or .jpg"),
         (dir.join("no-such-folder/frame.png"), "cannot write"),
-        (dir.clone(), "is a folder"),
+        (dir.to_path_buf(), "is a folder"),
     ] {
         let r = run(&out);
         let (stdout, stderr) =
@@ -252,7 +245,6 @@ fn render_checks_its_output_first_and_writes_jpeg() {
     let img = image::load_from_memory(&bytes).unwrap();
     assert_eq!(img.color(), image::ColorType::Rgb8);
     assert_eq!((img.width(), img.height()), (48, 27));
-    std::fs::remove_dir_all(&dir).unwrap();
 }
 
 /// The band of `pixel` in the LOD palette: the entry whose colour, scaled by the light, it is

@@ -54,7 +54,6 @@ fn a_damaged_overview_is_named_with_what_to_do() {
     std::fs::remove_file(&ov).unwrap();
     let out = terrain(&["info", s(&store)]);
     assert!(out.status.success(), "{}", text(&out).1);
-    std::fs::remove_dir_all(&dir).unwrap();
 }
 
 fn blocks(store: &Path) -> Vec<PathBuf> {
@@ -130,7 +129,6 @@ fn render_names_each_fault_once_and_fails_when_nothing_can_be_drawn() {
         assert_eq!(err.matches(s(f)).count(), 1, "{} once in:\n{err}", f.display());
     }
     assert!(!png.exists(), "an empty image was written");
-    std::fs::remove_dir_all(&dir).unwrap();
 }
 
 #[test]
@@ -186,5 +184,4 @@ fn bench_marks_frames_missing_data_and_does_not_score_them() {
     let md = std::fs::read_to_string(dir.join("r.md")).unwrap();
     let row = md.lines().find(|l| l.starts_with("| ooc |")).expect("an ooc row");
     assert!(row.contains("2 of 2 (not scored)") && row.contains("n/a / n/a"), "{row}");
-    std::fs::remove_dir_all(&dir).unwrap();
 }

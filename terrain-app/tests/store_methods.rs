@@ -65,7 +65,8 @@ fn cameras(hm: &Heightmap) -> Vec<Camera> {
 
 fn check(name: &str, hm: Heightmap) {
     let scene = MethodScene::new(hm, MethodConfig::default());
-    let dir = scratch("store-methods", name).join("store");
+    let scratch_dir = scratch("store-methods", name);
+    let dir = scratch_dir.join("store");
     let store = bake_scene(&scene, &dir);
     let ooc = OocConfig { threads: 1, ..OocConfig::default() };
     for kind in [
@@ -144,7 +145,6 @@ fn check(name: &str, hm: Heightmap) {
             }
         }
     }
-    let _ = std::fs::remove_dir_all(dir.parent().unwrap());
 }
 
 #[test]
@@ -163,7 +163,8 @@ fn methods_draw_a_non_square_dem_with_voids_from_a_store_as_from_memory() {
 fn real_time_frames_draw_every_patch_while_levels_load() {
     let hm = crater_lake();
     let scene = MethodScene::new(hm, MethodConfig::default());
-    let dir = scratch("store-methods", "realtime").join("store");
+    let scratch_dir = scratch("store-methods", "realtime");
+    let dir = scratch_dir.join("store");
     let store = bake_scene(&scene, &dir);
     let ooc = OocConfig { threads: 1, budget_bytes: 4 << 20, ..OocConfig::default() };
     let runtime = OocScene::new(store, ooc);
@@ -185,7 +186,6 @@ fn real_time_frames_draw_every_patch_while_levels_load() {
         let s = m.surface(&mut f).unwrap();
         assert!(s.triangles > 0 && s.mesh.positions.iter().all(|p| p.z.is_finite()));
     }
-    let _ = std::fs::remove_dir_all(dir.parent().unwrap());
 }
 
 /// A view whose exact demand is larger than the cache budget: real-time frames hold it to the
@@ -204,7 +204,8 @@ fn a_demand_above_the_budget_is_held_to_lattices_but_not_when_measured_warm() {
     let hm =
         terrain_core::synth::FractalConfig::with_size(1025, 1025, 10.0).to_heightmap().unwrap();
     let scene = MethodScene::new(hm, MethodConfig::default());
-    let dir = scratch("store-methods", "held").join("store");
+    let scratch_dir = scratch("store-methods", "held");
+    let dir = scratch_dir.join("store");
     let store = bake_scene(&scene, &dir);
     let ooc = OocConfig { threads: 1, budget_bytes: 64 << 10, ..OocConfig::default() };
     let budget_mib = (64 << 10) as f64 / (1 << 20) as f64;
@@ -279,7 +280,6 @@ fn a_demand_above_the_budget_is_held_to_lattices_but_not_when_measured_warm() {
         assert_eq!(sh.triangles, sa.triangles, "{kind:?}");
         assert!(worst > 0.0 && worst <= bound * (1.0 + 1e-6), "{kind:?}: {worst} m, {bound} m");
     }
-    let _ = std::fs::remove_dir_all(dir.parent().unwrap());
 }
 
 /// A method that cannot draw from a store yet fails with what to do instead; a store-backed
@@ -291,7 +291,8 @@ fn what_a_store_cannot_do_is_said() {
     })
     .unwrap();
     let scene = MethodScene::new(hm, MethodConfig::default());
-    let dir = scratch("store-methods", "cannot").join("store");
+    let scratch_dir = scratch("store-methods", "cannot");
+    let dir = scratch_dir.join("store");
     let config = BakeConfig { k: 5, threads: 1, ..Default::default() };
     bake(&scene.hm, &dir, &config, &mut |_: &BakeProgress| ControlFlow::Continue(())).unwrap();
     let store = Arc::new(Store::open(&dir).unwrap());
@@ -333,7 +334,6 @@ fn what_a_store_cannot_do_is_said() {
     assert!(e.contains("patch cells 8 in the file, 16 here"), "{e}");
     assert!(run(LodMethod::Uniform).is_none(), "uniform needs no table");
     assert!(run(LodMethod::OutOfCore).is_none());
-    let _ = std::fs::remove_dir_all(dir.parent().unwrap());
 }
 
 /// On the GPU: the store-backed methods' real-time frames (a tiny cache, so blocks draw from
@@ -355,7 +355,8 @@ fn store_backed_frames_draw_no_cracks_over_coarse_pages() {
     };
     println!("adapter: {}", ctx.describe());
     let scene = MethodScene::new(crater_lake(), MethodConfig::default());
-    let dir = scratch("store-methods", "cracks").join("store");
+    let scratch_dir = scratch("store-methods", "cracks");
+    let dir = scratch_dir.join("store");
     let config =
         BakeConfig { k: 6, encoding: HeightEncoding::F32, threads: 1, ..Default::default() };
     bake(&scene.hm, &dir, &config, &mut |_: &BakeProgress| ControlFlow::Continue(())).unwrap();
@@ -411,7 +412,6 @@ fn store_backed_frames_draw_no_cracks_over_coarse_pages() {
     println!("{coarse} frames drawn below their needed level; negative control: {control} px");
     assert!(coarse > 0, "the tiny cache forced coarse levels");
     assert!(control >= 20, "the negative control cracks visibly: {control} px");
-    let _ = std::fs::remove_dir_all(dir.parent().unwrap());
 }
 
 /// On the GPU: geomorph drawn from a store with its vertex-shader morph (the geomorph renderer
@@ -440,7 +440,8 @@ fn geomorph_from_a_store_morphs_on_the_gpu_without_cracks() {
     println!("adapter: {}", ctx.describe());
     for (name, hm, k) in [("puget", puget(), 7), ("crater", crater_lake(), 6)] {
         let scene = MethodScene::new(hm, MethodConfig::default());
-        let dir = scratch("store-methods", &format!("geomorph-{name}")).join("store");
+        let scratch_dir = scratch("store-methods", &format!("geomorph-{name}"));
+        let dir = scratch_dir.join("store");
         let config =
             BakeConfig { k, encoding: HeightEncoding::F32, threads: 1, ..Default::default() };
         bake(&scene.hm, &dir, &config, &mut |_: &BakeProgress| ControlFlow::Continue(())).unwrap();
@@ -537,7 +538,6 @@ fn geomorph_from_a_store_morphs_on_the_gpu_without_cracks() {
         );
         assert!(coarse > 0, "{name}: the tiny cache forced coarse levels");
         assert!(control >= 20, "{name}: the negative control cracks visibly: {control} px");
-        let _ = std::fs::remove_dir_all(dir.parent().unwrap());
     }
 }
 
@@ -551,7 +551,8 @@ fn a_store_geomip_table_opens_by_pages_and_a_damaged_page_fails_only_where_neede
     use terrain_core::quadtree::NodeTree;
     use terrain_stream::StoreTree;
     let hm = terrain_core::synth::FractalConfig::with_size(513, 513, 10.0).to_heightmap().unwrap();
-    let dir = scratch("store-methods", "geomip-pages").join("store");
+    let scratch_dir = scratch("store-methods", "geomip-pages");
+    let dir = scratch_dir.join("store");
     let config =
         BakeConfig { k: 6, encoding: HeightEncoding::F32, threads: 1, ..Default::default() };
     bake(&hm, &dir, &config, &mut |_: &BakeProgress| ControlFlow::Continue(())).unwrap();
@@ -600,7 +601,6 @@ fn a_store_geomip_table_opens_by_pages_and_a_damaged_page_fails_only_where_neede
     assert!(same(&runs, &memory.select_runs(&south, &cfg)), "the south view as before");
     let e = table.try_select_runs(&tree, &north, &cfg).unwrap_err().to_string();
     assert!(e.contains("geomip.bin, page 7") && e.contains("checksum mismatch"), "{e}");
-    let _ = std::fs::remove_dir_all(dir.parent().unwrap());
 }
 
 /// A store's DSS table read by pages (above the size read whole; here forced with a
@@ -615,7 +615,8 @@ fn a_store_dss_table_opens_by_pages_and_a_damaged_page_fails_only_where_needed()
     use terrain_stream::StoreTree;
     let hm =
         terrain_core::synth::FractalConfig::with_size(2049, 2049, 10.0).to_heightmap().unwrap();
-    let dir = scratch("store-methods", "dss-pages").join("store");
+    let scratch_dir = scratch("store-methods", "dss-pages");
+    let dir = scratch_dir.join("store");
     let config =
         BakeConfig { k: 6, encoding: HeightEncoding::F32, threads: 1, ..Default::default() };
     bake(&hm, &dir, &config, &mut |_: &BakeProgress| ControlFlow::Continue(())).unwrap();
@@ -671,7 +672,6 @@ fn a_store_dss_table_opens_by_pages_and_a_damaged_page_fails_only_where_needed()
     assert_ne!(select(&table, &north), from_memory(&north), "split finest where damaged");
     let e = table.take_error().expect("the damaged page is reported").to_string();
     assert!(e.contains("dss_errors.bin, page 5") && e.contains("checksum mismatch"), "{e}");
-    let _ = std::fs::remove_dir_all(dir.parent().unwrap());
 }
 
 /// A grid not held in memory gets geomorph's table from its store's blocks, a block row at a
@@ -683,7 +683,8 @@ fn the_geomip_table_from_a_store_equals_the_one_from_memory() {
     let odd = terrain_core::synth::FractalConfig::with_size(301, 203, 30.0).to_heightmap().unwrap();
     for (name, hm, k) in [("puget", puget(), 8), ("odd", odd, 6)] {
         assert!(!hm.voids().any());
-        let dir = scratch("store-methods", &format!("geomip-{name}")).join("store");
+        let scratch_dir = scratch("store-methods", &format!("geomip-{name}"));
+        let dir = scratch_dir.join("store");
         let config =
             BakeConfig { k, encoding: HeightEncoding::F32, threads: 1, ..Default::default() };
         bake(&hm, &dir, &config, &mut |_: &BakeProgress| ControlFlow::Continue(())).unwrap();
@@ -692,7 +693,6 @@ fn the_geomip_table_from_a_store_equals_the_one_from_memory() {
             terrain_app::geomip_scene::compute_from_store(&store, 16, false).unwrap();
         assert_eq!(table, terrain_core::lod::GeomipTable::new(&hm, 16), "{name}");
         assert_eq!(crc, terrain_core::lod::dss_file::heights_checksum(&hm), "{name}");
-        let _ = std::fs::remove_dir_all(dir.parent().unwrap());
     }
 }
 
@@ -811,7 +811,6 @@ fn an_exaggerated_store_draws_as_the_exaggerated_dem() {
         d.1 * 100.0
     );
     assert!(within_golden(d), "uniform: {d:?}");
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 /// The largest height difference between the corresponding vertices of two surfaces, metres.
@@ -879,7 +878,8 @@ fn geomorph_store_frames_work_on_runs_as_on_patches() {
     // than the coarsest level at the default).
     for (name, hm, px) in [("crater", crater_lake(), None), ("synthetic", synthetic, Some(8.0))] {
         let scene = MethodScene::new(hm, MethodConfig::default());
-        let dir = scratch("store-methods", &format!("morph-runs-{name}")).join("store");
+        let scratch_dir = scratch("store-methods", &format!("morph-runs-{name}"));
+        let dir = scratch_dir.join("store");
         let config =
             BakeConfig { k: 5, encoding: HeightEncoding::F32, threads: 1, ..Default::default() };
         bake(&scene.hm, &dir, &config, &mut |_: &BakeProgress| ControlFlow::Continue(())).unwrap();
@@ -940,6 +940,5 @@ fn geomorph_store_frames_work_on_runs_as_on_patches() {
         }
         println!("{name}: {dropped} blocks dropped, {whole_runs} runs kept, {split_runs} split");
         assert!(dropped > 0 && split_runs > 0 && whole_runs > 0, "{name}: the split path ran");
-        let _ = std::fs::remove_dir_all(dir.parent().unwrap());
     }
 }

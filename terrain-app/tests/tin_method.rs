@@ -266,12 +266,14 @@ fn renders_as_the_full_grid() {
     }
 }
 
-/// `hm` baked into a scratch store with exact f32 heights.
-fn baked(name: &str, hm: &Heightmap) -> Arc<Store> {
-    let dir = common::scratch("tin-store", name).join("store");
+/// `hm` baked into a scratch store with exact f32 heights; the store's folder is removed when
+/// the returned guard is dropped.
+fn baked(name: &str, hm: &Heightmap) -> (common::Scratch, Arc<Store>) {
+    let scratch_dir = common::scratch("tin-store", name);
+    let dir = scratch_dir.join("store");
     let config = BakeConfig { encoding: HeightEncoding::F32, threads: 1, ..Default::default() };
     bake(hm, &dir, &config, &mut |_: &BakeProgress| ControlFlow::Continue(())).unwrap();
-    Arc::new(Store::open(&dir).unwrap())
+    (scratch_dir, Arc::new(Store::open(&dir).unwrap()))
 }
 
 /// `hm` without its void mask: a store keeps the bake's fill heights in its voids and no
@@ -305,7 +307,7 @@ fn tin_from_a_store_selects_and_draws_as_from_memory() {
         config.tin.pyramid.max_tile_cells = Some(config.tin.store.max_tile_cells);
         let scene = MethodScene::new(hm, config);
         let p = scene.tin_pyramid().unwrap();
-        let store = baked(name, &scene.hm);
+        let (_scratch_dir, store) = baked(name, &scene.hm);
         let runtime = OocScene::new(store, OocConfig { threads: 1, ..OocConfig::default() });
         let mut stored = method::store_method(
             LodMethod::Tin,
@@ -351,7 +353,7 @@ fn tin_from_a_store_selects_and_draws_as_from_memory() {
 #[test]
 fn a_frame_before_its_tiles_arrive_draws_coarser_ones_without_waiting() {
     let scene = MethodScene::new(puget(), MethodConfig::default());
-    let store = baked("late", &scene.hm);
+    let (_scratch_dir, store) = baked("late", &scene.hm);
     let config = scene.config.tin;
     let tree = terrain_stream::StoreTree::new(store.clone(), config.pyramid.finest_cells);
     let shape = *terrain_core::quadtree::NodeTree::shape(&tree);
@@ -409,7 +411,7 @@ fn a_frame_before_its_tiles_arrive_draws_coarser_ones_without_waiting() {
 #[test]
 fn store_tiles_meet_their_bounds_against_every_sample() {
     let hm = FractalConfig::with_size(1025, 769, 10.0).to_heightmap().unwrap();
-    let store = baked("full-res", &hm);
+    let (_scratch_dir, store) = baked("full-res", &hm);
     // Tiles at most two strides finer than their own (the default, 5, caps no tile of a grid
     // this small): coarse tiles get raised bounds here.
     let mut config = MethodConfig::default().tin;
@@ -497,7 +499,7 @@ fn store_tiles_meet_their_bounds_against_every_sample() {
 #[test]
 fn the_tile_cache_stays_within_its_budget() {
     let scene = MethodScene::new(puget(), MethodConfig::default());
-    let store = baked("budget", &scene.hm);
+    let (_scratch_dir, store) = baked("budget", &scene.hm);
     let tree = terrain_stream::StoreTree::new(store.clone(), 8);
     let shape = *terrain_core::quadtree::NodeTree::shape(&tree);
     let cameras = crack_cameras(&scene.hm, 6);
@@ -531,7 +533,7 @@ fn tin_from_a_store_draws_no_crack() {
     config.tin.pyramid.max_tile_cells = Some(config.tin.store.max_tile_cells);
     let mut scene = MethodScene::new(puget(), config);
     scene.config.tin.tau_px = 4.0;
-    let store = baked("cracks", &scene.hm);
+    let (_scratch_dir, store) = baked("cracks", &scene.hm);
     let pyramid = scene.tin_pyramid().unwrap().clone();
     let p = &pyramid;
     let cameras = crack_cameras(&scene.hm, 9);
@@ -594,7 +596,7 @@ fn baked_coarse_tiles_are_the_tiles_built_while_flying() {
         BakedTiles, TIN_TILES_FILE, bake_from_store, bake_tiles, store_builder,
     };
     let hm = FractalConfig::with_size(1025, 769, 10.0).to_heightmap().unwrap();
-    let store = baked("baked-tiles", &hm);
+    let (_scratch_dir, store) = baked("baked-tiles", &hm);
     let config = MethodConfig::default().tin;
     let tree = terrain_app::tin_scene::store_tree(&store, &config);
     let shape = *terrain_core::quadtree::NodeTree::shape(&tree);
@@ -818,5 +820,4 @@ fn terrain_render_draws_tin_from_a_baked_store_as_from_memory() {
     let (mean, far) = common::golden_diff(&a, &b);
     println!("store against memory: mean |diff| {mean:.3?}, {:.3} % far off", far * 100.0);
     assert!(mean.iter().all(|&m| m < 2.0) && far < 0.01, "{mean:?} {far}");
-    let _ = std::fs::remove_dir_all(&dir);
 }

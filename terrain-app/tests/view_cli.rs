@@ -298,7 +298,6 @@ fn the_window_shows_what_render_draws_for_the_same_camera() {
     let (_, recoloured) = golden_diff(&window_lod, &window);
     assert!(recoloured > 0.3, "LOD colours changed only {:.3} % of pixels", recoloured * 100.0);
     drop(x);
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 /// `dir/s.scene`: the synthetic terrain of `size`^2 samples baked with its blocks only (no
@@ -382,7 +381,6 @@ fn the_window_closes_cleanly_mid_stream() {
     terrain_core::flight::FlightSpec::load(&recorded)
         .unwrap_or_else(|e| panic!("{}: {e}\n{out}", recorded.display()));
     drop(x);
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 /// A store viewed with `--vertical-scale 2` is read exaggerated, the script's `exaggeration 3`
@@ -504,5 +502,4 @@ fn a_store_frame_is_measured_against_its_own_heights() {
         "{out}"
     );
     drop(x);
-    let _ = std::fs::remove_dir_all(&dir);
 }

@@ -28,12 +28,38 @@ pub(crate) fn terrain(args: &[&str]) -> Output {
         .expect("the terrain binary runs")
 }
 
-/// An empty scratch folder unique to this test process, `test` and `name`.
-pub(crate) fn scratch(test: &str, name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("terrain-{test}-{}-{name}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(&d).unwrap();
-    d
+/// An empty scratch folder `terrain-{test}-{name}-…` in the temporary directory, removed with
+/// everything in it when the returned guard is dropped, also when the test panics.
+pub(crate) fn scratch(test: &str, name: &str) -> Scratch {
+    let dir = tempfile::Builder::new()
+        .prefix(&format!("terrain-{test}-{name}-"))
+        .tempdir()
+        .expect("create scratch folder");
+    Scratch(dir)
+}
+
+/// A scratch folder ([`scratch`]): derefs to its path; removed on drop. Keep it alive as
+/// long as the test uses the folder (bind it to a variable, not `scratch(..).join(..)`), and
+/// drop servers that write there first (declare them after it).
+pub(crate) struct Scratch(tempfile::TempDir);
+
+impl std::ops::Deref for Scratch {
+    type Target = Path;
+    fn deref(&self) -> &Path {
+        self.0.path()
+    }
+}
+
+impl AsRef<Path> for Scratch {
+    fn as_ref(&self) -> &Path {
+        self.0.path()
+    }
+}
+
+impl AsRef<std::ffi::OsStr> for Scratch {
+    fn as_ref(&self) -> &std::ffi::OsStr {
+        self.0.path().as_os_str()
+    }
 }
 
 /// Every file below `dir`, at any depth, sorted by path.
