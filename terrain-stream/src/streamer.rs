@@ -1150,10 +1150,9 @@ mod tests {
     use terrain_core::heightmap::Heightmap;
 
     /// A rough store (a ridge and a hash) where the geometry decides some blocks' levels.
-    fn store(name: &str, spacing: f64) -> Store {
-        let dir = std::env::temp_dir()
-            .join(format!("terrain-stream-streamer-{}-{name}", std::process::id()));
-        let _ = std::fs::remove_dir_all(&dir);
+    /// The store and its folder's guard (removed when dropped, also on a panic).
+    fn store(name: &str, spacing: f64) -> (crate::tests::Scratch, Store) {
+        let dir = crate::tests::scratch_store(&format!("terrain-stream-streamer-{name}-"));
         let hm = Heightmap::from_fn(257, 193, Georef::local(spacing), |i, j| {
             let (x, y) = (i as f32, j as f32);
             200.0 * (x * 0.03).sin() * (y * 0.02).cos()
@@ -1163,14 +1162,15 @@ mod tests {
         let cfg = BakeConfig { k: 5, node_levels: 3, ..Default::default() };
         bake(&hm, &dir, &cfg, &mut |_: &crate::bake::BakeProgress| ControlFlow::Continue(()))
             .unwrap();
-        Store::open(&dir).unwrap()
+        let store = Store::open(&dir).unwrap();
+        (dir, store)
     }
 
     #[test]
     fn needed_level_fast_is_needed_level() {
         let (mut fast, mut walked) = (0usize, 0usize);
         for (name, spacing) in [("fine", 2.0), ("coarse", 30.0)] {
-            let store = store(name, spacing);
+            let (_dir, store) = store(name, spacing);
             let h = store.header().clone();
             let ext = h.georef.spacing_m * dvec2(256.0, 192.0);
             for k in 0..60 {
@@ -1259,7 +1259,7 @@ mod tests {
 
     #[test]
     fn the_bound_is_never_below_the_walk() {
-        let store = store("bound", 5.0);
+        let (_dir, store) = store("bound", 5.0);
         let h = store.header().clone();
         let mut tight = 0;
         for k in 0..40 {

@@ -16,12 +16,8 @@ use crate::{
     bake, bake_shard, merge,
 };
 
-fn scratch(name: &str) -> PathBuf {
-    let d = std::env::temp_dir()
-        .join(format!("terrain-stream-decimation-{}-{name}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(&d).unwrap();
-    d
+fn scratch(name: &str) -> super::Scratch {
+    super::scratch(&format!("terrain-stream-decimation-{name}-"))
 }
 
 fn go(_: &crate::BakeProgress) -> ControlFlow<()> {
@@ -137,7 +133,6 @@ fn every_blocks_errors_are_the_regions_of_the_decoded_samples() {
         ));
         assert_eq!(*table, *Store::open(&out).unwrap().decimation_errors().unwrap().unwrap());
     }
-    std::fs::remove_dir_all(&dir).unwrap();
 }
 
 /// (b), (c) Without the file: `None`. A damaged file (a flipped byte anywhere, cut short),
@@ -195,7 +190,6 @@ fn a_missing_damaged_or_foreign_table_is_none_or_a_typed_error() {
     // The good one back: the same table.
     std::fs::write(&path, &good).unwrap();
     assert_eq!(Store::open(&out).unwrap().decimation_errors().unwrap(), Some(want));
-    std::fs::remove_dir_all(&dir).unwrap();
 }
 
 /// (d) An exaggerated store's values bound the errors of its heights as it reads them (each
@@ -246,7 +240,6 @@ fn an_exaggerated_store_scales_its_decimation_errors() {
         assert!(scale == 0.5 || short > 0, "x {scale}: the control finds no shortfall");
     }
     assert_eq!(plain.decimation_errors().unwrap().unwrap(), base, "the plain store's unchanged");
-    std::fs::remove_dir_all(&dir).unwrap();
 }
 
 /// Bakes `source` as shards `0..n` into `dir/pK`.
@@ -320,5 +313,4 @@ fn a_merged_store_has_the_single_bakes_table() {
         msg.contains("p2") && msg.contains(DECIMATION_FILE) && msg.contains("checksum"),
         "{msg}"
     );
-    std::fs::remove_dir_all(&dir).unwrap();
 }

@@ -8,7 +8,6 @@
 
 use std::collections::HashMap;
 use std::ops::ControlFlow;
-use std::path::PathBuf;
 use std::sync::Arc;
 
 use crate::lod::{
@@ -24,10 +23,8 @@ use terrain_core::lod::{Selection, check_shared_edges};
 use terrain_core::metrics::screen::sight_line_eq7;
 use terrain_core::quadtree::{NodeId, NodeSource};
 
-fn scratch(name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("terrain-stream-lod-{}-{name}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    d
+fn scratch(name: &str) -> super::Scratch {
+    super::scratch_store(&format!("terrain-stream-lod-{name}-"))
 }
 
 /// Rough integer terrain (lossless with 1 m steps): ridges plus a hash-like roughness.
@@ -40,7 +37,7 @@ fn terrain(w: usize, h: usize) -> Heightmap {
     .unwrap()
 }
 
-fn bake_store(hm: &Heightmap, name: &str, k: u8, node_levels: u8) -> (PathBuf, Arc<Store>) {
+fn bake_store(hm: &Heightmap, name: &str, k: u8, node_levels: u8) -> (super::Scratch, Arc<Store>) {
     let dir = scratch(name);
     let cfg = BakeConfig {
         k,
@@ -50,7 +47,8 @@ fn bake_store(hm: &Heightmap, name: &str, k: u8, node_levels: u8) -> (PathBuf, A
     };
     let r = bake(hm, &dir, &cfg, &mut |_: &crate::BakeProgress| ControlFlow::Continue(())).unwrap();
     assert!(r.lossless);
-    (dir.clone(), Arc::new(Store::open(&dir).unwrap()))
+    let store = Arc::new(Store::open(&dir).unwrap());
+    (dir, store)
 }
 
 fn cameras() -> Vec<Camera> {
@@ -92,7 +90,6 @@ fn bound(store: &Store, b: BlockId, n: NodeId) -> f64 {
 /// A copy of store `from`'s folder at `to` whose index is of format version 2 (no fine
 /// maxima), as an earlier bake wrote it.
 fn as_version_2(from: &std::path::Path, to: &std::path::Path) -> Arc<Store> {
-    let _ = std::fs::remove_dir_all(to);
     std::fs::create_dir_all(to.join("blocks")).unwrap();
     for f in std::fs::read_dir(from.join("blocks")).unwrap() {
         let p = f.unwrap().path();
@@ -298,7 +295,7 @@ fn patches_meet_eq7_minimally_and_cover_the_view() {
     // finest levels use the per-level bounds; patches of 4 cells (deep inside the blocks) and
     // of the default size.
     let hm = terrain(257, 257);
-    let (dir, store) = bake_store(&hm, "eq7", 6, 4);
+    let (_dir, store) = bake_store(&hm, "eq7", 6, 4);
     let all: HashMap<BlockId, u8> = store.block_ids().map(|b| (b, 6)).collect();
     let (mut total, mut culled) = (0, 0);
     let mut factors = std::collections::BTreeSet::new();
@@ -367,14 +364,13 @@ fn patches_meet_eq7_minimally_and_cover_the_view() {
     // more blocks: `spanning_patches_meet_eq7_over_their_blocks`. Here a far view draws the
     // whole 4 x 4 blocks as one patch spanning them when its box meets the frustum.
     let _ = culled;
-    std::fs::remove_dir_all(&dir).unwrap();
 }
 
 #[test]
 fn clamped_and_missing_blocks_stay_crack_free() {
     // 150 x 120 samples: the east and north blocks are partly padding (clipped node rects).
     let hm = terrain(150, 120);
-    let (dir, store) = bake_store(&hm, "clamped", 5, 3);
+    let (_dir, store) = bake_store(&hm, "clamped", 5, 3);
     assert_eq!((store.header().blocks_x, store.header().blocks_y), (5, 4));
     let tree = eq7_tree(&store, 4);
     // Resident levels vary per block; one block has nothing resident (not drawn).
@@ -391,7 +387,6 @@ fn clamped_and_missing_blocks_stay_crack_free() {
         }
     }
     assert!(total > 50, "{total} patches");
-    std::fs::remove_dir_all(&dir).unwrap();
 }
 
 /// A patch is split only where even its largest factor (64: its descendants' corners six
@@ -403,7 +398,7 @@ fn patches_split_only_where_their_largest_factor_misses_tau() {
     // 513 x 513 at 10 m in blocks of 257^2 (k = 8, 2 x 2): nodes of 256 and 128 cells can
     // split inside a block (their vertices six levels down are coarser than the samples).
     let hm = terrain(513, 513);
-    let (dir, store) = bake_store(&hm, "split", 8, 4);
+    let (_dir, store) = bake_store(&hm, "split", 8, 4);
     let h = store.header().clone();
     let all: HashMap<BlockId, u8> = store.block_ids().map(|b| (b, 8)).collect();
     let tree = eq7_tree(&store, 32);
@@ -442,7 +437,6 @@ fn patches_split_only_where_their_largest_factor_misses_tau() {
         }
     }
     assert!(inside > 20 && total > inside, "{inside} patches inside blocks of {total}");
-    std::fs::remove_dir_all(&dir).unwrap();
 }
 
 /// The cost split ([`SplitRule::Cost`], 16-cell patches): inside a block a node splits where
@@ -462,7 +456,7 @@ fn cost_split_splits_where_the_children_draw_fewer_triangles() {
     // 513 x 513 at 10 m in blocks of 257^2 (k = 8, 2 x 2), node values to level 4 plus the
     // fine maxima, as a default bake.
     let hm = terrain(513, 513);
-    let (dir, store) = bake_store(&hm, "cost", 8, 5);
+    let (_dir, store) = bake_store(&hm, "cost", 8, 5);
     let all: HashMap<BlockId, u8> = store.block_ids().map(|b| (b, 8)).collect();
     let mut by_cost_at = Vec::new();
     for px in [0u32, 200] {
@@ -474,7 +468,6 @@ fn cost_split_splits_where_the_children_draw_fewer_triangles() {
         by_cost_at[1],
         by_cost_at[0]
     );
-    std::fs::remove_dir_all(&dir).unwrap();
 }
 
 /// [`cost_split_splits_where_the_children_draw_fewer_triangles`] with the floor `px`: the
@@ -590,7 +583,7 @@ fn cost_split_against_brute_force(
 fn spanning_patches_meet_eq7_over_their_blocks() {
     // 513 x 513 at 10 m in blocks of 33^2 (16 x 16 blocks, 4 levels above them).
     let hm = terrain(513, 513);
-    let (dir, store) = bake_store(&hm, "span", 5, 3);
+    let (_dir, store) = bake_store(&hm, "span", 5, 3);
     let h = store.header().clone();
     assert_eq!((h.blocks_x, h.blocks_y), (16, 16));
     let tree = eq7_tree(&store, 32);
@@ -650,7 +643,6 @@ fn spanning_patches_meet_eq7_over_their_blocks() {
     assert!(blocks_spanned > 2 * spanning, "{blocks_spanned} blocks under {spanning} patches");
     assert!(parents > 20, "{parents} parents above the blocks checked");
     assert!(culled > 100, "{culled} cells culled by the frustum");
-    std::fs::remove_dir_all(&dir).unwrap();
 }
 
 /// The segment floor ([`Refinement::max_segment_cells`]): with it, no drawn patch has segments
@@ -662,7 +654,7 @@ fn spanning_patches_meet_eq7_over_their_blocks() {
 fn segment_floor_bounds_every_drawn_segment_and_stays_crack_free() {
     // 513 x 513 at 10 m in blocks of 33^2 (16 x 16 blocks, 4 levels above them).
     let hm = terrain(513, 513);
-    let (dir, store) = bake_store(&hm, "segfloor", 5, 3);
+    let (_dir, store) = bake_store(&hm, "segfloor", 5, 3);
     let h = store.header().clone();
     let all: HashMap<BlockId, u8> = store.block_ids().map(|b| (b, h.k)).collect();
     let cam = |x, y, z, yaw, pitch| Camera::from_yaw_pitch(dvec3(x, y, z), yaw, pitch);
@@ -714,7 +706,6 @@ fn segment_floor_bounds_every_drawn_segment_and_stays_crack_free() {
         assert!(patches > 50, "{patches} patches");
         assert!(coarser_without > 0, "floor {floor}: Eq. 7 alone never drew coarser segments");
     }
-    std::fs::remove_dir_all(&dir).unwrap();
 }
 
 /// The leaves' factor from the tree's per-node arrays (the largest `StaticE` per level under
@@ -727,7 +718,7 @@ fn patch_factor_from_level_maxima_equals_the_walk() {
     let mut compared = 0;
     let mut levels = std::collections::BTreeSet::new();
     for (name, k, node_levels, patch_cells) in [("walk6", 6, 4, 4), ("walk6b", 6, 6, 8)] {
-        let (dir, store) = bake_store(&hm, name, k, node_levels);
+        let (_dir, store) = bake_store(&hm, name, k, node_levels);
         let h = store.header().clone();
         let tree = eq7_tree(&store, patch_cells);
         for cam in cameras() {
@@ -757,7 +748,6 @@ fn patch_factor_from_level_maxima_equals_the_walk() {
                 }
             }
         }
-        std::fs::remove_dir_all(&dir).unwrap();
     }
     assert!(compared > 1000, "{compared}");
     assert!(levels.len() >= 4, "levels reached: {levels:?}");
@@ -778,7 +768,7 @@ fn fine_maxima_select_what_full_depth_node_values_select() {
         (300.0 + 150.0 * (x * 0.05).sin() * (y * 0.04).cos() + rough as f32).round()
     })
     .unwrap();
-    let (full_dir, full) = bake_store(&hm, "full6", 6, 6);
+    let (_full_dir, full) = bake_store(&hm, "full6", 6, 6);
     let (fine_dir, fine) = bake_store(&hm, "fine6", 6, 4);
     let v2_dir = scratch("fine6v2");
     let v2 = as_version_2(&fine_dir, &v2_dir);
@@ -850,9 +840,6 @@ fn fine_maxima_select_what_full_depth_node_values_select() {
     assert!(compared > 100, "{compared} patches");
     assert!(walk_differ > 100, "the version-2 bounds changed {walk_differ} walks");
     assert!(tris[1] >= tris[0], "version 2 draws {} against {}", tris[1], tris[0]);
-    for d in [full_dir, fine_dir, v2_dir] {
-        std::fs::remove_dir_all(d).unwrap();
-    }
 }
 
 /// The view-angle floor of Eq. 6-7 ([`Refinement::view_angle_floor`]): out-of-core `cos(theta)`
@@ -863,7 +850,7 @@ fn fine_maxima_select_what_full_depth_node_values_select() {
 #[test]
 fn the_view_angle_floor_changes_only_views_steeper_than_it() {
     let hm = terrain(257, 257);
-    let (dir, store) = bake_store(&hm, "floor", 6, 6);
+    let (_dir, store) = bake_store(&hm, "floor", 6, 6);
     let all: HashMap<BlockId, u8> = store.block_ids().map(|b| (b, 6)).collect();
     let tree = |floor: f64| {
         let refine = Refinement { view_angle_floor: floor, ..eq7_exact(4) };
@@ -887,7 +874,6 @@ fn the_view_angle_floor_changes_only_views_steeper_than_it() {
     let cam = at(-89.0);
     let [a, b] = [&low, &high].map(|t| select_patches(t, &cam, 1.0, |b| all.get(&b).copied()));
     assert!(a.patches.len() < b.patches.len(), "{} vs {}", a.patches.len(), b.patches.len());
-    let _ = std::fs::remove_dir_all(dir);
 }
 
 /// `demand_of` (blocks and levels folded as the patches come, then sorted) equals the
@@ -1095,7 +1081,7 @@ fn the_tree_keeps_the_current_views_blocks_and_others_within_their_bytes() {
     // camera, with its `sub_max` values computed when read; it then holds only the blocks the
     // last selection visited, where the other holds every block any selection visited.
     let hm = terrain(1025, 1025);
-    let (dir, store) = bake_store(&hm, "visited", 6, 4);
+    let (_dir, store) = bake_store(&hm, "visited", 6, 4);
     let all: HashMap<BlockId, u8> = store.block_ids().map(|b| (b, 6)).collect();
     let free = eq7_tree(&store, 4);
     let tight = eq7_tree(&store, 4).with_visited_bytes(0);
@@ -1128,7 +1114,6 @@ fn the_tree_keeps_the_current_views_blocks_and_others_within_their_bytes() {
     // The tight tree holds the last (short) view's blocks only.
     let (tight_held, tight_bytes) = tight.visited();
     assert!(tight_held * 2 < held && tight_bytes * 2 < bytes, "{tight_held} {tight_bytes} {bytes}");
-    std::fs::remove_dir_all(&dir).unwrap();
 }
 
 #[test]
@@ -1139,7 +1124,8 @@ fn block_sub_max_bottom_up_equals_the_sweep_of_descendants() {
     let mut compared = 0;
     for (k, node_levels) in [(6u8, 5u8), (5, 3), (6, 2)] {
         let (dir, store) = bake_store(&hm, &format!("sub-max-{k}-{node_levels}"), k, node_levels);
-        let v2 = as_version_2(&dir, &scratch(&format!("sub-max-v2-{k}-{node_levels}")));
+        let v2_dir = scratch(&format!("sub-max-v2-{k}-{node_levels}"));
+        let v2 = as_version_2(&dir, &v2_dir);
         for s in [&store, &v2] {
             for patch_level in 0..=k {
                 for b in s.block_ids() {
@@ -1163,7 +1149,8 @@ fn the_fine_maxima_pyramid_equals_the_sweep_of_descendants() {
     let (mut compared, mut positive) = (0, 0);
     for (k, node_levels) in [(6u8, 5u8), (5, 3), (6, 4)] {
         let (dir, store) = bake_store(&hm, &format!("fine-pyr-{k}-{node_levels}"), k, node_levels);
-        let v2 = as_version_2(&dir, &scratch(&format!("fine-pyr-v2-{k}-{node_levels}")));
+        let v2_dir = scratch(&format!("fine-pyr-v2-{k}-{node_levels}"));
+        let v2 = as_version_2(&dir, &v2_dir);
         for s in [&store, &v2] {
             for b in s.block_ids() {
                 for (fast, sweep) in crate::lod::below_bound_both(s, b).unwrap() {

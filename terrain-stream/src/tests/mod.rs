@@ -8,6 +8,45 @@ mod remote;
 mod runtime;
 mod store;
 
+/// A test's folder in the temporary directory, removed with everything in it when dropped,
+/// also when the test panics; derefs to its path (the temporary folder itself, or a
+/// not-yet-made `store` folder in it for a bake that makes its output).
+pub(crate) struct Scratch {
+    _dir: tempfile::TempDir,
+    path: std::path::PathBuf,
+}
+
+impl std::ops::Deref for Scratch {
+    type Target = std::path::Path;
+    fn deref(&self) -> &std::path::Path {
+        &self.path
+    }
+}
+
+impl AsRef<std::path::Path> for Scratch {
+    fn as_ref(&self) -> &std::path::Path {
+        &self.path
+    }
+}
+
+fn temp(prefix: &str) -> tempfile::TempDir {
+    tempfile::Builder::new().prefix(prefix).tempdir().expect("create a temporary folder")
+}
+
+/// An empty temporary folder named `{prefix}…`.
+pub(crate) fn scratch(prefix: &str) -> Scratch {
+    let dir = temp(prefix);
+    let path = dir.path().to_path_buf();
+    Scratch { _dir: dir, path }
+}
+
+/// `store`, not yet made, in a new temporary folder named `{prefix}…` (a bake's output).
+pub(crate) fn scratch_store(prefix: &str) -> Scratch {
+    let dir = temp(prefix);
+    let path = dir.path().join("store");
+    Scratch { _dir: dir, path }
+}
+
 /// Raw 64-bit numbers from Vigna's xorshift64* (12, 25, 27, multiplier 0x2545F4914F6CDD1D)
 /// for the crate's randomized tests: deterministic, platform-independent; a zero seed is
 /// taken as 1.

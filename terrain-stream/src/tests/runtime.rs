@@ -21,10 +21,8 @@ use glam::dvec3;
 use terrain_core::geometry::Camera;
 use terrain_core::synth::FractalConfig;
 
-fn store(name: &str) -> (std::path::PathBuf, Arc<Store>) {
-    let dir = std::env::temp_dir().join(format!("terrain-stream-rt-{}-{name}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).unwrap();
+fn store(name: &str) -> (super::Scratch, Arc<Store>) {
+    let dir = super::scratch(&format!("terrain-stream-rt-{name}-"));
     super::bake_wave_513(&dir.join("s"));
     let s = Arc::new(Store::open(dir.join("s")).unwrap());
     (dir, s)
@@ -40,7 +38,7 @@ fn camera(y: f64) -> Camera {
 
 #[test]
 fn a_real_time_flight_stays_in_budget_and_counts_late_data() {
-    let (dir, store) = store("flight");
+    let (_dir, store) = store("flight");
     let budget = 600_000;
     // The paper's one-frame Eq. 8 look-ahead (the default), real time: no `finish_loads`.
     let config = StreamConfig { budget_bytes: budget, threads: 2, tau: 4.0, ..Default::default() };
@@ -83,7 +81,6 @@ fn a_real_time_flight_stays_in_budget_and_counts_late_data() {
     let direct = store.read_block(b, (levels.count() - 1) as u8).unwrap();
     assert_eq!(levels.grid(1), direct.grid(1));
     drop(s);
-    std::fs::remove_dir_all(&dir).unwrap();
 }
 
 /// A reader whose worker reads of levels above 0 wait until the test opens the gate (latency
@@ -141,7 +138,7 @@ impl LevelReader for Gated {
 
 #[test]
 fn preloading_counts_the_requests_still_in_flight_against_the_budget() {
-    let (dir, store) = store("inflight");
+    let (_dir, store) = store("inflight");
     let reader = Gated::new(store.clone());
     // Level 0 of every block resident (the first frame), every finer level held at the gate,
     // and a budget a little above that: the pre-loading region cannot all fit.
@@ -173,12 +170,11 @@ fn preloading_counts_the_requests_still_in_flight_against_the_budget() {
         assert_eq!(resident, level0);
         assert!(needed > budget && queued <= needed, "frame {f}: {frames:?}");
     }
-    std::fs::remove_dir_all(&dir).unwrap();
 }
 
 #[test]
 fn frames_never_block_on_a_slow_reader_and_stale_requests_are_dropped() {
-    let (dir, store) = store("slow");
+    let (_dir, store) = store("slow");
     let reader = Gated::new(store.clone());
     // Only level 0 on the first frame (of every block: pinned); every finer level is held at
     // the gate.
@@ -249,12 +245,11 @@ fn frames_never_block_on_a_slow_reader_and_stale_requests_are_dropped() {
     let st = s.finish_loads();
     assert_eq!((st.queue_depth, st.queued_bytes), (0, 0), "{st:?}");
     drop(s);
-    std::fs::remove_dir_all(&dir).unwrap();
 }
 
 #[test]
 fn the_preloading_region_takes_half_the_in_flight_cap_and_the_view_all_of_it() {
-    let (dir, store) = store("half");
+    let (_dir, store) = store("half");
     let cap = 4;
     let config = |coarse_level| StreamConfig {
         threads: 1,
@@ -293,12 +288,11 @@ fn the_preloading_region_takes_half_the_in_flight_cap_and_the_view_all_of_it() {
     // The next frame adds nothing: the half is full.
     assert_eq!(s.update(&camera(-500.0)).queue_depth, cap / 2);
     drop(s);
-    std::fs::remove_dir_all(&dir).unwrap();
 }
 
 #[test]
 fn held_io_delivers_nothing_until_released() {
-    let (dir, store) = store("hold");
+    let (_dir, store) = store("hold");
     let config = StreamConfig { threads: 2, tau: 3.0, coarse_level: 0, ..Default::default() };
     let mut s = Streamer::new(store.clone(), config);
     // The first frame reads level 0 (held or not: it waits on purpose), then its finer
@@ -330,13 +324,12 @@ fn held_io_delivers_nothing_until_released() {
     }
     assert!(arrived > 0, "released workers deliver");
     drop(s);
-    std::fs::remove_dir_all(&dir).unwrap();
 }
 
 #[test]
 fn wait_until_resident_leaves_every_needed_level_resident() {
     // The embedding example's run: 20 real-time frames on one worker, then a wait.
-    let dir = std::env::temp_dir().join(format!("terrain-stream-rt-{}-embed", std::process::id()));
+    let dir = super::scratch_store("terrain-stream-rt-embed-");
     let source = FractalConfig::with_size(257, 257, 10.0);
     let config = BakeConfig { k: 6, overwrite: true, ..Default::default() };
     bake(&source, &dir, &config, &mut |_: &crate::BakeProgress| ControlFlow::Continue(())).unwrap();
@@ -375,12 +368,11 @@ fn wait_until_resident_leaves_every_needed_level_resident() {
         assert!(s.block(b.block).unwrap().count() > b.needed as usize, "{}", b.block);
     }
     drop(s);
-    std::fs::remove_dir_all(&dir).unwrap();
 }
 
 #[test]
 fn a_methods_levels_one_look_ahead_ahead_are_preloaded() {
-    let (dir, store) = store("ahead");
+    let (_dir, store) = store("ahead");
     let k = store.header().k;
     let config = StreamConfig { threads: 2, tau: 4.0, ..Default::default() };
     // Two runs with the same method demand: level 1 of the view's blocks now. One is also told
@@ -422,12 +414,11 @@ fn a_methods_levels_one_look_ahead_ahead_are_preloaded() {
     assert!(far.visible && far.target == k, "{far:?}");
     assert_eq!(held, usize::from(k) + 1, "the finest level is preloaded");
     assert!(other_held >= 3, "the block drawn only ahead is preloaded to level 2: {other_held}");
-    std::fs::remove_dir_all(&dir).unwrap();
 }
 
 #[test]
 fn a_methods_own_levels_ahead_replace_eq7s_prediction_and_keep_the_shading_ahead() {
-    let (dir, store) = store("own-ahead");
+    let (_dir, store) = store("own-ahead");
     // A fine Eq. 7 threshold, so its prediction asks fine levels near the eye; a coarse method
     // (level 0 of every block it draws, now and one look-ahead ahead).
     let config = StreamConfig { threads: 1, tau: 0.05, ..Default::default() };
@@ -457,12 +448,11 @@ fn a_methods_own_levels_ahead_replace_eq7s_prediction_and_keep_the_shading_ahead
     let shaded = own.iter().filter(|o| o.target > o.needed).count();
     assert!(shaded > 0, "the shading ahead is preloaded: {own:?}");
     assert!(own.iter().all(|o| o.target >= o.needed));
-    std::fs::remove_dir_all(&dir).unwrap();
 }
 
 #[test]
 fn a_cut_is_not_extrapolated_as_a_motion() {
-    let (dir, store) = store("cut");
+    let (_dir, store) = store("cut");
     // The look-ahead held at one frame (not grown by the measured latency).
     let mut config = StreamConfig { threads: 1, tau: 4.0, ..Default::default() };
     config.schedule.latency_aware = false;
@@ -490,7 +480,6 @@ fn a_cut_is_not_extrapolated_as_a_motion() {
     assert_eq!(ahead.position.y, on.position.y + 20.0);
     s.update(&on);
     assert!(s.regions().unwrap().s_m > 0.0);
-    std::fs::remove_dir_all(&dir).unwrap();
 }
 
 /// The blocks of M and the level each needs for a camera sequence (a planning run: the
@@ -623,7 +612,6 @@ fn a_block_deleted_mid_flight_is_a_fault_not_a_panic() {
         assert!(levels.count() > b.needed as usize, "{}", b.block);
     }
     drop(s);
-    std::fs::remove_dir_all(&dir).unwrap();
 }
 
 /// The streamer's visual region M is the blocks of the projected view triangle whose box meets
@@ -635,7 +623,7 @@ fn a_block_deleted_mid_flight_is_a_fault_not_a_panic() {
 fn the_needed_set_follows_the_frustum_and_nothing_behind_the_eye_is_loaded() {
     use crate::schedule::{block_rect, blocks_under_bbox, polygon_meets_rect};
     use terrain_core::geometry::{Aabb, Classification, Frustum};
-    let (dir, store) = store("frustum");
+    let (_dir, store) = store("frustum");
     let h = store.header().clone();
     let config =
         StreamConfig { budget_bytes: 64 << 20, threads: 1, tau: 2.0, ..Default::default() };
@@ -689,5 +677,4 @@ fn the_needed_set_follows_the_frustum_and_nothing_behind_the_eye_is_loaded() {
     assert!(left_out_below > 0, "no block of the view triangle outside the frustum");
     assert!(left_out_behind > 0, "no block of the extension behind the eye");
     drop(s);
-    std::fs::remove_dir_all(&dir).unwrap();
 }

@@ -2,7 +2,7 @@
 //! atomic output, typed errors for corrupt, truncated, changed and missing files.
 
 use std::ops::ControlFlow;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 use crate::format::{INDEX_VERSION, block_file_name, vertex_index};
 use crate::{
@@ -11,11 +11,8 @@ use crate::{
 use terrain_core::Georef;
 use terrain_core::heightmap::Heightmap;
 
-fn scratch(name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("terrain-stream-test-{}-{name}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(&d).unwrap();
-    d
+fn scratch(name: &str) -> super::Scratch {
+    super::scratch(&format!("terrain-stream-test-{name}-"))
 }
 
 fn go(_: &crate::BakeProgress) -> ControlFlow<()> {
@@ -119,7 +116,6 @@ fn puget_sound_1k_is_lossless_and_deterministic() {
     assert_eq!(store.header().georef, *dem.heightmap.georef());
     // Non-redundant levels: the store is smaller than the 16-bit raw grid (predictive codec).
     assert!(a.store_bytes < 1025 * 1025 * 2, "{} bytes", a.store_bytes);
-    std::fs::remove_dir_all(&dir).unwrap();
 }
 
 #[test]
@@ -159,7 +155,6 @@ fn float_sources_meet_the_stated_bound_and_padding_is_marked() {
         }
         check_heights(&store, &hm, tol as f32);
     }
-    std::fs::remove_dir_all(&dir).unwrap();
 }
 
 #[test]
@@ -182,7 +177,6 @@ fn an_interrupted_bake_leaves_no_valid_store() {
     bake(&hm, &out, &cfg, &mut go).unwrap();
     assert!(matches!(bake(&hm, &out, &cfg, &mut go), Err(BakeError::Exists { .. })));
     bake(&hm, &out, &BakeConfig { overwrite: true, ..cfg }, &mut go).unwrap();
-    std::fs::remove_dir_all(&dir).unwrap();
 }
 
 #[test]
@@ -296,7 +290,6 @@ fn corrupt_truncated_changed_and_missing_files_are_typed_errors() {
     }
     std::fs::write(&ip, &index).unwrap();
     assert!(Store::open(&out).is_ok());
-    std::fs::remove_dir_all(&dir).unwrap();
 }
 
 #[test]
@@ -322,7 +315,6 @@ fn the_papers_vertex_order_holds_in_a_store() {
     assert_eq!(seq.len(), 25);
     assert_eq!(seq[21], 18);
     assert_eq!(&seq[..4], &[0, 4, 20, 24]);
-    std::fs::remove_dir_all(&dir).unwrap();
 }
 
 #[test]
@@ -368,7 +360,6 @@ fn the_index_holds_the_dss_object_errors_of_every_block() {
     }
     assert_eq!(nonzero, store.header().block_count());
     assert!(store.has_dss_errors());
-    std::fs::remove_dir_all(&dir).unwrap();
 }
 
 #[test]
@@ -403,7 +394,6 @@ fn a_bake_without_dss_errors_says_so_and_keeps_everything_else() {
             );
         }
     }
-    std::fs::remove_dir_all(&dir).unwrap();
 }
 
 #[test]
@@ -475,7 +465,6 @@ fn an_exaggerated_store_reads_as_the_store_of_scaled_heights() {
         let e = plain.exaggerated(bad).unwrap_err();
         assert!(matches!(e, StoreError::Exaggeration { .. }), "{bad}: {e}");
     }
-    std::fs::remove_dir_all(&dir).unwrap();
 }
 
 /// Every bake writes `overview.bin`: levels 0-4 of every block in one file, read instead of
@@ -551,5 +540,4 @@ fn the_overview_serves_the_coarse_levels_and_names_its_faults() {
     // The bake's own overview back: the store reads.
     std::fs::write(&ov, &bytes).unwrap();
     assert_eq!(every(&Store::open(&out).unwrap(), 0..=4), with);
-    std::fs::remove_dir_all(&dir).unwrap();
 }
