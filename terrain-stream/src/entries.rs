@@ -174,8 +174,7 @@ mod tests {
     /// any number of entries (none included) and any tail; a wrong prefix length is refused.
     #[test]
     fn the_streamed_file_is_the_file_built_whole() {
-        let dir = std::env::temp_dir().join(format!("terrain-entries-{}", std::process::id()));
-        std::fs::create_dir_all(&dir).unwrap();
+        let dir = crate::tests::scratch("terrain-entries-");
         let path = dir.join("f");
         for (n, tail) in [(0u32, &b""[..]), (1, &b"t"[..]), (300, &b"tail bytes"[..])] {
             let prefix = b"PREFIX-of-some-length";
@@ -199,6 +198,5 @@ mod tests {
         // Negative control: a prefix of another length than reserved is an error, not a file.
         let f = EntryFile::create(path.clone(), 4).unwrap();
         assert!(matches!(f.finish(b"12345", b""), Err(BakeError::Encoding(_))));
-        std::fs::remove_dir_all(&dir).unwrap();
     }
 }

@@ -787,10 +787,10 @@ mod tests {
     use terrain_core::synth::FractalConfig;
 
     /// A scratch folder named after `name`, and the part of a single-shard bake of a 301 x 203
-    /// synthetic grid (k = 6: 20 blocks) in it.
-    fn baked_part(name: &str) -> (PathBuf, PathBuf) {
-        let dir = std::env::temp_dir().join(format!("terrain-shard-{name}-{}", std::process::id()));
-        let _ = fs::remove_dir_all(&dir);
+    /// synthetic grid (k = 6: 20 blocks) in it; the folder is removed when the guard is dropped
+    /// (also when the test panics).
+    fn baked_part(name: &str) -> (crate::tests::Scratch, PathBuf) {
+        let dir = crate::tests::scratch(&format!("terrain-shard-{name}-"));
         let part = dir.join("p0");
         let config = BakeConfig { k: 6, threads: 2, ..BakeConfig::default() };
         let source = FractalConfig::with_size(301, 203, 10.0);
@@ -804,7 +804,7 @@ mod tests {
     /// (the merge reads 1,024 at a time; a test grid has fewer blocks than that).
     #[test]
     fn entries_read_in_batches_are_the_same_entries() {
-        let (dir, part) = baked_part("batches");
+        let (_dir, part) = baked_part("batches");
         let info = read_part(&part).unwrap();
         assert_eq!(info.blocks(), 20);
         let read = |batch_len: usize| {
@@ -825,7 +825,6 @@ mod tests {
             assert_eq!(entries, whole, "batches of {batch_len}");
             assert_eq!(sizes.len(), 20usize.div_ceil(batch_len), "batches of {batch_len}");
         }
-        let _ = fs::remove_dir_all(&dir);
     }
 
     /// A part's prefix cut anywhere before its entry count, inside its own fields or inside
@@ -833,7 +832,7 @@ mod tests {
     /// prefix parses, and a damaged header field is damage.
     #[test]
     fn a_prefix_cut_anywhere_is_short_and_a_damaged_one_is_bad() {
-        let (dir, part) = baked_part("prefix");
+        let (_dir, part) = baked_part("prefix");
         let bytes = fs::read(part.join(PART_FILE)).unwrap();
         let (info, n) = match parse_prefix(&part, &bytes) {
             Ok(parsed) => parsed,
@@ -862,6 +861,5 @@ mod tests {
         assert!(
             matches!(parse_prefix(&part, &damaged), Err(PrefixError::Bad(m)) if m.contains("out of range"))
         );
-        let _ = fs::remove_dir_all(&dir);
     }
 }

@@ -4,7 +4,7 @@
 //! selections as a cache that holds it all.
 
 use std::collections::HashMap;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::sync::Arc;
 
 use glam::dvec3;
@@ -20,9 +20,9 @@ use crate::{
 
 /// A 513^2 store (k = 6, 8 x 8 blocks) with 5 node levels, so that an entry is about 5.6 KB
 /// and the index has several pages.
-fn paged_store(name: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("terrain-pages-{}-{name}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
+/// The store's folder is removed (with the copies made beside it) when the guard is dropped.
+fn paged_store(name: &str) -> super::Scratch {
+    let dir = super::scratch_store(&format!("terrain-pages-{name}-"));
     let hm = Heightmap::from_fn(513, 513, Georef::local(10.0), |i, j| {
         300.0
             + 250.0 * ((i as f32) * 0.013).sin() * ((j as f32) * 0.021).cos()
@@ -97,9 +97,6 @@ fn a_paged_index_reads_every_entry_as_the_whole_index_does() {
     let older = Store::open(&v2).unwrap();
     assert!(!older.has_fine_errors());
     assert_eq!(older.entry(id).unwrap().nodes, whole[header.block_position(id).unwrap()].nodes);
-    for d in [dir, v3, v2] {
-        std::fs::remove_dir_all(d).unwrap();
-    }
 }
 
 #[test]
@@ -170,7 +167,6 @@ fn a_damaged_page_is_named_and_the_others_still_read() {
     b.push(0);
     std::fs::write(dir.join(INDEX_FILE), &b).unwrap();
     assert!(matches!(Store::open(&dir), Err(StoreError::CorruptIndex { .. })));
-    std::fs::remove_dir_all(dir).unwrap();
 }
 
 #[test]
@@ -217,8 +213,6 @@ fn a_cache_smaller_than_the_index_serves_the_same_selections() {
         let b = select_patches(&ts, c, 2.0, |b| all.get(&b).copied());
         assert_eq!(format!("{:?}", a.patches), format!("{:?}", b.patches));
     }
-    std::fs::remove_dir_all(dir).unwrap();
-    std::fs::remove_dir_all(v3).unwrap();
 }
 
 #[test]
@@ -260,15 +254,13 @@ fn the_blocks_box_and_nearest_block_equal_the_brute_force_over_every_entry() {
         far += usize::from(brute > 100.0);
     }
     assert!(far >= 2, "the points must include some away from the blocks");
-    std::fs::remove_dir_all(dir).unwrap();
 }
 
 #[test]
 fn a_grid_beyond_the_head_pyramid_selects_as_the_whole_read_tree_without_reading_every_entry() {
     // 4097 x 17 samples in blocks of 8 cells: 512 x 2 blocks, 9 levels above the blocks, one
     // more than the head's pyramid holds (`HEAD_LEVELS`).
-    let dir = std::env::temp_dir().join(format!("terrain-pages-{}-deep", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
+    let dir = super::scratch_store("terrain-pages-deep-");
     let hm = Heightmap::from_fn(4097, 17, Georef::local(10.0), |i, j| {
         300.0 + 250.0 * ((i as f32) * 0.0031).sin() + ((i * 7 + j * 13) % 23) as f32
     })
@@ -317,8 +309,6 @@ fn a_grid_beyond_the_head_pyramid_selects_as_the_whole_read_tree_without_reading
             assert_eq!(format!("{a:?}"), format!("{b:?}"), "node {n:?}");
         }
     }
-    std::fs::remove_dir_all(dir).unwrap();
-    std::fs::remove_dir_all(v3).unwrap();
 }
 
 #[test]
@@ -376,5 +366,4 @@ fn a_streamers_frames_read_the_index_once_not_every_frame() {
         // again would decode pages every frame).
         assert!(decoded.iter().all(|(a, b)| a == b), "demand {demand}: {decoded:?} of {pages}");
     }
-    std::fs::remove_dir_all(dir).unwrap();
 }

@@ -157,12 +157,9 @@ fn serve(
     Ok(())
 }
 
-fn temp(name: &str) -> PathBuf {
-    let dir =
-        std::env::temp_dir().join(format!("terrain-stream-remote-{}-{name}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).unwrap();
-    dir
+/// A temporary folder for one test, removed when dropped (also when the test panics).
+fn temp(name: &str) -> super::Scratch {
+    super::scratch(&format!("terrain-stream-remote-{name}-"))
 }
 
 /// A 513^2 store with k = 6 (as the runtime tests'), in `dir/store`.
@@ -292,7 +289,6 @@ fn a_store_over_http_reads_as_the_local_one_and_a_second_open_reads_the_disk_cac
     assert!(matches!(err, StoreError::Remote { .. }), "{err}");
     assert!(err.to_string().contains("/nothing") && err.to_string().contains("index.tsi"), "{err}");
     drop(server);
-    std::fs::remove_dir_all(&dir).unwrap();
 }
 
 /// An older (version-3) index at a URL is fetched whole once: a later open with the same
@@ -350,7 +346,6 @@ fn an_older_index_is_fetched_whole_once_and_checked_against_the_mirror() {
     assert_eq!(fourth.header().bake_id, h.bake_id ^ 1);
     assert_eq!(index_gets(&server.log).len(), 2, "another bake's index fetched whole");
     drop(server);
-    std::fs::remove_dir_all(&dir).unwrap();
 }
 
 /// Byte offset where level `level` of each block ends (exclusive), from the index.
@@ -422,7 +417,6 @@ fn flight_over_a_bad_server(name: &str, action: Action) {
     }
     drop(s);
     drop(server);
-    std::fs::remove_dir_all(&dir).unwrap();
 }
 
 #[test]
@@ -475,7 +469,6 @@ fn a_remote_store_streams_with_many_workers() {
     assert!(requests > 3, "{requests} requests");
     assert_eq!(started, 3);
     drop(server);
-    std::fs::remove_dir_all(&dir).unwrap();
 }
 
 /// Part files (`NAME.partPID-K`) of side table `name` anywhere under `cache`.
@@ -550,5 +543,4 @@ fn a_remote_table_leaves_no_part_until_read_and_stores_opened_apart_share_its_ch
     d.side_table("side.bin").unwrap().unwrap().read_at(5 * 4096, &mut buf).unwrap();
     assert_eq!(gets(&server.log), 4);
     drop((c, d));
-    let _ = std::fs::remove_dir_all(&dir);
 }
