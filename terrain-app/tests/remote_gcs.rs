@@ -100,7 +100,7 @@ impl FakeGcs {
             .spawn()
             .expect("fake-gcs-server runs");
         wait_for(port, "fake-gcs-server", &mut child, &[&log]);
-        FakeGcs { server: Server { child, port }, log }
+        FakeGcs { server: Server::new(child, port), log }
     }
 
     fn url(&self) -> String {

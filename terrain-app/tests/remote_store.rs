@@ -57,7 +57,7 @@ fn nginx(dir: &Path, root: &Path, location: &str) -> Server {
         .spawn()
         .expect("nginx runs (Debian package nginx; .ci/run installs it)");
     wait_for(port, "nginx", &mut child, &[&log]);
-    Server { child, port }
+    Server::new(child, port)
 }
 
 #[test]
@@ -668,7 +668,7 @@ fn a_store_baked_to_azurite_reads_as_the_local_bake() {
         .spawn()
         .expect("azurite-blob runs (node)");
     wait_for(port, "Azurite (azurite-blob)", &mut child, &[&log, &dir.join("azurite.err")]);
-    let server = Server { child, port };
+    let server = Server::new(child, port);
     // The container, with a request signed by the emulator's well-known key.
     let made = Command::new("python3")
         .arg(Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/azurite/container.py"))
@@ -741,7 +741,7 @@ fn start_weed(dir: &Path, attempt: usize) -> Server {
     let port = free_ports(8);
     let (master, volume, filer, s3) = (port[0], port[1], port[2], port[3]);
     let err = dir.join(format!("weed-{attempt}.err"));
-    let mut child = Command::new(weed())
+    let child = Command::new(weed())
         .args([
             "server",
             "-ip=127.0.0.1",
@@ -763,15 +763,27 @@ fn start_weed(dir: &Path, attempt: usize) -> Server {
             "-volume.max=5",
             "-master.volumeSizeLimitMB=64",
         ])
-        // weed's Unix sockets (seaweedfs-*.sock) and glog files go to $TMPDIR: into the
-        // test's scratch folder, removed with it, not left in /tmp.
+        // weed's glog files (weed.*.log.*) go to $TMPDIR: into the test's scratch folder,
+        // removed with it, not left in /tmp (its sockets do not follow: see below).
         .env("TMPDIR", &data)
         .stdout(std::fs::File::create(dir.join(format!("weed-{attempt}.log"))).unwrap())
         .stderr(std::fs::File::create(&err).unwrap())
         .spawn()
         .expect("weed runs");
-    wait_for(s3, "SeaweedFS (weed server -s3)", &mut child, &[&err]);
-    Server { child, port: s3 }
+    // The Unix sockets weed makes in /tmp whatever TMPDIR says (seaweedfs-s3-PORT.sock,
+    // seaweedfs-master-grpc-PORT.sock, ...), one per listener at most: removed when the server
+    // is dropped.
+    let kinds = ["master", "volume", "filer", "s3"];
+    let leftovers = kinds
+        .iter()
+        .flat_map(|k| [format!("{k}-"), format!("{k}-grpc-")])
+        .flat_map(|k| port.iter().map(move |p| format!("/tmp/seaweedfs-{k}{p}.sock")))
+        .map(PathBuf::from)
+        .collect();
+    let mut server = Server::new(child, s3);
+    server.leftovers = leftovers;
+    wait_for(s3, "SeaweedFS (weed server -s3)", &mut server.child, &[&err]);
+    server
 }
 
 /// Whether weed still runs, and the error and fatal lines of its log `err`: what a failed

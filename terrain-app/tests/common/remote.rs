@@ -59,14 +59,23 @@ pub(crate) fn wait_for(port: u16, what: &str, child: &mut Child, logs: &[&Path])
     panic!("{what} did not answer on 127.0.0.1:{port} within {WAIT:?}:\n{}", said());
 }
 
-/// A server process stopped on drop: SIGTERM, then waited for (never left running).
+/// A server process stopped on drop: SIGTERM, then waited for (never left running); then the
+/// files it made outside the test's scratch folder (`leftovers`) are removed.
 pub(crate) struct Server {
     pub(crate) child: Child,
     pub(crate) port: u16,
+    /// Files the server writes where it cannot be told otherwise (weed's Unix sockets in
+    /// /tmp), removed once it has stopped.
+    pub(crate) leftovers: Vec<PathBuf>,
 }
 
-impl Drop for Server {
-    fn drop(&mut self) {
+impl Server {
+    /// A server with nothing to remove but its process.
+    pub(crate) fn new(child: Child, port: u16) -> Self {
+        Server { child, port, leftovers: Vec::new() }
+    }
+
+    fn stop(&mut self) {
         let _ = Command::new("kill").args(["-TERM", &self.child.id().to_string()]).status();
         let start = Instant::now();
         while start.elapsed() < Duration::from_secs(10) {
@@ -77,6 +86,15 @@ impl Drop for Server {
         }
         let _ = self.child.kill();
         let _ = self.child.wait();
+    }
+}
+
+impl Drop for Server {
+    fn drop(&mut self) {
+        self.stop();
+        for p in &self.leftovers {
+            let _ = std::fs::remove_file(p);
+        }
     }
 }
 
