@@ -14,6 +14,8 @@
 //! a merge refuses missing, duplicated, foreign and damaged parts by name; a shard that died
 //! is baked again alone, the other parts untouched.
 
+mod common;
+
 use std::collections::BTreeMap;
 use std::io::Write;
 use std::ops::ControlFlow;
@@ -26,11 +28,10 @@ use terrain_stream::{
     BakeConfig, BakeError, HeightSource, MergeConfig, Shard, bake, bake_shard, find_parts, merge,
 };
 
-fn scratch(name: &str) -> PathBuf {
-    let d =
-        std::env::temp_dir().join(format!("terrain-stream-bytes-{}-{name}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    d
+/// `name`, not yet made, in a temporary folder of its own, removed when dropped (also when
+/// the test panics).
+fn scratch(name: &str) -> common::Scratch {
+    common::scratch("terrain-stream-bytes-", name)
 }
 
 /// Every file of a store folder (relative path -> bytes).
@@ -51,7 +52,7 @@ fn files(dir: &Path) -> BTreeMap<String, Vec<u8>> {
     out
 }
 
-fn bake_dir(source: &dyn HeightSource, name: &str, threads: usize) -> PathBuf {
+fn bake_dir(source: &dyn HeightSource, name: &str, threads: usize) -> common::Scratch {
     let out = scratch(name);
     let cfg = BakeConfig { k: 6, threads, geomip_patch_cells: Some(16), ..BakeConfig::default() };
     bake(source, &out, &cfg, &mut |_| ControlFlow::Continue(())).unwrap();
@@ -111,10 +112,6 @@ fn a_bake_is_the_same_bytes_whatever_way_its_rows_arrive() {
     let other = bake_dir(&changed, "changed", 2);
     let diff = first_difference(&generated, &other).expect("a changed sample changes the store");
     assert!(diff.contains("blocks") || diff.contains("index"), "{diff}");
-
-    for d in [generated, in_memory, from_file, other, raw.parent().unwrap().to_path_buf()] {
-        let _ = std::fs::remove_dir_all(d);
-    }
 }
 
 #[test]
@@ -148,9 +145,6 @@ fn the_geomorph_table_written_band_by_band_has_the_pinned_bytes() {
     let other = bake_dir(&changed, "geomip-pinned-changed", 2);
     let changed = std::fs::read(other.join(terrain_stream::GEOMIP_FILE)).unwrap();
     assert_ne!(crc(&changed), PINNED);
-    for d in [out, other] {
-        let _ = std::fs::remove_dir_all(d);
-    }
 }
 
 #[test]
@@ -185,9 +179,6 @@ fn the_index_written_entry_by_entry_has_the_pinned_bytes() {
     let other = bake_dir(&changed, "index-pinned-changed", 2);
     let changed = std::fs::read(other.join(terrain_stream::INDEX_FILE)).unwrap();
     assert_ne!(crc(&changed), PINNED);
-    for d in [out, other] {
-        let _ = std::fs::remove_dir_all(d);
-    }
 }
 
 // --- Sharded bakes: parts merged into the same bytes ------------------------------------------
@@ -260,9 +251,7 @@ fn a_merged_store_is_the_bytes_of_a_single_bake() {
             assert_eq!(first_difference(&single, &out), None, "{name}, {n} shards");
             // A folder of parts is found whole.
             assert_eq!(find_parts(&dir).unwrap(), parts, "{name}, {n} shards");
-            let _ = std::fs::remove_dir_all(dir);
         }
-        let _ = std::fs::remove_dir_all(single);
     }
 
     // Negative control: shard 1 of 2 baked from a grid with one sample 5 m higher (and the
@@ -280,9 +269,6 @@ fn a_merged_store_is_the_bytes_of_a_single_bake() {
     merge_into(&parts, &dir.join("merged")).unwrap();
     let diff = first_difference(&single, &dir.join("merged")).expect("a changed sample shows");
     assert!(diff.contains("blocks") || diff.contains("index"), "{diff}");
-    for d in [single, dir, other] {
-        let _ = std::fs::remove_dir_all(d);
-    }
 }
 
 /// Every file of a folder with its modification time, to show a folder was left alone.
@@ -351,9 +337,6 @@ fn a_merge_refuses_missing_duplicated_and_foreign_parts_by_name() {
     assert!(!out.exists());
     assert!("3/3".parse::<Shard>().is_err() && "1-3".parse::<Shard>().is_err());
     assert_eq!("2/3".parse::<Shard>().unwrap(), Shard::new(2, 3).unwrap());
-    for d in [dir, foreign] {
-        let _ = std::fs::remove_dir_all(d);
-    }
 }
 
 #[test]
@@ -390,7 +373,4 @@ fn a_dead_shard_is_baked_again_alone() {
     // The parts are only read by a merge: merging again into another folder works.
     merge_into(&find_parts(&dir).unwrap(), &dir.join("merged-again")).unwrap();
     assert_eq!(first_difference(&single, &dir.join("merged-again")), None);
-    for d in [single, dir] {
-        let _ = std::fs::remove_dir_all(d);
-    }
 }

@@ -69,9 +69,9 @@ fn a_grid_bakes_in_a_fraction_of_its_size() {
     let n = 2049u64;
     let grid_bytes = (n * n * 4) as usize; // 16.8 MB of f32
     let src = Rows { n, largest: Mutex::new(0) };
-    let dir = std::env::temp_dir().join(format!("terrain-stream-mem-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).unwrap();
+    // Removed when dropped, also when the test panics.
+    let tmp = tempfile::Builder::new().prefix("terrain-stream-mem-").tempdir().unwrap();
+    let dir = tmp.path();
     // Each worker computes a block's 32 DSS object errors with per-factor scratch of the
     // block's size (terrain_core::metrics::dss::ObjectErrorsAcc): measured here on one block of
     // the bake's size, a cost per worker and block, not per grid.
@@ -113,5 +113,4 @@ fn a_grid_bakes_in_a_fraction_of_its_size() {
     assert!(peak < grid_bytes / 5, "peak heap {peak} bytes for a {grid_bytes}-byte grid");
     assert!(*src.largest.lock().unwrap() <= 65);
     assert_eq!(Store::open(dir.join("s")).unwrap().header().blocks_x, 32);
-    std::fs::remove_dir_all(&dir).unwrap();
 }

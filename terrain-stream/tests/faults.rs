@@ -3,6 +3,8 @@
 //! store's block), and the runtime reports each fault once, naming the block file, the block,
 //! its level and area, the cause, and what is drawn instead (a coarser level, or nothing).
 
+mod common;
+
 use std::ops::ControlFlow;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
@@ -27,12 +29,11 @@ fn grid(seed: f32) -> Heightmap {
     .unwrap()
 }
 
-fn scratch(name: &str) -> PathBuf {
-    let dir =
-        std::env::temp_dir().join(format!("terrain-stream-faults-{}-{name}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).unwrap();
-    dir
+/// `name` in a temporary folder of its own, removed when dropped (also when the test panics).
+fn scratch(name: &str) -> common::Scratch {
+    let d = common::scratch("terrain-stream-faults-", name);
+    std::fs::create_dir_all(&*d).unwrap();
+    d
 }
 
 /// A store of [`grid`] without its overview (`overview.bin`, which would serve every block's
@@ -96,7 +97,6 @@ fn one_fault(name: &str, damage: impl FnOnce(&Path, &Path, &Store)) -> (Fault, S
     }
     assert!(!again.is_empty(), "{name}: the block was not retried");
     assert!(again.iter().all(|f| !f.first && f.error.block() == Some(CENTRE)), "{name}: {again:?}");
-    std::fs::remove_dir_all(&dir).unwrap();
     (f, msg, file)
 }
 
@@ -190,5 +190,4 @@ fn every_block_corrupt_leaves_nothing_resident_and_each_fault_is_reported_once()
     assert!(ids.iter().all(|&id| s.block(id).is_none()));
     let new = faults.iter().filter(|f| f.first).count();
     assert_eq!(new, ids.len(), "one new fault per block: {faults:?}");
-    std::fs::remove_dir_all(&dir).unwrap();
 }

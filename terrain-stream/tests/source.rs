@@ -5,6 +5,8 @@
 //! arrive the heights are the coarse lattice's, never a panic or a hole. Tried on a square
 //! grid, a non-square grid with voids, and a grid smaller than a block.
 
+mod common;
+
 use std::ops::ControlFlow;
 use std::path::PathBuf;
 use std::sync::Arc;
@@ -25,11 +27,10 @@ use terrain_stream::{
     demand_of,
 };
 
-fn scratch(name: &str) -> PathBuf {
-    let d =
-        std::env::temp_dir().join(format!("terrain-stream-source-{}-{name}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    d
+/// `name`, not yet made, in a temporary folder of its own, removed when dropped (also when
+/// the test panics).
+fn scratch(name: &str) -> common::Scratch {
+    common::scratch("terrain-stream-source-", name)
 }
 
 /// Integer heights (lossless with 1 m steps), optionally with a void hole filled like a DEM's.
@@ -56,7 +57,7 @@ fn terrain(w: usize, h: usize, voids: bool) -> Heightmap {
     Heightmap::new(w, h, data, mask, hm.georef().clone()).unwrap()
 }
 
-fn bake_store(hm: &Heightmap, name: &str, k: u8) -> (PathBuf, Arc<Store>) {
+fn bake_store(hm: &Heightmap, name: &str, k: u8) -> (common::Scratch, Arc<Store>) {
     let dir = scratch(name);
     let cfg = BakeConfig {
         k,
@@ -66,7 +67,8 @@ fn bake_store(hm: &Heightmap, name: &str, k: u8) -> (PathBuf, Arc<Store>) {
     let r = bake(hm, &dir, &cfg, &mut |_: &terrain_stream::BakeProgress| ControlFlow::Continue(()))
         .unwrap();
     assert!(r.lossless);
-    (dir.clone(), Arc::new(Store::open(&dir).unwrap()))
+    let store = Arc::new(Store::open(&dir).unwrap());
+    (dir, store)
 }
 
 fn cameras(hm: &Heightmap) -> Vec<Camera> {
@@ -148,7 +150,7 @@ fn heights_probe(w: usize, h: usize) -> Vec<DVec2> {
 fn check_grid(w: usize, h: usize, voids: bool, k: u8, name: &str) {
     let hm = terrain(w, h, voids);
     let qt = Quadtree::new(&hm, 16);
-    let (dir, store) = bake_store(&hm, name, k);
+    let (_dir, store) = bake_store(&hm, name, k);
     let tree = StoreTree::new(store.clone(), 16);
     same_nodes(&qt, &tree);
 
@@ -203,7 +205,6 @@ fn check_grid(w: usize, h: usize, voids: bool, k: u8, name: &str) {
         assert!(demand.iter().all(|&(_, l)| l <= store.header().k));
     }
     drop(streamer);
-    let _ = std::fs::remove_dir_all(dir);
 }
 
 #[test]
@@ -268,7 +269,6 @@ fn a_dem_file_bakes_in_one_call() {
         }
         assert!(valid > 1000, "{file}: {valid} samples compared");
         drop(streamer);
-        let _ = std::fs::remove_dir_all(&dir);
         let missing = terrain_stream::bake_file(
             &data.join("no/such.tif"),
             &options,
