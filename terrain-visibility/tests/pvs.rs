@@ -178,8 +178,9 @@ fn a_pvs_matches_only_the_heights_it_was_baked_from() {
 fn the_file_round_trips_and_refuses_corruption() {
     let hm = grid(65, |i, j| ((i * 7 + j * 3) % 23) as f32 * 4.0);
     let (s, _, _) = bake_both(&hm, &small_cfg(2, 2, 10.0, 3));
-    let dir = std::env::temp_dir().join(format!("terrain-pvs-file-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
+    // Removed when dropped, also when the test panics.
+    let tmp = tempfile::Builder::new().prefix("terrain-pvs-file-").tempdir().unwrap();
+    let dir = tmp.path();
     let path = dir.join("pvs.bin");
     write_pvs(&s, &path).unwrap();
     assert_eq!(read_pvs(&path).unwrap(), s);
@@ -211,7 +212,6 @@ fn the_file_round_trips_and_refuses_corruption() {
     assert!(e.contains("pvs.bin") && e.contains("older version") && e.contains("bake"), "{e}");
     let e = read_pvs(&dir.join("missing.bin")).unwrap_err().to_string();
     assert!(e.contains("missing.bin"), "{e}");
-    std::fs::remove_dir_all(&dir).unwrap();
 }
 
 /// Found by `cargo xtask fuzz`: header counts whose product overflows 64 bits (cells and

@@ -15,9 +15,9 @@ use terrain_core::{Georef, Heightmap};
 /// Writes the case as a raw little-endian f32 file (north row first, voids as NaN) and reads it
 /// back through the DEM loader, so every case also exercises the loading path.
 fn through_raw_file(case: HardCase, hm: &Heightmap) -> Heightmap {
-    let dir = std::env::temp_dir().join(format!("terrain-hard-cases-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
-    let path: PathBuf = dir.join(format!("{}.f32", case.name()));
+    // Removed when dropped, also when the test panics.
+    let dir = tempfile::Builder::new().prefix("terrain-hard-cases-").tempdir().unwrap();
+    let path: PathBuf = dir.path().join(format!("{}.f32", case.name()));
     let (w, h) = (hm.width(), hm.height());
     let mut bytes = Vec::with_capacity(w * h * 4);
     for j in (0..h).rev() {
@@ -34,7 +34,6 @@ fn through_raw_file(case: HardCase, hm: &Heightmap) -> Heightmap {
         ..LoadOptions::default()
     };
     let loaded = dem::load(&path, &options).unwrap_or_else(|e| panic!("{}: {e}", case.name()));
-    std::fs::remove_file(&path).ok();
     let back = loaded.heightmap;
     assert_eq!((back.width(), back.height()), (w, h), "{}", case.name());
     assert_eq!(
