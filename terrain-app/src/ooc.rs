@@ -1302,8 +1302,9 @@ mod tests {
     /// method's own caches leave of it, and at least half of it when they would take more.
     #[test]
     fn the_blocks_get_what_the_views_index_entries_leave_of_the_budget() {
-        let dir = std::env::temp_dir().join(format!("terrain-app-budget-{}", std::process::id()));
-        let _ = std::fs::remove_dir_all(&dir);
+        // Removed when dropped, also when the test panics.
+        let tmp = tempfile::Builder::new().prefix("terrain-app-budget-").tempdir().unwrap();
+        let dir = tmp.path().join("store");
         let hm = Heightmap::from_fn(513, 513, Georef::local(10.0), |i, j| {
             ((i * 7 + j * 13) % 97) as f32 + 0.3 * i as f32
         })
@@ -1330,15 +1331,15 @@ mod tests {
         assert_eq!(blocks, (56 << 20) - entries);
         let (entries, blocks) = budget(entries);
         assert_eq!(blocks, entries / 2, "at least half for the blocks");
-        std::fs::remove_dir_all(&dir).unwrap();
     }
 
     /// `open_store` returns the store it opened last only while that folder holds the same
     /// bake: a store baked again into the folder (another grid, another index) is opened anew.
     #[test]
     fn open_store_reopens_a_folder_baked_again() {
-        let dir = std::env::temp_dir().join(format!("terrain-app-reopen-{}", std::process::id()));
-        let _ = std::fs::remove_dir_all(&dir);
+        // Removed when dropped, also when the test panics.
+        let tmp = tempfile::Builder::new().prefix("terrain-app-reopen-").tempdir().unwrap();
+        let dir = tmp.path().join("store");
         let cfg = BakeConfig { k: 5, ..Default::default() };
         let mut sizes = Vec::new();
         for (w, h) in [(65, 33), (97, 65), (97, 65)] {
@@ -1359,7 +1360,6 @@ mod tests {
         assert_eq!(sizes[4].2, sizes[5].2);
         let again = Store::open(&dir).unwrap().header().bake_id;
         assert_eq!(sizes[5].2, again, "the folder's bake");
-        std::fs::remove_dir_all(&dir).unwrap();
     }
 
     /// A store's exact full-resolution grid is the DEM it was baked from: bit for bit from a
@@ -1369,8 +1369,9 @@ mod tests {
     fn the_exact_grid_is_the_baked_dem() {
         let f = |i: usize, j: usize| 100.0 + 0.37 * j as f32 + ((i * 7 + j * 13) % 11) as f32 * 0.3;
         let hm = Heightmap::from_fn(129, 97, Georef::local(10.0), f).unwrap();
-        let base = std::env::temp_dir().join(format!("terrain-app-exact-{}", std::process::id()));
-        let _ = std::fs::remove_dir_all(&base);
+        // Removed when dropped, also when the test panics.
+        let tmp = tempfile::Builder::new().prefix("terrain-app-exact-").tempdir().unwrap();
+        let base = tmp.path();
         for (name, encoding) in [
             ("f32", HeightEncoding::F32),
             ("bounded", HeightEncoding::Bounded { max_error_m: 0.05 }),
@@ -1400,6 +1401,5 @@ mod tests {
         std::fs::remove_dir_all(dir.join("blocks")).unwrap();
         let err = store_heightmap_exact(&store).map(|_| ()).unwrap_err().to_string();
         assert!(err.contains("could not read the store at full resolution"), "{err}");
-        std::fs::remove_dir_all(&base).unwrap();
     }
 }

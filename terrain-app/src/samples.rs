@@ -352,8 +352,9 @@ mod tests {
             900.0 + 80.0 * x.sin() * y.cos() + 2.7 * (i as f32 * 1.9).sin() + j as f32 * 0.37
         })
         .unwrap();
-        let dir = std::env::temp_dir().join(format!("terrain-app-samples-{}", std::process::id()));
-        let _ = std::fs::remove_dir_all(&dir);
+        // Removed when dropped, also when the test panics.
+        let tmp = tempfile::Builder::new().prefix("terrain-app-samples-").tempdir().unwrap();
+        let dir = tmp.path().join("store");
         let cfg = BakeConfig { k: 4, encoding: HeightEncoding::F32, ..Default::default() };
         terrain_stream::bake(&hm, &dir, &cfg, &mut |_| ControlFlow::Continue(())).unwrap();
         let memory = HeightmapSamples(&hm);
@@ -379,6 +380,5 @@ mod tests {
         // 5 x 4 blocks: more block levels decoded than the store holds (blocks dropped and read
         // again), so both the levels and the grids were read.
         assert!(decoded > 20 * 5, "{decoded} block levels decoded");
-        std::fs::remove_dir_all(&dir).unwrap();
     }
 }

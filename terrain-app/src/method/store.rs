@@ -538,9 +538,9 @@ mod tests {
     fn a_store_is_measured_only_against_its_own_heights() {
         let f = |i: usize, j: usize| 100.0 + 3.0 * j as f32 + ((i * 7 + j * 13) % 11) as f32;
         let hm = Heightmap::from_fn(129, 129, Georef::local(10.0), f).unwrap();
-        let dir =
-            std::env::temp_dir().join(format!("terrain-app-same-heights-{}", std::process::id()));
-        let _ = std::fs::remove_dir_all(&dir);
+        // Removed when dropped, also when the test panics.
+        let tmp = tempfile::Builder::new().prefix("terrain-app-same-heights-").tempdir().unwrap();
+        let dir = tmp.path().join("store");
         let cfg = BakeConfig { k: 5, node_levels: 3, ..Default::default() };
         bake(&hm, &dir, &cfg, &mut |_: &BakeProgress| std::ops::ControlFlow::Continue(())).unwrap();
         let store = Store::open(&dir).unwrap();
@@ -552,6 +552,5 @@ mod tests {
         let raised =
             Heightmap::from_fn(129, 129, Georef::local(10.0), |i, j| f(i, j) + 1.0).unwrap();
         assert!(check_same_heights(&store, &raised).is_err());
-        std::fs::remove_dir_all(&dir).unwrap();
     }
 }
