@@ -81,6 +81,7 @@ fn main() -> anyhow::Result<()> {
     };
     // Opening the method (its tables: for geomorph `geomip.bin`, by pages or whole).
     let (t, wall) = (thread_cpu_s(), std::time::Instant::now());
+    let store = scene.store().clone();
     let mut m = store_method(kind, scene, &config, OocWait::FirstFrame, None)?;
     eprintln!(
         "method opened: {:.3} s CPU, {:.3} s wall",
@@ -187,5 +188,14 @@ fn main() -> anyhow::Result<()> {
             false => String::new(),
         }
     );
+    if let (Some(decoded), Some((budget, whole))) =
+        (store.index_pages_decoded(), store.index_cache_bytes())
+    {
+        println!(
+            "index pages decoded: {decoded} (cache {:.0} MiB of the whole index's {:.0})",
+            budget as f64 / f64::from(1 << 20),
+            whole as f64 / f64::from(1 << 20)
+        );
+    }
     Ok(())
 }

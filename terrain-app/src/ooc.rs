@@ -51,9 +51,10 @@ use crate::methods::{StripFrame, geomorph_patch, patch_factors};
 pub struct OocConfig {
     /// Screen-error threshold `tau` of Eq. 7, pixels. Default 2 (the paper's figures).
     pub tau: f64,
-    /// The memory budget of the store's data, bytes: the stream cache's decoded blocks and the
-    /// index entries the trees keep for the view (the blocks get what the entries leave, at
-    /// least half of it). Default 1 GiB ([`LOOKAHEAD_FRAMES`] says why).
+    /// The memory budget of the store's data, bytes: the stream cache's decoded blocks, the
+    /// index entries the trees keep for the view and the store's decoded index pages
+    /// ([`index_share`]; the blocks get what the entries and pages leave, at least half of
+    /// it). Default 1 GiB ([`LOOKAHEAD_FRAMES`] says why).
     pub budget_bytes: u64,
     /// Worker threads; 0 (the default) = one per core.
     pub threads: usize,
@@ -236,6 +237,17 @@ pub fn open_store(path: &Path) -> Result<Store, StoreError> {
     };
     *last = Some((key, store.clone()));
     Ok(store)
+}
+
+/// Bytes of a memory budget of `budget` the store's decoded index pages get
+/// ([`Store::set_index_cache_bytes`]): an eighth, at least the store's default 32 MiB, at most
+/// `whole` (the whole index decoded). At the default 32 MiB the 32769^2 store's `fast_pass`
+/// decoded its 2,048 pages 4,255 times (the pages the view's entries come from outgrew the
+/// cache, so the least recently used page was always the next one asked for), on the frame
+/// thread too; with 128 MiB (the whole index) each once (bench/ooc/README.md, "The index's
+/// pages within the one budget").
+pub fn index_share(budget: u64, whole: u64) -> u64 {
+    (budget / 8).max(32 << 20).min(whole)
 }
 
 /// The streaming columns of one frame: the paper's Table 3 (needed, real-time loaded and
@@ -711,6 +723,9 @@ impl OocScene {
             },
             ..StreamConfig::default()
         };
+        if let Some((_, whole)) = store.index_cache_bytes() {
+            store.set_index_cache_bytes(index_share(config.budget_bytes, whole));
+        }
         let streamer = Streamer::new(store.clone(), stream);
         let mut classes = classes_for_budget(&layout, config.page_budget_bytes);
         classes[0].capacity = classes[0].capacity.min(config.page_capacity.max(1));
@@ -990,12 +1005,14 @@ impl OocScene {
 
     /// The stream cache's share of the one memory budget ([`OocConfig::budget_bytes`]): what
     /// the index entries the trees keep for the view leave (this scene's tree and the method's
-    /// `tree`, unless one is the other's clone; [`StoreTree::visited_bytes`]) and the method's
-    /// own caches ([`OocScene::with_reserved`]), at least half of it. A selection over a 32769^2 store keeps 139 MB of entries for its view (`dss-2` on
+    /// `tree`, unless one is the other's clone; [`StoreTree::visited_bytes`]), the store's
+    /// decoded index pages ([`index_share`]) and the method's own caches
+    /// ([`OocScene::with_reserved`]), at least half of it. A selection over a 32769^2 store keeps 139 MB of entries for its view (`dss-2` on
     /// `fast_pass`), which a budget of blocks alone left above it (bench/ooc/README.md, "One
     /// memory budget for the blocks and the view's index entries").
     fn blocks_budget(&self, tree: Option<&StoreTree>) -> u64 {
-        let mut entries = self.tree.visited_bytes() + self.reserved;
+        let index = self.store.index_cache_bytes().map_or(0, |(b, whole)| b.min(whole));
+        let mut entries = self.tree.visited_bytes() + self.reserved + index;
         if let Some(t) = tree.filter(|t| !t.shares_visited_with(&self.tree)) {
             entries += t.visited_bytes();
         }
@@ -1298,8 +1315,9 @@ mod tests {
     use super::*;
     use terrain_stream::{BakeConfig, BakeProgress, HeightEncoding, bake};
 
-    /// One memory budget: the stream cache gets what the index entries the view keeps and the
-    /// method's own caches leave of it, and at least half of it when they would take more.
+    /// One memory budget: the stream cache gets what the index entries the view keeps, the
+    /// store's decoded index pages and the method's own caches leave of it, and at least half
+    /// of it when they would take more.
     #[test]
     fn the_blocks_get_what_the_views_index_entries_leave_of_the_budget() {
         // Removed when dropped, also when the test panics.
@@ -1325,12 +1343,28 @@ mod tests {
         let budget = |all: u64| reserved(all, 0);
         let (entries, blocks) = budget(64 << 20);
         assert!(entries > 10_000, "the view's entries: {entries} bytes");
-        assert_eq!(blocks, (64 << 20) - entries);
+        // The store's decoded index pages: the whole index, smaller than the 32 MiB floor.
+        let (cache, whole) = store.index_cache_bytes().expect("a paged index");
+        assert!(whole > 10_000 && whole < 8 << 20, "{whole} bytes");
+        assert_eq!((cache, index_share(64 << 20, whole)), (whole, whole));
+        assert_eq!(blocks, (64 << 20) - entries - whole);
         // A method's own caches (`tin`'s tiles) come off the blocks' share too.
         let (_, blocks) = reserved(64 << 20, 8 << 20);
-        assert_eq!(blocks, (56 << 20) - entries);
+        assert_eq!(blocks, (56 << 20) - entries - whole);
         let (entries, blocks) = budget(entries);
         assert_eq!(blocks, entries / 2, "at least half for the blocks");
+    }
+
+    /// The index pages' share: an eighth of the budget, at least 32 MiB, at most the whole
+    /// index decoded.
+    #[test]
+    fn the_index_pages_get_an_eighth_of_the_budget_within_the_index() {
+        const MIB: u64 = 1 << 20;
+        assert_eq!(index_share(1 << 30, 1 << 40), 128 * MIB);
+        assert_eq!(index_share(1 << 30, 122 * MIB), 122 * MIB);
+        assert_eq!(index_share(64 * MIB, 1 << 40), 32 * MIB);
+        assert_eq!(index_share(64 * MIB, 5 * MIB), 5 * MIB);
+        assert_eq!(index_share(8 << 30, 1 << 40), 1 << 30);
     }
 
     /// `open_store` returns the store it opened last only while that folder holds the same

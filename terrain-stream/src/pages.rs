@@ -453,13 +453,36 @@ struct CachedPage {
     stamp: u64,
 }
 
-#[derive(Debug, Default)]
+#[derive(Debug)]
 struct Lru {
     pages: IdMap<usize, CachedPage>,
     bytes: u64,
+    /// Bytes of decoded pages kept at most (at least one page is kept).
+    budget: u64,
     clock: u64,
     /// Pages decoded (misses), for tests and measurements.
     decoded: u64,
+}
+
+impl Lru {
+    fn new(budget: u64) -> Mutex<Self> {
+        Mutex::new(Self { pages: IdMap::default(), bytes: 0, budget, clock: 0, decoded: 0 })
+    }
+
+    /// Drops the least recently used pages but `keep` while over the budget.
+    fn evict(&mut self, keep: usize) {
+        while self.bytes > self.budget && self.pages.len() > 1 {
+            let oldest = self
+                .pages
+                .iter()
+                .filter(|(q, _)| **q != keep)
+                .min_by_key(|(_, c)| c.stamp)
+                .map(|(q, _)| *q);
+            let Some(q) = oldest else { break };
+            let gone = self.pages.remove(&q).expect("present");
+            self.bytes -= gone.bytes;
+        }
+    }
 }
 
 /// A version-4 index read page by page: its head in memory, pages decoded on demand and kept
@@ -475,7 +498,6 @@ pub(crate) struct PagedIndex {
     prefix: Arc<[u8]>,
     /// Vertical exaggeration applied to every decoded entry ([`scale_entry`]).
     scale: f64,
-    budget: u64,
     lru: Mutex<Lru>,
 }
 
@@ -548,8 +570,7 @@ impl PagedIndex {
             prefix_len,
             prefix: prefix.into(),
             scale: 1.0,
-            budget: DEFAULT_PAGE_CACHE_BYTES,
-            lru: Mutex::default(),
+            lru: Lru::new(DEFAULT_PAGE_CACHE_BYTES),
         })
     }
 
@@ -583,14 +604,27 @@ impl PagedIndex {
             prefix_len: self.prefix_len,
             prefix: self.prefix.clone(),
             scale: self.scale * scale,
-            budget: self.budget,
-            lru: Mutex::default(),
+            lru: Lru::new(self.budget()),
         })
     }
 
-    /// Sets the cache's byte budget (at least one page is always kept).
-    pub(crate) fn set_budget(&mut self, bytes: u64) {
-        self.budget = bytes;
+    /// Sets the cache's byte budget (at least one page is always kept), for every thread and
+    /// clone of the store that shares it; pages beyond it leave at once, least recently used
+    /// first.
+    pub(crate) fn set_budget(&self, bytes: u64) {
+        let mut lru = self.lru.lock().expect("page cache");
+        lru.budget = bytes;
+        lru.evict(usize::MAX);
+    }
+
+    /// The cache's byte budget.
+    pub(crate) fn budget(&self) -> u64 {
+        self.lru.lock().expect("page cache").budget
+    }
+
+    /// Bytes of the whole index decoded, as the cache counts them: the most it can hold.
+    pub(crate) fn decoded_len(&self) -> u64 {
+        self.header.block_count() as u64 * (u64::from(self.head.entry_len) + ENTRY_OVERHEAD)
     }
 
     /// Pages decoded so far (cache misses).
@@ -624,17 +658,7 @@ impl PagedIndex {
             lru.bytes -= old.bytes;
         }
         lru.bytes += bytes;
-        while lru.bytes > self.budget && lru.pages.len() > 1 {
-            let oldest = lru
-                .pages
-                .iter()
-                .filter(|(q, _)| **q != p)
-                .min_by_key(|(_, c)| c.stamp)
-                .map(|(q, _)| *q);
-            let Some(q) = oldest else { break };
-            let gone = lru.pages.remove(&q).expect("present");
-            lru.bytes -= gone.bytes;
-        }
+        lru.evict(p);
         Ok(e)
     }
 

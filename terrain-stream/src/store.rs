@@ -300,11 +300,32 @@ impl Store {
     /// (versions 2 and 3).
     pub fn with_page_cache_bytes(mut self, bytes: u64) -> Result<Self, StoreError> {
         if let Index::Paged { pages, .. } = &*self.index {
-            let mut p = pages.exaggerated(1.0)?;
+            let p = pages.exaggerated(1.0)?;
             p.set_budget(bytes);
             self.index = Arc::new(Index::paged(p));
         }
         Ok(self)
+    }
+
+    /// Sets the byte budget of the decoded index pages this store and its clones share
+    /// (default 32 MiB; at least one page is kept); pages beyond it leave at once, least
+    /// recently used first. Nothing changes for an index read whole (versions 2 and 3). A
+    /// runtime whose view's entries outgrow the default sizes it from its memory budget
+    /// (terrain-app's `OocScene`): a cache smaller than the pages a flight keeps asking for
+    /// decodes each of them again and again, on the frame thread too.
+    pub fn set_index_cache_bytes(&self, bytes: u64) {
+        if let Index::Paged { pages, .. } = &*self.index {
+            pages.set_budget(bytes);
+        }
+    }
+
+    /// Bytes of decoded index pages this store's cache keeps at most and the most it could
+    /// hold (the whole index decoded); `None` for an index read whole.
+    pub fn index_cache_bytes(&self) -> Option<(u64, u64)> {
+        match &*self.index {
+            Index::Paged { pages, .. } => Some((pages.budget(), pages.decoded_len())),
+            Index::Whole(_) => None,
+        }
     }
 
     /// Index pages read and decoded so far by this store and its clones (cache misses);

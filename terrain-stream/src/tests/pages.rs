@@ -216,6 +216,48 @@ fn a_cache_smaller_than_the_index_serves_the_same_selections() {
 }
 
 #[test]
+fn the_index_cache_budget_set_on_a_clone_holds_for_the_store_it_shares() {
+    let dir = paged_store("shared-budget");
+    let (header, head, _) = head_of(&dir);
+    let pages = head.page_count(header.block_count()) as u64;
+    assert!(pages >= 4, "{pages} pages: the test needs several");
+    let store = Store::open(&dir).unwrap();
+    let (budget, whole) = store.index_cache_bytes().unwrap();
+    assert_eq!(budget, 32 << 20, "the default");
+    assert!(whole > 0 && whole < budget, "{whole} bytes decoded: this index fits the default");
+    // Every entry twice, in row-major order: a cache of one page decodes each page twice, a
+    // cache of the whole index once.
+    let read_all = |s: &Store| {
+        for _ in 0..2 {
+            for b in s.block_ids() {
+                s.entry(b).unwrap();
+            }
+        }
+    };
+    let clone = store.clone();
+    clone.set_index_cache_bytes(1);
+    assert_eq!(store.index_cache_bytes(), Some((1, whole)), "the clone shares the cache");
+    read_all(&store);
+    assert_eq!(store.index_pages_decoded(), Some(2 * pages));
+    // Raised on the clone to the whole index: each page but the last one read (still held) is
+    // decoded once more, then kept.
+    clone.set_index_cache_bytes(whole);
+    read_all(&store);
+    assert_eq!(clone.index_pages_decoded(), Some(3 * pages - 1));
+    // Lowered: the pages beyond it leave at once but one, the most recently used (the last
+    // page), which the next page read evicts in turn: the next pass decodes every page again.
+    store.set_index_cache_bytes(0);
+    let last = store.block_ids().last().unwrap();
+    store.entry(last).unwrap();
+    assert_eq!(store.index_pages_decoded(), Some(3 * pages - 1), "the last page was kept");
+    for b in store.block_ids() {
+        store.entry(b).unwrap();
+    }
+    assert_eq!(store.index_pages_decoded(), Some(4 * pages - 1));
+    std::fs::remove_dir_all(dir).unwrap();
+}
+
+#[test]
 fn the_blocks_box_and_nearest_block_equal_the_brute_force_over_every_entry() {
     let dir = paged_store("nearest");
     let (header, head, _) = head_of(&dir);
