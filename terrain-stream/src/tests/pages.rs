@@ -254,7 +254,6 @@ fn the_index_cache_budget_set_on_a_clone_holds_for_the_store_it_shares() {
         store.entry(b).unwrap();
     }
     assert_eq!(store.index_pages_decoded(), Some(4 * pages - 1));
-    std::fs::remove_dir_all(dir).unwrap();
 }
 
 #[test]
