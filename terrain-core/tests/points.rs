@@ -1,16 +1,14 @@
 //! The scattered-points reader: formats it accepts, and errors that name the file and line.
 
-use std::path::PathBuf;
+mod common;
 
+use common::TempFile;
 use terrain_core::points::{PointsErrorKind, parse_points, read_points};
 
-/// `text` written to `name` in a temporary folder of its own, removed (also on a panic) when the
-/// returned guard is dropped; the guard and the file's path.
-fn scratch(name: &str, text: &[u8]) -> (tempfile::TempDir, PathBuf) {
-    let dir = tempfile::Builder::new().prefix("terrain-points-test-").tempdir().unwrap();
-    let p = dir.path().join(name);
-    std::fs::write(&p, text).unwrap();
-    (dir, p)
+/// `text` written to `name` in a temporary folder of its own ([`common::write_temp`]), removed
+/// (also on a panic) when the returned guard is dropped.
+fn scratch(name: &str, text: &[u8]) -> TempFile {
+    common::write_temp("terrain-points-test-", name, text)
 }
 
 #[test]
@@ -25,21 +23,21 @@ fn reads_whitespace_csv_header_and_comments() {
 
 #[test]
 fn errors_name_the_file_and_the_line() {
-    let (_tmp, p) = scratch("bad.xyz", b"1 2 3\n4 5 6\n7 oops 9\n");
+    let p = scratch("bad.xyz", b"1 2 3\n4 5 6\n7 oops 9\n");
     let e = read_points(&p).unwrap_err();
     let msg = e.to_string();
     assert!(msg.contains("bad.xyz") && msg.contains("line 3"), "{msg}");
     assert!(matches!(e.kind, PointsErrorKind::BadLine { line: 3, .. }));
-    let (_tmp, p) = scratch("short.xyz", b"1 2 3\n4 5\n");
+    let p = scratch("short.xyz", b"1 2 3\n4 5\n");
     let e = read_points(&p).unwrap_err();
     assert!(
         matches!(e.kind, PointsErrorKind::BadLine { line: 2, message, .. } if message.contains("fewer"))
     );
-    let (_tmp, p) = scratch("inf.xyz", b"1 2 3\n4 5 inf\n1 1 1\n");
+    let p = scratch("inf.xyz", b"1 2 3\n4 5 inf\n1 1 1\n");
     assert!(matches!(read_points(&p).unwrap_err().kind, PointsErrorKind::BadLine { line: 2, .. }));
-    let (_tmp, p) = scratch("two.xyz", b"1 2 3\n4 5 6\n");
+    let p = scratch("two.xyz", b"1 2 3\n4 5 6\n");
     assert!(matches!(read_points(&p).unwrap_err().kind, PointsErrorKind::TooFew(2)));
-    let (_tmp, p) = scratch("bin.xyz", &[0xff, 0xfe, 0x00, 0x31]);
+    let p = scratch("bin.xyz", &[0xff, 0xfe, 0x00, 0x31]);
     assert!(matches!(read_points(&p).unwrap_err().kind, PointsErrorKind::NotText(0)));
     let missing = std::env::temp_dir().join("terrain-points-test-missing/none.xyz");
     let e = read_points(&missing).unwrap_err();

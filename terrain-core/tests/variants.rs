@@ -37,7 +37,7 @@ fn f(v: &Value) -> f64 {
 
 /// A temporary folder for one test, removed when dropped (also when the test panics).
 fn temp_dir() -> tempfile::TempDir {
-    tempfile::Builder::new().prefix("terrain-core-variants-").tempdir().expect("create temp dir")
+    common::temp_dir("terrain-core-variants-")
 }
 
 /// Void count, min, max and sum of the valid samples.
