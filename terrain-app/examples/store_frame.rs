@@ -20,7 +20,6 @@
 
 mod common;
 
-use std::collections::HashMap;
 use std::path::PathBuf;
 
 use anyhow::Context;
@@ -110,7 +109,7 @@ fn main() -> anyhow::Result<()> {
                 // runs and the frame's drawn blocks.
                 let drawn = match &f.draw {
                     Draw::PagedMorph(p, _) => p.drawn.iter().copied().collect(),
-                    _ => HashMap::new(),
+                    _ => terrain_core::hash::IdMap::default(),
                 };
                 let t = thread_cpu_s();
                 let morph = MorphDraw { runs, patch_cells: cfg.patch_cells };

@@ -22,13 +22,14 @@
 //! Heights never exist for the whole grid: the device (and the optional CPU mirror the
 //! benchmark measures) holds the drawn blocks only.
 
-use std::collections::{BTreeMap, HashMap};
+use std::collections::BTreeMap;
 use std::path::Path;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use glam::{DVec2, DVec3};
 use terrain_core::geometry::Camera;
+use terrain_core::hash::IdMap;
 use terrain_core::lod::{GeomipRuns, PatchRun, TerrainSource};
 use terrain_core::lod::{Selection, check_shared_edges};
 use terrain_core::quadtree::{NodeId, NodeTree};
@@ -604,7 +605,7 @@ fn for_run_blocks(tree: &StoreTree, r: &PatchRun, mut f: impl FnMut(BlockId, u32
 pub fn morph_on_pages(
     tree: &StoreTree,
     mut runs: GeomipRuns,
-    drawn: &HashMap<BlockId, u8>,
+    drawn: &IdMap<BlockId, u8>,
 ) -> GeomipRuns {
     let leaf = tree.shape().max_level();
     // A patch no larger than a block lies in one block (no list of blocks to build); the
@@ -861,7 +862,7 @@ impl OocScene {
         stream.stream_ms = t0.elapsed().as_secs_f64() * 1e3;
         let (drawn, dropped) = self.assign_pages();
         // The crack-free patches over the drawn blocks, each at most at its page's level.
-        let page_level: HashMap<BlockId, u8> = drawn.iter().copied().collect();
+        let page_level: IdMap<BlockId, u8> = drawn.iter().copied().collect();
         let selection =
             select_patches(&self.tree, camera, self.config.tau, |b| page_level.get(&b).copied());
         debug_assert!(check_shared_edges(&selection).is_empty());
@@ -957,7 +958,7 @@ impl OocScene {
             );
         }
         let (drawn, dropped) = self.assign_pages();
-        let paged: HashMap<BlockId, u8> = drawn.iter().copied().collect();
+        let paged: IdMap<BlockId, u8> = drawn.iter().copied().collect();
         let on_pages = |n: NodeId| tree.blocks_under(n).iter().all(|b| paged.contains_key(b));
         let StoreDraw { mut selection, strips, mesh, morph } = draw;
         if let Some(m) = morph {

@@ -827,7 +827,7 @@ fn largest_height_difference(a: &[glam::DVec3], b: &[glam::DVec3]) -> f64 {
 /// level too coarse for one block fails the comparison.
 #[test]
 fn geomorph_store_frames_work_on_runs_as_on_patches() {
-    use std::collections::{HashMap, HashSet};
+    use std::collections::HashSet;
     use terrain_app::methods::geomorph_selection_runs;
     use terrain_app::ooc::{MorphDraw, StoreDraw, morph_demand, morph_on_pages};
     use terrain_core::lod::{GeomipConfig, GeomipRuns, Selection, TerrainSource};
@@ -839,7 +839,7 @@ fn geomorph_store_frames_work_on_runs_as_on_patches() {
     fn per_patch_filter(
         tree: &StoreTree,
         runs: &GeomipRuns,
-        drawn: &HashMap<terrain_stream::BlockId, u8>,
+        drawn: &terrain_core::hash::IdMap<terrain_stream::BlockId, u8>,
     ) -> GeomipRuns {
         let (n, leaf) = (tree.shape().leaf_cells(), tree.shape().max_level());
         let on_pages = |node: NodeId| tree.blocks_under(node).iter().all(|b| drawn.contains_key(b));
@@ -929,7 +929,7 @@ fn geomorph_store_frames_work_on_runs_as_on_patches() {
             b.1 -= 1;
             assert_ne!(fast, coarser, "{name} camera {c}: the control");
             // The drawn-block filter, against the per-patch one.
-            let drawn: HashMap<_, _> = frame.drawn.iter().copied().collect();
+            let drawn: terrain_core::hash::IdMap<_, _> = frame.drawn.iter().copied().collect();
             let kept = frame.morph.clone().expect("a morphed frame");
             assert_eq!(kept, per_patch_filter(&tree, &all, &drawn), "{name} camera {c}");
             assert_eq!(kept, morph_on_pages(&tree, all.clone(), &drawn));

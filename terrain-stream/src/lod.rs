@@ -322,15 +322,14 @@ struct BlockNodes<'a> {
 }
 
 impl<'a> BlockNodes<'a> {
-    /// The largest `StaticE` per level under `n` (`StoreTree::sub_max`), if the tree has it.
-    fn sub(&self, n: NodeId) -> Option<&'a [f32]> {
+    /// The largest `StaticE` per level under `n` (`StoreTree::sub_max`), if the tree has it:
+    /// computed for the whole block when first asked for ([`LazySub::values`]).
+    fn sub(&self, n: NodeId) -> Option<LazySub<'a>> {
         let sub = self.sub?;
         if n.level > self.patch_level || n.level >= self.header.node_levels {
             return None;
         }
-        let values = sub.values(self.header, self.entry);
-        let o = upper_index(n) * sub.per;
-        values.get(o..o + sub.per)
+        Some(LazySub { sub, header: self.header, entry: self.entry, node: n })
     }
 
     /// The largest `StaticE` of `n`'s descendants at level `l > n.level`: stored node values,
@@ -338,11 +337,14 @@ impl<'a> BlockNodes<'a> {
     /// per-level maximum). From `sub_max` when the tree has it (the same values).
     fn level_max(&self, n: NodeId, l: u8) -> f32 {
         let (h, e) = (self.header, self.entry);
-        if let Some(&v) = self.sub(n).and_then(|s| s.get(l as usize)) {
-            return v;
-        }
+        // Below the stored levels `sub_max` holds `below_bound` itself (`fill_below`): looked
+        // up here, a block whose patch errors lie there (every level `n.level + 6` of a
+        // store whose nodes stop above it) is not worth its `sub_max` for them.
         if l >= h.node_levels || n.level >= l {
             return below_bound(h, e, n, l);
+        }
+        if let Some(&v) = self.sub(n).and_then(LazySub::values).and_then(|s| s.get(l as usize)) {
+            return v;
         }
         let s = l - n.level;
         let mut m = 0f32;
@@ -458,6 +460,32 @@ impl<'a> BlockNodes<'a> {
     }
 }
 
+/// Node `node`'s part of its block's `sub_max` ([`BlockNodes::sub`]), not yet computed: the
+/// block's values are worked out ([`block_sub_max`], every stored node read) at the first
+/// [`LazySub::values`] of any of its nodes.
+#[derive(Debug, Clone, Copy)]
+struct LazySub<'a> {
+    sub: &'a SubMax,
+    header: &'a Header,
+    entry: &'a BlockEntry,
+    node: NodeId,
+}
+
+impl<'a> LazySub<'a> {
+    /// Levels the values cover (`0..levels`, those above the node 0).
+    fn levels(self) -> u8 {
+        self.sub.per as u8
+    }
+
+    /// The node's values: for each level `l` (indexed by `l`), the largest `StaticE` of its
+    /// descendants there.
+    fn values(self) -> Option<&'a [f32]> {
+        let values = self.sub.values(self.header, self.entry);
+        let o = upper_index(self.node) * self.sub.per;
+        values.get(o..o + self.sub.per)
+    }
+}
+
 impl NodeSource for BlockNodes<'_> {
     fn node_info(&self, node: NodeId) -> Option<NodeInfo> {
         self.info(node).map(|(i, _)| i)
@@ -493,7 +521,7 @@ fn needed_at(
     per_metre: impl FnOnce() -> f64,
     view: &View,
     max_level: u8,
-    sub: Option<&[f32]>,
+    sub: Option<LazySub<'_>>,
 ) -> u8 {
     let max_level = max_level.min(h.k);
     if n.level >= max_level {
@@ -527,14 +555,14 @@ fn needed_level_below(
     n: NodeId,
     limit: f32,
     max_level: u8,
-    sub: Option<&[f32]>,
+    lazy: Option<LazySub<'_>>,
 ) -> u8 {
     let err = local_values(h, e, n).2;
     if err <= limit {
         return n.level;
     }
     // The deepest level the stored walk may reach.
-    let walked = sub.map_or(h.node_levels, |s| (s.len() as u8).max(h.node_levels));
+    let walked = lazy.map_or(h.node_levels, |s| s.levels().max(h.node_levels));
     let last = max_level.min(walked.saturating_sub(1)).max(n.level);
     let mut stop = last;
     // A cheap bound first: no node at level `l` is over `limit` where the smaller of `n`'s
@@ -545,6 +573,20 @@ fn needed_level_below(
     {
         stop = l - 1;
     }
+    // The per-level maxima cost the whole block's stored nodes once (`block_sub_max`) and
+    // then one look per level; a walk no deeper than `n`'s children reads their four values.
+    // Either gives the same level (`patch_factor_from_level_maxima_equals_the_walk`), so
+    // a shallow walk goes without them: the far blocks a frame first sees, drawn coarse,
+    // then never compute them (bench/ooc/README.md, "The block's level maxima when a walk
+    // needs them").
+    let sub = match lazy {
+        None => None,
+        Some(s) if stop > n.level + 1 => match s.values() {
+            Some(v) => Some(v),
+            None => return needed_level_below(h, e, n, limit, max_level, None),
+        },
+        Some(_) => return needed_level_below(h, e, n, limit, max_level, None),
+    };
     let mut deepest = n.level;
     let mut worst = err;
     match sub {
@@ -1630,14 +1672,16 @@ impl NodeSource for FrameNodes<'_> {
 }
 
 /// The traversal part of [`select_patches`]: terrain-core's [`traverse`] over `tree` with the
-/// split and the culls, before the balance; its leaves in traversal order with their boxes and
-/// Eq. 7's `rho` per metre where the split test computed it.
+/// split and the culls, before the balance; its leaves in traversal order with their boxes
+/// and, inside blocks, their needed vertex levels (`StoreTree::needed_vertex_level_at`, at
+/// most the block's resident level; global levels), worked out when the traversal reports the
+/// leaf, while its block's entry is at hand.
 fn traverse_store(
     tree: &StoreTree,
     camera: &Camera,
     view: &View,
     resident: &impl Fn(BlockId) -> Option<u8>,
-) -> (Vec<(NodeId, Aabb, Option<f64>)>, SelectionStats) {
+) -> (Vec<(NodeId, Aabb, Option<u8>)>, SelectionStats) {
     let view = *view;
     let mut circle = BoundingCircleCull::new(project_view_to_ground(camera));
     let mut frustum = FrustumCull::new(Frustum::from_camera(camera));
@@ -1687,10 +1731,9 @@ fn traverse_store(
         }
     };
     let mut stats = SelectionStats::default();
-    // The leaves with their boxes, in traversal order: inside blocks, and above them the
-    // patches spanning several blocks.
-    // With Eq. 7's `rho` per metre where the split test computed it.
-    let mut boxed: Vec<(NodeId, Aabb, Option<f64>)> = Vec::new();
+    // The leaves with their boxes, in traversal order: inside blocks (with their needed
+    // levels), and above them the patches spanning several blocks.
+    let mut boxed: Vec<(NodeId, Aabb, Option<u8>)> = Vec::new();
     traverse(&nodes, &mut split, &mut cull, &mut |n, v| {
         stats.visited += 1;
         match v {
@@ -1698,8 +1741,14 @@ fn traverse_store(
             Visit::Split => stats.split += 1,
             Visit::Leaf => {
                 if let Some((info, _)) = nodes.cached(n) {
+                    // Eq. 7's `rho` per metre where the split test computed it.
                     let rho = last_rho.get().filter(|&(m, _)| m == n).map(|(_, r)| r);
-                    boxed.push((n, info.aabb, rho));
+                    let per_metre = || rho.unwrap_or_else(|| view.rho_per_metre(&info.aabb));
+                    let level = tree.block_of(n).and_then(|(b, _)| {
+                        let max = resident(b).unwrap_or(0);
+                        tree.needed_vertex_level_at(&nodes.memo, n, per_metre, &view, max)
+                    });
+                    boxed.push((n, info.aabb, level));
                 }
             }
         }
@@ -1765,25 +1814,21 @@ pub fn select_patches(
         while k < boxed.len() && boxed[k].0.dfs_key() < key {
             k += 1;
         }
-        let (aabb, rho) = match boxed.get(k) {
-            Some(&(m, aabb, rho)) if m == n => (Some(aabb), rho),
+        // A traversal leaf's box and needed level; a leaf the balance added, its box.
+        let (aabb, level) = match boxed.get(k) {
+            Some(&(m, aabb, level)) if m == n => (Some(aabb), level),
             _ => (tree.node_info_in(&memo, n).map(|i| i.aabb), None),
         };
         let m = match tree.block_of(n) {
             Some((b, local)) => {
                 let max = resident(b).unwrap_or(0);
-                let level = match (rho, aabb) {
-                    (Some(rho), _) => tree.needed_vertex_level_at(&memo, n, || rho, &view, max),
-                    (None, Some(aabb)) => tree.needed_vertex_level_at(
-                        &memo,
-                        n,
-                        || view.rho_per_metre(&aabb),
-                        &view,
-                        max,
-                    ),
-                    (None, None) => None,
-                }
-                .unwrap_or(n.level);
+                let level = level
+                    .or_else(|| {
+                        let aabb = aabb?;
+                        let per_metre = || view.rho_per_metre(&aabb);
+                        tree.needed_vertex_level_at(&memo, n, per_metre, &view, max)
+                    })
+                    .unwrap_or(n.level);
                 // The segment floor, at most what is resident.
                 let level = level.max(bl + seg_floor.min(max));
                 level.saturating_sub(bl + local.level).min(FACTOR_LEVELS)
