@@ -579,14 +579,11 @@ fn needed_level_below(
     // a shallow walk goes without them: the far blocks a frame first sees, drawn coarse,
     // then never compute them (bench/ooc/README.md, "The block's level maxima when a walk
     // needs them").
-    let sub = match lazy {
-        None => None,
-        Some(s) if stop > n.level + 1 => match s.values() {
-            Some(v) => Some(v),
-            None => return needed_level_below(h, e, n, limit, max_level, None),
-        },
-        Some(_) => return needed_level_below(h, e, n, limit, max_level, None),
-    };
+    let sub = lazy.filter(|_| stop > n.level + 1).and_then(LazySub::values);
+    if lazy.is_some() && sub.is_none() {
+        // The walk without them, over the stored levels only.
+        return needed_level_below(h, e, n, limit, max_level, None);
+    }
     let mut deepest = n.level;
     let mut worst = err;
     match sub {
