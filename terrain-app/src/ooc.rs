@@ -847,8 +847,9 @@ impl OocScene {
     /// the session's first frame (which loads the visible blocks' coarse levels), each block is
     /// drawn at its finest resident level, and what arrived late is counted in the
     /// [`StreamRecord`]. With `warm`, waits (up to [`OocConfig::warm_timeout`]) until every
-    /// level the frame needs is resident ([`Streamer::wait_until_resident`]): still images,
-    /// and measurements of the selection's own error (`--wait`).
+    /// level the frame needs is resident ([`Streamer::wait_until_resident`]) and draws each
+    /// block at most at its needed level, so that what else the cache holds changes nothing:
+    /// still images, and measurements of the selection's own error (`--wait`).
     pub fn frame(&mut self, camera: &Camera, warm: bool) -> OocFrame {
         let t0 = Instant::now();
         self.streamer.set_demand(None);
@@ -860,7 +861,7 @@ impl OocScene {
         };
         let mut stream = StreamRecord::new(&s);
         stream.stream_ms = t0.elapsed().as_secs_f64() * 1e3;
-        let (drawn, dropped) = self.assign_pages();
+        let (drawn, dropped) = self.assign_pages(warm);
         // The crack-free patches over the drawn blocks, each at most at its page's level.
         let page_level: IdMap<BlockId, u8> = drawn.iter().copied().collect();
         let selection =
@@ -873,7 +874,8 @@ impl OocScene {
     /// over the store's terrain (nodes of `tree`, the store's tree at the method's leaf size;
     /// heights from the resident levels, [`StoreSource`]), the streamer loads what those
     /// patches need ([`demand_of`], [`Streamer::set_demand`]; Eq. 8 preloading around it as
-    /// for `ooc`), and every block a patch lies in is drawn from its finest resident level.
+    /// for `ooc`), and every block a patch lies in is drawn from its finest resident level
+    /// (at most its needed one when `warm`).
     /// Real time unless `warm`: then it waits until the patches' levels are resident and
     /// selects again with the exact heights (the patch corners' heights enter PVPS's edge
     /// factors), until the demand holds still (at most three rounds), so a warm frame draws
@@ -957,7 +959,7 @@ impl OocScene {
                 if budget == blocks { "" } else { "a real-time frame's share of " }
             );
         }
-        let (drawn, dropped) = self.assign_pages();
+        let (drawn, dropped) = self.assign_pages(warm);
         let paged: IdMap<BlockId, u8> = drawn.iter().copied().collect();
         let on_pages = |n: NodeId| tree.blocks_under(n).iter().all(|b| paged.contains_key(b));
         let StoreDraw { mut selection, strips, mesh, morph } = draw;
@@ -1022,17 +1024,23 @@ impl OocScene {
     }
 
     /// The blocks of the last update's visual region M drawn this frame, nearest first, each at
-    /// the finest of its resident levels whose page class has a slot left; and how many
-    /// blocks of M got none.
-    fn assign_pages(&self) -> (Vec<(BlockId, u8)>, usize) {
+    /// the finest of its resident levels (at most its needed level when `warm`) whose page
+    /// class has a slot left; and how many blocks of M got none.
+    fn assign_pages(&self, warm: bool) -> (Vec<(BlockId, u8)>, usize) {
         let header = self.store.header();
         let mut drawn: Vec<(BlockId, u8)> = Vec::new();
         let mut dropped = 0;
         // Slots taken per class this frame: each block, nearest first, takes the finest of its
-        // resident levels whose class has a slot left.
+        // resident levels whose class has a slot left. A warm frame takes none beyond the
+        // block's needed level: what else is resident (Eq. 8's prefetches, earlier frames'
+        // levels) depends on the workers' timing and the frames before, and would change the
+        // slots and, through them and the spanning patches' resident test, the selection.
         let mut used = vec![0u32; self.classes.len()];
         for s in self.streamer.scheduled().iter().filter(|s| s.visible) {
-            let levels = self.streamer.block(s.block).map_or(0, |b| b.count());
+            let mut levels = self.streamer.block(s.block).map_or(0, |b| b.count());
+            if warm {
+                levels = levels.min(usize::from(s.needed) + 1);
+            }
             let fits = (0..levels).rev().find(|&l| {
                 let c = (header.k as usize).checked_sub(l);
                 c.is_some_and(|c| c < used.len() && used[c] < self.classes[c].capacity)

@@ -1856,8 +1856,11 @@ pub fn select_patches(
 }
 
 /// [`select_patches`] over what `streamer` holds: the blocks of its last frame's visual region
-/// M, each drawn at most at its finest resident level (blocks with nothing resident are not
-/// drawn). Call after [`Streamer::update`] for the same camera.
+/// M, each drawn at most at the coarser of its finest resident level and the level it needs
+/// (blocks with nothing resident are not drawn). Call after [`Streamer::update`] or
+/// [`Streamer::wait_until_resident`] for the same camera. Levels beyond the needed ones (Eq.
+/// 8's prefetches, earlier frames' leftovers) depend on the workers' timing and are not used:
+/// after a wait that returns `resident: true` the selection is a function of the camera.
 pub fn select_streamed(
     tree: &StoreTree,
     camera: &Camera,
@@ -1870,7 +1873,7 @@ pub fn select_streamed(
         .filter(|s| s.visible)
         .filter_map(|s| {
             let count = streamer.block(s.block)?.count();
-            Some((s.block, count.checked_sub(1)? as u8))
+            Some((s.block, (count.checked_sub(1)? as u8).min(s.needed)))
         })
         .collect();
     select_patches(tree, camera, tau, |b| levels.get(&b).copied())

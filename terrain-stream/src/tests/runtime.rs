@@ -370,6 +370,45 @@ fn wait_until_resident_leaves_every_needed_level_resident() {
     drop(s);
 }
 
+/// `select_streamed` after a wait that returns `resident: true` is a function of the camera:
+/// the same patches whether the streamer starts fresh or has flown towards the view first
+/// (finer levels of many blocks resident from the nearer eyes, and Eq. 8's prefetches). A
+/// 64 x 36 viewport puts the far blocks' needed levels below the lattice levels of the
+/// patches spanning them: without the cap at the needed level, the flown streamer's
+/// selection at y = -500 kept one such patch whole (17 patches against 20, tried).
+#[test]
+fn a_selection_after_a_wait_is_the_same_whatever_the_cache_held() {
+    let (_dir, store) = store("warm-select");
+    let tree = crate::StoreTree::new(store.clone(), crate::DEFAULT_PATCH_CELLS);
+    let tau = 0.25;
+    let config = StreamConfig { threads: 2, tau, ..Default::default() };
+    let cam = |y: f64| camera(y).with_viewport(64.0, 36.0);
+    let warm = |s: &mut Streamer, y: f64| {
+        let report = s.wait_until_resident(&cam(y), Duration::from_secs(60));
+        assert!(report.resident, "{:?}", report.stats);
+        crate::select_streamed(&tree, &cam(y), tau, s).patches
+    };
+    let mut differ = Vec::new();
+    for y in [-1500.0, -1000.0, -500.0, -250.0] {
+        let fresh = warm(&mut Streamer::new(store.clone(), config), y);
+        let mut flown = Streamer::new(store.clone(), config);
+        // Nearer eyes first, then back out along the same line.
+        for f in 0..30 {
+            flown.update(&cam(y + 2000.0 - 60.0 * f as f64));
+        }
+        flown.finish_loads();
+        let beyond = flown.scheduled().iter().filter(|b| {
+            b.visible && flown.block(b.block).is_some_and(|l| l.count() > b.needed as usize + 1)
+        });
+        assert!(beyond.count() > 0, "y {y}: no level resident beyond the needed ones");
+        let again = warm(&mut flown, y);
+        if again != fresh {
+            differ.push((y, fresh.len(), again.len()));
+        }
+    }
+    assert!(differ.is_empty(), "(eye y, patches fresh, after flying): {differ:?}");
+}
+
 #[test]
 fn a_methods_levels_one_look_ahead_ahead_are_preloaded() {
     let (_dir, store) = store("ahead");
