@@ -779,8 +779,14 @@ impl OocScene {
     /// builders' blocks): the stream cache gets what those and the view's index entries leave
     /// ([`OocScene::blocks_budget`]), so the one budget bounds them all.
     pub fn with_reserved(mut self, bytes: u64) -> Self {
-        self.reserved = bytes;
+        self.set_reserved(bytes);
         self
+    }
+
+    /// [`OocScene::with_reserved`] from the next frame on: for a cache whose size changes
+    /// (a table read by pages, whose cache fills as the views need it).
+    pub fn set_reserved(&mut self, bytes: u64) {
+        self.reserved = bytes;
     }
 
     /// The CPU copy of the pages, if kept.
@@ -1360,6 +1366,17 @@ mod tests {
         // A method's own caches (`tin`'s tiles) come off the blocks' share too.
         let (_, blocks) = reserved(64 << 20, 8 << 20);
         assert_eq!(blocks, (56 << 20) - entries - whole);
+        // A cache that fills as the views need it (geomorph's or the DSS table read by pages)
+        // is set before each frame and counts from that frame on.
+        let config = OocConfig { threads: 1, budget_bytes: 64 << 20, ..OocConfig::default() };
+        let mut scene = OocScene::new(store.clone(), config);
+        scene.frame(&camera, false);
+        scene.set_reserved(4 << 20);
+        scene.frame(&camera, false);
+        assert_eq!(scene.streamer().budget_bytes(), (60 << 20) - entries - whole);
+        scene.set_reserved(0);
+        scene.frame(&camera, false);
+        assert_eq!(scene.streamer().budget_bytes(), (64 << 20) - entries - whole);
         let (entries, blocks) = budget(entries);
         assert_eq!(blocks, entries / 2, "at least half for the blocks");
     }

@@ -259,8 +259,14 @@ impl<'a> StoreMethod<'a> {
                 Tables::RoughnessPvs(read_roughness(&store, LodMethod::PvpsC, &shape)?, pvs)
             }
             LodMethod::Geomorph => {
-                let table = crate::geomip_scene::read_for_store(&store, &shape)?
-                    .exaggerated(vertical_scale);
+                let paging = crate::geomip_scene::paging_within(scene.config().budget_bytes);
+                let table = crate::geomip_scene::read_for_store_with(
+                    &store,
+                    &shape,
+                    &paging,
+                    crate::geomip_scene::READ_WHOLE_MAX_BYTES,
+                )?
+                .exaggerated(vertical_scale);
                 let lib = MeshLibrary::new(table.patch_cells());
                 Tables::Geomip(table, lib)
             }
@@ -426,6 +432,14 @@ impl Method for StoreMethod<'_> {
             draw
         };
         let late_before = late_pages();
+        // A table read by pages keeps its cache within the one memory budget: the blocks get
+        // what it holds now less (`OocScene::set_reserved`).
+        let table_cache = match tables {
+            Tables::Geomip(t, _) => t.paging_stats().map_or(0, |s| s.cached_bytes),
+            Tables::Dss(t) => t.paging_stats().map_or(0, |s| s.cached_bytes),
+            _ => 0,
+        };
+        self.scene.set_reserved(table_cache);
         let mut frame = paged_frame(self.scene.frame_for(camera, warm, &self.tree, &mut select));
         if let Some(s) = frame.stats.stream.as_mut() {
             s.late_table_pages = late_pages() - late_before - ahead_late;
