@@ -155,7 +155,7 @@ fn write(dir: &Path, bytes: &[u8], max_level: u8, start: Instant, how: &str) -> 
 /// the message): read whole when it is at most `read_whole_max` bytes (a remote store's
 /// fetched into its mirror first), else opened for reading by pages
 /// ([`DssErrorTable::open_paged`]: the header and the page checksums at open, each page when a
-/// selection first asks one of its nodes, through a cache of [`DssPaging::default`]'s bytes;
+/// selection first asks one of its nodes, through a cache of `cache_bytes`;
 /// a remote store's from its mirror's copy, or where it lies by chunks when the store reads
 /// its tables so), or whole with a warning when it was baked before `dss_errors.bin` version 2.
 /// [`crate::geomip_scene::READ_WHOLE_MAX_BYTES`] is the store methods' threshold: 64 MiB, a
@@ -165,8 +165,9 @@ pub fn read_for_store(
     shape: &TreeShape,
     method: &str,
     read_whole_max: u64,
+    cache_bytes: u64,
 ) -> anyhow::Result<DssErrorTable> {
-    let paging = DssPaging::default();
+    let paging = DssPaging { cache_bytes };
     crate::scene_files::read_store_table(
         store,
         &crate::scene_files::StoreTable {

@@ -180,18 +180,10 @@ pub fn read_for_store(store: &Store, shape: &TreeShape) -> anyhow::Result<Geomip
     read_for_store_with(store, shape, &GeomipPaging::default(), READ_WHOLE_MAX_BYTES)
 }
 
-/// The page cache of a table read by pages for a store method whose memory budget
-/// ([`crate::ooc::OocConfig::budget_bytes`]) is `budget_bytes`: a quarter of it, at least
-/// [`GeomipPaging::default`]'s 32 MiB. The method's scene takes what the cache holds from the
-/// blocks' share of the budget each frame ([`crate::ooc::OocScene::set_reserved`]), so the
-/// one budget bounds both. At 1 px on the 32769^2 store's `fast_pass`, geomorph's frames
-/// touch nearly every patch of the 169 MB table (3.8 M patches drawn at the start): 32 MiB of
-/// least recently used pages were read again every frame (5.1 GB over 30 frames, selection
-/// 1.35 s a frame); a quarter of the default budget holds them all after one read
-/// (bench/ooc/README.md, "Geomorph's table cache from the budget").
+/// Geomorph's page cache for a store method whose memory budget is `budget_bytes`
+/// ([`crate::scene_files::table_cache_bytes`]).
 pub fn paging_within(budget_bytes: u64) -> GeomipPaging {
-    let floor = GeomipPaging::default().cache_bytes;
-    GeomipPaging { cache_bytes: (budget_bytes / 4).max(floor) }
+    GeomipPaging { cache_bytes: crate::scene_files::table_cache_bytes(budget_bytes) }
 }
 
 /// [`read_for_store`] with its page cache's settings, reading a table of at most

@@ -73,6 +73,21 @@ pub fn load(scene: &MethodScene, dir: &Path, methods: &[LodMethod]) -> Vec<Strin
     warnings
 }
 
+/// The page cache of a side table read by pages (geomorph's `geomip.bin`, the DSS paper's
+/// `dss_errors.bin`) for a store method whose memory budget
+/// ([`crate::ooc::OocConfig::budget_bytes`]) is `budget_bytes`: a quarter of it, at least
+/// 32 MiB (the tables' own default). The method's scene takes what the cache holds from the
+/// blocks' share of the budget each frame ([`crate::ooc::OocScene::set_reserved`]), so the
+/// one budget bounds both. At 1 px on the 32769^2 store's `fast_pass`, geomorph's frames
+/// touch nearly every patch of its 169 MB table (3.8 M patches drawn at the start): 32 MiB of
+/// least recently used pages were read again every frame (5.1 GB over 30 frames, selection
+/// 1.13 s a frame, 0.28-0.31 s with the quarter). `dss-2`'s table (1.43 GB there) is walked
+/// far less per frame; its selection did not change measurably (bench/ooc/README.md,
+/// "Geomorph's table cache from the budget").
+pub fn table_cache_bytes(budget_bytes: u64) -> u64 {
+    (budget_bytes / 4).max(32 << 20)
+}
+
 /// What [`read_store_table`] reads.
 pub(crate) struct StoreTable<'a, T> {
     /// The side table's file name in the store (`geomip.bin`, `dss_errors.bin`).

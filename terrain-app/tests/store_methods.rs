@@ -640,7 +640,8 @@ fn a_store_dss_table_opens_by_pages_and_a_damaged_page_fails_only_where_needed()
     };
     let (south, north) = (cam(1024.0, 20.0, 180.0), cam(1024.0, 2040.0, 180.0));
     let read = |max| {
-        terrain_app::dss_scene::read_for_store(tree.store(), tree.shape(), "dss-1", max).unwrap()
+        terrain_app::dss_scene::read_for_store(tree.store(), tree.shape(), "dss-1", max, 32 << 20)
+            .unwrap()
     };
     let select = |t: &terrain_core::lod::DssErrorTable, c: &Camera| {
         select_dss_power_of_two(&tree, c, t, &cfg).patches

@@ -290,6 +290,7 @@ impl<'a> StoreMethod<'a> {
                     &shape,
                     kind.name(),
                     crate::geomip_scene::READ_WHOLE_MAX_BYTES,
+                    crate::scene_files::table_cache_bytes(scene.config().budget_bytes),
                 )?
                 .exaggerated(vertical_scale);
                 Tables::Dss(table)
