@@ -7,8 +7,11 @@
 //! ```sh
 //! cargo build --release -p terrain-app --example store_frame
 //! target/release/examples/store_frame STORE [--method geomorph] [--px 7] \
-//!     [--flight flights/pvps_884.json] [--frames 10] [--paced]
+//!     [--flight flights/pvps_884.json] [--frames 10] [--paced] [--error-px 1]
 //! ```
+//! `--px` sets geomorph's and `tin`'s pixel thresholds directly (the other methods keep their
+//! defaults: `ooc`'s `tau` 2, the PVPS paper's constants); `--error-px` maps a p99 target onto
+//! every method's own parameter as `terrain bench --error-px` does.
 //! Cameras: the flight resolved onto the store's overview (as `selection_scaling`'s store
 //! rows), `--frames` frames evenly spaced, 1280 x 720. The first frame waits until its levels
 //! are resident (not timed); the others draw what is resident (real time), each timed. The
@@ -24,6 +27,7 @@ use std::path::PathBuf;
 
 use anyhow::Context;
 use terrain_app::bench::{median, thread_cpu_s};
+use terrain_app::method::registry::{ErrorView, params_for_error_px};
 use terrain_app::method::{Draw, OocWait, store_method};
 use terrain_app::methods::{LodMethod, MethodConfig};
 use terrain_app::ooc::{MorphDraw, OocConfig, OocScene, morph_demand, morph_on_pages};
@@ -44,13 +48,24 @@ fn main() -> anyhow::Result<()> {
     let dir = PathBuf::from(args.rest().first().context("usage: store_frame STORE [options]")?);
     let kind = <LodMethod as clap::ValueEnum>::from_str(&method, true)
         .map_err(|e| anyhow::anyhow!("--method {method}: {e}"))?;
+    // The one quality knob (`--error-px` of `terrain bench`): every method's own parameter
+    // for a p99 target, `ooc`'s `tau` from its store's calibration (or the shared one).
+    let error_px: Option<f64> =
+        args.take("--error-px").map(|v| v.parse()).transpose().context("--error-px")?;
     let mut config = MethodConfig::default();
     if let Some(px) = px {
         config.geomip.pixel_threshold = px;
         config.tin.tau_px = px;
     }
-    let scene = OocScene::open(&dir, OocConfig::default())
-        .with_context(|| format!("store {}", dir.display()))?;
+    let open =
+        |c: OocConfig| OocScene::open(&dir, c).with_context(|| format!("store {}", dir.display()));
+    let mut scene = open(OocConfig::default())?;
+    if let Some(px) = error_px {
+        params_for_error_px(kind, px, ErrorView::REFERENCE).apply(&mut config);
+        let (tau, _) = scene.config().tau_for_error_px(px);
+        scene = open(OocConfig { tau, ..OocConfig::default() })?;
+        eprintln!("--error-px {px}: ooc tau {tau:.4}, pvps C3 {:.3}", config.pvps.c3);
+    }
     let overview = scene.overview(4).context("the store's overview")?;
     let spec = FlightSpec::load(&flight).with_context(|| format!("flight {flight}"))?;
     let (resolved, _) = spec.resolve(&overview, &FlightConfig::default());
