@@ -1322,6 +1322,12 @@ impl StoreTree {
         Some(v)
     }
 
+    /// Block `b`'s lowest height (its index entry's), from the tree's visited blocks (a block
+    /// a selection is drawing over has been visited: no index page decoded again).
+    pub(crate) fn block_min(&self, b: BlockId) -> Option<f32> {
+        self.visited_block(b).map(|(e, _)| e.min)
+    }
+
     /// The box of every block's valid vertices (world metres: their plan rectangles and
     /// least and greatest heights), from the four corner blocks' entries and the root's
     /// min/max (no other entry read); `None` for a store without blocks.

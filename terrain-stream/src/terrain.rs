@@ -74,7 +74,7 @@ impl<'a> StoreSource<'a> {
             return z;
         }
         let id = BlockId::new(by.min(h.blocks_y - 1), bx.min(h.blocks_x - 1));
-        self.tree.store().entry(id).map_or(0.0, |e| e.min)
+        self.tree.block_min(id).unwrap_or(0.0)
     }
 }
 
