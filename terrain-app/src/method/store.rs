@@ -107,6 +107,20 @@ enum Tables {
     Geomip(GeomipTable, MeshLibrary),
 }
 
+impl Tables {
+    /// A table read by pages (geomorph's or the DSS table): its pages read late so far and the
+    /// bytes its cache holds now; `(0, 0)` for the others.
+    fn paging(&self) -> (u64, u64) {
+        match self {
+            Tables::Geomip(t, _) => {
+                t.paging_stats().map_or((0, 0), |s| (s.pages_late, s.cached_bytes))
+            }
+            Tables::Dss(t) => t.paging_stats().map_or((0, 0), |s| (s.pages_late, s.cached_bytes)),
+            _ => (0, 0),
+        }
+    }
+}
+
 /// A patch method over a store (see the module docs).
 #[derive(Debug)]
 pub struct StoreMethod<'a> {
@@ -415,11 +429,7 @@ impl Method for StoreMethod<'_> {
             };
             StoreDraw { selection, ..Default::default() }
         };
-        let late_pages = || match tables {
-            Tables::Geomip(t, _) => t.paging_stats().map_or(0, |s| s.pages_late),
-            Tables::Dss(t) => t.paging_stats().map_or(0, |s| s.pages_late),
-            _ => 0,
-        };
+        let late_pages = || tables.paging().0;
         // The table pages the selection for the eye ahead (Eq. 8) found missing are fetched
         // for the next frames, not late for this one's drawing.
         let (frame_camera, mut ahead_late) = (*camera, 0);
@@ -435,12 +445,7 @@ impl Method for StoreMethod<'_> {
         let late_before = late_pages();
         // A table read by pages keeps its cache within the one memory budget: the blocks get
         // what it holds now less (`OocScene::set_reserved`).
-        let table_cache = match tables {
-            Tables::Geomip(t, _) => t.paging_stats().map_or(0, |s| s.cached_bytes),
-            Tables::Dss(t) => t.paging_stats().map_or(0, |s| s.cached_bytes),
-            _ => 0,
-        };
-        self.scene.set_reserved(table_cache);
+        self.scene.set_reserved(tables.paging().1);
         let mut frame = paged_frame(self.scene.frame_for(camera, warm, &self.tree, &mut select));
         if let Some(s) = frame.stats.stream.as_mut() {
             s.late_table_pages = late_pages() - late_before - ahead_late;
