@@ -392,7 +392,8 @@ fn a_selection_after_a_wait_is_the_same_whatever_the_cache_held() {
     for y in [-1500.0, -1000.0, -500.0, -250.0] {
         let fresh = warm(&mut Streamer::new(store.clone(), config), y);
         let mut flown = Streamer::new(store.clone(), config);
-        // Nearer eyes first, then back out along the same line.
+        // Eyes north of `y` first (nearer the view's far blocks, which then need finer
+        // levels), then back south towards `y` along the same line.
         for f in 0..30 {
             flown.update(&cam(y + 2000.0 - 60.0 * f as f64));
         }
