@@ -141,9 +141,14 @@ fn main() -> anyhow::Result<()> {
             }
             None => (f.stats.selection_ms, f64::NAN),
         };
+        // Geomorph's compact selection only: its demand and drawn-block filter timed apart.
+        let runs_part = match geo.is_some() {
+            true => format!(", demand + filter from runs {runs_ms:.2} ms CPU"),
+            false => String::new(),
+        };
         eprintln!(
             "frame {k}: {ms:.2} ms CPU, selection {sel:.2} ms CPU ({:.2} wall), stream {s:.2} \
-             ms, demand + filter from runs {runs_ms:.2} ms CPU, {} patches, needed {:.0} MiB \
+             ms{runs_part}, {} patches, needed {:.0} MiB \
              (late {:.3} MiB in {} blocks, {} tiles late), resident {:.0} MiB, queue {} \
              ({:.1} MiB), prefetched {:.2} MiB, cancelled {}, evictions {}{}",
             f.stats.selection_ms,
@@ -195,12 +200,14 @@ fn main() -> anyhow::Result<()> {
     let (t, s, st, r) = (median(total), median(select), median(stream), median(rest));
     println!(
         "{} {method}: frame {t:.2} ms CPU (median of {}), selection {s:.2}, stream {st:.2}, \
-         rest {:.2}; demand + filter from runs {:.2} ms CPU; frames after the first not at \
-         their needed level: {late_frames}{}",
+         rest {:.2}{}; frames after the first not at their needed level: {late_frames}{}",
         dir.display(),
         cameras.len().saturating_sub(1),
         r,
-        median(on_runs),
+        match geo.is_some() {
+            true => format!("; demand + filter from runs {:.2} ms CPU", median(on_runs)),
+            false => String::new(),
+        },
         match paced {
             true => format!(
                 "; over the 1/30 s period: {over_frames} ({:.2} s over)",
