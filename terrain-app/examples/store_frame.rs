@@ -86,15 +86,11 @@ fn main() -> anyhow::Result<()> {
         let store = scene.store().clone();
         let cells = config.leaf_cells.clamp(2, 64).next_power_of_two();
         let tree = StoreTree::new(store.clone(), cells);
-        // The method's own page cache (`paging_within` the scene's budget).
-        let paging = terrain_app::geomip_scene::paging_within(scene.config().budget_bytes);
-        let table = terrain_app::geomip_scene::read_for_store_with(
-            tree.store(),
-            tree.shape(),
-            &paging,
-            terrain_app::geomip_scene::READ_WHOLE_MAX_BYTES,
-        )?
-        .exaggerated(store.header().vertical_scale);
+        // The method's own page cache, from the scene's budget.
+        let budget = scene.config().budget_bytes;
+        let table =
+            terrain_app::geomip_scene::read_for_store_within(tree.store(), tree.shape(), budget)?
+                .exaggerated(store.header().vertical_scale);
         let cfg = GeomipConfig { patch_cells: table.patch_cells(), ..config.geomip };
         Some((tree, table, cfg))
     } else {

@@ -180,10 +180,16 @@ pub fn read_for_store(store: &Store, shape: &TreeShape) -> anyhow::Result<Geomip
     read_for_store_with(store, shape, &GeomipPaging::default(), READ_WHOLE_MAX_BYTES)
 }
 
-/// Geomorph's page cache for a store method whose memory budget is `budget_bytes`
-/// ([`crate::scene_files::table_cache_bytes`]).
-pub fn paging_within(budget_bytes: u64) -> GeomipPaging {
-    GeomipPaging { cache_bytes: crate::scene_files::table_cache_bytes(budget_bytes) }
+/// [`read_for_store`] for a store method whose memory budget is `budget_bytes`: the table's
+/// page cache [`crate::scene_files::table_cache_bytes`] of it (what the method's scene then
+/// reserves from the blocks' share each frame).
+pub fn read_for_store_within(
+    store: &Store,
+    shape: &TreeShape,
+    budget_bytes: u64,
+) -> anyhow::Result<GeomipTable> {
+    let paging = GeomipPaging { cache_bytes: crate::scene_files::table_cache_bytes(budget_bytes) };
+    read_for_store_with(store, shape, &paging, READ_WHOLE_MAX_BYTES)
 }
 
 /// [`read_for_store`] with its page cache's settings, reading a table of at most

@@ -273,14 +273,9 @@ impl<'a> StoreMethod<'a> {
                 Tables::RoughnessPvs(read_roughness(&store, LodMethod::PvpsC, &shape)?, pvs)
             }
             LodMethod::Geomorph => {
-                let paging = crate::geomip_scene::paging_within(scene.config().budget_bytes);
-                let table = crate::geomip_scene::read_for_store_with(
-                    &store,
-                    &shape,
-                    &paging,
-                    crate::geomip_scene::READ_WHOLE_MAX_BYTES,
-                )?
-                .exaggerated(vertical_scale);
+                let budget = scene.config().budget_bytes;
+                let table = crate::geomip_scene::read_for_store_within(&store, &shape, budget)?
+                    .exaggerated(vertical_scale);
                 let lib = MeshLibrary::new(table.patch_cells());
                 Tables::Geomip(table, lib)
             }
