@@ -57,15 +57,16 @@ fn main() -> anyhow::Result<()> {
         config.geomip.pixel_threshold = px;
         config.tin.tau_px = px;
     }
-    let open =
-        |c: OocConfig| OocScene::open(&dir, c).with_context(|| format!("store {}", dir.display()));
-    let mut scene = open(OocConfig::default())?;
+    let mut ooc = OocConfig::default();
     if let Some(px) = error_px {
+        // As `terrain render` and `fly` do: the store's calibration when it has one.
+        ooc.calibration = terrain_app::ooc_calibration::of_store(&dir)?;
         params_for_error_px(kind, px, ErrorView::REFERENCE).apply(&mut config);
-        let (tau, _) = scene.config().tau_for_error_px(px);
-        scene = open(OocConfig { tau, ..OocConfig::default() })?;
-        eprintln!("--error-px {px}: ooc tau {tau:.4}, pvps C3 {:.3}", config.pvps.c3);
+        // The scene's `tau` whatever the method (it also sets the streamer's Eq. 7 levels).
+        ooc.tau = ooc.tau_for_error_px(px).0;
+        eprintln!("--error-px {px}: ooc tau {:.4}, pvps C3 {:.3}", ooc.tau, config.pvps.c3);
     }
+    let scene = OocScene::open(&dir, ooc).with_context(|| format!("store {}", dir.display()))?;
     let overview = scene.overview(4).context("the store's overview")?;
     let spec = FlightSpec::load(&flight).with_context(|| format!("flight {flight}"))?;
     let (resolved, _) = spec.resolve(&overview, &FlightConfig::default());
