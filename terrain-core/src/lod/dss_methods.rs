@@ -44,7 +44,8 @@ use crate::geometry::Camera;
 use crate::heightmap::Heightmap;
 use crate::metrics::Region;
 use crate::metrics::dss::{
-    FACTORS, ObjectErrorsAcc, RowBand, SampleRows, Tessellation, object_errors, tessellation_factor,
+    FACTORS, ObjectErrorsAcc, RowBand, SampleRows, Tessellation, object_errors,
+    tessellation_factor, tessellation_factor_of,
 };
 use crate::metrics::screen;
 use crate::quadtree::{NodeId, NodeInfo, Quadtree, SplitToLevel};
@@ -360,19 +361,33 @@ impl DssErrorTable {
     /// [`DssErrorTable::get`] keeping the page read last in `memo` (node after node in one
     /// page: one cache lookup).
     pub(super) fn get_with(&self, node: NodeId, memo: &PageMemo) -> Option<[f64; FACTORS]> {
+        self.map_with(node, memo, |d| *d)
+    }
+
+    /// `f` of [`DssErrorTable::get_with`]'s errors, read in place (a selection that needs one
+    /// of the 32 does not copy all of them).
+    pub(super) fn map_with<R>(
+        &self,
+        node: NodeId,
+        memo: &PageMemo,
+        f: impl FnOnce(&[f64; FACTORS]) -> R,
+    ) -> Option<R> {
         let Some(p) = &self.paged else {
             let (nx, v) = self.levels.get(node.level as usize)?;
             if node.i >= *nx {
                 return None;
             }
-            return v.get((node.j * nx + node.i) as usize).copied();
+            return v.get((node.j * nx + node.i) as usize).map(f);
         };
         let slot = p.slot(node)?;
         let mut last = memo.0.borrow_mut();
         if last.as_ref().is_none_or(|(q, _)| *q != slot.page) {
             *last = p.page(slot.page).map(|page| (slot.page, page));
         }
-        Some(last.as_ref().map_or([f64::INFINITY; FACTORS], |(_, page)| page[slot.index]))
+        Some(match last.as_ref() {
+            Some((_, page)) => f(&page[slot.index]),
+            None => f(&[f64::INFINITY; FACTORS]),
+        })
     }
 
     /// Whether the table is read by pages ([`DssErrorTable::open_paged`]).
@@ -428,15 +443,19 @@ impl<'a> Metric<'a> {
         }
     }
 
-    fn delta(&self, node: NodeId) -> [f64; FACTORS] {
-        self.table.get_with(node, &self.memo).unwrap_or([0.0; FACTORS])
+    /// `f` of `node`'s 32 object-space errors, in place (0 for a node the table lacks).
+    fn with_delta<R>(&self, node: NodeId, f: impl Fn(&[f64; FACTORS]) -> R) -> R {
+        match self.table.map_with(node, &self.memo, &f) {
+            Some(r) => r,
+            None => f(&[0.0; FACTORS]),
+        }
     }
 
     /// Eq. 3 for the finest factor: split when `rho_32 > rho_thr`.
     pub(super) fn must_split(&self, node: NodeId, info: &NodeInfo) -> bool {
         let rho = screen::dss_floored(
             self.lambda,
-            self.delta(node)[FACTORS - 1],
+            self.with_delta(node, |d| d[FACTORS - 1]),
             info.aabb.distance(self.eye),
             info.aabb.center() - self.eye,
             self.floor,
@@ -445,15 +464,16 @@ impl<'a> Metric<'a> {
     }
 
     /// Eq. 3 and 4: the continuous factor `F_thr` (64 where even 64 misses the threshold).
+    /// Eq. 3's view-angle factor once per node, and only the errors Eq. 4's scan reaches
+    /// (the same bits as [`crate::metrics::dss::screen_errors_floored`] then
+    /// [`tessellation_factor`]: `dss_factor_equals_all_32_errors_then_eq4`).
     pub(super) fn factor(&self, node: NodeId, info: &NodeInfo) -> f32 {
-        let rho = crate::metrics::dss::screen_errors_floored(
-            &self.delta(node),
-            self.lambda,
-            info.aabb.distance(self.eye),
-            info.aabb.center() - self.eye,
-            self.floor,
-        );
-        match tessellation_factor(&rho, self.thr) {
+        let d = info.aabb.distance(self.eye);
+        let sin = screen::view_sin_floored(info.aabb.center() - self.eye, self.floor);
+        let t = self.with_delta(node, |delta| {
+            tessellation_factor_of(|k| screen::dss_at_sin(self.lambda, delta[k], d, sin), self.thr)
+        });
+        match t {
             Tessellation::MustSplit => MAX_FACTOR,
             Tessellation::Factor(f) => f.clamp(2.0, f64::from(MAX_FACTOR)) as f32,
         }
@@ -660,6 +680,65 @@ mod tests {
             ((i as f32 * 0.37).sin() * 25.0 + (j as f32 * 0.23).cos() * 20.0) + 100.0
         })
         .unwrap()
+    }
+    /// `Metric::factor` (the view angle once, only the errors Eq. 4's scan reaches) gives the
+    /// bits of all 32 screen errors of Eq. 3 followed by Eq. 4, for every node of a table and
+    /// cameras from inside the terrain's box to far above it, with thresholds that make
+    /// nodes split, draw at every factor and at the coarsest.
+    #[test]
+    fn dss_factor_equals_all_32_errors_then_eq4() {
+        // Leaves of 64 cells: every factor below a leaf's cells has an error of its own.
+        let hm = crate::synth::FractalConfig::with_size(257, 257, 10.0).to_heightmap().unwrap();
+        let cfg = DssConfig { leaf_cells: 64, ..Default::default() };
+        let qt = cfg.quadtree(&hm);
+        let table = DssErrorTable::new(&hm, &qt);
+        let mut unit = crate::test_support::unit_rng(0x2545_f491_4f6c_dd1d);
+        let (mut split, mut coarsest, mut between, mut inside) = (0, 0, 0, 0);
+        for k in 0..40 {
+            let z = [60.0, 130.0, 400.0, 3000.0][k % 4] * (0.5 + unit());
+            let eye = dvec3(2560.0 * unit(), 2560.0 * unit(), z);
+            let cam = Camera::from_yaw_pitch(eye, 360.0 * unit(), -80.0 * unit())
+                .with_viewport(1280.0, 720.0);
+            let cfg = DssConfig {
+                rho_thr: [0.25, 1.0, 4.0, 30.0, f64::NAN][k % 5],
+                view_angle_floor: [screen::MIN_VIEW_SIN, 0.0, 1.0][k % 3],
+                ..cfg.clone()
+            };
+            let metric = Metric::new(&table, &cam, &cfg);
+            let mut stack = vec![NodeId::ROOT];
+            while let Some(n) = stack.pop() {
+                let Some(info) = qt.node_info(n) else { continue };
+                stack.extend(n.children());
+                let d = info.aabb.distance(eye);
+                let rho = crate::metrics::dss::screen_errors_floored(
+                    &table.get(n).unwrap_or([0.0; FACTORS]),
+                    metric.lambda,
+                    d,
+                    info.aabb.center() - eye,
+                    cfg.view_angle_floor,
+                );
+                let want = match tessellation_factor(&rho, cfg.rho_thr) {
+                    Tessellation::MustSplit => {
+                        split += 1;
+                        MAX_FACTOR
+                    }
+                    Tessellation::Factor(f) => {
+                        if f == 2.0 {
+                            coarsest += 1
+                        } else {
+                            between += 1
+                        }
+                        f.clamp(2.0, f64::from(MAX_FACTOR)) as f32
+                    }
+                };
+                inside += usize::from(d <= screen::MIN_DISTANCE_M);
+                assert_eq!(metric.factor(n, &info).to_bits(), want.to_bits(), "camera {k} {n:?}");
+            }
+        }
+        assert!(
+            split > 0 && coarsest > 0 && between > 0 && inside > 0,
+            "{split} {coarsest} {between} {inside}"
+        );
     }
 
     /// The view-angle floor of Eq. 3 (`DssConfig::view_angle_floor`): a node seen at

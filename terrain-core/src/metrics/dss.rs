@@ -561,7 +561,8 @@ pub fn screen_errors_floored(
     view_dir: DVec3,
     floor: f64,
 ) -> [f64; FACTORS] {
-    delta.map(|e| screen::dss_floored(lambda, e, d, view_dir, floor))
+    let sin = screen::view_sin_floored(view_dir, floor);
+    delta.map(|e| screen::dss_at_sin(lambda, e, d, sin))
 }
 
 /// The tessellation decision of Eq. 4.
@@ -582,17 +583,25 @@ pub enum Tessellation {
 /// factor 2. `rho` index `k` is the paper's `i = k + 1`. A negative or NaN threshold counts as
 /// 0; an infinite `rho_i` (camera inside the box) gives `2i + 2`.
 pub fn tessellation_factor(rho: &[f64; FACTORS], rho_thr: f64) -> Tessellation {
+    tessellation_factor_of(|k| rho[k], rho_thr)
+}
+
+/// [`tessellation_factor`] of the screen errors `rho(k)`, each worked out only when the scan
+/// reaches it (from the finest down to the first over the threshold, and the one after it).
+pub fn tessellation_factor_of(rho: impl Fn(usize) -> f64, rho_thr: f64) -> Tessellation {
     let thr = if rho_thr.is_nan() { 0.0 } else { rho_thr.max(0.0) };
-    if rho[FACTORS - 1] > thr {
+    let mut rn = rho(FACTORS - 1);
+    if rn > thr {
         return Tessellation::MustSplit;
     }
     for k in (0..FACTORS - 1).rev() {
-        let (ri, rn) = (rho[k], rho[k + 1]);
+        let ri = rho(k);
         if ri > thr {
             let li = factor(k) as f64;
             let frac = if ri.is_infinite() { 1.0 } else { (ri - thr) / (ri - rn) };
             return Tessellation::Factor(frac * 2.0 + li);
         }
+        rn = ri;
     }
     Tessellation::Factor(2.0)
 }

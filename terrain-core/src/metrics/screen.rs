@@ -98,8 +98,14 @@ pub fn dss(lambda: f64, delta: f64, d: f64, view_dir: DVec3) -> f64 {
 
 /// [`dss`] with the view-angle floor `floor` ([`view_sin_floored`]).
 pub fn dss_floored(lambda: f64, delta: f64, d: f64, view_dir: DVec3, floor: f64) -> f64 {
+    dss_at_sin(lambda, delta, d, view_sin_floored(view_dir, floor))
+}
+
+/// [`dss_floored`] with its view-angle factor `sin` ([`view_sin_floored`]) worked out by the
+/// caller: once per node for its 32 errors.
+pub fn dss_at_sin(lambda: f64, delta: f64, d: f64, sin: f64) -> f64 {
     let rho = plain(lambda, delta, d);
-    if rho.is_infinite() { rho } else { rho * view_sin_floored(view_dir, floor) }
+    if rho.is_infinite() { rho } else { rho * sin }
 }
 
 /// The out-of-core paper's `beta` (Eq. 7): the angle between the sight line (`view_dir`) and
