@@ -29,7 +29,7 @@
 //! `d` and `theta` per block). Straight-down views are floored by
 //! [`crate::metrics::screen::MIN_VIEW_SIN`].
 
-use crate::quadtree::{LeafTree, NodeTree, TreeShape};
+use crate::quadtree::{NodeTree, TreeShape};
 use std::cell::RefCell;
 use std::sync::Arc;
 use std::time::Instant;
@@ -490,28 +490,25 @@ fn select_dss(
     let start = Instant::now();
     assert_eq!(table.root_cells(), src.shape().root_cells(), "error table of another quadtree");
     let metric = Metric::new(table, camera, cfg);
-    let (leaves, stats) = match uniform {
-        Some(level) => run::leaves(src, camera, &mut SplitToLevel(level), cfg.frustum_cull, false),
-        None => {
-            let mut split = |n: NodeId, info: &NodeInfo| metric.must_split(n, info);
-            run::leaves(src, camera, &mut split, cfg.frustum_cull, true)
-        }
-    };
-    if uniform.is_some() {
+    if let Some(level) = uniform {
+        let mut split = SplitToLevel(level);
+        let (leaves, stats) = run::leaves(src, camera, &mut split, cfg.frustum_cull, false);
         return assemble_uniform(src, &metric, leaves, stats, start);
     }
+    let mut split = |n: NodeId, info: &NodeInfo| metric.must_split(n, info);
+    // The balanced tree is kept for the edges (not built again from its leaves).
+    let (tree, mut stats) = run::balanced_tree(src, camera, &mut split, cfg.frustum_cull);
+    let leaves = tree.leaves();
     // Each leaf's wish beside it rather than in a map keyed by node (SipHash): the map's
     // build and lookups were 40 % of Method I's samples over a 32769^2 store; the same
     // patches as the map's (`methods_one_and_two_equal_the_hash_map_reference`).
-    let want: Vec<f32> = per_leaf(src, &leaves, |n, info| pow2_up(metric.factor(n, info)));
-    let tree = LeafTree::new(&leaves);
+    let want: Vec<f32> = per_leaf(src, leaves, |n, info| pow2_up(metric.factor(n, info)));
     let patches: Vec<Patch> = leaves
         .iter()
         .zip(wish_outer_factors(&tree, &want))
         .zip(&want)
         .map(|((&node, outer), &w)| Patch { node, outer, inner: [w; 2] })
         .collect();
-    let mut stats = stats;
     stats.patches = patches.len();
     stats.max_level = patches.iter().map(|p| p.node.level).max().unwrap_or(0);
     stats.cpu_time = start.elapsed();

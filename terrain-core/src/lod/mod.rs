@@ -176,6 +176,21 @@ pub(crate) mod run {
         (out, stats)
     }
 
+    /// [`leaves`] balanced, as the balanced tree itself (its leaves depth first), for a
+    /// selection that resolves its edges on it rather than building it again.
+    pub(crate) fn balanced_tree(
+        qt: &dyn NodeTree,
+        camera: &Camera,
+        split: &mut dyn SplitPolicy,
+        frustum_cull: bool,
+    ) -> (LeafTree, SelectionStats) {
+        let (leaves, mut stats) = leaves(qt, camera, split, frustum_cull, false);
+        let shape = qt.shape();
+        let tree = LeafTree::balanced(&leaves, |n| shape.contains_node(n));
+        stats.balance_added = tree.leaves().len().saturating_sub(stats.traversal_leaves);
+        (tree, stats)
+    }
+
     /// Builds the selection: outer factors from `rule`, inner factors from `inner`.
     pub(crate) fn assemble(
         leaves: Vec<NodeId>,
