@@ -45,7 +45,7 @@ use crate::heightmap::Heightmap;
 use crate::metrics::Region;
 use crate::metrics::dss::{
     FACTORS, ObjectErrorsAcc, RowBand, SampleRows, Tessellation, object_errors,
-    tessellation_factor, tessellation_factor_of,
+    tessellation_factor_of,
 };
 use crate::metrics::screen;
 use crate::quadtree::{NodeId, NodeInfo, Quadtree, SplitToLevel};
@@ -466,7 +466,7 @@ impl<'a> Metric<'a> {
     /// Eq. 3 and 4: the continuous factor `F_thr` (64 where even 64 misses the threshold).
     /// Eq. 3's view-angle factor once per node, and only the errors Eq. 4's scan reaches
     /// (the same bits as [`crate::metrics::dss::screen_errors_floored`] then
-    /// [`tessellation_factor`]: `dss_factor_equals_all_32_errors_then_eq4`).
+    /// [`crate::metrics::dss::tessellation_factor`]: `dss_factor_equals_all_32_errors_then_eq4`).
     pub(super) fn factor(&self, node: NodeId, info: &NodeInfo) -> f32 {
         let d = info.aabb.distance(self.eye);
         let sin = screen::view_sin_floored(info.aabb.center() - self.eye, self.floor);
@@ -670,6 +670,7 @@ mod tests {
     use crate::georef::Georef;
     use crate::lod::WishEdges;
     use crate::lod::check_shared_edges;
+    use crate::metrics::dss::tessellation_factor;
     use glam::dvec3;
 
     fn bumpy(n: usize) -> Heightmap {
