@@ -48,7 +48,7 @@ use crate::metrics::dss::{
     tessellation_factor_of,
 };
 use crate::metrics::screen;
-use crate::quadtree::{NodeId, NodeInfo, Quadtree, SplitToLevel};
+use crate::quadtree::{NoCull, NodeId, NodeInfo, Quadtree, SplitToLevel};
 
 /// Settings of the DSS comparison methods.
 #[derive(Debug, Clone, PartialEq)]
@@ -497,7 +497,8 @@ fn select_dss(
     }
     let mut split = |n: NodeId, info: &NodeInfo| metric.must_split(n, info);
     // The balanced tree is kept for the edges (not built again from its leaves).
-    let (tree, mut stats) = run::balanced_tree(src, camera, &mut split, cfg.frustum_cull);
+    let (tree, mut stats) =
+        run::balanced_tree(src, camera, &mut split, cfg.frustum_cull, &mut NoCull);
     let leaves = tree.leaves();
     // Each leaf's wish beside it rather than in a map keyed by node (SipHash): the map's
     // build and lookups were 40 % of Method I's samples over a 32769^2 store; the same
@@ -671,6 +672,7 @@ mod tests {
     use crate::lod::WishEdges;
     use crate::lod::check_shared_edges;
     use crate::metrics::dss::tessellation_factor;
+    use crate::quadtree::LeafTree;
     use glam::dvec3;
 
     fn bumpy(n: usize) -> Heightmap {
@@ -847,7 +849,7 @@ mod tests {
             .collect();
         let rule: WishEdges = WishEdges { want };
         let inner = |n: NodeId, _: &[f32; 4]| [rule.want(n); 2];
-        run::assemble(leaves, stats, &rule, inner, start)
+        run::assemble(&LeafTree::new(&leaves), stats, &rule, inner, start)
     }
 
     fn assert_matches_reference(hm: &Heightmap, cfg: &DssConfig, cameras: usize, uniform: bool) {

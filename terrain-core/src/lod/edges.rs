@@ -149,7 +149,7 @@ pub fn wish_outer_factors(tree: &LeafTree, want: &[f32]) -> Vec<[f32; 4]> {
 /// for a same-level leaf `m`, `coarse(k, e, finer)` for the whole edge of `k` facing finer
 /// leaves, `unshared(k, e)`; a leaf facing a coarser one takes that one's factor for the
 /// shared edge divided by `2^(level difference)`.
-fn resolve_all(
+pub(crate) fn resolve_all(
     tree: &LeafTree,
     mut same: impl FnMut(usize, Edge, usize) -> f32,
     mut coarse: impl FnMut(usize, Edge, &[usize]) -> f32,

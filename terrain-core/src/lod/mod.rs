@@ -114,12 +114,9 @@ impl NodeField for ConstantField {
 
 /// Shared plumbing of the methods: the traversal with stats, balancing, and patch assembly.
 pub(crate) mod run {
-    use std::time::Instant;
-
     use glam::DVec3;
 
-    use super::edges::{EdgeRule, outer_factors_all};
-    use super::patch::{Patch, Selection, SelectionStats};
+    use super::patch::SelectionStats;
     use crate::geometry::Camera;
     use crate::metrics::screen::{MAX_FOV_Y, MIN_DISTANCE_M, MIN_FOV_Y};
     use crate::quadtree::{
@@ -178,31 +175,38 @@ pub(crate) mod run {
 
     /// [`leaves`] balanced, as the balanced tree itself (its leaves depth first), for a
     /// selection that resolves its edges on it rather than building it again.
+    /// With a second cull policy `extra` as [`leaves_with_cull`].
     pub(crate) fn balanced_tree(
         qt: &dyn NodeTree,
         camera: &Camera,
         split: &mut dyn SplitPolicy,
         frustum_cull: bool,
+        extra: &mut dyn CullPolicy,
     ) -> (LeafTree, SelectionStats) {
-        let (leaves, mut stats) = leaves(qt, camera, split, frustum_cull, false);
+        let (leaves, mut stats) = leaves_with_cull(qt, camera, split, frustum_cull, extra, false);
         let shape = qt.shape();
         let tree = LeafTree::balanced(&leaves, |n| shape.contains_node(n));
         stats.balance_added = tree.leaves().len().saturating_sub(stats.traversal_leaves);
         (tree, stats)
     }
 
-    /// Builds the selection: outer factors from `rule`, inner factors from `inner`.
+    /// Builds the selection of `tree`'s leaves: outer factors from `rule`, inner factors from
+    /// `inner`. The tests' reference of the selections, which resolve their edges on the
+    /// leaves' indices instead (no rule asked per node).
+    #[cfg(test)]
     pub(crate) fn assemble(
-        leaves: Vec<NodeId>,
+        tree: &LeafTree,
         mut stats: SelectionStats,
-        rule: &dyn EdgeRule,
+        rule: &dyn super::edges::EdgeRule,
         inner: impl Fn(NodeId, &[f32; 4]) -> [f32; 2],
-        start: Instant,
-    ) -> Selection {
-        let tree = LeafTree::new(&leaves);
-        let patches: Vec<Patch> = leaves
+        start: std::time::Instant,
+    ) -> super::patch::Selection {
+        use super::edges::outer_factors_all;
+        use super::patch::{Patch, Selection};
+        let patches: Vec<Patch> = tree
+            .leaves()
             .iter()
-            .zip(outer_factors_all(&tree, rule))
+            .zip(outer_factors_all(tree, rule))
             .map(|(&node, outer)| Patch { node, outer, inner: inner(node, &outer) })
             .collect();
         stats.patches = patches.len();

@@ -54,8 +54,8 @@ use std::time::Instant;
 use glam::DVec3;
 
 use super::NodeField;
-use super::edges::EdgeRule;
-use super::patch::{Edge, MAX_FACTOR, Selection, clamp_factor};
+use super::edges::{EdgeRule, resolve_all};
+use super::patch::{Edge, MAX_FACTOR, Patch, Selection, SelectionStats, clamp_factor};
 use super::run;
 use super::source::TerrainSource;
 use super::surface::{CORNERS_UV, edge_corners, patch_grid_point};
@@ -63,7 +63,7 @@ use crate::geometry::Camera;
 use crate::hash::KeyMap;
 use crate::heightmap::Heightmap;
 use crate::metrics::pvps::{span, split_ratio};
-use crate::quadtree::{CullPolicy, NoCull, NodeId, NodeInfo, Quadtree};
+use crate::quadtree::{CullPolicy, LeafTree, NoCull, NodeId, NodeInfo, Quadtree};
 
 /// Which of the PVPS paper's three methods a selection runs (section 3). They share the
 /// pipeline; the method names the roughness field passed in, and is kept for reports.
@@ -172,13 +172,6 @@ struct PvpsEdges<'a> {
     finest: u8,
     /// `finest_transition_factor` as a power of two.
     scale: u32,
-    /// Each patch's four edges' screen lengths ([`Edge::ALL`]'s order, by [`NodeId::key`]),
-    /// worked out at the first ask: they are asked up to eight times a patch (outer and inner
-    /// factors, and by its same-level neighbours). Until 2026-12-06 only the last patch's
-    /// corners were remembered: the outer factors' walk turning to a neighbour's edge and
-    /// every inner factor (asked after all the outer ones) looked its corners' heights up
-    /// again, half of `pvps-b`'s selection over the 32769^2 store.
-    lengths: RefCell<KeyMap<[f64; 4]>>,
     /// The heights of the patch corners looked up so far, by grid sample (`x << 32 | y`): a
     /// corner is shared by up to four patches, and over a store each lookup finds the block
     /// and its level.
@@ -199,7 +192,6 @@ impl<'a> PvpsEdges<'a> {
             constant,
             finest,
             scale,
-            lengths: RefCell::default(),
             heights: RefCell::default(),
         }
     }
@@ -229,23 +221,62 @@ impl<'a> PvpsEdges<'a> {
     /// points as [`edge_segment`](super::surface::edge_segment)'s (so two same-level patches
     /// sharing an edge agree).
     fn screen(&self, node: NodeId, edge: Edge) -> f64 {
-        if let Some(l) = self.lengths.borrow().get(&node.key()) {
-            return l[edge as usize];
-        }
+        self.lengths(node)[edge as usize]
+    }
+
+    /// [`PvpsEdges::screen`] of `node`'s four edges ([`Edge::ALL`]'s order).
+    fn lengths(&self, node: NodeId) -> [f64; 4] {
         let c = CORNERS_UV.map(|uv| self.corner(node, uv));
-        let l = Edge::ALL.map(|e| {
+        Edge::ALL.map(|e| {
             let (a, b) = edge_corners(e);
             self.screen_scale.length(c[a], c[b])
-        });
-        self.lengths.borrow_mut().insert(node.key(), l);
-        l[edge as usize]
+        })
+    }
+
+    /// Algorithm 1, Y = 0, of an edge of screen length `screen`.
+    fn same_level_factor(&self, screen: f64) -> f32 {
+        clamp_factor(self.constant * screen)
+    }
+
+    /// The selection of `tree`'s leaves: [`run::assemble`] with this rule and Eq. 12's inner
+    /// factors (`inner(k, lengths)` of leaf `k`), each leaf's four screen lengths worked out
+    /// once, beside it, in the leaves' depth-first order (they are asked up to eight times a
+    /// leaf; in a map by node, and before 2026-12-06 again per ask, they were half of
+    /// `pvps-b`'s selection over the 32769^2 store). The same patches as [`run::assemble`]
+    /// (`selection_equals_the_rule_through_run_assemble`).
+    fn assemble(
+        &self,
+        tree: &LeafTree,
+        mut stats: SelectionStats,
+        inner: impl Fn(usize, &[f64; 4]) -> [f32; 2],
+        start: Instant,
+    ) -> Selection {
+        let leaves = tree.leaves();
+        let lengths: Vec<[f64; 4]> = leaves.iter().map(|&n| self.lengths(n)).collect();
+        let transition = |k: usize| self.transition(leaves[k].level);
+        let outer = resolve_all(
+            tree,
+            |k, e, _| self.same_level_factor(lengths[k][e as usize]),
+            |k, _, _| transition(k),
+            |k, _| transition(k),
+        );
+        let patches: Vec<Patch> = leaves
+            .iter()
+            .zip(outer)
+            .enumerate()
+            .map(|(k, (&node, outer))| Patch { node, outer, inner: inner(k, &lengths[k]) })
+            .collect();
+        stats.patches = patches.len();
+        stats.max_level = patches.iter().map(|p| p.node.level).max().unwrap_or(0);
+        stats.cpu_time = start.elapsed();
+        Selection { patches, stats }
     }
 }
 
 impl EdgeRule for PvpsEdges<'_> {
     /// Algorithm 1, Y = 0: `Constant x ScreenSpaceEdgeLength` of the shared segment.
     fn same_level(&self, a: NodeId, edge: Edge, _: NodeId) -> f32 {
-        clamp_factor(self.constant * self.screen(a, edge))
+        self.same_level_factor(self.screen(a, edge))
     }
 
     /// Algorithm 1, Y != 0: `EdgeLength / MinEdgeLength` (scaled) of the coarse patch.
@@ -301,8 +332,7 @@ pub fn select_pvps_with_cull(
         let r = f64::from(field.value(node)).max(0.0);
         split_ratio(d, span(length, node.level as u32), r, cfg.c1, cfg.c2) < 1.0
     };
-    let (leaves, stats) =
-        run::leaves_with_cull(src, camera, &mut split, cfg.frustum_cull, occlusion, true);
+    let (tree, stats) = run::balanced_tree(src, camera, &mut split, cfg.frustum_cull, occlusion);
     let rule = PvpsEdges::new(
         src,
         camera,
@@ -310,16 +340,21 @@ pub fn select_pvps_with_cull(
         finest,
         cfg.finest_transition_factor.clamp(2, 64).next_power_of_two(),
     );
-    let inner = |node: NodeId, _: &[f32; 4]| -> [f32; 2] {
-        // Eq. 12: ScreenSpaceLength_1 runs along u (the south and north edges), _2 along v.
-        let r = f64::from(field.value(node)).max(0.0);
-        let rv = if cfg.roughness_max > 0.0 { r / cfg.roughness_max } else { 0.0 };
-        let k = cfg.c3 * (rv + cfg.c4);
-        let u = 0.5 * (rule.screen(node, Edge::South) + rule.screen(node, Edge::North));
-        let v = 0.5 * (rule.screen(node, Edge::West) + rule.screen(node, Edge::East));
-        [clamp_factor(k * u), clamp_factor(k * v)]
-    };
-    run::assemble(leaves, stats, &rule, inner, start)
+    let leaves = tree.leaves();
+    let inner = |k: usize, l: &[f64; 4]| inner_factors(cfg, field.value(leaves[k]), l);
+    rule.assemble(&tree, stats, inner, start)
+}
+
+/// Eq. 12: the inner factors of a patch of roughness `roughness` whose edges have the screen
+/// lengths `l` ([`Edge::ALL`]'s order); `ScreenSpaceLength_1` runs along u (the south and
+/// north edges), `_2` along v.
+fn inner_factors(cfg: &PvpsConfig, roughness: f32, l: &[f64; 4]) -> [f32; 2] {
+    let r = f64::from(roughness).max(0.0);
+    let rv = if cfg.roughness_max > 0.0 { r / cfg.roughness_max } else { 0.0 };
+    let k = cfg.c3 * (rv + cfg.c4);
+    let u = 0.5 * (l[Edge::South as usize] + l[Edge::North as usize]);
+    let v = 0.5 * (l[Edge::West as usize] + l[Edge::East as usize]);
+    [clamp_factor(k * u), clamp_factor(k * v)]
 }
 
 #[cfg(test)]
@@ -355,6 +390,61 @@ mod tests {
         assert!(sel.patches.iter().any(|p| p.node.level <= 3));
         // Sorted in traversal order.
         assert!(sel.patches.windows(2).all(|w| w[0].node.dfs_key() < w[1].node.dfs_key()));
+    }
+
+    /// The selection (each leaf's screen lengths beside it, edges resolved on the leaves'
+    /// indices) equals Algorithm 1's rule asked per node through [`run::assemble`], bit for
+    /// bit, for cameras inside and outside the grid, with and without frustum culling.
+    #[test]
+    fn selection_equals_the_rule_through_run_assemble() {
+        let hm = crate::synth::FractalConfig::with_size(257, 193, 20.0).to_heightmap().unwrap();
+        let field = |n: NodeId| ((n.i * 37 + n.j * 11 + u32::from(n.level) * 5) % 256) as f32;
+        let mut unit = crate::test_support::unit_rng(0x9e37_79b9_7f4a_7c15);
+        let (mut transitions, mut coarse_faced) = (0, 0);
+        for k in 0..30 {
+            let cfg = PvpsConfig {
+                leaf_cells: [8, 16][k % 2],
+                max_level: 5,
+                frustum_cull: k % 5 != 4,
+                ..Default::default()
+            };
+            let qt = cfg.quadtree(&hm);
+            let src = GridSource::new(&qt, &hm);
+            let eye =
+                dvec3(7000.0 * unit() - 1000.0, 5000.0 * unit() - 500.0, 50.0 + 2000.0 * unit());
+            let cam = Camera::from_yaw_pitch(eye, 360.0 * unit(), -60.0 * unit())
+                .with_viewport(1280.0, 720.0);
+            let fast = select_pvps(&src, &cam, &field, &cfg);
+            let start = Instant::now();
+            let finest = cfg.max_level.min(qt.max_level());
+            let mut split = |node: NodeId, info: &NodeInfo| {
+                node.level < finest
+                    && split_ratio(
+                        info.aabb.distance(eye),
+                        span(qt.root_length_m().max_element(), node.level as u32),
+                        f64::from(field(node)),
+                        cfg.c1,
+                        cfg.c2,
+                    ) < 1.0
+            };
+            let (leaves, stats) = run::leaves(&src, &cam, &mut split, cfg.frustum_cull, true);
+            let rule = PvpsEdges::new(&src, &cam, cfg.outer_constant, finest, 2);
+            let inner = |n: NodeId, _: &[f32; 4]| inner_factors(&cfg, field(n), &rule.lengths(n));
+            let slow = run::assemble(&LeafTree::new(&leaves), stats, &rule, inner, start);
+            let bits = |s: &Selection| -> Vec<_> {
+                s.patches
+                    .iter()
+                    .map(|p| (p.node, p.outer.map(f32::to_bits), p.inner.map(f32::to_bits)))
+                    .collect()
+            };
+            assert_eq!(bits(&fast), bits(&slow), "camera {k}");
+            let stats = |s: &Selection| SelectionStats { cpu_time: Default::default(), ..s.stats };
+            assert_eq!(stats(&fast), stats(&slow), "camera {k}");
+            let levels: Vec<u8> = fast.patches.iter().map(|p| p.node.level).collect();
+            transitions += fast.patches.iter().flat_map(|p| p.outer).filter(|&f| f > 2.0).count();
+            coarse_faced += usize::from(levels.iter().min() != levels.iter().max());
+        }
+        assert!(transitions > 0 && coarse_faced > 0, "{transitions} {coarse_faced}");
     }
 
     /// Algorithm 1's rule with the defaults' constant, a finest level of 4 and scale 2.
