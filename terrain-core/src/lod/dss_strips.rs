@@ -47,6 +47,7 @@
 //! none of whose visible blocks' edges is in the frustum is discarded (a strip is built whole
 //! or not at all: dropping single edges would open it).
 
+use crate::hash::KeyMap;
 use crate::quadtree::NodeTree;
 use std::collections::HashMap;
 use std::time::Instant;
@@ -272,10 +273,15 @@ fn assemble(
     nodes.sort_unstable_by_key(|(n, _)| n.dfs_key());
     let shape = qt.shape();
     let (w1, h1) = (shape.width() - 1, shape.height() - 1);
-    let blocks: Vec<MBlock> = nodes
-        .iter()
-        .map(|&(node, visible)| {
-            let info = qt.node_info(node).expect("selected nodes exist");
+    // Each block's box heights, for its edges' frustum test below. The nodes' boxes through
+    // the tree's traversal source (a store's looks each block up once per run of its nodes,
+    // which come depth first).
+    let mut heights: Vec<(f64, f64)> = Vec::with_capacity(nodes.len());
+    let mut blocks: Vec<MBlock> = Vec::with_capacity(nodes.len());
+    qt.with_traversal_source(&mut |src| {
+        blocks.extend(nodes.iter().map(|&(node, visible)| {
+            let info = src.node_info(node).expect("selected nodes exist");
+            heights.push((info.aabb.min.z, info.aabb.max.z));
             let neighbours = dss_neighbours(node);
             let (x0, y0, c) = node.grid_rect(shape.root_cells());
             let border = [
@@ -297,10 +303,9 @@ fn assemble(
             ];
             let factor = if visible { factor(node, &info) } else { 2.0 };
             MBlock { id: dss_block_id(node), node, rect, factor, visible, neighbours, border }
-        })
-        .collect();
-    let index: HashMap<NodeId, usize> =
-        blocks.iter().enumerate().map(|(k, b)| (b.node, k)).collect();
+        }));
+    });
+    let index: KeyMap<usize> = blocks.iter().enumerate().map(|(k, b)| (b.node.key(), k)).collect();
 
     // P-blocks: at the centre of every split with four children in the grid.
     let mut pblocks = Vec::new();
@@ -314,7 +319,7 @@ fn assemble(
             let toward = Quadrant::ALL[(q as usize + 2) % 4];
             let mut m = n.child(q);
             loop {
-                if let Some(&k) = index.get(&m) {
+                if let Some(&k) = index.get(&m.key()) {
                     return (k, toward);
                 }
                 m = m.child(toward);
@@ -351,7 +356,7 @@ fn assemble(
             return false;
         }
         let Some(frustum) = frustum else { return true };
-        let info = qt.node_info(b.node).expect("blocks exist");
+        let (z0, z1) = heights[k];
         let [x0, y0, x1, y1] = b.rect.map(f64::from);
         let sf = f64::from(s);
         let (a, c) = match e {
@@ -362,10 +367,7 @@ fn assemble(
         };
         let world = |g: DVec2| shape.grid_to_world(g);
         let (wa, wc) = (world(a), world(c));
-        let bx = Aabb::new(
-            DVec3::new(wa.x, wa.y, info.aabb.min.z),
-            DVec3::new(wc.x, wc.y, info.aabb.max.z),
-        );
+        let bx = Aabb::new(DVec3::new(wa.x, wa.y, z0), DVec3::new(wc.x, wc.y, z1));
         frustum.classify(&bx) != Classification::Outside
     };
     let mut strips = Vec::new();
