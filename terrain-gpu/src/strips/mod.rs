@@ -173,7 +173,7 @@ pub fn build_strips_with(frame: &DssStripFrame, parallel: bool) -> StripMesh {
     if parallel {
         // Runs of strips, each appended into one buffer (two allocations per run, not per
         // strip: the strips' own vectors, freed on this thread after rayon's workers
-        // allocated them, were most of the build's time).
+        // allocated them, were most of the build's samples on this thread).
         let run = frame.strips.len().div_ceil(4 * rayon::current_num_threads()).max(32);
         let parts: Vec<ExtraTriangles> = frame
             .strips
