@@ -1,5 +1,7 @@
-//! What the crate's unit tests share: a seeded uniform generator and random leaf sets.
+//! What the crate's unit tests share: a seeded uniform generator, random leaf sets, and the
+//! bit-for-bit comparison of two selections.
 
+use crate::lod::{Selection, SelectionStats};
 use crate::quadtree::NodeId;
 
 /// Uniform numbers in `[0, 1)` from Marsaglia's xorshift64 (13, 7, 17) and the top 53 bits:
@@ -57,4 +59,18 @@ pub(crate) fn random_tree(
     }
     out.sort_by_key(|n| n.dfs_key());
     (out, contains)
+}
+
+/// Asserts that `fast` and `slow` select the same patches with the same factors, bit for bit,
+/// and the same statistics but their clocks (`label` names the case).
+pub(crate) fn assert_same_selection(fast: &Selection, slow: &Selection, label: &str) {
+    let bits = |s: &Selection| -> Vec<_> {
+        s.patches
+            .iter()
+            .map(|p| (p.node, p.outer.map(f32::to_bits), p.inner.map(f32::to_bits)))
+            .collect()
+    };
+    assert_eq!(bits(fast), bits(slow), "{label}");
+    let stats = |s: &Selection| SelectionStats { cpu_time: Default::default(), ..s.stats };
+    assert_eq!(stats(fast), stats(slow), "{label}");
 }

@@ -492,13 +492,12 @@ fn select_dss(
     let metric = Metric::new(table, camera, cfg);
     if let Some(level) = uniform {
         let mut split = SplitToLevel(level);
-        let (leaves, stats) = run::leaves(src, camera, &mut split, cfg.frustum_cull, false);
+        let (leaves, stats) = run::leaves(src, camera, &mut split, cfg.frustum_cull);
         return assemble_uniform(src, &metric, leaves, stats, start);
     }
     let mut split = |n: NodeId, info: &NodeInfo| metric.must_split(n, info);
     // The balanced tree is kept for the edges (not built again from its leaves).
-    let (tree, mut stats) =
-        run::balanced_tree(src, camera, &mut split, cfg.frustum_cull, &mut NoCull);
+    let (tree, stats) = run::balanced_tree(src, camera, &mut split, cfg.frustum_cull, &mut NoCull);
     let leaves = tree.leaves();
     // Each leaf's wish beside it rather than in a map keyed by node (SipHash): the map's
     // build and lookups were 40 % of Method I's samples over a 32769^2 store; the same
@@ -510,10 +509,7 @@ fn select_dss(
         .zip(&want)
         .map(|((&node, outer), &w)| Patch { node, outer, inner: [w; 2] })
         .collect();
-    stats.patches = patches.len();
-    stats.max_level = patches.iter().map(|p| p.node.level).max().unwrap_or(0);
-    stats.cpu_time = start.elapsed();
-    Selection { patches, stats }
+    run::finish(patches, stats, start)
 }
 
 /// How much of a grid [`DssErrorTable::from_rows`] holds at once.
@@ -603,7 +599,7 @@ fn assemble_uniform(
     src: &dyn NodeTree,
     metric: &Metric<'_>,
     leaves: Vec<NodeId>,
-    mut stats: SelectionStats,
+    stats: SelectionStats,
     start: Instant,
 ) -> Selection {
     let want: Vec<f32> = per_leaf(src, &leaves, |n, info| metric.factor(n, info));
@@ -634,10 +630,7 @@ fn assemble_uniform(
             Patch { node, outer, inner: [f; 2] }
         })
         .collect();
-    stats.patches = patches.len();
-    stats.max_level = patches.iter().map(|p| p.node.level).max().unwrap_or(0);
-    stats.cpu_time = start.elapsed();
-    Selection { patches, stats }
+    run::finish(patches, stats, start)
 }
 
 /// The DSS paper's Method I: quadtree split by Eq. 3 on `delta_32`, balanced, factors from
@@ -835,10 +828,12 @@ mod tests {
             let block = cfg.uniform_block_cells.max(1);
             let level = (qt.root_cells() / block.min(qt.root_cells())).max(1).ilog2() as u8;
             let mut split = SplitToLevel(level.min(qt.max_level()));
-            run::leaves(qt, camera, &mut split, cfg.frustum_cull, false)
+            run::leaves(qt, camera, &mut split, cfg.frustum_cull)
         } else {
             let mut split = |n: NodeId, info: &NodeInfo| metric.must_split(n, info);
-            run::leaves(qt, camera, &mut split, cfg.frustum_cull, true)
+            let (tree, stats) =
+                run::balanced_tree(qt, camera, &mut split, cfg.frustum_cull, &mut NoCull);
+            (tree.into_leaves(), stats)
         };
         let want = leaves
             .iter()
@@ -876,15 +871,7 @@ mod tests {
                 false => select_dss_power_of_two(&qt, &cam, &table, &cfg),
             };
             let slow = select_dss_reference(&qt, &cam, &table, &cfg, uniform);
-            let bits = |s: &Selection| -> Vec<_> {
-                s.patches
-                    .iter()
-                    .map(|p| (p.node, p.outer.map(f32::to_bits), p.inner.map(f32::to_bits)))
-                    .collect()
-            };
-            assert_eq!(bits(&fast), bits(&slow), "camera {k}");
-            let stats = |s: &Selection| SelectionStats { cpu_time: Default::default(), ..s.stats };
-            assert_eq!(stats(&fast), stats(&slow), "camera {k}");
+            crate::test_support::assert_same_selection(&fast, &slow, &format!("camera {k}"));
             drawn += fast.patches.len();
             partial |= fast.stats.culled > 0 && !fast.patches.is_empty();
             empty |= fast.patches.is_empty();

@@ -121,19 +121,18 @@ pub(crate) mod run {
     use crate::metrics::screen::{MAX_FOV_Y, MIN_DISTANCE_M, MIN_FOV_Y};
     use crate::quadtree::{
         CullPolicy, FrustumCull, LeafTree, NoCull, NodeId, NodeInfo, NodeTree, SplitPolicy, Visit,
-        balance_with, traverse,
+        traverse,
     };
 
-    /// Runs the one traversal with `split` and (optionally) frustum culling, then balances
-    /// when `balanced`. Returns the leaves in traversal order and the counts so far.
+    /// Runs the one traversal with `split` and (optionally) frustum culling. Returns the
+    /// leaves in traversal order and the counts so far ([`balanced_tree`] balances them).
     pub(crate) fn leaves(
         qt: &dyn NodeTree,
         camera: &Camera,
         split: &mut dyn SplitPolicy,
         frustum_cull: bool,
-        balanced: bool,
     ) -> (Vec<NodeId>, SelectionStats) {
-        leaves_with_cull(qt, camera, split, frustum_cull, &mut NoCull, balanced)
+        leaves_with_cull(qt, camera, split, frustum_cull, &mut NoCull)
     }
 
     /// [`leaves`] with a second cull policy (an occlusion lookup) after the frustum's.
@@ -143,7 +142,6 @@ pub(crate) mod run {
         split: &mut dyn SplitPolicy,
         frustum_cull: bool,
         extra: &mut dyn CullPolicy,
-        balanced: bool,
     ) -> (Vec<NodeId>, SelectionStats) {
         let mut stats = SelectionStats::default();
         let mut visit = |_: NodeId, v: Visit| {
@@ -164,12 +162,6 @@ pub(crate) mod run {
         let mut both = (first, second);
         let mut out = Vec::new();
         qt.with_traversal_source(&mut |src| out = traverse(src, split, &mut both, &mut visit));
-        if balanced {
-            // Balancing adds only children of selected leaves that exist in the tree.
-            let shape = qt.shape();
-            out = balance_with(&out, |n| shape.contains_node(n));
-        }
-        stats.balance_added = out.len().saturating_sub(stats.traversal_leaves);
         (out, stats)
     }
 
@@ -183,11 +175,25 @@ pub(crate) mod run {
         frustum_cull: bool,
         extra: &mut dyn CullPolicy,
     ) -> (LeafTree, SelectionStats) {
-        let (leaves, mut stats) = leaves_with_cull(qt, camera, split, frustum_cull, extra, false);
+        let (leaves, mut stats) = leaves_with_cull(qt, camera, split, frustum_cull, extra);
+        // Balancing adds only children of selected leaves that exist in the tree.
         let shape = qt.shape();
         let tree = LeafTree::balanced(&leaves, |n| shape.contains_node(n));
         stats.balance_added = tree.leaves().len().saturating_sub(stats.traversal_leaves);
         (tree, stats)
+    }
+
+    /// The selection of `patches`, its counts (patches, deepest level) and its time since
+    /// `start` added to `stats`.
+    pub(crate) fn finish(
+        patches: Vec<super::patch::Patch>,
+        mut stats: SelectionStats,
+        start: std::time::Instant,
+    ) -> super::patch::Selection {
+        stats.patches = patches.len();
+        stats.max_level = patches.iter().map(|p| p.node.level).max().unwrap_or(0);
+        stats.cpu_time = start.elapsed();
+        super::patch::Selection { patches, stats }
     }
 
     /// Builds the selection of `tree`'s leaves: outer factors from `rule`, inner factors from
@@ -196,23 +202,20 @@ pub(crate) mod run {
     #[cfg(test)]
     pub(crate) fn assemble(
         tree: &LeafTree,
-        mut stats: SelectionStats,
+        stats: SelectionStats,
         rule: &dyn super::edges::EdgeRule,
         inner: impl Fn(NodeId, &[f32; 4]) -> [f32; 2],
         start: std::time::Instant,
     ) -> super::patch::Selection {
         use super::edges::outer_factors_all;
-        use super::patch::{Patch, Selection};
+        use super::patch::Patch;
         let patches: Vec<Patch> = tree
             .leaves()
             .iter()
             .zip(outer_factors_all(tree, rule))
             .map(|(&node, outer)| Patch { node, outer, inner: inner(node, &outer) })
             .collect();
-        stats.patches = patches.len();
-        stats.max_level = patches.iter().map(|p| p.node.level).max().unwrap_or(0);
-        stats.cpu_time = start.elapsed();
-        Selection { patches, stats }
+        finish(patches, stats, start)
     }
 
     /// [`ScreenScale::length`] of one segment, every term from the camera in place: the

@@ -247,7 +247,7 @@ impl<'a> PvpsEdges<'a> {
     fn assemble(
         &self,
         tree: &LeafTree,
-        mut stats: SelectionStats,
+        stats: SelectionStats,
         inner: impl Fn(usize, &[f64; 4]) -> [f32; 2],
         start: Instant,
     ) -> Selection {
@@ -266,10 +266,7 @@ impl<'a> PvpsEdges<'a> {
             .enumerate()
             .map(|(k, (&node, outer))| Patch { node, outer, inner: inner(k, &lengths[k]) })
             .collect();
-        stats.patches = patches.len();
-        stats.max_level = patches.iter().map(|p| p.node.level).max().unwrap_or(0);
-        stats.cpu_time = start.elapsed();
-        Selection { patches, stats }
+        run::finish(patches, stats, start)
     }
 }
 
@@ -427,19 +424,13 @@ mod tests {
                         cfg.c2,
                     ) < 1.0
             };
-            let (leaves, stats) = run::leaves(&src, &cam, &mut split, cfg.frustum_cull, true);
+            let (tree, stats) =
+                run::balanced_tree(&src, &cam, &mut split, cfg.frustum_cull, &mut NoCull);
+            let leaves = tree.into_leaves();
             let rule = PvpsEdges::new(&src, &cam, cfg.outer_constant, finest, 2);
             let inner = |n: NodeId, _: &[f32; 4]| inner_factors(&cfg, field(n), &rule.lengths(n));
             let slow = run::assemble(&LeafTree::new(&leaves), stats, &rule, inner, start);
-            let bits = |s: &Selection| -> Vec<_> {
-                s.patches
-                    .iter()
-                    .map(|p| (p.node, p.outer.map(f32::to_bits), p.inner.map(f32::to_bits)))
-                    .collect()
-            };
-            assert_eq!(bits(&fast), bits(&slow), "camera {k}");
-            let stats = |s: &Selection| SelectionStats { cpu_time: Default::default(), ..s.stats };
-            assert_eq!(stats(&fast), stats(&slow), "camera {k}");
+            crate::test_support::assert_same_selection(&fast, &slow, &format!("camera {k}"));
             let levels: Vec<u8> = fast.patches.iter().map(|p| p.node.level).collect();
             transitions += fast.patches.iter().flat_map(|p| p.outer).filter(|&f| f > 2.0).count();
             coarse_faced += usize::from(levels.iter().min() != levels.iter().max());
