@@ -141,6 +141,19 @@ struct Tile {
     levels: Vec<PyramidLevel>,
 }
 
+/// What one selection over a table read by pages found last: the page of the patch it asked
+/// last and the pyramid tile of the node it asked last ([`PagedEntries::patch_memo`],
+/// [`PagedEntries::node_memo`]). On its thread, for the length of one selection (a frame's
+/// late pages and tiles are asked again by the next: [`PagedEntries::new_frame`]).
+#[derive(Default)]
+pub(super) struct SelectionMemo {
+    page: std::cell::RefCell<Option<(usize, PageRead)>>,
+    tile: std::cell::RefCell<Option<TileAt>>,
+}
+
+/// A pyramid tile and its summary node.
+type TileAt = ((u32, u32), Arc<Tile>);
+
 /// The least recently used go first.
 #[derive(Debug, Default)]
 struct Caches {
@@ -501,10 +514,31 @@ impl PagedEntries {
         self.patch_in(k, &mut None)
     }
 
+    /// [`PagedEntries::patch`] through one selection's `memo`: a page read here stays in it
+    /// for the next patch, so a run of patches in one page locks the cache once. Only a page
+    /// that was here is kept; one not here or unreadable is asked again, as without the memo.
+    pub(super) fn patch_memo(&self, k: usize, memo: &SelectionMemo) -> PatchEntries {
+        let mut last = memo.page.borrow_mut();
+        let out = self.patch_in(k, &mut last);
+        if !matches!(&*last, Some((_, PageRead::Here(_)))) {
+            *last = None;
+        }
+        out
+    }
+
     /// The pyramid's node `m` levels above the patches at `(i, j)` (see
     /// `GeomipTable::node_bound`): from the summary at or above its level, else from the
-    /// tile of the summary node holding it.
-    pub(super) fn node(&self, m: usize, i: u32, j: u32) -> Option<NodeBound> {
+    /// tile of the summary node holding it. The tile found last stays in `memo` (the traversal
+    /// asks about a tile's nodes one after another, depth first), so the cache's lock and map
+    /// are not asked per node; only a tile the cache keeps is kept in the memo (one over a
+    /// page not here, or unreadable, is asked again, as without it).
+    pub(super) fn node_memo(
+        &self,
+        m: usize,
+        i: u32,
+        j: u32,
+        memo: &SelectionMemo,
+    ) -> Option<NodeBound> {
         let l = self.layout.l;
         let m0 = self.layout.summary_level;
         if m > self.top_level {
@@ -520,7 +554,19 @@ impl PagedEntries {
             return None;
         }
         let shift = m0 - m;
-        let Some(tile) = self.tile(i >> shift, j >> shift) else {
+        let at = (i >> shift, j >> shift);
+        let hit =
+            memo.tile.borrow().as_ref().filter(|(t, _)| *t == at).map(|(_, tile)| tile.clone());
+        let tile = match hit {
+            Some(tile) => Some(tile),
+            None => self.tile(at.0, at.1).map(|(tile, kept)| {
+                if kept {
+                    *memo.tile.borrow_mut() = Some((at, tile.clone()));
+                }
+                tile
+            }),
+        };
+        let Some(tile) = tile else {
             // A page under it not here yet: the summary node holding it bounds it (its region,
             // dilated, holds the node's).
             return Some(self.summary_node(i >> shift, j >> shift));
@@ -537,16 +583,17 @@ impl PagedEntries {
         lv.bound(lv.index(i, j), self.layout.l)
     }
 
-    /// The tile of summary node `(ti, tj)`, from the cache or computed.
+    /// The tile of summary node `(ti, tj)`, from the cache or computed, and whether the cache
+    /// keeps it (not when a page under it could not be read).
     /// (`None`: a page under it is not here yet.)
-    fn tile(&self, ti: u32, tj: u32) -> Option<Arc<Tile>> {
+    fn tile(&self, ti: u32, tj: u32) -> Option<(Arc<Tile>, bool)> {
         {
             let mut cache = self.lock();
             cache.tick += 1;
             let tick = cache.tick;
             if let Some(slot) = cache.tiles.get_mut(&(ti, tj)) {
                 slot.1 = tick;
-                return Some(slot.0.clone());
+                return Some((slot.0.clone(), true));
             }
             if cache.late_tiles.contains(&(ti, tj)) {
                 return None;
@@ -561,7 +608,8 @@ impl PagedEntries {
         self.tiles_built.fetch_add(1, Ordering::Relaxed);
         // A tile built over a page that could not be read is not kept: the next frame that
         // needs it reads the page again (and reports it again).
-        if self.failures.load(Ordering::Relaxed) == failures {
+        let kept = self.failures.load(Ordering::Relaxed) == failures;
+        if kept {
             let l = self.layout.l;
             let mut cache = self.lock();
             cache.tick += 1;
@@ -570,7 +618,7 @@ impl PagedEntries {
             cache.tiles.insert((ti, tj), (tile.clone(), tick));
             cache.trim(self.budget, l);
         }
-        Some(tile)
+        Some((tile, kept))
     }
 
     /// Levels `0..summary_level` over summary node `(ti, tj)`, as `CoarsePyramid::new`

@@ -90,7 +90,7 @@ use std::time::Instant;
 
 use glam::{DVec2, DVec3};
 
-use super::geomip_pages::PagedEntries;
+use super::geomip_pages::{PagedEntries, SelectionMemo};
 use super::patch::Edge;
 use super::window::SpanWindow;
 use crate::geometry::Camera;
@@ -576,25 +576,45 @@ impl GeomipTable {
         out
     }
 
+    /// [`GeomipTable::node_bound_memo`] without a selection's memo.
+    #[cfg(test)]
+    pub(super) fn node_bound(&self, m: usize, i: u32, j: u32) -> Option<NodeBound> {
+        self.node_bound_memo(m, i, j, &SelectionMemo::default())
+    }
+
     /// The pyramid's node `m` levels above the patches at `(i, j)`: `None` outside the grid
     /// (never all-coarsest); above the pyramid's top (a store's root covers more than the
-    /// grid), the top.
-    pub(super) fn node_bound(&self, m: usize, i: u32, j: u32) -> Option<NodeBound> {
+    /// grid), the top. A table read by pages asks through one selection's `memo`.
+    fn node_bound_memo(&self, m: usize, i: u32, j: u32, memo: &SelectionMemo) -> Option<NodeBound> {
         match &self.paged {
-            Some(p) => p.node(m, i, j),
+            Some(p) => p.node_memo(m, i, j, memo),
             None => self.pyramid.node(m, i, j),
+        }
+    }
+
+    /// [`GeomipTable::patch`] through one selection's `memo` (a table read by pages).
+    fn patch_memo(&self, k: usize, memo: &SelectionMemo) -> PatchEntries {
+        match &self.paged {
+            Some(p) => p.patch_memo(k, memo),
+            None => self.patch(k),
         }
     }
 
     /// The continuous factor of patch `k` before the neighbour envelope (see the module docs),
     /// for an eye at `eye` with `lambda = camera.lambda()`; vertex positions from `shape`.
-    fn factor(&self, shape: &TreeShape, k: usize, eye: DVec3, lambda: f64, tau: f64) -> f32 {
+    fn factor(
+        &self,
+        shape: &TreeShape,
+        k: usize,
+        (eye, lambda, tau): (DVec3, f64, f64),
+        memo: &SelectionMemo,
+    ) -> f32 {
         let p = self.patch_cells;
         let (pi, pj) = (k as u32 % self.nx, k as u32 / self.nx);
         let origin =
             shape.grid_to_world(DVec2::new(f64::from(pi * p), f64::from(pj * p))).extend(0.0);
         let spacing = shape.spacing();
-        let entries = self.patch(k);
+        let entries = self.patch_memo(k, memo);
         // A patch bounded by the pyramid (its page not here yet): every level's distance the
         // box's, the nearest its vertex could be.
         let boxed = entries.bounded.map(|[z0, z1]| {
@@ -872,8 +892,9 @@ impl GeomipTable {
         eye: DVec3,
         (lambda, tau): (f64, f64),
         scale: f64,
+        memo: &SelectionMemo,
     ) -> bool {
-        let Some(node) = self.node_bound(m, i, j) else { return false };
+        let Some(node) = self.node_bound_memo(m, i, j, memo) else { return false };
         let errors = &node.errors[..self.levels - 1];
         if errors.iter().all(|&e| e <= 0.0) {
             return true;
@@ -1228,6 +1249,9 @@ impl GeomipTable {
         let (nx, ny) = (self.nx as usize, self.ny as usize);
         let (eye, lambda) = (camera.position, camera.lambda());
         let top = shape.max_level();
+        // The page and pyramid tile asked last, for the next node or patch (a table read by
+        // pages: its cache's lock and map asked once per run of them, not per node).
+        let memo = SelectionMemo::default();
         let coarse = |n: NodeId| -> bool {
             let scale = match bound {
                 RunBound::Proved => 1.0,
@@ -1236,7 +1260,7 @@ impl GeomipTable {
                 RunBound::Scaled(s) => s,
             };
             let m = usize::from(top - n.level);
-            self.all_coarsest(shape, (m, n.i, n.j), eye, (lambda, tau), scale)
+            self.all_coarsest(shape, (m, n.i, n.j), eye, (lambda, tau), scale, &memo)
         };
         // The cull policy notes its verdict on the node the split policy is asked about next
         // (a node below a wholly visible one is not classified: it is inside).
@@ -1280,7 +1304,8 @@ impl GeomipTable {
                 cells.push((n.i as usize, n.j as usize));
             }
         }
-        let (patches, factors) = self.exact_patches(shape, &cells, &runs, eye, lambda, tau, cfg);
+        let view = (eye, lambda, tau);
+        let (patches, factors) = self.exact_patches(shape, (&cells, &runs), view, cfg, &memo);
         let mut out = GeomipRuns {
             runs,
             patches,
@@ -1301,16 +1326,13 @@ impl GeomipTable {
     /// Returns them row-major with their `c'`. `runs` are the frame's runs: their patches
     /// have `c = L` (the bound that made them runs proves every level's `w = 1`), so the
     /// window's patches in them take `L` without the projection.
-    #[allow(clippy::too_many_arguments)]
     fn exact_patches(
         &self,
         shape: &TreeShape,
-        cells: &[(usize, usize)],
-        runs: &[PatchRun],
-        eye: DVec3,
-        lambda: f64,
-        tau: f64,
+        (cells, runs): (&[(usize, usize)], &[PatchRun]),
+        view: (DVec3, f64, f64),
         cfg: &GeomipConfig,
+        memo: &SelectionMemo,
     ) -> (Vec<PatchLod>, Vec<f32>) {
         let (nx, ny) = (self.nx as usize, self.ny as usize);
         // Every patch within `L` of a visible one (see the module docs), densely indexed: the
@@ -1337,7 +1359,7 @@ impl GeomipTable {
                 for i in lo..=hi {
                     let k = off + i - lo;
                     if c[k].is_nan() {
-                        c[k] = self.factor(shape, j * nx + i, eye, lambda, tau);
+                        c[k] = self.factor(shape, j * nx + i, view, memo);
                     }
                 }
             }
@@ -1478,8 +1500,9 @@ mod reference {
         let (nx, ny) = (nx as usize, ny as usize);
         let (eye, lambda) = (camera.position, camera.lambda());
         let shape = scene.patch_tree().shape();
-        let mut c: Vec<f32> =
-            (0..nx * ny).map(|k| scene.table().factor(shape, k, eye, lambda, tau)).collect();
+        let mut c: Vec<f32> = (0..nx * ny)
+            .map(|k| scene.table().factor(shape, k, (eye, lambda, tau), &Default::default()))
+            .collect();
         for j in 0..ny {
             for i in 0..nx {
                 let k = j * nx + i;
