@@ -41,7 +41,7 @@ use terrain_gpu::{RenderError, TerrainRenderer};
 use terrain_stream::{
     BlockId, DEFAULT_COST_SPLIT_PX, DEFAULT_PATCH_CELLS, DEFAULT_SPLIT, Refinement, RemoteOptions,
     ScheduleConfig, SplitRule, Store, StoreError, StoreSource, StoreTree, StreamConfig, Streamer,
-    coarsen_to_budget, demand_of, demand_within, select_patches,
+    TreeWarmer, coarsen_to_budget, demand_of, demand_within, select_patches,
 };
 
 use crate::MIB;
@@ -104,6 +104,10 @@ pub struct OocConfig {
     /// frames). Default 60 (the interactive viewer); where a flight is played (`terrain
     /// bench`, `render --flight`, `fly`) the flight's own rate ([`OocConfig::for_flight`]).
     pub frame_rate_hz: f64,
+    /// Whether a real-time frame of the paper's method has its tree walked one frame ahead on
+    /// a thread of its own ([`TreeWarmer`]), so the next frame's selection finds the blocks
+    /// it enters already read (the same patches either way). Default true.
+    pub warm_ahead: bool,
 }
 
 /// Frames the streamer preloads ahead (Eq. 8's `S` times this). The paper's Eq. 8 looks one
@@ -152,6 +156,7 @@ impl Default for OocConfig {
             max_segment_cells: terrain_stream::DEFAULT_MAX_SEGMENT_CELLS,
             calibration: None,
             frame_rate_hz: 60.0,
+            warm_ahead: true,
         }
     }
 }
@@ -682,6 +687,10 @@ pub struct OocScene {
     real_time: bool,
     /// Bytes of the budget the method keeps in its own caches ([`OocScene::with_reserved`]).
     reserved: u64,
+    /// The paper's method's tree walked one frame ahead ([`OocConfig::warm_ahead`]): started
+    /// by the first real-time [`OocScene::frame`] (`Some(None)`: off, or the system could not
+    /// start its thread; the frames run without it).
+    warmer: Option<Option<TreeWarmer>>,
 }
 
 impl OocScene {
@@ -744,6 +753,7 @@ impl OocScene {
             exact_demand: false,
             real_time: false,
             reserved: 0,
+            warmer: None,
         }
     }
 
@@ -860,6 +870,8 @@ impl OocScene {
         let t0 = Instant::now();
         self.streamer.set_demand(None);
         self.streamer.set_budget_bytes(self.blocks_budget(None));
+        // Eq. 8's eye one frame ahead (from the step to this camera: before the update).
+        let ahead = if warm { None } else { self.streamer.camera_ahead(camera) };
         let s = if warm {
             self.streamer.wait_until_resident(camera, self.config.warm_timeout).stats
         } else {
@@ -873,6 +885,16 @@ impl OocScene {
         let selection =
             select_patches(&self.tree, camera, self.config.tau, |b| page_level.get(&b).copied());
         debug_assert!(check_shared_edges(&selection).is_empty());
+        // The next frame's walk, beside this frame's drawing (the same patches either way).
+        if let Some(next) = ahead {
+            let (tree, on) = (&self.tree, self.config.warm_ahead);
+            let warmer = self
+                .warmer
+                .get_or_insert_with(|| on.then(|| TreeWarmer::spawn(tree).ok()).flatten());
+            if let Some(w) = warmer {
+                w.ahead(&next, self.config.tau, drawn.clone());
+            }
+        }
         self.finish_frame(selection, None, &drawn, dropped, stream)
     }
 

@@ -25,7 +25,8 @@
 //! - **Select** crack-free patches with tessellation factors: the out-of-core paper's method
 //!   ([`select_streamed`] / [`select_patches`] over the [`StoreTree`]), or any of terrain-core's
 //!   LOD selections over the store's terrain ([`StoreSource`], a `TerrainSource`; what they
-//!   need loaded: [`demand_of`]).
+//!   need loaded: [`demand_of`]). A [`TreeWarmer`] walks the tree one frame ahead on its own
+//!   thread, so the next frame's selection finds the blocks it enters already read.
 //! - [`glam`] and the [`Camera`] are re-exported, so an embedder needs no other crate of ours.
 //!
 //! # Example
@@ -105,6 +106,7 @@ mod stats;
 mod store;
 mod streamer;
 mod terrain;
+mod warm;
 mod workers;
 
 pub use bake::{
@@ -137,6 +139,7 @@ pub use store::{BlockLevels, LoadedLevel, Store, is_store};
 pub use streamer::{ScheduledBlock, StreamConfig, Streamer, WaitReport};
 pub use terrain::{StoreSource, coarsen_to_budget, demand_bytes, demand_of, demand_within};
 pub use terrain_core::geometry::Camera;
+pub use warm::TreeWarmer;
 pub use workers::LevelReader;
 
 #[cfg(test)]

@@ -1684,6 +1684,7 @@ fn traverse_store(
     camera: &Camera,
     view: &View,
     resident: &impl Fn(BlockId) -> Option<u8>,
+    walk: Walk,
 ) -> (Vec<(NodeId, Aabb, Option<u8>)>, SelectionStats) {
     let view = *view;
     let mut circle = BoundingCircleCull::new(project_view_to_ground(camera));
@@ -1704,7 +1705,9 @@ fn traverse_store(
             _ => Cull::Accept,
         }
     };
-    tree.next_visit();
+    if walk == Walk::Frame {
+        tree.next_visit();
+    }
     let nodes = FrameNodes { tree, last: Cell::new(None), memo: BlockMemo::default() };
     // Eq. 7 (the paper's step 4: split while `rho > tau`) on each node's patch error, stopped
     // at its block's resident level. A node above the blocks stays one patch spanning its
@@ -1773,6 +1776,7 @@ pub(crate) fn traversal_leaves(
         camera,
         &View::floored(camera, tau, tree.refine.view_angle_floor),
         &resident,
+        Walk::Frame,
     )
     .0
     .into_iter()
@@ -1798,11 +1802,32 @@ pub fn select_patches(
     tau: f64,
     resident: impl Fn(BlockId) -> Option<u8>,
 ) -> Selection {
+    select_patches_in(tree, camera, tau, resident, Walk::Frame)
+}
+
+/// Whose selection a walk of the tree is: a frame's, which starts the tree's visit of its
+/// blocks ([`VisitedBlocks`]: the blocks it visits are the current selection's), or a
+/// [`crate::TreeWarmer`]'s one frame ahead, which computes the same blocks' values for the
+/// next frame and leaves the current visit as it is.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) enum Walk {
+    Frame,
+    Ahead,
+}
+
+/// [`select_patches`] as a frame's walk or one ahead ([`Walk`]).
+pub(crate) fn select_patches_in(
+    tree: &StoreTree,
+    camera: &Camera,
+    tau: f64,
+    resident: impl Fn(BlockId) -> Option<u8>,
+    walk: Walk,
+) -> Selection {
     let start = Instant::now();
     let view = View::floored(camera, tau, tree.refine.view_angle_floor);
     let bl = tree.block_level;
     let seg_floor = tree.refine.segment_floor_level(tree.store.header().k);
-    let (boxed, mut stats) = traverse_store(tree, camera, &view, &resident);
+    let (boxed, mut stats) = traverse_store(tree, camera, &view, &resident, walk);
     let traversed: Vec<NodeId> = boxed.iter().map(|&(n, ..)| n).collect();
     // Balanced leaves, sorted by `dfs_key` like the traversal's: a leaf the balance kept is
     // found by walking both lists together.

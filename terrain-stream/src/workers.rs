@@ -1,7 +1,9 @@
 //! The worker pool behind an explicit endpoint (terra's `TileStreamerEndpoint` style): a
 //! request channel and a result channel (crossbeam), an in-flight count, and a documented
-//! shutdown. Threads are spawned here and nowhere else; the frame thread never reads a block
-//! after the first frame (the real-time contract of [`crate::Streamer`]).
+//! shutdown. The stream's threads are spawned here (the crate's others: a remote side table's
+//! background fill, `side_table.rs`, and the [`crate::TreeWarmer`]'s walk ahead, `warm.rs`);
+//! the frame thread never reads a block after the first frame (the real-time contract of
+//! [`crate::Streamer`]).
 //!
 //! A request asks for levels `first..=last` of one block; the worker loads them one by one
 //! (the paper's sub-thread, "loading ... data level-by-level") and sends each level as soon as

@@ -1167,3 +1167,45 @@ fn the_fine_maxima_pyramid_equals_the_sweep_of_descendants() {
     }
     assert!(compared > 1000 && positive > 500, "{compared} maxima compared, {positive} positive");
 }
+
+#[test]
+fn a_walk_ahead_leaves_the_next_selection_no_block_to_read_and_the_same_patches() {
+    // Along a path over a 1025^2 grid in blocks of 65^2, a tree walked at each next camera by
+    // a `TreeWarmer` (as a real-time frame asks it) selects the same patches as a tree without
+    // one, and its selection at that camera reads no block and computes no value the walk did
+    // not (its visited blocks and their bytes do not change); the tree without reads new
+    // blocks as the path goes on (so the check could fail).
+    let hm = terrain(1025, 1025);
+    let (_dir, store) = bake_store(&hm, "warm", 6, 4);
+    let all: Vec<(BlockId, u8)> = store.block_ids().map(|b| (b, 6)).collect();
+    let levels: HashMap<BlockId, u8> = all.iter().copied().collect();
+    let (cold, warm) = (eq7_tree(&store, 4), eq7_tree(&store, 4));
+    let warmer = crate::TreeWarmer::spawn(&warm).unwrap();
+    let path: Vec<Camera> = (0..8)
+        .map(|k| {
+            let eye = dvec3(100.0 + 900.0 * k as f64, 150.0 + 800.0 * k as f64, 420.0);
+            Camera::from_yaw_pitch(eye, 45.0, -12.0).with_clip(1.0, 2500.0)
+        })
+        .collect();
+    let tau = 1.0;
+    let mut cold_reads = 0;
+    for (k, cam) in path.iter().enumerate() {
+        let before = cold.visited();
+        let a = select_patches(&cold, cam, tau, |b| levels.get(&b).copied());
+        cold_reads += usize::from(k > 0 && cold.visited() != before);
+        warmer.wait_idle();
+        let walked = warm.visited();
+        let b = select_patches(&warm, cam, tau, |b| levels.get(&b).copied());
+        assert_eq!(a.patches, b.patches, "camera {k}");
+        assert!(!b.patches.is_empty(), "camera {k}");
+        if k > 0 {
+            assert_eq!(warm.visited(), walked, "camera {k}: read blocks the walk did not");
+        }
+        if let Some(next) = path.get(k + 1) {
+            warmer.ahead(next, tau, all.clone());
+        }
+    }
+    warmer.wait_idle();
+    assert_eq!(warmer.walks(), path.len() as u64 - 1);
+    assert!(cold_reads >= 4, "the path read new blocks at {cold_reads} cameras only");
+}
