@@ -22,7 +22,7 @@ use terrain_core::lod::{Selection, TerrainSource};
 use terrain_core::quadtree::{NodeId, NodeInfo, NodeSource, NodeTree, TreeShape};
 
 use crate::format::{BlockEntry, BlockId};
-use crate::lod::StoreTree;
+use crate::lod::{KnownSamples, StoreTree};
 use crate::store::BlockLevels;
 use crate::streamer::Streamer;
 
@@ -40,9 +40,18 @@ impl<'a> StoreSource<'a> {
     }
 
     /// Height of grid sample `(x, y)`: the stored sample when a block holding it has its level
-    /// resident, else the finest resident lattice's bilinear value of the block it lies in
-    /// (the south-west-most holder), else that block's lowest height.
+    /// resident or it was read so before through the same tree (the tree keeps the samples
+    /// read exact: a stored sample never changes), else the finest resident lattice's
+    /// bilinear value of the block it lies in (the south-west-most holder), else that block's
+    /// lowest height.
     pub fn sample(&self, x: u32, y: u32) -> f32 {
+        let key = KnownSamples::key(x, y);
+        // One lock a sample, held while it is read (the tree's visited blocks may be asked
+        // under it, `block_min`; nothing takes this lock under theirs).
+        let mut known = self.tree.known_samples();
+        if let Some(z) = known.get(key) {
+            return z;
+        }
         let h = self.tree.store().header();
         let b = h.block_cells();
         let (bx, by) = (x / b, y / b);
@@ -62,6 +71,7 @@ impl<'a> StoreSource<'a> {
                 let Some(levels) = self.streamer.block(id) else { continue };
                 let (i, j) = (x - col * b, y - row * b);
                 if let Some(z) = levels.height(i, j) {
+                    known.keep(key, z);
                     return z;
                 }
                 let count = levels.count();

@@ -718,3 +718,49 @@ fn the_needed_set_follows_the_frustum_and_nothing_behind_the_eye_is_loaded() {
     assert!(left_out_behind > 0, "no block of the extension behind the eye");
     drop(s);
 }
+
+#[test]
+fn a_sample_read_exact_stays_exact_after_its_level_is_gone() {
+    // A `StoreSource` keeps the samples it read exact in its tree: read through a streamer
+    // that holds their levels, then through one that holds nothing, the same tree gives the
+    // stored heights again, bit for bit; a fresh tree over the empty streamer gives the
+    // fallback (the block's lowest height) for most of them, so the check can fail.
+    let (_dir, store) = store("known");
+    let tree = crate::StoreTree::new(store.clone(), crate::DEFAULT_PATCH_CELLS);
+    let config = StreamConfig { threads: 1, tau: 4.0, ..Default::default() };
+    let mut full = Streamer::new(store.clone(), config);
+    let warm = full.wait_until_resident(&camera(700.0), Duration::from_secs(60));
+    assert!(warm.resident);
+    let h = store.header().clone();
+    let cells = h.block_cells();
+    let b = full.scheduled()[0].block;
+    let levels = full.block(b).unwrap();
+    let finest = levels.count() as u8 - 1;
+    assert!(finest >= 2, "level {finest}");
+    let step = 1u32 << (h.k - finest);
+    let mut exact = Vec::new();
+    let source = crate::StoreSource::new(&tree, &full);
+    for j in (0..=cells).step_by(step as usize) {
+        for i in (0..=cells).step_by(step as usize) {
+            let (x, y) = (b.col * cells + i, b.row * cells + j);
+            if u64::from(x) + 1 >= h.width || u64::from(y) + 1 >= h.height {
+                continue;
+            }
+            let z = source.sample(x, y);
+            assert_eq!(z.to_bits(), levels.height(i, j).unwrap().to_bits(), "({x}, {y})");
+            exact.push((x, y, z));
+        }
+    }
+    assert!(exact.len() > 16, "{} samples", exact.len());
+    let empty = Streamer::new(store.clone(), config);
+    assert!(empty.block(b).is_none());
+    let kept = crate::StoreSource::new(&tree, &empty);
+    for &(x, y, z) in &exact {
+        assert_eq!(kept.sample(x, y).to_bits(), z.to_bits(), "({x}, {y})");
+    }
+    let fresh_tree = crate::StoreTree::new(store.clone(), crate::DEFAULT_PATCH_CELLS);
+    let fresh = crate::StoreSource::new(&fresh_tree, &empty);
+    let fallback = exact.iter().filter(|&&(x, y, z)| fresh.sample(x, y) != z).count();
+    assert!(fallback * 2 > exact.len(), "{fallback} of {} differ", exact.len());
+    assert!(tree.visited_bytes() > fresh_tree.visited_bytes());
+}
