@@ -379,15 +379,19 @@ impl DssErrorTable {
             }
             return v.get((node.j * nx + node.i) as usize).map(f);
         };
-        let slot = p.slot(node)?;
-        let mut last = memo.0.borrow_mut();
-        if last.as_ref().is_none_or(|(q, _)| *q != slot.page) {
-            *last = p.page(slot.page).map(|page| (slot.page, page));
-        }
-        Some(match last.as_ref() {
-            Some((_, page)) => f(&page[slot.index]),
+        paged_node(p, node, memo, |page, k| match page {
+            Some(page) => f(&page.errors[k]),
             None => f(&[f64::INFINITY; FACTORS]),
         })
+    }
+
+    /// `node`'s finest error (`delta_32`, [`DssErrorTable::map_with`]'s last), from the row of
+    /// finest errors a page keeps beside its entries when read by pages.
+    pub(super) fn finest_with(&self, node: NodeId, memo: &PageMemo) -> Option<f64> {
+        let Some(p) = &self.paged else {
+            return self.map_with(node, memo, |d| d[FACTORS - 1]);
+        };
+        paged_node(p, node, memo, |page, k| page.map_or(f64::INFINITY, |page| page.finest[k]))
     }
 
     /// Whether the table is read by pages ([`DssErrorTable::open_paged`]).
@@ -410,6 +414,23 @@ impl DssErrorTable {
     pub fn root_cells(&self) -> u32 {
         self.root_cells
     }
+}
+
+/// `f` of the page holding `node` in a table read by pages and the node's index in it (the
+/// page `None` when it cannot be had: its nodes' errors are infinite), the page read last kept
+/// in `memo`; `None` outside the table.
+fn paged_node<R>(
+    p: &DssPages,
+    node: NodeId,
+    memo: &PageMemo,
+    f: impl FnOnce(Option<&super::dss_pages::PageData>, usize) -> R,
+) -> Option<R> {
+    let slot = p.slot(node)?;
+    let mut last = memo.0.borrow_mut();
+    if last.as_ref().is_none_or(|(q, _)| *q != slot.page) {
+        *last = p.page(slot.page).map(|page| (slot.page, page));
+    }
+    Some(f(last.as_ref().map(|(_, page)| &**page), slot.index))
 }
 
 /// The page of a table read by pages that was read last ([`DssErrorTable::get_with`]); one
@@ -455,7 +476,7 @@ impl<'a> Metric<'a> {
     pub(super) fn must_split(&self, node: NodeId, info: &NodeInfo) -> bool {
         let rho = screen::dss_floored(
             self.lambda,
-            self.with_delta(node, |d| d[FACTORS - 1]),
+            self.table.finest_with(node, &self.memo).unwrap_or(0.0),
             info.aabb.distance(self.eye),
             info.aabb.center() - self.eye,
             self.floor,
