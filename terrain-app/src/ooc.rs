@@ -870,7 +870,7 @@ impl OocScene {
         let t0 = Instant::now();
         self.streamer.set_demand(None);
         self.streamer.set_budget_bytes(self.blocks_budget(None));
-        // Eq. 8's eye one frame ahead (from the step to this camera: before the update).
+        // Eq. 8's eye ahead (from the step to this camera: asked before the update).
         let ahead = if warm { None } else { self.streamer.camera_ahead(camera) };
         let s = if warm {
             self.streamer.wait_until_resident(camera, self.config.warm_timeout).stats

@@ -982,7 +982,7 @@ pub(crate) struct KnownSamples {
     heights: terrain_core::hash::KeyMap<f32>,
 }
 
-/// Samples [`KnownSamples`] holds at most (about 6 MiB).
+/// Samples [`KnownSamples`] holds at most (a table of 2^19 slots of 17 bytes: about 9 MiB).
 const KNOWN_SAMPLES: usize = 1 << 18;
 
 impl KnownSamples {
@@ -1004,9 +1004,11 @@ impl KnownSamples {
         self.heights.insert(key, z);
     }
 
-    /// Bytes held (the table's capacity: a key, a value and a control byte a slot).
+    /// Bytes held: the table's slots (its capacity is 7/8 of them), each a key and its
+    /// value, padded, and a control byte.
     fn bytes(&self) -> u64 {
-        (self.heights.capacity() * (8 + 4 + 1)) as u64
+        let slots = self.heights.capacity() * 8 / 7;
+        (slots * (std::mem::size_of::<(u64, f32)>() + 1)) as u64
     }
 }
 

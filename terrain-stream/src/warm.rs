@@ -4,8 +4,9 @@
 //! the tree's `sub_max` and its entry's fine maxima pyramid) is computed beside the frame
 //! thread, not on it.
 //!
-//! The walk is [`crate::select_patches`] itself at the eye ahead, over the levels resident
-//! now; its patches are dropped. It only fills the tree's caches, whose values are functions
+//! The walk is [`crate::select_patches`] itself at the eye ahead, over the levels drawn now
+//! (a block not drawn yet at its finest level: the next frame may draw it); its patches are
+//! dropped. It only fills the tree's caches, whose values are functions
 //! of the store: a selection gives the same patches with or without it, bit for bit, whatever
 //! the walk's timing (tested). It never starts a visit of the tree's blocks (the frame's
 //! selection does: `VisitedBlocks`), so the blocks it adds are kept with the current
@@ -22,7 +23,7 @@ use terrain_core::hash::IdMap;
 use crate::format::BlockId;
 use crate::lod::{StoreTree, Walk, select_patches_in};
 
-/// A walk asked for: the eye ahead, Eq. 7's `tau` and the levels resident now.
+/// A walk asked for: the eye ahead, Eq. 7's `tau` and the levels drawn now.
 struct Ahead {
     camera: Camera,
     tau: f64,
