@@ -515,7 +515,7 @@ impl MethodScene {
         let Some(factors) = method.strip_factors() else {
             return MethodFrame { selection: self.select(method, camera), strips: None };
         };
-        strips_frame(&self.qt, camera, self.dss_errors(), &self.config, factors)
+        strips_frame(&self.qt, camera, self.dss_errors(), &self.config, factors, true)
     }
 
     /// The surface a frame draws, rebuilt on the CPU (see [`MethodScene::drawn_surface`]),
@@ -670,30 +670,38 @@ pub fn select_uniform(src: &dyn NodeTree, camera: &Camera, factor: f32) -> Selec
     Selection { patches, stats }
 }
 
+/// The DSS paper's strip method's configuration from the shared method configuration.
+fn strips_config(config: &MethodConfig, factors: StripFactors) -> DssStripsConfig {
+    DssStripsConfig {
+        dss: config.dss.clone(),
+        half_width_cells: config.strip_half_width_cells,
+        factors,
+    }
+}
+
 /// The `dss-strips` frame over any node tree (a heightmap's quadtree, a store's): the
-/// multilevel update, the strips and P-blocks built this frame, the blocks as draw patches.
-/// The selection's `cpu_time` covers the update and the strip construction; `factors` is the
-/// method's ([`LodMethod::strip_factors`]).
+/// multilevel update, the strips and P-blocks built this frame (`build`; else an empty mesh,
+/// for a selection that is not drawn: the store's demand for the eye ahead, Eq. 8, reads only
+/// which blocks the strips line), the blocks as draw patches. The selection's `cpu_time`
+/// covers the update and the strip construction; `factors` is the method's
+/// ([`LodMethod::strip_factors`]).
 pub fn strips_frame(
     src: &dyn NodeTree,
     camera: &Camera,
     table: &DssErrorTable,
     config: &MethodConfig,
     factors: StripFactors,
+    build: bool,
 ) -> MethodFrame {
-    let cfg = DssStripsConfig {
-        dss: config.dss.clone(),
-        half_width_cells: config.strip_half_width_cells,
-        factors,
-    };
-    let frame = select_dss_strips(src, camera, table, &cfg);
+    let frame = select_dss_strips(src, camera, table, &strips_config(config, factors));
     let update = frame.stats.cpu_time;
-    let mesh = strips::build_strips(&frame);
+    let mesh = if build { strips::build_strips(&frame) } else { StripMesh::default() };
     let mut selection = frame.selection();
     selection.stats.cpu_time = update + mesh.cpu_time;
     let patches = strips::draw_patches(&frame);
     let nodes = frame.blocks.iter().map(|b| b.node).collect();
-    MethodFrame { selection, strips: Some(StripFrame { patches, nodes, mesh, update }) }
+    let lined = frame.lined_blocks();
+    MethodFrame { selection, strips: Some(StripFrame { patches, nodes, lined, mesh, update }) }
 }
 
 /// What a method draws in one frame ([`MethodScene::frame`]).
@@ -712,6 +720,9 @@ pub struct StripFrame {
     pub patches: Vec<DrawPatch>,
     /// The quadtree node of each of `patches`.
     pub nodes: Vec<NodeId>,
+    /// Whether a strip or P-block vertex lies on each of `patches`
+    /// ([`DssStripFrame::lined_blocks`]).
+    pub lined: Vec<bool>,
     /// Strips and P-blocks, with their construction time.
     pub mesh: StripMesh,
     /// The multilevel update's time (section 3.3.1).

@@ -477,18 +477,13 @@ fn store_demand(
     let Some(strips) = &draw.strips else {
         return demand_within(tree, &draw.selection, true, budget_bytes);
     };
-    let mut used = vec![false; strips.nodes.len()];
-    for p in &strips.mesh.triangles.points {
-        if let Some(u) = used.get_mut(p.patch_index as usize) {
-            *u = true;
-        }
-    }
+    let used = &strips.lined;
     // Each carrier with its block's factor (a hidden block's is 2, its draw factors 0): what
     // the demand held to the budget asks of it (`demand_within`; the exact demand is its full
     // resolution whatever the factor).
     let mut all = draw.selection.clone();
     all.patches.extend(
-        strips.nodes.iter().zip(&strips.patches).zip(&used).filter(|(_, u)| **u).map(
+        strips.nodes.iter().zip(&strips.patches).zip(used).filter(|(_, u)| **u).map(
             |((&node, p), _)| {
                 let f = p.factors.outer.iter().chain(&p.factors.inner).fold(2f32, |m, &f| m.max(f));
                 terrain_core::lod::Patch { node, outer: [f; 4], inner: [f; 2] }

@@ -362,7 +362,9 @@ impl Method for StoreMethod<'_> {
         let (cfg, tables) = (&self.config, &self.tables);
         let kind = self.kind;
         let vertical_scale = self.vertical_scale;
-        let select_at = |src: &dyn TerrainSource, camera: &Camera| -> StoreDraw {
+        // `drawn`: false for a selection only the store's demand reads (Eq. 8's eye ahead),
+        // which builds no strips.
+        let select_at = |src: &dyn TerrainSource, camera: &Camera, drawn: bool| -> StoreDraw {
             // The PVS of the unexaggerated terrain, looked up where the eye is over it.
             let mut pvs_eye = camera.position;
             pvs_eye.z /= vertical_scale;
@@ -375,7 +377,7 @@ impl Method for StoreMethod<'_> {
                 Tables::RoughnessPvs(field, None) => select_pvps(src, camera, field, &cfg.pvps),
                 Tables::Dss(table) if kind.has_strips() => {
                     let factors = kind.strip_factors().unwrap_or_default();
-                    let f = strips_frame(src, camera, table, cfg, factors);
+                    let f = strips_frame(src, camera, table, cfg, factors, drawn);
                     return StoreDraw {
                         selection: f.selection,
                         strips: f.strips,
@@ -430,10 +432,10 @@ impl Method for StoreMethod<'_> {
         let (frame_camera, mut ahead_late) = (*camera, 0);
         let mut select = |src: &dyn TerrainSource, c: &Camera| -> StoreDraw {
             if *c == frame_camera {
-                return select_at(src, c);
+                return select_at(src, c, true);
             }
             let before = late_pages();
-            let draw = select_at(src, c);
+            let draw = select_at(src, c, false);
             ahead_late += late_pages() - before;
             draw
         };

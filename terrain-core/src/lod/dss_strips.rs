@@ -50,6 +50,7 @@
 use crate::hash::KeyMap;
 use crate::quadtree::NodeTree;
 use std::collections::HashMap;
+use std::ops::Range;
 use std::time::Instant;
 
 use glam::{DVec2, DVec3};
@@ -151,10 +152,12 @@ pub struct Strip {
     /// Whether it runs north-south (its sides are east and west block edges).
     pub vertical: bool,
     /// Blocks on its low side (west of a vertical strip, south of a horizontal one) in order
-    /// along it (south to north, or west to east); their east (north) edges face the strip.
-    pub low: Vec<usize>,
-    /// Blocks on its high side, in order; their west (south) edges face the strip.
-    pub high: Vec<usize>,
+    /// along it (south to north, or west to east), as a range of the frame's `strip_blocks`
+    /// ([`DssStripFrame::low`]); their east (north) edges face the strip.
+    pub low: Range<u32>,
+    /// Blocks on its high side, in order, likewise ([`DssStripFrame::high`]); their west
+    /// (south) edges face the strip.
+    pub high: Range<u32>,
 }
 
 impl Strip {
@@ -178,6 +181,9 @@ pub struct DssStripFrame {
     pub pblocks: Vec<PBlock>,
     /// Strips with a visible edge, by id.
     pub strips: Vec<Strip>,
+    /// The blocks lining the strips, strip after strip, each strip's low side then its high
+    /// side (one vector for the frame, not two per strip).
+    pub strip_blocks: Vec<usize>,
     /// Selection stats of the multilevel update (patches = visible blocks).
     pub stats: SelectionStats,
     /// Strips discarded by edge culling.
@@ -185,6 +191,37 @@ pub struct DssStripFrame {
 }
 
 impl DssStripFrame {
+    /// The blocks on strip `s`'s low side, in order along it.
+    pub fn low(&self, s: &Strip) -> &[usize] {
+        &self.strip_blocks[s.low.start as usize..s.low.end as usize]
+    }
+
+    /// The blocks on strip `s`'s high side, in order along it.
+    pub fn high(&self, s: &Strip) -> &[usize] {
+        &self.strip_blocks[s.high.start as usize..s.high.end as usize]
+    }
+
+    /// Whether a strip or P-block vertex lies on each block (`blocks[k]`): the blocks lining a
+    /// strip, hidden ones too, and the P-blocks' corner blocks. What a store must hold at full
+    /// resolution besides the visible blocks (the strips' vertices are the blocks' edge points).
+    pub fn lined_blocks(&self) -> Vec<bool> {
+        let mut lined = vec![false; self.blocks.len()];
+        for &k in &self.strip_blocks {
+            lined[k] = true;
+        }
+        for p in &self.pblocks {
+            for &(k, _) in &p.corners {
+                lined[k] = true;
+            }
+        }
+        lined
+    }
+
+    /// The blocks on strip `s`'s high side (`high`) or low side.
+    pub fn side(&self, s: &Strip, high: bool) -> &[usize] {
+        if high { self.high(s) } else { self.low(s) }
+    }
+
     /// The visible blocks as a [`Selection`] (every factor the block's `F_thr`): what the
     /// measurement's coverage and the statistics read. The drawn surface is *not*
     /// `build_surface` of this (blocks are shrunk and strips are added): terrain-gpu's
@@ -251,17 +288,18 @@ pub fn select_dss_strips(
         StripFactors::Sliding => metric.factor(n, info),
         StripFactors::PowerOfTwo => pow2_up(metric.factor(n, info)),
     };
-    let (blocks, pblocks, strips, culled_strips) =
-        assemble(qt, nodes, &splits, factor, s, frustum.as_ref());
+    let mut frame = assemble(qt, nodes, &splits, factor, s, frustum.as_ref());
+    let blocks = &frame.blocks;
     stats.patches = blocks.iter().filter(|b| b.visible).count();
     stats.max_level = blocks.iter().filter(|b| b.visible).map(|b| b.node.level).max().unwrap_or(0);
     stats.cpu_time = start.elapsed();
-    DssStripFrame { blocks, pblocks, strips, stats, culled_strips }
+    frame.stats = stats;
+    frame
 }
 
 /// Blocks, P-blocks and strips of a set of leaves (`(node, visible)`, covering the grid) and
-/// the nodes split to reach them; edges are culled against `frustum` when given. Returns the
-/// strips discarded by edge culling too.
+/// the nodes split to reach them; edges are culled against `frustum` when given. The frame's
+/// statistics are left empty.
 fn assemble(
     qt: &dyn NodeTree,
     mut nodes: Vec<(NodeId, bool)>,
@@ -269,8 +307,10 @@ fn assemble(
     factor: impl Fn(NodeId, &NodeInfo) -> f32,
     s: u32,
     frustum: Option<&Frustum>,
-) -> (Vec<MBlock>, Vec<PBlock>, Vec<Strip>, usize) {
-    nodes.sort_unstable_by_key(|(n, _)| n.dfs_key());
+) -> DssStripFrame {
+    // A stable sort: the traversal's leaves and hidden nodes come as two runs in depth-first
+    // order, which it merges in one pass.
+    nodes.sort_by_key(|(n, _)| n.dfs_key());
     let shape = qt.shape();
     let (w1, h1) = (shape.width() - 1, shape.height() - 1);
     // Each block's box heights, for its edges' frustum test below. The nodes' boxes through
@@ -371,34 +411,41 @@ fn assemble(
         frustum.classify(&bx) != Classification::Outside
     };
     let mut strips = Vec::new();
+    let mut strip_blocks = Vec::with_capacity(sides.len());
     let mut culled_strips = 0;
     let mut k = 0;
     while k < sides.len() {
         let id = sides[k].0;
         let end = k + sides[k..].iter().take_while(|t| t.0 == id).count();
         let group = &sides[k..end];
-        let low: Vec<usize> = group.iter().filter(|t| !t.1).map(|t| t.3).collect();
-        let high: Vec<usize> = group.iter().filter(|t| t.1).map(|t| t.3).collect();
         k = end;
-        if low.is_empty() || high.is_empty() {
+        // Sorted by side: the low side's blocks first, then the high side's.
+        let n_low = group.iter().take_while(|t| !t.1).count();
+        if n_low == 0 || n_low == group.len() {
             continue; // cannot happen for interior edges; nothing to stitch
         }
         let vertical = group[0].4;
         debug_assert!(group.iter().all(|t| t.4 == vertical));
-        let strip = Strip { id, vertical, low, high };
-        let seen = [false, true].iter().any(|&hi| {
-            let e = strip.facing_edge(hi);
-            let side = if hi { &strip.high } else { &strip.low };
-            side.iter().any(|&b| edge_visible(b, e))
-        });
+        let at = strip_blocks.len() as u32;
+        let mid = at + n_low as u32;
+        let strip = Strip { id, vertical, low: at..mid, high: mid..at + group.len() as u32 };
+        let seen = group.iter().any(|t| edge_visible(t.3, strip.facing_edge(t.1)));
         if seen {
+            strip_blocks.extend(group.iter().map(|t| t.3));
             strips.push(strip);
         } else {
             culled_strips += 1;
         }
     }
 
-    (blocks, pblocks, strips, culled_strips)
+    DssStripFrame {
+        blocks,
+        pblocks,
+        strips,
+        strip_blocks,
+        stats: SelectionStats::default(),
+        culled_strips,
+    }
 }
 
 /// The structure of a given partition into leaves, every block visible with its given factor
@@ -420,18 +467,17 @@ pub fn frame_from_leaves(
     splits.sort_unstable_by_key(|n| n.dfs_key());
     splits.dedup();
     let nodes = leaves.iter().map(|&n| (n, true)).collect();
-    let (blocks, pblocks, strips, culled_strips) =
-        assemble(qt, nodes, &splits, |n, _| by_node[&n], half_width_cells.max(1), None);
-    let visible = blocks.len();
-    let stats = SelectionStats {
+    let mut frame = assemble(qt, nodes, &splits, |n, _| by_node[&n], half_width_cells.max(1), None);
+    let visible = frame.blocks.len();
+    frame.stats = SelectionStats {
         traversal_leaves: visible,
         patches: visible,
         split: splits.len(),
-        max_level: blocks.iter().map(|b| b.node.level).max().unwrap_or(0),
+        max_level: frame.blocks.iter().map(|b| b.node.level).max().unwrap_or(0),
         cpu_time: start.elapsed(),
         ..SelectionStats::default()
     };
-    DssStripFrame { blocks, pblocks, strips, stats, culled_strips }
+    frame
 }
 
 #[cfg(test)]
@@ -485,8 +531,8 @@ mod tests {
         // Every block's interior edge lies on exactly one strip side.
         let mut seen = vec![0usize; f.blocks.len()];
         for s in &f.strips {
-            assert!(!s.low.is_empty() && !s.high.is_empty());
-            for (hi, side) in [(false, &s.low), (true, &s.high)] {
+            assert!(!f.low(s).is_empty() && !f.high(s).is_empty());
+            for (hi, side) in [(false, f.low(s)), (true, f.high(s))] {
                 let e = s.facing_edge(hi);
                 for &b in side.iter() {
                     assert_eq!(f.blocks[b].neighbours[e as usize], Some(s.id));
@@ -546,7 +592,7 @@ mod tests {
         assert_eq!(f.selection().patches.len(), f.stats.patches);
         // Every kept strip has a visible block.
         for s in &f.strips {
-            assert!(s.low.iter().chain(&s.high).any(|&b| f.blocks[b].visible));
+            assert!(f.low(s).iter().chain(f.high(s)).any(|&b| f.blocks[b].visible));
         }
     }
 }

@@ -82,22 +82,31 @@ fn edge_uv(e: Edge, t: f32) -> [f32; 2] {
     }
 }
 
+/// The vertices one side of a strip has: every edge point of its blocks.
+fn side_point_count(frame: &DssStripFrame, blocks: &[usize]) -> usize {
+    blocks.iter().map(|&k| EdgeSpacing::new(frame.blocks[k].factor).point_count() as usize).sum()
+}
+
 /// One side of a strip: its vertices and their positions along it (grid samples).
 fn side(frame: &DssStripFrame, blocks: &[usize], e: Edge) -> (Vec<GpuDomainPoint>, Vec<f64>) {
-    let (mut points, mut along) = (Vec::new(), Vec::new());
-    push_side(frame, blocks, e, &mut points, &mut along);
+    let mut points = vec![GpuDomainPoint::default(); side_point_count(frame, blocks)];
+    let mut along = Vec::with_capacity(points.len());
+    write_side(frame, blocks, e, &mut points, &mut along);
     (points, along)
 }
 
-/// Appends one side's vertices to `points` and their positions along the strip to `along`.
-fn push_side(
+/// Writes one side's vertices to the start of `points` (which holds at least
+/// [`side_point_count`]) and appends their positions along the strip to `along`; returns the
+/// vertices written.
+fn write_side(
     frame: &DssStripFrame,
     blocks: &[usize],
     e: Edge,
-    points: &mut Vec<GpuDomainPoint>,
+    points: &mut [GpuDomainPoint],
     along: &mut Vec<f64>,
-) {
+) -> usize {
     let vertical = matches!(e, Edge::East | Edge::West);
+    let mut n = 0;
     for &k in blocks {
         let b = &frame.blocks[k];
         let spacing = EdgeSpacing::new(b.factor);
@@ -105,41 +114,54 @@ fn push_side(
         let (lo, len) = if vertical { (y0, y1 - y0) } else { (x0, x1 - x0) };
         for q in 0..spacing.point_count() {
             let t = spacing.place(q);
-            points.push(GpuDomainPoint { uv: edge_uv(e, t), patch_index: k as u32, pad: 0 });
+            points[n] = GpuDomainPoint { uv: edge_uv(e, t), patch_index: k as u32, pad: 0 };
             along.push(lo + f64::from(t) * len);
+            n += 1;
         }
     }
+    n
 }
 
-/// Appends strip `strip` to `out` (vertices, then triangles indexing them), with `low` and
-/// `high` as scratch space: [`build_strip`] without allocating.
-fn append_strip(
+/// The vertices and indices strip `strip` has: every edge point of its blocks on both sides,
+/// and three indices per triangle, `n_a - 1 + n_b - 1` triangles
+/// ([`triangulate::bisector_triangles`]).
+fn strip_size(frame: &DssStripFrame, strip: &Strip) -> (usize, usize) {
+    let (na, nb) =
+        (side_point_count(frame, frame.low(strip)), side_point_count(frame, frame.high(strip)));
+    (na + nb, if na == 0 || nb == 0 { 0 } else { 3 * (na + nb - 2) })
+}
+
+/// Writes strip `strip` into the starts of `points` and `indices` (which hold at least
+/// [`strip_size`]), its indices offset by `base`, with `low`
+/// and `high` as scratch space: [`build_strip`] without allocating. Returns the points and
+/// indices written.
+fn write_strip(
     frame: &DssStripFrame,
     strip: &Strip,
-    out: &mut ExtraTriangles,
+    base: u32,
+    (points, indices): (&mut [GpuDomainPoint], &mut [u32]),
     (low, high): (&mut Vec<f64>, &mut Vec<f64>),
-) {
-    let base = out.points.len() as u32;
+) -> (usize, usize) {
     low.clear();
     high.clear();
-    push_side(frame, &strip.low, strip.facing_edge(false), &mut out.points, low);
-    push_side(frame, &strip.high, strip.facing_edge(true), &mut out.points, high);
-    let na = base + low.len() as u32;
-    for tri in triangulate::bisector_triangles(low, high) {
+    let nl = write_side(frame, frame.low(strip), strip.facing_edge(false), points, low);
+    let nh = write_side(frame, frame.high(strip), strip.facing_edge(true), &mut points[nl..], high);
+    let na = base + nl as u32;
+    let mut n = 0;
+    triangulate::for_each_bisector_triangle(low, high, |tri| {
         let [a, b, c] = tri.map(|(hi, k)| if hi { na + k } else { base + k });
         // See `build_strip` for the orientation.
-        if strip.vertical != tri[0].0 {
-            out.indices.extend([a, c, b]);
-        } else {
-            out.indices.extend([a, b, c]);
-        }
-    }
+        let t = if strip.vertical != tri[0].0 { [a, c, b] } else { [a, b, c] };
+        indices[n..n + 3].copy_from_slice(&t);
+        n += 3;
+    });
+    (nl + nh, n)
 }
 
 /// The vertices and triangles (local indices) of one strip.
 pub fn build_strip(frame: &DssStripFrame, strip: &Strip) -> (Vec<GpuDomainPoint>, Vec<u32>) {
-    let (mut points, low) = side(frame, &strip.low, strip.facing_edge(false));
-    let (high_points, high) = side(frame, &strip.high, strip.facing_edge(true));
+    let (mut points, low) = side(frame, frame.low(strip), strip.facing_edge(false));
+    let (high_points, high) = side(frame, frame.high(strip), strip.facing_edge(true));
     let na = points.len() as u32;
     points.extend(high_points);
     let mut indices = Vec::with_capacity(3 * (low.len() + high.len()));
@@ -166,53 +188,71 @@ pub fn build_strips(frame: &DssStripFrame) -> StripMesh {
     build_strips_with(frame, frame.strips.len() >= PARALLEL_MIN_STRIPS)
 }
 
+/// One run of strips to write: the strips, the index of their first vertex, and the slices of
+/// the output their vertices and indices go to.
+type StripRun<'a> = (&'a [Strip], u32, &'a mut [GpuDomainPoint], &'a mut [u32]);
+
 /// [`build_strips`], in parallel or not: the same output either way.
 pub fn build_strips_with(frame: &DssStripFrame, parallel: bool) -> StripMesh {
     let start = Instant::now();
-    let mut out = ExtraTriangles::default();
-    if parallel {
-        // Runs of strips, each appended into one buffer (two allocations per run, not per
-        // strip: the strips' own vectors, freed on this thread after rayon's workers
-        // allocated them, were most of the build's samples on this thread).
-        let run = frame.strips.len().div_ceil(4 * rayon::current_num_threads()).max(32);
-        let parts: Vec<ExtraTriangles> = frame
-            .strips
-            .par_chunks(run)
-            .map(|strips| {
-                let mut part = ExtraTriangles::default();
-                let (mut low, mut high) = (Vec::new(), Vec::new());
-                for s in strips {
-                    append_strip(frame, s, &mut part, (&mut low, &mut high));
-                }
-                part
-            })
-            .collect();
-        let (np, ni) =
-            parts.iter().fold((0, 0), |(p, i), e| (p + e.points.len(), i + e.indices.len()));
-        out.points.reserve(np + 4 * frame.pblocks.len());
-        out.indices.reserve(ni + 6 * frame.pblocks.len());
-        for part in parts {
-            let base = out.points.len() as u32;
-            out.points.extend_from_slice(&part.points);
-            out.indices.extend(part.indices.iter().map(|k| k + base));
-        }
+    // Every strip's place in the output, from its blocks' factors: runs of strips write into
+    // their own slices of one buffer, in parallel or not, and nothing is copied or grown
+    // afterwards (the strips' own vectors, allocated on rayon's workers and freed here, then
+    // the runs' buffers copied into one, were most of the build's samples on this thread).
+    let sizes: Vec<(usize, usize)> = frame.strips.iter().map(|s| strip_size(frame, s)).collect();
+    let (np, ni) = sizes.iter().fold((0, 0), |(p, i), &(a, b)| (p + a, i + b));
+    let mut points = vec![GpuDomainPoint::default(); np + 4 * frame.pblocks.len()];
+    let mut indices = vec![0u32; ni + 6 * frame.pblocks.len()];
+    let run = if parallel {
+        frame.strips.len().div_ceil(4 * rayon::current_num_threads()).max(32)
     } else {
-        let (mut low, mut high) = (Vec::new(), Vec::new());
-        for s in &frame.strips {
-            append_strip(frame, s, &mut out, (&mut low, &mut high));
-        }
+        frame.strips.len().max(1)
+    };
+    let (strip_points, pblock_points) = points.split_at_mut(np);
+    let (strip_indices, pblock_indices) = indices.split_at_mut(ni);
+    let mut runs: Vec<StripRun<'_>> = Vec::with_capacity(frame.strips.len().div_ceil(run));
+    let (mut points_left, mut indices_left) = (strip_points, strip_indices);
+    let mut base = 0usize;
+    for (strips, sizes) in frame.strips.chunks(run).zip(sizes.chunks(run)) {
+        let (p, i) = sizes.iter().fold((0, 0), |(p, i), &(a, b)| (p + a, i + b));
+        let (run_points, rest) = std::mem::take(&mut points_left).split_at_mut(p);
+        points_left = rest;
+        let (run_indices, rest) = std::mem::take(&mut indices_left).split_at_mut(i);
+        indices_left = rest;
+        runs.push((strips, base as u32, run_points, run_indices));
+        base += p;
     }
-    for p in &frame.pblocks {
-        let base = out.points.len() as u32;
-        out.points.extend(p.corners.iter().map(|&(k, q)| GpuDomainPoint {
-            uv: corner_uv(q),
-            patch_index: k as u32,
-            pad: 0,
-        }));
-        out.indices.extend([0, 1, 2, 0, 2, 3].map(|k| base + k));
+    let write_run = |(strips, base, points, indices): StripRun<'_>| {
+        let (mut low, mut high) = (Vec::new(), Vec::new());
+        let (mut p, mut i) = (0, 0);
+        for s in strips {
+            let (sp, si) = write_strip(
+                frame,
+                s,
+                base + p as u32,
+                (&mut points[p..], &mut indices[i..]),
+                (&mut low, &mut high),
+            );
+            p += sp;
+            i += si;
+        }
+        debug_assert_eq!((p, i), (points.len(), indices.len()));
+    };
+    if parallel {
+        runs.into_par_iter().for_each(write_run);
+    } else {
+        runs.into_iter().for_each(write_run);
+    }
+    for (k, p) in frame.pblocks.iter().enumerate() {
+        let base = (np + 4 * k) as u32;
+        for (q, &(b, corner)) in p.corners.iter().enumerate() {
+            pblock_points[4 * k + q] =
+                GpuDomainPoint { uv: corner_uv(corner), patch_index: b as u32, pad: 0 };
+        }
+        pblock_indices[6 * k..6 * k + 6].copy_from_slice(&[0, 1, 2, 0, 2, 3].map(|q| base + q));
     }
     StripMesh {
-        triangles: out,
+        triangles: ExtraTriangles { points, indices, heights: Vec::new() },
         strips: frame.strips.len(),
         pblocks: frame.pblocks.len(),
         cpu_time: start.elapsed(),

@@ -110,6 +110,26 @@ fn assert_watertight(hm: &Heightmap, frame: &DssStripFrame, label: &str) {
     let parallel = build_strips_with(frame, true);
     assert_eq!(serial.triangles, parallel.triangles, "{label}");
     assert_eq!(serial.triangles, strips.triangles, "{label}");
+    // The one buffer holds each strip built alone, in order, then four points and two
+    // triangles per P-block.
+    let mut alone = ExtraTriangles::default();
+    for s in &frame.strips {
+        let (points, indices) = build_strip(frame, s);
+        let base = alone.points.len() as u32;
+        alone.points.extend(points);
+        alone.indices.extend(indices.iter().map(|k| k + base));
+    }
+    let (np, ni) = (alone.points.len(), alone.indices.len());
+    assert_eq!(strips.triangles.points[..np], alone.points[..], "{label}");
+    assert_eq!(strips.triangles.indices[..ni], alone.indices[..], "{label}");
+    assert_eq!(strips.triangles.points.len(), np + 4 * frame.pblocks.len(), "{label}");
+    assert_eq!(strips.triangles.indices.len(), ni + 6 * frame.pblocks.len(), "{label}");
+    // The blocks a vertex lies on are the blocks the frame says the strips line.
+    let mut on = vec![false; frame.blocks.len()];
+    for p in &strips.triangles.points {
+        on[p.patch_index as usize] = true;
+    }
+    assert_eq!(on, frame.lined_blocks(), "{label}");
     let (mesh, count) = build_strip_surface(hm, &patches, &strips.triangles);
     assert!(count > 0, "{label}");
 
@@ -131,7 +151,7 @@ fn assert_watertight(hm: &Heightmap, frame: &DssStripFrame, label: &str) {
     // Each side of each strip: exactly the edge vertices the block's tessellation has.
     for s in &frame.strips {
         let (pts, _) = build_strip(frame, s);
-        for (hi, side) in [(false, &s.low), (true, &s.high)] {
+        for (hi, side) in [(false, frame.low(s)), (true, frame.high(s))] {
             let e = s.facing_edge(hi);
             for &k in side.iter() {
                 let p = &patches[k];
@@ -174,8 +194,8 @@ fn random_quadtrees_are_watertight_and_strips_share_the_blocks_edge_vertices() {
             factors_seen.extend(frame.blocks.iter().map(|b| b.factor.to_bits()));
             // Neighbours across a strip, levels apart.
             for s in &frame.strips {
-                for &a in &s.low {
-                    for &b in &s.high {
+                for &a in frame.low(s) {
+                    for &b in frame.high(s) {
                         let (la, lb) = (frame.blocks[a].node.level, frame.blocks[b].node.level);
                         levels_apart = levels_apart.max(la.abs_diff(lb));
                     }
@@ -195,8 +215,8 @@ fn min_angle(a: DVec2, b: DVec2, c: DVec2) -> f64 {
 
 /// The plan positions of a strip's sides, and its width.
 fn strip_sides(frame: &DssStripFrame, s: &Strip) -> (Vec<f64>, Vec<f64>, f64) {
-    let (_, low) = side(frame, &s.low, s.facing_edge(false));
-    let (_, high) = side(frame, &s.high, s.facing_edge(true));
+    let (_, low) = side(frame, frame.low(s), s.facing_edge(false));
+    let (_, high) = side(frame, frame.high(s), s.facing_edge(true));
     (low, high, 2.0)
 }
 
@@ -318,4 +338,42 @@ fn power_of_two_strip_factors_are_powers_of_two_and_watertight() {
     }
     // Negative control: the paper's factors on these views are not powers of two.
     assert!(fractional > 0, "every sliding factor was whole: the test compares nothing");
+}
+
+/// With frustum culling, hidden blocks and culled strips: the blocks the built strips' and
+/// P-blocks' vertices lie on are exactly the frame's lined blocks (what a store's demand reads
+/// without building the strips), and not every block is lined.
+#[test]
+fn lined_blocks_are_the_blocks_the_strips_vertices_lie_on() {
+    use glam::dvec3;
+    use terrain_core::geometry::Camera;
+    use terrain_core::lod::select_dss_strips;
+    use terrain_core::lod::{DssConfig, DssErrorTable, DssStripsConfig, StripFactors};
+    let hm = terrain(257, 257);
+    let qt = Quadtree::new(&hm, 4);
+    let table = DssErrorTable::new(&hm, &qt);
+    let cfg = DssStripsConfig {
+        dss: DssConfig { leaf_cells: 4, rho_thr: 0.05, frustum_cull: true, ..Default::default() },
+        half_width_cells: 1,
+        factors: StripFactors::Sliding,
+    };
+    let (mut unlined, mut culled) = (0, 0);
+    for (k, eye) in [dvec3(100.0, 100.0, 60.0), dvec3(900.0, 300.0, 80.0), dvec3(50.0, 900.0, 40.0)]
+        .into_iter()
+        .enumerate()
+    {
+        let cam = Camera::from_yaw_pitch(eye, 30.0 + 100.0 * k as f64, -20.0);
+        let frame = select_dss_strips(&qt, &cam, &table, &cfg);
+        let mesh = build_strips(&frame);
+        let mut on = vec![false; frame.blocks.len()];
+        for p in &mesh.triangles.points {
+            on[p.patch_index as usize] = true;
+        }
+        let lined = frame.lined_blocks();
+        assert_eq!(on, lined, "view {k}");
+        unlined += lined.iter().filter(|&&l| !l).count();
+        culled += frame.culled_strips;
+    }
+    // Negative control: culling left blocks no strip lines, so the comparison can fail.
+    assert!(unlined > 0 && culled > 0, "{unlined} blocks unlined, {culled} strips culled");
 }

@@ -18,36 +18,48 @@
 /// `high` along it (both ascending, starting together and ending together): each is
 /// `[(high side?, index), ...]` in the order base start, base end, apex.
 pub fn bisector_triangles(low: &[f64], high: &[f64]) -> Vec<[(bool, u32); 3]> {
+    let mut out = Vec::with_capacity((low.len() + high.len()).saturating_sub(2));
+    for_each_bisector_triangle(low, high, |t| out.push(t));
+    out
+}
+
+/// [`bisector_triangles`], each handed to `emit` in turn instead of collected.
+pub fn for_each_bisector_triangle(low: &[f64], high: &[f64], emit: impl FnMut([(bool, u32); 3])) {
     // Ties (equal midpoints) go to the low side: the same rule from both sides.
-    merge(low.len(), high.len(), |i, j| low[i] + low[i + 1] <= high[j] + high[j + 1])
+    walk(low.len(), high.len(), |i, j| low[i] + low[i + 1] <= high[j] + high[j + 1], emit)
 }
 
 /// The sequential triangulation of the paper's Fig. 8b: advance the side that is behind *by
 /// index fraction* (`i / (n_a - 1)` against `j / (n_b - 1)`), blind to positions.
 pub fn sequential_triangles(low: &[f64], high: &[f64]) -> Vec<[(bool, u32); 3]> {
     let (na, nb) = (low.len().max(2) - 1, high.len().max(2) - 1);
-    merge(low.len(), high.len(), |i, j| i * nb <= j * na)
+    let mut out = Vec::with_capacity((low.len() + high.len()).saturating_sub(2));
+    walk(low.len(), high.len(), |i, j| i * nb <= j * na, |t| out.push(t));
+    out
 }
 
 /// The walk both triangulations share: `low_first(i, j)` says whether the low side's segment
-/// `i` closes before the high side's segment `j`.
-fn merge(na: usize, nb: usize, low_first: impl Fn(usize, usize) -> bool) -> Vec<[(bool, u32); 3]> {
-    let mut out = Vec::with_capacity((na + nb).saturating_sub(2));
+/// `i` closes before the high side's segment `j`; each triangle goes to `emit`.
+fn walk(
+    na: usize,
+    nb: usize,
+    low_first: impl Fn(usize, usize) -> bool,
+    mut emit: impl FnMut([(bool, u32); 3]),
+) {
     if na == 0 || nb == 0 {
-        return out;
+        return;
     }
     let (mut i, mut j) = (0usize, 0usize);
     while i + 1 < na || j + 1 < nb {
         let take_low = j + 1 >= nb || (i + 1 < na && low_first(i, j));
         if take_low {
-            out.push([(false, i as u32), (false, i as u32 + 1), (true, j as u32)]);
+            emit([(false, i as u32), (false, i as u32 + 1), (true, j as u32)]);
             i += 1;
         } else {
-            out.push([(true, j as u32), (true, j as u32 + 1), (false, i as u32)]);
+            emit([(true, j as u32), (true, j as u32 + 1), (false, i as u32)]);
             j += 1;
         }
     }
-    out
 }
 
 #[cfg(test)]
