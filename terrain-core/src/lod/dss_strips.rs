@@ -297,6 +297,25 @@ pub fn select_dss_strips(
     frame
 }
 
+/// One block's edge facing a strip, as [`assemble`] groups them.
+struct Side {
+    /// The strip's id.
+    id: i64,
+    /// Bit 32: the block is on the strip's high side; bits 0-31: its position along the strip.
+    place: u64,
+    /// The block (index into the frame's blocks).
+    block: usize,
+    /// Whether the strip runs north-south.
+    vertical: bool,
+}
+
+impl Side {
+    /// Whether the block is on the strip's high side.
+    fn high(&self) -> bool {
+        self.place >> 32 != 0
+    }
+}
+
 /// Blocks, P-blocks and strips of a set of leaves (`(node, visible)`, covering the grid) and
 /// the nodes split to reach them; edges are culled against `frustum` when given. The frame's
 /// statistics are left empty.
@@ -371,9 +390,9 @@ fn assemble(
         }
     }
 
-    // Strips: group the blocks' interior edges by the strip their Idsneighbour names.
-    // (strip id, high side, position along, block, vertical)
-    let mut sides: Vec<(i64, bool, u32, usize, bool)> = Vec::new();
+    // Strips: group the blocks' interior edges by the strip their Idsneighbour names, sorted
+    // by (strip id, side, position along): the side and position packed in one integer.
+    let mut sides: Vec<Side> = Vec::with_capacity(4 * blocks.len());
     for (k, b) in blocks.iter().enumerate() {
         for e in Edge::ALL {
             if b.border[e as usize] {
@@ -386,10 +405,15 @@ fn assemble(
                 Edge::North => (false, b.rect[0]),
                 Edge::South => (true, b.rect[0]),
             };
-            sides.push((id, high, along, k, matches!(e, Edge::East | Edge::West)));
+            sides.push(Side {
+                id,
+                place: (u64::from(high) << 32) | u64::from(along),
+                block: k,
+                vertical: matches!(e, Edge::East | Edge::West),
+            });
         }
     }
-    sides.sort_unstable();
+    sides.sort_unstable_by_key(|t| (t.id, t.place));
     let edge_visible = |k: usize, e: Edge| -> bool {
         let b = &blocks[k];
         if !b.visible {
@@ -415,23 +439,23 @@ fn assemble(
     let mut culled_strips = 0;
     let mut k = 0;
     while k < sides.len() {
-        let id = sides[k].0;
-        let end = k + sides[k..].iter().take_while(|t| t.0 == id).count();
+        let id = sides[k].id;
+        let end = k + sides[k..].iter().take_while(|t| t.id == id).count();
         let group = &sides[k..end];
         k = end;
         // Sorted by side: the low side's blocks first, then the high side's.
-        let n_low = group.iter().take_while(|t| !t.1).count();
+        let n_low = group.iter().take_while(|t| !t.high()).count();
         if n_low == 0 || n_low == group.len() {
             continue; // cannot happen for interior edges; nothing to stitch
         }
-        let vertical = group[0].4;
-        debug_assert!(group.iter().all(|t| t.4 == vertical));
+        let vertical = group[0].vertical;
+        debug_assert!(group.iter().all(|t| t.vertical == vertical));
         let at = strip_blocks.len() as u32;
         let mid = at + n_low as u32;
         let strip = Strip { id, vertical, low: at..mid, high: mid..at + group.len() as u32 };
-        let seen = group.iter().any(|t| edge_visible(t.3, strip.facing_edge(t.1)));
+        let seen = group.iter().any(|t| edge_visible(t.block, strip.facing_edge(t.high())));
         if seen {
-            strip_blocks.extend(group.iter().map(|t| t.3));
+            strip_blocks.extend(group.iter().map(|t| t.block));
             strips.push(strip);
         } else {
             culled_strips += 1;
