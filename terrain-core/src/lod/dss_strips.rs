@@ -618,5 +618,40 @@ mod tests {
         for s in &f.strips {
             assert!(f.low(s).iter().chain(f.high(s)).any(|&b| f.blocks[b].visible));
         }
+        // Each visible block's factor is Eq. 4's for its own node (worked out during the
+        // traversal, in the leaves' order), hidden blocks' 2; the factors differ, so a block
+        // given another's fails.
+        // A second view over a tree of 64-cell leaves draws blocks at its finest level, whose
+        // split the traversal does not ask, beside coarser ones it asked.
+        let near = Camera::from_yaw_pitch(dvec3(50.0, 1280.0, 200.0), 90.0, -10.0);
+        let fine = DssStripsConfig {
+            dss: DssConfig { leaf_cells: 64, rho_thr: 4.0, ..cfg.dss.clone() },
+            ..cfg.clone()
+        };
+        let (qt_fine, table_fine) = {
+            let qt = fine.dss.quadtree(&hm);
+            let table = DssErrorTable::new(&hm, &qt);
+            (qt, table)
+        };
+        let g = select_dss_strips(&qt_fine, &near, &table_fine, &fine);
+        let finest = qt_fine.shape().max_level();
+        let levels: std::collections::BTreeSet<u8> =
+            g.blocks.iter().filter(|b| b.visible).map(|b| b.node.level).collect();
+        assert!(levels.contains(&finest) && levels.len() > 1, "{levels:?}, finest {finest}");
+        for (cam, f, cfg, qt, table) in
+            [(&cam, &f, &cfg, &qt, &table), (&near, &g, &fine, &qt_fine, &table_fine)]
+        {
+            let metric = Metric::new(table, cam, &cfg.dss);
+            let mut factors = std::collections::BTreeSet::new();
+            for b in &f.blocks {
+                let want = match b.visible {
+                    true => metric.factor(b.node, &qt.node_info(b.node).expect("a node")),
+                    false => 2.0,
+                };
+                assert_eq!(b.factor.to_bits(), want.to_bits(), "{:?}", b.node);
+                factors.insert(b.factor.to_bits());
+            }
+            assert!(factors.len() > 3, "{} distinct factors", factors.len());
+        }
     }
 }
