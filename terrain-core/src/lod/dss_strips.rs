@@ -217,11 +217,6 @@ impl DssStripFrame {
         lined
     }
 
-    /// The blocks on strip `s`'s high side (`high`) or low side.
-    pub fn side(&self, s: &Strip, high: bool) -> &[usize] {
-        if high { self.high(s) } else { self.low(s) }
-    }
-
     /// The visible blocks as a [`Selection`] (every factor the block's `F_thr`): what the
     /// measurement's coverage and the statistics read. The drawn surface is *not*
     /// `build_surface` of this (blocks are shrunk and strips are added): terrain-gpu's

@@ -132,9 +132,8 @@ fn strip_size(frame: &DssStripFrame, strip: &Strip) -> (usize, usize) {
 }
 
 /// Writes strip `strip` into the starts of `points` and `indices` (which hold at least
-/// [`strip_size`]), its indices offset by `base`, with `low`
-/// and `high` as scratch space: [`build_strip`] without allocating. Returns the points and
-/// indices written.
+/// [`strip_size`]), its indices offset by `base`, with `low` and `high` as scratch space:
+/// [`build_strip`] without allocating. Returns the points and indices written.
 fn write_strip(
     frame: &DssStripFrame,
     strip: &Strip,
