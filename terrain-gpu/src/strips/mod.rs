@@ -87,14 +87,6 @@ fn side_point_count(frame: &DssStripFrame, blocks: &[usize]) -> usize {
     blocks.iter().map(|&k| EdgeSpacing::new(frame.blocks[k].factor).point_count() as usize).sum()
 }
 
-/// One side of a strip: its vertices and their positions along it (grid samples).
-fn side(frame: &DssStripFrame, blocks: &[usize], e: Edge) -> (Vec<GpuDomainPoint>, Vec<f64>) {
-    let mut points = vec![GpuDomainPoint::default(); side_point_count(frame, blocks)];
-    let mut along = Vec::with_capacity(points.len());
-    write_side(frame, blocks, e, &mut points, &mut along);
-    (points, along)
-}
-
 /// Writes one side's vertices to the start of `points` (which holds at least
 /// [`side_point_count`]) and appends their positions along the strip to `along`; returns the
 /// vertices written.
@@ -149,7 +141,8 @@ fn write_strip(
     let mut n = 0;
     triangulate::for_each_bisector_triangle(low, high, |tri| {
         let [a, b, c] = tri.map(|(hi, k)| if hi { na + k } else { base + k });
-        // See `build_strip` for the orientation.
+        // A base on the low side of a vertical strip (or the high side of a horizontal one)
+        // runs clockwise with its apex: swap to keep every triangle anti-clockwise.
         let t = if strip.vertical != tri[0].0 { [a, c, b] } else { [a, b, c] };
         indices[n..n + 3].copy_from_slice(&t);
         n += 3;
@@ -159,21 +152,9 @@ fn write_strip(
 
 /// The vertices and triangles (local indices) of one strip.
 pub fn build_strip(frame: &DssStripFrame, strip: &Strip) -> (Vec<GpuDomainPoint>, Vec<u32>) {
-    let (mut points, low) = side(frame, frame.low(strip), strip.facing_edge(false));
-    let (high_points, high) = side(frame, frame.high(strip), strip.facing_edge(true));
-    let na = points.len() as u32;
-    points.extend(high_points);
-    let mut indices = Vec::with_capacity(3 * (low.len() + high.len()));
-    for tri in triangulate::bisector_triangles(&low, &high) {
-        let [a, b, c] = tri.map(|(hi, k)| if hi { na + k } else { k });
-        // A base on the low side of a vertical strip (or the high side of a horizontal one)
-        // runs clockwise with its apex: swap to keep every triangle anti-clockwise.
-        if strip.vertical != tri[0].0 {
-            indices.extend([a, c, b]);
-        } else {
-            indices.extend([a, b, c]);
-        }
-    }
+    let (np, ni) = strip_size(frame, strip);
+    let (mut points, mut indices) = (vec![GpuDomainPoint::default(); np], vec![0; ni]);
+    write_strip(frame, strip, 0, (&mut points, &mut indices), (&mut Vec::new(), &mut Vec::new()));
     (points, indices)
 }
 

@@ -207,6 +207,14 @@ fn random_quadtrees_are_watertight_and_strips_share_the_blocks_edge_vertices() {
     assert!(factors_seen.contains(&1f32.to_bits()) && factors_seen.contains(&64f32.to_bits()));
 }
 
+/// One side of a strip: its vertices and their positions along it (grid samples).
+fn side(frame: &DssStripFrame, blocks: &[usize], e: Edge) -> (Vec<GpuDomainPoint>, Vec<f64>) {
+    let mut points = vec![GpuDomainPoint::default(); side_point_count(frame, blocks)];
+    let mut along = Vec::with_capacity(points.len());
+    write_side(frame, blocks, e, &mut points, &mut along);
+    (points, along)
+}
+
 /// Smallest angle (radians) of a triangle in the plan.
 fn min_angle(a: DVec2, b: DVec2, c: DVec2) -> f64 {
     let ang = |p: DVec2, q: DVec2, r: DVec2| (q - p).angle_to(r - p).abs();
