@@ -55,7 +55,7 @@ use terrain_core::lod::{
     select_dss_power_of_two, select_dss_strips, select_dss_uniform, select_pvps,
     select_pvps_with_cull,
 };
-use terrain_core::quadtree::{FrustumCull, NodeTree, Quadtree, SplitToLevel, select};
+use terrain_core::quadtree::{FrustumCull, NodeTree, Quadtree, SplitToLevel, Visit, walk};
 use terrain_core::tin::grid::GridTinPyramid;
 use terrain_gpu::render::{DrawPatch, ExtraTriangles};
 use terrain_gpu::strips::{self, StripMesh};
@@ -653,13 +653,17 @@ pub fn select_uniform(src: &dyn NodeTree, camera: &Camera, factor: f32) -> Selec
     let max = src.shape().max_level();
     // Through the traversal's node source: a store's looks each block up once per run of its
     // nodes, not once per node.
-    let mut leaves = Vec::new();
-    src.with_traversal_source(&mut |nodes| {
-        leaves = select(nodes, &mut SplitToLevel(max), &mut cull);
-    });
+    // Patches listed as the walk reports their leaves: no list of leaves beside them (3.8 M
+    // patches at 1 px over a 32769^2 store).
     let f = factor.clamp(MIN_FACTOR, MAX_FACTOR);
-    let patches: Vec<Patch> =
-        leaves.iter().map(|&node| Patch { node, outer: [f; 4], inner: [f; 2] }).collect();
+    let mut patches = Vec::new();
+    src.with_traversal_source(&mut |nodes| {
+        walk(nodes, &mut SplitToLevel(max), &mut cull, &mut |node, visit| {
+            if visit == Visit::Leaf {
+                patches.push(Patch { node, outer: [f; 4], inner: [f; 2] });
+            }
+        });
+    });
     let stats = SelectionStats {
         traversal_leaves: patches.len(),
         patches: patches.len(),

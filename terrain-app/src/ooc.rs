@@ -31,7 +31,7 @@ use glam::{DVec2, DVec3};
 use terrain_core::geometry::Camera;
 use terrain_core::hash::IdMap;
 use terrain_core::lod::{GeomipRuns, PatchRun, TerrainSource};
-use terrain_core::lod::{Selection, check_shared_edges};
+use terrain_core::lod::{Patch, Selection, check_shared_edges};
 use terrain_core::quadtree::{NodeId, NodeTree};
 use terrain_core::{Crs, Georef, Heightmap};
 use terrain_gpu::paged::{Page, PageClass, PageLayout, PagedHeights, classes_for_budget};
@@ -459,6 +459,29 @@ pub struct OocFrame {
     pub blocks_dropped: usize,
 }
 
+impl OocFrame {
+    /// Bytes the frame's lists hold (their allocations: the selection, the draw patches, the
+    /// extra triangles, geomorph's runs and the drawn blocks; not the page updates, which the
+    /// renderer consumes). `uniform` over a 32769^2 store holds about 300 MB of them at 1 px
+    /// (3.8 M patches, each listed as a [`Patch`] and a [`DrawPatch`]).
+    pub fn list_bytes(&self) -> u64 {
+        fn bytes<T>(v: &Vec<T>) -> u64 {
+            (v.capacity() * std::mem::size_of::<T>()) as u64
+        }
+        let morph = self
+            .morph
+            .as_ref()
+            .map_or(0, |m| bytes(&m.runs) + bytes(&m.patches) + bytes(&m.factors));
+        bytes(&self.selection.patches)
+            + bytes(&self.patches)
+            + bytes(&self.extra.points)
+            + bytes(&self.extra.indices)
+            + bytes(&self.extra.heights)
+            + bytes(&self.drawn)
+            + morph
+    }
+}
+
 /// What `draw` needs from the store ([`demand_of`]): its patches' levels, held to
 /// `budget_bytes` where the patches' factors allow ([`demand_within`]: the second value says
 /// the exact demand did not fit and was held); with strips, exactly the full resolution of
@@ -682,6 +705,9 @@ pub struct OocScene {
     real_time: bool,
     /// Bytes of the budget the method keeps in its own caches ([`OocScene::with_reserved`]).
     reserved: u64,
+    /// Bytes of the last frame's lists ([`OocFrame::list_bytes`]), or of this frame's selection
+    /// where larger: the blocks get what they leave of the budget ([`OocScene::blocks_budget`]).
+    frame_bytes: u64,
     /// The paper's method's tree walked one frame ahead ([`OocConfig::warm_ahead`]): started
     /// by the first real-time [`OocScene::frame`] (`Some(None)`: off, or the system could not
     /// start its thread; the frames run without it).
@@ -748,6 +774,7 @@ impl OocScene {
             exact_demand: false,
             real_time: false,
             reserved: 0,
+            frame_bytes: 0,
             warmer: None,
         }
     }
@@ -917,6 +944,10 @@ impl OocScene {
         let t0 = Instant::now();
         let mut draw = select(&StoreSource::new(tree, &self.streamer), camera);
         let mut select_time = draw.selection.stats.cpu_time;
+        // This frame's lists count from now: each selected patch is listed once more as a
+        // draw patch (a run's first frame has no last frame to go by).
+        let listed = std::mem::size_of::<Patch>() + std::mem::size_of::<DrawPatch>();
+        self.frame_bytes = self.frame_bytes.max((draw.selection.patches.len() * listed) as u64);
         let blocks = self.blocks_budget(Some(tree));
         self.streamer.set_budget_bytes(blocks);
         // The bytes the exact demand may hold (`demand_within`): a warm frame's the cache's
@@ -991,6 +1022,7 @@ impl OocScene {
             selection.stats.patches = runs.drawn_patches() as usize;
             let mut frame = self.finish_frame(selection, None, &drawn, dropped, stream);
             frame.morph = Some(runs);
+            self.frame_bytes = frame.list_bytes();
             return frame;
         }
         if let Some(mut extra) = mesh {
@@ -1033,12 +1065,13 @@ impl OocScene {
     /// the index entries the trees keep for the view leave (this scene's tree and the method's
     /// `tree`, unless one is the other's clone; [`StoreTree::visited_bytes`]), the store's
     /// decoded index pages ([`index_share`]) and the method's own caches
-    /// ([`OocScene::with_reserved`]), at least half of it. A selection over a 32769^2 store keeps 139 MB of entries for its view (`dss-2` on
+    /// ([`OocScene::with_reserved`]) and the last frame's lists ([`OocFrame::list_bytes`]: the
+    /// next frame's are about as large), at least half of it. A selection over a 32769^2 store keeps 139 MB of entries for its view (`dss-2` on
     /// `fast_pass`), which a budget of blocks alone left above it (bench/ooc/README.md, "One
     /// memory budget for the blocks and the view's index entries").
     fn blocks_budget(&self, tree: Option<&StoreTree>) -> u64 {
         let index = self.store.index_cache_bytes().map_or(0, |(b, whole)| b.min(whole));
-        let mut entries = self.tree.visited_bytes() + self.reserved + index;
+        let mut entries = self.tree.visited_bytes() + self.reserved + index + self.frame_bytes;
         if let Some(t) = tree.filter(|t| !t.shares_visited_with(&self.tree)) {
             entries += t.visited_bytes();
         }
@@ -1129,7 +1162,7 @@ impl OocScene {
                 }
             }
         }
-        OocFrame {
+        let frame = OocFrame {
             selection,
             patches: draw,
             extra,
@@ -1139,7 +1172,9 @@ impl OocScene {
             drawn: drawn.to_vec(),
             blocks_drawn: drawn.len(),
             blocks_dropped: dropped,
-        }
+        };
+        self.frame_bytes = frame.list_bytes();
+        frame
     }
 
     /// Block `id`'s page at its resident `level`: the level's lattice (see the module docs).
@@ -1147,18 +1182,18 @@ impl OocScene {
         let header = self.store.header();
         let grid = self.streamer.block(id)?.grid(level)?;
         let stride = 1u32 << (header.k - level);
+        // `grid` is the level's own, new vector: moved into the page, not copied.
         if stride > 1 {
-            return Some(Page { samples: grid.to_vec(), stride });
+            return Some(Page { samples: grid, stride });
         }
         let cells = header.block_cells();
-        let full = grid.to_vec();
         let [w, h] = self.layout.page_samples();
         let side = (cells + 1) as usize;
         let samples = if w as usize == side && h as usize == side {
-            full
+            grid
         } else {
             (0..h as usize)
-                .flat_map(|b| full[b * side..b * side + w as usize].iter().copied())
+                .flat_map(|b| grid[b * side..b * side + w as usize].iter().copied())
                 .collect()
         };
         Some(Page { samples, stride })
@@ -1348,10 +1383,10 @@ mod tests {
     use terrain_stream::{BakeConfig, BakeProgress, HeightEncoding, bake};
 
     /// One memory budget: the stream cache gets what the index entries the view keeps, the
-    /// store's decoded index pages and the method's own caches leave of it, and at least half
-    /// of it when they would take more.
+    /// store's decoded index pages, the method's own caches and the frame's lists leave of it,
+    /// and at least half of it when they would take more.
     #[test]
-    fn the_blocks_get_what_the_views_index_entries_leave_of_the_budget() {
+    fn the_blocks_get_what_the_views_entries_and_the_frames_lists_leave_of_the_budget() {
         // Removed when dropped, also when the test panics.
         let tmp = tempfile::Builder::new().prefix("terrain-app-budget-").tempdir().unwrap();
         let dir = tmp.path().join("store");
@@ -1364,38 +1399,65 @@ mod tests {
         let store = Arc::new(Store::open(&dir).unwrap());
         let camera = Camera::from_yaw_pitch(glam::dvec3(-300.0, -300.0, 900.0), 45.0, -25.0)
             .with_viewport(320.0, 180.0);
+        // The view's entries, the last frame's lists and the blocks' budget after the second
+        // frame of the same view.
         let reserved = |all: u64, reserved: u64| {
             let config = OocConfig { threads: 1, budget_bytes: all, ..OocConfig::default() };
             let mut scene = OocScene::new(store.clone(), config).with_reserved(reserved);
-            scene.frame(&camera, false);
+            let lists = scene.frame(&camera, false).list_bytes();
             let entries = scene.tree.visited_bytes();
             scene.frame(&camera, false);
-            (entries, scene.streamer().budget_bytes())
+            (entries, lists, scene.streamer().budget_bytes())
         };
         let budget = |all: u64| reserved(all, 0);
-        let (entries, blocks) = budget(64 << 20);
+        let (entries, lists, blocks) = budget(64 << 20);
         assert!(entries > 10_000, "the view's entries: {entries} bytes");
+        assert!(lists > 1_000, "the frame's lists: {lists} bytes");
         // The store's decoded index pages: the whole index, smaller than the 32 MiB floor.
         let (cache, whole) = store.index_cache_bytes().expect("a paged index");
         assert!(whole > 10_000 && whole < 8 << 20, "{whole} bytes");
         assert_eq!((cache, index_share(64 << 20, whole)), (whole, whole));
-        assert_eq!(blocks, (64 << 20) - entries - whole);
+        assert_eq!(blocks, (64 << 20) - entries - whole - lists);
         // A method's own caches (`tin`'s tiles) come off the blocks' share too.
-        let (_, blocks) = reserved(64 << 20, 8 << 20);
-        assert_eq!(blocks, (56 << 20) - entries - whole);
+        let (_, _, blocks) = reserved(64 << 20, 8 << 20);
+        assert_eq!(blocks, (56 << 20) - entries - whole - lists);
         // A cache that fills as the views need it (geomorph's or the DSS table read by pages)
         // is set before each frame and counts from that frame on.
         let config = OocConfig { threads: 1, budget_bytes: 64 << 20, ..OocConfig::default() };
         let mut scene = OocScene::new(store.clone(), config);
-        scene.frame(&camera, false);
+        let lists = scene.frame(&camera, false).list_bytes();
         scene.set_reserved(4 << 20);
-        scene.frame(&camera, false);
-        assert_eq!(scene.streamer().budget_bytes(), (60 << 20) - entries - whole);
+        let next = scene.frame(&camera, false).list_bytes();
+        assert_eq!(scene.streamer().budget_bytes(), (60 << 20) - entries - whole - lists);
         scene.set_reserved(0);
         scene.frame(&camera, false);
-        assert_eq!(scene.streamer().budget_bytes(), (64 << 20) - entries - whole);
-        let (entries, blocks) = budget(entries);
+        assert_eq!(scene.streamer().budget_bytes(), (64 << 20) - entries - whole - next);
+        let (entries, _, blocks) = budget(entries);
         assert_eq!(blocks, entries / 2, "at least half for the blocks");
+
+        // Another method's frame: its selection's patches count from the frame that selects
+        // them, each listed twice (as a patch and as a draw patch), on a run's first frame too.
+        let config = OocConfig { threads: 1, budget_bytes: 64 << 20, ..OocConfig::default() };
+        let mut scene = OocScene::new(store.clone(), config);
+        let tree = scene.tree.clone();
+        let max = tree.shape().max_level();
+        let many = |src: &dyn TerrainSource, camera: &Camera| {
+            let mut selection = crate::methods::select_uniform(src, camera, 4.0);
+            // Every patch listed again: a selection as large as a view over a big store.
+            let each = selection.patches.clone();
+            for _ in 0..40 {
+                selection.patches.extend_from_slice(&each);
+            }
+            StoreDraw { selection, ..Default::default() }
+        };
+        let frame = scene.frame_for(&camera, false, &tree, &mut { many });
+        let n = frame.selection.patches.len();
+        assert!(n > 10_000 && frame.selection.patches.iter().all(|p| p.node.level == max));
+        let listed = (n * (std::mem::size_of::<Patch>() + std::mem::size_of::<DrawPatch>())) as u64;
+        let entries = scene.tree.visited_bytes();
+        assert_eq!(scene.streamer().budget_bytes(), (64 << 20) - entries - whole - listed);
+        assert_eq!(frame.list_bytes(), scene.frame_bytes);
+        assert!(frame.list_bytes() >= listed, "{} against {listed}", frame.list_bytes());
     }
 
     /// The index pages' share: an eighth of the budget, at least 32 MiB, at most the whole

@@ -21,6 +21,6 @@ pub use pvps::{pvps_node_center, pvps_node_center_as_printed, pvps_patch_corners
 pub use traverse::{
     AlwaysSplit, BoundingCircleCull, Cull, CullPolicy, FrustumCull, LeafSet, NoCull, NodeSource,
     NodeTree, SplitPolicy, SplitToLevel, Visit, balance, balance_with, is_balanced, select,
-    traverse,
+    traverse, walk,
 };
 pub use tree::{GridRect, NodeInfo, Quadtree, TreeShape};

@@ -238,6 +238,25 @@ where
     V: FnMut(NodeId, Visit) + ?Sized,
 {
     let mut out = Vec::new();
+    walk(qt, split, cull, &mut |node, v| {
+        visit(node, v);
+        if v == Visit::Leaf {
+            out.push(node);
+        }
+    });
+    out
+}
+
+/// [`traverse`] without the list of leaves: each is only reported to `visit`, in the same
+/// order. For a caller that keeps its own list per leaf (`uniform`'s millions of patches over a
+/// large store), so that the leaves are not listed twice.
+pub fn walk<Q, S, C, V>(qt: &Q, split: &mut S, cull: &mut C, visit: &mut V)
+where
+    Q: NodeSource + ?Sized,
+    S: SplitPolicy + ?Sized,
+    C: CullPolicy + ?Sized,
+    V: FnMut(NodeId, Visit) + ?Sized,
+{
     // Explicit stack, children pushed in reverse so they pop in order.
     let mut stack = vec![(NodeId::ROOT, false)];
     while let Some((node, inside)) = stack.pop() {
@@ -260,10 +279,8 @@ where
             }
         } else {
             visit(node, Visit::Leaf);
-            out.push(node);
         }
     }
-    out
 }
 
 /// [`traverse`] without a visitor.
