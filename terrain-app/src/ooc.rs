@@ -482,6 +482,13 @@ impl OocFrame {
     }
 }
 
+/// A real-time frame's demand held to lattices has its exact demand preloaded last
+/// ([`Streamer::set_demand_later`]) while that holds at most this share (1 / n) of the cache's
+/// budget: the frame whose exact demand first fits [`REAL_TIME_EXACT_SHARE`] then finds most
+/// of it resident. On `fast_pass` over the 32769^2 store, `pvps-b`'s exact demand fell under
+/// the quarter at one frame and asked 183 MiB in 747 blocks at once: 16 frames late in a row.
+pub const PRELOAD_EXACT_SHARE: u64 = 2;
+
 /// What `draw` needs from the store ([`demand_of`]): its patches' levels, held to
 /// `budget_bytes` where the patches' factors allow ([`demand_within`]: the second value says
 /// the exact demand did not fit and was held); with strips, exactly the full resolution of
@@ -979,6 +986,13 @@ impl OocScene {
             _ => None,
         };
         self.streamer.set_demand_ahead(ahead);
+        // A real-time demand held to lattices while its exact demand fits
+        // `PRELOAD_EXACT_SHARE` of the budget: the exact levels are preloaded last, so that the
+        // frame whose exact demand first fits the real-time share finds them resident.
+        let later = (on_lattice && !warm && !self.exact_demand)
+            .then(|| store_demand(tree, &draw, u64::MAX).0)
+            .filter(|exact| terrain_stream::demand_bytes(exact) <= blocks / PRELOAD_EXACT_SHARE);
+        self.streamer.set_demand_later(later);
         let s = if warm {
             let mut s = self.streamer.wait_until_resident(camera, self.config.warm_timeout).stats;
             for _ in 0..3 {

@@ -2,12 +2,12 @@
 //! (finest first) in the priority order the scheduler gives, never below what it protects.
 
 use std::sync::Arc;
-use std::sync::atomic::AtomicBool;
 
 use terrain_core::hash::IdMap;
 
 use crate::format::{BlockId, Header};
 use crate::store::BlockLevels;
+use crate::workers::RequestFlags;
 
 /// One block's resident levels and loading state.
 #[derive(Debug, Clone)]
@@ -16,8 +16,9 @@ pub(crate) struct CachedBlock {
     pub(crate) levels: BlockLevels,
     /// The last level of the request in flight for this block, if any.
     pub(crate) requested_to: Option<u8>,
-    /// The cancel flag of that request (set when the block leaves the scheduling region).
-    pub(crate) cancel: Option<Arc<AtomicBool>>,
+    /// That request's flags: cancelled when the block leaves the scheduling region, raised
+    /// when the view needs it sooner than it was asked.
+    pub(crate) flags: Option<Arc<RequestFlags>>,
     /// After a fault, the frame from which loading may be tried again.
     pub(crate) retry_at_frame: u64,
 }
@@ -66,7 +67,7 @@ impl Cache {
         self.blocks.entry(id).or_insert_with(|| CachedBlock {
             levels: BlockLevels::new(header),
             requested_to: None,
-            cancel: None,
+            flags: None,
             retry_at_frame: 0,
         })
     }

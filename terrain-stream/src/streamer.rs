@@ -23,16 +23,19 @@
 //! wholly behind the eye (behind the vertical plane through it across the plan view
 //! direction): nothing behind the camera is loaded.
 //!
-//! **Priorities.** Requests go to the workers in this order, at most `max_in_flight` at a
+//! **Priorities.** Requests go to the workers in four tiers, at most `max_in_flight` at a
 //! time: (0) the coarse levels of visible blocks with nothing resident, nearest first (every
 //! visible block soon has something to draw); (1) the missing levels of visible blocks, nearest
-//! first; (2) the pre-loading region N - M, nearest first, within the budget, filling the
-//! queue to half the in-flight cap at most. The workers take requests in order, so a level
-//! that M needs next frame waits behind everything queued before it: N - M's blocks are
-//! needed only once they enter the view, and keeping half the queue for M made `fast_pass`
-//! on the 32769^2 store reach its needed level in more frames (bench/ooc/README.md, "The
-//! streamer's update: half the queue for the view"). A request whose block has left N is
-//! cancelled (the worker drops it before its next level).
+//! first; (2) the pre-loading region N - M, nearest first, within the budget; (3) the levels a
+//! method may need later ([`Streamer::set_demand_later`]), within the budget once the blocks
+//! outside the schedule are evicted. Tiers 2 and 3 fill the queue to half the in-flight cap at
+//! most, keeping the rest for M (bench/ooc/README.md, "The streamer's update: half the queue
+//! for the view"). The workers take the waiting request of the lowest tier first, in order of
+//! submission within a tier, and a waiting request whose visible block now lacks a level it
+//! needs or will need one frame ahead is raised to tier 0 or 1: so the view's levels overtake
+//! the preloads that earlier frames queued (bench/ooc/README.md, "The workers' queue by
+//! priority"). A request whose block has left N is cancelled (the worker drops it before its
+//! next level).
 //!
 //! **Eq. 8 preloading, one frame ahead.** N comes from the view frustum extension (Eq. 8's `S`
 //! times [`ScheduleConfig::lookahead_frames`], default 1: the paper's one frame). Besides the
@@ -64,7 +67,6 @@
 //! paced at its frame rate gives the workers the flight's time only.
 
 use std::collections::BTreeSet;
-use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
@@ -81,7 +83,7 @@ use crate::schedule::{
 };
 use crate::stats::{Fault, FrameStats};
 use crate::store::{BlockLevels, Store};
-use crate::workers::{LevelReader, LoadRequest, LoadResult, Outcome, WorkerPool};
+use crate::workers::{LevelReader, LoadRequest, LoadResult, Outcome, RequestFlags, WorkerPool};
 
 /// Parameters of the runtime.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -169,6 +171,9 @@ pub struct ScheduledBlock {
     /// The finest level prefetched for it: `needed`, or finer when the eye one frame ahead
     /// (Eq. 8's extrapolation) needs more.
     pub target: u8,
+    /// The finest level preloaded for it last, after every other request
+    /// ([`Streamer::set_demand_later`]): at least `target`.
+    pub later: u8,
     /// Whether it is in the visual region M (else only in the pre-loading region N - M).
     pub visible: bool,
     /// Plan distance from the eye to the block, metres.
@@ -203,6 +208,8 @@ pub struct Streamer {
     /// The levels the method needs at the eye one look-ahead ahead
     /// ([`Streamer::set_demand_ahead`]).
     demand_ahead: Option<Vec<(BlockId, u8)>>,
+    /// The levels the method may need later, preloaded last ([`Streamer::set_demand_later`]).
+    demand_later: Option<Vec<(BlockId, u8)>>,
     /// Block levels that have failed this session ([`Fault::first`]).
     faulted: BTreeSet<(BlockId, u8)>,
     /// Moving average of the workers' request latency, seconds (latency-aware Eq. 8).
@@ -354,6 +361,7 @@ impl Streamer {
             regions: None,
             demand: None,
             demand_ahead: None,
+            demand_later: None,
             faulted: BTreeSet::new(),
             latency_s: None,
             summaries: Summaries::default(),
@@ -381,6 +389,17 @@ impl Streamer {
     /// by a level. Takes effect with the demand.
     pub fn set_demand_ahead(&mut self, ahead: Option<Vec<(BlockId, u8)>>) {
         self.demand_ahead = ahead;
+    }
+
+    /// Levels the method may need later, in [`Streamer::set_demand`]'s form, preloaded for the
+    /// blocks of its demand after every other request (the pre-loading region N - M
+    /// included) and within the budget: a method whose demand is held to coarser lattices
+    /// gives its exact demand here, so that the frame whose exact demand first fits finds it
+    /// resident instead of asking it all at once (bench/ooc/README.md, "The workers' queue by
+    /// priority"). What is preloaded here is the first to be evicted. Takes effect with the
+    /// demand; `None` (the default) preloads nothing more.
+    pub fn set_demand_later(&mut self, later: Option<Vec<(BlockId, u8)>>) {
+        self.demand_later = later;
     }
 
     /// The eye Eq. 8 preloads for at the next [`Streamer::update`] with `camera`: moved by
@@ -535,7 +554,7 @@ impl Streamer {
         if r.done {
             let b = self.cache.entry(r.block, &header);
             b.requested_to = None;
-            b.cancel = None;
+            b.flags = None;
         }
     }
 
@@ -714,6 +733,17 @@ impl Streamer {
             let ahead_of = |id: BlockId| {
                 header.block_position(id).and_then(|p| ahead.get(p)).copied().unwrap_or(0)
             };
+            // The same for the levels preloaded last.
+            let mut later =
+                vec![0u8; if self.demand_later.is_some() { header.block_count() } else { 0 }];
+            for &(id, level) in self.demand_later.iter().flatten() {
+                if let Some(a) = header.block_position(id).and_then(|p| later.get_mut(p)) {
+                    *a = (*a).max(level.min(header.k));
+                }
+            }
+            let later_of = |id: BlockId| {
+                header.block_position(id).and_then(|p| later.get(p)).copied().unwrap_or(0)
+            };
             for &(id, level) in demand {
                 let Some(e) = self.summaries.get(store, id) else { continue };
                 let e = &*e;
@@ -722,13 +752,15 @@ impl Streamer {
                 }
                 let (lo, hi) = (e.lo, e.hi);
                 let needed = level.max(shading_level_in(header, &e.aabb(), &view)).min(header.k);
+                let target = match own_ahead {
+                    true => needed.max(ahead_of(id)).max(shade_ahead(e)),
+                    false => predicted(id, e, needed).max(ahead_of(id)),
+                };
                 scheduled.push(ScheduledBlock {
                     block: id,
                     needed,
-                    target: match own_ahead {
-                        true => needed.max(ahead_of(id)).max(shade_ahead(e)),
-                        false => predicted(id, e, needed).max(ahead_of(id)),
-                    },
+                    target,
+                    later: target.max(later_of(id)),
                     visible: true,
                     distance_m: rect_distance(eye, lo, hi),
                 });
@@ -745,6 +777,7 @@ impl Streamer {
                     block: id,
                     needed: level,
                     target: level,
+                    later: level,
                     visible: false,
                     distance_m: rect_distance(eye, e.lo, e.hi),
                 });
@@ -763,10 +796,12 @@ impl Streamer {
             }
             if let Some(needed) = needed(id, e, &reg.view) {
                 in_m.insert(header, id);
+                let target = predicted(id, e, needed);
                 scheduled.push(ScheduledBlock {
                     block: id,
                     needed,
-                    target: predicted(id, e, needed),
+                    target,
+                    later: target,
                     visible: true,
                     distance_m: rect_distance(eye, lo, hi),
                 });
@@ -783,10 +818,12 @@ impl Streamer {
                 continue;
             }
             let needed = needed(id, e, &reg.extension).unwrap_or(0);
+            let target = predicted(id, e, needed);
             scheduled.push(ScheduledBlock {
                 block: id,
                 needed,
-                target: predicted(id, e, needed),
+                target,
+                later: target,
                 visible: false,
                 distance_m: rect_distance(eye, lo, hi),
             });
@@ -807,12 +844,12 @@ impl Streamer {
         let stale: Vec<BlockId> = self
             .cache
             .blocks()
-            .filter(|(id, b)| b.cancel.is_some() && !wanted.contains(&header, **id))
+            .filter(|(id, b)| b.flags.is_some() && !wanted.contains(&header, **id))
             .map(|(id, _)| *id)
             .collect();
         for id in stale {
-            if let Some(c) = self.cache.entry(id, &header).cancel.take() {
-                c.store(true, Ordering::Relaxed);
+            if let Some(c) = self.cache.entry(id, &header).flags.take() {
+                c.cancel();
                 stats.cancelled += 1;
             }
         }
@@ -827,20 +864,29 @@ impl Streamer {
         let coarse = self.config.coarse_level;
         let frame = self.frame;
         // One pass puts the blocks that may get a request in their tier, in the schedule's
-        // order: a block is in one tier at most (by whether it is visible and holds a level),
-        // and one with a request in flight, waiting for a retry, or holding its target
-        // already gets none.
-        let mut tiers: [Vec<&ScheduledBlock>; 3] = Default::default();
+        // order: a block is in one tier at most (by whether it is visible and which of its
+        // levels it holds), and one with a request in flight, waiting for a retry, or holding
+        // its `later` level already gets none.
+        let mut tiers: [Vec<&ScheduledBlock>; 4] = Default::default();
         for s in scheduled {
-            let (have, free) = self.cache.get(s.block).map_or((0, true), |b| {
-                (b.levels.count(), b.requested_to.is_none() && b.retry_at_frame <= frame)
+            let (have, free, flags) = self.cache.get(s.block).map_or((0, true, None), |b| {
+                let free = b.requested_to.is_none() && b.retry_at_frame <= frame;
+                (b.levels.count(), free, b.flags.as_ref())
             });
+            // A visible block lacking its needed level or its level ahead whose request waits
+            // at a later tier (a preload, the levels preloaded last): the request moves up
+            // to the tier the block would get now.
+            if let Some(f) = flags.filter(|_| s.visible && have <= s.target as usize) {
+                f.raise_to(u8::from(have > 0));
+            }
             let tier = match (s.visible, have) {
-                _ if !free || have > s.target as usize => continue,
+                _ if !free || have > s.later as usize => continue,
                 (true, 0) => 0,
-                (true, _) => 1,
-                (false, _) if !visible_only => 2,
-                (false, _) => continue,
+                (true, _) if have <= s.needed as usize => 1,
+                _ if visible_only => continue,
+                (true, _) if have <= s.target as usize => 1,
+                (false, _) => 2,
+                (true, _) => 3,
             };
             tiers[tier].push(s);
         }
@@ -849,10 +895,24 @@ impl Streamer {
         // so requests beyond it are bytes above the budget (`dss-2` over the 32769^2 store:
         // the blocks' peak 1.01 GB against their 0.94 GB).
         let mut pending: u64 = self.pool.queued_bytes();
+        // The levels preloaded last may take what the blocks outside the schedule hold beyond
+        // their pinned level: the next eviction drops those first. So their budget counts the
+        // scheduled blocks' bytes and the others' pinned levels, not every resident byte (a
+        // cache filled by earlier views would keep them out).
+        let kept = (!tiers[3].is_empty()).then(|| {
+            let pinned =
+                self.pinned.checked_sub(1).map_or(0, |l| BlockEntry::resident_bytes(l as u8));
+            let others = (header.block_count() as u64).saturating_sub(scheduled.len() as u64);
+            let scheduled: u64 = scheduled
+                .iter()
+                .map(|s| self.cache.get(s.block).map_or(0, |b| b.levels.bytes()))
+                .sum();
+            scheduled + others * pinned
+        });
         for (tier, blocks) in tiers.into_iter().enumerate() {
-            // The pre-loading region fills the queue to half the cap at most (see the module
-            // docs): the workers take requests in order, so the rest is kept for M.
-            let cap = if tier == 2 { cap.div_ceil(2) } else { cap };
+            // The pre-loading region and the levels preloaded last fill the queue to half the
+            // cap at most (see the module docs): the rest is kept for M.
+            let cap = if tier >= 2 { cap.div_ceil(2) } else { cap };
             for s in blocks {
                 if self.pool.in_flight() >= cap {
                     return;
@@ -870,11 +930,24 @@ impl Streamer {
                     // Missing levels of visible blocks: needed now, and one frame ahead
                     // within the budget.
                     1 => {
-                        let want = if visible_only || over(s.target) { s.needed } else { s.target };
-                        if have > want as usize {
+                        if visible_only || over(s.target) {
+                            if have > s.needed as usize {
+                                continue;
+                            }
+                            s.needed
+                        } else {
+                            s.target
+                        }
+                    }
+                    // The levels preloaded last (`set_demand_later`), within the budget
+                    // once the blocks outside the schedule are evicted (`kept`).
+                    3 => {
+                        let add =
+                            BlockEntry::resident_bytes(s.later).saturating_sub(b.levels.bytes());
+                        if kept.unwrap_or(u64::MAX).saturating_add(pending + add) > budget {
                             continue;
                         }
-                        want
+                        s.later
                     }
                     // The pre-loading region N - M, within the budget (blocks with nothing
                     // resident get their coarse levels even over it: they are small, and they
@@ -890,15 +963,15 @@ impl Streamer {
                     }
                 };
                 let add = BlockEntry::resident_bytes(last).saturating_sub(b.levels.bytes());
-                let cancel = Arc::new(AtomicBool::new(false));
+                let flags = RequestFlags::new(tier as u8);
                 b.requested_to = Some(last);
-                b.cancel = Some(cancel.clone());
+                b.flags = Some(flags.clone());
                 let req = LoadRequest {
                     block: s.block,
                     first: have as u8,
                     last,
                     coarser: b.levels.levels().to_vec(),
-                    cancel,
+                    flags,
                 };
                 pending += add;
                 self.pool.submit(req);
@@ -996,16 +1069,10 @@ impl Streamer {
             if b.levels.count() > 0 || b.requested_to.is_some() || b.retry_at_frame > self.frame {
                 continue;
             }
-            let cancel = Arc::new(AtomicBool::new(false));
+            let flags = RequestFlags::new(0);
             b.requested_to = Some(last);
-            b.cancel = Some(cancel.clone());
-            self.pool.submit(LoadRequest {
-                block: id,
-                first: 0,
-                last,
-                coarser: Vec::new(),
-                cancel,
-            });
+            b.flags = Some(flags.clone());
+            self.pool.submit(LoadRequest { block: id, first: 0, last, coarser: Vec::new(), flags });
             stats.sync_loads += 1;
         }
         let mut arrived = FrameStats::default();

@@ -1,6 +1,6 @@
 //! The worker pool behind an explicit endpoint (terra's `TileStreamerEndpoint` style): a
-//! request channel and a result channel (crossbeam), an in-flight count, and a documented
-//! shutdown. The stream's threads are spawned here (the crate's others: a remote side table's
+//! request queue by priority, a result channel (crossbeam), an in-flight count, and a
+//! documented shutdown. The stream's threads are spawned here (the crate's others: a remote side table's
 //! background fill, `side_table.rs`, and the [`crate::TreeWarmer`]'s walk ahead, `warm.rs`);
 //! the frame thread never reads a block after the first frame (the real-time contract of
 //! [`crate::Streamer`]).
@@ -16,6 +16,17 @@
 //! request with [`Outcome::Cancelled`] (levels already sent stay valid), so a queue filled for
 //! an earlier view does not delay the blocks the current view needs.
 //!
+//! **Priorities.** Each request carries its tier (the streamer's priority: the coarse levels of
+//! visible blocks with nothing resident, then visible blocks' missing levels, then the
+//! pre-loading region), and a worker takes the waiting request of the lowest tier, the
+//! earliest submitted within a tier; a waiting request whose block the view now needs sooner
+//! is raised to that tier ([`RequestFlags::raise_to`]). So a level the view needs now
+//! overtakes the preloads and the finer levels that earlier frames queued, instead of waiting
+//! behind them (a FIFO queue
+//! let `pvps-b`'s burst of 747 blocks' finer levels over the 32769^2 store hold back the
+//! coarse levels of the blocks entering the view: bench/ooc/README.md, "The workers' queue by
+//! priority"). A request a worker has started is not interrupted, except by its cancel flag.
+//!
 //! **Holding I/O.** [`WorkerPool::set_held`] closes a gate that every worker passes before it
 //! starts a request and before each level: while held, the workers start no read (a level
 //! already being read finishes). A benchmark holds the I/O while it does work that a real-time
@@ -29,13 +40,13 @@
 //! that keeps a few requests in flight starts a few threads, not the limit (256 for a remote
 //! store). Workers started stay until the pool is dropped.
 //!
-//! **Shutdown:** dropping the [`WorkerPool`] closes the request channel; each worker finishes
-//! the level it is on (results are dropped if nobody receives them) and exits; the pool joins
-//! every thread before returning.
+//! **Shutdown:** dropping the [`WorkerPool`] closes the request queue and drops the requests
+//! waiting in it; each worker finishes the request it is on (results are dropped if nobody
+//! receives them) and exits; the pool joins every thread before returning.
 
 use std::collections::HashMap;
 use std::panic::{AssertUnwindSafe, catch_unwind};
-use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU8, Ordering};
 use std::sync::{Arc, Condvar, Mutex};
 use std::thread::JoinHandle;
 use std::time::Instant;
@@ -94,8 +105,10 @@ pub(crate) struct LoadRequest {
     pub(crate) last: u8,
     /// The block's resident levels `0..first` (shared, not copied).
     pub(crate) coarser: Vec<Arc<[i32]>>,
-    /// Set by the frame thread when the request became stale.
-    pub(crate) cancel: Arc<AtomicBool>,
+    /// Its cancel flag and priority tier, which the frame thread may change while it waits:
+    /// a worker takes the lowest tier waiting first, in order of submission within a tier (see
+    /// the module docs).
+    pub(crate) flags: Arc<RequestFlags>,
 }
 
 /// What a worker did with one level of a request.
@@ -107,6 +120,110 @@ pub(crate) enum Outcome {
     Failed(StoreError),
     /// The request was cancelled before this level (ends the request; nothing was read).
     Cancelled,
+}
+
+/// What the frame thread may change of a request after submitting it: its cancel flag and its
+/// tier.
+#[derive(Debug)]
+pub(crate) struct RequestFlags {
+    cancelled: AtomicBool,
+    tier: AtomicU8,
+}
+
+impl RequestFlags {
+    pub(crate) fn new(tier: u8) -> Arc<Self> {
+        Arc::new(Self { cancelled: AtomicBool::new(false), tier: AtomicU8::new(tier) })
+    }
+
+    /// Marks the request stale: a worker drops it before its next level.
+    pub(crate) fn cancel(&self) {
+        self.cancelled.store(true, Ordering::Relaxed);
+    }
+
+    fn is_cancelled(&self) -> bool {
+        self.cancelled.load(Ordering::Relaxed)
+    }
+
+    /// Moves a waiting request up to `tier` (never down): its block is needed sooner than when
+    /// it was asked (a preloaded level the view now needs).
+    pub(crate) fn raise_to(&self, tier: u8) {
+        self.tier.fetch_min(tier, Ordering::Relaxed);
+    }
+
+    pub(crate) fn tier(&self) -> u8 {
+        self.tier.load(Ordering::Relaxed)
+    }
+}
+
+/// A request waiting for a worker, with its place in the order of submission.
+#[derive(Debug)]
+struct Waiting {
+    seq: u64,
+    request: LoadRequest,
+}
+
+impl Waiting {
+    /// The lowest key is taken first: the lowest tier, then the earliest submitted.
+    fn key(&self) -> (u8, u64) {
+        (self.request.flags.tier(), self.seq)
+    }
+}
+
+/// The requests waiting for a worker, taken by priority ([`Waiting::key`], read when taken:
+/// a request raised while it waits is taken at its new tier).
+#[derive(Debug, Default)]
+struct Queue {
+    state: Mutex<QueueState>,
+    ready: Condvar,
+}
+
+#[derive(Debug, Default)]
+struct QueueState {
+    waiting: Vec<Waiting>,
+    submitted: u64,
+    closed: bool,
+}
+
+impl Queue {
+    fn lock(&self) -> std::sync::MutexGuard<'_, QueueState> {
+        self.state.lock().unwrap_or_else(|e| e.into_inner())
+    }
+
+    /// Queues `request`; `false` once the queue is closed.
+    fn push(&self, request: LoadRequest) -> bool {
+        let mut q = self.lock();
+        if q.closed {
+            return false;
+        }
+        let seq = q.submitted;
+        q.submitted += 1;
+        q.waiting.push(Waiting { seq, request });
+        drop(q);
+        self.ready.notify_one();
+        true
+    }
+
+    /// The first waiting request by priority, waiting for one; `None` once the queue is
+    /// closed (what still waits is dropped). A scan of the waiting requests (at most the
+    /// streamer's in-flight cap), as their tiers may have changed since they were queued.
+    fn pop(&self) -> Option<LoadRequest> {
+        let q = self.lock();
+        let mut q = self
+            .ready
+            .wait_while(q, |q| q.waiting.is_empty() && !q.closed)
+            .unwrap_or_else(|e| e.into_inner());
+        if q.closed {
+            q.waiting.clear();
+            return None;
+        }
+        let first = (0..q.waiting.len()).min_by_key(|&i| q.waiting[i].key())?;
+        Some(q.waiting.swap_remove(first).request)
+    }
+
+    fn close(&self) {
+        self.lock().closed = true;
+        self.ready.notify_all();
+    }
 }
 
 /// One level loaded (or what ended a request).
@@ -129,7 +246,7 @@ pub(crate) struct LoadResult {
 /// Worker threads loading block levels through a [`LevelReader`].
 #[derive(Debug)]
 pub(crate) struct WorkerPool {
-    requests: Option<Sender<LoadRequest>>,
+    requests: Arc<Queue>,
     results: Receiver<LoadResult>,
     /// What a worker started later is given: the request queue, the results' sender, the
     /// reader.
@@ -150,7 +267,6 @@ pub(crate) struct WorkerPool {
 /// What each worker thread is started with.
 #[derive(Debug)]
 struct Spawn {
-    requests: Receiver<LoadRequest>,
     results: Sender<LoadResult>,
     reader: Arc<dyn LevelReader>,
 }
@@ -194,12 +310,11 @@ impl WorkerPool {
         } else {
             threads
         };
-        let (req_tx, req_rx) = unbounded::<LoadRequest>();
         let (res_tx, res_rx) = unbounded::<LoadResult>();
         Self {
-            requests: Some(req_tx),
+            requests: Arc::new(Queue::default()),
             results: res_rx,
-            spawn: Spawn { requests: req_rx, results: res_tx, reader },
+            spawn: Spawn { results: res_tx, reader },
             max_threads,
             in_flight: 0,
             pending: HashMap::new(),
@@ -212,7 +327,7 @@ impl WorkerPool {
     /// Starts one more worker.
     fn start_worker(&mut self) {
         let t = self.threads.len();
-        let (rx, tx) = (self.spawn.requests.clone(), self.spawn.results.clone());
+        let (rx, tx) = (self.requests.clone(), self.spawn.results.clone());
         let (reader, gate) = (self.spawn.reader.clone(), self.gate.clone());
         let handle = std::thread::Builder::new()
             .name(format!("terrain-stream-{t}"))
@@ -252,13 +367,11 @@ impl WorkerPool {
         self.queued_bytes
     }
 
-    /// Queues a request.
+    /// Queues a request (taken by its tier, then in order: see the module docs).
     pub(crate) fn submit(&mut self, request: LoadRequest) {
         let (block, bytes) =
             (request.block, (request.first..=request.last).map(level_bytes).sum::<u64>());
-        if let Some(tx) = &self.requests
-            && tx.send(request).is_ok()
-        {
+        if self.requests.push(request) {
             self.in_flight += 1;
             *self.pending.entry(block).or_default() += bytes;
             self.queued_bytes += bytes;
@@ -315,7 +428,7 @@ impl WorkerPool {
     }
 
     fn stop(&mut self) {
-        self.requests = None;
+        self.requests.close();
         // A held worker must get past the gate to see the closed channel.
         self.gate.set(false);
         for t in self.threads.drain(..) {
@@ -330,18 +443,13 @@ impl Drop for WorkerPool {
     }
 }
 
-fn worker(
-    reader: &dyn LevelReader,
-    gate: &Gate,
-    requests: &Receiver<LoadRequest>,
-    results: &Sender<LoadResult>,
-) {
-    while let Ok(req) = requests.recv() {
+fn worker(reader: &dyn LevelReader, gate: &Gate, requests: &Queue, results: &Sender<LoadResult>) {
+    while let Some(req) = requests.pop() {
         gate.pass();
         let mut coarser = req.coarser;
         let mut level = req.first;
         let start = Instant::now();
-        if !req.cancel.load(Ordering::Relaxed) {
+        if !req.flags.is_cancelled() {
             // One range request for the levels; if it fails, each level is then read alone
             // (its own request), so a fault names the level that cannot be read and the
             // coarser levels the range held still load.
@@ -351,7 +459,7 @@ fn worker(
         let mut first_result = true;
         loop {
             gate.pass();
-            let outcome = if req.cancel.load(Ordering::Relaxed) {
+            let outcome = if req.flags.is_cancelled() {
                 Outcome::Cancelled
             } else {
                 match catch_unwind(AssertUnwindSafe(|| {

@@ -5,7 +5,8 @@
 //! a block file deleted and a level corrupted mid-flight: typed faults naming block and level,
 //! coarser levels still served, no panic, no worker lost. Held I/O (`Streamer::hold_io`)
 //! delivers nothing until released. The view's missing levels may fill the in-flight cap, the
-//! pre-loading region half of it.
+//! pre-loading region half of it. A level the view needs overtakes the preloads queued
+//! before it; the levels preloaded last take the room of the blocks the view left.
 
 use std::ops::ControlFlow;
 use std::sync::atomic::{AtomicUsize, Ordering};
@@ -763,4 +764,113 @@ fn a_sample_read_exact_stays_exact_after_its_level_is_gone() {
     let fallback = exact.iter().filter(|&&(x, y, z)| fresh.sample(x, y) != z).count();
     assert!(fallback * 2 > exact.len(), "{fallback} of {} differ", exact.len());
     assert!(tree.visited_bytes() > fresh_tree.visited_bytes());
+}
+
+/// The workers take the lowest tier waiting first: a level the view needs now overtakes the
+/// levels preloaded last (`Streamer::set_demand_later`) that an earlier frame queued, its own
+/// block's waiting request raised to the view's tier.
+#[test]
+fn a_level_the_view_needs_overtakes_the_levels_preloaded_last() {
+    let (_dir, store) = store("priority");
+    let reader = Gated::new(store.clone());
+    // One worker, so the order of the reads is the order the queue hands the requests out.
+    let config = StreamConfig {
+        threads: 1,
+        tau: 3.0,
+        coarse_level: 0,
+        budget_bytes: 1 << 30,
+        ..Default::default()
+    };
+    let mut s = Streamer::with_reader(store.clone(), config, reader.clone());
+    let ids: Vec<BlockId> = store.block_ids().collect();
+    let k = store.header().k;
+    // Far above the terrain with a tiny viewport: every block's shading needs level 0.
+    let cam = Camera::from_yaw_pitch(dvec3(2560.0, -60_000.0, 60_000.0), 0.0, -40.0)
+        .with_viewport(8.0, 8.0)
+        .with_clip(1.0, 200_000.0);
+    let all_at = |level: u8| Some(ids.iter().map(|&id| (id, level)).collect::<Vec<_>>());
+    // The first frame: level 0 of every block.
+    s.set_demand(all_at(0));
+    let first = s.update(&cam);
+    assert!(first.late_bytes == 0, "{first:?}");
+    // Every block's finest level asked last; the worker starts the first and waits at the
+    // gate, the others wait in the queue.
+    s.set_demand_later(all_at(k));
+    let st = s.update(&cam);
+    assert_eq!(st.requests, ids.len(), "every block's levels preloaded last");
+    // A block now needs level 2; its preload waits in the queue: raised to the view's tier,
+    // it goes before every other waiting preload.
+    let raised = *ids.last().unwrap();
+    let demand = ids.iter().map(|&id| (id, if id == raised { 2 } else { 0 })).collect();
+    s.set_demand(Some(demand));
+    let st = s.update(&cam);
+    assert_eq!(st.requests, 0, "the raised block keeps its one request");
+    reader.set(true);
+    let deadline = std::time::Instant::now() + Duration::from_secs(120);
+    while s.block(raised).map_or(0, |l| l.count()) <= 2 && std::time::Instant::now() < deadline {
+        s.update(&cam);
+        std::thread::sleep(Duration::from_millis(1));
+    }
+    // The reads after the first frame's (of level 0, which passes the gate).
+    let reads: Vec<(BlockId, u8)> =
+        reader.worker_reads.lock().unwrap().iter().copied().filter(|&(_, l)| l > 0).collect();
+    drop(s);
+    let at = reads.iter().position(|&(id, _)| id == raised).expect("the raised block was read");
+    // Before it, only the request the worker had started (one block's levels 1..=k).
+    let started = reads[0].0;
+    assert_ne!(started, raised);
+    assert!(reads[..at].iter().all(|&(id, _)| id == started), "{:?}", &reads[..at + 1]);
+    assert_eq!(at, usize::from(k), "the started request's levels 1..={k}: {reads:?}");
+}
+
+/// The levels preloaded last are asked for within the budget once the blocks the view left are
+/// evicted: a cache filled to its budget by an earlier view does not keep them out, and the
+/// next eviction makes room for them.
+#[test]
+fn levels_preloaded_last_take_the_room_of_the_blocks_the_view_left() {
+    let (_dir, store) = store("later-room");
+    let ids: Vec<BlockId> = store.block_ids().collect();
+    let k = store.header().k;
+    let level0 = BlockEntry::resident_bytes(0) * ids.len() as u64;
+    let full = BlockEntry::resident_bytes(k) - BlockEntry::resident_bytes(0);
+    // Level 0 of every block (pinned) and four blocks at full resolution.
+    let budget = level0 + 4 * full;
+    let config = StreamConfig {
+        threads: 1,
+        tau: 3.0,
+        coarse_level: 0,
+        budget_bytes: budget,
+        ..Default::default()
+    };
+    let mut s = Streamer::new(store.clone(), config);
+    // Looking away from the terrain: only the demand's blocks are scheduled.
+    let cam = Camera::from_yaw_pitch(dvec3(2560.0, -60_000.0, 1_000.0), 180.0, 0.0)
+        .with_viewport(8.0, 8.0)
+        .with_clip(1.0, 2_000.0);
+    let at = |blocks: &[BlockId], level: u8| Some(blocks.iter().map(|&b| (b, level)).collect());
+    let (a, b) = (&ids[..4], &ids[4..8]);
+    s.set_demand(at(a, k));
+    let warm = s.wait_until_resident(&cam, Duration::from_secs(120));
+    assert!(warm.resident, "{:?}", warm.stats);
+    assert_eq!(warm.stats.resident_bytes, budget, "the cache is full");
+    // The view moves to four other blocks at level 0, their full resolution preloaded last.
+    s.set_demand(at(b, 0));
+    s.set_demand_later(at(b, k));
+    let st = s.update(&cam);
+    assert_eq!(st.requests, 4, "asked for though the cache is full: {st:?}");
+    // They arrive; the blocks the view left make room for them, and the budget holds.
+    let deadline = std::time::Instant::now() + Duration::from_secs(120);
+    loop {
+        let st = s.update(&cam);
+        assert!(st.faults.is_empty(), "{:?}", st.faults);
+        let done = b.iter().all(|&id| s.block(id).is_some_and(|l| l.count() == usize::from(k) + 1));
+        if done && st.queue_depth == 0 {
+            let st = s.update(&cam);
+            assert!(st.resident_bytes <= budget, "{st:?}");
+            assert!(a.iter().all(|&id| s.block(id).map_or(0, |l| l.count()) <= 1), "evicted");
+            break;
+        }
+        assert!(std::time::Instant::now() < deadline, "the preloads did not arrive: {st:?}");
+        std::thread::sleep(Duration::from_millis(1));
+    }
 }
