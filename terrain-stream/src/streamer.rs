@@ -877,7 +877,7 @@ impl Streamer {
             // at a later tier (a preload, the levels preloaded last): the request moves up
             // to the tier the block would get now.
             if let Some(f) = flags.filter(|_| s.visible && have <= s.target as usize) {
-                f.raise_to(u8::from(have > 0));
+                self.pool.raise(f, u8::from(have > 0));
             }
             let tier = match (s.visible, have) {
                 _ if !free || have > s.later as usize => continue,

@@ -18,14 +18,14 @@
 //!
 //! **Priorities.** Each request carries its tier (the streamer's priority: the coarse levels of
 //! visible blocks with nothing resident, then visible blocks' missing levels, then the
-//! pre-loading region), and a worker takes the waiting request of the lowest tier, the
-//! earliest submitted within a tier; a waiting request whose block the view now needs sooner
-//! is raised to that tier ([`RequestFlags::raise_to`]). So a level the view needs now
-//! overtakes the preloads and the finer levels that earlier frames queued, instead of waiting
-//! behind them (a FIFO queue
-//! let `pvps-b`'s burst of 747 blocks' finer levels over the 32769^2 store hold back the
-//! coarse levels of the blocks entering the view: bench/ooc/README.md, "The workers' queue by
-//! priority"). A request a worker has started is not interrupted, except by its cancel flag.
+//! pre-loading region, then the levels preloaded last), and a worker takes the waiting request
+//! of the lowest tier, the earliest submitted within a tier (a queue per tier); a waiting
+//! request whose block the view now needs sooner is moved to that tier
+//! ([`WorkerPool::raise`]). So a level the view needs now overtakes the preloads that earlier
+//! frames queued, instead of waiting behind them (with one FIFO queue, `pvps-b`'s exact demand
+//! preloaded over the 32769^2 store, 300 MiB queued, held back the levels of the blocks
+//! entering the view: bench/ooc/README.md, "The workers' queue by priority"). A request a
+//! worker has started is not interrupted, except by its cancel flag.
 //!
 //! **Holding I/O.** [`WorkerPool::set_held`] closes a gate that every worker passes before it
 //! starts a request and before each level: while held, the workers start no read (a level
@@ -44,7 +44,7 @@
 //! waiting in it; each worker finishes the request it is on (results are dropped if nobody
 //! receives them) and exits; the pool joins every thread before returning.
 
-use std::collections::HashMap;
+use std::collections::{HashMap, VecDeque};
 use std::panic::{AssertUnwindSafe, catch_unwind};
 use std::sync::atomic::{AtomicBool, AtomicU8, Ordering};
 use std::sync::{Arc, Condvar, Mutex};
@@ -144,33 +144,18 @@ impl RequestFlags {
         self.cancelled.load(Ordering::Relaxed)
     }
 
-    /// Moves a waiting request up to `tier` (never down): its block is needed sooner than when
-    /// it was asked (a preloaded level the view now needs).
-    pub(crate) fn raise_to(&self, tier: u8) {
-        self.tier.fetch_min(tier, Ordering::Relaxed);
-    }
-
     pub(crate) fn tier(&self) -> u8 {
         self.tier.load(Ordering::Relaxed)
     }
 }
 
-/// A request waiting for a worker, with its place in the order of submission.
-#[derive(Debug)]
-struct Waiting {
-    seq: u64,
-    request: LoadRequest,
-}
+/// The streamer's tiers ([`LoadRequest::flags`]): 0 (the first) to `TIERS - 1`.
+pub(crate) const TIERS: usize = 4;
 
-impl Waiting {
-    /// The lowest key is taken first: the lowest tier, then the earliest submitted.
-    fn key(&self) -> (u8, u64) {
-        (self.request.flags.tier(), self.seq)
-    }
-}
-
-/// The requests waiting for a worker, taken by priority ([`Waiting::key`], read when taken:
-/// a request raised while it waits is taken at its new tier).
+/// The requests waiting for a worker: one queue per tier, each in order of submission; a
+/// worker takes the first of the lowest tier that has one. A request raised while it waits
+/// ([`WorkerPool::raise`]) moves to its new tier's queue at its place in the order of
+/// submission.
 #[derive(Debug, Default)]
 struct Queue {
     state: Mutex<QueueState>,
@@ -179,7 +164,8 @@ struct Queue {
 
 #[derive(Debug, Default)]
 struct QueueState {
-    waiting: Vec<Waiting>,
+    /// Per tier: (order of submission, request), in that order.
+    waiting: [VecDeque<(u64, LoadRequest)>; TIERS],
     submitted: u64,
     closed: bool,
 }
@@ -189,7 +175,7 @@ impl Queue {
         self.state.lock().unwrap_or_else(|e| e.into_inner())
     }
 
-    /// Queues `request`; `false` once the queue is closed.
+    /// Queues `request` at its tier; `false` once the queue is closed.
     fn push(&self, request: LoadRequest) -> bool {
         let mut q = self.lock();
         if q.closed {
@@ -197,27 +183,47 @@ impl Queue {
         }
         let seq = q.submitted;
         q.submitted += 1;
-        q.waiting.push(Waiting { seq, request });
+        let tier = usize::from(request.flags.tier()).min(TIERS - 1);
+        q.waiting[tier].push_back((seq, request));
         drop(q);
         self.ready.notify_one();
         true
     }
 
+    /// Moves the waiting request with `flags` to `tier` if that is lower than its own (a
+    /// request a worker took already is not found: nothing changes).
+    fn raise(&self, flags: &Arc<RequestFlags>, tier: u8) {
+        let mut q = self.lock();
+        let from = usize::from(flags.tier()).min(TIERS - 1);
+        let to = usize::from(tier).min(TIERS - 1);
+        if to >= from {
+            return;
+        }
+        let Some(i) = q.waiting[from].iter().position(|(_, r)| Arc::ptr_eq(&r.flags, flags)) else {
+            return;
+        };
+        let entry = q.waiting[from].remove(i).expect("a position of the queue");
+        flags.tier.store(tier, Ordering::Relaxed);
+        let at = q.waiting[to].partition_point(|(seq, _)| *seq < entry.0);
+        q.waiting[to].insert(at, entry);
+    }
+
     /// The first waiting request by priority, waiting for one; `None` once the queue is
-    /// closed (what still waits is dropped). A scan of the waiting requests (at most the
-    /// streamer's in-flight cap), as their tiers may have changed since they were queued.
+    /// closed (what still waits is dropped).
     fn pop(&self) -> Option<LoadRequest> {
         let q = self.lock();
         let mut q = self
             .ready
-            .wait_while(q, |q| q.waiting.is_empty() && !q.closed)
+            .wait_while(q, |q| q.waiting.iter().all(VecDeque::is_empty) && !q.closed)
             .unwrap_or_else(|e| e.into_inner());
         if q.closed {
-            q.waiting.clear();
+            q.waiting.iter_mut().for_each(VecDeque::clear);
             return None;
         }
-        let first = (0..q.waiting.len()).min_by_key(|&i| q.waiting[i].key())?;
-        Some(q.waiting.swap_remove(first).request)
+        let (_, r) = q.waiting.iter_mut().find_map(VecDeque::pop_front)?;
+        // Taken: nothing can overtake it any more, and a raise need not look for it.
+        r.flags.tier.store(0, Ordering::Relaxed);
+        Some(r)
     }
 
     fn close(&self) {
@@ -378,6 +384,15 @@ impl WorkerPool {
             if self.in_flight > self.threads.len() && self.threads.len() < self.max_threads {
                 self.start_worker();
             }
+        }
+    }
+
+    /// Moves a waiting request up to `tier` (never down): its block is needed sooner than when
+    /// it was asked (a preloaded level the view now needs). Only a lower tier than its own
+    /// takes the queue's lock.
+    pub(crate) fn raise(&self, flags: &Arc<RequestFlags>, tier: u8) {
+        if tier < flags.tier() {
+            self.requests.raise(flags, tier);
         }
     }
 

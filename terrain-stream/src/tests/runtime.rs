@@ -94,6 +94,8 @@ struct Gated {
     opened: Condvar,
     frame_thread_reads: AtomicUsize,
     worker_reads: Mutex<Vec<(BlockId, u8)>>,
+    /// Worker reads that reached the gate (waited at it while it was closed).
+    at_gate: AtomicUsize,
 }
 
 impl Gated {
@@ -104,6 +106,7 @@ impl Gated {
             opened: Condvar::new(),
             frame_thread_reads: AtomicUsize::new(0),
             worker_reads: Mutex::new(Vec::new()),
+            at_gate: AtomicUsize::new(0),
         })
     }
 
@@ -122,6 +125,7 @@ impl LevelReader for Gated {
     ) -> Result<LoadedLevel, StoreError> {
         let worker = std::thread::current().name().is_some_and(|n| n.starts_with("terrain-stream"));
         if worker && level > 0 {
+            self.at_gate.fetch_add(1, Ordering::SeqCst);
             let open = self.open.lock().unwrap();
             // A generous bound so a broken runtime fails the test instead of hanging it.
             let (open, _) =
@@ -798,6 +802,11 @@ fn a_level_the_view_needs_overtakes_the_levels_preloaded_last() {
     s.set_demand_later(all_at(k));
     let st = s.update(&cam);
     assert_eq!(st.requests, ids.len(), "every block's levels preloaded last");
+    // Until the worker has taken the first and waits at the gate.
+    let deadline = std::time::Instant::now() + Duration::from_secs(120);
+    while reader.at_gate.load(Ordering::SeqCst) == 0 && std::time::Instant::now() < deadline {
+        std::thread::sleep(Duration::from_millis(1));
+    }
     // A block now needs level 2; its preload waits in the queue: raised to the view's tier,
     // it goes before every other waiting preload.
     let raised = *ids.last().unwrap();
