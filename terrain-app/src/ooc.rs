@@ -41,7 +41,7 @@ use terrain_gpu::{RenderError, TerrainRenderer};
 use terrain_stream::{
     BlockId, DEFAULT_COST_SPLIT_PX, DEFAULT_PATCH_CELLS, DEFAULT_SPLIT, Refinement, RemoteOptions,
     ScheduleConfig, SplitRule, Store, StoreError, StoreSource, StoreTree, StreamConfig, Streamer,
-    TreeWarmer, coarsen_to_budget, demand_of, demand_within, select_patches,
+    TreeWarmer, coarsen_to_budget, demand_and_held, demand_of, select_patches,
 };
 
 use crate::MIB;
@@ -489,23 +489,39 @@ impl OocFrame {
 /// the quarter at one frame and asked 183 MiB in 747 blocks at once: 16 frames late in a row.
 pub const PRELOAD_EXACT_SHARE: u64 = 2;
 
-/// What `draw` needs from the store ([`demand_of`]): its patches' levels, held to
-/// `budget_bytes` where the patches' factors allow ([`demand_within`]: the second value says
-/// the exact demand did not fit and was held); with strips, exactly the full resolution of
-/// every block a strip or P-block vertex lies on (the M-blocks are shrunk for the strips, so
-/// their vertices fall between lattice samples; strips also reach blocks that are hidden
-/// themselves), held to the lattice of each block's factor.
+/// What `draw` needs from the store ([`demand_of`]): its patches' levels, held to `budget_bytes`
+/// where the patches' factors allow ([`terrain_stream::demand_within`]: the second value says the
+/// exact demand did not fit and was held); with strips, exactly the full resolution of every block
+/// a strip or P-block vertex lies on (the M-blocks are shrunk for the strips, so their vertices
+/// fall between lattice samples; strips also reach blocks that are hidden themselves), held to the
+/// lattice of each block's factor.
 fn store_demand(
     tree: &StoreTree,
     draw: &StoreDraw,
     budget_bytes: u64,
 ) -> (Vec<(BlockId, u8)>, bool) {
+    match store_demands(tree, draw, budget_bytes) {
+        (exact, None) => (exact, false),
+        (exact, Some(held)) => {
+            let changed = held != exact;
+            (held, changed)
+        }
+    }
+}
+
+/// [`store_demand`]'s exact demand, and the demand held to `budget_bytes` where the exact
+/// holds more ([`demand_and_held`]).
+fn store_demands(
+    tree: &StoreTree,
+    draw: &StoreDraw,
+    budget_bytes: u64,
+) -> (Vec<(BlockId, u8)>, Option<Vec<(BlockId, u8)>>) {
     if let Some(m) = &draw.morph {
-        return (morph_demand(tree, m), false);
+        return (morph_demand(tree, m), None);
     }
     // A mesh's vertices lie on the lattices its selection's factors say (`tin`).
     let Some(strips) = &draw.strips else {
-        return demand_within(tree, &draw.selection, true, budget_bytes);
+        return demand_and_held(tree, &draw.selection, true, budget_bytes);
     };
     let used = &strips.lined;
     // Each carrier with its block's factor (a hidden block's is 2, its draw factors 0): what
@@ -520,33 +536,53 @@ fn store_demand(
             },
         ),
     );
-    demand_within(tree, &all, false, budget_bytes)
+    demand_and_held(tree, &all, false, budget_bytes)
 }
 
 /// [`store_demand`] held to `[lattice, coarsen]` bytes: to the first by the lattices
-/// ([`demand_within`]), and where that leaves more than the second, coarsened from the blocks
-/// densest on screen from `eye` ([`coarsen_to_budget`]); the second value says whether it was
-/// held either way. The coarsening's bound is the cache's whole budget (what it cannot evict
+/// ([`terrain_stream::demand_within`]), and where that leaves more than the second, coarsened from
+/// the blocks densest on screen from `eye` ([`coarsen_to_budget`]); the second value says whether
+/// it was held either way. The coarsening's bound is the cache's whole budget (what it cannot evict
 /// must fit), not a real-time frame's share: a coarsened demand moves with the eye, and a block
 /// moved to a finer level is late unless predicted (`uniform` on `fast_pass` over the 16385^2
-/// Everest store, whose exact demand fits the budget: 173 of 300 frames without late data
-/// coarsened to the quarter, 300 before).
+/// Everest store, whose exact demand fits the budget: 173 of 300 frames without late data coarsened
+/// to the quarter, 300 before).
 fn held_demand(
     tree: &StoreTree,
     draw: &StoreDraw,
     eye: DVec3,
-    [lattice, coarsen]: [u64; 2],
+    bounds: [u64; 2],
 ) -> (Vec<(BlockId, u8)>, bool) {
-    let (mut demand, on_lattice) = store_demand(tree, draw, lattice);
-    let coarsened = coarsen_to_budget(tree, &mut demand, eye, coarsen);
-    (demand, on_lattice || coarsened > 0)
+    let (demand, exact) = held_and_exact_demand(tree, draw, eye, bounds);
+    (demand, exact.is_some())
+}
+
+/// [`held_demand`], with the exact demand beside it when it was held (`None`: the demand is
+/// exact), from one pass over the patches.
+fn held_and_exact_demand(
+    tree: &StoreTree,
+    draw: &StoreDraw,
+    eye: DVec3,
+    [lattice, coarsen]: [u64; 2],
+) -> (Vec<(BlockId, u8)>, Option<Vec<(BlockId, u8)>>) {
+    let (mut demand, mut exact) = match store_demands(tree, draw, lattice) {
+        (exact, Some(held)) if held != exact => (held, Some(exact)),
+        (exact, _) => (exact, None),
+    };
+    if exact.is_none() && terrain_stream::demand_bytes(&demand) > coarsen {
+        exact = Some(demand.clone());
+    }
+    if coarsen_to_budget(tree, &mut demand, eye, coarsen) == 0 && exact.as_ref() == Some(&demand) {
+        exact = None;
+    }
+    (demand, exact)
 }
 
 /// A real-time frame's demand is exact while it holds at most this share (1 / n) of the cache's
-/// budget, else held to lattices ([`demand_within`]; a warm frame's at most all of it):
-/// `pvps-c` over the 32769^2 store on `fast_pass` drew 78.3 % of its frames at their needed
-/// level when real-time frames were exact up to the whole budget (bench/ooc/README.md, "The
-/// patch methods within the cache budget").
+/// budget, else held to lattices ([`terrain_stream::demand_within`]; a warm frame's at most all of
+/// it): `pvps-c` over the 32769^2 store on `fast_pass` drew 78.3 % of its frames at their needed
+/// level when real-time frames were exact up to the whole budget (bench/ooc/README.md, "The patch
+/// methods within the cache budget").
 pub const REAL_TIME_EXACT_SHARE: u64 = 4;
 
 /// A real-time frame whose selection took at most this share of the frame's period (the
@@ -705,7 +741,8 @@ pub struct OocScene {
     /// Whether the note that the demand was held to the budget was printed.
     warned_lattice: bool,
     /// Whether the demand of [`OocScene::frame_for`] is always exact ([`demand_of`]), never
-    /// held to the budget ([`demand_within`]): see [`OocScene::with_exact_demand`].
+    /// held to the budget ([`terrain_stream::demand_within`]): see
+    /// [`OocScene::with_exact_demand`].
     exact_demand: bool,
     /// A real-time run ([`OocScene::with_real_time`]): its first, waiting frame holds the
     /// demand to the real-time share of the budget like every later frame.
@@ -969,7 +1006,8 @@ impl OocScene {
         // The lattices hold the demand to `budget`, the coarsening to the whole budget (none
         // when exact).
         let bounds = [budget, budget.max(blocks)];
-        let (mut demand, mut on_lattice) = held_demand(tree, &draw, camera.position, bounds);
+        let (mut demand, exact) = held_and_exact_demand(tree, &draw, camera.position, bounds);
+        let mut on_lattice = exact.is_some();
         self.streamer.set_demand(Some(demand.clone()));
         // Eq. 8 with the method's own levels: its selection at the eye one look-ahead ahead,
         // over the same resident heights, says where its level boundaries will be (Eq. 7's
@@ -989,8 +1027,8 @@ impl OocScene {
         // A real-time demand held to lattices while its exact demand fits
         // `PRELOAD_EXACT_SHARE` of the budget: the exact levels are preloaded last, so that the
         // frame whose exact demand first fits the real-time share finds them resident.
-        let later = (on_lattice && !warm && !self.exact_demand)
-            .then(|| store_demand(tree, &draw, u64::MAX).0)
+        let later = exact
+            .filter(|_| !warm && !self.exact_demand)
             .filter(|exact| terrain_stream::demand_bytes(exact) <= blocks / PRELOAD_EXACT_SHARE);
         self.streamer.set_demand_later(later);
         let s = if warm {

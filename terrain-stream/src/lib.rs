@@ -137,7 +137,9 @@ pub use source::{HeightSource, read_rows_parallel};
 pub use stats::{Fault, FrameStats, StatsSummary};
 pub use store::{BlockLevels, LoadedLevel, Store, is_store};
 pub use streamer::{ScheduledBlock, StreamConfig, Streamer, WaitReport};
-pub use terrain::{StoreSource, coarsen_to_budget, demand_bytes, demand_of, demand_within};
+pub use terrain::{
+    StoreSource, coarsen_to_budget, demand_and_held, demand_bytes, demand_of, demand_within,
+};
 pub use terrain_core::geometry::Camera;
 pub use warm::TreeWarmer;
 pub use workers::LevelReader;

@@ -176,13 +176,30 @@ pub fn demand_within(
     on_squares: bool,
     budget_bytes: u64,
 ) -> (Vec<(BlockId, u8)>, bool) {
+    match demand_and_held(tree, selection, on_squares, budget_bytes) {
+        (exact, None) => (exact, false),
+        (exact, Some(held)) => {
+            let changed = held != exact;
+            (held, changed)
+        }
+    }
+}
+
+/// The exact demand ([`demand_of`]) and, where it holds more than `budget_bytes`, the demand
+/// [`demand_within`] holds to it: for a caller that preloads the exact demand beside the held
+/// one ([`crate::Streamer::set_demand_later`]) without a second pass over the patches.
+pub fn demand_and_held(
+    tree: &StoreTree,
+    selection: &Selection,
+    on_squares: bool,
+    budget_bytes: u64,
+) -> (Vec<(BlockId, u8)>, Option<Vec<(BlockId, u8)>>) {
     let exact = demand_with(tree, selection, on_squares, false);
     if demand_bytes(&exact) <= budget_bytes {
-        return (exact, false);
+        return (exact, None);
     }
     let held = demand_with(tree, selection, on_squares, true);
-    let changed = held != exact;
-    (held, changed)
+    (exact, Some(held))
 }
 
 /// A demand still above `budget_bytes` ([`demand_bytes`]) after [`demand_within`] held to it by
