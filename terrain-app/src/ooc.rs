@@ -1512,6 +1512,42 @@ mod tests {
         assert!(frame.list_bytes() >= listed, "{} against {listed}", frame.list_bytes());
     }
 
+    /// The demand a frame asks and the exact demand preloaded last come from one pass: the
+    /// exact demand is given beside the held one whenever the lattices or the coarsening changed
+    /// it, and not when the demand is exact.
+    #[test]
+    fn the_exact_demand_is_given_beside_the_held_one() {
+        let tmp = tempfile::Builder::new().prefix("terrain-app-exact-").tempdir().unwrap();
+        let dir = tmp.path().join("store");
+        let hm = Heightmap::from_fn(257, 257, Georef::local(10.0), |i, j| {
+            ((i * 7 + j * 13) % 97) as f32 + 0.3 * i as f32
+        })
+        .unwrap();
+        let cfg = BakeConfig { k: 5, ..Default::default() };
+        bake(&hm, &dir, &cfg, &mut |_: &BakeProgress| std::ops::ControlFlow::Continue(())).unwrap();
+        let tree = StoreTree::new(Arc::new(Store::open(&dir).unwrap()), 8);
+        let camera = Camera::from_yaw_pitch(glam::dvec3(-300.0, -300.0, 900.0), 45.0, -25.0)
+            .with_viewport(320.0, 180.0);
+        // Factors 3: the exact demand is every block's full resolution, the held one the
+        // lattice of 4 (two levels coarser).
+        let selection = crate::methods::select_uniform(&tree, &camera, 3.0);
+        let draw = StoreDraw { selection, ..Default::default() };
+        let exact = demand_of(&tree, &draw.selection, true);
+        let bytes = terrain_stream::demand_bytes(&exact);
+        let eye = camera.position;
+        // Within both bounds: exact, nothing beside it.
+        assert_eq!(held_and_exact_demand(&tree, &draw, eye, [bytes, bytes]), (exact.clone(), None));
+        // Held to the lattices.
+        let (held, beside) = held_and_exact_demand(&tree, &draw, eye, [bytes - 1, u64::MAX]);
+        assert!(held != exact && terrain_stream::demand_bytes(&held) < bytes);
+        assert_eq!(beside.as_ref(), Some(&exact));
+        assert_eq!(held_demand(&tree, &draw, eye, [bytes - 1, u64::MAX]), (held.clone(), true));
+        // Coarsened only (the lattice bound is not reached).
+        let (coarse, beside) = held_and_exact_demand(&tree, &draw, eye, [u64::MAX, bytes / 2]);
+        assert!(terrain_stream::demand_bytes(&coarse) <= bytes / 2);
+        assert_eq!(beside, Some(exact));
+    }
+
     /// The index pages' share: an eighth of the budget, at least 32 MiB, at most the whole
     /// index decoded.
     #[test]

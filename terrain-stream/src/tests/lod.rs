@@ -983,6 +983,10 @@ fn the_demand_held_to_the_budget_asks_the_lattice_of_each_continuous_factor() {
         // Above it: each patch's lattice, `l + ceil(log2 f)` capped at its full resolution.
         let (held, on_lattice) = crate::demand_within(&tree, &sel, true, bytes - 1);
         assert_eq!(on_lattice, held != exact, "f {f}");
+        // Both from one pass: the exact demand, and the held one only above the budget.
+        assert_eq!(crate::demand_and_held(&tree, &sel, true, bytes), (exact.clone(), None));
+        let both = crate::demand_and_held(&tree, &sel, true, bytes - 1);
+        assert_eq!(both, (exact.clone(), Some(held.clone())), "f {f}");
         let pow2 = f.fract() == 0.0 && (f as u32).is_power_of_two();
         let mut want = Vec::new();
         for &node in &leaves {
