@@ -39,9 +39,10 @@ use terrain_gpu::render::{DrawPatch, ExtraTriangles};
 use terrain_gpu::tess::PatchFactors;
 use terrain_gpu::{RenderError, TerrainRenderer};
 use terrain_stream::{
-    BlockId, DEFAULT_COST_SPLIT_PX, DEFAULT_PATCH_CELLS, DEFAULT_SPLIT, Refinement, RemoteOptions,
-    ScheduleConfig, SplitRule, Store, StoreError, StoreSource, StoreTree, StreamConfig, Streamer,
-    TreeWarmer, coarsen_to_budget, demand_and_held, demand_of, select_patches,
+    BlockId, DEFAULT_COST_SPLIT_PX, DEFAULT_PATCH_CELLS, DEFAULT_SPLIT, Demand, Refinement,
+    RemoteOptions, ScheduleConfig, SplitRule, Store, StoreError, StoreSource, StoreTree,
+    StreamConfig, Streamer, TreeWarmer, coarsen_to_budget, demand_and_held, demand_of,
+    select_patches,
 };
 
 use crate::MIB;
@@ -515,7 +516,7 @@ fn store_demands(
     tree: &StoreTree,
     draw: &StoreDraw,
     budget_bytes: u64,
-) -> (Vec<(BlockId, u8)>, Option<Vec<(BlockId, u8)>>) {
+) -> (Demand, Option<Demand>) {
     if let Some(m) = &draw.morph {
         return (morph_demand(tree, m), None);
     }
@@ -564,7 +565,7 @@ fn held_and_exact_demand(
     draw: &StoreDraw,
     eye: DVec3,
     [lattice, coarsen]: [u64; 2],
-) -> (Vec<(BlockId, u8)>, Option<Vec<(BlockId, u8)>>) {
+) -> (Demand, Option<Demand>) {
     let (mut demand, mut exact) = match store_demands(tree, draw, lattice) {
         (exact, Some(held)) if held != exact => (held, Some(exact)),
         (exact, _) => (exact, None),

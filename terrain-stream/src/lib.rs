@@ -138,7 +138,7 @@ pub use stats::{Fault, FrameStats, StatsSummary};
 pub use store::{BlockLevels, LoadedLevel, Store, is_store};
 pub use streamer::{ScheduledBlock, StreamConfig, Streamer, WaitReport};
 pub use terrain::{
-    StoreSource, coarsen_to_budget, demand_and_held, demand_bytes, demand_of, demand_within,
+    Demand, StoreSource, coarsen_to_budget, demand_and_held, demand_bytes, demand_of, demand_within,
 };
 pub use terrain_core::geometry::Camera;
 pub use warm::TreeWarmer;

@@ -185,6 +185,9 @@ pub fn demand_within(
     }
 }
 
+/// A demand: the level each block is asked for ([`demand_of`]'s form).
+pub type Demand = Vec<(BlockId, u8)>;
+
 /// The exact demand ([`demand_of`]) and, where it holds more than `budget_bytes`, the demand
 /// [`demand_within`] holds to it: for a caller that preloads the exact demand beside the held
 /// one ([`crate::Streamer::set_demand_later`]) without a second pass over the patches.
@@ -193,7 +196,7 @@ pub fn demand_and_held(
     selection: &Selection,
     on_squares: bool,
     budget_bytes: u64,
-) -> (Vec<(BlockId, u8)>, Option<Vec<(BlockId, u8)>>) {
+) -> (Demand, Option<Demand>) {
     let exact = demand_with(tree, selection, on_squares, false);
     if demand_bytes(&exact) <= budget_bytes {
         return (exact, None);
