@@ -1117,11 +1117,13 @@ impl OocScene {
     /// The stream cache's share of the one memory budget ([`OocConfig::budget_bytes`]): what
     /// the index entries the trees keep for the view leave (this scene's tree and the method's
     /// `tree`, unless one is the other's clone; [`StoreTree::visited_bytes`]), the store's
-    /// decoded index pages ([`index_share`]) and the method's own caches
-    /// ([`OocScene::with_reserved`]) and the last frame's lists ([`OocFrame::list_bytes`]: the
-    /// next frame's are about as large), at least half of it. A selection over a 32769^2 store keeps 139 MB of entries for its view (`dss-2` on
+    /// decoded index pages ([`index_share`]), the method's own caches
+    /// ([`OocScene::with_reserved`]) and the frame's lists (`frame_bytes`: the last frame's
+    /// [`OocFrame::list_bytes`], or this frame's selection where larger), at least half of it.
+    /// A selection over a 32769^2 store keeps 139 MB of entries for its view (`dss-2` on
     /// `fast_pass`), which a budget of blocks alone left above it (bench/ooc/README.md, "One
-    /// memory budget for the blocks and the view's index entries").
+    /// memory budget for the blocks and the view's index entries"); `uniform`'s lists at 1 px
+    /// are about 300 MB ("One memory budget for the frame's lists too").
     fn blocks_budget(&self, tree: Option<&StoreTree>) -> u64 {
         let index = self.store.index_cache_bytes().map_or(0, |(b, whole)| b.min(whole));
         let mut entries = self.tree.visited_bytes() + self.reserved + index + self.frame_bytes;

@@ -1,9 +1,9 @@
 //! The worker pool behind an explicit endpoint (terra's `TileStreamerEndpoint` style): a
 //! request queue by priority, a result channel (crossbeam), an in-flight count, and a
-//! documented shutdown. The stream's threads are spawned here (the crate's others: a remote side table's
-//! background fill, `side_table.rs`, and the [`crate::TreeWarmer`]'s walk ahead, `warm.rs`);
-//! the frame thread never reads a block after the first frame (the real-time contract of
-//! [`crate::Streamer`]).
+//! documented shutdown. The stream's threads are spawned here (the crate's others: a remote
+//! side table's background fill, `side_table.rs`, and the [`crate::TreeWarmer`]'s walk ahead,
+//! `warm.rs`); the frame thread never reads a block after the first frame (the real-time
+//! contract of [`crate::Streamer`]).
 //!
 //! A request asks for levels `first..=last` of one block; the worker loads them one by one
 //! (the paper's sub-thread, "loading ... data level-by-level") and sends each level as soon as
@@ -254,8 +254,8 @@ pub(crate) struct LoadResult {
 pub(crate) struct WorkerPool {
     requests: Arc<Queue>,
     results: Receiver<LoadResult>,
-    /// What a worker started later is given: the request queue, the results' sender, the
-    /// reader.
+    /// What a worker started later is given besides the request queue: the results' sender
+    /// and the reader.
     spawn: Spawn,
     /// The most workers the pool starts.
     max_threads: usize,
@@ -444,7 +444,7 @@ impl WorkerPool {
 
     fn stop(&mut self) {
         self.requests.close();
-        // A held worker must get past the gate to see the closed channel.
+        // A held worker must get past the gate to see the closed queue.
         self.gate.set(false);
         for t in self.threads.drain(..) {
             let _ = t.join();
