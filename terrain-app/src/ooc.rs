@@ -490,28 +490,12 @@ impl OocFrame {
 /// the quarter at one frame and asked 183 MiB in 747 blocks at once: 16 frames late in a row.
 pub const PRELOAD_EXACT_SHARE: u64 = 2;
 
-/// What `draw` needs from the store ([`demand_of`]): its patches' levels, held to `budget_bytes`
-/// where the patches' factors allow ([`terrain_stream::demand_within`]: the second value says the
-/// exact demand did not fit and was held); with strips, exactly the full resolution of every block
-/// a strip or P-block vertex lies on (the M-blocks are shrunk for the strips, so their vertices
-/// fall between lattice samples; strips also reach blocks that are hidden themselves), held to the
-/// lattice of each block's factor.
-fn store_demand(
-    tree: &StoreTree,
-    draw: &StoreDraw,
-    budget_bytes: u64,
-) -> (Vec<(BlockId, u8)>, bool) {
-    match store_demands(tree, draw, budget_bytes) {
-        (exact, None) => (exact, false),
-        (exact, Some(held)) => {
-            let changed = held != exact;
-            (held, changed)
-        }
-    }
-}
-
-/// [`store_demand`]'s exact demand, and the demand held to `budget_bytes` where the exact
-/// holds more ([`demand_and_held`]).
+/// What `draw` needs from the store ([`demand_of`]): its patches' levels exactly, and where
+/// that holds more than `budget_bytes` and the patches' factors allow, the demand held to it
+/// ([`demand_and_held`], as [`terrain_stream::demand_within`] holds it); with strips, exactly
+/// the full resolution of every block a strip or P-block vertex lies on (the M-blocks are
+/// shrunk for the strips, so their vertices fall between lattice samples; strips also reach
+/// blocks that are hidden themselves), held to the lattice of each block's factor.
 fn store_demands(
     tree: &StoreTree,
     draw: &StoreDraw,
@@ -540,7 +524,7 @@ fn store_demands(
     demand_and_held(tree, &all, false, budget_bytes)
 }
 
-/// [`store_demand`] held to `[lattice, coarsen]` bytes: to the first by the lattices
+/// [`store_demands`] held to `[lattice, coarsen]` bytes: to the first by the lattices
 /// ([`terrain_stream::demand_within`]), and where that leaves more than the second, coarsened from
 /// the blocks densest on screen from `eye` ([`coarsen_to_budget`]); the second value says whether
 /// it was held either way. The coarsening's bound is the cache's whole budget (what it cannot evict
@@ -1061,7 +1045,7 @@ impl OocScene {
                  from the power-of-two level that covers them, and where that is still more, \
                  the blocks whose samples are densest on screen from coarser levels (heights \
                  within that level's error); the frames are counted in the streaming summary",
-                terrain_stream::demand_bytes(&store_demand(tree, &draw, u64::MAX).0) as f64 / MIB,
+                terrain_stream::demand_bytes(&store_demands(tree, &draw, u64::MAX).0) as f64 / MIB,
                 budget as f64 / MIB,
                 if budget == blocks { "" } else { "a real-time frame's share of " }
             );
@@ -1437,21 +1421,28 @@ mod tests {
     use super::*;
     use terrain_stream::{BakeConfig, BakeProgress, HeightEncoding, bake};
 
-    /// One memory budget: the stream cache gets what the index entries the view keeps, the
-    /// store's decoded index pages, the method's own caches and the frame's lists leave of it,
-    /// and at least half of it when they would take more.
-    #[test]
-    fn the_blocks_get_what_the_views_entries_and_the_frames_lists_leave_of_the_budget() {
-        // Removed when dropped, also when the test panics.
-        let tmp = tempfile::Builder::new().prefix("terrain-app-budget-").tempdir().unwrap();
+    /// A `side` x `side` ramp with a sawtooth (10 m spacing) baked into a store of 32-cell
+    /// blocks in a temporary folder, removed when the folder is dropped (also when the test
+    /// panics).
+    fn ramp_store(prefix: &str, side: usize) -> (tempfile::TempDir, Arc<Store>) {
+        let tmp = tempfile::Builder::new().prefix(prefix).tempdir().unwrap();
         let dir = tmp.path().join("store");
-        let hm = Heightmap::from_fn(513, 513, Georef::local(10.0), |i, j| {
+        let hm = Heightmap::from_fn(side, side, Georef::local(10.0), |i, j| {
             ((i * 7 + j * 13) % 97) as f32 + 0.3 * i as f32
         })
         .unwrap();
         let cfg = BakeConfig { k: 5, ..Default::default() };
         bake(&hm, &dir, &cfg, &mut |_: &BakeProgress| std::ops::ControlFlow::Continue(())).unwrap();
         let store = Arc::new(Store::open(&dir).unwrap());
+        (tmp, store)
+    }
+
+    /// One memory budget: the stream cache gets what the index entries the view keeps, the
+    /// store's decoded index pages, the method's own caches and the frame's lists leave of it,
+    /// and at least half of it when they would take more.
+    #[test]
+    fn the_blocks_get_what_the_views_entries_and_the_frames_lists_leave_of_the_budget() {
+        let (_tmp, store) = ramp_store("terrain-app-budget-", 513);
         let camera = Camera::from_yaw_pitch(glam::dvec3(-300.0, -300.0, 900.0), 45.0, -25.0)
             .with_viewport(320.0, 180.0);
         // The view's entries, the last frame's lists and the blocks' budget after the second
@@ -1520,15 +1511,8 @@ mod tests {
     /// it, and not when the demand is exact.
     #[test]
     fn the_exact_demand_is_given_beside_the_held_one() {
-        let tmp = tempfile::Builder::new().prefix("terrain-app-exact-").tempdir().unwrap();
-        let dir = tmp.path().join("store");
-        let hm = Heightmap::from_fn(257, 257, Georef::local(10.0), |i, j| {
-            ((i * 7 + j * 13) % 97) as f32 + 0.3 * i as f32
-        })
-        .unwrap();
-        let cfg = BakeConfig { k: 5, ..Default::default() };
-        bake(&hm, &dir, &cfg, &mut |_: &BakeProgress| std::ops::ControlFlow::Continue(())).unwrap();
-        let tree = StoreTree::new(Arc::new(Store::open(&dir).unwrap()), 8);
+        let (_tmp, store) = ramp_store("terrain-app-exact-", 257);
+        let tree = StoreTree::new(store, 8);
         let camera = Camera::from_yaw_pitch(glam::dvec3(-300.0, -300.0, 900.0), 45.0, -25.0)
             .with_viewport(320.0, 180.0);
         // Factors 3: the exact demand is every block's full resolution, the held one the

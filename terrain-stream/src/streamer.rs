@@ -722,28 +722,15 @@ impl Streamer {
         let mut in_m = BlockSet::empty(header);
         let own_ahead = self.demand.is_some() && self.demand_ahead.is_some();
         if let Some(demand) = &self.demand {
-            // The method's own levels one look-ahead ahead, by block position (0: none).
-            let mut ahead =
-                vec![0u8; if self.demand_ahead.is_some() { header.block_count() } else { 0 }];
-            for &(id, level) in self.demand_ahead.iter().flatten() {
-                if let Some(a) = header.block_position(id).and_then(|p| ahead.get_mut(p)) {
-                    *a = (*a).max(level.min(header.k));
-                }
-            }
-            let ahead_of = |id: BlockId| {
-                header.block_position(id).and_then(|p| ahead.get(p)).copied().unwrap_or(0)
+            // The method's own levels one look-ahead ahead, and the levels preloaded last, by
+            // block position (0: none).
+            let ahead = levels_by_position(header, self.demand_ahead.as_deref());
+            let later = levels_by_position(header, self.demand_later.as_deref());
+            let at = |levels: &[u8], id: BlockId| {
+                header.block_position(id).and_then(|p| levels.get(p)).copied().unwrap_or(0)
             };
-            // The same for the levels preloaded last.
-            let mut later =
-                vec![0u8; if self.demand_later.is_some() { header.block_count() } else { 0 }];
-            for &(id, level) in self.demand_later.iter().flatten() {
-                if let Some(a) = header.block_position(id).and_then(|p| later.get_mut(p)) {
-                    *a = (*a).max(level.min(header.k));
-                }
-            }
-            let later_of = |id: BlockId| {
-                header.block_position(id).and_then(|p| later.get(p)).copied().unwrap_or(0)
-            };
+            let ahead_of = |id: BlockId| at(&ahead, id);
+            let later_of = |id: BlockId| at(&later, id);
             for &(id, level) in demand {
                 let Some(e) = self.summaries.get(store, id) else { continue };
                 let e = &*e;
@@ -1203,6 +1190,20 @@ impl BlockSet {
 /// Plan distance from `p` to the rectangle `[lo, hi]` (0 inside).
 fn rect_distance(p: DVec2, lo: DVec2, hi: DVec2) -> f64 {
     (lo - p).max(p - hi).max(DVec2::ZERO).length()
+}
+
+/// Each block's finest level in `demand` ([`Streamer::set_demand`]'s form), capped at the
+/// store's finest, by block position (`Header::block_position`; 0 where none); empty without a
+/// demand.
+fn levels_by_position(header: &Header, demand: Option<&[(BlockId, u8)]>) -> Vec<u8> {
+    let Some(demand) = demand else { return Vec::new() };
+    let mut levels = vec![0u8; header.block_count()];
+    for &(id, level) in demand {
+        if let Some(a) = header.block_position(id).and_then(|p| levels.get_mut(p)) {
+            *a = (*a).max(level.min(header.k));
+        }
+    }
+    levels
 }
 
 #[cfg(test)]
