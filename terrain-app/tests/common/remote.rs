@@ -75,7 +75,20 @@ impl Server {
         Server { child, port, leftovers: Vec::new() }
     }
 
+    /// The server stopped (SIGSTOP) until the guard is dropped (SIGCONT): a request sent
+    /// meanwhile is accepted by the kernel and answered only then, so a test can order a
+    /// background fetch after a read it checks, whatever the scheduling of its threads. For a
+    /// server of one process (nginx with `master_process off`).
+    pub(crate) fn pause(&self) -> Paused {
+        let pid = self.child.id().to_string();
+        let status = Command::new("kill").args(["-STOP", &pid]).status().expect("kill runs");
+        assert!(status.success(), "kill -STOP {pid}: {status}");
+        Paused { pid }
+    }
+
     fn stop(&mut self) {
+        // A stopped process would take the TERM only once continued.
+        let _ = Command::new("kill").args(["-CONT", &self.child.id().to_string()]).status();
         let _ = Command::new("kill").args(["-TERM", &self.child.id().to_string()]).status();
         let start = Instant::now();
         while start.elapsed() < Duration::from_secs(10) {
@@ -86,6 +99,18 @@ impl Server {
         }
         let _ = self.child.kill();
         let _ = self.child.wait();
+    }
+}
+
+/// A server stopped by [`Server::pause`], continued on drop.
+#[must_use = "the server continues when this is dropped"]
+pub(crate) struct Paused {
+    pid: String,
+}
+
+impl Drop for Paused {
+    fn drop(&mut self) {
+        let _ = Command::new("kill").args(["-CONT", &self.pid]).status();
     }
 }
 
