@@ -703,13 +703,13 @@ fn tiny_tiff_reads_and_huge_tiff_is_refused() {
     assert_eq!(dem.heightmap.georef().crs, Crs::Unknown);
 
     let p = write_temp("huge.tif", &tiny_tiff(1_000_000, 1_000_000, &strip));
-    let t = std::time::Instant::now();
+    // Refused by the size check (its kind), before any sample is read: a reader that touched
+    // the 10^12 samples would not return (no clock asserted here: CI's machines are shared).
     let kind = assert_err(&p, &LoadOptions::default(), "exceeds the limit");
     assert!(
         matches!(kind, DemErrorKind::TooLarge { width: 1_000_000, height: 1_000_000, .. }),
         "{kind}"
     );
-    assert!(t.elapsed().as_secs_f64() < 1.0, "refusal must not touch 10^12 samples");
     // Under a raised limit the size check passes but the data cannot hold the grid: refused too,
     // before the decoder allocates 2 TB.
     let opts = LoadOptions { max_samples: u64::MAX, ..Default::default() };
