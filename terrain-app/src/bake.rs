@@ -91,12 +91,17 @@ pub(crate) struct BakeArgs {
     /// with the blocks from the same bands of rows, and by each shard for its rows).
     #[arg(long)]
     pub no_geomip: bool,
-    /// Do not build the tin method's coarse tiles (`tin_tiles.bin`: every tile spanning 1024
-    /// cells or more, built once from the store's blocks so that `--method tin` from the store
-    /// reads them instead of meshing millions of samples while flying; they are then built
-    /// while flying, as for a store baked before this file existed).
+    /// Do not build the tin method's coarse tiles (`tin_tiles.bin`: every tile spanning
+    /// --tin-min-cells cells or more, built once from the store's blocks so that `--method
+    /// tin` from the store reads them instead of meshing millions of samples while flying;
+    /// they are then built while flying, as for a store baked before this file existed).
     #[arg(long)]
     pub no_tin: bool,
+    /// Bake the tin method's tiles spanning at least this many cells (a power of two of at
+    /// least 64). 64 bakes every tile, so `--method tin` never meshes while flying: a larger
+    /// file and a longer bake (about the triangles of a full tileset).
+    #[arg(long, value_name = "CELLS", default_value_t = terrain_app::tin_scene::BAKED_MIN_CELLS)]
+    pub tin_min_cells: u32,
     #[command(flatten)]
     pub pvs: crate::pvs::PvsArgs,
     /// Read the DEM by bands of rows instead of whole (GeoTIFF and raw only): bounded memory
@@ -188,6 +193,8 @@ fn in_memory(synthetic: &FractalConfig) -> anyhow::Result<terrain_core::Heightma
 /// Runs `terrain bake`: into a local folder, or with `-o URL` (`s3://`, `gs://`, `az://`)
 /// into a temporary folder, uploaded to the URL when complete (the index last) and removed.
 pub(crate) fn run(args: &BakeArgs) -> anyhow::Result<()> {
+    // Before any work: a bad --tin-min-cells would otherwise end a long bake.
+    terrain_app::tin_scene::min_stride_for_cells(args.tin_min_cells)?;
     let Some(url) = terrain_app::ooc::store_url(&args.output) else {
         return run_into(args, &args.output, &args.output.display().to_string());
     };
@@ -462,9 +469,10 @@ fn run_into(args: &BakeArgs, out: &Path, shown: &str) -> anyhow::Result<()> {
     if !args.no_tin {
         stop_before("tin tiles")?;
         // From the store's blocks and its table of decimation errors, as `tin` builds them
-        // while flying: every tile of 512 cells or more across.
+        // while flying: every tile of --tin-min-cells (512) cells or more across.
         let store = terrain_stream::Store::open(out).with_context(|| format!("opening {shown}"))?;
-        if let Some(r) = terrain_app::tin_scene::bake_from_store(&store, true)? {
+        let min_stride_log2 = terrain_app::tin_scene::min_stride_for_cells(args.tin_min_cells)?;
+        if let Some(r) = terrain_app::tin_scene::bake_tiles(&store, min_stride_log2, true)? {
             println!("{}", r.line(out));
         }
         stages.end("tin tiles");

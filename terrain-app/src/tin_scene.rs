@@ -49,6 +49,26 @@ pub const TIN_TILES_FILE: &str = "tin_tiles.bin";
 /// run time the rest are meshed from windows of at most 256 cells across.
 pub const BAKED_MIN_STRIDE_LOG2: u32 = 3;
 
+/// The default of `--tin-min-cells`: the cells across of the finest tiles baked
+/// (`64 << BAKED_MIN_STRIDE_LOG2`).
+pub const BAKED_MIN_CELLS: u32 = 64 << BAKED_MIN_STRIDE_LOG2;
+
+/// The least own stride (`log2`) of the tiles baked when every tile spanning at least `cells`
+/// cells is (`--tin-min-cells`): a power of two of at least the tiles' 64 cells
+/// (`TinStoreConfig::max_tile_cells`); 64 bakes every tile, so the method never meshes while
+/// flying. Else an error naming the option.
+pub fn min_stride_for_cells(cells: u32) -> anyhow::Result<u32> {
+    let tile = TinConfig::default().store.max_tile_cells;
+    if !cells.is_power_of_two() || cells < tile {
+        anyhow::bail!(
+            "--tin-min-cells {cells}: give a power of two of at least {tile} (the tiles' \
+             cells across at their own stride; {tile} bakes every tile, the default \
+             {BAKED_MIN_CELLS} the coarse ones)"
+        );
+    }
+    Ok((cells / tile).trailing_zeros())
+}
+
 /// Tiles built between two writes of the bake (bounds the tiles held in memory).
 const CHUNK_TILES: usize = 128;
 
@@ -130,8 +150,10 @@ fn baked_nodes(shape: &TreeShape, max_cells: u32, min_stride_log2: u32) -> Vec<N
 /// What [`bake_from_store`] wrote.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct TinBakeReport {
-    /// Tiles written.
+    /// Tiles written: every tile spanning `min_cells` cells or more.
     pub tiles: usize,
+    /// The cells across of the finest tiles written.
+    pub min_cells: u32,
     /// Their triangles.
     pub triangles: u64,
     /// The file's bytes.
@@ -145,9 +167,11 @@ impl TinBakeReport {
     /// folder `dir`.
     pub fn line(&self, dir: &std::path::Path) -> String {
         format!(
-            "{}: {} of the tin method's coarse tiles ({} triangles), {:.2} MiB, {:.1} s",
+            "{}: {} of the tin method's tiles, those spanning {} cells or more ({} triangles), \
+             {:.2} MiB, {:.1} s",
             dir.join(TIN_TILES_FILE).display(),
             self.tiles,
+            self.min_cells,
             self.triangles,
             self.bytes as f64 / crate::MIB,
             self.secs
@@ -181,7 +205,7 @@ pub fn not_bakeable(store: &Store) -> anyhow::Result<Option<String>> {
 }
 
 /// Builds `store`'s coarse `tin` tiles (the default settings, [`TinConfig::default`]; those
-/// of `2^BAKED_MIN_STRIDE_LOG2` x 64 cells or more) on every core and writes them into its
+/// of [`BAKED_MIN_CELLS`] or more; [`bake_tiles`] for others) on every core and writes them into its
 /// folder (a temporary file renamed into place, so an interrupted bake leaves no damaged
 /// file), with a progress bar when `progress`. `Ok(None)` when the store gets none: no table
 /// of decimation errors (a store baked before it), blocks of another size, a vertical
@@ -190,8 +214,8 @@ pub fn bake_from_store(store: &Store, progress: bool) -> anyhow::Result<Option<T
     bake_tiles(store, BAKED_MIN_STRIDE_LOG2, progress)
 }
 
-/// [`bake_from_store`] for the tiles whose own stride is at least `2^min_stride_log2` (a
-/// reader uses whichever tiles the file holds).
+/// [`bake_from_store`] for the tiles whose own stride is at least `2^min_stride_log2`
+/// ([`min_stride_for_cells`]; a reader uses whichever tiles the file holds).
 pub fn bake_tiles(
     store: &Store,
     min_stride_log2: u32,
@@ -226,6 +250,7 @@ pub fn bake_tiles(
         .with_context(|| format!("renaming {} to {}", tmp.display(), path.display()))?;
     Ok(Some(TinBakeReport {
         tiles: nodes.len(),
+        min_cells: config.store.max_tile_cells << min_stride_log2,
         triangles,
         bytes,
         secs: start.elapsed().as_secs_f64(),

@@ -650,6 +650,23 @@ fn baked_coarse_tiles_are_the_tiles_built_while_flying() {
     let stats = tiles.stats();
     assert_eq!((stats.built, stats.read), (6, 5));
     drop(tiles);
+    // Every tile baked (`--tin-min-cells 64`): the level-2 tile is read too, none is meshed.
+    let every = terrain_app::tin_scene::min_stride_for_cells(64).unwrap();
+    let all = bake_tiles(&store, every, false).unwrap().unwrap();
+    let leaves = (0..=shape.max_level()).map(|l| {
+        let (nx, ny) = shape.level_dims(l);
+        (0..ny).flat_map(move |j| (0..nx).map(move |i| NodeId::new(l, i, j)))
+    });
+    let in_grid: Vec<NodeId> =
+        leaves.flatten().filter(|&n| shape.clipped_rect(n).is_some()).collect();
+    assert_eq!((all.tiles, all.min_cells), (in_grid.len(), 64));
+    assert!(all.tiles > 5 + 16, "{} tiles", all.tiles);
+    let tiles = TinTiles::new((*store).clone(), shape, &config).unwrap();
+    tiles.wait_for(&want, std::time::Duration::from_secs(300)).unwrap();
+    let stats = tiles.stats();
+    assert_eq!((stats.built, stats.read), (6, 6));
+    drop(tiles);
+    bake_from_store(&store, false).unwrap().unwrap();
 
     let good = std::fs::read(&path).unwrap();
     let with = |bytes: &[u8]| {
@@ -764,7 +781,10 @@ fn terrain_render_draws_tin_from_a_baked_store_as_from_memory() {
     let out = common::terrain(&args);
     let stdout = String::from_utf8_lossy(&out.stdout);
     assert!(out.status.success(), "{stdout}{}", String::from_utf8_lossy(&out.stderr));
-    assert!(stdout.contains("tin_tiles.bin: 5 of the tin method's coarse tiles"), "{stdout}");
+    assert!(
+        stdout.contains("tin_tiles.bin: 5 of the tin method's tiles, those spanning 512 cells"),
+        "{stdout}"
+    );
     let info = common::terrain(&["info", &s(&store)]);
     let info = String::from_utf8_lossy(&info.stdout);
     assert!(info.contains("tin_tiles.bin"), "terrain info lists the tiles: {info}");
@@ -780,6 +800,28 @@ fn terrain_render_draws_tin_from_a_baked_store_as_from_memory() {
     let out = common::terrain(&["tin-tiles", &s(&bare), "--quiet"]);
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     assert_eq!(std::fs::read(bare.join("tin_tiles.bin")).unwrap(), tiles, "the bake's file");
+    // `--tin-min-cells`: not a power of two of at least 64 is refused, naming the option,
+    // before any work (the file written before is intact; no store folder is begun).
+    for cells in ["100", "32"] {
+        let out = common::terrain(&["tin-tiles", &s(&bare), "--tin-min-cells", cells]);
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(!out.status.success() && err.contains("--tin-min-cells"), "{err}");
+        let mut bad = args.clone();
+        let none = dir.join("never");
+        bad[3] = none.to_str().unwrap();
+        bad.extend(["--tin-min-cells", cells]);
+        let out = common::terrain(&bad);
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(!out.status.success() && err.contains("--tin-min-cells"), "{err}");
+        assert!(!none.exists() && !dir.join(".never.part").exists());
+    }
+    assert_eq!(std::fs::read(bare.join("tin_tiles.bin")).unwrap(), tiles);
+    // Every tile: 64 cells (stride 1) to the root.
+    let out = common::terrain(&["tin-tiles", &s(&bare), "--tin-min-cells", "64"]);
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(stdout.contains("those spanning 64 cells or more"), "{stdout}");
+    assert!(std::fs::read(bare.join("tin_tiles.bin")).unwrap().len() > tiles.len());
     let out = common::terrain(&["tin-tiles", &s(&dir)]);
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(!out.status.success() && err.contains("is not a store folder"), "{err}");

@@ -96,6 +96,17 @@ impl Camera {
         self
     }
 
+    /// This camera with a field of view `k` times wider (vertically, at most 170 degrees; the
+    /// aspect kept) and the viewport grown with it, so that [`Camera::lambda`] (pixels per
+    /// radian, what every screen-space error multiplies by) is unchanged: the view frustum
+    /// extension of the out-of-core paper (Qiu 2013, section 4, Fig. 9: a larger frustum
+    /// similar to the view's), selecting what this view would at its edges and beyond them.
+    pub fn widened(&self, k: f64) -> Self {
+        let fov_y = (self.fov_y * k.max(1.0)).min(170f64.to_radians());
+        let grow = (fov_y * 0.5).tan() / (self.fov_y * 0.5).tan();
+        Self { fov_y, viewport_px: self.viewport_px * grow, ..*self }
+    }
+
     /// Width over height of the viewport.
     pub fn aspect(&self) -> f64 {
         self.viewport_px.x / self.viewport_px.y
@@ -309,6 +320,21 @@ mod tests {
         // The f32 and f64 matrices agree.
         let d = (c.projection().as_dmat4() - c.projection_f64()).to_cols_array();
         assert!(d.iter().all(|x| x.abs() < 1e-4));
+    }
+
+    #[test]
+    fn a_widened_camera_sees_more_at_the_same_pixels_per_radian() {
+        let c = Camera::from_yaw_pitch(DVec3::new(0.0, 0.0, 100.0), 30.0, -10.0)
+            .with_viewport(1280.0, 720.0);
+        let w = c.widened(1.3);
+        assert!((w.fov_y - 1.3 * c.fov_y).abs() < 1e-12);
+        assert!((w.lambda() - c.lambda()).abs() < 1e-9 * c.lambda());
+        assert!((w.aspect() - c.aspect()).abs() < 1e-12);
+        assert!((w.tan_half_fov_x() / c.tan_half_fov_x() - w.viewport_px.x / 1280.0).abs() < 1e-12);
+        assert_eq!((w.position, w.orientation), (c.position, c.orientation));
+        // Capped at 170 degrees; never narrower.
+        assert!((c.widened(100.0).fov_y - 170f64.to_radians()).abs() < 1e-12);
+        assert_eq!(c.widened(0.5), c);
     }
 
     #[test]
