@@ -550,8 +550,9 @@ const TILES_AHEAD: f64 = 8.0;
 /// How much wider the field of view of that eye further ahead is (the same pixels per radian,
 /// [`Camera::widened`]: the out-of-core paper's view frustum extension, section 4). Over the
 /// mirrored Everest store (`fast_pass` paced at 1280 x 720, `tau_px` 1) the frames drawing a
-/// tile not built yet went from 35-63 of 299 (unwidened) to 17-25 at 1.3, 28-37 at 1.2 and
-/// 17-43 at 1.6 (more tiles queued than the builders finish); bench/ooc/README.md.
+/// tile not built yet went from a median of 44.5 of 299 (unwidened, ten runs) to 22 at 1.3
+/// (thirteen runs); 1.2 and 1.6 did no better (more tiles queued than the builders finish at
+/// 1.6); bench/ooc/README.md.
 const TILES_AHEAD_WIDEN: f64 = 1.3;
 
 /// The eye whose tiles are queued last in a frame at `camera` whose look-ahead eye (Eq. 8) is
