@@ -587,7 +587,7 @@ pub const AHEAD_SELECTION_SHARE: f64 = 0.25;
 /// `pvps-b` at 0.5 px, frames not at their needed level median 5.5 -> 2 (4-29 -> 2-14), the
 /// frame thread's CPU 9.8 -> 8.6 ms; `dss-strips` at 0.85 px 3-13 -> 3-4; `pvps-a`, `pvps-c`,
 /// `dss-1` and geomorph unchanged within the runs' spread; peak RSS within +20 MiB
-/// (bench/ooc/README.md, "The eye ahead's view widened").
+/// (bench/ooc/README.md, "The eyes ahead widened").
 pub const AHEAD_WIDEN: f64 = 1.3;
 
 /// What a LOD method drawn from a store selected ([`OocScene::frame_for`]).

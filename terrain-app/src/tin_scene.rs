@@ -15,7 +15,8 @@
 //! `terrain bake` writes the file after the store's blocks (and after a sharded bake's merge),
 //! unless `--no-tin`, for the default `tin` settings; `--tin-min-cells` (there and on `terrain
 //! tin-tiles`) bakes the tiles down to another size ([`min_stride_for_cells`]: 64 cells, every
-//! tile, costs about the triangles of a full tileset: 10 GB on a 16385^2 DEM of real relief); a store read with other settings
+//! tile, costs about the triangles of a full tileset: 10 GB on a 16385^2 DEM of real
+//! relief). A store read with other settings
 //! (`--error-scale`, another finest tile size, a vertical exaggeration) builds every tile as
 //! before, and so does a store without its table of decimation errors (the tiles' bounds come
 //! from it). The file is tied to the store's blocks by their bake id: a file of another bake
@@ -207,8 +208,8 @@ pub fn not_bakeable(store: &Store) -> anyhow::Result<Option<String>> {
 }
 
 /// Builds `store`'s coarse `tin` tiles (the default settings, [`TinConfig::default`]; those
-/// of [`BAKED_MIN_CELLS`] or more; [`bake_tiles`] for others) on every core and writes them into its
-/// folder (a temporary file renamed into place, so an interrupted bake leaves no damaged
+/// of [`BAKED_MIN_CELLS`] or more; [`bake_tiles`] for others) on every core and writes them
+/// into its folder (a temporary file renamed into place, so an interrupted bake leaves no damaged
 /// file), with a progress bar when `progress`. `Ok(None)` when the store gets none: no table
 /// of decimation errors (a store baked before it), blocks of another size, a vertical
 /// exaggeration ([`not_bakeable`]), or a grid with no tile that large.

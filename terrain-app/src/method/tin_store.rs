@@ -552,9 +552,10 @@ const TILES_AHEAD: f64 = 8.0;
 /// view (widened by [`crate::ooc::AHEAD_WIDEN`] at the same pixels per radian, the view
 /// frustum extension), so that the tiles a turning view brings in at its sides are queued
 /// before they are drawn too. Over the mirrored Everest store (`fast_pass` paced at 1280 x
-/// 720, `tau_px` 1) the frames drawing a tile not built yet went from a median of 44.5 of 299
-/// (unwidened, ten runs) to 22 with this eye's view 1.3x wider (thirteen runs); 1.2 and 1.6 did
-/// no better (more tiles queued than the builders finish at 1.6); bench/ooc/README.md.
+/// 720, `tau_px` 1) the frames drawing a tile not built yet went from a median of 47 of 299
+/// (unwidened, thirteen runs) to 22 with this eye's view alone 1.3x wider (twelve runs) and
+/// 17.5 with the look-ahead eye's too (six runs); 1.2 and 1.6 did no better than 1.3 (more
+/// tiles queued than the builders finish at 1.6); bench/ooc/README.md.
 fn tiles_ahead_camera(camera: &Camera, ahead: &Camera) -> Camera {
     Camera {
         position: camera.position + (ahead.position - camera.position) * TILES_AHEAD,
