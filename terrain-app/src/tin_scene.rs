@@ -150,7 +150,7 @@ fn baked_nodes(shape: &TreeShape, max_cells: u32, min_stride_log2: u32) -> Vec<N
     nodes
 }
 
-/// What [`bake_from_store`] wrote.
+/// What [`bake_tiles`] wrote.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct TinBakeReport {
     /// Tiles written: every tile spanning `min_cells` cells or more.
@@ -207,18 +207,14 @@ pub fn not_bakeable(store: &Store) -> anyhow::Result<Option<String>> {
     })
 }
 
-/// Builds `store`'s coarse `tin` tiles (the default settings, [`TinConfig::default`]; those
-/// of [`BAKED_MIN_CELLS`] or more; [`bake_tiles`] for others) on every core and writes them
-/// into its folder (a temporary file renamed into place, so an interrupted bake leaves no damaged
-/// file), with a progress bar when `progress`. `Ok(None)` when the store gets none: no table
-/// of decimation errors (a store baked before it), blocks of another size, a vertical
-/// exaggeration ([`not_bakeable`]), or a grid with no tile that large.
-pub fn bake_from_store(store: &Store, progress: bool) -> anyhow::Result<Option<TinBakeReport>> {
-    bake_tiles(store, BAKED_MIN_STRIDE_LOG2, progress)
-}
-
-/// [`bake_from_store`] for the tiles whose own stride is at least `2^min_stride_log2`
-/// ([`min_stride_for_cells`]; a reader uses whichever tiles the file holds).
+/// Builds `store`'s `tin` tiles under the default settings ([`TinConfig::default`]), those
+/// whose own stride is at least `2^min_stride_log2` ([`min_stride_for_cells`];
+/// [`BAKED_MIN_STRIDE_LOG2`] for the bake's default, the tiles of [`BAKED_MIN_CELLS`] or more),
+/// on every core, and writes them into its folder (a temporary file renamed into place, so an
+/// interrupted bake leaves no damaged file), with a progress bar when `progress`. A reader uses
+/// whichever tiles the file holds. `Ok(None)` when the store gets none: no table of decimation
+/// errors (a store baked before it), blocks of another size, a vertical exaggeration
+/// ([`not_bakeable`]), or a grid with no tile that large.
 pub fn bake_tiles(
     store: &Store,
     min_stride_log2: u32,

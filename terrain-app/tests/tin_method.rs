@@ -593,7 +593,7 @@ fn tin_from_a_store_draws_no_crack() {
 #[test]
 fn baked_coarse_tiles_are_the_tiles_built_while_flying() {
     use terrain_app::tin_scene::{
-        BakedTiles, TIN_TILES_FILE, bake_from_store, bake_tiles, store_builder,
+        BAKED_MIN_STRIDE_LOG2, BakedTiles, TIN_TILES_FILE, bake_tiles, store_builder,
     };
     let hm = FractalConfig::with_size(1025, 769, 10.0).to_heightmap().unwrap();
     let (_scratch_dir, store) = baked("baked-tiles", &hm);
@@ -605,7 +605,7 @@ fn baked_coarse_tiles_are_the_tiles_built_while_flying() {
     assert_eq!(report.tiles, 1);
     // The bake's: with level 1 (512 cells, stride 8), 1 + 4; a reader takes whichever tiles
     // are there.
-    let report = bake_from_store(&store, false).unwrap().unwrap();
+    let report = bake_tiles(&store, BAKED_MIN_STRIDE_LOG2, false).unwrap().unwrap();
     assert_eq!(report.tiles, 5);
     let path = store.dir().join(TIN_TILES_FILE);
     assert!(path.is_file() && !store.dir().join(format!("{TIN_TILES_FILE}.tmp")).exists());
@@ -666,7 +666,7 @@ fn baked_coarse_tiles_are_the_tiles_built_while_flying() {
     let stats = tiles.stats();
     assert_eq!((stats.built, stats.read), (6, 6));
     drop(tiles);
-    bake_from_store(&store, false).unwrap().unwrap();
+    bake_tiles(&store, BAKED_MIN_STRIDE_LOG2, false).unwrap().unwrap();
 
     let good = std::fs::read(&path).unwrap();
     let with = |bytes: &[u8]| {
