@@ -55,7 +55,8 @@ enum Command {
     /// write the map --error-px uses for it (STORE/ooc-calibration.txt).
     Calibrate(calibrate::CalibrateArgs),
     /// Build the tin method's coarse tiles (STORE/tin_tiles.bin) into a store baked without
-    /// them (before they existed, or with `terrain bake --no-tin`).
+    /// them (before they existed, or with `terrain bake --no-tin`), or again with another
+    /// --tin-min-cells.
     TinTiles(tin_tiles::TinTilesArgs),
     /// Draw a DEM (or the embedded synthetic terrain) with the GPU tessellator into a PNG.
     Render(render::RenderArgs),

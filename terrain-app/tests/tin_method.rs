@@ -14,7 +14,7 @@ use std::ops::ControlFlow;
 use std::sync::Arc;
 
 use terrain_app::method::{
-    self, Draw, MethodOptions, OocWait, TinTiles, registry, tile_error_full,
+    self, Draw, Method, MethodOptions, OocWait, TinStoreMethod, TinTiles, registry, tile_error_full,
 };
 use terrain_app::methods::{LodMethod, MethodConfig, MethodScene, select_uniform};
 use terrain_app::ooc::{OocConfig, OocScene};
@@ -26,7 +26,7 @@ use terrain_core::quadtree::{
     Cull, CullPolicy, Direction, FrustumCull, NodeId, SplitToLevel, select,
 };
 use terrain_core::synth::FractalConfig;
-use terrain_core::tin::grid::{GridTinPyramid, build_tile_from, tile_window};
+use terrain_core::tin::grid::{GridTinPyramid, build_tile_from, select_tiles, tile_window};
 use terrain_gpu::render::crack::{crack_cameras, crack_pixels_with_extra};
 use terrain_gpu::render::{DrawPatch, ExtraTriangles, default_camera};
 use terrain_gpu::tess::GpuDomainPoint;
@@ -401,6 +401,68 @@ fn a_frame_before_its_tiles_arrive_draws_coarser_ones_without_waiting() {
         assert!(!drawn.iter().any(|&o| o != d && o.is_ancestor_or_self_of(d)), "{d:?} overlaps");
     }
     assert!(late > 0 || drawn == sel.tiles, "late tiles counted");
+}
+
+/// A real-time run's first frame knows no motion yet (Eq. 8 has no eye ahead): after its own
+/// tiles it also waits for those of its start view, a view `AHEAD_WIDEN` wider at half the
+/// threshold, so the frames after it find them built, as many as the tile cache's budget
+/// holds. A run whose every frame waits (the measurement) builds each frame's own tiles only:
+/// the negative control.
+#[test]
+fn a_real_time_runs_first_frame_also_builds_the_tiles_of_its_start_view() {
+    let scene = MethodScene::new(puget(), MethodConfig::default());
+    let (_scratch_dir, store) = baked("start", &scene.hm);
+    let camera = store_cameras(&scene.hm)[1];
+    let wide = camera.widened(terrain_app::ooc::AHEAD_WIDEN);
+    let tree = terrain_stream::StoreTree::new(store.clone(), scene.config.tin.pyramid.finest_cells);
+    // (wait, tile cache budget, whether the whole start view is built)
+    let small = 1_600_000u64;
+    let cases = [
+        (OocWait::FirstFrame, None, true),
+        (OocWait::EveryFrame, None, false),
+        (OocWait::FirstFrame, Some(small), false),
+    ];
+    // The cache's peak with the whole start view built (the first case).
+    let mut whole = 0;
+    for (wait, budget, starts) in cases {
+        let mut config = scene.config.tin;
+        if let Some(b) = budget {
+            config.store.tile_cache_bytes = b;
+        }
+        let runtime =
+            OocScene::new(store.clone(), OocConfig { threads: 1, ..OocConfig::default() });
+        let mut m = TinStoreMethod::new(runtime, &config, wait, None).unwrap();
+        let f = m.frame(&camera);
+        let stream = f.stats.stream.as_ref().unwrap();
+        assert_eq!(stream.late_tiles, 0, "{wait:?}: the first frame waits for its own tiles");
+        let tiles = m.tiles();
+        let own = m.select(&camera).tiles;
+        let start = select_tiles(&tree, |n| tiles.tile_bound(n), &wide, 0.5 * config.tau_px).tiles;
+        let more = start.iter().filter(|n| !own.contains(n)).count();
+        assert!(more > own.len(), "the start view selects {more} more tiles than {}", own.len());
+        let built = |nodes: &[NodeId]| -> Vec<NodeId> {
+            tiles.peek(nodes).iter().map(|t| t.node).collect()
+        };
+        assert_eq!(built(&own), own, "{wait:?}: the frame's own tiles are built");
+        let stats = tiles.stats();
+        println!("{wait:?}, {budget:?}: {} own tiles, {more} more to start, {stats:?}", own.len());
+        assert!(stats.bytes <= stats.budget, "{wait:?}, {budget:?}: within the cache's budget");
+        match starts {
+            true => assert_eq!(built(&start), start, "the start view's tiles are built"),
+            false => assert_ne!(built(&start), start, "{wait:?}, {budget:?}: not all built"),
+        }
+        match budget {
+            None if starts => whole = stats.peak_bytes,
+            // The budget ended the wait short of the whole start view (the tiles in flight
+            // then went past it a little, and were dropped again once the frame was drawn).
+            Some(b) => {
+                assert!(stats.peak_bytes >= b / 2, "the wait went on towards the budget");
+                let halfway = b + whole.saturating_sub(b) / 2;
+                assert!(stats.peak_bytes < halfway, "the wait stopped at the budget: {stats:?}");
+            }
+            None => {}
+        }
+    }
 }
 
 /// From a store, every tile (the coarse levels meshed from decimated samples included) is

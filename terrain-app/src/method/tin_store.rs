@@ -23,7 +23,9 @@
 //! than its own, its bound raised where that needs it ([`GridTileBuilder::tile_bound`], which
 //! the selection uses). Selection never waits, except on
 //! the first frame and with `--wait` ([`OocWait::EveryFrame`], the benchmark's warm mode), which
-//! waits until every selected tile is built. The drawn surface ([`tin_surface`]: tiles and
+//! waits until every selected tile is built; a real-time run's first frame then also waits for
+//! the tiles of its start view (a wider view at half the threshold, within the tile cache's
+//! budget: it knows no motion for Eq. 8 yet, `start_camera`). The drawn surface ([`tin_surface`]: tiles and
 //! stitches) takes every vertex's height from its tile; the paged renderer draws the same
 //! triangles, at the same heights ([`ExtraTriangles::heights`]), as extra triangles over each
 //! tile's hidden carrier patch, whose lattice at the tile's own stride (64 cells across) is
@@ -380,8 +382,53 @@ impl TinTiles {
     /// Waits until every one of `nodes` is built (at most `timeout`); the first failure or
     /// the timeout is an error.
     pub fn wait_for(&self, nodes: &[NodeId], timeout: Duration) -> anyhow::Result<()> {
-        self.queue(&[nodes], false);
+        self.wait_for_then(nodes, &[], timeout)
+    }
+
+    /// [`TinTiles::wait_for`] `nodes`, then waits for `more` (queued after them) until each
+    /// is built or failed, or the cache holds its budget (tiles past it would be dropped
+    /// again once drawn tiles need the room), at most `timeout` in all. `more`'s tiles left
+    /// unbuilt stay queued until the next request replaces the queue; their failures are not
+    /// errors (no frame draws them yet).
+    pub fn wait_for_then(
+        &self,
+        nodes: &[NodeId],
+        more: &[NodeId],
+        timeout: Duration,
+    ) -> anyhow::Result<()> {
+        self.queue(&[nodes, more], false);
         let deadline = Instant::now() + timeout;
+        self.wait_built(nodes, deadline, timeout)?;
+        let mut st = self.shared.lock();
+        loop {
+            let missing = more
+                .iter()
+                .filter(|n| !st.tiles.contains_key(n) && !st.failed.contains_key(n))
+                .count();
+            let idle = st.queue.is_empty() && st.building.is_empty();
+            if missing == 0 || idle || st.bytes >= self.shared.budget {
+                return Ok(());
+            }
+            let now = Instant::now();
+            if now >= deadline {
+                anyhow::bail!("{missing} tin tiles not built within {timeout:?}");
+            }
+            st = self
+                .shared
+                .done
+                .wait_timeout(st, deadline - now)
+                .map_or_else(|e| e.into_inner().0, |(g, _)| g);
+        }
+    }
+
+    /// Waits until every one of `nodes` is built, queued already (`deadline`; `timeout` the
+    /// wait it ends, for the message).
+    fn wait_built(
+        &self,
+        nodes: &[NodeId],
+        deadline: Instant,
+        timeout: Duration,
+    ) -> anyhow::Result<()> {
         let mut st = self.shared.lock();
         loop {
             if let Some((n, e)) = nodes.iter().find_map(|n| st.failed.get(n).map(|e| (n, e))) {
@@ -563,6 +610,25 @@ fn tiles_ahead_camera(camera: &Camera, ahead: &Camera) -> Camera {
     }
 }
 
+/// The threshold of a real-time run's start view, times the run's (see [`start_camera`]).
+const START_FINER: f64 = 0.5;
+
+/// The view whose tiles a real-time run's first frame waits for after its own: `camera`'s,
+/// widened by [`crate::ooc::AHEAD_WIDEN`] at the same pixels per radian, its tiles selected
+/// at [`START_FINER`] times the threshold. The first frame knows no motion yet, so Eq. 8 has
+/// no eye ahead for it, and a flight's first frames each need new tiles, more than the
+/// builders finish in a frame: the backlog left frames 1-30 drawing tiles not built. A tile
+/// selected at half the threshold still meets the threshold from half its distance, so this
+/// view's tiles serve an eye approaching or turning for many frames, until Eq. 8's preloading
+/// has the eyes ahead. Over the mirrored Everest store (`fast_pass` paced at 1280 x 720,
+/// `tau_px` 1) the frames not at their needed level went from 6-15 of 299 (median 8) to 1-9
+/// (median 2) in five alternated pairs, the first frame waiting for 372 tiles instead of 99
+/// (0.6 s instead of 0.3); 0.35 and an unwidened view did as well as this in a throw-away
+/// build; bench/ooc/README.md, "A real-time run's start view".
+fn start_camera(camera: &Camera) -> Camera {
+    camera.widened(crate::ooc::AHEAD_WIDEN)
+}
+
 /// `tin` over a store's runtime (see the module docs).
 #[derive(Debug)]
 pub struct TinStoreMethod<'a> {
@@ -646,7 +712,13 @@ impl<'a> TinStoreMethod<'a> {
 
     /// The tiles `camera` selects over the store's index (no tile built).
     pub fn select(&self, camera: &Camera) -> TinSelection {
-        select_tiles(&self.tree, |n| self.tiles.tile_bound(n), camera, self.config.tau_px)
+        self.select_at(camera, 1.0)
+    }
+
+    /// The tiles `camera` selects at `finer` times the threshold (no tile built).
+    fn select_at(&self, camera: &Camera, finer: f64) -> TinSelection {
+        let tau_px = self.config.tau_px * finer;
+        select_tiles(&self.tree, |n| self.tiles.tile_bound(n), camera, tau_px)
     }
 }
 
@@ -658,11 +730,19 @@ impl Method for TinStoreMethod<'_> {
     /// The selection and the tile lookup are the selection time (a wait for tiles is not);
     /// joining the tiles and stitches the build time.
     fn frame(&mut self, camera: &Camera) -> Frame {
+        let start = self.frames == 0 && self.wait == OocWait::FirstFrame;
         let warm = self.wait.next_is_warm(&mut self.frames);
         let sel = self.select(camera);
         let t = Instant::now();
         let waited = if warm {
-            let r = self.tiles.wait_for(&sel.tiles, self.config.store.wait_timeout);
+            // A real-time run's first frame also waits for the tiles of its start view (see
+            // `start_camera`), after its own and within the cache's budget.
+            let more = match start {
+                true => self.select_at(&start_camera(camera), START_FINER).tiles,
+                false => Vec::new(),
+            };
+            let timeout = self.config.store.wait_timeout;
+            let r = self.tiles.wait_for_then(&sel.tiles, &more, timeout);
             if let Err(e) = &r {
                 eprintln!("warning: {e:#}; drawing the tiles built");
             }
