@@ -554,6 +554,20 @@ pub trait SurfaceSink {
     fn vertex(&mut self, g: [u32; 2], z: f32, tile: u32);
     /// A triangle over the vertices so far (counter-clockwise from above).
     fn triangle(&mut self, t: [u32; 3]);
+    /// A tile's vertices at once: [`SurfaceSink::vertex`] for each of `g` (heights `z`), of
+    /// drawn tile `tile`. A sink that can write them in bulk overrides it.
+    fn vertices(&mut self, g: &[[u32; 2]], z: &[f32], tile: u32) {
+        for (&g, &z) in g.iter().zip(z) {
+            self.vertex(g, z, tile);
+        }
+    }
+    /// A tile's triangles at once, each vertex index offset by `base`:
+    /// [`SurfaceSink::triangle`] for each. A sink that can write them in bulk overrides it.
+    fn triangles(&mut self, t: &[[u32; 3]], base: u32) {
+        for tr in t {
+            self.triangle(tr.map(|v| v + base));
+        }
+    }
 }
 
 /// What [`tin_surface_into`] put in its sink, by kind.
@@ -626,13 +640,9 @@ pub fn tin_surface_into(
     let mut count = 0u32;
     for (k, t) in tiles.iter().enumerate() {
         let base = count;
-        for (&g, &z) in t.vertices.iter().zip(&t.heights) {
-            sink.vertex(g, z, k as u32);
-        }
+        sink.vertices(&t.vertices, &t.heights, k as u32);
         count += t.vertices.len() as u32;
-        for tr in &t.triangles {
-            sink.triangle(tr.map(|v| v + base));
-        }
+        sink.triangles(&t.triangles, base);
         out.tile_triangles += t.triangles.len() as u64;
         out.border_segments +=
             t.sides.iter().map(|s| s.len().saturating_sub(1) as u64).sum::<u64>();
