@@ -1,4 +1,4 @@
-//! `terrain view` in a real window: the test starts its own X server (Xvfb on a free display,
+//! `terrain view` in a real window: the test starts its own X server (Xvfb on a display it picks,
 //! killed at the end even when an assertion fails), drives the viewer with a script (moves, a
 //! method switch, a quality change, screenshots read back from the window's surface), and
 //! compares the screenshot with `terrain render` of the same camera and method within the
@@ -10,6 +10,7 @@
 
 mod common;
 
+use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
@@ -33,10 +34,15 @@ impl Drop for Xvfb {
     }
 }
 
-/// Starts Xvfb on the first free display from 100 + 50 (pid mod 50) + `offset` (each test of
-/// this process its own offset: they run in parallel); `None` when there is no Xvfb binary (a
-/// failure under `TERRAIN_REQUIRE_GPU`).
-fn start_xvfb(offset: u32) -> Option<Xvfb> {
+/// Starts Xvfb on a display it picks itself (`-displayfd 1`: the server takes the first
+/// display whose lock file it can create, and writes the number to its stdout once it accepts
+/// connections), so that tests running at once, in this process or another, never share one;
+/// `None` when there is no Xvfb binary (a failure under `TERRAIN_REQUIRE_GPU`). Choosing the
+/// display here by its lock file, as before, raced: two servers started for one display, the
+/// loser's exit came later than the check under load, and the winner's test then killed the
+/// server under the other test's window (CI, 2026-12-07: winit's "Connection(IoError(..))" in
+/// `a_store_is_exaggerated_and_a_paced_flight_keeps_its_clock`).
+fn start_xvfb() -> Option<Xvfb> {
     let found =
         Command::new("Xvfb").arg("-help").stderr(Stdio::null()).stdout(Stdio::null()).status();
     if found.is_err() {
@@ -44,38 +50,29 @@ fn start_xvfb(offset: u32) -> Option<Xvfb> {
         eprintln!("skipping: no Xvfb");
         return None;
     }
-    let base = 100 + 50 * (std::process::id() % 50) + offset;
-    for n in base..base + 20 {
-        let lock = PathBuf::from(format!("/tmp/.X{n}-lock"));
-        let socket = PathBuf::from(format!("/tmp/.X11-unix/X{n}"));
-        if lock.exists() || socket.exists() {
-            continue;
-        }
-        let display = format!(":{n}");
-        let child = Command::new("Xvfb")
-            .args([display.as_str(), "-screen", "0", "1280x800x24", "-nolisten", "tcp"])
-            .stdout(Stdio::null())
-            .stderr(Stdio::null())
-            .spawn()
-            .expect("Xvfb starts");
-        let mut x = Xvfb { child, display };
-        let t = Instant::now();
-        while t.elapsed() < Duration::from_secs(15) {
-            if let Ok(Some(_)) = x.child.try_wait() {
-                break; // lost a race for this display: try the next
-            }
-            if socket.exists() {
-                // Ours only if our server is still up a moment later.
-                std::thread::sleep(Duration::from_millis(200));
-                if let Ok(None) = x.child.try_wait() {
-                    return Some(x);
-                }
-                break;
-            }
-            std::thread::sleep(Duration::from_millis(50));
-        }
-    }
-    panic!("could not start Xvfb on any display from :{base}");
+    let mut child = Command::new("Xvfb")
+        .args(["-displayfd", "1", "-screen", "0", "1280x800x24", "-nolisten", "tcp"])
+        .stdout(Stdio::piped())
+        .stderr(Stdio::null())
+        .spawn()
+        .expect("Xvfb starts");
+    let stdout = child.stdout.take().expect("Xvfb's stdout is piped");
+    // Killed on drop from here on, whatever happens.
+    let mut x = Xvfb { child, display: String::new() };
+    let (tx, rx) = std::sync::mpsc::channel();
+    std::thread::spawn(move || {
+        let mut lines = BufReader::new(stdout).lines();
+        let _ = tx.send(lines.next());
+        // Read to the end: the pipe stays open for as long as the server runs.
+        lines.for_each(drop);
+    });
+    let line = match rx.recv_timeout(Duration::from_secs(60)) {
+        Ok(Some(Ok(line))) => line,
+        other => panic!("Xvfb reported no display within 60 s: {other:?}"),
+    };
+    let n: u32 = line.trim().parse().unwrap_or_else(|_| panic!("Xvfb's display: {line:?}"));
+    x.display = format!(":{n}");
+    Some(x)
 }
 
 /// Runs `terrain view ARGS` on `display` (Vulkan: lavapipe here), waiting at most `limit`;
@@ -147,7 +144,7 @@ const START: &str = "1500,1500,2600,45,-25";
 /// tolerance; the panel draws over the terrain when shown.
 #[test]
 fn the_window_shows_what_render_draws_for_the_same_camera() {
-    let Some(x) = start_xvfb(0) else { return };
+    let Some(x) = start_xvfb() else { return };
     let dir = scratch("view", "window");
     let (panel, shot, lod) = (dir.join("panel.png"), dir.join("view.png"), dir.join("lod.png"));
     let script = dir.join("script.txt");
@@ -318,7 +315,7 @@ fn baked_blocks(dir: &Path, size: &str, extra: &[&str]) -> PathBuf {
 /// time, and the store's worker threads are joined.
 #[test]
 fn the_window_closes_cleanly_mid_stream() {
-    let Some(x) = start_xvfb(25) else { return };
+    let Some(x) = start_xvfb() else { return };
     let dir = scratch("view", "store");
     let store = baked_blocks(&dir, "1025", &[]);
     let script = dir.join("script.txt");
@@ -389,7 +386,7 @@ fn the_window_closes_cleanly_mid_stream() {
 /// the next pose in line: the clock, not the frame count, advances the flight), to its end.
 #[test]
 fn a_store_is_exaggerated_and_a_paced_flight_keeps_its_clock() {
-    let Some(x) = start_xvfb(27) else { return };
+    let Some(x) = start_xvfb() else { return };
     let dir = scratch("view", "paced");
     let store = baked_blocks(&dir, "257", &["--block-k", "5"]);
     let script = dir.join("script.txt");
@@ -459,7 +456,7 @@ fn measured(out: &str) -> Vec<(f64, f64, usize)> {
 /// so and which option to raise, and give no number.
 #[test]
 fn a_store_frame_is_measured_against_its_own_heights() {
-    let Some(x) = start_xvfb(29) else { return };
+    let Some(x) = start_xvfb() else { return };
     let dir = scratch("view", "measure");
     let store = baked_blocks(&dir, "1025", &["--raw-f32"]);
     let script = dir.join("script.txt");
