@@ -221,42 +221,65 @@ pub struct Streamer {
 /// What the schedule reads of a block's index entry every frame ([`BlockSummary`]), kept per
 /// block visited, so a frame's schedule does not read the index again: a version-4 store's
 /// entries come through a bounded cache of decoded pages (32 MiB, about 5,800 entries of a
-/// 32769^2 store), which a view of more blocks would decode again every frame. Its
-/// entries are about 100 bytes, at most [`MAX_SUMMARIES`] (then it starts over). The whole
+/// 32769^2 store), which a view of more blocks would decode again every frame. The summaries
+/// are kept by value in chunks of [`SUMMARY_CHUNK`]^2 blocks, allocated when first asked, at
+/// most [`MAX_SUMMARY_CHUNKS`] (then it starts over): a wide view's schedule asks for up to
+/// every block of a 32769^2 store each frame, row by row, and one heap object per summary made
+/// each lookup a cache miss (the `Arc`'s count: most of the lookup's time). The whole
 /// entries of the blocks whose level needs the Eq. 7 walk (those near the eye, thousands in a
 /// wide view of a 32769^2 store) are kept for the frame that walked them and the next: what a
 /// view walks, not what the store has.
 #[derive(Debug, Default)]
 struct Summaries {
-    /// By row-major block position (allocated when first asked), and how many are kept.
-    summaries: Mutex<(Vec<Option<Arc<BlockSummary>>>, usize)>,
+    summaries: Mutex<KeptSummaries>,
     /// The entries walked this frame and in the last one.
     walked: Mutex<[IdMap<BlockId, Arc<BlockEntry>>; 2]>,
 }
 
-/// Blocks whose [`BlockSummary`] a streamer keeps at most (about 25 MB; and a pointer per
-/// block of the store).
-const MAX_SUMMARIES: usize = 1 << 18;
+/// The kept summaries: chunks of `SUMMARY_CHUNK`^2 blocks by row-major chunk position, each
+/// by row-major block position within it; and how many chunks are allocated.
+#[derive(Debug, Default)]
+struct KeptSummaries {
+    chunks: Vec<Option<Box<[Option<BlockSummary>]>>>,
+    allocated: usize,
+}
+
+/// Blocks per side of a chunk of kept summaries (1,024 blocks, about 100 KB).
+const SUMMARY_CHUNK: u32 = 32;
+
+/// Chunks of summaries a streamer keeps at most (about 27 MB; and a pointer per chunk of the
+/// store).
+const MAX_SUMMARY_CHUNKS: usize = 256;
 
 impl Summaries {
     /// Block `id`'s summary: kept, or read from its entry (`None` when it cannot be read).
-    fn get(&self, store: &Store, id: BlockId) -> Option<Arc<BlockSummary>> {
+    fn get(&self, store: &Store, id: BlockId) -> Option<BlockSummary> {
         let h = store.header();
-        let pos = h.block_position(id)?;
+        h.block_position(id)?;
+        let chunks_x = h.blocks_x.div_ceil(SUMMARY_CHUNK) as usize;
+        let c = (id.row / SUMMARY_CHUNK) as usize * chunks_x + (id.col / SUMMARY_CHUNK) as usize;
+        let within = ((id.row % SUMMARY_CHUNK) * SUMMARY_CHUNK + id.col % SUMMARY_CHUNK) as usize;
         let mut kept = self.summaries.lock().unwrap_or_else(|e| e.into_inner());
-        if kept.0.is_empty() {
-            kept.0 = vec![None; h.block_count()];
+        if kept.chunks.is_empty() {
+            let rows = h.blocks_y.div_ceil(SUMMARY_CHUNK) as usize;
+            kept.chunks = vec![None; chunks_x * rows];
         }
-        if let Some(s) = &kept.0[pos] {
-            return Some(s.clone());
+        if let Some(s) = kept.chunks[c].as_ref().and_then(|chunk| chunk[within]) {
+            return Some(s);
         }
-        let s = Arc::new(BlockSummary::of(h, &*store.entry(id)?, id));
-        if kept.1 >= MAX_SUMMARIES {
-            kept.0.iter_mut().for_each(|k| *k = None);
-            kept.1 = 0;
+        let s = BlockSummary::of(h, &*store.entry(id)?, id);
+        if kept.chunks[c].is_none() {
+            if kept.allocated >= MAX_SUMMARY_CHUNKS {
+                kept.chunks.iter_mut().for_each(|k| *k = None);
+                kept.allocated = 0;
+            }
+            let side = SUMMARY_CHUNK as usize;
+            kept.chunks[c] = Some(vec![None; side * side].into_boxed_slice());
+            kept.allocated += 1;
         }
-        kept.0[pos] = Some(s.clone());
-        kept.1 += 1;
+        if let Some(chunk) = kept.chunks[c].as_mut() {
+            chunk[within] = Some(s);
+        }
         Some(s)
     }
 
@@ -286,7 +309,7 @@ impl Summaries {
 /// What the schedule needs of block `id`'s entry every frame: its rectangle, boxes and
 /// per-level maxima of `StaticE`. The walk of [`needed_level`] (where these bounds do not
 /// decide a level) reads the entry itself.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq)]
 struct BlockSummary {
     /// Its valid vertices' plan rectangle ([`block_rect`]).
     lo: DVec2,
@@ -295,13 +318,21 @@ struct BlockSummary {
     z: [f32; 2],
     /// The range with the root node's (every node's box lies in it).
     z_nodes: [f32; 2],
-    /// [`BlockEntry::level_errors`].
-    level_errors: Box<[f32]>,
+    /// [`BlockEntry::level_errors`], inline (a store's `k` is at most 12, one per level), the
+    /// first `levels` of them.
+    level_errors: [f32; MAX_K],
+    levels: u8,
 }
+
+/// Most levels of a block ([`crate::format::K_RANGE`]).
+const MAX_K: usize = *crate::format::K_RANGE.end() as usize;
 
 impl BlockSummary {
     fn of(h: &Header, e: &BlockEntry, id: BlockId) -> Self {
         let (lo, hi) = block_rect(h, e, id);
+        let levels = e.level_errors.len().min(MAX_K);
+        let mut level_errors = [0.0; MAX_K];
+        level_errors[..levels].copy_from_slice(&e.level_errors[..levels]);
         let (mut zmin, mut zmax) = (e.min, e.max);
         if let Some(root) = e.node(0, 0, 0) {
             zmin = zmin.min(root.min);
@@ -312,8 +343,14 @@ impl BlockSummary {
             hi,
             z: [e.min, e.max],
             z_nodes: [zmin, zmax],
-            level_errors: e.level_errors.clone().into(),
+            level_errors,
+            levels: levels as u8,
         }
+    }
+
+    /// [`BlockEntry::level_errors`].
+    fn level_errors(&self) -> &[f32] {
+        &self.level_errors[..usize::from(self.levels)]
     }
 
     /// Its box (the rectangle and the valid heights' range): the frustum's and Eq. 8's test,
@@ -733,7 +770,7 @@ impl Streamer {
             let later_of = |id: BlockId| at(&later, id);
             for &(id, level) in demand {
                 let Some(e) = self.summaries.get(store, id) else { continue };
-                let e = &*e;
+                let e = &e;
                 if !in_m.insert(header, id) {
                     continue;
                 }
@@ -774,7 +811,7 @@ impl Streamer {
             if self.demand.is_some() { Vec::new() } else { blocks_under_bbox(header, &reg.view) };
         for id in eq7 {
             let Some(e) = self.summaries.get(store, id) else { continue };
-            let e = &*e;
+            let e = &e;
             let (lo, hi) = (e.lo, e.hi);
             if !polygon_meets_rect(reg.view.vertices(), lo, hi)
                 || frustum.classify(&e.aabb()) == Classification::Outside
@@ -799,7 +836,7 @@ impl Streamer {
                 continue;
             }
             let Some(e) = self.summaries.get(store, id) else { continue };
-            let e = &*e;
+            let e = &e;
             let (lo, hi) = (e.lo, e.hi);
             if !polygon_meets_rect(reg.extension.vertices(), lo, hi) || behind(lo, hi, &e.aabb()) {
                 continue;
@@ -1147,7 +1184,7 @@ fn geometry_level_bound(h: &Header, e: &BlockSummary, view: &View) -> u8 {
     }
     (0..h.k)
         .find(|&l| {
-            f64::from(e.level_errors.get(l as usize).copied().unwrap_or(0.0))
+            f64::from(e.level_errors().get(l as usize).copied().unwrap_or(0.0))
                 <= limit * (1.0 - 1e-9)
         })
         .unwrap_or(h.k)
@@ -1232,6 +1269,38 @@ mod tests {
             .unwrap();
         let store = Store::open(&dir).unwrap();
         (dir, store)
+    }
+
+    /// The kept summaries, by value in chunks of blocks, are each block's own: over a store of
+    /// 128 x 72 blocks (chunk borders both ways, a last row of chunks partly outside the
+    /// grid), asked in a scattered order, each one equals the summary of its entry, asked
+    /// again too, and only the chunks holding them are allocated.
+    #[test]
+    fn kept_summaries_are_each_blocks_own() {
+        let dir = crate::tests::scratch_store("terrain-stream-streamer-summaries-");
+        let hm = Heightmap::from_fn(1025, 577, Georef::local(5.0), |i, j| {
+            ((i * 37 + j * 11) % 101) as f32 + 0.5 * j as f32
+        })
+        .unwrap();
+        let cfg = BakeConfig { k: 3, node_levels: 2, ..Default::default() };
+        bake(&hm, &dir, &cfg, &mut |_: &crate::bake::BakeProgress| ControlFlow::Continue(()))
+            .unwrap();
+        let store = Store::open(&dir).unwrap();
+        let h = store.header().clone();
+        assert_eq!((h.blocks_x, h.blocks_y), (128, 72));
+        let kept = Summaries::default();
+        let n = h.block_count();
+        for round in 0..2 {
+            for k in 0..n {
+                let id = h.block_at(k * 7919 % n);
+                let want = BlockSummary::of(&h, &store.entry(id).unwrap(), id);
+                assert_eq!(kept.get(&store, id), Some(want), "{id:?}, round {round}");
+            }
+        }
+        let chunks = kept.summaries.lock().unwrap();
+        assert_eq!((chunks.chunks.len(), chunks.allocated), (12, 12));
+        drop(chunks);
+        assert_eq!(kept.get(&store, BlockId::new(72, 0)), None, "outside the grid");
     }
 
     #[test]
