@@ -244,11 +244,11 @@ struct KeptSummaries {
     allocated: usize,
 }
 
-/// Blocks per side of a chunk of kept summaries (1,024 blocks, about 100 KB).
+/// Blocks per side of a chunk of kept summaries (1,024 blocks of 112 bytes, 112 KiB).
 const SUMMARY_CHUNK: u32 = 32;
 
-/// Chunks of summaries a streamer keeps at most (about 27 MB; and a pointer per chunk of the
-/// store).
+/// Chunks of summaries a streamer keeps at most (28 MiB; and a pointer per chunk of the
+/// store). Before the chunks, 2^18 summaries of about 100 bytes were kept at most.
 const MAX_SUMMARY_CHUNKS: usize = 256;
 
 impl Summaries {
@@ -1299,6 +1299,8 @@ mod tests {
         }
         let chunks = kept.summaries.lock().unwrap();
         assert_eq!((chunks.chunks.len(), chunks.allocated), (12, 12));
+        // The size `SUMMARY_CHUNK`'s and `MAX_SUMMARY_CHUNKS`' docs give.
+        const { assert!(std::mem::size_of::<Option<BlockSummary>>() == 112) };
         drop(chunks);
         assert_eq!(kept.get(&store, BlockId::new(72, 0)), None, "outside the grid");
     }

@@ -21,11 +21,11 @@
 //! streamer's demand ahead. With that table no coarse tile reads every sample under it: a tile
 //! is meshed at most [`terrain_core::tin::grid::GridTinConfig::finer_strides`] strides finer
 //! than its own, its bound raised where that needs it ([`GridTileBuilder::tile_bound`], which
-//! the selection uses). Selection never waits, except on
-//! the first frame and with `--wait` ([`OocWait::EveryFrame`], the benchmark's warm mode), which
-//! waits until every selected tile is built; a real-time run's first frame then also waits for
-//! the tiles of its start view (a wider view at half the threshold, within the tile cache's
-//! budget: it knows no motion for Eq. 8 yet, `start_camera`). The drawn surface ([`tin_surface`]: tiles and
+//! the selection uses). Selection never waits, except on the first frame and with `--wait`
+//! ([`OocWait::EveryFrame`], the benchmark's warm mode), which waits until every selected tile
+//! is built; a real-time run's first frame then also waits for the tiles of its start view (a
+//! wider view at half the threshold, within the tile cache's budget: it knows no motion for
+//! Eq. 8 yet, `start_camera`). The drawn surface ([`tin_surface`]: tiles and
 //! stitches) takes every vertex's height from its tile; the paged renderer draws the same
 //! triangles, at the same heights ([`ExtraTriangles::heights`]), as extra triangles over each
 //! tile's hidden carrier patch, whose lattice at the tile's own stride (64 cells across) is
