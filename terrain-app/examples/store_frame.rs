@@ -142,17 +142,17 @@ fn main() -> anyhow::Result<()> {
             None => (f.stats.selection_ms, f64::NAN),
         };
         // Geomorph's compact selection only: its demand and drawn-block filter timed apart.
-        let mut runs_part = match geo.is_some() {
+        let mut more_part = match geo.is_some() {
             true => format!(", demand + filter from runs {runs_ms:.2} ms CPU"),
             false => String::new(),
         };
         // A waiting frame's wait (the first of a real-time run): for blocks and tiles.
         if let Some(w) = f.stats.stream.as_ref().map(|s| s.wait_ms).filter(|&w| w > 0.0) {
-            runs_part += &format!(", waited {w:.1} ms");
+            more_part += &format!(", waited {w:.1} ms");
         }
         eprintln!(
             "frame {k}: {ms:.2} ms CPU, selection {sel:.2} ms CPU ({:.2} wall), stream {s:.2} \
-             ms{runs_part}, {} patches, needed {:.0} MiB \
+             ms{more_part}, {} patches, needed {:.0} MiB \
              (late {:.3} MiB in {} blocks, {} tiles late), resident {:.0} MiB, queue {} \
              ({:.1} MiB), prefetched {:.2} MiB, cancelled {}, evictions {}{}",
             f.stats.selection_ms,

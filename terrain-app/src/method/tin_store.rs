@@ -644,6 +644,18 @@ pub struct TinStoreMethod<'a> {
     drawn: Vec<Arc<GridTile>>,
 }
 
+/// Per drawn tile, its node's grid rectangle `x0, y0, cells` in a tree of `root` cells: what
+/// [`CarrierSink`] places each tile's vertices on.
+fn carrier_rects(tiles: &[&GridTile], root: u32) -> Vec<[f64; 3]> {
+    tiles
+        .iter()
+        .map(|t| {
+            let (x0, y0, c) = t.node.grid_rect(root);
+            [f64::from(x0), f64::from(y0), f64::from(c)]
+        })
+        .collect()
+}
+
 /// [`tin_surface_into`]'s sink writing the renderer's buffers: each vertex on its tile's
 /// carrier patch (`rects`: per drawn tile, its node's grid rectangle `x0, y0, cells`) at its
 /// tile's height.
@@ -777,13 +789,7 @@ impl Method for TinStoreMethod<'_> {
         // the tile's heights: the drawn geometry is the tiles', whatever the pages hold (they
         // shade it). Joined straight into the renderer's buffers; the measured surface is
         // built from the same tiles only when asked ([`Method::surface`]).
-        let rects: Vec<[f64; 3]> = drawn
-            .iter()
-            .map(|t| {
-                let (x0, y0, c) = t.node.grid_rect(root);
-                [f64::from(x0), f64::from(y0), f64::from(c)]
-            })
-            .collect();
+        let rects = carrier_rects(&drawn, root);
         let mut sink = CarrierSink { rects: &rects, extra: ExtraTriangles::default() };
         tin_surface_into(&drawn, self.config.stitch, &mut sink);
         let extra = sink.extra;
@@ -917,14 +923,7 @@ mod tests {
         let tiles: Vec<&GridTile> = sel.tiles.iter().filter_map(|&n| p.tile(n)).collect();
         let levels: HashSet<u8> = tiles.iter().map(|t| t.node.level).collect();
         assert!(tiles.len() > 10 && levels.len() > 1, "tiles of several levels: stitched");
-        let root = p.tree().root_cells();
-        let rects: Vec<[f64; 3]> = tiles
-            .iter()
-            .map(|t| {
-                let (x0, y0, c) = t.node.grid_rect(root);
-                [f64::from(x0), f64::from(y0), f64::from(c)]
-            })
-            .collect();
+        let rects = carrier_rects(&tiles, p.tree().root_cells());
         let mut bulk = CarrierSink { rects: &rects, extra: ExtraTriangles::default() };
         let counts = tin_surface_into(&tiles, true, &mut bulk);
         let mut one = OneByOne(CarrierSink { rects: &rects, extra: ExtraTriangles::default() });
