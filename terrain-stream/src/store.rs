@@ -12,8 +12,8 @@ use crate::decimation::{DECIMATION_FILE, DecimationErrors};
 use crate::error::StoreError;
 use crate::format::{
     BLOCK_HEADER_LEN, BLOCK_MAGIC, BlockEntry, BlockId, Header, INDEX_FILE, INDEX_VERSION, MAGIC,
-    PAGED_INDEX_VERSION, SampleEncoding, VERSION, block_file_name, crc32, for_each_level_vertex,
-    level_len, read_index, vertex_index,
+    PAGED_INDEX_VERSION, SampleEncoding, VERSION, block_file_name, crc32, level_len, read_index,
+    vertex_index,
 };
 use crate::overview::Overview;
 use crate::pages::{PagedIndex, index_err, scale_entry};
@@ -759,20 +759,50 @@ impl BlockLevels {
         if level as usize >= self.levels.len() {
             return None;
         }
-        // Each resident level scattered in its stored order (no per-vertex index search):
-        // the same values as `height` at every vertex (the store tests' `check_heights`).
-        // `push` keeps every level at its length, so the walk and the samples end together.
+        // Each resident level decoded in one pass, then scattered in its stored order
+        // ([`crate::format::for_each_level_vertex`]'s, without a call per vertex): the same values as `height`
+        // at every vertex (the store tests' `check_heights`). The page fills of every store
+        // method run this on the frame thread, a block level a page.
         let n = (1usize << level) + 1;
-        let shift = self.k - level;
         let mut out = vec![0f32; n * n];
-        for (l, samples) in self.levels.iter().take(level as usize + 1).enumerate() {
-            let mut q = samples.iter();
-            for_each_level_vertex(self.k, l as u8, |i, j| {
-                if let Some(&q) = q.next() {
-                    out[(j >> shift) as usize * n + (i >> shift) as usize] = self.decode(q);
+        let mut heights: Vec<f32> = Vec::new();
+        'level: for (l, samples) in self.levels.iter().take(level as usize + 1).enumerate() {
+            heights.clear();
+            self.decode_into(samples, &mut heights);
+            // Level l's vertices are every `step`-th sample of the level's grid: rows `b` of
+            // the level's `cnt` rows, odd rows whole and even rows at odd columns (level 0:
+            // its four corners).
+            let step = 1usize << (level as usize - l);
+            let cnt = (1usize << l) + 1;
+            let mut q = heights.iter().copied();
+            for b in 0..cnt {
+                let (first, every) = if l == 0 || b % 2 == 1 { (0, 1) } else { (1, 2) };
+                let row = &mut out[b * step * n..][..n];
+                for a in (first..cnt).step_by(every) {
+                    // (`push` keeps every level at its length: the walk and the samples end
+                    // together.)
+                    let Some(z) = q.next() else { continue 'level };
+                    row[a * step] = z;
                 }
-            });
+            }
         }
         Some(out)
+    }
+
+    /// The heights of stored samples `qs` appended to `out`, as [`BlockLevels::decode`] gives
+    /// each (the encoding and the exaggeration asked once, not per sample).
+    fn decode_into(&self, qs: &[i32], out: &mut Vec<f32>) {
+        let scale = self.scale;
+        match (self.encoding, scale == 1.0) {
+            (SampleEncoding::Quantized { step_m, offset_m }, true) => {
+                out.extend(qs.iter().map(|&q| (offset_m + f64::from(q) * step_m) as f32));
+            }
+            (SampleEncoding::Quantized { step_m, offset_m }, false) => {
+                out.extend(qs.iter().map(|&q| ((offset_m + f64::from(q) * step_m) * scale) as f32));
+            }
+            (encoding, _) => out.extend(qs.iter().map(|&q| {
+                if scale == 1.0 { encoding.height(q) } else { encoding.height_scaled(q, scale) }
+            })),
+        }
     }
 }

@@ -644,23 +644,45 @@ pub struct TinStoreMethod<'a> {
     drawn: Vec<Arc<GridTile>>,
 }
 
-/// Per drawn tile, its node's grid rectangle `x0, y0, cells` in a tree of `root` cells: what
-/// [`CarrierSink`] places each tile's vertices on.
-fn carrier_rects(tiles: &[&GridTile], root: u32) -> Vec<[f64; 3]> {
-    tiles
-        .iter()
-        .map(|t| {
-            let (x0, y0, c) = t.node.grid_rect(root);
-            [f64::from(x0), f64::from(y0), f64::from(c)]
-        })
-        .collect()
+/// Per drawn tile, its carrier rectangle in a tree of `root` cells: what [`CarrierSink`]
+/// places each tile's vertices on.
+fn carrier_rects(tiles: &[&GridTile], root: u32) -> Vec<CarrierRect> {
+    tiles.iter().map(|t| CarrierRect::of(t.node, root)).collect()
+}
+
+/// A drawn tile's carrier patch: its node's south-west grid sample and the reciprocal of its
+/// side in cells.
+#[derive(Debug, Clone, Copy)]
+struct CarrierRect {
+    x0: i64,
+    y0: i64,
+    inv_cells: f32,
+}
+
+impl CarrierRect {
+    fn of(node: NodeId, root: u32) -> Self {
+        let (x0, y0, cells) = node.grid_rect(root);
+        // A tree's root is a power of two cells across (`TreeShape`), so is every node.
+        debug_assert!(cells.is_power_of_two(), "a node of {cells} cells");
+        Self { x0: i64::from(x0), y0: i64::from(y0), inv_cells: 1.0 / cells as f32 }
+    }
+
+    /// Grid sample `g` on the carrier: `(g - corner) / cells` per axis, rounded to `f32` once.
+    /// The side being a power of two, scaling by its reciprocal is exact and commutes with the
+    /// rounding, so this is the quotient `((g - x0) as f64 / cells as f64) as f32` bit for bit
+    /// (`carrier_uv_is_the_quotient_rounded_once`) without two divisions a vertex: the join
+    /// writes every vertex of every drawn tile each frame.
+    #[inline]
+    fn uv(&self, g: [u32; 2]) -> [f32; 2] {
+        let (dx, dy) = (i64::from(g[0]) - self.x0, i64::from(g[1]) - self.y0);
+        [dx as f32 * self.inv_cells, dy as f32 * self.inv_cells]
+    }
 }
 
 /// [`tin_surface_into`]'s sink writing the renderer's buffers: each vertex on its tile's
-/// carrier patch (`rects`: per drawn tile, its node's grid rectangle `x0, y0, cells`) at its
-/// tile's height.
+/// carrier patch (`rects`, per drawn tile) at its tile's height.
 struct CarrierSink<'r> {
-    rects: &'r [[f64; 3]],
+    rects: &'r [CarrierRect],
     extra: ExtraTriangles,
 }
 
@@ -671,8 +693,7 @@ impl SurfaceSink for CarrierSink<'_> {
         self.extra.indices.reserve(3 * triangles);
     }
     fn vertex(&mut self, g: [u32; 2], z: f32, tile: u32) {
-        let [x0, y0, c] = self.rects[tile as usize];
-        let uv = [((f64::from(g[0]) - x0) / c) as f32, ((f64::from(g[1]) - y0) / c) as f32];
+        let uv = self.rects[tile as usize].uv(g);
         self.extra.points.push(GpuDomainPoint { uv, patch_index: tile, pad: 0 });
         self.extra.heights.push(z);
     }
@@ -682,11 +703,12 @@ impl SurfaceSink for CarrierSink<'_> {
     // A tile's vertices and triangles written in bulk: about half the frame thread's CPU
     // over the 32769^2 store at 2 px went to one push per vertex and per triangle.
     fn vertices(&mut self, g: &[[u32; 2]], z: &[f32], tile: u32) {
-        let [x0, y0, c] = self.rects[tile as usize];
+        let rect = self.rects[tile as usize];
         let n = g.len().min(z.len());
-        self.extra.points.extend(g[..n].iter().map(|g| {
-            let uv = [((f64::from(g[0]) - x0) / c) as f32, ((f64::from(g[1]) - y0) / c) as f32];
-            GpuDomainPoint { uv, patch_index: tile, pad: 0 }
+        self.extra.points.extend(g[..n].iter().map(|&g| GpuDomainPoint {
+            uv: rect.uv(g),
+            patch_index: tile,
+            pad: 0,
         }));
         self.extra.heights.extend_from_slice(&z[..n]);
     }
@@ -937,6 +959,40 @@ mod tests {
         };
         assert_eq!(points(a), points(b));
         assert_eq!(3 * (counts.tile_triangles + counts.stitch_triangles) as usize, a.indices.len());
+    }
+
+    /// A vertex's carrier position is the quotient of its offset by the node's side, computed
+    /// in f64 and rounded to f32 once (what the join computed before), bit for bit: at every
+    /// level of a 2^31-cell root, offsets across the node and beyond 2^24 (where f32 rounds).
+    #[test]
+    fn carrier_uv_is_the_quotient_rounded_once() {
+        let root = 1u32 << 31;
+        let mut checked = 0;
+        for level in 0..=NodeId::MAX_LEVEL {
+            let cells = root >> level;
+            for (i, j) in [(0u32, 0u32), (1, 0), (3, 5), ((1 << level) - 1, 1 << level >> 1)] {
+                let node = NodeId::new(level, i.min((1 << level) - 1), j.min((1 << level) - 1));
+                let rect = CarrierRect::of(node, root);
+                let (x0, y0, _) = node.grid_rect(root);
+                let offsets = [0, 1, 2, 3, 7, cells / 3, cells / 2 + 1, cells - 1, cells]
+                    .into_iter()
+                    .chain([(1 << 24) + 1, (1 << 25) + 3, (1 << 27) + 5, 0x7654_3211])
+                    .filter(|&d| {
+                        d <= cells && u64::from(x0.max(y0)) + u64::from(d) <= u64::from(u32::MAX)
+                    });
+                for d in offsets {
+                    let g = [x0 + d, y0 + d / 2];
+                    let want = [
+                        ((f64::from(g[0]) - f64::from(x0)) / f64::from(cells)) as f32,
+                        ((f64::from(g[1]) - f64::from(y0)) / f64::from(cells)) as f32,
+                    ];
+                    let got = rect.uv(g);
+                    assert_eq!(got.map(f32::to_bits), want.map(f32::to_bits), "{node:?} {g:?}");
+                    checked += 1;
+                }
+            }
+        }
+        assert!(checked > 300, "{checked}");
     }
 
     #[test]
