@@ -347,29 +347,47 @@ pub(crate) fn decode_level<L: AsRef<[i32]>>(
             })
         }
         TAG_PREDICTIVE => decode_predictive(k, n, body, coarser),
-        TAG_PREDICTIVE_DEFLATE => {
-            let body = inflate_exact(body, count * MAX_VARINT)?;
-            decode_predictive(k, n, &body, coarser)
-        }
+        TAG_PREDICTIVE_DEFLATE => INFLATED.with_borrow_mut(|out| {
+            let written = inflate_exact(body, count * MAX_VARINT, out);
+            let decoded = written.and_then(|w| decode_predictive(k, n, &out[..w], coarser));
+            if out.len() > KEEP_INFLATED_BYTES {
+                *out = Vec::new();
+            }
+            decoded
+        }),
         t => Err(format!("unknown payload tag {t}")),
     }
 }
 
+thread_local! {
+    /// A thread's inflated varints, kept from one level's decoding to the next: a level's
+    /// output is bounded by ten bytes a sample (`MAX_VARINT`), so a new buffer was hundreds of
+    /// kilobytes zeroed (and its pages faulted in) per level for a payload of a fifth of that.
+    /// Up to [`KEEP_INFLATED_BYTES`] are kept; a larger one (a block finer than 2^10 cells) is
+    /// freed after its level.
+    static INFLATED: RefCell<Vec<u8>> = const { RefCell::new(Vec::new()) };
+}
+
+/// The largest inflate buffer a thread keeps between levels (a 1025-cell block's finest
+/// level needs 7.9 MB).
+const KEEP_INFLATED_BYTES: usize = 8 << 20;
+
 /// Inflates a raw Deflate stream of at most `limit` bytes that must end exactly at the end of
-/// `body` (trailing bytes, truncation and oversized output are errors, never panics).
-fn inflate_exact(body: &[u8], limit: usize) -> Result<Vec<u8>, String> {
+/// `body` (trailing bytes, truncation and oversized output are errors, never panics) into the
+/// start of `out` (grown to `limit` where shorter; what lies beyond the output is left as it
+/// was): the inflated length.
+fn inflate_exact(body: &[u8], limit: usize, out: &mut Vec<u8>) -> Result<usize, String> {
     use miniz_oxide::inflate::TINFLStatus;
     use miniz_oxide::inflate::core::inflate_flags::TINFL_FLAG_USING_NON_WRAPPING_OUTPUT_BUF;
     use miniz_oxide::inflate::core::{DecompressorOxide, decompress};
-    let mut out = vec![0u8; limit];
+    if out.len() < limit {
+        out.resize(limit, 0);
+    }
     let mut d = DecompressorOxide::new();
     let flags = TINFL_FLAG_USING_NON_WRAPPING_OUTPUT_BUF;
-    let (status, consumed, written) = decompress(&mut d, body, &mut out, 0, flags);
+    let (status, consumed, written) = decompress(&mut d, body, &mut out[..limit], 0, flags);
     match status {
-        TINFLStatus::Done if consumed == body.len() => {
-            out.truncate(written);
-            Ok(out)
-        }
+        TINFLStatus::Done if consumed == body.len() => Ok(written),
         TINFLStatus::Done => {
             Err(format!("{} bytes after the deflate stream", body.len() - consumed))
         }
@@ -493,6 +511,43 @@ mod tests {
             levels.push(dec);
         }
         levels
+    }
+
+    /// A thread's inflate buffer is reused from one level to the next: a level decoded after a
+    /// larger one (its buffer holding the larger one's bytes past this level's output) decodes
+    /// the same, and its payload cut short or lengthened is still refused.
+    #[test]
+    fn levels_decode_the_same_after_a_larger_level_on_the_same_thread() {
+        let k = 6u8;
+        let side = (1usize << k) + 1;
+        // Smooth with a repeating pattern: deflate wins at every level from 2 (checked below).
+        let grid: Vec<i32> = (0..side * side)
+            .map(|p| ((p % side) as i32 / 3) * 4 + ((p / side) as i32 % 5) * 2)
+            .collect();
+        let levels = round_trip(k, &grid, Codec::PredictiveDeflate);
+        let finest = encode_level(k, k, &grid, Codec::PredictiveDeflate, true);
+        let mut deflated = 0;
+        for n in (1..k).rev() {
+            // The finest level first: the buffer then holds its bytes beyond level n's output.
+            assert_eq!(
+                decode_level(k, k, &finest, &levels[..k as usize]).unwrap(),
+                levels[k as usize]
+            );
+            let bytes = encode_level(k, n, &grid, Codec::PredictiveDeflate, true);
+            deflated += usize::from(bytes[0] == TAG_PREDICTIVE_DEFLATE);
+            let coarser = &levels[..n as usize];
+            assert_eq!(decode_level(k, n, &bytes, coarser).unwrap(), levels[n as usize], "{n}");
+            assert_eq!(
+                decode_level(k, k, &finest, &levels[..k as usize]).unwrap(),
+                levels[k as usize]
+            );
+            assert!(decode_level(k, n, &bytes[..bytes.len() - 1], coarser).is_err(), "{n}");
+            let mut longer = bytes.clone();
+            longer.push(0);
+            assert!(decode_level(k, n, &longer, coarser).is_err(), "{n}");
+        }
+        assert_eq!(finest[0], TAG_PREDICTIVE_DEFLATE);
+        assert!(deflated >= 3, "the deflated path taken at {deflated} levels");
     }
 
     #[test]
