@@ -759,10 +759,10 @@ impl BlockLevels {
         if level as usize >= self.levels.len() {
             return None;
         }
-        // Each resident level decoded in one pass, then scattered in its stored order
-        // ([`crate::format::for_each_level_vertex`]'s, without a call per vertex): the same values as `height`
-        // at every vertex (the store tests' `check_heights`). The page fills of every store
-        // method run this on the frame thread, a block level a page.
+        // Each resident level decoded in one pass, then scattered in its stored order (that of
+        // [`crate::format::for_each_level_vertex`], without a call per vertex): the same
+        // values as `height` at every vertex (the store tests' `check_heights`). The page
+        // fills of every store method run this on the frame thread, a block level a page.
         let n = (1usize << level) + 1;
         let mut out = vec![0f32; n * n];
         let mut heights: Vec<f32> = Vec::new();
@@ -790,19 +790,14 @@ impl BlockLevels {
     }
 
     /// The heights of stored samples `qs` appended to `out`, as [`BlockLevels::decode`] gives
-    /// each (the encoding and the exaggeration asked once, not per sample).
+    /// each (the exaggeration asked once, not per sample; the encoding's match is the same
+    /// every sample, which the compiler takes out of the loop).
     fn decode_into(&self, qs: &[i32], out: &mut Vec<f32>) {
-        let scale = self.scale;
-        match (self.encoding, scale == 1.0) {
-            (SampleEncoding::Quantized { step_m, offset_m }, true) => {
-                out.extend(qs.iter().map(|&q| (offset_m + f64::from(q) * step_m) as f32));
-            }
-            (SampleEncoding::Quantized { step_m, offset_m }, false) => {
-                out.extend(qs.iter().map(|&q| ((offset_m + f64::from(q) * step_m) * scale) as f32));
-            }
-            (encoding, _) => out.extend(qs.iter().map(|&q| {
-                if scale == 1.0 { encoding.height(q) } else { encoding.height_scaled(q, scale) }
-            })),
+        let (encoding, scale) = (self.encoding, self.scale);
+        if scale == 1.0 {
+            out.extend(qs.iter().map(|&q| encoding.height(q)));
+        } else {
+            out.extend(qs.iter().map(|&q| encoding.height_scaled(q, scale)));
         }
     }
 }
