@@ -759,22 +759,19 @@ impl BlockLevels {
         if level as usize >= self.levels.len() {
             return None;
         }
-        // Each resident level decoded in one pass, then scattered in its stored order (that of
-        // [`crate::format::for_each_level_vertex`], without a call per vertex): the same
-        // values as `height` at every vertex (the store tests' `check_heights`). The page
-        // fills of every store method run this on the frame thread, a block level a page.
+        // Each resident level scattered in its stored order (that of
+        // [`crate::format::for_each_level_vertex`], row by row, without a call per vertex):
+        // the same values as `height` at every vertex (the store tests' `check_heights`). The
+        // page fills of every store method run this on the frame thread, a block level a page.
         let n = (1usize << level) + 1;
         let mut out = vec![0f32; n * n];
-        let mut heights: Vec<f32> = Vec::new();
         'level: for (l, samples) in self.levels.iter().take(level as usize + 1).enumerate() {
-            heights.clear();
-            self.decode_into(samples, &mut heights);
             // Level l's vertices are every `step`-th sample of the level's grid: rows `b` of
             // the level's `cnt` rows, odd rows whole and even rows at odd columns (level 0:
             // its four corners).
             let step = 1usize << (level as usize - l);
             let cnt = (1usize << l) + 1;
-            let mut q = heights.iter().copied();
+            let mut q = samples.iter().map(|&q| self.decode(q));
             for b in 0..cnt {
                 let (first, every) = if l == 0 || b % 2 == 1 { (0, 1) } else { (1, 2) };
                 let row = &mut out[b * step * n..][..n];
@@ -787,17 +784,5 @@ impl BlockLevels {
             }
         }
         Some(out)
-    }
-
-    /// The heights of stored samples `qs` appended to `out`, as [`BlockLevels::decode`] gives
-    /// each (the exaggeration asked once, not per sample; the encoding's match is the same
-    /// every sample, which the compiler takes out of the loop).
-    fn decode_into(&self, qs: &[i32], out: &mut Vec<f32>) {
-        let (encoding, scale) = (self.encoding, self.scale);
-        if scale == 1.0 {
-            out.extend(qs.iter().map(|&q| encoding.height(q)));
-        } else {
-            out.extend(qs.iter().map(|&q| encoding.height_scaled(q, scale)));
-        }
     }
 }
