@@ -45,10 +45,14 @@ impl<'a> StoreSource<'a> {
     /// bilinear value of the block it lies in (the south-west-most holder), else that block's
     /// lowest height.
     pub fn sample(&self, x: u32, y: u32) -> f32 {
-        let key = KnownSamples::key(x, y);
         // One lock a sample, held while it is read (the tree's visited blocks may be asked
         // under it, `block_min`; nothing takes this lock under theirs).
-        let mut known = self.tree.known_samples();
+        self.sample_in(&mut self.tree.known_samples(), x, y)
+    }
+
+    /// [`StoreSource::sample`] with the known samples' lock held.
+    fn sample_in(&self, known: &mut KnownSamples, x: u32, y: u32) -> f32 {
+        let key = KnownSamples::key(x, y);
         if let Some(z) = known.get(key) {
             return z;
         }
@@ -123,12 +127,47 @@ impl TerrainSource for StoreSource<'_> {
         // corner with both fractions 0, `z + (z' - z) 0` is `z` exactly for finite heights,
         // and a store's are finite. One sample instead of four. (On the last row or column
         // the mean takes it as the far corner, `z + (z' - z) 1`, which may round: left to it.)
-        let inside = |v: f64, n: u32| v >= 0.0 && v + 1.0 < f64::from(n) && v == v.floor();
-        if inside(g.x, w) && inside(g.y, h) {
+        if on_sample(g, w, h) {
             return self.sample(g.x as u32, g.y as u32);
         }
         bilinear_clamped(w as usize, h as usize, g.x, g.y, |i, j| self.sample(i as u32, j as u32))
     }
+
+    /// [`TerrainSource::height`] of each point under one lock of the known samples: first
+    /// every grid sample among them looked up there in one loop (lookups that miss the CPU's
+    /// caches overlap instead of waiting in turn), then the samples not known yet; then, the
+    /// lock let go, the points between samples (bilinear, [`TerrainSource::height`]).
+    fn heights(&self, points: &[DVec2], out: &mut Vec<f32>) {
+        let s = self.tree.shape();
+        let (w, h) = (s.width(), s.height());
+        let mut known = self.tree.known_samples();
+        out.clear();
+        out.extend(points.iter().map(|&g| {
+            let hit = on_sample(g, w, h)
+                .then(|| known.get(KnownSamples::key(g.x as u32, g.y as u32)))
+                .flatten();
+            hit.unwrap_or(f32::NAN)
+        }));
+        // Known heights are a store's samples, finite: NaN is a point not looked up yet.
+        for (z, &g) in out.iter_mut().zip(points) {
+            if z.is_nan() && on_sample(g, w, h) {
+                *z = self.sample_in(&mut known, g.x as u32, g.y as u32);
+            }
+        }
+        drop(known);
+        for (z, &g) in out.iter_mut().zip(points) {
+            if z.is_nan() && !on_sample(g, w, h) {
+                *z = self.height(g);
+            }
+        }
+    }
+}
+
+/// Whether grid position `g` is a sample of a `w` x `h` grid off its last row and column
+/// ([`StoreSource`]'s `height` reads it alone).
+fn on_sample(g: DVec2, w: u32, h: u32) -> bool {
+    let inside = |v: f64, n: u32| v >= 0.0 && v + 1.0 < f64::from(n) && v == v.floor();
+    inside(g.x, w) && inside(g.y, h)
 }
 
 /// The streamer's demand for a selection over `tree` ([`Streamer::set_demand`]): every block a

@@ -25,6 +25,14 @@ pub trait TerrainSource: NodeTree {
     /// Bilinear height (metres) at fractional grid position `g` (samples; clamped to the grid),
     /// from the finest data the source holds there.
     fn height(&self, g: DVec2) -> f32;
+
+    /// [`TerrainSource::height`] at each of `points`, into `out` (cleared first): the same
+    /// values as one call each, asked together so that a source may look them up together
+    /// (a store's under one lock, in a loop of lookups that do not wait for each other).
+    fn heights(&self, points: &[DVec2], out: &mut Vec<f32>) {
+        out.clear();
+        out.extend(points.iter().map(|&g| self.height(g)));
+    }
 }
 
 /// The in-memory terrain source: a heightmap and its quadtree.
@@ -80,5 +88,9 @@ impl TerrainSource for GridSource<'_> {
 impl<T: TerrainSource + ?Sized> TerrainSource for &T {
     fn height(&self, g: DVec2) -> f32 {
         (**self).height(g)
+    }
+
+    fn heights(&self, points: &[DVec2], out: &mut Vec<f32>) {
+        (**self).heights(points, out)
     }
 }

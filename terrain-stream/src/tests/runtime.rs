@@ -770,6 +770,90 @@ fn a_sample_read_exact_stays_exact_after_its_level_is_gone() {
     assert!(tree.visited_bytes() > fresh_tree.visited_bytes());
 }
 
+/// `StoreSource::heights` (PVPS's patch corners, asked in one call) gives what `height` gives
+/// point by point, bit for bit, over a streamer holding some blocks at some levels: samples
+/// known to the tree, samples of resident levels read for the first time, samples between a
+/// resident lattice's vertices, over blocks with nothing resident, on the grid's last row and
+/// column, and points between samples; repeated points too. Each kind occurs (the check
+/// counts them), so the comparison covers every path of both.
+#[test]
+fn heights_in_one_call_are_the_heights_one_by_one() {
+    use terrain_core::lod::TerrainSource;
+    let (_dir, store) = store("heights");
+    let config = StreamConfig { threads: 1, tau: 4.0, ..Default::default() };
+    let mut s = Streamer::new(store.clone(), config);
+    let h = store.header().clone();
+    // The blocks asked for at levels from the coarsest to the finest.
+    let demand: Vec<(BlockId, u8)> = store
+        .block_ids()
+        .enumerate()
+        .map(|(k, id)| (id, (k % (usize::from(h.k) + 1)) as u8))
+        .collect();
+    s.set_demand(Some(demand));
+    assert!(s.wait_until_resident(&camera(700.0), Duration::from_secs(60)).resident);
+    let (w, hh) = (h.width as u32, h.height as u32);
+    // A fixed linear congruential sequence (Knuth's MMIX constants), its top 53 bits in [0, 1).
+    let mut state = 0x51_7cc1_b727_220a_u64;
+    let mut unit = || {
+        state =
+            state.wrapping_mul(6_364_136_223_846_793_005).wrapping_add(1_442_695_040_888_963_407);
+        (state >> 11) as f64 / (1u64 << 53) as f64
+    };
+    let mut points = Vec::new();
+    for k in 0..3000 {
+        let (x, y) = ((unit() * f64::from(w)) as u32 % w, (unit() * f64::from(hh)) as u32 % hh);
+        let g = match k % 6 {
+            // Between samples.
+            0 => glam::DVec2::new(f64::from(x) + 0.25, f64::from(y) + 0.5)
+                .min(glam::DVec2::new(f64::from(w - 1), f64::from(hh - 1))),
+            // The last column, the last row.
+            1 => glam::DVec2::new(f64::from(w - 1), f64::from(y)),
+            2 => glam::DVec2::new(f64::from(x), f64::from(hh - 1)),
+            // On a coarse lattice (more of them resident).
+            3 => glam::DVec2::new(f64::from(x & !15), f64::from(y & !15)),
+            _ => glam::DVec2::new(f64::from(x), f64::from(y)),
+        };
+        points.push(g);
+        if k % 7 == 0 {
+            points.push(g);
+        }
+    }
+    // Over the streamer, then over one that holds nothing: each pair of sources starts from
+    // trees that know nothing.
+    let empty = Streamer::new(store.clone(), config);
+    let (mut resident, mut partly, mut absent) = (0, 0, 0);
+    for streamer in [&s, &empty] {
+        let (one_tree, all_tree) = (
+            crate::StoreTree::new(store.clone(), crate::DEFAULT_PATCH_CELLS),
+            crate::StoreTree::new(store.clone(), crate::DEFAULT_PATCH_CELLS),
+        );
+        let one = crate::StoreSource::new(&one_tree, streamer);
+        let all = crate::StoreSource::new(&all_tree, streamer);
+        // A first part asked in one call first: the second call finds those samples known.
+        let mut z = Vec::new();
+        all.heights(&points[..points.len() / 3], &mut z);
+        all.heights(&points, &mut z);
+        assert_eq!(z.len(), points.len());
+        for (&g, &got) in points.iter().zip(&z) {
+            assert_eq!(got.to_bits(), one.height(g).to_bits(), "{g}");
+            let b = BlockId::new(
+                (g.y as u32 / h.block_cells()).min(h.blocks_y - 1),
+                (g.x as u32 / h.block_cells()).min(h.blocks_x - 1),
+            );
+            match streamer.block(b).map(|l| l.count()) {
+                Some(c) if c == usize::from(h.k) + 1 => resident += 1,
+                Some(c) if c > 0 => partly += 1,
+                _ => absent += 1,
+            }
+        }
+    }
+    assert!(
+        resident > 100 && partly > 100 && absent > 100,
+        "{resident} wholly resident, {partly} partly, {absent} not"
+    );
+    drop(s);
+}
+
 /// The workers take the lowest tier waiting first: a level the view needs now overtakes the
 /// levels preloaded last (`Streamer::set_demand_later`) that an earlier frame queued, its own
 /// block's waiting request raised to the view's tier.
