@@ -39,9 +39,9 @@ use terrain_gpu::render::{DrawPatch, ExtraTriangles};
 use terrain_gpu::tess::PatchFactors;
 use terrain_gpu::{RenderError, TerrainRenderer};
 use terrain_stream::{
-    BlockId, DEFAULT_COST_SPLIT_PX, DEFAULT_PATCH_CELLS, DEFAULT_SPLIT, Demand, Refinement,
-    RemoteOptions, ScheduleConfig, SplitRule, Store, StoreError, StoreSource, StoreTree,
-    StreamConfig, Streamer, TreeWarmer, coarsen_to_budget, demand_and_held, demand_of,
+    BlockId, BlockLevelGrid, DEFAULT_COST_SPLIT_PX, DEFAULT_PATCH_CELLS, DEFAULT_SPLIT, Demand,
+    Refinement, RemoteOptions, ScheduleConfig, SplitRule, Store, StoreError, StoreSource,
+    StoreTree, StreamConfig, Streamer, TreeWarmer, coarsen_to_budget, demand_and_held, demand_of,
     select_patches,
 };
 
@@ -931,8 +931,10 @@ impl OocScene {
         let t0 = Instant::now();
         self.streamer.set_demand(None);
         self.streamer.set_budget_bytes(self.blocks_budget(None));
-        // Eq. 8's eye ahead (from the step to this camera: asked before the update).
+        // Eq. 8's eye ahead and the next frame's camera (from the step to this camera: asked
+        // before the update), for the tree's walks.
         let ahead = if warm { None } else { self.streamer.camera_ahead(camera) };
+        let next = self.streamer.camera_next(camera);
         let s = if warm {
             self.streamer.wait_until_resident(camera, self.config.warm_timeout).stats
         } else {
@@ -942,18 +944,17 @@ impl OocScene {
         stream.stream_ms = t0.elapsed().as_secs_f64() * 1e3;
         let (drawn, dropped) = self.assign_pages(warm);
         // The crack-free patches over the drawn blocks, each at most at its page's level.
-        let page_level: IdMap<BlockId, u8> = drawn.iter().copied().collect();
-        let selection =
-            select_patches(&self.tree, camera, self.config.tau, |b| page_level.get(&b).copied());
+        let page_level = BlockLevelGrid::new(&drawn);
+        let selection = select_patches(&self.tree, camera, self.config.tau, |b| page_level.get(b));
         debug_assert!(check_shared_edges(&selection).is_empty());
-        // The next frame's walk, beside this frame's drawing (the same patches either way).
-        if let Some(next) = ahead {
+        // The next frames' walks, beside this frame's drawing (the same patches either way).
+        if let (Some(ahead), Some(next)) = (ahead, next) {
             let (tree, on) = (&self.tree, self.config.warm_ahead);
             let warmer = self
                 .warmer
                 .get_or_insert_with(|| on.then(|| TreeWarmer::spawn(tree).ok()).flatten());
             if let Some(w) = warmer {
-                w.ahead(&next, self.config.tau, drawn.clone());
+                w.ahead(&ahead, &next, self.config.tau, drawn.clone());
             }
         }
         self.finish_frame(selection, None, &drawn, dropped, stream)

@@ -25,8 +25,10 @@
 //! - **Select** crack-free patches with tessellation factors: the out-of-core paper's method
 //!   ([`select_streamed`] / [`select_patches`] over the [`StoreTree`]), or any of terrain-core's
 //!   LOD selections over the store's terrain ([`StoreSource`], a `TerrainSource`; what they
-//!   need loaded: [`demand_of`]). A [`TreeWarmer`] walks the tree one frame ahead on its own
-//!   thread, so the next frame's selection finds the blocks it enters already read.
+//!   need loaded: [`demand_of`]; the drawn blocks' levels as a [`BlockLevelGrid`]). A
+//!   [`TreeWarmer`] walks the tree ahead on its own thread (at Eq. 8's eye and at the next
+//!   frame's camera, [`Streamer::camera_next`]), so the next frame's selection finds the
+//!   blocks it enters already read.
 //! - [`glam`] and the [`Camera`] are re-exported, so an embedder needs no other crate of ours.
 //!
 //! # Example
@@ -121,8 +123,8 @@ pub use format::{
 };
 pub use glam;
 pub use lod::{
-    DEFAULT_COST_SPLIT_PX, DEFAULT_MAX_SEGMENT_CELLS, DEFAULT_PATCH_CELLS, DEFAULT_SPLIT,
-    Refinement, SplitRule, StoreTree, select_patches, select_streamed,
+    BlockLevelGrid, DEFAULT_COST_SPLIT_PX, DEFAULT_MAX_SEGMENT_CELLS, DEFAULT_PATCH_CELLS,
+    DEFAULT_SPLIT, Refinement, SplitRule, StoreTree, select_patches, select_streamed,
 };
 pub use remote::{
     MULTIPART_ABOVE, RemoteOptions, UploadReport, check_remote_output, is_url, upload_store,

@@ -1375,6 +1375,20 @@ impl StoreTree {
         Some(v)
     }
 
+    /// A box holding block `b`'s (its nominal plan square, its parent node's heights: no
+    /// index entry read), `None` above the grid or for a store of one block.
+    pub(crate) fn block_box_bound(&self, b: BlockId) -> Option<Aabb> {
+        let h = self.store.header();
+        h.block_position(b)?;
+        let parent = NodeId { level: self.block_level.checked_sub(1)?, i: b.col / 2, j: b.row / 2 };
+        let [lo_z, hi_z] = self.with_upper(parent, |mm, _| mm);
+        let cells = f64::from(h.block_cells());
+        let (c, r) = (f64::from(b.col), f64::from(b.row));
+        let a = h.georef.grid_to_world(DVec2::new(c * cells, r * cells));
+        let z = h.georef.grid_to_world(DVec2::new((c + 1.0) * cells, (r + 1.0) * cells));
+        Some(Aabb { min: a.min(z).extend(f64::from(lo_z)), max: a.max(z).extend(f64::from(hi_z)) })
+    }
+
     /// Block `b`'s lowest height (its index entry's), from the tree's visited blocks (a block
     /// a selection is drawing over has been visited: no index page decoded again).
     pub(crate) fn block_min(&self, b: BlockId) -> Option<f32> {
@@ -1731,7 +1745,8 @@ impl NodeSource for FrameNodes<'_> {
 /// split and the culls, before the balance; its leaves in traversal order with their boxes
 /// and, inside blocks, their needed vertex levels (`StoreTree::needed_vertex_level_at`, at
 /// most the block's resident level; global levels), worked out when the traversal reports the
-/// leaf, while its block's entry is at hand.
+/// leaf, while its block's entry is at hand; above the blocks, the block-local level their
+/// split test found each of their blocks holds (`StoreTree::spanning_level`).
 fn traverse_store(
     tree: &StoreTree,
     camera: &Camera,
@@ -1769,6 +1784,9 @@ fn traverse_store(
     // Eq. 7's `rho` per metre of the last node the split test asked about: a leaf's factor
     // (`needed_vertex_level`) reuses it.
     let last_rho: Cell<Option<(NodeId, f64)>> = Cell::new(None);
+    // The spanning level of the last node above the blocks the split test kept whole (each of
+    // its blocks holds it): the leaf's level.
+    let last_span: Cell<Option<(NodeId, u8)>> = Cell::new(None);
     let mut split = |n: NodeId, info: &NodeInfo| -> bool {
         match tree.block_of(n) {
             Some((b, local)) => {
@@ -1784,14 +1802,21 @@ fn traverse_store(
                 .unwrap_or(true)
             }
             None => match tree.spanning_level(n, &info.aabb, &view) {
-                Some(l) => tree.least_resident(n, l, &resident).is_none_or(|r| r < l),
+                Some(l) => {
+                    let splits = tree.least_resident(n, l, &resident).is_none_or(|r| r < l);
+                    if !splits {
+                        last_span.set(Some((n, l)));
+                    }
+                    splits
+                }
                 None => true,
             },
         }
     };
     let mut stats = SelectionStats::default();
     // The leaves with their boxes, in traversal order: inside blocks (with their needed
-    // levels), and above them the patches spanning several blocks.
+    // levels), and above them the patches spanning several blocks (with their spanning
+    // levels).
     let mut boxed: Vec<(NodeId, Aabb, Option<u8>)> = Vec::new();
     traverse(&nodes, &mut split, &mut cull, &mut |n, v| {
         stats.visited += 1;
@@ -1803,10 +1828,13 @@ fn traverse_store(
                     // Eq. 7's `rho` per metre where the split test computed it.
                     let rho = last_rho.get().filter(|&(m, _)| m == n).map(|(_, r)| r);
                     let per_metre = || rho.unwrap_or_else(|| view.rho_per_metre(&info.aabb));
-                    let level = tree.block_of(n).and_then(|(b, _)| {
-                        let max = resident(b).unwrap_or(0);
-                        tree.needed_vertex_level_at(&nodes.memo, n, per_metre, &view, max)
-                    });
+                    let level = match tree.block_of(n) {
+                        Some((b, _)) => {
+                            let max = resident(b).unwrap_or(0);
+                            tree.needed_vertex_level_at(&nodes.memo, n, per_metre, &view, max)
+                        }
+                        None => last_span.get().filter(|&(m, _)| m == n).map(|(_, l)| l),
+                    };
                     boxed.push((n, info.aabb, level));
                 }
             }
@@ -1917,11 +1945,15 @@ pub(crate) fn select_patches_in(
             // A patch spanning `2^s` blocks per side: `2^(s + l)` segments put the level-`l`
             // vertices of each block (a balance-added child of a spanning leaf may miss `tau`
             // at any factor: then its largest), at most its blocks' least resident level.
+            // A traversal leaf's level is its spanning level: the split test kept it whole
+            // because each of its blocks holds that level, so their least is no lower.
             None => {
                 let s = bl - n.level;
-                let top = FACTOR_LEVELS.saturating_sub(s);
-                let l = aabb.and_then(|a| tree.spanning_level(n, &a, &view)).unwrap_or(top);
-                let l = l.min(tree.least_resident(n, 0, &resident).unwrap_or(0));
+                let l = level.unwrap_or_else(|| {
+                    let top = FACTOR_LEVELS.saturating_sub(s);
+                    let l = aabb.and_then(|a| tree.spanning_level(n, &a, &view)).unwrap_or(top);
+                    l.min(tree.least_resident(n, 0, &resident).unwrap_or(0))
+                });
                 (s + l).min(FACTOR_LEVELS)
             }
         };
@@ -1939,6 +1971,82 @@ pub(crate) fn select_patches_in(
     Selection { patches, stats }
 }
 
+/// The level of each of a set of blocks (a frame's drawn blocks and their page levels), for
+/// [`select_patches`]' `resident`: by position in the blocks' bounding rectangle of the block
+/// grid, so that a lookup is an array read. The selection asks it about every block under
+/// each node above the blocks that may be drawn as one patch (`least_resident`): over the
+/// 32769^2 store, 5,000-24,000 blocks a selection, each a hash lookup until 2026-12-07. A set
+/// spread thinly over a large rectangle (more than [`SPARSE_BLOCKS`] slots per block, a long
+/// diagonal view over a huge grid) keeps a hash map instead: the same answers.
+#[derive(Debug, Clone)]
+pub struct BlockLevelGrid {
+    /// The rectangle's south-west block and its columns.
+    col0: u32,
+    row0: u32,
+    cols: u32,
+    rows: u32,
+    /// Row-major over the rectangle, [`NO_LEVEL`] for a block not in the set.
+    levels: Vec<u8>,
+    /// The set itself, when the rectangle is too sparse.
+    sparse: Option<IdMap<BlockId, u8>>,
+}
+
+/// Slots of [`BlockLevelGrid`]'s rectangle per block of the set beyond which it keeps a map.
+const SPARSE_BLOCKS: usize = 16;
+
+/// [`BlockLevelGrid`]'s empty slot (a block's level is at most its store's `k`).
+const NO_LEVEL: u8 = u8::MAX;
+
+impl BlockLevelGrid {
+    /// The levels of `blocks` (a block listed twice keeps its last level).
+    pub fn new(blocks: &[(BlockId, u8)]) -> Self {
+        let (mut c0, mut r0, mut c1, mut r1) = (u32::MAX, u32::MAX, 0, 0);
+        for &(b, _) in blocks {
+            (c0, r0, c1, r1) = (c0.min(b.col), r0.min(b.row), c1.max(b.col), r1.max(b.row));
+        }
+        let (cols, rows) = if blocks.is_empty() { (0, 0) } else { (c1 - c0 + 1, r1 - r0 + 1) };
+        let area = cols as usize * rows as usize;
+        let sparse = area > SPARSE_BLOCKS * blocks.len() + 4096;
+        let mut grid = Self {
+            col0: c0,
+            row0: r0,
+            cols,
+            rows,
+            levels: Vec::new(),
+            sparse: sparse.then(|| blocks.iter().copied().collect()),
+        };
+        if !sparse {
+            grid.levels = vec![NO_LEVEL; area];
+            for &(b, level) in blocks {
+                let k = grid.slot(b).expect("a block of the set lies in its rectangle");
+                // A level of `NO_LEVEL` itself cannot be stored: none is (levels <= k).
+                grid.levels[k] = level;
+            }
+        }
+        grid
+    }
+
+    fn slot(&self, b: BlockId) -> Option<usize> {
+        let (c, r) = (b.col.wrapping_sub(self.col0), b.row.wrapping_sub(self.row0));
+        (c < self.cols && r < self.rows).then(|| r as usize * self.cols as usize + c as usize)
+    }
+
+    /// Whether the set is kept as a map (tests).
+    #[cfg(test)]
+    pub(crate) fn is_sparse(&self) -> bool {
+        self.sparse.is_some()
+    }
+
+    /// The level of block `b`, `None` when it is not in the set.
+    pub fn get(&self, b: BlockId) -> Option<u8> {
+        if let Some(map) = &self.sparse {
+            return map.get(&b).copied();
+        }
+        let level = *self.levels.get(self.slot(b)?)?;
+        (level != NO_LEVEL).then_some(level)
+    }
+}
+
 /// [`select_patches`] over what `streamer` holds: the blocks of its last frame's visual region
 /// M, each drawn at most at the coarser of its finest resident level and the level it needs
 /// (blocks with nothing resident are not drawn). Call after [`Streamer::update`] or
@@ -1951,7 +2059,7 @@ pub fn select_streamed(
     tau: f64,
     streamer: &Streamer,
 ) -> Selection {
-    let levels: HashMap<BlockId, u8> = streamer
+    let levels: Vec<(BlockId, u8)> = streamer
         .scheduled()
         .iter()
         .filter(|s| s.visible)
@@ -1960,5 +2068,6 @@ pub fn select_streamed(
             Some((s.block, (count.checked_sub(1)? as u8).min(s.needed)))
         })
         .collect();
-    select_patches(tree, camera, tau, |b| levels.get(&b).copied())
+    let levels = BlockLevelGrid::new(&levels);
+    select_patches(tree, camera, tau, |b| levels.get(b))
 }

@@ -452,6 +452,14 @@ impl Streamer {
         Some(Camera { position: camera.position + step * lookahead, ..*camera })
     }
 
+    /// The camera of the frame after the next [`Streamer::update`] with `camera`, as far as the
+    /// motion tells: `camera` moved by its step since the last update, once (a
+    /// [`crate::TreeWarmer`] walks there); `None` when [`Streamer::camera_ahead`] is.
+    pub fn camera_next(&self, camera: &Camera) -> Option<Camera> {
+        let step = self.step_to(camera);
+        (step != DVec3::ZERO).then(|| Camera { position: camera.position + step, ..*camera })
+    }
+
     /// The eye's step since the last update, the one motion Eq. 8 extrapolates; zero on the
     /// first frame and after a cut. A cut is a step longer than the last frame's view reached
     /// (the farthest vertex of its projected view region from its eye, in plan): a teleport,

@@ -1206,10 +1206,134 @@ fn a_walk_ahead_leaves_the_next_selection_no_block_to_read_and_the_same_patches(
             assert_eq!(warm.visited(), walked, "camera {k}: read blocks the walk did not");
         }
         if let Some(next) = path.get(k + 1) {
-            warmer.ahead(next, tau, all.clone());
+            warmer.ahead(next, next, tau, all.clone());
         }
     }
     warmer.wait_idle();
     assert_eq!(warmer.walks(), path.len() as u64 - 1);
     assert!(cold_reads >= 4, "the path read new blocks at {cold_reads} cameras only");
+}
+
+/// The walk at the next frame's camera: along a path down the view direction (far clip past
+/// the grid, so blocks only leave the view region), each frame drawing the blocks of the
+/// streamer's M for its camera (`next_frame_levels` over every block), a `TreeWarmer` told the
+/// next camera and this frame's drawn blocks leaves the next selection no block to read, and
+/// the same patches as a tree without. Told another camera for that walk (a view off the grid)
+/// and the next camera for the eye ahead, the frames read blocks first (the nodes that split
+/// because a block left the drawn set, which the walk over this frame's blocks keeps whole):
+/// the control.
+#[test]
+fn a_walk_at_the_next_camera_reads_what_the_blocks_left_behind_send_the_frame_into() {
+    let hm = terrain(1025, 1025);
+    let (_dir, store) = bake_store(&hm, "warm-next", 6, 4);
+    let every = crate::BlockLevelGrid::new(&store.block_ids().map(|b| (b, 6)).collect::<Vec<_>>());
+    let path: Vec<Camera> = (0..10)
+        .map(|k| {
+            let eye = dvec3(400.0 + 500.0 * k as f64, 400.0 + 500.0 * k as f64, 700.0);
+            Camera::from_yaw_pitch(eye, 45.0, -15.0).with_clip(1.0, 40_000.0)
+        })
+        .collect();
+    let off =
+        Camera::from_yaw_pitch(dvec3(-9000.0, -9000.0, 700.0), 225.0, -15.0).with_clip(1.0, 2000.0);
+    let tau = 1.0;
+    // The prediction holds every block the streamer puts in M for the camera (its box bound is
+    // looser than the entry's), and not every block.
+    let config = crate::StreamConfig { threads: 1, tau, ..Default::default() };
+    let mut streamer = crate::Streamer::new(store.clone(), config);
+    let tree = eq7_tree(&store, 4);
+    let mut left_out = 0;
+    for cam in path.iter().step_by(3) {
+        streamer.update(cam);
+        let predict = crate::warm::next_frame_levels(&tree, cam, &every);
+        let m: Vec<BlockId> =
+            streamer.scheduled().iter().filter(|s| s.visible).map(|s| s.block).collect();
+        assert!(!m.is_empty());
+        for &b in &m {
+            assert!(predict(b).is_some(), "{b} in M and not predicted");
+        }
+        let predicted = store.block_ids().filter(|&b| predict(b).is_some()).count();
+        left_out += usize::from(predicted < store.block_ids().count());
+        assert!(predicted <= m.len() * 3 / 2 + 4, "{predicted} predicted for {} in M", m.len());
+    }
+    assert!(left_out >= 2, "every block predicted at all but {left_out} cameras");
+    let mut reads = [0usize; 2];
+    let mut left = 0;
+    for (control, reads) in reads.iter_mut().enumerate() {
+        let (cold, warm) = (eq7_tree(&store, 4), eq7_tree(&store, 4));
+        let warmer = crate::TreeWarmer::spawn(&warm).unwrap();
+        let mut last: Option<Vec<(BlockId, u8)>> = None;
+        for (k, cam) in path.iter().enumerate() {
+            let predict = crate::warm::next_frame_levels(&cold, cam, &every);
+            let drawn: Vec<(BlockId, u8)> =
+                store.block_ids().filter_map(|b| Some((b, predict(b)?))).collect();
+            let levels = crate::BlockLevelGrid::new(&drawn);
+            if let Some(last) = &last {
+                assert!(drawn.len() <= last.len(), "camera {k}: blocks entered the view");
+                left += usize::from(control == 0 && drawn.len() < last.len());
+                warmer.ahead(cam, if control == 0 { cam } else { &off }, tau, last.clone());
+                warmer.wait_idle();
+            }
+            let a = select_patches(&cold, cam, tau, |b| levels.get(b));
+            let walked = warm.visited();
+            let b = select_patches(&warm, cam, tau, |b| levels.get(b));
+            assert_eq!(a.patches, b.patches, "camera {k}");
+            assert!(!b.patches.is_empty(), "camera {k}");
+            if k > 0 && warm.visited() != walked {
+                *reads += 1;
+            }
+            last = Some(drawn);
+        }
+    }
+    assert!(left >= 5, "blocks left the view at {left} cameras only");
+    assert_eq!(reads[0], 0, "the frames read blocks the walks did not");
+    assert!(reads[1] >= 2, "without the walk at the next camera: reads at {} cameras", reads[1]);
+}
+
+/// `BlockLevelGrid` answers what a map of its blocks answers, for every block in and around
+/// its rectangle: a compact set (an array over its rectangle), a set spread thinly along a
+/// diagonal of a large grid (a map), an empty set, and blocks listed twice (the last level).
+#[test]
+fn block_level_grid_answers_as_a_map() {
+    let mut sets: Vec<Vec<(BlockId, u8)>> = Vec::new();
+    // Most blocks of a 40 x 25 rectangle away from the origin, levels 0-8, a few listed twice.
+    let compact: Vec<(BlockId, u8)> = (0..25u32)
+        .flat_map(|r| (0..40u32).map(move |c| (r, c)))
+        .filter(|&(r, c)| (r * 7 + c * 3) % 5 != 0)
+        .map(|(r, c)| (BlockId::new(300 + r, 1000 + c), ((r + c) % 9) as u8))
+        .chain([(BlockId::new(301, 1001), 3), (BlockId::new(301, 1001), 7)])
+        .collect();
+    sets.push(compact);
+    // A thin diagonal over 3000 x 3000 blocks: 9 M slots for 3000 blocks.
+    sets.push((0..3000u32).map(|k| (BlockId::new(k, 2999 - k), (k % 6) as u8)).collect());
+    sets.push(Vec::new());
+    for (k, set) in sets.iter().enumerate() {
+        let grid = crate::BlockLevelGrid::new(set);
+        assert_eq!(grid.is_sparse(), k == 1, "set {k}");
+        let map: HashMap<BlockId, u8> = set.iter().copied().collect();
+        let (c0, r0) =
+            set.iter().fold((u32::MAX, u32::MAX), |(c, r), (b, _)| (c.min(b.col), r.min(b.row)));
+        let (c1, r1) = set.iter().fold((0, 0), |(c, r), (b, _)| (c.max(b.col), r.max(b.row)));
+        let (c0, r0) =
+            if set.is_empty() { (0, 0) } else { (c0.saturating_sub(3), r0.saturating_sub(3)) };
+        let step = if k == 1 { 7 } else { 1 };
+        let mut found = 0;
+        for r in (r0..=r1 + 3).step_by(step) {
+            for c in (c0..=c1 + 3).step_by(step) {
+                let b = BlockId::new(r, c);
+                assert_eq!(grid.get(b), map.get(&b).copied(), "set {k}, {b}");
+                found += usize::from(map.contains_key(&b));
+            }
+        }
+        // Each block of the set and its eight neighbours.
+        for &(b, _) in set {
+            for (dr, dc) in (0..3u32).flat_map(|r| (0..3u32).map(move |c| (r, c))) {
+                let n =
+                    BlockId::new((b.row + dr).saturating_sub(1), (b.col + dc).saturating_sub(1));
+                assert_eq!(grid.get(n), map.get(&n).copied(), "set {k}, {n}");
+                found += usize::from(map.contains_key(&n));
+            }
+        }
+        assert!(set.is_empty() || found > 1000, "set {k}: {found} blocks of the set asked");
+        assert_eq!(grid.get(BlockId::new(u32::MAX, u32::MAX)), None);
+    }
 }
