@@ -933,8 +933,10 @@ impl OocScene {
         self.streamer.set_budget_bytes(self.blocks_budget(None));
         // Eq. 8's eye ahead and the next frame's camera (from the step to this camera: asked
         // before the update), for the tree's walks.
-        let ahead = if warm { None } else { self.streamer.camera_ahead(camera) };
-        let next = self.streamer.camera_next(camera);
+        let (ahead, next) = match warm {
+            true => (None, None),
+            false => (self.streamer.camera_ahead(camera), self.streamer.camera_next(camera)),
+        };
         let s = if warm {
             self.streamer.wait_until_resident(camera, self.config.warm_timeout).stats
         } else {

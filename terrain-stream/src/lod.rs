@@ -1976,7 +1976,7 @@ pub(crate) fn select_patches_in(
 /// grid, so that a lookup is an array read. The selection asks it about every block under
 /// each node above the blocks that may be drawn as one patch (`least_resident`): over the
 /// 32769^2 store, 5,000-24,000 blocks a selection, each a hash lookup until 2026-12-07. A set
-/// spread thinly over a large rectangle (more than [`SPARSE_BLOCKS`] slots per block, a long
+/// spread thinly over a large rectangle (more than `SPARSE_BLOCKS` slots per block, a long
 /// diagonal view over a huge grid) keeps a hash map instead: the same answers.
 #[derive(Debug, Clone)]
 pub struct BlockLevelGrid {

@@ -1,5 +1,6 @@
-//! The tree warmer: a thread that walks a [`StoreTree`] one frame ahead (the out-of-core
-//! paper's Eq. 8 eye, [`crate::Streamer::camera_ahead`]), so that what the next frame's
+//! The tree warmer: a thread that walks a [`StoreTree`] ahead (at the out-of-core paper's
+//! Eq. 8 eye, [`crate::Streamer::camera_ahead`], and at the next frame's camera,
+//! [`crate::Streamer::camera_next`]), so that what the next frame's
 //! selection computes the first time it visits a block (the block's index entry, its part of
 //! the tree's `sub_max` and its entry's fine maxima pyramid) is computed beside the frame
 //! thread, not on it.
@@ -13,12 +14,14 @@
 //! view triangle) sends that frame into every block under it that still has a page, hundreds
 //! of blocks visited for the first time in one frame. Over the 32769^2 store's `fast_pass`
 //! (`ooc`), the frame thread read 44 blocks a frame for the first time (in 93 of 300 frames,
-//! 300-400 at once) with the first walk alone, 2 (in 22 frames) with both. It only fills the tree's caches, whose values are functions
-//! of the store: a selection gives the same patches with or without it, bit for bit, whatever
-//! the walk's timing (tested). It never starts a visit of the tree's blocks (the frame's
-//! selection does: `VisitedBlocks`), so the blocks it adds are kept with the current
-//! frame's. One walk is pending at most: a newer eye replaces an older one not yet walked, so
-//! a frame thread faster than the walks never queues work.
+//! 300-400 at once) with the first walk alone, 2 (in 22 frames) with both.
+//!
+//! The walks only fill the tree's caches, whose values are functions of the store: a
+//! selection gives the same patches with or without them, bit for bit, whatever their timing
+//! (tested). They never start a visit of the tree's blocks (the frame's selection does:
+//! `VisitedBlocks`), so the blocks they add are kept with the current frame's. One request
+//! is pending at most: a newer one replaces an older one not yet walked, so a frame thread
+//! faster than the walks never queues work.
 
 use std::panic::{AssertUnwindSafe, catch_unwind};
 use std::sync::{Arc, Condvar, Mutex, MutexGuard};
