@@ -1383,9 +1383,7 @@ impl StoreTree {
         let parent = NodeId { level: self.block_level.checked_sub(1)?, i: b.col / 2, j: b.row / 2 };
         let [lo_z, hi_z] = self.with_upper(parent, |mm, _| mm);
         let cells = f64::from(h.block_cells());
-        let (c, r) = (f64::from(b.col), f64::from(b.row));
-        let a = h.georef.grid_to_world(DVec2::new(c * cells, r * cells));
-        let z = h.georef.grid_to_world(DVec2::new((c + 1.0) * cells, (r + 1.0) * cells));
+        let (a, z) = (h.vertex_world(b, 0.0, 0.0), h.vertex_world(b, cells, cells));
         Some(Aabb { min: a.min(z).extend(f64::from(lo_z)), max: a.max(z).extend(f64::from(hi_z)) })
     }
 

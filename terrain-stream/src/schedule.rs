@@ -12,7 +12,9 @@
 //! cover) the extension moves each vertex `L + S` away from the polygon's centroid.
 
 use glam::DVec2;
-use terrain_core::geometry::{Camera, GroundRegion, project_view_to_ground};
+use terrain_core::geometry::{
+    Aabb, Camera, Classification, Frustum, GroundRegion, project_view_to_ground,
+};
 
 use crate::format::{BlockEntry, BlockId, Header};
 
@@ -138,6 +140,16 @@ pub(crate) fn polygon_meets_rect(poly: &[DVec2], lo: DVec2, hi: DVec2) -> bool {
         }
     }
     true
+}
+
+/// Whether a block with box `b` (world metres) is in the visual region M of a frame with view
+/// region `view` and frustum `frustum`: its plan rectangle meets the view region and the box
+/// is not outside the frustum (the paper's projected triangle alone keeps blocks below and
+/// beside a pitched view). The streamer's schedule and the tree warmer's prediction of the
+/// next frame's drawn blocks (`warm::next_frame_levels`) ask it.
+pub(crate) fn in_visual_region(view: &GroundRegion, frustum: &Frustum, b: &Aabb) -> bool {
+    polygon_meets_rect(view.vertices(), b.min.truncate(), b.max.truncate())
+        && frustum.classify(b) != Classification::Outside
 }
 
 /// The plan rectangle (world metres) of a block's valid (non-padding) vertices.

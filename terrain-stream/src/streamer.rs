@@ -79,7 +79,8 @@ use crate::cache::Cache;
 use crate::format::{BlockEntry, BlockId, Header};
 use crate::lod::{Refinement, View, needed_level, shading_level_in};
 use crate::schedule::{
-    Regions, ScheduleConfig, block_rect, blocks_under_bbox, polygon_meets_rect, regions,
+    Regions, ScheduleConfig, block_rect, blocks_under_bbox, in_visual_region, polygon_meets_rect,
+    regions,
 };
 use crate::stats::{Fault, FrameStats};
 use crate::store::{BlockLevels, Store};
@@ -820,12 +821,10 @@ impl Streamer {
         for id in eq7 {
             let Some(e) = self.summaries.get(store, id) else { continue };
             let e = &e;
-            let (lo, hi) = (e.lo, e.hi);
-            if !polygon_meets_rect(reg.view.vertices(), lo, hi)
-                || frustum.classify(&e.aabb()) == Classification::Outside
-            {
+            if !in_visual_region(&reg.view, &frustum, &e.aabb()) {
                 continue;
             }
+            let (lo, hi) = (e.lo, e.hi);
             if let Some(needed) = needed(id, e, &reg.view) {
                 in_m.insert(header, id);
                 let target = predicted(id, e, needed);

@@ -27,11 +27,11 @@ use std::panic::{AssertUnwindSafe, catch_unwind};
 use std::sync::{Arc, Condvar, Mutex, MutexGuard};
 use std::thread::JoinHandle;
 
-use terrain_core::geometry::{Camera, Classification, Frustum, project_view_to_ground};
+use terrain_core::geometry::{Camera, Frustum, project_view_to_ground};
 
 use crate::format::BlockId;
 use crate::lod::{BlockLevelGrid, StoreTree, Walk, select_patches_in};
-use crate::schedule::polygon_meets_rect;
+use crate::schedule::in_visual_region;
 
 /// A walk asked for: the eye ahead, the next frame's camera, Eq. 7's `tau` and the levels
 /// drawn now.
@@ -163,9 +163,9 @@ fn run(tree: &StoreTree, shared: &Shared) {
 }
 
 /// The levels the frame at `camera` will draw, as far as a walk can tell before it: each block
-/// of `drawn` (the levels drawn now) whose box meets `camera`'s view region (the projected
-/// view triangle) and is not outside its frustum, as the streamer's M is chosen
-/// (`Streamer::schedule`), with the box's heights bounded by the block's parent node's (no
+/// of `drawn` (the levels drawn now) in `camera`'s visual region M as the streamer chooses it
+/// (`schedule::in_visual_region`: its box meets the projected view triangle and is not
+/// outside the frustum), with the box's heights bounded by the block's parent node's (no
 /// index entry read). A block that leaves M has no page the next frame; one that enters it
 /// has none yet.
 pub(crate) fn next_frame_levels<'a>(
@@ -177,8 +177,6 @@ pub(crate) fn next_frame_levels<'a>(
     let frustum = Frustum::from_camera(camera);
     move |b: BlockId| {
         let level = drawn.get(b)?;
-        let bx = tree.block_box_bound(b)?;
-        let meets = polygon_meets_rect(view.vertices(), bx.min.truncate(), bx.max.truncate());
-        (meets && frustum.classify(&bx) != Classification::Outside).then_some(level)
+        in_visual_region(&view, &frustum, &tree.block_box_bound(b)?).then_some(level)
     }
 }

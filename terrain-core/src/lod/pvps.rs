@@ -48,7 +48,6 @@
 //! roughness image to 0..255 and gives no scale for A and B; put them on the same 0..255 scale
 //! (terrain-visibility's `NodePyramid::normalized_255`) so one `C1`, `C2` serves all three.
 
-use std::cell::RefCell;
 use std::time::Instant;
 
 use glam::{DVec2, DVec3};
@@ -58,7 +57,7 @@ use super::edges::{EdgeRule, resolve_all};
 use super::patch::{Edge, MAX_FACTOR, Patch, Selection, SelectionStats, clamp_factor};
 use super::run;
 use super::source::TerrainSource;
-use super::surface::{CORNERS_UV, edge_corners, patch_grid_point};
+use super::surface::{CORNERS_UV, edge_corners, patch_grid_point, patch_world_point};
 use crate::geometry::Camera;
 use crate::hash::KeyMap;
 use crate::heightmap::Heightmap;
@@ -172,10 +171,6 @@ struct PvpsEdges<'a> {
     finest: u8,
     /// `finest_transition_factor` as a power of two.
     scale: u32,
-    /// The heights of the patch corners looked up so far, by grid sample (`x << 32 | y`): a
-    /// corner is shared by up to four patches, and over a store each lookup finds the block
-    /// and its level.
-    heights: RefCell<KeyMap<f32>>,
 }
 
 impl<'a> PvpsEdges<'a> {
@@ -186,35 +181,13 @@ impl<'a> PvpsEdges<'a> {
         finest: u8,
         scale: u32,
     ) -> Self {
-        Self {
-            src,
-            screen_scale: run::ScreenScale::new(camera),
-            constant,
-            finest,
-            scale,
-            heights: RefCell::default(),
-        }
+        Self { src, screen_scale: run::ScreenScale::new(camera), constant, finest, scale }
     }
 
     /// `scale x EdgeLength / MinEdgeLength = scale x 2^(finest - level)`, clamped to 64.
     fn transition(&self, level: u8) -> f32 {
         let shift = self.finest.saturating_sub(level).min(12) as u32;
         (f64::from(self.scale) * f64::from(1u32 << shift)).min(f64::from(MAX_FACTOR)) as f32
-    }
-
-    /// [`patch_world_point`](super::surface::patch_world_point) of `node`'s corner `uv`, its
-    /// height looked up once per grid sample (a corner off the samples, none in practice, is
-    /// looked up every time).
-    fn corner(&self, node: NodeId, uv: [f32; 2]) -> DVec3 {
-        let shape = self.src.shape();
-        let g = patch_grid_point(shape, node, uv);
-        let z = if g.x.fract() == 0.0 && g.y.fract() == 0.0 {
-            let key = ((g.x as u64) << 32) | g.y as u64;
-            *self.heights.borrow_mut().entry(key).or_insert_with(|| self.src.height(g))
-        } else {
-            self.src.height(g)
-        };
-        shape.grid_to_world(g).extend(f64::from(z))
     }
 
     /// The screen length of `node`'s `edge`: the segment between its end corners, the same
@@ -224,9 +197,16 @@ impl<'a> PvpsEdges<'a> {
         self.lengths(node)[edge as usize]
     }
 
-    /// [`PvpsEdges::screen`] of `node`'s four edges ([`Edge::ALL`]'s order).
+    /// [`PvpsEdges::screen`] of `node`'s four edges ([`Edge::ALL`]'s order), its corners'
+    /// heights asked one by one (the edge rule's and the tests' path; a selection asks every
+    /// leaf's at once, [`PvpsEdges::all_lengths`]).
     fn lengths(&self, node: NodeId) -> [f64; 4] {
-        let c = CORNERS_UV.map(|uv| self.corner(node, uv));
+        self.edge_lengths(CORNERS_UV.map(|uv| patch_world_point(self.src, node, uv)))
+    }
+
+    /// The screen lengths of the four edges of a patch with world corners `c`
+    /// ([`CORNERS_UV`]'s order), in [`Edge::ALL`]'s order.
+    fn edge_lengths(&self, c: [DVec3; 4]) -> [f64; 4] {
         Edge::ALL.map(|e| {
             let (a, b) = edge_corners(e);
             self.screen_scale.length(c[a], c[b])
@@ -268,16 +248,7 @@ impl<'a> PvpsEdges<'a> {
         self.src.heights(&points, &mut z);
         let world =
             |s: u32| shape.grid_to_world(points[s as usize]).extend(f64::from(z[s as usize]));
-        slots
-            .iter()
-            .map(|s| {
-                let c = s.map(world);
-                Edge::ALL.map(|e| {
-                    let (a, b) = edge_corners(e);
-                    self.screen_scale.length(c[a], c[b])
-                })
-            })
-            .collect()
+        slots.iter().map(|s| self.edge_lengths(s.map(world))).collect()
     }
 
     /// Algorithm 1, Y = 0, of an edge of screen length `screen`.
