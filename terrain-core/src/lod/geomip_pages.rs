@@ -27,8 +27,8 @@ use rustc_hash::FxHashMap;
 
 use super::geomip_file::GeomipFileError;
 use super::geomipmap::{
-    MAX_LEVELS, NodeBound, PatchEntries, PyramidLevel, dilate, merge_up, scaled_error,
-    scaled_height, vertex_range, z_union,
+    MAX_LEVELS, NodeBound, PatchEntries, PyramidLevel, dilate, first_levels, merge_up,
+    scaled_error, scaled_height, vertex_range, z_union,
 };
 use crate::checksum::crc32;
 
@@ -503,9 +503,9 @@ impl PagedEntries {
             }
         };
         let at = (k - p * self.layout.page_patches) * l;
-        out.errors[..l].copy_from_slice(&page.errors[at..at + l]);
-        out.heights[..l].copy_from_slice(&page.heights[at..at + l]);
-        out.vertices[..l].copy_from_slice(&page.vertices[at..at + l]);
+        out.errors = first_levels(&page.errors[at..at + l]);
+        out.heights = first_levels(&page.heights[at..at + l]);
+        out.vertices = first_levels(&page.vertices[at..at + l]);
         out
     }
 
@@ -555,26 +555,26 @@ impl PagedEntries {
         }
         let shift = m0 - m;
         let at = (i >> shift, j >> shift);
-        let hit =
-            memo.tile.borrow().as_ref().filter(|(t, _)| *t == at).map(|(_, tile)| tile.clone());
-        let tile = match hit {
-            Some(tile) => Some(tile),
-            None => self.tile(at.0, at.1).map(|(tile, kept)| {
-                if kept {
-                    *memo.tile.borrow_mut() = Some((at, tile.clone()));
-                }
-                tile
-            }),
+        let bound_in = |tile: &Tile| {
+            let lv = &tile.levels[m];
+            let side = lv.nx;
+            let k = ((j - ((j >> shift) << shift)) * side + (i - ((i >> shift) << shift))) as usize;
+            lv.bound(k, l)
         };
-        let Some(tile) = tile else {
+        // The memo's tile read in place (no reference count changed per node).
+        if let Some((_, tile)) = memo.tile.borrow().as_ref().filter(|(t, _)| *t == at) {
+            return Some(bound_in(tile));
+        }
+        let Some((tile, kept)) = self.tile(at.0, at.1) else {
             // A page under it not here yet: the summary node holding it bounds it (its region,
             // dilated, holds the node's).
             return Some(self.summary_node(i >> shift, j >> shift));
         };
-        let lv = &tile.levels[m];
-        let side = lv.nx;
-        let k = ((j - ((j >> shift) << shift)) * side + (i - ((i >> shift) << shift))) as usize;
-        Some(lv.bound(k, l))
+        let bound = bound_in(&tile);
+        if kept {
+            *memo.tile.borrow_mut() = Some((at, tile));
+        }
+        Some(bound)
     }
 
     /// Node `(i, j)` of the summary level (nodes `2^summary_level` patches wide).
