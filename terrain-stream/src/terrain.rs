@@ -42,11 +42,11 @@ impl<'a> StoreSource<'a> {
     /// Height of grid sample `(x, y)`: the stored sample when a block holding it has its level
     /// resident or it was read so before through the same tree (the tree keeps the samples
     /// read exact: a stored sample never changes), else the finest resident lattice's
-    /// bilinear value of the block it lies in (the south-west-most holder), else that block's
-    /// lowest height.
+    /// bilinear value of the block it lies in (the south-west-most holder), else a height at
+    /// or below that block's lowest (its parent node's least in the tree's pyramid).
     pub fn sample(&self, x: u32, y: u32) -> f32 {
-        // One lock a sample, held while it is read (the tree's visited blocks may be asked
-        // under it, `block_min`; nothing takes this lock under theirs).
+        // One lock a sample, held while it is read (the tree's pyramid may be asked under it,
+        // `block_floor`; nothing takes this lock under its).
         self.sample_in(&mut self.tree.known_samples(), x, y)
     }
 
@@ -88,7 +88,7 @@ impl<'a> StoreSource<'a> {
             return z;
         }
         let id = BlockId::new(by.min(h.blocks_y - 1), bx.min(h.blocks_x - 1));
-        self.tree.block_min(id).unwrap_or(0.0)
+        self.tree.block_floor(id).unwrap_or(0.0)
     }
 }
 
