@@ -1388,7 +1388,8 @@ impl StoreTree {
     }
 
     /// A height at or below every one of block `b`'s: the least height of the node above it
-    /// in the tree's pyramid (its four blocks' least), with no index entry read; the block's
+    /// in the tree's pyramid (its four blocks' least; on a grid of more than `2^HEAD_LEVELS`
+    /// blocks a side, its ancestor's in the index's head), with no index entry read; the block's
     /// own entry's for a store of one block. A stand-in for a block without a resident level
     /// ([`crate::StoreSource`]): the frame thread asks it for patch corners in blocks nobody
     /// has visited (far patches spanning blocks, blocks just entering the view). Through the
@@ -1396,11 +1397,16 @@ impl StoreTree {
     /// its samples over the 32769^2 store's `fast_pass`.
     pub(crate) fn block_floor(&self, b: BlockId) -> Option<f32> {
         self.store.header().block_position(b)?;
-        let Some(level) = self.block_level.checked_sub(1) else {
+        let Some(parent) = self.block_level.checked_sub(1) else {
             return self.visited_block(b).map(|(e, _)| e.min);
         };
-        let parent = NodeId { level, i: b.col / 2, j: b.row / 2 };
-        let [lo, _] = self.with_upper(parent, |mm, _| mm);
+        // The parent, or its ancestor in the index's head when the grid has more blocks a side
+        // than the head keeps levels for (below it a node's values come from its blocks'
+        // entries).
+        let level = parent.min(self.upper_levels.saturating_sub(1));
+        let s = self.block_level - level;
+        let node = NodeId { level, i: b.col >> s, j: b.row >> s };
+        let [lo, _] = self.with_upper(node, |mm, _| mm);
         // `+inf` over blocks without a valid vertex.
         lo.is_finite().then_some(lo)
     }
