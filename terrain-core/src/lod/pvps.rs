@@ -224,23 +224,26 @@ impl<'a> PvpsEdges<'a> {
         let mut slot_of: KeyMap<u32> = KeyMap::default();
         slot_of.reserve(leaves.len() + leaves.len() / 2 + 4);
         let mut points: Vec<DVec2> = Vec::with_capacity(leaves.len() + leaves.len() / 2 + 4);
+        // A corner is a grid sample: `patch_grid_point` at `CORNERS_UV` (a node's rectangle
+        // clamped to the grid), in integers.
+        let (w, h) = (u64::from(shape.width() - 1), u64::from(shape.height() - 1));
+        let root = shape.root_cells();
         let slots: Vec<[u32; 4]> = leaves
             .iter()
             .map(|&node| {
-                CORNERS_UV.map(|uv| {
-                    let g = patch_grid_point(shape, node, uv);
+                let (x0, y0, c) = node.grid_rect(root);
+                let (x0, y0, c) = (u64::from(x0), u64::from(y0), u64::from(c));
+                CORNERS_UV.map(|[u, v]| {
+                    let x = (x0 + u as u64 * c).min(w);
+                    let y = (y0 + v as u64 * c).min(h);
                     let next = points.len() as u32;
-                    if g.x.fract() == 0.0 && g.y.fract() == 0.0 {
-                        let key = ((g.x as u64) << 32) | g.y as u64;
-                        let slot = *slot_of.entry(key).or_insert(next);
-                        if slot == next {
-                            points.push(g);
-                        }
-                        slot
-                    } else {
+                    let slot = *slot_of.entry((x << 32) | y).or_insert(next);
+                    if slot == next {
+                        let g = DVec2::new(x as f64, y as f64);
+                        debug_assert_eq!(g, patch_grid_point(shape, node, [u, v]));
                         points.push(g);
-                        next
                     }
+                    slot
                 })
             })
             .collect();
