@@ -43,10 +43,11 @@ impl<'a> StoreSource<'a> {
     /// resident or it was read so before through the same tree (the tree keeps the samples
     /// read exact: a stored sample never changes), else the finest resident lattice's
     /// bilinear value of the block it lies in (the south-west-most holder), else a height at
-    /// or below that block's lowest (its parent node's least in the tree's pyramid).
+    /// or below that block's lowest (the least of its parent node, or of an ancestor, in the
+    /// tree's pyramid above the blocks).
     pub fn sample(&self, x: u32, y: u32) -> f32 {
-        // One lock a sample, held while it is read (the tree's pyramid may be asked under it,
-        // `block_floor`; nothing takes this lock under its).
+        // One lock a sample, held while it is read (the stand-in height, `block_floor`, reads
+        // the tree's pyramid above the blocks, with no lock).
         self.sample_in(&mut self.tree.known_samples(), x, y)
     }
 

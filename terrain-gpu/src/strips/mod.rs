@@ -235,7 +235,7 @@ pub fn build_strips_with(frame: &DssStripFrame, parallel: bool) -> StripMesh {
 /// strip's slots zeroed just before it writes them (in the CPU's cache), where the parallel
 /// build zeroes its whole buffer first (over the 32769^2 store's `fast_pass`, 1,500 strips a
 /// frame, 5-6 MB: that zeroing was two thirds of the parallel build and a fifth of
-/// `dss-strips`' frame CPU on the frame thread). The same output as the parallel build.
+/// `dss-strips`' selection). The same output as the parallel build.
 fn build_strips_serial(frame: &DssStripFrame, start: Instant) -> StripMesh {
     let sizes: Vec<(usize, usize)> = frame.strips.iter().map(|s| strip_size(frame, s)).collect();
     let (np, ni) = sizes.iter().fold((0, 0), |(p, i), &(a, b)| (p + a, i + b));

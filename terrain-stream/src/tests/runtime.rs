@@ -729,7 +729,8 @@ fn a_sample_read_exact_stays_exact_after_its_level_is_gone() {
     // A `StoreSource` keeps the samples it read exact in its tree: read through a streamer
     // that holds their levels, then through one that holds nothing, the same tree gives the
     // stored heights again, bit for bit; a fresh tree over the empty streamer gives the
-    // fallback (a height at or below the block's lowest) for most of them, so the check can fail.
+    // fallback (a height at or below the block's lowest) for most of them, so the check can
+    // fail.
     let (_dir, store) = store("known");
     let tree = crate::StoreTree::new(store.clone(), crate::DEFAULT_PATCH_CELLS);
     let config = StreamConfig { threads: 1, tau: 4.0, ..Default::default() };
