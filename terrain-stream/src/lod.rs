@@ -1375,38 +1375,43 @@ impl StoreTree {
         Some(v)
     }
 
-    /// A box holding block `b`'s (its nominal plan square, its parent node's heights: no
-    /// index entry read), `None` above the grid or for a store of one block.
+    /// The least and greatest heights of the node above block `b` in the tree's pyramid (its
+    /// parent; on a grid of more than `2^HEAD_LEVELS` blocks a side, its ancestor in the
+    /// index's head, since below the head a node's values come from its blocks' entries): a
+    /// range holding every one of `b`'s heights, with no index entry read. `None` above the
+    /// grid or for a store of one block.
+    fn heights_over(&self, b: BlockId) -> Option<[f32; 2]> {
+        self.store.header().block_position(b)?;
+        let parent = self.block_level.checked_sub(1)?;
+        let level = parent.min(self.upper_levels.saturating_sub(1));
+        let s = self.block_level - level;
+        Some(self.with_upper(NodeId { level, i: b.col >> s, j: b.row >> s }, |mm, _| mm))
+    }
+
+    /// A box holding block `b`'s (its nominal plan square, the heights over it,
+    /// [`StoreTree::heights_over`]: no index entry read), `None` above the grid or for a store
+    /// of one block.
     pub(crate) fn block_box_bound(&self, b: BlockId) -> Option<Aabb> {
         let h = self.store.header();
-        h.block_position(b)?;
-        let parent = NodeId { level: self.block_level.checked_sub(1)?, i: b.col / 2, j: b.row / 2 };
-        let [lo_z, hi_z] = self.with_upper(parent, |mm, _| mm);
+        let [lo_z, hi_z] = self.heights_over(b)?;
         let cells = f64::from(h.block_cells());
         let (a, z) = (h.vertex_world(b, 0.0, 0.0), h.vertex_world(b, cells, cells));
         Some(Aabb { min: a.min(z).extend(f64::from(lo_z)), max: a.max(z).extend(f64::from(hi_z)) })
     }
 
-    /// A height at or below every one of block `b`'s: the least height of the node above it
-    /// in the tree's pyramid (its four blocks' least; on a grid of more than `2^HEAD_LEVELS`
-    /// blocks a side, its ancestor's in the index's head), with no index entry read; the block's
-    /// own entry's for a store of one block. A stand-in for a block without a resident level
+    /// A height at or below every one of block `b`'s: the least height over it
+    /// ([`StoreTree::heights_over`]), with no index entry read; the block's own entry's for a
+    /// store of one block. A stand-in for a block without a resident level
     /// ([`crate::StoreSource`]): the frame thread asks it for patch corners in blocks nobody
     /// has visited (far patches spanning blocks, blocks just entering the view). Through the
     /// block's own entry those asks decoded index pages inside `pvps-b`'s selection, 14 % of
     /// its samples over the 32769^2 store's `fast_pass`.
     pub(crate) fn block_floor(&self, b: BlockId) -> Option<f32> {
         self.store.header().block_position(b)?;
-        let Some(parent) = self.block_level.checked_sub(1) else {
+        if self.block_level == 0 {
             return self.visited_block(b).map(|(e, _)| e.min);
-        };
-        // The parent, or its ancestor in the index's head when the grid has more blocks a side
-        // than the head keeps levels for (below it a node's values come from its blocks'
-        // entries).
-        let level = parent.min(self.upper_levels.saturating_sub(1));
-        let s = self.block_level - level;
-        let node = NodeId { level, i: b.col >> s, j: b.row >> s };
-        let [lo, _] = self.with_upper(node, |mm, _| mm);
+        }
+        let [lo, _] = self.heights_over(b)?;
         // `+inf` over blocks without a valid vertex.
         lo.is_finite().then_some(lo)
     }

@@ -34,6 +34,19 @@ fn paged_store(name: &str) -> super::Scratch {
     dir
 }
 
+/// A 4097 x 17 store in blocks of 8 cells: 512 x 2 blocks, 9 levels above the blocks, one
+/// more than the head's pyramid holds (`HEAD_LEVELS`).
+fn deep_store(name: &str) -> super::Scratch {
+    let dir = super::scratch_store(&format!("terrain-pages-{name}-"));
+    let hm = Heightmap::from_fn(4097, 17, Georef::local(10.0), |i, j| {
+        300.0 + 250.0 * ((i as f32) * 0.0031).sin() + ((i * 7 + j * 13) % 23) as f32
+    })
+    .unwrap();
+    let cfg = BakeConfig { k: 3, node_levels: 2, ..Default::default() };
+    bake(&hm, &dir, &cfg, &mut |_: &BakeProgress| std::ops::ControlFlow::Continue(())).unwrap();
+    dir
+}
+
 /// The folder `to` with `from`'s blocks and `index` as its index.
 fn with_index(from: &Path, to: &Path, index: &[u8]) {
     let _ = std::fs::remove_dir_all(to);
@@ -299,15 +312,7 @@ fn the_blocks_box_and_nearest_block_equal_the_brute_force_over_every_entry() {
 
 #[test]
 fn a_grid_beyond_the_head_pyramid_selects_as_the_whole_read_tree_without_reading_every_entry() {
-    // 4097 x 17 samples in blocks of 8 cells: 512 x 2 blocks, 9 levels above the blocks, one
-    // more than the head's pyramid holds (`HEAD_LEVELS`).
-    let dir = super::scratch_store("terrain-pages-deep-");
-    let hm = Heightmap::from_fn(4097, 17, Georef::local(10.0), |i, j| {
-        300.0 + 250.0 * ((i as f32) * 0.0031).sin() + ((i * 7 + j * 13) % 23) as f32
-    })
-    .unwrap();
-    let cfg = BakeConfig { k: 3, node_levels: 2, ..Default::default() };
-    bake(&hm, &dir, &cfg, &mut |_: &BakeProgress| std::ops::ControlFlow::Continue(())).unwrap();
+    let dir = deep_store("deep");
     let (header, head, _) = head_of(&dir);
     assert_eq!((header.blocks_x, header.blocks_y), (512, 2));
     assert_eq!(head.levels, crate::pages::HEAD_LEVELS);
@@ -415,13 +420,7 @@ fn a_streamers_frames_read_the_index_once_not_every_frame() {
 /// parents are in the head and on one with more blocks a side than the head has levels for.
 #[test]
 fn a_sample_without_a_resident_level_reads_no_index_page() {
-    let deep = super::scratch_store("terrain-pages-floor-deep-");
-    let hm = Heightmap::from_fn(4097, 17, Georef::local(10.0), |i, j| {
-        300.0 + 250.0 * ((i as f32) * 0.0031).sin() + ((i * 7 + j * 13) % 23) as f32
-    })
-    .unwrap();
-    let cfg = BakeConfig { k: 3, node_levels: 2, ..Default::default() };
-    bake(&hm, &deep, &cfg, &mut |_: &BakeProgress| std::ops::ControlFlow::Continue(())).unwrap();
+    let deep = deep_store("floor-deep");
     let shallow = paged_store("floor");
     for dir in [&*shallow, &*deep] {
         let (h, whole) = read_index(&std::fs::read(dir.join(INDEX_FILE)).unwrap()).unwrap();
